@@ -1,0 +1,51 @@
+"""frictionwatch command line: one small module per subcommand (after python-can's can/cli.py).
+
+Every expected failure (bad engine file, unknown effect, unreadable log) ends with ONE line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from core.engine import SpecError
+
+COMMANDS = {
+    "simulate": "service.cmd_simulate",
+    "analyze": "service.cmd_analyze",
+    "import-daq": "service.cmd_import_daq",
+}
+
+
+class UsageError(Exception):
+    """A problem the user can fix; printed as one line, exit code 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="frictionwatch", description="Per-cylinder engine friction monitor")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log warnings and details to stderr")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, module in COMMANDS.items():
+        importlib.import_module(module).add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR, format="%(levelname)s %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except (UsageError, SpecError, ValueError, FileNotFoundError) as exc:
+        if args.verbose:
+            raise
+        print(f"frictionwatch {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

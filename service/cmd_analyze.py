@@ -1,0 +1,91 @@
+"""`frictionwatch analyze LOG.mcap`: per-cylinder friction from a replay log (table, JSON, CSV, plots)."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from pathlib import Path
+
+from service.pipeline import LogAnalysis, analyze_log
+from service.progress import progress_bar
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("analyze", help="analyse a replay log: per-cylinder losses")
+    p.add_argument("log", type=Path, help="LOG.mcap")
+    p.add_argument("--engine", help="engine preset or TOML file (default: the spec stored in the log)")
+    p.add_argument("--json", action="store_true", help="print one JSON document instead of the table")
+    p.add_argument("--csv", type=Path, metavar="OUT", help="write per-cycle, per-cylinder rows to OUT")
+    p.add_argument("--plot", type=Path, metavar="DIR", help="write PNG plots to DIR")
+    p.set_defaults(func=run)
+
+
+def summary(analysis: LogAnalysis) -> dict:
+    """The analysis as one JSON-able document; the keys match the simulator's truth file."""
+    last = analysis.last
+    doc: dict = {
+        "engine": analysis.spec.name,
+        "cycles_ok": len(analysis.results),
+        "cycles_skipped": dict(sorted(analysis.skipped.items())),
+        "log_damage": dict(sorted(analysis.damage.items())),
+    }
+    if last is not None:
+        doc.update(last.to_json())
+    return doc
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.log.exists():
+        raise FileNotFoundError(f"no such log: {args.log}")
+    with progress_bar(total=0, desc=f"analyze {args.log.name}") as bar:
+        analysis = analyze_log(args.log, args.engine, on_result=lambda r: bar.update(1))
+    if not analysis.results:
+        reasons = ", ".join(f"{k}: {v}" for k, v in analysis.skipped.most_common()) or "no complete cycle in the log"
+        damage = ", ".join(f"{k}: {v}" for k, v in analysis.damage.most_common())
+        print(f"frictionwatch analyze: error: no good cycle in {args.log.name} ({reasons}"
+              + (f"; log damage {damage}" if damage else "") + ")", file=sys.stderr)
+        return 2
+    doc = summary(analysis)
+    if args.csv:
+        write_csv(analysis, args.csv)
+    if args.plot:
+        from service.plots import write_plots
+
+        write_plots(analysis, args.plot)
+    if args.json:
+        print(json.dumps(doc, indent=1))
+    else:
+        print_table(doc)
+    return 0
+
+
+def print_table(doc: dict) -> None:
+    print(f"{doc['engine']}: {doc['cycles_ok']} cycles analysed, skipped {sum(doc['cycles_skipped'].values())}"
+          + (f" ({', '.join(f'{k} {v}' for k, v in doc['cycles_skipped'].items())})" if doc["cycles_skipped"] else ""))
+    if doc["log_damage"]:
+        print("log damage: " + ", ".join(f"{k} {v}" for k, v in doc["log_damage"].items()))
+    print(f"speed {doc.get('rpm_mean', float('nan')):.1f} rpm, load {doc.get('load_torque_nm', float('nan')):.1f} N m, "
+          f"engine FMEP {doc['fmep_bar']:.3f} bar")
+    print(f"{'cyl':>4} {'IMEP bar':>9} {'Pmax bar':>9} {'@ degCA':>8} {'friction N m':>14} {'± 1σ':>8} {'FMEP bar':>9}")
+    for c in doc["cylinders"]:
+        sigma = c.get("friction_torque_sigma_nm")
+        fric = c["friction_torque_mean_nm"]
+        print(f"{c['cylinder']:>4} {c['imep_bar']:>9.3f} {c.get('pmax_bar', float('nan')):>9.1f} "
+              f"{c.get('pmax_angle_deg', float('nan')):>8.1f} "
+              f"{'unresolved' if fric is None else f'{fric:.2f}':>14} {'' if sigma is None else f'{sigma:.2f}':>8} "
+              f"{'' if c['fmep_bar'] is None else format(c['fmep_bar'], '.3f'):>9}")
+
+
+def write_csv(analysis: LogAnalysis, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["cycle", "t_start_s", "rpm_mean", "cylinder", "imep_bar", "pmax_bar", "friction_torque_mean_nm",
+                    "fmep_bar"])
+        for r in analysis.results:
+            d = r.to_json(smoothed=False)
+            for c in d["cylinders"]:
+                w.writerow([d["cycle"], d["t_start_s"], d["rpm_mean"], c["cylinder"], c["imep_bar"], c.get("pmax_bar"),
+                            c["friction_torque_mean_nm"], c["fmep_bar"]])
