@@ -26,3 +26,6 @@ lint: $(STAMP)
 
 clean:
 	rm -rf $(VENV) .pytest_cache
+
+demo-logs: $(STAMP)
+	sed -n '/^```sh/,/^```/p' replay_logs/README.md | grep '^frictionwatch' | while read -r cmd; do $(BIN)/$$cmd || exit 1; done

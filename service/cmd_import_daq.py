@@ -15,6 +15,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("file", type=Path, help="tab-separated table, optionally .gz")
     p.add_argument("--engine", default="tue-4gb10", help="engine preset or TOML file stored in the log")
     p.add_argument("--wheel", default="60-2", help="crank wheel as TEETH-MISSING, e.g. 60-2")
+    p.add_argument("--tdc-deg", type=float, default=None,
+                   help="crank angle of cylinder-1 firing TDC after the first tooth past the gap [deg] (TU/e: 244.5)")
+    p.add_argument("--gain-bar-per-v", type=float, default=None,
+                   help="pressure sensor gain [bar/V] (TU/e: 12.4); with --self-calibrate it is fitted per cycle")
+    p.add_argument("--self-calibrate", action="store_true", help="fit the gain from the compression stroke")
+    p.add_argument("--peg", choices=("polytropic", "bdc"), default="polytropic", help="pressure pegging method")
+    p.add_argument("--peg-bar", type=float, default=1.0, help="intake-BDC pressure for --peg bdc [bar]")
+    p.add_argument("--n-poly", type=float, default=1.32, help="compression polytropic exponent for pegging")
     p.add_argument("-o", "--output", required=True, type=Path)
     p.set_defaults(func=run)
 
@@ -23,7 +31,14 @@ def run(args: argparse.Namespace) -> int:
     if not args.file.exists():
         raise FileNotFoundError(f"no such file: {args.file}")
     spec = load_engine(args.engine)
-    info, records = daq_to_records(args.file, wheel=args.wheel)
+    options: dict = {"peg": args.peg, "peg_pa": args.peg_bar * 1e5, "n_poly": args.n_poly}
+    if args.tdc_deg is not None:
+        options["tdc_deg"] = args.tdc_deg
+    if args.self_calibrate:
+        options["gain_pa_per_v"] = None
+    elif args.gain_bar_per_v is not None:
+        options["gain_pa_per_v"] = args.gain_bar_per_v * 1e5
+    info, records = daq_to_records(args.file, wheel=args.wheel, engine=spec, **options)
     args.output.parent.mkdir(parents=True, exist_ok=True)
     with LogWriter(args.output, spec.source_text, info) as writer:
         for record in records:
