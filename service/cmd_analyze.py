@@ -66,14 +66,14 @@ def print_table(doc: dict) -> None:
           + (f" ({', '.join(f'{k} {v}' for k, v in doc['cycles_skipped'].items())})" if doc["cycles_skipped"] else ""))
     if doc["log_damage"]:
         print("log damage: " + ", ".join(f"{k} {v}" for k, v in doc["log_damage"].items()))
-    print(f"speed {doc.get('rpm_mean', float('nan')):.1f} rpm, load {doc.get('load_torque_nm', float('nan')):.1f} N m, "
-          f"engine FMEP {doc['fmep_bar']:.3f} bar")
+    print(f"speed {doc.get('rpm') or float('nan'):.1f} rpm, load {doc.get('load_torque_nm') or float('nan'):.1f} N m, "
+          f"engine FMEP {_fmt(doc['fmep_bar'], '.3f')} ± {_fmt(doc.get('fmep_sigma_bar'), '.3f')} bar")
     print(f"{'cyl':>4} {'IMEP bar':>9} {'Pmax bar':>9} {'@ degCA':>8} {'friction N m':>14} {'± 1σ':>8} {'FMEP bar':>9}")
     for c in doc["cylinders"]:
         sigma = c.get("friction_torque_sigma_nm")
         fric = c["friction_torque_mean_nm"]
-        print(f"{c['cylinder']:>4} {c['imep_bar']:>9.3f} {c.get('pmax_bar', float('nan')):>9.1f} "
-              f"{c.get('pmax_angle_deg', float('nan')):>8.1f} "
+        print(f"{c['cylinder']:>4} {_fmt(c['imep_bar'], '.3f'):>9} {c.get('pmax_bar') or float('nan'):>9.1f} "
+              f"{c.get('pmax_angle_deg') or float('nan'):>8.1f} "
               f"{'unresolved' if fric is None else f'{fric:.2f}':>14} {'' if sigma is None else f'{sigma:.2f}':>8} "
               f"{'' if c['fmep_bar'] is None else format(c['fmep_bar'], '.3f'):>9}")
 
@@ -82,10 +82,14 @@ def write_csv(analysis: LogAnalysis, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["cycle", "t_start_s", "rpm_mean", "cylinder", "imep_bar", "pmax_bar", "friction_torque_mean_nm",
+        w.writerow(["cycle", "t_start_s", "rpm", "cylinder", "imep_bar", "pmax_bar", "friction_torque_mean_nm",
                     "fmep_bar"])
         for r in analysis.results:
             d = r.to_json(smoothed=False)
             for c in d["cylinders"]:
-                w.writerow([d["cycle"], d["t_start_s"], d["rpm_mean"], c["cylinder"], c["imep_bar"], c.get("pmax_bar"),
+                w.writerow([d["cycle"], d["t_start_s"], d["rpm"], c["cylinder"], c["imep_bar"], c.get("pmax_bar"),
                             c["friction_torque_mean_nm"], c["fmep_bar"]])
+
+
+def _fmt(x: float | None, spec: str) -> str:
+    return "n/a" if x is None else format(x, spec)

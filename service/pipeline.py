@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from core.engine import EngineSpec, load_engine, spec_from_toml_text
-from core.monitor import MonitorState, process_cycle
+from core.monitor import CycleRejected, initial_state, process_cycle
 from core.results import CycleResult
 from core.types import AcquisitionInfo, Cycle, StreamRecord
 from drivers.cycles import CycleAssembler
@@ -28,7 +28,7 @@ class EnginePipeline:
         self.assembler = CycleAssembler(
             info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm
         )
-        self.state = MonitorState.initial(spec)
+        self.state = initial_state(spec)
         self.monitor_skipped: Counter[str] = Counter()
         self.cycles_ok = 0
 
@@ -45,14 +45,19 @@ class EnginePipeline:
     def _process(self, cycle: Cycle) -> CycleResult | None:
         try:
             self.state, result = process_cycle(self.spec, self.state, cycle)
+        except CycleRejected as exc:
+            reason = exc.reason
         except (ValueError, FloatingPointError, ArithmeticError) as exc:
-            reason = f"monitor: {type(exc).__name__}"
-            if self.monitor_skipped[reason] == 0:
-                log.warning("cycle %d skipped: %s", cycle.index, exc)
-            self.monitor_skipped[reason] += 1
-            return None
-        self.cycles_ok += 1
-        return result
+            # an unexpected numeric failure: counted and logged with its text, the stream goes on
+            reason = f"monitor_error: {type(exc).__name__}"
+            log.warning("cycle %d: %s", cycle.index, exc)
+        else:
+            self.cycles_ok += 1
+            return result
+        if self.monitor_skipped[reason] == 0:
+            log.warning("cycle %d skipped: %s", cycle.index, reason)
+        self.monitor_skipped[reason] += 1
+        return None
 
 
 @dataclass
