@@ -11,6 +11,7 @@ import logging
 import sys
 
 from core.engine import SpecError
+from drivers.errors import DriverError
 
 COMMANDS = {
     "simulate": "service.cmd_simulate",
@@ -38,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR, format="%(levelname)s %(message)s")
     try:
         return int(args.func(args) or 0)
-    except (UsageError, SpecError, ValueError, FileNotFoundError) as exc:
+    except (UsageError, SpecError, DriverError, ValueError, OSError) as exc:
         if args.verbose:
             raise
         print(f"frictionwatch {args.command}: error: {exc}", file=sys.stderr)

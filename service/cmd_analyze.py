@@ -8,6 +8,8 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from service.pipeline import LogAnalysis, analyze_log
 from service.progress import progress_bar
 
@@ -33,6 +35,13 @@ def summary(analysis: LogAnalysis) -> dict:
     }
     if last is not None:
         doc.update(last.to_json())
+        # indicated quantities as means over the analysed cycles (the friction estimate is already accumulated)
+        for k, cyl in enumerate(doc["cylinders"]):
+            for key, values in (("imep_bar", [r.imep[k] for r in analysis.results]),
+                                ("pmax_bar", [r.pmax[k] for r in analysis.results])):
+                cyl[key] = float(np.mean(values)) / 1e5
+        doc["imep_bar"] = float(np.mean([r.imep.mean() for r in analysis.results])) / 1e5
+        doc["rpm"] = float(np.mean([r.rpm_mean for r in analysis.results]))
     return doc
 
 

@@ -1,0 +1,87 @@
+"""The CLI end to end: simulate -> analyze on a small log, and every expected failure is one line + exit code 2."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from service.cli import main
+
+
+@pytest.fixture(scope="module")
+def small_log(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cli") / "k9k.mcap"
+    rc = main(["simulate", "--engine", "k9k-4cyl", "--rpm", "1400", "--load", "0.6", "--cycles", "12", "--seed", "5",
+               "-o", str(out)])
+    assert rc == 0
+    return out
+
+
+def test_simulate_writes_log_and_truth(small_log):
+    truth = json.loads(small_log.with_name("k9k.truth.json").read_text())
+    assert small_log.stat().st_size > 10_000
+    assert {"fmep_bar", "cylinders", "cycles", "effects"} <= truth.keys()
+    assert len(truth["cylinders"]) == 4 and len(truth["cylinders"][0]["coefficients"]) == 6
+
+
+def test_analyze_json_has_the_truth_keys_and_is_close(small_log, capsys, tmp_path):
+    assert main(["analyze", str(small_log), "--json", "--csv", str(tmp_path / "c.csv"), "--plot",
+                 str(tmp_path / "plots")]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    truth = json.loads(small_log.with_name("k9k.truth.json").read_text())
+    assert doc["cycles_ok"] >= 10 and isinstance(doc["cycles_skipped"], dict)
+    for got, want in zip(doc["cylinders"], truth["cylinders"]):
+        assert got["cylinder"] == want["cylinder"]
+        assert set(want) & {"friction_torque_mean_nm", "fmep_bar", "imep_bar", "coefficients"} <= set(got)
+        assert got["imep_bar"] == pytest.approx(want["imep_bar"], rel=0.01)
+    assert doc["fmep_bar"] == pytest.approx(truth["fmep_bar"], rel=0.05)  # accuracy proper: tests/core
+    assert len(list((tmp_path / "plots").glob("*.png"))) == 3
+    assert len((tmp_path / "c.csv").read_text().splitlines()) == 1 + 4 * doc["cycles_ok"]
+
+
+def test_analyze_prints_a_table(small_log, capsys):
+    assert main(["analyze", str(small_log)]) == 0
+    out = capsys.readouterr().out
+    assert "FMEP" in out and len([ln for ln in out.splitlines() if ln.strip()[:1].isdigit()]) == 4
+
+
+def _fails_with_one_line(args, capsys, *needles):
+    rc = main(args)
+    err = capsys.readouterr().err.strip()
+    assert rc == 2
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    for n in needles:
+        assert n in err, err
+
+
+def test_bad_engine_file(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text((tmp_path / "x").as_posix() and 'name = "x"\n[geometry]\nbore_m = 7.0\n')
+    _fails_with_one_line(["simulate", "--engine", str(bad), "--rpm", "1500", "--cycles", "2", "-o",
+                          str(tmp_path / "o.mcap")], capsys, "geometry.bore_m = 7.0 is out of range")
+
+
+def test_unknown_engine_and_effect_and_impossible_parameter(tmp_path, capsys):
+    out = str(tmp_path / "o.mcap")
+    base = ["simulate", "--engine", "k9k-4cyl", "--rpm", "1500", "--cycles", "2", "-o", out]
+    _fails_with_one_line(["simulate", "--engine", "v99", "--rpm", "1500", "-o", out], capsys, "unknown engine 'v99'")
+    _fails_with_one_line(base + ["--effect", "warp_drive"], capsys, "unknown effect 'warp_drive'")
+    _fails_with_one_line(base + ["--effect", "ring_wear:cyl=2"], capsys, "has no parameter 'cyl'")
+    _fails_with_one_line(base + ["--effect", "ring_wear:cylinder=9"], capsys, "cylinder")
+    _fails_with_one_line(base + ["--without", "gravity"], capsys, "gravity")
+    _fails_with_one_line(["simulate", "--engine", "k9k-4cyl", "--rpm", "99999", "-o", out], capsys, "speed range")
+
+
+def test_analyze_missing_and_non_mcap_file(tmp_path, capsys):
+    _fails_with_one_line(["analyze", str(tmp_path / "nope.mcap")], capsys, "no such log")
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"this is not an mcap file" * 100)
+    _fails_with_one_line(["analyze", str(junk)], capsys)
+
+
+def test_console_script_runs_as_a_process(small_log):
+    proc = subprocess.run([sys.executable, "-m", "service.cli", "analyze", str(small_log), "--json"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["engine"] == "k9k-4cyl"
