@@ -70,15 +70,26 @@ class AcquisitionInfo:
 
 @dataclass(frozen=True)
 class Cycle:
-    """One complete 720 deg cycle, starting at the first tooth at or after cylinder-1 firing TDC minus nothing:
-    the cycle spans crank angle [theta0, theta0 + 4 pi) of cylinder 1's convention.
+    """One complete 720 deg engine cycle: crank angle theta in [0, 4 pi] of cylinder 1's convention, where
+    theta = 0 and theta = 4 pi are cylinder 1's firing TDC at the start of this cycle and of the next one.
 
-    tooth_ticks      (m+1,) int64: edge times of every tooth edge in the cycle plus the closing edge of the next
-    tooth_angle      (m+1,) float64 rad: nominal crank angle of each edge (cyl-1 convention, unwrapped, increasing)
-    tooth_index      (m+1,) int64: index of each edge on the wheel (0 = first after the gap), for spacing learning
-    pressure         (z, n) float64 Pa absolute, on the uniform grid ``grid`` [rad, cyl-1 angle, 0..4pi)
+    The tooth edges bracket that span: from the last edge at or before theta = 0 through the first edge at or after
+    theta = 4 pi, so tooth_angle[0] <= 0 < tooth_angle[1] and tooth_angle[-2] < 4 pi <= tooth_angle[-1]. An edge
+    exactly on 0 (or 4 pi) is the first (or last) one. Next to the missing-tooth gap the bracketing edge can lie
+    up to k+1 pitches outside. Consecutive cycles share their boundary edge(s).
+
+    index            running cycle number of the stream (skipped cycles use up their number)
+    tooth_ticks      (m,) int64: edge times [timer ticks at ``tick_hz``]
+    tooth_angle      (m,) float64 rad: nominal crank angle of each edge (cyl-1 convention, unwrapped, increasing;
+                     nominal = first_tooth_deg + j 360/N, without tooth-spacing error)
+    tooth_index      (m,) int64: index of each edge on the wheel (0 = first after the gap), for spacing learning
+    grid             (n,) float64 rad: uniform grid 4 pi i / n, i = 0..n-1 (cyl-1 angle, [0, 4 pi))
+    pressure         (z, n) float64 Pa absolute on ``grid`` for every cylinder (row k-1 = cylinder k; NaN rows for
+                     cylinders without a sensor), resampled through the monotone tooth angle -> time map
     load_torque      mean brake/generator torque over the cycle [N m] (NaN if not measured)
     load_power       mean electrical power [W] (NaN if not measured)
+    phase_source     how the 4-stroke phase was found: 'cam' or 'pressure' (physics.md §14.5)
+    flags            notes that do not void the cycle, e.g. 'phase_unchecked', 'no_cam_edge'
     """
 
     index: int

@@ -1,0 +1,172 @@
+"""Pieces of the cycle assembler (drivers/cycles.py): wheel positions, synced segments, epochs, pressure and load.
+
+Positions. Every edge of a synced segment has a position in pitches, ``pos``; its wheel index is ``pos mod N``
+(teeth 0..T-1 exist, T..N-1 are the gap). Within one epoch positions continue across resyncs, so the nominal crank
+angle of an edge is theta = pos * 2 pi / N + a0 + 2 pi P (a0 = angle of tooth 0 mod 2 pi, P = 4-stroke phase bit)
+and cycle c spans theta in [4 pi c, 4 pi (c + 1)].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drivers.resample import CHECK_HOLE, CHECK_NAN, interp_checked
+from drivers.ringbuffer import RingBuffer
+
+
+@dataclass(frozen=True)
+class Wheel:
+    """N positions, k missing, T = N - k teeth; ``a0_pitch`` = angle of tooth 0 (mod 2 pi) in pitches."""
+
+    n: int
+    k: int
+    a0_pitch: float
+
+    @property
+    def t(self) -> int:
+        return self.n - self.k
+
+    @property
+    def pitch(self) -> float:
+        return 2.0 * math.pi / self.n
+
+    def ordinal(self, pos: int) -> int:
+        """Running count of existing teeth up to ``pos`` (pos must be a tooth)."""
+        return (pos // self.n) * self.t + pos % self.n
+
+    def pos_of_ordinal(self, o: np.ndarray | int):
+        return (o // self.t) * self.n + o % self.t
+
+    def tooth_at_or_before(self, x: float) -> int:
+        p = math.floor(x + 1e-9)
+        j = p % self.n
+        return p - (j - (self.t - 1)) if j >= self.t else p
+
+    def tooth_at_or_after(self, x: float) -> int:
+        p = math.ceil(x - 1e-9)
+        j = p % self.n
+        return p + (self.n - j) if j >= self.t else p
+
+    def window(self, h2: int) -> tuple[int, int]:
+        """Start and closing tooth of the 720 deg window whose start is 2 pi * h2 in tooth-0 angle (a0 included)."""
+        lo = self.n * h2 - self.a0_pitch
+        return self.tooth_at_or_before(lo), self.tooth_at_or_after(lo + 2 * self.n)
+
+
+@dataclass
+class Segment:
+    """A run of verified edges: edge ``first_seq`` is at epoch position ``first_pos``; ``good`` is its last good edge."""
+
+    wheel: Wheel
+    first_seq: int
+    first_pos: int
+    t_first: int
+    good: int
+    t_good: int = 0
+    reason: str | None = None  # why it ended (None while running)
+
+    def seq_of(self, pos: int) -> int:
+        return self.first_seq + self.wheel.ordinal(pos) - self.wheel.ordinal(self.first_pos)
+
+    def pos_of(self, seq: np.ndarray | int):
+        return self.wheel.pos_of_ordinal(self.wheel.ordinal(self.first_pos) + (seq - self.first_seq))
+
+    @property
+    def good_pos(self) -> int:
+        return int(self.pos_of(self.good))
+
+
+@dataclass
+class Epoch:
+    """Segments that share one position count (bridged across short disturbances) and one 4-stroke phase."""
+
+    segments: list[Segment]
+    t_start: int
+    phase: int | None = None
+    phase_source: str = ""
+    next_c: int = 0
+    c0: int = 0
+    index_base: int = 0
+    probe: int | None = None  # next rev-aligned window tried for the pressure phase test
+    cam_votes: list[tuple[int, int]] = field(default_factory=list)  # (tick, phase bit)
+    mismatch_run: int = 0
+
+    def segment_at(self, pos: int) -> Segment | None:
+        for seg in reversed(self.segments):
+            if seg.first_pos <= pos:
+                return seg
+        return None
+
+    def index_of(self, c: int) -> int:
+        return self.index_base + (c - self.c0)
+
+
+def bridge_offset(prev: Segment, first_pos_rel: int, t_first: int, max_revs: float = 3.0) -> int | None:
+    """Offset (a multiple of N) that puts a new segment's anchor-relative positions on the count of the epoch whose
+    last segment is ``prev``, or None. The pitches between the two are estimated from the elapsed time at the mean
+    pitch time of ``prev``; the new segment's wheel index fixes the rest. Accepted only if the silence is shorter
+    than ``max_revs`` revolutions and the estimate lands within a quarter turn of a consistent position."""
+    w = prev.wheel
+    if not (prev.good > prev.first_seq and prev.t_good > prev.t_first and t_first > prev.t_good):
+        return None
+    p_last = prev.good_pos
+    tau = (prev.t_good - prev.t_first) / (p_last - prev.first_pos)
+    est = p_last + (t_first - prev.t_good) / tau
+    off = w.n * round((est - first_pos_rel) / w.n)
+    if abs(first_pos_rel + off - est) <= w.n / 4 and est - p_last <= max_revs * w.n and first_pos_rel + off > p_last:
+        return int(off)
+    return None
+
+
+def window_status(epoch: Epoch, ps: int, pe: int) -> tuple[str, Segment | None]:
+    """'complete' (all edges ps..pe plus one look-ahead verified), 'wait', 'broken' (a segment ended inside) or
+    'hole' (starts after its segment's end: broken if a later segment exists, else wait)."""
+    seg = epoch.segment_at(ps)
+    if seg is None:
+        return "before", None
+    s_end = seg.seq_of(pe)
+    s_start = seg.seq_of(ps)
+    if s_end <= seg.good:
+        return "complete", seg
+    if seg.reason is None:
+        return "wait", seg
+    if s_start > seg.good:
+        return ("broken" if seg is not epoch.segments[-1] else "wait"), seg
+    return "broken", seg
+
+
+def pressure_on_grid(ring: RingBuffer, t_grid: np.ndarray) -> tuple[np.ndarray | None, str]:
+    """Samples of one cylinder at the grid times (linear in time). Returns (row, '') or (None, reason).
+
+    Reasons: 'pressure_missing' (the ring does not cover the window, or a hole of more than 1.5 sample periods),
+    'pressure_nan' (a NaN sample inside the window)."""
+    if len(ring) < 2:
+        return None, "pressure_missing"
+    t_lo, t_hi = float(t_grid[0]), float(t_grid[-1])
+    a = ring.searchsorted("t", t_lo, side="right") - 1
+    b = ring.searchsorted("t", t_hi, side="left") + 1
+    if a < ring.start or b > ring.end:
+        return None, "pressure_missing"
+    row, code = interp_checked(t_grid, ring.view("t", a, b), ring.view("p", a, b))
+    if code == CHECK_HOLE:
+        return None, "pressure_missing"
+    if code == CHECK_NAN:
+        return None, "pressure_nan"
+    return row, ""
+
+
+def load_mean(ring: RingBuffer, t_lo: float, t_hi: float, hold_ticks: float) -> tuple[float, float]:
+    """Mean torque and power of the load samples in [t_lo, t_hi]; if none, the last one before t_lo no older than
+    ``hold_ticks`` (zero-order hold of a slow CAN reading); else NaN."""
+    if len(ring) == 0:
+        return math.nan, math.nan
+    a = ring.searchsorted("t", t_lo, side="left")
+    b = ring.searchsorted("t", t_hi, side="right")
+    if b > a:
+        return float(np.mean(ring.view("torque", a, b))), float(np.mean(ring.view("power", a, b)))
+    if a > ring.start and t_lo - ring.get("t", a - 1) <= hold_ticks:
+        return float(ring.get("torque", a - 1)), float(ring.get("power", a - 1))
+    return math.nan, math.nan

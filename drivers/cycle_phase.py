@@ -1,0 +1,90 @@
+"""The 4-stroke phase of the cycle assembler: a cam edge placed on the wheel, or the pressure of one cylinder.
+
+A crank wheel fixes 360 deg only (physics.md §14.5). Positions on the wheel (drivers/cycle_parts.py) give the angle
+theta0 = pos * 2 pi / N + a0 up to the phase bit P: theta = theta0 + 2 pi P.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+
+import numpy as np
+
+from drivers.cycle_parts import Epoch, Segment, Wheel
+from drivers.ringbuffer import RingBuffer
+
+FOUR_PI = 4.0 * math.pi
+PHASE_RATIO = 1.15  # firing/exchange pressure ratio that counts as a clear decision
+PHASE_HALF_WIDTH = math.radians(30.0)  # physics.md §14.5: mean pressure within +-30 deg of each candidate TDC
+CAM_TOLERANCE = math.radians(30.0)
+
+
+def cam_phase_bit(teeth: RingBuffer, seg: Segment, sb: int, tc: int, wheel: Wheel, a0: float,
+                  cam: float) -> int | None:
+    """Phase bit voted by a cam edge at tick ``tc`` between verified edges sb-1 and sb of ``seg``; None when the
+    edge sits more than 30 deg from where the stated cam angle ``cam`` [rad] puts it (a wrong or noisy cam)."""
+    ta, tb = teeth.get("t", sb - 1), teeth.get("t", sb)
+    pa, pb = seg.pos_of(sb - 1), seg.pos_of(sb)
+    pos = pa + (tc - ta) / (tb - ta) * (pb - pa)
+    theta0 = pos * wheel.pitch + a0
+    bit = round(((cam - theta0) % FOUR_PI) / (2 * math.pi)) % 2
+    resid = (cam - theta0 - 2 * math.pi * bit + 2 * math.pi) % FOUR_PI - 2 * math.pi
+    return None if abs(resid) > CAM_TOLERANCE else bit
+
+
+def firing_ratio(row: np.ndarray, grid: np.ndarray, tdc: float, half_width: float = PHASE_HALF_WIDTH) -> float:
+    """Mean pressure within +-half_width of ``tdc`` over the mean within +-half_width of ``tdc + 2 pi``
+    (physics.md §14.5: > 1 when ``tdc`` is the firing TDC, motored or fired). Angles in rad on a 4 pi grid."""
+    d_fire = np.abs((grid - tdc + 2 * math.pi) % FOUR_PI - 2 * math.pi)
+    d_exch = np.abs((grid - tdc) % FOUR_PI - 2 * math.pi)
+    fire = row[d_fire <= half_width]
+    exch = row[d_exch <= half_width]
+    if fire.size == 0 or exch.size == 0:
+        return math.nan
+    den = float(np.mean(exch))
+    return float(np.mean(fire)) / den if den > 0 else math.nan
+
+
+def firing_verdict(row: np.ndarray | None, grid: np.ndarray, tdc: float) -> int:
+    """+1: ``tdc`` is clearly the firing TDC; -1: clearly the gas-exchange TDC; 0: undecided (or no data)."""
+    if row is None:
+        return 0
+    ratio = firing_ratio(row, grid, tdc)
+    if ratio > PHASE_RATIO:
+        return 1
+    if ratio < 1.0 / PHASE_RATIO:
+        return -1
+    return 0
+
+
+def place_cams(ep: Epoch, cams: RingBuffer, teeth: RingBuffer, cam_next: int, wheel: Wheel, a0: float, cam: float,
+               stats: Counter[str]) -> tuple[int, int | None]:
+    """Place the cam edges from row ``cam_next`` on the epoch's verified edges; each placed edge adds a vote
+    (tick, bit) to ``ep.cam_votes``. Stops at the first edge whose teeth are not verified yet.
+
+    Returns the next cam row to look at and the first bit voted (None if none)."""
+    first = None
+    cam_next = max(cam_next, cams.start)
+    while cam_next < cams.end:
+        tc = int(cams.get("t", cam_next))
+        if tc < ep.t_start:  # before this epoch: of no use
+            cam_next += 1
+            continue
+        sb = teeth.searchsorted("t", tc, side="left")
+        last = ep.segments[-1]
+        if sb > last.good and last.reason is None:
+            break  # its teeth are not verified yet
+        cam_next += 1
+        seg = next((s for s in reversed(ep.segments) if s.first_seq < sb <= s.good), None)
+        if seg is None or sb - 1 < teeth.start:
+            stats["cam_unplaced"] += 1  # in a hole between segments
+            continue
+        bit = cam_phase_bit(teeth, seg, sb, tc, wheel, a0, cam)
+        if bit is None:
+            stats["cam_inconsistent"] += 1
+            continue
+        stats["cam_votes"] += 1
+        ep.cam_votes.append((tc, bit))
+        first = bit if first is None else first
+    return cam_next, first

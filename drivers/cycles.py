@@ -1,0 +1,437 @@
+"""Cycle assembly: stream records of one engine -> one typed ``Cycle`` per 720 deg (design.md §1; physics.md §14).
+
+    records -> EngineBuffers (rings) -> WheelTracker (gap sync, per-interval checks; drivers/wheel_sync.py)
+            -> segments of verified edges, bridged into epochs -> 4-stroke phase (cam, else pressure)
+            -> cycle windows [0, 4 pi] -> wait for pressure (bounded) -> resample onto the grid -> Cycle
+
+Phase. With a cam (``info.cam_deg``) each cam edge, placed between its two tooth edges, votes for the phase bit; the
+first vote fixes the epoch's phase and every cycle is checked against the votes inside it. Without a cam (or when
+no cam edge came within the wait) the pressure of the first instrumented cylinder decides (physics.md §14.5: the
+mean pressure within +-30 deg of its firing TDC beats that at its gas-exchange TDC, motored or fired). Every cycle
+with that pressure is checked against it; a clear contradiction skips the cycle ('phase_mismatch'), three in a row
+on a pressure-phased epoch flip its phase.
+
+Resync without losing the next cycle. A disturbance ends the verified segment one edge before it; the tracker finds
+the next gap, confirms a full revolution and extends the new segment backwards to just after the disturbance. If the
+silence between the two segments is short (< 3 revolutions) and their positions fit the wheel within a quarter turn,
+the new segment joins the same epoch, so position count, phase and cycle index carry on: the cycles that touch the
+disturbance are skipped with its reason, the next one comes out exactly as in an undisturbed run. Longer silences
+(engine stop and restart) start a new epoch, which finds its phase again.
+
+Skips (``skipped``, cycles by reason): spurious_tooth, missing_tooth, sync_lost, data_gap, buffer_overflow,
+speed_out_of_range, pressure_missing, pressure_nan, phase_mismatch, clock_reset.
+``stats`` counts events (segments, bridges, rejected candidates, cam votes, ring overflows, ...).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter, deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from core.types import AcquisitionInfo, CamBatch, Cycle, LoadSample, PressureBlock, StreamRecord, ToothBatch
+from drivers.cycle_parts import Epoch, Segment, Wheel, bridge_offset, load_mean, pressure_on_grid, window_status
+from drivers.cycle_phase import firing_verdict, place_cams
+from drivers.resample import pchip_eval
+from drivers.ringbuffer import EngineBuffers
+from drivers.wheel_sync import EV_END, EV_SEGMENT, REASONS, WheelTracker
+
+log = logging.getLogger(__name__)
+FOUR_PI = 4.0 * math.pi
+
+
+@dataclass
+class _Pending:
+    index: int
+    epoch: Epoch
+    c: int
+    ticks: np.ndarray  # int64 edges start..close
+    pos: np.ndarray  # int64 epoch positions
+    theta: np.ndarray  # nominal crank angle of the edges [rad], first <= 0, last >= 4 pi
+    t_grid: np.ndarray  # timer ticks at the grid angles
+
+
+class CycleAssembler:
+    """Assemble ``Cycle`` values from the records of one engine.
+
+    Parameters
+    ----------
+    info : acquisition metadata (tick clock, wheel, first tooth angle, cam angle, instrumented cylinders)
+    n_cyl : number of cylinders z (rows of ``Cycle.pressure``; cylinder k is row k-1)
+    firing_angles : (z,) firing TDC of each cylinder on cylinder 1's crank angle [rad]
+    grid_points : samples of the uniform grid over [0, 4 pi)
+    speed_range_rpm : cycles whose mean speed is outside are skipped
+    max_wait_s : how long (stream time) a complete cycle waits for late pressure before 'pressure_missing'
+    """
+
+    def __init__(self, info: AcquisitionInfo, n_cyl: int, firing_angles: np.ndarray, grid_points: int = 720,
+                 speed_range_rpm: tuple[float, float] = (50.0, 25000.0), max_wait_s: float = 0.5,
+                 buffers: EngineBuffers | None = None):
+        fa = np.asarray(firing_angles, dtype=np.float64).ravel()
+        if fa.shape[0] != n_cyl or n_cyl < 1:
+            raise ValueError(f"firing_angles has {fa.shape[0]} values for {n_cyl} cylinders")
+        if grid_points < 16:
+            raise ValueError(f"grid_points must be >= 16, got {grid_points}")
+        if not 0 < speed_range_rpm[0] < speed_range_rpm[1]:
+            raise ValueError(f"speed_range_rpm must be (lo, hi) with 0 < lo < hi, got {speed_range_rpm}")
+        if not info.tick_hz > 0:
+            raise ValueError(f"tick_hz must be > 0, got {info.tick_hz}")
+        bad = [c for c in info.pressure_cylinders if not 1 <= c <= n_cyl]
+        if bad:
+            raise ValueError(f"pressure_cylinders {bad} outside 1..{n_cyl}")
+        if info.cam_deg is None and not info.pressure_cylinders:
+            raise ValueError("no cam signal and no cylinder pressure: the 4-stroke phase cannot be found "
+                             "(state cam_deg or pressure_cylinders in the AcquisitionInfo)")
+        self.info = info
+        self.n_cyl = int(n_cyl)
+        self.firing = fa
+        self.grid = np.arange(grid_points) * (FOUR_PI / grid_points)
+        self.speed_range_rpm = (float(speed_range_rpm[0]), float(speed_range_rpm[1]))
+        a0 = math.radians(info.first_tooth_deg) % (2 * math.pi)
+        self.wheel = Wheel(info.wheel_teeth, info.wheel_missing, a0 / (2 * math.pi / info.wheel_teeth))
+        self.a0 = a0
+        self.a0_deg = info.first_tooth_deg % 360.0
+        self.tracker = WheelTracker(info.wheel_teeth, info.wheel_missing)
+        self.buf = buffers or EngineBuffers()
+        self.wait_ticks = max_wait_s * info.tick_hz
+        slow_cycle = 120.0 / self.speed_range_rpm[0] * info.tick_hz
+        self.cam_wait_ticks = max(self.wait_ticks, 2.5 * slow_cycle)
+        self.phase_cyl = (1 if 1 in info.pressure_cylinders else min(info.pressure_cylinders)) \
+            if info.pressure_cylinders else None
+        self.skipped: Counter[str] = Counter()
+        self.stats: Counter[str] = Counter()
+        self._epoch: Epoch | None = None
+        self._pending: deque[_Pending] = deque()
+        self._next_index = 0
+        self._now = 0  # latest stream time seen [ticks]
+        self._cam_next = 0  # next cam row to place
+        self._discarded_at = 0  # tooth ring end at the last discard
+        self._waiting_for: int | None = None  # cylinder whose pressure the head cycle waits for
+
+    # ---- input ------------------------------------------------------------------------------------------------
+    def feed(self, record: StreamRecord) -> list[Cycle]:
+        """File one record and return the cycles it completed (possibly none)."""
+        if isinstance(record, ToothBatch):
+            if len(record.ticks) == 0:
+                return []
+            last = self.buf.teeth.last("t")
+            if last is not None and int(record.ticks[0]) < last - self.wait_ticks:
+                self._clock_reset()
+            self.buf.add(record)
+            self._now = max(self._now, int(record.ticks[-1]))
+            self._run_tracker()
+            return self._advance(flushing=False)
+        if isinstance(record, PressureBlock):
+            if self.buf.add_pressure(record):
+                self._now = max(self._now, int(record.t0_ticks + record.period_ticks * (len(record.values) - 1)))
+        elif isinstance(record, CamBatch):
+            self.buf.add(record)
+        elif isinstance(record, LoadSample):
+            self.buf.add(record)
+            self._now = max(self._now, int(record.ticks))
+            return []
+        else:
+            raise TypeError(f"not a stream record: {type(record).__name__}")
+        # pressure or cam: only a waiting phase decision or a cycle waiting for its pressure can move
+        if self._epoch is not None and self._epoch.phase is None:
+            return self._advance(flushing=False)
+        if not self._pending or (isinstance(record, PressureBlock) and record.cylinder != self._waiting_for):
+            return []  # the head cycle waits for another cylinder's pressure
+        return self._emit(flushing=False)
+
+    def flush(self) -> list[Cycle]:
+        """End of stream: emit every complete cycle now, without waiting for more pressure."""
+        return self._advance(flushing=True)
+
+    @property
+    def expected_cylinders(self) -> tuple[int, ...]:
+        if self.info.pressure_cylinders:
+            return tuple(self.info.pressure_cylinders)
+        return tuple(sorted(c for c in self.buf.pressure if 1 <= c <= self.n_cyl))
+
+    # ---- sync ---------------------------------------------------------------------------------------------------
+    def _run_tracker(self) -> None:
+        ring = self.buf.teeth
+        need = self.tracker.oldest_needed()
+        if need < ring.start:  # edges the tracker still needed were overwritten
+            self._end_segment(ring.start - 1, "buffer_overflow")
+            self.tracker.reset(ring.start)
+            self.stats["tracker_reset"] += 1
+            need = ring.start
+        if need >= ring.end:
+            return
+        for typ, a, b, c in self.tracker.advance(ring.view("t", need, ring.end), need):
+            if typ == EV_SEGMENT:
+                self._new_segment(a, b)
+            elif typ == EV_END:
+                self._end_segment(a, REASONS[b])
+            else:
+                self.stats["candidate_rejected"] += 1
+        ep = self._epoch
+        if ep is not None and self.tracker.synced and ep.segments[-1].reason is None:
+            ep.segments[-1].good = self.tracker.good_through
+
+    def _end_segment(self, last_good: int, reason: str) -> None:
+        self.stats[f"tooth:{reason}"] += 1
+        ep = self._epoch
+        if ep is None or ep.segments[-1].reason is not None:
+            return
+        seg = ep.segments[-1]
+        seg.good = last_good
+        if seg.good >= seg.first_seq and self.buf.teeth.start <= seg.good:
+            seg.t_good = int(self.buf.teeth.get("t", seg.good))
+        seg.reason = reason
+        self._advance_epoch(ep, flushing=False)  # cycles cut by the end are skipped now
+
+    def _new_segment(self, first_seq: int, first_pos_rel: int) -> None:
+        self.stats["segments"] += 1
+        w = self.wheel
+        t_first = int(self.buf.teeth.get("t", first_seq))
+        ep = self._epoch
+        off = None if ep is None else bridge_offset(ep.segments[-1], first_pos_rel, t_first)
+        if off is not None:
+            ep.segments.append(Segment(w, first_seq, first_pos_rel + off, t_first, first_seq))
+            self.stats["bridged"] += 1
+            return
+        # a new epoch: position count, phase and cycle numbering start afresh
+        self.stats["epochs"] += 1
+        self._epoch = Epoch([Segment(w, first_seq, first_pos_rel, t_first, first_seq)], t_start=t_first)
+
+    # ---- phase --------------------------------------------------------------------------------------------------
+    def _place_cams(self, ep: Epoch) -> None:
+        self._cam_next, bit = place_cams(ep, self.buf.cam, self.buf.teeth, self._cam_next, self.wheel, self.a0,
+                                         math.radians(self.info.cam_deg), self.stats)
+        if ep.phase is None and bit is not None:
+            self._set_phase(ep, bit, "cam")
+
+    def _set_phase(self, ep: Epoch, bit: int, source: str, from_pos: int | None = None) -> None:
+        ep.phase, ep.phase_source = bit, source
+        self.stats[f"phase_{source}"] += 1
+        lo = ep.segments[0].first_pos if from_pos is None else from_pos
+        w = self.wheel
+        c = math.floor((lo + w.a0_pitch + w.n * bit) / (2 * w.n)) - 1
+        while self._window(ep, c)[0] < lo:
+            c += 1
+        ep.next_c, ep.c0, ep.index_base = c, c, self._next_index
+
+    def _window(self, ep: Epoch, c: int) -> tuple[int, int]:
+        return self.wheel.window(2 * c - int(ep.phase or 0))
+
+    def _probe_pressure(self, ep: Epoch, flushing: bool) -> None:
+        """Decide the phase from the phase cylinder's pressure on rev-aligned 720 deg windows."""
+        if self.phase_cyl is None:
+            return
+        w = self.wheel
+        if ep.probe is None:
+            h = math.floor((ep.segments[0].first_pos + w.a0_pitch) / w.n) - 1
+            while w.window(h)[0] < ep.segments[0].first_pos:
+                h += 1
+            ep.probe = h
+        tdc = float(self.firing[self.phase_cyl - 1])
+        while ep.phase is None:
+            ps, pe = w.window(ep.probe)
+            status, seg = window_status(ep, ps, pe)
+            if status in ("wait", "before"):
+                return
+            if status == "broken":
+                ep.probe += 1
+                continue
+            pos = np.arange(ps, pe + 1)
+            pos = pos[pos % w.n < w.t]
+            ticks = self.buf.teeth.view("t", seg.seq_of(ps), seg.seq_of(pe) + 1)
+            theta = self._nominal_angle(pos, 0, -ep.probe)
+            ring = self.buf.pressure.get(self.phase_cyl)
+            t_grid = self._grid_times(theta, ticks)
+            if ring is None or len(ring) == 0 or ring.last("t") < t_grid[-1]:
+                if not flushing and self._now - ticks[-1] <= self.wait_ticks:
+                    return
+                ep.probe += 1
+                self.stats["phase_probe_no_pressure"] += 1
+                continue
+            row, _ = pressure_on_grid(ring, t_grid)
+            verdict = firing_verdict(row, self.grid, tdc)
+            if verdict == 0:
+                ep.probe += 1
+            else:  # +1: this window starts at firing TDC, i.e. it is a cycle: 2 c - P = probe
+                self._set_phase(ep, (ep.probe + (0 if verdict > 0 else 1)) % 2, "pressure", from_pos=ps)
+
+    # ---- cycles -------------------------------------------------------------------------------------------------
+    def _advance(self, flushing: bool) -> list[Cycle]:
+        if self._epoch is not None:
+            self._advance_epoch(self._epoch, flushing)
+        out = self._emit(flushing)
+        self._discard(force=flushing)
+        return out
+
+    def _advance_epoch(self, ep: Epoch, flushing: bool) -> None:
+        if ep.phase is None and self.info.cam_deg is not None:
+            self._place_cams(ep)
+        if ep.phase is None:
+            cam_late = self.info.cam_deg is None or flushing or self._now - ep.t_start > self.cam_wait_ticks
+            if not cam_late:
+                return
+            self._probe_pressure(ep, flushing)
+            if ep.phase is None:
+                return
+        elif self.info.cam_deg is not None:
+            self._place_cams(ep)
+        lo_rpm, hi_rpm = self.speed_range_rpm
+        while True:
+            c = ep.next_c
+            ps, pe = self._window(ep, c)
+            status, seg = window_status(ep, ps, pe)
+            if status in ("wait", "before"):
+                return
+            index = ep.index_of(c)
+            ep.next_c += 1
+            self._next_index = max(self._next_index, index + 1)
+            if status == "broken":
+                self._skip(seg.reason or "sync_lost", index)
+                continue
+            s0, s1 = seg.seq_of(ps), seg.seq_of(pe)
+            ticks = self.buf.teeth.view("t", s0, s1 + 1).copy()
+            rpm = (pe - ps) * self.wheel.pitch / ((ticks[-1] - ticks[0]) / self.info.tick_hz) * 30.0 / math.pi
+            if not lo_rpm <= rpm <= hi_rpm:
+                self._skip("speed_out_of_range", index)
+                continue
+            pos = np.asarray(seg.pos_of(np.arange(s0, s1 + 1)), dtype=np.int64)
+            theta = self._nominal_angle(pos, c, int(ep.phase))
+            self._pending.append(_Pending(index, ep, c, ticks, pos, theta, self._grid_times(theta, ticks)))
+
+    def _nominal_angle(self, pos: np.ndarray, c: int, phase: int) -> np.ndarray:
+        """Crank angle [rad] of edges at ``pos`` within cycle c, built in degrees from integers so that edges on
+        0 and 720 deg land exactly there (360/N is exact for the usual wheels)."""
+        n = self.wheel.n
+        deg = self.a0_deg + (pos - 2 * n * c + n * phase) * (360.0 / n)
+        return np.radians(deg)
+
+    def _skip(self, reason: str, index: int) -> None:
+        if self.skipped[reason] == 0:
+            log.warning("cycle %d skipped: %s", index, reason)
+        self.skipped[reason] += 1
+
+    def _grid_times(self, theta: np.ndarray, ticks: np.ndarray) -> np.ndarray:
+        """Timer ticks (float) at the grid angles from the monotone t(theta) through the tooth edges."""
+        t0 = ticks[0]
+        return pchip_eval(theta, (ticks - t0).astype(np.float64), self.grid) + float(t0)
+
+    def _ready(self, p: _Pending) -> bool:
+        """Every instrumented cylinder has a sample at or after the cycle's last grid time (else remember which
+        cylinder is awaited, so that only its pressure blocks wake the queue up)."""
+        t_end = p.t_grid[-1]
+        for cyl in self.expected_cylinders:
+            ring = self.buf.pressure.get(cyl)
+            if ring is None or ring.end == ring.start or ring.get("t", ring.end - 1) < t_end:
+                self._waiting_for = cyl
+                return False
+        self._waiting_for = None
+        return True
+
+    def _emit(self, flushing: bool) -> list[Cycle]:
+        out: list[Cycle] = []
+        while self._pending:
+            p = self._pending[0]
+            timed_out = flushing or self._now - p.ticks[-1] > self.wait_ticks
+            if not timed_out and not self._ready(p):
+                break
+            self._pending.popleft()
+            cyc = self._build(p)
+            if cyc is not None:
+                out.append(cyc)
+        return out
+
+    def _build(self, p: _Pending) -> Cycle | None:
+        ep = p.epoch
+        t_grid = p.t_grid
+        if ep.phase_source == "cam" and self.info.cam_deg is not None and ep is self._epoch:
+            self._place_cams(ep)  # a cam edge that came after the teeth (an older epoch has all it will get)
+        votes = [b for t, b in ep.cam_votes if p.ticks[0] <= t <= p.ticks[-1]]
+        if any(b != ep.phase for b in votes):
+            self._skip("phase_mismatch", p.index)
+            return None
+        flags: list[str] = []
+        if self.info.cam_deg is not None and not votes:
+            flags.append("no_cam_edge")
+        pressure = np.full((self.n_cyl, self.grid.shape[0]), np.nan)
+        for cyl in self.expected_cylinders:
+            ring = self.buf.pressure.get(cyl)
+            row, reason = pressure_on_grid(ring, t_grid) if ring is not None else (None, "pressure_missing")
+            if row is None:
+                self._skip(reason, p.index)
+                return None
+            pressure[cyl - 1] = row
+        if self.phase_cyl is not None and self.phase_cyl in self.expected_cylinders:
+            verdict = firing_verdict(pressure[self.phase_cyl - 1], self.grid, float(self.firing[self.phase_cyl - 1]))
+            if verdict < 0:
+                ep.mismatch_run += 1
+                self._skip("phase_mismatch", p.index)
+                if ep.phase_source == "pressure" and ep.mismatch_run >= 3:
+                    self.stats["phase_flipped"] += 1
+                    self._set_phase(ep, 1 - int(ep.phase), "pressure", from_pos=int(p.pos[-1]))
+                    for q in [q for q in self._pending if q.epoch is ep]:
+                        self._pending.remove(q)
+                        self._skip("phase_mismatch", q.index)
+                return None
+            ep.mismatch_run = 0
+            if verdict == 0:
+                flags.append("phase_unchecked")
+        torque, power = load_mean(self.buf.load, float(p.ticks[0]), float(p.ticks[-1]), self.info.tick_hz)
+        self.stats["cycles"] += 1
+        return Cycle(index=p.index, tick_hz=self.info.tick_hz, tooth_ticks=p.ticks, tooth_angle=p.theta,
+                     tooth_index=(p.pos % self.wheel.n).astype(np.int64), grid=self.grid.copy(), pressure=pressure,
+                     load_torque=torque, load_power=power, phase_source=ep.phase_source, flags=tuple(flags))
+
+    # ---- housekeeping -------------------------------------------------------------------------------------------
+    def _discard(self, force: bool = False) -> None:
+        """Release ring rows nothing can need any more (so overflow counts only real losses). Runs when the
+        tooth ring has grown by a quarter of a revolution since the last time (it costs a few searches per ring)."""
+        teeth = self.buf.teeth
+        if not force and teeth.end - self._discarded_at < self.wheel.n // 4:
+            return
+        self._discarded_at = teeth.end
+        # teeth within the pressure wait of now stay, so a late cam edge can still be placed between two of them
+        keep = min(self.tracker.oldest_needed(), teeth.searchsorted("t", self._now - self.wait_ticks))
+        ep = self._epoch
+        if ep is not None:
+            seg = ep.segments[-1]
+            if ep.phase is None:
+                keep = min(keep, ep.segments[0].first_seq if ep.probe is None else
+                           max(seg.first_seq, self._seq_or(seg, self.wheel.window(ep.probe)[0])))
+            else:
+                keep = min(keep, max(seg.first_seq, self._seq_or(seg, self._window(ep, ep.next_c)[0])))
+        keep = max(teeth.start, min(keep, teeth.end))
+        t_keep = float(teeth.get("t", keep)) if keep < teeth.end else float(self._now)
+        if self._pending:
+            t_keep = min(t_keep, float(self._pending[0].ticks[0]))
+        teeth.discard_before(keep - 2)
+        for ring in self.buf.pressure.values():
+            ring.discard_before(ring.searchsorted("t", t_keep, side="left") - 2)
+        self.buf.load.discard_before(self.buf.load.searchsorted("t", t_keep - self.info.tick_hz, side="left") - 1)
+        self.buf.cam.discard_before(min(self._cam_next, self.buf.cam.searchsorted("t", t_keep, side="left")))
+        if ep is not None and len(ep.cam_votes) > 64:
+            ep.cam_votes = [v for v in ep.cam_votes if v[0] >= t_keep]
+
+    @staticmethod
+    def _seq_or(seg: Segment, pos: int) -> int:
+        return seg.seq_of(pos) if pos >= seg.first_pos else seg.first_seq
+
+    def _clock_reset(self) -> None:
+        """The timer went backwards by more than the pressure wait: a new acquisition. Forget everything."""
+        self.stats["clock_reset"] += 1
+        for _ in self._pending:
+            self._skip("clock_reset", -1)
+        self._pending.clear()
+        self.buf = EngineBuffers(self.buf.teeth.capacity, self.buf.cam.capacity, self.buf._pressure_capacity,
+                                 self.buf.load.capacity)
+        self.tracker = WheelTracker(self.info.wheel_teeth, self.info.wheel_missing)
+        self._epoch = None
+        self._cam_next = 0
+        self._now = 0
+        self._discarded_at = 0
+
+    def dropped(self) -> Counter[str]:
+        """Rows lost to ring overflow and refused out-of-order input, by stream."""
+        return self.buf.dropped() + Counter({f"rejected_{k}": v for k, v in self.buf.rejected.items()})
