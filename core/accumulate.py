@@ -1,0 +1,172 @@
+"""Normal equations accumulated across cycles with exponential forgetting, and an honest posterior.
+
+One cycle of a many-cylinder engine cannot separate its coefficients (physics.md §12.5); cycle-to-cycle combustion
+variation is natural excitation, so the monitor keeps the whitened normal equations
+
+    N = sum_c lambda^(age_c) A_c^T A_c,   r = sum_c lambda^(age_c) A_c^T y_c
+
+and solves them with the priors (a weak one per parameter, the Eq. 6 sharing per cylinder) and theta >= 0.
+
+Uncertainty has two parts:
+- statistical: (N + N_prior)^-1, scaled up by the reduced chi^2 when the residual is larger than the noise model;
+- systematic: errors that repeat every cycle (model error, residual tooth-spacing error, pressure calibration) do
+  not average out. With B = sum_c lambda^age A_c^T D_c (D_c the whitening), a repeated raw error e moves theta by
+  N^-1 B e, so its covariance N^-1 B C_sys B^T N^-1 is added. C_sys comes from the persistent (mean) residual per
+  harmonic and a stated relative model-error floor.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from core.identify import bounded_solve
+
+
+@dataclass(frozen=True)
+class Accumulator:
+    """Exponentially weighted normal equations (P params, R raw rows per cycle incl. the mean-balance row).
+
+    info (P, P), rhs (P,), yty whitened sum of squares, weight effective number of cycles, rows effective number of
+    rows, sys_map (P, R) = sum lambda^age A^T D."""
+
+    info: np.ndarray
+    rhs: np.ndarray
+    yty: float
+    weight: float
+    rows: float
+    sys_map: np.ndarray
+    info_reference: np.ndarray
+
+    @staticmethod
+    def empty(n_params: int, n_rows: int) -> Accumulator:
+        return Accumulator(np.zeros((n_params, n_params)), np.zeros(n_params), 0.0, 0.0, 0.0,
+                           np.zeros((n_params, n_rows)), np.zeros((n_params, n_params)))
+
+    def update(self, a: np.ndarray, y: np.ndarray, inv_sigma: np.ndarray, forgetting: float,
+               reference_rows: int = 0) -> Accumulator:
+        """Fold in one cycle's whitened rows a (R, P), y (R,) whose raw rows were divided by 1/``inv_sigma`` (R,).
+
+        The last ``reference_rows`` rows (the mean balance) are also kept apart in ``info_reference``: what the
+        estimate would know without the speed signal, to tell resolved quantities from prior-driven ones."""
+        lam = float(forgetting)
+        if not 0.0 <= lam <= 1.0:
+            raise ValueError(f"forgetting factor must be in [0, 1], got {lam}")
+        if a.shape != (self.sys_map.shape[1], self.info.shape[0]):
+            raise ValueError(f"rows must have shape {(self.sys_map.shape[1], self.info.shape[0])}, got {a.shape}")
+        return Accumulator(
+            info=lam * self.info + a.T @ a,
+            rhs=lam * self.rhs + a.T @ y,
+            yty=lam * self.yty + float(y @ y),
+            weight=lam * self.weight + 1.0,
+            rows=lam * self.rows + a.shape[0],
+            sys_map=lam * self.sys_map + a.T * inv_sigma[None, :],
+            info_reference=lam * self.info_reference + (a[a.shape[0] - reference_rows:].T
+                                                        @ a[a.shape[0] - reference_rows:]),
+        )
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Gaussian prior rows: sum over rows of ((row @ theta - target) / sigma)^2."""
+
+    rows: np.ndarray  # (Q, P)
+    target: np.ndarray  # (Q,)
+    sigma: np.ndarray  # (Q,)
+
+    def normal(self) -> tuple[np.ndarray, np.ndarray]:
+        w = self.rows / self.sigma[:, None]
+        return w.T @ w, w.T @ (self.target / self.sigma)
+
+    @staticmethod
+    def stack(*priors: Prior) -> Prior:
+        return Prior(np.vstack([p.rows for p in priors]), np.concatenate([p.target for p in priors]),
+                     np.concatenate([p.sigma for p in priors]))
+
+
+@dataclass(frozen=True)
+class Posterior:
+    """theta (P,), covariance (P, P) = statistical + systematic, chi2 reduced, weight (effective cycles)."""
+
+    theta: np.ndarray
+    covariance: np.ndarray
+    cov_statistical: np.ndarray
+    chi2_reduced: float
+    weight: float
+    cov_reference: np.ndarray  # priors + mean balance only (no speed signal)
+
+    def head(self, n: int) -> Posterior:
+        """The marginal posterior of the first ``n`` parameters (e.g. friction without the nuisances)."""
+        return Posterior(self.theta[:n], self.covariance[:n, :n], self.cov_statistical[:n, :n], self.chi2_reduced,
+                         self.weight, self.cov_reference[:n, :n])
+
+    def data_gain(self, rows: np.ndarray) -> np.ndarray:
+        """1 - var_posterior / var_reference of linear functions rows (Q, P) @ theta: the share of what is known
+        about them that the speed signal contributed (0: prior and mean balance only, 1: all from the speed)."""
+        r = np.atleast_2d(rows)
+        post = np.einsum("qp,pr,qr->q", r, self.cov_statistical, r)
+        ref = np.einsum("qp,pr,qr->q", r, self.cov_reference, r)
+        # a function the reference already pins down (e.g. a share of one cylinder) is not left to any prior
+        pinned = ref <= 1e-12 * max(float(np.max(ref, initial=0.0)), 1e-300) + 1e-300
+        return np.where(pinned, 1.0, np.clip(1.0 - post / np.maximum(ref, 1e-300), 0.0, 1.0))
+
+    def sigma_of(self, rows: np.ndarray) -> np.ndarray:
+        """1-sigma of linear functions rows (Q, P) @ theta."""
+        r = np.atleast_2d(rows)
+        return np.sqrt(np.clip(np.einsum("qp,pr,qr->q", r, self.covariance, r), 0.0, None))
+
+
+def solve_posterior(acc: Accumulator, prior: Prior, sys_var: np.ndarray,
+                    lower: float | np.ndarray = 0.0) -> Posterior:
+    """Bounded MAP estimate (theta >= lower; -inf marks a free nuisance) and its covariance.
+
+    sys_var (R,): variance of the error that repeats every cycle, per raw row, in raw units squared."""
+    n_pr, r_pr = prior.normal()
+    info = acc.info + n_pr
+    rhs = acc.rhs + r_pr
+    theta = bounded_solve(info, rhs, lower)
+    dof = acc.rows - theta.shape[0]
+    chi2 = acc.yty - 2.0 * theta @ acc.rhs + theta @ acc.info @ theta
+    chi2_red = float(chi2 / dof) if dof > 0 else 1.0
+    inv = np.linalg.inv(info)
+    inv = 0.5 * (inv + inv.T)
+    cov_stat = inv * max(1.0, chi2_red)
+    g = inv @ acc.sys_map
+    cov_sys = (g * sys_var[None, :]) @ g.T
+    ref = np.linalg.pinv(acc.info_reference + n_pr, rcond=1e-13, hermitian=True) * max(1.0, chi2_red)
+    return Posterior(theta=theta, covariance=cov_stat + cov_sys, cov_statistical=cov_stat, chi2_reduced=chi2_red,
+                     weight=acc.weight, cov_reference=ref)
+
+
+@dataclass(frozen=True)
+class ResidualStats:
+    """Per-row residual statistics across cycles (EWMA): mean (persistent part) and variance about it (random part).
+
+    Used as the noise model (whitening) and the systematic-error budget. Rows are complex harmonics (M,) plus the
+    mean balance as a real scalar."""
+
+    mean: np.ndarray  # (M,) complex
+    var: np.ndarray  # (M,) per real component
+    balance_mean: float
+    balance_var: float
+    count: int
+
+    @staticmethod
+    def empty(n_harmonics: int) -> ResidualStats:
+        return ResidualStats(np.zeros(n_harmonics, complex), np.zeros(n_harmonics), 0.0, 0.0, 0)
+
+    def update(self, resid: np.ndarray, balance_resid: float, memory: float) -> ResidualStats:
+        """Fold in one cycle's residuals; ``memory`` is the EWMA factor (e.g. 1 - 1/50); the first cycles average."""
+        n = self.count + 1
+        g = max(1.0 - memory, 1.0 / n)
+        d = resid - self.mean
+        db = balance_resid - self.balance_mean
+        return replace(
+            self,
+            mean=self.mean + g * d,
+            var=(1.0 - g) * (self.var + g * 0.5 * np.abs(d) ** 2) if n > 1 else 0.5 * np.abs(resid) ** 2,
+            balance_mean=self.balance_mean + g * db,
+            balance_var=(1.0 - g) * (self.balance_var + g * db * db) if n > 1 else balance_resid**2,
+            count=n,
+        )

@@ -1,0 +1,464 @@
+"""The per-cycle monitor: one assembled ``Cycle`` in, one ``CycleResult`` out, state explicit (design.md §4).
+
+    state = initial_state(spec)
+    for cycle in cycles:
+        state, result = process_cycle(spec, state, cycle)
+
+Per cycle:
+1. Fit the flywheel motion to the raw tooth times (core.flywheel): harmonics of the cycle period, no sinc to undo.
+2. Torques on the cycle's time grid (core.excitation): gas from the measured pressure, the reciprocating remainder,
+   the six friction basis terms per cylinder, each at its own throw's angle and speed.
+3. Harmonic balance through the torsional chain (core.dynamics; the transfer functions depend on Omega only and are
+   rebuilt only when the operating point moves): known response W0 and the friction design, affine in the
+   coefficients. Two passes: the second re-evaluates the frozen terms (twist, throw speeds, J(theta) remainder) with
+   the model's node motion (physics.md §12.3: one refresh is enough). The first pass starts from the previous
+   cycle's node motion (warm start).
+4. Mean balance T_fM = T_iM - T_LM - modelled damper/coupling dissipation - dE/4pi (physics.md §6, §12.4).
+5. Accumulate the whitened equations with forgetting; solve with the priors (Eq. 6 sharing, weak per-parameter)
+   and theta >= 0, per cycle and smoothed (core.accumulate); report with honest sigmas (core.estimate).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from core.accumulate import Accumulator, Prior, ResidualStats, solve_posterior
+from core.dynamics import (Receptance, ShaftModel, dissipated_power, receptance, rigid_friction_torque, shaft_model,
+                           static_twist)
+from core.engine import EngineSpec
+from core.estimate import friction_estimate
+from core.excitation import Excitation, cycle_excitation
+from core.flywheel import FlywheelMotion, ToothLearner, fit_flywheel, harmonic_series, harmonics_of
+from core.identify import (CycleRows, ParameterLayout, friction_design, parameter_layout, tooth_patterns,
+                           whiten)
+from core.indicated import peak_pressure
+from core.results import CycleResult
+from core.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
+from core.types import Cycle
+
+FOUR_PI = 4.0 * np.pi
+
+
+class CycleRejected(ValueError):
+    """The cycle cannot be analysed honestly. ``reason`` is a short tag the pipeline counts; str() explains."""
+
+    def __init__(self, reason: str, detail: str):
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class MonitorConfig:
+    """Hyper-parameters of the monitor (all have defaults that suit the presets).
+
+    max_order: highest engine order used in the identification (None: from the wheel, <= 12)
+    fit_order: highest order fitted to the teeth (None: max_order); fit_drift: fit a linear speed drift per cycle
+    (off: over one cycle it is nearly collinear with order 0.5 and drags in content from above the band)
+    drift_nuisance: instead, project a per-cycle linear speed drift out of that cycle's equations (its shape passed
+    through the same tooth fit), so cycle-to-cycle speed changes neither bias nor add noise to the estimate
+    time_samples: samples per cycle of the harmonic-balance time grid
+    scheme, prior_coefficients: parameter grouping and baseline a0 (core.identify.parameter_layout)
+    forgetting: per-cycle factor of the accumulated equations, 1 - 1/N_window (None: N_window = max(400, 100 z)
+    cycles, since more cylinders need more cycles; physics.md §12.5)
+    noise_memory: EWMA factor of the residual statistics that whiten the equations
+    share_spread: 1-sigma of the Eq. 6 sharing prior, relative; parameter_sigma: weak prior on each scale (theta ~ 1)
+    sibling_spread: 1-sigma of a per-cylinder scale about the mean of its siblings (0: no sibling prior)
+    model_rel_error: repeatable model error of a speed harmonic, relative to its size (physics.md §12.3: 0.2 %)
+    balance_rel_error: repeatable error of the mean balance relative to T_iM (pressure gain/TDC, load sensor)
+    coupling_rel_error: relative error of the modelled damper/coupling dissipation
+    load_rel_error: load-sensor accuracy as a fraction of the rated torque (a class-0.05 torque flange: 0.05 %)
+    resolve_rel: a per-cylinder mean is reported when its 1-sigma is at most this fraction of it
+    coefficient_snr: a coefficient is reported when it exceeds this many sigmas
+    min_data_gain: ... and either only when the speed signal, not the priors, gave at least this share of what is
+    known about it (core.accumulate.Posterior.data_gain)
+    passes: harmonic-balance passes per cycle; rebuild_tolerance: relative Omega change that rebuilds Z^-1
+    tooth_nuisance: carry the in-band tooth-spacing error (integer orders) as accumulated nuisance parameters with
+    a prior from ``tooth_error_deg``, the expected rms per-tooth angle error (core.identify.tooth_nuisance_design)
+    variable_inertia: model J(theta) and the mass torque (off only to analyse a plant without them)
+    learn_teeth: learn the out-of-band tooth pattern from the fit residuals (core.flywheel.ToothLearner) with EWMA
+    factor ``tooth_memory``; the fit is repeated with the fresh correction for the first ``tooth_refit_cycles``
+    warmup_cycles: cycles whose equations are not accumulated (the tooth learner and noise model settle first)
+    """
+
+    max_order: float | None = None
+    fit_order: float | None = None
+    fit_drift: bool = False
+    drift_nuisance: bool = True
+    time_samples: int = 512
+    scheme: str | None = None
+    prior_coefficients: np.ndarray | None = None
+    forgetting: float | None = None
+    noise_memory: float = 1.0 - 1.0 / 100.0
+    share_spread: float = 0.3
+    sibling_spread: float = 0.15
+    parameter_sigma: float = 1.0
+    model_rel_error: float = 0.003
+    balance_rel_error: float = 0.001
+    coupling_rel_error: float = 0.1
+    load_rel_error: float = 5e-4
+    resolve_rel: float = 0.10
+    coefficient_snr: float = 2.0
+    min_data_gain: float = 0.5
+    passes: int = 2
+    rebuild_tolerance: float = 0.005
+    tooth_nuisance: bool = True
+    tooth_error_deg: float = 0.05
+    learn_teeth: bool = True
+    variable_inertia: bool = True
+    tooth_memory: float = 1.0 - 1.0 / 100.0
+    tooth_refit_cycles: int = 50
+    warmup_cycles: int = 20
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    """Chain matrices and transfer functions at one mean speed and load (cached in the state)."""
+
+    omega_mean: float
+    load_torque: float
+    shaft: ShaftModel
+    receptance: Receptance
+    transfer: np.ndarray  # (M, N) flywheel speed per node torque
+
+
+@dataclass(frozen=True)
+class MonitorState:
+    """Everything carried from one cycle to the next (scipy ``zi`` style: in and out of ``process_cycle``)."""
+
+    layout: ParameterLayout
+    n_harmonics: int
+    n_nuisance: int
+    accumulator: Accumulator
+    stats: ResidualStats
+    theta: np.ndarray
+    op: OperatingPoint | None
+    relative_motion: np.ndarray | None
+    static: np.ndarray | None
+    teeth: ToothLearner
+    balance_mean: float
+    indicated_mean: np.ndarray
+    cycles: int
+    prev_omega: float = float("nan")
+    drift_var: float = 0.0
+
+
+def default_max_order(spec: EngineSpec) -> float:
+    """Half the per-revolution tooth count over 5 (enough edges per harmonic), capped at order 12."""
+    teeth = spec.sensors.wheel_teeth - spec.sensors.wheel_missing
+    return float(min(12.0, np.floor(teeth / 5.0 * 2.0) / 2.0))
+
+
+def initial_state(spec: EngineSpec, config: MonitorConfig | None = None,
+                  tooth_correction: np.ndarray | None = None) -> MonitorState:
+    """A fresh state: no accumulated cycles, parameters at the prior (theta = 1)."""
+    cfg = config or MonitorConfig()
+    layout = parameter_layout(spec, cfg.scheme, cfg.prior_coefficients)
+    m = int(round(2 * (cfg.max_order or default_max_order(spec))))
+    if m < 1 or 2 * m >= cfg.time_samples:
+        raise ValueError(f"max_order gives {m} harmonics; need 1 <= M < time_samples/2 = {cfg.time_samples // 2}")
+    if tooth_correction is not None and np.shape(tooth_correction) != (spec.sensors.wheel_teeth,):
+        raise ValueError(f"tooth_correction must have one angle per wheel position ({spec.sensors.wheel_teeth})")
+    n_nuis = 2 * (m // 2) if cfg.tooth_nuisance else 0
+    p = layout.n_params + n_nuis
+    return MonitorState(layout=layout, n_harmonics=m, n_nuisance=n_nuis, accumulator=Accumulator.empty(p, 2 * m + 1),
+                        stats=ResidualStats.empty(m), theta=np.concatenate([np.ones(layout.n_params),
+                                                                             np.zeros(n_nuis)]),
+                        op=None, relative_motion=None, static=None,
+                        teeth=ToothLearner(np.zeros(spec.sensors.wheel_teeth) if tooth_correction is None
+                                           else np.asarray(tooth_correction, dtype=np.float64).copy(), 0),
+                        balance_mean=float("nan"),
+                        indicated_mean=np.full(spec.n_cyl, np.nan), cycles=0)
+
+
+def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
+                  config: MonitorConfig | None = None) -> tuple[MonitorState, CycleResult]:
+    """Analyse one cycle. Raises ``CycleRejected`` (state unchanged) when the cycle cannot be used."""
+    cfg = config or MonitorConfig()
+    pressure, flags = _checked_pressure(spec, cycle)
+    m = state.n_harmonics
+    # the 4 pi window that starts at the first edge (the assembler brackets [0, 4 pi] with one edge either side)
+    nominal = np.asarray(cycle.tooth_angle, dtype=np.float64)
+    end = int(np.searchsorted(nominal, nominal[0] + FOUR_PI - 1e-6))
+    if end >= nominal.shape[0] or abs(nominal[end] - nominal[0] - FOUR_PI) > 1e-6:
+        raise CycleRejected("bad_teeth", "no tooth edge 720 deg after the first one")
+    ticks = cycle.tooth_ticks[: end + 1]
+    pos = np.asarray(cycle.tooth_index[: end + 1]) % spec.sensors.wheel_teeth
+    nominal = nominal[: end + 1]
+    teeth = state.teeth
+    patterns = tooth_patterns(nominal, state.n_nuisance // 2) if state.n_nuisance else np.zeros((nominal.size, 0))
+    if cfg.drift_nuisance:  # angle of a linear speed drift over the cycle, q(u) = u (u - 1), u = t / T
+        u = (ticks - ticks[0]) / float(ticks[-1] - ticks[0])
+        patterns = np.column_stack([patterns, u * (u - 1.0)])
+    try:
+        m_fit = int(round(2 * cfg.fit_order)) if cfg.fit_order else m
+        fly = fit_flywheel(ticks, cycle.tick_hz, nominal + teeth.correction[pos], m, patterns, m_fit, cfg.fit_drift)
+        if cfg.learn_teeth:
+            teeth = teeth.update(pos, fly.edge_residual, cfg.tooth_memory)
+            if teeth.count <= cfg.tooth_refit_cycles:  # while young, use what this cycle taught at once
+                fly = fit_flywheel(ticks, cycle.tick_hz, nominal + teeth.correction[pos], m, patterns, m_fit,
+                                   cfg.fit_drift)
+    except ValueError as exc:
+        raise CycleRejected("bad_teeth", str(exc)) from exc
+    theta_start = float(nominal[0] + teeth.correction[pos[0]])
+    omega = fly.omega_mean
+    load = cycle.load_torque if np.isfinite(cycle.load_torque) else cycle.load_power / omega
+    if not np.isfinite(load):
+        flags.append("no_load_measurement")
+    op = _operating_point(spec, state.op, omega, load, m, cfg)
+    if op is not state.op and state.op is not None:
+        flags.append("operating_point_changed")
+
+    exc, rows, node_speed, rel, static = _harmonic_balance(spec, state, cycle.grid, pressure, fly, theta_start, op,
+                                                           cfg)
+    p_rel, p_gnd = dissipated_power(op.shaft, node_speed)
+    # relative dampers (damper, shaft, coupling) dissipate mean power that a balance against the load behind the
+    # coupling would book as friction (physics.md §12.4); the load's own ripple work (ground damping) belongs to
+    # the load: the measured torque is a time mean, the work it absorbs is that plus <T_L~ omega_L~>
+    coupling_loss = p_rel / omega
+    if np.isfinite(load):
+        load = load + p_gnd / omega
+    t_i = float(exc.indicated_mean.sum())
+    # no kinetic-energy term: a per-cycle estimate of it from the fitted drift is biased by any content the fit
+    # lacks, while the uncorrected balance telescopes (its cycle-to-cycle noise averages out in the accumulation)
+    balance = t_i - load - coupling_loss if np.isfinite(load) else float("nan")
+    rows = replace(rows, mean_target=balance)
+
+    # noise model from past residuals, floor from the tooth-fit residual
+    resid = rows.target - rows.design @ state.theta
+    # cycle-to-cycle speed change: a random walk of the mean speed, its step variance tracks the within-cycle drift
+    step = omega - state.prev_omega if np.isfinite(state.prev_omega) else 0.0
+    drift_var = step**2 if state.cycles <= 1 else state.drift_var + max(1.0 - cfg.noise_memory, 1.0 / state.cycles) * (
+        step**2 - state.drift_var)
+    if cfg.drift_nuisance:  # the noise statistics see the residual without this cycle's best-fitting drift
+        d = 1j * fly.freq * fly.pattern_harmonics[:, -1]
+        resid = resid - d * (np.vdot(d, resid).real / max(float(np.vdot(d, d).real), 1e-300))
+    bal_resid = balance - float(rows.mean_row @ state.theta) if np.isfinite(balance) else 0.0
+    stats = state.stats.update(resid, bal_resid, cfg.noise_memory)
+    floor = fly.freq**2 * 2.0 * fly.residual_rms**2 / fly.n_edges + 1e-12
+    sigma = np.sqrt(np.maximum(stats.var, floor))
+    sigma_bal = np.sqrt(max(stats.balance_var, (0.002 * t_i) ** 2, 1e-6)) if stats.count > 2 else 0.05 * abs(t_i)
+    a, y = whiten(rows, sigma)
+    if cfg.drift_nuisance and drift_var > 0:
+        # this cycle's drift is a random effect of prior variance s^2 (never accumulated): whiten with
+        # (I + s^2 d d^T)^-1 = W^T W, W = I - c d d^T, c ||d||^2 = 1 - 1/sqrt(1 + s^2 ||d||^2) (Sherman-Morrison);
+        # a large drift projects its column out, a small one leaves the order-0.5 information in place
+        d = 1j * fly.freq * fly.pattern_harmonics[:, -1]
+        dw = np.concatenate([d.real, d.imag]) / np.concatenate([sigma, sigma])
+        nd = float(dw @ dw)
+        s2 = drift_var * (0.5 * fly.period) ** 2  # drift coefficient c_1 = Delta omega T / 2 [rad]
+        if nd > 0:
+            c = (1.0 - 1.0 / np.sqrt(1.0 + s2 * nd)) / nd
+            a = a - c * np.outer(dw, dw @ a)
+            y = y - c * dw * (dw @ y)
+    inv_sigma = np.concatenate([1.0 / sigma, 1.0 / sigma, [1.0 / sigma_bal]])
+    if np.isfinite(balance):
+        a = np.vstack([a, rows.mean_row / sigma_bal])
+        y = np.append(y, balance / sigma_bal)
+    else:  # no load: the mean is not measured this cycle; the row carries nothing
+        a = np.vstack([a, np.zeros(a.shape[1])])
+        y = np.append(y, 0.0)
+    lam = cfg.forgetting if cfg.forgetting is not None else 1.0 - 1.0 / max(400.0, 100.0 * spec.n_cyl)
+    acc = state.accumulator.update(a, y, inv_sigma, lam, 1) if state.cycles >= cfg.warmup_cycles \
+        else state.accumulator
+    sys_var = np.concatenate([
+        np.maximum(np.abs(stats.mean) ** 2, (cfg.model_rel_error * np.abs(fly.speed_harmonics)) ** 2) / 2.0,
+        np.maximum(np.abs(stats.mean) ** 2, (cfg.model_rel_error * np.abs(fly.speed_harmonics)) ** 2) / 2.0,
+        [(cfg.balance_rel_error * t_i) ** 2 + (cfg.coupling_rel_error * coupling_loss) ** 2
+         + (cfg.load_rel_error * spec.rated_torque_nm) ** 2],
+    ])
+
+    # running means for the sharing prior of the smoothed estimate
+    g = max(1.0 - lam, 1.0 / (state.cycles + 1))
+    bal_mean = balance if not np.isfinite(state.balance_mean) else state.balance_mean + g * (balance - state.balance_mean)
+    ind_mean = exc.indicated_mean.copy() if state.cycles == 0 else state.indicated_mean + g * (
+        exc.indicated_mean - state.indicated_mean)
+    pmax, pmax_angle = peak_pressure(cycle.grid, pressure, spec.firing_angles)
+    rpm = omega * 60.0 / (2.0 * np.pi)
+    not_firing = ~firing_mask(exc.indicated_mean)
+    motored = motored_friction_per_cylinder(spec, rpm, float(np.mean(pmax[not_firing])) if not_firing.any() else 0.0)
+
+    layout = state.layout
+    p_f = layout.n_params
+    prior = _priors(spec, state, cfg, fly, np.pad(rows.cylinder_rows, ((0, 0), (0, state.n_nuisance))))
+    lower = np.concatenate([np.zeros(p_f), np.full(state.n_nuisance, -np.inf)])
+    share_s = share_mean_loss(bal_mean, ind_mean, motored, cfg.share_spread)
+    post_s = solve_posterior(acc, prior.with_share(share_s), sys_var, lower)
+    one = Accumulator.empty(acc.info.shape[0], 2 * m + 1).update(a, y, inv_sigma, 0.0, 1)
+    share_c = share_mean_loss(balance if np.isfinite(balance) else bal_mean, exc.indicated_mean, motored,
+                              cfg.share_spread)
+    post_c = solve_posterior(one, prior.with_share(share_c), sys_var, lower)
+    est_s = friction_estimate(spec, layout, post_s.head(p_f), exc.basis_mean, share_s.friction_mean,
+                              cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain)
+    est_c = friction_estimate(spec, layout, post_c.head(p_f), exc.basis_mean, share_c.friction_mean,
+                              cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain)
+    flags += [f"misfire_cyl{k + 1}" for k in np.flatnonzero(share_c.motored)]
+
+    result = _result(spec, cycle, fly, exc, rows, post_s.theta, layout, op, load, balance, coupling_loss,
+                     pmax, pmax_angle, est_c, est_s, flags)
+    new_state = replace(state, accumulator=acc, stats=stats, theta=post_s.theta, op=op, relative_motion=rel,
+                        static=static, teeth=teeth, prev_omega=omega, drift_var=drift_var,
+                        balance_mean=bal_mean, indicated_mean=ind_mean, cycles=state.cycles + 1)
+    return new_state, result
+
+
+# ---- steps -------------------------------------------------------------------------------------------------
+
+
+def _checked_pressure(spec: EngineSpec, cycle: Cycle) -> tuple[np.ndarray, list[str]]:
+    p = np.asarray(cycle.pressure, dtype=np.float64)
+    n = cycle.grid.shape[0]
+    if p.shape != (spec.n_cyl, n):
+        raise CycleRejected("bad_pressure", f"pressure has shape {p.shape}; expected ({spec.n_cyl}, {n})")
+    span = (cycle.grid[-1] - cycle.grid[0]) * n / max(n - 1, 1)
+    if n < 64 or abs(span - FOUR_PI) > 1e-6 * FOUR_PI:
+        raise CycleRejected("bad_grid", f"the crank-angle grid must cover 720 deg uniformly ({n} points)")
+    flags = list(cycle.flags)
+    bad = ~np.isfinite(p)
+    if bad.any():
+        p = p.copy()
+        for k in np.flatnonzero(bad.any(axis=1)):
+            b = bad[k]
+            longest = max((len(r) for r in "".join("x" if v else " " for v in b).split()), default=0)
+            if longest > 3 or b.mean() > 0.02:
+                raise CycleRejected("bad_pressure", f"cylinder {k + 1}: {int(b.sum())} invalid samples "
+                                                    f"(longest gap {longest})")
+            idx = np.arange(n)
+            p[k, b] = np.interp(idx[b], idx[~b], p[k, ~b], period=n)
+            flags.append(f"pressure_repaired_cyl{k + 1}")
+    return p, flags
+
+
+def _operating_point(spec: EngineSpec, op: OperatingPoint | None, omega: float, load: float, m: int,
+                     cfg: MonitorConfig) -> OperatingPoint:
+    load_ok = np.isfinite(load)
+    if op is not None and abs(omega / op.omega_mean - 1.0) <= cfg.rebuild_tolerance and (
+            not load_ok or abs(load - op.load_torque) <= 0.05 * max(abs(op.load_torque), 1e-9)):
+        return op
+    shaft = shaft_model(spec, load if load_ok else 0.0, omega)
+    rec = receptance(shaft, omega, m)
+    return OperatingPoint(omega, load if load_ok else 0.0, shaft, rec, rec.speed_transfer(shaft.flywheel))
+
+
+def _harmonic_balance(spec: EngineSpec, state: MonitorState, grid: np.ndarray, pressure: np.ndarray,
+                      fly: FlywheelMotion, theta_start: float, op: OperatingPoint, cfg: MonitorConfig
+                      ) -> tuple[Excitation, CycleRows, np.ndarray, np.ndarray, np.ndarray]:
+    """Passes of excitation + chain response; returns the last excitation, the rows (friction columns, then the
+    tooth-error nuisances), node speeds, and the node-minus-flywheel motion (harmonics and static twist) for the
+    next cycle."""
+    rel = state.relative_motion
+    n_nodes = spec.n_nodes
+    if rel is not None and rel.shape != (n_nodes, fly.n_harmonics):
+        rel = None
+    layout = state.layout
+    coef = layout.coefficients(state.theta[: layout.n_params])
+    static = state.static if state.static is not None and state.static.shape == (n_nodes,) else None
+    # warm start: with the previous cycle's node motion the first pass already is a refresh (physics.md §12.3)
+    passes = max(1, cfg.passes - 1) if rel is not None and static is not None else max(1, cfg.passes)
+    for _ in range(passes):
+        exc = cycle_excitation(spec, grid, pressure, fly, theta_start, cfg.time_samples,
+                               op.shaft.recip_inertia_mean, rel if n_nodes > 1 else None,
+                               static if n_nodes > 1 else None, cfg.variable_inertia)
+        mean_torque = np.zeros(n_nodes)
+        np.add.at(mean_torque, spec.cylinder_node, exc.indicated_mean - (coef * exc.basis_mean).sum(axis=1))
+        static = static_twist(op.shaft, mean_torque)
+        torque = exc.known_harm.copy()
+        np.add.at(torque, spec.cylinder_node, -np.einsum("kl,klm->km", coef, exc.basis_harm))
+        phi = np.einsum("mij,jm->im", op.receptance.inverse, torque)
+        rel = phi - phi[op.shaft.flywheel]
+    node_speed = 1j * op.receptance.freq[None, :] * phi
+    w0 = np.einsum("mq,qm->m", op.transfer, exc.known_harm)
+    design = friction_design(layout, op.transfer, exc.basis_harm, spec.cylinder_node)
+    if state.n_nuisance:
+        design = np.hstack([design, 1j * fly.freq[:, None] * fly.pattern_harmonics[:, : state.n_nuisance]])
+    cyl_rows = layout.cylinder_rows(exc.basis_mean)
+    rows = CycleRows(design=design, target=fly.speed_harmonics - w0,
+                     mean_row=np.pad(cyl_rows.sum(axis=0), (0, state.n_nuisance)), mean_target=float("nan"),
+                     cylinder_rows=cyl_rows)
+    return exc, rows, node_speed, rel, static
+
+
+@dataclass(frozen=True)
+class _Priors:
+    """Fixed prior rows (weak scale prior, tooth-error prior) plus the per-cylinder rows for the Eq. 6 sharing."""
+
+    base: Prior
+    cylinder_rows: np.ndarray
+
+    def with_share(self, share) -> Prior:
+        if not np.all(np.isfinite(share.friction_mean)):
+            return self.base
+        return Prior.stack(self.base, Prior(self.cylinder_rows, share.friction_mean, np.maximum(share.sigma, 1e-6)))
+
+
+def _priors(spec: EngineSpec, state: MonitorState, cfg: MonitorConfig, fly: FlywheelMotion,
+            cylinder_rows: np.ndarray) -> _Priors:
+    p_f = state.layout.n_params
+    p = p_f + state.n_nuisance
+    sig = np.full(p, cfg.parameter_sigma)
+    target = np.concatenate([np.ones(p_f), np.zeros(state.n_nuisance)])
+    if state.n_nuisance:
+        # white per-tooth errors of rms s over N edges per revolution: each real Fourier part has rms s sqrt(2/N)
+        edges = spec.sensors.wheel_teeth - spec.sensors.wheel_missing
+        sig[p_f:] = np.radians(cfg.tooth_error_deg) * np.sqrt(2.0 / edges)
+    base = Prior(np.eye(p), target, sig)
+    per_cyl = np.flatnonzero(state.layout.per_cylinder)
+    z = spec.n_cyl
+    if cfg.sibling_spread > 0 and z > 1:
+        # the per-cylinder parameters come in z blocks of equal size (one block per cylinder, same terms)
+        block = per_cyl.reshape(z, -1)
+        rows = []
+        for j in range(block.shape[1]):
+            for k in range(z):
+                r = np.zeros(p)
+                r[block[:, j]] = -1.0 / z
+                r[block[k, j]] += 1.0
+                rows.append(r)
+        rows = np.array(rows)
+        base = Prior.stack(base, Prior(rows, np.zeros(rows.shape[0]), np.full(rows.shape[0], cfg.sibling_spread)))
+    return _Priors(base, cylinder_rows)
+
+
+def _result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excitation, rows: CycleRows,
+            theta: np.ndarray, layout: ParameterLayout, op: OperatingPoint, load: float, balance: float,
+            coupling_loss: float, pmax: np.ndarray, pmax_angle: np.ndarray, est_c, est_s,
+            flags: list[str]) -> CycleResult:
+    grid = cycle.grid
+    n_t = exc.tau.shape[0]
+    p_f = layout.n_params
+    coef = layout.coefficients(theta[:p_f])
+    per_cyl_t = np.einsum("kl,klt->kt", coef, exc.basis)
+    per_cyl = _to_grid(grid, exc.theta_fly, per_cyl_t)
+    _, _, omega_meas, alpha_meas = fly.on_grid(n_t)
+    resid = rows.target - rows.design @ theta
+    # show the measured speed with the estimated tooth-spacing pattern taken out; the model without it
+    tooth = rows.design[:, p_f:] @ theta[p_f:]
+    omega_meas = omega_meas - harmonic_series(tooth, n_t)
+    model_t = omega_meas - harmonic_series(resid, n_t)
+    speed_meas, speed_model = _to_grid(grid, exc.theta_fly, np.stack([omega_meas, model_t]))
+    power = float(np.sum(np.abs(fly.speed_harmonics) ** 2))
+    r2 = 1.0 - float(np.sum(np.abs(resid) ** 2)) / power if power > 0 else float("nan")
+    balance_trace = None
+    if spec.n_nodes == 1:
+        tl = load * (omega_meas / fly.omega_mean) ** spec.load.exponent if spec.load.kind != "grid" else load
+        direct = rigid_friction_torque(exc.theta_fly, omega_meas, alpha_meas, exc.gas.sum(axis=0), tl, spec)
+        low = harmonic_series(harmonics_of(direct, fly.n_harmonics), n_t, float(direct.mean()))
+        balance_trace = _to_grid(grid, exc.theta_fly, low[None])[0]
+    return CycleResult(
+        index=cycle.index, t_start=cycle.t_start, rpm_mean=fly.omega_mean * 60.0 / (2.0 * np.pi),
+        omega_mean=fly.omega_mean, load_torque=float(load), load_power=float(cycle.load_power),
+        imep=exc.indicated_mean * FOUR_PI / spec.displacement_cyl, pmax=pmax, pmax_angle=pmax_angle,
+        indicated_torque=exc.indicated_mean, friction_balance=float(balance), coupling_loss=float(coupling_loss),
+        cycle=est_c, smoothed=est_s, grid=grid.copy(), friction_torque=per_cyl.sum(axis=0),
+        friction_torque_cyl=per_cyl, speed_measured=speed_meas, speed_model=speed_model,
+        residual_harmonics=resid, residual_rms=float(np.sqrt(0.5 * np.sum(np.abs(resid) ** 2))), r_squared=r2,
+        friction_torque_balance=balance_trace, flags=tuple(flags))
+
+
+def _to_grid(grid: np.ndarray, theta: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Rows ``values`` (r, n_t) sampled at the increasing flywheel angles ``theta`` of the time grid, onto the
+    crank-angle ``grid`` (periodic in 4 pi: theta spans one cycle from the first tooth edge)."""
+    x = np.append(theta, theta[0] + FOUR_PI)
+    u = theta[0] + np.mod(grid - theta[0], FOUR_PI)
+    return np.stack([np.interp(u, x, np.append(v, v[0])) for v in np.atleast_2d(values)])
