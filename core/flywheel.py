@@ -17,7 +17,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 FOUR_PI = 4.0 * np.pi
 
@@ -161,7 +160,7 @@ def fit_flywheel(
     # well conditioned and ~10x cheaper than an SVD least squares
     scale = np.sqrt(np.einsum("ij,ij->j", design, design))
     d = design / scale
-    sol = scipy.linalg.solve(d.T @ d, d.T @ rhs, assume_a="pos") / scale[:, None]
+    sol = np.linalg.solve(d.T @ d, d.T @ rhs) / scale[:, None]
     coef = sol[:, 0]
     resid = phi - design @ coef
     c0, s0 = n_drift, n_drift + m_fit

@@ -11,9 +11,11 @@ response to the known torques. The cycle's mean balance adds one row: sum_kl a_k
 Parametrisation (physics.md §12.5). Six free terms per cylinder are not identifiable on a multi-cylinder engine (F3 and
 F4 have 0.99-correlated speed signatures, F5 has none). A ``ParameterLayout`` groups coefficients: a_kl = a0_kl *
 theta_g(k,l), theta >= 0, where a0 is the prior (commissioning baseline or the preset's values) and each group shares
-one scale. The default for multi-cylinder engines scales the pressure-driven terms (F1 ring viscous, F2 ring mixed,
-F6 loaded bearings) per cylinder, where ring wear shows, and shares F3, F4, F5 engine-wide. A single-cylinder engine
-identifies all six a_l (paper 000 Eq. 5).
+one scale. The default for multi-cylinder engines ('piston_group') scales the piston-assembly terms F1 ring viscous,
+F2 ring mixed and F3 skirt per cylinder - the group ring wear changes - and shares F4, F5, F6 engine-wide. Why not
+F1+F2+F6 as physics.md §12.5 suggests: with F3 engine-wide, a worn cylinder's skirt/ring increase has to be fitted
+with the F6 (bearing) shape, which projects onto it with the wrong sign (measured: a worn cylinder read 5-10 % low).
+A single-cylinder engine identifies all six a_l (paper 000 Eq. 5).
 """
 
 from __future__ import annotations

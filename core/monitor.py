@@ -6,16 +6,22 @@
 
 Per cycle:
 1. Fit the flywheel motion to the raw tooth times (core.flywheel): harmonics of the cycle period, no sinc to undo.
+   The tooth-spacing error above the band is learned from the fit residuals; inside the band it is fixed in angle and
+   repeats every revolution, so at one operating point it cannot be told from a steady engine response at integer
+   orders: it is carried as accumulated nuisance parameters E_n with a prior of its expected size, their columns
+   computed exactly by passing the angle patterns through the same fit.
 2. Torques on the cycle's time grid (core.excitation): gas from the measured pressure, the reciprocating remainder,
-   the six friction basis terms per cylinder, each at its own throw's angle and speed.
+   the six friction basis terms per cylinder, each at its own throw's angle and speed, static twist included.
 3. Harmonic balance through the torsional chain (core.dynamics; the transfer functions depend on Omega only and are
    rebuilt only when the operating point moves): known response W0 and the friction design, affine in the
-   coefficients. Two passes: the second re-evaluates the frozen terms (twist, throw speeds, J(theta) remainder) with
-   the model's node motion (physics.md §12.3: one refresh is enough). The first pass starts from the previous
-   cycle's node motion (warm start).
-4. Mean balance T_fM = T_iM - T_LM - modelled damper/coupling dissipation - dE/4pi (physics.md §6, §12.4).
-5. Accumulate the whitened equations with forgetting; solve with the priors (Eq. 6 sharing, weak per-parameter)
-   and theta >= 0, per cycle and smoothed (core.accumulate); report with honest sigmas (core.estimate).
+   coefficients. The frozen terms (twist, throw speeds, J(theta) remainder) come from the previous cycle's model
+   motion (warm start), refreshed once on the first cycle (physics.md §12.3: one refresh is enough).
+4. Mean balance T_fM = T_iM - T_LM - modelled damper/coupling dissipation (physics.md §6, §12.4), T_iM as the work of
+   each throw. No per-cycle kinetic-energy term: an estimate of it is biased by whatever the fit lacks, while the
+   uncorrected balance telescopes and its cycle-to-cycle noise averages out.
+5. The cycle's own speed drift is a per-cycle random effect (never accumulated); the whitened equations are
+   accumulated with forgetting and solved with the priors (core.priors) and theta >= 0, per cycle and smoothed
+   (core.accumulate); reported with honest sigmas and resolved flags (core.estimate, core.cycle_report).
 """
 
 from __future__ import annotations
@@ -24,16 +30,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from core.accumulate import Accumulator, Prior, ResidualStats, solve_posterior
-from core.dynamics import (Receptance, ShaftModel, dissipated_power, receptance, rigid_friction_torque, shaft_model,
-                           static_twist)
+from core.accumulate import Accumulator, ResidualStats, solve_posterior
+from core.cycle_report import build_result
+from core.dynamics import Receptance, ShaftModel, dissipated_power, receptance, shaft_model, static_twist
 from core.engine import EngineSpec
 from core.estimate import friction_estimate
 from core.excitation import Excitation, cycle_excitation
-from core.flywheel import FlywheelMotion, ToothLearner, fit_flywheel, harmonic_series, harmonics_of
-from core.identify import (CycleRows, ParameterLayout, friction_design, parameter_layout, tooth_patterns,
-                           whiten)
+from core.flywheel import FlywheelMotion, ToothLearner, fit_flywheel
+from core.identify import CycleRows, ParameterLayout, friction_design, parameter_layout, tooth_patterns, whiten
 from core.indicated import peak_pressure
+from core.priors import build_priors
 from core.results import CycleResult
 from core.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
 from core.types import Cycle
@@ -56,8 +62,9 @@ class MonitorConfig:
     max_order: highest engine order used in the identification (None: from the wheel, <= 12)
     fit_order: highest order fitted to the teeth (None: max_order); fit_drift: fit a linear speed drift per cycle
     (off: over one cycle it is nearly collinear with order 0.5 and drags in content from above the band)
-    drift_nuisance: instead, project a per-cycle linear speed drift out of that cycle's equations (its shape passed
-    through the same tooth fit), so cycle-to-cycle speed changes neither bias nor add noise to the estimate
+    drift_nuisance: instead, treat each cycle's linear speed drift as a random effect of that cycle's equations (its
+    shape passed through the same tooth fit, its prior size from the cycle-to-cycle mean-speed steps), so speed
+    changes between cycles neither bias nor add noise to the estimate
     time_samples: samples per cycle of the harmonic-balance time grid
     scheme, prior_coefficients: parameter grouping and baseline a0 (core.identify.parameter_layout)
     forgetting: per-cycle factor of the accumulated equations, 1 - 1/N_window (None: N_window = max(400, 100 z)
@@ -72,10 +79,10 @@ class MonitorConfig:
     resolve_rel: a per-cylinder mean is reported when its 1-sigma is at most this fraction of it
     coefficient_snr: a coefficient is reported when it exceeds this many sigmas
     min_data_gain: ... and either only when the speed signal, not the priors, gave at least this share of what is
-    known about it (core.accumulate.Posterior.data_gain)
+    known about it (core.accumulate.Posterior.data_gain; for a cylinder: its deviation from the equal share)
     passes: harmonic-balance passes per cycle; rebuild_tolerance: relative Omega change that rebuilds Z^-1
     tooth_nuisance: carry the in-band tooth-spacing error (integer orders) as accumulated nuisance parameters with
-    a prior from ``tooth_error_deg``, the expected rms per-tooth angle error (core.identify.tooth_nuisance_design)
+    a prior from ``tooth_error_deg``, the expected rms per-tooth angle error (core.identify.tooth_patterns)
     variable_inertia: model J(theta) and the mass torque (off only to analyse a plant without them)
     learn_teeth: learn the out-of-band tooth pattern from the fit residuals (core.flywheel.ToothLearner) with EWMA
     factor ``tooth_memory``; the fit is repeated with the fresh correction for the first ``tooth_refit_cycles``
@@ -155,7 +162,7 @@ def initial_state(spec: EngineSpec, config: MonitorConfig | None = None,
     """A fresh state: no accumulated cycles, parameters at the prior (theta = 1)."""
     cfg = config or MonitorConfig()
     layout = parameter_layout(spec, cfg.scheme, cfg.prior_coefficients)
-    m = int(round(2 * (cfg.max_order or default_max_order(spec))))
+    m = round(2 * (cfg.max_order or default_max_order(spec)))
     if m < 1 or 2 * m >= cfg.time_samples:
         raise ValueError(f"max_order gives {m} harmonics; need 1 <= M < time_samples/2 = {cfg.time_samples // 2}")
     if tooth_correction is not None and np.shape(tooth_correction) != (spec.sensors.wheel_teeth,):
@@ -178,30 +185,7 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
     cfg = config or MonitorConfig()
     pressure, flags = _checked_pressure(spec, cycle)
     m = state.n_harmonics
-    # the 4 pi window that starts at the first edge (the assembler brackets [0, 4 pi] with one edge either side)
-    nominal = np.asarray(cycle.tooth_angle, dtype=np.float64)
-    end = int(np.searchsorted(nominal, nominal[0] + FOUR_PI - 1e-6))
-    if end >= nominal.shape[0] or abs(nominal[end] - nominal[0] - FOUR_PI) > 1e-6:
-        raise CycleRejected("bad_teeth", "no tooth edge 720 deg after the first one")
-    ticks = cycle.tooth_ticks[: end + 1]
-    pos = np.asarray(cycle.tooth_index[: end + 1]) % spec.sensors.wheel_teeth
-    nominal = nominal[: end + 1]
-    teeth = state.teeth
-    patterns = tooth_patterns(nominal, state.n_nuisance // 2) if state.n_nuisance else np.zeros((nominal.size, 0))
-    if cfg.drift_nuisance:  # angle of a linear speed drift over the cycle, q(u) = u (u - 1), u = t / T
-        u = (ticks - ticks[0]) / float(ticks[-1] - ticks[0])
-        patterns = np.column_stack([patterns, u * (u - 1.0)])
-    try:
-        m_fit = int(round(2 * cfg.fit_order)) if cfg.fit_order else m
-        fly = fit_flywheel(ticks, cycle.tick_hz, nominal + teeth.correction[pos], m, patterns, m_fit, cfg.fit_drift)
-        if cfg.learn_teeth:
-            teeth = teeth.update(pos, fly.edge_residual, cfg.tooth_memory)
-            if teeth.count <= cfg.tooth_refit_cycles:  # while young, use what this cycle taught at once
-                fly = fit_flywheel(ticks, cycle.tick_hz, nominal + teeth.correction[pos], m, patterns, m_fit,
-                                   cfg.fit_drift)
-    except ValueError as exc:
-        raise CycleRejected("bad_teeth", str(exc)) from exc
-    theta_start = float(nominal[0] + teeth.correction[pos[0]])
+    fly, teeth, theta_start = _fit_teeth(spec, state, cycle, cfg)
     omega = fly.omega_mean
     load = cycle.load_torque if np.isfinite(cycle.load_torque) else cycle.load_power / omega
     if not np.isfinite(load):
@@ -231,8 +215,9 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
     step = omega - state.prev_omega if np.isfinite(state.prev_omega) else 0.0
     drift_var = step**2 if state.cycles <= 1 else state.drift_var + max(1.0 - cfg.noise_memory, 1.0 / state.cycles) * (
         step**2 - state.drift_var)
-    if cfg.drift_nuisance:  # the noise statistics see the residual without this cycle's best-fitting drift
-        d = 1j * fly.freq * fly.pattern_harmonics[:, -1]
+    drift_col = 1j * fly.freq * fly.pattern_harmonics[:, -1] if cfg.drift_nuisance else None
+    if drift_col is not None:  # the noise statistics see the residual without this cycle's best-fitting drift
+        d = drift_col
         resid = resid - d * (np.vdot(d, resid).real / max(float(np.vdot(d, d).real), 1e-300))
     bal_resid = balance - float(rows.mean_row @ state.theta) if np.isfinite(balance) else 0.0
     stats = state.stats.update(resid, bal_resid, cfg.noise_memory)
@@ -240,11 +225,11 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
     sigma = np.sqrt(np.maximum(stats.var, floor))
     sigma_bal = np.sqrt(max(stats.balance_var, (0.002 * t_i) ** 2, 1e-6)) if stats.count > 2 else 0.05 * abs(t_i)
     a, y = whiten(rows, sigma)
-    if cfg.drift_nuisance and drift_var > 0:
+    if drift_col is not None and drift_var > 0:
         # this cycle's drift is a random effect of prior variance s^2 (never accumulated): whiten with
         # (I + s^2 d d^T)^-1 = W^T W, W = I - c d d^T, c ||d||^2 = 1 - 1/sqrt(1 + s^2 ||d||^2) (Sherman-Morrison);
         # a large drift projects its column out, a small one leaves the order-0.5 information in place
-        d = 1j * fly.freq * fly.pattern_harmonics[:, -1]
+        d = drift_col
         dw = np.concatenate([d.real, d.imag]) / np.concatenate([sigma, sigma])
         nd = float(dw @ dw)
         s2 = drift_var * (0.5 * fly.period) ** 2  # drift coefficient c_1 = Delta omega T / 2 [rad]
@@ -271,7 +256,12 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
 
     # running means for the sharing prior of the smoothed estimate
     g = max(1.0 - lam, 1.0 / (state.cycles + 1))
-    bal_mean = balance if not np.isfinite(state.balance_mean) else state.balance_mean + g * (balance - state.balance_mean)
+    if not np.isfinite(balance):
+        bal_mean = state.balance_mean
+    elif not np.isfinite(state.balance_mean):
+        bal_mean = balance
+    else:
+        bal_mean = state.balance_mean + g * (balance - state.balance_mean)
     ind_mean = exc.indicated_mean.copy() if state.cycles == 0 else state.indicated_mean + g * (
         exc.indicated_mean - state.indicated_mean)
     pmax, pmax_angle = peak_pressure(cycle.grid, pressure, spec.firing_angles)
@@ -281,7 +271,8 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
 
     layout = state.layout
     p_f = layout.n_params
-    prior = _priors(spec, state, cfg, fly, np.pad(rows.cylinder_rows, ((0, 0), (0, state.n_nuisance))))
+    prior = build_priors(spec, layout, state.n_nuisance, np.pad(rows.cylinder_rows, ((0, 0), (0, state.n_nuisance))),
+                         cfg.parameter_sigma, cfg.tooth_error_deg, cfg.sibling_spread)
     lower = np.concatenate([np.zeros(p_f), np.full(state.n_nuisance, -np.inf)])
     share_s = share_mean_loss(bal_mean, ind_mean, motored, cfg.share_spread)
     post_s = solve_posterior(acc, prior.with_share(share_s), sys_var, lower)
@@ -295,8 +286,8 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
                               cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain)
     flags += [f"misfire_cyl{k + 1}" for k in np.flatnonzero(share_c.motored)]
 
-    result = _result(spec, cycle, fly, exc, rows, post_s.theta, layout, op, load, balance, coupling_loss,
-                     pmax, pmax_angle, est_c, est_s, flags)
+    result = build_result(spec, cycle, fly, exc, rows, post_s.theta, layout, drift_col, load, balance,
+                          coupling_loss, pmax, pmax_angle, est_c, est_s, flags)
     new_state = replace(state, accumulator=acc, stats=stats, theta=post_s.theta, op=op, relative_motion=rel,
                         static=static, teeth=teeth, prev_omega=omega, drift_var=drift_var,
                         balance_mean=bal_mean, indicated_mean=ind_mean, cycles=state.cycles + 1)
@@ -304,6 +295,36 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
 
 
 # ---- steps -------------------------------------------------------------------------------------------------
+
+
+def _fit_teeth(spec: EngineSpec, state: MonitorState, cycle: Cycle, cfg: MonitorConfig
+               ) -> tuple[FlywheelMotion, ToothLearner, float]:
+    """Flywheel fit of the cycle's 4 pi window (the assembler brackets [0, 4 pi] with an edge either side; the
+    window starts at the first edge), tooth learning, and the angle of the first edge."""
+    m = state.n_harmonics
+    nominal = np.asarray(cycle.tooth_angle, dtype=np.float64)
+    end = int(np.searchsorted(nominal, nominal[0] + FOUR_PI - 1e-6))
+    if end >= nominal.shape[0] or abs(nominal[end] - nominal[0] - FOUR_PI) > 1e-6:
+        raise CycleRejected("bad_teeth", "no tooth edge 720 deg after the first one")
+    ticks = cycle.tooth_ticks[: end + 1]
+    pos = np.asarray(cycle.tooth_index[: end + 1]) % spec.sensors.wheel_teeth
+    nominal = nominal[: end + 1]
+    teeth = state.teeth
+    patterns = tooth_patterns(nominal, state.n_nuisance // 2) if state.n_nuisance else np.zeros((nominal.size, 0))
+    if cfg.drift_nuisance:  # angle of a linear speed drift over the cycle, q(u) = u (u - 1), u = t / T
+        u = (ticks - ticks[0]) / float(ticks[-1] - ticks[0])
+        patterns = np.column_stack([patterns, u * (u - 1.0)])
+    m_fit = round(2 * cfg.fit_order) if cfg.fit_order else m
+    try:
+        fly = fit_flywheel(ticks, cycle.tick_hz, nominal + teeth.correction[pos], m, patterns, m_fit, cfg.fit_drift)
+        if cfg.learn_teeth:
+            teeth = teeth.update(pos, fly.edge_residual, cfg.tooth_memory)
+            if teeth.count <= cfg.tooth_refit_cycles:  # while young, use what this cycle taught at once
+                fly = fit_flywheel(ticks, cycle.tick_hz, nominal + teeth.correction[pos], m, patterns, m_fit,
+                                   cfg.fit_drift)
+    except ValueError as exc:
+        raise CycleRejected("bad_teeth", str(exc)) from exc
+    return fly, teeth, float(nominal[0] + teeth.correction[pos[0]])
 
 
 def _checked_pressure(spec: EngineSpec, cycle: Cycle) -> tuple[np.ndarray, list[str]]:
@@ -377,88 +398,3 @@ def _harmonic_balance(spec: EngineSpec, state: MonitorState, grid: np.ndarray, p
                      mean_row=np.pad(cyl_rows.sum(axis=0), (0, state.n_nuisance)), mean_target=float("nan"),
                      cylinder_rows=cyl_rows)
     return exc, rows, node_speed, rel, static
-
-
-@dataclass(frozen=True)
-class _Priors:
-    """Fixed prior rows (weak scale prior, tooth-error prior) plus the per-cylinder rows for the Eq. 6 sharing."""
-
-    base: Prior
-    cylinder_rows: np.ndarray
-
-    def with_share(self, share) -> Prior:
-        if not np.all(np.isfinite(share.friction_mean)):
-            return self.base
-        return Prior.stack(self.base, Prior(self.cylinder_rows, share.friction_mean, np.maximum(share.sigma, 1e-6)))
-
-
-def _priors(spec: EngineSpec, state: MonitorState, cfg: MonitorConfig, fly: FlywheelMotion,
-            cylinder_rows: np.ndarray) -> _Priors:
-    p_f = state.layout.n_params
-    p = p_f + state.n_nuisance
-    sig = np.full(p, cfg.parameter_sigma)
-    target = np.concatenate([np.ones(p_f), np.zeros(state.n_nuisance)])
-    if state.n_nuisance:
-        # white per-tooth errors of rms s over N edges per revolution: each real Fourier part has rms s sqrt(2/N)
-        edges = spec.sensors.wheel_teeth - spec.sensors.wheel_missing
-        sig[p_f:] = np.radians(cfg.tooth_error_deg) * np.sqrt(2.0 / edges)
-    base = Prior(np.eye(p), target, sig)
-    per_cyl = np.flatnonzero(state.layout.per_cylinder)
-    z = spec.n_cyl
-    if cfg.sibling_spread > 0 and z > 1:
-        # the per-cylinder parameters come in z blocks of equal size (one block per cylinder, same terms)
-        block = per_cyl.reshape(z, -1)
-        rows = []
-        for j in range(block.shape[1]):
-            for k in range(z):
-                r = np.zeros(p)
-                r[block[:, j]] = -1.0 / z
-                r[block[k, j]] += 1.0
-                rows.append(r)
-        rows = np.array(rows)
-        base = Prior.stack(base, Prior(rows, np.zeros(rows.shape[0]), np.full(rows.shape[0], cfg.sibling_spread)))
-    return _Priors(base, cylinder_rows)
-
-
-def _result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excitation, rows: CycleRows,
-            theta: np.ndarray, layout: ParameterLayout, op: OperatingPoint, load: float, balance: float,
-            coupling_loss: float, pmax: np.ndarray, pmax_angle: np.ndarray, est_c, est_s,
-            flags: list[str]) -> CycleResult:
-    grid = cycle.grid
-    n_t = exc.tau.shape[0]
-    p_f = layout.n_params
-    coef = layout.coefficients(theta[:p_f])
-    per_cyl_t = np.einsum("kl,klt->kt", coef, exc.basis)
-    per_cyl = _to_grid(grid, exc.theta_fly, per_cyl_t)
-    _, _, omega_meas, alpha_meas = fly.on_grid(n_t)
-    resid = rows.target - rows.design @ theta
-    # show the measured speed with the estimated tooth-spacing pattern taken out; the model without it
-    tooth = rows.design[:, p_f:] @ theta[p_f:]
-    omega_meas = omega_meas - harmonic_series(tooth, n_t)
-    model_t = omega_meas - harmonic_series(resid, n_t)
-    speed_meas, speed_model = _to_grid(grid, exc.theta_fly, np.stack([omega_meas, model_t]))
-    power = float(np.sum(np.abs(fly.speed_harmonics) ** 2))
-    r2 = 1.0 - float(np.sum(np.abs(resid) ** 2)) / power if power > 0 else float("nan")
-    balance_trace = None
-    if spec.n_nodes == 1:
-        tl = load * (omega_meas / fly.omega_mean) ** spec.load.exponent if spec.load.kind != "grid" else load
-        direct = rigid_friction_torque(exc.theta_fly, omega_meas, alpha_meas, exc.gas.sum(axis=0), tl, spec)
-        low = harmonic_series(harmonics_of(direct, fly.n_harmonics), n_t, float(direct.mean()))
-        balance_trace = _to_grid(grid, exc.theta_fly, low[None])[0]
-    return CycleResult(
-        index=cycle.index, t_start=cycle.t_start, rpm_mean=fly.omega_mean * 60.0 / (2.0 * np.pi),
-        omega_mean=fly.omega_mean, load_torque=float(load), load_power=float(cycle.load_power),
-        imep=exc.indicated_mean * FOUR_PI / spec.displacement_cyl, pmax=pmax, pmax_angle=pmax_angle,
-        indicated_torque=exc.indicated_mean, friction_balance=float(balance), coupling_loss=float(coupling_loss),
-        cycle=est_c, smoothed=est_s, grid=grid.copy(), friction_torque=per_cyl.sum(axis=0),
-        friction_torque_cyl=per_cyl, speed_measured=speed_meas, speed_model=speed_model,
-        residual_harmonics=resid, residual_rms=float(np.sqrt(0.5 * np.sum(np.abs(resid) ** 2))), r_squared=r2,
-        friction_torque_balance=balance_trace, flags=tuple(flags))
-
-
-def _to_grid(grid: np.ndarray, theta: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """Rows ``values`` (r, n_t) sampled at the increasing flywheel angles ``theta`` of the time grid, onto the
-    crank-angle ``grid`` (periodic in 4 pi: theta spans one cycle from the first tooth edge)."""
-    x = np.append(theta, theta[0] + FOUR_PI)
-    u = theta[0] + np.mod(grid - theta[0], FOUR_PI)
-    return np.stack([np.interp(u, x, np.append(v, v[0])) for v in np.atleast_2d(values)])

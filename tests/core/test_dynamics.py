@@ -216,7 +216,7 @@ def test_flywheel_fit_recovers_harmonics_and_drift_from_ticks():
     assert_allclose(fly.harmonics[2:], harm[2:], atol=3e-6)
     assert_allclose(fly.harmonics[:2], harm[:2], atol=1e-4)
     assert 4e-6 < fly.residual_rms < 6e-6
-    tau, phi, om, al = fly.on_grid(512)
+    tau, _, om, al = fly.on_grid(512)
     assert_allclose(np.mean(om), omega, rtol=1e-4)
     # central differences err by (w h)^2/6 = 0.6 % at harmonic 16 of 512 samples
     assert_allclose(np.gradient(om, tau)[10:-10], al[10:-10], atol=1e-2 * np.abs(al).max())
