@@ -17,11 +17,16 @@ Uncertainty has two parts:
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
+import scipy.linalg.lapack
 
 from core.identify import bounded_solve
+
+_potrf = scipy.linalg.lapack.dpotrf
+_potri = scipy.linalg.lapack.dpotri
 
 
 @dataclass(frozen=True)
@@ -50,21 +55,42 @@ class Accumulator:
 
         The last ``reference_rows`` rows (the mean balance) are also kept apart in ``info_reference``: what the
         estimate would know without the speed signal, to tell resolved quantities from prior-driven ones."""
+        return self.fold(self.cycle_terms(a, y, inv_sigma, reference_rows), forgetting)
+
+    def cycle_terms(self, a: np.ndarray, y: np.ndarray, inv_sigma: np.ndarray, reference_rows: int = 0) -> CycleTerms:
+        """One cycle's contribution (``update`` = ``fold(cycle_terms(...))``; computed once, it can be folded into
+        several accumulators, e.g. the running one and this cycle's own)."""
+        if a.shape != (self.sys_map.shape[1], self.info.shape[0]):
+            raise ValueError(f"rows must have shape {(self.sys_map.shape[1], self.info.shape[0])}, got {a.shape}")
+        ref = a[a.shape[0] - reference_rows:]
+        return CycleTerms(a.T @ a, a.T @ y, float(y @ y), float(a.shape[0]), a.T * inv_sigma[None, :], ref.T @ ref)
+
+    def fold(self, terms: CycleTerms, forgetting: float) -> Accumulator:
+        """lambda * self + one cycle's ``terms``."""
         lam = float(forgetting)
         if not 0.0 <= lam <= 1.0:
             raise ValueError(f"forgetting factor must be in [0, 1], got {lam}")
-        if a.shape != (self.sys_map.shape[1], self.info.shape[0]):
-            raise ValueError(f"rows must have shape {(self.sys_map.shape[1], self.info.shape[0])}, got {a.shape}")
         return Accumulator(
-            info=lam * self.info + a.T @ a,
-            rhs=lam * self.rhs + a.T @ y,
-            yty=lam * self.yty + float(y @ y),
+            info=lam * self.info + terms.info,
+            rhs=lam * self.rhs + terms.rhs,
+            yty=lam * self.yty + terms.yty,
             weight=lam * self.weight + 1.0,
-            rows=lam * self.rows + a.shape[0],
-            sys_map=lam * self.sys_map + a.T * inv_sigma[None, :],
-            info_reference=lam * self.info_reference + (a[a.shape[0] - reference_rows:].T
-                                                        @ a[a.shape[0] - reference_rows:]),
+            rows=lam * self.rows + terms.rows,
+            sys_map=lam * self.sys_map + terms.sys_map,
+            info_reference=lam * self.info_reference + terms.info_reference,
         )
+
+
+@dataclass(frozen=True)
+class CycleTerms:
+    """One cycle's whitened normal-equation terms (``Accumulator.cycle_terms``)."""
+
+    info: np.ndarray
+    rhs: np.ndarray
+    yty: float
+    rows: float
+    sys_map: np.ndarray
+    info_reference: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -105,8 +131,8 @@ class Posterior:
         """1 - var_posterior / var_reference of linear functions rows (Q, P) @ theta: the share of what is known
         about them that the speed signal contributed (0: prior and mean balance only, 1: all from the speed)."""
         r = np.atleast_2d(rows)
-        post = np.einsum("qp,pr,qr->q", r, self.cov_statistical, r)
-        ref = np.einsum("qp,pr,qr->q", r, self.cov_reference, r)
+        post = _quadratic_forms(r, self.cov_statistical)
+        ref = _quadratic_forms(r, self.cov_reference)
         # a function the reference already pins down (e.g. a share of one cylinder) is not left to any prior
         pinned = ref <= 1e-12 * max(float(np.max(ref, initial=0.0)), 1e-300) + 1e-300
         return np.where(pinned, 1.0, np.clip(1.0 - post / np.maximum(ref, 1e-300), 0.0, 1.0))
@@ -114,7 +140,19 @@ class Posterior:
     def sigma_of(self, rows: np.ndarray) -> np.ndarray:
         """1-sigma of linear functions rows (Q, P) @ theta."""
         r = np.atleast_2d(rows)
-        return np.sqrt(np.clip(np.einsum("qp,pr,qr->q", r, self.covariance, r), 0.0, None))
+        return np.sqrt(np.clip(_quadratic_forms(r, self.covariance), 0.0, None))
+
+    def diagonal_gain(self) -> np.ndarray:
+        """``data_gain(np.eye(P))`` from the diagonals alone."""
+        post = np.diag(self.cov_statistical)
+        ref = np.diag(self.cov_reference)
+        pinned = ref <= 1e-12 * max(float(np.max(ref, initial=0.0)), 1e-300) + 1e-300
+        return np.where(pinned, 1.0, np.clip(1.0 - post / np.maximum(ref, 1e-300), 0.0, 1.0))
+
+
+def _quadratic_forms(rows: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """r_q^T C r_q for every row r_q of rows (Q, P)."""
+    return np.einsum("qp,qp->q", rows @ cov, rows)
 
 
 def solve_posterior(acc: Accumulator, prior: Prior, sys_var: np.ndarray,
@@ -123,20 +161,58 @@ def solve_posterior(acc: Accumulator, prior: Prior, sys_var: np.ndarray,
 
     sys_var (R,): variance of the error that repeats every cycle, per raw row, in raw units squared."""
     n_pr, r_pr = prior.normal()
+    return posterior_from_normal(acc, n_pr, r_pr, sys_var, lower)
+
+
+def posterior_from_normal(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, sys_var: np.ndarray,
+                          lower: float | np.ndarray = 0.0) -> Posterior:
+    """``solve_posterior`` with the prior already in normal form (n_pr (P, P), r_pr (P,); ``Prior.normal``), so a
+    caller that keeps a fixed prior's normal equations does not rebuild them every cycle."""
     info = acc.info + n_pr
     rhs = acc.rhs + r_pr
     theta = bounded_solve(info, rhs, lower)
     dof = acc.rows - theta.shape[0]
     chi2 = acc.yty - 2.0 * theta @ acc.rhs + theta @ acc.info @ theta
     chi2_red = float(chi2 / dof) if dof > 0 else 1.0
-    inv = np.linalg.inv(info)
-    inv = 0.5 * (inv + inv.T)
+    inv = spd_inverse(info)
+    if inv is None:
+        inv = np.linalg.inv(info)
+        inv = 0.5 * (inv + inv.T)
     cov_stat = inv * max(1.0, chi2_red)
     g = inv @ acc.sys_map
     cov_sys = (g * sys_var[None, :]) @ g.T
-    ref = np.linalg.pinv(acc.info_reference + n_pr, rcond=1e-13, hermitian=True) * max(1.0, chi2_red)
+    ref_info = acc.info_reference + n_pr
+    ref = spd_inverse(ref_info, max_condition=1e12)
+    if ref is None:  # (near-)singular: the pseudo-inverse drops what nothing pins down
+        ref = np.linalg.pinv(ref_info, rcond=1e-13, hermitian=True)
+    ref = ref * max(1.0, chi2_red)
     return Posterior(theta=theta, covariance=cov_stat + cov_sys, cov_statistical=cov_stat, chi2_reduced=chi2_red,
                      weight=acc.weight, cov_reference=ref)
+
+
+def spd_inverse(a: np.ndarray, max_condition: float = np.inf) -> np.ndarray | None:
+    """Inverse of a symmetric positive-definite matrix by Cholesky (LAPACK potrf/potri), exactly symmetric; None if
+    ``a`` is not numerically positive definite or its condition number may exceed ``max_condition`` (bounded by
+    trace(a) trace(a^-1) >= lambda_max / lambda_min)."""
+    c, info = _potrf(a, lower=True, clean=False, overwrite_a=False)
+    if info != 0:
+        return None
+    inv, info = _potri(c, lower=True, overwrite_c=True)
+    if info != 0:
+        return None
+    inv = np.where(_lower_mask(inv.shape[0]), inv, inv.T)  # potri fills the lower triangle only
+    if np.isfinite(max_condition):
+        bound = float(np.trace(a)) * float(np.trace(inv))
+        if not bound < max_condition:
+            return None
+    return inv
+
+
+@functools.lru_cache(maxsize=16)
+def _lower_mask(n: int) -> np.ndarray:
+    m = np.tri(n, dtype=bool)
+    m.flags.writeable = False
+    return m
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,10 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
     p_f = layout.n_params
     coef = layout.coefficients(theta[:p_f])
     per_cyl = to_grid(grid, exc.theta_fly, np.einsum("kl,klt->kt", coef, exc.basis))
-    _, _, omega_meas, alpha_meas = fly.on_grid(n_t)
+    if exc.omega_fly is not None and exc.alpha_fly is not None:
+        omega_meas, alpha_meas = exc.omega_fly, exc.alpha_fly
+    else:
+        _, _, omega_meas, alpha_meas = fly.on_grid(n_t)
     resid = rows.target - rows.design @ theta
     if drift is not None and np.vdot(drift, drift).real > 0:
         resid = resid - drift * (np.vdot(drift, resid).real / np.vdot(drift, drift).real)

@@ -22,6 +22,7 @@ def friction_estimate(
     resolve_rel: float,
     coefficient_snr: float,
     min_data_gain: float = 0.0,
+    cylinder_rows: np.ndarray | None = None,
 ) -> FrictionEstimate:
     """Report a posterior.
 
@@ -29,6 +30,7 @@ def friction_estimate(
     A per-cylinder mean is resolved when its 1-sigma is at most ``resolve_rel`` of its value; a coefficient when
     its normalised value exceeds ``coefficient_snr`` sigmas; both only when the speed signal gave at least
     ``min_data_gain`` of what is known about them (the rest coming from the priors and the mean balance).
+    cylinder_rows (z, P): ``layout.cylinder_rows(basis_mean)`` if already at hand.
     """
     z = spec.n_cyl
     theta = post.theta
@@ -36,7 +38,7 @@ def friction_estimate(
     a_sig = layout.prior * np.sqrt(np.clip(np.diag(post.covariance), 0.0, None))[layout.group]
     a_norm = a * basis_mean
     a_norm_sig = a_sig * basis_mean
-    rows = layout.cylinder_rows(basis_mean)  # (z, P)
+    rows = layout.cylinder_rows(basis_mean) if cylinder_rows is None else cylinder_rows  # (z, P)
     t_cyl = rows @ theta
     t_sig = post.sigma_of(rows)
     total_row = rows.sum(axis=0)
@@ -46,7 +48,7 @@ def friction_estimate(
     # each cylinder from the equal share
     gain = post.data_gain(rows - rows.sum(axis=0) / z)
     resolved = (t_sig <= resolve_rel * np.abs(t_cyl)) & (gain >= min_data_gain)
-    gain_p = post.data_gain(np.eye(layout.n_params))[layout.group]
+    gain_p = post.diagonal_gain()[layout.group]  # = post.data_gain(np.eye(P))
     coef_ok = (a_norm > coefficient_snr * a_norm_sig) & (layout.prior > 0) & (gain_p >= min_data_gain)
     to_mep_cyl = FOUR_PI / spec.displacement_cyl
     to_mep_eng = FOUR_PI / spec.displacement

@@ -20,9 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.engine import EngineSpec
-from core.flywheel import FlywheelMotion, harmonic_series, harmonics_of
-from core.friction import N_TERMS, friction_basis
-from core.torques import gas_torque, reciprocating_torque
+from core.excitation_kernels import OMEGA_SLOT, _excitation_rows, _interp_rows, excitation_consts
+from core.flywheel import FlywheelMotion, harmonics_of
+from core.friction import N_TERMS
 
 FOUR_PI = 4.0 * np.pi
 CRANKCASE_PA = 1.0e5
@@ -36,6 +36,7 @@ class Excitation:
     gas (z, n_t) N m; known_harm (N, M) complex N m: harmonics of the known node torques
     basis (z, 6, n_t) F_kl; basis_harm (z, 6, M); basis_mean (z, 6) work means of F_kl
     indicated_mean (z,) N m work mean of T_g,k (= IMEP_k V_d / 4 pi with the throw's own angle)
+    omega_fly, alpha_fly (n_t,) measured flywheel speed [rad/s] and acceleration [rad/s^2] (the fit on the grid)
     """
 
     tau: np.ndarray
@@ -47,6 +48,28 @@ class Excitation:
     basis_harm: np.ndarray
     basis_mean: np.ndarray
     indicated_mean: np.ndarray
+    omega_fly: np.ndarray | None = None
+    alpha_fly: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class ExcitationPlan:
+    """What ``cycle_excitation`` needs from the spec, computed once (the monitor keeps it in its operating point).
+
+    consts (23 + z,) see core.excitation_kernels; cyl_node (z,) int64; phases (z,) firing angles [rad]."""
+
+    consts: np.ndarray
+    cyl_node: np.ndarray
+    phases: np.ndarray
+    n_nodes: int
+
+
+def excitation_plan(spec: EngineSpec, recip_inertia_mean: float, variable_inertia: bool = True) -> ExcitationPlan:
+    consts = excitation_consts(spec.kinematics_params(), spec.friction_params(), spec.piston_area, CRANKCASE_PA,
+                               spec.reciprocating_mass, recip_inertia_mean, variable_inertia, 1.0,
+                               spec.firing_angles)
+    return ExcitationPlan(consts, np.ascontiguousarray(spec.cylinder_node, dtype=np.int64),
+                          np.ascontiguousarray(spec.firing_angles, dtype=np.float64), int(spec.n_nodes))
 
 
 def cycle_excitation(
@@ -60,6 +83,7 @@ def cycle_excitation(
     relative_motion: np.ndarray | None = None,
     static_twist: np.ndarray | None = None,
     variable_inertia: bool = True,
+    plan: ExcitationPlan | None = None,
 ) -> Excitation:
     """Evaluate gas, reciprocating-remainder and friction-basis torques of one cycle.
 
@@ -74,60 +98,90 @@ def cycle_excitation(
     relative_motion : (N, M) complex angle harmonics of node minus flywheel [rad] from the previous iterate, or None
     static_twist : (N,) mean angle of each node minus the flywheel [rad] (the m = 0 part the harmonics lack)
     variable_inertia : False models a crank whose reciprocating inertia is constant (no J(theta), no mass torque)
+    plan : ``excitation_plan(spec, recip_inertia_mean, variable_inertia)`` if already at hand (saves its set-up)
     """
     z = spec.n_cyl
     n_nodes = spec.n_nodes
     m = fly.n_harmonics
-    tau, phi, omega_f, alpha_f = fly.on_grid(n_time)
-    theta_f = theta_start + fly.omega_mean * tau + phi
-    theta_n = np.broadcast_to(theta_f, (n_nodes, n_time)).copy()
-    omega_n = np.broadcast_to(omega_f, (n_nodes, n_time)).copy()
-    alpha_n = np.broadcast_to(alpha_f, (n_nodes, n_time)).copy()
+    if plan is None:
+        plan = excitation_plan(spec, recip_inertia_mean, variable_inertia)
+    rel = None
     if relative_motion is not None:
         rel = np.asarray(relative_motion)
         if rel.shape != (n_nodes, m):
             raise ValueError(f"relative_motion must have shape {(n_nodes, m)}, got {rel.shape}")
-        w = fly.freq
-        theta_n += harmonic_series(rel, n_time)
-        omega_n += harmonic_series(1j * w * rel, n_time)
-        alpha_n += harmonic_series(-(w**2) * rel, n_time)
-    if static_twist is not None:
-        theta_n += np.asarray(static_twist, dtype=np.float64)[:, None]
+    tau, theta_f, omega_f, alpha_f, motion = grid_motion(fly, n_time, theta_start, n_nodes, rel, static_twist)
 
     # pressure at the flywheel angle of each time sample (periodic in 4 pi)
     p_t = periodic_interp(theta_f, grid, pressure)
 
-    kin = spec.kinematics_params()
-    fric = spec.friction_params()
-    area = spec.piston_area
-    gas = np.empty((z, n_time))
-    known = np.zeros((n_nodes, n_time))
-    for q in np.unique(spec.cylinder_node):
-        cyl = np.flatnonzero(spec.cylinder_node == q)
-        ph = spec.firing_angles[cyl]
-        gas[cyl] = gas_torque(theta_n[q], p_t[cyl], ph, kin, area, CRANKCASE_PA)
-        known[q] = gas[cyl].sum(axis=0)
-        if variable_inertia:
-            t_a = reciprocating_torque(theta_n[q], omega_n[q], alpha_n[q], ph, kin, spec.reciprocating_mass)
-            known[q] += recip_inertia_mean * cyl.size * alpha_n[q] - t_a.sum(axis=0)
-    # all cylinders in one kernel call: local angle, throw speed and gauge pressure side by side
-    node_of = spec.cylinder_node
-    local = theta_n[node_of] - spec.firing_angles[:, None]
-    basis = friction_basis(local.ravel(), omega_n[node_of].ravel(), (p_t - CRANKCASE_PA).ravel(), fric)
-    basis = np.ascontiguousarray(basis.reshape(N_TERMS, z, n_time).transpose(1, 0, 2))
-
-    w_over = omega_n[node_of] / fly.omega_mean  # (z, n_t): work mean = <T omega_q>/Omega
+    consts = plan.consts.copy()
+    consts[OMEGA_SLOT] = fly.omega_mean
+    rows = np.empty((n_nodes + 7 * z, n_time))
+    means = np.empty((z, 7))
+    _excitation_rows(motion, theta_f, p_t, plan.cyl_node, consts, rows, means)
+    # one FFT for the node torques and all basis terms
+    harm = harmonics_of(rows[: n_nodes + 6 * z], m)
     return Excitation(
         tau=tau,
         theta_fly=theta_f,
-        omega_node=omega_n,
-        gas=gas,
-        known_harm=harmonics_of(known, m),
-        basis=basis,
-        basis_harm=harmonics_of(basis, m),
-        basis_mean=np.mean(basis * w_over[:, None, :], axis=-1),
-        indicated_mean=np.mean(gas * w_over, axis=-1),
+        omega_node=motion[1],
+        gas=rows[n_nodes + 6 * z:],
+        known_harm=harm[:n_nodes],
+        basis=rows[n_nodes: n_nodes + 6 * z].reshape(z, N_TERMS, n_time),
+        basis_harm=harm[n_nodes:].reshape(z, N_TERMS, m),
+        basis_mean=means[:, :N_TERMS],
+        indicated_mean=means[:, N_TERMS],
+        omega_fly=omega_f,
+        alpha_fly=alpha_f,
     )
+
+
+def grid_motion(fly: FlywheelMotion, n_time: int, theta_start: float, n_nodes: int,
+                relative_motion: np.ndarray | None = None, static_twist: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Flywheel and throw motion on the uniform time grid with one inverse FFT (``FlywheelMotion.on_grid`` plus the
+    node-minus-flywheel harmonics and static twist).
+
+    Returns tau (n,) [s], theta_fly, omega_fly, alpha_fly (n,) and motion (3, N, n): angle, speed, acceleration of
+    every node."""
+    m = fly.n_harmonics
+    n = n_time
+    if 2 * m >= n:
+        raise ValueError(f"{m} harmonics need more than {2 * m} samples per cycle, got {n}")
+    w = fly.freq
+    harm = fly.harmonics
+    n_rel = 0 if relative_motion is None else n_nodes
+    spec_rows = np.zeros((3 + 3 * n_rel, n // 2 + 1), dtype=np.complex128)
+    half = 0.5 * n
+    spec_rows[0, 1: m + 1] = harm * half
+    spec_rows[1, 1: m + 1] = (1j * w * harm) * half
+    spec_rows[2, 1: m + 1] = (-(w**2) * harm) * half
+    if n_rel:
+        rel = relative_motion
+        spec_rows[3: 3 + n_rel, 1: m + 1] = rel * half
+        spec_rows[3 + n_rel: 3 + 2 * n_rel, 1: m + 1] = (1j * w * rel) * half
+        spec_rows[3 + 2 * n_rel:, 1: m + 1] = (-(w**2) * rel) * half
+    series = np.fft.irfft(spec_rows, n=n, axis=-1)
+    period = fly.period
+    tau = np.arange(n) * (period / n)
+    u = tau / period
+    phi = fly.offset + fly.drift * u * (u - 1.0) + series[0]
+    omega_f = (fly.omega_mean + fly.drift * (2.0 * u - 1.0) / period) + series[1]
+    alpha_f = 2.0 * fly.drift / period**2 + series[2]
+    theta_f = theta_start + fly.omega_mean * tau + phi
+    motion = np.empty((3, n_nodes, n))
+    if n_rel:
+        motion[0] = theta_f + series[3: 3 + n_rel]
+        motion[1] = omega_f + series[3 + n_rel: 3 + 2 * n_rel]
+        motion[2] = alpha_f + series[3 + 2 * n_rel:]
+    else:
+        motion[0] = theta_f
+        motion[1] = omega_f
+        motion[2] = alpha_f
+    if static_twist is not None:
+        motion[0] += np.asarray(static_twist, dtype=np.float64)[:, None]
+    return tau, theta_f, omega_f, alpha_f, motion
 
 
 def periodic_interp(x: np.ndarray, grid: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -136,8 +190,7 @@ def periodic_interp(x: np.ndarray, grid: np.ndarray, values: np.ndarray) -> np.n
     g0 = float(grid[0])
     xp = np.append(grid - g0, FOUR_PI)
     u = np.mod(np.asarray(x, dtype=np.float64) - g0, FOUR_PI)
-    v = np.atleast_2d(values)
+    v = np.ascontiguousarray(np.atleast_2d(values), dtype=np.float64)
     out = np.empty((v.shape[0], u.shape[0]))
-    for k in range(v.shape[0]):
-        out[k] = np.interp(u, xp, np.append(v[k], v[k, 0]))
+    _interp_rows(u, xp, v, out)  # np.interp per row, one bracket search per query (core.excitation_kernels)
     return out

@@ -17,6 +17,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
+
+from core.flywheel_kernels import _fit_design
 
 FOUR_PI = 4.0 * np.pi
 
@@ -123,59 +126,97 @@ def fit_flywheel(
     fit_harmonics : harmonics fitted (>= n_harmonics; default n_harmonics). Fitting strong content just above the
         band keeps it from leaking into the band through the uneven edge spacing; only n_harmonics are returned
     drift : fit the q(u) drift term (it is nearly collinear with order 0.5 over one cycle)
+
+    The work splits in ``prepare_fit`` (everything that depends on the edge times only) and ``fit_prepared`` (the
+    angles); refitting the same edges with corrected angles reuses the first.
     """
-    ticks = np.asarray(tooth_ticks)
     ang = np.asarray(tooth_angle, dtype=np.float64)
+    ticks = np.asarray(tooth_ticks)
     if ticks.ndim != 1 or ticks.shape != ang.shape:
         raise ValueError(f"tooth_ticks and tooth_angle must be 1-D of equal length, got {ticks.shape}, {ang.shape}")
+    return fit_prepared(prepare_fit(ticks, tick_hz, n_harmonics, patterns, fit_harmonics, drift), ang)
+
+
+@dataclass(frozen=True)
+class FitSetup:
+    """The angle-independent part of one cycle's flywheel fit (``prepare_fit``): time grid, design matrix, the
+    factored normal equations on unit-scaled columns and the fitted pattern harmonics."""
+
+    tau: np.ndarray
+    period: float
+    omega: float
+    design: np.ndarray
+    scale: np.ndarray
+    scaled: np.ndarray
+    factor: tuple[np.ndarray, np.ndarray]
+    n_harmonics: int
+    m_fit: int
+    n_drift: int
+    pattern_harmonics: np.ndarray
+
+
+def prepare_fit(tooth_ticks: np.ndarray, tick_hz: float, n_harmonics: int, patterns: np.ndarray | None = None,
+                fit_harmonics: int | None = None, drift: bool = True) -> FitSetup:
+    """Design, normal equations and pattern fit of the edges ``tooth_ticks`` (see ``fit_flywheel``)."""
+    ticks = np.asarray(tooth_ticks)
+    if ticks.ndim != 1:
+        raise ValueError(f"tooth_ticks must be 1-D, got shape {ticks.shape}")
     n_edges = ticks.shape[0]
     m_fit = max(n_harmonics, fit_harmonics or n_harmonics)
     n_drift = 2 if drift else 1
     n_par = 2 * m_fit + n_drift
     if n_edges < n_par + 4:
         raise ValueError(f"{n_edges} tooth edges cannot carry {n_harmonics} harmonics; lower the order limit")
-    dt = np.diff(ticks)
-    if np.any(dt <= 0) or np.any(np.diff(ang) <= 0):
+    if np.any(np.diff(ticks) <= 0):
         raise ValueError("tooth times and angles must be strictly increasing")
-    span = ang[-1] - ang[0]
-    if abs(span - FOUR_PI) > 1e-6:
-        raise ValueError(f"the edges must span one 720 deg cycle, got {np.degrees(span):.3f} deg")
     tau = (ticks - ticks[0]).astype(np.float64) / tick_hz  # exact integer differences, then seconds
-    period = tau[-1]
+    period = float(tau[-1])
     omega = FOUR_PI / period
-    phi = ang - ang[0] - omega * tau
-    u = tau / period
-    w = 0.5 * omega * np.arange(1, m_fit + 1)
-    arg = np.outer(tau, w)
     design = np.empty((n_edges, n_par))
-    design[:, 0] = 1.0
-    if drift:
-        design[:, 1] = u * (u - 1.0)
-    design[:, n_drift : n_drift + m_fit] = np.cos(arg)
-    design[:, n_drift + m_fit :] = np.sin(arg)
-    rhs = phi[:, None] if patterns is None else np.column_stack([phi, np.asarray(patterns, dtype=np.float64)])
-    if rhs.shape[0] != n_edges:
-        raise ValueError(f"patterns must have one row per edge ({n_edges}), got {rhs.shape[0]}")
+    _fit_design(tau, period, 0.5 * omega, n_drift, m_fit, design)
     # normal equations on unit-scaled columns: the Fourier columns are nearly orthogonal over the edges, so this is
     # well conditioned and ~10x cheaper than an SVD least squares
     scale = np.sqrt(np.einsum("ij,ij->j", design, design))
     d = design / scale
-    sol = np.linalg.solve(d.T @ d, d.T @ rhs) / scale[:, None]
-    coef = sol[:, 0]
-    resid = phi - design @ coef
+    factor = scipy.linalg.lu_factor(d.T @ d, check_finite=False)
     c0, s0 = n_drift, n_drift + m_fit
-    harm = coef[c0 : c0 + n_harmonics] - 1j * coef[s0 : s0 + n_harmonics]
-    pat = sol[c0 : c0 + n_harmonics, 1:] - 1j * sol[s0 : s0 + n_harmonics, 1:]
+    if patterns is None or np.shape(patterns)[-1] == 0:
+        pat = np.zeros((n_harmonics, 0), dtype=np.complex128)
+    else:
+        p = np.asarray(patterns, dtype=np.float64)
+        if p.ndim != 2 or p.shape[0] != n_edges:
+            raise ValueError(f"patterns must have one row per edge ({n_edges}), got {p.shape[0]}")
+        sol = scipy.linalg.lu_solve(factor, d.T @ p, check_finite=False) / scale[:, None]
+        pat = sol[c0 : c0 + n_harmonics] - 1j * sol[s0 : s0 + n_harmonics]
+    return FitSetup(tau, period, omega, design, scale, d, factor, n_harmonics, m_fit, n_drift, pat)
+
+
+def fit_prepared(setup: FitSetup, tooth_angle: np.ndarray) -> FlywheelMotion:
+    """Fit the edge angles ``tooth_angle`` (n_edges,) [rad] on a prepared design (``prepare_fit``)."""
+    ang = np.asarray(tooth_angle, dtype=np.float64)
+    tau = setup.tau
+    if ang.shape != tau.shape:
+        raise ValueError(f"tooth_ticks and tooth_angle must be 1-D of equal length, got {tau.shape}, {ang.shape}")
+    if np.any(np.diff(ang) <= 0):
+        raise ValueError("tooth times and angles must be strictly increasing")
+    span = ang[-1] - ang[0]
+    if abs(span - FOUR_PI) > 1e-6:
+        raise ValueError(f"the edges must span one 720 deg cycle, got {np.degrees(span):.3f} deg")
+    phi = ang - ang[0] - setup.omega * tau
+    coef = scipy.linalg.lu_solve(setup.factor, setup.scaled.T @ phi, check_finite=False) / setup.scale
+    resid = phi - setup.design @ coef
+    m = setup.n_harmonics
+    c0, s0 = setup.n_drift, setup.n_drift + setup.m_fit
     return FlywheelMotion(
-        period=float(period),
-        omega_mean=float(omega),
-        harmonics=harm,
+        period=setup.period,
+        omega_mean=float(setup.omega),
+        harmonics=coef[c0 : c0 + m] - 1j * coef[s0 : s0 + m],
         offset=float(coef[0]),
-        drift=float(coef[1]) if drift else 0.0,
+        drift=float(coef[1]) if setup.n_drift == 2 else 0.0,
         residual_rms=float(np.sqrt(np.mean(resid**2))),
-        n_edges=int(n_edges),
+        n_edges=int(tau.shape[0]),
         edge_residual=resid,
-        pattern_harmonics=pat,
+        pattern_harmonics=setup.pattern_harmonics,
     )
 
 

@@ -24,11 +24,15 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.lapack
 import scipy.optimize
 
 from core.engine import EngineSpec
 from core.friction import N_TERMS
 
+_getrf = scipy.linalg.lapack.dgetrf
+_getrs = scipy.linalg.lapack.dgetrs
+_trtrs = scipy.linalg.lapack.dtrtrs
 SCHEMES = ("all", "pressure_group", "piston_group", "scale")
 
 
@@ -44,6 +48,18 @@ class ParameterLayout:
     prior: np.ndarray
     names: tuple[str, ...]
     per_cylinder: np.ndarray
+
+    def __post_init__(self) -> None:
+        # precomputed scatter maps (not fields: equality and replace() see only the layout itself)
+        z = self.group.shape[0]
+        p = len(self.names)
+        g = self.group.ravel()
+        used = g >= 0
+        flat = (np.arange(z)[:, None] * p + self.group).ravel()
+        object.__setattr__(self, "_cyl_index", np.where(used, flat, z * p))  # unused terms go to a spill bin
+        weights = np.zeros((g.size, p))
+        weights[np.flatnonzero(used), g[used]] = np.asarray(self.prior, dtype=np.float64).ravel()[used]
+        object.__setattr__(self, "_collapse_matrix", weights)  # (z*6, P): a0_kl where (k, l) is in group p
 
     @property
     def n_params(self) -> int:
@@ -64,11 +80,11 @@ class ParameterLayout:
     def cylinder_rows(self, basis_mean: np.ndarray) -> np.ndarray:
         """(z, P): d(mean friction of cylinder k)/d theta_p, given work means <F_kl> (z, 6)."""
         z = self.group.shape[0]
-        rows = np.zeros((z, self.n_params))
+        p = self.n_params
         contrib = self.prior * basis_mean
-        for k in range(z):
-            np.add.at(rows[k], self.group[k], contrib[k])
-        return rows
+        # the same additions, in the same order, as one scatter per cylinder
+        rows = np.bincount(self._cyl_index, weights=contrib.ravel(), minlength=z * p + 1)
+        return rows[: z * p].reshape(z, p)
 
 
 def parameter_layout(spec: EngineSpec, scheme: str | None = None, prior: np.ndarray | None = None) -> ParameterLayout:
@@ -135,7 +151,8 @@ def friction_design(layout: ParameterLayout, transfer: np.ndarray, basis_harm: n
     transfer (M, N) flywheel speed per node torque; basis_harm (z, 6, M)."""
     h = transfer[:, cylinder_node]  # (M, z)
     per_coef = -h.T[:, None, :] * basis_harm  # (z, 6, M)
-    return layout.collapse(np.moveaxis(per_coef, -1, 0))  # (M, P)
+    z, n_terms, m = per_coef.shape
+    return (layout._collapse_matrix.T @ per_coef.reshape(z * n_terms, m)).T  # (M, P), = layout.collapse
 
 
 def tooth_patterns(tooth_angle: np.ndarray, n_orders: int) -> np.ndarray:
@@ -171,27 +188,37 @@ def bounded_solve(info: np.ndarray, rhs: np.ndarray, lower: float | np.ndarray =
     n = info.shape[0]
     lo = np.broadcast_to(np.asarray(lower, dtype=np.float64), (n,))
     free = ~np.isfinite(lo)
-    bnd = ~free
+    n_free = int(free.sum())
     d = np.sqrt(np.clip(np.diag(info), 1e-300, None))
     s = info / np.outer(d, d)
     r = rhs / d
+    if 0 < n_free < n and free[n - n_free:].all():  # nuisances last (the monitor's layout): plain slices
+        nb = n - n_free
+        bnd = slice(0, nb)
+        fre = slice(nb, n)
+    else:
+        bnd = np.flatnonzero(~free)
+        fre = np.flatnonzero(free)
+    s_bb = s[bnd][:, bnd] if isinstance(bnd, np.ndarray) else s[bnd, bnd]
     out = np.empty(n)
-    if free.any():
-        s_ff = s[np.ix_(free, free)] + 1e-12 * np.eye(int(free.sum()))
-        s_bf = s[np.ix_(bnd, free)]
-        s_red = s[np.ix_(bnd, bnd)] - s_bf @ np.linalg.solve(s_ff, s_bf.T)
-        r_red = r[bnd] - s_bf @ np.linalg.solve(s_ff, r[free])
+    if n_free:
+        s_ff = (s[fre][:, fre] if isinstance(fre, np.ndarray) else s[fre, fre]) + 1e-12 * np.eye(n_free)
+        s_bf = s[bnd][:, fre] if isinstance(bnd, np.ndarray) else s[bnd, fre]
+        lu, piv, _ = _getrf(s_ff)  # one factorisation for the three solves
+        x_ff = _getrs(lu, piv, np.column_stack([s_bf.T, r[fre]]))[0]
+        s_red = s_bb - s_bf @ x_ff[:, :-1]
+        r_red = r[bnd] - s_bf @ x_ff[:, -1]
     else:
         s_red, r_red = s, r
-    if bnd.any():
+    if n_free < n:
         lo_x = lo[bnd] * d[bnd]
         chol = np.linalg.cholesky(s_red + 1e-12 * np.eye(s_red.shape[0]))  # s = L L^T
-        y = scipy.linalg.solve_triangular(chol, r_red, lower=True)
+        y = _trtrs(chol, r_red, lower=1)[0]
         # min ||L^T x - y||^2 with x >= lo_x: substitute x = x' + lo_x
         x, _ = scipy.optimize.nnls(chol.T, y - chol.T @ lo_x, maxiter=50 * s_red.shape[0])
         out[bnd] = x + lo_x
-    if free.any():
-        out[free] = np.linalg.solve(s_ff, r[free] - s[np.ix_(free, bnd)] @ out[bnd])
+    if n_free:
+        out[fre] = _getrs(lu, piv, r[fre] - s_bf.T @ out[bnd])[0]
     return out / d
 
 

@@ -30,18 +30,18 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from core.accumulate import Accumulator, ResidualStats, solve_posterior
+from core.accumulate import Accumulator, ResidualStats, posterior_from_normal
 from core.cycle_report import build_result
 from core.dynamics import Receptance, ShaftModel, dissipated_power, receptance, shaft_model, static_twist
 from core.engine import EngineSpec
 from core.estimate import friction_estimate
-from core.excitation import Excitation, cycle_excitation
-from core.flywheel import FlywheelMotion, ToothLearner, fit_flywheel
+from core.excitation import Excitation, ExcitationPlan, cycle_excitation, excitation_plan
+from core.flywheel import FlywheelMotion, ToothLearner, fit_prepared, prepare_fit
 from core.identify import CycleRows, ParameterLayout, friction_design, parameter_layout, tooth_patterns, whiten
 from core.indicated import peak_pressure
 from core.priors import build_priors
 from core.results import CycleResult
-from core.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
+from core.sharing import SharedLoss, firing_mask, motored_friction_per_cylinder, share_mean_loss
 from core.types import Cycle
 
 FOUR_PI = 4.0 * np.pi
@@ -128,6 +128,7 @@ class OperatingPoint:
     shaft: ShaftModel
     receptance: Receptance
     transfer: np.ndarray  # (M, N) flywheel speed per node torque
+    plan: ExcitationPlan | None = None  # spec constants of the excitation kernel
 
 
 @dataclass(frozen=True)
@@ -149,6 +150,8 @@ class MonitorState:
     cycles: int
     prev_omega: float = float("nan")
     drift_var: float = 0.0
+    tooth_pattern_cache: tuple[np.ndarray, np.ndarray] | None = None  # (edge angles from the first, patterns)
+    prior_normal: tuple | None = None  # (config key, N, r): normal equations of the fixed priors (core.priors)
 
 
 def default_max_order(spec: EngineSpec) -> float:
@@ -185,7 +188,7 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
     cfg = config or MonitorConfig()
     pressure, flags = _checked_pressure(spec, cycle)
     m = state.n_harmonics
-    fly, teeth, theta_start = _fit_teeth(spec, state, cycle, cfg)
+    fly, teeth, theta_start, pattern_cache = _fit_teeth(spec, state, cycle, cfg)
     omega = fly.omega_mean
     load = cycle.load_torque if np.isfinite(cycle.load_torque) else cycle.load_power / omega
     if not np.isfinite(load):
@@ -245,8 +248,8 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
         a = np.vstack([a, np.zeros(a.shape[1])])
         y = np.append(y, 0.0)
     lam = cfg.forgetting if cfg.forgetting is not None else 1.0 - 1.0 / max(400.0, 100.0 * spec.n_cyl)
-    acc = state.accumulator.update(a, y, inv_sigma, lam, 1) if state.cycles >= cfg.warmup_cycles \
-        else state.accumulator
+    terms = state.accumulator.cycle_terms(a, y, inv_sigma, 1)  # shared by the running and this cycle's equations
+    acc = state.accumulator.fold(terms, lam) if state.cycles >= cfg.warmup_cycles else state.accumulator
     sys_var = np.concatenate([
         np.maximum(np.abs(stats.mean) ** 2, (cfg.model_rel_error * np.abs(fly.speed_harmonics)) ** 2) / 2.0,
         np.maximum(np.abs(stats.mean) ** 2, (cfg.model_rel_error * np.abs(fly.speed_harmonics)) ** 2) / 2.0,
@@ -271,34 +274,52 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
 
     layout = state.layout
     p_f = layout.n_params
-    prior = build_priors(spec, layout, state.n_nuisance, np.pad(rows.cylinder_rows, ((0, 0), (0, state.n_nuisance))),
-                         cfg.parameter_sigma, cfg.tooth_error_deg, cfg.sibling_spread)
+    prior_key = (cfg.parameter_sigma, cfg.tooth_error_deg, cfg.sibling_spread)
+    if state.prior_normal is not None and state.prior_normal[0] == prior_key:
+        prior_normal = state.prior_normal
+    else:  # the fixed priors do not change from cycle to cycle: their normal equations are kept in the state
+        base = build_priors(spec, layout, state.n_nuisance, np.zeros((spec.n_cyl, p_f + state.n_nuisance)),
+                            cfg.parameter_sigma, cfg.tooth_error_deg, cfg.sibling_spread).base
+        prior_normal = (prior_key, *base.normal())
+    cyl_rows = np.zeros((spec.n_cyl, p_f + state.n_nuisance))
+    cyl_rows[:, :p_f] = rows.cylinder_rows
     lower = np.concatenate([np.zeros(p_f), np.full(state.n_nuisance, -np.inf)])
     share_s = share_mean_loss(bal_mean, ind_mean, motored, cfg.share_spread)
-    post_s = solve_posterior(acc, prior.with_share(share_s), sys_var, lower)
-    one = Accumulator.empty(acc.info.shape[0], 2 * m + 1).update(a, y, inv_sigma, 0.0, 1)
+    post_s = posterior_from_normal(acc, *_with_share(prior_normal, cyl_rows, share_s), sys_var, lower)
+    one = Accumulator.empty(acc.info.shape[0], 2 * m + 1).fold(terms, 0.0)
     share_c = share_mean_loss(balance if np.isfinite(balance) else bal_mean, exc.indicated_mean, motored,
                               cfg.share_spread)
-    post_c = solve_posterior(one, prior.with_share(share_c), sys_var, lower)
+    post_c = posterior_from_normal(one, *_with_share(prior_normal, cyl_rows, share_c), sys_var, lower)
     est_s = friction_estimate(spec, layout, post_s.head(p_f), exc.basis_mean, share_s.friction_mean,
-                              cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain)
+                              cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain, rows.cylinder_rows)
     est_c = friction_estimate(spec, layout, post_c.head(p_f), exc.basis_mean, share_c.friction_mean,
-                              cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain)
+                              cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain, rows.cylinder_rows)
     flags += [f"misfire_cyl{k + 1}" for k in np.flatnonzero(share_c.motored)]
 
     result = build_result(spec, cycle, fly, exc, rows, post_s.theta, layout, drift_col, load, balance,
                           coupling_loss, pmax, pmax_angle, est_c, est_s, flags)
     new_state = replace(state, accumulator=acc, stats=stats, theta=post_s.theta, op=op, relative_motion=rel,
                         static=static, teeth=teeth, prev_omega=omega, drift_var=drift_var,
-                        balance_mean=bal_mean, indicated_mean=ind_mean, cycles=state.cycles + 1)
+                        balance_mean=bal_mean, indicated_mean=ind_mean, cycles=state.cycles + 1,
+                        tooth_pattern_cache=pattern_cache, prior_normal=prior_normal)
     return new_state, result
 
 
 # ---- steps -------------------------------------------------------------------------------------------------
 
 
+def _with_share(prior_normal: tuple, cylinder_rows: np.ndarray, share: SharedLoss) -> tuple[np.ndarray, np.ndarray]:
+    """Normal equations of the fixed priors plus the Eq. 6 share rows (``FixedPriors.with_share(share).normal()``)."""
+    _, n_base, r_base = prior_normal
+    if not np.all(np.isfinite(share.friction_mean)):
+        return n_base, r_base
+    sig = np.maximum(share.sigma, 1e-6)
+    w = cylinder_rows / sig[:, None]
+    return n_base + w.T @ w, r_base + w.T @ (share.friction_mean / sig)
+
+
 def _fit_teeth(spec: EngineSpec, state: MonitorState, cycle: Cycle, cfg: MonitorConfig
-               ) -> tuple[FlywheelMotion, ToothLearner, float]:
+               ) -> tuple[FlywheelMotion, ToothLearner, float, tuple[np.ndarray, np.ndarray] | None]:
     """Flywheel fit of the cycle's 4 pi window (the assembler brackets [0, 4 pi] with an edge either side; the
     window starts at the first edge), tooth learning, and the angle of the first edge."""
     m = state.n_harmonics
@@ -310,21 +331,31 @@ def _fit_teeth(spec: EngineSpec, state: MonitorState, cycle: Cycle, cfg: Monitor
     pos = np.asarray(cycle.tooth_index[: end + 1]) % spec.sensors.wheel_teeth
     nominal = nominal[: end + 1]
     teeth = state.teeth
-    patterns = tooth_patterns(nominal, state.n_nuisance // 2) if state.n_nuisance else np.zeros((nominal.size, 0))
+    cache = state.tooth_pattern_cache
+    if state.n_nuisance:
+        # the patterns depend on the edge angles relative to the first one only, the same every cycle of a run
+        rel_angle = nominal - nominal[0]
+        if cache is not None and np.array_equal(cache[0], rel_angle):
+            patterns = cache[1]
+        else:
+            patterns = tooth_patterns(nominal, state.n_nuisance // 2)
+            cache = (rel_angle, patterns)
+    else:
+        patterns = np.zeros((nominal.size, 0))
     if cfg.drift_nuisance:  # angle of a linear speed drift over the cycle, q(u) = u (u - 1), u = t / T
         u = (ticks - ticks[0]) / float(ticks[-1] - ticks[0])
         patterns = np.column_stack([patterns, u * (u - 1.0)])
     m_fit = round(2 * cfg.fit_order) if cfg.fit_order else m
     try:
-        fly = fit_flywheel(ticks, cycle.tick_hz, nominal + teeth.correction[pos], m, patterns, m_fit, cfg.fit_drift)
+        setup = prepare_fit(ticks, cycle.tick_hz, m, patterns, m_fit, cfg.fit_drift)  # shared by the refit
+        fly = fit_prepared(setup, nominal + teeth.correction[pos])
         if cfg.learn_teeth:
             teeth = teeth.update(pos, fly.edge_residual, cfg.tooth_memory)
             if teeth.count <= cfg.tooth_refit_cycles:  # while young, use what this cycle taught at once
-                fly = fit_flywheel(ticks, cycle.tick_hz, nominal + teeth.correction[pos], m, patterns, m_fit,
-                                   cfg.fit_drift)
+                fly = fit_prepared(setup, nominal + teeth.correction[pos])
     except ValueError as exc:
         raise CycleRejected("bad_teeth", str(exc)) from exc
-    return fly, teeth, float(nominal[0] + teeth.correction[pos[0]])
+    return fly, teeth, float(nominal[0] + teeth.correction[pos[0]]), cache
 
 
 def _checked_pressure(spec: EngineSpec, cycle: Cycle) -> tuple[np.ndarray, list[str]]:
@@ -359,7 +390,8 @@ def _operating_point(spec: EngineSpec, op: OperatingPoint | None, omega: float, 
         return op
     shaft = shaft_model(spec, load if load_ok else 0.0, omega)
     rec = receptance(shaft, omega, m)
-    return OperatingPoint(omega, load if load_ok else 0.0, shaft, rec, rec.speed_transfer(shaft.flywheel))
+    return OperatingPoint(omega, load if load_ok else 0.0, shaft, rec, rec.speed_transfer(shaft.flywheel),
+                          excitation_plan(spec, shaft.recip_inertia_mean, cfg.variable_inertia))
 
 
 def _harmonic_balance(spec: EngineSpec, state: MonitorState, grid: np.ndarray, pressure: np.ndarray,
@@ -380,7 +412,7 @@ def _harmonic_balance(spec: EngineSpec, state: MonitorState, grid: np.ndarray, p
     for _ in range(passes):
         exc = cycle_excitation(spec, grid, pressure, fly, theta_start, cfg.time_samples,
                                op.shaft.recip_inertia_mean, rel if n_nodes > 1 else None,
-                               static if n_nodes > 1 else None, cfg.variable_inertia)
+                               static if n_nodes > 1 else None, cfg.variable_inertia, op.plan)
         mean_torque = np.zeros(n_nodes)
         np.add.at(mean_torque, spec.cylinder_node, exc.indicated_mean - (coef * exc.basis_mean).sum(axis=1))
         static = static_twist(op.shaft, mean_torque)
@@ -395,6 +427,7 @@ def _harmonic_balance(spec: EngineSpec, state: MonitorState, grid: np.ndarray, p
         design = np.hstack([design, 1j * fly.freq[:, None] * fly.pattern_harmonics[:, : state.n_nuisance]])
     cyl_rows = layout.cylinder_rows(exc.basis_mean)
     rows = CycleRows(design=design, target=fly.speed_harmonics - w0,
-                     mean_row=np.pad(cyl_rows.sum(axis=0), (0, state.n_nuisance)), mean_target=float("nan"),
+                     mean_row=np.concatenate([cyl_rows.sum(axis=0), np.zeros(state.n_nuisance)]),
+                     mean_target=float("nan"),
                      cylinder_rows=cyl_rows)
     return exc, rows, node_speed, rel, static

@@ -114,6 +114,15 @@ class CycleAssembler:
     # ---- input ------------------------------------------------------------------------------------------------
     def feed(self, record: StreamRecord) -> list[Cycle]:
         """File one record and return the cycles it completed (possibly none)."""
+        if type(record) is PressureBlock:  # the hot path (tens of blocks per cycle): no isinstance chain
+            if self.buf.add_pressure(record):
+                end = int(record.t0_ticks + record.period_ticks * (len(record.values) - 1))
+                self._now = max(self._now, end)
+            if self._epoch is not None and self._epoch.phase is None:
+                return self._advance(flushing=False)
+            if not self._pending or record.cylinder != self._waiting_for:
+                return []
+            return self._emit(flushing=False)
         if isinstance(record, ToothBatch):
             if len(record.ticks) == 0:
                 return []

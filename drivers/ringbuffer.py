@@ -25,6 +25,8 @@ import numpy as np
 
 from core.types import CamBatch, LoadSample, PressureBlock, StreamRecord, ToothBatch
 
+_F64 = np.dtype(np.float64)
+
 
 class RingBuffer:
     """Bounded FIFO of rows with absolute sequence numbers; ``columns`` are parallel arrays sharing one index.
@@ -188,9 +190,9 @@ class EngineBuffers:
     def add_pressure(self, block: PressureBlock) -> int:
         """File one pressure block (the hot path: tens of blocks per cycle on a big engine)."""
         v = block.values
-        if not (isinstance(v, np.ndarray) and v.dtype == np.float64 and v.ndim == 1):
+        if not (type(v) is np.ndarray and v.dtype is _F64 and v.ndim == 1):  # (identity checks: the hot path)
             v = np.asarray(v, dtype=np.float64).ravel()
-        if v.size == 0:
+        if v.shape[0] == 0:
             return 0
         period = block.period_ticks
         if not (period > 0 and math.isfinite(period)):
@@ -202,7 +204,7 @@ class EngineBuffers:
                                                                                        "p": np.float64})
         t0 = float(block.t0_ticks)
         if ring.end > ring.start:
-            last = ring.get("t", ring.end - 1)
+            last = float(ring._cols["t"][(ring.end - 1) % ring.capacity])  # = ring.get("t", ring.end - 1)
             if t0 <= last:  # an overlapping (repeated) block: keep its new tail only
                 first = int((last - t0) // period) + 1
                 while first > 0 and t0 + (first - 1) * period > last:
