@@ -1,0 +1,11 @@
+"""Wiring: the per-engine pipeline, the CLI (and the HTTP service that follows).
+
+One engine's pipeline is one thread of small dense linear algebra (47 x 47): multi-threaded BLAS only adds
+contention on a small box (measured: eigh/pinv 0.15 ms single-threaded vs 0.7-1.7 ms with OpenBLAS threading on 2
+loaded cores), so pin it to one thread unless the operator says otherwise. This must run before numpy is imported.
+"""
+
+import os
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
