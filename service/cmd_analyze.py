@@ -32,6 +32,7 @@ def summary(analysis: LogAnalysis) -> dict:
         "cycles_ok": len(analysis.results),
         "cycles_skipped": dict(sorted(analysis.skipped.items())),
         "log_damage": dict(sorted(analysis.damage.items())),
+        "data_gaps": data_gaps(analysis),
     }
     if last is not None:
         doc.update(last.to_json())
@@ -43,6 +44,19 @@ def summary(analysis: LogAnalysis) -> dict:
         doc["imep_bar"] = float(np.mean([r.imep.mean() for r in analysis.results])) / 1e5
         doc["rpm"] = float(np.mean([r.rpm_mean for r in analysis.results]))
     return doc
+
+
+def data_gaps(analysis: LogAnalysis) -> list[dict]:
+    """Spans between consecutive analysed cycles longer than 1.5 cycles at the speed before them: cycles skipped,
+    lost with a damaged part of the log (a cycle inside a lost chunk is not 'skipped', it never arrived), or an engine
+    at rest. ``cycles``: how many cycle lengths fit in the span."""
+    gaps = []
+    for a, b in zip(analysis.results, analysis.results[1:]):
+        cycle_s = 120.0 / a.rpm_mean
+        if b.t_start - a.t_start > 1.5 * cycle_s:
+            gaps.append({"after_cycle": a.index, "from_s": a.t_start + cycle_s, "to_s": b.t_start,
+                         "cycles": round((b.t_start - a.t_start) / cycle_s - 1.0, 1)})
+    return gaps
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,6 +89,9 @@ def print_table(doc: dict) -> None:
           + (f" ({', '.join(f'{k} {v}' for k, v in doc['cycles_skipped'].items())})" if doc["cycles_skipped"] else ""))
     if doc["log_damage"]:
         print("log damage: " + ", ".join(f"{k} {v}" for k, v in doc["log_damage"].items()))
+    if doc["data_gaps"]:
+        print("not analysed: " + ", ".join(f"{g['from_s']:.3f}-{g['to_s']:.3f} s (~{g['cycles']:g} cycles)"
+                                           for g in doc["data_gaps"]))
     print(f"speed {doc.get('rpm') or float('nan'):.1f} rpm, load {doc.get('load_torque_nm') or float('nan'):.1f} N m, "
           f"engine FMEP {_fmt(doc['fmep_bar'], '.3f')} ± {_fmt(doc.get('fmep_sigma_bar'), '.3f')} bar")
     print(f"{'cyl':>4} {'IMEP bar':>9} {'Pmax bar':>9} {'@ degCA':>8} {'friction N m':>14} {'± 1σ':>8} {'FMEP bar':>9}")

@@ -103,10 +103,10 @@ def analyze_log(path: Path, engine: str | None = None,
                 on_result: Callable[[CycleResult], None] | None = None) -> LogAnalysis:
     from drivers.mcap_log import LogReader
 
-    reader = LogReader(path)
-    spec = resolve_spec(reader.engine_toml, engine, Path(path).name)
-    if reader.info is None:
-        raise ValueError(f"{Path(path).name} has no acquisition metadata; is it a frictionwatch log?")
-    analysis = analyze_records(spec, reader.info, reader.records(), on_result)
-    analysis.damage = Counter(reader.damage)
+    with LogReader(path) as reader:  # closes the file (and its mmap) even when the analysis raises
+        spec = resolve_spec(reader.engine_toml, engine, Path(path).name)
+        if reader.info is None:
+            raise ValueError(f"{Path(path).name} has no acquisition metadata; is it a frictionwatch log?")
+        analysis = analyze_records(spec, reader.info, reader.records(), on_result)
+        analysis.damage = Counter(reader.damage)
     return analysis
