@@ -6,8 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
-from core.engine import load_engine
 from core.effects import parse_effect
+from core.engine import load_engine
 from core.simulate import simulate
 from drivers.mcap_log import LogWriter
 from service.progress import progress_bar

@@ -69,7 +69,7 @@ def test_accumulation_with_forgetting_equals_weighted_batch():
     lam, p, r = 0.9, 4, 6
     acc = Accumulator.empty(p, r)
     batch_a, batch_y, weights = [], [], []
-    for c in range(12):
+    for _ in range(12):
         a = rng.normal(size=(r, p))
         y = rng.normal(size=r)
         acc = acc.update(a, y, np.ones(r), lam)
