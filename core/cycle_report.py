@@ -7,6 +7,7 @@ import numpy as np
 from core.dynamics import rigid_friction_torque
 from core.engine import EngineSpec
 from core.excitation import Excitation
+from core.excitation_kernels import interp_rows_periodic
 from core.flywheel import FlywheelMotion, harmonic_series, harmonics_of
 from core.identify import CycleRows, ParameterLayout
 from core.results import CycleResult, FrictionEstimate
@@ -25,7 +26,7 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
     n_t = exc.tau.shape[0]
     p_f = layout.n_params
     coef = layout.coefficients(theta[:p_f])
-    per_cyl = to_grid(grid, exc.theta_fly, np.einsum("kl,klt->kt", coef, exc.basis))
+    per_cyl_t = np.einsum("kl,klt->kt", coef, exc.basis)
     if exc.omega_fly is not None and exc.alpha_fly is not None:
         omega_meas, alpha_meas = exc.omega_fly, exc.alpha_fly
     else:
@@ -34,17 +35,24 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
     if drift is not None and np.vdot(drift, drift).real > 0:
         resid = resid - drift * (np.vdot(drift, resid).real / np.vdot(drift, drift).real)
     # show the measured speed with the estimated tooth-spacing pattern taken out; the model without it
-    omega_meas = omega_meas - harmonic_series(rows.design[:, p_f:] @ theta[p_f:], n_t)
-    model_t = omega_meas - harmonic_series(resid, n_t)
-    speed_meas, speed_model = to_grid(grid, exc.theta_fly, np.stack([omega_meas, model_t]))
+    # (both series from one inverse FFT)
+    pattern, resid_t = harmonic_series(np.stack([rows.design[:, p_f:] @ theta[p_f:], resid]), n_t)
+    omega_meas = omega_meas - pattern
+    model_t = omega_meas - resid_t
     power = float(np.sum(np.abs(fly.speed_harmonics) ** 2))
     r2 = 1.0 - float(np.sum(np.abs(resid) ** 2)) / power if power > 0 else float("nan")
-    balance_trace = None
+    time_rows = [per_cyl_t, omega_meas[None], model_t[None]]
     if spec.n_nodes == 1:  # direct rigid balance (paper 001 Eq. 26), low-passed to the identification band
         tl = load * (omega_meas / fly.omega_mean) ** spec.load.exponent if spec.load.kind != "grid" else load
         direct = rigid_friction_torque(exc.theta_fly, omega_meas, alpha_meas, exc.gas.sum(axis=0), tl, spec)
         low = harmonic_series(harmonics_of(direct, fly.n_harmonics), n_t, float(direct.mean()))
-        balance_trace = to_grid(grid, exc.theta_fly, low[None])[0]
+        time_rows.append(low[None])
+    # every trace onto the crank-angle grid in one pass (one bracket search per grid point)
+    on_grid = to_grid(grid, exc.theta_fly, np.concatenate(time_rows))
+    z = per_cyl_t.shape[0]
+    per_cyl = on_grid[:z]
+    speed_meas, speed_model = on_grid[z], on_grid[z + 1]
+    balance_trace = on_grid[z + 2] if spec.n_nodes == 1 else None
     return CycleResult(
         index=cycle.index, t_start=cycle.t_start, rpm_mean=fly.omega_mean * 60.0 / (2.0 * np.pi),
         omega_mean=fly.omega_mean, load_torque=float(load), load_power=float(cycle.load_power),
@@ -61,4 +69,4 @@ def to_grid(grid: np.ndarray, theta: np.ndarray, values: np.ndarray) -> np.ndarr
     crank-angle ``grid`` (periodic in 4 pi: theta spans one cycle from the first tooth edge)."""
     x = np.append(theta, theta[0] + FOUR_PI)
     u = theta[0] + np.mod(grid - theta[0], FOUR_PI)
-    return np.stack([np.interp(u, x, np.append(v, v[0])) for v in np.atleast_2d(values)])
+    return interp_rows_periodic(u, x, values)

@@ -51,19 +51,51 @@ def net_imep(theta: np.ndarray, pressure: np.ndarray, phases: np.ndarray, params
     return out / displacement
 
 
+@numba.njit(cache=True)
+def _peak_pressure(theta, pressure, phases, pmax, angle):
+    """Per row of pressure (z, n): the first maximum sample, refined by the parabola through it and its two
+    periodic neighbours; writes the refined peak and its angle relative to phases[k], wrapped to [-2pi, 2pi).
+    The arithmetic is that of the numpy reference (tests/core/test_peak_pressure_kernel.py)."""
+    z, n = pressure.shape
+    step = theta[1] - theta[0]
+    for k in range(z):
+        i = 0
+        best = pressure[k, 0]
+        if best == best:
+            for j in range(1, n):  # np.argmax: the first maximum, or the first NaN
+                v = pressure[k, j]
+                if v > best:
+                    best = v
+                    i = j
+                elif v != v:
+                    i = j
+                    break
+        y0 = pressure[k, (i - 1) % n]
+        y1 = pressure[k, i]
+        y2 = pressure[k, (i + 1) % n]
+        denom = y0 - 2 * y1 + y2
+        frac = 0.5 * (y0 - y2) / denom if denom < 0 else 0.0
+        ang = theta[i] + frac * step - phases[k]
+        angle[k] = (ang + 2 * np.pi) % (4 * np.pi) - 2 * np.pi
+        pmax[k] = y1 - 0.25 * (y0 - y2) * frac
+
+
 def peak_pressure(theta: np.ndarray, pressure: np.ndarray, phases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Peak pressure [Pa] per cylinder and its angle [rad] relative to that cylinder's firing TDC, in (-2pi, 2pi].
+    """Peak pressure [Pa] per cylinder and its angle [rad] relative to that cylinder's firing TDC, in [-2pi, 2pi).
 
     The angle is refined by a parabola through the three samples around the maximum.
+    theta : (n,) uniform crank-angle grid [rad]; pressure : (z, n) [Pa] (a row with a NaN gives NaN, as with
+    np.argmax); phases : (z,) firing angles [rad] (or one for every row).
     """
-    p = np.atleast_2d(pressure)
-    i = np.argmax(p, axis=1)
-    n = p.shape[1]
-    rows = np.arange(p.shape[0])
-    y0, y1, y2 = p[rows, (i - 1) % n], p[rows, i], p[rows, (i + 1) % n]
-    denom = y0 - 2 * y1 + y2
-    frac = np.where(denom < 0, 0.5 * (y0 - y2) / np.where(denom < 0, denom, 1.0), 0.0)
-    step = theta[1] - theta[0]
-    ang = theta[i] + frac * step - np.atleast_1d(phases)
-    ang = (ang + 2 * np.pi) % (4 * np.pi) - 2 * np.pi
-    return y1 - 0.25 * (y0 - y2) * frac, ang
+    th = np.ascontiguousarray(theta, dtype=np.float64).ravel()
+    p = np.ascontiguousarray(np.atleast_2d(pressure), dtype=np.float64)
+    ph = np.ascontiguousarray(phases, dtype=np.float64).ravel()
+    if ph.shape[0] == 1 and p.shape[0] > 1:
+        ph = np.full(p.shape[0], ph[0])
+    if p.shape[1] != th.shape[0] or th.shape[0] < 2 or ph.shape[0] != p.shape[0]:
+        raise ValueError(f"pressure (z, n) needs n = {th.shape[0]} grid angles and z phases, got {p.shape} and "
+                         f"{ph.shape[0]} phases")
+    pmax = np.empty(p.shape[0])
+    angle = np.empty(p.shape[0])
+    _peak_pressure(th, p, ph, pmax, angle)
+    return pmax, angle

@@ -42,10 +42,13 @@ def motored_friction_per_cylinder(spec: EngineSpec, rpm: float, pmax_motored_pa:
 def firing_mask(indicated_mean: np.ndarray, fraction: float = 0.15) -> np.ndarray:
     """True for cylinders that fire: indicated work above ``fraction`` of the median of the positive ones."""
     t = np.asarray(indicated_mean, dtype=np.float64)
-    pos = t[t > 0]
-    if pos.size == 0:
+    pos = np.sort(t[t > 0])
+    n = pos.size
+    if n == 0:
         return np.zeros(t.shape, dtype=bool)
-    return t > fraction * np.median(pos)
+    # np.median's value (middle sample, or the mean of the two middle ones) without its per-call overhead
+    med = pos[n // 2] if n % 2 else 0.5 * (pos[n // 2 - 1] + pos[n // 2])
+    return t > fraction * med
 
 
 def share_mean_loss(
@@ -63,14 +66,14 @@ def share_mean_loss(
     """
     t_i = np.asarray(indicated_mean, dtype=np.float64)
     fire = firing_mask(t_i, fraction)
-    n_ml = int((~fire).sum())
-    out = np.empty_like(t_i)
-    sig = np.empty_like(t_i)
-    out[~fire] = motored_friction
-    sig[~fire] = motored_spread * abs(motored_friction)
-    if fire.any():
-        t_fire = t_i[fire].sum()
-        t_f_fire = friction_total - n_ml * motored_friction
-        out[fire] = t_f_fire * t_i[fire] / t_fire
-        sig[fire] = spread * np.abs(out[fire])
-    return SharedLoss(friction_mean=out, sigma=sig, motored=~fire)
+    motored = ~fire
+    n_ml = int(np.count_nonzero(motored))
+    if n_ml == t_i.size:  # nothing fires: every cylinder gets the motored loss
+        out = np.full(t_i.shape, float(motored_friction))
+        sig = np.full(t_i.shape, motored_spread * abs(motored_friction))
+        return SharedLoss(friction_mean=out, sigma=sig, motored=motored)
+    t_fire = t_i[fire].sum()
+    t_f_fire = friction_total - n_ml * motored_friction
+    out = np.where(fire, t_f_fire * t_i / t_fire, motored_friction)
+    sig = np.where(fire, spread * np.abs(out), motored_spread * abs(motored_friction))
+    return SharedLoss(friction_mean=out, sigma=sig, motored=motored)

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from drivers.pressure_kernels import ROW_NAN, ROW_OK, _pressure_row
 from drivers.resample import CHECK_HOLE, CHECK_NAN, interp_checked
 from drivers.ringbuffer import RingBuffer
 
@@ -145,6 +146,19 @@ def pressure_on_grid(ring: RingBuffer, t_grid: np.ndarray) -> tuple[np.ndarray |
     'pressure_nan' (a NaN sample inside the window)."""
     if len(ring) < 2:
         return None, "pressure_missing"
+    q = t_grid if type(t_grid) is np.ndarray and t_grid.dtype == np.float64 and t_grid.flags.c_contiguous \
+        else np.ascontiguousarray(t_grid, dtype=np.float64)
+    if q.ndim != 1 or q.shape[0] < 2 or not q[0] < q[-1]:  # not a cycle's increasing grid times: the general path
+        return _pressure_on_grid_general(ring, q)
+    out = np.empty(q.shape[0])
+    code = _pressure_row(ring._cols["t"], ring._cols["p"], ring.start, ring.end, q, out)
+    if code == ROW_OK:
+        return out, ""
+    return None, ("pressure_nan" if code == ROW_NAN else "pressure_missing")
+
+
+def _pressure_on_grid_general(ring: RingBuffer, t_grid: np.ndarray) -> tuple[np.ndarray | None, str]:
+    """``pressure_on_grid`` through the RingBuffer and ``interp_checked`` (the kernel's reference semantics)."""
     t_lo, t_hi = float(t_grid[0]), float(t_grid[-1])
     a = ring.searchsorted("t", t_lo, side="right") - 1
     b = ring.searchsorted("t", t_hi, side="left") + 1

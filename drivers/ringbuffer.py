@@ -109,7 +109,12 @@ class RingBuffer:
 
     def searchsorted(self, name: str, value: float, side: str = "left") -> int:
         """Absolute sequence number where ``value`` would go in column ``name`` (which must be sorted)."""
-        return self.start + int(np.searchsorted(self.view(name), value, side=side))
+        if side != "left" and side != "right":
+            raise ValueError(f"side must be 'left' or 'right', got {side!r}")
+        # one compiled call on the mirrored storage (no view, no numpy dispatch: it runs for every ring at each
+        # discard and twice per cylinder and cycle)
+        return self.start + _search_sorted(self._cols[name], self.start % self.capacity, self.end - self.start,
+                                           value, side == "right")
 
     def discard_before(self, seq: int) -> None:
         """Release rows older than ``seq`` (consumed; they no longer count as dropped when overwritten)."""
@@ -117,6 +122,29 @@ class RingBuffer:
 
     def clear(self) -> None:
         self.start = self.end
+
+
+@numba.njit(cache=True)
+def _less(a, b):
+    """np.searchsorted's order: NaN after every number."""
+    return a < b or (b != b and a == a)
+
+
+@numba.njit(cache=True)
+def _search_sorted(col, i0, n, key, right):
+    """np.searchsorted(col[i0:i0 + n], key, side='right' if right else 'left') with numpy's binary-search loop, so
+    the same index even on unsorted input; mixed int/float compare as float64, as numpy's common type."""
+    lo = 0
+    hi = n
+    while lo < hi:
+        mid = lo + ((hi - lo) >> 1)
+        v = col[i0 + mid]
+        go_right = (not _less(key, v)) if right else _less(v, key)
+        if go_right:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
 
 
 @numba.njit(cache=True)
