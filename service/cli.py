@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 
 from core.engine import SpecError
@@ -39,6 +40,9 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR, format="%(levelname)s %(message)s")
     try:
         return int(args.func(args) or 0)
+    except BrokenPipeError:  # e.g. `frictionwatch analyze LOG | head`: the reader left, that is not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except (UsageError, SpecError, DriverError, ValueError, OSError) as exc:
         if args.verbose:
             raise

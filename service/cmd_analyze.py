@@ -94,14 +94,22 @@ def print_table(doc: dict) -> None:
                                            for g in doc["data_gaps"]))
     print(f"speed {doc.get('rpm') or float('nan'):.1f} rpm, load {doc.get('load_torque_nm') or float('nan'):.1f} N m, "
           f"engine FMEP {_fmt(doc['fmep_bar'], '.3f')} ± {_fmt(doc.get('fmep_sigma_bar'), '.3f')} bar")
-    print(f"{'cyl':>4} {'IMEP bar':>9} {'Pmax bar':>9} {'@ degCA':>8} {'friction N m':>14} {'± 1σ':>8} {'FMEP bar':>9}")
+    print(f"{'cyl':>4} {'IMEP bar':>9} {'Pmax bar':>9} {'@ degCA':>8} {'friction N m':>13} {'± 1σ':>7} {'FMEP bar':>9}")
+    shared = False
     for c in doc["cylinders"]:
-        sigma = c.get("friction_torque_sigma_nm")
-        fric = c["friction_torque_mean_nm"]
+        fric, sigma, fmep = c["friction_torque_mean_nm"], c.get("friction_torque_sigma_nm"), c["fmep_bar"]
+        if fric is None:  # not resolved by the data: show the Eq. 6 share, marked, never as a measurement
+            prior = c.get("prior_friction_torque_mean_nm")
+            fric_txt, sigma_txt, fmep_txt = ("n/a" if prior is None else f"{prior:.2f}*"), "", ""
+            shared = True
+        else:
+            fric_txt, sigma_txt = f"{fric:.2f}", ("" if sigma is None else f"{sigma:.2f}")
+            fmep_txt = "" if fmep is None else f"{fmep:.3f}"
         print(f"{c['cylinder']:>4} {_fmt(c['imep_bar'], '.3f'):>9} {c.get('pmax_bar') or float('nan'):>9.1f} "
-              f"{c.get('pmax_angle_deg') or float('nan'):>8.1f} "
-              f"{'unresolved' if fric is None else f'{fric:.2f}':>14} {'' if sigma is None else f'{sigma:.2f}':>8} "
-              f"{'' if c['fmep_bar'] is None else format(c['fmep_bar'], '.3f'):>9}")
+              f"{c.get('pmax_angle_deg') or float('nan'):>8.1f} {fric_txt:>13} {sigma_txt:>7} {fmep_txt:>9}")
+    if shared:
+        print("* not resolved from the speed data yet: the cylinder's share of the engine's friction in proportion to"
+              " its indicated work (paper 000 Eq. 6), not a per-cylinder measurement")
 
 
 def write_csv(analysis: LogAnalysis, path: Path) -> None:
