@@ -45,22 +45,28 @@ def kinematics(theta: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 @numba.njit(cache=True)
-def _variable_inertia(theta, phases, params, m_rec, j0, j, dj):
+def _cylinder_kinematics(theta, phases, params, dx, ddx):
+    """x' and x'' (z, n) of every cylinder at its own local angle theta - phi_k."""
     n = theta.shape[0]
     x = np.empty(n)
-    dx = np.empty(n)
-    ddx = np.empty(n)
     loc = np.empty(n)
-    for i in range(n):
-        j[i] = j0
-        dj[i] = 0.0
     for k in range(phases.shape[0]):
         for i in range(n):
             loc[i] = theta[i] - phases[k]
-        _kinematics(loc, params, x, dx, ddx)
-        for i in range(n):
-            j[i] += m_rec * dx[i] * dx[i]
-            dj[i] += 2.0 * m_rec * dx[i] * ddx[i]
+        _kinematics(loc, params, x, dx[k], ddx[k])
+
+
+@numba.njit(cache=True)
+def _variable_inertia(theta, phases, params, m_rec, j0, j, dj):
+    dx = np.empty((phases.shape[0], theta.shape[0]))
+    ddx = np.empty_like(dx)
+    _cylinder_kinematics(theta, phases, params, dx, ddx)
+    for i in range(theta.shape[0]):
+        j[i] = j0
+        dj[i] = 0.0
+        for k in range(phases.shape[0]):
+            j[i] += m_rec * dx[k, i] * dx[k, i]
+            dj[i] += 2.0 * m_rec * dx[k, i] * ddx[k, i]
 
 
 def variable_inertia(

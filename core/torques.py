@@ -9,22 +9,17 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from core.kinematics import _kinematics
+from core.kinematics import _cylinder_kinematics
 
 
 @numba.njit(cache=True)
 def _gas_torque(theta, pressure, phases, params, area, p_cc, out):
-    n = theta.shape[0]
-    x = np.empty(n)
-    dx = np.empty(n)
-    ddx = np.empty(n)
-    loc = np.empty(n)
+    dx = np.empty_like(out)
+    ddx = np.empty_like(out)
+    _cylinder_kinematics(theta, phases, params, dx, ddx)
     for k in range(phases.shape[0]):
-        for i in range(n):
-            loc[i] = theta[i] - phases[k]
-        _kinematics(loc, params, x, dx, ddx)
-        for i in range(n):
-            out[k, i] = (pressure[k, i] - p_cc) * area * dx[i]
+        for i in range(theta.shape[0]):
+            out[k, i] = (pressure[k, i] - p_cc) * area * dx[k, i]
 
 
 def gas_torque(
@@ -47,17 +42,12 @@ def gas_torque(
 
 @numba.njit(cache=True)
 def _mass_torque(theta, omega, alpha, phases, params, m_rec, out):
-    n = theta.shape[0]
-    x = np.empty(n)
-    dx = np.empty(n)
-    ddx = np.empty(n)
-    loc = np.empty(n)
+    dx = np.empty_like(out)
+    ddx = np.empty_like(out)
+    _cylinder_kinematics(theta, phases, params, dx, ddx)
     for k in range(phases.shape[0]):
-        for i in range(n):
-            loc[i] = theta[i] - phases[k]
-        _kinematics(loc, params, x, dx, ddx)
-        for i in range(n):
-            out[k, i] = m_rec * dx[i] * (ddx[i] * omega[i] * omega[i] + dx[i] * alpha[i])
+        for i in range(theta.shape[0]):
+            out[k, i] = m_rec * dx[k, i] * (ddx[k, i] * omega[i] * omega[i] + dx[k, i] * alpha[i])
 
 
 def reciprocating_torque(
