@@ -1,0 +1,343 @@
+"""Speed of the monitor per stage and end to end, and of a straightforward scipy implementation of the same method.
+
+    python -m bench.bench_monitor [--scipy-cycles N]     (``make bench`` runs it through bench/run.py)
+
+For deutz-1cyl (3000 rpm), k9k-4cyl (4000 rpm) and genset-v20 (1500 rpm), all at full load, the plant simulator
+makes ``CYCLES`` cycles once (not timed); then, on one core (BLAS/numba threads pinned to 1):
+
+- assemble: ``CycleAssembler.feed`` calls per cycle (records -> Cycle) and the emitting call alone (latency);
+- speed: ``core.speed.cycle_speed`` + ``ToothSpacingLearner.update`` (the display/analysis speed; the monitor fits
+  the teeth itself, so this is not on its path);
+- monitor: ``process_cycle``, split into its stages by timing the functions it calls (wrapped for one extra pass,
+  nothing in core/ edited); ``other`` is whitening, noise model, sharing and bookkeeping;
+- end_to_end: assemble + monitor, the path of service/pipeline.py; latency = emitting feed call + monitor.
+Real-time factor = engine cycle duration / mean end-to-end time per cycle (genset-v20 at 1500 rpm: 80 ms per cycle;
+target >= 100x, i.e. <= 0.8 ms). Numba compile time is measured apart in a fresh process with an empty cache.
+A cProfile top 10 per engine says where the monitor's time goes; tracemalloc gives its Python-heap peak.
+
+The scipy baseline (bench/scipy_baseline.py) runs on the last few of the same cycles, with the monitor's noise model
+and learned tooth correction of that cycle, and is compared with the monitor (speed-up, estimates, truth).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _v in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")  # one core, also when run directly (before numpy loads BLAS)
+
+import argparse  # noqa: E402
+import cProfile  # noqa: E402
+import json  # noqa: E402
+import pickle  # noqa: E402
+import pstats  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+import tracemalloc  # noqa: E402
+import types  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+import core.monitor  # noqa: E402
+from bench.common import assembler_for, summary_ms, timed_assembly  # noqa: E402
+from core.engine import load_engine  # noqa: E402
+from core.monitor import CycleRejected, initial_state, process_cycle  # noqa: E402
+from core.simulate import simulate  # noqa: E402
+from core.speed import ToothSpacingLearner, cycle_speed, engine_orders  # noqa: E402
+
+POINTS = (("deutz-1cyl", 3000.0, 1.0), ("k9k-4cyl", 4000.0, 1.0), ("genset-v20", 1500.0, 1.0))
+CYCLES = 120
+SCIPY_CYCLES = {"deutz-1cyl": 3, "k9k-4cyl": 4, "genset-v20": 2}
+TARGET_RTF = 100.0
+TARGET_SPEEDUP = 30.0
+SEED = 1
+
+# process_cycle's stages are the functions and methods it calls from core/ (found in core.monitor's namespace, so the
+# split follows the monitor as it changes). Each is wrapped for one extra pass: a call made directly from
+# process_cycle is a stage; a wrapped call inside a stage is listed under it ("of which"). 'other' is the inline numpy
+# of process_cycle itself (whitening, noise model, sharing bookkeeping).
+ENTRY_POINTS = {"process_cycle", "initial_state", "default_max_order"}
+
+
+def _monitor_pass(spec, cycles):
+    state, out = initial_state(spec), []
+    for c in cycles:
+        try:
+            state, res = process_cycle(spec, state, c)
+        except CycleRejected:
+            continue
+        out.append((state, res))
+    return out
+
+
+def _stage_targets() -> list[tuple[object, str, str]]:
+    """(owner, attribute, label) of every core/ function in core.monitor's namespace and every plain method of the
+    core/ classes it imports."""
+    out = []
+    for name, obj in vars(core.monitor).items():
+        mod = getattr(obj, "__module__", "") or ""
+        if not mod.startswith("core.") or name in ENTRY_POINTS:
+            continue
+        if isinstance(obj, types.FunctionType):
+            out.append((core.monitor, name, name))
+        elif isinstance(obj, type):
+            for attr, raw in vars(obj).items():
+                if isinstance(raw, types.FunctionType) and not attr.startswith("__"):
+                    out.append((obj, attr, f"{obj.__name__}.{attr}"))
+    return out
+
+
+def stage_times(spec, cycles) -> dict:
+    """Mean ms per cycle of each stage of process_cycle (one extra pass with the stage functions wrapped)."""
+    direct: dict[str, float] = {}
+    nested: dict[str, dict[str, float]] = {}
+    stack: list[str] = []
+    saved = []
+
+    def wrap(fn, label):
+        def timed(*args, **kwargs):
+            stack.append(label)
+            t0 = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                dt = time.perf_counter() - t0
+                stack.pop()
+                if not stack:
+                    direct[label] = direct.get(label, 0.0) + dt
+                else:
+                    parent = nested.setdefault(stack[0], {})
+                    parent[label] = parent.get(label, 0.0) + dt
+        return timed
+
+    for owner, attr, label in _stage_targets():
+        saved.append((owner, attr, vars(owner)[attr]))
+        setattr(owner, attr, wrap(getattr(owner, attr), label))
+    try:
+        t0 = time.perf_counter()
+        n = max(len(_monitor_pass(spec, cycles)), 1)
+        total = time.perf_counter() - t0
+    finally:
+        for owner, attr, fn in saved:
+            setattr(owner, attr, fn)
+    ms: dict[str, float] = {}
+    for label, sec in sorted(direct.items(), key=lambda kv: -kv[1]):
+        ms[label] = round(1e3 * sec / n, 4)
+        for sub, sec2 in sorted(nested.get(label, {}).items(), key=lambda kv: -kv[1]):
+            if sec2 >= 0.1 * sec:  # the parts that matter
+                ms[f"  {sub}"] = round(1e3 * sec2 / n, 4)
+    ms["other (inline in process_cycle)"] = round(1e3 * (total - sum(direct.values())) / n, 4)
+    ms["total (instrumented)"] = round(1e3 * total / n, 4)
+    return ms
+
+
+def profile_top(spec, cycles, n_top: int = 10) -> list[dict]:
+    """cProfile of the monitor over the cycles: the top functions by own time, per cycle."""
+    prof = cProfile.Profile()
+    prof.enable()
+    n = len(_monitor_pass(spec, cycles))
+    prof.disable()
+    rows = sorted(pstats.Stats(prof).stats.items(), key=lambda kv: kv[1][2], reverse=True)[:n_top]
+    out = []
+    for (path, line, func), (_, calls, tt, ct, _) in rows:
+        where = "/".join(Path(path).parts[-2:]) if path != "~" else "builtin"
+        out.append({"function": f"{where}:{line}({func})", "calls_per_cycle": round(calls / n, 2),
+                    "own_ms_per_cycle": round(1e3 * tt / n, 4), "cum_ms_per_cycle": round(1e3 * ct / n, 4)})
+    return out
+
+
+_COLD = """
+import json, pickle, sys, time
+t0 = time.perf_counter()
+from core.engine import load_engine
+from core.monitor import initial_state, process_cycle
+from core.speed import cycle_speed
+from drivers.cycles import CycleAssembler
+t_import = time.perf_counter() - t0
+runs = pickle.load(open(sys.argv[1], 'rb'))
+def one(name, info, records):
+    spec = load_engine(name)
+    asm = CycleAssembler(info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
+    state = initial_state(spec)
+    t = time.perf_counter()
+    for r in records:
+        for c in asm.feed(r):
+            cycle_speed(c, None, 12.0, 720)
+            state, _ = process_cycle(spec, state, c)
+    return time.perf_counter() - t
+out = {'import_s': t_import}
+for name, info, records in runs:
+    first = one(name, info, records)
+    out[name] = [first, one(name, info, records)]
+print(json.dumps(out))
+"""
+
+
+def cold_compile(short_runs: list) -> dict:
+    """First pass minus warm pass of assembly + speed + monitor on a few cycles, in a fresh process with an empty
+    numba cache: the JIT compile cost of the monitor's kernels (the plant's kernels are not involved)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "runs.pkl"
+        path.write_bytes(pickle.dumps(short_runs))
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "cache"))
+        proc = subprocess.run([sys.executable, "-c", _COLD, str(path)], capture_output=True, text=True, env=env,
+                              check=False, cwd=Path(__file__).resolve().parents[1])
+    if proc.returncode != 0:
+        return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "failed"}
+    r = json.loads(proc.stdout.strip().splitlines()[-1])
+    per = {k: round(v[0] - v[1], 3) for k, v in r.items() if k != "import_s"}
+    return {"compile_s_total": round(sum(per.values()), 2), "compile_s_by_engine_first_seen": per,
+            "import_s": round(r["import_s"], 2)}
+
+
+def pipeline_pass(spec, sim) -> dict:
+    """The timed pass: assembly, speed and monitor per cycle (monitor results and states kept)."""
+    asm = assembler_for(spec, sim.info)
+    learner = ToothSpacingLearner(spec.sensors.wheel_teeth, spec.sensors.wheel_missing,
+                                  engine_orders=engine_orders(spec.n_cyl, 79))
+    sp_state = learner.initial()
+    rows, cycles, kept, rejected = [], [], [], 0
+    state = initial_state(spec)
+    order = min(20.0, 0.25 * (spec.sensors.wheel_teeth - spec.sensors.wheel_missing))
+    for c, asm_ms, emit_ms in timed_assembly(asm, sim.records):
+        t0 = time.perf_counter()
+        sp_state = learner.update(sp_state, c.tooth_ticks, c.tooth_index)
+        cycle_speed(c, None, order, 720)
+        t1 = time.perf_counter()
+        try:
+            state, res = process_cycle(spec, state, c)
+        except CycleRejected:
+            rejected += 1
+            continue
+        t2 = time.perf_counter()
+        rows.append((asm_ms, emit_ms, 1e3 * (t1 - t0), 1e3 * (t2 - t1)))
+        cycles.append(c)
+        kept.append((state, res))
+    a = np.array(rows)
+    return {"rows": a, "cycles": cycles, "kept": kept, "skipped": dict(asm.skipped), "rejected": rejected}
+
+
+def heap_peak_mb(spec, sim, n: int = 20) -> float:
+    """tracemalloc peak of assembly + monitor over the first ``n`` cycles (Python heap incl. numpy buffers)."""
+    asm = assembler_for(spec, sim.info)
+    state = initial_state(spec)
+    tracemalloc.start()
+    done = 0
+    for r in sim.records:
+        for c in asm.feed(r):
+            state, _ = process_cycle(spec, state, c)
+            done += 1
+        if done >= n:
+            break
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return round(peak / 2**20, 2)
+
+
+def engine_bench(name: str, rpm: float, load: float, scipy_cycles: int) -> tuple[dict, tuple]:
+    spec = load_engine(name)
+    t0 = time.perf_counter()
+    sim = simulate(spec, rpm, load, CYCLES, seed=SEED)
+    sim_s = time.perf_counter() - t0
+    short = simulate(spec, rpm, load, 3, seed=SEED + 1)
+    t0 = time.perf_counter()
+    asm = assembler_for(spec, short.info)  # warm: numba cache load and first calls, this process
+    _monitor_pass(spec, [c for r in short.records for c in asm.feed(r)])
+    warm_s = time.perf_counter() - t0
+    run = pipeline_pass(spec, sim)
+    rows = run["rows"]
+    asm_ms, emit_ms, speed_ms, mon_ms = rows.T
+    e2e = asm_ms + mon_ms
+    duration_ms = 120.0 / rpm * 1e3
+    stages = stage_times(spec, run["cycles"])
+    out = {
+        "rpm": rpm, "load": load, "cylinders": spec.n_cyl, "nodes": spec.n_nodes,
+        "wheel": f"{spec.sensors.wheel_teeth}-{spec.sensors.wheel_missing}",
+        "parameters": run["kept"][0][0].layout.n_params if run["kept"] else None,
+        "harmonics": run["kept"][0][0].n_harmonics if run["kept"] else None,
+        "cycle_duration_ms": round(duration_ms, 3), "cycles": int(rows.shape[0]), "skipped": run["skipped"],
+        "rejected": run["rejected"], "simulate_s": round(sim_s, 2), "warm_first_calls_s": round(warm_s, 3),
+        "assemble": summary_ms(asm_ms), "speed": summary_ms(speed_ms), "monitor": summary_ms(mon_ms),
+        "end_to_end": summary_ms(e2e), "latency": summary_ms(emit_ms + mon_ms),
+        "real_time_factor": round(duration_ms / float(e2e.mean()), 1),
+        "monitor_stages_ms": stages,
+        "profile_top10": profile_top(spec, run["cycles"]),
+        "tracemalloc_peak_mb": heap_peak_mb(spec, sim),
+    }
+    if scipy_cycles > 0:
+        from bench.scipy_compare import compare  # the slow part, only when asked for
+
+        out["scipy"] = compare(spec, sim, run["cycles"], run["kept"], scipy_cycles, float(mon_ms.mean()),
+                               float(e2e.mean()))
+    return out, (name, short.info, short.records)
+
+
+def print_table(r: dict) -> None:
+    print(f"\n{'engine':12s} {'stage':12s} {'cycles/s':>10s} {'p50 ms':>9s} {'p99 ms':>9s}   real time")
+    for name, e in r["engines"].items():
+        for st in ("assemble", "speed", "monitor", "end_to_end", "latency"):
+            s = e[st]
+            rtf = f"{e['real_time_factor']:8.1f}x (cycle {e['cycle_duration_ms']:.1f} ms)" if st == "end_to_end" \
+                else ""
+            print(f"{name:12s} {st:12s} {s['cycles_per_s']:10.1f} {s['p50_ms']:9.3f} {s['p99_ms']:9.3f}   {rtf}")
+    print(f"\nmonitor stages, ms per cycle ({', '.join(r['engines'])}):")
+    labels = list(dict.fromkeys(k for e in r["engines"].values() for k in e["monitor_stages_ms"]))
+    for lab in [k for k in labels if not k.startswith(("other", "total"))] + [k for k in labels if k.startswith(
+            ("other", "total"))]:
+        vals = [e["monitor_stages_ms"].get(lab) for e in r["engines"].values()]
+        print(f"  {lab[:40]:40s} " + " ".join(f"{v:9.3f}" if v is not None else f"{'-':>9s}" for v in vals))
+    c = r["compile"]
+    print(f"\nnumba compile (fresh process, empty cache): {c.get('compile_s_total', c)} s; "
+          f"tracemalloc peak: " + ", ".join(f"{k} {e['tracemalloc_peak_mb']} MB" for k, e in r["engines"].items()))
+    for name, e in r["engines"].items():
+        print(f"\ncProfile top 10, {name} (own ms per cycle, cum ms per cycle, calls per cycle):")
+        for p in e["profile_top10"]:
+            print(f"  {p['own_ms_per_cycle']:8.3f} {p['cum_ms_per_cycle']:8.3f} {p['calls_per_cycle']:7.1f}  "
+                  f"{p['function']}")
+    for name, e in r["engines"].items():
+        s = e.get("scipy")
+        if s:
+            print(f"\nscipy baseline, {name}: {s['summary']}")
+    g = r["genset_v20_target"]
+    print(f"\ngenset-v20 at 1500 rpm: {g['end_to_end_ms']} ms per cycle end to end = {g['real_time_factor']}x real "
+          f"time (target >= {TARGET_RTF:g}x: {'met' if g['met'] else 'NOT met'}); scipy speed-up "
+          f"{g.get('scipy_speedup')}x (target >= {TARGET_SPEEDUP:g}x)")
+
+
+def run(scipy_cycles: dict | None = None) -> dict:
+    sc = SCIPY_CYCLES if scipy_cycles is None else scipy_cycles
+    engines, short_runs = {}, []
+    t_all = time.perf_counter()
+    for name, rpm, load in POINTS:
+        print(f"  {name} at {rpm:g} rpm ...", flush=True)
+        engines[name], short = engine_bench(name, rpm, load, sc.get(name, 0))
+        short_runs.append(short)
+    result = {"engines": engines, "compile": cold_compile(short_runs),
+              "threads": {k: os.environ.get(k) for k in ("NUMBA_NUM_THREADS", "OPENBLAS_NUM_THREADS")}}
+    v20 = engines.get("genset-v20")
+    if v20:
+        result["genset_v20_target"] = {
+            "end_to_end_ms": v20["end_to_end"]["mean_ms"], "budget_ms": round(v20["cycle_duration_ms"] / TARGET_RTF, 3),
+            "real_time_factor": v20["real_time_factor"], "met": v20["real_time_factor"] >= TARGET_RTF,
+            "scipy_speedup": v20.get("scipy", {}).get("speedup_vs_monitor")}
+    result["bench_s"] = round(time.perf_counter() - t_all, 1)
+    print_table(result)
+    return result
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scipy-cycles", type=int, default=None, help="scipy cycles per engine (0: skip the baseline)")
+    ap.add_argument("--json", type=Path, default=None, help="also write the result dict here")
+    args = ap.parse_args()
+    sc = None if args.scipy_cycles is None else {n: args.scipy_cycles for n, _, _ in POINTS}
+    r = run(sc)
+    if args.json:
+        args.json.write_text(json.dumps(r, indent=1, default=float))
+
+
+if __name__ == "__main__":
+    main()
