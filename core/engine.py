@@ -196,19 +196,6 @@ class EngineSpec:
     def damping_matrix(self) -> np.ndarray:
         return _chain_matrix(self.damping, self.n_nodes)
 
-    def to_dict(self) -> dict:
-        """A JSON-able description (SI) for log metadata and API responses."""
-        return {
-            "name": self.name,
-            "n_cyl": self.n_cyl,
-            "bore_m": self.bore,
-            "stroke_m": self.stroke,
-            "conrod_m": self.conrod,
-            "compression_ratio": self.compression_ratio,
-            "firing_angles_deg": np.degrees(self.firing_angles).tolist(),
-            "node_names": list(self.node_names),
-        }
-
 
 def _chain_matrix(k: np.ndarray, n: int) -> np.ndarray:
     m = np.zeros((n, n))
