@@ -32,16 +32,17 @@ import numpy as np
 
 from core.accumulate import Accumulator, ResidualStats, posterior_from_normal
 from core.cycle_report import build_result
-from core.dynamics import Receptance, ShaftModel, dissipated_power, receptance, shaft_model, static_twist
+from core.dynamics import dissipated_power
 from core.engine import EngineSpec
 from core.estimate import friction_estimate
-from core.excitation import Excitation, ExcitationPlan, cycle_excitation, excitation_plan
-from core.flywheel import FlywheelMotion, ToothLearner, fit_prepared, prepare_fit
-from core.identify import CycleRows, ParameterLayout, friction_design, parameter_layout, tooth_patterns, whiten
+from core.flywheel import ToothLearner
+from core.harmonic_balance import OperatingPoint, harmonic_balance, operating_point
+from core.identify import ParameterLayout, parameter_layout, whiten
 from core.indicated import peak_pressure
 from core.priors import build_priors
 from core.results import CycleResult
 from core.sharing import SharedLoss, firing_mask, motored_friction_per_cylinder, share_mean_loss
+from core.tooth_fit import fit_cycle_teeth
 from core.types import Cycle
 
 FOUR_PI = 4.0 * np.pi
@@ -120,18 +121,6 @@ class MonitorConfig:
 
 
 @dataclass(frozen=True)
-class OperatingPoint:
-    """Chain matrices and transfer functions at one mean speed and load (cached in the state)."""
-
-    omega_mean: float
-    load_torque: float
-    shaft: ShaftModel
-    receptance: Receptance
-    transfer: np.ndarray  # (M, N) flywheel speed per node torque
-    plan: ExcitationPlan | None = None  # spec constants of the excitation kernel
-
-
-@dataclass(frozen=True)
 class MonitorState:
     """Everything carried from one cycle to the next (scipy ``zi`` style: in and out of ``process_cycle``)."""
 
@@ -188,17 +177,24 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
     cfg = config or MonitorConfig()
     pressure, flags = _checked_pressure(spec, cycle)
     m = state.n_harmonics
-    fly, teeth, theta_start, pattern_cache = _fit_teeth(spec, state, cycle, cfg)
+    try:
+        fly, teeth, theta_start, pattern_cache = fit_cycle_teeth(
+            cycle, spec.sensors.wheel_teeth, m, state.n_nuisance, state.teeth, state.tooth_pattern_cache,
+            cfg.drift_nuisance, round(2 * cfg.fit_order) if cfg.fit_order else m, cfg.fit_drift, cfg.learn_teeth,
+            cfg.tooth_memory, cfg.tooth_refit_cycles)
+    except ValueError as exc:
+        raise CycleRejected("bad_teeth", str(exc)) from exc
     omega = fly.omega_mean
     load = cycle.load_torque if np.isfinite(cycle.load_torque) else cycle.load_power / omega
     if not np.isfinite(load):
         flags.append("no_load_measurement")
-    op = _operating_point(spec, state.op, omega, load, m, cfg)
+    op = operating_point(spec, state.op, omega, load, m, cfg.rebuild_tolerance, cfg.variable_inertia)
     if op is not state.op and state.op is not None:
         flags.append("operating_point_changed")
 
-    exc, rows, node_speed, rel, static = _harmonic_balance(spec, state, cycle.grid, pressure, fly, theta_start, op,
-                                                           cfg)
+    exc, rows, node_speed, rel, static = harmonic_balance(
+        spec, state.layout, state.theta, state.n_nuisance, state.relative_motion, state.static, cycle.grid, pressure,
+        fly, theta_start, op, cfg.passes, cfg.time_samples, cfg.variable_inertia)
     p_rel, p_gnd = dissipated_power(op.shaft, node_speed)
     # relative dampers (damper, shaft, coupling) dissipate mean power that a balance against the load behind the
     # coupling would book as friction (physics.md §12.4); the load's own ripple work (ground damping) belongs to
@@ -318,46 +314,6 @@ def _with_share(prior_normal: tuple, cylinder_rows: np.ndarray, share: SharedLos
     return n_base + w.T @ w, r_base + w.T @ (share.friction_mean / sig)
 
 
-def _fit_teeth(spec: EngineSpec, state: MonitorState, cycle: Cycle, cfg: MonitorConfig
-               ) -> tuple[FlywheelMotion, ToothLearner, float, tuple[np.ndarray, np.ndarray] | None]:
-    """Flywheel fit of the cycle's 4 pi window (the assembler brackets [0, 4 pi] with an edge either side; the
-    window starts at the first edge), tooth learning, and the angle of the first edge."""
-    m = state.n_harmonics
-    nominal = np.asarray(cycle.tooth_angle, dtype=np.float64)
-    end = int(np.searchsorted(nominal, nominal[0] + FOUR_PI - 1e-6))
-    if end >= nominal.shape[0] or abs(nominal[end] - nominal[0] - FOUR_PI) > 1e-6:
-        raise CycleRejected("bad_teeth", "no tooth edge 720 deg after the first one")
-    ticks = cycle.tooth_ticks[: end + 1]
-    pos = np.asarray(cycle.tooth_index[: end + 1]) % spec.sensors.wheel_teeth
-    nominal = nominal[: end + 1]
-    teeth = state.teeth
-    cache = state.tooth_pattern_cache
-    if state.n_nuisance:
-        # the patterns depend on the edge angles relative to the first one only, the same every cycle of a run
-        rel_angle = nominal - nominal[0]
-        if cache is not None and np.array_equal(cache[0], rel_angle):
-            patterns = cache[1]
-        else:
-            patterns = tooth_patterns(nominal, state.n_nuisance // 2)
-            cache = (rel_angle, patterns)
-    else:
-        patterns = np.zeros((nominal.size, 0))
-    if cfg.drift_nuisance:  # angle of a linear speed drift over the cycle, q(u) = u (u - 1), u = t / T
-        u = (ticks - ticks[0]) / float(ticks[-1] - ticks[0])
-        patterns = np.column_stack([patterns, u * (u - 1.0)])
-    m_fit = round(2 * cfg.fit_order) if cfg.fit_order else m
-    try:
-        setup = prepare_fit(ticks, cycle.tick_hz, m, patterns, m_fit, cfg.fit_drift)  # shared by the refit
-        fly = fit_prepared(setup, nominal + teeth.correction[pos])
-        if cfg.learn_teeth:
-            teeth = teeth.update(pos, fly.edge_residual, cfg.tooth_memory)
-            if teeth.count <= cfg.tooth_refit_cycles:  # while young, use what this cycle taught at once
-                fly = fit_prepared(setup, nominal + teeth.correction[pos])
-    except ValueError as exc:
-        raise CycleRejected("bad_teeth", str(exc)) from exc
-    return fly, teeth, float(nominal[0] + teeth.correction[pos[0]]), cache
-
-
 def _checked_pressure(spec: EngineSpec, cycle: Cycle) -> tuple[np.ndarray, list[str]]:
     p = np.asarray(cycle.pressure, dtype=np.float64)
     n = cycle.grid.shape[0]
@@ -382,52 +338,3 @@ def _checked_pressure(spec: EngineSpec, cycle: Cycle) -> tuple[np.ndarray, list[
     return p, flags
 
 
-def _operating_point(spec: EngineSpec, op: OperatingPoint | None, omega: float, load: float, m: int,
-                     cfg: MonitorConfig) -> OperatingPoint:
-    load_ok = np.isfinite(load)
-    if op is not None and abs(omega / op.omega_mean - 1.0) <= cfg.rebuild_tolerance and (
-            not load_ok or abs(load - op.load_torque) <= 0.05 * max(abs(op.load_torque), 1e-9)):
-        return op
-    shaft = shaft_model(spec, load if load_ok else 0.0, omega)
-    rec = receptance(shaft, omega, m)
-    return OperatingPoint(omega, load if load_ok else 0.0, shaft, rec, rec.speed_transfer(shaft.flywheel),
-                          excitation_plan(spec, shaft.recip_inertia_mean, cfg.variable_inertia))
-
-
-def _harmonic_balance(spec: EngineSpec, state: MonitorState, grid: np.ndarray, pressure: np.ndarray,
-                      fly: FlywheelMotion, theta_start: float, op: OperatingPoint, cfg: MonitorConfig
-                      ) -> tuple[Excitation, CycleRows, np.ndarray, np.ndarray, np.ndarray]:
-    """Passes of excitation + chain response; returns the last excitation, the rows (friction columns, then the
-    tooth-error nuisances), node speeds, and the node-minus-flywheel motion (harmonics and static twist) for the
-    next cycle."""
-    rel = state.relative_motion
-    n_nodes = spec.n_nodes
-    if rel is not None and rel.shape != (n_nodes, fly.n_harmonics):
-        rel = None
-    layout = state.layout
-    coef = layout.coefficients(state.theta[: layout.n_params])
-    static = state.static if state.static is not None and state.static.shape == (n_nodes,) else None
-    # warm start: with the previous cycle's node motion the first pass already is a refresh (physics.md §12.3)
-    passes = max(1, cfg.passes - 1) if rel is not None and static is not None else max(1, cfg.passes)
-    for _ in range(passes):
-        exc = cycle_excitation(spec, grid, pressure, fly, theta_start, cfg.time_samples,
-                               op.shaft.recip_inertia_mean, rel if n_nodes > 1 else None,
-                               static if n_nodes > 1 else None, cfg.variable_inertia, op.plan)
-        mean_torque = np.zeros(n_nodes)
-        np.add.at(mean_torque, spec.cylinder_node, exc.indicated_mean - (coef * exc.basis_mean).sum(axis=1))
-        static = static_twist(op.shaft, mean_torque)
-        torque = exc.known_harm.copy()
-        np.add.at(torque, spec.cylinder_node, -np.einsum("kl,klm->km", coef, exc.basis_harm))
-        phi = np.einsum("mij,jm->im", op.receptance.inverse, torque)
-        rel = phi - phi[op.shaft.flywheel]
-    node_speed = 1j * op.receptance.freq[None, :] * phi
-    w0 = np.einsum("mq,qm->m", op.transfer, exc.known_harm)
-    design = friction_design(layout, op.transfer, exc.basis_harm, spec.cylinder_node)
-    if state.n_nuisance:
-        design = np.hstack([design, 1j * fly.freq[:, None] * fly.pattern_harmonics[:, : state.n_nuisance]])
-    cyl_rows = layout.cylinder_rows(exc.basis_mean)
-    rows = CycleRows(design=design, target=fly.speed_harmonics - w0,
-                     mean_row=np.concatenate([cyl_rows.sum(axis=0), np.zeros(state.n_nuisance)]),
-                     mean_target=float("nan"),
-                     cylinder_rows=cyl_rows)
-    return exc, rows, node_speed, rel, static
