@@ -3,10 +3,11 @@
     python -m bench.bench_cycles
 
 The stream comes from the plant simulator (core.simulate, the records as a log would replay them: teeth in batches,
-10 ms pressure blocks per cylinder, load at 100 Hz). Stages, each timed per cycle on one core:
+one 10 ms pressure frame of all cylinders, load at 100 Hz). Stages, each timed per cycle on one core:
 
 - assemble: every ``CycleAssembler.feed`` call between two emitted cycles (ring buffers, sync, phase, pressure
-  resampling of 20 cylinders onto 720 points), i.e. the whole input-side work of one cycle;
+  resampling of 20 cylinders onto 720 points), i.e. the whole input-side work of one cycle; ``assemble_blocks`` is
+  the same with the pressure as one block per cylinder (as CAN / DAQ drivers deliver it);
 - latency: the single ``feed`` call that returned the cycle (what stands between the last tooth and the cycle);
 - speed: ``cycle_speed`` (tooth speed with the learned correction, pitch samples, FFT filter to order 20, grid)
   plus one ``ToothSpacingLearner.update``; the correction itself is refreshed every 20 cycles (timed apart);
@@ -20,6 +21,7 @@ import time
 
 import numpy as np
 
+from bench.common import as_blocks
 from core.engine import load_engine
 from core.simulate import simulate
 from core.speed import cycle_speed
@@ -38,11 +40,11 @@ def _stats(ms: list[float]) -> dict:
             "mean_ms": round(float(a.mean()), 4), "cycles_per_s": round(1000.0 / float(a.mean()), 1)}
 
 
-def _assemble(spec, res) -> tuple[list, list[float], list[float], CycleAssembler]:
-    asm = CycleAssembler(res.info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
+def _assemble(spec, info, records) -> tuple[list, list[float], list[float], CycleAssembler]:
+    asm = CycleAssembler(info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
     cycles, per_cycle, latency = [], [], []
     acc = 0.0
-    for r in res.records:
+    for r in records:
         t0 = time.perf_counter()
         out = asm.feed(r)
         dt = time.perf_counter() - t0
@@ -61,8 +63,12 @@ def run() -> dict:
     t0 = time.perf_counter()
     res = simulate(spec, RPM, 1.0, CYCLES, seed=1)
     sim_s = time.perf_counter() - t0
-    _assemble(spec, simulate(spec, RPM, 1.0, 2, seed=2))  # warm the numba kernels
-    cycles, per_cycle, latency, asm = _assemble(spec, res)
+    warm = simulate(spec, RPM, 1.0, 2, seed=2)
+    _assemble(spec, warm.info, warm.records)  # warm the numba kernels
+    _assemble(spec, warm.info, as_blocks(warm.records))
+    cycles, per_cycle, latency, asm = _assemble(spec, res.info, res.records)
+    blocks = as_blocks(res.records)
+    _, per_cycle_blocks, _, _ = _assemble(spec, res.info, blocks)
     n_rec = len(res.records)
 
     learner = ToothSpacingLearner(spec.sensors.wheel_teeth, spec.sensors.wheel_missing,
@@ -94,8 +100,9 @@ def run() -> dict:
     return {
         "engine": spec.name, "rpm": RPM, "wheel": f"{spec.sensors.wheel_teeth}-{spec.sensors.wheel_missing}",
         "cylinders": spec.n_cyl, "pressure_hz": spec.sensors.pressure_rate_hz, "records": n_rec,
+        "records_per_cycle": round(n_rec / CYCLES, 1), "records_per_cycle_blocks": round(len(blocks) / CYCLES, 1),
         "cycles_in": CYCLES, "cycles_out": len(cycles), "skipped": dict(asm.skipped),
-        "assemble": asm_s, "emit_latency": _stats(latency),
+        "assemble": asm_s, "assemble_blocks": _stats(per_cycle_blocks), "emit_latency": _stats(latency),
         "speed_incl_learning": spd_s, "spacing_correction_ms": round(float(np.mean(correction_ms)), 3),
         "speed_stream_fir": _stats(stream_ms),
         "assemble_plus_speed_cycles_per_s": round(1000.0 / both, 1),
@@ -110,7 +117,7 @@ def main() -> None:
           f"{r['rpm']:g} rpm: {r['cycles_out']}/{r['cycles_in']} cycles from {r['records']} records "
           f"(skipped {r['skipped'] or 'none'})")
     print(f"{'stage':28s} {'cycles/s':>10s} {'p50 ms':>9s} {'p99 ms':>9s}")
-    for key in ("assemble", "emit_latency", "speed_incl_learning", "speed_stream_fir"):
+    for key in ("assemble", "assemble_blocks", "emit_latency", "speed_incl_learning", "speed_stream_fir"):
         s = r[key]
         print(f"{key:28s} {s['cycles_per_s']:10.1f} {s['p50_ms']:9.3f} {s['p99_ms']:9.3f}")
     print(f"assemble + speed: {r['assemble_plus_speed_cycles_per_s']} cycles/s = {r['real_time_factor']}x real time; "

@@ -3,7 +3,8 @@
 A genset-v20-sized stream is synthesised (1500 rpm, 160-2 wheel at 10 MHz ticks, 20 cylinders of pressure at
 20 kHz with 10 kPa noise and a 16-bit ADC over 25 MPa, load at 100 Hz, one cam edge per cycle, 10 ms records)
 and written through the project's LogWriter / read back through LogReader with each codec, zstd chunks for all.
-The figures chose the format of docs/replay-format.md.
+The figures chose the format of docs/replay-format.md. The last encoding line writes the same pressure as one
+``PressureFrame`` of all 20 cylinders per 10 ms (what an indicating system delivers) instead of 20 blocks.
 
     python -m bench.bench_log_format [--seconds 10]
 """
@@ -25,7 +26,7 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap.records import Schema
 
-from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, StreamRecord, ToothBatch
+from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 from drivers import mcap_schema as ms
 from drivers.mcap_log import DEFAULT_CHUNK_BYTES, Codec, LogReader, LogWriter, ProtobufCodec
 from drivers.mcap_schema import PressureCounts
@@ -37,8 +38,10 @@ FIRING_DEG = [0, 36, 216, 252, 72, 108, 288, 324, 144, 180, 504, 540, 648, 684, 
 ENGINE_TOML = (Path(__file__).resolve().parents[1] / "core" / "engines" / "genset-v20.toml").read_text()
 
 
-def genset_stream(seconds: float = 10.0, seed: int = 0, rpm: float = 1500.0) -> list[StreamRecord]:
-    """Records as a live acquisition delivers them: every 10 ms the teeth, 20 pressure blocks, a load sample."""
+def genset_stream(seconds: float = 10.0, seed: int = 0, rpm: float = 1500.0, frames: bool = False
+                  ) -> list[StreamRecord]:
+    """Records as a live acquisition delivers them: every 10 ms the teeth, 20 pressure blocks (``frames``: one
+    PressureFrame of the 20 cylinders instead), a load sample."""
     rng = np.random.default_rng(seed)
     omega0 = rpm / 60 * 2 * np.pi
     theta = np.linspace(0, omega0 * (seconds + 0.1), 200_000)  # fine crank-angle grid [rad]
@@ -70,7 +73,10 @@ def genset_stream(seconds: float = 10.0, seed: int = 0, rpm: float = 1500.0) -> 
         out.append(ToothBatch(teeth[(teeth >= lo) & (teeth < hi)]))
         if ((cam >= lo) & (cam < hi)).any():
             out.append(CamBatch(cam[(cam >= lo) & (cam < hi)]))
-        for k in pressure:
+        if frames:
+            rows = np.array([pressure[k][w * 200 : (w + 1) * 200] for k in pressure])
+            out.append(PressureFrame(tuple(pressure), lo, 500.0, rows))
+        for k in pressure if not frames else ():
             out.append(PressureBlock(k, lo, 500.0, pressure[k][w * 200 : (w + 1) * 200]))
         torque = 21200 + rng.normal(0, 50)
         out.append(LoadSample((lo + hi) // 2, torque, torque * omega0 * 0.97))
@@ -211,7 +217,7 @@ def _payload_bytes(records: list[StreamRecord]) -> int:
         r.ticks.nbytes
         if isinstance(r, ToothBatch | CamBatch)
         else r.values.nbytes + 20
-        if isinstance(r, PressureBlock)
+        if isinstance(r, PressureBlock | PressureFrame)
         else 24
         for r in records
     )
@@ -275,6 +281,10 @@ def run(seconds: float = 10.0) -> dict[str, object]:
         result["encodings"] = {
             name: measure(records, codec, folder, seconds, DEFAULT_CHUNK_BYTES) for name, codec in codecs.items()
         }
+        frames = genset_stream(seconds, frames=True)  # the same samples, 20 cylinders per message
+        result["encodings"]["protobuf, pressure frames"] = measure(  # type: ignore[index]
+            frames, ProtobufCodec(), folder, seconds, DEFAULT_CHUNK_BYTES
+        )
         result["protobuf_chunk_bytes"] = {
             kib: measure(records, ProtobufCodec(), folder, seconds, kib * 1024, repeats=1) for kib in (128, 512, 2048)
         }

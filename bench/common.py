@@ -8,8 +8,9 @@ from collections.abc import Iterable
 import numpy as np
 
 from core.engine import EngineSpec
-from core.types import AcquisitionInfo, Cycle, StreamRecord
+from core.types import AcquisitionInfo, Cycle, PressureFrame, StreamRecord
 from drivers.cycles import CycleAssembler
+from drivers.pressure_ring import frame_blocks
 
 
 def summary_ms(values_ms: Iterable[float]) -> dict:
@@ -26,6 +27,12 @@ def summary_ms(values_ms: Iterable[float]) -> dict:
 def assembler_for(spec: EngineSpec, info: AcquisitionInfo) -> CycleAssembler:
     """The assembler exactly as the pipeline builds it (service/pipeline.py)."""
     return CycleAssembler(info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
+
+
+def as_blocks(records: Iterable[StreamRecord]) -> list[StreamRecord]:
+    """The records with every PressureFrame split into its per-cylinder PressureBlocks (how a CAN or DAQ driver
+    delivers the same samples), in place of the frame."""
+    return [b for r in records for b in (frame_blocks(r) if isinstance(r, PressureFrame) else (r,))]
 
 
 def timed_assembly(asm: CycleAssembler, records: Iterable[StreamRecord]

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from core.engine import SensorParams
-from core.types import CamBatch, LoadSample, PressureBlock, StreamRecord, ToothBatch
+from core.types import CamBatch, LoadSample, PressureFrame, StreamRecord, ToothBatch
 
 CAM_DEG = 630.0  # cam / phase edge: 90 deg before cylinder-1 firing TDC, wheel frame
 LOAD_RATE_HZ = 100.0
@@ -81,7 +81,8 @@ def records(edge_ticks: np.ndarray, teeth_per_batch: int, cam_ticks: np.ndarray,
     """Stream records in arrival order (each keyed by its last tick; ties: teeth, cam, pressure, load).
 
     samples : (m, z) pressure readings [Pa] of cylinders 1..z, sample i at i * sample_period_ticks, cut into
-    ``PressureBlock`` s of ``block_samples``; t0_ticks = round(i0 * period) (exact when the period is whole ticks).
+    ``PressureFrame`` s of ``block_samples`` (all z cylinders sampled together, as an indicating system does);
+    t0_ticks = round(i0 * period) (exact when the period is whole ticks).
     """
     keyed: list[tuple[int, int, int, StreamRecord]] = []
     for i in range(0, edge_ticks.shape[0], teeth_per_batch):
@@ -90,14 +91,15 @@ def records(edge_ticks: np.ndarray, teeth_per_batch: int, cam_ticks: np.ndarray,
     for c in cam_ticks:
         keyed.append((int(c), 1, 0, CamBatch(ticks=np.array([c], dtype=np.int64))))
     m, z = samples.shape
-    for i0 in range(0, m, block_samples):
+    cylinders = tuple(range(1, z + 1))
+    by_cylinder = np.ascontiguousarray(samples.T)  # (z, m): one frame is a slice of it
+    for i0 in range(0, m if z else 0, block_samples):
         i1 = min(i0 + block_samples, m)
         t0 = round(i0 * sample_period_ticks)
         last = round((i1 - 1) * sample_period_ticks)
-        for k in range(z):
-            blk = PressureBlock(cylinder=k + 1, t0_ticks=t0, period_ticks=float(sample_period_ticks),
-                                values=np.ascontiguousarray(samples[i0:i1, k]))
-            keyed.append((last, 2, k, blk))
+        frame = PressureFrame(cylinders=cylinders, t0_ticks=t0, period_ticks=float(sample_period_ticks),
+                              values=np.ascontiguousarray(by_cylinder[:, i0:i1]))
+        keyed.append((last, 2, 0, frame))
     for t, tq, pw in zip(load_ticks, load_torque, load_power):
         keyed.append((int(t), 3, 0, LoadSample(ticks=int(t), torque=float(tq), power=float(pw))))
     keyed.sort(key=lambda r: r[:3])

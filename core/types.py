@@ -5,6 +5,8 @@ Stream records (what a driver yields, in acquisition order, time in integer time
 - ``ToothBatch``    rising-edge times of the crank wheel teeth
 - ``CamBatch``      edges of the cam / phase sensor (one per 720 deg)
 - ``PressureBlock`` equally spaced samples of one cylinder's pressure
+- ``PressureFrame`` equally spaced samples of several cylinders taken together on one clock (an indicating system
+  samples all its channels at once); equivalent to one ``PressureBlock`` per row
 - ``LoadSample``    generator / brake load readings
 
 Then ``Cycle`` (one assembled 720 deg engine cycle, drivers/cycles.py) feeds the core.
@@ -45,6 +47,20 @@ class PressureBlock:
 
 
 @dataclass(frozen=True)
+class PressureFrame:
+    """``values[r]`` [Pa, absolute] of cylinder ``cylinders[r]`` (1-based, distinct), sample i of every row at
+    ``t0_ticks + i*period_ticks``: the channels of one indicating system, sampled together.
+
+    Row r carries exactly what ``PressureBlock(cylinders[r], t0_ticks, period_ticks, values[r])`` would.
+    """
+
+    cylinders: tuple[int, ...]
+    t0_ticks: int
+    period_ticks: float
+    values: np.ndarray  # float64 (k, n), k = len(cylinders), Pa absolute; NaN marks a saturated / invalid sample
+
+
+@dataclass(frozen=True)
 class LoadSample:
     """Load reading at ``ticks``: brake/generator shaft torque [N m] and electrical power [W] (NaN if unknown)."""
 
@@ -53,7 +69,7 @@ class LoadSample:
     power: float
 
 
-StreamRecord = ToothBatch | CamBatch | PressureBlock | LoadSample
+StreamRecord = ToothBatch | CamBatch | PressureBlock | PressureFrame | LoadSample
 
 
 @dataclass(frozen=True)

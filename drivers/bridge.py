@@ -34,11 +34,12 @@ from dataclasses import dataclass
 import can
 import numpy as np
 
-from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, StreamRecord, ToothBatch
+from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 from drivers.can_codec import FD_SAMPLES, SA_GENSET, encode_load
 from drivers.can_decoder import CanDecoder
 from drivers.can_encoder import PressureEncoder
 from drivers.mcap_schema import last_tick
+from drivers.pressure_ring import frame_blocks
 from drivers.serial_codec import CamFrame, Decoder, Encoder, TeethFrame
 from drivers.timebase import TimerUnwrapper
 
@@ -48,7 +49,7 @@ SERIAL, CAN = "serial", "can"
 FRAME_SPAN_S = 0.002  # docs/protocols.md §2.6 rule 1
 HEARTBEAT_S = 0.1  # rule 2
 INFO_EVERY_S = 1.0  # rule 3
-_RANK = {ToothBatch: 0, CamBatch: 1, PressureBlock: 2, LoadSample: 3}
+_RANK = {ToothBatch: 0, CamBatch: 1, PressureBlock: 2, PressureFrame: 2, LoadSample: 3}
 
 
 @dataclass(frozen=True)
@@ -127,19 +128,22 @@ def can_events(records: Iterable[StreamRecord], info: AcquisitionInfo, *, encode
     hz = info.tick_hz
     out: list[tuple[float, int, can.Message]] = []
     counter = load_counter
-    for r in records:
-        if isinstance(r, PressureBlock):
+    for rec in records:
+        # a CAN pressure frame carries one cylinder: a PressureFrame goes out as its rows, cylinder by cylinder
+        for r in frame_blocks(rec) if isinstance(rec, PressureFrame) else (rec,):
+            if not isinstance(r, PressureBlock):
+                continue
             n = len(r.values)
             msgs = enc.block(r.cylinder, r.t0_ticks, r.period_ticks, r.values)
             for i, msg in enumerate(msgs):
                 end = float(r.t0_ticks) + min((i + 1) * FD_SAMPLES, n) * float(r.period_ticks)
                 msg.timestamp = end / hz
                 out.append((end, 0, msg))
-        elif isinstance(r, LoadSample):
-            msg = encode_load(r.power, r.torque, counter, load_source_address)
+        if isinstance(rec, LoadSample):
+            msg = encode_load(rec.power, rec.torque, counter, load_source_address)
             counter += 1
-            msg.timestamp = r.ticks / hz
-            out.append((float(r.ticks), 1, msg))
+            msg.timestamp = rec.ticks / hz
+            out.append((float(rec.ticks), 1, msg))
     out.sort(key=lambda e: (e[0], e[1]))  # stable: cylinders keep their order on equal ticks
     return [WireEvent(tick, CAN, msg) for tick, _, msg in out]
 

@@ -13,7 +13,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.pressure_kernels import ROW_NAN, ROW_OK, _pressure_row
+from drivers.engine_buffers import EngineBuffers
+from drivers.pressure_kernels import ROW_NAN, ROW_OK, _pressure_row, _pressure_rows
+from drivers.pressure_ring import PressureGroup
 from drivers.resample import CHECK_HOLE, CHECK_NAN, interp_checked
 from drivers.ringbuffer import RingBuffer
 
@@ -172,6 +174,96 @@ def _pressure_on_grid_general(ring: RingBuffer, t_grid: np.ndarray) -> tuple[np.
     return row, ""
 
 
+@dataclass
+class GridPlan:
+    """How a cycle's (z, n) pressure matrix is filled from the pressure groups: one kernel call per group.
+
+    calls : (group, rows, codes) per group holding an expected cylinder; rows[r] = matrix row of the group's row r
+        (cylinder - 1), -1 if that cylinder is not expected; codes (int64) receives each row's ROW_* code
+    order : (cylinder, group or None) by first position in ``expected``: the readiness check (one per group, in
+        the order that finds the same first unready cylinder as a per-cylinder loop)
+    reasons : (cylinder, index into calls or -1 if no group, row) in ``expected`` order: the skip reason of a
+        failed matrix is that of the first failing cylinder, as in a per-cylinder loop
+    """
+
+    expected: tuple[int, ...]
+    calls: list[tuple[PressureGroup, np.ndarray, np.ndarray]]
+    order: list[tuple[int, PressureGroup | None]]
+    reasons: list[tuple[int, int, int]]
+    missing: bool
+    nan_rows: np.ndarray  # matrix rows of the cylinders not expected (NaN rows)
+
+
+def grid_plan(buf: EngineBuffers, expected: tuple[int, ...], n_cyl: int) -> GridPlan:
+    """The ``GridPlan`` of the expected cylinders (1..n_cyl) over the current groups of ``buf``."""
+    want = set(expected)
+    calls: list[tuple[PressureGroup, np.ndarray, np.ndarray]] = []
+    index: dict[int, int] = {}
+    order: list[tuple[int, PressureGroup | None]] = []
+    reasons: list[tuple[int, int, int]] = []
+    for cyl in expected:
+        ch = buf.pressure.get(cyl)
+        if ch is None:
+            order.append((cyl, None))
+            reasons.append((cyl, -1, 0))
+            continue
+        g = ch.group
+        if id(g) not in index:
+            index[id(g)] = len(calls)
+            rows = np.array([c - 1 if c in want and 1 <= c <= n_cyl else -1 for c in g.cylinders], dtype=np.int64)
+            calls.append((g, rows, np.zeros(len(g.cylinders), dtype=np.int64)))
+            order.append((cyl, g))
+        reasons.append((cyl, index[id(g)], ch.row))
+    nan_rows = np.array([r for r in range(n_cyl) if r + 1 not in want], dtype=np.int64)
+    return GridPlan(tuple(expected), calls, order, reasons, any(ci < 0 for _, ci, _ in reasons), nan_rows)
+
+
+def plan_ready(plan: GridPlan, t_end: float) -> int | None:
+    """None if every expected cylinder has a sample at or after ``t_end``, else the first one that has not."""
+    for cyl, g in plan.order:
+        if g is None or g.end == g.start or g.t[(g.end - 1) % g.capacity] < t_end:
+            return cyl
+    return None
+
+
+def pressure_matrix(buf: EngineBuffers, plan: GridPlan, t_grid: np.ndarray, n_cyl: int
+                    ) -> tuple[np.ndarray | None, str]:
+    """(z, n) pressure [Pa] of the expected cylinders at the grid times (NaN rows for the others), or (None,
+    reason of the first failing expected cylinder): ``pressure_on_grid`` row by row, one kernel call per group."""
+    q = t_grid
+    if not (type(q) is np.ndarray and q.dtype == np.float64 and q.flags.c_contiguous and q.ndim == 1
+            and q.shape[0] >= 2 and q[0] < q[-1]):
+        return pressure_matrix_reference(buf, plan.expected, q, n_cyl)
+    out = np.empty((n_cyl, q.shape[0]))  # every expected row is written by the kernel
+    if plan.nan_rows.shape[0]:
+        out[plan.nan_rows] = np.nan
+    bad = 0
+    for g, rows, codes in plan.calls:
+        bad += _pressure_rows(g.t, g.p, g.start, g.end, q, rows, out, codes)
+    if bad == 0 and not plan.missing:
+        return out, ""
+    for _, ci, r in plan.reasons:
+        if ci < 0:
+            return None, "pressure_missing"
+        code = plan.calls[ci][2][r]
+        if code != ROW_OK:
+            return None, ("pressure_nan" if code == ROW_NAN else "pressure_missing")
+    return out, ""
+
+
+def pressure_matrix_reference(buf: EngineBuffers, expected: tuple[int, ...], t_grid: np.ndarray, n_cyl: int
+                              ) -> tuple[np.ndarray | None, str]:
+    """``pressure_matrix`` one cylinder at a time through ``pressure_on_grid`` (the semantics it must keep)."""
+    out = np.full((n_cyl, np.shape(t_grid)[0]), np.nan)
+    for cyl in expected:
+        ring = buf.pressure.get(cyl)
+        row, reason = pressure_on_grid(ring, t_grid) if ring is not None else (None, "pressure_missing")
+        if row is None:
+            return None, reason
+        out[cyl - 1] = row
+    return out, ""
+
+
 def load_mean(ring: RingBuffer, t_lo: float, t_hi: float, hold_ticks: float) -> tuple[float, float]:
     """Mean torque and power of the load samples in [t_lo, t_hi]; if none, the last one before t_lo no older than
     ``hold_ticks`` (zero-order hold of a slow CAN reading); else NaN."""
@@ -179,8 +271,9 @@ def load_mean(ring: RingBuffer, t_lo: float, t_hi: float, hold_ticks: float) -> 
         return math.nan, math.nan
     a = ring.searchsorted("t", t_lo, side="left")
     b = ring.searchsorted("t", t_hi, side="right")
-    if b > a:
-        return float(np.mean(ring.view("torque", a, b))), float(np.mean(ring.view("power", a, b)))
+    if b > a:  # np.mean of a float64 vector is np.add.reduce (pairwise) / n: the same numbers, less dispatch
+        return float(np.add.reduce(ring.view("torque", a, b))) / (b - a), \
+            float(np.add.reduce(ring.view("power", a, b))) / (b - a)
     if a > ring.start and t_lo - ring.get("t", a - 1) <= hold_ticks:
         return float(ring.get("torque", a - 1)), float(ring.get("power", a - 1))
     return math.nan, math.nan

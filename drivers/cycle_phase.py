@@ -33,24 +33,37 @@ def cam_phase_bit(teeth: RingBuffer, seg: Segment, sb: int, tc: int, wheel: Whee
     return None if abs(resid) > CAM_TOLERANCE else bit
 
 
-def firing_ratio(row: np.ndarray, grid: np.ndarray, tdc: float, half_width: float = PHASE_HALF_WIDTH) -> float:
-    """Mean pressure within +-half_width of ``tdc`` over the mean within +-half_width of ``tdc + 2 pi``
-    (physics.md §14.5: > 1 when ``tdc`` is the firing TDC, motored or fired). Angles in rad on a 4 pi grid."""
+def phase_windows(grid: np.ndarray, tdc: float, half_width: float = PHASE_HALF_WIDTH
+                  ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Indices of the grid points within +-half_width of ``tdc`` and of ``tdc + 2 pi`` (and ``tdc``, to check a
+    reuse): they depend on the grid only, so the assembler finds them once."""
     d_fire = np.abs((grid - tdc + 2 * math.pi) % FOUR_PI - 2 * math.pi)
     d_exch = np.abs((grid - tdc) % FOUR_PI - 2 * math.pi)
-    fire = row[d_fire <= half_width]
-    exch = row[d_exch <= half_width]
+    return np.flatnonzero(d_fire <= half_width), np.flatnonzero(d_exch <= half_width), tdc
+
+
+def firing_ratio(row: np.ndarray, grid: np.ndarray, tdc: float, half_width: float = PHASE_HALF_WIDTH,
+                 windows: tuple[np.ndarray, np.ndarray, float] | None = None) -> float:
+    """Mean pressure within +-half_width of ``tdc`` over the mean within +-half_width of ``tdc + 2 pi``
+    (physics.md §14.5: > 1 when ``tdc`` is the firing TDC, motored or fired). Angles in rad on a 4 pi grid.
+    ``windows``: ``phase_windows(grid, tdc, half_width)`` if already known (the same numbers)."""
+    if windows is None or windows[2] != tdc or half_width != PHASE_HALF_WIDTH:
+        windows = phase_windows(grid, tdc, half_width)
+    fire = row[windows[0]]
+    exch = row[windows[1]]
     if fire.size == 0 or exch.size == 0:
         return math.nan
-    den = float(np.mean(exch))
-    return float(np.mean(fire)) / den if den > 0 else math.nan
+    # np.mean of a float64 vector is np.add.reduce (pairwise) / n: the same numbers without its dispatch
+    den = float(np.add.reduce(exch)) / exch.size
+    return float(np.add.reduce(fire)) / fire.size / den if den > 0 else math.nan
 
 
-def firing_verdict(row: np.ndarray | None, grid: np.ndarray, tdc: float) -> int:
+def firing_verdict(row: np.ndarray | None, grid: np.ndarray, tdc: float,
+                   windows: tuple[np.ndarray, np.ndarray, float] | None = None) -> int:
     """+1: ``tdc`` is clearly the firing TDC; -1: clearly the gas-exchange TDC; 0: undecided (or no data)."""
     if row is None:
         return 0
-    ratio = firing_ratio(row, grid, tdc)
+    ratio = firing_ratio(row, grid, tdc, windows=windows)
     if ratio > PHASE_RATIO:
         return 1
     if ratio < 1.0 / PHASE_RATIO:

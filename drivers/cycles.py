@@ -32,11 +32,32 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.types import AcquisitionInfo, CamBatch, Cycle, LoadSample, PressureBlock, StreamRecord, ToothBatch
-from drivers.cycle_parts import Epoch, Segment, Wheel, bridge_offset, load_mean, pressure_on_grid, window_status
-from drivers.cycle_phase import firing_verdict, place_cams
+from core.types import (
+    AcquisitionInfo,
+    CamBatch,
+    Cycle,
+    LoadSample,
+    PressureBlock,
+    PressureFrame,
+    StreamRecord,
+    ToothBatch,
+)
+from drivers.cycle_parts import (
+    Epoch,
+    GridPlan,
+    Segment,
+    Wheel,
+    bridge_offset,
+    grid_plan,
+    load_mean,
+    plan_ready,
+    pressure_matrix,
+    pressure_on_grid,
+    window_status,
+)
+from drivers.cycle_phase import firing_verdict, phase_windows, place_cams
+from drivers.engine_buffers import EngineBuffers
 from drivers.resample import pchip_eval
-from drivers.ringbuffer import EngineBuffers
 from drivers.wheel_sync import EV_END, EV_SEGMENT, REASONS, WheelTracker
 
 log = logging.getLogger(__name__)
@@ -110,10 +131,24 @@ class CycleAssembler:
         self._cam_next = 0  # next cam row to place
         self._discarded_at = 0  # tooth ring end at the last discard
         self._waiting_for: int | None = None  # cylinder whose pressure the head cycle waits for
+        self._plan: GridPlan | None = None  # how the pressure matrix is filled, for _plan_buf at _plan_version
+        self._plan_buf: EngineBuffers | None = None
+        self._plan_version = -1
+        self._phase_windows = phase_windows(self.grid, float(self.firing[self.phase_cyl - 1])) \
+            if self.phase_cyl is not None else None  # grid points of the phase cylinder's two TDC windows
 
     # ---- input ------------------------------------------------------------------------------------------------
     def feed(self, record: StreamRecord) -> list[Cycle]:
         """File one record and return the cycles it completed (possibly none)."""
+        if type(record) is PressureFrame:  # the hot path of an indicating system: all cylinders in one record
+            if self.buf.add_frame(record):
+                end = int(record.t0_ticks + record.period_ticks * (np.shape(record.values)[-1] - 1))
+                self._now = max(self._now, end)
+            if self._epoch is not None and self._epoch.phase is None:
+                return self._advance(flushing=False)
+            if not self._pending or self._waiting_for not in record.cylinders:
+                return []
+            return self._emit(flushing=False)
         if type(record) is PressureBlock:  # the hot path (tens of blocks per cycle): no isinstance chain
             if self.buf.add_pressure(record):
                 end = int(record.t0_ticks + record.period_ticks * (len(record.values) - 1))
@@ -123,6 +158,10 @@ class CycleAssembler:
             if not self._pending or record.cylinder != self._waiting_for:
                 return []
             return self._emit(flushing=False)
+        if type(record) is LoadSample:  # ~8 per cycle: nothing else can move
+            self.buf.add_load(record)
+            self._now = max(self._now, int(record.ticks))
+            return []
         if isinstance(record, ToothBatch):
             if len(record.ticks) == 0:
                 return []
@@ -136,10 +175,14 @@ class CycleAssembler:
         if isinstance(record, PressureBlock):
             if self.buf.add_pressure(record):
                 self._now = max(self._now, int(record.t0_ticks + record.period_ticks * (len(record.values) - 1)))
+        elif isinstance(record, PressureFrame):
+            if self.buf.add_frame(record):
+                end = int(record.t0_ticks + record.period_ticks * (np.shape(record.values)[-1] - 1))
+                self._now = max(self._now, end)
         elif isinstance(record, CamBatch):
             self.buf.add(record)
         elif isinstance(record, LoadSample):
-            self.buf.add(record)
+            self.buf.add_load(record)
             self._now = max(self._now, int(record.ticks))
             return []
         else:
@@ -147,7 +190,8 @@ class CycleAssembler:
         # pressure or cam: only a waiting phase decision or a cycle waiting for its pressure can move
         if self._epoch is not None and self._epoch.phase is None:
             return self._advance(flushing=False)
-        if not self._pending or (isinstance(record, PressureBlock) and record.cylinder != self._waiting_for):
+        if not self._pending or (isinstance(record, PressureBlock) and record.cylinder != self._waiting_for) \
+                or (isinstance(record, PressureFrame) and self._waiting_for not in tuple(record.cylinders)):
             return []  # the head cycle waits for another cylinder's pressure
         return self._emit(flushing=False)
 
@@ -172,7 +216,7 @@ class CycleAssembler:
             need = ring.start
         if need >= ring.end:
             return
-        for typ, a, b, c in self.tracker.advance(ring.view("t", need, ring.end), need):
+        for typ, a, b, _c in self.tracker.advance(ring.view("t", need, ring.end), need):
             if typ == EV_SEGMENT:
                 self._new_segment(a, b)
             elif typ == EV_END:
@@ -327,17 +371,19 @@ class CycleAssembler:
         t0 = ticks[0]
         return pchip_eval(theta, (ticks - t0).astype(np.float64), self.grid) + float(t0)
 
+    def _grid_plan(self) -> GridPlan:
+        """The pressure plan of the current buffers (remade when a pressure group appears or buffers reset)."""
+        buf = self.buf
+        if self._plan is None or self._plan_buf is not buf or self._plan_version != buf.groups_version:
+            self._plan = grid_plan(buf, self.expected_cylinders, self.n_cyl)
+            self._plan_buf, self._plan_version = buf, buf.groups_version
+        return self._plan
+
     def _ready(self, p: _Pending) -> bool:
         """Every instrumented cylinder has a sample at or after the cycle's last grid time (else remember which
-        cylinder is awaited, so that only its pressure blocks wake the queue up)."""
-        t_end = p.t_grid[-1]
-        for cyl in self.expected_cylinders:
-            ring = self.buf.pressure.get(cyl)
-            if ring is None or ring.end == ring.start or ring.get("t", ring.end - 1) < t_end:
-                self._waiting_for = cyl
-                return False
-        self._waiting_for = None
-        return True
+        cylinder is awaited, so that only records carrying its pressure wake the queue up)."""
+        self._waiting_for = plan_ready(self._grid_plan(), p.t_grid[-1])
+        return self._waiting_for is None
 
     def _emit(self, flushing: bool) -> list[Cycle]:
         out: list[Cycle] = []
@@ -364,16 +410,13 @@ class CycleAssembler:
         flags: list[str] = []
         if self.info.cam_deg is not None and not votes:
             flags.append("no_cam_edge")
-        pressure = np.full((self.n_cyl, self.grid.shape[0]), np.nan)
-        for cyl in self.expected_cylinders:
-            ring = self.buf.pressure.get(cyl)
-            row, reason = pressure_on_grid(ring, t_grid) if ring is not None else (None, "pressure_missing")
-            if row is None:
-                self._skip(reason, p.index)
-                return None
-            pressure[cyl - 1] = row
+        pressure, reason = pressure_matrix(self.buf, self._grid_plan(), t_grid, self.n_cyl)
+        if pressure is None:
+            self._skip(reason, p.index)
+            return None
         if self.phase_cyl is not None and self.phase_cyl in self.expected_cylinders:
-            verdict = firing_verdict(pressure[self.phase_cyl - 1], self.grid, float(self.firing[self.phase_cyl - 1]))
+            verdict = firing_verdict(pressure[self.phase_cyl - 1], self.grid, float(self.firing[self.phase_cyl - 1]),
+                                     self._phase_windows)
             if verdict < 0:
                 ep.mismatch_run += 1
                 self._skip("phase_mismatch", p.index)
@@ -416,8 +459,8 @@ class CycleAssembler:
         if self._pending:
             t_keep = min(t_keep, float(self._pending[0].ticks[0]))
         teeth.discard_before(keep - 2)
-        for ring in self.buf.pressure.values():
-            ring.discard_before(ring.searchsorted("t", t_keep, side="left") - 2)
+        for group in self.buf.groups.values():  # the channels of a group share their rows
+            group.discard_before(group.searchsorted(t_keep, side="left") - 2)
         self.buf.load.discard_before(self.buf.load.searchsorted("t", t_keep - self.info.tick_hz, side="left") - 1)
         self.buf.cam.discard_before(min(self._cam_next, self.buf.cam.searchsorted("t", t_keep, side="left")))
         if ep is not None and len(ep.cam_votes) > 64:

@@ -1,7 +1,7 @@
 """MCAP replay logs: ``LogWriter`` and the damage-tolerant ``LogReader`` (format: docs/replay-format.md).
 
     with LogWriter("run.mcap", engine_toml, info) as log:     # info: core.types.AcquisitionInfo
-        for record in stream:                                # ToothBatch | CamBatch | PressureBlock | LoadSample
+        for record in stream:                    # ToothBatch | CamBatch | PressureBlock | PressureFrame | LoadSample
             log.write(record)
     log = LogReader("run.mcap")                              # CorruptLog if nothing at all is readable
     log.info, log.engine_toml, log.metadata
@@ -24,7 +24,7 @@ from typing import Any, Self
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, StreamRecord, ToothBatch
+from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 from drivers import mcap_schema as ms
 from drivers.mcap_batching import Batcher
 from drivers.mcap_reader import Codec, LogReader, ProtobufCodec
@@ -61,11 +61,34 @@ def _checked(record: Any) -> StreamRecord | None:
         if values.size == 0:
             return None
         return PressureBlock(int(record.cylinder), int(record.t0_ticks), period, np.ascontiguousarray(values))
+    if isinstance(record, PressureFrame):
+        return _checked_frame(record)
     if isinstance(record, LoadSample):
         if int(record.ticks) != record.ticks or record.ticks < 0:
             raise ValueError(f"LoadSample.ticks must be an integer >= 0, got {record.ticks!r}")
         return LoadSample(int(record.ticks), float(record.torque), float(record.power))
     raise TypeError(f"not a stream record: {type(record).__name__}")
+
+
+def _checked_frame(record: PressureFrame) -> PressureFrame | None:
+    values = np.asarray(record.values, dtype=np.float64)
+    period = float(record.period_ticks)
+    try:
+        cylinders = tuple(int(c) for c in record.cylinders)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"PressureFrame.cylinders must be integers, got {record.cylinders!r}") from exc
+    if not cylinders or min(cylinders) < 1 or len(set(cylinders)) != len(cylinders) or \
+            any(int(c) != c for c in record.cylinders):
+        raise ValueError(f"PressureFrame.cylinders must be distinct integers >= 1, got {record.cylinders!r}")
+    if values.ndim != 2 or values.shape[0] != len(cylinders):
+        raise ValueError(f"PressureFrame.values must be ({len(cylinders)}, n), got shape {values.shape}")
+    if int(record.t0_ticks) != record.t0_ticks or record.t0_ticks < 0:
+        raise ValueError(f"PressureFrame.t0_ticks must be an integer >= 0, got {record.t0_ticks!r}")
+    if not (period > 0 and math.isfinite(period)):
+        raise ValueError(f"PressureFrame.period_ticks must be > 0 and finite, got {period!r}")
+    if values.shape[1] == 0:
+        return None
+    return PressureFrame(cylinders, int(record.t0_ticks), period, np.ascontiguousarray(values))
 
 
 class LogWriter:

@@ -21,7 +21,7 @@ import numpy as np
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.message import DecodeError
 
-from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, StreamRecord, ToothBatch
+from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 
 FORMAT = "frictionwatch.replay/1"
 PACKAGE = "frictionwatch"
@@ -53,6 +53,19 @@ MESSAGES: dict[str, tuple[str, list[tuple[str, int, int, bool]]]] = {
             ("ticks", 1, _F.TYPE_INT64, False),
             ("torque_nm", 2, _F.TYPE_DOUBLE, False),
             ("power_w", 3, _F.TYPE_DOUBLE, False),
+        ],
+    ),
+    "PressureFrame": (  # appended: the message numbering of older logs stays
+        "pressure_frames",
+        [
+            ("cylinders", 1, _F.TYPE_UINT32, True),  # k distinct cylinders, row order
+            ("t0_ticks", 2, _F.TYPE_INT64, False),
+            ("period_ticks", 3, _F.TYPE_DOUBLE, False),
+            ("samples", 4, _F.TYPE_UINT32, False),  # n samples per cylinder
+            ("values_pa", 5, _F.TYPE_DOUBLE, True),  # either k * n values, row by row ...
+            ("scale_pa", 6, _F.TYPE_DOUBLE, True),  # ... or counts * scale_pa[row] (one ADC step per cylinder)
+            ("counts", 7, _F.TYPE_SINT32, True),
+            ("invalid", 8, _F.TYPE_UINT32, True),  # flat indices row * n + i of NaN samples in counts form
         ],
     ),
 }
@@ -144,6 +157,17 @@ class PressureCounts:
         return {"scale_pa": scale, "counts": counts, "invalid": np.flatnonzero(~finite)}
 
 
+    def frame_fields(self, frame: PressureFrame) -> dict[str, object]:
+        """Counts form of a frame (each row with its cylinder's step) if every row has one, else values_pa."""
+        parts = [self.fields(PressureBlock(c, frame.t0_ticks, frame.period_ticks, row))
+                 for c, row in zip(frame.cylinders, frame.values)]
+        if not all("counts" in f for f in parts):
+            return {"values_pa": frame.values.ravel()}
+        n = frame.values.shape[1]
+        return {"scale_pa": [f["scale_pa"] for f in parts], "counts": np.concatenate([f["counts"] for f in parts]),
+                "invalid": np.flatnonzero(~np.isfinite(frame.values.ravel())) if n else []}
+
+
 def encode(record: StreamRecord, counts: PressureCounts | None = None) -> tuple[str, bytes]:
     """``(message name, protobuf bytes)`` of one validated record; pressure as counts where ``counts`` can."""
     if isinstance(record, ToothBatch | CamBatch):
@@ -155,6 +179,13 @@ def encode(record: StreamRecord, counts: PressureCounts | None = None) -> tuple[
             cylinder=record.cylinder, t0_ticks=record.t0_ticks, period_ticks=record.period_ticks, **values
         )
         return "PressureBlock", msg.SerializeToString()
+    if isinstance(record, PressureFrame):
+        values = counts.frame_fields(record) if counts is not None else {"values_pa": record.values.ravel()}
+        msg = _CLASSES["PressureFrame"](
+            cylinders=record.cylinders, t0_ticks=record.t0_ticks, period_ticks=record.period_ticks,
+            samples=record.values.shape[1], **values
+        )
+        return "PressureFrame", msg.SerializeToString()
     if isinstance(record, LoadSample):
         msg = _CLASSES["LoadSample"](ticks=record.ticks, torque_nm=record.torque, power_w=record.power)
         return "LoadSample", msg.SerializeToString()
@@ -191,6 +222,33 @@ def _decode_pressure(data: bytes) -> PressureBlock:
     return PressureBlock(msg.cylinder, msg.t0_ticks, period, values)
 
 
+def _decode_frame(data: bytes) -> PressureFrame:
+    msg = _CLASSES["PressureFrame"].FromString(data)
+    period = msg.period_ticks
+    cylinders = tuple(msg.cylinders)
+    k, n = len(cylinders), msg.samples
+    if k == 0 or min(cylinders) < 1 or len(set(cylinders)) != k or not (period > 0 and math.isfinite(period)):
+        raise ValueError(f"invalid PressureFrame: cylinders {cylinders}, period_ticks {period}")
+    if msg.values_pa:
+        if msg.counts or msg.invalid or msg.scale_pa:
+            raise ValueError("invalid PressureFrame: both values_pa and counts are set")
+        if len(msg.values_pa) != k * n:
+            raise ValueError(f"invalid PressureFrame: {len(msg.values_pa)} values for {k} x {n} samples")
+        return PressureFrame(cylinders, msg.t0_ticks, period, np.array(msg.values_pa, dtype=np.float64).reshape(k, n))
+    if len(msg.counts) != k * n or (n and len(msg.scale_pa) != k):
+        raise ValueError(f"invalid PressureFrame: {len(msg.counts)} counts, {len(msg.scale_pa)} scales for {k} x {n}")
+    scale = np.array(msg.scale_pa, dtype=np.float64).reshape(-1, 1)
+    if n and not np.all((scale > 0) & np.isfinite(scale)):
+        raise ValueError("invalid PressureFrame: counts need scale_pa > 0")
+    values = np.array(msg.counts, dtype=np.float64).reshape(k, n) * scale if n else np.zeros((k, 0))
+    if msg.invalid:
+        invalid = np.array(msg.invalid, dtype=np.int64)
+        if invalid.max() >= values.size:
+            raise ValueError("invalid PressureFrame: an invalid-sample index lies past the samples")
+        values.reshape(-1)[invalid] = np.nan
+    return PressureFrame(cylinders, msg.t0_ticks, period, values)
+
+
 def _decode_load(data: bytes) -> LoadSample:
     msg = _CLASSES["LoadSample"].FromString(data)
     return LoadSample(msg.ticks, msg.torque_nm, msg.power_w)
@@ -200,6 +258,7 @@ DECODERS: dict[str, Callable[[bytes], StreamRecord]] = {
     f"{PACKAGE}.ToothBatch": _decode_teeth(ToothBatch, "ToothBatch"),
     f"{PACKAGE}.CamBatch": _decode_teeth(CamBatch, "CamBatch"),
     f"{PACKAGE}.PressureBlock": _decode_pressure,
+    f"{PACKAGE}.PressureFrame": _decode_frame,
     f"{PACKAGE}.LoadSample": _decode_load,
 }
 DECODE_ERRORS = (DecodeError, ValueError, TypeError)  # what a decoder raises on a bad message
@@ -226,6 +285,8 @@ def last_tick(record: StreamRecord) -> Fraction:
         return Fraction(int(record.ticks[-1]))
     if isinstance(record, PressureBlock):
         return Fraction(record.t0_ticks) + (len(record.values) - 1) * Fraction(record.period_ticks)
+    if isinstance(record, PressureFrame):
+        return Fraction(record.t0_ticks) + (record.values.shape[1] - 1) * Fraction(record.period_ticks)
     return Fraction(record.ticks)
 
 

@@ -10,6 +10,7 @@ RingBuffer/np.searchsorted/interp_checked path (tests/drivers/test_pressure_kern
 from __future__ import annotations
 
 import numba
+import numpy as np
 
 from drivers.resample import CHECK_HOLE, CHECK_NAN, _interp_checked
 from drivers.ringbuffer import _search_sorted as _search
@@ -37,3 +38,75 @@ def _pressure_row(col_t, col_p, start, end, t_grid, out):
     if code == CHECK_NAN:
         return ROW_NAN
     return ROW_OK
+
+
+@numba.njit(cache=True)
+def _pressure_rows(col_t, block_p, start, end, t_grid, rows, out, codes):
+    """Every row of a pressure group (time column col_t, value block block_p (k, 2 cap), retained rows
+    [start, end)) at the sorted times t_grid: row r into out[rows[r]] (rows[r] < 0: not wanted), its code
+    (ROW_*) into codes[r]. Returns the number of wanted rows that are not ROW_OK.
+
+    Bit for bit what ``_pressure_row`` gives for each row on its own: the window search, the hole search and the
+    interpolation intervals and weights depend on the shared times only and are done once; per row remain the
+    NaN check (first NaN before the first hole wins, as in ``_interp_checked``'s loop) and
+    ``y[j] + w (y[j+1] - y[j])`` with the same j and w as ``_interp_sorted``."""
+    k = block_p.shape[0]
+    n = end - start
+    cap = col_t.shape[0] // 2
+    i0 = start % cap
+    m = t_grid.shape[0]
+    a = 0
+    b = 0
+    whole = n >= 2
+    if whole:
+        a = _search(col_t, i0, n, t_grid[0], True) - 1
+        b = _search(col_t, i0, n, t_grid[m - 1], False) + 1
+        whole = a >= 0 and b <= n
+    if not whole:
+        bad = 0
+        for r in range(k):
+            codes[r] = ROW_OK if rows[r] < 0 else ROW_MISSING
+            bad += rows[r] >= 0
+        return bad
+    x = col_t[i0 + a : i0 + b]
+    nx = x.shape[0]
+    lim = 1.5 * (x[nx - 1] - x[0]) / (nx - 1)
+    hole = nx - 1  # first i with a hole between samples i and i + 1 (nx - 1: none)
+    for i in range(nx - 1):
+        if x[i + 1] - x[i] > lim:
+            hole = i
+            break
+    jj = np.empty(m, np.int64)
+    ww = np.empty(m)
+    if hole == nx - 1:
+        j = 0
+        for i in range(m):  # _interp_sorted's walk
+            v = t_grid[i]
+            while j < nx - 2 and v >= x[j + 1]:
+                j += 1
+            jj[i] = j
+            ww[i] = (v - x[j]) / (x[j + 1] - x[j])
+    bad = 0
+    for r in range(k):
+        if rows[r] < 0:
+            codes[r] = ROW_OK
+            continue
+        y = block_p[r, i0 + a : i0 + b]
+        nan = False
+        for i in range(hole):
+            nan |= y[i] != y[i]
+        if nan:
+            codes[r] = ROW_NAN
+        elif hole < nx - 1:
+            codes[r] = ROW_HOLE
+        elif y[nx - 1] != y[nx - 1]:
+            codes[r] = ROW_NAN
+        else:
+            codes[r] = ROW_OK
+            o = out[rows[r]]
+            for i in range(m):
+                j = jj[i]
+                o[i] = y[j] + ww[i] * (y[j + 1] - y[j])
+            continue
+        bad += 1
+    return bad

@@ -11,21 +11,13 @@ two slice copies per column (O(batch), no reallocation, no concatenation of the 
 Overflow drops the oldest rows. Rows that were never released by ``discard_before`` count in ``dropped`` (data the
 consumer lost); released rows are simply overwritten.
 
-``EngineBuffers`` bundles the rings of one engine: tooth ticks, cam ticks, pressure (time, value) per cylinder and
-load (ticks, torque, power), and files each stream record into the right one.
+``EngineBuffers`` (drivers/engine_buffers.py) bundles the rings of one engine.
 """
 
 from __future__ import annotations
 
-import math
-from collections import Counter
-
 import numba
 import numpy as np
-
-from core.types import CamBatch, LoadSample, PressureBlock, StreamRecord, ToothBatch
-
-_F64 = np.dtype(np.float64)
 
 
 class RingBuffer:
@@ -160,98 +152,9 @@ def _write_block(col_t, col_p, i, t0, period, values):
         col_p[j + cap] = values[k]
 
 
-class EngineBuffers:
-    """The rings of one engine. Pressure rings are made on first sight of a cylinder.
+def __getattr__(name: str):
+    if name == "EngineBuffers":  # lives in drivers/engine_buffers.py (it builds on RingBuffer); kept importable here
+        from drivers.engine_buffers import EngineBuffers
 
-    Pressure sample times are kept as float64 timer ticks (exact to < 1e-3 tick for 28 years at 10 MHz), so a
-    block with a non-integer period keeps its exact sample times. Load rows are (ticks, torque [N m], power [W]).
-    """
-
-    def __init__(self, tooth_capacity: int = 1 << 14, cam_capacity: int = 256, pressure_capacity: int = 1 << 15,
-                 load_capacity: int = 4096):
-        self.teeth = RingBuffer(tooth_capacity, {"t": np.int64})
-        self.cam = RingBuffer(cam_capacity, {"t": np.int64})
-        self.load = RingBuffer(load_capacity, {"t": np.int64, "torque": np.float64, "power": np.float64})
-        self.pressure: dict[int, RingBuffer] = {}
-        self._pressure_capacity = int(pressure_capacity)
-        self.rejected: Counter[str] = Counter()  # input rows refused (out of order), by stream
-
-    def add(self, record: StreamRecord) -> int:
-        """File one record; returns the number of rows accepted. Rows out of time order are refused and counted."""
-        if isinstance(record, ToothBatch):
-            return self._add_ticks(self.teeth, record.ticks, "teeth")
-        if isinstance(record, CamBatch):
-            return self._add_ticks(self.cam, record.ticks, "cam")
-        if isinstance(record, PressureBlock):
-            return self.add_pressure(record)
-        if isinstance(record, LoadSample):
-            last = self.load.last("t")
-            if last is not None and record.ticks <= last:
-                self.rejected["load"] += 1
-                return 0
-            self.load.extend(np.array([record.ticks], dtype=np.int64), np.array([record.torque], dtype=np.float64),
-                             np.array([record.power], dtype=np.float64))
-            return 1
-        raise TypeError(f"not a stream record: {type(record).__name__}")
-
-    def _add_ticks(self, ring: RingBuffer, ticks: np.ndarray, stream: str) -> int:
-        t = np.asarray(ticks, dtype=np.int64).ravel()
-        if t.size == 0:
-            return 0
-        last = ring.last("t")
-        ok = np.ones(t.size, dtype=bool)
-        ok[1:] = t[1:] > t[:-1]
-        if last is not None:
-            ok[0] = t[0] > last
-        if not ok.all():  # rare: keep a strictly increasing subsequence, drop edges not later than the last kept
-            keep = np.zeros(t.size, dtype=bool)
-            top = np.iinfo(np.int64).min if last is None else last
-            for i, x in enumerate(t.tolist()):
-                if x > top:
-                    keep[i] = True
-                    top = x
-            self.rejected[stream] += int(t.size - keep.sum())
-            t = t[keep]
-        ring.extend(t)
-        return int(t.size)
-
-    def add_pressure(self, block: PressureBlock) -> int:
-        """File one pressure block (the hot path: tens of blocks per cycle on a big engine)."""
-        v = block.values
-        if not (type(v) is np.ndarray and v.dtype is _F64 and v.ndim == 1):  # (identity checks: the hot path)
-            v = np.asarray(v, dtype=np.float64).ravel()
-        if v.shape[0] == 0:
-            return 0
-        period = block.period_ticks
-        if not (period > 0 and math.isfinite(period)):
-            self.rejected["pressure"] += v.size
-            return 0
-        ring = self.pressure.get(block.cylinder)
-        if ring is None:
-            ring = self.pressure[block.cylinder] = RingBuffer(self._pressure_capacity, {"t": np.float64,
-                                                                                       "p": np.float64})
-        t0 = float(block.t0_ticks)
-        if ring.end > ring.start:
-            last = float(ring._cols["t"][(ring.end - 1) % ring.capacity])  # = ring.get("t", ring.end - 1)
-            if t0 <= last:  # an overlapping (repeated) block: keep its new tail only
-                first = int((last - t0) // period) + 1
-                while first > 0 and t0 + (first - 1) * period > last:
-                    first -= 1
-                self.rejected["pressure"] += min(first, v.size)
-                if first >= v.size:
-                    return 0
-                t0, v = t0 + first * period, v[first:]
-        i, skip = ring._advance(v.size)
-        _write_block(ring._cols["t"], ring._cols["p"], i, t0 + skip * period, float(period), v[skip:])
-        return int(v.size)
-
-    def dropped(self) -> Counter[str]:
-        """Unconsumed rows lost to overflow, per ring."""
-        out: Counter[str] = Counter()
-        for name, ring in (("teeth", self.teeth), ("cam", self.cam), ("load", self.load)):
-            if ring.dropped:
-                out[name] = ring.dropped
-        for cyl, ring in self.pressure.items():
-            if ring.dropped:
-                out[f"pressure_{cyl}"] = ring.dropped
-        return out
+        return EngineBuffers
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -44,7 +44,7 @@ from typing import Self
 
 from core.engine import EngineSpec
 from core.results import CycleResult
-from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, StreamRecord, ToothBatch
+from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 from drivers.errors import EndOfStream
 from drivers.recorder import Recorder
 from drivers.source import Source
@@ -52,7 +52,7 @@ from service.pipeline import EnginePipeline, LogAnalysis
 
 log = logging.getLogger(__name__)
 
-_RANK = {ToothBatch: 0, CamBatch: 1, PressureBlock: 2, LoadSample: 3}  # ties: the simulator's order
+_RANK = {ToothBatch: 0, CamBatch: 1, PressureBlock: 2, PressureFrame: 2, LoadSample: 3}  # ties: the simulator's order
 _END = object()
 
 
@@ -62,6 +62,8 @@ def record_key(record: StreamRecord) -> float:
         return float(record.ticks[-1])
     if isinstance(record, PressureBlock):
         return float(record.t0_ticks) + (len(record.values) - 1) * float(record.period_ticks)
+    if isinstance(record, PressureFrame):
+        return float(record.t0_ticks) + (record.values.shape[-1] - 1) * float(record.period_ticks)
     if isinstance(record, LoadSample):
         return float(record.ticks)
     raise TypeError(f"not a stream record: {type(record).__name__}")

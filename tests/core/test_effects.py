@@ -8,7 +8,7 @@ from core.effects import EFFECTS, parse_effect, resolve_effects
 from core.engine import load_engine
 from core.simulate import simulate
 from core.thermo import cycle_params, cylinder_model, cylinder_pressure, imep
-from core.types import PressureBlock
+from core.types import PressureFrame
 
 # ---- registry and parsing -----------------------------------------------------------------------------------------
 
@@ -116,8 +116,9 @@ def test_extra_friction_adds_its_torque(base):
 
 
 def pressure_of(r, k):
-    blocks = [b for b in r.records if isinstance(b, PressureBlock) and b.cylinder == k]
-    return np.concatenate([b.values for b in blocks]), blocks[0].period_ticks / r.info.tick_hz
+    frames = [f for f in r.records if isinstance(f, PressureFrame)]
+    row = frames[0].cylinders.index(k)
+    return np.concatenate([f.values[row] for f in frames]), frames[0].period_ticks / r.info.tick_hz
 
 
 def test_tdc_offset_one_cylinder_shifts_its_pressure_phase(base):

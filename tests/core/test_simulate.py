@@ -8,7 +8,7 @@ from numpy.testing import assert_allclose
 
 from core.engine import load_engine
 from core.simulate import simulate
-from core.types import CamBatch, LoadSample, PressureBlock, ToothBatch
+from core.types import CamBatch, LoadSample, PressureFrame, ToothBatch
 
 
 @pytest.fixture(scope="module")
@@ -121,8 +121,8 @@ def test_records_and_info(k9k):
     for r in k9k.records:
         if isinstance(r, (ToothBatch, CamBatch)):
             last.append(int(r.ticks[-1]))
-        elif isinstance(r, PressureBlock):
-            last.append(round(r.t0_ticks + (r.values.size - 1) * r.period_ticks))
+        elif isinstance(r, PressureFrame):
+            last.append(round(r.t0_ticks + (r.values.shape[1] - 1) * r.period_ticks))
         else:
             last.append(r.ticks)
     assert np.all(np.diff(last) >= 0)  # arrival order
@@ -135,9 +135,10 @@ def test_records_and_info(k9k):
     assert set(np.diff(gaps)) == {58}
     cams = np.concatenate([r.ticks for r in k9k.records if isinstance(r, CamBatch)])
     assert_allclose(np.diff(cams), 4 * np.pi / (1700 * np.pi / 30) * info.tick_hz, rtol=0.01)
-    blocks = [r for r in k9k.records if isinstance(r, PressureBlock) and r.cylinder == 1]
-    assert blocks[0].t0_ticks == 0 and blocks[0].period_ticks == info.tick_hz / spec.sensors.pressure_rate_hz
-    assert all(b.values.size == 200 for b in blocks[:-1])  # 10 ms blocks at 20 kHz
+    frames = [r for r in k9k.records if isinstance(r, PressureFrame)]  # all cylinders sampled together
+    assert all(f.cylinders == (1, 2, 3, 4) and f.values.shape[0] == 4 for f in frames)
+    assert frames[0].t0_ticks == 0 and frames[0].period_ticks == info.tick_hz / spec.sensors.pressure_rate_hz
+    assert all(f.values.shape[1] == 200 for f in frames[:-1])  # 10 ms frames at 20 kHz
     loads = [r for r in k9k.records if isinstance(r, LoadSample)]
     assert_allclose(np.mean([x.torque for x in loads]), k9k.truth["load_torque_mean_nm"], rtol=0.01)
     assert_allclose(np.mean([x.power / x.torque for x in loads]), 1700 * np.pi / 30, rtol=0.01)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, StreamRecord, ToothBatch
+from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 
 ENGINE_TOML = (Path(__file__).resolve().parents[2] / "core" / "engines" / "k9k-4cyl.toml").read_text()
 INFO = AcquisitionInfo(
@@ -22,8 +22,10 @@ def corpus(
     info: AcquisitionInfo = INFO,
     pressure_hz: float = 20e3,
     window_s: float = 0.004,
+    frames: bool = False,
 ) -> list[StreamRecord]:
-    """Records in acquisition order: irregular windows of teeth, pressure blocks per cylinder, load samples, cam."""
+    """Records in acquisition order: irregular windows of teeth, pressure blocks per cylinder (``frames``: one
+    PressureFrame of all cylinders per window instead), load samples, cam."""
     rng = np.random.default_rng(seed)
     tick_hz = info.tick_hz
     rev_s = 60.0 / rpm
@@ -59,6 +61,10 @@ def corpus(
         if sel.size:
             out.append(CamBatch(sel))
         n_to = min(n_samples, int(np.ceil((hi - sample_ticks0) / period)))
+        if n_to > sample_at and frames:
+            rows = np.array([values[sample_at:n_to] for values in pressure.values()])
+            out.append(PressureFrame(tuple(pressure), sample_ticks0 + int(sample_at * period), period, rows))
+            sample_at = n_to
         if n_to > sample_at:
             for c, values in pressure.items():
                 out.append(PressureBlock(c, sample_ticks0 + int(sample_at * period), period, values[sample_at:n_to]))
@@ -82,6 +88,11 @@ def streams(records: list[StreamRecord]) -> dict[object, object]:
             t, v = out.setdefault(("p", r.cylinder), ([], []))  # type: ignore[misc]
             t.append(r.t0_ticks + np.arange(len(r.values)) * r.period_ticks)
             v.append(r.values)
+        if isinstance(r, PressureFrame):  # per cylinder, apart from blocks of the same cylinder
+            for c, row in zip(r.cylinders, r.values, strict=True):
+                t, v = out.setdefault(("f", c), ([], []))  # type: ignore[misc]
+                t.append(r.t0_ticks + np.arange(len(row)) * r.period_ticks)
+                v.append(row)
     for key, value in list(out.items()):
         if isinstance(key, tuple):
             out[key] = (np.concatenate(value[0]), np.concatenate(value[1]))  # type: ignore[index]

@@ -13,7 +13,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import Writer
 from mcap_protobuf.decoder import DecoderFactory
 
-from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, ToothBatch
+from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, ToothBatch
 from drivers import mcap_schema as ms
 from drivers.mcap_log import LogReader, LogWriter
 from tests.drivers.mcap_corpus import ENGINE_TOML, INFO, assert_same_streams, corpus
@@ -35,6 +35,10 @@ def same_record(a, b) -> bool:
         return (a.cylinder, a.t0_ticks, a.period_ticks) == (b.cylinder, b.t0_ticks, b.period_ticks) and np.array_equal(
             a.values, b.values, equal_nan=True
         )
+    if isinstance(a, PressureFrame):
+        return (a.cylinders, a.t0_ticks, a.period_ticks) == (b.cylinders, b.t0_ticks, b.period_ticks) and (
+            a.values.dtype == b.values.dtype == np.float64 and a.values.tobytes() == b.values.tobytes()
+        )
     return a == b
 
 
@@ -50,6 +54,61 @@ def test_one_message_per_record_round_trips_exactly(tmp_path: Path, compression:
     want = sorted(records, key=lambda r: ms.TickClock(INFO.tick_hz).ns(ms.last_tick(r)))  # stable: file order on ties
     assert len(got) == len(want)
     assert all(same_record(a, b) for a, b in zip(got, want, strict=True))
+
+
+@pytest.mark.parametrize("batch_s", [None, 0.01])
+def test_pressure_frames_round_trip_bit_exact_as_counts(tmp_path: Path, batch_s) -> None:
+    """Frames (all cylinders on one clock) come back as frames, every sample bit for bit (NaN included), stored
+    as ADC counts; with batching the per-cylinder streams are unchanged."""
+    records = corpus(0.2, seed=5, frames=True)
+    assert any(isinstance(r, PressureFrame) for r in records)
+    assert not any(isinstance(r, PressureBlock) for r in records)
+    path = write(tmp_path / "log.mcap", records, batch_s=batch_s)
+    with LogReader(path) as reader:
+        got = list(reader.records())
+        assert not reader.damage
+    assert all(isinstance(r, PressureFrame) for r in got if isinstance(r, PressureBlock | PressureFrame))
+    if batch_s is None:
+        want = sorted(records, key=lambda r: ms.TickClock(INFO.tick_hz).ns(ms.last_tick(r)))
+        assert all(same_record(a, b) for a, b in zip(got, want, strict=True))
+    assert_same_streams(got, records)
+    frame = next(r for r in records if isinstance(r, PressureFrame))
+    name, data = ms.encode(frame, ms.PressureCounts())
+    msg = ms._CLASSES[name].FromString(data)
+    assert name == "PressureFrame" and len(msg.counts) == frame.values.size and not msg.values_pa
+    assert list(msg.invalid) == [5]  # cylinder 1's saturated sample (row 0, index 5)
+
+
+@pytest.mark.parametrize(
+    "record",
+    [
+        PressureFrame((1, 1), 0, 500.0, np.ones((2, 3))),  # repeated cylinder
+        PressureFrame((0, 1), 0, 500.0, np.ones((2, 3))),
+        PressureFrame((1, 2), 0, 500.0, np.ones((3, 3))),  # rows != cylinders
+        PressureFrame((1, 2), 0, 500.0, np.ones(3)),
+        PressureFrame((1, 2), -1, 500.0, np.ones((2, 3))),
+        PressureFrame((1, 2), 0, float("nan"), np.ones((2, 3))),
+    ],
+)
+def test_writer_rejects_bad_frames(tmp_path: Path, record) -> None:
+    with LogWriter(tmp_path / "bad.mcap", None, INFO) as writer, pytest.raises(ValueError):
+        writer.write(record)
+
+
+def test_frame_decoder_refuses_inconsistent_messages() -> None:
+    cls = ms._CLASSES["PressureFrame"]
+    bad = [
+        cls(cylinders=[1, 2], t0_ticks=0, period_ticks=500.0, samples=2, values_pa=[1.0, 2.0, 3.0]),
+        cls(cylinders=[1, 2], t0_ticks=0, period_ticks=500.0, samples=2, scale_pa=[1.0], counts=[1, 2, 3, 4]),
+        cls(cylinders=[1, 2], t0_ticks=0, period_ticks=500.0, samples=2, scale_pa=[1.0, 0.0], counts=[1, 2, 3, 4]),
+        cls(cylinders=[1, 2], t0_ticks=0, period_ticks=500.0, samples=2, scale_pa=[1.0, 1.0], counts=[1, 2, 3, 4],
+            invalid=[4]),
+        cls(cylinders=[1, 1], t0_ticks=0, period_ticks=500.0, samples=1, values_pa=[1.0, 2.0]),
+        cls(cylinders=[], t0_ticks=0, period_ticks=500.0, samples=0),
+    ]
+    for msg in bad:
+        with pytest.raises(ValueError):
+            ms.DECODERS["frictionwatch.PressureFrame"](msg.SerializeToString())
 
 
 def test_batched_log_keeps_every_tick_and_sample(tmp_path: Path) -> None:
@@ -144,7 +203,7 @@ def test_writer_arguments_and_empty_records(tmp_path: Path) -> None:
 
 def test_file_is_standard_mcap_with_self_contained_protobuf_schemas(tmp_path: Path) -> None:
     """What Foxglove needs: mcap's reader plus a generic protobuf decoder built from the schema data alone."""
-    records = corpus(0.1, seed=4)
+    records = corpus(0.1, seed=4) + corpus(0.2, seed=4, frames=True)[-3:]  # blocks, then a few frames
     path = write(tmp_path / "log.mcap", records)
     with open(path, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
@@ -154,7 +213,7 @@ def test_file_is_standard_mcap_with_self_contained_protobuf_schemas(tmp_path: Pa
         names = {m.name for m in reader.iter_metadata()}
     assert names == {ms.META_ENGINE, ms.META_ACQUISITION}
     assert {d.schema.name for d in decoded} == {f"frictionwatch.{n}" for n in ms.MESSAGES}
-    assert {d.channel.topic for d in decoded} == {"teeth", "cam", "pressure", "load"}
+    assert {d.channel.topic for d in decoded} == {"teeth", "cam", "pressure", "pressure_frames", "load"}
     teeth = np.concatenate([np.array(d.decoded_message.ticks) for d in decoded if d.channel.topic == "teeth"])
     np.testing.assert_array_equal(teeth, np.concatenate([r.ticks for r in records if isinstance(r, ToothBatch)]))
 

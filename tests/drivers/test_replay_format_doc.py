@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2
 
-from core.types import AcquisitionInfo, LoadSample, PressureBlock, ToothBatch
+from core.types import AcquisitionInfo, LoadSample, PressureBlock, PressureFrame, ToothBatch
 from drivers import mcap_schema as ms
 from drivers.mcap_log import LogReader
 
@@ -36,14 +36,16 @@ def test_example_writer_makes_a_log_the_reader_reads(tmp_path: Path, monkeypatch
         records = list(reader.records())
         assert not reader.damage
         assert reader.info.tick_hz == 10e6 and (reader.info.wheel_teeth, reader.info.wheel_missing) == (60, 2)
-        assert reader.info.cam_deg is None and reader.info.pressure_cylinders == (1,)
+        assert reader.info.cam_deg is None and reader.info.pressure_cylinders == (1, 2)
         assert reader.engine_toml == 'name = "my-engine"\n'
     teeth = np.concatenate([r.ticks for r in records if isinstance(r, ToothBatch)])
     assert teeth.size == 2900 and np.all(np.diff(teeth) > 0)  # 50 revolutions of 58 teeth
-    pressure = [r for r in records if isinstance(r, PressureBlock)]
-    assert len(pressure) == 200 and all(r.cylinder == 1 and r.values.size == 200 for r in pressure)
+    assert not any(isinstance(r, PressureBlock) for r in records)
+    pressure = [r for r in records if isinstance(r, PressureFrame)]
+    assert len(pressure) == 200 and all(r.cylinders == (1, 2) and r.values.shape == (2, 200) for r in pressure)
     assert pressure[1].t0_ticks == pressure[0].t0_ticks + 200 * pressure[0].period_ticks  # contiguous 20 kHz
-    assert np.all(np.concatenate([r.values for r in pressure]) >= 1e5)
+    values = np.concatenate([r.values for r in pressure], axis=1)
+    assert np.all(values >= 1e5) and not np.array_equal(values[0], values[1])
     assert sum(isinstance(r, LoadSample) for r in records) == 200
 
 

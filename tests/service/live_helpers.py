@@ -22,7 +22,7 @@ from can.interfaces import virtual
 from core.engine import EngineSpec, load_engine
 from core.results import CycleResult
 from core.simulate import SimResult, simulate
-from core.types import CamBatch, LoadSample, PressureBlock, StreamRecord, ToothBatch
+from core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 from drivers.bridge import WireEvent, received_records, wire_events
 from drivers.timebase import forget_shared
 
@@ -128,7 +128,7 @@ def wait_all_delivered(live, records, timeout: float = 20.0) -> None:
     from service.live import record_key
 
     serial = max(record_key(r) for r in records if isinstance(r, ToothBatch | CamBatch))
-    bus = max(record_key(r) for r in records if isinstance(r, PressureBlock | LoadSample))
+    bus = max(record_key(r) for r in records if isinstance(r, PressureBlock | PressureFrame | LoadSample))
     assert live.wait_progress("serial", serial, timeout) and live.wait_progress("can", bus, timeout)
 
 

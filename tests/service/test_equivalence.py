@@ -21,13 +21,14 @@ import can
 import numpy as np
 import pytest
 
-from core.types import CamBatch, LoadSample, PressureBlock, ToothBatch
+from core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, ToothBatch
 from drivers.backoff import Backoff
 from drivers.bridge import WirePlayer, received_records
 from drivers.can_codec import FD_SAMPLES, RAW_SATURATED
 from drivers.can_pressure import CanSource
 from drivers.mcap_log import LogReader, LogWriter
 from drivers.mcap_replay import McapSource
+from drivers.pressure_ring import frame_blocks
 from drivers.recorder import Recorder
 from drivers.serial_teeth import SerialSource
 from drivers.timebase import TimerUnwrapper
@@ -72,7 +73,7 @@ def test_the_wire_carries_the_session_within_its_resolution():
     np.testing.assert_array_equal(_concat(got, ToothBatch), _concat(sim, ToothBatch))
     np.testing.assert_array_equal(_concat(got, CamBatch), _concat(sim, CamBatch))
     for cyl in s.sim.info.pressure_cylinders:
-        want = [r for r in sim if isinstance(r, PressureBlock) and r.cylinder == cyl]
+        want = [b for r in sim if isinstance(r, PressureFrame) for b in frame_blocks(r) if b.cylinder == cyl]
         have = [r for r in got if isinstance(r, PressureBlock) and r.cylinder == cyl]
         t_want = np.concatenate([r.t0_ticks + np.arange(r.values.size) * r.period_ticks for r in want])
         t_have = np.concatenate([r.t0_ticks + np.arange(r.values.size) * r.period_ticks for r in have])

@@ -17,10 +17,11 @@ import can
 import numpy as np
 import pytest
 
-from core.types import CamBatch, LoadSample, PressureBlock, StreamRecord, ToothBatch
+from core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 from drivers.backoff import Backoff
 from drivers.bridge import SERIAL, WirePlayer, received_records, wire_events
 from drivers.can_pressure import CanSource
+from drivers.pressure_ring import frame_blocks
 from drivers.serial_teeth import SerialSource
 from drivers.source import Source
 from drivers.timebase import TimerUnwrapper
@@ -91,7 +92,9 @@ def shifted(r: StreamRecord, dt: int) -> StreamRecord:
 def engine_stop(records, at_tick: float, pause_ticks: int, period: float = 500.0) -> list[StreamRecord]:
     """The session with the engine at rest for ``pause_ticks`` from ``at_tick``: no teeth, no cam; the DAQ goes on
     sampling (1 bar in every cylinder) and the genset controller reports zero load. Afterwards it runs on as
-    recorded (shifted in time). Not physics: a stand-in for the rest period only."""
+    recorded (shifted in time). Not physics: a stand-in for the rest period only. Pressure frames are split into
+    their blocks first (the CAN DAQ carries one cylinder per message)."""
+    records = [b for r in records for b in (frame_blocks(r) if isinstance(r, PressureFrame) else (r,))]
     before = [r for r in records if record_key(r) < at_tick]
     after = [shifted(r, pause_ticks) for r in records if record_key(r) >= at_tick]
     rest: list[StreamRecord] = []
@@ -309,3 +312,15 @@ def test_the_leak_check_catches_a_leak():
         thread.start()
     stop.set()
     thread.join()
+
+
+def test_merge_takes_pressure_frames_like_blocks():
+    """A PressureFrame is keyed by its last sample, as the PressureBlocks it stands for, and ranks with them."""
+    frame = PressureFrame((1, 2), 100, 10.0, np.ones((2, 4)))  # last sample at 130
+    blocks = [PressureBlock(c, 100, 10.0, np.ones(4)) for c in (1, 2)]
+    assert record_key(frame) == record_key(blocks[0]) == 130.0
+    m = RecordMerge(["daq", "teeth"], window_ticks=1000)
+    out = m.push("daq", [_load(130), frame])
+    out += m.push("teeth", [_teeth(130)])
+    out += m.flush()
+    assert [type(r).__name__ for r in out] == ["ToothBatch", "PressureFrame", "LoadSample"]  # the simulator's ties
