@@ -16,13 +16,15 @@ Mean torques are work means, (1/4 pi) * integral of T d(theta_q) = <T omega_q> /
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from core.engine import EngineSpec
-from core.excitation_kernels import OMEGA_SLOT, _excitation_rows, _interp_rows, excitation_consts
+from core.excitation_kernels import OMEGA_SLOT, _interp_rows, excitation_consts
 from core.flywheel import FlywheelMotion, harmonics_of
 from core.friction import N_TERMS
+from core.harmonic_balance_kernels import _cycle_rows, _grid_spectrum, _motion_from_series
 
 FOUR_PI = 4.0 * np.pi
 CRANKCASE_PA = 1.0e5
@@ -34,7 +36,8 @@ class Excitation:
 
     tau (n_t,) s; theta_fly (n_t,) rad flywheel angle; omega_node (N, n_t) rad/s
     gas (z, n_t) N m; known_harm (N, M) complex N m: harmonics of the known node torques
-    basis (z, 6, n_t) F_kl; basis_harm (z, 6, M); basis_mean (z, 6) work means of F_kl
+    basis (z, 6, n_t) F_kl; basis_harm (z, 6, M) (computed on first use: the harmonic balance needs only their
+    parameter-weighted sums); basis_mean (z, 6) work means of F_kl
     indicated_mean (z,) N m work mean of T_g,k (= IMEP_k V_d / 4 pi with the throw's own angle)
     omega_fly, alpha_fly (n_t,) measured flywheel speed [rad/s] and acceleration [rad/s^2] (the fit on the grid)
     """
@@ -45,11 +48,14 @@ class Excitation:
     gas: np.ndarray
     known_harm: np.ndarray
     basis: np.ndarray
-    basis_harm: np.ndarray
     basis_mean: np.ndarray
     indicated_mean: np.ndarray
     omega_fly: np.ndarray | None = None
     alpha_fly: np.ndarray | None = None
+
+    @cached_property
+    def basis_harm(self) -> np.ndarray:
+        return harmonics_of(self.basis, self.known_harm.shape[1])
 
 
 @dataclass(frozen=True)
@@ -100,6 +106,20 @@ def cycle_excitation(
     variable_inertia : False models a crank whose reciprocating inertia is constant (no J(theta), no mass torque)
     plan : ``excitation_plan(spec, recip_inertia_mean, variable_inertia)`` if already at hand (saves its set-up)
     """
+    exc, _ = excitation_rows(spec, grid, pressure, fly, theta_start, n_time, recip_inertia_mean, relative_motion,
+                             static_twist, variable_inertia, plan)
+    return exc
+
+
+def excitation_rows(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, fly: FlywheelMotion,
+                    theta_start: float, n_time: int, recip_inertia_mean: float,
+                    relative_motion: np.ndarray | None = None, static_twist: np.ndarray | None = None,
+                    variable_inertia: bool = True, plan: ExcitationPlan | None = None,
+                    mix: tuple[np.ndarray, np.ndarray, int] | None = None) -> tuple[Excitation, np.ndarray]:
+    """``cycle_excitation`` and the rfft of the rows [G (n_mix); known node torques (N)] (n_mix + N, n_time//2 + 1).
+
+    mix : (mix_row (z, 6), mix_weight (z, 6), n_mix): which weighted basis terms are summed into the G rows
+    (core.harmonic_balance_kernels._mix_plan); None for no G rows."""
     z = spec.n_cyl
     n_nodes = spec.n_nodes
     m = fly.n_harmonics
@@ -111,30 +131,33 @@ def cycle_excitation(
         if rel.shape != (n_nodes, m):
             raise ValueError(f"relative_motion must have shape {(n_nodes, m)}, got {rel.shape}")
     tau, theta_f, omega_f, alpha_f, motion = grid_motion(fly, n_time, theta_start, n_nodes, rel, static_twist)
-
-    # pressure at the flywheel angle of each time sample (periodic in 4 pi)
-    p_t = periodic_interp(theta_f, grid, pressure)
-
+    if mix is None:
+        mix_row, mix_weight, n_mix = np.full((z, N_TERMS), -1, dtype=np.int64), np.zeros((z, N_TERMS)), 0
+    else:
+        mix_row, mix_weight, n_mix = mix
     consts = plan.consts.copy()
     consts[OMEGA_SLOT] = fly.omega_mean
-    rows = np.empty((n_nodes + 7 * z, n_time))
+    n_head = n_mix + n_nodes
+    buf = np.empty((n_head + 7 * z, n_time))
     means = np.empty((z, 7))
-    _excitation_rows(motion, theta_f, p_t, plan.cyl_node, consts, rows, means)
-    # one FFT for the node torques and all basis terms
-    harm = harmonics_of(rows[: n_nodes + 6 * z], m)
-    return Excitation(
+    _cycle_rows(motion, theta_f, np.ascontiguousarray(grid, dtype=np.float64),
+                np.ascontiguousarray(pressure, dtype=np.float64), plan.cyl_node, consts, mix_row, mix_weight, n_mix,
+                buf, means)
+    harm = np.fft.rfft(buf[:n_head], axis=-1)  # one FFT for the G rows and the node torques
+    known = harm[n_mix:, 1: m + 1] * (2.0 / n_time)
+    exc = Excitation(
         tau=tau,
         theta_fly=theta_f,
         omega_node=motion[1],
-        gas=rows[n_nodes + 6 * z:],
-        known_harm=harm[:n_nodes],
-        basis=rows[n_nodes: n_nodes + 6 * z].reshape(z, N_TERMS, n_time),
-        basis_harm=harm[n_nodes:].reshape(z, N_TERMS, m),
+        gas=buf[n_head + 6 * z:],
+        known_harm=known,
+        basis=buf[n_head: n_head + 6 * z].reshape(z, N_TERMS, n_time),
         basis_mean=means[:, :N_TERMS],
         indicated_mean=means[:, N_TERMS],
         omega_fly=omega_f,
         alpha_fly=alpha_f,
     )
+    return exc, harm
 
 
 def grid_motion(fly: FlywheelMotion, n_time: int, theta_start: float, n_nodes: int,
@@ -149,38 +172,23 @@ def grid_motion(fly: FlywheelMotion, n_time: int, theta_start: float, n_nodes: i
     n = n_time
     if 2 * m >= n:
         raise ValueError(f"{m} harmonics need more than {2 * m} samples per cycle, got {n}")
-    w = fly.freq
-    harm = fly.harmonics
     n_rel = 0 if relative_motion is None else n_nodes
+    rel = (np.ascontiguousarray(relative_motion, dtype=np.complex128) if n_rel
+           else np.zeros((0, m), dtype=np.complex128))
     spec_rows = np.zeros((3 + 3 * n_rel, n // 2 + 1), dtype=np.complex128)
-    half = 0.5 * n
-    spec_rows[0, 1: m + 1] = harm * half
-    spec_rows[1, 1: m + 1] = (1j * w * harm) * half
-    spec_rows[2, 1: m + 1] = (-(w**2) * harm) * half
-    if n_rel:
-        rel = relative_motion
-        spec_rows[3: 3 + n_rel, 1: m + 1] = rel * half
-        spec_rows[3 + n_rel: 3 + 2 * n_rel, 1: m + 1] = (1j * w * rel) * half
-        spec_rows[3 + 2 * n_rel:, 1: m + 1] = (-(w**2) * rel) * half
+    _grid_spectrum(np.ascontiguousarray(fly.harmonics, dtype=np.complex128), fly.freq, rel, n_rel, 0.5 * n,
+                   spec_rows)
     series = np.fft.irfft(spec_rows, n=n, axis=-1)
-    period = fly.period
-    tau = np.arange(n) * (period / n)
-    u = tau / period
-    phi = fly.offset + fly.drift * u * (u - 1.0) + series[0]
-    omega_f = (fly.omega_mean + fly.drift * (2.0 * u - 1.0) / period) + series[1]
-    alpha_f = 2.0 * fly.drift / period**2 + series[2]
-    theta_f = theta_start + fly.omega_mean * tau + phi
+    static = np.zeros(0) if static_twist is None else np.ascontiguousarray(static_twist, dtype=np.float64)
+    if static.shape not in ((0,), (n_nodes,)):
+        raise ValueError(f"static_twist must have shape {(n_nodes,)}, got {static.shape}")
+    tau = np.empty(n)
+    theta_f = np.empty(n)
+    omega_f = np.empty(n)
+    alpha_f = np.empty(n)
     motion = np.empty((3, n_nodes, n))
-    if n_rel:
-        motion[0] = theta_f + series[3: 3 + n_rel]
-        motion[1] = omega_f + series[3 + n_rel: 3 + 2 * n_rel]
-        motion[2] = alpha_f + series[3 + 2 * n_rel:]
-    else:
-        motion[0] = theta_f
-        motion[1] = omega_f
-        motion[2] = alpha_f
-    if static_twist is not None:
-        motion[0] += np.asarray(static_twist, dtype=np.float64)[:, None]
+    _motion_from_series(series, n_rel, float(fly.offset), float(fly.drift), float(fly.period), float(fly.omega_mean),
+                        float(theta_start), static, tau, theta_f, omega_f, alpha_f, motion)
     return tau, theta_f, omega_f, alpha_f, motion
 
 

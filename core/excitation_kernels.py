@@ -5,6 +5,10 @@ reciprocating remainder and the six friction basis terms (core.torques, core.fri
 Eq. 4, physics.md §2-§3, §7, §12.3), writing into preallocated rows that go to one FFT. The plain-numpy references
 are the public functions of core.torques / core.friction (tests/core/test_excitation_kernels.py).
 
+``_excitation_rows`` is no longer on the monitor's path: core.harmonic_balance_kernels._cycle_rows replaced it
+(same formulas, vectorised, pressure interpolation folded in); it stays as the tested reference of that kernel
+(tests/core/test_harmonic_balance_fast.py).
+
 Layout of ``consts`` (``excitation_consts``):
   0-2 kinematics [R, L, e]; 3-16 friction params (EngineSpec.friction_params()); 17 piston area [m^2];
   18 crankcase pressure [Pa]; 19 reciprocating mass [kg]; 20 mean reciprocating inertia of one cylinder [kg m^2];

@@ -14,11 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.dynamics import Receptance, ShaftModel, receptance, shaft_model, static_twist
+from core.dynamics import Receptance, ShaftModel, receptance, shaft_model
 from core.engine import EngineSpec
-from core.excitation import Excitation, ExcitationPlan, cycle_excitation, excitation_plan
+from core.excitation import Excitation, ExcitationPlan, excitation_plan, excitation_rows
 from core.flywheel import FlywheelMotion
-from core.identify import CycleRows, ParameterLayout, friction_design
+from core.friction import N_TERMS
+from core.harmonic_balance_kernels import _balance_rows, _mix_plan
+from core.identify import CycleRows, ParameterLayout
 
 
 @dataclass(frozen=True)
@@ -58,31 +60,53 @@ def harmonic_balance(spec: EngineSpec, layout: ParameterLayout, theta: np.ndarra
     static twist) for the next cycle."""
     rel = relative_motion
     n_nodes = spec.n_nodes
-    if rel is not None and rel.shape != (n_nodes, fly.n_harmonics):
+    m = fly.n_harmonics
+    if rel is not None and rel.shape != (n_nodes, m):
         rel = None
-    coef = layout.coefficients(theta[: layout.n_params])
     static = static if static is not None and static.shape == (n_nodes,) else None
     # warm start: with the previous cycle's node motion the first pass already is a refresh (physics.md §12.3)
     n_pass = max(1, passes - 1) if rel is not None and static is not None else max(1, passes)
+    z = spec.n_cyl
+    n_par = layout.n_params
+    cyl_node = op.plan.cyl_node if op.plan is not None else np.ascontiguousarray(spec.cylinder_node, dtype=np.int64)
+    group = np.ascontiguousarray(layout.group, dtype=np.int64)
+    prior = np.ascontiguousarray(layout.prior, dtype=np.float64)
+    # the friction terms enter the chain only as parameter-weighted sums per node: one G row per (parameter, node)
+    mix_row = np.empty((z, N_TERMS), dtype=np.int64)
+    mix_param = np.empty(z * N_TERMS, dtype=np.int64)
+    mix_node = np.empty(z * N_TERMS, dtype=np.int64)
+    n_mix = _mix_plan(group, prior, cyl_node, n_par, n_nodes, mix_row, mix_param, mix_node)
+    th = np.ascontiguousarray(theta[:n_par], dtype=np.float64)
+    shaft = op.shaft
+    rec = op.receptance
+    fly_freq = fly.freq
+    fly_harm = np.ascontiguousarray(fly.harmonics, dtype=np.complex128)
+    pattern = np.ascontiguousarray(fly.pattern_harmonics, dtype=np.complex128) if n_nuisance else (
+        np.zeros((m, 0), dtype=np.complex128))
+    known = np.empty((n_nodes, m), dtype=np.complex128)
+    design = np.empty((m, n_par + n_nuisance), dtype=np.complex128)
+    target = np.empty(m, dtype=np.complex128)
+    cyl_rows = np.empty((z, n_par))
+    mean_row = np.empty(n_par + n_nuisance)
     for _ in range(n_pass):
-        exc = cycle_excitation(spec, grid, pressure, fly, theta_start, time_samples,
-                               op.shaft.recip_inertia_mean, rel if n_nodes > 1 else None,
-                               static if n_nodes > 1 else None, variable_inertia, op.plan)
-        mean_torque = np.zeros(n_nodes)
-        np.add.at(mean_torque, spec.cylinder_node, exc.indicated_mean - (coef * exc.basis_mean).sum(axis=1))
-        static = static_twist(op.shaft, mean_torque)
-        torque = exc.known_harm.copy()
-        np.add.at(torque, spec.cylinder_node, -np.einsum("kl,klm->km", coef, exc.basis_harm))
-        phi = np.einsum("mij,jm->im", op.receptance.inverse, torque)
-        rel = phi - phi[op.shaft.flywheel]
-    node_speed = 1j * op.receptance.freq[None, :] * phi
-    w0 = np.einsum("mq,qm->m", op.transfer, exc.known_harm)
-    design = friction_design(layout, op.transfer, exc.basis_harm, spec.cylinder_node)
-    if n_nuisance:
-        design = np.hstack([design, 1j * fly.freq[:, None] * fly.pattern_harmonics[:, :n_nuisance]])
-    cyl_rows = layout.cylinder_rows(exc.basis_mean)
-    rows = CycleRows(design=design, target=fly.speed_harmonics - w0,
-                     mean_row=np.concatenate([cyl_rows.sum(axis=0), np.zeros(n_nuisance)]),
-                     mean_target=float("nan"),
-                     cylinder_rows=cyl_rows)
+        exc, harm = excitation_rows(spec, grid, pressure, fly, theta_start, time_samples, shaft.recip_inertia_mean,
+                                    rel if n_nodes > 1 else None, static if n_nodes > 1 else None, variable_inertia,
+                                    op.plan, (mix_row, prior, n_mix))
+        static = np.empty(n_nodes)
+        phi = np.empty((n_nodes, m), dtype=np.complex128)
+        rel = np.empty((n_nodes, m), dtype=np.complex128)
+        node_speed = np.empty((n_nodes, m), dtype=np.complex128)
+        _balance_rows(harm, 2.0 / time_samples, m, n_mix, mix_param, mix_node, th, group, prior, cyl_node,
+                      _means_of(exc), shaft.compliance, shaft.flywheel, rec.inverse, rec.freq, op.transfer, fly_freq,
+                      fly_harm, pattern, n_nuisance, known, static, phi, rel, node_speed, design, target, cyl_rows,
+                      mean_row)
+    rows = CycleRows(design=design, target=target, mean_row=mean_row, mean_target=float("nan"), cylinder_rows=cyl_rows)
     return exc, rows, node_speed, rel, static
+
+
+def _means_of(exc: Excitation) -> np.ndarray:
+    """The (z, 7) work-means block [basis_mean | indicated_mean] that ``excitation_rows`` wrote (both are views)."""
+    base = exc.basis_mean.base
+    if base is not None and base.shape == (exc.basis_mean.shape[0], N_TERMS + 1) and base.flags.c_contiguous:
+        return base
+    return np.ascontiguousarray(np.column_stack([exc.basis_mean, exc.indicated_mean]))
