@@ -23,7 +23,16 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.linalg.lapack
 
-from core.identify import bounded_solve
+from core.identify import bounded_solve_nnls
+from core.posterior_kernels import (
+    NEEDS_BOUND,
+    OK,
+    as_matrix,
+    as_vector,
+    lower_vector,
+    posterior_kernel,
+    posterior_moments_kernel,
+)
 
 _potrf = scipy.linalg.lapack.dpotrf
 _potri = scipy.linalg.lapack.dpotri
@@ -167,10 +176,43 @@ def solve_posterior(acc: Accumulator, prior: Prior, sys_var: np.ndarray,
 def posterior_from_normal(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, sys_var: np.ndarray,
                           lower: float | np.ndarray = 0.0) -> Posterior:
     """``solve_posterior`` with the prior already in normal form (n_pr (P, P), r_pr (P,); ``Prior.normal``), so a
-    caller that keeps a fixed prior's normal equations does not rebuild them every cycle."""
+    caller that keeps a fixed prior's normal equations does not rebuild them every cycle.
+
+    One numba kernel (core.posterior_kernels) when no bound is active and the factors are well conditioned; NNLS
+    for theta when a bound is active; ``posterior_from_normal_reference`` when a factor is nearly singular or the
+    reference covariance is at its pseudo-inverse switch. Equal to the reference to rounding."""
+    p, r = acc.sys_map.shape
+    n_pr = as_matrix(n_pr, p, name="n_pr")
+    r_pr = as_vector(r_pr, p, "r_pr")
+    sys_var = as_vector(sys_var, r, "sys_var")
+    lo = lower_vector(lower, p)
+    a_info = as_matrix(acc.info, p, name="acc.info")
+    a_rhs = as_vector(acc.rhs, p, "acc.rhs")
+    a_map = as_matrix(acc.sys_map, p, r, "acc.sys_map")
+    a_ref = as_matrix(acc.info_reference, p, name="acc.info_reference")
+    yty, rows = float(acc.yty), float(acc.rows)
+    status, theta, chi2_red, cov_stat, cov, ref = posterior_kernel(
+        a_info, a_rhs, yty, rows, a_map, a_ref, n_pr, r_pr, sys_var, lo, _REFERENCE_MAX_CONDITION)
+    if status == NEEDS_BOUND:
+        theta = bounded_solve_nnls(acc.info + n_pr, acc.rhs + r_pr, lower)
+        status, chi2_red, cov_stat, cov, ref = posterior_moments_kernel(
+            a_info, a_rhs, yty, rows, a_map, a_ref, n_pr, sys_var, theta, _REFERENCE_MAX_CONDITION)
+    if status != OK:
+        return posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lower)
+    return Posterior(theta=theta, covariance=cov, cov_statistical=cov_stat, chi2_reduced=float(chi2_red),
+                     weight=acc.weight, cov_reference=ref)
+
+
+_REFERENCE_MAX_CONDITION = 1e12  # above: the reference covariance is a pseudo-inverse
+
+
+def posterior_from_normal_reference(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, sys_var: np.ndarray,
+                                    lower: float | np.ndarray = 0.0) -> Posterior:
+    """``posterior_from_normal`` by LAPACK/scipy calls: the general path (non-positive-definite or nearly singular
+    matrices) and the reference of the kernel."""
     info = acc.info + n_pr
     rhs = acc.rhs + r_pr
-    theta = bounded_solve(info, rhs, lower)
+    theta = bounded_solve_nnls(info, rhs, lower)
     dof = acc.rows - theta.shape[0]
     chi2 = acc.yty - 2.0 * theta @ acc.rhs + theta @ acc.info @ theta
     chi2_red = float(chi2 / dof) if dof > 0 else 1.0
@@ -182,7 +224,7 @@ def posterior_from_normal(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, 
     g = inv @ acc.sys_map
     cov_sys = (g * sys_var[None, :]) @ g.T
     ref_info = acc.info_reference + n_pr
-    ref = spd_inverse(ref_info, max_condition=1e12)
+    ref = spd_inverse(ref_info, max_condition=_REFERENCE_MAX_CONDITION)
     if ref is None:  # (near-)singular: the pseudo-inverse drops what nothing pins down
         ref = np.linalg.pinv(ref_info, rcond=1e-13, hermitian=True)
     ref = ref * max(1.0, chi2_red)

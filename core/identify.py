@@ -29,6 +29,7 @@ import scipy.optimize
 
 from core.engine import EngineSpec
 from core.friction import N_TERMS
+from core.posterior_kernels import OK, as_vector, bounded_solve_kernel, lower_vector
 
 _getrf = scipy.linalg.lapack.dgetrf
 _getrs = scipy.linalg.lapack.dgetrs
@@ -183,8 +184,22 @@ def bounded_solve(info: np.ndarray, rhs: np.ndarray, lower: float | np.ndarray =
 
     ``lower`` may be -inf for free parameters (nuisances): they are eliminated exactly (Schur complement) before the
     bounded part is solved and recovered after. Never forms a least-squares problem from raw rows: it factors the
-    (already accumulated) information matrix, column-scaled to unit diagonal, and runs NNLS on the triangular
-    factor (physics.md §8)."""
+    (already accumulated) information matrix, column-scaled to unit diagonal (physics.md §8). The problem is convex:
+    when its unconstrained minimiser meets the bounds it is the answer (core.posterior_kernels); otherwise, or when
+    the factors are nearly singular, NNLS on the triangular factor decides (``bounded_solve_nnls``)."""
+    info = np.asarray(info, dtype=np.float64)
+    n = info.shape[0]
+    if info.shape == (n, n):
+        lo = lower_vector(lower, n)
+        status, theta = bounded_solve_kernel(np.ascontiguousarray(info), as_vector(rhs, n, "rhs"), lo)
+        if status == OK:
+            return theta
+    return bounded_solve_nnls(info, rhs, lower)
+
+
+def bounded_solve_nnls(info: np.ndarray, rhs: np.ndarray, lower: float | np.ndarray = 0.0) -> np.ndarray:
+    """``bounded_solve`` by NNLS on the Cholesky factor of the reduced, unit-diagonal information matrix: the
+    general path (a bound active, nearly singular factors) and the reference of the fast one."""
     n = info.shape[0]
     lo = np.broadcast_to(np.asarray(lower, dtype=np.float64), (n,))
     free = ~np.isfinite(lo)

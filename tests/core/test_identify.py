@@ -152,3 +152,22 @@ def test_parameter_layout_rejects_bad_input():
         parameter_layout(spec, prior=-np.ones(6))
     assert parameter_layout(load_engine("deutz-1cyl")).n_params == 6
     assert parameter_layout(spec).n_params == 4 + 3
+
+
+@pytest.mark.parametrize("active", [False, True])
+def test_bounded_solve_with_free_nuisances_matches_lsq_linear(active):
+    """Nuisances last and free (lower = -inf), coefficients >= 0: the unconstrained fast branch (no bound active)
+    and the NNLS branch (two coefficients the data want negative) against scipy's lsq_linear."""
+    rng = np.random.default_rng(21)
+    n_coef, n_free = 9, 6
+    a = rng.normal(size=(60, n_coef + n_free)) * np.logspace(-2, 2, n_coef + n_free)
+    truth = np.concatenate([1.0 + rng.random(n_coef), rng.normal(size=n_free)])
+    if active:
+        truth[[2, 5]] = -1.0
+    y = a @ truth + 0.01 * rng.normal(size=60)
+    lower = np.concatenate([np.zeros(n_coef), np.full(n_free, -np.inf)])
+    got = bounded_solve(a.T @ a, a.T @ y, lower)
+    want = scipy.optimize.lsq_linear(a, y, bounds=(lower, np.inf), tol=1e-14, lsmr_tol="auto").x
+    assert np.all(got[:n_coef] >= 0)
+    assert (np.count_nonzero(got[:n_coef] == 0.0) >= 2) == active
+    assert_allclose(a @ got, a @ want, atol=1e-7 * np.linalg.norm(y))

@@ -1,0 +1,201 @@
+"""The posterior kernels (core.posterior_kernels) against the LAPACK/scipy reference they replace.
+
+References: ``core.accumulate.posterior_from_normal_reference`` and ``core.identify.bounded_solve_nnls`` (the code
+before the kernels, kept verbatim), numpy's cholesky / inv / solve for the helpers. Problems are built like the
+monitor's (core.monitor): whitened rows of a few cycles accumulated with forgetting, a weak prior per parameter plus
+a few share rows, the nuisances last and free (lower = -inf), the coefficients bounded below by 0, and badly scaled
+columns (raw condition ~1e12, as the monitor's). Sizes: genset-v20 P=47 (24 nuisances), R=49; k9k-4cyl P=29,
+deutz-1cyl P=28 (R=47).
+
+Tolerances: 1e-10 relative to the largest element of each array (the task's bar); covariance entries also relative
+to sqrt(C_ii C_jj) (the scale each entry lives on), theta also in posterior standard deviations.
+"""
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+
+from core import posterior_kernels as pk
+from core.accumulate import Accumulator, posterior_from_normal, posterior_from_normal_reference
+from core.identify import bounded_solve, bounded_solve_nnls
+
+SIZES = {"genset-v20": (47, 24, 49), "k9k-4cyl": (29, 24, 47), "deutz-1cyl": (28, 22, 47)}
+FIELDS = ("theta", "covariance", "cov_statistical", "chi2_reduced", "weight", "cov_reference")
+
+
+def _problem(seed, p, n_free, r, theta_true=None, cycles=6, noise=1.0, prior_rel=0.3):
+    """A monitor-like accumulator, prior normal equations and bounds (seeded)."""
+    rng = np.random.default_rng(seed)
+    nb = p - n_free
+    col_scale = np.concatenate([np.logspace(-4, 2, nb), np.logspace(-1, 1, n_free)])
+    if theta_true is None:
+        theta_true = np.concatenate([1.0 + 0.3 * rng.random(nb), rng.normal(size=n_free)])
+    acc = Accumulator.empty(p, r)
+    mix = np.eye(p) + 0.3 * rng.normal(size=(p, p))  # correlated columns: scaled condition ~1e2..1e4
+    base = rng.normal(size=(r, p)) @ mix
+    for _ in range(cycles):
+        a = (base + 0.3 * rng.normal(size=(r, p))) * col_scale
+        y = a @ theta_true + noise * rng.normal(size=r)
+        inv_sigma = 1.0 / (0.5 + rng.random(r))
+        acc = acc.update(a, y, inv_sigma, 0.98, reference_rows=1)
+    # a prior per parameter (sd prior_rel around 1 for coefficients, 0 for nuisances), three share-like rows
+    w = np.eye(p) / prior_rel
+    theta0 = np.concatenate([np.ones(nb), np.zeros(n_free)])
+    share = np.zeros((3, p))
+    share[:, :nb] = rng.random((3, nb)) * col_scale[:nb]
+    rows = np.vstack([w, share])
+    tgt = np.concatenate([w @ theta0, share @ theta_true])
+    n_pr = rows.T @ rows
+    r_pr = rows.T @ tgt
+    sys_var = (0.1 + rng.random(r)) ** 2
+    lower = np.concatenate([np.zeros(nb), np.full(n_free, -np.inf)])
+    return acc, n_pr, r_pr, sys_var, lower
+
+
+def _assert_same_posterior(got, want, rtol=1e-10):
+    for f in FIELDS:
+        g, w = np.asarray(getattr(got, f)), np.asarray(getattr(want, f))
+        assert g.shape == w.shape, f
+        assert_allclose(g, w, rtol=0, atol=rtol * max(float(np.max(np.abs(w))), 1e-300), err_msg=f)
+    for f in ("covariance", "cov_statistical", "cov_reference"):
+        g, w = getattr(got, f), getattr(want, f)
+        s = np.sqrt(np.outer(np.abs(np.diag(w)), np.abs(np.diag(w))))
+        assert np.max(np.abs(g - w) / s) < rtol, f
+    sd = np.sqrt(np.diag(want.cov_statistical))
+    assert np.max(np.abs(got.theta - want.theta) / sd) < rtol
+
+
+@pytest.mark.parametrize("engine", list(SIZES))
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_posterior_matches_reference_without_active_bound(engine, seed):
+    p, n_free, r = SIZES[engine]
+    acc, n_pr, r_pr, sys_var, lower = _problem(seed, p, n_free, r)
+    status = pk.posterior_kernel(acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, n_pr, r_pr,
+                                 sys_var, lower, 1e12)[0]
+    assert status == pk.OK  # the fast branch is what is tested here
+    got = posterior_from_normal(acc, n_pr, r_pr, sys_var, lower)
+    want = posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lower)
+    _assert_same_posterior(got, want)
+    assert np.all(got.theta[: p - n_free] > 0)
+
+
+@pytest.mark.parametrize("engine", ["genset-v20", "deutz-1cyl"])
+def test_posterior_with_an_active_bound_uses_nnls(engine):
+    p, n_free, r = SIZES[engine]
+    nb = p - n_free
+    rng = np.random.default_rng(7)
+    theta_true = np.concatenate([1.0 + 0.3 * rng.random(nb), rng.normal(size=n_free)])
+    theta_true[[nb - 1, nb - 4]] = -3.0  # the data (large columns) want two coefficients below their bound
+    acc, n_pr, r_pr, sys_var, lower = _problem(7, p, n_free, r, theta_true=theta_true, noise=0.01)
+    status = pk.posterior_kernel(acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, n_pr, r_pr,
+                                 sys_var, lower, 1e12)[0]
+    assert status == pk.NEEDS_BOUND
+    got = posterior_from_normal(acc, n_pr, r_pr, sys_var, lower)
+    want = posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lower)
+    assert_array_equal(got.theta, want.theta)  # the same NNLS call
+    assert got.theta[nb - 1] == 0.0 and got.theta[nb - 4] == 0.0
+    _assert_same_posterior(got, want)
+
+
+def test_posterior_fallbacks_are_the_reference_exactly():
+    p, n_free, r = SIZES["k9k-4cyl"]
+    acc, n_pr, r_pr, sys_var, lower = _problem(3, p, n_free, r)
+    # no prior at all: the reference information (one mean-balance row per cycle) is singular -> pseudo-inverse
+    zero = np.zeros((p, p))
+    theta = bounded_solve_nnls(acc.info, acc.rhs, lower)
+    status = pk.posterior_moments_kernel(acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, zero,
+                                         sys_var, theta, 1e12)[0]
+    assert status == pk.FALLBACK
+    got = posterior_from_normal(acc, zero, np.zeros(p), sys_var, lower)
+    want = posterior_from_normal_reference(acc, zero, np.zeros(p), sys_var, lower)
+    for f in FIELDS:
+        assert_array_equal(getattr(got, f), getattr(want, f), err_msg=f)
+    # positive definite but nearly singular (pivot ratio < PIVOT_RATIO_MIN): left to the reference
+    weak = 1e-9 * n_pr
+    ri = acc.info_reference + weak
+    assert pk._cholesky(ri, np.empty((p, p))) < pk.PIVOT_RATIO_MIN
+    got = posterior_from_normal(acc, weak, r_pr, sys_var, lower)
+    want = posterior_from_normal_reference(acc, weak, r_pr, sys_var, lower)
+    for f in FIELDS:
+        assert_array_equal(getattr(got, f), getattr(want, f), err_msg=f)
+    # an indefinite information matrix (np.linalg.inv path of the reference)
+    bad = n_pr.copy()
+    bad[0, 0] = -2.0 * acc.info[0, 0] - 1.0
+    status = pk.posterior_kernel(acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, bad, r_pr,
+                                 sys_var, lower, 1e12)[0]
+    assert status == pk.FALLBACK
+    for lo in (lower, -np.inf):  # the NNLS path fails on the indefinite bounded block like the reference does
+        try:
+            want = posterior_from_normal_reference(acc, bad, r_pr, sys_var, lo)
+        except np.linalg.LinAlgError:
+            with pytest.raises(np.linalg.LinAlgError):
+                posterior_from_normal(acc, bad, r_pr, sys_var, lo)
+            continue
+        got = posterior_from_normal(acc, bad, r_pr, sys_var, lo)
+        for f in FIELDS:
+            assert_array_equal(getattr(got, f), getattr(want, f), err_msg=f)
+
+
+def test_posterior_rejects_wrong_shapes():
+    p, n_free, r = SIZES["deutz-1cyl"]
+    acc, n_pr, r_pr, sys_var, lower = _problem(0, p, n_free, r)
+    with pytest.raises(ValueError, match="sys_var"):
+        posterior_from_normal(acc, n_pr, r_pr, sys_var[:-1], lower)
+    with pytest.raises(ValueError, match="n_pr"):
+        posterior_from_normal(acc, n_pr[:-1], r_pr, sys_var, lower)
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("layout", ["nuisances_last", "mixed", "all_bounded", "all_free", "scalar_lower"])
+def test_bounded_solve_matches_nnls_reference(seed, layout):
+    rng = np.random.default_rng(100 + seed)
+    p = 47
+    a = rng.normal(size=(80, p)) * np.logspace(-3, 3, p)
+    truth = 1.0 + rng.random(p)
+    if seed % 2:  # half the cases: bounds active
+        truth[rng.choice(p, 5, replace=False)] = -2.0
+    y = a @ truth + 0.1 * rng.normal(size=80)
+    lower = {"nuisances_last": np.concatenate([np.zeros(23), np.full(24, -np.inf)]),
+             "mixed": np.where(rng.random(p) < 0.5, -np.inf, 0.5 * rng.random(p)),
+             "all_bounded": np.zeros(p), "all_free": np.full(p, -np.inf), "scalar_lower": 0.0}[layout]
+    info, rhs = a.T @ a, a.T @ y
+    got = bounded_solve(info, rhs, lower)
+    want = bounded_solve_nnls(info, rhs, lower)
+    lo = np.broadcast_to(lower, (p,))
+    assert np.all(got >= lo)
+    # compared in the scaled unknowns x = d theta (the problem is solved in them; columns span 1e-3..1e3)
+    d = np.sqrt(np.diag(info))
+    assert_allclose(got * d, want * d, rtol=0, atol=1e-10 * np.max(np.abs(want * d)))
+
+
+def test_bounded_solve_near_a_bound_leaves_it_to_nnls():
+    # unconstrained optimum at +1e-13 (scaled) of the bound: within the margin, NNLS decides, as before
+    info = np.array([[2.0, 0.5], [0.5, 1.0]])
+    x = np.array([1e-13, 1.0])
+    rhs = info @ x
+    status, _ = pk.bounded_solve_kernel(info, rhs, np.zeros(2))
+    assert status == pk.NEEDS_BOUND
+    assert_array_equal(bounded_solve(info, rhs), bounded_solve_nnls(info, rhs))
+
+
+@pytest.mark.parametrize("n", [1, 5, 28, 47])
+def test_helpers_match_numpy(n):
+    rng = np.random.default_rng(n)
+    m = rng.normal(size=(n + 3, n)) * np.logspace(-2, 2, n)
+    a = m.T @ m
+    chol = np.empty((n, n))
+    ratio = pk._cholesky(a, chol)
+    want = np.linalg.cholesky(a)
+    assert 0 < ratio <= 1
+    assert_allclose(chol, want, rtol=0, atol=1e-13 * np.abs(want).max(axis=1, keepdims=True).max())
+    inv = pk._cho_inverse(chol)
+    assert_array_equal(inv, inv.T)
+    s = np.sqrt(np.outer(np.diag(inv), np.diag(inv)))
+    assert np.max(np.abs(inv - np.linalg.inv(a)) / s) < 1e-11
+    b = rng.normal(size=n)
+    x = pk._cho_solve(chol, b)
+    d = np.sqrt(np.diag(a))
+    assert_allclose(x * d, np.linalg.solve(a, b) * d, rtol=0, atol=1e-11 * np.max(np.abs(np.linalg.solve(a, b) * d)))
+    indefinite = a.copy()
+    indefinite[-1, -1] = -1.0
+    assert pk._cholesky(indefinite, np.empty((n, n))) == -1.0
