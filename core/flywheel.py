@@ -17,9 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
-from core.flywheel_kernels import _fit_design
+from core.flywheel_kernels import BAD_SPAN, NOT_INCREASING, OK, _fit_angles, _prepare_fit, _tooth_update
 
 FOUR_PI = 4.0 * np.pi
 
@@ -140,24 +139,44 @@ def fit_flywheel(
 @dataclass(frozen=True)
 class FitSetup:
     """The angle-independent part of one cycle's flywheel fit (``prepare_fit``): time grid, design matrix, the
-    factored normal equations on unit-scaled columns and the fitted pattern harmonics."""
+    Cholesky-factored normal equations on unit-scaled columns and the fitted pattern harmonics.
+
+    design_rows (p, n_edges) = design^T, C-contiguous (``design`` is its (n_edges, p) transpose view);
+    scale (p,) column norms of the design; chol (p, p) upper U with U^T U = the unit-scaled normal matrix."""
 
     tau: np.ndarray
     period: float
     omega: float
-    design: np.ndarray
+    design_rows: np.ndarray
     scale: np.ndarray
-    scaled: np.ndarray
-    factor: tuple[np.ndarray, np.ndarray]
+    chol: np.ndarray
     n_harmonics: int
     m_fit: int
     n_drift: int
     pattern_harmonics: np.ndarray
 
+    @property
+    def design(self) -> np.ndarray:
+        """(n_edges, p) design matrix [1, (u (u - 1)), cos(w_m tau)..., sin(w_m tau)...]."""
+        return self.design_rows.T
+
+    @property
+    def scaled(self) -> np.ndarray:
+        """(n_edges, p) design with unit-norm columns."""
+        return self.design / self.scale
+
 
 def prepare_fit(tooth_ticks: np.ndarray, tick_hz: float, n_harmonics: int, patterns: np.ndarray | None = None,
-                fit_harmonics: int | None = None, drift: bool = True) -> FitSetup:
-    """Design, normal equations and pattern fit of the edges ``tooth_ticks`` (see ``fit_flywheel``)."""
+                fit_harmonics: int | None = None, drift: bool = True, drift_pattern: bool = False,
+                pattern_period: int = 0) -> FitSetup:
+    """Design, normal equations and pattern fit of the edges ``tooth_ticks`` (see ``fit_flywheel``).
+
+    ``drift_pattern`` appends one more pattern column, the angle of a linear speed drift over the cycle,
+    u (u - 1) with u = (ticks - ticks[0]) / (ticks[-1] - ticks[0]) (built in the kernel, no (n, q) copy).
+    ``pattern_period`` T > 0 states that pattern row e + T equals row e (tooth patterns repeat every revolution;
+    the caller checks it, e.g. with ``core.tooth_fit_kernels._revolution_period``): the fit then uses rows 0..T-1
+    only and sums the design over the repeats first (half the pattern product for a two-revolution cycle; the
+    results move by the rounding of the patterns' own repeat, ~1e-14)."""
     ticks = np.asarray(tooth_ticks)
     if ticks.ndim != 1:
         raise ValueError(f"tooth_ticks must be 1-D, got shape {ticks.shape}")
@@ -167,28 +186,40 @@ def prepare_fit(tooth_ticks: np.ndarray, tick_hz: float, n_harmonics: int, patte
     n_par = 2 * m_fit + n_drift
     if n_edges < n_par + 4:
         raise ValueError(f"{n_edges} tooth edges cannot carry {n_harmonics} harmonics; lower the order limit")
-    if np.any(np.diff(ticks) <= 0):
-        raise ValueError("tooth times and angles must be strictly increasing")
-    tau = (ticks - ticks[0]).astype(np.float64) / tick_hz  # exact integer differences, then seconds
-    period = float(tau[-1])
-    omega = FOUR_PI / period
-    design = np.empty((n_edges, n_par))
-    _fit_design(tau, period, 0.5 * omega, n_drift, m_fit, design)
-    # normal equations on unit-scaled columns: the Fourier columns are nearly orthogonal over the edges, so this is
-    # well conditioned and ~10x cheaper than an SVD least squares
-    scale = np.sqrt(np.einsum("ij,ij->j", design, design))
-    d = design / scale
-    factor = scipy.linalg.lu_factor(d.T @ d, check_finite=False)
-    c0, s0 = n_drift, n_drift + m_fit
-    if patterns is None or np.shape(patterns)[-1] == 0:
-        pat = np.zeros((n_harmonics, 0), dtype=np.complex128)
+    if patterns is None:
+        pat_in = _NO_PATTERNS[:n_edges] if n_edges <= _NO_PATTERNS.shape[0] else np.zeros((n_edges, 0))
     else:
-        p = np.asarray(patterns, dtype=np.float64)
-        if p.ndim != 2 or p.shape[0] != n_edges:
-            raise ValueError(f"patterns must have one row per edge ({n_edges}), got {p.shape[0]}")
-        sol = scipy.linalg.lu_solve(factor, d.T @ p, check_finite=False) / scale[:, None]
-        pat = sol[c0 : c0 + n_harmonics] - 1j * sol[s0 : s0 + n_harmonics]
-    return FitSetup(tau, period, omega, design, scale, d, factor, n_harmonics, m_fit, n_drift, pat)
+        pat_in = np.asarray(patterns, dtype=np.float64)
+        if pat_in.ndim != 2 or pat_in.shape[0] != n_edges:
+            raise ValueError(f"patterns must have one row per edge ({n_edges}), got {pat_in.shape[0]}")
+        if pattern_period:
+            if not 0 < pattern_period <= n_edges:
+                raise ValueError(f"pattern_period must be in 1..{n_edges}, got {pattern_period}")
+            pat_in = pat_in[:pattern_period]
+        if not pat_in.flags.c_contiguous:
+            pat_in = np.ascontiguousarray(pat_in)
+    if not ticks.flags.c_contiguous:
+        ticks = np.ascontiguousarray(ticks)
+    tau = np.empty(n_edges)
+    design_rows = np.empty((n_par, n_edges))
+    scale = np.empty(n_par)
+    chol = np.empty((n_par, n_par))
+    pat = np.empty((n_harmonics, pat_in.shape[1] + (1 if drift_pattern else 0)), dtype=np.complex128)
+    try:
+        status = _prepare_fit(ticks, float(tick_hz), n_drift, m_fit, n_harmonics, pat_in,
+                              int(pattern_period) if patterns is not None else 0, bool(drift_pattern), tau,
+                              design_rows, scale, chol, pat)
+    except np.linalg.LinAlgError as exc:
+        raise ValueError(f"the tooth edges give a singular flywheel fit ({exc})") from exc
+    if status == NOT_INCREASING:
+        raise ValueError("tooth times and angles must be strictly increasing")
+    if status != OK:
+        raise ValueError("the tooth edges give a singular flywheel fit")
+    period = float(tau[-1])
+    return FitSetup(tau, period, FOUR_PI / period, design_rows, scale, chol, n_harmonics, m_fit, n_drift, pat)
+
+
+_NO_PATTERNS = np.zeros((4096, 0))  # a C-contiguous (n, 0) for fits without patterns
 
 
 def fit_prepared(setup: FitSetup, tooth_angle: np.ndarray) -> FlywheelMotion:
@@ -197,24 +228,24 @@ def fit_prepared(setup: FitSetup, tooth_angle: np.ndarray) -> FlywheelMotion:
     tau = setup.tau
     if ang.shape != tau.shape:
         raise ValueError(f"tooth_ticks and tooth_angle must be 1-D of equal length, got {tau.shape}, {ang.shape}")
-    if np.any(np.diff(ang) <= 0):
+    if not ang.flags.c_contiguous:
+        ang = np.ascontiguousarray(ang)
+    harm = np.empty(setup.n_harmonics, dtype=np.complex128)
+    resid = np.empty(tau.shape[0])
+    status, offset, drift, rms = _fit_angles(setup.design_rows, setup.scale, setup.chol, tau, setup.omega, ang,
+                                             setup.n_drift, setup.m_fit, harm, resid)
+    if status == NOT_INCREASING:
         raise ValueError("tooth times and angles must be strictly increasing")
-    span = ang[-1] - ang[0]
-    if abs(span - FOUR_PI) > 1e-6:
-        raise ValueError(f"the edges must span one 720 deg cycle, got {np.degrees(span):.3f} deg")
-    phi = ang - ang[0] - setup.omega * tau
-    coef = scipy.linalg.lu_solve(setup.factor, setup.scaled.T @ phi, check_finite=False) / setup.scale
-    resid = phi - setup.design @ coef
-    m = setup.n_harmonics
-    c0, s0 = setup.n_drift, setup.n_drift + setup.m_fit
+    if status == BAD_SPAN:
+        raise ValueError(f"the edges must span one 720 deg cycle, got {np.degrees(ang[-1] - ang[0]):.3f} deg")
     return FlywheelMotion(
         period=setup.period,
-        omega_mean=float(setup.omega),
-        harmonics=coef[c0 : c0 + m] - 1j * coef[s0 : s0 + m],
-        offset=float(coef[0]),
-        drift=float(coef[1]) if setup.n_drift == 2 else 0.0,
-        residual_rms=float(np.sqrt(np.mean(resid**2))),
-        n_edges=int(tau.shape[0]),
+        omega_mean=setup.omega,
+        harmonics=harm,
+        offset=offset,
+        drift=drift,
+        residual_rms=rms,
+        n_edges=tau.shape[0],
         edge_residual=resid,
         pattern_harmonics=setup.pattern_harmonics,
     )
@@ -240,15 +271,9 @@ class ToothLearner:
 
     def update(self, tooth_index: np.ndarray, residual: np.ndarray, memory: float) -> ToothLearner:
         """Fold in one cycle's edge residuals (the closing edge, a repeat of the first position, is ignored)."""
-        n = self.correction.shape[0]
-        pos = np.asarray(tooth_index[:-1]) % n
-        r = np.asarray(residual[:-1])
-        total = np.bincount(pos, weights=r, minlength=n)
-        hits = np.bincount(pos, minlength=n)
-        seen = hits > 0
-        g = max(1.0 - memory, 1.0 / (self.count + 1))
-        c = self.correction.copy()
-        # an edge whose tooth sits eps further than assumed is reached later: its residual is -(eps - correction)
-        c[seen] -= g * total[seen] / hits[seen]
-        c[seen] -= c[seen].mean()  # tooth errors sum to zero over a revolution
-        return ToothLearner(c, self.count + 1)
+        idx = np.asarray(tooth_index)
+        r = np.asarray(residual, dtype=np.float64)
+        if idx.shape != r.shape or idx.ndim != 1:
+            raise ValueError(f"tooth_index and residual must be 1-D of equal length, got {idx.shape}, {r.shape}")
+        gain = max(1.0 - memory, 1.0 / (self.count + 1))
+        return ToothLearner(_tooth_update(self.correction, idx, r, gain), self.count + 1)

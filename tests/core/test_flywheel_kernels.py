@@ -1,33 +1,12 @@
-"""The flywheel-fit design kernel against its plain numpy definition (core.flywheel docstring: columns 1, u(u-1),
-cos(w_m tau), sin(w_m tau), w_m = m Omega / 2). The recurrence is re-seeded every 8 harmonics: agreement to 1e-13."""
+"""The flywheel-fit kernels against their plain numpy definitions (core.flywheel docstring: columns 1, u(u-1),
+cos(w_m tau), sin(w_m tau), w_m = m Omega / 2; the recurrence agrees with direct trig to 1e-13), and the whole fit
+against an SVD least squares."""
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
 from core.flywheel import fit_flywheel
-from core.flywheel_kernels import _fit_design
-
-
-@pytest.mark.parametrize("seed", [0, 1, 2])
-@pytest.mark.parametrize("n_drift", [1, 2])
-@pytest.mark.parametrize("n_harm", [1, 7, 30])
-def test_fit_design_matches_direct_trig(seed, n_drift, n_harm):
-    rng = np.random.default_rng(seed)
-    period = 0.08
-    tau = np.sort(rng.uniform(0, period, 317))
-    tau[0], tau[-1] = 0.0, period
-    w = 0.5 * (4 * np.pi / period) * np.arange(1, n_harm + 1)
-    want = np.empty((tau.size, n_drift + 2 * n_harm))
-    want[:, 0] = 1.0
-    if n_drift == 2:
-        u = tau / period
-        want[:, 1] = u * (u - 1.0)
-    want[:, n_drift: n_drift + n_harm] = np.cos(np.outer(tau, w))
-    want[:, n_drift + n_harm:] = np.sin(np.outer(tau, w))
-    got = np.empty_like(want)
-    _fit_design(tau, period, w[0], n_drift, n_harm, got)
-    assert_allclose(got, want, rtol=0, atol=1e-13)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -54,3 +33,33 @@ def test_fit_flywheel_is_the_least_squares_fit(seed):
     assert_allclose(fly.pattern_harmonics, sol[2:12, 1:] - 1j * sol[14:24, 1:], rtol=1e-8, atol=1e-12)
     assert_allclose(fly.edge_residual, phi - design @ sol[:, 0], atol=1e-12)
     assert fly.drift == pytest.approx(sol[1, 0], rel=1e-8, abs=1e-14)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("n_drift", [1, 2])
+@pytest.mark.parametrize("n_harm", [1, 7, 24, 30])
+def test_prepare_fit_design_and_normal_matrix(seed, n_drift, n_harm):
+    """_prepare_fit's design rows (recurrence across edges, no re-seed) match direct trig to 1e-13, and its
+    Cholesky factor reproduces D^T D on unit-scaled columns (power-sum identities, module docstring)."""
+    from core.flywheel_kernels import OK, _prepare_fit
+
+    rng = np.random.default_rng(seed)
+    n = 317
+    ticks = np.cumsum(rng.integers(2000, 3000, n)).astype(np.int64)
+    tick_hz = 1e7
+    tau = (ticks - ticks[0]) / tick_hz
+    period = tau[-1]
+    w = 0.5 * (4 * np.pi / period) * np.arange(1, n_harm + 1)
+    cols = [np.ones(n)] + ([(tau / period) * (tau / period - 1.0)] if n_drift == 2 else [])
+    want = np.column_stack(cols + [np.cos(np.outer(tau, w)), np.sin(np.outer(tau, w))])
+    p = want.shape[1]
+    got_tau, rows, scale, chol = np.empty(n), np.empty((p, n)), np.empty(p), np.empty((p, p))
+    status = _prepare_fit(ticks, tick_hz, n_drift, n_harm, n_harm, np.zeros((n, 0)), 0, False, got_tau, rows, scale,
+                          chol, np.empty((n_harm, 0), dtype=np.complex128))
+    assert status == OK
+    assert_allclose(got_tau, tau, rtol=0, atol=0)
+    assert_allclose(rows.T, want, rtol=0, atol=1e-13)
+    assert_allclose(scale, np.linalg.norm(want, axis=0), rtol=1e-13)
+    d = want / np.linalg.norm(want, axis=0)
+    assert_allclose(chol.T @ chol, d.T @ d, rtol=0, atol=1e-12)
+    assert_allclose(np.tril(chol, -1), 0.0)
