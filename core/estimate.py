@@ -8,6 +8,7 @@ import numpy as np
 from core.accumulate import Posterior
 from core.engine import EngineSpec
 from core.identify import ParameterLayout
+from core.monitor_kernels import estimate_into
 from core.results import FrictionEstimate
 
 FOUR_PI = 4.0 * np.pi
@@ -33,40 +34,49 @@ def friction_estimate(
     cylinder_rows (z, P): ``layout.cylinder_rows(basis_mean)`` if already at hand.
     """
     z = spec.n_cyl
-    theta = post.theta
-    a = layout.coefficients(theta)
-    a_sig = layout.prior * np.sqrt(np.clip(np.diag(post.covariance), 0.0, None))[layout.group]
-    a_norm = a * basis_mean
-    a_norm_sig = a_sig * basis_mean
+    p_f = layout.n_params
+    theta = np.ascontiguousarray(post.theta, dtype=np.float64)
+    if theta.shape != (p_f,):
+        raise ValueError(f"the posterior must be over the {p_f} friction parameters, got theta of shape {theta.shape}")
+    basis_mean = np.ascontiguousarray(basis_mean, dtype=np.float64)
     rows = layout.cylinder_rows(basis_mean) if cylinder_rows is None else cylinder_rows  # (z, P)
-    t_cyl = rows @ theta
-    t_sig = post.sigma_of(rows)
-    total_row = rows.sum(axis=0)
-    t_tot = float(total_row @ theta)
-    t_tot_sig = float(post.sigma_of(total_row)[0])
-    # what the speed adds is the split among cylinders (the total is the mean balance's): judge the deviation of
-    # each cylinder from the equal share
-    gain = post.data_gain(rows - rows.sum(axis=0) / z)
-    resolved = (t_sig <= resolve_rel * np.abs(t_cyl)) & (gain >= min_data_gain)
-    gain_p = post.diagonal_gain()[layout.group]  # = post.data_gain(np.eye(P))
-    coef_ok = (a_norm > coefficient_snr * a_norm_sig) & (layout.prior > 0) & (gain_p >= min_data_gain)
-    to_mep_cyl = FOUR_PI / spec.displacement_cyl
-    to_mep_eng = FOUR_PI / spec.displacement
+    rows = np.ascontiguousarray(rows, dtype=np.float64)
+    group = layout.group
+    t_mean = np.empty(z)
+    t_sig = np.empty(z)
+    fmep = np.empty(z)
+    fmep_sig = np.empty(z)
+    shape = group.shape
+    coef = np.empty(shape)
+    coef_sig = np.empty(shape)
+    coef_norm = np.empty(shape)
+    coef_norm_sig = np.empty(shape)
+    resolved = np.empty(z, dtype=bool)
+    coef_ok = np.empty(shape, dtype=bool)
+    gain = np.empty(z)
+    totals = np.empty(4)
+    # one kernel: coefficients and their sigmas, per-cylinder and total means with sigmas (quadratic forms through
+    # the covariance, row by row), data gains of the deviations from the equal share, resolved masks
+    estimate_into(theta, post.covariance, post.cov_statistical, post.cov_reference, group,
+                  np.ascontiguousarray(layout.prior, dtype=np.float64), basis_mean, rows, float(resolve_rel),
+                  float(coefficient_snr), float(min_data_gain), FOUR_PI / spec.displacement_cyl,
+                  FOUR_PI / spec.displacement, t_mean, t_sig, fmep, fmep_sig, coef, coef_sig, coef_norm,
+                  coef_norm_sig, resolved, coef_ok, gain, totals)
     return FrictionEstimate(
-        friction_torque_mean=np.where(resolved, t_cyl, np.nan),
+        friction_torque_mean=t_mean,
         friction_torque_mean_sigma=t_sig,
-        fmep=np.where(resolved, t_cyl * to_mep_cyl, np.nan),
-        fmep_sigma=t_sig * to_mep_cyl,
-        coefficients=np.where(coef_ok, a, np.nan),
-        coefficients_sigma=a_sig,
-        coefficients_normalised=np.where(coef_ok, a_norm, np.nan),
-        coefficients_normalised_sigma=a_norm_sig,
+        fmep=fmep,
+        fmep_sigma=fmep_sig,
+        coefficients=coef,
+        coefficients_sigma=coef_sig,
+        coefficients_normalised=coef_norm,
+        coefficients_normalised_sigma=coef_norm_sig,
         resolved=resolved,
         coefficient_resolved=coef_ok,
-        total_friction_torque=t_tot,
-        total_friction_torque_sigma=t_tot_sig,
-        total_fmep=t_tot * to_mep_eng,
-        total_fmep_sigma=t_tot_sig * to_mep_eng,
+        total_friction_torque=float(totals[0]),
+        total_friction_torque_sigma=float(totals[1]),
+        total_fmep=float(totals[2]),
+        total_fmep_sigma=float(totals[3]),
         prior_friction_torque_mean=np.asarray(prior_mean, dtype=np.float64).reshape(z),
         data_gain=gain,
         weight=float(post.weight),

@@ -80,6 +80,18 @@ def _peak_pressure(theta, pressure, phases, pmax, angle):
         pmax[k] = y1 - 0.25 * (y0 - y2) * frac
 
 
+@numba.njit(cache=True)
+def _peak_pressure_finite(theta, pressure, phases, pmax, angle):
+    """``_peak_pressure`` and the number of non-finite samples of pressure (z, n) (C-contiguous)."""
+    bad = 0
+    flat = pressure.ravel()
+    for i in range(flat.shape[0]):
+        if not np.isfinite(flat[i]):
+            bad += 1
+    _peak_pressure(theta, pressure, phases, pmax, angle)
+    return bad
+
+
 def peak_pressure(theta: np.ndarray, pressure: np.ndarray, phases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Peak pressure [Pa] per cylinder and its angle [rad] relative to that cylinder's firing TDC, in [-2pi, 2pi).
 

@@ -26,7 +26,7 @@ Per cycle:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -35,13 +35,14 @@ from core.cycle_report import build_result
 from core.dynamics import dissipated_power
 from core.engine import EngineSpec
 from core.estimate import friction_estimate
-from core.flywheel import ToothLearner
+from core.flywheel import FlywheelMotion, ToothLearner
 from core.harmonic_balance import OperatingPoint, harmonic_balance, operating_point
-from core.identify import ParameterLayout, parameter_layout, whiten
-from core.indicated import peak_pressure
+from core.identify import CycleRows, ParameterLayout, parameter_layout
+from core.indicated import _peak_pressure_finite, peak_pressure
+from core.monitor_kernels import firing_into, noise_rows, pairwise_sum, share_normal_into
 from core.priors import build_priors
 from core.results import CycleResult
-from core.sharing import SharedLoss, firing_mask, motored_friction_per_cylinder, share_mean_loss
+from core.sharing import SharedLoss, motored_friction_per_cylinder, share_mean_loss
 from core.tooth_fit import fit_cycle_teeth
 from core.types import Cycle
 
@@ -175,7 +176,7 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
                   config: MonitorConfig | None = None) -> tuple[MonitorState, CycleResult]:
     """Analyse one cycle. Raises ``CycleRejected`` (state unchanged) when the cycle cannot be used."""
     cfg = config or MonitorConfig()
-    pressure, flags = _checked_pressure(spec, cycle)
+    pressure, flags, pmax, pmax_angle = _checked_pressure_peaks(spec, cycle)
     m = state.n_harmonics
     try:
         fly, teeth, theta_start, pattern_cache = fit_cycle_teeth(
@@ -206,52 +207,22 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
     # no kinetic-energy term: a per-cycle estimate of it from the fitted drift is biased by any content the fit
     # lacks, while the uncorrected balance telescopes (its cycle-to-cycle noise averages out in the accumulation)
     balance = t_i - load - coupling_loss if np.isfinite(load) else float("nan")
-    rows = replace(rows, mean_target=balance)
 
-    # noise model from past residuals, floor from the tooth-fit residual
-    resid = rows.target - rows.design @ state.theta
     # cycle-to-cycle speed change: a random walk of the mean speed, its step variance tracks the within-cycle drift
     step = omega - state.prev_omega if np.isfinite(state.prev_omega) else 0.0
     drift_var = step**2 if state.cycles <= 1 else state.drift_var + max(1.0 - cfg.noise_memory, 1.0 / state.cycles) * (
         step**2 - state.drift_var)
-    drift_col = 1j * fly.freq * fly.pattern_harmonics[:, -1] if cfg.drift_nuisance else None
-    if drift_col is not None:  # the noise statistics see the residual without this cycle's best-fitting drift
-        d = drift_col
-        resid = resid - d * (np.vdot(d, resid).real / max(float(np.vdot(d, d).real), 1e-300))
-    bal_resid = balance - float(rows.mean_row @ state.theta) if np.isfinite(balance) else 0.0
-    stats = state.stats.update(resid, bal_resid, cfg.noise_memory)
-    floor = fly.freq**2 * 2.0 * fly.residual_rms**2 / fly.n_edges + 1e-12
-    sigma = np.sqrt(np.maximum(stats.var, floor))
-    sigma_bal = np.sqrt(max(stats.balance_var, (0.002 * t_i) ** 2, 1e-6)) if stats.count > 2 else 0.05 * abs(t_i)
-    a, y = whiten(rows, sigma)
-    if drift_col is not None and drift_var > 0:
-        # this cycle's drift is a random effect of prior variance s^2 (never accumulated): whiten with
-        # (I + s^2 d d^T)^-1 = W^T W, W = I - c d d^T, c ||d||^2 = 1 - 1/sqrt(1 + s^2 ||d||^2) (Sherman-Morrison);
-        # a large drift projects its column out, a small one leaves the order-0.5 information in place
-        d = drift_col
-        dw = np.concatenate([d.real, d.imag]) / np.concatenate([sigma, sigma])
-        nd = float(dw @ dw)
-        s2 = drift_var * (0.5 * fly.period) ** 2  # drift coefficient c_1 = Delta omega T / 2 [rad]
-        if nd > 0:
-            c = (1.0 - 1.0 / np.sqrt(1.0 + s2 * nd)) / nd
-            a = a - c * np.outer(dw, dw @ a)
-            y = y - c * dw * (dw @ y)
-    inv_sigma = np.concatenate([1.0 / sigma, 1.0 / sigma, [1.0 / sigma_bal]])
-    if np.isfinite(balance):
-        a = np.vstack([a, rows.mean_row / sigma_bal])
-        y = np.append(y, balance / sigma_bal)
-    else:  # no load: the mean is not measured this cycle; the row carries nothing
-        a = np.vstack([a, np.zeros(a.shape[1])])
-        y = np.append(y, 0.0)
+    # noise model from past residuals (the residual without this cycle's best-fitting drift), floor from the
+    # tooth-fit residual; whitened rows; this cycle's drift a random effect of prior variance s^2 (never
+    # accumulated): whitened with (I + s^2 d d^T)^-1 = W^T W, W = I - c d d^T, c ||d||^2 = 1 - 1/sqrt(1 + s^2 ||d||^2)
+    # (Sherman-Morrison), so a large drift projects its column out and a small one leaves the order-0.5
+    # information in place; the last row is the mean balance (zero when there is no load measurement);
+    # systematic variances from the persistent residual and the model-error floors (core.monitor_kernels)
+    stats, a, y, inv_sigma, sys_var, freq = _noise_model_rows(cfg, spec, state, fly, rows, balance, t_i, drift_var,
+                                                              coupling_loss)
     lam = cfg.forgetting if cfg.forgetting is not None else 1.0 - 1.0 / max(400.0, 100.0 * spec.n_cyl)
     terms = state.accumulator.cycle_terms(a, y, inv_sigma, 1)  # shared by the running and this cycle's equations
     acc = state.accumulator.fold(terms, lam) if state.cycles >= cfg.warmup_cycles else state.accumulator
-    sys_var = np.concatenate([
-        np.maximum(np.abs(stats.mean) ** 2, (cfg.model_rel_error * np.abs(fly.speed_harmonics)) ** 2) / 2.0,
-        np.maximum(np.abs(stats.mean) ** 2, (cfg.model_rel_error * np.abs(fly.speed_harmonics)) ** 2) / 2.0,
-        [(cfg.balance_rel_error * t_i) ** 2 + (cfg.coupling_rel_error * coupling_loss) ** 2
-         + (cfg.load_rel_error * spec.rated_torque_nm) ** 2],
-    ])
 
     # running means for the sharing prior of the smoothed estimate
     g = max(1.0 - lam, 1.0 / (state.cycles + 1))
@@ -263,10 +234,14 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
         bal_mean = state.balance_mean + g * (balance - state.balance_mean)
     ind_mean = exc.indicated_mean.copy() if state.cycles == 0 else state.indicated_mean + g * (
         exc.indicated_mean - state.indicated_mean)
-    pmax, pmax_angle = peak_pressure(cycle.grid, pressure, spec.firing_angles)
     rpm = omega * 60.0 / (2.0 * np.pi)
-    not_firing = ~firing_mask(exc.indicated_mean)
-    motored = motored_friction_per_cylinder(spec, rpm, float(np.mean(pmax[not_firing])) if not_firing.any() else 0.0)
+    z = spec.n_cyl
+    fire = np.empty(z, dtype=np.bool_)
+    n_fire = firing_into(exc.indicated_mean, 0.15, fire)
+    pmax_motored = 0.0
+    if n_fire < z:  # np.mean of the motored cylinders' peaks
+        pmax_motored = pairwise_sum(np.ascontiguousarray(pmax[~fire]), 0, z - n_fire) / (z - n_fire)
+    motored = motored_friction_per_cylinder(spec, rpm, pmax_motored)
 
     layout = state.layout
     p_f = layout.n_params
@@ -277,27 +252,31 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
         base = build_priors(spec, layout, state.n_nuisance, np.zeros((spec.n_cyl, p_f + state.n_nuisance)),
                             cfg.parameter_sigma, cfg.tooth_error_deg, cfg.sibling_spread).base
         prior_normal = (prior_key, *base.normal())
-    cyl_rows = np.zeros((spec.n_cyl, p_f + state.n_nuisance))
-    cyl_rows[:, :p_f] = rows.cylinder_rows
-    lower = np.concatenate([np.zeros(p_f), np.full(state.n_nuisance, -np.inf)])
-    share_s = share_mean_loss(bal_mean, ind_mean, motored, cfg.share_spread)
-    post_s = posterior_from_normal(acc, *_with_share(prior_normal, cyl_rows, share_s), sys_var, lower)
-    one = Accumulator.empty(acc.info.shape[0], 2 * m + 1).fold(terms, 0.0)
-    share_c = share_mean_loss(balance if np.isfinite(balance) else bal_mean, exc.indicated_mean, motored,
-                              cfg.share_spread)
-    post_c = posterior_from_normal(one, *_with_share(prior_normal, cyl_rows, share_c), sys_var, lower)
+    lower = _lower_bounds(p_f, state.n_nuisance)
+    share_s, n_s, r_s = _share_and_normal(prior_normal, rows.cylinder_rows, bal_mean, ind_mean, motored,
+                                          cfg.share_spread)
+    post_s = posterior_from_normal(acc, n_s, r_s, sys_var, lower)
+    # this cycle's equations alone: lambda = 0 folded into an empty accumulator is the cycle's terms themselves
+    one = Accumulator(terms.info, terms.rhs, terms.yty, 1.0, terms.rows, terms.sys_map, terms.info_reference)
+    share_c, n_c, r_c = _share_and_normal(prior_normal, rows.cylinder_rows,
+                                          balance if np.isfinite(balance) else bal_mean, exc.indicated_mean, motored,
+                                          cfg.share_spread)
+    post_c = posterior_from_normal(one, n_c, r_c, sys_var, lower)
     est_s = friction_estimate(spec, layout, post_s.head(p_f), exc.basis_mean, share_s.friction_mean,
                               cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain, rows.cylinder_rows)
     est_c = friction_estimate(spec, layout, post_c.head(p_f), exc.basis_mean, share_c.friction_mean,
                               cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain, rows.cylinder_rows)
-    flags += [f"misfire_cyl{k + 1}" for k in np.flatnonzero(share_c.motored)]
+    if n_fire < z:
+        flags += [f"misfire_cyl{k + 1}" for k in np.flatnonzero(share_c.motored)]
 
+    drift_col = freq_times_1j(freq, fly.pattern_harmonics[:, -1]) if cfg.drift_nuisance else None
     result = build_result(spec, cycle, fly, exc, rows, post_s.theta, layout, drift_col, load, balance,
                           coupling_loss, pmax, pmax_angle, est_c, est_s, flags)
-    new_state = replace(state, accumulator=acc, stats=stats, theta=post_s.theta, op=op, relative_motion=rel,
-                        static=static, teeth=teeth, prev_omega=omega, drift_var=drift_var,
-                        balance_mean=bal_mean, indicated_mean=ind_mean, cycles=state.cycles + 1,
-                        tooth_pattern_cache=pattern_cache, prior_normal=prior_normal)
+    new_state = MonitorState(
+        layout=layout, n_harmonics=m, n_nuisance=state.n_nuisance, accumulator=acc, stats=stats, theta=post_s.theta,
+        op=op, relative_motion=rel, static=static, teeth=teeth, balance_mean=bal_mean, indicated_mean=ind_mean,
+        cycles=state.cycles + 1, prev_omega=omega, drift_var=drift_var, tooth_pattern_cache=pattern_cache,
+        prior_normal=prior_normal)
     return new_state, result
 
 
@@ -338,3 +317,93 @@ def _checked_pressure(spec: EngineSpec, cycle: Cycle) -> tuple[np.ndarray, list[
     return p, flags
 
 
+
+
+def _checked_pressure_peaks(spec: EngineSpec, cycle: Cycle) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:
+    """``_checked_pressure`` and ``peak_pressure`` of the checked pressure: one pass over clean samples."""
+    p = cycle.pressure
+    n = cycle.grid.shape[0]
+    phases = spec.firing_angles
+    if (type(p) is np.ndarray and p.dtype == np.float64 and p.flags.c_contiguous and p.shape == (spec.n_cyl, n)
+            and n >= 64 and cycle.grid.dtype == np.float64 and cycle.grid.flags.c_contiguous
+            and phases.dtype == np.float64 and phases.flags.c_contiguous):
+        span = (cycle.grid[-1] - cycle.grid[0]) * n / max(n - 1, 1)
+        if abs(span - FOUR_PI) <= 1e-6 * FOUR_PI:
+            pmax = np.empty(p.shape[0])
+            angle = np.empty(p.shape[0])
+            if _peak_pressure_finite(cycle.grid, p, phases, pmax, angle) == 0:
+                return p, list(cycle.flags), pmax, angle
+    pressure, flags = _checked_pressure(spec, cycle)  # the general path: checks, repairs, flags
+    pmax, angle = peak_pressure(cycle.grid, pressure, phases)
+    return pressure, flags, pmax, angle
+
+
+def _noise_model_rows(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fly: FlywheelMotion,
+                      rows: CycleRows, balance: float, t_i: float, drift_var: float, coupling_loss: float):
+    """Updated residual statistics, whitened rows a (2M+1, P), y, inv_sigma, sys_var (2M+1,) and the harmonic
+    frequencies (M,) of one cycle (core.monitor_kernels.noise_rows; the steps are described there and in
+    process_cycle)."""
+    m = state.n_harmonics
+    p = rows.design.shape[1]
+    st = state.stats
+    freq = fly.freq
+    floor = freq**2 * 2.0 * fly.residual_rms**2 / fly.n_edges + 1e-12
+    sys_balance = ((cfg.balance_rel_error * t_i) ** 2 + (cfg.coupling_rel_error * coupling_loss) ** 2
+                   + (cfg.load_rel_error * spec.rated_torque_nm) ** 2)
+    out_mean = np.empty(m, dtype=np.complex128)
+    out_var = np.empty(m)
+    out_scalars = np.empty(3)
+    a = np.empty((2 * m + 1, p))
+    y = np.empty(2 * m + 1)
+    inv_sigma = np.empty(2 * m + 1)
+    sys_var = np.empty(2 * m + 1)
+    noise_rows(np.ascontiguousarray(rows.design, dtype=np.complex128),
+               np.ascontiguousarray(rows.target, dtype=np.complex128),
+               np.ascontiguousarray(state.theta, dtype=np.float64), freq,
+               np.ascontiguousarray(fly.pattern_harmonics[:, -1], dtype=np.complex128), bool(cfg.drift_nuisance),
+               np.ascontiguousarray(st.mean, dtype=np.complex128), np.ascontiguousarray(st.var, dtype=np.float64),
+               np.array([st.balance_mean, st.balance_var, st.count], dtype=np.float64), float(cfg.noise_memory),
+               float(balance), np.ascontiguousarray(rows.mean_row, dtype=np.float64),
+               np.ascontiguousarray(floor, dtype=np.float64), float(t_i), float(drift_var), float(fly.period),
+               np.ascontiguousarray(fly.harmonics, dtype=np.complex128), float(cfg.model_rel_error),
+               float(sys_balance), out_mean, out_var, out_scalars, a, y, inv_sigma, sys_var)
+    stats = ResidualStats(mean=out_mean, var=out_var, balance_mean=float(out_scalars[0]),
+                          balance_var=float(out_scalars[1]), count=st.count + 1)
+    return stats, a, y, inv_sigma, sys_var, freq
+
+
+def freq_times_1j(freq: np.ndarray, harmonics: np.ndarray) -> np.ndarray:
+    """``1j * freq * harmonics`` (M,) complex."""
+    return 1j * freq * harmonics
+
+
+_LOWER: dict[tuple[int, int], np.ndarray] = {}
+
+
+def _lower_bounds(n_params: int, n_nuisance: int) -> np.ndarray:
+    """Lower bounds [0 for the friction scales, -inf (free) for the nuisances]; one read-only array per size."""
+    key = (n_params, n_nuisance)
+    lo = _LOWER.get(key)
+    if lo is None:
+        lo = np.concatenate([np.zeros(n_params), np.full(n_nuisance, -np.inf)])
+        lo.flags.writeable = False
+        _LOWER[key] = lo
+    return lo
+
+
+def _share_and_normal(prior_normal: tuple, cylinder_rows: np.ndarray, friction_total: float,
+                      indicated_mean: np.ndarray, motored_friction: float,
+                      spread: float) -> tuple[SharedLoss, np.ndarray, np.ndarray]:
+    """``share_mean_loss`` and ``_with_share`` in two kernel calls."""
+    share = share_mean_loss(friction_total, indicated_mean, motored_friction, spread)
+    _, n_base, r_base = prior_normal
+    rows = cylinder_rows
+    if not (rows.dtype == np.float64 and rows.flags.c_contiguous and n_base.flags.c_contiguous
+            and r_base.flags.c_contiguous):
+        n_pr, r_pr = _with_share(prior_normal, np.pad(rows, ((0, 0), (0, n_base.shape[0] - rows.shape[1]))), share)
+        return share, n_pr, r_pr
+    n_out = np.empty(n_base.shape)
+    r_out = np.empty(r_base.shape)
+    if share_normal_into(n_base, r_base, rows, share.friction_mean, share.sigma, n_out, r_out):
+        return share, n_out, r_out
+    return share, n_base, r_base

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.engine import EngineSpec
+from core.monitor_kernels import firing_into, share_into
 
 # Chen-Flynn defaults (engines.md §4; 1-D engine-code defaults, provenance not checked against SAE 650733)
 CHEN_FLYNN_BAR = (0.4, 0.005, 0.09, 0.0009)
@@ -41,14 +42,10 @@ def motored_friction_per_cylinder(spec: EngineSpec, rpm: float, pmax_motored_pa:
 
 def firing_mask(indicated_mean: np.ndarray, fraction: float = 0.15) -> np.ndarray:
     """True for cylinders that fire: indicated work above ``fraction`` of the median of the positive ones."""
-    t = np.asarray(indicated_mean, dtype=np.float64)
-    pos = np.sort(t[t > 0])
-    n = pos.size
-    if n == 0:
-        return np.zeros(t.shape, dtype=bool)
-    # np.median's value (middle sample, or the mean of the two middle ones) without its per-call overhead
-    med = pos[n // 2] if n % 2 else 0.5 * (pos[n // 2 - 1] + pos[n // 2])
-    return t > fraction * med
+    t = np.ascontiguousarray(indicated_mean, dtype=np.float64)
+    fire = np.empty(t.shape, dtype=bool)
+    firing_into(t.reshape(-1), float(fraction), fire.reshape(-1))
+    return fire
 
 
 def share_mean_loss(
@@ -64,16 +61,12 @@ def share_mean_loss(
     spread : relative 1-sigma given to a firing cylinder's share (cylinder-to-cylinder scatter the rule ignores)
     motored_spread : relative 1-sigma of a motored cylinder's T_fM,ml
     """
-    t_i = np.asarray(indicated_mean, dtype=np.float64)
-    fire = firing_mask(t_i, fraction)
-    motored = ~fire
-    n_ml = int(np.count_nonzero(motored))
-    if n_ml == t_i.size:  # nothing fires: every cylinder gets the motored loss
-        out = np.full(t_i.shape, float(motored_friction))
-        sig = np.full(t_i.shape, motored_spread * abs(motored_friction))
-        return SharedLoss(friction_mean=out, sigma=sig, motored=motored)
-    t_fire = t_i[fire].sum()
-    t_f_fire = friction_total - n_ml * motored_friction
-    out = np.where(fire, t_f_fire * t_i / t_fire, motored_friction)
-    sig = np.where(fire, spread * np.abs(out), motored_spread * abs(motored_friction))
+    t_i = np.ascontiguousarray(indicated_mean, dtype=np.float64)
+    if t_i.ndim != 1:
+        raise ValueError(f"indicated_mean must be one value per cylinder (z,), got shape {t_i.shape}")
+    out = np.empty(t_i.shape)
+    sig = np.empty(t_i.shape)
+    motored = np.empty(t_i.shape, dtype=bool)
+    share_into(float(friction_total), t_i, float(motored_friction), float(spread), float(motored_spread),
+               float(fraction), out, sig, motored)
     return SharedLoss(friction_mean=out, sigma=sig, motored=motored)
