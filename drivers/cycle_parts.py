@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivers.engine_buffers import EngineBuffers
-from drivers.pressure_kernels import ROW_NAN, ROW_OK, _pressure_row, _pressure_rows
+from drivers.frame_store import FrameChannel, FrameGroup
+from drivers.pressure_kernels import ROW_NAN, ROW_OK, _pressure_row
 from drivers.pressure_ring import PressureGroup
 from drivers.resample import CHECK_HOLE, CHECK_NAN, interp_checked
 from drivers.ringbuffer import RingBuffer
@@ -153,7 +154,10 @@ def pressure_on_grid(ring: RingBuffer, t_grid: np.ndarray) -> tuple[np.ndarray |
     if q.ndim != 1 or q.shape[0] < 2 or not q[0] < q[-1]:  # not a cycle's increasing grid times: the general path
         return _pressure_on_grid_general(ring, q)
     out = np.empty(q.shape[0])
-    code = _pressure_row(ring._cols["t"], ring._cols["p"], ring.start, ring.end, q, out)
+    if isinstance(ring, FrameChannel):  # values kept in frames: the group kernel on this row alone
+        code = ring.row_on_grid(q, out)
+    else:
+        code = _pressure_row(ring._cols["t"], ring._cols["p"], ring.start, ring.end, q, out)
     if code == ROW_OK:
         return out, ""
     return None, ("pressure_nan" if code == ROW_NAN else "pressure_missing")
@@ -187,8 +191,8 @@ class GridPlan:
     """
 
     expected: tuple[int, ...]
-    calls: list[tuple[PressureGroup, np.ndarray, np.ndarray]]
-    order: list[tuple[int, PressureGroup | None]]
+    calls: list[tuple[PressureGroup | FrameGroup, np.ndarray, np.ndarray]]
+    order: list[tuple[int, PressureGroup | FrameGroup | None]]
     reasons: list[tuple[int, int, int]]
     missing: bool
     nan_rows: np.ndarray  # matrix rows of the cylinders not expected (NaN rows)
@@ -197,9 +201,9 @@ class GridPlan:
 def grid_plan(buf: EngineBuffers, expected: tuple[int, ...], n_cyl: int) -> GridPlan:
     """The ``GridPlan`` of the expected cylinders (1..n_cyl) over the current groups of ``buf``."""
     want = set(expected)
-    calls: list[tuple[PressureGroup, np.ndarray, np.ndarray]] = []
+    calls: list[tuple[PressureGroup | FrameGroup, np.ndarray, np.ndarray]] = []
     index: dict[int, int] = {}
-    order: list[tuple[int, PressureGroup | None]] = []
+    order: list[tuple[int, PressureGroup | FrameGroup | None]] = []
     reasons: list[tuple[int, int, int]] = []
     for cyl in expected:
         ch = buf.pressure.get(cyl)
@@ -221,7 +225,7 @@ def grid_plan(buf: EngineBuffers, expected: tuple[int, ...], n_cyl: int) -> Grid
 def plan_ready(plan: GridPlan, t_end: float) -> int | None:
     """None if every expected cylinder has a sample at or after ``t_end``, else the first one that has not."""
     for cyl, g in plan.order:
-        if g is None or g.end == g.start or g.t[(g.end - 1) % g.capacity] < t_end:
+        if g is None or g.end == g.start or g.newest < t_end:
             return cyl
     return None
 
@@ -239,7 +243,7 @@ def pressure_matrix(buf: EngineBuffers, plan: GridPlan, t_grid: np.ndarray, n_cy
         out[plan.nan_rows] = np.nan
     bad = 0
     for g, rows, codes in plan.calls:
-        bad += _pressure_rows(g.t, g.p, g.start, g.end, q, rows, out, codes)
+        bad += g.rows_on_grid(q, rows, out, codes)
     if bad == 0 and not plan.missing:
         return out, ""
     for _, ci, r in plan.reasons:

@@ -42,6 +42,7 @@ from core.types import (
     StreamRecord,
     ToothBatch,
 )
+from drivers.cycle_kernels import _cycle_edges
 from drivers.cycle_parts import (
     Epoch,
     GridPlan,
@@ -73,6 +74,7 @@ class _Pending:
     pos: np.ndarray  # int64 epoch positions
     theta: np.ndarray  # nominal crank angle of the edges [rad], first <= 0, last >= 4 pi
     t_grid: np.ndarray  # timer ticks at the grid angles
+    tooth: np.ndarray  # int64 wheel index of the edges
 
 
 class CycleAssembler:
@@ -142,9 +144,13 @@ class CycleAssembler:
         """File one record and return the cycles it completed (possibly none)."""
         if type(record) is PressureFrame:  # the hot path of an indicating system: all cylinders in one record
             if self.buf.add_frame(record):
-                end = int(record.t0_ticks + record.period_ticks * (np.shape(record.values)[-1] - 1))
-                self._now = max(self._now, end)
-            if self._epoch is not None and self._epoch.phase is None:
+                v = record.values
+                end = int(record.t0_ticks + record.period_ticks * ((v.shape[-1] if type(v) is np.ndarray
+                                                                    else np.shape(v)[-1]) - 1))
+                if end > self._now:
+                    self._now = end
+            ep = self._epoch
+            if ep is not None and ep.phase is None:
                 return self._advance(flushing=False)
             if not self._pending or self._waiting_for not in record.cylinders:
                 return []
@@ -160,7 +166,9 @@ class CycleAssembler:
             return self._emit(flushing=False)
         if type(record) is LoadSample:  # ~8 per cycle: nothing else can move
             self.buf.add_load(record)
-            self._now = max(self._now, int(record.ticks))
+            t = int(record.ticks)
+            if t > self._now:
+                self._now = t
             return []
         if isinstance(record, ToothBatch):
             if len(record.ticks) == 0:
@@ -168,7 +176,7 @@ class CycleAssembler:
             last = self.buf.teeth.last("t")
             if last is not None and int(record.ticks[0]) < last - self.wait_ticks:
                 self._clock_reset()
-            self.buf.add(record)
+            self.buf._add_ticks(self.buf.teeth, record.ticks, "teeth")  # = buf.add(record)
             self._now = max(self._now, int(record.ticks[-1]))
             self._run_tracker()
             return self._advance(flushing=False)
@@ -332,6 +340,7 @@ class CycleAssembler:
         elif self.info.cam_deg is not None:
             self._place_cams(ep)
         lo_rpm, hi_rpm = self.speed_range_rpm
+        w = self.wheel
         while True:
             c = ep.next_c
             ps, pe = self._window(ep, c)
@@ -345,14 +354,22 @@ class CycleAssembler:
                 self._skip(seg.reason or "sync_lost", index)
                 continue
             s0, s1 = seg.seq_of(ps), seg.seq_of(pe)
-            ticks = self.buf.teeth.view("t", s0, s1 + 1).copy()
-            rpm = (pe - ps) * self.wheel.pitch / ((ticks[-1] - ticks[0]) / self.info.tick_hz) * 30.0 / math.pi
+            teeth = self.buf.teeth
+            if not teeth.start <= s0 <= s1 < teeth.end:
+                teeth.view("t", s0, s1 + 1)  # edges no longer retained: the IndexError of a ring view, as before
+            col = teeth._cols["t"]
+            i0 = s0 % teeth.capacity
+            rpm = (pe - ps) * w.pitch / ((int(col[i0 + s1 - s0]) - int(col[i0])) / self.info.tick_hz) * 30.0 / math.pi
             if not lo_rpm <= rpm <= hi_rpm:
                 self._skip("speed_out_of_range", index)
                 continue
-            pos = np.asarray(seg.pos_of(np.arange(s0, s1 + 1)), dtype=np.int64)
-            theta = self._nominal_angle(pos, c, int(ep.phase))
-            self._pending.append(_Pending(index, ep, c, ticks, pos, theta, self._grid_times(theta, ticks)))
+            m = s1 - s0 + 1  # edges, their positions and angles, the grid times: one kernel (drivers/cycle_kernels.py)
+            ticks, pos, tooth, theta = (np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.int64),
+                                        np.empty(m))
+            t_grid = np.empty(self.grid.shape[0])
+            _cycle_edges(col, i0, m, w.ordinal(seg.first_pos) + (s0 - seg.first_seq), w.n, w.t,
+                         -2 * w.n * c + w.n * int(ep.phase), self.a0_deg, self.grid, ticks, pos, tooth, theta, t_grid)
+            self._pending.append(_Pending(index, ep, c, ticks, pos, theta, t_grid, tooth))
 
     def _nominal_angle(self, pos: np.ndarray, c: int, phase: int) -> np.ndarray:
         """Crank angle [rad] of edges at ``pos`` within cycle c, built in degrees from integers so that edges on
@@ -433,7 +450,7 @@ class CycleAssembler:
         torque, power = load_mean(self.buf.load, float(p.ticks[0]), float(p.ticks[-1]), self.info.tick_hz)
         self.stats["cycles"] += 1
         return Cycle(index=p.index, tick_hz=self.info.tick_hz, tooth_ticks=p.ticks, tooth_angle=p.theta,
-                     tooth_index=(p.pos % self.wheel.n).astype(np.int64), grid=self.grid.copy(), pressure=pressure,
+                     tooth_index=p.tooth, grid=self.grid.copy(), pressure=pressure,
                      load_torque=torque, load_power=power, phase_source=ep.phase_source, flags=tuple(flags))
 
     # ---- housekeeping -------------------------------------------------------------------------------------------

@@ -9,6 +9,10 @@ A cylinder belongs to the group that first carried it. Its samples arriving late
 cylinder of a frame group, or a frame whose cylinder set overlaps another group's) would mix two clocks in one
 channel: such records are refused, counted in ``rejected["pressure_conflict"]`` (samples) and logged once per shape.
 A frame with the same cylinders in another order is rearranged into its group's row order.
+
+Frames of two or more cylinders are kept by reference (``drivers.pressure_ring.FrameGroup``): a record is immutable,
+so its values must not be changed after it was filed (every driver hands out fresh arrays). A frame that is not a
+writeable, aligned, C-contiguous float64 array is copied once into one.
 """
 
 from __future__ import annotations
@@ -17,14 +21,28 @@ import logging
 import math
 from collections import Counter
 
+import numba
 import numpy as np
 
 from core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
+from drivers.frame_store import FrameGroup
 from drivers.pressure_ring import PressureChannel, PressureGroup, _write_frame
 from drivers.ringbuffer import RingBuffer, _write_block
 
 log = logging.getLogger(__name__)
 _F64 = np.dtype(np.float64)
+_I64 = np.dtype(np.int64)
+
+
+@numba.njit(cache=True)
+def _increasing_after(t, last):
+    """True if the int64 ticks t are strictly increasing and all after ``last``."""
+    prev = last
+    for i in range(t.shape[0]):
+        if t[i] <= prev:
+            return False
+        prev = t[i]
+    return True
 
 
 class EngineBuffers:
@@ -43,7 +61,7 @@ class EngineBuffers:
         self.cam = RingBuffer(cam_capacity, {"t": np.int64})
         self.load = RingBuffer(load_capacity, {"t": np.int64, "torque": np.float64, "power": np.float64})
         self.pressure: dict[int, PressureChannel] = {}
-        self.groups: dict[tuple[int, ...], PressureGroup] = {}
+        self.groups: dict[tuple[int, ...], PressureGroup | FrameGroup] = {}
         self.groups_version = 0
         self._pressure_capacity = int(pressure_capacity)
         self._single: dict[int, PressureGroup] = {}  # cylinder -> its group when that is a group of one
@@ -70,21 +88,37 @@ class EngineBuffers:
         ring = self.load
         cols = ring._cols
         cap = ring.capacity
-        if ring.end > ring.start and record.ticks <= cols["t"][(ring.end - 1) % cap]:
+        end = ring.end
+        col = cols["t"]
+        t = record.ticks
+        if end > ring.start and t <= col[(end - 1) % cap]:
             self.rejected["load"] += 1
             return 0
-        i, _ = ring._advance(1)  # one row, written to both mirror halves (what RingBuffer.extend does)
-        for name, value in (("t", record.ticks), ("torque", record.torque), ("power", record.power)):
-            col = cols[name]
-            col[i] = value
-            col[i + cap] = value
+        if end - ring.start < cap:  # room for the row: what _advance(1) does then
+            ring.end = end + 1
+            i = end % cap
+        else:
+            i, _ = ring._advance(1)
+        col[i] = col[i + cap] = t  # one row, written to both mirror halves (what RingBuffer.extend does)
+        col = cols["torque"]
+        col[i] = col[i + cap] = record.torque
+        col = cols["power"]
+        col[i] = col[i + cap] = record.power
         return 1
 
     def _add_ticks(self, ring: RingBuffer, ticks: np.ndarray, stream: str) -> int:
-        t = np.asarray(ticks, dtype=np.int64).ravel()
-        if t.size == 0:
+        t = ticks
+        if not (type(t) is np.ndarray and t.ndim == 1 and (t.dtype is _I64 or t.dtype == _I64)):
+            t = np.asarray(ticks, dtype=np.int64).ravel()
+        if t.shape[0] == 0:
             return 0
-        last = ring.last("t")
+        if ring.end == ring.start:
+            last = None
+        else:
+            last = int(ring._cols["t"][(ring.end - 1) % ring.capacity])
+            if _increasing_after(t, last):  # the usual batch: one compiled check, one extend
+                ring.extend(t)
+                return int(t.shape[0])
         ok = np.ones(t.size, dtype=bool)
         ok[1:] = t[1:] > t[:-1]
         if last is not None:
@@ -102,10 +136,11 @@ class EngineBuffers:
         return int(t.size)
 
     # ---- pressure -----------------------------------------------------------------------------------------------
-    def _new_group(self, cylinders: tuple[int, ...]) -> PressureGroup:
-        group = self.groups[cylinders] = PressureGroup(cylinders, self._pressure_capacity)
+    def _new_group(self, cylinders: tuple[int, ...]) -> PressureGroup | FrameGroup:
+        group = self.groups[cylinders] = (PressureGroup if len(cylinders) == 1 else FrameGroup)(
+            cylinders, self._pressure_capacity)
         for r, c in enumerate(cylinders):
-            self.pressure[c] = PressureChannel(group, r)
+            self.pressure[c] = group.channel(r)
         if len(cylinders) == 1:
             self._single[cylinders[0]] = group
         self.groups_version += 1
@@ -124,7 +159,7 @@ class EngineBuffers:
         sample (an overlapping, repeated record keeps its new tail only); the refused samples are counted."""
         if group.end == group.start:
             return t0, 0
-        last = float(group.t[(group.end - 1) % group.capacity])  # = group.last_t()
+        last = float(group.newest)  # = group.last_t()
         if t0 > last:
             return t0, 0
         first = int((last - t0) // period) + 1
@@ -136,7 +171,7 @@ class EngineBuffers:
     def add_pressure(self, block: PressureBlock) -> int:
         """File one pressure block (a hot path for CAN / DAQ input: tens of blocks per cycle on a big engine)."""
         v = block.values
-        if not (type(v) is np.ndarray and v.dtype is _F64 and v.ndim == 1):  # (identity checks: the hot path)
+        if not (type(v) is np.ndarray and (v.dtype is _F64 or v.dtype == _F64) and v.ndim == 1):  # the hot path
             v = np.asarray(v, dtype=np.float64).ravel()
         if v.shape[0] == 0:
             return 0
@@ -187,11 +222,14 @@ class EngineBuffers:
     def add_frame(self, frame: PressureFrame) -> int:
         """File one pressure frame: all its cylinders in one call. Returns samples accepted x cylinders."""
         v = frame.values
-        if not (type(v) is np.ndarray and v.dtype is _F64 and v.ndim == 2 and v.flags.c_contiguous):
+        if not (type(v) is np.ndarray and (v.dtype is _F64 or v.dtype == _F64) and v.ndim == 2
+                and (fl := v.flags).c_contiguous and fl.writeable and fl.aligned):  # (an unpickled dtype is not _F64)
             v = np.ascontiguousarray(v, dtype=np.float64)
             if v.ndim != 2:
                 self.rejected["pressure_bad_frame"] += 1
                 return 0
+            if not (v.flags.writeable and v.flags.aligned):
+                v = v.copy()  # kept by reference from here on: a plain array
         k, n = v.shape
         if n == 0:
             return 0
@@ -199,7 +237,7 @@ class EngineBuffers:
             entry = self._frame_keys.get(frame.cylinders)
         except TypeError:  # unhashable: not a tuple of cylinder numbers
             entry = None
-        if entry is None or entry[0].p.shape[0] != k:
+        if entry is None or len(entry[0].cylinders) != k:
             entry = self._frame_group(frame, k, n)
             if entry[0] is None:
                 return 0
@@ -210,11 +248,17 @@ class EngineBuffers:
         if not (period > 0 and math.isfinite(period)):
             self.rejected["pressure"] += v.size
             return 0
-        t0, first = self._tail(group, float(frame.t0_ticks), period, n, k)
-        if first >= n:
-            return 0
-        i, skip = group._advance(n - first)
-        _write_frame(group.t, group.p, i, t0 + skip * period, float(period), v, first + skip)
+        t0 = float(frame.t0_ticks)
+        first = 0
+        if group.end != group.start and not t0 > group.newest:  # overlaps what the group has: keep the new tail
+            t0, first = self._tail(group, t0, period, n, k)
+            if first >= n:
+                return 0
+        if k > 1:
+            group.add(t0, float(period), v, first)
+        else:  # a one-cylinder frame shares the ring of its cylinder's blocks
+            i, skip = group._advance(n - first)
+            _write_frame(group.t, group.p, i, t0 + skip * period, float(period), v, first + skip)
         return int(n - first) * k
 
     def dropped(self) -> Counter[str]:

@@ -1,9 +1,11 @@
 """Pressure rings grouped by sampling clock: channels sampled together share one time column.
 
 An indicating system samples all its channels at once (``PressureFrame``); a CAN / DAQ / serial driver delivers one
-cylinder per record (``PressureBlock``). Both end up in a ``PressureGroup``: one mirrored time column ``t`` (2 cap,)
-and one value block ``p`` (k, 2 cap), row r = ``cylinders[r]``. A block is a group of one. Writing a frame is one
-numba call, resampling every cylinder of a group onto a cycle's grid is one more (drivers/pressure_kernels.py).
+cylinder per record (``PressureBlock``). A block is a group of one, a ``PressureGroup``: one mirrored time column
+``t`` (2 cap,) and one value block ``p`` (k, 2 cap), row r = ``cylinders[r]``. The frames of two or more cylinders
+go to a ``drivers.frame_store.FrameGroup`` instead, which keeps the frames themselves (nothing copied at ingest)
+behind the same interface. Resampling every cylinder of a group onto a cycle's grid is one numba call
+(``rows_on_grid``; drivers/pressure_kernels.py).
 
 ``PressureChannel`` is the per-cylinder face of a group with the ``RingBuffer`` interface (columns "t" and "p",
 absolute row numbers, zero-copy views): ``EngineBuffers.pressure[cyl]`` keeps working for one-cylinder code such
@@ -18,6 +20,7 @@ import numba
 import numpy as np
 
 from core.types import PressureBlock, PressureFrame
+from drivers.pressure_kernels import _pressure_rows
 from drivers.ringbuffer import RingBuffer, _search_sorted
 
 
@@ -52,6 +55,11 @@ class PressureGroup:
         """Time [ticks] of the newest retained sample, None if empty."""
         return None if self.end == self.start else float(self.t[(self.end - 1) % self.capacity])
 
+    @property
+    def newest(self) -> float:
+        """Time [ticks] of the newest sample (meaningful when the group is not empty)."""
+        return self.t[(self.end - 1) % self.capacity]
+
     def searchsorted(self, value: float, side: str = "left") -> int:
         """Absolute row where ``value`` would go in the time column (as ``RingBuffer.searchsorted``)."""
         if side != "left" and side != "right":
@@ -61,6 +69,13 @@ class PressureGroup:
 
     def discard_before(self, seq: int) -> None:
         self.start = min(max(self.start, int(seq)), self.end)
+
+    def rows_on_grid(self, t_grid: np.ndarray, rows: np.ndarray, out: np.ndarray, codes: np.ndarray) -> int:
+        """Every wanted row at the sorted times ``t_grid`` (``drivers.pressure_kernels._pressure_rows``)."""
+        return _pressure_rows(self.t, self.p, self.start, self.end, t_grid, rows, out, codes)
+
+    def channel(self, row: int) -> PressureChannel:
+        return PressureChannel(self, row)
 
 
 class PressureChannel(RingBuffer):

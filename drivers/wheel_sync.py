@@ -283,10 +283,13 @@ class WheelTracker:
         """Run over the edges ``ticks`` (``ticks[0]`` has sequence number ``base`` <= ``oldest_needed()``)."""
         if base > self.oldest_needed():
             raise ValueError(f"edges from {self.oldest_needed()} are needed; the view starts at {base}")
-        tk = np.ascontiguousarray(ticks, dtype=np.int64)
+        tk = ticks
+        if not (type(tk) is np.ndarray and tk.dtype == np.int64 and tk.flags.c_contiguous):
+            tk = np.ascontiguousarray(ticks, dtype=np.int64)
         out: list[tuple[int, int, int, int]] = []
         while True:
-            ne = _track(tk, np.int64(base), self.prm, self.ist, self.fst, self._ev)
-            out.extend(tuple(int(x) for x in row) for row in self._ev[:ne])
+            ne = _track(tk, int(base), self.prm, self.ist, self.fst, self._ev)
+            if ne:  # (most batches bring no event)
+                out.extend(tuple(row) for row in self._ev[:ne].tolist())
             if ne < self._ev.shape[0]:
                 return out
