@@ -19,18 +19,22 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg.lapack
 
+from core.accumulate_kernels import cycle_terms_kernel, fold_kernel
 from core.identify import bounded_solve_nnls
 from core.posterior_kernels import (
+    BAD_SHAPE,
     NEEDS_BOUND,
     OK,
     as_matrix,
     as_vector,
     lower_vector,
     posterior_kernel,
+    posterior_kernel_typed,
     posterior_moments_kernel,
 )
 
@@ -68,31 +72,43 @@ class Accumulator:
 
     def cycle_terms(self, a: np.ndarray, y: np.ndarray, inv_sigma: np.ndarray, reference_rows: int = 0) -> CycleTerms:
         """One cycle's contribution (``update`` = ``fold(cycle_terms(...))``; computed once, it can be folded into
-        several accumulators, e.g. the running one and this cycle's own)."""
-        if a.shape != (self.sys_map.shape[1], self.info.shape[0]):
-            raise ValueError(f"rows must have shape {(self.sys_map.shape[1], self.info.shape[0])}, got {a.shape}")
-        ref = a[a.shape[0] - reference_rows:]
-        return CycleTerms(a.T @ a, a.T @ y, float(y @ y), float(a.shape[0]), a.T * inv_sigma[None, :], ref.T @ ref)
+        several accumulators, e.g. the running one and this cycle's own). One kernel (core.accumulate_kernels);
+        all arrays new, sys_map C-contiguous."""
+        if a.shape != self.sys_map.shape[::-1]:
+            raise ValueError(f"rows must have shape {self.sys_map.shape[::-1]}, got {a.shape}")
+        try:
+            ok, info, rhs, yty, sys_map, ref = cycle_terms_kernel(a, y, inv_sigma, reference_rows)
+        except TypeError:  # another dtype or layout than the kernel's C-contiguous float64
+            ok, info, rhs, yty, sys_map, ref = cycle_terms_kernel(
+                np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(y, dtype=np.float64),
+                np.ascontiguousarray(inv_sigma, dtype=np.float64), int(reference_rows))
+        if not ok:
+            raise ValueError(f"y {np.shape(y)} and inv_sigma {np.shape(inv_sigma)} must have one value per row of "
+                             f"a {a.shape}, and 0 <= reference_rows <= {a.shape[0]} (got {reference_rows})")
+        return CycleTerms(info, rhs, yty, float(a.shape[0]), sys_map, ref)
 
     def fold(self, terms: CycleTerms, forgetting: float) -> Accumulator:
-        """lambda * self + one cycle's ``terms``."""
+        """lambda * self + one cycle's ``terms`` (new arrays; self is unchanged)."""
         lam = float(forgetting)
         if not 0.0 <= lam <= 1.0:
             raise ValueError(f"forgetting factor must be in [0, 1], got {lam}")
-        return Accumulator(
-            info=lam * self.info + terms.info,
-            rhs=lam * self.rhs + terms.rhs,
-            yty=lam * self.yty + terms.yty,
-            weight=lam * self.weight + 1.0,
-            rows=lam * self.rows + terms.rows,
-            sys_map=lam * self.sys_map + terms.sys_map,
-            info_reference=lam * self.info_reference + terms.info_reference,
-        )
+        try:
+            ok, info, rhs, sys_map, ref = fold_kernel(lam, self.info, self.rhs, self.sys_map, self.info_reference,
+                                                      terms.info, terms.rhs, terms.sys_map, terms.info_reference)
+        except TypeError:
+            ok, info, rhs, sys_map, ref = fold_kernel(
+                lam, *(np.ascontiguousarray(x, dtype=np.float64) for x in (
+                    self.info, self.rhs, self.sys_map, self.info_reference, terms.info, terms.rhs, terms.sys_map,
+                    terms.info_reference)))
+        if not ok:
+            raise ValueError("the cycle's terms do not have the accumulator's shapes")
+        return Accumulator(info, rhs, lam * self.yty + terms.yty, lam * self.weight + 1.0,
+                           lam * self.rows + terms.rows, sys_map, ref)
 
 
-@dataclass(frozen=True)
-class CycleTerms:
-    """One cycle's whitened normal-equation terms (``Accumulator.cycle_terms``)."""
+class CycleTerms(NamedTuple):
+    """One cycle's whitened normal-equation terms (``Accumulator.cycle_terms``; immutable like the accumulator, a
+    named tuple: built every cycle, it costs a third of a frozen dataclass)."""
 
     info: np.ndarray
     rhs: np.ndarray
@@ -180,8 +196,35 @@ def posterior_from_normal(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, 
 
     One numba kernel (core.posterior_kernels) when no bound is active and the factors are well conditioned; NNLS
     for theta when a bound is active; ``posterior_from_normal_reference`` when a factor is nearly singular or the
-    reference covariance is at its pseudo-inverse switch. Equal to the reference to rounding."""
-    p, r = acc.sys_map.shape
+    reference covariance is at its pseudo-inverse switch. Equal to the reference to rounding. Every returned array
+    is new (none aliases an input or a buffer used again)."""
+    status = BAD_SHAPE
+    # the common call: C-contiguous float64 arrays, passed unconverted (a mismatch costs ~50 us in the TypeError;
+    # sys_map is the array most likely to be another layout: a.T * inv_sigma is Fortran-ordered)
+    if type(lower) is np.ndarray and acc.sys_map.flags.c_contiguous:
+        try:
+            status, theta, chi2_red, cov_stat, cov, ref = posterior_kernel_typed(
+                acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, n_pr, r_pr, sys_var, lower,
+                _REFERENCE_MAX_CONDITION)
+        except TypeError:  # another dtype or layout: converted and checked below
+            status = BAD_SHAPE
+    if status == BAD_SHAPE:
+        return _posterior_from_normal_checked(acc, n_pr, r_pr, sys_var, lower)
+    if status == NEEDS_BOUND:
+        theta = bounded_solve_nnls(acc.info + n_pr, acc.rhs + r_pr, lower)
+        status, chi2_red, cov_stat, cov, ref = posterior_moments_kernel(
+            acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, n_pr, sys_var, theta,
+            _REFERENCE_MAX_CONDITION)
+    if status != OK:
+        return posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lower)
+    return Posterior(theta, cov, cov_stat, chi2_red, acc.weight, ref)
+
+
+def _posterior_from_normal_checked(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, sys_var: np.ndarray,
+                                   lower: float | np.ndarray) -> Posterior:
+    """``posterior_from_normal`` for inputs of any dtype and layout: converted to C-contiguous float64 (ValueError
+    on a shape that does not fit)."""
+    p, r = np.shape(acc.sys_map)
     n_pr = as_matrix(n_pr, p, name="n_pr")
     r_pr = as_vector(r_pr, p, "r_pr")
     sys_var = as_vector(sys_var, r, "sys_var")
@@ -194,7 +237,7 @@ def posterior_from_normal(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, 
     status, theta, chi2_red, cov_stat, cov, ref = posterior_kernel(
         a_info, a_rhs, yty, rows, a_map, a_ref, n_pr, r_pr, sys_var, lo, _REFERENCE_MAX_CONDITION)
     if status == NEEDS_BOUND:
-        theta = bounded_solve_nnls(acc.info + n_pr, acc.rhs + r_pr, lower)
+        theta = bounded_solve_nnls(a_info + n_pr, a_rhs + r_pr, lower)
         status, chi2_red, cov_stat, cov, ref = posterior_moments_kernel(
             a_info, a_rhs, yty, rows, a_map, a_ref, n_pr, sys_var, theta, _REFERENCE_MAX_CONDITION)
     if status != OK:

@@ -15,6 +15,17 @@ and report a status instead of guessing near any decision the reference makes di
 The callers then run the reference code (kept verbatim), so their behaviour in those cases is exactly the old one.
 Otherwise the results equal the reference to rounding (<= 1e-10 relative on the monitor's matrices, whose scaled
 condition numbers are ~1e2..5e3; tests/core/test_posterior_kernels.py).
+
+``posterior_kernel`` (genset-v20, P = 47: ~23 us a call) works from one inverse of N = acc.info + n_pr:
+- theta = N^-1 r minus the first-order effect of the reference's 1e-12 ridge on the unit-diagonal problem (its
+  second order is < 1e-16 relative), so the bounded solve needs no factor of its own;
+- the inverse goes by the Schur complement of the leading half (two half-size Cholesky inverses, four small BLAS
+  gemms) from ``core.spd_kernels.BLOCKED_MIN`` parameters on: loops over ~47-long rows are bound by their overhead, not by flops;
+- a decoupled diagonal tail (the monitor's reference information: nuisances that only their priors see) is
+  inverted by reciprocals, the head alone by Cholesky;
+- chi^2 = y^T y - 2 theta^T r + theta^T A theta cancels ~5 digits: it takes the reference's BLAS calls (ddot,
+  dgemv) in its order, so its rounding is reproduced rather than a different one added;
+- the systematic covariance G S G^T (G = N^-1 B) is W^T W, W = S^1/2 B^T N^-1: two transposed-first gemms.
 """
 
 from __future__ import annotations
@@ -22,90 +33,24 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from core.spd_kernels import (  # noqa: F401  (_cho_inverse, _spd_inverse_into: the tests' handles)
+    _FAST,
+    _cho_inverse,
+    _cho_solve,
+    _cholesky,
+    _decoupled_tail,
+    _spd_inverse_into,
+    _spd_inverse_of_sum,
+)
+
 OK = 0
 NEEDS_BOUND = 1
 FALLBACK = 2
+BAD_SHAPE = 3  # the arrays' shapes do not fit together (the caller's validating path raises the ValueError)
 
 PIVOT_RATIO_MIN = 1e-4  # below: left to the reference (rounding may exceed 1e-10; the monitor's are >= 3e-3)
 FEASIBLE_MARGIN = 1e-9  # scaled distance to a bound, relative to max |x|, below which NNLS decides
 REGULARISATION = 1e-12  # the reference's ridge on the unit-diagonal blocks (bounded_solve)
-# reassociation lets LLVM vectorise the dot-product reductions (their rounding differs from LAPACK's anyway); no
-# 'nnan'/'ninf': the positivity and finiteness tests must see NaN and inf
-_FAST = {"reassoc", "contract", "nsz", "arcp"}
-
-
-@numba.njit(cache=True, fastmath=_FAST)
-def _cholesky(a, out):
-    """Lower Cholesky factor of the symmetric a (n, n) (lower triangle read) into out (zeroed above the diagonal).
-
-    Returns the smallest pivot ratio L_jj^2 / a_jj (1 for n = 0), or -1 if a pivot is not positive."""
-    n = a.shape[0]
-    worst = 1.0
-    for j in range(n):
-        s = a[j, j]
-        for k in range(j):
-            s -= out[j, k] * out[j, k]
-        if not s > 0.0:
-            return -1.0
-        ratio = s / a[j, j]
-        if ratio < worst:
-            worst = ratio
-        ljj = np.sqrt(s)
-        out[j, j] = ljj
-        for i in range(j + 1, n):
-            t = a[i, j]
-            for k in range(j):
-                t -= out[i, k] * out[j, k]
-            out[i, j] = t / ljj
-        for i in range(j):
-            out[i, j] = 0.0
-    return worst
-
-
-@numba.njit(cache=True, fastmath=_FAST)
-def _cho_solve(chol, b):
-    """x = (L L^T)^-1 b for the lower factor L (n, n) and b (n,)."""
-    n = chol.shape[0]
-    z = np.empty(n)
-    for i in range(n):
-        t = b[i]
-        for k in range(i):
-            t -= chol[i, k] * z[k]
-        z[i] = t / chol[i, i]
-    for i in range(n - 1, -1, -1):
-        t = z[i]
-        for k in range(i + 1, n):
-            t -= chol[k, i] * z[k]
-        z[i] = t / chol[i, i]
-    return z
-
-
-@numba.njit(cache=True, fastmath=_FAST)
-def _cho_inverse(chol):
-    """(L L^T)^-1 (n, n), exactly symmetric, from the lower factor L: Y = L^-1, inverse = Y^T Y.
-
-    Both steps as row updates (axpy over contiguous rows), which vectorise; the dot-product forms do not."""
-    n = chol.shape[0]
-    y = np.zeros((n, n))
-    for i in range(n):
-        y[i, i] = 1.0
-        for k in range(i):
-            f = chol[i, k]
-            for j in range(k + 1):
-                y[i, j] -= f * y[k, j]
-        d = chol[i, i]
-        for j in range(i + 1):
-            y[i, j] = y[i, j] / d
-    inv = np.zeros((n, n))
-    for k in range(n):  # sum over k of the outer product of row k of Y, lower triangle
-        for i in range(k + 1):
-            f = y[k, i]
-            for j in range(i + 1):
-                inv[i, j] += f * y[k, j]
-    for i in range(n):
-        for j in range(i):
-            inv[j, i] = inv[i, j]
-    return inv
 
 
 @numba.njit(cache=True, fastmath=_FAST)
@@ -215,57 +160,144 @@ def bounded_solve_kernel(info, rhs, lo):
 
 
 @numba.njit(cache=True, fastmath=_FAST)
+def _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, theta, max_condition,
+                          inv):
+    """``posterior_moments_kernel`` given inv = (acc_info + n_pr)^-1 (n, n), which becomes cov_stat (scaled in
+    place: the caller must not use it afterwards)."""
+    n = acc_info.shape[0]
+    dof = rows - n
+    # chi^2 cancels ~5 digits (yty ~ theta^T rhs ~ 1e5 chi^2): the reference's BLAS calls (ddot, dgemv) in its
+    # order, so that its rounding is reproduced rather than a different one added
+    lin = np.dot(theta, acc_rhs)
+    quad = np.dot(np.dot(theta, acc_info), theta)
+    chi2 = yty - 2.0 * lin + quad
+    chi2_red = chi2 / dof if dof > 0 else 1.0
+    c = chi2_red if chi2_red > 1.0 else 1.0  # Python's max(1.0, x): nan keeps 1.0
+    empty = np.empty((0, 0))
+    ref = np.empty((n, n))  # cov_reference = c (info_reference + n_pr)^-1
+    if _spd_inverse_of_sum(info_reference, n_pr, ref, c) < PIVOT_RATIO_MIN:
+        return FALLBACK, chi2_red, empty, empty, empty
+    if np.isfinite(max_condition):
+        t_info = 0.0
+        t_ref = 0.0
+        for i in range(n):
+            t_info += info_reference[i, i] + n_pr[i, i]
+            t_ref += ref[i, i]
+        if not t_info * t_ref < max_condition * (1.0 - 1e-6) * c:  # at or near the reference's pinv switch
+            return FALLBACK, chi2_red, empty, empty, empty
+    # G = inv B: a repeated raw error e moves theta by G e; cov_sys = G S G^T = W^T W with W = S^1/2 G^T from
+    # G^T = B^T inv (inv is exactly symmetric): two transposed-first gemms on contiguous operands, no transposed
+    # copy, one (R, P) temporary (the square roots change the rounding by ~1e-16 relative)
+    w = np.dot(sys_map.T, inv)
+    m = w.shape[0]
+    nonnegative = True
+    for j in range(m):
+        nonnegative &= sys_var[j] >= 0.0  # False for NaN too
+    if nonnegative:
+        for j in range(m):
+            v = np.sqrt(sys_var[j])
+            for i in range(n):
+                w[j, i] *= v
+        cov = np.dot(w.T, w)
+    else:  # a negative or NaN variance: (G S) G^T as the reference forms it
+        h = np.empty((m, n))
+        for j in range(m):
+            for i in range(n):
+                h[j, i] = w[j, i] * sys_var[j]
+        cov = np.dot(w.T, h)
+    for i in range(n):  # cov_stat = inv * c (in place), cov = cov_stat + cov_sys
+        for j in range(n):
+            v = inv[i, j] * c
+            inv[i, j] = v
+            cov[i, j] = v + cov[i, j]
+    return OK, chi2_red, inv, cov, ref
+
+
+@numba.njit(cache=True, fastmath=_FAST)
 def posterior_moments_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, theta,
                              max_condition):
     """chi^2 reduced, statistical, total and reference covariances of ``posterior_from_normal`` at theta.
 
     Returns (status, chi2_red, cov_stat, covariance, cov_reference); the arrays are valid only with status OK."""
     n = acc_info.shape[0]
-    info = acc_info + n_pr
-    dof = rows - n
-    quad = 0.0
-    lin = 0.0
-    for j in range(n):
-        t = 0.0
-        for i in range(n):
-            t += theta[i] * acc_info[i, j]
-        quad += t * theta[j]
-        lin += theta[j] * acc_rhs[j]
-    chi2 = yty - 2.0 * lin + quad
-    chi2_red = chi2 / dof if dof > 0 else 1.0
-    c = chi2_red if chi2_red > 1.0 else 1.0  # Python's max(1.0, x): nan keeps 1.0
-    empty = np.empty((0, 0))
-    chol = np.empty((n, n))
-    if _cholesky(info, chol) < PIVOT_RATIO_MIN:
-        return FALLBACK, chi2_red, empty, empty, empty
-    inv = _cho_inverse(chol)
-    ref_info = info_reference + n_pr
-    if _cholesky(ref_info, chol) < PIVOT_RATIO_MIN:
-        return FALLBACK, chi2_red, empty, empty, empty
-    ref = _cho_inverse(chol)
-    if np.isfinite(max_condition):
-        bound = np.trace(ref_info) * np.trace(ref)
-        if not bound < max_condition * (1.0 - 1e-6):  # at or near the reference's pseudo-inverse switch
-            return FALLBACK, chi2_red, empty, empty, empty
-    g = np.dot(inv, sys_map)  # a repeated raw error e moves theta by inv B e
-    gs = g * sys_var.reshape(1, -1)
-    cov_sys = np.dot(gs, np.ascontiguousarray(g.T))  # a contiguous copy: faster than the transposed gemm
-    cov_stat = inv * c
-    return OK, chi2_red, cov_stat, cov_stat + cov_sys, ref * c
+    inv = np.empty((n, n))
+    if _spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < PIVOT_RATIO_MIN:
+        empty = np.empty((0, 0))
+        return FALLBACK, 1.0, empty, empty, empty
+    return _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, theta,
+                                 max_condition, inv)
 
 
 @numba.njit(cache=True, fastmath=_FAST)
 def posterior_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, r_pr, sys_var, lo, max_condition):
-    """``bounded_solve_kernel`` on (acc_info + n_pr, acc_rhs + r_pr), then ``posterior_moments_kernel``.
+    """The posterior of ``posterior_from_normal`` from one inverse of info = acc_info + n_pr.
 
-    Returns (status, theta, chi2_red, cov_stat, covariance, cov_reference)."""
-    status, theta = bounded_solve_kernel(acc_info + n_pr, acc_rhs + r_pr, lo)
-    if status != OK:
-        empty = np.empty((0, 0))
-        return status, theta, 1.0, empty, empty, empty
-    status, chi2_red, cov_stat, cov, ref = posterior_moments_kernel(
-        acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, theta, max_condition)
+    theta: the unconstrained minimiser of ``bounded_solve_kernel`` (unit-diagonal scaling, ridge 1e-12 on the
+    scaled diagonal): (info + 1e-12 D^2)^-1 rhs = theta0 - 1e-12 info^-1 D^2 theta0 + O(1e-24 |S^-1|^2), theta0 =
+    info^-1 rhs, D^2 = diag(info) (the neglected term is < 1e-16 relative for scaled pivots >= PIVOT_RATIO_MIN);
+    when it meets the bounds with the margin it is the bounded optimum, else NEEDS_BOUND.
+
+    Returns (status, theta, chi2_red, cov_stat, covariance, cov_reference); the arrays are valid only with status
+    OK (theta also with NEEDS_BOUND: the unconstrained minimiser)."""
+    n = acc_info.shape[0]
+    empty = np.empty((0, 0))
+    theta = np.empty(n)
+    m = sys_map.shape[1]
+    if (acc_info.shape[1] != n or acc_rhs.shape[0] != n or sys_map.shape[0] != n or info_reference.shape != (n, n)
+            or n_pr.shape != (n, n) or r_pr.shape[0] != n or sys_var.shape[0] != m or lo.shape[0] != n):
+        return BAD_SHAPE, theta, 1.0, empty, empty, empty
+    inv = np.empty((n, n))
+    if _spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < PIVOT_RATIO_MIN:
+        return FALLBACK, theta, 1.0, empty, empty, empty
+    rhs = np.empty(n)
+    for i in range(n):
+        rhs[i] = acc_rhs[i] + r_pr[i]
+    t0 = np.empty(n)
+    ridge = np.empty(n)
+    for i in range(n):
+        t = 0.0
+        for j in range(n):
+            t += inv[i, j] * rhs[j]
+        t0[i] = t
+        v = acc_info[i, i] + n_pr[i, i]
+        ridge[i] = REGULARISATION * (v if v > 1e-300 else 1e-300) * t
+    scale = 0.0
+    for i in range(n):
+        t = 0.0
+        for j in range(n):
+            t += inv[i, j] * ridge[j]
+        theta[i] = t0[i] - t
+        if np.isfinite(lo[i]):
+            v = acc_info[i, i] + n_pr[i, i]
+            x = abs(theta[i] * np.sqrt(v if v > 1e-300 else 1e-300))
+            if x > scale:
+                scale = x
+    for i in range(n):
+        if np.isfinite(lo[i]):
+            v = acc_info[i, i] + n_pr[i, i]
+            d = np.sqrt(v if v > 1e-300 else 1e-300)
+            if not theta[i] * d - lo[i] * d > FEASIBLE_MARGIN * scale:
+                return NEEDS_BOUND, theta, 1.0, empty, empty, empty
+    status, chi2_red, cov_stat, cov, ref = _moments_from_inverse(
+        acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, theta, max_condition, inv)
     return status, theta, chi2_red, cov_stat, cov, ref
+
+
+_F8_2D = numba.types.Array(numba.float64, 2, "C")
+_F8_1D = numba.types.Array(numba.float64, 1, "C")
+_F8_1D_READONLY = numba.types.Array(numba.float64, 1, "C", readonly=True)
+_POSTERIOR_SIGNATURES = [(_F8_2D, _F8_1D, numba.float64, numba.float64, _F8_2D, _F8_2D, _F8_2D, _F8_1D, _F8_1D, lo,
+                          numba.float64) for lo in (_F8_1D, _F8_1D_READONLY)]
+
+
+@numba.njit(_POSTERIOR_SIGNATURES, cache=True)
+def posterior_kernel_typed(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, r_pr, sys_var, lo,
+                           max_condition):
+    """``posterior_kernel`` for C-contiguous float64 arrays only (lower bounds may be read-only): any other type
+    raises TypeError at the call instead of compiling a new specialisation, so the caller needs no conversion or
+    type check of its own on the fast path (shapes are checked inside: BAD_SHAPE)."""
+    return posterior_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, r_pr, sys_var, lo,
+                            max_condition)
 
 
 def lower_vector(lower: float | np.ndarray, n: int) -> np.ndarray:
