@@ -8,13 +8,16 @@ as the rest of the design and changed nothing measurable in the fit): rounding g
 
 Why the normal matrix needs no design product: the Fourier columns' inner products over the edges follow from the
 power sums C_k = sum_i cos(k w1 tau_i), S_k = sum_i sin(k w1 tau_i), k = 0..2M, by the product-to-sum identities
-(cos a cos b = (cos(a-b) + cos(a+b)) / 2, ...): O(n M) work instead of the O(n M^2) of D^T D.
+(cos a cos b = (cos(a-b) + cos(a+b)) / 2, ...): O(n M) work instead of the O(n M^2) of D^T D. The sums of
+orders M+1..2M come from the design's own rows by the angle-addition rule (two dot products per order), so no
+rows beyond order M are formed.
 """
 
 from __future__ import annotations
 
 import numba
 import numpy as np
+import rocket_fft  # noqa: F401  (numpy.fft inside numba: ``_series_rows``)
 
 FOUR_PI = 4.0 * np.pi
 
@@ -57,6 +60,17 @@ def _next_harmonic(cp, sp, c1, s1, cd, sd):
         sd[i] = b
         sc += a
         ss += b
+    return sc, ss
+
+
+@numba.njit(cache=True, fastmath={"reassoc", "nsz"})
+def _angle_sum_sums(ca, sa, cb, sb):
+    """(sum_i cos(a_i + b_i), sum_i sin(a_i + b_i)) from the cosines and sines of a and b (angle-addition rule)."""
+    sc = 0.0
+    ss = 0.0
+    for i in range(ca.shape[0]):
+        sc += ca[i] * cb[i] - sa[i] * sb[i]
+        ss += sa[i] * cb[i] + ca[i] * sb[i]
     return sc, ss
 
 
@@ -165,28 +179,21 @@ def _prepare_fit(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, pattern_perio
         a = tau[i] * w1
         c1[i] = np.cos(a)
         s1[i] = np.sin(a)
-    # power sums up to order 2 m_fit; orders above m_fit only feed the sums
+    # power sums up to order 2 m_fit: orders 2..m_fit by the recurrence into the design, the orders above from
+    # the product rule cos((m + j) a) = cos(m a) cos(j a) - sin(m a) sin(j a) (two dot products; no design rows)
     csum = np.empty(2 * m_fit + 1)
     ssum = np.empty(2 * m_fit + 1)
     csum[0] = float(n)
     ssum[0] = 0.0
     csum[1] = _sum(c1)
     ssum[1] = _sum(s1)
-    ext = np.empty((4, n))  # ping-pong rows of the orders above m_fit (in-place steps would not vectorise)
-    for k in range(2, 2 * m_fit + 1):
-        if k - 1 <= m_fit:
-            cp = design_t[c0 + k - 2]
-            sp = design_t[s0 + k - 2]
-        else:
-            cp = ext[2 * (k % 2)]
-            sp = ext[2 * (k % 2) + 1]
-        if k <= m_fit:
-            cd = design_t[c0 + k - 1]
-            sd = design_t[s0 + k - 1]
-        else:
-            cd = ext[2 * ((k + 1) % 2)]
-            sd = ext[2 * ((k + 1) % 2) + 1]
-        csum[k], ssum[k] = _next_harmonic(cp, sp, c1, s1, cd, sd)
+    for k in range(2, m_fit + 1):
+        csum[k], ssum[k] = _next_harmonic(design_t[c0 + k - 2], design_t[s0 + k - 2], c1, s1, design_t[c0 + k - 1],
+                                          design_t[s0 + k - 1])
+    cm = design_t[c0 + m_fit - 1]
+    sm = design_t[s0 + m_fit - 1]
+    for j in range(1, m_fit + 1):
+        csum[m_fit + j], ssum[m_fit + j] = _angle_sum_sums(cm, sm, design_t[c0 + j - 1], design_t[s0 + j - 1])
     normal = np.empty((p, p))
     _normal_matrix(design_t, n_drift, m_fit, csum, ssum, normal)
     for j in range(p):
@@ -320,3 +327,21 @@ def _tooth_update(correction, tooth_index, residual, gain):
             if hits[k] > 0:
                 c[k] -= mean  # tooth errors sum to zero over a revolution
     return c
+
+
+@numba.njit(cache=True)
+def _series_rows(coeffs, n, mean):
+    """core.flywheel.harmonic_series of rows coeffs (r, M) complex on n samples: mean + the inverse rfft of the
+    harmonics scaled by n / 2 (the same spectrum and transform as the numpy code, so the same numbers)."""
+    r, m = coeffs.shape
+    spec = np.zeros((r, n // 2 + 1), dtype=np.complex128)
+    half = 0.5 * n
+    for k in range(r):
+        for j in range(m):
+            spec[k, j + 1] = coeffs[k, j] * half
+    out = np.fft.irfft(spec, n, -1)
+    if mean != 0.0:
+        for k in range(r):
+            for i in range(n):
+                out[k, i] += mean
+    return out

@@ -6,6 +6,9 @@ measured flywheel motion, passes it through the chain and returns the speed equa
 coefficients and the tooth-error nuisances. The frozen terms (twist, throw speeds, J(theta) remainder) come from the
 previous cycle's model motion (warm start), refreshed once on the first cycle (physics.md §12.3: one refresh is
 enough).
+
+Speed: a pass is one numba kernel (core.balance_pass_kernel._balance_pass: motion, torques, both FFTs, chain, rows);
+the arguments fixed by the engine, layout and operating point are prepared once per operating point (``_constants``).
 """
 
 from __future__ import annotations
@@ -14,12 +17,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from core.balance_pass_kernel import _balance_pass
 from core.dynamics import Receptance, ShaftModel, receptance, shaft_model
 from core.engine import EngineSpec
-from core.excitation import Excitation, ExcitationPlan, excitation_plan, excitation_rows
+from core.excitation import Excitation, ExcitationPlan, excitation_plan
 from core.flywheel import FlywheelMotion
 from core.friction import N_TERMS
-from core.harmonic_balance_kernels import _balance_rows, _mix_plan
 from core.identify import CycleRows, ParameterLayout
 
 
@@ -58,55 +61,84 @@ def harmonic_balance(spec: EngineSpec, layout: ParameterLayout, theta: np.ndarra
     node-minus-flywheel motion (None on the first cycle). Returns the last excitation, the rows (friction columns,
     then the tooth-error nuisances), node speeds (N, M), and this cycle's node-minus-flywheel motion (harmonics and
     static twist) for the next cycle."""
+    const = _constants(spec, layout, op, variable_inertia)
+    (n_nodes, z, n_par, twist, cyl_node, consts, group, prior, compliance, flywheel, inverse, rec_freq,
+     transfer) = const[4]
+    harmonics = fly.harmonics
+    m = harmonics.shape[0]
+    if 2 * m >= time_samples:
+        raise ValueError(f"{m} harmonics need more than {2 * m} samples per cycle, got {time_samples}")
     rel = relative_motion
-    n_nodes = spec.n_nodes
-    m = fly.n_harmonics
     if rel is not None and rel.shape != (n_nodes, m):
         rel = None
-    static = static if static is not None and static.shape == (n_nodes,) else None
+    if static is not None and static.shape != (n_nodes,):
+        static = None
     # warm start: with the previous cycle's node motion the first pass already is a refresh (physics.md §12.3)
     n_pass = max(1, passes - 1) if rel is not None and static is not None else max(1, passes)
-    z = spec.n_cyl
-    n_par = layout.n_params
-    cyl_node = op.plan.cyl_node if op.plan is not None else np.ascontiguousarray(spec.cylinder_node, dtype=np.int64)
-    group = np.ascontiguousarray(layout.group, dtype=np.int64)
-    prior = np.ascontiguousarray(layout.prior, dtype=np.float64)
-    # the friction terms enter the chain only as parameter-weighted sums per node: one G row per (parameter, node)
-    mix_row = np.empty((z, N_TERMS), dtype=np.int64)
-    mix_param = np.empty(z * N_TERMS, dtype=np.int64)
-    mix_node = np.empty(z * N_TERMS, dtype=np.int64)
-    n_mix = _mix_plan(group, prior, cyl_node, n_par, n_nodes, mix_row, mix_param, mix_node)
-    th = np.ascontiguousarray(theta[:n_par], dtype=np.float64)
-    shaft = op.shaft
-    rec = op.receptance
-    fly_freq = fly.freq
-    fly_harm = np.ascontiguousarray(fly.harmonics, dtype=np.complex128)
-    pattern = np.ascontiguousarray(fly.pattern_harmonics, dtype=np.complex128) if n_nuisance else (
-        np.zeros((m, 0), dtype=np.complex128))
-    known = np.empty((n_nodes, m), dtype=np.complex128)
-    design = np.empty((m, n_par + n_nuisance), dtype=np.complex128)
-    target = np.empty(m, dtype=np.complex128)
-    cyl_rows = np.empty((z, n_par))
-    mean_row = np.empty(n_par + n_nuisance)
+    th = _contiguous(theta[:n_par], np.float64)
+    harmonics = _contiguous(harmonics, np.complex128)
+    pattern = _contiguous(fly.pattern_harmonics, np.complex128) if n_nuisance else _empty(m, 0)
+    grid = _contiguous(grid, np.float64)
+    pressure = _contiguous(pressure, np.float64)
+    # one node has no node-minus-flywheel motion
+    rel_in = _contiguous(rel, np.complex128) if twist and rel is not None else _empty(0, m)
+    static_in = _contiguous(static, np.float64) if twist and static is not None else _NO_STATIC
     for _ in range(n_pass):
-        exc, harm = excitation_rows(spec, grid, pressure, fly, theta_start, time_samples, shaft.recip_inertia_mean,
-                                    rel if n_nodes > 1 else None, static if n_nodes > 1 else None, variable_inertia,
-                                    op.plan, (mix_row, prior, n_mix))
-        static = np.empty(n_nodes)
-        phi = np.empty((n_nodes, m), dtype=np.complex128)
-        rel = np.empty((n_nodes, m), dtype=np.complex128)
-        node_speed = np.empty((n_nodes, m), dtype=np.complex128)
-        _balance_rows(harm, 2.0 / time_samples, m, n_mix, mix_param, mix_node, th, group, prior, cyl_node,
-                      _means_of(exc), shaft.compliance, shaft.flywheel, rec.inverse, rec.freq, op.transfer, fly_freq,
-                      fly_harm, pattern, n_nuisance, known, static, phi, rel, node_speed, design, target, cyl_rows,
-                      mean_row)
+        (tau, theta_f, omega_f, alpha_f, omega_node, buf, basis_mean, indicated_mean, known, static, rel, node_speed,
+         design, target, cyl_rows, mean_row) = _balance_pass(
+            harmonics, float(fly.omega_mean), float(fly.offset), float(fly.drift), float(fly.period),
+            float(theta_start), int(time_samples), rel_in, static_in, grid, pressure, cyl_node, consts, group, prior,
+            th, compliance, flywheel, inverse, rec_freq, transfer, pattern, int(n_nuisance))
+        if twist:
+            rel_in, static_in = rel, static
+    n_head = buf.shape[0] - 7 * z
+    exc = Excitation(tau=tau, theta_fly=theta_f, omega_node=omega_node, gas=buf[n_head + 6 * z:], known_harm=known,
+                     basis=buf[n_head: n_head + 6 * z].reshape(z, N_TERMS, time_samples), basis_mean=basis_mean,
+                     indicated_mean=indicated_mean, omega_fly=omega_f, alpha_fly=alpha_f)
     rows = CycleRows(design=design, target=target, mean_row=mean_row, mean_target=float("nan"), cylinder_rows=cyl_rows)
     return exc, rows, node_speed, rel, static
 
 
-def _means_of(exc: Excitation) -> np.ndarray:
-    """The (z, 7) work-means block [basis_mean | indicated_mean] that ``excitation_rows`` wrote (both are views)."""
-    base = exc.basis_mean.base
-    if base is not None and base.shape == (exc.basis_mean.shape[0], N_TERMS + 1) and base.flags.c_contiguous:
-        return base
-    return np.ascontiguousarray(np.column_stack([exc.basis_mean, exc.indicated_mean]))
+# the last (spec, layout, op, variable_inertia, kernel constants): one monitor's steady state
+_LAST: list[tuple] = [(None, None, None, None, None)]
+
+
+def _constants(spec: EngineSpec, layout: ParameterLayout, op: OperatingPoint, variable_inertia: bool) -> tuple:
+    """The kernel arguments that depend on the engine, the parameter layout and the operating point only
+    (contiguous arrays), kept for the last (spec, layout, op) seen: those are immutable and the monitor passes the
+    same objects cycle after cycle, so the checks and conversions run once per operating point, not per cycle."""
+    last = _LAST[0]
+    if last[0] is spec and last[1] is layout and last[2] is op and (op.plan is not None or last[3] == variable_inertia):
+        return last
+    plan = op.plan if op.plan is not None else excitation_plan(spec, op.shaft.recip_inertia_mean, variable_inertia)
+    shaft = op.shaft
+    rec = op.receptance
+    n_nodes = spec.n_nodes
+    args = (n_nodes, spec.n_cyl, layout.n_params, n_nodes > 1, np.ascontiguousarray(plan.cyl_node, dtype=np.int64),
+            np.ascontiguousarray(plan.consts, dtype=np.float64), np.ascontiguousarray(layout.group, dtype=np.int64),
+            np.ascontiguousarray(layout.prior, dtype=np.float64),
+            np.ascontiguousarray(shaft.compliance, dtype=np.float64), int(shaft.flywheel),
+            np.ascontiguousarray(rec.inverse, dtype=np.complex128), np.ascontiguousarray(rec.freq, dtype=np.float64),
+            np.ascontiguousarray(op.transfer, dtype=np.complex128))
+    entry = (spec, layout, op, variable_inertia, args)
+    _LAST[0] = entry
+    return entry
+
+
+def _contiguous(a, dtype) -> np.ndarray:
+    """``a`` itself when it already is a C-contiguous array of ``dtype`` (the monitor's case), else a copy."""
+    if type(a) is np.ndarray and a.dtype == dtype and a.flags.c_contiguous:
+        return a
+    return np.ascontiguousarray(a, dtype=dtype)
+
+
+_NO_STATIC = np.zeros(0)
+_EMPTY: dict[tuple[int, int], np.ndarray] = {}
+
+
+def _empty(rows: int, cols: int) -> np.ndarray:
+    """A zero-size complex array (rows, cols), kept (nothing can be written into it)."""
+    out = _EMPTY.get((rows, cols))
+    if out is None:
+        out = _EMPTY[(rows, cols)] = np.zeros((rows, cols), dtype=np.complex128)
+    return out
