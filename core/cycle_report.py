@@ -10,7 +10,8 @@ from core.excitation import Excitation
 from core.excitation_kernels import interp_rows_periodic
 from core.flywheel import FlywheelMotion, harmonic_series, harmonics_of
 from core.identify import CycleRows, ParameterLayout
-from core.monitor_kernels import report_traces, speed_power, speed_residual
+from core.monitor_kernels import report_traces
+from core.report_kernels import speed_series, trig_tables
 from core.results import CycleResult, FrictionEstimate
 from core.types import Cycle
 
@@ -33,23 +34,18 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
     else:
         _, _, omega_meas, alpha_meas = fly.on_grid(n_t)
     # the tooth-pattern part of the model and the residual (without this cycle's best-fitting drift, as in the
-    # noise statistics) in one kernel
+    # noise statistics), the ripple power, and on the time grid the measured speed with the estimated tooth-spacing
+    # pattern taken out and the model speed (core.report_kernels: one kernel, direct sums for the inverse series)
     m = rows.target.shape[0]
-    series = np.empty((2, m), dtype=np.complex128)
     use_drift = drift is not None
-    resid_sq = speed_residual(np.ascontiguousarray(rows.design, dtype=np.complex128),
-                              np.ascontiguousarray(rows.target, dtype=np.complex128), theta, p_f,
-                              np.ascontiguousarray(drift if use_drift else rows.target, dtype=np.complex128),
-                              use_drift, series)
-    resid = series[1]
-    # show the measured speed with the estimated tooth-spacing pattern taken out; the model without it
-    # (both series from one inverse FFT)
-    pattern, resid_t = harmonic_series(series, n_t)
-    omega_meas = omega_meas - pattern
+    cos_t, sin_t = trig_tables(m, n_t)
+    resid = np.empty(m, dtype=np.complex128)
     extra = np.empty((3 if spec.n_nodes == 1 else 2, n_t))
-    extra[0] = omega_meas
-    np.subtract(omega_meas, resid_t, out=extra[1])  # the model speed
-    power = speed_power(fly.freq, np.ascontiguousarray(fly.harmonics, dtype=np.complex128))
+    resid_sq, power = speed_series(
+        _c128(rows.design), _c128(rows.target), theta, p_f, _c128(drift if use_drift else rows.target), use_drift,
+        fly.freq, _c128(fly.harmonics), np.ascontiguousarray(omega_meas, dtype=np.float64), cos_t, sin_t, resid,
+        extra)
+    omega_meas = extra[0]
     r2 = 1.0 - resid_sq / power if power > 0 else float("nan")
     if spec.n_nodes == 1:  # direct rigid balance (paper 001 Eq. 26), low-passed to the identification band
         tl = load * (omega_meas / fly.omega_mean) ** spec.load.exponent if spec.load.kind != "grid" else load
@@ -73,6 +69,12 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
         friction_torque_cyl=per_cyl, speed_measured=speed_meas, speed_model=speed_model,
         residual_harmonics=resid, residual_rms=float(np.sqrt(0.5 * resid_sq)), r_squared=r2,
         friction_torque_balance=balance_trace, flags=tuple(flags))
+
+
+def _c128(a: np.ndarray) -> np.ndarray:
+    if type(a) is np.ndarray and a.dtype == np.complex128 and a.flags.c_contiguous:
+        return a
+    return np.ascontiguousarray(a, dtype=np.complex128)
 
 
 def to_grid(grid: np.ndarray, theta: np.ndarray, values: np.ndarray) -> np.ndarray:

@@ -17,13 +17,16 @@ rigid engine: Z_m = -w_m^2 J + i w_m c_load.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import scipy.linalg
 
 from core.engine import EngineSpec
 from core.kinematics import kinematics, variable_inertia
+from core.monitor_kernels import pairwise_sum
 
 
 @dataclass(frozen=True)
@@ -166,13 +169,49 @@ def node_speed_harmonics(rec: Receptance, torque: np.ndarray) -> np.ndarray:
 
 def dissipated_power(shaft: ShaftModel, speed: np.ndarray) -> tuple[float, float]:
     """Mean power [W] dissipated by the relative dampers (torsional damper, shaft, coupling) and by the ground
-    dampers (load node), from node speed harmonics (N, M) (physics.md §12.4: the cycle mean of omega^T C omega)."""
-    s = np.asarray(speed)
+    dampers (load node), from node speed harmonics (N, M) (physics.md §12.4: the cycle mean of omega^T C omega).
+
+    One small kernel (``_dissipation``); the plain-numpy reference is in tests/core/test_dissipation_kernel.py."""
+    s = speed
+    if not (type(s) is np.ndarray and s.dtype == np.complex128 and s.flags.c_contiguous):
+        s = np.ascontiguousarray(s, dtype=np.complex128)
+    n = shaft.mass.shape[0]
+    if s.ndim != 2 or s.shape[0] != n:
+        raise ValueError(f"node speed harmonics must have shape (N, M) with N = {n}, got {s.shape}")
+    edges, c_edge, c_ground = shaft.edges, shaft.edge_damping, shaft.ground_damping
+    if not (edges.dtype == np.int64 and edges.flags.c_contiguous and c_edge.dtype == np.float64
+            and c_edge.flags.c_contiguous and c_ground.dtype == np.float64 and c_ground.flags.c_contiguous):
+        edges = np.ascontiguousarray(edges, dtype=np.int64).reshape(-1, 2)
+        c_edge = np.ascontiguousarray(c_edge, dtype=np.float64)
+        c_ground = np.ascontiguousarray(c_ground, dtype=np.float64)
+    out = _dissipation(s, edges, c_edge, c_ground)
+    return out[0], out[1]
+
+
+@numba.njit(cache=True)
+def _dissipation(speed, edges, edge_damping, ground_damping):
+    """(relative, ground) mean dissipated power: 0.5 sum c_e |s_i - s_j|^2 and 0.5 sum c_g |s|^2, each sum over
+    the (rows, M) products in numpy's pairwise order (np.sum of a contiguous array)."""
+    n, m = speed.shape
+    n_e = edges.shape[0]
+    buf = np.empty(max(n_e, n) * m)
     rel = 0.0
-    if shaft.edges.shape[0]:
-        d = s[shaft.edges[:, 0], :] - s[shaft.edges[:, 1], :]
-        rel = float(0.5 * np.sum(shaft.edge_damping[:, None] * np.abs(d) ** 2))
-    gnd = float(0.5 * np.sum(shaft.ground_damping[:, None] * np.abs(s) ** 2))
+    if n_e:
+        for q in range(n_e):
+            a = edges[q, 0]
+            b = edges[q, 1]
+            c = edge_damping[q]
+            for i in range(m):
+                d = speed[a, i] - speed[b, i]
+                v = math.hypot(d.real, d.imag)
+                buf[q * m + i] = c * (v * v)
+        rel = 0.5 * pairwise_sum(buf, 0, n_e * m)
+    for q in range(n):
+        c = ground_damping[q]
+        for i in range(m):
+            v = math.hypot(speed[q, i].real, speed[q, i].imag)
+            buf[q * m + i] = c * (v * v)
+    gnd = 0.5 * pairwise_sum(buf, 0, n * m)
     return rel, gnd
 
 

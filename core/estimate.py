@@ -33,35 +33,56 @@ def friction_estimate(
     ``min_data_gain`` of what is known about them (the rest coming from the priors and the mean balance).
     cylinder_rows (z, P): ``layout.cylinder_rows(basis_mean)`` if already at hand.
     """
-    z = spec.n_cyl
     p_f = layout.n_params
     theta = np.ascontiguousarray(post.theta, dtype=np.float64)
     if theta.shape != (p_f,):
         raise ValueError(f"the posterior must be over the {p_f} friction parameters, got theta of shape {theta.shape}")
     basis_mean = np.ascontiguousarray(basis_mean, dtype=np.float64)
     rows = layout.cylinder_rows(basis_mean) if cylinder_rows is None else cylinder_rows  # (z, P)
-    rows = np.ascontiguousarray(rows, dtype=np.float64)
+    return friction_estimate_leading(spec, layout, post, basis_mean, prior_mean, resolve_rel, coefficient_snr,
+                                     min_data_gain, np.ascontiguousarray(rows, dtype=np.float64))
+
+
+def friction_estimate_leading(spec: EngineSpec, layout: ParameterLayout, post: Posterior, basis_mean: np.ndarray,
+                              prior_mean: np.ndarray, resolve_rel: float, coefficient_snr: float,
+                              min_data_gain: float, cylinder_rows: np.ndarray) -> FrictionEstimate:
+    """``friction_estimate`` of the leading ``layout.n_params`` parameters of a posterior over more (friction
+    first, then nuisances), without slicing it: the kernel reads the leading block of the full, contiguous
+    covariances (the same numbers as ``friction_estimate(post.head(n_params), ...)``). basis_mean (z, 6) and
+    cylinder_rows (z, n_params) contiguous float64."""
+    z = spec.n_cyl
+    p_f = layout.n_params
+    theta = post.theta
+    if theta.shape[0] < p_f or cylinder_rows.shape != (z, p_f) or basis_mean.shape != (z, 6):
+        raise ValueError(f"need >= {p_f} parameters, rows ({z}, {p_f}) and basis means ({z}, 6)")
+    rows = cylinder_rows
     group = layout.group
-    t_mean = np.empty(z)
-    t_sig = np.empty(z)
-    fmep = np.empty(z)
-    fmep_sig = np.empty(z)
+    # one buffer for the float outputs (fresh per call: they go into the result), one for the masks
     shape = group.shape
-    coef = np.empty(shape)
-    coef_sig = np.empty(shape)
-    coef_norm = np.empty(shape)
-    coef_norm_sig = np.empty(shape)
-    resolved = np.empty(z, dtype=bool)
-    coef_ok = np.empty(shape, dtype=bool)
-    gain = np.empty(z)
-    totals = np.empty(4)
+    n6 = shape[0] * shape[1]
+    buf = np.empty(5 * z + 4 * n6 + 4)
+    t_mean = buf[:z]
+    t_sig = buf[z:2 * z]
+    fmep = buf[2 * z:3 * z]
+    fmep_sig = buf[3 * z:4 * z]
+    gain = buf[4 * z:5 * z]
+    o = 5 * z
+    coef = buf[o:o + n6].reshape(shape)
+    coef_sig = buf[o + n6:o + 2 * n6].reshape(shape)
+    coef_norm = buf[o + 2 * n6:o + 3 * n6].reshape(shape)
+    coef_norm_sig = buf[o + 3 * n6:o + 4 * n6].reshape(shape)
+    totals = buf[o + 4 * n6:]
+    masks = np.empty(z + n6, dtype=bool)
+    resolved = masks[:z]
+    coef_ok = masks[z:].reshape(shape)
     # one kernel: coefficients and their sigmas, per-cylinder and total means with sigmas (quadratic forms through
     # the covariance, row by row), data gains of the deviations from the equal share, resolved masks
-    estimate_into(theta, post.covariance, post.cov_statistical, post.cov_reference, group,
-                  np.ascontiguousarray(layout.prior, dtype=np.float64), basis_mean, rows, float(resolve_rel),
-                  float(coefficient_snr), float(min_data_gain), FOUR_PI / spec.displacement_cyl,
-                  FOUR_PI / spec.displacement, t_mean, t_sig, fmep, fmep_sig, coef, coef_sig, coef_norm,
-                  coef_norm_sig, resolved, coef_ok, gain, totals)
+    estimate_into(np.ascontiguousarray(theta, dtype=np.float64), np.ascontiguousarray(post.covariance),
+                  np.ascontiguousarray(post.cov_statistical), np.ascontiguousarray(post.cov_reference), group,
+                  layout.prior if layout.prior.flags.c_contiguous else np.ascontiguousarray(layout.prior),
+                  basis_mean, rows, float(resolve_rel), float(coefficient_snr), float(min_data_gain),
+                  FOUR_PI / spec.displacement_cyl, FOUR_PI / spec.displacement, t_mean, t_sig, fmep, fmep_sig, coef,
+                  coef_sig, coef_norm, coef_norm_sig, resolved, coef_ok, gain, totals)
     return FrictionEstimate(
         friction_torque_mean=t_mean,
         friction_torque_mean_sigma=t_sig,

@@ -34,7 +34,7 @@ from core.accumulate import Accumulator, ResidualStats, posterior_from_normal
 from core.cycle_report import build_result
 from core.dynamics import dissipated_power
 from core.engine import EngineSpec
-from core.estimate import friction_estimate
+from core.estimate import friction_estimate_leading
 from core.flywheel import FlywheelMotion, ToothLearner
 from core.harmonic_balance import OperatingPoint, harmonic_balance, operating_point
 from core.identify import CycleRows, ParameterLayout, parameter_layout
@@ -263,10 +263,17 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
                                           balance if np.isfinite(balance) else bal_mean, exc.indicated_mean, motored,
                                           cfg.share_spread)
     post_c = posterior_from_normal(one, n_c, r_c, sys_var, lower)
-    est_s = friction_estimate(spec, layout, post_s.head(p_f), exc.basis_mean, share_s.friction_mean,
-                              cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain, rows.cylinder_rows)
-    est_c = friction_estimate(spec, layout, post_c.head(p_f), exc.basis_mean, share_c.friction_mean,
-                              cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain, rows.cylinder_rows)
+    # the friction block of each posterior, read in place (no head(): the kernel reads the leading p_f rows)
+    basis_mean = exc.basis_mean
+    cyl_rows = rows.cylinder_rows
+    if not (basis_mean.dtype == np.float64 and basis_mean.flags.c_contiguous):
+        basis_mean = np.ascontiguousarray(basis_mean, dtype=np.float64)
+    if not (cyl_rows.dtype == np.float64 and cyl_rows.flags.c_contiguous and cyl_rows.shape[1] == p_f):
+        cyl_rows = np.ascontiguousarray(cyl_rows[:, :p_f], dtype=np.float64)
+    est_s = friction_estimate_leading(spec, layout, post_s, basis_mean, share_s.friction_mean, cfg.resolve_rel,
+                                      cfg.coefficient_snr, cfg.min_data_gain, cyl_rows)
+    est_c = friction_estimate_leading(spec, layout, post_c, basis_mean, share_c.friction_mean, cfg.resolve_rel,
+                                      cfg.coefficient_snr, cfg.min_data_gain, cyl_rows)
     if n_fire < z:
         flags += [f"misfire_cyl{k + 1}" for k in np.flatnonzero(share_c.motored)]
 

@@ -10,7 +10,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from core.accumulate import Posterior, ResidualStats
 from core.engine import load_engine
-from core.estimate import friction_estimate
+from core.estimate import friction_estimate, friction_estimate_leading
 from core.identify import parameter_layout
 from core.monitor_kernels import noise_rows, pairwise_sum, report_traces, share_normal_into, speed_power, speed_residual
 from core.results import FrictionEstimate
@@ -240,6 +240,10 @@ def test_friction_estimate_matches_reference(name, seed):
                 assert_allclose(g, r, rtol=1e-12, atol=1e-12 * np.nanmax(np.abs(r), initial=0.0), err_msg=f)
         got2 = friction_estimate(spec, layout, post, basis_mean, prior_mean, *args)  # rows from the layout
         assert_array_equal(got2.fmep_sigma, got.fmep_sigma)
+        # the monitor's path: the leading block of the full (contiguous) posterior, read in place
+        got3 = friction_estimate_leading(spec, layout, full, basis_mean, prior_mean, *args, rows)
+        for f in FrictionEstimate.__dataclass_fields__:
+            assert_array_equal(np.asarray(getattr(got3, f)), np.asarray(getattr(got, f)), err_msg=f)
 
 
 @pytest.mark.parametrize("name,m,n_t", SIZES)
