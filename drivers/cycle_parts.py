@@ -28,14 +28,13 @@ class Wheel:
     n: int
     k: int
     a0_pitch: float
+    # derived, stored once: read ~40 times per cycle on the assembly's hot path (a property costs a call each)
+    t: int = field(init=False, repr=False, compare=False)
+    pitch: float = field(init=False, repr=False, compare=False)
 
-    @property
-    def t(self) -> int:
-        return self.n - self.k
-
-    @property
-    def pitch(self) -> float:
-        return 2.0 * math.pi / self.n
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t", self.n - self.k)
+        object.__setattr__(self, "pitch", 2.0 * math.pi / self.n)
 
     def ordinal(self, pos: int) -> int:
         """Running count of existing teeth up to ``pos`` (pos must be a tooth)."""

@@ -59,6 +59,7 @@ from drivers.cycle_parts import (
 from drivers.cycle_phase import firing_verdict, phase_windows, place_cams
 from drivers.engine_buffers import EngineBuffers
 from drivers.resample import pchip_eval
+from drivers.ringbuffer import _search_sorted
 from drivers.wheel_sync import EV_END, EV_SEGMENT, REASONS, WheelTracker
 
 log = logging.getLogger(__name__)
@@ -263,6 +264,8 @@ class CycleAssembler:
 
     # ---- phase --------------------------------------------------------------------------------------------------
     def _place_cams(self, ep: Epoch) -> None:
+        if self._cam_next >= self.buf.cam.end:  # no cam row since the last call: place_cams would change nothing
+            return
         self._cam_next, bit = place_cams(ep, self.buf.cam, self.buf.teeth, self._cam_next, self.wheel, self.a0,
                                          math.radians(self.info.cam_deg), self.stats)
         if ep.phase is None and bit is not None:
@@ -420,7 +423,8 @@ class CycleAssembler:
         t_grid = p.t_grid
         if ep.phase_source == "cam" and self.info.cam_deg is not None and ep is self._epoch:
             self._place_cams(ep)  # a cam edge that came after the teeth (an older epoch has all it will get)
-        votes = [b for t, b in ep.cam_votes if p.ticks[0] <= t <= p.ticks[-1]]
+        t_first, t_last = int(p.ticks[0]), int(p.ticks[-1])  # Python ints: the same comparisons, no numpy scalars
+        votes = [b for t, b in ep.cam_votes if t_first <= t <= t_last]
         if any(b != ep.phase for b in votes):
             self._skip("phase_mismatch", p.index)
             return None
@@ -462,7 +466,10 @@ class CycleAssembler:
             return
         self._discarded_at = teeth.end
         # teeth within the pressure wait of now stay, so a late cam edge can still be placed between two of them
-        keep = min(self.tracker.oldest_needed(), teeth.searchsorted("t", self._now - self.wait_ticks))
+        # the searches call the ring kernel directly (RingBuffer.searchsorted without its wrapper: same answer)
+        t_col, cap = teeth._cols["t"], teeth.capacity
+        keep = min(self.tracker.oldest_needed(), teeth.start + _search_sorted(
+            t_col, teeth.start % cap, teeth.end - teeth.start, self._now - self.wait_ticks, False))
         ep = self._epoch
         if ep is not None:
             seg = ep.segments[-1]
@@ -472,14 +479,18 @@ class CycleAssembler:
             else:
                 keep = min(keep, max(seg.first_seq, self._seq_or(seg, self._window(ep, ep.next_c)[0])))
         keep = max(teeth.start, min(keep, teeth.end))
-        t_keep = float(teeth.get("t", keep)) if keep < teeth.end else float(self._now)
+        t_keep = float(t_col[keep % cap]) if keep < teeth.end else float(self._now)
         if self._pending:
             t_keep = min(t_keep, float(self._pending[0].ticks[0]))
         teeth.discard_before(keep - 2)
         for group in self.buf.groups.values():  # the channels of a group share their rows
             group.discard_before(group.searchsorted(t_keep, side="left") - 2)
-        self.buf.load.discard_before(self.buf.load.searchsorted("t", t_keep - self.info.tick_hz, side="left") - 1)
-        self.buf.cam.discard_before(min(self._cam_next, self.buf.cam.searchsorted("t", t_keep, side="left")))
+        ring = self.buf.load
+        ring.discard_before(ring.start + _search_sorted(ring._cols["t"], ring.start % ring.capacity,
+                                                        ring.end - ring.start, t_keep - self.info.tick_hz, False) - 1)
+        ring = self.buf.cam
+        ring.discard_before(min(self._cam_next, ring.start + _search_sorted(
+            ring._cols["t"], ring.start % ring.capacity, ring.end - ring.start, t_keep, False)))
         if ep is not None and len(ep.cam_votes) > 64:
             ep.cam_votes = [v for v in ep.cam_votes if v[0] >= t_keep]
 

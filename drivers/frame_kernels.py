@@ -15,9 +15,55 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from drivers.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, _window_weights
 from drivers.ringbuffer import _less
+
+
+@intrinsic
+def _prefetch(typingctx, arr, r, q):
+    """Hint (``llvm.prefetch``, read, keep in cache): start loading the cache line of ``arr[r, q]`` (2-D). No effect
+    on any value; it lets the next frame's samples arrive while the current one is computed."""
+    sig = types.void(arr, r, q)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [args[1], args[2]], wraparound=False)
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                            "llvm.prefetch.p0")
+        builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@numba.njit(cache=True)
+def _prefetch_part(frames, ci, n_chunks, end, rows, c, lo, hi):
+    """Prefetch hint for the wanted rows of chunk c over the absolute rows [lo, hi) it holds (one per cache line).
+    A frame's samples are usually cold (filed a cycle ago): hinting the next frame while the current one is
+    resampled overlaps the memory reads with the arithmetic."""
+    if c < 0 or c >= n_chunks:
+        return
+    s0 = max(lo, ci[c, 0])
+    s1 = min(hi, ci[c + 1, 0] if c + 1 < n_chunks else end)
+    if s1 <= s0:
+        return
+    src = frames[c]
+    col0 = ci[c, 1] + s0 - ci[c, 0]
+    col1 = col0 + s1 - s0
+    for r in range(rows.shape[0]):
+        if rows[r] < 0:
+            continue
+        for q in range(col0, col1, 8):
+            _prefetch(src, r, q)
+        _prefetch(src, r, col1 - 1)
 
 
 @numba.njit(cache=True)
@@ -94,7 +140,9 @@ def _frame_rows(frames, ci, cf, n_chunks, start, end, t_grid, rows, out, codes, 
     Bit for bit ``_pressure_rows`` on the equivalent ring: the window's times are computed into x_buf (>= its
     length) and give the same window, hole and weights (``_window_weights``); then each frame that holds part of
     the window is read once, in memory order: per wanted row the NaN check of its part (up to the first hole) and
-    ``y[j] + w (y[j+1] - y[j])`` for the grid times whose interval j starts in it (y[j+1] may open the next frame)."""
+    ``y[j] + w (y[j+1] - y[j])`` for the grid times whose interval j starts in it (y[j+1] may open the next frame).
+    Cache hints (``_prefetch_part``) ask for the first frame before the window's weights and for frame c + 1 while
+    frame c is read: they change no value, they only overlap the (usually cold) frame reads with the arithmetic."""
     k = rows.shape[0]
     m = t_grid.shape[0]
     n = end - start
@@ -113,6 +161,7 @@ def _frame_rows(frames, ci, cf, n_chunks, start, end, t_grid, rows, out, codes, 
         return bad
     nx = b - a
     x = x_buf[:nx]
+    _prefetch_part(frames, ci, n_chunks, end, rows, _chunk_of(ci, n_chunks, start + a), start + a, start + b)
     _chunk_times(ci, cf, n_chunks, start + a, start + b, x)
     jj = np.empty(m, np.int64)
     ww = np.empty(m)
@@ -128,6 +177,7 @@ def _frame_rows(frames, ci, cf, n_chunks, start, end, t_grid, rows, out, codes, 
         w1 = min((ci[c + 1, 0] if c + 1 < n_chunks else end) - lo, need)
         src = frames[c]
         col = ci[c, 1] + lo + w0 - ci[c, 0]  # column of window sample w0
+        _prefetch_part(frames, ci, n_chunks, end, rows, c + 1, lo, lo + need)
         i1 = i0  # grid times [i0, i1) have their interval j in this part; [i0, i2) also j + 1
         if interp:
             while i1 < m and jj[i1] < w1:
