@@ -9,6 +9,7 @@ from core.engine import EngineSpec
 from core.excitation import Excitation
 from core.excitation_kernels import interp_rows_periodic
 from core.flywheel import FlywheelMotion, harmonic_series, harmonics_of
+from core.frozen_init import fast_constructor
 from core.identify import CycleRows, ParameterLayout
 from core.monitor_kernels import report_traces
 from core.report_kernels import speed_series, trig_tables
@@ -16,14 +17,16 @@ from core.results import CycleResult, FrictionEstimate
 from core.types import Cycle
 
 FOUR_PI = 4.0 * np.pi
+_make_result = fast_constructor(CycleResult)  # CycleResult(**fields), cheaper
 
 
 def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excitation, rows: CycleRows,
                  theta: np.ndarray, layout: ParameterLayout, drift: np.ndarray | None, load: float, balance: float,
                  coupling_loss: float, pmax: np.ndarray, pmax_angle: np.ndarray, est_c: FrictionEstimate,
-                 est_s: FrictionEstimate, flags: list[str]) -> CycleResult:
+                 est_s: FrictionEstimate, flags: list[str], freq: np.ndarray | None = None) -> CycleResult:
     """theta: smoothed [friction scales, tooth nuisances]; drift (M,) complex: this cycle's drift shape in speed
-    harmonics (its best fit is taken out of the reported residual, as it is out of the noise statistics)."""
+    harmonics (its best fit is taken out of the reported residual, as it is out of the noise statistics); freq (M,):
+    ``fly.freq`` if already at hand."""
     grid = np.ascontiguousarray(cycle.grid, dtype=np.float64)
     n_t = exc.tau.shape[0]
     p_f = layout.n_params
@@ -43,8 +46,8 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
     extra = np.empty((3 if spec.n_nodes == 1 else 2, n_t))
     resid_sq, power = speed_series(
         _c128(rows.design), _c128(rows.target), theta, p_f, _c128(drift if use_drift else rows.target), use_drift,
-        fly.freq, _c128(fly.harmonics), np.ascontiguousarray(omega_meas, dtype=np.float64), cos_t, sin_t, resid,
-        extra)
+        fly.freq if freq is None else freq, _c128(fly.harmonics), np.ascontiguousarray(omega_meas, dtype=np.float64),
+        cos_t, sin_t, resid, extra)
     omega_meas = extra[0]
     r2 = 1.0 - resid_sq / power if power > 0 else float("nan")
     if spec.n_nodes == 1:  # direct rigid balance (paper 001 Eq. 26), low-passed to the identification band
@@ -60,7 +63,7 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
                   np.ascontiguousarray(exc.basis, dtype=np.float64), extra, per_cyl, total, on_grid)
     speed_meas, speed_model = on_grid[0], on_grid[1]
     balance_trace = on_grid[2] if spec.n_nodes == 1 else None
-    return CycleResult(
+    return _make_result(
         index=cycle.index, t_start=cycle.t_start, rpm_mean=fly.omega_mean * 60.0 / (2.0 * np.pi),
         omega_mean=fly.omega_mean, load_torque=float(load), load_power=float(cycle.load_power),
         imep=exc.indicated_mean * FOUR_PI / spec.displacement_cyl, pmax=pmax, pmax_angle=pmax_angle,

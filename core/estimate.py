@@ -7,11 +7,13 @@ import numpy as np
 
 from core.accumulate import Posterior
 from core.engine import EngineSpec
+from core.frozen_init import fast_constructor
 from core.identify import ParameterLayout
 from core.monitor_kernels import estimate_into
 from core.results import FrictionEstimate
 
 FOUR_PI = 4.0 * np.pi
+_make_estimate = fast_constructor(FrictionEstimate)  # FrictionEstimate(**fields), cheaper
 
 
 def friction_estimate(
@@ -45,14 +47,18 @@ def friction_estimate(
 
 def friction_estimate_leading(spec: EngineSpec, layout: ParameterLayout, post: Posterior, basis_mean: np.ndarray,
                               prior_mean: np.ndarray, resolve_rel: float, coefficient_snr: float,
-                              min_data_gain: float, cylinder_rows: np.ndarray) -> FrictionEstimate:
+                              min_data_gain: float, cylinder_rows: np.ndarray,
+                              mep_factors: tuple[float, float] | None = None) -> FrictionEstimate:
     """``friction_estimate`` of the leading ``layout.n_params`` parameters of a posterior over more (friction
     first, then nuisances), without slicing it: the kernel reads the leading block of the full, contiguous
     covariances (the same numbers as ``friction_estimate(post.head(n_params), ...)``). basis_mean (z, 6) and
-    cylinder_rows (z, n_params) contiguous float64."""
+    cylinder_rows (z, n_params) contiguous float64. mep_factors: (4 pi / displacement_cyl, 4 pi / displacement)
+    [1/m^3] if already at hand."""
     z = spec.n_cyl
     p_f = layout.n_params
     theta = post.theta
+    if mep_factors is None:
+        mep_factors = (FOUR_PI / spec.displacement_cyl, FOUR_PI / spec.displacement)
     if theta.shape[0] < p_f or cylinder_rows.shape != (z, p_f) or basis_mean.shape != (z, 6):
         raise ValueError(f"need >= {p_f} parameters, rows ({z}, {p_f}) and basis means ({z}, 6)")
     rows = cylinder_rows
@@ -61,17 +67,11 @@ def friction_estimate_leading(spec: EngineSpec, layout: ParameterLayout, post: P
     shape = group.shape
     n6 = shape[0] * shape[1]
     buf = np.empty(5 * z + 4 * n6 + 4)
-    t_mean = buf[:z]
-    t_sig = buf[z:2 * z]
-    fmep = buf[2 * z:3 * z]
-    fmep_sig = buf[3 * z:4 * z]
-    gain = buf[4 * z:5 * z]
-    o = 5 * z
-    coef = buf[o:o + n6].reshape(shape)
-    coef_sig = buf[o + n6:o + 2 * n6].reshape(shape)
-    coef_norm = buf[o + 2 * n6:o + 3 * n6].reshape(shape)
-    coef_norm_sig = buf[o + 3 * n6:o + 4 * n6].reshape(shape)
-    totals = buf[o + 4 * n6:]
+    per_cyl = buf[:5 * z].reshape(5, z)
+    t_mean, t_sig, fmep, fmep_sig, gain = per_cyl[0], per_cyl[1], per_cyl[2], per_cyl[3], per_cyl[4]
+    per_term = buf[5 * z:5 * z + 4 * n6].reshape(4, *shape)
+    coef, coef_sig, coef_norm, coef_norm_sig = per_term[0], per_term[1], per_term[2], per_term[3]
+    totals = buf[5 * z + 4 * n6:]
     masks = np.empty(z + n6, dtype=bool)
     resolved = masks[:z]
     coef_ok = masks[z:].reshape(shape)
@@ -81,9 +81,9 @@ def friction_estimate_leading(spec: EngineSpec, layout: ParameterLayout, post: P
                   np.ascontiguousarray(post.cov_statistical), np.ascontiguousarray(post.cov_reference), group,
                   layout.prior if layout.prior.flags.c_contiguous else np.ascontiguousarray(layout.prior),
                   basis_mean, rows, float(resolve_rel), float(coefficient_snr), float(min_data_gain),
-                  FOUR_PI / spec.displacement_cyl, FOUR_PI / spec.displacement, t_mean, t_sig, fmep, fmep_sig, coef,
+                  float(mep_factors[0]), float(mep_factors[1]), t_mean, t_sig, fmep, fmep_sig, coef,
                   coef_sig, coef_norm, coef_norm_sig, resolved, coef_ok, gain, totals)
-    return FrictionEstimate(
+    return _make_estimate(
         friction_torque_mean=t_mean,
         friction_torque_mean_sigma=t_sig,
         fmep=fmep,

@@ -26,6 +26,7 @@ Per cycle:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,14 +36,15 @@ from core.cycle_report import build_result
 from core.dynamics import dissipated_power
 from core.engine import EngineSpec
 from core.estimate import friction_estimate_leading
-from core.flywheel import FlywheelMotion, ToothLearner
+from core.flywheel import ToothLearner
+from core.frozen_init import fast_constructor
 from core.harmonic_balance import OperatingPoint, harmonic_balance, operating_point
-from core.identify import CycleRows, ParameterLayout, parameter_layout
+from core.identify import ParameterLayout, parameter_layout
 from core.indicated import _peak_pressure_finite, peak_pressure
-from core.monitor_kernels import firing_into, noise_rows, pairwise_sum, share_normal_into
+from core.monitor_glue import freq_times_1j, glue_plan, noise_model_rows, shares_pair  # noqa: F401 (re-export)
+from core.monitor_kernels import pairwise_sum
 from core.priors import build_priors
 from core.results import CycleResult
-from core.sharing import SharedLoss, motored_friction_per_cylinder, share_mean_loss
 from core.tooth_fit import fit_cycle_teeth
 from core.types import Cycle
 
@@ -143,6 +145,14 @@ class MonitorState:
     drift_var: float = 0.0
     tooth_pattern_cache: tuple[np.ndarray, np.ndarray] | None = None  # (edge angles from the first, patterns)
     prior_normal: tuple | None = None  # (config key, N, r): normal equations of the fixed priors (core.priors)
+    glue_plan: tuple | None = None  # per-spec constants of the glue (core.monitor_glue)
+
+
+_DEFAULT_CONFIG = MonitorConfig()  # frozen: one instance serves every call without a config
+
+# the per-cycle frozen objects, built without the per-field frozen __setattr__ (core.frozen_init)
+_make_state = fast_constructor(MonitorState)
+_make_accumulator = fast_constructor(Accumulator)
 
 
 def default_max_order(spec: EngineSpec) -> float:
@@ -176,7 +186,7 @@ def initial_state(spec: EngineSpec, config: MonitorConfig | None = None,
 def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
                   config: MonitorConfig | None = None) -> tuple[MonitorState, CycleResult]:
     """Analyse one cycle. Raises ``CycleRejected`` (state unchanged) when the cycle cannot be used."""
-    cfg = config or MonitorConfig()
+    cfg = config or _DEFAULT_CONFIG
     pressure, flags, pmax, pmax_angle = _checked_pressure_peaks(spec, cycle)
     m = state.n_harmonics
     try:
@@ -187,8 +197,8 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
     except ValueError as exc:
         raise CycleRejected("bad_teeth", str(exc)) from exc
     omega = fly.omega_mean
-    load = cycle.load_torque if np.isfinite(cycle.load_torque) else cycle.load_power / omega
-    if not np.isfinite(load):
+    load = cycle.load_torque if math.isfinite(cycle.load_torque) else cycle.load_power / omega
+    if not math.isfinite(load):
         flags.append("no_load_measurement")
     op = operating_point(spec, state.op, omega, load, m, cfg.rebuild_tolerance, cfg.variable_inertia)
     if op is not state.op and state.op is not None:
@@ -202,15 +212,19 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
     # coupling would book as friction (physics.md §12.4); the load's own ripple work (ground damping) belongs to
     # the load: the measured torque is a time mean, the work it absorbs is that plus <T_L~ omega_L~>
     coupling_loss = p_rel / omega
-    if np.isfinite(load):
+    if math.isfinite(load):
         load = load + p_gnd / omega
-    t_i = float(exc.indicated_mean.sum())
+    t_ind = exc.indicated_mean
+    if t_ind.dtype == np.float64 and t_ind.ndim == 1 and t_ind.flags.c_contiguous:
+        t_i = pairwise_sum(t_ind, 0, t_ind.shape[0])  # numpy's sum, bit for bit, without the ufunc machinery
+    else:
+        t_i = float(t_ind.sum())
     # no kinetic-energy term: a per-cycle estimate of it from the fitted drift is biased by any content the fit
     # lacks, while the uncorrected balance telescopes (its cycle-to-cycle noise averages out in the accumulation)
-    balance = t_i - load - coupling_loss if np.isfinite(load) else float("nan")
+    balance = t_i - load - coupling_loss if math.isfinite(load) else float("nan")
 
     # cycle-to-cycle speed change: a random walk of the mean speed, its step variance tracks the within-cycle drift
-    step = omega - state.prev_omega if np.isfinite(state.prev_omega) else 0.0
+    step = omega - state.prev_omega if math.isfinite(state.prev_omega) else 0.0
     drift_var = step**2 if state.cycles <= 1 else state.drift_var + max(1.0 - cfg.noise_memory, 1.0 / state.cycles) * (
         step**2 - state.drift_var)
     # noise model from past residuals (the residual without this cycle's best-fitting drift), floor from the
@@ -219,30 +233,22 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
     # (Sherman-Morrison), so a large drift projects its column out and a small one leaves the order-0.5
     # information in place; the last row is the mean balance (zero when there is no load measurement);
     # systematic variances from the persistent residual and the model-error floors (core.monitor_kernels)
-    stats, a, y, inv_sigma, sys_var, freq = _noise_model_rows(cfg, spec, state, fly, rows, balance, t_i, drift_var,
-                                                              coupling_loss)
+    stats, a, y, inv_sigma, sys_var, freq, drift_col = noise_model_rows(cfg, spec, state, fly, rows, balance, t_i,
+                                                                        drift_var, coupling_loss)
     lam = cfg.forgetting if cfg.forgetting is not None else 1.0 - 1.0 / max(400.0, 100.0 * spec.n_cyl)
     terms = state.accumulator.cycle_terms(a, y, inv_sigma, 1)  # shared by the running and this cycle's equations
     acc = state.accumulator.fold(terms, lam) if state.cycles >= cfg.warmup_cycles else state.accumulator
 
     # running means for the sharing prior of the smoothed estimate
     g = max(1.0 - lam, 1.0 / (state.cycles + 1))
-    if not np.isfinite(balance):
+    if not math.isfinite(balance):
         bal_mean = state.balance_mean
-    elif not np.isfinite(state.balance_mean):
+    elif not math.isfinite(state.balance_mean):
         bal_mean = balance
     else:
         bal_mean = state.balance_mean + g * (balance - state.balance_mean)
-    ind_mean = exc.indicated_mean.copy() if state.cycles == 0 else state.indicated_mean + g * (
-        exc.indicated_mean - state.indicated_mean)
     rpm = omega * 60.0 / (2.0 * np.pi)
     z = spec.n_cyl
-    fire = np.empty(z, dtype=np.bool_)
-    n_fire = firing_into(exc.indicated_mean, 0.15, fire)
-    pmax_motored = 0.0
-    if n_fire < z:  # np.mean of the motored cylinders' peaks
-        pmax_motored = pairwise_sum(np.ascontiguousarray(pmax[~fire]), 0, z - n_fire) / (z - n_fire)
-    motored = motored_friction_per_cylinder(spec, rpm, pmax_motored)
 
     layout = state.layout
     p_f = layout.n_params
@@ -253,15 +259,17 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
         base = build_priors(spec, layout, state.n_nuisance, np.zeros((spec.n_cyl, p_f + state.n_nuisance)),
                             cfg.parameter_sigma, cfg.tooth_error_deg, cfg.sibling_spread).base
         prior_normal = (prior_key, *base.normal())
-    lower = _lower_bounds(p_f, state.n_nuisance)
-    share_s, n_s, r_s = _share_and_normal(prior_normal, rows.cylinder_rows, bal_mean, ind_mean, motored,
-                                          cfg.share_spread)
+    plan = state.glue_plan if state.glue_plan is not None and state.glue_plan[0] is spec else glue_plan(spec, state)
+    lower = plan[2]
+    # Eq. 6 shares of the running and of this cycle's mean balance, firing mask, motored friction, running
+    # indicated means and both sets of prior normal equations in one kernel (core.monitor_kernels.shares_pair_into)
+    ind_mean, fric_s, fric_c, fire, n_fire, n_s, r_s, n_c, r_c = shares_pair(
+        spec, state, prior_normal, rows.cylinder_rows, exc.indicated_mean, pmax, g, bal_mean,
+        balance if math.isfinite(balance) else bal_mean, rpm, plan[1], cfg.share_spread)
     post_s = posterior_from_normal(acc, n_s, r_s, sys_var, lower)
     # this cycle's equations alone: lambda = 0 folded into an empty accumulator is the cycle's terms themselves
-    one = Accumulator(terms.info, terms.rhs, terms.yty, 1.0, terms.rows, terms.sys_map, terms.info_reference)
-    share_c, n_c, r_c = _share_and_normal(prior_normal, rows.cylinder_rows,
-                                          balance if np.isfinite(balance) else bal_mean, exc.indicated_mean, motored,
-                                          cfg.share_spread)
+    one = _make_accumulator(info=terms.info, rhs=terms.rhs, yty=terms.yty, weight=1.0, rows=terms.rows,
+                            sys_map=terms.sys_map, info_reference=terms.info_reference)
     post_c = posterior_from_normal(one, n_c, r_c, sys_var, lower)
     # the friction block of each posterior, read in place (no head(): the kernel reads the leading p_f rows)
     basis_mean = exc.basis_mean
@@ -270,35 +278,24 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
         basis_mean = np.ascontiguousarray(basis_mean, dtype=np.float64)
     if not (cyl_rows.dtype == np.float64 and cyl_rows.flags.c_contiguous and cyl_rows.shape[1] == p_f):
         cyl_rows = np.ascontiguousarray(cyl_rows[:, :p_f], dtype=np.float64)
-    est_s = friction_estimate_leading(spec, layout, post_s, basis_mean, share_s.friction_mean, cfg.resolve_rel,
-                                      cfg.coefficient_snr, cfg.min_data_gain, cyl_rows)
-    est_c = friction_estimate_leading(spec, layout, post_c, basis_mean, share_c.friction_mean, cfg.resolve_rel,
-                                      cfg.coefficient_snr, cfg.min_data_gain, cyl_rows)
+    est_s = friction_estimate_leading(spec, layout, post_s, basis_mean, fric_s, cfg.resolve_rel,
+                                      cfg.coefficient_snr, cfg.min_data_gain, cyl_rows, plan[3])
+    est_c = friction_estimate_leading(spec, layout, post_c, basis_mean, fric_c, cfg.resolve_rel,
+                                      cfg.coefficient_snr, cfg.min_data_gain, cyl_rows, plan[3])
     if n_fire < z:
-        flags += [f"misfire_cyl{k + 1}" for k in np.flatnonzero(share_c.motored)]
+        flags += [f"misfire_cyl{k + 1}" for k in np.flatnonzero(~fire)]
 
-    drift_col = freq_times_1j(freq, fly.pattern_harmonics[:, -1]) if cfg.drift_nuisance else None
     result = build_result(spec, cycle, fly, exc, rows, post_s.theta, layout, drift_col, load, balance,
-                          coupling_loss, pmax, pmax_angle, est_c, est_s, flags)
-    new_state = MonitorState(
+                          coupling_loss, pmax, pmax_angle, est_c, est_s, flags, freq)
+    new_state = _make_state(
         layout=layout, n_harmonics=m, n_nuisance=state.n_nuisance, accumulator=acc, stats=stats, theta=post_s.theta,
         op=op, relative_motion=rel, static=static, teeth=teeth, balance_mean=bal_mean, indicated_mean=ind_mean,
         cycles=state.cycles + 1, prev_omega=omega, drift_var=drift_var, tooth_pattern_cache=pattern_cache,
-        prior_normal=prior_normal)
+        prior_normal=prior_normal, glue_plan=plan)
     return new_state, result
 
 
 # ---- steps -------------------------------------------------------------------------------------------------
-
-
-def _with_share(prior_normal: tuple, cylinder_rows: np.ndarray, share: SharedLoss) -> tuple[np.ndarray, np.ndarray]:
-    """Normal equations of the fixed priors plus the Eq. 6 share rows (``FixedPriors.with_share(share).normal()``)."""
-    _, n_base, r_base = prior_normal
-    if not np.all(np.isfinite(share.friction_mean)):
-        return n_base, r_base
-    sig = np.maximum(share.sigma, 1e-6)
-    w = cylinder_rows / sig[:, None]
-    return n_base + w.T @ w, r_base + w.T @ (share.friction_mean / sig)
 
 
 def _checked_pressure(spec: EngineSpec, cycle: Cycle) -> tuple[np.ndarray, list[str]]:
@@ -344,74 +341,3 @@ def _checked_pressure_peaks(spec: EngineSpec, cycle: Cycle) -> tuple[np.ndarray,
     pressure, flags = _checked_pressure(spec, cycle)  # the general path: checks, repairs, flags
     pmax, angle = peak_pressure(cycle.grid, pressure, phases)
     return pressure, flags, pmax, angle
-
-
-def _noise_model_rows(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fly: FlywheelMotion,
-                      rows: CycleRows, balance: float, t_i: float, drift_var: float, coupling_loss: float):
-    """Updated residual statistics, whitened rows a (2M+1, P), y, inv_sigma, sys_var (2M+1,) and the harmonic
-    frequencies (M,) of one cycle (core.monitor_kernels.noise_rows; the steps are described there and in
-    process_cycle)."""
-    m = state.n_harmonics
-    p = rows.design.shape[1]
-    st = state.stats
-    freq = fly.freq
-    floor = freq**2 * 2.0 * fly.residual_rms**2 / fly.n_edges + 1e-12
-    sys_balance = ((cfg.balance_rel_error * t_i) ** 2 + (cfg.coupling_rel_error * coupling_loss) ** 2
-                   + (cfg.load_rel_error * spec.rated_torque_nm) ** 2)
-    out_mean = np.empty(m, dtype=np.complex128)
-    out_var = np.empty(m)
-    out_scalars = np.empty(3)
-    a = np.empty((2 * m + 1, p))
-    y = np.empty(2 * m + 1)
-    inv_sigma = np.empty(2 * m + 1)
-    sys_var = np.empty(2 * m + 1)
-    noise_rows(np.ascontiguousarray(rows.design, dtype=np.complex128),
-               np.ascontiguousarray(rows.target, dtype=np.complex128),
-               np.ascontiguousarray(state.theta, dtype=np.float64), freq,
-               np.ascontiguousarray(fly.pattern_harmonics[:, -1], dtype=np.complex128), bool(cfg.drift_nuisance),
-               np.ascontiguousarray(st.mean, dtype=np.complex128), np.ascontiguousarray(st.var, dtype=np.float64),
-               np.array([st.balance_mean, st.balance_var, st.count], dtype=np.float64), float(cfg.noise_memory),
-               float(balance), np.ascontiguousarray(rows.mean_row, dtype=np.float64),
-               np.ascontiguousarray(floor, dtype=np.float64), float(t_i), float(drift_var), float(fly.period),
-               np.ascontiguousarray(fly.harmonics, dtype=np.complex128), float(cfg.model_rel_error),
-               float(sys_balance), out_mean, out_var, out_scalars, a, y, inv_sigma, sys_var)
-    stats = ResidualStats(mean=out_mean, var=out_var, balance_mean=float(out_scalars[0]),
-                          balance_var=float(out_scalars[1]), count=st.count + 1)
-    return stats, a, y, inv_sigma, sys_var, freq
-
-
-def freq_times_1j(freq: np.ndarray, harmonics: np.ndarray) -> np.ndarray:
-    """``1j * freq * harmonics`` (M,) complex."""
-    return 1j * freq * harmonics
-
-
-_LOWER: dict[tuple[int, int], np.ndarray] = {}
-
-
-def _lower_bounds(n_params: int, n_nuisance: int) -> np.ndarray:
-    """Lower bounds [0 for the friction scales, -inf (free) for the nuisances]; one read-only array per size."""
-    key = (n_params, n_nuisance)
-    lo = _LOWER.get(key)
-    if lo is None:
-        lo = np.concatenate([np.zeros(n_params), np.full(n_nuisance, -np.inf)])
-        lo.flags.writeable = False
-        _LOWER[key] = lo
-    return lo
-
-
-def _share_and_normal(prior_normal: tuple, cylinder_rows: np.ndarray, friction_total: float,
-                      indicated_mean: np.ndarray, motored_friction: float,
-                      spread: float) -> tuple[SharedLoss, np.ndarray, np.ndarray]:
-    """``share_mean_loss`` and ``_with_share`` in two kernel calls."""
-    share = share_mean_loss(friction_total, indicated_mean, motored_friction, spread)
-    _, n_base, r_base = prior_normal
-    rows = cylinder_rows
-    if not (rows.dtype == np.float64 and rows.flags.c_contiguous and n_base.flags.c_contiguous
-            and r_base.flags.c_contiguous):
-        n_pr, r_pr = _with_share(prior_normal, np.pad(rows, ((0, 0), (0, n_base.shape[0] - rows.shape[1]))), share)
-        return share, n_pr, r_pr
-    n_out = np.empty(n_base.shape)
-    r_out = np.empty(r_base.shape)
-    if share_normal_into(n_base, r_base, rows, share.friction_mean, share.sigma, n_out, r_out):
-        return share, n_out, r_out
-    return share, n_base, r_base

@@ -575,3 +575,105 @@ def report_traces(grid, theta, coef, basis, extra, cyl_out, total_out, extra_out
     for k in range(1, z):
         for i in range(ng):
             total_out[i] += cyl_out[k, i]
+
+
+# ---- the glue between the harmonic balance and the posteriors (core.monitor) -----------------------------------
+
+
+@numba.njit(cache=True)
+def shares_pair_into(t_i, pmax, ind_prev, first, g, total_s, total_c, rpm, motored_consts, spread, n_base, r_base,
+                     rows, ind_mean, fric_s, sig_s, fric_c, sig_c, fire, n_s, r_s, n_c, r_c):
+    """The sharing steps of core.monitor.process_cycle in one call (same operations, same order).
+
+    t_i (z,) this cycle's indicated means; pmax (z,) peak pressures [Pa]; ind_prev (z,) the running mean before
+    (``first``: this is the first cycle, the mean starts at t_i); g its EWMA gain; total_s / total_c the friction
+    totals shared for the smoothed / this cycle's estimate; motored_consts [stroke, displacement_cyl, A, B, C, D]
+    (core.sharing.motored_friction_per_cylinder); n_base (P, P), r_base (P,) the fixed priors' normal equations;
+    rows (z, p_f). Writes the running mean ``ind_mean``, both shares with sigmas, the firing mask of t_i and both
+    prior normal equations plus share rows (the base alone when a share is not finite). Returns the firing count."""
+    z = t_i.shape[0]
+    for k in range(z):
+        ind_mean[k] = t_i[k] if first else ind_prev[k] + g * (t_i[k] - ind_prev[k])
+    n_fire = firing_into(t_i, 0.15, fire)
+    pmax_motored = 0.0
+    if n_fire < z:  # np.mean of the motored cylinders' peaks
+        pm = np.empty(z - n_fire)
+        j = 0
+        for k in range(z):
+            if not fire[k]:
+                pm[j] = pmax[k]
+                j += 1
+        pmax_motored = pairwise_sum(pm, 0, z - n_fire) / (z - n_fire)
+    cbar = 2.0 * motored_consts[0] * rpm / 60.0
+    fmep_bar = (motored_consts[2] + motored_consts[3] * pmax_motored / 1e5 + motored_consts[4] * cbar
+                + motored_consts[5] * cbar * cbar)
+    motored = fmep_bar * 1e5 * motored_consts[1] * 1.0 / (4.0 * math.pi)
+    mot = np.empty(z, dtype=np.bool_)
+    share_into(total_s, ind_mean, motored, spread, 0.3, 0.15, fric_s, sig_s, mot)
+    share_into(total_c, t_i, motored, spread, 0.3, 0.15, fric_c, sig_c, mot)
+    _share_normal_sym(n_base, r_base, rows, fric_s, sig_s, n_s, r_s)
+    _share_normal_sym(n_base, r_base, rows, fric_c, sig_c, n_c, r_c)
+    return n_fire
+
+
+@numba.njit(cache=True)
+def _share_normal_sym(n_base, r_base, rows, share, share_sigma, n_out, r_out):
+    """``share_normal_into``'s numbers (the base itself when a share is not finite): each sum over cylinders is
+    formed once for (i, j) and (j, i) (the same products in the same order: the same bits) from W^T stored row
+    by row."""
+    z, p_f = rows.shape
+    p = n_base.shape[0]
+    for i in range(p):
+        for j in range(p):
+            n_out[i, j] = n_base[i, j]
+        r_out[i] = r_base[i]
+    for k in range(z):
+        if not math.isfinite(share[k]):
+            return
+    wt_rows = np.empty((p_f, z))
+    wt = np.empty(z)
+    for k in range(z):
+        s = max(share_sigma[k], 1e-6)
+        for i in range(p_f):
+            wt_rows[i, k] = rows[k, i] / s
+        wt[k] = share[k] / s
+    for i in range(p_f):
+        wi = wt_rows[i]
+        for j in range(i, p_f):
+            wj = wt_rows[j]
+            acc = 0.0
+            for k in range(z):
+                acc += wi[k] * wj[k]
+            n_out[i, j] = n_base[i, j] + acc
+            n_out[j, i] = n_base[j, i] + acc
+        acc = 0.0
+        for k in range(z):
+            acc += wi[k] * wt[k]
+        r_out[i] = r_base[i] + acc
+
+
+@numba.njit(cache=True)
+def noise_rows_cycle(design, target, theta, omega, drift_harm, use_drift, st_mean, st_var, st_bal_mean, st_bal_var,
+                     st_count, memory, balance, mean_row, residual_rms, n_edges, t_i, drift_var, period, harmonics,
+                     model_rel_error, sys_balance, freq, drift_col, out_mean, out_var, out_scalars, a, y, inv_sigma,
+                     sys_var):
+    """``noise_rows`` with its inputs formed in the kernel: freq (M,) = 0.5 omega (1..M) (FlywheelMotion.freq)
+    written to ``freq``, the tooth-fit floor freq^2 2 rms^2 / n_edges + 1e-12 and the statistics' scalars; also
+    writes drift_col (M,) complex = 1j * freq * drift_harm as numpy multiplies complex numbers."""
+    m = freq.shape[0]
+    half = 0.5 * omega
+    rms2 = residual_rms * residual_rms
+    floor = np.empty(m)
+    for i in range(m):
+        freq[i] = half * float(i + 1)
+        floor[i] = freq[i] * freq[i] * 2.0 * rms2 / n_edges + 1e-12
+        h = drift_harm[i]
+        drift_col[i] = complex(0.0 * h.real - freq[i] * h.imag, 0.0 * h.imag + freq[i] * h.real)
+    st_scalars = np.empty(3)
+    st_scalars[0] = st_bal_mean
+    st_scalars[1] = st_bal_var
+    st_scalars[2] = st_count
+    noise_rows(design, target, theta, freq, drift_harm, use_drift, st_mean, st_var, st_scalars, memory, balance,
+               mean_row, floor, t_i, drift_var, period, harmonics, model_rel_error, sys_balance, out_mean, out_var,
+               out_scalars, a, y, inv_sigma, sys_var)
+
