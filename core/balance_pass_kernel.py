@@ -1,8 +1,8 @@
 """One harmonic-balance pass of the monitor (core.harmonic_balance) as a single numba kernel.
 
-The steps are those of core.excitation.excitation_rows + core.harmonic_balance_kernels._balance_rows, in the same
+The steps are those of tests/core/excitation_reference.excitation_rows + core.harmonic_balance_kernels._balance_rows, in the same
 order and with the same helpers (``_mix_plan``, ``_cycle_rows``, ``_balance_rows``; the grid motion of
-core.excitation.grid_motion with the same products); the two FFTs run inside the kernel through rocket-fft (numpy.fft
+tests/core/excitation_reference.grid_motion with the same products); the two FFTs run inside the kernel through rocket-fft (numpy.fft
 for numba, the same pocketfft as numpy: the same transforms). What this saves is call overhead: one dispatch per pass
 instead of five kernel dispatches, two numpy FFT calls and ~40 small numpy calls and allocations; and the inverse FFT
 forms a node's angle and acceleration only where a cylinder sits (genset-v20: 37 of 45 rows). genset-v20, 256
@@ -47,7 +47,7 @@ def _spectrum_rows(cyl_node, n_nodes, n_rel):
 @numba.njit(cache=True)
 def _motion_spectrum(harm, freq, rel, row_of, half, out):
     """out (rows, n // 2 + 1) complex, zero: the spectra of ``_spectrum_rows`` scaled by half = n / 2 for the
-    inverse rfft (the products of core.harmonic_balance_kernels._grid_spectrum, so the same numbers)."""
+    inverse rfft (the products of tests/core/excitation_reference._grid_spectrum, so the same numbers)."""
     m = harm.shape[0]
     n_rel = rel.shape[0]
     for j in range(m):
@@ -69,7 +69,7 @@ def _motion_spectrum(harm, freq, rel, row_of, half, out):
 @numba.njit(cache=True)
 def _node_motion(series, row_of, n_rel, offset, drift, period, omega_mean, theta_start, static, tau, theta_f,
                  omega_f, alpha_f, motion):
-    """core.harmonic_balance_kernels._motion_from_series on the rows of ``_spectrum_rows`` (same operations in
+    """tests/core/excitation_reference._motion_from_series on the rows of ``_spectrum_rows`` (same operations in
     the same order); the angle and acceleration of a node without a cylinder are not formed (NaN)."""
     n = series.shape[1]
     n_nodes = motion.shape[1]
@@ -131,7 +131,7 @@ def _balance_pass(fly_harm, omega_mean, offset, drift, period, theta_start, n_ti
     mix_param = np.empty(z * n_terms, dtype=np.int64)
     mix_node = np.empty(z * n_terms, dtype=np.int64)
     n_mix = _mix_plan(group, prior, cyl_node, n_par, n_nodes, mix_row, mix_param, mix_node)
-    # motion on the time grid (core.excitation.grid_motion; fly.freq = 0.5 Omega (1..M))
+    # motion on the time grid (tests/core/excitation_reference.grid_motion; fly.freq = 0.5 Omega (1..M))
     fly_freq = np.empty(m)
     half_omega = 0.5 * omega_mean
     for j in range(m):
@@ -148,7 +148,7 @@ def _balance_pass(fly_harm, omega_mean, offset, drift, period, theta_start, n_ti
     motion = np.empty((3, n_nodes, n))
     _node_motion(series, row_of, n_rel, offset, drift, period, omega_mean, theta_start, static, tau, theta_f, omega_f,
                  alpha_f, motion)
-    # torques on the grid, one forward FFT of [G; known] (core.excitation.excitation_rows)
+    # torques on the grid, one forward FFT of [G; known] (tests/core/excitation_reference.excitation_rows)
     consts = plan_consts.copy()
     consts[OMEGA_SLOT] = omega_mean
     n_head = n_mix + n_nodes

@@ -11,6 +11,12 @@ while its kinematics follow its own throw angle (twist; physics.md §12.3 item 3
 flywheel motion plus the model's node-minus-flywheel motion of the previous iterate (zero on the first pass).
 
 Mean torques are work means, (1/4 pi) * integral of T d(theta_q) = <T omega_q> / Omega, so they close the energy balance.
+
+This module holds what the monitor shares about them: the ``Excitation`` record of one cycle's torques, and
+``ExcitationPlan`` / ``excitation_plan``, the spec's constants computed once. The torques themselves are evaluated
+inside the one-kernel harmonic-balance pass (core.balance_pass_kernel, with core.harmonic_balance_kernels._cycle_rows).
+The step-by-step functions it replaced (grid motion, cycle excitation, periodic interpolation) are test references
+now: tests/core/excitation_reference.py.
 """
 
 from __future__ import annotations
@@ -21,12 +27,9 @@ from functools import cached_property
 import numpy as np
 
 from core.engine import EngineSpec
-from core.excitation_kernels import OMEGA_SLOT, _interp_rows, excitation_consts
-from core.flywheel import FlywheelMotion, harmonics_of
-from core.friction import N_TERMS
-from core.harmonic_balance_kernels import _cycle_rows, _grid_spectrum, _motion_from_series
+from core.excitation_kernels import excitation_consts
+from core.flywheel import harmonics_of
 
-FOUR_PI = 4.0 * np.pi
 CRANKCASE_PA = 1.0e5
 
 
@@ -60,7 +63,7 @@ class Excitation:
 
 @dataclass(frozen=True)
 class ExcitationPlan:
-    """What ``cycle_excitation`` needs from the spec, computed once (the monitor keeps it in its operating point).
+    """What the excitation of a cycle needs from the spec, computed once (the monitor keeps it in its operating point).
 
     consts (23 + z,) see core.excitation_kernels; cyl_node (z,) int64; phases (z,) firing angles [rad]."""
 
@@ -76,129 +79,3 @@ def excitation_plan(spec: EngineSpec, recip_inertia_mean: float, variable_inerti
                                spec.firing_angles)
     return ExcitationPlan(consts, np.ascontiguousarray(spec.cylinder_node, dtype=np.int64),
                           np.ascontiguousarray(spec.firing_angles, dtype=np.float64), int(spec.n_nodes))
-
-
-def cycle_excitation(
-    spec: EngineSpec,
-    grid: np.ndarray,
-    pressure: np.ndarray,
-    fly: FlywheelMotion,
-    theta_start: float,
-    n_time: int,
-    recip_inertia_mean: float,
-    relative_motion: np.ndarray | None = None,
-    static_twist: np.ndarray | None = None,
-    variable_inertia: bool = True,
-    plan: ExcitationPlan | None = None,
-) -> Excitation:
-    """Evaluate gas, reciprocating-remainder and friction-basis torques of one cycle.
-
-    Parameters
-    ----------
-    grid : (n,) uniform crank-angle grid of the pressure [rad, cyl-1 convention], spanning 4 pi
-    pressure : (z, n) absolute cylinder pressure [Pa] (finite)
-    fly : fitted flywheel motion of the cycle
-    theta_start : flywheel angle of the first tooth edge [rad] (the fit's tau = 0)
-    n_time : samples per cycle of the time grid
-    recip_inertia_mean : m_rec <x'^2> [kg m^2]
-    relative_motion : (N, M) complex angle harmonics of node minus flywheel [rad] from the previous iterate, or None
-    static_twist : (N,) mean angle of each node minus the flywheel [rad] (the m = 0 part the harmonics lack)
-    variable_inertia : False models a crank whose reciprocating inertia is constant (no J(theta), no mass torque)
-    plan : ``excitation_plan(spec, recip_inertia_mean, variable_inertia)`` if already at hand (saves its set-up)
-    """
-    exc, _ = excitation_rows(spec, grid, pressure, fly, theta_start, n_time, recip_inertia_mean, relative_motion,
-                             static_twist, variable_inertia, plan)
-    return exc
-
-
-def excitation_rows(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, fly: FlywheelMotion,
-                    theta_start: float, n_time: int, recip_inertia_mean: float,
-                    relative_motion: np.ndarray | None = None, static_twist: np.ndarray | None = None,
-                    variable_inertia: bool = True, plan: ExcitationPlan | None = None,
-                    mix: tuple[np.ndarray, np.ndarray, int] | None = None) -> tuple[Excitation, np.ndarray]:
-    """``cycle_excitation`` and the rfft of the rows [G (n_mix); known node torques (N)] (n_mix + N, n_time//2 + 1).
-
-    mix : (mix_row (z, 6), mix_weight (z, 6), n_mix): which weighted basis terms are summed into the G rows
-    (core.harmonic_balance_kernels._mix_plan); None for no G rows."""
-    z = spec.n_cyl
-    n_nodes = spec.n_nodes
-    m = fly.n_harmonics
-    if plan is None:
-        plan = excitation_plan(spec, recip_inertia_mean, variable_inertia)
-    rel = None
-    if relative_motion is not None:
-        rel = np.asarray(relative_motion)
-        if rel.shape != (n_nodes, m):
-            raise ValueError(f"relative_motion must have shape {(n_nodes, m)}, got {rel.shape}")
-    tau, theta_f, omega_f, alpha_f, motion = grid_motion(fly, n_time, theta_start, n_nodes, rel, static_twist)
-    if mix is None:
-        mix_row, mix_weight, n_mix = np.full((z, N_TERMS), -1, dtype=np.int64), np.zeros((z, N_TERMS)), 0
-    else:
-        mix_row, mix_weight, n_mix = mix
-    consts = plan.consts.copy()
-    consts[OMEGA_SLOT] = fly.omega_mean
-    n_head = n_mix + n_nodes
-    buf = np.empty((n_head + 7 * z, n_time))
-    means = np.empty((z, 7))
-    _cycle_rows(motion, theta_f, np.ascontiguousarray(grid, dtype=np.float64),
-                np.ascontiguousarray(pressure, dtype=np.float64), plan.cyl_node, consts, mix_row, mix_weight, n_mix,
-                buf, means)
-    harm = np.fft.rfft(buf[:n_head], axis=-1)  # one FFT for the G rows and the node torques
-    known = harm[n_mix:, 1: m + 1] * (2.0 / n_time)
-    exc = Excitation(
-        tau=tau,
-        theta_fly=theta_f,
-        omega_node=motion[1],
-        gas=buf[n_head + 6 * z:],
-        known_harm=known,
-        basis=buf[n_head: n_head + 6 * z].reshape(z, N_TERMS, n_time),
-        basis_mean=means[:, :N_TERMS],
-        indicated_mean=means[:, N_TERMS],
-        omega_fly=omega_f,
-        alpha_fly=alpha_f,
-    )
-    return exc, harm
-
-
-def grid_motion(fly: FlywheelMotion, n_time: int, theta_start: float, n_nodes: int,
-                relative_motion: np.ndarray | None = None, static_twist: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Flywheel and throw motion on the uniform time grid with one inverse FFT (``FlywheelMotion.on_grid`` plus the
-    node-minus-flywheel harmonics and static twist).
-
-    Returns tau (n,) [s], theta_fly, omega_fly, alpha_fly (n,) and motion (3, N, n): angle, speed, acceleration of
-    every node."""
-    m = fly.n_harmonics
-    n = n_time
-    if 2 * m >= n:
-        raise ValueError(f"{m} harmonics need more than {2 * m} samples per cycle, got {n}")
-    n_rel = 0 if relative_motion is None else n_nodes
-    rel = (np.ascontiguousarray(relative_motion, dtype=np.complex128) if n_rel
-           else np.zeros((0, m), dtype=np.complex128))
-    spec_rows = np.zeros((3 + 3 * n_rel, n // 2 + 1), dtype=np.complex128)
-    _grid_spectrum(np.ascontiguousarray(fly.harmonics, dtype=np.complex128), fly.freq, rel, n_rel, 0.5 * n,
-                   spec_rows)
-    series = np.fft.irfft(spec_rows, n=n, axis=-1)
-    static = np.zeros(0) if static_twist is None else np.ascontiguousarray(static_twist, dtype=np.float64)
-    if static.shape not in ((0,), (n_nodes,)):
-        raise ValueError(f"static_twist must have shape {(n_nodes,)}, got {static.shape}")
-    tau = np.empty(n)
-    theta_f = np.empty(n)
-    omega_f = np.empty(n)
-    alpha_f = np.empty(n)
-    motion = np.empty((3, n_nodes, n))
-    _motion_from_series(series, n_rel, float(fly.offset), float(fly.drift), float(fly.period), float(fly.omega_mean),
-                        float(theta_start), static, tau, theta_f, omega_f, alpha_f, motion)
-    return tau, theta_f, omega_f, alpha_f, motion
-
-
-def periodic_interp(x: np.ndarray, grid: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """Linear interpolation of rows ``values`` (r, n) given on the uniform 4 pi-periodic ``grid`` (n,) at angles
-    ``x`` (m,) [rad], wrapped into the grid's cycle (np.interp's own ``period`` mode sorts on every call)."""
-    g0 = float(grid[0])
-    xp = np.append(grid - g0, FOUR_PI)
-    u = np.mod(np.asarray(x, dtype=np.float64) - g0, FOUR_PI)
-    v = np.ascontiguousarray(np.atleast_2d(values), dtype=np.float64)
-    out = np.empty((v.shape[0], u.shape[0]))
-    _interp_rows(u, xp, v, out)  # np.interp per row, one bracket search per query (core.excitation_kernels)
-    return out

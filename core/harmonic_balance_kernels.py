@@ -1,20 +1,23 @@
-"""Numba kernels of one harmonic-balance pass (core.harmonic_balance, core.excitation), in three steps around the
-two FFTs numpy does best:
+"""Numba kernels of one harmonic-balance pass (core.harmonic_balance, core.excitation), run inside the one-kernel
+pass core.balance_pass_kernel._balance_pass (which does the grid motion and the two FFTs itself):
 
-1. ``_grid_spectrum``: rfft-layout spectra of the flywheel angle, speed, acceleration and of the node-minus-flywheel
-   motion (one inverse FFT turns them into time series, as ``core.excitation.grid_motion`` did with numpy).
-2. ``_cycle_rows``: from those series the motion on the time grid, the pressure at the flywheel angle (np.interp's
-   bracket, one walk per cycle), and per (cylinder, sample) the gas torque, reciprocating remainder, six friction
-   basis terms (the formulas of core.excitation_kernels._excitation_rows: core.torques, core.friction; paper 000
-   Eq. 4, physics.md §2-§3, §7, §12.3) and their work means. Besides the known node torques it writes *mixed* rows
+1. ``_cycle_rows``: from the motion on the time grid, the pressure at the flywheel angle (np.interp's bracket, one
+   walk per cycle, ``_pressure_brackets``), and per (cylinder, sample) the gas torque, reciprocating remainder, six
+   friction basis terms (the formulas of core.torques, core.friction; paper 000 Eq. 4, physics.md §2-§3, §7, §12.3)
+   and their work means. Besides the known node torques it writes *mixed* rows
    G_pq(t) = sum_{(k,l) in group p, node(k) = q} a0_kl F_kl(t): the harmonic balance only needs the harmonics of
    those (linearity of the FFT), so one forward FFT covers ~60 rows instead of N + 6 z.
+2. ``_mix_plan``: which weighted basis terms go into which G row (once per parameter layout).
 3. ``_balance_rows``: from the harmonics, the node torques at the current parameters, the chain response
    Z_m^-1 T_m, the static twist, the friction design columns -sum_q H_m,q Ghat_pq,m, W0, the cylinder rows.
 
+The grid-motion kernels that ran before the forward FFT (``_grid_spectrum``, ``_motion_from_series``) and the earlier
+fused excitation kernel (``_excitation_rows``) are test references now: tests/core/excitation_reference.py.
+
 Rounding: the kinematics multiply by 1/L, 1/cos(beta) and 1/(4 pi) where the old kernel divided, the pressure
 interpolation uses (x - x_j)/(x_j+1 - x_j) as one factor, and the friction harmonics are sums of FFTs taken in the
-time domain; every value agrees with the previous implementation to ~1e-14 relative (tests/core/test_hb_fast.py).
+time domain; every value agrees with the previous implementation to ~1e-14 relative
+(tests/core/test_harmonic_balance_fast.py).
 """
 
 from __future__ import annotations
@@ -26,60 +29,6 @@ from core.excitation_kernels import N_CONSTS
 
 FOUR_PI = 4.0 * np.pi
 _FAST = {"reassoc", "nsz"}
-
-
-@numba.njit(cache=True)
-def _grid_spectrum(harm, freq, rel, n_rel, half, out):
-    """out (3 + 3 n_rel, n // 2 + 1) complex, zero: rows angle, speed, acceleration of the flywheel, then of each
-    node minus the flywheel (n_rel rows each), harmonics m = 1..M in columns 1..M, scaled by ``half`` = n / 2 for
-    the inverse rfft. Same products as the numpy expressions of ``grid_motion`` (harm * half, (i w harm) * half,
-    (-w^2 harm) * half)."""
-    m = harm.shape[0]
-    for j in range(m):
-        w = freq[j]
-        w2 = -(w * w)
-        a = harm[j]
-        out[0, j + 1] = a * half
-        out[1, j + 1] = complex(-(w * a.imag) * half, (w * a.real) * half)
-        out[2, j + 1] = complex((w2 * a.real) * half, (w2 * a.imag) * half)
-        for q in range(n_rel):
-            b = rel[q, j]
-            out[3 + q, j + 1] = b * half
-            out[3 + n_rel + q, j + 1] = complex(-(w * b.imag) * half, (w * b.real) * half)
-            out[3 + 2 * n_rel + q, j + 1] = complex((w2 * b.real) * half, (w2 * b.imag) * half)
-
-
-@numba.njit(cache=True)
-def _motion_from_series(series, n_rel, offset, drift, period, omega_mean, theta_start, static, tau, theta_f,
-                        omega_f, alpha_f, motion):
-    """The time-domain part of ``grid_motion`` (same operations in the same order; no fast-math here)."""
-    n = series.shape[1]
-    n_nodes = motion.shape[1]
-    dt = period / n
-    a0 = 2.0 * drift / (period * period)
-    for i in range(n):
-        t = i * dt
-        u = t / period
-        tau[i] = t
-        phi = (offset + drift * u * (u - 1.0)) + series[0, i]
-        omega_f[i] = (omega_mean + drift * (2.0 * u - 1.0) / period) + series[1, i]
-        alpha_f[i] = a0 + series[2, i]
-        theta_f[i] = (theta_start + omega_mean * t) + phi
-    for q in range(n_nodes):
-        for i in range(n):
-            if n_rel:
-                motion[0, q, i] = theta_f[i] + series[3 + q, i]
-                motion[1, q, i] = omega_f[i] + series[3 + n_rel + q, i]
-                motion[2, q, i] = alpha_f[i] + series[3 + 2 * n_rel + q, i]
-            else:
-                motion[0, q, i] = theta_f[i]
-                motion[1, q, i] = omega_f[i]
-                motion[2, q, i] = alpha_f[i]
-    if static.shape[0] == n_nodes:
-        for q in range(n_nodes):
-            s = static[q]
-            for i in range(n):
-                motion[0, q, i] += s
 
 
 @numba.njit(cache=True, fastmath=_FAST, error_model="numpy")
@@ -124,9 +73,9 @@ def _pressure_brackets(theta_f, grid, jlo, jhi, frac):
 
 @numba.njit(cache=True, fastmath=_FAST, error_model="numpy")
 def _sin_cos_twisted(ang, theta_f, s_fly, c_fly, s_out, c_out):
-    """sin, cos of a node's angle from those of the flywheel angle: ``core.excitation_kernels._sin_cos_near`` with
-    the series' divisions by constants as products (so that the loop vectorises), then the direct evaluation
-    wherever the twist is 0.05 rad or more."""
+    """sin, cos of a node's angle from those of the flywheel angle: ``_sin_cos_near``
+    (tests/core/excitation_reference.py) with the series' divisions by constants as products (so that the loop
+    vectorises), then the direct evaluation wherever the twist is 0.05 rad or more."""
     for i in range(ang.shape[0]):
         d = ang[i] - theta_f[i]
         d2 = d * d
@@ -147,8 +96,8 @@ def _cylinder_samples(r, inv_rod, e, area, p_cc, m_rec, k0, mu_eth, k1, c_f2, c_
                       ang, s_q, c_q, w_node, a_node, w_c, rw, p_row, gas_row, b0, b1, b2, b3, b4, b5, sum_gas,
                       sum_recip):
     """One cylinder over all samples: gas torque, reciprocating torque (into the node sums) and the six basis
-    rows. Loop body of ``core.excitation_kernels._excitation_rows`` with the divisions by L and cos(beta) as
-    products."""
+    rows. Loop body of the earlier ``_excitation_rows`` (tests/core/excitation_reference.py) with the divisions
+    by L and cos(beta) as products."""
     inv_4pi = 1.0 / FOUR_PI
     for i in range(ang.shape[0]):
         st = s_q[i] * c_ph - c_q[i] * s_ph

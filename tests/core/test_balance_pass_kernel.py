@@ -1,6 +1,7 @@
 """The one-kernel harmonic-balance pass (core.balance_pass_kernel._balance_pass behind core.harmonic_balance.
 harmonic_balance) against the step-by-step code it replaced (round 1 of the speed work, kept here as
-``harmonic_balance_steps``: core.excitation.excitation_rows with numpy's FFTs, then _mix_plan / _balance_rows).
+``harmonic_balance_steps``: excitation_rows of tests/core/excitation_reference.py with numpy's FFTs, then
+_mix_plan / _balance_rows).
 
 The kernel runs the same helpers in the same order and rocket-fft runs numpy's pocketfft, so the numbers agree to
 the last bits; the bar is 1e-13 of each quantity's scale (the plain-numpy reference of the physics is
@@ -11,11 +12,11 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from core.excitation import excitation_rows
 from core.flywheel import harmonic_series
 from core.friction import N_TERMS
 from core.harmonic_balance import harmonic_balance
 from core.harmonic_balance_kernels import _balance_rows, _mix_plan
+from tests.core.excitation_reference import excitation_rows
 from tests.core.test_harmonic_balance_fast import cycle_inputs
 
 RTOL = 1e-13

@@ -12,9 +12,10 @@ from numpy.testing import assert_allclose
 
 from core.engine import load_engine
 from core.excitation import CRANKCASE_PA, excitation_plan
-from core.excitation_kernels import OMEGA_SLOT, _excitation_rows, interp_rows_periodic
+from core.excitation_kernels import OMEGA_SLOT, interp_rows_periodic
 from core.friction import friction_basis
 from core.torques import gas_torque, reciprocating_torque
+from tests.core.excitation_reference import _excitation_rows
 
 
 def reference_rows(spec, motion, theta_fly, p_abs, recip_inertia_mean, variable_inertia, omega_mean):

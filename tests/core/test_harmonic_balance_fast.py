@@ -1,8 +1,8 @@
 """The fused harmonic-balance pass (core.harmonic_balance, core.harmonic_balance_kernels) against the implementation
 it replaced, kept here as the plain reference: numpy grid motion (one irfft), np.interp-style pressure, the fused
-excitation kernel core.excitation_kernels._excitation_rows (itself tested against core.torques / core.friction in
-test_excitation_kernels.py), one rfft of every row, np.add.at / einsum for the chain, identify.friction_design and
-ParameterLayout.cylinder_rows for the rows.
+excitation kernel _excitation_rows of tests/core/excitation_reference.py (itself tested against core.torques /
+core.friction in test_excitation_kernels.py), one rfft of every row, np.add.at / einsum for the chain,
+identify.friction_design and ParameterLayout.cylinder_rows for the rows.
 
 Tolerance: the new code forms the parameter-weighted friction sums in the time domain before the FFT (linearity),
 multiplies where the old kernel divided, and sums in another order, so it agrees to rounding: 1e-10 of each
@@ -15,13 +15,14 @@ from numpy.testing import assert_allclose
 
 from core.dynamics import static_twist
 from core.engine import load_engine
-from core.excitation import Excitation, cycle_excitation, excitation_plan, grid_motion, periodic_interp
-from core.excitation_kernels import OMEGA_SLOT, _excitation_rows
+from core.excitation import Excitation, excitation_plan
+from core.excitation_kernels import OMEGA_SLOT
 from core.flywheel import FlywheelMotion, harmonics_of
 from core.friction import N_TERMS
 from core.harmonic_balance import harmonic_balance, operating_point
 from core.identify import friction_design
 from core.monitor import initial_state
+from tests.core.excitation_reference import _excitation_rows, cycle_excitation, grid_motion, periodic_interp
 
 RTOL = 1e-10
 
