@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from bench.common import as_blocks
+from bench.common import as_blocks, assembler_for, timed_assembly
 from core.engine import load_engine
 from core.simulate import simulate
 from core.speed import cycle_speed
@@ -41,20 +41,14 @@ def _stats(ms: list[float]) -> dict:
 
 
 def _assemble(spec, info, records) -> tuple[list, list[float], list[float], CycleAssembler]:
-    asm = CycleAssembler(info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
+    """Cycles, per-cycle assembly ms and emitting-call ms (bench.common.timed_assembly, the same definitions as
+    bench_monitor), and the assembler."""
+    asm = assembler_for(spec, info)
     cycles, per_cycle, latency = [], [], []
-    acc = 0.0
-    for r in records:
-        t0 = time.perf_counter()
-        out = asm.feed(r)
-        dt = time.perf_counter() - t0
-        acc += dt
-        if out:
-            cycles += out
-            per_cycle += [1e3 * acc / len(out)] * len(out)
-            latency.append(1e3 * dt)
-            acc = 0.0
-    cycles += asm.flush()
+    for c, asm_ms, emit_ms in timed_assembly(asm, records):
+        cycles.append(c)
+        per_cycle.append(asm_ms)
+        latency.append(emit_ms)
     return cycles, per_cycle, latency, asm
 
 
