@@ -11,8 +11,7 @@ from core.excitation_kernels import interp_rows_periodic
 from core.flywheel import FlywheelMotion, harmonic_series, harmonics_of
 from core.frozen_init import fast_constructor
 from core.identify import CycleRows, ParameterLayout
-from core.monitor_kernels import report_traces
-from core.report_kernels import speed_series, trig_tables
+from core.report_kernels import report_traces, speed_series, trig_tables
 from core.results import CycleResult, FrictionEstimate
 from core.types import Cycle
 

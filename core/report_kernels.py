@@ -1,5 +1,6 @@
-"""Numba kernel of the result's speed series (core.cycle_report): the speed residual, the ripple power and both
-inverse series on the time grid in one call, with the cosine/sine tables of the grid kept per (M, n_t).
+"""Numba kernels of the result's traces and speed series (core.cycle_report): the per-cylinder friction traces on the
+crank-angle grid (report_traces), and the speed residual, the ripple power and both inverse series on the time grid in
+one call (speed_series), with the cosine/sine tables of the grid kept per (M, n_t).
 
 The plain-numpy reference (speed_residual + speed_power + harmonic_series by irfft) is in
 tests/core/test_report_kernels.py. The direct sums differ from the inverse FFT by rounding only (~1e-16 of the
@@ -11,7 +12,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from core.monitor_kernels import speed_power, speed_residual
+from core.monitor_kernels import _abs2, pairwise_sum
 
 _TABLES: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
@@ -63,3 +64,167 @@ def speed_series(design, target, theta, p_f, drift, use_drift, freq, harmonics, 
         extra[0, k] = v
         extra[1, k] = v - res[k]
     return resid_sq, power
+
+
+# ---- the result's traces (core.cycle_report) -----------------------------------------------------------------
+
+
+@numba.njit(cache=True)
+def speed_residual(design, target, theta, p_f, drift, use_drift, out):
+    """out[0] = the tooth-pattern part design[:, p_f:] @ theta[p_f:], out[1] = target - design @ theta with the
+    best-fitting drift (if used) taken out; returns [sum |resid|^2, in numpy's pairwise order]."""
+    m, p = design.shape
+    for i in range(m):
+        sr = 0.0
+        si = 0.0
+        for j in range(p):
+            sr += design[i, j].real * theta[j]
+            si += design[i, j].imag * theta[j]
+        out[1, i] = complex(target[i].real - sr, target[i].imag - si)
+        pr = 0.0
+        pi = 0.0
+        for j in range(p_f, p):
+            pr += design[i, j].real * theta[j]
+            pi += design[i, j].imag * theta[j]
+        out[0, i] = complex(pr, pi)
+    if use_drift:
+        dd = 0.0
+        dr = 0.0
+        for i in range(m):
+            dd += drift[i].real * drift[i].real + drift[i].imag * drift[i].imag
+            dr += drift[i].real * out[1, i].real + drift[i].imag * out[1, i].imag
+        if dd > 0:
+            f = dr / dd
+            for i in range(m):
+                out[1, i] = out[1, i] - drift[i] * f
+    sq = np.empty(m)
+    for i in range(m):
+        sq[i] = _abs2(out[1, i])
+    return pairwise_sum(sq, 0, m)
+
+
+@numba.njit(cache=True)
+def speed_power(freq, harmonics):
+    """np.sum(np.abs(1j * freq * harmonics) ** 2)."""
+    m = freq.shape[0]
+    sq = np.empty(m)
+    for i in range(m):
+        h = harmonics[i]
+        sq[i] = _abs2(complex(0.0 * h.real - freq[i] * h.imag, 0.0 * h.imag + freq[i] * h.real))
+    return pairwise_sum(sq, 0, m)
+
+
+@numba.njit(cache=True)
+def report_traces(grid, theta, coef, basis, extra, cyl_out, total_out, extra_out):
+    """Per-cylinder friction traces sum_l coef[k, l] basis[k, l, :] on the time grid and the rows ``extra`` (r, n_t),
+    all sampled at the flywheel angles ``theta`` (n_t,), onto the crank-angle ``grid`` (periodic in 4 pi: theta spans
+    one cycle from the first edge), as np.interp does; total_out = sum over cylinders of cyl_out (row by row).
+
+    np.interp's arithmetic is (y1 - y0) / dxp * dx + y0 with dxp the width of the bracket: the quotient depends on
+    the bracket only, so it is formed once per bracket and row (n_t divisions per row instead of one per grid
+    point), bit for bit the same numbers. The brackets come from one forward walk over the sorted angles (restarted
+    where the grid wraps past theta[0] + 4 pi); a theta that is not increasing falls back to bisection."""
+    z, n_terms, n = basis.shape
+    r = extra.shape[0]
+    vals = np.empty((z + r, n))  # the rows to interpolate: per-cylinder traces, then the extra rows
+    for k in range(z):
+        for t in range(n):
+            vals[k, t] = coef[k, 0] * basis[k, 0, t]
+        for term in range(1, n_terms):
+            c = coef[k, term]
+            for t in range(n):
+                vals[k, t] += c * basis[k, term, t]
+    for k in range(r):
+        for t in range(n):
+            vals[z + k, t] = extra[k, t]
+    four_pi = 4.0 * np.pi
+    th0 = theta[0]
+    x_end = th0 + four_pi
+    increasing = True
+    for t in range(1, n):
+        if not theta[t] >= theta[t - 1]:
+            increasing = False
+    ng = grid.shape[0]
+    js = np.empty(ng, dtype=np.int64)
+    dxs = np.empty(ng)
+    special = np.zeros(ng, dtype=np.bool_)
+    n_special = 0
+    lo = 0
+    prev_x = -np.inf
+    for i in range(ng):
+        x = grid[i] - th0
+        if x > 0.0 and x < four_pi:  # Python's float % is the identity here
+            x = th0 + x
+        else:
+            x = th0 + x % four_pi
+        if x >= x_end or x <= th0:  # an exact hit on theta[0] or outside: y0 (through dx = 0, dxp = 1)
+            js[i] = 0
+            dxs[i] = 0.0
+            special[i] = True
+            n_special += 1
+            continue
+        if increasing:
+            if x < prev_x:
+                lo = 0
+            prev_x = x
+            while lo + 1 < n and theta[lo + 1] <= x:  # the largest lo with theta[lo] <= x
+                lo += 1
+        else:
+            lo = 0
+            hi = n
+            while hi - lo > 1:  # theta[lo] <= x < theta[hi] (theta[n] = x_end)
+                mid = (lo + hi) >> 1
+                if theta[mid] <= x:
+                    lo = mid
+                else:
+                    hi = mid
+        js[i] = lo
+        dxs[i] = x - theta[lo]
+    dxp = np.empty(n)
+    for t in range(n - 1):
+        dxp[t] = theta[t + 1] - theta[t]
+    dxp[n - 1] = x_end - theta[n - 1]
+    rows = z + r
+    slope = np.empty((rows, n))
+    for k in range(rows):
+        for t in range(n - 1):
+            slope[k, t] = (vals[k, t + 1] - vals[k, t]) / dxp[t]
+        slope[k, n - 1] = (vals[k, 0] - vals[k, n - 1]) / dxp[n - 1]
+    # four rows per sweep: the bracket index and offset of a grid point are loaded once for all four
+    k = 0
+    while k < rows:
+        if k + 4 <= rows:
+            o0 = cyl_out[k] if k < z else extra_out[k - z]
+            o1 = cyl_out[k + 1] if k + 1 < z else extra_out[k + 1 - z]
+            o2 = cyl_out[k + 2] if k + 2 < z else extra_out[k + 2 - z]
+            o3 = cyl_out[k + 3] if k + 3 < z else extra_out[k + 3 - z]
+            v0, v1, v2, v3 = vals[k], vals[k + 1], vals[k + 2], vals[k + 3]
+            s0, s1, s2, s3 = slope[k], slope[k + 1], slope[k + 2], slope[k + 3]
+            for i in range(ng):
+                j = js[i]
+                d = dxs[i]
+                o0[i] = s0[j] * d + v0[j]
+                o1[i] = s1[j] * d + v1[j]
+                o2[i] = s2[j] * d + v2[j]
+                o3[i] = s3[j] * d + v3[j]
+            k += 4
+        else:
+            o = cyl_out[k] if k < z else extra_out[k - z]
+            v = vals[k]
+            s = slope[k]
+            for i in range(ng):
+                j = js[i]
+                o[i] = s[j] * dxs[i] + v[j]
+            k += 1
+    if n_special:
+        for k in range(rows):
+            o = cyl_out[k] if k < z else extra_out[k - z]
+            y0 = vals[k, 0]
+            for i in range(ng):
+                if special[i]:
+                    o[i] = (y0 - y0) / 1.0 * 0.0 + y0
+    for i in range(ng):
+        total_out[i] = cyl_out[0, i]
+    for k in range(1, z):
+        for i in range(ng):
+            total_out[i] += cyl_out[k, i]

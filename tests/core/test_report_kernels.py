@@ -8,8 +8,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from core.flywheel import harmonic_series
-from core.monitor_kernels import speed_power, speed_residual
-from core.report_kernels import speed_series, trig_tables
+from core.report_kernels import speed_power, speed_residual, speed_series, trig_tables
 
 
 def speed_series_reference(design, target, theta, p_f, drift, use_drift, freq, harmonics, omega_fly):
