@@ -53,22 +53,24 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
         tl = load * (omega_meas / fly.omega_mean) ** spec.load.exponent if spec.load.kind != "grid" else load
         direct = rigid_friction_torque(exc.theta_fly, omega_meas, alpha_meas, exc.gas.sum(axis=0), tl, spec)
         extra[2] = harmonic_series(harmonics_of(direct, fly.n_harmonics), n_t, float(direct.mean()))
-    # every trace onto the crank-angle grid in one pass (one bracket search per grid point)
+    # the traces onto the crank-angle grid in one pass (one bracket search per grid point); the per-cylinder
+    # friction stays on the time grid until asked for (CycleResult.friction_torque_cyl)
     z = coef.shape[0]
-    per_cyl = np.empty((z, grid.shape[0]))
-    total = np.empty(grid.shape[0])
-    on_grid = np.empty((extra.shape[0], grid.shape[0]))
-    report_traces(grid, np.ascontiguousarray(exc.theta_fly, dtype=np.float64), coef,
-                  np.ascontiguousarray(exc.basis, dtype=np.float64), extra, per_cyl, total, on_grid)
-    speed_meas, speed_model = on_grid[0], on_grid[1]
-    balance_trace = on_grid[2] if spec.n_nodes == 1 else None
+    cyl_time = np.empty((z, n_t))
+    on_grid = np.empty((1 + extra.shape[0], grid.shape[0]))
+    theta_fly = np.ascontiguousarray(exc.theta_fly, dtype=np.float64)
+    report_traces(grid, theta_fly, coef, np.ascontiguousarray(exc.basis, dtype=np.float64), extra, cyl_time, on_grid)
+    total = on_grid[0]
+    speed_meas, speed_model = on_grid[1], on_grid[2]
+    balance_trace = on_grid[3] if spec.n_nodes == 1 else None
     return _make_result(
         index=cycle.index, t_start=cycle.t_start, rpm_mean=fly.omega_mean * 60.0 / (2.0 * np.pi),
         omega_mean=fly.omega_mean, load_torque=float(load), load_power=float(cycle.load_power),
         imep=exc.indicated_mean * FOUR_PI / spec.displacement_cyl, pmax=pmax, pmax_angle=pmax_angle,
         indicated_torque=exc.indicated_mean, friction_balance=float(balance), coupling_loss=float(coupling_loss),
         cycle=est_c, smoothed=est_s, grid=grid.copy(), friction_torque=total,
-        friction_torque_cyl=per_cyl, speed_measured=speed_meas, speed_model=speed_model,
+        friction_torque_cyl_time=cyl_time, time_angles=theta_fly.copy(), speed_measured=speed_meas,
+        speed_model=speed_model,
         residual_harmonics=resid, residual_rms=float(np.sqrt(0.5 * resid_sq)), r_squared=r2,
         friction_torque_balance=balance_trace, flags=tuple(flags))
 

@@ -80,15 +80,26 @@ def _peak_pressure(theta, pressure, phases, pmax, angle):
         pmax[k] = y1 - 0.25 * (y0 - y2) * frac
 
 
+@numba.njit(cache=True, fastmath={"reassoc"})
+def _all_finite(flat):
+    """Whether every sample is finite: x * 0 is 0 for a finite x and NaN for NaN or inf, so the sum is NaN iff one
+    is not (reassociation only lets the sum vectorise; it cannot turn a NaN into a number)."""
+    acc = 0.0
+    for i in range(flat.shape[0]):
+        acc += flat[i] * 0.0
+    return acc == 0.0
+
+
 @numba.njit(cache=True)
 def _peak_pressure_finite(theta, pressure, phases, pmax, angle):
-    """``_peak_pressure`` and the number of non-finite samples of pressure (z, n) (C-contiguous). (A one-pass
-    variant, the finiteness test riding along the maximum search, measured slower: the count loop vectorises.)"""
-    bad = 0
+    """``_peak_pressure`` and the number of non-finite samples of pressure (z, n) (C-contiguous). The count is made
+    only when ``_all_finite`` (a vectorised test) says there is something to count."""
     flat = pressure.ravel()
-    for i in range(flat.shape[0]):
-        if not np.isfinite(flat[i]):
-            bad += 1
+    bad = 0
+    if not _all_finite(flat):
+        for i in range(flat.shape[0]):
+            if not np.isfinite(flat[i]):
+                bad += 1
     _peak_pressure(theta, pressure, phases, pmax, angle)
     return bad
 

@@ -115,28 +115,15 @@ def speed_power(freq, harmonics):
 
 
 @numba.njit(cache=True)
-def report_traces(grid, theta, coef, basis, extra, cyl_out, total_out, extra_out):
-    """Per-cylinder friction traces sum_l coef[k, l] basis[k, l, :] on the time grid and the rows ``extra`` (r, n_t),
-    all sampled at the flywheel angles ``theta`` (n_t,), onto the crank-angle ``grid`` (periodic in 4 pi: theta spans
-    one cycle from the first edge), as np.interp does; total_out = sum over cylinders of cyl_out (row by row).
+def _grid_brackets(grid, theta):
+    """The brackets of the crank-angle ``grid`` (ng,) in the flywheel angles ``theta`` (n,) of the time samples
+    (periodic in 4 pi: theta spans one cycle from the first edge), as np.interp finds them.
 
-    np.interp's arithmetic is (y1 - y0) / dxp * dx + y0 with dxp the width of the bracket: the quotient depends on
-    the bracket only, so it is formed once per bracket and row (n_t divisions per row instead of one per grid
-    point), bit for bit the same numbers. The brackets come from one forward walk over the sorted angles (restarted
-    where the grid wraps past theta[0] + 4 pi); a theta that is not increasing falls back to bisection."""
-    z, n_terms, n = basis.shape
-    r = extra.shape[0]
-    vals = np.empty((z + r, n))  # the rows to interpolate: per-cylinder traces, then the extra rows
-    for k in range(z):
-        for t in range(n):
-            vals[k, t] = coef[k, 0] * basis[k, 0, t]
-        for term in range(1, n_terms):
-            c = coef[k, term]
-            for t in range(n):
-                vals[k, t] += c * basis[k, term, t]
-    for k in range(r):
-        for t in range(n):
-            vals[z + k, t] = extra[k, t]
+    Returns (js, dxs, special, n_special, dxp): grid point i lies dxs[i] after theta[js[i]]; ``special`` marks the
+    points that np.interp puts on y0 (an exact hit on theta[0] or outside the period); dxp (n,) the bracket widths
+    (the last one wraps to theta[0] + 4 pi). One forward walk over the sorted angles (restarted where the grid wraps
+    past theta[0] + 4 pi); a theta that is not increasing falls back to bisection."""
+    n = theta.shape[0]
     four_pi = 4.0 * np.pi
     th0 = theta[0]
     x_end = th0 + four_pi
@@ -184,7 +171,18 @@ def report_traces(grid, theta, coef, basis, extra, cyl_out, total_out, extra_out
     for t in range(n - 1):
         dxp[t] = theta[t + 1] - theta[t]
     dxp[n - 1] = x_end - theta[n - 1]
-    rows = z + r
+    return js, dxs, special, n_special, dxp
+
+
+@numba.njit(cache=True)
+def _interp_rows(vals, js, dxs, special, n_special, dxp, out):
+    """out (r, ng) = every row of vals (r, n) at the grid brackets of ``_grid_brackets``, as np.interp does.
+
+    np.interp's arithmetic is (y1 - y0) / dxp * dx + y0 with dxp the width of the bracket: the quotient depends on
+    the bracket only, so it is formed once per bracket and row (n divisions per row instead of one per grid
+    point), bit for bit the same numbers."""
+    rows, n = vals.shape
+    ng = js.shape[0]
     slope = np.empty((rows, n))
     for k in range(rows):
         for t in range(n - 1):
@@ -194,10 +192,7 @@ def report_traces(grid, theta, coef, basis, extra, cyl_out, total_out, extra_out
     k = 0
     while k < rows:
         if k + 4 <= rows:
-            o0 = cyl_out[k] if k < z else extra_out[k - z]
-            o1 = cyl_out[k + 1] if k + 1 < z else extra_out[k + 1 - z]
-            o2 = cyl_out[k + 2] if k + 2 < z else extra_out[k + 2 - z]
-            o3 = cyl_out[k + 3] if k + 3 < z else extra_out[k + 3 - z]
+            o0, o1, o2, o3 = out[k], out[k + 1], out[k + 2], out[k + 3]
             v0, v1, v2, v3 = vals[k], vals[k + 1], vals[k + 2], vals[k + 3]
             s0, s1, s2, s3 = slope[k], slope[k + 1], slope[k + 2], slope[k + 3]
             for i in range(ng):
@@ -209,7 +204,7 @@ def report_traces(grid, theta, coef, basis, extra, cyl_out, total_out, extra_out
                 o3[i] = s3[j] * d + v3[j]
             k += 4
         else:
-            o = cyl_out[k] if k < z else extra_out[k - z]
+            o = out[k]
             v = vals[k]
             s = slope[k]
             for i in range(ng):
@@ -218,13 +213,47 @@ def report_traces(grid, theta, coef, basis, extra, cyl_out, total_out, extra_out
             k += 1
     if n_special:
         for k in range(rows):
-            o = cyl_out[k] if k < z else extra_out[k - z]
+            o = out[k]
             y0 = vals[k, 0]
             for i in range(ng):
                 if special[i]:
                     o[i] = (y0 - y0) / 1.0 * 0.0 + y0
-    for i in range(ng):
-        total_out[i] = cyl_out[0, i]
+
+
+@numba.njit(cache=True)
+def report_traces(grid, theta, coef, basis, extra, cyl_time, out):
+    """The friction traces of one cycle: per cylinder sum_l coef[k, l] basis[k, l, :] on the time grid into
+    cyl_time (z, n_t) (kept in the result; onto the crank-angle grid only when asked for, ``rows_on_grid``), and onto
+    the crank-angle ``grid`` (ng,): out[0] = their sum over cylinders, out[1:] = the rows ``extra`` (r, n_t); all
+    sampled at the flywheel angles ``theta`` (n_t,) (periodic in 4 pi: theta spans one cycle from the first edge),
+    interpolated as np.interp does. The engine total is summed on the time grid (interpolation is linear: the sum of
+    the per-cylinder grid traces up to rounding)."""
+    z, n_terms, n = basis.shape
+    r = extra.shape[0]
+    vals = np.empty((1 + r, n))  # the rows to interpolate: engine total, then the extra rows
+    for k in range(z):
+        row = cyl_time[k]
+        for t in range(n):
+            row[t] = coef[k, 0] * basis[k, 0, t]
+        for term in range(1, n_terms):
+            c = coef[k, term]
+            for t in range(n):
+                row[t] += c * basis[k, term, t]
+    for t in range(n):
+        vals[0, t] = cyl_time[0, t]
     for k in range(1, z):
-        for i in range(ng):
-            total_out[i] += cyl_out[k, i]
+        for t in range(n):
+            vals[0, t] += cyl_time[k, t]
+    for k in range(r):
+        for t in range(n):
+            vals[1 + k, t] = extra[k, t]
+    js, dxs, special, n_special, dxp = _grid_brackets(grid, theta)
+    _interp_rows(vals, js, dxs, special, n_special, dxp, out)
+
+
+@numba.njit(cache=True)
+def rows_on_grid(grid, theta, vals, out):
+    """out (r, ng) = the rows vals (r, n_t), sampled at the flywheel angles ``theta``, on the crank-angle ``grid``
+    (periodic in 4 pi), exactly as ``report_traces`` puts its rows there."""
+    js, dxs, special, n_special, dxp = _grid_brackets(grid, theta)
+    _interp_rows(vals, js, dxs, special, n_special, dxp, out)

@@ -13,8 +13,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
+
+from core.frozen_init import fast_constructor
 
 PA_PER_BAR = 1e5
 
@@ -60,12 +63,17 @@ class CycleResult:
     imep (z,) Pa, pmax (z,) Pa, pmax_angle (z,) rad after the cylinder's own firing TDC
     indicated_torque (z,) N m work mean; friction_balance N m: this cycle's T_fM = T_iM - T_LM - losses - dE/4pi
     coupling_loss N m: modelled mean dissipation of dampers/couplings/shaft (physics.md §12.4), excluded from friction
-    grid (n,) rad crank angle; friction_torque (n,) N m total and friction_torque_cyl (z, n) per cylinder, from the
-    smoothed coefficients with this cycle's pressure and speed
+    grid (n,) rad crank angle; friction_torque (n,) N m total, from the smoothed coefficients with this cycle's
+    pressure and speed; per cylinder on the monitor's time samples: friction_torque_cyl_time (z, n_t) N m at the
+    flywheel angles time_angles (n_t,) rad; ``friction_torque_cyl`` (z, n) puts them on the grid when first asked
+    for (a dashboard shows a few cycles a second; the monitor makes 12 or more)
     friction_torque_balance (n,) N m or None: direct rigid balance (paper 001 Eq. 26), rigid engines only
     speed_measured, speed_model (n,) rad/s flywheel speed (orders <= the identification limit)
     residual_harmonics (M,) complex rad/s: measured - model flywheel speed harmonics (order m/2)
     residual_rms rad/s, r_squared of the speed ripple; flags
+
+    The traces (grid, friction_torque, friction_torque_cyl_time, time_angles, speed_measured, speed_model,
+    friction_torque_balance) are None in the copy ``slim()`` makes for a long history: ~85 % of a result's memory.
     """
 
     index: int
@@ -82,16 +90,39 @@ class CycleResult:
     coupling_loss: float
     cycle: FrictionEstimate
     smoothed: FrictionEstimate
-    grid: np.ndarray
-    friction_torque: np.ndarray
-    friction_torque_cyl: np.ndarray
-    speed_measured: np.ndarray
-    speed_model: np.ndarray
+    grid: np.ndarray | None
+    friction_torque: np.ndarray | None
+    friction_torque_cyl_time: np.ndarray | None
+    time_angles: np.ndarray | None
+    speed_measured: np.ndarray | None
+    speed_model: np.ndarray | None
     residual_harmonics: np.ndarray
     residual_rms: float
     r_squared: float
     friction_torque_balance: np.ndarray | None = None
     flags: tuple[str, ...] = field(default=())
+
+    @cached_property
+    def friction_torque_cyl(self) -> np.ndarray | None:
+        """(z, n) N m per-cylinder friction torque on the crank-angle grid (None in a slim copy); the engine total
+        ``friction_torque`` is their sum up to rounding."""
+        if self.friction_torque_cyl_time is None or self.grid is None or self.time_angles is None:
+            return None
+        from core.report_kernels import rows_on_grid  # numba kernels: loaded when a trace is first wanted
+
+        out = np.empty((self.friction_torque_cyl_time.shape[0], self.grid.shape[0]))
+        rows_on_grid(self.grid, self.time_angles, self.friction_torque_cyl_time, out)
+        return out
+
+    def slim(self) -> CycleResult:
+        """This result without its traces (every scalar, per-cylinder value and estimate kept): what a long
+        history of cycles keeps (service.pipeline)."""
+        if self.grid is None:
+            return self
+        fields = dict(self.__dict__)
+        fields.pop("friction_torque_cyl", None)  # the grid traces, if asked for (cached_property)
+        fields.update(dict.fromkeys(_TRACES))
+        return _make_slim(**fields)
 
     # the per-cycle estimate under the names of the brief
     @property
@@ -161,6 +192,11 @@ class CycleResult:
             "flags": list(self.flags),
             "cylinders": cylinders,
         }
+
+
+_TRACES = ("grid", "friction_torque", "friction_torque_cyl_time", "time_angles", "speed_measured", "speed_model",
+           "friction_torque_balance")
+_make_slim = fast_constructor(CycleResult)  # CycleResult(**fields) without the frozen per-field __setattr__
 
 
 def _num(x: float) -> float | None:

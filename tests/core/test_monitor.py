@@ -72,6 +72,23 @@ def test_result_fields_shapes_and_physics(log):
     assert res.smoothed.weight > 0 and np.all(res.smoothed.friction_torque_mean_sigma > 0)
 
 
+def test_slim_copy_drops_the_traces_and_keeps_every_value(log):
+    _, cycles = log
+    _, out = _run(cycles[:3])
+    res = out[-1]
+    per_cyl = res.friction_torque_cyl  # put on the grid when first asked for, then cached
+    assert res.friction_torque_cyl is per_cyl and res.friction_torque_cyl_time.shape == (SPEC.n_cyl, 256)
+    slim = res.slim()
+    assert slim.slim() is slim and res.friction_torque_cyl is per_cyl  # the whole result is untouched
+    for name in ("grid", "friction_torque", "friction_torque_cyl_time", "time_angles", "speed_measured",
+                 "speed_model", "friction_torque_balance", "friction_torque_cyl"):
+        assert getattr(slim, name) is None, name
+    assert json.dumps(slim.to_json()) == json.dumps(res.to_json())
+    for f in dataclasses.fields(res):
+        if getattr(slim, f.name) is not None:
+            assert getattr(slim, f.name) is getattr(res, f.name), f.name
+
+
 def test_to_json_uses_the_truth_file_keys(log):
     truth, cycles = log
     _, out = _run(cycles[:3])

@@ -13,7 +13,7 @@ from core.engine import load_engine
 from core.estimate import friction_estimate, friction_estimate_leading
 from core.identify import parameter_layout
 from core.monitor_kernels import noise_rows, pairwise_sum, share_normal_into
-from core.report_kernels import report_traces, speed_power, speed_residual
+from core.report_kernels import report_traces, rows_on_grid, speed_power, speed_residual
 from core.results import FrictionEstimate
 from core.sharing import SharedLoss, firing_mask, share_mean_loss
 
@@ -293,12 +293,16 @@ def test_report_traces_and_residual_match_reference(name, m, n_t):
     coef = rng.uniform(0.0, 2.0, (z, 6))
     basis = rng.normal(size=(z, 6, n_t))
     extra = rng.normal(size=(2, n_t))
-    cyl, total, ex = np.empty((z, 720)), np.empty(720), np.empty((2, 720))
-    report_traces(grid, theta_fly, coef, basis, extra, cyl, total, ex)
+    cyl_time, on_grid = np.empty((z, n_t)), np.empty((3, 720))
+    report_traces(grid, theta_fly, coef, basis, extra, cyl_time, on_grid)
     r_cyl, r_total, r_ex = traces_reference(grid, theta_fly, coef, basis, extra)
+    assert_allclose(cyl_time, np.einsum("kl,klt->kt", coef, basis), rtol=1e-13, atol=1e-13)
+    cyl = np.empty((z, 720))
+    rows_on_grid(grid, theta_fly, cyl_time, cyl)  # the per-cylinder traces, asked for later: bit for bit
     assert_array_equal(cyl, r_cyl)
-    assert_array_equal(total, r_total)
-    assert_array_equal(ex, r_ex)
+    # the total is summed on the time grid before the (linear) interpolation: equal up to rounding
+    assert_allclose(on_grid[0], r_total, rtol=1e-13, atol=1e-13 * np.abs(r_total).max())
+    assert_array_equal(on_grid[1:], r_ex)
 
     p_f = parameter_layout(spec).n_params
     p = p_f + _nuisances(spec, m)
@@ -328,6 +332,9 @@ def test_peak_pressure_finite_counts_and_matches_peak_pressure():
     theta = np.arange(720) * (FOUR_PI / 720)
     p = 1e5 + 50e5 * rng.random((20, 720))
     phases = rng.uniform(0, FOUR_PI, 20)
+    p[0, [100, 300, 301]] = 60e5  # ties: the first maximum counts, as np.argmax
+    p[1, 0], p[2, 719] = 70e5, 70e5  # maxima on the ends: the parabola wraps
+    p[4, 200:260] = 55e5  # a flat top
     pmax, ang = np.empty(20), np.empty(20)
     assert _peak_pressure_finite(theta, p, phases, pmax, ang) == 0
     ref = peak_pressure(theta, p, phases)
@@ -336,3 +343,15 @@ def test_peak_pressure_finite_counts_and_matches_peak_pressure():
     p[3, 10] = np.nan
     p[7, 700:702] = np.inf
     assert _peak_pressure_finite(theta, p, phases, pmax, ang) == 3
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("where", [0, 1, 7, 8, 14399])
+def test_all_finite_sees_one_bad_sample_anywhere(bad, where):
+    from core.indicated import _all_finite
+
+    x = np.random.default_rng(where).normal(0.0, 1e300, 14400)  # large finite values stay finite: x * 0 == 0
+    x[::97] = -0.0
+    assert _all_finite(x)
+    x[where] = bad
+    assert not _all_finite(x)
