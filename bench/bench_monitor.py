@@ -37,6 +37,7 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 import tracemalloc  # noqa: E402
 import types  # noqa: E402
+from collections import deque  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -47,6 +48,7 @@ from core.engine import load_engine  # noqa: E402
 from core.monitor import CycleRejected, initial_state, process_cycle  # noqa: E402
 from core.simulate import simulate  # noqa: E402
 from core.speed import ToothSpacingLearner, cycle_speed, engine_orders  # noqa: E402
+from service.pipeline import ResultHistory  # noqa: E402
 
 POINTS = (("deutz-1cyl", 3000.0, 1.0), ("k9k-4cyl", 4000.0, 1.0), ("genset-v20", 1500.0, 1.0))
 CYCLES = 120
@@ -193,13 +195,16 @@ def cold_compile(short_runs: list) -> dict:
             "import_s": round(r["import_s"], 2)}
 
 
-def pipeline_pass(spec, sim) -> dict:
-    """The timed pass: assembly and monitor per cycle, exactly the path of service/pipeline.py (monitor results and
-    states kept); then the display speed route over the same cycles in a pass of its own, since the pipeline does
+def pipeline_pass(spec, sim, keep_last: int = 1) -> dict:
+    """The timed pass: assembly and monitor per cycle, exactly the path of service/pipeline.py (results kept as its
+    ResultHistory keeps them; the states and whole results of the last ``keep_last`` cycles for the scipy baseline);
+    then the display speed route over the same cycles in a pass of its own, since the pipeline does
     not run it (interleaved, it would evict the monitor's data from the cache and bill that to the monitor)."""
     asm = assembler_for(spec, sim.info)
-    rows, cycles, kept, rejected = [], [], [], 0
+    rows, cycles, rejected = [], [], 0
+    history, kept = ResultHistory(), deque(maxlen=max(keep_last, 1))
     state = initial_state(spec)
+    first_state = None
     for c, asm_ms, emit_ms in timed_assembly(asm, sim.records):
         t1 = time.perf_counter()
         try:
@@ -210,7 +215,9 @@ def pipeline_pass(spec, sim) -> dict:
         t2 = time.perf_counter()
         rows.append((asm_ms, emit_ms, 1e3 * (t2 - t1)))
         cycles.append(c)
+        history.append(res)
         kept.append((state, res))
+        first_state = first_state or state
     learner = ToothSpacingLearner(spec.sensors.wheel_teeth, spec.sensors.wheel_missing,
                                   engine_orders=engine_orders(spec.n_cyl, 79))
     sp_state = learner.initial()
@@ -222,7 +229,8 @@ def pipeline_pass(spec, sim) -> dict:
         cycle_speed(c, None, order, 720)
         speed_ms.append(1e3 * (time.perf_counter() - t0))
     a = np.column_stack([np.array(rows).reshape(-1, 3), np.array(speed_ms)])[:, [0, 1, 3, 2]]
-    return {"rows": a, "cycles": cycles, "kept": kept, "skipped": dict(asm.skipped), "rejected": rejected}
+    return {"rows": a, "cycles": cycles, "kept": list(kept), "first_state": first_state, "skipped": dict(asm.skipped),
+            "rejected": rejected}
 
 
 def heap_peak_mb(spec, sim, n: int = 20) -> float:
@@ -252,7 +260,7 @@ def engine_bench(name: str, rpm: float, load: float, scipy_cycles: int) -> tuple
     asm = assembler_for(spec, short.info)  # warm: numba cache load and first calls, this process
     _monitor_pass(spec, [c for r in short.records for c in asm.feed(r)])
     warm_s = time.perf_counter() - t0
-    run = pipeline_pass(spec, sim)
+    run = pipeline_pass(spec, sim, keep_last=scipy_cycles)
     rows = run["rows"]
     asm_ms, emit_ms, speed_ms, mon_ms = rows.T
     e2e = asm_ms + mon_ms
@@ -261,8 +269,8 @@ def engine_bench(name: str, rpm: float, load: float, scipy_cycles: int) -> tuple
     out = {
         "rpm": rpm, "load": load, "cylinders": spec.n_cyl, "nodes": spec.n_nodes,
         "wheel": f"{spec.sensors.wheel_teeth}-{spec.sensors.wheel_missing}",
-        "parameters": run["kept"][0][0].layout.n_params if run["kept"] else None,
-        "harmonics": run["kept"][0][0].n_harmonics if run["kept"] else None,
+        "parameters": run["first_state"].layout.n_params if run["first_state"] else None,
+        "harmonics": run["first_state"].n_harmonics if run["first_state"] else None,
         "cycle_duration_ms": round(duration_ms, 3), "cycles": int(rows.shape[0]), "skipped": run["skipped"],
         "rejected": run["rejected"], "simulate_s": round(sim_s, 2), "warm_first_calls_s": round(warm_s, 3),
         "assemble": summary_ms(asm_ms), "speed": summary_ms(speed_ms), "monitor": summary_ms(mon_ms),

@@ -44,16 +44,19 @@ def pick_method(spec: EngineSpec, meas, layout) -> dict:
 def compare(spec: EngineSpec, sim, cycles: list, kept: list, n: int, monitor_ms: float, e2e_ms: float) -> dict:
     """Baseline on the last ``n`` monitored cycles (warm-started one from the next, the first from constant speed).
 
-    cycles, kept: the monitored cycles and their (state after, result); monitor_ms, e2e_ms: the monitor's and the
-    end-to-end mean time per cycle from the timed pass."""
+    cycles: the monitored cycles; kept: (state after, result) of the last len(kept) >= n of them; monitor_ms, e2e_ms:
+    the monitor's and the end-to-end mean time per cycle from the timed pass."""
+    if len(kept) < min(n, len(cycles)):
+        raise ValueError(f"the scipy baseline on {n} cycles needs their states; {len(kept)} kept")
     idx = list(range(max(0, len(cycles) - n), len(cycles)))
-    st0 = kept[idx[0]][0]
+    base = len(cycles) - len(kept)  # kept[j - base] belongs to cycles[j]
+    st0 = kept[idx[0] - base][0]
     layout = st0.layout
     meas0 = measure(spec, cycles[idx[0]], st0.n_harmonics, getattr(st0.teeth, "correction", None))
     methods = pick_method(spec, meas0, layout)
     per, warm = [], None
     for j in idx:
-        state, res = kept[j]
+        state, res = kept[j - base]
         c = cycles[j]
         meas = measure(spec, c, state.n_harmonics, getattr(state.teeth, "correction", None))
         sigma, s_bal = monitor_noise(state, res, meas)

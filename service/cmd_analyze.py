@@ -29,7 +29,7 @@ def summary(analysis: LogAnalysis) -> dict:
     last = analysis.last
     doc: dict = {
         "engine": analysis.spec.name,
-        "cycles_ok": len(analysis.results),
+        "cycles_ok": analysis.cycles_ok,
         "cycles_skipped": dict(sorted(analysis.skipped.items())),
         "log_damage": dict(sorted(analysis.damage.items())),
         "data_gaps": data_gaps(analysis),

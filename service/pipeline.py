@@ -6,8 +6,8 @@ No physics here: the pipeline counts and logs what it skips and never dies of ba
 from __future__ import annotations
 
 import logging
-from collections import Counter
-from collections.abc import Callable, Iterable
+from collections import Counter, deque
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -60,16 +60,64 @@ class EnginePipeline:
         return None
 
 
+KEEP_TRACES = 64  # the newest results keep their traces (plots, a dashboard's recent cycles)
+
+
+class ResultHistory:
+    """The per-cycle results of a run in arrival order, light in memory: the newest ``keep_traces`` whole, older
+    ones as slim copies (``CycleResult.slim``: every value and estimate, no traces; a whole genset-v20 result is
+    ~100 kB, a slim one ~10 kB), at most ``max_len`` of them (None: all, for a finite log; a live session bounds
+    it and counts what fell off the front in ``dropped``)."""
+
+    def __init__(self, keep_traces: int = KEEP_TRACES, max_len: int | None = None):
+        if keep_traces < 1 or (max_len is not None and max_len < keep_traces):
+            raise ValueError(f"need 1 <= keep_traces <= max_len, got {keep_traces}, {max_len}")
+        self.keep_traces = keep_traces
+        self._items: deque[CycleResult] = deque(maxlen=max_len)
+        self.dropped = 0
+
+    def append(self, result: CycleResult) -> None:
+        items = self._items
+        if len(items) == items.maxlen:
+            self.dropped += 1
+        items.append(result)
+        if len(items) > self.keep_traces:
+            i = -self.keep_traces - 1
+            items[i] = items[i].slim()
+
+    @property
+    def count(self) -> int:
+        """Results appended so far (kept and dropped)."""
+        return len(self._items) + self.dropped
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __iter__(self) -> Iterator[CycleResult]:
+        return iter(self._items)
+
+    def to_list(self) -> list[CycleResult]:
+        return list(self._items)
+
+
 @dataclass
 class LogAnalysis:
+    """``results``: the analysed cycles in order (older ones slim, see ``ResultHistory``); ``dropped``: analysed
+    cycles no longer held (a live session's bounded history), counted in ``cycles_ok``."""
+
     spec: EngineSpec
     results: list[CycleResult]
     skipped: Counter[str]
     damage: Counter[str] = field(default_factory=Counter)
+    dropped: int = 0
 
     @property
     def last(self) -> CycleResult | None:
         return self.results[-1] if self.results else None
+
+    @property
+    def cycles_ok(self) -> int:
+        return len(self.results) + self.dropped
 
 
 def resolve_spec(engine_toml: str | None, engine: str | None, origin: str) -> EngineSpec:
@@ -86,17 +134,17 @@ def analyze_records(
     on_result: Callable[[CycleResult], None] | None = None,
 ) -> LogAnalysis:
     pipe = EnginePipeline(spec, info)
-    results: list[CycleResult] = []
+    history = ResultHistory()
     for record in records:
         for r in pipe.feed(record):
-            results.append(r)
+            history.append(r)
             if on_result:
                 on_result(r)
     for r in pipe.flush():
-        results.append(r)
+        history.append(r)
         if on_result:
             on_result(r)
-    return LogAnalysis(spec, results, pipe.skipped)
+    return LogAnalysis(spec, history.to_list(), pipe.skipped)
 
 
 def analyze_log(path: Path, engine: str | None = None,
