@@ -11,8 +11,9 @@ from collections import Counter
 
 import numpy as np
 
+from drivers.cycle_kernels import REDUCE_MAX, _gather_sums
 from drivers.cycle_parts import Epoch, Segment, Wheel
-from drivers.ringbuffer import RingBuffer
+from drivers.ringbuffer import RingBuffer, _search_sorted
 
 FOUR_PI = 4.0 * math.pi
 PHASE_RATIO = 1.15  # firing/exchange pressure ratio that counts as a clear decision
@@ -24,7 +25,10 @@ def cam_phase_bit(teeth: RingBuffer, seg: Segment, sb: int, tc: int, wheel: Whee
                   cam: float) -> int | None:
     """Phase bit voted by a cam edge at tick ``tc`` between verified edges sb-1 and sb of ``seg``; None when the
     edge sits more than 30 deg from where the stated cam angle ``cam`` [rad] puts it (a wrong or noisy cam)."""
-    ta, tb = teeth.get("t", sb - 1), teeth.get("t", sb)
+    if not (teeth.start <= sb - 1 and sb < teeth.end):
+        ta, tb = teeth.get("t", sb - 1), teeth.get("t", sb)  # not retained: RingBuffer.get's IndexError
+    col, cap = teeth._cols["t"], teeth.capacity
+    ta, tb = int(col[(sb - 1) % cap]), int(col[sb % cap])  # = teeth.get("t", .): Python ints
     pa, pb = seg.pos_of(sb - 1), seg.pos_of(sb)
     pos = pa + (tc - ta) / (tb - ta) * (pb - pa)
     theta0 = pos * wheel.pitch + a0
@@ -49,6 +53,14 @@ def firing_ratio(row: np.ndarray, grid: np.ndarray, tdc: float, half_width: floa
     ``windows``: ``phase_windows(grid, tdc, half_width)`` if already known (the same numbers)."""
     if windows is None or windows[2] != tdc or half_width != PHASE_HALF_WIDTH:
         windows = phase_windows(grid, tdc, half_width)
+    i_fire, i_exch = windows[0], windows[1]
+    if (type(row) is np.ndarray and row.dtype == np.float64 and row.ndim == 1 and 0 < i_fire.shape[0] <= REDUCE_MAX
+            and 0 < i_exch.shape[0] <= REDUCE_MAX and i_fire.dtype == np.int64 and i_exch.dtype == np.int64):
+        # the usual call (phase_windows' indices): both sums in one kernel, the same numbers as below
+        ok, s_fire, s_exch = _gather_sums(row, i_fire, i_exch)
+        if ok:
+            den = s_exch / i_exch.shape[0]
+            return s_fire / i_fire.shape[0] / den if den > 0 else math.nan
     fire = row[windows[0]]
     exch = row[windows[1]]
     if fire.size == 0 or exch.size == 0:
@@ -79,17 +91,24 @@ def place_cams(ep: Epoch, cams: RingBuffer, teeth: RingBuffer, cam_next: int, wh
     Returns the next cam row to look at and the first bit voted (None if none)."""
     first = None
     cam_next = max(cam_next, cams.start)
+    ccol, ccap = cams._cols["t"], cams.capacity
+    tcol, tcap = teeth._cols["t"], teeth.capacity
     while cam_next < cams.end:
-        tc = int(cams.get("t", cam_next))
+        tc = int(ccol[cam_next % ccap])  # = cams.get("t", cam_next): a retained row
         if tc < ep.t_start:  # before this epoch: of no use
             cam_next += 1
             continue
-        sb = teeth.searchsorted("t", tc, side="left")
+        t0 = teeth.start  # = teeth.searchsorted("t", tc, side="left"), its kernel called directly
+        sb = t0 + _search_sorted(tcol, t0 % tcap, teeth.end - t0, tc, False)
         last = ep.segments[-1]
         if sb > last.good and last.reason is None:
             break  # its teeth are not verified yet
         cam_next += 1
-        seg = next((s for s in reversed(ep.segments) if s.first_seq < sb <= s.good), None)
+        seg = None
+        for s in reversed(ep.segments):
+            if s.first_seq < sb <= s.good:
+                seg = s
+                break
         if seg is None or sb - 1 < teeth.start:
             stats["cam_unplaced"] += 1  # in a hole between segments
             continue

@@ -174,8 +174,9 @@ class CycleAssembler:
         if isinstance(record, ToothBatch):
             if len(record.ticks) == 0:
                 return []
-            last = self.buf.teeth.last("t")
-            if last is not None and int(record.ticks[0]) < last - self.wait_ticks:
+            teeth = self.buf.teeth
+            if teeth.end != teeth.start and int(record.ticks[0]) < int(
+                    teeth._cols["t"][(teeth.end - 1) % teeth.capacity]) - self.wait_ticks:  # = teeth.last("t")
                 self._clock_reset()
             self.buf._add_ticks(self.buf.teeth, record.ticks, "teeth")  # = buf.add(record)
             self._now = max(self._now, int(record.ticks[-1]))
@@ -217,15 +218,23 @@ class CycleAssembler:
     # ---- sync ---------------------------------------------------------------------------------------------------
     def _run_tracker(self) -> None:
         ring = self.buf.teeth
-        need = self.tracker.oldest_needed()
+        tracker = self.tracker
+        need = tracker.oldest_needed()
         if need < ring.start:  # edges the tracker still needed were overwritten
             self._end_segment(ring.start - 1, "buffer_overflow")
-            self.tracker.reset(ring.start)
+            tracker.reset(ring.start)
             self.stats["tracker_reset"] += 1
             need = ring.start
-        if need >= ring.end:
-            return
-        for typ, a, b, _c in self.tracker.advance(ring.view("t", need, ring.end), need):
+            if need >= ring.end:
+                return
+            events = tracker.advance(ring.view("t", need, ring.end), need)
+        else:  # the usual call: the view is retained and starts at oldest_needed(), as advance() checks
+            end = ring.end
+            if need >= end:
+                return
+            i = need % ring.capacity
+            events = tracker._advance_from(ring._cols["t"][i : i + (end - need)], need)
+        for typ, a, b, _c in events:
             if typ == EV_SEGMENT:
                 self._new_segment(a, b)
             elif typ == EV_END:
@@ -233,8 +242,8 @@ class CycleAssembler:
             else:
                 self.stats["candidate_rejected"] += 1
         ep = self._epoch
-        if ep is not None and self.tracker.synced and ep.segments[-1].reason is None:
-            ep.segments[-1].good = self.tracker.good_through
+        if ep is not None and ep.segments[-1].reason is None and tracker.synced:
+            ep.segments[-1].good = tracker.good_through
 
     def _end_segment(self, last_good: int, reason: str) -> None:
         self.stats[f"tooth:{reason}"] += 1
@@ -358,8 +367,9 @@ class CycleAssembler:
                 continue
             s0, s1 = seg.seq_of(ps), seg.seq_of(pe)
             teeth = self.buf.teeth
-            if not teeth.start <= s0 <= s1 < teeth.end:
-                teeth.view("t", s0, s1 + 1)  # edges no longer retained: the IndexError of a ring view, as before
+            if not teeth.start <= s0 <= s1 < teeth.end:  # its edges were overwritten (a batch beyond the ring)
+                self._skip("buffer_overflow", index)
+                continue
             col = teeth._cols["t"]
             i0 = s0 % teeth.capacity
             rpm = (pe - ps) * w.pitch / ((int(col[i0 + s1 - s0]) - int(col[i0])) / self.info.tick_hz) * 30.0 / math.pi
@@ -482,15 +492,20 @@ class CycleAssembler:
         t_keep = float(t_col[keep % cap]) if keep < teeth.end else float(self._now)
         if self._pending:
             t_keep = min(t_keep, float(self._pending[0].ticks[0]))
-        teeth.discard_before(keep - 2)
+        # RingBuffer.discard_before inlined: start = min(max(start, seq), end)
+        teeth.start = min(max(teeth.start, keep - 2), teeth.end)
         for group in self.buf.groups.values():  # the channels of a group share their rows
             group.discard_before(group.searchsorted(t_keep, side="left") - 2)
         ring = self.buf.load
-        ring.discard_before(ring.start + _search_sorted(ring._cols["t"], ring.start % ring.capacity,
-                                                        ring.end - ring.start, t_keep - self.info.tick_hz, False) - 1)
+        start = ring.start
+        seq = start + _search_sorted(ring._cols["t"], start % ring.capacity, ring.end - start,
+                                     t_keep - self.info.tick_hz, False) - 1
+        ring.start = min(max(start, seq), ring.end)
         ring = self.buf.cam
-        ring.discard_before(min(self._cam_next, ring.start + _search_sorted(
-            ring._cols["t"], ring.start % ring.capacity, ring.end - ring.start, t_keep, False)))
+        start = ring.start
+        seq = min(self._cam_next, start + _search_sorted(ring._cols["t"], start % ring.capacity, ring.end - start,
+                                                         t_keep, False))
+        ring.start = min(max(start, seq), ring.end)
         if ep is not None and len(ep.cam_votes) > 64:
             ep.cam_votes = [v for v in ep.cam_votes if v[0] >= t_keep]
 

@@ -265,12 +265,13 @@ class WheelTracker:
 
     def oldest_needed(self) -> int:
         """Earliest edge sequence number the tracker may still read."""
-        mode = int(self.ist[I_MODE])
-        if mode == MODE_SEARCH:
-            return int(min(self.ist[I_FROM], max(self.ist[I_SCAN] - 2, 0)))
+        ist = self.ist.tolist()  # Python ints: one conversion instead of a numpy scalar per read
+        mode = ist[I_MODE]
+        if mode == MODE_SEARCH:  # the scan reads edge I_SCAN on and its neighbours back to I_FROM, never before
+            return min(ist[I_FROM], ist[I_SCAN])
         if mode == MODE_TENTATIVE:
-            return int(min(self.ist[I_FROM], self.ist[I_ANCHOR] - 3))
-        return int(max(self.ist[I_CUR] - 1, 0))
+            return min(ist[I_FROM], ist[I_ANCHOR] - 3)
+        return max(ist[I_CUR] - 1, 0)
 
     def reset(self, from_seq: int) -> None:
         """Forget everything and search again from edge ``from_seq``."""
@@ -286,9 +287,14 @@ class WheelTracker:
         tk = ticks
         if not (type(tk) is np.ndarray and tk.dtype == np.int64 and tk.flags.c_contiguous):
             tk = np.ascontiguousarray(ticks, dtype=np.int64)
+        return self._advance_from(tk, int(base))
+
+    def _advance_from(self, tk: np.ndarray, base: int) -> list[tuple[int, int, int, int]]:
+        """``advance`` without its checks: ``tk`` a C-contiguous int64 view, ``base`` <= ``oldest_needed()`` (the
+        assembler's hot path, which has just read ``oldest_needed()`` and passes exactly that)."""
         out: list[tuple[int, int, int, int]] = []
         while True:
-            ne = _track(tk, int(base), self.prm, self.ist, self.fst, self._ev)
+            ne = _track(tk, base, self.prm, self.ist, self.fst, self._ev)
             if ne:  # (most batches bring no event)
                 out.extend(tuple(row) for row in self._ev[:ne].tolist())
             if ne < self._ev.shape[0]:

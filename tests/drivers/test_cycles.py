@@ -334,3 +334,32 @@ def test_real_tue_wheel(name, cycles, rpm):
     assert all(c.phase_source == "pressure" for c in out)
     means = [cycle_speed(c, None, 6, 720).rpm_mean for c in out]
     assert rpm[0] <= min(means) and max(means) <= rpm[1]
+
+
+def test_tooth_batches_beyond_the_ring_are_counted_not_raised(k4):
+    """A tooth batch longer than the tooth ring (a stalled reader catching up) overwrites edges the tracker and the
+    open cycles still needed: those cycles are skipped as 'buffer_overflow', the tracker starts over on what the
+    ring holds, and every cycle that is emitted is the clean one (found by its first edge: a new epoch renumbers)."""
+    from drivers.engine_buffers import EngineBuffers
+
+    s, _, recs, clean, _ = k4
+    merged, pend = [], []
+    for r in recs:  # teeth in batches of >= 400 edges, against a 256-edge ring
+        if isinstance(r, ToothBatch):
+            pend.append(r.ticks)
+            if sum(len(p) for p in pend) >= 400:
+                merged.append(ToothBatch(np.concatenate(pend)))
+                pend = []
+        else:
+            merged.append(r)
+    merged.append(ToothBatch(np.concatenate(pend)))
+    asm = CycleAssembler(s.info(), 4, np.radians(s.firing_deg), speed_range_rpm=(500.0, 5000.0))
+    asm.buf = EngineBuffers(tooth_capacity=256)
+    out = [c for r in merged for c in asm.feed(r)] + asm.flush()
+    assert asm.stats["tooth:buffer_overflow"] >= 2 and asm.stats["tracker_reset"] >= 2
+    assert asm.skipped["buffer_overflow"] >= 2
+    by_first_edge = {int(c.tooth_ticks[0]): c for c in clean}
+    assert out and all(np.array_equal(c.pressure, by_first_edge[int(c.tooth_ticks[0])].pressure)
+                       and np.array_equal(c.tooth_ticks, by_first_edge[int(c.tooth_ticks[0])].tooth_ticks)
+                       for c in out)
+    assert [c.index for c in out] == sorted({c.index for c in out})
