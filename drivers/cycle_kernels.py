@@ -49,7 +49,8 @@ def _cycle_edges(col, i0, m, o0, n, t, shift, a0_deg, grid, ticks, pos, index, t
 # assembler's means (load over a cycle: ~10 rows, phase windows: 60 grid points) are taken here in one call instead
 # of a numpy call per vector; the test (tests/drivers/test_reduce_kernels.py) compares the bytes with np.add.reduce
 # over many lengths and magnitudes. Longer vectors than REDUCE_MAX stay with numpy (no recursion here: numba's cache
-# does not load recursive functions safely).
+# does not load recursive functions safely). core.pairwise has the same loop for the monitor; drivers may not import
+# it (tests/test_layering.py: drivers know core.types and core.engine only).
 REDUCE_MAX = 128
 
 
@@ -84,14 +85,9 @@ def _pairwise_sum(a, i0, n):
 
 
 @numba.njit(cache=True)
-def _add_reduce(a, i0, n):
-    """``float(np.add.reduce(a[i0 : i0 + n]))`` for a float64 vector (n <= REDUCE_MAX)."""
-    return 0.0 + _pairwise_sum(a, i0, n)
-
-
-@numba.njit(cache=True)
 def _add_reduce2(a, b, i0, n):
-    """``_add_reduce`` of the same rows of two columns (the load ring's torque and power)."""
+    """``float(np.add.reduce(a[i0 : i0 + n]))`` and the same of b (float64 vectors, n <= REDUCE_MAX): the load
+    ring's torque and power columns over the same rows."""
     return 0.0 + _pairwise_sum(a, i0, n), 0.0 + _pairwise_sum(b, i0, n)
 
 

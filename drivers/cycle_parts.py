@@ -19,7 +19,7 @@ from drivers.frame_store import FrameChannel, FrameGroup
 from drivers.pressure_kernels import ROW_NAN, ROW_OK, _pressure_row
 from drivers.pressure_ring import PressureGroup
 from drivers.resample import CHECK_HOLE, CHECK_NAN, interp_checked
-from drivers.ringbuffer import RingBuffer, _search_sorted
+from drivers.ringbuffer import RingBuffer
 
 
 @dataclass(frozen=True)
@@ -271,15 +271,12 @@ def pressure_matrix_reference(buf: EngineBuffers, expected: tuple[int, ...], t_g
 def load_mean(ring: RingBuffer, t_lo: float, t_hi: float, hold_ticks: float) -> tuple[float, float]:
     """Mean torque and power of the load samples in [t_lo, t_hi]; if none, the last one before t_lo no older than
     ``hold_ticks`` (zero-order hold of a slow CAN reading); else NaN."""
-    start, cap = ring.start, ring.capacity
-    n = ring.end - start
-    if n == 0:
+    if len(ring) == 0:
         return math.nan, math.nan
-    col, i0 = ring._cols["t"], start % cap  # ring.searchsorted("t", ., side), its kernel called directly
-    a = start + _search_sorted(col, i0, n, t_lo, False)
-    b = start + _search_sorted(col, i0, n, t_hi, True)
+    a = ring.searchsorted("t", t_lo, side="left")
+    b = ring.searchsorted("t", t_hi, side="right")
     if 0 < b - a <= REDUCE_MAX:  # the sums of the rows [a, b) (contiguous in the mirrored columns): one kernel
-        s_torque, s_power = _add_reduce2(ring._cols["torque"], ring._cols["power"], a % cap, b - a)
+        s_torque, s_power = _add_reduce2(ring._cols["torque"], ring._cols["power"], a % ring.capacity, b - a)
         return s_torque / (b - a), s_power / (b - a)
     if b > a:  # np.mean of a float64 vector is np.add.reduce (pairwise) / n: the same numbers, less dispatch
         return float(np.add.reduce(ring.view("torque", a, b))) / (b - a), \

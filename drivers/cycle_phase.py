@@ -13,7 +13,7 @@ import numpy as np
 
 from drivers.cycle_kernels import REDUCE_MAX, _gather_sums
 from drivers.cycle_parts import Epoch, Segment, Wheel
-from drivers.ringbuffer import RingBuffer, _search_sorted
+from drivers.ringbuffer import RingBuffer
 
 FOUR_PI = 4.0 * math.pi
 PHASE_RATIO = 1.15  # firing/exchange pressure ratio that counts as a clear decision
@@ -25,10 +25,7 @@ def cam_phase_bit(teeth: RingBuffer, seg: Segment, sb: int, tc: int, wheel: Whee
                   cam: float) -> int | None:
     """Phase bit voted by a cam edge at tick ``tc`` between verified edges sb-1 and sb of ``seg``; None when the
     edge sits more than 30 deg from where the stated cam angle ``cam`` [rad] puts it (a wrong or noisy cam)."""
-    if not (teeth.start <= sb - 1 and sb < teeth.end):
-        ta, tb = teeth.get("t", sb - 1), teeth.get("t", sb)  # not retained: RingBuffer.get's IndexError
-    col, cap = teeth._cols["t"], teeth.capacity
-    ta, tb = int(col[(sb - 1) % cap]), int(col[sb % cap])  # = teeth.get("t", .): Python ints
+    ta, tb = teeth.get("t", sb - 1), teeth.get("t", sb)
     pa, pb = seg.pos_of(sb - 1), seg.pos_of(sb)
     pos = pa + (tc - ta) / (tb - ta) * (pb - pa)
     theta0 = pos * wheel.pitch + a0
@@ -91,24 +88,17 @@ def place_cams(ep: Epoch, cams: RingBuffer, teeth: RingBuffer, cam_next: int, wh
     Returns the next cam row to look at and the first bit voted (None if none)."""
     first = None
     cam_next = max(cam_next, cams.start)
-    ccol, ccap = cams._cols["t"], cams.capacity
-    tcol, tcap = teeth._cols["t"], teeth.capacity
     while cam_next < cams.end:
-        tc = int(ccol[cam_next % ccap])  # = cams.get("t", cam_next): a retained row
+        tc = int(cams.get("t", cam_next))
         if tc < ep.t_start:  # before this epoch: of no use
             cam_next += 1
             continue
-        t0 = teeth.start  # = teeth.searchsorted("t", tc, side="left"), its kernel called directly
-        sb = t0 + _search_sorted(tcol, t0 % tcap, teeth.end - t0, tc, False)
+        sb = teeth.searchsorted("t", tc, side="left")
         last = ep.segments[-1]
         if sb > last.good and last.reason is None:
             break  # its teeth are not verified yet
         cam_next += 1
-        seg = None
-        for s in reversed(ep.segments):
-            if s.first_seq < sb <= s.good:
-                seg = s
-                break
+        seg = next((s for s in reversed(ep.segments) if s.first_seq < sb <= s.good), None)
         if seg is None or sb - 1 < teeth.start:
             stats["cam_unplaced"] += 1  # in a hole between segments
             continue

@@ -174,9 +174,8 @@ class CycleAssembler:
         if isinstance(record, ToothBatch):
             if len(record.ticks) == 0:
                 return []
-            teeth = self.buf.teeth
-            if teeth.end != teeth.start and int(record.ticks[0]) < int(
-                    teeth._cols["t"][(teeth.end - 1) % teeth.capacity]) - self.wait_ticks:  # = teeth.last("t")
+            last = self.buf.teeth.last("t")
+            if last is not None and int(record.ticks[0]) < last - self.wait_ticks:
                 self._clock_reset()
             self.buf._add_ticks(self.buf.teeth, record.ticks, "teeth")  # = buf.add(record)
             self._now = max(self._now, int(record.ticks[-1]))
@@ -225,16 +224,9 @@ class CycleAssembler:
             tracker.reset(ring.start)
             self.stats["tracker_reset"] += 1
             need = ring.start
-            if need >= ring.end:
-                return
-            events = tracker.advance(ring.view("t", need, ring.end), need)
-        else:  # the usual call: the view is retained and starts at oldest_needed(), as advance() checks
-            end = ring.end
-            if need >= end:
-                return
-            i = need % ring.capacity
-            events = tracker._advance_from(ring._cols["t"][i : i + (end - need)], need)
-        for typ, a, b, _c in events:
+        if need >= ring.end:
+            return
+        for typ, a, b, _c in tracker.advance(ring.view("t", need, ring.end), need):
             if typ == EV_SEGMENT:
                 self._new_segment(a, b)
             elif typ == EV_END:
@@ -492,20 +484,13 @@ class CycleAssembler:
         t_keep = float(t_col[keep % cap]) if keep < teeth.end else float(self._now)
         if self._pending:
             t_keep = min(t_keep, float(self._pending[0].ticks[0]))
-        # RingBuffer.discard_before inlined: start = min(max(start, seq), end)
-        teeth.start = min(max(teeth.start, keep - 2), teeth.end)
+        teeth.discard_before(keep - 2)
         for group in self.buf.groups.values():  # the channels of a group share their rows
             group.discard_before(group.searchsorted(t_keep, side="left") - 2)
         ring = self.buf.load
-        start = ring.start
-        seq = start + _search_sorted(ring._cols["t"], start % ring.capacity, ring.end - start,
-                                     t_keep - self.info.tick_hz, False) - 1
-        ring.start = min(max(start, seq), ring.end)
+        ring.discard_before(ring.searchsorted("t", t_keep - self.info.tick_hz) - 1)
         ring = self.buf.cam
-        start = ring.start
-        seq = min(self._cam_next, start + _search_sorted(ring._cols["t"], start % ring.capacity, ring.end - start,
-                                                         t_keep, False))
-        ring.start = min(max(start, seq), ring.end)
+        ring.discard_before(min(self._cam_next, ring.searchsorted("t", t_keep)))
         if ep is not None and len(ep.cam_votes) > 64:
             ep.cam_votes = [v for v in ep.cam_votes if v[0] >= t_keep]
 

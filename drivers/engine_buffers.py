@@ -35,23 +35,13 @@ _I64 = np.dtype(np.int64)
 
 
 @numba.njit(cache=True)
-def _extend_increasing(col, end, t, last, has_last):
-    """If the int64 ticks t are strictly increasing (and all after ``last`` when ``has_last``), write them as
-    ``RingBuffer.extend`` would after ``_advance(len(t))`` from row ``end`` of the mirrored column ``col`` (a batch
-    longer than the ring keeps its newest rows) and return True; else write nothing and return False."""
+def _increasing_after(t, last):
+    """True if the int64 ticks t are strictly increasing and all after ``last``."""
     prev = last
     for i in range(t.shape[0]):
-        if (has_last or i > 0) and t[i] <= prev:
+        if t[i] <= prev:
             return False
         prev = t[i]
-    cap = col.shape[0] // 2
-    n = t.shape[0]
-    skip = n - cap if n > cap else 0
-    i0 = (end + skip) % cap
-    for q in range(skip, n):
-        j = (i0 + q - skip) % cap
-        col[j] = t[q]
-        col[j + cap] = t[q]
     return True
 
 
@@ -120,21 +110,15 @@ class EngineBuffers:
         t = ticks
         if not (type(t) is np.ndarray and t.ndim == 1 and (t.dtype is _I64 or t.dtype == _I64)):
             t = np.asarray(ticks, dtype=np.int64).ravel()
-        n = t.shape[0]
-        if n == 0:
+        if t.shape[0] == 0:
             return 0
-        end = ring.end
-        col = ring._cols["t"]
-        if end == ring.start:
+        if ring.end == ring.start:
             last = None
-            if _extend_increasing(col, end, t, 0, False):  # the usual batch: one compiled check-and-write
-                ring._advance(n)
-                return int(n)
         else:
-            last = int(col[(end - 1) % ring.capacity])
-            if _extend_increasing(col, end, t, last, True):
-                ring._advance(n)
-                return int(n)
+            last = int(ring._cols["t"][(ring.end - 1) % ring.capacity])
+            if _increasing_after(t, last):  # the usual batch: one compiled check, one extend
+                ring.extend(t)
+                return int(t.shape[0])
         ok = np.ones(t.size, dtype=bool)
         ok[1:] = t[1:] > t[:-1]
         if last is not None:

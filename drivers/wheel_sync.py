@@ -287,14 +287,9 @@ class WheelTracker:
         tk = ticks
         if not (type(tk) is np.ndarray and tk.dtype == np.int64 and tk.flags.c_contiguous):
             tk = np.ascontiguousarray(ticks, dtype=np.int64)
-        return self._advance_from(tk, int(base))
-
-    def _advance_from(self, tk: np.ndarray, base: int) -> list[tuple[int, int, int, int]]:
-        """``advance`` without its checks: ``tk`` a C-contiguous int64 view, ``base`` <= ``oldest_needed()`` (the
-        assembler's hot path, which has just read ``oldest_needed()`` and passes exactly that)."""
         out: list[tuple[int, int, int, int]] = []
         while True:
-            ne = _track(tk, base, self.prm, self.ist, self.fst, self._ev)
+            ne = _track(tk, int(base), self.prm, self.ist, self.fst, self._ev)
             if ne:  # (most batches bring no event)
                 out.extend(tuple(row) for row in self._ev[:ne].tolist())
             if ne < self._ev.shape[0]:
