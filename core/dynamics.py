@@ -26,7 +26,7 @@ import scipy.linalg
 
 from core.engine import EngineSpec
 from core.kinematics import kinematics, variable_inertia
-from core.monitor_kernels import pairwise_sum
+from core.pairwise import pairwise_sum
 
 
 @dataclass(frozen=True)

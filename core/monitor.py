@@ -42,7 +42,7 @@ from core.harmonic_balance import OperatingPoint, harmonic_balance, operating_po
 from core.identify import ParameterLayout, parameter_layout
 from core.indicated import _peak_pressure_finite, peak_pressure
 from core.monitor_glue import freq_times_1j, glue_plan, noise_model_rows, shares_pair  # noqa: F401 (re-export)
-from core.monitor_kernels import pairwise_sum
+from core.pairwise import pairwise_sum
 from core.priors import build_priors
 from core.results import CycleResult
 from core.tooth_fit import fit_cycle_teeth

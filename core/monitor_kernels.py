@@ -14,84 +14,7 @@ import math
 import numba
 import numpy as np
 
-
-@numba.njit(cache=True)
-def _pairwise_block(a, lo, n):
-    """numpy's pairwise_sum for n <= 128: a plain loop below 8, else eight running sums."""
-    if n < 8:
-        res = 0.0
-        for i in range(lo, lo + n):
-            res += a[i]
-        return res
-    r0 = a[lo]
-    r1 = a[lo + 1]
-    r2 = a[lo + 2]
-    r3 = a[lo + 3]
-    r4 = a[lo + 4]
-    r5 = a[lo + 5]
-    r6 = a[lo + 6]
-    r7 = a[lo + 7]
-    m = n - n % 8
-    i = 8
-    while i < m:
-        r0 += a[lo + i]
-        r1 += a[lo + i + 1]
-        r2 += a[lo + i + 2]
-        r3 += a[lo + i + 3]
-        r4 += a[lo + i + 4]
-        r5 += a[lo + i + 5]
-        r6 += a[lo + i + 6]
-        r7 += a[lo + i + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[lo + i]
-        i += 1
-    return res
-
-
-@numba.njit(cache=True)
-def pairwise_sum(a, lo, n):
-    """Sum of a[lo:lo + n] in numpy's pairwise order (np.add.reduce of a contiguous float64 array). Above 128
-    numpy halves recursively (at a multiple of 8); that tree is walked here with an explicit stack (numba's cache
-    does not reload recursive functions reliably)."""
-    if n <= 128:
-        return _pairwise_block(a, lo, n)
-    los = np.empty(64, dtype=np.int64)
-    ns = np.empty(64, dtype=np.int64)
-    stage = np.empty(64, dtype=np.int64)
-    vals = np.empty(64)
-    top = 0
-    los[0] = lo
-    ns[0] = n
-    stage[0] = 0
-    nv = 0
-    while top >= 0:
-        k = ns[top]
-        if k <= 128:
-            vals[nv] = _pairwise_block(a, los[top], k)
-            nv += 1
-            top -= 1
-            continue
-        n2 = k // 2
-        n2 -= n2 % 8
-        if stage[top] == 0:  # left half first
-            stage[top] = 1
-            los[top + 1] = los[top]
-            ns[top + 1] = n2
-            stage[top + 1] = 0
-            top += 1
-        elif stage[top] == 1:  # then the right half
-            stage[top] = 2
-            los[top + 1] = los[top] + n2
-            ns[top + 1] = k - n2
-            stage[top + 1] = 0
-            top += 1
-        else:  # both halves done: left + right
-            vals[nv - 2] = vals[nv - 2] + vals[nv - 1]
-            nv -= 1
-            top -= 1
-    return vals[0]
+from core.pairwise import pairwise_sum
 
 
 @numba.njit(cache=True)
@@ -102,6 +25,20 @@ def _abs2(z):
 
 
 # ---- noise model and whitened rows (core.monitor) ----------------------------------------------------------------
+
+
+@numba.njit(cache=True)
+def _residual_into(design, target, theta, out):
+    """out (M,) = target - design @ theta for complex design (M, P) and real theta (P,), real and imaginary parts
+    summed over P in order (the monitor's noise rows and the reported residual use the same numbers)."""
+    m, p = design.shape
+    for i in range(m):
+        sr = 0.0
+        si = 0.0
+        for j in range(p):
+            sr += design[i, j].real * theta[j]
+            si += design[i, j].imag * theta[j]
+        out[i] = complex(target[i].real - sr, target[i].imag - si)
 
 
 @numba.njit(cache=True)
@@ -117,13 +54,7 @@ def noise_rows(design, target, theta, freq, drift_harm, use_drift, st_mean, st_v
     inv_sigma (2M+1) and sys_var (2M+1), the last entry of sys_var being ``sys_balance``."""
     m, p = design.shape
     resid = np.empty(m, dtype=np.complex128)
-    for i in range(m):
-        sr = 0.0
-        si = 0.0
-        for j in range(p):
-            sr += design[i, j].real * theta[j]
-            si += design[i, j].imag * theta[j]
-        resid[i] = complex(target[i].real - sr, target[i].imag - si)
+    _residual_into(design, target, theta, resid)
     d = np.empty(m, dtype=np.complex128)
     if use_drift:
         for i in range(m):  # 1j * freq * drift_harm, as numpy multiplies complex numbers

@@ -12,7 +12,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from core.monitor_kernels import _abs2, pairwise_sum
+from core.monitor_kernels import _abs2, _residual_into
+from core.pairwise import pairwise_sum
 
 _TABLES: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
@@ -74,13 +75,8 @@ def speed_residual(design, target, theta, p_f, drift, use_drift, out):
     """out[0] = the tooth-pattern part design[:, p_f:] @ theta[p_f:], out[1] = target - design @ theta with the
     best-fitting drift (if used) taken out; returns [sum |resid|^2, in numpy's pairwise order]."""
     m, p = design.shape
+    _residual_into(design, target, theta, out[1])
     for i in range(m):
-        sr = 0.0
-        si = 0.0
-        for j in range(p):
-            sr += design[i, j].real * theta[j]
-            si += design[i, j].imag * theta[j]
-        out[1, i] = complex(target[i].real - sr, target[i].imag - si)
         pr = 0.0
         pi = 0.0
         for j in range(p_f, p):

@@ -16,7 +16,8 @@ from core.frozen_init import fast_constructor
 from core.identify import parameter_layout
 from core.monitor import MonitorState, initial_state
 from core.monitor_glue import freq_times_1j, glue_plan, shares_pair
-from core.monitor_kernels import firing_into, noise_rows, noise_rows_cycle, pairwise_sum, share_normal_into
+from core.monitor_kernels import firing_into, noise_rows, noise_rows_cycle, share_normal_into
+from core.pairwise import pairwise_sum
 from core.results import CycleResult, FrictionEstimate
 from core.sharing import motored_friction_per_cylinder, share_mean_loss
 

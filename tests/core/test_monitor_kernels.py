@@ -12,7 +12,8 @@ from core.accumulate import Posterior, ResidualStats
 from core.engine import load_engine
 from core.estimate import friction_estimate, friction_estimate_leading
 from core.identify import parameter_layout
-from core.monitor_kernels import noise_rows, pairwise_sum, share_normal_into
+from core.monitor_kernels import noise_rows, share_normal_into
+from core.pairwise import pairwise_sum
 from core.report_kernels import report_traces, rows_on_grid, speed_power, speed_residual
 from core.results import FrictionEstimate
 from core.sharing import SharedLoss, firing_mask, share_mean_loss
