@@ -217,7 +217,8 @@ def pipeline_pass(spec, sim, keep_last: int = 1) -> dict:
         cycles.append(c)
         history.append(res)
         kept.append((state, res))
-        first_state = first_state or state
+        if first_state is None:
+            first_state = state
     learner = ToothSpacingLearner(spec.sensors.wheel_teeth, spec.sensors.wheel_missing,
                                   engine_orders=engine_orders(spec.n_cyl, 79))
     sp_state = learner.initial()
