@@ -17,7 +17,7 @@ from typing import Any
 import can
 
 from core.types import StreamRecord
-from drivers.backoff import Backoff
+from drivers.backoff import Backoff, ReconnectingLink
 from drivers.can_decoder import CanDecoder
 from drivers.source import Source
 from drivers.timebase import TimerUnwrapper, shared_unwrapper
@@ -27,7 +27,7 @@ log = logging.getLogger(__name__)
 BUS_ERRORS = (can.CanError, OSError)
 
 
-class CanSource(Source):
+class CanSource(ReconnectingLink, Source):
     """Stream of PressureBlock / LoadSample from a python-can bus.
 
     Parameters
@@ -43,6 +43,8 @@ class CanSource(Source):
         After this long without frames, frames held for reordering are released.
     """
 
+    LINK_ERRORS = BUS_ERRORS
+
     def __init__(self, interface: str, channel: str, *, fd: bool = True, bus_kwargs: dict[str, Any] | None = None,
                  tick_hz: float = 10e6, unwrapper: TimerUnwrapper | None = None, reorder_window: int = 4,
                  idle_flush_s: float = 0.02, max_batch: int = 4096, backoff: Backoff | None = None) -> None:
@@ -57,7 +59,7 @@ class CanSource(Source):
         self.bus: can.BusABC | None = None
         self.reconnects = 0
         self._had_bus = False
-        self._last_frame = time.monotonic()
+        self._last_data = time.monotonic()
         self._open()
 
     @classmethod
@@ -109,31 +111,20 @@ class CanSource(Source):
                 pass
             self.bus = None
 
-    def _read_internal(self, timeout: float | None) -> list[StreamRecord]:
-        deadline = None if timeout is None else time.monotonic() + timeout
-        records: list[StreamRecord] = []
-        while True:
-            now = time.monotonic()
-            remaining = 0.1 if deadline is None else max(0.0, deadline - now)
-            if self.bus is None:
-                if not (self.backoff.due(now) and self._open()):
-                    time.sleep(min(self.backoff.wait_time(now), remaining, 0.1))
-            else:
-                try:
-                    batch = self._recv_batch(min(remaining, self.idle_flush_s))
-                except BUS_ERRORS as exc:
-                    self._lose_bus(exc)
-                    records += self.decoder.flush()
-                    continue
-                if batch:
-                    self._last_frame = time.monotonic()
-                    records += self.decoder.feed(batch)
-                elif time.monotonic() - self._last_frame >= self.idle_flush_s:
-                    records += self.decoder.flush()
-            if records or (deadline is not None and time.monotonic() >= deadline):
-                return records
+    # --- the ReconnectingLink hooks ----------------------------------------------------------------------------
+    def _link_open(self) -> bool:
+        return self.bus is not None
 
-    def _recv_batch(self, wait: float) -> list[can.Message]:
+    def _lose_link(self, exc: BaseException) -> None:
+        self._lose_bus(exc)
+
+    def _decode(self, chunk: list[can.Message]) -> list[StreamRecord]:
+        return self.decoder.feed(chunk)
+
+    def _decode_flush(self) -> list[StreamRecord]:
+        return self.decoder.flush()
+
+    def _read_chunk(self, wait: float) -> list[can.Message]:
         assert self.bus is not None
         msg = self.bus.recv(timeout=wait)
         if msg is None:

@@ -20,7 +20,7 @@ import numpy as np
 import serial
 
 from core.types import AcquisitionInfo, CamBatch, StreamRecord, ToothBatch
-from drivers.backoff import Backoff
+from drivers.backoff import Backoff, ReconnectingLink
 from drivers.serial_codec import CamFrame, Decoder, Frame, InfoFrame, TeethFrame
 from drivers.source import Source
 from drivers.timebase import TimerUnwrapper, shared_unwrapper
@@ -30,7 +30,7 @@ log = logging.getLogger(__name__)
 PORT_ERRORS = (serial.SerialException, OSError, ValueError)
 
 
-class SerialSource(Source):
+class SerialSource(ReconnectingLink, Source):
     """Stream of ToothBatch / CamBatch from a serial port speaking docs/protocols.md §2.
 
     Parameters
@@ -47,6 +47,8 @@ class SerialSource(Source):
         After this long without bytes, held frames are released and a partial frame is given up.
     """
 
+    LINK_ERRORS = PORT_ERRORS
+
     def __init__(self, port_url: str, *, baud: int = 921600, info: AcquisitionInfo | None = None,
                  unwrapper: TimerUnwrapper | None = None, reorder_window: int = 0, idle_flush_s: float = 0.05,
                  backoff: Backoff | None = None) -> None:
@@ -62,7 +64,7 @@ class SerialSource(Source):
         self.port: Any = None
         self.reconnects = 0
         self._lost_at: float | None = None
-        self._last_bytes = time.monotonic()
+        self._last_data = time.monotonic()
         self._open(first=True)
 
     @classmethod
@@ -124,7 +126,7 @@ class SerialSource(Source):
         self.backoff.failed()
 
     # --- reading -------------------------------------------------------------------------------------------------
-    def _read_bytes(self, wait: float) -> bytes:
+    def _read_chunk(self, wait: float) -> bytes:
         self.port.timeout = wait
         data = self.port.read(1)
         if data:
@@ -133,30 +135,17 @@ class SerialSource(Source):
                 data += self.port.read(waiting)
         return bytes(data)
 
-    def _read_internal(self, timeout: float | None) -> list[StreamRecord]:
-        deadline = None if timeout is None else time.monotonic() + timeout
-        records: list[StreamRecord] = []
-        while True:
-            now = time.monotonic()
-            remaining = 0.1 if deadline is None else max(0.0, deadline - now)
-            if self.port is None:
-                if self.backoff.due(now) and self._open():
-                    continue
-                time.sleep(min(self.backoff.wait_time(now), remaining, 0.1))
-            else:
-                try:
-                    data = self._read_bytes(min(remaining, self.idle_flush_s))
-                except PORT_ERRORS as exc:
-                    self._lose_port(exc)
-                    records += self._records(self.decoder.flush())
-                    continue
-                if data:
-                    self._last_bytes = time.monotonic()
-                    records += self._records(self.decoder.feed(data))
-                elif time.monotonic() - self._last_bytes >= self.idle_flush_s:
-                    records += self._records(self.decoder.flush())
-            if records or (deadline is not None and time.monotonic() >= deadline):
-                return records
+    def _link_open(self) -> bool:
+        return self.port is not None
+
+    def _lose_link(self, exc: BaseException) -> None:
+        self._lose_port(exc)
+
+    def _decode(self, chunk: bytes) -> list[StreamRecord]:
+        return self._records(self.decoder.feed(chunk))
+
+    def _decode_flush(self) -> list[StreamRecord]:
+        return self._records(self.decoder.flush())
 
     def _records(self, frames: list[Frame]) -> list[StreamRecord]:
         out: list[StreamRecord] = []
