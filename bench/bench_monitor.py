@@ -12,7 +12,8 @@ makes ``CYCLES`` cycles once (not timed); then, on one core (BLAS/numba threads 
   nothing in core/ edited); ``other`` is whitening, noise model, sharing and bookkeeping;
 - end_to_end: assemble + monitor, the path of service/pipeline.py; latency = emitting feed call + monitor.
 Real-time factor = engine cycle duration / mean end-to-end time per cycle (genset-v20 at 1500 rpm: 80 ms per cycle;
-target >= 100x, i.e. <= 0.8 ms). Numba compile time is measured apart in a fresh process with an empty cache.
+target >= 100x, i.e. <= 0.8 ms); the timed pass runs ``PASSES`` times from a fresh start (each mean includes its
+first cycle's set-up) and the pass with the median mean is the one reported. Numba compile time is measured apart in a fresh process with an empty cache.
 A cProfile top 10 per engine says where the monitor's time goes; tracemalloc gives its Python-heap peak.
 
 The scipy baseline (bench/scipy_baseline.py) runs on the last few of the same cycles, with the monitor's noise model
@@ -52,6 +53,7 @@ from service.pipeline import ResultHistory  # noqa: E402
 
 POINTS = (("deutz-1cyl", 3000.0, 1.0), ("k9k-4cyl", 4000.0, 1.0), ("genset-v20", 1500.0, 1.0))
 CYCLES = 120
+PASSES = 3  # timed pipeline passes over the same records (fresh assembler and monitor state each); median reported
 SCIPY_CYCLES = {"deutz-1cyl": 3, "k9k-4cyl": 4, "genset-v20": 2}
 TARGET_RTF = 100.0
 TARGET_SPEEDUP = 30.0
@@ -261,7 +263,11 @@ def engine_bench(name: str, rpm: float, load: float, scipy_cycles: int) -> tuple
     asm = assembler_for(spec, short.info)  # warm: numba cache load and first calls, this process
     _monitor_pass(spec, [c for r in short.records for c in asm.feed(r)])
     warm_s = time.perf_counter() - t0
-    run = pipeline_pass(spec, sim, keep_last=scipy_cycles)
+    # the pass is repeated and the one with the median end-to-end mean is reported: a 120-cycle mean moves by
+    # ~0.05 ms with one descheduled cycle (3-10 ms) on a shared 2-core box; every pass's mean is kept in the output
+    runs = [pipeline_pass(spec, sim, keep_last=scipy_cycles) for _ in range(PASSES)]
+    pass_means = [float((r["rows"][:, 0] + r["rows"][:, 3]).mean()) for r in runs]
+    run = runs[int(np.argsort(pass_means)[len(runs) // 2])]
     rows = run["rows"]
     asm_ms, emit_ms, speed_ms, mon_ms = rows.T
     e2e = asm_ms + mon_ms
@@ -276,6 +282,7 @@ def engine_bench(name: str, rpm: float, load: float, scipy_cycles: int) -> tuple
         "rejected": run["rejected"], "simulate_s": round(sim_s, 2), "warm_first_calls_s": round(warm_s, 3),
         "assemble": summary_ms(asm_ms), "speed": summary_ms(speed_ms), "monitor": summary_ms(mon_ms),
         "end_to_end": summary_ms(e2e), "latency": summary_ms(emit_ms + mon_ms),
+        "end_to_end_mean_ms_per_pass": [round(v, 4) for v in pass_means],
         "real_time_factor": round(duration_ms / float(e2e.mean()), 1),
         "monitor_stages_ms": stages,
         "profile_top10": profile_top(spec, run["cycles"]),
@@ -297,6 +304,8 @@ def print_table(r: dict) -> None:
             rtf = f"{e['real_time_factor']:8.1f}x (cycle {e['cycle_duration_ms']:.1f} ms)" if st == "end_to_end" \
                 else ""
             print(f"{name:12s} {st:12s} {s['cycles_per_s']:10.1f} {s['p50_ms']:9.3f} {s['p99_ms']:9.3f}   {rtf}")
+    print("end-to-end mean ms per cycle of each timed pass (the median pass is reported): " + "; ".join(
+        f"{name} {', '.join(f'{v:.3f}' for v in e['end_to_end_mean_ms_per_pass'])}" for name, e in r["engines"].items()))
     print(f"\nmonitor stages, ms per cycle ({', '.join(r['engines'])}):")
     labels = list(dict.fromkeys(k for e in r["engines"].values() for k in e["monitor_stages_ms"]))
     for lab in [k for k in labels if not k.startswith(("other", "total"))] + [k for k in labels if k.startswith(

@@ -69,8 +69,10 @@ class MonitorConfig:
     drift_nuisance: instead, treat each cycle's linear speed drift as a random effect of that cycle's equations (its
     shape passed through the same tooth fit, its prior size from the cycle-to-cycle mean-speed steps), so speed
     changes between cycles neither bias nor add noise to the estimate
-    time_samples: samples per cycle of the harmonic-balance time grid (256 = 10x the highest harmonic at M = 24;
-    512 moved no accuracy figure beyond its noise: K9K/Maruti per-cylinder within 0.3 points, deutz NRMSE 0.3)
+    time_samples: samples per cycle of the harmonic-balance time grid (192 = 8x the highest harmonic at M = 24).
+    Against 256: per-cylinder errors within 0.5 points (K9K, Maruti; V20 within its sigma), total FMEP within 0.1
+    point, deutz NRMSE within 0.5 point; 128 shifted the K9K total by up to -0.25 point (the friction terms' sharp
+    features alias into the band), 512 moved nothing beyond noise
     scheme, prior_coefficients: parameter grouping and baseline a0 (core.identify.parameter_layout)
     forgetting: per-cycle factor of the accumulated equations, 1 - 1/N_window (None: N_window = max(400, 100 z)
     cycles, since more cylinders need more cycles; physics.md §12.5)
@@ -98,7 +100,7 @@ class MonitorConfig:
     fit_order: float | None = None
     fit_drift: bool = False
     drift_nuisance: bool = True
-    time_samples: int = 256
+    time_samples: int = 192
     scheme: str | None = None
     prior_coefficients: np.ndarray | None = None
     forgetting: float | None = None
