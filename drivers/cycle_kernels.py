@@ -15,6 +15,7 @@ import numba
 import numpy as np
 
 from drivers.resample import _pchip_eval
+from drivers.ringbuffer import _search_sorted
 
 _DEG = math.pi / 180.0  # np.radians(x) is x * (pi / 180)
 
@@ -89,6 +90,18 @@ def _add_reduce2(a, b, i0, n):
     """``float(np.add.reduce(a[i0 : i0 + n]))`` and the same of b (float64 vectors, n <= REDUCE_MAX): the load
     ring's torque and power columns over the same rows."""
     return 0.0 + _pairwise_sum(a, i0, n), 0.0 + _pairwise_sum(b, i0, n)
+
+
+@numba.njit(cache=True)
+def _window_sums(t_col, a_col, b_col, i0, n, t_lo, t_hi):
+    """(a, b, sum a, sum b): the rows [a, b) of the sorted ``t_col[i0 : i0 + n]`` (a mirrored ring column) within
+    [t_lo, t_hi] (``np.searchsorted`` left / right, as ``RingBuffer.searchsorted``) and, if 0 < b - a <= REDUCE_MAX,
+    ``np.add.reduce`` of ``a_col`` and ``b_col`` over them (else NaN): the load mean of a cycle in one call."""
+    a = _search_sorted(t_col, i0, n, t_lo, False)
+    b = _search_sorted(t_col, i0, n, t_hi, True)
+    if 0 < b - a <= REDUCE_MAX:
+        return a, b, 0.0 + _pairwise_sum(a_col, i0 + a, b - a), 0.0 + _pairwise_sum(b_col, i0 + a, b - a)
+    return a, b, np.nan, np.nan
 
 
 @numba.njit(cache=True)

@@ -13,12 +13,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.cycle_kernels import REDUCE_MAX, _add_reduce2
+from drivers.cycle_kernels import REDUCE_MAX, _window_sums
 from drivers.engine_buffers import EngineBuffers
 from drivers.frame_store import FrameChannel, FrameGroup
 from drivers.pressure_kernels import ROW_NAN, ROW_OK, _pressure_row
 from drivers.pressure_ring import PressureGroup
-from drivers.resample import CHECK_HOLE, CHECK_NAN, interp_checked
+from drivers.resample import CHECK_HOLE, CHECK_NAN, interp_checked, pchip_eval
 from drivers.ringbuffer import RingBuffer
 
 
@@ -33,9 +33,12 @@ class Wheel:
     t: int = field(init=False, repr=False, compare=False)
     pitch: float = field(init=False, repr=False, compare=False)
 
+    _windows: dict = field(init=False, repr=False, compare=False)  # h2 -> window(h2): a pure function, memoized
+
     def __post_init__(self) -> None:
         object.__setattr__(self, "t", self.n - self.k)
         object.__setattr__(self, "pitch", 2.0 * math.pi / self.n)
+        object.__setattr__(self, "_windows", {})
 
     def ordinal(self, pos: int) -> int:
         """Running count of existing teeth up to ``pos`` (pos must be a tooth)."""
@@ -56,8 +59,15 @@ class Wheel:
 
     def window(self, h2: int) -> tuple[int, int]:
         """Start and closing tooth of the 720 deg window whose start is 2 pi * h2 in tooth-0 angle (a0 included)."""
+        known = self._windows.get(h2)  # asked 3-4 times per cycle for the same h2
+        if known is not None:
+            return known
         lo = self.n * h2 - self.a0_pitch
-        return self.tooth_at_or_before(lo), self.tooth_at_or_after(lo + 2 * self.n)
+        known = self.tooth_at_or_before(lo), self.tooth_at_or_after(lo + 2 * self.n)
+        if len(self._windows) >= 16:  # only the last few cycles' windows are asked again
+            self._windows.clear()
+        self._windows[h2] = known
+        return known
 
 
 @dataclass
@@ -71,12 +81,18 @@ class Segment:
     good: int
     t_good: int = 0
     reason: str | None = None  # why it ended (None while running)
+    # first_seq - ordinal(first_pos), fixed at creation: seq_of runs ~10 times per cycle on the hot path
+    _base: int = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self._base = self.first_seq - self.wheel.ordinal(self.first_pos)
 
     def seq_of(self, pos: int) -> int:
-        return self.first_seq + self.wheel.ordinal(pos) - self.wheel.ordinal(self.first_pos)
+        w = self.wheel  # = first_seq + ordinal(pos) - ordinal(first_pos), the same integers
+        return self._base + (pos // w.n) * w.t + pos % w.n
 
     def pos_of(self, seq: np.ndarray | int):
-        return self.wheel.pos_of_ordinal(self.wheel.ordinal(self.first_pos) + (seq - self.first_seq))
+        return self.wheel.pos_of_ordinal(seq - self._base)  # ordinal(first_pos) + (seq - first_seq): same integers
 
     @property
     def good_pos(self) -> int:
@@ -108,6 +124,19 @@ class Epoch:
         return self.index_base + (c - self.c0)
 
 
+def nominal_angle(n: int, a0_deg: float, pos: np.ndarray, c: int, phase: int) -> np.ndarray:
+    """Crank angle [rad] of edges at ``pos`` within cycle c (wheel of n positions, tooth 0 at ``a0_deg``), built in
+    degrees from integers so that edges on 0 and 720 deg land exactly there (360/N is exact for the usual wheels)."""
+    deg = a0_deg + (pos - 2 * n * c + n * phase) * (360.0 / n)
+    return np.radians(deg)
+
+
+def grid_times(theta: np.ndarray, ticks: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Timer ticks (float) at the ``grid`` angles from the monotone t(theta) through the tooth edges."""
+    t0 = ticks[0]
+    return pchip_eval(theta, (ticks - t0).astype(np.float64), grid) + float(t0)
+
+
 def bridge_offset(prev: Segment, first_pos_rel: int, t_first: int, max_revs: float = 3.0) -> int | None:
     """Offset (a multiple of N) that puts a new segment's anchor-relative positions on the count of the epoch whose
     last segment is ``prev``, or None. The pitches between the two are estimated from the elapsed time at the mean
@@ -128,15 +157,17 @@ def bridge_offset(prev: Segment, first_pos_rel: int, t_first: int, max_revs: flo
 def window_status(epoch: Epoch, ps: int, pe: int) -> tuple[str, Segment | None]:
     """'complete' (all edges ps..pe plus one look-ahead verified), 'wait', 'broken' (a segment ended inside) or
     'hole' (starts after its segment's end: broken if a later segment exists, else wait)."""
-    seg = epoch.segment_at(ps)
-    if seg is None:
-        return "before", None
+    seg = epoch.segments[-1]  # the usual answer of segment_at: the running segment
+    if seg.first_pos > ps:
+        seg = epoch.segment_at(ps)
+        if seg is None:
+            return "before", None
     s_end = seg.seq_of(pe)
-    s_start = seg.seq_of(ps)
     if s_end <= seg.good:
         return "complete", seg
     if seg.reason is None:
         return "wait", seg
+    s_start = seg.seq_of(ps)
     if s_start > seg.good:
         return ("broken" if seg is not epoch.segments[-1] else "wait"), seg
     return "broken", seg
@@ -273,10 +304,13 @@ def load_mean(ring: RingBuffer, t_lo: float, t_hi: float, hold_ticks: float) -> 
     ``hold_ticks`` (zero-order hold of a slow CAN reading); else NaN."""
     if len(ring) == 0:
         return math.nan, math.nan
-    a = ring.searchsorted("t", t_lo, side="left")
-    b = ring.searchsorted("t", t_hi, side="right")
-    if 0 < b - a <= REDUCE_MAX:  # the sums of the rows [a, b) (contiguous in the mirrored columns): one kernel
-        s_torque, s_power = _add_reduce2(ring._cols["torque"], ring._cols["power"], a % ring.capacity, b - a)
+    # the rows [a, b) in the window and their sums (contiguous in the mirrored columns): one kernel
+    cols = ring._cols
+    a, b, s_torque, s_power = _window_sums(cols["t"], cols["torque"], cols["power"], ring.start % ring.capacity,
+                                           ring.end - ring.start, t_lo, t_hi)
+    a += ring.start
+    b += ring.start
+    if 0 < b - a <= REDUCE_MAX:
         return s_torque / (b - a), s_power / (b - a)
     if b > a:  # np.mean of a float64 vector is np.add.reduce (pairwise) / n: the same numbers, less dispatch
         return float(np.add.reduce(ring.view("torque", a, b))) / (b - a), \

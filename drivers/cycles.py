@@ -27,8 +27,10 @@ from __future__ import annotations
 
 import logging
 import math
+from bisect import bisect_left, bisect_right
 from collections import Counter, deque
 from dataclasses import dataclass
+from operator import itemgetter
 
 import numpy as np
 
@@ -50,7 +52,9 @@ from drivers.cycle_parts import (
     Wheel,
     bridge_offset,
     grid_plan,
+    grid_times,
     load_mean,
+    nominal_angle,
     plan_ready,
     pressure_matrix,
     pressure_on_grid,
@@ -58,12 +62,12 @@ from drivers.cycle_parts import (
 )
 from drivers.cycle_phase import firing_verdict, phase_windows, place_cams
 from drivers.engine_buffers import EngineBuffers
-from drivers.resample import pchip_eval
 from drivers.ringbuffer import _search_sorted
 from drivers.wheel_sync import EV_END, EV_SEGMENT, REASONS, WheelTracker
 
 log = logging.getLogger(__name__)
 FOUR_PI = 4.0 * math.pi
+_TICK = itemgetter(0)
 
 
 @dataclass
@@ -76,6 +80,8 @@ class _Pending:
     theta: np.ndarray  # nominal crank angle of the edges [rad], first <= 0, last >= 4 pi
     t_grid: np.ndarray  # timer ticks at the grid angles
     tooth: np.ndarray  # int64 wheel index of the edges
+    t_first: int  # ticks[0] and ticks[-1] as Python ints (read at every emit / discard / build)
+    t_last: int
 
 
 class CycleAssembler:
@@ -138,7 +144,8 @@ class CycleAssembler:
         self._plan_buf: EngineBuffers | None = None
         self._plan_version = -1
         self._phase_windows = phase_windows(self.grid, float(self.firing[self.phase_cyl - 1])) \
-            if self.phase_cyl is not None else None  # grid points of the phase cylinder's two TDC windows
+            if self.phase_cyl is not None else None  # grid points of the phase cylinder's two TDC windows (and tdc)
+        self._phase_expected = self.phase_cyl in info.pressure_cylinders  # else: ask expected_cylinders
 
     # ---- input ------------------------------------------------------------------------------------------------
     def feed(self, record: StreamRecord) -> list[Cycle]:
@@ -172,12 +179,16 @@ class CycleAssembler:
                 self._now = t
             return []
         if isinstance(record, ToothBatch):
-            if len(record.ticks) == 0:
+            t = record.ticks
+            if len(t) == 0:
                 return []
-            last = self.buf.teeth.last("t")
-            if last is not None and int(record.ticks[0]) < last - self.wait_ticks:
-                self._clock_reset()
-            self.buf._add_ticks(self.buf.teeth, record.ticks, "teeth")  # = buf.add(record)
+            # the usual batch (int64, all after the last edge, so no clock reset): filed by one compiled call
+            if not (type(t) is np.ndarray and t.dtype == np.int64 and t.ndim == 1 and self.wait_ticks >= 0
+                    and self.buf.teeth.extend_increasing(t)):
+                last = self.buf.teeth.last("t")
+                if last is not None and int(t[0]) < last - self.wait_ticks:
+                    self._clock_reset()
+                self.buf._add_ticks(self.buf.teeth, t, "teeth")  # = buf.add(record)
             self._now = max(self._now, int(record.ticks[-1]))
             self._run_tracker()
             return self._advance(flushing=False)
@@ -226,7 +237,7 @@ class CycleAssembler:
             need = ring.start
         if need >= ring.end:
             return
-        for typ, a, b, _c in tracker.advance(ring.view("t", need, ring.end), need):
+        for typ, a, b, _c in tracker.advance(ring.view("t", need, ring.end), need, need):
             if typ == EV_SEGMENT:
                 self._new_segment(a, b)
             elif typ == EV_END:
@@ -307,9 +318,9 @@ class CycleAssembler:
             pos = np.arange(ps, pe + 1)
             pos = pos[pos % w.n < w.t]
             ticks = self.buf.teeth.view("t", seg.seq_of(ps), seg.seq_of(pe) + 1)
-            theta = self._nominal_angle(pos, 0, -ep.probe)
+            theta = nominal_angle(w.n, self.a0_deg, pos, 0, -ep.probe)
             ring = self.buf.pressure.get(self.phase_cyl)
-            t_grid = self._grid_times(theta, ticks)
+            t_grid = grid_times(theta, ticks, self.grid)
             if ring is None or len(ring) == 0 or ring.last("t") < t_grid[-1]:
                 if not flushing and self._now - ticks[-1] <= self.wait_ticks:
                     return
@@ -327,7 +338,7 @@ class CycleAssembler:
     def _advance(self, flushing: bool) -> list[Cycle]:
         if self._epoch is not None:
             self._advance_epoch(self._epoch, flushing)
-        out = self._emit(flushing)
+        out = self._emit(flushing) if self._pending else []
         self._discard(force=flushing)
         return out
 
@@ -341,13 +352,14 @@ class CycleAssembler:
             self._probe_pressure(ep, flushing)
             if ep.phase is None:
                 return
-        elif self.info.cam_deg is not None:
+        elif self.info.cam_deg is not None and self._cam_next < self.buf.cam.end:  # (else nothing to place)
             self._place_cams(ep)
         lo_rpm, hi_rpm = self.speed_range_rpm
         w = self.wheel
+        bit = int(ep.phase)
         while True:
             c = ep.next_c
-            ps, pe = self._window(ep, c)
+            ps, pe = w.window(2 * c - bit)  # = self._window(ep, c)
             status, seg = window_status(ep, ps, pe)
             if status in ("wait", "before"):
                 return
@@ -364,7 +376,8 @@ class CycleAssembler:
                 continue
             col = teeth._cols["t"]
             i0 = s0 % teeth.capacity
-            rpm = (pe - ps) * w.pitch / ((int(col[i0 + s1 - s0]) - int(col[i0])) / self.info.tick_hz) * 30.0 / math.pi
+            t_first, t_last = int(col[i0]), int(col[i0 + s1 - s0])
+            rpm = (pe - ps) * w.pitch / ((t_last - t_first) / self.info.tick_hz) * 30.0 / math.pi
             if not lo_rpm <= rpm <= hi_rpm:
                 self._skip("speed_out_of_range", index)
                 continue
@@ -374,24 +387,12 @@ class CycleAssembler:
             t_grid = np.empty(self.grid.shape[0])
             _cycle_edges(col, i0, m, w.ordinal(seg.first_pos) + (s0 - seg.first_seq), w.n, w.t,
                          -2 * w.n * c + w.n * int(ep.phase), self.a0_deg, self.grid, ticks, pos, tooth, theta, t_grid)
-            self._pending.append(_Pending(index, ep, c, ticks, pos, theta, t_grid, tooth))
-
-    def _nominal_angle(self, pos: np.ndarray, c: int, phase: int) -> np.ndarray:
-        """Crank angle [rad] of edges at ``pos`` within cycle c, built in degrees from integers so that edges on
-        0 and 720 deg land exactly there (360/N is exact for the usual wheels)."""
-        n = self.wheel.n
-        deg = self.a0_deg + (pos - 2 * n * c + n * phase) * (360.0 / n)
-        return np.radians(deg)
+            self._pending.append(_Pending(index, ep, c, ticks, pos, theta, t_grid, tooth, t_first, t_last))
 
     def _skip(self, reason: str, index: int) -> None:
         if self.skipped[reason] == 0:
             log.warning("cycle %d skipped: %s", index, reason)
         self.skipped[reason] += 1
-
-    def _grid_times(self, theta: np.ndarray, ticks: np.ndarray) -> np.ndarray:
-        """Timer ticks (float) at the grid angles from the monotone t(theta) through the tooth edges."""
-        t0 = ticks[0]
-        return pchip_eval(theta, (ticks - t0).astype(np.float64), self.grid) + float(t0)
 
     def _grid_plan(self) -> GridPlan:
         """The pressure plan of the current buffers (remade when a pressure group appears or buffers reset)."""
@@ -411,7 +412,7 @@ class CycleAssembler:
         out: list[Cycle] = []
         while self._pending:
             p = self._pending[0]
-            timed_out = flushing or self._now - p.ticks[-1] > self.wait_ticks
+            timed_out = flushing or self._now - p.t_last > self.wait_ticks
             if not timed_out and not self._ready(p):
                 break
             self._pending.popleft()
@@ -425,9 +426,9 @@ class CycleAssembler:
         t_grid = p.t_grid
         if ep.phase_source == "cam" and self.info.cam_deg is not None and ep is self._epoch:
             self._place_cams(ep)  # a cam edge that came after the teeth (an older epoch has all it will get)
-        t_first, t_last = int(p.ticks[0]), int(p.ticks[-1])  # Python ints: the same comparisons, no numpy scalars
-        votes = [b for t, b in ep.cam_votes if t_first <= t <= t_last]
-        if any(b != ep.phase for b in votes):
+        cv = ep.cam_votes  # in time order (cam rows are strictly increasing): the votes in [t_first, t_last]
+        votes = [b for _, b in cv[bisect_left(cv, p.t_first, key=_TICK):bisect_right(cv, p.t_last, key=_TICK)]]
+        if votes.count(ep.phase) != len(votes):  # a vote against the epoch's phase
             self._skip("phase_mismatch", p.index)
             return None
         flags: list[str] = []
@@ -437,8 +438,8 @@ class CycleAssembler:
         if pressure is None:
             self._skip(reason, p.index)
             return None
-        if self.phase_cyl is not None and self.phase_cyl in self.expected_cylinders:
-            verdict = firing_verdict(pressure[self.phase_cyl - 1], self.grid, float(self.firing[self.phase_cyl - 1]),
+        if self.phase_cyl is not None and (self._phase_expected or self.phase_cyl in self.expected_cylinders):
+            verdict = firing_verdict(pressure[self.phase_cyl - 1], self.grid, self._phase_windows[2],
                                      self._phase_windows)
             if verdict < 0:
                 ep.mismatch_run += 1
@@ -453,7 +454,7 @@ class CycleAssembler:
             ep.mismatch_run = 0
             if verdict == 0:
                 flags.append("phase_unchecked")
-        torque, power = load_mean(self.buf.load, float(p.ticks[0]), float(p.ticks[-1]), self.info.tick_hz)
+        torque, power = load_mean(self.buf.load, float(p.t_first), float(p.t_last), self.info.tick_hz)
         self.stats["cycles"] += 1
         return Cycle(index=p.index, tick_hz=self.info.tick_hz, tooth_ticks=p.ticks, tooth_angle=p.theta,
                      tooth_index=p.tooth, grid=self.grid.copy(), pressure=pressure,
@@ -483,14 +484,9 @@ class CycleAssembler:
         keep = max(teeth.start, min(keep, teeth.end))
         t_keep = float(t_col[keep % cap]) if keep < teeth.end else float(self._now)
         if self._pending:
-            t_keep = min(t_keep, float(self._pending[0].ticks[0]))
+            t_keep = min(t_keep, float(self._pending[0].t_first))
         teeth.discard_before(keep - 2)
-        for group in self.buf.groups.values():  # the channels of a group share their rows
-            group.discard_before(group.searchsorted(t_keep, side="left") - 2)
-        ring = self.buf.load
-        ring.discard_before(ring.searchsorted("t", t_keep - self.info.tick_hz) - 1)
-        ring = self.buf.cam
-        ring.discard_before(min(self._cam_next, ring.searchsorted("t", t_keep)))
+        self.buf.release_before(t_keep, self.info.tick_hz, self._cam_next)
         if ep is not None and len(ep.cam_votes) > 64:
             ep.cam_votes = [v for v in ep.cam_votes if v[0] >= t_keep]
 

@@ -21,7 +21,6 @@ import logging
 import math
 from collections import Counter
 
-import numba
 import numpy as np
 
 from core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
@@ -32,17 +31,6 @@ from drivers.ringbuffer import RingBuffer, _write_block
 log = logging.getLogger(__name__)
 _F64 = np.dtype(np.float64)
 _I64 = np.dtype(np.int64)
-
-
-@numba.njit(cache=True)
-def _increasing_after(t, last):
-    """True if the int64 ticks t are strictly increasing and all after ``last``."""
-    prev = last
-    for i in range(t.shape[0]):
-        if t[i] <= prev:
-            return False
-        prev = t[i]
-    return True
 
 
 class EngineBuffers:
@@ -65,7 +53,8 @@ class EngineBuffers:
         self.groups_version = 0
         self._pressure_capacity = int(pressure_capacity)
         self._single: dict[int, PressureGroup] = {}  # cylinder -> its group when that is a group of one
-        self._frame_keys: dict[tuple[int, ...], tuple[PressureGroup, np.ndarray | None]] = {}  # cylinders -> row order
+        # cylinders -> (group, row order or None, rows of a frame that may take the steady path or -1)
+        self._frame_keys: dict[tuple[int, ...], tuple[PressureGroup, np.ndarray | None, int]] = {}
         self.rejected: Counter[str] = Counter()  # input rows refused (out of order, conflicting), by stream
 
     def add(self, record: StreamRecord) -> int:
@@ -112,13 +101,9 @@ class EngineBuffers:
             t = np.asarray(ticks, dtype=np.int64).ravel()
         if t.shape[0] == 0:
             return 0
-        if ring.end == ring.start:
-            last = None
-        else:
-            last = int(ring._cols["t"][(ring.end - 1) % ring.capacity])
-            if _increasing_after(t, last):  # the usual batch: one compiled check, one extend
-                ring.extend(t)
-                return int(t.shape[0])
+        if ring.extend_increasing(t):  # the usual batch: one compiled check-and-write
+            return int(t.shape[0])
+        last = None if ring.end == ring.start else int(ring._cols["t"][(ring.end - 1) % ring.capacity])
         ok = np.ones(t.size, dtype=bool)
         ok[1:] = t[1:] > t[:-1]
         if last is not None:
@@ -216,12 +201,28 @@ class EngineBuffers:
                 self._conflict(f"frame of cylinders {cyls}", k * n)
                 return None, None
         if type(raw) is tuple:
-            self._frame_keys[raw] = (group, order)
+            self._frame_keys[raw] = (group, order, len(group.cylinders) if order is None else -1)
         return group, order
 
     def add_frame(self, frame: PressureFrame) -> int:
         """File one pressure frame: all its cylinders in one call. Returns samples accepted x cylinders."""
         v = frame.values
+        try:
+            entry = self._frame_keys.get(frame.cylinders)
+        except TypeError:  # unhashable: not a tuple of cylinder numbers
+            entry = None
+        if entry is not None and type(v) is np.ndarray and v.ndim == 2 and v.shape[0] == entry[2] > 1 \
+                and (v.dtype is _F64 or v.dtype == _F64) and v.flags.carray:  # (an unpickled dtype is not _F64)
+            # the steady state (8 frames per cycle): a plain frame of a known group in its row order, after what the
+            # group has; the same steps as below without the checks that cannot fail
+            group = entry[0]
+            n = v.shape[1]
+            period = frame.period_ticks
+            if n and period > 0 and math.isfinite(period):
+                t0 = float(frame.t0_ticks)
+                if group.end == group.start or t0 > group.newest:
+                    group.add(t0, float(period), v, 0)
+                    return n * entry[2]
         if not (type(v) is np.ndarray and (v.dtype is _F64 or v.dtype == _F64) and v.ndim == 2
                 and (fl := v.flags).c_contiguous and fl.writeable and fl.aligned):  # (an unpickled dtype is not _F64)
             v = np.ascontiguousarray(v, dtype=np.float64)
@@ -241,7 +242,7 @@ class EngineBuffers:
             entry = self._frame_group(frame, k, n)
             if entry[0] is None:
                 return 0
-        group, order = entry
+        group, order = entry[0], entry[1]
         if order is not None:
             v = np.ascontiguousarray(v[order])
         period = frame.period_ticks
@@ -260,6 +261,18 @@ class EngineBuffers:
             i, skip = group._advance(n - first)
             _write_frame(group.t, group.p, i, t0 + skip * period, float(period), v, first + skip)
         return int(n - first) * k
+
+    def release_before(self, t_keep: float, load_hold_ticks: float, cam_next: int) -> None:
+        """Release what a consumer at tick ``t_keep`` no longer needs: pressure rows before it (two are kept before
+        it), load rows older than ``t_keep - load_hold_ticks`` but the last of them (the hold of ``load_mean``),
+        cam rows before it that were already placed (rows before ``cam_next``)."""
+        for group in self.groups.values():  # the channels of a group share their rows
+            group.discard_before(group.searchsorted(t_keep, side="left") - 2)
+        ring = self.load
+        ring.discard_before(ring.searchsorted("t", t_keep - load_hold_ticks) - 1)
+        ring = self.cam
+        if ring.start < cam_next:  # else every placed row is released already: nothing to search
+            ring.discard_before(min(cam_next, ring.searchsorted("t", t_keep)))
 
     def dropped(self) -> Counter[str]:
         """Unconsumed rows lost to overflow, per ring (pressure: per cylinder)."""

@@ -48,6 +48,7 @@ class FrameGroup:
         self._new: list[np.ndarray] = []  # the newest frames, not yet in _frames (appended in one call: _sync)
         self.ci = np.zeros((64, 2), dtype=np.int64)
         self.cf = np.zeros((64, 2))
+        self._ci1, self._cf1 = self.ci.reshape(-1), self.cf.reshape(-1)  # flat views: cheaper scalar writes in add
         self.n_chunks = 0
         self._trim_at = self._SLACK  # chunk count at which dead chunks are let go next
         self._x = np.empty(0)  # scratch: the sample times of a cycle's window
@@ -71,12 +72,13 @@ class FrameGroup:
         if nc == self.ci.shape[0]:
             self.ci = np.concatenate((self.ci, np.zeros_like(self.ci)))
             self.cf = np.concatenate((self.cf, np.zeros_like(self.cf)))
+            self._ci1, self._cf1 = self.ci.reshape(-1), self.cf.reshape(-1)
         t_first = t0 + skip * period  # what _write_frame is given as its t0
-        ci, cf = self.ci, self.cf
-        ci[nc, 0] = end0 + skip
-        ci[nc, 1] = first + skip
-        cf[nc, 0] = t_first
-        cf[nc, 1] = period
+        ci, cf, j = self._ci1, self._cf1, 2 * nc  # = ci[nc, 0], ci[nc, 1], cf[nc, 0], cf[nc, 1]
+        ci[j] = end0 + skip
+        ci[j + 1] = first + skip
+        cf[j] = t_first
+        cf[j + 1] = period
         self.newest = t_first + (m - skip - 1) * period
         self._new.append(values)  # a Python append; the typed list gets them in batches (a typed append is ~1 us)
         self.n_chunks = nc + 1

@@ -67,6 +67,23 @@ class RingBuffer:
                 col[0 : m - first] = src[first:]
                 col[cap : cap + m - first] = src[first:]
 
+    def extend_increasing(self, t: np.ndarray) -> bool:
+        """Append the batch ``t`` (int64, 1-D) to a one-column int64 ring if its values are strictly increasing and
+        all after the last row (the usual tooth / cam batch): one compiled check-and-write. Returns False, with
+        nothing written, otherwise (the caller then sorts the batch out). Rows and counts as ``extend(t)``."""
+        if len(self.names) != 1:
+            raise ValueError("extend_increasing is for a ring of one column")
+        n = t.shape[0]
+        if n == 0:
+            return True
+        cap = self.capacity
+        skip = n - cap if n > cap else 0
+        col = self._cols[self.names[0]]
+        if not _write_increasing(col, self.start, self.end, (self.end + skip) % cap, t, skip):
+            return False
+        self._advance(n)
+        return True
+
     def _advance(self, n: int) -> tuple[int, int]:
         """Account for n appended rows; returns the storage slot of the first row written and how many leading
         rows of the batch are skipped (a batch longer than the ring keeps its newest rows only)."""
@@ -94,7 +111,7 @@ class RingBuffer:
     def get(self, name: str, seq: int) -> float | int:
         if not self.start <= seq < self.end:
             raise IndexError(f"row {seq} is not retained (retained [{self.start}, {self.end}))")
-        return self._cols[name][seq % self.capacity].item()
+        return self._cols[name].item(seq % self.capacity)  # a Python scalar, no numpy scalar in between
 
     def last(self, name: str) -> float | int | None:
         return None if self.end == self.start else self.get(name, self.end - 1)
@@ -137,6 +154,26 @@ def _search_sorted(col, i0, n, key, right):
         else:
             hi = mid
     return lo
+
+
+@numba.njit(cache=True)
+def _write_increasing(col, start, end, i, t, skip):
+    """If t is strictly increasing and after the ring's last row (rows [start, end) of the mirrored int64 column),
+    write t[skip:] from slot i (wrapping at the half) and return True; else write nothing and return False."""
+    cap = col.shape[0] // 2
+    n = t.shape[0]
+    if end > start:
+        prev = col[(end - 1) % cap]
+        if t[0] <= prev:
+            return False
+    for k in range(1, n):
+        if t[k] <= t[k - 1]:
+            return False
+    for k in range(n - skip):
+        j = (i + k) % cap
+        col[j] = t[skip + k]
+        col[j + cap] = t[skip + k]
+    return True
 
 
 @numba.njit(cache=True)
