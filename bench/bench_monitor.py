@@ -198,12 +198,13 @@ def cold_compile(short_runs: list) -> dict:
 
 
 def pipeline_pass(spec, sim, keep_last: int = 1) -> dict:
-    """The timed pass: assembly and monitor per cycle, exactly the path of service/pipeline.py (results kept as its
-    ResultHistory keeps them; the states and whole results of the last ``keep_last`` cycles for the scipy baseline);
-    then the display speed route over the same cycles in a pass of its own, since the pipeline does
-    not run it (interleaved, it would evict the monitor's data from the cache and bill that to the monitor)."""
+    """The timed pass: assembly and monitor per cycle, exactly the path of service/pipeline.py. It holds what the
+    pipeline holds: results as its ResultHistory keeps them, no Cycle after the monitor has used it (keeping every
+    Cycle put each new pressure matrix on never-touched pages: ~1.2 us per 4 kB page on a VM, ~0.04 ms per genset
+    cycle billed to the assembler), plus the last ``keep_last`` cycles with their states and results for the scipy
+    baseline."""
     asm = assembler_for(spec, sim.info)
-    rows, cycles, rejected = [], [], 0
+    rows, rejected = [], 0
     history, kept = ResultHistory(), deque(maxlen=max(keep_last, 1))
     state = initial_state(spec)
     first_state = None
@@ -216,11 +217,32 @@ def pipeline_pass(spec, sim, keep_last: int = 1) -> dict:
             continue
         t2 = time.perf_counter()
         rows.append((asm_ms, emit_ms, 1e3 * (t2 - t1)))
-        cycles.append(c)
         history.append(res)
-        kept.append((state, res))
+        kept.append((c, state, res))
         if first_state is None:
             first_state = state
+    return {"rows": np.array(rows).reshape(-1, 3), "kept": list(kept), "first_state": first_state,
+            "skipped": dict(asm.skipped), "rejected": rejected}
+
+
+def monitored_cycles(spec, sim) -> list:
+    """The cycles of the timed pass again (assembled untimed, monitor-rejected ones dropped), for the passes that
+    need them all: the display speed route, the stage split, the profile and the scipy baseline."""
+    asm = assembler_for(spec, sim.info)
+    out, state = [], initial_state(spec)
+    for c in [c for r in sim.records for c in asm.feed(r)] + asm.flush():
+        try:
+            state, _ = process_cycle(spec, state, c)
+        except CycleRejected:
+            continue
+        out.append(c)
+    return out
+
+
+def speed_pass(spec, cycles) -> np.ndarray:
+    """ms per cycle of the display speed route (``ToothSpacingLearner.update`` + ``cycle_speed``) over the cycles, in
+    a pass of its own: the pipeline does not run it (interleaved, it would evict the monitor's data from the cache
+    and bill that to the monitor)."""
     learner = ToothSpacingLearner(spec.sensors.wheel_teeth, spec.sensors.wheel_missing,
                                   engine_orders=engine_orders(spec.n_cyl, 79))
     sp_state = learner.initial()
@@ -231,9 +253,7 @@ def pipeline_pass(spec, sim, keep_last: int = 1) -> dict:
         sp_state = learner.update(sp_state, c.tooth_ticks, c.tooth_index)
         cycle_speed(c, None, order, 720)
         speed_ms.append(1e3 * (time.perf_counter() - t0))
-    a = np.column_stack([np.array(rows).reshape(-1, 3), np.array(speed_ms)])[:, [0, 1, 3, 2]]
-    return {"rows": a, "cycles": cycles, "kept": list(kept), "first_state": first_state, "skipped": dict(asm.skipped),
-            "rejected": rejected}
+    return np.array(speed_ms)
 
 
 def heap_peak_mb(spec, sim, n: int = 20) -> float:
@@ -266,13 +286,18 @@ def engine_bench(name: str, rpm: float, load: float, scipy_cycles: int) -> tuple
     # the pass is repeated and the one with the median end-to-end mean is reported: a 120-cycle mean moves by
     # ~0.05 ms with one descheduled cycle (3-10 ms) on a shared 2-core box; every pass's mean is kept in the output
     runs = [pipeline_pass(spec, sim, keep_last=scipy_cycles) for _ in range(PASSES)]
-    pass_means = [float((r["rows"][:, 0] + r["rows"][:, 3]).mean()) for r in runs]
+    pass_means = [float((r["rows"][:, 0] + r["rows"][:, 2]).mean()) for r in runs]
     run = runs[int(np.argsort(pass_means)[len(runs) // 2])]
     rows = run["rows"]
-    asm_ms, emit_ms, speed_ms, mon_ms = rows.T
+    asm_ms, emit_ms, mon_ms = rows.T
+    cycles = monitored_cycles(spec, sim)
+    if len(cycles) != rows.shape[0] or any(c.index != k[0].index for c, k in zip(cycles[-len(run["kept"]):],
+                                                                                   run["kept"])):
+        raise RuntimeError("the untimed assembly does not give the timed pass's cycles")
+    speed_ms = speed_pass(spec, cycles)
     e2e = asm_ms + mon_ms
     duration_ms = 120.0 / rpm * 1e3
-    stages = stage_times(spec, run["cycles"])
+    stages = stage_times(spec, cycles)
     out = {
         "rpm": rpm, "load": load, "cylinders": spec.n_cyl, "nodes": spec.n_nodes,
         "wheel": f"{spec.sensors.wheel_teeth}-{spec.sensors.wheel_missing}",
@@ -285,13 +310,14 @@ def engine_bench(name: str, rpm: float, load: float, scipy_cycles: int) -> tuple
         "end_to_end_mean_ms_per_pass": [round(v, 4) for v in pass_means],
         "real_time_factor": round(duration_ms / float(e2e.mean()), 1),
         "monitor_stages_ms": stages,
-        "profile_top10": profile_top(spec, run["cycles"]),
+        "profile_top10": profile_top(spec, cycles),
         "tracemalloc_peak_mb": heap_peak_mb(spec, sim),
     }
     if scipy_cycles > 0:
         from bench.scipy_compare import compare  # the slow part, only when asked for
 
-        out["scipy"] = compare(spec, sim, run["cycles"], run["kept"], scipy_cycles, float(mon_ms.mean()),
+        kept = [(state, res) for _, state, res in run["kept"]]
+        out["scipy"] = compare(spec, sim, cycles, kept, scipy_cycles, float(mon_ms.mean()),
                                float(e2e.mean()))
     return out, (name, short.info, short.records)
 
