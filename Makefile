@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test bench lint clean demo-logs
+.PHONY: run test bench lint clean clean-numba demo-logs
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -24,8 +24,13 @@ bench: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check core drivers service tests bench
 
-clean:
+clean: clean-numba
 	rm -rf $(VENV) .pytest_cache
+
+# numba's on-disk cache is checked against each kernel's own file only: a kernel whose callee (in another module)
+# changed keeps running the old compiled callee until this is run (seen: results off by 1e-12 after a helper changed)
+clean-numba:
+	find core drivers service bench tests -name '*.nbi' -delete -o -name '*.nbc' -delete
 
 demo-logs: $(STAMP)
 	sed -n '/^```sh/,/^```/p' replay_logs/README.md | grep '^frictionwatch' | while read -r cmd; do $(BIN)/$$cmd || exit 1; done
