@@ -97,7 +97,7 @@ class CanSource(ReconnectingLink, Source):
         self.backoff.reset()
         return True
 
-    def _lose_bus(self, exc: BaseException) -> None:
+    def _lose_link(self, exc: BaseException) -> None:
         log.warning("%s/%s lost: %s", self.interface, self.channel, exc)
         self.count("bus_lost")
         self._shutdown_bus()
@@ -114,9 +114,6 @@ class CanSource(ReconnectingLink, Source):
     # --- the ReconnectingLink hooks ----------------------------------------------------------------------------
     def _link_open(self) -> bool:
         return self.bus is not None
-
-    def _lose_link(self, exc: BaseException) -> None:
-        self._lose_bus(exc)
 
     def _decode(self, chunk: list[can.Message]) -> list[StreamRecord]:
         return self.decoder.feed(chunk)

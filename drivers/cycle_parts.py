@@ -33,12 +33,10 @@ class Wheel:
     t: int = field(init=False, repr=False, compare=False)
     pitch: float = field(init=False, repr=False, compare=False)
 
-    _windows: dict = field(init=False, repr=False, compare=False)  # h2 -> window(h2): a pure function, memoized
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "t", self.n - self.k)
         object.__setattr__(self, "pitch", 2.0 * math.pi / self.n)
-        object.__setattr__(self, "_windows", {})
 
     def ordinal(self, pos: int) -> int:
         """Running count of existing teeth up to ``pos`` (pos must be a tooth)."""
@@ -59,15 +57,8 @@ class Wheel:
 
     def window(self, h2: int) -> tuple[int, int]:
         """Start and closing tooth of the 720 deg window whose start is 2 pi * h2 in tooth-0 angle (a0 included)."""
-        known = self._windows.get(h2)  # asked 3-4 times per cycle for the same h2
-        if known is not None:
-            return known
         lo = self.n * h2 - self.a0_pitch
-        known = self.tooth_at_or_before(lo), self.tooth_at_or_after(lo + 2 * self.n)
-        if len(self._windows) >= 16:  # only the last few cycles' windows are asked again
-            self._windows.clear()
-        self._windows[h2] = known
-        return known
+        return self.tooth_at_or_before(lo), self.tooth_at_or_after(lo + 2 * self.n)
 
 
 @dataclass

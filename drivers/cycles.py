@@ -237,7 +237,7 @@ class CycleAssembler:
             need = ring.start
         if need >= ring.end:
             return
-        for typ, a, b, _c in tracker.advance(ring.view("t", need, ring.end), need, need):
+        for typ, a, b, _c in tracker.advance(ring.view("t", need, ring.end), need):
             if typ == EV_SEGMENT:
                 self._new_segment(a, b)
             elif typ == EV_END:
@@ -356,10 +356,9 @@ class CycleAssembler:
             self._place_cams(ep)
         lo_rpm, hi_rpm = self.speed_range_rpm
         w = self.wheel
-        bit = int(ep.phase)
         while True:
             c = ep.next_c
-            ps, pe = w.window(2 * c - bit)  # = self._window(ep, c)
+            ps, pe = self._window(ep, c)
             status, seg = window_status(ep, ps, pe)
             if status in ("wait", "before"):
                 return

@@ -53,8 +53,7 @@ class EngineBuffers:
         self.groups_version = 0
         self._pressure_capacity = int(pressure_capacity)
         self._single: dict[int, PressureGroup] = {}  # cylinder -> its group when that is a group of one
-        # cylinders -> (group, row order or None, rows of a frame that may take the steady path or -1)
-        self._frame_keys: dict[tuple[int, ...], tuple[PressureGroup, np.ndarray | None, int]] = {}
+        self._frame_keys: dict[tuple[int, ...], tuple[PressureGroup, np.ndarray | None]] = {}  # cylinders -> row order
         self.rejected: Counter[str] = Counter()  # input rows refused (out of order, conflicting), by stream
 
     def add(self, record: StreamRecord) -> int:
@@ -201,28 +200,12 @@ class EngineBuffers:
                 self._conflict(f"frame of cylinders {cyls}", k * n)
                 return None, None
         if type(raw) is tuple:
-            self._frame_keys[raw] = (group, order, len(group.cylinders) if order is None else -1)
+            self._frame_keys[raw] = (group, order)
         return group, order
 
     def add_frame(self, frame: PressureFrame) -> int:
         """File one pressure frame: all its cylinders in one call. Returns samples accepted x cylinders."""
         v = frame.values
-        try:
-            entry = self._frame_keys.get(frame.cylinders)
-        except TypeError:  # unhashable: not a tuple of cylinder numbers
-            entry = None
-        if entry is not None and type(v) is np.ndarray and v.ndim == 2 and v.shape[0] == entry[2] > 1 \
-                and (v.dtype is _F64 or v.dtype == _F64) and v.flags.carray:  # (an unpickled dtype is not _F64)
-            # the steady state (8 frames per cycle): a plain frame of a known group in its row order, after what the
-            # group has; the same steps as below without the checks that cannot fail
-            group = entry[0]
-            n = v.shape[1]
-            period = frame.period_ticks
-            if n and period > 0 and math.isfinite(period):
-                t0 = float(frame.t0_ticks)
-                if group.end == group.start or t0 > group.newest:
-                    group.add(t0, float(period), v, 0)
-                    return n * entry[2]
         if not (type(v) is np.ndarray and (v.dtype is _F64 or v.dtype == _F64) and v.ndim == 2
                 and (fl := v.flags).c_contiguous and fl.writeable and fl.aligned):  # (an unpickled dtype is not _F64)
             v = np.ascontiguousarray(v, dtype=np.float64)

@@ -114,7 +114,7 @@ class SerialSource(ReconnectingLink, Source):
             self.count("timer_epoch_unknown_after_outage")
             self.decoder.mark_timer_discontinuity()
 
-    def _lose_port(self, exc: BaseException) -> None:
+    def _lose_link(self, exc: BaseException) -> None:
         log.warning("%s lost: %s", self.port_url, exc)
         self.count("port_lost")
         self._lost_at = time.monotonic()
@@ -137,9 +137,6 @@ class SerialSource(ReconnectingLink, Source):
 
     def _link_open(self) -> bool:
         return self.port is not None
-
-    def _lose_link(self, exc: BaseException) -> None:
-        self._lose_port(exc)
 
     def _decode(self, chunk: bytes) -> list[StreamRecord]:
         return self._records(self.decoder.feed(chunk))

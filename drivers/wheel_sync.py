@@ -280,13 +280,10 @@ class WheelTracker:
         self.ist[I_FROM] = from_seq
         self.ist[I_SCAN] = from_seq
 
-    def advance(self, ticks: np.ndarray, base: int, oldest: int | None = None) -> list[tuple[int, int, int, int]]:
-        """Run over the edges ``ticks`` (``ticks[0]`` has sequence number ``base`` <= ``oldest_needed()``;
-        ``oldest``: that value if the caller has just asked for it, to spare a second look)."""
-        if oldest is None:
-            oldest = self.oldest_needed()
-        if base > oldest:
-            raise ValueError(f"edges from {oldest} are needed; the view starts at {base}")
+    def advance(self, ticks: np.ndarray, base: int) -> list[tuple[int, int, int, int]]:
+        """Run over the edges ``ticks`` (``ticks[0]`` has sequence number ``base`` <= ``oldest_needed()``)."""
+        if base > self.oldest_needed():
+            raise ValueError(f"edges from {self.oldest_needed()} are needed; the view starts at {base}")
         tk = ticks
         if not (type(tk) is np.ndarray and tk.dtype == np.int64 and tk.flags.c_contiguous):
             tk = np.ascontiguousarray(ticks, dtype=np.int64)
