@@ -16,6 +16,7 @@ from drivers.cycle_parts import Epoch, Segment, Wheel
 from drivers.ringbuffer import RingBuffer
 
 FOUR_PI = 4.0 * math.pi
+TWO_PI = 2 * math.pi
 PHASE_RATIO = 1.15  # firing/exchange pressure ratio that counts as a clear decision
 PHASE_HALF_WIDTH = math.radians(30.0)  # physics.md §14.5: mean pressure within +-30 deg of each candidate TDC
 CAM_TOLERANCE = math.radians(30.0)
@@ -26,11 +27,12 @@ def cam_phase_bit(teeth: RingBuffer, seg: Segment, sb: int, tc: int, wheel: Whee
     """Phase bit voted by a cam edge at tick ``tc`` between verified edges sb-1 and sb of ``seg``; None when the
     edge sits more than 30 deg from where the stated cam angle ``cam`` [rad] puts it (a wrong or noisy cam)."""
     ta, tb = teeth.get("t", sb - 1), teeth.get("t", sb)
-    pa, pb = seg.pos_of(sb - 1), seg.pos_of(sb)
+    pa = seg.pos_of(sb - 1)
+    pb = pa + 1 if (pa + 1) % wheel.n < wheel.t else seg.pos_of(sb)  # (the next tooth: = seg.pos_of(sb))
     pos = pa + (tc - ta) / (tb - ta) * (pb - pa)
     theta0 = pos * wheel.pitch + a0
-    bit = round(((cam - theta0) % FOUR_PI) / (2 * math.pi)) % 2
-    resid = (cam - theta0 - 2 * math.pi * bit + 2 * math.pi) % FOUR_PI - 2 * math.pi
+    bit = round(((cam - theta0) % FOUR_PI) / TWO_PI) % 2
+    resid = (cam - theta0 - TWO_PI * bit + TWO_PI) % FOUR_PI - TWO_PI
     return None if abs(resid) > CAM_TOLERANCE else bit
 
 
@@ -80,6 +82,35 @@ def firing_verdict(row: np.ndarray | None, grid: np.ndarray, tdc: float,
     return 0
 
 
+def window_verdict(row: np.ndarray, grid: np.ndarray, windows: tuple[np.ndarray, np.ndarray, float]) -> int:
+    """``firing_verdict(row, grid, windows[2], windows)`` for windows made by ``phase_windows`` on that grid and a
+    float64 row: the assembler's check of every cycle, with the sums in one kernel call and no re-validation."""
+    i_fire, i_exch = windows[0], windows[1]
+    if 0 < i_fire.shape[0] <= REDUCE_MAX and 0 < i_exch.shape[0] <= REDUCE_MAX:
+        ok, s_fire, s_exch = _gather_sums(row, i_fire, i_exch)
+        if ok:  # the numbers of firing_ratio's fast path, then firing_verdict's thresholds
+            den = s_exch / i_exch.shape[0]
+            ratio = s_fire / i_fire.shape[0] / den if den > 0 else math.nan
+            return 1 if ratio > PHASE_RATIO else -1 if ratio < 1.0 / PHASE_RATIO else 0
+    return firing_verdict(row, grid, windows[2], windows)
+
+
+def cycle_votes(cam_votes: list[tuple[int, int]], t_first: int, t_last: int, phase: int | None) -> int:
+    """How many cam votes (tick, bit) lie in [t_first, t_last], or -1 if one of them is not ``phase``.
+    ``cam_votes`` is in time order (cam rows are strictly increasing) and the cycle asking is among the newest, so a
+    scan from the end meets its votes after at most a few newer ones (a bisection costs more)."""
+    n = 0
+    for tc, bit in reversed(cam_votes):
+        if tc > t_last:
+            continue
+        if tc < t_first:
+            break
+        if bit != phase:
+            return -1
+        n += 1
+    return n
+
+
 def place_cams(ep: Epoch, cams: RingBuffer, teeth: RingBuffer, cam_next: int, wheel: Wheel, a0: float, cam: float,
                stats: Counter[str]) -> tuple[int, int | None]:
     """Place the cam edges from row ``cam_next`` on the epoch's verified edges; each placed edge adds a vote
@@ -98,7 +129,11 @@ def place_cams(ep: Epoch, cams: RingBuffer, teeth: RingBuffer, cam_next: int, wh
         if sb > last.good and last.reason is None:
             break  # its teeth are not verified yet
         cam_next += 1
-        seg = next((s for s in reversed(ep.segments) if s.first_seq < sb <= s.good), None)
+        seg = None
+        for s in reversed(ep.segments):  # (a loop: a generator costs more than the usual single segment)
+            if s.first_seq < sb <= s.good:
+                seg = s
+                break
         if seg is None or sb - 1 < teeth.start:
             stats["cam_unplaced"] += 1  # in a hole between segments
             continue

@@ -4,19 +4,9 @@
             -> segments of verified edges, bridged into epochs -> 4-stroke phase (cam, else pressure)
             -> cycle windows [0, 4 pi] -> wait for pressure (bounded) -> resample onto the grid -> Cycle
 
-Phase. With a cam (``info.cam_deg``) each cam edge, placed between its two tooth edges, votes for the phase bit; the
-first vote fixes the epoch's phase and every cycle is checked against the votes inside it. Without a cam (or when
-no cam edge came within the wait) the pressure of the first instrumented cylinder decides (physics.md §14.5: the
-mean pressure within +-30 deg of its firing TDC beats that at its gas-exchange TDC, motored or fired). Every cycle
-with that pressure is checked against it; a clear contradiction skips the cycle ('phase_mismatch'), three in a row
-on a pressure-phased epoch flip its phase.
-
-Resync without losing the next cycle. A disturbance ends the verified segment one edge before it; the tracker finds
-the next gap, confirms a full revolution and extends the new segment backwards to just after the disturbance. If the
-silence between the two segments is short (< 3 revolutions) and their positions fit the wheel within a quarter turn,
-the new segment joins the same epoch, so position count, phase and cycle index carry on: the cycles that touch the
-disturbance are skipped with its reason, the next one comes out exactly as in an undisturbed run. Longer silences
-(engine stop and restart) start a new epoch, which finds its phase again.
+Phase (cam votes, else the pressure of one cylinder; a pressure-phased epoch flips after three clear
+contradictions in a row) and resync across short disturbances (the next cycle comes out as in an undisturbed run):
+drivers/cycle_sync.py.
 
 Skips (``skipped``, cycles by reason): spurious_tooth, missing_tooth, sync_lost, data_gap, buffer_overflow,
 speed_out_of_range, pressure_missing, pressure_nan, phase_mismatch, clock_reset.
@@ -27,10 +17,8 @@ from __future__ import annotations
 
 import logging
 import math
-from bisect import bisect_left, bisect_right
 from collections import Counter, deque
 from dataclasses import dataclass
-from operator import itemgetter
 
 import numpy as np
 
@@ -50,27 +38,23 @@ from drivers.cycle_parts import (
     GridPlan,
     Segment,
     Wheel,
-    bridge_offset,
     grid_plan,
-    grid_times,
     load_mean,
-    nominal_angle,
     plan_ready,
     pressure_matrix,
-    pressure_on_grid,
     window_status,
 )
-from drivers.cycle_phase import firing_verdict, phase_windows, place_cams
+from drivers.cycle_phase import cycle_votes, phase_windows, window_verdict
+from drivers.cycle_sync import EpochSync
 from drivers.engine_buffers import EngineBuffers
 from drivers.ringbuffer import _search_sorted
-from drivers.wheel_sync import EV_END, EV_SEGMENT, REASONS, WheelTracker
+from drivers.wheel_sync import WheelTracker
 
 log = logging.getLogger(__name__)
 FOUR_PI = 4.0 * math.pi
-_TICK = itemgetter(0)
 
 
-@dataclass
+@dataclass(slots=True)
 class _Pending:
     index: int
     epoch: Epoch
@@ -84,7 +68,7 @@ class _Pending:
     t_last: int
 
 
-class CycleAssembler:
+class CycleAssembler(EpochSync):
     """Assemble ``Cycle`` values from the records of one engine.
 
     Parameters
@@ -146,6 +130,10 @@ class CycleAssembler:
         self._phase_windows = phase_windows(self.grid, float(self.firing[self.phase_cyl - 1])) \
             if self.phase_cyl is not None else None  # grid points of the phase cylinder's two TDC windows (and tdc)
         self._phase_expected = self.phase_cyl in info.pressure_cylinders  # else: ask expected_cylinders
+        self._win_h2: int | None = None  # the last wheel window asked for (EpochSync._window) and its answer
+        self._win = (0, 0)
+        self._discard_every = self.wheel.n // 4  # tooth edges between two discards
+        self._cam_rad = math.radians(info.cam_deg) if info.cam_deg is not None else math.nan  # stated cam angle
 
     # ---- input ------------------------------------------------------------------------------------------------
     def feed(self, record: StreamRecord) -> list[Cycle]:
@@ -163,6 +151,12 @@ class CycleAssembler:
             if not self._pending or self._waiting_for not in record.cylinders:
                 return []
             return self._emit(flushing=False)
+        if type(record) is LoadSample:  # ~8 per cycle: nothing else can move
+            self.buf.add_load(record)
+            t = int(record.ticks)
+            if t > self._now:
+                self._now = t
+            return []
         if type(record) is PressureBlock:  # the hot path (tens of blocks per cycle): no isinstance chain
             if self.buf.add_pressure(record):
                 end = int(record.t0_ticks + record.period_ticks * (len(record.values) - 1))
@@ -172,13 +166,7 @@ class CycleAssembler:
             if not self._pending or record.cylinder != self._waiting_for:
                 return []
             return self._emit(flushing=False)
-        if type(record) is LoadSample:  # ~8 per cycle: nothing else can move
-            self.buf.add_load(record)
-            t = int(record.ticks)
-            if t > self._now:
-                self._now = t
-            return []
-        if isinstance(record, ToothBatch):
+        if type(record) is ToothBatch or isinstance(record, ToothBatch):
             t = record.ticks
             if len(t) == 0:
                 return []
@@ -189,7 +177,9 @@ class CycleAssembler:
                 if last is not None and int(t[0]) < last - self.wait_ticks:
                     self._clock_reset()
                 self.buf._add_ticks(self.buf.teeth, t, "teeth")  # = buf.add(record)
-            self._now = max(self._now, int(record.ticks[-1]))
+            t_end = int(t[-1])
+            if t_end > self._now:
+                self._now = t_end
             self._run_tracker()
             return self._advance(flushing=False)
         if isinstance(record, PressureBlock):
@@ -225,115 +215,6 @@ class CycleAssembler:
             return tuple(self.info.pressure_cylinders)
         return tuple(sorted(c for c in self.buf.pressure if 1 <= c <= self.n_cyl))
 
-    # ---- sync ---------------------------------------------------------------------------------------------------
-    def _run_tracker(self) -> None:
-        ring = self.buf.teeth
-        tracker = self.tracker
-        need = tracker.oldest_needed()
-        if need < ring.start:  # edges the tracker still needed were overwritten
-            self._end_segment(ring.start - 1, "buffer_overflow")
-            tracker.reset(ring.start)
-            self.stats["tracker_reset"] += 1
-            need = ring.start
-        if need >= ring.end:
-            return
-        for typ, a, b, _c in tracker.advance(ring.view("t", need, ring.end), need):
-            if typ == EV_SEGMENT:
-                self._new_segment(a, b)
-            elif typ == EV_END:
-                self._end_segment(a, REASONS[b])
-            else:
-                self.stats["candidate_rejected"] += 1
-        ep = self._epoch
-        if ep is not None and ep.segments[-1].reason is None and tracker.synced:
-            ep.segments[-1].good = tracker.good_through
-
-    def _end_segment(self, last_good: int, reason: str) -> None:
-        self.stats[f"tooth:{reason}"] += 1
-        ep = self._epoch
-        if ep is None or ep.segments[-1].reason is not None:
-            return
-        seg = ep.segments[-1]
-        seg.good = last_good
-        if seg.good >= seg.first_seq and self.buf.teeth.start <= seg.good:
-            seg.t_good = int(self.buf.teeth.get("t", seg.good))
-        seg.reason = reason
-        self._advance_epoch(ep, flushing=False)  # cycles cut by the end are skipped now
-
-    def _new_segment(self, first_seq: int, first_pos_rel: int) -> None:
-        self.stats["segments"] += 1
-        w = self.wheel
-        t_first = int(self.buf.teeth.get("t", first_seq))
-        ep = self._epoch
-        off = None if ep is None else bridge_offset(ep.segments[-1], first_pos_rel, t_first)
-        if off is not None:
-            ep.segments.append(Segment(w, first_seq, first_pos_rel + off, t_first, first_seq))
-            self.stats["bridged"] += 1
-            return
-        # a new epoch: position count, phase and cycle numbering start afresh
-        self.stats["epochs"] += 1
-        self._epoch = Epoch([Segment(w, first_seq, first_pos_rel, t_first, first_seq)], t_start=t_first)
-
-    # ---- phase --------------------------------------------------------------------------------------------------
-    def _place_cams(self, ep: Epoch) -> None:
-        if self._cam_next >= self.buf.cam.end:  # no cam row since the last call: place_cams would change nothing
-            return
-        self._cam_next, bit = place_cams(ep, self.buf.cam, self.buf.teeth, self._cam_next, self.wheel, self.a0,
-                                         math.radians(self.info.cam_deg), self.stats)
-        if ep.phase is None and bit is not None:
-            self._set_phase(ep, bit, "cam")
-
-    def _set_phase(self, ep: Epoch, bit: int, source: str, from_pos: int | None = None) -> None:
-        ep.phase, ep.phase_source = bit, source
-        self.stats[f"phase_{source}"] += 1
-        lo = ep.segments[0].first_pos if from_pos is None else from_pos
-        w = self.wheel
-        c = math.floor((lo + w.a0_pitch + w.n * bit) / (2 * w.n)) - 1
-        while self._window(ep, c)[0] < lo:
-            c += 1
-        ep.next_c, ep.c0, ep.index_base = c, c, self._next_index
-
-    def _window(self, ep: Epoch, c: int) -> tuple[int, int]:
-        return self.wheel.window(2 * c - int(ep.phase or 0))
-
-    def _probe_pressure(self, ep: Epoch, flushing: bool) -> None:
-        """Decide the phase from the phase cylinder's pressure on rev-aligned 720 deg windows."""
-        if self.phase_cyl is None:
-            return
-        w = self.wheel
-        if ep.probe is None:
-            h = math.floor((ep.segments[0].first_pos + w.a0_pitch) / w.n) - 1
-            while w.window(h)[0] < ep.segments[0].first_pos:
-                h += 1
-            ep.probe = h
-        tdc = float(self.firing[self.phase_cyl - 1])
-        while ep.phase is None:
-            ps, pe = w.window(ep.probe)
-            status, seg = window_status(ep, ps, pe)
-            if status in ("wait", "before"):
-                return
-            if status == "broken":
-                ep.probe += 1
-                continue
-            pos = np.arange(ps, pe + 1)
-            pos = pos[pos % w.n < w.t]
-            ticks = self.buf.teeth.view("t", seg.seq_of(ps), seg.seq_of(pe) + 1)
-            theta = nominal_angle(w.n, self.a0_deg, pos, 0, -ep.probe)
-            ring = self.buf.pressure.get(self.phase_cyl)
-            t_grid = grid_times(theta, ticks, self.grid)
-            if ring is None or len(ring) == 0 or ring.last("t") < t_grid[-1]:
-                if not flushing and self._now - ticks[-1] <= self.wait_ticks:
-                    return
-                ep.probe += 1
-                self.stats["phase_probe_no_pressure"] += 1
-                continue
-            row, _ = pressure_on_grid(ring, t_grid)
-            verdict = firing_verdict(row, self.grid, tdc)
-            if verdict == 0:
-                ep.probe += 1
-            else:  # +1: this window starts at firing TDC, i.e. it is a cycle: 2 c - P = probe
-                self._set_phase(ep, (ep.probe + (0 if verdict > 0 else 1)) % 2, "pressure", from_pos=ps)
-
     # ---- cycles -------------------------------------------------------------------------------------------------
     def _advance(self, flushing: bool) -> list[Cycle]:
         if self._epoch is not None:
@@ -362,9 +243,10 @@ class CycleAssembler:
             status, seg = window_status(ep, ps, pe)
             if status in ("wait", "before"):
                 return
-            index = ep.index_of(c)
-            ep.next_c += 1
-            self._next_index = max(self._next_index, index + 1)
+            index = ep.index_base + (c - ep.c0)  # = ep.index_of(c)
+            ep.next_c = c + 1
+            if index >= self._next_index:
+                self._next_index = index + 1
             if status == "broken":
                 self._skip(seg.reason or "sync_lost", index)
                 continue
@@ -409,12 +291,14 @@ class CycleAssembler:
 
     def _emit(self, flushing: bool) -> list[Cycle]:
         out: list[Cycle] = []
-        while self._pending:
-            p = self._pending[0]
-            timed_out = flushing or self._now - p.t_last > self.wait_ticks
-            if not timed_out and not self._ready(p):
-                break
-            self._pending.popleft()
+        pending = self._pending
+        while pending:
+            p = pending[0]
+            if not (flushing or self._now - p.t_last > self.wait_ticks):  # not timed out: wait for its pressure
+                self._waiting_for = plan_ready(self._grid_plan(), p.t_grid[-1])  # = self._ready(p)
+                if self._waiting_for is not None:
+                    break
+            pending.popleft()
             cyc = self._build(p)
             if cyc is not None:
                 out.append(cyc)
@@ -423,23 +307,23 @@ class CycleAssembler:
     def _build(self, p: _Pending) -> Cycle | None:
         ep = p.epoch
         t_grid = p.t_grid
-        if ep.phase_source == "cam" and self.info.cam_deg is not None and ep is self._epoch:
+        if ep.phase_source == "cam" and ep is self._epoch and self._cam_next < self.buf.cam.end \
+                and self.info.cam_deg is not None:
             self._place_cams(ep)  # a cam edge that came after the teeth (an older epoch has all it will get)
-        cv = ep.cam_votes  # in time order (cam rows are strictly increasing): the votes in [t_first, t_last]
-        votes = [b for _, b in cv[bisect_left(cv, p.t_first, key=_TICK):bisect_right(cv, p.t_last, key=_TICK)]]
-        if votes.count(ep.phase) != len(votes):  # a vote against the epoch's phase
+        t_first, t_last = p.t_first, p.t_last
+        n_votes = cycle_votes(ep.cam_votes, t_first, t_last, ep.phase)
+        if n_votes < 0:  # a vote against the epoch's phase
             self._skip("phase_mismatch", p.index)
             return None
         flags: list[str] = []
-        if self.info.cam_deg is not None and not votes:
+        if self.info.cam_deg is not None and not n_votes:
             flags.append("no_cam_edge")
         pressure, reason = pressure_matrix(self.buf, self._grid_plan(), t_grid, self.n_cyl)
         if pressure is None:
             self._skip(reason, p.index)
             return None
         if self.phase_cyl is not None and (self._phase_expected or self.phase_cyl in self.expected_cylinders):
-            verdict = firing_verdict(pressure[self.phase_cyl - 1], self.grid, self._phase_windows[2],
-                                     self._phase_windows)
+            verdict = window_verdict(pressure[self.phase_cyl - 1], self.grid, self._phase_windows)
             if verdict < 0:
                 ep.mismatch_run += 1
                 self._skip("phase_mismatch", p.index)
@@ -453,7 +337,7 @@ class CycleAssembler:
             ep.mismatch_run = 0
             if verdict == 0:
                 flags.append("phase_unchecked")
-        torque, power = load_mean(self.buf.load, float(p.t_first), float(p.t_last), self.info.tick_hz)
+        torque, power = load_mean(self.buf.load, float(t_first), float(t_last), self.info.tick_hz)
         self.stats["cycles"] += 1
         return Cycle(index=p.index, tick_hz=self.info.tick_hz, tooth_ticks=p.ticks, tooth_angle=p.theta,
                      tooth_index=p.tooth, grid=self.grid.copy(), pressure=pressure,
@@ -464,24 +348,33 @@ class CycleAssembler:
         """Release ring rows nothing can need any more (so overflow counts only real losses). Runs when the
         tooth ring has grown by a quarter of a revolution since the last time (it costs a few searches per ring)."""
         teeth = self.buf.teeth
-        if not force and teeth.end - self._discarded_at < self.wheel.n // 4:
+        start, end = teeth.start, teeth.end
+        if not force and end - self._discarded_at < self._discard_every:
             return
-        self._discarded_at = teeth.end
+        self._discarded_at = end
         # teeth within the pressure wait of now stay, so a late cam edge can still be placed between two of them
         # the searches call the ring kernel directly (RingBuffer.searchsorted without its wrapper: same answer)
         t_col, cap = teeth._cols["t"], teeth.capacity
-        keep = min(self.tracker.oldest_needed(), teeth.start + _search_sorted(
-            t_col, teeth.start % cap, teeth.end - teeth.start, self._now - self.wait_ticks, False))
+        keep = start + _search_sorted(t_col, start % cap, end - start, self._now - self.wait_ticks, False)
+        need = self.tracker.oldest_needed()
+        if need < keep:
+            keep = need
         ep = self._epoch
         if ep is not None:
             seg = ep.segments[-1]
-            if ep.phase is None:
-                keep = min(keep, ep.segments[0].first_seq if ep.probe is None else
-                           max(seg.first_seq, self._seq_or(seg, self.wheel.window(ep.probe)[0])))
+            if ep.phase is not None:  # the next cycle's window start (or the running segment's first edge)
+                ps = self._window(ep, ep.next_c)[0]
+                k_ep = seg.seq_of(ps) if ps >= seg.first_pos else seg.first_seq
+                if k_ep < seg.first_seq:
+                    k_ep = seg.first_seq
+            elif ep.probe is None:
+                k_ep = ep.segments[0].first_seq
             else:
-                keep = min(keep, max(seg.first_seq, self._seq_or(seg, self._window(ep, ep.next_c)[0])))
-        keep = max(teeth.start, min(keep, teeth.end))
-        t_keep = float(t_col[keep % cap]) if keep < teeth.end else float(self._now)
+                k_ep = max(seg.first_seq, self._seq_or(seg, self.wheel.window(ep.probe)[0]))
+            if k_ep < keep:
+                keep = k_ep
+        keep = max(start, min(keep, end))
+        t_keep = float(t_col[keep % cap]) if keep < end else float(self._now)
         if self._pending:
             t_keep = min(t_keep, float(self._pending[0].t_first))
         teeth.discard_before(keep - 2)

@@ -31,6 +31,7 @@ from drivers.ringbuffer import RingBuffer, _write_block
 log = logging.getLogger(__name__)
 _F64 = np.dtype(np.float64)
 _I64 = np.dtype(np.int64)
+_isfinite = math.isfinite
 
 
 class EngineBuffers:
@@ -53,7 +54,7 @@ class EngineBuffers:
         self.groups_version = 0
         self._pressure_capacity = int(pressure_capacity)
         self._single: dict[int, PressureGroup] = {}  # cylinder -> its group when that is a group of one
-        self._frame_keys: dict[tuple[int, ...], tuple[PressureGroup, np.ndarray | None]] = {}  # cylinders -> row order
+        self._frame_keys: dict[tuple[int, ...], tuple] = {}  # cylinders -> (group, row order, rows)
         self.rejected: Counter[str] = Counter()  # input rows refused (out of order, conflicting), by stream
 
     def add(self, record: StreamRecord) -> int:
@@ -177,15 +178,16 @@ class EngineBuffers:
         _write_block(group.t, group.p[0], i, t0 + skip * period, float(period), v[skip:])
         return int(v.size)
 
-    def _frame_group(self, frame: PressureFrame, k: int, n: int) -> tuple[PressureGroup | None, np.ndarray | None]:
-        """The group of a frame's cylinder tuple (made on first sight) and the row order to apply, or (None, None)
-        if the tuple is invalid or conflicts with other groups (counted)."""
+    def _frame_group(self, frame: PressureFrame, k: int, n: int
+                     ) -> tuple[PressureGroup | None, np.ndarray | None, int]:
+        """The group of a frame's cylinder tuple (made on first sight), the row order to apply and k, or (None,
+        None, k) if the tuple is invalid or conflicts with other groups (counted)."""
         raw = frame.cylinders
         if not (isinstance(raw, tuple | list) and len(raw) == k and k > 0
                 and all(isinstance(c, int | np.integer) and not isinstance(c, bool) and c >= 1 for c in raw)
                 and len(set(int(c) for c in raw)) == k):
             self.rejected["pressure_bad_frame"] += 1
-            return None, None
+            return None, None, k
         cyls = tuple(int(c) for c in raw)
         group = self.groups.get(cyls)
         order = None
@@ -198,10 +200,10 @@ class EngineBuffers:
                 order = np.array([cyls.index(c) for c in group.cylinders], dtype=np.int64)
             else:
                 self._conflict(f"frame of cylinders {cyls}", k * n)
-                return None, None
+                return None, None, k
         if type(raw) is tuple:
-            self._frame_keys[raw] = (group, order)
-        return group, order
+            self._frame_keys[raw] = (group, order, k)
+        return group, order, k
 
     def add_frame(self, frame: PressureFrame) -> int:
         """File one pressure frame: all its cylinders in one call. Returns samples accepted x cylinders."""
@@ -218,10 +220,10 @@ class EngineBuffers:
         if n == 0:
             return 0
         try:
-            entry = self._frame_keys.get(frame.cylinders)
+            entry = self._frame_keys.get(frame.cylinders)  # (group, row order or None, rows)
         except TypeError:  # unhashable: not a tuple of cylinder numbers
             entry = None
-        if entry is None or len(entry[0].cylinders) != k:
+        if entry is None or entry[2] != k:
             entry = self._frame_group(frame, k, n)
             if entry[0] is None:
                 return 0
@@ -229,7 +231,7 @@ class EngineBuffers:
         if order is not None:
             v = np.ascontiguousarray(v[order])
         period = frame.period_ticks
-        if not (period > 0 and math.isfinite(period)):
+        if not (period > 0 and _isfinite(period)):
             self.rejected["pressure"] += v.size
             return 0
         t0 = float(frame.t0_ticks)
@@ -250,12 +252,11 @@ class EngineBuffers:
         it), load rows older than ``t_keep - load_hold_ticks`` but the last of them (the hold of ``load_mean``),
         cam rows before it that were already placed (rows before ``cam_next``)."""
         for group in self.groups.values():  # the channels of a group share their rows
-            group.discard_before(group.searchsorted(t_keep, side="left") - 2)
-        ring = self.load
-        ring.discard_before(ring.searchsorted("t", t_keep - load_hold_ticks) - 1)
+            group.discard_older(t_keep, 2)
+        self.load.discard_older("t", t_keep - load_hold_ticks, 1)
         ring = self.cam
         if ring.start < cam_next:  # else every placed row is released already: nothing to search
-            ring.discard_before(min(cam_next, ring.searchsorted("t", t_keep)))
+            ring.discard_older("t", t_keep, 0, cam_next)
 
     def dropped(self) -> Counter[str]:
         """Unconsumed rows lost to overflow, per ring (pressure: per cylinder)."""

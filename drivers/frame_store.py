@@ -69,7 +69,7 @@ class FrameGroup:
         else:
             _, skip = self._advance(m)
         nc = self.n_chunks
-        if nc == self.ci.shape[0]:
+        if 2 * nc == self._ci1.shape[0]:
             self.ci = np.concatenate((self.ci, np.zeros_like(self.ci)))
             self.cf = np.concatenate((self.cf, np.zeros_like(self.cf)))
             self._ci1, self._cf1 = self.ci.reshape(-1), self.cf.reshape(-1)
@@ -81,8 +81,9 @@ class FrameGroup:
         cf[j + 1] = period
         self.newest = t_first + (m - skip - 1) * period
         self._new.append(values)  # a Python append; the typed list gets them in batches (a typed append is ~1 us)
-        self.n_chunks = nc + 1
-        if nc + 1 >= self._trim_at:
+        nc += 1
+        self.n_chunks = nc
+        if nc >= self._trim_at:
             self._trim()
 
     @property
@@ -131,6 +132,13 @@ class FrameGroup:
 
     def discard_before(self, seq: int) -> None:
         self.start = min(max(self.start, int(seq)), self.end)
+
+    def discard_older(self, value: float, keep: int) -> None:
+        """``discard_before(searchsorted(value) - keep)`` in one call."""
+        start = self.start
+        seq = start + _chunk_search(self.ci, self.cf, self.n_chunks, start, self.end - start, float(value), False) - keep
+        if seq > start:
+            self.start = seq if seq < self.end else self.end
 
     def rows_on_grid(self, t_grid: np.ndarray, rows: np.ndarray, out: np.ndarray, codes: np.ndarray) -> int:
         """Every wanted row at the sorted times ``t_grid`` (``drivers.frame_kernels._frame_rows``)."""

@@ -70,6 +70,13 @@ class PressureGroup:
     def discard_before(self, seq: int) -> None:
         self.start = min(max(self.start, int(seq)), self.end)
 
+    def discard_older(self, value: float, keep: int) -> None:
+        """``discard_before(searchsorted(value) - keep)`` in one call."""
+        start = self.start
+        seq = start + _search_sorted(self.t, start % self.capacity, self.end - start, value, False) - keep
+        if seq > start:
+            self.start = seq if seq < self.end else self.end
+
     def rows_on_grid(self, t_grid: np.ndarray, rows: np.ndarray, out: np.ndarray, codes: np.ndarray) -> int:
         """Every wanted row at the sorted times ``t_grid`` (``drivers.pressure_kernels._pressure_rows``)."""
         return _pressure_rows(self.t, self.p, self.start, self.end, t_grid, rows, out, codes)

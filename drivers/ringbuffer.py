@@ -79,9 +79,13 @@ class RingBuffer:
         cap = self.capacity
         skip = n - cap if n > cap else 0
         col = self._cols[self.names[0]]
-        if not _write_increasing(col, self.start, self.end, (self.end + skip) % cap, t, skip):
+        start, end = self.start, self.end
+        if not _write_increasing(col, start, end, (end + skip) % cap, t, skip):
             return False
-        self._advance(n)
+        if end + n - start <= cap:  # room for the batch: what _advance(n) does then
+            self.end = end + n
+        else:
+            self._advance(n)
         return True
 
     def _advance(self, n: int) -> tuple[int, int]:
@@ -128,6 +132,25 @@ class RingBuffer:
     def discard_before(self, seq: int) -> None:
         """Release rows older than ``seq`` (consumed; they no longer count as dropped when overwritten)."""
         self.start = min(max(self.start, int(seq)), self.end)
+
+    def discard_older(self, name: str, value: float, keep: int = 0, upto: int | None = None) -> None:
+        """``discard_before(searchsorted(name, value) - keep)`` (at most up to row ``upto``; column ``name`` sorted,
+        as for ``searchsorted``): one call for the release after every tooth batch."""
+        start = self.start
+        if start == self.end:
+            return
+        cap = self.capacity
+        col = self._cols[name]
+        # no row before a float value (the usual call): the search would give start (a NaN value goes on to it).
+        # Compared as Python floats: a numpy int64 scalar against a float costs ~0.7 us; float() of the int rounds
+        # as the kernel's int64 -> float64 does (the rows are increasing: add_load / extend_increasing refuse others)
+        if type(value) is float and float(col.item(start % cap)) >= value:
+            return
+        seq = start + _search_sorted(col, start % cap, self.end - start, value, False) - keep
+        if upto is not None and upto < seq:
+            seq = upto
+        if seq > start:
+            self.start = seq if seq < self.end else self.end
 
     def clear(self) -> None:
         self.start = self.end

@@ -49,6 +49,7 @@ F_H0, F_H1, F_H2, F_PREV_DT, F_REF0 = range(5)
 N_FSTATE = 5
 # parameters
 P_N, P_K, P_TOL1, P_TOL2, P_GAP_RATIO, P_DATA_GAP = range(6)
+_NO_EVENTS: tuple = ()  # advance's answer for a batch without events (shared: nothing to allocate)
 
 
 @numba.njit(cache=True)
@@ -253,6 +254,8 @@ class WheelTracker:
         self.ist = np.zeros(N_ISTATE, dtype=np.int64)
         self.fst = np.zeros(N_FSTATE, dtype=np.float64)
         self._ev = np.zeros((64, 4), dtype=np.int64)
+        self._need: int | None = None  # oldest_needed() and good_if_synced() of the current state (None: not read)
+        self._good = -1
 
     @property
     def synced(self) -> bool:
@@ -265,13 +268,22 @@ class WheelTracker:
 
     def oldest_needed(self) -> int:
         """Earliest edge sequence number the tracker may still read."""
+        if self._need is None:
+            self._read_state()
+        return self._need
+
+    def _read_state(self) -> None:
+        """Derive oldest_needed and good_if_synced from the state arrays (kept until the state changes: they are
+        asked ~3 times per tooth batch, the state changes once)."""
         ist = self.ist.tolist()  # Python ints: one conversion instead of a numpy scalar per read
         mode = ist[I_MODE]
         if mode == MODE_SEARCH:  # the scan reads edge I_SCAN on and its neighbours back to I_FROM, never before
-            return min(ist[I_FROM], ist[I_SCAN])
-        if mode == MODE_TENTATIVE:
-            return min(ist[I_FROM], ist[I_ANCHOR] - 3)
-        return max(ist[I_CUR] - 1, 0)
+            self._need = min(ist[I_FROM], ist[I_SCAN])
+        elif mode == MODE_TENTATIVE:
+            self._need = min(ist[I_FROM], ist[I_ANCHOR] - 3)
+        else:
+            self._need = max(ist[I_CUR] - 1, 0)
+        self._good = ist[I_GOOD] if mode == MODE_SYNCED else -1
 
     def reset(self, from_seq: int) -> None:
         """Forget everything and search again from edge ``from_seq``."""
@@ -279,18 +291,34 @@ class WheelTracker:
         self.fst[:] = 0.0
         self.ist[I_FROM] = from_seq
         self.ist[I_SCAN] = from_seq
+        self._need = None
+
+    def good_if_synced(self) -> int:
+        """``good_through`` while ``synced``, else -1 (one call for the two reads after every batch)."""
+        if self._need is None:
+            self._read_state()
+        return self._good
 
     def advance(self, ticks: np.ndarray, base: int) -> list[tuple[int, int, int, int]]:
         """Run over the edges ``ticks`` (``ticks[0]`` has sequence number ``base`` <= ``oldest_needed()``)."""
         if base > self.oldest_needed():
             raise ValueError(f"edges from {self.oldest_needed()} are needed; the view starts at {base}")
+        return list(self.advance_from(ticks, base))
+
+    def advance_from(self, ticks: np.ndarray, base: int) -> list[tuple[int, int, int, int]]:
+        """``advance`` for a caller that has just checked ``base <= oldest_needed()`` itself."""
         tk = ticks
         if not (type(tk) is np.ndarray and tk.dtype == np.int64 and tk.flags.c_contiguous):
             tk = np.ascontiguousarray(ticks, dtype=np.int64)
+        self._need = None  # the state changes
+        ne = _track(tk, int(base), self.prm, self.ist, self.fst, self._ev)
+        if ne == 0:  # most batches bring no event
+            return _NO_EVENTS
         out: list[tuple[int, int, int, int]] = []
         while True:
-            ne = _track(tk, int(base), self.prm, self.ist, self.fst, self._ev)
-            if ne:  # (most batches bring no event)
-                out.extend(tuple(row) for row in self._ev[:ne].tolist())
+            out.extend(tuple(row) for row in self._ev[:ne].tolist())
             if ne < self._ev.shape[0]:
+                return out
+            ne = _track(tk, int(base), self.prm, self.ist, self.fst, self._ev)
+            if ne == 0:
                 return out
