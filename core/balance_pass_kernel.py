@@ -17,6 +17,7 @@ import numba
 import numpy as np
 import rocket_fft  # noqa: F401  (registers numpy.fft for numba; must be imported before a cached kernel loads)
 
+from core.dynamics import _dissipation
 from core.excitation_kernels import OMEGA_SLOT
 from core.harmonic_balance_kernels import _balance_rows, _cycle_rows, _mix_plan
 
@@ -106,8 +107,9 @@ def _node_motion(series, row_of, n_rel, offset, drift, period, omega_mean, theta
 @numba.njit(cache=True)
 def _balance_pass(fly_harm, omega_mean, offset, drift, period, theta_start, n_time, rel, static, grid, pressure,
                   cyl_node, plan_consts, group, prior, theta, compliance, flywheel, inverse, rec_freq, transfer,
-                  pattern, n_nuisance):
-    """One pass: excitation on the time grid, the two FFTs, the chain response and the identification rows.
+                  pattern, n_nuisance, edges, edge_damping, ground_damping):
+    """One pass: excitation on the time grid, the two FFTs, the chain response, the identification rows and the
+    dampers' mean dissipated power (core.dynamics._dissipation, while the node speeds are in cache).
 
     fly_harm (M,) complex flywheel angle harmonics of the cycle's fit, omega_mean = 4 pi / period [rad/s], offset,
     drift [rad], period [s] (core.flywheel.FlywheelMotion); theta_start [rad]; n_time samples per cycle; rel (N, M)
@@ -115,11 +117,13 @@ def _balance_pass(fly_harm, omega_mean, offset, drift, period, theta_start, n_ti
     pressure (z, n_g) [Pa]; cyl_node (z,); plan_consts (23 + z,) core.excitation_kernels layout (its Omega slot is
     replaced by omega_mean); group, prior (z, 6) of the parameter layout; theta (P,) friction parameters;
     compliance (N, N), flywheel node, inverse (M, N, N), rec_freq (M,), transfer (M, N) of the operating point;
-    pattern (M, >= n_nuisance) complex tooth-pattern harmonics.
+    pattern (M, >= n_nuisance) complex tooth-pattern harmonics; edges (E, 2), edge_damping (E,), ground_damping (N,)
+    the shaft's dampers (core.dynamics.ShaftModel).
 
     Returns tau, theta_fly, omega_fly, alpha_fly (n,), node speeds (N, n), rows (n_mix + N + 7 z, n) = [G; known;
     basis; gas], basis_mean (z, 6), indicated_mean (z,) (work means), known_harm (N, M), static (N,), rel (N, M), node_speed (N, M), design (M, P + n_nuis),
-    target (M,), cylinder_rows (z, P), mean_row (P + n_nuis,)."""
+    target (M,), cylinder_rows (z, P), mean_row (P + n_nuis,), and the mean power [W] dissipated by the relative and
+    by the ground dampers (``core.dynamics.dissipated_power`` of node_speed)."""
     m = fly_harm.shape[0]
     n = n_time
     n_nodes = compliance.shape[0]
@@ -176,5 +180,6 @@ def _balance_pass(fly_harm, omega_mean, offset, drift, period, theta_start, n_ti
         for t_l in range(n_terms):
             basis_mean[k, t_l] = means[k, t_l]
         indicated_mean[k] = means[k, n_terms]
+    power = _dissipation(node_speed, edges, edge_damping, ground_damping)
     return (tau, theta_f, omega_f, alpha_f, motion[1], rows, basis_mean, indicated_mean, known, static_out, rel_out,
-            node_speed, design, target, cyl_rows, mean_row)
+            node_speed, design, target, cyl_rows, mean_row, power[0], power[1])

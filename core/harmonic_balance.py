@@ -13,6 +13,7 @@ the arguments fixed by the engine, layout and operating point are prepared once 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +24,7 @@ from core.engine import EngineSpec
 from core.excitation import Excitation, ExcitationPlan, excitation_plan
 from core.flywheel import FlywheelMotion
 from core.friction import N_TERMS
+from core.frozen_init import fast_constructor
 from core.identify import CycleRows, ParameterLayout
 
 
@@ -41,7 +43,7 @@ class OperatingPoint:
 def operating_point(spec: EngineSpec, op: OperatingPoint | None, omega: float, load: float, m: int,
                     rebuild_tolerance: float, variable_inertia: bool) -> OperatingPoint:
     """``op`` itself while Omega is within ``rebuild_tolerance`` (relative) and the load within 5 %, else a new one."""
-    load_ok = np.isfinite(load)
+    load_ok = math.isfinite(load)
     if op is not None and abs(omega / op.omega_mean - 1.0) <= rebuild_tolerance and (
             not load_ok or abs(load - op.load_torque) <= 0.05 * max(abs(op.load_torque), 1e-9)):
         return op
@@ -55,15 +57,16 @@ def harmonic_balance(spec: EngineSpec, layout: ParameterLayout, theta: np.ndarra
                      relative_motion: np.ndarray | None, static: np.ndarray | None, grid: np.ndarray,
                      pressure: np.ndarray, fly: FlywheelMotion, theta_start: float, op: OperatingPoint,
                      passes: int, time_samples: int, variable_inertia: bool
-                     ) -> tuple[Excitation, CycleRows, np.ndarray, np.ndarray, np.ndarray]:
+                     ) -> tuple[Excitation, CycleRows, np.ndarray, np.ndarray, np.ndarray, tuple[float, float]]:
     """Passes of excitation + chain response at the current parameters ``theta`` (friction first, then the
     ``n_nuisance`` tooth-error nuisances); ``relative_motion`` (N, M) and ``static`` (N,) are the previous cycle's
     node-minus-flywheel motion (None on the first cycle). Returns the last excitation, the rows (friction columns,
-    then the tooth-error nuisances), node speeds (N, M), and this cycle's node-minus-flywheel motion (harmonics and
-    static twist) for the next cycle."""
+    then the tooth-error nuisances), node speeds (N, M), this cycle's node-minus-flywheel motion (harmonics and
+    static twist) for the next cycle, and the mean power [W] the relative and the ground dampers dissipate
+    (``core.dynamics.dissipated_power`` of the node speeds, formed in the kernel while they are in cache)."""
     const = _constants(spec, layout, op, variable_inertia)
     (n_nodes, z, n_par, twist, cyl_node, consts, group, prior, compliance, flywheel, inverse, rec_freq,
-     transfer) = const[4]
+     transfer, edges, edge_damping, ground_damping) = const[4]
     harmonics = fly.harmonics
     m = harmonics.shape[0]
     if 2 * m >= time_samples:
@@ -85,19 +88,25 @@ def harmonic_balance(spec: EngineSpec, layout: ParameterLayout, theta: np.ndarra
     static_in = _contiguous(static, np.float64) if twist and static is not None else _NO_STATIC
     for _ in range(n_pass):
         (tau, theta_f, omega_f, alpha_f, omega_node, buf, basis_mean, indicated_mean, known, static, rel, node_speed,
-         design, target, cyl_rows, mean_row) = _balance_pass(
+         design, target, cyl_rows, mean_row, p_rel, p_gnd) = _balance_pass(
             harmonics, float(fly.omega_mean), float(fly.offset), float(fly.drift), float(fly.period),
             float(theta_start), int(time_samples), rel_in, static_in, grid, pressure, cyl_node, consts, group, prior,
-            th, compliance, flywheel, inverse, rec_freq, transfer, pattern, int(n_nuisance))
+            th, compliance, flywheel, inverse, rec_freq, transfer, pattern, int(n_nuisance), edges, edge_damping,
+            ground_damping)
         if twist:
             rel_in, static_in = rel, static
     n_head = buf.shape[0] - 7 * z
-    exc = Excitation(tau=tau, theta_fly=theta_f, omega_node=omega_node, gas=buf[n_head + 6 * z:], known_harm=known,
-                     basis=buf[n_head: n_head + 6 * z].reshape(z, N_TERMS, time_samples), basis_mean=basis_mean,
-                     indicated_mean=indicated_mean, omega_fly=omega_f, alpha_fly=alpha_f)
-    rows = CycleRows(design=design, target=target, mean_row=mean_row, mean_target=float("nan"), cylinder_rows=cyl_rows)
-    return exc, rows, node_speed, rel, static
+    exc = _make_excitation(tau=tau, theta_fly=theta_f, omega_node=omega_node, gas=buf[n_head + 6 * z:],
+                           known_harm=known, basis=buf[n_head: n_head + 6 * z].reshape(z, N_TERMS, time_samples),
+                           basis_mean=basis_mean, indicated_mean=indicated_mean, omega_fly=omega_f, alpha_fly=alpha_f)
+    rows = _make_rows(design=design, target=target, mean_row=mean_row, mean_target=float("nan"),
+                      cylinder_rows=cyl_rows)
+    return exc, rows, node_speed, rel, static, (p_rel, p_gnd)
 
+
+# the per-cycle frozen objects, built without the per-field frozen __setattr__ (core.frozen_init)
+_make_excitation = fast_constructor(Excitation)
+_make_rows = fast_constructor(CycleRows)
 
 # the last (spec, layout, op, variable_inertia, kernel constants): one monitor's steady state
 _LAST: list[tuple] = [(None, None, None, None, None)]
@@ -119,7 +128,10 @@ def _constants(spec: EngineSpec, layout: ParameterLayout, op: OperatingPoint, va
             np.ascontiguousarray(layout.prior, dtype=np.float64),
             np.ascontiguousarray(shaft.compliance, dtype=np.float64), int(shaft.flywheel),
             np.ascontiguousarray(rec.inverse, dtype=np.complex128), np.ascontiguousarray(rec.freq, dtype=np.float64),
-            np.ascontiguousarray(op.transfer, dtype=np.complex128))
+            np.ascontiguousarray(op.transfer, dtype=np.complex128),
+            np.ascontiguousarray(shaft.edges, dtype=np.int64).reshape(-1, 2),
+            np.ascontiguousarray(shaft.edge_damping, dtype=np.float64),
+            np.ascontiguousarray(shaft.ground_damping, dtype=np.float64))
     entry = (spec, layout, op, variable_inertia, args)
     _LAST[0] = entry
     return entry

@@ -33,7 +33,6 @@ import numpy as np
 
 from core.accumulate import Accumulator, ResidualStats, posterior_from_normal
 from core.cycle_report import build_result
-from core.dynamics import dissipated_power
 from core.engine import EngineSpec
 from core.estimate import friction_estimate_leading
 from core.flywheel import ToothLearner
@@ -206,10 +205,9 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
     if op is not state.op and state.op is not None:
         flags.append("operating_point_changed")
 
-    exc, rows, node_speed, rel, static = harmonic_balance(
+    exc, rows, node_speed, rel, static, (p_rel, p_gnd) = harmonic_balance(
         spec, state.layout, state.theta, state.n_nuisance, state.relative_motion, state.static, cycle.grid, pressure,
         fly, theta_start, op, cfg.passes, cfg.time_samples, cfg.variable_inertia)
-    p_rel, p_gnd = dissipated_power(op.shaft, node_speed)
     # relative dampers (damper, shaft, coupling) dissipate mean power that a balance against the load behind the
     # coupling would book as friction (physics.md §12.4); the load's own ripple work (ground damping) belongs to
     # the load: the measured torque is a time mean, the work it absorbs is that plus <T_L~ omega_L~>

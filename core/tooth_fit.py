@@ -16,6 +16,7 @@ import numpy as np
 
 from core.flywheel import FlywheelMotion, ToothLearner
 from core.flywheel_kernels import BAD_SPAN, NOT_INCREASING, OK
+from core.frozen_init import fast_constructor
 from core.identify import tooth_patterns
 from core.tooth_fit_kernels import BAD_SHAPES, CACHE_MISS, NO_WINDOW, TOO_FEW, _tooth_fit_cycle
 from core.types import Cycle
@@ -24,6 +25,9 @@ FOUR_PI = 4.0 * np.pi
 
 PatternCache = tuple[np.ndarray, np.ndarray]  # (edge angles relative to the first, patterns)
 
+# the per-cycle frozen objects, built without the per-field frozen __setattr__ (core.frozen_init)
+_make_motion = fast_constructor(FlywheelMotion)
+_make_learner = fast_constructor(ToothLearner)
 _NO_PATTERNS = np.zeros((1, 0))
 _NO_ANGLES = np.zeros(0)
 _STATUS_TEXT = {
@@ -84,7 +88,7 @@ def fit_cycle_teeth(cycle: Cycle, wheel_teeth: int, n_harmonics: int, n_nuisance
     if status != OK:
         raise ValueError(_STATUS_TEXT.get(status, "flywheel fit failed").format(n=n, m=n_harmonics))
     if learn_teeth:
-        teeth = ToothLearner(new_corr, teeth.count + 1)
-    fly = FlywheelMotion(period=period, omega_mean=FOUR_PI / period, harmonics=harm, offset=offset, drift=drift,
-                         residual_rms=rms, n_edges=n, edge_residual=resid, pattern_harmonics=pat)
+        teeth = _make_learner(correction=new_corr, count=teeth.count + 1)
+    fly = _make_motion(period=period, omega_mean=FOUR_PI / period, harmonics=harm, offset=offset, drift=drift,
+                       residual_rms=rms, n_edges=n, edge_residual=resid, pattern_harmonics=pat)
     return fly, teeth, float(nominal[0] + teeth.correction[int(index[0]) % wheel_teeth]), cache

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from core.dynamics import dissipated_power
 from core.flywheel import harmonic_series
 from core.friction import N_TERMS
 from core.harmonic_balance import harmonic_balance
@@ -84,7 +85,7 @@ def test_fused_pass_matches_the_steps(name, warm, variable_inertia, nuisances):
         n_nuis = 0
         theta = theta[:layout.n_params]
     args = (spec, layout, theta, n_nuis, rel, static, grid, pressure, fly, theta_start, op, 2, 256, variable_inertia)
-    exc, rows, node_speed, rel_new, static_new = harmonic_balance(*args)
+    exc, rows, node_speed, rel_new, static_new, power = harmonic_balance(*args)
     r_exc, r_rows, r_speed, r_rel, r_static = harmonic_balance_steps(*args)
     for field in ("tau", "theta_fly", "omega_node", "gas", "known_harm", "basis_mean", "indicated_mean", "omega_fly",
                   "alpha_fly"):
@@ -101,6 +102,8 @@ def test_fused_pass_matches_the_steps(name, warm, variable_inertia, nuisances):
     close(node_speed, r_speed, "node_speed")
     close(rel_new, r_rel, "relative_motion")
     close(static_new, r_static, "static")
+    # the dissipation formed in the kernel is dissipated_power of the node speeds it returns, bit for bit
+    assert power == dissipated_power(op.shaft, node_speed)
 
 
 def test_harmonic_balance_rejects_too_few_samples():

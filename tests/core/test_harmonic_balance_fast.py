@@ -145,7 +145,7 @@ def test_harmonic_balance_matches_reference(name, seed, warm, time_samples):
     if not warm:
         rel, static = None, None
     args = (spec, layout, theta, n_nuis, rel, static, grid, pressure, fly, theta_start, op, 2, time_samples, True)
-    exc, rows, node_speed, rel_new, static_new = harmonic_balance(*args)
+    exc, rows, node_speed, rel_new, static_new, power = harmonic_balance(*args)
     r_exc, r_rows, r_speed, r_rel, r_static = harmonic_balance_reference(*args)
     assert isinstance(exc, Excitation)
     for field, ref in r_exc.items():
