@@ -39,6 +39,7 @@ from core.flywheel import ToothLearner
 from core.frozen_init import fast_constructor
 from core.harmonic_balance import OperatingPoint, harmonic_balance, operating_point
 from core.identify import ParameterLayout, parameter_layout
+from core.identify_step import identify_step
 from core.indicated import _peak_pressure_finite, peak_pressure
 from core.monitor_glue import freq_times_1j, glue_plan, noise_model_rows, shares_pair  # noqa: F401 (re-export)
 from core.pairwise import pairwise_sum
@@ -233,11 +234,7 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
     # (Sherman-Morrison), so a large drift projects its column out and a small one leaves the order-0.5
     # information in place; the last row is the mean balance (zero when there is no load measurement);
     # systematic variances from the persistent residual and the model-error floors (core.monitor_kernels)
-    stats, a, y, inv_sigma, sys_var, freq, drift_col = noise_model_rows(cfg, spec, state, fly, rows, balance, t_i,
-                                                                        drift_var, coupling_loss)
     lam = cfg.forgetting if cfg.forgetting is not None else 1.0 - 1.0 / max(400.0, 100.0 * spec.n_cyl)
-    terms = state.accumulator.cycle_terms(a, y, inv_sigma, 1)  # shared by the running and this cycle's equations
-    acc = state.accumulator.fold(terms, lam) if state.cycles >= cfg.warmup_cycles else state.accumulator
 
     # running means for the sharing prior of the smoothed estimate
     g = max(1.0 - lam, 1.0 / (state.cycles + 1))
@@ -261,27 +258,37 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
         prior_normal = (prior_key, *base.normal())
     plan = state.glue_plan if state.glue_plan is not None and state.glue_plan[0] is spec else glue_plan(spec, state)
     lower = plan[2]
-    # Eq. 6 shares of the running and of this cycle's mean balance, firing mask, motored friction, running
-    # indicated means and both sets of prior normal equations in one kernel (core.monitor_kernels.shares_pair_into)
-    ind_mean, fric_s, fric_c, fire, n_fire, n_s, r_s, n_c, r_c = shares_pair(
-        spec, state, prior_normal, rows.cylinder_rows, exc.indicated_mean, pmax, g, bal_mean,
-        balance if math.isfinite(balance) else bal_mean, rpm, plan[1], cfg.share_spread)
-    post_s = posterior_from_normal(acc, n_s, r_s, sys_var, lower)
-    # this cycle's equations alone: lambda = 0 folded into an empty accumulator is the cycle's terms themselves
-    one = _make_accumulator(info=terms.info, rhs=terms.rhs, yty=terms.yty, weight=1.0, rows=terms.rows,
-                            sys_map=terms.sys_map, info_reference=terms.info_reference)
-    post_c = posterior_from_normal(one, n_c, r_c, sys_var, lower)
-    # the friction block of each posterior, read in place (no head(): the kernel reads the leading p_f rows)
-    basis_mean = exc.basis_mean
-    cyl_rows = rows.cylinder_rows
-    if not (basis_mean.dtype == np.float64 and basis_mean.flags.c_contiguous):
-        basis_mean = np.ascontiguousarray(basis_mean, dtype=np.float64)
-    if not (cyl_rows.dtype == np.float64 and cyl_rows.flags.c_contiguous and cyl_rows.shape[1] == p_f):
-        cyl_rows = np.ascontiguousarray(cyl_rows[:, :p_f], dtype=np.float64)
-    est_s = friction_estimate_leading(spec, layout, post_s, basis_mean, fric_s, cfg.resolve_rel,
-                                      cfg.coefficient_snr, cfg.min_data_gain, cyl_rows, plan[3])
-    est_c = friction_estimate_leading(spec, layout, post_c, basis_mean, fric_c, cfg.resolve_rel,
-                                      cfg.coefficient_snr, cfg.min_data_gain, cyl_rows, plan[3])
+    # the steps below in one compiled call, same numbers (core.identify_step); None: the separate steps decide
+    fused = identify_step(cfg, spec, state, fly, rows, exc.indicated_mean, pmax, exc.basis_mean, rows.cylinder_rows,
+                          balance, t_i, drift_var, coupling_loss, lam, g, bal_mean, rpm, prior_normal, plan)
+    if fused is not None:
+        stats, acc, post_s, ind_mean, fire, n_fire, freq, drift_col, est_s, est_c = fused
+    else:
+        # the friction block of each posterior, read in place (no head(): the kernel reads the leading p_f rows)
+        basis_mean = exc.basis_mean
+        cyl_rows = rows.cylinder_rows
+        if not (basis_mean.dtype == np.float64 and basis_mean.flags.c_contiguous):
+            basis_mean = np.ascontiguousarray(basis_mean, dtype=np.float64)
+        if not (cyl_rows.dtype == np.float64 and cyl_rows.flags.c_contiguous and cyl_rows.shape[1] == p_f):
+            cyl_rows = np.ascontiguousarray(cyl_rows[:, :p_f], dtype=np.float64)
+        stats, a, y, inv_sigma, sys_var, freq, drift_col = noise_model_rows(cfg, spec, state, fly, rows, balance,
+                                                                            t_i, drift_var, coupling_loss)
+        terms = state.accumulator.cycle_terms(a, y, inv_sigma, 1)  # shared by the running and this cycle's equations
+        acc = state.accumulator.fold(terms, lam) if state.cycles >= cfg.warmup_cycles else state.accumulator
+        # Eq. 6 shares of the running and of this cycle's mean balance, firing mask, motored friction, running
+        # indicated means and both sets of prior normal equations in one kernel (core.monitor_kernels.shares_pair_into)
+        ind_mean, fric_s, fric_c, fire, n_fire, n_s, r_s, n_c, r_c = shares_pair(
+            spec, state, prior_normal, rows.cylinder_rows, exc.indicated_mean, pmax, g, bal_mean,
+            balance if math.isfinite(balance) else bal_mean, rpm, plan[1], cfg.share_spread)
+        post_s = posterior_from_normal(acc, n_s, r_s, sys_var, lower)
+        # this cycle's equations alone: lambda = 0 folded into an empty accumulator is the cycle's terms themselves
+        one = _make_accumulator(info=terms.info, rhs=terms.rhs, yty=terms.yty, weight=1.0, rows=terms.rows,
+                                sys_map=terms.sys_map, info_reference=terms.info_reference)
+        post_c = posterior_from_normal(one, n_c, r_c, sys_var, lower)
+        est_s = friction_estimate_leading(spec, layout, post_s, basis_mean, fric_s, cfg.resolve_rel,
+                                          cfg.coefficient_snr, cfg.min_data_gain, cyl_rows, plan[3])
+        est_c = friction_estimate_leading(spec, layout, post_c, basis_mean, fric_c, cfg.resolve_rel,
+                                          cfg.coefficient_snr, cfg.min_data_gain, cyl_rows, plan[3])
     if n_fire < z:
         flags += [f"misfire_cyl{k + 1}" for k in np.flatnonzero(~fire)]
 

@@ -1,0 +1,142 @@
+"""The identification steps of core.monitor.process_cycle in one compiled call for the common case
+(core.identify_step_kernels): noise model and whitened rows (core.monitor_glue.noise_model_rows), the cycle's terms
+and their fold (core.accumulate.Accumulator), the Eq. 6 shares (core.monitor_glue.shares_pair), both posteriors
+(core.accumulate.posterior_from_normal) and both estimates (core.estimate.friction_estimate_leading).
+
+Same numbers as those steps, bit for bit (the same kernels, called with the same inputs); the same result types.
+``identify_step`` returns None whenever any step would leave its kernel path (another harmonic count, shapes that
+do not fit, another dtype or layout, a posterior with an active bound or a near-singular factor): the caller then
+runs the separate steps, which stay the reference and the general path (and raise their errors).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from core.accumulate import _REFERENCE_MAX_CONDITION, Accumulator, Posterior, ResidualStats
+from core.frozen_init import fast_constructor
+from core.identify_step_kernels import FUSED_OK, identify_step_kernel
+from core.results import FrictionEstimate
+
+if TYPE_CHECKING:
+    from core.engine import EngineSpec
+    from core.flywheel import FlywheelMotion
+    from core.identify import CycleRows
+    from core.monitor import MonitorConfig, MonitorState
+
+_make_stats = fast_constructor(ResidualStats)
+_make_accumulator = fast_constructor(Accumulator)
+_make_posterior = fast_constructor(Posterior)
+
+
+def identify_step(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fly: FlywheelMotion, rows: CycleRows,
+                  indicated_mean: np.ndarray, pmax: np.ndarray, basis_mean: np.ndarray, cyl_rows: np.ndarray,
+                  balance: float, t_i: float, drift_var: float, coupling_loss: float, lam: float, g: float,
+                  bal_mean: float, rpm: float, prior_normal: tuple, plan: tuple):
+    """The steps of process_cycle from ``noise_model_rows`` to the two ``friction_estimate_leading`` calls.
+
+    Inputs as process_cycle has them (indicated_mean (z,) N m, pmax (z,) Pa, basis_mean (z, 6), cyl_rows
+    (z, n_params) contiguous; lam the forgetting factor, g and bal_mean the running-mean gain and balance [N m],
+    rpm; prior_normal and plan as in MonitorState). Returns None (use the separate steps) or (stats, acc,
+    post_s, ind_mean, fire, n_fire, freq, drift_col, est_s, est_c) as the separate steps give them
+    (drift_col None without the drift nuisance)."""
+    m = state.n_harmonics
+    acc = state.accumulator
+    st = state.stats
+    z = spec.n_cyl
+    p_f = state.layout.n_params
+    do_fold = state.cycles >= cfg.warmup_cycles
+    lam = float(lam)
+    # the conditions under which a separate step raises or takes a general path: left to them
+    if (fly.harmonics.shape[0] != m or indicated_mean.shape != (z,) or cyl_rows.shape != (z, p_f)
+            or basis_mean.shape != (z, 6) or (do_fold and not 0.0 <= lam <= 1.0)):
+        return None
+    sys_balance = ((cfg.balance_rel_error * t_i) ** 2 + (cfg.coupling_rel_error * coupling_loss) ** 2
+                   + (cfg.load_rel_error * spec.rated_torque_nm) ** 2)
+    total_c = balance if math.isfinite(balance) else bal_mean
+    mep = plan[3]
+    group = state.layout.group
+    n_terms = group.shape[1]
+    cplx_out = np.empty((2, m), dtype=np.complex128)
+    real_out = np.empty((2, m))
+    p = acc.info.shape[0]
+    if do_fold:
+        new_info = np.empty((p, p))
+        new_rhs = np.empty(p)
+        new_map = np.empty(acc.sys_map.shape)
+        new_ref = np.empty((p, p))
+    else:  # not written
+        new_info, new_rhs, new_map, new_ref = acc.info, acc.rhs, acc.sys_map, acc.info_reference
+    shares_out = np.empty((5, z))
+    fire = np.empty(z, dtype=np.bool_)
+    theta_s = np.empty(p)
+    per_cyl = np.empty((10, z))
+    per_term = np.empty((8, z, n_terms))
+    resolved = np.empty((2, z), dtype=np.bool_)
+    coef_ok = np.empty((2, z, n_terms), dtype=np.bool_)
+    numbers_out = np.empty(16)
+    _, n_base, r_base = prior_normal
+    try:
+        scalars = np.array([
+            fly.omega_mean, st.balance_mean, st.balance_var, st.count, cfg.noise_memory, balance, fly.residual_rms,
+            fly.n_edges, t_i, drift_var, fly.period, cfg.model_rel_error, sys_balance,
+            1.0 if cfg.drift_nuisance else 0.0, lam, g, bal_mean, total_c, rpm, cfg.share_spread, cfg.resolve_rel,
+            cfg.coefficient_snr, cfg.min_data_gain, mep[0], mep[1], _REFERENCE_MAX_CONDITION, acc.yty, acc.rows],
+            dtype=np.float64)
+        status, cov_s, cov_stat_s, ref_s = identify_step_kernel(
+            rows.design, rows.target, state.theta, fly.pattern_harmonics, fly.harmonics, st.mean, st.var,
+            rows.mean_row, scalars, acc.info, acc.rhs, acc.sys_map, acc.info_reference, do_fold, indicated_mean,
+            pmax, state.indicated_mean, state.cycles == 0, plan[1], n_base, r_base, rows.cylinder_rows, plan[2],
+            group, state.layout.prior, basis_mean, cyl_rows, cplx_out, real_out, new_info, new_rhs, new_map,
+            new_ref, shares_out, fire, theta_s, per_cyl, per_term, resolved, coef_ok, numbers_out)
+    except TypeError:  # another dtype or layout than the kernel's (or a non-numeric input): the separate steps
+        return None
+    if status != FUSED_OK:
+        return None
+    (tot_s, tot_s_sig, fmep_s, fmep_s_sig, chi2_s, tot_c, tot_c_sig, fmep_c, fmep_c_sig, chi2_c, n_fire, yty, n_rows,
+     bal_m, bal_v, _) = numbers_out.tolist()
+    stats = _make_stats(mean=cplx_out[0], var=real_out[0], balance_mean=bal_m, balance_var=bal_v, count=st.count + 1)
+    if do_fold:
+        acc = _make_accumulator(info=new_info, rhs=new_rhs, yty=yty, weight=lam * acc.weight + 1.0, rows=n_rows,
+                                sys_map=new_map, info_reference=new_ref)
+    weight = acc.weight
+    post_s = _make_posterior(theta=theta_s, covariance=cov_s, cov_statistical=cov_stat_s, chi2_reduced=chi2_s,
+                             weight=weight, cov_reference=ref_s)
+    t_s, t_s_sig, fmep_cyl_s, fmep_cyl_s_sig, gain_s, t_c, t_c_sig, fmep_cyl_c, fmep_cyl_c_sig, gain_c = per_cyl
+    coef_s, coef_s_sig, norm_s, norm_s_sig, coef_c, coef_c_sig, norm_c, norm_c_sig = per_term
+    resolved_s, resolved_c = resolved
+    coef_ok_s, coef_ok_c = coef_ok
+    est_s = _estimate(t_s, t_s_sig, fmep_cyl_s, fmep_cyl_s_sig, coef_s, coef_s_sig, norm_s, norm_s_sig, resolved_s,
+                      coef_ok_s, tot_s, tot_s_sig, fmep_s, fmep_s_sig, shares_out[1], float(weight), chi2_s, gain_s)
+    est_c = _estimate(t_c, t_c_sig, fmep_cyl_c, fmep_cyl_c_sig, coef_c, coef_c_sig, norm_c, norm_c_sig, resolved_c,
+                      coef_ok_c, tot_c, tot_c_sig, fmep_c, fmep_c_sig, shares_out[3], 1.0, chi2_c, gain_c)
+    return (stats, acc, post_s, shares_out[0], fire, int(n_fire), real_out[1],
+            cplx_out[1] if cfg.drift_nuisance else None, est_s, est_c)
+
+
+def _estimate(t_mean, t_sig, fmep, fmep_sig, coef, coef_sig, coef_norm, coef_norm_sig, resolved, coef_ok, t_tot,
+              t_tot_sig, fmep_tot, fmep_tot_sig, prior_mean, weight, chi2, gain) -> FrictionEstimate:
+    """``FrictionEstimate(**fields)`` from positional fields in the dataclass's order (core.frozen_init: the same
+    object as the dataclass's constructor gives)."""
+    est = _new(FrictionEstimate)
+    est.__dict__.update({
+        "friction_torque_mean": t_mean, "friction_torque_mean_sigma": t_sig, "fmep": fmep, "fmep_sigma": fmep_sig,
+        "coefficients": coef, "coefficients_sigma": coef_sig, "coefficients_normalised": coef_norm,
+        "coefficients_normalised_sigma": coef_norm_sig, "resolved": resolved, "coefficient_resolved": coef_ok,
+        "total_friction_torque": t_tot, "total_friction_torque_sigma": t_tot_sig, "total_fmep": fmep_tot,
+        "total_fmep_sigma": fmep_tot_sig, "prior_friction_torque_mean": prior_mean, "weight": weight,
+        "chi2_reduced": chi2, "data_gain": gain})
+    return est
+
+
+_new = object.__new__
+_ESTIMATE_FIELDS = ("friction_torque_mean", "friction_torque_mean_sigma", "fmep", "fmep_sigma", "coefficients",
+                    "coefficients_sigma", "coefficients_normalised", "coefficients_normalised_sigma", "resolved",
+                    "coefficient_resolved", "total_friction_torque", "total_friction_torque_sigma", "total_fmep",
+                    "total_fmep_sigma", "prior_friction_torque_mean", "weight", "chi2_reduced", "data_gain")
+if tuple(f.name for f in dataclasses.fields(FrictionEstimate)) != _ESTIMATE_FIELDS:  # _estimate fills exactly these
+    raise ImportError("core.results.FrictionEstimate changed its fields: update core.identify_step._estimate")
