@@ -51,6 +51,7 @@ from drivers.ringbuffer import _search_sorted
 from drivers.wheel_sync import WheelTracker
 
 log = logging.getLogger(__name__)
+_LOAD = 0  # _waiting_for: the head cycle waits for a load sample (cylinders are numbered from 1)
 FOUR_PI = 4.0 * math.pi
 
 
@@ -123,7 +124,10 @@ class CycleAssembler(EpochSync):
         self._now = 0  # latest stream time seen [ticks]
         self._cam_next = 0  # next cam row to place
         self._discarded_at = 0  # tooth ring end at the last discard
-        self._waiting_for: int | None = None  # cylinder whose pressure the head cycle waits for
+        self._waiting_for: int | None = None  # cylinder whose pressure the head cycle waits for (_LOAD: the load)
+        last_load = self.buf.load.last("t")
+        self._load_newest: int | None = None if last_load is None else int(last_load)  # newest accepted load time
+        self._load_hold = float(info.tick_hz)  # load_mean's zero-order hold [ticks]: beyond it the load is absent
         self._plan: GridPlan | None = None  # how the pressure matrix is filled, for _plan_buf at _plan_version
         self._plan_buf: EngineBuffers | None = None
         self._plan_version = -1
@@ -151,11 +155,15 @@ class CycleAssembler(EpochSync):
             if not self._pending or self._waiting_for not in record.cylinders:
                 return []
             return self._emit(flushing=False)
-        if type(record) is LoadSample:  # ~8 per cycle: nothing else can move
-            self.buf.add_load(record)
+        if type(record) is LoadSample:  # ~8 per cycle: only a cycle waiting for its load can move
+            accepted = self.buf.add_load(record)
             t = int(record.ticks)
             if t > self._now:
                 self._now = t
+            if accepted:
+                self._load_newest = t
+                if self._waiting_for == _LOAD and self._pending:
+                    return self._emit(flushing=False)
             return []
         if type(record) is PressureBlock:  # the hot path (tens of blocks per cycle): no isinstance chain
             if self.buf.add_pressure(record):
@@ -191,9 +199,13 @@ class CycleAssembler(EpochSync):
                 self._now = max(self._now, end)
         elif isinstance(record, CamBatch):
             self.buf.add(record)
-        elif isinstance(record, LoadSample):
-            self.buf.add_load(record)
+        elif isinstance(record, LoadSample):  # (a LoadSample subclass: the same as above)
+            accepted = self.buf.add_load(record)
             self._now = max(self._now, int(record.ticks))
+            if accepted:
+                self._load_newest = int(record.ticks)
+                if self._waiting_for == _LOAD and self._pending:
+                    return self._emit(flushing=False)
             return []
         else:
             raise TypeError(f"not a stream record: {type(record).__name__}")
@@ -284,20 +296,25 @@ class CycleAssembler(EpochSync):
         return self._plan
 
     def _ready(self, p: _Pending) -> bool:
-        """Every instrumented cylinder has a sample at or after the cycle's last grid time (else remember which
-        cylinder is awaited, so that only records carrying its pressure wake the queue up)."""
-        self._waiting_for = plan_ready(self._grid_plan(), p.t_grid[-1])
-        return self._waiting_for is None
+        """Every instrumented cylinder has a sample at or after the cycle's last grid time, and the load stream
+        (if it is present: a sample within load_mean's hold) one at or after its last edge, so the cycle's load mean
+        does not depend on whether the load reading came before or after the pressure (serial vs CAN arrival
+        order). Else remember what is awaited (a cylinder, or _LOAD), so that only records carrying it wake the
+        queue up; the wait is bounded by wait_ticks, as for pressure."""
+        waiting = plan_ready(self._grid_plan(), p.t_grid[-1])
+        newest = self._load_newest
+        if waiting is None and newest is not None and newest < p.t_last and p.t_last - newest <= self._load_hold:
+            waiting = _LOAD
+        self._waiting_for = waiting
+        return waiting is None
 
     def _emit(self, flushing: bool) -> list[Cycle]:
         out: list[Cycle] = []
         pending = self._pending
         while pending:
             p = pending[0]
-            if not (flushing or self._now - p.t_last > self.wait_ticks):  # not timed out: wait for its pressure
-                self._waiting_for = plan_ready(self._grid_plan(), p.t_grid[-1])  # = self._ready(p)
-                if self._waiting_for is not None:
-                    break
+            if not (flushing or self._now - p.t_last > self.wait_ticks or self._ready(p)):
+                break  # not timed out: wait for its pressure and load
             pending.popleft()
             cyc = self._build(p)
             if cyc is not None:
@@ -399,6 +416,7 @@ class CycleAssembler(EpochSync):
         self._cam_next = 0
         self._now = 0
         self._discarded_at = 0
+        self._load_newest = None
 
     def dropped(self) -> Counter[str]:
         """Rows lost to ring overflow and refused out-of-order input, by stream."""

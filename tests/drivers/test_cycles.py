@@ -223,6 +223,37 @@ def test_late_pressure_gives_the_same_cycles(k4):
     assert not asm.skipped and len(out) == len(clean) and all(same(a, b) for a, b in zip(out, clean))
 
 
+def test_late_load_gives_the_same_load_means(k4):
+    """A CAN load reading 30 ms behind the teeth and pressure of the same time (serial indicating system): a cycle
+    waits for the load sample at or after its end, so its mean load is the in-order one, not a partial mean."""
+    s, _, recs, clean, _ = k4
+
+    def arrival(r):
+        if isinstance(r, LoadSample):
+            return r.ticks + 300_000
+        if isinstance(r, PressureBlock):
+            return r.t0_ticks
+        return r.ticks[-1]
+
+    late = sorted(recs, key=arrival)
+    assert late != recs
+    out, asm = run(late, s)
+    assert not asm.skipped and len(out) == len(clean) and all(same(a, b) for a, b in zip(out, clean))
+    assert len({c.load_torque for c in clean}) == len(clean)  # the test can tell a partial mean from the full one
+
+
+def test_a_load_stream_that_stops_delays_no_cycle_for_ever(k4):
+    """The load stops at 0.3 s: cycles wait for it at most the pressure wait while it is within load_mean's hold
+    (1 s), and every cycle is still emitted (with the held reading) before the end of the stream."""
+    s, _, recs, clean, _ = k4
+    cut = [r for r in recs if not (isinstance(r, LoadSample) and r.ticks > 3_000_000)]
+    asm = CycleAssembler(s.info(), 4, np.radians(s.firing_deg), speed_range_rpm=(500, 5000), max_wait_s=0.05)
+    got = [c for r in cut for c in asm.feed(r)]
+    assert not asm.skipped and [c.index for c in got] == [c.index for c in clean][: len(got)]
+    assert len(got) >= len(clean) - 1  # the last one waits for the flush (nothing after it times it out)
+    assert all(np.isfinite(c.load_torque) for c in got)
+
+
 def test_pressure_that_never_comes_is_skipped_after_the_wait(k4):
     s, _, recs, clean, _ = k4
     t_stop = int(clean[7].tooth_ticks[0])
