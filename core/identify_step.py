@@ -11,7 +11,6 @@ runs the separate steps, which stay the reference and the general path (and rais
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import TYPE_CHECKING
 
@@ -31,6 +30,7 @@ if TYPE_CHECKING:
 _make_stats = fast_constructor(ResidualStats)
 _make_accumulator = fast_constructor(Accumulator)
 _make_posterior = fast_constructor(Posterior)
+_make_estimate = fast_constructor(FrictionEstimate)
 
 
 def identify_step(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fly: FlywheelMotion, rows: CycleRows,
@@ -110,33 +110,19 @@ def identify_step(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fly
     coef_s, coef_s_sig, norm_s, norm_s_sig, coef_c, coef_c_sig, norm_c, norm_c_sig = per_term
     resolved_s, resolved_c = resolved
     coef_ok_s, coef_ok_c = coef_ok
-    est_s = _estimate(t_s, t_s_sig, fmep_cyl_s, fmep_cyl_s_sig, coef_s, coef_s_sig, norm_s, norm_s_sig, resolved_s,
-                      coef_ok_s, tot_s, tot_s_sig, fmep_s, fmep_s_sig, shares_out[1], float(weight), chi2_s, gain_s)
-    est_c = _estimate(t_c, t_c_sig, fmep_cyl_c, fmep_cyl_c_sig, coef_c, coef_c_sig, norm_c, norm_c_sig, resolved_c,
-                      coef_ok_c, tot_c, tot_c_sig, fmep_c, fmep_c_sig, shares_out[3], 1.0, chi2_c, gain_c)
+    est_s = _make_estimate(
+        friction_torque_mean=t_s, friction_torque_mean_sigma=t_s_sig, fmep=fmep_cyl_s, fmep_sigma=fmep_cyl_s_sig,
+        coefficients=coef_s, coefficients_sigma=coef_s_sig, coefficients_normalised=norm_s,
+        coefficients_normalised_sigma=norm_s_sig, resolved=resolved_s, coefficient_resolved=coef_ok_s,
+        total_friction_torque=tot_s, total_friction_torque_sigma=tot_s_sig, total_fmep=fmep_s,
+        total_fmep_sigma=fmep_s_sig, prior_friction_torque_mean=shares_out[1], weight=float(weight),
+        chi2_reduced=chi2_s, data_gain=gain_s)
+    est_c = _make_estimate(
+        friction_torque_mean=t_c, friction_torque_mean_sigma=t_c_sig, fmep=fmep_cyl_c, fmep_sigma=fmep_cyl_c_sig,
+        coefficients=coef_c, coefficients_sigma=coef_c_sig, coefficients_normalised=norm_c,
+        coefficients_normalised_sigma=norm_c_sig, resolved=resolved_c, coefficient_resolved=coef_ok_c,
+        total_friction_torque=tot_c, total_friction_torque_sigma=tot_c_sig, total_fmep=fmep_c,
+        total_fmep_sigma=fmep_c_sig, prior_friction_torque_mean=shares_out[3], weight=1.0, chi2_reduced=chi2_c,
+        data_gain=gain_c)
     return (stats, acc, post_s, shares_out[0], fire, int(n_fire), real_out[1],
             cplx_out[1] if cfg.drift_nuisance else None, est_s, est_c)
-
-
-def _estimate(t_mean, t_sig, fmep, fmep_sig, coef, coef_sig, coef_norm, coef_norm_sig, resolved, coef_ok, t_tot,
-              t_tot_sig, fmep_tot, fmep_tot_sig, prior_mean, weight, chi2, gain) -> FrictionEstimate:
-    """``FrictionEstimate(**fields)`` from positional fields in the dataclass's order (core.frozen_init: the same
-    object as the dataclass's constructor gives)."""
-    est = _new(FrictionEstimate)
-    est.__dict__.update({
-        "friction_torque_mean": t_mean, "friction_torque_mean_sigma": t_sig, "fmep": fmep, "fmep_sigma": fmep_sig,
-        "coefficients": coef, "coefficients_sigma": coef_sig, "coefficients_normalised": coef_norm,
-        "coefficients_normalised_sigma": coef_norm_sig, "resolved": resolved, "coefficient_resolved": coef_ok,
-        "total_friction_torque": t_tot, "total_friction_torque_sigma": t_tot_sig, "total_fmep": fmep_tot,
-        "total_fmep_sigma": fmep_tot_sig, "prior_friction_torque_mean": prior_mean, "weight": weight,
-        "chi2_reduced": chi2, "data_gain": gain})
-    return est
-
-
-_new = object.__new__
-_ESTIMATE_FIELDS = ("friction_torque_mean", "friction_torque_mean_sigma", "fmep", "fmep_sigma", "coefficients",
-                    "coefficients_sigma", "coefficients_normalised", "coefficients_normalised_sigma", "resolved",
-                    "coefficient_resolved", "total_friction_torque", "total_friction_torque_sigma", "total_fmep",
-                    "total_fmep_sigma", "prior_friction_torque_mean", "weight", "chi2_reduced", "data_gain")
-if tuple(f.name for f in dataclasses.fields(FrictionEstimate)) != _ESTIMATE_FIELDS:  # _estimate fills exactly these
-    raise ImportError("core.results.FrictionEstimate changed its fields: update core.identify_step._estimate")
