@@ -64,13 +64,6 @@ def identify_step(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fly
     cplx_out = np.empty((2, m), dtype=np.complex128)
     real_out = np.empty((2, m))
     p = acc.info.shape[0]
-    if do_fold:
-        new_info = np.empty((p, p))
-        new_rhs = np.empty(p)
-        new_map = np.empty(acc.sys_map.shape)
-        new_ref = np.empty((p, p))
-    else:  # not written
-        new_info, new_rhs, new_map, new_ref = acc.info, acc.rhs, acc.sys_map, acc.info_reference
     shares_out = np.empty((5, z))
     fire = np.empty(z, dtype=np.bool_)
     theta_s = np.empty(p)
@@ -87,12 +80,12 @@ def identify_step(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fly
             1.0 if cfg.drift_nuisance else 0.0, lam, g, bal_mean, total_c, rpm, cfg.share_spread, cfg.resolve_rel,
             cfg.coefficient_snr, cfg.min_data_gain, mep[0], mep[1], _REFERENCE_MAX_CONDITION, acc.yty, acc.rows],
             dtype=np.float64)
-        status, cov_s, cov_stat_s, ref_s = identify_step_kernel(
+        status, cov_s, cov_stat_s, ref_s, info, rhs, sys_map, info_ref = identify_step_kernel(
             rows.design, rows.target, state.theta, fly.pattern_harmonics, fly.harmonics, st.mean, st.var,
             rows.mean_row, scalars, acc.info, acc.rhs, acc.sys_map, acc.info_reference, do_fold, indicated_mean,
             pmax, state.indicated_mean, state.cycles == 0, plan[1], n_base, r_base, rows.cylinder_rows, plan[2],
-            group, state.layout.prior, basis_mean, cyl_rows, cplx_out, real_out, new_info, new_rhs, new_map,
-            new_ref, shares_out, fire, theta_s, per_cyl, per_term, resolved, coef_ok, numbers_out)
+            group, state.layout.prior, basis_mean, cyl_rows, cplx_out, real_out, shares_out, fire, theta_s, per_cyl,
+            per_term, resolved, coef_ok, numbers_out)
     except TypeError:  # another dtype or layout than the kernel's (or a non-numeric input): the separate steps
         return None
     if status != FUSED_OK:
@@ -101,8 +94,8 @@ def identify_step(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fly
      bal_m, bal_v, _) = numbers_out.tolist()
     stats = _make_stats(mean=cplx_out[0], var=real_out[0], balance_mean=bal_m, balance_var=bal_v, count=st.count + 1)
     if do_fold:
-        acc = _make_accumulator(info=new_info, rhs=new_rhs, yty=yty, weight=lam * acc.weight + 1.0, rows=n_rows,
-                                sys_map=new_map, info_reference=new_ref)
+        acc = _make_accumulator(info=info, rhs=rhs, yty=yty, weight=lam * acc.weight + 1.0, rows=n_rows,
+                                sys_map=sys_map, info_reference=info_ref)
     weight = acc.weight
     post_s = _make_posterior(theta=theta_s, covariance=cov_s, cov_statistical=cov_stat_s, chi2_reduced=chi2_s,
                              weight=weight, cov_reference=ref_s)

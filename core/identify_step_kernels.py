@@ -3,7 +3,7 @@ and whitened rows, the cycle's normal-equation terms, their fold into the runnin
 with both prior normal equations, both posteriors and both reported estimates.
 
 It calls the very kernels the separate steps call (core.monitor_kernels, core.accumulate_kernels,
-core.posterior_kernels; the fold by fold_kernel's element loop into preallocated arrays) with the same inputs in the
+core.posterior_kernels) with the same inputs in the
 same order, so the numbers are the same bits; what it saves is the Python between them (about 20 argument
 unboxings per kernel call, boxing of the returned arrays, views, the intermediate frozen objects). numba's fastmath
 flags belong to each function: the callees keep theirs, so this function must not re-write their loops. Its cache
@@ -19,7 +19,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from core.accumulate_kernels import _cycle_terms, _scaled_sum_1d_into
+from core.accumulate_kernels import _cycle_terms, _fold
 from core.monitor_kernels import estimate_into, noise_rows_cycle, shares_pair_into
 from core.posterior_kernels import BAD_SHAPE, OK, posterior_kernel
 
@@ -39,7 +39,7 @@ _B2 = numba.types.Array(numba.bool_, 2, "C")
 _B3 = numba.types.Array(numba.bool_, 3, "C")
 _I2 = numba.types.Array(numba.int64, 2, "C")
 _SIGNATURES = [
-    numba.types.Tuple((numba.int64, _M, _M, _M))(
+    numba.types.Tuple((numba.int64, _M, _M, _M, _M, _V, _M, _M))(
         # noise model: design, target, theta, pattern harmonics, harmonics, stats mean, var, mean row, scalars
         _C2, _C, _V, _C2, _C, _C, _V, _V, _V,
         # accumulator before: info, rhs, sys_map, info_reference; fold flag
@@ -49,7 +49,7 @@ _SIGNATURES = [
         # posteriors and estimates: lower bounds, group, prior, basis means, cylinder rows (leading p_f)
         lower, _I2, _M, _M, _M,
         # outputs
-        _C2, _M, _M, _V, _M, _M, _M, _B, _V, _M, _M3, _B2, _B3, _V)
+        _C2, _M, _M, _B, _V, _M, _M3, _B2, _B3, _V)
     for lower in (_V, _VR)
 ]
 
@@ -82,15 +82,15 @@ def identify_step_kernel(design, target, theta, pattern_harmonics, harmonics, st
                          acc_info, acc_rhs, acc_map, acc_ref, do_fold,
                          t_i, pmax, ind_prev, first, motored_consts, n_base, r_base, share_rows,
                          lower, group, prior, basis_mean, cyl_rows,
-                         cplx_out, real_out, new_info, new_rhs, new_map, new_ref, shares_out, fire, theta_s,
-                         per_cyl, per_term, resolved, coef_ok, numbers_out):
+                         cplx_out, real_out, shares_out, fire, theta_s, per_cyl, per_term, resolved, coef_ok,
+                         numbers_out):
     """The steps of core.monitor.process_cycle from ``noise_model_rows`` to the second
     ``friction_estimate_leading`` (see core.identify_step.identify_step for the packing of the arguments).
 
     scalars: [omega, stats balance_mean, balance_var, count, noise_memory, balance, residual_rms, n_edges, t_i,
     drift_var, period, model_rel_error, sys_balance, use_drift, lambda, g, total_s, total_c, rpm, share_spread,
     resolve_rel, coefficient_snr, min_data_gain, mep_cyl, mep_eng, max_condition, acc yty, acc rows]; acc_* the
-    accumulator before (folded with lambda into new_* when ``do_fold``, else new_* untouched); outputs: cplx_out
+    accumulator before (folded with lambda when ``do_fold``: Accumulator.fold's kernel); outputs: cplx_out
     (2, M) [stats mean, drift column], real_out (2, M) [stats var, freq], shares_out (5, z) [running indicated
     mean, share_s, sigma_s, share_c, sigma_c], fire (z,), theta_s (P,), per_cyl (10, z) [t_mean, t_sig, fmep, fmep_sig, gain of
     the smoothed estimate, the same of this cycle's], per_term (8, z, 6) [coef, coef_sig, coef_norm,
@@ -98,13 +98,15 @@ def identify_step_kernel(design, target, theta, pattern_harmonics, harmonics, st
     buffers), numbers_out (16,) [totals (4) and chi2_reduced of the smoothed estimate, the same of this cycle's,
     n_fire, yty and rows of the running accumulator, the statistics' balance_mean, balance_var, count].
 
-    Returns (status, covariance, cov_statistical, cov_reference) of the smoothed posterior; status FUSED_OK, else
+    Returns (status, covariance, cov_statistical, cov_reference of the smoothed posterior, the running info, rhs,
+    sys_map, info_reference: the folded ones when ``do_fold``, else the inputs themselves); status FUSED_OK, else
     the reason for the separate steps (then nothing written or returned is valid)."""
     m = design.shape[0]
     p = design.shape[1]
     r = 2 * m + 1
     s = scalars
     empty = np.empty((0, 0))
+    none = (empty, empty, empty, empty, np.empty(0), empty, empty)
     z = t_i.shape[0]
     pn = n_base.shape[0]
     p_f = cyl_rows.shape[1]
@@ -113,7 +115,7 @@ def identify_step_kernel(design, target, theta, pattern_harmonics, harmonics, st
                        mean_row, scalars, acc_map, pmax, ind_prev, motored_consts, r_base, share_rows, lower, group,
                        prior, basis_mean, cyl_rows, cplx_out, real_out, shares_out, fire, theta_s, per_cyl, per_term,
                        resolved, coef_ok, numbers_out):
-        return FUSED_BAD_SHAPE, empty, empty, empty
+        return (FUSED_BAD_SHAPE, *none)
     # noise model and whitened rows (core.monitor_glue.noise_model_rows)
     a = np.empty((r, p))
     y = np.empty(r)
@@ -126,18 +128,13 @@ def identify_step_kernel(design, target, theta, pattern_harmonics, harmonics, st
     # this cycle's terms (Accumulator.cycle_terms, one reference row: the mean balance) and the fold
     ok, t_info, t_rhs, t_yty, t_map, t_ref = _cycle_terms(a, y, inv_sigma, 1)
     if not ok:
-        return FUSED_BAD_SHAPE, empty, empty, empty
+        return (FUSED_BAD_SHAPE, *none)
     lam = s[14]
     if do_fold:
-        if (acc_info.shape != t_info.shape or acc_rhs.shape != t_rhs.shape or acc_ref.shape != t_ref.shape
-                or new_info.shape != t_info.shape or new_rhs.shape != t_rhs.shape or new_map.shape != t_map.shape
-                or new_ref.shape != t_ref.shape):
-            return FUSED_BAD_SHAPE, empty, empty, empty
-        _scaled_sum_1d_into(lam, acc_info.reshape(p * p), t_info.reshape(p * p), new_info.reshape(p * p))
-        _scaled_sum_1d_into(lam, acc_rhs, t_rhs, new_rhs)
-        _scaled_sum_1d_into(lam, acc_map.reshape(p * r), t_map.reshape(p * r), new_map.reshape(p * r))
-        _scaled_sum_1d_into(lam, acc_ref.reshape(p * p), t_ref.reshape(p * p), new_ref.reshape(p * p))
-        run_info, run_rhs, run_map, run_ref = new_info, new_rhs, new_map, new_ref
+        ok, run_info, run_rhs, run_map, run_ref = _fold(lam, acc_info, acc_rhs, acc_map, acc_ref, t_info, t_rhs,
+                                                        t_map, t_ref)
+        if not ok:
+            return (FUSED_BAD_SHAPE, *none)
         run_yty = lam * s[26] + t_yty
         run_rows = lam * s[27] + float(r)
     else:
@@ -154,11 +151,11 @@ def identify_step_kernel(design, target, theta, pattern_harmonics, harmonics, st
     st, th_s, chi2_s, cov_stat_s, cov_s, ref_s = posterior_kernel(
         run_info, run_rhs, run_yty, run_rows, run_map, run_ref, normal[0], rhs[0], sys_var, lower, s[25])
     if st != OK:
-        return FUSED_POSTERIOR + st, empty, empty, empty
+        return (FUSED_POSTERIOR + st, *none)
     st, th_c, chi2_c, cov_stat_c, cov_c, ref_c = posterior_kernel(
         t_info, t_rhs, t_yty, float(r), t_map, t_ref, normal[1], rhs[1], sys_var, lower, s[25])
     if st != OK:
-        return FUSED_POSTERIOR_CYCLE + st, empty, empty, empty
+        return (FUSED_POSTERIOR_CYCLE + st, *none)
     for i in range(th_s.shape[0]):
         theta_s[i] = th_s[i]
     # both reported estimates (core.estimate.friction_estimate_leading)
@@ -177,4 +174,4 @@ def identify_step_kernel(design, target, theta, pattern_harmonics, harmonics, st
     numbers_out[10] = n_fire
     numbers_out[11] = run_yty
     numbers_out[12] = run_rows
-    return FUSED_OK, cov_s, cov_stat_s, ref_s
+    return FUSED_OK, cov_s, cov_stat_s, ref_s, run_info, run_rhs, run_map, run_ref
