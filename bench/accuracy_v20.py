@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from core.engine import load_engine
-from core.monitor import initial_state, process_cycle
-from core.simulate import simulate
-from drivers.cycles import CycleAssembler
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.monitor.monitor import initial_state, process_cycle
+from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.drivers.assembly.cycles import CycleAssembler
 
 OUT = Path(__file__).with_name("accuracy_v20.json")
 

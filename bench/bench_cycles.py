@@ -2,7 +2,7 @@
 
     python -m bench.bench_cycles
 
-The stream comes from the plant simulator (core.simulate, the records as a log would replay them: teeth in batches,
+The stream comes from the plant simulator (core.plant.simulate, the records as a log would replay them: teeth in batches,
 one 10 ms pressure frame of all cylinders, load at 100 Hz). Stages, each timed per cycle on one core:
 
 - assemble: every ``CycleAssembler.feed`` call between two emitted cycles (ring buffers, sync, phase, pressure
@@ -22,12 +22,12 @@ import time
 import numpy as np
 
 from bench.common import as_blocks, assembler_for, timed_assembly
-from core.engine import load_engine
-from core.simulate import simulate
-from core.speed import cycle_speed
-from core.speed_spacing import ToothSpacingLearner, engine_orders
-from core.speed_stream import SpeedStreamState, design_stream_filter, speed_stream_update
-from drivers.cycles import CycleAssembler
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.core.monitor.speed import cycle_speed
+from frictionwatch.core.monitor.speed_spacing import ToothSpacingLearner, engine_orders
+from frictionwatch.core.monitor.speed_stream import SpeedStreamState, design_stream_filter, speed_stream_update
+from frictionwatch.drivers.assembly.cycles import CycleAssembler
 
 CYCLES = 60
 RPM = 1500.0

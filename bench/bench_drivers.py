@@ -17,9 +17,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from drivers.can_decoder import CanDecoder
-from drivers.can_encoder import PressureEncoder
-from drivers.serial_codec import Decoder, Encoder
+from frictionwatch.drivers.can.decoder import CanDecoder
+from frictionwatch.drivers.can.encoder import PressureEncoder
+from frictionwatch.drivers.serial.codec import Decoder, Encoder
 
 RPM = 1500.0
 EDGES_PER_REV = 158  # 160-2 wheel

@@ -26,16 +26,16 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap.records import Schema
 
-from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
-from drivers import mcap_schema as ms
-from drivers.mcap_log import DEFAULT_CHUNK_BYTES, Codec, LogReader, LogWriter, ProtobufCodec
-from drivers.mcap_schema import PressureCounts
+from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
+from frictionwatch.drivers.logs import mcap_schema as ms
+from frictionwatch.drivers.logs.mcap_log import DEFAULT_CHUNK_BYTES, Codec, LogReader, LogWriter, ProtobufCodec
+from frictionwatch.drivers.logs.mcap_schema import PressureCounts
 
 TICK_HZ = 10e6
 TARGET_X_REAL_TIME = 50  # issue 5: driver decode >= 50x the genset-v20 data rate on one core
 INFO = AcquisitionInfo(TICK_HZ, 160, 2, -30.0, 5.0, tuple(range(1, 21)))
 FIRING_DEG = [0, 36, 216, 252, 72, 108, 288, 324, 144, 180, 504, 540, 648, 684, 432, 468, 576, 612, 360, 396]
-ENGINE_TOML = (Path(__file__).resolve().parents[1] / "core" / "engines" / "genset-v20.toml").read_text()
+ENGINE_TOML = (Path(__file__).resolve().parents[1] / "core" / "model" / "engines" / "genset-v20.toml").read_text()
 
 
 def genset_stream(seconds: float = 10.0, seed: int = 0, rpm: float = 1500.0, frames: bool = False

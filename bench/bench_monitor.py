@@ -6,7 +6,7 @@ For deutz-1cyl (3000 rpm), k9k-4cyl (4000 rpm) and genset-v20 (1500 rpm), all at
 makes ``CYCLES`` cycles once (not timed); then, on one core (BLAS/numba threads pinned to 1):
 
 - assemble: ``CycleAssembler.feed`` calls per cycle (records -> Cycle) and the emitting call alone (latency);
-- speed: ``core.speed.cycle_speed`` + ``ToothSpacingLearner.update`` (the display/analysis speed; the monitor fits
+- speed: ``core.monitor.speed.cycle_speed`` + ``ToothSpacingLearner.update`` (the display/analysis speed; the monitor fits
   the teeth itself, so this is not on its path: timed in a pass of its own over the same cycles);
 - monitor: ``process_cycle``, split into its stages by timing the functions it calls (wrapped for one extra pass,
   nothing in core/ edited); ``other`` is whitening, noise model, sharing and bookkeeping;
@@ -43,13 +43,13 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-import core.monitor  # noqa: E402
+import frictionwatch.core.monitor.monitor  # noqa: E402
 from bench.common import assembler_for, summary_ms, timed_assembly  # noqa: E402
-from core.engine import load_engine  # noqa: E402
-from core.monitor import CycleRejected, initial_state, process_cycle  # noqa: E402
-from core.simulate import simulate  # noqa: E402
-from core.speed import ToothSpacingLearner, cycle_speed, engine_orders  # noqa: E402
-from service.pipeline import ResultHistory  # noqa: E402
+from frictionwatch.core.model.engine import load_engine  # noqa: E402
+from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle  # noqa: E402
+from frictionwatch.core.plant.simulate import simulate  # noqa: E402
+from frictionwatch.core.monitor.speed import ToothSpacingLearner, cycle_speed, engine_orders  # noqa: E402
+from frictionwatch.service.pipeline import ResultHistory  # noqa: E402
 
 POINTS = (("deutz-1cyl", 3000.0, 1.0), ("k9k-4cyl", 4000.0, 1.0), ("genset-v20", 1500.0, 1.0))
 CYCLES = 120
@@ -59,7 +59,7 @@ TARGET_RTF = 100.0
 TARGET_SPEEDUP = 30.0
 SEED = 1
 
-# process_cycle's stages are the functions and methods it calls from core/ (found in core.monitor's namespace, so the
+# process_cycle's stages are the functions and methods it calls from core/ (found in core.monitor.monitor's namespace, so the
 # split follows the monitor as it changes). Each is wrapped for one extra pass: a call made directly from
 # process_cycle is a stage; a wrapped call inside a stage is listed under it ("of which"). 'other' is the inline numpy
 # of process_cycle itself (whitening, noise model, sharing bookkeeping).
@@ -78,15 +78,15 @@ def _monitor_pass(spec, cycles):
 
 
 def _stage_targets() -> list[tuple[object, str, str]]:
-    """(owner, attribute, label) of every core/ function in core.monitor's namespace and every plain method of the
+    """(owner, attribute, label) of every core/ function in core.monitor.monitor's namespace and every plain method of the
     core/ classes it imports."""
     out = []
-    for name, obj in vars(core.monitor).items():
+    for name, obj in vars(core.monitor.monitor).items():
         mod = getattr(obj, "__module__", "") or ""
         if not mod.startswith("core.") or name in ENTRY_POINTS:
             continue
         if isinstance(obj, types.FunctionType):
-            out.append((core.monitor, name, name))
+            out.append((core.monitor.monitor, name, name))
         elif isinstance(obj, type):
             for attr, raw in vars(obj).items():
                 if isinstance(raw, types.FunctionType) and not attr.startswith("__"):
@@ -156,10 +156,10 @@ def profile_top(spec, cycles, n_top: int = 10) -> list[dict]:
 _COLD = """
 import json, pickle, sys, time
 t0 = time.perf_counter()
-from core.engine import load_engine
-from core.monitor import initial_state, process_cycle
-from core.speed import cycle_speed
-from drivers.cycles import CycleAssembler
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.monitor.monitor import initial_state, process_cycle
+from frictionwatch.core.monitor.speed import cycle_speed
+from frictionwatch.drivers.assembly.cycles import CycleAssembler
 t_import = time.perf_counter() - t0
 runs = pickle.load(open(sys.argv[1], 'rb'))
 def one(name, info, records):

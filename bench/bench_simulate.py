@@ -18,7 +18,7 @@ import time
 
 CYCLES_PER_S = 1500 / 120.0  # 4-stroke: 12.5 cycles per second at 1500 rpm
 
-_COLD = ("import time; t = time.perf_counter(); from core.engine import load_engine; from core.simulate import simulate;"
+_COLD = ("import time; t = time.perf_counter(); from core.model.engine import load_engine; from core.plant.simulate import simulate;"
          " simulate(load_engine('deutz-1cyl'), 2000, 0.5, 1, 0); print(time.perf_counter() - t)")
 
 
@@ -31,7 +31,7 @@ def _cold_compile_s() -> float:
 
 
 def _timed(spec, cycles: int) -> tuple[float, dict]:
-    from core.simulate import simulate
+    from frictionwatch.core.plant.simulate import simulate
 
     t = time.perf_counter()
     r = simulate(spec, 1500.0, 1.0, cycles, 0)
@@ -39,8 +39,8 @@ def _timed(spec, cycles: int) -> tuple[float, dict]:
 
 
 def run() -> dict:
-    from core.engine import load_engine
-    from core.simulate import SETTLE_A_CYCLES, SETTLE_B_CYCLES, simulate
+    from frictionwatch.core.model.engine import load_engine
+    from frictionwatch.core.plant.simulate import SETTLE_A_CYCLES, SETTLE_B_CYCLES, simulate
 
     compile_s = _cold_compile_s()
     spec = load_engine("genset-v20")

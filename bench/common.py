@@ -7,10 +7,10 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from core.engine import EngineSpec
-from core.types import AcquisitionInfo, Cycle, PressureFrame, StreamRecord
-from drivers.cycles import CycleAssembler
-from drivers.pressure_ring import frame_blocks
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.types import AcquisitionInfo, Cycle, PressureFrame, StreamRecord
+from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.drivers.assembly.pressure_ring import frame_blocks
 
 
 def summary_ms(values_ms: Iterable[float]) -> dict:

@@ -2,20 +2,20 @@
 
 Same method, same inputs, plain tools (paper 000 Fig. 7a; physics.md §10-11):
 
-- measured flywheel speed (bench/scipy_measure.py): the monitor's own tooth fit (core.flywheel.fit_flywheel, drift
+- measured flywheel speed (bench/scipy_measure.py): the monitor's own tooth fit (core.monitor.flywheel.fit_flywheel, drift
   fitted apart) mapped onto the cycle's crank-angle grid, so both paths see the same measurement;
 - model: the torsional chain of physics.md §11 integrated in time with ``scipy.integrate.solve_ivp``, a numpy
   right-hand side vectorised over nodes and cylinders: exact J(theta) per throw, gas torque from the measured
   pressure at the flywheel angle, the six Rezeka-Henein terms at each throw's own angle and speed, the shaft and
-  ground matrices of core.dynamics.shaft_model (the monitor's chain). It starts at constant speed (all nodes at the
+  ground matrices of core.model.dynamics.shaft_model (the monitor's chain). It starts at constant speed (all nodes at the
   measured mean speed, static twist) and runs cycle after cycle until the flywheel speed repeats. The load takes up
   the mean torque imbalance, and a free shaft line (dyno) is re-tuned each cycle, so the mean speed is the measured
   one (the monitor takes the mean from the measurement and leaves the mean balance to its Eq. 7 row);
 - identification: ``scipy.optimize.least_squares`` (trf, bounds theta >= 0, 2-point finite-difference Jacobian) over
-  the grouped scales theta of core.identify.parameter_layout; residual = whitened harmonics (orders <= the monitor's
+  the grouped scales theta of core.monitor.identify.parameter_layout; residual = whitened harmonics (orders <= the monitor's
   limit) of measured minus modelled flywheel speed on the grid, the in-band tooth-error nuisances of the monitor
   (linear, so eliminated in closed form), the mean-balance row (paper 000 Eq. 7) and the monitor's priors (weak
-  theta ~ 1, siblings, Eq. 6 sharing; core.priors, core.sharing);
+  theta ~ 1, siblings, Eq. 6 sharing; core.monitor.priors, core.monitor.sharing);
 - outer loop as paper 000 Fig. 7a: share the mean loss (with the model's damper/coupling dissipation), identify,
   re-simulate until periodic, until the shares and the modelled speed stop moving.
 
@@ -35,15 +35,15 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import least_squares
 
 from bench.scipy_measure import MeasuredCycle, angle_harmonics, on_angle_grid
-from core.dynamics import shaft_model
-from core.engine import EngineSpec
-from core.identify import ParameterLayout, parameter_layout
-from core.indicated import peak_pressure
-from core.priors import build_priors
-from core.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
+from frictionwatch.core.model.dynamics import shaft_model
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.monitor.identify import ParameterLayout, parameter_layout
+from frictionwatch.core.model.indicated import peak_pressure
+from frictionwatch.core.monitor.priors import build_priors
+from frictionwatch.core.monitor.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
 
 FOUR_PI = 4.0 * np.pi
-P_CC = 1.0e5  # crankcase pressure [Pa], as core.excitation
+P_CC = 1.0e5  # crankcase pressure [Pa], as core.monitor.excitation
 
 
 # ---- model pieces in plain numpy (physics.md §1, §7) -------------------------------------------------------------
@@ -176,7 +176,7 @@ def periodic_solution(ode: ChainODE, coef: np.ndarray, y0: np.ndarray | None = N
 
     y0 None: every node at the measured mean speed, twisted statically under the constant-speed mean torques.
     load0: mean load torque of the model [N m]; None: the one that balances the constant-speed mean torques. The
-    load node takes up the mean imbalance, as in the monitor (core.dynamics.static_twist), so the mean speed is the
+    load node takes up the mean imbalance, as in the monitor (core.model.dynamics.static_twist), so the mean speed is the
     measured one and the slow load/grid mode is not set ringing; a free shaft line (dyno) also gets a governor that
     re-tunes this load each cycle."""
     n, om, period = ode.n, ode.meas.omega, ode.meas.period
@@ -268,10 +268,10 @@ def identify_cycle(spec: EngineSpec, meas: MeasuredCycle, layout: ParameterLayou
                    diff_step: float = 0.05, ls_tol: float = 1e-3, tooth_error_deg: float = 0.05,
                    eval_cycles: int = 2, warm: tuple | None = None) -> BaselineResult:
     """Identify the grouped friction scales of one cycle with solve_ivp + least_squares, iterating as paper 000
-    Fig. 7a (priors and sharing as core.monitor.MonitorConfig's defaults).
+    Fig. 7a (priors and sharing as core.monitor.monitor.MonitorConfig's defaults).
 
     sigma : (M,) noise of each speed harmonic [rad/s per real component]; default: the tooth-fit floor
-        w_m sqrt(2/edges) * residual rms (core.monitor's floor)
+        w_m sqrt(2/edges) * residual rms (core.monitor.monitor's floor)
     sigma_balance : 1-sigma of the mean balance [N m]; default 0.2 % of the indicated torque
     method, rtol : solve_ivp integrator and relative tolerance (absolute: 1e-10 rad, 1e-8 Omega)
     diff_step : relative finite-difference step of the Jacobian (rtol 1e-6 makes sqrt(eps) steps difference solver
@@ -282,7 +282,7 @@ def identify_cycle(spec: EngineSpec, meas: MeasuredCycle, layout: ParameterLayou
         fits again from there until the shares move by less than ``outer_tol`` of the balance and the periodic
         speed harmonics at the fit differ from the fit's by less than 0.1 sigma
     ls_tol : ftol = xtol = gtol of least_squares: the cost carries ~1e-3 of solver noise (rtol 1e-6) and one
-        cycle does not fix theta better than a few % (core.monitor's per-cycle sigmas), so tighter only adds
+        cycle does not fix theta better than a few % (core.monitor.monitor's per-cycle sigmas), so tighter only adds
         Jacobians
     tooth_error_deg : rms per-tooth angle error behind the prior of the in-band tooth-error nuisances (as the
         monitor). They enter the speed linearly, so they are eliminated in closed form inside the residual

@@ -9,12 +9,12 @@ import numpy as np
 
 from bench.scipy_baseline import ChainODE, identify_cycle, periodic_solution
 from bench.scipy_measure import measure
-from core.engine import EngineSpec
+from frictionwatch.core.model.engine import EngineSpec
 
 
 def monitor_noise(state, result, meas) -> tuple[np.ndarray | None, float | None]:
     """The monitor's noise model at this cycle (None where its state lacks it): sigma = sqrt(max(residual
-    variance, tooth-fit floor)) and the balance sigma, as core.monitor whitens."""
+    variance, tooth-fit floor)) and the balance sigma, as core.monitor.monitor whitens."""
     try:
         var = np.asarray(state.stats.var, dtype=np.float64)
         bal_var = float(state.stats.balance_var)

@@ -7,10 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core.engine import EngineSpec
-from core.flywheel import fit_flywheel, harmonic_series
-from core.identify import tooth_patterns
-from core.types import Cycle
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.monitor.flywheel import fit_flywheel, harmonic_series
+from frictionwatch.core.monitor.identify import tooth_patterns
+from frictionwatch.core.types import Cycle
 
 FOUR_PI = 4.0 * np.pi
 
@@ -20,7 +20,7 @@ class MeasuredCycle:
     """What the baseline takes from one assembled cycle: mean speed, the flywheel speed on the crank-angle grid
     (band-limited to ``n_harmonics``, drift removed), pressure and load, and how an in-band tooth-spacing error
     moves the measured speed harmonics (``tooth_columns`` (M, 2 n_orders) complex, per rad of each cos/sin pattern,
-    core.identify.tooth_patterns: fixed in angle, such errors look like engine response at integer orders)."""
+    core.monitor.identify.tooth_patterns: fixed in angle, such errors look like engine response at integer orders)."""
 
     omega: float  # rad/s
     period: float  # s
@@ -37,7 +37,7 @@ class MeasuredCycle:
 
 def measure(spec: EngineSpec, cycle: Cycle, n_harmonics: int, correction: np.ndarray | None = None,
             tooth_orders: int | None = None) -> MeasuredCycle:
-    """Flywheel speed of one cycle from its tooth edges (core.flywheel.fit_flywheel with the drift fitted apart).
+    """Flywheel speed of one cycle from its tooth edges (core.monitor.flywheel.fit_flywheel with the drift fitted apart).
 
     correction : (wheel_teeth,) learned tooth-angle corrections [rad] (e.g. the monitor's), or None
     tooth_orders : integer orders of the in-band tooth-error patterns (default n_harmonics // 2, as the monitor)"""
@@ -71,5 +71,5 @@ def on_angle_grid(grid: np.ndarray, theta: np.ndarray, values: np.ndarray) -> np
 
 
 def angle_harmonics(x: np.ndarray, n_harmonics: int) -> np.ndarray:
-    """Harmonics 1..M (order m/2) of a signal on the uniform crank-angle grid (core.dynamics convention)."""
+    """Harmonics 1..M (order m/2) of a signal on the uniform crank-angle grid (core.model.dynamics convention)."""
     return np.fft.rfft(x)[1 : n_harmonics + 1] * (2.0 / x.shape[0])

@@ -11,16 +11,16 @@ from abc import ABC, abstractmethod
 from collections import Counter
 from urllib.parse import parse_qsl, urlsplit
 
-from core.types import AcquisitionInfo, StreamRecord
+from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 
 log = logging.getLogger(__name__)
 
 # scheme -> (module, class); imported only when used
 SOURCES: dict[str, tuple[str, str]] = {
-    "mcap": ("drivers.mcap_log", "McapSource"),
-    "serial": ("drivers.serial_teeth", "SerialSource"),
-    "can": ("drivers.can_pressure", "CanSource"),
-    "mdf4": ("drivers.mdf4_replay", "Mdf4Source"),
+    "mcap": ("frictionwatch.drivers.logs.mcap_log", "McapSource"),
+    "serial": ("frictionwatch.drivers.serial.teeth", "SerialSource"),
+    "can": ("frictionwatch.drivers.can.pressure", "CanSource"),
+    "mdf4": ("frictionwatch.drivers.logs.mdf4", "Mdf4Source"),
 }
 
 

@@ -11,13 +11,13 @@ import logging
 import os
 import sys
 
-from core.engine import SpecError
-from drivers.errors import DriverError
+from frictionwatch.core.model.engine import SpecError
+from frictionwatch.drivers.errors import DriverError
 
 COMMANDS = {
-    "simulate": "service.cmd_simulate",
-    "analyze": "service.cmd_analyze",
-    "import-daq": "service.cmd_import_daq",
+    "simulate": "frictionwatch.service.cmd_simulate",
+    "analyze": "frictionwatch.service.cmd_analyze",
+    "import-daq": "frictionwatch.service.cmd_import_daq",
 }
 
 

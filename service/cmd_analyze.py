@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from service.pipeline import LogAnalysis, analyze_log
-from service.progress import progress_bar
+from frictionwatch.service.pipeline import LogAnalysis, analyze_log
+from frictionwatch.service.progress import progress_bar
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     if args.csv:
         write_csv(analysis, args.csv)
     if args.plot:
-        from service.plots import write_plots
+        from frictionwatch.service.plots import write_plots
 
         write_plots(analysis, args.plot)
     if args.json:

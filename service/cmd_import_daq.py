@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from core.engine import load_engine
-from drivers.daq_raw import daq_to_records
-from drivers.mcap_log import LogWriter
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.drivers.daq.raw import daq_to_records
+from frictionwatch.drivers.logs.mcap_log import LogWriter
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

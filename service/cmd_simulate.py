@@ -6,11 +6,11 @@ import argparse
 import json
 from pathlib import Path
 
-from core.effects import parse_effect
-from core.engine import load_engine
-from core.simulate import simulate
-from drivers.mcap_log import LogWriter
-from service.progress import progress_bar
+from frictionwatch.core.model.effects import parse_effect
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.drivers.logs.mcap_log import LogWriter
+from frictionwatch.service.progress import progress_bar
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

@@ -46,13 +46,13 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Self
 
-from core.engine import EngineSpec
-from core.results import CycleResult
-from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
-from drivers.errors import EndOfStream
-from drivers.recorder import Recorder
-from drivers.source import Source
-from service.pipeline import EnginePipeline, LogAnalysis, ResultHistory
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
+from frictionwatch.drivers.errors import EndOfStream
+from frictionwatch.drivers.logs.recorder import Recorder
+from frictionwatch.drivers.source import Source
+from frictionwatch.service.pipeline import EnginePipeline, LogAnalysis, ResultHistory
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +61,7 @@ _END = object()
 
 
 def record_key(record: StreamRecord) -> float:
-    """Tick of the record's last element (when it was complete): drivers.mcap_schema.last_tick as a float."""
+    """Tick of the record's last element (when it was complete): drivers.logs.mcap_schema.last_tick as a float."""
     if isinstance(record, ToothBatch | CamBatch):
         return float(record.ticks[-1])
     if isinstance(record, PressureBlock):

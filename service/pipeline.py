@@ -11,11 +11,11 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from core.engine import EngineSpec, load_engine, spec_from_toml_text
-from core.monitor import CycleRejected, initial_state, process_cycle
-from core.results import CycleResult
-from core.types import AcquisitionInfo, Cycle, StreamRecord
-from drivers.cycles import CycleAssembler
+from frictionwatch.core.model.engine import EngineSpec, load_engine, spec_from_toml_text
+from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
+from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.types import AcquisitionInfo, Cycle, StreamRecord
+from frictionwatch.drivers.assembly.cycles import CycleAssembler
 
 log = logging.getLogger(__name__)
 
@@ -149,7 +149,7 @@ def analyze_records(
 
 def analyze_log(path: Path, engine: str | None = None,
                 on_result: Callable[[CycleResult], None] | None = None) -> LogAnalysis:
-    from drivers.mcap_log import LogReader
+    from frictionwatch.drivers.logs.mcap_log import LogReader
 
     with LogReader(path) as reader:  # closes the file (and its mmap) even when the analysis raises
         spec = resolve_spec(reader.engine_toml, engine, Path(path).name)

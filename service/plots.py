@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from service.pipeline import LogAnalysis  # noqa: E402
+from frictionwatch.service.pipeline import LogAnalysis  # noqa: E402
 
 
 def write_plots(analysis: LogAnalysis, out_dir: Path) -> list[Path]:

@@ -1,16 +1,16 @@
 """Step-by-step per-cycle excitation that the monitor no longer runs, kept as test references.
 
-Production (core.balance_pass_kernel._balance_pass behind core.harmonic_balance) does one harmonic-balance pass in a
+Production (core.monitor.balance_pass_kernel._balance_pass behind core.monitor.harmonic_balance) does one harmonic-balance pass in a
 single numba kernel. These are the steps it replaced, moved here unchanged from core/excitation.py,
 core/excitation_kernels.py and core/harmonic_balance_kernels.py (same code, so the same numbers):
 
 - ``grid_motion`` (with the kernels ``_grid_spectrum`` and ``_motion_from_series``): flywheel and throw motion on the
   uniform time grid with one inverse FFT.
-- ``excitation_rows`` / ``cycle_excitation``: that motion, then core.harmonic_balance_kernels._cycle_rows and one
+- ``excitation_rows`` / ``cycle_excitation``: that motion, then core.monitor.harmonic_balance_kernels._cycle_rows and one
   numpy rfft of [G; known node torques] (tests/core/test_balance_pass_kernel.py, test_harmonic_balance_fast.py).
 - ``_excitation_rows`` (with ``_sin_cos_near``): the earlier fused excitation kernel, itself tested against
-  core.torques / core.friction (tests/core/test_excitation_kernels.py); ``periodic_interp``: np.interp-style
-  pressure at the flywheel angle. Layout of ``consts``: core.excitation_kernels module docstring.
+  core.model.torques / core.model.friction (tests/core/test_excitation_kernels.py); ``periodic_interp``: np.interp-style
+  pressure at the flywheel angle. Layout of ``consts``: core.monitor.excitation_kernels module docstring.
 """
 
 from __future__ import annotations
@@ -18,12 +18,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from core.engine import EngineSpec
-from core.excitation import Excitation, ExcitationPlan, excitation_plan
-from core.excitation_kernels import N_CONSTS, OMEGA_SLOT, _interp_rows
-from core.flywheel import FlywheelMotion
-from core.friction import N_TERMS
-from core.harmonic_balance_kernels import _cycle_rows
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.monitor.excitation import Excitation, ExcitationPlan, excitation_plan
+from frictionwatch.core.monitor.excitation_kernels import N_CONSTS, OMEGA_SLOT, _interp_rows
+from frictionwatch.core.monitor.flywheel import FlywheelMotion
+from frictionwatch.core.model.friction import N_TERMS
+from frictionwatch.core.monitor.harmonic_balance_kernels import _cycle_rows
 
 FOUR_PI = 4.0 * np.pi
 
@@ -128,7 +128,7 @@ def _excitation_rows(motion, theta_fly, p_abs, cyl_node, consts, rows, means):
     var_inertia = consts[21] != 0.0
     omega_mean = consts[22]
     phases = consts[N_CONSTS:]
-    # constant factors of the basis terms, grouped as in core.friction._friction_basis
+    # constant factors of the basis terms, grouped as in core.model.friction._friction_basis
     k0 = np.pi * d * (no + 0.4 * nc)
     k1 = np.pi * d * nc
     k5 = 0.25 * np.pi * d * d * rb
@@ -185,20 +185,20 @@ def _excitation_rows(motion, theta_fly, p_abs, cyl_node, consts, rows, means):
                 # sin/cos of the local angle by the angle-difference rule
                 st = s_q[i] * c_ph - c_q[i] * s_ph
                 ct = c_q[i] * c_ph + s_q[i] * s_ph
-                # slider-crank kinematics (core.kinematics._kinematics)
+                # slider-crank kinematics (core.model.kinematics._kinematics)
                 sb = (r * st - e) / rod
                 cb = np.sqrt(1.0 - sb * sb)
                 tb = sb / cb
                 dx = r * st + r * ct * tb
                 ddx = r * ct - r * st * tb + r * r * ct * ct / (rod * cb * cb * cb)
-                # gas and reciprocating torques (core.torques)
+                # gas and reciprocating torques (core.model.torques)
                 pg = p_abs[k, i] - p_cc
                 gas = pg * area * dx
                 rows[g_row, i] = gas
                 sum_gas[i] += gas
                 w_node = motion[1, q, i]
                 sum_recip[i] += m_rec * dx * (ddx * w_node * w_node + dx * motion[2, q, i])
-                # friction basis (core.friction._friction_basis)
+                # friction basis (core.model.friction._friction_basis)
                 p = max(0.0, pg)
                 lever = abs(dx)
                 w = w_c[i]
@@ -284,7 +284,7 @@ def excitation_rows(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, fl
     """``cycle_excitation`` and the rfft of the rows [G (n_mix); known node torques (N)] (n_mix + N, n_time//2 + 1).
 
     mix : (mix_row (z, 6), mix_weight (z, 6), n_mix): which weighted basis terms are summed into the G rows
-    (core.harmonic_balance_kernels._mix_plan); None for no G rows."""
+    (core.monitor.harmonic_balance_kernels._mix_plan); None for no G rows."""
     z = spec.n_cyl
     n_nodes = spec.n_nodes
     m = fly.n_harmonics
@@ -365,5 +365,5 @@ def periodic_interp(x: np.ndarray, grid: np.ndarray, values: np.ndarray) -> np.n
     u = np.mod(np.asarray(x, dtype=np.float64) - g0, FOUR_PI)
     v = np.ascontiguousarray(np.atleast_2d(values), dtype=np.float64)
     out = np.empty((v.shape[0], u.shape[0]))
-    _interp_rows(u, xp, v, out)  # np.interp per row, one bracket search per query (core.excitation_kernels)
+    _interp_rows(u, xp, v, out)  # np.interp per row, one bracket search per query (core.monitor.excitation_kernels)
     return out

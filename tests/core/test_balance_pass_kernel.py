@@ -1,4 +1,4 @@
-"""The one-kernel harmonic-balance pass (core.balance_pass_kernel._balance_pass behind core.harmonic_balance.
+"""The one-kernel harmonic-balance pass (core.monitor.balance_pass_kernel._balance_pass behind core.monitor.harmonic_balance.
 harmonic_balance) against the step-by-step code it replaced (round 1 of the speed work, kept here as
 ``harmonic_balance_steps``: excitation_rows of tests/core/excitation_reference.py with numpy's FFTs, then
 _mix_plan / _balance_rows).
@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from core.dynamics import dissipated_power
-from core.flywheel import harmonic_series
-from core.friction import N_TERMS
-from core.harmonic_balance import harmonic_balance
-from core.harmonic_balance_kernels import _balance_rows, _mix_plan
+from frictionwatch.core.model.dynamics import dissipated_power
+from frictionwatch.core.monitor.flywheel import harmonic_series
+from frictionwatch.core.model.friction import N_TERMS
+from frictionwatch.core.monitor.harmonic_balance import harmonic_balance
+from frictionwatch.core.monitor.harmonic_balance_kernels import _balance_rows, _mix_plan
 from tests.core.excitation_reference import excitation_rows
 from tests.core.test_harmonic_balance_fast import cycle_inputs
 
@@ -25,7 +25,7 @@ RTOL = 1e-13
 
 def harmonic_balance_steps(spec, layout, theta, n_nuisance, relative_motion, static, grid, pressure, fly, theta_start,
                            op, passes, time_samples, variable_inertia):
-    """core.harmonic_balance.harmonic_balance as it was before the fused kernel (commit 2dc5ffe)."""
+    """frictionwatch.core.monitor.harmonic_balance.harmonic_balance as it was before the fused kernel (commit 2dc5ffe)."""
     rel = relative_motion
     n_nodes = spec.n_nodes
     m = fly.n_harmonics

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from core import coastdown as cd
-from core.engine import load_engine
-from core.kinematics import cylinder_volume, kinematics
+from frictionwatch.core.monitor import coastdown as cd
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.kinematics import cylinder_volume, kinematics
 
 ENG = load_engine("tue-4gb10")
 PAR = ENG.kinematics_params()

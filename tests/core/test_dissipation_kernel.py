@@ -1,4 +1,4 @@
-"""core.dynamics.dissipated_power (numba kernel) against its plain-numpy reference, the pre-kernel implementation
+"""frictionwatch.core.model.dynamics.dissipated_power (numba kernel) against its plain-numpy reference, the pre-kernel implementation
 copied here, on the presets' real chains (genset-v20: 14 nodes, 13 relative dampers; k9k-4cyl; deutz-1cyl rigid)
 with seeded speed harmonics. np.abs of a complex number is not always libm's hypot, so equal to ~1e-15 relative."""
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from core.dynamics import dissipated_power, shaft_model
-from core.engine import load_engine
+from frictionwatch.core.model.dynamics import dissipated_power, shaft_model
+from frictionwatch.core.model.engine import load_engine
 
 
 def dissipated_power_reference(shaft, speed):

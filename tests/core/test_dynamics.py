@@ -12,7 +12,7 @@ import pytest
 import scipy.linalg
 from numpy.testing import assert_allclose
 
-from core.dynamics import (
+from frictionwatch.core.model.dynamics import (
     dissipated_power,
     first_flexible_mode_hz,
     mean_reciprocating_inertia,
@@ -22,11 +22,11 @@ from core.dynamics import (
     rigid_friction_torque,
     shaft_model,
 )
-from core.engine import load_engine
-from core.flywheel import fit_flywheel, harmonic_series, harmonics_of
-from core.friction import friction_basis
-from core.kinematics import kinematics, variable_inertia
-from core.torques import gas_torque
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.monitor.flywheel import fit_flywheel, harmonic_series, harmonics_of
+from frictionwatch.core.model.friction import friction_basis
+from frictionwatch.core.model.kinematics import kinematics, variable_inertia
+from frictionwatch.core.model.torques import gas_torque
 
 
 def periodic_time_response(shaft, omega_mean, torque_fn, n=4096):

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from core.effects import EFFECTS, parse_effect, resolve_effects
-from core.engine import load_engine
-from core.simulate import simulate
-from core.thermo import cycle_params, cylinder_model, cylinder_pressure, imep
-from core.types import PressureFrame
+from frictionwatch.core.model.effects import EFFECTS, parse_effect, resolve_effects
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.core.model.thermo import cycle_params, cylinder_model, cylinder_pressure, imep
+from frictionwatch.core.types import PressureFrame
 
 # ---- registry and parsing -----------------------------------------------------------------------------------------
 
@@ -154,7 +154,7 @@ def test_pressure_saturation_clips_at_range():
     low = r.diagnostics["pressure_true_pa"][:, 0] - 2e5 < 0.5 * lsb  # gas exchange at 1.6-1.8 bar reads 0
     assert low.any() and y.min() >= 0.0 and ((y == 0.0) == low).all()
     assert np.all(np.abs(y[~low] - (r.diagnostics["pressure_true_pa"][~low, 0] - 2e5)) <= 0.5 * lsb + 1e-6)
-    from core.sensors import pressure_adc
+    from frictionwatch.core.plant.sensors import pressure_adc
     top = pressure_adc(np.array([1e5, 30e6]), SPEC.sensors, 0.0, np.random.default_rng(0))
     assert top[1] == SPEC.sensors.pressure_range_pa
 

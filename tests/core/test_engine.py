@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from core.engine import SpecError, available_presets, load_engine, spec_from_toml_text
+from frictionwatch.core.model.engine import SpecError, available_presets, load_engine, spec_from_toml_text
 
 
 def test_presets_and_displacements():

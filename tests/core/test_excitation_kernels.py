@@ -1,7 +1,7 @@
 """The fused excitation kernel and the row interpolation against plain numpy references.
 
-References: gas and reciprocating torques from core.torques (physics.md §2, §3), the six Rezeka-Henein basis terms
-from core.friction (paper 000 Eq. 4), the node sums of physics.md §12.3 item 2 written out with numpy, work means as
+References: gas and reciprocating torques from core.model.torques (physics.md §2, §3), the six Rezeka-Henein basis terms
+from frictionwatch.core.model.friction (paper 000 Eq. 4), the node sums of physics.md §12.3 item 2 written out with numpy, work means as
 np.mean(T * omega_q / Omega); np.interp for the interpolation. Tolerance: the kernel uses the angle-sum rule for the
 local sin/cos and vectorised sums, so it agrees to rounding (rtol 1e-12 of each row's scale).
 """
@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from core.engine import load_engine
-from core.excitation import CRANKCASE_PA, excitation_plan
-from core.excitation_kernels import OMEGA_SLOT, interp_rows_periodic
-from core.friction import friction_basis
-from core.torques import gas_torque, reciprocating_torque
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.monitor.excitation import CRANKCASE_PA, excitation_plan
+from frictionwatch.core.monitor.excitation_kernels import OMEGA_SLOT, interp_rows_periodic
+from frictionwatch.core.model.friction import friction_basis
+from frictionwatch.core.model.torques import gas_torque, reciprocating_torque
 from tests.core.excitation_reference import _excitation_rows
 
 

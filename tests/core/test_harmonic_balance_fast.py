@@ -1,7 +1,7 @@
-"""The fused harmonic-balance pass (core.harmonic_balance, core.harmonic_balance_kernels) against the implementation
+"""The fused harmonic-balance pass (core.monitor.harmonic_balance, core.monitor.harmonic_balance_kernels) against the implementation
 it replaced, kept here as the plain reference: numpy grid motion (one irfft), np.interp-style pressure, the fused
-excitation kernel _excitation_rows of tests/core/excitation_reference.py (itself tested against core.torques /
-core.friction in test_excitation_kernels.py), one rfft of every row, np.add.at / einsum for the chain,
+excitation kernel _excitation_rows of tests/core/excitation_reference.py (itself tested against core.model.torques /
+core.model.friction in test_excitation_kernels.py), one rfft of every row, np.add.at / einsum for the chain,
 identify.friction_design and ParameterLayout.cylinder_rows for the rows.
 
 Tolerance: the new code forms the parameter-weighted friction sums in the time domain before the FFT (linearity),
@@ -13,15 +13,15 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from core.dynamics import static_twist
-from core.engine import load_engine
-from core.excitation import Excitation, excitation_plan
-from core.excitation_kernels import OMEGA_SLOT
-from core.flywheel import FlywheelMotion, harmonics_of
-from core.friction import N_TERMS
-from core.harmonic_balance import harmonic_balance, operating_point
-from core.identify import friction_design
-from core.monitor import initial_state
+from frictionwatch.core.model.dynamics import static_twist
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.monitor.excitation import Excitation, excitation_plan
+from frictionwatch.core.monitor.excitation_kernels import OMEGA_SLOT
+from frictionwatch.core.monitor.flywheel import FlywheelMotion, harmonics_of
+from frictionwatch.core.model.friction import N_TERMS
+from frictionwatch.core.monitor.harmonic_balance import harmonic_balance, operating_point
+from frictionwatch.core.monitor.identify import friction_design
+from frictionwatch.core.monitor.monitor import initial_state
 from tests.core.excitation_reference import _excitation_rows, cycle_excitation, grid_motion, periodic_interp
 
 RTOL = 1e-10

@@ -7,12 +7,12 @@ import pytest
 import scipy.optimize
 from numpy.testing import assert_allclose
 
-from core.accumulate import Accumulator, Prior, ResidualStats, solve_posterior
-from core.dynamics import receptance, shaft_model
-from core.engine import load_engine
-from core.friction import friction_basis
-from core.identify import bounded_solve, friction_design, p_omega_fit, parameter_layout
-from core.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
+from frictionwatch.core.monitor.accumulate import Accumulator, Prior, ResidualStats, solve_posterior
+from frictionwatch.core.model.dynamics import receptance, shaft_model
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.friction import friction_basis
+from frictionwatch.core.monitor.identify import bounded_solve, friction_design, p_omega_fit, parameter_layout
+from frictionwatch.core.monitor.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

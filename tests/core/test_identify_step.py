@@ -1,5 +1,5 @@
-"""The fused identification step (core.identify_step: one compiled call from the noise model to both estimates)
-against the separate steps of core.monitor.process_cycle it replaces (copied below as the reference; they also stay
+"""The fused identification step (core.monitor.identify_step: one compiled call from the noise model to both estimates)
+against the separate steps of core.monitor.monitor.process_cycle it replaces (copied below as the reference; they also stay
 in process_cycle as its fallback). Seeded inputs of the real sizes (genset-v20: P = 47 incl. 24 nuisances, M = 24,
 z = 20; k9k-4cyl; deutz-1cyl), built consistent with a positive parameter vector so that both posteriors are
 interior (the kernel path); each fallback forced once; the whole monitor on a short simulated log with and without
@@ -12,17 +12,17 @@ import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
-import core.identify_step as identify_step_module
-import core.monitor as monitor
-from core.accumulate import Accumulator, ResidualStats, posterior_from_normal
-from core.engine import load_engine
-from core.estimate import friction_estimate_leading
-from core.identify import CycleRows
-from core.identify_step import identify_step
-from core.identify_step_kernels import FUSED_BAD_SHAPE, FUSED_OK, FUSED_POSTERIOR
-from core.monitor import MonitorConfig, initial_state, process_cycle
-from core.monitor_glue import glue_plan, noise_model_rows, shares_pair
-from core.posterior_kernels import FALLBACK, NEEDS_BOUND
+import frictionwatch.core.monitor.identify_step as identify_step_module
+import frictionwatch.core.monitor.monitor as monitor
+from frictionwatch.core.monitor.accumulate import Accumulator, ResidualStats, posterior_from_normal
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.monitor.estimate import friction_estimate_leading
+from frictionwatch.core.monitor.identify import CycleRows
+from frictionwatch.core.monitor.identify_step import identify_step
+from frictionwatch.core.monitor.identify_step_kernels import FUSED_BAD_SHAPE, FUSED_OK, FUSED_POSTERIOR
+from frictionwatch.core.monitor.monitor import MonitorConfig, initial_state, process_cycle
+from frictionwatch.core.monitor.monitor_glue import glue_plan, noise_model_rows, shares_pair
+from frictionwatch.core.monitor.posterior_kernels import FALLBACK, NEEDS_BOUND
 
 ENGINES = ("genset-v20", "k9k-4cyl", "deutz-1cyl")
 
@@ -229,8 +229,8 @@ def test_other_harmonic_count_and_bad_inputs_go_the_separate_steps(statuses):
 
 
 def _simulated_log(spec, n):
-    from core.simulate import simulate
-    from drivers.cycles import CycleAssembler
+    from frictionwatch.core.plant.simulate import simulate
+    from frictionwatch.drivers.assembly.cycles import CycleAssembler
 
     sim = simulate(spec, 1400.0, 0.5, n, seed=3)
     asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)

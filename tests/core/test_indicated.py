@@ -3,9 +3,9 @@
 import numpy as np
 from numpy.testing import assert_allclose
 
-from core.engine import load_engine
-from core.indicated import net_imep, peak_pressure
-from core.kinematics import cylinder_volume
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.indicated import net_imep, peak_pressure
+from frictionwatch.core.model.kinematics import cylinder_volume
 
 
 def test_imep_matches_numpy_trapezoid_of_p_dv():

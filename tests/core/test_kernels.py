@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from core.engine import available_presets, load_engine
-from core.friction import friction_basis
-from core.kinematics import kinematics, variable_inertia
-from core.torques import gas_torque, mass_torque, reciprocating_torque
+from frictionwatch.core.model.engine import available_presets, load_engine
+from frictionwatch.core.model.friction import friction_basis
+from frictionwatch.core.model.kinematics import kinematics, variable_inertia
+from frictionwatch.core.model.torques import gas_torque, mass_torque, reciprocating_torque
 
 
 def ref_kinematics(theta, r, rod):

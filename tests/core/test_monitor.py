@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from core.engine import load_engine
-from core.monitor import CycleRejected, MonitorConfig, initial_state, process_cycle
-from core.simulate import simulate
-from drivers.cycles import CycleAssembler
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.monitor.monitor import CycleRejected, MonitorConfig, initial_state, process_cycle
+from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.drivers.assembly.cycles import CycleAssembler
 
 SPEC = load_engine("k9k-4cyl")
 

@@ -1,8 +1,8 @@
 """Accuracy of the per-cycle monitor against the plant simulator's truth (issue 4; design.md §5).
 
-The chain under test is the product's own: core.simulate (time-domain RK4 plant with its default realistic effects:
+The chain under test is the product's own: core.plant.simulate (time-domain RK4 plant with its default realistic effects:
 sensor noise, combustion variability COV 2 %, cylinder-to-cylinder fuel spread, flexible crank, variable inertia,
-tooth-spacing errors 0.03 deg rms) -> drivers.cycles.CycleAssembler -> core.monitor.process_cycle, default config.
+tooth-spacing errors 0.03 deg rms) -> drivers.assembly.cycles.CycleAssembler -> core.monitor.monitor.process_cycle, default config.
 Each log is simulated and monitored once per test session (session-scoped cache).
 
 Targets (design.md §5): total FMEP within 2 %; per-cylinder mean friction within 5 % (maruti-3cyl, k9k-4cyl, 200
@@ -17,11 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from core.engine import EngineSpec, load_engine
-from core.monitor import MonitorConfig, initial_state, process_cycle
-from core.results import CycleResult
-from core.simulate import simulate
-from drivers.cycles import CycleAssembler
+from frictionwatch.core.model.engine import EngineSpec, load_engine
+from frictionwatch.core.monitor.monitor import MonitorConfig, initial_state, process_cycle
+from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.drivers.assembly.cycles import CycleAssembler
 
 pytestmark = pytest.mark.slow
 WARMUP = 50  # cycles before the smoothed estimate is judged (also skipped in the per-cycle NRMSE)

@@ -1,4 +1,4 @@
-"""The glue of core.monitor.process_cycle between the harmonic balance and the posteriors (round 3: one kernel for
+"""The glue of core.monitor.monitor.process_cycle between the harmonic balance and the posteriors (round 3: one kernel for
 the Eq. 6 shares of both estimates, the noise-model inputs formed in the kernel, cheaper frozen constructors)
 against the separate steps it replaces, which stay in the code as the general path. Seeded inputs of the real
 sizes (genset-v20: P = 47 incl. 24 nuisances, M = 24, z = 20) and small ones (1 and 4 cylinders). Tolerance:
@@ -10,16 +10,16 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from core.accumulate import Accumulator, ResidualStats
-from core.engine import load_engine
-from core.frozen_init import fast_constructor
-from core.identify import parameter_layout
-from core.monitor import MonitorState, initial_state
-from core.monitor_glue import freq_times_1j, glue_plan, shares_pair
-from core.monitor_kernels import firing_into, noise_rows, noise_rows_cycle, share_normal_into
-from core.pairwise import pairwise_sum
-from core.results import CycleResult, FrictionEstimate
-from core.sharing import motored_friction_per_cylinder, share_mean_loss
+from frictionwatch.core.monitor.accumulate import Accumulator, ResidualStats
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.monitor.frozen_init import fast_constructor
+from frictionwatch.core.monitor.identify import parameter_layout
+from frictionwatch.core.monitor.monitor import MonitorState, initial_state
+from frictionwatch.core.monitor.monitor_glue import freq_times_1j, glue_plan, shares_pair
+from frictionwatch.core.monitor.monitor_kernels import firing_into, noise_rows, noise_rows_cycle, share_normal_into
+from frictionwatch.core.model.pairwise import pairwise_sum
+from frictionwatch.core.monitor.results import CycleResult, FrictionEstimate
+from frictionwatch.core.monitor.sharing import motored_friction_per_cylinder, share_mean_loss
 
 SIZES = (("genset-v20", 24), ("k9k-4cyl", 16), ("deutz-1cyl", 12))
 
@@ -88,7 +88,7 @@ def test_shares_pair_kernel_is_the_separate_steps(name, m, case):
         assert_allclose(g, r, rtol=1e-12, atol=1e-12 * np.abs(r).max(), err_msg=what)
     if case == "misfire":
         assert not got[3][z // 2] and got[4] == z - 1 or z == 1
-    # the kernel's motored friction is core.sharing's (a motored cylinder's share is it)
+    # the kernel's motored friction is core.monitor.sharing's (a motored cylinder's share is it)
     if case == "misfire" and z > 1:
         pm = pmax[~got[3]].mean()
         assert got[2][z // 2] == motored_friction_per_cylinder(spec, 1512.0, pm)

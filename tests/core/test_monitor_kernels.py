@@ -1,4 +1,4 @@
-"""core.monitor_kernels (and the estimate / sharing / report / pressure-check paths built on them) against their
+"""frictionwatch.core.monitor.monitor_kernels (and the estimate / sharing / report / pressure-check paths built on them) against their
 plain-numpy references: the pre-kernel implementations, copied here. Seeded inputs of the real sizes (genset-v20:
 P = 47 with 24 nuisances, M = 24, z = 20, 512 time samples, 720 grid points) and small ones (1 and 4 cylinders).
 Tolerances: bit-identical where the reference sums with numpy's own pairwise order or not at all; 1e-12 relative
@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from core.accumulate import Posterior, ResidualStats
-from core.engine import load_engine
-from core.estimate import friction_estimate, friction_estimate_leading
-from core.identify import parameter_layout
-from core.monitor_kernels import noise_rows, share_normal_into
-from core.pairwise import pairwise_sum
-from core.report_kernels import report_traces, rows_on_grid, speed_power, speed_residual
-from core.results import FrictionEstimate
-from core.sharing import SharedLoss, firing_mask, share_mean_loss
+from frictionwatch.core.monitor.accumulate import Posterior, ResidualStats
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.monitor.estimate import friction_estimate, friction_estimate_leading
+from frictionwatch.core.monitor.identify import parameter_layout
+from frictionwatch.core.monitor.monitor_kernels import noise_rows, share_normal_into
+from frictionwatch.core.model.pairwise import pairwise_sum
+from frictionwatch.core.monitor.report_kernels import report_traces, rows_on_grid, speed_power, speed_residual
+from frictionwatch.core.monitor.results import FrictionEstimate
+from frictionwatch.core.monitor.sharing import SharedLoss, firing_mask, share_mean_loss
 
 FOUR_PI = 4.0 * np.pi
 SIZES = (("genset-v20", 24, 512), ("k9k-4cyl", 16, 256), ("deutz-1cyl", 12, 128))  # engine, M, n_t
@@ -327,7 +327,7 @@ def test_report_traces_and_residual_match_reference(name, m, n_t):
 
 
 def test_peak_pressure_finite_counts_and_matches_peak_pressure():
-    from core.indicated import _peak_pressure_finite, peak_pressure
+    from frictionwatch.core.model.indicated import _peak_pressure_finite, peak_pressure
 
     rng = np.random.default_rng(5)
     theta = np.arange(720) * (FOUR_PI / 720)
@@ -349,7 +349,7 @@ def test_peak_pressure_finite_counts_and_matches_peak_pressure():
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
 @pytest.mark.parametrize("where", [0, 1, 7, 8, 14399])
 def test_all_finite_sees_one_bad_sample_anywhere(bad, where):
-    from core.indicated import _all_finite
+    from frictionwatch.core.model.indicated import _all_finite
 
     x = np.random.default_rng(where).normal(0.0, 1e300, 14400)  # large finite values stay finite: x * 0 == 0
     x[::97] = -0.0

@@ -1,9 +1,9 @@
-"""core.indicated.peak_pressure (numba kernel) against its plain-numpy reference (the pre-kernel implementation)."""
+"""frictionwatch.core.model.indicated.peak_pressure (numba kernel) against its plain-numpy reference (the pre-kernel implementation)."""
 
 import numpy as np
 import pytest
 
-from core.indicated import peak_pressure
+from frictionwatch.core.model.indicated import peak_pressure
 
 
 def peak_pressure_reference(theta, pressure, phases):

@@ -1,8 +1,8 @@
-"""The posterior kernels (core.posterior_kernels) against the LAPACK/scipy reference they replace.
+"""The posterior kernels (core.monitor.posterior_kernels) against the LAPACK/scipy reference they replace.
 
-References: ``core.accumulate.posterior_from_normal_reference`` and ``core.identify.bounded_solve_nnls`` (the code
+References: ``core.monitor.accumulate.posterior_from_normal_reference`` and ``core.monitor.identify.bounded_solve_nnls`` (the code
 before the kernels, kept verbatim), numpy's cholesky / inv / solve for the helpers. Problems are built like the
-monitor's (core.monitor): whitened rows of a few cycles accumulated with forgetting, a weak prior per parameter plus
+monitor's (core.monitor.monitor): whitened rows of a few cycles accumulated with forgetting, a weak prior per parameter plus
 a few share rows, the nuisances last and free (lower = -inf), the coefficients bounded below by 0, and badly scaled
 columns (raw condition ~1e12, as the monitor's). Sizes: genset-v20 P=47 (24 nuisances), R=49; k9k-4cyl P=29,
 deutz-1cyl P=28 (R=47).
@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from core import posterior_kernels as pk
-from core.accumulate import Accumulator, posterior_from_normal, posterior_from_normal_reference
-from core.identify import bounded_solve, bounded_solve_nnls
+from frictionwatch.core.monitor import posterior_kernels as pk
+from frictionwatch.core.monitor.accumulate import Accumulator, posterior_from_normal, posterior_from_normal_reference
+from frictionwatch.core.monitor.identify import bounded_solve, bounded_solve_nnls
 
 SIZES = {"genset-v20": (47, 24, 49), "k9k-4cyl": (29, 24, 47), "deutz-1cyl": (28, 22, 47)}
 FIELDS = ("theta", "covariance", "cov_statistical", "chi2_reduced", "weight", "cov_reference")

@@ -20,13 +20,13 @@ from bench.scipy_baseline import (
 )
 from bench.scipy_compare import monitor_noise
 from bench.scipy_measure import angle_harmonics, measure
-from core.engine import load_engine
-from core.friction import friction_basis
-from core.identify import parameter_layout
-from core.kinematics import kinematics
-from core.monitor import initial_state, process_cycle
-from core.simulate import simulate
-from drivers.cycles import CycleAssembler
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.friction import friction_basis
+from frictionwatch.core.monitor.identify import parameter_layout
+from frictionwatch.core.model.kinematics import kinematics
+from frictionwatch.core.monitor.monitor import initial_state, process_cycle
+from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.drivers.assembly.cycles import CycleAssembler
 
 CLEAN = {"without": {"tooth_spacing_error"}, "cov_imep": 0.0}
 
@@ -100,7 +100,7 @@ def test_fit_reproduces_the_measured_speed(deutz_fit):
 def test_fit_agrees_with_the_monitor_and_the_truth(deutz_fit):
     """Same method, same cycle, same priors and whitening: the mean friction (pinned by the Eq. 7 balance row)
     agrees with the monitor's per-cycle estimate within its stated 1-sigma or 3 %, and with the truth within 5 % (one
-    cycle: the balance carries no kinetic-energy term, core.monitor). One cycle does not pin the six coefficients
+    cycle: the balance carries no kinetic-energy term, core.monitor.monitor). One cycle does not pin the six coefficients
     (the monitor reports them unresolved); the baseline's lie within 3 of the monitor's per-cycle sigmas of the
     truth (theta = 1: the simulator runs the preset's a_l)."""
     spec, truth, res, fit = deutz_fit

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from core.engine import load_engine
-from core.simulate import simulate
-from core.types import CamBatch, LoadSample, PressureFrame, ToothBatch
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.core.types import CamBatch, LoadSample, PressureFrame, ToothBatch
 
 
 @pytest.fixture(scope="module")

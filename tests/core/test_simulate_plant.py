@@ -7,15 +7,15 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy.linalg import eigh
 
-import core.simulate as simulate_mod
-from core.engine import load_engine
-from core.friction import friction_basis
-from core.kinematics import variable_inertia
-from core.plant import NQ_CYL, NQ_GLOBAL, _crossing, _herm, _rhs
-from core.plant_setup import build_plant, chain_matrices, linearised_stiffness, scalars
-from core.simulate import simulate
-from core.thermo import cylinder_model
-from core.torques import gas_torque
+import frictionwatch.core.plant.simulate as simulate_mod
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.friction import friction_basis
+from frictionwatch.core.model.kinematics import variable_inertia
+from frictionwatch.core.plant.plant import NQ_CYL, NQ_GLOBAL, _crossing, _herm, _rhs
+from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, linearised_stiffness, scalars
+from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.core.model.thermo import cylinder_model
+from frictionwatch.core.model.torques import gas_torque
 
 
 def make(spec, rng, variable=True):

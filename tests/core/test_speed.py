@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from core.speed import FOUR_PI, cycle_speed, drift_from_means, lowpass_cycle, pitch_samples, tooth_average, tooth_speed
-from core.speed_spacing import ToothSpacingLearner, engine_orders, rev_deviation
-from core.speed_stream import (
+from frictionwatch.core.monitor.speed import FOUR_PI, cycle_speed, drift_from_means, lowpass_cycle, pitch_samples, tooth_average, tooth_speed
+from frictionwatch.core.monitor.speed_spacing import ToothSpacingLearner, engine_orders, rev_deviation
+from frictionwatch.core.monitor.speed_stream import (
     SpeedStreamState,
     design_stream_filter,
     fir_stream,
@@ -331,9 +331,9 @@ def test_speed_stream_cycle_by_cycle_equals_whole():
 def test_on_the_plant_simulator_with_tooth_errors():
     """k9k-4cyl at 1700 rpm with the simulator's tooth errors: corrected by the true eps the speed follows the true
     flywheel speed seen through the same tooth averaging; uncorrected it does not."""
-    simulate = pytest.importorskip("core.simulate").simulate
-    from core.engine import load_engine
-    from drivers.cycles import CycleAssembler
+    simulate = pytest.importorskip("frictionwatch.core.plant.simulate").simulate
+    from frictionwatch.core.model.engine import load_engine
+    from frictionwatch.drivers.assembly.cycles import CycleAssembler
 
     spec = load_engine("k9k-4cyl")
     res = simulate(spec, 1700.0, 0.7, 4, seed=2)
@@ -360,9 +360,9 @@ def test_spacing_learner_on_the_plant_simulator():
     """k9k-4cyl, 1700 rpm, 70 % load, 120 simulated cycles with the simulator's tooth errors (sigma 0.03 deg) and
     combustion variability: the engine lines found are orders 4 and 6 (2 is always removed), the identifiable part
     of eps comes within 15 % and the wheel's speed error drops below 25 % of what it was."""
-    simulate = pytest.importorskip("core.simulate").simulate
-    from core.engine import load_engine
-    from drivers.cycles import CycleAssembler
+    simulate = pytest.importorskip("frictionwatch.core.plant.simulate").simulate
+    from frictionwatch.core.model.engine import load_engine
+    from frictionwatch.drivers.assembly.cycles import CycleAssembler
 
     spec = load_engine("k9k-4cyl")
     res = simulate(spec, 1700.0, 0.7, 120, seed=5)

@@ -7,8 +7,8 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy.integrate import solve_ivp
 
-from core.engine import available_presets, load_engine
-from core.thermo import (
+from frictionwatch.core.model.engine import available_presets, load_engine
+from frictionwatch.core.model.thermo import (
     N_MOTORED,
     R_AIR,
     WOSCHNI_C1,
@@ -34,7 +34,7 @@ def ref_cp(t):
 def ref_closed_cycle(spec, omega, fuel, leak=0.0, ht_scale=0.6):
     """Plain numpy + scipy DOP853 reference of the closed part IVC -> EVO (physics.md §13), written from the equations.
 
-    Returns (theta, p) on 1-deg points. Same modelling choices as core.thermo: Woschni with the IVC reference state,
+    Returns (theta, p) on 1-deg points. Same modelling choices as core.model.thermo: Woschni with the IVC reference state,
     wall area 2.3 A_p + pi B V / A_p, isentropic leak to 1 bar.
     """
     cb = spec.combustion

@@ -1,4 +1,4 @@
-"""The fused tooth fit (core.flywheel prepare_fit / fit_prepared / ToothLearner.update, core.tooth_fit) against the
+"""The fused tooth fit (core.monitor.flywheel prepare_fit / fit_prepared / ToothLearner.update, core.monitor.tooth_fit) against the
 plain numpy/scipy implementation it replaced (kept here as ``*_reference``): same FlywheelMotion, learner state and
 pattern cache to 1e-10 relative (the bar of this speed work), on seeded cycles of the real sizes (genset-v20: 317
 edges, 24 harmonics, 24 tooth nuisances + the drift pattern) and small ones (deutz-1cyl, k9k-4cyl)."""
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from core.flywheel import FitSetup, ToothLearner, fit_prepared, prepare_fit
-from core.identify import tooth_patterns
-from core.tooth_fit import fit_cycle_teeth
+from frictionwatch.core.monitor.flywheel import FitSetup, ToothLearner, fit_prepared, prepare_fit
+from frictionwatch.core.monitor.identify import tooth_patterns
+from frictionwatch.core.monitor.tooth_fit import fit_cycle_teeth
 
 FOUR_PI = 4.0 * np.pi
 REL = 1e-10
@@ -153,7 +153,7 @@ def assert_same_motion(new, ref, angle_max=0.0, rel=REL):
 def synthetic_cycles(wheel_teeth, gap, n_cycles, seed, rpm=1500.0, tick_hz=2e7):
     """Tooth edges of consecutive cycles: a wheel of ``wheel_teeth`` positions with ``gap`` missing teeth, a fixed
     tooth-spacing error (0.05 deg rms, the monitor's default prior), speed ripple at orders 0.5..6 and 25 ns timing
-    jitter; the cycle starts at a varying wheel position like the assembler's (drivers.cycles)."""
+    jitter; the cycle starts at a varying wheel position like the assembler's (drivers.assembly.cycles)."""
     rng = np.random.default_rng(seed)
     pitch = 2 * np.pi / wheel_teeth
     err = np.radians(0.05) * rng.standard_normal(wheel_teeth)
@@ -203,7 +203,7 @@ def test_fit_cycle_teeth_options_match_reference(n_nuis, drift_nuisance, learn):
 def check_against_reference(wheel_teeth, gap, m, m_fit, n_nuis, fit_drift, drift_nuisance, learn):
     cycles = synthetic_cycles(wheel_teeth, gap, 8, seed=wheel_teeth + m)
     # the monitor fits without the drift column (MonitorConfig.fit_drift=False): 1e-10. With it, the column is
-    # nearly collinear with order 0.5 over one cycle (core.monitor docs): the scaled normal matrix has a condition
+    # nearly collinear with order 0.5 over one cycle (core.monitor.monitor docs): the scaled normal matrix has a condition
     # number 9e4..8e5 at these sizes (1.4..3.6 without) and either implementation is only good to ~1e-13 cond: 1e-6
     rel = 1e-6 if fit_drift else REL
     teeth_new = ToothLearner.empty(wheel_teeth)
@@ -285,7 +285,7 @@ def window_reference(nominal, cached_rel):
 @pytest.mark.parametrize("seed", range(4))
 def test_cycle_window_matches_numpy(seed):
     """_cycle_window = np.searchsorted + np.array_equal of the relative angles + the revolution period."""
-    from core.tooth_fit_kernels import _cycle_window
+    from frictionwatch.core.monitor.tooth_fit_kernels import _cycle_window
 
     rng = np.random.default_rng(seed)
     wheel, gap = [(60, 2), (36, 1), (160, 1), (120, 0)][seed]

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from core.dynamics import natural_frequencies, shaft_model
-from core.engine import available_presets, load_engine
+from frictionwatch.core.model.dynamics import natural_frequencies, shaft_model
+from frictionwatch.core.model.engine import available_presets, load_engine
 
 ot = pytest.importorskip("opentorsion")
 

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
+from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 
-ENGINE_TOML = (Path(__file__).resolve().parents[2] / "core" / "engines" / "k9k-4cyl.toml").read_text()
+ENGINE_TOML = (Path(__file__).resolve().parents[2] / "core" / "model" / "engines" / "k9k-4cyl.toml").read_text()
 INFO = AcquisitionInfo(
     tick_hz=10e6, wheel_teeth=60, wheel_missing=2, first_tooth_deg=-84.0, cam_deg=12.5, pressure_cylinders=(1, 2, 3, 4)
 )

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
-from core.types import CamBatch, LoadSample, PressureFrame
-from drivers.cycle_parts import Segment, Wheel, load_mean
-from drivers.engine_buffers import EngineBuffers
-from drivers.pressure_kernels import ROW_OK
-from drivers.ringbuffer import RingBuffer
+from frictionwatch.core.types import CamBatch, LoadSample, PressureFrame
+from frictionwatch.drivers.assembly.cycle_parts import Segment, Wheel, load_mean
+from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
+from frictionwatch.drivers.assembly.pressure_kernels import ROW_OK
+from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
 
 
 # ---- references: the code before the fast paths ---------------------------------------------------------------
@@ -202,7 +202,7 @@ def test_release_before_matches_the_inline_discards(seed):
 
 
 def load_mean_reference(ring: RingBuffer, t_lo: float, t_hi: float, hold_ticks: float) -> tuple[float, float]:
-    """``drivers.cycle_parts.load_mean`` before the one-kernel window sums (np.mean = np.add.reduce / n)."""
+    """``drivers.assembly.cycle_parts.load_mean`` before the one-kernel window sums (np.mean = np.add.reduce / n)."""
     if len(ring) == 0:
         return math.nan, math.nan
     a = ring.searchsorted("t", t_lo, side="left")

@@ -13,11 +13,11 @@ from operator import itemgetter
 import numpy as np
 import pytest
 
-from drivers.cycle_phase import cycle_votes, firing_verdict, phase_windows, window_verdict
-from drivers.frame_store import FrameGroup
-from drivers.pressure_ring import PressureGroup, _write_frame
-from drivers.ringbuffer import RingBuffer
-from drivers.wheel_sync import WheelTracker
+from frictionwatch.drivers.assembly.cycle_phase import cycle_votes, firing_verdict, phase_windows, window_verdict
+from frictionwatch.drivers.assembly.frame_store import FrameGroup
+from frictionwatch.drivers.assembly.pressure_ring import PressureGroup, _write_frame
+from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
+from frictionwatch.drivers.assembly.wheel_sync import WheelTracker
 
 
 # ---- references -------------------------------------------------------------------------------------------------

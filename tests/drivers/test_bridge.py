@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, ToothBatch
-from drivers.bridge import CAN, SERIAL, can_events, received_records, serial_events, wire_events
-from drivers.can_codec import layouts
-from drivers.can_encoder import PressureEncoder
-from drivers.serial_codec import CamFrame, Decoder, HeartbeatFrame, InfoFrame, TeethFrame
+from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, ToothBatch
+from frictionwatch.drivers.bridge import CAN, SERIAL, can_events, received_records, serial_events, wire_events
+from frictionwatch.drivers.can.codec import layouts
+from frictionwatch.drivers.can.encoder import PressureEncoder
+from frictionwatch.drivers.serial.codec import CamFrame, Decoder, HeartbeatFrame, InfoFrame, TeethFrame
 
 INFO = AcquisitionInfo(tick_hz=10e6, wheel_teeth=60, wheel_missing=2, first_tooth_deg=-84.0, cam_deg=630.0,
                        pressure_cylinders=(1, 2))

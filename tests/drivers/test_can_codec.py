@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from drivers.can_codec import (
+from frictionwatch.drivers.can.codec import (
     FD_SAMPLES,
     PGN_LOAD,
     RAW_INVALID,
@@ -23,7 +23,7 @@ from drivers.can_codec import (
     layouts,
     load_dbc,
 )
-from drivers.can_encoder import PressureEncoder
+from frictionwatch.drivers.can.encoder import PressureEncoder
 
 
 def test_dbc_ships_and_fits_the_fast_decoder() -> None:

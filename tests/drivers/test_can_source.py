@@ -10,13 +10,13 @@ import can
 import numpy as np
 import pytest
 
-from core.types import LoadSample, PressureBlock
-from drivers.backoff import Backoff
-from drivers.can_codec import encode_load
-from drivers.can_encoder import PressureEncoder
-from drivers.can_pressure import CanSource
-from drivers.source import open_source
-from drivers.timebase import TimerUnwrapper, forget_shared
+from frictionwatch.core.types import LoadSample, PressureBlock
+from frictionwatch.drivers.backoff import Backoff
+from frictionwatch.drivers.can.codec import encode_load
+from frictionwatch.drivers.can.encoder import PressureEncoder
+from frictionwatch.drivers.can.pressure import CanSource
+from frictionwatch.drivers.source import open_source
+from frictionwatch.drivers.timebase import TimerUnwrapper, forget_shared
 
 _channels = itertools.count()
 

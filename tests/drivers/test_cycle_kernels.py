@@ -1,4 +1,4 @@
-"""drivers.cycle_kernels._cycle_edges against the numpy code it replaced in CycleAssembler._advance_epoch (kept
+"""frictionwatch.drivers.assembly.cycle_kernels._cycle_edges against the numpy code it replaced in CycleAssembler._advance_epoch (kept
 here as ``cycle_edges_reference``): bit for bit the same ticks, positions, wheel indices, angles and grid times."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from drivers.cycle_kernels import _cycle_edges
-from drivers.cycle_parts import Segment, Wheel
-from drivers.resample import pchip_eval
+from frictionwatch.drivers.assembly.cycle_kernels import _cycle_edges
+from frictionwatch.drivers.assembly.cycle_parts import Segment, Wheel
+from frictionwatch.drivers.assembly.resample import pchip_eval
 
 FOUR_PI = 4.0 * math.pi
 

@@ -12,10 +12,10 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.interpolate import PchipInterpolator
 
-from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, ToothBatch
-from drivers.cycles import CycleAssembler
-from drivers.resample import interp_sorted, pchip_eval
-from drivers.wheel_sync import WheelTracker
+from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, ToothBatch
+from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.drivers.assembly.resample import interp_sorted, pchip_eval
+from frictionwatch.drivers.assembly.wheel_sync import WheelTracker
 from tests.drivers.synth_stream import Motion, Stream
 
 FOUR_PI = 4 * np.pi
@@ -128,7 +128,7 @@ def test_tracker_classifies_faults(fault, reason):
     ev = tr.advance(ticks, 0)
     ends = [e for e in ev if e[0] == 2]
     assert len(ends) == 1
-    from drivers.wheel_sync import REASONS
+    from frictionwatch.drivers.assembly.wheel_sync import REASONS
 
     assert REASONS[ends[0][2]] == reason
     assert ev[-1][0] == 1  # and a new segment after it
@@ -326,8 +326,8 @@ def test_genset_wheel_and_twenty_cylinders():
 @pytest.mark.parametrize("name,rpm", [("k9k-4cyl", 1700.0), ("deutz-1cyl", 2550.0)])
 def test_on_the_plant_simulator(name, rpm):
     """Every simulated cycle comes out, aligned with the simulator's cycle numbering (core/simulate.py)."""
-    simulate = pytest.importorskip("core.simulate").simulate
-    from core.engine import load_engine
+    simulate = pytest.importorskip("frictionwatch.core.plant.simulate").simulate
+    from frictionwatch.core.model.engine import load_engine
 
     spec = load_engine(name)
     res = simulate(spec, rpm, 0.7, 5, seed=4)
@@ -355,8 +355,8 @@ def test_real_tue_wheel(name, cycles, rpm):
     complete cycle of the 0.5 s file comes out, phased by the pressure, at the README's speed range."""
     if not REAL.is_dir():
         pytest.skip("../shared/realdata is absent")
-    from core.speed import cycle_speed
-    from drivers.daq_raw import daq_to_records
+    from frictionwatch.core.monitor.speed import cycle_speed
+    from frictionwatch.drivers.daq.raw import daq_to_records
 
     info, recs = daq_to_records(REAL / f"{name}.txt.gz")
     asm = CycleAssembler(info, 1, np.zeros(1), speed_range_rpm=(500.0, 5000.0))
@@ -371,7 +371,7 @@ def test_tooth_batches_beyond_the_ring_are_counted_not_raised(k4):
     """A tooth batch longer than the tooth ring (a stalled reader catching up) overwrites edges the tracker and the
     open cycles still needed: those cycles are skipped as 'buffer_overflow', the tracker starts over on what the
     ring holds, and every cycle that is emitted is the clean one (found by its first edge: a new epoch renumbers)."""
-    from drivers.engine_buffers import EngineBuffers
+    from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
 
     s, _, recs, clean, _ = k4
     merged, pend = [], []

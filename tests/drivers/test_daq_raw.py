@@ -15,18 +15,18 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from core.engine import load_engine
-from core.kinematics import cylinder_volume as core_volume
-from core.types import AcquisitionInfo, PressureBlock, ToothBatch
-from drivers.daq_pressure import (
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.kinematics import cylinder_volume as core_volume
+from frictionwatch.core.types import AcquisitionInfo, PressureBlock, ToothBatch
+from frictionwatch.drivers.daq.pressure import (
     calibrate_cycles,
     cylinder_volume,
     firing_turns,
     wheel_angle_of_samples,
 )
-from drivers.daq_raw import daq_to_records, process_daq, read_daq_table
-from drivers.daq_teeth import detect_teeth, hysteresis_edges, sync_wheel
-from drivers.errors import CorruptLog
+from frictionwatch.drivers.daq.raw import daq_to_records, process_daq, read_daq_table
+from frictionwatch.drivers.daq.teeth import detect_teeth, hysteresis_edges, sync_wheel
+from frictionwatch.drivers.errors import CorruptLog
 
 FS = 100e3  # sample rate [Hz]
 LOW, HIGH = -0.75, 3.5

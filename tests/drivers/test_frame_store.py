@@ -1,5 +1,5 @@
-"""drivers.frame_store.FrameGroup (frames kept by reference) against the ring it replaces, a
-drivers.pressure_ring.PressureGroup filed with ``_write_frame`` (the pre-round-2 storage): the same row counts,
+"""frictionwatch.drivers.assembly.frame_store.FrameGroup (frames kept by reference) against the ring it replaces, a
+drivers.assembly.pressure_ring.PressureGroup filed with ``_write_frame`` (the pre-round-2 storage): the same row counts,
 overflow, searches, views and, bit for bit, the same resampled rows and codes, including holes, NaN samples,
 overlapping frames, frames longer than the ring and grid times that straddle two frames."""
 
@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.frame_store import FrameChannel, FrameGroup
-from drivers.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, _pressure_rows
-from drivers.pressure_ring import PressureGroup, _write_frame
+from frictionwatch.drivers.assembly.frame_store import FrameChannel, FrameGroup
+from frictionwatch.drivers.assembly.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, _pressure_rows
+from frictionwatch.drivers.assembly.pressure_ring import PressureGroup, _write_frame
 
 
 def file_both(ring: PressureGroup, group: FrameGroup, t0: float, period: float, values: np.ndarray, first: int):
@@ -125,7 +125,7 @@ def test_one_row_through_the_channel_and_bad_use():
 def test_prefetch_hint_changes_nothing_and_tolerates_any_chunk():
     """``_prefetch_part`` (a cache hint inside ``_frame_rows``) reads no value into any result and accepts chunk
     numbers and row ranges outside the group (before the first chunk, past the last, empty ranges)."""
-    from drivers.frame_kernels import _prefetch_part
+    from frictionwatch.drivers.assembly.frame_kernels import _prefetch_part
 
     rng = np.random.default_rng(7)
     group = FrameGroup((1, 2, 3), 1000)

@@ -6,8 +6,8 @@ from fractions import Fraction
 
 import numpy as np
 
-from core.types import CamBatch, LoadSample, PressureBlock, ToothBatch
-from drivers.mcap_batching import Batcher
+from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, ToothBatch
+from frictionwatch.drivers.logs.mcap_batching import Batcher
 from tests.drivers.mcap_corpus import assert_same_streams
 
 

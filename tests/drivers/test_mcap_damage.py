@@ -20,10 +20,10 @@ from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 
-from core.types import CamBatch, PressureBlock, ToothBatch
-from drivers import mcap_schema as ms
-from drivers.errors import CorruptLog
-from drivers.mcap_log import LogReader, LogWriter
+from frictionwatch.core.types import CamBatch, PressureBlock, ToothBatch
+from frictionwatch.drivers.logs import mcap_schema as ms
+from frictionwatch.drivers.errors import CorruptLog
+from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
 from tests.drivers.mcap_corpus import ENGINE_TOML, INFO, corpus
 
 

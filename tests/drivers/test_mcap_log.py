@@ -13,9 +13,9 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import Writer
 from mcap_protobuf.decoder import DecoderFactory
 
-from core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, ToothBatch
-from drivers import mcap_schema as ms
-from drivers.mcap_log import LogReader, LogWriter
+from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, ToothBatch
+from frictionwatch.drivers.logs import mcap_schema as ms
+from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
 from tests.drivers.mcap_corpus import ENGINE_TOML, INFO, assert_same_streams, corpus
 
 

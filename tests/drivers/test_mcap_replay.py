@@ -6,10 +6,10 @@ from pathlib import Path
 
 import pytest
 
-from drivers.errors import CorruptLog, EndOfStream
-from drivers.mcap_log import LogReader, LogWriter
-from drivers.mcap_replay import McapSource
-from drivers.source import open_source
+from frictionwatch.drivers.errors import CorruptLog, EndOfStream
+from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
+from frictionwatch.drivers.logs.mcap_replay import McapSource
+from frictionwatch.drivers.source import open_source
 from tests.drivers.mcap_corpus import ENGINE_TOML, INFO, assert_same_streams, corpus
 
 

@@ -12,13 +12,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from core.types import LoadSample, PressureBlock
-from drivers.can_codec import encode_load
-from drivers.can_decoder import CanDecoder
-from drivers.can_encoder import PressureEncoder
-from drivers.errors import CorruptLog, EndOfStream
-from drivers.mdf4_replay import CanFrames, Mdf4Source, decode_signals, iter_messages, read_can_frames
-from drivers.source import open_source
+from frictionwatch.core.types import LoadSample, PressureBlock
+from frictionwatch.drivers.can.codec import encode_load
+from frictionwatch.drivers.can.decoder import CanDecoder
+from frictionwatch.drivers.can.encoder import PressureEncoder
+from frictionwatch.drivers.errors import CorruptLog, EndOfStream
+from frictionwatch.drivers.logs.mdf4 import CanFrames, Mdf4Source, decode_signals, iter_messages, read_can_frames
+from frictionwatch.drivers.source import open_source
 
 CSS = Path(__file__).resolve().parents[2] / "../shared/realdata/css-canedge-j1939-mf4"
 TRUCK = CSS / "truck_j1939_idle_00000001.MF4"
@@ -125,7 +125,7 @@ def test_fuzz_decode_signals_on_random_frames(rows: list) -> None:
                        extended=np.array([r[1] for r in rows], bool), lengths=np.array([r[2] for r in rows], np.int64),
                        data=np.array([list(r[3]) for r in rows], np.uint8).reshape(n, 8),
                        channel=np.zeros(n, np.int64))
-    from drivers.can_codec import load_dbc
+    from frictionwatch.drivers.can.codec import load_dbc
 
     signals, _damage = decode_signals(frames, load_dbc(), ["RealPower", "FrictionTorque", "Seq"])
     for t, v in signals.values():

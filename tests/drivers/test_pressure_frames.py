@@ -13,13 +13,13 @@ import logging
 import numpy as np
 import pytest
 
-from core.types import Cycle, PressureBlock, PressureFrame, ToothBatch
-from drivers.bridge import can_events
-from drivers.cycles import CycleAssembler
-from drivers.engine_buffers import EngineBuffers
-from drivers.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, _pressure_row, _pressure_rows
-from drivers.pressure_ring import PressureGroup, _write_frame, frame_blocks
-from drivers.ringbuffer import RingBuffer, _write_block
+from frictionwatch.core.types import Cycle, PressureBlock, PressureFrame, ToothBatch
+from frictionwatch.drivers.bridge import can_events
+from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
+from frictionwatch.drivers.assembly.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, _pressure_row, _pressure_rows
+from frictionwatch.drivers.assembly.pressure_ring import PressureGroup, _write_frame, frame_blocks
+from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, _write_block
 from tests.drivers.synth_stream import Motion, Stream
 
 GENSET_FIRING = (0.0, 36.0, 216.0, 252.0, 72.0, 108.0, 288.0, 324.0, 144.0, 180.0,
@@ -136,8 +136,8 @@ def test_same_overflow_with_a_small_ring(k4):
 
 
 def test_frames_from_the_plant_simulator_match_their_blocks():
-    simulate = pytest.importorskip("core.simulate").simulate
-    from core.engine import load_engine
+    simulate = pytest.importorskip("frictionwatch.core.plant.simulate").simulate
+    from frictionwatch.core.model.engine import load_engine
 
     spec = load_engine("k9k-4cyl")
     res = simulate(spec, 1700.0, 0.7, 4, seed=4)

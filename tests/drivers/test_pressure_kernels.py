@@ -1,11 +1,11 @@
-"""drivers.pressure_kernels (via cycle_parts.pressure_on_grid) against its reference: RingBuffer searches,
+"""frictionwatch.drivers.assembly.pressure_kernels (via cycle_parts.pressure_on_grid) against its reference: RingBuffer searches,
 views and resample.interp_checked (cycle_parts._pressure_on_grid_general). Same rows bit for bit, same reasons."""
 
 import numpy as np
 import pytest
 
-from drivers.cycle_parts import _pressure_on_grid_general, pressure_on_grid
-from drivers.ringbuffer import RingBuffer
+from frictionwatch.drivers.assembly.cycle_parts import _pressure_on_grid_general, pressure_on_grid
+from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
 
 
 def _ring(rng, cap, n_blocks, hole=False, nan=False):

@@ -1,4 +1,4 @@
-"""drivers.cycle_kernels' sums against np.add.reduce, byte for byte (the assembler's load and phase-window means
+"""frictionwatch.drivers.assembly.cycle_kernels' sums against np.add.reduce, byte for byte (the assembler's load and phase-window means
 must not change by one ulp): every length up to REDUCE_MAX (both code paths: < 8 and 8..128), magnitudes spread over 13 decades,
 signed zeros, NaN and inf."""
 
@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.cycle_kernels import REDUCE_MAX, _add_reduce2, _gather_sums
+from frictionwatch.drivers.assembly.cycle_kernels import REDUCE_MAX, _add_reduce2, _gather_sums
 
 
 def _vectors(rng, count):

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2
 
-from core.types import AcquisitionInfo, LoadSample, PressureBlock, PressureFrame, ToothBatch
-from drivers import mcap_schema as ms
-from drivers.mcap_log import LogReader
+from frictionwatch.core.types import AcquisitionInfo, LoadSample, PressureBlock, PressureFrame, ToothBatch
+from frictionwatch.drivers.logs import mcap_schema as ms
+from frictionwatch.drivers.logs.mcap_log import LogReader
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "replay-format.md"
 F = descriptor_pb2.FieldDescriptorProto

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.can_codec import j1939_pgn, load_dbc
-from drivers.results_bus import ResultsPublisher, decode_results, encode_results
+from frictionwatch.drivers.can.codec import j1939_pgn, load_dbc
+from frictionwatch.drivers.can.results_bus import ResultsPublisher, decode_results, encode_results
 
 _channels = itertools.count()
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
-from core.types import CamBatch, LoadSample, PressureBlock, ToothBatch
-from drivers.ringbuffer import EngineBuffers, RingBuffer
+from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, ToothBatch
+from frictionwatch.drivers.assembly.ringbuffer import EngineBuffers, RingBuffer
 
 
 def test_matches_a_bounded_deque_over_random_batches():

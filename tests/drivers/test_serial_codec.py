@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.serial_codec import (
+from frictionwatch.drivers.serial.codec import (
     FLAG_BOOT,
     FLAG_OVERFLOW,
     FLAG_SENSOR_FAULT,
@@ -24,7 +24,7 @@ from drivers.serial_codec import (
     encode_info,
     encode_teeth,
 )
-from drivers.timebase import REBASE_GAP
+from frictionwatch.drivers.timebase import REBASE_GAP
 
 WRAP = 1 << 32
 FUZZ = settings(max_examples=150, deadline=None, derandomize=True)

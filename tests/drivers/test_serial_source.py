@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core.types import CamBatch, ToothBatch
-from drivers.backoff import Backoff
-from drivers.serial_codec import Encoder
-from drivers.serial_teeth import SerialSource
-from drivers.source import open_source
-from drivers.timebase import TimerUnwrapper, forget_shared
+from frictionwatch.core.types import CamBatch, ToothBatch
+from frictionwatch.drivers.backoff import Backoff
+from frictionwatch.drivers.serial.codec import Encoder
+from frictionwatch.drivers.serial.teeth import SerialSource
+from frictionwatch.drivers.source import open_source
+from frictionwatch.drivers.timebase import TimerUnwrapper, forget_shared
 
 FAST = {"backoff": Backoff(first=0.01, factor=2.0, cap=0.05)}
 

@@ -6,9 +6,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.backoff import Backoff
-from drivers.sequence import SequenceTracker
-from drivers.timebase import REBASE_GAP, TimerUnwrapper, forget_shared, shared_unwrapper
+from frictionwatch.drivers.backoff import Backoff
+from frictionwatch.drivers.assembly.sequence import SequenceTracker
+from frictionwatch.drivers.timebase import REBASE_GAP, TimerUnwrapper, forget_shared, shared_unwrapper
 
 WRAP = 1 << 32
 

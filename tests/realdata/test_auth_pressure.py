@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from core.engine import load_engine
-from core.indicated import net_imep, peak_pressure
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.indicated import net_imep, peak_pressure
 
 openpyxl = pytest.importorskip("openpyxl")
 

@@ -4,8 +4,8 @@ FMEP = IMEP - BMEP (README: BMEP 4.19 bar, FMEP ~1.5 bar)."""
 import numpy as np
 from numpy.testing import assert_allclose
 
-from core.engine import load_engine
-from core.indicated import net_imep, peak_pressure
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.indicated import net_imep, peak_pressure
 
 FOLDER = "polito-diesel-4cyl-1600rpm"
 

@@ -6,11 +6,11 @@ agrees with the DAQ reader's own (TDC-centred) cycles."""
 import numpy as np
 import pytest
 
-from core.engine import load_engine
-from core.indicated import net_imep
-from drivers.daq_raw import daq_to_records, process_daq, read_daq_table
-from drivers.mcap_log import LogReader, LogWriter
-from service.pipeline import analyze_log
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.indicated import net_imep
+from frictionwatch.drivers.daq.raw import daq_to_records, process_daq, read_daq_table
+from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
+from frictionwatch.service.pipeline import analyze_log
 
 FOLDER = "tue-4gb10-si-encoder-pressure"
 

@@ -19,12 +19,12 @@ from pathlib import Path
 import numpy as np
 from can.interfaces import virtual
 
-from core.engine import EngineSpec, load_engine
-from core.results import CycleResult
-from core.simulate import SimResult, simulate
-from core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
-from drivers.bridge import WireEvent, received_records, wire_events
-from drivers.timebase import forget_shared
+from frictionwatch.core.model.engine import EngineSpec, load_engine
+from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.plant.simulate import SimResult, simulate
+from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
+from frictionwatch.drivers.bridge import WireEvent, received_records, wire_events
+from frictionwatch.drivers.timebase import forget_shared
 
 ENGINE, RPM, LOAD, CYCLES, SEED = "k9k-4cyl", 2000.0, 0.6, 20, 3
 
@@ -125,7 +125,7 @@ def wait_until(predicate, timeout: float = 5.0, step: float = 0.01) -> bool:
 def wait_all_delivered(live, records, timeout: float = 20.0) -> None:
     """Wait until the live session has had the last record of each stream: teeth and cam from "serial", pressure
     and load from "can" (so that ``stop`` loses nothing still in a pty or a bus queue)."""
-    from service.live import record_key
+    from frictionwatch.service.live import record_key
 
     serial = max(record_key(r) for r in records if isinstance(r, ToothBatch | CamBatch))
     bus = max(record_key(r) for r in records if isinstance(r, PressureBlock | PressureFrame | LoadSample))

@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from service.cli import main
+from frictionwatch.service.cli import main
 
 
 @pytest.fixture(scope="module")
@@ -81,7 +81,7 @@ def test_analyze_missing_and_non_mcap_file(tmp_path, capsys):
 
 
 def test_console_script_runs_as_a_process(small_log):
-    proc = subprocess.run([sys.executable, "-m", "service.cli", "analyze", str(small_log), "--json"],
+    proc = subprocess.run([sys.executable, "-m", "frictionwatch.service.cli", "analyze", str(small_log), "--json"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["engine"] == "k9k-4cyl"

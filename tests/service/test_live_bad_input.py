@@ -17,16 +17,16 @@ import can
 import numpy as np
 import pytest
 
-from core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
-from drivers.backoff import Backoff
-from drivers.bridge import SERIAL, WirePlayer, received_records, wire_events
-from drivers.can_pressure import CanSource
-from drivers.pressure_ring import frame_blocks
-from drivers.serial_teeth import SerialSource
-from drivers.source import Source
-from drivers.timebase import TimerUnwrapper
-from service.live import LiveSession, RecordMerge, record_key
-from service.pipeline import analyze_records
+from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
+from frictionwatch.drivers.backoff import Backoff
+from frictionwatch.drivers.bridge import SERIAL, WirePlayer, received_records, wire_events
+from frictionwatch.drivers.can.pressure import CanSource
+from frictionwatch.drivers.assembly.pressure_ring import frame_blocks
+from frictionwatch.drivers.serial.teeth import SerialSource
+from frictionwatch.drivers.source import Source
+from frictionwatch.drivers.timebase import TimerUnwrapper
+from frictionwatch.service.live import LiveSession, RecordMerge, record_key
+from frictionwatch.service.pipeline import analyze_records
 from tests.service.live_helpers import (
     ORDERED_MERGE,
     RPM,
@@ -208,7 +208,7 @@ class ListSource(Source):
         self.batches, self.fail = list(batches), fail_first
 
     def _read_internal(self, timeout):
-        from drivers.errors import EndOfStream
+        from frictionwatch.drivers.errors import EndOfStream
 
         if self.fail:
             self.fail = False

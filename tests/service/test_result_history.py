@@ -6,8 +6,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from core.results import CycleResult
-from service.pipeline import ResultHistory
+from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.service.pipeline import ResultHistory
 
 
 def _result(i: int) -> CycleResult:

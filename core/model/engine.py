@@ -1,0 +1,433 @@
+"""Engine specification: geometry, masses, shaft line, friction parameters, combustion defaults, sensors.
+
+An ``EngineSpec`` is loaded from a TOML file in SI units (presets in ``core/model/engines/*.toml``; the keys carry
+their unit as a suffix, e.g. ``bore_m``). Validation names the bad field, its value and the expected unit/range.
+
+Crank-angle convention (design.md §3): 0 = firing TDC of cylinder 1, cycle 0..4*pi. ``firing_angles`` are the
+cylinder-1 crank angles at which each cylinder is at its own firing TDC.
+
+Shaft line (physics.md §11): nodes front to rear (damper ring, hub, throws, flywheel, load); ``stiffness[i]`` and
+``damping[i]`` join node i and i+1. A single-node shaft is a rigid engine.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+PRESET_DIR = Path(__file__).parent / "engines"
+
+
+class SpecError(ValueError):
+    """An engine file is missing a field or holds an impossible value."""
+
+
+@dataclass(frozen=True)
+class FrictionParams:
+    """Rezeka-Henein physical parameters (physics.md §7, engines.md §4.1) and the truth coefficients a_l."""
+
+    oil_viscosity_pa_s: float
+    ring_tension_pa: float
+    ring_thickness_m: float
+    compression_rings: int
+    oil_rings: int
+    skirt_length_m: float
+    skirt_film_m: float
+    valves: int
+    valve_spring_n_per_m: float
+    bearing_radius_m: float
+    coefficients: np.ndarray  # (6,) raw a_l used by the simulator as truth
+
+
+@dataclass(frozen=True)
+class CombustionParams:
+    """Single-zone model defaults at full load (physics.md §13, engines.md §3)."""
+
+    fuel_mass_kg: float  # per cylinder per cycle at load fraction 1
+    lhv_j_per_kg: float
+    combustion_efficiency: float
+    start_deg: float  # start of combustion, deg relative to firing TDC (negative = BTDC)
+    premixed_fraction: float  # beta_p; 0 gives a single Wiebe
+    premixed_duration_deg: float
+    diffusion_duration_deg: float
+    wiebe_a: float
+    premixed_exponent: float  # exponent of ((theta-theta_s)/dtheta), i.e. m+1
+    diffusion_exponent: float
+    p_ivc_pa: float  # at load fraction 1
+    t_ivc_k: float
+    p_intake_pa: float
+    p_exhaust_pa: float
+    t_wall_k: float
+    ivc_deg: float  # relative to firing TDC, e.g. -150
+    evo_deg: float  # e.g. +130
+    part_load_p_ivc_scaling: bool  # gensets: p_IVC scales with load (boost); benches: it does not
+
+
+@dataclass(frozen=True)
+class LoadParams:
+    """Load torque model (physics.md §5). kind: 'speed_power' T = c + k*omega**s, or 'grid'."""
+
+    kind: str
+    exponent: float  # s
+    grid_stiffness_nm_per_rad: float
+    grid_damping_nms_per_rad: float
+
+
+@dataclass(frozen=True)
+class SensorParams:
+    wheel_teeth: int  # teeth positions on the wheel including the missing ones
+    wheel_missing: int
+    first_tooth_deg: float  # crank angle (cyl-1 convention) of the first tooth edge after the gap
+    tick_hz: float  # acquisition timer clock
+    pressure_rate_hz: float
+    pressure_noise_pa: float
+    pressure_adc_bits: int
+    pressure_range_pa: float
+    has_cam: bool
+
+
+@dataclass(frozen=True)
+class EngineSpec:
+    name: str
+    description: str
+    # geometry
+    bore: float
+    stroke: float
+    conrod: float
+    compression_ratio: float
+    pin_offset: float
+    # cylinders
+    firing_angles: np.ndarray  # (z,) rad
+    cylinder_node: np.ndarray  # (z,) int, shaft node index that carries each cylinder
+    reciprocating_mass: float  # kg per cylinder
+    # shaft line
+    node_names: tuple[str, ...]
+    node_inertia: np.ndarray  # (n,) kg m^2, rotating parts only
+    stiffness: np.ndarray  # (n-1,) N m/rad
+    damping: np.ndarray  # (n-1,) N m s/rad
+    flywheel_node: int
+    load_node: int
+    friction: FrictionParams
+    combustion: CombustionParams
+    load: LoadParams
+    sensors: SensorParams
+    rated_speed_rpm: float
+    rated_torque_nm: float
+    speed_range_rpm: tuple[float, float]
+    source_text: str = field(default="", repr=False, compare=False)
+
+    # ---- derived quantities -------------------------------------------------------------------------------
+    @property
+    def n_cyl(self) -> int:
+        return int(self.firing_angles.shape[0])
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self.node_inertia.shape[0])
+
+    @property
+    def crank_radius(self) -> float:
+        return 0.5 * self.stroke
+
+    @property
+    def piston_area(self) -> float:
+        return math.pi * self.bore**2 / 4.0
+
+    @property
+    def displacement_cyl(self) -> float:
+        return self.piston_area * self.stroke
+
+    @property
+    def displacement(self) -> float:
+        return self.displacement_cyl * self.n_cyl
+
+    @property
+    def clearance_volume(self) -> float:
+        return self.displacement_cyl / (self.compression_ratio - 1.0)
+
+    @property
+    def total_inertia(self) -> float:
+        """Constant (rotating) inertia of the whole shaft line, kg m^2."""
+        return float(self.node_inertia.sum())
+
+    def mep_to_torque(self, mep_pa: float, cylinders: int | None = None) -> float:
+        """Mean torque [N m] of a mean effective pressure [Pa] over ``cylinders`` (default all), 4-stroke."""
+        n = self.n_cyl if cylinders is None else cylinders
+        return mep_pa * self.displacement_cyl * n / (4.0 * math.pi)
+
+    def torque_to_mep(self, torque_nm: float, cylinders: int | None = None) -> float:
+        n = self.n_cyl if cylinders is None else cylinders
+        return torque_nm * 4.0 * math.pi / (self.displacement_cyl * n)
+
+    def kinematics_params(self) -> np.ndarray:
+        """[R, L, pin_offset] for the kinematics kernels."""
+        return np.array([self.crank_radius, self.conrod, self.pin_offset], dtype=np.float64)
+
+    def friction_params(self) -> np.ndarray:
+        """Constant parameters of the six Rezeka-Henein basis terms, in the order core.model.friction expects."""
+        f = self.friction
+        return np.array(
+            [
+                self.crank_radius,
+                self.conrod,
+                self.pin_offset,
+                self.bore,
+                f.oil_viscosity_pa_s,
+                f.ring_tension_pa,
+                f.ring_thickness_m,
+                float(f.compression_rings),
+                float(f.oil_rings),
+                f.skirt_length_m,
+                f.skirt_film_m,
+                float(f.valves),
+                f.valve_spring_n_per_m,
+                f.bearing_radius_m,
+            ],
+            dtype=np.float64,
+        )
+
+    def stiffness_matrix(self) -> np.ndarray:
+        return _chain_matrix(self.stiffness, self.n_nodes)
+
+    def damping_matrix(self) -> np.ndarray:
+        return _chain_matrix(self.damping, self.n_nodes)
+
+
+def _chain_matrix(k: np.ndarray, n: int) -> np.ndarray:
+    m = np.zeros((n, n))
+    for i, ki in enumerate(k):
+        m[i, i] += ki
+        m[i + 1, i + 1] += ki
+        m[i, i + 1] -= ki
+        m[i + 1, i] -= ki
+    return m
+
+
+# ---- loading and validation --------------------------------------------------------------------------------
+
+
+def available_presets() -> list[str]:
+    return sorted(p.stem for p in PRESET_DIR.glob("*.toml"))
+
+
+def load_engine(name_or_path: str | Path) -> EngineSpec:
+    """Load a preset by name (``k9k-4cyl``) or a user TOML file by path. Raises ``SpecError`` with the field named."""
+    p = Path(name_or_path)
+    if not p.suffix:
+        p = PRESET_DIR / f"{name_or_path}.toml"
+        if not p.exists():
+            raise SpecError(f"unknown engine '{name_or_path}'; presets: {', '.join(available_presets())}")
+    if not p.exists():
+        raise SpecError(f"engine file not found: {p}")
+    text = p.read_text()
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{p.name}: not valid TOML: {exc}") from exc
+    return spec_from_dict(data, source_text=text, origin=p.name)
+
+
+def spec_from_toml_text(text: str, origin: str = "<text>") -> EngineSpec:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{origin}: not valid TOML: {exc}") from exc
+    return spec_from_dict(data, source_text=text, origin=origin)
+
+
+class _Reader:
+    """Reads fields from one TOML table and names the path of a missing or bad one."""
+
+    def __init__(self, data: dict, path: str, origin: str):
+        self.data, self.path, self.origin = data, path, origin
+
+    def table(self, key: str) -> _Reader:
+        v = self.data.get(key)
+        if not isinstance(v, dict):
+            raise SpecError(f"{self.origin}: missing table [{self._name(key)}]")
+        return _Reader(v, self._name(key), self.origin)
+
+    def _name(self, key: str) -> str:
+        return f"{self.path}.{key}" if self.path else key
+
+    def num(self, key: str, lo: float, hi: float, unit: str, default: float | None = None) -> float:
+        v = self.data.get(key, default)
+        if v is None:
+            raise SpecError(f"{self.origin}: missing field {self._name(key)} [{unit}]")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+            raise SpecError(f"{self.origin}: {self._name(key)} = {v!r} is out of range; expected {lo:g}..{hi:g} {unit}")
+        return float(v)
+
+    def int_(self, key: str, lo: int, hi: int, default: int | None = None) -> int:
+        v = self.data.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+            raise SpecError(f"{self.origin}: {self._name(key)} = {v!r}; expected an integer {lo}..{hi}")
+        return v
+
+    def arr(self, key: str, lo: float, hi: float, unit: str, length: int | None = None) -> np.ndarray:
+        v = self.data.get(key)
+        if not isinstance(v, list) or not v:
+            raise SpecError(f"{self.origin}: missing list {self._name(key)} [{unit}]")
+        a = np.asarray(v, dtype=np.float64)
+        if length is not None and a.shape[0] != length:
+            raise SpecError(f"{self.origin}: {self._name(key)} has {a.shape[0]} values; expected {length}")
+        bad = ~np.isfinite(a) | (a < lo) | (a > hi)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise SpecError(
+                f"{self.origin}: {self._name(key)}[{i}] = {a[i]!r} is out of range; expected {lo:g}..{hi:g} {unit}"
+            )
+        return a
+
+    def str_(self, key: str, choices: tuple[str, ...] | None = None, default: str | None = None) -> str:
+        v = self.data.get(key, default)
+        if not isinstance(v, str) or (choices and v not in choices):
+            want = f"one of {', '.join(choices)}" if choices else "a string"
+            raise SpecError(f"{self.origin}: {self._name(key)} = {v!r}; expected {want}")
+        return v
+
+    def bool_(self, key: str, default: bool) -> bool:
+        v = self.data.get(key, default)
+        if not isinstance(v, bool):
+            raise SpecError(f"{self.origin}: {self._name(key)} = {v!r}; expected true or false")
+        return v
+
+
+def spec_from_dict(data: dict, source_text: str = "", origin: str = "<dict>") -> EngineSpec:
+    r = _Reader(data, "", origin)
+    name = r.str_("name")
+    g = r.table("geometry")
+    bore = g.num("bore_m", 0.01, 1.0, "m")
+    stroke = g.num("stroke_m", 0.01, 3.0, "m")
+    conrod = g.num("conrod_m", 0.02, 6.0, "m")
+    if conrod <= 0.5 * stroke * 1.5:
+        raise SpecError(f"{origin}: geometry.conrod_m = {conrod} must exceed 1.5 x crank radius ({0.75 * stroke:g} m)")
+    cr = g.num("compression_ratio", 3.0, 30.0, "-")
+    pin = g.num("pin_offset_m", -0.05, 0.05, "m", default=0.0)
+
+    c = r.table("cylinders")
+    z = c.int_("count", 1, 24)
+    firing = np.radians(c.arr("firing_angles_deg", 0.0, 720.0, "deg", length=z))
+    m_rec = c.num("reciprocating_mass_kg", 0.01, 500.0, "kg")
+
+    s = r.table("shaft")
+    names = s.data.get("nodes")
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+        raise SpecError(f"{origin}: shaft.nodes must be a list of node names")
+    n = len(names)
+    inertia = s.arr("inertia_kgm2", 1e-6, 1e5, "kg m^2", length=n)
+    if n > 1:
+        stiff = s.arr("stiffness_nm_per_rad", 0.0, 1e11, "N m/rad", length=n - 1)
+        damp = s.arr("damping_nms_per_rad", 0.0, 1e7, "N m s/rad", length=n - 1)
+    else:
+        stiff = np.zeros(0)
+        damp = np.zeros(0)
+    nodes_of_cyl = c.data.get("node")
+    if not isinstance(nodes_of_cyl, list) or len(nodes_of_cyl) != z:
+        raise SpecError(f"{origin}: cylinders.node must list the shaft node name of each of the {z} cylinders")
+    try:
+        cyl_node = np.array([names.index(x) for x in nodes_of_cyl], dtype=np.int64)
+    except ValueError as exc:
+        raise SpecError(f"{origin}: cylinders.node names a node not in shaft.nodes: {exc}") from exc
+    try:
+        fly = names.index(s.str_("flywheel_node"))
+        loadn = names.index(s.str_("load_node"))
+    except ValueError as exc:
+        raise SpecError(f"{origin}: shaft.flywheel_node/load_node must name a node in shaft.nodes") from exc
+
+    f = r.table("friction")
+    fr = FrictionParams(
+        oil_viscosity_pa_s=f.num("oil_viscosity_pa_s", 1e-4, 1.0, "Pa s"),
+        ring_tension_pa=f.num("ring_tension_pa", 1e4, 5e6, "Pa"),
+        ring_thickness_m=f.num("ring_thickness_m", 1e-4, 0.02, "m"),
+        compression_rings=f.int_("compression_rings", 1, 6),
+        oil_rings=f.int_("oil_rings", 0, 4),
+        skirt_length_m=f.num("skirt_length_m", 0.005, 0.5, "m"),
+        skirt_film_m=f.num("skirt_film_m", 1e-6, 1e-3, "m"),
+        valves=f.int_("valves", 1, 8),
+        valve_spring_n_per_m=f.num("valve_spring_n_per_m", 1e2, 1e7, "N/m"),
+        bearing_radius_m=f.num("bearing_radius_m", 0.003, 0.5, "m"),
+        coefficients=f.arr("coefficients", 0.0, 1e6, "-", length=6),
+    )
+
+    b = r.table("combustion")
+    comb = CombustionParams(
+        fuel_mass_kg=b.num("fuel_mass_kg", 1e-7, 0.1, "kg"),
+        lhv_j_per_kg=b.num("lhv_j_per_kg", 1e7, 1.5e8, "J/kg"),
+        combustion_efficiency=b.num("combustion_efficiency", 0.5, 1.0, "-", default=0.98),
+        start_deg=b.num("start_deg", -60.0, 30.0, "deg"),
+        premixed_fraction=b.num("premixed_fraction", 0.0, 1.0, "-"),
+        premixed_duration_deg=b.num("premixed_duration_deg", 1.0, 120.0, "deg"),
+        diffusion_duration_deg=b.num("diffusion_duration_deg", 1.0, 180.0, "deg"),
+        wiebe_a=b.num("wiebe_a", 1.0, 20.0, "-", default=6.9),
+        premixed_exponent=b.num("premixed_exponent", 1.0, 10.0, "-", default=5.0),
+        diffusion_exponent=b.num("diffusion_exponent", 1.0, 10.0, "-", default=2.5),
+        p_ivc_pa=b.num("p_ivc_pa", 2e4, 1e6, "Pa"),
+        t_ivc_k=b.num("t_ivc_k", 200.0, 600.0, "K"),
+        p_intake_pa=b.num("p_intake_pa", 2e4, 1e6, "Pa"),
+        p_exhaust_pa=b.num("p_exhaust_pa", 5e4, 1e6, "Pa"),
+        t_wall_k=b.num("t_wall_k", 300.0, 800.0, "K", default=450.0),
+        ivc_deg=b.num("ivc_deg", -220.0, -90.0, "deg", default=-150.0),
+        evo_deg=b.num("evo_deg", 90.0, 180.0, "deg", default=130.0),
+        part_load_p_ivc_scaling=b.bool_("part_load_p_ivc_scaling", False),
+    )
+
+    ld = r.table("load")
+    load = LoadParams(
+        kind=ld.str_("kind", ("speed_power", "grid")),
+        exponent=ld.num("exponent", 0.0, 3.0, "-", default=1.0),
+        grid_stiffness_nm_per_rad=ld.num("grid_stiffness_nm_per_rad", 0.0, 1e9, "N m/rad", default=0.0),
+        grid_damping_nms_per_rad=ld.num("grid_damping_nms_per_rad", 0.0, 1e8, "N m s/rad", default=0.0),
+    )
+
+    se = r.table("sensors")
+    teeth = se.int_("wheel_teeth", 4, 2000)
+    sensors = SensorParams(
+        wheel_teeth=teeth,
+        wheel_missing=se.int_("wheel_missing", 0, 4),
+        first_tooth_deg=se.num("first_tooth_deg", -360.0, 360.0, "deg", default=0.0),
+        tick_hz=se.num("tick_hz", 1e5, 1e9, "Hz", default=10e6),
+        pressure_rate_hz=se.num("pressure_rate_hz", 1e3, 1e6, "Hz", default=20e3),
+        pressure_noise_pa=se.num("pressure_noise_pa", 0.0, 1e6, "Pa", default=2e3),
+        pressure_adc_bits=se.int_("pressure_adc_bits", 8, 24, default=16),
+        pressure_range_pa=se.num("pressure_range_pa", 1e6, 1e8, "Pa", default=25e6),
+        has_cam=se.bool_("has_cam", True),
+    )
+    if sensors.wheel_missing >= teeth // 2:
+        raise SpecError(f"{origin}: sensors.wheel_missing = {sensors.wheel_missing} is too many for {teeth} teeth")
+
+    op = r.table("operating")
+    rated = op.num("rated_speed_rpm", 100.0, 20000.0, "rpm")
+    rng = op.arr("speed_range_rpm", 50.0, 25000.0, "rpm", length=2)
+    if not rng[0] < rated <= rng[1]:
+        raise SpecError(f"{origin}: operating.speed_range_rpm {rng.tolist()} must contain rated_speed_rpm {rated}")
+    return EngineSpec(
+        name=name,
+        description=str(data.get("description", "")),
+        bore=bore,
+        stroke=stroke,
+        conrod=conrod,
+        compression_ratio=cr,
+        pin_offset=pin,
+        firing_angles=firing,
+        cylinder_node=cyl_node,
+        reciprocating_mass=m_rec,
+        node_names=tuple(names),
+        node_inertia=inertia,
+        stiffness=stiff,
+        damping=damp,
+        flywheel_node=fly,
+        load_node=loadn,
+        friction=fr,
+        combustion=comb,
+        load=load,
+        sensors=sensors,
+        rated_speed_rpm=rated,
+        rated_torque_nm=op.num("rated_torque_nm", 0.1, 1e6, "N m"),
+        speed_range_rpm=(float(rng[0]), float(rng[1])),
+        source_text=source_text,
+    )

@@ -1,0 +1,89 @@
+"""Assemble the ``CycleResult`` of one cycle: traces on the crank-angle grid, measured vs model speed, residuals."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from frictionwatch.core.model.dynamics import rigid_friction_torque
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.monitor.excitation import Excitation
+from frictionwatch.core.monitor.excitation_kernels import interp_rows_periodic
+from frictionwatch.core.monitor.flywheel import FlywheelMotion, harmonic_series, harmonics_of
+from frictionwatch.core.monitor.frozen_init import fast_constructor
+from frictionwatch.core.monitor.identify import CycleRows, ParameterLayout
+from frictionwatch.core.monitor.report_kernels import report_traces, speed_series, trig_tables
+from frictionwatch.core.monitor.results import CycleResult, FrictionEstimate
+from frictionwatch.core.types import Cycle
+
+FOUR_PI = 4.0 * np.pi
+_make_result = fast_constructor(CycleResult)  # CycleResult(**fields), cheaper
+
+
+def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excitation, rows: CycleRows,
+                 theta: np.ndarray, layout: ParameterLayout, drift: np.ndarray | None, load: float, balance: float,
+                 coupling_loss: float, pmax: np.ndarray, pmax_angle: np.ndarray, est_c: FrictionEstimate,
+                 est_s: FrictionEstimate, flags: list[str], freq: np.ndarray | None = None) -> CycleResult:
+    """theta: smoothed [friction scales, tooth nuisances]; drift (M,) complex: this cycle's drift shape in speed
+    harmonics (its best fit is taken out of the reported residual, as it is out of the noise statistics); freq (M,):
+    ``fly.freq`` if already at hand."""
+    grid = np.ascontiguousarray(cycle.grid, dtype=np.float64)
+    n_t = exc.tau.shape[0]
+    p_f = layout.n_params
+    theta = np.ascontiguousarray(theta, dtype=np.float64)
+    coef = layout.coefficients(theta[:p_f])
+    if exc.omega_fly is not None and exc.alpha_fly is not None:
+        omega_meas, alpha_meas = exc.omega_fly, exc.alpha_fly
+    else:
+        _, _, omega_meas, alpha_meas = fly.on_grid(n_t)
+    # the tooth-pattern part of the model and the residual (without this cycle's best-fitting drift, as in the
+    # noise statistics), the ripple power, and on the time grid the measured speed with the estimated tooth-spacing
+    # pattern taken out and the model speed (core.monitor.report_kernels: one kernel, direct sums for the inverse series)
+    m = rows.target.shape[0]
+    use_drift = drift is not None
+    cos_t, sin_t = trig_tables(m, n_t)
+    resid = np.empty(m, dtype=np.complex128)
+    extra = np.empty((3 if spec.n_nodes == 1 else 2, n_t))
+    resid_sq, power = speed_series(
+        _c128(rows.design), _c128(rows.target), theta, p_f, _c128(drift if use_drift else rows.target), use_drift,
+        fly.freq if freq is None else freq, _c128(fly.harmonics), np.ascontiguousarray(omega_meas, dtype=np.float64),
+        cos_t, sin_t, resid, extra)
+    omega_meas = extra[0]
+    r2 = 1.0 - resid_sq / power if power > 0 else float("nan")
+    if spec.n_nodes == 1:  # direct rigid balance (paper 001 Eq. 26), low-passed to the identification band
+        tl = load * (omega_meas / fly.omega_mean) ** spec.load.exponent if spec.load.kind != "grid" else load
+        direct = rigid_friction_torque(exc.theta_fly, omega_meas, alpha_meas, exc.gas.sum(axis=0), tl, spec)
+        extra[2] = harmonic_series(harmonics_of(direct, fly.n_harmonics), n_t, float(direct.mean()))
+    # the traces onto the crank-angle grid in one pass (one bracket search per grid point); the per-cylinder
+    # friction stays on the time grid until asked for (CycleResult.friction_torque_cyl)
+    z = coef.shape[0]
+    cyl_time = np.empty((z, n_t))
+    on_grid = np.empty((1 + extra.shape[0], grid.shape[0]))
+    theta_fly = np.ascontiguousarray(exc.theta_fly, dtype=np.float64)
+    report_traces(grid, theta_fly, coef, np.ascontiguousarray(exc.basis, dtype=np.float64), extra, cyl_time, on_grid)
+    total = on_grid[0]
+    speed_meas, speed_model = on_grid[1], on_grid[2]
+    balance_trace = on_grid[3] if spec.n_nodes == 1 else None
+    return _make_result(
+        index=cycle.index, t_start=cycle.t_start, rpm_mean=fly.omega_mean * 60.0 / (2.0 * np.pi),
+        omega_mean=fly.omega_mean, load_torque=float(load), load_power=float(cycle.load_power),
+        imep=exc.indicated_mean * FOUR_PI / spec.displacement_cyl, pmax=pmax, pmax_angle=pmax_angle,
+        indicated_torque=exc.indicated_mean, friction_balance=float(balance), coupling_loss=float(coupling_loss),
+        cycle=est_c, smoothed=est_s, grid=grid.copy(), friction_torque=total,
+        friction_torque_cyl_time=cyl_time, time_angles=theta_fly.copy(), speed_measured=speed_meas,
+        speed_model=speed_model,
+        residual_harmonics=resid, residual_rms=float(np.sqrt(0.5 * resid_sq)), r_squared=r2,
+        friction_torque_balance=balance_trace, flags=tuple(flags))
+
+
+def _c128(a: np.ndarray) -> np.ndarray:
+    if type(a) is np.ndarray and a.dtype == np.complex128 and a.flags.c_contiguous:
+        return a
+    return np.ascontiguousarray(a, dtype=np.complex128)
+
+
+def to_grid(grid: np.ndarray, theta: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Rows ``values`` (r, n_t) sampled at the increasing flywheel angles ``theta`` of the time grid, onto the
+    crank-angle ``grid`` (periodic in 4 pi: theta spans one cycle from the first tooth edge)."""
+    x = np.append(theta, theta[0] + FOUR_PI)
+    u = theta[0] + np.mod(grid - theta[0], FOUR_PI)
+    return interp_rows_periodic(u, x, values)

@@ -1,0 +1,60 @@
+"""Prior rows of the identification (physics.md §9, §10: 'a weak prior: commissioning baseline or siblings').
+
+- weak: each parameter scale theta ~ N(1, parameter_sigma^2) about the baseline a0 (core.monitor.identify);
+- tooth-spacing nuisances E_n ~ N(0, s^2 2/N_edges): white per-tooth errors of rms s (core.monitor.identify.tooth_patterns);
+- siblings: each per-cylinder scale within sibling_spread of the mean of its siblings (same parts in every cylinder;
+  the only prior that speaks for directions the speed cannot see, e.g. the contrast of cylinders 360 deg apart);
+- Eq. 6 sharing of the measured mean loss (core.monitor.sharing), per cylinder, added per cycle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from frictionwatch.core.monitor.accumulate import Prior
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.monitor.identify import ParameterLayout
+from frictionwatch.core.monitor.sharing import SharedLoss
+
+
+@dataclass(frozen=True)
+class FixedPriors:
+    """The fixed prior rows plus the per-cylinder rows (z, P) the Eq. 6 shares are attached to."""
+
+    base: Prior
+    cylinder_rows: np.ndarray
+
+    def with_share(self, share: SharedLoss) -> Prior:
+        if not np.all(np.isfinite(share.friction_mean)):
+            return self.base
+        return Prior.stack(self.base, Prior(self.cylinder_rows, share.friction_mean, np.maximum(share.sigma, 1e-6)))
+
+
+def build_priors(spec: EngineSpec, layout: ParameterLayout, n_nuisance: int, cylinder_rows: np.ndarray,
+                 parameter_sigma: float, tooth_error_deg: float, sibling_spread: float) -> FixedPriors:
+    """Priors over [friction scales (P_f), tooth nuisances (n_nuisance)]; cylinder_rows (z, P_f + n_nuisance)."""
+    p_f = layout.n_params
+    p = p_f + n_nuisance
+    sig = np.full(p, parameter_sigma)
+    target = np.concatenate([np.ones(p_f), np.zeros(n_nuisance)])
+    if n_nuisance:
+        # white per-tooth errors of rms s over N edges per revolution: each real Fourier part has rms s sqrt(2/N)
+        edges = spec.sensors.wheel_teeth - spec.sensors.wheel_missing
+        sig[p_f:] = np.radians(tooth_error_deg) * np.sqrt(2.0 / edges)
+    base = Prior(np.eye(p), target, sig)
+    z = spec.n_cyl
+    per_cyl = np.flatnonzero(layout.per_cylinder)
+    if sibling_spread > 0 and z > 1:
+        block = per_cyl.reshape(z, -1)  # one block of equal terms per cylinder
+        rows = []
+        for j in range(block.shape[1]):
+            for k in range(z):
+                r = np.zeros(p)
+                r[block[:, j]] = -1.0 / z
+                r[block[k, j]] += 1.0
+                rows.append(r)
+        sib = np.array(rows)
+        base = Prior.stack(base, Prior(sib, np.zeros(sib.shape[0]), np.full(sib.shape[0], sibling_spread)))
+    return FixedPriors(base, cylinder_rows)

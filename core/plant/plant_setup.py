@@ -1,0 +1,140 @@
+"""Arrays of the time-domain plant (core.plant.plant) built from an EngineSpec, its initial state and its linearisation.
+
+The shaft line is ``spec``'s node chain (physics.md §11) or, with torsional flexibility off, one rigid node holding the
+whole inertia, all cylinders, the flywheel and the load.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.kinematics import variable_inertia
+from frictionwatch.core.plant.plant import NQ_CYL, NQ_GLOBAL, S_AREA, S_E, S_FLY, S_GRID, S_LOAD, S_MREC, S_NSC, S_PCC, S_R, S_VARJ, _rhs
+from frictionwatch.core.model.thermo import P_CRANKCASE, CylinderModel
+
+
+@dataclass
+class PlantModel:
+    """Numeric arrays of the plant. ``inertia`` (n,) rotating inertia [kg m^2] (plus the mean reciprocating inertia
+    of each throw when ``variable_inertia`` is off), ``stiff``/``damp`` (n-1,) chain [N m/rad, N m s/rad],
+    ``cyl_node`` (z,), ``phase`` (z,) true firing angles [rad], ``coef`` (z, 6), ``extra`` (z, 4) = [mean N m,
+    amplitude N m, order, phase rad], ``fly``/``load`` node indices, ``rec_mean`` (n,) mean J_rec per node."""
+
+    inertia: np.ndarray
+    stiff: np.ndarray
+    damp: np.ndarray
+    cyl_node: np.ndarray
+    phase: np.ndarray
+    coef: np.ndarray
+    extra: np.ndarray
+    fly: int
+    load: int
+    variable_inertia: bool
+    rec_mean: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.inertia.shape[0])
+
+    @property
+    def mean_inertia(self) -> np.ndarray:
+        """Constant-inertia (M) diagonal [kg m^2]: rotating plus mean reciprocating inertia per node."""
+        return self.inertia + (self.rec_mean if self.variable_inertia else 0.0)
+
+
+def build_plant(spec: EngineSpec, *, flexible: bool, variable: bool, coef: np.ndarray, phase: np.ndarray,
+                extra: np.ndarray) -> PlantModel:
+    z = spec.n_cyl
+    if flexible:
+        inertia = spec.node_inertia.astype(np.float64).copy()
+        stiff, damp = spec.stiffness.astype(np.float64).copy(), spec.damping.astype(np.float64).copy()
+        cyl_node = spec.cylinder_node.astype(np.int64).copy()
+        fly, load = spec.flywheel_node, spec.load_node
+    else:
+        inertia = np.array([spec.total_inertia])
+        stiff, damp = np.zeros(0), np.zeros(0)
+        cyl_node = np.zeros(z, dtype=np.int64)
+        fly = load = 0
+    rec_mean = np.zeros(inertia.shape[0])
+    grid = np.linspace(0.0, 4.0 * np.pi, 2880, endpoint=False)
+    for node in np.unique(cyl_node):
+        j, _ = variable_inertia(grid, phase[cyl_node == node], spec.kinematics_params(), spec.reciprocating_mass, 0.0)
+        rec_mean[node] = j.mean()
+    if not variable:
+        inertia = inertia + rec_mean
+    return PlantModel(inertia, stiff, damp, cyl_node, np.asarray(phase, dtype=np.float64).copy(),
+                      np.ascontiguousarray(coef, dtype=np.float64), np.ascontiguousarray(extra, dtype=np.float64),
+                      int(fly), int(load), bool(variable), rec_mean)
+
+
+def scalars(spec: EngineSpec, plant: PlantModel) -> np.ndarray:
+    """The constant part of the kernel's scalar vector (the simulator fills the event and timing slots)."""
+    sc = np.zeros(S_NSC)
+    sc[S_R:S_E + 1] = spec.kinematics_params()
+    sc[S_AREA] = spec.piston_area
+    sc[S_PCC] = P_CRANKCASE
+    sc[S_MREC] = spec.reciprocating_mass
+    sc[S_VARJ] = 1.0 if plant.variable_inertia else 0.0
+    sc[S_FLY] = plant.fly
+    sc[S_LOAD] = plant.load
+    sc[S_GRID] = np.pi / 180.0
+    return sc
+
+
+def static_twist(plant: PlantModel, node_torque: np.ndarray) -> np.ndarray:
+    """Node angles [rad] relative to the flywheel under constant node torques that sum to zero (free chain)."""
+    s = np.cumsum(node_torque)[:-1]  # torque carried by each shaft section, front to rear
+    with np.errstate(divide="ignore", invalid="ignore"):
+        twist = np.where(plant.stiff > 0, s / np.where(plant.stiff > 0, plant.stiff, 1.0), 0.0)
+    ang = np.concatenate(([0.0], -np.cumsum(twist)))  # theta_(i+1) = theta_i - twist_i
+    return ang - ang[plant.fly]
+
+
+def chain_matrices(plant: PlantModel, grid_stiffness: float = 0.0, grid_damping: float = 0.0
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(M, K, C) of the linear model (mean inertia; load-to-grid spring and damper on the load node)."""
+    n = plant.n
+    k = np.zeros((n, n))
+    c = np.zeros((n, n))
+    for i in range(n - 1):
+        for mat, v in ((k, plant.stiff[i]), (c, plant.damp[i])):
+            mat[i, i] += v
+            mat[i + 1, i + 1] += v
+            mat[i, i + 1] -= v
+            mat[i + 1, i] -= v
+    k[plant.load, plant.load] += grid_stiffness
+    c[plant.load, plant.load] += grid_damping
+    return np.diag(plant.mean_inertia), k, c
+
+
+def linearised_stiffness(spec: EngineSpec, plant: PlantModel, tmodel: CylinderModel, load_law: np.ndarray,
+                         step: float = 1e-6) -> np.ndarray:
+    """-d(alpha)/d(theta) of the plant kernel's own right-hand side by central differences (no gas, no friction,
+    constant inertia), i.e. M^-1 K as the simulator integrates it."""
+    n, z = plant.n, spec.n_cyl
+    sc = scalars(spec, plant)
+    sc[S_VARJ] = 0.0
+    inertia = plant.mean_inertia.copy()
+    nd = (inertia, plant.stiff, plant.damp, np.zeros(n), np.zeros(n), np.zeros(n))
+    cy = (plant.cyl_node, plant.phase, np.zeros((z, 6)), np.zeros((z, 4)))
+    traces = np.full((z, 3, tmodel.theta.shape[0]), P_CRANKCASE)
+    slots = np.array([[0, 1, -1]] * z, dtype=np.int64)  # slot c % 3 holds cycle c = -1, 0, 1, all at crankcase pressure
+    w = tuple(np.zeros(z) for _ in range(7)) + (np.zeros((6, z)),)
+    acc = np.zeros(n)
+    pw = np.zeros(z * NQ_CYL + NQ_GLOBAL)
+    law = load_law.copy()
+    law[6] = 0.0  # no damping
+    jac = np.zeros((n, n))
+    for i in range(n):
+        cols = []
+        for sgn in (1.0, -1.0):
+            th = np.zeros(n)
+            th[i] = sgn * step
+            _rhs(0.0, th, np.full(n, law[8]), nd, cy, sc, spec.friction_params(), law, traces, slots,
+                 tmodel.step, w, acc, pw)
+            cols.append(acc.copy())
+        jac[:, i] = -(cols[0] - cols[1]) / (2 * step)
+    return jac

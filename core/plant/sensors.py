@@ -1,0 +1,106 @@
+"""Sensor models of the plant simulator: crank tooth wheel, timer ticks, cam pulse, pressure ADC, load readings.
+
+Angles here are in the *wheel frame*: the crank angle (cylinder-1 convention) that the wheel's stated
+``first_tooth_deg`` implies. Without a ``tdc_offset`` effect it equals the true flywheel crank angle.
+
+Tooth edge j (0 = first edge after the missing-tooth gap, j < teeth - missing) lies at
+    theta_W = first_tooth_deg + j * 360/teeth + err_j  [deg],  sum_j err_j = 0,
+repeated every 360 deg. Edge times are converted to integer timer ticks as floor(t * tick_hz + jitter), tick 0 being the
+start of output cycle 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from frictionwatch.core.model.engine import SensorParams
+from frictionwatch.core.types import CamBatch, LoadSample, PressureFrame, StreamRecord, ToothBatch
+
+CAM_DEG = 630.0  # cam / phase edge: 90 deg before cylinder-1 firing TDC, wheel frame
+LOAD_RATE_HZ = 100.0
+PRESSURE_BLOCK_S = 0.010
+
+
+def tooth_errors(sensors: SensorParams, rng: np.random.Generator, sigma_deg: float, runout_deg: float = 0.0,
+                 runout_phase_deg: float = 0.0) -> np.ndarray:
+    """Angle error [deg] of each present tooth edge: random (rms ``sigma_deg``) + runout at order 1, mean removed."""
+    n_present = sensors.wheel_teeth - sensors.wheel_missing
+    j = np.arange(n_present)
+    err = rng.normal(0.0, sigma_deg, n_present) if sigma_deg > 0 else np.zeros(n_present)
+    ang = np.radians(sensors.first_tooth_deg + j * 360.0 / sensors.wheel_teeth)
+    err = err + runout_deg * np.sin(ang + np.radians(runout_phase_deg))
+    return err - err.mean()
+
+
+def edge_angles(sensors: SensorParams, errors_deg: np.ndarray) -> np.ndarray:
+    """Wheel-frame angle [rad] of each present edge over one revolution, starting at the first tooth after the gap."""
+    j = np.arange(sensors.wheel_teeth - sensors.wheel_missing)
+    ang = np.radians(sensors.first_tooth_deg + j * 360.0 / sensors.wheel_teeth + errors_deg)
+    if np.any(np.diff(ang) <= 0):
+        raise ValueError("tooth errors are so large that edges swap order; lower sigma_deg / runout_deg")
+    return ang
+
+
+def first_index_at_or_after(start_rad: float, per_rev: np.ndarray, period: float) -> int:
+    """Smallest global index e (rev r = e // n, edge e % n at per_rev[e % n] + r*period) with angle >= start_rad."""
+    n = per_rev.shape[0]
+    r = int(np.floor((start_rad - per_rev[0]) / period)) - 1
+    e = r * n
+    while per_rev[e % n] + period * (e // n) < start_rad:
+        e += 1
+    return e
+
+
+def to_ticks(times_s: np.ndarray, tick_hz: float, jitter_s: float, rng: np.random.Generator) -> np.ndarray:
+    """Integer timer ticks of event times [s since tick 0]: floor(t * f + jitter), forced strictly increasing."""
+    x = times_s * tick_hz
+    if jitter_s > 0:
+        x = x + rng.normal(0.0, jitter_s * tick_hz, x.shape[0])
+    ticks = np.floor(x).astype(np.int64)
+    if ticks.shape[0] > 1:
+        ticks = np.maximum.accumulate(ticks)  # jitter can never reorder teeth at realistic levels; keep it safe
+        bump = np.concatenate(([0], np.cumsum(np.diff(ticks) <= 0)))
+        ticks = ticks + bump
+    return ticks
+
+
+def pressure_adc(p: np.ndarray, sensors: SensorParams, noise_pa: float, rng: np.random.Generator,
+                 offset_pa: float = 0.0, gain: float = 1.0) -> np.ndarray:
+    """Sensor reading [Pa]: gain * p + offset + noise, quantised to the ADC step and clipped to 0..range."""
+    y = gain * p + offset_pa
+    if noise_pa > 0:
+        y = y + rng.normal(0.0, noise_pa, p.shape)
+    lsb = sensors.pressure_range_pa / 2**sensors.pressure_adc_bits
+    y = np.round(y / lsb) * lsb
+    return np.clip(y, 0.0, sensors.pressure_range_pa)
+
+
+def records(edge_ticks: np.ndarray, teeth_per_batch: int, cam_ticks: np.ndarray, samples: np.ndarray,
+            sample_period_ticks: float, block_samples: int, load_ticks: np.ndarray, load_torque: np.ndarray,
+            load_power: np.ndarray) -> list[StreamRecord]:
+    """Stream records in arrival order (each keyed by its last tick; ties: teeth, cam, pressure, load).
+
+    samples : (m, z) pressure readings [Pa] of cylinders 1..z, sample i at i * sample_period_ticks, cut into
+    ``PressureFrame`` s of ``block_samples`` (all z cylinders sampled together, as an indicating system does);
+    t0_ticks = round(i0 * period) (exact when the period is whole ticks).
+    """
+    keyed: list[tuple[int, int, int, StreamRecord]] = []
+    for i in range(0, edge_ticks.shape[0], teeth_per_batch):
+        b = edge_ticks[i:i + teeth_per_batch]
+        keyed.append((int(b[-1]), 0, 0, ToothBatch(ticks=b.copy())))
+    for c in cam_ticks:
+        keyed.append((int(c), 1, 0, CamBatch(ticks=np.array([c], dtype=np.int64))))
+    m, z = samples.shape
+    cylinders = tuple(range(1, z + 1))
+    by_cylinder = np.ascontiguousarray(samples.T)  # (z, m): one frame is a slice of it
+    for i0 in range(0, m if z else 0, block_samples):
+        i1 = min(i0 + block_samples, m)
+        t0 = round(i0 * sample_period_ticks)
+        last = round((i1 - 1) * sample_period_ticks)
+        frame = PressureFrame(cylinders=cylinders, t0_ticks=t0, period_ticks=float(sample_period_ticks),
+                              values=np.ascontiguousarray(by_cylinder[:, i0:i1]))
+        keyed.append((last, 2, 0, frame))
+    for t, tq, pw in zip(load_ticks, load_torque, load_power):
+        keyed.append((int(t), 3, 0, LoadSample(ticks=int(t), torque=float(tq), power=float(pw))))
+    keyed.sort(key=lambda r: r[:3])
+    return [r[3] for r in keyed]

@@ -1,0 +1,306 @@
+"""Driver of the plant kernel: holds its arrays, runs it chunk by chunk, switches load laws, turns events into records.
+
+Load law during settling ("phase A"): a stiff speed-holding version of the preset's law (dyno: slope 2 J/T_cycle;
+grid: near-critical damping of the electromechanical mode) with deterministic combustion, so the plant reaches its
+mean equilibrium within a few cycles. The final law then carries exactly the measured equilibrium torque at the
+settled speed: dyno T_L = c + k omega^s with k = max(T_b, 0.25 T_b,full)/omega^s (c = 0 at loads >= 25 %,
+Seddak's c = 0, s = 1 case); grid T_L0 = T_b and delta_0 = mean rotor angle. Logs start after this.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.plant.plant import (
+    FOUR_PI,
+    I_N_CAM,
+    I_N_CYC,
+    I_N_EDGE,
+    I_N_GRID,
+    I_N_LOAD,
+    I_N_SAMPLE,
+    I_NEXT_CAM,
+    I_NEXT_CYCLE,
+    I_NEXT_EDGE,
+    I_NIST,
+    NQ_CYL,
+    NQ_GLOBAL,
+    OP_BETA,
+    OP_FUEL,
+    OP_N,
+    OP_OMEGA,
+    OP_PEXH,
+    OP_PINT,
+    OP_PIVC,
+    OP_SOC,
+    S_CAM,
+    S_CMIN,
+    S_H,
+    S_LPERIOD,
+    S_PPERIOD,
+    S_QPERKG,
+    S_T0OUT,
+    S_WHEEL_OFF,
+    TWO_PI,
+    _advance,
+)
+from frictionwatch.core.plant.plant_setup import PlantModel, scalars
+from frictionwatch.core.plant.sensors import (
+    CAM_DEG,
+    LOAD_RATE_HZ,
+    PRESSURE_BLOCK_S,
+    edge_angles,
+    first_index_at_or_after,
+    pressure_adc,
+    records,
+    to_ticks,
+    tooth_errors,
+)
+from frictionwatch.core.model.thermo import CylinderModel
+from frictionwatch.core.types import AcquisitionInfo
+
+FAR = 1 << 50  # event index that never fires
+
+
+class PlantRun:
+    def __init__(self, spec: EngineSpec, plant: PlantModel, tmodel: CylinderModel, *, h: float, omega: float,
+                 wheel_off: float, active: dict, rngs: list[np.random.Generator]):
+        self.spec, self.plant, self.active, self.rngs, self.omega = spec, plant, active, rngs, omega
+        z, n = spec.n_cyl, plant.n
+        sc = scalars(spec, plant)
+        sc[S_H] = h
+        sc[S_WHEEL_OFF] = wheel_off
+        sc[S_CAM] = np.radians(CAM_DEG)
+        sc[S_PPERIOD] = 1.0 / spec.sensors.pressure_rate_hz
+        sc[S_T0OUT] = np.inf
+        sc[S_LPERIOD] = 1.0 / LOAD_RATE_HZ
+        sc[S_QPERKG] = spec.combustion.combustion_efficiency * spec.combustion.lhv_j_per_kg
+        self.sc = sc
+        self.nd = (plant.inertia, plant.stiff, plant.damp, np.zeros(n), np.zeros(n), np.zeros(n))
+        self.cy = (plant.cyl_node, plant.phase, plant.coef, plant.extra)
+        self.fprm = spec.friction_params()
+        self.lp = np.zeros(12)
+        self.op = np.zeros(OP_N)
+        self.thermo = (tmodel.constants, tmodel.vol_half, tmodel.dvol_half)
+        self.traces = np.zeros((z, 3, tmodel.theta.shape[0]))
+        self.slot_cycle = np.full((z, 3), -FAR, dtype=np.int64)
+        tse = active.get("tooth_spacing_error", {"sigma_deg": 0.0, "runout_deg": 0.0, "runout_phase_deg": 0.0})
+        self.tooth_err = tooth_errors(spec.sensors, rngs[2], tse["sigma_deg"], tse["runout_deg"],
+                                      tse["runout_phase_deg"])
+        self.edges = (edge_angles(spec.sensors, self.tooth_err),
+                      np.arange(spec.sensors.wheel_teeth - spec.sensors.wheel_missing, dtype=np.float64))
+        nq = z * NQ_CYL + NQ_GLOBAL
+        self.state = (np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(nq), np.zeros(nq), np.zeros(z),
+                      np.array([0.0, -1.0]))
+        self.ist = np.zeros(I_NIST, dtype=np.int64)
+        for i in (I_NEXT_EDGE, I_NEXT_CAM):
+            self.ist[i] = FAR
+        t_cyc = FOUR_PI / omega
+        n_edge = 2 * spec.sensors.wheel_teeth + 16
+        n_samp = int(1.5 * t_cyc * spec.sensors.pressure_rate_hz) + 32
+        self.outs = (np.zeros((4, 1 + nq + z)), np.zeros((760, 3)), np.zeros((n_edge, 2)), np.zeros(4),
+                     np.zeros((n_samp, z)), np.zeros((int(1.5 * t_cyc * LOAD_RATE_HZ) + 4, 3)))
+        self.collected: list[list[np.ndarray]] = [[] for _ in self.outs]
+        self.cycle_n0 = 0
+        self.t_out0 = np.nan
+        self.law: dict = {}
+        self.leak = np.zeros(z)
+
+    # ---- setup ----------------------------------------------------------------------------------------------
+    def set_state(self, theta: np.ndarray, omega: float) -> None:
+        th, om = self.state[0], self.state[1]
+        th[:] = theta
+        om[:] = omega
+        self.cycle_n0 = int(np.ceil(th[self.plant.fly] / FOUR_PI))
+        self.ist[I_NEXT_CYCLE] = self.cycle_n0
+
+    def set_operating(self, fuel_kg: float, p_ivc: float, p_int: float, p_exh: float) -> None:
+        cb = self.spec.combustion
+        op = self.op
+        op[OP_FUEL], op[OP_SOC], op[OP_BETA] = fuel_kg, np.radians(cb.start_deg), cb.premixed_fraction
+        op[OP_PIVC], op[OP_PINT], op[OP_PEXH] = p_ivc, p_int, p_exh
+        if op[OP_OMEGA] == 0.0:
+            op[OP_OMEGA] = self.omega
+
+    def set_perturbations(self, spread, misfire, sig_q, sig_soc_deg, sig_beta, theta_start, theta_switch,
+                          cycles) -> None:
+        """Per cylinder-cycle (fuel factor, SOC shift rad, premixed factor); cycle c of cylinder k fires at
+        theta_F = 4 pi c + phase_k. Cycles firing before ``theta_switch`` get the deterministic mean."""
+        z, phase = self.spec.n_cyl, self.plant.phase
+        cmin = int(np.floor((theta_start - phase.max() - 1.0 + TWO_PI) / FOUR_PI)) - 1
+        ncc = cycles + 4 - cmin
+        self.sc[S_CMIN] = cmin
+        g = self.rngs[0]
+        eq, es, eb = g.standard_normal((3, z, ncc))
+        fired = self.rngs[6].random((z, ncc)) >= misfire[:, None]
+        pert = np.empty((z, ncc, 3))
+        pert[..., 0] = spread[:, None] * np.maximum(1.0 + sig_q * eq, 0.0) * fired
+        pert[..., 1] = np.radians(sig_soc_deg) * es
+        pert[..., 2] = np.maximum(1.0 + sig_beta * eb, 0.0)
+        fire_at = FOUR_PI * (cmin + np.arange(ncc))[None, :] + phase[:, None]
+        mean = fire_at <= theta_switch
+        pert[..., 0] = np.where(mean, (spread * (1.0 - misfire))[:, None], pert[..., 0])
+        pert[..., 1] = np.where(mean, 0.0, pert[..., 1])
+        pert[..., 2] = np.where(mean, 1.0, pert[..., 2])
+        self.pert = np.ascontiguousarray(pert)
+
+    def set_leak(self, leak: np.ndarray) -> None:
+        self.leak = np.ascontiguousarray(leak, dtype=np.float64)
+
+    def set_ripple(self, amplitude: float, order: float, phase: float) -> None:
+        self.lp[9:12] = amplitude, order, phase
+
+    # ---- load laws --------------------------------------------------------------------------------------------
+    def settle_law(self, brake: float, brake_full: float, min_frac: float) -> None:
+        """Dyno: the preset's law c + k omega^s (k from the estimate, re-tuned each settle cycle by ``govern``);
+        grid: near-critical damping of the electromechanical mode while settling."""
+        spec, lp = self.spec, self.lp
+        self.min_frac, self.brake_full = min_frac, brake_full
+        j_tot = float(self.plant.mean_inertia.sum())
+        if spec.load.kind == "grid":
+            ke, de = spec.load.grid_stiffness_nm_per_rad, spec.load.grid_damping_nms_per_rad
+            lp[0:9] = [1.0, 0.0, 0.0, 1.0, brake, ke, max(de, 2.0 * np.sqrt(ke * j_tot)),
+                       self.state[0][self.plant.load], self.omega]
+        else:
+            self._dyno(brake, self.omega)
+
+    def _dyno(self, brake: float, w: float) -> None:
+        """T_L = c + k omega^s carrying ``brake`` at speed w: c = 0 unless brake < min_frac * full-load brake."""
+        s = self.spec.load.exponent
+        k = max(brake, self.min_frac * self.brake_full, 1e-6) / w**s
+        self.lp[0:9] = [0.0, brake - k * w**s, k, s, 0.0, 0.0, 0.0, 0.0, w]
+
+    def _cycle_means(self, cycles: int = 1) -> tuple[float, float, float, float]:
+        """Over the last ``cycles`` complete cycles: (engine net torque = (W_g - W_f - W_damp)/angle, mean speed,
+        time-mean load torque, time-mean theta_L - Omega_g t)."""
+        rows = np.concatenate(self.collected[0])[-cycles - 1:]
+        z = self.spec.n_cyl
+        d = rows[-1] - rows[0]
+        cum = d[1:]
+        w_g = sum(cum[k * NQ_CYL] for k in range(z))
+        w_f = sum(float(self.plant.coef[k] @ cum[k * NQ_CYL + 1:k * NQ_CYL + 7]) + cum[k * NQ_CYL + 7]
+                  for k in range(z))
+        g = z * NQ_CYL
+        ang = cycles * FOUR_PI
+        return (w_g - w_f - cum[g + 1]) / ang, ang / d[0], cum[g + 2] / d[0], cum[g + 3] / d[0]
+
+    def govern(self) -> None:
+        """Settle-cycle speed governor (dyno only): re-tune the law so the engine holds the requested speed."""
+        if self.spec.load.kind == "grid":
+            return
+        t_net, w_mean, _, _ = self._cycle_means()
+        j_tot = float(self.plant.mean_inertia.sum())
+        self._dyno(t_net + 0.7 * j_tot / (FOUR_PI / self.omega) * (w_mean - self.omega), self.omega)
+
+    def final_law(self) -> dict:
+        """Freeze the law for the logged part; grid: T_L0 and delta_0 from the last two settle cycles."""
+        t_net, w_mean, t_load, delta = self._cycle_means(2)
+        self.law = {"kind": self.spec.load.kind, "engine_net_torque_nm": float(t_net),
+                    "load_torque_settled_nm": float(t_load), "omega_settled_rad_s": float(w_mean)}
+        if self.spec.load.kind == "grid":
+            self.lp[0:9] = [1.0, 0.0, 0.0, 1.0, t_load, self.spec.load.grid_stiffness_nm_per_rad,
+                            self.spec.load.grid_damping_nms_per_rad, delta, self.omega]
+            self.law.update(t_l0_nm=float(t_load), delta0_rad=float(delta), grid_omega_rad_s=float(self.omega),
+                            k_e=float(self.lp[5]), d_e=float(self.lp[6]))
+        self._describe()
+        return self.law
+
+    def _describe(self) -> None:
+        if self.spec.load.kind != "grid":
+            self.law.update(c_nm=float(self.lp[1]), k=float(self.lp[2]), s=float(self.lp[3]))
+
+    def change_law(self, brake: float, brake_full: float) -> None:
+        """Load step: the law that carries ``brake`` [N m] at the requested speed."""
+        self.brake_full = brake_full
+        if self.spec.load.kind == "grid":
+            self.lp[4] = brake
+        else:
+            self._dyno(brake, self.omega)
+
+    # ---- running ----------------------------------------------------------------------------------------------
+    @property
+    def theta_fly(self) -> float:
+        return float(self.state[0][self.plant.fly])
+
+    def advance_to(self, theta_stop: float, report, t_stop: float | None = None) -> bool:
+        """Integrate to flywheel angle ``theta_stop``; stop early at output time ``t_stop`` [s] (returns True then)."""
+        t_abs = np.inf if t_stop is None else self.t_out0 + t_stop
+        while True:
+            chunk = min(theta_stop, self.theta_fly + FOUR_PI)
+            status = _advance(self.nd, self.cy, self.sc, self.fprm, self.lp, self.op, self.pert, self.leak,
+                              self.thermo, self.traces, self.slot_cycle, self.edges, self.state, self.ist,
+                              self.outs, chunk, t_abs)
+            self._flush()
+            if status == 3:
+                raise RuntimeError("plant: a cylinder pressure trace was missing (internal error)")
+            if status == 4:
+                raise RuntimeError("plant: the state is no longer finite (integration diverged)")
+            report()
+            if status == 1:
+                return True
+            if status == 0 and self.theta_fly >= theta_stop:
+                return False
+
+    def _flush(self) -> None:
+        counts = (I_N_CYC, I_N_GRID, I_N_EDGE, I_N_CAM, I_N_SAMPLE, I_N_LOAD)
+        for buf, store, ci in zip(self.outs, self.collected, counts):
+            m = int(self.ist[ci])
+            if m:
+                store.append(buf[:m].copy())
+            self.ist[ci] = 0
+
+    def start_output(self) -> None:
+        """Tick 0 is now (theta_F just past -2 pi): start pressure/load sampling, tooth and cam edges."""
+        self.t_out0 = float(self.state[6][0])
+        self.sc[S_T0OUT] = self.t_out0
+        theta_w = self.theta_fly + self.sc[S_WHEEL_OFF]
+        self.ist[I_NEXT_EDGE] = first_index_at_or_after(theta_w, self.edges[0], TWO_PI)
+        if self.spec.sensors.has_cam:
+            self.ist[I_NEXT_CAM] = int(np.ceil((theta_w - self.sc[S_CAM]) / FOUR_PI))
+
+    def collect(self) -> dict:
+        def cat(i: int, width: int) -> np.ndarray:
+            return np.concatenate(self.collected[i]) if self.collected[i] else np.zeros((0, width))
+
+        z = self.spec.n_cyl
+        rows = cat(0, self.outs[0].shape[1])
+        return {"cycle_rows": rows, "cycle_index": self.cycle_n0 + np.arange(rows.shape[0]),
+                "grid": cat(1, 3), "edges": cat(2, 2), "cam": np.concatenate(self.collected[3] or [np.zeros(0)]),
+                "samples": cat(4, z), "load": cat(5, 3), "t_out0": self.t_out0, "law": self.law}
+
+    def sensor_records(self, out: dict) -> tuple[list, AcquisitionInfo, dict]:
+        spec, se, t0 = self.spec, self.spec.sensors, self.t_out0
+        noise = self.active.get("sensor_noise", {"edge_jitter_ns": 0.0, "pressure_noise_scale": 0.0,
+                                                 "load_noise_frac": 0.0})
+        jitter = noise["edge_jitter_ns"] * 1e-9
+        edge_ticks = to_ticks(out["edges"][:, 0] - t0, se.tick_hz, jitter, self.rngs[3])
+        cam_ticks = to_ticks(out["cam"] - t0, se.tick_hz, jitter, self.rngs[3]) if se.has_cam else np.zeros(0, int)
+        samples = out["samples"].copy()
+        po = self.active.get("pressure_offset")
+        rng = self.rngs[4]
+        for k in range(spec.n_cyl):
+            off, gain = (po["pa"], po["gain"]) if po and po["cylinder"] == k + 1 else (0.0, 1.0)
+            samples[:, k] = pressure_adc(samples[:, k], se, se.pressure_noise_pa * noise["pressure_noise_scale"],
+                                         rng, off, gain)
+        load = out["load"]
+        dt = np.diff(load[:, 0])
+        torque = np.diff(load[:, 1]) / dt
+        power = np.diff(load[:, 2]) / dt
+        sig = noise["load_noise_frac"] * spec.rated_torque_nm
+        if sig > 0 and torque.size:
+            e = self.rngs[5].normal(0.0, sig, torque.size)
+            torque, power = torque + e, power + e * self.omega
+        load_ticks = np.round((load[1:, 0] - t0) * se.tick_hz).astype(np.int64)
+        per_rev = se.wheel_teeth - se.wheel_missing
+        period_ticks = se.tick_hz / se.pressure_rate_hz
+        block = max(1, round(PRESSURE_BLOCK_S * se.pressure_rate_hz))
+        recs = records(edge_ticks, per_rev, cam_ticks, samples, period_ticks, block, load_ticks, torque, power)
+        info = AcquisitionInfo(tick_hz=se.tick_hz, wheel_teeth=se.wheel_teeth, wheel_missing=se.wheel_missing,
+                               first_tooth_deg=se.first_tooth_deg, cam_deg=CAM_DEG if se.has_cam else None,
+                               pressure_cylinders=tuple(range(1, spec.n_cyl + 1)))
+        wheel = {"first_tooth_deg_stated": se.first_tooth_deg,
+                 "first_tooth_deg_true": se.first_tooth_deg - float(np.degrees(self.sc[S_WHEEL_OFF])),
+                 "tooth_errors_deg": self.tooth_err.tolist(), "cam_deg_stated": CAM_DEG if se.has_cam else None,
+                 "edge_ticks_first_tooth_index": int(out["edges"][0, 1]) if out["edges"].size else None}
+        return recs, info, wheel

@@ -1,0 +1,219 @@
+"""Plant simulator: time-domain torsional engine model with per-cylinder thermodynamics, friction, sensors, effects.
+
+    simulate(spec, rpm, load, cycles, seed, effects=None, without=(), cov_imep=0.02, load_steps=None,
+             progress=None) -> SimResult
+
+This is deliberately a different route from the monitor's harmonic balance (design.md §4): fixed-step RK4 in time on
+the full nonlinear chain (core.plant.plant), with J(theta) per throw, pressure and friction at each throw's own angle.
+
+Conventions (truth and records):
+- Crank angle: cylinder 1's convention, 0 = its firing TDC. The truth uses the TRUE flywheel-node angle theta_F;
+  the wheel's *stated* ``first_tooth_deg`` (AcquisitionInfo) is the nominal one, so with ``tdc_offset`` (cylinder 0)
+  the wheel frame is theta_W = theta_F + offset.
+- Cycle n is the interval where theta_F is in [4 pi n, 4 pi (n+1)), n = 0 the first output cycle. Times are seconds
+  in the tick time base: tick 0 (t = 0) is the start of the records, one crank revolution (theta_F = -2 pi) before
+  cycle 0, so a monitor can find the gap and the cam before cycle 0.
+- Mean torques are cycle work / 4 pi [N m] (work at each node's own speed); mep = work / displacement.
+  Friction = mechanical friction only (six Rezeka-Henein terms + extra_friction); the power dissipated in relative
+  dampers (torsional damper, shaft damping, coupling) is reported as ``damper_coupling_loss_nm``, not as friction.
+- Signs: gas torque positive driving; friction and load torques are magnitudes opposing rotation (physics.md §0).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import eigh
+
+from frictionwatch.core.model.effects import resolve_effects
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.plant.operating_point import (
+    engine_brake_torque,
+    fuel_for_load,
+    idle_fuel,
+    leak_area_for_loss,
+    variability_sensitivity,
+)
+from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, static_twist
+from frictionwatch.core.plant.sim_run import PlantRun
+from frictionwatch.core.plant.sim_truth import build_truth
+from frictionwatch.core.model.thermo import charge_pressures, cylinder_model
+from frictionwatch.core.types import AcquisitionInfo, StreamRecord
+
+STEP_DEG = 0.25  # integrator step at the mean speed (capped by the fastest mode)
+SETTLE_A_CYCLES = 6  # governed settle (dyno law re-tuned per cycle; grid mode damped), deterministic combustion
+SETTLE_B_CYCLES = 1  # final load law, combustion variability on (half a cycle, then one lead-in revolution)
+MIN_SLOPE_FRACTION = 0.25  # dyno law slope never below 25 % of the full-load brake torque / omega^s
+
+
+@dataclass
+class SimResult:
+    """records: stream records in arrival order; info: what the acquisition states; truth: JSON-able ground truth;
+    diagnostics: numpy arrays for tests (true flywheel speed and friction on the 1-deg grid, tooth errors, ...)."""
+
+    records: list[StreamRecord]
+    info: AcquisitionInfo
+    truth: dict
+    diagnostics: dict = field(default_factory=dict)
+
+
+def _validate(spec: EngineSpec, rpm: float, load: float, cycles: int, cov_imep: float, load_steps) -> list:
+    if not (np.isfinite(rpm) and 0.2 * spec.speed_range_rpm[0] <= rpm <= 1.2 * spec.speed_range_rpm[1]):
+        raise ValueError(f"rpm = {rpm!r} is outside {spec.name}'s usable range {spec.speed_range_rpm}")
+    if not (np.isfinite(load) and 0.0 <= load <= 1.2):
+        raise ValueError(f"load = {load!r} must be a fraction of full load in 0..1.2")
+    if not (isinstance(cycles, (int, np.integer)) and 1 <= cycles <= 1_000_000):
+        raise ValueError(f"cycles = {cycles!r} must be an integer >= 1")
+    if not (np.isfinite(cov_imep) and 0.0 <= cov_imep <= 0.2):
+        raise ValueError(f"cov_imep = {cov_imep!r} must be in 0..0.2 (a fraction)")
+    steps = sorted((float(t), float(f)) for t, f in (load_steps or []))
+    for t, f in steps:
+        if not (np.isfinite(t) and t >= 0 and np.isfinite(f) and 0.0 <= f <= 1.2):
+            raise ValueError(f"load step ({t}, {f}) needs time >= 0 s and a fraction in 0..1.2")
+    return steps
+
+
+def simulate(spec: EngineSpec, rpm: float, load: float, cycles: int, seed: int,
+             effects: dict[str, dict] | None = None, without: set[str] | tuple = (), cov_imep: float = 0.02,
+             load_steps: list[tuple[float, float]] | None = None,
+             progress: Callable[[float], None] | None = None,
+             coefficients: np.ndarray | None = None, fuel_spread: float = 0.01) -> SimResult:
+    """Simulate ``cycles`` steady engine cycles (after an unlogged settling period) and return records and truth.
+
+    Parameters
+    ----------
+    spec : engine; rpm : requested mean speed [rpm]; load : fraction of full load (0 = zero brake torque);
+    cycles : output cycles; seed : all randomness (combustion, spread, wheel errors, noise) derives from it.
+    effects : {name: {param: value}} turned on (core.model.effects); without : default-on effects turned off.
+    cov_imep : cycle-to-cycle COV of IMEP (fraction, default 2 %). load_steps : [(time_s, fraction)], time in the
+    tick time base. coefficients : (z, 6) raw a_kl per cylinder (default: the preset's a_l for every cylinder).
+    fuel_spread : rms of the fixed cylinder-to-cylinder fuel spread (fraction).
+    """
+    steps = _validate(spec, rpm, load, cycles, cov_imep, load_steps)
+    z = spec.n_cyl
+    active = resolve_effects(effects, without, z)
+    rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(8)]
+    omega = rpm * np.pi / 30.0
+    tmodel = cylinder_model(spec)
+
+    coef = np.tile(spec.friction.coefficients, (z, 1)) if coefficients is None else np.array(coefficients, float)
+    if coef.shape != (z, 6) or not np.all(np.isfinite(coef)) or np.any(coef < 0):
+        raise ValueError(f"coefficients must be a ({z}, 6) array of finite values >= 0")
+    phase = spec.firing_angles.astype(float).copy()
+    wheel_off = 0.0
+    if "tdc_offset" in active:
+        e = active["tdc_offset"]
+        if e["cylinder"] == 0:
+            wheel_off = np.radians(e["deg"])
+        else:
+            phase[e["cylinder"] - 1] += np.radians(e["deg"])
+    if "ring_wear" in active:
+        coef[active["ring_wear"]["cylinder"] - 1, :3] *= active["ring_wear"]["gain"]
+    spread = np.ones(z)
+    if z > 1 and fuel_spread > 0:
+        spread = 1.0 + fuel_spread * rngs[1].standard_normal(z)
+        spread = np.clip(spread / spread.mean(), 0.5, 1.5)
+    misfire = np.zeros(z)
+    if "misfire" in active:
+        misfire[active["misfire"]["cylinder"] - 1] = active["misfire"]["probability"]
+
+    # ---- operating point estimate (quasi-static), leak sizing, extra friction reference ----
+    leak, extra, no_extra = np.zeros(z), np.zeros((z, 4)), np.zeros(z)
+    m0 = idle_fuel(spec, tmodel, omega, spread, coef, leak, misfire, no_extra)
+    for name in ("ring_wear", "blow_by"):
+        if name in active and active[name]["mass_loss"] > 0:
+            k = active[name]["cylinder"] - 1
+            leak[k] = leak_area_for_loss(spec, tmodel, omega, fuel_for_load(m0, spec, load) * spread[k], load,
+                                         active[name]["mass_loss"])
+    if "extra_friction" in active:
+        e = active["extra_friction"]
+        k = e["cylinder"] - 1
+        _, means0 = engine_brake_torque(spec, tmodel, omega, fuel_for_load(m0, spec, load) * spread, load, coef,
+                                        leak, misfire, no_extra)
+        ref = means0[k].friction_nm
+        extra[k] = [ref * e["mean_frac"], ref * e["amp_frac"], e["order"], np.radians(e["phase_deg"])]
+    m0 = idle_fuel(spec, tmodel, omega, spread, coef, leak, misfire, extra[:, 0])
+
+    def point(frac: float) -> tuple[float, float, list]:
+        fuel = fuel_for_load(m0, spec, frac)
+        tb, means = engine_brake_torque(spec, tmodel, omega, fuel * spread, frac, coef, leak, misfire, extra[:, 0])
+        return fuel, tb, means
+
+    fuel0, brake0, means = point(load)
+    brake_full = point(1.0)[1] if spec.load.kind == "speed_power" else brake0
+
+    # ---- cycle-to-cycle variability, calibrated to the requested COV of IMEP ----
+    imep0, d_q, d_soc = variability_sensitivity(spec, tmodel, omega, fuel0, load)
+    sig_soc = sig_beta = sig_q = 0.0
+    if cov_imep > 0:
+        target = cov_imep * abs(imep0)
+        sig_soc = 0.5 * cov_imep / 0.02
+        if (d_soc * sig_soc) ** 2 > 0.5 * target**2:
+            sig_soc = np.sqrt(0.5) * target / abs(d_soc)
+        sig_beta = 0.1 * cov_imep / 0.02
+        sig_q = np.sqrt(max(target**2 - (d_soc * sig_soc) ** 2, 0.0)) / max(d_q, 1e-9)
+
+    # ---- plant ----
+    plant = build_plant(spec, flexible="torsional_flexibility" in active, variable="variable_inertia" in active,
+                        coef=coef, phase=phase, extra=extra)
+    grid_k = spec.load.grid_stiffness_nm_per_rad if spec.load.kind == "grid" else 0.0
+    mm, kk, _ = chain_matrices(plant, grid_k)
+    w_max = np.sqrt(max(eigh(kk, mm, eigvals_only=True).max(), 0.0))
+    h = min(np.radians(STEP_DEG) / omega, 0.5 / w_max if w_max > 0 else np.inf)
+    node_torque = np.zeros(plant.n)
+    for k in range(z):
+        node_torque[plant.cyl_node[k]] += means[k].indicated_nm - means[k].friction_nm - extra[k, 0]
+    node_torque[plant.load] -= node_torque.sum()
+
+    run = PlantRun(spec, plant, tmodel, h=h, omega=omega, wheel_off=wheel_off, active=active, rngs=rngs)
+    theta_start = -4.0 * np.pi * (SETTLE_A_CYCLES + SETTLE_B_CYCLES) - 2.0 * np.pi
+    theta_switch = -4.0 * np.pi * SETTLE_B_CYCLES
+    run.set_state(theta_start + static_twist(plant, node_torque), omega)
+    run.set_leak(leak)
+    run.set_operating(fuel0, *charge_pressures(spec, load))
+    run.set_perturbations(spread, misfire, sig_q, sig_soc, sig_beta, theta_start, theta_switch, cycles)
+    ripple = 0.0
+    if "load_ripple" in active:
+        e = active["load_ripple"]
+        ripple = e["amplitude_nm"] if e["amplitude_nm"] > 0 else e["fraction"] * abs(brake0)
+        run.set_ripple(ripple, e["order"], np.radians(e["phase_deg"]))
+    run.settle_law(brake0, brake_full, MIN_SLOPE_FRACTION)
+    total_angle = 4.0 * np.pi * (cycles + SETTLE_A_CYCLES + SETTLE_B_CYCLES) + 0.5 * np.pi
+
+    def report() -> None:
+        if progress is not None:
+            progress(float(np.clip((run.theta_fly - theta_start) / total_angle, 0.0, 1.0)))
+
+    for i in range(SETTLE_A_CYCLES):
+        run.advance_to(theta_start + 2.0 * np.pi + 4.0 * np.pi * (i + 1), report)
+        run.govern()
+    law_info = run.final_law()
+    run.advance_to(-2.0 * np.pi, report)
+    run.start_output()
+    correction = law_info["load_torque_settled_nm"] - brake0
+    step_log = []
+    for t_step, frac in steps:
+        if not run.advance_to(4.0 * np.pi * cycles + 0.5 * np.pi, report, t_stop=t_step):
+            break
+        fuel, tb, _ = point(frac)
+        run.set_operating(fuel, *charge_pressures(spec, frac))
+        run.change_law(tb + correction, brake_full + correction)
+        step_log.append({"time_s": t_step, "load": frac, "fuel_kg": fuel, "brake_torque_estimate_nm": tb})
+    run.advance_to(4.0 * np.pi * cycles + 0.5 * np.pi, report)
+    if progress is not None:
+        progress(1.0)
+
+    out = run.collect()
+    records, info, wheel = run.sensor_records(out)
+    operating = {
+        "omega_requested_rad_s": omega, "fuel_kg_per_cycle": fuel0, "idle_fuel_kg": m0,
+        "fuel_spread": spread.tolist(), "leak_area_m2": leak.tolist(), "brake_torque_estimate_nm": brake0,
+        "load_law": law_info, "load_steps": step_log, "cov_imep": cov_imep,
+        "variability": {"sigma_fuel": sig_q, "sigma_soc_deg": sig_soc, "sigma_premixed": sig_beta},
+        "step_s": h, "settle_cycles": SETTLE_A_CYCLES + SETTLE_B_CYCLES, "load_ripple_nm": ripple,
+    }
+    truth, diag = build_truth(spec, plant, out, cycles=cycles, rpm=rpm, load=load, seed=seed, active=active,
+                              wheel=wheel, operating=operating)
+    return SimResult(records=records, info=info, truth=truth, diagnostics=diag)

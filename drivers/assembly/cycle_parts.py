@@ -1,0 +1,311 @@
+"""Pieces of the cycle assembler (drivers/cycles.py): wheel positions, synced segments, epochs, pressure and load.
+
+Positions. Every edge of a synced segment has a position in pitches, ``pos``; its wheel index is ``pos mod N``
+(teeth 0..T-1 exist, T..N-1 are the gap). Within one epoch positions continue across resyncs, so the nominal crank
+angle of an edge is theta = pos * 2 pi / N + a0 + 2 pi P (a0 = angle of tooth 0 mod 2 pi, P = 4-stroke phase bit)
+and cycle c spans theta in [4 pi c, 4 pi (c + 1)].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from frictionwatch.drivers.assembly.cycle_kernels import REDUCE_MAX, _window_sums
+from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
+from frictionwatch.drivers.assembly.frame_store import FrameChannel, FrameGroup
+from frictionwatch.drivers.assembly.pressure_kernels import ROW_NAN, ROW_OK, _pressure_row
+from frictionwatch.drivers.assembly.pressure_ring import PressureGroup
+from frictionwatch.drivers.assembly.resample import CHECK_HOLE, CHECK_NAN, interp_checked, pchip_eval
+from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
+
+
+@dataclass(frozen=True)
+class Wheel:
+    """N positions, k missing, T = N - k teeth; ``a0_pitch`` = angle of tooth 0 (mod 2 pi) in pitches."""
+
+    n: int
+    k: int
+    a0_pitch: float
+    # derived, stored once: read ~40 times per cycle on the assembly's hot path (a property costs a call each)
+    t: int = field(init=False, repr=False, compare=False)
+    pitch: float = field(init=False, repr=False, compare=False)
+
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "t", self.n - self.k)
+        object.__setattr__(self, "pitch", 2.0 * math.pi / self.n)
+
+    def ordinal(self, pos: int) -> int:
+        """Running count of existing teeth up to ``pos`` (pos must be a tooth)."""
+        return (pos // self.n) * self.t + pos % self.n
+
+    def pos_of_ordinal(self, o: np.ndarray | int):
+        return (o // self.t) * self.n + o % self.t
+
+    def tooth_at_or_before(self, x: float) -> int:
+        p = math.floor(x + 1e-9)
+        j = p % self.n
+        return p - (j - (self.t - 1)) if j >= self.t else p
+
+    def tooth_at_or_after(self, x: float) -> int:
+        p = math.ceil(x - 1e-9)
+        j = p % self.n
+        return p + (self.n - j) if j >= self.t else p
+
+    def window(self, h2: int) -> tuple[int, int]:
+        """Start and closing tooth of the 720 deg window whose start is 2 pi * h2 in tooth-0 angle (a0 included)."""
+        lo = self.n * h2 - self.a0_pitch
+        return self.tooth_at_or_before(lo), self.tooth_at_or_after(lo + 2 * self.n)
+
+
+@dataclass
+class Segment:
+    """A run of verified edges: edge ``first_seq`` is at epoch position ``first_pos``; ``good`` is its last good edge."""
+
+    wheel: Wheel
+    first_seq: int
+    first_pos: int
+    t_first: int
+    good: int
+    t_good: int = 0
+    reason: str | None = None  # why it ended (None while running)
+    # first_seq - ordinal(first_pos), fixed at creation: seq_of runs ~10 times per cycle on the hot path
+    _base: int = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self._base = self.first_seq - self.wheel.ordinal(self.first_pos)
+
+    def seq_of(self, pos: int) -> int:
+        w = self.wheel  # = first_seq + ordinal(pos) - ordinal(first_pos), the same integers
+        return self._base + (pos // w.n) * w.t + pos % w.n
+
+    def pos_of(self, seq: np.ndarray | int):
+        return self.wheel.pos_of_ordinal(seq - self._base)  # ordinal(first_pos) + (seq - first_seq): same integers
+
+    @property
+    def good_pos(self) -> int:
+        return int(self.pos_of(self.good))
+
+
+@dataclass
+class Epoch:
+    """Segments that share one position count (bridged across short disturbances) and one 4-stroke phase."""
+
+    segments: list[Segment]
+    t_start: int
+    phase: int | None = None
+    phase_source: str = ""
+    next_c: int = 0
+    c0: int = 0
+    index_base: int = 0
+    probe: int | None = None  # next rev-aligned window tried for the pressure phase test
+    cam_votes: list[tuple[int, int]] = field(default_factory=list)  # (tick, phase bit)
+    mismatch_run: int = 0
+
+    def segment_at(self, pos: int) -> Segment | None:
+        for seg in reversed(self.segments):
+            if seg.first_pos <= pos:
+                return seg
+        return None
+
+    def index_of(self, c: int) -> int:
+        return self.index_base + (c - self.c0)
+
+
+def nominal_angle(n: int, a0_deg: float, pos: np.ndarray, c: int, phase: int) -> np.ndarray:
+    """Crank angle [rad] of edges at ``pos`` within cycle c (wheel of n positions, tooth 0 at ``a0_deg``), built in
+    degrees from integers so that edges on 0 and 720 deg land exactly there (360/N is exact for the usual wheels)."""
+    deg = a0_deg + (pos - 2 * n * c + n * phase) * (360.0 / n)
+    return np.radians(deg)
+
+
+def grid_times(theta: np.ndarray, ticks: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Timer ticks (float) at the ``grid`` angles from the monotone t(theta) through the tooth edges."""
+    t0 = ticks[0]
+    return pchip_eval(theta, (ticks - t0).astype(np.float64), grid) + float(t0)
+
+
+def bridge_offset(prev: Segment, first_pos_rel: int, t_first: int, max_revs: float = 3.0) -> int | None:
+    """Offset (a multiple of N) that puts a new segment's anchor-relative positions on the count of the epoch whose
+    last segment is ``prev``, or None. The pitches between the two are estimated from the elapsed time at the mean
+    pitch time of ``prev``; the new segment's wheel index fixes the rest. Accepted only if the silence is shorter
+    than ``max_revs`` revolutions and the estimate lands within a quarter turn of a consistent position."""
+    w = prev.wheel
+    if not (prev.good > prev.first_seq and prev.t_good > prev.t_first and t_first > prev.t_good):
+        return None
+    p_last = prev.good_pos
+    tau = (prev.t_good - prev.t_first) / (p_last - prev.first_pos)
+    est = p_last + (t_first - prev.t_good) / tau
+    off = w.n * round((est - first_pos_rel) / w.n)
+    if abs(first_pos_rel + off - est) <= w.n / 4 and est - p_last <= max_revs * w.n and first_pos_rel + off > p_last:
+        return int(off)
+    return None
+
+
+def window_status(epoch: Epoch, ps: int, pe: int) -> tuple[str, Segment | None]:
+    """'complete' (all edges ps..pe plus one look-ahead verified), 'wait', 'broken' (a segment ended inside) or
+    'hole' (starts after its segment's end: broken if a later segment exists, else wait)."""
+    seg = epoch.segments[-1]  # the usual answer of segment_at: the running segment
+    if seg.first_pos > ps:
+        seg = epoch.segment_at(ps)
+        if seg is None:
+            return "before", None
+    s_end = seg.seq_of(pe)
+    if s_end <= seg.good:
+        return "complete", seg
+    if seg.reason is None:
+        return "wait", seg
+    s_start = seg.seq_of(ps)
+    if s_start > seg.good:
+        return ("broken" if seg is not epoch.segments[-1] else "wait"), seg
+    return "broken", seg
+
+
+def pressure_on_grid(ring: RingBuffer, t_grid: np.ndarray) -> tuple[np.ndarray | None, str]:
+    """Samples of one cylinder at the grid times (linear in time). Returns (row, '') or (None, reason).
+
+    Reasons: 'pressure_missing' (the ring does not cover the window, or a hole of more than 1.5 sample periods),
+    'pressure_nan' (a NaN sample inside the window)."""
+    if len(ring) < 2:
+        return None, "pressure_missing"
+    q = t_grid if type(t_grid) is np.ndarray and t_grid.dtype == np.float64 and t_grid.flags.c_contiguous \
+        else np.ascontiguousarray(t_grid, dtype=np.float64)
+    if q.ndim != 1 or q.shape[0] < 2 or not q[0] < q[-1]:  # not a cycle's increasing grid times: the general path
+        return _pressure_on_grid_general(ring, q)
+    out = np.empty(q.shape[0])
+    if isinstance(ring, FrameChannel):  # values kept in frames: the group kernel on this row alone
+        code = ring.row_on_grid(q, out)
+    else:
+        code = _pressure_row(ring._cols["t"], ring._cols["p"], ring.start, ring.end, q, out)
+    if code == ROW_OK:
+        return out, ""
+    return None, ("pressure_nan" if code == ROW_NAN else "pressure_missing")
+
+
+def _pressure_on_grid_general(ring: RingBuffer, t_grid: np.ndarray) -> tuple[np.ndarray | None, str]:
+    """``pressure_on_grid`` through the RingBuffer and ``interp_checked`` (the kernel's reference semantics)."""
+    t_lo, t_hi = float(t_grid[0]), float(t_grid[-1])
+    a = ring.searchsorted("t", t_lo, side="right") - 1
+    b = ring.searchsorted("t", t_hi, side="left") + 1
+    if a < ring.start or b > ring.end:
+        return None, "pressure_missing"
+    row, code = interp_checked(t_grid, ring.view("t", a, b), ring.view("p", a, b))
+    if code == CHECK_HOLE:
+        return None, "pressure_missing"
+    if code == CHECK_NAN:
+        return None, "pressure_nan"
+    return row, ""
+
+
+@dataclass
+class GridPlan:
+    """How a cycle's (z, n) pressure matrix is filled from the pressure groups: one kernel call per group.
+
+    calls : (group, rows, codes) per group holding an expected cylinder; rows[r] = matrix row of the group's row r
+        (cylinder - 1), -1 if that cylinder is not expected; codes (int64) receives each row's ROW_* code
+    order : (cylinder, group or None) by first position in ``expected``: the readiness check (one per group, in
+        the order that finds the same first unready cylinder as a per-cylinder loop)
+    reasons : (cylinder, index into calls or -1 if no group, row) in ``expected`` order: the skip reason of a
+        failed matrix is that of the first failing cylinder, as in a per-cylinder loop
+    """
+
+    expected: tuple[int, ...]
+    calls: list[tuple[PressureGroup | FrameGroup, np.ndarray, np.ndarray]]
+    order: list[tuple[int, PressureGroup | FrameGroup | None]]
+    reasons: list[tuple[int, int, int]]
+    missing: bool
+    nan_rows: np.ndarray  # matrix rows of the cylinders not expected (NaN rows)
+
+
+def grid_plan(buf: EngineBuffers, expected: tuple[int, ...], n_cyl: int) -> GridPlan:
+    """The ``GridPlan`` of the expected cylinders (1..n_cyl) over the current groups of ``buf``."""
+    want = set(expected)
+    calls: list[tuple[PressureGroup | FrameGroup, np.ndarray, np.ndarray]] = []
+    index: dict[int, int] = {}
+    order: list[tuple[int, PressureGroup | FrameGroup | None]] = []
+    reasons: list[tuple[int, int, int]] = []
+    for cyl in expected:
+        ch = buf.pressure.get(cyl)
+        if ch is None:
+            order.append((cyl, None))
+            reasons.append((cyl, -1, 0))
+            continue
+        g = ch.group
+        if id(g) not in index:
+            index[id(g)] = len(calls)
+            rows = np.array([c - 1 if c in want and 1 <= c <= n_cyl else -1 for c in g.cylinders], dtype=np.int64)
+            calls.append((g, rows, np.zeros(len(g.cylinders), dtype=np.int64)))
+            order.append((cyl, g))
+        reasons.append((cyl, index[id(g)], ch.row))
+    nan_rows = np.array([r for r in range(n_cyl) if r + 1 not in want], dtype=np.int64)
+    return GridPlan(tuple(expected), calls, order, reasons, any(ci < 0 for _, ci, _ in reasons), nan_rows)
+
+
+def plan_ready(plan: GridPlan, t_end: float) -> int | None:
+    """None if every expected cylinder has a sample at or after ``t_end``, else the first one that has not."""
+    for cyl, g in plan.order:
+        if g is None or g.end == g.start or g.newest < t_end:
+            return cyl
+    return None
+
+
+def pressure_matrix(buf: EngineBuffers, plan: GridPlan, t_grid: np.ndarray, n_cyl: int
+                    ) -> tuple[np.ndarray | None, str]:
+    """(z, n) pressure [Pa] of the expected cylinders at the grid times (NaN rows for the others), or (None,
+    reason of the first failing expected cylinder): ``pressure_on_grid`` row by row, one kernel call per group."""
+    q = t_grid
+    if not (type(q) is np.ndarray and q.dtype == np.float64 and q.flags.c_contiguous and q.ndim == 1
+            and q.shape[0] >= 2 and q[0] < q[-1]):
+        return pressure_matrix_reference(buf, plan.expected, q, n_cyl)
+    out = np.empty((n_cyl, q.shape[0]))  # every expected row is written by the kernel
+    if plan.nan_rows.shape[0]:
+        out[plan.nan_rows] = np.nan
+    bad = 0
+    for g, rows, codes in plan.calls:
+        bad += g.rows_on_grid(q, rows, out, codes)
+    if bad == 0 and not plan.missing:
+        return out, ""
+    for _, ci, r in plan.reasons:
+        if ci < 0:
+            return None, "pressure_missing"
+        code = plan.calls[ci][2][r]
+        if code != ROW_OK:
+            return None, ("pressure_nan" if code == ROW_NAN else "pressure_missing")
+    return out, ""
+
+
+def pressure_matrix_reference(buf: EngineBuffers, expected: tuple[int, ...], t_grid: np.ndarray, n_cyl: int
+                              ) -> tuple[np.ndarray | None, str]:
+    """``pressure_matrix`` one cylinder at a time through ``pressure_on_grid`` (the semantics it must keep)."""
+    out = np.full((n_cyl, np.shape(t_grid)[0]), np.nan)
+    for cyl in expected:
+        ring = buf.pressure.get(cyl)
+        row, reason = pressure_on_grid(ring, t_grid) if ring is not None else (None, "pressure_missing")
+        if row is None:
+            return None, reason
+        out[cyl - 1] = row
+    return out, ""
+
+
+def load_mean(ring: RingBuffer, t_lo: float, t_hi: float, hold_ticks: float) -> tuple[float, float]:
+    """Mean torque and power of the load samples in [t_lo, t_hi]; if none, the last one before t_lo no older than
+    ``hold_ticks`` (zero-order hold of a slow CAN reading); else NaN."""
+    if len(ring) == 0:
+        return math.nan, math.nan
+    # the rows [a, b) in the window and their sums (contiguous in the mirrored columns): one kernel
+    cols = ring._cols
+    a, b, s_torque, s_power = _window_sums(cols["t"], cols["torque"], cols["power"], ring.start % ring.capacity,
+                                           ring.end - ring.start, t_lo, t_hi)
+    a += ring.start
+    b += ring.start
+    if 0 < b - a <= REDUCE_MAX:
+        return s_torque / (b - a), s_power / (b - a)
+    if b > a:  # np.mean of a float64 vector is np.add.reduce (pairwise) / n: the same numbers, less dispatch
+        return float(np.add.reduce(ring.view("torque", a, b))) / (b - a), \
+            float(np.add.reduce(ring.view("power", a, b))) / (b - a)
+    if a > ring.start and t_lo - ring.get("t", a - 1) <= hold_ticks:
+        return float(ring.get("torque", a - 1)), float(ring.get("power", a - 1))
+    return math.nan, math.nan

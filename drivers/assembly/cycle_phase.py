@@ -1,0 +1,147 @@
+"""The 4-stroke phase of the cycle assembler: a cam edge placed on the wheel, or the pressure of one cylinder.
+
+A crank wheel fixes 360 deg only (physics.md §14.5). Positions on the wheel (drivers/cycle_parts.py) give the angle
+theta0 = pos * 2 pi / N + a0 up to the phase bit P: theta = theta0 + 2 pi P.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+
+import numpy as np
+
+from frictionwatch.drivers.assembly.cycle_kernels import REDUCE_MAX, _gather_sums
+from frictionwatch.drivers.assembly.cycle_parts import Epoch, Segment, Wheel
+from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
+
+FOUR_PI = 4.0 * math.pi
+TWO_PI = 2 * math.pi
+PHASE_RATIO = 1.15  # firing/exchange pressure ratio that counts as a clear decision
+PHASE_HALF_WIDTH = math.radians(30.0)  # physics.md §14.5: mean pressure within +-30 deg of each candidate TDC
+CAM_TOLERANCE = math.radians(30.0)
+
+
+def cam_phase_bit(teeth: RingBuffer, seg: Segment, sb: int, tc: int, wheel: Wheel, a0: float,
+                  cam: float) -> int | None:
+    """Phase bit voted by a cam edge at tick ``tc`` between verified edges sb-1 and sb of ``seg``; None when the
+    edge sits more than 30 deg from where the stated cam angle ``cam`` [rad] puts it (a wrong or noisy cam)."""
+    ta, tb = teeth.get("t", sb - 1), teeth.get("t", sb)
+    pa = seg.pos_of(sb - 1)
+    pb = pa + 1 if (pa + 1) % wheel.n < wheel.t else seg.pos_of(sb)  # (the next tooth: = seg.pos_of(sb))
+    pos = pa + (tc - ta) / (tb - ta) * (pb - pa)
+    theta0 = pos * wheel.pitch + a0
+    bit = round(((cam - theta0) % FOUR_PI) / TWO_PI) % 2
+    resid = (cam - theta0 - TWO_PI * bit + TWO_PI) % FOUR_PI - TWO_PI
+    return None if abs(resid) > CAM_TOLERANCE else bit
+
+
+def phase_windows(grid: np.ndarray, tdc: float, half_width: float = PHASE_HALF_WIDTH
+                  ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Indices of the grid points within +-half_width of ``tdc`` and of ``tdc + 2 pi`` (and ``tdc``, to check a
+    reuse): they depend on the grid only, so the assembler finds them once."""
+    d_fire = np.abs((grid - tdc + 2 * math.pi) % FOUR_PI - 2 * math.pi)
+    d_exch = np.abs((grid - tdc) % FOUR_PI - 2 * math.pi)
+    return np.flatnonzero(d_fire <= half_width), np.flatnonzero(d_exch <= half_width), tdc
+
+
+def firing_ratio(row: np.ndarray, grid: np.ndarray, tdc: float, half_width: float = PHASE_HALF_WIDTH,
+                 windows: tuple[np.ndarray, np.ndarray, float] | None = None) -> float:
+    """Mean pressure within +-half_width of ``tdc`` over the mean within +-half_width of ``tdc + 2 pi``
+    (physics.md §14.5: > 1 when ``tdc`` is the firing TDC, motored or fired). Angles in rad on a 4 pi grid.
+    ``windows``: ``phase_windows(grid, tdc, half_width)`` if already known (the same numbers)."""
+    if windows is None or windows[2] != tdc or half_width != PHASE_HALF_WIDTH:
+        windows = phase_windows(grid, tdc, half_width)
+    i_fire, i_exch = windows[0], windows[1]
+    if (type(row) is np.ndarray and row.dtype == np.float64 and row.ndim == 1 and 0 < i_fire.shape[0] <= REDUCE_MAX
+            and 0 < i_exch.shape[0] <= REDUCE_MAX and i_fire.dtype == np.int64 and i_exch.dtype == np.int64):
+        # the usual call (phase_windows' indices): both sums in one kernel, the same numbers as below
+        ok, s_fire, s_exch = _gather_sums(row, i_fire, i_exch)
+        if ok:
+            den = s_exch / i_exch.shape[0]
+            return s_fire / i_fire.shape[0] / den if den > 0 else math.nan
+    fire = row[windows[0]]
+    exch = row[windows[1]]
+    if fire.size == 0 or exch.size == 0:
+        return math.nan
+    # np.mean of a float64 vector is np.add.reduce (pairwise) / n: the same numbers without its dispatch
+    den = float(np.add.reduce(exch)) / exch.size
+    return float(np.add.reduce(fire)) / fire.size / den if den > 0 else math.nan
+
+
+def firing_verdict(row: np.ndarray | None, grid: np.ndarray, tdc: float,
+                   windows: tuple[np.ndarray, np.ndarray, float] | None = None) -> int:
+    """+1: ``tdc`` is clearly the firing TDC; -1: clearly the gas-exchange TDC; 0: undecided (or no data)."""
+    if row is None:
+        return 0
+    ratio = firing_ratio(row, grid, tdc, windows=windows)
+    if ratio > PHASE_RATIO:
+        return 1
+    if ratio < 1.0 / PHASE_RATIO:
+        return -1
+    return 0
+
+
+def window_verdict(row: np.ndarray, grid: np.ndarray, windows: tuple[np.ndarray, np.ndarray, float]) -> int:
+    """``firing_verdict(row, grid, windows[2], windows)`` for windows made by ``phase_windows`` on that grid and a
+    float64 row: the assembler's check of every cycle, with the sums in one kernel call and no re-validation."""
+    i_fire, i_exch = windows[0], windows[1]
+    if 0 < i_fire.shape[0] <= REDUCE_MAX and 0 < i_exch.shape[0] <= REDUCE_MAX:
+        ok, s_fire, s_exch = _gather_sums(row, i_fire, i_exch)
+        if ok:  # the numbers of firing_ratio's fast path, then firing_verdict's thresholds
+            den = s_exch / i_exch.shape[0]
+            ratio = s_fire / i_fire.shape[0] / den if den > 0 else math.nan
+            return 1 if ratio > PHASE_RATIO else -1 if ratio < 1.0 / PHASE_RATIO else 0
+    return firing_verdict(row, grid, windows[2], windows)
+
+
+def cycle_votes(cam_votes: list[tuple[int, int]], t_first: int, t_last: int, phase: int | None) -> int:
+    """How many cam votes (tick, bit) lie in [t_first, t_last], or -1 if one of them is not ``phase``.
+    ``cam_votes`` is in time order (cam rows are strictly increasing) and the cycle asking is among the newest, so a
+    scan from the end meets its votes after at most a few newer ones (a bisection costs more)."""
+    n = 0
+    for tc, bit in reversed(cam_votes):
+        if tc > t_last:
+            continue
+        if tc < t_first:
+            break
+        if bit != phase:
+            return -1
+        n += 1
+    return n
+
+
+def place_cams(ep: Epoch, cams: RingBuffer, teeth: RingBuffer, cam_next: int, wheel: Wheel, a0: float, cam: float,
+               stats: Counter[str]) -> tuple[int, int | None]:
+    """Place the cam edges from row ``cam_next`` on the epoch's verified edges; each placed edge adds a vote
+    (tick, bit) to ``ep.cam_votes``. Stops at the first edge whose teeth are not verified yet.
+
+    Returns the next cam row to look at and the first bit voted (None if none)."""
+    first = None
+    cam_next = max(cam_next, cams.start)
+    while cam_next < cams.end:
+        tc = int(cams.get("t", cam_next))
+        if tc < ep.t_start:  # before this epoch: of no use
+            cam_next += 1
+            continue
+        sb = teeth.searchsorted("t", tc, side="left")
+        last = ep.segments[-1]
+        if sb > last.good and last.reason is None:
+            break  # its teeth are not verified yet
+        cam_next += 1
+        seg = None
+        for s in reversed(ep.segments):  # (a loop: a generator costs more than the usual single segment)
+            if s.first_seq < sb <= s.good:
+                seg = s
+                break
+        if seg is None or sb - 1 < teeth.start:
+            stats["cam_unplaced"] += 1  # in a hole between segments
+            continue
+        bit = cam_phase_bit(teeth, seg, sb, tc, wheel, a0, cam)
+        if bit is None:
+            stats["cam_inconsistent"] += 1
+            continue
+        stats["cam_votes"] += 1
+        ep.cam_votes.append((tc, bit))
+        first = bit if first is None else first
+    return cam_next, first

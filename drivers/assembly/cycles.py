@@ -1,0 +1,423 @@
+"""Cycle assembly: stream records of one engine -> one typed ``Cycle`` per 720 deg (design.md §1; physics.md §14).
+
+    records -> EngineBuffers (rings) -> WheelTracker (gap sync, per-interval checks; drivers/wheel_sync.py)
+            -> segments of verified edges, bridged into epochs -> 4-stroke phase (cam, else pressure)
+            -> cycle windows [0, 4 pi] -> wait for pressure (bounded) -> resample onto the grid -> Cycle
+
+Phase (cam votes, else the pressure of one cylinder; a pressure-phased epoch flips after three clear
+contradictions in a row) and resync across short disturbances (the next cycle comes out as in an undisturbed run):
+drivers/cycle_sync.py.
+
+Skips (``skipped``, cycles by reason): spurious_tooth, missing_tooth, sync_lost, data_gap, buffer_overflow,
+speed_out_of_range, pressure_missing, pressure_nan, phase_mismatch, clock_reset.
+``stats`` counts events (segments, bridges, rejected candidates, cam votes, ring overflows, ...).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter, deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from frictionwatch.core.types import (
+    AcquisitionInfo,
+    CamBatch,
+    Cycle,
+    LoadSample,
+    PressureBlock,
+    PressureFrame,
+    StreamRecord,
+    ToothBatch,
+)
+from frictionwatch.drivers.assembly.cycle_kernels import _cycle_edges
+from frictionwatch.drivers.assembly.cycle_parts import (
+    Epoch,
+    GridPlan,
+    Segment,
+    Wheel,
+    grid_plan,
+    load_mean,
+    plan_ready,
+    pressure_matrix,
+    window_status,
+)
+from frictionwatch.drivers.assembly.cycle_phase import cycle_votes, phase_windows, window_verdict
+from frictionwatch.drivers.assembly.cycle_sync import EpochSync
+from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
+from frictionwatch.drivers.assembly.ringbuffer import _search_sorted
+from frictionwatch.drivers.assembly.wheel_sync import WheelTracker
+
+log = logging.getLogger(__name__)
+_LOAD = 0  # _waiting_for: the head cycle waits for a load sample (cylinders are numbered from 1)
+FOUR_PI = 4.0 * math.pi
+
+
+@dataclass(slots=True)
+class _Pending:
+    index: int
+    epoch: Epoch
+    c: int
+    ticks: np.ndarray  # int64 edges start..close
+    pos: np.ndarray  # int64 epoch positions
+    theta: np.ndarray  # nominal crank angle of the edges [rad], first <= 0, last >= 4 pi
+    t_grid: np.ndarray  # timer ticks at the grid angles
+    tooth: np.ndarray  # int64 wheel index of the edges
+    t_first: int  # ticks[0] and ticks[-1] as Python ints (read at every emit / discard / build)
+    t_last: int
+
+
+class CycleAssembler(EpochSync):
+    """Assemble ``Cycle`` values from the records of one engine.
+
+    Parameters
+    ----------
+    info : acquisition metadata (tick clock, wheel, first tooth angle, cam angle, instrumented cylinders)
+    n_cyl : number of cylinders z (rows of ``Cycle.pressure``; cylinder k is row k-1)
+    firing_angles : (z,) firing TDC of each cylinder on cylinder 1's crank angle [rad]
+    grid_points : samples of the uniform grid over [0, 4 pi)
+    speed_range_rpm : cycles whose mean speed is outside are skipped
+    max_wait_s : how long (stream time) a complete cycle waits for late pressure before 'pressure_missing'
+    """
+
+    def __init__(self, info: AcquisitionInfo, n_cyl: int, firing_angles: np.ndarray, grid_points: int = 720,
+                 speed_range_rpm: tuple[float, float] = (50.0, 25000.0), max_wait_s: float = 0.5,
+                 buffers: EngineBuffers | None = None):
+        fa = np.asarray(firing_angles, dtype=np.float64).ravel()
+        if fa.shape[0] != n_cyl or n_cyl < 1:
+            raise ValueError(f"firing_angles has {fa.shape[0]} values for {n_cyl} cylinders")
+        if grid_points < 16:
+            raise ValueError(f"grid_points must be >= 16, got {grid_points}")
+        if not 0 < speed_range_rpm[0] < speed_range_rpm[1]:
+            raise ValueError(f"speed_range_rpm must be (lo, hi) with 0 < lo < hi, got {speed_range_rpm}")
+        if not info.tick_hz > 0:
+            raise ValueError(f"tick_hz must be > 0, got {info.tick_hz}")
+        bad = [c for c in info.pressure_cylinders if not 1 <= c <= n_cyl]
+        if bad:
+            raise ValueError(f"pressure_cylinders {bad} outside 1..{n_cyl}")
+        if info.cam_deg is None and not info.pressure_cylinders:
+            raise ValueError("no cam signal and no cylinder pressure: the 4-stroke phase cannot be found "
+                             "(state cam_deg or pressure_cylinders in the AcquisitionInfo)")
+        self.info = info
+        self.n_cyl = int(n_cyl)
+        self.firing = fa
+        self.grid = np.arange(grid_points) * (FOUR_PI / grid_points)
+        self.speed_range_rpm = (float(speed_range_rpm[0]), float(speed_range_rpm[1]))
+        a0 = math.radians(info.first_tooth_deg) % (2 * math.pi)
+        self.wheel = Wheel(info.wheel_teeth, info.wheel_missing, a0 / (2 * math.pi / info.wheel_teeth))
+        self.a0 = a0
+        self.a0_deg = info.first_tooth_deg % 360.0
+        self.tracker = WheelTracker(info.wheel_teeth, info.wheel_missing)
+        self.buf = buffers or EngineBuffers()
+        self.wait_ticks = max_wait_s * info.tick_hz
+        slow_cycle = 120.0 / self.speed_range_rpm[0] * info.tick_hz
+        self.cam_wait_ticks = max(self.wait_ticks, 2.5 * slow_cycle)
+        self.phase_cyl = (1 if 1 in info.pressure_cylinders else min(info.pressure_cylinders)) \
+            if info.pressure_cylinders else None
+        self.skipped: Counter[str] = Counter()
+        self.stats: Counter[str] = Counter()
+        self._epoch: Epoch | None = None
+        self._pending: deque[_Pending] = deque()
+        self._next_index = 0
+        self._now = 0  # latest stream time seen [ticks]
+        self._cam_next = 0  # next cam row to place
+        self._discarded_at = 0  # tooth ring end at the last discard
+        self._waiting_for: int | None = None  # cylinder whose pressure the head cycle waits for (_LOAD: the load)
+        last_load = self.buf.load.last("t")
+        self._load_newest: int | None = None if last_load is None else int(last_load)  # newest accepted load time
+        self._load_hold = float(info.tick_hz)  # load_mean's zero-order hold [ticks]: beyond it the load is absent
+        self._plan: GridPlan | None = None  # how the pressure matrix is filled, for _plan_buf at _plan_version
+        self._plan_buf: EngineBuffers | None = None
+        self._plan_version = -1
+        self._phase_windows = phase_windows(self.grid, float(self.firing[self.phase_cyl - 1])) \
+            if self.phase_cyl is not None else None  # grid points of the phase cylinder's two TDC windows (and tdc)
+        self._phase_expected = self.phase_cyl in info.pressure_cylinders  # else: ask expected_cylinders
+        self._win_h2: int | None = None  # the last wheel window asked for (EpochSync._window) and its answer
+        self._win = (0, 0)
+        self._discard_every = self.wheel.n // 4  # tooth edges between two discards
+        self._cam_rad = math.radians(info.cam_deg) if info.cam_deg is not None else math.nan  # stated cam angle
+
+    # ---- input ------------------------------------------------------------------------------------------------
+    def feed(self, record: StreamRecord) -> list[Cycle]:
+        """File one record and return the cycles it completed (possibly none)."""
+        if type(record) is PressureFrame:  # the hot path of an indicating system: all cylinders in one record
+            if self.buf.add_frame(record):
+                v = record.values
+                end = int(record.t0_ticks + record.period_ticks * ((v.shape[-1] if type(v) is np.ndarray
+                                                                    else np.shape(v)[-1]) - 1))
+                if end > self._now:
+                    self._now = end
+            ep = self._epoch
+            if ep is not None and ep.phase is None:
+                return self._advance(flushing=False)
+            if not self._pending or self._waiting_for not in record.cylinders:
+                return []
+            return self._emit(flushing=False)
+        if type(record) is LoadSample:  # ~8 per cycle: only a cycle waiting for its load can move
+            accepted = self.buf.add_load(record)
+            t = int(record.ticks)
+            if t > self._now:
+                self._now = t
+            if accepted:
+                self._load_newest = t
+                if self._waiting_for == _LOAD and self._pending:
+                    return self._emit(flushing=False)
+            return []
+        if type(record) is PressureBlock:  # the hot path (tens of blocks per cycle): no isinstance chain
+            if self.buf.add_pressure(record):
+                end = int(record.t0_ticks + record.period_ticks * (len(record.values) - 1))
+                self._now = max(self._now, end)
+            if self._epoch is not None and self._epoch.phase is None:
+                return self._advance(flushing=False)
+            if not self._pending or record.cylinder != self._waiting_for:
+                return []
+            return self._emit(flushing=False)
+        if type(record) is ToothBatch or isinstance(record, ToothBatch):
+            t = record.ticks
+            if len(t) == 0:
+                return []
+            # the usual batch (int64, all after the last edge, so no clock reset): filed by one compiled call
+            if not (type(t) is np.ndarray and t.dtype == np.int64 and t.ndim == 1 and self.wait_ticks >= 0
+                    and self.buf.teeth.extend_increasing(t)):
+                last = self.buf.teeth.last("t")
+                if last is not None and int(t[0]) < last - self.wait_ticks:
+                    self._clock_reset()
+                self.buf._add_ticks(self.buf.teeth, t, "teeth")  # = buf.add(record)
+            t_end = int(t[-1])
+            if t_end > self._now:
+                self._now = t_end
+            self._run_tracker()
+            return self._advance(flushing=False)
+        if isinstance(record, PressureBlock):
+            if self.buf.add_pressure(record):
+                self._now = max(self._now, int(record.t0_ticks + record.period_ticks * (len(record.values) - 1)))
+        elif isinstance(record, PressureFrame):
+            if self.buf.add_frame(record):
+                end = int(record.t0_ticks + record.period_ticks * (np.shape(record.values)[-1] - 1))
+                self._now = max(self._now, end)
+        elif isinstance(record, CamBatch):
+            self.buf.add(record)
+        elif isinstance(record, LoadSample):  # (a LoadSample subclass: the same as above)
+            accepted = self.buf.add_load(record)
+            self._now = max(self._now, int(record.ticks))
+            if accepted:
+                self._load_newest = int(record.ticks)
+                if self._waiting_for == _LOAD and self._pending:
+                    return self._emit(flushing=False)
+            return []
+        else:
+            raise TypeError(f"not a stream record: {type(record).__name__}")
+        # pressure or cam: only a waiting phase decision or a cycle waiting for its pressure can move
+        if self._epoch is not None and self._epoch.phase is None:
+            return self._advance(flushing=False)
+        if not self._pending or (isinstance(record, PressureBlock) and record.cylinder != self._waiting_for) \
+                or (isinstance(record, PressureFrame) and self._waiting_for not in tuple(record.cylinders)):
+            return []  # the head cycle waits for another cylinder's pressure
+        return self._emit(flushing=False)
+
+    def flush(self) -> list[Cycle]:
+        """End of stream: emit every complete cycle now, without waiting for more pressure."""
+        return self._advance(flushing=True)
+
+    @property
+    def expected_cylinders(self) -> tuple[int, ...]:
+        if self.info.pressure_cylinders:
+            return tuple(self.info.pressure_cylinders)
+        return tuple(sorted(c for c in self.buf.pressure if 1 <= c <= self.n_cyl))
+
+    # ---- cycles -------------------------------------------------------------------------------------------------
+    def _advance(self, flushing: bool) -> list[Cycle]:
+        if self._epoch is not None:
+            self._advance_epoch(self._epoch, flushing)
+        out = self._emit(flushing) if self._pending else []
+        self._discard(force=flushing)
+        return out
+
+    def _advance_epoch(self, ep: Epoch, flushing: bool) -> None:
+        if ep.phase is None and self.info.cam_deg is not None:
+            self._place_cams(ep)
+        if ep.phase is None:
+            cam_late = self.info.cam_deg is None or flushing or self._now - ep.t_start > self.cam_wait_ticks
+            if not cam_late:
+                return
+            self._probe_pressure(ep, flushing)
+            if ep.phase is None:
+                return
+        elif self.info.cam_deg is not None and self._cam_next < self.buf.cam.end:  # (else nothing to place)
+            self._place_cams(ep)
+        lo_rpm, hi_rpm = self.speed_range_rpm
+        w = self.wheel
+        while True:
+            c = ep.next_c
+            ps, pe = self._window(ep, c)
+            status, seg = window_status(ep, ps, pe)
+            if status in ("wait", "before"):
+                return
+            index = ep.index_base + (c - ep.c0)  # = ep.index_of(c)
+            ep.next_c = c + 1
+            if index >= self._next_index:
+                self._next_index = index + 1
+            if status == "broken":
+                self._skip(seg.reason or "sync_lost", index)
+                continue
+            s0, s1 = seg.seq_of(ps), seg.seq_of(pe)
+            teeth = self.buf.teeth
+            if not teeth.start <= s0 <= s1 < teeth.end:  # its edges were overwritten (a batch beyond the ring)
+                self._skip("buffer_overflow", index)
+                continue
+            col = teeth._cols["t"]
+            i0 = s0 % teeth.capacity
+            t_first, t_last = int(col[i0]), int(col[i0 + s1 - s0])
+            rpm = (pe - ps) * w.pitch / ((t_last - t_first) / self.info.tick_hz) * 30.0 / math.pi
+            if not lo_rpm <= rpm <= hi_rpm:
+                self._skip("speed_out_of_range", index)
+                continue
+            m = s1 - s0 + 1  # edges, their positions and angles, the grid times: one kernel (drivers/cycle_kernels.py)
+            ticks, pos, tooth, theta = (np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.int64),
+                                        np.empty(m))
+            t_grid = np.empty(self.grid.shape[0])
+            _cycle_edges(col, i0, m, w.ordinal(seg.first_pos) + (s0 - seg.first_seq), w.n, w.t,
+                         -2 * w.n * c + w.n * int(ep.phase), self.a0_deg, self.grid, ticks, pos, tooth, theta, t_grid)
+            self._pending.append(_Pending(index, ep, c, ticks, pos, theta, t_grid, tooth, t_first, t_last))
+
+    def _skip(self, reason: str, index: int) -> None:
+        if self.skipped[reason] == 0:
+            log.warning("cycle %d skipped: %s", index, reason)
+        self.skipped[reason] += 1
+
+    def _grid_plan(self) -> GridPlan:
+        """The pressure plan of the current buffers (remade when a pressure group appears or buffers reset)."""
+        buf = self.buf
+        if self._plan is None or self._plan_buf is not buf or self._plan_version != buf.groups_version:
+            self._plan = grid_plan(buf, self.expected_cylinders, self.n_cyl)
+            self._plan_buf, self._plan_version = buf, buf.groups_version
+        return self._plan
+
+    def _ready(self, p: _Pending) -> bool:
+        """Every instrumented cylinder has a sample at or after the cycle's last grid time, and the load stream
+        (if it is present: a sample within load_mean's hold) one at or after its last edge, so the cycle's load mean
+        does not depend on whether the load reading came before or after the pressure (serial vs CAN arrival
+        order). Else remember what is awaited (a cylinder, or _LOAD), so that only records carrying it wake the
+        queue up; the wait is bounded by wait_ticks, as for pressure."""
+        waiting = plan_ready(self._grid_plan(), p.t_grid[-1])
+        newest = self._load_newest
+        if waiting is None and newest is not None and newest < p.t_last and p.t_last - newest <= self._load_hold:
+            waiting = _LOAD
+        self._waiting_for = waiting
+        return waiting is None
+
+    def _emit(self, flushing: bool) -> list[Cycle]:
+        out: list[Cycle] = []
+        pending = self._pending
+        while pending:
+            p = pending[0]
+            if not (flushing or self._now - p.t_last > self.wait_ticks or self._ready(p)):
+                break  # not timed out: wait for its pressure and load
+            pending.popleft()
+            cyc = self._build(p)
+            if cyc is not None:
+                out.append(cyc)
+        return out
+
+    def _build(self, p: _Pending) -> Cycle | None:
+        ep = p.epoch
+        t_grid = p.t_grid
+        if ep.phase_source == "cam" and ep is self._epoch and self._cam_next < self.buf.cam.end \
+                and self.info.cam_deg is not None:
+            self._place_cams(ep)  # a cam edge that came after the teeth (an older epoch has all it will get)
+        t_first, t_last = p.t_first, p.t_last
+        n_votes = cycle_votes(ep.cam_votes, t_first, t_last, ep.phase)
+        if n_votes < 0:  # a vote against the epoch's phase
+            self._skip("phase_mismatch", p.index)
+            return None
+        flags: list[str] = []
+        if self.info.cam_deg is not None and not n_votes:
+            flags.append("no_cam_edge")
+        pressure, reason = pressure_matrix(self.buf, self._grid_plan(), t_grid, self.n_cyl)
+        if pressure is None:
+            self._skip(reason, p.index)
+            return None
+        if self.phase_cyl is not None and (self._phase_expected or self.phase_cyl in self.expected_cylinders):
+            verdict = window_verdict(pressure[self.phase_cyl - 1], self.grid, self._phase_windows)
+            if verdict < 0:
+                ep.mismatch_run += 1
+                self._skip("phase_mismatch", p.index)
+                if ep.phase_source == "pressure" and ep.mismatch_run >= 3:
+                    self.stats["phase_flipped"] += 1
+                    self._set_phase(ep, 1 - int(ep.phase), "pressure", from_pos=int(p.pos[-1]))
+                    for q in [q for q in self._pending if q.epoch is ep]:
+                        self._pending.remove(q)
+                        self._skip("phase_mismatch", q.index)
+                return None
+            ep.mismatch_run = 0
+            if verdict == 0:
+                flags.append("phase_unchecked")
+        torque, power = load_mean(self.buf.load, float(t_first), float(t_last), self.info.tick_hz)
+        self.stats["cycles"] += 1
+        return Cycle(index=p.index, tick_hz=self.info.tick_hz, tooth_ticks=p.ticks, tooth_angle=p.theta,
+                     tooth_index=p.tooth, grid=self.grid.copy(), pressure=pressure,
+                     load_torque=torque, load_power=power, phase_source=ep.phase_source, flags=tuple(flags))
+
+    # ---- housekeeping -------------------------------------------------------------------------------------------
+    def _discard(self, force: bool = False) -> None:
+        """Release ring rows nothing can need any more (so overflow counts only real losses). Runs when the
+        tooth ring has grown by a quarter of a revolution since the last time (it costs a few searches per ring)."""
+        teeth = self.buf.teeth
+        start, end = teeth.start, teeth.end
+        if not force and end - self._discarded_at < self._discard_every:
+            return
+        self._discarded_at = end
+        # teeth within the pressure wait of now stay, so a late cam edge can still be placed between two of them
+        # the searches call the ring kernel directly (RingBuffer.searchsorted without its wrapper: same answer)
+        t_col, cap = teeth._cols["t"], teeth.capacity
+        keep = start + _search_sorted(t_col, start % cap, end - start, self._now - self.wait_ticks, False)
+        need = self.tracker.oldest_needed()
+        if need < keep:
+            keep = need
+        ep = self._epoch
+        if ep is not None:
+            seg = ep.segments[-1]
+            if ep.phase is not None:  # the next cycle's window start (or the running segment's first edge)
+                ps = self._window(ep, ep.next_c)[0]
+                k_ep = seg.seq_of(ps) if ps >= seg.first_pos else seg.first_seq
+                if k_ep < seg.first_seq:
+                    k_ep = seg.first_seq
+            elif ep.probe is None:
+                k_ep = ep.segments[0].first_seq
+            else:
+                k_ep = max(seg.first_seq, self._seq_or(seg, self.wheel.window(ep.probe)[0]))
+            if k_ep < keep:
+                keep = k_ep
+        keep = max(start, min(keep, end))
+        t_keep = float(t_col[keep % cap]) if keep < end else float(self._now)
+        if self._pending:
+            t_keep = min(t_keep, float(self._pending[0].t_first))
+        teeth.discard_before(keep - 2)
+        self.buf.release_before(t_keep, self.info.tick_hz, self._cam_next)
+        if ep is not None and len(ep.cam_votes) > 64:
+            ep.cam_votes = [v for v in ep.cam_votes if v[0] >= t_keep]
+
+    @staticmethod
+    def _seq_or(seg: Segment, pos: int) -> int:
+        return seg.seq_of(pos) if pos >= seg.first_pos else seg.first_seq
+
+    def _clock_reset(self) -> None:
+        """The timer went backwards by more than the pressure wait: a new acquisition. Forget everything."""
+        self.stats["clock_reset"] += 1
+        for _ in self._pending:
+            self._skip("clock_reset", -1)
+        self._pending.clear()
+        self.buf = EngineBuffers(self.buf.teeth.capacity, self.buf.cam.capacity, self.buf._pressure_capacity,
+                                 self.buf.load.capacity)
+        self.tracker = WheelTracker(self.info.wheel_teeth, self.info.wheel_missing)
+        self._epoch = None
+        self._cam_next = 0
+        self._now = 0
+        self._discarded_at = 0
+        self._load_newest = None
+
+    def dropped(self) -> Counter[str]:
+        """Rows lost to ring overflow and refused out-of-order input, by stream."""
+        return self.buf.dropped() + Counter({f"rejected_{k}": v for k, v in self.buf.rejected.items()})

@@ -1,0 +1,219 @@
+"""Kernels of ``drivers.assembly.frame_store.FrameGroup``: pressure rows that stay in the frames they came in.
+
+A group's retained rows are split into chunks (one per filed frame). Chunk c starts at absolute row ``ci[c, 0]``
+(increasing; it ends where chunk c + 1 starts, the last one at the group's ``end``); row s is column
+``ci[c, 1] + s - ci[c, 0]`` of ``frames[c]`` (k, n) and was sampled at ``cf[c, 0] + (s - ci[c, 0]) * cf[c, 1]``
+timer ticks: the very expression (same operands, same order) with which ``drivers.assembly.pressure_ring._write_frame``
+fills a ring's time column, so a time computed here is the float a ring would hold.
+
+The searches run numpy's binary-search loop (``drivers.assembly.ringbuffer._search_sorted``) over those computed times, so
+they return the same row as a search of the equivalent ring, whatever the input; the resampling then treats the
+window exactly as ``drivers.assembly.pressure_kernels._pressure_rows`` treats a ring's.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+from frictionwatch.drivers.assembly.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, _window_weights
+from frictionwatch.drivers.assembly.ringbuffer import _less
+
+
+@intrinsic
+def _prefetch(typingctx, arr, r, q):
+    """Hint (``llvm.prefetch``, read, keep in cache): start loading the cache line of ``arr[r, q]`` (2-D). No effect
+    on any value; it lets the next frame's samples arrive while the current one is computed."""
+    sig = types.void(arr, r, q)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [args[1], args[2]], wraparound=False)
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                            "llvm.prefetch.p0")
+        builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@numba.njit(cache=True)
+def _prefetch_part(frames, ci, n_chunks, end, rows, c, lo, hi):
+    """Prefetch hint for the wanted rows of chunk c over the absolute rows [lo, hi) it holds (one per cache line).
+    A frame's samples are usually cold (filed a cycle ago): hinting the next frame while the current one is
+    resampled overlaps the memory reads with the arithmetic."""
+    if c < 0 or c >= n_chunks:
+        return
+    s0 = max(lo, ci[c, 0])
+    s1 = min(hi, ci[c + 1, 0] if c + 1 < n_chunks else end)
+    if s1 <= s0:
+        return
+    src = frames[c]
+    col0 = ci[c, 1] + s0 - ci[c, 0]
+    col1 = col0 + s1 - s0
+    for r in range(rows.shape[0]):
+        if rows[r] < 0:
+            continue
+        for q in range(col0, col1, 8):
+            _prefetch(src, r, q)
+        _prefetch(src, r, col1 - 1)
+
+
+@numba.njit(cache=True)
+def _chunk_of(ci, n_chunks, s):
+    """Index of the chunk holding absolute row s: the last chunk that starts at or before s (-1: none)."""
+    lo = 0
+    hi = n_chunks
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if ci[mid, 0] <= s:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo - 1
+
+
+@numba.njit(cache=True)
+def _time_at(ci, cf, n_chunks, s):
+    """Sample time [ticks] of absolute row s (retained)."""
+    c = _chunk_of(ci, n_chunks, s)
+    return cf[c, 0] + (s - ci[c, 0]) * cf[c, 1]
+
+
+@numba.njit(cache=True)
+def _chunk_search(ci, cf, n_chunks, start, n, key, right):
+    """``_search_sorted`` over the times of absolute rows [start, start + n): the same probes, the same answer."""
+    lo = 0
+    hi = n
+    while lo < hi:
+        mid = lo + ((hi - lo) >> 1)
+        v = _time_at(ci, cf, n_chunks, start + mid)
+        go_right = (not _less(key, v)) if right else _less(v, key)
+        if go_right:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@numba.njit(cache=True)
+def _chunk_times(ci, cf, n_chunks, a, b, out):
+    """Sample times of the absolute rows [a, b) (retained) into out[0 : b - a]."""
+    if b <= a:
+        return
+    c = _chunk_of(ci, n_chunks, a)
+    for s in range(a, b):
+        while c + 1 < n_chunks and ci[c + 1, 0] <= s:
+            c += 1
+        out[s - a] = cf[c, 0] + (s - ci[c, 0]) * cf[c, 1]
+
+
+@numba.njit(cache=True)
+def _chunk_values(frames, ci, n_chunks, end, row, a, b, out):
+    """Values of group row ``row`` for the absolute rows [a, b) (retained) into out[0 : b - a]."""
+    if b <= a:
+        return
+    c = _chunk_of(ci, n_chunks, a)
+    s = a
+    while s < b:
+        stop = min(ci[c + 1, 0] if c + 1 < n_chunks else end, b)
+        src = frames[c]
+        col = ci[c, 1] + s - ci[c, 0]
+        out[s - a : stop - a] = src[row, col : col + stop - s]
+        s = stop
+        c += 1
+
+
+@numba.njit(cache=True)
+def _frame_rows(frames, ci, cf, n_chunks, start, end, t_grid, rows, out, codes, x_buf):
+    """Every row of a frame group (retained rows [start, end)) at the sorted times t_grid: row r into
+    out[rows[r]] (rows[r] < 0: not wanted; a row that is not ROW_OK is left undefined), its code (ROW_*) into
+    codes[r]; returns the number of wanted rows that are not ROW_OK.
+
+    Bit for bit ``_pressure_rows`` on the equivalent ring: the window's times are computed into x_buf (>= its
+    length) and give the same window, hole and weights (``_window_weights``); then each frame that holds part of
+    the window is read once, in memory order: per wanted row the NaN check of its part (up to the first hole) and
+    ``y[j] + w (y[j+1] - y[j])`` for the grid times whose interval j starts in it (y[j+1] may open the next frame).
+    Cache hints (``_prefetch_part``) ask for the first frame before the window's weights and for frame c + 1 while
+    frame c is read: they change no value, they only overlap the (usually cold) frame reads with the arithmetic."""
+    k = rows.shape[0]
+    m = t_grid.shape[0]
+    n = end - start
+    a = 0
+    b = 0
+    whole = n >= 2
+    if whole:
+        a = _chunk_search(ci, cf, n_chunks, start, n, t_grid[0], True) - 1
+        b = _chunk_search(ci, cf, n_chunks, start, n, t_grid[m - 1], False) + 1
+        whole = a >= 0 and b <= n
+    bad = 0
+    if not whole:
+        for r in range(k):
+            codes[r] = ROW_OK if rows[r] < 0 else ROW_MISSING
+            bad += rows[r] >= 0
+        return bad
+    nx = b - a
+    x = x_buf[:nx]
+    _prefetch_part(frames, ci, n_chunks, end, rows, _chunk_of(ci, n_chunks, start + a), start + a, start + b)
+    _chunk_times(ci, cf, n_chunks, start + a, start + b, x)
+    jj = np.empty(m, np.int64)
+    ww = np.empty(m)
+    hole = _window_weights(x, t_grid, jj, ww)
+    interp = hole == nx - 1
+    need = nx if interp else hole  # window samples whose NaN check counts (a row with a hole: up to it)
+    nan = np.zeros(k, np.bool_)
+    lo = start + a
+    c = _chunk_of(ci, n_chunks, lo)
+    w0 = 0  # window index of the frame part's first sample
+    i0 = 0  # first grid time not interpolated yet
+    while w0 < need:
+        w1 = min((ci[c + 1, 0] if c + 1 < n_chunks else end) - lo, need)
+        src = frames[c]
+        col = ci[c, 1] + lo + w0 - ci[c, 0]  # column of window sample w0
+        _prefetch_part(frames, ci, n_chunks, end, rows, c + 1, lo, lo + need)
+        i1 = i0  # grid times [i0, i1) have their interval j in this part; [i0, i2) also j + 1
+        if interp:
+            while i1 < m and jj[i1] < w1:
+                i1 += 1
+        i2 = i1
+        while i2 > i0 and jj[i2 - 1] == w1 - 1:
+            i2 -= 1
+        straddle = interp and i2 < i1  # y[j + 1] is the next frame's first sample
+        nxt = frames[c + 1] if straddle else src
+        nxt_col = ci[c + 1, 1] if straddle else 0
+        for r in range(k):
+            if rows[r] < 0:
+                continue
+            y = src[r, col : col + w1 - w0]  # window samples [w0, w1) of this row
+            f = False
+            for q in range(w1 - w0):
+                f |= y[q] != y[q]
+            nan[r] |= f
+            o = out[rows[r]]
+            for i in range(i0, i2):
+                j = jj[i] - w0
+                o[i] = y[j] + ww[i] * (y[j + 1] - y[j])
+            for i in range(i2, i1):
+                y0 = y[w1 - 1 - w0]
+                o[i] = y0 + ww[i] * (nxt[r, nxt_col] - y0)
+        i0 = i1
+        w0 = w1
+        c += 1
+    for r in range(k):
+        if rows[r] < 0:
+            codes[r] = ROW_OK
+        elif nan[r]:
+            codes[r] = ROW_NAN
+        elif not interp:
+            codes[r] = ROW_HOLE
+        else:
+            codes[r] = ROW_OK
+        bad += codes[r] != ROW_OK
+    return bad

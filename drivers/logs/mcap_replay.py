@@ -1,0 +1,125 @@
+"""``McapSource``: replay an MCAP log as a live source -- real time, N x, or as fast as possible, with start / seek.
+
+URL (drivers/source.py): ``mcap:PATH?speed=1|10|max&start=SECONDS`` -- ``speed`` defaults to ``max``; ``start`` is
+seconds after the first record of the log. Pacing follows the MCAP log time (derived from the timer ticks,
+docs/replay-format.md); a record is released once the wall clock, scaled by ``speed``, has reached its log time.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+from frictionwatch.core.types import StreamRecord
+from frictionwatch.drivers.errors import EndOfStream
+from frictionwatch.drivers.logs.mcap_log import LogReader
+from frictionwatch.drivers.source import Source
+
+_OPTIONS = ("speed", "start")
+
+
+class McapSource(Source):
+    """Replay source over a ``LogReader``; ``damage`` is the reader's counter (truncation, corrupt chunks...).
+
+    Parameters
+    ----------
+    path : the MCAP log.
+    speed : replay rate relative to real time (1 = real time); None = as fast as possible.
+    start_s : start this many seconds after the first record of the log.
+    max_records : most records returned by one ``read``.
+    clock, sleep : monotonic clock [s] and sleep function; tests pass fakes.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        speed: float | None = None,
+        start_s: float = 0.0,
+        max_records: int = 512,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
+        super().__init__()
+        if speed is not None and not (speed > 0 and math.isfinite(speed)):
+            raise ValueError(f"speed must be > 0 (1 = real time) or None for as fast as possible, got {speed!r}")
+        if max_records < 1:
+            raise ValueError(f"max_records must be >= 1, got {max_records}")
+        self._reader = LogReader(path)  # CorruptLog if nothing is readable
+        self.damage = self._reader.damage
+        self.info = self._reader.info
+        self.engine_toml = self._reader.engine_toml
+        self.speed = speed
+        self._max = max_records
+        self._clock, self._sleep = clock, sleep
+        self._iter: Iterator[tuple[int, StreamRecord]] = iter(())
+        self._next: tuple[int, StreamRecord] | None = None
+        self._anchor: tuple[float, int] | None = None  # (wall clock, log time) pair that pacing refers to
+        try:
+            self.seek(start_s)
+        except BaseException:  # CorruptLog when a full pass finds nothing readable
+            self._reader.close()
+            raise
+
+    @classmethod
+    def from_url(cls, target: str, options: dict[str, str]) -> McapSource:
+        unknown = sorted(set(options) - set(_OPTIONS))
+        if unknown:
+            raise ValueError(f"mcap source: unknown option(s) {unknown}; known: {', '.join(_OPTIONS)}")
+        raw_speed = options.get("speed", "max")
+        try:
+            speed = None if raw_speed == "max" else float(raw_speed)
+            start = float(options.get("start", "0"))
+        except ValueError as exc:
+            raise ValueError(f"mcap source: speed must be a number or 'max' and start in seconds ({exc})") from exc
+        if not (start >= 0 and math.isfinite(start)):
+            raise ValueError(f"mcap source: start must be >= 0 s, got {start}")
+        return cls(target, speed=speed, start_s=start)
+
+    @property
+    def position_ns(self) -> int | None:
+        """Log time of the next record to be read (None at the end)."""
+        return self._next[0] if self._next is not None else None
+
+    def seek(self, seconds: float) -> None:
+        """Continue from ``seconds`` after the first record of the log (pacing restarts from there)."""
+        if not (seconds >= 0 and math.isfinite(seconds)):
+            raise ValueError(f"seek position must be >= 0 s, got {seconds!r}")
+        first = self._reader.start_ns
+        start_ns = None if first is None or seconds == 0 else first + round(seconds * 1e9)
+        self._iter = self._reader.iter_timed(start_ns=start_ns)
+        self._next = next(self._iter, None)
+        self._anchor = None
+
+    def _advance(self) -> StreamRecord:
+        assert self._next is not None
+        record = self._next[1]
+        self._next = next(self._iter, None)
+        return record
+
+    def _read_internal(self, timeout: float | None) -> list[StreamRecord]:
+        if self._next is None:
+            raise EndOfStream(f"end of {self._reader.path}")
+        if self.speed is None:
+            return [self._advance() for _ in range(self._max) if self._next is not None]
+        now = self._clock()
+        if self._anchor is None:
+            self._anchor = (now, self._next[0])
+        wall0, log0 = self._anchor
+        wait = (self._next[0] - log0) / 1e9 / self.speed - (now - wall0)
+        if wait > 0:
+            if timeout is not None and wait > timeout:
+                self._sleep(timeout)
+                return []
+            self._sleep(wait)
+            now = self._clock()
+        due = max(log0 + (now - wall0) * self.speed * 1e9, self._next[0] if wait > 0 else 0)
+        out: list[StreamRecord] = []
+        while self._next is not None and self._next[0] <= due and len(out) < self._max:
+            out.append(self._advance())
+        return out
+
+    def _close_internal(self) -> None:
+        self._reader.close()
