@@ -1,0 +1,256 @@
+"""The library of named mechanical-loss (friction) terms of one cylinder (paper 000 Eq. 4; physics.md §7).
+
+The friction torque of cylinder k is T_f,k = sum_l a_kl F_l(samples_k), every F_l >= 0. A ``LossTerm`` is one F_l:
+its name, its physics (a plain-numpy ``reference`` written from the equation and one numba ``kernel`` with the same
+numbers), the group the monitor scales it with by default ("cylinder": one scale per cylinder, "engine": one scale
+shared by all cylinders), the unit of its coefficient and a prior coefficient. A ``TermLibrary`` is an ordered tuple of
+terms; libraries compose with ``+`` (after pysindy's feature libraries), so a model gains a term without any solver
+being edited: the simulator and the monitor both evaluate whatever library the model carries.
+
+    lib = rezeka_henein() + TermLibrary((my_term,))
+    samples = cylinder_samples(local_angle, omega, p_gauge, spec.friction_params())
+    basis = lib.evaluate(samples, spec.friction_params())        # (len(lib), n)
+
+Every term reads the same per-cylinder sample rows (``FIELDS``), so one set of kinematics serves the whole library:
+
+    ANGLE    local crank angle of the cylinder [rad], wrapped into [0, 4 pi), 0 = its firing TDC
+    SIN, COS sin and cos of ANGLE
+    DX, DDX  x'(angle) [m/rad] and x''(angle) [m/rad^2]: piston displacement derivatives (physics.md §1)
+    OMEGA    angular speed of the cylinder's throw [rad/s], floored at 1e-3
+    P_GAUGE  cylinder gauge pressure max(p - p_cc, 0) [Pa]
+
+and the engine's constants ``EngineSpec.friction_params()`` (``CONSTS`` names them). A kernel has the signature
+``kernel(samples (N_FIELDS, n), consts (N_CONSTS,), out (n,))`` and writes F_l into ``out``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from frictionwatch.core.model.kinematics import kinematics
+
+FIELDS = ("angle", "sin", "cos", "dx", "ddx", "omega", "p_gauge")
+ANGLE, SIN, COS, DX, DDX, OMEGA, P_GAUGE = range(len(FIELDS))
+N_FIELDS = len(FIELDS)
+CONSTS = ("crank_radius", "conrod", "pin_offset", "bore", "oil_viscosity", "ring_tension", "ring_thickness",
+          "compression_rings", "oil_rings", "skirt_length", "skirt_film", "valves", "valve_spring", "bearing_radius")
+(R, L, E, D, MU, PE, ETH, NC, NO, LFP, GA, NV, LS, RB) = range(len(CONSTS))
+N_CONSTS = len(CONSTS)
+GROUPS = ("cylinder", "engine")
+FOUR_PI = 4.0 * np.pi
+OMEGA_FLOOR = 1e-3  # rad/s: the terms with 1/sqrt(omega) stay finite on a stopped shaft
+
+
+@dataclass(frozen=True)
+class LossTerm:
+    """One friction basis term F_l (see the module docstring for ``kernel`` and ``reference``)."""
+
+    name: str
+    equation: str  # F_l in words and symbols, for reports
+    group: str  # "cylinder" or "engine": the monitor's default scaling of this term
+    unit: str  # SI unit of the coefficient a_l (a_l F_l is a torque in N m)
+    prior: float  # coefficient used when an engine states none (0: the term is off until identified)
+    kernel: Callable[[np.ndarray, np.ndarray, np.ndarray], None]
+    reference: Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+    def __post_init__(self) -> None:
+        if self.group not in GROUPS:
+            raise ValueError(f"term {self.name!r}: group must be one of {GROUPS}, got {self.group!r}")
+        if not (np.isfinite(self.prior) and self.prior >= 0):
+            raise ValueError(f"term {self.name!r}: prior must be finite and >= 0, got {self.prior!r}")
+
+
+@dataclass(frozen=True)
+class TermLibrary:
+    """An ordered, composable set of loss terms with distinct names."""
+
+    terms: tuple[LossTerm, ...]
+
+    def __post_init__(self) -> None:
+        names = [t.name for t in self.terms]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"a term library holds each term once; repeated: {', '.join(dup)}")
+
+    def __add__(self, other: TermLibrary | LossTerm) -> TermLibrary:
+        extra = (other,) if isinstance(other, LossTerm) else other.terms
+        return TermLibrary(self.terms + extra)
+
+    def __len__(self) -> int:
+        return len(self.terms)
+
+    def __iter__(self) -> Iterator[LossTerm]:
+        return iter(self.terms)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(t.name for t in self.terms)
+
+    def index(self, name: str) -> int:
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise KeyError(f"no loss term {name!r}; the library has {', '.join(self.names)}") from None
+
+    def evaluate(self, samples: np.ndarray, consts: np.ndarray) -> np.ndarray:
+        """Basis F (len(self), n) of one cylinder from its samples (N_FIELDS, n), by each term's kernel."""
+        s, c = _checked(samples, consts)
+        out = np.empty((len(self.terms), s.shape[1]))
+        for i, term in enumerate(self.terms):
+            term.kernel(s, c, out[i])
+        return out
+
+    def evaluate_reference(self, samples: np.ndarray, consts: np.ndarray) -> np.ndarray:
+        """The same basis from each term's plain-numpy reference."""
+        s, c = _checked(samples, consts)
+        return np.stack([t.reference(s, c) for t in self.terms]) if self.terms else np.empty((0, s.shape[1]))
+
+    def equations(self, coefficients: np.ndarray, label: str = "T_f") -> str:
+        """``T_f = 12.8 [N m/...]·ring_viscous + ...``: the fitted friction law in words (pysindy's ``equations``)."""
+        coef = np.asarray(coefficients, dtype=np.float64)
+        if coef.shape != (len(self.terms),):
+            raise ValueError(f"expected {len(self.terms)} coefficients, got shape {coef.shape}")
+        return f"{label} = " + " + ".join(f"{a:.4g}·{t.name}" for a, t in zip(coef, self.terms))
+
+
+def _checked(samples: np.ndarray, consts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    s = np.ascontiguousarray(samples, dtype=np.float64)
+    c = np.ascontiguousarray(consts, dtype=np.float64)
+    if s.ndim != 2 or s.shape[0] != N_FIELDS:
+        raise ValueError(f"samples must be ({N_FIELDS}, n) rows {FIELDS}, got shape {s.shape}")
+    if c.shape != (N_CONSTS,):
+        raise ValueError(f"consts must be EngineSpec.friction_params() ({N_CONSTS} values), got shape {c.shape}")
+    return s, c
+
+
+def cylinder_samples(local_angle: np.ndarray, omega: np.ndarray | float, p_gauge: np.ndarray | float,
+                     consts: np.ndarray) -> np.ndarray:
+    """Sample rows (N_FIELDS, n) of one cylinder (plain numpy; the monitor's kernels build the same rows in place).
+
+    local_angle : (n,) crank angle of the cylinder [rad], 0 = its firing TDC; omega : throw speed [rad/s];
+    p_gauge : cylinder minus crankcase pressure [Pa] (negative values are clipped to 0); consts : friction_params().
+    """
+    ang = np.asarray(local_angle, dtype=np.float64).ravel()
+    n = ang.shape[0]
+    w = np.broadcast_to(np.asarray(omega, dtype=np.float64), (n,))
+    p = np.broadcast_to(np.asarray(p_gauge, dtype=np.float64), (n,))
+    if not (np.all(np.isfinite(ang)) and np.all(np.isfinite(w)) and np.all(np.isfinite(p))):
+        raise ValueError("local_angle, omega and p_gauge must be finite; mark bad samples before calling")
+    _, dx, ddx = kinematics(ang, np.asarray(consts, dtype=np.float64)[:3])
+    out = np.empty((N_FIELDS, n))
+    out[ANGLE] = np.mod(ang, FOUR_PI)
+    out[SIN] = np.sin(ang)
+    out[COS] = np.cos(ang)
+    out[DX] = dx
+    out[DDX] = ddx
+    out[OMEGA] = np.maximum(w, OMEGA_FLOOR)
+    out[P_GAUGE] = np.maximum(p, 0.0)
+    return out
+
+
+# ---- the six Rezeka-Henein terms (paper 000 Eq. 4; physics.md §7): numpy reference, then kernel ----------------
+
+def ring_viscous_reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """F1 = sqrt(mu |c| (P_e + p) e) pi D (n_o + 0.4 n_c) |x'|, c = omega x' the piston speed."""
+    lever = np.abs(s[DX])
+    return np.sqrt(c[MU] * s[OMEGA] * lever * (c[PE] + s[P_GAUGE]) * c[ETH]) * np.pi * c[D] * (c[NO] + 0.4 * c[NC]) * lever
+
+
+@numba.njit(cache=True)
+def ring_viscous_kernel(s, c, out):
+    k = np.pi * c[D] * (c[NO] + 0.4 * c[NC])
+    for i in range(out.shape[0]):
+        lever = abs(s[DX, i])
+        out[i] = np.sqrt(c[MU] * s[OMEGA, i] * lever * (c[PE] + s[P_GAUGE, i]) * c[ETH]) * k * lever
+
+
+def ring_mixed_reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """F2 = pi D n_c (P_e + p)(1 - |sin angle|) |x'| within +-90 deg of firing TDC, else 0."""
+    window = (s[ANGLE] <= 0.5 * np.pi) | (s[ANGLE] >= FOUR_PI - 0.5 * np.pi)
+    return np.where(window, np.pi * c[D] * c[NC] * (c[PE] + s[P_GAUGE]) * (1.0 - np.abs(s[SIN])) * np.abs(s[DX]), 0.0)
+
+
+@numba.njit(cache=True)
+def ring_mixed_kernel(s, c, out):
+    k = np.pi * c[D] * c[NC]
+    for i in range(out.shape[0]):
+        a = s[ANGLE, i]
+        if a <= 0.5 * np.pi or a >= FOUR_PI - 0.5 * np.pi:
+            out[i] = k * (c[PE] + s[P_GAUGE, i]) * (1.0 - abs(s[SIN, i])) * abs(s[DX, i])
+        else:
+            out[i] = 0.0
+
+
+def skirt_viscous_reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """F3 = mu |c| / g_a pi D L_FP |x'|."""
+    lever = np.abs(s[DX])
+    return c[MU] * s[OMEGA] * lever / c[GA] * np.pi * c[D] * c[LFP] * lever
+
+
+@numba.njit(cache=True)
+def skirt_viscous_kernel(s, c, out):
+    k = c[MU] / c[GA] * np.pi * c[D] * c[LFP]
+    for i in range(out.shape[0]):
+        lever = abs(s[DX, i])
+        out[i] = k * s[OMEGA, i] * lever * lever
+
+
+def valve_train_reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """F4 = N_v L_s |x'| / sqrt(omega) (the paper's form: on the piston lever, not the cam angle)."""
+    return c[NV] * c[LS] * np.abs(s[DX]) / np.sqrt(s[OMEGA])
+
+
+@numba.njit(cache=True)
+def valve_train_kernel(s, c, out):
+    k = c[NV] * c[LS]
+    for i in range(out.shape[0]):
+        out[i] = k * abs(s[DX, i]) / np.sqrt(s[OMEGA, i])
+
+
+def auxiliaries_reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """F5 = mu omega (auxiliaries and unloaded bearings)."""
+    return c[MU] * s[OMEGA]
+
+
+@numba.njit(cache=True)
+def auxiliaries_kernel(s, c, out):
+    for i in range(out.shape[0]):
+        out[i] = c[MU] * s[OMEGA, i]
+
+
+def loaded_bearings_reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """F6 = (pi/4) D^2 r_b p |cos angle| / sqrt(omega)."""
+    return 0.25 * np.pi * c[D] ** 2 * c[RB] * s[P_GAUGE] * np.abs(s[COS]) / np.sqrt(s[OMEGA])
+
+
+@numba.njit(cache=True)
+def loaded_bearings_kernel(s, c, out):
+    k = 0.25 * np.pi * c[D] * c[D] * c[RB]
+    for i in range(out.shape[0]):
+        out[i] = k * s[P_GAUGE, i] * abs(s[COS, i]) / np.sqrt(s[OMEGA, i])
+
+
+def rezeka_henein(coefficients: np.ndarray | None = None) -> TermLibrary:
+    """The six Rezeka-Henein terms, in the paper's order. ``coefficients`` (6,): their priors (default 0: the engine
+    spec carries its own, ``EngineSpec.friction.coefficients``). Ring and skirt terms are scaled per cylinder by
+    default (the group ring wear changes), valve train, auxiliaries and bearings engine-wide (core.monitor.identify)."""
+    a0 = np.zeros(6) if coefficients is None else np.asarray(coefficients, dtype=np.float64)
+    if a0.shape != (6,):
+        raise ValueError(f"rezeka_henein takes 6 coefficients, got shape {a0.shape}")
+    spec = [
+        ("ring_viscous", "sqrt(mu |c| (P_e + p) e) pi D (n_o + 0.4 n_c) |x'|", "cylinder", "-",
+         ring_viscous_kernel, ring_viscous_reference),
+        ("ring_mixed", "pi D n_c (P_e + p)(1 - |sin angle|) |x'|, +-90 deg of firing TDC", "cylinder", "m",
+         ring_mixed_kernel, ring_mixed_reference),
+        ("skirt_viscous", "mu |c| / g_a pi D L_FP |x'|", "cylinder", "-", skirt_viscous_kernel, skirt_viscous_reference),
+        ("valve_train", "N_v L_s |x'| / sqrt(omega)", "engine", "m s^-0.5", valve_train_kernel,
+         valve_train_reference),
+        ("auxiliaries", "mu omega", "engine", "m^3", auxiliaries_kernel, auxiliaries_reference),
+        ("loaded_bearings", "(pi/4) D^2 r_b p |cos angle| / sqrt(omega)", "engine", "s^-0.5",
+         loaded_bearings_kernel, loaded_bearings_reference),
+    ]
+    return TermLibrary(tuple(LossTerm(name, eq, group, unit, float(a), kern, ref)
+                             for (name, eq, group, unit, kern, ref), a in zip(spec, a0)))
