@@ -1,6 +1,6 @@
 """Plant simulator: time-domain torsional engine model with per-cylinder thermodynamics, friction, sensors, effects.
 
-    simulate(spec, rpm, load, cycles, seed, effects=None, without=(), cov_imep=0.02, load_steps=None,
+    simulate(spec_or_model, rpm, load, cycles, seed, effects=None, without=(), cov_imep=0.02, load_steps=None,
              progress=None) -> SimResult
 
 This is deliberately a different route from the monitor's harmonic balance (design.md §4): fixed-step RK4 in time on
