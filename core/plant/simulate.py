@@ -134,7 +134,7 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
     omega = rpm * np.pi / 30.0
     tmodel = cylinder_model(spec)
 
-    chain, cyl = ChainSetup(), CylinderSetup.nominal(spec, plant_coefficients(model))
+    chain, cyl = ChainSetup(), CylinderSetup.nominal(spec, plant_coefficients(model), model.terms.names[:6])
     load_fx, sensors = LoadSetup(), SensorSetup.ideal(z)
     for e in model.effects:  # each hook returns a new set-up: instances compose in the order listed
         chain, cyl = e.apply_chain(chain), e.apply_cylinders(cyl)

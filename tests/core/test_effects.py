@@ -97,7 +97,7 @@ def test_several_instances_per_cylinder_and_refused_repeats():
 
 def test_hooks_return_new_setups_and_leave_their_input_alone():
     spec = load_engine("k9k-4cyl")
-    cyl0 = CylinderSetup.nominal(spec, np.tile(spec.friction.coefficients, (4, 1)))
+    cyl0 = CylinderSetup.nominal(spec, np.tile(spec.friction.coefficients, (4, 1)), rezeka_henein().names)
     before = {f.name: np.copy(getattr(cyl0, f.name)) for f in dataclasses.fields(cyl0)}
     cyl = cyl0
     for e in [RingWear(cylinder=2, gain=1.5), RingWear(cylinder=4, mass_loss=0.2),

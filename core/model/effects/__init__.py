@@ -13,6 +13,7 @@ refused. Bad input raises ``ValueError`` with one line that names the problem.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+from types import MappingProxyType
 
 from frictionwatch.core.model.effects.base import (
     ONCE,
@@ -41,7 +42,7 @@ from frictionwatch.core.model.effects.catalog import (
 )
 from frictionwatch.core.model.effects.loss_terms import auxiliaries_quadratic, extra_friction_term
 
-EFFECTS: Mapping[str, type[Effect]] = {cls.name: cls for cls in ALL}
+EFFECTS: Mapping[str, type[Effect]] = MappingProxyType({cls.name: cls for cls in ALL})
 
 
 def effect_class(name: str) -> type[Effect]:

@@ -61,22 +61,27 @@ class ChainSetup:
 
 @dataclass(frozen=True)
 class CylinderSetup:
-    """Per-cylinder plant inputs (z rows). ``coefficients`` (z, 6) truth a_kl; ``firing_angles`` (z,) TRUE firing
+    """Per-cylinder plant inputs (z rows). ``coefficients`` (z, n) truth a_kl of the loss terms ``term_names`` (n,);
+    ``firing_angles`` (z,) TRUE firing
     angles [rad]; ``misfire`` (z,) probability of a motored cycle; ``mass_loss`` (z,) trapped-mass fraction lost to
     blow-by IVC->EVO (the simulator sizes the leak orifice from it); ``extra_friction`` (z, 4) = [mean, amplitude as
     fractions of the cylinder's mean friction, order, phase rad] of T = T_ref (mean + amp cos(order theta_k + phase))."""
 
     coefficients: np.ndarray
+    term_names: tuple[str, ...]
     firing_angles: np.ndarray
     misfire: np.ndarray
     mass_loss: np.ndarray
     extra_friction: np.ndarray
 
     @classmethod
-    def nominal(cls, spec: EngineSpec, coefficients: np.ndarray) -> CylinderSetup:
+    def nominal(cls, spec: EngineSpec, coefficients: np.ndarray, term_names: tuple[str, ...]) -> CylinderSetup:
         z = spec.n_cyl
-        return cls(np.array(coefficients, dtype=np.float64), spec.firing_angles.astype(np.float64).copy(),
-                   np.zeros(z), np.zeros(z), np.zeros((z, 4)))
+        coef = np.array(coefficients, dtype=np.float64)
+        if coef.shape != (z, len(term_names)):
+            raise ValueError(f"coefficients {coef.shape} do not match {z} cylinders x {len(term_names)} terms")
+        return cls(coef, tuple(term_names), spec.firing_angles.astype(np.float64).copy(), np.zeros(z), np.zeros(z),
+                   np.zeros((z, 4)))
 
 
 @dataclass(frozen=True)

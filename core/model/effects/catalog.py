@@ -176,8 +176,9 @@ class RingWear(Effect):
 
     def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
         k = self.values["cylinder"] - 1
+        cols = [i for i, n in enumerate(setup.term_names) if n in self.scales_terms]
         coef = np.array(setup.coefficients, dtype=np.float64)
-        coef[k, :3] *= self.values["gain"]  # the first three Rezeka-Henein terms, scales_terms
+        coef[k, cols] *= self.values["gain"]
         return replace(setup, coefficients=coef, mass_loss=_compound_loss(setup, k, self.values["mass_loss"]))
 
 
