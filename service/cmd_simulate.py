@@ -21,7 +21,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cycles", type=int, default=50, help="engine cycles to write")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--cov-imep", type=float, default=None, help="cycle-to-cycle COV of IMEP (fraction)")
-    p.add_argument("--effect", action="append", default=[], metavar="NAME[:key=value,...]", help="turn an effect on")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME[:key=value,...]", help="turn an effect on (repeat it for another cylinder)")
     p.add_argument("--without", action="append", default=[], metavar="NAME", help="turn a default effect off")
     p.add_argument("-o", "--output", required=True, type=Path, help="OUT.mcap (truth goes to OUT.truth.json)")
     p.set_defaults(func=run)
@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--load {args.load:g} must be a fraction of full load in 0..1.1")
     if not 1 <= args.cycles <= 100_000:
         raise ValueError(f"--cycles {args.cycles} must be 1..100000")
-    effects = dict(parse_effect(text) for text in args.effect)
+    effects = [parse_effect(text) for text in args.effect]  # several instances allowed (ring_wear in 1 and 2)
     kwargs = {} if args.cov_imep is None else {"cov_imep": args.cov_imep}
     with progress_bar(total=1.0, desc=f"simulate {spec.name}") as bar:
         result = simulate(

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from frictionwatch.core.model.effects import SensorSetup
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.plant.plant import (
     FOUR_PI,
@@ -65,12 +66,12 @@ FAR = 1 << 50  # event index that never fires
 
 class PlantRun:
     def __init__(self, spec: EngineSpec, plant: PlantModel, tmodel: CylinderModel, *, h: float, omega: float,
-                 wheel_off: float, active: dict, rngs: list[np.random.Generator]):
-        self.spec, self.plant, self.active, self.rngs, self.omega = spec, plant, active, rngs, omega
+                 sensors: SensorSetup, rngs: list[np.random.Generator]):
+        self.spec, self.plant, self.sensors, self.rngs, self.omega = spec, plant, sensors, rngs, omega
         z, n = spec.n_cyl, plant.n
         sc = scalars(spec, plant)
         sc[S_H] = h
-        sc[S_WHEEL_OFF] = wheel_off
+        sc[S_WHEEL_OFF] = sensors.wheel_offset_rad
         sc[S_CAM] = np.radians(CAM_DEG)
         sc[S_PPERIOD] = 1.0 / spec.sensors.pressure_rate_hz
         sc[S_T0OUT] = np.inf
@@ -85,9 +86,8 @@ class PlantRun:
         self.thermo = (tmodel.constants, tmodel.vol_half, tmodel.dvol_half)
         self.traces = np.zeros((z, 3, tmodel.theta.shape[0]))
         self.slot_cycle = np.full((z, 3), -FAR, dtype=np.int64)
-        tse = active.get("tooth_spacing_error", {"sigma_deg": 0.0, "runout_deg": 0.0, "runout_phase_deg": 0.0})
-        self.tooth_err = tooth_errors(spec.sensors, rngs[2], tse["sigma_deg"], tse["runout_deg"],
-                                      tse["runout_phase_deg"])
+        self.tooth_err = tooth_errors(spec.sensors, rngs[2], sensors.tooth_sigma_deg, sensors.runout_deg,
+                                      sensors.runout_phase_deg)
         self.edges = (edge_angles(spec.sensors, self.tooth_err),
                       np.arange(spec.sensors.wheel_teeth - spec.sensors.wheel_missing, dtype=np.float64))
         nq = z * NQ_CYL + NQ_GLOBAL
@@ -270,24 +270,20 @@ class PlantRun:
                 "samples": cat(4, z), "load": cat(5, 3), "t_out0": self.t_out0, "law": self.law}
 
     def sensor_records(self, out: dict) -> tuple[list, AcquisitionInfo, dict]:
-        spec, se, t0 = self.spec, self.spec.sensors, self.t_out0
-        noise = self.active.get("sensor_noise", {"edge_jitter_ns": 0.0, "pressure_noise_scale": 0.0,
-                                                 "load_noise_frac": 0.0})
-        jitter = noise["edge_jitter_ns"] * 1e-9
+        spec, se, t0, fx = self.spec, self.spec.sensors, self.t_out0, self.sensors
+        jitter = fx.edge_jitter_ns * 1e-9
         edge_ticks = to_ticks(out["edges"][:, 0] - t0, se.tick_hz, jitter, self.rngs[3])
         cam_ticks = to_ticks(out["cam"] - t0, se.tick_hz, jitter, self.rngs[3]) if se.has_cam else np.zeros(0, int)
         samples = out["samples"].copy()
-        po = self.active.get("pressure_offset")
         rng = self.rngs[4]
         for k in range(spec.n_cyl):
-            off, gain = (po["pa"], po["gain"]) if po and po["cylinder"] == k + 1 else (0.0, 1.0)
-            samples[:, k] = pressure_adc(samples[:, k], se, se.pressure_noise_pa * noise["pressure_noise_scale"],
-                                         rng, off, gain)
+            samples[:, k] = pressure_adc(samples[:, k], se, se.pressure_noise_pa * fx.pressure_noise_scale, rng,
+                                         fx.pressure_offset_pa[k], fx.pressure_gain[k])
         load = out["load"]
         dt = np.diff(load[:, 0])
         torque = np.diff(load[:, 1]) / dt
         power = np.diff(load[:, 2]) / dt
-        sig = noise["load_noise_frac"] * spec.rated_torque_nm
+        sig = fx.load_noise_frac * spec.rated_torque_nm
         if sig > 0 and torque.size:
             e = self.rngs[5].normal(0.0, sig, torque.size)
             torque, power = torque + e, power + e * self.omega

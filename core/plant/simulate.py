@@ -1,6 +1,6 @@
 """Plant simulator: time-domain torsional engine model with per-cylinder thermodynamics, friction, sensors, effects.
 
-    simulate(spec, rpm, load, cycles, seed, effects=None, without=(), cov_imep=0.02, load_steps=None,
+    simulate(spec_or_model, rpm, load, cycles, seed, effects=None, without=(), cov_imep=0.02, load_steps=None,
              progress=None) -> SimResult
 
 This is deliberately a different route from the monitor's harmonic balance (design.md §4): fixed-step RK4 in time on
@@ -21,14 +21,15 @@ Conventions (truth and records):
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import eigh
 
-from frictionwatch.core.model.effects import resolve_effects
+from frictionwatch.core.model.effects import ChainSetup, CylinderSetup, Effect, LoadSetup, SensorSetup
 from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.plant.operating_point import (
     engine_brake_torque,
     fuel_for_load,
@@ -39,6 +40,7 @@ from frictionwatch.core.plant.operating_point import (
 from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, static_twist
 from frictionwatch.core.plant.sim_run import PlantRun
 from frictionwatch.core.plant.sim_truth import build_truth
+from frictionwatch.core.model.terms import rezeka_henein
 from frictionwatch.core.model.thermo import charge_pressures, cylinder_model
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 
@@ -75,65 +77,88 @@ def _validate(spec: EngineSpec, rpm: float, load: float, cycles: int, cov_imep: 
     return steps
 
 
-def simulate(spec: EngineSpec, rpm: float, load: float, cycles: int, seed: int,
-             effects: dict[str, dict] | None = None, without: set[str] | tuple = (), cov_imep: float = 0.02,
-             load_steps: list[tuple[float, float]] | None = None,
+def _as_model(engine: EngineSpec | EngineModel, effects, without, coefficients) -> EngineModel:
+    if isinstance(engine, EngineModel):
+        if effects or without or coefficients is not None:
+            raise ValueError("an EngineModel carries its own effects and coefficients; give effects, without and "
+                             "coefficients only with an EngineSpec")
+        return engine
+    if coefficients is not None:
+        z = engine.n_cyl
+        coef = np.array(coefficients, dtype=float)
+        if coef.shape != (z, 6) or not np.all(np.isfinite(coef)) or np.any(coef < 0):
+            raise ValueError(f"coefficients must be a ({z}, 6) array of finite values >= 0")
+        coefficients = coef
+    return EngineModel.from_spec(engine, effects=effects, without=without, coefficients=coefficients)
+
+
+def plant_coefficients(model: EngineModel) -> np.ndarray:
+    """The (z, 6) Rezeka-Henein coefficients the plant kernel takes today.
+
+    Until core.plant.plant evaluates the term library (branch h-model), a model whose added terms carry a non-zero
+    coefficient cannot be simulated: that friction would silently be missing from the truth."""
+    six = rezeka_henein().names
+    if model.terms.names[:6] != six:
+        raise NotImplementedError(f"the plant evaluates the six Rezeka-Henein terms in their order {six}; this model "
+                                  f"has {model.terms.names[:6]}")
+    added = [t for i, t in enumerate(model.terms.names[6:], 6) if np.any(model.coefficients[:, i] != 0.0)]
+    if added:
+        raise NotImplementedError(f"the plant kernel does not yet evaluate added loss terms ({', '.join(added)}): it "
+                                  "takes (z, 6) Rezeka-Henein coefficients until it runs on the term library")
+    return np.array(model.coefficients[:, :6], dtype=np.float64)
+
+
+def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: int, seed: int,
+             effects: Mapping[str, dict] | Sequence[Effect] | None = None, without: set[str] | tuple = (),
+             cov_imep: float = 0.02, load_steps: list[tuple[float, float]] | None = None,
              progress: Callable[[float], None] | None = None,
              coefficients: np.ndarray | None = None, fuel_spread: float = 0.01) -> SimResult:
     """Simulate ``cycles`` steady engine cycles (after an unlogged settling period) and return records and truth.
 
     Parameters
     ----------
-    spec : engine; rpm : requested mean speed [rpm]; load : fraction of full load (0 = zero brake torque);
-    cycles : output cycles; seed : all randomness (combustion, spread, wheel errors, noise) derives from it.
-    effects : {name: {param: value}} turned on (core.model.effects); without : default-on effects turned off.
+    engine : an EngineModel (its effects applied, its coefficients the truth) or an EngineSpec, wrapped as
+    ``EngineModel.from_spec(spec, effects, without, coefficients)``. rpm : requested mean speed [rpm];
+    load : fraction of full load (0 = zero brake torque); cycles : output cycles; seed : all randomness (combustion,
+    spread, wheel errors, noise) derives from it. effects : Effect instances or {name: {param: value}} turned on
+    (core.model.effects); without : default-on effects turned off (both only with an EngineSpec).
     cov_imep : cycle-to-cycle COV of IMEP (fraction, default 2 %). load_steps : [(time_s, fraction)], time in the
     tick time base. coefficients : (z, 6) raw a_kl per cylinder (default: the preset's a_l for every cylinder).
     fuel_spread : rms of the fixed cylinder-to-cylinder fuel spread (fraction).
     """
+    model = _as_model(engine, effects, without, coefficients)
+    spec = model.spec
     steps = _validate(spec, rpm, load, cycles, cov_imep, load_steps)
     z = spec.n_cyl
-    active = resolve_effects(effects, without, z)
     rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(8)]
     omega = rpm * np.pi / 30.0
     tmodel = cylinder_model(spec)
 
-    coef = np.tile(spec.friction.coefficients, (z, 1)) if coefficients is None else np.array(coefficients, float)
-    if coef.shape != (z, 6) or not np.all(np.isfinite(coef)) or np.any(coef < 0):
-        raise ValueError(f"coefficients must be a ({z}, 6) array of finite values >= 0")
-    phase = spec.firing_angles.astype(float).copy()
-    wheel_off = 0.0
-    if "tdc_offset" in active:
-        e = active["tdc_offset"]
-        if e["cylinder"] == 0:
-            wheel_off = np.radians(e["deg"])
-        else:
-            phase[e["cylinder"] - 1] += np.radians(e["deg"])
-    if "ring_wear" in active:
-        coef[active["ring_wear"]["cylinder"] - 1, :3] *= active["ring_wear"]["gain"]
+    chain, cyl = ChainSetup(), CylinderSetup.nominal(spec, plant_coefficients(model), model.terms.names[:6])
+    load_fx, sensors = LoadSetup(), SensorSetup.ideal(z)
+    for e in model.effects:  # each hook returns a new set-up: instances compose in the order listed
+        chain, cyl = e.apply_chain(chain), e.apply_cylinders(cyl)
+        load_fx, sensors = e.apply_load(load_fx), e.apply_sensors(sensors)
+    coef, phase, misfire = cyl.coefficients, cyl.firing_angles, cyl.misfire
     spread = np.ones(z)
     if z > 1 and fuel_spread > 0:
         spread = 1.0 + fuel_spread * rngs[1].standard_normal(z)
         spread = np.clip(spread / spread.mean(), 0.5, 1.5)
-    misfire = np.zeros(z)
-    if "misfire" in active:
-        misfire[active["misfire"]["cylinder"] - 1] = active["misfire"]["probability"]
 
     # ---- operating point estimate (quasi-static), leak sizing, extra friction reference ----
     leak, extra, no_extra = np.zeros(z), np.zeros((z, 4)), np.zeros(z)
     m0 = idle_fuel(spec, tmodel, omega, spread, coef, leak, misfire, no_extra)
-    for name in ("ring_wear", "blow_by"):
-        if name in active and active[name]["mass_loss"] > 0:
-            k = active[name]["cylinder"] - 1
-            leak[k] = leak_area_for_loss(spec, tmodel, omega, fuel_for_load(m0, spec, load) * spread[k], load,
-                                         active[name]["mass_loss"])
-    if "extra_friction" in active:
-        e = active["extra_friction"]
-        k = e["cylinder"] - 1
+    for k in np.nonzero(cyl.mass_loss > 0)[0]:
+        leak[k] = leak_area_for_loss(spec, tmodel, omega, fuel_for_load(m0, spec, load) * spread[k], load,
+                                     cyl.mass_loss[k])
+    with_extra = np.nonzero(np.any(cyl.extra_friction != 0.0, axis=1))[0]
+    if with_extra.size:  # T_ref = the cylinder's mean friction at the operating point, without the extra term
         _, means0 = engine_brake_torque(spec, tmodel, omega, fuel_for_load(m0, spec, load) * spread, load, coef,
                                         leak, misfire, no_extra)
-        ref = means0[k].friction_nm
-        extra[k] = [ref * e["mean_frac"], ref * e["amp_frac"], e["order"], np.radians(e["phase_deg"])]
+        for k in with_extra:
+            ref = means0[k].friction_nm
+            mean_frac, amp_frac, order, phase_rad = cyl.extra_friction[k]
+            extra[k] = [ref * mean_frac, ref * amp_frac, order, phase_rad]
     m0 = idle_fuel(spec, tmodel, omega, spread, coef, leak, misfire, extra[:, 0])
 
     def point(frac: float) -> tuple[float, float, list]:
@@ -156,8 +181,7 @@ def simulate(spec: EngineSpec, rpm: float, load: float, cycles: int, seed: int,
         sig_q = np.sqrt(max(target**2 - (d_soc * sig_soc) ** 2, 0.0)) / max(d_q, 1e-9)
 
     # ---- plant ----
-    plant = build_plant(spec, flexible="torsional_flexibility" in active, variable="variable_inertia" in active,
-                        coef=coef, phase=phase, extra=extra)
+    plant = build_plant(spec, flexible=chain.flexible, variable=chain.variable_inertia, coef=coef, phase=phase, extra=extra)
     grid_k = spec.load.grid_stiffness_nm_per_rad if spec.load.kind == "grid" else 0.0
     mm, kk, _ = chain_matrices(plant, grid_k)
     w_max = np.sqrt(max(eigh(kk, mm, eigvals_only=True).max(), 0.0))
@@ -167,18 +191,15 @@ def simulate(spec: EngineSpec, rpm: float, load: float, cycles: int, seed: int,
         node_torque[plant.cyl_node[k]] += means[k].indicated_nm - means[k].friction_nm - extra[k, 0]
     node_torque[plant.load] -= node_torque.sum()
 
-    run = PlantRun(spec, plant, tmodel, h=h, omega=omega, wheel_off=wheel_off, active=active, rngs=rngs)
+    run = PlantRun(spec, plant, tmodel, h=h, omega=omega, sensors=sensors, rngs=rngs)
     theta_start = -4.0 * np.pi * (SETTLE_A_CYCLES + SETTLE_B_CYCLES) - 2.0 * np.pi
     theta_switch = -4.0 * np.pi * SETTLE_B_CYCLES
     run.set_state(theta_start + static_twist(plant, node_torque), omega)
     run.set_leak(leak)
     run.set_operating(fuel0, *charge_pressures(spec, load))
     run.set_perturbations(spread, misfire, sig_q, sig_soc, sig_beta, theta_start, theta_switch, cycles)
-    ripple = 0.0
-    if "load_ripple" in active:
-        e = active["load_ripple"]
-        ripple = e["amplitude_nm"] if e["amplitude_nm"] > 0 else e["fraction"] * abs(brake0)
-        run.set_ripple(ripple, e["order"], np.radians(e["phase_deg"]))
+    ripple = load_fx.amplitude_nm if load_fx.amplitude_nm > 0 else load_fx.fraction * abs(brake0)
+    run.set_ripple(ripple, load_fx.order, load_fx.phase_rad)
     run.settle_law(brake0, brake_full, MIN_SLOPE_FRACTION)
     total_angle = 4.0 * np.pi * (cycles + SETTLE_A_CYCLES + SETTLE_B_CYCLES) + 0.5 * np.pi
 
@@ -214,6 +235,7 @@ def simulate(spec: EngineSpec, rpm: float, load: float, cycles: int, seed: int,
         "variability": {"sigma_fuel": sig_q, "sigma_soc_deg": sig_soc, "sigma_premixed": sig_beta},
         "step_s": h, "settle_cycles": SETTLE_A_CYCLES + SETTLE_B_CYCLES, "load_ripple_nm": ripple,
     }
-    truth, diag = build_truth(spec, plant, out, cycles=cycles, rpm=rpm, load=load, seed=seed, active=active,
+    truth, diag = build_truth(spec, plant, out, cycles=cycles, rpm=rpm, load=load, seed=seed,
+                              active=[e.to_dict() for e in model.effects],
                               wheel=wheel, operating=operating)
     return SimResult(records=records, info=info, truth=truth, diagnostics=diag)

@@ -1,34 +1,47 @@
-"""Effect registry (core/effects.py) and what each effect does to a simulated engine (core/simulate.py)."""
+"""Effects as objects (core/model/effects/) and what each one does to a simulated engine (core/plant/simulate.py)."""
+
+import dataclasses
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from frictionwatch.core.model.effects import EFFECTS, parse_effect, resolve_effects
+from frictionwatch.core.model.effects import (
+    EFFECTS,
+    CylinderSetup,
+    LoadRipple,
+    RingWear,
+    SensorSetup,
+    check_instances,
+    parse_effect,
+    resolve_effects,
+)
 from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.terms import rezeka_henein
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.core.model.thermo import cycle_params, cylinder_model, cylinder_pressure, imep
 from frictionwatch.core.types import PressureFrame
 
-# ---- registry and parsing -----------------------------------------------------------------------------------------
+# ---- registry, parsing, instances ----------------------------------------------------------------------------------
 
 
 def test_parse_effect_fills_defaults_and_types():
-    name, params = parse_effect("ring_wear:cylinder=3,gain=1.4")
-    assert name == "ring_wear"
-    assert params == {"cylinder": 3, "gain": 1.4, "mass_loss": EFFECTS["ring_wear"].params["mass_loss"].default}
-    assert isinstance(params["cylinder"], int)
-    assert parse_effect("variable_inertia") == ("variable_inertia", {})
-    assert parse_effect(" misfire : cylinder = 2 ")[1]["cylinder"] == 2
+    e = parse_effect("ring_wear:cylinder=3,gain=1.4")
+    assert e == RingWear(cylinder=3, gain=1.4) and e.name == "ring_wear"
+    assert dict(e.values) == {"cylinder": 3, "gain": 1.4,
+                              "mass_loss": EFFECTS["ring_wear"].parameters["mass_loss"].default}
+    assert isinstance(e["cylinder"], int)
+    assert dict(parse_effect("variable_inertia").values) == {}
+    assert parse_effect(" misfire : cylinder = 2 ")["cylinder"] == 2
 
 
 @pytest.mark.parametrize("text,words", [
     ("ring_waer:cylinder=3", "unknown effect 'ring_waer'"),
     ("ring_wear:cyl=3", "no parameter 'cyl'"),
-    ("ring_wear:cylinder=0", "out of range"),
+    ("ring_wear:cylinder=0", "out of range 1..24"),
     ("ring_wear:cylinder=2.5", "integer"),
-    ("ring_wear:gain=abc", "not a number"),
-    ("misfire:probability=1.5", "out of range"),
+    ("ring_wear:gain=abc", "gain='abc': expected a number"),
+    ("misfire:probability=1.5", "probability=1.5 is out of range 0..1"),
     ("misfire:cylinder", "not key=value"),
     ("tdc_offset:deg=nan", "out of range"),
 ])
@@ -38,11 +51,28 @@ def test_parse_effect_errors_are_one_line(text, words):
     assert "\n" not in str(exc.value)
 
 
+def test_constructor_validates_and_instances_are_immutable():
+    with pytest.raises(ValueError, match="ring_wear.: gain='1.4': expected a number"):
+        RingWear(gain="1.4")
+    with pytest.raises(ValueError, match="gain=9 is out of range 1..5"):
+        RingWear(gain=9)
+    with pytest.raises(ValueError, match="sigma given for unknown parameter 'gian'"):
+        RingWear(sigma={"gian": 0.1})
+    e = RingWear(cylinder=2, sigma={"gain": 0.05})
+    assert e.sigma["gain"] == 0.05 and e.to_dict()["sigma"] == {"gain": 0.05}
+    with pytest.raises(AttributeError):
+        e.values = {}
+    with pytest.raises(TypeError):
+        e.values["gain"] = 2.0  # a read-only mapping
+
+
 def test_resolve_effects_defaults_without_and_cylinder_check():
     on = resolve_effects(None, (), 4)
-    assert set(on) == {n for n, e in EFFECTS.items() if e.default_on}
-    assert {"torsional_flexibility", "variable_inertia", "tooth_spacing_error"} <= set(on)
-    assert "tooth_spacing_error" not in resolve_effects(None, {"tooth_spacing_error"}, 4)
+    assert {e.name for e in on} == {n for n, cls in EFFECTS.items() if cls.default_on}
+    assert {"torsional_flexibility", "variable_inertia", "tooth_spacing_error"} <= {e.name for e in on}
+    assert "tooth_spacing_error" not in {e.name for e in resolve_effects(None, {"tooth_spacing_error"}, 4)}
+    given = resolve_effects({"tooth_spacing_error": {"sigma_deg": 0.1}}, (), 4)  # replaces the default one
+    assert [e["sigma_deg"] for e in given if e.name == "tooth_spacing_error"] == [0.1]
     with pytest.raises(ValueError, match="4 cylinders"):
         resolve_effects({"misfire": {"cylinder": 5}}, (), 4)
     with pytest.raises(ValueError, match="both requested and excluded"):
@@ -51,12 +81,60 @@ def test_resolve_effects_defaults_without_and_cylinder_check():
         resolve_effects(None, {"flexibility"}, 4)
 
 
+def test_several_instances_per_cylinder_and_refused_repeats():
+    two = resolve_effects([RingWear(cylinder=1), RingWear(cylinder=3, gain=2.0)], (), 4)
+    assert [e["cylinder"] for e in two if e.name == "ring_wear"] == [1, 3]
+    for effects, words in [
+        ([LoadRipple(), LoadRipple(order=2.0)], "effect 'load_ripple' is given twice; it applies once per engine"),
+        ([parse_effect("tooth_spacing_error:sigma_deg=0.1"), parse_effect("tooth_spacing_error")],
+         "'tooth_spacing_error' is given twice"),
+        ([RingWear(cylinder=2), RingWear(cylinder=2, gain=2.0)], "'ring_wear' is given twice for cylinder 2"),
+    ]:
+        with pytest.raises(ValueError, match=words) as exc:
+            check_instances(effects, 4)
+        assert "\n" not in str(exc.value)
+
+
+def test_hooks_return_new_setups_and_leave_their_input_alone():
+    spec = load_engine("k9k-4cyl")
+    cyl0 = CylinderSetup.nominal(spec, np.tile(spec.friction.coefficients, (4, 1)), rezeka_henein().names)
+    before = {f.name: np.copy(getattr(cyl0, f.name)) for f in dataclasses.fields(cyl0)}
+    cyl = cyl0
+    for e in [RingWear(cylinder=2, gain=1.5), RingWear(cylinder=4, mass_loss=0.2),
+              parse_effect("blow_by:cylinder=4,mass_loss=0.1"), parse_effect("misfire:cylinder=1,probability=0.3"),
+              parse_effect("tdc_offset:cylinder=3,deg=2"), parse_effect("extra_friction:cylinder=2,amp_frac=0.5")]:
+        cyl = e.apply_cylinders(cyl)
+    for name, arr in before.items():
+        assert np.array_equal(getattr(cyl0, name), arr), name  # nothing written into the input
+    assert_allclose(cyl.coefficients[1, :3], 1.5 * spec.friction.coefficients[:3])
+    assert_allclose(cyl.coefficients[3, :3], 1.4 * spec.friction.coefficients[:3])  # the default gain
+    assert_allclose(cyl.coefficients[[0, 2]], cyl0.coefficients[[0, 2]])
+    assert_allclose(cyl.mass_loss, [0, 0.12, 0, 1 - 0.8 * 0.9])  # two leaks in cylinder 4 compound
+    assert_allclose(cyl.misfire, [0.3, 0, 0, 0])
+    assert_allclose(cyl.firing_angles - cyl0.firing_angles, [0, 0, np.radians(2.0), 0])
+    assert_allclose(cyl.extra_friction[1], [0.1, 0.5, 2.0, 0.0])
+    s0 = SensorSetup.ideal(4)
+    s = parse_effect("pressure_gain:cylinder=2,gain=1.1").apply_sensors(s0)
+    s = parse_effect("pressure_offset:cylinder=2,pa=1e4").apply_sensors(s)
+    assert_allclose(s.pressure_gain, [1, 1.1, 1, 1]) and np.array_equal(s0.pressure_gain, np.ones(4))
+    assert_allclose(s.pressure_offset_pa, [0, 1e4, 0, 0])
+
+
+def test_monitor_side_terms():
+    spec = load_engine("k9k-4cyl")
+    assert set(RingWear.scales_terms) <= set(rezeka_henein().names) and RingWear().monitor_terms(spec) == ()
+    for text in ("tdc_offset", "pressure_gain", "pressure_offset", "misfire"):
+        assert parse_effect(text).monitor_terms(spec) == ()  # corrected on the pressure side, not by a column
+    (term,) = parse_effect("extra_friction:cylinder=2,mean_frac=0.2,amp_frac=0.5,order=1.5").monitor_terms(spec)
+    assert term.name == "extra_friction_c2" and term.group == "cylinder" and term.prior == 0.0
+
+
 def test_every_effect_is_documented():
     from pathlib import Path
     doc = (Path(__file__).resolve().parents[2] / "docs" / "effects.md").read_text()
     for name, eff in EFFECTS.items():
         assert f"`{name}`" in doc
-        for key in eff.params:
+        for key in eff.parameters:
             assert f"`{key}`" in doc, (name, key)
 
 
@@ -148,7 +226,7 @@ def test_pressure_offset_shifts_the_reading(base):
 
 
 def test_pressure_saturation_clips_at_range():
-    r = run({"pressure_offset": {"cylinder": 1, "pa": -2e5, "gain": 1.0}}, without={"sensor_noise"})
+    r = run({"pressure_offset": {"cylinder": 1, "pa": -2e5}}, without={"sensor_noise"})
     y, _ = pressure_of(r, 1)
     lsb = SPEC.sensors.pressure_range_pa / 2**SPEC.sensors.pressure_adc_bits
     low = r.diagnostics["pressure_true_pa"][:, 0] - 2e5 < 0.5 * lsb  # gas exchange at 1.6-1.8 bar reads 0
@@ -192,3 +270,52 @@ def test_rigid_and_constant_inertia_variants():
     a1 = order_amplitude(var.diagnostics["flywheel_speed_grid_rad_s"], 2)
     assert abs(a1 - a0) > 0.3 * a1
     assert_allclose(const.truth["imep_bar"], var.truth["imep_bar"], rtol=0.01)
+
+
+def test_misfire_with_probability_gives_some_motored_cycles():
+    r = simulate(SPEC, 1700, 1.0, 8, 11, effects=[parse_effect("misfire:cylinder=3,probability=0.5")], **QUIET)
+    model = cylinder_model(SPEC)
+    motored = imep(model, cylinder_pressure(model, cycle_params(SPEC, 1700 * np.pi / 30, 0.0))[0]) / 1e5
+    im3 = np.array([c["cylinders"][2]["imep_bar"] for c in r.truth["cycles"]])
+    im1 = np.array([c["cylinders"][0]["imep_bar"] for c in r.truth["cycles"]])
+    dead = np.abs(im3 - motored) < 0.1  # a cycle without combustion: the motored IMEP (~ -0.4 bar)
+    assert 0 < dead.sum() < dead.size  # seed 11 draws some of each
+    assert np.all(im3[~dead] > 0.9 * im1.mean()) and np.all(im1 > 10.0)
+
+
+def test_ring_wear_in_two_cylinders_both_act_and_both_are_in_the_truth(base):
+    r = run([RingWear(cylinder=1, gain=1.3), RingWear(cylinder=3, gain=1.6)])
+    listed = [e for e in r.truth["effects"] if e["name"] == "ring_wear"]
+    assert [(e["params"]["cylinder"], e["params"]["gain"]) for e in listed] == [(1, 1.3), (3, 1.6)]
+    for k, gain in ((1, 1.3), (3, 1.6)):
+        assert_allclose(cyl(r, k, "coefficients")[:3], gain * SPEC.friction.coefficients[:3])
+        assert cyl(r, k, "friction_torque_mean_nm") > 1.1 * cyl(base, k, "friction_torque_mean_nm")
+        assert cyl(r, k, "pmax_bar_mean") < 0.97 * cyl(base, k, "pmax_bar_mean")
+    assert_allclose(cyl(r, 2, "coefficients"), SPEC.friction.coefficients)
+    assert {e["name"] for e in r.truth["effects"]} >= {"torsional_flexibility", "sensor_noise"}  # defaults listed
+    with pytest.raises(ValueError, match="given twice for cylinder 3"):
+        run([RingWear(cylinder=3), RingWear(cylinder=3)])
+
+
+def test_pressure_gain_scales_the_reading():
+    r = run({"pressure_gain": {"cylinder": 2, "gain": 1.05}}, without={"sensor_noise"})
+    lsb = SPEC.sensors.pressure_range_pa / 2**SPEC.sensors.pressure_adc_bits
+    y, _ = pressure_of(r, 2)
+    truth = r.diagnostics["pressure_true_pa"][:, 1]
+    assert np.all(np.abs(y - 1.05 * truth) <= 0.5 * lsb + 1e-6)  # only ADC rounding left without noise
+    y1, _ = pressure_of(r, 1)
+    assert np.all(np.abs(y1 - r.diagnostics["pressure_true_pa"][:, 0]) <= 0.5 * lsb + 1e-6)
+
+
+def test_tdc_offset_moves_the_pressure_peak_by_the_offset():
+    r = run({"tdc_offset": {"deg": 4.0, "cylinder": 1}}, without={"sensor_noise"})
+    ref = run(without={"sensor_noise"})
+    p1, dt = pressure_of(r, 1)
+    p0, _ = pressure_of(ref, 1)
+    w = 1700 * np.pi / 30
+    # per cycle the peak sample of cylinder 1: 4 deg later at 1700 rpm = 0.39 ms = 7.8 samples at 20 kHz
+    per_cycle = round(4 * np.pi / w / dt)
+    n = min(p1.size, p0.size) // per_cycle
+    shift = [np.argmax(p1[i * per_cycle:(i + 1) * per_cycle]) - np.argmax(p0[i * per_cycle:(i + 1) * per_cycle])
+             for i in range(n)]
+    assert_allclose(np.median(shift), np.radians(4.0) / w / dt, atol=1.0)

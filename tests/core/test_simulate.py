@@ -204,6 +204,6 @@ def test_load_step_and_progress():
     ({"effects": {"misfire": {"cylinder": 9}}}, "cylinders"), ({"load_steps": [(-1.0, 0.5)]}, "load step"),
 ])
 def test_bad_input_raises_value_error(kwargs, words):
-    args = {"spec": load_engine("deutz-1cyl"), "rpm": 2000.0, "load": 0.5, "cycles": 2, "seed": 0, **kwargs}
+    args = {"engine": load_engine("deutz-1cyl"), "rpm": 2000.0, "load": 0.5, "cycles": 2, "seed": 0, **kwargs}
     with pytest.raises(ValueError, match=words):
         simulate(**args)

@@ -70,7 +70,24 @@ def test_unknown_engine_and_effect_and_impossible_parameter(tmp_path, capsys):
     _fails_with_one_line(base + ["--effect", "ring_wear:cyl=2"], capsys, "has no parameter 'cyl'")
     _fails_with_one_line(base + ["--effect", "ring_wear:cylinder=9"], capsys, "cylinder")
     _fails_with_one_line(base + ["--without", "gravity"], capsys, "gravity")
+    _fails_with_one_line(base + ["--effect", "ring_wear:gain=lots"], capsys, "gain='lots': expected a number")
+    _fails_with_one_line(base + ["--effect", "load_ripple", "--effect", "load_ripple:order=2"], capsys,
+                         "effect 'load_ripple' is given twice")
+    _fails_with_one_line(base + ["--effect", "misfire:cylinder=2", "--effect", "misfire:cylinder=2"], capsys,
+                         "effect 'misfire' is given twice for cylinder 2")
     _fails_with_one_line(["simulate", "--engine", "k9k-4cyl", "--rpm", "99999", "-o", out], capsys, "speed range")
+
+
+def test_the_same_effect_in_two_cylinders_is_kept_twice(tmp_path):
+    out = tmp_path / "worn.mcap"
+    assert main(["simulate", "--engine", "k9k-4cyl", "--rpm", "1500", "--cycles", "2", "--effect",
+                 "ring_wear:cylinder=1", "--effect", "ring_wear:cylinder=2,gain=1.2", "-o", str(out)]) == 0
+    truth = json.loads(out.with_name("worn.truth.json").read_text())
+    worn = [e["params"] for e in truth["effects"] if e["name"] == "ring_wear"]
+    assert [(p["cylinder"], p["gain"]) for p in worn] == [(1, 1.4), (2, 1.2)]
+    a0 = truth["cylinders"][2]["coefficients"][0]  # cylinder 3: untouched
+    assert truth["cylinders"][0]["coefficients"][0] == pytest.approx(1.4 * a0)
+    assert truth["cylinders"][1]["coefficients"][0] == pytest.approx(1.2 * a0)
 
 
 def test_analyze_missing_and_non_mcap_file(tmp_path, capsys):

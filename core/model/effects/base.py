@@ -1,0 +1,234 @@
+"""The ``Effect`` interface and the plant set-up values its hooks transform.
+
+An effect is an object: a class per piece of physics (name, one line of description, parameter table, on by default
+or not) and an instance per use (its parameter values, validated on construction, optionally a sigma per fitted
+parameter). The simulator builds four frozen set-up values from the engine spec and passes each through every active
+effect's hook, in the order the effects are listed:
+
+    apply_chain(ChainSetup)         -> ChainSetup       rigid or flexible shaft line, constant or variable inertia
+    apply_cylinders(CylinderSetup)  -> CylinderSetup    friction coefficients, true firing angles, misfire
+                                                        probability, blow-by mass loss, extra friction
+    apply_load(LoadSetup)           -> LoadSetup        load-torque ripple
+    apply_sensors(SensorSetup)      -> SensorSetup      wheel offset, tooth errors, noise, pressure gain/offset
+
+A hook returns a new value (``dataclasses.replace`` with fresh arrays) and never changes the one it got, so an effect
+cannot touch shared state and two instances (worn rings in cylinders 2 and 3) simply compose. An effect that is a
+missing torque term also names the identification columns it adds (``monitor_terms``) or the existing terms it
+scales (``scales_terms``), for the monitor's augmented model.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import ClassVar
+
+import numpy as np
+
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.terms import LossTerm
+
+ONCE, PER_CYLINDER = "once", "per_cylinder"
+
+
+@dataclass(frozen=True)
+class Param:
+    """One effect parameter: default, unit, valid closed range, integer or float."""
+
+    default: float
+    unit: str
+    lo: float
+    hi: float
+    integer: bool = False
+    doc: str = ""
+
+
+def cylinder_param(doc: str = "cylinder number, 1-based", allow_all: bool = False) -> Param:
+    return Param(0 if allow_all else 1, "-", 0 if allow_all else 1, 24, integer=True, doc=doc)
+
+
+# ---- the set-up values the hooks transform -------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class ChainSetup:
+    """Shaft-line model: the spec's node chain or one rigid node; J(theta) per throw or its constant mean."""
+
+    flexible: bool = False
+    variable_inertia: bool = False
+
+
+@dataclass(frozen=True)
+class CylinderSetup:
+    """Per-cylinder plant inputs (z rows). ``coefficients`` (z, n) truth a_kl of the loss terms ``term_names`` (n,);
+    ``firing_angles`` (z,) TRUE firing
+    angles [rad]; ``misfire`` (z,) probability of a motored cycle; ``mass_loss`` (z,) trapped-mass fraction lost to
+    blow-by IVC->EVO (the simulator sizes the leak orifice from it); ``extra_friction`` (z, 4) = [mean, amplitude as
+    fractions of the cylinder's mean friction, order, phase rad] of T = T_ref (mean + amp cos(order theta_k + phase))."""
+
+    coefficients: np.ndarray
+    term_names: tuple[str, ...]
+    firing_angles: np.ndarray
+    misfire: np.ndarray
+    mass_loss: np.ndarray
+    extra_friction: np.ndarray
+
+    @classmethod
+    def nominal(cls, spec: EngineSpec, coefficients: np.ndarray, term_names: tuple[str, ...]) -> CylinderSetup:
+        z = spec.n_cyl
+        coef = np.array(coefficients, dtype=np.float64)
+        if coef.shape != (z, len(term_names)):
+            raise ValueError(f"coefficients {coef.shape} do not match {z} cylinders x {len(term_names)} terms")
+        return cls(coef, tuple(term_names), spec.firing_angles.astype(np.float64).copy(), np.zeros(z), np.zeros(z),
+                   np.zeros((z, 4)))
+
+
+@dataclass(frozen=True)
+class LoadSetup:
+    """Extra load torque A sin(order theta_L + phase) at the load node; A = ``amplitude_nm`` if > 0, else
+    ``fraction`` x the mean brake torque estimate (the simulator resolves it at the operating point)."""
+
+    amplitude_nm: float = 0.0
+    fraction: float = 0.0
+    order: float = 0.0
+    phase_rad: float = 0.0
+
+
+@dataclass(frozen=True)
+class SensorSetup:
+    """Acquisition errors. ``wheel_offset_rad``: the wheel frame is theta_W = theta_F + offset; tooth errors (rms
+    and order-1 runout, deg); edge jitter [ns], pressure noise (x ``sensors.pressure_noise_pa``), load noise
+    (fraction of rated torque); per cylinder a pressure reading ``pressure_gain`` (z,) x p + ``pressure_offset_pa``."""
+
+    pressure_gain: np.ndarray
+    pressure_offset_pa: np.ndarray
+    wheel_offset_rad: float = 0.0
+    tooth_sigma_deg: float = 0.0
+    runout_deg: float = 0.0
+    runout_phase_deg: float = 0.0
+    edge_jitter_ns: float = 0.0
+    pressure_noise_scale: float = 0.0
+    load_noise_frac: float = 0.0
+
+    @classmethod
+    def ideal(cls, n_cyl: int) -> SensorSetup:
+        return cls(np.ones(n_cyl), np.zeros(n_cyl))
+
+
+def with_row(a: np.ndarray, k: int, value) -> np.ndarray:
+    """A copy of ``a`` with row (or element) k set to ``value``: hooks never write into the array they were given."""
+    out = np.array(a, dtype=np.float64)
+    out[k] = value
+    return out
+
+
+# ---- the effect interface ----------------------------------------------------------------------------------------
+
+class Effect:
+    """Base of every effect; subclasses set the class attributes and override the hooks they need.
+
+    ``Effect(**values, sigma=None)``: parameter values (defaults fill the rest), each validated against ``parameters``
+    (one-line ValueError naming the parameter and its range); ``sigma`` maps fitted parameters to their standard
+    deviation (an effect identified by the discrepancy workflow). Instances are immutable and compare by value.
+    """
+
+    name: ClassVar[str] = ""
+    description: ClassVar[str] = ""  # one line of physics
+    default_on: ClassVar[bool] = False
+    parameters: ClassVar[Mapping[str, Param]] = MappingProxyType({})
+    repeat: ClassVar[str] = ONCE  # PER_CYLINDER: one instance per cylinder allowed (worn rings in 2 and 3)
+    scales_terms: ClassVar[tuple[str, ...]] = ()  # loss terms whose per-cylinder coefficients this effect scales
+
+    __slots__ = ("values", "sigma")
+
+    def __init__(self, sigma: Mapping[str, float] | None = None, **values: object):
+        given = {k: self._checked(k, v) for k, v in values.items()}
+        full = {k: (int(p.default) if p.integer else float(p.default)) for k, p in self.parameters.items()}
+        full.update(given)
+        sig = {}
+        for key, raw in (sigma or {}).items():
+            if key not in self.parameters:
+                raise ValueError(f"effect '{self.name}': sigma given for unknown parameter '{key}'")
+            v = _number(self.name, f"sigma.{key}", raw)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"effect '{self.name}': sigma.{key}={raw!r} must be finite and >= 0")
+            sig[key] = v
+        object.__setattr__(self, "values", MappingProxyType(full))
+        object.__setattr__(self, "sigma", MappingProxyType(sig))
+
+    def _checked(self, key: str, raw: object) -> float | int:
+        if key not in self.parameters:
+            known = ", ".join(self.parameters) or "none"
+            raise ValueError(f"effect '{self.name}' has no parameter '{key}'; known: {known}")
+        prm = self.parameters[key]
+        v = _number(self.name, key, raw)
+        if not (math.isfinite(v) and prm.lo <= v <= prm.hi):
+            raise ValueError(f"effect '{self.name}': {key}={raw!r} is out of range {prm.lo:g}..{prm.hi:g} {prm.unit}")
+        if prm.integer:
+            if v != int(v):
+                raise ValueError(f"effect '{self.name}': {key}={raw!r} must be an integer")
+            return int(v)
+        return v
+
+    def __setattr__(self, key: str, value: object) -> None:
+        raise AttributeError(f"effect '{self.name}' is immutable; build a new one")
+
+    def __getitem__(self, key: str) -> float | int:
+        return self.values[key]
+
+    def __eq__(self, other: object) -> bool:
+        return (type(other) is type(self) and dict(self.values) == dict(other.values)
+                and dict(self.sigma) == dict(other.sigma))
+
+    def __hash__(self) -> int:
+        return hash((self.name, tuple(self.values.items())))
+
+    def __repr__(self) -> str:
+        inner = ", ".join(f"{k}={v!r}" for k, v in self.values.items())
+        return f"{self.name}({inner})" + (f" sigma={dict(self.sigma)}" if self.sigma else "")
+
+    @property
+    def slot(self) -> tuple:
+        """What two instances may not share: the effect (ONCE) or the effect and its cylinder (PER_CYLINDER)."""
+        return (self.name, self.values["cylinder"]) if self.repeat == PER_CYLINDER else (self.name,)
+
+    def to_dict(self) -> dict:
+        """{"name", "params"[, "sigma"]}: the truth JSON's and the model file's record of this instance."""
+        out = {"name": self.name, "params": dict(self.values)}
+        if self.sigma:
+            out["sigma"] = dict(self.sigma)
+        return out
+
+    def check_engine(self, n_cyl: int) -> None:
+        cyl = self.values.get("cylinder")
+        if cyl is not None and cyl > n_cyl:
+            raise ValueError(f"effect '{self.name}': cylinder={cyl} but the engine has {n_cyl} cylinders")
+
+    # ---- hooks: the default leaves the plant as it is -------------------------------------------------------------
+    def apply_chain(self, setup: ChainSetup) -> ChainSetup:
+        return setup
+
+    def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
+        return setup
+
+    def apply_load(self, setup: LoadSetup) -> LoadSetup:
+        return setup
+
+    def apply_sensors(self, setup: SensorSetup) -> SensorSetup:
+        return setup
+
+    def monitor_terms(self, spec: EngineSpec) -> tuple[LossTerm, ...]:
+        """Loss terms (identification columns) this effect adds when the monitor's model is augmented with it."""
+        return ()
+
+
+def _number(effect: str, key: str, raw: object) -> float:
+    """A parameter value as float; strings and booleans are refused (the CLI parser converts its text first)."""
+    if isinstance(raw, bool) or not isinstance(raw, (int, float, np.integer, np.floating)):
+        raise ValueError(f"effect '{effect}': {key}={raw!r}: expected a number")
+    return float(raw)
+
+
+__all__ = ["ONCE", "PER_CYLINDER", "ChainSetup", "CylinderSetup", "Effect", "LoadSetup", "Param", "SensorSetup",
+           "cylinder_param", "with_row"]

@@ -1,0 +1,240 @@
+"""The effects of the plant simulator, one class each (docs/effects.md gives the physics and the parameter tables).
+
+On by default (every real engine and acquisition has them): torsional_flexibility, variable_inertia,
+tooth_spacing_error, sensor_noise. Off by default: the faults and model gaps the discrepancy workflow must find.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from types import MappingProxyType
+
+import numpy as np
+
+from frictionwatch.core.model.effects.base import (
+    PER_CYLINDER,
+    ChainSetup,
+    CylinderSetup,
+    Effect,
+    LoadSetup,
+    Param,
+    SensorSetup,
+    cylinder_param,
+    with_row,
+)
+from frictionwatch.core.model.effects.loss_terms import extra_friction_term
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.terms import LossTerm
+
+
+def _table(**params: Param) -> MappingProxyType:
+    return MappingProxyType(params)
+
+
+class TorsionalFlexibility(Effect):
+    name = "torsional_flexibility"
+    description = ("multi-DOF shaft line (damper, throws, flywheel, coupling, load); off = one rigid lumped shaft")
+    default_on = True
+
+    def apply_chain(self, setup: ChainSetup) -> ChainSetup:
+        return replace(setup, flexible=True)
+
+
+class VariableInertia(Effect):
+    name = "variable_inertia"
+    description = ("each throw's J(theta) = J_rot + sum m_rec x'^2 and its 1/2 J' omega^2 term; off = constant mean "
+                   "inertia, no mass torque")
+    default_on = True
+
+    def apply_chain(self, setup: ChainSetup) -> ChainSetup:
+        return replace(setup, variable_inertia=True)
+
+
+class ToothSpacingError(Effect):
+    name = "tooth_spacing_error"
+    description = "per-tooth angle errors of the crank wheel (sum zero) plus optional order-1 runout"
+    default_on = True
+    parameters = _table(
+        sigma_deg=Param(0.03, "deg", 0.0, 0.5, doc="rms of the random per-tooth angle error"),
+        runout_deg=Param(0.0, "deg", 0.0, 2.0, doc="amplitude of the once-per-rev (eccentricity) error"),
+        runout_phase_deg=Param(0.0, "deg", -360.0, 360.0, doc="phase of the runout error"),
+    )
+
+    def apply_sensors(self, setup: SensorSetup) -> SensorSetup:
+        v = self.values
+        return replace(setup, tooth_sigma_deg=v["sigma_deg"], runout_deg=v["runout_deg"],
+                       runout_phase_deg=v["runout_phase_deg"])
+
+
+class SensorNoise(Effect):
+    name = "sensor_noise"
+    description = ("edge-time jitter, pressure noise and load-reading noise at realistic levels; off = ideal sensors "
+                   "(timer and ADC quantisation remain)")
+    default_on = True
+    parameters = _table(
+        edge_jitter_ns=Param(50.0, "ns", 0.0, 1e5, doc="rms jitter of each tooth / cam edge time"),
+        pressure_noise_scale=Param(1.0, "-", 0.0, 100.0, doc="multiplies sensors.pressure_noise_pa"),
+        load_noise_frac=Param(0.002, "-", 0.0, 0.2, doc="rms load-reading noise, fraction of rated torque"),
+    )
+
+    def apply_sensors(self, setup: SensorSetup) -> SensorSetup:
+        v = self.values
+        return replace(setup, edge_jitter_ns=v["edge_jitter_ns"], pressure_noise_scale=v["pressure_noise_scale"],
+                       load_noise_frac=v["load_noise_frac"])
+
+
+class TdcOffset(Effect):
+    """A phase error between the wheel and a cylinder's (or every cylinder's) true TDC. Monitor side: corrected on the
+    pressure side (the angle the pressure is referred to), not by an identification column, so ``monitor_terms``
+    is ()."""
+
+    name = "tdc_offset"
+    description = ("the cylinder's true firing TDC lies deg later than the wheel says (cylinder=0: the whole wheel is "
+                   "mounted off, all cylinders)")
+    repeat = PER_CYLINDER
+    parameters = _table(
+        deg=Param(0.5, "deg", -10.0, 10.0, doc="offset, + = TDC later than stated"),
+        cylinder=cylinder_param("cylinder, 0 = all (wheel offset)", allow_all=True),
+    )
+
+    def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
+        k = self.values["cylinder"] - 1
+        if k < 0:
+            return setup
+        return replace(setup, firing_angles=with_row(setup.firing_angles, k,
+                                                     setup.firing_angles[k] + np.radians(self.values["deg"])))
+
+    def apply_sensors(self, setup: SensorSetup) -> SensorSetup:
+        if self.values["cylinder"] != 0:
+            return setup
+        return replace(setup, wheel_offset_rad=setup.wheel_offset_rad + np.radians(self.values["deg"]))
+
+
+class PressureOffset(Effect):
+    """Sensor error; the plant is unchanged. Monitor side: corrected on the pressure side (pegging), not by an
+    identification column, so ``monitor_terms`` is ()."""
+
+    name = "pressure_offset"
+    description = "pressure sensor of one cylinder reads p + offset (bad pegging, charge-amplifier drift)"
+    repeat = PER_CYLINDER
+    parameters = _table(cylinder=cylinder_param(), pa=Param(2e4, "Pa", -1e6, 1e6, doc="additive offset"))
+
+    def apply_sensors(self, setup: SensorSetup) -> SensorSetup:
+        k = self.values["cylinder"] - 1
+        return replace(setup, pressure_offset_pa=with_row(setup.pressure_offset_pa, k,
+                                                          setup.pressure_offset_pa[k] + self.values["pa"]))
+
+
+class PressureGain(Effect):
+    """Sensor error; the plant is unchanged. Monitor side: corrected on the pressure side (calibration), not by an
+    identification column, so ``monitor_terms`` is ()."""
+
+    name = "pressure_gain"
+    description = "pressure sensor of one cylinder reads gain * p (sensitivity / charge-amplifier gain error)"
+    repeat = PER_CYLINDER
+    parameters = _table(cylinder=cylinder_param(), gain=Param(1.02, "-", 0.5, 1.5, doc="multiplicative gain"))
+
+    def apply_sensors(self, setup: SensorSetup) -> SensorSetup:
+        k = self.values["cylinder"] - 1
+        return replace(setup, pressure_gain=with_row(setup.pressure_gain, k,
+                                                     setup.pressure_gain[k] * self.values["gain"]))
+
+
+class LoadRipple(Effect):
+    name = "load_ripple"
+    description = "extra load torque ripple A sin(order theta_L + phase) at the load node"
+    parameters = _table(
+        amplitude_nm=Param(0.0, "N m", 0.0, 1e6, doc="amplitude; 0 = fraction x mean load torque"),
+        fraction=Param(0.02, "-", 0.0, 1.0, doc="amplitude as a fraction of the mean load torque"),
+        order=Param(1.0, "-", 0.5, 50.0, doc="engine order (events per crank revolution)"),
+        phase_deg=Param(0.0, "deg", -360.0, 360.0),
+    )
+
+    def apply_load(self, setup: LoadSetup) -> LoadSetup:
+        v = self.values
+        return LoadSetup(v["amplitude_nm"], v["fraction"], v["order"], float(np.radians(v["phase_deg"])))
+
+
+def _compound_loss(setup: CylinderSetup, k: int, loss: float) -> np.ndarray:
+    """Two leaks in one cylinder (ring_wear and blow_by) lose independent fractions: kept = (1 - a)(1 - b)."""
+    old = setup.mass_loss[k]
+    return with_row(setup.mass_loss, k, loss if old == 0.0 else 1.0 - (1.0 - old) * (1.0 - loss))
+
+
+class RingWear(Effect):
+    """Worn rings: a per-cylinder scale on the ring and skirt terms (``scales_terms``), no new column."""
+
+    name = "ring_wear"
+    description = "worn rings in one cylinder: F1-F3 coefficients x gain and a blow-by leak"
+    repeat = PER_CYLINDER
+    scales_terms = ("ring_viscous", "ring_mixed", "skirt_viscous")
+    parameters = _table(
+        cylinder=cylinder_param(),
+        gain=Param(1.4, "-", 1.0, 5.0, doc="multiplies a_k1, a_k2, a_k3"),
+        mass_loss=Param(0.12, "-", 0.0, 0.4, doc="trapped-mass fraction lost IVC->EVO (sizes the leak area)"),
+    )
+
+    def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
+        k = self.values["cylinder"] - 1
+        cols = [i for i, n in enumerate(setup.term_names) if n in self.scales_terms]
+        coef = np.array(setup.coefficients, dtype=np.float64)
+        coef[k, cols] *= self.values["gain"]
+        return replace(setup, coefficients=coef, mass_loss=_compound_loss(setup, k, self.values["mass_loss"]))
+
+
+class BlowBy(Effect):
+    name = "blow_by"
+    description = "blow-by leak only in one cylinder (lower compression and peak pressure)"
+    repeat = PER_CYLINDER
+    parameters = _table(
+        cylinder=cylinder_param(),
+        mass_loss=Param(0.12, "-", 0.0, 0.4, doc="trapped-mass fraction lost IVC->EVO (sizes the leak area)"),
+    )
+
+    def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
+        k = self.values["cylinder"] - 1
+        return replace(setup, mass_loss=_compound_loss(setup, k, self.values["mass_loss"]))
+
+
+class ExtraFriction(Effect):
+    """A friction torque the six-term model lacks; ``monitor_terms`` gives its shape as one per-cylinder column."""
+
+    name = "extra_friction"
+    description = ("a friction term the 6-term model lacks: T = T_ref (mean_frac + amp_frac cos(order theta_k + "
+                   "phase)) in one cylinder")
+    repeat = PER_CYLINDER  # the plant holds one extra-friction shape per cylinder
+    parameters = _table(
+        cylinder=cylinder_param(),
+        mean_frac=Param(0.1, "-", -1.0, 5.0, doc="constant part, fraction of the cylinder's mean friction"),
+        amp_frac=Param(0.0, "-", 0.0, 5.0, doc="order-n amplitude, fraction of the mean friction"),
+        order=Param(2.0, "-", 0.5, 50.0, doc="engine order of the varying part"),
+        phase_deg=Param(0.0, "deg", -360.0, 360.0),
+    )
+
+    def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
+        v = self.values
+        row = [v["mean_frac"], v["amp_frac"], v["order"], np.radians(v["phase_deg"])]
+        return replace(setup, extra_friction=with_row(setup.extra_friction, v["cylinder"] - 1, row))
+
+    def monitor_terms(self, spec: EngineSpec) -> tuple[LossTerm, ...]:
+        v = self.values
+        return (extra_friction_term(v["cylinder"], v["mean_frac"], v["amp_frac"], v["order"],
+                                    float(np.radians(v["phase_deg"]))),)
+
+
+class Misfire(Effect):
+    name = "misfire"
+    description = "cylinder gets no fuel in a cycle with the given probability (motored cycle)"
+    repeat = PER_CYLINDER
+    parameters = _table(cylinder=cylinder_param(), probability=Param(1.0, "-", 0.0, 1.0))
+
+    def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
+        return replace(setup, misfire=with_row(setup.misfire, self.values["cylinder"] - 1,
+                                               self.values["probability"]))
+
+
+ALL = (TorsionalFlexibility, VariableInertia, ToothSpacingError, SensorNoise, TdcOffset, PressureOffset,
+       PressureGain, LoadRipple, RingWear, BlowBy, ExtraFriction, Misfire)
+
+__all__ = ["ALL", "BlowBy", "ExtraFriction", "LoadRipple", "Misfire", "PressureGain", "PressureOffset", "RingWear",
+           "SensorNoise", "TdcOffset", "ToothSpacingError", "TorsionalFlexibility", "VariableInertia"]
