@@ -2,7 +2,7 @@
 
 From the verified edges of the window (a run of the mirrored tooth-tick column) it gives in one pass what the
 assembler built with a dozen numpy calls: the edge ticks, their epoch positions and wheel indices, their nominal
-crank angles and the timer ticks at the grid angles (``drivers.assembly.resample._pchip_eval`` through the edges). Every
+crank angles and the timer ticks at the grid angles (``drivers.assembly.resample.pchip_eval_kernel`` through the edges). Every
 number comes from the same operations in the same order as the numpy reference (``cycle_edges_reference`` in
 tests/drivers/test_cycle_kernels.py), so the results are bit for bit the same.
 """
@@ -14,14 +14,14 @@ import math
 import numba
 import numpy as np
 
-from frictionwatch.drivers.assembly.resample import _pchip_eval
-from frictionwatch.drivers.assembly.ringbuffer import _search_sorted
+from frictionwatch.drivers.assembly.resample import pchip_eval_kernel
+from frictionwatch.drivers.assembly.ringbuffer import search_sorted
 
 _DEG = math.pi / 180.0  # np.radians(x) is x * (pi / 180)
 
 
 @numba.njit(cache=True)
-def _cycle_edges(col, i0, m, o0, n, t, shift, a0_deg, grid, ticks, pos, index, theta, t_grid):
+def cycle_edges(col, i0, m, o0, n, t, shift, a0_deg, grid, ticks, pos, index, theta, t_grid):
     """Edges col[i0 : i0 + m] (int64 ticks) of a window whose first edge has tooth ordinal o0 (wheel of n positions,
     t teeth): ticks, epoch positions ``(o // t) n + o % t``, wheel indices ``pos % n``, nominal angles
     ``radians(a0_deg + (pos + shift) 360 / n)`` [rad] and the ticks at the ``grid`` angles (monotone cubic through
@@ -37,7 +37,7 @@ def _cycle_edges(col, i0, m, o0, n, t, shift, a0_deg, grid, ticks, pos, index, t
     rel = np.empty(m)
     for q in range(m):
         rel[q] = float(ticks[q] - ticks[0])
-    _pchip_eval(theta, rel, grid, t_grid)
+    pchip_eval_kernel(theta, rel, grid, t_grid)
     t0 = float(ticks[0])
     for i in range(grid.shape[0]):
         t_grid[i] += t0
@@ -93,19 +93,19 @@ def _add_reduce2(a, b, i0, n):
 
 
 @numba.njit(cache=True)
-def _window_sums(t_col, a_col, b_col, i0, n, t_lo, t_hi):
+def window_sums(t_col, a_col, b_col, i0, n, t_lo, t_hi):
     """(a, b, sum a, sum b): the rows [a, b) of the sorted ``t_col[i0 : i0 + n]`` (a mirrored ring column) within
     [t_lo, t_hi] (``np.searchsorted`` left / right, as ``RingBuffer.searchsorted``) and, if 0 < b - a <= REDUCE_MAX,
     ``np.add.reduce`` of ``a_col`` and ``b_col`` over them (else NaN): the load mean of a cycle in one call."""
-    a = _search_sorted(t_col, i0, n, t_lo, False)
-    b = _search_sorted(t_col, i0, n, t_hi, True)
+    a = search_sorted(t_col, i0, n, t_lo, False)
+    b = search_sorted(t_col, i0, n, t_hi, True)
     if 0 < b - a <= REDUCE_MAX:
         return a, b, 0.0 + _pairwise_sum(a_col, i0 + a, b - a), 0.0 + _pairwise_sum(b_col, i0 + a, b - a)
     return a, b, np.nan, np.nan
 
 
 @numba.njit(cache=True)
-def _gather_sums(row, idx_a, idx_b):
+def gather_sums(row, idx_a, idx_b):
     """(True, ``np.add.reduce(row[idx_a])``, ``np.add.reduce(row[idx_b])``) for a float64 row and int64 indices (at
     most REDUCE_MAX of each); (False, nan, nan) if an index is outside [0, len(row)) (the caller lets numpy raise)."""
     n = row.shape[0]

@@ -13,10 +13,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from frictionwatch.drivers.assembly.cycle_kernels import REDUCE_MAX, _window_sums
+from frictionwatch.drivers.assembly.cycle_kernels import REDUCE_MAX, window_sums
 from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
 from frictionwatch.drivers.assembly.frame_store import FrameChannel, FrameGroup
-from frictionwatch.drivers.assembly.pressure_kernels import ROW_NAN, ROW_OK, _pressure_row
+from frictionwatch.drivers.assembly.pressure_kernels import ROW_NAN, ROW_OK, pressure_row
 from frictionwatch.drivers.assembly.pressure_ring import PressureGroup
 from frictionwatch.drivers.assembly.resample import CHECK_HOLE, CHECK_NAN, interp_checked, pchip_eval
 from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
@@ -179,7 +179,7 @@ def pressure_on_grid(ring: RingBuffer, t_grid: np.ndarray) -> tuple[np.ndarray |
     if isinstance(ring, FrameChannel):  # values kept in frames: the group kernel on this row alone
         code = ring.row_on_grid(q, out)
     else:
-        code = _pressure_row(ring._cols["t"], ring._cols["p"], ring.start, ring.end, q, out)
+        code = pressure_row(ring._cols["t"], ring._cols["p"], ring.start, ring.end, q, out)
     if code == ROW_OK:
         return out, ""
     return None, ("pressure_nan" if code == ROW_NAN else "pressure_missing")
@@ -297,7 +297,7 @@ def load_mean(ring: RingBuffer, t_lo: float, t_hi: float, hold_ticks: float) -> 
         return math.nan, math.nan
     # the rows [a, b) in the window and their sums (contiguous in the mirrored columns): one kernel
     cols = ring._cols
-    a, b, s_torque, s_power = _window_sums(cols["t"], cols["torque"], cols["power"], ring.start % ring.capacity,
+    a, b, s_torque, s_power = window_sums(cols["t"], cols["torque"], cols["power"], ring.start % ring.capacity,
                                            ring.end - ring.start, t_lo, t_hi)
     a += ring.start
     b += ring.start

@@ -11,7 +11,7 @@ from collections import Counter
 
 import numpy as np
 
-from frictionwatch.drivers.assembly.cycle_kernels import REDUCE_MAX, _gather_sums
+from frictionwatch.drivers.assembly.cycle_kernels import REDUCE_MAX, gather_sums
 from frictionwatch.drivers.assembly.cycle_parts import Epoch, Segment, Wheel
 from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
 
@@ -56,7 +56,7 @@ def firing_ratio(row: np.ndarray, grid: np.ndarray, tdc: float, half_width: floa
     if (type(row) is np.ndarray and row.dtype == np.float64 and row.ndim == 1 and 0 < i_fire.shape[0] <= REDUCE_MAX
             and 0 < i_exch.shape[0] <= REDUCE_MAX and i_fire.dtype == np.int64 and i_exch.dtype == np.int64):
         # the usual call (phase_windows' indices): both sums in one kernel, the same numbers as below
-        ok, s_fire, s_exch = _gather_sums(row, i_fire, i_exch)
+        ok, s_fire, s_exch = gather_sums(row, i_fire, i_exch)
         if ok:
             den = s_exch / i_exch.shape[0]
             return s_fire / i_fire.shape[0] / den if den > 0 else math.nan
@@ -87,7 +87,7 @@ def window_verdict(row: np.ndarray, grid: np.ndarray, windows: tuple[np.ndarray,
     float64 row: the assembler's check of every cycle, with the sums in one kernel call and no re-validation."""
     i_fire, i_exch = windows[0], windows[1]
     if 0 < i_fire.shape[0] <= REDUCE_MAX and 0 < i_exch.shape[0] <= REDUCE_MAX:
-        ok, s_fire, s_exch = _gather_sums(row, i_fire, i_exch)
+        ok, s_fire, s_exch = gather_sums(row, i_fire, i_exch)
         if ok:  # the numbers of firing_ratio's fast path, then firing_verdict's thresholds
             den = s_exch / i_exch.shape[0]
             ratio = s_fire / i_fire.shape[0] / den if den > 0 else math.nan

@@ -32,7 +32,7 @@ from frictionwatch.core.types import (
     StreamRecord,
     ToothBatch,
 )
-from frictionwatch.drivers.assembly.cycle_kernels import _cycle_edges
+from frictionwatch.drivers.assembly.cycle_kernels import cycle_edges
 from frictionwatch.drivers.assembly.cycle_parts import (
     Epoch,
     GridPlan,
@@ -47,7 +47,7 @@ from frictionwatch.drivers.assembly.cycle_parts import (
 from frictionwatch.drivers.assembly.cycle_phase import cycle_votes, phase_windows, window_verdict
 from frictionwatch.drivers.assembly.cycle_sync import EpochSync
 from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
-from frictionwatch.drivers.assembly.ringbuffer import _search_sorted
+from frictionwatch.drivers.assembly.ringbuffer import search_sorted
 from frictionwatch.drivers.assembly.wheel_sync import WheelTracker
 
 log = logging.getLogger(__name__)
@@ -278,7 +278,7 @@ class CycleAssembler(EpochSync):
             ticks, pos, tooth, theta = (np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.int64),
                                         np.empty(m))
             t_grid = np.empty(self.grid.shape[0])
-            _cycle_edges(col, i0, m, w.ordinal(seg.first_pos) + (s0 - seg.first_seq), w.n, w.t,
+            cycle_edges(col, i0, m, w.ordinal(seg.first_pos) + (s0 - seg.first_seq), w.n, w.t,
                          -2 * w.n * c + w.n * int(ep.phase), self.a0_deg, self.grid, ticks, pos, tooth, theta, t_grid)
             self._pending.append(_Pending(index, ep, c, ticks, pos, theta, t_grid, tooth, t_first, t_last))
 
@@ -372,7 +372,7 @@ class CycleAssembler(EpochSync):
         # teeth within the pressure wait of now stay, so a late cam edge can still be placed between two of them
         # the searches call the ring kernel directly (RingBuffer.searchsorted without its wrapper: same answer)
         t_col, cap = teeth._cols["t"], teeth.capacity
-        keep = start + _search_sorted(t_col, start % cap, end - start, self._now - self.wait_ticks, False)
+        keep = start + search_sorted(t_col, start % cap, end - start, self._now - self.wait_ticks, False)
         need = self.tracker.oldest_needed()
         if need < keep:
             keep = need

@@ -25,8 +25,8 @@ import numpy as np
 
 from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 from frictionwatch.drivers.assembly.frame_store import FrameGroup
-from frictionwatch.drivers.assembly.pressure_ring import PressureChannel, PressureGroup, _write_frame
-from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, _write_block
+from frictionwatch.drivers.assembly.pressure_ring import PressureChannel, PressureGroup, write_frame
+from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, write_block
 
 log = logging.getLogger(__name__)
 _F64 = np.dtype(np.float64)
@@ -175,7 +175,7 @@ class EngineBuffers:
         if first:
             v = v[first:]
         i, skip = group._advance(v.size)
-        _write_block(group.t, group.p[0], i, t0 + skip * period, float(period), v[skip:])
+        write_block(group.t, group.p[0], i, t0 + skip * period, float(period), v[skip:])
         return int(v.size)
 
     def _frame_group(self, frame: PressureFrame, k: int, n: int
@@ -244,7 +244,7 @@ class EngineBuffers:
             group.add(t0, float(period), v, first)
         else:  # a one-cylinder frame shares the ring of its cylinder's blocks
             i, skip = group._advance(n - first)
-            _write_frame(group.t, group.p, i, t0 + skip * period, float(period), v, first + skip)
+            write_frame(group.t, group.p, i, t0 + skip * period, float(period), v, first + skip)
         return int(n - first) * k
 
     def release_before(self, t_keep: float, load_hold_ticks: float, cam_next: int) -> None:

@@ -20,8 +20,8 @@ import numba
 import numpy as np
 
 from frictionwatch.core.types import PressureBlock, PressureFrame
-from frictionwatch.drivers.assembly.pressure_kernels import _pressure_rows
-from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, _search_sorted
+from frictionwatch.drivers.assembly.pressure_kernels import pressure_rows
+from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, search_sorted
 
 
 class PressureGroup:
@@ -64,7 +64,7 @@ class PressureGroup:
         """Absolute row where ``value`` would go in the time column (as ``RingBuffer.searchsorted``)."""
         if side != "left" and side != "right":
             raise ValueError(f"side must be 'left' or 'right', got {side!r}")
-        return self.start + _search_sorted(self.t, self.start % self.capacity, self.end - self.start, value,
+        return self.start + search_sorted(self.t, self.start % self.capacity, self.end - self.start, value,
                                            side == "right")
 
     def discard_before(self, seq: int) -> None:
@@ -73,13 +73,13 @@ class PressureGroup:
     def discard_older(self, value: float, keep: int) -> None:
         """``discard_before(searchsorted(value) - keep)`` in one call."""
         start = self.start
-        seq = start + _search_sorted(self.t, start % self.capacity, self.end - start, value, False) - keep
+        seq = start + search_sorted(self.t, start % self.capacity, self.end - start, value, False) - keep
         if seq > start:
             self.start = seq if seq < self.end else self.end
 
     def rows_on_grid(self, t_grid: np.ndarray, rows: np.ndarray, out: np.ndarray, codes: np.ndarray) -> int:
-        """Every wanted row at the sorted times ``t_grid`` (``drivers.assembly.pressure_kernels._pressure_rows``)."""
-        return _pressure_rows(self.t, self.p, self.start, self.end, t_grid, rows, out, codes)
+        """Every wanted row at the sorted times ``t_grid`` (``drivers.assembly.pressure_kernels.pressure_rows``)."""
+        return pressure_rows(self.t, self.p, self.start, self.end, t_grid, rows, out, codes)
 
     def channel(self, row: int) -> PressureChannel:
         return PressureChannel(self, row)
@@ -107,9 +107,9 @@ class PressureChannel(RingBuffer):
 
 
 @numba.njit(cache=True)
-def _write_frame(col_t, block_p, i, t0, period, values, s0):
+def write_frame(col_t, block_p, i, t0, period, values, s0):
     """Write samples s0.. of a (k, n) frame, sample s at t0 + (s - s0) period, from slot i of the mirrored time
-    column and value block (wrapping at their half; the same times as ``drivers.assembly.ringbuffer._write_block``)."""
+    column and value block (wrapping at their half; the same times as ``drivers.assembly.ringbuffer.write_block``)."""
     cap = col_t.shape[0] // 2
     k, n = values.shape
     m = n - s0

@@ -11,7 +11,7 @@ two slice copies per column (O(batch), no reallocation, no concatenation of the 
 Overflow drops the oldest rows. Rows that were never released by ``discard_before`` count in ``dropped`` (data the
 consumer lost); released rows are simply overwritten.
 
-``EngineBuffers`` (drivers/engine_buffers.py) bundles the rings of one engine.
+``EngineBuffers`` (drivers/assembly/engine_buffers.py) bundles the rings of one engine.
 """
 
 from __future__ import annotations
@@ -126,7 +126,7 @@ class RingBuffer:
             raise ValueError(f"side must be 'left' or 'right', got {side!r}")
         # one compiled call on the mirrored storage (no view, no numpy dispatch: it runs for every ring at each
         # discard and twice per cylinder and cycle)
-        return self.start + _search_sorted(self._cols[name], self.start % self.capacity, self.end - self.start,
+        return self.start + search_sorted(self._cols[name], self.start % self.capacity, self.end - self.start,
                                            value, side == "right")
 
     def discard_before(self, seq: int) -> None:
@@ -146,7 +146,7 @@ class RingBuffer:
         # as the kernel's int64 -> float64 does (the rows are increasing: add_load / extend_increasing refuse others)
         if type(value) is float and float(col.item(start % cap)) >= value:
             return
-        seq = start + _search_sorted(col, start % cap, self.end - start, value, False) - keep
+        seq = start + search_sorted(col, start % cap, self.end - start, value, False) - keep
         if upto is not None and upto < seq:
             seq = upto
         if seq > start:
@@ -157,13 +157,13 @@ class RingBuffer:
 
 
 @numba.njit(cache=True)
-def _less(a, b):
+def sorts_before(a, b):
     """np.searchsorted's order: NaN after every number."""
     return a < b or (b != b and a == a)
 
 
 @numba.njit(cache=True)
-def _search_sorted(col, i0, n, key, right):
+def search_sorted(col, i0, n, key, right):
     """np.searchsorted(col[i0:i0 + n], key, side='right' if right else 'left') with numpy's binary-search loop, so
     the same index even on unsorted input; mixed int/float compare as float64, as numpy's common type."""
     lo = 0
@@ -171,7 +171,7 @@ def _search_sorted(col, i0, n, key, right):
     while lo < hi:
         mid = lo + ((hi - lo) >> 1)
         v = col[i0 + mid]
-        go_right = (not _less(key, v)) if right else _less(v, key)
+        go_right = (not sorts_before(key, v)) if right else sorts_before(v, key)
         if go_right:
             lo = mid + 1
         else:
@@ -200,7 +200,7 @@ def _write_increasing(col, start, end, i, t, skip):
 
 
 @numba.njit(cache=True)
-def _write_block(col_t, col_p, i, t0, period, values):
+def write_block(col_t, col_p, i, t0, period, values):
     """Write samples t0 + k period, values[k] from slot i of two mirrored columns (wrapping at their half)."""
     cap = col_t.shape[0] // 2
     for k in range(values.shape[0]):
@@ -211,10 +211,3 @@ def _write_block(col_t, col_p, i, t0, period, values):
         col_p[j] = values[k]
         col_p[j + cap] = values[k]
 
-
-def __getattr__(name: str):
-    if name == "EngineBuffers":  # lives in drivers/engine_buffers.py (it builds on RingBuffer); kept importable here
-        from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
-
-        return EngineBuffers
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

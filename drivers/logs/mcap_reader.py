@@ -19,7 +19,7 @@ from typing import Any, Protocol, Self
 from mcap.records import Channel, Schema
 
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
-from frictionwatch.drivers.logs import mcap_schema as ms
+import frictionwatch.drivers.logs.mcap_schema as ms
 from frictionwatch.drivers.errors import CorruptLog
 from frictionwatch.drivers.logs.mcap_scan import ChunkRef, chunk_records, scan
 

@@ -15,7 +15,7 @@ import pytest
 
 from frictionwatch.drivers.assembly.cycle_phase import cycle_votes, firing_verdict, phase_windows, window_verdict
 from frictionwatch.drivers.assembly.frame_store import FrameGroup
-from frictionwatch.drivers.assembly.pressure_ring import PressureGroup, _write_frame
+from frictionwatch.drivers.assembly.pressure_ring import PressureGroup, write_frame
 from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
 from frictionwatch.drivers.assembly.wheel_sync import WheelTracker
 
@@ -83,7 +83,7 @@ def test_group_discard_older_matches_search_and_discard(seed, kind):
         for g in (a, b):
             if kind == "ring":
                 i, skip = g._advance(n)
-                _write_frame(g.t, g.p, i, t0 + skip * period, period, vals, skip)
+                write_frame(g.t, g.p, i, t0 + skip * period, period, vals, skip)
             else:
                 g.add(t0, period, vals, 0)
         t0 += n * period

@@ -1,4 +1,4 @@
-"""frictionwatch.drivers.assembly.cycle_kernels._cycle_edges against the numpy code it replaced in CycleAssembler._advance_epoch (kept
+"""frictionwatch.drivers.assembly.cycle_kernels.cycle_edges against the numpy code it replaced in CycleAssembler._advance_epoch (kept
 here as ``cycle_edges_reference``): bit for bit the same ticks, positions, wheel indices, angles and grid times."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from frictionwatch.drivers.assembly.cycle_kernels import _cycle_edges
+from frictionwatch.drivers.assembly.cycle_kernels import cycle_edges
 from frictionwatch.drivers.assembly.cycle_parts import Segment, Wheel
 from frictionwatch.drivers.assembly.resample import pchip_eval
 
@@ -58,7 +58,7 @@ def test_cycle_edges_match_the_numpy_reference(wheel, first_deg, grid_points):
         m = s1 - s0 + 1
         got = (np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m),
                np.empty(grid_points))
-        _cycle_edges(col, s0 % cap, m, w.ordinal(first_pos) + (s0 - first_seq), n, n - k, -2 * n * c + n * phase,
+        cycle_edges(col, s0 % cap, m, w.ordinal(first_pos) + (s0 - first_seq), n, n - k, -2 * n * c + n * phase,
                      a0_deg, grid, *got)
         for x, y in zip(got, ref, strict=True):
             assert x.dtype == y.dtype and x.tobytes() == y.tobytes()

@@ -1,5 +1,5 @@
 """frictionwatch.drivers.assembly.frame_store.FrameGroup (frames kept by reference) against the ring it replaces, a
-drivers.assembly.pressure_ring.PressureGroup filed with ``_write_frame`` (the pre-round-2 storage): the same row counts,
+drivers.assembly.pressure_ring.PressureGroup filed with ``write_frame`` (the pre-round-2 storage): the same row counts,
 overflow, searches, views and, bit for bit, the same resampled rows and codes, including holes, NaN samples,
 overlapping frames, frames longer than the ring and grid times that straddle two frames."""
 
@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from frictionwatch.drivers.assembly.frame_store import FrameChannel, FrameGroup
-from frictionwatch.drivers.assembly.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, _pressure_rows
-from frictionwatch.drivers.assembly.pressure_ring import PressureGroup, _write_frame
+from frictionwatch.drivers.assembly.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, pressure_rows
+from frictionwatch.drivers.assembly.pressure_ring import PressureGroup, write_frame
 
 
 def file_both(ring: PressureGroup, group: FrameGroup, t0: float, period: float, values: np.ndarray, first: int):
     """File samples first.. of a frame as EngineBuffers did before (ring) and does now (group)."""
     i, skip = ring._advance(values.shape[1] - first)
-    _write_frame(ring.t, ring.p, i, t0 + skip * period, float(period), values, first + skip)
+    write_frame(ring.t, ring.p, i, t0 + skip * period, float(period), values, first + skip)
     group.add(t0, float(period), values, first)
 
 
@@ -86,7 +86,7 @@ def test_rows_on_grid_match_the_ring_kernel_bit_for_bit(seed):
             grid = np.maximum.accumulate(grid)
         out_ring, out_group = np.full((5, m), -1.0), np.full((5, m), -1.0)
         codes_ring, codes_group = np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64)
-        bad_ring = _pressure_rows(ring.t, ring.p, ring.start, ring.end, grid, rows, out_ring, codes_ring)
+        bad_ring = pressure_rows(ring.t, ring.p, ring.start, ring.end, grid, rows, out_ring, codes_ring)
         bad_group = group.rows_on_grid(grid, rows, out_group, codes_group)
         assert bad_ring == bad_group and codes_ring.tolist() == codes_group.tolist()
         for r in range(k):
@@ -110,7 +110,7 @@ def test_one_row_through_the_channel_and_bad_use():
     out = np.empty(33)
     assert ch.row_on_grid(grid, out) == ROW_OK
     ref = np.empty((1, 33))
-    _pressure_rows(ring.t, ring.p[1:2], ring.start, ring.end, grid, np.zeros(1, dtype=np.int64), ref,
+    pressure_rows(ring.t, ring.p[1:2], ring.start, ring.end, grid, np.zeros(1, dtype=np.int64), ref,
                    np.zeros(1, dtype=np.int64))
     assert out.tobytes() == ref[0].tobytes()
     assert ch.searchsorted("t", float(t[4])) == group.start + 4
@@ -123,7 +123,7 @@ def test_one_row_through_the_channel_and_bad_use():
 
 
 def test_prefetch_hint_changes_nothing_and_tolerates_any_chunk():
-    """``_prefetch_part`` (a cache hint inside ``_frame_rows``) reads no value into any result and accepts chunk
+    """``_prefetch_part`` (a cache hint inside ``frame_rows``) reads no value into any result and accepts chunk
     numbers and row ranges outside the group (before the first chunk, past the last, empty ranges)."""
     from frictionwatch.drivers.assembly.frame_kernels import _prefetch_part
 

@@ -17,9 +17,9 @@ from frictionwatch.core.types import Cycle, PressureBlock, PressureFrame, ToothB
 from frictionwatch.drivers.bridge import can_events
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
-from frictionwatch.drivers.assembly.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, _pressure_row, _pressure_rows
-from frictionwatch.drivers.assembly.pressure_ring import PressureGroup, _write_frame, frame_blocks
-from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, _write_block
+from frictionwatch.drivers.assembly.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, pressure_row, pressure_rows
+from frictionwatch.drivers.assembly.pressure_ring import PressureGroup, write_frame, frame_blocks
+from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, write_block
 from tests.drivers.synth_stream import Motion, Stream
 
 GENSET_FIRING = (0.0, 36.0, 216.0, 252.0, 72.0, 108.0, 288.0, 324.0, 144.0, 180.0,
@@ -210,9 +210,9 @@ def test_write_frame_matches_write_block_per_row(seed):
         s0 = int(rng.integers(0, n))
         i = int(rng.integers(0, cap))
         t0, period = float(rng.uniform(0, 1e6)), float(rng.uniform(0.5, 600.0))
-        _write_frame(t, p, i, t0, period, v, s0)
+        write_frame(t, p, i, t0, period, v, s0)
         for r in range(k):
-            _write_block(t_ref[r], p_ref[r], i, t0, period, np.ascontiguousarray(v[r, s0:]))
+            write_block(t_ref[r], p_ref[r], i, t0, period, np.ascontiguousarray(v[r, s0:]))
             assert t.tobytes() == t_ref[r].tobytes() and p[r].tobytes() == p_ref[r].tobytes()
 
 
@@ -225,7 +225,7 @@ def _group(rng, cap, k, n_blocks, hole=False, nan=False):
         if nan and b == n_blocks - 3:  # late enough to stay retained
             vals[int(rng.integers(0, k)), m // 2] = np.nan
         i, skip = g._advance(m)
-        _write_frame(g.t, g.p, i, t + skip * 10.0, 10.0, vals, skip)
+        write_frame(g.t, g.p, i, t + skip * 10.0, 10.0, vals, skip)
         t += (m - 1) * 10.0 + (80.0 if hole and b == n_blocks - 3 else 10.0)
         g.discard_before(g.end - cap // 2)  # keep the ring wrapping, as the assembler's discard does
     return g
@@ -250,14 +250,14 @@ def test_group_rows_match_the_one_row_kernel(seed):
             grid = np.sort(grid)
         out = np.full((6, 64), -1.0)
         codes = np.zeros(k, dtype=np.int64)
-        bad = _pressure_rows(g.t, g.p, g.start, g.end, grid, rows, out, codes)
+        bad = pressure_rows(g.t, g.p, g.start, g.end, grid, rows, out, codes)
         n_bad = 0
         for r in range(k):
             if rows[r] < 0:
                 assert codes[r] == ROW_OK
                 continue
             ref = np.empty(64)
-            code = _pressure_row(g.t, np.ascontiguousarray(g.p[r]), g.start, g.end, grid, ref)
+            code = pressure_row(g.t, np.ascontiguousarray(g.p[r]), g.start, g.end, grid, ref)
             assert codes[r] == code
             seen.add(code)
             n_bad += code != ROW_OK
@@ -269,7 +269,7 @@ def test_group_rows_match_the_one_row_kernel(seed):
     assert ROW_HOLE not in seen if seed % 3 != 1 else ROW_NAN not in seen if seed % 3 != 2 else True
     whole = np.linspace(t_all[0], t_all[-1], 64)  # every retained sample: the injected fault shows
     codes = np.zeros(k, dtype=np.int64)
-    _pressure_rows(g.t, g.p, g.start, g.end, whole, np.arange(k, dtype=np.int64), np.empty((k, 64)), codes)
+    pressure_rows(g.t, g.p, g.start, g.end, whole, np.arange(k, dtype=np.int64), np.empty((k, 64)), codes)
     if seed % 3 == 1:
         assert set(codes.tolist()) == {ROW_HOLE}
     elif seed % 3 == 2:

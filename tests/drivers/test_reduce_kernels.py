@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from frictionwatch.drivers.assembly.cycle_kernels import REDUCE_MAX, _add_reduce2, _gather_sums
+from frictionwatch.drivers.assembly.cycle_kernels import REDUCE_MAX, _add_reduce2, gather_sums
 
 
 def _vectors(rng, count):
@@ -39,7 +39,7 @@ def test_gather_sums_is_numpys():
             continue
         ia = rng.integers(0, a.shape[0], int(rng.integers(0, REDUCE_MAX + 1)))
         ib = np.sort(rng.integers(0, a.shape[0], int(rng.integers(0, REDUCE_MAX + 1))))
-        ok, sa, sb = _gather_sums(a, ia, ib)
+        ok, sa, sb = gather_sums(a, ia, ib)
         assert ok
         assert np.float64(sa).tobytes() == np.add.reduce(a[ia]).tobytes()
         assert np.float64(sb).tobytes() == np.add.reduce(a[ib]).tobytes()
@@ -47,5 +47,5 @@ def test_gather_sums_is_numpys():
 
 def test_gather_sums_refuses_indices_out_of_range():
     row = np.arange(5.0)
-    assert not _gather_sums(row, np.array([0, 5]), np.array([1]))[0]
-    assert not _gather_sums(row, np.array([0]), np.array([-1]))[0]
+    assert not gather_sums(row, np.array([0, 5]), np.array([1]))[0]
+    assert not gather_sums(row, np.array([0]), np.array([-1]))[0]
