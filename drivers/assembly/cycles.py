@@ -44,7 +44,7 @@ from frictionwatch.drivers.assembly.cycle_parts import (
     pressure_matrix,
     window_status,
 )
-from frictionwatch.drivers.assembly.cycle_phase import cycle_votes, phase_windows, window_verdict
+from frictionwatch.drivers.assembly.cycle_phase import cycle_votes, firing_verdict, phase_windows
 from frictionwatch.drivers.assembly.cycle_sync import EpochSync
 from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
 from frictionwatch.drivers.assembly.ringbuffer import search_sorted
@@ -142,71 +142,35 @@ class CycleAssembler(EpochSync):
     # ---- input ------------------------------------------------------------------------------------------------
     def feed(self, record: StreamRecord) -> list[Cycle]:
         """File one record and return the cycles it completed (possibly none)."""
-        if type(record) is PressureFrame:  # the hot path of an indicating system: all cylinders in one record
-            if self.buf.add_frame(record):
-                v = record.values
-                end = int(record.t0_ticks + record.period_ticks * ((v.shape[-1] if type(v) is np.ndarray
-                                                                    else np.shape(v)[-1]) - 1))
-                if end > self._now:
-                    self._now = end
-            ep = self._epoch
-            if ep is not None and ep.phase is None:
-                return self._advance(flushing=False)
-            if not self._pending or self._waiting_for not in record.cylinders:
+        if isinstance(record, ToothBatch):
+            t = record.ticks
+            if len(t) == 0:
                 return []
-            return self._emit(flushing=False)
-        if type(record) is LoadSample:  # ~8 per cycle: only a cycle waiting for its load can move
+            last = self.buf.teeth.last("t")
+            if last is not None and int(t[0]) < last - self.wait_ticks:
+                self._clock_reset()
+            self.buf.add(record)
+            self._now = max(self._now, int(t[-1]))
+            self._run_tracker()
+            return self._advance(flushing=False)
+        if isinstance(record, LoadSample):  # ~8 per cycle: only a cycle waiting for its load can move
             accepted = self.buf.add_load(record)
             t = int(record.ticks)
-            if t > self._now:
-                self._now = t
+            self._now = max(self._now, t)
             if accepted:
                 self._load_newest = t
                 if self._waiting_for == _LOAD and self._pending:
                     return self._emit(flushing=False)
             return []
-        if type(record) is PressureBlock:  # the hot path (tens of blocks per cycle): no isinstance chain
-            if self.buf.add_pressure(record):
-                end = int(record.t0_ticks + record.period_ticks * (len(record.values) - 1))
-                self._now = max(self._now, end)
-            if self._epoch is not None and self._epoch.phase is None:
-                return self._advance(flushing=False)
-            if not self._pending or record.cylinder != self._waiting_for:
-                return []
-            return self._emit(flushing=False)
-        if type(record) is ToothBatch or isinstance(record, ToothBatch):
-            t = record.ticks
-            if len(t) == 0:
-                return []
-            # the usual batch (int64, all after the last edge, so no clock reset): filed by one compiled call
-            if not (type(t) is np.ndarray and t.dtype == np.int64 and t.ndim == 1 and self.wait_ticks >= 0
-                    and self.buf.teeth.extend_increasing(t)):
-                last = self.buf.teeth.last("t")
-                if last is not None and int(t[0]) < last - self.wait_ticks:
-                    self._clock_reset()
-                self.buf._add_ticks(self.buf.teeth, t, "teeth")  # = buf.add(record)
-            t_end = int(t[-1])
-            if t_end > self._now:
-                self._now = t_end
-            self._run_tracker()
-            return self._advance(flushing=False)
-        if isinstance(record, PressureBlock):
-            if self.buf.add_pressure(record):
-                self._now = max(self._now, int(record.t0_ticks + record.period_ticks * (len(record.values) - 1)))
-        elif isinstance(record, PressureFrame):
+        if isinstance(record, PressureFrame):  # an indicating system: all cylinders in one record
             if self.buf.add_frame(record):
                 end = int(record.t0_ticks + record.period_ticks * (np.shape(record.values)[-1] - 1))
                 self._now = max(self._now, end)
+        elif isinstance(record, PressureBlock):  # CAN / DAQ: tens of blocks per cycle
+            if self.buf.add_pressure(record):
+                self._now = max(self._now, int(record.t0_ticks + record.period_ticks * (len(record.values) - 1)))
         elif isinstance(record, CamBatch):
             self.buf.add(record)
-        elif isinstance(record, LoadSample):  # (a LoadSample subclass: the same as above)
-            accepted = self.buf.add_load(record)
-            self._now = max(self._now, int(record.ticks))
-            if accepted:
-                self._load_newest = int(record.ticks)
-                if self._waiting_for == _LOAD and self._pending:
-                    return self._emit(flushing=False)
-            return []
         else:
             raise TypeError(f"not a stream record: {type(record).__name__}")
         # pressure or cam: only a waiting phase decision or a cycle waiting for its pressure can move
@@ -340,7 +304,7 @@ class CycleAssembler(EpochSync):
             self._skip(reason, p.index)
             return None
         if self.phase_cyl is not None and (self._phase_expected or self.phase_cyl in self.expected_cylinders):
-            verdict = window_verdict(pressure[self.phase_cyl - 1], self.grid, self._phase_windows)
+            verdict = firing_verdict(pressure[self.phase_cyl - 1], self.grid, self._phase_windows[2], self._phase_windows)
             if verdict < 0:
                 ep.mismatch_run += 1
                 self._skip("phase_mismatch", p.index)
