@@ -2,9 +2,8 @@
 
 From the verified edges of the window (a run of the mirrored tooth-tick column) it gives in one pass what the
 assembler built with a dozen numpy calls: the edge ticks, their epoch positions and wheel indices, their nominal
-crank angles and the timer ticks at the grid angles (``drivers.assembly.resample.pchip_eval_kernel`` through the edges). Every
-number comes from the same operations in the same order as the numpy reference (``cycle_edges_reference`` in
-tests/drivers/test_cycle_kernels.py), so the results are bit for bit the same.
+crank angles and the timer ticks at the grid angles (``drivers.assembly.resample.pchip_eval_kernel`` through the
+edges). The numpy reference is ``cycle_edges_reference`` in tests/drivers/test_cycle_kernels.py.
 """
 
 from __future__ import annotations

@@ -184,7 +184,7 @@ def pressure_on_grid(ring: RingBuffer, t_grid: np.ndarray) -> tuple[np.ndarray |
     if isinstance(ring, FrameChannel):  # values kept in frames: the group kernel on this row alone
         code = ring.row_on_grid(q, out)
     else:
-        code = pressure_row(ring._cols["t"], ring._cols["p"], ring.start, ring.end, q, out)
+        code = pressure_row(ring.cols["t"], ring.cols["p"], ring.start, ring.end, q, out)
     if code == ROW_OK:
         return out, ""
     return None, ("pressure_nan" if code == ROW_NAN else "pressure_missing")

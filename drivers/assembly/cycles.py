@@ -1,12 +1,12 @@
 """Cycle assembly: stream records of one engine -> one typed ``Cycle`` per 720 deg (design.md §1; physics.md §14).
 
-    records -> EngineBuffers (rings) -> WheelTracker (gap sync, per-interval checks; drivers/wheel_sync.py)
+    records -> EngineBuffers (rings) -> WheelTracker (gap sync, per-interval checks; drivers/assembly/wheel_sync.py)
             -> segments of verified edges, bridged into epochs -> 4-stroke phase (cam, else pressure)
             -> cycle windows [0, 4 pi] -> wait for pressure (bounded) -> resample onto the grid -> Cycle
 
 Phase (cam votes, else the pressure of one cylinder; a pressure-phased epoch flips after three clear
 contradictions in a row) and resync across short disturbances (the next cycle comes out as in an undisturbed run):
-drivers/cycle_sync.py.
+drivers/assembly/cycle_sync.py.
 
 Skips (``skipped``, cycles by reason): spurious_tooth, missing_tooth, sync_lost, data_gap, buffer_overflow,
 speed_out_of_range, pressure_missing, pressure_nan, phase_mismatch, clock_reset.
@@ -231,14 +231,14 @@ class CycleAssembler(EpochSync):
             if not teeth.start <= s0 <= s1 < teeth.end:  # its edges were overwritten (a batch beyond the ring)
                 self._skip("buffer_overflow", index)
                 continue
-            col = teeth._cols["t"]
+            col = teeth.cols["t"]
             i0 = s0 % teeth.capacity
             t_first, t_last = int(col[i0]), int(col[i0 + s1 - s0])
             rpm = (pe - ps) * w.pitch / ((t_last - t_first) / self.info.tick_hz) * 30.0 / math.pi
             if not lo_rpm <= rpm <= hi_rpm:
                 self._skip("speed_out_of_range", index)
                 continue
-            m = s1 - s0 + 1  # edges, their positions and angles, the grid times: one kernel (drivers/cycle_kernels.py)
+            m = s1 - s0 + 1  # edges, their positions and angles, the grid times: one kernel (drivers/assembly/cycle_kernels.py)
             ticks, pos, tooth, theta = (np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.int64),
                                         np.empty(m))
             t_grid = np.empty(self.grid.shape[0])
@@ -335,7 +335,7 @@ class CycleAssembler(EpochSync):
         self._discarded_at = end
         # teeth within the pressure wait of now stay, so a late cam edge can still be placed between two of them
         # the searches call the ring kernel directly (RingBuffer.searchsorted without its wrapper: same answer)
-        t_col, cap = teeth._cols["t"], teeth.capacity
+        t_col, cap = teeth.cols["t"], teeth.capacity
         keep = start + search_sorted(t_col, start % cap, end - start, self._now - self.wait_ticks, False)
         need = self.tracker.oldest_needed()
         if need < keep:
@@ -373,7 +373,7 @@ class CycleAssembler(EpochSync):
         for _ in self._pending:
             self._skip("clock_reset", -1)
         self._pending.clear()
-        self.buf = EngineBuffers(self.buf.teeth.capacity, self.buf.cam.capacity, self.buf._pressure_capacity,
+        self.buf = EngineBuffers(self.buf.teeth.capacity, self.buf.cam.capacity, self.buf.pressure_capacity,
                                  self.buf.load.capacity)
         self.tracker = WheelTracker(self.info.wheel_teeth, self.info.wheel_missing)
         self._epoch = None

@@ -1,7 +1,7 @@
 """The rings of one engine (design.md §1: ring buffer before cycle assembly).
 
 ``EngineBuffers`` bundles the rings of one engine: tooth ticks, cam ticks, pressure (time, value) per group of
-cylinders sampled together (drivers/pressure_ring.py; a ``PressureBlock`` cylinder is a group of one, a
+cylinders sampled together (drivers/assembly/pressure_ring.py; a ``PressureBlock`` cylinder is a group of one, a
 ``PressureFrame`` fills one group with one call) and load (ticks, torque, power), and files each stream record into
 the right one.
 
@@ -52,7 +52,7 @@ class EngineBuffers:
         self.pressure: dict[int, PressureChannel] = {}
         self.groups: dict[tuple[int, ...], PressureGroup | FrameGroup] = {}
         self.groups_version = 0
-        self._pressure_capacity = int(pressure_capacity)
+        self.pressure_capacity = int(pressure_capacity)
         self._single: dict[int, PressureGroup] = {}  # cylinder -> its group when that is a group of one
         self._frame_keys: dict[tuple[int, ...], tuple] = {}  # cylinders -> (group, row order, rows)
         self.rejected: Counter[str] = Counter()  # input rows refused (out of order, conflicting), by stream
@@ -75,7 +75,7 @@ class EngineBuffers:
     def add_load(self, record: LoadSample) -> int:
         """File one load reading (1 if accepted; 0 if not later than the last one, counted)."""
         ring = self.load
-        cols = ring._cols
+        cols = ring.cols
         cap = ring.capacity
         end = ring.end
         col = cols["t"]
@@ -83,11 +83,11 @@ class EngineBuffers:
         if end > ring.start and t <= col[(end - 1) % cap]:
             self.rejected["load"] += 1
             return 0
-        if end - ring.start < cap:  # room for the row: what _advance(1) does then
+        if end - ring.start < cap:  # room for the row: what reserve(1) does then
             ring.end = end + 1
             i = end % cap
         else:
-            i, _ = ring._advance(1)
+            i, _ = ring.reserve(1)
         col[i] = col[i + cap] = t  # one row, written to both mirror halves (what RingBuffer.extend does)
         col = cols["torque"]
         col[i] = col[i + cap] = record.torque
@@ -103,7 +103,7 @@ class EngineBuffers:
             return 0
         if ring.extend_increasing(t):  # the usual batch: one compiled check-and-write
             return int(t.shape[0])
-        last = None if ring.end == ring.start else int(ring._cols["t"][(ring.end - 1) % ring.capacity])
+        last = None if ring.end == ring.start else int(ring.cols["t"][(ring.end - 1) % ring.capacity])
         ok = np.ones(t.size, dtype=bool)
         ok[1:] = t[1:] > t[:-1]
         if last is not None:
@@ -123,7 +123,7 @@ class EngineBuffers:
     # ---- pressure -----------------------------------------------------------------------------------------------
     def _new_group(self, cylinders: tuple[int, ...]) -> PressureGroup | FrameGroup:
         group = self.groups[cylinders] = (PressureGroup if len(cylinders) == 1 else FrameGroup)(
-            cylinders, self._pressure_capacity)
+            cylinders, self.pressure_capacity)
         for r, c in enumerate(cylinders):
             self.pressure[c] = group.channel(r)
         if len(cylinders) == 1:
@@ -174,7 +174,7 @@ class EngineBuffers:
             return 0
         if first:
             v = v[first:]
-        i, skip = group._advance(v.size)
+        i, skip = group.reserve(v.size)
         write_block(group.t, group.p[0], i, t0 + skip * period, float(period), v[skip:])
         return int(v.size)
 
@@ -243,7 +243,7 @@ class EngineBuffers:
         if k > 1:
             group.add(t0, float(period), v, first)
         else:  # a one-cylinder frame shares the ring of its cylinder's blocks
-            i, skip = group._advance(n - first)
+            i, skip = group.reserve(n - first)
             write_frame(group.t, group.p, i, t0 + skip * period, float(period), v, first + skip)
         return int(n - first) * k
 

@@ -137,7 +137,7 @@ def frame_rows(frames, ci, cf, n_chunks, start, end, t_grid, rows, out, codes, x
     out[rows[r]] (rows[r] < 0: not wanted; a row that is not ROW_OK is left undefined), its code (ROW_*) into
     codes[r]; returns the number of wanted rows that are not ROW_OK.
 
-    Bit for bit ``pressure_rows`` on the equivalent ring: the window's times are computed into x_buf (>= its
+    ``pressure_rows`` on the equivalent ring (the same arithmetic): the window's times are computed into x_buf (>= its
     length) and give the same window, hole and weights (``window_weights``); then each frame that holds part of
     the window is read once, in memory order: per wanted row the NaN check of its part (up to the first hole) and
     ``y[j] + w (y[j+1] - y[j])`` for the grid times whose interval j starts in it (y[j+1] may open the next frame).

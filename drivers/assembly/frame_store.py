@@ -1,10 +1,10 @@
 """Pressure frames kept as they came: a ``FrameGroup`` holds the rows of two or more cylinders sampled on one clock
 without copying them (design.md §1: ring buffer before cycle assembly).
 
-A ``PressureGroup`` (drivers/pressure_ring.py) copies every sample into a mirrored ring, twice, with a time column;
+A ``PressureGroup`` (drivers/assembly/pressure_ring.py) copies every sample into a mirrored ring, twice, with a time column;
 for an indicating system that is the bulk of the assembly (genset-v20: 20 cylinders x 200 samples per 10 ms frame,
 0.2 ms per cycle, memory bound). A record is immutable, so a ``FrameGroup`` keeps a reference to each frame instead
-and resamples a cycle straight from the frames that cover it (drivers/frame_kernels.py), reading each sample of the
+and resamples a cycle straight from the frames that cover it (drivers/assembly/frame_kernels.py), reading each sample of the
 window once. Filing a frame is a few scalar writes.
 
 It counts rows like a ``PressureGroup`` of the same capacity (absolute row numbers ``start`` / ``end``, ``dropped``
@@ -56,18 +56,18 @@ class FrameGroup:
     def __len__(self) -> int:
         return self.end - self.start
 
-    _advance = RingBuffer._advance
+    reserve = RingBuffer.reserve
 
     def add(self, t0: float, period: float, values: np.ndarray, first: int) -> None:
         """File samples first.. of ``values`` (k, n), sample first + q at t0 + q period [ticks] (a frame longer
         than the ring keeps its newest samples, as ``RingBuffer``). ``values`` is kept, not copied."""
         m = values.shape[1] - first
         end0 = self.end
-        if end0 + m - self.start <= self.capacity:  # room for them: what _advance does then
+        if end0 + m - self.start <= self.capacity:  # room for them: what reserve does then
             self.end = end0 + m
             skip = 0
         else:
-            _, skip = self._advance(m)
+            _, skip = self.reserve(m)
         nc = self.n_chunks
         if 2 * nc == self._ci1.shape[0]:
             self.ci = np.concatenate((self.ci, np.zeros_like(self.ci)))
@@ -174,7 +174,7 @@ class FrameChannel(PressureChannel):
         self.cylinder = group.cylinders[row]
         self.capacity = group.capacity
         self.names = ("t", "p")
-        self._cols = {}
+        self.cols = {}
 
     def view(self, name: str, a: int | None = None, b: int | None = None) -> np.ndarray:
         """Copy of column ``name`` ("t" or "p") for the rows [a, b) (default: all retained rows)."""

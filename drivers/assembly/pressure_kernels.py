@@ -3,8 +3,8 @@ hole/NaN check and the linear interpolation at the grid times (drivers.assembly.
 
 It replaces two ``RingBuffer.searchsorted`` calls, two views and the ``interp_checked`` wrapper (numpy call
 overhead, ~10 us per cylinder) with the same arithmetic: the binary searches follow np.searchsorted's loop (NaN
-ordered last) and the interpolation is ``drivers.assembly.resample._interp_sorted``. The plain reference is the
-RingBuffer/np.searchsorted/interp_checked path (tests/drivers/test_pressure_kernels.py).
+ordered last) and the interpolation is ``drivers.assembly.resample.interp_checked_kernel``. The numpy reference
+(np.searchsorted, np.interp) is in tests/drivers/test_pressure_kernels.py.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ def window_weights(x, t_grid, jj, ww):
     """The part of a group's resampling that depends on the shared sample times x (the retained window that
     brackets the sorted times t_grid) only: the first hole (a spacing over 1.5 times the window's mean; x.size - 1:
     none, as ``interp_checked_kernel``) and, when there is none, the interval j and weight w of every grid time
-    (``_interp_sorted``'s walk) into jj, ww. Returns the hole index."""
+    (``resample.interp_sorted``'s walk) into jj, ww. Returns the hole index."""
     nx = x.shape[0]
     m = t_grid.shape[0]
     lim = 1.5 * (x[nx - 1] - x[0]) / (nx - 1)
@@ -69,7 +69,7 @@ def window_weights(x, t_grid, jj, ww):
 def _row_on_weights(y, nx, hole, jj, ww, o):
     """One row's samples y[0:nx] over the window of ``window_weights``: its ROW_* code, and o filled if ROW_OK.
     The NaN check runs up to the first hole (the first NaN before the first hole wins, as in ``interp_checked_kernel``'s
-    loop); then ``y[j] + w (y[j+1] - y[j])`` with the j and w of ``_interp_sorted``."""
+    loop); then ``y[j] + w (y[j+1] - y[j])`` with the j and w of ``resample.interp_sorted``."""
     nan = False
     for i in range(hole):
         nan |= y[i] != y[i]
@@ -91,7 +91,7 @@ def pressure_rows(col_t, block_p, start, end, t_grid, rows, out, codes):
     [start, end)) at the sorted times t_grid: row r into out[rows[r]] (rows[r] < 0: not wanted), its code
     (ROW_*) into codes[r]. Returns the number of wanted rows that are not ROW_OK.
 
-    Bit for bit what ``pressure_row`` gives for each row on its own: the window search, the hole search and the
+    What ``pressure_row`` gives for each row on its own (the same arithmetic): the window search, the hole search and the
     interpolation intervals and weights depend on the shared times only and are done once (``window_weights``);
     per row remain the NaN check and the interpolation (``_row_on_weights``)."""
     k = block_p.shape[0]

@@ -5,7 +5,7 @@ cylinder per record (``PressureBlock``). A block is a group of one, a ``Pressure
 ``t`` (2 cap,) and one value block ``p`` (k, 2 cap), row r = ``cylinders[r]``. The frames of two or more cylinders
 go to a ``drivers.assembly.frame_store.FrameGroup`` instead, which keeps the frames themselves (nothing copied at ingest)
 behind the same interface. Resampling every cylinder of a group onto a cycle's grid is one numba call
-(``rows_on_grid``; drivers/pressure_kernels.py).
+(``rows_on_grid``; drivers/assembly/pressure_kernels.py).
 
 ``PressureChannel`` is the per-cylinder face of a group with the ``RingBuffer`` interface (columns "t" and "p",
 absolute row numbers, zero-copy views): ``EngineBuffers.pressure[cyl]`` keeps working for one-cylinder code such
@@ -49,7 +49,7 @@ class PressureGroup:
     def __len__(self) -> int:
         return self.end - self.start
 
-    _advance = RingBuffer._advance
+    reserve = RingBuffer.reserve
 
     def last_t(self) -> float | None:
         """Time [ticks] of the newest retained sample, None if empty."""
@@ -94,7 +94,7 @@ class PressureChannel(RingBuffer):
         self.cylinder = group.cylinders[row]
         self.capacity = group.capacity
         self.names = ("t", "p")
-        self._cols = {"t": group.t, "p": group.p[row]}  # a row of a C-order block: contiguous
+        self.cols = {"t": group.t, "p": group.p[row]}  # a row of a C-order block: contiguous
 
     start = property(lambda self: self.group.start, lambda self, v: setattr(self.group, "start", v))
     end = property(lambda self: self.group.end, lambda self, v: setattr(self.group, "end", v))

@@ -36,7 +36,8 @@ class RingBuffer:
             raise ValueError("a ring buffer needs at least one column")
         self.capacity = int(capacity)
         self.names = tuple(columns)
-        self._cols = {n: np.zeros(2 * self.capacity, dtype=d) for n, d in columns.items()}
+        # the mirrored storage (2 capacity,) of each column: row s at s % capacity and s % capacity + capacity
+        self.cols = {n: np.zeros(2 * self.capacity, dtype=d) for n, d in columns.items()}
         self.start = 0  # sequence number of the oldest retained row
         self.end = 0  # sequence number the next row will get
         self.dropped = 0  # unreleased rows lost to overflow
@@ -54,12 +55,12 @@ class RingBuffer:
                 raise ValueError("all columns of a batch must have the same length")
         if n == 0:
             return
-        i, skip = self._advance(n)
+        i, skip = self.reserve(n)
         m = n - skip
         cap = self.capacity
         first = min(cap - i, m)
         for name, v in zip(self.names, values):
-            col = self._cols[name]
+            col = self.cols[name]
             src = v[skip:] if skip else v
             col[i : i + first] = src[:first]
             col[i + cap : i + cap + first] = src[:first]
@@ -78,19 +79,21 @@ class RingBuffer:
             return True
         cap = self.capacity
         skip = n - cap if n > cap else 0
-        col = self._cols[self.names[0]]
+        col = self.cols[self.names[0]]
         start, end = self.start, self.end
         if not _write_increasing(col, start, end, (end + skip) % cap, t, skip):
             return False
-        if end + n - start <= cap:  # room for the batch: what _advance(n) does then
+        if end + n - start <= cap:  # room for the batch: what reserve(n) does then
             self.end = end + n
         else:
-            self._advance(n)
+            self.reserve(n)
         return True
 
-    def _advance(self, n: int) -> tuple[int, int]:
-        """Account for n appended rows; returns the storage slot of the first row written and how many leading
-        rows of the batch are skipped (a batch longer than the ring keeps its newest rows only)."""
+    def reserve(self, n: int) -> tuple[int, int]:
+        """Account for n rows about to be appended (start, end, dropped); returns the storage slot of the first row
+        to write and how many leading rows of the batch to skip (a batch longer than the ring keeps its newest rows
+        only). The caller writes them into ``cols`` (both mirror halves): ``extend`` and the writers of
+        ``EngineBuffers`` (``write_block``, ``write_frame``); ``PressureGroup`` and ``FrameGroup`` share it."""
         cap = self.capacity
         skip = n - cap if n > cap else 0
         end = self.end
@@ -110,12 +113,12 @@ class RingBuffer:
         if not self.start <= a <= b <= self.end:
             raise IndexError(f"rows [{a}, {b}) are not all retained (retained [{self.start}, {self.end}))")
         i = a % self.capacity
-        return self._cols[name][i : i + (b - a)]
+        return self.cols[name][i : i + (b - a)]
 
     def get(self, name: str, seq: int) -> float | int:
         if not self.start <= seq < self.end:
             raise IndexError(f"row {seq} is not retained (retained [{self.start}, {self.end}))")
-        return self._cols[name].item(seq % self.capacity)  # a Python scalar, no numpy scalar in between
+        return self.cols[name].item(seq % self.capacity)  # a Python scalar, no numpy scalar in between
 
     def last(self, name: str) -> float | int | None:
         return None if self.end == self.start else self.get(name, self.end - 1)
@@ -126,7 +129,7 @@ class RingBuffer:
             raise ValueError(f"side must be 'left' or 'right', got {side!r}")
         # one compiled call on the mirrored storage (no view, no numpy dispatch: it runs for every ring at each
         # discard and twice per cylinder and cycle)
-        return self.start + search_sorted(self._cols[name], self.start % self.capacity, self.end - self.start,
+        return self.start + search_sorted(self.cols[name], self.start % self.capacity, self.end - self.start,
                                            value, side == "right")
 
     def discard_before(self, seq: int) -> None:
@@ -140,7 +143,7 @@ class RingBuffer:
         if start == self.end:
             return
         cap = self.capacity
-        col = self._cols[name]
+        col = self.cols[name]
         # no row before a float value (the usual call): the search would give start (a NaN value goes on to it).
         # Compared as Python floats: a numpy int64 scalar against a float costs ~0.7 us; float() of the int rounds
         # as the kernel's int64 -> float64 does (the rows are increasing: add_load / extend_increasing refuse others)

@@ -1,6 +1,6 @@
 """frictionwatch CAN frames (docs/protocols.md §3): the shipped DBC, the byte layouts derived from it, and encoders.
 
-The DBC (drivers/frictionwatch.dbc, loaded with cantools) is the single source of truth. For the 16,000 pressure
+The DBC (drivers/can/frictionwatch.dbc, loaded with cantools) is the single source of truth. For the 16,000 pressure
 frames/s of a 20-cylinder engine a per-frame ``cantools.decode_message`` is too slow (tens of µs per frame), so
 ``Layouts`` reads each message's signal positions, factors and signedness from the DBC once and builds numpy
 structured dtypes that decode whole batches at once; tests check both against cantools frame by frame.

@@ -1,6 +1,6 @@
 """Damage-tolerant reader of MCAP replay logs (docs/replay-format.md), and the message codec interface.
 
-``LogReader`` walks the file with drivers/mcap_scan.py (no summary needed), decodes chunk by chunk and merges them
+``LogReader`` walks the file with drivers/logs/mcap_scan.py (no summary needed), decodes chunk by chunk and merges them
 into log-time order. A truncated file, a corrupt chunk or a bad message costs only the damaged part: every intact
 record is yielded and ``damage`` counts what was skipped (reason -> count).
 """

@@ -17,7 +17,7 @@ from frictionwatch.drivers.assembly.pressure_ring import PressureGroup, write_fr
 
 def file_both(ring: PressureGroup, group: FrameGroup, t0: float, period: float, values: np.ndarray, first: int):
     """File samples first.. of a frame into the ring (copied) and the frame group (kept)."""
-    i, skip = ring._advance(values.shape[1] - first)
+    i, skip = ring.reserve(values.shape[1] - first)
     write_frame(ring.t, ring.p, i, t0 + skip * period, float(period), values, first + skip)
     group.add(t0, float(period), values, first)
 

@@ -231,7 +231,7 @@ def _group(rng, cap, k, n_blocks, hole=False, nan=False):
         vals = rng.normal(5e5, 1e5, (k, m))
         if nan and b == n_blocks - 3:  # late enough to stay retained
             vals[int(rng.integers(0, k)), m // 2] = np.nan
-        i, skip = g._advance(m)
+        i, skip = g.reserve(m)
         write_frame(g.t, g.p, i, t + skip * 10.0, 10.0, vals, skip)
         t += (m - 1) * 10.0 + (80.0 if hole and b == n_blocks - 3 else 10.0)
         g.discard_before(g.end - cap // 2)  # keep the ring wrapping, as the assembler's discard does
