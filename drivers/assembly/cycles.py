@@ -47,7 +47,6 @@ from frictionwatch.drivers.assembly.cycle_parts import (
 from frictionwatch.drivers.assembly.cycle_phase import cycle_votes, firing_verdict, phase_windows
 from frictionwatch.drivers.assembly.cycle_sync import EpochSync
 from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
-from frictionwatch.drivers.assembly.ringbuffer import search_sorted
 from frictionwatch.drivers.assembly.wheel_sync import WheelTracker
 
 log = logging.getLogger(__name__)
@@ -219,7 +218,7 @@ class CycleAssembler(EpochSync):
             status, seg = window_status(ep, ps, pe)
             if status in ("wait", "before"):
                 return
-            index = ep.index_base + (c - ep.c0)  # = ep.index_of(c)
+            index = ep.index_of(c)
             ep.next_c = c + 1
             if index >= self._next_index:
                 self._next_index = index + 1
@@ -334,9 +333,7 @@ class CycleAssembler(EpochSync):
             return
         self._discarded_at = end
         # teeth within the pressure wait of now stay, so a late cam edge can still be placed between two of them
-        # the searches call the ring kernel directly (RingBuffer.searchsorted without its wrapper: same answer)
-        t_col, cap = teeth.cols["t"], teeth.capacity
-        keep = start + search_sorted(t_col, start % cap, end - start, self._now - self.wait_ticks, False)
+        keep = teeth.searchsorted("t", self._now - self.wait_ticks)
         need = self.tracker.oldest_needed()
         if need < keep:
             keep = need
@@ -355,7 +352,7 @@ class CycleAssembler(EpochSync):
             if k_ep < keep:
                 keep = k_ep
         keep = max(start, min(keep, end))
-        t_keep = float(t_col[keep % cap]) if keep < end else float(self._now)
+        t_keep = float(teeth.get("t", keep)) if keep < end else float(self._now)
         if self._pending:
             t_keep = min(t_keep, float(self._pending[0].t_first))
         teeth.discard_before(keep - 2)

@@ -68,6 +68,17 @@ class RingBuffer:
                 col[0 : m - first] = src[first:]
                 col[cap : cap + m - first] = src[first:]
 
+    def append(self, *values: float | int) -> None:
+        """Append one row: one scalar per column (in ``names`` order); ``extend`` for a single row without building
+        arrays (the load stream: a reading at a time)."""
+        if len(values) != len(self.names):
+            raise ValueError(f"expected {len(self.names)} values ({', '.join(self.names)}), got {len(values)}")
+        i, _ = self.reserve(1)
+        cap = self.capacity
+        for name, v in zip(self.names, values):
+            col = self.cols[name]
+            col[i] = col[i + cap] = v
+
     def extend_increasing(self, t: np.ndarray) -> bool:
         """Append the batch ``t`` (int64, 1-D) to a one-column int64 ring if its values are strictly increasing and
         all after the last row (the usual tooth / cam batch): one compiled check-and-write. Returns False, with
@@ -142,14 +153,7 @@ class RingBuffer:
         start = self.start
         if start == self.end:
             return
-        cap = self.capacity
-        col = self.cols[name]
-        # no row before a float value (the usual call): the search would give start (a NaN value goes on to it).
-        # Compared as Python floats: a numpy int64 scalar against a float costs ~0.7 us; float() of the int rounds
-        # as the kernel's int64 -> float64 does (the rows are increasing: add_load / extend_increasing refuse others)
-        if type(value) is float and float(col.item(start % cap)) >= value:
-            return
-        seq = start + search_sorted(col, start % cap, self.end - start, value, False) - keep
+        seq = start + search_sorted(self.cols[name], start % self.capacity, self.end - start, value, False) - keep
         if upto is not None and upto < seq:
             seq = upto
         if seq > start:

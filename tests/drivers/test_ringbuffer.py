@@ -124,3 +124,16 @@ def test_discard_older_is_discard_before_a_search(seed):
             a.discard_before(seq if upto is None else min(upto, seq))
             b.discard_older("t", key, keep, upto)
             assert (a.start, a.end, a.dropped) == (b.start, b.end, b.dropped)
+
+
+def test_append_is_extend_of_one_row():
+    a = RingBuffer(5, {"t": np.int64, "x": np.float64})
+    b = RingBuffer(5, {"t": np.int64, "x": np.float64})
+    for k in range(13):  # wraps twice, overflows
+        a.append(10 * k, 0.5 * k)
+        b.extend(np.array([10 * k]), np.array([0.5 * k]))
+        assert (a.start, a.end, a.dropped) == (b.start, b.end, b.dropped)
+        assert_array_equal(a.view("t"), b.view("t"))
+        assert_array_equal(a.view("x"), b.view("x"))
+    with pytest.raises(ValueError):
+        a.append(1)
