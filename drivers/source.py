@@ -17,7 +17,7 @@ log = logging.getLogger(__name__)
 
 # scheme -> (module, class); imported only when used
 SOURCES: dict[str, tuple[str, str]] = {
-    "mcap": ("frictionwatch.drivers.logs.mcap_log", "McapSource"),
+    "mcap": ("frictionwatch.drivers.logs.mcap_replay", "McapSource"),
     "serial": ("frictionwatch.drivers.serial.teeth", "SerialSource"),
     "can": ("frictionwatch.drivers.can.pressure", "CanSource"),
     "mdf4": ("frictionwatch.drivers.logs.mdf4", "Mdf4Source"),

@@ -1,4 +1,4 @@
-"""Pieces of the cycle assembler (drivers/cycles.py): wheel positions, synced segments, epochs, pressure and load.
+"""Pieces of the cycle assembler (drivers/assembly/cycles.py): wheel positions, synced segments, epochs, pressure and load.
 
 Positions. Every edge of a synced segment has a position in pitches, ``pos``; its wheel index is ``pos mod N``
 (teeth 0..T-1 exist, T..N-1 are the gap). Within one epoch positions continue across resyncs, so the nominal crank
@@ -13,12 +13,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from frictionwatch.drivers.assembly.cycle_kernels import REDUCE_MAX, _window_sums
 from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
 from frictionwatch.drivers.assembly.frame_store import FrameChannel, FrameGroup
-from frictionwatch.drivers.assembly.pressure_kernels import ROW_NAN, ROW_OK, _pressure_row
+from frictionwatch.drivers.assembly.pressure_kernels import ROW_NAN, ROW_OK, pressure_row
 from frictionwatch.drivers.assembly.pressure_ring import PressureGroup
-from frictionwatch.drivers.assembly.resample import CHECK_HOLE, CHECK_NAN, interp_checked, pchip_eval
+from frictionwatch.drivers.assembly.resample import pchip_eval
 from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
 
 
@@ -164,40 +163,31 @@ def window_status(epoch: Epoch, ps: int, pe: int) -> tuple[str, Segment | None]:
     return "broken", seg
 
 
-def pressure_on_grid(ring: RingBuffer, t_grid: np.ndarray) -> tuple[np.ndarray | None, str]:
-    """Samples of one cylinder at the grid times (linear in time). Returns (row, '') or (None, reason).
-
-    Reasons: 'pressure_missing' (the ring does not cover the window, or a hole of more than 1.5 sample periods),
-    'pressure_nan' (a NaN sample inside the window)."""
-    if len(ring) < 2:
-        return None, "pressure_missing"
+def cycle_grid_times(t_grid: np.ndarray) -> np.ndarray:
+    """``t_grid`` as a C-contiguous float64 vector of increasing times (>= 2 points: a cycle's grid), or ValueError."""
     q = t_grid if type(t_grid) is np.ndarray and t_grid.dtype == np.float64 and t_grid.flags.c_contiguous \
         else np.ascontiguousarray(t_grid, dtype=np.float64)
-    if q.ndim != 1 or q.shape[0] < 2 or not q[0] < q[-1]:  # not a cycle's increasing grid times: the general path
-        return _pressure_on_grid_general(ring, q)
+    if q.ndim != 1 or q.shape[0] < 2 or not q[0] < q[-1]:
+        raise ValueError(f"grid times must be 1-D, >= 2 points, first < last; got shape {q.shape}")
+    return q
+
+
+def pressure_on_grid(ring: RingBuffer, t_grid: np.ndarray) -> tuple[np.ndarray | None, str]:
+    """Samples of one cylinder at the sorted grid times (linear in time). Returns (row, '') or (None, reason).
+
+    Reasons: 'pressure_missing' (the ring does not cover the window, or a hole of more than 1.5 sample periods),
+    'pressure_nan' (a NaN sample inside the window). The numpy reference is in tests/drivers/test_pressure_kernels.py."""
+    q = cycle_grid_times(t_grid)
+    if len(ring) < 2:
+        return None, "pressure_missing"
     out = np.empty(q.shape[0])
     if isinstance(ring, FrameChannel):  # values kept in frames: the group kernel on this row alone
         code = ring.row_on_grid(q, out)
     else:
-        code = _pressure_row(ring._cols["t"], ring._cols["p"], ring.start, ring.end, q, out)
+        code = pressure_row(ring.cols["t"], ring.cols["p"], ring.start, ring.end, q, out)
     if code == ROW_OK:
         return out, ""
     return None, ("pressure_nan" if code == ROW_NAN else "pressure_missing")
-
-
-def _pressure_on_grid_general(ring: RingBuffer, t_grid: np.ndarray) -> tuple[np.ndarray | None, str]:
-    """``pressure_on_grid`` through the RingBuffer and ``interp_checked`` (the kernel's reference semantics)."""
-    t_lo, t_hi = float(t_grid[0]), float(t_grid[-1])
-    a = ring.searchsorted("t", t_lo, side="right") - 1
-    b = ring.searchsorted("t", t_hi, side="left") + 1
-    if a < ring.start or b > ring.end:
-        return None, "pressure_missing"
-    row, code = interp_checked(t_grid, ring.view("t", a, b), ring.view("p", a, b))
-    if code == CHECK_HOLE:
-        return None, "pressure_missing"
-    if code == CHECK_NAN:
-        return None, "pressure_nan"
-    return row, ""
 
 
 @dataclass
@@ -256,10 +246,7 @@ def pressure_matrix(buf: EngineBuffers, plan: GridPlan, t_grid: np.ndarray, n_cy
                     ) -> tuple[np.ndarray | None, str]:
     """(z, n) pressure [Pa] of the expected cylinders at the grid times (NaN rows for the others), or (None,
     reason of the first failing expected cylinder): ``pressure_on_grid`` row by row, one kernel call per group."""
-    q = t_grid
-    if not (type(q) is np.ndarray and q.dtype == np.float64 and q.flags.c_contiguous and q.ndim == 1
-            and q.shape[0] >= 2 and q[0] < q[-1]):
-        return pressure_matrix_reference(buf, plan.expected, q, n_cyl)
+    q = cycle_grid_times(t_grid)
     out = np.empty((n_cyl, q.shape[0]))  # every expected row is written by the kernel
     if plan.nan_rows.shape[0]:
         out[plan.nan_rows] = np.nan
@@ -277,33 +264,14 @@ def pressure_matrix(buf: EngineBuffers, plan: GridPlan, t_grid: np.ndarray, n_cy
     return out, ""
 
 
-def pressure_matrix_reference(buf: EngineBuffers, expected: tuple[int, ...], t_grid: np.ndarray, n_cyl: int
-                              ) -> tuple[np.ndarray | None, str]:
-    """``pressure_matrix`` one cylinder at a time through ``pressure_on_grid`` (the semantics it must keep)."""
-    out = np.full((n_cyl, np.shape(t_grid)[0]), np.nan)
-    for cyl in expected:
-        ring = buf.pressure.get(cyl)
-        row, reason = pressure_on_grid(ring, t_grid) if ring is not None else (None, "pressure_missing")
-        if row is None:
-            return None, reason
-        out[cyl - 1] = row
-    return out, ""
-
-
 def load_mean(ring: RingBuffer, t_lo: float, t_hi: float, hold_ticks: float) -> tuple[float, float]:
     """Mean torque and power of the load samples in [t_lo, t_hi]; if none, the last one before t_lo no older than
     ``hold_ticks`` (zero-order hold of a slow CAN reading); else NaN."""
     if len(ring) == 0:
         return math.nan, math.nan
-    # the rows [a, b) in the window and their sums (contiguous in the mirrored columns): one kernel
-    cols = ring._cols
-    a, b, s_torque, s_power = _window_sums(cols["t"], cols["torque"], cols["power"], ring.start % ring.capacity,
-                                           ring.end - ring.start, t_lo, t_hi)
-    a += ring.start
-    b += ring.start
-    if 0 < b - a <= REDUCE_MAX:
-        return s_torque / (b - a), s_power / (b - a)
-    if b > a:  # np.mean of a float64 vector is np.add.reduce (pairwise) / n: the same numbers, less dispatch
+    a = ring.searchsorted("t", t_lo, side="left")
+    b = ring.searchsorted("t", t_hi, side="right")
+    if b > a:  # np.mean of a float64 vector is np.add.reduce / n: the same numbers without its Python-level dispatch
         return float(np.add.reduce(ring.view("torque", a, b))) / (b - a), \
             float(np.add.reduce(ring.view("power", a, b))) / (b - a)
     if a > ring.start and t_lo - ring.get("t", a - 1) <= hold_ticks:

@@ -1,6 +1,6 @@
 """The 4-stroke phase of the cycle assembler: a cam edge placed on the wheel, or the pressure of one cylinder.
 
-A crank wheel fixes 360 deg only (physics.md §14.5). Positions on the wheel (drivers/cycle_parts.py) give the angle
+A crank wheel fixes 360 deg only (physics.md §14.5). Positions on the wheel (drivers/assembly/cycle_parts.py) give the angle
 theta0 = pos * 2 pi / N + a0 up to the phase bit P: theta = theta0 + 2 pi P.
 """
 
@@ -11,7 +11,6 @@ from collections import Counter
 
 import numpy as np
 
-from frictionwatch.drivers.assembly.cycle_kernels import REDUCE_MAX, _gather_sums
 from frictionwatch.drivers.assembly.cycle_parts import Epoch, Segment, Wheel
 from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
 
@@ -52,19 +51,11 @@ def firing_ratio(row: np.ndarray, grid: np.ndarray, tdc: float, half_width: floa
     ``windows``: ``phase_windows(grid, tdc, half_width)`` if already known (the same numbers)."""
     if windows is None or windows[2] != tdc or half_width != PHASE_HALF_WIDTH:
         windows = phase_windows(grid, tdc, half_width)
-    i_fire, i_exch = windows[0], windows[1]
-    if (type(row) is np.ndarray and row.dtype == np.float64 and row.ndim == 1 and 0 < i_fire.shape[0] <= REDUCE_MAX
-            and 0 < i_exch.shape[0] <= REDUCE_MAX and i_fire.dtype == np.int64 and i_exch.dtype == np.int64):
-        # the usual call (phase_windows' indices): both sums in one kernel, the same numbers as below
-        ok, s_fire, s_exch = _gather_sums(row, i_fire, i_exch)
-        if ok:
-            den = s_exch / i_exch.shape[0]
-            return s_fire / i_fire.shape[0] / den if den > 0 else math.nan
     fire = row[windows[0]]
     exch = row[windows[1]]
     if fire.size == 0 or exch.size == 0:
         return math.nan
-    # np.mean of a float64 vector is np.add.reduce (pairwise) / n: the same numbers without its dispatch
+    # np.mean of a float64 vector is np.add.reduce / n: the same numbers without np.mean's Python-level dispatch
     den = float(np.add.reduce(exch)) / exch.size
     return float(np.add.reduce(fire)) / fire.size / den if den > 0 else math.nan
 
@@ -80,19 +71,6 @@ def firing_verdict(row: np.ndarray | None, grid: np.ndarray, tdc: float,
     if ratio < 1.0 / PHASE_RATIO:
         return -1
     return 0
-
-
-def window_verdict(row: np.ndarray, grid: np.ndarray, windows: tuple[np.ndarray, np.ndarray, float]) -> int:
-    """``firing_verdict(row, grid, windows[2], windows)`` for windows made by ``phase_windows`` on that grid and a
-    float64 row: the assembler's check of every cycle, with the sums in one kernel call and no re-validation."""
-    i_fire, i_exch = windows[0], windows[1]
-    if 0 < i_fire.shape[0] <= REDUCE_MAX and 0 < i_exch.shape[0] <= REDUCE_MAX:
-        ok, s_fire, s_exch = _gather_sums(row, i_fire, i_exch)
-        if ok:  # the numbers of firing_ratio's fast path, then firing_verdict's thresholds
-            den = s_exch / i_exch.shape[0]
-            ratio = s_fire / i_fire.shape[0] / den if den > 0 else math.nan
-            return 1 if ratio > PHASE_RATIO else -1 if ratio < 1.0 / PHASE_RATIO else 0
-    return firing_verdict(row, grid, windows[2], windows)
 
 
 def cycle_votes(cam_votes: list[tuple[int, int]], t_first: int, t_last: int, phase: int | None) -> int:

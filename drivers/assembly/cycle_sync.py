@@ -1,4 +1,4 @@
-"""Sync, epochs and 4-stroke phase of the cycle assembler (drivers/cycles.py): the ``CycleAssembler`` methods that
+"""Sync, epochs and 4-stroke phase of the cycle assembler (drivers/assembly/cycles.py): the ``CycleAssembler`` methods that
 turn tracker events into segments and epochs and find each epoch's phase.
 
 Phase. With a cam (``info.cam_deg``) each cam edge, placed between its two tooth edges, votes for the phase bit; the

@@ -1,12 +1,12 @@
 """Cycle assembly: stream records of one engine -> one typed ``Cycle`` per 720 deg (design.md §1; physics.md §14).
 
-    records -> EngineBuffers (rings) -> WheelTracker (gap sync, per-interval checks; drivers/wheel_sync.py)
+    records -> EngineBuffers (rings) -> WheelTracker (gap sync, per-interval checks; drivers/assembly/wheel_sync.py)
             -> segments of verified edges, bridged into epochs -> 4-stroke phase (cam, else pressure)
             -> cycle windows [0, 4 pi] -> wait for pressure (bounded) -> resample onto the grid -> Cycle
 
 Phase (cam votes, else the pressure of one cylinder; a pressure-phased epoch flips after three clear
 contradictions in a row) and resync across short disturbances (the next cycle comes out as in an undisturbed run):
-drivers/cycle_sync.py.
+drivers/assembly/cycle_sync.py.
 
 Skips (``skipped``, cycles by reason): spurious_tooth, missing_tooth, sync_lost, data_gap, buffer_overflow,
 speed_out_of_range, pressure_missing, pressure_nan, phase_mismatch, clock_reset.
@@ -32,7 +32,7 @@ from frictionwatch.core.types import (
     StreamRecord,
     ToothBatch,
 )
-from frictionwatch.drivers.assembly.cycle_kernels import _cycle_edges
+from frictionwatch.drivers.assembly.cycle_kernels import cycle_edges
 from frictionwatch.drivers.assembly.cycle_parts import (
     Epoch,
     GridPlan,
@@ -44,10 +44,9 @@ from frictionwatch.drivers.assembly.cycle_parts import (
     pressure_matrix,
     window_status,
 )
-from frictionwatch.drivers.assembly.cycle_phase import cycle_votes, phase_windows, window_verdict
+from frictionwatch.drivers.assembly.cycle_phase import cycle_votes, firing_verdict, phase_windows
 from frictionwatch.drivers.assembly.cycle_sync import EpochSync
 from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
-from frictionwatch.drivers.assembly.ringbuffer import _search_sorted
 from frictionwatch.drivers.assembly.wheel_sync import WheelTracker
 
 log = logging.getLogger(__name__)
@@ -142,71 +141,35 @@ class CycleAssembler(EpochSync):
     # ---- input ------------------------------------------------------------------------------------------------
     def feed(self, record: StreamRecord) -> list[Cycle]:
         """File one record and return the cycles it completed (possibly none)."""
-        if type(record) is PressureFrame:  # the hot path of an indicating system: all cylinders in one record
-            if self.buf.add_frame(record):
-                v = record.values
-                end = int(record.t0_ticks + record.period_ticks * ((v.shape[-1] if type(v) is np.ndarray
-                                                                    else np.shape(v)[-1]) - 1))
-                if end > self._now:
-                    self._now = end
-            ep = self._epoch
-            if ep is not None and ep.phase is None:
-                return self._advance(flushing=False)
-            if not self._pending or self._waiting_for not in record.cylinders:
+        if isinstance(record, ToothBatch):
+            t = record.ticks
+            if len(t) == 0:
                 return []
-            return self._emit(flushing=False)
-        if type(record) is LoadSample:  # ~8 per cycle: only a cycle waiting for its load can move
+            last = self.buf.teeth.last("t")
+            if last is not None and int(t[0]) < last - self.wait_ticks:
+                self._clock_reset()
+            self.buf.add(record)
+            self._now = max(self._now, int(t[-1]))
+            self._run_tracker()
+            return self._advance(flushing=False)
+        if isinstance(record, LoadSample):  # ~8 per cycle: only a cycle waiting for its load can move
             accepted = self.buf.add_load(record)
             t = int(record.ticks)
-            if t > self._now:
-                self._now = t
+            self._now = max(self._now, t)
             if accepted:
                 self._load_newest = t
                 if self._waiting_for == _LOAD and self._pending:
                     return self._emit(flushing=False)
             return []
-        if type(record) is PressureBlock:  # the hot path (tens of blocks per cycle): no isinstance chain
-            if self.buf.add_pressure(record):
-                end = int(record.t0_ticks + record.period_ticks * (len(record.values) - 1))
-                self._now = max(self._now, end)
-            if self._epoch is not None and self._epoch.phase is None:
-                return self._advance(flushing=False)
-            if not self._pending or record.cylinder != self._waiting_for:
-                return []
-            return self._emit(flushing=False)
-        if type(record) is ToothBatch or isinstance(record, ToothBatch):
-            t = record.ticks
-            if len(t) == 0:
-                return []
-            # the usual batch (int64, all after the last edge, so no clock reset): filed by one compiled call
-            if not (type(t) is np.ndarray and t.dtype == np.int64 and t.ndim == 1 and self.wait_ticks >= 0
-                    and self.buf.teeth.extend_increasing(t)):
-                last = self.buf.teeth.last("t")
-                if last is not None and int(t[0]) < last - self.wait_ticks:
-                    self._clock_reset()
-                self.buf._add_ticks(self.buf.teeth, t, "teeth")  # = buf.add(record)
-            t_end = int(t[-1])
-            if t_end > self._now:
-                self._now = t_end
-            self._run_tracker()
-            return self._advance(flushing=False)
-        if isinstance(record, PressureBlock):
-            if self.buf.add_pressure(record):
-                self._now = max(self._now, int(record.t0_ticks + record.period_ticks * (len(record.values) - 1)))
-        elif isinstance(record, PressureFrame):
+        if isinstance(record, PressureFrame):  # an indicating system: all cylinders in one record
             if self.buf.add_frame(record):
                 end = int(record.t0_ticks + record.period_ticks * (np.shape(record.values)[-1] - 1))
                 self._now = max(self._now, end)
+        elif isinstance(record, PressureBlock):  # CAN / DAQ: tens of blocks per cycle
+            if self.buf.add_pressure(record):
+                self._now = max(self._now, int(record.t0_ticks + record.period_ticks * (len(record.values) - 1)))
         elif isinstance(record, CamBatch):
             self.buf.add(record)
-        elif isinstance(record, LoadSample):  # (a LoadSample subclass: the same as above)
-            accepted = self.buf.add_load(record)
-            self._now = max(self._now, int(record.ticks))
-            if accepted:
-                self._load_newest = int(record.ticks)
-                if self._waiting_for == _LOAD and self._pending:
-                    return self._emit(flushing=False)
-            return []
         else:
             raise TypeError(f"not a stream record: {type(record).__name__}")
         # pressure or cam: only a waiting phase decision or a cycle waiting for its pressure can move
@@ -255,7 +218,7 @@ class CycleAssembler(EpochSync):
             status, seg = window_status(ep, ps, pe)
             if status in ("wait", "before"):
                 return
-            index = ep.index_base + (c - ep.c0)  # = ep.index_of(c)
+            index = ep.index_of(c)
             ep.next_c = c + 1
             if index >= self._next_index:
                 self._next_index = index + 1
@@ -267,18 +230,18 @@ class CycleAssembler(EpochSync):
             if not teeth.start <= s0 <= s1 < teeth.end:  # its edges were overwritten (a batch beyond the ring)
                 self._skip("buffer_overflow", index)
                 continue
-            col = teeth._cols["t"]
+            col = teeth.cols["t"]
             i0 = s0 % teeth.capacity
             t_first, t_last = int(col[i0]), int(col[i0 + s1 - s0])
             rpm = (pe - ps) * w.pitch / ((t_last - t_first) / self.info.tick_hz) * 30.0 / math.pi
             if not lo_rpm <= rpm <= hi_rpm:
                 self._skip("speed_out_of_range", index)
                 continue
-            m = s1 - s0 + 1  # edges, their positions and angles, the grid times: one kernel (drivers/cycle_kernels.py)
+            m = s1 - s0 + 1  # edges, their positions and angles, the grid times: one kernel (drivers/assembly/cycle_kernels.py)
             ticks, pos, tooth, theta = (np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.int64),
                                         np.empty(m))
             t_grid = np.empty(self.grid.shape[0])
-            _cycle_edges(col, i0, m, w.ordinal(seg.first_pos) + (s0 - seg.first_seq), w.n, w.t,
+            cycle_edges(col, i0, m, w.ordinal(seg.first_pos) + (s0 - seg.first_seq), w.n, w.t,
                          -2 * w.n * c + w.n * int(ep.phase), self.a0_deg, self.grid, ticks, pos, tooth, theta, t_grid)
             self._pending.append(_Pending(index, ep, c, ticks, pos, theta, t_grid, tooth, t_first, t_last))
 
@@ -340,7 +303,7 @@ class CycleAssembler(EpochSync):
             self._skip(reason, p.index)
             return None
         if self.phase_cyl is not None and (self._phase_expected or self.phase_cyl in self.expected_cylinders):
-            verdict = window_verdict(pressure[self.phase_cyl - 1], self.grid, self._phase_windows)
+            verdict = firing_verdict(pressure[self.phase_cyl - 1], self.grid, self._phase_windows[2], self._phase_windows)
             if verdict < 0:
                 ep.mismatch_run += 1
                 self._skip("phase_mismatch", p.index)
@@ -370,9 +333,7 @@ class CycleAssembler(EpochSync):
             return
         self._discarded_at = end
         # teeth within the pressure wait of now stay, so a late cam edge can still be placed between two of them
-        # the searches call the ring kernel directly (RingBuffer.searchsorted without its wrapper: same answer)
-        t_col, cap = teeth._cols["t"], teeth.capacity
-        keep = start + _search_sorted(t_col, start % cap, end - start, self._now - self.wait_ticks, False)
+        keep = teeth.searchsorted("t", self._now - self.wait_ticks)
         need = self.tracker.oldest_needed()
         if need < keep:
             keep = need
@@ -391,7 +352,7 @@ class CycleAssembler(EpochSync):
             if k_ep < keep:
                 keep = k_ep
         keep = max(start, min(keep, end))
-        t_keep = float(t_col[keep % cap]) if keep < end else float(self._now)
+        t_keep = float(teeth.get("t", keep)) if keep < end else float(self._now)
         if self._pending:
             t_keep = min(t_keep, float(self._pending[0].t_first))
         teeth.discard_before(keep - 2)
@@ -409,7 +370,7 @@ class CycleAssembler(EpochSync):
         for _ in self._pending:
             self._skip("clock_reset", -1)
         self._pending.clear()
-        self.buf = EngineBuffers(self.buf.teeth.capacity, self.buf.cam.capacity, self.buf._pressure_capacity,
+        self.buf = EngineBuffers(self.buf.teeth.capacity, self.buf.cam.capacity, self.buf.pressure_capacity,
                                  self.buf.load.capacity)
         self.tracker = WheelTracker(self.info.wheel_teeth, self.info.wheel_missing)
         self._epoch = None

@@ -1,7 +1,7 @@
 """The rings of one engine (design.md §1: ring buffer before cycle assembly).
 
 ``EngineBuffers`` bundles the rings of one engine: tooth ticks, cam ticks, pressure (time, value) per group of
-cylinders sampled together (drivers/pressure_ring.py; a ``PressureBlock`` cylinder is a group of one, a
+cylinders sampled together (drivers/assembly/pressure_ring.py; a ``PressureBlock`` cylinder is a group of one, a
 ``PressureFrame`` fills one group with one call) and load (ticks, torque, power), and files each stream record into
 the right one.
 
@@ -10,7 +10,7 @@ cylinder of a frame group, or a frame whose cylinder set overlaps another group'
 channel: such records are refused, counted in ``rejected["pressure_conflict"]`` (samples) and logged once per shape.
 A frame with the same cylinders in another order is rearranged into its group's row order.
 
-Frames of two or more cylinders are kept by reference (``drivers.assembly.pressure_ring.FrameGroup``): a record is immutable,
+Frames of two or more cylinders are kept by reference (``drivers.assembly.frame_store.FrameGroup``): a record is immutable,
 so its values must not be changed after it was filed (every driver hands out fresh arrays). A frame that is not a
 writeable, aligned, C-contiguous float64 array is copied once into one.
 """
@@ -25,8 +25,8 @@ import numpy as np
 
 from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 from frictionwatch.drivers.assembly.frame_store import FrameGroup
-from frictionwatch.drivers.assembly.pressure_ring import PressureChannel, PressureGroup, _write_frame
-from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, _write_block
+from frictionwatch.drivers.assembly.pressure_ring import PressureChannel, PressureGroup, write_frame
+from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, write_block
 
 log = logging.getLogger(__name__)
 _F64 = np.dtype(np.float64)
@@ -52,9 +52,8 @@ class EngineBuffers:
         self.pressure: dict[int, PressureChannel] = {}
         self.groups: dict[tuple[int, ...], PressureGroup | FrameGroup] = {}
         self.groups_version = 0
-        self._pressure_capacity = int(pressure_capacity)
+        self.pressure_capacity = int(pressure_capacity)
         self._single: dict[int, PressureGroup] = {}  # cylinder -> its group when that is a group of one
-        self._frame_keys: dict[tuple[int, ...], tuple] = {}  # cylinders -> (group, row order, rows)
         self.rejected: Counter[str] = Counter()  # input rows refused (out of order, conflicting), by stream
 
     def add(self, record: StreamRecord) -> int:
@@ -75,24 +74,11 @@ class EngineBuffers:
     def add_load(self, record: LoadSample) -> int:
         """File one load reading (1 if accepted; 0 if not later than the last one, counted)."""
         ring = self.load
-        cols = ring._cols
-        cap = ring.capacity
-        end = ring.end
-        col = cols["t"]
-        t = record.ticks
-        if end > ring.start and t <= col[(end - 1) % cap]:
+        last = ring.last("t")
+        if last is not None and record.ticks <= last:
             self.rejected["load"] += 1
             return 0
-        if end - ring.start < cap:  # room for the row: what _advance(1) does then
-            ring.end = end + 1
-            i = end % cap
-        else:
-            i, _ = ring._advance(1)
-        col[i] = col[i + cap] = t  # one row, written to both mirror halves (what RingBuffer.extend does)
-        col = cols["torque"]
-        col[i] = col[i + cap] = record.torque
-        col = cols["power"]
-        col[i] = col[i + cap] = record.power
+        ring.append(record.ticks, record.torque, record.power)
         return 1
 
     def _add_ticks(self, ring: RingBuffer, ticks: np.ndarray, stream: str) -> int:
@@ -103,7 +89,7 @@ class EngineBuffers:
             return 0
         if ring.extend_increasing(t):  # the usual batch: one compiled check-and-write
             return int(t.shape[0])
-        last = None if ring.end == ring.start else int(ring._cols["t"][(ring.end - 1) % ring.capacity])
+        last = ring.last("t")
         ok = np.ones(t.size, dtype=bool)
         ok[1:] = t[1:] > t[:-1]
         if last is not None:
@@ -123,7 +109,7 @@ class EngineBuffers:
     # ---- pressure -----------------------------------------------------------------------------------------------
     def _new_group(self, cylinders: tuple[int, ...]) -> PressureGroup | FrameGroup:
         group = self.groups[cylinders] = (PressureGroup if len(cylinders) == 1 else FrameGroup)(
-            cylinders, self._pressure_capacity)
+            cylinders, self.pressure_capacity)
         for r, c in enumerate(cylinders):
             self.pressure[c] = group.channel(r)
         if len(cylinders) == 1:
@@ -174,20 +160,20 @@ class EngineBuffers:
             return 0
         if first:
             v = v[first:]
-        i, skip = group._advance(v.size)
-        _write_block(group.t, group.p[0], i, t0 + skip * period, float(period), v[skip:])
+        i, skip = group.reserve(v.size)
+        write_block(group.t, group.p[0], i, t0 + skip * period, float(period), v[skip:])
         return int(v.size)
 
     def _frame_group(self, frame: PressureFrame, k: int, n: int
-                     ) -> tuple[PressureGroup | None, np.ndarray | None, int]:
-        """The group of a frame's cylinder tuple (made on first sight), the row order to apply and k, or (None,
-        None, k) if the tuple is invalid or conflicts with other groups (counted)."""
+                     ) -> tuple[PressureGroup | FrameGroup | None, np.ndarray | None]:
+        """The group of a frame's cylinder tuple (made on first sight) and the row order to apply (None: as it is),
+        or (None, None) if the tuple is invalid or conflicts with other groups (counted)."""
         raw = frame.cylinders
         if not (isinstance(raw, tuple | list) and len(raw) == k and k > 0
                 and all(isinstance(c, int | np.integer) and not isinstance(c, bool) and c >= 1 for c in raw)
                 and len(set(int(c) for c in raw)) == k):
             self.rejected["pressure_bad_frame"] += 1
-            return None, None, k
+            return None, None
         cyls = tuple(int(c) for c in raw)
         group = self.groups.get(cyls)
         order = None
@@ -200,10 +186,8 @@ class EngineBuffers:
                 order = np.array([cyls.index(c) for c in group.cylinders], dtype=np.int64)
             else:
                 self._conflict(f"frame of cylinders {cyls}", k * n)
-                return None, None, k
-        if type(raw) is tuple:
-            self._frame_keys[raw] = (group, order, k)
-        return group, order, k
+                return None, None
+        return group, order
 
     def add_frame(self, frame: PressureFrame) -> int:
         """File one pressure frame: all its cylinders in one call. Returns samples accepted x cylinders."""
@@ -219,32 +203,29 @@ class EngineBuffers:
         k, n = v.shape
         if n == 0:
             return 0
-        try:
-            entry = self._frame_keys.get(frame.cylinders)  # (group, row order or None, rows)
-        except TypeError:  # unhashable: not a tuple of cylinder numbers
-            entry = None
-        if entry is None or entry[2] != k:
-            entry = self._frame_group(frame, k, n)
-            if entry[0] is None:
+        try:  # a group's key is a valid cylinder tuple: a frame with exactly that tuple needs no further look
+            group = self.groups.get(frame.cylinders) if type(frame.cylinders) is tuple else None
+        except TypeError:  # a tuple holding something unhashable: not cylinder numbers
+            group = None
+        order = None
+        if group is None or len(group.cylinders) != k:  # first sight, another order, or not valid: look closer
+            group, order = self._frame_group(frame, k, n)
+            if group is None:
                 return 0
-        group, order = entry[0], entry[1]
         if order is not None:
             v = np.ascontiguousarray(v[order])
         period = frame.period_ticks
         if not (period > 0 and _isfinite(period)):
             self.rejected["pressure"] += v.size
             return 0
-        t0 = float(frame.t0_ticks)
-        first = 0
-        if group.end != group.start and not t0 > group.newest:  # overlaps what the group has: keep the new tail
-            t0, first = self._tail(group, t0, period, n, k)
-            if first >= n:
-                return 0
+        t0, first = self._tail(group, float(frame.t0_ticks), period, n, k)  # an overlap keeps its new tail
+        if first >= n:
+            return 0
         if k > 1:
             group.add(t0, float(period), v, first)
         else:  # a one-cylinder frame shares the ring of its cylinder's blocks
-            i, skip = group._advance(n - first)
-            _write_frame(group.t, group.p, i, t0 + skip * period, float(period), v, first + skip)
+            i, skip = group.reserve(n - first)
+            write_frame(group.t, group.p, i, t0 + skip * period, float(period), v, first + skip)
         return int(n - first) * k
 
     def release_before(self, t_keep: float, load_hold_ticks: float, cam_next: int) -> None:

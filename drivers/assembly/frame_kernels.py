@@ -3,12 +3,12 @@
 A group's retained rows are split into chunks (one per filed frame). Chunk c starts at absolute row ``ci[c, 0]``
 (increasing; it ends where chunk c + 1 starts, the last one at the group's ``end``); row s is column
 ``ci[c, 1] + s - ci[c, 0]`` of ``frames[c]`` (k, n) and was sampled at ``cf[c, 0] + (s - ci[c, 0]) * cf[c, 1]``
-timer ticks: the very expression (same operands, same order) with which ``drivers.assembly.pressure_ring._write_frame``
+timer ticks: the very expression (same operands, same order) with which ``drivers.assembly.pressure_ring.write_frame``
 fills a ring's time column, so a time computed here is the float a ring would hold.
 
-The searches run numpy's binary-search loop (``drivers.assembly.ringbuffer._search_sorted``) over those computed times, so
+The searches run numpy's binary-search loop (``drivers.assembly.ringbuffer.search_sorted``) over those computed times, so
 they return the same row as a search of the equivalent ring, whatever the input; the resampling then treats the
-window exactly as ``drivers.assembly.pressure_kernels._pressure_rows`` treats a ring's.
+window exactly as ``drivers.assembly.pressure_kernels.pressure_rows`` treats a ring's.
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from frictionwatch.drivers.assembly.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, _window_weights
-from frictionwatch.drivers.assembly.ringbuffer import _less
+from frictionwatch.drivers.assembly.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, window_weights
+from frictionwatch.drivers.assembly.ringbuffer import sorts_before
 
 
 @intrinsic
@@ -88,14 +88,14 @@ def _time_at(ci, cf, n_chunks, s):
 
 
 @numba.njit(cache=True)
-def _chunk_search(ci, cf, n_chunks, start, n, key, right):
-    """``_search_sorted`` over the times of absolute rows [start, start + n): the same probes, the same answer."""
+def chunk_search(ci, cf, n_chunks, start, n, key, right):
+    """``search_sorted`` over the times of absolute rows [start, start + n): the same probes, the same answer."""
     lo = 0
     hi = n
     while lo < hi:
         mid = lo + ((hi - lo) >> 1)
         v = _time_at(ci, cf, n_chunks, start + mid)
-        go_right = (not _less(key, v)) if right else _less(v, key)
+        go_right = (not sorts_before(key, v)) if right else sorts_before(v, key)
         if go_right:
             lo = mid + 1
         else:
@@ -104,7 +104,7 @@ def _chunk_search(ci, cf, n_chunks, start, n, key, right):
 
 
 @numba.njit(cache=True)
-def _chunk_times(ci, cf, n_chunks, a, b, out):
+def chunk_times(ci, cf, n_chunks, a, b, out):
     """Sample times of the absolute rows [a, b) (retained) into out[0 : b - a]."""
     if b <= a:
         return
@@ -116,7 +116,7 @@ def _chunk_times(ci, cf, n_chunks, a, b, out):
 
 
 @numba.njit(cache=True)
-def _chunk_values(frames, ci, n_chunks, end, row, a, b, out):
+def chunk_values(frames, ci, n_chunks, end, row, a, b, out):
     """Values of group row ``row`` for the absolute rows [a, b) (retained) into out[0 : b - a]."""
     if b <= a:
         return
@@ -132,13 +132,13 @@ def _chunk_values(frames, ci, n_chunks, end, row, a, b, out):
 
 
 @numba.njit(cache=True)
-def _frame_rows(frames, ci, cf, n_chunks, start, end, t_grid, rows, out, codes, x_buf):
+def frame_rows(frames, ci, cf, n_chunks, start, end, t_grid, rows, out, codes, x_buf):
     """Every row of a frame group (retained rows [start, end)) at the sorted times t_grid: row r into
     out[rows[r]] (rows[r] < 0: not wanted; a row that is not ROW_OK is left undefined), its code (ROW_*) into
     codes[r]; returns the number of wanted rows that are not ROW_OK.
 
-    Bit for bit ``_pressure_rows`` on the equivalent ring: the window's times are computed into x_buf (>= its
-    length) and give the same window, hole and weights (``_window_weights``); then each frame that holds part of
+    ``pressure_rows`` on the equivalent ring (the same arithmetic): the window's times are computed into x_buf (>= its
+    length) and give the same window, hole and weights (``window_weights``); then each frame that holds part of
     the window is read once, in memory order: per wanted row the NaN check of its part (up to the first hole) and
     ``y[j] + w (y[j+1] - y[j])`` for the grid times whose interval j starts in it (y[j+1] may open the next frame).
     Cache hints (``_prefetch_part``) ask for the first frame before the window's weights and for frame c + 1 while
@@ -150,8 +150,8 @@ def _frame_rows(frames, ci, cf, n_chunks, start, end, t_grid, rows, out, codes, 
     b = 0
     whole = n >= 2
     if whole:
-        a = _chunk_search(ci, cf, n_chunks, start, n, t_grid[0], True) - 1
-        b = _chunk_search(ci, cf, n_chunks, start, n, t_grid[m - 1], False) + 1
+        a = chunk_search(ci, cf, n_chunks, start, n, t_grid[0], True) - 1
+        b = chunk_search(ci, cf, n_chunks, start, n, t_grid[m - 1], False) + 1
         whole = a >= 0 and b <= n
     bad = 0
     if not whole:
@@ -162,10 +162,10 @@ def _frame_rows(frames, ci, cf, n_chunks, start, end, t_grid, rows, out, codes, 
     nx = b - a
     x = x_buf[:nx]
     _prefetch_part(frames, ci, n_chunks, end, rows, _chunk_of(ci, n_chunks, start + a), start + a, start + b)
-    _chunk_times(ci, cf, n_chunks, start + a, start + b, x)
+    chunk_times(ci, cf, n_chunks, start + a, start + b, x)
     jj = np.empty(m, np.int64)
     ww = np.empty(m)
-    hole = _window_weights(x, t_grid, jj, ww)
+    hole = window_weights(x, t_grid, jj, ww)
     interp = hole == nx - 1
     need = nx if interp else hole  # window samples whose NaN check counts (a row with a hole: up to it)
     nan = np.zeros(k, np.bool_)

@@ -1,10 +1,10 @@
 """Pressure frames kept as they came: a ``FrameGroup`` holds the rows of two or more cylinders sampled on one clock
 without copying them (design.md §1: ring buffer before cycle assembly).
 
-A ``PressureGroup`` (drivers/pressure_ring.py) copies every sample into a mirrored ring, twice, with a time column;
+A ``PressureGroup`` (drivers/assembly/pressure_ring.py) copies every sample into a mirrored ring, twice, with a time column;
 for an indicating system that is the bulk of the assembly (genset-v20: 20 cylinders x 200 samples per 10 ms frame,
 0.2 ms per cycle, memory bound). A record is immutable, so a ``FrameGroup`` keeps a reference to each frame instead
-and resamples a cycle straight from the frames that cover it (drivers/frame_kernels.py), reading each sample of the
+and resamples a cycle straight from the frames that cover it (drivers/assembly/frame_kernels.py), reading each sample of the
 window once. Filing a frame is a few scalar writes.
 
 It counts rows like a ``PressureGroup`` of the same capacity (absolute row numbers ``start`` / ``end``, ``dropped``
@@ -19,7 +19,7 @@ import numba
 import numpy as np
 from numba.typed import List
 
-from frictionwatch.drivers.assembly.frame_kernels import _chunk_search, _chunk_times, _chunk_values, _frame_rows
+from frictionwatch.drivers.assembly.frame_kernels import chunk_search, chunk_times, chunk_values, frame_rows
 from frictionwatch.drivers.assembly.pressure_ring import PressureChannel
 from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
 
@@ -56,24 +56,24 @@ class FrameGroup:
     def __len__(self) -> int:
         return self.end - self.start
 
-    _advance = RingBuffer._advance
+    reserve = RingBuffer.reserve
 
     def add(self, t0: float, period: float, values: np.ndarray, first: int) -> None:
         """File samples first.. of ``values`` (k, n), sample first + q at t0 + q period [ticks] (a frame longer
         than the ring keeps its newest samples, as ``RingBuffer``). ``values`` is kept, not copied."""
         m = values.shape[1] - first
         end0 = self.end
-        if end0 + m - self.start <= self.capacity:  # room for them: what _advance does then
+        if end0 + m - self.start <= self.capacity:  # room for them: what reserve does then
             self.end = end0 + m
             skip = 0
         else:
-            _, skip = self._advance(m)
+            _, skip = self.reserve(m)
         nc = self.n_chunks
         if 2 * nc == self._ci1.shape[0]:
             self.ci = np.concatenate((self.ci, np.zeros_like(self.ci)))
             self.cf = np.concatenate((self.cf, np.zeros_like(self.cf)))
             self._ci1, self._cf1 = self.ci.reshape(-1), self.cf.reshape(-1)
-        t_first = t0 + skip * period  # what _write_frame is given as its t0
+        t_first = t0 + skip * period  # what write_frame is given as its t0
         ci, cf, j = self._ci1, self._cf1, 2 * nc  # = ci[nc, 0], ci[nc, 1], cf[nc, 0], cf[nc, 1]
         ci[j] = end0 + skip
         ci[j + 1] = first + skip
@@ -127,7 +127,7 @@ class FrameGroup:
         """Absolute row where ``value`` would go among the sample times (as ``PressureGroup.searchsorted``)."""
         if side != "left" and side != "right":
             raise ValueError(f"side must be 'left' or 'right', got {side!r}")
-        return self.start + _chunk_search(self.ci, self.cf, self.n_chunks, self.start, self.end - self.start,
+        return self.start + chunk_search(self.ci, self.cf, self.n_chunks, self.start, self.end - self.start,
                                           float(value), side == "right")
 
     def discard_before(self, seq: int) -> None:
@@ -136,28 +136,28 @@ class FrameGroup:
     def discard_older(self, value: float, keep: int) -> None:
         """``discard_before(searchsorted(value) - keep)`` in one call."""
         start = self.start
-        seq = start + _chunk_search(self.ci, self.cf, self.n_chunks, start, self.end - start, float(value), False) - keep
+        seq = start + chunk_search(self.ci, self.cf, self.n_chunks, start, self.end - start, float(value), False) - keep
         if seq > start:
             self.start = seq if seq < self.end else self.end
 
     def rows_on_grid(self, t_grid: np.ndarray, rows: np.ndarray, out: np.ndarray, codes: np.ndarray) -> int:
-        """Every wanted row at the sorted times ``t_grid`` (``drivers.assembly.frame_kernels._frame_rows``)."""
+        """Every wanted row at the sorted times ``t_grid`` (``drivers.assembly.frame_kernels.frame_rows``)."""
         n = self.end - self.start
         if self._x.shape[0] < n:  # the window is at most every retained row
             self._x = np.empty(n)
-        return _frame_rows(self.frames, self.ci, self.cf, self.n_chunks, self.start, self.end, t_grid, rows, out,
+        return frame_rows(self.frames, self.ci, self.cf, self.n_chunks, self.start, self.end, t_grid, rows, out,
                            codes, self._x)
 
     def times(self, a: int, b: int) -> np.ndarray:
         """Sample times [ticks] of the absolute rows [a, b) (all retained), a new array."""
         out = np.empty(max(b - a, 0))
-        _chunk_times(self.ci, self.cf, self.n_chunks, a, b, out)
+        chunk_times(self.ci, self.cf, self.n_chunks, a, b, out)
         return out
 
     def values(self, row: int, a: int, b: int) -> np.ndarray:
         """Values [Pa] of group row ``row`` for the absolute rows [a, b) (all retained), a new array."""
         out = np.empty(max(b - a, 0))
-        _chunk_values(self.frames, self.ci, self.n_chunks, self.end, row, a, b, out)
+        chunk_values(self.frames, self.ci, self.n_chunks, self.end, row, a, b, out)
         return out
 
     def channel(self, row: int) -> FrameChannel:
@@ -174,7 +174,7 @@ class FrameChannel(PressureChannel):
         self.cylinder = group.cylinders[row]
         self.capacity = group.capacity
         self.names = ("t", "p")
-        self._cols = {}
+        self.cols = {}
 
     def view(self, name: str, a: int | None = None, b: int | None = None) -> np.ndarray:
         """Copy of column ``name`` ("t" or "p") for the rows [a, b) (default: all retained rows)."""

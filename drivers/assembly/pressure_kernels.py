@@ -3,8 +3,8 @@ hole/NaN check and the linear interpolation at the grid times (drivers.assembly.
 
 It replaces two ``RingBuffer.searchsorted`` calls, two views and the ``interp_checked`` wrapper (numpy call
 overhead, ~10 us per cylinder) with the same arithmetic: the binary searches follow np.searchsorted's loop (NaN
-ordered last) and the interpolation is ``drivers.assembly.resample._interp_sorted``. The plain reference is the
-RingBuffer/np.searchsorted/interp_checked path (tests/drivers/test_pressure_kernels.py).
+ordered last) and the interpolation is ``drivers.assembly.resample.interp_checked_kernel``. The numpy reference
+(np.searchsorted, np.interp) is in tests/drivers/test_pressure_kernels.py.
 """
 
 from __future__ import annotations
@@ -12,14 +12,14 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from frictionwatch.drivers.assembly.resample import CHECK_HOLE, CHECK_NAN, _interp_checked
-from frictionwatch.drivers.assembly.ringbuffer import _search_sorted as _search
+from frictionwatch.drivers.assembly.resample import CHECK_HOLE, CHECK_NAN, interp_checked_kernel
+from frictionwatch.drivers.assembly.ringbuffer import search_sorted
 
 ROW_OK, ROW_MISSING, ROW_HOLE, ROW_NAN = 0, 1, 2, 3
 
 
 @numba.njit(cache=True)
-def _pressure_row(col_t, col_p, start, end, t_grid, out):
+def pressure_row(col_t, col_p, start, end, t_grid, out):
     """Row of one pressure ring (mirrored columns col_t, col_p of length 2 cap, retained rows [start, end)) at the
     sorted times t_grid; returns ROW_OK (out filled), ROW_MISSING, ROW_HOLE or ROW_NAN."""
     n = end - start
@@ -28,11 +28,11 @@ def _pressure_row(col_t, col_p, start, end, t_grid, out):
     cap = col_t.shape[0] // 2
     i0 = start % cap
     m = t_grid.shape[0]
-    a = _search(col_t, i0, n, t_grid[0], True) - 1
-    b = _search(col_t, i0, n, t_grid[m - 1], False) + 1
+    a = search_sorted(col_t, i0, n, t_grid[0], True) - 1
+    b = search_sorted(col_t, i0, n, t_grid[m - 1], False) + 1
     if a < 0 or b > n:
         return ROW_MISSING
-    code = _interp_checked(t_grid, col_t[i0 + a : i0 + b], col_p[i0 + a : i0 + b], out)
+    code = interp_checked_kernel(t_grid, col_t[i0 + a : i0 + b], col_p[i0 + a : i0 + b], out)
     if code == CHECK_HOLE:
         return ROW_HOLE
     if code == CHECK_NAN:
@@ -41,11 +41,11 @@ def _pressure_row(col_t, col_p, start, end, t_grid, out):
 
 
 @numba.njit(cache=True)
-def _window_weights(x, t_grid, jj, ww):
+def window_weights(x, t_grid, jj, ww):
     """The part of a group's resampling that depends on the shared sample times x (the retained window that
     brackets the sorted times t_grid) only: the first hole (a spacing over 1.5 times the window's mean; x.size - 1:
-    none, as ``_interp_checked``) and, when there is none, the interval j and weight w of every grid time
-    (``_interp_sorted``'s walk) into jj, ww. Returns the hole index."""
+    none, as ``interp_checked_kernel``) and, when there is none, the interval j and weight w of every grid time
+    (``resample.interp_sorted``'s walk) into jj, ww. Returns the hole index."""
     nx = x.shape[0]
     m = t_grid.shape[0]
     lim = 1.5 * (x[nx - 1] - x[0]) / (nx - 1)
@@ -67,9 +67,9 @@ def _window_weights(x, t_grid, jj, ww):
 
 @numba.njit(cache=True)
 def _row_on_weights(y, nx, hole, jj, ww, o):
-    """One row's samples y[0:nx] over the window of ``_window_weights``: its ROW_* code, and o filled if ROW_OK.
-    The NaN check runs up to the first hole (the first NaN before the first hole wins, as in ``_interp_checked``'s
-    loop); then ``y[j] + w (y[j+1] - y[j])`` with the j and w of ``_interp_sorted``."""
+    """One row's samples y[0:nx] over the window of ``window_weights``: its ROW_* code, and o filled if ROW_OK.
+    The NaN check runs up to the first hole (the first NaN before the first hole wins, as in ``interp_checked_kernel``'s
+    loop); then ``y[j] + w (y[j+1] - y[j])`` with the j and w of ``resample.interp_sorted``."""
     nan = False
     for i in range(hole):
         nan |= y[i] != y[i]
@@ -86,13 +86,13 @@ def _row_on_weights(y, nx, hole, jj, ww, o):
 
 
 @numba.njit(cache=True)
-def _pressure_rows(col_t, block_p, start, end, t_grid, rows, out, codes):
+def pressure_rows(col_t, block_p, start, end, t_grid, rows, out, codes):
     """Every row of a pressure group (time column col_t, value block block_p (k, 2 cap), retained rows
     [start, end)) at the sorted times t_grid: row r into out[rows[r]] (rows[r] < 0: not wanted), its code
     (ROW_*) into codes[r]. Returns the number of wanted rows that are not ROW_OK.
 
-    Bit for bit what ``_pressure_row`` gives for each row on its own: the window search, the hole search and the
-    interpolation intervals and weights depend on the shared times only and are done once (``_window_weights``);
+    What ``pressure_row`` gives for each row on its own (the same arithmetic): the window search, the hole search and the
+    interpolation intervals and weights depend on the shared times only and are done once (``window_weights``);
     per row remain the NaN check and the interpolation (``_row_on_weights``)."""
     k = block_p.shape[0]
     n = end - start
@@ -103,8 +103,8 @@ def _pressure_rows(col_t, block_p, start, end, t_grid, rows, out, codes):
     b = 0
     whole = n >= 2
     if whole:
-        a = _search(col_t, i0, n, t_grid[0], True) - 1
-        b = _search(col_t, i0, n, t_grid[m - 1], False) + 1
+        a = search_sorted(col_t, i0, n, t_grid[0], True) - 1
+        b = search_sorted(col_t, i0, n, t_grid[m - 1], False) + 1
         whole = a >= 0 and b <= n
     bad = 0
     if not whole:
@@ -115,7 +115,7 @@ def _pressure_rows(col_t, block_p, start, end, t_grid, rows, out, codes):
     nx = b - a
     jj = np.empty(m, np.int64)
     ww = np.empty(m)
-    hole = _window_weights(col_t[i0 + a : i0 + b], t_grid, jj, ww)
+    hole = window_weights(col_t[i0 + a : i0 + b], t_grid, jj, ww)
     for r in range(k):
         if rows[r] < 0:
             codes[r] = ROW_OK

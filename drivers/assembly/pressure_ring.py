@@ -5,7 +5,7 @@ cylinder per record (``PressureBlock``). A block is a group of one, a ``Pressure
 ``t`` (2 cap,) and one value block ``p`` (k, 2 cap), row r = ``cylinders[r]``. The frames of two or more cylinders
 go to a ``drivers.assembly.frame_store.FrameGroup`` instead, which keeps the frames themselves (nothing copied at ingest)
 behind the same interface. Resampling every cylinder of a group onto a cycle's grid is one numba call
-(``rows_on_grid``; drivers/pressure_kernels.py).
+(``rows_on_grid``; drivers/assembly/pressure_kernels.py).
 
 ``PressureChannel`` is the per-cylinder face of a group with the ``RingBuffer`` interface (columns "t" and "p",
 absolute row numbers, zero-copy views): ``EngineBuffers.pressure[cyl]`` keeps working for one-cylinder code such
@@ -20,8 +20,8 @@ import numba
 import numpy as np
 
 from frictionwatch.core.types import PressureBlock, PressureFrame
-from frictionwatch.drivers.assembly.pressure_kernels import _pressure_rows
-from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, _search_sorted
+from frictionwatch.drivers.assembly.pressure_kernels import pressure_rows
+from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, search_sorted
 
 
 class PressureGroup:
@@ -49,7 +49,7 @@ class PressureGroup:
     def __len__(self) -> int:
         return self.end - self.start
 
-    _advance = RingBuffer._advance
+    reserve = RingBuffer.reserve
 
     def last_t(self) -> float | None:
         """Time [ticks] of the newest retained sample, None if empty."""
@@ -64,7 +64,7 @@ class PressureGroup:
         """Absolute row where ``value`` would go in the time column (as ``RingBuffer.searchsorted``)."""
         if side != "left" and side != "right":
             raise ValueError(f"side must be 'left' or 'right', got {side!r}")
-        return self.start + _search_sorted(self.t, self.start % self.capacity, self.end - self.start, value,
+        return self.start + search_sorted(self.t, self.start % self.capacity, self.end - self.start, value,
                                            side == "right")
 
     def discard_before(self, seq: int) -> None:
@@ -73,13 +73,13 @@ class PressureGroup:
     def discard_older(self, value: float, keep: int) -> None:
         """``discard_before(searchsorted(value) - keep)`` in one call."""
         start = self.start
-        seq = start + _search_sorted(self.t, start % self.capacity, self.end - start, value, False) - keep
+        seq = start + search_sorted(self.t, start % self.capacity, self.end - start, value, False) - keep
         if seq > start:
             self.start = seq if seq < self.end else self.end
 
     def rows_on_grid(self, t_grid: np.ndarray, rows: np.ndarray, out: np.ndarray, codes: np.ndarray) -> int:
-        """Every wanted row at the sorted times ``t_grid`` (``drivers.assembly.pressure_kernels._pressure_rows``)."""
-        return _pressure_rows(self.t, self.p, self.start, self.end, t_grid, rows, out, codes)
+        """Every wanted row at the sorted times ``t_grid`` (``drivers.assembly.pressure_kernels.pressure_rows``)."""
+        return pressure_rows(self.t, self.p, self.start, self.end, t_grid, rows, out, codes)
 
     def channel(self, row: int) -> PressureChannel:
         return PressureChannel(self, row)
@@ -94,7 +94,7 @@ class PressureChannel(RingBuffer):
         self.cylinder = group.cylinders[row]
         self.capacity = group.capacity
         self.names = ("t", "p")
-        self._cols = {"t": group.t, "p": group.p[row]}  # a row of a C-order block: contiguous
+        self.cols = {"t": group.t, "p": group.p[row]}  # a row of a C-order block: contiguous
 
     start = property(lambda self: self.group.start, lambda self, v: setattr(self.group, "start", v))
     end = property(lambda self: self.group.end, lambda self, v: setattr(self.group, "end", v))
@@ -107,9 +107,9 @@ class PressureChannel(RingBuffer):
 
 
 @numba.njit(cache=True)
-def _write_frame(col_t, block_p, i, t0, period, values, s0):
+def write_frame(col_t, block_p, i, t0, period, values, s0):
     """Write samples s0.. of a (k, n) frame, sample s at t0 + (s - s0) period, from slot i of the mirrored time
-    column and value block (wrapping at their half; the same times as ``drivers.assembly.ringbuffer._write_block``)."""
+    column and value block (wrapping at their half; the same times as ``drivers.assembly.ringbuffer.write_block``)."""
     cap = col_t.shape[0] // 2
     k, n = values.shape
     m = n - s0

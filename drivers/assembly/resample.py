@@ -56,7 +56,7 @@ def _pchip_slopes(x, y, d):
 
 
 @numba.njit(cache=True)
-def _pchip_eval(x, y, xq, out):
+def pchip_eval_kernel(x, y, xq, out):
     n = x.shape[0]
     d = np.empty(n)
     _pchip_slopes(x, y, d)
@@ -89,7 +89,7 @@ def pchip_eval(x: np.ndarray, y: np.ndarray, xq: np.ndarray) -> np.ndarray:
     if q.size and (q[0] < xs[0] or q[-1] > xs[-1] or np.any(np.diff(q) < 0)):
         raise ValueError("xq must be sorted and inside [x[0], x[-1]]")
     out = np.empty(q.shape[0])
-    _pchip_eval(xs, ys, q, out)
+    pchip_eval_kernel(xs, ys, q, out)
     return out
 
 
@@ -123,7 +123,7 @@ CHECK_OK, CHECK_HOLE, CHECK_NAN = 0, 1, 2
 
 
 @numba.njit(cache=True)
-def _interp_checked(xq, x, y, out):
+def interp_checked_kernel(xq, x, y, out):
     n = x.shape[0]
     lim = 1.5 * (x[n - 1] - x[0]) / (n - 1)
     for i in range(n - 1):
@@ -146,5 +146,5 @@ def interp_checked(xq: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.nda
     if xs.shape[0] < 2 or xs.shape != ys.shape or (q.size and (q[0] < xs[0] or q[-1] > xs[-1])):
         raise ValueError("x must be 1-D, >= 2 samples, the same length as y, and cover xq")
     out = np.empty(q.shape[0])
-    code = _interp_checked(q, xs, ys, out)
+    code = interp_checked_kernel(q, xs, ys, out)
     return (out, code) if code == CHECK_OK else (None, code)

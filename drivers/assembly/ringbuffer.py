@@ -11,7 +11,7 @@ two slice copies per column (O(batch), no reallocation, no concatenation of the 
 Overflow drops the oldest rows. Rows that were never released by ``discard_before`` count in ``dropped`` (data the
 consumer lost); released rows are simply overwritten.
 
-``EngineBuffers`` (drivers/engine_buffers.py) bundles the rings of one engine.
+``EngineBuffers`` (drivers/assembly/engine_buffers.py) bundles the rings of one engine.
 """
 
 from __future__ import annotations
@@ -36,7 +36,8 @@ class RingBuffer:
             raise ValueError("a ring buffer needs at least one column")
         self.capacity = int(capacity)
         self.names = tuple(columns)
-        self._cols = {n: np.zeros(2 * self.capacity, dtype=d) for n, d in columns.items()}
+        # the mirrored storage (2 capacity,) of each column: row s at s % capacity and s % capacity + capacity
+        self.cols = {n: np.zeros(2 * self.capacity, dtype=d) for n, d in columns.items()}
         self.start = 0  # sequence number of the oldest retained row
         self.end = 0  # sequence number the next row will get
         self.dropped = 0  # unreleased rows lost to overflow
@@ -54,18 +55,29 @@ class RingBuffer:
                 raise ValueError("all columns of a batch must have the same length")
         if n == 0:
             return
-        i, skip = self._advance(n)
+        i, skip = self.reserve(n)
         m = n - skip
         cap = self.capacity
         first = min(cap - i, m)
         for name, v in zip(self.names, values):
-            col = self._cols[name]
+            col = self.cols[name]
             src = v[skip:] if skip else v
             col[i : i + first] = src[:first]
             col[i + cap : i + cap + first] = src[:first]
             if first < m:
                 col[0 : m - first] = src[first:]
                 col[cap : cap + m - first] = src[first:]
+
+    def append(self, *values: float | int) -> None:
+        """Append one row: one scalar per column (in ``names`` order); ``extend`` for a single row without building
+        arrays (the load stream: a reading at a time)."""
+        if len(values) != len(self.names):
+            raise ValueError(f"expected {len(self.names)} values ({', '.join(self.names)}), got {len(values)}")
+        i, _ = self.reserve(1)
+        cap = self.capacity
+        for name, v in zip(self.names, values):
+            col = self.cols[name]
+            col[i] = col[i + cap] = v
 
     def extend_increasing(self, t: np.ndarray) -> bool:
         """Append the batch ``t`` (int64, 1-D) to a one-column int64 ring if its values are strictly increasing and
@@ -78,19 +90,21 @@ class RingBuffer:
             return True
         cap = self.capacity
         skip = n - cap if n > cap else 0
-        col = self._cols[self.names[0]]
+        col = self.cols[self.names[0]]
         start, end = self.start, self.end
         if not _write_increasing(col, start, end, (end + skip) % cap, t, skip):
             return False
-        if end + n - start <= cap:  # room for the batch: what _advance(n) does then
+        if end + n - start <= cap:  # room for the batch: what reserve(n) does then
             self.end = end + n
         else:
-            self._advance(n)
+            self.reserve(n)
         return True
 
-    def _advance(self, n: int) -> tuple[int, int]:
-        """Account for n appended rows; returns the storage slot of the first row written and how many leading
-        rows of the batch are skipped (a batch longer than the ring keeps its newest rows only)."""
+    def reserve(self, n: int) -> tuple[int, int]:
+        """Account for n rows about to be appended (start, end, dropped); returns the storage slot of the first row
+        to write and how many leading rows of the batch to skip (a batch longer than the ring keeps its newest rows
+        only). The caller writes them into ``cols`` (both mirror halves): ``extend`` and the writers of
+        ``EngineBuffers`` (``write_block``, ``write_frame``); ``PressureGroup`` and ``FrameGroup`` share it."""
         cap = self.capacity
         skip = n - cap if n > cap else 0
         end = self.end
@@ -110,12 +124,12 @@ class RingBuffer:
         if not self.start <= a <= b <= self.end:
             raise IndexError(f"rows [{a}, {b}) are not all retained (retained [{self.start}, {self.end}))")
         i = a % self.capacity
-        return self._cols[name][i : i + (b - a)]
+        return self.cols[name][i : i + (b - a)]
 
     def get(self, name: str, seq: int) -> float | int:
         if not self.start <= seq < self.end:
             raise IndexError(f"row {seq} is not retained (retained [{self.start}, {self.end}))")
-        return self._cols[name].item(seq % self.capacity)  # a Python scalar, no numpy scalar in between
+        return self.cols[name].item(seq % self.capacity)  # a Python scalar, no numpy scalar in between
 
     def last(self, name: str) -> float | int | None:
         return None if self.end == self.start else self.get(name, self.end - 1)
@@ -126,7 +140,7 @@ class RingBuffer:
             raise ValueError(f"side must be 'left' or 'right', got {side!r}")
         # one compiled call on the mirrored storage (no view, no numpy dispatch: it runs for every ring at each
         # discard and twice per cylinder and cycle)
-        return self.start + _search_sorted(self._cols[name], self.start % self.capacity, self.end - self.start,
+        return self.start + search_sorted(self.cols[name], self.start % self.capacity, self.end - self.start,
                                            value, side == "right")
 
     def discard_before(self, seq: int) -> None:
@@ -139,14 +153,7 @@ class RingBuffer:
         start = self.start
         if start == self.end:
             return
-        cap = self.capacity
-        col = self._cols[name]
-        # no row before a float value (the usual call): the search would give start (a NaN value goes on to it).
-        # Compared as Python floats: a numpy int64 scalar against a float costs ~0.7 us; float() of the int rounds
-        # as the kernel's int64 -> float64 does (the rows are increasing: add_load / extend_increasing refuse others)
-        if type(value) is float and float(col.item(start % cap)) >= value:
-            return
-        seq = start + _search_sorted(col, start % cap, self.end - start, value, False) - keep
+        seq = start + search_sorted(self.cols[name], start % self.capacity, self.end - start, value, False) - keep
         if upto is not None and upto < seq:
             seq = upto
         if seq > start:
@@ -157,13 +164,13 @@ class RingBuffer:
 
 
 @numba.njit(cache=True)
-def _less(a, b):
+def sorts_before(a, b):
     """np.searchsorted's order: NaN after every number."""
     return a < b or (b != b and a == a)
 
 
 @numba.njit(cache=True)
-def _search_sorted(col, i0, n, key, right):
+def search_sorted(col, i0, n, key, right):
     """np.searchsorted(col[i0:i0 + n], key, side='right' if right else 'left') with numpy's binary-search loop, so
     the same index even on unsorted input; mixed int/float compare as float64, as numpy's common type."""
     lo = 0
@@ -171,7 +178,7 @@ def _search_sorted(col, i0, n, key, right):
     while lo < hi:
         mid = lo + ((hi - lo) >> 1)
         v = col[i0 + mid]
-        go_right = (not _less(key, v)) if right else _less(v, key)
+        go_right = (not sorts_before(key, v)) if right else sorts_before(v, key)
         if go_right:
             lo = mid + 1
         else:
@@ -200,7 +207,7 @@ def _write_increasing(col, start, end, i, t, skip):
 
 
 @numba.njit(cache=True)
-def _write_block(col_t, col_p, i, t0, period, values):
+def write_block(col_t, col_p, i, t0, period, values):
     """Write samples t0 + k period, values[k] from slot i of two mirrored columns (wrapping at their half)."""
     cap = col_t.shape[0] // 2
     for k in range(values.shape[0]):
@@ -211,10 +218,3 @@ def _write_block(col_t, col_p, i, t0, period, values):
         col_p[j] = values[k]
         col_p[j + cap] = values[k]
 
-
-def __getattr__(name: str):
-    if name == "EngineBuffers":  # lives in drivers/engine_buffers.py (it builds on RingBuffer); kept importable here
-        from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
-
-        return EngineBuffers
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,6 +1,6 @@
 """frictionwatch CAN frames (docs/protocols.md §3): the shipped DBC, the byte layouts derived from it, and encoders.
 
-The DBC (drivers/frictionwatch.dbc, loaded with cantools) is the single source of truth. For the 16,000 pressure
+The DBC (drivers/can/frictionwatch.dbc, loaded with cantools) is the single source of truth. For the 16,000 pressure
 frames/s of a 20-cylinder engine a per-frame ``cantools.decode_message`` is too slow (tens of µs per frame), so
 ``Layouts`` reads each message's signal positions, factors and signedness from the DBC once and builds numpy
 structured dtypes that decode whole batches at once; tests check both against cantools frame by frame.
@@ -136,7 +136,7 @@ def _with_flags(dt: np.dtype, flags_byte: int) -> np.dtype:
 
 
 # --- encoders ---------------------------------------------------------------------------------------------------
-def _counts(values_pa: np.ndarray, scale_pa: float | np.ndarray, saturated: np.ndarray | None) -> np.ndarray:
+def pressure_counts(values_pa: np.ndarray, scale_pa: float | np.ndarray, saturated: np.ndarray | None) -> np.ndarray:
     """Pressure [Pa] -> int16 counts; NaN -> RAW_INVALID, out of range or ``saturated`` -> RAW_SATURATED."""
     v = np.asarray(values_pa, dtype=np.float64)
     with np.errstate(invalid="ignore"):
@@ -178,7 +178,7 @@ def encode_pressure_fd(cylinder: int, seq: int, t0_ticks: int, period_ticks: flo
     bits = lay.fd_flag_bits
     rec["Flags"] = ((sensor_fault << bits[FLAG_SENSOR_FAULT]) | (daq_overrun << bits[FLAG_DAQ_OVERRUN])
                     | (restart << bits[FLAG_RESTART]))
-    rec["samples"][0, :v.size] = _counts(v, float(rec["Scale"][0]) * lay.fd_scale_factor, saturated)
+    rec["samples"][0, :v.size] = pressure_counts(v, float(rec["Scale"][0]) * lay.fd_scale_factor, saturated)
     return can.Message(arbitration_id=lay.id_of("fd", cylinder), is_extended_id=False, is_fd=True,
                        bitrate_switch=True, data=rec.tobytes())
 
@@ -201,7 +201,7 @@ def encode_pressure_classic(cylinder: int, seq: int, values_pa: np.ndarray,
         raise ValueError(f"a classic pressure frame carries {CLASSIC_SAMPLES} samples, got {v.size}")
     rec = np.zeros(1, lay.classic_dtype)
     rec["Seq"] = seq & 0xFFFF
-    rec["samples"][0] = _counts(v, lay.classic_factor, saturated)
+    rec["samples"][0] = pressure_counts(v, lay.classic_factor, saturated)
     return can.Message(arbitration_id=lay.id_of("classic", cylinder), is_extended_id=False, data=rec.tobytes())
 
 

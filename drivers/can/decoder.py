@@ -36,7 +36,7 @@ from frictionwatch.drivers.can.codec import (
     j1939_value,
     layouts,
 )
-from frictionwatch.drivers.assembly.sequence import SequenceTracker
+from frictionwatch.drivers.sequence import SequenceTracker
 from frictionwatch.drivers.timebase import TimerUnwrapper
 
 KIND_FD, KIND_REF, KIND_CLASSIC, KIND_LOAD, KIND_OURS = 0, 1, 2, 3, 4

@@ -18,7 +18,7 @@ from frictionwatch.drivers.can.codec import (
     FD_SAMPLES,
     FLAG_RESTART,
     RAW_SATURATED,
-    _counts,
+    pressure_counts,
     encode_pressure_classic,
     encode_pressure_ref,
     layouts,
@@ -96,7 +96,7 @@ class PressureEncoder:
         if cyl in self._restart:
             self._restart.discard(cyl)
             rec["Flags"][0] |= 1 << lay.fd_flag_bits[FLAG_RESTART]
-        counts = _counts(rows, (scale_raw * lay.fd_scale_factor)[:, None], sat_rows.reshape(k, FD_SAMPLES))
+        counts = pressure_counts(rows, (scale_raw * lay.fd_scale_factor)[:, None], sat_rows.reshape(k, FD_SAMPLES))
         counts[np.arange(FD_SAMPLES) >= n[:, None]] = 0
         rec["samples"] = counts
         blob = rec.tobytes()

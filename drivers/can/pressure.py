@@ -1,6 +1,6 @@
 """Cylinder pressure and generator load from a CAN / CAN FD bus (``can:socketcan/can0``, ``can:virtual/ch0``).
 
-The transport only moves frames; decoding and reassembly live in drivers/can_decoder.py. ``read`` takes one
+The transport only moves frames; decoding and reassembly live in drivers/can/decoder.py. ``read`` takes one
 message (waiting up to the timeout), drains what else is queued (up to ``max_batch``) and decodes the batch at once.
 When the bus goes away (interface down, adapter unplugged) the source counts ``bus_lost`` and reopens it with
 exponential back-off (``reconnect``); bad frames are counted, never raised.

@@ -2,7 +2,7 @@
 
 One result set per engine cycle = page 0 (total friction torque, cylinder count), page 1 (ring-alert state of up to
 24 cylinders, 2 bits each) and pages 2.. (FMEP of 3 cylinders each), all with the same ``ResultSeq`` so a reader
-can tell the pages of one set apart. The layout is in drivers/frictionwatch.dbc; a genset controller or SCADA gateway
+can tell the pages of one set apart. The layout is in drivers/can/frictionwatch.dbc; a genset controller or SCADA gateway
 reads it with that DBC and no HTTP. No standard J1939 parameter exists per cylinder (SPN 514 "Nominal Friction -
 Percent Torque" is whole-engine only), hence a proprietary PGN.
 

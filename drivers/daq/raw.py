@@ -5,8 +5,8 @@ output [V], in either column order (the TU/e ``group14_*`` files hold wheel, pre
 pressure, wheel). The wheel column is recognised by its content (thousands of rail-to-rail swings against a few
 dozen for pressure), so misnamed files still work; ``columns=`` overrides.
 
-Pipeline (``process_daq``): tooth edges and sync (drivers/daq_teeth.py) -> wheel angle of every sample -> 4-stroke
-phase from the pressure -> per-cycle pegging and gain (drivers/daq_pressure.py) -> Pa. ``daq_to_records`` then cuts
+Pipeline (``process_daq``): tooth edges and sync (drivers/daq/teeth.py) -> wheel angle of every sample -> 4-stroke
+phase from the pressure -> per-cycle pegging and gain (drivers/daq/pressure.py) -> Pa. ``daq_to_records`` then cuts
 the timeline into blocks of ``block_s`` and yields, per block, a ``ToothBatch`` with every edge detected in it (bad
 revolutions included: a live sensor would send them too, and the cycle assembler must skip them itself) and a
 ``PressureBlock`` (NaN where no calibration covers a sample), in acquisition order.
@@ -211,7 +211,7 @@ def process_daq(
     n_poly: float = 1.32,
     window_deg: tuple[float, float] = (-100.0, -60.0),
 ) -> DaqResult:
-    """Teeth, phase, calibrated pressure of one trace (module docstring; pegging in drivers/daq_pressure.py).
+    """Teeth, phase, calibrated pressure of one trace (module docstring; pegging in drivers/daq/pressure.py).
 
     gain_pa_per_v : sensor gain [Pa/V]; default: the TU/e group14 sensor (``TUE_GAIN_PA_PER_V``, measured on its
         motored coast-downs). None = self-calibrate from p(intake BDC) = ``peg_pa``: valid only at wide-open throttle

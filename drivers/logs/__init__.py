@@ -1,1 +1,20 @@
-"""drivers/logs"""
+"""Replay logs (docs/replay-format.md): MCAP written and read back damage-tolerantly, and MDF4 CAN logs.
+
+    mcap_log       ``LogWriter`` (and ``LogReader`` re-exported)
+    mcap_reader    ``LogReader``, the damage-tolerant reader, and the message ``Codec`` interface
+    mcap_scan      one linear pass over an MCAP file that resyncs after damage, chunk decoding
+    mcap_schema    the protobuf messages built at run time, metadata keys, the log-time rule
+    mcap_batching  ``Batcher``: stream records -> log messages of about one span each
+    mcap_replay    ``McapSource``: a log replayed as a live source (``mcap:`` URLs)
+    recorder       ``Recorder``: the raw input of a live session into rotating, size-bounded logs
+    mdf4           ``Mdf4Source``: CAN bus logs in ASAM MDF4 replayed as a source (``mdf4:`` URLs)
+"""
+
+from frictionwatch.drivers.logs.mcap_log import DEFAULT_CHUNK_BYTES, LogWriter
+from frictionwatch.drivers.logs.mcap_reader import Codec, LogReader, ProtobufCodec
+from frictionwatch.drivers.logs.mcap_replay import McapSource
+from frictionwatch.drivers.logs.mdf4 import Mdf4Source
+from frictionwatch.drivers.logs.recorder import Recorder
+
+__all__ = ["DEFAULT_CHUNK_BYTES", "Codec", "LogReader", "LogWriter", "McapSource", "Mdf4Source", "ProtobufCodec",
+           "Recorder"]

@@ -9,9 +9,9 @@
         ...
     log.damage                                               # Counter: reason -> count (truncated, corrupt chunk...)
 
-The writer is here; ``LogReader`` lives in drivers/mcap_reader.py, the scanner that survives damage in
-drivers/mcap_scan.py, the protobuf schema in drivers/mcap_schema.py, and ``McapSource`` (the ``mcap:`` URL scheme
-of drivers/source.py) in drivers/mcap_replay.py -- all importable from here.
+The writer is here; ``LogReader`` lives in drivers/logs/mcap_reader.py (importable from here too), the scanner
+that survives damage in drivers/logs/mcap_scan.py, the protobuf schema in drivers/logs/mcap_schema.py, and
+``McapSource`` (the ``mcap:`` URL scheme of drivers/source.py) in drivers/logs/mcap_replay.py.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
-from frictionwatch.drivers.logs import mcap_schema as ms
+import frictionwatch.drivers.logs.mcap_schema as ms
 from frictionwatch.drivers.logs.mcap_batching import Batcher
 from frictionwatch.drivers.logs.mcap_reader import Codec, LogReader, ProtobufCodec
 
@@ -219,14 +219,6 @@ class LogWriter:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def __getattr__(name: str) -> Any:
-    if name == "McapSource":  # the source registry asks for drivers.logs.mcap_log.McapSource
-        from frictionwatch.drivers.logs.mcap_replay import McapSource
-
-        return McapSource
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 __all__ = ["Codec", "LogReader", "LogWriter", "ProtobufCodec"]

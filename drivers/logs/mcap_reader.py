@@ -1,6 +1,6 @@
 """Damage-tolerant reader of MCAP replay logs (docs/replay-format.md), and the message codec interface.
 
-``LogReader`` walks the file with drivers/mcap_scan.py (no summary needed), decodes chunk by chunk and merges them
+``LogReader`` walks the file with drivers/logs/mcap_scan.py (no summary needed), decodes chunk by chunk and merges them
 into log-time order. A truncated file, a corrupt chunk or a bad message costs only the damaged part: every intact
 record is yielded and ``damage`` counts what was skipped (reason -> count).
 """
@@ -19,7 +19,7 @@ from typing import Any, Protocol, Self
 from mcap.records import Channel, Schema
 
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
-from frictionwatch.drivers.logs import mcap_schema as ms
+import frictionwatch.drivers.logs.mcap_schema as ms
 from frictionwatch.drivers.errors import CorruptLog
 from frictionwatch.drivers.logs.mcap_scan import ChunkRef, chunk_records, scan
 

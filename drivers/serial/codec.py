@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from frictionwatch.drivers.assembly.sequence import SequenceTracker
+from frictionwatch.drivers.sequence import SequenceTracker
 from frictionwatch.drivers.timebase import TimerUnwrapper
 
 SYNC = b"\xa5\x5a"

@@ -1,6 +1,6 @@
 """Tooth and cam edges from the input-capture board over a serial port (``serial:/dev/ttyUSB0?baud=921600``).
 
-The transport only moves bytes; framing lives in drivers/serial_codec.py. Any pyserial URL works as the target
+The transport only moves bytes; framing lives in drivers/serial/codec.py. Any pyserial URL works as the target
 (``loop://`` in tests, a pty, ``/dev/serial/by-id/...``). When the port vanishes (USB unplugged, pty closed) the
 source counts ``port_lost``, logs it, and reopens it with exponential back-off (``reconnect`` counted); ``read``
 never raises for bad bytes or a lost port, it returns what it has.

@@ -1,4 +1,4 @@
-"""Cycle assembly (drivers/cycles.py, wheel_sync.py, resample.py) on analytic streams and on the plant simulator.
+"""Cycle assembly (drivers/assembly/cycles.py, wheel_sync.py, resample.py) on analytic streams and on the plant simulator.
 
 The analytic stream (tests/drivers/synth_stream.py) knows the exact crank angle at every tick, so tooth angles,
 pressure on the grid and phase can be checked against the truth; corrupting one cycle and comparing with a clean run
@@ -102,7 +102,7 @@ def test_tracker_syncs_and_numbers_the_teeth(teeth, missing):
 
 @pytest.mark.parametrize("late", [0.3, 0.55])
 def test_tracker_keeps_sync_with_a_late_tooth_after_the_gap(late):
-    """TU/e 60-2 wheel: the tooth after the gap is weak and timed late (gap ratio 3.3-3.6, drivers/daq_teeth.py)."""
+    """TU/e 60-2 wheel: the tooth after the gap is weak and timed late (gap ratio 3.3-3.6, drivers/daq/teeth.py)."""
     s = Stream()
     ticks, _ = edges(s, Motion(1500), 0.3, shift=lambda j: np.where(j == 0, late * 2 * np.pi / 60, 0.0))
     tr = WheelTracker(60, 2)

@@ -1,4 +1,4 @@
-"""drivers/daq_raw.py, daq_teeth.py, daq_pressure.py on synthetic signals with known truth.
+"""drivers/daq/raw.py, teeth.py, pressure.py on synthetic signals with known truth.
 
 The synthetic wheel imitates the TU/e signal (README of tue-4gb10-si-encoder-pressure): low rail -0.75 V, pulses to
 +3.5 V, and a weak first tooth after the 60-2 gap (a bump that may stay below 0 V). Flanks are linear and slow enough
@@ -84,7 +84,7 @@ def _pulse(i, t, width):
 
 
 def reference_edges(w, arm, fire, level, frac):
-    """Plain-Python statement of the detector in drivers/daq_teeth.py's docstring."""
+    """Plain-Python statement of the detector in drivers/daq/teeth.py's docstring."""
     out, state, vmin, imin = [], "wait", None, 0
     i = 0
     while i < len(w):

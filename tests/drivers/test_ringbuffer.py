@@ -1,5 +1,6 @@
 """Ring buffers: absolute sequence numbers across wrap, zero-copy views, overflow accounting, record routing."""
 
+import math
 from collections import deque
 
 import numpy as np
@@ -7,7 +8,8 @@ import pytest
 from numpy.testing import assert_array_equal
 
 from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, ToothBatch
-from frictionwatch.drivers.assembly.ringbuffer import EngineBuffers, RingBuffer
+from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
+from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
 
 
 def test_matches_a_bounded_deque_over_random_batches():
@@ -82,3 +84,56 @@ def test_engine_buffers_route_and_refuse_out_of_order():
     buf.add(LoadSample(5, 11.0, 1e3))  # same time: refused
     assert len(buf.load) == 1 and buf.rejected["load"] == 1
     assert buf.dropped() == {}
+
+
+def test_extend_increasing_refuses_without_writing():
+    ring = RingBuffer(8, {"t": np.int64})
+    assert ring.extend_increasing(np.array([5, 6, 7], dtype=np.int64))
+    before = (ring.start, ring.end, ring.dropped, ring.view("t").tolist())
+    assert not ring.extend_increasing(np.array([7, 8], dtype=np.int64))  # not after the last row
+    assert not ring.extend_increasing(np.array([8, 10, 9], dtype=np.int64))  # not increasing
+    assert (ring.start, ring.end, ring.dropped, ring.view("t").tolist()) == before
+    assert ring.extend_increasing(np.array([], dtype=np.int64))
+    assert ring.extend_increasing(np.arange(100, 120, dtype=np.int64))  # longer than the ring: its newest rows
+    assert_array_equal(ring.view("t"), np.arange(112, 120))
+    assert ring.start == 15 and ring.end == 23 and ring.dropped == 3 + 12
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_discard_older_is_discard_before_a_search(seed):
+    """``discard_older(name, value, keep, upto)`` is ``discard_before(min(upto, searchsorted(value) - keep))``
+    (row numbers: exact), over wrapping batches, NaN and infinite keys."""
+    rng = np.random.default_rng(seed)
+    cap = int(rng.integers(5, 60))
+    a, b = RingBuffer(cap, {"t": np.int64}), RingBuffer(cap, {"t": np.int64})
+    t = 0
+    for _ in range(120):
+        n = int(rng.integers(0, cap + 8))  # some batches overflow the ring
+        batch = t + np.cumsum(rng.integers(1, 40, n)).astype(np.int64)
+        t = int(batch[-1]) if n else t
+        a.extend(batch)
+        b.extend(batch)
+        times = a.view("t")
+        keys = [float(x) for x in rng.uniform(t - 400, t + 50, 4)] + [math.nan, math.inf, -math.inf]
+        if len(times):
+            keys.append(float(times[rng.integers(0, len(times))]))
+        for key in keys:
+            keep = int(rng.integers(0, 3))
+            upto = None if rng.random() < 0.5 else int(rng.integers(a.start - 2, a.end + 3))
+            seq = a.searchsorted("t", key) - keep
+            a.discard_before(seq if upto is None else min(upto, seq))
+            b.discard_older("t", key, keep, upto)
+            assert (a.start, a.end, a.dropped) == (b.start, b.end, b.dropped)
+
+
+def test_append_is_extend_of_one_row():
+    a = RingBuffer(5, {"t": np.int64, "x": np.float64})
+    b = RingBuffer(5, {"t": np.int64, "x": np.float64})
+    for k in range(13):  # wraps twice, overflows
+        a.append(10 * k, 0.5 * k)
+        b.extend(np.array([10 * k]), np.array([0.5 * k]))
+        assert (a.start, a.end, a.dropped) == (b.start, b.end, b.dropped)
+        assert_array_equal(a.view("t"), b.view("t"))
+        assert_array_equal(a.view("x"), b.view("x"))
+    with pytest.raises(ValueError):
+        a.append(1)

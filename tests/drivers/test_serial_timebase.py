@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from frictionwatch.drivers.backoff import Backoff
-from frictionwatch.drivers.assembly.sequence import SequenceTracker
+from frictionwatch.drivers.sequence import SequenceTracker
 from frictionwatch.drivers.timebase import REBASE_GAP, TimerUnwrapper, forget_shared, shared_unwrapper
 
 WRAP = 1 << 32
