@@ -17,7 +17,6 @@ rigid engine: Z_m = -w_m^2 J + i w_m c_load.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numba
@@ -26,7 +25,6 @@ import scipy.linalg
 
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.kinematics import kinematics, variable_inertia
-from frictionwatch.core.model.pairwise import pairwise_sum
 
 
 @dataclass(frozen=True)
@@ -171,7 +169,7 @@ def dissipated_power(shaft: ShaftModel, speed: np.ndarray) -> tuple[float, float
     """Mean power [W] dissipated by the relative dampers (torsional damper, shaft, coupling) and by the ground
     dampers (load node), from node speed harmonics (N, M) (physics.md §12.4: the cycle mean of omega^T C omega).
 
-    One small kernel (``_dissipation``); the plain-numpy reference is in tests/core/test_dissipation_kernel.py."""
+    One small kernel (``dissipation_kernel``); the plain-numpy reference is in tests/core/test_dissipation_kernel.py."""
     s = speed
     if not (type(s) is np.ndarray and s.dtype == np.complex128 and s.flags.c_contiguous):
         s = np.ascontiguousarray(s, dtype=np.complex128)
@@ -184,35 +182,29 @@ def dissipated_power(shaft: ShaftModel, speed: np.ndarray) -> tuple[float, float
         edges = np.ascontiguousarray(edges, dtype=np.int64).reshape(-1, 2)
         c_edge = np.ascontiguousarray(c_edge, dtype=np.float64)
         c_ground = np.ascontiguousarray(c_ground, dtype=np.float64)
-    out = _dissipation(s, edges, c_edge, c_ground)
-    return out[0], out[1]
+    return dissipation_kernel(s, edges, c_edge, c_ground)
 
 
 @numba.njit(cache=True)
-def _dissipation(speed, edges, edge_damping, ground_damping):
-    """(relative, ground) mean dissipated power: 0.5 sum c_e |s_i - s_j|^2 and 0.5 sum c_g |s|^2, each sum over
-    the (rows, M) products in numpy's pairwise order (np.sum of a contiguous array)."""
+def dissipation_kernel(speed, edges, edge_damping, ground_damping):
+    """(relative, ground) mean dissipated power [W]: 0.5 sum_e c_e |s_i - s_j|^2 and 0.5 sum_q c_q |s_q|^2 over
+    the node speed harmonics ``speed`` (N, M) (the mean of a product of harmonics is half the real inner product)."""
     n, m = speed.shape
-    n_e = edges.shape[0]
-    buf = np.empty(max(n_e, n) * m)
     rel = 0.0
-    if n_e:
-        for q in range(n_e):
-            a = edges[q, 0]
-            b = edges[q, 1]
-            c = edge_damping[q]
-            for i in range(m):
-                d = speed[a, i] - speed[b, i]
-                v = math.hypot(d.real, d.imag)
-                buf[q * m + i] = c * (v * v)
-        rel = 0.5 * pairwise_sum(buf, 0, n_e * m)
+    for q in range(edges.shape[0]):
+        a = edges[q, 0]
+        b = edges[q, 1]
+        c = edge_damping[q]
+        for i in range(m):
+            d = speed[a, i] - speed[b, i]
+            rel += c * (d.real * d.real + d.imag * d.imag)
+    gnd = 0.0
     for q in range(n):
         c = ground_damping[q]
         for i in range(m):
-            v = math.hypot(speed[q, i].real, speed[q, i].imag)
-            buf[q * m + i] = c * (v * v)
-    gnd = 0.5 * pairwise_sum(buf, 0, n * m)
-    return rel, gnd
+            v = speed[q, i]
+            gnd += c * (v.real * v.real + v.imag * v.imag)
+    return 0.5 * rel, 0.5 * gnd
 
 
 def static_twist(shaft: ShaftModel, node_torque: np.ndarray) -> np.ndarray:
