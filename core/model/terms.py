@@ -44,6 +44,15 @@ N_CONSTS = len(CONSTS)
 GROUPS = ("cylinder", "engine")
 FOUR_PI = 4.0 * np.pi
 OMEGA_FLOOR = 1e-3  # rad/s: the terms with 1/sqrt(omega) stay finite on a stopped shaft
+# every term kernel has this one signature, compiled eagerly: then a tuple of them is a tuple of first-class
+# functions of one type, which the plant's cached RK4 kernel iterates (core.plant.plant) whatever the library holds
+KERNEL_SIGNATURE = numba.types.void(numba.types.float64[:, :, ::1], numba.types.float64[::1],
+                                    numba.types.float64[:, :])
+
+
+def loss_kernel(func: Callable) -> Callable:
+    """Decorator of a term kernel ``func(samples, consts, out)``: numba-compiled with ``KERNEL_SIGNATURE``, cached."""
+    return numba.njit(KERNEL_SIGNATURE, cache=True)(func)
 
 
 @dataclass(frozen=True)
@@ -59,6 +68,9 @@ class LossTerm:
     reference: Callable[[np.ndarray, np.ndarray], np.ndarray]
 
     def __post_init__(self) -> None:
+        sigs = getattr(self.kernel, "signatures", None)
+        if not sigs or KERNEL_SIGNATURE.args not in [tuple(sig) for sig in sigs]:
+            raise ValueError(f"term {self.name!r}: the kernel must be compiled with KERNEL_SIGNATURE (@loss_kernel)")
         if self.group not in GROUPS:
             raise ValueError(f"term {self.name!r}: group must be one of {GROUPS}, got {self.group!r}")
         if not (np.isfinite(self.prior) and self.prior >= 0):
@@ -113,8 +125,8 @@ class TermLibrary:
             raise KeyError(f"no loss term {name!r}; the library has {', '.join(self.names)}") from None
 
     def evaluate_into(self, samples: np.ndarray, consts: np.ndarray, out: np.ndarray) -> None:
-        """out[:, l] = F_l (z, n) for samples (N_FIELDS, z, n) C-contiguous float64, out (z, len, n): each term's
-        kernel, no checks (the monitor's per-pass call; ``evaluate`` is the checked form)."""
+        """out[:, l] = F_l (z, n) for samples (N_FIELDS, z, n) C-contiguous float64, consts (N_CONSTS,), out
+        (z, len, n): each term's kernel, no checks (the monitor's per-pass call; ``evaluate`` is the checked form)."""
         for i, term in enumerate(self.terms):
             term.kernel(samples, consts, out[:, i])
 
@@ -227,7 +239,7 @@ def ring_viscous_reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
     return np.sqrt(c[MU] * s[OMEGA] * lever * (c[PE] + s[P_GAUGE]) * c[ETH]) * np.pi * c[D] * (c[NO] + 0.4 * c[NC]) * lever
 
 
-@numba.njit(cache=True)
+@loss_kernel
 def ring_viscous_kernel(s, c, out):
     k = np.pi * c[D] * (c[NO] + 0.4 * c[NC])
     for j in range(out.shape[0]):
@@ -242,7 +254,7 @@ def ring_mixed_reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
     return np.where(window, np.pi * c[D] * c[NC] * (c[PE] + s[P_GAUGE]) * (1.0 - np.abs(s[SIN])) * np.abs(s[DX]), 0.0)
 
 
-@numba.njit(cache=True)
+@loss_kernel
 def ring_mixed_kernel(s, c, out):
     k = np.pi * c[D] * c[NC]
     for j in range(out.shape[0]):
@@ -260,7 +272,7 @@ def skirt_viscous_reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
     return c[MU] * s[OMEGA] * lever / c[GA] * np.pi * c[D] * c[LFP] * lever
 
 
-@numba.njit(cache=True)
+@loss_kernel
 def skirt_viscous_kernel(s, c, out):
     k = c[MU] / c[GA] * np.pi * c[D] * c[LFP]
     for j in range(out.shape[0]):
@@ -274,7 +286,7 @@ def valve_train_reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
     return c[NV] * c[LS] * np.abs(s[DX]) / np.sqrt(s[OMEGA])
 
 
-@numba.njit(cache=True)
+@loss_kernel
 def valve_train_kernel(s, c, out):
     k = c[NV] * c[LS]
     for j in range(out.shape[0]):
@@ -287,7 +299,7 @@ def auxiliaries_reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
     return c[MU] * s[OMEGA]
 
 
-@numba.njit(cache=True)
+@loss_kernel
 def auxiliaries_kernel(s, c, out):
     for j in range(out.shape[0]):
         for i in range(out.shape[1]):
@@ -299,7 +311,7 @@ def loaded_bearings_reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
     return 0.25 * np.pi * c[D] ** 2 * c[RB] * s[P_GAUGE] * np.abs(s[COS]) / np.sqrt(s[OMEGA])
 
 
-@numba.njit(cache=True)
+@loss_kernel
 def loaded_bearings_kernel(s, c, out):
     k = 0.25 * np.pi * c[D] * c[D] * c[RB]
     for j in range(out.shape[0]):
