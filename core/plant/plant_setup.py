@@ -12,16 +12,19 @@ import numpy as np
 
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.kinematics import variable_inertia
-from frictionwatch.core.plant.plant import NQ_CYL, NQ_GLOBAL, S_AREA, S_E, S_FLY, S_GRID, S_LOAD, S_MREC, S_NSC, S_PCC, S_R, S_VARJ, _rhs
+from frictionwatch.core.model.terms import TermLibrary, rezeka_henein
 from frictionwatch.core.model.thermo import P_CRANKCASE, CylinderModel
+from frictionwatch.core.plant.plant import (NQ_GLOBAL, S_AREA, S_E, S_FLY, S_GRID, S_LOAD, S_MREC, S_NSC, S_PCC, S_R,
+                                            S_VARJ, _rhs, nq_cyl, work_arrays)
 
 
 @dataclass
 class PlantModel:
     """Numeric arrays of the plant. ``inertia`` (n,) rotating inertia [kg m^2] (plus the mean reciprocating inertia
     of each throw when ``variable_inertia`` is off), ``stiff``/``damp`` (n-1,) chain [N m/rad, N m s/rad],
-    ``cyl_node`` (z,), ``phase`` (z,) true firing angles [rad], ``coef`` (z, 6), ``extra`` (z, 4) = [mean N m,
-    amplitude N m, order, phase rad], ``fly``/``load`` node indices, ``rec_mean`` (n,) mean J_rec per node."""
+    ``cyl_node`` (z,), ``phase`` (z,) true firing angles [rad], ``coef`` (z, L) coefficients of the L terms of
+    ``library`` (core.model.terms), ``extra`` (z, 4) = [mean N m, amplitude N m, order, phase rad],
+    ``fly``/``load`` node indices, ``rec_mean`` (n,) mean J_rec per node."""
 
     inertia: np.ndarray
     stiff: np.ndarray
@@ -34,6 +37,17 @@ class PlantModel:
     load: int
     variable_inertia: bool
     rec_mean: np.ndarray
+    library: TermLibrary
+
+    @property
+    def cylinders(self) -> tuple:
+        """The plant kernel's per-cylinder tuple ``cy``: (cyl_node, phase, coef, extra, the library's kernels)."""
+        return (self.cyl_node, self.phase, self.coef, self.extra, self.library.kernels)
+
+    @property
+    def nq_cyl(self) -> int:
+        """Integrated powers per cylinder (gas, one per loss term, extra friction)."""
+        return nq_cyl(len(self.library))
 
     @property
     def n(self) -> int:
@@ -46,8 +60,13 @@ class PlantModel:
 
 
 def build_plant(spec: EngineSpec, *, flexible: bool, variable: bool, coef: np.ndarray, phase: np.ndarray,
-                extra: np.ndarray) -> PlantModel:
+                extra: np.ndarray, library: TermLibrary | None = None) -> PlantModel:
+    """The plant of ``spec``; coef (z, L) the coefficients of the terms of ``library`` (default: the six
+    Rezeka-Henein terms, core.model.terms.rezeka_henein)."""
     z = spec.n_cyl
+    lib = rezeka_henein(spec.friction.coefficients) if library is None else library
+    if np.shape(coef) != (z, len(lib)):
+        raise ValueError(f"coef must be (z, L) = ({z}, {len(lib)}) for the library's terms, got {np.shape(coef)}")
     if flexible:
         inertia = spec.node_inertia.astype(np.float64).copy()
         stiff, damp = spec.stiffness.astype(np.float64).copy(), spec.damping.astype(np.float64).copy()
@@ -67,7 +86,7 @@ def build_plant(spec: EngineSpec, *, flexible: bool, variable: bool, coef: np.nd
         inertia = inertia + rec_mean
     return PlantModel(inertia, stiff, damp, cyl_node, np.asarray(phase, dtype=np.float64).copy(),
                       np.ascontiguousarray(coef, dtype=np.float64), np.ascontiguousarray(extra, dtype=np.float64),
-                      int(fly), int(load), bool(variable), rec_mean)
+                      int(fly), int(load), bool(variable), rec_mean, lib)
 
 
 def scalars(spec: EngineSpec, plant: PlantModel) -> np.ndarray:
@@ -119,12 +138,12 @@ def linearised_stiffness(spec: EngineSpec, plant: PlantModel, tmodel: CylinderMo
     sc[S_VARJ] = 0.0
     inertia = plant.mean_inertia.copy()
     nd = (inertia, plant.stiff, plant.damp, np.zeros(n), np.zeros(n), np.zeros(n))
-    cy = (plant.cyl_node, plant.phase, np.zeros((z, 6)), np.zeros((z, 4)))
+    cy = (plant.cyl_node, plant.phase, np.zeros_like(plant.coef), np.zeros((z, 4)), plant.library.kernels)
     traces = np.full((z, 3, tmodel.theta.shape[0]), P_CRANKCASE)
     slots = np.array([[0, 1, -1]] * z, dtype=np.int64)  # slot c % 3 holds cycle c = -1, 0, 1, all at crankcase pressure
-    w = tuple(np.zeros(z) for _ in range(7)) + (np.zeros((6, z)),)
+    w = work_arrays(z, len(plant.library))
     acc = np.zeros(n)
-    pw = np.zeros(z * NQ_CYL + NQ_GLOBAL)
+    pw = np.zeros(z * plant.nq_cyl + NQ_GLOBAL)
     law = load_law.copy()
     law[6] = 0.0  # no damping
     jac = np.zeros((n, n))
