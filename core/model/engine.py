@@ -168,7 +168,7 @@ class EngineSpec:
         return np.array([self.crank_radius, self.conrod, self.pin_offset], dtype=np.float64)
 
     def friction_params(self) -> np.ndarray:
-        """Constant parameters of the six Rezeka-Henein basis terms, in the order core.model.friction expects."""
+        """Constant parameters of the six Rezeka-Henein basis terms, in the order core.model.terms names them (CONSTS)."""
         f = self.friction
         return np.array(
             [
