@@ -23,14 +23,15 @@ import numba
 import numpy as np
 import rocket_fft  # noqa: F401  (registers numpy.fft for numba; must be imported before a cached kernel loads)
 
+from frictionwatch.core.model.chain import static_twist_kernel
 from frictionwatch.core.model.dynamics import dissipation_kernel
 from frictionwatch.core.monitor.harmonic_balance_kernels import motion_frequencies
 
 
 class ChainRecord(NamedTuple):
-    """The torsional chain at one operating point (core.model.dynamics.ShaftModel, Receptance)."""
+    """The drive train at one operating point (core.model.chain, core.model.dynamics.ShaftModel, Receptance)."""
 
-    compliance: np.ndarray  # (N, N) pseudo-inverse of the stiffness [rad/(N m)] (static twist)
+    sections: np.ndarray  # (N-1,) section stiffness [N m/rad] (static twist, core.model.chain)
     flywheel: int  # node the encoder measures
     inverse: np.ndarray  # (M, N, N) complex Z_m^-1
     freq: np.ndarray  # (M,) w_m [rad/s] of the receptance
@@ -138,25 +139,16 @@ def _mixed_rows_and_means(grid, basis, mix, node, omega_mean, rows, basis_mean, 
 
 @numba.njit(cache=True)
 def _static_twist(chain, mix, node, theta, basis_mean, indicated_mean, static):
-    """Mean angle of every node minus the flywheel under the mean node torques (core.model.dynamics.static_twist:
-    the last node, the load, takes what is left)."""
-    n_nodes = static.shape[0]
+    """Mean angle of every node minus the flywheel under the mean node torques at theta (the drive train's
+    static_twist_kernel)."""
     z, n_terms = basis_mean.shape
-    t = np.zeros(n_nodes)
+    t = np.zeros(static.shape[0])
     for k in range(z):
         s = 0.0
         for t_l in range(n_terms):
             s += (mix.weight[k, t_l] * theta[mix.group[k, t_l]]) * basis_mean[k, t_l]
         t[node[k]] += indicated_mean[k] - s
-    t[n_nodes - 1] -= np.sum(t)
-    for q in range(n_nodes):
-        acc = 0.0
-        for j in range(n_nodes):
-            acc += chain.compliance[q, j] * t[j]
-        static[q] = acc
-    s_fly = static[chain.flywheel]
-    for q in range(n_nodes):
-        static[q] -= s_fly
+    static_twist_kernel(t, chain.sections, chain.flywheel, static)
 
 
 @numba.njit(cache=True)

@@ -59,7 +59,7 @@ def operating_point(spec: EngineSpec, op: OperatingPoint | None, omega: float, l
     shaft = shaft_model(spec, load if load_ok else 0.0, omega)
     rec = receptance(shaft, omega, m)
     transfer = np.ascontiguousarray(rec.speed_transfer(shaft.flywheel), dtype=np.complex128)
-    chain = ChainRecord(np.ascontiguousarray(shaft.compliance, dtype=np.float64), int(shaft.flywheel),
+    chain = ChainRecord(np.ascontiguousarray(shaft.train.stiffness, dtype=np.float64), int(shaft.flywheel),
                         np.ascontiguousarray(rec.inverse, dtype=np.complex128),
                         np.ascontiguousarray(rec.freq, dtype=np.float64), transfer,
                         np.ascontiguousarray(shaft.edges, dtype=np.int64).reshape(-1, 2),
