@@ -23,7 +23,8 @@ Every term reads the same sample rows (``FIELDS``), so one set of kinematics ser
 and the engine's constants ``EngineSpec.friction_params()`` (``CONSTS`` names them). A kernel evaluates every
 cylinder at once: ``kernel(samples (N_FIELDS, z, n), consts (N_CONSTS,), out (z, n))`` writes F_l of cylinder k at
 sample i into out[k, i] (the monitor passes a cycle's time grid, n = 256..512; the plant one instant, n = 1).
-``fill_sample`` is the one numba routine that forms a sample (kinematics from the angle's sin and cos).
+``fill_sample`` is the one numba routine that forms a sample (kinematics from the angle's sin and cos), into the
+row views ``sample_rows`` gives.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ OMEGA_FLOOR = 1e-3  # rad/s: the terms with 1/sqrt(omega) stay finite on a stopp
 # every term kernel has this one signature, compiled eagerly: then a tuple of them is a tuple of first-class
 # functions of one type, which the plant's cached RK4 kernel iterates (core.plant.plant) whatever the library holds
 KERNEL_SIGNATURE = numba.types.void(numba.types.float64[:, :, ::1], numba.types.float64[::1],
-                                    numba.types.float64[:, :])
+                                    numba.types.float64[:, ::1])
 
 
 def loss_kernel(func: Callable) -> Callable:
@@ -125,17 +126,17 @@ class TermLibrary:
             raise KeyError(f"no loss term {name!r}; the library has {', '.join(self.names)}") from None
 
     def evaluate_into(self, samples: np.ndarray, consts: np.ndarray, out: np.ndarray) -> None:
-        """out[:, l] = F_l (z, n) for samples (N_FIELDS, z, n) C-contiguous float64, consts (N_CONSTS,), out
-        (z, len, n): each term's kernel, no checks (the monitor's per-pass call; ``evaluate`` is the checked form)."""
+        """out[l] = F_l (z, n) for samples (N_FIELDS, z, n), consts (N_CONSTS,), out (len, z, n), all C-contiguous
+        float64: each term's kernel, no checks (the monitor's per-pass call; ``evaluate`` is the checked form)."""
         for i, term in enumerate(self.terms):
-            term.kernel(samples, consts, out[:, i])
+            term.kernel(samples, consts, out[i])
 
     def evaluate(self, samples: np.ndarray, consts: np.ndarray) -> np.ndarray:
         """Basis F (len, n) of one cylinder from samples (N_FIELDS, n), or (z, len, n) from (N_FIELDS, z, n)."""
         s, c = _checked(samples, consts)
-        out = np.empty((s.shape[1], len(self.terms), s.shape[2]))
+        out = np.empty((len(self.terms), s.shape[1], s.shape[2]))
         self.evaluate_into(s, c, out)
-        return out[0] if np.ndim(samples) == 2 else out
+        return out[:, 0] if np.ndim(samples) == 2 else out.transpose(1, 0, 2)
 
     def evaluate_reference(self, samples: np.ndarray, consts: np.ndarray) -> np.ndarray:
         """The same basis from each term's plain-numpy reference."""
@@ -166,31 +167,39 @@ def _checked(samples: np.ndarray, consts: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 @numba.njit(cache=True, inline="always")
-def fill_sample(out, k, i, angle, sin_a, cos_a, omega, p_gauge, r, inv_rod, e):
-    """Sample i of cylinder k into out (N_FIELDS, z, n): the wrapped angle, its sin and cos (given: the monitor
-    rotates them from the flywheel's), x' and x'' of the slider crank (physics.md §1; core.model.kinematics with the
-    divisions by L and cos(beta) as products), the floored speed and the clipped gauge pressure. Returns (x', x'')
-    for the gas and reciprocating torques."""
+def fill_sample(rows, i, angle, sin_a, cos_a, omega, p_gauge, r, inv_rod, e):
+    """Sample i into ``rows``, the N_FIELDS row views (n,) of one cylinder (``sample_rows``): the wrapped angle, its
+    sin and cos (given: the monitor rotates them from the flywheel's), x' and x'' of the slider crank (physics.md
+    §1; core.model.kinematics with the divisions by L and cos(beta) as products), the floored speed and the clipped
+    gauge pressure. Returns (x', x'') for the gas and reciprocating torques."""
     sb = (r * sin_a - e) * inv_rod
     cb = np.sqrt(1.0 - sb * sb)
     icb = 1.0 / cb
     tb = sb * icb
     dx = r * sin_a + r * cos_a * tb
     ddx = r * cos_a - r * sin_a * tb + r * r * cos_a * cos_a * inv_rod * (icb * icb * icb)
-    out[ANGLE, k, i] = angle - FOUR_PI * np.floor(angle * (1.0 / FOUR_PI))
-    out[SIN, k, i] = sin_a
-    out[COS, k, i] = cos_a
-    out[DX, k, i] = dx
-    out[DDX, k, i] = ddx
-    out[OMEGA, k, i] = max(omega, OMEGA_FLOOR)
-    out[P_GAUGE, k, i] = max(p_gauge, 0.0)
+    rows[ANGLE][i] = angle - FOUR_PI * np.floor(angle * (1.0 / FOUR_PI))
+    rows[SIN][i] = sin_a
+    rows[COS][i] = cos_a
+    rows[DX][i] = dx
+    rows[DDX][i] = ddx
+    rows[OMEGA][i] = max(omega, OMEGA_FLOOR)
+    rows[P_GAUGE][i] = max(p_gauge, 0.0)
     return dx, ddx
+
+
+@numba.njit(cache=True, inline="always")
+def sample_rows(samples, k):
+    """The N_FIELDS row views (n,) of cylinder k in samples (N_FIELDS, z, n), for ``fill_sample``."""
+    return (samples[ANGLE, k], samples[SIN, k], samples[COS, k], samples[DX, k], samples[DDX, k], samples[OMEGA, k],
+            samples[P_GAUGE, k])
 
 
 @numba.njit(cache=True)
 def _cylinder_samples(angle, omega, p_gauge, r, inv_rod, e, out):
+    rows = sample_rows(out, 0)
     for i in range(angle.shape[0]):
-        fill_sample(out, 0, i, angle[i], np.sin(angle[i]), np.cos(angle[i]), omega[i], p_gauge[i], r, inv_rod, e)
+        fill_sample(rows, i, angle[i], np.sin(angle[i]), np.cos(angle[i]), omega[i], p_gauge[i], r, inv_rod, e)
 
 
 def cylinder_samples(local_angle: np.ndarray, omega: np.ndarray | float, p_gauge: np.ndarray | float,

@@ -1,7 +1,7 @@
 """The second half of a harmonic-balance pass (core.monitor.harmonic_balance): friction rows, FFT, chain, equations.
 
 ``pass_rows`` (one numba kernel) takes the pass's time-grid rows (core.monitor.harmonic_balance_kernels.PassGrid) and
-the basis F_kl(t) the term library wrote (z, L, n), and forms
+the basis F_kl(t) the term library wrote (L, z, n), and forms
 
 1. the *mixed* rows G_pq(t) = sum_{(k,l) in group p, node(k) = q} a0_kl F_kl(t): the balance only needs the
    harmonics of those (linearity of the FFT), so one forward FFT covers n_mix + N rows instead of N + L z
@@ -26,6 +26,8 @@ import rocket_fft  # noqa: F401  (registers numpy.fft for numba; must be importe
 from frictionwatch.core.model.chain import static_twist_kernel
 from frictionwatch.core.model.dynamics import dissipation_kernel
 from frictionwatch.core.monitor.harmonic_balance_kernels import motion_frequencies
+
+_FAST = {"reassoc", "nsz"}  # the sums over samples may be vectorised (reordered; no signed zeros)
 
 
 class ChainRecord(NamedTuple):
@@ -101,10 +103,10 @@ def mix_plan(group: np.ndarray, prior: np.ndarray, cyl_node: np.ndarray, n_param
                    np.ascontiguousarray(cyl_node, dtype=np.int64))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath=_FAST)
 def _mixed_rows_and_means(grid, basis, mix, node, omega_mean, rows, basis_mean, indicated_mean):
     """rows[:n_mix] = G, rows[n_mix:] = known node torques; the work means of the basis and gas rows."""
-    z, n_terms, n = basis.shape
+    n_terms, z, n = basis.shape
     n_mix = mix.param.shape[0]
     for g in range(n_mix):
         for i in range(n):
@@ -119,7 +121,7 @@ def _mixed_rows_and_means(grid, basis, mix, node, omega_mean, rows, basis_mean, 
         for i in range(n):
             w_over[i] = w_node[i] / omega_mean
         for t_l in range(n_terms):
-            src = basis[k, t_l]
+            src = basis[t_l, k]
             g = mix.row[k, t_l]
             if g >= 0:
                 wt = mix.weight[k, t_l]
@@ -155,12 +157,12 @@ def _static_twist(chain, mix, node, theta, basis_mean, indicated_mean, static):
 def pass_rows(cyc, grid, basis, mix, chain, unknowns):
     """Friction rows, FFT, chain response and speed equations of one pass (module docstring) as a ``PassRows``.
 
-    cyc: CycleMotion; grid: PassGrid (core.monitor.harmonic_balance_kernels.pass_samples); basis (z, L, n) the
+    cyc: CycleMotion; grid: PassGrid (core.monitor.harmonic_balance_kernels.pass_samples); basis (L, z, n) the
     library's F_kl on the grid; mix: MixPlan; chain: ChainRecord; unknowns: Unknowns."""
     theta = unknowns.theta
     n_params = theta.shape[0]
     n_nuis = unknowns.n_nuisance
-    z, n_terms, n = basis.shape
+    n_terms, z, n = basis.shape
     n_nodes = grid.known.shape[0]
     m = cyc.harmonics.shape[0]
     n_mix = mix.param.shape[0]

@@ -113,7 +113,7 @@ def harmonic_balance(op: OperatingPoint, theta: np.ndarray, n_nuisance: int, rel
     grid = _contiguous(grid, np.float64)
     pressure = _contiguous(pressure, np.float64)
     z = cyl.node.shape[0]
-    basis = np.empty((z, len(library), int(time_samples)))
+    basis = np.empty((len(library), z, int(time_samples)))  # term-major: each term's kernel fills one block
     for _ in range(n_pass):
         on_grid = pass_samples(cyc, cyl, rel_in, static_in, grid, pressure)
         library.evaluate_into(on_grid.samples, cyl.friction, basis)
@@ -121,7 +121,7 @@ def harmonic_balance(op: OperatingPoint, theta: np.ndarray, n_nuisance: int, rel
         if twist:
             rel_in, static_in = out.relative_motion, out.static
     exc = _make_excitation(tau=on_grid.tau, theta_fly=on_grid.theta_fly, omega_node=on_grid.motion[1],
-                           gas=on_grid.gas, known_harm=out.known_harm, basis=basis, basis_mean=out.basis_mean,
+                           gas=on_grid.gas, known_harm=out.known_harm, basis=basis.transpose(1, 0, 2), basis_mean=out.basis_mean,
                            indicated_mean=out.indicated_mean, omega_fly=on_grid.omega_fly,
                            alpha_fly=on_grid.alpha_fly)
     rows = _make_rows(design=out.design, target=out.target, mean_row=out.mean_row, mean_target=float("nan"),

@@ -25,7 +25,7 @@ import numba
 import numpy as np
 import rocket_fft  # noqa: F401  (registers numpy.fft for numba; must be imported before a cached kernel loads)
 
-from frictionwatch.core.model.terms import N_FIELDS, fill_sample
+from frictionwatch.core.model.terms import N_FIELDS, fill_sample, sample_rows
 
 FOUR_PI = 4.0 * np.pi
 _FAST = {"reassoc", "nsz"}  # the loops over samples may be vectorised (reordered sums; no signed zeros)
@@ -260,12 +260,13 @@ def _cylinder_rows(cyl, motion, theta_f, grid, pressure, samples, gas, known):
                 continue
             ph, c_ph, s_ph = cyl.phase[k], cyl.cos_phase[k], cyl.sin_phase[k]
             pk = pressure[k]
+            rows = sample_rows(samples, k)
             for i in range(n):
                 y0 = pk[jlo[i]]
                 pg = (y0 + (pk[jhi[i]] - y0) * frac[i]) - cyl.p_crankcase
                 st = s_q[i] * c_ph - c_q[i] * s_ph  # sin, cos of the local angle ang - phi_k
                 ct = c_q[i] * c_ph + s_q[i] * s_ph
-                dx, ddx = fill_sample(samples, k, i, ang[i] - ph, st, ct, w_node[i], pg, r, inv_rod, e)
+                dx, ddx = fill_sample(rows, i, ang[i] - ph, st, ct, w_node[i], pg, r, inv_rod, e)
                 t_gas = pg * cyl.area * dx
                 gas[k, i] = t_gas
                 row[i] += t_gas

@@ -31,7 +31,7 @@ import math
 import numba
 import numpy as np
 
-from frictionwatch.core.model.terms import N_FIELDS, fill_sample
+from frictionwatch.core.model.terms import N_FIELDS, fill_sample, sample_rows
 from frictionwatch.core.model.thermo import _STEP, _cycle_pressure
 
 NQ_GLOBAL = 4
@@ -119,8 +119,8 @@ def _cylinder_terms(th, om, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep
         omc[k] = om[j]
         pres[k] = _trace_lookup(traces, slot_cycle, k, loc[k], tstep)
         pg[k] = pres[k] - sc[S_PCC]
-        dx[k], ddx[k] = fill_sample(samples, k, 0, loc[k], np.sin(loc[k]), np.cos(loc[k]), omc[k], pg[k], r, inv_rod,
-                                    e)
+        dx[k], ddx[k] = fill_sample(sample_rows(samples, k), 0, loc[k], np.sin(loc[k]), np.cos(loc[k]), omc[k], pg[k],
+                                    r, inv_rod, e)
     for m in range(len(kernels)):
         kernels[m](samples, fprm, fb[m])
 
