@@ -22,7 +22,6 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 import scipy.linalg
-
 from frictionwatch.core.model.chain import DriveTrain, drive_train, mean_reciprocating_inertia
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.kinematics import variable_inertia

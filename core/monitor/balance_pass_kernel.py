@@ -22,7 +22,6 @@ from typing import NamedTuple
 import numba
 import numpy as np
 import rocket_fft  # noqa: F401  (registers numpy.fft for numba; must be imported before a cached kernel loads)
-
 from frictionwatch.core.model.chain import static_twist_kernel
 from frictionwatch.core.model.dynamics import dissipation_kernel
 from frictionwatch.core.monitor.harmonic_balance_kernels import motion_frequencies

@@ -23,10 +23,9 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.harmonic_balance_kernels import CylinderRecord
 from frictionwatch.core.monitor.flywheel import harmonics_of
+from frictionwatch.core.monitor.harmonic_balance_kernels import CylinderRecord
 
 CRANKCASE_PA = 1.0e5
 

@@ -19,7 +19,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
 from frictionwatch.core.model.dynamics import Receptance, ShaftModel, receptance, shaft_model
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.balance_pass_kernel import ChainRecord, MixPlan, PassRows, Unknowns, mix_plan, pass_rows

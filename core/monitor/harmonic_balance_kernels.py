@@ -24,7 +24,6 @@ from typing import NamedTuple
 import numba
 import numpy as np
 import rocket_fft  # noqa: F401  (registers numpy.fft for numba; must be imported before a cached kernel loads)
-
 from frictionwatch.core.model.terms import N_FIELDS, fill_sample, sample_rows
 
 FOUR_PI = 4.0 * np.pi

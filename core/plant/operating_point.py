@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.terms import TermLibrary, cylinder_samples, rezeka_henein
 from frictionwatch.core.model.thermo import P_CRANKCASE, CylinderModel, cycle_params, cylinder_pressure, indicated_work

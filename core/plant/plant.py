@@ -30,7 +30,6 @@ import math
 
 import numba
 import numpy as np
-
 from frictionwatch.core.model.terms import N_FIELDS, fill_sample, sample_rows
 from frictionwatch.core.model.thermo import _STEP, _cycle_pressure
 

@@ -9,13 +9,26 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from frictionwatch.core.model.chain import DriveTrain, drive_train
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.terms import TermLibrary, rezeka_henein
 from frictionwatch.core.model.thermo import P_CRANKCASE, CylinderModel
-from frictionwatch.core.plant.plant import (NQ_GLOBAL, S_AREA, S_E, S_FLY, S_GRID, S_LOAD, S_MREC, S_NSC, S_PCC, S_R,
-                                            S_VARJ, _rhs, nq_cyl, work_arrays)
+from frictionwatch.core.plant.plant import (
+    NQ_GLOBAL,
+    S_AREA,
+    S_E,
+    S_FLY,
+    S_GRID,
+    S_LOAD,
+    S_MREC,
+    S_NSC,
+    S_PCC,
+    S_R,
+    S_VARJ,
+    _rhs,
+    nq_cyl,
+    work_arrays,
+)
 
 
 @dataclass(frozen=True)

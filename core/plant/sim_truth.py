@@ -6,7 +6,6 @@ Every mean torque is cycle work / 4 pi [N m]; cycle n spans the true flywheel an
 from __future__ import annotations
 
 import numpy as np
-
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.plant.plant import FOUR_PI
 from frictionwatch.core.plant.plant_setup import PlantModel

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from frictionwatch.core.monitor.excitation_kernels import interp_rows_periodic
 
 

@@ -17,8 +17,6 @@ Also: a library with a new loss term gives the balance's design a new column wit
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.model.dynamics import dissipated_power, static_twist
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.terms import cylinder_samples_reference, rezeka_henein
@@ -28,6 +26,8 @@ from frictionwatch.core.monitor.flywheel import FlywheelMotion, harmonic_series,
 from frictionwatch.core.monitor.harmonic_balance import harmonic_balance, operating_point
 from frictionwatch.core.monitor.identify import friction_design, parameter_layout
 from frictionwatch.core.monitor.monitor import default_max_order
+from numpy.testing import assert_allclose
+
 from tests.core.test_terms import AUX_QUADRATIC
 
 RTOL = 1e-9

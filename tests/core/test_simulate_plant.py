@@ -2,22 +2,21 @@
 kernels, the plant's linearisation against scipy's generalised eigenvalues and engines.md's CHK frequencies, and the
 integrator's step convergence."""
 
+import frictionwatch.core.plant.simulate as simulate_mod
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-from scipy.linalg import eigh
-
-import frictionwatch.core.plant.simulate as simulate_mod
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.model.terms import cylinder_samples_reference, rezeka_henein
 from frictionwatch.core.model.kinematics import variable_inertia
+from frictionwatch.core.model.terms import cylinder_samples_reference, rezeka_henein
+from frictionwatch.core.model.thermo import cylinder_model
+from frictionwatch.core.model.torques import gas_torque
 from frictionwatch.core.plant.plant import NQ_GLOBAL, _crossing, _herm, _rhs, work_arrays
 from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, linearised_stiffness, scalars
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.core.model.thermo import cylinder_model
-from frictionwatch.core.model.torques import gas_torque
-from tests.core.test_terms import AUX_QUADRATIC
+from numpy.testing import assert_allclose
+from scipy.linalg import eigh
 
+from tests.core.test_terms import AUX_QUADRATIC
 
 
 def make(spec, rng, variable=True, library=None):
