@@ -17,21 +17,20 @@ rigid engine: Z_m = -w_m^2 J + i w_m c_load.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numba
 import numpy as np
 import scipy.linalg
-
+from frictionwatch.core.model.chain import DriveTrain, drive_train, mean_reciprocating_inertia
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.model.kinematics import kinematics, variable_inertia
-from frictionwatch.core.model.pairwise import pairwise_sum
+from frictionwatch.core.model.kinematics import variable_inertia
 
 
 @dataclass(frozen=True)
 class ShaftModel:
-    """Constant matrices of the torsional chain (SI).
+    """The drive train (core.model.chain) at one operating point: constant matrices of the chain with its ground
+    terms (SI).
 
     mass           (N,) kg m^2: rotating inertia + mean reciprocating inertia of the node's cylinders
     stiffness      (N, N) N m/rad incl. ground stiffness at the load node
@@ -42,7 +41,7 @@ class ShaftModel:
     flywheel       index of the node whose speed the encoder measures
     cylinder_node  (z,) int node carrying each cylinder
     recip_inertia_mean  mean reciprocating inertia of one cylinder, m_rec <x'^2> [kg m^2]
-    compliance     (N, N) pseudo-inverse of ``stiffness`` [rad/(N m)]
+    train          the drive train itself (static twist: ``DriveTrain.static_twist``)
     """
 
     mass: np.ndarray
@@ -54,22 +53,15 @@ class ShaftModel:
     flywheel: int
     cylinder_node: np.ndarray
     recip_inertia_mean: float
-    compliance: np.ndarray  # (N, N) pseudo-inverse of the stiffness matrix (static twist)
+    train: DriveTrain
 
     @property
     def n_nodes(self) -> int:
         return int(self.mass.shape[0])
 
 
-def mean_reciprocating_inertia(spec: EngineSpec, samples: int = 2880) -> float:
-    """Cycle mean m_rec <x'(theta)^2> of one cylinder [kg m^2] (physics.md §3: m R^2 (1/2 + lambda^2/8 + ...))."""
-    th = np.linspace(0.0, 4.0 * np.pi, samples, endpoint=False)
-    _, dx, _ = kinematics(th, spec.kinematics_params())
-    return float(spec.reciprocating_mass * np.mean(dx * dx))
-
-
 def shaft_model(spec: EngineSpec, load_torque: float = 0.0, omega_mean: float = 1.0) -> ShaftModel:
-    """Build the chain of ``spec`` at an operating point.
+    """The chain of ``spec`` (core.model.chain.drive_train) at an operating point.
 
     Parameters
     ----------
@@ -79,33 +71,20 @@ def shaft_model(spec: EngineSpec, load_torque: float = 0.0, omega_mean: float = 
     """
     if omega_mean <= 0:
         raise ValueError(f"omega_mean must be > 0 rad/s, got {omega_mean}")
-    n = spec.n_nodes
-    j_rec = mean_reciprocating_inertia(spec)
-    mass = spec.node_inertia.astype(np.float64).copy()
-    np.add.at(mass, spec.cylinder_node, j_rec)
-    stiff = spec.stiffness_matrix()
-    damp = spec.damping_matrix()
-    ground = np.zeros(n)
+    train = drive_train(spec)
+    ground = np.zeros(train.n_nodes)
+    grid_k = 0.0
     ld = spec.load
     if ld.kind == "grid":
-        stiff[spec.load_node, spec.load_node] += ld.grid_stiffness_nm_per_rad
-        ground[spec.load_node] += ld.grid_damping_nms_per_rad
+        grid_k = ld.grid_stiffness_nm_per_rad
+        ground[train.load] += ld.grid_damping_nms_per_rad
     elif np.isfinite(load_torque) and load_torque > 0:
-        ground[spec.load_node] += ld.exponent * load_torque / omega_mean
-    damp[np.diag_indices(n)] += ground
-    edges = np.array([(i, i + 1) for i in range(n - 1)], dtype=np.int64).reshape(-1, 2)
-    return ShaftModel(
-        mass=mass,
-        stiffness=stiff,
-        damping=damp,
-        edges=edges,
-        edge_damping=spec.damping.astype(np.float64).copy(),
-        ground_damping=ground,
-        flywheel=spec.flywheel_node,
-        cylinder_node=spec.cylinder_node.copy(),
-        recip_inertia_mean=j_rec,
-        compliance=np.linalg.pinv(stiff, rcond=1e-12, hermitian=True),
-    )
+        ground[train.load] += ld.exponent * load_torque / omega_mean
+    _, stiff, damp = train.matrices(grid_k, ground)
+    return ShaftModel(mass=train.mass, stiffness=stiff, damping=damp, edges=train.edges,
+                      edge_damping=train.damping.copy(), ground_damping=ground, flywheel=train.flywheel,
+                      cylinder_node=train.cylinder_node.copy(), recip_inertia_mean=mean_reciprocating_inertia(spec),
+                      train=train)
 
 
 def natural_frequencies(shaft: ShaftModel) -> np.ndarray:
@@ -171,7 +150,7 @@ def dissipated_power(shaft: ShaftModel, speed: np.ndarray) -> tuple[float, float
     """Mean power [W] dissipated by the relative dampers (torsional damper, shaft, coupling) and by the ground
     dampers (load node), from node speed harmonics (N, M) (physics.md §12.4: the cycle mean of omega^T C omega).
 
-    One small kernel (``_dissipation``); the plain-numpy reference is in tests/core/test_dissipation_kernel.py."""
+    One small kernel (``dissipation_kernel``); the plain-numpy reference is in tests/core/test_dissipation_kernel.py."""
     s = speed
     if not (type(s) is np.ndarray and s.dtype == np.complex128 and s.flags.c_contiguous):
         s = np.ascontiguousarray(s, dtype=np.complex128)
@@ -184,46 +163,35 @@ def dissipated_power(shaft: ShaftModel, speed: np.ndarray) -> tuple[float, float
         edges = np.ascontiguousarray(edges, dtype=np.int64).reshape(-1, 2)
         c_edge = np.ascontiguousarray(c_edge, dtype=np.float64)
         c_ground = np.ascontiguousarray(c_ground, dtype=np.float64)
-    out = _dissipation(s, edges, c_edge, c_ground)
-    return out[0], out[1]
+    return dissipation_kernel(s, edges, c_edge, c_ground)
 
 
 @numba.njit(cache=True)
-def _dissipation(speed, edges, edge_damping, ground_damping):
-    """(relative, ground) mean dissipated power: 0.5 sum c_e |s_i - s_j|^2 and 0.5 sum c_g |s|^2, each sum over
-    the (rows, M) products in numpy's pairwise order (np.sum of a contiguous array)."""
+def dissipation_kernel(speed, edges, edge_damping, ground_damping):
+    """(relative, ground) mean dissipated power [W]: 0.5 sum_e c_e |s_i - s_j|^2 and 0.5 sum_q c_q |s_q|^2 over
+    the node speed harmonics ``speed`` (N, M) (the mean of a product of harmonics is half the real inner product)."""
     n, m = speed.shape
-    n_e = edges.shape[0]
-    buf = np.empty(max(n_e, n) * m)
     rel = 0.0
-    if n_e:
-        for q in range(n_e):
-            a = edges[q, 0]
-            b = edges[q, 1]
-            c = edge_damping[q]
-            for i in range(m):
-                d = speed[a, i] - speed[b, i]
-                v = math.hypot(d.real, d.imag)
-                buf[q * m + i] = c * (v * v)
-        rel = 0.5 * pairwise_sum(buf, 0, n_e * m)
+    for q in range(edges.shape[0]):
+        a = edges[q, 0]
+        b = edges[q, 1]
+        c = edge_damping[q]
+        for i in range(m):
+            d = speed[a, i] - speed[b, i]
+            rel += c * (d.real * d.real + d.imag * d.imag)
+    gnd = 0.0
     for q in range(n):
         c = ground_damping[q]
         for i in range(m):
-            v = math.hypot(speed[q, i].real, speed[q, i].imag)
-            buf[q * m + i] = c * (v * v)
-    gnd = 0.5 * pairwise_sum(buf, 0, n * m)
-    return rel, gnd
+            v = speed[q, i]
+            gnd += c * (v.real * v.real + v.imag * v.imag)
+    return 0.5 * rel, 0.5 * gnd
 
 
 def static_twist(shaft: ShaftModel, node_torque: np.ndarray) -> np.ndarray:
-    """Mean angle of every node minus the flywheel [rad] under mean node torques (N,) [N m] (harmonic m = 0).
-
-    The torques are balanced first (the last node, the load, takes what is left, as in steady state), so a
-    free-free chain has a solution; a node joined only by a viscous damper (K = 0) gets no static offset."""
-    t = np.asarray(node_torque, dtype=np.float64).copy()
-    t[-1] -= t.sum()  # the last node is the load (presets list the shaft front to rear)
-    phi = shaft.compliance @ t
-    return phi - phi[shaft.flywheel]
+    """Mean angle of every node minus the flywheel [rad] under mean node torques (N,) [N m] (harmonic m = 0):
+    the drive train's (core.model.chain.DriveTrain.static_twist)."""
+    return shaft.train.static_twist(node_torque)
 
 
 # ---- rigid balance ------------------------------------------------------------------------------------------

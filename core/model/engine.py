@@ -168,7 +168,7 @@ class EngineSpec:
         return np.array([self.crank_radius, self.conrod, self.pin_offset], dtype=np.float64)
 
     def friction_params(self) -> np.ndarray:
-        """Constant parameters of the six Rezeka-Henein basis terms, in the order core.model.friction expects."""
+        """Constant parameters of the six Rezeka-Henein basis terms, in the order core.model.terms names them (CONSTS)."""
         f = self.friction
         return np.array(
             [
@@ -189,22 +189,6 @@ class EngineSpec:
             ],
             dtype=np.float64,
         )
-
-    def stiffness_matrix(self) -> np.ndarray:
-        return _chain_matrix(self.stiffness, self.n_nodes)
-
-    def damping_matrix(self) -> np.ndarray:
-        return _chain_matrix(self.damping, self.n_nodes)
-
-
-def _chain_matrix(k: np.ndarray, n: int) -> np.ndarray:
-    m = np.zeros((n, n))
-    for i, ki in enumerate(k):
-        m[i, i] += ki
-        m[i + 1, i + 1] += ki
-        m[i, i + 1] -= ki
-        m[i + 1, i] -= ki
-    return m
 
 
 # ---- loading and validation --------------------------------------------------------------------------------

@@ -12,11 +12,9 @@ flywheel motion plus the model's node-minus-flywheel motion of the previous iter
 
 Mean torques are work means, (1/4 pi) * integral of T d(theta_q) = <T omega_q> / Omega, so they close the energy balance.
 
-This module holds what the monitor shares about them: the ``Excitation`` record of one cycle's torques, and
-``ExcitationPlan`` / ``excitation_plan``, the spec's constants computed once. The torques themselves are evaluated
-inside the one-kernel harmonic-balance pass (core.monitor.balance_pass_kernel, with core.monitor.harmonic_balance_kernels._cycle_rows).
-The step-by-step functions it replaced (grid motion, cycle excitation, periodic interpolation) are test references
-now: tests/core/excitation_reference.py.
+This module holds what the monitor shares about them: the ``Excitation`` record of one cycle's torques and
+``cylinder_record``, the engine's constants of the pass kernels (core.monitor.harmonic_balance_kernels), built once.
+The friction basis F_kl is whatever term library the parameter layout carries (core.model.terms).
 """
 
 from __future__ import annotations
@@ -25,10 +23,9 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.excitation_kernels import excitation_consts
 from frictionwatch.core.monitor.flywheel import harmonics_of
+from frictionwatch.core.monitor.harmonic_balance_kernels import CylinderRecord
 
 CRANKCASE_PA = 1.0e5
 
@@ -39,8 +36,8 @@ class Excitation:
 
     tau (n_t,) s; theta_fly (n_t,) rad flywheel angle; omega_node (N, n_t) rad/s
     gas (z, n_t) N m; known_harm (N, M) complex N m: harmonics of the known node torques
-    basis (z, 6, n_t) F_kl; basis_harm (z, 6, M) (computed on first use: the harmonic balance needs only their
-    parameter-weighted sums); basis_mean (z, 6) work means of F_kl
+    basis (z, L, n_t) F_kl of the L library terms; basis_harm (z, L, M) (computed on first use: the harmonic balance
+    needs only their parameter-weighted sums); basis_mean (z, L) work means of F_kl
     indicated_mean (z,) N m work mean of T_g,k (= IMEP_k V_d / 4 pi with the throw's own angle)
     omega_fly, alpha_fly (n_t,) measured flywheel speed [rad/s] and acceleration [rad/s^2] (the fit on the grid)
     """
@@ -61,21 +58,12 @@ class Excitation:
         return harmonics_of(self.basis, self.known_harm.shape[1])
 
 
-@dataclass(frozen=True)
-class ExcitationPlan:
-    """What the excitation of a cycle needs from the spec, computed once (the monitor keeps it in its operating point).
-
-    consts (23 + z,) see core.monitor.excitation_kernels; cyl_node (z,) int64; phases (z,) firing angles [rad]."""
-
-    consts: np.ndarray
-    cyl_node: np.ndarray
-    phases: np.ndarray
-    n_nodes: int
-
-
-def excitation_plan(spec: EngineSpec, recip_inertia_mean: float, variable_inertia: bool = True) -> ExcitationPlan:
-    consts = excitation_consts(spec.kinematics_params(), spec.friction_params(), spec.piston_area, CRANKCASE_PA,
-                               spec.reciprocating_mass, recip_inertia_mean, variable_inertia, 1.0,
-                               spec.firing_angles)
-    return ExcitationPlan(consts, np.ascontiguousarray(spec.cylinder_node, dtype=np.int64),
-                          np.ascontiguousarray(spec.firing_angles, dtype=np.float64), int(spec.n_nodes))
+def cylinder_record(spec: EngineSpec, recip_inertia_mean: float, variable_inertia: bool = True) -> CylinderRecord:
+    """The engine's constants of the pass kernels: node and firing angle of each cylinder, kinematics, piston area,
+    crankcase pressure, reciprocating mass and mean inertia, the loss terms' constants."""
+    r, rod, e = (float(v) for v in spec.kinematics_params())
+    ph = np.ascontiguousarray(spec.firing_angles, dtype=np.float64)
+    return CylinderRecord(int(spec.n_nodes), np.ascontiguousarray(spec.cylinder_node, dtype=np.int64), np.cos(ph),
+                          np.sin(ph), ph, r, 1.0 / rod, e, float(spec.piston_area), CRANKCASE_PA,
+                          float(spec.reciprocating_mass), float(recip_inertia_mean), bool(variable_inertia),
+                          np.ascontiguousarray(spec.friction_params(), dtype=np.float64))

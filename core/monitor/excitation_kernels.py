@@ -1,39 +1,10 @@
-"""Constants of the per-cycle excitation (core.monitor.excitation) and periodic row interpolation.
-
-``excitation_consts`` bundles what the excitation kernel needs from the spec (the slider-crank kinematics, gas
-torque, reciprocating remainder and six friction basis terms of core.model.torques / core.model.friction: paper 000 Eq. 4,
-physics.md §2-§3, §7, §12.3); the kernel that evaluates them is core.monitor.harmonic_balance_kernels._cycle_rows, run
-inside core.monitor.balance_pass_kernel. ``interp_rows_periodic`` (numba ``_interp_rows``) is np.interp for many rows at
-once on one closed period (core.monitor.cycle_report). The earlier fused kernel ``_excitation_rows`` is a test reference now
-(tests/core/excitation_reference.py, tested against core.model.torques / core.model.friction in test_excitation_kernels.py).
-
-Layout of ``consts`` (``excitation_consts``):
-  0-2 kinematics [R, L, e]; 3-16 friction params (EngineSpec.friction_params()); 17 piston area [m^2];
-  18 crankcase pressure [Pa]; 19 reciprocating mass [kg]; 20 mean reciprocating inertia of one cylinder [kg m^2];
-  21 variable inertia (1.0) or not (0.0); 22 mean speed Omega [rad/s] (work means); 23.. firing angles [rad]
-"""
+"""Periodic row interpolation: ``interp_rows_periodic`` (numba ``_interp_rows``) is np.interp for many rows at once
+on one closed period (core.monitor.cycle_report)."""
 
 from __future__ import annotations
 
 import numba
 import numpy as np
-
-FOUR_PI = 4.0 * np.pi
-N_CONSTS = 23
-OMEGA_SLOT = 22
-
-
-def excitation_consts(kin: np.ndarray, fric: np.ndarray, area: float, p_cc: float, m_rec: float,
-                      recip_inertia_mean: float, variable_inertia: bool, omega_mean: float,
-                      phases: np.ndarray) -> np.ndarray:
-    """Bundle the constants of the excitation kernel (``_cycle_rows``; layout in the module docstring)."""
-    ph = np.asarray(phases, dtype=np.float64).ravel()
-    out = np.empty(N_CONSTS + ph.shape[0])
-    out[0:3] = kin
-    out[3:17] = fric
-    out[17:N_CONSTS] = (area, p_cc, m_rec, recip_inertia_mean, 1.0 if variable_inertia else 0.0, omega_mean)
-    out[N_CONSTS:] = ph
-    return out
 
 
 @numba.njit(cache=True)

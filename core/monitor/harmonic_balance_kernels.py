@@ -1,49 +1,181 @@
-"""Numba kernels of one harmonic-balance pass (core.monitor.harmonic_balance, core.monitor.excitation), run inside the one-kernel
-pass core.monitor.balance_pass_kernel._balance_pass (which does the grid motion and the two FFTs itself):
+"""The first half of a harmonic-balance pass (core.monitor.harmonic_balance): the cycle's motion and sample rows.
 
-1. ``_cycle_rows``: from the motion on the time grid, the pressure at the flywheel angle (np.interp's bracket, one
-   walk per cycle, ``_pressure_brackets``), and per (cylinder, sample) the gas torque, reciprocating remainder, six
-   friction basis terms (the formulas of core.model.torques, core.model.friction; paper 000 Eq. 4, physics.md §2-§3, §7, §12.3)
-   and their work means. Besides the known node torques it writes *mixed* rows
-   G_pq(t) = sum_{(k,l) in group p, node(k) = q} a0_kl F_kl(t): the harmonic balance only needs the harmonics of
-   those (linearity of the FFT), so one forward FFT covers ~60 rows instead of N + 6 z.
-2. ``_mix_plan``: which weighted basis terms go into which G row (once per parameter layout).
-3. ``_balance_rows``: from the harmonics, the node torques at the current parameters, the chain response
-   Z_m^-1 T_m, the static twist, the friction design columns -sum_q H_m,q Ghat_pq,m, W0, the cylinder rows.
+``pass_samples`` (one numba kernel) forms, from the measured flywheel harmonics and the previous iterate's
+node-minus-flywheel motion, every node's angle, speed and acceleration on the uniform time grid (one inverse FFT),
+the pressure at the flywheel angle (np.interp's bracket, one walk per cycle), and per cylinder
 
-The grid-motion kernels that ran before the forward FFT (``_grid_spectrum``, ``_motion_from_series``) and the earlier
-fused excitation kernel (``_excitation_rows``) are test references now: tests/core/excitation_reference.py.
+  - the loss-term sample rows of core.model.terms (angle, sin, cos, x', x'', throw speed, gauge pressure), formed
+    once per pass by ``core.model.terms.fill_sample``; the term library's kernels turn them into the basis rows;
+  - the gas torque T_g,k = (p - p_cc) A x' and, summed per node, the known torque
+    K_q = sum_k [T_g,k - (T_a,k - Jrec_mean alpha_q)], T_a,k = m_rec x'(x'' omega^2 + x' alpha) (physics.md §2-§3,
+    §12.3 item 2).
 
-Rounding: the kinematics multiply by 1/L, 1/cos(beta) and 1/(4 pi) where the old kernel divided, the pressure
-interpolation uses (x - x_j)/(x_j+1 - x_j) as one factor, and the friction harmonics are sums of FFTs taken in the
-time domain; every value agrees with the previous implementation to ~1e-14 relative
-(tests/core/test_harmonic_balance_fast.py).
+The pressure sample of cylinder k was taken when the *flywheel* encoder read theta_F(t), so p_k(t) = P_k(theta_F(t)),
+while its kinematics follow its own throw angle (twist; physics.md §12.3 item 3).
+
+Constants come in named records (``CylinderRecord`` per engine, ``CycleMotion`` per cycle); the result is a
+``PassGrid``. The second half (friction rows, FFT, chain) is core.monitor.balance_pass_kernel.
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
-
-from frictionwatch.core.monitor.excitation_kernels import N_CONSTS
+import rocket_fft  # noqa: F401  (registers numpy.fft for numba; must be imported before a cached kernel loads)
+from frictionwatch.core.model.terms import N_FIELDS, fill_sample, sample_rows
 
 FOUR_PI = 4.0 * np.pi
-_FAST = {"reassoc", "nsz"}
+_FAST = {"reassoc", "nsz"}  # the loops over samples may be vectorised (reordered sums; no signed zeros)
 
 
-@numba.njit(cache=True, fastmath=_FAST, error_model="numpy")
+class CylinderRecord(NamedTuple):
+    """What the pass needs of the engine's cylinders (built once per engine; core.monitor.excitation)."""
+
+    n_nodes: int  # N, nodes of the chain
+    node: np.ndarray  # (z,) int64 node carrying cylinder k
+    cos_phase: np.ndarray  # (z,) cos of its firing angle phi_k
+    sin_phase: np.ndarray  # (z,) sin of phi_k
+    phase: np.ndarray  # (z,) phi_k [rad]
+    crank_radius: float  # R [m]
+    inv_rod: float  # 1 / L [1/m]
+    pin_offset: float  # e [m]
+    area: float  # piston area [m^2]
+    p_crankcase: float  # [Pa]
+    m_rec: float  # reciprocating mass [kg]
+    j_rec: float  # mean reciprocating inertia of one cylinder [kg m^2] (it stays in the mass matrix)
+    variable_inertia: bool  # model J(theta) and the mass torque
+    friction: np.ndarray  # (N_CONSTS,) EngineSpec.friction_params(): the loss terms' constants
+
+
+class CycleMotion(NamedTuple):
+    """The measured flywheel motion of one cycle (core.monitor.flywheel.FlywheelMotion) on a time grid."""
+
+    harmonics: np.ndarray  # (M,) complex flywheel angle harmonics
+    omega_mean: float  # 4 pi / period [rad/s]
+    offset: float  # [rad]
+    drift: float  # [rad]
+    period: float  # [s]
+    theta_start: float  # flywheel angle at tau = 0 [rad]
+    n_time: int  # samples per cycle
+
+
+class PassGrid(NamedTuple):
+    """One pass on the time grid (n samples)."""
+
+    tau: np.ndarray  # (n,) s
+    theta_fly: np.ndarray  # (n,) flywheel angle [rad]
+    omega_fly: np.ndarray  # (n,) [rad/s]
+    alpha_fly: np.ndarray  # (n,) [rad/s^2]
+    motion: np.ndarray  # (3, N, n) angle, speed, acceleration of every node (NaN rows where no cylinder needs them)
+    samples: np.ndarray  # (N_FIELDS, z, n) loss-term sample rows (core.model.terms.FIELDS)
+    gas: np.ndarray  # (z, n) gas torque [N m]
+    known: np.ndarray  # (N, n) known node torque [N m]
+
+
+@numba.njit(cache=True)
+def motion_frequencies(omega_mean, m):
+    """w_j = 0.5 Omega (j + 1), j < M: the cycle's harmonic frequencies [rad/s]."""
+    out = np.empty(m)
+    for j in range(m):
+        out[j] = 0.5 * omega_mean * (j + 1)
+    return out
+
+
+@numba.njit(cache=True)
+def _spectrum_rows(cyl_node, n_nodes, n_rel):
+    """Row of each series in the inverse FFT: rows 0-2 the flywheel's angle, speed, acceleration deviation; then,
+    with relative motion (n_rel = N), node q's speed minus the flywheel's (every node) and, for the nodes that carry
+    a cylinder, its angle and acceleration minus the flywheel's. Returns (row_of (3, N), -1 where not needed; rows)."""
+    row_of = np.full((3, n_nodes), -1, dtype=np.int64)
+    n_rows = 3
+    if n_rel == 0:
+        return row_of, n_rows
+    active = np.zeros(n_nodes, dtype=np.bool_)
+    for k in range(cyl_node.shape[0]):
+        active[cyl_node[k]] = True
+    for q in range(n_nodes):
+        row_of[1, q] = n_rows
+        n_rows += 1
+        if active[q]:
+            row_of[0, q] = n_rows
+            row_of[2, q] = n_rows + 1
+            n_rows += 2
+    return row_of, n_rows
+
+
+@numba.njit(cache=True)
+def _motion_spectrum(harm, freq, rel, row_of, half, out):
+    """out (rows, n // 2 + 1) complex, zero: the spectra of ``_spectrum_rows`` (angle, i w angle, -w^2 angle)
+    scaled by half = n / 2 for the inverse rfft."""
+    m = harm.shape[0]
+    n_rel = rel.shape[0]
+    for j in range(m):
+        w = freq[j]
+        w2 = -(w * w)
+        a = harm[j]
+        out[0, j + 1] = a * half
+        out[1, j + 1] = complex(-(w * a.imag) * half, (w * a.real) * half)
+        out[2, j + 1] = complex((w2 * a.real) * half, (w2 * a.imag) * half)
+        for q in range(n_rel):
+            b = rel[q, j]
+            if row_of[0, q] >= 0:
+                out[row_of[0, q], j + 1] = b * half
+            out[row_of[1, q], j + 1] = complex(-(w * b.imag) * half, (w * b.real) * half)
+            if row_of[2, q] >= 0:
+                out[row_of[2, q], j + 1] = complex((w2 * b.real) * half, (w2 * b.imag) * half)
+
+
+@numba.njit(cache=True)
+def _node_motion(series, row_of, n_rel, cyc, static, tau, theta_f, omega_f, alpha_f, motion):
+    """Flywheel motion (fit: mean speed, drift, harmonics) and every node's (flywheel plus relative series, plus
+    the static twist); the angle and acceleration of a node without a cylinder are not formed (NaN)."""
+    n = series.shape[1]
+    n_nodes = motion.shape[1]
+    period = cyc.period
+    drift = cyc.drift
+    dt = period / n
+    a0 = 2.0 * drift / (period * period)
+    for i in range(n):
+        t = i * dt
+        u = t / period
+        tau[i] = t
+        phi = (cyc.offset + drift * u * (u - 1.0)) + series[0, i]
+        omega_f[i] = (cyc.omega_mean + drift * (2.0 * u - 1.0) / period) + series[1, i]
+        alpha_f[i] = a0 + series[2, i]
+        theta_f[i] = (cyc.theta_start + cyc.omega_mean * t) + phi
+    for q in range(n_nodes):
+        for k in range(3):
+            row = row_of[k, q]
+            base = theta_f if k == 0 else (omega_f if k == 1 else alpha_f)
+            if n_rel == 0:
+                for i in range(n):
+                    motion[k, q, i] = base[i]
+            elif row >= 0:
+                for i in range(n):
+                    motion[k, q, i] = base[i] + series[row, i]
+            else:
+                for i in range(n):
+                    motion[k, q, i] = np.nan
+    if static.shape[0] == n_nodes:
+        for q in range(n_nodes):
+            s = static[q]
+            for i in range(n):
+                motion[0, q, i] += s
+
+
+@numba.njit(cache=True, fastmath=_FAST)
 def _pressure_brackets(theta_f, grid, jlo, jhi, frac):
     """np.interp bracket of every flywheel angle on the 4 pi-periodic uniform ``grid`` (n_g,): the angle wrapped
     into [0, 4 pi) from grid[0], knots grid - grid[0] closed by 4 pi; samples between knots jlo and jhi (jhi wraps
     to 0) at fraction frac. One forward walk (the angles increase), a bisection where they do not."""
     n_g = grid.shape[0]
     g0 = grid[0]
-    n = theta_f.shape[0]
     j = 0
-    inv_4pi = 1.0 / FOUR_PI
-    for i in range(n):
+    for i in range(theta_f.shape[0]):
         x = theta_f[i] - g0
-        x -= FOUR_PI * np.floor(x * inv_4pi)  # x mod 4 pi (a libm fmod costs more than the rest of the loop)
+        x -= FOUR_PI * np.floor(x * (1.0 / FOUR_PI))  # x mod 4 pi (a libm fmod costs more than the loop)
         if x < 0.0:
             x += FOUR_PI
         if x >= FOUR_PI or x <= 0.0:  # np.interp: at or beyond the ends, the end values (both are fp[0])
@@ -71,11 +203,11 @@ def _pressure_brackets(theta_f, grid, jlo, jhi, frac):
         frac[i] = (x - x_lo) / (x_hi - x_lo)
 
 
-@numba.njit(cache=True, fastmath=_FAST, error_model="numpy")
+@numba.njit(cache=True, fastmath=_FAST)
 def _sin_cos_twisted(ang, theta_f, s_fly, c_fly, s_out, c_out):
-    """sin, cos of a node's angle from those of the flywheel angle: ``_sin_cos_near``
-    (tests/core/excitation_reference.py) with the series' divisions by constants as products (so that the loop
-    vectorises), then the direct evaluation wherever the twist is 0.05 rad or more."""
+    """sin, cos of a node's angle from those of the flywheel angle: the twist d = ang - theta_f is small, so
+    sin/cos(theta_f + d) by the addition theorem with Taylor series of sin d, cos d (1e-16 below 0.05 rad; the loop
+    vectorises), the direct evaluation wherever the twist is 0.05 rad or more."""
     for i in range(ang.shape[0]):
         d = ang[i] - theta_f[i]
         d2 = d * d
@@ -91,288 +223,84 @@ def _sin_cos_twisted(ang, theta_f, s_fly, c_fly, s_out, c_out):
             c_out[i] = np.cos(ang[i])
 
 
-@numba.njit(cache=True, fastmath=_FAST, error_model="numpy")
-def _cylinder_samples(r, inv_rod, e, area, p_cc, m_rec, k0, mu_eth, k1, c_f2, c_f3, mu, k5, pe, lo_1, hi_1, ph, c_ph, s_ph,
-                      ang, s_q, c_q, w_node, a_node, w_c, rw, p_row, gas_row, b0, b1, b2, b3, b4, b5, sum_gas,
-                      sum_recip):
-    """One cylinder over all samples: gas torque, reciprocating torque (into the node sums) and the six basis
-    rows. Loop body of the earlier ``_excitation_rows`` (tests/core/excitation_reference.py) with the divisions
-    by L and cos(beta) as products."""
-    inv_4pi = 1.0 / FOUR_PI
-    for i in range(ang.shape[0]):
-        st = s_q[i] * c_ph - c_q[i] * s_ph
-        ct = c_q[i] * c_ph + s_q[i] * s_ph
-        sb = (r * st - e) * inv_rod
-        cb = np.sqrt(1.0 - sb * sb)
-        icb = 1.0 / cb
-        tb = sb * icb
-        dx = r * st + r * ct * tb
-        ddx = r * ct - r * st * tb + r * r * ct * ct * inv_rod * (icb * icb * icb)
-        pg = p_row[i] - p_cc
-        gas = pg * area * dx
-        gas_row[i] = gas
-        sum_gas[i] += gas
-        w_n = w_node[i]
-        sum_recip[i] += m_rec * dx * (ddx * w_n * w_n + dx * a_node[i])
-        p = max(0.0, pg)
-        lever = abs(dx)
-        w = w_c[i]
-        c = w * lever
-        pp = pe + p
-        loc = ang[i] - ph
-        th = loc - FOUR_PI * np.floor(loc * inv_4pi)
-        b0[i] = np.sqrt(mu_eth * c * pp) * k0 * lever
-        b1[i] = k1 * pp * (1.0 - abs(st)) * lever if (th <= lo_1 or th >= hi_1) else 0.0
-        b2[i] = c_f2 * c * lever
-        b3[i] = c_f3 * lever * rw[i]
-        b4[i] = mu * w
-        b5[i] = k5 * p * abs(ct) * rw[i]
-
-
-@numba.njit(cache=True, fastmath=_FAST, error_model="numpy")
-def _work_means(rows, first, w_over, out):
-    """out[j] = <rows[first + j] w_over> for the 7 rows (6 basis, gas) of one cylinder."""
-    n = w_over.shape[0]
-    for j in range(7):
-        row = rows[first[j]]
-        acc = 0.0
-        for i in range(n):
-            acc += row[i] * w_over[i]
-        out[j] = acc / n
-
-
-@numba.njit(cache=True, fastmath=_FAST, error_model="numpy")
-def _cycle_rows(motion, theta_f, grid, pressure, cyl_node, consts, mix_row, mix_weight, n_mix, buf, means):
-    """Rows of one cycle on the time grid.
-
-    motion (3, N, n) angle, speed, acceleration of every node; theta_f (n,) flywheel angle [rad]; grid (n_g,) the
-    pressure's uniform crank-angle grid spanning 4 pi, pressure (z, n_g) [Pa]; cyl_node (z,); consts: the layout of
-    core.monitor.excitation_kernels; mix_row (z, 6) row of G that term (k, l) goes into (-1: none), mix_weight (z, 6) its
-    weight a0_kl. Writes buf (n_mix + N + 7 z, n) = [G (n_mix); known node torque (N); basis F_kl (6 z,
-    cylinder-major); gas torque (z)] and means (z, 7): work means <F_kl omega_q>/Omega (6), <T_g,k omega_q>/Omega."""
+@numba.njit(cache=True, fastmath=_FAST)
+def _cylinder_rows(cyl, motion, theta_f, grid, pressure, samples, gas, known):
+    """Sample rows, gas torque and known node torque of every cylinder (see the module docstring)."""
     n_nodes = motion.shape[1]
     n = motion.shape[2]
-    z = cyl_node.shape[0]
-    r = consts[0]
-    inv_rod = 1.0 / consts[1]
-    e = consts[2]
-    d = consts[3 + 3]
-    mu = consts[3 + 4]
-    pe = consts[3 + 5]
-    eth = consts[3 + 6]
-    nc = consts[3 + 7]
-    no = consts[3 + 8]
-    lfp = consts[3 + 9]
-    ga = consts[3 + 10]
-    nv = consts[3 + 11]
-    ls = consts[3 + 12]
-    rb = consts[3 + 13]
-    area = consts[17]
-    p_cc = consts[18]
-    m_rec = consts[19]
-    j_rec = consts[20]
-    var_inertia = consts[21] != 0.0
-    omega_mean = consts[22]
-    k0 = np.pi * d * (no + 0.4 * nc)
-    k1 = np.pi * d * nc
-    k5 = 0.25 * np.pi * d * d * rb
-    c_f2 = mu / ga * np.pi * d * lfp
-    c_f3 = nv * ls
-    mu_eth = mu * eth
-    lo_1 = 0.5 * np.pi
-    hi_1 = FOUR_PI - 0.5 * np.pi
-    known0 = n_mix
-    basis0 = n_mix + n_nodes
-    gas0 = basis0 + 6 * z
-    for g in range(n_mix):
-        for i in range(n):
-            buf[g, i] = 0.0
+    z = cyl.node.shape[0]
     jlo = np.empty(n, dtype=np.int64)
     jhi = np.empty(n, dtype=np.int64)
     frac = np.empty(n)
     _pressure_brackets(theta_f, grid, jlo, jhi, frac)
-    s_fly = np.empty(n)
-    c_fly = np.empty(n)
-    for i in range(n):
-        s_fly[i] = np.sin(theta_f[i])
-        c_fly[i] = np.cos(theta_f[i])
+    s_fly = np.sin(theta_f)
+    c_fly = np.cos(theta_f)
     s_q = np.empty(n)
     c_q = np.empty(n)
-    w_c = np.empty(n)
-    rw = np.empty(n)
-    w_over = np.empty(n)
-    sum_gas = np.empty(n)
-    sum_recip = np.empty(n)
-    p_row = np.empty(n)
-    first = np.empty(7, dtype=np.int64)
-    mean_k = np.empty(7)
+    recip = np.empty(n)
+    r, inv_rod, e = cyl.crank_radius, cyl.inv_rod, cyl.pin_offset
     for q in range(n_nodes):
+        row = known[q]
+        for i in range(n):
+            row[i] = 0.0
+            recip[i] = 0.0
         n_on = 0
         for k in range(z):
-            if cyl_node[k] == q:
+            if cyl.node[k] == q:
                 n_on += 1
-        known = buf[known0 + q]
         if n_on == 0:
-            for i in range(n):
-                known[i] = 0.0
             continue
         ang = motion[0, q]
         w_node = motion[1, q]
         a_node = motion[2, q]
         _sin_cos_twisted(ang, theta_f, s_fly, c_fly, s_q, c_q)
-        for i in range(n):
-            w = max(0.001, w_node[i])
-            w_c[i] = w
-            rw[i] = 1.0 / np.sqrt(w)
-            w_over[i] = w_node[i] / omega_mean
-            sum_gas[i] = 0.0
-            sum_recip[i] = 0.0
         for k in range(z):
-            if cyl_node[k] != q:
+            if cyl.node[k] != q:
                 continue
-            ph = consts[N_CONSTS + k]
+            ph, c_ph, s_ph = cyl.phase[k], cyl.cos_phase[k], cyl.sin_phase[k]
             pk = pressure[k]
+            rows = sample_rows(samples, k)
             for i in range(n):
                 y0 = pk[jlo[i]]
-                p_row[i] = y0 + (pk[jhi[i]] - y0) * frac[i]
-            b = basis0 + 6 * k
-            _cylinder_samples(r, inv_rod, e, area, p_cc, m_rec, k0, mu_eth, k1, c_f2, c_f3, mu, k5, pe, lo_1, hi_1,
-                              ph, np.cos(ph), np.sin(ph), ang, s_q, c_q, w_node, a_node, w_c, rw, p_row,
-                              buf[gas0 + k], buf[b], buf[b + 1], buf[b + 2], buf[b + 3], buf[b + 4], buf[b + 5],
-                              sum_gas, sum_recip)
-            for t_l in range(6):
-                g = mix_row[k, t_l]
-                if g >= 0:
-                    wt = mix_weight[k, t_l]
-                    src = buf[b + t_l]
-                    dst = buf[g]
-                    for i in range(n):
-                        dst[i] += wt * src[i]
-                first[t_l] = b + t_l
-            first[6] = gas0 + k
-            _work_means(buf, first, w_over, mean_k)
-            for j in range(7):
-                means[k, j] = mean_k[j]
-        if var_inertia:
-            c_inertia = j_rec * n_on
+                pg = (y0 + (pk[jhi[i]] - y0) * frac[i]) - cyl.p_crankcase
+                st = s_q[i] * c_ph - c_q[i] * s_ph  # sin, cos of the local angle ang - phi_k
+                ct = c_q[i] * c_ph + s_q[i] * s_ph
+                dx, ddx = fill_sample(rows, i, ang[i] - ph, st, ct, w_node[i], pg, r, inv_rod, e)
+                t_gas = pg * cyl.area * dx
+                gas[k, i] = t_gas
+                row[i] += t_gas
+                recip[i] += cyl.m_rec * dx * (ddx * w_node[i] * w_node[i] + dx * a_node[i])
+        if cyl.variable_inertia:
+            c_inertia = cyl.j_rec * n_on
             for i in range(n):
-                known[i] = sum_gas[i] + (c_inertia * a_node[i] - sum_recip[i])
-        else:
-            for i in range(n):
-                known[i] = sum_gas[i]
+                row[i] += c_inertia * a_node[i] - recip[i]
 
 
 @numba.njit(cache=True)
-def _mix_plan(group, prior, cyl_node, n_params, n_nodes, mix_row, mix_param, mix_node):
-    """One G row per (parameter, node) pair that carries a coefficient: mix_row (z, 6) the row of term (k, l)
-    (-1 for a zero prior: it adds nothing); mix_param, mix_node (>= z * 6,) of each row (parameter -1: a term
-    outside every group, which the node torque still sees through theta[-1] as ``ParameterLayout.coefficients``
-    does, but no design column). Returns the number of rows."""
-    z = group.shape[0]
-    table = np.full((n_params + 1, n_nodes), -1, dtype=np.int64)
-    n_mix = 0
-    for k in range(z):
-        q = cyl_node[k]
-        for t_l in range(group.shape[1]):
-            if prior[k, t_l] == 0.0:
-                mix_row[k, t_l] = -1
-                continue
-            p = group[k, t_l]
-            slot = p if p >= 0 else n_params
-            if table[slot, q] < 0:
-                table[slot, q] = n_mix
-                mix_param[n_mix] = p
-                mix_node[n_mix] = q
-                n_mix += 1
-            mix_row[k, t_l] = table[slot, q]
-    return n_mix
+def pass_samples(cyc, cyl, rel, static, grid, pressure):
+    """Motion and sample rows of one pass (module docstring) as a ``PassGrid``.
 
-
-@numba.njit(cache=True)
-def _balance_rows(harm, scale, m, n_mix, mix_param, mix_node, theta, group, prior, cyl_node, means, compliance,
-                  flywheel, inverse, freq, transfer, fly_freq, fly_harm, pattern, n_nuisance, known_harm, static, phi, rel,
-                  node_speed, design, target, cyl_rows, mean_row):
-    """Chain response and identification rows of one pass (see the module docstring).
-
-    harm (n_mix + N, n // 2 + 1) complex: rfft of the rows [G; known]; scale 2 / n; theta (P,) friction parameters
-    (the monitor's theta[:P]); group, prior (z, 6) of the layout; means (z, 7) work means from ``_cycle_rows``;
-    compliance (N, N); inverse (M, N, N) Z_m^-1; freq (M,) its w_m; transfer (M, N) flywheel speed per node torque;
-    fly_freq (M,) w_m of the cycle's fit; fly_harm (M,) flywheel angle harmonics; pattern (M, >= n_nuisance) fitted tooth-pattern harmonics.
-    Writes known_harm (N, M), static (N,), phi, rel, node_speed (N, M), design (M, P + n_nuisance), target (M,),
-    cyl_rows (z, P), mean_row (P + n_nuisance,)."""
-    n_nodes = known_harm.shape[0]
-    z = group.shape[0]
-    n_terms = group.shape[1]
-    n_params = theta.shape[0]
-    for q in range(n_nodes):
-        for j in range(m):
-            known_harm[q, j] = harm[n_mix + q, j + 1] * scale
-    # mean node torques -> static twist (core.model.dynamics.static_twist)
-    t = np.zeros(n_nodes)
-    for k in range(z):
-        s = 0.0
-        for t_l in range(n_terms):
-            s += (prior[k, t_l] * theta[group[k, t_l]]) * means[k, t_l]
-        t[cyl_node[k]] += means[k, n_terms] - s
-    total = 0.0
-    for q in range(n_nodes):
-        total += t[q]
-    t[n_nodes - 1] -= total
-    for q in range(n_nodes):
-        acc = 0.0
-        for j in range(n_nodes):
-            acc += compliance[q, j] * t[j]
-        static[q] = acc
-    s_fly = static[flywheel]
-    for q in range(n_nodes):
-        static[q] -= s_fly
-    # harmonic node torques at theta, chain response
-    torque = known_harm.copy()
-    for g in range(n_mix):
-        p = mix_param[g]
-        th = theta[p] if p >= 0 else theta[n_params - 1]
-        q = mix_node[g]
-        for j in range(m):
-            torque[q, j] -= th * (harm[g, j + 1] * scale)
-    for j in range(m):
-        w = freq[j]
-        for i in range(n_nodes):
-            acc = 0j
-            for q in range(n_nodes):
-                acc += inverse[j, i, q] * torque[q, j]
-            phi[i, j] = acc
-        for i in range(n_nodes):
-            v = phi[i, j]
-            node_speed[i, j] = complex(-(w * v.imag), w * v.real)
-        for i in range(n_nodes):
-            rel[i, j] = phi[i, j] - phi[flywheel, j]
-    # speed equations: W_meas - W0 and the columns d W / d theta
-    for j in range(m):
-        w0 = 0j
-        for q in range(n_nodes):
-            w0 += transfer[j, q] * known_harm[q, j]
-        w = fly_freq[j]
-        a = fly_harm[j]
-        target[j] = complex(-(w * a.imag), w * a.real) - w0
-        for p in range(design.shape[1]):
-            design[j, p] = 0j
-        for g in range(n_mix):
-            p = mix_param[g]
-            if p >= 0:
-                design[j, p] -= transfer[j, mix_node[g]] * (harm[g, j + 1] * scale)
-        for c in range(n_nuisance):
-            b = pattern[j, c]
-            design[j, n_params + c] = complex(-(w * b.imag), w * b.real)
-    # mean-balance rows (ParameterLayout.cylinder_rows; the same additions in the same order)
-    for k in range(z):
-        for p in range(n_params):
-            cyl_rows[k, p] = 0.0
-        for t_l in range(n_terms):
-            p = group[k, t_l]
-            if p >= 0:
-                cyl_rows[k, p] += prior[k, t_l] * means[k, t_l]
-    for p in range(mean_row.shape[0]):
-        mean_row[p] = 0.0
-    for k in range(z):
-        for p in range(n_params):
-            mean_row[p] += cyl_rows[k, p]
+    cyc: CycleMotion; cyl: CylinderRecord; rel (N, M) complex node-minus-flywheel harmonics of the previous pass or
+    cycle, (0, M) for none; static (N,) static twist or (0,); grid (n_g,) the pressure's uniform crank-angle grid
+    spanning 4 pi; pressure (z, n_g) [Pa]."""
+    m = cyc.harmonics.shape[0]
+    n = cyc.n_time
+    n_nodes = cyl.n_nodes
+    z = cyl.node.shape[0]
+    freq = motion_frequencies(cyc.omega_mean, m)
+    n_rel = n_nodes if rel.shape[0] == n_nodes else 0
+    row_of, n_rows = _spectrum_rows(cyl.node, n_nodes, n_rel)
+    spec_rows = np.zeros((n_rows, n // 2 + 1), dtype=np.complex128)
+    _motion_spectrum(cyc.harmonics, freq, rel[:n_rel], row_of, 0.5 * n, spec_rows)
+    series = np.fft.irfft(spec_rows, n, -1)
+    tau = np.empty(n)
+    theta_f = np.empty(n)
+    omega_f = np.empty(n)
+    alpha_f = np.empty(n)
+    motion = np.empty((3, n_nodes, n))
+    _node_motion(series, row_of, n_rel, cyc, static, tau, theta_f, omega_f, alpha_f, motion)
+    samples = np.empty((N_FIELDS, z, n))
+    gas = np.empty((z, n))
+    known = np.empty((n_nodes, n))
+    _cylinder_rows(cyl, motion, theta_f, grid, pressure, samples, gas, known)
+    return PassGrid(tau, theta_f, omega_f, alpha_f, motion, samples, gas, known)

@@ -28,7 +28,7 @@ import scipy.linalg.lapack
 import scipy.optimize
 
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.model.friction import N_TERMS
+from frictionwatch.core.model.terms import TermLibrary, rezeka_henein
 from frictionwatch.core.monitor.posterior_kernels import OK, as_vector, bounded_solve_kernel, lower_vector
 
 _getrf = scipy.linalg.lapack.dgetrf
@@ -39,9 +39,11 @@ SCHEMES = ("all", "pressure_group", "piston_group", "scale")
 
 @dataclass(frozen=True)
 class ParameterLayout:
-    """Map from parameters theta (P,) to coefficients a (z, 6): a_kl = prior[k, l] * theta[group[k, l]].
+    """Map from parameters theta (P,) to coefficients a (z, L) of the L terms of ``library``:
+    a_kl = prior[k, l] * theta[group[k, l]].
 
-    names (P,) describe each parameter, e.g. 'cyl3:F1+F2+F6' or 'all:F4'; per_cylinder (P,) bool.
+    names (P,) describe each parameter, e.g. 'cyl3:F1+F2+F3' or 'all:F4' (F_l+1 = library term l); per_cylinder (P,)
+    bool; library the loss terms (core.model.terms) the simulator, the balance and the layout share.
     """
 
     scheme: str
@@ -49,6 +51,7 @@ class ParameterLayout:
     prior: np.ndarray
     names: tuple[str, ...]
     per_cylinder: np.ndarray
+    library: TermLibrary
 
     def __post_init__(self) -> None:
         # precomputed scatter maps (not fields: equality and replace() see only the layout itself)
@@ -60,7 +63,7 @@ class ParameterLayout:
         object.__setattr__(self, "_cyl_index", np.where(used, flat, z * p))  # unused terms go to a spill bin
         weights = np.zeros((g.size, p))
         weights[np.flatnonzero(used), g[used]] = np.asarray(self.prior, dtype=np.float64).ravel()[used]
-        object.__setattr__(self, "_collapse_matrix", weights)  # (z*6, P): a0_kl where (k, l) is in group p
+        object.__setattr__(self, "_collapse_matrix", weights)  # (z*L, P): a0_kl where (k, l) is in group p
 
     @property
     def n_params(self) -> int:
@@ -70,7 +73,7 @@ class ParameterLayout:
         return self.prior * np.asarray(theta)[self.group]
 
     def collapse(self, per_coefficient: np.ndarray) -> np.ndarray:
-        """Sum a per-coefficient quantity (..., z, 6), weighted by the prior, into parameters (..., P)."""
+        """Sum a per-coefficient quantity (..., z, L), weighted by the prior, into parameters (..., P)."""
         x = np.asarray(per_coefficient) * self.prior
         out = np.zeros(x.shape[:-2] + (self.n_params,), dtype=x.dtype)
         flat = x.reshape(x.shape[:-2] + (-1,))
@@ -79,7 +82,7 @@ class ParameterLayout:
         return out
 
     def cylinder_rows(self, basis_mean: np.ndarray) -> np.ndarray:
-        """(z, P): d(mean friction of cylinder k)/d theta_p, given work means <F_kl> (z, 6)."""
+        """(z, P): d(mean friction of cylinder k)/d theta_p, given work means <F_kl> (z, L)."""
         z = self.group.shape[0]
         p = self.n_params
         contrib = self.prior * basis_mean
@@ -88,45 +91,61 @@ class ParameterLayout:
         return rows[: z * p].reshape(z, p)
 
 
-def parameter_layout(spec: EngineSpec, scheme: str | None = None, prior: np.ndarray | None = None) -> ParameterLayout:
-    """Group the z x 6 coefficients of ``spec`` (default scheme: 'all' for one cylinder, else 'piston_group').
+def parameter_layout(spec: EngineSpec, scheme: str | None = None, prior: np.ndarray | None = None,
+                     library: TermLibrary | None = None) -> ParameterLayout:
+    """Group the z x L coefficients of ``library`` on ``spec`` (default library: the six Rezeka-Henein terms with the
+    preset's ``friction.coefficients`` as priors; default scheme: 'all' for one cylinder, else 'piston_group').
 
-    prior : (6,) or (z, 6) baseline coefficients a0 (default: the preset's ``friction.coefficients``). A zero prior
-    coefficient keeps that term out of the model.
+    Schemes: 'all' every coefficient its own parameter; 'piston_group' the terms of group "cylinder" one scale per
+    cylinder, each "engine" term one scale for all cylinders; 'pressure_group' the same with the per-cylinder set
+    ring_viscous, ring_mixed, loaded_bearings (physics.md §12.5); 'scale' one scale per cylinder for all its terms.
+    prior : (L,) or (z, L) baseline coefficients a0 (default: the library's priors). A zero prior coefficient keeps
+    that term out of the model.
     """
+    lib = rezeka_henein(spec.friction.coefficients) if library is None else library
     z = spec.n_cyl
+    n_terms = len(lib)
     if scheme is None:
         scheme = "all" if z == 1 else "piston_group"
     if scheme not in SCHEMES:
         raise ValueError(f"unknown parameter scheme {scheme!r}; choose one of {', '.join(SCHEMES)}")
-    a0 = np.asarray(spec.friction.coefficients if prior is None else prior, dtype=np.float64)
-    a0 = np.broadcast_to(a0, (z, N_TERMS)).copy()
+    a0 = np.asarray(lib.priors if prior is None else prior, dtype=np.float64)
+    try:
+        a0 = np.broadcast_to(a0, (z, n_terms)).copy()
+    except ValueError:
+        raise ValueError(f"prior must be ({n_terms},) or ({z}, {n_terms}) for the library's terms, got {a0.shape}"
+                         ) from None
     if np.any(a0 < 0) or not np.all(np.isfinite(a0)):
         raise ValueError("prior coefficients must be finite and >= 0")
-    per_cyl_terms = {"all": (0, 1, 2, 3, 4, 5), "pressure_group": (0, 1, 5), "piston_group": (0, 1, 2),
-                     "scale": (0, 1, 2, 3, 4, 5)}[scheme]
-    group = np.full((z, N_TERMS), -1, dtype=np.int64)
+    if scheme == "pressure_group":
+        per_cyl_terms = tuple(lib.index(name) for name in ("ring_viscous", "ring_mixed", "loaded_bearings"))
+    elif scheme == "piston_group":
+        per_cyl_terms = tuple(int(i) for i in np.flatnonzero(lib.per_cylinder))
+    else:
+        per_cyl_terms = tuple(range(n_terms))
+    group = np.full((z, n_terms), -1, dtype=np.int64)
     names: list[str] = []
     per_cylinder: list[bool] = []
     if scheme == "all":
         for k in range(z):
-            for term in range(N_TERMS):
+            for term in range(n_terms):
                 group[k, term] = len(names)
                 names.append(f"cyl{k + 1}:F{term + 1}")
                 per_cylinder.append(True)
     else:
         label = "+".join(f"F{t + 1}" for t in per_cyl_terms)
-        for k in range(z):
-            group[k, list(per_cyl_terms)] = len(names)
-            names.append(f"cyl{k + 1}:{label}")
-            per_cylinder.append(True)
-        for term in range(N_TERMS):
+        if per_cyl_terms:
+            for k in range(z):
+                group[k, list(per_cyl_terms)] = len(names)
+                names.append(f"cyl{k + 1}:{label}")
+                per_cylinder.append(True)
+        for term in range(n_terms):
             if term not in per_cyl_terms:
                 group[:, term] = len(names)
                 names.append(f"all:F{term + 1}")
                 per_cylinder.append(False)
     return ParameterLayout(scheme=scheme, group=group, prior=a0, names=tuple(names),
-                           per_cylinder=np.array(per_cylinder))
+                           per_cylinder=np.array(per_cylinder), library=lib)
 
 
 @dataclass(frozen=True)
@@ -149,9 +168,9 @@ def friction_design(layout: ParameterLayout, transfer: np.ndarray, basis_harm: n
                     cylinder_node: np.ndarray) -> np.ndarray:
     """(M, P) complex: flywheel speed harmonics per unit theta_p, -sum_{kl in p} a0_kl H_m,node(k) Fhat_kl,m.
 
-    transfer (M, N) flywheel speed per node torque; basis_harm (z, 6, M)."""
+    transfer (M, N) flywheel speed per node torque; basis_harm (z, L, M)."""
     h = transfer[:, cylinder_node]  # (M, z)
-    per_coef = -h.T[:, None, :] * basis_harm  # (z, 6, M)
+    per_coef = -h.T[:, None, :] * basis_harm  # (z, L, M)
     z, n_terms, m = per_coef.shape
     return (layout._collapse_matrix.T @ per_coef.reshape(z * n_terms, m)).T  # (M, P), = layout.collapse
 

@@ -202,13 +202,14 @@ def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
     load = cycle.load_torque if math.isfinite(cycle.load_torque) else cycle.load_power / omega
     if not math.isfinite(load):
         flags.append("no_load_measurement")
-    op = operating_point(spec, state.op, omega, load, m, cfg.rebuild_tolerance, cfg.variable_inertia)
+    op = operating_point(spec, state.op, omega, load, m, cfg.rebuild_tolerance, cfg.variable_inertia, state.layout)
     if op is not state.op and state.op is not None:
         flags.append("operating_point_changed")
 
-    exc, rows, node_speed, rel, static, (p_rel, p_gnd) = harmonic_balance(
-        spec, state.layout, state.theta, state.n_nuisance, state.relative_motion, state.static, cycle.grid, pressure,
-        fly, theta_start, op, cfg.passes, cfg.time_samples, cfg.variable_inertia)
+    bal = harmonic_balance(op, state.theta, state.n_nuisance, state.relative_motion, state.static, cycle.grid,
+                           pressure, fly, theta_start, cfg.passes, cfg.time_samples)
+    exc, rows, node_speed, rel, static, p_rel, p_gnd = (bal.excitation, bal.rows, bal.node_speed, bal.relative_motion,
+                                                        bal.static, bal.power_relative, bal.power_ground)
     # relative dampers (damper, shaft, coupling) dissipate mean power that a balance against the load behind the
     # coupling would book as friction (physics.md §12.4); the load's own ripple work (ground damping) belongs to
     # the load: the measured torque is a time mean, the work it absorbs is that plus <T_L~ omega_L~>

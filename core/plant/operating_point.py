@@ -13,9 +13,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.model.friction import friction_basis
+from frictionwatch.core.model.terms import TermLibrary, cylinder_samples, rezeka_henein
 from frictionwatch.core.model.thermo import P_CRANKCASE, CylinderModel, cycle_params, cylinder_pressure, indicated_work
 
 FOUR_PI = 4.0 * np.pi
@@ -27,19 +26,23 @@ class CylinderMeans:
 
     indicated_nm: float
     friction_nm: float
-    basis_mean: np.ndarray  # (6,) angle mean of F_l over the cycle
+    basis_mean: np.ndarray  # (L,) angle mean of the loss terms F_l over the cycle
     pmax_pa: float
 
 
 def cylinder_means(spec: EngineSpec, model: CylinderModel, omega: float, fuel_kg: float, load: float,
-                   coef: np.ndarray, leak_m2: float = 0.0, misfire_probability: float = 0.0) -> CylinderMeans:
-    """Expected cycle means of one cylinder (a misfiring cycle is a motored one, weighted by its probability)."""
+                   coef: np.ndarray, leak_m2: float = 0.0, misfire_probability: float = 0.0,
+                   library: TermLibrary | None = None) -> CylinderMeans:
+    """Expected cycle means of one cylinder (a misfiring cycle is a motored one, weighted by its probability);
+    coef (L,) the coefficients of ``library``'s terms (default the six Rezeka-Henein terms)."""
+    lib = rezeka_henein() if library is None else library
+    consts = spec.friction_params()
     out = []
     for fuel, weight in ((fuel_kg, 1.0 - misfire_probability), (0.0, misfire_probability)):
         if weight <= 0.0:
             continue
         p, _ = cylinder_pressure(model, cycle_params(spec, omega, fuel, load, leak_area_m2=leak_m2))
-        basis = friction_basis(model.theta, omega, p - P_CRANKCASE, spec.friction_params())
+        basis = lib.evaluate(cylinder_samples(model.theta, omega, p - P_CRANKCASE, consts), consts)
         fmean = basis[:, :-1].mean(axis=1)  # uniform grid, last point = first point of the next cycle
         out.append((weight, indicated_work(model, p) / FOUR_PI, float(coef @ fmean), fmean, p.max()))
     w = sum(o[0] for o in out)
@@ -52,11 +55,11 @@ def cylinder_means(spec: EngineSpec, model: CylinderModel, omega: float, fuel_kg
 
 
 def engine_brake_torque(spec: EngineSpec, model: CylinderModel, omega: float, fuel: np.ndarray, load: float,
-                        coef: np.ndarray, leak: np.ndarray, misfire: np.ndarray, extra_nm: np.ndarray
-                        ) -> tuple[float, list[CylinderMeans]]:
+                        coef: np.ndarray, leak: np.ndarray, misfire: np.ndarray, extra_nm: np.ndarray,
+                        library: TermLibrary | None = None) -> tuple[float, list[CylinderMeans]]:
     """Sum over cylinders of (indicated - friction - extra) [N m] and the per-cylinder means.
 
-    fuel (z,) kg per cycle (spread included); coef (z, 6); leak (z,) m^2; misfire (z,) probability; extra (z,) N m.
+    fuel (z,) kg per cycle (spread included); coef (z, L) of ``library``'s terms; leak (z,) m^2; misfire (z,) probability; extra (z,) N m.
     """
     cache: dict[tuple, CylinderMeans] = {}
     means = []
@@ -64,7 +67,7 @@ def engine_brake_torque(spec: EngineSpec, model: CylinderModel, omega: float, fu
         key = (round(float(fuel[k]), 15), tuple(coef[k]), float(leak[k]), float(misfire[k]))
         if key not in cache:
             cache[key] = cylinder_means(spec, model, omega, float(fuel[k]), load, coef[k], float(leak[k]),
-                                        float(misfire[k]))
+                                        float(misfire[k]), library)
         means.append(cache[key])
     total = sum(m.indicated_nm - m.friction_nm for m in means) - float(np.sum(extra_nm))
     return total, means

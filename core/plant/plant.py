@@ -15,8 +15,12 @@ Conventions (SI, radians inside):
   kind 0: T_L = c + k omega_L^s; kind 1 (grid): T_L = T0 + Ke (theta_L - Omega_g t - delta0) + De (omega_L - Omega_g);
   both plus ripple_nm sin(ripple_order theta_L + ripple_phase).
 
+Friction: the L terms of the model's loss-term library (core.model.terms), evaluated by their own kernels on the
+sample rows ``fill_sample`` forms; they come in ``cy`` = (cyl_node, phase, coef (z, L), extra, kernels) as a tuple of
+first-class functions of one type (terms.KERNEL_SIGNATURE), so this cached kernel serves any library.
+
 Integrated alongside the state by the same RK4 weights (so energy closes to the integrator's accuracy), per cylinder
-k (``NQ_CYL`` values from k*NQ_CYL): gas power T_g omega, the six F_l omega, extra-friction power; then four globals:
+k (``nq_cyl(L)`` values from k*nq_cyl(L)): gas power T_g omega, the L F_l omega, extra-friction power; then four globals:
 load power T_L omega_L, relative-damper power sum c_i (omega_i - omega_(i+1))^2, int T_L dt, int (theta_L - Omega_g t) dt.
 """
 
@@ -26,12 +30,9 @@ import math
 
 import numba
 import numpy as np
-
-from frictionwatch.core.model.friction import _friction_basis
-from frictionwatch.core.model.kinematics import _kinematics
+from frictionwatch.core.model.terms import N_FIELDS, fill_sample, sample_rows
 from frictionwatch.core.model.thermo import _STEP, _cycle_pressure
 
-NQ_CYL = 8
 NQ_GLOBAL = 4
 # scalar layout ``sc``
 (S_R, S_L, S_E, S_AREA, S_PCC, S_MREC, S_VARJ, S_FLY, S_LOAD, S_WHEEL_OFF, S_CAM, S_PPERIOD, S_T0OUT, S_LPERIOD,
@@ -44,6 +45,19 @@ OP_FUEL, OP_SOC, OP_BETA, OP_PIVC, OP_PINT, OP_PEXH, OP_OMEGA, OP_N = range(8)
 TWO_PI = 2.0 * np.pi
 FOUR_PI = 4.0 * np.pi
 TRACE_LEAD = np.radians(30.0)  # next cycle's trace is made 30 deg before its gas-exchange TDC
+
+
+@numba.njit(cache=True)
+def nq_cyl(n_terms):
+    """Integrated powers per cylinder: gas, the n_terms friction terms, extra friction."""
+    return n_terms + 2
+
+
+def work_arrays(z: int, n_terms: int) -> tuple:
+    """The per-cylinder work arrays of ``_cylinder_terms``: local angle, speed, gauge pressure, sample rows
+    (N_FIELDS, z, 1), x', x'', pressure, basis (n_terms, z, 1)."""
+    return (np.zeros(z), np.zeros(z), np.zeros(z), np.zeros((N_FIELDS, z, 1)), np.zeros(z), np.zeros(z), np.zeros(z),
+            np.zeros((n_terms, z, 1)))
 
 
 @numba.njit(cache=True)
@@ -92,26 +106,30 @@ def _ensure_traces(th, sc, cyl_node, phase, op, pert, leak, tconst, vol_half, dv
 
 
 @numba.njit(cache=True)
-def _cylinder_terms(th, om, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep, w):
-    """Per-cylinder local angle, speed, pressure, kinematics and friction basis into the work arrays ``w``."""
-    loc, omc, pg, x, dx, ddx, pres, fb = w
-    z = phase.shape[0]
-    for k in range(z):
+def _cylinder_terms(th, om, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep, w, kernels):
+    """Per-cylinder local angle, speed, pressure, sample rows, x', x'' and the library's friction basis into ``w``."""
+    loc, omc, pg, samples, dx, ddx, pres, fb = w
+    r = sc[S_R]
+    inv_rod = 1.0 / sc[S_L]
+    e = sc[S_E]
+    for k in range(phase.shape[0]):
         j = cyl_node[k]
         loc[k] = th[j] - phase[k]
         omc[k] = om[j]
         pres[k] = _trace_lookup(traces, slot_cycle, k, loc[k], tstep)
         pg[k] = pres[k] - sc[S_PCC]
-    _kinematics(loc, sc[S_R:S_E + 1], x, dx, ddx)
-    _friction_basis(loc, omc, pg, fprm, fb)
+        dx[k], ddx[k] = fill_sample(sample_rows(samples, k), 0, loc[k], np.sin(loc[k]), np.cos(loc[k]), omc[k], pg[k],
+                                    r, inv_rod, e)
+    for m in range(len(kernels)):
+        kernels[m](samples, fprm, fb[m])
 
 
 @numba.njit(cache=True)
 def _friction_torque(k, coef, extra, fb, loc):
     """T_f,k = sum_l a_kl F_kl + extra_mean + extra_amp cos(order theta_k + phase) [N m]."""
     s = 0.0
-    for m in range(6):
-        s += coef[k, m] * fb[m, k]
+    for m in range(coef.shape[1]):
+        s += coef[k, m] * fb[m, k, 0]
     return s + extra[k, 0] + extra[k, 1] * math.cos(extra[k, 2] * loc[k] + extra[k, 3])
 
 
@@ -128,10 +146,12 @@ def _load_torque(t, th_l, om_l, lp):
 def _rhs(t, th, om, nd, cy, sc, fprm, lp, traces, slot_cycle, tstep, w, acc, pw):
     """Angular accelerations ``acc`` [rad/s^2] and integrand powers ``pw`` at (t, th, om)."""
     inertia, stiff, damp, tq, jv, hdj = nd
-    cyl_node, phase, coef, extra = cy
+    cyl_node, phase, coef, extra, kernels = cy
     n = inertia.shape[0]
-    _cylinder_terms(th, om, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep, w)
-    loc, omc, pg, _x, dx, ddx, _pres, fb = w
+    n_terms = coef.shape[1]
+    nq = nq_cyl(n_terms)
+    _cylinder_terms(th, om, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep, w, kernels)
+    loc, omc, pg, _samples, dx, ddx, _pres, fb = w
     for i in range(n):
         tq[i] = 0.0
         jv[i] = inertia[i]
@@ -153,17 +173,17 @@ def _rhs(t, th, om, nd, cy, sc, fprm, lp, traces, slot_cycle, tstep, w, acc, pw)
         if varj:
             jv[j] += m_rec * dx[k] * dx[k]
             hdj[j] += m_rec * dx[k] * ddx[k]
-        b = k * NQ_CYL
+        b = k * nq
         pw[b] = tg * omc[k]
-        for m in range(6):
-            pw[b + 1 + m] = fb[m, k] * omc[k]
-        pw[b + 7] = (extra[k, 0] + extra[k, 1] * math.cos(extra[k, 2] * loc[k] + extra[k, 3])) * omc[k]
+        for m in range(n_terms):
+            pw[b + 1 + m] = fb[m, k, 0] * omc[k]
+        pw[b + n_terms + 1] = (extra[k, 0] + extra[k, 1] * math.cos(extra[k, 2] * loc[k] + extra[k, 3])) * omc[k]
     ln = int(sc[S_LOAD])
     tl = _load_torque(t, th[ln], om[ln], lp)
     tq[ln] -= tl
     for i in range(n):
         acc[i] = (tq[i] - hdj[i] * om[i] * om[i]) / jv[i]
-    g = phase.shape[0] * NQ_CYL
+    g = phase.shape[0] * nq
     pw[g] = tl * om[ln]
     pw[g + 1] = pdamp
     pw[g + 2] = tl
@@ -215,7 +235,7 @@ def _advance(nd, cy, sc, fprm, lp, op, pert, leak, thermo, traces, slot_cycle, e
     status: 0 angle reached, 1 time reached, 2 a buffer is full, 3 a pressure lookup failed (bug), 4 state not finite.
     """
     inertia = nd[0]
-    cyl_node, phase, coef, extra = cy
+    cyl_node, phase, coef, extra, kernels = cy
     tconst, vol_half, dvol_half = thermo
     edge_angle, edge_index = edges
     th, om, acc, cum, pw, pmax, tarr = state
@@ -227,7 +247,8 @@ def _advance(nd, cy, sc, fprm, lp, op, pert, leak, thermo, traces, slot_cycle, e
     h = sc[S_H]
     fly = int(sc[S_FLY])
     q = np.zeros(8)
-    w = (np.zeros(z), np.zeros(z), np.zeros(z), np.zeros(z), np.zeros(z), np.zeros(z), np.zeros(z), np.zeros((6, z)))
+    w = (np.zeros(z), np.zeros(z), np.zeros(z), np.zeros((N_FIELDS, z, 1)), np.zeros(z), np.zeros(z), np.zeros(z),
+         np.zeros((coef.shape[1], z, 1)))
     th2, om2, th1, om1, a1, a2, a3, a4 = (np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n),
                                           np.zeros(n), np.zeros(n), np.zeros(n))
     ths, oms = np.zeros(n), np.zeros(n)
@@ -303,7 +324,7 @@ def _advance(nd, cy, sc, fprm, lp, op, pert, leak, thermo, traces, slot_cycle, e
             target = ist[I_NEXT_GRID] * sc[S_GRID]
             s = _crossing(target, h, th[fly], om[fly], th1[fly], om1[fly])
             _state_at(s, h, th, om, acc, th1, om1, a1, ths, oms)
-            _cylinder_terms(ths, oms, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep, w)
+            _cylinder_terms(ths, oms, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep, w, kernels)
             tf = 0.0
             for k in range(z):
                 tf += _friction_torque(k, coef, extra, w[7], w[0])
@@ -345,7 +366,7 @@ def _advance(nd, cy, sc, fprm, lp, op, pert, leak, thermo, traces, slot_cycle, e
             ist[I_N_SAMPLE] += 1
             ist[I_NEXT_SAMPLE] += 1
         # load samples: cumulative int T_L dt and int T_L omega_L dt at t0out + i * period
-        g0 = z * NQ_CYL
+        g0 = z * nq_cyl(coef.shape[1])
         while t0out + ist[I_NEXT_LOAD] * sc[S_LPERIOD] <= t1:
             tl = t0out + ist[I_NEXT_LOAD] * sc[S_LPERIOD]
             s = min(max((tl - t) / h, 0.0), 1.0)

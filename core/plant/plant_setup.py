@@ -1,7 +1,7 @@
 """Arrays of the time-domain plant (core.plant.plant) built from an EngineSpec, its initial state and its linearisation.
 
-The shaft line is ``spec``'s node chain (physics.md §11) or, with torsional flexibility off, one rigid node holding the
-whole inertia, all cylinders, the flywheel and the load.
+The shaft line is ``spec``'s drive train (core.model.chain: the same model the monitor's balance uses), or with
+torsional flexibility off its one rigid node holding the whole inertia, all cylinders, the flywheel and the load.
 """
 
 from __future__ import annotations
@@ -9,65 +9,103 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
+from frictionwatch.core.model.chain import DriveTrain, drive_train
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.model.kinematics import variable_inertia
-from frictionwatch.core.plant.plant import NQ_CYL, NQ_GLOBAL, S_AREA, S_E, S_FLY, S_GRID, S_LOAD, S_MREC, S_NSC, S_PCC, S_R, S_VARJ, _rhs
+from frictionwatch.core.model.terms import TermLibrary, rezeka_henein
 from frictionwatch.core.model.thermo import P_CRANKCASE, CylinderModel
+from frictionwatch.core.plant.plant import (
+    NQ_GLOBAL,
+    S_AREA,
+    S_E,
+    S_FLY,
+    S_GRID,
+    S_LOAD,
+    S_MREC,
+    S_NSC,
+    S_PCC,
+    S_R,
+    S_VARJ,
+    _rhs,
+    nq_cyl,
+    work_arrays,
+)
 
 
-@dataclass
+@dataclass(frozen=True)
 class PlantModel:
-    """Numeric arrays of the plant. ``inertia`` (n,) rotating inertia [kg m^2] (plus the mean reciprocating inertia
-    of each throw when ``variable_inertia`` is off), ``stiff``/``damp`` (n-1,) chain [N m/rad, N m s/rad],
-    ``cyl_node`` (z,), ``phase`` (z,) true firing angles [rad], ``coef`` (z, 6), ``extra`` (z, 4) = [mean N m,
-    amplitude N m, order, phase rad], ``fly``/``load`` node indices, ``rec_mean`` (n,) mean J_rec per node."""
+    """Numeric arrays of the plant: the drive train ``train`` (core.model.chain), ``phase`` (z,) true firing angles
+    [rad], ``coef`` (z, L) coefficients of the L terms of ``library`` (core.model.terms), ``extra`` (z, 4) = [mean
+    N m, amplitude N m, order, phase rad], and whether the throws' inertia varies with angle (physics.md §3)."""
 
-    inertia: np.ndarray
-    stiff: np.ndarray
-    damp: np.ndarray
-    cyl_node: np.ndarray
+    train: DriveTrain
     phase: np.ndarray
     coef: np.ndarray
     extra: np.ndarray
-    fly: int
-    load: int
     variable_inertia: bool
-    rec_mean: np.ndarray
+    library: TermLibrary
+
+    @property
+    def inertia(self) -> np.ndarray:
+        """(n,) inertia the kernel integrates with [kg m^2]: rotating, plus the mean reciprocating inertia of each
+        throw when ``variable_inertia`` is off (on, the kernel adds m_rec x'^2 itself)."""
+        return self.train.rotating if self.variable_inertia else self.train.mass
+
+    @property
+    def stiff(self) -> np.ndarray:
+        return self.train.stiffness
+
+    @property
+    def damp(self) -> np.ndarray:
+        return self.train.damping
+
+    @property
+    def cyl_node(self) -> np.ndarray:
+        return self.train.cylinder_node
+
+    @property
+    def fly(self) -> int:
+        return self.train.flywheel
+
+    @property
+    def load(self) -> int:
+        return self.train.load
+
+    @property
+    def rec_mean(self) -> np.ndarray:
+        return self.train.recip_inertia
+
+    @property
+    def cylinders(self) -> tuple:
+        """The plant kernel's per-cylinder tuple ``cy``: (cyl_node, phase, coef, extra, the library's kernels)."""
+        return (self.cyl_node, self.phase, self.coef, self.extra, self.library.kernels)
+
+    @property
+    def nq_cyl(self) -> int:
+        """Integrated powers per cylinder (gas, one per loss term, extra friction)."""
+        return nq_cyl(len(self.library))
 
     @property
     def n(self) -> int:
-        return int(self.inertia.shape[0])
+        return self.train.n_nodes
 
     @property
     def mean_inertia(self) -> np.ndarray:
         """Constant-inertia (M) diagonal [kg m^2]: rotating plus mean reciprocating inertia per node."""
-        return self.inertia + (self.rec_mean if self.variable_inertia else 0.0)
+        return self.train.mass
 
 
 def build_plant(spec: EngineSpec, *, flexible: bool, variable: bool, coef: np.ndarray, phase: np.ndarray,
-                extra: np.ndarray) -> PlantModel:
+                extra: np.ndarray, library: TermLibrary | None = None) -> PlantModel:
+    """The plant of ``spec``: its drive train (core.model.chain.drive_train, one rigid node unless ``flexible``);
+    coef (z, L) the coefficients of the terms of ``library`` (default: the six Rezeka-Henein terms,
+    core.model.terms.rezeka_henein)."""
     z = spec.n_cyl
-    if flexible:
-        inertia = spec.node_inertia.astype(np.float64).copy()
-        stiff, damp = spec.stiffness.astype(np.float64).copy(), spec.damping.astype(np.float64).copy()
-        cyl_node = spec.cylinder_node.astype(np.int64).copy()
-        fly, load = spec.flywheel_node, spec.load_node
-    else:
-        inertia = np.array([spec.total_inertia])
-        stiff, damp = np.zeros(0), np.zeros(0)
-        cyl_node = np.zeros(z, dtype=np.int64)
-        fly = load = 0
-    rec_mean = np.zeros(inertia.shape[0])
-    grid = np.linspace(0.0, 4.0 * np.pi, 2880, endpoint=False)
-    for node in np.unique(cyl_node):
-        j, _ = variable_inertia(grid, phase[cyl_node == node], spec.kinematics_params(), spec.reciprocating_mass, 0.0)
-        rec_mean[node] = j.mean()
-    if not variable:
-        inertia = inertia + rec_mean
-    return PlantModel(inertia, stiff, damp, cyl_node, np.asarray(phase, dtype=np.float64).copy(),
+    lib = rezeka_henein(spec.friction.coefficients) if library is None else library
+    if np.shape(coef) != (z, len(lib)):
+        raise ValueError(f"coef must be (z, L) = ({z}, {len(lib)}) for the library's terms, got {np.shape(coef)}")
+    return PlantModel(drive_train(spec, flexible), np.asarray(phase, dtype=np.float64).copy(),
                       np.ascontiguousarray(coef, dtype=np.float64), np.ascontiguousarray(extra, dtype=np.float64),
-                      int(fly), int(load), bool(variable), rec_mean)
+                      bool(variable), lib)
 
 
 def scalars(spec: EngineSpec, plant: PlantModel) -> np.ndarray:
@@ -85,29 +123,14 @@ def scalars(spec: EngineSpec, plant: PlantModel) -> np.ndarray:
 
 
 def static_twist(plant: PlantModel, node_torque: np.ndarray) -> np.ndarray:
-    """Node angles [rad] relative to the flywheel under constant node torques that sum to zero (free chain)."""
-    s = np.cumsum(node_torque)[:-1]  # torque carried by each shaft section, front to rear
-    with np.errstate(divide="ignore", invalid="ignore"):
-        twist = np.where(plant.stiff > 0, s / np.where(plant.stiff > 0, plant.stiff, 1.0), 0.0)
-    ang = np.concatenate(([0.0], -np.cumsum(twist)))  # theta_(i+1) = theta_i - twist_i
-    return ang - ang[plant.fly]
+    """Node angles [rad] relative to the flywheel under constant node torques (the drive train's static twist)."""
+    return plant.train.static_twist(node_torque)
 
 
 def chain_matrices(plant: PlantModel, grid_stiffness: float = 0.0, grid_damping: float = 0.0
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(M, K, C) of the linear model (mean inertia; load-to-grid spring and damper on the load node)."""
-    n = plant.n
-    k = np.zeros((n, n))
-    c = np.zeros((n, n))
-    for i in range(n - 1):
-        for mat, v in ((k, plant.stiff[i]), (c, plant.damp[i])):
-            mat[i, i] += v
-            mat[i + 1, i + 1] += v
-            mat[i, i + 1] -= v
-            mat[i + 1, i] -= v
-    k[plant.load, plant.load] += grid_stiffness
-    c[plant.load, plant.load] += grid_damping
-    return np.diag(plant.mean_inertia), k, c
+    return plant.train.matrices(grid_stiffness, grid_damping)
 
 
 def linearised_stiffness(spec: EngineSpec, plant: PlantModel, tmodel: CylinderModel, load_law: np.ndarray,
@@ -119,12 +142,12 @@ def linearised_stiffness(spec: EngineSpec, plant: PlantModel, tmodel: CylinderMo
     sc[S_VARJ] = 0.0
     inertia = plant.mean_inertia.copy()
     nd = (inertia, plant.stiff, plant.damp, np.zeros(n), np.zeros(n), np.zeros(n))
-    cy = (plant.cyl_node, plant.phase, np.zeros((z, 6)), np.zeros((z, 4)))
+    cy = (plant.cyl_node, plant.phase, np.zeros_like(plant.coef), np.zeros((z, 4)), plant.library.kernels)
     traces = np.full((z, 3, tmodel.theta.shape[0]), P_CRANKCASE)
     slots = np.array([[0, 1, -1]] * z, dtype=np.int64)  # slot c % 3 holds cycle c = -1, 0, 1, all at crankcase pressure
-    w = tuple(np.zeros(z) for _ in range(7)) + (np.zeros((6, z)),)
+    w = work_arrays(z, len(plant.library))
     acc = np.zeros(n)
-    pw = np.zeros(z * NQ_CYL + NQ_GLOBAL)
+    pw = np.zeros(z * plant.nq_cyl + NQ_GLOBAL)
     law = load_law.copy()
     law[6] = 0.0  # no damping
     jac = np.zeros((n, n))

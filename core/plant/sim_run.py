@@ -25,7 +25,6 @@ from frictionwatch.core.plant.plant import (
     I_NEXT_CYCLE,
     I_NEXT_EDGE,
     I_NIST,
-    NQ_CYL,
     NQ_GLOBAL,
     OP_BETA,
     OP_FUEL,
@@ -79,7 +78,7 @@ class PlantRun:
         sc[S_QPERKG] = spec.combustion.combustion_efficiency * spec.combustion.lhv_j_per_kg
         self.sc = sc
         self.nd = (plant.inertia, plant.stiff, plant.damp, np.zeros(n), np.zeros(n), np.zeros(n))
-        self.cy = (plant.cyl_node, plant.phase, plant.coef, plant.extra)
+        self.cy = plant.cylinders
         self.fprm = spec.friction_params()
         self.lp = np.zeros(12)
         self.op = np.zeros(OP_N)
@@ -90,7 +89,7 @@ class PlantRun:
                                       sensors.runout_phase_deg)
         self.edges = (edge_angles(spec.sensors, self.tooth_err),
                       np.arange(spec.sensors.wheel_teeth - spec.sensors.wheel_missing, dtype=np.float64))
-        nq = z * NQ_CYL + NQ_GLOBAL
+        nq = z * plant.nq_cyl + NQ_GLOBAL
         self.state = (np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(nq), np.zeros(nq), np.zeros(z),
                       np.array([0.0, -1.0]))
         self.ist = np.zeros(I_NIST, dtype=np.int64)
@@ -178,10 +177,11 @@ class PlantRun:
         z = self.spec.n_cyl
         d = rows[-1] - rows[0]
         cum = d[1:]
-        w_g = sum(cum[k * NQ_CYL] for k in range(z))
-        w_f = sum(float(self.plant.coef[k] @ cum[k * NQ_CYL + 1:k * NQ_CYL + 7]) + cum[k * NQ_CYL + 7]
+        q, n_terms = self.plant.nq_cyl, self.plant.coef.shape[1]
+        w_g = sum(cum[k * q] for k in range(z))
+        w_f = sum(float(self.plant.coef[k] @ cum[k * q + 1:k * q + 1 + n_terms]) + cum[k * q + 1 + n_terms]
                   for k in range(z))
-        g = z * NQ_CYL
+        g = z * q
         ang = cycles * FOUR_PI
         return (w_g - w_f - cum[g + 1]) / ang, ang / d[0], cum[g + 2] / d[0], cum[g + 3] / d[0]
 

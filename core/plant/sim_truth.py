@@ -6,9 +6,8 @@ Every mean torque is cycle work / 4 pi [N m]; cycle n spans the true flywheel an
 from __future__ import annotations
 
 import numpy as np
-
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.plant.plant import FOUR_PI, NQ_CYL
+from frictionwatch.core.plant.plant import FOUR_PI
 from frictionwatch.core.plant.plant_setup import PlantModel
 
 GRID_MAX_CYL = 4  # the 1-deg friction grid goes into the JSON truth for engines with at most this many cylinders
@@ -21,7 +20,9 @@ def _r(x: float) -> float:
 def build_truth(spec: EngineSpec, plant: PlantModel, out: dict, *, cycles: int, rpm: float, load: float, seed: int,
                 active: dict, wheel: dict, operating: dict) -> tuple[dict, dict]:
     z = spec.n_cyl
-    nq = z * NQ_CYL + 4
+    q = plant.nq_cyl  # per cylinder: gas, the L loss terms, extra friction
+    n_terms = len(plant.library)
+    nq = z * q + 4
     rows, idx = out["cycle_rows"], out["cycle_index"]
     first = int(np.nonzero(idx == 0)[0][0])
     rows = rows[first:first + cycles + 1]
@@ -33,11 +34,11 @@ def build_truth(spec: EngineSpec, plant: PlantModel, out: dict, *, cycles: int, 
     cum = d[:, 1:1 + nq]
     pmax = rows[1:, 1 + nq:]  # the max is reset at each boundary, so row n+1 holds cycle n's max
     coef = plant.coef
-    gas = cum[:, 0:z * NQ_CYL:NQ_CYL]  # (cycles, z) J
-    basis = np.stack([cum[:, k * NQ_CYL + 1:k * NQ_CYL + 7] for k in range(z)], axis=1)  # (cycles, z, 6) J
-    extra = cum[:, 7:z * NQ_CYL:NQ_CYL]
+    gas = cum[:, 0:z * q:q]  # (cycles, z) J
+    basis = np.stack([cum[:, k * q + 1:k * q + 1 + n_terms] for k in range(z)], axis=1)  # (cycles, z, L) J
+    extra = cum[:, n_terms + 1:z * q:q]
     fric = np.einsum("czl,zl->cz", basis, coef) + extra  # (cycles, z) J
-    g = z * NQ_CYL
+    g = z * q
     w_load, w_damp = cum[:, g], cum[:, g + 1]
     vd = spec.displacement_cyl
     grid = out["grid"][: cycles * 720]
@@ -60,12 +61,14 @@ def build_truth(spec: EngineSpec, plant: PlantModel, out: dict, *, cycles: int, 
 
     tot = lambda a: float(a.sum())
     n_c = cycles
-    fmean = basis.sum(axis=0) / (FOUR_PI * n_c)  # (z, 6) cycle-mean of F_l over the output, angle mean
+    fmean = basis.sum(axis=0) / (FOUR_PI * n_c)  # (z, L) cycle-mean of F_l over the output, angle mean
     cylinders = [{"cylinder": k + 1, "friction_torque_mean_nm": tot(fric[:, k]) / (FOUR_PI * n_c),
                   "fmep_bar": tot(fric[:, k]) / (vd * n_c) / 1e5, "imep_bar": tot(gas[:, k]) / (vd * n_c) / 1e5,
                   "pmax_bar_mean": float(pmax[:, k].mean() / 1e5),
                   "extra_friction_torque_nm": tot(extra[:, k]) / (FOUR_PI * n_c),
-                  "coefficients": coef[k].tolist(), "coefficients_normalised": (coef[k] * fmean[k]).tolist()}
+                  "coefficients": coef[k].tolist(), "coefficients_normalised": (coef[k] * fmean[k]).tolist(),
+                  "friction_terms_nm": {name: float(coef[k, i] * fmean[k, i])
+                                        for i, name in enumerate(plant.library.names)}}
                  for k in range(z)]
     vd_tot = vd * z * n_c
     truth = {
@@ -86,7 +89,7 @@ def build_truth(spec: EngineSpec, plant: PlantModel, out: dict, *, cycles: int, 
                      "of the records, at theta_F = -2 pi)",
             "mean_torque": "cycle work / 4 pi [N m]; mep = work / displacement; per-cylinder values use the "
                            "cylinder's own throw speed",
-            "friction": "mechanical friction only (6 Rezeka-Henein terms + extra_friction); relative-damper "
+            "friction": "mechanical friction only (the loss terms friction_terms_nm + extra_friction); relative-damper "
                         "dissipation is damper_coupling_loss_nm; imep is net (whole 720 deg)",
             "friction_torque_grid_nm": "total friction torque [N m] at theta_F = 4 pi n + i deg, i = 0..719",
             "signs": "friction and load torques are magnitudes opposing rotation",

@@ -24,9 +24,14 @@ from frictionwatch.core.model.dynamics import (
 )
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.monitor.flywheel import fit_flywheel, harmonic_series, harmonics_of
-from frictionwatch.core.model.friction import friction_basis
+from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
 from frictionwatch.core.model.kinematics import kinematics, variable_inertia
 from frictionwatch.core.model.torques import gas_torque
+
+
+def friction_basis(theta, omega, p_gauge, consts):
+    """The six Rezeka-Henein terms (L, n) of one cylinder through the term library (core.model.terms)."""
+    return rezeka_henein().evaluate(cylinder_samples(theta, omega, p_gauge, consts), consts)
 
 
 def periodic_time_response(shaft, omega_mean, torque_fn, n=4096):

@@ -10,9 +10,14 @@ from numpy.testing import assert_allclose
 from frictionwatch.core.monitor.accumulate import Accumulator, Prior, ResidualStats, solve_posterior
 from frictionwatch.core.model.dynamics import receptance, shaft_model
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.model.friction import friction_basis
+from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
 from frictionwatch.core.monitor.identify import bounded_solve, friction_design, p_omega_fit, parameter_layout
 from frictionwatch.core.monitor.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
+
+
+def friction_basis(theta, omega, p_gauge, consts):
+    """The six Rezeka-Henein terms (L, n) of one cylinder through the term library (core.model.terms)."""
+    return rezeka_henein().evaluate(cylinder_samples(theta, omega, p_gauge, consts), consts)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

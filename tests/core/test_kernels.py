@@ -5,9 +5,14 @@ import pytest
 from numpy.testing import assert_allclose
 
 from frictionwatch.core.model.engine import available_presets, load_engine
-from frictionwatch.core.model.friction import friction_basis
+from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
 from frictionwatch.core.model.kinematics import kinematics, variable_inertia
 from frictionwatch.core.model.torques import gas_torque, mass_torque, reciprocating_torque
+
+
+def friction_basis(theta, omega, p_gauge, consts):
+    """The six Rezeka-Henein terms (L, n) of one cylinder through the term library (core.model.terms)."""
+    return rezeka_henein().evaluate(cylinder_samples(theta, omega, p_gauge, consts), consts)
 
 
 def ref_kinematics(theta, r, rod):

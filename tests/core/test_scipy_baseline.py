@@ -21,12 +21,17 @@ from bench.scipy_baseline import (
 from bench.scipy_compare import monitor_noise
 from bench.scipy_measure import angle_harmonics, measure
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.model.friction import friction_basis
+from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
 from frictionwatch.core.monitor.identify import parameter_layout
 from frictionwatch.core.model.kinematics import kinematics
 from frictionwatch.core.monitor.monitor import initial_state, process_cycle
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
+
+
+def friction_basis(theta, omega, p_gauge, consts):
+    """The six Rezeka-Henein terms (L, n) of one cylinder through the term library (core.model.terms)."""
+    return rezeka_henein().evaluate(cylinder_samples(theta, omega, p_gauge, consts), consts)
 
 CLEAN = {"without": {"tooth_spacing_error"}, "cov_imep": 0.0}
 

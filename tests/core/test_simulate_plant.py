@@ -2,35 +2,46 @@
 kernels, the plant's linearisation against scipy's generalised eigenvalues and engines.md's CHK frequencies, and the
 integrator's step convergence."""
 
+import frictionwatch.core.plant.simulate as simulate_mod
 import numpy as np
 import pytest
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.kinematics import variable_inertia
+from frictionwatch.core.model.terms import cylinder_samples_reference, rezeka_henein
+from frictionwatch.core.model.thermo import cylinder_model
+from frictionwatch.core.model.torques import gas_torque
+from frictionwatch.core.plant.plant import NQ_GLOBAL, _crossing, _herm, _rhs, work_arrays
+from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, linearised_stiffness, scalars
+from frictionwatch.core.plant.simulate import simulate
 from numpy.testing import assert_allclose
 from scipy.linalg import eigh
 
-import frictionwatch.core.plant.simulate as simulate_mod
-from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.model.friction import friction_basis
-from frictionwatch.core.model.kinematics import variable_inertia
-from frictionwatch.core.plant.plant import NQ_CYL, NQ_GLOBAL, _crossing, _herm, _rhs
-from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, linearised_stiffness, scalars
-from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.core.model.thermo import cylinder_model
-from frictionwatch.core.model.torques import gas_torque
+from tests.core.test_terms import AUX_QUADRATIC
 
 
-def make(spec, rng, variable=True):
+def make(spec, rng, variable=True, library=None):
+    lib = rezeka_henein(spec.friction.coefficients) if library is None else library
     z = spec.n_cyl
-    coef = spec.friction.coefficients * rng.uniform(0.5, 1.5, (z, 6))
+    coef = np.append(spec.friction.coefficients, 1e-5 * np.ones(len(lib) - 6)) * rng.uniform(0.5, 1.5, (z, len(lib)))
     extra = np.column_stack([rng.uniform(0, 1, z), rng.uniform(0, 1, z), np.full(z, 2.0), rng.uniform(0, 6, z)])
-    plant = build_plant(spec, flexible=True, variable=variable, coef=coef, phase=spec.firing_angles, extra=extra)
+    plant = build_plant(spec, flexible=True, variable=variable, coef=coef, phase=spec.firing_angles, extra=extra,
+                        library=lib)
     return plant
 
 
-@pytest.mark.parametrize("name,variable", [("k9k-4cyl", True), ("genset-v20", True), ("k9k-4cyl", False)])
-def test_rhs_matches_numpy_reference(name, variable):
+@pytest.mark.parametrize("name,variable,new_term", [("k9k-4cyl", True, False), ("genset-v20", True, False),
+                                                    ("k9k-4cyl", False, False), ("k9k-4cyl", True, True)])
+def test_rhs_matches_numpy_reference(name, variable, new_term):
+    """The plant's right-hand side against numpy; with ``new_term`` the library carries a seventh loss term
+    (tests/core/test_terms.AUX_QUADRATIC) that the plant integrates without any edit of its kernel."""
     spec = load_engine(name)
     rng = np.random.default_rng(7)
-    plant = make(spec, rng, variable)
+    lib = rezeka_henein(spec.friction.coefficients)
+    if new_term:
+        lib = lib + AUX_QUADRATIC
+    plant = make(spec, rng, variable, lib)
+    n_terms = len(lib)
+    q = plant.nq_cyl
     tm = cylinder_model(spec)
     n, z = plant.n, spec.n_cyl
     th = rng.uniform(0.3, 0.5) + rng.normal(0, 0.01, n)
@@ -42,12 +53,11 @@ def test_rhs_matches_numpy_reference(name, variable):
             slots[k, c % 3] = c
     lp = np.array([1.0, 0, 0, 1, 1000.0, 7e4, 2e3, 0.2, 150.0, 50.0, 1.5, 0.3])
     sc = scalars(spec, plant)
-    acc, pw = np.zeros(n), np.zeros(z * NQ_CYL + NQ_GLOBAL)
-    w = tuple(np.zeros(z) for _ in range(7)) + (np.zeros((6, z)),)
+    acc, pw = np.zeros(n), np.zeros(z * q + NQ_GLOBAL)
+    w = work_arrays(z, n_terms)
     nd = (plant.inertia, plant.stiff, plant.damp, np.zeros(n), np.zeros(n), np.zeros(n))
-    cy = (plant.cyl_node, plant.phase, plant.coef, plant.extra)
     t = 0.01
-    _rhs(t, th, om, nd, cy, sc, spec.friction_params(), lp, traces, slots, tm.step, w, acc, pw)
+    _rhs(t, th, om, nd, plant.cylinders, sc, spec.friction_params(), lp, traces, slots, tm.step, w, acc, pw)
 
     # reference: per cylinder at its own node angle
     k_mat, c_mat = chain_matrices(plant)[1], chain_matrices(plant, 0.0)[2]
@@ -60,7 +70,8 @@ def test_rhs_matches_numpy_reference(name, variable):
         p = np.interp(loc - 4 * np.pi * cyc, tm.theta, traces[k, cyc % 3])
         tg = gas_torque(np.array([th[j]]), np.array([[p]]), plant.phase[k:k + 1], spec.kinematics_params(),
                         spec.piston_area, 1e5)[0, 0]
-        f = friction_basis(np.array([loc]), om[j], np.array([p - 1e5]), spec.friction_params())[:, 0]
+        consts = spec.friction_params()
+        f = lib.evaluate_reference(cylinder_samples_reference(np.array([loc]), om[j], p - 1e5, consts), consts)[:, 0]
         tf = plant.coef[k] @ f + plant.extra[k, 0] + plant.extra[k, 1] * np.cos(2.0 * loc + plant.extra[k, 3])
         torque[j] += tg - tf
         if variable:
@@ -68,13 +79,14 @@ def test_rhs_matches_numpy_reference(name, variable):
                                       spec.reciprocating_mass, 0.0)
             jv[j] += jj[0]
             hdj[j] += 0.5 * dj[0]
-        assert_allclose(pw[k * NQ_CYL], tg * om[j], rtol=1e-9)
-        assert_allclose(pw[k * NQ_CYL + 1:k * NQ_CYL + 7], f * om[j], rtol=1e-9, atol=1e-12)
+        # same formulas, other association (kernels vs numpy): 1e-9
+        assert_allclose(pw[k * q], tg * om[j], rtol=1e-9)
+        assert_allclose(pw[k * q + 1:k * q + 1 + n_terms], f * om[j], rtol=1e-9, atol=1e-12)
     ln = plant.load
     tl = 1000.0 + 7e4 * (th[ln] - 150.0 * t - 0.2) + 2e3 * (om[ln] - 150.0) + 50.0 * np.sin(1.5 * th[ln] + 0.3)
     torque[ln] -= tl
     assert_allclose(acc, (torque - hdj * om**2) / jv, rtol=1e-9, atol=1e-9 * np.abs(acc).max())
-    g = z * NQ_CYL
+    g = z * q
     assert_allclose(pw[g:g + 3], [tl * om[ln], om @ c_mat @ om, tl], rtol=1e-9)
 
 
@@ -100,8 +112,10 @@ def test_natural_frequencies_plant_vs_eigh_vs_engines_md(name):
     law[0], law[5], law[8] = (1.0 if grid_k else 0.0), grid_k, 157.0
     jac = linearised_stiffness(spec, plant, cylinder_model(spec), law)  # M^-1 K as the kernel integrates it
     f_plant = np.sqrt(np.clip(np.sort(np.linalg.eigvals(jac).real), 0, None)) / (2 * np.pi)
-    # independent: K from the spec's own chain matrix, M = rotating + mean reciprocating inertia per throw
-    k = spec.stiffness_matrix()
+    # independent: K assembled here from the spec's section stiffness, M = rotating + mean reciprocating inertia
+    k = np.zeros((spec.n_nodes, spec.n_nodes))
+    for i, ki in enumerate(spec.stiffness):
+        k[i:i + 2, i:i + 2] += ki * np.array([[1.0, -1.0], [-1.0, 1.0]])
     k[spec.load_node, spec.load_node] += grid_k
     m = spec.node_inertia.copy()
     grid = np.linspace(0, 4 * np.pi, 2880, endpoint=False)

@@ -1,13 +1,37 @@
-"""The loss-term library (core.model.terms): each kernel against its numpy reference, and against the friction
-basis the simulator and monitor have used so far (core.model.friction), on seeded random cycles."""
+"""The loss-term library (core.model.terms): each kernel against its numpy reference on seeded random cycles (one
+cylinder and many at once), the sample rows against core.model.kinematics, composition, and a new term."""
 
 import numpy as np
 import pytest
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.model.terms import FIELDS, LossTerm, TermLibrary, cylinder_samples, rezeka_henein
+from frictionwatch.core.model.terms import (
+    OMEGA,
+    LossTerm,
+    TermLibrary,
+    cylinder_samples,
+    cylinder_samples_reference,
+    loss_kernel,
+    rezeka_henein,
+)
 from numpy.testing import assert_allclose
 
 ENGINES = ["deutz-1cyl", "k9k-4cyl", "genset-v20"]
+
+
+@loss_kernel
+def aux_quadratic_kernel(s, c, out):
+    for k in range(out.shape[0]):
+        for i in range(out.shape[1]):
+            out[k, i] = s[OMEGA, k, i] * s[OMEGA, k, i]
+
+
+def aux_quadratic_reference(s, c):
+    return s[OMEGA] ** 2
+
+
+# a loss term the Rezeka-Henein set lacks: auxiliaries whose drag grows with omega^2 (fans, pumps), engine-wide
+AUX_QUADRATIC = LossTerm("aux_quadratic", "omega^2", "engine", "N m s^2", 0.0, aux_quadratic_kernel,
+                         aux_quadratic_reference)
 
 
 def random_cycle(spec, seed):
@@ -24,33 +48,45 @@ def test_kernels_match_their_references(engine, seed):
     spec = load_engine(engine)
     consts = spec.friction_params()
     samples = cylinder_samples(*random_cycle(spec, seed), consts)
-    lib = rezeka_henein(spec.friction.coefficients)
+    lib = rezeka_henein(spec.friction.coefficients) + AUX_QUADRATIC
     # same formula, same operations up to association: a few ulps
     assert_allclose(lib.evaluate(samples, consts), lib.evaluate_reference(samples, consts), rtol=1e-12, atol=0)
 
 
 @pytest.mark.parametrize("engine", ENGINES)
-def test_library_reproduces_the_friction_basis(engine):
-    from frictionwatch.core.model.friction import friction_basis
-
+def test_many_cylinders_at_once(engine):
+    """(N_FIELDS, z, n) samples give (z, L, n), cylinder by cylinder the one-cylinder numbers (same kernel)."""
     spec = load_engine(engine)
     consts = spec.friction_params()
-    angle, omega, p_gauge = random_cycle(spec, 3)
-    basis = rezeka_henein().evaluate(cylinder_samples(angle, omega, p_gauge, consts), consts)
-    # friction_basis takes sin of the wrapped angle, the samples of the unwrapped one; (1 - |sin|) near +-90 deg
-    # cancels digits, so a few 1e-12 relative
-    assert_allclose(basis, friction_basis(angle, omega, p_gauge, consts), rtol=1e-9, atol=1e-300)
+    lib = rezeka_henein(spec.friction.coefficients)
+    one = [cylinder_samples(*random_cycle(spec, s), consts) for s in range(3)]
+    stacked = np.stack(one, axis=1)
+    got = lib.evaluate(stacked, consts)
+    assert got.shape == (3, len(lib), 720)
+    for k in range(3):
+        assert_allclose(got[k], lib.evaluate(one[k], consts), rtol=0, atol=0)
+    assert_allclose(got, lib.evaluate_reference(stacked, consts), rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_samples_match_the_kinematics(engine):
+    spec = load_engine(engine)
+    consts = spec.friction_params()
+    cyc = random_cycle(spec, 3)
+    # x', x'' with products for the divisions by L and cos(beta): ~1e-15 relative of their scale (R)
+    assert_allclose(cylinder_samples(*cyc, consts), cylinder_samples_reference(*cyc, consts), rtol=1e-12,
+                    atol=1e-14 * spec.kinematics_params()[0])
 
 
 def test_library_composes_and_refuses_repeats():
     lib = rezeka_henein()
-    quad = LossTerm("aux_quadratic", "omega^2", "engine", "N m s^2", 0.0,
-                    kernel=lambda s, c, out: np.multiply(s[FIELDS.index("omega")], s[FIELDS.index("omega")], out=out),
-                    reference=lambda s, c: s[FIELDS.index("omega")] ** 2)
-    bigger = lib + quad
-    assert len(bigger) == 7 and bigger.index("aux_quadratic") == 6 and len(lib) == 6
+    bigger = lib + AUX_QUADRATIC
+    assert len(bigger) == len(lib) + 1 and bigger.index("aux_quadratic") == len(lib)
+    assert bigger.names[-1] == "aux_quadratic" and not bigger.per_cylinder[-1]
     with pytest.raises(ValueError, match="repeated: ring_viscous"):
         TermLibrary(lib.terms + lib.terms[:1])
     with pytest.raises(KeyError, match="no loss term"):
         lib.index("ring_wear")
-    assert "ring_mixed" in lib.equations(np.arange(6.0))
+    assert "ring_mixed" in lib.equations(np.arange(float(len(lib))))
+    with pytest.raises(ValueError, match="KERNEL_SIGNATURE"):
+        LossTerm("plain", "omega", "engine", "-", 0.0, lambda s, c, out: None, aux_quadratic_reference)
