@@ -74,10 +74,11 @@ def engine_brake_torque(spec: EngineSpec, model: CylinderModel, omega: float, fu
 
 
 def idle_fuel(spec: EngineSpec, model: CylinderModel, omega: float, spread: np.ndarray, coef: np.ndarray,
-              leak: np.ndarray, misfire: np.ndarray, extra_nm: np.ndarray) -> float:
-    """Nominal fuel m_0 [kg] at which the brake torque is zero at load 0 (secant on the near-linear IMEP(m_f))."""
+              leak: np.ndarray, misfire: np.ndarray, extra_nm: np.ndarray, library: TermLibrary | None = None) -> float:
+    """Nominal fuel m_0 [kg] at which the brake torque is zero at load 0 (secant on the near-linear IMEP(m_f));
+    coef (z, L) of ``library``'s terms (default the six Rezeka-Henein terms)."""
     def brake(m: float) -> float:
-        return engine_brake_torque(spec, model, omega, m * spread, 0.0, coef, leak, misfire, extra_nm)[0]
+        return engine_brake_torque(spec, model, omega, m * spread, 0.0, coef, leak, misfire, extra_nm, library)[0]
 
     m1 = spec.combustion.fuel_mass_kg
     b0, b1 = brake(0.0), brake(m1)

@@ -27,11 +27,18 @@ load power T_L omega_L, relative-damper power sum c_i (omega_i - omega_(i+1))^2,
 from __future__ import annotations
 
 import math
+import warnings
 
 import numba
 import numpy as np
+from numba.core.errors import NumbaExperimentalFeatureWarning
+
 from frictionwatch.core.model.terms import N_FIELDS, fill_sample, sample_rows
 from frictionwatch.core.model.thermo import _STEP, _cycle_pressure
+
+# the library's kernels reach the RK4 kernel as a tuple of first-class functions of one signature (numba calls that
+# feature experimental; it is what lets one cached plant kernel serve any term library): said once here, not to a user
+warnings.filterwarnings("ignore", message="First-class function type", category=NumbaExperimentalFeatureWarning)
 
 NQ_GLOBAL = 4
 # scalar layout ``sc``

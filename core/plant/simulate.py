@@ -40,7 +40,6 @@ from frictionwatch.core.plant.operating_point import (
 from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, static_twist
 from frictionwatch.core.plant.sim_run import PlantRun
 from frictionwatch.core.plant.sim_truth import build_truth
-from frictionwatch.core.model.terms import rezeka_henein
 from frictionwatch.core.model.thermo import charge_pressures, cylinder_model
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 
@@ -92,22 +91,6 @@ def _as_model(engine: EngineSpec | EngineModel, effects, without, coefficients) 
     return EngineModel.from_spec(engine, effects=effects, without=without, coefficients=coefficients)
 
 
-def plant_coefficients(model: EngineModel) -> np.ndarray:
-    """The (z, 6) Rezeka-Henein coefficients the plant kernel takes today.
-
-    Until core.plant.plant evaluates the term library (branch h-model), a model whose added terms carry a non-zero
-    coefficient cannot be simulated: that friction would silently be missing from the truth."""
-    six = rezeka_henein().names
-    if model.terms.names[:6] != six:
-        raise NotImplementedError(f"the plant evaluates the six Rezeka-Henein terms in their order {six}; this model "
-                                  f"has {model.terms.names[:6]}")
-    added = [t for i, t in enumerate(model.terms.names[6:], 6) if np.any(model.coefficients[:, i] != 0.0)]
-    if added:
-        raise NotImplementedError(f"the plant kernel does not yet evaluate added loss terms ({', '.join(added)}): it "
-                                  "takes (z, 6) Rezeka-Henein coefficients until it runs on the term library")
-    return np.array(model.coefficients[:, :6], dtype=np.float64)
-
-
 def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: int, seed: int,
              effects: Mapping[str, dict] | Sequence[Effect] | None = None, without: set[str] | tuple = (),
              cov_imep: float = 0.02, load_steps: list[tuple[float, float]] | None = None,
@@ -134,7 +117,8 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
     omega = rpm * np.pi / 30.0
     tmodel = cylinder_model(spec)
 
-    chain, cyl = ChainSetup(), CylinderSetup.nominal(spec, plant_coefficients(model), model.terms.names[:6])
+    lib = model.terms  # the plant evaluates the model's loss-term library, added terms included
+    chain, cyl = ChainSetup(), CylinderSetup.nominal(spec, model.coefficients, lib.names)
     load_fx, sensors = LoadSetup(), SensorSetup.ideal(z)
     for e in model.effects:  # each hook returns a new set-up: instances compose in the order listed
         chain, cyl = e.apply_chain(chain), e.apply_cylinders(cyl)
@@ -147,23 +131,24 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
 
     # ---- operating point estimate (quasi-static), leak sizing, extra friction reference ----
     leak, extra, no_extra = np.zeros(z), np.zeros((z, 4)), np.zeros(z)
-    m0 = idle_fuel(spec, tmodel, omega, spread, coef, leak, misfire, no_extra)
+    m0 = idle_fuel(spec, tmodel, omega, spread, coef, leak, misfire, no_extra, lib)
     for k in np.nonzero(cyl.mass_loss > 0)[0]:
         leak[k] = leak_area_for_loss(spec, tmodel, omega, fuel_for_load(m0, spec, load) * spread[k], load,
                                      cyl.mass_loss[k])
     with_extra = np.nonzero(np.any(cyl.extra_friction != 0.0, axis=1))[0]
     if with_extra.size:  # T_ref = the cylinder's mean friction at the operating point, without the extra term
         _, means0 = engine_brake_torque(spec, tmodel, omega, fuel_for_load(m0, spec, load) * spread, load, coef,
-                                        leak, misfire, no_extra)
+                                        leak, misfire, no_extra, lib)
         for k in with_extra:
             ref = means0[k].friction_nm
             mean_frac, amp_frac, order, phase_rad = cyl.extra_friction[k]
             extra[k] = [ref * mean_frac, ref * amp_frac, order, phase_rad]
-    m0 = idle_fuel(spec, tmodel, omega, spread, coef, leak, misfire, extra[:, 0])
+    m0 = idle_fuel(spec, tmodel, omega, spread, coef, leak, misfire, extra[:, 0], lib)
 
     def point(frac: float) -> tuple[float, float, list]:
         fuel = fuel_for_load(m0, spec, frac)
-        tb, means = engine_brake_torque(spec, tmodel, omega, fuel * spread, frac, coef, leak, misfire, extra[:, 0])
+        tb, means = engine_brake_torque(spec, tmodel, omega, fuel * spread, frac, coef, leak, misfire, extra[:, 0],
+                                        lib)
         return fuel, tb, means
 
     fuel0, brake0, means = point(load)
@@ -181,7 +166,8 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
         sig_q = np.sqrt(max(target**2 - (d_soc * sig_soc) ** 2, 0.0)) / max(d_q, 1e-9)
 
     # ---- plant ----
-    plant = build_plant(spec, flexible=chain.flexible, variable=chain.variable_inertia, coef=coef, phase=phase, extra=extra)
+    plant = build_plant(spec, flexible=chain.flexible, variable=chain.variable_inertia, coef=coef, phase=phase, extra=extra,
+                        library=lib)
     grid_k = spec.load.grid_stiffness_nm_per_rad if spec.load.kind == "grid" else 0.0
     mm, kk, _ = chain_matrices(plant, grid_k)
     w_max = np.sqrt(max(eigh(kk, mm, eigvals_only=True).max(), 0.0))

@@ -126,7 +126,7 @@ def test_monitor_side_terms():
     for text in ("tdc_offset", "pressure_gain", "pressure_offset", "misfire"):
         assert parse_effect(text).monitor_terms(spec) == ()  # corrected on the pressure side, not by a column
     (term,) = parse_effect("extra_friction:cylinder=2,mean_frac=0.2,amp_frac=0.5,order=1.5").monitor_terms(spec)
-    assert term.name == "extra_friction_c2" and term.group == "cylinder" and term.prior == 0.0
+    assert term.name == "extra_friction_c2" and term.group == "engine" and term.prior == 0.0  # one T_ref, cylinder 2 only
 
 
 def test_every_effect_is_documented():

@@ -102,13 +102,15 @@ def test_effect_terms_match_their_references():
     consts = SPEC.friction_params()
     rng = np.random.default_rng(3)
     angle = np.linspace(-np.pi, 3 * np.pi, 721)[:-1]
-    samples = cylinder_samples(angle, 180.0 + 10 * rng.normal(size=720), 5e6 * np.exp(-angle**2), consts)
+    one = cylinder_samples(angle, 180.0 + 10 * rng.normal(size=720), 5e6 * np.exp(-angle**2), consts)
+    samples = np.ascontiguousarray(np.stack([one] * SPEC.n_cyl, axis=1))  # (N_FIELDS, z, n): every cylinder alike
     lib = TermLibrary((auxiliaries_quadratic(), extra_friction_term(2, 0.2, 0.5, 1.5, 0.3)))
+    basis = lib.evaluate(samples, consts)  # (z, 2, n)
     # same formula and operations: a few ulps
-    assert_allclose(lib.evaluate(samples, consts), lib.evaluate_reference(samples, consts), rtol=1e-12, atol=1e-15)
-    assert_allclose(lib.evaluate(samples, consts)[0], samples[5] ** 2, rtol=1e-15)
-    shape = lib.evaluate(samples, consts)[1]
-    assert_allclose([shape.min(), shape.max()], [0.2 - 0.5, 0.2 + 0.5], atol=1e-3)
+    assert_allclose(basis, lib.evaluate_reference(samples, consts), rtol=1e-12, atol=1e-15)
+    assert_allclose(basis[:, 0], np.broadcast_to(one[5] ** 2, (SPEC.n_cyl, 720)), rtol=1e-15)
+    assert_allclose([basis[1, 1].min(), basis[1, 1].max()], [0.2 - 0.5, 0.2 + 0.5], atol=1e-3)
+    assert not np.any(basis[[0, 2, 3], 1])  # the extra friction of cylinder 2 is nobody else's
 
 
 def test_simulate_takes_a_model_and_applies_its_effects():
@@ -122,7 +124,15 @@ def test_simulate_takes_a_model_and_applies_its_effects():
         simulate(model, 1700, 1.0, 2, 7, effects=effects)
 
 
-def test_simulate_refuses_added_terms_the_plant_cannot_evaluate_yet():
-    model = EngineModel.from_spec(SPEC).with_term(auxiliaries_quadratic(), 1e-5)
-    with pytest.raises(NotImplementedError, match=r"added loss terms \(auxiliaries_quadratic\)"):
-        simulate(model, 1700, 1.0, 2, 7)
+def test_simulate_runs_a_model_with_an_added_term():
+    """The plant evaluates the model's whole term library: an added omega^2 term shows in the truth as its own
+    friction share, about a omega^2 per cylinder, and adds that much to each cylinder's friction."""
+    a = 2.0 / (1700 * np.pi / 30) ** 2  # ~2 N m per cylinder at 1700 rpm
+    base = simulate(EngineModel.from_spec(SPEC), 1700, 1.0, 2, 7, cov_imep=0.0)
+    more = simulate(EngineModel.from_spec(SPEC).with_term(auxiliaries_quadratic(), a), 1700, 1.0, 2, 7, cov_imep=0.0)
+    omega = more.truth["rpm_mean"] * np.pi / 30
+    for cb, cm in zip(base.truth["cylinders"], more.truth["cylinders"]):
+        # the throw's speed ripple makes <omega^2> a little larger than omega_mean^2 (< 0.5 % here)
+        assert_allclose(cm["friction_terms_nm"]["auxiliaries_quadratic"], a * omega**2, rtol=5e-3)
+        assert "auxiliaries_quadratic" not in cb["friction_terms_nm"]
+        assert_allclose(cm["friction_torque_mean_nm"] - cb["friction_torque_mean_nm"], 2.0, rtol=0.05)

@@ -1,13 +1,15 @@
 """Loss terms outside Rezeka-Henein: the identification columns that effects add to the monitor's model.
 
 Same contract as core.model.terms: a plain-numpy ``reference`` written from the equation and one numba ``kernel``
-with the signature ``kernel(samples (N_FIELDS, n), consts (N_CONSTS,), out (n,))``.
+compiled with ``KERNEL_SIGNATURE``: ``kernel(samples (N_FIELDS, z, n), consts (N_CONSTS,), out (z, n))``.
 
     auxiliaries_quadratic   F = omega^2                                    engine-wide (fan, pumps, windage)
-    extra_friction_c<k>     F = m + a cos(order angle + phase)             the shape of one extra_friction effect
+    extra_friction_c<k>     F = m + a cos(order angle + phase) in cylinder k, 0 elsewhere: the shape of one
+                            extra_friction effect, one coefficient (its reference torque T_ref)
 
-The extra-friction shape carries the effect's own numbers (m, a, order, phase), so its kernel is made per effect
-instance by ``extra_friction_term``; numba compiles such a closure once per instance and cannot cache it on disk.
+The extra-friction shape carries the effect's own numbers (m, a, order, phase, cylinder), so its kernel is compiled per
+effect instance by ``extra_friction_term``; numba compiles such a closure once per instance (eagerly, with the common
+signature) and cannot cache it on disk.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from frictionwatch.core.model.terms import ANGLE, OMEGA, LossTerm
+from frictionwatch.core.model.terms import ANGLE, KERNEL_SIGNATURE, OMEGA, LossTerm, loss_kernel
 
 
 def auxiliaries_quadratic_reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -23,10 +25,11 @@ def auxiliaries_quadratic_reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
     return s[OMEGA] ** 2
 
 
-@numba.njit(cache=True)
+@loss_kernel
 def auxiliaries_quadratic_kernel(s, c, out):
-    for i in range(out.shape[0]):
-        out[i] = s[OMEGA, i] * s[OMEGA, i]
+    for k in range(out.shape[0]):
+        for i in range(out.shape[1]):
+            out[k, i] = s[OMEGA, k, i] * s[OMEGA, k, i]
 
 
 def auxiliaries_quadratic() -> LossTerm:
@@ -41,20 +44,27 @@ def order_shape_reference(s: np.ndarray, mean: float, amp: float, order: float, 
 
 
 def extra_friction_term(cylinder: int, mean: float, amp: float, order: float, phase: float) -> LossTerm:
-    """The torque shape of an ``extra_friction`` effect in ``cylinder`` as a per-cylinder term: its coefficient
-    [N m] is the reference torque T_ref (the simulator uses the cylinder's mean friction), prior 0."""
+    """The torque shape of an ``extra_friction`` effect in ``cylinder`` (1-based) as one term that is zero in every
+    other cylinder (group "engine": one coefficient, the reference torque T_ref [N m]; the simulator uses the
+    cylinder's mean friction), prior 0."""
+    k = int(cylinder) - 1
     mean, amp, order, phase = float(mean), float(amp), float(order), float(phase)
 
-    @numba.njit
+    @numba.njit(KERNEL_SIGNATURE)
     def kernel(s, c, out):
-        for i in range(out.shape[0]):
-            out[i] = mean + amp * np.cos(order * s[ANGLE, i] + phase)
+        for j in range(out.shape[0]):
+            for i in range(out.shape[1]):
+                out[j, i] = mean + amp * np.cos(order * s[ANGLE, j, i] + phase) if j == k else 0.0
 
     def reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
-        return order_shape_reference(s, mean, amp, order, phase)
+        """(N_FIELDS, z, n) -> (z, n), cylinder k only; (N_FIELDS, n) is taken as cylinder k itself."""
+        shape = order_shape_reference(s, mean, amp, order, phase)
+        if s.ndim == 3:
+            shape = np.where(np.arange(s.shape[1])[:, None] == k, shape, 0.0)
+        return shape
 
-    equation = f"{mean:g} + {amp:g} cos({order:g} angle + {phase:g} rad)"
-    return LossTerm(f"extra_friction_c{cylinder}", equation, "cylinder", "N m", 0.0, kernel, reference)
+    equation = f"cylinder {k + 1}: {mean:g} + {amp:g} cos({order:g} angle + {phase:g} rad)"
+    return LossTerm(f"extra_friction_c{k + 1}", equation, "engine", "N m", 0.0, kernel, reference)
 
 
 __all__ = ["auxiliaries_quadratic", "auxiliaries_quadratic_kernel", "auxiliaries_quadratic_reference",
