@@ -1,1 +1,16 @@
-"""core/plant"""
+"""The time-domain plant simulator, built from an EngineModel (core.model): what the monitor is tested against.
+
+    simulate.py         simulate(model or spec, rpm, load, cycles, seed) -> SimResult (stream records + truth)
+    plant.py            the RK4 kernel over the torsional chain, each throw's J(theta) and the model's loss terms
+    plant_setup.py      the plant's arrays from the model's drive train and term library
+    sim_run.py          runs the kernel chunk by chunk, switches load laws, turns events into records
+    sim_truth.py        ground truth from the plant's cycle-boundary integrals
+    sensors.py          tooth wheel, timer, cam, pressure ADC and load sensor models
+    operating_point.py  quasi-static operating point (fuel for a load, leak sizing)
+
+It integrates in the time domain on purpose: the monitor's harmonic balance must not be tested against itself.
+"""
+
+from frictionwatch.core.plant.simulate import SimResult, simulate
+
+__all__ = ["SimResult", "simulate"]
