@@ -26,7 +26,6 @@ import scipy.linalg
 
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.kinematics import kinematics, variable_inertia
-from frictionwatch.core.model.pairwise import pairwise_sum
 
 
 @dataclass(frozen=True)
@@ -191,7 +190,7 @@ def dissipated_power(shaft: ShaftModel, speed: np.ndarray) -> tuple[float, float
 @numba.njit(cache=True)
 def _dissipation(speed, edges, edge_damping, ground_damping):
     """(relative, ground) mean dissipated power: 0.5 sum c_e |s_i - s_j|^2 and 0.5 sum c_g |s|^2, each sum over
-    the (rows, M) products in numpy's pairwise order (np.sum of a contiguous array)."""
+    the (rows, M) products."""
     n, m = speed.shape
     n_e = edges.shape[0]
     buf = np.empty(max(n_e, n) * m)
@@ -205,13 +204,13 @@ def _dissipation(speed, edges, edge_damping, ground_damping):
                 d = speed[a, i] - speed[b, i]
                 v = math.hypot(d.real, d.imag)
                 buf[q * m + i] = c * (v * v)
-        rel = 0.5 * pairwise_sum(buf, 0, n_e * m)
+        rel = 0.5 * np.sum(buf[:n_e * m])
     for q in range(n):
         c = ground_damping[q]
         for i in range(m):
             v = math.hypot(speed[q, i].real, speed[q, i].imag)
             buf[q * m + i] = c * (v * v)
-    gnd = 0.5 * pairwise_sum(buf, 0, n * m)
+    gnd = 0.5 * np.sum(buf[:n * m])
     return rel, gnd
 
 

@@ -24,7 +24,6 @@ from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.excitation import Excitation, ExcitationPlan, excitation_plan
 from frictionwatch.core.monitor.flywheel import FlywheelMotion
 from frictionwatch.core.model.friction import N_TERMS
-from frictionwatch.core.monitor.frozen_init import fast_constructor
 from frictionwatch.core.monitor.identify import CycleRows, ParameterLayout
 
 
@@ -96,17 +95,13 @@ def harmonic_balance(spec: EngineSpec, layout: ParameterLayout, theta: np.ndarra
         if twist:
             rel_in, static_in = rel, static
     n_head = buf.shape[0] - 7 * z
-    exc = _make_excitation(tau=tau, theta_fly=theta_f, omega_node=omega_node, gas=buf[n_head + 6 * z:],
+    exc = Excitation(tau=tau, theta_fly=theta_f, omega_node=omega_node, gas=buf[n_head + 6 * z:],
                            known_harm=known, basis=buf[n_head: n_head + 6 * z].reshape(z, N_TERMS, time_samples),
                            basis_mean=basis_mean, indicated_mean=indicated_mean, omega_fly=omega_f, alpha_fly=alpha_f)
-    rows = _make_rows(design=design, target=target, mean_row=mean_row, mean_target=float("nan"),
+    rows = CycleRows(design=design, target=target, mean_row=mean_row, mean_target=float("nan"),
                       cylinder_rows=cyl_rows)
     return exc, rows, node_speed, rel, static, (p_rel, p_gnd)
 
-
-# the per-cycle frozen objects, built without the per-field frozen __setattr__ (core.monitor.frozen_init)
-_make_excitation = fast_constructor(Excitation)
-_make_rows = fast_constructor(CycleRows)
 
 # the last (spec, layout, op, variable_inertia, kernel constants): one monitor's steady state
 _LAST: list[tuple] = [(None, None, None, None, None)]

@@ -283,23 +283,6 @@ def posterior_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr
     return status, theta, chi2_red, cov_stat, cov, ref
 
 
-_F8_2D = numba.types.Array(numba.float64, 2, "C")
-_F8_1D = numba.types.Array(numba.float64, 1, "C")
-_F8_1D_READONLY = numba.types.Array(numba.float64, 1, "C", readonly=True)
-_POSTERIOR_SIGNATURES = [(_F8_2D, _F8_1D, numba.float64, numba.float64, _F8_2D, _F8_2D, _F8_2D, _F8_1D, _F8_1D, lo,
-                          numba.float64) for lo in (_F8_1D, _F8_1D_READONLY)]
-
-
-@numba.njit(_POSTERIOR_SIGNATURES, cache=True)
-def posterior_kernel_typed(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, r_pr, sys_var, lo,
-                           max_condition):
-    """``posterior_kernel`` for C-contiguous float64 arrays only (lower bounds may be read-only): any other type
-    raises TypeError at the call instead of compiling a new specialisation, so the caller needs no conversion or
-    type check of its own on the fast path (shapes are checked inside: BAD_SHAPE)."""
-    return posterior_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, r_pr, sys_var, lo,
-                            max_condition)
-
-
 def lower_vector(lower: float | np.ndarray, n: int) -> np.ndarray:
     """``lower`` broadcast to a contiguous float64 (n,) (raises ValueError if it does not broadcast)."""
     lo = np.asarray(lower, dtype=np.float64)

@@ -58,3 +58,37 @@ def build_priors(spec: EngineSpec, layout: ParameterLayout, n_nuisance: int, cyl
         sib = np.array(rows)
         base = Prior.stack(base, Prior(sib, np.zeros(sib.shape[0]), np.full(sib.shape[0], sibling_spread)))
     return FixedPriors(base, cylinder_rows)
+
+
+@dataclass(frozen=True)
+class PriorNormal:
+    """The fixed priors in normal form, info (P, P) and rhs (P,) (``FixedPriors.base.normal()``), kept in the
+    monitor's state (they do not change from cycle to cycle); ``key`` = the configuration they were built for
+    (parameter_sigma, tooth_error_deg, sibling_spread)."""
+
+    key: tuple[float, float, float]
+    info: np.ndarray
+    rhs: np.ndarray
+
+    def with_share(self, cylinder_rows: np.ndarray, share: SharedLoss) -> tuple[np.ndarray, np.ndarray]:
+        """Normal equations of the fixed priors plus the Eq. 6 share rows (``FixedPriors.with_share(share).normal()``);
+        cylinder_rows (z, p_f) act on the leading p_f parameters. A share that is not finite adds nothing."""
+        if not np.all(np.isfinite(share.friction_mean)):
+            return self.info, self.rhs
+        sig = np.maximum(share.sigma, 1e-6)
+        w = cylinder_rows / sig[:, None]
+        p_f = w.shape[1]
+        info = self.info.copy()
+        rhs = self.rhs.copy()
+        info[:p_f, :p_f] += w.T @ w
+        rhs[:p_f] += w.T @ (share.friction_mean / sig)
+        return info, rhs
+
+
+def prior_normal(spec: EngineSpec, layout: ParameterLayout, n_nuisance: int, parameter_sigma: float,
+                 tooth_error_deg: float, sibling_spread: float) -> PriorNormal:
+    """The fixed priors of ``build_priors`` in normal form."""
+    base = build_priors(spec, layout, n_nuisance, np.zeros((spec.n_cyl, layout.n_params + n_nuisance)),
+                        parameter_sigma, tooth_error_deg, sibling_spread).base
+    info, rhs = base.normal()
+    return PriorNormal((parameter_sigma, tooth_error_deg, sibling_spread), info, rhs)

@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.monitor_kernels import firing_into, share_into
 
 # Chen-Flynn defaults (engines.md §4; 1-D engine-code defaults, provenance not checked against SAE 650733)
 CHEN_FLYNN_BAR = (0.4, 0.005, 0.09, 0.0009)
@@ -42,10 +41,11 @@ def motored_friction_per_cylinder(spec: EngineSpec, rpm: float, pmax_motored_pa:
 
 def firing_mask(indicated_mean: np.ndarray, fraction: float = 0.15) -> np.ndarray:
     """True for cylinders that fire: indicated work above ``fraction`` of the median of the positive ones."""
-    t = np.ascontiguousarray(indicated_mean, dtype=np.float64)
-    fire = np.empty(t.shape, dtype=bool)
-    firing_into(t.reshape(-1), float(fraction), fire.reshape(-1))
-    return fire
+    t = np.asarray(indicated_mean, dtype=np.float64)
+    positive = t[t > 0]
+    if positive.size == 0:
+        return np.zeros(t.shape, dtype=bool)
+    return t > fraction * float(np.median(positive))
 
 
 def share_mean_loss(
@@ -61,12 +61,15 @@ def share_mean_loss(
     spread : relative 1-sigma given to a firing cylinder's share (cylinder-to-cylinder scatter the rule ignores)
     motored_spread : relative 1-sigma of a motored cylinder's T_fM,ml
     """
-    t_i = np.ascontiguousarray(indicated_mean, dtype=np.float64)
+    t_i = np.asarray(indicated_mean, dtype=np.float64)
     if t_i.ndim != 1:
         raise ValueError(f"indicated_mean must be one value per cylinder (z,), got shape {t_i.shape}")
-    out = np.empty(t_i.shape)
-    sig = np.empty(t_i.shape)
-    motored = np.empty(t_i.shape, dtype=bool)
-    share_into(float(friction_total), t_i, float(motored_friction), float(spread), float(motored_spread),
-               float(fraction), out, sig, motored)
-    return SharedLoss(friction_mean=out, sigma=sig, motored=motored)
+    fire = firing_mask(t_i, fraction)
+    out = np.full(t_i.shape, float(motored_friction))
+    sig = np.full(t_i.shape, motored_spread * abs(motored_friction))
+    if fire.any():  # nothing firing: every cylinder gets the motored loss
+        n_motored = int(np.count_nonzero(~fire))
+        t_fire = t_i[fire]
+        out[fire] = (friction_total - n_motored * motored_friction) * t_fire / float(np.sum(t_fire))
+        sig[fire] = spread * np.abs(out[fire])
+    return SharedLoss(friction_mean=out, sigma=sig, motored=~fire)
