@@ -9,7 +9,7 @@ import numpy as np
 
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.accumulate import Posterior
-from frictionwatch.core.monitor.estimate_kernels import coefficient_kernel, cylinder_kernel
+from frictionwatch.core.monitor.estimate_kernels import estimate_kernel
 from frictionwatch.core.monitor.identify import ParameterLayout
 from frictionwatch.core.monitor.results import FrictionEstimate
 
@@ -38,31 +38,28 @@ def friction_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
     z = spec.n_cyl
     p_f = layout.n_params
     n_terms = layout.prior.shape[1]
-    params = np.ascontiguousarray(post.params, dtype=np.float64)
+    params = np.ascontiguousarray(post.params[:p_f], dtype=np.float64)
     basis_mean = np.ascontiguousarray(basis_mean, dtype=np.float64)
     rows = layout.cylinder_rows(basis_mean) if cylinder_rows is None else cylinder_rows
     rows = np.ascontiguousarray(rows, dtype=np.float64)
-    covs = [np.ascontiguousarray(c, dtype=np.float64) for c in (post.covariance, post.cov_statistical,
-                                                                   post.cov_reference)]
-    if (params.shape[0] < p_f or rows.shape != (z, p_f) or basis_mean.shape != (z, n_terms)
-            or any(c.shape[0] < p_f or c.shape[0] != c.shape[1] for c in covs)):
+    cov, cov_stat, cov_ref = (np.ascontiguousarray(c, dtype=np.float64)
+                              for c in (post.covariance, post.cov_statistical, post.cov_reference))
+    if (params.shape[0] != p_f or rows.shape != (z, p_f) or basis_mean.shape != (z, n_terms)
+            or not cov.shape == cov_stat.shape == cov_ref.shape or cov.shape[0] < p_f or cov.shape[0] != cov.shape[1]):
         raise ValueError(f"need a posterior over >= {p_f} parameters, rows ({z}, {p_f}) and basis means "
                          f"({z}, {n_terms}); got {params.shape}, {rows.shape}, {basis_mean.shape}")
-    group = np.ascontiguousarray(layout.group, dtype=np.int64)
-    prior = np.ascontiguousarray(layout.prior, dtype=np.float64)
-    coef, coef_sig, norm, norm_sig, coef_ok = coefficient_kernel(
-        params[:p_f], *covs, group, prior, basis_mean, float(limits.coefficient_snr), float(limits.min_data_gain))
-    t_cyl, t_sig, t_tot, t_tot_sig, gain = cylinder_kernel(params[:p_f], *covs, rows)
-    resolved = (t_sig <= limits.resolve_rel * np.abs(t_cyl)) & (gain >= limits.min_data_gain)
+    coef, coef_sig, norm, norm_sig, coef_ok, t_mean, t_sig, gain, resolved, t_tot, t_tot_sig = estimate_kernel(
+        params, cov, cov_stat, cov_ref, layout.group, layout.prior, basis_mean, rows, float(limits.resolve_rel),
+        float(limits.coefficient_snr), float(limits.min_data_gain))
     to_cyl, to_eng = FOUR_PI / spec.displacement_cyl, FOUR_PI / spec.displacement
     return FrictionEstimate(
-        friction_torque_mean=np.where(resolved, t_cyl, np.nan),
+        friction_torque_mean=t_mean,
         friction_torque_mean_sigma=t_sig,
-        fmep=np.where(resolved, t_cyl * to_cyl, np.nan),
+        fmep=t_mean * to_cyl,
         fmep_sigma=t_sig * to_cyl,
-        coefficients=np.where(coef_ok, coef, np.nan),
+        coefficients=coef,
         coefficients_sigma=coef_sig,
-        coefficients_normalised=np.where(coef_ok, norm, np.nan),
+        coefficients_normalised=norm,
         coefficients_normalised_sigma=norm_sig,
         resolved=resolved,
         coefficient_resolved=coef_ok,

@@ -1,6 +1,6 @@
 """Numba kernel of the reported estimate (core.monitor.estimate.friction_estimate): coefficients and their sigmas,
 per-cylinder and total friction torques with sigmas (quadratic forms through the covariance), the data gains and
-the resolved masks, in one call. The numpy reference is ``friction_estimate_reference`` in
+the resolved masks, in one call (``estimate_kernel``). The numpy reference is ``friction_estimate_reference`` in
 tests/core/test_monitor_kernels.py."""
 
 from __future__ import annotations
@@ -112,3 +112,29 @@ def cylinder_kernel(params, cov, cov_stat, cov_ref, rows):
     gain = np.empty(z)
     _gain(post, refs, gain)
     return t_cyl, t_sig, t_tot, t_tot_sig, gain
+
+
+@numba.njit(cache=True)
+def estimate_kernel(params, cov, cov_stat, cov_ref, group, prior, basis_mean, rows, resolve_rel, coefficient_snr,
+                    min_data_gain):
+    """``coefficient_kernel`` and ``cylinder_kernel`` with the masks applied: unresolved coefficients and
+    per-cylinder means are NaN. A per-cylinder mean is resolved when its sigma is at most ``resolve_rel`` of it and
+    its data gain at least ``min_data_gain``.
+
+    Returns (coef, coef_sig, norm, norm_sig, coef_ok) (z, n_terms), (t_mean, t_sig, gain, resolved) (z,), t_tot,
+    t_tot_sig."""
+    coef, coef_sig, norm, norm_sig, coef_ok = coefficient_kernel(params, cov, cov_stat, cov_ref, group, prior,
+                                                                 basis_mean, coefficient_snr, min_data_gain)
+    z, n_terms = coef.shape
+    for k in range(z):
+        for term in range(n_terms):
+            if not coef_ok[k, term]:
+                coef[k, term] = np.nan
+                norm[k, term] = np.nan
+    t_cyl, t_sig, t_tot, t_tot_sig, gain = cylinder_kernel(params, cov, cov_stat, cov_ref, rows)
+    resolved = np.empty(z, dtype=np.bool_)
+    for k in range(z):
+        resolved[k] = t_sig[k] <= resolve_rel * abs(t_cyl[k]) and gain[k] >= min_data_gain
+        if not resolved[k]:
+            t_cyl[k] = np.nan
+    return coef, coef_sig, norm, norm_sig, coef_ok, t_cyl, t_sig, gain, resolved, t_tot, t_tot_sig

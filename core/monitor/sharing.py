@@ -42,10 +42,12 @@ def motored_friction_per_cylinder(spec: EngineSpec, rpm: float, pmax_motored_pa:
 def firing_mask(indicated_mean: np.ndarray, fraction: float = 0.15) -> np.ndarray:
     """True for cylinders that fire: indicated work above ``fraction`` of the median of the positive ones."""
     t = np.asarray(indicated_mean, dtype=np.float64)
-    positive = t[t > 0]
-    if positive.size == 0:
+    positive = np.sort(t[t > 0])
+    n = positive.shape[0]
+    if n == 0:
         return np.zeros(t.shape, dtype=bool)
-    return t > fraction * float(np.median(positive))
+    median = positive[n // 2] if n % 2 else 0.5 * (positive[n // 2 - 1] + positive[n // 2])  # np.median, cheaper
+    return t > fraction * median
 
 
 def share_mean_loss(
