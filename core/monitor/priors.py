@@ -17,6 +17,7 @@ from frictionwatch.core.monitor.accumulate import Prior
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.identify import ParameterLayout
 from frictionwatch.core.monitor.sharing import SharedLoss
+from frictionwatch.core.monitor.sharing_kernels import share_rows_kernel
 
 
 @dataclass(frozen=True)
@@ -75,14 +76,11 @@ class PriorNormal:
         cylinder_rows (z, p_f) act on the leading p_f parameters. A share that is not finite adds nothing."""
         if not np.all(np.isfinite(share.friction_mean)):
             return self.info, self.rhs
-        sig = np.maximum(share.sigma, 1e-6)
-        w = cylinder_rows / sig[:, None]
-        p_f = w.shape[1]
-        info = self.info.copy()
-        rhs = self.rhs.copy()
-        info[:p_f, :p_f] += w.T @ w
-        rhs[:p_f] += w.T @ (share.friction_mean / sig)
-        return info, rhs
+        rows = np.ascontiguousarray(cylinder_rows, dtype=np.float64)
+        if rows.shape[1] > self.info.shape[0] or share.friction_mean.shape != (rows.shape[0],):
+            raise ValueError(f"cylinder rows {rows.shape} do not fit the priors ({self.info.shape[0]} parameters) "
+                             f"or the shares {share.friction_mean.shape}")
+        return share_rows_kernel(self.info, self.rhs, rows, share.friction_mean, share.sigma)
 
 
 def prior_normal(spec: EngineSpec, layout: ParameterLayout, n_nuisance: int, parameter_sigma: float,

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.monitor.sharing_kernels import firing_kernel, share_kernel
 
 # Chen-Flynn defaults (engines.md §4; 1-D engine-code defaults, provenance not checked against SAE 650733)
 CHEN_FLYNN_BAR = (0.4, 0.005, 0.09, 0.0009)
@@ -41,13 +42,8 @@ def motored_friction_per_cylinder(spec: EngineSpec, rpm: float, pmax_motored_pa:
 
 def firing_mask(indicated_mean: np.ndarray, fraction: float = 0.15) -> np.ndarray:
     """True for cylinders that fire: indicated work above ``fraction`` of the median of the positive ones."""
-    t = np.asarray(indicated_mean, dtype=np.float64)
-    positive = np.sort(t[t > 0])
-    n = positive.shape[0]
-    if n == 0:
-        return np.zeros(t.shape, dtype=bool)
-    median = positive[n // 2] if n % 2 else 0.5 * (positive[n // 2 - 1] + positive[n // 2])  # np.median, cheaper
-    return t > fraction * median
+    t = np.ascontiguousarray(indicated_mean, dtype=np.float64)
+    return firing_kernel(t.reshape(-1), float(fraction)).reshape(t.shape)
 
 
 def share_mean_loss(
@@ -63,15 +59,9 @@ def share_mean_loss(
     spread : relative 1-sigma given to a firing cylinder's share (cylinder-to-cylinder scatter the rule ignores)
     motored_spread : relative 1-sigma of a motored cylinder's T_fM,ml
     """
-    t_i = np.asarray(indicated_mean, dtype=np.float64)
+    t_i = np.ascontiguousarray(indicated_mean, dtype=np.float64)
     if t_i.ndim != 1:
         raise ValueError(f"indicated_mean must be one value per cylinder (z,), got shape {t_i.shape}")
-    fire = firing_mask(t_i, fraction)
-    out = np.full(t_i.shape, float(motored_friction))
-    sig = np.full(t_i.shape, motored_spread * abs(motored_friction))
-    if fire.any():  # nothing firing: every cylinder gets the motored loss
-        n_motored = int(np.count_nonzero(~fire))
-        t_fire = t_i[fire]
-        out[fire] = (friction_total - n_motored * motored_friction) * t_fire / float(np.sum(t_fire))
-        sig[fire] = spread * np.abs(out[fire])
-    return SharedLoss(friction_mean=out, sigma=sig, motored=~fire)
+    out, sig, motored = share_kernel(float(friction_total), t_i, float(motored_friction), float(spread),
+                                     float(motored_spread), float(fraction))
+    return SharedLoss(friction_mean=out, sigma=sig, motored=motored)
