@@ -33,14 +33,14 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from frictionwatch.core.monitor.spd_kernels import (  # noqa: F401  (_cho_inverse, _spd_inverse_into: the tests' handles)
-    _FAST,
-    _cho_inverse,
-    _cho_solve,
-    _cholesky,
-    _decoupled_tail,
-    _spd_inverse_into,
-    _spd_inverse_of_sum,
+from frictionwatch.core.monitor.spd_kernels import (  # noqa: F401  (cho_inverse, spd_inverse_into: the tests' handles)
+    FASTMATH,
+    cho_inverse,
+    cho_solve,
+    cholesky,
+    decoupled_tail,
+    spd_inverse_into,
+    spd_inverse_of_sum,
 )
 
 OK = 0
@@ -53,7 +53,7 @@ FEASIBLE_MARGIN = 1e-9  # scaled distance to a bound, relative to max |x|, below
 REGULARISATION = 1e-12  # the reference's ridge on the unit-diagonal blocks (bounded_solve)
 
 
-@numba.njit(cache=True, fastmath=_FAST)
+@numba.njit(cache=True, fastmath=FASTMATH)
 def bounded_solve_kernel(info, rhs, lo):
     """Unconstrained minimiser of theta^T info theta - 2 rhs^T theta as ``bounded_solve`` forms it (unit-diagonal
     scaling, non-finite ``lo`` = free nuisance eliminated by its Schur complement, ridge 1e-12 on both blocks).
@@ -103,7 +103,7 @@ def bounded_solve_kernel(info, rhs, lo):
     r = rhs / d
     # free block s_ff + ridge = Lf Lf^T; W = Lf^-1 s_fb and zf = Lf^-1 r_f by row updates
     chol_f = np.empty((nf, nf))
-    if _cholesky(s_ff, chol_f) < PIVOT_RATIO_MIN:
+    if cholesky(s_ff, chol_f) < PIVOT_RATIO_MIN:
         return FALLBACK, theta
     w = s_fb.copy()
     zf = np.empty(nf)
@@ -134,9 +134,9 @@ def bounded_solve_kernel(info, rhs, lo):
         for b in range(a):
             s_red[b, a] = s_red[a, b]
     chol_b = np.empty((nb, nb))
-    if _cholesky(s_red, chol_b) < PIVOT_RATIO_MIN:
+    if cholesky(s_red, chol_b) < PIVOT_RATIO_MIN:
         return FALLBACK, theta
-    xb = _cho_solve(chol_b, r_red)
+    xb = cho_solve(chol_b, r_red)
     scale = 0.0
     for a in range(nb):
         if abs(xb[a]) > scale:
@@ -151,7 +151,7 @@ def bounded_solve_kernel(info, rhs, lo):
         for b in range(nb):
             t -= s_fb[a, b] * xb[b]
         rf[a] = t
-    xf = _cho_solve(chol_f, rf)
+    xf = cho_solve(chol_f, rf)
     for a in range(nb):
         theta[bi[a]] = xb[a] / d[bi[a]]
     for a in range(nf):
@@ -159,7 +159,7 @@ def bounded_solve_kernel(info, rhs, lo):
     return OK, theta
 
 
-@numba.njit(cache=True, fastmath=_FAST)
+@numba.njit(cache=True, fastmath=FASTMATH)
 def _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, theta, max_condition,
                           inv):
     """``posterior_moments_kernel`` given inv = (acc_info + n_pr)^-1 (n, n), which becomes cov_stat (scaled in
@@ -175,7 +175,7 @@ def _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference,
     c = chi2_red if chi2_red > 1.0 else 1.0  # Python's max(1.0, x): nan keeps 1.0
     empty = np.empty((0, 0))
     ref = np.empty((n, n))  # cov_reference = c (info_reference + n_pr)^-1
-    if _spd_inverse_of_sum(info_reference, n_pr, ref, c) < PIVOT_RATIO_MIN:
+    if spd_inverse_of_sum(info_reference, n_pr, ref, c) < PIVOT_RATIO_MIN:
         return FALLBACK, chi2_red, empty, empty, empty
     if np.isfinite(max_condition):
         t_info = 0.0
@@ -213,7 +213,7 @@ def _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference,
     return OK, chi2_red, inv, cov, ref
 
 
-@numba.njit(cache=True, fastmath=_FAST)
+@numba.njit(cache=True, fastmath=FASTMATH)
 def posterior_moments_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, theta,
                              max_condition):
     """chi^2 reduced, statistical, total and reference covariances of ``posterior_from_normal`` at theta.
@@ -221,14 +221,14 @@ def posterior_moments_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_referen
     Returns (status, chi2_red, cov_stat, covariance, cov_reference); the arrays are valid only with status OK."""
     n = acc_info.shape[0]
     inv = np.empty((n, n))
-    if _spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < PIVOT_RATIO_MIN:
+    if spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < PIVOT_RATIO_MIN:
         empty = np.empty((0, 0))
         return FALLBACK, 1.0, empty, empty, empty
     return _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, theta,
                                  max_condition, inv)
 
 
-@numba.njit(cache=True, fastmath=_FAST)
+@numba.njit(cache=True, fastmath=FASTMATH)
 def posterior_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, r_pr, sys_var, lo, max_condition):
     """The posterior of ``posterior_from_normal`` from one inverse of info = acc_info + n_pr.
 
@@ -247,7 +247,7 @@ def posterior_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr
             or n_pr.shape != (n, n) or r_pr.shape[0] != n or sys_var.shape[0] != m or lo.shape[0] != n):
         return BAD_SHAPE, theta, 1.0, empty, empty, empty
     inv = np.empty((n, n))
-    if _spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < PIVOT_RATIO_MIN:
+    if spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < PIVOT_RATIO_MIN:
         return FALLBACK, theta, 1.0, empty, empty, empty
     rhs = np.empty(n)
     for i in range(n):

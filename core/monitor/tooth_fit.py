@@ -6,7 +6,7 @@ ToothLearner); inside the band it is fixed in angle and repeats every revolution
 be told from a steady engine response at integer orders: it is carried as nuisance parameters whose columns are the
 angle patterns passed through the same fit (core.monitor.identify.tooth_patterns).
 
-Speed: the whole step (prepare, fit, learn, refit) is one kernel call (core.monitor.tooth_fit_kernels._tooth_fit_cycle), the
+Speed: the whole step (prepare, fit, learn, refit) is one kernel call (core.monitor.tooth_fit_kernels.tooth_fit_cycle_kernel), the
 same arithmetic as core.monitor.flywheel.prepare_fit / fit_prepared / ToothLearner.update (tests/core/test_tooth_fit.py).
 """
 
@@ -19,7 +19,13 @@ import numpy as np
 from frictionwatch.core.monitor.flywheel import FlywheelMotion, ToothLearner
 from frictionwatch.core.monitor.flywheel_kernels import BAD_SPAN, NOT_INCREASING, OK
 from frictionwatch.core.monitor.identify import tooth_patterns
-from frictionwatch.core.monitor.tooth_fit_kernels import BAD_SHAPES, CACHE_MISS, NO_WINDOW, TOO_FEW, _tooth_fit_cycle
+from frictionwatch.core.monitor.tooth_fit_kernels import (
+    BAD_SHAPES,
+    CACHE_MISS,
+    NO_WINDOW,
+    TOO_FEW,
+    tooth_fit_cycle_kernel,
+)
 from frictionwatch.core.types import Cycle
 
 FOUR_PI = 4.0 * np.pi
@@ -79,7 +85,7 @@ def fit_cycle_teeth(cycle: Cycle, wheel_teeth: int, n_harmonics: int, n_nuisance
     refit = teeth.count + 1 <= tooth_refit_cycles
     for _ in range(2):
         try:
-            status, n, period, offset, drift, rms, resid, new_corr = _tooth_fit_cycle(
+            status, n, period, offset, drift, rms, resid, new_corr = tooth_fit_cycle_kernel(
                 nominal, ticks, index, float(cycle.tick_hz), n_drift, m_fit, n_harmonics, use_patterns, cached_rel,
                 cached_patterns, bool(drift_nuisance), correction, bool(learn_teeth), gain, refit, harm, pat)
         except np.linalg.LinAlgError as exc:

@@ -119,7 +119,7 @@ def test_posterior_fallbacks_are_the_reference_exactly():
     # positive definite but nearly singular (pivot ratio < PIVOT_RATIO_MIN): left to the reference
     weak = 1e-9 * n_pr
     ri = acc.info_reference + weak
-    assert pk._cholesky(ri, np.empty((p, p))) < pk.PIVOT_RATIO_MIN
+    assert pk.cholesky(ri, np.empty((p, p))) < pk.PIVOT_RATIO_MIN
     got = posterior_from_normal(acc, weak, r_pr, sys_var, lower)
     want = posterior_from_normal_reference(acc, weak, r_pr, sys_var, lower)
     for f in FIELDS:
@@ -190,21 +190,21 @@ def test_helpers_match_numpy(n):
     m = rng.normal(size=(n + 3, n)) * np.logspace(-2, 2, n)
     a = m.T @ m
     chol = np.empty((n, n))
-    ratio = pk._cholesky(a, chol)
+    ratio = pk.cholesky(a, chol)
     want = np.linalg.cholesky(a)
     assert 0 < ratio <= 1
     assert_allclose(chol, want, rtol=0, atol=1e-13 * np.abs(want).max(axis=1, keepdims=True).max())
-    inv = pk._cho_inverse(chol)
+    inv = pk.cho_inverse(chol)
     assert_array_equal(inv, inv.T)
     s = np.sqrt(np.outer(np.diag(inv), np.diag(inv)))
     assert np.max(np.abs(inv - np.linalg.inv(a)) / s) < 1e-11
     b = rng.normal(size=n)
-    x = pk._cho_solve(chol, b)
+    x = pk.cho_solve(chol, b)
     d = np.sqrt(np.diag(a))
     assert_allclose(x * d, np.linalg.solve(a, b) * d, rtol=0, atol=1e-11 * np.max(np.abs(np.linalg.solve(a, b) * d)))
     indefinite = a.copy()
     indefinite[-1, -1] = -1.0
-    assert pk._cholesky(indefinite, np.empty((n, n))) == -1.0
+    assert pk.cholesky(indefinite, np.empty((n, n))) == -1.0
 
 
 def _spd(rng, n, tail=0):
@@ -225,9 +225,9 @@ def test_spd_inverse_matches_numpy(n, tail):
     a = _spd(rng, n, tail)
     b = np.diag(rng.random(n) * np.diag(a))  # a second addend, like the prior's normal matrix
     total = a + b
-    assert pk._decoupled_tail(a, b) == (n - tail if n - tail > 1 else 0)  # a 1 x 1 head is a diagonal entry too
+    assert pk.decoupled_tail(a, b) == (n - tail if n - tail > 1 else 0)  # a 1 x 1 head is a diagonal entry too
     out = np.empty((n, n))
-    ratio = pk._spd_inverse_of_sum(a, b, out, 2.5)
+    ratio = pk.spd_inverse_of_sum(a, b, out, 2.5)
     want = 2.5 * np.linalg.inv(total)
     assert_array_equal(out, out.T)
     s = np.sqrt(np.outer(np.diag(want), np.diag(want)))
@@ -236,11 +236,11 @@ def test_spd_inverse_matches_numpy(n, tail):
     chol = np.linalg.cholesky(total)
     assert_allclose(ratio, np.min(np.diag(chol) ** 2 / np.diag(total)), rtol=1e-12)
     single = np.empty((n, n))
-    assert_allclose(pk._spd_inverse_into(total, single), ratio, rtol=1e-12)
+    assert_allclose(pk.spd_inverse_into(total, single), ratio, rtol=1e-12)
     assert np.max(np.abs(2.5 * single - want) / s) < 1e-11
     indefinite = b.copy()
     indefinite[n // 2, n // 2] = -total[n // 2, n // 2] - 1.0
-    assert pk._spd_inverse_of_sum(a, indefinite, out, 1.0) == -1.0
+    assert pk.spd_inverse_of_sum(a, indefinite, out, 1.0) == -1.0
 
 
 def test_posterior_with_a_decoupled_reference_tail_matches_reference():
@@ -254,7 +254,7 @@ def test_posterior_with_a_decoupled_reference_tail_matches_reference():
     ref_rows = np.zeros((1, p))
     ref_rows[0, :nb] = last
     acc = Accumulator(acc.info, acc.rhs, acc.yty, acc.weight, acc.rows, acc.sys_map, 3.0 * ref_rows.T @ ref_rows)
-    assert pk._decoupled_tail(acc.info_reference, n_pr) == nb
+    assert pk.decoupled_tail(acc.info_reference, n_pr) == nb
     got = posterior_from_normal(acc, n_pr, r_pr, sys_var, lower)
     want = posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lower)
     _assert_same_posterior(got, want)
