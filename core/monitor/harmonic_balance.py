@@ -96,10 +96,10 @@ def harmonic_balance(spec: EngineSpec, layout: ParameterLayout, theta: np.ndarra
             rel_in, static_in = rel, static
     n_head = buf.shape[0] - 7 * z
     exc = Excitation(tau=tau, theta_fly=theta_f, omega_node=omega_node, gas=buf[n_head + 6 * z:],
-                           known_harm=known, basis=buf[n_head: n_head + 6 * z].reshape(z, N_TERMS, time_samples),
-                           basis_mean=basis_mean, indicated_mean=indicated_mean, omega_fly=omega_f, alpha_fly=alpha_f)
+                     known_harm=known, basis=buf[n_head: n_head + 6 * z].reshape(z, N_TERMS, time_samples),
+                     basis_mean=basis_mean, indicated_mean=indicated_mean, omega_fly=omega_f, alpha_fly=alpha_f)
     rows = CycleRows(design=design, target=target, mean_row=mean_row, mean_target=float("nan"),
-                      cylinder_rows=cyl_rows)
+                     cylinder_rows=cyl_rows)
     return exc, rows, node_speed, rel, static, (p_rel, p_gnd)
 
 

@@ -28,10 +28,10 @@ import numpy as np
 from frictionwatch.core.monitor.excitation_kernels import N_CONSTS
 
 FOUR_PI = 4.0 * np.pi
-FASTMATH = {"reassoc", "nsz"}
+_FAST = {"reassoc", "nsz"}
 
 
-@numba.njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@numba.njit(cache=True, fastmath=_FAST, error_model="numpy")
 def _pressure_brackets(theta_f, grid, jlo, jhi, frac):
     """np.interp bracket of every flywheel angle on the 4 pi-periodic uniform ``grid`` (n_g,): the angle wrapped
     into [0, 4 pi) from grid[0], knots grid - grid[0] closed by 4 pi; samples between knots jlo and jhi (jhi wraps
@@ -71,7 +71,7 @@ def _pressure_brackets(theta_f, grid, jlo, jhi, frac):
         frac[i] = (x - x_lo) / (x_hi - x_lo)
 
 
-@numba.njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@numba.njit(cache=True, fastmath=_FAST, error_model="numpy")
 def _sin_cos_twisted(ang, theta_f, s_fly, c_fly, s_out, c_out):
     """sin, cos of a node's angle from those of the flywheel angle: ``_sin_cos_near``
     (tests/core/excitation_reference.py) with the series' divisions by constants as products (so that the loop
@@ -91,7 +91,7 @@ def _sin_cos_twisted(ang, theta_f, s_fly, c_fly, s_out, c_out):
             c_out[i] = np.cos(ang[i])
 
 
-@numba.njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@numba.njit(cache=True, fastmath=_FAST, error_model="numpy")
 def _cylinder_samples(r, inv_rod, e, area, p_cc, m_rec, k0, mu_eth, k1, c_f2, c_f3, mu, k5, pe, lo_1, hi_1, ph, c_ph, s_ph,
                       ang, s_q, c_q, w_node, a_node, w_c, rw, p_row, gas_row, b0, b1, b2, b3, b4, b5, sum_gas,
                       sum_recip):
@@ -129,7 +129,7 @@ def _cylinder_samples(r, inv_rod, e, area, p_cc, m_rec, k0, mu_eth, k1, c_f2, c_
         b5[i] = k5 * p * abs(ct) * rw[i]
 
 
-@numba.njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@numba.njit(cache=True, fastmath=_FAST, error_model="numpy")
 def _work_means(rows, first, w_over, out):
     """out[j] = <rows[first + j] w_over> for the 7 rows (6 basis, gas) of one cylinder."""
     n = w_over.shape[0]
@@ -141,7 +141,7 @@ def _work_means(rows, first, w_over, out):
         out[j] = acc / n
 
 
-@numba.njit(cache=True, fastmath=FASTMATH, error_model="numpy")
+@numba.njit(cache=True, fastmath=_FAST, error_model="numpy")
 def _cycle_rows(motion, theta_f, grid, pressure, cyl_node, consts, mix_row, mix_weight, n_mix, buf, means):
     """Rows of one cycle on the time grid.
 
