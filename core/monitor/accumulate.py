@@ -5,12 +5,12 @@ variation is natural excitation, so the monitor keeps the whitened normal equati
 
     N = sum_c lambda^(age_c) A_c^T A_c,   r = sum_c lambda^(age_c) A_c^T y_c
 
-and solves them with the priors (a weak one per parameter, the Eq. 6 sharing per cylinder) and theta >= 0.
+and solves them with the priors (a weak one per parameter, the Eq. 6 sharing per cylinder) and params >= 0.
 
 Uncertainty has two parts:
 - statistical: (N + N_prior)^-1, scaled up by the reduced chi^2 when the residual is larger than the noise model;
 - systematic: errors that repeat every cycle (model error, residual tooth-spacing error, pressure calibration) do
-  not average out. With B = sum_c lambda^age A_c^T D_c (D_c the whitening), a repeated raw error e moves theta by
+  not average out. With B = sum_c lambda^age A_c^T D_c (D_c the whitening), a repeated raw error e moves params by
   N^-1 B e, so its covariance N^-1 B C_sys B^T N^-1 is added. C_sys comes from the persistent (mean) residual per
   harmonic and a stated relative model-error floor.
 """
@@ -115,7 +115,7 @@ class CycleTerms(NamedTuple):
 
 @dataclass(frozen=True)
 class Prior:
-    """Gaussian prior rows: sum over rows of ((row @ theta - target) / sigma)^2."""
+    """Gaussian prior rows: sum over rows of ((row @ params - target) / sigma)^2."""
 
     rows: np.ndarray  # (Q, P)
     target: np.ndarray  # (Q,)
@@ -148,7 +148,7 @@ class Posterior:
                          self.weight, self.cov_reference[:n, :n])
 
     def data_gain(self, rows: np.ndarray) -> np.ndarray:
-        """1 - var_posterior / var_reference of linear functions rows (Q, P) @ theta: the share of what is known
+        """1 - var_posterior / var_reference of linear functions rows (Q, P) @ params: the share of what is known
         about them that the speed signal contributed (0: prior and mean balance only, 1: all from the speed)."""
         r = np.atleast_2d(rows)
         post = _quadratic_forms(r, self.cov_statistical)
@@ -158,7 +158,7 @@ class Posterior:
         return np.where(pinned, 1.0, np.clip(1.0 - post / np.maximum(ref, 1e-300), 0.0, 1.0))
 
     def sigma_of(self, rows: np.ndarray) -> np.ndarray:
-        """1-sigma of linear functions rows (Q, P) @ theta."""
+        """1-sigma of linear functions rows (Q, P) @ params."""
         r = np.atleast_2d(rows)
         return np.sqrt(np.clip(_quadratic_forms(r, self.covariance), 0.0, None))
 
@@ -177,7 +177,7 @@ def _quadratic_forms(rows: np.ndarray, cov: np.ndarray) -> np.ndarray:
 
 def solve_posterior(acc: Accumulator, prior: Prior, sys_var: np.ndarray,
                     lower: float | np.ndarray = 0.0) -> Posterior:
-    """Bounded MAP estimate (theta >= lower; -inf marks a free nuisance) and its covariance.
+    """Bounded MAP estimate (params >= lower; -inf marks a free nuisance) and its covariance.
 
     sys_var (R,): variance of the error that repeats every cycle, per raw row, in raw units squared."""
     n_pr, r_pr = prior.normal()

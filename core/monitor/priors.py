@@ -1,6 +1,6 @@
 """Prior rows of the identification (physics.md §9, §10: 'a weak prior: commissioning baseline or siblings').
 
-- weak: each parameter scale theta ~ N(1, parameter_sigma^2) about the baseline a0 (core.monitor.identify);
+- weak: each parameter scale params ~ N(1, parameter_sigma^2) about the baseline a0 (core.monitor.identify);
 - tooth-spacing nuisances E_n ~ N(0, s^2 2/N_edges): white per-tooth errors of rms s (core.monitor.identify.tooth_patterns);
 - siblings: each per-cylinder scale within sibling_spread of the mean of its siblings (same parts in every cylinder;
   the only prior that speaks for directions the speed cannot see, e.g. the contrast of cylinders 360 deg apart);

@@ -35,7 +35,7 @@ class MonitorConfig:
     forgetting: per-cycle factor of the accumulated equations, 1 - 1/N_window (None: N_window = max(400, 100 z)
     cycles, since more cylinders need more cycles; physics.md §12.5)
     noise_memory: EWMA factor of the residual statistics that whiten the equations
-    share_spread: 1-sigma of the Eq. 6 sharing prior, relative; parameter_sigma: weak prior on each scale (theta ~ 1)
+    share_spread: 1-sigma of the Eq. 6 sharing prior, relative; parameter_sigma: weak prior on each scale (params ~ 1)
     sibling_spread: 1-sigma of a per-cylinder scale about the mean of its siblings (0: no sibling prior)
     model_rel_error: repeatable model error of a speed harmonic, relative to its size (physics.md §12.3: 0.2 %)
     balance_rel_error: repeatable error of the mean balance relative to T_iM (pressure gain/TDC, load sensor)
