@@ -44,7 +44,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-import frictionwatch.core.monitor.monitor  # noqa: E402
+import frictionwatch.core.monitor.monitor as monitor_module  # noqa: E402
 from bench.common import assembler_for, summary_ms, timed_assembly  # noqa: E402
 from frictionwatch.core.model.engine import load_engine  # noqa: E402
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle  # noqa: E402
@@ -82,12 +82,12 @@ def _stage_targets() -> list[tuple[object, str, str]]:
     """(owner, attribute, label) of every core/ function in core.monitor.monitor's namespace and every plain method of the
     core/ classes it imports."""
     out = []
-    for name, obj in vars(core.monitor.monitor).items():
+    for name, obj in vars(monitor_module).items():
         mod = getattr(obj, "__module__", "") or ""
         if not mod.startswith("frictionwatch.core.") or name in ENTRY_POINTS:
             continue
         if isinstance(obj, types.FunctionType):
-            out.append((core.monitor.monitor, name, name))
+            out.append((monitor_module, name, name))
         elif isinstance(obj, type):
             for attr, raw in vars(obj).items():
                 if isinstance(raw, types.FunctionType) and not attr.startswith("__"):
