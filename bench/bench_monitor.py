@@ -9,7 +9,8 @@ makes ``CYCLES`` cycles once (not timed); then, on one core (BLAS/numba threads 
 - speed: ``core.monitor.speed.cycle_speed`` + ``ToothSpacingLearner.update`` (the display/analysis speed; the monitor fits
   the teeth itself, so this is not on its path: timed in a pass of its own over the same cycles);
 - monitor: ``process_cycle``, split into its stages by timing the functions it calls (wrapped for one extra pass,
-  nothing in core/ edited); ``other`` is whitening, noise model, sharing and bookkeeping;
+  nothing in core/ edited; ``identify_cycle`` is noise model, accumulation, sharing, posteriors and estimates);
+  ``other`` is process_cycle's own bookkeeping;
 - end_to_end: assemble + monitor, the path of service/pipeline.py; latency = emitting feed call + monitor.
 Real-time factor = engine cycle duration / mean end-to-end time per cycle (genset-v20 at 1500 rpm: 80 ms per cycle;
 target >= 100x, i.e. <= 0.8 ms); the timed pass runs ``PASSES`` times from a fresh start (each mean includes its
@@ -43,7 +44,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-import frictionwatch.core.monitor.monitor  # noqa: E402
+import frictionwatch.core.monitor.monitor as monitor_module  # noqa: E402
 from bench.common import assembler_for, summary_ms, timed_assembly  # noqa: E402
 from frictionwatch.core.model.engine import load_engine  # noqa: E402
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle  # noqa: E402
@@ -61,8 +62,8 @@ SEED = 1
 
 # process_cycle's stages are the functions and methods it calls from core/ (found in core.monitor.monitor's namespace, so the
 # split follows the monitor as it changes). Each is wrapped for one extra pass: a call made directly from
-# process_cycle is a stage; a wrapped call inside a stage is listed under it ("of which"). 'other' is the inline numpy
-# of process_cycle itself (whitening, noise model, sharing bookkeeping).
+# process_cycle is a stage; a wrapped call inside a stage is listed under it ("of which"). 'other' is the inline code
+# of process_cycle itself (mean balance, drift variance, state bookkeeping).
 ENTRY_POINTS = {"process_cycle", "initial_state", "default_max_order"}
 
 
@@ -81,12 +82,12 @@ def _stage_targets() -> list[tuple[object, str, str]]:
     """(owner, attribute, label) of every core/ function in core.monitor.monitor's namespace and every plain method of the
     core/ classes it imports."""
     out = []
-    for name, obj in vars(core.monitor.monitor).items():
+    for name, obj in vars(monitor_module).items():
         mod = getattr(obj, "__module__", "") or ""
-        if not mod.startswith("core.") or name in ENTRY_POINTS:
+        if not mod.startswith("frictionwatch.core.") or name in ENTRY_POINTS:
             continue
         if isinstance(obj, types.FunctionType):
-            out.append((core.monitor.monitor, name, name))
+            out.append((monitor_module, name, name))
         elif isinstance(obj, type):
             for attr, raw in vars(obj).items():
                 if isinstance(raw, types.FunctionType) and not attr.startswith("__"):

@@ -85,9 +85,9 @@ def compare(spec: EngineSpec, sim, cycles: list, kept: list, n: int, monitor_ms:
             "scipy_minus_monitor_resolved_rms_nm": round(float(np.sqrt(np.mean(
                 (b.friction_mean - mon)[resolved] ** 2))), 5) if resolved.any() else None,
             "theta_scipy": np.round(b.theta, 4).tolist(),
-            "theta_monitor_smoothed": np.round(np.asarray(state.theta)[: layout.n_params], 4).tolist(),
+            "theta_monitor_smoothed": np.round(np.asarray(state.params)[: layout.n_params], 4).tolist(),
             "theta_rms_diff_per_cylinder_params": round(float(np.sqrt(np.mean(
-                (b.theta[pc] - np.asarray(state.theta)[: layout.n_params][pc]) ** 2))), 4) if pc.any() else None,
+                (b.theta[pc] - np.asarray(state.params)[: layout.n_params][pc]) ** 2))), 4) if pc.any() else None,
         })
     secs = np.array([p["seconds"] for p in per])
     steady = secs[1:] if secs.size > 1 else secs

@@ -5,19 +5,18 @@ variation is natural excitation, so the monitor keeps the whitened normal equati
 
     N = sum_c lambda^(age_c) A_c^T A_c,   r = sum_c lambda^(age_c) A_c^T y_c
 
-and solves them with the priors (a weak one per parameter, the Eq. 6 sharing per cylinder) and theta >= 0.
+and solves them with the priors (a weak one per parameter, the Eq. 6 sharing per cylinder) and params >= 0.
 
 Uncertainty has two parts:
 - statistical: (N + N_prior)^-1, scaled up by the reduced chi^2 when the residual is larger than the noise model;
 - systematic: errors that repeat every cycle (model error, residual tooth-spacing error, pressure calibration) do
-  not average out. With B = sum_c lambda^age A_c^T D_c (D_c the whitening), a repeated raw error e moves theta by
+  not average out. With B = sum_c lambda^age A_c^T D_c (D_c the whitening), a repeated raw error e moves params by
   N^-1 B e, so its covariance N^-1 B C_sys B^T N^-1 is added. C_sys comes from the persistent (mean) residual per
   harmonic and a stated relative model-error floor.
 """
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, replace
 from typing import NamedTuple
 
@@ -27,14 +26,12 @@ import scipy.linalg.lapack
 from frictionwatch.core.monitor.accumulate_kernels import cycle_terms_kernel, fold_kernel
 from frictionwatch.core.monitor.identify import bounded_solve_nnls
 from frictionwatch.core.monitor.posterior_kernels import (
-    BAD_SHAPE,
     NEEDS_BOUND,
     OK,
     as_matrix,
     as_vector,
     lower_vector,
     posterior_kernel,
-    posterior_kernel_typed,
     posterior_moments_kernel,
 )
 
@@ -62,6 +59,11 @@ class Accumulator:
         return Accumulator(np.zeros((n_params, n_params)), np.zeros(n_params), 0.0, 0.0, 0.0,
                            np.zeros((n_params, n_rows)), np.zeros((n_params, n_params)))
 
+    @staticmethod
+    def of_terms(terms: CycleTerms) -> Accumulator:
+        """One cycle's equations alone (``empty(...).fold(terms, 0.0)`` without the arithmetic)."""
+        return Accumulator(terms.info, terms.rhs, terms.yty, 1.0, terms.rows, terms.sys_map, terms.info_reference)
+
     def update(self, a: np.ndarray, y: np.ndarray, inv_sigma: np.ndarray, forgetting: float,
                reference_rows: int = 0) -> Accumulator:
         """Fold in one cycle's whitened rows a (R, P), y (R,) whose raw rows were divided by 1/``inv_sigma`` (R,).
@@ -76,12 +78,9 @@ class Accumulator:
         all arrays new, sys_map C-contiguous."""
         if a.shape != self.sys_map.shape[::-1]:
             raise ValueError(f"rows must have shape {self.sys_map.shape[::-1]}, got {a.shape}")
-        try:
-            ok, info, rhs, yty, sys_map, ref = cycle_terms_kernel(a, y, inv_sigma, reference_rows)
-        except TypeError:  # another dtype or layout than the kernel's C-contiguous float64
-            ok, info, rhs, yty, sys_map, ref = cycle_terms_kernel(
-                np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(y, dtype=np.float64),
-                np.ascontiguousarray(inv_sigma, dtype=np.float64), int(reference_rows))
+        ok, info, rhs, yty, sys_map, ref = cycle_terms_kernel(
+            np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(y, dtype=np.float64),
+            np.ascontiguousarray(inv_sigma, dtype=np.float64), int(reference_rows))
         if not ok:
             raise ValueError(f"y {np.shape(y)} and inv_sigma {np.shape(inv_sigma)} must have one value per row of "
                              f"a {a.shape}, and 0 <= reference_rows <= {a.shape[0]} (got {reference_rows})")
@@ -92,14 +91,10 @@ class Accumulator:
         lam = float(forgetting)
         if not 0.0 <= lam <= 1.0:
             raise ValueError(f"forgetting factor must be in [0, 1], got {lam}")
-        try:
-            ok, info, rhs, sys_map, ref = fold_kernel(lam, self.info, self.rhs, self.sys_map, self.info_reference,
-                                                      terms.info, terms.rhs, terms.sys_map, terms.info_reference)
-        except TypeError:
-            ok, info, rhs, sys_map, ref = fold_kernel(
-                lam, *(np.ascontiguousarray(x, dtype=np.float64) for x in (
-                    self.info, self.rhs, self.sys_map, self.info_reference, terms.info, terms.rhs, terms.sys_map,
-                    terms.info_reference)))
+        ok, info, rhs, sys_map, ref = fold_kernel(
+            lam, *(np.ascontiguousarray(x, dtype=np.float64) for x in (
+                self.info, self.rhs, self.sys_map, self.info_reference, terms.info, terms.rhs, terms.sys_map,
+                terms.info_reference)))
         if not ok:
             raise ValueError("the cycle's terms do not have the accumulator's shapes")
         return Accumulator(info, rhs, lam * self.yty + terms.yty, lam * self.weight + 1.0,
@@ -120,7 +115,7 @@ class CycleTerms(NamedTuple):
 
 @dataclass(frozen=True)
 class Prior:
-    """Gaussian prior rows: sum over rows of ((row @ theta - target) / sigma)^2."""
+    """Gaussian prior rows: sum over rows of ((row @ params - target) / sigma)^2."""
 
     rows: np.ndarray  # (Q, P)
     target: np.ndarray  # (Q,)
@@ -138,9 +133,9 @@ class Prior:
 
 @dataclass(frozen=True)
 class Posterior:
-    """theta (P,), covariance (P, P) = statistical + systematic, chi2 reduced, weight (effective cycles)."""
+    """params (P,), covariance (P, P) = statistical + systematic, chi2 reduced, weight (effective cycles)."""
 
-    theta: np.ndarray
+    params: np.ndarray
     covariance: np.ndarray
     cov_statistical: np.ndarray
     chi2_reduced: float
@@ -149,11 +144,11 @@ class Posterior:
 
     def head(self, n: int) -> Posterior:
         """The marginal posterior of the first ``n`` parameters (e.g. friction without the nuisances)."""
-        return Posterior(self.theta[:n], self.covariance[:n, :n], self.cov_statistical[:n, :n], self.chi2_reduced,
+        return Posterior(self.params[:n], self.covariance[:n, :n], self.cov_statistical[:n, :n], self.chi2_reduced,
                          self.weight, self.cov_reference[:n, :n])
 
     def data_gain(self, rows: np.ndarray) -> np.ndarray:
-        """1 - var_posterior / var_reference of linear functions rows (Q, P) @ theta: the share of what is known
+        """1 - var_posterior / var_reference of linear functions rows (Q, P) @ params: the share of what is known
         about them that the speed signal contributed (0: prior and mean balance only, 1: all from the speed)."""
         r = np.atleast_2d(rows)
         post = _quadratic_forms(r, self.cov_statistical)
@@ -163,7 +158,7 @@ class Posterior:
         return np.where(pinned, 1.0, np.clip(1.0 - post / np.maximum(ref, 1e-300), 0.0, 1.0))
 
     def sigma_of(self, rows: np.ndarray) -> np.ndarray:
-        """1-sigma of linear functions rows (Q, P) @ theta."""
+        """1-sigma of linear functions rows (Q, P) @ params."""
         r = np.atleast_2d(rows)
         return np.sqrt(np.clip(_quadratic_forms(r, self.covariance), 0.0, None))
 
@@ -182,7 +177,7 @@ def _quadratic_forms(rows: np.ndarray, cov: np.ndarray) -> np.ndarray:
 
 def solve_posterior(acc: Accumulator, prior: Prior, sys_var: np.ndarray,
                     lower: float | np.ndarray = 0.0) -> Posterior:
-    """Bounded MAP estimate (theta >= lower; -inf marks a free nuisance) and its covariance.
+    """Bounded MAP estimate (params >= lower; -inf marks a free nuisance) and its covariance.
 
     sys_var (R,): variance of the error that repeats every cycle, per raw row, in raw units squared."""
     n_pr, r_pr = prior.normal()
@@ -194,59 +189,33 @@ def posterior_from_normal(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, 
     """``solve_posterior`` with the prior already in normal form (n_pr (P, P), r_pr (P,); ``Prior.normal``), so a
     caller that keeps a fixed prior's normal equations does not rebuild them every cycle.
 
-    One numba kernel (core.monitor.posterior_kernels) when no bound is active and the factors are well conditioned; NNLS
-    for theta when a bound is active; ``posterior_from_normal_reference`` when a factor is nearly singular or the
-    reference covariance is at its pseudo-inverse switch. Equal to the reference to rounding. Every returned array
-    is new (none aliases an input or a buffer used again)."""
-    status = BAD_SHAPE
-    # the common call: C-contiguous float64 arrays, passed unconverted (a mismatch costs ~50 us in the TypeError;
-    # sys_map is the array most likely to be another layout: a.T * inv_sigma is Fortran-ordered)
-    if type(lower) is np.ndarray and acc.sys_map.flags.c_contiguous:
-        try:
-            status, theta, chi2_red, cov_stat, cov, ref = posterior_kernel_typed(
-                acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, n_pr, r_pr, sys_var, lower,
-                _REFERENCE_MAX_CONDITION)
-        except TypeError:  # another dtype or layout: converted and checked below
-            status = BAD_SHAPE
-    if status == BAD_SHAPE:
-        return _posterior_from_normal_checked(acc, n_pr, r_pr, sys_var, lower)
-    if status == NEEDS_BOUND:
-        theta = bounded_solve_nnls(acc.info + n_pr, acc.rhs + r_pr, lower)
-        status, chi2_red, cov_stat, cov, ref = posterior_moments_kernel(
-            acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, n_pr, sys_var, theta,
-            _REFERENCE_MAX_CONDITION)
-    if status != OK:
-        return posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lower)
-    return Posterior(theta, cov, cov_stat, chi2_red, acc.weight, ref)
-
-
-def _posterior_from_normal_checked(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, sys_var: np.ndarray,
-                                   lower: float | np.ndarray) -> Posterior:
-    """``posterior_from_normal`` for inputs of any dtype and layout: converted to C-contiguous float64 (ValueError
-    on a shape that does not fit)."""
+    The numba kernel (core.monitor.posterior_kernels) solves the unconstrained problem from one inverse; when a
+    bound is active NNLS decides the parameters and the kernel forms the moments at them; when a factor is nearly
+    singular or the reference covariance is at its pseudo-inverse switch, ``posterior_from_normal_reference``
+    (LAPACK) decides. Every returned array is new (none aliases an input)."""
     p, r = np.shape(acc.sys_map)
     n_pr = as_matrix(n_pr, p, name="n_pr")
     r_pr = as_vector(r_pr, p, "r_pr")
     sys_var = as_vector(sys_var, r, "sys_var")
     lo = lower_vector(lower, p)
-    a_info = as_matrix(acc.info, p, name="acc.info")
-    a_rhs = as_vector(acc.rhs, p, "acc.rhs")
-    a_map = as_matrix(acc.sys_map, p, r, "acc.sys_map")
-    a_ref = as_matrix(acc.info_reference, p, name="acc.info_reference")
+    info = as_matrix(acc.info, p, name="acc.info")
+    rhs = as_vector(acc.rhs, p, "acc.rhs")
+    sys_map = as_matrix(acc.sys_map, p, r, "acc.sys_map")
+    info_ref = as_matrix(acc.info_reference, p, name="acc.info_reference")
     yty, rows = float(acc.yty), float(acc.rows)
-    status, theta, chi2_red, cov_stat, cov, ref = posterior_kernel(
-        a_info, a_rhs, yty, rows, a_map, a_ref, n_pr, r_pr, sys_var, lo, _REFERENCE_MAX_CONDITION)
+    status, params, chi2_red, cov_stat, cov, ref = posterior_kernel(
+        info, rhs, yty, rows, sys_map, info_ref, n_pr, r_pr, sys_var, lo, REFERENCE_MAX_CONDITION)
     if status == NEEDS_BOUND:
-        theta = bounded_solve_nnls(a_info + n_pr, a_rhs + r_pr, lower)
+        params = bounded_solve_nnls(info + n_pr, rhs + r_pr, lo)
         status, chi2_red, cov_stat, cov, ref = posterior_moments_kernel(
-            a_info, a_rhs, yty, rows, a_map, a_ref, n_pr, sys_var, theta, _REFERENCE_MAX_CONDITION)
+            info, rhs, yty, rows, sys_map, info_ref, n_pr, sys_var, params, REFERENCE_MAX_CONDITION)
     if status != OK:
-        return posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lower)
-    return Posterior(theta=theta, covariance=cov, cov_statistical=cov_stat, chi2_reduced=float(chi2_red),
+        return posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lo)
+    return Posterior(params=params, covariance=cov, cov_statistical=cov_stat, chi2_reduced=float(chi2_red),
                      weight=acc.weight, cov_reference=ref)
 
 
-_REFERENCE_MAX_CONDITION = 1e12  # above: the reference covariance is a pseudo-inverse
+REFERENCE_MAX_CONDITION = 1e12  # above: the reference covariance is a pseudo-inverse
 
 
 def posterior_from_normal_reference(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, sys_var: np.ndarray,
@@ -255,9 +224,9 @@ def posterior_from_normal_reference(acc: Accumulator, n_pr: np.ndarray, r_pr: np
     matrices) and the reference of the kernel."""
     info = acc.info + n_pr
     rhs = acc.rhs + r_pr
-    theta = bounded_solve_nnls(info, rhs, lower)
-    dof = acc.rows - theta.shape[0]
-    chi2 = acc.yty - 2.0 * theta @ acc.rhs + theta @ acc.info @ theta
+    params = bounded_solve_nnls(info, rhs, lower)
+    dof = acc.rows - params.shape[0]
+    chi2 = acc.yty - 2.0 * params @ acc.rhs + params @ acc.info @ params
     chi2_red = float(chi2 / dof) if dof > 0 else 1.0
     inv = spd_inverse(info)
     if inv is None:
@@ -267,11 +236,11 @@ def posterior_from_normal_reference(acc: Accumulator, n_pr: np.ndarray, r_pr: np
     g = inv @ acc.sys_map
     cov_sys = (g * sys_var[None, :]) @ g.T
     ref_info = acc.info_reference + n_pr
-    ref = spd_inverse(ref_info, max_condition=_REFERENCE_MAX_CONDITION)
+    ref = spd_inverse(ref_info, max_condition=REFERENCE_MAX_CONDITION)
     if ref is None:  # (near-)singular: the pseudo-inverse drops what nothing pins down
         ref = np.linalg.pinv(ref_info, rcond=1e-13, hermitian=True)
     ref = ref * max(1.0, chi2_red)
-    return Posterior(theta=theta, covariance=cov_stat + cov_sys, cov_statistical=cov_stat, chi2_reduced=chi2_red,
+    return Posterior(params=params, covariance=cov_stat + cov_sys, cov_statistical=cov_stat, chi2_reduced=chi2_red,
                      weight=acc.weight, cov_reference=ref)
 
 
@@ -285,7 +254,7 @@ def spd_inverse(a: np.ndarray, max_condition: float = np.inf) -> np.ndarray | No
     inv, info = _potri(c, lower=True, overwrite_c=True)
     if info != 0:
         return None
-    inv = np.where(_lower_mask(inv.shape[0]), inv, inv.T)  # potri fills the lower triangle only
+    inv = np.tril(inv) + np.tril(inv, -1).T  # potri fills the lower triangle only
     if np.isfinite(max_condition):
         bound = float(np.trace(a)) * float(np.trace(inv))
         if not bound < max_condition:
@@ -293,11 +262,6 @@ def spd_inverse(a: np.ndarray, max_condition: float = np.inf) -> np.ndarray | No
     return inv
 
 
-@functools.lru_cache(maxsize=16)
-def _lower_mask(n: int) -> np.ndarray:
-    m = np.tri(n, dtype=bool)
-    m.flags.writeable = False
-    return m
 
 
 @dataclass(frozen=True)

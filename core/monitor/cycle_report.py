@@ -9,28 +9,28 @@ from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.excitation import Excitation
 from frictionwatch.core.monitor.excitation_kernels import interp_rows_periodic
 from frictionwatch.core.monitor.flywheel import FlywheelMotion, harmonic_series, harmonics_of
-from frictionwatch.core.monitor.frozen_init import fast_constructor
 from frictionwatch.core.monitor.identify import CycleRows, ParameterLayout
-from frictionwatch.core.monitor.report_kernels import report_traces, speed_series, trig_tables
-from frictionwatch.core.monitor.results import CycleResult, FrictionEstimate
+from frictionwatch.core.monitor.identification import Identification, MeanBalance
+from frictionwatch.core.monitor.report_kernels import TrigTables, report_traces, speed_series
+from frictionwatch.core.monitor.results import CycleResult
 from frictionwatch.core.types import Cycle
 
 FOUR_PI = 4.0 * np.pi
-_make_result = fast_constructor(CycleResult)  # CycleResult(**fields), cheaper
 
 
 def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excitation, rows: CycleRows,
-                 theta: np.ndarray, layout: ParameterLayout, drift: np.ndarray | None, load: float, balance: float,
-                 coupling_loss: float, pmax: np.ndarray, pmax_angle: np.ndarray, est_c: FrictionEstimate,
-                 est_s: FrictionEstimate, flags: list[str], freq: np.ndarray | None = None) -> CycleResult:
-    """theta: smoothed [friction scales, tooth nuisances]; drift (M,) complex: this cycle's drift shape in speed
-    harmonics (its best fit is taken out of the reported residual, as it is out of the noise statistics); freq (M,):
-    ``fly.freq`` if already at hand."""
+                 layout: ParameterLayout, ident: Identification, mean: MeanBalance, pmax: np.ndarray,
+                 pmax_angle: np.ndarray, flags: list[str], tables: TrigTables) -> CycleResult:
+    """The result of one cycle from its stages. The traces use the smoothed parameters [friction scales, tooth
+    nuisances]; this cycle's drift (``ident.drift_col``) has its best fit taken out of the reported residual, as
+    it is out of the noise statistics; tables: ``trig_tables(M, n_t)`` of the harmonic-balance time grid."""
     grid = np.ascontiguousarray(cycle.grid, dtype=np.float64)
     n_t = exc.tau.shape[0]
     p_f = layout.n_params
-    theta = np.ascontiguousarray(theta, dtype=np.float64)
-    coef = layout.coefficients(theta[:p_f])
+    params = np.ascontiguousarray(ident.smoothed.params, dtype=np.float64)
+    coef = layout.coefficients(params[:p_f])
+    drift = ident.drift_col
+    load = mean.load
     if exc.omega_fly is not None and exc.alpha_fly is not None:
         omega_meas, alpha_meas = exc.omega_fly, exc.alpha_fly
     else:
@@ -40,13 +40,12 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
     # pattern taken out and the model speed (core.monitor.report_kernels: one kernel, direct sums for the inverse series)
     m = rows.target.shape[0]
     use_drift = drift is not None
-    cos_t, sin_t = trig_tables(m, n_t)
     resid = np.empty(m, dtype=np.complex128)
     extra = np.empty((3 if spec.n_nodes == 1 else 2, n_t))
     resid_sq, power = speed_series(
-        _c128(rows.design), _c128(rows.target), theta, p_f, _c128(drift if use_drift else rows.target), use_drift,
-        fly.freq if freq is None else freq, _c128(fly.harmonics), np.ascontiguousarray(omega_meas, dtype=np.float64),
-        cos_t, sin_t, resid, extra)
+        _c128(rows.design), _c128(rows.target), params, p_f, _c128(drift if use_drift else rows.target), use_drift,
+        ident.freq, _c128(fly.harmonics), np.ascontiguousarray(omega_meas, dtype=np.float64), tables.table, resid,
+        extra)
     omega_meas = extra[0]
     r2 = 1.0 - resid_sq / power if power > 0 else float("nan")
     if spec.n_nodes == 1:  # direct rigid balance (paper 001 Eq. 26), low-passed to the identification band
@@ -63,12 +62,13 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
     total = on_grid[0]
     speed_meas, speed_model = on_grid[1], on_grid[2]
     balance_trace = on_grid[3] if spec.n_nodes == 1 else None
-    return _make_result(
+    return CycleResult(
         index=cycle.index, t_start=cycle.t_start, rpm_mean=fly.omega_mean * 60.0 / (2.0 * np.pi),
         omega_mean=fly.omega_mean, load_torque=float(load), load_power=float(cycle.load_power),
         imep=exc.indicated_mean * FOUR_PI / spec.displacement_cyl, pmax=pmax, pmax_angle=pmax_angle,
-        indicated_torque=exc.indicated_mean, friction_balance=float(balance), coupling_loss=float(coupling_loss),
-        cycle=est_c, smoothed=est_s, grid=grid.copy(), friction_torque=total,
+        indicated_torque=exc.indicated_mean, friction_balance=float(mean.friction),
+        coupling_loss=float(mean.coupling_loss), cycle=ident.cycle_estimate, smoothed=ident.smoothed_estimate,
+        grid=grid.copy(), friction_torque=total,
         friction_torque_cyl_time=cyl_time, time_angles=theta_fly.copy(), speed_measured=speed_meas,
         speed_model=speed_model,
         residual_harmonics=resid, residual_rms=float(np.sqrt(0.5 * resid_sq)), r_squared=r2,

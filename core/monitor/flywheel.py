@@ -18,7 +18,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from frictionwatch.core.monitor.flywheel_kernels import BAD_SPAN, NOT_INCREASING, OK, _fit_angles, _prepare_fit, _series_rows, _tooth_update
+from frictionwatch.core.monitor.flywheel_kernels import (
+    BAD_SPAN,
+    NOT_INCREASING,
+    OK,
+    fit_angles_kernel,
+    prepare_fit_kernel,
+    series_rows_kernel,
+    tooth_update_kernel,
+)
 
 FOUR_PI = 4.0 * np.pi
 
@@ -88,7 +96,7 @@ def harmonic_series(coeffs: np.ndarray, n: int, mean: float = 0.0) -> np.ndarray
         raise ValueError(f"{m} harmonics need more than {2 * m} samples per cycle, got {n}")
     if c.ndim == 2 and c.dtype == np.complex128 and c.flags.c_contiguous:
         # the monitor's report: one small kernel, the same transform as below (rocket-fft runs numpy's pocketfft)
-        return _series_rows(c, n, float(mean))
+        return series_rows_kernel(c, n, float(mean))
     spec = np.zeros(c.shape[:-1] + (n // 2 + 1,), dtype=np.complex128)
     spec[..., 1 : m + 1] = c * (0.5 * n)
     out = np.fft.irfft(spec, n=n, axis=-1)
@@ -209,7 +217,7 @@ def prepare_fit(tooth_ticks: np.ndarray, tick_hz: float, n_harmonics: int, patte
     chol = np.empty((n_par, n_par))
     pat = np.empty((n_harmonics, pat_in.shape[1] + (1 if drift_pattern else 0)), dtype=np.complex128)
     try:
-        status = _prepare_fit(ticks, float(tick_hz), n_drift, m_fit, n_harmonics, pat_in,
+        status = prepare_fit_kernel(ticks, float(tick_hz), n_drift, m_fit, n_harmonics, pat_in,
                               int(pattern_period) if patterns is not None else 0, bool(drift_pattern), tau,
                               design_rows, scale, chol, pat)
     except np.linalg.LinAlgError as exc:
@@ -235,7 +243,7 @@ def fit_prepared(setup: FitSetup, tooth_angle: np.ndarray) -> FlywheelMotion:
         ang = np.ascontiguousarray(ang)
     harm = np.empty(setup.n_harmonics, dtype=np.complex128)
     resid = np.empty(tau.shape[0])
-    status, offset, drift, rms = _fit_angles(setup.design_rows, setup.scale, setup.chol, tau, setup.omega, ang,
+    status, offset, drift, rms = fit_angles_kernel(setup.design_rows, setup.scale, setup.chol, tau, setup.omega, ang,
                                              setup.n_drift, setup.m_fit, harm, resid)
     if status == NOT_INCREASING:
         raise ValueError("tooth times and angles must be strictly increasing")
@@ -279,4 +287,4 @@ class ToothLearner:
         if idx.shape != r.shape or idx.ndim != 1:
             raise ValueError(f"tooth_index and residual must be 1-D of equal length, got {idx.shape}, {r.shape}")
         gain = max(1.0 - memory, 1.0 / (self.count + 1))
-        return ToothLearner(_tooth_update(self.correction, idx, r, gain), self.count + 1)
+        return ToothLearner(tooth_update_kernel(self.correction, idx, r, gain), self.count + 1)

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-import rocket_fft  # noqa: F401  (numpy.fft inside numba: ``_series_rows``)
+import rocket_fft  # noqa: F401  (numpy.fft inside numba: ``series_rows_kernel``)
 
 FOUR_PI = 4.0 * np.pi
 
@@ -144,7 +144,7 @@ def _normal_matrix(design_t, n_drift, m_fit, csum, ssum, out):
 
 
 @numba.njit(cache=True)
-def _prepare_fit(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, pattern_period, drift_pattern, tau, design_t, scale,
+def prepare_fit_kernel(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, pattern_period, drift_pattern, tau, design_t, scale,
                  chol, pat):
     """Angle-independent part of the flywheel fit of the edges ``ticks`` (n,) (core.monitor.flywheel.prepare_fit).
 
@@ -269,7 +269,7 @@ def _fold_row(row, period, out, qp, with_dot):
 
 
 @numba.njit(cache=True)
-def _fit_angles(design_t, scale, chol, tau, omega, ang, n_drift, m_fit, harm, resid):
+def fit_angles_kernel(design_t, scale, chol, tau, omega, ang, n_drift, m_fit, harm, resid):
     """Least-squares fit of the edge angles ang (n,) [rad] on a prepared design (core.monitor.flywheel.fit_prepared).
 
     Fills harm (n_harm,) complex and resid (n,) [rad]; returns (status, offset, drift, rms residual)."""
@@ -303,7 +303,7 @@ def _fit_angles(design_t, scale, chol, tau, omega, ang, n_drift, m_fit, harm, re
 
 
 @numba.njit(cache=True)
-def _tooth_update(correction, tooth_index, residual, gain):
+def tooth_update_kernel(correction, tooth_index, residual, gain):
     """One EWMA step of the tooth-spacing correction (core.monitor.flywheel.ToothLearner.update); returns the new array."""
     n = correction.shape[0]
     total = np.zeros(n)
@@ -330,7 +330,7 @@ def _tooth_update(correction, tooth_index, residual, gain):
 
 
 @numba.njit(cache=True)
-def _series_rows(coeffs, n, mean):
+def series_rows_kernel(coeffs, n, mean):
     """frictionwatch.core.monitor.flywheel.harmonic_series of rows coeffs (r, M) complex on n samples: mean + the inverse rfft of the
     harmonics scaled by n / 2 (the same spectrum and transform as the numpy code, so the same numbers)."""
     r, m = coeffs.shape

@@ -24,7 +24,6 @@ from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.balance_pass_kernel import ChainRecord, MixPlan, PassRows, Unknowns, mix_plan, pass_rows
 from frictionwatch.core.monitor.excitation import Excitation, cylinder_record
 from frictionwatch.core.monitor.flywheel import FlywheelMotion
-from frictionwatch.core.monitor.frozen_init import fast_constructor
 from frictionwatch.core.monitor.harmonic_balance_kernels import CycleMotion, CylinderRecord, pass_samples
 from frictionwatch.core.monitor.identify import CycleRows, ParameterLayout
 
@@ -119,19 +118,15 @@ def harmonic_balance(op: OperatingPoint, theta: np.ndarray, n_nuisance: int, rel
         out: PassRows = pass_rows(cyc, on_grid, basis, op.mix, op.chain, unknowns)
         if twist:
             rel_in, static_in = out.relative_motion, out.static
-    exc = _make_excitation(tau=on_grid.tau, theta_fly=on_grid.theta_fly, omega_node=on_grid.motion[1],
+    exc = Excitation(tau=on_grid.tau, theta_fly=on_grid.theta_fly, omega_node=on_grid.motion[1],
                            gas=on_grid.gas, known_harm=out.known_harm, basis=basis.transpose(1, 0, 2), basis_mean=out.basis_mean,
                            indicated_mean=out.indicated_mean, omega_fly=on_grid.omega_fly,
                            alpha_fly=on_grid.alpha_fly)
-    rows = _make_rows(design=out.design, target=out.target, mean_row=out.mean_row, mean_target=float("nan"),
+    rows = CycleRows(design=out.design, target=out.target, mean_row=out.mean_row, mean_target=float("nan"),
                       cylinder_rows=out.cylinder_rows)
     return BalanceResult(exc, rows, out.node_speed, out.relative_motion, out.static, out.power_relative,
                          out.power_ground)
 
-
-# the per-cycle frozen objects, built without the per-field frozen __setattr__ (core.monitor.frozen_init)
-_make_excitation = fast_constructor(Excitation)
-_make_rows = fast_constructor(CycleRows)
 
 
 def _contiguous(a, dtype) -> np.ndarray:

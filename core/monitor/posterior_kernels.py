@@ -1,7 +1,7 @@
 """Numba kernels of the bounded MAP estimate and its posterior (core.monitor.identify.bounded_solve,
 core.monitor.accumulate.posterior_from_normal) for the monitor's sizes (P <= ~50 parameters).
 
-The bounded problem min theta^T N theta - 2 r^T theta, theta >= lower, is convex with N positive definite: when the
+The bounded problem min params^T N params - 2 r^T params, params >= lower, is convex with N positive definite: when the
 unconstrained minimiser (free nuisances eliminated exactly) already satisfies the bounds, it is the bounded optimum,
 and NNLS is needed only when a bound is active. These kernels do that common case - Cholesky factors, triangular
 solves and SPD inverses of small matrices, where the time of the scipy/LAPACK path went into Python call overhead -
@@ -17,13 +17,13 @@ Otherwise the results equal the reference to rounding (<= 1e-10 relative on the 
 condition numbers are ~1e2..5e3; tests/core/test_posterior_kernels.py).
 
 ``posterior_kernel`` (genset-v20, P = 47: ~23 us a call) works from one inverse of N = acc.info + n_pr:
-- theta = N^-1 r minus the first-order effect of the reference's 1e-12 ridge on the unit-diagonal problem (its
+- params = N^-1 r minus the first-order effect of the reference's 1e-12 ridge on the unit-diagonal problem (its
   second order is < 1e-16 relative), so the bounded solve needs no factor of its own;
 - the inverse goes by the Schur complement of the leading half (two half-size Cholesky inverses, four small BLAS
   gemms) from ``core.monitor.spd_kernels.BLOCKED_MIN`` parameters on: loops over ~47-long rows are bound by their overhead, not by flops;
 - a decoupled diagonal tail (the monitor's reference information: nuisances that only their priors see) is
   inverted by reciprocals, the head alone by Cholesky;
-- chi^2 = y^T y - 2 theta^T r + theta^T A theta cancels ~5 digits: it takes the reference's BLAS calls (ddot,
+- chi^2 = y^T y - 2 params^T r + params^T A params cancels ~5 digits: it takes the reference's BLAS calls (ddot,
   dgemv) in its order, so its rounding is reproduced rather than a different one added;
 - the systematic covariance G S G^T (G = N^-1 B) is W^T W, W = S^1/2 B^T N^-1: two transposed-first gemms.
 """
@@ -33,14 +33,14 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from frictionwatch.core.monitor.spd_kernels import (  # noqa: F401  (_cho_inverse, _spd_inverse_into: the tests' handles)
-    _FAST,
-    _cho_inverse,
-    _cho_solve,
-    _cholesky,
-    _decoupled_tail,
-    _spd_inverse_into,
-    _spd_inverse_of_sum,
+from frictionwatch.core.monitor.spd_kernels import (  # noqa: F401  (cho_inverse, spd_inverse_into: the tests' handles)
+    FASTMATH,
+    cho_inverse,
+    cho_solve,
+    cholesky,
+    decoupled_tail,
+    spd_inverse_into,
+    spd_inverse_of_sum,
 )
 
 OK = 0
@@ -53,14 +53,14 @@ FEASIBLE_MARGIN = 1e-9  # scaled distance to a bound, relative to max |x|, below
 REGULARISATION = 1e-12  # the reference's ridge on the unit-diagonal blocks (bounded_solve)
 
 
-@numba.njit(cache=True, fastmath=_FAST)
+@numba.njit(cache=True, fastmath=FASTMATH)
 def bounded_solve_kernel(info, rhs, lo):
-    """Unconstrained minimiser of theta^T info theta - 2 rhs^T theta as ``bounded_solve`` forms it (unit-diagonal
+    """Unconstrained minimiser of params^T info params - 2 rhs^T params as ``bounded_solve`` forms it (unit-diagonal
     scaling, non-finite ``lo`` = free nuisance eliminated by its Schur complement, ridge 1e-12 on both blocks).
 
-    Returns (status, theta (n,)); theta is valid only with status OK (all bounds inactive)."""
+    Returns (status, params (n,)); params is valid only with status OK (all bounds inactive)."""
     n = info.shape[0]
-    theta = np.empty(n)
+    params = np.empty(n)
     d = np.empty(n)
     for i in range(n):
         v = info[i, i]
@@ -103,8 +103,8 @@ def bounded_solve_kernel(info, rhs, lo):
     r = rhs / d
     # free block s_ff + ridge = Lf Lf^T; W = Lf^-1 s_fb and zf = Lf^-1 r_f by row updates
     chol_f = np.empty((nf, nf))
-    if _cholesky(s_ff, chol_f) < PIVOT_RATIO_MIN:
-        return FALLBACK, theta
+    if cholesky(s_ff, chol_f) < PIVOT_RATIO_MIN:
+        return FALLBACK, params
     w = s_fb.copy()
     zf = np.empty(nf)
     for a in range(nf):
@@ -134,16 +134,16 @@ def bounded_solve_kernel(info, rhs, lo):
         for b in range(a):
             s_red[b, a] = s_red[a, b]
     chol_b = np.empty((nb, nb))
-    if _cholesky(s_red, chol_b) < PIVOT_RATIO_MIN:
-        return FALLBACK, theta
-    xb = _cho_solve(chol_b, r_red)
+    if cholesky(s_red, chol_b) < PIVOT_RATIO_MIN:
+        return FALLBACK, params
+    xb = cho_solve(chol_b, r_red)
     scale = 0.0
     for a in range(nb):
         if abs(xb[a]) > scale:
             scale = abs(xb[a])
     for a in range(nb):
         if not xb[a] - lo[bi[a]] * d[bi[a]] > FEASIBLE_MARGIN * scale:
-            return NEEDS_BOUND, theta
+            return NEEDS_BOUND, params
     # free parameters given the bounded ones: s_ff xf = r_f - s_fb xb
     rf = np.empty(nf)
     for a in range(nf):
@@ -151,31 +151,31 @@ def bounded_solve_kernel(info, rhs, lo):
         for b in range(nb):
             t -= s_fb[a, b] * xb[b]
         rf[a] = t
-    xf = _cho_solve(chol_f, rf)
+    xf = cho_solve(chol_f, rf)
     for a in range(nb):
-        theta[bi[a]] = xb[a] / d[bi[a]]
+        params[bi[a]] = xb[a] / d[bi[a]]
     for a in range(nf):
-        theta[fi[a]] = xf[a] / d[fi[a]]
-    return OK, theta
+        params[fi[a]] = xf[a] / d[fi[a]]
+    return OK, params
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, theta, max_condition,
+@numba.njit(cache=True, fastmath=FASTMATH)
+def _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, params, max_condition,
                           inv):
     """``posterior_moments_kernel`` given inv = (acc_info + n_pr)^-1 (n, n), which becomes cov_stat (scaled in
     place: the caller must not use it afterwards)."""
     n = acc_info.shape[0]
     dof = rows - n
-    # chi^2 cancels ~5 digits (yty ~ theta^T rhs ~ 1e5 chi^2): the reference's BLAS calls (ddot, dgemv) in its
+    # chi^2 cancels ~5 digits (yty ~ params^T rhs ~ 1e5 chi^2): the reference's BLAS calls (ddot, dgemv) in its
     # order, so that its rounding is reproduced rather than a different one added
-    lin = np.dot(theta, acc_rhs)
-    quad = np.dot(np.dot(theta, acc_info), theta)
+    lin = np.dot(params, acc_rhs)
+    quad = np.dot(np.dot(params, acc_info), params)
     chi2 = yty - 2.0 * lin + quad
     chi2_red = chi2 / dof if dof > 0 else 1.0
     c = chi2_red if chi2_red > 1.0 else 1.0  # Python's max(1.0, x): nan keeps 1.0
     empty = np.empty((0, 0))
     ref = np.empty((n, n))  # cov_reference = c (info_reference + n_pr)^-1
-    if _spd_inverse_of_sum(info_reference, n_pr, ref, c) < PIVOT_RATIO_MIN:
+    if spd_inverse_of_sum(info_reference, n_pr, ref, c) < PIVOT_RATIO_MIN:
         return FALLBACK, chi2_red, empty, empty, empty
     if np.isfinite(max_condition):
         t_info = 0.0
@@ -185,7 +185,7 @@ def _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference,
             t_ref += ref[i, i]
         if not t_info * t_ref < max_condition * (1.0 - 1e-6) * c:  # at or near the reference's pinv switch
             return FALLBACK, chi2_red, empty, empty, empty
-    # G = inv B: a repeated raw error e moves theta by G e; cov_sys = G S G^T = W^T W with W = S^1/2 G^T from
+    # G = inv B: a repeated raw error e moves params by G e; cov_sys = G S G^T = W^T W with W = S^1/2 G^T from
     # G^T = B^T inv (inv is exactly symmetric): two transposed-first gemms on contiguous operands, no transposed
     # copy, one (R, P) temporary (the square roots change the rounding by ~1e-16 relative)
     w = np.dot(sys_map.T, inv)
@@ -213,42 +213,42 @@ def _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference,
     return OK, chi2_red, inv, cov, ref
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def posterior_moments_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, theta,
+@numba.njit(cache=True, fastmath=FASTMATH)
+def posterior_moments_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, params,
                              max_condition):
-    """chi^2 reduced, statistical, total and reference covariances of ``posterior_from_normal`` at theta.
+    """chi^2 reduced, statistical, total and reference covariances of ``posterior_from_normal`` at params.
 
     Returns (status, chi2_red, cov_stat, covariance, cov_reference); the arrays are valid only with status OK."""
     n = acc_info.shape[0]
     inv = np.empty((n, n))
-    if _spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < PIVOT_RATIO_MIN:
+    if spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < PIVOT_RATIO_MIN:
         empty = np.empty((0, 0))
         return FALLBACK, 1.0, empty, empty, empty
-    return _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, theta,
+    return _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, params,
                                  max_condition, inv)
 
 
-@numba.njit(cache=True, fastmath=_FAST)
+@numba.njit(cache=True, fastmath=FASTMATH)
 def posterior_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, r_pr, sys_var, lo, max_condition):
     """The posterior of ``posterior_from_normal`` from one inverse of info = acc_info + n_pr.
 
-    theta: the unconstrained minimiser of ``bounded_solve_kernel`` (unit-diagonal scaling, ridge 1e-12 on the
-    scaled diagonal): (info + 1e-12 D^2)^-1 rhs = theta0 - 1e-12 info^-1 D^2 theta0 + O(1e-24 |S^-1|^2), theta0 =
+    params: the unconstrained minimiser of ``bounded_solve_kernel`` (unit-diagonal scaling, ridge 1e-12 on the
+    scaled diagonal): (info + 1e-12 D^2)^-1 rhs = params0 - 1e-12 info^-1 D^2 params0 + O(1e-24 |S^-1|^2), params0 =
     info^-1 rhs, D^2 = diag(info) (the neglected term is < 1e-16 relative for scaled pivots >= PIVOT_RATIO_MIN);
     when it meets the bounds with the margin it is the bounded optimum, else NEEDS_BOUND.
 
-    Returns (status, theta, chi2_red, cov_stat, covariance, cov_reference); the arrays are valid only with status
-    OK (theta also with NEEDS_BOUND: the unconstrained minimiser)."""
+    Returns (status, params, chi2_red, cov_stat, covariance, cov_reference); the arrays are valid only with status
+    OK (params also with NEEDS_BOUND: the unconstrained minimiser)."""
     n = acc_info.shape[0]
     empty = np.empty((0, 0))
-    theta = np.empty(n)
+    params = np.empty(n)
     m = sys_map.shape[1]
     if (acc_info.shape[1] != n or acc_rhs.shape[0] != n or sys_map.shape[0] != n or info_reference.shape != (n, n)
             or n_pr.shape != (n, n) or r_pr.shape[0] != n or sys_var.shape[0] != m or lo.shape[0] != n):
-        return BAD_SHAPE, theta, 1.0, empty, empty, empty
+        return BAD_SHAPE, params, 1.0, empty, empty, empty
     inv = np.empty((n, n))
-    if _spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < PIVOT_RATIO_MIN:
-        return FALLBACK, theta, 1.0, empty, empty, empty
+    if spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < PIVOT_RATIO_MIN:
+        return FALLBACK, params, 1.0, empty, empty, empty
     rhs = np.empty(n)
     for i in range(n):
         rhs[i] = acc_rhs[i] + r_pr[i]
@@ -266,38 +266,21 @@ def posterior_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr
         t = 0.0
         for j in range(n):
             t += inv[i, j] * ridge[j]
-        theta[i] = t0[i] - t
+        params[i] = t0[i] - t
         if np.isfinite(lo[i]):
             v = acc_info[i, i] + n_pr[i, i]
-            x = abs(theta[i] * np.sqrt(v if v > 1e-300 else 1e-300))
+            x = abs(params[i] * np.sqrt(v if v > 1e-300 else 1e-300))
             if x > scale:
                 scale = x
     for i in range(n):
         if np.isfinite(lo[i]):
             v = acc_info[i, i] + n_pr[i, i]
             d = np.sqrt(v if v > 1e-300 else 1e-300)
-            if not theta[i] * d - lo[i] * d > FEASIBLE_MARGIN * scale:
-                return NEEDS_BOUND, theta, 1.0, empty, empty, empty
+            if not params[i] * d - lo[i] * d > FEASIBLE_MARGIN * scale:
+                return NEEDS_BOUND, params, 1.0, empty, empty, empty
     status, chi2_red, cov_stat, cov, ref = _moments_from_inverse(
-        acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, theta, max_condition, inv)
-    return status, theta, chi2_red, cov_stat, cov, ref
-
-
-_F8_2D = numba.types.Array(numba.float64, 2, "C")
-_F8_1D = numba.types.Array(numba.float64, 1, "C")
-_F8_1D_READONLY = numba.types.Array(numba.float64, 1, "C", readonly=True)
-_POSTERIOR_SIGNATURES = [(_F8_2D, _F8_1D, numba.float64, numba.float64, _F8_2D, _F8_2D, _F8_2D, _F8_1D, _F8_1D, lo,
-                          numba.float64) for lo in (_F8_1D, _F8_1D_READONLY)]
-
-
-@numba.njit(_POSTERIOR_SIGNATURES, cache=True)
-def posterior_kernel_typed(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, r_pr, sys_var, lo,
-                           max_condition):
-    """``posterior_kernel`` for C-contiguous float64 arrays only (lower bounds may be read-only): any other type
-    raises TypeError at the call instead of compiling a new specialisation, so the caller needs no conversion or
-    type check of its own on the fast path (shapes are checked inside: BAD_SHAPE)."""
-    return posterior_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, r_pr, sys_var, lo,
-                            max_condition)
+        acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, params, max_condition, inv)
+    return status, params, chi2_red, cov_stat, cov, ref
 
 
 def lower_vector(lower: float | np.ndarray, n: int) -> np.ndarray:

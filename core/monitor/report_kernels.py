@@ -1,49 +1,77 @@
 """Numba kernels of the result's traces and speed series (core.monitor.cycle_report): the per-cylinder friction traces on the
 crank-angle grid (report_traces), and the speed residual, the ripple power and both inverse series on the time grid in
-one call (speed_series), with the cosine/sine tables of the grid kept per (M, n_t).
+one call (speed_series), with the cosine/sine tables of the grid built once per (M, n_t) and kept by the caller
+(core.monitor.state.MonitorState.report_tables).
 
 The plain-numpy reference (speed_residual + speed_power + harmonic_series by irfft) is in
 tests/core/test_report_kernels.py. The direct sums differ from the inverse FFT by rounding only (~1e-16 of the
-speed); everything else is bit for bit the code it replaces.
+speed).
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import numba
 import numpy as np
 
-from frictionwatch.core.monitor.monitor_kernels import _abs2, _residual_into
-from frictionwatch.core.model.pairwise import pairwise_sum
-
-_TABLES: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
 
-def trig_tables(m: int, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """cos and sin of 2 pi (h k mod n) / n for harmonics h = 1..m and samples k = 0..n-1, (m, n) each, read-only,
-    one pair per size (harmonic_series' convention: x_k = sum_h Re(X_h exp(i 2 pi h k / n)))."""
-    key = (m, n)
-    tab = _TABLES.get(key)
-    if tab is None:
-        h = np.arange(1, m + 1)[:, None]
-        k = np.arange(n)[None, :]
-        ang = (2.0 * np.pi / n) * ((h * k) % n)
-        tab = (np.cos(ang), np.sin(ang))
-        for t in tab:
-            t.flags.writeable = False
-        _TABLES[key] = tab
-    return tab
+@dataclass(frozen=True)
+class TrigTables:
+    """table (2, m, n): cos and sin of 2 pi (h k mod n) / n for harmonics h = 1..m and samples k = 0..n-1
+    (harmonic_series' convention: x_k = sum_h Re(X_h exp(i 2 pi h k / n)))."""
+
+    table: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(m harmonics, n samples)."""
+        return self.table.shape[1:]
+
+
+def trig_tables(m: int, n: int) -> TrigTables:
+    """The tables for m harmonics on n samples (read-only arrays)."""
+    h = np.arange(1, m + 1)[:, None]
+    k = np.arange(n)[None, :]
+    ang = (2.0 * np.pi / n) * ((h * k) % n)
+    table = np.stack([np.cos(ang), np.sin(ang)])
+    table.flags.writeable = False
+    return TrigTables(table)
 
 
 @numba.njit(cache=True)
-def speed_series(design, target, theta, p_f, drift, use_drift, freq, harmonics, omega_fly, cos_t, sin_t, resid,
+def abs2(z):
+    """|z|^2 of a complex number (hypot, then the square)."""
+    v = math.hypot(z.real, z.imag)
+    return v * v
+
+
+@numba.njit(cache=True)
+def residual_into(design, target, params, out):
+    """out (M,) = target - design @ params for complex design (M, P) and real params (P,), real and imaginary parts
+    summed over P in order."""
+    m, p = design.shape
+    for i in range(m):
+        sr = 0.0
+        si = 0.0
+        for j in range(p):
+            sr += design[i, j].real * params[j]
+            si += design[i, j].imag * params[j]
+        out[i] = complex(target[i].real - sr, target[i].imag - si)
+
+
+@numba.njit(cache=True)
+def speed_series(design, target, params, p_f, drift, use_drift, freq, harmonics, omega_fly, table, resid,
                  extra):
     """Residual harmonics resid (M,) complex (measured - model, this cycle's best-fitting drift taken out if
     ``use_drift``), extra[0] = measured speed omega_fly (n_t,) minus the fitted tooth-pattern part
-    design[:, p_f:] @ theta[p_f:] and extra[1] = that minus the residual (the model speed), both on the time grid.
-    Returns (sum |resid|^2, sum |i freq harmonics|^2), each in numpy's pairwise order."""
+    design[:, p_f:] @ params[p_f:] and extra[1] = that minus the residual (the model speed), both on the time
+    grid; table (2, M, n_t): ``TrigTables.table``. Returns (sum |resid|^2, sum |i freq harmonics|^2)."""
     m = design.shape[0]
     series = np.empty((2, m), dtype=np.complex128)
-    resid_sq = speed_residual(design, target, theta, p_f, drift, use_drift, series)
+    resid_sq = speed_residual(design, target, params, p_f, drift, use_drift, series)
     power = speed_power(freq, harmonics)
     n = omega_fly.shape[0]
     pat = np.zeros(n)
@@ -54,8 +82,8 @@ def speed_series(design, target, theta, p_f, drift, use_drift, freq, harmonics, 
         rr = series[1, h].real
         ri = series[1, h].imag
         for k in range(n):
-            c = cos_t[h, k]
-            s = sin_t[h, k]
+            c = table[0, h, k]
+            s = table[1, h, k]
             pat[k] += pr * c - pi * s
             res[k] += rr * c - ri * s
     for h in range(m):
@@ -71,17 +99,17 @@ def speed_series(design, target, theta, p_f, drift, use_drift, freq, harmonics, 
 
 
 @numba.njit(cache=True)
-def speed_residual(design, target, theta, p_f, drift, use_drift, out):
-    """out[0] = the tooth-pattern part design[:, p_f:] @ theta[p_f:], out[1] = target - design @ theta with the
-    best-fitting drift (if used) taken out; returns [sum |resid|^2, in numpy's pairwise order]."""
+def speed_residual(design, target, params, p_f, drift, use_drift, out):
+    """out[0] = the tooth-pattern part design[:, p_f:] @ params[p_f:], out[1] = target - design @ params with the
+    best-fitting drift (if used) taken out; returns sum |resid|^2."""
     m, p = design.shape
-    _residual_into(design, target, theta, out[1])
+    residual_into(design, target, params, out[1])
     for i in range(m):
         pr = 0.0
         pi = 0.0
         for j in range(p_f, p):
-            pr += design[i, j].real * theta[j]
-            pi += design[i, j].imag * theta[j]
+            pr += design[i, j].real * params[j]
+            pi += design[i, j].imag * params[j]
         out[0, i] = complex(pr, pi)
     if use_drift:
         dd = 0.0
@@ -95,8 +123,8 @@ def speed_residual(design, target, theta, p_f, drift, use_drift, out):
                 out[1, i] = out[1, i] - drift[i] * f
     sq = np.empty(m)
     for i in range(m):
-        sq[i] = _abs2(out[1, i])
-    return pairwise_sum(sq, 0, m)
+        sq[i] = abs2(out[1, i])
+    return np.sum(sq)
 
 
 @numba.njit(cache=True)
@@ -106,8 +134,8 @@ def speed_power(freq, harmonics):
     sq = np.empty(m)
     for i in range(m):
         h = harmonics[i]
-        sq[i] = _abs2(complex(0.0 * h.real - freq[i] * h.imag, 0.0 * h.imag + freq[i] * h.real))
-    return pairwise_sum(sq, 0, m)
+        sq[i] = abs2(complex(0.0 * h.real - freq[i] * h.imag, 0.0 * h.imag + freq[i] * h.real))
+    return np.sum(sq)
 
 
 @numba.njit(cache=True)

@@ -17,7 +17,6 @@ from functools import cached_property
 
 import numpy as np
 
-from frictionwatch.core.monitor.frozen_init import fast_constructor
 
 PA_PER_BAR = 1e5
 
@@ -122,7 +121,7 @@ class CycleResult:
         fields = dict(self.__dict__)
         fields.pop("friction_torque_cyl", None)  # the grid traces, if asked for (cached_property)
         fields.update(dict.fromkeys(_TRACES))
-        return _make_slim(**fields)
+        return CycleResult(**fields)
 
     # the per-cycle estimate under the names of the brief
     @property
@@ -196,7 +195,6 @@ class CycleResult:
 
 _TRACES = ("grid", "friction_torque", "friction_torque_cyl_time", "time_angles", "speed_measured", "speed_model",
            "friction_torque_balance")
-_make_slim = fast_constructor(CycleResult)  # CycleResult(**fields) without the frozen per-field __setattr__
 
 
 def _num(x: float) -> float | None:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.monitor_kernels import firing_into, share_into
+from frictionwatch.core.monitor.sharing_kernels import firing_kernel, share_kernel
 
 # Chen-Flynn defaults (engines.md §4; 1-D engine-code defaults, provenance not checked against SAE 650733)
 CHEN_FLYNN_BAR = (0.4, 0.005, 0.09, 0.0009)
@@ -43,9 +43,7 @@ def motored_friction_per_cylinder(spec: EngineSpec, rpm: float, pmax_motored_pa:
 def firing_mask(indicated_mean: np.ndarray, fraction: float = 0.15) -> np.ndarray:
     """True for cylinders that fire: indicated work above ``fraction`` of the median of the positive ones."""
     t = np.ascontiguousarray(indicated_mean, dtype=np.float64)
-    fire = np.empty(t.shape, dtype=bool)
-    firing_into(t.reshape(-1), float(fraction), fire.reshape(-1))
-    return fire
+    return firing_kernel(t.reshape(-1), float(fraction)).reshape(t.shape)
 
 
 def share_mean_loss(
@@ -64,9 +62,6 @@ def share_mean_loss(
     t_i = np.ascontiguousarray(indicated_mean, dtype=np.float64)
     if t_i.ndim != 1:
         raise ValueError(f"indicated_mean must be one value per cylinder (z,), got shape {t_i.shape}")
-    out = np.empty(t_i.shape)
-    sig = np.empty(t_i.shape)
-    motored = np.empty(t_i.shape, dtype=bool)
-    share_into(float(friction_total), t_i, float(motored_friction), float(spread), float(motored_spread),
-               float(fraction), out, sig, motored)
+    out, sig, motored = share_kernel(float(friction_total), t_i, float(motored_friction), float(spread),
+                                     float(motored_spread), float(fraction))
     return SharedLoss(friction_mean=out, sigma=sig, motored=motored)

@@ -15,11 +15,11 @@ import numpy as np
 
 # reassociation lets LLVM vectorise the dot-product reductions (their rounding differs from LAPACK's anyway); no
 # 'nnan'/'ninf': the positivity and finiteness tests must see NaN and inf
-_FAST = {"reassoc", "contract", "nsz", "arcp"}
+FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _cholesky(a, out):
+@numba.njit(cache=True, fastmath=FASTMATH)
+def cholesky(a, out):
     """Lower Cholesky factor of the leading m x m block of the symmetric a (lower triangle read), m = out.shape[0],
     into out (m, m) (zeroed above the diagonal).
 
@@ -68,8 +68,8 @@ def _cholesky(a, out):
     return worst
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _cho_solve(chol, b):
+@numba.njit(cache=True, fastmath=FASTMATH)
+def cho_solve(chol, b):
     """x = (L L^T)^-1 b for the lower factor L (n, n) and b (n,)."""
     n = chol.shape[0]
     z = np.empty(n)
@@ -86,8 +86,8 @@ def _cho_solve(chol, b):
     return z
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _cho_inverse_into(chol, y, out):
+@numba.njit(cache=True, fastmath=FASTMATH)
+def cho_inverse_into(chol, y, out):
     """out[:m, :m] = (L L^T)^-1, exactly symmetric, for the lower factor L (m, m); y (m, m) is scratch (<- L^-1,
     zeros above the diagonal).
 
@@ -141,17 +141,17 @@ def _cho_inverse_into(chol, y, out):
             out[j, i] = out[i, j]
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _cho_inverse(chol):
+@numba.njit(cache=True, fastmath=FASTMATH)
+def cho_inverse(chol):
     """(L L^T)^-1 (n, n), exactly symmetric, from the lower factor L."""
     n = chol.shape[0]
     out = np.empty((n, n))
-    _cho_inverse_into(chol, np.empty((n, n)), out)
+    cho_inverse_into(chol, np.empty((n, n)), out)
     return out
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _decoupled_tail(a, b):
+@numba.njit(cache=True, fastmath=FASTMATH)
+def decoupled_tail(a, b):
     """Start k of the trailing rows of the symmetric a + b (lower triangles read) that have no off-diagonal entry:
     a + b is then block diagonal, a full (k, k) head and a diagonal tail (the monitor's reference information: the
     free nuisances see only their own priors)."""
@@ -171,22 +171,22 @@ def _decoupled_tail(a, b):
 BLOCKED_MIN = 32  # from this size on, the inverse goes by two half-size blocks and small gemms (BLAS)
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _spd_inverse_small(a, out):
+@numba.njit(cache=True, fastmath=FASTMATH)
+def spd_inverse_small(a, out):
     """out (m, m) = a^-1 for the symmetric a (m, m) (lower triangle read), by Cholesky.
 
     Returns the smallest pivot ratio, or -1 (out undefined)."""
     m = a.shape[0]
     chol = np.empty((m, m))
-    worst = _cholesky(a, chol)
+    worst = cholesky(a, chol)
     if worst < 0.0:
         return -1.0
-    _cho_inverse_into(chol, np.empty((m, m)), out)
+    cho_inverse_into(chol, np.empty((m, m)), out)
     return worst
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _spd_inverse_blocked(a, b, m, out):
+@numba.njit(cache=True, fastmath=FASTMATH)
+def spd_inverse_blocked(a, b, m, out):
     """out[:m, :m] = inverse of the leading m x m block of the symmetric a + b (lower triangles read), by the
     Schur complement of its leading half: with P = A11^-1 A12 and S = A22 - A12^T P,
 
@@ -207,7 +207,7 @@ def _spd_inverse_blocked(a, b, m, out):
         for j in range(n2):
             a12[i, j] = a[n1 + j, i] + b[n1 + j, i]
     x11 = np.empty((n1, n1))
-    worst = _spd_inverse_small(a11, x11)
+    worst = spd_inverse_small(a11, x11)
     if worst < 0.0:
         return -1.0
     p = np.dot(x11, a12)
@@ -216,14 +216,14 @@ def _spd_inverse_blocked(a, b, m, out):
         for j in range(i + 1):
             s[i, j] = (a[n1 + i, n1 + j] + b[n1 + i, n1 + j]) - s[i, j]
     chol = np.empty((n2, n2))
-    if _cholesky(s, chol) < 0.0:
+    if cholesky(s, chol) < 0.0:
         return -1.0
     for j in range(n2):
         ratio = chol[j, j] * chol[j, j] / (a[n1 + j, n1 + j] + b[n1 + j, n1 + j])
         if ratio < worst:
             worst = ratio
     q = np.empty((n2, n2))
-    _cho_inverse_into(chol, np.empty((n2, n2)), q)
+    cho_inverse_into(chol, np.empty((n2, n2)), q)
     x12 = np.dot(p, q)
     p_t = np.empty((n2, n1))
     for i in range(n1):
@@ -245,21 +245,21 @@ def _spd_inverse_blocked(a, b, m, out):
     return worst
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _spd_inverse_of_sum(a, b, out, scale):
+@numba.njit(cache=True, fastmath=FASTMATH)
+def spd_inverse_of_sum(a, b, out, scale):
     """out = scale * (a + b)^-1 (n, n), exactly symmetric, for the symmetric positive-definite a + b (lower
-    triangles read; the sum is never stored whole): the coupled head by Cholesky (``_spd_inverse_blocked`` from
-    ``BLOCKED_MIN`` on), reciprocals of a diagonal decoupled tail (``_decoupled_tail``).
+    triangles read; the sum is never stored whole): the coupled head by Cholesky (``spd_inverse_blocked`` from
+    ``BLOCKED_MIN`` on), reciprocals of a diagonal decoupled tail (``decoupled_tail``).
 
     Returns the smallest pivot ratio L_jj^2 / (a + b)_jj of the factor of a + b (1 for n = 0), or -1 if a pivot
     is not positive (out is then undefined)."""
     n = a.shape[0]
-    k = _decoupled_tail(a, b)
+    k = decoupled_tail(a, b)
     for i in range(k, n):
         if not a[i, i] + b[i, i] > 0.0:
             return -1.0
     if k == n and k >= BLOCKED_MIN:
-        worst = _spd_inverse_blocked(a, b, k, out)
+        worst = spd_inverse_blocked(a, b, k, out)
         if worst >= 0.0 and scale != 1.0:
             for i in range(n):
                 for j in range(n):
@@ -267,13 +267,13 @@ def _spd_inverse_of_sum(a, b, out, scale):
         return worst
     head = np.empty((k, k))
     if k >= BLOCKED_MIN:
-        worst = _spd_inverse_blocked(a, b, k, head)
+        worst = spd_inverse_blocked(a, b, k, head)
     else:
         h = np.empty((k, k))
         for i in range(k):
             for j in range(i + 1):
                 h[i, j] = a[i, j] + b[i, j]
-        worst = _spd_inverse_small(h, head)
+        worst = spd_inverse_small(h, head)
     if worst < 0.0:
         return worst
     for i in range(k):
@@ -288,7 +288,7 @@ def _spd_inverse_of_sum(a, b, out, scale):
     return worst
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _spd_inverse_into(a, out):
-    """out = a^-1 (``_spd_inverse_of_sum`` of a alone)."""
-    return _spd_inverse_of_sum(a, np.zeros(a.shape), out, 1.0)
+@numba.njit(cache=True, fastmath=FASTMATH)
+def spd_inverse_into(a, out):
+    """out = a^-1 (``spd_inverse_of_sum`` of a alone)."""
+    return spd_inverse_of_sum(a, np.zeros(a.shape), out, 1.0)

@@ -20,7 +20,6 @@ Two levels, each with a chunked == whole test:
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from functools import lru_cache
 
 import numba
 import numpy as np
@@ -122,11 +121,21 @@ def fir_stream(flt: StreamFilter, state: FirState | None, chunk: np.ndarray) -> 
 
 
 # ---- cycle by cycle -----------------------------------------------------------------------------------------------
-@lru_cache(maxsize=16)
-def _grid_operator(n: int, half: int, fc: float, theta0: float, grid_points: int,
-                   rpad: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class GridOperator:
     """Banded maps from the padded samples (L+1 | 2N | rpad) of one cycle to omega and d omega/d theta on the grid:
-    row g uses samples start[g] .. start[g] + 2L + 1 with weights band[g] (resp. dband[g])."""
+    row g uses samples start[g] .. start[g] + 2L + 1 with weights band[g] (resp. dband[g]). ``key`` = (n, half,
+    cutoff, first sample angle, grid points, rpad): the same every cycle of a steady stream, so the last one is
+    kept in the stream state and rebuilt only when the key changes."""
+
+    key: tuple
+    start: np.ndarray
+    band: np.ndarray
+    dband: np.ndarray
+
+
+def grid_operator(n: int, half: int, fc: float, theta0: float, grid_points: int, rpad: int) -> GridOperator:
+    """The ``GridOperator`` of one cycle (see there)."""
     pitch = 2 * np.pi / n
     grid = np.arange(grid_points) * (FOUR_PI / grid_points)
     # sample s of the padded array sits at theta0 + (s - (half + 1) + 1/2) pitch
@@ -142,7 +151,8 @@ def _grid_operator(n: int, half: int, fc: float, theta0: float, grid_points: int
     k = np.arange(-half, half + 1, dtype=np.float64)
     h0, dh0 = _kernel(k, fc, half)
     dh0 = dh0 - dh0.mean()
-    return start, np.ascontiguousarray(h / h0.sum()), np.ascontiguousarray(dh / (-(k * dh0).sum() * pitch))
+    return GridOperator((n, half, fc, theta0, grid_points, rpad), start, np.ascontiguousarray(h / h0.sum()),
+                        np.ascontiguousarray(dh / (-(k * dh0).sum() * pitch)))
 
 
 @numba.njit(cache=True)
@@ -165,10 +175,12 @@ class _CycleSamples:
 
 @dataclass(frozen=True)
 class SpeedStreamState:
-    """The cycle waiting for its right-hand neighbour and the one before it (for left padding)."""
+    """The cycle waiting for its right-hand neighbour and the one before it (for left padding), and the last grid
+    operator."""
 
     pending: _CycleSamples | None = None
     previous: _CycleSamples | None = None
+    operator: GridOperator | None = None
 
 
 def _samples_of(cycle: Cycle, correction: np.ndarray | None) -> _CycleSamples:
@@ -186,7 +198,7 @@ def _neighbour(a: _CycleSamples | None, b: _CycleSamples) -> bool:
 
 
 def _output(flt: StreamFilter, cur: _CycleSamples, left: _CycleSamples | None, right: _CycleSamples | None,
-            grid_points: int) -> CycleSpeed:
+            grid_points: int, operator: GridOperator | None) -> tuple[CycleSpeed, GridOperator]:
     s = cur.samples
     n = flt.positions_per_rev
     lpad = flt.half_width + 1
@@ -195,13 +207,15 @@ def _output(flt: StreamFilter, cur: _CycleSamples, left: _CycleSamples | None, r
     lp = left.samples[-lpad:] if _neighbour(left, cur) else s[-lpad:]  # else: periodic extension
     rp = right.samples[:rpad] if _neighbour(right, cur) else s[:rpad]
     x = np.concatenate([lp, s, rp])
-    start, band, dband = _grid_operator(n, flt.half_width, flt.cutoff, round(cur.theta0, 12), grid_points, rpad)
+    key = (n, flt.half_width, flt.cutoff, round(cur.theta0, 12), grid_points, rpad)
+    if operator is None or operator.key != key:
+        operator = grid_operator(*key)
     w, dw = np.empty(grid_points), np.empty(grid_points)
-    _banded_apply(start, band, x, w)
-    _banded_apply(start, dband, x, dw)
+    _banded_apply(operator.start, operator.band, x, w)
+    _banded_apply(operator.start, operator.dband, x, dw)
     grid = np.arange(grid_points) * (FOUR_PI / grid_points)
     drift = float(np.mean(dw))
-    return CycleSpeed(grid, w, w * dw, cur.omega_mean, cur.omega_mean * 30.0 / np.pi, drift)
+    return CycleSpeed(grid, w, w * dw, cur.omega_mean, cur.omega_mean * 30.0 / np.pi, drift), operator
 
 
 def speed_stream_update(flt: StreamFilter, state: SpeedStreamState, cycle: Cycle | None,
@@ -213,11 +227,13 @@ def speed_stream_update(flt: StreamFilter, state: SpeedStreamState, cycle: Cycle
         raise ValueError(f"cycle has {cur.samples.shape[0] // 2} positions per revolution; the filter was designed "
                          f"for {flt.positions_per_rev}")
     out = []
+    operator = state.operator
     if state.pending is not None:
         right = cur if cur is not None and _neighbour(state.pending, cur) and cur.index > state.pending.index \
             else None
-        out.append((state.pending.index, _output(flt, state.pending, state.previous, right, grid_points)))
-    return replace(state, pending=cur, previous=state.pending), out
+        speed, operator = _output(flt, state.pending, state.previous, right, grid_points, operator)
+        out.append((state.pending.index, speed))
+    return replace(state, pending=cur, previous=state.pending, operator=operator), out
 
 
 def speed_whole(flt: StreamFilter, cycles: list[Cycle], correction: np.ndarray | None = None,
@@ -225,8 +241,10 @@ def speed_whole(flt: StreamFilter, cycles: list[Cycle], correction: np.ndarray |
     """All cycles at once (the reference for ``speed_stream_update``)."""
     cs = [_samples_of(c, correction) for c in cycles]
     out = []
+    operator = None
     for i, c in enumerate(cs):
         left = cs[i - 1] if i > 0 and cs[i - 1].index < c.index else None
         right = cs[i + 1] if i + 1 < len(cs) and cs[i + 1].index > c.index else None
-        out.append((c.index, _output(flt, c, left, right, grid_points)))
+        speed, operator = _output(flt, c, left, right, grid_points, operator)
+        out.append((c.index, speed))
     return out

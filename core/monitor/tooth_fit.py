@@ -6,28 +6,41 @@ ToothLearner); inside the band it is fixed in angle and repeats every revolution
 be told from a steady engine response at integer orders: it is carried as nuisance parameters whose columns are the
 angle patterns passed through the same fit (core.monitor.identify.tooth_patterns).
 
-Speed: the whole step (prepare, fit, learn, refit) is one kernel call (core.monitor.tooth_fit_kernels._tooth_fit_cycle), the
+Speed: the whole step (prepare, fit, learn, refit) is one kernel call (core.monitor.tooth_fit_kernels.tooth_fit_cycle_kernel), the
 same arithmetic as core.monitor.flywheel.prepare_fit / fit_prepared / ToothLearner.update (tests/core/test_tooth_fit.py).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from frictionwatch.core.monitor.flywheel import FlywheelMotion, ToothLearner
 from frictionwatch.core.monitor.flywheel_kernels import BAD_SPAN, NOT_INCREASING, OK
-from frictionwatch.core.monitor.frozen_init import fast_constructor
 from frictionwatch.core.monitor.identify import tooth_patterns
-from frictionwatch.core.monitor.tooth_fit_kernels import BAD_SHAPES, CACHE_MISS, NO_WINDOW, TOO_FEW, _tooth_fit_cycle
+from frictionwatch.core.monitor.tooth_fit_kernels import (
+    BAD_SHAPES,
+    CACHE_MISS,
+    NO_WINDOW,
+    TOO_FEW,
+    tooth_fit_cycle_kernel,
+)
 from frictionwatch.core.types import Cycle
 
 FOUR_PI = 4.0 * np.pi
 
-PatternCache = tuple[np.ndarray, np.ndarray]  # (edge angles relative to the first, patterns)
 
-# the per-cycle frozen objects, built without the per-field frozen __setattr__ (core.monitor.frozen_init)
-_make_motion = fast_constructor(FlywheelMotion)
-_make_learner = fast_constructor(ToothLearner)
+
+@dataclass(frozen=True)
+class ToothPatterns:
+    """The in-band tooth-error patterns at a cycle's edges (core.monitor.identify.tooth_patterns), kept from cycle to
+    cycle: they depend on the edge angles relative to the first one only, the same every cycle of a run.
+    edge_angles (n,) [rad] relative to the first edge; patterns (n, 2 orders)."""
+
+    edge_angles: np.ndarray
+    patterns: np.ndarray
+
 _NO_PATTERNS = np.zeros((1, 0))
 _NO_ANGLES = np.zeros(0)
 _STATUS_TEXT = {
@@ -40,9 +53,9 @@ _STATUS_TEXT = {
 
 
 def fit_cycle_teeth(cycle: Cycle, wheel_teeth: int, n_harmonics: int, n_nuisance: int, teeth: ToothLearner,
-                    cache: PatternCache | None, drift_nuisance: bool, fit_harmonics: int, fit_drift: bool,
+                    cache: ToothPatterns | None, drift_nuisance: bool, fit_harmonics: int, fit_drift: bool,
                     learn_teeth: bool, tooth_memory: float, tooth_refit_cycles: int
-                    ) -> tuple[FlywheelMotion, ToothLearner, float, PatternCache | None]:
+                    ) -> tuple[FlywheelMotion, ToothLearner, float, ToothPatterns | None]:
     """Flywheel fit of the cycle's 4 pi window (the assembler brackets [0, 4 pi] with an edge either side; the
     window starts at the first edge), tooth learning, and the angle of the first edge [rad].
 
@@ -61,9 +74,8 @@ def fit_cycle_teeth(cycle: Cycle, wheel_teeth: int, n_harmonics: int, n_nuisance
     n_drift = 2 if fit_drift else 1
     use_patterns = bool(n_nuisance)
     if use_patterns and cache is not None:
-        cached_rel, cached_patterns = cache
-        if not cached_patterns.flags.c_contiguous:
-            cached_patterns = np.ascontiguousarray(cached_patterns)
+        cached_rel = np.ascontiguousarray(cache.edge_angles, dtype=np.float64)
+        cached_patterns = np.ascontiguousarray(cache.patterns, dtype=np.float64)
     else:
         cached_rel, cached_patterns = _NO_ANGLES, _NO_PATTERNS
     n_cols = 2 * (n_nuisance // 2) if use_patterns else 0
@@ -73,7 +85,7 @@ def fit_cycle_teeth(cycle: Cycle, wheel_teeth: int, n_harmonics: int, n_nuisance
     refit = teeth.count + 1 <= tooth_refit_cycles
     for _ in range(2):
         try:
-            status, n, period, offset, drift, rms, resid, new_corr = _tooth_fit_cycle(
+            status, n, period, offset, drift, rms, resid, new_corr = tooth_fit_cycle_kernel(
                 nominal, ticks, index, float(cycle.tick_hz), n_drift, m_fit, n_harmonics, use_patterns, cached_rel,
                 cached_patterns, bool(drift_nuisance), correction, bool(learn_teeth), gain, refit, harm, pat)
         except np.linalg.LinAlgError as exc:
@@ -84,11 +96,11 @@ def fit_cycle_teeth(cycle: Cycle, wheel_teeth: int, n_harmonics: int, n_nuisance
         window = nominal[:n]
         cached_patterns = tooth_patterns(window, n_nuisance // 2)
         cached_rel = window - window[0]
-        cache = (cached_rel, cached_patterns)
+        cache = ToothPatterns(edge_angles=cached_rel, patterns=cached_patterns)
     if status != OK:
         raise ValueError(_STATUS_TEXT.get(status, "flywheel fit failed").format(n=n, m=n_harmonics))
     if learn_teeth:
-        teeth = _make_learner(correction=new_corr, count=teeth.count + 1)
-    fly = _make_motion(period=period, omega_mean=FOUR_PI / period, harmonics=harm, offset=offset, drift=drift,
+        teeth = ToothLearner(correction=new_corr, count=teeth.count + 1)
+    fly = FlywheelMotion(period=period, omega_mean=FOUR_PI / period, harmonics=harm, offset=offset, drift=drift,
                        residual_rms=rms, n_edges=n, edge_residual=resid, pattern_harmonics=pat)
     return fly, teeth, float(nominal[0] + teeth.correction[int(index[0]) % wheel_teeth]), cache

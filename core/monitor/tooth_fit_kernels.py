@@ -7,7 +7,13 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from frictionwatch.core.monitor.flywheel_kernels import FOUR_PI, OK, _fit_angles, _prepare_fit, _tooth_update
+from frictionwatch.core.monitor.flywheel_kernels import (
+    FOUR_PI,
+    OK,
+    fit_angles_kernel,
+    prepare_fit_kernel,
+    tooth_update_kernel,
+)
 
 
 @numba.njit(cache=True)
@@ -72,7 +78,7 @@ def _cycle_window(nominal, cached_rel):
     return end, hit, _revolution_period(rel)
 
 
-# statuses of _tooth_fit_cycle beyond core.monitor.flywheel_kernels' (OK, NOT_INCREASING, BAD_SPAN)
+# statuses of tooth_fit_cycle_kernel beyond core.monitor.flywheel_kernels' (OK, NOT_INCREASING, BAD_SPAN)
 NO_WINDOW = 4  # no edge 4 pi after the first
 TOO_FEW = 5  # too few edges for the harmonics
 CACHE_MISS = 6  # the pattern cache does not match this cycle's edges: build the patterns and call again
@@ -80,12 +86,12 @@ BAD_SHAPES = 7  # tooth_ticks / tooth_index shorter than the window
 
 
 @numba.njit(cache=True)
-def _tooth_fit_cycle(nominal_all, ticks_all, index_all, tick_hz, n_drift, m_fit, n_harm, use_patterns, cached_rel,
+def tooth_fit_cycle_kernel(nominal_all, ticks_all, index_all, tick_hz, n_drift, m_fit, n_harm, use_patterns, cached_rel,
                      cached_patterns, drift_pattern, correction, learn, gain, refit, harm, pat):
     """The monitor's whole tooth step in one call (core.monitor.tooth_fit.fit_cycle_teeth): the cycle window and the
-    pattern-cache test (``_cycle_window``), ``_prepare_fit`` (patterns folded per revolution when their rows
-    repeat), the fit of the corrected angles (``_corrected_angles``, ``_fit_angles``), with ``learn`` the learner
-    step (``_tooth_update`` with ``gain``) and, with ``refit``, the fit again with the fresh correction.
+    pattern-cache test (``_cycle_window``), ``prepare_fit_kernel`` (patterns folded per revolution when their rows
+    repeat), the fit of the corrected angles (``_corrected_angles``, ``fit_angles_kernel``), with ``learn`` the learner
+    step (``tooth_update_kernel`` with ``gain``) and, with ``refit``, the fit again with the fresh correction.
 
     Fills harm (n_harm,) and pat (n_harm, q); returns (status, n edges, period [s], offset, drift, rms,
     edge residual (n,), correction after the cycle)."""
@@ -111,7 +117,7 @@ def _tooth_fit_cycle(nominal_all, ticks_all, index_all, tick_hz, n_drift, m_fit,
     design_t = np.empty((p, n))
     scale = np.empty(p)
     chol = np.empty((p, p))
-    status = _prepare_fit(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, period_rows, drift_pattern, tau,
+    status = prepare_fit_kernel(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, period_rows, drift_pattern, tau,
                           design_t, scale, chol, pat)
     if status != OK:
         return status, n, 0.0, 0.0, 0.0, 0.0, no_resid, correction
@@ -120,12 +126,12 @@ def _tooth_fit_cycle(nominal_all, ticks_all, index_all, tick_hz, n_drift, m_fit,
     angle = np.empty(n)
     resid = np.empty(n)
     _corrected_angles(nominal, correction, index, angle)
-    status, offset, drift, rms = _fit_angles(design_t, scale, chol, tau, omega, angle, n_drift, m_fit, harm, resid)
+    status, offset, drift, rms = fit_angles_kernel(design_t, scale, chol, tau, omega, angle, n_drift, m_fit, harm, resid)
     if status != OK or not learn:
         return status, n, period, offset, drift, rms, resid, correction
-    corr = _tooth_update(correction, index, resid, gain)
+    corr = tooth_update_kernel(correction, index, resid, gain)
     if refit:  # while the learner is young, use what this cycle taught at once
         _corrected_angles(nominal, corr, index, angle)
-        status, offset, drift, rms = _fit_angles(design_t, scale, chol, tau, omega, angle, n_drift, m_fit, harm,
+        status, offset, drift, rms = fit_angles_kernel(design_t, scale, chol, tau, omega, angle, n_drift, m_fit, harm,
                                                  resid)
     return status, n, period, offset, drift, rms, resid, corr

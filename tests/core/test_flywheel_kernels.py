@@ -39,9 +39,9 @@ def test_fit_flywheel_is_the_least_squares_fit(seed):
 @pytest.mark.parametrize("n_drift", [1, 2])
 @pytest.mark.parametrize("n_harm", [1, 7, 24, 30])
 def test_prepare_fit_design_and_normal_matrix(seed, n_drift, n_harm):
-    """_prepare_fit's design rows (recurrence across edges, no re-seed) match direct trig to 1e-13, and its
+    """prepare_fit_kernel's design rows (recurrence across edges, no re-seed) match direct trig to 1e-13, and its
     Cholesky factor reproduces D^T D on unit-scaled columns (power-sum identities, module docstring)."""
-    from frictionwatch.core.monitor.flywheel_kernels import OK, _prepare_fit
+    from frictionwatch.core.monitor.flywheel_kernels import OK, prepare_fit_kernel
 
     rng = np.random.default_rng(seed)
     n = 317
@@ -54,7 +54,7 @@ def test_prepare_fit_design_and_normal_matrix(seed, n_drift, n_harm):
     want = np.column_stack(cols + [np.cos(np.outer(tau, w)), np.sin(np.outer(tau, w))])
     p = want.shape[1]
     got_tau, rows, scale, chol = np.empty(n), np.empty((p, n)), np.empty(p), np.empty((p, p))
-    status = _prepare_fit(ticks, tick_hz, n_drift, n_harm, n_harm, np.zeros((n, 0)), 0, False, got_tau, rows, scale,
+    status = prepare_fit_kernel(ticks, tick_hz, n_drift, n_harm, n_harm, np.zeros((n, 0)), 0, False, got_tau, rows, scale,
                           chol, np.empty((n_harm, 0), dtype=np.complex128))
     assert status == OK
     assert_allclose(got_tau, tau, rtol=0, atol=0)

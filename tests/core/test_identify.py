@@ -106,8 +106,8 @@ def test_posterior_sigma_is_honest_by_monte_carlo():
             acc = acc.update(a, y, np.ones(r), 1.0)
         post = solve_posterior(acc, Prior(np.eye(p), np.ones(p), np.full(p, 100.0)), np.full(r, sys_sd**2))
         sd = np.sqrt(np.diag(post.covariance))
-        inside += np.all(np.abs(post.theta - theta_true) <= 2 * sd)
-        inside_stat += np.all(np.abs(post.theta - theta_true) <= 2 * np.sqrt(np.diag(post.cov_statistical)))
+        inside += np.all(np.abs(post.params - theta_true) <= 2 * sd)
+        inside_stat += np.all(np.abs(post.params - theta_true) <= 2 * np.sqrt(np.diag(post.cov_statistical)))
     # each of 3 parameters covered with ~95 %; all three together about 0.95^3 = 86 % (correlated: a bit more)
     assert 0.80 <= inside / trials <= 0.99
     # without the systematic term the statistical sigma alone would be badly optimistic

@@ -48,7 +48,7 @@ def test_state_in_and_out_is_explicit_and_pure(log):
     # same state + same cycle -> same result (no hidden module state)
     s1b, r1b = process_cycle(SPEC, s0, cycles[0])
     assert_allclose(r1b.friction_torque, r1.friction_torque)
-    assert_allclose(s1b.theta, s1.theta)
+    assert_allclose(s1b.params, s1.params)
 
 
 def test_result_fields_shapes_and_physics(log):

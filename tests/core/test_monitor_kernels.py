@@ -1,19 +1,21 @@
-"""frictionwatch.core.monitor.monitor_kernels (and the estimate / sharing / report / pressure-check paths built on them) against their
-plain-numpy references: the pre-kernel implementations, copied here. Seeded inputs of the real sizes (genset-v20:
-P = 47 with 24 nuisances, M = 24, z = 20, 512 time samples, 720 grid points) and small ones (1 and 4 cylinders).
-Tolerances: bit-identical where the reference sums with numpy's own pairwise order or not at all; 1e-12 relative
-where the reference went through BLAS (its summation order is its own)."""
+"""The monitor's per-cycle kernels (noise model, Eq. 6 sharing and its prior rows, the reported estimate, the result's
+traces) against their plain-numpy references, written here. Seeded inputs of the real sizes (genset-v20: P = 47 with
+24 nuisances, M = 24, z = 20, 512 time samples, 720 grid points) and small ones (1 and 4 cylinders).
+Tolerances: the kernels sum in plain order where numpy sums pairwise or through BLAS, so sums of up to ~50 terms
+differ by a few ulps of their largest term; 1e-12 relative (1e-14 for the short Eq. 6 sums) leaves room for that
+and for nothing else. Masks and interpolation (no sums) are compared exactly."""
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from frictionwatch.core.monitor.accumulate import Posterior, ResidualStats
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.estimate import friction_estimate, friction_estimate_leading
-from frictionwatch.core.monitor.identify import parameter_layout
-from frictionwatch.core.monitor.monitor_kernels import noise_rows, share_normal_into
-from frictionwatch.core.model.pairwise import pairwise_sum
+from frictionwatch.core.monitor.accumulate import Posterior, ResidualStats
+from frictionwatch.core.monitor.estimate import ReportLimits, friction_estimate
+from frictionwatch.core.monitor.flywheel import FlywheelMotion
+from frictionwatch.core.monitor.identify import CycleRows, parameter_layout
+from frictionwatch.core.monitor.noise_model import NoiseSettings, whitened_rows
+from frictionwatch.core.monitor.priors import PriorNormal
 from frictionwatch.core.monitor.report_kernels import report_traces, rows_on_grid, speed_power, speed_residual
 from frictionwatch.core.monitor.results import FrictionEstimate
 from frictionwatch.core.monitor.sharing import SharedLoss, firing_mask, share_mean_loss
@@ -67,7 +69,7 @@ def _qf(rows, cov):
 def friction_estimate_reference(spec, layout, post, basis_mean, prior_mean, resolve_rel, coefficient_snr,
                                 min_data_gain=0.0, cylinder_rows=None):
     z = spec.n_cyl
-    theta = post.theta
+    theta = post.params
     a = layout.coefficients(theta)
     a_sig = layout.prior * np.sqrt(np.clip(np.diag(post.covariance), 0.0, None))[layout.group]
     a_norm = a * basis_mean
@@ -155,7 +157,7 @@ def _spd(rng, p, scale=1.0):
 
 def _posterior(rng, p):
     cov_stat = _spd(rng, p, 1e-3)
-    return Posterior(theta=rng.uniform(0.5, 1.5, p), covariance=cov_stat + _spd(rng, p, 1e-4),
+    return Posterior(params=rng.uniform(0.5, 1.5, p), covariance=cov_stat + _spd(rng, p, 1e-4),
                      cov_statistical=cov_stat, chi2_reduced=1.3, weight=42.0,
                      cov_reference=cov_stat + _spd(rng, p, 3e-3))
 
@@ -167,17 +169,8 @@ def _nuisances(spec, m):
 # ---- tests --------------------------------------------------------------------------------------------------
 
 
-def test_pairwise_sum_is_numpys_sum_bitwise():
-    rng = np.random.default_rng(0)
-    for n in list(range(0, 140)) + [255, 256, 257, 511, 720, 1000, 4099]:
-        a = rng.standard_normal(n) * 10.0 ** rng.uniform(-6, 6, n)
-        assert pairwise_sum(a, 0, n) == np.sum(a), n
-    a = rng.standard_normal(300)
-    assert pairwise_sum(a, 17, 200) == np.sum(a[17:217])
-
-
 @pytest.mark.parametrize("seed", range(6))
-def test_share_and_firing_mask_bitwise(seed):
+def test_share_and_firing_mask_match_reference(seed):
     rng = np.random.default_rng(seed)
     z = (1, 4, 20, 20, 6, 3)[seed]
     t_i = rng.uniform(50.0, 200.0, z)
@@ -190,8 +183,9 @@ def test_share_and_firing_mask_bitwise(seed):
     for total in (rng.uniform(20, 90), float("nan")):
         got = share_mean_loss(total, t_i, 1.7, spread=0.3)
         ref = share_mean_loss_reference(total, t_i, 1.7, spread=0.3)
-        for f in ("friction_mean", "sigma", "motored"):
-            assert_array_equal(getattr(got, f), getattr(ref, f))
+        assert_array_equal(got.motored, ref.motored)
+        for f in ("friction_mean", "sigma"):  # the firing cylinders' sum: plain vs pairwise order
+            assert_allclose(getattr(got, f), getattr(ref, f), rtol=1e-14)
     assert_array_equal(firing_mask(t_i), firing_mask_reference(t_i))
     assert_array_equal(firing_mask(t_i, 0.9), firing_mask_reference(t_i, 0.9))
 
@@ -206,8 +200,8 @@ def test_share_normal_matches_reference(name):
     n_base, r_base = _spd(rng, p), rng.normal(size=p)
     rows = layout.cylinder_rows(rng.uniform(0.1, 3.0, (z, 6)))
     share = share_mean_loss_reference(60.0, rng.uniform(50, 100, z), 1.5, 0.3)
-    n_out, r_out = np.empty((p, p)), np.empty(p)
-    assert share_normal_into(n_base, r_base, rows, share.friction_mean, share.sigma, n_out, r_out)
+    prior = PriorNormal((1.0, 0.05, 0.15), n_base, r_base)
+    n_out, r_out = prior.with_share(rows, share)
     full = np.zeros((z, p))
     full[:, :p_f] = rows
     n_ref, r_ref = with_share_reference(n_base, r_base, full, share)
@@ -215,7 +209,8 @@ def test_share_normal_matches_reference(name):
     assert_allclose(r_out, r_ref, rtol=1e-13, atol=1e-13 * np.abs(r_ref).max())
     assert_array_equal(n_out[p_f:], n_base[p_f:])  # nuisance blocks untouched
     bad = SharedLoss(np.full(z, np.nan), np.ones(z), np.zeros(z, bool))
-    assert not share_normal_into(n_base, r_base, rows, bad.friction_mean, bad.sigma, n_out, r_out)
+    n_bad, r_bad = prior.with_share(rows, bad)  # a share that is not finite adds nothing
+    assert n_bad is n_base and r_bad is r_base
 
 
 @pytest.mark.parametrize("name", [s[0] for s in SIZES])
@@ -231,7 +226,8 @@ def test_friction_estimate_matches_reference(name, seed):
     rows = layout.cylinder_rows(basis_mean)
     prior_mean = rng.uniform(1.0, 5.0, z)
     for args in ((0.10, 2.0, 0.5), (0.5, 0.5, 0.0), (1e-3, 10.0, 0.9)):  # resolved / unresolved mixes
-        got = friction_estimate(spec, layout, post, basis_mean, prior_mean, *args, rows)
+        limits = ReportLimits(*args)
+        got = friction_estimate(spec, layout, post, basis_mean, prior_mean, limits, rows)
         ref = friction_estimate_reference(spec, layout, post, basis_mean, prior_mean, *args, rows)
         for f in FrictionEstimate.__dataclass_fields__:
             g, r = np.asarray(getattr(got, f)), np.asarray(getattr(ref, f))
@@ -240,12 +236,13 @@ def test_friction_estimate_matches_reference(name, seed):
             else:
                 assert_array_equal(np.isnan(g), np.isnan(r), err_msg=f)
                 assert_allclose(g, r, rtol=1e-12, atol=1e-12 * np.nanmax(np.abs(r), initial=0.0), err_msg=f)
-        got2 = friction_estimate(spec, layout, post, basis_mean, prior_mean, *args)  # rows from the layout
-        assert_array_equal(got2.fmep_sigma, got.fmep_sigma)
-        # the monitor's path: the leading block of the full (contiguous) posterior, read in place
-        got3 = friction_estimate_leading(spec, layout, full, basis_mean, prior_mean, *args, rows)
+        got2 = friction_estimate(spec, layout, post, basis_mean, prior_mean, limits)  # rows from the layout
+        assert_allclose(got2.fmep_sigma, got.fmep_sigma, rtol=1e-14)
+        # the monitor's call: the full posterior (friction first, then nuisances), its leading block reported
+        got3 = friction_estimate(spec, layout, full, basis_mean, prior_mean, limits, rows)
         for f in FrictionEstimate.__dataclass_fields__:
-            assert_array_equal(np.asarray(getattr(got3, f)), np.asarray(getattr(got, f)), err_msg=f)
+            g, r = np.asarray(getattr(got3, f)), np.asarray(getattr(got, f))
+            assert_allclose(g, r, rtol=1e-14, err_msg=f) if r.dtype != bool else assert_array_equal(g, r, err_msg=f)
 
 
 @pytest.mark.parametrize("name,m,n_t", SIZES)
@@ -266,18 +263,23 @@ def test_noise_rows_match_reference(name, m, n_t, case):
     balance = float("nan") if case == "no_load" else 55.0
     use_drift = case != "no_drift"
     floor = freq**2 * 2.0 * 1e-5**2 / 300 + 1e-12
-    args = (design, target, theta, freq, drift_harm, use_drift)
-    tail = (0.99, balance, rng.normal(size=p), floor, 600.0, 0.04, 0.08, harmonics, 0.003, 7.5)
-    ref = noise_rows_reference(*args, stats, *tail)
-    out_mean, out_var, out_sc = np.empty(m, complex), np.empty(m), np.empty(3)
-    a, y, inv_sigma, sys_var = np.empty((2 * m + 1, p)), np.empty(2 * m + 1), np.empty(2 * m + 1), np.empty(2 * m + 1)
-    noise_rows(*args, stats.mean, stats.var, np.array([stats.balance_mean, stats.balance_var, stats.count], float),
-               *tail, out_mean, out_var, out_sc, a, y, inv_sigma, sys_var)
-    assert int(out_sc[2]) == ref[0].count
-    for got, want in ((out_mean, ref[0].mean), (out_var, ref[0].var), (out_sc[0], ref[0].balance_mean),
-                      (out_sc[1], ref[0].balance_var), (a, ref[1]), (y, ref[2]), (inv_sigma, ref[3]),
-                      (sys_var, ref[4])):
-        assert_allclose(got, want, rtol=1e-12, atol=1e-12 * np.max(np.abs(want)))
+    mean_row = rng.normal(size=p)
+    period = FOUR_PI / 157.0
+    ref = noise_rows_reference(design, target, theta, freq, drift_harm, use_drift, stats, 0.99, balance, mean_row,
+                               floor, 600.0, 0.04, period, harmonics, 0.003, 7.5)
+    fly = FlywheelMotion(period=period, omega_mean=157.0, harmonics=harmonics, offset=0.0, drift=0.0,
+                         residual_rms=1e-5, n_edges=300, edge_residual=np.zeros(300),
+                         pattern_harmonics=np.column_stack([np.zeros(m), drift_harm]))
+    rows = CycleRows(design=design, target=target, mean_row=mean_row, mean_target=float("nan"),
+                     cylinder_rows=np.zeros((spec.n_cyl, p)))
+    got = whitened_rows(NoiseSettings(0.99, 0.003, use_drift, 7.5), stats, fly, rows, theta, balance, 600.0, 0.04)
+    assert got.stats.count == ref[0].count
+    assert_allclose(got.freq, freq, rtol=1e-15)
+    assert (got.drift_col is None) == (not use_drift)
+    for g, want in ((got.stats.mean, ref[0].mean), (got.stats.var, ref[0].var),
+                    (got.stats.balance_mean, ref[0].balance_mean), (got.stats.balance_var, ref[0].balance_var),
+                    (got.a, ref[1]), (got.y, ref[2]), (got.inv_sigma, ref[3]), (got.sys_var, ref[4])):
+        assert_allclose(g, want, rtol=1e-12, atol=1e-12 * np.max(np.abs(want)))
 
 
 @pytest.mark.parametrize("name,m,n_t", SIZES)

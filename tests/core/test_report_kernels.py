@@ -5,7 +5,7 @@ Tolerance: the direct sums differ from the FFT by rounding, 1e-13 of the series'
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose, assert_array_equal
+from numpy.testing import assert_allclose
 
 from frictionwatch.core.monitor.flywheel import harmonic_series
 from frictionwatch.core.monitor.report_kernels import speed_power, speed_residual, speed_series, trig_tables
@@ -31,15 +31,16 @@ def test_speed_series_matches_reference(m, p_f, p, n_t, use_drift):
     freq = 0.5 * 157.0 * np.arange(1, m + 1)
     harmonics = 1e-4 * (rng.normal(size=m) + 1j * rng.normal(size=m))
     omega_fly = 157.0 + 0.5 * np.sin(np.arange(n_t) * (2 * np.pi / n_t))
-    cos_t, sin_t = trig_tables(m, n_t)
+    tables = trig_tables(m, n_t)
     resid = np.empty(m, dtype=np.complex128)
     extra = np.empty((2, n_t))
-    sq, power = speed_series(design, target, theta, p_f, drift, use_drift, freq, harmonics, omega_fly, cos_t, sin_t,
+    sq, power = speed_series(design, target, theta, p_f, drift, use_drift, freq, harmonics, omega_fly, tables.table,
                              resid, extra)
     r_resid, r_meas, r_model, r_sq, r_power = speed_series_reference(design, target, theta, p_f, drift, use_drift,
                                                                      freq, harmonics, omega_fly)
-    assert_array_equal(resid, r_resid)
-    assert sq == r_sq and power == r_power
+    # the same residual kernel on both sides: equal to rounding (1e-14 relative)
+    assert_allclose(resid, r_resid, rtol=1e-14, atol=1e-14 * np.abs(r_resid).max())
+    assert sq == pytest.approx(r_sq, rel=1e-14) and power == pytest.approx(r_power, rel=1e-14)
     scale = np.abs(omega_fly).max()
     assert_allclose(extra[0], r_meas, rtol=0, atol=1e-15 * scale)
     assert_allclose(extra[1], r_model, rtol=0, atol=1e-15 * scale)
@@ -48,9 +49,11 @@ def test_speed_series_matches_reference(m, p_f, p, n_t, use_drift):
     assert_allclose(extra[1] - omega_fly, r_model - omega_fly, rtol=0, atol=1e-12 * ripple)
 
 
-def test_trig_tables_are_cached_and_read_only():
-    c, s = trig_tables(5, 64)
-    assert trig_tables(5, 64)[0] is c
-    assert not c.flags.writeable and not s.flags.writeable
+def test_trig_tables_are_read_only_cos_and_sin():
+    tables = trig_tables(5, 64)
+    c, s = tables.table
+    assert tables.shape == (5, 64)
+    assert not tables.table.flags.writeable
+    assert_allclose(s[2], np.sin(2 * np.pi * 3 * np.arange(64) / 64), atol=1e-15)
     k = np.arange(64)
     assert_allclose(c[2], np.cos(2 * np.pi * 3 * k / 64), atol=1e-15)

@@ -219,7 +219,7 @@ def check_against_reference(wheel_teeth, gap, m, m_fit, n_nuis, fit_drift, drift
         assert rel_diff(teeth_new.correction, teeth_ref[0]) <= rel
         assert th_new == pytest.approx(th_ref, rel=1e-14)
         if n_nuis:
-            assert np.array_equal(cache_new[0], cache_ref[0]) and np.array_equal(cache_new[1], cache_ref[1])
+            assert np.array_equal(cache_new.edge_angles, cache_ref[0]) and np.array_equal(cache_new.patterns, cache_ref[1])
         else:
             assert cache_new is None and cache_ref is None
         assert fly.pattern_harmonics.shape == (m, n_nuis + int(drift_nuisance))

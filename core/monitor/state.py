@@ -1,0 +1,109 @@
+"""The monitor's configuration and the state it carries from cycle to cycle (core.monitor.monitor), in a module of
+their own so that the stages (core.monitor.identification, core.monitor.cycle_report) can take them without
+importing the monitor."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from frictionwatch.core.monitor.accumulate import Accumulator, ResidualStats
+from frictionwatch.core.monitor.flywheel import ToothLearner
+from frictionwatch.core.monitor.harmonic_balance import OperatingPoint
+from frictionwatch.core.monitor.identify import ParameterLayout
+from frictionwatch.core.monitor.priors import PriorNormal
+from frictionwatch.core.monitor.report_kernels import TrigTables
+from frictionwatch.core.monitor.tooth_fit import ToothPatterns
+
+
+@dataclass(frozen=True)
+class MonitorConfig:
+    """Hyper-parameters of the monitor (all have defaults that suit the presets).
+
+    max_order: highest engine order used in the identification (None: from the wheel, <= 12)
+    fit_order: highest order fitted to the teeth (None: max_order); fit_drift: fit a linear speed drift per cycle
+    (off: over one cycle it is nearly collinear with order 0.5 and drags in content from above the band)
+    drift_nuisance: instead, treat each cycle's linear speed drift as a random effect of that cycle's equations (its
+    shape passed through the same tooth fit, its prior size from the cycle-to-cycle mean-speed steps), so speed
+    changes between cycles neither bias nor add noise to the estimate
+    time_samples: samples per cycle of the harmonic-balance time grid (192 = 8x the highest harmonic at M = 24).
+    Against 256: per-cylinder errors within 0.5 points (K9K, Maruti; V20 within its sigma), total FMEP within 0.1
+    point, deutz NRMSE within 0.5 point; 128 shifted the K9K total by up to -0.25 point (the friction terms' sharp
+    features alias into the band), 512 moved nothing beyond noise
+    scheme, prior_coefficients: parameter grouping and baseline a0 (core.monitor.identify.parameter_layout)
+    forgetting: per-cycle factor of the accumulated equations, 1 - 1/N_window (None: N_window = max(400, 100 z)
+    cycles, since more cylinders need more cycles; physics.md §12.5)
+    noise_memory: EWMA factor of the residual statistics that whiten the equations
+    share_spread: 1-sigma of the Eq. 6 sharing prior, relative; parameter_sigma: weak prior on each scale (params ~ 1)
+    sibling_spread: 1-sigma of a per-cylinder scale about the mean of its siblings (0: no sibling prior)
+    model_rel_error: repeatable model error of a speed harmonic, relative to its size (physics.md §12.3: 0.2 %)
+    balance_rel_error: repeatable error of the mean balance relative to T_iM (pressure gain/TDC, load sensor)
+    coupling_rel_error: relative error of the modelled damper/coupling dissipation
+    load_rel_error: load-sensor accuracy as a fraction of the rated torque (a class-0.05 torque flange: 0.05 %)
+    resolve_rel: a per-cylinder mean is reported when its 1-sigma is at most this fraction of it
+    coefficient_snr: a coefficient is reported when it exceeds this many sigmas
+    min_data_gain: ... and either only when the speed signal, not the priors, gave at least this share of what is
+    known about it (core.monitor.accumulate.Posterior.data_gain; for a cylinder: its deviation from the equal share)
+    passes: harmonic-balance passes per cycle; rebuild_tolerance: relative Omega change that rebuilds Z^-1
+    tooth_nuisance: carry the in-band tooth-spacing error (integer orders) as accumulated nuisance parameters with
+    a prior from ``tooth_error_deg``, the expected rms per-tooth angle error (core.monitor.identify.tooth_patterns)
+    variable_inertia: model J(theta) and the mass torque (off only to analyse a plant without them)
+    learn_teeth: learn the out-of-band tooth pattern from the fit residuals (core.monitor.flywheel.ToothLearner) with EWMA
+    factor ``tooth_memory``; the fit is repeated with the fresh correction for the first ``tooth_refit_cycles``
+    warmup_cycles: cycles whose equations are not accumulated (the tooth learner and noise model settle first)
+    """
+
+    max_order: float | None = None
+    fit_order: float | None = None
+    fit_drift: bool = False
+    drift_nuisance: bool = True
+    time_samples: int = 192
+    scheme: str | None = None
+    prior_coefficients: np.ndarray | None = None
+    forgetting: float | None = None
+    noise_memory: float = 1.0 - 1.0 / 100.0
+    share_spread: float = 0.3
+    sibling_spread: float = 0.15
+    parameter_sigma: float = 1.0
+    model_rel_error: float = 0.003
+    balance_rel_error: float = 0.001
+    coupling_rel_error: float = 0.1
+    load_rel_error: float = 5e-4
+    resolve_rel: float = 0.10
+    coefficient_snr: float = 2.0
+    min_data_gain: float = 0.5
+    passes: int = 2
+    rebuild_tolerance: float = 0.005
+    tooth_nuisance: bool = True
+    tooth_error_deg: float = 0.05
+    learn_teeth: bool = True
+    variable_inertia: bool = True
+    tooth_memory: float = 1.0 - 1.0 / 100.0
+    tooth_refit_cycles: int = 50
+    warmup_cycles: int = 20
+
+
+@dataclass(frozen=True)
+class MonitorState:
+    """Everything carried from one cycle to the next (scipy ``zi`` style: in and out of ``process_cycle``)."""
+
+    layout: ParameterLayout
+    n_harmonics: int
+    n_nuisance: int
+    accumulator: Accumulator
+    stats: ResidualStats
+    params: np.ndarray  # [friction scales, tooth nuisances], the smoothed estimate
+    op: OperatingPoint | None
+    relative_motion: np.ndarray | None
+    static: np.ndarray | None
+    teeth: ToothLearner
+    balance_mean: float
+    indicated_mean: np.ndarray
+    cycles: int
+    prior: PriorNormal  # normal equations of the fixed priors (core.monitor.priors)
+    lower: np.ndarray  # lower bounds of the parameters: 0 for the friction scales, -inf (free) for the nuisances
+    report_tables: TrigTables  # cos/sin tables of the result's speed series (core.monitor.report_kernels)
+    prev_omega: float = float("nan")
+    drift_var: float = 0.0
+    tooth_patterns: ToothPatterns | None = None  # the in-band tooth-error patterns at the edges (core.monitor.tooth_fit)
