@@ -9,8 +9,13 @@
     operating_point.py  quasi-static operating point (fuel for a load, leak sizing)
 
 It integrates in the time domain on purpose: the monitor's harmonic balance must not be tested against itself.
+
+
+    from frictionwatch.core.plant.simulate import simulate
+
+(``simulate`` is not re-exported here: the function would shadow its module, which tests patch.)
 """
 
-from frictionwatch.core.plant.simulate import SimResult, simulate
+from frictionwatch.core.plant.simulate import SimResult
 
-__all__ = ["SimResult", "simulate"]
+__all__ = ["SimResult"]
