@@ -184,6 +184,15 @@ class EngineModel:
         return cls(spec, terms, np.column_stack(cols), effects)
 
 
+def as_model(engine: EngineModel | EngineSpec) -> EngineModel:
+    """``engine`` itself if it is a model, else the spec's default model (``EngineModel.from_spec``)."""
+    if isinstance(engine, EngineModel):
+        return engine
+    if isinstance(engine, EngineSpec):
+        return EngineModel.from_spec(engine)
+    raise TypeError(f"expected an EngineModel or an EngineSpec, got {type(engine).__name__}")
+
+
 # ---- helpers --------------------------------------------------------------------------------------------------
 
 def _nearest(key: str, known: Iterable[str]) -> str:

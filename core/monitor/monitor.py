@@ -1,8 +1,8 @@
 """The per-cycle monitor: one assembled ``Cycle`` in, one ``CycleResult`` out, state explicit (design.md §4).
 
-    state = initial_state(spec)
+    state = initial_state(model)                 # an EngineModel (core.model), or an EngineSpec: its default model
     for cycle in cycles:
-        state, result = process_cycle(spec, state, cycle)
+        state, result = process_cycle(model, state, cycle)
 
 Per cycle:
 1. Fit the flywheel motion to the raw tooth times (core.monitor.flywheel): harmonics of the cycle period, no sinc to undo.
@@ -11,7 +11,8 @@ Per cycle:
    orders: it is carried as accumulated nuisance parameters E_n with a prior of its expected size, their columns
    computed exactly by passing the angle patterns through the same fit.
 2. Torques on the cycle's time grid (core.monitor.excitation): gas from the measured pressure, the reciprocating remainder,
-   the six friction basis terms per cylinder, each at its own throw's angle and speed, static twist included.
+   the model's loss terms per cylinder (core.model.terms: the six Rezeka-Henein terms by default), each at its own
+   throw's angle and speed, static twist included.
 3. Harmonic balance through the torsional chain (core.model.dynamics; the transfer functions depend on Omega only and are
    rebuilt only when the operating point moves): known response W0 and the friction design, affine in the
    coefficients. The frozen terms (twist, throw speeds, J(theta) remainder) come from the previous cycle's model
@@ -32,6 +33,7 @@ from dataclasses import replace
 import numpy as np
 
 from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.engine_model import EngineModel, as_model
 from frictionwatch.core.model.indicated import peak_pressure
 from frictionwatch.core.monitor.accumulate import Accumulator, ResidualStats
 from frictionwatch.core.monitor.cycle_report import build_result
@@ -68,11 +70,19 @@ def default_max_order(spec: EngineSpec) -> float:
     return float(min(12.0, np.floor(teeth / 5.0 * 2.0) / 2.0))
 
 
-def initial_state(spec: EngineSpec, config: MonitorConfig | None = None,
+def initial_state(engine: EngineModel | EngineSpec, config: MonitorConfig | None = None,
                   tooth_correction: np.ndarray | None = None) -> MonitorState:
-    """A fresh state: no accumulated cycles, parameters at the prior (params = 1)."""
+    """A fresh state: no accumulated cycles, parameters at the prior (params = 1).
+
+    engine : the model the monitor identifies (its loss-term library, and its coefficients as the prior a0 unless
+    ``config.prior_coefficients`` says otherwise), or a spec (its default Rezeka-Henein model). An added term needs
+    a non-zero coefficient: a_kl = a0_kl * scale, so a zero a0 keeps that term out.
+    """
     cfg = config or MonitorConfig()
-    layout = parameter_layout(spec, cfg.scheme, cfg.prior_coefficients)
+    model = as_model(engine)
+    spec = model.spec
+    prior = model.coefficients if cfg.prior_coefficients is None else cfg.prior_coefficients
+    layout = parameter_layout(spec, cfg.scheme, prior, model.terms)
     m = round(2 * (cfg.max_order or default_max_order(spec)))
     if m < 1 or 2 * m >= cfg.time_samples:
         raise ValueError(f"max_order gives {m} harmonics; need 1 <= M < time_samples/2 = {cfg.time_samples // 2}")
@@ -94,10 +104,12 @@ def initial_state(spec: EngineSpec, config: MonitorConfig | None = None,
                         lower=lower, report_tables=trig_tables(m, cfg.time_samples))
 
 
-def process_cycle(spec: EngineSpec, state: MonitorState, cycle: Cycle,
+def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: Cycle,
                   config: MonitorConfig | None = None) -> tuple[MonitorState, CycleResult]:
-    """Analyse one cycle. Raises ``CycleRejected`` (state unchanged) when the cycle cannot be used."""
+    """Analyse one cycle of ``engine`` (the model ``state`` was made for, or its spec: the loss terms travel in the
+    state). Raises ``CycleRejected`` (state unchanged) when the cycle cannot be used."""
     cfg = config or _DEFAULT_CONFIG
+    spec = engine.spec if isinstance(engine, EngineModel) else engine
     pressure, flags = checked_pressure(spec, cycle)
     pmax, pmax_angle = peak_pressure(cycle.grid, pressure, spec.firing_angles)
     m = state.n_harmonics

@@ -26,7 +26,7 @@ class FrictionEstimate:
     """Per-cylinder friction of one estimate (z cylinders, 6 Rezeka-Henein terms).
 
     friction_torque_mean (z,) N m, work mean over the cycle (NaN where unresolved); *_sigma are 1-sigma
-    fmep (z,) Pa; coefficients (z, 6) raw a_kl; coefficients_normalised (z, 6) N m, a_kl <F_kl> (physics.md §7)
+    fmep (z,) Pa; coefficients (z, L) raw a_kl of the model's L loss terms; coefficients_normalised (z, L) N m, a_kl <F_kl> (physics.md §7)
     resolved (z,) bool; coefficient_resolved (z, 6) bool
     total_friction_torque N m (engine), total_fmep Pa; prior_friction_torque_mean (z,) N m: the Eq. 6 sharing
     weight: effective number of cycles behind the estimate; chi2_reduced of the speed fit
