@@ -17,7 +17,8 @@ from frictionwatch.service.progress import progress_bar
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("analyze", help="analyse a replay log: per-cylinder losses")
     p.add_argument("log", type=Path, help="LOG.mcap")
-    p.add_argument("--engine", help="engine preset or TOML file (default: the spec stored in the log)")
+    p.add_argument("--engine", help="engine preset, engine TOML, or model TOML (EngineModel.to_toml: its loss terms and "
+                   "coefficients are what the monitor identifies); default: the spec stored in the log")
     p.add_argument("--json", action="store_true", help="print one JSON document instead of the table")
     p.add_argument("--csv", type=Path, metavar="OUT", help="write per-cycle, per-cylinder rows to OUT")
     p.add_argument("--plot", type=Path, metavar="DIR", help="write PNG plots to DIR")

@@ -11,7 +11,8 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from frictionwatch.core.model.engine import EngineSpec, load_engine, spec_from_toml_text
+from frictionwatch.core.model.engine import EngineSpec, spec_from_toml_text
+from frictionwatch.core.model.engine_model import EngineModel, as_model, load_model
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
 from frictionwatch.core.monitor.results import CycleResult
 from frictionwatch.core.types import AcquisitionInfo, Cycle, StreamRecord
@@ -23,12 +24,13 @@ log = logging.getLogger(__name__)
 class EnginePipeline:
     """Feeds records of one engine through assembly and the monitor; ``skipped`` counts lost cycles by reason."""
 
-    def __init__(self, spec: EngineSpec, info: AcquisitionInfo):
-        self.spec = spec
+    def __init__(self, engine: EngineModel | EngineSpec, info: AcquisitionInfo):
+        self.model = as_model(engine)
+        self.spec = spec = self.model.spec
         self.assembler = CycleAssembler(
             info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm
         )
-        self.state = initial_state(spec)
+        self.state = initial_state(self.model)
         self.monitor_skipped: Counter[str] = Counter()
         self.cycles_ok = 0
 
@@ -44,7 +46,7 @@ class EnginePipeline:
 
     def _process(self, cycle: Cycle) -> CycleResult | None:
         try:
-            self.state, result = process_cycle(self.spec, self.state, cycle)
+            self.state, result = process_cycle(self.model, self.state, cycle)
         except CycleRejected as exc:
             reason = exc.reason
         except (ValueError, FloatingPointError, ArithmeticError) as exc:
@@ -120,20 +122,21 @@ class LogAnalysis:
         return len(self.results) + self.dropped
 
 
-def resolve_spec(engine_toml: str | None, engine: str | None, origin: str) -> EngineSpec:
-    """The engine named on the command line wins; else the spec the log carries."""
+def resolve_model(engine_toml: str | None, engine: str | None, origin: str) -> EngineModel:
+    """The engine or model file named on the command line wins (a model file, ``EngineModel.to_toml``, brings its
+    loss terms and coefficients); else the default model of the spec the log carries."""
     if engine:
-        return load_engine(engine)
+        return load_model(engine)
     if not engine_toml:
         raise ValueError(f"{origin} carries no engine spec; name one with --engine")
-    return spec_from_toml_text(engine_toml, origin=origin)
+    return EngineModel.from_spec(spec_from_toml_text(engine_toml, origin=origin))
 
 
 def analyze_records(
-    spec: EngineSpec, info: AcquisitionInfo, records: Iterable[StreamRecord],
+    engine: EngineModel | EngineSpec, info: AcquisitionInfo, records: Iterable[StreamRecord],
     on_result: Callable[[CycleResult], None] | None = None,
 ) -> LogAnalysis:
-    pipe = EnginePipeline(spec, info)
+    pipe = EnginePipeline(engine, info)
     history = ResultHistory()
     for record in records:
         for r in pipe.feed(record):
@@ -144,7 +147,7 @@ def analyze_records(
         history.append(r)
         if on_result:
             on_result(r)
-    return LogAnalysis(spec, history.to_list(), pipe.skipped)
+    return LogAnalysis(pipe.spec, history.to_list(), pipe.skipped)
 
 
 def analyze_log(path: Path, engine: str | None = None,
@@ -152,9 +155,9 @@ def analyze_log(path: Path, engine: str | None = None,
     from frictionwatch.drivers.logs.mcap_log import LogReader
 
     with LogReader(path) as reader:  # closes the file (and its mmap) even when the analysis raises
-        spec = resolve_spec(reader.engine_toml, engine, Path(path).name)
+        model = resolve_model(reader.engine_toml, engine, Path(path).name)
         if reader.info is None:
             raise ValueError(f"{Path(path).name} has no acquisition metadata; is it a frictionwatch log?")
-        analysis = analyze_records(spec, reader.info, reader.records(), on_result)
+        analysis = analyze_records(model, reader.info, reader.records(), on_result)
         analysis.damage = Counter(reader.damage)
     return analysis

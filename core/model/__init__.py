@@ -19,9 +19,9 @@
 from frictionwatch.core.model.chain import DriveTrain, drive_train
 from frictionwatch.core.model.effects import EFFECTS, Effect, auxiliaries_quadratic, parse_effect, resolve_effects
 from frictionwatch.core.model.engine import EngineSpec, SpecError, available_presets, load_engine, spec_from_toml_text
-from frictionwatch.core.model.engine_model import EngineModel, as_model, known_terms
+from frictionwatch.core.model.engine_model import EngineModel, as_model, known_terms, load_model
 from frictionwatch.core.model.terms import LossTerm, TermLibrary, cylinder_samples, loss_kernel, rezeka_henein
 
 __all__ = ["EFFECTS", "DriveTrain", "Effect", "EngineModel", "EngineSpec", "LossTerm", "SpecError", "TermLibrary",
            "as_model", "auxiliaries_quadratic", "available_presets", "cylinder_samples", "drive_train", "known_terms",
-           "load_engine", "loss_kernel", "parse_effect", "resolve_effects", "rezeka_henein", "spec_from_toml_text"]
+           "load_engine", "load_model", "loss_kernel", "parse_effect", "resolve_effects", "rezeka_henein", "spec_from_toml_text"]

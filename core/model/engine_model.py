@@ -31,6 +31,7 @@ import difflib
 import re
 import tomllib
 from collections.abc import Iterable, Mapping
+from pathlib import Path
 
 import numpy as np
 
@@ -42,7 +43,7 @@ from frictionwatch.core.model.effects import (
     make_effect,
     resolve_effects,
 )
-from frictionwatch.core.model.engine import EngineSpec, SpecError, spec_from_dict
+from frictionwatch.core.model.engine import EngineSpec, SpecError, load_engine, spec_from_dict
 from frictionwatch.core.model.terms import LossTerm, TermLibrary, rezeka_henein
 
 SPEC_TABLES = ("name", "description", "geometry", "cylinders", "shaft", "friction", "combustion", "load", "sensors",
@@ -182,6 +183,21 @@ class EngineModel:
                     raise ValueError(f"{origin}: model.coefficients.{t.name} = {v!r}: expected a number")
             cols.append(np.asarray(raw, dtype=np.float64))
         return cls(spec, terms, np.column_stack(cols), effects)
+
+
+def load_model(name_or_path: str | Path) -> EngineModel:
+    """A preset name or TOML file: a model file (with ``[model]`` tables, as ``EngineModel.to_toml`` writes) as it
+    says, a plain engine file or preset as its spec's default model."""
+    p = Path(name_or_path)
+    if p.suffix and p.exists():
+        text = p.read_text()
+        try:
+            is_model = "model" in tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise SpecError(f"{p.name}: not valid TOML: {exc}") from exc
+        if is_model:
+            return EngineModel.from_toml(text, origin=p.name)
+    return EngineModel.from_spec(load_engine(name_or_path))
 
 
 def as_model(engine: EngineModel | EngineSpec) -> EngineModel:

@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -102,3 +103,16 @@ def test_console_script_runs_as_a_process(small_log):
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["engine"] == "k9k-4cyl"
+
+
+def test_analyze_takes_a_model_file(tmp_path, capsys):
+    """A model file (core.model.EngineModel.to_toml) given as --engine brings its loss terms into the monitor."""
+    from frictionwatch.core.model import EngineModel, auxiliaries_quadratic, load_engine
+
+    model = EngineModel.from_spec(load_engine("deutz-1cyl")).with_term(auxiliaries_quadratic(), 1e-5)
+    path = tmp_path / "deutz-aux.toml"
+    path.write_text(model.to_toml())
+    log = Path(__file__).resolve().parents[2] / "replay_logs" / "deutz-1cyl.mcap"
+    assert main(["analyze", str(log), "--engine", str(path), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert len(doc["cylinders"][0]["coefficients"]) == 7  # the six Rezeka-Henein terms and the added one
