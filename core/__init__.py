@@ -1,0 +1,7 @@
+"""Physics and numerics, arrays in and arrays out (no files, sockets, clocks or HTTP).
+
+    types.py   the typed values that cross package boundaries (stream records, Cycle)
+    model/     the one engine model: spec, kinematics, drive train, loss-term and effect libraries, EngineModel
+    plant/     the time-domain simulator built from a model
+    monitor/   per-cycle identification of the model's losses from tooth times and pressures
+"""
