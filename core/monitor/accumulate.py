@@ -193,15 +193,14 @@ def posterior_from_normal(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, 
     bound is active NNLS decides the parameters and the kernel forms the moments at them; when a factor is nearly
     singular or the reference covariance is at its pseudo-inverse switch, ``posterior_from_normal_reference``
     (LAPACK) decides. Every returned array is new (none aliases an input)."""
-    p, r = np.shape(acc.sys_map)
+    p, r = acc.sys_map.shape
     n_pr = as_matrix(n_pr, p, name="n_pr")
     r_pr = as_vector(r_pr, p, "r_pr")
     sys_var = as_vector(sys_var, r, "sys_var")
     lo = lower_vector(lower, p)
-    info = as_matrix(acc.info, p, name="acc.info")
-    rhs = as_vector(acc.rhs, p, "acc.rhs")
-    sys_map = as_matrix(acc.sys_map, p, r, "acc.sys_map")
-    info_ref = as_matrix(acc.info_reference, p, name="acc.info_reference")
+    # the accumulator's own arrays are float64 and C-contiguous by construction (its kernels, ``empty``); the
+    # kernel checks every shape (BAD_SHAPE: the reference decides)
+    info, rhs, sys_map, info_ref = acc.info, acc.rhs, acc.sys_map, acc.info_reference
     yty, rows = float(acc.yty), float(acc.rows)
     status, params, chi2_red, cov_stat, cov, ref = posterior_kernel(
         info, rhs, yty, rows, sys_map, info_ref, n_pr, r_pr, sys_var, lo, REFERENCE_MAX_CONDITION)

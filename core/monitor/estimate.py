@@ -38,12 +38,11 @@ def friction_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
     z = spec.n_cyl
     p_f = layout.n_params
     n_terms = layout.prior.shape[1]
-    params = np.ascontiguousarray(post.params[:p_f], dtype=np.float64)
-    basis_mean = np.ascontiguousarray(basis_mean, dtype=np.float64)
-    rows = layout.cylinder_rows(basis_mean) if cylinder_rows is None else cylinder_rows
-    rows = np.ascontiguousarray(rows, dtype=np.float64)
-    cov, cov_stat, cov_ref = (np.ascontiguousarray(c, dtype=np.float64)
-                              for c in (post.covariance, post.cov_statistical, post.cov_reference))
+    params = post.params[:p_f]
+    basis_mean = np.asarray(basis_mean, dtype=np.float64)
+    rows = layout.cylinder_rows(basis_mean) if cylinder_rows is None else np.asarray(cylinder_rows, dtype=np.float64)
+    # no copies to C order: the kernel reads any layout (another layout is another compiled specialisation)
+    cov, cov_stat, cov_ref = post.covariance, post.cov_statistical, post.cov_reference
     if (params.shape[0] != p_f or rows.shape != (z, p_f) or basis_mean.shape != (z, n_terms)
             or not cov.shape == cov_stat.shape == cov_ref.shape or cov.shape[0] < p_f or cov.shape[0] != cov.shape[1]):
         raise ValueError(f"need a posterior over >= {p_f} parameters, rows ({z}, {p_f}) and basis means "
@@ -51,7 +50,8 @@ def friction_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
     coef, coef_sig, norm, norm_sig, coef_ok, t_mean, t_sig, gain, resolved, t_tot, t_tot_sig = estimate_kernel(
         params, cov, cov_stat, cov_ref, layout.group, layout.prior, basis_mean, rows, float(limits.resolve_rel),
         float(limits.coefficient_snr), float(limits.min_data_gain))
-    to_cyl, to_eng = FOUR_PI / spec.displacement_cyl, FOUR_PI / spec.displacement
+    to_cyl = FOUR_PI / spec.displacement_cyl
+    to_eng = to_cyl / z
     return FrictionEstimate(
         friction_torque_mean=t_mean,
         friction_torque_mean_sigma=t_sig,

@@ -18,7 +18,7 @@ import numpy as np
 from frictionwatch.core.monitor.accumulate import ResidualStats
 from frictionwatch.core.monitor.flywheel import FlywheelMotion
 from frictionwatch.core.monitor.identify import CycleRows
-from frictionwatch.core.monitor.noise_model_kernels import NOISE_RECORD, noise_kernel
+from frictionwatch.core.monitor.noise_model_kernels import noise_kernel
 
 
 @dataclass(frozen=True)
@@ -59,13 +59,13 @@ def whitened_rows(settings: NoiseSettings, stats: ResidualStats, fly: FlywheelMo
                          f"({m}) must have the same harmonic count, params one value per column")
     rec = np.array((fly.omega_mean, fly.period, fly.residual_rms, fly.n_edges, balance, t_i, drift_var,
                     stats.balance_mean, stats.balance_var, stats.count, settings.memory, settings.model_rel_error,
-                    settings.sys_balance, settings.use_drift), dtype=NOISE_RECORD)[()]
-    c128 = np.complex128
+                    settings.sys_balance, settings.use_drift), dtype=np.float64)  # noise_model_kernels.NOISE_FIELDS
+    # the statistics' and rows' arrays come from kernels (C-contiguous; another layout is another specialisation);
+    # the drift pattern is a column of the tooth patterns, copied to be contiguous
     mean, var, bal_mean, bal_var, a, y, inv_sigma, sys_var, freq, drift_col = noise_kernel(
-        np.ascontiguousarray(rows.design, dtype=c128), np.ascontiguousarray(rows.target, dtype=c128),
-        np.ascontiguousarray(rows.mean_row, dtype=np.float64), np.ascontiguousarray(params, dtype=np.float64),
-        np.ascontiguousarray(fly.pattern_harmonics[:, -1], dtype=c128), np.ascontiguousarray(fly.harmonics, dtype=c128),
-        np.ascontiguousarray(stats.mean, dtype=c128), np.ascontiguousarray(stats.var, dtype=np.float64), rec)
+        rows.design, rows.target, rows.mean_row, np.asarray(params, dtype=np.float64),
+        np.ascontiguousarray(fly.pattern_harmonics[:, -1], dtype=np.complex128), fly.harmonics, stats.mean, stats.var,
+        rec)
     new_stats = ResidualStats(mean=mean, var=var, balance_mean=float(bal_mean), balance_var=float(bal_var),
                               count=stats.count + 1)
     return WhitenedCycle(stats=new_stats, a=a, y=y, inv_sigma=inv_sigma, sys_var=sys_var, freq=freq,

@@ -8,23 +8,26 @@ import math
 import numba
 import numpy as np
 
-# the cycle's scalars and the settings, one typed record (numba reads the fields by name)
-NOISE_RECORD = np.dtype([
-    ("omega", "f8"),  # mean speed of the cycle [rad/s]
-    ("period", "f8"),  # cycle duration [s]
-    ("residual_rms", "f8"),  # tooth-fit residual [rad]
-    ("n_edges", "f8"),  # tooth edges in the fit
-    ("balance", "f8"),  # mean balance T_fM [N m] (NaN: no load measurement)
-    ("t_i", "f8"),  # total indicated mean torque [N m]
-    ("drift_var", "f8"),  # variance of the cycle-to-cycle mean-speed step [rad^2/s^2]
-    ("balance_mean", "f8"),  # residual statistics of the balance row before this cycle
-    ("balance_var", "f8"),
-    ("count", "i8"),  # cycles in the statistics before this cycle
-    ("memory", "f8"),  # EWMA factor of the statistics
-    ("model_rel_error", "f8"),  # repeatable model error of a speed harmonic, relative
-    ("sys_balance", "f8"),  # repeatable-error variance of the balance row [N^2 m^2]
-    ("use_drift", "?"),  # this cycle's drift is a random effect
-], align=True)
+# the cycle's scalars and the settings, one float64 vector (a typed record costs ~4x more to build and pass per
+# cycle); COUNT and USE_DRIFT hold an integer and a flag as floats
+NOISE_FIELDS = (
+    "omega",  # mean speed of the cycle [rad/s]
+    "period",  # cycle duration [s]
+    "residual_rms",  # tooth-fit residual [rad]
+    "n_edges",  # tooth edges in the fit
+    "balance",  # mean balance T_fM [N m] (NaN: no load measurement)
+    "t_i",  # total indicated mean torque [N m]
+    "drift_var",  # variance of the cycle-to-cycle mean-speed step [rad^2/s^2]
+    "balance_mean",  # residual statistics of the balance row before this cycle
+    "balance_var",
+    "count",  # cycles in the statistics before this cycle
+    "memory",  # EWMA factor of the statistics
+    "model_rel_error",  # repeatable model error of a speed harmonic, relative
+    "sys_balance",  # repeatable-error variance of the balance row [N^2 m^2]
+    "use_drift",  # 1.0: this cycle's drift is a random effect
+)
+(OMEGA, PERIOD, RESIDUAL_RMS, N_EDGES, BALANCE, T_I, DRIFT_VAR, BALANCE_MEAN, BALANCE_VAR, COUNT, MEMORY,
+ MODEL_REL_ERROR, SYS_BALANCE, USE_DRIFT) = range(len(NOISE_FIELDS))
 
 
 @numba.njit(cache=True)
@@ -36,7 +39,7 @@ def _abs2(z):
 def noise_kernel(design, target, mean_row, params, drift_harm, harmonics, prev_mean, prev_var, rec):
     """design (M, P) complex, target (M,) complex, mean_row (P,), params (P,) the previous estimate, drift_harm (M,)
     complex: the drift pattern's angle harmonics, harmonics (M,) complex: the fitted angle harmonics, prev_mean (M,)
-    complex and prev_var (M,): the statistics before; rec: a ``NOISE_RECORD``.
+    complex and prev_var (M,): the statistics before; rec (len(NOISE_FIELDS),): the cycle's scalars and settings.
 
     Returns (mean, var, balance_mean, balance_var) updated statistics, (a (2M+1, P), y, inv_sigma, sys_var) the
     whitened rows, freq (M,) and drift_col (M,) complex = i freq drift_harm."""
@@ -44,7 +47,7 @@ def noise_kernel(design, target, mean_row, params, drift_harm, harmonics, prev_m
     freq = np.empty(m)
     drift_col = np.empty(m, dtype=np.complex128)
     for i in range(m):
-        freq[i] = 0.5 * rec.omega * (i + 1)
+        freq[i] = 0.5 * rec[OMEGA] * (i + 1)
         drift_col[i] = 1j * freq[i] * drift_harm[i]
     resid = np.empty(m, dtype=np.complex128)
     for i in range(m):
@@ -52,7 +55,7 @@ def noise_kernel(design, target, mean_row, params, drift_harm, harmonics, prev_m
         for j in range(p):
             s += design[i, j] * params[j]
         resid[i] = target[i] - s
-    if rec.use_drift:  # the residual without this cycle's best-fitting drift
+    if rec[USE_DRIFT] != 0.0:  # the residual without this cycle's best-fitting drift
         dd = 0.0
         dr = 0.0
         for i in range(m):
@@ -61,31 +64,31 @@ def noise_kernel(design, target, mean_row, params, drift_harm, harmonics, prev_m
         f = dr / max(dd, 1e-300)
         for i in range(m):
             resid[i] = resid[i] - drift_col[i] * f
-    balance = rec.balance
+    balance = rec[BALANCE]
     bal_resid = 0.0
     if math.isfinite(balance):
         bal_resid = balance - np.dot(mean_row, params)
     # the EWMA statistics (core.monitor.accumulate.ResidualStats.update)
-    n = rec.count + 1
-    g = max(1.0 - rec.memory, 1.0 / n)
+    n = int(rec[COUNT]) + 1
+    g = max(1.0 - rec[MEMORY], 1.0 / n)
     mean = np.empty(m, dtype=np.complex128)
     var = np.empty(m)
     for i in range(m):
         d = resid[i] - prev_mean[i]
         mean[i] = prev_mean[i] + g * d
         var[i] = (1.0 - g) * (prev_var[i] + g * 0.5 * _abs2(d)) if n > 1 else 0.5 * _abs2(resid[i])
-    db = bal_resid - rec.balance_mean
-    bal_mean = rec.balance_mean + g * db
-    bal_var = (1.0 - g) * (rec.balance_var + g * db * db) if n > 1 else bal_resid**2
+    db = bal_resid - rec[BALANCE_MEAN]
+    bal_mean = rec[BALANCE_MEAN] + g * db
+    bal_var = (1.0 - g) * (rec[BALANCE_VAR] + g * db * db) if n > 1 else bal_resid**2
     # whitening: the variance, floored by the tooth-fit residual's share
     sigma = np.empty(m)
     for i in range(m):
-        floor = freq[i] ** 2 * 2.0 * rec.residual_rms**2 / rec.n_edges + 1e-12
+        floor = freq[i] ** 2 * 2.0 * rec[RESIDUAL_RMS]**2 / rec[N_EDGES] + 1e-12
         sigma[i] = math.sqrt(max(var[i], floor))
     if n > 2:
-        sigma_bal = math.sqrt(max(bal_var, (0.002 * rec.t_i) ** 2, 1e-6))
+        sigma_bal = math.sqrt(max(bal_var, (0.002 * rec[T_I]) ** 2, 1e-6))
     else:  # too few cycles for a variance: 5 % of the indicated torque
-        sigma_bal = 0.05 * abs(rec.t_i)
+        sigma_bal = 0.05 * abs(rec[T_I])
     a = np.empty((2 * m + 1, p))
     y = np.empty(2 * m + 1)
     for i in range(m):
@@ -94,13 +97,13 @@ def noise_kernel(design, target, mean_row, params, drift_harm, harmonics, prev_m
             a[m + i, j] = design[i, j].imag / sigma[i]
         y[i] = target[i].real / sigma[i]
         y[m + i] = target[i].imag / sigma[i]
-    if rec.use_drift and rec.drift_var > 0:  # the drift as a random effect (Sherman-Morrison)
+    if rec[USE_DRIFT] != 0.0 and rec[DRIFT_VAR] > 0:  # the drift as a random effect (Sherman-Morrison)
         dw = np.empty(2 * m)
         for i in range(m):
             dw[i] = drift_col[i].real / sigma[i]
             dw[m + i] = drift_col[i].imag / sigma[i]
         nd = np.dot(dw, dw)
-        s2 = rec.drift_var * (0.5 * rec.period) ** 2  # speed-step variance -> drift-coefficient variance
+        s2 = rec[DRIFT_VAR] * (0.5 * rec[PERIOD]) ** 2  # speed-step variance -> drift-coefficient variance
         if nd > 0:
             c = (1.0 - 1.0 / math.sqrt(1.0 + s2 * nd)) / nd
             v = np.zeros(p)
@@ -120,10 +123,10 @@ def noise_kernel(design, target, mean_row, params, drift_harm, harmonics, prev_m
     for i in range(m):
         inv_sigma[i] = 1.0 / sigma[i]
         inv_sigma[m + i] = 1.0 / sigma[i]
-        e = rec.model_rel_error * freq[i] * math.sqrt(_abs2(harmonics[i]))  # of the speed harmonic's size
+        e = rec[MODEL_REL_ERROR] * freq[i] * math.sqrt(_abs2(harmonics[i]))  # of the speed harmonic's size
         v2 = max(_abs2(mean[i]), e * e) / 2.0
         sys_var[i] = v2
         sys_var[m + i] = v2
     inv_sigma[2 * m] = 1.0 / sigma_bal
-    sys_var[2 * m] = rec.sys_balance
+    sys_var[2 * m] = rec[SYS_BALANCE]
     return mean, var, bal_mean, bal_var, a, y, inv_sigma, sys_var, freq, drift_col
