@@ -47,9 +47,11 @@ def friction_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
             or not cov.shape == cov_stat.shape == cov_ref.shape or cov.shape[0] < p_f or cov.shape[0] != cov.shape[1]):
         raise ValueError(f"need a posterior over >= {p_f} parameters, rows ({z}, {p_f}) and basis means "
                          f"({z}, {n_terms}); got {params.shape}, {rows.shape}, {basis_mean.shape}")
-    coef, coef_sig, norm, norm_sig, coef_ok, t_mean, t_sig, gain, resolved, t_tot, t_tot_sig = estimate_kernel(
+    coef_table, coef_ok, cylinder_table, resolved, t_tot, t_tot_sig = estimate_kernel(
         params, cov, cov_stat, cov_ref, layout.group, layout.prior, basis_mean, rows, float(limits.resolve_rel),
         float(limits.coefficient_snr), float(limits.min_data_gain))
+    coef, coef_sig, norm, norm_sig = coef_table
+    t_mean, t_sig, gain = cylinder_table
     to_cyl = FOUR_PI / spec.displacement_cyl
     to_eng = to_cyl / z
     return FrictionEstimate(

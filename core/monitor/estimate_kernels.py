@@ -121,20 +121,26 @@ def estimate_kernel(params, cov, cov_stat, cov_ref, group, prior, basis_mean, ro
     per-cylinder means are NaN. A per-cylinder mean is resolved when its sigma is at most ``resolve_rel`` of it and
     its data gain at least ``min_data_gain``.
 
-    Returns (coef, coef_sig, norm, norm_sig, coef_ok) (z, n_terms), (t_mean, t_sig, gain, resolved) (z,), t_tot,
-    t_tot_sig."""
+    Returns coef_table (4, z, n_terms) = (coef, coef_sig, norm, norm_sig), coef_ok (z, n_terms), cylinder_table
+    (3, z) = (t_mean, t_sig, gain), resolved (z,), t_tot, t_tot_sig (stacked: every array returned to Python
+    costs about as much as a small kernel's arithmetic)."""
     coef, coef_sig, norm, norm_sig, coef_ok = coefficient_kernel(params, cov, cov_stat, cov_ref, group, prior,
                                                                  basis_mean, coefficient_snr, min_data_gain)
     z, n_terms = coef.shape
+    coef_table = np.empty((4, z, n_terms))
     for k in range(z):
         for term in range(n_terms):
-            if not coef_ok[k, term]:
-                coef[k, term] = np.nan
-                norm[k, term] = np.nan
+            masked = not coef_ok[k, term]
+            coef_table[0, k, term] = np.nan if masked else coef[k, term]
+            coef_table[1, k, term] = coef_sig[k, term]
+            coef_table[2, k, term] = np.nan if masked else norm[k, term]
+            coef_table[3, k, term] = norm_sig[k, term]
     t_cyl, t_sig, t_tot, t_tot_sig, gain = cylinder_kernel(params, cov, cov_stat, cov_ref, rows)
+    cylinder_table = np.empty((3, z))
     resolved = np.empty(z, dtype=np.bool_)
     for k in range(z):
         resolved[k] = t_sig[k] <= resolve_rel * abs(t_cyl[k]) and gain[k] >= min_data_gain
-        if not resolved[k]:
-            t_cyl[k] = np.nan
-    return coef, coef_sig, norm, norm_sig, coef_ok, t_cyl, t_sig, gain, resolved, t_tot, t_tot_sig
+        cylinder_table[0, k] = t_cyl[k] if resolved[k] else np.nan
+        cylinder_table[1, k] = t_sig[k]
+        cylinder_table[2, k] = gain[k]
+    return coef_table, coef_ok, cylinder_table, resolved, t_tot, t_tot_sig
