@@ -11,8 +11,8 @@ the basis F_kl(t) the term library wrote (L, z, n), and forms
    parameters, the speed equations W_meas - W0 and their columns -sum_q H_m,q Ghat_pq,m, the tooth-pattern columns,
    the cylinder rows (ParameterLayout.cylinder_rows) and the dampers' mean dissipated power (physics.md §12.4).
 
-The constants come in named records: ``ChainRecord`` (per operating point), ``MixPlan`` (per layout), ``Unknowns``
-(the current parameters); the result is a ``PassRows``.
+The constants come in named records: ``ChainRecord`` (per operating point), ``MixPlan`` (per layout); the cycle's
+values come as arrays; the result is a ``PassRows``.
 """
 
 from __future__ import annotations
@@ -51,14 +51,6 @@ class MixPlan(NamedTuple):
     param: np.ndarray  # (n_mix,) int64 parameter of each G row (-1: a term outside every group)
     node: np.ndarray  # (n_mix,) int64 node of each G row
     cyl_node: np.ndarray  # (z,) int64 node carrying cylinder k
-
-
-class Unknowns(NamedTuple):
-    """The current parameters and the tooth-error nuisance columns."""
-
-    theta: np.ndarray  # (P,) friction parameters
-    pattern: np.ndarray  # (M, >= n_nuisance) complex fitted tooth-pattern harmonics
-    n_nuisance: int
 
 
 class PassRows(NamedTuple):
@@ -103,20 +95,20 @@ def mix_plan(group: np.ndarray, prior: np.ndarray, cyl_node: np.ndarray, n_param
 
 
 @numba.njit(cache=True, fastmath=_FAST)
-def _mixed_rows_and_means(grid, basis, mix, node, omega_mean, rows, basis_mean, indicated_mean):
+def _mixed_rows_and_means(known, motion, gas_rows, basis, mix, node, omega_mean, rows, basis_mean, indicated_mean):
     """rows[:n_mix] = G, rows[n_mix:] = known node torques; the work means of the basis and gas rows."""
     n_terms, z, n = basis.shape
     n_mix = mix.param.shape[0]
     for g in range(n_mix):
         for i in range(n):
             rows[g, i] = 0.0
-    for q in range(grid.known.shape[0]):
+    for q in range(known.shape[0]):
         for i in range(n):
-            rows[n_mix + q, i] = grid.known[q, i]
+            rows[n_mix + q, i] = known[q, i]
     w_over = np.empty(n)
     inv_n = 1.0 / n
     for k in range(z):
-        w_node = grid.motion[1, node[k]]
+        w_node = motion[1, node[k]]
         for i in range(n):
             w_over[i] = w_node[i] / omega_mean
         for t_l in range(n_terms):
@@ -132,7 +124,7 @@ def _mixed_rows_and_means(grid, basis, mix, node, omega_mean, rows, basis_mean, 
                 acc += src[i] * w_over[i]
             basis_mean[k, t_l] = acc * inv_n
         acc = 0.0
-        gas = grid.gas[k]
+        gas = gas_rows[k]
         for i in range(n):
             acc += gas[i] * w_over[i]
         indicated_mean[k] = acc * inv_n
@@ -153,23 +145,24 @@ def _static_twist(chain, mix, node, theta, basis_mean, indicated_mean, static):
 
 
 @numba.njit(cache=True)
-def pass_rows(cyc, grid, basis, mix, chain, unknowns):
+def pass_rows(harmonics, omega_mean, known_rows, motion, gas, basis, mix, chain, theta, pattern, n_nuis):
     """Friction rows, FFT, chain response and speed equations of one pass (module docstring) as a ``PassRows``.
 
-    cyc: CycleMotion; grid: PassGrid (core.monitor.harmonic_balance_kernels.pass_samples); basis (L, z, n) the
-    library's F_kl on the grid; mix: MixPlan; chain: ChainRecord; unknowns: Unknowns."""
-    theta = unknowns.theta
+    harmonics (M,) complex and omega_mean: the flywheel fit (CycleMotion); known_rows (N, n), motion (3, N, n), gas
+    (z, n): the pass's time-grid rows (PassGrid from core.monitor.harmonic_balance_kernels.pass_samples); basis
+    (L, z, n) the library's F_kl on the grid; mix: MixPlan; chain: ChainRecord (both built once per operating
+    point); theta (P,) the friction parameters; pattern (M, >= n_nuis) complex the fitted tooth-pattern harmonics
+    of the n_nuis nuisances. (Per-cycle values come as arrays, not records: a record costs ~5 us per call.)"""
     n_params = theta.shape[0]
-    n_nuis = unknowns.n_nuisance
     n_terms, z, n = basis.shape
-    n_nodes = grid.known.shape[0]
-    m = cyc.harmonics.shape[0]
+    n_nodes = known_rows.shape[0]
+    m = harmonics.shape[0]
     n_mix = mix.param.shape[0]
     node = mix.cyl_node
     rows = np.empty((n_mix + n_nodes, n))
     basis_mean = np.empty((z, n_terms))
     indicated_mean = np.empty(z)
-    _mixed_rows_and_means(grid, basis, mix, node, cyc.omega_mean, rows, basis_mean, indicated_mean)
+    _mixed_rows_and_means(known_rows, motion, gas, basis, mix, node, omega_mean, rows, basis_mean, indicated_mean)
     harm = np.fft.rfft(rows, axis=-1)
     scale = 2.0 / n
     known = np.empty((n_nodes, m), dtype=np.complex128)
@@ -201,7 +194,7 @@ def pass_rows(cyc, grid, basis, mix, chain, unknowns):
         for i in range(n_nodes):
             rel[i, j] = phi[i, j] - phi[fly, j]
     # speed equations: W_meas - W0 and the columns d W / d theta
-    fly_freq = motion_frequencies(cyc.omega_mean, m)
+    fly_freq = motion_frequencies(omega_mean, m)
     design = np.zeros((m, n_params + n_nuis), dtype=np.complex128)
     target = np.empty(m, dtype=np.complex128)
     for j in range(m):
@@ -209,14 +202,14 @@ def pass_rows(cyc, grid, basis, mix, chain, unknowns):
         for q in range(n_nodes):
             w0 += chain.transfer[j, q] * known[q, j]
         w = fly_freq[j]
-        a = cyc.harmonics[j]
+        a = harmonics[j]
         target[j] = complex(-(w * a.imag), w * a.real) - w0
         for g in range(n_mix):
             p = mix.param[g]
             if p >= 0:
                 design[j, p] -= chain.transfer[j, mix.node[g]] * (harm[g, j + 1] * scale)
         for c in range(n_nuis):
-            b = unknowns.pattern[j, c]
+            b = pattern[j, c]
             design[j, n_params + c] = complex(-(w * b.imag), w * b.real)
     # mean-balance rows (ParameterLayout.cylinder_rows)
     cyl_rows = np.zeros((z, n_params))

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from frictionwatch.core.model.dynamics import Receptance, ShaftModel, receptance, shaft_model
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.balance_pass_kernel import ChainRecord, MixPlan, PassRows, Unknowns, mix_plan, pass_rows
+from frictionwatch.core.monitor.balance_pass_kernel import ChainRecord, MixPlan, PassRows, mix_plan, pass_rows
 from frictionwatch.core.monitor.excitation import Excitation, cylinder_record
 from frictionwatch.core.monitor.flywheel import FlywheelMotion
 from frictionwatch.core.monitor.harmonic_balance_kernels import CycleMotion, CylinderRecord, pass_samples
@@ -102,12 +102,17 @@ def harmonic_balance(op: OperatingPoint, theta: np.ndarray, n_nuisance: int, rel
         and static.shape == (n_nodes,)
     # warm start: with the previous cycle's node motion the first pass already is a refresh (physics.md §12.3)
     n_pass = max(1, passes - 1) if warm else max(1, passes)
-    rel_in = _contiguous(relative_motion, np.complex128) if twist and warm else np.zeros((0, m), dtype=np.complex128)
-    static_in = _contiguous(static, np.float64) if twist and warm else np.zeros(0)
-    cyc = CycleMotion(_contiguous(fly.harmonics, np.complex128), float(fly.omega_mean), float(fly.offset),
-                      float(fly.drift), float(fly.period), float(theta_start), int(time_samples))
-    pattern = _contiguous(fly.pattern_harmonics, np.complex128) if n_nuisance else np.zeros((m, 0), np.complex128)
-    unknowns = Unknowns(_contiguous(theta[:n_par], np.float64), pattern, int(n_nuisance))
+    # the flywheel fit, the previous motion and the parameters are kernel outputs (C-contiguous; another layout
+    # would only be another specialisation): no per-call copies; the cycle's grid and pressure are checked by the
+    # monitor (checked_pressure)
+    rel_in = relative_motion if twist and warm else np.zeros((0, m), dtype=np.complex128)
+    static_in = static if twist and warm else np.zeros(0)
+    harmonics = fly.harmonics
+    omega_mean = float(fly.omega_mean)
+    cyc = CycleMotion(harmonics, omega_mean, float(fly.offset), float(fly.drift), float(fly.period),
+                      float(theta_start), int(time_samples))
+    pattern = fly.pattern_harmonics if n_nuisance else np.zeros((m, 0), np.complex128)
+    params = theta[:n_par]
     grid = _contiguous(grid, np.float64)
     pressure = _contiguous(pressure, np.float64)
     z = cyl.node.shape[0]
@@ -115,7 +120,8 @@ def harmonic_balance(op: OperatingPoint, theta: np.ndarray, n_nuisance: int, rel
     for _ in range(n_pass):
         on_grid = pass_samples(cyc, cyl, rel_in, static_in, grid, pressure)
         library.evaluate_into(on_grid.samples, cyl.friction, basis)
-        out: PassRows = pass_rows(cyc, on_grid, basis, op.mix, op.chain, unknowns)
+        out: PassRows = pass_rows(harmonics, omega_mean, on_grid.known, on_grid.motion, on_grid.gas, basis, op.mix,
+                                  op.chain, params, pattern, int(n_nuisance))
         if twist:
             rel_in, static_in = out.relative_motion, out.static
     exc = Excitation(tau=on_grid.tau, theta_fly=on_grid.theta_fly, omega_node=on_grid.motion[1],
