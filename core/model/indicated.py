@@ -8,7 +8,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from frictionwatch.core.model.kinematics import _kinematics
+from frictionwatch.core.model.kinematics import kinematics_kernel
 
 
 @numba.njit(cache=True)
@@ -19,7 +19,7 @@ def _indicated_work(theta, pressure, params, area, out):
     dx = np.empty(n)
     ddx = np.empty(n)
     for k in range(z):
-        _kinematics(theta[k], params, x, dx, ddx)
+        kinematics_kernel(theta[k], params, x, dx, ddx)
         w = 0.0
         for i in range(n):
             j = i + 1 if i + 1 < n else 0  # closed cycle: the last sample joins the first

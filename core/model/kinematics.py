@@ -11,7 +11,9 @@ import numpy as np
 
 
 @numba.njit(cache=True)
-def _kinematics(theta, params, x, dx, ddx):
+def kinematics_kernel(theta, params, x, dx, ddx):
+    """Fill x [m], dx/dtheta [m/rad], d2x/dtheta2 [m/rad^2] (n,) at crank angles theta (n,) [rad]; params = [R, L, e]
+    (the kernel of ``kinematics``, also called inside other kernels)."""
     r = params[0]
     rod = params[1]
     e = params[2]
@@ -40,12 +42,12 @@ def kinematics(theta: np.ndarray, params: np.ndarray) -> tuple[np.ndarray, np.nd
     if p.shape != (3,) or not p[1] > 1.5 * p[0] > 0:
         raise ValueError("params must be [R, L, pin_offset] with L > 1.5 R > 0")
     x, dx, ddx = np.empty_like(th), np.empty_like(th), np.empty_like(th)
-    _kinematics(th, p, x, dx, ddx)
+    kinematics_kernel(th, p, x, dx, ddx)
     return x, dx, ddx
 
 
 @numba.njit(cache=True)
-def _cylinder_kinematics(theta, phases, params, dx, ddx):
+def cylinder_kinematics_kernel(theta, phases, params, dx, ddx):
     """x' and x'' (z, n) of every cylinder at its own local angle theta - phi_k."""
     n = theta.shape[0]
     x = np.empty(n)
@@ -53,14 +55,14 @@ def _cylinder_kinematics(theta, phases, params, dx, ddx):
     for k in range(phases.shape[0]):
         for i in range(n):
             loc[i] = theta[i] - phases[k]
-        _kinematics(loc, params, x, dx[k], ddx[k])
+        kinematics_kernel(loc, params, x, dx[k], ddx[k])
 
 
 @numba.njit(cache=True)
 def _variable_inertia(theta, phases, params, m_rec, j0, j, dj):
     dx = np.empty((phases.shape[0], theta.shape[0]))
     ddx = np.empty_like(dx)
-    _cylinder_kinematics(theta, phases, params, dx, ddx)
+    cylinder_kinematics_kernel(theta, phases, params, dx, ddx)
     for i in range(theta.shape[0]):
         j[i] = j0
         dj[i] = 0.0

@@ -109,7 +109,7 @@ def _closed_rhs(theta, vol, dvol, p, m, c, q):
 
 
 @numba.njit(cache=True)
-def _cycle_pressure(vol_half, dvol_half, c, q, out):
+def cycle_pressure_kernel(vol_half, dvol_half, c, q, out):
     """Fill ``out`` (n+1,) with p [Pa] at theta_i = -2 pi + i*step; returns the trapped-mass fraction lost by leak.
 
     vol_half, dvol_half : (2n+1,) V [m^3] and dV/dtheta [m^3/rad] at the half-step grid -2 pi + j*step/2.
@@ -261,7 +261,7 @@ def cylinder_pressure(model: CylinderModel, params: np.ndarray) -> tuple[np.ndar
     if not (q[_OMEGA] > 0 and q[_PIVC] > 0 and q[_Q] >= 0 and q[_LEAK] >= 0 and 0 <= q[_BETA] <= 1):
         raise ValueError("need omega > 0, p_IVC > 0, Q_in >= 0, leak area >= 0 and 0 <= beta_p <= 1")
     out = np.empty(model.theta.shape[0])
-    lost = _cycle_pressure(model.vol_half, model.dvol_half, model.constants, q, out)
+    lost = cycle_pressure_kernel(model.vol_half, model.dvol_half, model.constants, q, out)
     return out, float(lost)
 
 

@@ -9,14 +9,14 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from frictionwatch.core.model.kinematics import _cylinder_kinematics
+from frictionwatch.core.model.kinematics import cylinder_kinematics_kernel
 
 
 @numba.njit(cache=True)
 def _gas_torque(theta, pressure, phases, params, area, p_cc, out):
     dx = np.empty_like(out)
     ddx = np.empty_like(out)
-    _cylinder_kinematics(theta, phases, params, dx, ddx)
+    cylinder_kinematics_kernel(theta, phases, params, dx, ddx)
     for k in range(phases.shape[0]):
         for i in range(theta.shape[0]):
             out[k, i] = (pressure[k, i] - p_cc) * area * dx[k, i]
@@ -44,7 +44,7 @@ def gas_torque(
 def _mass_torque(theta, omega, alpha, phases, params, m_rec, out):
     dx = np.empty_like(out)
     ddx = np.empty_like(out)
-    _cylinder_kinematics(theta, phases, params, dx, ddx)
+    cylinder_kinematics_kernel(theta, phases, params, dx, ddx)
     for k in range(phases.shape[0]):
         for i in range(theta.shape[0]):
             out[k, i] = m_rec * dx[k, i] * (ddx[k, i] * omega[i] * omega[i] + dx[k, i] * alpha[i])

@@ -218,8 +218,8 @@ def prepare_fit(tooth_ticks: np.ndarray, tick_hz: float, n_harmonics: int, patte
     pat = np.empty((n_harmonics, pat_in.shape[1] + (1 if drift_pattern else 0)), dtype=np.complex128)
     try:
         status = prepare_fit_kernel(ticks, float(tick_hz), n_drift, m_fit, n_harmonics, pat_in,
-                              int(pattern_period) if patterns is not None else 0, bool(drift_pattern), tau,
-                              design_rows, scale, chol, pat)
+                                    int(pattern_period) if patterns is not None else 0, bool(drift_pattern),
+                                    (tau, design_rows, scale, chol), pat)
     except np.linalg.LinAlgError as exc:
         raise ValueError(f"the tooth edges give a singular flywheel fit ({exc})") from exc
     if status == NOT_INCREASING:

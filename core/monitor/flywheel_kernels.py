@@ -144,17 +144,17 @@ def _normal_matrix(design_t, n_drift, m_fit, csum, ssum, out):
 
 
 @numba.njit(cache=True)
-def prepare_fit_kernel(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, pattern_period, drift_pattern, tau, design_t, scale,
-                 chol, pat):
+def prepare_fit_kernel(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, pattern_period, drift_pattern, prepared, pat):
     """Angle-independent part of the flywheel fit of the edges ``ticks`` (n,) (core.monitor.flywheel.prepare_fit).
 
-    Fills tau (n,) [s], design_t (p, n) = D^T with rows [1, (u (u - 1)), cos k w1 tau (k = 1..m_fit), sin ...],
-    scale (p,) = column norms of D, chol (p, p) = upper Cholesky factor of the unit-scaled normal matrix, and
-    pat (n_harm, q) complex = fitted harmonics of the patterns (n, q0) and, with ``drift_pattern``, of a last
-    pattern u (u - 1), u from the ticks. With ``pattern_period`` T > 0, patterns holds only the first T rows:
-    edge e uses row e % T (tooth patterns repeat every revolution), and the design rows are summed over the repeats
-    before the product (half the work for a two-revolution cycle). Returns a status code (OK, NOT_INCREASING); a normal matrix that is not
-    positive definite raises np.linalg.LinAlgError."""
+    Fills ``prepared`` = (tau, design_t, scale, chol): tau (n,) [s], design_t (p, n) = D^T with rows [1, (u (u - 1)),
+    cos k w1 tau (k = 1..m_fit), sin ...], scale (p,) = column norms of D, chol (p, p) = upper Cholesky factor of the
+    unit-scaled normal matrix; and pat (n_harm, q) complex = fitted harmonics of the patterns (n, q0) and, with
+    ``drift_pattern``, of a last pattern u (u - 1), u from the ticks. With ``pattern_period`` T > 0, patterns holds
+    only the first T rows: edge e uses row e % T (tooth patterns repeat every revolution), and the design rows are
+    summed over the repeats before the product (half the work for a two-revolution cycle). Returns a status code
+    (OK, NOT_INCREASING); a normal matrix that is not positive definite raises np.linalg.LinAlgError."""
+    tau, design_t, scale, chol = prepared
     n = ticks.shape[0]
     p = n_drift + 2 * m_fit
     t0 = ticks[0]

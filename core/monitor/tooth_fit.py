@@ -23,6 +23,15 @@ from frictionwatch.core.monitor.tooth_fit_kernels import (
     BAD_SHAPES,
     CACHE_MISS,
     NO_WINDOW,
+    TF_DRIFT_PATTERN,
+    TF_GAIN,
+    TF_LEARN,
+    TF_M_FIT,
+    TF_N_DRIFT,
+    TF_N_SETTINGS,
+    TF_REFIT,
+    TF_TICK_HZ,
+    TF_USE_PATTERNS,
     TOO_FEW,
     tooth_fit_cycle_kernel,
 )
@@ -81,13 +90,19 @@ def fit_cycle_teeth(cycle: Cycle, wheel_teeth: int, n_harmonics: int, n_nuisance
     n_cols = 2 * (n_nuisance // 2) if use_patterns else 0
     harm = np.empty(n_harmonics, dtype=np.complex128)
     pat = np.empty((n_harmonics, n_cols + (1 if drift_nuisance else 0)), dtype=np.complex128)
-    gain = max(1.0 - tooth_memory, 1.0 / (teeth.count + 1))
-    refit = teeth.count + 1 <= tooth_refit_cycles
+    settings = np.empty(TF_N_SETTINGS)
+    settings[TF_TICK_HZ] = cycle.tick_hz
+    settings[TF_N_DRIFT] = n_drift
+    settings[TF_M_FIT] = m_fit
+    settings[TF_USE_PATTERNS] = use_patterns
+    settings[TF_DRIFT_PATTERN] = bool(drift_nuisance)
+    settings[TF_LEARN] = bool(learn_teeth)
+    settings[TF_GAIN] = max(1.0 - tooth_memory, 1.0 / (teeth.count + 1))
+    settings[TF_REFIT] = teeth.count + 1 <= tooth_refit_cycles
     for _ in range(2):
         try:
             status, n, period, offset, drift, rms, resid, new_corr = tooth_fit_cycle_kernel(
-                nominal, ticks, index, float(cycle.tick_hz), n_drift, m_fit, n_harmonics, use_patterns, cached_rel,
-                cached_patterns, bool(drift_nuisance), correction, bool(learn_teeth), gain, refit, harm, pat)
+                nominal, ticks, index, settings, cached_rel, cached_patterns, correction, harm, pat)
         except np.linalg.LinAlgError as exc:
             raise ValueError(f"the tooth edges give a singular flywheel fit ({exc})") from exc
         if status != CACHE_MISS:

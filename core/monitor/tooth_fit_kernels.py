@@ -84,17 +84,32 @@ TOO_FEW = 5  # too few edges for the harmonics
 CACHE_MISS = 6  # the pattern cache does not match this cycle's edges: build the patterns and call again
 BAD_SHAPES = 7  # tooth_ticks / tooth_index shorter than the window
 
+# layout of the step's settings, one small float64 array (a single cheap argument per cycle; counts and flags are
+# stored as exact small floats): tick rate [Hz], drift columns (1 or 2), fitted harmonics, whether the in-band pattern
+# columns are fitted, whether the drift pattern is, whether the learner steps, its gain, whether to refit after it
+(TF_TICK_HZ, TF_N_DRIFT, TF_M_FIT, TF_USE_PATTERNS, TF_DRIFT_PATTERN, TF_LEARN, TF_GAIN, TF_REFIT,
+ TF_N_SETTINGS) = range(9)
+
 
 @numba.njit(cache=True)
-def tooth_fit_cycle_kernel(nominal_all, ticks_all, index_all, tick_hz, n_drift, m_fit, n_harm, use_patterns, cached_rel,
-                     cached_patterns, drift_pattern, correction, learn, gain, refit, harm, pat):
+def tooth_fit_cycle_kernel(nominal_all, ticks_all, index_all, settings, cached_rel, cached_patterns, correction, harm,
+                           pat):
     """The monitor's whole tooth step in one call (core.monitor.tooth_fit.fit_cycle_teeth): the cycle window and the
     pattern-cache test (``_cycle_window``), ``prepare_fit_kernel`` (patterns folded per revolution when their rows
-    repeat), the fit of the corrected angles (``_corrected_angles``, ``fit_angles_kernel``), with ``learn`` the learner
-    step (``tooth_update_kernel`` with ``gain``) and, with ``refit``, the fit again with the fresh correction.
+    repeat), the fit of the corrected angles (``_corrected_angles``, ``fit_angles_kernel``), with TF_LEARN the
+    learner step (``tooth_update_kernel`` with TF_GAIN) and, with TF_REFIT, the fit again with the fresh correction.
 
-    Fills harm (n_harm,) and pat (n_harm, q); returns (status, n edges, period [s], offset, drift, rms,
-    edge residual (n,), correction after the cycle)."""
+    settings (TF_N_SETTINGS,) in the TF_* layout. Fills harm (n_harm,) and pat (n_harm, q); returns (status,
+    n edges, period [s], offset, drift, rms, edge residual (n,), correction after the cycle)."""
+    tick_hz = settings[TF_TICK_HZ]
+    n_drift = int(settings[TF_N_DRIFT])
+    m_fit = int(settings[TF_M_FIT])
+    n_harm = harm.shape[0]
+    use_patterns = settings[TF_USE_PATTERNS] != 0.0
+    drift_pattern = settings[TF_DRIFT_PATTERN] != 0.0
+    learn = settings[TF_LEARN] != 0.0
+    gain = settings[TF_GAIN]
+    refit = settings[TF_REFIT] != 0.0
     no_resid = np.empty(0)
     end, hit, period_rows = _cycle_window(nominal_all, cached_rel)
     if end < 0:
@@ -117,8 +132,8 @@ def tooth_fit_cycle_kernel(nominal_all, ticks_all, index_all, tick_hz, n_drift, 
     design_t = np.empty((p, n))
     scale = np.empty(p)
     chol = np.empty((p, p))
-    status = prepare_fit_kernel(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, period_rows, drift_pattern, tau,
-                          design_t, scale, chol, pat)
+    status = prepare_fit_kernel(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, period_rows, drift_pattern,
+                                (tau, design_t, scale, chol), pat)
     if status != OK:
         return status, n, 0.0, 0.0, 0.0, 0.0, no_resid, correction
     period = tau[n - 1]

@@ -25,8 +25,10 @@ from frictionwatch.core.plant.plant import (
     S_PCC,
     S_R,
     S_VARJ,
-    _rhs,
+    PlantArrays,
+    PressureTraces,
     nq_cyl,
+    plant_rhs,
     work_arrays,
 )
 
@@ -150,14 +152,14 @@ def linearised_stiffness(spec: EngineSpec, plant: PlantModel, tmodel: CylinderMo
     pw = np.zeros(z * plant.nq_cyl + NQ_GLOBAL)
     law = load_law.copy()
     law[6] = 0.0  # no damping
+    model = PlantArrays(nd, cy, sc, spec.friction_params(), law, PressureTraces(traces, slots, tmodel.step))
     jac = np.zeros((n, n))
     for i in range(n):
         cols = []
         for sgn in (1.0, -1.0):
             th = np.zeros(n)
             th[i] = sgn * step
-            _rhs(0.0, th, np.full(n, law[8]), nd, cy, sc, spec.friction_params(), law, traces, slots,
-                 tmodel.step, w, acc, pw)
+            plant_rhs(0.0, th, np.full(n, law[8]), model, w, acc, pw)
             cols.append(acc.copy())
         jac[:, i] = -(cols[0] - cols[1]) / (2 * step)
     return jac

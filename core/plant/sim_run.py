@@ -43,7 +43,10 @@ from frictionwatch.core.plant.plant import (
     S_T0OUT,
     S_WHEEL_OFF,
     TWO_PI,
-    _advance,
+    Firing,
+    PlantArrays,
+    PressureTraces,
+    advance,
 )
 from frictionwatch.core.plant.plant_setup import PlantModel, scalars
 from frictionwatch.core.plant.sensors import (
@@ -77,14 +80,14 @@ class PlantRun:
         sc[S_LPERIOD] = 1.0 / LOAD_RATE_HZ
         sc[S_QPERKG] = spec.combustion.combustion_efficiency * spec.combustion.lhv_j_per_kg
         self.sc = sc
-        self.nd = (plant.inertia, plant.stiff, plant.damp, np.zeros(n), np.zeros(n), np.zeros(n))
-        self.cy = plant.cylinders
-        self.fprm = spec.friction_params()
         self.lp = np.zeros(12)
         self.op = np.zeros(OP_N)
-        self.thermo = (tmodel.constants, tmodel.vol_half, tmodel.dvol_half)
-        self.traces = np.zeros((z, 3, tmodel.theta.shape[0]))
-        self.slot_cycle = np.full((z, 3), -FAR, dtype=np.int64)
+        self.tmodel = tmodel
+        traces = PressureTraces(np.zeros((z, 3, tmodel.theta.shape[0])), np.full((z, 3), -FAR, dtype=np.int64),
+                                tmodel.step)
+        # the kernel's model: its arrays (sc, lp, traces) are updated in place from here on
+        self.model = PlantArrays((plant.inertia, plant.stiff, plant.damp, np.zeros(n), np.zeros(n), np.zeros(n)),
+                                 plant.cylinders, sc, spec.friction_params(), self.lp, traces)
         self.tooth_err = tooth_errors(spec.sensors, rngs[2], sensors.tooth_sigma_deg, sensors.runout_deg,
                                       sensors.runout_phase_deg)
         self.edges = (edge_angles(spec.sensors, self.tooth_err),
@@ -228,9 +231,7 @@ class PlantRun:
         t_abs = np.inf if t_stop is None else self.t_out0 + t_stop
         while True:
             chunk = min(theta_stop, self.theta_fly + FOUR_PI)
-            status = _advance(self.nd, self.cy, self.sc, self.fprm, self.lp, self.op, self.pert, self.leak,
-                              self.thermo, self.traces, self.slot_cycle, self.edges, self.state, self.ist,
-                              self.outs, chunk, t_abs)
+            status = advance(self.model, self._firing(), self.edges, self.state, self.ist, self.outs, chunk, t_abs)
             self._flush()
             if status == 3:
                 raise RuntimeError("plant: a cylinder pressure trace was missing (internal error)")
@@ -241,6 +242,11 @@ class PlantRun:
                 return True
             if status == 0 and self.theta_fly >= theta_stop:
                 return False
+
+    def _firing(self) -> Firing:
+        """The kernel's Firing record of the current operating point, perturbations and leak areas."""
+        tm = self.tmodel
+        return Firing(self.op, self.pert, self.leak, tm.constants, tm.vol_half, tm.dvol_half)
 
     def _flush(self) -> None:
         counts = (I_N_CYC, I_N_GRID, I_N_EDGE, I_N_CAM, I_N_SAMPLE, I_N_LOAD)

@@ -54,8 +54,8 @@ def test_prepare_fit_design_and_normal_matrix(seed, n_drift, n_harm):
     want = np.column_stack(cols + [np.cos(np.outer(tau, w)), np.sin(np.outer(tau, w))])
     p = want.shape[1]
     got_tau, rows, scale, chol = np.empty(n), np.empty((p, n)), np.empty(p), np.empty((p, p))
-    status = prepare_fit_kernel(ticks, tick_hz, n_drift, n_harm, n_harm, np.zeros((n, 0)), 0, False, got_tau, rows, scale,
-                          chol, np.empty((n_harm, 0), dtype=np.complex128))
+    status = prepare_fit_kernel(ticks, tick_hz, n_drift, n_harm, n_harm, np.zeros((n, 0)), 0, False,
+                                (got_tau, rows, scale, chol), np.empty((n_harm, 0), dtype=np.complex128))
     assert status == OK
     assert_allclose(got_tau, tau, rtol=0, atol=0)
     assert_allclose(rows.T, want, rtol=0, atol=1e-13)

@@ -10,7 +10,15 @@ from frictionwatch.core.model.kinematics import variable_inertia
 from frictionwatch.core.model.terms import cylinder_samples_reference, rezeka_henein
 from frictionwatch.core.model.thermo import cylinder_model
 from frictionwatch.core.model.torques import gas_torque
-from frictionwatch.core.plant.plant import NQ_GLOBAL, _crossing, _herm, _rhs, work_arrays
+from frictionwatch.core.plant.plant import (
+    NQ_GLOBAL,
+    PlantArrays,
+    PressureTraces,
+    _crossing,
+    _herm,
+    plant_rhs,
+    work_arrays,
+)
 from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, linearised_stiffness, scalars
 from frictionwatch.core.plant.simulate import simulate
 from numpy.testing import assert_allclose
@@ -57,7 +65,8 @@ def test_rhs_matches_numpy_reference(name, variable, new_term):
     w = work_arrays(z, n_terms)
     nd = (plant.inertia, plant.stiff, plant.damp, np.zeros(n), np.zeros(n), np.zeros(n))
     t = 0.01
-    _rhs(t, th, om, nd, plant.cylinders, sc, spec.friction_params(), lp, traces, slots, tm.step, w, acc, pw)
+    model = PlantArrays(nd, plant.cylinders, sc, spec.friction_params(), lp, PressureTraces(traces, slots, tm.step))
+    plant_rhs(t, th, om, model, w, acc, pw)
 
     # reference: per cylinder at its own node angle
     k_mat, c_mat = chain_matrices(plant)[1], chain_matrices(plant, 0.0)[2]
