@@ -184,8 +184,8 @@ def checked_pressure(spec: EngineSpec, cycle: Cycle) -> tuple[np.ndarray, list[s
     if n < 64 or abs(span - FOUR_PI) > 1e-6 * FOUR_PI:
         raise CycleRejected("bad_grid", f"the crank-angle grid must cover 720 deg uniformly ({n} points)")
     flags = list(cycle.flags)
-    bad = ~np.isfinite(p)
-    if bad.any():
+    if not np.isfinite(p).all():  # one pass over the samples in the common case
+        bad = ~np.isfinite(p)
         p = p.copy()
         for k in np.flatnonzero(bad.any(axis=1)):
             b = bad[k]
