@@ -39,8 +39,7 @@ _potrf = scipy.linalg.lapack.dpotrf
 _potri = scipy.linalg.lapack.dpotri
 
 
-@dataclass(frozen=True)
-class Accumulator:
+class Accumulator(NamedTuple):
     """Exponentially weighted normal equations (P params, R raw rows per cycle incl. the mean-balance row).
 
     info (P, P), rhs (P,), yty whitened sum of squares, weight effective number of cycles, rows effective number of
@@ -131,8 +130,7 @@ class Prior:
                      np.concatenate([p.sigma for p in priors]))
 
 
-@dataclass(frozen=True)
-class Posterior:
+class Posterior(NamedTuple):
     """params (P,), covariance (P, P) = statistical + systematic, chi2 reduced, weight (effective cycles)."""
 
     params: np.ndarray

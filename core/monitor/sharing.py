@@ -10,7 +10,7 @@ as a prior with a stated spread and reports how far the identified means move aw
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -21,8 +21,7 @@ from frictionwatch.core.monitor.sharing_kernels import firing_kernel, share_kern
 CHEN_FLYNN_BAR = (0.4, 0.005, 0.09, 0.0009)
 
 
-@dataclass(frozen=True)
-class SharedLoss:
+class SharedLoss(NamedTuple):
     """Prior per-cylinder mean friction torque (z,) [N m], its 1-sigma (z,) and which cylinders were motored."""
 
     friction_mean: np.ndarray
