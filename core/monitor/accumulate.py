@@ -26,6 +26,7 @@ import scipy.linalg.lapack
 from frictionwatch.core.monitor.accumulate_kernels import cycle_terms_kernel, fold_kernel
 from frictionwatch.core.monitor.identify import bounded_solve_nnls
 from frictionwatch.core.monitor.posterior_kernels import (
+    BAD_SHAPE,
     NEEDS_BOUND,
     OK,
     as_matrix,
@@ -192,16 +193,20 @@ def posterior_from_normal(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, 
     singular or the reference covariance is at its pseudo-inverse switch, ``posterior_from_normal_reference``
     (LAPACK) decides. Every returned array is new (none aliases an input)."""
     p, r = acc.sys_map.shape
-    n_pr = as_matrix(n_pr, p, name="n_pr")
-    r_pr = as_vector(r_pr, p, "r_pr")
-    sys_var = as_vector(sys_var, r, "sys_var")
+    f64 = np.float64
+    n_pr, r_pr, sys_var = np.asarray(n_pr, dtype=f64), np.asarray(r_pr, dtype=f64), np.asarray(sys_var, dtype=f64)
     lo = lower_vector(lower, p)
-    # the accumulator's own arrays are float64 and C-contiguous by construction (its kernels, ``empty``); the
-    # kernel checks every shape (BAD_SHAPE: the reference decides)
+    # the kernel checks every shape; the accumulator's own arrays are float64 and C-contiguous by construction (its
+    # kernels, ``empty``): no per-call copies (another layout would only be another compiled specialisation)
     info, rhs, sys_map, info_ref = acc.info, acc.rhs, acc.sys_map, acc.info_reference
     yty, rows = float(acc.yty), float(acc.rows)
     status, params, chi2_red, cov_stat, cov, ref = posterior_kernel(
         info, rhs, yty, rows, sys_map, info_ref, n_pr, r_pr, sys_var, lo, REFERENCE_MAX_CONDITION)
+    if status == BAD_SHAPE:  # name the input that does not fit
+        as_matrix(n_pr, p, name="n_pr")
+        as_vector(r_pr, p, "r_pr")
+        as_vector(sys_var, r, "sys_var")
+        raise ValueError(f"the accumulator's arrays do not fit its sys_map {acc.sys_map.shape}")
     if status == NEEDS_BOUND:
         params = bounded_solve_nnls(info + n_pr, rhs + r_pr, lo)
         status, chi2_red, cov_stat, cov, ref = posterior_moments_kernel(
