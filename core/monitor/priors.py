@@ -74,7 +74,7 @@ class PriorNormal:
     def with_share(self, cylinder_rows: np.ndarray, share: SharedLoss) -> tuple[np.ndarray, np.ndarray]:
         """Normal equations of the fixed priors plus the Eq. 6 share rows (``FixedPriors.with_share(share).normal()``);
         cylinder_rows (z, p_f) act on the leading p_f parameters. A share that is not finite adds nothing."""
-        if not np.all(np.isfinite(share.friction_mean)):
+        if not np.isfinite(share.friction_mean).all():
             return self.info, self.rhs
         rows = np.ascontiguousarray(cylinder_rows, dtype=np.float64)
         if rows.shape[1] > self.info.shape[0] or share.friction_mean.shape != (rows.shape[0],):
