@@ -71,7 +71,7 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
         indicated_torque=exc.indicated_mean, friction_balance=float(mean.friction),
         coupling_loss=float(mean.coupling_loss), cycle=ident.cycle_estimate, smoothed=ident.smoothed_estimate,
         grid=grid.copy(), friction_torque=total,
-        friction_torque_cyl_time=cyl_time, time_angles=theta_fly.copy(), speed_measured=speed_meas,
+        friction_torque_cyl_time=cyl_time, time_angles=theta_fly, speed_measured=speed_meas,
         speed_model=speed_model,
         residual_harmonics=resid, residual_rms=float(np.sqrt(0.5 * resid_sq)), r_squared=r2,
         friction_torque_balance=balance_trace, flags=tuple(flags))

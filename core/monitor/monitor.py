@@ -181,7 +181,7 @@ def checked_pressure(spec: EngineSpec, cycle: Cycle) -> tuple[np.ndarray, list[s
     if n < 64 or abs(span - FOUR_PI) > 1e-6 * FOUR_PI:
         raise CycleRejected("bad_grid", f"the crank-angle grid must cover 720 deg uniformly ({n} points)")
     flags = list(cycle.flags)
-    if not np.isfinite(p).all():  # one pass over the samples in the common case
+    if not math.isfinite(p.sum()):  # one pass, no temporary, in the common case (NaN and inf propagate)
         bad = ~np.isfinite(p)
         p = p.copy()
         for k in np.flatnonzero(bad.any(axis=1)):
