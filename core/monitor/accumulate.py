@@ -17,7 +17,7 @@ Uncertainty has two parts:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -266,8 +266,7 @@ def spd_inverse(a: np.ndarray, max_condition: float = np.inf) -> np.ndarray | No
 
 
 
-@dataclass(frozen=True)
-class ResidualStats:
+class ResidualStats(NamedTuple):
     """Per-row residual statistics across cycles (EWMA): mean (persistent part) and variance about it (random part).
 
     Used as the noise model (whitening) and the systematic-error budget. Rows are complex harmonics (M,) plus the
@@ -289,8 +288,7 @@ class ResidualStats:
         g = max(1.0 - memory, 1.0 / n)
         d = resid - self.mean
         db = balance_resid - self.balance_mean
-        return replace(
-            self,
+        return self._replace(
             mean=self.mean + g * d,
             var=(1.0 - g) * (self.var + g * 0.5 * np.abs(d) ** 2) if n > 1 else 0.5 * np.abs(resid) ** 2,
             balance_mean=self.balance_mean + g * db,
