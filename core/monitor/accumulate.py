@@ -17,7 +17,7 @@ Uncertainty has two parts:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -40,7 +40,8 @@ _potrf = scipy.linalg.lapack.dpotrf
 _potri = scipy.linalg.lapack.dpotri
 
 
-class Accumulator(NamedTuple):
+@dataclass(frozen=True)
+class Accumulator:
     """Exponentially weighted normal equations (P params, R raw rows per cycle incl. the mean-balance row).
 
     info (P, P), rhs (P,), yty whitened sum of squares, weight effective number of cycles, rows effective number of
@@ -131,7 +132,8 @@ class Prior:
                      np.concatenate([p.sigma for p in priors]))
 
 
-class Posterior(NamedTuple):
+@dataclass(frozen=True)
+class Posterior:
     """params (P,), covariance (P, P) = statistical + systematic, chi2 reduced, weight (effective cycles)."""
 
     params: np.ndarray
@@ -266,7 +268,8 @@ def spd_inverse(a: np.ndarray, max_condition: float = np.inf) -> np.ndarray | No
 
 
 
-class ResidualStats(NamedTuple):
+@dataclass(frozen=True)
+class ResidualStats:
     """Per-row residual statistics across cycles (EWMA): mean (persistent part) and variance about it (random part).
 
     Used as the noise model (whitening) and the systematic-error budget. Rows are complex harmonics (M,) plus the
@@ -288,7 +291,8 @@ class ResidualStats(NamedTuple):
         g = max(1.0 - memory, 1.0 / n)
         d = resid - self.mean
         db = balance_resid - self.balance_mean
-        return self._replace(
+        return replace(
+            self,
             mean=self.mean + g * d,
             var=(1.0 - g) * (self.var + g * 0.5 * np.abs(d) ** 2) if n > 1 else 0.5 * np.abs(resid) ** 2,
             balance_mean=self.balance_mean + g * db,

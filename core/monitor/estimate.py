@@ -3,7 +3,7 @@ sigmas, resolved masks; results.py). The numbers come from two kernels (core.mon
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -16,7 +16,8 @@ from frictionwatch.core.monitor.results import FrictionEstimate
 FOUR_PI = 4.0 * np.pi
 
 
-class ReportLimits(NamedTuple):
+@dataclass(frozen=True)
+class ReportLimits:
     """When an estimate is reported: a per-cylinder mean when its 1-sigma is at most ``resolve_rel`` of its value,
     a coefficient when its normalised value exceeds ``coefficient_snr`` sigmas; both only when the speed signal gave
     at least ``min_data_gain`` of what is known about them (the rest coming from the priors and the mean balance)."""

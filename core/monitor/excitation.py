@@ -19,7 +19,8 @@ The friction basis F_kl is whatever term library the parameter layout carries (c
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
@@ -29,12 +30,13 @@ from frictionwatch.core.monitor.harmonic_balance_kernels import CylinderRecord
 CRANKCASE_PA = 1.0e5
 
 
-class Excitation(NamedTuple):
+@dataclass(frozen=True)
+class Excitation:
     """Torques of one cycle on n_t uniform time samples and their harmonics (M).
 
     tau (n_t,) s; theta_fly (n_t,) rad flywheel angle; omega_node (N, n_t) rad/s
     gas (z, n_t) N m; known_harm (N, M) complex N m: harmonics of the known node torques
-    basis (z, L, n_t) F_kl of the L library terms; basis_harm (z, L, M) (computed when asked for: the harmonic balance
+    basis (z, L, n_t) F_kl of the L library terms; basis_harm (z, L, M) (computed on first use: the harmonic balance
     needs only their parameter-weighted sums); basis_mean (z, L) work means of F_kl
     indicated_mean (z,) N m work mean of T_g,k (= IMEP_k V_d / 4 pi with the throw's own angle)
     omega_fly, alpha_fly (n_t,) measured flywheel speed [rad/s] and acceleration [rad/s^2] (the fit on the grid)
@@ -51,7 +53,7 @@ class Excitation(NamedTuple):
     omega_fly: np.ndarray | None = None
     alpha_fly: np.ndarray | None = None
 
-    @property
+    @cached_property
     def basis_harm(self) -> np.ndarray:
         return harmonics_of(self.basis, self.known_harm.shape[1])
 

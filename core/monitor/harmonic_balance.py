@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 from frictionwatch.core.model.dynamics import Receptance, ShaftModel, receptance, shaft_model
@@ -69,7 +68,8 @@ def operating_point(spec: EngineSpec, op: OperatingPoint | None, omega: float, l
                           mix_plan(layout.group, layout.prior, spec.cylinder_node, layout.n_params))
 
 
-class BalanceResult(NamedTuple):
+@dataclass(frozen=True)
+class BalanceResult:
     """One cycle's harmonic balance: the last pass's excitation and rows, the node speed harmonics (N, M), the
     node-minus-flywheel motion for the next cycle's warm start (harmonics (N, M) and static twist (N,)), and the
     mean power [W] the relative and the ground dampers dissipate."""

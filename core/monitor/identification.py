@@ -13,7 +13,7 @@ and this cycle's estimates.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -29,7 +29,8 @@ from frictionwatch.core.monitor.sharing import firing_mask, motored_friction_per
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 
 
-class MeanBalance(NamedTuple):
+@dataclass(frozen=True)
+class MeanBalance:
     """This cycle's mean torque balance [N m]: indicated (sum over cylinders), load (measured, plus the load's own
     ripple work), coupling_loss (modelled damper/coupling dissipation) and friction = indicated - load - coupling
     (NaN without a load measurement)."""
@@ -40,7 +41,8 @@ class MeanBalance(NamedTuple):
     friction: float
 
 
-class Identification(NamedTuple):
+@dataclass(frozen=True)
+class Identification:
     """The identification's results of one cycle: updated residual statistics and accumulator, the running means
     of the sharing prior (indicated_mean (z,), balance_mean), the posteriors and reported estimates of the
     accumulated equations (smoothed) and of this cycle's alone (cycle), the firing mask (z,), the harmonic

@@ -21,7 +21,6 @@ A single-cylinder engine identifies all six a_l (paper 000 Eq. 5).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg
@@ -149,7 +148,8 @@ def parameter_layout(spec: EngineSpec, scheme: str | None = None, prior: np.ndar
                            per_cylinder=np.array(per_cylinder), library=lib)
 
 
-class CycleRows(NamedTuple):
+@dataclass(frozen=True)
+class CycleRows:
     """One cycle's identification equations in parameter space (raw units, before weighting).
 
     design (M, P) complex [rad/s]: d W_model,m / d theta_p; target (M,) complex [rad/s]: W_meas - W0

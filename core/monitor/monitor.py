@@ -28,6 +28,7 @@ Per cycle:
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -151,7 +152,7 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     if prior.key != (cfg.parameter_sigma, cfg.tooth_error_deg, cfg.sibling_spread):  # another config than the state's
         prior = prior_normal(spec, state.layout, state.n_nuisance, cfg.parameter_sigma, cfg.tooth_error_deg,
                              cfg.sibling_spread)
-        state = state._replace(prior=prior)
+        state = replace(state, prior=prior)
     tables = state.report_tables
     if tables.shape != (m, cfg.time_samples):
         tables = trig_tables(m, cfg.time_samples)
@@ -160,10 +161,12 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         flags += [f"misfire_cyl{k + 1}" for k in np.flatnonzero(~ident.fire)]
 
     result = build_result(spec, cycle, fly, exc, rows, state.layout, ident, mean, pmax, pmax_angle, flags, tables)
-    new_state = state._replace(
-        accumulator=ident.accumulator, stats=ident.stats, params=ident.smoothed.params, op=op, relative_motion=rel,
-        static=static, teeth=teeth, balance_mean=ident.balance_mean, indicated_mean=ident.indicated_mean,
-        cycles=state.cycles + 1, prev_omega=omega, drift_var=drift_var, tooth_patterns=patterns, report_tables=tables)
+    new_state = MonitorState(
+        layout=state.layout, n_harmonics=m, n_nuisance=state.n_nuisance, accumulator=ident.accumulator,
+        stats=ident.stats, params=ident.smoothed.params, op=op, relative_motion=rel, static=static, teeth=teeth,
+        balance_mean=ident.balance_mean, indicated_mean=ident.indicated_mean, cycles=state.cycles + 1,
+        prior=state.prior, lower=state.lower, report_tables=tables, prev_omega=omega, drift_var=drift_var,
+        tooth_patterns=patterns)  # every field (dataclasses.replace costs twice as much per cycle)
     return new_state, result
 
 

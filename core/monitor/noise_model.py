@@ -11,7 +11,7 @@ no load measurement). One kernel (core.monitor.noise_model_kernels).
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -21,7 +21,8 @@ from frictionwatch.core.monitor.identify import CycleRows
 from frictionwatch.core.monitor.noise_model_kernels import noise_kernel
 
 
-class NoiseSettings(NamedTuple):
+@dataclass(frozen=True)
+class NoiseSettings:
     """memory: EWMA factor of the residual statistics; model_rel_error: repeatable model error of a speed harmonic
     relative to its size; use_drift: the cycle's drift is a random effect; sys_balance: variance of the repeatable
     error of the mean-balance row [N^2 m^2]."""
@@ -32,7 +33,8 @@ class NoiseSettings(NamedTuple):
     sys_balance: float
 
 
-class WhitenedCycle(NamedTuple):
+@dataclass(frozen=True)
+class WhitenedCycle:
     """One cycle's whitened equations: a (2M+1, P), y (2M+1,) (real parts, imaginary parts, mean balance), the raw
     rows' weights inv_sigma (2M+1,) and repeatable-error variances sys_var (2M+1,), the updated statistics, the
     harmonic frequencies freq (M,) [rad/s] and the drift's speed column drift_col (M,) complex (None: not used)."""

@@ -14,7 +14,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import NamedTuple
 
 import numpy as np
 
@@ -22,7 +21,8 @@ import numpy as np
 PA_PER_BAR = 1e5
 
 
-class FrictionEstimate(NamedTuple):
+@dataclass(frozen=True)
+class FrictionEstimate:
     """Per-cylinder friction of one estimate (z cylinders, 6 Rezeka-Henein terms).
 
     friction_torque_mean (z,) N m, work mean over the cycle (NaN where unresolved); *_sigma are 1-sigma

@@ -10,7 +10,7 @@ as a prior with a stated spread and reports how far the identified means move aw
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -21,7 +21,8 @@ from frictionwatch.core.monitor.sharing_kernels import firing_kernel, share_kern
 CHEN_FLYNN_BAR = (0.4, 0.005, 0.09, 0.0009)
 
 
-class SharedLoss(NamedTuple):
+@dataclass(frozen=True)
+class SharedLoss:
     """Prior per-cylinder mean friction torque (z,) [N m], its 1-sigma (z,) and which cylinders were motored."""
 
     friction_mean: np.ndarray

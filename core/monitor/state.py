@@ -5,7 +5,6 @@ importing the monitor."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 
@@ -85,9 +84,9 @@ class MonitorConfig:
     warmup_cycles: int = 20
 
 
-class MonitorState(NamedTuple):
-    """Everything carried from one cycle to the next (scipy ``zi`` style: in and out of ``process_cycle``); a named
-    tuple, immutable like a frozen dataclass at a third of its construction cost (one is made every cycle)."""
+@dataclass(frozen=True)
+class MonitorState:
+    """Everything carried from one cycle to the next (scipy ``zi`` style: in and out of ``process_cycle``)."""
 
     layout: ParameterLayout
     n_harmonics: int

@@ -229,7 +229,7 @@ def test_friction_estimate_matches_reference(name, seed):
         limits = ReportLimits(*args)
         got = friction_estimate(spec, layout, post, basis_mean, prior_mean, limits, rows)
         ref = friction_estimate_reference(spec, layout, post, basis_mean, prior_mean, *args, rows)
-        for f in FrictionEstimate._fields:
+        for f in FrictionEstimate.__dataclass_fields__:
             g, r = np.asarray(getattr(got, f)), np.asarray(getattr(ref, f))
             if r.dtype == bool:
                 assert_array_equal(g, r, err_msg=f)
@@ -240,7 +240,7 @@ def test_friction_estimate_matches_reference(name, seed):
         assert_allclose(got2.fmep_sigma, got.fmep_sigma, rtol=1e-14)
         # the monitor's call: the full posterior (friction first, then nuisances), its leading block reported
         got3 = friction_estimate(spec, layout, full, basis_mean, prior_mean, limits, rows)
-        for f in FrictionEstimate._fields:
+        for f in FrictionEstimate.__dataclass_fields__:
             g, r = np.asarray(getattr(got3, f)), np.asarray(getattr(got, f))
             assert_allclose(g, r, rtol=1e-14, err_msg=f) if r.dtype != bool else assert_array_equal(g, r, err_msg=f)
 
