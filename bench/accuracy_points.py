@@ -13,7 +13,6 @@ import argparse
 import json
 
 import numpy as np
-
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.monitor.monitor import initial_state, process_cycle
 from frictionwatch.core.plant.simulate import simulate

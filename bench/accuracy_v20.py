@@ -16,7 +16,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.monitor.monitor import initial_state, process_cycle
 from frictionwatch.core.plant.simulate import simulate

@@ -20,14 +20,14 @@ from __future__ import annotations
 import time
 
 import numpy as np
-
-from bench.common import as_blocks, assembler_for, timed_assembly
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.core.monitor.speed import cycle_speed
 from frictionwatch.core.monitor.speed_spacing import ToothSpacingLearner, engine_orders
 from frictionwatch.core.monitor.speed_stream import SpeedStreamState, design_stream_filter, speed_stream_update
+from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
+
+from bench.common import as_blocks, assembler_for, timed_assembly
 
 CYCLES = 60
 RPM = 1500.0

@@ -16,7 +16,6 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-
 from frictionwatch.drivers.can.decoder import CanDecoder
 from frictionwatch.drivers.can.encoder import PressureEncoder
 from frictionwatch.drivers.serial.codec import Decoder, Encoder

@@ -23,13 +23,20 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-from mcap.reader import make_reader
-from mcap.records import Schema
-
-from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
+from frictionwatch.core.types import (
+    AcquisitionInfo,
+    CamBatch,
+    LoadSample,
+    PressureBlock,
+    PressureFrame,
+    StreamRecord,
+    ToothBatch,
+)
 from frictionwatch.drivers.logs import mcap_schema as ms
 from frictionwatch.drivers.logs.mcap_log import DEFAULT_CHUNK_BYTES, Codec, LogReader, LogWriter, ProtobufCodec
 from frictionwatch.drivers.logs.mcap_schema import PressureCounts
+from mcap.reader import make_reader
+from mcap.records import Schema
 
 TICK_HZ = 10e6
 TARGET_X_REAL_TIME = 50  # issue 5: driver decode >= 50x the genset-v20 data rate on one core

@@ -42,15 +42,15 @@ import types  # noqa: E402
 from collections import deque  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-import numpy as np  # noqa: E402
-
 import frictionwatch.core.monitor.monitor as monitor_module  # noqa: E402
-from bench.common import assembler_for, summary_ms, timed_assembly  # noqa: E402
+import numpy as np  # noqa: E402
 from frictionwatch.core.model.engine import load_engine  # noqa: E402
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle  # noqa: E402
-from frictionwatch.core.plant.simulate import simulate  # noqa: E402
 from frictionwatch.core.monitor.speed import ToothSpacingLearner, cycle_speed, engine_orders  # noqa: E402
+from frictionwatch.core.plant.simulate import simulate  # noqa: E402
 from frictionwatch.service.pipeline import ResultHistory  # noqa: E402
+
+from bench.common import assembler_for, summary_ms, timed_assembly  # noqa: E402
 
 POINTS = (("deutz-1cyl", 3000.0, 1.0), ("k9k-4cyl", 4000.0, 1.0), ("genset-v20", 1500.0, 1.0))
 CYCLES = 120

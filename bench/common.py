@@ -6,7 +6,6 @@ import time
 from collections.abc import Iterable
 
 import numpy as np
-
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.types import AcquisitionInfo, Cycle, PressureFrame, StreamRecord
 from frictionwatch.drivers.assembly.cycles import CycleAssembler

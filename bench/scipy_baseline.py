@@ -31,16 +31,16 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from frictionwatch.core.model.dynamics import shaft_model
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.indicated import peak_pressure
+from frictionwatch.core.monitor.identify import ParameterLayout, parameter_layout
+from frictionwatch.core.monitor.priors import build_priors
+from frictionwatch.core.monitor.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
 from scipy.integrate import solve_ivp
 from scipy.optimize import least_squares
 
 from bench.scipy_measure import MeasuredCycle, angle_harmonics, on_angle_grid
-from frictionwatch.core.model.dynamics import shaft_model
-from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.identify import ParameterLayout, parameter_layout
-from frictionwatch.core.model.indicated import peak_pressure
-from frictionwatch.core.monitor.priors import build_priors
-from frictionwatch.core.monitor.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
 
 FOUR_PI = 4.0 * np.pi
 P_CC = 1.0e5  # crankcase pressure [Pa], as core.monitor.excitation

@@ -6,10 +6,10 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from frictionwatch.core.model.engine import EngineSpec
 
 from bench.scipy_baseline import ChainODE, identify_cycle, periodic_solution
 from bench.scipy_measure import measure
-from frictionwatch.core.model.engine import EngineSpec
 
 
 def monitor_noise(state, result, meas) -> tuple[np.ndarray | None, float | None]:

@@ -6,7 +6,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.flywheel import fit_flywheel, harmonic_series
 from frictionwatch.core.monitor.identify import tooth_patterns

@@ -33,13 +33,20 @@ from dataclasses import dataclass
 
 import can
 import numpy as np
-
-from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
+from frictionwatch.core.types import (
+    AcquisitionInfo,
+    CamBatch,
+    LoadSample,
+    PressureBlock,
+    PressureFrame,
+    StreamRecord,
+    ToothBatch,
+)
+from frictionwatch.drivers.assembly.pressure_ring import frame_blocks
 from frictionwatch.drivers.can.codec import FD_SAMPLES, SA_GENSET, encode_load
 from frictionwatch.drivers.can.decoder import CanDecoder
 from frictionwatch.drivers.can.encoder import PressureEncoder
 from frictionwatch.drivers.logs.mcap_schema import last_tick
-from frictionwatch.drivers.assembly.pressure_ring import frame_blocks
 from frictionwatch.drivers.serial.codec import CamFrame, Decoder, Encoder, TeethFrame
 from frictionwatch.drivers.timebase import TimerUnwrapper
 

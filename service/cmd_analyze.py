@@ -9,7 +9,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-
 from frictionwatch.service.pipeline import LogAnalysis, analyze_log
 from frictionwatch.service.progress import progress_bar
 

@@ -48,7 +48,15 @@ from typing import Self
 
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.results import CycleResult
-from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
+from frictionwatch.core.types import (
+    AcquisitionInfo,
+    CamBatch,
+    LoadSample,
+    PressureBlock,
+    PressureFrame,
+    StreamRecord,
+    ToothBatch,
+)
 from frictionwatch.drivers.errors import EndOfStream
 from frictionwatch.drivers.logs.recorder import Recorder
 from frictionwatch.drivers.source import Source

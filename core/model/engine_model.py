@@ -34,7 +34,6 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
-
 from frictionwatch.core.model.effects import (
     EFFECTS,
     Effect,

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-
 from frictionwatch.core.model.kinematics import kinematics_kernel
 
 

@@ -27,7 +27,6 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.kinematics import kinematics
 

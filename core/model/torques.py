@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-
 from frictionwatch.core.model.kinematics import cylinder_kinematics_kernel
 
 

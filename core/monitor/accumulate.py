@@ -22,7 +22,6 @@ from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg.lapack
-
 from frictionwatch.core.monitor.accumulate_kernels import cycle_terms_kernel, fold_kernel
 from frictionwatch.core.monitor.identify import bounded_solve_nnls
 from frictionwatch.core.monitor.posterior_kernels import (

@@ -26,7 +26,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from frictionwatch.core.model.kinematics import kinematics
 
 CYCLE = 4.0 * np.pi  # 4-stroke cycle angle [rad]

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
-
 from frictionwatch.core.model.dynamics import rigid_friction_torque
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.excitation import Excitation
 from frictionwatch.core.monitor.excitation_kernels import interp_rows_periodic
 from frictionwatch.core.monitor.flywheel import FlywheelMotion, harmonic_series, harmonics_of
-from frictionwatch.core.monitor.identify import CycleRows, ParameterLayout
 from frictionwatch.core.monitor.identification import Identification, MeanBalance
+from frictionwatch.core.monitor.identify import CycleRows, ParameterLayout
 from frictionwatch.core.monitor.report_kernels import TrigTables, report_traces, speed_series
 from frictionwatch.core.monitor.results import CycleResult
 from frictionwatch.core.types import Cycle

@@ -6,7 +6,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.accumulate import Posterior
 from frictionwatch.core.monitor.estimate_kernels import estimate_kernel

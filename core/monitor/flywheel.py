@@ -17,7 +17,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from frictionwatch.core.monitor.flywheel_kernels import (
     BAD_SPAN,
     NOT_INCREASING,

@@ -16,7 +16,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.accumulate import Accumulator, Posterior, ResidualStats, posterior_from_normal
 from frictionwatch.core.monitor.estimate import ReportLimits, friction_estimate

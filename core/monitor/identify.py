@@ -26,7 +26,6 @@ import numpy as np
 import scipy.linalg
 import scipy.linalg.lapack
 import scipy.optimize
-
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.terms import TermLibrary, rezeka_henein
 from frictionwatch.core.monitor.posterior_kernels import OK, as_vector, bounded_solve_kernel, lower_vector

@@ -31,7 +31,6 @@ import math
 from dataclasses import replace
 
 import numpy as np
-
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel, as_model
 from frictionwatch.core.model.indicated import peak_pressure

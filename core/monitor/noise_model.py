@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from frictionwatch.core.monitor.accumulate import ResidualStats
 from frictionwatch.core.monitor.flywheel import FlywheelMotion
 from frictionwatch.core.monitor.identify import CycleRows

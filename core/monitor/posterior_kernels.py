@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-
 from frictionwatch.core.monitor.spd_kernels import (  # noqa: F401  (cho_inverse, spd_inverse_into: the tests' handles)
     FASTMATH,
     cho_inverse,

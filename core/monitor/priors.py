@@ -12,9 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
-from frictionwatch.core.monitor.accumulate import Prior
 from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.monitor.accumulate import Prior
 from frictionwatch.core.monitor.identify import ParameterLayout
 from frictionwatch.core.monitor.sharing import SharedLoss
 from frictionwatch.core.monitor.sharing_kernels import share_rows_kernel

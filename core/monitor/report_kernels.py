@@ -17,7 +17,6 @@ import numba
 import numpy as np
 
 
-
 @dataclass(frozen=True)
 class TrigTables:
     """table (2, m, n): cos and sin of 2 pi (h k mod n) / n for harmonics h = 1..m and samples k = 0..n-1

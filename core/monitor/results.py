@@ -17,7 +17,6 @@ from functools import cached_property
 
 import numpy as np
 
-
 PA_PER_BAR = 1e5
 
 
@@ -107,7 +106,9 @@ class CycleResult:
         ``friction_torque`` is their sum up to rounding."""
         if self.friction_torque_cyl_time is None or self.grid is None or self.time_angles is None:
             return None
-        from frictionwatch.core.monitor.report_kernels import rows_on_grid  # numba kernels: loaded when a trace is first wanted
+        from frictionwatch.core.monitor.report_kernels import (
+            rows_on_grid,  # numba kernels: loaded when a trace is first wanted
+        )
 
         out = np.empty((self.friction_torque_cyl_time.shape[0], self.grid.shape[0]))
         rows_on_grid(self.grid, self.time_angles, self.friction_torque_cyl_time, out)

@@ -29,8 +29,11 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-
-from frictionwatch.core.monitor.speed_spacing import SpacingState, ToothSpacingLearner, engine_orders  # re-exported: one speed API
+from frictionwatch.core.monitor.speed_spacing import (  # re-exported: one speed API
+    SpacingState,
+    ToothSpacingLearner,
+    engine_orders,
+)
 from frictionwatch.core.types import Cycle
 
 FOUR_PI = 4.0 * np.pi

@@ -23,7 +23,6 @@ from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
-
 from frictionwatch.core.monitor.speed import FOUR_PI, CycleSpeed, pitch_samples, tooth_speed, wheel_of
 from frictionwatch.core.types import Cycle
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from frictionwatch.core.monitor.accumulate import Accumulator, ResidualStats
 from frictionwatch.core.monitor.flywheel import ToothLearner
 from frictionwatch.core.monitor.harmonic_balance import OperatingPoint

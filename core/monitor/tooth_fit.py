@@ -15,7 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
 from frictionwatch.core.monitor.flywheel import FlywheelMotion, ToothLearner
 from frictionwatch.core.monitor.flywheel_kernels import BAD_SPAN, NOT_INCREASING, OK
 from frictionwatch.core.monitor.identify import tooth_patterns

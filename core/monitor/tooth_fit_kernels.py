@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-
 from frictionwatch.core.monitor.flywheel_kernels import (
     FOUR_PI,
     OK,

@@ -38,10 +38,9 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
-from numba.core.errors import NumbaExperimentalFeatureWarning
-
 from frictionwatch.core.model.terms import N_FIELDS, fill_sample, sample_rows
 from frictionwatch.core.model.thermo import cycle_pressure_kernel
+from numba.core.errors import NumbaExperimentalFeatureWarning
 
 # the library's kernels reach the RK4 kernel as a tuple of first-class functions of one signature (numba calls that
 # feature experimental; it is what lets one cached plant kernel serve any term library): said once here, not to a user

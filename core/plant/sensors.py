@@ -12,7 +12,6 @@ start of output cycle 0.
 from __future__ import annotations
 
 import numpy as np
-
 from frictionwatch.core.model.engine import SensorParams
 from frictionwatch.core.types import CamBatch, LoadSample, PressureFrame, StreamRecord, ToothBatch
 

@@ -10,9 +10,9 @@ Seddak's c = 0, s = 1 case); grid T_L0 = T_b and delta_0 = mean rotor angle. Log
 from __future__ import annotations
 
 import numpy as np
-
 from frictionwatch.core.model.effects import SensorSetup
 from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.thermo import CylinderModel
 from frictionwatch.core.plant.plant import (
     FOUR_PI,
     I_N_CAM,
@@ -60,7 +60,6 @@ from frictionwatch.core.plant.sensors import (
     to_ticks,
     tooth_errors,
 )
-from frictionwatch.core.model.thermo import CylinderModel
 from frictionwatch.core.types import AcquisitionInfo
 
 FAR = 1 << 50  # event index that never fires

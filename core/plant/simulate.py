@@ -25,11 +25,10 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import eigh
-
 from frictionwatch.core.model.effects import ChainSetup, CylinderSetup, Effect, LoadSetup, SensorSetup
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel
+from frictionwatch.core.model.thermo import charge_pressures, cylinder_model
 from frictionwatch.core.plant.operating_point import (
     engine_brake_torque,
     fuel_for_load,
@@ -40,8 +39,8 @@ from frictionwatch.core.plant.operating_point import (
 from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, static_twist
 from frictionwatch.core.plant.sim_run import PlantRun
 from frictionwatch.core.plant.sim_truth import build_truth
-from frictionwatch.core.model.thermo import charge_pressures, cylinder_model
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
+from scipy.linalg import eigh
 
 STEP_DEG = 0.25  # integrator step at the mean speed (capped by the fastest mode)
 SETTLE_A_CYCLES = 6  # governed settle (dyno law re-tuned per cycle; grid mode damped), deterministic combustion

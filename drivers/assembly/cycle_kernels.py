@@ -12,7 +12,6 @@ import math
 
 import numba
 import numpy as np
-
 from frictionwatch.drivers.assembly.resample import pchip_eval_kernel
 
 _DEG = math.pi / 180.0  # np.radians(x) is x * (pi / 180)

@@ -12,7 +12,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-
 from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
 from frictionwatch.drivers.assembly.frame_store import FrameChannel, FrameGroup
 from frictionwatch.drivers.assembly.pressure_kernels import ROW_NAN, ROW_OK, pressure_row

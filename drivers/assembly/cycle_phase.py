@@ -10,7 +10,6 @@ import math
 from collections import Counter
 
 import numpy as np
-
 from frictionwatch.drivers.assembly.cycle_parts import Epoch, Segment, Wheel
 from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
 

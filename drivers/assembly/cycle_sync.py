@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
 from frictionwatch.drivers.assembly.cycle_parts import (
     Epoch,
     Segment,

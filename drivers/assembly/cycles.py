@@ -21,7 +21,6 @@ from collections import Counter, deque
 from dataclasses import dataclass
 
 import numpy as np
-
 from frictionwatch.core.types import (
     AcquisitionInfo,
     CamBatch,

@@ -22,7 +22,6 @@ import math
 from collections import Counter
 
 import numpy as np
-
 from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 from frictionwatch.drivers.assembly.frame_store import FrameGroup
 from frictionwatch.drivers.assembly.pressure_ring import PressureChannel, PressureGroup, write_frame

@@ -15,13 +15,12 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from frictionwatch.drivers.assembly.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, window_weights
+from frictionwatch.drivers.assembly.ringbuffer import sorts_before
 from llvmlite import ir
 from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
-
-from frictionwatch.drivers.assembly.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, window_weights
-from frictionwatch.drivers.assembly.ringbuffer import sorts_before
 
 
 @intrinsic

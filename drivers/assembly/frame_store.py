@@ -17,11 +17,10 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from numba.typed import List
-
 from frictionwatch.drivers.assembly.frame_kernels import chunk_search, chunk_times, chunk_values, frame_rows
 from frictionwatch.drivers.assembly.pressure_ring import PressureChannel
 from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
+from numba.typed import List
 
 
 class FrameGroup:

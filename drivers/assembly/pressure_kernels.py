@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-
 from frictionwatch.drivers.assembly.resample import CHECK_HOLE, CHECK_NAN, interp_checked_kernel
 from frictionwatch.drivers.assembly.ringbuffer import search_sorted
 

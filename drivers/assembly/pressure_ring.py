@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-
 from frictionwatch.core.types import PressureBlock, PressureFrame
 from frictionwatch.drivers.assembly.pressure_kernels import pressure_rows
 from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, search_sorted

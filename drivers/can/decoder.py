@@ -20,7 +20,6 @@ from collections.abc import Callable, Iterable, Sequence
 
 import can
 import numpy as np
-
 from frictionwatch.core.types import LoadSample, PressureBlock, StreamRecord
 from frictionwatch.drivers.can.codec import (
     CLASSIC_SAMPLES,

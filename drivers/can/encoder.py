@@ -12,16 +12,15 @@ import math
 
 import can
 import numpy as np
-
 from frictionwatch.drivers.can.codec import (
     CLASSIC_SAMPLES,
     FD_SAMPLES,
     FLAG_RESTART,
     RAW_SATURATED,
-    pressure_counts,
     encode_pressure_classic,
     encode_pressure_ref,
     layouts,
+    pressure_counts,
 )
 
 

@@ -15,7 +15,6 @@ import time
 from typing import Any
 
 import can
-
 from frictionwatch.core.types import StreamRecord
 from frictionwatch.drivers.backoff import Backoff, ReconnectingLink
 from frictionwatch.drivers.can.decoder import CanDecoder

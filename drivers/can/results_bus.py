@@ -20,7 +20,6 @@ from dataclasses import dataclass
 import can
 import cantools
 import numpy as np
-
 from frictionwatch.drivers.can.codec import (
     J1939_PRIORITY,
     PGN_RESULTS,

@@ -29,7 +29,6 @@ from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
-
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.drivers.daq.teeth import TURN_BREAK
 

@@ -31,7 +31,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-
 from frictionwatch.core.model.engine import EngineSpec, load_engine
 from frictionwatch.core.types import AcquisitionInfo, PressureBlock, StreamRecord, ToothBatch
 from frictionwatch.drivers.daq.pressure import (

@@ -17,7 +17,6 @@ import math
 from fractions import Fraction
 
 import numpy as np
-
 from frictionwatch.core.types import CamBatch, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 
 

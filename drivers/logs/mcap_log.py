@@ -21,13 +21,20 @@ from collections import Counter
 from pathlib import Path
 from typing import Any, Self
 
-import numpy as np
-from mcap.writer import CompressionType, Writer
-
-from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 import frictionwatch.drivers.logs.mcap_schema as ms
+import numpy as np
+from frictionwatch.core.types import (
+    AcquisitionInfo,
+    CamBatch,
+    LoadSample,
+    PressureBlock,
+    PressureFrame,
+    StreamRecord,
+    ToothBatch,
+)
 from frictionwatch.drivers.logs.mcap_batching import Batcher
 from frictionwatch.drivers.logs.mcap_reader import Codec, LogReader, ProtobufCodec
+from mcap.writer import CompressionType, Writer
 
 DEFAULT_CHUNK_BYTES = 128 * 1024  # uncompressed; ~0.12 s of genset-v20 data: the most one damaged chunk loses
 DEFAULT_BATCH_S = 0.01  # records are joined / split into messages of about this span

@@ -16,12 +16,11 @@ from collections.abc import Callable, Hashable, Iterator
 from pathlib import Path
 from typing import Any, Protocol, Self
 
-from mcap.records import Channel, Schema
-
-from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 import frictionwatch.drivers.logs.mcap_schema as ms
+from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 from frictionwatch.drivers.errors import CorruptLog
 from frictionwatch.drivers.logs.mcap_scan import ChunkRef, chunk_records, scan
+from mcap.records import Channel, Schema
 
 log = logging.getLogger(__name__)
 

@@ -18,10 +18,17 @@ from collections.abc import Callable
 from fractions import Fraction
 
 import numpy as np
+from frictionwatch.core.types import (
+    AcquisitionInfo,
+    CamBatch,
+    LoadSample,
+    PressureBlock,
+    PressureFrame,
+    StreamRecord,
+    ToothBatch,
+)
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.message import DecodeError
-
-from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 
 FORMAT = "frictionwatch.replay/1"
 PACKAGE = "frictionwatch"

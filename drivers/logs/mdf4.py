@@ -17,7 +17,6 @@ from pathlib import Path
 import can
 import cantools
 import numpy as np
-
 from frictionwatch.core.types import StreamRecord
 from frictionwatch.drivers.can.codec import j1939_pgn
 from frictionwatch.drivers.can.decoder import CanDecoder

@@ -20,7 +20,6 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
-
 from frictionwatch.drivers.sequence import SequenceTracker
 from frictionwatch.drivers.timebase import TimerUnwrapper
 

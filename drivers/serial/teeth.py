@@ -18,7 +18,6 @@ from typing import Any
 
 import numpy as np
 import serial
-
 from frictionwatch.core.types import AcquisitionInfo, CamBatch, StreamRecord, ToothBatch
 from frictionwatch.drivers.backoff import Backoff, ReconnectingLink
 from frictionwatch.drivers.serial.codec import CamFrame, Decoder, Frame, InfoFrame, TeethFrame

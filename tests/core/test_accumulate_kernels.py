@@ -9,10 +9,9 @@ the largest entry (a few roundings of a 49-term sum), and exactly symmetric.
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose, assert_array_equal
-
 from frictionwatch.core.monitor.accumulate import Accumulator, CycleTerms
 from frictionwatch.core.monitor.accumulate_kernels import cycle_terms_kernel
+from numpy.testing import assert_allclose, assert_array_equal
 
 SIZES = {"genset-v20": (49, 47), "k9k-4cyl": (47, 29), "deutz-1cyl": (47, 28)}
 

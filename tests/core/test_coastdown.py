@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
-from frictionwatch.core.monitor import coastdown as cd
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import cylinder_volume, kinematics
+from frictionwatch.core.monitor import coastdown as cd
+from numpy.testing import assert_allclose
 
 ENG = load_engine("tue-4gb10")
 PAR = ENG.kinematics_params()

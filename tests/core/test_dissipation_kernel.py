@@ -4,10 +4,9 @@ with seeded speed harmonics. The kernel sums in loop order, numpy pairwise: equa
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.model.dynamics import dissipated_power, shaft_model
 from frictionwatch.core.model.engine import load_engine
+from numpy.testing import assert_allclose
 
 
 def dissipated_power_reference(shaft, speed):

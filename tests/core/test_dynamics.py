@@ -10,8 +10,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import scipy.linalg
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.model.dynamics import (
     dissipated_power,
     first_flexible_mode_hz,
@@ -23,10 +21,11 @@ from frictionwatch.core.model.dynamics import (
     shaft_model,
 )
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.flywheel import fit_flywheel, harmonic_series, harmonics_of
-from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
 from frictionwatch.core.model.kinematics import kinematics, variable_inertia
+from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
 from frictionwatch.core.model.torques import gas_torque
+from frictionwatch.core.monitor.flywheel import fit_flywheel, harmonic_series, harmonics_of
+from numpy.testing import assert_allclose
 
 
 def friction_basis(theta, omega, p_gauge, consts):

@@ -4,8 +4,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.model.effects import (
     EFFECTS,
     CylinderSetup,
@@ -18,9 +16,10 @@ from frictionwatch.core.model.effects import (
 )
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.terms import rezeka_henein
-from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.core.model.thermo import cycle_params, cylinder_model, cylinder_pressure, imep
+from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.core.types import PressureFrame
+from numpy.testing import assert_allclose
 
 # ---- registry, parsing, instances ----------------------------------------------------------------------------------
 

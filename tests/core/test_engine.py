@@ -4,9 +4,8 @@ import math
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.model.engine import SpecError, available_presets, load_engine, spec_from_toml_text
+from numpy.testing import assert_allclose
 
 
 def test_presets_and_displacements():

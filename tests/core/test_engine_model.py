@@ -5,8 +5,6 @@ import json
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.model.effects import (
     ExtraFriction,
     LoadRipple,
@@ -19,6 +17,7 @@ from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.terms import TermLibrary, cylinder_samples
 from frictionwatch.core.plant.simulate import simulate
+from numpy.testing import assert_allclose
 
 SPEC = load_engine("k9k-4cyl")
 

@@ -4,9 +4,8 @@ against an SVD least squares."""
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.monitor.flywheel import fit_flywheel
+from numpy.testing import assert_allclose
 
 
 @pytest.mark.parametrize("seed", [0, 1])

@@ -5,14 +5,13 @@ linearity of the flywheel speed in the coefficients (physics.md §12.2)."""
 import numpy as np
 import pytest
 import scipy.optimize
-from numpy.testing import assert_allclose
-
-from frictionwatch.core.monitor.accumulate import Accumulator, Prior, ResidualStats, solve_posterior
 from frictionwatch.core.model.dynamics import receptance, shaft_model
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
+from frictionwatch.core.monitor.accumulate import Accumulator, Prior, ResidualStats, solve_posterior
 from frictionwatch.core.monitor.identify import bounded_solve, friction_design, p_omega_fit, parameter_layout
 from frictionwatch.core.monitor.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
+from numpy.testing import assert_allclose
 
 
 def friction_basis(theta, omega, p_gauge, consts):

@@ -1,11 +1,10 @@
 """IMEP and peak pressure against a plain-numpy reference and a closed-form case."""
 
 import numpy as np
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.indicated import net_imep, peak_pressure
 from frictionwatch.core.model.kinematics import cylinder_volume
+from numpy.testing import assert_allclose
 
 
 def test_imep_matches_numpy_trapezoid_of_p_dv():

@@ -2,12 +2,11 @@
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.model.engine import available_presets, load_engine
-from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
 from frictionwatch.core.model.kinematics import kinematics, variable_inertia
+from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
 from frictionwatch.core.model.torques import gas_torque, mass_torque, reciprocating_torque
+from numpy.testing import assert_allclose
 
 
 def friction_basis(theta, omega, p_gauge, consts):

@@ -13,7 +13,6 @@ from types import MappingProxyType
 
 import numpy as np
 import pytest
-
 from frictionwatch.core.model import EngineModel, LossTerm, load_engine, loss_kernel
 from frictionwatch.core.model.effects import CylinderSetup, Effect, Param
 from frictionwatch.core.model.terms import ANGLE

@@ -7,12 +7,11 @@ import json
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.monitor.monitor import CycleRejected, MonitorConfig, initial_state, process_cycle
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from numpy.testing import assert_allclose
 
 SPEC = load_engine("k9k-4cyl")
 

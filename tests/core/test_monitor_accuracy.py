@@ -16,7 +16,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
-
 from frictionwatch.core.model.engine import EngineSpec, load_engine
 from frictionwatch.core.monitor.monitor import MonitorConfig, initial_state, process_cycle
 from frictionwatch.core.monitor.results import CycleResult

@@ -7,8 +7,6 @@ and for nothing else. Masks and interpolation (no sums) are compared exactly."""
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose, assert_array_equal
-
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.monitor.accumulate import Posterior, ResidualStats
 from frictionwatch.core.monitor.estimate import ReportLimits, friction_estimate
@@ -19,6 +17,7 @@ from frictionwatch.core.monitor.priors import PriorNormal
 from frictionwatch.core.monitor.report_kernels import report_traces, rows_on_grid, speed_power, speed_residual
 from frictionwatch.core.monitor.results import FrictionEstimate
 from frictionwatch.core.monitor.sharing import SharedLoss, firing_mask, share_mean_loss
+from numpy.testing import assert_allclose, assert_array_equal
 
 FOUR_PI = 4.0 * np.pi
 SIZES = (("genset-v20", 24, 512), ("k9k-4cyl", 16, 256), ("deutz-1cyl", 12, 128))  # engine, M, n_t

@@ -6,12 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.model.engine import spec_from_toml_text
 from frictionwatch.core.monitor.monitor import initial_state, process_cycle
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 from frictionwatch.drivers.logs.mcap_log import LogReader
+from numpy.testing import assert_allclose
 
 LOGS = Path(__file__).resolve().parents[2] / "replay_logs"
 ENGINES = ("deutz-1cyl", "maruti-3cyl", "k9k-4cyl")

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from frictionwatch.core.model.indicated import peak_pressure
 
 

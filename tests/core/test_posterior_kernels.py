@@ -19,11 +19,10 @@ full natural-order Cholesky factor's.
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose, assert_array_equal
-
 from frictionwatch.core.monitor import posterior_kernels as pk
 from frictionwatch.core.monitor.accumulate import Accumulator, posterior_from_normal, posterior_from_normal_reference
 from frictionwatch.core.monitor.identify import bounded_solve, bounded_solve_nnls
+from numpy.testing import assert_allclose, assert_array_equal
 
 SIZES = {"genset-v20": (47, 24, 49), "k9k-4cyl": (29, 24, 47), "deutz-1cyl": (28, 22, 47)}
 FIELDS = ("params", "covariance", "cov_statistical", "chi2_reduced", "weight", "cov_reference")

@@ -5,10 +5,9 @@ Tolerance: the direct sums differ from the FFT by rounding, 1e-13 of the series'
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.monitor.flywheel import harmonic_series
 from frictionwatch.core.monitor.report_kernels import speed_power, speed_residual, speed_series, trig_tables
+from numpy.testing import assert_allclose
 
 
 def speed_series_reference(design, target, theta, p_f, drift, use_drift, freq, harmonics, omega_fly):

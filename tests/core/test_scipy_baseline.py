@@ -8,6 +8,13 @@ speed and accuracy on the default realistic logs are `make bench` matters (bench
 
 import numpy as np
 import pytest
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.kinematics import kinematics
+from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
+from frictionwatch.core.monitor.identify import parameter_layout
+from frictionwatch.core.monitor.monitor import initial_state, process_cycle
+from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.drivers.assembly.cycles import CycleAssembler
 from numpy.testing import assert_allclose
 
 from bench.scipy_baseline import (
@@ -20,13 +27,6 @@ from bench.scipy_baseline import (
 )
 from bench.scipy_compare import monitor_noise
 from bench.scipy_measure import angle_harmonics, measure
-from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
-from frictionwatch.core.monitor.identify import parameter_layout
-from frictionwatch.core.model.kinematics import kinematics
-from frictionwatch.core.monitor.monitor import initial_state, process_cycle
-from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
 
 
 def friction_basis(theta, omega, p_gauge, consts):

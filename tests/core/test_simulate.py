@@ -4,11 +4,10 @@ import json
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.core.types import CamBatch, LoadSample, PressureFrame, ToothBatch
+from numpy.testing import assert_allclose
 
 
 @pytest.fixture(scope="module")

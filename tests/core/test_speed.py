@@ -3,9 +3,15 @@ motions (tests/drivers/synth_stream.py) and the plant simulator. Numbers cite ph
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
-from frictionwatch.core.monitor.speed import FOUR_PI, cycle_speed, drift_from_means, lowpass_cycle, pitch_samples, tooth_average, tooth_speed
+from frictionwatch.core.monitor.speed import (
+    FOUR_PI,
+    cycle_speed,
+    drift_from_means,
+    lowpass_cycle,
+    pitch_samples,
+    tooth_average,
+    tooth_speed,
+)
 from frictionwatch.core.monitor.speed_spacing import ToothSpacingLearner, engine_orders, rev_deviation
 from frictionwatch.core.monitor.speed_stream import (
     SpeedStreamState,
@@ -15,6 +21,8 @@ from frictionwatch.core.monitor.speed_stream import (
     speed_stream_update,
     speed_whole,
 )
+from numpy.testing import assert_allclose
+
 from tests.drivers.synth_stream import AngleMotion, Motion
 
 TWO_PI = 2 * np.pi

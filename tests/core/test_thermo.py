@@ -4,9 +4,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-from scipy.integrate import solve_ivp
-
 from frictionwatch.core.model.engine import available_presets, load_engine
 from frictionwatch.core.model.thermo import (
     N_MOTORED,
@@ -19,6 +16,8 @@ from frictionwatch.core.model.thermo import (
     cylinder_pressure,
     imep,
 )
+from numpy.testing import assert_allclose
+from scipy.integrate import solve_ivp
 
 
 def rpm_to_omega(rpm):

@@ -9,7 +9,6 @@ import numba
 import numpy as np
 import pytest
 import scipy.linalg
-
 from frictionwatch.core.monitor.flywheel import FitSetup, ToothLearner, fit_prepared, prepare_fit
 from frictionwatch.core.monitor.identify import tooth_patterns
 from frictionwatch.core.monitor.tooth_fit import fit_cycle_teeth

@@ -3,10 +3,9 @@ assembly of the same lumped chain) and against engines.md §2's CHK table where 
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.model.dynamics import natural_frequencies, shaft_model
 from frictionwatch.core.model.engine import available_presets, load_engine
+from numpy.testing import assert_allclose
 
 ot = pytest.importorskip("opentorsion")
 

@@ -6,8 +6,15 @@ import itertools
 from pathlib import Path
 
 import numpy as np
-
-from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
+from frictionwatch.core.types import (
+    AcquisitionInfo,
+    CamBatch,
+    LoadSample,
+    PressureBlock,
+    PressureFrame,
+    StreamRecord,
+    ToothBatch,
+)
 
 ENGINE_TOML = (Path(__file__).resolve().parents[2] / "core" / "model" / "engines" / "k9k-4cyl.toml").read_text()
 INFO = AcquisitionInfo(

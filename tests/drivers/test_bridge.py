@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, ToothBatch
 from frictionwatch.drivers.bridge import CAN, SERIAL, can_events, received_records, serial_events, wire_events
 from frictionwatch.drivers.can.codec import layouts

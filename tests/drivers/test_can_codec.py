@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-
 from frictionwatch.drivers.can.codec import (
     FD_SAMPLES,
     PGN_LOAD,

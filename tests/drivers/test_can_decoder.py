@@ -11,14 +11,19 @@ import math
 
 import can
 import numpy as np
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
 from frictionwatch.core.types import LoadSample, PressureBlock
-from frictionwatch.drivers.can.codec import encode_load, encode_pressure_classic, encode_pressure_fd, encode_pressure_ref, j1939_id
+from frictionwatch.drivers.can.codec import (
+    encode_load,
+    encode_pressure_classic,
+    encode_pressure_fd,
+    encode_pressure_ref,
+    j1939_id,
+)
 from frictionwatch.drivers.can.decoder import CanDecoder
 from frictionwatch.drivers.can.encoder import PressureEncoder
 from frictionwatch.drivers.timebase import REBASE_GAP
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 FUZZ = settings(max_examples=100, deadline=None, derandomize=True)
 PERIOD = 10e6 / 48e3  # 48 kHz at 10 MHz: a non-integer period, 208.33 ticks

@@ -9,7 +9,6 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-
 from frictionwatch.core.types import LoadSample, PressureBlock
 from frictionwatch.drivers.backoff import Backoff
 from frictionwatch.drivers.can.codec import encode_load

@@ -7,11 +7,10 @@ import math
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose, assert_array_equal
-
 from frictionwatch.drivers.assembly.cycle_kernels import cycle_edges
 from frictionwatch.drivers.assembly.cycle_parts import Segment, Wheel
 from frictionwatch.drivers.assembly.resample import pchip_eval
+from numpy.testing import assert_allclose, assert_array_equal
 
 FOUR_PI = 4.0 * math.pi
 

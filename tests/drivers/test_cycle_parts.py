@@ -9,12 +9,11 @@ from operator import itemgetter
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose, assert_array_equal
-
 from frictionwatch.core.types import LoadSample
 from frictionwatch.drivers.assembly.cycle_parts import Segment, Wheel, load_mean
 from frictionwatch.drivers.assembly.cycle_phase import PHASE_RATIO, cycle_votes, firing_verdict, phase_windows
 from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
+from numpy.testing import assert_allclose, assert_array_equal
 
 
 def ordinal_reference(w: Wheel, pos):

@@ -9,13 +9,13 @@ import math
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose, assert_array_equal
-from scipy.interpolate import PchipInterpolator
-
 from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, ToothBatch
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 from frictionwatch.drivers.assembly.resample import interp_sorted, pchip_eval
 from frictionwatch.drivers.assembly.wheel_sync import WheelTracker
+from numpy.testing import assert_allclose, assert_array_equal
+from scipy.interpolate import PchipInterpolator
+
 from tests.drivers.synth_stream import Motion, Stream
 
 FOUR_PI = 4 * np.pi

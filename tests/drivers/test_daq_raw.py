@@ -13,8 +13,6 @@ from collections import Counter
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import cylinder_volume as core_volume
 from frictionwatch.core.types import AcquisitionInfo, PressureBlock, ToothBatch
@@ -27,6 +25,7 @@ from frictionwatch.drivers.daq.pressure import (
 from frictionwatch.drivers.daq.raw import daq_to_records, process_daq, read_daq_table
 from frictionwatch.drivers.daq.teeth import detect_teeth, hysteresis_edges, sync_wheel
 from frictionwatch.drivers.errors import CorruptLog
+from numpy.testing import assert_allclose
 
 FS = 100e3  # sample rate [Hz]
 LOW, HIGH = -0.75, 3.5

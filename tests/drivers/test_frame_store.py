@@ -8,11 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose, assert_array_equal
-
 from frictionwatch.drivers.assembly.frame_store import FrameChannel, FrameGroup
 from frictionwatch.drivers.assembly.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, pressure_rows
 from frictionwatch.drivers.assembly.pressure_ring import PressureGroup, write_frame
+from numpy.testing import assert_allclose, assert_array_equal
 
 
 def file_both(ring: PressureGroup, group: FrameGroup, t0: float, period: float, values: np.ndarray, first: int):

@@ -5,9 +5,9 @@ from __future__ import annotations
 from fractions import Fraction
 
 import numpy as np
-
 from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, ToothBatch
 from frictionwatch.drivers.logs.mcap_batching import Batcher
+
 from tests.drivers.mcap_corpus import assert_same_streams
 
 

@@ -13,6 +13,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from frictionwatch.core.types import CamBatch, PressureBlock, ToothBatch
+from frictionwatch.drivers.errors import CorruptLog
+from frictionwatch.drivers.logs import mcap_schema as ms
+from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from mcap.data_stream import ReadDataStream
@@ -20,10 +24,6 @@ from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 
-from frictionwatch.core.types import CamBatch, PressureBlock, ToothBatch
-from frictionwatch.drivers.logs import mcap_schema as ms
-from frictionwatch.drivers.errors import CorruptLog
-from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
 from tests.drivers.mcap_corpus import ENGINE_TOML, INFO, corpus
 
 

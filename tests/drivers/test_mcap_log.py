@@ -7,15 +7,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, ToothBatch
+from frictionwatch.drivers.logs import mcap_schema as ms
+from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
 from google.protobuf import descriptor_pb2
 from mcap.reader import make_reader
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import Writer
 from mcap_protobuf.decoder import DecoderFactory
 
-from frictionwatch.core.types import AcquisitionInfo, CamBatch, LoadSample, PressureBlock, PressureFrame, ToothBatch
-from frictionwatch.drivers.logs import mcap_schema as ms
-from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
 from tests.drivers.mcap_corpus import ENGINE_TOML, INFO, assert_same_streams, corpus
 
 

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from frictionwatch.core.types import ToothBatch
 from frictionwatch.drivers.logs.mcap_log import LogReader
 from frictionwatch.drivers.logs.recorder import Recorder
+
 from tests.drivers.mcap_corpus import ENGINE_TOML, INFO, assert_same_streams, corpus, streams
 
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
 from frictionwatch.drivers.errors import CorruptLog, EndOfStream
 from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
 from frictionwatch.drivers.logs.mcap_replay import McapSource
 from frictionwatch.drivers.source import open_source
+
 from tests.drivers.mcap_corpus import ENGINE_TOML, INFO, assert_same_streams, corpus
 
 

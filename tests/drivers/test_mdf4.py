@@ -9,9 +9,6 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
 from frictionwatch.core.types import LoadSample, PressureBlock
 from frictionwatch.drivers.can.codec import encode_load
 from frictionwatch.drivers.can.decoder import CanDecoder
@@ -19,6 +16,8 @@ from frictionwatch.drivers.can.encoder import PressureEncoder
 from frictionwatch.drivers.errors import CorruptLog, EndOfStream
 from frictionwatch.drivers.logs.mdf4 import CanFrames, Mdf4Source, decode_signals, iter_messages, read_can_frames
 from frictionwatch.drivers.source import open_source
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 CSS = Path(__file__).resolve().parents[2] / "../shared/realdata/css-canedge-j1939-mf4"
 TRUCK = CSS / "truck_j1939_idle_00000001.MF4"

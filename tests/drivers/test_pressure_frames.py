@@ -12,14 +12,21 @@ import logging
 
 import numpy as np
 import pytest
-
 from frictionwatch.core.types import Cycle, PressureBlock, PressureFrame, ToothBatch
-from frictionwatch.drivers.bridge import can_events
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
-from frictionwatch.drivers.assembly.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, pressure_row, pressure_rows
-from frictionwatch.drivers.assembly.pressure_ring import PressureGroup, write_frame, frame_blocks
+from frictionwatch.drivers.assembly.pressure_kernels import (
+    ROW_HOLE,
+    ROW_MISSING,
+    ROW_NAN,
+    ROW_OK,
+    pressure_row,
+    pressure_rows,
+)
+from frictionwatch.drivers.assembly.pressure_ring import PressureGroup, frame_blocks, write_frame
 from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, write_block
+from frictionwatch.drivers.bridge import can_events
+
 from tests.drivers.synth_stream import Motion, Stream
 
 GENSET_FIRING = (0.0, 36.0, 216.0, 252.0, 72.0, 108.0, 288.0, 324.0, 144.0, 180.0,

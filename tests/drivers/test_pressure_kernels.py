@@ -3,10 +3,9 @@
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.drivers.assembly.cycle_parts import pressure_on_grid
 from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
+from numpy.testing import assert_allclose
 
 
 def pressure_on_grid_reference(ring: RingBuffer, grid: np.ndarray):

@@ -10,11 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from google.protobuf import descriptor_pb2
-
 from frictionwatch.core.types import AcquisitionInfo, LoadSample, PressureBlock, PressureFrame, ToothBatch
 from frictionwatch.drivers.logs import mcap_schema as ms
 from frictionwatch.drivers.logs.mcap_log import LogReader
+from google.protobuf import descriptor_pb2
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "replay-format.md"
 F = descriptor_pb2.FieldDescriptorProto

@@ -10,11 +10,10 @@ from collections import Counter
 import can
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
 from frictionwatch.drivers.can.codec import j1939_pgn, load_dbc
 from frictionwatch.drivers.can.results_bus import ResultsPublisher, decode_results, encode_results
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 _channels = itertools.count()
 

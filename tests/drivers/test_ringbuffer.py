@@ -5,11 +5,10 @@ from collections import deque
 
 import numpy as np
 import pytest
-from numpy.testing import assert_array_equal
-
 from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, ToothBatch
 from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
 from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
+from numpy.testing import assert_array_equal
 
 
 def test_matches_a_bounded_deque_over_random_batches():

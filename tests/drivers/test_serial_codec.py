@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
 from frictionwatch.drivers.serial.codec import (
     FLAG_BOOT,
     FLAG_OVERFLOW,
@@ -25,6 +22,8 @@ from frictionwatch.drivers.serial.codec import (
     encode_teeth,
 )
 from frictionwatch.drivers.timebase import REBASE_GAP
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 WRAP = 1 << 32
 FUZZ = settings(max_examples=150, deadline=None, derandomize=True)

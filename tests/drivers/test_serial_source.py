@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from frictionwatch.core.types import CamBatch, ToothBatch
 from frictionwatch.drivers.backoff import Backoff
 from frictionwatch.drivers.serial.codec import Encoder

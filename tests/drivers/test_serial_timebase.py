@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
 from frictionwatch.drivers.backoff import Backoff
 from frictionwatch.drivers.sequence import SequenceTracker
 from frictionwatch.drivers.timebase import REBASE_GAP, TimerUnwrapper, forget_shared, shared_unwrapper
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 WRAP = 1 << 32
 

@@ -3,10 +3,9 @@ bar for the two cycles, BMEP 7.85 bar, FMEP ~0.85 bar)."""
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.indicated import net_imep, peak_pressure
+from numpy.testing import assert_allclose
 
 openpyxl = pytest.importorskip("openpyxl")
 

@@ -2,10 +2,9 @@
 FMEP = IMEP - BMEP (README: BMEP 4.19 bar, FMEP ~1.5 bar)."""
 
 import numpy as np
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.indicated import net_imep, peak_pressure
+from numpy.testing import assert_allclose
 
 FOLDER = "polito-diesel-4cyl-1600rpm"
 

@@ -5,7 +5,6 @@ agrees with the DAQ reader's own (TDC-centred) cycles."""
 
 import numpy as np
 import pytest
-
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.indicated import net_imep
 from frictionwatch.drivers.daq.raw import daq_to_records, process_daq, read_daq_table

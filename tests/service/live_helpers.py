@@ -18,7 +18,6 @@ from pathlib import Path
 
 import numpy as np
 from can.interfaces import virtual
-
 from frictionwatch.core.model.engine import EngineSpec, load_engine
 from frictionwatch.core.monitor.results import CycleResult
 from frictionwatch.core.plant.simulate import SimResult, simulate

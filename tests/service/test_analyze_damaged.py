@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from mcap.reader import make_reader
-
 from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
 from frictionwatch.drivers.logs.mcap_schema import last_tick
 from frictionwatch.service.cli import main
 from frictionwatch.service.pipeline import analyze_log
+from mcap.reader import make_reader
+
 from tests.service.live_helpers import RPM, per_cycle, session
 
 BATCH_S = 0.02  # a message holds at most about 10 ms of data before its log time; 20 ms to be safe

@@ -20,21 +20,21 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-
 from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, ToothBatch
+from frictionwatch.drivers.assembly.pressure_ring import frame_blocks
 from frictionwatch.drivers.backoff import Backoff
 from frictionwatch.drivers.bridge import WirePlayer, received_records
 from frictionwatch.drivers.can.codec import FD_SAMPLES, RAW_SATURATED
 from frictionwatch.drivers.can.pressure import CanSource
 from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
 from frictionwatch.drivers.logs.mcap_replay import McapSource
-from frictionwatch.drivers.assembly.pressure_ring import frame_blocks
 from frictionwatch.drivers.logs.recorder import Recorder
 from frictionwatch.drivers.serial.teeth import SerialSource
 from frictionwatch.drivers.timebase import TimerUnwrapper
 from frictionwatch.service.cmd_analyze import summary
 from frictionwatch.service.live import LiveSession
 from frictionwatch.service.pipeline import analyze_log, analyze_records
+
 from tests.service.live_helpers import ORDERED_MERGE, PtyPort, leak_check, per_cycle, session, wait_all_delivered
 
 RTOL_PATHS = 1e-9  # live vs log vs recorder: same samples in, so only float noise could differ (none measured)

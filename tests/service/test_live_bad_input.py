@@ -16,17 +16,17 @@ import uuid
 import can
 import numpy as np
 import pytest
-
 from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
+from frictionwatch.drivers.assembly.pressure_ring import frame_blocks
 from frictionwatch.drivers.backoff import Backoff
 from frictionwatch.drivers.bridge import SERIAL, WirePlayer, received_records, wire_events
 from frictionwatch.drivers.can.pressure import CanSource
-from frictionwatch.drivers.assembly.pressure_ring import frame_blocks
 from frictionwatch.drivers.serial.teeth import SerialSource
 from frictionwatch.drivers.source import Source
 from frictionwatch.drivers.timebase import TimerUnwrapper
 from frictionwatch.service.live import LiveSession, RecordMerge, record_key
 from frictionwatch.service.pipeline import analyze_records
+
 from tests.service.live_helpers import (
     ORDERED_MERGE,
     RPM,

@@ -12,11 +12,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-
 from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, ToothBatch
 from frictionwatch.drivers.logs.mcap_log import LogReader
 from frictionwatch.service.cli import main
+from numpy.testing import assert_allclose
 
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "replay_logs" / "README.md"

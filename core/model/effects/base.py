@@ -26,7 +26,6 @@ from types import MappingProxyType
 from typing import ClassVar
 
 import numpy as np
-
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.terms import LossTerm
 

@@ -10,7 +10,6 @@ from dataclasses import replace
 from types import MappingProxyType
 
 import numpy as np
-
 from frictionwatch.core.model.effects.base import (
     PER_CYLINDER,
     ChainSetup,

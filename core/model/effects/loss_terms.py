@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-
 from frictionwatch.core.model.terms import ANGLE, KERNEL_SIGNATURE, OMEGA, LossTerm, loss_kernel
 
 
