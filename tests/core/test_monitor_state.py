@@ -4,13 +4,14 @@ results as each engine alone; and a state passed twice gives the same answer twi
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 from frictionwatch.core.model.engine import spec_from_toml_text
 from frictionwatch.core.monitor.monitor import initial_state, process_cycle
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 from frictionwatch.drivers.logs.mcap_log import LogReader
 from numpy.testing import assert_allclose
+
+from tests.json_close import assert_json_close
 
 LOGS = Path(__file__).resolve().parents[2] / "replay_logs"
 ENGINES = ("deutz-1cyl", "maruti-3cyl", "k9k-4cyl")
@@ -26,20 +27,8 @@ def cycles_of(name: str):
 
 
 def assert_same(a, b, where=""):
-    """Two JSON documents of results: same keys, numbers equal to rounding (same code, same process: exact)."""
-    if isinstance(a, dict):
-        assert a.keys() == b.keys(), where
-        for k in a:
-            assert_same(a[k], b[k], f"{where}.{k}")
-    elif isinstance(a, list | tuple) and a and isinstance(a[0], dict | list | str):
-        assert len(a) == len(b), where
-        for i, (x, y) in enumerate(zip(a, b)):
-            assert_same(x, y, f"{where}[{i}]")
-    elif isinstance(a, float | int | list | tuple) and not isinstance(a, bool):
-        assert_allclose(np.asarray(a, dtype=float), np.asarray(b, dtype=float), rtol=1e-12, atol=0, equal_nan=True,
-                        err_msg=where)
-    else:
-        assert a == b, where
+    """Two JSON documents of results: same code, same process, so equal to rounding."""
+    assert_json_close(a, b, rtol=1e-12, where=where)
 
 
 @pytest.fixture(scope="module")

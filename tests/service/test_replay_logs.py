@@ -17,6 +17,8 @@ from frictionwatch.drivers.logs.mcap_log import LogReader
 from frictionwatch.service.cli import main
 from numpy.testing import assert_allclose
 
+from tests.json_close import assert_json_close
+
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "replay_logs" / "README.md"
 TICK_TOLERANCE = 1  # an edge time rounded to the timer on another CPU
@@ -56,22 +58,6 @@ def decoded(path: Path) -> dict:
     }
 
 
-def assert_truth_close(fresh, committed, where="truth"):
-    if isinstance(committed, dict):
-        assert fresh.keys() == committed.keys(), where
-        for k in committed:
-            assert_truth_close(fresh[k], committed[k], f"{where}.{k}")
-    elif isinstance(committed, list) and committed and not isinstance(committed[0], int | float):
-        assert len(fresh) == len(committed), where
-        for i, (a, b) in enumerate(zip(fresh, committed)):
-            assert_truth_close(a, b, f"{where}[{i}]")
-    elif isinstance(committed, float | list) and not isinstance(committed, bool):
-        assert_allclose(np.asarray(fresh, dtype=float), np.asarray(committed, dtype=float), rtol=TRUTH_RTOL,
-                        atol=1e-12, err_msg=where)
-    else:
-        assert fresh == committed, where
-
-
 def test_every_committed_log_has_a_command():
     outputs = {Path(c[c.index("-o") + 1]).name for c in commands()}
     committed = {p.name for p in (ROOT / "replay_logs").glob("*.mcap")}
@@ -98,4 +84,5 @@ def test_log_is_what_its_command_makes(argv, tmp_path):
         assert_allclose(fresh["pressure"][cyl], values, rtol=0, atol=PRESSURE_ATOL_PA, equal_nan=True,
                         err_msg=f"cylinder {cyl}")
     truth = out.name.removesuffix(".mcap") + ".truth.json"
-    assert_truth_close(json.loads((tmp_path / truth).read_text()), json.loads((ROOT / out.parent / truth).read_text()))
+    assert_json_close(json.loads((tmp_path / truth).read_text()), json.loads((ROOT / out.parent / truth).read_text()),
+                      rtol=TRUTH_RTOL, atol=1e-12, where="truth")
