@@ -196,7 +196,9 @@ class BlowBy(Effect):
 
 
 class ExtraFriction(Effect):
-    """A friction torque the six-term model lacks; ``monitor_terms`` gives its shape as one per-cylinder column."""
+    """A friction torque the six-term model lacks; ``monitor_terms`` gives its shape as one column (zero in the other
+    cylinders). The plant still carries it in its own (z, 4) extra-friction table, not as a library term, because its
+    reference torque is the cylinder's friction at the operating point (core.plant.simulate)."""
 
     name = "extra_friction"
     description = ("a friction term the 6-term model lacks: T = T_ref (mean_frac + amp_frac cos(order theta_k + "
