@@ -147,7 +147,8 @@ def test_engine_stops_for_three_seconds_and_restarts(reference):
         rig.close()
     live = rig.live
     lost = {r.index for r in reference} - {r.index for r in live.results}
-    assert lost == {9} == touched(reference, 0.6, 0.6, 0.0)  # only the cycle the engine stopped in
+    why = f"lost {sorted(lost)}; skipped {dict(live.skipped)}; damage {live.damage}; merge {dict(live.merge.stats)}"
+    assert lost == {9} == touched(reference, 0.6, 0.6, 0.0), why  # only the cycle the engine stopped in
     assert live.skipped == {"data_gap": 1}
     assert not {k for c in live.damage.values() for k in c} - {"late_record"}  # heartbeats kept the link alive
     assert live.pipeline.assembler.stats["epochs"] == 2  # a new sync after the rest, phase from the cam again
