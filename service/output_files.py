@@ -38,6 +38,9 @@ def atomic_path(path: Path) -> Iterator[Path]:
     path = Path(path)
     check_output_path(path)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    # mkstemp makes the file private (0600); the output gets what a plain open() would give it: the file's own mode
+    # when it replaces one, else 0666 less the umask
+    os.fchmod(fd, _mode_for(path))
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -68,6 +71,15 @@ def atomic_write_text(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` whole or not at all."""
     with atomic_output(path) as fh:
         fh.write(text)
+
+
+def _mode_for(path: Path) -> int:
+    try:
+        return path.stat().st_mode & 0o7777
+    except FileNotFoundError:
+        umask = os.umask(0)  # read it back at once: umask can only be read by setting it
+        os.umask(umask)
+        return 0o666 & ~umask
 
 
 def _fsync_file(path: Path) -> None:

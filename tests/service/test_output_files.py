@@ -15,6 +15,12 @@ def test_clean_write_lands_whole_with_lf_endings(tmp_path: Path) -> None:
         fh.write("a,b\n1,2\n")
     assert target.read_bytes() == b"a,b\n1,2\n"
     assert [p.name for p in target.parent.iterdir()] == ["out.csv"]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert target.stat().st_mode & 0o777 == 0o666 & ~umask  # what open() would give, not mkstemp's private 0600
+    target.chmod(0o640)
+    atomic_write_text(target, "again")
+    assert target.stat().st_mode & 0o777 == 0o640  # a replaced file keeps its mode
 
 
 def test_interrupted_write_leaves_nothing_and_keeps_the_old_file(tmp_path: Path) -> None:
