@@ -15,7 +15,7 @@ from frictionwatch.service.pipeline import LogAnalysis
 STATUS_WORDS = {
     "measured": "measured",
     "share": "share, not measured",
-    "prior": "model preset, not measured",
+    "prior": "prior, not measured",
     "unresolved": "not known from the data",
     "withheld": "withheld (sensor fault)",
 }

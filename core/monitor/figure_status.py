@@ -8,7 +8,8 @@ a rule here, not in the printers. Every consumer (JSON, CSV, table) shows what i
                 accumulated cycles; a cylinder's friction resolved from the speed signal (data gain >= the limit)
     share       a cylinder's share of the engine's measured friction in proportion to its indicated work (paper 000
                 Eq. 6): a rule applied to the measured total, NOT a measurement of that cylinder
-    prior       the engine model's preset friction: nothing has been accumulated from the data yet
+    prior       the engine model's prior (its preset friction, drawn toward the measured mean balance where there is
+                one): nothing has been accumulated from the data yet
     unresolved  the data cannot give it (no load measurement, the split not separated yet); no value
     withheld    a flagged sensor fault affects it; no value
 
@@ -91,8 +92,9 @@ def friction_status(est: Estimate, active_flags: Iterable[str]) -> FrictionStatu
                                             "load or a deceleration would), so the engine's friction is not known",
                               None)
     elif not accumulated:
-        engine = FigureStatus("prior", "no cycle accumulated yet (the monitor's warm-up): this is the engine "
-                                       "model's preset friction, not a measurement", None)
+        engine = FigureStatus("prior", "no cycle accumulated yet (the monitor's warm-up): the engine model's prior "
+                                       "friction, drawn toward the mean balance of the cycles so far; not an estimate "
+                                       "from enough data", None)
     elif not math.isfinite(est.total_friction_torque):
         engine = FigureStatus("unresolved", "the data do not determine the engine's friction", None)
     else:
