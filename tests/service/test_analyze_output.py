@@ -291,13 +291,15 @@ def test_progress_counts_cycles_and_follows_the_log(misfire_log):
         def set_postfix_str(self, s, refresh=True):
             self.postfix = s
 
-    bar = Bar(FakeTqdm(), 1.0, "cycles")
+    shown = FakeTqdm()
+    bar = Bar(shown, 1.0, "cycles")
     for i in range(10):
         bar.advance(extent.fraction(extent.start_s + (i + 1) * (extent.end_s - extent.start_s) / 20))
-    assert bar.count == 10 and bar._bar.postfix == "10 cycles" and bar._bar.n == pytest.approx(0.5)
-    unknown = Bar(FakeTqdm(), 0, "cycles")
+    assert bar.count == 10 and shown.postfix == "10 cycles" and shown.n == pytest.approx(0.5)
+    counted = FakeTqdm()
+    unknown = Bar(counted, 0, "cycles")
     unknown.advance(None)
-    assert unknown.count == 1 and unknown._bar.n == 1
+    assert unknown.count == 1 and counted.n == 1
 
 
 def test_an_unwritable_output_is_refused_before_the_run(misfire_log, tmp_path, capsys):
