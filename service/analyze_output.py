@@ -56,20 +56,24 @@ def print_table(doc: dict) -> None:
     notes = {}
     for c in doc["cylinders"]:
         f = c["friction"]
-        fric = _fmt(f["friction_torque_mean_nm"], ".2f", "-")
-        sig = _fmt(f["friction_torque_sigma_nm"], ".2f", "") if f["status"] == "measured" else ""
+        # only a measurement goes in the friction columns: a share beside measured values would read as a
+        # per-cylinder ranking (a worn cylinder with less indicated work gets a smaller share)
+        fric, sig, fmep = (_fmt(c[k], spec, "-") for k, spec in (("friction_torque_mean_nm", ".2f"),
+                                                                  ("friction_torque_sigma_nm", ".2f"),
+                                                                  ("fmep_bar", ".3f")))
         print(f"{c['cylinder']:>4} {_fmt(c['imep_bar'], '.3f'):>9} {_fmt(c.get('imep_sigma_bar'), '.3f', ''):>6} "
               f"{_fmt(c.get('pmax_bar_mean'), '.1f'):>9} {_fmt(c.get('pmax_angle_deg_mean'), '.1f'):>7} "
-              f"{fric:>13} {sig:>6} {_fmt(f['fmep_bar'], '.3f', '-'):>9} "
+              f"{fric:>13} {sig:>6} {fmep:>9} "
               f"{_fmt(c.get('share_friction_torque_mean_nm'), '.2f', '-'):>10} {_fmt(f['data_weight'], '.2f', '-'):>8}"
               f"  {STATUS_WORDS[f['status']]}")
         if f["status"] != "measured" and f["reason"]:
             notes.setdefault((f["status"], f["reason"].split(" (data weight")[0]), []).append(c["cylinder"])
     print("± is 1σ, the standard uncertainty: of the friction estimate (statistical and modelled systematic parts); "
           "of the run mean for IMEP (from the cycle-to-cycle scatter).")
-    print("share: the cylinder's part of the engine's measured friction in proportion to its indicated work, what a "
-          "cylinder like its siblings would carry; data wt: the part of what is known about the cylinder's friction "
-          "that came from the speed signal (0..1).")
+    print("friction and FMEP columns: measurements only. share: the cylinder's part of the engine's measured friction "
+          "in proportion to its indicated work, what a cylinder like its siblings would carry, not a measurement of "
+          "the cylinder (never a ranking); data wt: the part of what is known about the cylinder's friction that came "
+          "from the speed signal (0..1).")
     for (status, reason), cyls in notes.items():
         print(f"cylinders {', '.join(map(str, cyls))} {STATUS_WORDS[status]}: {reason}")
     _print_flags(doc)
