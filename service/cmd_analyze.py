@@ -145,7 +145,8 @@ def run(args: argparse.Namespace) -> int:
             raise NotADirectoryError(f"--plot {args.plot} is a file, expected a folder")
         check_output_path(args.plot / "friction_torque_vs_angle.png")
     extent = log_extent(args.log)
-    with progress_bar(total=1.0 if extent.known else 0, desc=f"analyze {args.log.name}") as bar:
+    with progress_bar(total=1 if extent.known else 0, desc=f"analyze {args.log.name}",
+                      estimated_total=extent.known) as bar:
         analysis = analyze_log(args.log, args.engine, on_result=lambda r: bar.advance(extent.fraction(r.t_start)))
     if not analysis.results:
         reasons = ", ".join(f"{k}: {v}" for k, v in analysis.skipped.most_common()) or "no complete cycle in the log"

@@ -1,7 +1,7 @@
 """A progress bar on stderr for long runs (tqdm), quiet when stderr is not a terminal.
 
 ``analyze`` shows the cycles done and, where the log's time span is known from its chunk index (read when the log
-is opened, no decoding), the fraction of the log passed with an estimate of the time left.
+is opened, no decoding), the fraction of the log passed, the total number of cycles that implies, and the time left.
 
 A fresh install compiles its numba kernels on first use (tens of seconds; cached on disk afterwards), before the first
 cycle can be shown. So that a new user does not stare at a silent terminal, a bar that has seen no progress after
@@ -25,11 +25,11 @@ COMPILING_NOTE = ("compiling the numerical kernels (numba, first run after an in
 
 
 class Bar:
-    """A tqdm bar driven by a count (``update``), a fraction of the total (``set_fraction``), or both
-    (``advance``: one more item and where the run is); ``started`` once any progress was reported."""
+    """A tqdm bar driven by a fraction of its total (``set_fraction``), a count (``update``), or a count with the
+    fraction of the run it has reached (``advance``); ``started`` once any progress was reported."""
 
-    def __init__(self, bar: tqdm, total: float, unit: str):
-        self._bar, self._total, self._unit = bar, total, unit
+    def __init__(self, bar: tqdm, total: float):
+        self._bar, self._total = bar, total
         self.count = 0
         self.started = threading.Event()
 
@@ -44,25 +44,31 @@ class Bar:
         self._bar.update(n)
 
     def advance(self, fraction: float | None) -> None:
-        """One more item done; ``fraction``: how far through the run it is (None: not known)."""
+        """One more item done, ``fraction`` (0..1, None: not known) of the way through the run: the bar shows the
+        count against the total it implies (``count / fraction``, refined as the run goes on)."""
+        self.started.set()
         self.count += 1
-        if fraction is None or not self._total:
-            self.started.set()
-            self._bar.update(1)
-            return
-        self._bar.set_postfix_str(f"{self.count} {self._unit}", refresh=False)
-        self.set_fraction(fraction)
+        if fraction is not None and fraction > 0.0:
+            self._bar.total = max(self.count, round(self.count / min(fraction, 1.0)))
+        self._bar.n = self.count
+        self._bar.refresh()
 
 
 @contextmanager
-def progress_bar(total: float, desc: str, waiting_note: str | None = COMPILING_NOTE,
-                 unit: str = "cycles") -> Iterator[Bar]:
-    """``total``: the bar's full scale (a fraction bar: 1.0), 0 when unknown (then a count of ``unit`` is shown);
+def progress_bar(total: float, desc: str, waiting_note: str | None = COMPILING_NOTE, unit: str = "cycles",
+                 estimated_total: bool = False) -> Iterator[Bar]:
+    """``total``: the bar's full scale (a fraction bar: 1.0), 0 when unknown (a count of ``unit`` is shown);
+    ``estimated_total``: the total is an estimate that ``Bar.advance`` refines (shown as ``n/~total unit``);
     ``waiting_note``: printed once if no progress arrives within NOTE_AFTER_S (None: never)."""
+    if estimated_total:
+        fmt = "{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/~{total_fmt} {unit} {elapsed}<{remaining}"
+    elif total:
+        fmt = "{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}"
+    else:
+        fmt = "{desc}: {n_fmt} {unit} {elapsed}"
     bar = tqdm(total=total or None, desc=desc, file=sys.stderr, disable=not sys.stderr.isatty(), leave=False,
-               bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix} {elapsed}<{remaining}" if total else
-               "{desc}: {n_fmt} {unit} {elapsed}", unit=unit)
-    wrapped = Bar(bar, total, unit)
+               bar_format=fmt, unit=unit)
+    wrapped = Bar(bar, total)
     timer = None
     if waiting_note:
         def note() -> None:
