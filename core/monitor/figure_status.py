@@ -102,7 +102,9 @@ def friction_status(est: Estimate, active_flags: Iterable[str]) -> FrictionStatu
     cylinders = []
     for k in range(z):
         gain = float(est.data_gain[k])
-        weight = gain if math.isfinite(gain) else None
+        # nothing accumulated: nothing came from the data; one cylinder: no split to learn (the gain is 1 by
+        # convention), its friction is the engine total, whose data is the balance
+        weight = None if z == 1 or not math.isfinite(gain) else gain if accumulated else 0.0
         faults = engine_faults + cyl_faults.get(k + 1, [])
         share = float(est.prior_friction_torque_mean[k])
         if faults:

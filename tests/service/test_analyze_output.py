@@ -114,7 +114,7 @@ def test_every_figure_says_what_it_is(misfire_run):
     assert 0.99 < w["forgetting"] < 1.0
     for c in doc["cylinders"]:
         f = c["friction"]
-        assert 0.0 <= f["data_weight"] <= 1.0
+        assert 0.0 < f["data_weight"] <= 1.0
         if f["status"] == "measured":
             assert c["friction_torque_mean_nm"] == f["friction_torque_mean_nm"] is not None
         else:  # never a number under the measured keys
@@ -215,8 +215,11 @@ def test_status_rules():
     st = friction_status(est, ["no_load_measurement"])
     assert st.engine.status == "unresolved" and [c.status for c in st.cylinders] == ["measured", "unresolved",
                                                                                       "unresolved"]
-    st = friction_status(_Est([False] * 3, [0.0] * 3, [math.nan] * 3, [5.0] * 3, weight=0.0), [])
+    st = friction_status(_Est([False] * 3, [0.3] * 3, [math.nan] * 3, [5.0] * 3, weight=0.0), [])
     assert st.engine.status == "prior" and {c.status for c in st.cylinders} == {"unresolved"}
+    assert {c.data_weight for c in st.cylinders} == {0.0}  # nothing accumulated: nothing from the data
+    one = friction_status(_Est([True], [1.0], [7.0], [7.0]), [])
+    assert one.cylinders[0].status == "measured" and one.cylinders[0].data_weight is None  # no split to learn
 
 
 def test_split_flag():
