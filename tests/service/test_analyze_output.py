@@ -339,3 +339,22 @@ class _Capture:
 
         self.out, self.err = sys.stdout.getvalue(), sys.stderr.getvalue()
         sys.stdout, sys.stderr = self._saved
+
+
+def test_real_fired_file_without_a_load_reports_no_friction(tmp_path, capsys):
+    """TU/e 4GB10, a fired file (10 cycles, no load channel): no friction figure may read as a measurement."""
+    from tests.realdata.conftest import REALDATA
+
+    raw = REALDATA / "tue-4gb10-si-encoder-pressure" / "group14_E0FULLOAD1.txt.gz"
+    if not raw.is_file():
+        pytest.skip(f"real data {raw} is absent")
+    log = tmp_path / "tue-full1.mcap"
+    assert main(["import-daq", str(raw), "--engine", "tue-4gb10", "--wheel", "60-2", "-o", str(log)]) == 0
+    capsys.readouterr()
+    assert main(["analyze", str(log), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    jsonschema.validate(doc, json.loads(SCHEMA_FILE.read_text()))
+    assert doc["friction"]["status"] == "unresolved" and doc["fmep_bar"] is None
+    assert doc["friction"]["fmep_bar"] is None and doc["friction_run_mean_balance"]["fmep_bar"] is None
+    assert [c["friction"]["status"] for c in doc["cylinders"]] == ["unresolved"]
+    assert doc["flags"]["run"]["no_load_measurement"] == doc["cycles_ok"]
