@@ -7,7 +7,7 @@ import csv
 from pathlib import Path
 
 import numpy as np
-from frictionwatch.core.monitor.figure_status import friction_status, split_flag
+from frictionwatch.core.monitor.figure_status import split_flag
 from frictionwatch.core.monitor.run_summary import estimate_window, flag_kinds, smoothed_mean_and_sigma
 from frictionwatch.service.output_files import atomic_output
 from frictionwatch.service.pipeline import LogAnalysis
@@ -137,7 +137,7 @@ def write_csv(analysis: LogAnalysis, path: Path) -> None:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(csv_columns(kinds))
         for i, r in enumerate(results):
-            smooth = r.to_json(status=friction_status(r.smoothed, r.flags))
+            smooth = r.to_json()  # status from this cycle's flags
             own = r.to_json(smoothed=False)
             raised = [split_flag(f) for f in r.flags]
             eng = smooth["friction"]

@@ -36,21 +36,21 @@ class EstimateWindow:
 
 
 def estimate_window(indices: Sequence[int], weights: Sequence[float]) -> EstimateWindow:
-    """From each held result's cycle index and the accumulated weight of its smoothed estimate (in order). A cycle
-    was accumulated where the weight changed (it is carried unchanged otherwise: warm-up, or a cycle whose
-    equations were not folded)."""
+    """From each held result's cycle index and the accumulated weight of its smoothed estimate (in order). The
+    monitor accumulates every cycle after its warm-up, so every result from the first with a weight on counts. (Not
+    "where the weight changed": the weight reaches its fixed point 1 / (1 - lambda) exactly in floating point after
+    some 12,000 cycles of a 400-cycle window and stops changing.)"""
     idx = np.asarray(indices, dtype=np.int64)
     w = np.asarray(weights, dtype=np.float64)
     if idx.shape != w.shape or idx.size == 0:
         raise ValueError(f"need one weight per cycle index and at least one, got {idx.shape} and {w.shape}")
-    before = np.concatenate([[0.0], w[:-1]])
-    folded = w != before
     last = int(idx[-1])
-    if not folded.any() or w[-1] <= 0:
+    started = np.flatnonzero(w > 0)
+    if started.size == 0:
         return EstimateWindow(None, last, float(w[-1]), None, None)
-    pos = np.flatnonzero(folded)
-    ratios = [(w[i] - 1.0) / before[i] for i in pos if before[i] > 0]
-    lam = float(np.median(ratios)) if ratios else None
+    pos = np.arange(started[0], idx.size)
+    ratios = (w[pos[1:]] - 1.0) / w[pos[1:] - 1]
+    lam = float(np.median(ratios)) if ratios.size else None
     age = np.arange(pos.size - 1, -1, -1, dtype=np.float64)
     cw = np.ones(pos.size) if lam is None else lam ** age
     centre = float(np.sum(cw * idx[pos]) / np.sum(cw))

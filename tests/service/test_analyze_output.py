@@ -244,6 +244,16 @@ def test_estimate_window_recovers_the_forgetting_and_centre():
     assert_allclose(win.centre_cycle, np.sum(lam ** age * idx[warm:]) / np.sum(lam ** age), rtol=1e-12)
     assert win.centre_cycle > 100 + n / 2  # an end-of-run estimate is not the run's mean
     assert estimate_window([3, 4], [0.0, 0.0]).first_cycle is None
+    # a long run: the weight reaches its floating-point fixed point and stops changing; the window still ends at
+    # the last cycle, centred ~1/(1 - lambda) - 1 cycles before it
+    lam, w, acc = 1.0 - 1.0 / 400.0, [], 0.0
+    for _ in range(20000):
+        acc = lam * acc + 1.0
+        w.append(acc)
+    assert w[-1] == w[-2]
+    win = estimate_window(np.arange(20000), w)
+    assert_allclose(win.forgetting, lam, rtol=1e-12)
+    assert_allclose(win.centre_cycle, 19999 - lam / (1.0 - lam), rtol=1e-9)
 
 
 def test_flag_windows_and_active_flags():
