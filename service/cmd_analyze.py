@@ -1,16 +1,29 @@
-"""`frictionwatch analyze LOG.mcap`: per-cylinder friction from a replay log (table, JSON, CSV, plots)."""
+"""`frictionwatch analyze LOG.mcap`: per-cylinder friction from a replay log (table, JSON, CSV, plots).
+
+The JSON document is described key by key in docs/results.md and by the JSON Schema
+service/schema/analyze-result.schema.json (``SCHEMA_VERSION``); the CSV and the table show the same figures.
+"""
 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
+from frictionwatch.core.monitor.figure_status import friction_status
+from frictionwatch.core.monitor.run_summary import active_flags, estimate_window, flag_summary, mean_and_sem
+from frictionwatch.service.analyze_output import print_table, write_csv
+from frictionwatch.service.output_files import check_output_path
 from frictionwatch.service.pipeline import LogAnalysis, analyze_log
-from frictionwatch.service.progress import progress_bar
+from frictionwatch.service.progress import log_extent, progress_bar
+
+SCHEMA_VERSION = "2.0"  # major: a key renamed, removed or its meaning changed; minor: keys added
+SCHEMA_FILE = Path(__file__).with_name("schema") / "analyze-result.schema.json"
+LAST_CYCLE_KEYS = ("cycle", "t_start_s", "rpm", "load_torque_nm", "load_power_kw", "friction_balance_nm",
+                   "coupling_loss_nm", "residual_rms_rad_s", "r_squared", "chi2_reduced", "flags")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -18,32 +31,95 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("log", type=Path, help="LOG.mcap")
     p.add_argument("--engine", help="engine preset, engine TOML, or model TOML (EngineModel.to_toml: its loss terms and "
                    "coefficients are what the monitor identifies); default: the spec stored in the log")
-    p.add_argument("--json", action="store_true", help="print one JSON document instead of the table")
+    p.add_argument("--json", action="store_true", help="print one JSON document (docs/results.md) instead of the table")
     p.add_argument("--csv", type=Path, metavar="OUT", help="write per-cycle, per-cylinder rows to OUT")
     p.add_argument("--plot", type=Path, metavar="DIR", help="write PNG plots to DIR")
     p.set_defaults(func=run)
 
 
 def summary(analysis: LogAnalysis) -> dict:
-    """The analysis as one JSON-able document; the keys match the simulator's truth file."""
-    last = analysis.last
+    """The analysis as one JSON-able document (docs/results.md): run means of the measured quantities, the
+    end-of-run friction estimate with the status, data weight and window of every figure, the mean balance over
+    the run, the last cycle's values, and the flags per window."""
     doc: dict = {
+        "schema_version": SCHEMA_VERSION,
         "engine": analysis.spec.name,
         "cycles_ok": analysis.cycles_ok,
         "cycles_skipped": dict(sorted(analysis.skipped.items())),
         "log_damage": dict(sorted(analysis.damage.items())),
         "data_gaps": data_gaps(analysis),
     }
-    if last is not None:
-        doc.update(last.to_json())
-        # indicated quantities as means over the analysed cycles (the friction estimate is already accumulated)
-        for k, cyl in enumerate(doc["cylinders"]):
-            for key, values in (("imep_bar", [r.imep[k] for r in analysis.results]),
-                                ("pmax_bar", [r.pmax[k] for r in analysis.results])):
-                cyl[key] = float(np.mean(values)) / 1e5
-        doc["imep_bar"] = float(np.mean([r.imep.mean() for r in analysis.results])) / 1e5
-        doc["rpm"] = float(np.mean([r.rpm_mean for r in analysis.results]))
+    results = analysis.results
+    if not results:
+        return doc
+    last = results[-1]
+    flags = [r.flags for r in results]
+    window = estimate_window([r.index for r in results], [r.smoothed.weight for r in results])
+    active = active_flags(flags, window.effective_cycles)
+    status = friction_status(last.smoothed, active)
+    cyc = last.to_json(status=status, window=asdict(window))
+    load = mean_and_sem([r.load_torque for r in results])
+    power = mean_and_sem([r.load_power for r in results])
+    doc.update({
+        "first_cycle": int(results[0].index),
+        "last_cycle": int(last.index),
+        "rpm_mean": float(np.mean([r.rpm_mean for r in results])),
+        "imep_bar": float(np.mean([r.imep.mean() for r in results])) / 1e5,
+        "load_torque_mean_nm": _num(load[0]),
+        "load_power_mean_kw": _num(power[0] / 1e3),
+        "load_measured_cycles": load[2],
+        "estimate": "smoothed",
+        **{k: cyc[k] for k in ("friction_torque_mean_nm", "friction_torque_sigma_nm", "fmep_bar", "fmep_sigma_bar")},
+        "friction": cyc["friction"],
+        "friction_run_mean_balance": run_mean_balance(analysis, cyc["friction"]["status"]),
+        "active_flags": sorted(active),
+        "last": {k: cyc[k] for k in LAST_CYCLE_KEYS},
+        "flags": flag_summary([r.index for r in results], flags),
+        "cylinders": [_cylinder_run(c, k, analysis) for k, c in enumerate(cyc["cylinders"])],
+    })
     return doc
+
+
+def _cylinder_run(c: dict, k: int, analysis: LogAnalysis) -> dict:
+    """A cylinder of the last cycle's document with its indicated quantities as run means (the truth file's
+    imep_bar and pmax_bar_mean), their 1-sigma (of the mean, from the cycle-to-cycle scatter) and scatter."""
+    imep = mean_and_sem([r.imep[k] / 1e5 for r in analysis.results])
+    pmax = mean_and_sem([r.pmax[k] / 1e5 for r in analysis.results])
+    out = {key: v for key, v in c.items() if key not in ("imep_bar", "pmax_bar", "pmax_angle_deg")}
+    out.update({
+        "imep_bar": _num(imep[0]), "imep_sigma_bar": _num(imep[1]), "imep_std_bar": _num(imep[1] * np.sqrt(imep[2])),
+        "pmax_bar_mean": _num(pmax[0]), "pmax_sigma_bar": _num(pmax[1]),
+        "pmax_std_bar": _num(pmax[1] * np.sqrt(pmax[2])),
+        "pmax_angle_deg_mean": _num(np.degrees(np.mean([r.pmax_angle[k] for r in analysis.results]))),
+    })
+    return out
+
+
+def run_mean_balance(analysis: LogAnalysis, engine_status: str) -> dict:
+    """The engine's friction as the mean over every analysed cycle of its mean torque balance (indicated - load -
+    modelled coupling loss): the run's mean, where the smoothed estimate is the end of a forgetting window."""
+    results = analysis.results
+    used = [r for r in results if np.isfinite(r.friction_balance)]
+    mean, sem, n = mean_and_sem([r.friction_balance for r in used])
+    mep = results[-1].mep_per_nm() / results[-1].n_cyl / 1e5  # bar per N m of the engine
+    if engine_status == "withheld":
+        status, reason = "withheld", "a sensor fault is flagged (see friction.reason)"
+    elif n == 0:
+        status, reason = "unresolved", "no load measurement in any cycle: nothing balances the indicated work"
+    else:
+        status = "measured"
+        reason = None if n == len(results) else f"the load was measured in {n} of {len(results)} cycles"
+    has = status == "measured"
+    return {
+        "status": status, "reason": reason, "data_weight": None,
+        "window": {"first_cycle": int(used[0].index) if used else None, "last_cycle": int(results[-1].index),
+                   "effective_cycles": float(n), "centre_cycle": _num(np.mean([r.index for r in used])) if used else
+                   None, "forgetting": 1.0},
+        "friction_torque_mean_nm": _num(mean) if has else None,
+        "friction_torque_sigma_nm": _num(sem) if has else None,
+        "fmep_bar": _num(mean * mep) if has else None,
+        "fmep_sigma_bar": _num(sem * mep) if has else None,
+    }
 
 
 def data_gaps(analysis: LogAnalysis) -> list[dict]:
@@ -62,8 +138,16 @@ def data_gaps(analysis: LogAnalysis) -> list[dict]:
 def run(args: argparse.Namespace) -> int:
     if not args.log.exists():
         raise FileNotFoundError(f"no such log: {args.log}")
-    with progress_bar(total=0, desc=f"analyze {args.log.name}") as bar:
-        analysis = analyze_log(args.log, args.engine, on_result=lambda r: bar.update(1))
+    if args.csv:
+        check_output_path(args.csv)  # an unwritable output is found before the run, not after it
+    if args.plot:
+        if args.plot.exists() and not args.plot.is_dir():
+            raise NotADirectoryError(f"--plot {args.plot} is a file, expected a folder")
+        check_output_path(args.plot / "friction_torque_vs_angle.png")
+    extent = log_extent(args.log)
+    with progress_bar(total=1 if extent.known else 0, desc=f"analyze {args.log.name}",
+                      estimated_total=extent.known) as bar:
+        analysis = analyze_log(args.log, args.engine, on_result=lambda r: bar.advance(extent.fraction(r.t_start)))
     if not analysis.results:
         reasons = ", ".join(f"{k}: {v}" for k, v in analysis.skipped.most_common()) or "no complete cycle in the log"
         damage = ", ".join(f"{k}: {v}" for k, v in analysis.damage.most_common())
@@ -71,59 +155,23 @@ def run(args: argparse.Namespace) -> int:
               + (f"; log damage {damage}" if damage else "") + ")", file=sys.stderr)
         return 2
     doc = summary(analysis)
+    written: list[Path] = []
     if args.csv:
         write_csv(analysis, args.csv)
+        written.append(args.csv)
     if args.plot:
         from frictionwatch.service.plots import write_plots
 
-        write_plots(analysis, args.plot)
+        written += write_plots(analysis, args.plot)
     if args.json:
         print(json.dumps(doc, indent=1))
     else:
         print_table(doc)
+    for path in written:  # on stderr with --json: stdout stays one JSON document
+        print(f"wrote {path}", file=sys.stderr if args.json else sys.stdout)
     return 0
 
 
-def print_table(doc: dict) -> None:
-    print(f"{doc['engine']}: {doc['cycles_ok']} cycles analysed, skipped {sum(doc['cycles_skipped'].values())}"
-          + (f" ({', '.join(f'{k} {v}' for k, v in doc['cycles_skipped'].items())})" if doc["cycles_skipped"] else ""))
-    if doc["log_damage"]:
-        print("log damage: " + ", ".join(f"{k} {v}" for k, v in doc["log_damage"].items()))
-    if doc["data_gaps"]:
-        print("not analysed: " + ", ".join(f"{g['from_s']:.3f}-{g['to_s']:.3f} s (~{g['cycles']:g} cycles)"
-                                           for g in doc["data_gaps"]))
-    print(f"speed {doc.get('rpm') or float('nan'):.1f} rpm, load {doc.get('load_torque_nm') or float('nan'):.1f} N m, "
-          f"engine FMEP {_fmt(doc['fmep_bar'], '.3f')} ± {_fmt(doc.get('fmep_sigma_bar'), '.3f')} bar")
-    print(f"{'cyl':>4} {'IMEP bar':>9} {'Pmax bar':>9} {'@ degCA':>8} {'friction N m':>13} {'± 1σ':>7} {'FMEP bar':>9}")
-    shared = False
-    for c in doc["cylinders"]:
-        fric, sigma, fmep = c["friction_torque_mean_nm"], c.get("friction_torque_sigma_nm"), c["fmep_bar"]
-        if fric is None:  # not resolved by the data: show the Eq. 6 share, marked, never as a measurement
-            prior = c.get("prior_friction_torque_mean_nm")
-            fric_txt, sigma_txt, fmep_txt = ("n/a" if prior is None else f"{prior:.2f}*"), "", ""
-            shared = True
-        else:
-            fric_txt, sigma_txt = f"{fric:.2f}", ("" if sigma is None else f"{sigma:.2f}")
-            fmep_txt = "" if fmep is None else f"{fmep:.3f}"
-        print(f"{c['cylinder']:>4} {_fmt(c['imep_bar'], '.3f'):>9} {c.get('pmax_bar') or float('nan'):>9.1f} "
-              f"{c.get('pmax_angle_deg') or float('nan'):>8.1f} {fric_txt:>13} {sigma_txt:>7} {fmep_txt:>9}")
-    if shared:
-        print("* not resolved from the speed data yet: the cylinder's share of the engine's friction in proportion to"
-              " its indicated work (paper 000 Eq. 6), not a per-cylinder measurement")
-
-
-def write_csv(analysis: LogAnalysis, path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["cycle", "t_start_s", "rpm", "cylinder", "imep_bar", "pmax_bar", "friction_torque_mean_nm",
-                    "fmep_bar"])
-        for r in analysis.results:
-            d = r.to_json(smoothed=False)
-            for c in d["cylinders"]:
-                w.writerow([d["cycle"], d["t_start_s"], d["rpm"], c["cylinder"], c["imep_bar"], c.get("pmax_bar"),
-                            c["friction_torque_mean_nm"], c["fmep_bar"]])
-
-
-def _fmt(x: float | None, spec: str) -> str:
-    return "n/a" if x is None else format(x, spec)
+def _num(x: float) -> float | None:
+    v = float(x)
+    return v if np.isfinite(v) else None

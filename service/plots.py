@@ -1,5 +1,6 @@
 """PNG plots for `frictionwatch analyze --plot DIR`: friction torque vs crank angle per cylinder, measured vs model
-flywheel speed, per-cylinder friction with its uncertainty over the run. Matplotlib with the Agg backend (no screen)."""
+flywheel speed, per-cylinder friction with its uncertainty over the run. Matplotlib with the Agg backend (no screen).
+Each file is written whole or not at all (service.output_files.atomic_output)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from frictionwatch.core.monitor.figure_status import friction_status  # noqa: E402
+from frictionwatch.service.output_files import atomic_output  # noqa: E402
 from frictionwatch.service.pipeline import LogAnalysis  # noqa: E402
 
 
@@ -41,19 +44,25 @@ def write_plots(analysis: LogAnalysis, out_dir: Path) -> list[Path]:
 
     fig, ax = plt.subplots(figsize=(10, 5))
     cycles = np.array([r.index for r in analysis.results])
+    status = [friction_status(r.smoothed, r.flags) for r in analysis.results]  # only measured values are drawn
     for k in range(last.n_cyl):
-        mean = np.array([r.smoothed.friction_torque_mean[k] for r in analysis.results])
+        mean = np.array([r.smoothed.friction_torque_mean[k] if status[i].cylinders[k].status == "measured"
+                         else np.nan for i, r in enumerate(analysis.results)])
         sig = np.array([r.smoothed.friction_torque_mean_sigma[k] for r in analysis.results])
         ax.plot(cycles, mean, lw=1.0, label=f"cyl {k + 1}")
         ax.fill_between(cycles, mean - 2 * sig, mean + 2 * sig, alpha=0.15)
-    ax.set(xlabel="cycle", ylabel="mean friction torque [N·m]", title="per-cylinder friction (smoothed, ±2σ)")
+    ax.set(xlabel="cycle", ylabel="mean friction torque [N·m]",
+           title="per-cylinder friction resolved from the data (smoothed, ±2σ; gaps: not resolved)")
     ax.legend(ncol=4 if last.n_cyl > 4 else 1, fontsize=7)
     paths.append(_save(fig, out_dir / "friction_per_cylinder_trend.png"))
     return paths
 
 
 def _save(fig: plt.Figure, path: Path) -> Path:
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        fig.tight_layout()
+        with atomic_output(path, "wb") as fh:
+            fig.savefig(fh, dpi=110, format="png")
+    finally:
+        plt.close(fig)
     return path

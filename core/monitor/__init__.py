@@ -13,6 +13,8 @@ walks through it.
       noise_model.py, accumulate.py, sharing.py, priors.py, estimate.py   (+ their _kernels)
       posterior_kernels.py, spd_kernels.py   the bounded MAP estimate and its posterior on small SPD systems
     cycle_report.py       the typed per-cycle result (results.py): traces, measured vs model speed, residuals
+    figure_status.py      what each friction figure is: measured, share, prior, unresolved or withheld
+    run_summary.py        over a run: the window an estimate stands for, flags per window, run means
     speed.py, speed_spacing.py, speed_stream.py   the classic instantaneous-speed route (tooth speed, spacing
                           learning, zero-phase filtering) for display, coast-downs and the discrepancy work
     coastdown.py          coast-down numerics: inertia and friction against speed

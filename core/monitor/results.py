@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+from frictionwatch.core.monitor.figure_status import FigureStatus, FrictionStatus, friction_status
 
 PA_PER_BAR = 1e5
 
@@ -149,49 +150,97 @@ class CycleResult:
     def resolved(self) -> np.ndarray:
         return self.cycle.resolved
 
-    def to_json(self, smoothed: bool = True) -> dict:
-        """JSON-able dict with the keys of the simulator's truth file (``fmep_bar``, ``cylinders`` with
-        ``friction_torque_mean_nm``, ``fmep_bar``, ``imep_bar``, ``coefficients``) plus sigmas and flags.
-        ``smoothed`` picks the accumulated estimate (default) or this cycle's own."""
+    def to_json(self, smoothed: bool = True, status: FrictionStatus | None = None,
+                window: dict | None = None) -> dict:
+        """This cycle as a JSON-able dict in engineering units (docs/results.md, "the cycle document"); per-cylinder
+        keys as in the simulator's truth file where they mean the same quantity.
+
+        ``smoothed`` picks the accumulated estimate (default) or this cycle's own. ``status`` (default: from this
+        cycle's flags alone, core.monitor.figure_status) says what each friction figure is; ``window`` the cycles
+        the estimate stands for (default: what this result knows: its index and accumulated weight). The flat
+        friction keys hold a value only where it is measured; the ``friction`` block of each figure holds what is
+        shown, with its status. Extend by adding keys to the returned dict."""
         est = self.smoothed if smoothed else self.cycle
-        cylinders = []
-        for k in range(self.n_cyl):
-            cylinders.append({
-                "cylinder": k + 1,
-                "friction_torque_mean_nm": _num(est.friction_torque_mean[k]),
-                "friction_torque_sigma_nm": _num(est.friction_torque_mean_sigma[k]),
-                "fmep_bar": _num(est.fmep[k] / PA_PER_BAR),
-                "fmep_sigma_bar": _num(est.fmep_sigma[k] / PA_PER_BAR),
-                "imep_bar": _num(self.imep[k] / PA_PER_BAR),
-                "pmax_bar": _num(self.pmax[k] / PA_PER_BAR),
-                "pmax_angle_deg": _num(math.degrees(self.pmax_angle[k])),
-                "coefficients": [_num(v) for v in est.coefficients[k]],
-                "coefficients_sigma": [_num(v) for v in est.coefficients_sigma[k]],
-                "coefficients_normalised_nm": [_num(v) for v in est.coefficients_normalised[k]],
-                "resolved": bool(est.resolved[k]),
-                "data_weight": _num(est.data_gain[k]),
-                "prior_friction_torque_mean_nm": _num(est.prior_friction_torque_mean[k]),
-            })
-        return {
+        st = status if status is not None else friction_status(est, self.flags)
+        if window is None:
+            window = ({"first_cycle": None, "last_cycle": int(self.index), "effective_cycles": _num(est.weight),
+                       "centre_cycle": None, "forgetting": None} if smoothed else
+                      {"first_cycle": int(self.index), "last_cycle": int(self.index), "effective_cycles": 1.0,
+                       "centre_cycle": float(self.index), "forgetting": None})
+        mep_per_nm = self.mep_per_nm()  # Pa per N m of one cylinder: 4 pi / V_d
+        z = self.n_cyl
+        total = _figure(st.engine, window, est.total_friction_torque, est.total_friction_torque_sigma, mep_per_nm / z)
+        doc = {
             "cycle": int(self.index),
             "t_start_s": _num(self.t_start),
             "rpm": _num(self.rpm_mean),
             "load_torque_nm": _num(self.load_torque),
             "load_power_kw": _num(self.load_power / 1e3),
             "estimate": "smoothed" if smoothed else "cycle",
-            "cycles_behind_estimate": _num(est.weight),
-            "fmep_bar": _num(est.total_fmep / PA_PER_BAR),
-            "fmep_sigma_bar": _num(est.total_fmep_sigma / PA_PER_BAR),
-            "friction_torque_mean_nm": _num(est.total_friction_torque),
-            "friction_torque_sigma_nm": _num(est.total_friction_torque_sigma),
+            **_measured_only(total),
+            "friction": total,
             "friction_balance_nm": _num(self.friction_balance),
             "coupling_loss_nm": _num(self.coupling_loss),
             "imep_bar": _num(float(np.mean(self.imep)) / PA_PER_BAR),
             "residual_rms_rad_s": _num(self.residual_rms),
             "r_squared": _num(self.r_squared),
+            "chi2_reduced": _num(est.chi2_reduced),
             "flags": list(self.flags),
-            "cylinders": cylinders,
+            "cylinders": [self._cylinder_json(k, est, st.cylinders[k], window, mep_per_nm) for k in range(z)],
         }
+        return doc
+
+    def _cylinder_json(self, k: int, est: FrictionEstimate, status: FigureStatus, window: dict,
+                       mep_per_nm: float) -> dict:
+        if status.status == "share":
+            shown, sigma = est.prior_friction_torque_mean[k], est.friction_torque_mean_sigma[k]
+        else:
+            shown, sigma = est.friction_torque_mean[k], est.friction_torque_mean_sigma[k]
+        fig = _figure(status, window, shown, sigma, mep_per_nm)
+        return {
+            "cylinder": k + 1,
+            **_measured_only(fig),
+            "friction": fig,
+            "share_friction_torque_mean_nm": _num(est.prior_friction_torque_mean[k]),
+            "imep_bar": _num(self.imep[k] / PA_PER_BAR),
+            "pmax_bar": _num(self.pmax[k] / PA_PER_BAR),
+            "pmax_angle_deg": _num(math.degrees(self.pmax_angle[k])),
+            "coefficients": [_num(v) for v in est.coefficients[k]],
+            "coefficients_sigma": [_num(v) for v in est.coefficients_sigma[k]],
+            "coefficients_normalised": [_num(v) for v in est.coefficients_normalised[k]],
+            "coefficients_normalised_sigma": [_num(v) for v in est.coefficients_normalised_sigma[k]],
+        }
+
+    def mep_per_nm(self) -> float:
+        """4 pi / V_d [Pa per N m] from this cycle's IMEP and indicated torque (the cylinder with the most work)."""
+        j = int(np.argmax(np.abs(self.indicated_torque)))
+        t = float(self.indicated_torque[j])
+        return float(self.imep[j]) / t if t != 0.0 else math.nan
+
+
+def _figure(status: FigureStatus, window: dict, torque: float, sigma: float, mep_per_nm: float) -> dict:
+    """One friction figure as shown: its status, reason, data weight, window and value (None where the status has
+    no value: unresolved, withheld)."""
+    has_value = status.status in ("measured", "share", "prior")
+    t = _num(torque) if has_value else None
+    s = _num(sigma) if has_value else None
+    return {
+        "status": status.status,
+        "reason": status.reason,
+        "data_weight": status.data_weight,
+        "window": dict(window),
+        "friction_torque_mean_nm": t,
+        "friction_torque_sigma_nm": s,
+        "fmep_bar": None if t is None else _num(t * mep_per_nm / PA_PER_BAR),
+        "fmep_sigma_bar": None if s is None else _num(s * mep_per_nm / PA_PER_BAR),
+    }
+
+
+def _measured_only(figure: dict) -> dict:
+    """The flat keys of a figure (the truth file's names): its value where measured, None otherwise."""
+    keys = ("friction_torque_mean_nm", "friction_torque_sigma_nm", "fmep_bar", "fmep_sigma_bar")
+    measured = figure["status"] == "measured"
+    return {key: figure[key] if measured else None for key in keys}
 
 
 _TRACES = ("grid", "friction_torque", "friction_torque_cyl_time", "time_angles", "speed_measured", "speed_model",
