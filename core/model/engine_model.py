@@ -42,7 +42,7 @@ from frictionwatch.core.model.effects import (
     make_effect,
     resolve_effects,
 )
-from frictionwatch.core.model.engine import EngineSpec, SpecError, load_engine, spec_from_dict
+from frictionwatch.core.model.engine import EngineSpec, SpecError, load_engine, read_engine_text, spec_from_dict
 from frictionwatch.core.model.terms import LossTerm, TermLibrary, rezeka_henein
 
 SPEC_TABLES = ("name", "description", "geometry", "cylinders", "shaft", "friction", "combustion", "load", "sensors",
@@ -189,7 +189,7 @@ def load_model(name_or_path: str | Path) -> EngineModel:
     says, a plain engine file or preset as its spec's default model."""
     p = Path(name_or_path)
     if p.suffix and p.exists():
-        text = p.read_text()
+        text = read_engine_text(p)
         try:
             is_model = "model" in tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
