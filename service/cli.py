@@ -19,6 +19,7 @@ COMMANDS = {
     "simulate": "frictionwatch.service.cmd_simulate",
     "analyze": "frictionwatch.service.cmd_analyze",
     "import-daq": "frictionwatch.service.cmd_import_daq",
+    "trace": "frictionwatch.service.cmd_trace",
 }
 
 
