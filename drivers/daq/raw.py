@@ -289,6 +289,7 @@ def daq_to_records(
 ) -> tuple[AcquisitionInfo, list[StreamRecord]]:
     """A raw DAQ file as (AcquisitionInfo, records in acquisition order): ToothBatch + PressureBlock (cylinder 1)
     per ``block_s`` of signal, exactly what a live source yields. Options as in ``process_daq``."""
+    _wheel(wheel)  # a malformed wheel is refused before the file is read
     return trace_to_records(read_daq_table(path, columns), wheel, tdc_deg, engine=engine, tick_hz=tick_hz,
                             gain_pa_per_v=gain_pa_per_v, peg=peg, peg_pa=peg_pa, n_poly=n_poly, block_s=block_s)
 
