@@ -54,10 +54,17 @@ def run(args: argparse.Namespace) -> int:
                          "pressure channel; the monitor needs the pressure of every cylinder")
     if args.gain_bar_per_v is not None and not args.gain_bar_per_v > 0:
         raise ValueError(f"--gain-bar-per-v {args.gain_bar_per_v:g} must be > 0")
+    if not 0.0 <= args.tdc_deg < 720.0:
+        raise ValueError(f"--tdc-deg {args.tdc_deg:g} must be in [0, 720) deg after the first tooth past the gap")
+    if not args.peg_bar > 0 or not 1.0 < args.n_poly < 1.7:
+        raise ValueError(f"--peg-bar {args.peg_bar:g} must be > 0 and --n-poly {args.n_poly:g} in (1, 1.7)")
     trace = read_daq_table(args.file)
     wheel, seen = trace_wheel(trace, args.wheel)
     if args.wheel is None:
         print(f"wheel {wheel}, read from the file: {seen}")
+    engine_wheel = f"{spec.sensors.wheel_teeth}-{spec.sensors.wheel_missing}"
+    if wheel != engine_wheel:  # the monitor fits the teeth of the engine's wheel to the log's edges
+        raise ValueError(f"--engine {args.engine} has a {engine_wheel} wheel but the file's is {wheel}")
     options: dict = {"peg": args.peg, "peg_pa": args.peg_bar * 1e5, "n_poly": args.n_poly, "tdc_deg": args.tdc_deg,
                      "gain_pa_per_v": None if args.self_calibrate else args.gain_bar_per_v * 1e5}
     info, records = trace_to_records(trace, wheel, engine=spec, **options)

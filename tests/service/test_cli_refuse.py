@@ -96,6 +96,15 @@ def test_argparse_errors_are_one_line_naming_the_option_exit_2(args, needles, ca
         assert n in err, err
 
 
+def test_import_daq_option_values_name_the_option(tmp_path, capsys):
+    path = daq_file(tmp_path / "w.txt.gz", teeth=60, missing=2)
+    base = ["import-daq", str(path), "--engine", "deutz-1cyl", "--gain-bar-per-v", "10", "-o", str(tmp_path / "o.mcap")]
+    one_line_error([*base, "--tdc-deg", "900"], capsys, "--tdc-deg 900")
+    one_line_error([*base, "--tdc-deg", "90", "--n-poly", "3"], capsys, "--n-poly 3")
+    one_line_error(["import-daq", str(path), "--engine", "deutz-1cyl", "--tdc-deg", "90", "--gain-bar-per-v", "-2",
+                    "-o", str(tmp_path / "o.mcap")], capsys, "--gain-bar-per-v -2")
+
+
 def test_negative_seed_names_the_option(tmp_path, capsys):
     one_line_error(["simulate", "--engine", "k9k-4cyl", "--rpm", "1500", "--seed", "-1", "-o",
                     str(tmp_path / "o.mcap")], capsys, "--seed -1")
@@ -134,11 +143,20 @@ DAQ_OPTS = ["--tdc-deg", "90", "--gain-bar-per-v", "10"]
 
 
 def test_import_daq_reads_the_wheel_from_the_file_and_says_it(tmp_path, capsys):
-    path = daq_file(tmp_path / "wheel36.txt.gz")
+    path = daq_file(tmp_path / "wheel60.txt.gz", teeth=60, missing=2)
     assert main(["import-daq", str(path), "--engine", "deutz-1cyl", *DAQ_OPTS, "-o", str(tmp_path / "o.mcap")]) == 0
     out = capsys.readouterr().out
-    assert "wheel 36-1, read from the file: 35 teeth and a 1-tooth gap per revolution" in out, out
+    assert "wheel 60-2, read from the file: 58 teeth and a 2-tooth gap per revolution" in out, out
     assert (tmp_path / "o.mcap").stat().st_size > 0
+
+
+def test_import_daq_refuses_an_engine_whose_wheel_is_not_the_files(tmp_path, capsys):
+    path = daq_file(tmp_path / "wheel36.txt.gz")
+    err = one_line_error(["import-daq", str(path), "--engine", "deutz-1cyl", *DAQ_OPTS, "-o",
+                          str(tmp_path / "o.mcap")], capsys, "--engine deutz-1cyl has a 60-2 wheel but the file's is 36-1")
+    assert not (tmp_path / "o.mcap").exists(), err
+    one_line_error(["import-daq", str(path), "--engine", "deutz-1cyl", "--wheel", "36-1", *DAQ_OPTS, "-o",
+                    str(tmp_path / "o.mcap")], capsys, "60-2 wheel but the file's is 36-1")
 
 
 def test_import_daq_refuses_a_wheel_the_file_does_not_have(tmp_path, capsys):
@@ -147,6 +165,12 @@ def test_import_daq_refuses_a_wheel_the_file_does_not_have(tmp_path, capsys):
                     str(tmp_path / "o.mcap")], capsys,
                    "--wheel 36-1 but the file's wheel has 58 teeth and a 2-tooth gap per revolution (60-2")
     assert not (tmp_path / "o.mcap").exists()
+
+
+def test_import_daq_without_a_gap_asks_for_the_wheel(tmp_path, capsys):
+    path = daq_file(tmp_path / "nogap.txt.gz", teeth=36, missing=0)
+    one_line_error(["import-daq", str(path), "--engine", "deutz-1cyl", *DAQ_OPTS, "-o", str(tmp_path / "o.mcap")],
+                   capsys, "no repeating missing-tooth gap", "--wheel")
 
 
 def test_import_daq_refuses_an_engine_with_more_cylinders_than_channels(tmp_path, capsys):
