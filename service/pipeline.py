@@ -195,10 +195,17 @@ def analyze_records(
     return LogAnalysis(pipe.spec, history.to_list(), pipe.skipped)
 
 
+BENCH_EXPORTS = {".mf4": "an MDF4 bus log", ".mdf": "an MDF4 bus log", ".csv": "a table",
+                 ".xlsx": "a spreadsheet"}  # what `trace` reads (service/cmd_trace.py)
+
+
 def analyze_log(path: Path, engine: str | None = None,
                 on_result: Callable[[CycleResult], None] | None = None) -> LogAnalysis:
     from frictionwatch.drivers.logs.mcap_log import LogReader
 
+    if Path(path).suffix.lower() in BENCH_EXPORTS:
+        raise ValueError(f"{Path(path).name} is {BENCH_EXPORTS[Path(path).suffix.lower()]}, not a replay log; "
+                         f"`frictionwatch trace {Path(path).name}` says what it measures")
     with LogReader(path) as reader:  # closes the file (and its mmap) even when the analysis raises
         model = resolve_model(reader.engine_toml, engine, Path(path).name, reader.info)
         if reader.info is None:

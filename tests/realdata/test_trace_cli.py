@@ -98,3 +98,10 @@ def test_tue_import_daq_reads_the_wheel_and_says_it(realdata, capsys, tmp_path):
     assert "--wheel 36-1 but the file's wheel has 58 teeth and a 2-tooth gap per revolution (60-2" \
         in capsys.readouterr().err
     assert not (tmp_path / "p.mcap").exists()
+
+
+def test_analyze_on_the_real_exports_points_to_trace(realdata, capsys):
+    for name in (POLITO, AUTH, f"{MDF}/truck_j1939_idle_00000001.MF4"):
+        assert main(["analyze", str(realdata / name)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "not a replay log" in err and "frictionwatch trace" in err, err
