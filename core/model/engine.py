@@ -361,7 +361,9 @@ def spec_from_dict(data: dict, source_text: str = "", origin: str = "<dict>") ->
     if n > 1:
         stiff = s.arr("stiffness_nm_per_rad", 0.0, 1e11, "N m/rad", length=n - 1)
         damp = s.arr("damping_nms_per_rad", 0.0, 1e7, "N m s/rad", length=n - 1)
-    else:
+    else:  # a rigid engine: couplings are not read (an empty list given for them is not an unknown key)
+        for key in ("stiffness_nm_per_rad", "damping_nms_per_rad"):
+            s.get(key)
         stiff = np.zeros(0)
         damp = np.zeros(0)
     nodes_of_cyl = c.get("node")

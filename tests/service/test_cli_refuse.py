@@ -205,3 +205,8 @@ def test_analyze_refuses_an_engine_that_is_not_the_logged_one(tmp_path, capsys):
     assert other_order != K9K
     one_line_error(["analyze", log, "--engine", engine_file(tmp_path, other_order)], capsys,
                    "firing angles [0, 540, 180, 360] deg recorded", "[0, 180, 540, 360] deg in the engine")
+
+
+def test_a_rigid_engine_may_list_no_couplings():
+    text = (PRESET_DIR / "deutz-1cyl.toml").read_text().replace("[shaft]", "[shaft]\nstiffness_nm_per_rad = []", 1)
+    assert spec_from_toml_text(text).n_nodes == 1
