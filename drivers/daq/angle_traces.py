@@ -158,16 +158,19 @@ def read_encoder_table(path: str | Path, engine: EngineSpec, gain_pa_per_v: floa
     if np.any(high[1:] == high[:-1]):
         raise CorruptLog(f"{p.name}: the pressure at the TDC markers does not alternate high/low "
                          f"({np.round(at_marks, 3).tolist()} V): the firing TDC cannot be told")
-    firing = mark_deg[high]
+    # a whole cycle lies between the gas-exchange markers either side of its firing marker, where the pulse count
+    # was checked above; a firing marker at either end of the record has no whole cycle
+    firing = mark_deg[1:-1][high[1:-1]]
     sample_deg = np.interp(t, edges, edge_deg, left=np.nan, right=np.nan)
     grid = cycle_grid()
+    comp = (grid >= -100.0) & (grid <= -60.0)
     cycles, rpm, notes = [], [], []
     for f in firing:
-        if f - 360.0 < edge_deg[0] or f + 360.0 > edge_deg[-1]:
-            continue
-        th = grid + f
-        u = np.interp(th, sample_deg[np.isfinite(sample_deg)], volts[np.isfinite(sample_deg)])
-        comp = (grid >= -100.0) & (grid <= -60.0)
+        u = np.interp(grid + f, sample_deg[np.isfinite(sample_deg)], volts[np.isfinite(sample_deg)])
+        peak = grid[np.argmax(u)]
+        if not -20.0 <= peak <= 50.0:  # as drivers/daq/pressure.py: elsewhere the marker is not this cylinder's TDC
+            raise CorruptLog(f"{p.name}: pressure peak {peak:.1f} deg from the firing TDC marker; the marker is not "
+                             "the measured cylinder's TDC")
         zero, _, _ = polytropic_zero(grid[comp], u[comp], engine, n_poly)
         cycles.append(gain_pa_per_v * (u - zero))
         rpm.append(120.0 / (np.interp(f + 360.0, edge_deg, edges) - np.interp(f - 360.0, edge_deg, edges)))

@@ -37,7 +37,7 @@ def write_xlsx(path, header, rows):
 
 
 def encoder_table(path, rpm=1200.0, rate_hz=72e3, edge_offset_deg=0.37, seconds=0.2, start_deg=-500.03,
-                  time_jitter=0.0):
+                  time_jitter=0.0, marker_deg=0.0):
     """Time (rounded to 1 us, as the AUTH export), pressure volts (10 bar/V, zero at +1.5 bar), a 360 ppr encoder
     whose rising zero-crossings fall ``edge_offset_deg`` after each whole degree, a 1-sample TDC marker whose rising
     mid-level crossing lies exactly at each TDC (0 and 360 deg of the cylinder's angle)."""
@@ -47,7 +47,7 @@ def encoder_table(path, rpm=1200.0, rate_hz=72e3, edge_offset_deg=0.37, seconds=
     volts = (true_pressure(theta) - 1.5e5) / 10e5
     encoder = 4.2 * np.sin(2 * np.pi * (theta - edge_offset_deg))
     marker = np.full(n, -0.37)
-    for tdc in np.arange(np.ceil(start_deg / 360.0) * 360.0, theta[-1], 360.0):
+    for tdc in np.arange(np.ceil((start_deg - marker_deg) / 360.0) * 360.0 + marker_deg, theta[-1], 360.0):
         i = int(np.searchsorted(theta, tdc, side="right"))  # first sample after this TDC
         f = (tdc - theta[i - 1]) / (theta[i] - theta[i - 1])
         marker[i] = 4.0
@@ -91,6 +91,11 @@ def test_a_marker_taken_on_the_next_edge_would_be_wrong_by_the_offset(tmp_path):
     late = net_imep(th, true_pressure(pc.angle_deg + 0.63)[None], np.zeros(1), *kin)[0]
     imep_true = truth(cycle_grid())[0]
     assert abs(late / imep_true - 1.0) > 5 * abs(got / imep_true - 1.0)
+
+
+def test_a_marker_that_is_not_the_measured_cylinders_tdc_is_refused(tmp_path):
+    with pytest.raises(CorruptLog, match="marker is not the measured cylinder's TDC"):
+        read_encoder_table(encoder_table(tmp_path / "m.xlsx", marker_deg=90.0), SPEC, 10e5)
 
 
 def test_time_stamps_that_are_not_rounded_but_jittered_are_refused(tmp_path):
