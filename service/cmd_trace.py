@@ -101,7 +101,8 @@ def pressure_document(pc: PressureCycles, spec: EngineSpec, kind: str, brake_tor
         doc["brake"] = {"torque_nm": brake_torque_nm, "bmep_bar": bmep / 1e5,
                         "imep_minus_bmep_bar": doc["imep_bar"] - bmep / 1e5,
                         "assumes": f"cylinder {pc.cylinder} stands for all {spec.n_cyl} (not checked: only it was "
-                                   "measured); includes auxiliaries and pumping beyond the net cycle"}
+                                   "measured); it is mechanical friction plus auxiliaries (net IMEP already "
+                                   "counts the pumping loop)"}
         measured.append("BMEP from the stated brake torque")
     doc["measured"], doc["not_measured"] = measured, not_measured
     return doc
