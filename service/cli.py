@@ -10,6 +10,7 @@ import importlib
 import logging
 import os
 import sys
+from typing import NoReturn
 
 from frictionwatch.core.model.engine import SpecError
 from frictionwatch.drivers.errors import DriverError
@@ -18,6 +19,7 @@ COMMANDS = {
     "simulate": "frictionwatch.service.cmd_simulate",
     "analyze": "frictionwatch.service.cmd_analyze",
     "import-daq": "frictionwatch.service.cmd_import_daq",
+    "trace": "frictionwatch.service.cmd_trace",
 }
 
 
@@ -25,8 +27,17 @@ class UsageError(Exception):
     """A problem the user can fix; printed as one line, exit code 2."""
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse with its errors as ONE line naming the option (no usage block), exit code 2 as argparse has it.
+    Subparsers inherit the class (``add_subparsers`` makes them with ``type(parent)``), so ``prog`` names the
+    subcommand: 'frictionwatch simulate: error: argument --seed: invalid int value: 'x''."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="frictionwatch", description="Per-cylinder engine friction monitor")
+    parser = OneLineParser(prog="frictionwatch", description="Per-cylinder engine friction monitor")
     parser.add_argument("-v", "--verbose", action="store_true", help="log warnings and details to stderr")
     sub = parser.add_subparsers(dest="command", required=True)
     for module in COMMANDS.values():

@@ -40,6 +40,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--load {args.load:g} must be a fraction of full load in 0..1.1")
     if not 1 <= args.cycles <= 100_000:
         raise ValueError(f"--cycles {args.cycles} must be 1..100000")
+    if args.seed < 0:
+        raise ValueError(f"--seed {args.seed} must be >= 0")
     effects = [parse_effect(text) for text in args.effect]  # several instances allowed (ring_wear in 1 and 2)
     kwargs = {} if args.cov_imep is None else {"cov_imep": args.cov_imep}
     with progress_bar(total=1.0, desc=f"simulate {spec.name}") as bar:
@@ -53,4 +55,5 @@ def run(args: argparse.Namespace) -> int:
             writer.write(record)
     truth_path(args.output).write_text(json.dumps(result.truth, indent=1))
     print(f"wrote {args.output} and {truth_path(args.output).name}: {args.cycles} cycles, FMEP {result.truth['fmep_bar']:.3f} bar")
+    print("effects active: " + (", ".join(e["name"] + (f" (cylinder {e['params']['cylinder']})" if "cylinder" in e["params"] else "") for e in result.truth["effects"]) or "none"))
     return 0

@@ -11,6 +11,7 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 from frictionwatch.core.model.engine import EngineSpec, spec_from_toml_text
 from frictionwatch.core.model.engine_model import EngineModel, as_model, load_model
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
@@ -122,14 +123,58 @@ class LogAnalysis:
         return len(self.results) + self.dropped
 
 
-def resolve_model(engine_toml: str | None, engine: str | None, origin: str) -> EngineModel:
+def resolve_model(engine_toml: str | None, engine: str | None, origin: str,
+                  info: AcquisitionInfo | None = None) -> EngineModel:
     """The engine or model file named on the command line wins (a model file, ``EngineModel.to_toml``, brings its
-    loss terms and coefficients); else the default model of the spec the log carries."""
+    loss terms and coefficients); else the default model of the spec the log carries. A named engine that cannot
+    be the one recorded is refused (``engine_mismatch``)."""
     if engine:
-        return load_model(engine)
+        model = load_model(engine)
+        problems = engine_mismatch(model.spec, engine_toml, info, origin)
+        if problems:
+            raise ValueError(f"--engine {engine} does not match {origin}: {'; '.join(problems)}")
+        return model
     if not engine_toml:
         raise ValueError(f"{origin} carries no engine spec; name one with --engine")
     return EngineModel.from_spec(spec_from_toml_text(engine_toml, origin=origin))
+
+
+def engine_mismatch(spec: EngineSpec, engine_toml: str | None, info: AcquisitionInfo | None,
+                    origin: str) -> list[str]:
+    """What makes ``spec`` impossible for a log that stores ``engine_toml`` and ``info``, in words (empty: none).
+
+    Refused rather than warned: each of these makes every figure wrong, not just less accurate: the cylinder count
+    and the firing order place the pressure traces, the wheel places every tooth. Other differences (masses,
+    friction, shaft line) are what --engine is for and pass. A stored spec that cannot be read is not compared."""
+    problems = []
+    if info is not None and (info.wheel_teeth, info.wheel_missing) != (spec.sensors.wheel_teeth,
+                                                                        spec.sensors.wheel_missing):
+        problems.append(f"the log's wheel is {info.wheel_teeth}-{info.wheel_missing}, the engine's "
+                        f"{spec.sensors.wheel_teeth}-{spec.sensors.wheel_missing}")
+    if info is not None and info.pressure_cylinders and max(info.pressure_cylinders) > spec.n_cyl:
+        problems.append(f"the log has pressure of cylinder {max(info.pressure_cylinders)}, the engine "
+                        f"{spec.n_cyl} cylinders")
+    if not engine_toml:
+        return problems
+    try:
+        stored = spec_from_toml_text(engine_toml, origin=origin)
+    except ValueError as exc:
+        log.warning("%s: the stored engine spec cannot be read, not compared with --engine: %s", origin, exc)
+        return problems
+    if stored.n_cyl != spec.n_cyl:
+        problems.append(f"it was recorded on {stored.name} with {stored.n_cyl} cylinders, the engine has {spec.n_cyl}")
+    elif not np.allclose(stored.firing_angles, spec.firing_angles, atol=1e-9):
+        problems.append(f"firing angles {_degrees(stored.firing_angles)} deg recorded ({stored.name}), "
+                        f"{_degrees(spec.firing_angles)} deg in the engine")
+    if info is None and (stored.sensors.wheel_teeth, stored.sensors.wheel_missing) != (
+            spec.sensors.wheel_teeth, spec.sensors.wheel_missing):
+        problems.append(f"wheel {stored.sensors.wheel_teeth}-{stored.sensors.wheel_missing} recorded, "
+                        f"{spec.sensors.wheel_teeth}-{spec.sensors.wheel_missing} in the engine")
+    return problems
+
+
+def _degrees(angles: np.ndarray) -> str:
+    return "[" + ", ".join(f"{a:g}" for a in np.round(np.degrees(angles), 3)) + "]"
 
 
 def analyze_records(
@@ -150,12 +195,19 @@ def analyze_records(
     return LogAnalysis(pipe.spec, history.to_list(), pipe.skipped)
 
 
+BENCH_EXPORTS = {".mf4": "an MDF4 bus log", ".mdf": "an MDF4 bus log", ".csv": "a table",
+                 ".xlsx": "a spreadsheet"}  # what `trace` reads (service/cmd_trace.py)
+
+
 def analyze_log(path: Path, engine: str | None = None,
                 on_result: Callable[[CycleResult], None] | None = None) -> LogAnalysis:
     from frictionwatch.drivers.logs.mcap_log import LogReader
 
+    if Path(path).suffix.lower() in BENCH_EXPORTS:
+        raise ValueError(f"{Path(path).name} is {BENCH_EXPORTS[Path(path).suffix.lower()]}, not a replay log; "
+                         f"`frictionwatch trace {Path(path).name}` says what it measures")
     with LogReader(path) as reader:  # closes the file (and its mmap) even when the analysis raises
-        model = resolve_model(reader.engine_toml, engine, Path(path).name)
+        model = resolve_model(reader.engine_toml, engine, Path(path).name, reader.info)
         if reader.info is None:
             raise ValueError(f"{Path(path).name} has no acquisition metadata; is it a frictionwatch log?")
         analysis = analyze_records(model, reader.info, reader.records(), on_result)

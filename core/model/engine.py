@@ -12,6 +12,7 @@ Shaft line (physics.md §11): nodes front to rear (damper ring, hub, throws, fly
 
 from __future__ import annotations
 
+import difflib
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -207,12 +208,27 @@ def load_engine(name_or_path: str | Path) -> EngineSpec:
             raise SpecError(f"unknown engine '{name_or_path}'; presets: {', '.join(available_presets())}")
     if not p.exists():
         raise SpecError(f"engine file not found: {p}")
-    text = p.read_text()
+    text = read_engine_text(p)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SpecError(f"{p.name}: not valid TOML: {exc}") from exc
     return spec_from_dict(data, source_text=text, origin=p.name)
+
+
+def read_engine_text(path: Path) -> str:
+    """The text of an engine or model file; SpecError naming the file when it is not UTF-8 text (a binary file)."""
+    raw = path.read_bytes()
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SpecError(f"{path.name}: not a TOML text file (byte {exc.start} is not UTF-8 text)") from None
+
+
+def nearest_known(key: str, known) -> str:
+    """The known name closest to ``key`` (difflib), for 'unknown key ...; nearest known: ...' messages."""
+    match = difflib.get_close_matches(key, list(known), n=1, cutoff=0.0)
+    return match[0] if match else ""
 
 
 def spec_from_toml_text(text: str, origin: str = "<text>") -> EngineSpec:
@@ -228,34 +244,70 @@ class _Reader:
 
     def __init__(self, data: dict, path: str, origin: str):
         self.data, self.path, self.origin = data, path, origin
+        self.known: set[str] = set()  # every key this reader was asked for (present or defaulted)
+        self.children: list[_Reader] = []
+
+    def get(self, key: str, default: object = None) -> object:
+        self.known.add(key)
+        return self.data.get(key, default)
 
     def table(self, key: str) -> _Reader:
-        v = self.data.get(key)
+        v = self.get(key)
         if not isinstance(v, dict):
-            raise SpecError(f"{self.origin}: missing table [{self._name(key)}]")
-        return _Reader(v, self._name(key), self.origin)
+            raise self.missing(key, f"table [{self._name(key)}]")
+        child = _Reader(v, self._name(key), self.origin)
+        self.children.append(child)
+        return child
+
+    def missing(self, key: str, what: str) -> SpecError:
+        """The error for a missing ``key``: a misspelling of it present in the table is named as the unknown key
+        (``bore_mm`` for ``bore_m``), else the field is missing."""
+        strays = [k for k in self.data if k not in self.known]
+        close = difflib.get_close_matches(key, strays, n=1, cutoff=0.6)
+        if close:
+            return SpecError(f"{self.origin}: unknown key '{self._name(close[0])}'; nearest known: '{self._name(key)}'")
+        return SpecError(f"{self.origin}: missing {what}")
+
+    def refuse_unknown(self) -> None:
+        """SpecError for the first key no field reads (a misspelling such as ``bore_mm`` would otherwise be ignored
+        and its field take its default or fail as 'missing'), naming the nearest known key."""
+        for key in self.data:
+            if key not in self.known:
+                raise SpecError(f"{self.origin}: unknown key '{self._name(key)}'; nearest known: "
+                                f"'{self._name(nearest_known(key, self.known))}'")
+        for child in self.children:
+            child.refuse_unknown()
 
     def _name(self, key: str) -> str:
         return f"{self.path}.{key}" if self.path else key
 
     def num(self, key: str, lo: float, hi: float, unit: str, default: float | None = None) -> float:
-        v = self.data.get(key, default)
+        v = self.get(key, default)
         if v is None:
-            raise SpecError(f"{self.origin}: missing field {self._name(key)} [{unit}]")
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+            raise self.missing(key, f"field {self._name(key)} [{unit}]")
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise SpecError(f"{self.origin}: {self._name(key)} = {v!r}: expected a number [{unit}]")
+        if not math.isfinite(v) or not lo <= v <= hi:
             raise SpecError(f"{self.origin}: {self._name(key)} = {v!r} is out of range; expected {lo:g}..{hi:g} {unit}")
         return float(v)
 
     def int_(self, key: str, lo: int, hi: int, default: int | None = None) -> int:
-        v = self.data.get(key, default)
+        v = self.get(key, default)
+        if v is None:
+            raise self.missing(key, f"field {self._name(key)} (an integer)")
         if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
             raise SpecError(f"{self.origin}: {self._name(key)} = {v!r}; expected an integer {lo}..{hi}")
         return v
 
     def arr(self, key: str, lo: float, hi: float, unit: str, length: int | None = None) -> np.ndarray:
-        v = self.data.get(key)
+        v = self.get(key)
+        if v is None:
+            raise self.missing(key, f"list {self._name(key)} [{unit}]")
         if not isinstance(v, list) or not v:
-            raise SpecError(f"{self.origin}: missing list {self._name(key)} [{unit}]")
+            raise SpecError(f"{self.origin}: {self._name(key)} = {v!r}; expected a list of numbers [{unit}]")
+        for i, x in enumerate(v):
+            if isinstance(x, bool) or not isinstance(x, (int, float)):
+                raise SpecError(f"{self.origin}: {self._name(key)}[{i}] = {x!r}: expected a number [{unit}]")
         a = np.asarray(v, dtype=np.float64)
         if length is not None and a.shape[0] != length:
             raise SpecError(f"{self.origin}: {self._name(key)} has {a.shape[0]} values; expected {length}")
@@ -268,14 +320,16 @@ class _Reader:
         return a
 
     def str_(self, key: str, choices: tuple[str, ...] | None = None, default: str | None = None) -> str:
-        v = self.data.get(key, default)
+        v = self.get(key, default)
+        if v is None:
+            raise self.missing(key, f"field {self._name(key)} (a string)")
         if not isinstance(v, str) or (choices and v not in choices):
             want = f"one of {', '.join(choices)}" if choices else "a string"
             raise SpecError(f"{self.origin}: {self._name(key)} = {v!r}; expected {want}")
         return v
 
     def bool_(self, key: str, default: bool) -> bool:
-        v = self.data.get(key, default)
+        v = self.get(key, default)
         if not isinstance(v, bool):
             raise SpecError(f"{self.origin}: {self._name(key)} = {v!r}; expected true or false")
         return v
@@ -299,7 +353,7 @@ def spec_from_dict(data: dict, source_text: str = "", origin: str = "<dict>") ->
     m_rec = c.num("reciprocating_mass_kg", 0.01, 500.0, "kg")
 
     s = r.table("shaft")
-    names = s.data.get("nodes")
+    names = s.get("nodes")
     if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
         raise SpecError(f"{origin}: shaft.nodes must be a list of node names")
     n = len(names)
@@ -307,10 +361,12 @@ def spec_from_dict(data: dict, source_text: str = "", origin: str = "<dict>") ->
     if n > 1:
         stiff = s.arr("stiffness_nm_per_rad", 0.0, 1e11, "N m/rad", length=n - 1)
         damp = s.arr("damping_nms_per_rad", 0.0, 1e7, "N m s/rad", length=n - 1)
-    else:
+    else:  # a rigid engine: couplings are not read (an empty list given for them is not an unknown key)
+        for key in ("stiffness_nm_per_rad", "damping_nms_per_rad"):
+            s.get(key)
         stiff = np.zeros(0)
         damp = np.zeros(0)
-    nodes_of_cyl = c.data.get("node")
+    nodes_of_cyl = c.get("node")
     if not isinstance(nodes_of_cyl, list) or len(nodes_of_cyl) != z:
         raise SpecError(f"{origin}: cylinders.node must list the shaft node name of each of the {z} cylinders")
     try:
@@ -389,9 +445,12 @@ def spec_from_dict(data: dict, source_text: str = "", origin: str = "<dict>") ->
     rng = op.arr("speed_range_rpm", 50.0, 25000.0, "rpm", length=2)
     if not rng[0] < rated <= rng[1]:
         raise SpecError(f"{origin}: operating.speed_range_rpm {rng.tolist()} must contain rated_speed_rpm {rated}")
+    rated_torque = op.num("rated_torque_nm", 0.1, 1e6, "N m")
+    description = r.get("description", "")
+    r.refuse_unknown()
     return EngineSpec(
         name=name,
-        description=str(data.get("description", "")),
+        description=str(description),
         bore=bore,
         stroke=stroke,
         conrod=conrod,
@@ -411,7 +470,7 @@ def spec_from_dict(data: dict, source_text: str = "", origin: str = "<dict>") ->
         load=load,
         sensors=sensors,
         rated_speed_rpm=rated,
-        rated_torque_nm=op.num("rated_torque_nm", 0.1, 1e6, "N m"),
+        rated_torque_nm=rated_torque,
         speed_range_rpm=(float(rng[0]), float(rng[1])),
         source_text=source_text,
     )

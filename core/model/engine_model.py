@@ -27,7 +27,6 @@ A term is known by name: the six Rezeka-Henein terms, ``auxiliaries_quadratic`` 
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import re
 import tomllib
 from collections.abc import Iterable, Mapping
@@ -42,7 +41,14 @@ from frictionwatch.core.model.effects import (
     make_effect,
     resolve_effects,
 )
-from frictionwatch.core.model.engine import EngineSpec, SpecError, load_engine, spec_from_dict
+from frictionwatch.core.model.engine import (
+    EngineSpec,
+    SpecError,
+    load_engine,
+    nearest_known,
+    read_engine_text,
+    spec_from_dict,
+)
 from frictionwatch.core.model.terms import LossTerm, TermLibrary, rezeka_henein
 
 SPEC_TABLES = ("name", "description", "geometry", "cylinders", "shaft", "friction", "combustion", "load", "sensors",
@@ -189,7 +195,7 @@ def load_model(name_or_path: str | Path) -> EngineModel:
     says, a plain engine file or preset as its spec's default model."""
     p = Path(name_or_path)
     if p.suffix and p.exists():
-        text = p.read_text()
+        text = read_engine_text(p)
         try:
             is_model = "model" in tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
@@ -211,8 +217,7 @@ def as_model(engine: EngineModel | EngineSpec) -> EngineModel:
 # ---- helpers --------------------------------------------------------------------------------------------------
 
 def _nearest(key: str, known: Iterable[str]) -> str:
-    match = difflib.get_close_matches(key, list(known), n=1, cutoff=0.0)
-    return match[0] if match else ""
+    return nearest_known(key, known)  # one rule for engine and model files (core.model.engine)
 
 
 def _known_keys(table: object, known: tuple[str, ...], prefix: str, origin: str) -> None:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import gzip
 import logging
+import warnings
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,7 +42,7 @@ from frictionwatch.drivers.daq.pressure import (
     sortable_angle,
     wheel_angle_of_samples,
 )
-from frictionwatch.drivers.daq.teeth import ToothEdges
+from frictionwatch.drivers.daq.teeth import ToothEdges, WheelPattern, edge_ticks, wheel_pattern
 from frictionwatch.drivers.daq.teeth import detect_teeth as _detect_teeth_signal
 from frictionwatch.drivers.errors import CorruptLog
 
@@ -83,12 +84,15 @@ def read_daq_table(path: str | Path, columns: tuple[int, int] | None = None) -> 
     p = Path(path)
     opener = gzip.open if p.suffix == ".gz" else open
     try:
-        with opener(p, "rb") as fh:
+        with opener(p, "rb") as fh, warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # "input contained no data": the size check below says it
             a = np.loadtxt(fh, dtype=np.float64, ndmin=2)
     except FileNotFoundError:
         raise
     except (OSError, ValueError, EOFError) as exc:
-        raise CorruptLog(f"{p.name}: not a numeric DAQ table: {exc}") from exc
+        raise CorruptLog(f"{p.name}: not a numeric DAQ table: {' '.join(str(exc).split())}") from exc
+    if a.size == 0:
+        raise CorruptLog(f"{p.name}: empty file (no data rows)")
     if a.shape[0] < 100 or a.shape[1] < 3:
         raise CorruptLog(f"{p.name}: need >= 100 rows and 3 columns (time, wheel, pressure), got {a.shape}")
     if not np.all(np.isfinite(a[:, :3])):
@@ -123,6 +127,24 @@ def _wheel(wheel: str) -> tuple[int, int]:
     if not (4 <= n <= 2000 and 1 <= k < n // 2):
         raise ValueError(f"implausible wheel {wheel!r}")
     return n, k
+
+
+def trace_wheel(trace: DaqTrace, wheel: str | None) -> tuple[str, WheelPattern | None]:
+    """The wheel to use for ``trace`` as 'N-K' and the pattern its edges show (drivers.daq.teeth.wheel_pattern).
+
+    ``wheel`` None: the detected one (ValueError if none can be seen). A given wheel must match the detected
+    pattern: ValueError naming both otherwise. A record too short to show two gaps keeps the given wheel."""
+    ticks, _, _ = edge_ticks(trace.wheel_v, trace.sample_rate_hz)
+    seen = wheel_pattern(ticks)
+    if wheel is None:
+        if seen is None:
+            raise ValueError(f"{trace.name}: no repeating missing-tooth gap found in the wheel signal "
+                             f"({ticks.shape[0]} edges); name the wheel with --wheel")
+        return f"{seen.teeth}-{seen.missing}", seen
+    n, k = _wheel(wheel)
+    if seen is not None and (seen.present, seen.missing) != (n - k, k):
+        raise ValueError(f"--wheel {wheel} but the file's wheel has {seen}")
+    return wheel, seen
 
 
 def detect_teeth(trace: DaqTrace, wheel: str = "60-2", tick_hz: float = 10e6, **kw: float) -> ToothEdges:
@@ -267,10 +289,28 @@ def daq_to_records(
 ) -> tuple[AcquisitionInfo, list[StreamRecord]]:
     """A raw DAQ file as (AcquisitionInfo, records in acquisition order): ToothBatch + PressureBlock (cylinder 1)
     per ``block_s`` of signal, exactly what a live source yields. Options as in ``process_daq``."""
+    _wheel(wheel)  # a malformed wheel is refused before the file is read
+    return trace_to_records(read_daq_table(path, columns), wheel, tdc_deg, engine=engine, tick_hz=tick_hz,
+                            gain_pa_per_v=gain_pa_per_v, peg=peg, peg_pa=peg_pa, n_poly=n_poly, block_s=block_s)
+
+
+def trace_to_records(
+    trace: DaqTrace,
+    wheel: str = "60-2",
+    tdc_deg: float = TUE_TDC_DEG,
+    *,
+    engine: EngineSpec | str = "tue-4gb10",
+    tick_hz: float = 10e6,
+    gain_pa_per_v: float | None = TUE_GAIN_PA_PER_V,
+    peg: str = "polytropic",
+    peg_pa: float = 1.0e5,
+    n_poly: float = 1.32,
+    block_s: float = 0.01,
+) -> tuple[AcquisitionInfo, list[StreamRecord]]:
+    """``daq_to_records`` of a trace already read."""
     if not block_s > 0:
         raise ValueError(f"block_s must be > 0 s, got {block_s}")
     n_teeth, n_missing = _wheel(wheel)
-    trace = read_daq_table(path, columns)
     res = process_daq(
         trace,
         engine,

@@ -206,6 +206,92 @@ def sync_wheel(
     return np.asarray(rs, dtype=i64), np.asarray(re, dtype=i64), np.asarray(turns, dtype=i64), damage
 
 
+def edge_ticks(
+    signal: np.ndarray,
+    sample_rate_hz: float,
+    tick_hz: float = 10e6,
+    t0_ticks: int = 0,
+    level: float = 0.0,
+    arm_frac: float = 0.05,
+    fire_frac: float = 0.08,
+    weak_frac: float = 0.5,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ticks, peak_v, timing_level) of every rising edge of a sampled wheel signal, before any sync
+    (``detect_teeth`` gives the thresholds)."""
+    w = np.ascontiguousarray(signal, dtype=np.float64).ravel()
+    if sample_rate_hz <= 0 or tick_hz < sample_rate_hz:
+        raise ValueError(f"need tick_hz ({tick_hz}) >= sample_rate_hz ({sample_rate_hz}) > 0")
+    if not 0.0 < arm_frac < fire_frac < 0.5:
+        raise ValueError(f"need 0 < arm_frac ({arm_frac}) < fire_frac ({fire_frac}) < 0.5")
+    if w.shape[0] < 16:
+        raise ValueError(f"wheel signal too short ({w.shape[0]} samples)")
+    lo, hi = np.percentile(w, [1.0, 99.0])
+    span = hi - lo
+    if not span > 0:
+        raise ValueError("wheel signal is flat: no teeth")
+    arm, fire = lo + arm_frac * span, lo + fire_frac * span
+    pos, peak, lev = hysteresis_edges(w, arm, fire, level, weak_frac)
+    ticks = int(t0_ticks) + np.rint(pos * (tick_hz / sample_rate_hz)).astype(np.int64)
+    keep = np.concatenate([[True], np.diff(ticks) > 0])  # two edges in one tick cannot happen; guard anyway
+    return ticks[keep], peak[keep], lev[keep]
+
+
+@dataclass(frozen=True)
+class WheelPattern:
+    """What a record's edges say about its wheel: ``present`` edges per revolution between two gaps (the most
+    common count), a gap of ``missing`` teeth (its interval is about missing + 1 pitches), ``revolutions`` complete
+    revolutions counted and ``agree`` of them with exactly ``present`` edges."""
+
+    present: int
+    missing: int
+    revolutions: int
+    agree: int
+
+    @property
+    def teeth(self) -> int:
+        return self.present + self.missing
+
+    def __str__(self) -> str:
+        return (f"{self.present} teeth and a {self.missing}-tooth gap per revolution ({self.teeth}-{self.missing}; "
+                f"{self.agree} of {self.revolutions} revolutions)")
+
+
+def wheel_pattern(ticks: np.ndarray) -> WheelPattern | None:
+    """The tooth pattern of a record from its edge ticks alone (no wheel assumed), or None when no gap repeats.
+
+    An interval is a gap when it is >= 1.5x the median of the two intervals either side (a single missing tooth
+    gives 2x, the TU/e 60-2 gap 3.3-3.6x with its distorted neighbours); ``present`` is the most common count of
+    edges from one gap to the next, ``missing`` the gap's width in pitches less one (comment below). Needs at least
+    two complete revolutions (three gaps)."""
+    t = np.asarray(ticks, dtype=np.int64)
+    if t.shape[0] < 12:
+        return None
+    d = np.diff(t).astype(np.float64)
+    dp = np.concatenate([np.full(2, np.nan), d, np.full(2, np.nan)])
+    n = d.shape[0]
+    ref = np.nanmedian(np.stack([dp[0:n], dp[1 : n + 1], dp[3 : n + 3], dp[4 : n + 4]]), axis=0)
+    r = d / ref
+    gaps = np.flatnonzero(r >= 1.5)
+    if gaps.shape[0] < 3:
+        return None
+    counts = np.diff(gaps)  # edges from the first tooth after one gap to the first after the next
+    values, freq = np.unique(counts, return_counts=True)
+    present = int(values[np.argmax(freq)])
+    # the gap in pitches: the teeth beside a VR gap are timed early or late (the TU/e 60-2 gap alone reads 3.3-3.6
+    # pitches), which moves time between neighbouring intervals but not out of their sum; so the gap and its two
+    # neighbours over the local pitch (median of the five intervals beyond them on either side) is missing + 3
+    span = []
+    for g in gaps[(gaps >= 6) & (gaps < n - 6)]:
+        pitch = np.median(np.concatenate([d[g - 6 : g - 1], d[g + 2 : g + 7]]))
+        span.append(d[g - 1 : g + 2].sum() / pitch)
+    if not span:
+        return None
+    missing = int(np.rint(np.median(span))) - 3
+    if present < 3 or missing < 1:
+        return None
+    return WheelPattern(present, missing, int(counts.shape[0]), int(freq.max()))
+
+
 def detect_teeth(
     signal: np.ndarray,
     sample_rate_hz: float,
@@ -226,22 +312,7 @@ def detect_teeth(
     Ticks are ``t0_ticks + rint(position * tick_hz / sample_rate_hz)`` (0.1 us at 10 MHz, well below the
     interpolation error of about 1 us).
     """
-    w = np.ascontiguousarray(signal, dtype=np.float64).ravel()
-    if sample_rate_hz <= 0 or tick_hz < sample_rate_hz:
-        raise ValueError(f"need tick_hz ({tick_hz}) >= sample_rate_hz ({sample_rate_hz}) > 0")
-    if not 0.0 < arm_frac < fire_frac < 0.5:
-        raise ValueError(f"need 0 < arm_frac ({arm_frac}) < fire_frac ({fire_frac}) < 0.5")
-    if w.shape[0] < 16:
-        raise ValueError(f"wheel signal too short ({w.shape[0]} samples)")
-    lo, hi = np.percentile(w, [1.0, 99.0])
-    span = hi - lo
-    if not span > 0:
-        raise ValueError("wheel signal is flat: no teeth")
-    arm, fire = lo + arm_frac * span, lo + fire_frac * span
-    pos, peak, lev = hysteresis_edges(w, arm, fire, level, weak_frac)
-    ticks = int(t0_ticks) + np.rint(pos * (tick_hz / sample_rate_hz)).astype(np.int64)
-    keep = np.concatenate([[True], np.diff(ticks) > 0])  # two edges in one tick cannot happen; guard anyway
-    ticks, peak, lev = ticks[keep], peak[keep], lev[keep]
+    ticks, peak, lev = edge_ticks(signal, sample_rate_hz, tick_hz, t0_ticks, level, arm_frac, fire_frac, weak_frac)
     rs, re, turns, damage = sync_wheel(ticks, wheel_teeth, wheel_missing)
     tooth = np.full(ticks.shape[0], -1, dtype=np.int64)
     rev = np.full(ticks.shape[0], -1, dtype=np.int64)

@@ -7,7 +7,8 @@
     mcap_batching  ``Batcher``: stream records -> log messages of about one span each
     mcap_replay    ``McapSource``: a log replayed as a live source (``mcap:`` URLs)
     recorder       ``Recorder``: the raw input of a live session into rotating, size-bounded logs
-    mdf4           ``Mdf4Source``: CAN bus logs in ASAM MDF4 replayed as a source (``mdf4:`` URLs)
+    mdf4           ``Mdf4Source``: CAN bus logs in ASAM MDF4 replayed as a source (``mdf4:`` URLs);
+                   ``j1939_engine_speed``: J1939 EEC1 engine speed (SPN 190) of any bus log, no DBC needed
 """
 
 from frictionwatch.drivers.logs.mcap_log import DEFAULT_CHUNK_BYTES, LogWriter

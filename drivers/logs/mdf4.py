@@ -144,6 +144,42 @@ def decode_signals(frames: CanFrames, dbc: cantools.database.can.Database | str 
     return {k: (np.array([a for a, _ in v]), np.array([b for _, b in v])) for k, v in out.items()}, damage
 
 
+EEC1_PGN = 0xF004  # J1939 Electronic Engine Controller 1 (PGN 61444)
+EEC1_RPM_PER_BIT = 0.125  # SPN 190 Engine Speed: bytes 4-5, little endian, 0.125 rpm/bit, 0..8031.875 rpm
+J1939_NOT_VALID = 0xFB00  # 16-bit values from here up mean 'error' (0xFExx) or 'not available' (0xFFxx)
+
+
+@dataclass(frozen=True)
+class SpeedSeries:
+    """J1939 engine speed (SPN 190) of a bus log: ``t`` [s, log clock], ``rpm``; ``sources`` the source addresses
+    seen; ``invalid`` frames whose value was 'error' or 'not available', ``short`` frames under 5 data bytes."""
+
+    t: np.ndarray
+    rpm: np.ndarray
+    sources: tuple[int, ...]
+    invalid: int
+    short: int
+
+
+def j1939_engine_speed(frames: CanFrames, source: int | None = None) -> SpeedSeries:
+    """EEC1 engine speed of every extended frame with PGN 61444 (any priority; ``source`` None: the most frequent
+    source address, as a second ECU sending EEC1 would interleave another engine). No DBC needed: SPN 190's place
+    and scale are fixed by SAE J1939-71."""
+    sel = frames.extended & (j1939_pgn(frames.ids) == EEC1_PGN)
+    addr = frames.ids[sel] & 0xFF
+    sources = tuple(int(a) for a in np.unique(addr))
+    if source is None and sources:
+        values, counts = np.unique(addr, return_counts=True)
+        source = int(values[np.argmax(counts)])
+    sel[sel] = addr == source
+    long_enough = frames.lengths[sel] >= 5
+    rows = np.flatnonzero(sel)[long_enough]
+    raw = frames.data[rows, 3].astype(np.int64) | (frames.data[rows, 4].astype(np.int64) << 8)
+    ok = raw < J1939_NOT_VALID
+    return SpeedSeries(frames.t[rows][ok], raw[ok] * EEC1_RPM_PER_BIT, sources, int(np.count_nonzero(~ok)),
+                       int(np.count_nonzero(~long_enough)))
+
+
 class Mdf4Source(Source):
     """Replay of a frictionwatch CAN log: PressureBlock / LoadSample, then EndOfStream.
 

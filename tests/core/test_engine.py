@@ -41,7 +41,8 @@ def _k9k_text():
         ("count = 4", "count = 5", "cylinders.firing_angles_deg has 4 values; expected 5"),
         ('load_node = "dyno"', 'load_node = "brake"', "shaft.flywheel_node/load_node must name a node"),
         ("compression_rings = 2", "compression_rings = 2.5", "friction.compression_rings = 2.5; expected an integer"),
-        ("[load]", "[loads]", "missing table [load]"),
+        ("[load]", "[loads]", "unknown key 'loads'; nearest known: 'load'"),  # a misspelt table is named
+        ("[load]", "[brake]", "missing table [load]"),
         ('kind = "speed_power"', 'kind = "magic"', "load.kind = 'magic'; expected one of speed_power, grid"),
     ],
 )
