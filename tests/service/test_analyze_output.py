@@ -359,7 +359,8 @@ def test_real_fired_file_without_a_load_reports_no_friction(tmp_path, capsys):
     if not raw.is_file():
         pytest.skip(f"real data {raw} is absent")
     log = tmp_path / "tue-full1.mcap"
-    assert main(["import-daq", str(raw), "--engine", "tue-4gb10", "--wheel", "60-2", "-o", str(log)]) == 0
+    assert main(["import-daq", str(raw), "--engine", "tue-4gb10", "--tdc-deg", "244.5", "--gain-bar-per-v", "12.4",
+                 "-o", str(log)]) == 0
     capsys.readouterr()
     assert main(["analyze", str(log), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
