@@ -1,4 +1,7 @@
-"""`frictionwatch import-daq FILE -o OUT.mcap`: raw DAQ voltage table (wheel + pressure) -> replay log."""
+"""`frictionwatch import-daq FILE -o OUT.mcap`: raw DAQ voltage table (wheel + pressure) -> replay log.
+
+The log is written whole or not at all (a temporary beside OUT renamed into place, service.output_files), and an
+unwritable OUT is refused before the table is read."""
 
 from __future__ import annotations
 
@@ -8,6 +11,7 @@ from pathlib import Path
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.drivers.daq.raw import daq_to_records
 from frictionwatch.drivers.logs.mcap_log import LogWriter
+from frictionwatch.service.output_files import atomic_path, check_output_path
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -38,10 +42,13 @@ def run(args: argparse.Namespace) -> int:
         options["gain_pa_per_v"] = None
     elif args.gain_bar_per_v is not None:
         options["gain_pa_per_v"] = args.gain_bar_per_v * 1e5
+    check_output_path(args.output)  # before reading and converting the table, not after
     info, records = daq_to_records(args.file, wheel=args.wheel, engine=spec, **options)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    with LogWriter(args.output, spec.source_text, info) as writer:
-        for record in records:
-            writer.write(record)
+    try:
+        with atomic_path(args.output) as tmp, LogWriter(tmp, spec.source_text, info) as writer:
+            for record in records:
+                writer.write(record)
+    except OSError as exc:  # a full disk, a vanished folder: the temporary is gone, the target untouched
+        raise OSError(f"could not write {args.output}, nothing was written: {exc.strerror or exc}") from exc
     print(f"wrote {args.output}: {len(records)} records")
     return 0
