@@ -12,6 +12,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
+from frictionwatch.core.model.effects import SensorSetup
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.thermo import charge_pressures
 from frictionwatch.core.plant.sim_records import SensorRecords, acquisition_info
@@ -38,10 +39,15 @@ class Simulation:
     """A run set up by ``start_simulation``: ``info`` (what the acquisition states) is known at once; ``chunks()``
     integrates it (once), and when its last chunk is out ``truth`` holds the per-run truth without its "cycles"."""
 
-    def __init__(self, model: EngineModel, run: PlantRun, cycles: int, steps: list, point: Callable,
-                 theta_start: float, operating: dict, given: dict):
+    def __init__(self, model: EngineModel, run: PlantRun, *, cycles: int, steps: list, point: Callable,
+                 theta_start: float, operating: dict, request: dict, sensors: SensorSetup,
+                 rngs: list[np.random.Generator]):
+        """run: the plant set up at theta_start, not yet advanced; steps: [(time_s, load fraction)]; point(fraction)
+        -> (fuel kg, brake torque estimate N m, per-cylinder means); operating: the truth's "operating" block (its
+        load law and steps are filled in by the run); request: rpm, load, seed as asked (repeated in the truth)."""
         self.model, self.run, self.cycles, self.steps, self.point = model, run, cycles, steps, point
-        self.theta_start, self.operating, self.given = theta_start, operating, given
+        self.theta_start, self.operating, self.request = theta_start, operating, request
+        self.sensors, self.rngs = sensors, rngs
         self.info = acquisition_info(model.spec)
         self.truth: dict | None = None
         self._started = False
@@ -68,7 +74,7 @@ class Simulation:
         law_info = run.final_law()
         run.advance_to(-2.0 * np.pi, report)
         run.start_output()
-        sensors = SensorRecords(spec, self.given["sensors"], self.given["rngs"], run.t_out0, run.omega)
+        sensors = SensorRecords(spec, self.sensors, self.rngs, run.t_out0, run.omega)
         truth = TruthAccumulator(spec, run.plant, cycles, run.t_out0)
         correction = law_info["load_torque_settled_nm"] - self.operating["brake_torque_estimate_nm"]
         steps, step_log, brake_full = list(self.steps), [], run.brake_full
@@ -96,9 +102,8 @@ class Simulation:
         self.operating.update(load_law=law_info, load_steps=step_log)
         se = spec.sensors
         wheel = {"first_tooth_deg_stated": se.first_tooth_deg,
-                 "first_tooth_deg_true": se.first_tooth_deg - float(np.degrees(self.given["sensors"].wheel_offset_rad)),
+                 "first_tooth_deg_true": se.first_tooth_deg - float(np.degrees(self.sensors.wheel_offset_rad)),
                  "tooth_errors_deg": run.tooth_err.tolist(), "cam_deg_stated": self.info.cam_deg,
                  "edge_ticks_first_tooth_index": sensors.first_edge_index}
-        self.truth = truth.summary(rpm=self.given["rpm"], load=self.given["load"], seed=self.given["seed"],
-                                   active=[e.to_dict() for e in self.model.effects], wheel=wheel,
+        self.truth = truth.summary(**self.request, active=[e.to_dict() for e in self.model.effects], wheel=wheel,
                                    operating=self.operating)

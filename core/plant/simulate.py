@@ -217,5 +217,6 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
         "variability": {"sigma_fuel": sig_q, "sigma_soc_deg": sig_soc, "sigma_premixed": sig_beta},
         "step_s": h, "settle_cycles": SETTLE_A_CYCLES + SETTLE_B_CYCLES, "load_ripple_nm": ripple,
     }
-    return Simulation(model, run, cycles, steps, point, theta_start, operating,
-                      {"rpm": rpm, "load": load, "seed": seed, "sensors": sensors, "rngs": rngs})
+    return Simulation(model, run, cycles=cycles, steps=steps, point=point, theta_start=theta_start,
+                      operating=operating, request={"rpm": rpm, "load": load, "seed": seed}, sensors=sensors,
+                      rngs=rngs)
