@@ -59,8 +59,10 @@ class SensorRecords:
         """Records releasable after these events: edges (n, 2) = (time s, tooth index), cam (c,) times [s],
         samples (m, z) true pressure [Pa] at the next m sample instants, load (l, 3) cumulative load rows."""
         self._convert(edges, cam, samples, load, final=False)
-        bound = min(self.last["edge"] + 1, self._cam_bound(), round((self.first_sample + len(self.samples))
-                                                                   * self.period_ticks), self.last["load"])
+        # the least key any record still to come can have: tooth and cam ticks strictly increase, a frame not yet
+        # cut ends at or after the next sample, a load sample may round to the tick of the last one
+        bound = min(self.last["edge"] + 1, self._cam_bound(),
+                    round((self.first_sample + len(self.samples)) * self.period_ticks), self.last["load"])
         ready = [r for r in self.pending if r[0] < bound]
         self.pending = [r for r in self.pending if r[0] >= bound]
         return [r[2] for r in ready]
