@@ -53,8 +53,9 @@ def atomic_paths(*paths: Path) -> Iterator[tuple[Path, ...]]:
 
     The renames run with SIGINT and SIGTERM held (delivered once they are done) and under an exclusive lock of the
     target folders, so two runs writing the same targets commit one after the other and the set on disk is one
-    run's, whole. Give the file readers open first last (the log after its truth): only a hard kill or power loss
-    in the instant between two renames can leave a new sidecar beside the previous main file."""
+    run's, whole. Put the main file last (the log after its truth), so a log on disk always has its own truth
+    beside it; only a hard kill or power loss in the instant between two renames can leave a new sidecar beside the
+    previous main file."""
     paths = tuple(Path(p) for p in paths)
     for path in paths:
         check_output_path(path)
