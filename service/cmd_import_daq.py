@@ -5,6 +5,8 @@ Nothing about the rig is assumed: the engine, the TDC angle and the sensor gain 
 from rig to rig and cannot be read from the file). The wheel is read from the file (teeth per revolution and the gap,
 drivers.daq.teeth.wheel_pattern) and said; a --wheel that does not match it is refused, and so is an engine whose
 cylinder count differs from the file's pressure channels (the monitor needs every cylinder's pressure).
+The log is written whole or not at all (a temporary beside OUT renamed into place, service.output_files), and an
+unwritable OUT is refused before the table is read.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from pathlib import Path
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.drivers.daq.raw import read_daq_table, trace_to_records, trace_wheel
 from frictionwatch.drivers.logs.mcap_log import LogWriter
+from frictionwatch.service.output_files import atomic_path, check_output_path
 
 PRESSURE_CHANNELS = 1  # a DAQ table holds time, wheel and one pressure column (drivers/daq/raw.py)
 NOT_A_DAQ_TABLE = {".csv": "a crank-angle pressure table", ".xlsx": "a spreadsheet", ".mf4": "an MDF4 bus log"}
@@ -58,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--tdc-deg {args.tdc_deg:g} must be in [0, 720) deg after the first tooth past the gap")
     if not args.peg_bar > 0 or not 1.0 < args.n_poly < 1.7:
         raise ValueError(f"--peg-bar {args.peg_bar:g} must be > 0 and --n-poly {args.n_poly:g} in (1, 1.7)")
+    check_output_path(args.output)  # before reading and converting the table, not after
     trace = read_daq_table(args.file)
     wheel, seen = trace_wheel(trace, args.wheel)
     if args.wheel is None:
@@ -68,9 +72,11 @@ def run(args: argparse.Namespace) -> int:
     options: dict = {"peg": args.peg, "peg_pa": args.peg_bar * 1e5, "n_poly": args.n_poly, "tdc_deg": args.tdc_deg,
                      "gain_pa_per_v": None if args.self_calibrate else args.gain_bar_per_v * 1e5}
     info, records = trace_to_records(trace, wheel, engine=spec, **options)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    with LogWriter(args.output, spec.source_text, info) as writer:
-        for record in records:
-            writer.write(record)
+    try:
+        with atomic_path(args.output) as tmp, LogWriter(tmp, spec.source_text, info) as writer:
+            for record in records:
+                writer.write(record)
+    except OSError as exc:  # a full disk, a vanished folder: the temporary is gone, the target untouched
+        raise OSError(f"could not write {args.output}, nothing was written: {exc.strerror or exc}") from exc
     print(f"wrote {args.output}: {len(records)} records")
     return 0

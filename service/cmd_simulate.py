@@ -1,15 +1,25 @@
-"""`frictionwatch simulate`: run the time-domain plant simulator and write OUT.mcap plus OUT.truth.json."""
+"""`frictionwatch simulate`: run the time-domain plant simulator and write OUT.mcap plus OUT.truth.json.
+
+Both files are whole or absent: they are written to temporaries beside the targets while the simulation streams into
+them chunk by chunk (memory independent of --cycles) and renamed into place, truth first, only when the whole run
+succeeded (service.output_files.atomic_paths). An interrupted or failed run (Ctrl-C, a full disk, an error) leaves
+nothing behind, and an unwritable output is refused before the simulation starts.
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
+import tempfile
 from pathlib import Path
+from typing import IO
 
 from frictionwatch.core.model.effects import parse_effect
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.core.plant.simulate import start_simulation
 from frictionwatch.drivers.logs.mcap_log import LogWriter
+from frictionwatch.service.output_files import atomic_paths, check_output_path
 from frictionwatch.service.progress import progress_bar
 
 
@@ -31,6 +41,32 @@ def truth_path(log: Path) -> Path:
     return log.with_name(log.name.removesuffix(".mcap") + ".truth.json")
 
 
+class TruthSpool:
+    """The truth file assembled as the run goes: per-cycle entries are spooled, one JSON object a line, to an unnamed
+    temporary file in the output folder (it vanishes with the process, however it ends); ``write`` then makes the
+    file: the run's truth (indent 1) with its "cycles" list last."""
+
+    def __init__(self, folder: Path):
+        self._spool: IO[str] = tempfile.TemporaryFile("w+", encoding="utf-8", dir=folder)
+        self._count = 0
+
+    def add(self, entries: list[dict]) -> None:
+        for entry in entries:
+            self._spool.write(("  " if self._count == 0 else ",\n  ") + json.dumps(entry))
+            self._count += 1
+
+    def write(self, path: Path, truth: dict) -> None:
+        head = json.dumps(truth, indent=1)
+        with open(path, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(head[:-2] + ',\n "cycles": [\n')  # head ends with "\n}"
+            self._spool.seek(0)
+            shutil.copyfileobj(self._spool, fh)
+            fh.write("\n ]\n}\n")
+
+    def close(self) -> None:
+        self._spool.close()
+
+
 def run(args: argparse.Namespace) -> int:
     spec = load_engine(args.engine)
     lo, hi = spec.speed_range_rpm
@@ -44,16 +80,29 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--seed {args.seed} must be >= 0")
     effects = [parse_effect(text) for text in args.effect]  # several instances allowed (ring_wear in 1 and 2)
     kwargs = {} if args.cov_imep is None else {"cov_imep": args.cov_imep}
-    with progress_bar(total=1.0, desc=f"simulate {spec.name}") as bar:
-        result = simulate(
-            spec, args.rpm, args.load, args.cycles, args.seed, effects=effects, without=set(args.without),
-            progress=bar.set_fraction, **kwargs,
-        )
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    with LogWriter(args.output, spec.source_text, result.info) as writer:
-        for record in result.records:
-            writer.write(record)
-    truth_path(args.output).write_text(json.dumps(result.truth, indent=1))
-    print(f"wrote {args.output} and {truth_path(args.output).name}: {args.cycles} cycles, FMEP {result.truth['fmep_bar']:.3f} bar")
-    print("effects active: " + (", ".join(e["name"] + (f" (cylinder {e['params']['cylinder']})" if "cylinder" in e["params"] else "") for e in result.truth["effects"]) or "none"))
+    log_path, truth_file = args.output, truth_path(args.output)
+    for path in (truth_file, log_path):  # before the run, not after it
+        check_output_path(path)
+    sim = start_simulation(spec, args.rpm, args.load, args.cycles, args.seed, effects=effects,
+                           without=set(args.without), **kwargs)
+    try:
+        with progress_bar(total=1.0, desc=f"simulate {spec.name}") as bar, \
+                atomic_paths(truth_file, log_path) as (truth_tmp, log_tmp):
+            truth = TruthSpool(log_path.parent)
+            try:
+                with LogWriter(log_tmp, spec.source_text, sim.info) as writer:
+                    for chunk in sim.chunks(progress=bar.set_fraction):
+                        for record in chunk.records:
+                            writer.write(record)
+                        truth.add(chunk.cycles)
+                truth.write(truth_tmp, sim.truth)
+            finally:
+                truth.close()
+    except OSError as exc:
+        raise OSError(f"could not write {log_path} and {truth_file.name}, nothing was written: "
+                      f"{exc.strerror or exc}") from exc
+    print(f"wrote {log_path} and {truth_file.name}: {args.cycles} cycles, FMEP {sim.truth['fmep_bar']:.3f} bar")
+    active = [e["name"] + (f" (cylinder {e['params']['cylinder']})" if "cylinder" in e["params"] else "")
+              for e in sim.truth["effects"]]
+    print("effects active: " + (", ".join(active) or "none"))
     return 0

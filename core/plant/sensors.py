@@ -6,7 +6,7 @@ Angles here are in the *wheel frame*: the crank angle (cylinder-1 convention) th
 Tooth edge j (0 = first edge after the missing-tooth gap, j < teeth - missing) lies at
     theta_W = first_tooth_deg + j * 360/teeth + err_j  [deg],  sum_j err_j = 0,
 repeated every 360 deg. Edge times are converted to integer timer ticks as floor(t * tick_hz + jitter), tick 0 being the
-start of output cycle 0.
+start of the records. ``core.plant.sim_records`` turns the plant's events into records chunk by chunk with these.
 """
 
 from __future__ import annotations
@@ -50,17 +50,18 @@ def first_index_at_or_after(start_rad: float, per_rev: np.ndarray, period: float
     return e
 
 
-def to_ticks(times_s: np.ndarray, tick_hz: float, jitter_s: float, rng: np.random.Generator) -> np.ndarray:
-    """Integer timer ticks of event times [s since tick 0]: floor(t * f + jitter), forced strictly increasing."""
+def to_ticks(times_s: np.ndarray, tick_hz: float, jitter_s: float, rng: np.random.Generator,
+             after: int = -1) -> np.ndarray:
+    """Integer timer ticks of event times [s since tick 0]: floor(t * f + jitter), forced strictly increasing and
+    above ``after`` (the last tick of the events before these: a run converted chunk by chunk gives the same ticks
+    as in one piece, the jitter drawn in order from ``rng``)."""
     x = times_s * tick_hz
     if jitter_s > 0:
         x = x + rng.normal(0.0, jitter_s * tick_hz, x.shape[0])
     ticks = np.floor(x).astype(np.int64)
-    if ticks.shape[0] > 1:
-        ticks = np.maximum.accumulate(ticks)  # jitter can never reorder teeth at realistic levels; keep it safe
-        bump = np.concatenate(([0], np.cumsum(np.diff(ticks) <= 0)))
-        ticks = ticks + bump
-    return ticks
+    # jitter can never reorder teeth at realistic levels; keep it safe: tick_j = max(floor_j, tick_(j-1) + 1)
+    j = np.arange(ticks.shape[0], dtype=np.int64)
+    return np.maximum.accumulate(np.maximum(ticks - j, after + 1)) + j
 
 
 def pressure_adc(p: np.ndarray, sensors: SensorParams, noise_pa: float, rng: np.random.Generator,
@@ -74,32 +75,32 @@ def pressure_adc(p: np.ndarray, sensors: SensorParams, noise_pa: float, rng: np.
     return np.clip(y, 0.0, sensors.pressure_range_pa)
 
 
-def records(edge_ticks: np.ndarray, teeth_per_batch: int, cam_ticks: np.ndarray, samples: np.ndarray,
-            sample_period_ticks: float, block_samples: int, load_ticks: np.ndarray, load_torque: np.ndarray,
-            load_power: np.ndarray) -> list[StreamRecord]:
-    """Stream records in arrival order (each keyed by its last tick; ties: teeth, cam, pressure, load).
+def keyed_records(edge_ticks: np.ndarray, teeth_per_batch: int, cam_ticks: np.ndarray, samples: np.ndarray,
+                  sample_period_ticks: float, block_samples: int, load_ticks: np.ndarray, load_torque: np.ndarray,
+                  load_power: np.ndarray, first_sample: int = 0) -> list[tuple[int, int, StreamRecord]]:
+    """Stream records, each with its arrival key (its last tick, then the stream: teeth, cam, pressure, load), in
+    stream order; sorting by the first two (stably) gives the arrival order.
 
-    samples : (m, z) pressure readings [Pa] of cylinders 1..z, sample i at i * sample_period_ticks, cut into
-    ``PressureFrame`` s of ``block_samples`` (all z cylinders sampled together, as an indicating system does);
-    t0_ticks = round(i0 * period) (exact when the period is whole ticks).
+    samples : (m, z) pressure readings [Pa] of cylinders 1..z, sample i at (first_sample + i) * sample_period_ticks,
+    cut into ``PressureFrame`` s of ``block_samples`` (all z cylinders sampled together, as an indicating system
+    does); t0_ticks = round((first_sample + i0) * period) (exact when the period is whole ticks).
     """
-    keyed: list[tuple[int, int, int, StreamRecord]] = []
+    keyed: list[tuple[int, int, StreamRecord]] = []
     for i in range(0, edge_ticks.shape[0], teeth_per_batch):
         b = edge_ticks[i:i + teeth_per_batch]
-        keyed.append((int(b[-1]), 0, 0, ToothBatch(ticks=b.copy())))
+        keyed.append((int(b[-1]), 0, ToothBatch(ticks=b.copy())))
     for c in cam_ticks:
-        keyed.append((int(c), 1, 0, CamBatch(ticks=np.array([c], dtype=np.int64))))
+        keyed.append((int(c), 1, CamBatch(ticks=np.array([c], dtype=np.int64))))
     m, z = samples.shape
     cylinders = tuple(range(1, z + 1))
     by_cylinder = np.ascontiguousarray(samples.T)  # (z, m): one frame is a slice of it
     for i0 in range(0, m if z else 0, block_samples):
         i1 = min(i0 + block_samples, m)
-        t0 = round(i0 * sample_period_ticks)
-        last = round((i1 - 1) * sample_period_ticks)
+        t0 = round((first_sample + i0) * sample_period_ticks)
+        last = round((first_sample + i1 - 1) * sample_period_ticks)
         frame = PressureFrame(cylinders=cylinders, t0_ticks=t0, period_ticks=float(sample_period_ticks),
                               values=np.ascontiguousarray(by_cylinder[:, i0:i1]))
-        keyed.append((last, 2, 0, frame))
+        keyed.append((last, 2, frame))
     for t, tq, pw in zip(load_ticks, load_torque, load_power):
-        keyed.append((int(t), 3, 0, LoadSample(ticks=int(t), torque=float(tq), power=float(pw))))
-    keyed.sort(key=lambda r: r[:3])
-    return [r[3] for r in keyed]
+        keyed.append((int(t), 3, LoadSample(ticks=int(t), torque=float(tq), power=float(pw))))
+    return keyed

@@ -1,4 +1,4 @@
-"""Driver of the plant kernel: holds its arrays, runs it chunk by chunk, switches load laws, turns events into records.
+"""Driver of the plant kernel: holds its arrays, runs it chunk by chunk, switches load laws, hands over its events.
 
 Load law during settling ("phase A"): a stiff speed-holding version of the preset's law (dyno: slope 2 J/T_cycle;
 grid: near-critical damping of the electromechanical mode) with deterministic combustion, so the plant reaches its
@@ -49,18 +49,7 @@ from frictionwatch.core.plant.plant import (
     advance,
 )
 from frictionwatch.core.plant.plant_setup import PlantModel, scalars
-from frictionwatch.core.plant.sensors import (
-    CAM_DEG,
-    LOAD_RATE_HZ,
-    PRESSURE_BLOCK_S,
-    edge_angles,
-    first_index_at_or_after,
-    pressure_adc,
-    records,
-    to_ticks,
-    tooth_errors,
-)
-from frictionwatch.core.types import AcquisitionInfo
+from frictionwatch.core.plant.sensors import CAM_DEG, LOAD_RATE_HZ, edge_angles, first_index_at_or_after, tooth_errors
 
 FAR = 1 << 50  # event index that never fires
 
@@ -104,6 +93,7 @@ class PlantRun:
                      np.zeros((n_samp, z)), np.zeros((int(1.5 * t_cyc * LOAD_RATE_HZ) + 4, 3)))
         self.collected: list[list[np.ndarray]] = [[] for _ in self.outs]
         self.cycle_n0 = 0
+        self.rows_drained = 0
         self.t_out0 = np.nan
         self.law: dict = {}
         self.leak = np.zeros(z)
@@ -264,44 +254,19 @@ class PlantRun:
         if self.spec.sensors.has_cam:
             self.ist[I_NEXT_CAM] = int(np.ceil((theta_w - self.sc[S_CAM]) / FOUR_PI))
 
-    def collect(self) -> dict:
+    def drain(self) -> dict:
+        """The events recorded since the last drain, handed over and forgotten here (so a long run holds one stretch
+        at a time): cycle-boundary rows with their boundary index (negative while settling), the 1-deg grid from
+        theta_F = 0, tooth edges (time, index), cam edge times, true pressure at the sample instants, load rows.
+        Drain only once the settling is over (``govern`` and ``final_law`` read the rows collected until then)."""
         def cat(i: int, width: int) -> np.ndarray:
             return np.concatenate(self.collected[i]) if self.collected[i] else np.zeros((0, width))
 
-        z = self.spec.n_cyl
         rows = cat(0, self.outs[0].shape[1])
-        return {"cycle_rows": rows, "cycle_index": self.cycle_n0 + np.arange(rows.shape[0]),
-                "grid": cat(1, 3), "edges": cat(2, 2), "cam": np.concatenate(self.collected[3] or [np.zeros(0)]),
-                "samples": cat(4, z), "load": cat(5, 3), "t_out0": self.t_out0, "law": self.law}
-
-    def sensor_records(self, out: dict) -> tuple[list, AcquisitionInfo, dict]:
-        spec, se, t0, fx = self.spec, self.spec.sensors, self.t_out0, self.sensors
-        jitter = fx.edge_jitter_ns * 1e-9
-        edge_ticks = to_ticks(out["edges"][:, 0] - t0, se.tick_hz, jitter, self.rngs[3])
-        cam_ticks = to_ticks(out["cam"] - t0, se.tick_hz, jitter, self.rngs[3]) if se.has_cam else np.zeros(0, int)
-        samples = out["samples"].copy()
-        rng = self.rngs[4]
-        for k in range(spec.n_cyl):
-            samples[:, k] = pressure_adc(samples[:, k], se, se.pressure_noise_pa * fx.pressure_noise_scale, rng,
-                                         fx.pressure_offset_pa[k], fx.pressure_gain[k])
-        load = out["load"]
-        dt = np.diff(load[:, 0])
-        torque = np.diff(load[:, 1]) / dt
-        power = np.diff(load[:, 2]) / dt
-        sig = fx.load_noise_frac * spec.rated_torque_nm
-        if sig > 0 and torque.size:
-            e = self.rngs[5].normal(0.0, sig, torque.size)
-            torque, power = torque + e, power + e * self.omega
-        load_ticks = np.round((load[1:, 0] - t0) * se.tick_hz).astype(np.int64)
-        per_rev = se.wheel_teeth - se.wheel_missing
-        period_ticks = se.tick_hz / se.pressure_rate_hz
-        block = max(1, round(PRESSURE_BLOCK_S * se.pressure_rate_hz))
-        recs = records(edge_ticks, per_rev, cam_ticks, samples, period_ticks, block, load_ticks, torque, power)
-        info = AcquisitionInfo(tick_hz=se.tick_hz, wheel_teeth=se.wheel_teeth, wheel_missing=se.wheel_missing,
-                               first_tooth_deg=se.first_tooth_deg, cam_deg=CAM_DEG if se.has_cam else None,
-                               pressure_cylinders=tuple(range(1, spec.n_cyl + 1)))
-        wheel = {"first_tooth_deg_stated": se.first_tooth_deg,
-                 "first_tooth_deg_true": se.first_tooth_deg - float(np.degrees(self.sc[S_WHEEL_OFF])),
-                 "tooth_errors_deg": self.tooth_err.tolist(), "cam_deg_stated": CAM_DEG if se.has_cam else None,
-                 "edge_ticks_first_tooth_index": int(out["edges"][0, 1]) if out["edges"].size else None}
-        return recs, info, wheel
+        out = {"cycle_rows": rows, "cycle_index": self.cycle_n0 + self.rows_drained + np.arange(rows.shape[0]),
+               "grid": cat(1, 3), "edges": cat(2, 2), "cam": np.concatenate(self.collected[3] or [np.zeros(0)]),
+               "samples": cat(4, self.spec.n_cyl), "load": cat(5, 3)}
+        self.rows_drained += rows.shape[0]
+        for store in self.collected:
+            store.clear()
+        return out

@@ -2,6 +2,15 @@
 
     simulate(spec_or_model, rpm, load, cycles, seed, effects=None, without=(), cov_imep=0.02, load_steps=None,
              progress=None) -> SimResult
+    sim = start_simulation(spec_or_model, rpm, load, cycles, seed, ...)     # the same run, streamed:
+    sim.info                                          # AcquisitionInfo, known before the run
+    for chunk in sim.chunks(chunk_cycles=8):          # SimChunk: records, truth entries of the cycles it completes
+        ...
+    sim.truth                                         # the per-run truth (without "cycles") once chunks() ended
+
+``simulate`` collects ``start_simulation(...).chunks()``: there is one simulator, and a run's memory is one chunk's
+worth whatever the number of cycles when its chunks are consumed as they come. The records and truth do not depend
+on the chunk size (tests/core/test_simulate_chunks.py).
 
 This is deliberately a different route from the monitor's harmonic balance (design.md §4): fixed-step RK4 in time on
 the full nonlinear chain (core.plant.plant), with J(theta) per throw, pressure and friction at each throw's own angle.
@@ -38,13 +47,11 @@ from frictionwatch.core.plant.operating_point import (
 )
 from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, static_twist
 from frictionwatch.core.plant.sim_run import PlantRun
-from frictionwatch.core.plant.sim_truth import build_truth
+from frictionwatch.core.plant.sim_stream import SETTLE_A_CYCLES, SETTLE_B_CYCLES, Simulation
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 from scipy.linalg import eigh
 
 STEP_DEG = 0.25  # integrator step at the mean speed (capped by the fastest mode)
-SETTLE_A_CYCLES = 6  # governed settle (dyno law re-tuned per cycle; grid mode damped), deterministic combustion
-SETTLE_B_CYCLES = 1  # final load law, combustion variability on (half a cycle, then one lead-in revolution)
 MIN_SLOPE_FRACTION = 0.25  # dyno law slope never below 25 % of the full-load brake torque / omega^s
 
 
@@ -95,7 +102,24 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
              cov_imep: float = 0.02, load_steps: list[tuple[float, float]] | None = None,
              progress: Callable[[float], None] | None = None,
              coefficients: np.ndarray | None = None, fuel_spread: float = 0.01) -> SimResult:
-    """Simulate ``cycles`` steady engine cycles (after an unlogged settling period) and return records and truth.
+    """Simulate ``cycles`` steady engine cycles (after an unlogged settling period) and return records and truth:
+    ``start_simulation`` (same parameters) with its chunks collected."""
+    sim = start_simulation(engine, rpm, load, cycles, seed, effects=effects, without=without, cov_imep=cov_imep,
+                           load_steps=load_steps, coefficients=coefficients, fuel_spread=fuel_spread)
+    chunks = list(sim.chunks(progress=progress))
+    records = [r for c in chunks for r in c.records]
+    truth = {**sim.truth, "cycles": [e for c in chunks for e in c.cycles]}
+    diag: dict = {"t_out0": sim.run.t_out0, "tooth_errors_deg": sim.run.tooth_err.copy()}
+    for key in chunks[0].diagnostics:
+        diag[key] = np.concatenate([c.diagnostics[key] for c in chunks if key in c.diagnostics])
+    return SimResult(records=records, info=sim.info, truth=truth, diagnostics=diag)
+
+
+def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: int, seed: int,
+                     effects: Mapping[str, dict] | Sequence[Effect] | None = None, without: set[str] | tuple = (),
+                     cov_imep: float = 0.02, load_steps: list[tuple[float, float]] | None = None,
+                     coefficients: np.ndarray | None = None, fuel_spread: float = 0.01) -> Simulation:
+    """Set up a run of ``cycles`` steady engine cycles (after an unlogged settling period); ``chunks()`` runs it.
 
     Parameters
     ----------
@@ -186,41 +210,13 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
     ripple = load_fx.amplitude_nm if load_fx.amplitude_nm > 0 else load_fx.fraction * abs(brake0)
     run.set_ripple(ripple, load_fx.order, load_fx.phase_rad)
     run.settle_law(brake0, brake_full, MIN_SLOPE_FRACTION)
-    total_angle = 4.0 * np.pi * (cycles + SETTLE_A_CYCLES + SETTLE_B_CYCLES) + 0.5 * np.pi
-
-    def report() -> None:
-        if progress is not None:
-            progress(float(np.clip((run.theta_fly - theta_start) / total_angle, 0.0, 1.0)))
-
-    for i in range(SETTLE_A_CYCLES):
-        run.advance_to(theta_start + 2.0 * np.pi + 4.0 * np.pi * (i + 1), report)
-        run.govern()
-    law_info = run.final_law()
-    run.advance_to(-2.0 * np.pi, report)
-    run.start_output()
-    correction = law_info["load_torque_settled_nm"] - brake0
-    step_log = []
-    for t_step, frac in steps:
-        if not run.advance_to(4.0 * np.pi * cycles + 0.5 * np.pi, report, t_stop=t_step):
-            break
-        fuel, tb, _ = point(frac)
-        run.set_operating(fuel, *charge_pressures(spec, frac))
-        run.change_law(tb + correction, brake_full + correction)
-        step_log.append({"time_s": t_step, "load": frac, "fuel_kg": fuel, "brake_torque_estimate_nm": tb})
-    run.advance_to(4.0 * np.pi * cycles + 0.5 * np.pi, report)
-    if progress is not None:
-        progress(1.0)
-
-    out = run.collect()
-    records, info, wheel = run.sensor_records(out)
     operating = {
         "omega_requested_rad_s": omega, "fuel_kg_per_cycle": fuel0, "idle_fuel_kg": m0,
         "fuel_spread": spread.tolist(), "leak_area_m2": leak.tolist(), "brake_torque_estimate_nm": brake0,
-        "load_law": law_info, "load_steps": step_log, "cov_imep": cov_imep,
+        "load_law": {}, "load_steps": [], "cov_imep": cov_imep,
         "variability": {"sigma_fuel": sig_q, "sigma_soc_deg": sig_soc, "sigma_premixed": sig_beta},
         "step_s": h, "settle_cycles": SETTLE_A_CYCLES + SETTLE_B_CYCLES, "load_ripple_nm": ripple,
     }
-    truth, diag = build_truth(spec, plant, out, cycles=cycles, rpm=rpm, load=load, seed=seed,
-                              active=[e.to_dict() for e in model.effects],
-                              wheel=wheel, operating=operating)
-    return SimResult(records=records, info=info, truth=truth, diagnostics=diag)
+    return Simulation(model, run, cycles=cycles, steps=steps, point=point, theta_start=theta_start,
+                      operating=operating, request={"rpm": rpm, "load": load, "seed": seed}, sensors=sensors,
+                      rngs=rngs)

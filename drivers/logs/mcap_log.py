@@ -221,11 +221,26 @@ class LogWriter:
         finally:
             self._file.close()
 
+    def abort(self) -> None:
+        """Stop writing after a failure: the chunks already out stay, no summary or footer is added, so a reader
+        reports the log as truncated rather than as a complete recording (and a full disk is not written to again)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._file.close()
+        except OSError:  # flushing the buffer failed too (a full disk): the error being handled already says so
+            pass
+
     def __enter__(self) -> Self:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        """A clean exit closes the log; an exception (KeyboardInterrupt included) aborts it."""
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
 
 
 __all__ = ["Codec", "LogReader", "LogWriter", "ProtobufCodec"]

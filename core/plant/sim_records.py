@@ -1,0 +1,119 @@
+"""The plant's sensor events -> stream records, chunk by chunk, in arrival order.
+
+``SensorRecords.add(events)`` takes the raw events of one stretch of the run (true tooth-edge and cam times, true
+pressure at the sample instants, cumulative load integrals) and returns the records that can already be placed in
+arrival order; ``finish()`` returns the rest. Whatever the chunking, the records are the same as for the whole run
+converted at once: each noise stream is drawn in order from its own generator (edge jitter, cam jitter, each
+cylinder's pressure noise, load noise), a tooth batch or pressure frame is cut from the run's own start (left-over
+edges and samples wait for the next chunk), and a record is released only once no later record can arrive before
+it (its key below every stream's lower bound for what is still to come).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from frictionwatch.core.model.effects import SensorSetup
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.plant.sensors import (
+    CAM_DEG,
+    PRESSURE_BLOCK_S,
+    keyed_records,
+    pressure_adc,
+    to_ticks,
+)
+from frictionwatch.core.types import AcquisitionInfo, StreamRecord
+
+
+def acquisition_info(spec: EngineSpec) -> AcquisitionInfo:
+    """What the simulated acquisition states (known before the run starts)."""
+    se = spec.sensors
+    return AcquisitionInfo(tick_hz=se.tick_hz, wheel_teeth=se.wheel_teeth, wheel_missing=se.wheel_missing,
+                           first_tooth_deg=se.first_tooth_deg, cam_deg=CAM_DEG if se.has_cam else None,
+                           pressure_cylinders=tuple(range(1, spec.n_cyl + 1)))
+
+
+class SensorRecords:
+    """Sensor models applied to the plant's events of one run, chunk by chunk (see the module docstring).
+
+    rngs: the run's eight generators; 3 edge jitter, 7 cam jitter, 4 pressure noise (one child stream per cylinder),
+    5 load noise. t_out0: the plant time [s] of tick 0; omega: the requested speed [rad/s] (load power noise)."""
+
+    def __init__(self, spec: EngineSpec, sensors: SensorSetup, rngs: list[np.random.Generator], t_out0: float,
+                 omega: float):
+        se = spec.sensors
+        self.spec, self.fx, self.t0, self.omega = spec, sensors, t_out0, omega
+        self.rng_edge, self.rng_cam, self.rng_load = rngs[3], rngs[7], rngs[5]
+        self.rng_pressure = rngs[4].spawn(spec.n_cyl)
+        self.per_rev = se.wheel_teeth - se.wheel_missing
+        self.period_ticks = se.tick_hz / se.pressure_rate_hz
+        self.block = max(1, round(PRESSURE_BLOCK_S * se.pressure_rate_hz))
+        self.edges = np.zeros(0, np.int64)  # edge ticks not yet in a full tooth batch
+        self.samples = np.zeros((0, spec.n_cyl))  # readings not yet in a full frame
+        self.first_sample = 0  # run index of samples[0]
+        self.load_row: np.ndarray | None = None  # the last load row (time, int T dt, int T w dt)
+        self.last = {"edge": -1, "cam": -1, "load": 0}  # last tick seen per stream
+        self.pending: list[tuple[int, int, StreamRecord]] = []
+        self.first_edge_index: int | None = None
+
+    def add(self, edges: np.ndarray, cam: np.ndarray, samples: np.ndarray, load: np.ndarray) -> list[StreamRecord]:
+        """Records releasable after these events: edges (n, 2) = (time s, tooth index), cam (c,) times [s],
+        samples (m, z) true pressure [Pa] at the next m sample instants, load (l, 3) cumulative load rows."""
+        self._convert(edges, cam, samples, load, final=False)
+        # the least key any record still to come can have: tooth and cam ticks strictly increase, a frame not yet
+        # cut ends at or after the next sample, a load sample may round to the tick of the last one
+        bound = min(self.last["edge"] + 1, self._cam_bound(),
+                    round((self.first_sample + len(self.samples)) * self.period_ticks), self.last["load"])
+        ready = [r for r in self.pending if r[0] < bound]
+        self.pending = [r for r in self.pending if r[0] >= bound]
+        return [r[2] for r in ready]
+
+    def finish(self) -> list[StreamRecord]:
+        """The remaining records (the last tooth batch and pressure frame may be short)."""
+        self._convert(np.zeros((0, 2)), np.zeros(0), np.zeros((0, self.spec.n_cyl)), np.zeros((0, 3)), final=True)
+        out, self.pending = [r[2] for r in self.pending], []
+        return out
+
+    def _cam_bound(self) -> float:
+        return self.last["cam"] + 1 if self.spec.sensors.has_cam else np.inf
+
+    def _convert(self, edges, cam, samples, load, *, final: bool) -> None:
+        se, fx, t0 = self.spec.sensors, self.fx, self.t0
+        jitter = fx.edge_jitter_ns * 1e-9
+        if self.first_edge_index is None and edges.size:
+            self.first_edge_index = int(edges[0, 1])
+        ticks = to_ticks(edges[:, 0] - t0, se.tick_hz, jitter, self.rng_edge, after=self.last["edge"])
+        cam_ticks = (to_ticks(cam - t0, se.tick_hz, jitter, self.rng_cam, after=self.last["cam"]) if se.has_cam
+                     else np.zeros(0, np.int64))
+        if ticks.size:
+            self.last["edge"] = int(ticks[-1])
+        if cam_ticks.size:
+            self.last["cam"] = int(cam_ticks[-1])
+        all_edges = np.concatenate([self.edges, ticks])
+        n_edges = all_edges.size if final else all_edges.size - all_edges.size % self.per_rev
+        self.edges = all_edges[n_edges:]
+
+        readings = samples.copy()
+        for k in range(self.spec.n_cyl):
+            readings[:, k] = pressure_adc(samples[:, k], se, se.pressure_noise_pa * fx.pressure_noise_scale,
+                                          self.rng_pressure[k], fx.pressure_offset_pa[k], fx.pressure_gain[k])
+        all_samples = np.concatenate([self.samples, readings])
+        n_samples = len(all_samples) if final else len(all_samples) - len(all_samples) % self.block
+        first_sample = self.first_sample
+        self.samples, self.first_sample = all_samples[n_samples:], first_sample + n_samples
+
+        rows = load if self.load_row is None else np.concatenate([self.load_row[None, :], load])
+        torque = power = load_ticks = np.zeros(0)
+        if len(rows):
+            self.load_row = rows[-1].copy()
+            dt = np.diff(rows[:, 0])
+            torque, power = np.diff(rows[:, 1]) / dt, np.diff(rows[:, 2]) / dt
+            sig = fx.load_noise_frac * self.spec.rated_torque_nm
+            if sig > 0 and torque.size:
+                e = self.rng_load.normal(0.0, sig, torque.size)
+                torque, power = torque + e, power + e * self.omega
+            load_ticks = np.round((rows[1:, 0] - t0) * se.tick_hz).astype(np.int64)
+            if load_ticks.size:
+                self.last["load"] = int(load_ticks[-1])
+        self.pending += keyed_records(all_edges[:n_edges], self.per_rev, cam_ticks, all_samples[:n_samples],
+                                      self.period_ticks, self.block, load_ticks, torque, power, first_sample)
+        self.pending.sort(key=lambda r: r[:2])  # stable: records of one stream and key keep their order

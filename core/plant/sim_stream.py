@@ -1,0 +1,109 @@
+"""A simulation run stretch by stretch: ``Simulation.chunks()`` integrates the plant set up by
+``core.plant.simulate.start_simulation`` a few cycles at a time and hands each stretch over as a ``SimChunk``
+(stream records in arrival order, the truth entries of the cycles it completed), keeping only the state that carries
+into the next stretch: the plant's, the sensor streams' (core.plant.sim_records) and the truth's running sums
+(core.plant.sim_truth). Memory is one chunk's worth whatever the number of cycles; the records and truth do not
+depend on the chunk size.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+import numpy as np
+from frictionwatch.core.model.effects import SensorSetup
+from frictionwatch.core.model.engine_model import EngineModel
+from frictionwatch.core.model.thermo import charge_pressures
+from frictionwatch.core.plant.sim_records import SensorRecords, acquisition_info
+from frictionwatch.core.plant.sim_run import PlantRun
+from frictionwatch.core.plant.sim_truth import TruthAccumulator
+from frictionwatch.core.types import StreamRecord
+
+SETTLE_A_CYCLES = 6  # governed settle (dyno law re-tuned per cycle; grid mode damped), deterministic combustion
+SETTLE_B_CYCLES = 1  # final load law, combustion variability on (half a cycle, then one lead-in revolution)
+CHUNK_CYCLES = 8  # output cycles per hand-over: genset-v20 about 1.4 MB of records and events per cycle
+
+
+@dataclass
+class SimChunk:
+    """One stretch of a run: the records releasable so far (in arrival order, continuing the previous chunk's), the
+    truth entries of the output cycles completed in it, and its diagnostics (arrays of this stretch, see SimResult)."""
+
+    records: list[StreamRecord]
+    cycles: list[dict]
+    diagnostics: dict
+
+
+class Simulation:
+    """A run set up by ``start_simulation``: ``info`` (what the acquisition states) is known at once; ``chunks()``
+    integrates it (once), and when its last chunk is out ``truth`` holds the per-run truth without its "cycles"."""
+
+    def __init__(self, model: EngineModel, run: PlantRun, *, cycles: int, steps: list, point: Callable,
+                 theta_start: float, operating: dict, request: dict, sensors: SensorSetup,
+                 rngs: list[np.random.Generator]):
+        """run: the plant set up at theta_start, not yet advanced; steps: [(time_s, load fraction)]; point(fraction)
+        -> (fuel kg, brake torque estimate N m, per-cylinder means); operating: the truth's "operating" block (its
+        load law and steps are filled in by the run); request: rpm, load, seed as asked (repeated in the truth)."""
+        self.model, self.run, self.cycles, self.steps, self.point = model, run, cycles, steps, point
+        self.theta_start, self.operating, self.request = theta_start, operating, request
+        self.sensors, self.rngs = sensors, rngs
+        self.info = acquisition_info(model.spec)
+        self.truth: dict | None = None
+        self._started = False
+
+    def chunks(self, chunk_cycles: int = CHUNK_CYCLES,
+               progress: Callable[[float], None] | None = None) -> Iterator[SimChunk]:
+        """Run the simulation, yielding a ``SimChunk`` every ``chunk_cycles`` output cycles (the last one may be
+        shorter and carries the records left); ``progress(fraction)`` is called as it goes."""
+        if self._started:
+            raise RuntimeError("a Simulation runs once; start another one")
+        if not (isinstance(chunk_cycles, int | np.integer) and chunk_cycles >= 1):
+            raise ValueError(f"chunk_cycles = {chunk_cycles!r} must be an integer >= 1")
+        self._started = True
+        run, spec, cycles, theta_start = self.run, self.model.spec, self.cycles, self.theta_start
+        total_angle = 4.0 * np.pi * (cycles + SETTLE_A_CYCLES + SETTLE_B_CYCLES) + 0.5 * np.pi
+
+        def report() -> None:
+            if progress is not None:
+                progress(float(np.clip((run.theta_fly - theta_start) / total_angle, 0.0, 1.0)))
+
+        for i in range(SETTLE_A_CYCLES):
+            run.advance_to(theta_start + 2.0 * np.pi + 4.0 * np.pi * (i + 1), report)
+            run.govern()
+        law_info = run.final_law()
+        run.advance_to(-2.0 * np.pi, report)
+        run.start_output()
+        sensors = SensorRecords(spec, self.sensors, self.rngs, run.t_out0, run.omega)
+        truth = TruthAccumulator(spec, run.plant, cycles, run.t_out0)
+        correction = law_info["load_torque_settled_nm"] - self.operating["brake_torque_estimate_nm"]
+        steps, step_log, brake_full = list(self.steps), [], run.brake_full
+        end, done = 4.0 * np.pi * cycles + 0.5 * np.pi, 0
+        while done < cycles:
+            done = min(done + chunk_cycles, cycles)
+            stop = end if done == cycles else 4.0 * np.pi * done
+            while steps and run.advance_to(stop, report, t_stop=steps[0][0]):
+                t_step, frac = steps.pop(0)  # a step time reached: the new operating point and load law
+                fuel, tb, _ = self.point(frac)
+                run.set_operating(fuel, *charge_pressures(spec, frac))
+                run.change_law(tb + correction, brake_full + correction)
+                step_log.append({"time_s": t_step, "load": frac, "fuel_kg": fuel, "brake_torque_estimate_nm": tb})
+            run.advance_to(stop, report)
+            ev = run.drain()
+            entries, diag = truth.add(ev["cycle_rows"], ev["cycle_index"], ev["grid"])
+            records = sensors.add(ev["edges"], ev["cam"], ev["samples"], ev["load"])
+            if done == cycles:
+                records += sensors.finish()
+            diag.update(edge_times_s=ev["edges"][:, 0] - run.t_out0, edge_index=ev["edges"][:, 1].astype(int),
+                        pressure_true_pa=ev["samples"])
+            yield SimChunk(records, entries, diag)
+        if progress is not None:
+            progress(1.0)
+        self.operating.update(load_law=law_info, load_steps=step_log)
+        se = spec.sensors
+        wheel = {"first_tooth_deg_stated": se.first_tooth_deg,
+                 "first_tooth_deg_true": se.first_tooth_deg - float(np.degrees(self.sensors.wheel_offset_rad)),
+                 "tooth_errors_deg": run.tooth_err.tolist(), "cam_deg_stated": self.info.cam_deg,
+                 "edge_ticks_first_tooth_index": sensors.first_edge_index}
+        self.truth = truth.summary(**self.request, active=[e.to_dict() for e in self.model.effects], wheel=wheel,
+                                   operating=self.operating)
