@@ -52,13 +52,14 @@ class SensorHealthConfig:
     wheel_deg, gain (relative), offset_pa, and a sibling quantity beyond spread_sigmas of the siblings' own robust
     spread (1.4826 MAD across the cylinders: healthy cylinders differ by a few % in compression);
     floors: 1-sigma the methods cannot resolve whatever the cycle count (model and sibling spread);
-    prior_wheel_deg: the wheel's TDC uncertainty assumed (into the friction sigma) until min_cycles are in;
+    prior_wheel_deg, prior_tdc_deg: 1-sigma prior of the wheel's TDC offset and of a cylinder's own offset from it
+    (the wheel's also goes into the friction sigma until min_cycles are in);
     window_deg: compression window before firing TDC (its end moves before the start of combustion)."""
 
     memory: float = 1.0 - 1.0 / 30.0
     min_cycles: int = 8
     flag_sigmas: float = 4.0
-    tdc_deg: float = 0.6  # against the siblings: healthy simulated K9K / V20 spread up to ~0.5 deg
+    tdc_deg: float = 0.3
     wheel_deg: float = 0.3
     gain: float = 0.02
     offset_pa: float = 0.2e5
@@ -68,7 +69,10 @@ class SensorHealthConfig:
     floor_offset_pa: float = 0.02e5
     window_deg: tuple[float, float] = (-100.0, -25.0)
     spread_sigmas: float = 3.0
-    prior_wheel_deg: float = 1.0  # what is known of the wheel's TDC before min_cycles of speed data
+    prior_wheel_deg: float = 1.0  # what is known of the wheel's TDC before the speed data
+    prior_tdc_deg: float = 0.5  # ... and of a cylinder's own offset from the wheel
+    prior_gain: float = 0.05  # of a pressure channel's gain error, where the speed separates it from TDC
+    scale_error: float = 0.35  # relative error of the speed's TDC (K9K read 0.67 deg for 1.0: bench/sensor_faults)
 
 
 @dataclass(frozen=True)
@@ -82,11 +86,13 @@ class SensorHealthState:
     applied: np.ndarray
     tdc_info: np.ndarray
     tdc_rhs: np.ndarray
+    wheel_info: float
+    wheel_rhs: float
 
     @staticmethod
     def empty(n_cyl: int) -> SensorHealthState:
         zero = np.zeros(3 * n_cyl + 1)
-        return SensorHealthState(0, zero, zero, zero, np.zeros((n_cyl, n_cyl)), np.zeros(n_cyl))
+        return SensorHealthState(0, zero, zero, zero, np.zeros((n_cyl, n_cyl)), np.zeros(n_cyl), 0.0, 0.0)
 
 
 def corrected_inputs(state: SensorHealthState, pressure: np.ndarray,
@@ -144,26 +150,31 @@ def _window(grid: np.ndarray, pressure: np.ndarray, phases: np.ndarray, w: np.nd
 
 
 def tdc_information(sens: np.ndarray, residual: np.ndarray, sigma: np.ndarray, design: np.ndarray,
-                    prior_info: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                    prior_info: np.ndarray, gain_cols: np.ndarray, gain_sigma: float) -> tuple[np.ndarray, np.ndarray]:
     """This cycle's normal equations (z, z), (z,) of each cylinder's kinematic shift [rad] beyond the one in use,
     from the speed residual (M,) along its column of ``sens`` (M, z), with the friction and tooth columns ``design``
-    (M, P) eliminated under their prior ``prior_info`` (whitened units; Schur complement): a friction estimate that
-    absorbed some of a TDC error must not hide it, nor a friction misfit read as TDC."""
+    (M, P) under their prior ``prior_info`` (whitened units) and each cylinder's pressure-gain column ``gain_cols``
+    (M, z) under a prior of ``gain_sigma`` eliminated (Schur complement): a friction estimate that absorbed some of a
+    TDC error must not hide it, nor a friction misfit or a gain error read as TDC."""
     inv = np.concatenate([1.0 / sigma, 1.0 / sigma])
+    p = design.shape[1]
+    z = gain_cols.shape[1]
+    design = np.concatenate([design, gain_cols], axis=1)
+    prior_info = np.pad(prior_info[:p, :p], ((0, z), (0, z))) + np.diag(np.r_[np.zeros(p), np.full(z, gain_sigma**-2)])
     d = np.concatenate([design.real, design.imag]) * inv[:, None]
     s = np.concatenate([sens.real, sens.imag]) * inv[:, None]
     rr = np.concatenate([residual.real, residual.imag]) * inv
-    p = design.shape[1]
-    k = d.T @ d + prior_info[:p, :p]
+    k = d.T @ d + prior_info
     sol = np.linalg.solve(k, np.concatenate([d.T @ s, (d.T @ rr)[:, None]], axis=1))  # K^-1 [D'S, D'r]
     ds = d.T @ s
     return s.T @ s - ds.T @ sol[:, :-1], s.T @ rr - ds.T @ sol[:, -1]
 
 
 def wheel_sensitivity(op: OperatingPoint, grid: np.ndarray, pressure: np.ndarray, theta_fly: np.ndarray,
-                      omega: np.ndarray, alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Speed harmonics (M, z) complex per rad of a kinematic shift of each cylinder, and its work-mean indicated
-    torque per rad (z,) [N m/rad], from the (corrected) pressure on the harmonic balance's time samples."""
+                      omega: np.ndarray, alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Speed harmonics (M, z) complex per rad of a kinematic shift of each cylinder, its work-mean indicated torque
+    per rad (z,) [N m/rad], and the speed harmonics (M, z) per unit relative pressure gain (its gas torque), from the
+    (corrected) pressure on the harmonic balance's time samples."""
     cyl = op.cylinders
     z = cyl.phase.shape[0]
     n = pressure.shape[1]
@@ -181,7 +192,8 @@ def wheel_sensitivity(op: OperatingPoint, grid: np.ndarray, pressure: np.ndarray
     d_gas = (gas[0] - gas[1]) / (2.0 * SHIFT_STEP)  # (z, n_t)
     harm = harmonics_of(d_gas + (mass[0] - mass[1]) / (2.0 * SHIFT_STEP), op.transfer.shape[0])  # (z, M)
     sens = op.transfer[:, cyl.node] * harm.T  # through the chain from each cylinder's own throw
-    return sens, np.mean(d_gas * omega, axis=1) / np.mean(omega)  # work mean: the mass torque has none
+    gain = op.transfer[:, cyl.node] * harmonics_of(0.5 * (gas[0] + gas[1]), op.transfer.shape[0]).T
+    return sens, np.mean(d_gas * omega, axis=1) / np.mean(omega), gain  # work mean: the mass torque has none
 
 
 @dataclass(frozen=True)
@@ -211,19 +223,32 @@ def assess(cfg: SensorHealthConfig, spec: EngineSpec, state: SensorHealthState, 
     z = spec.n_cyl
     a = state.applied
     in_use = a[:z] + a[-1]
+    # the pistons' positions with the TDC correction in use (an unflagged speed estimate is too noisy to steer it)
     sib = sibling_compare(spec, grid, raw_pressure, cfg.window_deg, (np.zeros(z) if twist is None else twist)
                           - in_use)
-    sens, d_indicated = wheel_sensitivity(op, grid, pressure, speed.theta_fly, speed.omega, speed.alpha)
+    sens, d_indicated, gain_cols = wheel_sensitivity(op, grid, pressure, speed.theta_fly, speed.omega, speed.alpha)
     # TDC: normal equations accumulated with forgetting, each cycle's referred to the correction it ran with
-    j_c, h_c = tdc_information(sens, speed.residual, speed.sigma, speed.design, speed.prior_info)
-    prior = np.eye(z) / math.radians(cfg.prior_wheel_deg) ** 2  # a TDC offset is zero until the speed says not
+    j_c, h_c = tdc_information(sens, speed.residual, speed.sigma, speed.design, speed.prior_info, gain_cols,
+                               cfg.prior_gain)
+    # a TDC offset is zero until the speed says not: the wheel (common to all) and each cylinder's own offset
+    prior = np.linalg.inv(math.radians(cfg.prior_wheel_deg) ** 2 + np.eye(z) * math.radians(cfg.prior_tdc_deg) ** 2)
     j_acc = cfg.memory * state.tdc_info + j_c
     h_acc = cfg.memory * state.tdc_rhs + h_c + j_c @ in_use
     cov = np.linalg.inv(j_acc + prior)
     tdc_s = cov @ h_acc
     tdc = in_use + np.linalg.solve(j_c + prior, h_c)  # this cycle's own
-    wheel = float(np.mean(tdc))
-    rel = tdc - wheel if z >= 3 else np.full(z, np.nan)
+    # the wheel alone (every cylinder shifted alike, the sum of the columns): on a large engine the common mode is
+    # well determined where the cylinders' own offsets are not, and a joint solve would let them trade off
+    # (the gains are not eliminated here: their sum, a common gain, looks much like the wheel and is not measured)
+    one = np.ones(z)
+    j_w, h_w = tdc_information(sens, speed.residual, speed.sigma, speed.design, speed.prior_info, gain_cols[:, :0],
+                               cfg.prior_gain)
+    jw_c, hw_c = float(one @ j_w @ one), float(one @ h_w)
+    prior_w = 1.0 / math.radians(cfg.prior_wheel_deg) ** 2
+    jw = cfg.memory * state.wheel_info + jw_c
+    hw = cfg.memory * state.wheel_rhs + hw_c + jw_c * float(np.mean(in_use))
+    wheel = float(np.mean(in_use)) + hw_c / (jw_c + prior_w)
+    rel = tdc - float(np.mean(tdc)) if z >= 3 else np.full(z, np.nan)
     q = np.concatenate([rel, sib.ravel(), [wheel]])
     n = state.count + 1
     g = max(1.0 - cfg.memory, 1.0 / n)
@@ -236,20 +261,23 @@ def assess(cfg: SensorHealthConfig, spec: EngineSpec, state: SensorHealthState, 
                             np.full(z, cfg.floor_offset_pa), [math.radians(cfg.floor_wheel_deg)]])
     spread = var / n_eff  # the scatter of the per-cycle values, or for the TDC the information if it says more
     centre = np.eye(z) - 1.0 / z
-    mean[-1] = float(np.mean(tdc_s))
-    spread[-1] = max(spread[-1], float(np.sum(cov)) / z**2)
+    mean[-1] = hw / (jw + prior_w)
+    spread[-1] = max(spread[-1], 1.0 / (jw + prior_w))
     if z >= 3:
-        mean[:z] = tdc_s - mean[-1]
+        mean[:z] = tdc_s - float(np.mean(tdc_s))
         spread[:z] = np.maximum(spread[:z], np.diag(centre @ cov @ centre))
-    sigma = np.where(ok, np.sqrt(spread + floor**2), np.nan)
+    noise = np.where(ok, np.sqrt(spread + floor**2), np.nan)  # what decides a flag: is it more than noise?
+    scale = np.zeros_like(mean)
+    scale[:z], scale[-1] = cfg.scale_error * mean[:z], cfg.scale_error * mean[-1]
+    sigma = np.hypot(noise, scale)  # what is reported and carried into the friction sigma
     thr = np.concatenate([np.full(z, math.radians(cfg.tdc_deg)), np.full(z, cfg.gain), np.full(z, cfg.offset_pa),
                           [math.radians(cfg.wheel_deg)]])
     if z >= 3:  # beyond the healthy spread of the siblings themselves (robust: one faulty cylinder does not move it)
         block = mean[:3 * z].reshape(3, z)
         spread = 1.4826 * np.median(np.abs(block - np.median(block, axis=1, keepdims=True)), axis=1)
         thr[:3 * z] = np.maximum(thr[:3 * z], np.repeat(cfg.spread_sigmas * spread, z))
-    flagged = ok & (n >= cfg.min_cycles) & (np.abs(mean) > thr) & (np.abs(mean) > cfg.flag_sigmas * sigma)
-    keep = ok & (a != 0.0) & (np.abs(mean) > 2.0 * sigma)  # a correction in use stays while it is significant
+    flagged = ok & (n >= cfg.min_cycles) & (np.abs(mean) > thr) & (np.abs(mean) > cfg.flag_sigmas * noise)
+    keep = ok & (a != 0.0) & (np.abs(mean) > 2.0 * noise)  # a correction in use stays while it is significant
     applied = np.where(flagged | keep, mean, 0.0)
     # what stays uncertain after this cycle's corrections, into the friction sigma (dT_iM/dDelta, dT_iM/dgain;
     # a constant pressure offset does no work over the cycle)
@@ -275,7 +303,7 @@ def assess(cfg: SensorHealthConfig, spec: EngineSpec, state: SensorHealthState, 
         applied_tdc=a[:z] + a[-1], applied_gain=1.0 + a[z:2 * z], applied_offset=a[2 * z:3 * z],
         friction_sigma_cyl=per_cyl, friction_sigma=total,
         flags=tuple(nm for nm, f in zip(names, flagged, strict=True) if f))
-    return SensorHealthState(n, mean, var, applied, j_acc, h_acc), health
+    return SensorHealthState(n, mean, var, applied, j_acc, h_acc, jw, hw), health
 
 
 def inflate(spec: EngineSpec, est: FrictionEstimate, health: SensorHealth) -> FrictionEstimate:
