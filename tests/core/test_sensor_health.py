@@ -10,7 +10,7 @@ import pytest
 from frictionwatch.core.model.effects.catalog import PressureGain, PressureOffset, TdcOffset
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import cylinder_volume
-from frictionwatch.core.monitor.monitor import MonitorConfig, initial_state, process_cycle
+from frictionwatch.core.monitor.monitor import initial_state, process_cycle
 from frictionwatch.core.monitor.sensor_health import SensorHealthState, corrected_inputs, sibling_compare
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
