@@ -121,7 +121,8 @@ class CycleResult:
     friction_torque_balance (n,) N m or None: direct rigid balance (paper 001 Eq. 26), rigid engines only
     speed_measured, speed_model (n,) rad/s flywheel speed (orders <= the identification limit)
     residual_harmonics (M,) complex rad/s: measured - model flywheel speed harmonics (order m/2)
-    residual_rms rad/s, r_squared of the speed ripple; flags
+    residual_rms rad/s, r_squared of the speed ripple; flags; sensor_health (SensorHealth, None with the stage off):
+    TDC, pressure gain and pegging estimates, the corrections ``imep`` and the friction rest on, their sigmas
 
     The traces (grid, friction_torque, friction_torque_cyl_time, time_angles, speed_measured, speed_model,
     friction_torque_balance) are None in the copy ``slim()`` makes for a long history: ~85 % of a result's memory.

@@ -10,7 +10,9 @@ Two sources, each used where it carries information:
    friction estimate) is solved for Delta jointly with the friction and tooth-error columns under their prior (the
    Schur complement eliminates them: a friction estimate that absorbed part of a TDC error must not hide it), the
    normal equations accumulated with forgetting, each cycle's referred to the correction it ran with. The wheel is
-   the mean over the cylinders, a cylinder's own offset its deviation from that mean (three or more cylinders).
+   the median of the joint estimates on a small engine (one cylinder's offset stays its own), and estimated alone
+   (all cylinders shifted alike) on a large one, where the common mode is well determined and each cylinder's own
+   is not; a cylinder's own offset is its joint estimate beyond the wheel (three or more cylinders).
    The compression stroke alone cannot do this: over a window before combustion a TDC shift is nearly collinear
    with a cylinder's own polytropic exponent and gain (simulated healthy K9K / V20 cylinders read +-0.4 deg).
 2. Gain and pegging from a sibling comparison of the compression stroke. Over a window after inlet-valve closing
@@ -71,6 +73,7 @@ class SensorHealthConfig:
     spread_sigmas: float = 3.0
     prior_wheel_deg: float = 1.0  # what is known of the wheel's TDC before the speed data
     prior_tdc_deg: float = 0.5  # ... and of a cylinder's own offset from the wheel
+    joint_max_cyl: int = 6  # up to this many cylinders the wheel is the median of the joint per-cylinder estimates
     prior_gain: float = 0.05  # of a pressure channel's gain error, where the speed separates it from TDC
     scale_error: float = 0.35  # relative error of the speed's TDC (K9K read 0.67 deg for 1.0: bench/sensor_faults)
 
@@ -223,9 +226,15 @@ def assess(cfg: SensorHealthConfig, spec: EngineSpec, state: SensorHealthState, 
     z = spec.n_cyl
     a = state.applied
     in_use = a[:z] + a[-1]
-    # the pistons' positions with the TDC correction in use (an unflagged speed estimate is too noisy to steer it)
+    # the pistons' positions with the TDC correction in use or, not yet flagged, the speed's estimate where it is
+    # beyond the threshold: a TDC error read as gain would be "corrected" into a wrong pressure (below the threshold
+    # the speed's estimate is too noisy to steer the comparison)
+    m_tdc, m_wheel = state.mean[:z], state.mean[-1]
+    suspect = np.where(np.abs(m_tdc) > math.radians(cfg.tdc_deg), m_tdc, 0.0) + (
+        m_wheel if abs(m_wheel) > math.radians(cfg.wheel_deg) else 0.0)
+    lead_tdc = np.where(in_use != 0.0, in_use, suspect)
     sib = sibling_compare(spec, grid, raw_pressure, cfg.window_deg, (np.zeros(z) if twist is None else twist)
-                          - in_use)
+                          - lead_tdc)
     sens, d_indicated, gain_cols = wheel_sensitivity(op, grid, pressure, speed.theta_fly, speed.omega, speed.alpha)
     # TDC: normal equations accumulated with forgetting, each cycle's referred to the correction it ran with
     j_c, h_c = tdc_information(sens, speed.residual, speed.sigma, speed.design, speed.prior_info, gain_cols,
@@ -248,7 +257,12 @@ def assess(cfg: SensorHealthConfig, spec: EngineSpec, state: SensorHealthState, 
     jw = cfg.memory * state.wheel_info + jw_c
     hw = cfg.memory * state.wheel_rhs + hw_c + jw_c * float(np.mean(in_use))
     wheel = float(np.mean(in_use)) + hw_c / (jw_c + prior_w)
-    rel = tdc - float(np.mean(tdc)) if z >= 3 else np.full(z, np.nan)
+    # a few cylinders resolve their own columns: the wheel is the median of the joint estimates (one cylinder's
+    # offset then stays its own instead of moving the wheel)
+    few = 3 <= z <= cfg.joint_max_cyl
+    if few:
+        wheel = float(np.median(tdc))
+    rel = tdc - wheel if z >= 3 else np.full(z, np.nan)  # a cylinder's own: its joint estimate beyond the wheel
     q = np.concatenate([rel, sib.ravel(), [wheel]])
     n = state.count + 1
     g = max(1.0 - cfg.memory, 1.0 / n)
@@ -260,12 +274,11 @@ def assess(cfg: SensorHealthConfig, spec: EngineSpec, state: SensorHealthState, 
     floor = np.concatenate([np.full(z, math.radians(cfg.floor_tdc_deg)), np.full(z, cfg.floor_gain),
                             np.full(z, cfg.floor_offset_pa), [math.radians(cfg.floor_wheel_deg)]])
     spread = var / n_eff  # the scatter of the per-cycle values, or for the TDC the information if it says more
-    centre = np.eye(z) - 1.0 / z
-    mean[-1] = hw / (jw + prior_w)
-    spread[-1] = max(spread[-1], 1.0 / (jw + prior_w))
+    mean[-1] = float(np.median(tdc_s)) if few else hw / (jw + prior_w)
+    spread[-1] = max(spread[-1], float(np.mean(np.diag(cov))) * math.pi / (2.0 * z) if few else 1.0 / (jw + prior_w))
     if z >= 3:
-        mean[:z] = tdc_s - float(np.mean(tdc_s))
-        spread[:z] = np.maximum(spread[:z], np.diag(centre @ cov @ centre))
+        mean[:z] = tdc_s - mean[-1]
+        spread[:z] = np.maximum(spread[:z], np.diag(cov))
     noise = np.where(ok, np.sqrt(spread + floor**2), np.nan)  # what decides a flag: is it more than noise?
     scale = np.zeros_like(mean)
     scale[:z], scale[-1] = cfg.scale_error * mean[:z], cfg.scale_error * mean[-1]
