@@ -111,9 +111,9 @@ def _fmep_check(truth, res, strict):
     ("maruti-3cyl", 1.0, 50, 0.2, True),
     ("deutz-1cyl", 1.2, 50, 0.2, True),
     ("genset-v20", 1.0, 50, 0.2, False),
-    # K9K at full load: the speed's TDC is off by up to 40 % of the offset (bench/sensor_faults.py); what holds is
-    # the flag and a sigma that covers it, the estimate and FMEP within 2 sigma
-    ("k9k-4cyl", -0.6, 50, None, False),
+    # K9K at full load: the speed's TDC is off by up to 50 % of the offset (bench/sensor_faults.py); what holds is
+    # the flag (offsets beyond the 0.8 deg threshold) and a sigma that covers it, the estimate and FMEP within 2 sigma
+    ("k9k-4cyl", -1.2, 50, None, False),
 ])
 def test_wheel_tdc_offset_is_flagged_estimated_and_corrected(name, deg, cycles, tol_deg, strict):
     truth, out = _run(name, [TdcOffset(deg=deg, cylinder=0)], cycles)
@@ -148,8 +148,8 @@ def test_one_cylinders_sensor_fault_is_named_and_fmep_holds(effect, flag, check)
 
 @pytest.mark.parametrize("name, rpm_load, seed", [
     ("maruti-3cyl", (2000.0, 0.5), 2),
-    # known limitation, measured: on this healthy K9K log the speed's wheel TDC wanders to +0.68 deg and the wheel is
-    # flagged in 24 of 60 cycles (the speed-based TDC carries a model bias of up to ~0.5 deg on the K9K)
+    # known limitation, measured: on this healthy K9K log the speed's wheel TDC wanders to ~0.7-0.9 deg (the K9K's
+    # model bias at part load) and the wheel is flagged in 5 of 60 cycles even at the 0.8 deg threshold
     pytest.param("k9k-4cyl", (1400.0, 0.5), 3, marks=pytest.mark.xfail(
         strict=True, reason="speed-based wheel TDC biased on the K9K at part load: false sensor_tdc_offset")),
 ])
