@@ -73,6 +73,7 @@ def summary(analysis: LogAnalysis) -> dict:
         "friction": cyc["friction"],
         "friction_run_mean_balance": run_mean_balance(analysis, cyc["friction"]["status"]),
         "active_flags": sorted(active),
+        "sensor_health": cyc["sensor_health"],
         "last": {k: cyc[k] for k in LAST_CYCLE_KEYS},
         "flags": flag_summary([r.index for r in results], flags),
         "cylinders": [_cylinder_run(c, k, analysis) for k, c in enumerate(cyc["cylinders"])],

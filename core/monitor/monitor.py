@@ -43,6 +43,7 @@ from frictionwatch.core.monitor.identify import parameter_layout
 from frictionwatch.core.monitor.priors import prior_normal
 from frictionwatch.core.monitor.report_kernels import trig_tables
 from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.monitor.sensor_health import SensorHealthState, check_cycle, corrected_inputs, inflate
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 from frictionwatch.core.monitor.tooth_fit import fit_cycle_teeth
 from frictionwatch.core.types import Cycle
@@ -127,7 +128,11 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     if op is not state.op and state.op is not None:
         flags.append("operating_point_changed")
 
-    bal = harmonic_balance(op, state.params, state.n_nuisance, state.relative_motion, state.static, cycle.grid,
+    # sensor corrections in use (TDC as each cylinder's kinematic phase, gain, pegging) before the balance and IMEP
+    sensor = state.sensor if state.sensor is not None else SensorHealthState.empty(spec.n_cyl)
+    raw_pressure, (pressure, op_used) = pressure, (corrected_inputs(sensor, pressure, op) if cfg.sensor_health
+                                                   else (pressure, op))
+    bal = harmonic_balance(op_used, state.params, state.n_nuisance, state.relative_motion, state.static, cycle.grid,
                            pressure, fly, theta_start, cfg.passes, cfg.time_samples)
     exc, rows, rel, static = bal.excitation, bal.rows, bal.relative_motion, bal.static
     p_rel, p_gnd = bal.power_relative, bal.power_ground
@@ -156,16 +161,24 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     if tables.shape != (m, cfg.time_samples):
         tables = trig_tables(m, cfg.time_samples)
     ident = identify_cycle(cfg, spec, state, fly, rows, exc, pmax, mean, drift_var)
+    health = None
+    if cfg.sensor_health is not None:
+        sensor, health = check_cycle(cfg.sensor_health, spec, sensor, cycle.grid, raw_pressure, pressure, op_used,
+                                     bal, state.params, ident.stats, prior.info, cfg.model_rel_error)
+        flags += health.flags
+        ident = replace(ident, smoothed_estimate=inflate(spec, ident.smoothed_estimate, health),
+                        cycle_estimate=inflate(spec, ident.cycle_estimate, health))
     if not ident.fire.all():
         flags += [f"misfire_cyl{k + 1}" for k in np.flatnonzero(~ident.fire)]
 
     result = build_result(spec, cycle, fly, exc, rows, state.layout, ident, mean, pmax, pmax_angle, flags, tables)
+    result = replace(result, sensor_health=health) if health is not None else result
     new_state = MonitorState(
         layout=state.layout, n_harmonics=m, n_nuisance=state.n_nuisance, accumulator=ident.accumulator,
         stats=ident.stats, params=ident.smoothed.params, op=op, relative_motion=rel, static=static, teeth=teeth,
         balance_mean=ident.balance_mean, indicated_mean=ident.indicated_mean, cycles=state.cycles + 1,
         prior=state.prior, lower=state.lower, report_tables=tables, prev_omega=omega, drift_var=drift_var,
-        tooth_patterns=patterns)  # every field (dataclasses.replace costs twice as much per cycle)
+        tooth_patterns=patterns, sensor=sensor)  # every field (dataclasses.replace costs twice as much per cycle)
     return new_state, result
 
 

@@ -55,6 +55,59 @@ class FrictionEstimate:
 
 
 @dataclass(frozen=True)
+class SensorHealth:
+    """Sensor health of one cycle (core.monitor.sensor_health): smoothed estimates, their 1-sigma, this cycle's own.
+
+    tdc_offset (z,) rad: each cylinder's true firing TDC after the stated one (wheel + its own against the siblings);
+    tdc_offset_siblings (z,) rad its own part (NaN below three cylinders); wheel_tdc_offset rad: the whole wheel
+    pressure_gain (z,) reading / true, relative to the median sibling; pressure_offset (z,) Pa, likewise
+    applied_tdc (z,) rad, applied_gain (z,), applied_offset (z,) Pa: the corrections this cycle's figures rest on
+    friction_sigma N m (engine), friction_sigma_cyl (z,) N m: the sensors' remaining uncertainty carried into the
+    friction sigmas; flags: ``sensor_<kind>_cyl<k>`` for a cylinder, ``sensor_tdc_offset`` for the wheel
+    """
+
+    tdc_offset: np.ndarray
+    tdc_offset_sigma: np.ndarray
+    tdc_offset_cycle: np.ndarray
+    tdc_offset_siblings: np.ndarray
+    wheel_tdc_offset: float
+    wheel_tdc_offset_sigma: float
+    wheel_tdc_offset_cycle: float
+    pressure_gain: np.ndarray
+    pressure_gain_sigma: np.ndarray
+    pressure_gain_cycle: np.ndarray
+    pressure_offset: np.ndarray
+    pressure_offset_sigma: np.ndarray
+    pressure_offset_cycle: np.ndarray
+    applied_tdc: np.ndarray
+    applied_gain: np.ndarray
+    applied_offset: np.ndarray
+    friction_sigma_cyl: np.ndarray
+    friction_sigma: float
+    flags: tuple[str, ...] = ()
+
+    def to_json(self) -> dict:
+        """degCA and bar; None where a figure is not identifiable."""
+        deg = math.degrees
+        cylinders = [{
+            "cylinder": k + 1,
+            "tdc_offset_deg": _num(deg(self.tdc_offset[k])),
+            "tdc_offset_sigma_deg": _num(deg(self.tdc_offset_sigma[k])),
+            "tdc_offset_cycle_deg": _num(deg(self.tdc_offset_cycle[k])),
+            "pressure_gain": _num(self.pressure_gain[k]),
+            "pressure_gain_sigma": _num(self.pressure_gain_sigma[k]),
+            "pressure_offset_bar": _num(self.pressure_offset[k] / PA_PER_BAR),
+            "pressure_offset_sigma_bar": _num(self.pressure_offset_sigma[k] / PA_PER_BAR),
+            "corrected_tdc_deg": _num(deg(self.applied_tdc[k])),
+            "corrected_gain": _num(self.applied_gain[k]),
+            "corrected_offset_bar": _num(self.applied_offset[k] / PA_PER_BAR),
+        } for k in range(self.tdc_offset.shape[0])]
+        return {"wheel_tdc_offset_deg": _num(deg(self.wheel_tdc_offset)),
+                "wheel_tdc_offset_sigma_deg": _num(deg(self.wheel_tdc_offset_sigma)),
+                "friction_sigma_nm": _num(self.friction_sigma), "flags": list(self.flags), "cylinders": cylinders}
+
+
+@dataclass(frozen=True)
 class CycleResult:
     """Everything the monitor knows about one cycle.
 
@@ -69,7 +122,8 @@ class CycleResult:
     friction_torque_balance (n,) N m or None: direct rigid balance (paper 001 Eq. 26), rigid engines only
     speed_measured, speed_model (n,) rad/s flywheel speed (orders <= the identification limit)
     residual_harmonics (M,) complex rad/s: measured - model flywheel speed harmonics (order m/2)
-    residual_rms rad/s, r_squared of the speed ripple; flags
+    residual_rms rad/s, r_squared of the speed ripple; flags; sensor_health (SensorHealth, None with the stage off):
+    TDC, pressure gain and pegging estimates, the corrections ``imep`` and the friction rest on, their sigmas
 
     The traces (grid, friction_torque, friction_torque_cyl_time, time_angles, speed_measured, speed_model,
     friction_torque_balance) are None in the copy ``slim()`` makes for a long history: ~85 % of a result's memory.
@@ -100,6 +154,7 @@ class CycleResult:
     r_squared: float
     friction_torque_balance: np.ndarray | None = None
     flags: tuple[str, ...] = field(default=())
+    sensor_health: SensorHealth | None = None
 
     @cached_property
     def friction_torque_cyl(self) -> np.ndarray | None:
@@ -187,6 +242,7 @@ class CycleResult:
             "chi2_reduced": _num(est.chi2_reduced),
             "flags": list(self.flags),
             "cylinders": [self._cylinder_json(k, est, st.cylinders[k], window, mep_per_nm) for k in range(z)],
+            "sensor_health": self.sensor_health.to_json() if self.sensor_health is not None else None,
         }
         return doc
 

@@ -13,6 +13,7 @@ from frictionwatch.core.monitor.harmonic_balance import OperatingPoint
 from frictionwatch.core.monitor.identify import ParameterLayout
 from frictionwatch.core.monitor.priors import PriorNormal
 from frictionwatch.core.monitor.report_kernels import TrigTables
+from frictionwatch.core.monitor.sensor_health import SensorHealthConfig, SensorHealthState
 from frictionwatch.core.monitor.tooth_fit import ToothPatterns
 
 
@@ -51,6 +52,7 @@ class MonitorConfig:
     learn_teeth: learn the out-of-band tooth pattern from the fit residuals (core.monitor.flywheel.ToothLearner) with EWMA
     factor ``tooth_memory``; the fit is repeated with the fresh correction for the first ``tooth_refit_cycles``
     warmup_cycles: cycles whose equations are not accumulated (the tooth learner and noise model settle first)
+    sensor_health: TDC, pressure gain and offset checks and corrections (core.monitor.sensor_health); None: off
     """
 
     max_order: float | None = None
@@ -81,6 +83,7 @@ class MonitorConfig:
     tooth_memory: float = 1.0 - 1.0 / 100.0
     tooth_refit_cycles: int = 50
     warmup_cycles: int = 20
+    sensor_health: SensorHealthConfig | None = SensorHealthConfig()
 
 
 @dataclass(frozen=True)
@@ -106,3 +109,4 @@ class MonitorState:
     prev_omega: float = float("nan")
     drift_var: float = 0.0
     tooth_patterns: ToothPatterns | None = None  # the in-band tooth-error patterns at the edges (core.monitor.tooth_fit)
+    sensor: SensorHealthState | None = None  # sensor-health estimates and corrections (core.monitor.sensor_health)
