@@ -18,7 +18,11 @@ def _r(x: float) -> float:
 
 
 def build_truth(spec: EngineSpec, plant: PlantModel, out: dict, *, cycles: int, rpm: float, load: float, seed: int,
-                active: dict, wheel: dict, operating: dict) -> tuple[dict, dict]:
+                active: dict, wheel: dict, operating: dict, coef_cycles: np.ndarray | None = None
+                ) -> tuple[dict, dict]:
+    """The truth JSON and the test diagnostics. ``coef_cycles`` (cycles, z, L): the coefficients of each output cycle
+    when they change mid-run (an effect's ``from_cycle``); default ``plant.coef`` throughout. The per-cylinder
+    ``coefficients`` reported are the plant's at the end of the run."""
     z = spec.n_cyl
     q = plant.nq_cyl  # per cylinder: gas, the L loss terms, extra friction
     n_terms = len(plant.library)
@@ -37,7 +41,8 @@ def build_truth(spec: EngineSpec, plant: PlantModel, out: dict, *, cycles: int, 
     gas = cum[:, 0:z * q:q]  # (cycles, z) J
     basis = np.stack([cum[:, k * q + 1:k * q + 1 + n_terms] for k in range(z)], axis=1)  # (cycles, z, L) J
     extra = cum[:, n_terms + 1:z * q:q]
-    fric = np.einsum("czl,zl->cz", basis, coef) + extra  # (cycles, z) J
+    coef_c = np.broadcast_to(coef, basis.shape) if coef_cycles is None else coef_cycles
+    fric = np.einsum("czl,czl->cz", basis, coef_c) + extra  # (cycles, z) J
     g = z * q
     w_load, w_damp = cum[:, g], cum[:, g + 1]
     vd = spec.displacement_cyl

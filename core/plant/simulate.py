@@ -34,6 +34,7 @@ from frictionwatch.core.plant.operating_point import (
     fuel_for_load,
     idle_fuel,
     leak_area_for_loss,
+    sized_transfers,
     variability_sensitivity,
 )
 from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, static_twist
@@ -46,6 +47,16 @@ STEP_DEG = 0.25  # integrator step at the mean speed (capped by the fastest mode
 SETTLE_A_CYCLES = 6  # governed settle (dyno law re-tuned per cycle; grid mode damped), deterministic combustion
 SETTLE_B_CYCLES = 1  # final load law, combustion variability on (half a cycle, then one lead-in revolution)
 MIN_SLOPE_FRACTION = 0.25  # dyno law slope never below 25 % of the full-load brake torque / omega^s
+
+
+def cylinders_at(spec: EngineSpec, effects: Sequence[Effect], coefficients: np.ndarray, term_names: tuple[str, ...],
+                 cycle: int) -> CylinderSetup:
+    """The cylinders' set-up in output cycle ``cycle``: every effect whose onset is at or before it, in order."""
+    cyl = CylinderSetup.nominal(spec, coefficients, term_names)
+    for e in effects:
+        if e.onset_cycle <= cycle:
+            cyl = e.apply_cylinders(cyl)
+    return cyl
 
 
 @dataclass
@@ -116,12 +127,19 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
     omega = rpm * np.pi / 30.0
     tmodel = cylinder_model(spec)
 
-    lib = model.terms  # the plant evaluates the model's loss-term library, added terms included
-    chain, cyl = ChainSetup(), CylinderSetup.nominal(spec, model.coefficients, lib.names)
-    load_fx, sensors = LoadSetup(), SensorSetup.ideal(z)
+    lib = model.terms  # the plant evaluates the model's loss-term library, added terms included, and the terms of
+    for e in model.effects:  # the model mismatches the monitor is not told about (Effect.plant_terms)
+        for t in e.plant_terms(spec):
+            lib = lib if t.name in lib.names else lib + t
+    coef_nominal = np.zeros((z, len(lib)))
+    coef_nominal[:, :len(model.terms)] = model.coefficients
+    chain, load_fx, sensors = ChainSetup(), LoadSetup(), SensorSetup.ideal(z)
     for e in model.effects:  # each hook returns a new set-up: instances compose in the order listed
-        chain, cyl = e.apply_chain(chain), e.apply_cylinders(cyl)
-        load_fx, sensors = e.apply_load(load_fx), e.apply_sensors(sensors)
+        chain, load_fx, sensors = e.apply_chain(chain), e.apply_load(load_fx), e.apply_sensors(sensors)
+    # a change mid-run: the cylinders' set-up from each effect's onset cycle on (stage 0 from the start)
+    onsets = sorted({e.onset_cycle for e in model.effects if e.onset_cycle < cycles} | {0})
+    stages = [cylinders_at(spec, model.effects, coef_nominal, lib.names, c) for c in onsets]
+    cyl = stages[0]
     coef, phase, misfire = cyl.coefficients, cyl.firing_angles, cyl.misfire
     spread = np.ones(z)
     if z > 1 and fuel_spread > 0:
@@ -131,9 +149,11 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
     # ---- operating point estimate (quasi-static), leak sizing, extra friction reference ----
     leak, extra, no_extra = np.zeros(z), np.zeros((z, 4)), np.zeros(z)
     m0 = idle_fuel(spec, tmodel, omega, spread, coef, leak, misfire, no_extra, lib)
-    for k in np.nonzero(cyl.mass_loss > 0)[0]:
-        leak[k] = leak_area_for_loss(spec, tmodel, omega, fuel_for_load(m0, spec, load) * spread[k], load,
-                                     cyl.mass_loss[k])
+    fuel_op = fuel_for_load(m0, spec, load) * spread
+    coefs = [sized_transfers(spec, tmodel, omega, fuel_op, load, s.coefficients, s.transfers, lib) for s in stages]
+    leaks = [np.array([leak_area_for_loss(spec, tmodel, omega, fuel_op[k], load, s.mass_loss[k]) for k in range(z)])
+             for s in stages]
+    coef, leak = coefs[0], leaks[0]
     with_extra = np.nonzero(np.any(cyl.extra_friction != 0.0, axis=1))[0]
     if with_extra.size:  # T_ref = the cylinder's mean friction at the operating point, without the extra term
         _, means0 = engine_brake_torque(spec, tmodel, omega, fuel_for_load(m0, spec, load) * spread, load, coef,
@@ -166,7 +186,7 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
 
     # ---- plant ----
     plant = build_plant(spec, flexible=chain.flexible, variable=chain.variable_inertia, coef=coef, phase=phase, extra=extra,
-                        library=lib)
+                        library=lib, stiffness_scale=chain.stiffness_scale, damping_scale=chain.damping_scale)
     grid_k = spec.load.grid_stiffness_nm_per_rad if spec.load.kind == "grid" else 0.0
     mm, kk, _ = chain_matrices(plant, grid_k)
     w_max = np.sqrt(max(eigh(kk, mm, eigvals_only=True).max(), 0.0))
@@ -182,7 +202,11 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
     run.set_state(theta_start + static_twist(plant, node_torque), omega)
     run.set_leak(leak)
     run.set_operating(fuel0, *charge_pressures(spec, load))
-    run.set_perturbations(spread, misfire, sig_q, sig_soc, sig_beta, theta_start, theta_switch, cycles)
+    misfire_from = np.zeros(z, dtype=np.int64)  # misfires that start mid-run: drawn from their onset cycle on
+    for c, before, after in zip(onsets[1:], stages, stages[1:]):
+        misfire_from[after.misfire != before.misfire] = c
+    run.set_perturbations(spread, stages[-1].misfire, sig_q, sig_soc, sig_beta, theta_start, theta_switch, cycles,
+                          misfire_from)
     ripple = load_fx.amplitude_nm if load_fx.amplitude_nm > 0 else load_fx.fraction * abs(brake0)
     run.set_ripple(ripple, load_fx.order, load_fx.phase_rad)
     run.settle_law(brake0, brake_full, MIN_SLOPE_FRACTION)
@@ -200,14 +224,27 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
     run.start_output()
     correction = law_info["load_torque_settled_nm"] - brake0
     step_log = []
+    pending = list(range(1, len(onsets)))  # stages still to switch to, in order
+    end = 4.0 * np.pi * cycles + 0.5 * np.pi
+
+    def advance(t_stop: float | None) -> bool:
+        """To ``end`` or the time ``t_stop`` (True: stopped there), switching stages at their onset cycles."""
+        while pending:
+            i = pending[0]
+            if run.advance_to(4.0 * np.pi * onsets[i], report, t_stop=t_stop):
+                return True
+            plant.coef[:] = coefs[pending.pop(0)]  # the kernel reads this array: in place
+            run.set_leak(leaks[i])
+        return run.advance_to(end, report, t_stop=t_stop)
+
     for t_step, frac in steps:
-        if not run.advance_to(4.0 * np.pi * cycles + 0.5 * np.pi, report, t_stop=t_step):
+        if not advance(t_step):
             break
         fuel, tb, _ = point(frac)
         run.set_operating(fuel, *charge_pressures(spec, frac))
         run.change_law(tb + correction, brake_full + correction)
         step_log.append({"time_s": t_step, "load": frac, "fuel_kg": fuel, "brake_torque_estimate_nm": tb})
-    run.advance_to(4.0 * np.pi * cycles + 0.5 * np.pi, report)
+    advance(None)
     if progress is not None:
         progress(1.0)
 
@@ -222,5 +259,7 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
     }
     truth, diag = build_truth(spec, plant, out, cycles=cycles, rpm=rpm, load=load, seed=seed,
                               active=[e.to_dict() for e in model.effects],
-                              wheel=wheel, operating=operating)
+                              wheel=wheel, operating=operating,
+                              coef_cycles=np.stack(coefs)[np.searchsorted(onsets, np.arange(cycles), side="right") - 1]
+                              if len(onsets) > 1 else None)
     return SimResult(records=records, info=info, truth=truth, diagnostics=diag)
