@@ -3,7 +3,8 @@ sigmas, resolved masks; results.py). The numbers come from two kernels (core.mon
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
@@ -26,14 +27,53 @@ class ReportLimits:
     min_data_gain: float = 0.0
 
 
+@dataclass(frozen=True)
+class ModelErrorFloor:
+    """The systematic part of the friction sigma that the monitor's own equations cannot see: errors that repeat
+    every cycle and move the estimate the same way on every log of one engine and operating point (a drive train or a
+    friction law of another shape than the model's, the indicated work's discretisation), calibrated on logs of
+    model mismatches (bench/mismatch_coverage.py).
+
+    Added in quadrature to each reported friction torque (total and per cylinder):
+        (indicated_rel T_i)^2 + (friction_rel T_f)^2 max(1, chi2_reduced)
+    T_i the indicated torque behind it: the mean balance passes an error of the indicated work into friction whole,
+    so the floor grows where friction is a small part of the indicated work (high load); T_f the friction itself: a
+    law of another shape moves the split the speed fit makes, more where the fit's residual says the model misses."""
+
+    indicated_rel: float = 0.0
+    friction_rel: float = 0.0
+
+    def apply(self, est: FrictionEstimate, indicated: np.ndarray, spec: EngineSpec,
+              resolve_rel: float) -> FrictionEstimate:
+        """``est`` with the floor added to its sigmas; a cylinder no longer within ``resolve_rel`` is unresolved."""
+        if self.indicated_rel == 0.0 and self.friction_rel == 0.0:
+            return est
+        ind = np.asarray(indicated, dtype=np.float64)
+        fit = max(1.0, est.chi2_reduced)
+        t_cyl = np.where(np.isfinite(est.friction_torque_mean), est.friction_torque_mean,
+                         est.prior_friction_torque_mean)
+        sig = np.sqrt(est.friction_torque_mean_sigma ** 2 + (self.indicated_rel * ind) ** 2
+                      + (self.friction_rel * t_cyl) ** 2 * fit)
+        tot_sig = math.sqrt(est.total_friction_torque_sigma ** 2 + (self.indicated_rel * float(ind.sum())) ** 2
+                            + (self.friction_rel * est.total_friction_torque) ** 2 * fit)
+        resolved = est.resolved & (sig <= resolve_rel * np.abs(t_cyl))
+        t_mean = np.where(resolved, est.friction_torque_mean, np.nan)
+        to_cyl = FOUR_PI / spec.displacement_cyl
+        return replace(est, friction_torque_mean=t_mean, friction_torque_mean_sigma=sig, fmep=t_mean * to_cyl,
+                       fmep_sigma=sig * to_cyl, resolved=resolved, total_friction_torque_sigma=tot_sig,
+                       total_fmep_sigma=tot_sig * to_cyl / spec.n_cyl)
+
+
 def friction_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior, basis_mean: np.ndarray,
                       prior_mean: np.ndarray, limits: ReportLimits,
-                      cylinder_rows: np.ndarray | None = None) -> FrictionEstimate:
+                      cylinder_rows: np.ndarray | None = None, floor: ModelErrorFloor | None = None,
+                      indicated: np.ndarray | None = None) -> FrictionEstimate:
     """Report the friction part of a posterior: its leading ``layout.n_params`` parameters (friction scales first,
     then any nuisances, which are not reported).
 
     basis_mean (z, n_terms): work means <F_kl> of this cycle (they turn a_kl into N m); prior_mean (z,) Eq. 6 shares
-    [N m]; cylinder_rows (z, n_params): ``layout.cylinder_rows(basis_mean)`` if already at hand."""
+    [N m]; cylinder_rows (z, n_params): ``layout.cylinder_rows(basis_mean)`` if already at hand; floor: the model-error
+    floor added to the sigmas, with ``indicated`` (z,) the cylinders' indicated torques [N m]."""
     z = spec.n_cyl
     p_f = layout.n_params
     n_terms = layout.prior.shape[1]
@@ -53,7 +93,7 @@ def friction_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
     t_mean, t_sig, gain = cylinder_table
     to_cyl = FOUR_PI / spec.displacement_cyl
     to_eng = to_cyl / z
-    return FrictionEstimate(
+    est = FrictionEstimate(
         friction_torque_mean=t_mean,
         friction_torque_mean_sigma=t_sig,
         fmep=t_mean * to_cyl,
@@ -73,3 +113,6 @@ def friction_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
         weight=float(post.weight),
         chi2_reduced=float(post.chi2_reduced),
     )
+    if floor is None or indicated is None:
+        return est
+    return floor.apply(est, indicated, spec, float(limits.resolve_rel))

@@ -100,8 +100,11 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     post_c = posterior_from_normal(Accumulator.of_terms(terms), *state.prior.with_share(cyl_rows, share_c),
                                    white.sys_var, state.lower)
     limits = ReportLimits(cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain)
-    est_s = friction_estimate(spec, layout, post_s, exc.basis_mean, share_s.friction_mean, limits, cyl_rows)
-    est_c = friction_estimate(spec, layout, post_c, exc.basis_mean, share_c.friction_mean, limits, cyl_rows)
+    floor = cfg.model_error_floor
+    est_s = friction_estimate(spec, layout, post_s, exc.basis_mean, share_s.friction_mean, limits, cyl_rows, floor,
+                              ind_mean)
+    est_c = friction_estimate(spec, layout, post_c, exc.basis_mean, share_c.friction_mean, limits, cyl_rows, floor,
+                              t_i)
     return Identification(stats=white.stats, accumulator=acc, indicated_mean=ind_mean, balance_mean=bal_mean,
                           smoothed=post_s, cycle=post_c, smoothed_estimate=est_s, cycle_estimate=est_c, fire=fire,
                           freq=white.freq, drift_col=white.drift_col)

@@ -8,6 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.monitor.accumulate import Accumulator, ResidualStats
+from frictionwatch.core.monitor.change import ChangeDetector
+from frictionwatch.core.monitor.estimate import ModelErrorFloor
 from frictionwatch.core.monitor.flywheel import ToothLearner
 from frictionwatch.core.monitor.harmonic_balance import OperatingPoint
 from frictionwatch.core.monitor.identify import ParameterLayout
@@ -51,6 +53,8 @@ class MonitorConfig:
     learn_teeth: learn the out-of-band tooth pattern from the fit residuals (core.monitor.flywheel.ToothLearner) with EWMA
     factor ``tooth_memory``; the fit is repeated with the fresh correction for the first ``tooth_refit_cycles``
     warmup_cycles: cycles whose equations are not accumulated (the tooth learner and noise model settle first)
+    model_error_floor: the systematic sigma the equations cannot see (core.monitor.estimate.ModelErrorFloor),
+    calibrated on model-mismatch logs (bench/mismatch_coverage.py)
     """
 
     max_order: float | None = None
@@ -81,6 +85,29 @@ class MonitorConfig:
     tooth_memory: float = 1.0 - 1.0 / 100.0
     tooth_refit_cycles: int = 50
     warmup_cycles: int = 20
+    model_error_floor: ModelErrorFloor = ModelErrorFloor()
+
+
+@dataclass(frozen=True)
+class ConditionState:
+    """The condition flags' window (core.monitor.condition): cycles used, EWMA means and variances (z,) of each
+    cylinder's deviation from its siblings in ln(compression rise), ln(pmax) and ln(indicated torque), the EWMA of the
+    reduced chi^2, and the change detector (core.monitor.change)."""
+
+    count: int
+    compression: np.ndarray
+    compression_var: np.ndarray
+    peak: np.ndarray
+    peak_var: np.ndarray
+    indicated: np.ndarray
+    indicated_var: np.ndarray
+    misfit: float
+    detector: ChangeDetector | None
+
+    @staticmethod
+    def empty(n_cyl: int) -> ConditionState:
+        zero = np.zeros(n_cyl)
+        return ConditionState(0, zero, zero, zero, zero, zero, zero, 1.0, None)
 
 
 @dataclass(frozen=True)
@@ -106,3 +133,4 @@ class MonitorState:
     prev_omega: float = float("nan")
     drift_var: float = 0.0
     tooth_patterns: ToothPatterns | None = None  # the in-band tooth-error patterns at the edges (core.monitor.tooth_fit)
+    condition: ConditionState | None = None  # the condition flags' window and change detector (core.monitor.condition)

@@ -153,7 +153,7 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
     coefs = [sized_transfers(spec, tmodel, omega, fuel_op, load, s.coefficients, s.transfers, lib) for s in stages]
     leaks = [np.array([leak_area_for_loss(spec, tmodel, omega, fuel_op[k], load, s.mass_loss[k]) for k in range(z)])
              for s in stages]
-    coef, leak = coefs[0], leaks[0]
+    coef, leak = coefs[0].copy(), leaks[0]  # the plant's array is switched in place at an onset
     with_extra = np.nonzero(np.any(cyl.extra_friction != 0.0, axis=1))[0]
     if with_extra.size:  # T_ref = the cylinder's mean friction at the operating point, without the extra term
         _, means0 = engine_brake_torque(spec, tmodel, omega, fuel_for_load(m0, spec, load) * spread, load, coef,
