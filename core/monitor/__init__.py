@@ -12,6 +12,8 @@ walks through it.
       identify.py           ParameterLayout (which coefficients share a scale) and the bounded solve
       noise_model.py, accumulate.py, sharing.py, priors.py, estimate.py   (+ their _kernels)
       posterior_kernels.py, spd_kernels.py   the bounded MAP estimate and its posterior on small SPD systems
+    condition.py          engine-condition flags per cycle (blow-by, ring wear, model misfit) from sibling windows,
+      change.py             and the CUSUM change detector that discounts the accumulated equations once
     cycle_report.py       the typed per-cycle result (results.py): traces, measured vs model speed, residuals
     speed.py, speed_spacing.py, speed_stream.py   the classic instantaneous-speed route (tooth speed, spacing
                           learning, zero-phase filtering) for display, coast-downs and the discrepancy work

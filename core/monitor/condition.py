@@ -10,9 +10,11 @@ Flags go into ``CycleResult.flags`` as ``<kind>`` (engine) or ``<kind>_cyl<k>`` 
                              keeps its compression, so neither reads as blow-by)
     ring_wear_cyl<k>         blow-by plus that cylinder's friction resolved and above its siblings' by > 2 sigma
     model_misfit             the speed fit's reduced chi^2 over the window beyond what its noise model allows
-    condition_change_cyl<k>  the change detector (core.monitor.change) saw cylinder k's friction step; the
-    estimate_reset           accumulated equations are then discounted once (Accumulator.discounted), so the
-                             smoothed estimate follows the new state instead of averaging the two
+    condition_change_cyl<k>  the change detector (core.monitor.change) saw cylinder k's friction step (not named
+                             within ``settle`` cycles of an operating-point change)
+    estimate_reset           (not a condition: an estimator event) after any detected change the accumulated
+                             equations are discounted once (Accumulator.discounted), so the smoothed estimate
+                             follows the new state instead of averaging the two
 
 The window statistics are EWMAs carried in ``ConditionState`` (core.monitor.state); a flag is decided on each
 cycle from the window that ends there, so it stays on while the condition lasts. The sibling comparison uses the
@@ -26,8 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.accumulate import Accumulator, Posterior
+from frictionwatch.core.monitor.accumulate import Accumulator
 from frictionwatch.core.monitor.change import ChangeSettings, detect_change
+from frictionwatch.core.monitor.identification import Identification
 from frictionwatch.core.monitor.results import FrictionEstimate
 from frictionwatch.core.monitor.state import ConditionState
 
@@ -48,7 +51,10 @@ class ConditionSettings:
     0.015-0.021; blow-by (12 % mass loss, cylinder 2) read -0.023, -0.026 and -0.069. A flag needs all three below
     -(floor + ``z_flag`` standard errors of the window mean): a lean or weak cylinder has no compression loss, a
     pressure gain error cancels in the compression rise, a pegging offset raises pmax.
-    misfit_excess: the window's mean reduced chi^2 above 1 that flags a model misfit
+    misfit_excess: the window's mean reduced chi^2 above 1 that flags a model misfit; each cycle's chi^2 counts
+    up to ``misfit_cap`` (a transient's few wild cycles do not make a window's misfit; a chain 20 % off reads a
+    median of 3..5 on the K9K, a healthy log 0.8)
+    settle: cycles after an operating-point change without misfit updates and without naming a condition change
     ring_sigmas: a worn ring needs the cylinder's friction above its siblings' mean by this many sigmas
     """
 
@@ -62,6 +68,8 @@ class ConditionSettings:
     indicated_floor: float = 0.03
     z_flag: float = 3.0
     misfit_excess: float = 0.5
+    misfit_cap: float = 3.0
+    settle: int = 60
     ring_sigmas: float = 2.0
     change: ChangeSettings = ChangeSettings()
 
@@ -108,13 +116,14 @@ def _ewma(mean: np.ndarray, var: np.ndarray, x: np.ndarray, g: float, first: boo
 
 
 def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.ndarray, pressure: np.ndarray,
-                     indicated: np.ndarray, pmax: np.ndarray, fired: np.ndarray, cycle: Posterior,
-                     smoothed: Posterior, cylinder_rows: np.ndarray, estimate: FrictionEstimate,
-                     accumulator: Accumulator, settings: ConditionSettings = DEFAULT_SETTINGS) -> ConditionStep:
+                     indicated: np.ndarray, pmax: np.ndarray, ident: Identification, cylinder_rows: np.ndarray,
+                     op_changed: bool, settings: ConditionSettings = DEFAULT_SETTINGS) -> ConditionStep:
     """This cycle's condition flags from its pressure (z, n) on ``grid``, indicated torques (z,) [N m], peak
-    pressures (z,), firing mask (z,), the cycle's and the smoothed posteriors with the cylinder rows (z, p_f) that
-    turn their friction parameters into per-cylinder torques, the smoothed reported estimate, and the accumulator
-    just folded (returned discounted when a change is detected)."""
+    pressures (z,), the cycle's identification (firing mask, the cycle's and the smoothed posteriors and estimate,
+    the accumulator just folded, returned discounted when a change is detected), the cylinder rows (z, p_f) that
+    turn the friction parameters into per-cylinder torques, and whether the operating point changed this cycle."""
+    fired, cycle, smoothed = ident.fire, ident.cycle, ident.smoothed
+    estimate, accumulator = ident.smoothed_estimate, ident.accumulator
     z = spec.n_cyl
     st = ConditionState.empty(z) if state is None else state
     g = max(1.0 / settings.window, 1.0 / (st.count + 1))
@@ -129,8 +138,15 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
     peak, peak_var = _ewma(st.peak, st.peak_var, peak_dev, g, first) if use else (st.peak, st.peak_var)
     ind, ind_var = _ewma(st.indicated, st.indicated_var, ind_dev, g, first) if use else (st.indicated,
                                                                                          st.indicated_var)
-    chi2 = cycle.chi2_reduced
-    misfit = st.misfit + g * (chi2 - st.misfit) if not first else chi2
+    # an operating-point change (a load step) is a transient the noise model has not learnt yet: the chi^2 and the
+    # innovations move for a while without anything wrong with the engine or the model
+    since_op = 0 if op_changed else st.since_op_change + 1
+    settled = since_op > settings.settle
+    chi2 = min(cycle.chi2_reduced, settings.misfit_cap)  # a few wild cycles cannot make a window's misfit
+    if first:
+        misfit = chi2
+    else:
+        misfit = st.misfit + g * (chi2 - st.misfit) if settled else st.misfit
     flags: list[str] = []
     count = st.count + 1 if use else st.count
     if count >= settings.warmup and z > 1:
@@ -148,10 +164,15 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
     detector, alarm = detect_change(st.detector, cycle, smoothed, cylinder_rows, settings.change)
     acc = accumulator
     if alarm.any():
-        flags += [f"condition_change_cyl{k + 1}" for k in np.flatnonzero(alarm)] + ["estimate_reset"]
+        # the estimate follows either way; a change right after an operating-point change is not named as the
+        # engine's (the per-cylinder scales of a model of another shape move with the load, too)
+        if settled:
+            flags += [f"condition_change_cyl{k + 1}" for k in np.flatnonzero(alarm)]
+        flags.append("estimate_reset")
         acc = accumulator.discounted(min(1.0, settings.change.reset_weight / max(accumulator.weight, 1e-9)))
     new = ConditionState(count=count, compression=comp, compression_var=comp_var, peak=peak, peak_var=peak_var,
-                         indicated=ind, indicated_var=ind_var, misfit=misfit, detector=detector)
+                         indicated=ind, indicated_var=ind_var, misfit=misfit, detector=detector,
+                         since_op_change=since_op)
     return ConditionStep(new, tuple(flags), acc)
 
 

@@ -159,9 +159,8 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     ident = identify_cycle(cfg, spec, state, fly, rows, exc, pmax, mean, drift_var)
     if not ident.fire.all():
         flags += [f"misfire_cyl{k + 1}" for k in np.flatnonzero(~ident.fire)]
-    cond = assess_condition(spec, state.condition, cycle.grid, pressure, exc.indicated_mean, pmax, ident.fire,
-                            ident.cycle, ident.smoothed, rows.cylinder_rows[:, :state.layout.n_params],
-                            ident.smoothed_estimate, ident.accumulator)
+    cond = assess_condition(spec, state.condition, cycle.grid, pressure, exc.indicated_mean, pmax, ident,
+                            rows.cylinder_rows[:, :state.layout.n_params], op is not state.op and state.op is not None)
     flags += cond.flags
 
     result = build_result(spec, cycle, fly, exc, rows, state.layout, ident, mean, pmax, pmax_angle, flags, tables)

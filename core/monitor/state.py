@@ -92,7 +92,7 @@ class MonitorConfig:
 class ConditionState:
     """The condition flags' window (core.monitor.condition): cycles used, EWMA means and variances (z,) of each
     cylinder's deviation from its siblings in ln(compression rise), ln(pmax) and ln(indicated torque), the EWMA of the
-    reduced chi^2, and the change detector (core.monitor.change)."""
+    reduced chi^2, the change detector (core.monitor.change) and the cycles since the last operating-point change."""
 
     count: int
     compression: np.ndarray
@@ -103,6 +103,7 @@ class ConditionState:
     indicated_var: np.ndarray
     misfit: float
     detector: ChangeDetector | None
+    since_op_change: int = 1 << 30
 
     @staticmethod
     def empty(n_cyl: int) -> ConditionState:
