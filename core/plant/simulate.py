@@ -202,7 +202,9 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
     run.set_state(theta_start + static_twist(plant, node_torque), omega)
     run.set_leak(leak)
     run.set_operating(fuel0, *charge_pressures(spec, load))
-    misfire_from = np.zeros(z, dtype=np.int64)  # misfires that start mid-run: drawn from their onset cycle on
+    # misfires from the start act in the settling cycles too (the load law settles on the misfiring engine); those
+    # that start mid-run are drawn from their onset cycle on
+    misfire_from = np.full(z, np.iinfo(np.int64).min // 2, dtype=np.int64)
     for c, before, after in zip(onsets[1:], stages, stages[1:]):
         misfire_from[after.misfire != before.misfire] = c
     run.set_perturbations(spread, stages[-1].misfire, sig_q, sig_soc, sig_beta, theta_start, theta_switch, cycles,
