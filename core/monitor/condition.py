@@ -51,10 +51,11 @@ class ConditionSettings:
     0.015-0.021; blow-by (12 % mass loss, cylinder 2) read -0.023, -0.026 and -0.069. A flag needs all three below
     -(floor + ``z_flag`` standard errors of the window mean): a lean or weak cylinder has no compression loss, a
     pressure gain error cancels in the compression rise, a pegging offset raises pmax.
-    misfit_excess: the window's mean reduced chi^2 above 1 that flags a model misfit; each cycle's chi^2 counts
-    up to ``misfit_cap`` (a transient's few wild cycles do not make a window's misfit; a chain 20 % off reads a
-    median of 3..5 on the K9K, a healthy log 0.8)
-    settle: cycles after an operating-point change without misfit updates and without naming a condition change
+    misfit_excess: the mean reduced chi^2 over ``misfit_window`` cycles above 1 that flags a model misfit; each
+    cycle's chi^2 counts up to ``misfit_cap`` (the 15 wild cycles of a load step do not make a window's misfit; a
+    chain 20 % off reads a median of 3..5 on the K9K, a healthy log 0.8)
+    settle: cycles after an operating-point change (the monitor rebuilt its transfer functions: the mean speed moved
+    0.5 %) in which a detected change resets the estimate without being named as the engine's
     ring_sigmas: a worn ring needs the cylinder's friction above its siblings' mean by this many sigmas
     """
 
@@ -69,6 +70,7 @@ class ConditionSettings:
     z_flag: float = 3.0
     misfit_excess: float = 0.5
     misfit_cap: float = 3.0
+    misfit_window: float = 100.0
     settle: int = 60
     ring_sigmas: float = 2.0
     change: ChangeSettings = ChangeSettings()
@@ -138,15 +140,13 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
     peak, peak_var = _ewma(st.peak, st.peak_var, peak_dev, g, first) if use else (st.peak, st.peak_var)
     ind, ind_var = _ewma(st.indicated, st.indicated_var, ind_dev, g, first) if use else (st.indicated,
                                                                                          st.indicated_var)
-    # an operating-point change (a load step) is a transient the noise model has not learnt yet: the chi^2 and the
-    # innovations move for a while without anything wrong with the engine or the model
+    # an operating-point change (a load step) is a transient the noise model has not learnt yet: the innovations
+    # move for a while without anything wrong with the engine
     since_op = 0 if op_changed else st.since_op_change + 1
     settled = since_op > settings.settle
     chi2 = min(cycle.chi2_reduced, settings.misfit_cap)  # a few wild cycles cannot make a window's misfit
-    if first:
-        misfit = chi2
-    else:
-        misfit = st.misfit + g * (chi2 - st.misfit) if settled else st.misfit
+    g_misfit = max(1.0 / settings.misfit_window, 1.0 / (st.count + 1))
+    misfit = chi2 if first else st.misfit + g_misfit * (chi2 - st.misfit)
     flags: list[str] = []
     count = st.count + 1 if use else st.count
     if count >= settings.warmup and z > 1:
