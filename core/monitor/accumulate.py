@@ -101,6 +101,18 @@ class Accumulator:
                            lam * self.rows + terms.rows, sys_map, ref)
 
 
+    def discounted(self, keep: float) -> Accumulator:
+        """This accumulator with every cycle's weight x ``keep`` (0 < keep <= 1): a one-off forgetting step, after
+        a detected change, so the estimate follows the new state instead of averaging the two. The systematic map
+        is scaled with the information, so the systematic covariance N^-1 B C B^T N^-1 is unchanged (a repeated
+        error does not average out over fewer cycles either)."""
+        k = float(keep)
+        if not 0.0 < k <= 1.0:
+            raise ValueError(f"keep must be in (0, 1], got {k}")
+        return Accumulator(self.info * k, self.rhs * k, self.yty * k, self.weight * k, self.rows * k,
+                           self.sys_map * k, self.info_reference * k)
+
+
 class CycleTerms(NamedTuple):
     """One cycle's whitened normal-equation terms (``Accumulator.cycle_terms``; immutable like the accumulator, a
     named tuple: built every cycle, it costs a third of a frozen dataclass)."""

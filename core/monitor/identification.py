@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.accumulate import Accumulator, Posterior, ResidualStats, posterior_from_normal
-from frictionwatch.core.monitor.estimate import ReportLimits, friction_estimate
+from frictionwatch.core.monitor.estimate import BalanceCheck, ReportLimits, friction_estimate
 from frictionwatch.core.monitor.excitation import Excitation
 from frictionwatch.core.monitor.flywheel import FlywheelMotion
 from frictionwatch.core.monitor.identify import CycleRows
@@ -100,8 +100,16 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     post_c = posterior_from_normal(Accumulator.of_terms(terms), *state.prior.with_share(cyl_rows, share_c),
                                    white.sys_var, state.lower)
     limits = ReportLimits(cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain)
-    est_s = friction_estimate(spec, layout, post_s, exc.basis_mean, share_s.friction_mean, limits, cyl_rows)
-    est_c = friction_estimate(spec, layout, post_c, exc.basis_mean, share_c.friction_mean, limits, cyl_rows)
+    # the model-error floor compares each estimate with the mean balance over the same cycles (its EWMA's sigma
+    # from the balance's own scatter: g / (2 - g) of the per-cycle variance)
+    floor, bal_sigma = cfg.model_error_floor, math.sqrt(white.stats.balance_var)
+    misfit = state.condition.misfit if state.condition is not None else 1.0  # the window up to the last cycle
+    check_s = BalanceCheck(ind_mean, bal_mean, bal_sigma * math.sqrt(g / (2.0 - g)), mean.coupling_loss, misfit)
+    check_c = BalanceCheck(t_i, balance, bal_sigma, mean.coupling_loss, misfit)
+    est_s = friction_estimate(spec, layout, post_s, exc.basis_mean, share_s.friction_mean, limits, cyl_rows, floor,
+                              check_s)
+    est_c = friction_estimate(spec, layout, post_c, exc.basis_mean, share_c.friction_mean, limits, cyl_rows, floor,
+                              check_c)
     return Identification(stats=white.stats, accumulator=acc, indicated_mean=ind_mean, balance_mean=bal_mean,
                           smoothed=post_s, cycle=post_c, smoothed_estimate=est_s, cycle_estimate=est_c, fire=fire,
                           freq=white.freq, drift_col=white.drift_col)

@@ -35,6 +35,7 @@ from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel, as_model
 from frictionwatch.core.model.indicated import peak_pressure
 from frictionwatch.core.monitor.accumulate import Accumulator, ResidualStats
+from frictionwatch.core.monitor.condition import assess_condition
 from frictionwatch.core.monitor.cycle_report import build_result
 from frictionwatch.core.monitor.flywheel import ToothLearner
 from frictionwatch.core.monitor.harmonic_balance import harmonic_balance, operating_point
@@ -170,15 +171,19 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
                         cycle_estimate=inflate(spec, ident.cycle_estimate, health))
     if not ident.fire.all():
         flags += [f"misfire_cyl{k + 1}" for k in np.flatnonzero(~ident.fire)]
+    cond = assess_condition(spec, state.condition, cycle.grid, pressure, exc.indicated_mean, pmax, ident,
+                            rows.cylinder_rows[:, :state.layout.n_params], op is not state.op and state.op is not None)
+    flags += cond.flags
 
     result = build_result(spec, cycle, fly, exc, rows, state.layout, ident, mean, pmax, pmax_angle, flags, tables)
     result = replace(result, sensor_health=health) if health is not None else result
     new_state = MonitorState(
-        layout=state.layout, n_harmonics=m, n_nuisance=state.n_nuisance, accumulator=ident.accumulator,
+        layout=state.layout, n_harmonics=m, n_nuisance=state.n_nuisance, accumulator=cond.accumulator,
         stats=ident.stats, params=ident.smoothed.params, op=op, relative_motion=rel, static=static, teeth=teeth,
         balance_mean=ident.balance_mean, indicated_mean=ident.indicated_mean, cycles=state.cycles + 1,
         prior=state.prior, lower=state.lower, report_tables=tables, prev_omega=omega, drift_var=drift_var,
-        tooth_patterns=patterns, sensor=sensor)  # every field (dataclasses.replace costs twice as much per cycle)
+        tooth_patterns=patterns, sensor=sensor,
+        condition=cond.state)  # every field (dataclasses.replace costs twice as much per cycle)
     return new_state, result
 
 

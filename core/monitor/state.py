@@ -8,6 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.monitor.accumulate import Accumulator, ResidualStats
+from frictionwatch.core.monitor.change import ChangeDetector
+from frictionwatch.core.monitor.estimate import ModelErrorFloor
 from frictionwatch.core.monitor.flywheel import ToothLearner
 from frictionwatch.core.monitor.harmonic_balance import OperatingPoint
 from frictionwatch.core.monitor.identify import ParameterLayout
@@ -53,6 +55,8 @@ class MonitorConfig:
     factor ``tooth_memory``; the fit is repeated with the fresh correction for the first ``tooth_refit_cycles``
     warmup_cycles: cycles whose equations are not accumulated (the tooth learner and noise model settle first)
     sensor_health: TDC, pressure gain and offset checks and corrections (core.monitor.sensor_health); None: off
+    model_error_floor: the systematic sigma the equations cannot see (core.monitor.estimate.ModelErrorFloor),
+    calibrated on model-mismatch logs (bench/mismatch_coverage.py)
     """
 
     max_order: float | None = None
@@ -84,6 +88,30 @@ class MonitorConfig:
     tooth_refit_cycles: int = 50
     warmup_cycles: int = 20
     sensor_health: SensorHealthConfig | None = SensorHealthConfig()
+    model_error_floor: ModelErrorFloor = ModelErrorFloor()
+
+
+@dataclass(frozen=True)
+class ConditionState:
+    """The condition flags' window (core.monitor.condition): cycles used, EWMA means and variances (z,) of each
+    cylinder's deviation from its siblings in ln(compression rise), ln(pmax) and ln(indicated torque), the EWMA of the
+    reduced chi^2, the change detector (core.monitor.change) and the cycles since the last operating-point change."""
+
+    count: int
+    compression: np.ndarray
+    compression_var: np.ndarray
+    peak: np.ndarray
+    peak_var: np.ndarray
+    indicated: np.ndarray
+    indicated_var: np.ndarray
+    misfit: float
+    detector: ChangeDetector | None
+    since_op_change: int = 1 << 30
+
+    @staticmethod
+    def empty(n_cyl: int) -> ConditionState:
+        zero = np.zeros(n_cyl)
+        return ConditionState(0, zero, zero, zero, zero, zero, zero, 1.0, None)
 
 
 @dataclass(frozen=True)
@@ -110,3 +138,4 @@ class MonitorState:
     drift_var: float = 0.0
     tooth_patterns: ToothPatterns | None = None  # the in-band tooth-error patterns at the edges (core.monitor.tooth_fit)
     sensor: SensorHealthState | None = None  # sensor-health estimates and corrections (core.monitor.sensor_health)
+    condition: ConditionState | None = None  # the condition flags' window and change detector (core.monitor.condition)

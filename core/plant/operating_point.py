@@ -128,3 +128,24 @@ def variability_sensitivity(spec: EngineSpec, model: CylinderModel, omega: float
     d_q = (imep_of(fuel_kg * 1.05, soc0) - imep_of(fuel_kg * 0.95, soc0)) / 0.1
     d_soc = (imep_of(fuel_kg, soc0 + 1.0) - imep_of(fuel_kg, soc0 - 1.0)) / 2.0
     return base, d_q, d_soc
+
+
+def sized_transfers(spec: EngineSpec, model: CylinderModel, omega: float, fuel: np.ndarray, load: float,
+                    coef: np.ndarray, transfers: tuple[tuple[str, str, float], ...], library: TermLibrary
+                    ) -> np.ndarray:
+    """Coefficients (z, L) with each (base, new, fraction) of ``transfers`` applied: ``fraction`` of the base term's
+    mean friction at this operating point moved into the new term's shape, same mean there (per cylinder)."""
+    out = np.array(coef, dtype=np.float64)
+    if not transfers:
+        return out
+    z = spec.n_cyl
+    _, means = engine_brake_torque(spec, model, omega, fuel, load, out, np.zeros(z), np.zeros(z), np.zeros(z),
+                                   library)
+    for base, new, fraction in transfers:
+        i, j = library.index(base), library.index(new)
+        for k in range(z):
+            moved = fraction * out[k, i] * means[k].basis_mean[i]
+            if moved > 0.0 and means[k].basis_mean[j] > 0.0:
+                out[k, j] += moved / means[k].basis_mean[j]
+                out[k, i] *= 1.0 - fraction
+    return out

@@ -6,7 +6,7 @@ torsional flexibility off its one rigid node holding the whole inertia, all cyli
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from frictionwatch.core.model.chain import DriveTrain, drive_train
@@ -97,15 +97,19 @@ class PlantModel:
 
 
 def build_plant(spec: EngineSpec, *, flexible: bool, variable: bool, coef: np.ndarray, phase: np.ndarray,
-                extra: np.ndarray, library: TermLibrary | None = None) -> PlantModel:
-    """The plant of ``spec``: its drive train (core.model.chain.drive_train, one rigid node unless ``flexible``);
-    coef (z, L) the coefficients of the terms of ``library`` (default: the six Rezeka-Henein terms,
-    core.model.terms.rezeka_henein)."""
+                extra: np.ndarray, library: TermLibrary | None = None, stiffness_scale: float = 1.0,
+                damping_scale: float = 1.0) -> PlantModel:
+    """The plant of ``spec``: its drive train (core.model.chain.drive_train, one rigid node unless ``flexible``; the
+    sections' stiffness and damping x the scales, a chain the monitor is not told about); coef (z, L) the
+    coefficients of the terms of ``library`` (default: the six Rezeka-Henein terms, core.model.terms.rezeka_henein)."""
     z = spec.n_cyl
     lib = rezeka_henein(spec.friction.coefficients) if library is None else library
     if np.shape(coef) != (z, len(lib)):
         raise ValueError(f"coef must be (z, L) = ({z}, {len(lib)}) for the library's terms, got {np.shape(coef)}")
-    return PlantModel(drive_train(spec, flexible), np.asarray(phase, dtype=np.float64).copy(),
+    train = drive_train(spec, flexible)
+    if stiffness_scale != 1.0 or damping_scale != 1.0:
+        train = replace(train, stiffness=train.stiffness * stiffness_scale, damping=train.damping * damping_scale)
+    return PlantModel(train, np.asarray(phase, dtype=np.float64).copy(),
                       np.ascontiguousarray(coef, dtype=np.float64), np.ascontiguousarray(extra, dtype=np.float64),
                       bool(variable), lib)
 

@@ -115,23 +115,26 @@ class PlantRun:
             op[OP_OMEGA] = self.omega
 
     def set_perturbations(self, spread, misfire, sig_q, sig_soc_deg, sig_beta, theta_start, theta_switch,
-                          cycles) -> None:
+                          cycles, misfire_from=None) -> None:
         """Per cylinder-cycle (fuel factor, SOC shift rad, premixed factor); cycle c of cylinder k fires at
-        theta_F = 4 pi c + phase_k. Cycles firing before ``theta_switch`` get the deterministic mean."""
+        theta_F = 4 pi c + phase_k. Cycles firing before ``theta_switch`` get the deterministic mean. Cylinder k
+        misfires only from its output cycle ``misfire_from[k]`` on (default: from the start)."""
         z, phase = self.spec.n_cyl, self.plant.phase
         cmin = int(np.floor((theta_start - phase.max() - 1.0 + TWO_PI) / FOUR_PI)) - 1
         ncc = cycles + 4 - cmin
         self.sc[S_CMIN] = cmin
         g = self.rngs[0]
         eq, es, eb = g.standard_normal((3, z, ncc))
-        fired = self.rngs[6].random((z, ncc)) >= misfire[:, None]
+        start = np.full(z, -FAR) if misfire_from is None else np.asarray(misfire_from)
+        misfire = np.where(cmin + np.arange(ncc)[None, :] >= start[:, None], np.asarray(misfire)[:, None], 0.0)
+        fired = self.rngs[6].random((z, ncc)) >= misfire
         pert = np.empty((z, ncc, 3))
         pert[..., 0] = spread[:, None] * np.maximum(1.0 + sig_q * eq, 0.0) * fired
         pert[..., 1] = np.radians(sig_soc_deg) * es
         pert[..., 2] = np.maximum(1.0 + sig_beta * eb, 0.0)
         fire_at = FOUR_PI * (cmin + np.arange(ncc))[None, :] + phase[:, None]
         mean = fire_at <= theta_switch
-        pert[..., 0] = np.where(mean, (spread * (1.0 - misfire))[:, None], pert[..., 0])
+        pert[..., 0] = np.where(mean, spread[:, None] * (1.0 - misfire), pert[..., 0])
         pert[..., 1] = np.where(mean, 0.0, pert[..., 1])
         pert[..., 2] = np.where(mean, 1.0, pert[..., 2])
         self.pert = np.ascontiguousarray(pert)

@@ -25,6 +25,20 @@ SETTLE_B_CYCLES = 1  # final load law, combustion variability on (half a cycle, 
 CHUNK_CYCLES = 8  # output cycles per hand-over: genset-v20 about 1.4 MB of records and events per cycle
 
 
+@dataclass(frozen=True)
+class StageSwitches:
+    """A change mid-run (an effect's ``from_cycle``): from output cycle ``onsets[i]`` on the plant runs with the
+    loss coefficients ``coefficients[i]`` (z, L) and the leak areas ``leaks[i]`` (z,) m^2; ``onsets[0]`` = 0."""
+
+    onsets: list[int]
+    coefficients: list[np.ndarray]
+    leaks: list[np.ndarray]
+
+    def coefficients_of(self, cycles: np.ndarray) -> np.ndarray:
+        """(n, z, L): the coefficients each of the output ``cycles`` ran with."""
+        return np.stack(self.coefficients)[np.searchsorted(self.onsets, cycles, side="right") - 1]
+
+
 @dataclass
 class SimChunk:
     """One stretch of a run: the records releasable so far (in arrival order, continuing the previous chunk's), the
@@ -41,13 +55,14 @@ class Simulation:
 
     def __init__(self, model: EngineModel, run: PlantRun, *, cycles: int, steps: list, point: Callable,
                  theta_start: float, operating: dict, request: dict, sensors: SensorSetup,
-                 rngs: list[np.random.Generator]):
+                 rngs: list[np.random.Generator], stages: StageSwitches | None = None):
         """run: the plant set up at theta_start, not yet advanced; steps: [(time_s, load fraction)]; point(fraction)
         -> (fuel kg, brake torque estimate N m, per-cylinder means); operating: the truth's "operating" block (its
         load law and steps are filled in by the run); request: rpm, load, seed as asked (repeated in the truth)."""
         self.model, self.run, self.cycles, self.steps, self.point = model, run, cycles, steps, point
         self.theta_start, self.operating, self.request = theta_start, operating, request
         self.sensors, self.rngs = sensors, rngs
+        self.stages = stages
         self.info = acquisition_info(model.spec)
         self.truth: dict | None = None
         self._started = False
@@ -75,20 +90,36 @@ class Simulation:
         run.advance_to(-2.0 * np.pi, report)
         run.start_output()
         sensors = SensorRecords(spec, self.sensors, self.rngs, run.t_out0, run.omega)
-        truth = TruthAccumulator(spec, run.plant, cycles, run.t_out0)
+        stages = self.stages
+        pending = [] if stages is None else list(range(1, len(stages.onsets)))  # stage switches still to come
+        truth = TruthAccumulator(spec, run.plant, cycles, run.t_out0,
+                                 stages.coefficients_of if pending else None)
+
+        def advance(stop: float, t_stop: float | None = None) -> bool:
+            """``run.advance_to(stop, t_stop=...)``, switching stages at their onset cycles on the way (the kernel
+            reads the plant's coefficient array: switched in place)."""
+            while pending and 4.0 * np.pi * stages.onsets[pending[0]] <= stop:
+                i = pending[0]
+                if run.advance_to(4.0 * np.pi * stages.onsets[i], report, t_stop=t_stop):
+                    return True
+                run.plant.coef[:] = stages.coefficients[i]
+                run.set_leak(stages.leaks[i])
+                pending.pop(0)
+            return run.advance_to(stop, report, t_stop=t_stop)
+
         correction = law_info["load_torque_settled_nm"] - self.operating["brake_torque_estimate_nm"]
         steps, step_log, brake_full = list(self.steps), [], run.brake_full
         end, done = 4.0 * np.pi * cycles + 0.5 * np.pi, 0
         while done < cycles:
             done = min(done + chunk_cycles, cycles)
             stop = end if done == cycles else 4.0 * np.pi * done
-            while steps and run.advance_to(stop, report, t_stop=steps[0][0]):
+            while steps and advance(stop, t_stop=steps[0][0]):
                 t_step, frac = steps.pop(0)  # a step time reached: the new operating point and load law
                 fuel, tb, _ = self.point(frac)
                 run.set_operating(fuel, *charge_pressures(spec, frac))
                 run.change_law(tb + correction, brake_full + correction)
                 step_log.append({"time_s": t_step, "load": frac, "fuel_kg": fuel, "brake_torque_estimate_nm": tb})
-            run.advance_to(stop, report)
+            advance(stop)
             ev = run.drain()
             entries, diag = truth.add(ev["cycle_rows"], ev["cycle_index"], ev["grid"])
             records = sensors.add(ev["edges"], ev["cam"], ev["samples"], ev["load"])

@@ -6,6 +6,8 @@ the run goes (``TruthAccumulator``): per-cycle entries as each cycle completes, 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.plant.plant import FOUR_PI
@@ -24,9 +26,14 @@ class TruthAccumulator:
     it completes; ``summary(...)`` the per-run aggregates, summed as the cycles come (memory independent of the
     number of cycles). Cycle n is complete once its end row (boundary n + 1) has arrived."""
 
-    def __init__(self, spec: EngineSpec, plant: PlantModel, cycles: int, t_out0: float):
+    def __init__(self, spec: EngineSpec, plant: PlantModel, cycles: int, t_out0: float,
+                 coefficients_of: Callable[[np.ndarray], np.ndarray] | None = None):
+        """coefficients_of(cycle indices (n,)) -> (n, z, L): each output cycle's coefficients when they change
+        mid-run (an effect's ``from_cycle``); None: ``plant.coef`` throughout. The per-cylinder ``coefficients``
+        of the summary are the plant's at the end of the run."""
         z, n_terms = spec.n_cyl, len(plant.library)
         self.spec, self.plant, self.cycles, self.t0 = spec, plant, cycles, t_out0
+        self.coefficients_of = coefficients_of
         self.done = 0  # output cycles completed
         self.prev: np.ndarray | None = None  # the row of boundary ``done`` once seen
         self.grid = np.zeros((0, 3))  # grid rows from cycle ``done`` on
@@ -61,11 +68,11 @@ class TruthAccumulator:
         dt = d[:, 0]
         cum = d[:, 1:1 + nq]
         pmax = rows[1:, 1 + nq:]  # the max is reset at each boundary, so row n+1 holds cycle n's max
-        coef = plant.coef
+        coef = plant.coef if self.coefficients_of is None else self.coefficients_of(np.arange(first, first + n_c))
         gas = cum[:, 0:z * q:q]  # (n_c, z) J
         basis = np.stack([cum[:, k * q + 1:k * q + 1 + n_terms] for k in range(z)], axis=1)  # (n_c, z, L) J
         extra = cum[:, n_terms + 1:z * q:q]
-        fric = np.einsum("czl,zl->cz", basis, coef) + extra  # (n_c, z) J
+        fric = np.einsum("czl,...zl->cz", basis, coef) + extra  # (n_c, z) J
         g = z * q
         w_load, w_damp = cum[:, g], cum[:, g + 1]
         vd = spec.displacement_cyl

@@ -43,16 +43,27 @@ from frictionwatch.core.plant.operating_point import (
     fuel_for_load,
     idle_fuel,
     leak_area_for_loss,
+    sized_transfers,
     variability_sensitivity,
 )
 from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, static_twist
 from frictionwatch.core.plant.sim_run import PlantRun
-from frictionwatch.core.plant.sim_stream import SETTLE_A_CYCLES, SETTLE_B_CYCLES, Simulation
+from frictionwatch.core.plant.sim_stream import SETTLE_A_CYCLES, SETTLE_B_CYCLES, Simulation, StageSwitches
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 from scipy.linalg import eigh
 
 STEP_DEG = 0.25  # integrator step at the mean speed (capped by the fastest mode)
 MIN_SLOPE_FRACTION = 0.25  # dyno law slope never below 25 % of the full-load brake torque / omega^s
+
+
+def cylinders_at(spec: EngineSpec, effects: Sequence[Effect], coefficients: np.ndarray, term_names: tuple[str, ...],
+                 cycle: int) -> CylinderSetup:
+    """The cylinders' set-up in output cycle ``cycle``: every effect whose onset is at or before it, in order."""
+    cyl = CylinderSetup.nominal(spec, coefficients, term_names)
+    for e in effects:
+        if e.onset_cycle <= cycle:
+            cyl = e.apply_cylinders(cyl)
+    return cyl
 
 
 @dataclass
@@ -140,12 +151,19 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
     omega = rpm * np.pi / 30.0
     tmodel = cylinder_model(spec)
 
-    lib = model.terms  # the plant evaluates the model's loss-term library, added terms included
-    chain, cyl = ChainSetup(), CylinderSetup.nominal(spec, model.coefficients, lib.names)
-    load_fx, sensors = LoadSetup(), SensorSetup.ideal(z)
+    lib = model.terms  # the plant evaluates the model's loss-term library, added terms included, and the terms of
+    for e in model.effects:  # the model mismatches the monitor is not told about (Effect.plant_terms)
+        for t in e.plant_terms(spec):
+            lib = lib if t.name in lib.names else lib + t
+    coef_nominal = np.zeros((z, len(lib)))
+    coef_nominal[:, :len(model.terms)] = model.coefficients
+    chain, load_fx, sensors = ChainSetup(), LoadSetup(), SensorSetup.ideal(z)
     for e in model.effects:  # each hook returns a new set-up: instances compose in the order listed
-        chain, cyl = e.apply_chain(chain), e.apply_cylinders(cyl)
-        load_fx, sensors = e.apply_load(load_fx), e.apply_sensors(sensors)
+        chain, load_fx, sensors = e.apply_chain(chain), e.apply_load(load_fx), e.apply_sensors(sensors)
+    # a change mid-run: the cylinders' set-up from each effect's onset cycle on (stage 0 from the start)
+    onsets = sorted({e.onset_cycle for e in model.effects if e.onset_cycle < cycles} | {0})
+    stages = [cylinders_at(spec, model.effects, coef_nominal, lib.names, c) for c in onsets]
+    cyl = stages[0]
     coef, phase, misfire = cyl.coefficients, cyl.firing_angles, cyl.misfire
     spread = np.ones(z)
     if z > 1 and fuel_spread > 0:
@@ -155,9 +173,11 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
     # ---- operating point estimate (quasi-static), leak sizing, extra friction reference ----
     leak, extra, no_extra = np.zeros(z), np.zeros((z, 4)), np.zeros(z)
     m0 = idle_fuel(spec, tmodel, omega, spread, coef, leak, misfire, no_extra, lib)
-    for k in np.nonzero(cyl.mass_loss > 0)[0]:
-        leak[k] = leak_area_for_loss(spec, tmodel, omega, fuel_for_load(m0, spec, load) * spread[k], load,
-                                     cyl.mass_loss[k])
+    fuel_op = fuel_for_load(m0, spec, load) * spread
+    coefs = [sized_transfers(spec, tmodel, omega, fuel_op, load, s.coefficients, s.transfers, lib) for s in stages]
+    leaks = [np.array([leak_area_for_loss(spec, tmodel, omega, fuel_op[k], load, s.mass_loss[k]) for k in range(z)])
+             for s in stages]
+    coef, leak = coefs[0].copy(), leaks[0]  # the plant's array is switched in place at an onset
     with_extra = np.nonzero(np.any(cyl.extra_friction != 0.0, axis=1))[0]
     if with_extra.size:  # T_ref = the cylinder's mean friction at the operating point, without the extra term
         _, means0 = engine_brake_torque(spec, tmodel, omega, fuel_for_load(m0, spec, load) * spread, load, coef,
@@ -190,7 +210,7 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
 
     # ---- plant ----
     plant = build_plant(spec, flexible=chain.flexible, variable=chain.variable_inertia, coef=coef, phase=phase, extra=extra,
-                        library=lib)
+                        library=lib, stiffness_scale=chain.stiffness_scale, damping_scale=chain.damping_scale)
     grid_k = spec.load.grid_stiffness_nm_per_rad if spec.load.kind == "grid" else 0.0
     mm, kk, _ = chain_matrices(plant, grid_k)
     w_max = np.sqrt(max(eigh(kk, mm, eigvals_only=True).max(), 0.0))
@@ -206,7 +226,13 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
     run.set_state(theta_start + static_twist(plant, node_torque), omega)
     run.set_leak(leak)
     run.set_operating(fuel0, *charge_pressures(spec, load))
-    run.set_perturbations(spread, misfire, sig_q, sig_soc, sig_beta, theta_start, theta_switch, cycles)
+    # misfires from the start act in the settling cycles too (the load law settles on the misfiring engine); those
+    # that start mid-run are drawn from their onset cycle on
+    misfire_from = np.full(z, np.iinfo(np.int64).min // 2, dtype=np.int64)
+    for c, before, after in zip(onsets[1:], stages, stages[1:]):
+        misfire_from[after.misfire != before.misfire] = c
+    run.set_perturbations(spread, stages[-1].misfire, sig_q, sig_soc, sig_beta, theta_start, theta_switch, cycles,
+                          misfire_from)
     ripple = load_fx.amplitude_nm if load_fx.amplitude_nm > 0 else load_fx.fraction * abs(brake0)
     run.set_ripple(ripple, load_fx.order, load_fx.phase_rad)
     run.settle_law(brake0, brake_full, MIN_SLOPE_FRACTION)
@@ -219,4 +245,4 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
     }
     return Simulation(model, run, cycles=cycles, steps=steps, point=point, theta_start=theta_start,
                       operating=operating, request={"rpm": rpm, "load": load, "seed": seed}, sensors=sensors,
-                      rngs=rngs)
+                      rngs=rngs, stages=StageSwitches(onsets, coefs, leaks))

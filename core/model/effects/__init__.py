@@ -41,8 +41,9 @@ from frictionwatch.core.model.effects.catalog import (
     VariableInertia,
 )
 from frictionwatch.core.model.effects.loss_terms import auxiliaries_quadratic, extra_friction_term
+from frictionwatch.core.model.effects.mismatch import MISMATCHES
 
-EFFECTS: Mapping[str, type[Effect]] = MappingProxyType({cls.name: cls for cls in ALL})
+EFFECTS: Mapping[str, type[Effect]] = MappingProxyType({cls.name: cls for cls in ALL + MISMATCHES})
 
 
 def effect_class(name: str) -> type[Effect]:
@@ -116,7 +117,7 @@ def resolve_effects(effects: Mapping[str, Mapping] | Iterable[Effect] | None, wi
     return check_instances(defaults + given, n_cyl)
 
 
-__all__ = ["EFFECTS", "ONCE", "PER_CYLINDER", "BlowBy", "ChainSetup", "CylinderSetup", "Effect", "ExtraFriction",
+__all__ = ["EFFECTS", "MISMATCHES", "ONCE", "PER_CYLINDER", "BlowBy", "ChainSetup", "CylinderSetup", "Effect", "ExtraFriction",
            "LoadRipple", "LoadSetup", "Misfire", "Param", "PressureGain", "PressureOffset", "RingWear",
            "SensorNoise", "SensorSetup", "TdcOffset", "ToothSpacingError", "TorsionalFlexibility", "VariableInertia",
            "auxiliaries_quadratic", "check_instances", "effect_class", "extra_friction_term", "make_effect",

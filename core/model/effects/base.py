@@ -56,6 +56,8 @@ class ChainSetup:
 
     flexible: bool = False
     variable_inertia: bool = False
+    stiffness_scale: float = 1.0  # the plant's section stiffnesses and dampings x these (a chain the monitor is
+    damping_scale: float = 1.0  # not told about: core.model.effects.mismatch)
 
 
 @dataclass(frozen=True)
@@ -64,7 +66,10 @@ class CylinderSetup:
     ``firing_angles`` (z,) TRUE firing
     angles [rad]; ``misfire`` (z,) probability of a motored cycle; ``mass_loss`` (z,) trapped-mass fraction lost to
     blow-by IVC->EVO (the simulator sizes the leak orifice from it); ``extra_friction`` (z, 4) = [mean, amplitude as
-    fractions of the cylinder's mean friction, order, phase rad] of T = T_ref (mean + amp cos(order theta_k + phase))."""
+    fractions of the cylinder's mean friction, order, phase rad] of T = T_ref (mean + amp cos(order theta_k + phase)).
+    ``transfers``: (base term, new term, fraction) moves that fraction of the base term's mean friction at the
+    operating point into the new term's shape (the simulator sizes the new coefficient; a friction law of another
+    shape with the same mean there, core.model.effects.mismatch)."""
 
     coefficients: np.ndarray
     term_names: tuple[str, ...]
@@ -72,6 +77,7 @@ class CylinderSetup:
     misfire: np.ndarray
     mass_loss: np.ndarray
     extra_friction: np.ndarray
+    transfers: tuple[tuple[str, str, float], ...] = ()
 
     @classmethod
     def nominal(cls, spec: EngineSpec, coefficients: np.ndarray, term_names: tuple[str, ...]) -> CylinderSetup:
@@ -220,6 +226,16 @@ class Effect:
     def monitor_terms(self, spec: EngineSpec) -> tuple[LossTerm, ...]:
         """Loss terms (identification columns) this effect adds when the monitor's model is augmented with it."""
         return ()
+
+    def plant_terms(self, spec: EngineSpec) -> tuple[LossTerm, ...]:
+        """Loss terms the plant evaluates for this effect and the monitor is never told about (a model mismatch);
+        their coefficients start at 0 and the effect's ``apply_cylinders`` sets or sizes them."""
+        return ()
+
+    @property
+    def onset_cycle(self) -> int:
+        """First output cycle the effect acts in (its ``from_cycle`` parameter; 0: from the start)."""
+        return int(self.values.get("from_cycle", 0))
 
 
 def _number(effect: str, key: str, raw: object) -> float:

@@ -30,6 +30,11 @@ def _table(**params: Param) -> MappingProxyType:
     return MappingProxyType(params)
 
 
+def _from_cycle() -> Param:
+    """The onset of a change mid-run: the plant switches the effect on at the start of this output cycle."""
+    return Param(0, "cycle", 0, 1e6, integer=True, doc="first output cycle with the effect (0: from the start)")
+
+
 class TorsionalFlexibility(Effect):
     name = "torsional_flexibility"
     description = ("multi-DOF shaft line (damper, throws, flywheel, coupling, load); off = one rigid lumped shaft")
@@ -171,6 +176,7 @@ class RingWear(Effect):
         cylinder=cylinder_param(),
         gain=Param(1.4, "-", 1.0, 5.0, doc="multiplies a_k1, a_k2, a_k3"),
         mass_loss=Param(0.12, "-", 0.0, 0.4, doc="trapped-mass fraction lost IVC->EVO (sizes the leak area)"),
+        from_cycle=_from_cycle(),
     )
 
     def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
@@ -188,6 +194,7 @@ class BlowBy(Effect):
     parameters = _table(
         cylinder=cylinder_param(),
         mass_loss=Param(0.12, "-", 0.0, 0.4, doc="trapped-mass fraction lost IVC->EVO (sizes the leak area)"),
+        from_cycle=_from_cycle(),
     )
 
     def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
@@ -227,7 +234,7 @@ class Misfire(Effect):
     name = "misfire"
     description = "cylinder gets no fuel in a cycle with the given probability (motored cycle)"
     repeat = PER_CYLINDER
-    parameters = _table(cylinder=cylinder_param(), probability=Param(1.0, "-", 0.0, 1.0))
+    parameters = _table(cylinder=cylinder_param(), probability=Param(1.0, "-", 0.0, 1.0), from_cycle=_from_cycle())
 
     def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
         return replace(setup, misfire=with_row(setup.misfire, self.values["cylinder"] - 1,

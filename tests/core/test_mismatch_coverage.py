@@ -1,0 +1,64 @@
+"""Sigma that holds on data the model did not make (issue 16 item 5): a small subset of bench/mismatch_coverage.py.
+
+The monitor is never told about the mismatch. On each log the smoothed total friction must hold the truth within
+2 sigma, and the model-error floor (core.monitor.estimate.ModelErrorFloor) must not inflate the sigma of a healthy
+log by more than a quarter. The full table (every mismatch, four operating points) is the bench's.
+"""
+
+import numpy as np
+import pytest
+from frictionwatch.core.model.effects import parse_effect
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
+from frictionwatch.core.model.thermo import cylinder_model
+from frictionwatch.core.monitor.estimate import ModelErrorFloor
+from frictionwatch.core.monitor.monitor import MonitorConfig
+from frictionwatch.core.plant.operating_point import cylinder_means, sized_transfers
+from numpy.testing import assert_allclose
+
+from bench.mismatch_coverage import monitor_case, simulate_case
+
+RAW = MonitorConfig(model_error_floor=ModelErrorFloor(balance_check=False))
+CYCLES = 100
+
+
+def test_a_friction_law_mismatch_keeps_the_mean_and_changes_the_shape():
+    """sized_transfers: the moved share keeps the cylinder's mean friction at the operating point; the new term's
+    torque over the cycle is another shape, not a rescaled copy of the one it replaces."""
+    spec = load_engine("k9k-4cyl")
+    lib = rezeka_henein(spec.friction.coefficients)
+    for t in parse_effect("stribeck_ring").plant_terms(spec):
+        lib = lib + t
+    z, omega, load = spec.n_cyl, 1700 * np.pi / 30, 0.7
+    tmodel = cylinder_model(spec)
+    coef = np.zeros((z, len(lib)))
+    coef[:, :6] = spec.friction.coefficients
+    fuel = np.full(z, spec.combustion.fuel_mass_kg * load)
+    sized = sized_transfers(spec, tmodel, omega, fuel, load, coef, (("ring_mixed", "plant_stribeck_ring", 1.0),), lib)
+    assert_allclose(sized[:, 1], 0.0)  # ring_mixed moved out whole
+    before = cylinder_means(spec, tmodel, omega, fuel[0], load, coef[0], library=lib)
+    after = cylinder_means(spec, tmodel, omega, fuel[0], load, sized[0], library=lib)
+    assert_allclose(after.friction_nm, before.friction_nm, rtol=1e-9)
+    theta = np.linspace(0, 4 * np.pi, 721)[:-1]
+    samples = cylinder_samples(theta, omega, 5e5 * np.exp(-(((theta + 2 * np.pi) % (4 * np.pi)) - 2 * np.pi) ** 2),
+                               spec.friction_params())
+    basis = lib.evaluate(samples, spec.friction_params())
+    assert np.corrcoef(coef[0, 1] * basis[1], sized[0, 6] * basis[6])[0, 1] < 0.9
+
+
+@pytest.mark.parametrize("engine, rpm, load, effects", [
+    ("k9k-4cyl", 1700.0, 0.69, ("chain_mismatch:stiffness_scale=0.8,damping_scale=1.2",)),
+    ("maruti-3cyl", 3000.0, 0.8, ("side_thrust_skirt",)),
+])
+def test_truth_within_two_sigma_on_a_mismatch(engine, rpm, load, effects):
+    spec, sim = simulate_case(engine, rpm, load, effects, CYCLES)
+    row = monitor_case(spec, sim)
+    err = row["estimate_nm"] - row["truth_nm"]
+    assert abs(err) <= 2.0 * row["sigma_nm"], row
+
+
+def test_the_floor_leaves_a_healthy_sigma_nearly_alone():
+    spec, sim = simulate_case("k9k-4cyl", 1700.0, 0.69, (), CYCLES)
+    row, raw = monitor_case(spec, sim), monitor_case(spec, sim, RAW)
+    assert abs(row["estimate_nm"] - row["truth_nm"]) <= 2.0 * row["sigma_nm"]
+    assert row["sigma_nm"] <= 1.25 * raw["sigma_nm"], (row["sigma_nm"], raw["sigma_nm"])
