@@ -72,7 +72,7 @@ class TruthAccumulator:
         gas = cum[:, 0:z * q:q]  # (n_c, z) J
         basis = np.stack([cum[:, k * q + 1:k * q + 1 + n_terms] for k in range(z)], axis=1)  # (n_c, z, L) J
         extra = cum[:, n_terms + 1:z * q:q]
-        fric = np.einsum("czl,...zl->cz", basis, coef) + extra  # (n_c, z) J
+        fric = np.einsum("czl,czl->cz", basis, np.broadcast_to(coef, basis.shape)) + extra  # (n_c, z) J
         g = z * q
         w_load, w_damp = cum[:, g], cum[:, g + 1]
         vd = spec.displacement_cyl

@@ -41,7 +41,8 @@ def assert_same_records(got: list, want: list) -> None:
     ("k9k-4cyl", 1700, 1.0, 7, {}),  # cam, 1-deg grid in the truth
     ("deutz-1cyl", 2600, 0.8, 6, {"load_steps": [(0.08, 0.5)]}),  # a load step inside a chunk
     ("genset-v20", 1500, 0.75, 4, {}),  # flexible chain, 20 pressure channels
-], ids=["k9k", "deutz-step", "genset-v20"])
+    ("maruti-3cyl", 3000, 1.0, 7, {"effects": {"ring_wear": {"cylinder": 2, "from_cycle": 4}}}),  # onset mid-chunk
+], ids=["k9k", "deutz-step", "genset-v20", "maruti-ring-wear-from-4"])
 def test_chunked_run_equals_one_chunk(engine, rpm, load, cycles, kw):
     whole, truth = streamed(engine, rpm, load, cycles, chunk_cycles=cycles, **kw)
     assert len(whole) == 1
