@@ -5,6 +5,7 @@ importing the monitor."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from frictionwatch.core.monitor.accumulate import Accumulator, ResidualStats
@@ -83,6 +84,17 @@ class MonitorConfig:
     warmup_cycles: int = 20
 
 
+class PreviousCycle(NamedTuple):
+    """What the next cycle's balance needs of the last analysed one: its stream index (it is the previous cycle only
+    if the next one's index is this plus one), pressure (z, n) [Pa], speed at theta = 2 pi [rad/s]
+    (core.monitor.identification.mid_cycle_speed) and measured load [N m]."""
+
+    index: int
+    pressure: np.ndarray
+    mid_speed: float
+    load: float
+
+
 @dataclass(frozen=True)
 class MonitorState:
     """Everything carried from one cycle to the next (scipy ``zi`` style: in and out of ``process_cycle``)."""
@@ -106,3 +118,4 @@ class MonitorState:
     prev_omega: float = float("nan")
     drift_var: float = 0.0
     tooth_patterns: ToothPatterns | None = None  # the in-band tooth-error patterns at the edges (core.monitor.tooth_fit)
+    previous: PreviousCycle | None = None  # the last analysed cycle: centred windows and the kinetic-energy term

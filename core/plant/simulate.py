@@ -106,7 +106,8 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
     (core.model.effects); without : default-on effects turned off (both only with an EngineSpec).
     cov_imep : cycle-to-cycle COV of IMEP (fraction, default 2 %). load_steps : [(time_s, fraction)], time in the
     tick time base. coefficients : (z, 6) raw a_kl per cylinder (default: the preset's a_l for every cylinder).
-    fuel_spread : rms of the fixed cylinder-to-cylinder fuel spread (fraction).
+    fuel_spread : rms of the fixed cylinder-to-cylinder fuel spread (fraction). The ``coast_down`` effect turns the
+    ignition off and disconnects the load at its ``time_s`` (after any load steps).
     """
     model = _as_model(engine, effects, without, coefficients)
     spec = model.spec
@@ -207,6 +208,10 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
         run.set_operating(fuel, *charge_pressures(spec, frac))
         run.change_law(tb + correction, brake_full + correction)
         step_log.append({"time_s": t_step, "load": frac, "fuel_kg": fuel, "brake_torque_estimate_nm": tb})
+    coast = load_fx.coast_down_s
+    if np.isfinite(coast) and run.advance_to(4.0 * np.pi * cycles + 0.5 * np.pi, report, t_stop=coast):
+        run.coast(*charge_pressures(spec, 0.0))
+        step_log.append({"time_s": coast, "coast_down": True})
     run.advance_to(4.0 * np.pi * cycles + 0.5 * np.pi, report)
     if progress is not None:
         progress(1.0)
