@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from frictionwatch.service import coastdown_report
 from frictionwatch.service.pipeline import LogAnalysis, analyze_log
 from frictionwatch.service.progress import progress_bar
 
@@ -71,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
               + (f"; log damage {damage}" if damage else "") + ")", file=sys.stderr)
         return 2
     doc = summary(analysis)
+    coastdown_report.add_to(doc, analysis)
     if args.csv:
         write_csv(analysis, args.csv)
     if args.plot:
@@ -81,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(doc, indent=1))
     else:
         print_table(doc)
+        coastdown_report.print_lines(doc)
     return 0
 
 

@@ -32,7 +32,8 @@ class TransientFriction:
     carrying J's sigma; speed (c,) [rad/s], acceleration (c,) [rad/s^2], resisting (c,) [N m] (indicated - measured
     load - coupling loss) of the rows the friction was fitted to: the motored ones when the run has motored and fired
     rows (fired friction is higher: the cylinder pressure loads rings and bearings), else all; motored: those rows
-    had no positive indicated work; load_measured: every row had a load reading (else ``resisting`` includes it)."""
+    had no positive indicated work, fired: some row of the run had; load_measured: every row had a load reading
+    (else ``resisting`` includes whatever load there was)."""
 
     inertia: float
     inertia_std: float
@@ -43,6 +44,7 @@ class TransientFriction:
     resisting: np.ndarray
     load_measured: bool
     motored: bool
+    fired: bool
 
     def friction_at(self, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(T_f, 1-sigma) [N m] at speeds ``omega`` [rad/s]."""
@@ -97,4 +99,4 @@ def transient_friction(index: np.ndarray, omega: np.ndarray, acceleration: np.nd
     fit = fit_inertia_friction(a[use], w[use], y[use], inertia=j, inertia_std=j_std)
     return TransientFriction(inertia=j, inertia_std=j_std, inertia_identified=identified, fit=fit, speed=w[use],
                              acceleration=a[use], resisting=y[use], load_measured=load_measured,
-                             motored=bool(np.all(motored[use])))
+                             motored=bool(np.all(motored[use])), fired=bool(not np.all(motored)))
