@@ -204,7 +204,8 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     limits = ReportLimits(cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain)
     est_s = friction_estimate(spec, layout, post_s, exc.basis_mean, share_s.friction_mean, limits, cyl_rows)
     est_c = friction_estimate(spec, layout, post_c, exc.basis_mean, share_c.friction_mean, limits, cyl_rows)
-    est_s = measured_or_withheld(est_s, _source(float(np.trace(acc.info_reference)) > 0.0, acc.weight > 0.0))
+    balanced = float(np.trace(acc.info_reference)) > 0.0 or (acc.weight == 0.0 and math.isfinite(bal_mean))
+    est_s = measured_or_withheld(est_s, _source(balanced, acc.weight > 0.0))
     est_c = measured_or_withheld(est_c, _source(math.isfinite(balance), state.cycles >= cfg.warmup_cycles))
     return Identification(stats=white.stats, accumulator=acc, indicated_mean=ind_mean, balance_mean=bal_mean,
                           smoothed=post_s, cycle=post_c, smoothed_estimate=est_s, cycle_estimate=est_c, fire=fire,
