@@ -30,15 +30,13 @@ def transient_section(analysis: LogAnalysis) -> dict | None:
     if tf is None:
         return None
     lo, hi = float(tf.speed.min()), float(tf.speed.max())
-    speeds = np.linspace(lo, hi, SPEED_POINTS)
+    # a constant (3 cycles) stands for the mean speed only
+    speeds = np.linspace(lo, hi, SPEED_POINTS) if tf.fit.friction_coeffs.shape[0] > 1 else np.array([tf.speed.mean()])
     fric, sig = tf.friction_at(speeds)
-    c0, c1 = (float(v) for v in tf.fit.friction_coeffs[:2])
-    if tf.load_measured:
-        label = "friction"
-    elif not tf.fired:
-        label = "friction (no load measured: a motored coast-down taken as unloaded)"
-    else:
-        label = "friction + load (no load measured)"
+    c0, c1 = (float(v) for v in np.append(tf.fit.friction_coeffs, 0.0)[:2])  # a constant from 3 rows: c1 = 0
+    # without a load reading the resisting torque is friction plus whatever load there was: the data cannot tell
+    # (TU/e: the ENGINEOFF coast-downs read the friction, E5FULLOAD4EngineOff twice that with its generator on)
+    label = "friction" if tf.load_measured else "friction + any load (no load measured)"
     centred = [r for r in res if "no_previous_cycle" not in r.flags]
     return {
         "cycles": int(tf.speed.shape[0]),
@@ -52,7 +50,7 @@ def transient_section(analysis: LogAnalysis) -> dict | None:
         "friction_label": label,
         "speed_range_rpm": [lo * RPM_PER_RAD_S, hi * RPM_PER_RAD_S],
         "friction_c0_nm": c0,
-        "friction_c1_nm_per_rpm": c1 / RPM_PER_RAD_S,
+        "friction_c1_nm_per_rpm": c1 / RPM_PER_RAD_S if tf.fit.friction_coeffs.shape[0] > 1 else None,
         "friction_vs_speed": [{"rpm": float(w * RPM_PER_RAD_S), "friction_nm": float(f), "sigma_nm": float(s)}
                               for w, f, s in zip(speeds, fric, sig, strict=True)],
         "residual_rms_nm": tf.fit.residual_rms,
@@ -80,6 +78,8 @@ def print_lines(doc: dict) -> None:
     if t["inertia_mismatch"]:
         print(f"  the engine spec's J = {t['inertia_spec_kgm2']:.4f} kg m² is off the identified one: the monitor's "
               "per-cycle balance in this run is biased by the difference times dw/dt")
-    print(f"{t['friction_label']} = {t['friction_c0_nm']:.3f} + {t['friction_c1_nm_per_rpm'] * 1e3:.4f}e-3·rpm N m:")
+    slope = t["friction_c1_nm_per_rpm"]
+    law = f"{t['friction_c0_nm']:.3f}" + (f" + {slope * 1e3:.4f}e-3·rpm" if slope is not None else " (constant: 3 cycles)")
+    print(f"{t['friction_label']} = {law} N m:")
     print("  " + ", ".join(f"{p['rpm']:.0f} rpm {p['friction_nm']:.3f} ± {p['sigma_nm']:.3f}"
                            for p in t["friction_vs_speed"]) + " N m")

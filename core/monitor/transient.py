@@ -32,8 +32,8 @@ class TransientFriction:
     carrying J's sigma; speed (c,) [rad/s], acceleration (c,) [rad/s^2], resisting (c,) [N m] (indicated - measured
     load - coupling loss) of the rows the friction was fitted to: the motored ones when the run has motored and fired
     rows (fired friction is higher: the cylinder pressure loads rings and bearings), else all; motored: those rows
-    had no positive indicated work, fired: some row of the run had; load_measured: every row had a load reading
-    (else ``resisting`` includes whatever load there was)."""
+    had no positive indicated work; load_measured: every row had a load reading (else ``resisting`` includes
+    whatever load there was)."""
 
     inertia: float
     inertia_std: float
@@ -44,7 +44,6 @@ class TransientFriction:
     resisting: np.ndarray
     load_measured: bool
     motored: bool
-    fired: bool
 
     def friction_at(self, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(T_f, 1-sigma) [N m] at speeds ``omega`` [rad/s]."""
@@ -55,7 +54,8 @@ def transient_friction(index: np.ndarray, omega: np.ndarray, acceleration: np.nd
                        load: np.ndarray, coupling: np.ndarray, inertia_prior: float, load_step_nm: float,
                        min_span: float = 0.03, resolve_rel: float = 0.1) -> TransientFriction | None:
     """The fit of one run's consecutive cycles, or None when the run is not a transient (its window speeds span less
-    than ``min_span`` of their mean) or has too few rows (fewer than 5).
+    than ``min_span`` of their mean) or has too few rows (fewer than 3; J is fitted from 5 rows on, friction is
+    c0 + c1 W from 4 rows on and a constant from 3).
 
     index (c,) stream cycle numbers; omega (c,) cycle mean speeds [rad/s]; acceleration, indicated (c,) the window's
     dw/dt [rad/s^2] and indicated torque [N m] (NaN without the cycle before); load (c,) measured load [N m] (NaN:
@@ -78,25 +78,32 @@ def transient_friction(index: np.ndarray, omega: np.ndarray, acceleration: np.nd
         stepped[1:] = np.abs(t_l[1:] - t_l[:-1]) > load_step_nm
         ok &= ~stepped
     rows = np.flatnonzero(ok)
-    if rows.shape[0] < 5:
+    if rows.shape[0] < 3:
         return None
     w = 0.5 * (w_c[rows - 1] + w_c[rows])
     if (w.max() - w.min()) < min_span * w.mean():
         return None
     y = t_i[rows] - t_c[rows] - (t_l[rows] if load_measured else 0.0)
     a = acc[rows]
-    free = fit_inertia_friction(a, w, y)
+    if rows.shape[0] < 5:  # J free needs 3 parameters and 2 degrees of freedom for its sigma: take the prior
+        free = None
+    else:
+        free = fit_inertia_friction(a, w, y)
     # a torque step also steps the friction (ring and bearing loads follow the cylinder pressure: simulated TU/e
     # fired -> motored, -5 %), which c0 + c1 W cannot follow and J absorbs (there +3.7 %): allow for a step of
     # FRICTION_STEP of the friction across the rows' range of dw/dt
-    span_a = float(a.max() - a.min())
-    level = float(np.mean(np.abs(free.friction_torque(w))))
-    j_std = float(np.hypot(free.inertia_std, FRICTION_STEP * level / span_a)) if span_a > 0 else np.inf
-    identified = bool(free.inertia > 0 and np.isfinite(j_std) and j_std <= resolve_rel * free.inertia)
+    identified = False
+    if free is not None:
+        span_a = float(a.max() - a.min())
+        level = float(np.mean(np.abs(free.friction_torque(w))))
+        j_std = float(np.hypot(free.inertia_std, FRICTION_STEP * level / span_a)) if span_a > 0 else np.inf
+        identified = bool(free.inertia > 0 and np.isfinite(j_std) and j_std <= resolve_rel * free.inertia)
     j, j_std = (free.inertia, j_std) if identified else (float(inertia_prior), 0.0)
     motored = t_i[rows] <= 0.0
     use = motored if 3 <= np.count_nonzero(motored) < motored.shape[0] else np.ones_like(motored)
-    fit = fit_inertia_friction(a[use], w[use], y[use], inertia=j, inertia_std=j_std)
+    # c0 + c1 W from 4 rows on (2 degrees of freedom), a constant from 3
+    n_friction = 2 if np.count_nonzero(use) >= 4 else 1
+    fit = fit_inertia_friction(a[use], w[use], y[use], n_friction=n_friction, inertia=j, inertia_std=j_std)
     return TransientFriction(inertia=j, inertia_std=j_std, inertia_identified=identified, fit=fit, speed=w[use],
                              acceleration=a[use], resisting=y[use], load_measured=load_measured,
-                             motored=bool(np.all(motored[use])), fired=bool(not np.all(motored)))
+                             motored=bool(np.all(motored[use])))
