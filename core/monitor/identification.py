@@ -134,12 +134,12 @@ class Identification:
     drift_col: np.ndarray | None
 
 
-NO_BALANCE = "prior: no mean balance (no load measurement, or no cycle before for the kinetic-energy term)"
-TOO_FEW_CYCLES = "prior: fewer cycles than the noise model needs (warm-up)"
+NO_BALANCE = ("prior: no mean balance (no load measurement, no cycle before for the kinetic-energy term, or the load "
+              "stepped between the two)")
 
 
-def _source(balanced: bool, enough_cycles: bool) -> str:
-    return NO_BALANCE if not balanced else ("data" if enough_cycles else TOO_FEW_CYCLES)
+def _source(balanced: bool) -> str:
+    return "data" if balanced else NO_BALANCE
 
 
 def measured_or_withheld(est: FrictionEstimate, source: str) -> FrictionEstimate:
@@ -147,8 +147,7 @@ def measured_or_withheld(est: FrictionEstimate, source: str) -> FrictionEstimate
     resolved) and ``source`` saying why. Without a mean balance (no load measurement, or no cycle before for the
     kinetic-energy term) the speed ripple alone does not pin the engine's total friction: the posterior is then the
     prior's numbers (TU/e fired files: scaling the preset's coefficients scaled the output), and so is the Eq. 6
-    share, withheld too. During the warm-up nothing has been accumulated, but the share of the measured balance
-    stays (``prior_friction_torque_mean``, labelled as a share wherever it is shown)."""
+    share (``prior_friction_torque_mean``), withheld too."""
     if source == "data":
         return est
     nan_z = np.full_like(est.friction_torque_mean, np.nan)
@@ -159,7 +158,7 @@ def measured_or_withheld(est: FrictionEstimate, source: str) -> FrictionEstimate
                    coefficients_normalised_sigma=nan_c, resolved=np.zeros_like(est.resolved),
                    coefficient_resolved=np.zeros_like(est.coefficient_resolved), total_friction_torque=nan,
                    total_friction_torque_sigma=nan, total_fmep=nan, total_fmep_sigma=nan, source=source,
-                   prior_friction_torque_mean=nan_z if source == NO_BALANCE else est.prior_friction_torque_mean)
+                   prior_friction_torque_mean=nan_z)
 
 
 def forgetting_factor(cfg: MonitorConfig, n_cyl: int) -> float:
@@ -204,9 +203,11 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     limits = ReportLimits(cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain)
     est_s = friction_estimate(spec, layout, post_s, exc.basis_mean, share_s.friction_mean, limits, cyl_rows)
     est_c = friction_estimate(spec, layout, post_c, exc.basis_mean, share_c.friction_mean, limits, cyl_rows)
+    # the smoothed estimate stands on a balance when one was accumulated, or, during the warm-up (nothing
+    # accumulated), when the Eq. 6 share it holds is of a measured running balance; the cycle's on its own
     balanced = float(np.trace(acc.info_reference)) > 0.0 or (acc.weight == 0.0 and math.isfinite(bal_mean))
-    est_s = measured_or_withheld(est_s, _source(balanced, acc.weight > 0.0))
-    est_c = measured_or_withheld(est_c, _source(math.isfinite(balance), state.cycles >= cfg.warmup_cycles))
+    est_s = measured_or_withheld(est_s, _source(balanced))
+    est_c = measured_or_withheld(est_c, _source(math.isfinite(balance)))
     return Identification(stats=white.stats, accumulator=acc, indicated_mean=ind_mean, balance_mean=bal_mean,
                           smoothed=post_s, cycle=post_c, smoothed_estimate=est_s, cycle_estimate=est_c, fire=fire,
                           freq=white.freq, drift_col=white.drift_col)

@@ -138,7 +138,7 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     if math.isfinite(load):
         load = load + p_gnd / omega
     t_i = float(exc.indicated_mean.sum())
-    prev = state.previous if state.previous is not None and state.previous.index == cycle.index - 1 else None
+    prev = state.previous_of(int(cycle.tooth_ticks[0]))
     mid_speed = mid_cycle_speed(spec, cycle)
     balance, kinetic, accel, t_window, imep_c = transient_balance(spec, cycle, pressure, mid_speed, prev, load,
                                                                   coupling_loss)
@@ -169,7 +169,9 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         stats=ident.stats, params=ident.smoothed.params, op=op, relative_motion=rel, static=static, teeth=teeth,
         balance_mean=ident.balance_mean, indicated_mean=ident.indicated_mean, cycles=state.cycles + 1,
         prior=state.prior, lower=state.lower, report_tables=tables, prev_omega=omega, drift_var=drift_var,
-        tooth_patterns=patterns, previous=PreviousCycle(cycle.index, pressure, mid_speed, load))  # every field (dataclasses.replace costs twice as much per cycle)
+        tooth_patterns=patterns,
+        previous=PreviousCycle(int(cycle.tooth_ticks[0]), int(cycle.tooth_ticks[-1]), pressure, mid_speed, load),
+    )  # every field (dataclasses.replace costs twice as much per cycle)
     return new_state, result
 
 

@@ -32,7 +32,7 @@ class FrictionEstimate:
     data_gain (z,): share of what is known about each cylinder's deviation from the equal share that came from the
     speed signal rather than the priors and the mean balance (0..1; 1 for a single cylinder)
     source: "data", or "prior: <why>" when every friction figure is withheld (NaN) because nothing measured it: no
-    load and no deceleration to balance, or fewer cycles than needed (core.monitor.identification)
+    load and no deceleration to balance (core.monitor.identification.measured_or_withheld)
     """
 
     friction_torque_mean: np.ndarray

@@ -85,11 +85,14 @@ class MonitorConfig:
 
 
 class PreviousCycle(NamedTuple):
-    """What the next cycle's balance needs of the last analysed one: its stream index (it is the previous cycle only
-    if the next one's index is this plus one), pressure (z, n) [Pa], speed at theta = 2 pi [rad/s]
-    (core.monitor.identification.mid_cycle_speed) and measured load [N m]."""
+    """What the next cycle's balance needs of the last analysed one: the ticks of its first and last tooth edges (it
+    is the cycle just before only if the next one's first edge lies after its first and at or before its last:
+    consecutive cycles share their boundary edges, core.types.Cycle; a stream index may be renumbered after a lost
+    sync), pressure (z, n) [Pa], speed at theta = 2 pi [rad/s] (core.monitor.identification.mid_cycle_speed) and
+    measured load [N m]."""
 
-    index: int
+    start_tick: int
+    end_tick: int
     pressure: np.ndarray
     mid_speed: float
     load: float
@@ -119,3 +122,8 @@ class MonitorState:
     drift_var: float = 0.0
     tooth_patterns: ToothPatterns | None = None  # the in-band tooth-error patterns at the edges (core.monitor.tooth_fit)
     previous: PreviousCycle | None = None  # the last analysed cycle: centred windows and the kinetic-energy term
+
+    def previous_of(self, first_tick: int) -> PreviousCycle | None:
+        """``previous`` if it is the cycle just before one whose first tooth edge is at ``first_tick``, else None."""
+        p = self.previous
+        return p if p is not None and p.start_tick < first_tick <= p.end_tick else None
