@@ -78,11 +78,12 @@ def mid_cycle_inertia(spec: EngineSpec) -> float:
     return spec.total_inertia + spec.reciprocating_mass * float(np.sum(dx * dx))
 
 
-def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, mid_speed: float,
-                      previous: PreviousCycle | None, load: float,
+def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indicated_cycle: np.ndarray,
+                      mid_speed: float, previous: PreviousCycle | None, load: float,
                       coupling_loss: float) -> tuple[float, float, float, float, np.ndarray | None]:
     """(friction, kinetic, acceleration, indicated, imep_centred) of one cycle and the cycle just before it
-    (``previous``; None when that cycle is not at hand: all NaN and None).
+    (``previous``; None when that cycle is not at hand: all NaN and None); indicated_cycle (z,) [N m] the
+    cylinders' work means over this cycle's own window (``Excitation.indicated_mean``).
 
     Over the 720 deg window from the middle of the previous cycle to the middle of this one (centred on cylinder 1's
     firing TDC) the rigid shaft line's energy balance is exact: indicated - T_L - T_coupling - T_f = kinetic =
@@ -98,17 +99,21 @@ def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, mid_
     nan = float("nan")
     if previous is None or not (math.isfinite(previous.mid_speed) and math.isfinite(mid_speed)):
         return nan, nan, nan, nan, None
-    params, area = spec.kinematics_params(), spec.piston_area
-    own = centred_work(cycle.grid, previous.pressure, pressure, spec.firing_angles, tdc_centres(spec.firing_angles),
-                       params, area)
-    around_tdc1 = centred_work(cycle.grid, previous.pressure, pressure, spec.firing_angles, np.zeros(spec.n_cyl),
-                               params, area)
+    # the windows' works on the crank-angle grid enter as differences from this cycle's own on the same grid: the
+    # 720-point trapezoid reads ~0.5 % below the work the monitor's time grid takes (K9K 1100 rpm: 0.28 N m of
+    # indicated torque, 2 % of the friction), a bias the difference cancels
+    params, area, ph = spec.kinematics_params(), spec.piston_area, spec.firing_angles
+    centres = tdc_centres(ph)
+    own = centred_work(cycle.grid, previous.pressure, pressure, ph, centres, params, area)
+    alone = centred_work(cycle.grid, pressure, pressure, ph, centres, params, area)  # this cycle, any window
+    around_tdc1 = centred_work(cycle.grid, previous.pressure, pressure, ph, np.zeros(spec.n_cyl), params, area)
     accel = (mid_speed**2 - previous.mid_speed**2) / (2.0 * FOUR_PI)
     kinetic = mid_cycle_inertia(spec) * accel
-    indicated = float(around_tdc1.sum()) / FOUR_PI
+    indicated = float(np.sum(indicated_cycle)) + float(around_tdc1.sum() - alone.sum()) / FOUR_PI
+    imep = (np.asarray(indicated_cycle) * FOUR_PI + own - alone) / spec.displacement_cyl
     load_stepped = abs(load - previous.load) > LOAD_STEP_FRACTION * spec.rated_torque_nm
     friction = nan if load_stepped else indicated - load - coupling_loss - kinetic
-    return friction, kinetic, accel, indicated, own / spec.displacement_cyl
+    return friction, kinetic, accel, indicated, imep
 
 
 LOAD_STEP_FRACTION = 0.02  # of the rated torque: a larger load change between two cycles voids that balance

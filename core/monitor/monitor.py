@@ -140,8 +140,8 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     t_i = float(exc.indicated_mean.sum())
     prev = state.previous_of(int(cycle.tooth_ticks[0]))
     mid_speed = mid_cycle_speed(spec, cycle)
-    balance, kinetic, accel, t_window, imep_c = transient_balance(spec, cycle, pressure, mid_speed, prev, load,
-                                                                  coupling_loss)
+    balance, kinetic, accel, t_window, imep_c = transient_balance(spec, cycle, pressure, exc.indicated_mean,
+                                                                  mid_speed, prev, load, coupling_loss)
     mean = MeanBalance(indicated=t_i, load=load, coupling_loss=coupling_loss, friction=balance, kinetic=kinetic,
                        imep_centred=imep_c, acceleration=accel, indicated_window=t_window)
     if prev is None:
