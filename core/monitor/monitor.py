@@ -18,7 +18,7 @@ Per cycle:
    coefficients. The frozen terms (twist, throw speeds, J(theta) remainder) come from the previous cycle's model
    motion (warm start), refreshed once on the first cycle (physics.md §12.3: one refresh is enough).
 4. Mean balance T_fM = T_iM - T_LM - modelled damper/coupling dissipation - d/dt(1/2 J w^2)/w (physics.md §6, §12.4)
-   over the window centred on cylinder 1's firing TDC, from this cycle and the one before (two measured mean
+   over the window centred on cylinder 1's firing TDC, from this cycle and the one before (two measured mid-cycle
    speeds, no drift fitted: core.monitor.identification.transient_balance); IMEP over each cylinder's own window.
 5. The cycle's own speed drift is a per-cycle random effect (never accumulated); the whitened equations are
    accumulated with forgetting and solved with the priors (core.monitor.priors) and params >= 0, per cycle and smoothed
@@ -170,7 +170,8 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         balance_mean=ident.balance_mean, indicated_mean=ident.indicated_mean, cycles=state.cycles + 1,
         prior=state.prior, lower=state.lower, report_tables=tables, prev_omega=omega, drift_var=drift_var,
         tooth_patterns=patterns,
-        previous=PreviousCycle(int(cycle.tooth_ticks[0]), int(cycle.tooth_ticks[-1]), pressure, mid_speed, load),
+        previous=PreviousCycle(int(cycle.tooth_ticks[0]), int(cycle.tooth_ticks[-1]), pressure.copy(), mid_speed,
+                               load),  # a copy: a live source may reuse the cycle's buffer
     )  # every field (dataclasses.replace costs twice as much per cycle)
     return new_state, result
 
