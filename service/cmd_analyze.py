@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 from frictionwatch.core.monitor.figure_status import friction_status
 from frictionwatch.core.monitor.run_summary import active_flags, estimate_window, flag_summary, mean_and_sem
+from frictionwatch.service import coastdown_report
 from frictionwatch.service.analyze_output import print_table, write_csv
 from frictionwatch.service.output_files import check_output_path
 from frictionwatch.service.pipeline import LogAnalysis, analyze_log
@@ -156,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
               + (f"; log damage {damage}" if damage else "") + ")", file=sys.stderr)
         return 2
     doc = summary(analysis)
+    coastdown_report.add_to(doc, analysis)
     written: list[Path] = []
     if args.csv:
         write_csv(analysis, args.csv)
@@ -168,6 +170,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(doc, indent=1))
     else:
         print_table(doc)
+        coastdown_report.print_lines(doc)
     for path in written:  # on stderr with --json: stdout stays one JSON document
         print(f"wrote {path}", file=sys.stderr if args.json else sys.stdout)
     return 0

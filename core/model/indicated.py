@@ -1,6 +1,12 @@
 """Indicated quantities from a pressure trace (physics.md §2, §6): net indicated work, IMEP, peak pressure.
 
 Net IMEP = (1/V_d) ∮ p dV over the whole 720 deg cycle (pumping loop included).
+
+Which 720 deg: ``net_imep`` closes the loop over the window it is given (the assembled cycle runs from cylinder 1's
+firing TDC to the next). In a steady run any window gives the same work; while the speed or the load changes it
+pairs one expansion with the *next* compression (TU/e fired -> motored transition: +0.03 bar against the -0.40
+of the motored cycles). ``centred_work`` takes two consecutive cycles and integrates each cylinder over the window
+centred on its own firing TDC (-360..+360 deg), i.e. a compression with the expansion that follows it.
 """
 
 from __future__ import annotations
@@ -48,6 +54,48 @@ def net_imep(theta: np.ndarray, pressure: np.ndarray, phases: np.ndarray, params
     out = np.empty(ph.shape[0])
     _indicated_work(local, p, np.ascontiguousarray(params, dtype=np.float64), float(area), out)
     return out / displacement
+
+
+def centred_work(theta: np.ndarray, previous: np.ndarray, current: np.ndarray, phases: np.ndarray,
+                 centres: np.ndarray, params: np.ndarray, area: float) -> np.ndarray:
+    """∮ p dV [J] of each cylinder over the 720 deg window [c_k - 2 pi, c_k + 2 pi) of the cylinder-1 angle.
+
+    theta : (n,) the cycles' uniform grid over [0, 4 pi) (endpoint excluded); previous, current : (z, n) absolute
+    pressure [Pa] of two consecutive cycles on it (previous spans [-4 pi, 0)); phases : (z,) firing angles [rad];
+    centres : (z,) window centres c_k in [-2 pi, 2 pi] [rad], rounded to the grid (a window a fraction of a step
+    off moves it around gas-exchange TDC, where p dV is smallest). ``centred_work(..., phases, tdc_centres(phases))``
+    is the work of each cylinder's own latest complete firing cycle; ``centres = 0`` the engine's work over the
+    window centred on cylinder 1's firing TDC.
+    """
+    th = np.ascontiguousarray(theta, dtype=np.float64).ravel()
+    prev = np.atleast_2d(np.asarray(previous, dtype=np.float64))
+    cur = np.atleast_2d(np.asarray(current, dtype=np.float64))
+    ph = np.ascontiguousarray(np.atleast_1d(phases), dtype=np.float64)
+    c = np.ascontiguousarray(np.atleast_1d(centres), dtype=np.float64)
+    n = th.shape[0]
+    if prev.shape != cur.shape or cur.shape != (ph.shape[0], n) or c.shape != ph.shape:
+        raise ValueError(f"previous and current must have shape (z, n) = ({ph.shape[0]}, {n}) and centres (z,); got "
+                         f"{prev.shape}, {cur.shape}, {c.shape}")
+    step = th[1] - th[0]
+    if not np.isclose(step * n, 4 * np.pi, rtol=1e-6) or np.any(np.abs(c) > 2 * np.pi + 0.5 * step):
+        raise ValueError("theta must cover one 720 deg cycle and every centre lie within +-360 deg")
+    both = np.concatenate([prev, cur], axis=1)  # (z, 2n) over [-4 pi, 4 pi)
+    if not np.all(np.isfinite(both)):
+        raise ValueError("pressure has NaN or inf samples; the cycle must be skipped before IMEP")
+    start = np.clip(np.rint((c - 2 * np.pi - th[0]) / step).astype(np.int64) + n, 0, n)  # window start in ``both``
+    idx = start[:, None] + np.arange(n)[None, :]
+    p = np.ascontiguousarray(np.take_along_axis(both, idx, axis=1))
+    local = np.ascontiguousarray(th[0] - 4 * np.pi + idx * step - ph[:, None])
+    out = np.empty(ph.shape[0])
+    _indicated_work(local, p, np.ascontiguousarray(params, dtype=np.float64), float(area), out)
+    return out
+
+
+def tdc_centres(phases: np.ndarray) -> np.ndarray:
+    """Centre [rad] of each cylinder's latest firing cycle that two consecutive cycles hold whole: its firing TDC in
+    the current cycle if that is at most 360 deg in, else the one a cycle earlier."""
+    ph = np.mod(np.asarray(phases, dtype=np.float64), 4 * np.pi)
+    return np.where(ph <= 2 * np.pi + 1e-9, ph, ph - 4 * np.pi)
 
 
 @numba.njit(cache=True)

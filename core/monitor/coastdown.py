@@ -127,13 +127,18 @@ def fit_inertia_friction(
     gas_torque: np.ndarray,
     load_group: np.ndarray | None = None,
     n_friction: int = 2,
+    inertia: float | None = None,
+    inertia_std: float = 0.0,
 ) -> CoastdownFit:
     """Joint least-squares fit of one inertia J, one friction polynomial T_f(W) (``n_friction`` terms: c0 + c1 W by
     default) and a linear load torque d0 + d1 W per load group (module docstring).
 
     decel : (c,) angle-averaged dw/dt per cycle [rad/s^2]; omega : (c,) cycle mean speed [rad/s];
     gas_torque : (c,) cycle mean gas torque [N m]; load_group : (c,) int, -1 = no load (friction only), g >= 0 = the
-    cycle belongs to load group g (e.g. one file whose generator load stayed on).
+    cycle belongs to load group g (e.g. one file whose generator load stayed on). inertia : a known J [kg m^2]
+    (e.g. the spec's, where the cycles cannot resolve it, or one identified elsewhere): J a moves to the measured
+    side and is not fitted; inertia_std : its 1-sigma, carried into the other parameters' covariance (the friction
+    moves by -dJ (X^T X)^-1 X^T a) and reported as ``inertia_std``.
     """
     a = np.asarray(decel, dtype=np.float64).ravel()
     w = np.asarray(omega, dtype=np.float64).ravel()
@@ -146,7 +151,12 @@ def fit_inertia_friction(
     if not 1 <= n_friction <= 4:
         raise ValueError(f"n_friction must be 1..4, got {n_friction}")
     groups = np.unique(grp[grp >= 0])
-    cols = [a] + [w**k for k in range(n_friction)]
+    if inertia is not None:
+        known = float(inertia)
+        if not (np.isfinite(known) and known > 0):
+            raise ValueError(f"a known inertia must be > 0 kg m^2, got {inertia!r}")
+        y = y - known * a
+    cols = ([a] if inertia is None else []) + [w**k for k in range(n_friction)]
     for g in groups:
         sel = (grp == g).astype(np.float64)
         cols += [sel, sel * w]
@@ -166,6 +176,11 @@ def fit_inertia_friction(
         cov = np.full((x.shape[1], x.shape[1]), np.inf)
     else:
         cov = s2 * np.linalg.inv(xs.T @ xs) / np.outer(scale, scale)
+    if inertia is not None:  # J known: the other parameters' sensitivity to it carries its sigma
+        sens = -np.linalg.lstsq(xs, a, rcond=None)[0] / scale
+        g = np.concatenate([[1.0], sens])
+        cov = np.pad(cov, ((1, 0), (1, 0))) + float(inertia_std) ** 2 * np.outer(g, g)
+        sol = np.concatenate([[float(inertia)], sol])
     return CoastdownFit(
         inertia=float(sol[0]),
         inertia_std=float(np.sqrt(cov[0, 0])),

@@ -66,14 +66,16 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
     return CycleResult(
         index=cycle.index, t_start=cycle.t_start, rpm_mean=fly.omega_mean * 60.0 / (2.0 * np.pi),
         omega_mean=fly.omega_mean, load_torque=float(load), load_power=float(cycle.load_power),
-        imep=exc.indicated_mean * FOUR_PI / spec.displacement_cyl, pmax=pmax, pmax_angle=pmax_angle,
+        imep=exc.indicated_mean * FOUR_PI / spec.displacement_cyl if mean.imep_centred is None else mean.imep_centred,
+        pmax=pmax, pmax_angle=pmax_angle,
         indicated_torque=exc.indicated_mean, friction_balance=float(mean.friction),
         coupling_loss=float(mean.coupling_loss), cycle=ident.cycle_estimate, smoothed=ident.smoothed_estimate,
         grid=grid.copy(), friction_torque=total,
         friction_torque_cyl_time=cyl_time, time_angles=theta_fly, speed_measured=speed_meas,
         speed_model=speed_model,
         residual_harmonics=resid, residual_rms=float(np.sqrt(0.5 * resid_sq)), r_squared=r2,
-        friction_torque_balance=balance_trace, flags=tuple(flags))
+        friction_torque_balance=balance_trace, flags=tuple(flags),
+        acceleration=float(mean.acceleration), indicated_window=float(mean.indicated_window))
 
 
 def _c128(a: np.ndarray) -> np.ndarray:

@@ -42,6 +42,7 @@ class Estimate(Protocol):
     prior_friction_torque_mean: np.ndarray
     total_friction_torque: float
     weight: float
+    source: str
 
 
 @dataclass(frozen=True)
@@ -91,6 +92,8 @@ def friction_status(est: Estimate, active_flags: Iterable[str]) -> FrictionStatu
         engine = FigureStatus("unresolved", "no load measurement: nothing balances the indicated work (a measured "
                                             "load or a deceleration would), so the engine's friction is not known",
                               None)
+    elif est.source != "data":  # nothing to balance the indicated work against (no load, no deceleration)
+        engine = FigureStatus("unresolved", est.source.removeprefix("prior: "), None)
     elif not accumulated:
         engine = FigureStatus("prior", "no cycle accumulated yet (the monitor's warm-up): the engine model's prior "
                                        "friction, drawn toward the mean balance of the cycles so far; not an estimate "

@@ -17,9 +17,9 @@ Per cycle:
    rebuilt only when the operating point moves): known response W0 and the friction design, affine in the
    coefficients. The frozen terms (twist, throw speeds, J(theta) remainder) come from the previous cycle's model
    motion (warm start), refreshed once on the first cycle (physics.md §12.3: one refresh is enough).
-4. Mean balance T_fM = T_iM - T_LM - modelled damper/coupling dissipation (physics.md §6, §12.4), T_iM as the work of
-   each throw. No per-cycle kinetic-energy term: an estimate of it is biased by whatever the fit lacks, while the
-   uncorrected balance telescopes and its cycle-to-cycle noise averages out.
+4. Mean balance T_fM = T_iM - T_LM - modelled damper/coupling dissipation - d/dt(1/2 J w^2)/w (physics.md §6, §12.4)
+   over the window centred on cylinder 1's firing TDC, from this cycle and the one before (two measured mid-cycle
+   speeds, no drift fitted: core.monitor.identification.transient_balance); IMEP over each cylinder's own window.
 5. The cycle's own speed drift is a per-cycle random effect (never accumulated); the whitened equations are
    accumulated with forgetting and solved with the priors (core.monitor.priors) and params >= 0, per cycle and smoothed
    (core.monitor.accumulate); reported with honest sigmas and resolved flags (core.monitor.estimate, core.monitor.cycle_report).
@@ -39,13 +39,13 @@ from frictionwatch.core.monitor.condition import assess_condition
 from frictionwatch.core.monitor.cycle_report import build_result
 from frictionwatch.core.monitor.flywheel import ToothLearner
 from frictionwatch.core.monitor.harmonic_balance import harmonic_balance, operating_point
-from frictionwatch.core.monitor.identification import MeanBalance, identify_cycle
+from frictionwatch.core.monitor.identification import MeanBalance, identify_cycle, mid_cycle_speed, transient_balance
 from frictionwatch.core.monitor.identify import parameter_layout
 from frictionwatch.core.monitor.priors import prior_normal
 from frictionwatch.core.monitor.report_kernels import trig_tables
 from frictionwatch.core.monitor.results import CycleResult
 from frictionwatch.core.monitor.sensor_health import SensorHealthState, check_cycle, corrected_inputs, inflate
-from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
+from frictionwatch.core.monitor.state import MonitorConfig, MonitorState, PreviousCycle
 from frictionwatch.core.monitor.tooth_fit import fit_cycle_teeth
 from frictionwatch.core.types import Cycle
 
@@ -144,10 +144,14 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     if math.isfinite(load):
         load = load + p_gnd / omega
     t_i = float(exc.indicated_mean.sum())
-    # no kinetic-energy term: a per-cycle estimate of it from the fitted drift is biased by any content the fit
-    # lacks, while the uncorrected balance telescopes (its cycle-to-cycle noise averages out in the accumulation)
-    balance = t_i - load - coupling_loss if math.isfinite(load) else float("nan")
-    mean = MeanBalance(indicated=t_i, load=load, coupling_loss=coupling_loss, friction=balance)
+    prev = state.previous_of(int(cycle.tooth_ticks[0]))
+    mid_speed = mid_cycle_speed(spec, cycle)
+    balance, kinetic, accel, t_window, imep_c = transient_balance(spec, cycle, pressure, exc.indicated_mean,
+                                                                  mid_speed, prev, load, coupling_loss)
+    mean = MeanBalance(indicated=t_i, load=load, coupling_loss=coupling_loss, friction=balance, kinetic=kinetic,
+                       imep_centred=imep_c, acceleration=accel, indicated_window=t_window)
+    if prev is None:
+        flags.append("no_previous_cycle")  # IMEP over the assembled cycle's window, no mean balance
 
     # cycle-to-cycle speed change: a random walk of the mean speed, its step variance tracks the within-cycle drift
     step = omega - state.prev_omega if math.isfinite(state.prev_omega) else 0.0
@@ -182,8 +186,10 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         stats=ident.stats, params=ident.smoothed.params, op=op, relative_motion=rel, static=static, teeth=teeth,
         balance_mean=ident.balance_mean, indicated_mean=ident.indicated_mean, cycles=state.cycles + 1,
         prior=state.prior, lower=state.lower, report_tables=tables, prev_omega=omega, drift_var=drift_var,
-        tooth_patterns=patterns, sensor=sensor,
-        condition=cond.state)  # every field (dataclasses.replace costs twice as much per cycle)
+        tooth_patterns=patterns, sensor=sensor, condition=cond.state,
+        previous=PreviousCycle(int(cycle.tooth_ticks[0]), int(cycle.tooth_ticks[-1]), pressure.copy(), mid_speed,
+                               load),  # a copy: a live source may reuse the cycle's buffer
+    )  # every field (dataclasses.replace costs twice as much per cycle)
     return new_state, result
 
 

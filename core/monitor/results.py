@@ -32,6 +32,8 @@ class FrictionEstimate:
     weight: effective number of cycles behind the estimate; chi2_reduced of the speed fit
     data_gain (z,): share of what is known about each cylinder's deviation from the equal share that came from the
     speed signal rather than the priors and the mean balance (0..1; 1 for a single cylinder)
+    source: "data", or "prior: <why>" when every friction figure is withheld (NaN) because nothing measured it: no
+    load and no deceleration to balance (core.monitor.identification.measured_or_withheld)
     """
 
     friction_torque_mean: np.ndarray
@@ -52,6 +54,7 @@ class FrictionEstimate:
     weight: float
     chi2_reduced: float
     data_gain: np.ndarray
+    source: str = "data"
 
 
 @dataclass(frozen=True)
@@ -112,7 +115,8 @@ class CycleResult:
     """Everything the monitor knows about one cycle.
 
     index, t_start [s], rpm_mean, omega_mean [rad/s], load_torque [N m], load_power [W]
-    imep (z,) Pa, pmax (z,) Pa, pmax_angle (z,) rad after the cylinder's own firing TDC
+    imep (z,) Pa over each cylinder's own firing cycle (-360..+360 deg around its TDC; over the assembled cycle when
+    the cycle before is not at hand, flagged no_previous_cycle), pmax (z,) Pa, pmax_angle (z,) rad after its TDC
     indicated_torque (z,) N m work mean; friction_balance N m: this cycle's T_fM = T_iM - T_LM - losses - dE/4pi
     coupling_loss N m: modelled mean dissipation of dampers/couplings/shaft (physics.md §12.4), excluded from friction
     grid (n,) rad crank angle; friction_torque (n,) N m total, from the smoothed coefficients with this cycle's
@@ -124,6 +128,9 @@ class CycleResult:
     residual_harmonics (M,) complex rad/s: measured - model flywheel speed harmonics (order m/2)
     residual_rms rad/s, r_squared of the speed ripple; flags; sensor_health (SensorHealth, None with the stage off):
     TDC, pressure gain and pegging estimates, the corrections ``imep`` and the friction rest on, their sigmas
+    acceleration rad/s^2, indicated_window N m: over the 720 deg centred on cylinder 1's firing TDC (from the middle
+    of the cycle before), the angle-averaged dw/dt and the engine's indicated torque; friction_balance pairs them
+    with J at theta = 2 pi (NaN without the cycle before; core.monitor.identification.transient_balance)
 
     The traces (grid, friction_torque, friction_torque_cyl_time, time_angles, speed_measured, speed_model,
     friction_torque_balance) are None in the copy ``slim()`` makes for a long history: ~85 % of a result's memory.
@@ -155,6 +162,8 @@ class CycleResult:
     friction_torque_balance: np.ndarray | None = None
     flags: tuple[str, ...] = field(default=())
     sensor_health: SensorHealth | None = None
+    acceleration: float = float("nan")
+    indicated_window: float = float("nan")
 
     @cached_property
     def friction_torque_cyl(self) -> np.ndarray | None:

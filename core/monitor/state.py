@@ -5,6 +5,7 @@ importing the monitor."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from frictionwatch.core.monitor.accumulate import Accumulator, ResidualStats
@@ -114,6 +115,20 @@ class ConditionState:
         return ConditionState(0, zero, zero, zero, zero, zero, zero, 1.0, None)
 
 
+class PreviousCycle(NamedTuple):
+    """What the next cycle's balance needs of the last analysed one: the ticks of its first and last tooth edges (it
+    is the cycle just before only if the next one's first edge lies after its first and at or before its last:
+    consecutive cycles share their boundary edges, core.types.Cycle; a stream index may be renumbered after a lost
+    sync), pressure (z, n) [Pa], speed at theta = 2 pi [rad/s] (core.monitor.identification.mid_cycle_speed) and
+    measured load [N m]."""
+
+    start_tick: int
+    end_tick: int
+    pressure: np.ndarray
+    mid_speed: float
+    load: float
+
+
 @dataclass(frozen=True)
 class MonitorState:
     """Everything carried from one cycle to the next (scipy ``zi`` style: in and out of ``process_cycle``)."""
@@ -139,3 +154,9 @@ class MonitorState:
     tooth_patterns: ToothPatterns | None = None  # the in-band tooth-error patterns at the edges (core.monitor.tooth_fit)
     sensor: SensorHealthState | None = None  # sensor-health estimates and corrections (core.monitor.sensor_health)
     condition: ConditionState | None = None  # the condition flags' window and change detector (core.monitor.condition)
+    previous: PreviousCycle | None = None  # the last analysed cycle: centred windows and the kinetic-energy term
+
+    def previous_of(self, first_tick: int) -> PreviousCycle | None:
+        """``previous`` if it is the cycle just before one whose first tooth edge is at ``first_tick``, else None."""
+        p = self.previous
+        return p if p is not None and p.start_tick < first_tick <= p.end_tick else None

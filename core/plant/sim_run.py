@@ -213,6 +213,14 @@ class PlantRun:
         else:
             self._dyno(brake, self.omega)
 
+    def coast(self, p_ivc: float, p_int: float, p_exh: float) -> None:
+        """Ignition off and the load disconnected: motored cycles (no fuel) against zero load torque and no load
+        ripple, whatever the preset's law: a coast-down."""
+        self.set_operating(0.0, p_ivc, p_int, p_exh)
+        self.lp[:] = 0.0
+        self.lp[3] = 1.0
+        self.law.update(coast_down=True)
+
     # ---- running ----------------------------------------------------------------------------------------------
     @property
     def theta_fly(self) -> float:

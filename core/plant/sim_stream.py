@@ -56,7 +56,8 @@ class Simulation:
     def __init__(self, model: EngineModel, run: PlantRun, *, cycles: int, steps: list, point: Callable,
                  theta_start: float, operating: dict, request: dict, sensors: SensorSetup,
                  rngs: list[np.random.Generator], stages: StageSwitches | None = None):
-        """run: the plant set up at theta_start, not yet advanced; steps: [(time_s, load fraction)]; point(fraction)
+        """run: the plant set up at theta_start, not yet advanced; steps: [(time_s, load fraction or None for the
+        coast-down)], in time order; point(fraction)
         -> (fuel kg, brake torque estimate N m, per-cylinder means); operating: the truth's "operating" block (its
         load law and steps are filled in by the run); request: rpm, load, seed as asked (repeated in the truth)."""
         self.model, self.run, self.cycles, self.steps, self.point = model, run, cycles, steps, point
@@ -115,6 +116,10 @@ class Simulation:
             stop = end if done == cycles else 4.0 * np.pi * done
             while steps and advance(stop, t_stop=steps[0][0]):
                 t_step, frac = steps.pop(0)  # a step time reached: the new operating point and load law
+                if frac is None:  # the coast-down: motored cycles against zero load from here on
+                    run.coast(*charge_pressures(spec, 0.0))
+                    step_log.append({"time_s": t_step, "coast_down": True})
+                    continue
                 fuel, tb, _ = self.point(frac)
                 run.set_operating(fuel, *charge_pressures(spec, frac))
                 run.change_law(tb + correction, brake_full + correction)

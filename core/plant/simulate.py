@@ -141,7 +141,8 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
     (core.model.effects); without : default-on effects turned off (both only with an EngineSpec).
     cov_imep : cycle-to-cycle COV of IMEP (fraction, default 2 %). load_steps : [(time_s, fraction)], time in the
     tick time base. coefficients : (z, 6) raw a_kl per cylinder (default: the preset's a_l for every cylinder).
-    fuel_spread : rms of the fixed cylinder-to-cylinder fuel spread (fraction).
+    fuel_spread : rms of the fixed cylinder-to-cylinder fuel spread (fraction). The ``coast_down`` effect turns the
+    ignition off and disconnects the load at its ``time_s`` (after any load steps).
     """
     model = _as_model(engine, effects, without, coefficients)
     spec = model.spec
@@ -243,6 +244,8 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
         "variability": {"sigma_fuel": sig_q, "sigma_soc_deg": sig_soc, "sigma_premixed": sig_beta},
         "step_s": h, "settle_cycles": SETTLE_A_CYCLES + SETTLE_B_CYCLES, "load_ripple_nm": ripple,
     }
+    if np.isfinite(load_fx.coast_down_s):  # ignition off and the load disconnected: a step to "coasting" (None)
+        steps = sorted([*steps, (float(load_fx.coast_down_s), None)], key=lambda st: st[0])
     return Simulation(model, run, cycles=cycles, steps=steps, point=point, theta_start=theta_start,
                       operating=operating, request={"rpm": rpm, "load": load, "seed": seed}, sensors=sensors,
                       rngs=rngs, stages=StageSwitches(onsets, coefs, leaks))

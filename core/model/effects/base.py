@@ -92,12 +92,14 @@ class CylinderSetup:
 @dataclass(frozen=True)
 class LoadSetup:
     """Extra load torque A sin(order theta_L + phase) at the load node; A = ``amplitude_nm`` if > 0, else
-    ``fraction`` x the mean brake torque estimate (the simulator resolves it at the operating point)."""
+    ``fraction`` x the mean brake torque estimate (the simulator resolves it at the operating point).
+    ``coast_down_s``: time [s] at which the ignition goes off and the load is disconnected (inf: never)."""
 
     amplitude_nm: float = 0.0
     fraction: float = 0.0
     order: float = 0.0
     phase_rad: float = 0.0
+    coast_down_s: float = float("inf")
 
 
 @dataclass(frozen=True)

@@ -156,7 +156,17 @@ class LoadRipple(Effect):
 
     def apply_load(self, setup: LoadSetup) -> LoadSetup:
         v = self.values
-        return LoadSetup(v["amplitude_nm"], v["fraction"], v["order"], float(np.radians(v["phase_deg"])))
+        return replace(setup, amplitude_nm=v["amplitude_nm"], fraction=v["fraction"], order=v["order"],
+                       phase_rad=float(np.radians(v["phase_deg"])))
+
+
+class CoastDown(Effect):
+    name = "coast_down"
+    description = "at time_s the ignition goes off and the load is disconnected: motored, zero load torque"
+    parameters = _table(time_s=Param(0.2, "s", 0.0, 1e6, doc="time after the log's start"))
+
+    def apply_load(self, setup: LoadSetup) -> LoadSetup:
+        return replace(setup, coast_down_s=self.values["time_s"])
 
 
 def _compound_loss(setup: CylinderSetup, k: int, loss: float) -> np.ndarray:
@@ -242,7 +252,7 @@ class Misfire(Effect):
 
 
 ALL = (TorsionalFlexibility, VariableInertia, ToothSpacingError, SensorNoise, TdcOffset, PressureOffset,
-       PressureGain, LoadRipple, RingWear, BlowBy, ExtraFriction, Misfire)
+       PressureGain, LoadRipple, RingWear, BlowBy, ExtraFriction, Misfire, CoastDown)
 
-__all__ = ["ALL", "BlowBy", "ExtraFriction", "LoadRipple", "Misfire", "PressureGain", "PressureOffset", "RingWear",
+__all__ = ["ALL", "BlowBy", "CoastDown", "ExtraFriction", "LoadRipple", "Misfire", "PressureGain", "PressureOffset", "RingWear",
            "SensorNoise", "TdcOffset", "ToothSpacingError", "TorsionalFlexibility", "VariableInertia"]
