@@ -16,6 +16,7 @@ import math
 from frictionwatch.core.model.effects.catalog import PressureGain, PressureOffset, TdcOffset
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.monitor.monitor import MonitorConfig, initial_state, process_cycle
+from frictionwatch.core.monitor.sensor_health import SensorHealthConfig
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 
@@ -39,7 +40,7 @@ def run(name: str, effects: list, cycles: int) -> dict:
                          speed_range_rpm=spec.speed_range_rpm)
     cyc = [c for r in sim.records for c in asm.feed(r)] + asm.flush()
     out = {}
-    for label, cfg in (("on", MonitorConfig()), ("off", MonitorConfig(sensor_health=None))):
+    for label, cfg in (("on", MonitorConfig(sensor_health=SensorHealthConfig())), ("off", MonitorConfig())):
         state = initial_state(spec, cfg)
         flagged = 0
         for c in cyc:

@@ -42,7 +42,6 @@ class Estimate(Protocol):
     prior_friction_torque_mean: np.ndarray
     total_friction_torque: float
     weight: float
-    source: str
 
 
 @dataclass(frozen=True)
@@ -86,14 +85,15 @@ def friction_status(est: Estimate, active_flags: Iterable[str]) -> FrictionStatu
         elif withholds(kind):
             (engine_faults if cyl is None else cyl_faults.setdefault(cyl, [])).append(flag)
     accumulated = est.weight > 0
-    if engine_faults:
-        engine = FigureStatus("withheld", "sensor fault flagged: " + ", ".join(engine_faults), None)
-    elif no_load:
+    # unresolved before withheld: where nothing balances the indicated work there is no figure to withhold
+    if no_load:
         engine = FigureStatus("unresolved", "no load measurement: nothing balances the indicated work (a measured "
                                             "load or a deceleration would), so the engine's friction is not known",
                               None)
-    elif est.source != "data":  # nothing to balance the indicated work against (no load, no deceleration)
+    elif getattr(est, "source", "data") != "data":  # nothing to balance the indicated work against
         engine = FigureStatus("unresolved", est.source.removeprefix("prior: "), None)
+    elif engine_faults:
+        engine = FigureStatus("withheld", "sensor fault flagged: " + ", ".join(engine_faults), None)
     elif not accumulated:
         engine = FigureStatus("prior", "no cycle accumulated yet (the monitor's warm-up): the engine model's prior "
                                        "friction, drawn toward the mean balance of the cycles so far; not an estimate "
@@ -110,7 +110,7 @@ def friction_status(est: Estimate, active_flags: Iterable[str]) -> FrictionStatu
         weight = None if z == 1 or not math.isfinite(gain) else gain if accumulated else 0.0
         faults = engine_faults + cyl_faults.get(k + 1, [])
         share = float(est.prior_friction_torque_mean[k])
-        if faults:
+        if faults and engine.status != "unresolved":
             cylinders.append(FigureStatus("withheld", "sensor fault flagged: " + ", ".join(faults), weight))
         elif bool(est.resolved[k]) and math.isfinite(float(est.friction_torque_mean[k])):
             cylinders.append(FigureStatus("measured", None, weight))

@@ -84,7 +84,11 @@ def test_per_cylinder_keys_are_the_truth_files_where_they_mean_the_same(misfire_
               "coefficients_normalised"}
     for got, want in zip(doc["cylinders"], truth["cylinders"]):
         assert shared <= set(got) and shared <= set(want)
-        assert_allclose(got["imep_bar"], want["imep_bar"], rtol=0.01)  # both: the run mean, misfires included
+        # both the run mean, misfires included; analyze's window is centred on the cylinder's own firing TDC, the
+        # truth's is the cycle's: at the run's ends they hold up to one different cycle (a misfire or not)
+        per_cycle = [c["cylinders"][got["cylinder"] - 1]["imep_bar"] for c in truth["cycles"]]
+        edge = (max(per_cycle) - min(per_cycle)) / len(per_cycle)
+        assert abs(got["imep_bar"] - want["imep_bar"]) <= 0.01 * abs(want["imep_bar"]) + edge
         assert_allclose(got["pmax_bar_mean"], want["pmax_bar_mean"], rtol=0.01)
     assert_allclose(doc["rpm_mean"], truth["rpm_mean"], rtol=0.002)
     assert_allclose(doc["load_torque_mean_nm"], truth["load_torque_mean_nm"], rtol=0.02)
@@ -126,8 +130,9 @@ def test_every_figure_says_what_it_is(misfire_run):
 def test_the_run_mean_is_reported_beside_the_end_of_run_estimate(misfire_run, truth):
     doc = misfire_run[0]
     run = doc["friction_run_mean_balance"]
-    assert run["status"] == "measured" and run["window"]["effective_cycles"] == CYCLES
-    assert run["window"]["forgetting"] == 1.0 and run["window"]["centre_cycle"] == (CYCLES - 1) / 2
+    # every cycle but the first, which has no cycle before it (no kinetic-energy term, so no balance)
+    assert run["status"] == "measured" and run["window"]["effective_cycles"] == CYCLES - 1
+    assert run["window"]["forgetting"] == 1.0 and run["window"]["centre_cycle"] == CYCLES / 2
     # the run mean of the balance against the truth's run mean, within 2 of its own sigmas
     assert abs(run["fmep_bar"] - truth["fmep_bar"]) <= 2 * run["fmep_sigma_bar"]
 
@@ -145,7 +150,8 @@ def test_csv_values_sigmas_status_and_line_endings(misfire_run, misfire_log):
         assert_allclose(float(r["engine_fmep_bar"]), doc["fmep_bar"], rtol=1e-12)
     accumulated = [r for r in rows if int(r["cycle"]) >= 20]
     assert all(r["friction_torque_mean_nm"] and r["fmep_bar"] for r in accumulated)  # no longer empty
-    assert {r["engine_friction_status"] for r in rows if int(r["cycle"]) < 20} == {"prior"}  # the warm-up
+    assert {r["engine_friction_status"] for r in rows if 0 < int(r["cycle"]) < 20} == {"prior"}  # the warm-up
+    assert {r["engine_friction_status"] for r in rows if int(r["cycle"]) == 0} == {"unresolved"}  # no cycle before
     # the smoothed IMEP of cylinder 1 with the estimate's forgetting, recomputed from the per-cycle column
     lam = doc["friction"]["window"]["forgetting"]
     imep = np.array([float(r["imep_bar"]) for r in rows if r["cylinder"] == "1"])
@@ -159,7 +165,7 @@ def test_the_table_says_what_the_numbers_are(misfire_log, capsys):
     out = capsys.readouterr().out
     assert "kW" in out and "N·m" in out and "± is 1σ" in out
     assert "paper" not in out and "Eq." not in out
-    rows = [ln for ln in out.splitlines() if ln[:4].strip().isdigit()]
+    rows = [ln for ln in out.splitlines() if ln[:4].strip().isdigit() and "rpm" not in ln]  # not the transient lines
     assert len(rows) == 4 and all(ln.endswith(("measured", "share, not measured")) for ln in rows)
     assert "end-of-run estimate over cycles 20-" in out and "mean over the whole run" in out
     lines = out.splitlines()
@@ -315,7 +321,7 @@ def test_progress_counts_cycles_and_follows_the_log(misfire_log):
 def test_an_unwritable_output_is_refused_before_the_run(misfire_log, tmp_path, capsys):
     blocker = tmp_path / "a-file"
     blocker.write_text("x")
-    for args, needle in ((["--csv", str(blocker / "x.csv")], "cannot create the folder"),
+    for args, needle in ((["--csv", str(blocker / "x.csv")], "is a file, not a folder"),
                          (["--csv", str(tmp_path)], "is a folder"),
                          (["--plot", str(blocker)], "is a file, expected a folder")):
         rc = main(["analyze", str(misfire_log), *args])
