@@ -42,6 +42,7 @@ class Estimate(Protocol):
     prior_friction_torque_mean: np.ndarray
     total_friction_torque: float
     weight: float
+    source: str
 
 
 @dataclass(frozen=True)
@@ -90,7 +91,7 @@ def friction_status(est: Estimate, active_flags: Iterable[str]) -> FrictionStatu
         engine = FigureStatus("unresolved", "no load measurement: nothing balances the indicated work (a measured "
                                             "load or a deceleration would), so the engine's friction is not known",
                               None)
-    elif getattr(est, "source", "data") != "data":  # nothing to balance the indicated work against
+    elif est.source != "data":  # nothing to balance the indicated work against
         engine = FigureStatus("unresolved", est.source.removeprefix("prior: "), None)
     elif engine_faults:
         engine = FigureStatus("withheld", "sensor fault flagged: " + ", ".join(engine_faults), None)

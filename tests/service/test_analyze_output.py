@@ -204,6 +204,7 @@ class _Est:
         self.prior_friction_torque_mean = np.array(share, dtype=float)
         self.total_friction_torque = total
         self.weight = weight
+        self.source = "data"
 
 
 def test_status_rules():
