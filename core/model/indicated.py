@@ -11,6 +11,8 @@ centred on its own firing TDC (-360..+360 deg), i.e. a compression with the expa
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 from frictionwatch.core.model.kinematics import kinematics_kernel
@@ -56,39 +58,90 @@ def net_imep(theta: np.ndarray, pressure: np.ndarray, phases: np.ndarray, params
     return out / displacement
 
 
+def piston_positions(theta: np.ndarray, phases: np.ndarray, params: np.ndarray) -> np.ndarray:
+    """Piston displacement from top [m] of each cylinder (z, n) at the cylinder-1 grid angles theta (n,) [rad]:
+    cylinder k at its own angle theta - phases[k]. x is 4 pi periodic, so the table serves any 720 deg window."""
+    th = np.ascontiguousarray(theta, dtype=np.float64).ravel()
+    local = np.ascontiguousarray(th[None, :] - np.atleast_1d(np.asarray(phases, dtype=np.float64))[:, None])
+    x = np.empty_like(local)
+    _positions(local, np.ascontiguousarray(params, dtype=np.float64), x)
+    return x
+
+
+@numba.njit(cache=True)
+def _positions(local, params, x):
+    n = local.shape[1]
+    dx = np.empty(n)
+    ddx = np.empty(n)
+    for k in range(local.shape[0]):
+        kinematics_kernel(local[k], params, x[k], dx, ddx)
+
+
+@numba.njit(cache=True)
+def _window_works(x, previous, current, starts, out):
+    """Trapezoid sum of p dx (z rows) over n samples from starts[w, k] in the joined pressure [previous | current]
+    (2n samples), the last sample joined to the first (a closed loop); x (z, n) the 4 pi periodic positions."""
+    z, n = x.shape
+    for w in range(starts.shape[0]):
+        for k in range(z):
+            s = starts[w, k]
+            acc = 0.0
+            for a in range(s, s + n):  # a < 2n: the sample and its position index without a modulo
+                b = a + 1 if a + 1 < s + n else s
+                pa = previous[k, a] if a < n else current[k, a - n]
+                pb = previous[k, b] if b < n else current[k, b - n]
+                xa = x[k, a] if a < n else x[k, a - n]
+                xb = x[k, b] if b < n else x[k, b - n]
+                acc += (pa + pb) * (xb - xa)
+            out[w, k] = 0.5 * acc
+
+
+def window_works(theta: np.ndarray, positions: np.ndarray, previous: np.ndarray, current: np.ndarray,
+                 centres: np.ndarray, area: float) -> np.ndarray:
+    """∮ p dV [J] (w, z) of each cylinder over the 720 deg windows [c - 2 pi, c + 2 pi) of the cylinder-1 angle, one
+    row per row of centres (w, z) [rad] (each in [-2 pi, 2 pi], rounded to the grid: a window a fraction of a step
+    off moves it around gas-exchange TDC, where p dV is smallest).
+
+    theta : (n,) the cycles' uniform grid over [0, 4 pi) (endpoint excluded); positions : (z, n) ``piston_positions``
+    on it; previous, current : (z, n) absolute pressure [Pa] of two consecutive cycles (previous spans [-4 pi, 0)).
+    """
+    th = np.ascontiguousarray(theta, dtype=np.float64).ravel()
+    prev = np.ascontiguousarray(np.atleast_2d(previous), dtype=np.float64)
+    cur = np.ascontiguousarray(np.atleast_2d(current), dtype=np.float64)
+    c = np.atleast_2d(np.asarray(centres, dtype=np.float64))
+    n = th.shape[0]
+    if prev.shape != cur.shape or positions.shape != cur.shape or cur.shape[1] != n or c.shape[1] != cur.shape[0]:
+        raise ValueError(f"previous, current and positions must have shape (z, n) = ({c.shape[1]}, {n}) and "
+                         f"centres (w, z); got {prev.shape}, {cur.shape}, {positions.shape}, {c.shape}")
+    step = th[1] - th[0]
+    if abs(step * n - 4 * np.pi) > 4e-6 * np.pi or np.abs(c).max() > 2 * np.pi + 0.5 * step:
+        raise ValueError("theta must cover one 720 deg cycle and every centre lie within +-360 deg")
+    if not math.isfinite(prev.sum() + cur.sum()):  # NaN and inf propagate into the sum
+        raise ValueError("pressure has NaN or inf samples; the cycle must be skipped before IMEP")
+    # each window's first sample in [prev | cur] (2n samples); rounding may put a centre at +-360 deg half a step out
+    starts = np.rint((c - 2 * np.pi - th[0]) / step).astype(np.int64) + n
+    np.clip(starts, 0, n, out=starts)
+    out = np.empty(c.shape)
+    _window_works(np.ascontiguousarray(positions, dtype=np.float64), prev, cur, starts, out)
+    return out * area
+
+
 def centred_work(theta: np.ndarray, previous: np.ndarray, current: np.ndarray, phases: np.ndarray,
                  centres: np.ndarray, params: np.ndarray, area: float) -> np.ndarray:
     """∮ p dV [J] of each cylinder over the 720 deg window [c_k - 2 pi, c_k + 2 pi) of the cylinder-1 angle.
 
     theta : (n,) the cycles' uniform grid over [0, 4 pi) (endpoint excluded); previous, current : (z, n) absolute
     pressure [Pa] of two consecutive cycles on it (previous spans [-4 pi, 0)); phases : (z,) firing angles [rad];
-    centres : (z,) window centres c_k in [-2 pi, 2 pi] [rad], rounded to the grid (a window a fraction of a step
-    off moves it around gas-exchange TDC, where p dV is smallest). ``centred_work(..., phases, tdc_centres(phases))``
-    is the work of each cylinder's own latest complete firing cycle; ``centres = 0`` the engine's work over the
-    window centred on cylinder 1's firing TDC.
+    centres : (z,) window centres c_k in [-2 pi, 2 pi] [rad] (``window_works``). ``centred_work(..., phases,
+    tdc_centres(phases))`` is the work of each cylinder's own latest complete firing cycle; ``centres = 0`` the
+    engine's work over the window centred on cylinder 1's firing TDC.
     """
-    th = np.ascontiguousarray(theta, dtype=np.float64).ravel()
-    prev = np.atleast_2d(np.asarray(previous, dtype=np.float64))
-    cur = np.atleast_2d(np.asarray(current, dtype=np.float64))
-    ph = np.ascontiguousarray(np.atleast_1d(phases), dtype=np.float64)
-    c = np.ascontiguousarray(np.atleast_1d(centres), dtype=np.float64)
-    n = th.shape[0]
-    if prev.shape != cur.shape or cur.shape != (ph.shape[0], n) or c.shape != ph.shape:
-        raise ValueError(f"previous and current must have shape (z, n) = ({ph.shape[0]}, {n}) and centres (z,); got "
-                         f"{prev.shape}, {cur.shape}, {c.shape}")
-    step = th[1] - th[0]
-    if not np.isclose(step * n, 4 * np.pi, rtol=1e-6) or np.any(np.abs(c) > 2 * np.pi + 0.5 * step):
-        raise ValueError("theta must cover one 720 deg cycle and every centre lie within +-360 deg")
-    both = np.concatenate([prev, cur], axis=1)  # (z, 2n) over [-4 pi, 4 pi)
-    if not np.all(np.isfinite(both)):
-        raise ValueError("pressure has NaN or inf samples; the cycle must be skipped before IMEP")
-    start = np.clip(np.rint((c - 2 * np.pi - th[0]) / step).astype(np.int64) + n, 0, n)  # window start in ``both``
-    idx = start[:, None] + np.arange(n)[None, :]
-    p = np.ascontiguousarray(np.take_along_axis(both, idx, axis=1))
-    local = np.ascontiguousarray(th[0] - 4 * np.pi + idx * step - ph[:, None])
-    out = np.empty(ph.shape[0])
-    _indicated_work(local, p, np.ascontiguousarray(params, dtype=np.float64), float(area), out)
-    return out
+    ph = np.atleast_1d(np.asarray(phases, dtype=np.float64))
+    c = np.atleast_1d(np.asarray(centres, dtype=np.float64))
+    if c.shape != ph.shape:
+        raise ValueError(f"centres must have shape (z,) = {ph.shape}; got {c.shape}")
+    x = piston_positions(theta, ph, params)
+    return window_works(theta, x, previous, current, c[None, :], area)[0]
 
 
 def tdc_centres(phases: np.ndarray) -> np.ndarray:

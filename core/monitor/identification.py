@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.model.indicated import centred_work, tdc_centres
+from frictionwatch.core.model.indicated import piston_positions, tdc_centres, window_works
 from frictionwatch.core.model.kinematics import kinematics
 from frictionwatch.core.monitor.accumulate import Accumulator, Posterior, ResidualStats, posterior_from_normal
 from frictionwatch.core.monitor.estimate import BalanceCheck, ReportLimits, friction_estimate
@@ -27,7 +27,7 @@ from frictionwatch.core.monitor.identify import CycleRows
 from frictionwatch.core.monitor.noise_model import NoiseSettings, whitened_rows
 from frictionwatch.core.monitor.results import FrictionEstimate
 from frictionwatch.core.monitor.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
-from frictionwatch.core.monitor.state import MonitorConfig, MonitorState, PreviousCycle
+from frictionwatch.core.monitor.state import GridGeometry, MonitorConfig, MonitorState, PreviousCycle
 from frictionwatch.core.types import Cycle
 
 FOUR_PI = 4.0 * np.pi
@@ -64,7 +64,8 @@ def mid_cycle_speed(spec: EngineSpec, cycle: Cycle) -> float:
     if np.count_nonzero(near) < 5:
         return float("nan")
     t = (cycle.tooth_ticks[near] - cycle.tooth_ticks[near][0]) / cycle.tick_hz
-    dt_dtheta = np.polynomial.polynomial.polyfit(ang[near], t, 2)[1]
+    a = ang[near]
+    dt_dtheta = np.linalg.lstsq(np.stack([np.ones_like(a), a, a * a], axis=1), t, rcond=None)[0][1]
     return float(1.0 / dt_dtheta) if dt_dtheta > 0 else float("nan")
 
 
@@ -78,9 +79,15 @@ def mid_cycle_inertia(spec: EngineSpec) -> float:
     return spec.total_inertia + spec.reciprocating_mass * float(np.sum(dx * dx))
 
 
+def grid_geometry(spec: EngineSpec, grid: np.ndarray) -> GridGeometry:
+    """The piston positions of every cylinder on the cycles' grid and J at theta = 2 pi (made once per grid)."""
+    positions = piston_positions(grid, spec.firing_angles, spec.kinematics_params())
+    return GridGeometry(float(grid[0]), int(grid.shape[0]), positions, mid_cycle_inertia(spec))
+
+
 def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indicated_cycle: np.ndarray,
-                      mid_speed: float, previous: PreviousCycle | None, load: float,
-                      coupling_loss: float) -> tuple[float, float, float, float, np.ndarray | None]:
+                      mid_speed: float, previous: PreviousCycle | None, load: float, coupling_loss: float,
+                      geometry: GridGeometry) -> tuple[float, float, float, float, np.ndarray | None]:
     """(friction, kinetic, acceleration, indicated, imep_centred) of one cycle and the cycle just before it
     (``previous``; None when that cycle is not at hand: all NaN and None); indicated_cycle (z,) [N m] the
     cylinders' work means over this cycle's own window (``Excitation.indicated_mean``).
@@ -102,13 +109,12 @@ def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indi
     # the windows' works on the crank-angle grid enter as differences from this cycle's own on the same grid: the
     # 720-point trapezoid reads ~0.5 % below the work the monitor's time grid takes (K9K 1100 rpm: 0.28 N m of
     # indicated torque, 2 % of the friction), a bias the difference cancels
-    params, area, ph = spec.kinematics_params(), spec.piston_area, spec.firing_angles
-    centres = tdc_centres(ph)
-    own = centred_work(cycle.grid, previous.pressure, pressure, ph, centres, params, area)
-    alone = centred_work(cycle.grid, pressure, pressure, ph, centres, params, area)  # this cycle, any window
-    around_tdc1 = centred_work(cycle.grid, previous.pressure, pressure, ph, np.zeros(spec.n_cyl), params, area)
+    ph, x = spec.firing_angles, geometry.positions
+    own, around_tdc1 = window_works(cycle.grid, x, previous.pressure, pressure,
+                                    np.stack([tdc_centres(ph), np.zeros(spec.n_cyl)]), spec.piston_area)
+    alone = window_works(cycle.grid, x, pressure, pressure, np.zeros((1, spec.n_cyl)), spec.piston_area)[0]
     accel = (mid_speed**2 - previous.mid_speed**2) / (2.0 * FOUR_PI)
-    kinetic = mid_cycle_inertia(spec) * accel
+    kinetic = geometry.inertia_mid * accel
     indicated = float(np.sum(indicated_cycle)) + float(around_tdc1.sum() - alone.sum()) / FOUR_PI
     imep = (np.asarray(indicated_cycle) * FOUR_PI + own - alone) / spec.displacement_cyl
     load_stepped = abs(load - previous.load) > LOAD_STEP_FRACTION * spec.rated_torque_nm

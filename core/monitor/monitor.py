@@ -39,7 +39,13 @@ from frictionwatch.core.monitor.condition import assess_condition
 from frictionwatch.core.monitor.cycle_report import build_result
 from frictionwatch.core.monitor.flywheel import ToothLearner
 from frictionwatch.core.monitor.harmonic_balance import harmonic_balance, operating_point
-from frictionwatch.core.monitor.identification import MeanBalance, identify_cycle, mid_cycle_speed, transient_balance
+from frictionwatch.core.monitor.identification import (
+    MeanBalance,
+    grid_geometry,
+    identify_cycle,
+    mid_cycle_speed,
+    transient_balance,
+)
 from frictionwatch.core.monitor.identify import parameter_layout
 from frictionwatch.core.monitor.priors import prior_normal
 from frictionwatch.core.monitor.report_kernels import trig_tables
@@ -146,8 +152,10 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     t_i = float(exc.indicated_mean.sum())
     prev = state.previous_of(int(cycle.tooth_ticks[0]))
     mid_speed = mid_cycle_speed(spec, cycle)
+    geometry = (state.grid_geometry if state.grid_geometry is not None and state.grid_geometry.fits(cycle.grid)
+                else grid_geometry(spec, cycle.grid))
     balance, kinetic, accel, t_window, imep_c = transient_balance(spec, cycle, pressure, exc.indicated_mean,
-                                                                  mid_speed, prev, load, coupling_loss)
+                                                                  mid_speed, prev, load, coupling_loss, geometry)
     mean = MeanBalance(indicated=t_i, load=load, coupling_loss=coupling_loss, friction=balance, kinetic=kinetic,
                        imep_centred=imep_c, acceleration=accel, indicated_window=t_window)
     if prev is None:
@@ -189,6 +197,7 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         tooth_patterns=patterns, sensor=sensor, condition=cond.state,
         previous=PreviousCycle(int(cycle.tooth_ticks[0]), int(cycle.tooth_ticks[-1]), pressure.copy(), mid_speed,
                                load),  # a copy: a live source may reuse the cycle's buffer
+        grid_geometry=geometry,
     )  # every field (dataclasses.replace costs twice as much per cycle)
     return new_state, result
 

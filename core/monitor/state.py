@@ -133,6 +133,20 @@ class PreviousCycle(NamedTuple):
     load: float
 
 
+class GridGeometry(NamedTuple):
+    """What the cycles' crank-angle grid fixes once (core.monitor.identification.grid_geometry): the grid's first
+    angle [rad] and size (a cycle on another grid makes it anew), every cylinder's piston displacement on it
+    positions (z, n) [m], and J(theta = 2 pi) [kg m^2]."""
+
+    first_angle: float
+    size: int
+    positions: np.ndarray
+    inertia_mid: float
+
+    def fits(self, grid: np.ndarray) -> bool:
+        return grid.shape[0] == self.size and float(grid[0]) == self.first_angle
+
+
 @dataclass(frozen=True)
 class MonitorState:
     """Everything carried from one cycle to the next (scipy ``zi`` style: in and out of ``process_cycle``)."""
@@ -159,6 +173,7 @@ class MonitorState:
     sensor: SensorHealthState | None = None  # sensor-health estimates and corrections (core.monitor.sensor_health)
     condition: ConditionState | None = None  # the condition flags' window and change detector (core.monitor.condition)
     previous: PreviousCycle | None = None  # the last analysed cycle: centred windows and the kinetic-energy term
+    grid_geometry: GridGeometry | None = None  # the crank-angle grid's piston positions and J(2 pi)
 
     def previous_of(self, first_tick: int) -> PreviousCycle | None:
         """``previous`` if it is the cycle just before one whose first tooth edge is at ``first_tick``, else None."""
