@@ -259,7 +259,10 @@ def _finite(value: Any) -> Any:
 
 
 def _json(value: Any) -> str:
-    return json.dumps(_finite(value), separators=(",", ":"), allow_nan=False)
+    try:  # the common case: plain JSON, all numbers finite (the contract's dicts)
+        return json.dumps(value, separators=(",", ":"), allow_nan=False)
+    except (TypeError, ValueError):  # numpy values, NaN or inf somewhere: the slow walk
+        return json.dumps(_finite(value), separators=(",", ":"), allow_nan=False)
 
 
 def _column(name: str, value: Any) -> Any:
@@ -267,7 +270,8 @@ def _column(name: str, value: Any) -> Any:
         return _json(value)
     if isinstance(value, str) or value is None:
         return value
-    return _finite(float(value))
+    v = float(value)
+    return v if math.isfinite(v) else None
 
 
 def _from_columns(names: Sequence[str], values: Sequence) -> dict:
