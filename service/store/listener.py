@@ -54,17 +54,31 @@ class StoreListener:
         self._alerts: dict[int, dict] = {}  # by alert_id: only an alert's newest state is written
         self._oldest: float | None = None  # monotonic time of the oldest pending row
         self._last_estimate: tuple[int, tuple] | None = None  # (cycle, statuses and flags) of the last kept
+        self._last_flags: tuple[str, ...] = ()  # the previous cycle's flags (cylinders given as a function)
         self._stopped = threading.Event()
         self._timer = threading.Thread(target=self._flush_when_due, name=f"store-{engine_id}", daemon=True)
         self._timer.start()
 
     # ---- what the fan-out calls -------------------------------------------------------------------------------
-    def on_cycle(self, summary: dict, cylinders: Sequence[dict] | None = None) -> None:
-        """One cycle's CycleSummary and (optionally) its per-cylinder CylinderLoss rows."""
+    def on_cycle(self, summary: dict, cylinders: Sequence[dict] | Callable[[], Sequence[dict]] | None = None) -> None:
+        """One cycle's CycleSummary and (optionally) its per-cylinder CylinderLoss rows.
+
+        ``cylinders`` may be a function that builds the rows: it is called only for the cycles whose estimate is
+        kept, every ``estimate_every`` cycles and whenever the cycle's flags differ from the cycle before (a status
+        that changes without a flag, e.g. a cylinder newly resolved, is then kept at the next cadence point). With
+        the rows themselves, any change of a cylinder's status or flags is kept at once."""
         with self._lock:
             self._cycles.append(summary)
-            if cylinders is not None and self._keep_estimate(int(summary["cycle_index"]), cylinders):
-                self._estimates.append((int(summary["cycle_index"]), cylinders))
+            cycle = int(summary["cycle_index"])
+            if callable(cylinders):
+                flags = tuple(summary.get("flags") or ())
+                if self._due(cycle) or flags != self._last_flags:
+                    rows = cylinders()
+                    self._last_estimate = (cycle, _status_key(rows))
+                    self._estimates.append((cycle, rows))
+                self._last_flags = flags
+            elif cylinders is not None and self._keep_estimate(cycle, cylinders):
+                self._estimates.append((cycle, cylinders))
             self._pending_since()
             if len(self._cycles) >= self.batch_cycles:
                 self._flush_locked()
@@ -85,10 +99,13 @@ class StoreListener:
         self.flush()
 
     # ---- inside -----------------------------------------------------------------------------------------------
-    def _keep_estimate(self, cycle: int, cylinders: Sequence[dict]) -> bool:
-        key = tuple((c.get("cylinder"), c.get("status"), tuple(c.get("flags") or ())) for c in cylinders)
+    def _due(self, cycle: int) -> bool:
         last = self._last_estimate
-        if last is not None and cycle - last[0] < self.estimate_every and key == last[1] and cycle >= last[0]:
+        return last is None or not (0 <= cycle - last[0] < self.estimate_every)
+
+    def _keep_estimate(self, cycle: int, cylinders: Sequence[dict]) -> bool:
+        key = _status_key(cylinders)
+        if not self._due(cycle) and key == self._last_estimate[1]:
             return False
         self._last_estimate = (cycle, key)
         return True
@@ -132,3 +149,7 @@ class StoreListener:
             except Exception:  # noqa: BLE001 - an observer's failure is not the store's
                 self.stats["on_commit_errors"] += 1
                 log.exception("store %s: on_commit failed", self.engine_id)
+
+
+def _status_key(cylinders: Sequence[dict]) -> tuple:
+    return tuple((c.get("cylinder"), c.get("status"), tuple(c.get("flags") or ())) for c in cylinders)

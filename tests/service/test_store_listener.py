@@ -162,3 +162,22 @@ def test_kill_9_mid_run_loses_nothing_reported_committed(tmp_path, synchronous):
         assert stored == list(range(latest + 1))
         assert reported <= set(stored), sorted(reported - set(stored))[:10]
         assert sqlite3.connect(tmp_path / "fw.db").execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+
+
+def test_cylinder_rows_given_as_a_function_are_built_only_for_the_estimates_kept(store):
+    built: list[int] = []
+
+    def rows(i: int):
+        def build():
+            built.append(i)
+            return losses(i)
+        return build
+
+    listener = StoreListener(store, ENG, batch_cycles=100, estimate_every=5)
+    for i in range(16):
+        s = summary(i)
+        s["flags"] = ["misfire_cyl2"] if i in (7, 8) else []
+        listener.on_cycle(s, rows(i))
+    listener.stop()
+    assert built == [0, 5, 7, 9, 14]  # the cadence, the flag raised at 7 and gone at 9
+    assert sorted({r["cycle_index"] for r in store.estimates(ENG, 0, 100)}) == built
