@@ -189,3 +189,10 @@ def test_a_schema_newer_than_the_code_is_refused_in_one_line(store_url):
         open_store(store_url)
     assert "schema version 99 is newer than this frictionwatch knows" in str(e.value)
     assert "\n" not in str(e.value)
+
+
+def test_an_unreachable_postgresql_is_one_line_without_its_password():
+    pytest.importorskip("psycopg")
+    with pytest.raises(StoreError, match="cannot connect") as e:
+        open_store("postgresql://fw:s3cret@127.0.0.1:1/fw?connect_timeout=2")
+    assert "\n" not in str(e.value) and "s3cret" not in str(e.value) and "fw:***@127.0.0.1:1" in str(e.value)

@@ -131,7 +131,8 @@ def test_a_reader_in_another_connection_sees_whole_batches_while_the_writer_comm
     done.set()
     thread.join()
     assert errors == []
-    assert len(seen) > 10 and seen == sorted(seen)  # the reader ran alongside and never went back
+    assert len(seen) > 5 and seen[0] < batch * n_batches - 1  # the reader ran alongside the writer
+    assert seen == sorted(seen)  # and never saw the store go back
     assert reader.latest_cycle(ENG) == batch * n_batches - 1
     writer.close()
     reader.close()
