@@ -15,7 +15,7 @@ to trade power-cut durability for fewer fsyncs, service/store/sqlite.py); ``post
 ``postgres://...`` (psycopg 3, the ``postgres`` extra). Every failure to open is a one-line ``StoreError``.
 
 Modules: ``schema`` (the migrations), ``sql_store`` (the interface on either backend; ``Dialect`` holds what
-differs), ``sqlite``, ``postgres``, ``listener``.
+differs), ``columns`` (contract dicts to columns and back), ``sqlite``, ``postgres``, ``listener``.
 """
 
 from __future__ import annotations

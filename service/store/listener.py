@@ -1,25 +1,30 @@
-"""StoreListener: the fan-out's consumer that keeps an engine's cycles, estimates and alerts in the store.
+"""StoreListener: the fan-out's consumer that keeps an engine's cycles, estimates, alerts and baselines in the store.
 
     listener = StoreListener(store, "genset-v20")      # store.register_engine(...) first
-    listener.on_cycle(summary, cylinders)             # a CycleSummary dict and its CylinderLoss dicts
+    fanout.add(listener)                              # service/listeners.py: on_message_received(ServiceEvent)
+    listener.on_cycle(summary, cylinders)             # or directly: a CycleSummary dict and its CylinderLoss dicts
     listener.on_alert(alert)                          # an Alert dict (raised, updated, acknowledged, cleared)
     listener.stop()                                   # flushes what is pending
+
+From a ServiceEvent the rows are built by the API's own builders (service/api_views.py: ``cycle_summary``,
+``cylinder_losses``), so the store keeps exactly what the API shows; other builders can be given.
 
 Rows are batched: a batch is committed when it holds ``batch_cycles`` cycles or its oldest row has waited
 ``max_delay_s`` (a timer thread sees to it when no new row comes), one transaction a batch. Estimates (the
 per-cylinder losses, ~20 rows a cycle on a genset) are kept every ``estimate_every`` cycles and whenever a cylinder's
-status or flags change, not every cycle; every cycle summary is kept.
+status or flags change, not every cycle; every cycle summary is kept. A new baseline is saved at once.
 
 Failures never reach the caller: a failed write is counted (``stats['write_errors']``) and logged, the batch is tried
 once more after ``retry_delay_s``; if that fails too the batch is lost, counted in ``stats['lost_batches']`` and
 ``stats['lost_cycles']``, and the listener goes on with the next one.
 
-What is lost. The fan-out (service/listeners.py) gives this listener its own bounded queue and drops what does not
-fit, counting it: a dropped result is a cycle the store never sees, as is a lost batch, and a process killed between
-two commits loses the uncommitted batch (at most ``batch_cycles`` cycles or ``max_delay_s`` of them). Only committed
-rows are durable (service/store/sqlite.py says how durable). Queue size: one genset-v20 at 1500 rpm makes 12.5
-cycles/s and a batch of 64 cycles with their estimates commits in milliseconds on a local disk (see the figures in
-the report of issue #17), so ``QUEUE_SIZE`` = 1024 results hold 80 s of a stalled disk before the first drop.
+What is lost. The fan-out gives this listener its own bounded queue (``Fanout.queue_size`` events) and drops what
+does not fit, counting it (``Fanout.drops``): a dropped event is a cycle the store never sees, as is a lost batch,
+and a process killed between two commits loses the uncommitted batch (at most ``batch_cycles`` cycles or
+``max_delay_s`` of them). Only committed rows are durable (service/store/sqlite.py says how durable). A genset-v20
+at 1500 rpm makes 12.5 cycles/s; a batch of 64 such cycles with their estimates committed in 46 ms (median, SQLite,
+synchronous=FULL, on a 2-core machine running ~12 other jobs), so the writer keeps up ~20 times over, and every 100
+places of queue hold 8 s of a stalled disk before the first drop.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
+from typing import Any
 
 from frictionwatch.service.store.sql_store import SqlStore
 
@@ -36,17 +42,20 @@ log = logging.getLogger(__name__)
 
 
 class StoreListener:
-    QUEUE_SIZE = 1024  # what the fan-out should give this listener (module docstring: 80 s of genset-v20)
+    name = "store"
 
     def __init__(self, store: SqlStore, engine_id: str, *, batch_cycles: int = 64, max_delay_s: float = 1.0,
                  estimate_every: int = 25, retry_delay_s: float = 0.5,
-                 on_commit: Callable[[list[int]], None] | None = None) -> None:
+                 on_commit: Callable[[list[int]], None] | None = None,
+                 summary_of: Callable[[str, Any], dict] | None = None,
+                 losses_of: Callable[[Any, Sequence[str]], list[dict]] | None = None) -> None:
         if not (batch_cycles >= 1 and max_delay_s > 0 and estimate_every >= 1 and retry_delay_s >= 0):
             raise ValueError("need batch_cycles >= 1, max_delay_s > 0, estimate_every >= 1, retry_delay_s >= 0")
         self.store, self.engine_id = store, engine_id
         self.batch_cycles, self.max_delay_s = batch_cycles, max_delay_s
         self.estimate_every, self.retry_delay_s = estimate_every, retry_delay_s
         self.on_commit = on_commit  # called with the cycle indices of each committed batch (tests, metrics)
+        self._summary_of, self._losses_of = summary_of, losses_of  # CycleResult -> rows; the API's when None
         self.stats: Counter[str] = Counter()
         self._lock = threading.Lock()
         self._cycles: list[dict] = []
@@ -60,6 +69,27 @@ class StoreListener:
         self._timer.start()
 
     # ---- what the fan-out calls -------------------------------------------------------------------------------
+    def on_message_received(self, event: Any) -> None:
+        """A ServiceEvent (service/listeners.py): its cycle (``result``), alert changes and new baseline."""
+        if event.result is not None:
+            if self._summary_of is None or self._losses_of is None:
+                from frictionwatch.service.api_views import cycle_summary, cylinder_losses
+
+                self._summary_of = self._summary_of or cycle_summary
+                self._losses_of = self._losses_of or cylinder_losses
+            result, names, losses_of = event.result, tuple(event.term_names), self._losses_of
+            self.on_cycle(self._summary_of(self.engine_id, result), lambda: losses_of(result, names))
+        for alert in event.alerts:
+            self.on_alert(alert)
+        if event.baseline is not None:
+            self.save_baseline(event.baseline)
+
+    def save_baseline(self, baseline: dict) -> None:
+        """Saved at once (with the pending rows first, so the store never holds a baseline newer than its cycles)."""
+        with self._lock:
+            self._flush_locked()
+            self._retrying("baseline", lambda: self.store.save_baseline(self.engine_id, baseline), "lost_baselines")
+
     def on_cycle(self, summary: dict, cylinders: Sequence[dict] | Callable[[], Sequence[dict]] | None = None) -> None:
         """One cycle's CycleSummary and (optionally) its per-cylinder CylinderLoss rows.
 
@@ -114,6 +144,22 @@ class StoreListener:
         if self._oldest is None:
             self._oldest = time.monotonic()
 
+    def _retrying(self, what: str, write: Callable[[], None], lost: str) -> bool:
+        """``write()``, once more after ``retry_delay_s`` if it fails; False (counted in ``stats[lost]``) if both
+        fail."""
+        for attempt in (1, 2):
+            try:
+                write()
+                return True
+            except Exception as e:  # noqa: BLE001 - a store failure must never stop the service
+                self.stats["write_errors"] += 1
+                log.warning("store %s: writing %s failed (attempt %d of 2): %s: %s", self.engine_id, what, attempt,
+                            type(e).__name__, e)
+                if attempt == 1:
+                    time.sleep(self.retry_delay_s)
+        self.stats[lost] += 1
+        return False
+
     def _flush_when_due(self) -> None:
         while not self._stopped.wait(self.max_delay_s / 4):
             with self._lock:
@@ -125,20 +171,12 @@ class StoreListener:
         if not (cycles or estimates or alerts):
             return
         self._cycles, self._estimates, self._alerts, self._oldest = [], [], {}, None
-        for attempt in (1, 2):
-            try:
-                self.store.write_batch(self.engine_id, cycles=cycles, estimates=estimates, alerts=alerts)
-                break
-            except Exception as e:  # noqa: BLE001 - a store failure must never stop the service
-                self.stats["write_errors"] += 1
-                log.warning("store %s: writing %d cycles, %d estimates, %d alerts failed (attempt %d of 2): %s: %s",
-                            self.engine_id, len(cycles), len(estimates), len(alerts), attempt, type(e).__name__, e)
-                if attempt == 2:
-                    self.stats["lost_batches"] += 1
-                    self.stats["lost_cycles"] += len(cycles)
-                    self.stats["lost_alert_updates"] += len(alerts)
-                    return
-                time.sleep(self.retry_delay_s)
+        what = f"{len(cycles)} cycles, {len(estimates)} estimates, {len(alerts)} alerts"
+        if not self._retrying(what, lambda: self.store.write_batch(self.engine_id, cycles=cycles, estimates=estimates,
+                                                                  alerts=alerts), "lost_batches"):
+            self.stats["lost_cycles"] += len(cycles)
+            self.stats["lost_alert_updates"] += len(alerts)
+            return
         self.stats["batches"] += 1
         self.stats["cycles_written"] += len(cycles)
         self.stats["estimates_written"] += len(estimates)

@@ -1,9 +1,7 @@
 """The store on a DB-API connection: one class for SQLite and PostgreSQL, their differences in ``Dialect``.
 
-Rows go in and come out as the service contract's dicts (CycleSummary, CylinderLoss, Alert; docs in
-service/store/__init__.py): known keys in columns, any key a helper added later in an ``extra`` JSON column, so a
-row reads back as it was written. Non-finite numbers are stored as NULL and read back as None (the project's
-convention: a value the data cannot give is None, never a number).
+Rows go in and come out as the service contract's dicts (CycleSummary, CylinderLoss, Alert), read back as they were
+written (service/store/columns.py maps them to columns).
 
 Threads: one connection, every call under one lock, each write one transaction (``write_batch``: several kinds of
 row in one). Other processes read the same SQLite file concurrently (WAL); PostgreSQL serves any number of clients.
@@ -13,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import threading
 import time
 from collections.abc import Iterator, Sequence
@@ -21,19 +18,19 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
+from frictionwatch.service.store.columns import (
+    ALERT_STATES,
+    CYCLE_COLUMNS,
+    LOSS_COLUMNS,
+    StoreError,
+    alert_params,
+    cycle_params,
+    extra_fields,
+    from_columns,
+    json_text,
+    loss_params,
+)
 from frictionwatch.service.store.schema import MIGRATIONS, SCHEMA_VERSION, VERSION_TABLE
-
-CYCLE_COLUMNS = ("t_start_s", "rpm_mean", "load_torque_nm", "load_power_kw", "imep_bar", "pmax_bar",
-                 "friction_balance_nm", "flags")
-LOSS_COLUMNS = ("fmep_bar", "fmep_sigma_bar", "friction_torque_mean_nm", "friction_torque_sigma_nm", "coefficients",
-                "coefficient_sigmas", "data_weight", "status", "reason", "flags")
-JSON_COLUMNS = frozenset({"imep_bar", "pmax_bar", "flags", "coefficients", "coefficient_sigmas"})
-ALERT_STATES = ("active", "acknowledged", "cleared")
-
-
-class StoreError(Exception):
-    """An expected failure of the store, said in one line (a newer schema, a malformed row, an unknown engine)."""
 
 
 @dataclass(frozen=True)
@@ -150,22 +147,22 @@ class SqlStore:
         A row already stored under the same key (engine, cycle[, cylinder]; engine, alert_id) is replaced: a
         retried batch writes the same rows again, and an alert changes state over its life."""
         version, now = self._version_of(engine_id), time.time()
-        cycle_params = [_cycle_params(engine_id, version, r, now) for r in cycles]
-        loss_params = [_loss_params(engine_id, int(i), c, now) for i, cyls in estimates for c in cyls]
-        alert_params = [_alert_params(engine_id, a, now) for a in alerts]
+        cycle_rows = [cycle_params(engine_id, version, r, now) for r in cycles]
+        loss_rows = [loss_params(engine_id, int(i), c, now) for i, cyls in estimates for c in cyls]
+        alert_rows = [alert_params(engine_id, a, now) for a in alerts]
         with self._transaction() as cur:
-            if cycle_params:
+            if cycle_rows:
                 cur.executemany(self.dialect.sql(_upsert("cycles", ("engine_id", "cycle_index", "model_version",
                                                                     *CYCLE_COLUMNS, "extra", "written_at"), 2)),
-                                cycle_params)
-            if loss_params:
+                                cycle_rows)
+            if loss_rows:
                 cur.executemany(self.dialect.sql(_upsert("estimates", ("engine_id", "cycle_index", "cylinder",
                                                                        *LOSS_COLUMNS, "extra", "written_at"), 3)),
-                                loss_params)
-            if alert_params:
+                                loss_rows)
+            if alert_rows:
                 cur.executemany(self.dialect.sql(_upsert("alerts", ("engine_id", "alert_id", "cylinder", "kind",
                                                                     "severity", "state", "raised_cycle", "doc",
-                                                                    "updated_at"), 2)), alert_params)
+                                                                    "updated_at"), 2)), alert_rows)
 
     def save_baseline(self, engine_id: str, baseline: dict) -> None:
         self._version_of(engine_id)
@@ -173,7 +170,7 @@ class SqlStore:
             seq = self._x(cur, "SELECT COALESCE(MAX(seq), 0) + 1 FROM baselines WHERE engine_id = ?",
                           (engine_id,)).fetchone()[0]
             self._x(cur, "INSERT INTO baselines (engine_id, seq, doc, saved_at) VALUES (?, ?, ?, ?)",
-                    (engine_id, int(seq), _json(baseline), time.time()))
+                    (engine_id, int(seq), json_text(baseline), time.time()))
 
     # ---- reads ------------------------------------------------------------------------------------------------
     def _query(self, sql: str, params: Sequence = ()) -> list[tuple]:
@@ -190,15 +187,15 @@ class SqlStore:
                            "WHERE engine_id = ? AND cycle_index BETWEEN ? AND ? ORDER BY cycle_index",
                            (engine_id, int(first), int(last)))
         return [{"engine_id": engine_id, "cycle_index": int(r[0]), "model_version": r[1],
-                 **_from_columns(CYCLE_COLUMNS, r[2:-1]), **_extra(r[-1])} for r in rows]
+                 **from_columns(CYCLE_COLUMNS, r[2:-1]), **extra_fields(r[-1])} for r in rows]
 
     def estimates(self, engine_id: str, first: int, last: int) -> list[dict]:
         """The CylinderLoss rows kept for cycles first..last, each with its ``cycle_index``, by cycle and cylinder."""
         rows = self._query(f"SELECT cycle_index, cylinder, {', '.join(LOSS_COLUMNS)}, extra FROM estimates "
                            "WHERE engine_id = ? AND cycle_index BETWEEN ? AND ? ORDER BY cycle_index, cylinder",
                            (engine_id, int(first), int(last)))
-        return [{"cycle_index": int(r[0]), "cylinder": int(r[1]), **_from_columns(LOSS_COLUMNS, r[2:-1]),
-                 **_extra(r[-1])} for r in rows]
+        return [{"cycle_index": int(r[0]), "cylinder": int(r[1]), **from_columns(LOSS_COLUMNS, r[2:-1]),
+                 **extra_fields(r[-1])} for r in rows]
 
     def load_alerts(self, engine_id: str, state: str | None = None) -> list[dict]:
         """Every alert of the engine (state None) or those in one state, by alert_id."""
@@ -241,82 +238,3 @@ def _upsert(table: str, columns: Sequence[str], n_key: int) -> str:
     key, rest = columns[:n_key], columns[n_key:]
     return (f"INSERT INTO {table} ({', '.join(columns)}) VALUES ({', '.join('?' * len(columns))}) "
             f"ON CONFLICT ({', '.join(key)}) DO UPDATE SET {', '.join(f'{c} = excluded.{c}' for c in rest)}")
-
-
-def _finite(value: Any) -> Any:
-    """Non-finite floats -> None, through lists and dicts (numpy scalars become floats)."""
-    if isinstance(value, dict):
-        return {str(k): _finite(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _finite(value.tolist())
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
-def _json(value: Any) -> str:
-    try:  # the common case: plain JSON, all numbers finite (the contract's dicts)
-        return json.dumps(value, separators=(",", ":"), allow_nan=False)
-    except (TypeError, ValueError):  # numpy values, NaN or inf somewhere: the slow walk
-        return json.dumps(_finite(value), separators=(",", ":"), allow_nan=False)
-
-
-def _column(name: str, value: Any) -> Any:
-    if name in JSON_COLUMNS:
-        return _json(value)
-    if isinstance(value, str) or value is None:
-        return value
-    v = float(value)
-    return v if math.isfinite(v) else None
-
-
-def _from_columns(names: Sequence[str], values: Sequence) -> dict:
-    return {n: json.loads(v) if n in JSON_COLUMNS else v for n, v in zip(names, values)}
-
-
-def _extra(text: str | None) -> dict:
-    return json.loads(text) if text else {}
-
-
-def _take(row: dict, names: Sequence[str], what: str) -> list:
-    missing = [n for n in names if n not in row]
-    if missing:
-        raise StoreError(f"{what} lacks {', '.join(missing)}")
-    return [_column(n, row[n]) for n in names]
-
-
-def _extra_of(row: dict, known: Sequence[str]) -> str | None:
-    rest = {k: v for k, v in row.items() if k not in known}
-    return _json(rest) if rest else None
-
-
-def _cycle_params(engine_id: str, version: int, row: dict, now: float) -> tuple:
-    if "cycle_index" not in row:
-        raise StoreError("cycle row lacks cycle_index")
-    values = _take(row, CYCLE_COLUMNS, f"cycle row {row['cycle_index']}")
-    known = ("engine_id", "cycle_index", "model_version", *CYCLE_COLUMNS)
-    return (engine_id, int(row["cycle_index"]), version, *values, _extra_of(row, known), now)
-
-
-def _loss_params(engine_id: str, cycle_index: int, row: dict, now: float) -> tuple:
-    if "cylinder" not in row:
-        raise StoreError(f"estimate row of cycle {cycle_index} lacks cylinder")
-    values = _take(row, LOSS_COLUMNS, f"estimate row of cycle {cycle_index} cylinder {row['cylinder']}")
-    known = ("engine_id", "cycle_index", "cylinder", *LOSS_COLUMNS)
-    return (engine_id, cycle_index, int(row["cylinder"]), *values, _extra_of(row, known), now)
-
-
-def _alert_params(engine_id: str, alert: dict, now: float) -> tuple:
-    missing = [k for k in ("alert_id", "kind", "severity", "state") if k not in alert]
-    if missing:
-        raise StoreError(f"alert lacks {', '.join(missing)}")
-    if alert["state"] not in ALERT_STATES:
-        raise StoreError(f"alert {alert['alert_id']}: unknown state {alert['state']!r}")
-    cyl, raised = alert.get("cylinder"), alert.get("raised_cycle")
-    return (engine_id, int(alert["alert_id"]), None if cyl is None else int(cyl), str(alert["kind"]),
-            str(alert["severity"]), str(alert["state"]), None if raised is None else int(raised),
-            _json({**alert, "engine_id": engine_id}), now)

@@ -12,6 +12,7 @@ import sys
 import textwrap
 import threading
 import time
+from types import SimpleNamespace
 
 import pytest
 from frictionwatch.service.store import StoreListener, open_store
@@ -181,3 +182,32 @@ def test_cylinder_rows_given_as_a_function_are_built_only_for_the_estimates_kept
     listener.stop()
     assert built == [0, 5, 7, 9, 14]  # the cadence, the flag raised at 7 and gone at 9
     assert sorted({r["cycle_index"] for r in store.estimates(ENG, 0, 100)}) == built
+
+
+def event(result=None, alerts=(), baseline=None):
+    """The fields of service.listeners.ServiceEvent the store reads."""
+    return SimpleNamespace(engine_id=ENG, result=result, alerts=tuple(alerts), baseline=baseline,
+                           term_names=("a0", "a1"))
+
+
+def test_service_events_become_cycles_estimates_alerts_and_baselines(store):
+    built: list[tuple[int, tuple]] = []
+
+    def losses_of(result, names):
+        built.append((result, tuple(names)))
+        return losses(result)
+
+    listener = StoreListener(store, ENG, batch_cycles=100, estimate_every=10,
+                             summary_of=lambda engine_id, i: summary(i, engine_id=engine_id), losses_of=losses_of)
+    for i in range(12):
+        listener.on_message_received(event(i, alerts=[alert(1)] if i == 3 else ()))
+    listener.on_message_received(event(None, alerts=[dict(alert(1), state="acknowledged", acknowledged_by="op")]))
+    listener.on_message_received(event(None, baseline={"fmep_bar": [1.0, 1.1]}))
+    # the baseline is saved at once, after the cycles pending before it
+    assert store.latest_cycle(ENG) == 11 and store.load_baseline(ENG) == {"fmep_bar": [1.0, 1.1]}
+    listener.stop()
+    assert [(a["alert_id"], a["state"]) for a in store.load_alerts(ENG)] == [(1, "acknowledged")]
+    # the first cycle, cycle 1 (its flag no_previous_cycle gone), then 10 cycles on
+    assert built == [(0, ("a0", "a1")), (1, ("a0", "a1")), (11, ("a0", "a1"))]
+    assert sorted({r["cycle_index"] for r in store.estimates(ENG, 0, 100)}) == [0, 1, 11]
+    assert listener.stats["write_errors"] == 0 and listener.name == "store"
