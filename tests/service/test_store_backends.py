@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time
 import uuid
 from urllib.parse import quote
@@ -196,3 +197,33 @@ def test_an_unreachable_postgresql_is_one_line_without_its_password():
     with pytest.raises(StoreError, match="cannot connect") as e:
         open_store("postgresql://fw:s3cret@127.0.0.1:1/fw?connect_timeout=2")
     assert "\n" not in str(e.value) and "s3cret" not in str(e.value) and "fw:***@127.0.0.1:1" in str(e.value)
+
+
+def test_two_writers_on_one_store_each_keep_every_row(store_url):
+    """Two services (two connections) writing their own engines at once: PostgreSQL serves both; SQLite serialises
+    their transactions (BEGIN IMMEDIATE waits on the other's lock within the busy timeout)."""
+    stores = [open_store(store_url) for _ in range(2)]
+    for k, s in enumerate(stores):
+        s.register_engine(f"eng-{k}", TOML)
+    errors: list[BaseException] = []
+
+    def write(k: int) -> None:
+        try:
+            for b in range(40):
+                stores[k].write_batch(f"eng-{k}", cycles=[summary(i, engine_id=f"eng-{k}")
+                                                          for i in range(b * 5, b * 5 + 5)],
+                                      estimates=[(b * 5, losses(b * 5))])
+        except BaseException as e:  # noqa: BLE001 - reported below
+            errors.append(e)
+
+    threads = [threading.Thread(target=write, args=(k,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert errors == []
+    for k in range(2):
+        assert [r["cycle_index"] for r in stores[0].cycles(f"eng-{k}", 0, 1000)] == list(range(200))
+        assert len(stores[1].estimates(f"eng-{k}", 0, 1000)) == 40 * 4
+    for s in stores:
+        s.close()
