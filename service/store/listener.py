@@ -22,9 +22,9 @@ What is lost. The fan-out gives this listener its own bounded queue (``Fanout.qu
 does not fit, counting it (``Fanout.drops``): a dropped event is a cycle the store never sees, as is a lost batch,
 and a process killed between two commits loses the uncommitted batch (at most ``batch_cycles`` cycles or
 ``max_delay_s`` of them). Only committed rows are durable (service/store/sqlite.py says how durable). A genset-v20
-at 1500 rpm makes 12.5 cycles/s; a batch of 64 such cycles with their estimates committed in 46 ms (median, SQLite,
-synchronous=FULL, on a 2-core machine running ~12 other jobs), so the writer keeps up ~20 times over, and every 100
-places of queue hold 8 s of a stalled disk before the first drop.
+at 1500 rpm makes 12.5 cycles/s; a batch of 64 such cycles (20 cylinders) with 40 estimate rows committed in 46-48 ms
+(median, SQLite, synchronous=FULL, on a 2-core machine running 12-25 other jobs): ~1300 cycles/s, about 100 times
+what one genset makes. Every 100 places of queue hold 8 s of a stalled disk before the first drop.
 """
 
 from __future__ import annotations
