@@ -1,0 +1,240 @@
+"""The store on a DB-API connection: one class for SQLite and PostgreSQL, their differences in ``Dialect``.
+
+Rows go in and come out as the service contract's dicts (CycleSummary, CylinderLoss, Alert), read back as they were
+written (service/store/columns.py maps them to columns).
+
+Threads: one connection, every call under one lock, each write one transaction (``write_batch``: several kinds of
+row in one). Other processes read the same SQLite file concurrently (WAL); PostgreSQL serves any number of clients.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
+
+from frictionwatch.service.store.columns import (
+    ALERT_STATES,
+    CYCLE_COLUMNS,
+    LOSS_COLUMNS,
+    StoreError,
+    alert_params,
+    cycle_params,
+    extra_fields,
+    from_columns,
+    json_text,
+    loss_params,
+)
+from frictionwatch.service.store.schema import MIGRATIONS, SCHEMA_VERSION, VERSION_TABLE
+
+
+@dataclass(frozen=True)
+class Dialect:
+    """What differs between the backends. SQL is written with ``?`` placeholders."""
+
+    name: str
+    begin: str  # SQLite: BEGIN IMMEDIATE takes the write lock at once (no lock upgrade deadlock between writers)
+    placeholder: str
+    lock_rows: str  # appended to the SELECT of schema_version while migrating: one migrator at a time
+
+    def sql(self, text: str) -> str:
+        return text if self.placeholder == "?" else text.replace("?", self.placeholder)
+
+
+class SqlStore:
+    """The store interface (service/store/__init__.py) on an open connection; ``migrate`` runs on construction."""
+
+    def __init__(self, conn: Any, dialect: Dialect, where: str) -> None:
+        self._conn, self.dialect, self.where = conn, dialect, where
+        self._lock = threading.RLock()
+        self._model_version: dict[str, int] = {}
+        self.schema_version = self._migrate()
+
+    # ---- plumbing ---------------------------------------------------------------------------------------------
+    @contextmanager
+    def _transaction(self) -> Iterator[Any]:
+        with self._lock:
+            cur = self._conn.cursor()
+            cur.execute(self.dialect.begin)
+            try:
+                yield cur
+            except BaseException:
+                try:
+                    cur.execute("ROLLBACK")
+                except Exception:  # noqa: BLE001 - the engine already rolled back (SQLite does on some errors)
+                    pass
+                raise
+            cur.execute("COMMIT")
+
+    def _x(self, cur: Any, sql: str, params: Sequence = ()) -> Any:
+        cur.execute(self.dialect.sql(sql), tuple(params))
+        return cur
+
+    def _migrate(self) -> int:
+        """Bring the schema up to SCHEMA_VERSION, one migration per transaction; refuse a newer one."""
+        with self._transaction() as cur:
+            cur.execute(VERSION_TABLE)
+            rows = self._x(cur, "SELECT version FROM schema_version").fetchall()
+            if not rows:
+                self._x(cur, "INSERT INTO schema_version (version) VALUES (0)")
+        while True:
+            with self._transaction() as cur:
+                version = int(self._x(cur, "SELECT version FROM schema_version" + self.dialect.lock_rows).fetchone()[0])
+                if version > SCHEMA_VERSION:
+                    raise StoreError(f"{self.where}: schema version {version} is newer than this frictionwatch knows "
+                                     f"({SCHEMA_VERSION}); use a newer frictionwatch or another store")
+                if version == SCHEMA_VERSION:
+                    return version
+                for statement in MIGRATIONS[version]:
+                    cur.execute(statement)
+                self._x(cur, "UPDATE schema_version SET version = ?", (version + 1,))
+
+    def close(self) -> None:
+        with self._lock:
+            self._conn.close()
+
+    # ---- engines and model versions ---------------------------------------------------------------------------
+    def register_engine(self, engine_id: str, engine_toml: str) -> int:
+        """The engine's model version for this TOML: the newest one if its text is the same, else a new one."""
+        digest = hashlib.sha256(engine_toml.encode()).hexdigest()
+        now = time.time()
+        with self._transaction() as cur:
+            self._x(cur, "INSERT INTO engines (engine_id, created_at) VALUES (?, ?) ON CONFLICT (engine_id) DO NOTHING",
+                    (engine_id, now))
+            row = self._x(cur, "SELECT version, toml_sha256 FROM model_versions WHERE engine_id = ? "
+                               "ORDER BY version DESC LIMIT 1", (engine_id,)).fetchone()
+            if row is not None and row[1] == digest:
+                version = int(row[0])
+            else:
+                version = 1 if row is None else int(row[0]) + 1
+                self._x(cur, "INSERT INTO model_versions (engine_id, version, toml_sha256, engine_toml, registered_at) "
+                             "VALUES (?, ?, ?, ?, ?)", (engine_id, version, digest, engine_toml, now))
+        self._model_version[engine_id] = version
+        return version
+
+    def model_versions(self, engine_id: str) -> list[dict]:
+        with self._lock:
+            rows = self._x(self._conn.cursor(), "SELECT version, toml_sha256, engine_toml, registered_at FROM "
+                                                "model_versions WHERE engine_id = ? ORDER BY version",
+                           (engine_id,)).fetchall()
+        return [{"version": int(v), "toml_sha256": s, "engine_toml": t, "registered_at": a} for v, s, t, a in rows]
+
+    def _version_of(self, engine_id: str) -> int:
+        try:
+            return self._model_version[engine_id]
+        except KeyError:
+            raise StoreError(f"engine {engine_id!r} is not registered in this store: register_engine first") from None
+
+    # ---- writes -----------------------------------------------------------------------------------------------
+    def write_cycles(self, engine_id: str, rows: Sequence[dict]) -> None:
+        self.write_batch(engine_id, cycles=rows)
+
+    def write_estimate(self, engine_id: str, cycle_index: int, cylinders: Sequence[dict]) -> None:
+        self.write_batch(engine_id, estimates=[(cycle_index, cylinders)])
+
+    def upsert_alert(self, engine_id: str, alert: dict) -> None:
+        self.write_batch(engine_id, alerts=[alert])
+
+    def write_batch(self, engine_id: str, cycles: Sequence[dict] = (),
+                    estimates: Sequence[tuple[int, Sequence[dict]]] = (), alerts: Sequence[dict] = ()) -> None:
+        """Cycle summaries, per-cylinder estimates and alerts in one transaction: all of them or none.
+
+        A row already stored under the same key (engine, cycle[, cylinder]; engine, alert_id) is replaced: a
+        retried batch writes the same rows again, and an alert changes state over its life."""
+        version, now = self._version_of(engine_id), time.time()
+        cycle_rows = [cycle_params(engine_id, version, r, now) for r in cycles]
+        loss_rows = [loss_params(engine_id, int(i), c, now) for i, cyls in estimates for c in cyls]
+        alert_rows = [alert_params(engine_id, a, now) for a in alerts]
+        with self._transaction() as cur:
+            if cycle_rows:
+                cur.executemany(self.dialect.sql(_upsert("cycles", ("engine_id", "cycle_index", "model_version",
+                                                                    *CYCLE_COLUMNS, "extra", "written_at"), 2)),
+                                cycle_rows)
+            if loss_rows:
+                cur.executemany(self.dialect.sql(_upsert("estimates", ("engine_id", "cycle_index", "cylinder",
+                                                                       *LOSS_COLUMNS, "extra", "written_at"), 3)),
+                                loss_rows)
+            if alert_rows:
+                cur.executemany(self.dialect.sql(_upsert("alerts", ("engine_id", "alert_id", "cylinder", "kind",
+                                                                    "severity", "state", "raised_cycle", "doc",
+                                                                    "updated_at"), 2)), alert_rows)
+
+    def save_baseline(self, engine_id: str, baseline: dict) -> None:
+        self._version_of(engine_id)
+        with self._transaction() as cur:
+            seq = self._x(cur, "SELECT COALESCE(MAX(seq), 0) + 1 FROM baselines WHERE engine_id = ?",
+                          (engine_id,)).fetchone()[0]
+            self._x(cur, "INSERT INTO baselines (engine_id, seq, doc, saved_at) VALUES (?, ?, ?, ?)",
+                    (engine_id, int(seq), json_text(baseline), time.time()))
+
+    # ---- reads ------------------------------------------------------------------------------------------------
+    def _query(self, sql: str, params: Sequence = ()) -> list[tuple]:
+        with self._lock:
+            return self._x(self._conn.cursor(), sql, params).fetchall()
+
+    def latest_cycle(self, engine_id: str) -> int | None:
+        value = self._query("SELECT MAX(cycle_index) FROM cycles WHERE engine_id = ?", (engine_id,))[0][0]
+        return None if value is None else int(value)
+
+    def cycles(self, engine_id: str, first: int, last: int) -> list[dict]:
+        """The CycleSummary rows with first <= cycle_index <= last, in order (``model_version`` added)."""
+        rows = self._query(f"SELECT cycle_index, model_version, {', '.join(CYCLE_COLUMNS)}, extra FROM cycles "
+                           "WHERE engine_id = ? AND cycle_index BETWEEN ? AND ? ORDER BY cycle_index",
+                           (engine_id, int(first), int(last)))
+        return [{"engine_id": engine_id, "cycle_index": int(r[0]), "model_version": r[1],
+                 **from_columns(CYCLE_COLUMNS, r[2:-1]), **extra_fields(r[-1])} for r in rows]
+
+    def estimates(self, engine_id: str, first: int, last: int) -> list[dict]:
+        """The CylinderLoss rows kept for cycles first..last, each with its ``cycle_index``, by cycle and cylinder."""
+        rows = self._query(f"SELECT cycle_index, cylinder, {', '.join(LOSS_COLUMNS)}, extra FROM estimates "
+                           "WHERE engine_id = ? AND cycle_index BETWEEN ? AND ? ORDER BY cycle_index, cylinder",
+                           (engine_id, int(first), int(last)))
+        return [{"cycle_index": int(r[0]), "cylinder": int(r[1]), **from_columns(LOSS_COLUMNS, r[2:-1]),
+                 **extra_fields(r[-1])} for r in rows]
+
+    def load_alerts(self, engine_id: str, state: str | None = None) -> list[dict]:
+        """Every alert of the engine (state None) or those in one state, by alert_id."""
+        if state is None:
+            rows = self._query("SELECT doc FROM alerts WHERE engine_id = ? ORDER BY alert_id", (engine_id,))
+        elif state in ALERT_STATES:
+            rows = self._query("SELECT doc FROM alerts WHERE engine_id = ? AND state = ? ORDER BY alert_id",
+                               (engine_id, state))
+        else:
+            raise StoreError(f"unknown alert state {state!r}; known: {', '.join(ALERT_STATES)}")
+        return [json.loads(r[0]) for r in rows]
+
+    def load_baseline(self, engine_id: str) -> dict | None:
+        rows = self._query("SELECT doc FROM baselines WHERE engine_id = ? ORDER BY seq DESC LIMIT 1", (engine_id,))
+        return json.loads(rows[0][0]) if rows else None
+
+    # ---- retention --------------------------------------------------------------------------------------------
+    def apply_retention(self, keep_days: float, now: float | None = None, batch_rows: int = 5000) -> dict[str, int]:
+        """Delete cycles and estimates written more than ``keep_days`` ago, ``batch_rows`` per transaction (a
+        writer waits for one batch at most, never for the whole sweep). Alerts, baselines and model versions are
+        kept whatever their age. Returns the rows deleted per table."""
+        if not (keep_days > 0 and batch_rows > 0):
+            raise StoreError(f"retention needs keep_days > 0 and batch_rows > 0, got {keep_days}, {batch_rows}")
+        cutoff = (time.time() if now is None else now) - keep_days * 86400.0
+        deleted = {}
+        for table, key in (("cycles", "engine_id, cycle_index"), ("estimates", "engine_id, cycle_index, cylinder")):
+            deleted[table] = 0
+            while True:
+                with self._transaction() as cur:
+                    n = self._x(cur, f"DELETE FROM {table} WHERE ({key}) IN (SELECT {key} FROM {table} "
+                                     "WHERE written_at < ? LIMIT ?)", (cutoff, batch_rows)).rowcount
+                deleted[table] += n
+                if n < batch_rows:
+                    break
+        return deleted
+
+
+def _upsert(table: str, columns: Sequence[str], n_key: int) -> str:
+    """INSERT ... ON CONFLICT (key) DO UPDATE: SQLite >= 3.24 and PostgreSQL read the same text."""
+    key, rest = columns[:n_key], columns[n_key:]
+    return (f"INSERT INTO {table} ({', '.join(columns)}) VALUES ({', '.join('?' * len(columns))}) "
+            f"ON CONFLICT ({', '.join(key)}) DO UPDATE SET {', '.join(f'{c} = excluded.{c}' for c in rest)}")
