@@ -138,6 +138,8 @@ def run(args: argparse.Namespace) -> int:
     shown = f"[{host}]" if ":" in host else host
     print(f"frictionwatch serve: dashboard at http://{shown}:{port}/ ; engines: "
           + ", ".join(f"{s.engine_id} ({s.spec.name}, {' + '.join(s.urls)})" for s in services), flush=True)
+    if alerts is None:
+        print("frictionwatch serve: alerts are not part of this build; serving losses without alerts", file=sys.stderr)
     if made:
         print(f"frictionwatch serve: token for acknowledge and baseline (this run only): {token}", flush=True)
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on"))
@@ -156,7 +158,6 @@ def _alerts_factory():
     try:
         from frictionwatch.service.alerts import AlertConfig, AlertEngine
     except ImportError:
-        print("frictionwatch serve: alerts are not part of this build; serving losses without alerts", file=sys.stderr)
         return None
     config = AlertConfig()
     return lambda engine_id, spec, baseline=None: AlertEngine(spec, config, baseline=baseline)
