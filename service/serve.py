@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import logging
 import re
+import signal
 import socket
 import sys
 from collections.abc import Sequence
@@ -143,8 +144,12 @@ def run(args: argparse.Namespace) -> int:
     if made:
         print(f"frictionwatch serve: token for acknowledge and baseline (this run only): {token}", flush=True)
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on"))
+    # uvicorn shuts down on SIGINT / SIGTERM (the lifespan stops every engine), then raises the signal again with
+    # the handlers it found: these make that a normal end (exit 0) instead of death by the signal
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: None)
     try:
-        server.run(sockets=[sock])  # SIGINT / SIGTERM: the lifespan stops every engine, then it returns
+        server.run(sockets=[sock])
     finally:
         sock.close()
         if data:
