@@ -87,19 +87,16 @@ const plots = throttle(refreshPlots, PLOT_INTERVAL_MS);
 const alerts = throttle(refreshAlerts, PLOT_INTERVAL_MS);
 
 async function acknowledge(alert, button) {
-  const token = $("token").value.trim();
-  if (!token) {
-    $("alerts-message").textContent = "Enter the service token first: acknowledging an alert changes state.";
-    $("token").focus();
-    return;
-  }
+  const token = $("token").value.trim();  // sent as it is: the service alone decides (401 without a good one)
   button.disabled = true;
   const r = await postWithToken(enginePath(state.engineId, `alerts/${alert.alert_id}/acknowledge`), token);
   const what = `alert ${alert.alert_id} (${alert.kind.replaceAll("_", " ")})`;
   if (r.ok) $("alerts-message").textContent = `Acknowledged ${what}.`;
   else if (r.status === 401 || r.status === 403) {
-    $("alerts-message").textContent = `Not acknowledged: the service refused the token (HTTP ${r.status}). `
-      + "Use the token in the service's --token-file.";
+    $("alerts-message").textContent = `Not acknowledged ${what}: `
+      + (token ? `the service refused the token (HTTP ${r.status}).` : `the service needs its token (HTTP ${r.status}).`)
+      + " Enter the token from the service's --token-file above.";
+    $("token").focus();
   } else $("alerts-message").textContent = `Not acknowledged ${what}: ${r.message}`;
   button.disabled = false;
   alerts();
