@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from tests.service.dashboard_browser import Chromium, find_chromium
+from tests.service.dashboard_browser import BrowserError, Chromium, find_chromium
 
 if find_chromium() is None:
     pytest.skip("no chromium on PATH: scripts/install-chromium.sh installs Debian's", allow_module_level=True)
@@ -88,7 +88,11 @@ def page(server, tmp_path_factory: pytest.TempPathFactory):
     with Chromium.start(tmp_path_factory.mktemp("chromium-profile")) as browser:
         page = browser.new_page(width=1400, height=1000)
         page.navigate(f"{server['base']}/")
-        page.wait_for("document.querySelectorAll('#losses-plot g.bar').length > 0", timeout=60)
+        try:
+            page.wait_for("document.querySelectorAll('#losses-plot g.bar').length > 0", timeout=60)
+        except BrowserError as exc:
+            said = page.evaluate("[...document.querySelectorAll('.error')].map(p => p.textContent).join(' | ')")
+            pytest.fail(f"{exc}; the page says: {said!r}; console: {page.console_errors}")
         yield page
 
 
@@ -167,10 +171,47 @@ def test_no_foreign_request_no_error_and_a_screenshot(page, server, tmp_path):
         (REPO / target).write_bytes(shot.read_bytes())
 
 
+def test_a_share_or_a_prior_is_never_drawn_like_a_measurement(page):
+    """The bar chart's own code on the five statuses (the demo log shows only some of them)."""
+    drawn = page.evaluate("""(async () => {
+        const { barPlot } = await import(new URL('static/plot.js', location.href).href);
+        const svg = document.createElementNS('http://www.w3.org/2000/svg', 'svg');
+        document.body.appendChild(svg);
+        const statuses = ['measured', 'share', 'prior', 'unresolved', 'withheld'];
+        barPlot(svg, { bars: statuses.map((status, k) => ({ cylinder: k + 1, status,
+            value: k < 3 ? 0.8 : null, sigma: k < 3 ? 0.05 : null })), yLabel: 'FMEP (bar)', unit: 'bar' });
+        const out = [...svg.querySelectorAll('g.bar')].map(g => {
+            const rect = g.querySelector('rect');
+            return { status: g.querySelector('.status-word').textContent, value: g.querySelector('.bar-value').textContent,
+                     cls: rect.getAttribute('class'), fill: getComputedStyle(rect).fill,
+                     whiskers: g.querySelectorAll('.whisker').length };
+        });
+        svg.remove();
+        return out;
+    })()""")
+    by_status = {d["status"]: d for d in drawn}
+    assert list(by_status) == ["measured", "share", "prior", "unresolved", "withheld"]
+    assert by_status["measured"]["value"] == "0.800" and by_status["measured"]["whiskers"] == 3
+    for status in ("share", "prior"):  # hatched, each its own pattern, with its number and whiskers
+        assert by_status[status]["fill"] == f'url("#hatch-{status}")'
+        assert by_status[status]["value"] == "0.800" and by_status[status]["whiskers"] == 3
+    assert by_status["measured"]["fill"].startswith("rgb(")  # solid
+    for status in ("unresolved", "withheld"):  # no value: an empty dashed outline and a dash, no whiskers
+        assert by_status[status]["cls"] == "bar-missing" and by_status[status]["value"] == "—"
+        assert by_status[status]["whiskers"] == 0
+
+
 def test_page_says_reconnecting_when_the_server_stops(page, server):
     """Last in the module: it stops the server."""
     proc = server["proc"]
     proc.send_signal(signal.SIGTERM)
-    proc.wait(timeout=30)
+    try:
+        proc.wait(timeout=30)
+        stopped = True
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        stopped = False
     page.wait_for("document.getElementById('live').dataset.state === 'reconnecting'", timeout=30)
     assert text(page, "live-text") == "reconnecting…"
+    assert stopped, "the server did not stop within 30 s of SIGTERM with a dashboard connected (its event stream held it)"

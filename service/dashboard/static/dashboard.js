@@ -1,12 +1,13 @@
 // frictionwatch dashboard: picks an engine, follows its cycles over Server-Sent Events and re-fetches the plots
-// a few times a second at most. The numbers of the "Now" panel come straight from each SSE cycle event; the plots
+// at most twice a second. The numbers of the "Now" panel come straight from each SSE cycle event; the plots
 // and tables from the API (throttled). Without events (stream down) everything is polled every few seconds.
 
 import { ENGINE_ID, enginePath, getJSON, postWithToken, throttle } from "./api.js";
 import { fmt, isNum } from "./format.js";
 import { renderAlerts, renderHealth, renderLosses, renderSpeed, renderTorque, showError } from "./render.js";
 
-const PLOT_INTERVAL_MS = 500;   // plots and tables: at most twice a second, whatever the cycle rate
+const FIGURES_INTERVAL_MS = 500;  // counters, per-cylinder bars and table: at most twice a second, whatever the cycle rate
+const TRACES_INTERVAL_MS = 1000;  // the traces (z+1 curves of a few hundred points each): once a second
 const POLL_MS = 5000;           // without cycle events: poll this often
 const STALE_S = 10;             // "live" but no cycle for this long: say so
 const TOKEN_KEY = "frictionwatch.token";
@@ -46,21 +47,29 @@ function selectedEngine() {
   return state.engines.find((e) => e.engine_id === state.engineId);
 }
 
-async function refreshPlots() {
+async function refreshFigures() {
   const id = state.engineId;
   if (!id) return;
   const win = $("window-select").value;
-  const [engines, losses, torque, speed, health] = await Promise.all([
+  const [engines, losses] = await Promise.all([
     getJSON("api/v1/engines"),
     getJSON(enginePath(id, win ? `losses?window_cycles=${win}` : "losses")),
-    getJSON(enginePath(id, "friction-torque")),
-    getJSON(enginePath(id, "speed")),
-    getJSON(enginePath(id, "sensor-health")),
   ]);
   if (id !== state.engineId) return;  // the engine was changed while these were in flight
   if (engines.ok) { state.engines = engines.data; showEngine(selectedEngine()); }
   showError("losses-error", losses.ok ? "" : `Per-cylinder figures not available: ${losses.message}`);
   if (losses.ok) renderLosses(losses.data, state.summary);
+}
+
+async function refreshTraces() {
+  const id = state.engineId;
+  if (!id) return;
+  const [torque, speed, health] = await Promise.all([
+    getJSON(enginePath(id, "friction-torque")),
+    getJSON(enginePath(id, "speed")),
+    getJSON(enginePath(id, "sensor-health")),
+  ]);
+  if (id !== state.engineId) return;
   showError("torque-error", torque.ok ? "" : `Friction torque not available: ${torque.message}`);
   if (torque.ok) renderTorque(torque.data, Number($("highlight-select").value) || null);
   showError("speed-error", speed.ok ? "" : `Speed not available: ${speed.message}`);
@@ -83,8 +92,10 @@ async function refreshAlerts() {
   else $("alerts-message").textContent = `Alerts not available: ${r.message}`;
 }
 
-const plots = throttle(refreshPlots, PLOT_INTERVAL_MS);
-const alerts = throttle(refreshAlerts, PLOT_INTERVAL_MS);
+const figures = throttle(refreshFigures, FIGURES_INTERVAL_MS);
+const traces = throttle(refreshTraces, TRACES_INTERVAL_MS);
+const plots = () => { figures(); traces(); };
+const alerts = throttle(refreshAlerts, FIGURES_INTERVAL_MS);
 
 async function acknowledge(alert, button) {
   const token = $("token").value.trim();  // sent as it is: the service alone decides (401 without a good one)
@@ -173,8 +184,8 @@ function setup() {
   token.value = sessionStorage.getItem(TOKEN_KEY) || "";
   token.addEventListener("input", () => sessionStorage.setItem(TOKEN_KEY, token.value));
   $("engine-select").addEventListener("change", (ev) => chooseEngine(ev.target.value));
-  $("window-select").addEventListener("change", () => plots());
-  $("highlight-select").addEventListener("change", () => plots());
+  $("window-select").addEventListener("change", () => figures());
+  $("highlight-select").addEventListener("change", () => traces());
   setInterval(() => {
     if (!state.engineId) return;
     if (state.connected) setLive("live");  // the "no cycle for N s" text
