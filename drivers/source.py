@@ -12,6 +12,7 @@ from collections import Counter
 from urllib.parse import parse_qsl, urlsplit
 
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
+from frictionwatch.drivers.timebase import Clocks
 
 log = logging.getLogger(__name__)
 
@@ -68,8 +69,10 @@ class Source(ABC):
         self.close()
 
 
-def open_source(url: str) -> Source:
-    """Open a source from ``scheme:target?key=value``. Unknown schemes raise ValueError listing the known ones."""
+def open_source(url: str, clocks: Clocks | None = None) -> Source:
+    """Open a source from ``scheme:target?key=value``. Unknown schemes raise ValueError listing the known ones.
+    ``clocks``: the timers of the session the source joins (live boards unwrap their timer there; None: the
+    process-wide set, drivers.timebase.shared_unwrapper)."""
     scheme, _, rest = url.partition(":")
     if scheme not in SOURCES or not rest:
         raise ValueError(f"unknown source '{url}'; expected one of: {', '.join(s + ':...' for s in SOURCES)}")
@@ -77,4 +80,4 @@ def open_source(url: str) -> Source:
     target = rest.split("?", 1)[0]
     options = dict(parse_qsl(parts.query)) if parts else {}
     module, cls = SOURCES[scheme]
-    return getattr(importlib.import_module(module), cls).from_url(target, options)
+    return getattr(importlib.import_module(module), cls).from_url(target, options, clocks=clocks)

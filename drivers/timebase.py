@@ -2,8 +2,8 @@
 
 The tooth board (serial) and the pressure DAQ (CAN) stamp their data with the same free-running timer
 (docs/protocols.md §1). Each raw value is unwrapped to the int64 tick nearest to the last unwrapped value, so all
-sources of one process that share a ``TimerUnwrapper`` (``shared_unwrapper("daq")``) agree on the epoch, whichever
-of them saw the timer first. This is exact while consecutive values of the timer seen by the process are less than
+sources of one session that share a ``TimerUnwrapper`` (``Clocks.get("daq")``; ``shared_unwrapper("daq")`` outside a
+session) agree on the epoch, whichever of them saw the timer first. This is exact while consecutive values of the timer seen by the process are less than
 2**31 ticks apart (214 s at 10 MHz); the serial board's heartbeat frame keeps that true while the engine stands.
 
 A value that maps further back than ``restart_threshold`` ticks (2**28) is a timer restart (board reset): the
@@ -126,22 +126,41 @@ class TimerUnwrapper:
             return out
 
 
-_SHARED: dict[str, TimerUnwrapper] = {}
-_SHARED_LOCK = threading.Lock()
+class Clocks:
+    """The timers of one acquisition (one board, one session): name -> ``TimerUnwrapper``, created on first use.
+
+    Sources of one session that read the same board name the same clock (``clock=daq`` in their URL, the default)
+    and so agree on its epoch. Two sessions in one process (two engines, two boards) each hold their own ``Clocks``:
+    one board's timer must never re-base another's (drivers.source.open_source takes the session's ``clocks``)."""
+
+    def __init__(self) -> None:
+        self._timers: dict[str, TimerUnwrapper] = {}
+        self._lock = threading.Lock()
+
+    def get(self, clock: str = "daq") -> TimerUnwrapper:
+        with self._lock:
+            if clock not in self._timers:
+                self._timers[clock] = TimerUnwrapper()
+            return self._timers[clock]
+
+    def forget(self, clock: str | None = None) -> None:
+        with self._lock:
+            if clock is None:
+                self._timers.clear()
+            else:
+                self._timers.pop(clock, None)
 
 
-def shared_unwrapper(clock: str = "daq") -> TimerUnwrapper:
-    """The process-wide unwrapper of the timer named ``clock`` (created on first use)."""
-    with _SHARED_LOCK:
-        if clock not in _SHARED:
-            _SHARED[clock] = TimerUnwrapper()
-        return _SHARED[clock]
+# the clocks of sources opened without a session's own (a single command-line session, tests): one per process
+_PROCESS_CLOCKS = Clocks()
+
+
+def shared_unwrapper(clock: str = "daq", clocks: Clocks | None = None) -> TimerUnwrapper:
+    """The unwrapper of the timer named ``clock`` in ``clocks`` (default: the process-wide set, for a process that
+    runs one session; a service running several engines passes each session's own)."""
+    return (clocks or _PROCESS_CLOCKS).get(clock)
 
 
 def forget_shared(clock: str | None = None) -> None:
-    """Drop the shared unwrapper(s) (tests, or a deliberate new session)."""
-    with _SHARED_LOCK:
-        if clock is None:
-            _SHARED.clear()
-        else:
-            _SHARED.pop(clock, None)
+    """Drop the process-wide unwrapper(s) (tests, or a deliberate new session)."""
+    _PROCESS_CLOCKS.forget(clock)

@@ -19,7 +19,7 @@ from frictionwatch.core.types import StreamRecord
 from frictionwatch.drivers.backoff import Backoff, ReconnectingLink
 from frictionwatch.drivers.can.decoder import CanDecoder
 from frictionwatch.drivers.source import Source
-from frictionwatch.drivers.timebase import TimerUnwrapper, shared_unwrapper
+from frictionwatch.drivers.timebase import Clocks, TimerUnwrapper, shared_unwrapper
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +62,7 @@ class CanSource(ReconnectingLink, Source):
         self._open()
 
     @classmethod
-    def from_url(cls, target: str, options: dict[str, str]) -> CanSource:
+    def from_url(cls, target: str, options: dict[str, str], clocks: Clocks | None = None) -> CanSource:
         interface, sep, channel = target.partition("/")
         if not sep or not interface or not channel:
             raise ValueError(f"expected can:<interface>/<channel>, e.g. can:socketcan/can0, got 'can:{target}'")
@@ -76,7 +76,7 @@ class CanSource(ReconnectingLink, Source):
             raise ValueError(f"unknown can option(s) {sorted(opts)}; known: fd, bitrate, data_bitrate, tick_hz, "
                              "clock, reorder")
         return cls(interface, channel, fd=fd, bus_kwargs=bus_kwargs, tick_hz=tick_hz,
-                   unwrapper=shared_unwrapper(clock), reorder_window=reorder)
+                   unwrapper=shared_unwrapper(clock, clocks), reorder_window=reorder)
 
     def _open(self) -> bool:
         try:

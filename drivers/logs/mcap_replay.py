@@ -1,7 +1,10 @@
 """``McapSource``: replay an MCAP log as a live source -- real time, N x, or as fast as possible, with start / seek.
 
-URL (drivers/source.py): ``mcap:PATH?speed=1|10|max&start=SECONDS`` -- ``speed`` defaults to ``max``; ``start`` is
-seconds after the first record of the log. Pacing follows the MCAP log time (derived from the timer ticks,
+URL (drivers/source.py): ``mcap:PATH?speed=1|10|max&start=SECONDS&loop=1`` -- ``speed`` defaults to ``max``;
+``start`` is seconds after the first record of the log; ``loop=1`` plays the log again from ``start`` when it ends,
+for ever (a demonstration service): each pass is moved later in timer ticks by the span of the pass before plus
+``LOOP_GAP_S`` of silence, so the stream's time never runs back (the cycle assembler sees an engine that stopped
+for a second and starts again, and resynchronises; the cycle cut at the seam is counted as skipped). Pacing follows the MCAP log time (derived from the timer ticks,
 docs/replay-format.md); a record is released once the wall clock, scaled by ``speed``, has reached its log time.
 """
 
@@ -10,14 +13,17 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import replace
 from pathlib import Path
 
-from frictionwatch.core.types import StreamRecord
+from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 from frictionwatch.drivers.errors import EndOfStream
 from frictionwatch.drivers.logs.mcap_log import LogReader
+from frictionwatch.drivers.logs.mcap_schema import last_tick
 from frictionwatch.drivers.source import Source
 
-_OPTIONS = ("speed", "start")
+_OPTIONS = ("speed", "start", "loop")
+LOOP_GAP_S = 1.0  # acquisition time between the end of one pass and the start of the next
 
 
 class McapSource(Source):
@@ -29,6 +35,7 @@ class McapSource(Source):
     speed : replay rate relative to real time (1 = real time); None = as fast as possible.
     start_s : start this many seconds after the first record of the log.
     max_records : most records returned by one ``read``.
+    loop : start again from ``start_s`` at the end of the log instead of ending (never raises EndOfStream).
     clock, sleep : monotonic clock [s] and sleep function; tests pass fakes.
     """
 
@@ -39,6 +46,7 @@ class McapSource(Source):
         speed: float | None = None,
         start_s: float = 0.0,
         max_records: int = 512,
+        loop: bool = False,
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
     ) -> None:
@@ -57,6 +65,13 @@ class McapSource(Source):
         self._iter: Iterator[tuple[int, StreamRecord]] = iter(())
         self._next: tuple[int, StreamRecord] | None = None
         self._anchor: tuple[float, int] | None = None  # (wall clock, log time) pair that pacing refers to
+        self.loop, self.passes = loop, 0  # passes: how many times the log has been played to its end
+        self._start_s = start_s
+        self._shift = 0  # ticks added to every record of this pass (loop)
+        self._pass_ticks: tuple[int, int] | None = None  # first and last tick of this pass, before the shift
+        if loop and self.info is None:
+            self._reader.close()
+            raise ValueError(f"{path}: loop=1 needs the log's acquisition metadata (its tick clock)")
         try:
             self.seek(start_s)
         except BaseException:  # CorruptLog when a full pass finds nothing readable
@@ -64,7 +79,8 @@ class McapSource(Source):
             raise
 
     @classmethod
-    def from_url(cls, target: str, options: dict[str, str]) -> McapSource:
+    def from_url(cls, target: str, options: dict[str, str], clocks: object = None) -> McapSource:
+        """``clocks`` is not used: a log carries its own unwrapped timer."""
         unknown = sorted(set(options) - set(_OPTIONS))
         if unknown:
             raise ValueError(f"mcap source: unknown option(s) {unknown}; known: {', '.join(_OPTIONS)}")
@@ -72,11 +88,15 @@ class McapSource(Source):
         try:
             speed = None if raw_speed == "max" else float(raw_speed)
             start = float(options.get("start", "0"))
+            loop = {"0": False, "1": True}[options.get("loop", "0")]
         except ValueError as exc:
-            raise ValueError(f"mcap source: speed must be a number or 'max' and start in seconds ({exc})") from exc
+            raise ValueError(f"mcap source: speed must be a number or 'max', start in seconds, loop 0 or 1 ({exc})"
+                             ) from exc
+        except KeyError as exc:
+            raise ValueError(f"mcap source: loop must be 0 or 1, got {exc}") from exc
         if not (start >= 0 and math.isfinite(start)):
             raise ValueError(f"mcap source: start must be >= 0 s, got {start}")
-        return cls(target, speed=speed, start_s=start)
+        return cls(target, speed=speed, start_s=start, loop=loop)
 
     @property
     def position_ns(self) -> int | None:
@@ -97,11 +117,29 @@ class McapSource(Source):
         assert self._next is not None
         record = self._next[1]
         self._next = next(self._iter, None)
-        return record
+        if not self.loop:
+            return record
+        key = int(last_tick(record))  # a record's first element is ms before its last: the gap covers that
+        seen = self._pass_ticks
+        self._pass_ticks = (key, key) if seen is None else (min(seen[0], key), max(seen[1], key))
+        return shifted(record, self._shift)
+
+    def _next_pass(self) -> None:
+        """Loop: the next pass starts LOOP_GAP_S after the last tick of this one."""
+        assert self.info is not None
+        if self._pass_ticks is None:  # nothing readable after start: looping would spin
+            raise EndOfStream(f"end of {self._reader.path}: nothing to loop over after {self._start_s} s")
+        first, last = self._pass_ticks
+        self._shift += last - first + round(LOOP_GAP_S * self.info.tick_hz)
+        self._pass_ticks = None
+        self.passes += 1
+        self.seek(self._start_s)
 
     def _read_internal(self, timeout: float | None) -> list[StreamRecord]:
         if self._next is None:
-            raise EndOfStream(f"end of {self._reader.path}")
+            if not self.loop:
+                raise EndOfStream(f"end of {self._reader.path}")
+            self._next_pass()
         if self.speed is None:
             return [self._advance() for _ in range(self._max) if self._next is not None]
         now = self._clock()
@@ -123,3 +161,16 @@ class McapSource(Source):
 
     def _close_internal(self) -> None:
         self._reader.close()
+
+
+def shifted(record: StreamRecord, ticks: int) -> StreamRecord:
+    """The record moved ``ticks`` later on the timer (the same record when ``ticks`` is 0)."""
+    if ticks == 0:
+        return record
+    if isinstance(record, ToothBatch | CamBatch):
+        return replace(record, ticks=record.ticks + ticks)
+    if isinstance(record, PressureBlock | PressureFrame):
+        return replace(record, t0_ticks=record.t0_ticks + ticks)
+    if isinstance(record, LoadSample):
+        return replace(record, ticks=record.ticks + ticks)
+    raise TypeError(f"not a stream record: {type(record).__name__}")

@@ -202,7 +202,8 @@ class Mdf4Source(Source):
         self._done = False
 
     @classmethod
-    def from_url(cls, target: str, options: dict[str, str]) -> Mdf4Source:
+    def from_url(cls, target: str, options: dict[str, str], clocks: object = None) -> Mdf4Source:
+        """``clocks`` is not used: a log file carries its own unwrapped timer."""
         opts = dict(options)
         speed = float(opts.pop("speed", "0"))
         tick_hz = float(opts.pop("tick_hz", "10e6"))

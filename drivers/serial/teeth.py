@@ -22,7 +22,7 @@ from frictionwatch.core.types import AcquisitionInfo, CamBatch, StreamRecord, To
 from frictionwatch.drivers.backoff import Backoff, ReconnectingLink
 from frictionwatch.drivers.serial.codec import CamFrame, Decoder, Frame, InfoFrame, TeethFrame
 from frictionwatch.drivers.source import Source
-from frictionwatch.drivers.timebase import TimerUnwrapper, shared_unwrapper
+from frictionwatch.drivers.timebase import Clocks, TimerUnwrapper, shared_unwrapper
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +67,7 @@ class SerialSource(ReconnectingLink, Source):
         self._open(first=True)
 
     @classmethod
-    def from_url(cls, target: str, options: dict[str, str]) -> SerialSource:
+    def from_url(cls, target: str, options: dict[str, str], clocks: Clocks | None = None) -> SerialSource:
         opts = dict(options)
         info = None
         if "tick_hz" in opts:
@@ -82,7 +82,8 @@ class SerialSource(ReconnectingLink, Source):
         if opts:
             raise ValueError(f"unknown serial option(s) {sorted(opts)}; known: baud, clock, reorder, tick_hz, teeth, "
                              "missing, first_tooth_deg, cam_deg")
-        return cls(target, baud=baud, info=info, unwrapper=shared_unwrapper(clock), reorder_window=reorder)
+        return cls(target, baud=baud, info=info, unwrapper=shared_unwrapper(clock, clocks),
+                   reorder_window=reorder)
 
     # --- port handling -------------------------------------------------------------------------------------------
     def _open(self, first: bool = False) -> bool:

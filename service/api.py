@@ -1,0 +1,238 @@
+"""The HTTP API of the service (FastAPI): the contract's routes over a set of EngineService (docs in /openapi.json).
+
+    app = create_app(services, token=token)      # attaches the SSE and metrics listeners to every engine
+    uvicorn.run(app, host="127.0.0.1", port=8080)  # the app's lifespan starts and stops the engines
+
+Reads come from each engine's LatestState (service/listeners.py); what a friction figure is comes from
+core/monitor/figure_status.py through service/api_views.py. State changes (acknowledge, baseline) need the
+token (service/security.py). No request value becomes a file path: the dashboard's files are listed once at start
+and served by name from that list.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from collections.abc import AsyncIterator, Sequence
+from contextlib import asynccontextmanager
+from pathlib import Path as FilePath
+from typing import Annotated, Literal
+
+from fastapi import Body, Depends, FastAPI, Header, HTTPException, Path, Query, Request
+from fastapi.responses import FileResponse, Response
+from frictionwatch.service import api_views as views
+from frictionwatch.service.api_models import (
+    Acknowledge,
+    Alert,
+    BaselineResult,
+    CycleSummary,
+    EngineInfo,
+    ErrorBody,
+    FrictionTorque,
+    Health,
+    Losses,
+    SensorHealth,
+    Speed,
+)
+from frictionwatch.service.engine_service import EngineService
+from frictionwatch.service.listeners import ServiceEvent, SseBroadcaster
+from frictionwatch.service.metrics import ServiceMetrics
+from frictionwatch.service.security import ENGINE_ID, bearer_ok
+from sse_starlette import EventSourceResponse
+
+DASHBOARD_DIR = FilePath(__file__).with_name("dashboard")
+STALE_S = 10.0  # an engine whose newest result is older than this is 'degraded' in /health
+MAX_CYCLES = 100_000
+ERRORS = {404: {"model": ErrorBody}, 422: {"model": ErrorBody}}
+EngineId = Annotated[str, Path(pattern=ENGINE_ID.pattern, description="engine slug [a-z0-9-]{1,40}")]
+
+
+def encode_event(event: ServiceEvent) -> list[tuple[str, str]]:
+    """A fan-out event as SSE items: a 'cycle' (CycleSummary) and one 'alert' per alert change."""
+    items = []
+    if event.result is not None:
+        items.append(("cycle", json.dumps(views.cycle_summary(event.engine_id, event.result))))
+    items += [("alert", json.dumps(a)) for a in event.alerts]
+    return items
+
+
+def create_app(services: Sequence[EngineService], token: str | None = None, *, ping_s: float = 15.0,
+               client_queue: int = 64, dashboard_dir: FilePath = DASHBOARD_DIR, manage: bool = True) -> FastAPI:
+    """``manage``: the app's lifespan starts the engines and stops them at shutdown."""
+    engines = {s.engine_id: s for s in services}
+    if len(engines) != len(services):
+        raise ValueError(f"engine ids must be distinct: {[s.engine_id for s in services]}")
+    sse = SseBroadcaster(encode_event, client_queue=client_queue)
+    metrics = ServiceMetrics(lambda: list(engines.values()), lambda: sse.dropped)
+    for s in services:
+        s.add_listener(sse)
+        s.add_listener(metrics.listener(s.engine_id))
+    files = _dashboard_files(dashboard_dir)
+    started = time.monotonic()
+    cache: dict[str, tuple[int, dict]] = {}  # engine id -> (newest index, smoothed losses): one computation a cycle
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        if manage:
+            for s in services:
+                s.start()
+        try:
+            yield
+        finally:
+            if manage:
+                await asyncio.gather(*(asyncio.to_thread(s.stop) for s in services))
+
+    app = FastAPI(title="frictionwatch", version="1", lifespan=lifespan,
+                  description="Live per-cylinder friction losses and alerts. Units in field names.")
+    app.state.services, app.state.sse, app.state.metrics, app.state.token = engines, sse, metrics, token
+
+    def newest(svc: EngineService, last: int | None = None) -> tuple:
+        whole, ring = svc.state.snapshot(last)
+        if whole is None:
+            raise HTTPException(503, f"engine '{svc.engine_id}' has no analysed cycle yet", headers={"Retry-After": "2"})
+        return whole, ring
+
+    @app.get("/api/v1/health", response_model=Health)
+    def health() -> dict:
+        now = time.monotonic()
+        rows = [{"engine_id": s.engine_id, "running": s.running, "sources_ended": s.sources_ended,
+                 "last_cycle_age_s": None if s.last_result_s is None else now - s.last_result_s}
+                for s in engines.values()]
+        ok = all(r["running"] and r["last_cycle_age_s"] is not None and r["last_cycle_age_s"] < STALE_S for r in rows)
+        return {"status": "ok" if ok else "degraded", "uptime_s": now - started, "engines": rows}
+
+    @app.get("/api/v1/engines", response_model=list[EngineInfo])
+    def engine_list() -> list[dict]:
+        out = []
+        for s in engines.values():
+            whole, _ = s.state.snapshot(1)
+            out.append({"engine_id": s.engine_id, "engine_name": s.spec.name, "n_cylinders": s.spec.n_cyl,
+                        "sources": s.urls, "cycles_ok": s.session.cycles_ok, "skipped": dict(s.session.skipped),
+                        "rpm_latest": None if whole is None else views.num(whole.rpm_mean),
+                        "listener_drops": s.fanout.drops, "listener_errors": s.fanout.errors,
+                        "session_errors": dict(s.session.errors), "alert_errors": s.alert_errors,
+                        "sse_clients": sse.clients})
+        return out
+
+    @app.get("/api/v1/engines/{engine_id}/cycles/latest", response_model=CycleSummary, responses=ERRORS)
+    def latest_cycle(svc: Svc) -> dict:
+        whole, _ = newest(svc, 1)
+        return views.cycle_summary(svc.engine_id, whole)
+
+    @app.get("/api/v1/engines/{engine_id}/losses", response_model=Losses, responses=ERRORS)
+    def losses(svc: Svc, window_cycles: Annotated[int | None, Query(ge=1, le=MAX_CYCLES)] = None) -> dict:
+        if window_cycles is not None:
+            _, ring = newest(svc, window_cycles)
+            return views.losses_window(svc.engine_id, ring, svc.term_names)
+        whole, _ = newest(svc, 1)
+        hit = cache.get(svc.engine_id)
+        if hit is None or hit[0] != whole.index:
+            whole, ring = newest(svc)
+            hit = cache[svc.engine_id] = (whole.index, views.losses_now(svc.engine_id, ring, svc.term_names))
+        return hit[1]
+
+    @app.get("/api/v1/engines/{engine_id}/friction-torque", response_model=FrictionTorque, responses=ERRORS)
+    def friction_torque(svc: Svc) -> dict:
+        whole, _ = newest(svc, 1)
+        return views.friction_torque(whole)
+
+    @app.get("/api/v1/engines/{engine_id}/speed", response_model=Speed, responses=ERRORS)
+    def speed(svc: Svc, cycles: Annotated[int, Query(ge=1, le=MAX_CYCLES)] = 200) -> dict:
+        whole, ring = newest(svc, cycles)
+        return views.speed(whole, ring)
+
+    @app.get("/api/v1/engines/{engine_id}/sensor-health", response_model=SensorHealth, responses=ERRORS)
+    def sensor_health(svc: Svc) -> dict:
+        whole, _ = newest(svc, 1)
+        return views.sensor_health(whole)
+
+    @app.get("/api/v1/engines/{engine_id}/alerts", response_model=list[Alert], responses=ERRORS)
+    def alerts(svc: Svc, state: Literal["active", "all"] = "active") -> list[dict]:
+        return svc.alert_list(active_only=state == "active")
+
+    @app.post("/api/v1/engines/{engine_id}/alerts/{alert_id}/acknowledge", response_model=Alert,
+              dependencies=[Depends(authorised)], responses={401: {"model": ErrorBody}, **ERRORS})
+    def acknowledge(svc: Svc, alert_id: Annotated[int, Path(ge=1, le=2**31 - 1)],
+                    body: Annotated[Acknowledge | None, Body()] = None) -> dict:
+        try:
+            return svc.acknowledge(alert_id, (body or Acknowledge()).by)
+        except LookupError as exc:
+            raise HTTPException(404, str(exc)) from exc
+
+    @app.post("/api/v1/engines/{engine_id}/baseline", response_model=BaselineResult,
+              dependencies=[Depends(authorised)], responses={401: {"model": ErrorBody}, **ERRORS})
+    def baseline(svc: Svc) -> dict:
+        try:
+            return svc.rebaseline()
+        except LookupError as exc:
+            raise HTTPException(404, str(exc)) from exc
+
+    @app.get("/api/v1/stream", responses=ERRORS)
+    async def stream(request: Request, engine_id: Annotated[str | None, Query(pattern=ENGINE_ID.pattern)] = None):
+        if engine_id is not None:
+            service(request, engine_id)
+        client = sse.subscribe(engine_id)
+
+        async def events() -> AsyncIterator[dict]:
+            try:
+                while not await request.is_disconnected():
+                    try:
+                        kind, data = await asyncio.wait_for(client.queue.get(), timeout=1.0)
+                    except TimeoutError:
+                        continue
+                    yield {"event": kind, "data": data}
+            finally:
+                sse.unsubscribe(client)
+
+        return EventSourceResponse(events(), ping=ping_s)
+
+    @app.get("/metrics", include_in_schema=False)
+    def prometheus() -> Response:
+        return Response(metrics.text(), media_type="text/plain; version=0.0.4; charset=utf-8")
+
+    @app.get("/", include_in_schema=False)
+    def dashboard() -> Response:
+        page = files.get("index.html")
+        if page is None:
+            raise HTTPException(404, "the dashboard is not installed (service/dashboard/index.html)")
+        return FileResponse(page)
+
+    @app.get("/static/{name:path}", include_in_schema=False)
+    def static(name: str) -> Response:
+        path = files.get("static/" + name)  # a lookup in the list made at start, never a path built from the request
+        if path is None:
+            raise HTTPException(404, "no such file")
+        return FileResponse(path)
+
+    return app
+
+
+def service(request: Request, engine_id: EngineId) -> EngineService:
+    """The engine named in the path (404 naming the known ones; the pattern gives 422 before this)."""
+    engines = request.app.state.services
+    if engine_id not in engines:
+        raise HTTPException(404, f"no engine '{engine_id}'; known: {', '.join(sorted(engines))}")
+    return engines[engine_id]
+
+
+def authorised(request: Request, authorization: Annotated[str | None, Header()] = None) -> None:
+    if not bearer_ok(authorization, request.app.state.token):
+        raise HTTPException(401, "this change needs 'Authorization: Bearer <token>' (the serve --token-file)",
+                            headers={"WWW-Authenticate": "Bearer"})
+
+
+Svc = Annotated[EngineService, Depends(service)]
+
+
+def _dashboard_files(root: FilePath) -> dict[str, FilePath]:
+    """index.html and every file under static/, by their relative names (symlinks out of the folder are left out)."""
+    if not root.is_dir():
+        return {}
+    base = root.resolve()
+    out = {}
+    for p in [root / "index.html", *sorted((root / "static").rglob("*"))]:
+        real = p.resolve()
+        if p.is_file() and real.is_relative_to(base):
+            out[p.relative_to(root).as_posix()] = real
+    return out

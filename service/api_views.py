@@ -1,0 +1,147 @@
+"""What the API shows of the monitor's results, as the contract's plain dicts (service/api_models.py types them).
+
+No figure is decided here: what a friction figure is (measured, share, prior, unresolved, withheld) comes from
+``core.monitor.figure_status.friction_status`` through ``CycleResult.to_json``, with the window and the active flags
+chosen exactly as ``frictionwatch analyze`` chooses them (service/cmd_analyze.summary, docs/results.md), so the API
+never shows a prior or a share as a measurement and says the same as the analyze JSON for the same cycles.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict
+
+import numpy as np
+from frictionwatch.core.monitor.figure_status import friction_status, split_flag
+from frictionwatch.core.monitor.results import PA_PER_BAR, CycleResult
+from frictionwatch.core.monitor.run_summary import active_flags, estimate_window, mean_and_sem
+
+RPM_PER_RAD_S = 30.0 / math.pi
+FIGURE_VALUES = ("fmep_bar", "fmep_sigma_bar", "friction_torque_mean_nm", "friction_torque_sigma_nm")
+
+
+def num(x: float) -> float | None:
+    v = float(x)
+    return v if math.isfinite(v) else None
+
+
+def cycle_summary(engine_id: str, r: CycleResult) -> dict:
+    """CycleSummary (contract): one cycle's measured quantities and its flags."""
+    return {"engine_id": engine_id, "cycle_index": int(r.index), "t_start_s": num(r.t_start),
+            "rpm_mean": num(r.rpm_mean), "load_torque_nm": num(r.load_torque), "load_power_kw": num(r.load_power / 1e3),
+            "imep_bar": [num(v / PA_PER_BAR) for v in r.imep], "pmax_bar": [num(v / PA_PER_BAR) for v in r.pmax],
+            "friction_balance_nm": num(r.friction_balance), "flags": list(r.flags)}
+
+
+def _cylinder_loss(k: int, cyl: dict, names: Sequence[str], flags: frozenset[str] | Sequence[str]) -> dict:
+    """CylinderLoss from one cylinder of ``CycleResult.to_json``: the figure as shown, with its status."""
+    fig = cyl["friction"]
+    coefs, sigmas = cyl["coefficients"], cyl["coefficients_sigma"]
+    labels = list(names) if len(names) == len(coefs) else [f"term{i + 1}" for i in range(len(coefs))]
+    return {"cylinder": k + 1, **{key: fig[key] for key in FIGURE_VALUES},
+            "coefficients": dict(zip(labels, coefs)), "coefficient_sigmas": dict(zip(labels, sigmas)),
+            "data_weight": fig["data_weight"], "status": fig["status"], "reason": fig["reason"],
+            "flags": sorted(f for f in flags if split_flag(f)[1] == k + 1)}
+
+
+def cylinder_losses(r: CycleResult, names: Sequence[str]) -> list[dict]:
+    """Each cylinder's smoothed loss as this one result reads it (its own flags): what a store keeps per cycle."""
+    doc = r.to_json()
+    return [_cylinder_loss(k, c, names, r.flags) for k, c in enumerate(doc["cylinders"])]
+
+
+def losses_now(engine_id: str, results: Sequence[CycleResult], names: Sequence[str]) -> dict:
+    """The monitor's smoothed estimate at the newest result, over the window it stands for (cmd_analyze.summary)."""
+    last = results[-1]
+    window = estimate_window([r.index for r in results], [r.smoothed.weight for r in results])
+    active = active_flags([r.flags for r in results], window.effective_cycles)
+    doc = last.to_json(status=friction_status(last.smoothed, active), window=asdict(window))
+    eng = doc["friction"]
+    return {"engine_id": engine_id, "cycle_index": int(last.index), "estimate": "smoothed",
+            "window": {"first_cycle": window.first_cycle, "last_cycle": window.last_cycle,
+                       "cycles": num(window.effective_cycles), "centre_cycle": window.centre_cycle,
+                       "forgetting": window.forgetting},
+            "engine": {**{key: eng[key] for key in FIGURE_VALUES}, "status": eng["status"], "reason": eng["reason"]},
+            "active_flags": sorted(active),
+            "cylinders": [_cylinder_loss(k, c, names, active) for k, c in enumerate(doc["cylinders"])]}
+
+
+def losses_window(engine_id: str, results: Sequence[CycleResult], names: Sequence[str]) -> dict:
+    """Each cylinder's per-cycle friction (each cycle's own estimate) averaged over ``results`` (the window), with
+    the 1-sigma of the mean from the cycle-to-cycle scatter. A mean is given only where every cycle of the window
+    shows the figure with the same status (all measured, or all shares); otherwise the status of the window is the
+    newest cycle's with the active flags, or 'unresolved' saying how many cycles measured it."""
+    last = results[-1]
+    active = active_flags([r.flags for r in results], len(results))
+    docs = [r.to_json(smoothed=False) for r in results]
+    status = last.to_json(smoothed=False, status=friction_status(last.cycle, active))
+    cylinders = []
+    for k, cyl in enumerate(status["cylinders"]):
+        figs = [d["cylinders"][k]["friction"] for d in docs]
+        loss = _cylinder_loss(k, cyl, names, active)
+        kinds = {f["status"] for f in figs}
+        if loss["status"] in ("withheld", "unresolved"):
+            pass  # the newest cycle's status with the window's flags: no value
+        elif len(kinds) == 1 and loss["status"] in kinds:
+            for key, sigma_key in (("friction_torque_mean_nm", "friction_torque_sigma_nm"), ("fmep_bar", "fmep_sigma_bar")):
+                mean, sem, n = mean_and_sem([np.nan if f[key] is None else f[key] for f in figs])
+                loss[key], loss[sigma_key] = num(mean), (num(sem) if n > 1 else loss[sigma_key])
+            weights = [f["data_weight"] for f in figs if f["data_weight"] is not None]
+            loss["data_weight"] = float(np.mean(weights)) if weights else None
+            loss["coefficients"] = _mean_dict([d["cylinders"][k] for d in docs], loss["coefficients"])
+        else:
+            n_measured = sum(f["status"] == "measured" for f in figs)
+            loss.update(dict.fromkeys(FIGURE_VALUES), status="unresolved",
+                        reason=f"the figure's status changed within the window (measured in {n_measured} of "
+                               f"{len(figs)} cycles): no mean over the window; see the estimate without a window")
+        cylinders.append(loss)
+    eng_mean, eng_sem, n = mean_and_sem([np.nan if d["fmep_bar"] is None else d["fmep_bar"] for d in docs])
+    return {"engine_id": engine_id, "cycle_index": int(last.index), "estimate": "window",
+            "window": {"first_cycle": int(results[0].index), "last_cycle": int(last.index), "cycles": len(results)},
+            "engine": {"fmep_bar": num(eng_mean) if n == len(docs) else None,
+                       "fmep_sigma_bar": num(eng_sem) if n == len(docs) else None,
+                       "status": "measured" if n == len(docs) else "unresolved",
+                       "reason": None if n == len(docs) else f"the engine's friction was measured in {n} of "
+                                                             f"{len(docs)} cycles of the window"},
+            "active_flags": sorted(active), "cylinders": cylinders}
+
+
+def _mean_dict(cyls: list[dict], labelled: dict) -> dict:
+    arr = np.array([[np.nan if v is None else v for v in c["coefficients"]] for c in cyls], dtype=float)
+    with np.errstate(invalid="ignore"):
+        means = np.nanmean(arr, axis=0) if np.isfinite(arr).any() else np.full(arr.shape[1], np.nan)
+    return {name: num(m) for name, m in zip(labelled, means)}
+
+
+def friction_torque(r: CycleResult) -> dict:
+    """The newest whole result's friction torque vs crank angle (engine total and per cylinder)."""
+    if r.grid is None or r.friction_torque is None:
+        raise LookupError("the newest result carries no traces")
+    cyl = r.friction_torque_cyl
+    return {"cycle_index": int(r.index), "crank_angle_deg": np.degrees(r.grid).tolist(),
+            "friction_torque_nm": _finite_list(r.friction_torque),
+            "friction_torque_cyl_nm": [] if cyl is None else [_finite_list(row) for row in cyl]}
+
+
+def speed(r: CycleResult, history: Sequence[CycleResult]) -> dict:
+    """The newest whole result's measured and model flywheel speed [rpm] on the crank-angle grid, and the mean speed
+    of the recent cycles."""
+    if r.grid is None or r.speed_measured is None or r.speed_model is None:
+        raise LookupError("the newest result carries no traces")
+    return {"cycle_index": int(r.index), "crank_angle_deg": np.degrees(r.grid).tolist(),
+            "speed_measured_rpm": _finite_list(r.speed_measured * RPM_PER_RAD_S),
+            "speed_model_rpm": _finite_list(r.speed_model * RPM_PER_RAD_S),
+            "history": {"cycle_index": [int(h.index) for h in history], "rpm_mean": [num(h.rpm_mean) for h in history]}}
+
+
+def sensor_health(r: CycleResult) -> dict:
+    """The sensor-health stage's estimates (docs/results.md); ``enabled`` False when the stage is off."""
+    if r.sensor_health is None:
+        return {"enabled": False, "cylinders": [], "flags": sorted(f for f in r.flags if split_flag(f)[0].startswith("sensor_"))}
+    doc = r.sensor_health.to_json()
+    return {"enabled": True, **doc}
+
+
+def _finite_list(a: np.ndarray) -> list[float | None]:
+    return [num(v) for v in np.asarray(a, dtype=float)]

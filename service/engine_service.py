@@ -1,0 +1,170 @@
+"""One engine of the service: a LiveSession (sources -> one pipeline), its alert engine, and the fan-out of results.
+
+    svc = EngineService("genset-v20", model, info, {"log": source}, alerts=AlertEngine factory or None,
+                        listeners=[store_listener])
+    svc.start() ... svc.stop()
+    svc.state.snapshot()          # what the API reads (service.listeners.LatestState)
+
+Threads: the session's readers and ingest thread, one thread per listener. On the ingest thread, right after each
+result: the alert engine's update (cheap, its state is the engine's own), then ``Fanout.publish`` which never
+blocks. Acknowledge and re-baseline come from the API's threads: the alert engine is guarded by a lock.
+
+Latency. Each source is wrapped so the time its reader got each batch is kept with the batch's newest tick; a
+result's arrival time is when, for the last source to get there, the batch reaching the cycle's end tick was read.
+``result_s - arrived_s`` is what the metrics histogram shows (record arrival -> result).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
+
+from frictionwatch.core.model.engine_model import EngineModel
+from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.types import AcquisitionInfo, StreamRecord
+from frictionwatch.drivers.source import Source
+from frictionwatch.service.listeners import Fanout, LatestState, ServiceEvent
+from frictionwatch.service.live import LiveSession, record_key
+from frictionwatch.service.security import valid_engine_id
+
+log = logging.getLogger(__name__)
+
+AlertsFactory = Callable[[str, Any], Any]  # (engine id, EngineSpec) -> an AlertEngine (contract: update, active,
+#                                            history, acknowledge, rebaseline, baseline)
+STAMPS_KEPT = 4096  # batches remembered per source for the latency (a few seconds of a genset's records)
+
+
+class StampedSource(Source):
+    """A source as it is, plus (newest tick, monotonic time) of each batch its reader got."""
+
+    def __init__(self, inner: Source) -> None:
+        super().__init__()
+        self.inner = inner
+        self.damage = inner.damage
+        self.info, self.engine_toml = inner.info, inner.engine_toml
+        self.stamps: deque[tuple[float, float]] = deque(maxlen=STAMPS_KEPT)
+
+    def _read_internal(self, timeout: float | None) -> list[StreamRecord]:
+        records = self.inner.read(timeout)
+        if records:
+            self.stamps.append((max(record_key(r) for r in records), time.monotonic()))
+        return records
+
+    def _close_internal(self) -> None:
+        self.inner.close()
+
+    def arrival(self, tick: float) -> float | None:
+        """When the first batch reaching ``tick`` was read (None: not yet, or no longer remembered). Results come in
+        tick order, so older stamps are let go."""
+        stamps = self.stamps
+        while len(stamps) > 1 and stamps[0][0] < tick:
+            stamps.popleft()
+        return stamps[0][1] if stamps and stamps[0][0] >= tick else None
+
+
+class EngineService:
+    """See the module docstring. ``sources``: {name: Source} (the service closes them); ``urls``: how they were
+    named (shown by /engines); ``alerts``: a factory of the engine's AlertEngine, or None (no alerts)."""
+
+    def __init__(self, engine_id: str, model: EngineModel, info: AcquisitionInfo, sources: Mapping[str, Source], *,
+                 urls: Iterable[str] = (), alerts: AlertsFactory | None = None, listeners: Iterable[Any] = (),
+                 history_cycles: int = 5000, queue_size: int = 256, **session_options: Any) -> None:
+        if not valid_engine_id(engine_id):
+            raise ValueError(f"engine id {engine_id!r} must be 1-40 of a-z, 0-9 and '-'")
+        self.engine_id, self.model, self.spec, self.info = engine_id, model, model.spec, info
+        self.urls = list(urls)
+        self.term_names = tuple(model.augmented().terms.names)
+        self.alerts = alerts(engine_id, model.spec) if alerts is not None else None
+        self._alerts_lock = threading.Lock()
+        self.state = LatestState(max_results=history_cycles)
+        self.fanout = Fanout([self.state, *listeners], queue_size=queue_size)
+        self._stamped = {name: StampedSource(src) for name, src in sources.items()}
+        self.session = LiveSession(model, info, self._stamped, on_result=self._on_result, start=False,
+                                   max_results=max(64, history_cycles), **session_options)
+        self.started_s: float | None = None
+        self.last_result_s: float | None = None
+        self.alert_errors = 0
+
+    # --- life cycle ----------------------------------------------------------------------------------------------
+    def add_listener(self, listener: Any) -> None:
+        self.fanout.add(listener)
+
+    def start(self) -> EngineService:
+        self.started_s = time.monotonic()
+        self.fanout.start()
+        self.session.start()
+        return self
+
+    def stop(self, timeout: float = 2.0) -> None:
+        """Stop the session (its ingest thread gets ``timeout`` to drain; a backlog beyond that is abandoned with
+        the process, logged by the session), then the listeners after they have delivered what is queued."""
+        self.session.stop(timeout)
+        self.fanout.stop(timeout)
+
+    @property
+    def running(self) -> bool:
+        return self.started_s is not None and any(t.is_alive() for t in self.session.threads)
+
+    @property
+    def sources_ended(self) -> bool:
+        return len(self.session.merge.ended) == len(self.session.sources)
+
+    # --- the ingest thread ---------------------------------------------------------------------------------------
+    def _on_result(self, result: CycleResult) -> None:
+        now = time.monotonic()
+        self.last_result_s = now
+        alerts: tuple[dict, ...] = ()
+        if self.alerts is not None:
+            with self._alerts_lock:
+                try:
+                    alerts = tuple(self._alert_dict(ev.alert) for ev in self.alerts.update(result))
+                except Exception as exc:  # noqa: BLE001 - a fault in the alert layer must not stop the monitor
+                    if self.alert_errors == 0:
+                        log.error("%s: alert update failed: %s", self.engine_id, exc, exc_info=exc)
+                    self.alert_errors += 1
+        self.fanout.publish(ServiceEvent(self.engine_id, result, now, self._arrival(result), alerts,
+                                         term_names=self.term_names))
+
+    def _arrival(self, result: CycleResult) -> float | None:
+        end_tick = (result.t_start + 120.0 / result.rpm_mean) * self.info.tick_hz if result.rpm_mean > 0 else None
+        if end_tick is None:
+            return None
+        times = [t for s in self._stamped.values() if (t := s.arrival(end_tick)) is not None]
+        return max(times) if times else None
+
+    # --- alerts (API threads) ------------------------------------------------------------------------------------
+    def _alert_dict(self, alert: Any) -> dict:
+        return {"engine_id": self.engine_id, **alert.to_dict()}
+
+    def alert_list(self, active_only: bool) -> list[dict]:
+        if self.alerts is None:
+            return []
+        with self._alerts_lock:
+            alerts = self.alerts.active() if active_only else self.alerts.history()
+            return [self._alert_dict(a) for a in alerts]
+
+    def acknowledge(self, alert_id: int, by: str) -> dict:
+        """Raises LookupError when the engine has no such alert (the alert engine's KeyError)."""
+        if self.alerts is None:
+            raise LookupError(f"engine {self.engine_id} runs without alerts")
+        with self._alerts_lock:
+            try:
+                alert = self._alert_dict(self.alerts.acknowledge(alert_id, by))
+            except KeyError as exc:
+                raise LookupError(f"engine {self.engine_id} has no alert {alert_id}") from exc
+        self.fanout.publish(ServiceEvent(self.engine_id, None, time.monotonic(), alerts=(alert,)))
+        return alert
+
+    def rebaseline(self) -> dict:
+        if self.alerts is None:
+            raise LookupError(f"engine {self.engine_id} runs without alerts")
+        with self._alerts_lock:
+            self.alerts.rebaseline()
+            baseline = self.alerts.baseline
+            doc = baseline.to_dict() if baseline is not None else None
+        self.fanout.publish(ServiceEvent(self.engine_id, None, time.monotonic(), baseline=doc))
+        return {"ok": True, "engine_id": self.engine_id, "baseline": doc}

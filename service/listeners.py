@@ -1,0 +1,276 @@
+"""Fan-out of an engine's results to its consumers, after python-can's Notifier / Listener.
+
+    fanout = Fanout([state, sse, metrics, store_listener])   # each listener gets its own bounded queue and thread
+    fanout.publish(event)        # from the ingest thread: never blocks; a full queue drops the event and counts it
+    fanout.drops, fanout.errors  # per listener name
+    fanout.stop()                # each thread delivers what is queued, then the listener's stop() is called
+
+A listener is any object with ``on_message_received(event)`` (python-can's name), optionally ``on_error(exc)``,
+``stop()`` and ``name``; a plain callable works too. An exception in a listener is counted (``errors``), passed to
+its ``on_error`` and logged once; the listener keeps receiving. The events are ``ServiceEvent``: one per analysed
+cycle (``result`` set, with the alert changes that cycle caused) and one per state change made through the API
+(``result`` None: an acknowledged alert, a new baseline).
+
+The listeners of the API live here: ``LatestState`` (what the routes read) and ``SseBroadcaster`` (the stream).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import queue
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+from frictionwatch.core.monitor.results import CycleResult
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ServiceEvent:
+    """What the fan-out carries. ``arrived_s``: monotonic time the reader got the record that completed the cycle
+    (None when not known); ``result_s``: when the result reached the fan-out. ``alerts``: Alert dicts (contract
+    shape, with engine_id) raised, updated, cleared or acknowledged; ``baseline``: a new alert baseline (to_dict)."""
+
+    engine_id: str
+    result: CycleResult | None
+    result_s: float
+    arrived_s: float | None = None
+    alerts: tuple[dict, ...] = ()
+    baseline: dict | None = None
+    term_names: tuple[str, ...] = field(default=())
+
+
+class Listener:
+    """Base of the fan-out's listeners (python-can's can.Listener): override ``on_message_received``."""
+
+    name = "listener"
+
+    def on_message_received(self, event: ServiceEvent) -> None:
+        raise NotImplementedError
+
+    def on_error(self, exc: BaseException) -> None:  # noqa: B027 - optional hook
+        pass
+
+    def stop(self) -> None:  # noqa: B027 - optional hook
+        pass
+
+
+class _Callback(Listener):
+    def __init__(self, fn: Callable[[ServiceEvent], None]) -> None:
+        self.fn, self.name = fn, getattr(fn, "__name__", "callback")
+
+    def on_message_received(self, event: ServiceEvent) -> None:
+        self.fn(event)
+
+
+class _Worker:
+    """One listener's queue and thread."""
+
+    def __init__(self, listener: Any, name: str, queue_size: int) -> None:
+        self.listener, self.name = listener, name
+        self.queue: queue.Queue = queue.Queue(maxsize=queue_size)
+        self.drops = 0
+        self.errors: Counter[str] = Counter()
+        self.delivered = 0
+        self._stopping = threading.Event()
+        self.thread = threading.Thread(target=self._run, name=f"listener-{name}", daemon=True)
+
+    def _run(self) -> None:
+        while True:
+            try:
+                event = self.queue.get(timeout=0.1)
+            except queue.Empty:
+                if self._stopping.is_set():
+                    return
+                continue
+            try:
+                self.listener.on_message_received(event)
+                self.delivered += 1
+            except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the others or the monitor
+                reason = type(exc).__name__
+                if not self.errors:
+                    log.error("listener %s failed: %s", self.name, exc, exc_info=exc)
+                self.errors[reason] += 1
+                on_error = getattr(self.listener, "on_error", None)
+                if on_error is not None:
+                    try:
+                        on_error(exc)
+                    except Exception:  # noqa: BLE001 - its error hook failing is logged, nothing more
+                        log.exception("listener %s: on_error failed", self.name)
+
+
+class Fanout:
+    """Delivers each published event to every listener on the listener's own thread (see the module docstring)."""
+
+    def __init__(self, listeners: Iterable[Any] = (), queue_size: int = 256) -> None:
+        if queue_size < 1:
+            raise ValueError(f"queue_size must be >= 1, got {queue_size}")
+        self.queue_size = queue_size
+        self._workers: list[_Worker] = []
+        self._started = False
+        for listener in listeners:
+            self.add(listener)
+
+    def add(self, listener: Any) -> None:
+        if not hasattr(listener, "on_message_received"):
+            if not callable(listener):
+                raise TypeError(f"a listener needs on_message_received(event) or to be callable: {listener!r}")
+            listener = _Callback(listener)
+        name = str(getattr(listener, "name", type(listener).__name__))
+        taken = {w.name for w in self._workers}
+        unique, i = name, 2
+        while unique in taken:
+            unique, i = f"{name}-{i}", i + 1
+        worker = _Worker(listener, unique, self.queue_size)
+        self._workers.append(worker)
+        if self._started:
+            worker.thread.start()
+
+    def start(self) -> None:
+        if not self._started:
+            self._started = True
+            for w in self._workers:
+                w.thread.start()
+
+    def publish(self, event: ServiceEvent) -> None:
+        """Never blocks: a listener whose queue is full loses this event (counted in ``drops``)."""
+        for w in self._workers:
+            try:
+                w.queue.put_nowait(event)
+            except queue.Full:
+                if w.drops == 0:
+                    log.warning("listener %s is behind: its queue of %d is full, events dropped", w.name,
+                                self.queue_size)
+                w.drops += 1
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Deliver what is queued, then stop each listener (its ``stop()``)."""
+        for w in self._workers:
+            w._stopping.set()
+        deadline = time.monotonic() + timeout
+        for w in self._workers:
+            if w.thread.is_alive():
+                w.thread.join(max(0.0, deadline - time.monotonic()))
+            stop = getattr(w.listener, "stop", None)
+            if stop is not None:
+                try:
+                    stop()
+                except Exception:  # noqa: BLE001 - one listener failing to stop must not keep the others
+                    log.exception("listener %s: stop failed", w.name)
+
+    @property
+    def names(self) -> list[str]:
+        return [w.name for w in self._workers]
+
+    @property
+    def drops(self) -> dict[str, int]:
+        return {w.name: w.drops for w in self._workers}
+
+    @property
+    def errors(self) -> dict[str, int]:
+        return {w.name: sum(w.errors.values()) for w in self._workers}
+
+    @property
+    def queued(self) -> dict[str, int]:
+        return {w.name: w.queue.qsize() for w in self._workers}
+
+
+class LatestState(Listener):
+    """What the API reads of one engine: the newest whole result, a bounded ring of recent results (slim: no
+    traces), the alert changes. Thread-safe; ``snapshot`` copies under the lock."""
+
+    name = "api-state"
+
+    def __init__(self, max_results: int = 5000) -> None:
+        if max_results < 2:
+            raise ValueError(f"max_results must be >= 2, got {max_results}")
+        self._lock = threading.Lock()
+        self._ring: deque[CycleResult] = deque(maxlen=max_results)
+        self.newest: CycleResult | None = None
+        self.newest_s: float | None = None  # monotonic time the newest result became visible here
+        self.updated = threading.Condition(self._lock)
+
+    def on_message_received(self, event: ServiceEvent) -> None:
+        if event.result is None:
+            return
+        with self._lock:
+            if self._ring and self.newest is not None:
+                self._ring[-1] = self.newest.slim()  # only the newest keeps its traces
+            self._ring.append(event.result)
+            self.newest, self.newest_s = event.result, time.monotonic()
+            self.updated.notify_all()
+
+    def snapshot(self, last: int | None = None) -> tuple[CycleResult | None, list[CycleResult]]:
+        """The newest whole result and the last ``last`` results held (all when None), oldest first."""
+        with self._lock:
+            ring = list(self._ring) if last is None else list(self._ring)[-last:]
+            return self.newest, ring
+
+    def wait_index(self, index: int, timeout: float) -> bool:
+        with self._lock:
+            return self.updated.wait_for(lambda: self.newest is not None and self.newest.index >= index, timeout)
+
+
+class SseClient:
+    """One stream client: an asyncio queue filled from listener threads through its event loop."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, engine_id: str | None, queue_size: int) -> None:
+        self.loop, self.engine_id = loop, engine_id
+        self.queue: asyncio.Queue = asyncio.Queue(maxsize=queue_size)
+        self.dropped = 0
+
+    def offer(self, item: tuple[str, str]) -> None:  # on the client's event loop
+        try:
+            self.queue.put_nowait(item)
+        except asyncio.QueueFull:
+            self.dropped += 1
+
+
+class SseBroadcaster(Listener):
+    """Turns events into ("cycle" | "alert", json) and offers them to every subscribed client; a slow client's
+    full queue drops (counted per client and in ``dropped``), never the others'."""
+
+    name = "sse"
+
+    def __init__(self, encode: Callable[[ServiceEvent], list[tuple[str, str]]], client_queue: int = 64) -> None:
+        self.encode, self.client_queue = encode, client_queue
+        self._clients: set[SseClient] = set()
+        self._lock = threading.Lock()
+        self.dropped = 0  # events lost to slow clients, all clients together
+
+    def subscribe(self, engine_id: str | None) -> SseClient:
+        client = SseClient(asyncio.get_running_loop(), engine_id, self.client_queue)
+        with self._lock:
+            self._clients.add(client)
+        return client
+
+    def unsubscribe(self, client: SseClient) -> None:
+        with self._lock:
+            self._clients.discard(client)
+            self.dropped += client.dropped
+            client.dropped = 0
+
+    @property
+    def clients(self) -> int:
+        with self._lock:
+            return len(self._clients)
+
+    def on_message_received(self, event: ServiceEvent) -> None:
+        with self._lock:
+            clients = [c for c in self._clients if c.engine_id in (None, event.engine_id)]
+        if not clients:
+            return
+        items = self.encode(event)
+        for client in clients:
+            for item in items:
+                try:
+                    client.loop.call_soon_threadsafe(client.offer, item)
+                except RuntimeError:  # its loop has closed: the client is gone
+                    self.unsubscribe(client)
+                    break

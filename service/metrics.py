@@ -1,0 +1,96 @@
+"""Prometheus metrics of the service on the app's own CollectorRegistry (never the process-global one, so two apps
+in one process, or a test, never share series).
+
+    frictionwatch_fmep_bar{engine,cylinder}        smoothed FMEP where measured (NaN where it is a share, the
+                                                    prior, unresolved or withheld: a prior is never a reading)
+    frictionwatch_engine_fmep_bar{engine}           the engine's FMEP where measured, NaN otherwise
+    frictionwatch_cycles_processed_total{engine}    cycles analysed
+    frictionwatch_cycles_skipped_total{engine,reason}
+    frictionwatch_cycle_latency_seconds{engine}     histogram: the record completing a cycle read -> its result
+    frictionwatch_listener_drops_total{engine,listener}  events a full listener queue dropped
+    frictionwatch_sse_dropped_total                 events slow stream clients lost
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from typing import Any
+
+from frictionwatch.service.listeners import Listener, ServiceEvent
+from prometheus_client import CollectorRegistry, Gauge, Histogram, generate_latest
+from prometheus_client.core import CounterMetricFamily
+from prometheus_client.registry import Collector
+
+LATENCY_BUCKETS_S = (0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
+
+
+class ServiceMetrics:
+    """The app's registry and the metrics updated per cycle (the counters are read from the engines at scrape)."""
+
+    def __init__(self, engines: Callable[[], Iterable[Any]], sse_dropped: Callable[[], int]) -> None:
+        self.registry = CollectorRegistry(auto_describe=True)
+        self.fmep = Gauge("frictionwatch_fmep_bar", "Smoothed FMEP per cylinder where measured (NaN otherwise)",
+                          ["engine", "cylinder"], registry=self.registry)
+        self.engine_fmep = Gauge("frictionwatch_engine_fmep_bar", "Smoothed engine FMEP where measured (NaN otherwise)",
+                                 ["engine"], registry=self.registry)
+        self.latency = Histogram("frictionwatch_cycle_latency_seconds", "Record completing a cycle read -> result",
+                                 ["engine"], buckets=LATENCY_BUCKETS_S, registry=self.registry)
+        self.registry.register(_EngineCounters(engines, sse_dropped))
+
+    def listener(self, engine_id: str) -> MetricsListener:
+        return MetricsListener(self, engine_id)
+
+    def text(self) -> bytes:
+        return generate_latest(self.registry)
+
+
+class MetricsListener(Listener):
+    name = "metrics"
+
+    def __init__(self, metrics: ServiceMetrics, engine_id: str) -> None:
+        self.metrics, self.engine_id = metrics, engine_id
+
+    def on_message_received(self, event: ServiceEvent) -> None:
+        r = event.result
+        if r is None:
+            return
+        m = self.metrics
+        if event.arrived_s is not None:
+            m.latency.labels(self.engine_id).observe(max(0.0, event.result_s - event.arrived_s))
+        doc = r.to_json()  # status from this cycle's flags (figure_status): only a measurement is exported
+        eng = doc["friction"]
+        m.engine_fmep.labels(self.engine_id).set(_measured(eng))
+        for c in doc["cylinders"]:
+            m.fmep.labels(self.engine_id, str(c["cylinder"])).set(_measured(c["friction"]))
+
+
+def _measured(figure: dict) -> float:
+    v = figure["fmep_bar"]
+    return float(v) if figure["status"] == "measured" and v is not None else math.nan
+
+
+class _EngineCounters(Collector):
+    """Counters read from each engine service at scrape time (the session and the fan-out own the counts)."""
+
+    def __init__(self, engines: Callable[[], Iterable[Any]], sse_dropped: Callable[[], int]) -> None:
+        self.engines, self.sse_dropped = engines, sse_dropped
+
+    def collect(self) -> Iterable[CounterMetricFamily]:
+        ok = CounterMetricFamily("frictionwatch_cycles_processed", "Cycles analysed", labels=["engine"])
+        skipped = CounterMetricFamily("frictionwatch_cycles_skipped", "Cycles lost, by reason",
+                                      labels=["engine", "reason"])
+        drops = CounterMetricFamily("frictionwatch_listener_drops", "Events dropped by a full listener queue",
+                                    labels=["engine", "listener"])
+        for e in self.engines():
+            ok.add_metric([e.engine_id], e.session.cycles_ok)
+            for reason, n in sorted(e.session.skipped.items()):
+                skipped.add_metric([e.engine_id, reason], n)
+            for name, n in e.fanout.drops.items():
+                drops.add_metric([e.engine_id, name], n)
+        sse = CounterMetricFamily("frictionwatch_sse_dropped", "Events lost to slow stream clients")
+        sse.add_metric([], self.sse_dropped())
+        yield from (ok, skipped, drops, sse)
+
+    def describe(self) -> Iterable[CounterMetricFamily]:
+        return []

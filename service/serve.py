@@ -1,0 +1,209 @@
+"""`frictionwatch serve`: live per-cylinder losses and alerts over HTTP, one pipeline per engine, several engines in
+one process.
+
+    frictionwatch serve --source 'mcap:replay_logs/demo.mcap?loop=1&speed=1'
+    frictionwatch serve --source 'serial:/dev/ttyUSB0?baud=921600#genset-1' --source 'can:socketcan/can0#genset-1'
+
+Sources (drivers/source.py URLs) that end in the same ``#ID`` feed one engine (a tooth board and a pressure DAQ of
+one genset); a source without ``#ID`` is an engine of its own, named after its engine (``genset-v20``, then
+``genset-v20-2``). Each engine's sources share their own timer clocks (drivers.timebase.Clocks). The engine model
+is the one named by ``--engine`` or the spec the source carries (a replay log).
+
+Safety (service/security.py): 127.0.0.1 by default; another address only with --token-file. Without a token file a
+token is made at start and printed once: acknowledging and re-baselining always need it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import re
+import socket
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from frictionwatch.drivers.source import Source, open_source
+from frictionwatch.drivers.timebase import Clocks
+from frictionwatch.service.engine_service import EngineService
+from frictionwatch.service.pipeline import resolve_model
+from frictionwatch.service.security import ENGINE_ID, check_bind, new_token, read_token
+
+log = logging.getLogger(__name__)
+DEFAULT_SOURCE = "mcap:replay_logs/demo.mcap?loop=1&speed=1"
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("serve", help="serve live losses, alerts and the dashboard over HTTP")
+    p.add_argument("--source", action="append", metavar="URL[#ID]",
+                   help=f"a source URL, '#ID' names its engine (repeatable; default {DEFAULT_SOURCE})")
+    p.add_argument("--engine", help="engine preset, engine TOML or model TOML for every engine (default: the spec "
+                                    "the source carries)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 picks a free one)")
+    p.add_argument("--data-dir", type=Path, help="keep cycles, estimates, alerts and baselines in DIR/frictionwatch.db")
+    p.add_argument("--token-file", type=Path, help="file holding the token state changes need (required off loopback)")
+    p.add_argument("--history-cycles", type=int, default=5000, help="recent cycles each engine holds for the API")
+    p.set_defaults(func=run)
+
+
+def engine_groups(urls: Sequence[str]) -> list[tuple[str | None, list[str]]]:
+    """[(engine id or None, [source URLs])] in command-line order; '#ID' groups sources into one engine."""
+    groups: dict[str, list[str]] = {}
+    out: list[tuple[str | None, list[str]]] = []
+    for raw in urls:
+        url, sep, ident = raw.rpartition("#") if "#" in raw else (raw, "", "")
+        if not sep:
+            out.append((None, [raw]))
+            continue
+        if not ENGINE_ID.fullmatch(ident):
+            raise ValueError(f"--source {raw}: the engine id after '#' must be 1-40 of a-z, 0-9 and '-'")
+        if ident not in groups:
+            groups[ident] = []
+            out.append((ident, groups[ident]))
+        groups[ident].append(url)
+    return out
+
+
+def slug(name: str) -> str:
+    s = re.sub(r"[^a-z0-9-]+", "-", name.lower()).strip("-")[:36]
+    return s or "engine"
+
+
+def build_engine(ident: str | None, urls: list[str], engine: str | None, taken: set[str], **options) -> EngineService:
+    """Open the sources of one engine (closed again if anything fails) and wire its EngineService."""
+    clocks = Clocks()
+    sources: dict[str, Source] = {}
+    try:
+        for i, url in enumerate(urls):
+            sources[f"{url.partition(':')[0]}{i}"] = open_source(url, clocks)
+        info = next((s.info for s in sources.values() if s.info is not None), None)
+        if info is None:
+            raise ValueError(f"{', '.join(urls)}: no source states the acquisition (tick clock, wheel); give the "
+                             "serial source tick_hz=..., teeth=..., missing=...")
+        toml = next((s.engine_toml for s in sources.values() if s.engine_toml), None)
+        model = resolve_model(toml, engine, urls[0], info)
+        engine_id = ident or _free_id(slug(model.spec.name), taken)
+        if engine_id in taken:
+            raise ValueError(f"engine id {engine_id} given twice")
+        taken.add(engine_id)
+        return EngineService(engine_id, model, info, sources, urls=urls, **options)
+    except BaseException:
+        for s in sources.values():
+            s.close()
+        raise
+
+
+def _free_id(base: str, taken: set[str]) -> str:
+    if base not in taken:
+        return base
+    i = 2
+    while f"{base}-{i}" in taken:
+        i += 1
+    return f"{base}-{i}"
+
+
+def run(args: argparse.Namespace) -> int:
+    import uvicorn
+    from frictionwatch.service.api import create_app
+
+    token = read_token(args.token_file) if args.token_file else None
+    check_bind(args.host, token)
+    if not 0 <= args.port <= 65535:
+        raise ValueError(f"--port must be 0..65535, got {args.port}")
+    if args.history_cycles < 64:
+        raise ValueError(f"--history-cycles must be >= 64, got {args.history_cycles}")
+    data = DataDir(args.data_dir) if args.data_dir else None
+    alerts = _alerts_factory()
+    services: list[EngineService] = []
+    taken: set[str] = set()
+    try:
+        for ident, urls in engine_groups(args.source or [DEFAULT_SOURCE]):
+            svc = build_engine(ident, urls, args.engine, taken, history_cycles=args.history_cycles,
+                               alerts=data.with_baseline(alerts) if data and alerts else alerts)
+            if data:
+                data.attach(svc)
+            services.append(svc)
+        sock = _bind(args.host, args.port)
+    except BaseException:
+        for s in services:
+            s.stop()
+        if data:
+            data.close()
+        raise
+    made = token is None
+    token = token or new_token()
+    app = create_app(services, token=token)
+    host, port = sock.getsockname()[:2]
+    shown = f"[{host}]" if ":" in host else host
+    print(f"frictionwatch serve: dashboard at http://{shown}:{port}/ ; engines: "
+          + ", ".join(f"{s.engine_id} ({s.spec.name}, {' + '.join(s.urls)})" for s in services), flush=True)
+    if made:
+        print(f"frictionwatch serve: token for acknowledge and baseline (this run only): {token}", flush=True)
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on"))
+    try:
+        server.run(sockets=[sock])  # SIGINT / SIGTERM: the lifespan stops every engine, then it returns
+    finally:
+        sock.close()
+        if data:
+            data.close()
+    return 0
+
+
+def _alerts_factory():
+    """(engine_id, spec, baseline=None) -> AlertEngine when the alert layer is installed (service/alerts.py), else
+    None: the service then serves losses without alerts, and says so."""
+    try:
+        from frictionwatch.service.alerts import AlertConfig, AlertEngine
+    except ImportError:
+        print("frictionwatch serve: alerts are not part of this build; serving losses without alerts", file=sys.stderr)
+        return None
+    config = AlertConfig()
+    return lambda engine_id, spec, baseline=None: AlertEngine(spec, config, baseline=baseline)
+
+
+class DataDir:
+    """--data-dir: the store (service/store, SQLite in WAL mode) at DIR/frictionwatch.db. Each engine is registered
+    (its model version), its alert baseline is loaded at start, and a StoreListener joins its fan-out."""
+
+    def __init__(self, folder: Path) -> None:
+        try:
+            from frictionwatch.service.store import StoreListener, open_store
+        except ImportError as exc:
+            raise ValueError(f"--data-dir needs the store (service/store), not part of this build ({exc})") from exc
+        if folder.exists() and not folder.is_dir():
+            raise NotADirectoryError(f"--data-dir {folder} is a file, expected a folder")
+        folder.mkdir(parents=True, exist_ok=True)
+        self.store = open_store(str(folder / "frictionwatch.db"))
+        self._listener = StoreListener
+
+    def with_baseline(self, make):
+        def factory(engine_id, spec):
+            saved = self.store.load_baseline(engine_id)
+            if saved is None:
+                return make(engine_id, spec)
+            from frictionwatch.service.alerts import Baseline
+
+            return make(engine_id, spec, baseline=Baseline.from_dict(saved))
+        return factory
+
+    def attach(self, svc: EngineService) -> None:
+        self.store.register_engine(svc.engine_id, svc.model.to_toml())
+        svc.add_listener(self._listener(self.store, svc.engine_id))
+
+    def close(self) -> None:
+        self.store.close()
+
+
+def _bind(host: str, port: int) -> socket.socket:
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((host, port))
+        sock.listen(128)
+    except OSError as exc:
+        sock.close()
+        raise OSError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from exc
+    sock.set_inheritable(True)
+    return sock
