@@ -69,7 +69,7 @@ def server(tmp_path_factory: pytest.TempPathFactory):
     port = free_port()
     log = tmp / "serve.log"
     cmd = [sys.executable, "-m", "frictionwatch.service.cli", "serve", "--source", SOURCE, "--host", "127.0.0.1",
-           "--port", str(port), "--data-dir", str(tmp / "data"), "--token-file", str(token)]
+           "--port", str(port), "--token-file", str(token)]  # no --data-dir: the page needs no store
     with log.open("wb") as out:
         proc = subprocess.Popen(cmd, cwd=REPO, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
     base = f"http://127.0.0.1:{port}"
@@ -156,6 +156,8 @@ def test_alerts_match_the_api_and_the_token_is_kept_per_tab(page, server):
     page.evaluate("(() => { const t = document.getElementById('token'); t.value = 'abc';"
                   " t.dispatchEvent(new Event('input')); })()")
     assert page.evaluate("sessionStorage.getItem('frictionwatch.token')") == "abc"
+    page.evaluate("(() => { const t = document.getElementById('token'); t.value = '';"
+                  " t.dispatchEvent(new Event('input')); })()")
 
 
 def test_no_foreign_request_no_error_and_a_screenshot(page, server, tmp_path):

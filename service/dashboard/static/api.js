@@ -31,10 +31,10 @@ async function call(path, init) {
 
 export const getJSON = (path) => call(path, { method: "GET" });
 
-export function postWithToken(path, token) {
+export function postWithToken(path, token, body = {}) {
   const headers = { "Content-Type": "application/json" };
   if (token) headers.Authorization = `Bearer ${token}`;
-  return call(path, { method: "POST", headers, body: "{}" });
+  return call(path, { method: "POST", headers, body: JSON.stringify(body) });
 }
 
 /** Runs fn at most once per `ms`: requests made while a run is scheduled share it; one made while fn runs

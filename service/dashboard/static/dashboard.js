@@ -11,6 +11,7 @@ const TRACES_INTERVAL_MS = 1000;  // the traces (z+1 curves of a few hundred poi
 const POLL_MS = 5000;           // without cycle events: poll this often
 const STALE_S = 10;             // "live" but no cycle for this long: say so
 const TOKEN_KEY = "frictionwatch.token";
+const BY_KEY = "frictionwatch.acknowledged-by";
 
 const $ = (id) => document.getElementById(id);
 const state = { engines: [], engineId: null, summary: null, es: null, lastCycleAt: 0, connected: false };
@@ -71,7 +72,7 @@ async function refreshTraces() {
   ]);
   if (id !== state.engineId) return;
   showError("torque-error", torque.ok ? "" : `Friction torque not available: ${torque.message}`);
-  if (torque.ok) renderTorque(torque.data, Number($("highlight-select").value) || null);
+  if (torque.ok) renderTorque(torque.data, Number($("highlight-select").value) || null, $("show-total").checked);
   showError("speed-error", speed.ok ? "" : `Speed not available: ${speed.message}`);
   if (speed.ok) renderSpeed(speed.data);
   showError("health-error", health.ok ? "" : `Sensor health not available: ${health.message}`);
@@ -100,7 +101,9 @@ const alerts = throttle(refreshAlerts, FIGURES_INTERVAL_MS);
 async function acknowledge(alert, button) {
   const token = $("token").value.trim();  // sent as it is: the service alone decides (401 without a good one)
   button.disabled = true;
-  const r = await postWithToken(enginePath(state.engineId, `alerts/${alert.alert_id}/acknowledge`), token);
+  const by = $("ack-by").value.trim();
+  const r = await postWithToken(enginePath(state.engineId, `alerts/${alert.alert_id}/acknowledge`), token,
+    by ? { by } : {});
   const what = `alert ${alert.alert_id} (${alert.kind.replaceAll("_", " ")})`;
   if (r.ok) $("alerts-message").textContent = `Acknowledged ${what}.`;
   else if (r.status === 401 || r.status === 403) {
@@ -180,12 +183,15 @@ async function start() {
 }
 
 function setup() {
-  const token = $("token");
-  token.value = sessionStorage.getItem(TOKEN_KEY) || "";
-  token.addEventListener("input", () => sessionStorage.setItem(TOKEN_KEY, token.value));
+  for (const [id, key] of [["token", TOKEN_KEY], ["ack-by", BY_KEY]]) {
+    const input = $(id);
+    input.value = sessionStorage.getItem(key) || "";
+    input.addEventListener("input", () => sessionStorage.setItem(key, input.value));
+  }
   $("engine-select").addEventListener("change", (ev) => chooseEngine(ev.target.value));
   $("window-select").addEventListener("change", () => figures());
   $("highlight-select").addEventListener("change", () => traces());
+  $("show-total").addEventListener("change", () => traces());
   setInterval(() => {
     if (!state.engineId) return;
     if (state.connected) setLive("live");  // the "no cycle for N s" text

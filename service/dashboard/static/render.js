@@ -28,11 +28,14 @@ export function renderLosses(losses, summary) {
     yLabel: "FMEP (bar)", unit: "bar",
   });
   const w = losses.window;
-  $("losses-window").textContent = w && isNum(w.cycles)
-    ? `cycles ${w.first_cycle}–${w.last_cycle} (${w.cycles} cycles), as of cycle ${losses.cycle_index}`
-    : `as of cycle ${losses.cycle_index}`;
+  // a window: the cycles behind the figures; the smoothed estimate: its effective number of cycles
+  const span = w && isNum(w.first_cycle) ? `cycles ${w.first_cycle}–${w.last_cycle}` : `up to cycle ${losses.cycle_index}`;
+  $("losses-window").textContent = !w || !isNum(w.cycles) ? `as of cycle ${losses.cycle_index}`
+    : isNum(w.forgetting) ? `smoothed over ${span}: about ${fmt(w.cycles, 0)} effective cycles (forgetting factor ${w.forgetting})`
+      : `${span} (${fmt(w.cycles, 0)} cycles)`;
   const body = $("losses-table").tBodies[0];
   body.replaceChildren();
+  const notes = new Map();  // reason (its data weight left out: the table has a column for it) -> cylinders
   for (const c of cyls) {
     const row = body.insertRow();
     row.dataset.cylinder = c.cylinder;
@@ -47,23 +50,44 @@ export function renderLosses(losses, summary) {
     cell(row, summary && summary.imep_bar ? fmt(summary.imep_bar[k], 2) : "—");
     cell(row, summary && summary.pmax_bar ? fmt(summary.pmax_bar[k], 1) : "—");
     cell(row, (c.flags || []).join(", ") || "none", "text");
-    cell(row, c.reason || "", "text");
+    cell(row, c.reason ? `note ${noteOf(notes, c)}` : "", "text");
   }
+  renderNotes(notes);
   const e = losses.engine || {};
   $("engine-fmep").textContent = isNum(e.fmep_bar)
     ? `${fmt(e.fmep_bar)} ± ${fmt(e.fmep_sigma_bar)} bar${e.status ? ` (${e.status})` : ""}`
     : `—${e.status ? ` (${e.status})` : ""}`;
 }
 
-export function renderTorque(ft, highlight) {
+/** The note number of a cylinder's reason: cylinders whose reasons differ only in the data weight share one. */
+function noteOf(notes, c) {
+  const key = c.reason.replace(/\s*\(data weight [^)]*\)/, "");
+  if (!notes.has(key)) notes.set(key, { status: c.status, cylinders: [] });
+  notes.get(key).cylinders.push(c.cylinder);
+  return [...notes.keys()].indexOf(key) + 1;
+}
+
+function renderNotes(notes) {
+  const list = $("losses-notes");
+  list.replaceChildren();
+  [...notes.entries()].forEach(([reason, n], i) => {
+    const li = document.createElement("li");
+    const cyls = n.cylinders.length > 1 ? `cylinders ${n.cylinders.join(", ")}` : `cylinder ${n.cylinders[0]}`;
+    li.textContent = `note ${i + 1}, ${n.status} (${cyls}): ${reason}`;
+    list.appendChild(li);
+  });
+}
+
+/** showTotal false: the cylinders alone, on a scale of their own (the total is z times larger). */
+export function renderTorque(ft, highlight, showTotal) {
   const x = ft.crank_angle_deg || [];
   const perCyl = ft.friction_torque_cyl_nm || [];
   const series = perCyl.map((y, k) => ({ x, y, cls: k + 1 === highlight ? "series-highlight" : "series-cyl",
     label: `cylinder ${k + 1}` }));
   const hl = series.findIndex((s) => s.cls === "series-highlight");
   if (hl >= 0) series.push(series.splice(hl, 1)[0]);  // drawn on top
-  series.push({ x, y: ft.friction_torque_nm || [], cls: "series-total", label: "total" });
-  const legend = [{ cls: "series-total", label: "total" }];
+  if (showTotal) series.push({ x, y: ft.friction_torque_nm || [], cls: "series-total", label: "total" });
+  const legend = showTotal ? [{ cls: "series-total", label: "total" }] : [];
   if (perCyl.length) legend.push({ cls: "series-cyl", label: `each cylinder (${perCyl.length})` });
   if (hl >= 0) legend.push({ cls: "series-highlight", label: `cylinder ${highlight}` });
   linePlot($("torque-plot"), { series, legend, xLabel: "crank angle (°CA)", yLabel: "friction torque (N·m)" });
