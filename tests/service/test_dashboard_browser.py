@@ -133,11 +133,13 @@ def test_page_names_the_engine_and_draws_one_bar_per_cylinder(page, server):
 def test_live_indicator_and_cycle_counter(page):
     page.wait_for("document.getElementById('live').dataset.state === 'live'", timeout=30)
     assert text(page, "live-text").startswith("live")
-    first = int(text(page, "cycles-processed"))
-    latest = int(text(page, "cycle-index").split()[0].lstrip("#"))
+    events = "Number(document.getElementById('live').dataset.cycleEvents || 0)"
+    first, latest, first_events = (int(text(page, "cycles-processed")),
+                                   int(text(page, "cycle-index").split()[0].lstrip("#")), page.evaluate(events))
     time.sleep(3.0)  # the demo log replays at real time: 1500 rpm, 12.5 cycles/s
     assert int(text(page, "cycles-processed")) > first
     assert int(text(page, "cycle-index").split()[0].lstrip("#")) > latest
+    assert page.evaluate(events) > first_events  # by the event stream, not the page's fallback poll
     for element_id, unit in (("rpm", "rpm"), ("load", "kW"), ("friction-balance", "N·m"), ("engine-fmep", "bar")):
         assert unit in text(page, element_id), element_id
 

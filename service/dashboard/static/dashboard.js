@@ -14,7 +14,7 @@ const TOKEN_KEY = "frictionwatch.token";
 const BY_KEY = "frictionwatch.acknowledged-by";
 
 const $ = (id) => document.getElementById(id);
-const state = { engines: [], engineId: null, summary: null, es: null, lastCycleAt: 0, connected: false };
+const state = { engines: [], engineId: null, summary: null, es: null, lastCycleAt: 0, connected: false, cycleEvents: 0 };
 
 function setLive(mode) {
   const p = $("live");
@@ -134,6 +134,8 @@ function connectStream() {
     try { s = JSON.parse(ev.data); } catch { return; }  // a malformed event: the next one will do
     if (s.engine_id !== id) return;
     state.lastCycleAt = Date.now();
+    state.cycleEvents += 1;
+    $("live").dataset.cycleEvents = state.cycleEvents;  // read by the browser test: the numbers came by the stream
     showSummary(s);
     setLive("live");
     plots();
