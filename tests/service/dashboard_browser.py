@@ -20,6 +20,7 @@ import fcntl
 import json
 import os
 import shutil
+import socket
 import subprocess
 import sys
 import threading
@@ -39,6 +40,13 @@ class BrowserError(RuntimeError):
 
 def find_chromium() -> str | None:
     return shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def free_port() -> int:
+    """A loopback port nothing listens on now (for the server the page is opened on)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 def _above(fd: int, lowest: int) -> int:

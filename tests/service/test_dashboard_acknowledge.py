@@ -17,8 +17,7 @@ import httpx
 import pytest
 import uvicorn
 
-from tests.service.dashboard_browser import Chromium, find_chromium
-from tests.service.test_dashboard_browser import free_port
+from tests.service.dashboard_browser import Chromium, find_chromium, free_port
 
 if find_chromium() is None:
     pytest.skip("no chromium on PATH: scripts/install-chromium.sh installs Debian's", allow_module_level=True)

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -26,24 +25,18 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from tests.service.dashboard_browser import BrowserError, Chromium, find_chromium
+from tests.service.dashboard_browser import BrowserError, Chromium, find_chromium, free_port
 
 if find_chromium() is None:
     pytest.skip("no chromium on PATH: scripts/install-chromium.sh installs Debian's", allow_module_level=True)
 
 REPO = Path(__file__).resolve().parents[2]
-SOURCE = "mcap:replay_logs/demo.mcap?loop=1"
+SOURCES = ("mcap:replay_logs/demo.mcap?loop=1", "mcap:replay_logs/k9k-4cyl.mcap?loop=1")  # two engines: a picker
 STATUSES = {"measured", "share", "prior", "unresolved", "withheld"}
 # the first run compiles the numba kernels: 1-2 min on an idle machine; `analyze demo.mcap` took 10.7 min of wall
 # time (2.3 min of CPU) on this 2-core machine with eight other jobs running
 START_TIMEOUT_S = 900
 pytestmark = pytest.mark.timeout(START_TIMEOUT_S + 300)  # pytest-timeout counts the module fixtures' set-up
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_for_first_cycle(base: str, proc: subprocess.Popen[bytes], log: Path) -> list[dict]:
@@ -68,8 +61,10 @@ def server(tmp_path_factory: pytest.TempPathFactory):
     token.write_text("dashboard-test-token\n")
     port = free_port()
     log = tmp / "serve.log"
-    cmd = [sys.executable, "-m", "frictionwatch.service.cli", "serve", "--source", SOURCE, "--host", "127.0.0.1",
-           "--port", str(port), "--token-file", str(token)]  # no --data-dir: the page needs no store
+    cmd = [sys.executable, "-m", "frictionwatch.service.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
+           "--token-file", str(token)]  # no --data-dir: the page needs no store
+    for url in SOURCES:
+        cmd += ["--source", url]
     with log.open("wb") as out:
         proc = subprocess.Popen(cmd, cwd=REPO, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
     base = f"http://127.0.0.1:{port}"
@@ -206,6 +201,24 @@ def test_a_share_or_a_prior_is_never_drawn_like_a_measurement(page):
     for status in ("unresolved", "withheld"):  # no value: an empty dashed outline and a dash, no whiskers
         assert by_status[status]["cls"] == "bar-missing" and by_status[status]["value"] == "—"
         assert by_status[status]["whiskers"] == 0
+
+
+def test_engine_picker_switches_engine_and_stream(page, server):
+    first, second = server["engines"][:2]
+    assert page.evaluate("document.getElementById('engine-select').hidden") is False
+    options = page.evaluate("[...document.querySelectorAll('#engine-select option')].map(o => o.value)")
+    assert options == [e["engine_id"] for e in server["engines"]]
+    assert text(page, "engine-name") == first["engine_name"]
+    page.evaluate(f"(() => {{ const s = document.getElementById('engine-select'); s.value = {second['engine_id']!r};"
+                  " s.dispatchEvent(new Event('change')); })()")
+    assert text(page, "engine-name") == second["engine_name"]
+    assert page.evaluate("location.hash") == f"#engine={second['engine_id']}"
+    page.wait_for(f"document.querySelectorAll('#losses-plot g.bar').length === {second['n_cylinders']}", timeout=15)
+    page.wait_for("document.getElementById('live').dataset.state === 'live'", timeout=30)
+    assert any(u.endswith(f"/api/v1/stream?engine_id={second['engine_id']}") for u in page.requests)
+    # the figures now are the second engine's: its own speed, not the first one's
+    page.wait_for("document.getElementById('rpm').textContent !== '—'", timeout=15)
+    np.testing.assert_allclose(float(text(page, "rpm").split()[0]), second["rpm_latest"], rtol=0.02)
 
 
 def test_page_says_reconnecting_when_the_server_stops(page, server):

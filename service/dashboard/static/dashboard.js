@@ -4,6 +4,7 @@
 
 import { ENGINE_ID, enginePath, getJSON, postWithToken, throttle } from "./api.js";
 import { fmt, isNum } from "./format.js";
+import { emptyPlot } from "./plot.js";
 import { renderAlerts, renderHealth, renderLosses, renderSpeed, renderTorque, showError } from "./render.js";
 
 const FIGURES_INTERVAL_MS = 500;  // counters, per-cylinder bars and table: at most twice a second, whatever the cycle rate
@@ -157,10 +158,25 @@ function fillPickers() {
     ...Array.from({ length: e.n_cylinders }, (_, k) => new Option(`cylinder ${k + 1}`, String(k + 1))));
 }
 
+/** Nothing of the engine shown before stays on the page under another engine's name. */
+function clearEngine() {
+  for (const id of ["cycle-index", "cycles-processed", "cycles-skipped", "rpm", "load", "friction-balance",
+    "engine-fmep", "active-alerts", "cycle-flags", "losses-window", "torque-cycle", "speed-cycle"]) {
+    $(id).textContent = "—";
+  }
+  for (const id of ["losses-plot", "torque-plot", "speed-plot", "history-plot"]) emptyPlot($(id), "loading…");
+  for (const id of ["losses-table", "alerts", "losses-notes", "health"]) {
+    const box = $(id).tBodies ? $(id).tBodies[0] : $(id);
+    box.replaceChildren();
+  }
+  $("alerts-message").textContent = "";
+}
+
 function chooseEngine(id) {
   state.engineId = id;
   state.summary = null;
   state.lastCycleAt = 0;
+  clearEngine();
   history.replaceState(null, "", `#engine=${id}`);
   fillPickers();
   showEngine(selectedEngine());
