@@ -12,8 +12,9 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -q -e '.[test]'
 	touch $(STAMP)
 
+# serve the demo log in a loop at real time; it prints the dashboard URL (Ctrl-C stops it)
 run: $(STAMP)
-	$(BIN)/frictionwatch analyze replay_logs/demo.mcap
+	$(BIN)/frictionwatch serve --source 'mcap:replay_logs/demo.mcap?loop=1&speed=1'
 
 # two workers (the CI machine has 2 cores); a test file stays on one worker, so its module fixtures run once
 test: $(STAMP)

@@ -68,6 +68,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
     for s in services:
         s.add_listener(sse)
         s.add_listener(metrics.listener(s.engine_id))
+        s.state.on_visible = metrics.to_api.labels(s.engine_id).observe
     files = _dashboard_files(dashboard_dir)
     started = time.monotonic()
     cache: dict[str, tuple[int, dict]] = {}  # engine id -> (newest index, smoothed losses): one computation a cycle

@@ -195,6 +195,7 @@ class LatestState(Listener):
         self.newest: CycleResult | None = None
         self.newest_s: float | None = None  # monotonic time the newest result became visible here
         self.updated = threading.Condition(self._lock)
+        self.on_visible: Callable[[float], None] | None = None  # gets result -> visible here [s] (metrics)
 
     def on_message_received(self, event: ServiceEvent) -> None:
         if event.result is None:
@@ -205,6 +206,8 @@ class LatestState(Listener):
             self._ring.append(event.result)
             self.newest, self.newest_s = event.result, time.monotonic()
             self.updated.notify_all()
+        if self.on_visible is not None:
+            self.on_visible(self.newest_s - event.result_s)
 
     def snapshot(self, last: int | None = None) -> tuple[CycleResult | None, list[CycleResult]]:
         """The newest whole result and the last ``last`` results held (all when None), oldest first."""

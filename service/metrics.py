@@ -7,6 +7,7 @@ in one process, or a test, never share series).
     frictionwatch_cycles_processed_total{engine}    cycles analysed
     frictionwatch_cycles_skipped_total{engine,reason}
     frictionwatch_cycle_latency_seconds{engine}     histogram: the record completing a cycle read -> its result
+    frictionwatch_cycle_to_api_seconds{engine}      histogram: a result -> visible to the API's routes
     frictionwatch_listener_drops_total{engine,listener}  events a full listener queue dropped
     frictionwatch_sse_dropped_total                 events slow stream clients lost
 """
@@ -36,6 +37,8 @@ class ServiceMetrics:
                                  ["engine"], registry=self.registry)
         self.latency = Histogram("frictionwatch_cycle_latency_seconds", "Record completing a cycle read -> result",
                                  ["engine"], buckets=LATENCY_BUCKETS_S, registry=self.registry)
+        self.to_api = Histogram("frictionwatch_cycle_to_api_seconds", "Result -> visible to the API",
+                                ["engine"], buckets=LATENCY_BUCKETS_S, registry=self.registry)
         self.registry.register(_EngineCounters(engines, sse_dropped))
 
     def listener(self, engine_id: str) -> MetricsListener:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import logging
 import re
+import signal
 import socket
 import sys
 from collections.abc import Sequence
@@ -138,11 +139,17 @@ def run(args: argparse.Namespace) -> int:
     shown = f"[{host}]" if ":" in host else host
     print(f"frictionwatch serve: dashboard at http://{shown}:{port}/ ; engines: "
           + ", ".join(f"{s.engine_id} ({s.spec.name}, {' + '.join(s.urls)})" for s in services), flush=True)
+    if alerts is None:
+        print("frictionwatch serve: alerts are not part of this build; serving losses without alerts", file=sys.stderr)
     if made:
         print(f"frictionwatch serve: token for acknowledge and baseline (this run only): {token}", flush=True)
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on"))
+    # uvicorn shuts down on SIGINT / SIGTERM (the lifespan stops every engine), then raises the signal again with
+    # the handlers it found: these make that a normal end (exit 0) instead of death by the signal
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: None)
     try:
-        server.run(sockets=[sock])  # SIGINT / SIGTERM: the lifespan stops every engine, then it returns
+        server.run(sockets=[sock])
     finally:
         sock.close()
         if data:
@@ -156,7 +163,6 @@ def _alerts_factory():
     try:
         from frictionwatch.service.alerts import AlertConfig, AlertEngine
     except ImportError:
-        print("frictionwatch serve: alerts are not part of this build; serving losses without alerts", file=sys.stderr)
         return None
     config = AlertConfig()
     return lambda engine_id, spec, baseline=None: AlertEngine(spec, config, baseline=baseline)

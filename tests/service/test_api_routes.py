@@ -180,6 +180,9 @@ def test_metrics(served) -> None:
     assert sorted(int(s.labels["cylinder"]) for s in fmep) == list(range(1, 21))
     counts = [s for s in fams["frictionwatch_cycle_latency_seconds"].samples if s.name.endswith("_count")]
     assert {s.labels["engine"]: s.value for s in counts}["demo-a"] == a.session.cycles_ok
+    to_api = [s for s in fams["frictionwatch_cycle_to_api_seconds"].samples if s.name.endswith("_count")]
+    assert {s.labels["engine"]: s.value for s in to_api} == {"demo-a": a.session.cycles_ok,
+                                                             "demo-b": b.session.cycles_ok}
     drops = fams["frictionwatch_listener_drops"].samples
     assert {s.labels["listener"] for s in drops} >= {"api-state", "sse", "metrics"}
 

@@ -1,0 +1,91 @@
+"""The fan-out (service/listeners.py): the publisher never waits, a slow listener drops and counts alone, a failing
+one is counted and keeps receiving, stop delivers what is queued; the SSE broadcaster drops per slow client."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+
+from frictionwatch.service.listeners import Fanout, Listener, ServiceEvent, SseBroadcaster
+
+
+def event(i: int, engine_id: str = "e1") -> ServiceEvent:
+    return ServiceEvent(engine_id, None, float(i), alerts=({"alert_id": i},))
+
+
+class Blocked(Listener):
+    """Holds its thread until released: a consumer that stopped consuming."""
+
+    name = "blocked"
+
+    def __init__(self) -> None:
+        self.release = threading.Event()
+        self.got: list[int] = []
+
+    def on_message_received(self, ev: ServiceEvent) -> None:
+        self.release.wait(10)
+        self.got.append(ev.alerts[0]["alert_id"])
+
+
+class Failing(Listener):
+    name = "failing"
+
+    def __init__(self) -> None:
+        self.errors: list[BaseException] = []
+        self.seen = 0
+
+    def on_message_received(self, ev: ServiceEvent) -> None:
+        self.seen += 1
+        if ev.alerts[0]["alert_id"] % 2:
+            raise RuntimeError("odd")
+
+    def on_error(self, exc: BaseException) -> None:
+        self.errors.append(exc)
+
+
+def test_a_blocked_listener_never_holds_the_publisher_nor_the_others() -> None:
+    slow, bad, got = Blocked(), Failing(), []
+    stopped = []
+    fan = Fanout([slow, bad, got.append], queue_size=20)
+    slow.stop = lambda: stopped.append("blocked")
+    fan.start()
+    worst = 0.0
+    for i in range(200):  # paced like results (a healthy listener keeps up), while one listener is stuck
+        t0 = time.perf_counter()
+        fan.publish(event(i))
+        worst = max(worst, time.perf_counter() - t0)
+        time.sleep(0.002)
+    assert worst < 0.05  # the publisher never waited for the stuck listener
+    deadline = time.monotonic() + 5
+    while len(got) < 200 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert [e.alerts[0]["alert_id"] for e in got] == list(range(200))  # the healthy one got all, in order
+    # the stuck one: 1 taken off its queue + 20 queued, the other 179 dropped and counted
+    assert fan.drops == {"blocked": 179, "failing": 0, "append": 0}
+    slow.release.set()
+    fan.stop()
+    assert slow.got == list(range(21)) and stopped == ["blocked"]  # stop delivered what was queued, then stop()
+    assert bad.seen == 200 and fan.errors["failing"] == 100 and len(bad.errors) == 100
+
+
+def test_listener_names_stay_distinct() -> None:
+    fan = Fanout([Failing(), Failing()])
+    assert fan.names == ["failing", "failing-2"]
+
+
+def test_sse_slow_client_drops_alone() -> None:
+    async def scenario() -> tuple[int, int, int, int]:
+        sse = SseBroadcaster(lambda ev: [("alert", str(ev.alerts[0]["alert_id"]))], client_queue=3)
+        slow, fast, other = sse.subscribe(None), sse.subscribe("e1"), sse.subscribe("e2")
+        got = []
+        for i in range(10):
+            await asyncio.to_thread(sse.on_message_received, event(i))  # from a listener thread
+            await asyncio.sleep(0)
+            got.append(fast.queue.get_nowait()[1])
+        await asyncio.sleep(0.05)
+        sse.unsubscribe(slow)
+        return len(got), slow.queue.qsize(), sse.dropped, other.queue.qsize()
+
+    n_fast, slow_held, dropped, other = asyncio.run(scenario())
+    assert (n_fast, slow_held, dropped, other) == (10, 3, 7, 0)  # e2's client sees none of e1's events
