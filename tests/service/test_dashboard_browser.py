@@ -213,12 +213,15 @@ def test_engine_picker_switches_engine_and_stream(page, server):
                   " s.dispatchEvent(new Event('change')); })()")
     assert text(page, "engine-name") == second["engine_name"]
     assert page.evaluate("location.hash") == f"#engine={second['engine_id']}"
-    page.wait_for(f"document.querySelectorAll('#losses-plot g.bar').length === {second['n_cylinders']}", timeout=15)
-    page.wait_for("document.getElementById('live').dataset.state === 'live'", timeout=30)
+    # timeouts for a machine where the other test worker may be compiling the numba kernels
+    page.wait_for(f"document.querySelectorAll('#losses-plot g.bar').length === {second['n_cylinders']}", timeout=60)
+    page.wait_for("document.getElementById('live').dataset.state === 'live'", timeout=60)
     assert any(u.endswith(f"/api/v1/stream?engine_id={second['engine_id']}") for u in page.requests)
-    # the figures now are the second engine's: its own speed, not the first one's
-    page.wait_for("document.getElementById('rpm').textContent !== '—'", timeout=15)
-    np.testing.assert_allclose(float(text(page, "rpm").split()[0]), second["rpm_latest"], rtol=0.02)
+    # the figures now are the second engine's: its own speed, not the first one's (the demo logs run at a steady
+    # speed: genset-v20 1500 rpm, K9K 1700 rpm)
+    page.wait_for("document.getElementById('rpm').textContent !== '—'", timeout=60)
+    now = httpx.get(f"{server['base']}/api/v1/engines/{second['engine_id']}/cycles/latest", timeout=5).json()
+    np.testing.assert_allclose(float(text(page, "rpm").split()[0]), now["rpm_mean"], rtol=0.02)
 
 
 def test_page_says_reconnecting_when_the_server_stops(page, server):
