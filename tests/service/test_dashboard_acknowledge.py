@@ -91,7 +91,7 @@ def alerts_raised(base: str) -> bool:
 
 @pytest.fixture(scope="module")
 def base_url():
-    src = open_source(f"mcap:{DEMO}?loop=1", Clocks())
+    src = open_source(f"mcap:{DEMO}?loop=1&speed=1", Clocks())  # real time: the other test worker needs the CPU too
     model = resolve_model(src.engine_toml, None, "demo", src.info)
     svc = EngineService("genset-v20", model, src.info, {"log": src}, urls=["demo"], alerts=lambda _id, spec: OneAlarm(spec))
     port = free_port()

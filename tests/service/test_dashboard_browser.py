@@ -1,14 +1,14 @@
-"""The dashboard as a person sees it: the real server on the bundled demo log, the page in headless Chromium.
+"""The dashboard as a person sees it: the real server on the bundled demo logs, the page in headless Chromium.
 
-Starts ``frictionwatch serve --source mcap:replay_logs/demo.mcap?loop=1`` on a free loopback port, opens ``/`` in
-Debian's headless Chromium (driven over the DevTools pipe: tests/service/dashboard_browser.py) and checks what the
-page SHOWS against what the API says: the engine's name, one bar per cylinder with its number and status word, the
-live indicator, a cycle counter that grows, the alerts, no request to any other host, no JavaScript error; then stops
-the server and checks that the page says it is reconnecting. A screenshot goes to the test's tmp dir; set
+Starts ``frictionwatch serve --source mcap:replay_logs/demo.mcap?loop=1&speed=1`` (and the K9K log: two engines) on a
+free loopback port, opens ``/`` in Debian's headless Chromium (driven over the DevTools pipe:
+tests/service/dashboard_browser.py) and checks what the page SHOWS against what the API says: the engine's name, one
+bar per cylinder with its number and status word, the live indicator, a cycle counter that grows by the event stream,
+the alerts, no request to any other host, no JavaScript error, the engine picker; then stops the server and checks
+that the page says it is reconnecting. A screenshot goes to the test's tmp dir; set
 FW_DASHBOARD_SCREENSHOT=docs/dashboard.png to refresh the README's picture too.
 
-Chromium comes from scripts/install-chromium.sh (.ci/run calls it); without it the module skips with the reason.
-"""
+Chromium comes from scripts/install-chromium.sh (.ci/run calls it); without it the module skips with the reason."""
 
 from __future__ import annotations
 
@@ -31,7 +31,8 @@ if find_chromium() is None:
     pytest.skip("no chromium on PATH: scripts/install-chromium.sh installs Debian's", allow_module_level=True)
 
 REPO = Path(__file__).resolve().parents[2]
-SOURCES = ("mcap:replay_logs/demo.mcap?loop=1", "mcap:replay_logs/k9k-4cyl.mcap?loop=1")  # two engines: a picker
+# two engines (a picker), each replayed in a loop at real time as on a plant (the default is as fast as possible)
+SOURCES = ("mcap:replay_logs/demo.mcap?loop=1&speed=1", "mcap:replay_logs/k9k-4cyl.mcap?loop=1&speed=1")
 STATUSES = {"measured", "share", "prior", "unresolved", "withheld"}
 # the first run compiles the numba kernels: 1-2 min on an idle machine; `analyze demo.mcap` took 10.7 min of wall
 # time (2.3 min of CPU) on this 2-core machine with eight other jobs running
