@@ -109,7 +109,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
         for s in engines.values():
             whole, _ = s.state.snapshot(1)
             out.append({"engine_id": s.engine_id, "engine_name": s.spec.name, "n_cylinders": s.spec.n_cyl,
-                        "sources": s.urls, "cycles_ok": s.session.cycles_ok, "skipped": dict(s.session.skipped),
+                        "sources": s.urls, "cycles_ok": s.cycles_ok, "skipped": s.skipped,
                         "rpm_latest": None if whole is None else views.num(whole.rpm_mean),
                         "listener_drops": s.fanout.drops, "listener_errors": s.fanout.errors,
                         "session_errors": dict(s.session.errors), "alert_errors": s.alert_errors,

@@ -89,7 +89,8 @@ def losses_window(engine_id: str, results: Sequence[CycleResult], names: Sequenc
                 loss[key], loss[sigma_key] = num(mean), (num(sem) if n > 1 else loss[sigma_key])
             weights = [f["data_weight"] for f in figs if f["data_weight"] is not None]
             loss["data_weight"] = float(np.mean(weights)) if weights else None
-            loss["coefficients"] = _mean_dict([d["cylinders"][k] for d in docs], loss["coefficients"])
+            loss["coefficients"], loss["coefficient_sigmas"] = _mean_and_sem([d["cylinders"][k] for d in docs],
+                                                                             list(loss["coefficients"]))
         else:
             n_measured = sum(f["status"] == "measured" for f in figs)
             loss.update(dict.fromkeys(FIGURE_VALUES), status="unresolved",
@@ -107,11 +108,11 @@ def losses_window(engine_id: str, results: Sequence[CycleResult], names: Sequenc
             "active_flags": sorted(active), "cylinders": cylinders}
 
 
-def _mean_dict(cyls: list[dict], labelled: dict) -> dict:
-    arr = np.array([[np.nan if v is None else v for v in c["coefficients"]] for c in cyls], dtype=float)
-    with np.errstate(invalid="ignore"):
-        means = np.nanmean(arr, axis=0) if np.isfinite(arr).any() else np.full(arr.shape[1], np.nan)
-    return {name: num(m) for name, m in zip(labelled, means)}
+def _mean_and_sem(cyls: list[dict], names: list[str]) -> tuple[dict, dict]:
+    """Each coefficient's mean over the window's cycles and the 1-sigma of that mean from their scatter."""
+    stats = [mean_and_sem([np.nan if c["coefficients"][j] is None else c["coefficients"][j] for c in cyls])
+             for j in range(len(names))]
+    return ({n: num(m) for n, (m, _, _) in zip(names, stats)}, {n: num(s) for n, (_, s, _) in zip(names, stats)})
 
 
 def friction_torque(r: CycleResult) -> dict:

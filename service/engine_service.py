@@ -88,6 +88,10 @@ class EngineService:
         self.started_s: float | None = None
         self.last_result_s: float | None = None
         self.alert_errors = 0
+        # counts as of the newest result, copied on the ingest thread: the API reads these, never the session's
+        # own counters, which wait on the session's lock for the cycle being analysed (~20 ms on a genset)
+        self.cycles_ok = 0
+        self.skipped: dict[str, int] = {}
 
     # --- life cycle ----------------------------------------------------------------------------------------------
     def add_listener(self, listener: Any) -> None:
@@ -103,6 +107,7 @@ class EngineService:
         """Stop the session (its ingest thread gets ``timeout`` to drain; a backlog beyond that is abandoned with
         the process, logged by the session), then the listeners after they have delivered what is queued."""
         self.session.stop(timeout)
+        self.skipped = dict(self.session.skipped)
         self.fanout.stop(timeout)
 
     @property
@@ -117,6 +122,8 @@ class EngineService:
     def _on_result(self, result: CycleResult) -> None:
         now = time.monotonic()
         self.last_result_s = now
+        self.cycles_ok += 1
+        self.skipped = dict(self.session.pipeline.skipped)  # the session's lock is held here (its on_result)
         alerts: tuple[dict, ...] = ()
         if self.alerts is not None:
             with self._alerts_lock:

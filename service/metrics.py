@@ -86,8 +86,8 @@ class _EngineCounters(Collector):
         drops = CounterMetricFamily("frictionwatch_listener_drops", "Events dropped by a full listener queue",
                                     labels=["engine", "listener"])
         for e in self.engines():
-            ok.add_metric([e.engine_id], e.session.cycles_ok)
-            for reason, n in sorted(e.session.skipped.items()):
+            ok.add_metric([e.engine_id], e.cycles_ok)
+            for reason, n in sorted(e.skipped.items()):
                 skipped.add_metric([e.engine_id, reason], n)
             for name, n in e.fanout.drops.items():
                 drops.add_metric([e.engine_id, name], n)

@@ -100,14 +100,25 @@ def test_losses_over_a_window(served) -> None:
     doc = client.get("/api/v1/engines/demo-a/losses", params={"window_cycles": 10}).json()
     results = a.session.results[-10:]
     assert doc["window"] == {"first_cycle": results[0].index, "last_cycle": results[-1].index, "cycles": 10}
+    shown = 0
     for c in doc["cylinders"]:
-        per_cycle = [r.to_json(smoothed=False)["cylinders"][c["cylinder"] - 1]["friction"] for r in results]
-        if c["status"] == "measured":
-            assert all(f["status"] == "measured" for f in per_cycle)
-            assert_allclose(c["friction_torque_mean_nm"], np.mean([f["friction_torque_mean_nm"] for f in per_cycle]),
-                            rtol=1e-12)
-        elif c["status"] in ("unresolved", "withheld"):
+        cyls = [r.to_json(smoothed=False)["cylinders"][c["cylinder"] - 1] for r in results]
+        per_cycle = [x["friction"] for x in cyls]
+        if c["status"] in ("measured", "share"):  # a mean only over cycles that all show it as this
+            shown += 1
+            assert all(f["status"] == c["status"] for f in per_cycle)
+            values = [f["friction_torque_mean_nm"] for f in per_cycle]
+            assert_allclose(c["friction_torque_mean_nm"], np.mean(values), rtol=1e-12)
+            assert_allclose(c["friction_torque_sigma_nm"], np.std(values, ddof=1) / np.sqrt(10), rtol=1e-9)
+            for j, name in enumerate(c["coefficients"]):  # a coefficient the data do not resolve stays null
+                finite = [x["coefficients"][j] for x in cyls if x["coefficients"][j] is not None]
+                if finite:
+                    assert_allclose(c["coefficients"][name], np.mean(finite), rtol=1e-12)
+                else:
+                    assert c["coefficients"][name] is None
+        else:
             assert c["fmep_bar"] is None and c["friction_torque_mean_nm"] is None
+    assert shown > 0  # the demo's cylinders show a figure over the window
     # a window longer than what is held: the window says how many cycles it used
     whole = client.get("/api/v1/engines/demo-a/losses", params={"window_cycles": 100000}).json()
     assert whole["window"]["cycles"] == len(a.session.results)
