@@ -46,17 +46,20 @@ def build_archive(root: Path) -> list[Path]:
     return logs
 
 
-def serial(logs: list[Path]) -> float:
-    """Wall time of a plain loop over the per-log function the workers run (warmed on the first log first)."""
+def serial(logs: list[Path]) -> tuple[float, float]:
+    """(wall time, the longest log's time) of a plain loop over the per-log function the workers run (warmed on
+    the first log first)."""
     from frictionwatch.service.reanalyze import analyze_one
 
     analyze_one(str(logs[0]), None)
     t = time.perf_counter()
+    longest = 0.0
     for log in logs:
         row = analyze_one(str(log), None)
         if row["status"] != "ok":
             raise SystemExit(f"{log}: {row['reason']}")
-    return time.perf_counter() - t
+        longest = max(longest, row["elapsed_s"])
+    return time.perf_counter() - t, longest
 
 
 def on_cluster(logs: list[Path], workers: int) -> tuple[float, float]:
@@ -82,12 +85,13 @@ def run(archive: Path = Path("/tmp/fw-reanalyze-bench"), repeat: int = 1) -> dic
     out: dict = {"logs": len(logs), "cycles": cycles, "cores": os.cpu_count(), "runs": []}
     for _ in range(repeat):
         load_before = os.getloadavg()[0]
-        s = serial(logs)
+        s, longest = serial(logs)
         w1, c1 = on_cluster(logs, 1)
         w2, c2 = on_cluster(logs, 2)
         out["runs"].append({
             "load_avg_1min_before": round(load_before, 2), "load_avg_1min_after": round(os.getloadavg()[0], 2),
             "serial_s": round(s, 2), "serial_logs_per_min": round(60 * len(logs) / s, 2),
+            "serial_longest_log_s": round(longest, 2),
             "dask_1_worker_s": round(c1, 2), "dask_1_worker_logs_per_min": round(60 * len(logs) / c1, 2),
             "dask_1_worker_warmup_s": round(w1, 2),
             "dask_2_workers_s": round(c2, 2), "dask_2_workers_logs_per_min": round(60 * len(logs) / c2, 2),

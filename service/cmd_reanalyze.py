@@ -70,7 +70,9 @@ def run(args: argparse.Namespace) -> int:
             rows[rel] = {**before, "this_run": False}
         else:
             todo.append(path)
-    if not args.verbose:  # Dask's own INFO lines (scheduler address, connections) only with -v
+    if not args.verbose:  # Dask's own INFO lines (scheduler address, connections) only with -v; its import sets
+        import distributed  # noqa: F401  (the level of its logger, so quiet it after)
+
         logging.getLogger("distributed").setLevel(logging.ERROR)
     t = time.perf_counter()
     where = args.scheduler or f"local cluster, {args.workers or os.cpu_count()} worker processes"

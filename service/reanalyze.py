@@ -157,9 +157,12 @@ def warm_workers(client, logs: list[Path], engine: str | None = None) -> None:
 
 def run_on_dask(client, logs: list[Path], model: ModelChoice) -> Iterator[tuple[Path, dict]]:
     """(log, row) for each log as its task ends, in completion order. A task that raised (a bug, a worker lost
-    while reading that log) is a failed row with the error's name, never the end of the run."""
+    while reading that log) is a failed row with the error's name, never the end of the run. The largest logs are
+    submitted first (Dask runs earlier submissions first): a long log started last would leave the other workers
+    idle at the end."""
     from dask.distributed import as_completed
 
+    logs = sorted(logs, key=_size, reverse=True)
     futures = client.map(analyze_one, [str(p) for p in logs], engine=model.arg, pure=False)
     which = {f.key: p for f, p in zip(futures, logs)}
     for future in as_completed(futures):
