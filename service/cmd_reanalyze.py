@@ -31,6 +31,9 @@ from frictionwatch.service.reanalyze import (
     warm_workers,
 )
 
+STARTING_NOTE = ("starting the workers; each loads the numerical kernels (numba: compiled once after an install, "
+                 "about a minute on a small machine)")
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("reanalyze", help="analyse every *.mcap log under a folder again, on Dask")
@@ -99,7 +102,7 @@ def _analyse(todo: list[Path], root: Path, out: Path, model: ModelChoice, args: 
     start the cluster (or connect) and warm the workers."""
     t = time.perf_counter()
     with start_client(args.scheduler, args.workers) as client, \
-            progress_bar(total=len(todo), desc="reanalyze", unit="logs") as bar:
+            progress_bar(total=len(todo), desc="reanalyze", unit="logs", waiting_note=STARTING_NOTE) as bar:
         warm_workers(client, todo, model.arg)
         startup["s"] = time.perf_counter() - t
         for path, row in run_on_dask(client, todo, model):
