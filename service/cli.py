@@ -21,6 +21,7 @@ COMMANDS = {
     "import-daq": "frictionwatch.service.cmd_import_daq",
     "trace": "frictionwatch.service.cmd_trace",
     "serve": "frictionwatch.service.serve",
+    "reanalyze": "frictionwatch.service.cmd_reanalyze",
 }
 
 

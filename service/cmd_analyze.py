@@ -38,6 +38,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def document(analysis: LogAnalysis) -> dict:
+    """What `analyze --json` prints (also what `reanalyze` writes per log): the summary with the coast-down block."""
+    doc = summary(analysis)
+    coastdown_report.add_to(doc, analysis)
+    return doc
+
+
+def no_cycle_reason(analysis: LogAnalysis, name: str) -> str:
+    """One line for a log with no analysed cycle: the skip reasons and the log damage."""
+    reasons = ", ".join(f"{k}: {v}" for k, v in analysis.skipped.most_common()) or "no complete cycle in the log"
+    damage = ", ".join(f"{k}: {v}" for k, v in analysis.damage.most_common())
+    return f"no good cycle in {name} ({reasons}" + (f"; log damage {damage}" if damage else "") + ")"
+
+
 def summary(analysis: LogAnalysis) -> dict:
     """The analysis as one JSON-able document (docs/results.md): run means of the measured quantities, the
     end-of-run friction estimate with the status, data weight and window of every figure, the mean balance over
@@ -151,13 +165,9 @@ def run(args: argparse.Namespace) -> int:
                       estimated_total=extent.known) as bar:
         analysis = analyze_log(args.log, args.engine, on_result=lambda r: bar.advance(extent.fraction(r.t_start)))
     if not analysis.results:
-        reasons = ", ".join(f"{k}: {v}" for k, v in analysis.skipped.most_common()) or "no complete cycle in the log"
-        damage = ", ".join(f"{k}: {v}" for k, v in analysis.damage.most_common())
-        print(f"frictionwatch analyze: error: no good cycle in {args.log.name} ({reasons}"
-              + (f"; log damage {damage}" if damage else "") + ")", file=sys.stderr)
+        print(f"frictionwatch analyze: error: {no_cycle_reason(analysis, args.log.name)}", file=sys.stderr)
         return 2
-    doc = summary(analysis)
-    coastdown_report.add_to(doc, analysis)
+    doc = document(analysis)
     written: list[Path] = []
     if args.csv:
         write_csv(analysis, args.csv)
