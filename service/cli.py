@@ -20,6 +20,7 @@ COMMANDS = {
     "analyze": "frictionwatch.service.cmd_analyze",
     "import-daq": "frictionwatch.service.cmd_import_daq",
     "trace": "frictionwatch.service.cmd_trace",
+    "discrepancy": "frictionwatch.service.cmd_discrepancy",
 }
 
 
