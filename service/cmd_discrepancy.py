@@ -108,10 +108,9 @@ def run_discrepancy(source: Path | tuple[AcquisitionInfo, Iterable[StreamRecord]
 def run(args: argparse.Namespace) -> int:
     if args.max_steps < 0:
         raise ValueError(f"--max-steps {args.max_steps}: expected 0 or more")
-    for out in (args.output,):
-        if out is not None:
-            check_output_path(out)
-    model = load_model(args.model) if args.model else args.engine
+    if args.output is not None:
+        check_output_path(args.output)
+    model = args.model or args.engine  # a name: resolve_model checks it against the engine the log recorded
     doc, found = run_discrepancy(args.log, model, Options(max_steps=args.max_steps), args.baseline)
     if args.output is not None:
         with atomic_paths(args.output) as (tmp,):

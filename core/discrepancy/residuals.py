@@ -61,7 +61,7 @@ def run_view(view: MonitorView, cycles: Sequence[Cycle]) -> Residuals:
     rejected = 0
     for cycle in cycles:
         if view.corrects_pressure:
-            cycle = dataclasses.replace(cycle, pressure=corrected_pressure(view, cycle.grid, cycle.pressure))
+            cycle = dataclasses.replace(cycle, pressure=corrected_pressure(view, cycle.pressure))
         try:
             state, r = process_cycle(model, state, cycle, view.config)
         except (CycleRejected, ValueError, ArithmeticError):

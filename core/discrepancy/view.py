@@ -7,8 +7,9 @@ predicts the flywheel speed with it:
     torsional_flexibility absent   the spec's shaft line collapsed to one rigid node
     variable_inertia absent        MonitorConfig(variable_inertia=False): constant inertia, no mass torque
     chain_mismatch                 the spec's section stiffnesses and dampings x their scales
-    tdc_offset, pressure_gain,     a correction of the measured pressure before the monitor (the angle it is
-    pressure_offset                referred to, its gain, its pegging)
+    tdc_offset                     the cylinder's kinematic phase: its firing angle + deg (cylinder 0, a wheel
+                                   mounted off: every cylinder's), as the plant has it; the pressure stays as read
+    pressure_gain, pressure_offset a correction of the measured pressure before the monitor (gain, pegging)
     ring_wear                      the scaled coefficients of its terms in its cylinder (``Effect.scales_terms``)
     extra_friction                 its shape as one more loss term (``Effect.monitor_terms``), T_ref = the
                                    cylinder's mean friction at the reference operating point
@@ -48,14 +49,13 @@ class Reference:
 
 @dataclass(frozen=True)
 class MonitorView:
-    """spec, terms and coefficients the monitor identifies with; its config; the pressure corrections per cylinder:
-    tdc_shift (z,) rad (true TDC after the stated one), gain (z,), offset (z,) Pa."""
+    """spec (firing angles with any TDC offset), terms and coefficients the monitor identifies with; its config; the
+    pressure corrections per cylinder: gain (z,), offset (z,) Pa."""
 
     spec: EngineSpec
     terms: TermLibrary
     coefficients: np.ndarray
     config: MonitorConfig
-    tdc_shift: np.ndarray
     gain: np.ndarray
     offset: np.ndarray
 
@@ -65,7 +65,7 @@ class MonitorView:
 
     @property
     def corrects_pressure(self) -> bool:
-        return bool(np.any(self.tdc_shift != 0) or np.any(self.gain != 1) or np.any(self.offset != 0))
+        return bool(np.any(self.gain != 1) or np.any(self.offset != 0))
 
 
 def pinned_config(config: MonitorConfig | None = None) -> MonitorConfig:
@@ -116,7 +116,9 @@ def monitor_view(model: EngineModel, ref: Reference, config: MonitorConfig | Non
             coef[v["cylinder"] - 1, cols] *= v["gain"]
     for e in model.effects:  # shapes last: sized on the coefficients the scalings left
         terms, coef = _add_shape(e, spec, terms, coef, ref)
-    return MonitorView(spec, terms, coef, cfg, tdc, gain, offset)
+    if np.any(tdc):  # after the shapes: the plant sizes them at the stated phases
+        spec = dataclasses.replace(spec, firing_angles=spec.firing_angles + tdc)
+    return MonitorView(spec, terms, coef, cfg, gain, offset)
 
 
 def _add_shape(e: Effect, spec: EngineSpec, terms: TermLibrary, coef: np.ndarray, ref: Reference
@@ -143,16 +145,11 @@ def _add_shape(e: Effect, spec: EngineSpec, terms: TermLibrary, coef: np.ndarray
     return lib, coef
 
 
-def corrected_pressure(view: MonitorView, grid: np.ndarray, pressure: np.ndarray) -> np.ndarray:
-    """The measured pressure (z, n) as the model says it truly is: p = (p_read - offset) / gain, referred to the
-    true TDC (p(theta) read at theta + shift, periodic over the cycle)."""
+def corrected_pressure(view: MonitorView, pressure: np.ndarray) -> np.ndarray:
+    """The measured pressure (z, n) as the model says it truly is: p = (p_read - offset) / gain."""
     if not view.corrects_pressure:
         return pressure
-    out = (np.asarray(pressure, dtype=np.float64) - view.offset[:, None]) / view.gain[:, None]
-    period = 4.0 * np.pi
-    for k in np.flatnonzero(view.tdc_shift):
-        out[k] = np.interp(grid + view.tdc_shift[k], grid, out[k], period=period)
-    return out
+    return (np.asarray(pressure, dtype=np.float64) - view.offset[:, None]) / view.gain[:, None]
 
 
 __all__ = ["MonitorView", "Reference", "basis_means", "corrected_pressure", "monitor_view", "pinned_config",

@@ -6,9 +6,9 @@
 
 The cycles are split in time: the first ``warmup`` settle the monitor (tooth learner, noise model) and are not
 scored; of the rest the first half trains (the fits, on its first ``fit_cycles``) and the second half is held out
-(the choice and every reported gap). Each step fits every candidate of the library on top of the current model,
-re-runs the best ``confirm`` of them over the whole log, and adds the one with the smallest held-out gap if its gain
-is significant: the held-out coherent chi^2 falls by at least ``min_delta_chi2`` (its noise under no effect is about
+(the choice and every reported gap). Each step linearises every candidate of the library on top of the current
+model, refines the ``refine`` best by predicted cost, re-runs the best ``confirm`` of those over the whole log, and
+adds the one with the smallest held-out gap if its gain is significant: the held-out coherent chi^2 falls by at least ``min_delta_chi2`` (its noise under no effect is about
 sqrt(2 F) ~ 10 for F ~ 50 features) and the gap by at least ``min_reduction``. Otherwise: no significant missing
 effect, and the model is returned as it was.
 """
@@ -38,9 +38,9 @@ METRIC = ("held-out coherent residual: sqrt(sum over features of (cycle mean^2 -
 class Options:
     max_steps: int = 3
     warmup: int = 12
-    fit_cycles: int = 36
-    refine: int = 5
-    confirm: int = 3
+    fit_cycles: int = 24
+    refine: int = 3
+    confirm: int = 2
     min_delta_chi2: float = 40.0
     min_reduction: float = 0.15
     monitor_config: MonitorConfig | None = None

@@ -62,20 +62,21 @@ def reference(spec, n=720):
     return Reference(200.0, grid, p)
 
 
-def test_pressure_corrections_undo_the_sensor_errors():
+def test_sensor_errors_are_undone_and_a_tdc_offset_moves_the_kinematic_phase():
     spec = load_engine("k9k-4cyl")
     ref = reference(spec)
     model = EngineModel.from_spec(spec, effects=[make_effect("tdc_offset", {"cylinder": 2, "deg": 3.0}),
+                                                 make_effect("tdc_offset", {"cylinder": 0, "deg": -1.0}),
                                                  make_effect("pressure_gain", {"cylinder": 3, "gain": 1.1}),
                                                  make_effect("pressure_offset", {"cylinder": 4, "pa": 2e4})])
     view = monitor_view(model, ref)
     read = ref.pressure.copy()
-    step = ref.grid[1]
-    shift = int(round(np.radians(3.0) / step))  # 3 deg = 6 samples: the sensor sees cylinder 2's TDC 3 deg late
-    read[1] = np.roll(ref.pressure[1], shift)
     read[2] = 1.1 * ref.pressure[2]
     read[3] = ref.pressure[3] + 2e4
-    np.testing.assert_allclose(corrected_pressure(view, ref.grid, read), ref.pressure, rtol=1e-9, atol=1e-3)
+    np.testing.assert_allclose(corrected_pressure(view, read), ref.pressure, rtol=1e-12, atol=1e-6)
+    # the plant's throw of cylinder 2 is 3 deg later than stated, the whole wheel 1 deg earlier
+    np.testing.assert_allclose(np.degrees(view.spec.firing_angles - spec.firing_angles), [-1.0, 2.0, -1.0, -1.0],
+                               atol=1e-12)
 
 
 def test_view_of_default_and_reduced_models():
