@@ -76,7 +76,14 @@ def assemble(model: EngineModel, info: AcquisitionInfo, records: Iterable[Stream
 
 
 def run_discrepancy(source: Path | tuple[AcquisitionInfo, Iterable[StreamRecord]], model: EngineModel | str | None = None,
-                    options: Options | None = None, baseline: str = "default") -> tuple[dict, Discovery]:
+                    options: Options | None = None, baseline: str = "default") -> dict:
+    """The service's call: the JSON report of the workflow on a log path or on (info, records) of a recorded
+    window (``discrepancy_of``)."""
+    return discrepancy_of(source, model, options, baseline)[0]
+
+
+def discrepancy_of(source: Path | tuple[AcquisitionInfo, Iterable[StreamRecord]], model: EngineModel | str | None = None,
+                   options: Options | None = None, baseline: str = "default") -> tuple[dict, Discovery]:
     """The workflow on a log path or on (info, records) of a recorded window. ``model``: an EngineModel, a preset
     or TOML name, or None (the spec the log stores; records need a model). Returns (JSON report, Discovery)."""
     if isinstance(source, (str, Path)):
@@ -111,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
     if args.output is not None:
         check_output_path(args.output)
     model = args.model or args.engine  # a name: resolve_model checks it against the engine the log recorded
-    doc, found = run_discrepancy(args.log, model, Options(max_steps=args.max_steps), args.baseline)
+    doc, found = discrepancy_of(args.log, model, Options(max_steps=args.max_steps), args.baseline)
     if args.output is not None:
         with atomic_paths(args.output) as (tmp,):
             tmp.write_text(found.model.to_toml(), encoding="utf-8")
@@ -146,4 +153,4 @@ def _plain(v: object) -> object:
     return v.item() if hasattr(v, "item") else str(v)
 
 
-__all__ = ["add_parser", "assemble", "run", "run_discrepancy", "with_baseline"]
+__all__ = ["add_parser", "assemble", "discrepancy_of", "run", "run_discrepancy", "with_baseline"]

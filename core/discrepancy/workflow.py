@@ -154,16 +154,17 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         if not confirmed:
             break
         confirmed.sort(key=lambda c: c[0])
+        g_cur, chi_before = gap(test, scale), _chi2(test, scale)
+        significant = _significance(test, scale, opt, lambda r: parts(r)[1])
         _, t, new_model, res = confirmed[0]
-        t, new_model, res, extra = _polish(t, current, new_model, res, full, lambda r: parts(r)[0], scale)
-        runs += extra
-        test_new = parts(res)[1]
-        g_new = gap(test_new, scale)
-        chi_before, chi_after = _chi2(test, scale), _chi2(test_new, scale)
-        g_cur = gap(test, scale)
-        if chi_before - chi_after < opt.min_delta_chi2 or g_new > (1.0 - opt.min_reduction) * g_cur:
+        if significant(res):  # polished only if significant as it stands, and kept only if still significant
+            t, new_model, res, extra = _polish(t, current, new_model, res, full, lambda r: parts(r)[0], scale)
+            runs += extra
+        if not significant(res):
             found.rejected.update({c[1].candidate.label: c[0] for c in confirmed})
             break
+        test_new = parts(res)[1]
+        g_new, chi_after = gap(test_new, scale), _chi2(test_new, scale)
         runner = confirmed[1][1].candidate.label if len(confirmed) > 1 else None
         found.steps.append(Step(t, new_model.effects[-1], g_cur, g_new, chi_before, chi_after, runner,
                                 localise(test, model.spec, scale), localise(test_new, model.spec, scale)))
@@ -174,6 +175,19 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     found.final = localise(test, model.spec, scale)
     found.evaluations = runs
     return found
+
+
+def _significance(test: Residuals, scale: np.ndarray, opt: Options, held_out_of):
+    """A test of a candidate's whole-log run against the current model's held-out residual ``test``: the held-out
+    coherent chi^2 falls by at least ``min_delta_chi2`` and the gap by at least ``min_reduction``."""
+    g_cur, chi_cur = gap(test, scale), _chi2(test, scale)
+
+    def significant(res: Residuals) -> bool:
+        held_out = held_out_of(res)
+        return (chi_cur - _chi2(held_out, scale) >= opt.min_delta_chi2
+                and gap(held_out, scale) <= (1.0 - opt.min_reduction) * g_cur)
+
+    return significant
 
 
 def _polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, full, train_of, scale: np.ndarray
