@@ -143,7 +143,10 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         ev = Evaluator(sub, scale, first)
         base = ev.vector(current)
         lins = sorted((linearise(c, current, ev, base) for c in candidate_library(current)), key=lambda x: x.predicted)
-        trials = rank([refine(lin, current, ev) for lin in lins[:opt.refine]])
+        # a toggle's window cost is exact (one run, nothing to refine): it competes with the refined, whose
+        # linear predictions can promise more than they keep
+        chosen = lins[:opt.refine] + [lin for lin in lins[opt.refine:] if lin.candidate.toggle]
+        trials = rank([refine(lin, current, ev) for lin in chosen])
         runs += ev.calls
         confirmed = []
         for t in trials[:opt.confirm]:
