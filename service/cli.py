@@ -22,6 +22,7 @@ COMMANDS = {
     "trace": "frictionwatch.service.cmd_trace",
     "serve": "frictionwatch.service.serve",
     "reanalyze": "frictionwatch.service.cmd_reanalyze",
+    "discrepancy": "frictionwatch.service.cmd_discrepancy",
 }
 
 

@@ -1,0 +1,144 @@
+"""Find: where the model and the measurement disagree, and by how much (the gap).
+
+A missing effect repeats from cycle to cycle; noise does not. So every figure here is of the *coherent* residual:
+the mean over cycles of a residual feature, with its noise variance (per-cycle scatter / N) removed or stated.
+
+    noise_scale(res)          per-feature per-cycle scatter (robust), the whitening of the fit
+    gap(res, scale)           sqrt(sum_j (mean_j^2 - var_j / N) / scale_j^2): the coherent misfit in units of the
+                              per-cycle noise; 0 when the model explains all that repeats
+    localise(res, spec, scale) orders (half orders point at the cam), crank-angle windows per cylinder, the
+                              balance, trends against speed and load: a JSON-able dict
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from frictionwatch.core.discrepancy.residuals import Residuals
+from frictionwatch.core.model.engine import EngineSpec
+
+RPM_PER_RAD_S = 30.0 / np.pi
+SIGNIFICANT = 4.0  # a coherent figure is reported as significant above this many sigmas of its mean
+
+
+def noise_scale(res: Residuals) -> np.ndarray:
+    """(F,) per-cycle scatter of each feature (1.4826 x median absolute deviation; Re and Im of one harmonic share
+    theirs), floored at a small fraction of the largest so that no feature gets an infinite weight."""
+    x = res.features()
+    mad = 1.4826 * np.median(np.abs(x - np.median(x, axis=0)), axis=0)
+    m = res.harmonics.shape[1]
+    pair = np.sqrt(0.5 * (mad[:m] ** 2 + mad[m:2 * m] ** 2))
+    out = np.concatenate([pair, pair, mad[2 * m:]])
+    floor = 1e-3 * max(float(out[:2 * m].max(initial=0.0)), 1e-12)
+    out[:2 * m] = np.maximum(out[:2 * m], floor)
+    out[2 * m:] = np.maximum(out[2 * m:], 1e-6)
+    return out
+
+
+def coherent_terms(res: Residuals, scale: np.ndarray) -> np.ndarray:
+    """(F,) (mean_j^2 - var_j / N) / scale_j^2 of each feature over the cycles (the noise-corrected coherent power)."""
+    x = res.features()
+    n = x.shape[0]
+    mean = x.mean(axis=0)
+    var = x.var(axis=0, ddof=1) if n > 1 else np.zeros_like(mean)
+    return (mean**2 - var / n) / scale**2
+
+
+def gap(res: Residuals, scale: np.ndarray) -> float:
+    return float(np.sqrt(max(coherent_terms(res, scale).sum(), 0.0)))
+
+
+def cost(res: Residuals, scale: np.ndarray) -> float:
+    """Sum over cycles and features of the whitened squared residual (what the least-squares fit minimises)."""
+    return float(np.sum((res.features() / scale) ** 2))
+
+
+def _mean_sigma(x: np.ndarray) -> tuple[float, float]:
+    n = x.shape[0]
+    return float(x.mean()), float(x.std(ddof=1) / np.sqrt(n)) if n > 1 else float("inf")
+
+
+def order_table(res: Residuals) -> list[dict]:
+    """Each engine order m/2: the coherent amplitude of the speed residual [rpm], its sigma and whether it is
+    significant (> SIGNIFICANT sigmas)."""
+    h = res.harmonics
+    n = h.shape[0]
+    mean = h.mean(axis=0)
+    sig = np.sqrt((h.real.var(axis=0, ddof=1) + h.imag.var(axis=0, ddof=1)) / max(n, 2))
+    out = []
+    for m in range(h.shape[1]):
+        amp, s = abs(mean[m]) * RPM_PER_RAD_S, sig[m] * RPM_PER_RAD_S
+        out.append({"order": (m + 1) / 2, "amplitude_rpm": amp, "sigma_rpm": s,
+                    "phase_deg": float(np.degrees(np.angle(mean[m]))), "significant": bool(amp > SIGNIFICANT * s),
+                    "half_order": (m + 1) % 2 == 1})
+    return out
+
+
+def cylinder_windows(res: Residuals, spec: EngineSpec) -> list[dict]:
+    """The cycle-mean residual speed's rms in each cylinder's expansion window (its firing TDC to 180 deg after)
+    [rpm], and its share of the cycle's: where along the firing order the model and the engine part."""
+    mean = res.speed.mean(axis=0)
+    total = float(np.sqrt(np.mean(mean**2)))
+    out = []
+    for k in range(spec.n_cyl):
+        local = np.mod(res.angles - spec.firing_angles[k], 4.0 * np.pi)
+        w = local < np.pi
+        rms = float(np.sqrt(np.mean(mean[w] ** 2))) if w.any() else 0.0
+        out.append({"cylinder": k + 1, "rms_rpm": rms * RPM_PER_RAD_S,
+                    "relative": rms / total if total > 0 else 0.0})
+    return out
+
+
+def trends(res: Residuals) -> dict:
+    """Slopes of the balance residual and of the coherent speed-residual amplitude against speed and load (least
+    squares over cycles, with sigmas); None where the log does not vary enough to tell."""
+    out: dict = {}
+    ok = np.isfinite(res.balance)
+    amp = np.sqrt(np.sum(np.abs(res.harmonics) ** 2, axis=1)) * RPM_PER_RAD_S
+    for name, x, unit in (("speed", res.omega * RPM_PER_RAD_S, "rpm"), ("load", res.load, "N m")):
+        good = ok & np.isfinite(x)
+        if good.sum() < 6 or np.ptp(x[good]) <= 1e-3 * max(abs(float(np.mean(x[good]))), 1.0):
+            out[name] = None
+            continue
+        a = np.column_stack([np.ones(good.sum()), x[good] - x[good].mean()])
+        entry = {"unit": unit}
+        for label, y in (("balance_nm_per_unit", res.balance[good]), ("speed_residual_rpm_per_unit", amp[good])):
+            coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+            resid = y - a @ coef
+            cov = np.linalg.inv(a.T @ a) * (resid @ resid) / max(len(y) - 2, 1)
+            entry[label] = float(coef[1])
+            entry[label + "_sigma"] = float(np.sqrt(cov[1, 1]))
+        out[name] = entry
+    return out
+
+
+def localise(res: Residuals, spec: EngineSpec, scale: np.ndarray) -> dict:
+    """Find: the coherent residual by engine order, crank-angle window and cylinder, the balance, the trends and
+    per channel (flywheel encoder: the speed residual; pressure and load sensors: the balance residual)."""
+    ok = np.isfinite(res.balance)
+    bal, bal_sig = _mean_sigma(res.balance[ok]) if ok.sum() > 1 else (float("nan"), float("inf"))
+    mean_speed = res.speed.mean(axis=0)
+    peak = int(np.argmax(np.abs(mean_speed)))
+    terms = coherent_terms(res, scale)
+    m = res.harmonics.shape[1]
+    orders = order_table(res)
+    return {
+        "cycles": res.n_cycles,
+        "gap": gap(res, scale),
+        "orders": orders,
+        "significant_orders": [o["order"] for o in orders if o["significant"]],
+        "half_order_share": float(max(terms[:m][0::2].sum() + terms[m:2 * m][0::2].sum(), 0.0)
+                                  / max(terms[:2 * m].sum(), 1e-12)) if terms[:2 * m].sum() > 0 else 0.0,
+        "angle": {"peak_deg": float(np.degrees(res.angles[peak])),
+                  "peak_rpm": float(mean_speed[peak] * RPM_PER_RAD_S),
+                  "rms_rpm": float(np.sqrt(np.mean(mean_speed**2)) * RPM_PER_RAD_S)},
+        "cylinders": cylinder_windows(res, spec),
+        "balance": {"mean_nm": bal, "sigma_nm": bal_sig,
+                    "significant": bool(np.isfinite(bal) and abs(bal) > SIGNIFICANT * bal_sig)},
+        "channels": {"flywheel_speed": float(max(terms[:2 * m].sum(), 0.0)),
+                     "torque_balance": float(max(terms[2 * m:].sum(), 0.0))},
+        "trends": trends(res),
+    }
+
+
+__all__ = ["RPM_PER_RAD_S", "SIGNIFICANT", "coherent_terms", "cost", "cylinder_windows", "gap", "localise",
+           "noise_scale", "order_table", "trends"]

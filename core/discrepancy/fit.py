@@ -1,0 +1,143 @@
+"""Fit a candidate's parameters: finite-difference sensitivities of the whitened residual features, Gauss-Newton.
+
+The model is nonlinear in most parameters and every evaluation is a monitor run, so the fit is linearised: one run
+at the candidate's no-effect point (shared by all candidates: the current model), one per parameter at x0 + step,
+and the Gauss-Newton step's predicted cost ranks the candidates (``linearise``); the best few are then evaluated
+at that step and one chord step further (the same sensitivities, the new residual), the better kept (``refine``). The evaluations run on a short training window (``Evaluator``); the workflow confirms the
+best few on the whole log and chooses on held-out cycles.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from frictionwatch.core.discrepancy.candidates import Candidate
+from frictionwatch.core.discrepancy.residuals import Residuals
+from frictionwatch.core.model.engine_model import EngineModel
+
+DAMPING = 1e-6  # Levenberg term relative to the largest diagonal of J'J: keeps a flat direction finite
+
+
+@dataclass(frozen=True)
+class Trial:
+    """A candidate fitted on the training window: x (p,) its parameters, sigma (p,) their 1-sigma, cost the whitened
+    sum of squares there (``base_cost`` the current model's), evaluations the monitor runs it took."""
+
+    candidate: Candidate
+    x: np.ndarray
+    sigma: np.ndarray
+    cost: float
+    base_cost: float
+    evaluations: int
+
+    @property
+    def gain(self) -> float:
+        """Fractional cost reduction on the training window."""
+        return (self.base_cost - self.cost) / self.base_cost if self.base_cost > 0 else 0.0
+
+
+class Evaluator:
+    """Whitened residual vectors of models on one training window: ``run(model) -> Residuals`` (a monitor run),
+    features from ``first`` cycle index on, whitened by ``scale``."""
+
+    def __init__(self, run: Callable[[EngineModel], Residuals], scale: np.ndarray, first: int):
+        self._run, self.scale, self.first = run, scale, first
+        self.calls = 0
+
+    def vector(self, model: EngineModel) -> tuple[np.ndarray, np.ndarray]:
+        """(cycle indices, whitened features (N, F)) of ``model``."""
+        self.calls += 1
+        res = self._run(model)
+        keep = res.index >= self.first
+        return res.index[keep], res.features()[keep] / self.scale
+
+
+def _aligned(ia: np.ndarray, a: np.ndarray, ib: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of a and b of the cycles both analysed (a trial can lose a cycle the base kept, or the reverse)."""
+    if ia.shape == ib.shape and np.array_equal(ia, ib):
+        return a, b
+    common = np.intersect1d(ia, ib)
+    return a[np.isin(ia, common)], b[np.isin(ib, common)]
+
+
+@dataclass(frozen=True)
+class Linearised:
+    """A candidate's sensitivities on the training window: x0, jac (N F, p) of the whitened residual, r0 the base
+    residual on the same cycles (idx), and the Gauss-Newton step's predicted cost."""
+
+    candidate: Candidate
+    idx: np.ndarray
+    r0: np.ndarray
+    jac: np.ndarray
+    x_gn: np.ndarray
+    predicted: float
+    base_cost: float
+
+
+def linearise(cand: Candidate, model: EngineModel, ev: Evaluator, base: tuple[np.ndarray, np.ndarray]) -> Linearised:
+    """One monitor run per parameter at x0 + step (a toggle: one run with it on; its cost is then exact)."""
+    idx0, r0 = base
+    base_cost = float(np.sum(r0**2))
+    if cand.toggle:
+        idx, r = ev.vector(cand.model_at(model, None))
+        a, b = _aligned(idx0, r0, idx, r)  # on the cycles both analysed, scaled to the base's count
+        cost = float(np.sum(b**2)) * base_cost / max(float(np.sum(a**2)), 1e-300)
+        return Linearised(cand, idx0, r0.ravel(), np.zeros((r0.size, 0)), np.zeros(0), cost, base_cost)
+    x0 = np.asarray(cand.x0, float)
+    cols: list[np.ndarray] = []
+    idx_common, r_base = idx0, r0
+    for i, h in enumerate(cand.step):
+        xi = x0.copy()
+        xi[i] += h
+        idx, r = ev.vector(cand.model_at(model, xi))
+        common = np.intersect1d(idx_common, idx)
+        cols = [c[np.isin(idx_common, common)] for c in cols]
+        r_base = r_base[np.isin(idx_common, common)]
+        cols.append((r[np.isin(idx, common)] - r_base) / h)
+        idx_common = common
+    jac = np.stack([c.ravel() for c in cols], axis=1)
+    rb = r_base.ravel()
+    x_gn = cand.clip(x0 - _solve(jac, rb))
+    pred = rb + jac @ (x_gn - x0)
+    return Linearised(cand, idx_common, rb, jac, x_gn, float(pred @ pred), base_cost)
+
+
+def _solve(jac: np.ndarray, r: np.ndarray) -> np.ndarray:
+    jtj = jac.T @ jac
+    return np.linalg.solve(jtj + DAMPING * np.max(np.diag(jtj), initial=1e-300) * np.eye(jtj.shape[0]), jac.T @ r)
+
+
+def refine(lin: Linearised, model: EngineModel, ev: Evaluator) -> Trial:
+    """Evaluate the Gauss-Newton point, take one chord step (same sensitivities, the new residual), keep the better;
+    sigma from the sensitivities, inflated by the reduced chi^2 when above 1."""
+    cand = lin.candidate
+    calls = ev.calls
+    if cand.toggle:
+        return Trial(cand, np.zeros(0), np.zeros(0), lin.predicted, lin.base_cost, 0)
+    x0 = np.asarray(cand.x0, float)
+    best_x, best_cost = x0, float(lin.r0 @ lin.r0)
+    x = lin.x_gn
+    for step in range(2):
+        idx, r = ev.vector(cand.model_at(model, x))
+        if not np.array_equal(idx, lin.idx):  # a cycle lost or gained: only like is compared with like
+            break
+        r_now = r.ravel()
+        cost = float(r_now @ r_now)
+        if cost < best_cost:
+            best_x, best_cost = x, cost
+        if step == 0:
+            x = cand.clip(x - _solve(lin.jac, r_now))
+    jtj = lin.jac.T @ lin.jac
+    inflate = max(1.0, best_cost / max(lin.r0.size - len(cand.params), 1))
+    cov = np.linalg.pinv(jtj + DAMPING * np.max(np.diag(jtj), initial=1e-300) * np.eye(jtj.shape[0])) * inflate
+    scale = best_cost / max(float(lin.r0 @ lin.r0), 1e-300)  # costs on the base's cycle count
+    return Trial(cand, best_x, np.sqrt(np.diag(cov)), scale * lin.base_cost, lin.base_cost, ev.calls - calls)
+
+
+def rank(trials: Sequence[Trial]) -> list[Trial]:
+    return sorted(trials, key=lambda t: t.cost)
+
+
+__all__ = ["Evaluator", "Linearised", "Trial", "linearise", "rank", "refine"]

@@ -1,0 +1,119 @@
+"""The offline HTML report of `frictionwatch discrepancy --report DIR`: one self-contained file, the plots inline as
+SVG (matplotlib, Agg), nothing fetched from the network. Wiring and units only; the figures come from core.discrepancy.
+
+Sections: the verdict and the gap before and after; each found effect with its parameters, sigma and evidence; the
+held-out residual against crank angle (baseline and after each step) and against engine order (before and after each
+step, half orders marked: they point at the cam); where along the cycle (cylinder windows) and per channel.
+"""
+
+from __future__ import annotations
+
+import html
+import io
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from frictionwatch.core.discrepancy import Discovery  # noqa: E402
+from frictionwatch.service.output_files import atomic_path  # noqa: E402
+
+RPM_PER_RAD_S = 30.0 / np.pi
+
+
+def _svg(fig) -> str:
+    buf = io.StringIO()
+    fig.savefig(buf, format="svg", bbox_inches="tight")
+    plt.close(fig)
+    text = buf.getvalue()
+    return text[text.index("<svg"):]  # drop the XML prolog and doctype: inline in HTML
+
+
+def angle_plot(found: Discovery) -> str:
+    fig, ax = plt.subplots(figsize=(9, 3.6))
+    for label, angles, mean in found.curves:
+        ax.plot(np.degrees(angles), mean * RPM_PER_RAD_S, lw=1.2, label=label)
+    ax.axhline(0.0, color="0.6", lw=0.6)
+    ax.set(xlabel="crank angle [°CA, 0 = cyl 1 firing TDC]", ylabel="measured − model speed [rpm]",
+           title="held-out residual, mean over cycles")
+    ax.legend(fontsize=8)
+    return _svg(fig)
+
+
+def order_plot(before: dict, after: dict, title: str) -> str:
+    fig, ax = plt.subplots(figsize=(9, 3.2))
+    orders = np.array([o["order"] for o in before["orders"]])
+    width = 0.2
+    for shift, loc, label in ((-width / 2, before, "before"), (width / 2, after, "after")):
+        amp = np.array([o["amplitude_rpm"] for o in loc["orders"]])
+        sig = np.array([o["sigma_rpm"] for o in loc["orders"]])
+        ax.bar(orders + shift, amp, width, yerr=sig, label=label, capsize=1.5)
+    for o in orders[::2]:
+        ax.axvspan(o - 0.25, o + 0.25, color="0.93", zorder=-1)
+    ax.set(xlabel="engine order (shaded: half orders, the cam)", ylabel="coherent residual [rpm]", title=title)
+    ax.legend(fontsize=8)
+    return _svg(fig)
+
+
+def _table(rows: list[list[str]], head: list[str]) -> str:
+    th = "".join(f"<th>{html.escape(h)}</th>" for h in head)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><tr>{th}</tr>{body}</table>"
+
+
+def _fmt(v: object) -> str:
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
+def render(doc: dict, found: Discovery) -> str:
+    parts = [f"<h1>Discrepancy: {html.escape(doc.get('engine', ''))}</h1>",
+             f"<p><b>{html.escape(doc['verdict'])}</b>. Baseline {html.escape(str(doc.get('baseline', '')))}, "
+             f"{doc.get('cycles', '?')} cycles. Gap on held-out cycles {doc['gap_before']:.3g} → "
+             f"{doc['gap_after']:.3g}.</p>", f"<p class=small>Gap: {html.escape(doc['metric'])}.</p>"]
+    rows = [[f["effect"], _fmt(f["cylinder"]) if f["cylinder"] is not None else "–",
+             ", ".join(f"{k} = {_fmt(v)}" for k, v in f["parameters"].items()),
+             ", ".join(f"{k} ± {_fmt(v)}" for k, v in f["sigma"].items()) or "–",
+             f"{f['evidence']['gap_before']:.3g} → {f['evidence']['gap_after']:.3g}",
+             f"{f['evidence']['delta_chi2_heldout']:.1f}", str(f["evidence"]["runner_up"] or "–")]
+            for f in doc["found"]]
+    if rows:
+        parts.append(_table(rows, ["effect", "cylinder", "parameters", "sigma", "gap", "held-out Δχ²", "runner-up"]))
+    parts += ["<h2>Residual against crank angle</h2>", angle_plot(found), "<h2>Residual against engine order</h2>"]
+    prev = found.localisation
+    for s in found.steps:
+        parts.append(order_plot(s.before, s.after, f"before and after + {s.trial.candidate.label}"))
+        prev = s.after
+    if not found.steps:
+        parts.append(order_plot(prev, found.final, "baseline (nothing added)"))
+    loc = found.localisation
+    parts.append("<h2>Where (baseline, held-out cycles)</h2>")
+    parts.append(_table([[str(c["cylinder"]), f"{c['rms_rpm']:.4g}", f"{c['relative']:.2f}"] for c in loc["cylinders"]],
+                        ["cylinder window (TDC..+180°)", "residual rms [rpm]", "of the cycle's"]))
+    bal = loc["balance"]
+    parts.append(f"<p>Torque balance residual (measured − model friction): {bal['mean_nm']:.3g} ± "
+                 f"{bal['sigma_nm']:.2g} N·m. Channels, coherent χ² per cycle: flywheel speed "
+                 f"{loc['channels']['flywheel_speed']:.3g}, torque balance {loc['channels']['torque_balance']:.3g}."
+                 f" Significant orders: {', '.join(_fmt(o) for o in loc['significant_orders']) or 'none'}.</p>")
+    if doc.get("not_significant"):
+        parts.append("<p>Tried and not significant (held-out gap): " + html.escape(", ".join(
+            f"{k} {v:.3g}" for k, v in doc["not_significant"].items())) + "</p>")
+    style = ("body{font-family:sans-serif;max-width:960px;margin:2em auto}table{border-collapse:collapse}"
+             "td,th{border:1px solid #bbb;padding:2px 8px}.small{font-size:85%;color:#444}")
+    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>frictionwatch discrepancy</title>"
+            f"<style>{style}</style></head><body>{''.join(parts)}</body></html>\n")
+
+
+def write_report(out_dir: Path, doc: dict, found: Discovery) -> Path:
+    """Write ``out_dir/discrepancy.html`` whole or not at all; returns its path."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / "discrepancy.html"
+    text = render(doc, found)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return path
+
+
+__all__ = ["angle_plot", "order_plot", "render", "write_report"]

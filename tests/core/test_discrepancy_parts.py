@@ -1,0 +1,123 @@
+"""The discrepancy workflow's parts on made-up inputs (no monitor run): the gap and its noise floor, the order table,
+pressure corrections, the monitor's view of a model's effects, the candidate library."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from frictionwatch.core.discrepancy.candidates import candidate_library
+from frictionwatch.core.discrepancy.features import gap, localise, noise_scale, order_table
+from frictionwatch.core.discrepancy.residuals import ANGLE_POINTS, Residuals
+from frictionwatch.core.discrepancy.view import Reference, corrected_pressure, monitor_view, rigid_spec
+from frictionwatch.core.model.effects import make_effect
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.engine_model import EngineModel
+
+
+def made_up(n: int, m: int, coherent: np.ndarray, balance_mean: float, seed: int = 0) -> Residuals:
+    rng = np.random.default_rng(seed)
+    harm = coherent[None, :] + (rng.standard_normal((n, m)) + 1j * rng.standard_normal((n, m))) / np.sqrt(2)
+    return Residuals(index=np.arange(n), omega=np.full(n, 200.0), load=np.full(n, 50.0), harmonics=harm,
+                     balance=balance_mean + rng.standard_normal(n), speed=np.zeros((n, ANGLE_POINTS)),
+                     angles=np.linspace(0, 4 * np.pi, ANGLE_POINTS, endpoint=False))
+
+
+def test_gap_is_the_coherent_part_in_noise_units():
+    m, n = 8, 4000
+    noise = made_up(n, m, np.zeros(m), 0.0)
+    scale = noise_scale(noise)
+    expected = np.r_[np.full(2 * m, np.sqrt(0.5)), 1.0]  # Re and Im of unit complex noise, the balance's unit noise
+    np.testing.assert_allclose(scale, expected, rtol=0.08)
+    assert gap(noise, scale) < 0.2  # noise alone: the floor is removed (sqrt of ~ sqrt(2F/N) fluctuations)
+    coherent = np.zeros(m, complex)
+    coherent[3] = 2.0 + 1.0j  # order 2: (4 + 1) / 0.5 in noise variances of its Re and Im, the balance 3^2 / 1
+    with_signal = made_up(n, m, coherent, 3.0, seed=1)
+    np.testing.assert_allclose(gap(with_signal, expected), np.sqrt(10.0 + 9.0), rtol=0.05)
+
+
+def test_order_table_flags_the_coherent_order_only():
+    m = 10
+    coherent = np.zeros(m, complex)
+    coherent[0] = 0.5j  # order 0.5, a half order
+    table = order_table(made_up(400, m, coherent, 0.0, seed=2))
+    assert [o["order"] for o in table if o["significant"]] == [0.5]
+    assert table[0]["half_order"] and not table[1]["half_order"]
+    np.testing.assert_allclose(table[0]["amplitude_rpm"], 0.5 * 30 / np.pi, rtol=0.15)
+
+
+def test_localise_reports_the_balance_and_no_trend_at_one_point():
+    spec = load_engine("k9k-4cyl")
+    res = made_up(200, 6, np.zeros(6), 4.0, seed=3)
+    loc = localise(res, spec, noise_scale(res))
+    np.testing.assert_allclose(loc["balance"]["mean_nm"], 4.0, atol=0.3)
+    assert loc["balance"]["significant"]
+    assert loc["trends"] == {"speed": None, "load": None}
+    assert [c["cylinder"] for c in loc["cylinders"]] == [1, 2, 3, 4]
+
+
+def reference(spec, n=720):
+    grid = np.linspace(0, 4 * np.pi, n, endpoint=False)
+    p = np.array([1e5 + 40e5 * np.exp(-0.5 * ((np.mod(grid - a + np.pi, 4 * np.pi) - np.pi) / 0.3) ** 2)
+                  for a in spec.firing_angles])
+    return Reference(200.0, grid, p)
+
+
+def test_sensor_errors_are_undone_and_a_tdc_offset_moves_the_kinematic_phase():
+    spec = load_engine("k9k-4cyl")
+    ref = reference(spec)
+    model = EngineModel.from_spec(spec, effects=[make_effect("tdc_offset", {"cylinder": 2, "deg": 3.0}),
+                                                 make_effect("tdc_offset", {"cylinder": 0, "deg": -1.0}),
+                                                 make_effect("pressure_gain", {"cylinder": 3, "gain": 1.1}),
+                                                 make_effect("pressure_offset", {"cylinder": 4, "pa": 2e4})])
+    view = monitor_view(model, ref)
+    read = ref.pressure.copy()
+    read[2] = 1.1 * ref.pressure[2]
+    read[3] = ref.pressure[3] + 2e4
+    np.testing.assert_allclose(corrected_pressure(view, read), ref.pressure, rtol=1e-12, atol=1e-6)
+    # the plant's throw of cylinder 2 is 3 deg later than stated, the whole wheel 1 deg earlier
+    np.testing.assert_allclose(np.degrees(view.spec.firing_angles - spec.firing_angles), [-1.0, 2.0, -1.0, -1.0],
+                               atol=1e-12)
+
+
+def test_view_of_default_and_reduced_models():
+    spec = load_engine("k9k-4cyl")
+    ref = reference(spec)
+    full = monitor_view(EngineModel.from_spec(spec), ref)
+    assert full.config.variable_inertia and full.spec.stiffness.size == spec.stiffness.size
+    assert not full.corrects_pressure
+    bare = monitor_view(EngineModel.from_spec(spec, without={"torsional_flexibility", "variable_inertia"}), ref)
+    assert not bare.config.variable_inertia and bare.spec.node_inertia.shape == (1,)
+    np.testing.assert_allclose(rigid_spec(spec).node_inertia.sum(), spec.node_inertia.sum(), rtol=1e-12)
+    worn = monitor_view(EngineModel.from_spec(spec, effects=[make_effect("ring_wear", {"cylinder": 2, "gain": 2.0})]),
+                        ref)
+    ratio = worn.coefficients / full.coefficients
+    np.testing.assert_allclose(ratio[1, :3], 2.0)
+    np.testing.assert_allclose(np.delete(ratio, 1, axis=0), 1.0)
+
+
+def test_friction_law_keeps_the_mean_at_the_reference_point():
+    spec = load_engine("k9k-4cyl")
+    ref = reference(spec)
+    from frictionwatch.core.discrepancy.view import basis_means
+
+    base = monitor_view(EngineModel.from_spec(spec), ref)
+    law = monitor_view(EngineModel.from_spec(spec, effects=[make_effect("bearings_load", {"fraction": 0.5})]), ref)
+    mean_base = np.sum(base.coefficients * basis_means(base.spec, base.terms, ref), axis=1)
+    mean_law = np.sum(law.coefficients * basis_means(law.spec, law.terms, ref), axis=1)
+    np.testing.assert_allclose(mean_law, mean_base, rtol=1e-9)
+    assert law.terms.names[-1] == "plant_bearings_load"
+
+
+def test_library_leaves_out_what_the_model_holds():
+    spec = load_engine("k9k-4cyl")
+    model = EngineModel.from_spec(spec, effects=[make_effect("pressure_gain", {"cylinder": 3, "gain": 1.05})])
+    labels = {c.label for c in candidate_library(model)}
+    assert "pressure_gain[cyl 3]" not in labels and "pressure_gain[cyl 2]" in labels
+    assert "torsional_flexibility" not in labels and "chain_mismatch" in labels
+    rigid = EngineModel.from_spec(spec, without={"torsional_flexibility"})
+    labels = {c.label for c in candidate_library(rigid)}
+    assert "torsional_flexibility" in labels and "chain_mismatch" not in labels
+    cand = next(c for c in candidate_library(model) if c.label == "tdc_offset[cyl 0]")
+    assert cand.model_at(model, np.array([0.0])) is model
+    e = cand.effect_at(np.array([25.0]))  # clipped to the effect's range
+    assert e["deg"] == pytest.approx(10.0) and e["cylinder"] == 0
