@@ -32,6 +32,7 @@ from frictionwatch.core.monitor.accumulate import Accumulator
 from frictionwatch.core.monitor.change import ChangeSettings, detect_change
 from frictionwatch.core.monitor.identification import Identification
 from frictionwatch.core.monitor.results import FrictionEstimate
+from frictionwatch.core.monitor.ring_pressure import RingIndicators, RingWindows, ring_indicators, ring_windows
 from frictionwatch.core.monitor.state import ConditionState
 
 FOUR_PI = 4.0 * np.pi
@@ -81,11 +82,13 @@ DEFAULT_SETTINGS = ConditionSettings()
 
 @dataclass(frozen=True)
 class ConditionStep:
-    """One cycle's condition: the new state, the flags, and the accumulator to carry on (discounted after a change)."""
+    """One cycle's condition: the new state, the flags, the accumulator to carry on (discounted after a change) and
+    the pressure-based ring indicators of every cylinder (core.monitor.ring_pressure; for service.alerts)."""
 
     state: ConditionState
     flags: tuple[str, ...]
     accumulator: Accumulator
+    ring: RingIndicators | None = None
 
 
 def compression_rise(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, settings: ConditionSettings
@@ -173,7 +176,17 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
     new = ConditionState(count=count, compression=comp, compression_var=comp_var, peak=peak, peak_var=peak_var,
                          indicated=ind, indicated_var=ind_var, misfit=misfit, detector=detector,
                          since_op_change=since_op)
-    return ConditionStep(new, tuple(flags), acc)
+    win = _windows(spec)
+    ring = ring_indicators(spec, grid, pressure, win) if win is not None else None
+    return ConditionStep(new, tuple(flags), acc, ring)
+
+
+def _windows(spec: EngineSpec) -> RingWindows | None:
+    """The engine's ring-indicator windows, or None (no indicators) where its valve timing leaves no room."""
+    try:
+        return ring_windows(spec)
+    except ValueError:
+        return None
 
 
 def _friction_up(est: FrictionEstimate, k: int, sigmas: float) -> bool:
