@@ -124,19 +124,18 @@ def _window(spec: EngineSpec, lo: float, hi: float) -> tuple[np.ndarray, np.ndar
 
 def _sample(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, local: np.ndarray) -> np.ndarray:
     """(z, m) ln p of each cylinder at ``local`` angles from its firing TDC, linear between grid points and periodic
-    over 4 pi (NaN where p <= 0). One searchsorted for all cylinders (np.interp's period mode sorts per call)."""
+    over 4 pi (NaN where p <= 0). One searchsorted for all cylinders on the grid extended by one point at each end
+    (np.interp's period mode sorts per call)."""
     z, n = pressure.shape
-    at = np.mod(local[None, :] + spec.firing_angles[:, None], FOUR_PI)  # (z, m)
-    ext = np.append(grid, grid[0] + FOUR_PI)
-    j = np.clip(np.searchsorted(ext, at, side="right") - 1, 0, n - 1)
-    before = at < grid[0]  # angles ahead of the grid's first point: between the last point and the wrap
-    j = np.where(before, n - 1, j)
-    x0 = np.where(before, grid[n - 1] - FOUR_PI, ext[j])
-    x1 = np.where(before, grid[0], ext[j + 1])
-    rows = np.arange(z)[:, None]
-    p0, p1 = pressure[rows, j], pressure[rows, (j + 1) % n]
-    p = p0 + (p1 - p0) * (at - x0) / (x1 - x0)
-    return np.log(np.where(p > 0.0, p, np.nan))
+    at = np.mod(local[None, :] + spec.firing_angles[:, None], FOUR_PI).ravel()
+    ext = np.concatenate(([grid[-1] - FOUR_PI], grid, [grid[0] + FOUR_PI]))
+    j = np.searchsorted(ext, at, side="right") - 1  # ext[j] <= at < ext[j + 1], j in 0..n
+    frac = (at - ext[j]) / (ext[j + 1] - ext[j])
+    cols = (j - 1) % n  # ext index i is grid index i - 1 (mod n)
+    rows = np.repeat(np.arange(z), local.shape[0])
+    p0 = pressure[rows, cols]
+    p = p0 + (pressure[rows, (cols + 1) % n] - p0) * frac
+    return np.log(np.where(p > 0.0, p, np.nan)).reshape(z, local.shape[0])
 
 
 def _slopes(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -151,7 +150,8 @@ def ring_indicators(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray,
     win = windows or ring_windows(spec)
     c_ang, c_x = _window(spec, win.comp_start, win.comp_end)
     e_ang, e_x = _window(spec, win.exp_start, win.exp_end)
-    c_lnp, e_lnp = _sample(spec, grid, pressure, c_ang), _sample(spec, grid, pressure, e_ang)
+    both = _sample(spec, grid, pressure, np.concatenate((c_ang, e_ang)))  # one pass for the two windows
+    c_lnp, e_lnp = both[:, :c_ang.shape[0]], both[:, c_ang.shape[0]:]
     n_c, n_e = _slopes(c_x, c_lnp), _slopes(e_x, e_lnp)
     comp_ln = c_lnp[:, -1]
     n_e_dev = _sibling_median(n_e)

@@ -90,3 +90,27 @@ def test_a_ramp_grows_linearly_from_its_onset():
     full = cylinders_at(K9K, [wear], coef, names, 149)
     assert_allclose(full.coefficients[1, :3], 1.3) and assert_allclose(full.mass_loss[1], 0.04)
     assert_allclose(cylinders_at(K9K, [wear], coef, names, 99).coefficients, coef)
+
+
+def test_the_misfit_statistic_counts_only_the_parameters_the_data_determine():
+    """10 rows, 8 parameters, 6 of them held by tight priors (a genset-v20 cycle: 49 rows, 47 parameters): the
+    posterior's chi^2 / (rows - P) reads ~4 on a right model; over rows - tr(H) it reads ~1."""
+    from frictionwatch.core.monitor.accumulate import Accumulator, Prior, solve_posterior
+    from frictionwatch.core.monitor.condition import cycle_chi2_reduced
+
+    rng = np.random.default_rng(8)
+    rows, p = 10, 8
+    truth = np.ones(p)
+    sigma = np.r_[np.full(2, 1e3), np.full(6, 1e-4)]  # two free parameters, six held at their (true) prior
+    new, old = [], []
+    for _ in range(400):
+        a = rng.standard_normal((rows, p))
+        y = a @ truth + rng.standard_normal(rows)
+        acc = Accumulator.empty(p, rows)
+        acc = acc.fold(acc.cycle_terms(a, y, np.ones(rows), 1), 1.0)
+        post = solve_posterior(acc, Prior(np.eye(p), truth, sigma), np.zeros(rows), lower=-np.inf)
+        new.append(cycle_chi2_reduced(acc, post))
+        old.append(post.chi2_reduced)
+    assert_allclose(np.mean(new), 1.0, atol=0.1)  # chi^2 with 8 dof / 8: mean 1, sd of the mean 0.025
+    assert np.mean(old) > 3.0  # the same residuals over rows - P = 2
+    assert cycle_chi2_reduced(None, post) == post.chi2_reduced

@@ -27,6 +27,7 @@ def _alerts(cycles, effects=(), load_steps=None):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # 300 K9K cycles simulated and monitored: ~7 min on a loaded 2-core box
 def test_a_ring_wear_onset_is_alerted_on_its_cylinder():
     onset = 130
     raised, alerts = _alerts(300, [f"ring_wear:cylinder=2,gain=1.3,mass_loss=0.03,from_cycle={onset},ramp_cycles=40"])
@@ -38,6 +39,7 @@ def test_a_ring_wear_onset_is_alerted_on_its_cylinder():
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)
 def test_a_healthy_log_with_a_load_step_raises_nothing():
     raised, alerts = _alerts(300, load_steps=[(170 * 120.0 / RPM, 0.6 * LOAD)])
     assert alerts.baseline is not None
