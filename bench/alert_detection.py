@@ -77,7 +77,7 @@ def run(engine: str, cycles: int, effects: list[str], seed: int, cov: float, ste
 
 
 def _raised(events: list) -> list[dict]:
-    return [{"cycle": i, "kind": a.kind, "cylinder": a.cylinder, "severity": a.severity, "message": a.message[:140]}
+    return [{"cycle": int(i), "kind": a.kind, "cylinder": a.cylinder, "severity": a.severity, "message": a.message[:140]}
             for i, k, a in events if k == "raised"]
 
 

@@ -307,6 +307,7 @@ class AlertEngine:
                 result: CycleResult, severity: str, message: str, evidence: dict) -> list[AlertEvent]:
         """One statistic's hysteresis step (``key``: the statistic and cylinder; one open alert of ``kind`` per
         key; the kind is fixed when it is raised)."""
+        key = (key[0], None if key[1] is None else int(key[1]))  # a numpy index never reaches the JSON
         latch = self._latches.setdefault(key, Latch())
         change = latch.step(bool(on), bool(off), k_on, k_off, int(result.index))
         akey = key
