@@ -11,7 +11,9 @@ the statistic is above ``raise`` for ``raise_cycles`` consecutive cycles and cle
                  standardised change / its standard error. Covers every cylinder from the end of commissioning, with
                  or without a friction figure. Before a baseline exists: the core's sibling-floor flag blow_by_cyl<k>.
     ring_wear    the cylinder's measured friction (figure status "measured") above its siblings' mean by more than
-                 at its first measurement, in combined sigmas; or the core's ring_wear_cyl<k> flag before a baseline
+                 at its first measurement, in combined sigmas, unless that cylinder's pressure-gain check is raised
+                 (a 3 % gain error on a K9K cylinder read as +46 % friction: the balance books the indicated work the
+                 sensor adds as friction); or the core's ring_wear_cyl<k> flag before a baseline
     sensor_fault a sensor-health flag (sensor_*), a stuck or dropped pressure (a flat or non-positive compression),
                  or the compression pressure against the siblings changed with both exponents unchanged: a gain
                  error of that sensor, or a leak too small to bend the polytropes; the exponents are gain-invariant,
@@ -284,6 +286,9 @@ class AlertEngine:
         t, s = est.friction_torque_mean, est.friction_torque_mean_sigma
         out = []
         for k in np.flatnonzero(measured):
+            gain = self._latches.get(("gain", int(k) + 1))
+            if gain is not None and gain.active:  # its pressure is suspect, and its friction rests on that pressure
+                continue
             others = np.flatnonzero(measured)
             others = others[others != k]
             if others.size < 2:
