@@ -6,6 +6,9 @@ API's LatestState and the SSE broadcaster), api.py (FastAPI routes), api_models.
 api_views.py (results -> those shapes, statuses from core.monitor.figure_status), metrics.py (Prometheus),
 security.py (bind check, token, engine ids).
 
+alerts.py (AlertEngine: per-cycle alert decisions with hysteresis), alert_baseline.py (the commissioning baseline),
+alert_rules.py (the hysteresis latch and the leak statistics): decision logic on CycleResults, no physics.
+
 One engine's pipeline is one thread of small dense linear algebra (47 x 47): multi-threaded BLAS only adds
 contention on a small box (measured: eigh/pinv 0.15 ms single-threaded vs 0.7-1.7 ms with OpenBLAS threading on 2
 loaded cores), so pin it to one thread unless the operator says otherwise. This must run before numpy is imported.

@@ -14,6 +14,8 @@ walks through it.
       posterior_kernels.py, spd_kernels.py   the bounded MAP estimate and its posterior on small SPD systems
     condition.py          engine-condition flags per cycle (blow-by, ring wear, model misfit) from sibling windows,
       change.py             and the CUSUM change detector that discounts the accumulated equations once
+      ring_pressure.py      the pressure ring indicators of every cylinder (compression vs siblings, polytropic
+                            exponents, expansion deficit) for service.alerts
     cycle_report.py       the typed per-cycle result (results.py): traces, measured vs model speed, residuals
     figure_status.py      what each friction figure is: measured, share, prior, unresolved or withheld
     run_summary.py        over a run: the window an estimate stands for, flags per window, run means

@@ -28,10 +28,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.accumulate import Accumulator
+from frictionwatch.core.monitor.accumulate import Accumulator, Posterior
 from frictionwatch.core.monitor.change import ChangeSettings, detect_change
 from frictionwatch.core.monitor.identification import Identification
 from frictionwatch.core.monitor.results import FrictionEstimate
+from frictionwatch.core.monitor.ring_pressure import RingIndicators, RingWindows, ring_indicators, ring_windows
 from frictionwatch.core.monitor.state import ConditionState
 
 FOUR_PI = 4.0 * np.pi
@@ -51,9 +52,10 @@ class ConditionSettings:
     0.015-0.021; blow-by (12 % mass loss, cylinder 2) read -0.023, -0.026 and -0.069. A flag needs all three below
     -(floor + ``z_flag`` standard errors of the window mean): a lean or weak cylinder has no compression loss, a
     pressure gain error cancels in the compression rise, a pegging offset raises pmax.
-    misfit_excess: the mean reduced chi^2 over ``misfit_window`` cycles above 1 that flags a model misfit; each
-    cycle's chi^2 counts up to ``misfit_cap`` (the 15 wild cycles of a load step do not make a window's misfit; a
-    chain 20 % off reads a median of 3..5 on the K9K, a healthy log 0.8)
+    misfit_excess: the mean reduced chi^2 of the cycle's own fit (``cycle_chi2_reduced``) over ``misfit_window``
+    cycles above 1 that flags a model misfit; each cycle's value counts up to ``misfit_cap`` (the 15 wild cycles
+    of a load step do not make a window's misfit; a chain 20 % off reads a median of 3..5 on the K9K, a healthy
+    log 0.8)
     settle: cycles after an operating-point change (the monitor rebuilt its transfer functions: the mean speed moved
     0.5 %) in which a detected change resets the estimate without being named as the engine's
     ring_sigmas: a worn ring needs the cylinder's friction above its siblings' mean by this many sigmas
@@ -81,11 +83,13 @@ DEFAULT_SETTINGS = ConditionSettings()
 
 @dataclass(frozen=True)
 class ConditionStep:
-    """One cycle's condition: the new state, the flags, and the accumulator to carry on (discounted after a change)."""
+    """One cycle's condition: the new state, the flags, the accumulator to carry on (discounted after a change) and
+    the pressure-based ring indicators of every cylinder (core.monitor.ring_pressure; for service.alerts)."""
 
     state: ConditionState
     flags: tuple[str, ...]
     accumulator: Accumulator
+    ring: RingIndicators | None = None
 
 
 def compression_rise(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, settings: ConditionSettings
@@ -149,7 +153,8 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
     # move for a while without anything wrong with the engine
     since_op = 0 if op_changed else st.since_op_change + 1
     settled = since_op > settings.settle
-    chi2 = min(cycle.chi2_reduced, settings.misfit_cap)  # a few wild cycles cannot make a window's misfit
+    chi2 = min(cycle_chi2_reduced(ident.cycle_terms, cycle), settings.misfit_cap)  # a few wild cycles cannot
+    # make a window's misfit
     g_misfit = max(1.0 / settings.misfit_window, 1.0 / (st.count + 1))
     misfit = chi2 if first else st.misfit + g_misfit * (chi2 - st.misfit)
     flags: list[str] = []
@@ -178,7 +183,32 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
     new = ConditionState(count=count, compression=comp, compression_var=comp_var, peak=peak, peak_var=peak_var,
                          indicated=ind, indicated_var=ind_var, misfit=misfit, detector=detector,
                          since_op_change=since_op)
-    return ConditionStep(new, tuple(flags), acc)
+    win = _windows(spec)
+    ring = ring_indicators(spec, grid, pressure, win) if win is not None else None
+    return ConditionStep(new, tuple(flags), acc, ring)
+
+
+def _windows(spec: EngineSpec) -> RingWindows | None:
+    """The engine's ring-indicator windows, or None (no indicators) where its valve timing leaves no room."""
+    try:
+        return ring_windows(spec)
+    except ValueError:
+        return None
+
+
+def cycle_chi2_reduced(terms: Accumulator | None, post: Posterior) -> float:
+    """This cycle's chi^2 at its posterior over its effective degrees of freedom rows - tr(H), H the hat matrix:
+    tr(H) = tr(info_data cov) counts only the parameters the cycle's data determine, not those its priors hold.
+    The posterior's own chi2_reduced divides by rows - P: on genset-v20 (49 rows, 47 parameters, most held by the
+    priors) that is 2 and a healthy cycle read 5..19 (the false model_misfit of the demo log, cycles 30-39); over
+    rows - tr(H) the same residuals read below 1. Without the terms: the posterior's own value."""
+    if terms is None:
+        return float(post.chi2_reduced)
+    p = post.params
+    chi2 = float(terms.yty - 2.0 * p @ terms.rhs + p @ terms.info @ p)
+    unscaled = post.cov_statistical / max(1.0, post.chi2_reduced)  # the posterior scales it by chi2_reduced
+    dof = terms.rows - float(np.sum(terms.info * unscaled.T))
+    return chi2 / dof if dof > 0 else 1.0
 
 
 def _friction_up(est: FrictionEstimate, k: int, sigmas: float) -> bool:

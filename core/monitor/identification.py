@@ -130,7 +130,8 @@ class Identification:
     """The identification's results of one cycle: updated residual statistics and accumulator, the running means
     of the sharing prior (indicated_mean (z,), balance_mean), the posteriors and reported estimates of the
     accumulated equations (smoothed) and of this cycle's alone (cycle), the firing mask (z,), the harmonic
-    frequencies freq (M,) and this cycle's drift column (M,) complex (None: not used)."""
+    frequencies freq (M,) and this cycle's drift column (M,) complex (None: not used); cycle_terms: this cycle's
+    own normal equations (the model-misfit statistic's effective degrees of freedom, core.monitor.condition)."""
 
     stats: ResidualStats
     accumulator: Accumulator
@@ -143,6 +144,7 @@ class Identification:
     fire: np.ndarray
     freq: np.ndarray
     drift_col: np.ndarray | None
+    cycle_terms: Accumulator | None = None
 
 
 NO_BALANCE = ("prior: no mean balance (no load measurement, no cycle before for the kinetic-energy term, or the load "
@@ -209,8 +211,8 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     layout = state.layout
     cyl_rows = rows.cylinder_rows[:, :layout.n_params]  # the friction parameters' part
     post_s = posterior_from_normal(acc, *state.prior.with_share(cyl_rows, share_s), white.sys_var, state.lower)
-    post_c = posterior_from_normal(Accumulator.of_terms(terms), *state.prior.with_share(cyl_rows, share_c),
-                                   white.sys_var, state.lower)
+    acc_c = Accumulator.of_terms(terms)
+    post_c = posterior_from_normal(acc_c, *state.prior.with_share(cyl_rows, share_c), white.sys_var, state.lower)
     limits = ReportLimits(cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain)
     # the model-error floor compares each estimate with the mean balance over the same cycles (its EWMA's sigma
     # from the balance's own scatter: g / (2 - g) of the per-cycle variance)
@@ -229,4 +231,4 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     est_c = measured_or_withheld(est_c, _source(math.isfinite(balance)))
     return Identification(stats=white.stats, accumulator=acc, indicated_mean=ind_mean, balance_mean=bal_mean,
                           smoothed=post_s, cycle=post_c, smoothed_estimate=est_s, cycle_estimate=est_c, fire=fire,
-                          freq=white.freq, drift_col=white.drift_col)
+                          freq=white.freq, drift_col=white.drift_col, cycle_terms=acc_c)

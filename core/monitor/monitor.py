@@ -188,7 +188,7 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     flags += cond.flags
 
     result = build_result(spec, cycle, fly, exc, rows, state.layout, ident, mean, pmax, pmax_angle, flags, tables)
-    result = replace(result, sensor_health=health) if health is not None else result
+    result = replace(result, sensor_health=health, ring=cond.ring)  # one replace: the stage results not in build_result
     new_state = MonitorState(
         layout=state.layout, n_harmonics=m, n_nuisance=state.n_nuisance, accumulator=cond.accumulator,
         stats=ident.stats, params=ident.smoothed.params, op=op, relative_motion=rel, static=static, teeth=teeth,

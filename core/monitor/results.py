@@ -17,6 +17,7 @@ from functools import cached_property
 
 import numpy as np
 from frictionwatch.core.monitor.figure_status import FigureStatus, FrictionStatus, friction_status
+from frictionwatch.core.monitor.ring_pressure import RingIndicators
 
 PA_PER_BAR = 1e5
 
@@ -131,6 +132,7 @@ class CycleResult:
     acceleration rad/s^2, indicated_window N m: over the 720 deg centred on cylinder 1's firing TDC (from the middle
     of the cycle before), the angle-averaged dw/dt and the engine's indicated torque; friction_balance pairs them
     with J at theta = 2 pi (NaN without the cycle before; core.monitor.identification.transient_balance)
+    ring: the pressure-based ring indicators of every cylinder (core.monitor.ring_pressure; service.alerts)
 
     The traces (grid, friction_torque, friction_torque_cyl_time, time_angles, speed_measured, speed_model,
     friction_torque_balance) are None in the copy ``slim()`` makes for a long history: ~85 % of a result's memory.
@@ -164,6 +166,7 @@ class CycleResult:
     sensor_health: SensorHealth | None = None
     acceleration: float = float("nan")
     indicated_window: float = float("nan")
+    ring: RingIndicators | None = None
 
     @cached_property
     def friction_torque_cyl(self) -> np.ndarray | None:

@@ -58,12 +58,29 @@ MIN_SLOPE_FRACTION = 0.25  # dyno law slope never below 25 % of the full-load br
 
 def cylinders_at(spec: EngineSpec, effects: Sequence[Effect], coefficients: np.ndarray, term_names: tuple[str, ...],
                  cycle: int) -> CylinderSetup:
-    """The cylinders' set-up in output cycle ``cycle``: every effect whose onset is at or before it, in order."""
+    """The cylinders' set-up in output cycle ``cycle``: every effect whose onset is at or before it, in order, each
+    at its ramp's fraction there (``Effect.ramp_fraction``)."""
     cyl = CylinderSetup.nominal(spec, coefficients, term_names)
     for e in effects:
         if e.onset_cycle <= cycle:
-            cyl = e.apply_cylinders(cyl)
+            cyl = e.scaled(e.ramp_fraction(cycle)).apply_cylinders(cyl)
     return cyl
+
+
+MAX_RAMP_STEPS = 200  # a ramp switches the plant at most this many times (each switch sizes a leak orifice)
+
+
+def stage_onsets(effects: Sequence[Effect], cycles: int) -> list[int]:
+    """Output cycles where the cylinders' set-up changes: 0, each onset, and along each ramp every cycle (a ramp
+    longer than MAX_RAMP_STEPS cycles: every ceil(ramp / MAX_RAMP_STEPS) cycles, a staircase of equal steps under
+    the line), before ``cycles``."""
+    out = {0}
+    for e in effects:
+        out.add(e.onset_cycle)
+        if e.ramp_cycles > 1:
+            step = -(-e.ramp_cycles // MAX_RAMP_STEPS)
+            out.update(range(e.onset_cycle, e.onset_cycle + e.ramp_cycles, step))
+    return sorted(c for c in out if c < cycles)
 
 
 @dataclass
@@ -162,7 +179,7 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
     for e in model.effects:  # each hook returns a new set-up: instances compose in the order listed
         chain, load_fx, sensors = e.apply_chain(chain), e.apply_load(load_fx), e.apply_sensors(sensors)
     # a change mid-run: the cylinders' set-up from each effect's onset cycle on (stage 0 from the start)
-    onsets = sorted({e.onset_cycle for e in model.effects if e.onset_cycle < cycles} | {0})
+    onsets = stage_onsets(model.effects, cycles)
     stages = [cylinders_at(spec, model.effects, coef_nominal, lib.names, c) for c in onsets]
     cyl = stages[0]
     coef, phase, misfire = cyl.coefficients, cyl.firing_angles, cyl.misfire

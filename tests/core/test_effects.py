@@ -28,7 +28,8 @@ def test_parse_effect_fills_defaults_and_types():
     e = parse_effect("ring_wear:cylinder=3,gain=1.4")
     assert e == RingWear(cylinder=3, gain=1.4) and e.name == "ring_wear"
     assert dict(e.values) == {"cylinder": 3, "gain": 1.4,
-                              "mass_loss": EFFECTS["ring_wear"].parameters["mass_loss"].default, "from_cycle": 0}
+                              "mass_loss": EFFECTS["ring_wear"].parameters["mass_loss"].default, "from_cycle": 0,
+                              "ramp_cycles": 0}
     assert isinstance(e["cylinder"], int)
     assert dict(parse_effect("variable_inertia").values) == {}
     assert parse_effect(" misfire : cylinder = 2 ")["cylinder"] == 2

@@ -239,6 +239,24 @@ class Effect:
         """First output cycle the effect acts in (its ``from_cycle`` parameter; 0: from the start)."""
         return int(self.values.get("from_cycle", 0))
 
+    @property
+    def ramp_cycles(self) -> int:
+        """Output cycles over which the effect grows linearly from its onset to full size (``ramp_cycles``; 0: a
+        step at the onset)."""
+        return int(self.values.get("ramp_cycles", 0))
+
+    def ramp_fraction(self, cycle: int) -> float:
+        """How much of the effect acts in output ``cycle``: 0 before the onset, then (cycle - onset + 1) / ramp up
+        to 1 (the onset cycle carries the first step of the ramp)."""
+        if cycle < self.onset_cycle:
+            return 0.0
+        ramp = self.ramp_cycles
+        return 1.0 if ramp <= 1 else min(1.0, (cycle - self.onset_cycle + 1) / ramp)
+
+    def scaled(self, fraction: float) -> Effect:
+        """This effect at ``fraction`` (0..1] of its size (an effect with a ramp overrides it; the default: itself)."""
+        return self
+
 
 def _number(effect: str, key: str, raw: object) -> float:
     """A parameter value as float; strings and booleans are refused (the CLI parser converts its text first)."""

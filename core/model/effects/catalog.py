@@ -35,6 +35,23 @@ def _from_cycle() -> Param:
     return Param(0, "cycle", 0, 1e6, integer=True, doc="first output cycle with the effect (0: from the start)")
 
 
+def _ramp_cycles() -> Param:
+    """A change that grows: linear from the onset to full size over this many output cycles."""
+    return Param(0, "cycle", 0, 1e6, integer=True, doc="cycles from the onset to full size, linear (0: a step)")
+
+
+def _leak_scaled(effect: Effect, fraction: float) -> Effect:
+    """The leak (and ring-friction gain, where there is one) at ``fraction`` of its full size: mass loss x fraction,
+    gain 1 + (gain - 1) x fraction; the same onset and ramp."""
+    if fraction >= 1.0:
+        return effect
+    v = dict(effect.values)
+    v["mass_loss"] = v["mass_loss"] * fraction
+    if "gain" in v:
+        v["gain"] = 1.0 + (v["gain"] - 1.0) * fraction
+    return type(effect)(**v)
+
+
 class TorsionalFlexibility(Effect):
     name = "torsional_flexibility"
     description = ("multi-DOF shaft line (damper, throws, flywheel, coupling, load); off = one rigid lumped shaft")
@@ -187,7 +204,11 @@ class RingWear(Effect):
         gain=Param(1.4, "-", 1.0, 5.0, doc="multiplies a_k1, a_k2, a_k3"),
         mass_loss=Param(0.12, "-", 0.0, 0.4, doc="trapped-mass fraction lost IVC->EVO (sizes the leak area)"),
         from_cycle=_from_cycle(),
+        ramp_cycles=_ramp_cycles(),
     )
+
+    def scaled(self, fraction: float) -> Effect:
+        return _leak_scaled(self, fraction)
 
     def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
         k = self.values["cylinder"] - 1
@@ -205,7 +226,11 @@ class BlowBy(Effect):
         cylinder=cylinder_param(),
         mass_loss=Param(0.12, "-", 0.0, 0.4, doc="trapped-mass fraction lost IVC->EVO (sizes the leak area)"),
         from_cycle=_from_cycle(),
+        ramp_cycles=_ramp_cycles(),
     )
+
+    def scaled(self, fraction: float) -> Effect:
+        return _leak_scaled(self, fraction)
 
     def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
         k = self.values["cylinder"] - 1

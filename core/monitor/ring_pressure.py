@@ -1,0 +1,165 @@
+"""Pressure-based ring indicators of every cylinder, from the first cycle (issue 19 item 4, issue 17 item 4).
+
+A leak past the rings (blow-by, worn rings) loses trapped mass while the valves are shut. Over the compression the
+pressure then rises less steeply, over the expansion it falls more steeply than the siblings'. Per cycle and
+cylinder, from the pressure on fixed crank-angle windows relative to the cylinder's own firing TDC:
+
+    compression_ratio   ln p_k(theta_c) - median_j ln p_j(theta_c), theta_c = ``compression_deg`` before TDC (before
+                        the start of combustion): the compression pressure against the siblings. A common load or
+                        speed change and a gain drift common to every sensor cancel; a single cylinder's gain error
+                        g does NOT: it reads ln g exactly like a leak of that size
+    n_compression       polytropic exponent of the compression, the slope of ln p on -ln V over the compression window
+    n_expansion         the same over the expansion window (after combustion, before EVO)
+    expansion_deficit   ln p at the end of the expansion window minus the polytrope through its start with the
+                        siblings' median exponent: < 0 when the pressure falls faster than the siblings' would
+    *_dev               each exponent minus the siblings' median (a common change, load or speed, cancels)
+
+Both exponents and the deficit are differences of ln p within one cylinder's trace: a gain error of that cylinder's
+sensor adds the same ln g to every sample and cancels exactly; a leak moves n_compression down and n_expansion up
+(mass leaves in both strokes). A pegging offset moves both exponents DOWN (an offset weighs less where p is high), a
+TDC error shifts the trace against V. So the service separates: compression ratio low with both exponents unchanged
+is a gain error or a leak too small to bend the polytropes (ambiguous: a sensor check, never a ring alert);
+n_compression down with n_expansion up is the leak's signature. Nothing here decides; service.alerts does (with a
+commissioning baseline per cylinder, since a healthy cylinder's heat transfer and fuel spread leave it a persistent
+offset from its siblings).
+
+Arrays in, arrays out, no state: the windows are fixed by the engine spec, so each cycle stands alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.kinematics import kinematics
+
+FOUR_PI = 4.0 * np.pi
+STEP_DEG = 1.0  # the windows are sampled every degree (np.interp on the cycle's grid: any grid resolution)
+
+
+@dataclass(frozen=True)
+class RingWindows:
+    """Crank-angle windows [deg from firing TDC]: compression fit [comp_start, comp_end] with the compression
+    pressure read at comp_end; expansion fit [exp_start, exp_end]; ``edge_deg``: the expansion deficit compares the
+    mean ln p over the last ``edge_deg`` of the expansion window with the polytrope through its first ``edge_deg``."""
+
+    comp_start: float
+    comp_end: float
+    exp_start: float
+    exp_end: float
+    edge_deg: float = 10.0
+
+
+def ring_windows(spec: EngineSpec, compression_deg: float = 30.0, comp_span_deg: float = 70.0,
+                 expansion_deg: float = 70.0, evo_margin_deg: float = 15.0, combustion_margin_deg: float = 10.0
+                 ) -> RingWindows:
+    """The engine's windows: the compression window ends ``compression_deg`` before TDC or ``combustion_margin_deg``
+    before the start of combustion, whichever is earlier, and spans ``comp_span_deg`` (never before IVC + 10 deg);
+    the expansion window starts ``expansion_deg`` after TDC (the burn is over on every preset: start + duration
+    <= 60 deg) and ends ``evo_margin_deg`` before EVO."""
+    cb = spec.combustion
+    end = -max(compression_deg, combustion_margin_deg - cb.start_deg)
+    start = max(end - comp_span_deg, cb.ivc_deg + 10.0)
+    exp_end = cb.evo_deg - evo_margin_deg
+    exp_start = min(expansion_deg, exp_end - 30.0)
+    if not (start < end - 20.0 and exp_start < exp_end - 20.0):
+        raise ValueError(f"{spec.name}: no room for the ring-indicator windows (IVC {cb.ivc_deg}, start of "
+                         f"combustion {cb.start_deg}, EVO {cb.evo_deg} deg)")
+    return RingWindows(start, end, exp_start, exp_end)
+
+
+@dataclass(frozen=True)
+class RingIndicators:
+    """One cycle's ring indicators (z,) each (module doc); NaN where a cylinder's pressure is not positive in a
+    window. ``compression_pa`` (z,) the compression pressure read at theta_c [Pa]."""
+
+    compression_pa: np.ndarray
+    compression_ratio: np.ndarray
+    n_compression: np.ndarray
+    n_expansion: np.ndarray
+    n_compression_dev: np.ndarray
+    n_expansion_dev: np.ndarray
+    expansion_deficit: np.ndarray
+
+    def compared(self) -> np.ndarray:
+        """(4, z) what the alerts compare with a commissioning baseline, rows: compression_ratio, n_compression_dev,
+        n_expansion_dev, expansion_deficit. A single cylinder has no siblings: its rows are the absolute ln
+        compression pressure and exponents (a load or speed change moves them like a fault would)."""
+        if self.n_compression.shape[0] == 1:
+            return np.array([np.log(self.compression_pa), self.n_compression, self.n_expansion,
+                             self.expansion_deficit])
+        return np.array([self.compression_ratio, self.n_compression_dev, self.n_expansion_dev,
+                         self.expansion_deficit])
+
+    def to_json(self) -> dict:
+        """Per-cylinder lists (None for NaN); dimensionless except compression_bar."""
+        def col(a: np.ndarray, scale: float = 1.0) -> list:
+            return [float(v) / scale if np.isfinite(v) else None for v in a]
+        return {"compression_bar": col(self.compression_pa, 1e5), "compression_ratio_ln": col(self.compression_ratio),
+                "n_compression": col(self.n_compression), "n_expansion": col(self.n_expansion),
+                "n_compression_dev": col(self.n_compression_dev), "n_expansion_dev": col(self.n_expansion_dev),
+                "expansion_deficit_ln": col(self.expansion_deficit)}
+
+
+def _sibling_median(x: np.ndarray) -> np.ndarray:
+    """(z,) x_k minus the median of the finite entries (z >= 3), minus the other one (z = 2), 0 for one cylinder."""
+    z = x.shape[0]
+    ok = np.isfinite(x)
+    if z < 2 or ok.sum() < 2:
+        return np.where(ok, 0.0, np.nan) if z < 2 else np.full(z, np.nan)
+    if z == 2:
+        return x - x[::-1]
+    return x - np.median(x[ok])
+
+
+def _window(spec: EngineSpec, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
+    """Angles [rad] from TDC every STEP_DEG over [lo, hi] deg and -ln V there (V from the slider-crank; the constant
+    clearance volume cancels in a slope, so the units do not matter)."""
+    local = np.radians(np.arange(lo, hi + 0.5 * STEP_DEG, STEP_DEG))
+    x, _, _ = kinematics(local, np.asarray(spec.kinematics_params(), dtype=np.float64))
+    vol = spec.clearance_volume + spec.piston_area * x
+    return local, -np.log(vol)
+
+
+def _sample(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """(z, m) ln p of each cylinder at ``local`` angles from its firing TDC, linear between grid points and periodic
+    over 4 pi (NaN where p <= 0). One searchsorted for all cylinders on the grid extended by one point at each end
+    (np.interp's period mode sorts per call)."""
+    z, n = pressure.shape
+    at = np.mod(local[None, :] + spec.firing_angles[:, None], FOUR_PI).ravel()
+    ext = np.concatenate(([grid[-1] - FOUR_PI], grid, [grid[0] + FOUR_PI]))
+    j = np.searchsorted(ext, at, side="right") - 1  # ext[j] <= at < ext[j + 1], j in 0..n
+    frac = (at - ext[j]) / (ext[j + 1] - ext[j])
+    cols = (j - 1) % n  # ext index i is grid index i - 1 (mod n)
+    rows = np.repeat(np.arange(z), local.shape[0])
+    p0 = pressure[rows, cols]
+    p = p0 + (pressure[rows, (cols + 1) % n] - p0) * frac
+    return np.log(np.where(p > 0.0, p, np.nan)).reshape(z, local.shape[0])
+
+
+def _slopes(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(z,) least-squares slope of each row of y (z, m) on x (m,) (NaN where a row has a NaN)."""
+    xc = x - x.mean()
+    return (y - y.mean(axis=1, keepdims=True)) @ xc / (xc @ xc)
+
+
+def ring_indicators(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray,
+                    windows: RingWindows | None = None) -> RingIndicators:
+    """This cycle's ring indicators from the pressure (z, n) [Pa] on ``grid`` (n,) [rad, cylinder 1's 0..4 pi]."""
+    win = windows or ring_windows(spec)
+    c_ang, c_x = _window(spec, win.comp_start, win.comp_end)
+    e_ang, e_x = _window(spec, win.exp_start, win.exp_end)
+    both = _sample(spec, grid, pressure, np.concatenate((c_ang, e_ang)))  # one pass for the two windows
+    c_lnp, e_lnp = both[:, :c_ang.shape[0]], both[:, c_ang.shape[0]:]
+    n_c, n_e = _slopes(c_x, c_lnp), _slopes(e_x, e_lnp)
+    comp_ln = c_lnp[:, -1]
+    n_e_dev = _sibling_median(n_e)
+    # the siblings' polytrope through the window's first edge_deg, read over its last edge_deg
+    m = max(1, int(round(win.edge_deg / STEP_DEG)))
+    n_sib = n_e - n_e_dev if spec.n_cyl > 1 else n_e
+    deficit = (e_lnp[:, -m:].mean(axis=1) - e_lnp[:, :m].mean(axis=1)
+               - n_sib * (e_x[-m:].mean() - e_x[:m].mean()))
+    return RingIndicators(compression_pa=np.exp(comp_ln), compression_ratio=_sibling_median(comp_ln),
+                          n_compression=n_c, n_expansion=n_e, n_compression_dev=_sibling_median(n_c),
+                          n_expansion_dev=n_e_dev, expansion_deficit=deficit)

@@ -1,0 +1,148 @@
+"""The alert engine's decisions (service/alerts.py) on constructed per-cycle results: a leak signature raised on its
+cylinder and cleared, no flapping near the threshold, a gain-only change as a sensor check (never a ring alert),
+misfire and model-misfit persistence, acknowledge, rebaseline, the baseline's round trip and the contract shape."""
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.monitor.ring_pressure import RingIndicators
+from frictionwatch.service.alert_baseline import Baseline
+from frictionwatch.service.alerts import RING_KINDS, AlertConfig, AlertEngine
+from numpy.testing import assert_allclose
+
+K9K = load_engine("k9k-4cyl")
+SD = np.array([0.0012, 0.0013, 0.0022, 0.0012])  # per-cycle scatter of the four indicators on a healthy K9K log
+CONFIG = AlertConfig(baseline_cycles=100, skip_cycles=0)
+
+
+def _estimate(z):
+    nan = np.full(z, np.nan)
+    return SimpleNamespace(resolved=np.zeros(z, bool), data_gain=np.zeros(z), friction_torque_mean=nan,
+                           friction_torque_mean_sigma=nan, prior_friction_torque_mean=np.full(z, 5.0),
+                           total_friction_torque=20.0, weight=10.0, source="data", chi2_reduced=1.0)
+
+
+def _result(i, rng, shift=None, flags=(), z=4):
+    """Cycle i with indicators = noise (SD) + shift (4, z): rows compression ratio, n_c dev, n_e dev, deficit."""
+    x = rng.standard_normal((4, z)) * SD[:, None] + (0.0 if shift is None else shift)
+    ring = RingIndicators(compression_pa=np.full(z, 30e5), compression_ratio=x[0], n_compression=1.37 + x[1],
+                          n_expansion=1.33 + x[2], n_compression_dev=x[1], n_expansion_dev=x[2],
+                          expansion_deficit=x[3])
+    est = _estimate(z)
+    return SimpleNamespace(index=i, t_start=0.07 * i, flags=tuple(flags), ring=ring, cycle=est, smoothed=est)
+
+
+def _leak(cyl, dn, z=4):
+    s = np.zeros((4, z))
+    s[:, cyl - 1] = [-1.5 * dn, -dn, dn, -0.5 * dn]
+    return s
+
+
+def _run(engine, rng, n, start, shift=None, flags=()):
+    events = []
+    for i in range(start, start + n):
+        events += [(i, e) for e in engine.update(_result(i, rng, shift, flags))]
+    return events
+
+
+def test_a_leak_is_raised_on_its_cylinder_and_cleared_after_it_goes():
+    rng = np.random.default_rng(1)
+    eng = AlertEngine(K9K, CONFIG)
+    assert _run(eng, rng, 400, 0) == []  # learning, then healthy: nothing
+    assert eng.baseline is not None and eng.baseline.cycles == 100
+    ev = _run(eng, rng, 200, 400, _leak(3, 0.0025))
+    raised = [(i, e.alert) for i, e in ev if e.kind == "raised"]
+    assert len(raised) == 1 and raised[0][1].kind == "blow_by" and raised[0][1].cylinder == 3
+    assert raised[0][0] - 400 <= 40  # ~2 sigma per cycle: Z > 6 within a fraction of the 50-cycle window, + 10
+    a = raised[0][1].to_dict()
+    assert set(a) >= {"alert_id", "cylinder", "kind", "severity", "state", "raised_cycle", "raised_at_s",
+                      "cleared_cycle", "acknowledged_by", "message", "evidence"}
+    assert a["state"] == "active" and a["evidence"]["source"] == "pressure"
+    assert a["evidence"]["first_evidence_cycle"] >= 400
+    assert 0.0 < a["evidence"]["n_expansion_change"] < 0.0025  # the EWMA on its way when the evidence crossed
+    now = eng.active()[0].evidence  # 200 cycles on: the EWMA holds the change (its noise 0.1 x SD)
+    assert_allclose([now["n_compression_change"], now["n_expansion_change"]], [-0.0025, 0.0025], atol=0.0008)
+    json.dumps(a)  # JSON-able as it stands
+    ev = _run(eng, rng, 400, 600)  # the leak gone (a repair): cleared once, nothing else
+    assert [(e.kind, e.alert.kind) for _, e in ev] == [("cleared", "blow_by")]
+    assert eng.active() == [] and eng.history()[0].state == "cleared"
+
+
+def test_no_flapping_while_the_evidence_hovers_between_the_levels():
+    rng = np.random.default_rng(2)
+    eng = AlertEngine(K9K, CONFIG)
+    _run(eng, rng, 150, 0)
+    # a leak whose statistic wanders between clear (3) and raise (6) and beyond: raised once, never cleared
+    events = []
+    for i in range(150, 1150):
+        dn = 0.0025 if i < 400 else 0.0013 + 0.0004 * np.sin(i / 15.0)
+        events += [e for e in eng.update(_result(i, rng, _leak(2, dn)))]
+    kinds = [(e.kind, e.alert.kind, e.alert.cylinder) for e in events if e.kind != "updated"]
+    assert kinds == [("raised", "blow_by", 2)]
+
+
+def test_a_gain_error_is_a_sensor_check_never_a_ring_alert():
+    rng = np.random.default_rng(3)
+    eng = AlertEngine(K9K, CONFIG)
+    _run(eng, rng, 150, 0)
+    gain = np.zeros((4, 4))
+    gain[0, 1] = np.log(1.03)  # only the compression ratio moves: the exponents are gain-invariant
+    ev = _run(eng, rng, 300, 150, gain)
+    raised = [e.alert for _, e in ev if e.kind == "raised"]
+    assert [(a.kind, a.cylinder, a.severity) for a in raised] == [("sensor_fault", 2, "info")]
+    assert_allclose(eng.active()[0].evidence["gain_estimate"], 1.03, atol=0.003)  # after the EWMA settled
+    assert not any(a.kind in RING_KINDS for a in eng.history())
+
+
+def test_misfires_and_model_misfit_need_persistence():
+    rng = np.random.default_rng(4)
+    eng = AlertEngine(K9K, CONFIG)
+    assert _run(eng, rng, 1, 0, flags=("misfire_cyl4",)) == []  # one misfire: a flag, not an alert
+    assert _run(eng, rng, 3, 1, flags=("model_misfit",)) == []  # fewer than flag_raise_cycles
+    ev = _run(eng, rng, 10, 4, flags=("misfire_cyl4", "model_misfit"))
+    got = sorted((e.alert.kind, e.alert.cylinder) for _, e in ev if e.kind == "raised")
+    assert got == [("misfire", 4), ("model_misfit", None)]
+
+
+def test_acknowledge_rebaseline_and_monotonic_ids():
+    rng = np.random.default_rng(5)
+    eng = AlertEngine(K9K, CONFIG)
+    _run(eng, rng, 150, 0)
+    _run(eng, rng, 100, 150, _leak(1, 0.004) + _leak(4, 0.004))
+    act = eng.active()
+    assert [a.cylinder for a in act] == [1, 4] and act[0].alert_id < act[1].alert_id
+    ack = eng.acknowledge(act[0].alert_id, "operator")
+    assert ack.state == "acknowledged" and ack.acknowledged_by == "operator"
+    assert eng.active()[0].state == "acknowledged"
+    with pytest.raises(KeyError):
+        eng.acknowledge(999, "operator")
+    cleared = eng.rebaseline()  # after an overhaul: the leaking state is the new normal
+    assert sorted(e.alert.cylinder for e in cleared) == [1, 4] and all(e.kind == "cleared" for e in cleared)
+    assert eng.baseline is None
+    assert _run(eng, rng, 300, 250, _leak(1, 0.004) + _leak(4, 0.004)) == []  # relearnt on the new state
+    _run(eng, rng, 100, 550, _leak(1, 0.004) + _leak(4, 0.004) + _leak(2, 0.004))
+    new = eng.active()
+    assert [a.cylinder for a in new] == [2] and new[0].alert_id > act[1].alert_id
+
+
+def test_a_baseline_round_trip_gives_the_same_decisions():
+    rng = np.random.default_rng(6)
+    eng = AlertEngine(K9K, CONFIG)
+    _run(eng, rng, 120, 0)
+    text = json.dumps(eng.baseline.to_dict())
+    back = Baseline.from_dict(json.loads(text))
+    assert_allclose(back.mean, eng.baseline.mean, rtol=0, atol=0)
+    assert_allclose(back.cov, eng.baseline.cov, rtol=0, atol=0)
+    assert back.cycles == eng.baseline.cycles == 100
+    given, original = AlertEngine(K9K, CONFIG, baseline=back), AlertEngine(K9K, CONFIG, baseline=eng.baseline)
+    seq = [_result(i, rng, _leak(2, 0.003) if i >= 150 else None) for i in range(120, 300)]
+    a = [(e.kind, e.alert.kind, e.alert.cylinder, e.alert.raised_cycle) for r in seq for e in original.update(r)]
+    b = [(e.kind, e.alert.kind, e.alert.cylinder, e.alert.raised_cycle) for r in seq for e in given.update(r)]
+    assert a == b and a
+    with pytest.raises(ValueError, match="not a baseline"):
+        Baseline.from_dict({"version": 1})
+    with pytest.raises(ValueError, match="cylinders"):
+        AlertEngine(load_engine("maruti-3cyl"), CONFIG, baseline=back)
