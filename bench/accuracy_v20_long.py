@@ -114,6 +114,9 @@ class Runs:
                 "err_pct": [round(100 * float(e), 2) for e in err],
                 "sigma_pct": [round(100 * float(s), 2) for s in sig],
                 "data_gain": [round(float(g), 3) for g in est.data_gain],
+                # the posterior's scales (truth 1: this run has no effect on the coefficients), also where the
+                # cylinder's figure is not reported
+                "scale_err": [round(float(v) - 1.0, 4) for v in self.states[name].params[:self.states[name].layout.n_params]],
                 "weight": round(float(est.weight), 1), "rejected": self.rejected[name],
                 "monitor_ms_per_cycle": round(self.ms[name] / max(self.n, 1), 3)}
         return out

@@ -37,11 +37,12 @@ from frictionwatch.core.monitor.tooth_fit import fit_cycle_teeth
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 
+from bench.information_figures import figures, print_table
+
 ENGINE, RPM = "genset-v20", 1500.0
 FREE_END_NODE = "front_hub"
 DATA = Path("out/information")
 OUT_JSON = Path(__file__).with_name("information_v20.json")
-FIG_DIR = Path(__file__).resolve().parents[1] / "docs" / "information"
 TARGET_REL = 0.025  # 1-sigma for "within 5 % at 2 sigma"
 TDC_STEP_DEG = 0.1
 
@@ -195,7 +196,10 @@ def configurations(data: dict[float, dict], base: float) -> dict[str, tuple[np.n
     mix2 = two_wheel(mix, np.mean([d["free"] for d in data.values()], axis=0), p_f, n_nu)
     pr, pr_s = d0["sibling_free_prior"], d0["prior_info"]
     pr2, pr2_s = two_wheel_prior(pr, p_f, n_nu), two_wheel_prior(pr_s, p_f, n_nu)
-    return {"one load, flywheel": (one, pr, pr_s), "load +-20 %, flywheel": (mix, pr, pr_s),
+    f = np.r_[0:p_f]
+    known = (one[np.ix_(f, f)], pr[np.ix_(f, f)], pr_s[np.ix_(f, f)])
+    return {"one load, tooth pattern known": known,
+            "one load, flywheel": (one, pr, pr_s), "load +-20 %, flywheel": (mix, pr, pr_s),
             "one load, two wheels": (one2, pr2, pr2_s), "load +-20 %, two wheels": (mix2, pr2, pr2_s)}
 
 
@@ -215,7 +219,8 @@ def cycles_needed(sig_of_n) -> np.ndarray:
 
 def model_error_floor(d: dict, info: np.ndarray, rows: np.ndarray, p_f: int, key: str) -> np.ndarray:
     """(z,) relative sigma of each cylinder's friction from an error repeated every cycle (the monitor's systematic
-    budget ``key``: 'e2' model_rel_error of each harmonic, 'budget' that or the persistent residual), N -> inf."""
+    budget ``key``: 'e2' model_rel_error of each harmonic, 'budget' that or the persistent residual), N -> inf, by
+    the data's pseudo-inverse (directions the data do not see are left out: a floor from below)."""
     b = d["sys_map"]  # (P, 2M) per-cycle A^T D of the speed rows
     s = (b * d[key][None, :]) @ b.T
     inv = np.linalg.pinv(info, rcond=1e-12, hermitian=True)
@@ -223,16 +228,21 @@ def model_error_floor(d: dict, info: np.ndarray, rows: np.ndarray, p_f: int, key
     return np.sqrt(np.einsum("kp,pq,kq->k", rows, cov, rows)) / rows.sum(axis=1)
 
 
-def two_wheel_floor(d: dict, rows: np.ndarray, p_f: int) -> np.ndarray:
-    """``model_error_floor`` with both wheels, each harmonic's model error model_rel_error of its size at that wheel
+def two_wheel_sys(d: dict, p_f: int) -> np.ndarray:
+    """Per-cycle B C B^T of both wheels, each harmonic's model error model_rel_error of its size at that wheel
     (taken independent between the wheels)."""
     n_nu = int(d["n_nuisance"])
-    info = two_wheel(d["fly"] + d["balance"], d["free"], p_f, n_nu)
     b1 = two_wheel(d["sys_map"] @ np.diag(d["e2"]) @ d["sys_map"].T, np.zeros_like(d["fly"]), p_f, n_nu)
     b2 = two_wheel(np.zeros_like(d["fly"]), d["free_sys_map"] @ np.diag(d["free_e2"]) @ d["free_sys_map"].T, p_f,
                    n_nu)
+    return b1 + b2
+
+
+def two_wheel_floor(d: dict, rows: np.ndarray, p_f: int) -> np.ndarray:
+    """``model_error_floor`` with both wheels (``two_wheel_sys``)."""
+    info = two_wheel(d["fly"] + d["balance"], d["free"], p_f, int(d["n_nuisance"]))
     inv = np.linalg.pinv(info, rcond=1e-12, hermitian=True)
-    cov = (inv @ (b1 + b2) @ inv)[:p_f, :p_f]
+    cov = (inv @ two_wheel_sys(d, p_f) @ inv)[:p_f, :p_f]
     return np.sqrt(np.einsum("kp,pq,kq->k", rows, cov, rows)) / rows.sum(axis=1)
 
 
@@ -266,10 +276,26 @@ def cmd_report(args) -> None:
         "gain_1pct": {f"{k:.2f}": [round(float(v), 4) for v in 0.01 * d["indicated"] / d["truth_friction"]]
                       for k, d in data.items()},
         "model_rel_error": [round(float(v), 4) for v in model_error_floor(d0, one, rows, p_f, "e2")],
-        "monitor_budget": [round(float(v), 4) for v in model_error_floor(d0, one, rows, p_f, "budget")],
         "model_rel_error_two_wheels": [round(float(v), 4) for v in two_wheel_floor(d0, rows, p_f)],
     }
     doc["floors"] = floors
+    # what the monitor itself would state after N cycles at one load: the statistical bound with its priors plus its
+    # repeatable-error budget through the same N cycles' rows (core.monitor.accumulate's N^-1 B C B^T N^-1)
+    doc["monitor_prediction"] = {}
+    n_nu = int(d0["n_nuisance"])
+    two = two_wheel(one, d0["free"], p_f, n_nu)
+    two_sys = two_wheel_sys(d0, p_f)
+    for key, info, prior in (("e2", one, d0["prior_info"]),
+                             ("two_wheels_e2", two, two_wheel_prior(d0["prior_info"], p_f, n_nu))):
+        b = d0["sys_map"]
+        s_cyc = two_sys if key.startswith("two") else (b * d0[key][None, :]) @ b.T
+        for n in (2000, 10000, 45000, 180000):
+            cov = np.linalg.inv(n * info + prior)
+            tot = (cov + n * n * cov @ s_cyc @ cov)[:p_f, :p_f]
+            sig = np.sqrt(np.einsum("kp,pq,kq->k", rows, tot, rows)) / rows.sum(axis=1)
+            doc["monitor_prediction"][f"{key}_{n}"] = {
+                "rel_sigma": [round(float(v), 4) for v in sig], "at_most_2.5pct": int(np.sum(sig <= TARGET_REL)),
+                "at_most_10pct": int(np.sum(sig <= 0.10))}
     doc["empirical"] = {f"{k:.2f}": {
         "cycles": int(d["n"]), "scale_error": [round(float(v), 4) for v in d["estimate"][:z] - 1.0],
         "monitor_rel_sigma": [round(float(v), 4) for v in d["monitor_sigma"] / d["truth_friction"]],
@@ -278,7 +304,7 @@ def cmd_report(args) -> None:
         for k, d in data.items()}
     doc["weak_directions"] = weak_directions(one, d0["sibling_free_prior"], p_f, z)
     OUT_JSON.write_text(json.dumps(doc, indent=1))
-    figures(doc, curves, truth)
+    figures(doc, curves, truth, N_GRID, TARGET_REL)
     print_table(doc)
 
 
@@ -290,80 +316,6 @@ def weak_directions(info: np.ndarray, prior: np.ndarray, p_f: int, z: int, n: in
     schur = a - b @ np.linalg.solve(c, b.T)
     w, v = np.linalg.eigh(schur)
     return [{"per_cycle_information": float(w[i]), "vector": [round(float(x), 3) for x in v[:, i]]} for i in range(n)]
-
-
-def print_table(doc: dict) -> None:
-    names = list(doc["configurations"])
-    print("cycles for a cylinder's friction sigma <= 2.5 % (data only; with the monitor's sibling prior):")
-    print("cyl  " + "  ".join(f"{n:>26s}" for n in names))
-    z = len(doc["configurations"][names[0]]["cycles_needed"])
-    for k in range(z):
-        cells = []
-        for n in names:
-            c = doc["configurations"][n]
-            a, b = c["cycles_needed"][k], c["cycles_needed_with_siblings"][k]
-            cells.append(f"{_fmt(a):>12s} ({_fmt(b):>11s})")
-        print(f"{k + 1:3d}  " + "  ".join(f"{x:>26s}" for x in cells))
-    for n in names:
-        print(f"{n}: {doc['configurations'][n]['resolved_at_45000']} of {z} at sigma <= 2.5 % after 45,000 cycles")
-
-
-def _fmt(v) -> str:
-    return ">1e7" if v is None else f"{v:,d}"
-
-
-def figures(doc: dict, curves: dict, truth: np.ndarray) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    FIG_DIR.mkdir(parents=True, exist_ok=True)
-    z = truth.shape[0]
-    fig, ax = plt.subplots(figsize=(8, 5))
-    for (name, sig), col in zip(curves.items(), ("C0", "C1", "C2", "C3")):
-        ax.loglog(N_GRID, 100 * np.median(sig, axis=1), color=col, label=f"{name}: median cylinder")
-        ax.loglog(N_GRID, 100 * np.max(sig, axis=1), color=col, ls="--", label=f"{name}: worst cylinder")
-    ax.axhline(100 * TARGET_REL, color="k", lw=0.8)
-    ax.axvline(45000, color="grey", lw=0.8, ls=":")
-    ax.set_xlabel("cycles")
-    ax.set_ylabel("Cramér-Rao 1-sigma of a cylinder's friction [%]")
-    ax.set_title("genset-v20: friction per cylinder from the tooth times (no floors)")
-    ax.legend(fontsize=7)
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(FIG_DIR / "crb_vs_cycles.png", dpi=110)
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(9, 4.5))
-    x = np.arange(1, z + 1)
-    for i, (name, c) in enumerate(doc["configurations"].items()):
-        need = np.array([1e7 if v is None else v for v in c["cycles_needed"]], dtype=float)
-        ax.bar(x + (i - 1.5) * 0.2, need, width=0.2, label=name)
-    ax.set_yscale("log")
-    ax.axhline(45000, color="k", lw=0.8, ls=":")
-    ax.set_xticks(x)
-    ax.set_xlabel("cylinder (A1, B1, A2, ...)")
-    ax.set_ylabel("cycles for sigma <= 2.5 %")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(FIG_DIR / "cycles_needed.png", dpi=110)
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(9, 4.5))
-    fl = doc["floors"]
-    base = f"{doc['base_load']:.2f}"
-    ax.plot(x, 100 * np.array(fl["tdc_0.1deg"][base]), "o-", label="TDC 0.1 deg")
-    ax.plot(x, 100 * np.array(fl["gain_1pct"][base]) * 0.5, "s-", label="pressure gain 0.5 %")
-    ax.plot(x, 100 * np.array(fl["model_rel_error"]), "^-", label="model error 0.3 % of each harmonic (monitor)")
-    ax.plot(x, 100 * np.array(fl["monitor_budget"]), "v-", label="monitor's repeatable-error budget")
-    ax.plot(x, 100 * np.array(fl["model_rel_error_two_wheels"]), "^--", label="model error 0.3 %, two wheels")
-    ax.axhline(100 * TARGET_REL, color="k", lw=0.8)
-    ax.set_yscale("log")
-    ax.set_xticks(x)
-    ax.set_xlabel("cylinder")
-    ax.set_ylabel("1-sigma of the cylinder's friction [%]")
-    ax.set_title(f"floors no number of cycles removes (load {base})")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(FIG_DIR / "floors.png", dpi=110)
-    plt.close(fig)
 
 
 def cmd_collect(args) -> None:
