@@ -174,16 +174,23 @@ def measured_or_withheld(est: FrictionEstimate, source: str) -> FrictionEstimate
                    prior_friction_torque_mean=nan_z)
 
 
-def forgetting_factor(cfg: MonitorConfig, n_cyl: int) -> float:
-    """Per-cycle factor of the accumulated equations: 1 - 1/N_window, N_window = max(400, 100 z) cycles unless set
-    (more cylinders need more cycles; physics.md §12.5)."""
-    return cfg.forgetting if cfg.forgetting is not None else 1.0 - 1.0 / max(400.0, 100.0 * n_cyl)
+def forgetting_factor(cfg: MonitorConfig, n_cyl: int, period_s: float = float("nan")) -> float:
+    """Per-cycle factor of the accumulated equations: ``cfg.forgetting`` if set, else 1 - 1/N_window with N_window =
+    max(400, 100 z, tau / period_s) cycles, tau = ``cfg.forgetting_time_s`` (the wear time scale; more cylinders
+    need more cycles, physics.md §12.5); period_s the cycle's duration (not finite: the cycle rule alone)."""
+    if cfg.forgetting is not None:
+        return cfg.forgetting
+    window = max(400.0, 100.0 * n_cyl)
+    tau = cfg.forgetting_time_s
+    if tau is not None and math.isfinite(period_s) and period_s > 0.0:
+        window = max(window, tau / period_s)
+    return 1.0 - 1.0 / window
 
 
 def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fly: FlywheelMotion, rows: CycleRows,
                    exc: Excitation, pmax: np.ndarray, mean: MeanBalance, drift_var: float) -> Identification:
     """One cycle's identification; ``state`` is the monitor's state before the cycle (not changed)."""
-    lam = forgetting_factor(cfg, spec.n_cyl)
+    lam = forgetting_factor(cfg, spec.n_cyl, fly.period)
     sys_balance = ((cfg.balance_rel_error * mean.indicated) ** 2 + (cfg.coupling_rel_error * mean.coupling_loss) ** 2
                    + (cfg.load_rel_error * spec.rated_torque_nm) ** 2)
     noise = NoiseSettings(memory=cfg.noise_memory, model_rel_error=cfg.model_rel_error,

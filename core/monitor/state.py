@@ -35,8 +35,13 @@ class MonitorConfig:
     point, deutz NRMSE within 0.5 point; 128 shifted the K9K total by up to -0.25 point (the friction terms' sharp
     features alias into the band), 512 moved nothing beyond noise
     scheme, prior_coefficients: parameter grouping and baseline a0 (core.monitor.identify.parameter_layout)
-    forgetting: per-cycle factor of the accumulated equations, 1 - 1/N_window (None: N_window = max(400, 100 z)
-    cycles, since more cylinders need more cycles; physics.md §12.5)
+    forgetting: per-cycle factor of the accumulated equations, 1 - 1/N_window (None: from ``forgetting_time_s``)
+    forgetting_time_s: time constant [s of running] of the accumulated equations, sized to the wear time scale: the
+    window is N_window = max(400, 100 z, tau / T_cycle) cycles (more cylinders need more cycles, physics.md §12.5;
+    never shorter than that cycle rule). Default 4 h (genset-v20 at 1500 rpm: 180,000 cycles): rings wear over days,
+    so a gradual wear lags the estimate by about its rate x tau (a +30 % wear over three days: 1.7 %), while a step
+    change is followed through the change detector's discount (core.monitor.change); bench/accuracy_v20_long.py and
+    docs/information.md. None: the cycle rule alone (the window of 2,000 cycles, 80 s, on genset-v20)
     noise_memory: EWMA factor of the residual statistics that whiten the equations
     share_spread: 1-sigma of the Eq. 6 sharing prior, relative; parameter_sigma: weak prior on each scale (params ~ 1)
     sibling_spread: 1-sigma of a per-cylinder scale about the mean of its siblings (0: no sibling prior)
@@ -68,6 +73,7 @@ class MonitorConfig:
     scheme: str | None = None
     prior_coefficients: np.ndarray | None = None
     forgetting: float | None = None
+    forgetting_time_s: float | None = 4.0 * 3600.0
     noise_memory: float = 1.0 - 1.0 / 100.0
     share_spread: float = 0.3
     sibling_spread: float = 0.15
@@ -94,6 +100,14 @@ class MonitorConfig:
     # SensorHealthConfig()) turns it on
     sensor_health: SensorHealthConfig | None = None
     model_error_floor: ModelErrorFloor = ModelErrorFloor()
+
+    def __post_init__(self) -> None:
+        tau = self.forgetting_time_s
+        if tau is not None and not (isinstance(tau, int | float) and 0.0 < tau < float("inf")):
+            raise ValueError(f"forgetting_time_s = {tau!r} must be a positive number of seconds, or None")
+        lam = self.forgetting
+        if lam is not None and not (isinstance(lam, int | float) and 0.0 <= lam <= 1.0):
+            raise ValueError(f"forgetting = {lam!r} must be a per-cycle factor in [0, 1], or None")
 
 
 @dataclass(frozen=True)
