@@ -20,15 +20,17 @@ import logging
 import re
 import signal
 import socket
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from frictionwatch.drivers.source import Source, open_source
 from frictionwatch.drivers.timebase import Clocks
+from frictionwatch.service.alert_baseline import Baseline
+from frictionwatch.service.alerts import AlertConfig, AlertEngine
 from frictionwatch.service.engine_service import EngineService
 from frictionwatch.service.pipeline import resolve_model
 from frictionwatch.service.security import ENGINE_ID, check_bind, new_token, read_token
+from frictionwatch.service.store import StoreListener, open_store
 
 log = logging.getLogger(__name__)
 DEFAULT_SOURCE = "mcap:replay_logs/demo.mcap?loop=1&speed=1"
@@ -121,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         for ident, urls in engine_groups(args.source or [DEFAULT_SOURCE]):
             svc = build_engine(ident, urls, args.engine, taken, history_cycles=args.history_cycles,
-                               alerts=data.with_baseline(alerts) if data and alerts else alerts)
+                               alerts=data.with_baseline(alerts) if data else alerts)
             if data:
                 data.attach(svc)
             services.append(svc)
@@ -139,8 +141,6 @@ def run(args: argparse.Namespace) -> int:
     shown = f"[{host}]" if ":" in host else host
     print(f"frictionwatch serve: dashboard at http://{shown}:{port}/ ; engines: "
           + ", ".join(f"{s.engine_id} ({s.spec.name}, {' + '.join(s.urls)})" for s in services), flush=True)
-    if alerts is None:
-        print("frictionwatch serve: alerts are not part of this build; serving losses without alerts", file=sys.stderr)
     if made:
         print(f"frictionwatch serve: token for acknowledge and baseline (this run only): {token}", flush=True)
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on"))
@@ -158,12 +158,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _alerts_factory():
-    """(engine_id, spec, baseline=None) -> AlertEngine when the alert layer is installed (service/alerts.py), else
-    None: the service then serves losses without alerts, and says so."""
-    try:
-        from frictionwatch.service.alerts import AlertConfig, AlertEngine
-    except ImportError:
-        return None
+    """(engine_id, spec, baseline=None) -> the engine's AlertEngine (service/alerts.py) with the default settings."""
     config = AlertConfig()
     return lambda engine_id, spec, baseline=None: AlertEngine(spec, config, baseline=baseline)
 
@@ -173,10 +168,6 @@ class DataDir:
     (its model version), its alert baseline is loaded at start, and a StoreListener joins its fan-out."""
 
     def __init__(self, folder: Path) -> None:
-        try:
-            from frictionwatch.service.store import StoreListener, open_store
-        except ImportError as exc:
-            raise ValueError(f"--data-dir needs the store (service/store), not part of this build ({exc})") from exc
         if folder.exists() and not folder.is_dir():
             raise NotADirectoryError(f"--data-dir {folder} is a file, expected a folder")
         folder.mkdir(parents=True, exist_ok=True)
@@ -188,8 +179,6 @@ class DataDir:
             saved = self.store.load_baseline(engine_id)
             if saved is None:
                 return make(engine_id, spec)
-            from frictionwatch.service.alerts import Baseline
-
             return make(engine_id, spec, baseline=Baseline.from_dict(saved))
         return factory
 

@@ -1,84 +1,71 @@
-"""--data-dir wiring (service/serve.py DataDir) against a stand-in of the store interface of the contract
-(h-store's service/store provides the real one): the engine is registered with its model, its saved alert baseline
-reaches the alert engine, and a StoreListener joins the engine's fan-out and gets every event."""
+"""--data-dir wiring (service/serve.py DataDir) with the real store (SQLite in WAL mode) and the real alert engine:
+the engine is registered with its model, a baseline saved by an earlier run reaches that engine's alert engine (and
+only that one's), and the store listener in the engine's fan-out keeps every cycle the service analysed."""
 
 from __future__ import annotations
 
-import sys
-import types
-
+import numpy as np
 import pytest
-from frictionwatch.service.listeners import ServiceEvent
+from frictionwatch.service.alert_baseline import Baseline, BaselineLearner
+from frictionwatch.service.alerts import AlertConfig, AlertEngine
 from frictionwatch.service.serve import DataDir
+from frictionwatch.service.store import open_store
+from numpy.testing import assert_allclose
 
-from tests.service.serve_helpers import FakeAlerts, FakeBaseline, demo_service
-
-
-class FakeStore:
-    def __init__(self, url: str) -> None:
-        self.url, self.engines, self.closed = url, {}, False
-        self.baselines = {"demo-a": {"from_cycle": 7}}
-
-    def register_engine(self, engine_id: str, engine_toml: str) -> int:
-        self.engines[engine_id] = engine_toml
-        return 1
-
-    def load_baseline(self, engine_id: str) -> dict | None:
-        return self.baselines.get(engine_id)
-
-    def close(self) -> None:
-        self.closed = True
+from tests.service.serve_helpers import demo_service, wait_until
 
 
-class FakeStoreListener:
-    name = "store"
-
-    def __init__(self, store: FakeStore, engine_id: str) -> None:
-        self.store, self.engine_id, self.events = store, engine_id, []
-
-    def on_message_received(self, event: ServiceEvent) -> None:
-        self.events.append(event)
+def _saved_baseline(n_cyl: int) -> Baseline:
+    learner = BaselineLearner(n_cyl)
+    rng = np.random.default_rng(3)
+    for cycle in range(5):
+        learner.add(rng.normal(0.0, 0.01, (4, n_cyl)), cycle)
+    return learner.baseline()
 
 
-@pytest.fixture
-def fake_store(monkeypatch):
-    store_mod = types.ModuleType("frictionwatch.service.store")
-    store_mod.open_store, store_mod.StoreListener = FakeStore, FakeStoreListener
-    alerts_mod = types.ModuleType("frictionwatch.service.alerts")
-    alerts_mod.Baseline = types.SimpleNamespace(from_dict=lambda d: FakeBaseline(**d))
-    monkeypatch.setitem(sys.modules, "frictionwatch.service.store", store_mod)
-    monkeypatch.setitem(sys.modules, "frictionwatch.service.alerts", alerts_mod)
+def test_data_dir_registers_loads_the_baseline_and_keeps_every_cycle(tmp_path) -> None:
+    folder = tmp_path / "data"
+    earlier = DataDir(folder)  # an earlier run of the service left a baseline for demo-a
+    probe = demo_service("probe")
+    saved = _saved_baseline(probe.spec.n_cyl)
+    probe.session.stop()
+    earlier.store.register_engine("demo-a", probe.model.to_toml())
+    earlier.store.save_baseline("demo-a", saved.to_dict())
+    earlier.close()
 
-
-def test_data_dir_registers_loads_the_baseline_and_listens(fake_store, tmp_path) -> None:
-    data = DataDir(tmp_path / "data")
-    assert data.store.url == str(tmp_path / "data" / "frictionwatch.db")
-    made = {}
+    data = DataDir(folder)
+    made: dict[str, AlertEngine] = {}
 
     def alerts(engine_id, spec, baseline=None):
-        made[engine_id] = FakeAlerts(spec, baseline=baseline)
+        made[engine_id] = AlertEngine(spec, AlertConfig(), baseline=baseline)
         return made[engine_id]
 
     a = demo_service("demo-a", alerts=data.with_baseline(alerts))
     b = demo_service("demo-b", alerts=data.with_baseline(alerts))
-    for svc in (a, b):
-        data.attach(svc)
-    assert made["demo-a"].baseline == FakeBaseline(7) and made["demo-b"].baseline is None
-    assert set(data.store.engines) == {"demo-a", "demo-b"}
-    assert data.store.engines["demo-a"] == a.model.to_toml()
-    assert "store" in a.fanout.names
-    a.fanout.start()
-    a.fanout.publish(ServiceEvent("demo-a", None, 0.0, alerts=({"alert_id": 1},)))
-    a.fanout.stop()
-    listener = next(w.listener for w in a.fanout._workers if w.name == "store")
-    assert [e.alerts for e in listener.events] == [({"alert_id": 1},)]
-    data.close()
-    assert data.store.closed
-    for svc in (a, b):
-        svc.session.stop()
+    try:
+        for svc in (a, b):
+            data.attach(svc)
+        assert made["demo-a"].baseline is not None and made["demo-b"].baseline is None
+        assert_allclose(made["demo-a"].baseline.mean, saved.mean, rtol=1e-12)
+        assert "store" in a.fanout.names
+        a.start()
+        assert wait_until(lambda: a.sources_ended, timeout=600.0), "the demo log did not end"
+    finally:
+        a.stop(timeout=30.0)
+        b.session.stop()
+        data.close()
+    assert a.cycles_ok > 10
+    store = open_store(str(folder / "frictionwatch.db"))
+    try:
+        assert store.model_versions("demo-a")[-1]["version"] >= 1
+        rows = store.cycles("demo-a", 0, 10**9)
+        assert len(rows) == a.cycles_ok  # the listener committed every cycle the service published
+        assert store.latest_cycle("demo-b") is None
+    finally:
+        store.close()
 
 
-def test_data_dir_that_is_a_file_is_refused(fake_store, tmp_path) -> None:
+def test_data_dir_that_is_a_file_is_refused(tmp_path) -> None:
     f = tmp_path / "file"
     f.write_text("x")
     with pytest.raises(NotADirectoryError, match="is a file"):
