@@ -61,6 +61,7 @@ def test_job_on_the_recorded_window_reports_what_the_cli_reports(served, log):
     doc = _finished(client, "k9k", job["job_id"])
     assert doc["state"] == "done" and doc["reason"] is None, doc["reason"]
     rep = doc["report"]
+    print(f"job: {doc['records']} records, {rep['cycles']} cycles, {doc['elapsed_s']:.1f} s, gap {rep['gap_before']:.3g}")
     assert {"found", "gap_before", "gap_after", "metric", "verdict"} <= rep.keys()
     assert rep["found"] == [] and rep["cycles"] >= 28 and rep["engine"] == "k9k-4cyl"
     # the window is the whole replayed log: the same cycles and the same gap as the workflow on the file
