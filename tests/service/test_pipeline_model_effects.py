@@ -87,3 +87,19 @@ def test_preset_model_runs_as_it_is():
     assert view is not None and not view.corrects_pressure and view.config.variable_inertia
     assert view.spec is spec and view.terms is model.terms
     np.testing.assert_array_equal(view.coefficients, model.coefficients)
+
+
+def test_a_friction_shape_is_sized_at_the_first_cycle(logs):
+    """A model with a friction law has no view until a cycle gives its operating point; then the law's term is one
+    more identification column and the log is analysed as fully as with the preset model."""
+    from frictionwatch.drivers.logs.mcap_log import LogReader
+
+    log, _, _ = logs
+    model = load_model("k9k-4cyl").with_effect(make_effect("bearings_load", {"fraction": 0.5}))
+    with LogReader(log) as reader:
+        pipe = EnginePipeline(model, reader.info)
+        assert pipe.view is None and pipe.state is None
+        results = [r for rec in reader.records() for r in pipe.feed(rec)] + pipe.flush()
+    assert pipe.view is not None and pipe.view.terms.names[-1] == "plant_bearings_load"
+    assert len(results) == len(analyze_log(log).results) >= 30
+    assert all(r.smoothed.coefficients.shape == (4, len(pipe.view.terms)) for r in results)
