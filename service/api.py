@@ -5,7 +5,8 @@
 
 Reads come from each engine's LatestState (service/listeners.py); what a friction figure is comes from
 core/monitor/figure_status.py through service/api_views.py. State changes (acknowledge, baseline) need the
-token (service/security.py). No request value becomes a file path: the dashboard's files are listed once at start
+token (service/security.py), and so does starting a discrepancy job (service/discrepancy_jobs.py: one at a
+time, in the background; its state and report are polled). No request value becomes a file path: the dashboard's files are listed once at start
 and served by name from that list.
 """
 
@@ -27,6 +28,8 @@ from frictionwatch.service.api_models import (
     Alert,
     BaselineResult,
     CycleSummary,
+    DiscrepancyJob,
+    DiscrepancyRequest,
     EngineInfo,
     ErrorBody,
     FrictionTorque,
@@ -35,6 +38,7 @@ from frictionwatch.service.api_models import (
     SensorHealth,
     Speed,
 )
+from frictionwatch.service.discrepancy_jobs import KEPT, BusyError, DiscrepancyJobs
 from frictionwatch.service.engine_service import EngineService
 from frictionwatch.service.listeners import ServiceEvent, SseBroadcaster
 from frictionwatch.service.metrics import ServiceMetrics
@@ -46,6 +50,7 @@ STALE_S = 10.0  # an engine whose newest result is older than this is 'degraded'
 MAX_CYCLES = 100_000
 ERRORS = {404: {"model": ErrorBody}, 422: {"model": ErrorBody}}
 EngineId = Annotated[str, Path(pattern=ENGINE_ID.pattern, description="engine slug [a-z0-9-]{1,40}")]
+JOB_ID = r"^[0-9a-f]{16}$"
 
 
 def encode_event(event: ServiceEvent) -> list[tuple[str, str]]:
@@ -87,6 +92,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
     app = FastAPI(title="frictionwatch", version="1", lifespan=lifespan,
                   description="Live per-cylinder friction losses and alerts. Units in field names.")
     app.state.services, app.state.sse, app.state.metrics, app.state.token = engines, sse, metrics, token
+    jobs = app.state.discrepancy_jobs = DiscrepancyJobs()
 
     def newest(svc: EngineService, last: int | None = None) -> tuple:
         whole, ring = svc.state.snapshot(last)
@@ -168,6 +174,31 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
             return svc.rebaseline()
         except LookupError as exc:
             raise HTTPException(404, str(exc)) from exc
+
+    @app.post("/api/v1/engines/{engine_id}/discrepancy", response_model=DiscrepancyJob, status_code=202,
+              dependencies=[Depends(authorised)],
+              responses={401: {"model": ErrorBody}, 409: {"model": ErrorBody}, **ERRORS})
+    def discrepancy_start(svc: Svc, body: Annotated[DiscrepancyRequest | None, Body()] = None) -> dict:
+        """Start the discrepancy workflow (`frictionwatch discrepancy`) on the engine's newest recorded cycles: 202
+        and the job; poll GET .../discrepancy/{job_id} for its report. One job at a time (409 while one runs); the
+        engine keeps its newest 30 s of raw records for this."""
+        req = body or DiscrepancyRequest()
+        try:
+            job = jobs.start(svc, req.cycles, req.baseline, req.max_steps)
+        except BusyError as exc:
+            raise HTTPException(409, str(exc)) from exc
+        except ValueError as exc:  # a baseline naming an effect the engine's model does not have
+            raise HTTPException(422, str(exc)) from exc
+        return job.to_dict()
+
+    @app.get("/api/v1/engines/{engine_id}/discrepancy/{job_id}", response_model=DiscrepancyJob, responses=ERRORS)
+    def discrepancy_job(svc: Svc, job_id: Annotated[str, Path(pattern=JOB_ID)]) -> dict:
+        """A discrepancy job: running, done (with the report) or failed (with a one-line reason)."""
+        job = jobs.get(job_id)
+        if job is None or job.engine_id != svc.engine_id:
+            raise HTTPException(404, f"engine '{svc.engine_id}' has no discrepancy job {job_id} (finished jobs are "
+                                     f"kept, the newest {KEPT})")
+        return job.to_dict()
 
     @app.get("/api/v1/stream", responses=ERRORS)
     async def stream(request: Request, engine_id: Annotated[str | None, Query(pattern=ENGINE_ID.pattern)] = None):

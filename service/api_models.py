@@ -138,5 +138,35 @@ class Acknowledge(BaseModel):
     by: str = Field(default="operator", min_length=1, max_length=80, pattern=r"^[\w .@-]+$")
 
 
+BASELINE_PATTERN = r"^(default|rigid|without:[a-z_]{1,40}(,[a-z_]{1,40}){0,15})$"
+
+
+class DiscrepancyRequest(BaseModel):
+    """A discrepancy run on the engine's recorded window (service/discrepancy_jobs.py)."""
+
+    model_config = ConfigDict(extra="forbid")
+    cycles: int = Field(default=120, ge=28, le=2000,
+                        description="newest cycles to analyse (the workflow needs 28: 12 to settle, 8 to train, "
+                                    "8 held out); at most what the engine's record window holds")
+    baseline: str = Field(default="default", pattern=BASELINE_PATTERN,
+                          description="default effects of the engine's model: default | rigid | without:NAME[,NAME]")
+    max_steps: int = Field(default=3, ge=0, le=5, description="effects to add at most")
+
+
+class DiscrepancyJob(_Open):
+    job_id: str
+    engine_id: str
+    state: Literal["running", "done", "failed"]
+    reason: str | None = Field(description="why the job failed, one line; null otherwise")
+    cycles_requested: int
+    baseline: str
+    max_steps: int
+    records: int = Field(description="raw records of the window handed to the workflow")
+    elapsed_s: float
+    report: dict | None = Field(description="the workflow's JSON report when done (found, gap_before, gap_after, "
+                                            "metric, verdict, localisation, ...), as `frictionwatch discrepancy "
+                                            "--json` prints it; null otherwise")
+
+
 class ErrorBody(BaseModel):
     detail: str

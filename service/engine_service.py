@@ -12,6 +12,9 @@ blocks. Acknowledge and re-baseline come from the API's threads: the alert engin
 Latency. Each source is wrapped so the time its reader got each batch is kept with the batch's newest tick; a
 result's arrival time is when, for the last source to get there, the batch reaching the cycle's end tick was read.
 ``result_s - arrived_s`` is what the metrics histogram shows (record arrival -> result).
+
+Recorded window. The ingest thread also keeps references to the newest ``recent_s`` (30 s) of raw records
+(``RecentRecords``) for the discrepancy workflow on demand (service/discrepancy_jobs.py, POST .../discrepancy).
 """
 
 from __future__ import annotations
@@ -36,6 +39,41 @@ log = logging.getLogger(__name__)
 AlertsFactory = Callable[[str, Any], Any]  # (engine id, EngineSpec) -> an AlertEngine (contract: update, active,
 #                                            history, acknowledge, rebaseline, baseline)
 STAMPS_KEPT = 4096  # batches remembered per source for the latency (a few seconds of a genset's records)
+RECENT_S = 30.0  # raw records kept for an on-demand discrepancy run: genset-v20 pressure ~3.2 MB/s -> ~100 MB
+
+
+class RecentRecords:
+    """The engine's newest raw stream records spanning at most ``window_s`` of acquisition time (by each record's
+    last tick, ``record_key``), in the merged order the pipeline saw them. ``append`` runs on the ingest thread and
+    keeps a reference (records are never modified after they are made); ``window`` copies the list of references
+    under the lock, so a reader never holds the ingest thread up for more than that copy."""
+
+    def __init__(self, window_s: float, tick_hz: float) -> None:
+        if not window_s > 0:
+            raise ValueError(f"the record window must be > 0 s, got {window_s}")
+        self.window_s, self.span = float(window_s), float(window_s) * float(tick_hz)
+        self._items: deque[tuple[float, StreamRecord]] = deque()
+        self._lock = threading.Lock()
+
+    def append(self, record: StreamRecord) -> None:
+        key = record_key(record)
+        with self._lock:
+            items = self._items
+            items.append((key, record))
+            while items[0][0] < key - self.span:
+                items.popleft()
+
+    def window(self, span_s: float | None = None) -> list[StreamRecord]:
+        """The records of the newest ``span_s`` of acquisition time (all held when None), oldest first."""
+        with self._lock:
+            items = list(self._items)
+        if span_s is not None and items:
+            first = items[-1][0] - span_s * self.span / self.window_s
+            items = [it for it in items if it[0] >= first]
+        return [r for _, r in items]
+
+    def __len__(self) -> int:
+        return len(self._items)
 
 
 class StampedSource(Source):
@@ -72,19 +110,22 @@ class EngineService:
 
     def __init__(self, engine_id: str, model: EngineModel, info: AcquisitionInfo, sources: Mapping[str, Source], *,
                  urls: Iterable[str] = (), alerts: AlertsFactory | None = None, listeners: Iterable[Any] = (),
-                 history_cycles: int = 5000, queue_size: int = 256, **session_options: Any) -> None:
+                 history_cycles: int = 5000, queue_size: int = 256, recent_s: float = RECENT_S,
+                 **session_options: Any) -> None:
         if not valid_engine_id(engine_id):
             raise ValueError(f"engine id {engine_id!r} must be 1-40 of a-z, 0-9 and '-'")
         self.engine_id, self.model, self.spec, self.info = engine_id, model, model.spec, info
         self.urls = list(urls)
-        self.term_names = tuple(model.augmented().terms.names)
         self.alerts = alerts(engine_id, model.spec) if alerts is not None else None
         self._alerts_lock = threading.Lock()
         self.state = LatestState(max_results=history_cycles)
         self.fanout = Fanout([self.state, *listeners], queue_size=queue_size)
         self._stamped = {name: StampedSource(src) for name, src in sources.items()}
+        self.recent = RecentRecords(recent_s, info.tick_hz)  # what a discrepancy run on a recorded window reads
         self.session = LiveSession(model, info, self._stamped, on_result=self._on_result, start=False,
-                                   max_results=max(64, history_cycles), **session_options)
+                                   max_results=max(64, history_cycles), on_record=self.recent.append,
+                                   **session_options)
+        self.term_names = self._monitor_terms()  # the columns of the monitor's estimates, named
         self.started_s: float | None = None
         self.last_result_s: float | None = None
         self.alert_errors = 0
@@ -124,6 +165,7 @@ class EngineService:
         self.last_result_s = now
         self.cycles_ok += 1
         self.skipped = dict(self.session.pipeline.skipped)  # the session's lock is held here (its on_result)
+        self.term_names = self._monitor_terms()  # a model with a friction shape has its view from the first cycle
         alerts: tuple[dict, ...] = ()
         if self.alerts is not None:
             with self._alerts_lock:
@@ -135,6 +177,11 @@ class EngineService:
                     self.alert_errors += 1
         self.fanout.publish(ServiceEvent(self.engine_id, result, now, self._arrival(result), alerts,
                                          term_names=self.term_names))
+
+    def _monitor_terms(self) -> tuple[str, ...]:
+        """The loss terms the monitor identifies: those of the model's view (service.pipeline.EnginePipeline)."""
+        view = self.session.pipeline.view
+        return tuple((view.terms if view is not None else self.model.terms).names)
 
     def _arrival(self, result: CycleResult) -> float | None:
         end_tick = (result.t_start + 120.0 / result.rpm_mean) * self.info.tick_hz if result.rpm_mean > 0 else None

@@ -174,6 +174,8 @@ class LiveSession:
     quiet_s : wall time without records after which a source stops holding the others back.
     read_timeout_s : how long one ``read`` of a source waits (bounds how fast ``stop`` returns).
     on_result : called on the ingest thread with each CycleResult (exceptions are logged and counted).
+    on_record : called on the ingest thread with each merged raw record, before the pipeline sees it (cheap: keep a
+    reference; exceptions are logged and counted).
     max_results : how many recent results the session holds (``results``); older ones are dropped, still counted.
     """
 
@@ -181,7 +183,7 @@ class LiveSession:
                  recorder: Recorder | None = None, window_s: float = 1.0, slack_s: float = 0.005,
                  quiet_s: float = 0.5, read_timeout_s: float = 0.05,
                  on_result: Callable[[CycleResult], None] | None = None, max_results: int = 20_000,
-                 start: bool = True) -> None:
+                 start: bool = True, on_record: Callable[[StreamRecord], None] | None = None) -> None:
         if isinstance(sources, Mapping):
             self.sources = dict(sources)
         else:
@@ -193,7 +195,7 @@ class LiveSession:
         self.merge = RecordMerge(self.sources, window_s * info.tick_hz, slack_s * info.tick_hz)
         self.recorder = recorder
         self.quiet_s, self.read_timeout_s = quiet_s, read_timeout_s
-        self.on_result = on_result
+        self.on_result, self.on_record = on_result, on_record
         self._history = ResultHistory(max_len=max_results)
         self.records_fed = 0
         self.errors: Counter[str] = Counter()  # the session's own trouble: recorder, on_result, pipeline bugs
@@ -358,6 +360,11 @@ class LiveSession:
                     self.recorder.write(r)
                 except OSError as exc:  # disk full, folder gone: the black box fails, the monitor goes on
                     self._error("recorder", exc)
+            if self.on_record is not None:
+                try:
+                    self.on_record(r)
+                except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the monitor
+                    self._error("on_record", exc)
             with self._cond:
                 self.records_fed += 1
                 try:

@@ -12,10 +12,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from frictionwatch.core.discrepancy.view import (
+    MonitorView,
+    Reference,
+    monitor_view,
+    needs_reference,
+    reference,
+    viewed_cycle,
+)
 from frictionwatch.core.model.engine import EngineSpec, spec_from_toml_text
 from frictionwatch.core.model.engine_model import EngineModel, as_model, load_model
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
 from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 from frictionwatch.core.types import AcquisitionInfo, Cycle, StreamRecord
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 
@@ -23,7 +32,15 @@ log = logging.getLogger(__name__)
 
 
 class EnginePipeline:
-    """Feeds records of one engine through assembly and the monitor; ``skipped`` counts lost cycles by reason."""
+    """Feeds records of one engine through assembly and the monitor; ``skipped`` counts lost cycles by reason.
+
+    The monitor gets the model as core.discrepancy.view translates its effects (``monitor_view``, unpinned: the
+    model's coefficients are the prior, the identification free): a TDC offset moves the cylinder's phase, a
+    pressure gain or offset corrects each assembled cycle's pressure, a chain mismatch scales the shaft line, a
+    model without torsional_flexibility / variable_inertia runs rigid / at constant inertia, friction shapes become
+    loss terms. A spec or preset model (its default effects, none of those corrections) runs exactly as it is.
+    The cycles are assembled at the phases the wheel states (the model's spec); a friction shape is sized at the
+    operating point of the first assembled cycle (the view is made then; without shapes, at once)."""
 
     def __init__(self, engine: EngineModel | EngineSpec, info: AcquisitionInfo):
         self.model = as_model(engine)
@@ -31,9 +48,16 @@ class EnginePipeline:
         self.assembler = CycleAssembler(
             info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm
         )
-        self.state = initial_state(self.model)
+        self.view: MonitorView | None = None
+        self.state: MonitorState | None = None
+        if not needs_reference(self.model):
+            self._make_view(None)
         self.monitor_skipped: Counter[str] = Counter()
         self.cycles_ok = 0
+
+    def _make_view(self, ref: Reference | None) -> None:
+        self.view = monitor_view(self.model, ref, MonitorConfig())
+        self.state = initial_state(self.view.model, self.view.config)
 
     @property
     def skipped(self) -> Counter[str]:
@@ -46,8 +70,11 @@ class EnginePipeline:
         return [r for c in self.assembler.flush() if (r := self._process(c)) is not None]
 
     def _process(self, cycle: Cycle) -> CycleResult | None:
+        if self.view is None:
+            self._make_view(reference([cycle]))
+        view = self.view
         try:
-            self.state, result = process_cycle(self.model, self.state, cycle)
+            self.state, result = process_cycle(view.model, self.state, viewed_cycle(view, cycle), view.config)
         except CycleRejected as exc:
             reason = exc.reason
         except (ValueError, FloatingPointError, ArithmeticError) as exc:
@@ -126,7 +153,7 @@ class LogAnalysis:
 def resolve_model(engine_toml: str | None, engine: str | None, origin: str,
                   info: AcquisitionInfo | None = None) -> EngineModel:
     """The engine or model file named on the command line wins (a model file, ``EngineModel.to_toml``, brings its
-    loss terms and coefficients); else the default model of the spec the log carries. A named engine that cannot
+    loss terms, coefficients and effects: ``EnginePipeline`` applies them); else the default model of the spec the log carries. A named engine that cannot
     be the one recorded is refused (``engine_mismatch``)."""
     if engine:
         model = load_model(engine)

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from frictionwatch.core.discrepancy.view import MonitorView, corrected_pressure
+from frictionwatch.core.discrepancy.view import MonitorView, viewed_cycle
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
 from frictionwatch.core.types import Cycle
 
@@ -60,10 +60,8 @@ def run_view(view: MonitorView, cycles: Sequence[Cycle]) -> Residuals:
     rows: list[tuple] = []
     rejected = 0
     for cycle in cycles:
-        if view.corrects_pressure:
-            cycle = dataclasses.replace(cycle, pressure=corrected_pressure(view, cycle.pressure))
         try:
-            state, r = process_cycle(model, state, cycle, view.config)
+            state, r = process_cycle(model, state, viewed_cycle(view, cycle), view.config)
         except (CycleRejected, ValueError, ArithmeticError):
             rejected += 1
             continue

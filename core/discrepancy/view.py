@@ -16,13 +16,16 @@ predicts the flywheel speed with it:
     friction laws (mismatch.py)    ``fraction`` of the base term's mean moved into the law's term, sized at the
                                    reference operating point as the simulator sizes it
 
-The monitor runs with the friction scales pinned to the model (``pinned_config``): the question is whether the
-model, as it stands, reproduces the measured speed and mean torque balance, not what the monitor would refit.
+One translation for two users. The workflow pins the friction scales to the model (it passes
+``pinned_config(...)``): its question is whether the model, as it stands, reproduces the measured speed and mean
+torque balance, not what the monitor would refit. ``analyze`` and ``serve`` (service.pipeline) pass their config
+as it is: the model's coefficients are the prior and the identification is free, as for any model.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +36,7 @@ from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.terms import TermLibrary, cylinder_samples
 from frictionwatch.core.model.thermo import P_CRANKCASE
 from frictionwatch.core.monitor.state import MonitorConfig
+from frictionwatch.core.types import Cycle
 
 PINNED_SIGMA = 1e-4  # prior sigma of every friction scale: the model's coefficients are used as they are
 
@@ -45,6 +49,21 @@ class Reference:
     omega: float
     grid: np.ndarray
     pressure: np.ndarray
+
+
+def reference(cycles: Sequence[Cycle]) -> Reference:
+    """A typical cycle: the mean speed of all cycles and the median pressure (robust to a misfire) on the grid."""
+    omegas = [(c.tooth_angle[-1] - c.tooth_angle[0]) * c.tick_hz / float(c.tooth_ticks[-1] - c.tooth_ticks[0])
+              for c in cycles]
+    grid = cycles[0].grid
+    same = [c.pressure for c in cycles if c.grid.shape == grid.shape]
+    return Reference(float(np.median(omegas)), grid, np.median(np.stack(same), axis=0))
+
+
+def needs_reference(model: EngineModel) -> bool:
+    """Whether ``monitor_view`` sizes a friction shape of ``model`` at an operating point (extra_friction, a
+    friction law): only then does it read its ``ref``."""
+    return any(e.name == "extra_friction" or getattr(e, "base", "") for e in model.effects)
 
 
 @dataclass(frozen=True)
@@ -93,11 +112,14 @@ def basis_means(spec: EngineSpec, terms: TermLibrary, ref: Reference) -> np.ndar
     return terms.evaluate(np.stack(rows, axis=1), consts).mean(axis=2)
 
 
-def monitor_view(model: EngineModel, ref: Reference, config: MonitorConfig | None = None) -> MonitorView:
-    """The monitor's side of ``model`` (see the module doc); ``ref`` sizes the friction shapes."""
+def monitor_view(model: EngineModel, ref: Reference | None, config: MonitorConfig | None = None) -> MonitorView:
+    """The monitor's side of ``model`` (see the module doc) with ``config`` as given (pinned or not: the caller's
+    choice); ``ref`` sizes the friction shapes (None only when ``needs_reference(model)`` is false)."""
+    if ref is None and needs_reference(model):
+        raise ValueError("the model's friction shapes are sized at an operating point: monitor_view needs a Reference")
     spec, terms, coef = model.spec, model.terms, np.array(model.coefficients, dtype=np.float64)
     names = {e.name for e in model.effects}
-    cfg = pinned_config(config)
+    cfg = config or MonitorConfig()
     if "variable_inertia" not in names:
         cfg = dataclasses.replace(cfg, variable_inertia=False)
     if "torsional_flexibility" not in names:
@@ -157,5 +179,12 @@ def corrected_pressure(view: MonitorView, pressure: np.ndarray) -> np.ndarray:
     return (np.asarray(pressure, dtype=np.float64) - view.offset[:, None]) / view.gain[:, None]
 
 
-__all__ = ["MonitorView", "Reference", "basis_means", "corrected_pressure", "monitor_view", "pinned_config",
-           "rigid_spec"]
+def viewed_cycle(view: MonitorView, cycle: Cycle) -> Cycle:
+    """``cycle`` as the monitor gets it under ``view``: its pressure corrected (the cycle itself when nothing is)."""
+    if not view.corrects_pressure:
+        return cycle
+    return dataclasses.replace(cycle, pressure=corrected_pressure(view, cycle.pressure))
+
+
+__all__ = ["MonitorView", "Reference", "basis_means", "corrected_pressure", "monitor_view", "needs_reference",
+           "pinned_config", "reference", "rigid_spec", "viewed_cycle"]

@@ -24,7 +24,7 @@ from frictionwatch.core.discrepancy.candidates import Candidate, candidate_libra
 from frictionwatch.core.discrepancy.features import coherent_terms, gap, localise, noise_scale
 from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, rank, refine
 from frictionwatch.core.discrepancy.residuals import Residuals, run_view
-from frictionwatch.core.discrepancy.view import Reference, monitor_view
+from frictionwatch.core.discrepancy.view import monitor_view, pinned_config, reference
 from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.monitor.state import MonitorConfig
@@ -95,15 +95,6 @@ class Discovery:
                 "monitor_runs": self.evaluations}
 
 
-def reference(cycles: Sequence[Cycle]) -> Reference:
-    """A typical cycle: the mean speed of all cycles and the median pressure (robust to a misfire) on the grid."""
-    omegas = [(c.tooth_angle[-1] - c.tooth_angle[0]) * c.tick_hz / float(c.tooth_ticks[-1] - c.tooth_ticks[0])
-              for c in cycles]
-    grid = cycles[0].grid
-    same = [c.pressure for c in cycles if c.grid.shape == grid.shape]
-    return Reference(float(np.median(omegas)), grid, np.median(np.stack(same), axis=0))
-
-
 def _chi2(res: Residuals, scale: np.ndarray) -> float:
     return float(res.n_cycles * coherent_terms(res, scale).sum())
 
@@ -120,11 +111,13 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     first, held = cycles[opt.warmup].index, cycles[split].index
     window = cycles[:min(split, opt.warmup + opt.fit_cycles)]
 
+    pinned = pinned_config(opt.monitor_config)  # the question is whether each model reproduces the log as it stands
+
     def full(m: EngineModel) -> Residuals:
-        return run_view(monitor_view(m, ref, opt.monitor_config), cycles)
+        return run_view(monitor_view(m, ref, pinned), cycles)
 
     def sub(m: EngineModel) -> Residuals:
-        return run_view(monitor_view(m, ref, opt.monitor_config), window)
+        return run_view(monitor_view(m, ref, pinned), window)
 
     def parts(res: Residuals) -> tuple[Residuals, Residuals]:
         return res.take((res.index >= first) & (res.index < held)), res.take(res.index >= held)

@@ -121,3 +121,21 @@ def test_library_leaves_out_what_the_model_holds():
     assert cand.model_at(model, np.array([0.0])) is model
     e = cand.effect_at(np.array([25.0]))  # clipped to the effect's range
     assert e["deg"] == pytest.approx(10.0) and e["cylinder"] == 0
+
+
+def test_view_runs_with_the_callers_config():
+    """The workflow pins the friction (pinned_config), analyze and serve do not: the view takes either as given."""
+    from frictionwatch.core.discrepancy.view import PINNED_SIGMA, pinned_config
+    from frictionwatch.core.monitor.state import MonitorConfig
+
+    spec = load_engine("k9k-4cyl")
+    ref = reference(spec)
+    free = monitor_view(EngineModel.from_spec(spec), ref)
+    assert free.config == MonitorConfig()
+    assert free.spec is spec and not free.corrects_pressure
+    pinned = monitor_view(EngineModel.from_spec(spec), ref, pinned_config())
+    assert pinned.config.parameter_sigma == PINNED_SIGMA and pinned.config.warmup_cycles == 2
+    law = EngineModel.from_spec(spec, effects=[make_effect("bearings_load", {"fraction": 0.5})])
+    with pytest.raises(ValueError, match="Reference"):
+        monitor_view(law, None)
+    assert monitor_view(EngineModel.from_spec(spec), None).spec is spec  # nothing to size: no reference needed

@@ -1,0 +1,135 @@
+"""The discrepancy workflow on an engine's recorded window, as a background job of the service (issue 18 item 5).
+
+    jobs = DiscrepancyJobs()
+    job = jobs.start(svc, cycles=120, baseline="default", max_steps=1)   # BusyError while another job runs
+    jobs.get(job.job_id).to_dict()   # {"state": "running" | "done" | "failed", "reason", "report", ...}
+
+One job at a time over all engines, on one worker thread: the workflow runs the monitor over the window dozens of
+times (its bench: 200 k9k cycles in under 30 s on one core), on the cores the live engines use too. The window is
+the engine's newest raw records (``EngineService.recent``) spanning ``cycles`` cycles at the newest mean speed plus
+one to get in sync; it is assembled and analysed by ``service.cmd_discrepancy.run_discrepancy``, exactly as
+`frictionwatch discrepancy` does a log. A job that cannot run (too few cycles recorded, a monitor that analyses too
+few) fails with the workflow's own one-line reason. Finished jobs are kept, the newest ``KEPT`` of them.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import secrets
+import threading
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Any
+
+from frictionwatch.core.discrepancy import Options
+from frictionwatch.service.cmd_discrepancy import run_discrepancy, with_baseline
+
+log = logging.getLogger(__name__)
+
+KEPT = 32  # finished jobs remembered (their reports are a few tens of kB each)
+
+
+class BusyError(RuntimeError):
+    """Another job is running."""
+
+
+@dataclass
+class Job:
+    job_id: str
+    engine_id: str
+    cycles: int
+    baseline: str
+    max_steps: int
+    started_s: float = field(default_factory=time.monotonic)
+    state: str = "running"
+    reason: str | None = None
+    report: dict | None = None
+    finished_s: float | None = None
+    records: int = 0
+
+    def to_dict(self) -> dict:
+        end = self.finished_s if self.finished_s is not None else time.monotonic()
+        return {"job_id": self.job_id, "engine_id": self.engine_id, "state": self.state, "reason": self.reason,
+                "cycles_requested": self.cycles, "baseline": self.baseline, "max_steps": self.max_steps,
+                "records": self.records, "elapsed_s": end - self.started_s, "report": self.report}
+
+
+class DiscrepancyJobs:
+    """See the module docstring. Thread-safe: the API's threads start and read jobs, the worker finishes them."""
+
+    def __init__(self) -> None:
+        self._jobs: OrderedDict[str, Job] = OrderedDict()
+        self._lock = threading.Lock()
+        self._running: Job | None = None
+
+    def start(self, svc: Any, cycles: int, baseline: str, max_steps: int) -> Job:
+        """A new job on ``svc`` (an EngineService). Raises ValueError for a baseline the engine's model cannot take
+        (an effect it does not have), BusyError while a job runs."""
+        model = with_baseline(svc.model, baseline)  # checked here: a bad request is the caller's 422, not a job
+        with self._lock:
+            if self._running is not None:
+                r = self._running
+                raise BusyError(f"discrepancy job {r.job_id} on engine '{r.engine_id}' is running (one at a time); "
+                                f"retry when GET .../discrepancy/{r.job_id} says it is done")
+            job = self._running = Job(secrets.token_hex(8), svc.engine_id, cycles, baseline, max_steps)
+            self._jobs[job.job_id] = job
+            while len(self._jobs) > KEPT + 1:
+                self._jobs.popitem(last=False)
+        newest, _ = svc.state.snapshot(1)
+        rpm = newest.rpm_mean if newest is not None and newest.rpm_mean > 0 else None
+        # the newest `cycles` cycles at the newest speed, plus one to get in sync; all that is held before a result
+        records = svc.recent.window((cycles + 1) * 120.0 / rpm if rpm else None)
+        job.records = len(records)
+        worker = threading.Thread(target=self._run, args=(job, svc.info, records, model), daemon=True,
+                                  name=f"discrepancy-{job.job_id}")
+        worker.start()
+        return job
+
+    def _run(self, job: Job, info: Any, records: list, model: Any) -> None:
+        try:
+            # the baseline is applied above; run_discrepancy gets the reduced model and 'default'
+            report = run_discrepancy((info, records), model, Options(max_steps=job.max_steps), "default")
+            report = plain(report)
+            report["baseline"] = job.baseline
+        except ValueError as exc:  # the workflow's own refusal: too few cycles, none analysed
+            self._finish(job, "failed", reason=str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+        except Exception as exc:  # noqa: BLE001 - a bug met on odd data: the job fails, the service goes on
+            log.error("discrepancy job %s on %s failed: %s", job.job_id, job.engine_id, exc, exc_info=exc)
+            self._finish(job, "failed", reason=f"internal error: {type(exc).__name__}: {str(exc).splitlines()[0]}"
+                         if str(exc) else f"internal error: {type(exc).__name__}")
+        else:
+            self._finish(job, "done", report=report)
+
+    def _finish(self, job: Job, state: str, reason: str | None = None, report: dict | None = None) -> None:
+        with self._lock:
+            job.state, job.reason, job.report, job.finished_s = state, reason, report, time.monotonic()
+            self._running = None
+
+    def get(self, job_id: str) -> Job | None:
+        with self._lock:
+            return self._jobs.get(job_id)
+
+    @property
+    def running(self) -> Job | None:
+        return self._running
+
+
+def plain(value: Any) -> Any:
+    """The report as plain JSON values: numpy scalars and arrays as numbers and lists, a non-finite number as None
+    (JSON has no NaN), anything else unknown as its text."""
+    if isinstance(value, dict):
+        return {str(k): plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    if hasattr(value, "tolist"):
+        return plain(value.tolist())
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if value is None or isinstance(value, (bool, int, str)):
+        return value
+    return str(value)
+
+
+__all__ = ["KEPT", "BusyError", "DiscrepancyJobs", "Job", "plain"]
