@@ -59,8 +59,9 @@ class AlertConfig:
     are not used; an operating-point change is not a reason: the sibling-relative indicators move by less than a
     third of their per-cycle scatter over a K9K load step 0.69 -> 0.40, and the monitor flags a change every ~20
     cycles of a steady run with 3 % COV); skip_cycles: first cycles never used. band_width: relative half-width in
-    mean IMEP of a load band of the baseline (service.alert_baseline): genset-v20's sibling-relative exponents move
-    ~0.002 in the leak direction over a step 0.75 -> 0.45 (IMEP ~x1.5), so ~0.0004 at +-10 %, under leak_floor.
+    mean IMEP of a load band of the baseline (service.alert_baseline): a step 0.75 -> 0.45 on genset-v20 moves the
+    sibling-relative leak effect of single cylinders by up to 0.0028 (the shaft's twist, core.monitor.ring_pressure),
+    smoothly with the load; +-10 % of IMEP is about a fifth of that step, so its share stays under leak_floor.
     window: EWMA cycles of the pressure statistics; raise_z / clear_z: their raise and clear levels (standard
     errors); alarm_z: severity alarm; leak_floor: the mean exponent change (-dn_c + dn_e) / 2 a leak alert needs
     besides Z (a persistent shift too small to matter, a load step's, is not a leak); gain_floor: |d ln p| of the
@@ -243,7 +244,7 @@ class AlertEngine:
             return []
         x = ring.compared()  # rows as INDICATORS
         imep = _mean_imep(result)
-        usable = (np.all(np.isfinite(x)) and math.isfinite(imep) and self._cycles > cfg.skip_cycles
+        usable = (np.all(np.isfinite(x)) and imep > 0.0 and self._cycles > cfg.skip_cycles  # not motored
                   and not any(f & {"misfire"} or any(s.startswith("sensor_") for s in f) for f in cyl_flags))
         if not usable:
             return []
