@@ -169,7 +169,8 @@ def test_a_load_step_alone_raises_nothing_and_a_leak_at_constant_load_still_does
         events += eng.update(_result(i, rng, _load_offset() if low else None, imep_pa=8e5 if low else 12e5))
     assert events == []
     assert [round(b.imep_pa / 1e5, 1) for b in eng.baseline.bands] == [12.0, 8.0]  # the 8 bar band learnt
-    assert eng.baseline.bands[1].first_cycle == 300 and eng.baseline.bands[1].cycles == 100
+    # the 8 bar band learnt after the load change settled (settle_cycles 50)
+    assert eng.baseline.bands[1].first_cycle == 350 and eng.baseline.bands[1].cycles == 100
     # a leak in cylinder 2 at constant load, in the band learnt after the step: raised on cylinder 2
     ev = _run_at(eng, rng, 200, 1500, _load_offset() + _leak(2, 0.0025), 8e5)
     raised = [e.alert for e in ev if e.kind == "raised"]
@@ -177,9 +178,10 @@ def test_a_load_step_alone_raises_nothing_and_a_leak_at_constant_load_still_does
     assert raised[0].evidence["commissioned_at_this_load"] is True
     assert_allclose(raised[0].evidence["load_band_imep_bar"], [7.2, 8.8], atol=0.05)
     # at a load never seen the alert holds and says why; back at 8 bar the leak keeps it open
-    ev = _run_at(eng, rng, 50, 1700, _leak(2, 0.0025), 5e5)
+    ev = _run_at(eng, rng, 80, 1700, _leak(2, 0.0025), 5e5)
     assert ev == [] and eng.active()[0].evidence["commissioned_at_this_load"] is False
-    assert _run_at(eng, rng, 50, 1750, _load_offset() + _leak(2, 0.0025), 8e5) == []
+    assert eng.active()[0].evidence["suspended"] == "not commissioned at this load: learning"
+    assert _run_at(eng, rng, 100, 1780, _load_offset() + _leak(2, 0.0025), 8e5) == []
     assert eng.active()[0].evidence["commissioned_at_this_load"] is True
 
 
@@ -196,7 +198,7 @@ def test_bands_round_trip_and_a_version_1_baseline_is_read_as_valid_at_every_loa
     rng = np.random.default_rng(8)
     eng = AlertEngine(K9K, CONFIG)
     _run(eng, rng, 120, 0)
-    _run_at(eng, rng, 120, 120, None, 8e5)
+    _run_at(eng, rng, 170, 120, None, 8e5)
     assert len(eng.baseline.bands) == 2
     back = Baseline.from_dict(json.loads(json.dumps(eng.baseline.to_dict())))
     for a, b in zip(back.bands, eng.baseline.bands, strict=True):
@@ -220,3 +222,17 @@ def test_bands_round_trip_and_a_version_1_baseline_is_read_as_valid_at_every_loa
 
 def _run_at(engine, rng, n, start, shift, imep_pa):
     return [e for i in range(start, start + n) for e in engine.update(_result(i, rng, shift, imep_pa=imep_pa))]
+
+
+def test_one_wild_cycle_at_a_load_step_raises_nothing():
+    """On genset-v20 the cycle a load step falls in read one cylinder's n_compression 0.27 off (its trace spliced
+    across the step); the monitor flags it operating_point_changed, and that cycle is not used."""
+    rng = np.random.default_rng(9)
+    eng = AlertEngine(K9K, CONFIG)
+    _run(eng, rng, 300, 0)
+    wild = np.zeros((4, 4))
+    wild[1, 1] = -0.27
+    assert eng.update(_result(300, rng, wild, flags=("operating_point_changed",))) == []
+    assert _run(eng, rng, 100, 301) == []
+    assert eng.update(_result(401, rng, wild)) == []  # the same cycle unflagged: the EWMA takes it (no alert yet)
+    assert [e.alert.cylinder for _, e in _run(eng, rng, 20, 402) if e.kind == "raised"] == [2]
