@@ -9,7 +9,8 @@ detect: ring_wear (x1.3 ring group, ``--mass-loss`` leak, default 3 %) or blow_b
 ``--onset`` with a linear ``--ramp``; the delay is the cycles from the onset to the first ring_wear or blow_by alert
 naming that cylinder (alerts on other cylinders are counted as wrong). healthy: combustion variability (``--cov``)
 and a load step every ``--step-every`` cycles between the preset's load and 60 % of it; every alert is a false
-alarm. mismatch: a pressure gain error of 3 % on cylinder 2 (``gain``), a TDC offset of 0.5 deg on cylinder 2
+alarm (the load bands the baseline learnt are listed: service.alert_baseline). mismatch: a pressure gain error of
+3 % on cylinder 2 (``gain``), a TDC offset of 0.5 deg on cylinder 2
 (``tdc``), a friction law of another shape (``friction_law``: the ring boundary friction on a Stribeck curve instead of the mixed window
 , core.model.effects.mismatch); the sensor errors from the start (the commissioning baseline learns them) and,
 with ``--given-baseline``, against a baseline learnt on the same engine without them (a sensor changed after
@@ -73,6 +74,8 @@ def run(engine: str, cycles: int, effects: list[str], seed: int, cov: float, ste
                               "wall_s": round(time.perf_counter() - t0, 1)}), flush=True)
     counts["wall_s"] = round(time.perf_counter() - t0, 1)
     counts["baseline_learnt_at"] = alerts.baseline.last_cycle if alerts.baseline is not None else None
+    counts["load_bands"] = [{"imep_bar": round(b.imep_pa / 1e5, 2), "cycles": [b.first_cycle, b.last_cycle]}
+                            for b in (alerts.baseline.bands if alerts.baseline is not None else ())]
     return events, alerts, counts
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from frictionwatch.service.alert_baseline import Baseline
+from frictionwatch.service.alert_baseline import Band
 
 
 class Latch:
@@ -48,10 +48,10 @@ class LeakStatistics:
     z_ratio: np.ndarray
 
 
-def leak_statistics(ewma: np.ndarray, baseline: Baseline, g: float) -> LeakStatistics:
-    """From the EWMA (4, z) of the indicators' change from the baseline mean (rows as alert_baseline.INDICATORS),
-    its factor g. The leak signature s = (-dn_c / sd_c + dn_e / sd_e) / sqrt(2) is scaled by its own per-cycle
-    spread from the baseline covariance (the two exponents' scatter is correlated: one trapped-mass error moves
+def leak_statistics(ewma: np.ndarray, baseline: Band, g: float) -> LeakStatistics:
+    """From the EWMA (4, z) of the indicators' change from the mean of the baseline's load band they were compared
+    with (rows as alert_baseline.INDICATORS), its factor g. The leak signature
+    s = (-dn_c / sd_c + dn_e / sd_e) / sqrt(2) is scaled by its own per-cycle spread from the band's covariance (the two exponents' scatter is correlated: one trapped-mass error moves
     both) and by the EWMA's standard error per unit of spread, sqrt(g / (2 - g)), for independent cycles."""
     sd = baseline.sd
     w = np.zeros_like(ewma)

@@ -10,6 +10,11 @@ the statistic is above ``raise`` for ``raise_cycles`` consecutive cycles and cle
                  baseline (service.alert_baseline), in units of its own per-cycle scatter: Z = EWMA of the combined
                  standardised change / its standard error. Covers every cylinder from the end of commissioning, with
                  or without a friction figure. Before a baseline exists: the core's sibling-floor flag blow_by_cyl<k>.
+                 The baseline is per load band (the engine's mean IMEP): at a load no band holds yet the engine is not
+                 commissioned there; the pressure statistics (blow_by and the gain check) hold still, open alerts say
+                 so in their evidence (commissioned_at_this_load false), and a band for that load learns over the
+                 next baseline_cycles healthy cycles there; after a load change they wait settle_cycles. A leak that grows while a band learns is in that band's
+                 reference; the bands learnt before still see it when the engine returns to their loads.
     ring_wear    the cylinder's measured friction (figure status "measured") above its siblings' mean by more than
                  at its first measurement, in combined sigmas, unless that cylinder's pressure-gain check is raised
                  (a 3 % gain error on a K9K cylinder read as +46 % friction: the balance books the indicated work the
@@ -33,7 +38,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.figure_status import friction_status, split_flag
-from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.monitor.results import PA_PER_BAR, CycleResult
 from frictionwatch.service.alert_baseline import INDICATORS, Baseline, BaselineLearner
 from frictionwatch.service.alert_rules import Latch, leak_statistics
 
@@ -53,7 +58,14 @@ class AlertConfig:
     baseline_cycles: healthy cycles the commissioning baseline learns over (cycles with a misfire or a sensor flag
     are not used; an operating-point change is not a reason: the sibling-relative indicators move by less than a
     third of their per-cycle scatter over a K9K load step 0.69 -> 0.40, and the monitor flags a change every ~20
-    cycles of a steady run with 3 % COV); skip_cycles: first cycles never used.
+    cycles of a steady run with 3 % COV); skip_cycles: first cycles never used. band_width: relative half-width in
+    mean IMEP of a load band of the baseline (service.alert_baseline): a step 0.75 -> 0.45 on genset-v20 moves the
+    sibling-relative leak effect of single cylinders by up to 0.0028 (the shaft's twist, core.monitor.ring_pressure),
+    smoothly with the load; +-10 % of IMEP is about a fifth of that step, so its share stays under leak_floor.
+    settle_cycles: after the mean IMEP moves by more than half a band, the pressure statistics and the learning
+    wait this many usable cycles, and a cycle the monitor flags operating_point_changed is not used: on genset-v20
+    the cycle a step 0.45 -> 0.75 falls in read cylinder 5's n_compression 0.27 off (its trace spliced across the
+    step: 0.27 x 0.02 moved the EWMA by -0.005), enough to raise a false blow_by 9 cycles later.
     window: EWMA cycles of the pressure statistics; raise_z / clear_z: their raise and clear levels (standard
     errors); alarm_z: severity alarm; leak_floor: the mean exponent change (-dn_c + dn_e) / 2 a leak alert needs
     besides Z (a persistent shift too small to matter, a load step's, is not a leak); gain_floor: |d ln p| of the
@@ -65,6 +77,8 @@ class AlertConfig:
     """
 
     baseline_cycles: int = 200
+    band_width: float = 0.1
+    settle_cycles: int = 50
     skip_cycles: int = 5
     window: float = 50.0
     raise_z: float = 6.0
@@ -136,6 +150,7 @@ class AlertEngine:
         self._ewma = np.zeros((len(INDICATORS), z))
         self._ewma_n = 0
         self._misfire = np.zeros(z)
+        self._imep_ref, self._settle = math.nan, 0  # the load-change hold of the pressure statistics
         self._cycles = 0
         self._last_cycle = -1
 
@@ -234,27 +249,39 @@ class AlertEngine:
         if ring is None:
             return []
         x = ring.compared()  # rows as INDICATORS
-        usable = (np.all(np.isfinite(x)) and self._cycles > cfg.skip_cycles and not any(f & {"misfire"} or any(s.startswith("sensor_") for s in f) for f in cyl_flags))
-        if self.baseline is None:
-            if usable:
-                self._learner.add(x, int(result.index))
-                if self._learner.n >= cfg.baseline_cycles:
-                    self.baseline = self._learner.baseline()
-            return []
+        imep = _mean_imep(result)
+        usable = (np.all(np.isfinite(x)) and imep > 0.0 and self._cycles > cfg.skip_cycles  # not motored
+                  and "operating_point_changed" not in result.flags  # a cycle spliced across a step
+                  and not any(f & {"misfire"} or any(s.startswith("sensor_") for s in f) for f in cyl_flags))
         if not usable:
+            return []
+        if self._load_moved(imep):  # a load change: the statistics and the learning wait for it to settle
+            self._settle = cfg.settle_cycles
+        if self._settle > 0:
+            self._settle -= 1
+            self._suspended(imep, "settling after a load change")
+            return []
+        band = None if self.baseline is None else self.baseline.band_for(imep)
+        if band is None:  # not commissioned at this load: learn it; the pressure statistics wait (module doc)
+            self._learn(x, int(result.index), imep)
+            self._suspended(imep, "not commissioned at this load: learning")
             return []
         self._ewma_n += 1
         g = max(1.0 / cfg.window, 1.0 / self._ewma_n)
-        self._ewma += g * (x - self.baseline.mean - self._ewma)
-        st = leak_statistics(self._ewma, self.baseline, g)
+        self._ewma += g * (x - band.mean - self._ewma)
+        st = leak_statistics(self._ewma, band, g)
         out = []
         for k in range(self.spec.n_cyl):
             sensor = any(s.startswith("sensor_") for s in cyl_flags[k])
             ev = {"source": "pressure", "z_leak": st.z_leak[k], "n_compression_change": self._ewma[1, k],
                   "n_expansion_change": self._ewma[2, k], "compression_ratio_change_ln": self._ewma[0, k],
                   "expansion_deficit_change_ln": self._ewma[3, k], "z_compression_ratio": st.z_ratio[k],
-                  "baseline_cycles": self.baseline.cycles, "window_cycles": cfg.window}
+                  "baseline_cycles": band.cycles, "window_cycles": cfg.window, "commissioned_at_this_load": True,
+                  "suspended": None,
+                  "imep_bar": imep / PA_PER_BAR, "load_band_imep_bar": [band.imep_lo_pa / PA_PER_BAR,
+                                                                        band.imep_hi_pa / PA_PER_BAR]}
             ev = {key: (_num(v) if isinstance(v, float | np.floating) else v) for key, v in ev.items()}
+            ev["load_band_imep_bar"] = [_num(v) for v in ev["load_band_imep_bar"]]
             leak_on = st.z_leak[k] > cfg.raise_z and st.effect[k] > cfg.leak_floor
             leak_off = st.z_leak[k] < cfg.clear_z
             sev = "alarm" if st.z_leak[k] >= cfg.alarm_z and st.effect[k] > 3 * cfg.leak_floor else "warning"
@@ -274,6 +301,36 @@ class AlertEngine:
                                 "exponents); check the sensor", {**ev, "suspect": "pressure_gain",
                                                                  "gain_estimate": _num(math.exp(self._ewma[0, k]))})
         return out
+
+    def _learn(self, x: np.ndarray, cycle: int, imep: float) -> None:
+        """One healthy cycle at a load no band holds: into the learner, which restarts where the IMEP has left the
+        band it began in (a ramp, another step); a full learner becomes a band (the first: the baseline)."""
+        cfg, learner = self.config, self._learner
+        if learner.n and abs(imep / learner.imep_first - 1.0) > cfg.band_width:
+            learner = self._learner = BaselineLearner(self.spec.n_cyl)
+        learner.add(x, cycle, imep)
+        if learner.n >= cfg.baseline_cycles:
+            self.baseline = (learner.baseline(cfg.band_width) if self.baseline is None
+                             else self.baseline.with_band(learner.band(cfg.band_width)))
+            self._learner = BaselineLearner(self.spec.n_cyl)
+
+    def _load_moved(self, imep: float) -> bool:
+        """Whether the mean IMEP left its slow reference by more than half a band (a step or a ramp); the reference
+        follows a slow drift (20 cycles) and jumps to a moved IMEP."""
+        ref = self._imep_ref
+        if math.isfinite(ref) and abs(imep / ref - 1.0) <= 0.5 * self.config.band_width:
+            self._imep_ref += 0.05 * (imep - ref)
+            return False
+        self._imep_ref = imep
+        return math.isfinite(ref)
+
+    def _suspended(self, imep: float, why: str) -> None:
+        """Say so in the evidence of the open pressure alerts: their statistics hold still (neither raised nor
+        cleared) while the load settles and at a load not yet commissioned."""
+        for key, a in self._open.items():
+            if key[0] in ("leak", "gain"):
+                a.evidence.update({"commissioned_at_this_load": False, "suspended": why,
+                                   "imep_bar": _num(imep / PA_PER_BAR), "learning_cycles": self._learner.n})
 
     def _friction(self, result: CycleResult) -> list[AlertEvent]:
         """Ring wear from the friction where it is measured: excess over the measured siblings' mean vs its value
@@ -348,6 +405,13 @@ class AlertEngine:
 
 def _rank(severity: str) -> int:
     return ("info", "warning", "alarm").index(severity)
+
+
+def _mean_imep(result: CycleResult) -> float:
+    """The engine's mean IMEP this cycle [Pa] over the cylinders that have one (NaN: none), the load the bands key on."""
+    imep = np.asarray(result.imep, dtype=float)
+    ok = np.isfinite(imep)
+    return float(np.mean(imep[ok])) if ok.any() else math.nan
 
 
 def _num(v) -> float | None:
