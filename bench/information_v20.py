@@ -58,16 +58,23 @@ def indicated_torque(spec, grid: np.ndarray, pressure: np.ndarray, shift_deg: fl
     return np.mean(p * dv, axis=1)  # uniform grid over 4 pi: (1/4pi) \oint p dV = mean(p dV/dtheta)
 
 
-def second_wheel_design(spec, state, cycle, cfg, node: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """This cycle's speed equations at ``node`` (the monitor's balance with that node's transfer): design (M, P),
-    the tooth-fit noise floor (M,) [rad^2/s^2], the flywheel speed harmonics' sizes w_m |Phi_m| (M,) [rad/s] and
-    the modelled speed harmonics' sizes at ``node`` (M,) [rad/s]."""
+def _fit_and_point(spec, state, cycle, cfg):
+    """The monitor's own tooth fit of ``cycle`` and its operating point at the state: (flywheel, theta_start, op)."""
     m = state.n_harmonics
     fly, _, theta_start, _ = fit_cycle_teeth(cycle, spec.sensors.wheel_teeth, m, state.n_nuisance, state.teeth,
                                              state.tooth_patterns, cfg.drift_nuisance, m, cfg.fit_drift,
                                              cfg.learn_teeth, cfg.tooth_memory, cfg.tooth_refit_cycles)
     op = operating_point(spec, state.op, fly.omega_mean, cycle.load_torque, m, cfg.rebuild_tolerance,
                          cfg.variable_inertia, state.layout)
+    return fly, theta_start, op
+
+
+def second_wheel_design(spec, state, cycle, cfg, node: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """This cycle's speed equations at ``node`` (the monitor's balance with that node's transfer): design (M, P),
+    the tooth-fit noise floor (M,) [rad^2/s^2], the flywheel speed harmonics' sizes w_m |Phi_m| (M,) [rad/s] and
+    the modelled speed harmonics' sizes at ``node`` (M,) [rad/s]."""
+    m = state.n_harmonics
+    fly, theta_start, op = _fit_and_point(spec, state, cycle, cfg)
     transfer = np.ascontiguousarray(op.receptance.speed_transfer(node), dtype=np.complex128)
     op2 = replace(op, transfer=transfer, chain=op.chain._replace(transfer=transfer))
     bal = harmonic_balance(op2, state.params, state.n_nuisance, state.relative_motion, state.static, cycle.grid,
@@ -140,12 +147,7 @@ def _prior_without_siblings(spec, state, cfg) -> np.ndarray:
 
 def _cylinder_rows(spec, state, cycle, cfg) -> np.ndarray:
     """d T_f,k / d theta (z, P_f) at the state's parameters: the monitor's own rows of this cycle."""
-    m = state.n_harmonics
-    fly, _, theta_start, _ = fit_cycle_teeth(cycle, spec.sensors.wheel_teeth, m, state.n_nuisance, state.teeth,
-                                             state.tooth_patterns, cfg.drift_nuisance, m, cfg.fit_drift,
-                                             cfg.learn_teeth, cfg.tooth_memory, cfg.tooth_refit_cycles)
-    op = operating_point(spec, state.op, fly.omega_mean, cycle.load_torque, m, cfg.rebuild_tolerance,
-                         cfg.variable_inertia, state.layout)
+    fly, theta_start, op = _fit_and_point(spec, state, cycle, cfg)
     bal = harmonic_balance(op, state.params, state.n_nuisance, state.relative_motion, state.static, cycle.grid,
                            cycle.pressure, fly, theta_start, cfg.passes, cfg.time_samples)
     return bal.rows.cylinder_rows[:, :state.layout.n_params]
