@@ -19,8 +19,8 @@ def _saved_baseline(n_cyl: int) -> Baseline:
     learner = BaselineLearner(n_cyl)
     rng = np.random.default_rng(3)
     for cycle in range(5):
-        learner.add(rng.normal(0.0, 0.01, (4, n_cyl)), cycle)
-    return learner.baseline()
+        learner.add(rng.normal(0.0, 0.01, (4, n_cyl)), cycle, 17.0e5)  # commissioned at 17 bar IMEP
+    return learner.baseline(0.1)
 
 
 def test_data_dir_registers_loads_the_baseline_and_keeps_every_cycle(tmp_path) -> None:
