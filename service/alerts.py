@@ -38,7 +38,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.figure_status import friction_status, split_flag
-from frictionwatch.core.monitor.results import PA_PER_BAR, CycleResult
+from frictionwatch.core.monitor.results import PA_PER_BAR, CycleResult, change_sigma
 from frictionwatch.service.alert_baseline import INDICATORS, Baseline, BaselineLearner
 from frictionwatch.service.alert_rules import Latch, leak_statistics
 
@@ -340,7 +340,8 @@ class AlertEngine:
             return []
         status = friction_status(est, result.flags)
         measured = np.array([c.status == "measured" for c in status.cylinders])
-        t, s = est.friction_torque_mean, est.friction_torque_mean_sigma
+        # a change against the baseline: the calibration's error is the same then and now and cancels
+        t, s = est.friction_torque_mean, change_sigma(est)
         out = []
         for k in np.flatnonzero(measured):
             gain = self._latches.get(("gain", int(k) + 1))

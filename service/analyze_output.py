@@ -46,6 +46,11 @@ def print_table(doc: dict) -> None:
           f"{_pm(fr['friction_torque_mean_nm'], fr['friction_torque_sigma_nm'], '.2f')} N·m: "
           f"{STATUS_WORDS[fr['status']]}" + (f" ({fr['reason']})" if fr["reason"] else
                                              " (mean torque balance against the measured load)"))
+    if fr.get("calibration_sigma_nm") is not None:
+        print(f"  of that 1σ, {fr['calibration_sigma_nm']:.2f} N·m is the calibration's: "
+              + ("uncalibrated, a typical installation's TDC ±0.5° (±0.2° per cylinder), pressure gain ±3 % and J "
+                 "±5 % assumed; `frictionwatch commission` measures them" if fr["calibration"] == "uncalibrated"
+                 else "as commissioned"))
     rb = doc["friction_run_mean_balance"]
     if rb["status"] == "measured":
         print(f"  mean over the whole run of each cycle's torque balance: FMEP "
@@ -68,7 +73,8 @@ def print_table(doc: dict) -> None:
               f"  {STATUS_WORDS[f['status']]}")
         if f["status"] != "measured" and f["reason"]:
             notes.setdefault((f["status"], f["reason"].split(" (data weight")[0]), []).append(c["cylinder"])
-    print("± is 1σ, the standard uncertainty: of the friction estimate (statistical and modelled systematic parts); "
+    print("± is 1σ, the standard uncertainty: of the friction estimate (statistical, modelled systematic and "
+          "calibration parts); "
           "of the run mean for IMEP (from the cycle-to-cycle scatter).")
     print("friction and FMEP columns: measurements only. share: the cylinder's part of the engine's measured friction "
           "in proportion to its indicated work, what a cylinder like its siblings would carry, not a measurement of "

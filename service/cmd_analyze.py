@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from dataclasses import asdict
 from pathlib import Path
@@ -21,7 +22,7 @@ from frictionwatch.service.output_files import check_output_path
 from frictionwatch.service.pipeline import LogAnalysis, analyze_log
 from frictionwatch.service.progress import log_extent, progress_bar
 
-SCHEMA_VERSION = "2.0"  # major: a key renamed, removed or its meaning changed; minor: keys added
+SCHEMA_VERSION = "2.1"  # major: a key renamed, removed or its meaning changed; minor: keys added
 SCHEMA_FILE = Path(__file__).with_name("schema") / "analyze-result.schema.json"
 LAST_CYCLE_KEYS = ("cycle", "t_start_s", "rpm", "load_torque_nm", "load_power_kw", "friction_balance_nm",
                    "coupling_loss_nm", "residual_rms_rad_s", "r_squared", "chi2_reduced", "flags")
@@ -126,7 +127,13 @@ def run_mean_balance(analysis: LogAnalysis, engine_status: str) -> dict:
         status = "measured"
         reason = None if n == len(results) else f"the load was measured in {n} of {len(results)} cycles"
     has = status == "measured"
+    # the scatter's sem is all the cycles know of themselves; the calibration's error is the same in every cycle
+    # and does not average down (the last estimate's calibration part: the same sensitivities)
+    est = results[-1].smoothed
+    cal = est.total_calibration_sigma
+    sem = math.hypot(sem, cal) if math.isfinite(sem) else sem
     return {
+        "calibration": est.calibration, "calibration_sigma_nm": _num(cal) if has else None,
         "status": status, "reason": reason, "data_weight": None,
         "window": {"first_cycle": int(used[0].index) if used else None, "last_cycle": int(results[-1].index),
                    "effective_cycles": float(n), "centre_cycle": _num(np.mean([r.index for r in used])) if used else

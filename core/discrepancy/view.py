@@ -119,7 +119,7 @@ def monitor_view(model: EngineModel, ref: Reference | None, config: MonitorConfi
         raise ValueError("the model's friction shapes are sized at an operating point: monitor_view needs a Reference")
     spec, terms, coef = model.spec, model.terms, np.array(model.coefficients, dtype=np.float64)
     names = {e.name for e in model.effects}
-    cfg = config or MonitorConfig()
+    cfg = dataclasses.replace(config or MonitorConfig(), calibration=model.calibration)
     if "variable_inertia" not in names:
         cfg = dataclasses.replace(cfg, variable_inertia=False)
     if "torsional_flexibility" not in names:

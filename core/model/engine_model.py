@@ -20,6 +20,10 @@ TOML file: the engine spec's own text (the preset format, verbatim) followed by
     mass_loss = 0.12
     sigma = { gain = 0.05 }                    # optional: standard deviation of fitted parameters
 
+    [model.calibration]                        # optional: how well the sensors are known (core.model.calibration);
+    status = "commissioned"                    # absent: uncalibrated, a typical installation's sigmas
+    tdc_wheel_sigma_deg = 0.05
+
 A term is known by name: the six Rezeka-Henein terms, ``auxiliaries_quadratic`` and the terms of the model's effects
 (``Effect.monitor_terms``). Unknown keys are refused naming the key and the nearest known one.
 """
@@ -33,6 +37,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
+from frictionwatch.core.model.calibration import Calibration, calibration_from_dict, calibration_toml
 from frictionwatch.core.model.effects import (
     EFFECTS,
     Effect,
@@ -67,12 +72,14 @@ def known_terms(spec: EngineSpec, effects: Iterable[Effect] = ()) -> dict[str, L
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class EngineModel:
-    """spec; terms (the loss-term library); coefficients (z, len(terms)) a_kl; effects (active instances)."""
+    """spec; terms (the loss-term library); coefficients (z, len(terms)) a_kl; effects (active instances);
+    calibration: how well the sensors are known (core.model.calibration; the default: uncalibrated)."""
 
     spec: EngineSpec
     terms: TermLibrary
     coefficients: np.ndarray
     effects: tuple[Effect, ...] = ()
+    calibration: Calibration = Calibration()
 
     def __post_init__(self) -> None:
         z, n = self.spec.n_cyl, len(self.terms)
@@ -83,6 +90,8 @@ class EngineModel:
         coef.setflags(write=False)
         object.__setattr__(self, "coefficients", coef)
         object.__setattr__(self, "effects", check_instances(self.effects, z))
+        if not isinstance(self.calibration, Calibration):
+            raise TypeError(f"calibration must be a Calibration, got {type(self.calibration).__name__}")
 
     # ---- construction ---------------------------------------------------------------------------------------------
     @classmethod
@@ -127,7 +136,8 @@ class EngineModel:
         if not isinstance(other, EngineModel):
             return NotImplemented
         return (_same(self.spec, other.spec) and _terms_key(self.terms) == _terms_key(other.terms)
-                and np.array_equal(self.coefficients, other.coefficients) and self.effects == other.effects)
+                and np.array_equal(self.coefficients, other.coefficients) and self.effects == other.effects
+                and self.calibration == other.calibration)
 
     __hash__ = None  # type: ignore[assignment]
 
@@ -147,6 +157,9 @@ class EngineModel:
             lines += [f"{k} = {v!r}" for k, v in e.values.items()]
             if e.sigma:
                 lines.append("sigma = { " + ", ".join(f"{k} = {v!r}" for k, v in e.sigma.items()) + " }")
+        cal = calibration_toml(self.calibration)
+        if cal:
+            lines += ["", cal.rstrip()]
         return "\n".join(lines) + "\n"
 
     @classmethod
@@ -159,7 +172,11 @@ class EngineModel:
         _known_keys(data, SPEC_TABLES + ("model",), "", origin)
         model = data.pop("model", {})
         spec = spec_from_dict(data, source_text=_spec_text(text), origin=origin)
-        _known_keys(model, ("terms", "coefficients", "effects"), "model.", origin)
+        _known_keys(model, ("terms", "coefficients", "effects", "calibration"), "model.", origin)
+        try:
+            calibration = calibration_from_dict(model.get("calibration", {}))
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"{origin}: {exc}") from None
         if "effects" in model:  # exactly the listed instances; none listed: the default-on effects
             effects = tuple(_effect(entry, i, origin) for i, entry in enumerate(_list(model, "effects", origin)))
         else:
@@ -187,7 +204,7 @@ class EngineModel:
                 if isinstance(v, bool) or not isinstance(v, (int, float)):
                     raise ValueError(f"{origin}: model.coefficients.{t.name} = {v!r}: expected a number")
             cols.append(np.asarray(raw, dtype=np.float64))
-        return cls(spec, terms, np.column_stack(cols), effects)
+        return cls(spec, terms, np.column_stack(cols), effects, calibration)
 
 
 def load_model(name_or_path: str | Path) -> EngineModel:

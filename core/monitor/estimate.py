@@ -8,6 +8,7 @@ from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
+from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.accumulate import Posterior
 from frictionwatch.core.monitor.estimate_kernels import estimate_kernel
@@ -97,6 +98,57 @@ class ModelErrorFloor:
         return replace(est, friction_torque_mean=t_mean, friction_torque_mean_sigma=sig, fmep=t_mean * to_cyl,
                        fmep_sigma=sig * to_cyl, resolved=resolved, total_friction_torque_sigma=tot_sig,
                        total_fmep_sigma=tot_sig * to_cyl / spec.n_cyl)
+
+
+class CalibrationSensitivity(NamedTuple):
+    """How one cycle's mean balance moves with the calibration: tdc (z,) [N m/rad] dT_iM,k/dDelta_k, each cylinder's
+    work-mean indicated torque per radian of its TDC (``indicated_tdc_sensitivity``); indicated (z,) [N m] T_iM,k,
+    which a relative gain error scales; kinetic [N m] the kinetic-energy term J a, which a relative J error scales
+    (NaN: no term, e.g. no cycle before)."""
+
+    tdc: np.ndarray
+    indicated: np.ndarray
+    kinetic: float = float("nan")
+
+
+def indicated_tdc_sensitivity(grid: np.ndarray, pressure: np.ndarray, piston_acceleration: np.ndarray,
+                              area: float) -> np.ndarray:
+    """(z,) [N m/rad] d T_iM,k / d Delta_k for a cylinder whose true TDC lies Delta_k later than its stated one.
+
+    T_iM,k = A/(4 pi) ∮ p_k x'(theta - phi_k) dtheta; the stated phase is Delta_k early, so the work taken moves by
+    -A/(4 pi) ∮ p_k x''(theta - phi_k) dtheta per radian (a constant part of p does no work: ∮ x'' = 0). The cycle's
+    pressure (z, n) [Pa] on its uniform grid (n,) [rad] closes on itself (the last sample's neighbour is the first):
+    a steady cycle's compression of the next cycle is this one's. piston_acceleration (z, n) [m/rad^2]: x'' of each
+    cylinder on the grid (core.monitor.state.GridGeometry)."""
+    step = float(grid[1] - grid[0])
+    return -area * step / FOUR_PI * np.einsum("kn,kn->k", pressure, piston_acceleration)
+
+
+def calibration_variance(cal: Calibration, sens: CalibrationSensitivity) -> tuple[np.ndarray, float]:
+    """(per cylinder (z,), engine total) [N^2 m^2]: the variance the calibration's remaining uncertainty adds to the
+    friction figures. The mean balance passes an error of the indicated work into friction whole: the wheel's TDC
+    moves every cylinder alike (the total by sum_k dT_k, fully correlated), a cylinder's own TDC and gain its own;
+    J's error moves the kinetic-energy term (the engine total only: it is not a cylinder's)."""
+    s, t_i = np.abs(sens.tdc), np.abs(sens.indicated)
+    w2, c2, g2 = cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2, cal.gain_sigma ** 2
+    per = s * s * (w2 + c2) + t_i * t_i * g2
+    kinetic = sens.kinetic if math.isfinite(sens.kinetic) else 0.0
+    total = float(np.sum(sens.tdc)) ** 2 * w2 + float(np.sum(s * s)) * c2 + float(np.sum(t_i * t_i)) * g2 + (
+        cal.inertia_sigma * kinetic) ** 2
+    return per, total
+
+
+def with_calibration(est: FrictionEstimate, cal: Calibration, sens: CalibrationSensitivity,
+                     spec: EngineSpec) -> FrictionEstimate:
+    """``est`` with the calibration's variance added to every friction and FMEP sigma (the figures themselves
+    unchanged; ``resolved`` stays what the data resolve), the part it added and the calibration's status kept."""
+    var_cyl, var_tot = calibration_variance(cal, sens)
+    sig = np.sqrt(est.friction_torque_mean_sigma ** 2 + var_cyl)
+    tot_sig = math.sqrt(est.total_friction_torque_sigma ** 2 + var_tot)
+    to_cyl = FOUR_PI / spec.displacement_cyl
+    return replace(est, friction_torque_mean_sigma=sig, fmep_sigma=sig * to_cyl, total_friction_torque_sigma=tot_sig,
+                   total_fmep_sigma=tot_sig * to_cyl / spec.n_cyl, calibration=cal.status,
+                   calibration_sigma=np.sqrt(var_cyl), total_calibration_sigma=math.sqrt(var_tot))
 
 
 def friction_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior, basis_mean: np.ndarray,

@@ -18,9 +18,15 @@ from dataclasses import dataclass, replace
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.indicated import piston_positions, tdc_centres, window_works
-from frictionwatch.core.model.kinematics import kinematics
+from frictionwatch.core.model.kinematics import cylinder_kinematics_kernel, kinematics
 from frictionwatch.core.monitor.accumulate import Accumulator, Posterior, ResidualStats, posterior_from_normal
-from frictionwatch.core.monitor.estimate import BalanceCheck, ReportLimits, friction_estimate
+from frictionwatch.core.monitor.estimate import (
+    BalanceCheck,
+    CalibrationSensitivity,
+    ReportLimits,
+    friction_estimate,
+    with_calibration,
+)
 from frictionwatch.core.monitor.excitation import Excitation
 from frictionwatch.core.monitor.flywheel import FlywheelMotion
 from frictionwatch.core.monitor.identify import CycleRows
@@ -40,7 +46,9 @@ class MeanBalance:
     d/dt(1/2 J w^2) / w over the window centred on cylinder 1's firing TDC (``transient_balance``) and friction =
     indicated_centred - load - coupling - kinetic (NaN without a load measurement or without the previous cycle);
     imep_centred (z,) [Pa] over each cylinder's own firing window, None without the previous cycle; acceleration
-    [rad/s^2] and indicated_window [N m] the window's angle-averaged dw/dt and indicated torque (kinetic = J a)."""
+    [rad/s^2] and indicated_window [N m] the window's angle-averaged dw/dt and indicated torque (kinetic = J a);
+    tdc_sensitivity (z,) [N m/rad] each cylinder's dT_iM/dDelta (core.monitor.estimate.indicated_tdc_sensitivity),
+    None where not computed (then the calibration adds no TDC term)."""
 
     indicated: float
     load: float
@@ -50,6 +58,7 @@ class MeanBalance:
     imep_centred: np.ndarray | None = None
     acceleration: float = float("nan")
     indicated_window: float = float("nan")
+    tdc_sensitivity: np.ndarray | None = None
 
 
 def mid_cycle_speed(spec: EngineSpec, cycle: Cycle) -> float:
@@ -82,7 +91,12 @@ def mid_cycle_inertia(spec: EngineSpec) -> float:
 def grid_geometry(spec: EngineSpec, grid: np.ndarray) -> GridGeometry:
     """The piston positions of every cylinder on the cycles' grid and J at theta = 2 pi (made once per grid)."""
     positions = piston_positions(grid, spec.firing_angles, spec.kinematics_params())
-    return GridGeometry(float(grid[0]), int(grid.shape[0]), positions, mid_cycle_inertia(spec))
+    z, n = spec.n_cyl, grid.shape[0]
+    dx, ddx = np.empty((z, n)), np.empty((z, n))
+    cylinder_kinematics_kernel(np.ascontiguousarray(grid, dtype=np.float64),
+                               np.ascontiguousarray(spec.firing_angles, dtype=np.float64),
+                               np.ascontiguousarray(spec.kinematics_params(), dtype=np.float64), dx, ddx)
+    return GridGeometry(float(grid[0]), int(n), positions, mid_cycle_inertia(spec), ddx)
 
 
 def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indicated_cycle: np.ndarray,
@@ -234,6 +248,11 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     # the smoothed estimate stands on a balance when one was accumulated, or, during the warm-up (nothing
     # accumulated), when the Eq. 6 share it holds is of a measured running balance; the cycle's on its own
     balanced = float(np.trace(acc.info_reference)) > 0.0 or (acc.weight == 0.0 and math.isfinite(bal_mean))
+    # the calibration's remaining uncertainty (TDC, gain, J) on top: the mean balance passes it into friction whole
+    tdc = mean.tdc_sensitivity if mean.tdc_sensitivity is not None else np.zeros(spec.n_cyl)
+    cal = cfg.calibration
+    est_s = with_calibration(est_s, cal, CalibrationSensitivity(tdc, ind_mean), spec)
+    est_c = with_calibration(est_c, cal, CalibrationSensitivity(tdc, t_i, mean.kinetic), spec)
     est_s = measured_or_withheld(est_s, _source(balanced))
     est_c = measured_or_withheld(est_c, _source(math.isfinite(balance)))
     return Identification(stats=white.stats, accumulator=acc, indicated_mean=ind_mean, balance_mean=bal_mean,

@@ -37,6 +37,7 @@ from frictionwatch.core.model.indicated import peak_pressure
 from frictionwatch.core.monitor.accumulate import Accumulator, ResidualStats
 from frictionwatch.core.monitor.condition import assess_condition
 from frictionwatch.core.monitor.cycle_report import build_result
+from frictionwatch.core.monitor.estimate import indicated_tdc_sensitivity
 from frictionwatch.core.monitor.flywheel import ToothLearner
 from frictionwatch.core.monitor.harmonic_balance import harmonic_balance, operating_point
 from frictionwatch.core.monitor.identification import (
@@ -157,7 +158,9 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     balance, kinetic, accel, t_window, imep_c = transient_balance(spec, cycle, pressure, exc.indicated_mean,
                                                                   mid_speed, prev, load, coupling_loss, geometry)
     mean = MeanBalance(indicated=t_i, load=load, coupling_loss=coupling_loss, friction=balance, kinetic=kinetic,
-                       imep_centred=imep_c, acceleration=accel, indicated_window=t_window)
+                       imep_centred=imep_c, acceleration=accel, indicated_window=t_window,
+                       tdc_sensitivity=indicated_tdc_sensitivity(cycle.grid, pressure, geometry.piston_acceleration,
+                                                                 spec.piston_area))
     if prev is None:
         flags.append("no_previous_cycle")  # IMEP over the assembled cycle's window, no mean balance
 

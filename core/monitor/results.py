@@ -35,6 +35,10 @@ class FrictionEstimate:
     speed signal rather than the priors and the mean balance (0..1; 1 for a single cylinder)
     source: "data", or "prior: <why>" when every friction figure is withheld (NaN) because nothing measured it: no
     load and no deceleration to balance (core.monitor.identification.measured_or_withheld)
+    calibration: the model's calibration status ("uncalibrated" or "commissioned", core.model.calibration);
+    calibration_sigma (z,) N m, total_calibration_sigma N m: the part of the sigmas above that the calibration's
+    remaining uncertainty (TDC, pressure gain, J) adds; it is the same in every cycle, so a change of a figure
+    since commissioning has the sigma without it (``change_sigma``; None: not added, an estimate made by hand)
     """
 
     friction_torque_mean: np.ndarray
@@ -56,6 +60,20 @@ class FrictionEstimate:
     chi2_reduced: float
     data_gain: np.ndarray
     source: str = "data"
+    calibration: str = "uncalibrated"
+    calibration_sigma: np.ndarray | None = None
+    total_calibration_sigma: float = 0.0
+
+
+def change_sigma(est: FrictionEstimate) -> np.ndarray:
+    """(z,) N m: each cylinder's friction sigma without the calibration's part: the sigma of a change of its friction
+    against an earlier figure of the same installation (a constant TDC or gain error cancels in the change). An
+    estimate without the calibration's part (built by hand) gives its sigma as it is."""
+    s = np.asarray(est.friction_torque_mean_sigma, dtype=np.float64)
+    cal = getattr(est, "calibration_sigma", None)
+    if cal is None:
+        return s
+    return np.sqrt(np.maximum(s * s - cal * cal, 0.0))
 
 
 @dataclass(frozen=True)
@@ -236,7 +254,8 @@ class CycleResult:
                        "centre_cycle": float(self.index), "forgetting": None})
         mep_per_nm = self.mep_per_nm()  # Pa per N m of one cylinder: 4 pi / V_d
         z = self.n_cyl
-        total = _figure(st.engine, window, est.total_friction_torque, est.total_friction_torque_sigma, mep_per_nm / z)
+        total = _figure(st.engine, window, est.total_friction_torque, est.total_friction_torque_sigma, mep_per_nm / z,
+                        est.calibration, est.total_calibration_sigma)
         doc = {
             "cycle": int(self.index),
             "t_start_s": _num(self.t_start),
@@ -264,7 +283,8 @@ class CycleResult:
             shown, sigma = est.prior_friction_torque_mean[k], est.friction_torque_mean_sigma[k]
         else:
             shown, sigma = est.friction_torque_mean[k], est.friction_torque_mean_sigma[k]
-        fig = _figure(status, window, shown, sigma, mep_per_nm)
+        cal_sigma = float("nan") if est.calibration_sigma is None else est.calibration_sigma[k]
+        fig = _figure(status, window, shown, sigma, mep_per_nm, est.calibration, cal_sigma)
         return {
             "cylinder": k + 1,
             **_measured_only(fig),
@@ -286,13 +306,17 @@ class CycleResult:
         return float(self.imep[j]) / t if t != 0.0 else math.nan
 
 
-def _figure(status: FigureStatus, window: dict, torque: float, sigma: float, mep_per_nm: float) -> dict:
+def _figure(status: FigureStatus, window: dict, torque: float, sigma: float, mep_per_nm: float,
+            calibration: str = "uncalibrated", calibration_sigma: float = float("nan")) -> dict:
     """One friction figure as shown: its status, reason, data weight, window and value (None where the status has
-    no value: unresolved, withheld)."""
+    no value: unresolved, withheld); calibration: the model's calibration status, calibration_sigma [N m] the part
+    of the sigma the calibration's remaining uncertainty adds (core.model.calibration)."""
     has_value = status.status in ("measured", "share", "prior")
     t = _num(torque) if has_value else None
     s = _num(sigma) if has_value else None
     return {
+        "calibration": calibration,
+        "calibration_sigma_nm": _num(calibration_sigma) if has_value else None,
         "status": status.status,
         "reason": status.reason,
         "data_weight": status.data_weight,

@@ -10,6 +10,7 @@ from typing import NamedTuple
 import numpy as np
 from frictionwatch.core.monitor.accumulate import Accumulator, ResidualStats
 from frictionwatch.core.monitor.change import ChangeDetector
+from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.monitor.estimate import ModelErrorFloor
 from frictionwatch.core.monitor.flywheel import ToothLearner
 from frictionwatch.core.monitor.harmonic_balance import OperatingPoint
@@ -63,6 +64,9 @@ class MonitorConfig:
     sensor_health: TDC, pressure gain and offset checks and corrections (core.monitor.sensor_health); None: off
     model_error_floor: the systematic sigma the equations cannot see (core.monitor.estimate.ModelErrorFloor),
     calibrated on model-mismatch logs (bench/mismatch_coverage.py)
+    calibration: how well TDC, pressure gain and J are known (core.model.calibration; the model's, through
+    core.discrepancy.view): its remaining uncertainty is added to every friction sigma. The default is an
+    uncalibrated installation's, never perfect sensors
     """
 
     max_order: float | None = None
@@ -100,6 +104,7 @@ class MonitorConfig:
     # SensorHealthConfig()) turns it on
     sensor_health: SensorHealthConfig | None = None
     model_error_floor: ModelErrorFloor = ModelErrorFloor()
+    calibration: Calibration = Calibration()
 
     def __post_init__(self) -> None:
         tau = self.forgetting_time_s
@@ -150,12 +155,14 @@ class PreviousCycle(NamedTuple):
 class GridGeometry(NamedTuple):
     """What the cycles' crank-angle grid fixes once (core.monitor.identification.grid_geometry): the grid's first
     angle [rad] and size (a cycle on another grid makes it anew), every cylinder's piston displacement on it
-    positions (z, n) [m], and J(theta = 2 pi) [kg m^2]."""
+    positions (z, n) [m], J(theta = 2 pi) [kg m^2] and each piston's x'' (z, n) [m/rad^2] (the indicated work's
+    sensitivity to a TDC error, core.monitor.estimate.indicated_tdc_sensitivity)."""
 
     first_angle: float
     size: int
     positions: np.ndarray
     inertia_mid: float
+    piston_acceleration: np.ndarray
 
     def fits(self, grid: np.ndarray) -> bool:
         return grid.shape[0] == self.size and float(grid[0]) == self.first_angle

@@ -1,0 +1,117 @@
+"""How well the installation's sensors are known: the model's calibration section (issue 25 item 2).
+
+Every friction figure rests on the pressure's crank-angle reference (TDC), the pressure sensors' gain and the
+inertia the kinetic-energy term uses. A TDC error moves a cylinder's indicated work by dW/dDelta = -A ∮ p x'' dtheta
+and a gain error by W itself; the mean balance passes both into friction whole (0.1 deg of TDC is 6-7 % of the
+genset-v20's friction, 1 % of gain 8-12 %: docs/information.md). The monitor adds what the calibration leaves
+uncertain to every friction sigma through those sensitivities (core.monitor.estimate.calibration_variance), so a
+figure never claims to know more than its sensors allow.
+
+A model without a calibration section is ``uncalibrated``: its sigmas assume a typical installation whose TDC was set
+statically and whose sensors carry their data-sheet sensitivity, the values of ``Calibration()`` below. ``frictionwatch
+commission`` replaces them with what it measured (status ``commissioned``) and writes the corrections themselves as
+the model's sensor effects (tdc_offset, pressure_gain, pressure_offset), which core.discrepancy.view applies.
+
+In the model's TOML (core.model.engine_model), every key optional (the defaults below):
+
+    [model.calibration]
+    status = "commissioned"
+    tdc_wheel_sigma_deg = 0.05       # the wheel's TDC: an error common to every cylinder
+    tdc_cylinder_sigma_deg = 0.05    # each cylinder's own TDC beyond the wheel's, independent between cylinders
+    gain_sigma = 0.005               # each pressure channel's relative gain, independent between cylinders
+    inertia_sigma = 0.02             # the relative error of J (kinetic-energy term of the mean balance)
+    source = "frictionwatch commission, 3 files, 2026-11-28"
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+STATUSES = ("uncalibrated", "commissioned")
+
+# A typical installation that nobody commissioned (the defaults of Calibration):
+# - wheel TDC 0.5 deg: a TDC set statically (timing mark, dial gauge) is good to about half a degree; the real
+#   TU/e rig's DAQ was stated 1.5 deg off the data's TDC (244.5 vs 243 deg, issue 25) and the independent logs had
+#   whole-wheel offsets of 0.8-1.4 deg: 0.5 is a typical, not a worst, value.
+# - a cylinder's own TDC 0.2 deg: the throws' angular tolerance and each channel's sampling phase; smaller than the
+#   wheel's because one encoder serves every cylinder.
+# - gain 3 %: a piezoelectric sensor's sensitivity as calibrated by its maker drifts by a few % with temperature and
+#   age (the independent logs' faulty channels read 0.94-0.96); the issue's "typical installation".
+# - J 5 %: the preset's J against what the TU/e coast-downs say (0.0206 against 0.0215 kg m^2, 4.4 %).
+UNCALIBRATED_SOURCE = ("uncalibrated: a typical installation is assumed (TDC +-0.5 deg wheel and +-0.2 deg per "
+                       "cylinder, pressure gain +-3 %, J +-5 %); `frictionwatch commission` measures them")
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """status: "uncalibrated" (assumed, the defaults) or "commissioned" (measured); the 1-sigma of what is still
+    unknown after the corrections in the model's effects are applied: tdc_wheel_sigma_deg (common to all cylinders),
+    tdc_cylinder_sigma_deg (each cylinder's own), gain_sigma (relative, each channel), inertia_sigma (relative J);
+    source: where the numbers come from, in words."""
+
+    status: str = "uncalibrated"
+    tdc_wheel_sigma_deg: float = 0.5
+    tdc_cylinder_sigma_deg: float = 0.2
+    gain_sigma: float = 0.03
+    inertia_sigma: float = 0.05
+    source: str = UNCALIBRATED_SOURCE
+
+    def __post_init__(self) -> None:
+        if self.status not in STATUSES:
+            raise ValueError(f"calibration status {self.status!r} is not one of {', '.join(STATUSES)}")
+        for name in ("tdc_wheel_sigma_deg", "tdc_cylinder_sigma_deg", "gain_sigma", "inertia_sigma"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0.0):
+                raise ValueError(f"calibration {name} = {v!r} must be a number >= 0")
+        if self.gain_sigma >= 0.5 or self.inertia_sigma >= 0.5 or self.tdc_wheel_sigma_deg > 10.0:
+            raise ValueError("calibration sigmas beyond 50 % of gain or J, or 10 deg of TDC, are not a calibration")
+
+    @property
+    def commissioned(self) -> bool:
+        return self.status == "commissioned"
+
+    @property
+    def tdc_wheel_sigma_rad(self) -> float:
+        return math.radians(self.tdc_wheel_sigma_deg)
+
+    @property
+    def tdc_cylinder_sigma_rad(self) -> float:
+        return math.radians(self.tdc_cylinder_sigma_deg)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+KEYS = tuple(f.name for f in dataclasses.fields(Calibration))
+
+
+def calibration_from_dict(table: Mapping) -> Calibration:
+    """A ``[model.calibration]`` table; unknown keys refused (ValueError naming them). Missing keys keep the
+    uncalibrated defaults, except ``source``, which says "commissioned" where the status is."""
+    unknown = sorted(set(table) - set(KEYS))
+    if unknown:
+        raise ValueError(f"[model.calibration] has unknown key(s) {', '.join(unknown)}; known: {', '.join(KEYS)}")
+    values = dict(table)
+    if values.get("status") == "commissioned" and "source" not in values:
+        values["source"] = "commissioned (no source given)"
+    return Calibration(**values)
+
+
+def calibration_toml(cal: Calibration) -> str:
+    """The ``[model.calibration]`` table as TOML text (empty for the uncalibrated defaults: nothing to say)."""
+    if cal == Calibration():
+        return ""
+    lines = ["[model.calibration]"]
+    for key, value in cal.to_dict().items():
+        if isinstance(value, str):
+            text = value.replace("\\", "\\\\").replace('"', '\\"')
+            lines.append(f'{key} = "{text}"')
+        else:
+            lines.append(f"{key} = {float(value)!r}")
+    return "\n".join(lines) + "\n"
+
+
+__all__ = ["KEYS", "STATUSES", "UNCALIBRATED_SOURCE", "Calibration", "calibration_from_dict", "calibration_toml"]

@@ -1,0 +1,131 @@
+"""Issue 25 item 2: every friction sigma carries the calibration's uncertainty (core.model.calibration).
+
+The sensitivity of the indicated work to a TDC error against a finite difference of the project's own IMEP
+integral; the variance's algebra by hand; the model file's calibration section; and, on the product's path
+(analyze_log: assembler, model view, monitor), a log whose wheel is mounted off by a TDC error the monitor is not
+told of: the bare preset (uncalibrated) has the truth within 2 sigma and says it is uncalibrated, a model that
+claims a commissioned calibration it does not have is many sigma off (the same figure: only the sigma moved).
+
+The uncalibrated defaults (core.model.calibration) come from the literature and the issue's real-rig figures, not
+from these logs; the logs here (maruti 3000 rpm, deutz 1500 rpm) are not the ones the numbers in the docs came from.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+from frictionwatch.core.model.calibration import Calibration
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.engine_model import EngineModel, load_model
+from frictionwatch.core.model.indicated import net_imep
+from frictionwatch.core.model.kinematics import cylinder_kinematics_kernel
+from frictionwatch.core.monitor.estimate import CalibrationSensitivity, calibration_variance, indicated_tdc_sensitivity
+from frictionwatch.service.cli import main
+from frictionwatch.service.pipeline import analyze_log
+from numpy.testing import assert_allclose
+
+
+def _pressure_like(grid: np.ndarray, phases: np.ndarray) -> np.ndarray:
+    """A fired-looking pressure (z, n) [Pa]: a peak 12 deg after each cylinder's firing TDC on a 1 bar floor."""
+    local = np.mod(grid[None, :] - phases[:, None] + 2 * np.pi, 4 * np.pi) - 2 * np.pi
+    return 1e5 + 80e5 * np.exp(-0.5 * ((local - np.radians(12.0)) / np.radians(25.0)) ** 2)
+
+
+@pytest.mark.parametrize("engine", ["k9k-4cyl", "genset-v20"])
+def test_tdc_sensitivity_is_the_derivative_of_the_indicated_work(engine):
+    spec = load_engine(engine)
+    grid = np.linspace(0.0, 4 * np.pi, 1440, endpoint=False)
+    phases = np.asarray(spec.firing_angles, dtype=np.float64)
+    p = _pressure_like(grid, phases)
+    z = spec.n_cyl
+    dx, ddx = np.empty((z, grid.size)), np.empty((z, grid.size))
+    cylinder_kinematics_kernel(grid, phases, np.ascontiguousarray(spec.kinematics_params()), dx, ddx)
+    got = indicated_tdc_sensitivity(grid, p, ddx, spec.piston_area)
+    # reference: the work with each cylinder's phase moved +-h (the true TDC h later), central difference
+    h = np.radians(0.05)
+    to_torque = spec.displacement_cyl / (4 * np.pi)
+    params = spec.kinematics_params()
+    plus = net_imep(grid, p, phases + h, params, spec.piston_area, spec.displacement_cyl) * to_torque
+    minus = net_imep(grid, p, phases - h, params, spec.piston_area, spec.displacement_cyl) * to_torque
+    assert_allclose(got, (plus - minus) / (2 * h), rtol=2e-3)
+    # a true TDC later than stated leaves less of the peak after it as expansion work: the stated TDC reads the work
+    # high, so friction high (the simulator: tdc_offset +1.0 deg read the K9K's friction +57 %)
+    assert np.all(got < 0)
+
+
+def test_calibration_variance_by_hand():
+    cal = Calibration(tdc_wheel_sigma_deg=0.5, tdc_cylinder_sigma_deg=0.2, gain_sigma=0.03, inertia_sigma=0.05)
+    s = np.array([10.0, -12.0, 11.0])  # N m / rad
+    t_i = np.array([50.0, 55.0, 52.0])
+    per, total = calibration_variance(cal, CalibrationSensitivity(s, t_i, kinetic=4.0))
+    w, c = math.radians(0.5), math.radians(0.2)
+    assert_allclose(per, s**2 * (w**2 + c**2) + (0.03 * t_i) ** 2, rtol=1e-12)
+    # the wheel's error moves every cylinder alike: its part of the total is (sum s)^2, not sum s^2
+    assert_allclose(total, (s.sum() * w) ** 2 + np.sum(s**2) * c**2 + np.sum((0.03 * t_i) ** 2) + (0.05 * 4.0) ** 2,
+                    rtol=1e-12)
+    none = Calibration(status="commissioned", tdc_wheel_sigma_deg=0.0, tdc_cylinder_sigma_deg=0.0, gain_sigma=0.0,
+                       inertia_sigma=0.0)
+    per0, total0 = calibration_variance(none, CalibrationSensitivity(s, t_i))
+    assert_allclose(per0, 0.0) and math.isclose(total0, 0.0)
+
+
+def test_model_file_keeps_its_calibration_and_refuses_unknown_keys():
+    model = load_model("k9k-4cyl")
+    assert model.calibration.status == "uncalibrated" and "[model.calibration]" not in model.to_toml()
+    cal = Calibration(status="commissioned", tdc_wheel_sigma_deg=0.04, tdc_cylinder_sigma_deg=0.03, gain_sigma=0.004,
+                      inertia_sigma=0.02, source='commission "a" 2 files')
+    commissioned = dataclasses.replace(model, calibration=cal)
+    back = EngineModel.from_toml(commissioned.to_toml())
+    assert back == commissioned and back.calibration == cal and back != model
+    bad = commissioned.to_toml().replace("gain_sigma", "gain_sigmas")
+    with pytest.raises(ValueError, match="gain_sigmas"):
+        EngineModel.from_toml(bad)
+    with pytest.raises(ValueError, match="status"):
+        Calibration(status="calibrated")
+    with pytest.raises(ValueError, match="gain_sigma"):
+        Calibration(gain_sigma=-0.01)
+
+
+CASES = [  # (engine, rpm, load, wheel TDC offset deg): not the operating points the docs' figures came from
+    ("maruti-3cyl", 3000.0, 0.8, 0.6),
+    ("deutz-1cyl", 1500.0, 0.8, -1.0),
+]
+
+
+@pytest.fixture(scope="module", params=CASES, ids=[f"{c[0]}-{c[3]:+.1f}deg" for c in CASES])
+def offset_log(request, tmp_path_factory):
+    engine, rpm, load, deg = request.param
+    out = tmp_path_factory.mktemp("tdc")
+    log = out / "log.mcap"
+    assert main(["simulate", "--engine", engine, "--rpm", str(rpm), "--load", str(load), "--cycles", "60", "--seed",
+                 "11", "--effect", f"tdc_offset:deg={deg},cylinder=0", "-o", str(log)]) == 0
+    truth = json.loads((out / "log.truth.json").read_text())
+    model = dataclasses.replace(load_model(engine), calibration=Calibration(
+        status="commissioned", tdc_wheel_sigma_deg=0.02, tdc_cylinder_sigma_deg=0.02, gain_sigma=0.002,
+        inertia_sigma=0.01, source="a claim this test knows to be false"))
+    (out / "claimed.toml").write_text(model.to_toml(), encoding="utf-8")
+    return log, out / "claimed.toml", truth
+
+
+def _engine_figure(analysis):
+    est = analysis.results[-1].smoothed
+    return est.total_friction_torque, est.total_friction_torque_sigma, est
+
+
+def test_uncalibrated_sigma_covers_a_wheel_tdc_offset(offset_log):
+    log, claimed, truth = offset_log
+    t_true = truth["friction_torque_mean_nm"]
+    t, s, est = _engine_figure(analyze_log(log))
+    assert est.calibration == "uncalibrated" and est.total_calibration_sigma > 0.5 * s
+    err = abs(t - t_true)
+    assert err > 0.1 * t_true  # the offset does move friction a lot (else this test shows nothing)
+    assert err < 2.0 * s, f"friction {t:.2f} +- {s:.2f} N m, truth {t_true:.2f}"
+    # the same log under a model that claims a tight calibration: the same figure, a sigma that no longer covers it
+    t2, s2, est2 = _engine_figure(analyze_log(log, engine=str(claimed)))
+    assert est2.calibration == "commissioned"
+    assert_allclose(t2, t, rtol=1e-9)
+    assert abs(t2 - t_true) > 3.0 * s2
