@@ -25,9 +25,9 @@ POINTS = {  # two loads each; rpm within each preset's range
     "deutz-1cyl": [(1500.0, 0.8), (1200.0, 0.4)],
     "genset-v20": [(1500.0, 0.75), (1500.0, 0.45)],
 }
-OFFSETS = ["tdc_offset:deg={d},cylinder=0".format(d=d) for d in (0.3, -0.3, 0.6, -0.6, 1.0, -1.0, 1.5, -1.5)]
-GAINS = ["pressure_gain:cylinder=1,gain={g}".format(g=g) for g in (0.94, 0.97, 1.03, 1.06)] + [
-    "pressure_offset:cylinder=1,pa={p}".format(p=p) for p in (5e4, -5e4)] + ["tdc_offset:deg=0.6,cylinder=1"]
+OFFSETS = [f"tdc_offset:deg={d},cylinder=0" for d in (0.3, -0.3, 0.6, -0.6, 1.0, -1.0, 1.5, -1.5)]
+GAINS = [f"pressure_gain:cylinder=1,gain={g}" for g in (0.94, 0.97, 1.03, 1.06)] + [
+    f"pressure_offset:cylinder=1,pa={p}" for p in (5e4, -5e4)] + ["tdc_offset:deg=0.6,cylinder=1"]
 
 
 def run_case(engine: str, rpm: float, load: float, effect: str | None, cycles: int, seed: int, tmp: Path) -> dict:

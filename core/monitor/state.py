@@ -8,9 +8,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.monitor.accumulate import Accumulator, ResidualStats
 from frictionwatch.core.monitor.change import ChangeDetector
-from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.monitor.estimate import ModelErrorFloor
 from frictionwatch.core.monitor.flywheel import ToothLearner
 from frictionwatch.core.monitor.harmonic_balance import OperatingPoint
