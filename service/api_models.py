@@ -11,6 +11,11 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 Status = Literal["measured", "share", "prior", "unresolved", "withheld"]
+Calibrated = Literal["uncalibrated", "commissioned"]
+CALIBRATION_WORDS = ("core/model/calibration.py: 'uncalibrated' = the sigma assumes a typical installation's TDC, "
+                     "pressure gain and J; 'commissioned' = what frictionwatch commission measured")
+CALIBRATION_SIGMA_WORDS = ("the part of the sigma the calibration's remaining uncertainty adds [N m]; the same in every "
+                           "cycle, so it cancels in a change since commissioning")
 
 
 class _Open(BaseModel):
@@ -64,6 +69,8 @@ class CylinderLoss(_Open):
     data_weight: float | None
     status: Status = Field(description="core/monitor/figure_status.py: only 'measured' is a measurement")
     reason: str | None
+    calibration: Calibrated = Field(description=CALIBRATION_WORDS)
+    calibration_sigma_nm: float | None = Field(description=CALIBRATION_SIGMA_WORDS)
     flags: list[str]
 
 
@@ -76,6 +83,8 @@ class LossWindow(_Open):
 class EngineLoss(_Open):
     fmep_bar: float | None
     fmep_sigma_bar: float | None
+    calibration: Calibrated = Field(description=CALIBRATION_WORDS)
+    calibration_sigma_nm: float | None = Field(description=CALIBRATION_SIGMA_WORDS)
 
 
 class Losses(_Open):

@@ -42,6 +42,7 @@ def _cylinder_loss(k: int, cyl: dict, names: Sequence[str], flags: frozenset[str
     return {"cylinder": k + 1, **{key: fig[key] for key in FIGURE_VALUES},
             "coefficients": dict(zip(labels, coefs)), "coefficient_sigmas": dict(zip(labels, sigmas)),
             "data_weight": fig["data_weight"], "status": fig["status"], "reason": fig["reason"],
+            "calibration": fig["calibration"], "calibration_sigma_nm": fig["calibration_sigma_nm"],
             "flags": sorted(f for f in flags if split_flag(f)[1] == k + 1)}
 
 
@@ -62,7 +63,8 @@ def losses_now(engine_id: str, results: Sequence[CycleResult], names: Sequence[s
             "window": {"first_cycle": window.first_cycle, "last_cycle": window.last_cycle,
                        "cycles": num(window.effective_cycles), "centre_cycle": window.centre_cycle,
                        "forgetting": window.forgetting},
-            "engine": {**{key: eng[key] for key in FIGURE_VALUES}, "status": eng["status"], "reason": eng["reason"]},
+            "engine": {**{key: eng[key] for key in FIGURE_VALUES}, "status": eng["status"], "reason": eng["reason"],
+                       "calibration": eng["calibration"], "calibration_sigma_nm": eng["calibration_sigma_nm"]},
             "active_flags": sorted(active),
             "cylinders": [_cylinder_loss(k, c, names, active) for k, c in enumerate(doc["cylinders"])]}
 
@@ -76,6 +78,7 @@ def losses_window(engine_id: str, results: Sequence[CycleResult], names: Sequenc
     active = active_flags([r.flags for r in results], len(results))
     docs = [r.to_json(smoothed=False) for r in results]
     status = last.to_json(smoothed=False, status=friction_status(last.cycle, active))
+    mep_per_nm = last.mep_per_nm() / PA_PER_BAR  # bar per N m of one cylinder
     cylinders = []
     for k, cyl in enumerate(status["cylinders"]):
         figs = [d["cylinders"][k]["friction"] for d in docs]
@@ -84,9 +87,13 @@ def losses_window(engine_id: str, results: Sequence[CycleResult], names: Sequenc
         if loss["status"] in ("withheld", "unresolved"):
             pass  # the newest cycle's status with the window's flags: no value
         elif len(kinds) == 1 and loss["status"] in kinds:
-            for key, sigma_key in (("friction_torque_mean_nm", "friction_torque_sigma_nm"), ("fmep_bar", "fmep_sigma_bar")):
+            # the scatter's sem knows nothing of the calibration, whose error is the same in every cycle: added back
+            cal = loss["calibration_sigma_nm"] or 0.0
+            for key, sigma_key, per_nm in (("friction_torque_mean_nm", "friction_torque_sigma_nm", 1.0),
+                                           ("fmep_bar", "fmep_sigma_bar", mep_per_nm)):
                 mean, sem, n = mean_and_sem([np.nan if f[key] is None else f[key] for f in figs])
-                loss[key], loss[sigma_key] = num(mean), (num(sem) if n > 1 else loss[sigma_key])
+                loss[key], loss[sigma_key] = num(mean), (num(math.hypot(sem, cal * per_nm)) if n > 1
+                                                         else loss[sigma_key])
             weights = [f["data_weight"] for f in figs if f["data_weight"] is not None]
             loss["data_weight"] = float(np.mean(weights)) if weights else None
             loss["coefficients"], loss["coefficient_sigmas"] = _mean_and_sem([d["cylinders"][k] for d in docs],
@@ -98,11 +105,15 @@ def losses_window(engine_id: str, results: Sequence[CycleResult], names: Sequenc
                                f"{len(figs)} cycles): no mean over the window; see the estimate without a window")
         cylinders.append(loss)
     eng_mean, eng_sem, n = mean_and_sem([np.nan if d["fmep_bar"] is None else d["fmep_bar"] for d in docs])
+    eng_cal = status["friction"]["calibration_sigma_nm"] or 0.0
+    eng_sem = math.hypot(eng_sem, eng_cal * mep_per_nm / last.n_cyl)
     return {"engine_id": engine_id, "cycle_index": int(last.index), "estimate": "window",
             "window": {"first_cycle": int(results[0].index), "last_cycle": int(last.index), "cycles": len(results)},
             "engine": {"fmep_bar": num(eng_mean) if n == len(docs) else None,
                        "fmep_sigma_bar": num(eng_sem) if n == len(docs) else None,
                        "status": "measured" if n == len(docs) else "unresolved",
+                       "calibration": status["friction"]["calibration"],
+                       "calibration_sigma_nm": num(eng_cal) if n == len(docs) else None,
                        "reason": None if n == len(docs) else f"the engine's friction was measured in {n} of "
                                                              f"{len(docs)} cycles of the window"},
             "active_flags": sorted(active), "cylinders": cylinders}

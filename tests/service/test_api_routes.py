@@ -109,7 +109,11 @@ def test_losses_over_a_window(served) -> None:
             assert all(f["status"] == c["status"] for f in per_cycle)
             values = [f["friction_torque_mean_nm"] for f in per_cycle]
             assert_allclose(c["friction_torque_mean_nm"], np.mean(values), rtol=1e-12)
-            assert_allclose(c["friction_torque_sigma_nm"], np.std(values, ddof=1) / np.sqrt(10), rtol=1e-9)
+            # the sem of the window's scatter and the calibration's part, which no number of cycles averages down
+            assert c["calibration"] == "uncalibrated" and c["calibration_sigma_nm"] > 0
+            assert_allclose(c["calibration_sigma_nm"], per_cycle[-1]["calibration_sigma_nm"], rtol=1e-12)
+            assert_allclose(c["friction_torque_sigma_nm"], np.hypot(np.std(values, ddof=1) / np.sqrt(10),
+                                                                    c["calibration_sigma_nm"]), rtol=1e-9)
             for j, name in enumerate(c["coefficients"]):  # a coefficient the data do not resolve stays null
                 finite = [x["coefficients"][j] for x in cyls if x["coefficients"][j] is not None]
                 if finite:

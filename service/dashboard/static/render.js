@@ -54,9 +54,21 @@ export function renderLosses(losses, summary) {
   }
   renderNotes(notes);
   const e = losses.engine || {};
+  const cal = e.calibration === "uncalibrated" ? ", uncalibrated" : "";
   $("engine-fmep").textContent = isNum(e.fmep_bar)
-    ? `${fmt(e.fmep_bar)} ± ${fmt(e.fmep_sigma_bar)} bar${e.status ? ` (${e.status})` : ""}`
+    ? `${fmt(e.fmep_bar)} ± ${fmt(e.fmep_sigma_bar)} bar${e.status ? ` (${e.status}${cal})` : ""}`
     : `—${e.status ? ` (${e.status})` : ""}`;
+  $("losses-calibration").textContent = calibrationWords(e);
+}
+
+/** What the ±1σ rests on: the installation's calibration (core/model/calibration.py), in words. */
+function calibrationWords(e) {
+  if (!e.calibration) return "";
+  const part = isNum(e.calibration_sigma_nm) ? ` ${fmt(e.calibration_sigma_nm, 2)} N·m of the engine's ±1σ is the calibration's.` : "";
+  return e.calibration === "commissioned"
+    ? `Calibration: commissioned (TDC, pressure gain and J measured on this engine).${part}`
+    : "Calibration: uncalibrated. Every ±1σ includes a typical installation's TDC (±0.5°), pressure gain (±3 %) and "
+      + `inertia (±5 %), not measured on this engine: run frictionwatch commission to measure them.${part}`;
 }
 
 /** The note number of a cylinder's reason: cylinders whose reasons differ only in the data weight share one. */
