@@ -48,9 +48,9 @@ def print_table(doc: dict) -> None:
                                              " (mean torque balance against the measured load)"))
     if fr.get("calibration_sigma_nm") is not None:
         print(f"  of that 1σ, {fr['calibration_sigma_nm']:.2f} N·m is the calibration's: "
-              + ("uncalibrated, a typical installation's TDC ±0.5° (±0.2° per cylinder), pressure gain ±3 % and J "
-                 "±5 % assumed; `frictionwatch commission` measures them" if fr["calibration"] == "uncalibrated"
-                 else "as commissioned"))
+              + ("uncalibrated, a typical installation's TDC ±0.5° (±0.2° per cylinder), pressure gain ±3 % per "
+                 "channel and ±1 % common, J ±5 % assumed; `frictionwatch commission` measures them"
+                 if fr["calibration"] == "uncalibrated" else "as commissioned"))
     rb = doc["friction_run_mean_balance"]
     if rb["status"] == "measured":
         print(f"  mean over the whole run of each cycle's torque balance: FMEP "

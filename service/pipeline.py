@@ -42,7 +42,10 @@ class EnginePipeline:
     The cycles are assembled at the phases the wheel states (the model's spec); a friction shape is sized at the
     operating point of the first assembled cycle (the view is made then; without shapes, at once)."""
 
-    def __init__(self, engine: EngineModel | EngineSpec, info: AcquisitionInfo):
+    def __init__(self, engine: EngineModel | EngineSpec, info: AcquisitionInfo, config: MonitorConfig | None = None,
+                 on_cycle: Callable[[Cycle], None] | None = None):
+        self.config = config or MonitorConfig()
+        self.on_cycle = on_cycle  # sees each assembled cycle as the monitor gets it (commissioning reads its pressure)
         self.model = as_model(engine)
         self.spec = spec = self.model.spec
         self.assembler = CycleAssembler(
@@ -56,7 +59,7 @@ class EnginePipeline:
         self.cycles_ok = 0
 
     def _make_view(self, ref: Reference | None) -> None:
-        self.view = monitor_view(self.model, ref, MonitorConfig())
+        self.view = monitor_view(self.model, ref, self.config)
         self.state = initial_state(self.view.model, self.view.config)
 
     @property
@@ -73,8 +76,11 @@ class EnginePipeline:
         if self.view is None:
             self._make_view(reference([cycle]))
         view = self.view
+        cycle = viewed_cycle(view, cycle)
+        if self.on_cycle is not None:
+            self.on_cycle(cycle)
         try:
-            self.state, result = process_cycle(view.model, self.state, viewed_cycle(view, cycle), view.config)
+            self.state, result = process_cycle(view.model, self.state, cycle, view.config)
         except CycleRejected as exc:
             reason = exc.reason
         except (ValueError, FloatingPointError, ArithmeticError) as exc:
@@ -206,9 +212,10 @@ def _degrees(angles: np.ndarray) -> str:
 
 def analyze_records(
     engine: EngineModel | EngineSpec, info: AcquisitionInfo, records: Iterable[StreamRecord],
-    on_result: Callable[[CycleResult], None] | None = None,
+    on_result: Callable[[CycleResult], None] | None = None, config: MonitorConfig | None = None,
+    on_cycle: Callable[[Cycle], None] | None = None,
 ) -> LogAnalysis:
-    pipe = EnginePipeline(engine, info)
+    pipe = EnginePipeline(engine, info, config, on_cycle)
     history = ResultHistory()
     for record in records:
         for r in pipe.feed(record):
@@ -227,7 +234,8 @@ BENCH_EXPORTS = {".mf4": "an MDF4 bus log", ".mdf": "an MDF4 bus log", ".csv": "
 
 
 def analyze_log(path: Path, engine: str | None = None,
-                on_result: Callable[[CycleResult], None] | None = None) -> LogAnalysis:
+                on_result: Callable[[CycleResult], None] | None = None, config: MonitorConfig | None = None,
+                on_cycle: Callable[[Cycle], None] | None = None) -> LogAnalysis:
     from frictionwatch.drivers.logs.mcap_log import LogReader
 
     if Path(path).suffix.lower() in BENCH_EXPORTS:
@@ -237,6 +245,6 @@ def analyze_log(path: Path, engine: str | None = None,
         model = resolve_model(reader.engine_toml, engine, Path(path).name, reader.info)
         if reader.info is None:
             raise ValueError(f"{Path(path).name} has no acquisition metadata; is it a frictionwatch log?")
-        analysis = analyze_records(model, reader.info, reader.records(), on_result)
+        analysis = analyze_records(model, reader.info, reader.records(), on_result, config, on_cycle)
         analysis.damage = Counter(reader.damage)
     return analysis

@@ -19,6 +19,7 @@ In the model's TOML (core.model.engine_model), every key optional (the defaults 
     tdc_wheel_sigma_deg = 0.05       # the wheel's TDC: an error common to every cylinder
     tdc_cylinder_sigma_deg = 0.05    # each cylinder's own TDC beyond the wheel's, independent between cylinders
     gain_sigma = 0.005               # each pressure channel's relative gain, independent between cylinders
+    gain_common_sigma = 0.01         # the gain common to every channel (their mean; a shared amplifier or DAQ scale)
     inertia_sigma = 0.02             # the relative error of J (kinetic-energy term of the mean balance)
     source = "frictionwatch commission, 3 files, 2026-11-28"
 """
@@ -38,35 +39,40 @@ STATUSES = ("uncalibrated", "commissioned")
 #   whole-wheel offsets of 0.8-1.4 deg: 0.5 is a typical, not a worst, value.
 # - a cylinder's own TDC 0.2 deg: the throws' angular tolerance and each channel's sampling phase; smaller than the
 #   wheel's because one encoder serves every cylinder.
-# - gain 3 %: a piezoelectric sensor's sensitivity as calibrated by its maker drifts by a few % with temperature and
-#   age (the independent logs' faulty channels read 0.94-0.96); the issue's "typical installation".
+# - gain 3 % per channel: a piezoelectric sensor's sensitivity as calibrated by its maker drifts by a few % with
+#   temperature and age (the independent logs' faulty channels read 0.94-0.96); the issue's "typical installation".
+# - gain 1 % common to all channels: a shared charge-amplifier range or DAQ scale (a data-sheet accuracy class).
 # - J 5 %: the preset's J against what the TU/e coast-downs say (0.0206 against 0.0215 kg m^2, 4.4 %).
 UNCALIBRATED_SOURCE = ("uncalibrated: a typical installation is assumed (TDC +-0.5 deg wheel and +-0.2 deg per "
-                       "cylinder, pressure gain +-3 %, J +-5 %); `frictionwatch commission` measures them")
+                       "cylinder, pressure gain +-3 % per channel and +-1 % common, J +-5 %); `frictionwatch "
+                       "commission` measures them")
 
 
 @dataclass(frozen=True)
 class Calibration:
     """status: "uncalibrated" (assumed, the defaults) or "commissioned" (measured); the 1-sigma of what is still
     unknown after the corrections in the model's effects are applied: tdc_wheel_sigma_deg (common to all cylinders),
-    tdc_cylinder_sigma_deg (each cylinder's own), gain_sigma (relative, each channel), inertia_sigma (relative J);
+    tdc_cylinder_sigma_deg (each cylinder's own), gain_sigma (relative, each channel on its own), gain_common_sigma
+    (relative, common to all channels), inertia_sigma (relative J);
     source: where the numbers come from, in words."""
 
     status: str = "uncalibrated"
     tdc_wheel_sigma_deg: float = 0.5
     tdc_cylinder_sigma_deg: float = 0.2
     gain_sigma: float = 0.03
+    gain_common_sigma: float = 0.01
     inertia_sigma: float = 0.05
     source: str = UNCALIBRATED_SOURCE
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
             raise ValueError(f"calibration status {self.status!r} is not one of {', '.join(STATUSES)}")
-        for name in ("tdc_wheel_sigma_deg", "tdc_cylinder_sigma_deg", "gain_sigma", "inertia_sigma"):
+        for name in ("tdc_wheel_sigma_deg", "tdc_cylinder_sigma_deg", "gain_sigma", "gain_common_sigma",
+                     "inertia_sigma"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"calibration {name} = {v!r} must be a number >= 0")
-        if self.gain_sigma >= 0.5 or self.inertia_sigma >= 0.5 or self.tdc_wheel_sigma_deg > 10.0:
+        if max(self.gain_sigma, self.gain_common_sigma, self.inertia_sigma) >= 0.5 or self.tdc_wheel_sigma_deg > 10.0:
             raise ValueError("calibration sigmas beyond 50 % of gain or J, or 10 deg of TDC, are not a calibration")
 
     @property

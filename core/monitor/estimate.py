@@ -128,13 +128,15 @@ def calibration_variance(cal: Calibration, sens: CalibrationSensitivity) -> tupl
     """(per cylinder (z,), engine total) [N^2 m^2]: the variance the calibration's remaining uncertainty adds to the
     friction figures. The mean balance passes an error of the indicated work into friction whole: the wheel's TDC
     moves every cylinder alike (the total by sum_k dT_k, fully correlated), a cylinder's own TDC and gain its own;
-    J's error moves the kinetic-energy term (the engine total only: it is not a cylinder's)."""
+    J's error moves the kinetic-energy term (the engine total only: it is not a cylinder's). A gain common to all
+    channels moves the total by its sum, like the wheel's TDC."""
     s, t_i = np.abs(sens.tdc), np.abs(sens.indicated)
-    w2, c2, g2 = cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2, cal.gain_sigma ** 2
-    per = s * s * (w2 + c2) + t_i * t_i * g2
+    w2, c2 = cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2
+    g2, gc2 = cal.gain_sigma ** 2, cal.gain_common_sigma ** 2
+    per = s * s * (w2 + c2) + t_i * t_i * (g2 + gc2)
     kinetic = sens.kinetic if math.isfinite(sens.kinetic) else 0.0
-    total = float(np.sum(sens.tdc)) ** 2 * w2 + float(np.sum(s * s)) * c2 + float(np.sum(t_i * t_i)) * g2 + (
-        cal.inertia_sigma * kinetic) ** 2
+    total = (float(np.sum(sens.tdc)) ** 2 * w2 + float(np.sum(s * s)) * c2 + float(np.sum(t_i * t_i)) * g2
+             + float(np.sum(sens.indicated)) ** 2 * gc2 + (cal.inertia_sigma * kinetic) ** 2)
     return per, total
 
 

@@ -58,17 +58,19 @@ def test_tdc_sensitivity_is_the_derivative_of_the_indicated_work(engine):
 
 
 def test_calibration_variance_by_hand():
-    cal = Calibration(tdc_wheel_sigma_deg=0.5, tdc_cylinder_sigma_deg=0.2, gain_sigma=0.03, inertia_sigma=0.05)
+    cal = Calibration(tdc_wheel_sigma_deg=0.5, tdc_cylinder_sigma_deg=0.2, gain_sigma=0.03, gain_common_sigma=0.01,
+                      inertia_sigma=0.05)
     s = np.array([10.0, -12.0, 11.0])  # N m / rad
     t_i = np.array([50.0, 55.0, 52.0])
     per, total = calibration_variance(cal, CalibrationSensitivity(s, t_i, kinetic=4.0))
     w, c = math.radians(0.5), math.radians(0.2)
-    assert_allclose(per, s**2 * (w**2 + c**2) + (0.03 * t_i) ** 2, rtol=1e-12)
-    # the wheel's error moves every cylinder alike: its part of the total is (sum s)^2, not sum s^2
-    assert_allclose(total, (s.sum() * w) ** 2 + np.sum(s**2) * c**2 + np.sum((0.03 * t_i) ** 2) + (0.05 * 4.0) ** 2,
-                    rtol=1e-12)
+    assert_allclose(per, s**2 * (w**2 + c**2) + t_i**2 * (0.03**2 + 0.01**2), rtol=1e-12)
+    # the wheel's error and the common gain move every cylinder alike: their part of the total is (sum s)^2 and
+    # (sum T_i)^2, not sums of squares
+    assert_allclose(total, (s.sum() * w) ** 2 + np.sum(s**2) * c**2 + np.sum((0.03 * t_i) ** 2)
+                    + (0.01 * t_i.sum()) ** 2 + (0.05 * 4.0) ** 2, rtol=1e-12)
     none = Calibration(status="commissioned", tdc_wheel_sigma_deg=0.0, tdc_cylinder_sigma_deg=0.0, gain_sigma=0.0,
-                       inertia_sigma=0.0)
+                       gain_common_sigma=0.0, inertia_sigma=0.0)
     per0, total0 = calibration_variance(none, CalibrationSensitivity(s, t_i))
     assert_allclose(per0, 0.0) and math.isclose(total0, 0.0)
 

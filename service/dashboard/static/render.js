@@ -67,7 +67,8 @@ function calibrationWords(e) {
   const part = isNum(e.calibration_sigma_nm) ? ` ${fmt(e.calibration_sigma_nm, 2)} N·m of the engine's ±1σ is the calibration's.` : "";
   return e.calibration === "commissioned"
     ? `Calibration: commissioned (TDC, pressure gain and J measured on this engine).${part}`
-    : "Calibration: uncalibrated. Every ±1σ includes a typical installation's TDC (±0.5°), pressure gain (±3 %) and "
+    : "Calibration: uncalibrated. Every ±1σ includes a typical installation's TDC (±0.5°), pressure gain "
+      + "(±3 % per channel, ±1 % common) and "
       + `inertia (±5 %), not measured on this engine: run frictionwatch commission to measure them.${part}`;
 }
 
