@@ -107,7 +107,7 @@ def offset_log(request, tmp_path_factory):
                  "11", "--effect", f"tdc_offset:deg={deg},cylinder=0", "-o", str(log)]) == 0
     truth = json.loads((out / "log.truth.json").read_text())
     model = dataclasses.replace(load_model(engine), calibration=Calibration(
-        status="commissioned", tdc_wheel_sigma_deg=0.02, tdc_cylinder_sigma_deg=0.02, gain_sigma=0.002,
+        status="commissioned", tdc_wheel_sigma_deg=0.02, tdc_cylinder_sigma_deg=0.02, gain_sigma=0.002, gain_common_sigma=0.002,
         inertia_sigma=0.01, source="a claim this test knows to be false"))
     (out / "claimed.toml").write_text(model.to_toml(), encoding="utf-8")
     return log, out / "claimed.toml", truth
