@@ -23,6 +23,7 @@ COMMANDS = {
     "serve": "frictionwatch.service.serve",
     "reanalyze": "frictionwatch.service.cmd_reanalyze",
     "discrepancy": "frictionwatch.service.cmd_discrepancy",
+    "commission": "frictionwatch.service.cmd_commission",
 }
 
 

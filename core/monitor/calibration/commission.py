@@ -1,0 +1,160 @@
+"""From a commissioning recording's estimates to the engine model the monitor then runs with (issue 25 item 1).
+
+What was measured becomes the model's sensor effects (core.model.effects: ``tdc_offset`` for the wheel and for a
+cylinder whose own TDC stands out, ``pressure_gain`` / ``pressure_offset`` for a channel that stands out of its
+siblings; core.discrepancy.view applies them) and what stays unknown becomes its calibration section
+(core.model.calibration, status "commissioned"): the sigmas every friction figure then carries.
+
+Rules, each for a reason:
+- The wheel's TDC is the median of the cylinders' thermodynamic TDCs (one faulty channel does not move it) and its
+  sigma the median of theirs: the method's systematic part (the wall heat, the losses the model lacks) is the same
+  in every cylinder and does not average down.
+- A cylinder's own offset is applied where it exceeds twice its own sigma; otherwise it stays in the per-cylinder
+  sigma (its reading and its statistical sigma).
+- Fired and motored cycles give two TDCs; where both exist the fired one is used (the state the monitor runs in)
+  and their difference is reported beside it, never averaged away.
+- J: the coast-downs' pooled J where there is one. The monitor's J is the engine file's (node inertias), so a
+  measured J is reported and its disagreement with the file carried in ``inertia_sigma``, not written silently.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from frictionwatch.core.model.calibration import Calibration
+from frictionwatch.core.model.effects import make_effect
+from frictionwatch.core.model.engine_model import EngineModel
+from frictionwatch.core.monitor.calibration.pressure_gain import SiblingGains
+from frictionwatch.core.monitor.calibration.tdc import TdcEstimate
+
+SENSOR_EFFECTS = ("tdc_offset", "pressure_gain", "pressure_offset")
+OWN_TDC_SIGMAS = 2.0  # a cylinder's own TDC offset is applied beyond this many of its sigmas
+PEGGING_MIN_PA = 0.2e5  # a pegging correction below this is left (SensorHealthConfig.offset_pa: its flag threshold)
+
+
+@dataclass(frozen=True)
+class InertiaFinding:
+    """J measured on coast-downs [kg m^2] and its 1-sigma, the engine file's J, and how many records it pools."""
+
+    inertia: float
+    sigma: float
+    spec_inertia: float
+    records: int
+
+
+@dataclass(frozen=True)
+class Commissioning:
+    """The commissioned model and what it rests on (``report``: a JSON-able dict, engineering units)."""
+
+    model: EngineModel
+    report: dict = field(default_factory=dict)
+
+
+def without_sensor_effects(model: EngineModel) -> EngineModel:
+    """``model`` with its TDC, gain and pegging corrections removed: commissioning measures them anew against the
+    raw readings (a model commissioned before would otherwise be corrected twice)."""
+    kept = tuple(e for e in model.effects if e.name not in SENSOR_EFFECTS)
+    return dataclasses.replace(model, effects=kept, calibration=Calibration())
+
+
+def _tdc_part(tdc: Sequence[TdcEstimate | None]) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
+    """(wheel rad, wheel sigma rad, own (z,) rad applied, own sigma (z,) rad, statistical (z,) rad)."""
+    found = [t for t in tdc if t is not None]
+    if not found:
+        raise ValueError("no cylinder's TDC could be found from its pressure (no fired or motored cycle pairs)")
+    offsets = np.array([t.offset_rad if t is not None else np.nan for t in tdc])
+    sigmas = np.array([t.sigma_rad if t is not None else np.nan for t in tdc])
+    stat = np.array([math.radians(t.evidence.get("statistical_deg", math.degrees(t.sigma_rad))) if t is not None
+                     else np.nan for t in tdc])
+    wheel = float(np.nanmedian(offsets))
+    wheel_sigma = float(np.nanmedian(sigmas))
+    own = offsets - wheel
+    apply = np.isfinite(own) & (np.abs(own) > OWN_TDC_SIGMAS * sigmas)
+    own_applied = np.where(apply, own, 0.0)
+    # what is left per cylinder: the statistical part (the systematic is the wheel's), and a reading not applied
+    own_sigma = np.where(np.isfinite(own), np.where(apply, stat, np.hypot(stat, own)), math.radians(0.5))
+    return wheel, wheel_sigma, own_applied, own_sigma, stat
+
+
+def commissioned_model(model: EngineModel, tdc_fired: Sequence[TdcEstimate | None] | None,
+                       tdc_motored: Sequence[TdcEstimate | None] | None, gains: SiblingGains | None,
+                       gain_common_sigma: float, inertia: InertiaFinding | None, source: str) -> Commissioning:
+    """The model with the measured corrections as effects and the calibration section (module doc); ``model``
+    without sensor effects (``without_sensor_effects``); gain_common_sigma: the relative 1-sigma of the gain common
+    to every channel, which the data cannot give (a stated reference)."""
+    z = model.spec.n_cyl
+    tdc = tdc_fired if tdc_fired is not None and any(t is not None for t in tdc_fired) else tdc_motored
+    if tdc is None:
+        raise ValueError("commissioning needs fired or motored cycles to find TDC from")
+    wheel, wheel_sigma, own, own_sigma, _ = _tdc_part(tdc)
+    effects = [make_effect("tdc_offset", {"deg": round(math.degrees(wheel), 4), "cylinder": 0},
+                           {"deg": round(math.degrees(wheel_sigma), 4)})]
+    for k in np.flatnonzero(own):
+        effects.append(make_effect("tdc_offset", {"deg": round(math.degrees(own[k]), 4), "cylinder": int(k) + 1},
+                                   {"deg": round(math.degrees(own_sigma[k]), 4)}))
+    pegging = np.array([t.pegging_pa if t is not None else 0.0 for t in tdc])
+    for k in np.flatnonzero(np.abs(pegging) > PEGGING_MIN_PA):  # the channel reads p - pegging
+        effects.append(make_effect("pressure_offset", {"cylinder": int(k) + 1, "pa": round(-float(pegging[k]), 1)}))
+    if gains is not None:
+        for k in np.flatnonzero(gains.corrected):
+            effects.append(make_effect("pressure_gain", {"cylinder": int(k) + 1, "gain": round(float(gains.gain[k]), 5)},
+                                       {"gain": round(float(gains.gain_sigma[k]), 5)}))
+        gain_sigma = float(np.sqrt(np.mean(gains.gain_sigma ** 2)))
+    else:  # one or two cylinders: no sibling to compare with; each channel as the uncalibrated default
+        gain_sigma = Calibration().gain_sigma
+    inertia_sigma = Calibration().inertia_sigma
+    if inertia is not None and inertia.inertia > 0:
+        # the monitor runs with the file's J: what it may be off by is the measured difference and its sigma
+        inertia_sigma = math.hypot(inertia.inertia / inertia.spec_inertia - 1.0, inertia.sigma / inertia.inertia)
+    cal = Calibration(status="commissioned", tdc_wheel_sigma_deg=round(math.degrees(wheel_sigma), 4),
+                      tdc_cylinder_sigma_deg=round(math.degrees(float(np.sqrt(np.mean(own_sigma ** 2)))), 4),
+                      gain_sigma=round(gain_sigma, 5), gain_common_sigma=round(gain_common_sigma, 5),
+                      inertia_sigma=round(min(inertia_sigma, 0.49), 5), source=source)
+    out = dataclasses.replace(model, effects=model.effects + tuple(effects), calibration=cal)
+    return Commissioning(out, _report(z, tdc_fired, tdc_motored, wheel, wheel_sigma, own, gains, pegging, inertia,
+                                      cal))
+
+
+def _tdc_json(t: TdcEstimate | None) -> dict | None:
+    if t is None:
+        return None
+    return {"offset_deg": t.offset_deg, "sigma_deg": t.sigma_deg, "pegging_bar": t.pegging_pa / 1e5,
+            "cycles": t.n_cycles, "method": t.method,
+            "sigma_parts_deg": {k: t.evidence[k] for k in ("statistical_deg", "systematic_deg", "heat_loss_deg",
+                                                           "constant_loss_deg") if k in t.evidence}}
+
+
+def _report(z: int, fired, motored, wheel: float, wheel_sigma: float, own: np.ndarray, gains: SiblingGains | None,
+            pegging: np.ndarray, inertia: InertiaFinding | None, cal: Calibration) -> dict:
+    cylinders = []
+    for k in range(z):
+        f = _tdc_json(fired[k]) if fired is not None else None
+        m = _tdc_json(motored[k]) if motored is not None else None
+        row = {"cylinder": k + 1, "tdc_fired": f, "tdc_motored": m,
+               "own_tdc_offset_deg": math.degrees(float(own[k])), "pegging_bar": float(pegging[k]) / 1e5}
+        if f is not None and m is not None:  # two methods: their difference said, not averaged away
+            diff = f["offset_deg"] - m["offset_deg"]
+            row["fired_minus_motored_deg"] = diff
+            row["methods_agree"] = bool(abs(diff) <= 2.0 * math.hypot(f["sigma_deg"], m["sigma_deg"]))
+        if gains is not None:
+            row.update({"gain_vs_siblings": float(gains.gain[k]), "gain_sigma": float(gains.gain_sigma[k]),
+                        "gain_corrected": bool(gains.corrected[k])})
+        cylinders.append(row)
+    return {
+        "wheel_tdc_offset_deg": math.degrees(wheel), "wheel_tdc_sigma_deg": math.degrees(wheel_sigma),
+        "gain_reference": "none: a gain common to every channel is not seen by comparing the channels; its sigma is "
+                          f"the stated {cal.gain_common_sigma:.3f}",
+        "sibling_gain_spread": None if gains is None else gains.spread,
+        "inertia": None if inertia is None else {"measured_kgm2": inertia.inertia, "sigma_kgm2": inertia.sigma,
+                                                 "engine_file_kgm2": inertia.spec_inertia,
+                                                 "records": inertia.records},
+        "calibration": cal.to_dict(),
+        "cylinders": cylinders,
+    }
+
+
+__all__ = ["Commissioning", "InertiaFinding", "SENSOR_EFFECTS", "commissioned_model", "without_sensor_effects"]

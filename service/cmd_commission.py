@@ -1,0 +1,182 @@
+"""`frictionwatch commission LOG.mcap... [--engine E] -o MODEL.toml`: measure what the monitor otherwise takes on
+trust (issue 25 item 1) and write it into the engine model.
+
+Each log runs through the product's pipeline (service.pipeline.analyze_records: assembler, model view, monitor),
+which hands every assembled cycle to the commissioning as the monitor gets it. From the fired cycles (and motored
+ones where a log has them): every cylinder's TDC and pegging from its pressure (core.monitor.calibration.tdc), each
+channel's gain against its siblings (core.monitor.calibration.pressure_gain); the results become the model's sensor
+effects and its calibration section (core.monitor.calibration.commission), which analyze, serve, reanalyze and
+discrepancy read. The model is written whole or not at all; the report (table or --json) says every figure, its
+1-sigma and where it came from.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from frictionwatch.core.model.calibration import Calibration
+from frictionwatch.core.model.engine_model import EngineModel
+from frictionwatch.core.monitor.calibration.commission import Commissioning, commissioned_model, without_sensor_effects
+from frictionwatch.core.monitor.calibration.pressure_gain import sibling_gains
+from frictionwatch.core.monitor.calibration.tdc import tdc_of_cycles
+from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.types import Cycle
+from frictionwatch.service.output_files import atomic_path, check_output_path
+from frictionwatch.service.pipeline import analyze_records, resolve_model
+
+MIN_FIRED = 20  # cycle pairs the TDC fit needs for its block scatter (core.monitor.calibration.tdc.BLOCKS)
+MIN_MOTORED = 10
+LOG_INDEX_STRIDE = 10**9  # cycles of different logs are never consecutive (the TDC fit joins index, index + 1)
+MOTORED_IMEP_PA = 0.5e5  # a cycle is motored when no cylinder's IMEP reaches this (pumping work is negative)
+FIRED_FRACTION = 0.5  # ... and fired when every cylinder's IMEP is at least this fraction of the cycle's median
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("commission", help="measure TDC, pressure gains and pegging from commissioning logs and write "
+                                          "them into the engine model (its calibration section)")
+    p.add_argument("logs", type=Path, nargs="+", help="LOG.mcap: fired running at one or more loads; motored or "
+                                                      "coast-down stretches where there are some")
+    p.add_argument("--engine", help="engine preset, engine TOML or model TOML (its sensor corrections are measured "
+                                    "anew); default: the spec stored in the first log")
+    p.add_argument("-o", "--output", type=Path, required=True, help="MODEL.toml to write")
+    p.add_argument("--gain-sigma", type=float, default=None,
+                   help="relative 1-sigma of the pressure gain common to every channel, from a reference the data "
+                        "cannot give (the sensors' calibration certificates); default: as uncalibrated, "
+                        "what the channels' own 3 %% leaves in their mean and a shared 1 %%")
+    p.add_argument("--max-cycles", type=int, default=600, help="cycles used from each log (default 600)")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON document")
+    p.set_defaults(func=run)
+
+
+class _Collector:
+    """Every assembled cycle the monitor accepted, per log, re-indexed so that two logs never join."""
+
+    def __init__(self, max_cycles: int):
+        self.max_cycles = max_cycles
+        self.cycles: dict[int, Cycle] = {}
+        self.imep: dict[int, np.ndarray] = {}
+        self.offset = 0
+        self.taken = 0
+
+    def next_log(self, number: int) -> None:
+        self.offset, self.taken = number * LOG_INDEX_STRIDE, 0
+
+    def on_cycle(self, cycle: Cycle) -> None:
+        if self.taken < self.max_cycles:
+            self.cycles[self.offset + cycle.index] = dataclasses.replace(cycle, index=self.offset + cycle.index)
+            self.taken += 1
+
+    def on_result(self, result: CycleResult) -> None:
+        self.imep[self.offset + result.index] = np.asarray(result.imep, dtype=np.float64)
+
+    def split(self) -> tuple[list[Cycle], list[Cycle]]:
+        """(fired, motored) cycles the monitor analysed, in order; misfiring and partly fired cycles in neither."""
+        fired, motored = [], []
+        for i in sorted(self.cycles):
+            imep = self.imep.get(i)
+            if imep is None:
+                continue  # the monitor refused it: its reason is in the pipeline's skipped counts
+            if np.all(imep < MOTORED_IMEP_PA):
+                motored.append(self.cycles[i])
+            elif np.all(imep >= FIRED_FRACTION * np.median(imep)) and np.median(imep) >= MOTORED_IMEP_PA:
+                fired.append(self.cycles[i])
+        return fired, motored
+
+
+def commission(logs: list[Path], engine: str | None, gain_sigma: float | None, max_cycles: int = 600,
+               progress: Callable[[str], None] | None = None) -> tuple[Commissioning, dict]:
+    """The commissioned model and the report (JSON-able) from ``logs`` (module doc)."""
+    from frictionwatch.drivers.logs.mcap_log import LogReader
+
+    collector = _Collector(max_cycles)
+    model: EngineModel | None = None
+    skipped: dict[str, dict] = {}
+    for n, path in enumerate(logs):
+        with LogReader(path) as reader:
+            if reader.info is None:
+                raise ValueError(f"{path.name} has no acquisition metadata; is it a frictionwatch log?")
+            found = resolve_model(reader.engine_toml, engine, path.name, reader.info)
+            if model is None:
+                model = without_sensor_effects(found)
+            elif found.spec.name != model.spec.name:
+                raise ValueError(f"{path.name} is engine {found.spec.name!r}, the first log {model.spec.name!r}: "
+                                 "one engine per commissioning")
+            collector.next_log(n)
+            analysis = analyze_records(model, reader.info, reader.records(), collector.on_result,
+                                       on_cycle=collector.on_cycle)
+            skipped[path.name] = dict(sorted(analysis.skipped.items()))
+        if progress:
+            progress(f"{path.name}: {analysis.cycles_ok} cycles analysed")
+    assert model is not None  # argparse: at least one log
+    fired, motored = collector.split()
+    if len(fired) < MIN_FIRED and len(motored) < MIN_MOTORED:
+        raise ValueError(f"commissioning needs >= {MIN_FIRED} fired or >= {MIN_MOTORED} motored cycles; the logs gave "
+                         f"{len(fired)} fired and {len(motored)} motored (skipped: {skipped})")
+    spec = model.spec
+    tdc_fired = tdc_of_cycles(fired, spec) if len(fired) >= MIN_FIRED else None
+    tdc_motored = tdc_of_cycles(motored, spec, motored=True) if len(motored) >= MIN_MOTORED else None
+    used = tdc_fired if tdc_fired is not None and any(t is not None for t in tdc_fired) else tdc_motored
+    correction = np.array([t.offset_rad if t is not None else np.nan for t in used])
+    correction = np.where(np.isfinite(correction), correction, np.nanmedian(correction))
+    gains = sibling_gains(spec, fired, correction) if fired else None
+    stated = gain_sigma is not None
+    if gain_sigma is None:  # the channels' mean gain is as unknown as before: 3 % over sqrt(z), and the shared 1 %
+        base = Calibration()
+        gain_sigma = math.hypot(base.gain_sigma / math.sqrt(spec.n_cyl), base.gain_common_sigma)
+    today = datetime.date.today().isoformat()
+    source = (f"frictionwatch commission {today}: {len(logs)} log(s), {len(fired)} fired and {len(motored)} motored "
+              f"cycles; TDC from the pressure ({'fired' if used is tdc_fired else 'motored'}), gains against the "
+              f"siblings, common gain {'stated' if stated else 'unreferenced'}")
+    result = commissioned_model(model, tdc_fired, tdc_motored, gains, gain_sigma, None, source)
+    report = {"engine": spec.name, "logs": [str(p) for p in logs], "cycles_fired": len(fired),
+              "cycles_motored": len(motored), "cycles_skipped": skipped, **result.report}
+    return result, report
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.max_cycles < MIN_FIRED:
+        raise ValueError(f"--max-cycles {args.max_cycles}: expected at least {MIN_FIRED}")
+    if args.gain_sigma is not None and not 0.0 <= args.gain_sigma < 0.5:
+        raise ValueError(f"--gain-sigma {args.gain_sigma}: expected a relative 1-sigma in [0, 0.5)")
+    check_output_path(args.output)
+    result, report = commission(list(args.logs), args.engine, args.gain_sigma, args.max_cycles)
+    with atomic_path(args.output) as tmp:
+        tmp.write_text(result.model.to_toml(), encoding="utf-8")
+    report["model_written"] = str(args.output)
+    if args.json:
+        print(json.dumps(report, indent=1))
+    else:
+        print_report(report)
+    return 0
+
+
+def print_report(doc: dict) -> None:
+    """The report for a person: the wheel, each cylinder, and what the calibration section now says."""
+    print(f"{doc['engine']}: commissioned from {len(doc['logs'])} log(s), {doc['cycles_fired']} fired and "
+          f"{doc['cycles_motored']} motored cycles")
+    print(f"wheel TDC: {doc['wheel_tdc_offset_deg']:+.3f} ± {doc['wheel_tdc_sigma_deg']:.3f}° "
+          "(+ = the true TDC lies later than the wheel says)")
+    print(f"{'cyl':>4} {'TDC fired °':>14} {'TDC motored °':>14} {'own °':>7} {'pegging bar':>12} "
+          f"{'gain vs siblings':>17}")
+    for c in doc["cylinders"]:
+        f, m = c["tdc_fired"], c["tdc_motored"]
+        fs = f"{f['offset_deg']:+.3f}±{f['sigma_deg']:.3f}" if f else "—"
+        ms = f"{m['offset_deg']:+.3f}±{m['sigma_deg']:.3f}" if m else "—"
+        gs = (f"{c['gain_vs_siblings']:.4f}±{c['gain_sigma']:.4f}" + (" *" if c["gain_corrected"] else "")
+              if "gain_vs_siblings" in c else "—")
+        agree = "" if c.get("methods_agree", True) else "  fired and motored disagree"
+        print(f"{c['cylinder']:>4} {fs:>14} {ms:>14} {c['own_tdc_offset_deg']:+7.3f} {c['pegging_bar']:+12.3f} "
+              f"{gs:>17}{agree}")
+    cal = doc["calibration"]
+    print(f"calibration written: TDC ±{cal['tdc_wheel_sigma_deg']:.3f}° (wheel), ±{cal['tdc_cylinder_sigma_deg']:.3f}° "
+          f"(each cylinder), gain ±{100 * cal['gain_sigma']:.2f} % per channel and ±{100 * cal['gain_common_sigma']:.2f} "
+          f"% common ({doc['gain_reference']}), J ±{100 * cal['inertia_sigma']:.1f} %")
+    print("* gain corrected (beyond the siblings' spread); a TDC or pegging beyond its threshold is a model effect")
+    print(f"model written to {doc['model_written']}")
