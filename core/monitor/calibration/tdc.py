@@ -62,6 +62,11 @@ SYSTEMATIC_SIGMA_DEG = 0.05
 BURN_FRACTION = 0.05  # of the peak net ROHR: the start and end of combustion (_combustion_edges)
 SMOOTH_DEG = 9.0  # Savitzky-Golay span of the pressure before its derivative (same tuning cases)
 GN_ITERATIONS = 8
+MAX_STEP_RAD = math.radians(3.0)  # a Gauss-Newton step larger than this is cut (the windows move with delta)
+# Relative 1-sigma of the wall heat on an engine whose heat transfer nobody measured (Woschni's correlation against
+# engines it was not fitted on: tens of %). On the simulator the wall heat is exactly the project's Woschni, so there
+# this part of sigma is pessimistic; on a real engine it is most of sigma (bench/tdc_from_pressure.py, README).
+HEAT_LOSS_REL_SIGMA = 0.3
 BLOCKS = 5  # disjoint blocks of cycles whose fits give the statistical sigma
 FD_DELTA_RAD = math.radians(0.05)
 FD_PEG_PA = 2.0e3
@@ -132,6 +137,7 @@ class _Setting:
     omega: float
     p_ivc: float
     soc_rad: float
+    heat_loss_scale: float = 1.0
 
 
 def _model_terms(p: np.ndarray, dp: np.ndarray, angle: np.ndarray, delta: float, peg: float, st: _Setting
@@ -158,7 +164,7 @@ def _model_terms(p: np.ndarray, dp: np.ndarray, angle: np.ndarray, delta: float,
         * np.maximum(pc - p_ivc * (v_ivc[0] / vol) ** N_MOTORED, 0.0), 0.0)
     h = WOSCHNI_SCALE * 3.26 * spec.bore ** -0.2 * (pc * 1e-3) ** 0.8 * temp ** -0.55 * w ** 0.8
     area_w = WALL_AREA_HEAD_PISTON * spec.piston_area + math.pi * spec.bore * vol / spec.piston_area
-    return q, h * area_w * (temp - cb.t_wall_k) / st.omega
+    return q, st.heat_loss_scale * h * area_w * (temp - cb.t_wall_k) / st.omega
 
 
 def _combustion_edges(angle_deg: np.ndarray, q_mean: np.ndarray, last_deg: float) -> tuple[float, float]:
@@ -195,11 +201,10 @@ def _windows(angle_deg: np.ndarray, spec: EngineSpec, motored: bool, q_mean: np.
 
 
 def _gauss_newton(p: np.ndarray, dp: np.ndarray, ang: np.ndarray, st: _Setting, delta: float, peg: float
-                  ) -> tuple[float, float, float]:
-    """(delta, peg, rms residual) minimising sum (ROHR + wall heat)^2 over the window samples of the mean of the
-    rows of p: Gauss-Newton, both columns by forward differences."""
+                  ) -> tuple[float, float]:
+    """(delta, peg) minimising sum (ROHR + wall heat)^2 over the window samples of the mean of the rows of p:
+    Gauss-Newton, both columns by forward differences."""
     pm, dpm = p.mean(axis=0), dp.mean(axis=0)
-    rms = math.nan
     for _ in range(GN_ITERATIONS):
         q, w = _model_terms(pm, dpm, ang, delta, peg, st)
         r = q + w
@@ -207,16 +212,16 @@ def _gauss_newton(p: np.ndarray, dp: np.ndarray, ang: np.ndarray, st: _Setting, 
         qp, wp = _model_terms(pm, dpm, ang, delta, peg + FD_PEG_PA, st)
         jac = np.column_stack([(qd + wd - r) / FD_DELTA_RAD, (qp + wp - r) / FD_PEG_PA])
         sol, *_ = np.linalg.lstsq(jac, -r, rcond=None)
-        delta += float(np.clip(sol[0], -math.radians(3.0), math.radians(3.0)))
+        delta += float(np.clip(sol[0], -MAX_STEP_RAD, MAX_STEP_RAD))
         peg += float(sol[1])
-        rms = float(np.sqrt(np.mean(r**2)))
         if abs(sol[0]) < math.radians(1e-4):
             break
-    return delta, peg, rms
+    return delta, peg
 
 
 def tdc_from_pressure(pressure_pa: np.ndarray, angle_rad: np.ndarray, spec: EngineSpec, speed_rad_s: float,
-                      motored: bool = False, systematic_deg: float = SYSTEMATIC_SIGMA_DEG) -> TdcEstimate:
+                      motored: bool = False, heat_loss_scale: float = 1.0,
+                      heat_loss_rel_sigma: float = HEAT_LOSS_REL_SIGMA) -> TdcEstimate:
     """TDC correction and pegging of one cylinder from its cycles (module docstring).
 
     pressure_pa : (n_cycles, n_angle) absolute pressure [Pa] on the local grid angle_rad
@@ -224,9 +229,13 @@ def tdc_from_pressure(pressure_pa: np.ndarray, angle_rad: np.ndarray, spec: Engi
                   IVC..EVO of ``spec.combustion``
     speed_rad_s : mean crank speed [rad/s] (the Woschni wall heat scales with the piston speed)
     motored     : no combustion (ignition off, motored, coast-down): one window over the whole closed part
+    heat_loss_scale : multiplies the project's Woschni wall heat (1 = core.model.thermo as the simulator has it)
+    heat_loss_rel_sigma : relative 1-sigma of that wall heat; its effect on the offset (a refit at
+        heat_loss_scale * (1 + heat_loss_rel_sigma)) is a systematic part of sigma
 
-    The fit is made on the mean cycle (noise averages out before the non-linear ROHR); the cycle-to-cycle part of
-    sigma from the same fit on BLOCKS disjoint blocks of cycles.
+    The fit is made on the mean cycle (noise averages out before the non-linear ROHR). sigma = sqrt(statistical^2
+    + SYSTEMATIC_SIGMA_DEG^2 + heat-loss^2): statistical from the same fit on BLOCKS disjoint blocks of cycles,
+    SYSTEMATIC_SIGMA_DEG the method's rms error where the wall heat is right (the simulator), heat-loss as above.
     """
     p = np.atleast_2d(np.asarray(pressure_pa, dtype=np.float64))
     ang = np.asarray(angle_rad, dtype=np.float64).ravel()
@@ -235,8 +244,9 @@ def tdc_from_pressure(pressure_pa: np.ndarray, angle_rad: np.ndarray, spec: Engi
     step = np.diff(ang)
     if not np.all(step > 0) or np.ptp(step) > 1e-6 * step.mean():
         raise ValueError("angle_rad must be uniform and increasing")
-    if not speed_rad_s > 0:
-        raise ValueError(f"speed_rad_s must be > 0, got {speed_rad_s}")
+    if not (speed_rad_s > 0 and heat_loss_scale >= 0 and heat_loss_rel_sigma >= 0):
+        raise ValueError(f"speed_rad_s {speed_rad_s} must be > 0, heat_loss_scale {heat_loss_scale} and "
+                         f"heat_loss_rel_sigma {heat_loss_rel_sigma} >= 0")
     p = p[np.all(np.isfinite(p), axis=1)]
     if p.shape[0] == 0:
         raise ValueError("no cycle with finite pressure")
@@ -245,31 +255,37 @@ def tdc_from_pressure(pressure_pa: np.ndarray, angle_rad: np.ndarray, spec: Engi
     if deg[0] > cb.ivc_deg or deg[-1] < cb.evo_deg:
         raise ValueError(f"the grid {deg[0]:.0f}..{deg[-1]:.0f} deg must cover IVC {cb.ivc_deg:g}..EVO {cb.evo_deg:g}")
     p, dp = smoothed_pressure(p, float(step.mean()))
-    i_ivc = int(np.argmin(np.abs(deg - cb.ivc_deg)))
-    p_ivc = float(np.mean(p[:, i_ivc]))
+    p_ivc = float(np.mean(p[:, int(np.argmin(np.abs(deg - cb.ivc_deg)))]))
+    omega = float(speed_rad_s)
     # windows from the mean cycle's ROHR at no correction, then again at the first pass's correction
     delta, peg = 0.0, 0.0
-    st = _Setting(spec, float(speed_rad_s), p_ivc, math.radians(-90.0 if motored else 0.0))
+    st = _Setting(spec, omega, p_ivc, math.pi if motored else 0.0, heat_loss_scale)
     for _ in range(2):
         q0, _ = _model_terms(p.mean(axis=0), dp.mean(axis=0), ang, delta, peg, st)
         mask, edges = _windows(deg, spec, motored, q0)
-        st = _Setting(spec, float(speed_rad_s), p_ivc,
-                      math.radians(edges[0][1] + BEFORE_SOC_DEG) if not motored else math.pi)
-        delta, peg, rms = _gauss_newton(p[:, mask], dp[:, mask], ang[mask], st, delta, peg)
+        soc = math.pi if motored else math.radians(edges[0][1] + BEFORE_SOC_DEG)
+        st = _Setting(spec, omega, p_ivc, soc, heat_loss_scale)
+        delta, peg = _gauss_newton(p[:, mask], dp[:, mask], ang[mask], st, delta, peg)
+    pw, dpw, aw = p[:, mask], dp[:, mask], ang[mask]
     n = p.shape[0]
     n_blocks = min(BLOCKS, n)
-    block = [_gauss_newton(p[i::n_blocks][:, mask], dp[i::n_blocks][:, mask], ang[mask], st, delta, peg)[0]
-             for i in range(n_blocks)]
+    block = [_gauss_newton(pw[i::n_blocks], dpw[i::n_blocks], aw, st, delta, peg)[0] for i in range(n_blocks)]
     # blocks of n / B cycles: the scatter of their fits over sqrt(B) is the sampling error of the whole mean's fit
     stat = float(np.std(block, ddof=1) / math.sqrt(n_blocks)) if n_blocks > 1 else math.radians(0.5)
-    sigma = math.hypot(stat, math.radians(systematic_deg))
-    q, w = _model_terms(p.mean(axis=0)[mask], dp.mean(axis=0)[mask], ang[mask], delta, peg, st)
+    hot = _Setting(spec, omega, p_ivc, soc, heat_loss_scale * (1.0 + heat_loss_rel_sigma))
+    heat = abs(_gauss_newton(pw, dpw, aw, hot, delta, peg)[0] - delta)
+    sigma = math.sqrt(stat**2 + math.radians(SYSTEMATIC_SIGMA_DEG) ** 2 + heat**2)
+    q, w = _model_terms(pw.mean(axis=0), dpw.mean(axis=0), aw, delta, peg, st)
     evidence = {
         "windows_deg": [(round(lo, 1), round(hi, 1)) for lo, hi in edges],
         "statistical_deg": math.degrees(stat),
-        "systematic_deg": systematic_deg,
+        "systematic_deg": SYSTEMATIC_SIGMA_DEG,
+        "heat_loss_deg": math.degrees(heat),
+        "heat_loss_scale": heat_loss_scale,
+        "heat_loss_rel_sigma": heat_loss_rel_sigma,
         "block_offsets_deg": np.degrees(block).tolist(),
-        "residual_rel": float(np.sqrt(np.mean((q + w) ** 2)) / np.sqrt(np.mean(w**2))),
+        # rms of ROHR + wall heat left in the windows, relative to the rms wall heat there
+        "residual_rel": float(np.sqrt(np.mean((q + w) ** 2)) / max(float(np.sqrt(np.mean(w**2))), 1e-12)),
     }
     return TdcEstimate(delta, sigma, peg, n, METHOD_MOTORED if motored else METHOD_FIRED, evidence)
 
@@ -300,14 +316,16 @@ def local_cycles(cycles: Sequence[Cycle], row: int, phase_rad: float, half_width
     return (np.array(rows) if rows else np.zeros((0, 2 * half))), local
 
 
-def tdc_of_cycles(cycles: Sequence[Cycle], spec: EngineSpec, motored: bool = False) -> list[TdcEstimate | None]:
+def tdc_of_cycles(cycles: Sequence[Cycle], spec: EngineSpec, motored: bool = False, **options: float
+                  ) -> list[TdcEstimate | None]:
     """``tdc_from_pressure`` of every cylinder of an assembled cycle list (None for a cylinder without pressure or
-    without two consecutive cycles); cylinder k fires at ``spec.firing_angles[k]`` on cylinder 1's angle."""
+    without two consecutive cycles); cylinder k fires at ``spec.firing_angles[k]`` on cylinder 1's angle; the speed
+    is the cycles' mean; ``options`` go to ``tdc_from_pressure``."""
     out: list[TdcEstimate | None] = []
     spans = [(c.tooth_ticks[-1] - c.tooth_ticks[0]) / c.tick_hz for c in cycles]
     spans_angle = [c.tooth_angle[-1] - c.tooth_angle[0] for c in cycles]
     speed = float(np.sum(spans_angle) / np.sum(spans)) if cycles else math.nan
     for k, phase in enumerate(np.asarray(spec.firing_angles, dtype=np.float64)):
         p, ang = local_cycles(cycles, k, float(phase))
-        out.append(tdc_from_pressure(p, ang, spec, speed, motored) if p.shape[0] else None)
+        out.append(tdc_from_pressure(p, ang, spec, speed, motored, **options) if p.shape[0] else None)
     return out
