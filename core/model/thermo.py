@@ -58,6 +58,22 @@ def _cp_air(temp):
 
 
 @numba.njit(cache=True)
+def _cp_air_array(temp, out):
+    for i in range(temp.shape[0]):
+        out[i] = _cp_air(temp[i])
+
+
+def cp_air(temp_k: np.ndarray) -> np.ndarray:
+    """The simulator's Sonntag c_p of air [J/(kg K)] at each temperature (any shape), for analyses that must use the
+    same gas properties (core.monitor.calibration.tdc)."""
+    t = np.asarray(temp_k, dtype=np.float64)
+    flat = np.ascontiguousarray(t).ravel()
+    out = np.empty_like(flat)
+    _cp_air_array(flat, out)
+    return out.reshape(t.shape)
+
+
+@numba.njit(cache=True)
 def _wiebe_rate(u, a, expo, dur):
     """d x_b / d theta of one Wiebe function at u = theta - theta_s >= 0 [1/rad]."""
     r = u / dur

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import gzip
 import logging
+import math
 import warnings
 from collections import Counter
 from dataclasses import dataclass, field
@@ -219,6 +220,34 @@ class DaqResult:
         return np.rint(np.interp(self.tdc_phi_deg, key[ok], self.sample_ticks[ok].astype(np.float64))).astype(np.int64)
 
 
+def pressure_peak_deg(trace: DaqTrace, wheel: str = "60-2", tick_hz: float = 10e6) -> tuple[float, int]:
+    """(wheel angle [deg] after tooth 0, mod 360, of the pressure peak of the firing revolutions, how many) — a
+    starting point for finding TDC from the pressure (service.daq_tdc), NaN when no two consecutive revolutions are
+    verified. Of two consecutive revolutions the one with the higher peak holds the firing (or motored) TDC; the
+    median over those revolutions is returned."""
+    edges = detect_teeth(trace, wheel, tick_hz)
+    ticks_per_sample = tick_hz / trace.sample_rate_hz
+    sample_ticks = round(trace.t0_s * tick_hz) + np.rint(np.arange(trace.n) * ticks_per_sample).astype(np.int64)
+    phi = wheel_angle_of_samples(sample_ticks, edges.ticks, edges.rev_start, edges.rev_end, edges.rev_turn,
+                                 edges.wheel_teeth, edges.wheel_missing)
+    key = sortable_angle(phi)
+    peaks: dict[int, tuple[float, float]] = {}
+    for turn in edges.rev_turn.tolist():
+        lo, hi = np.searchsorted(key, [360.0 * turn, 360.0 * (turn + 1)])
+        if hi - lo > 10 and np.all(np.isfinite(phi[lo:hi])):
+            i = lo + int(np.argmax(trace.pressure_v[lo:hi]))
+            peaks[turn] = (float(trace.pressure_v[i]), float(phi[i] - 360.0 * turn))
+    firing = [a for t, (v, a) in peaks.items() if all(v > peaks[n][0] for n in (t - 1, t + 1) if n in peaks)
+              and any(n in peaks for n in (t - 1, t + 1))]
+    if not firing:
+        return math.nan, 0
+    # angles near 0/360 wrap: take the median about the circular mean
+    ang = np.radians(firing)
+    centre = math.atan2(np.sin(ang).mean(), np.cos(ang).mean())
+    dev = np.angle(np.exp(1j * (ang - centre)))
+    return float(np.degrees(centre + np.median(dev)) % 360.0), len(firing)
+
+
 def process_daq(
     trace: DaqTrace,
     engine: EngineSpec | str = "tue-4gb10",
@@ -310,7 +339,7 @@ def trace_to_records(
     """``daq_to_records`` of a trace already read."""
     if not block_s > 0:
         raise ValueError(f"block_s must be > 0 s, got {block_s}")
-    n_teeth, n_missing = _wheel(wheel)
+    _wheel(wheel)
     res = process_daq(
         trace,
         engine,
@@ -322,18 +351,27 @@ def trace_to_records(
         peg_pa=peg_pa,
         n_poly=n_poly,
     )
+    return result_to_records(res, wheel, block_s)
+
+
+def result_to_records(res: DaqResult, wheel: str = "60-2", block_s: float = 0.01
+                      ) -> tuple[AcquisitionInfo, list[StreamRecord]]:
+    """(AcquisitionInfo, records) of a processed trace (``trace_to_records`` after ``process_daq``)."""
+    if not block_s > 0:
+        raise ValueError(f"block_s must be > 0 s, got {block_s}")
+    n_teeth, n_missing = _wheel(wheel)
     if res.damage:
-        log.info("%s: skipped %s", trace.name, dict(res.damage))
-    first = -(tdc_deg % 360.0)  # tooth 0 precedes firing TDC by tdc_deg mod 360 (no cam: phase from pressure)
+        log.info("%s: skipped %s", res.trace.name, dict(res.damage))
+    first = -(res.tdc_deg % 360.0)  # tooth 0 precedes firing TDC by tdc_deg mod 360 (no cam: phase from pressure)
     info = AcquisitionInfo(
-        tick_hz=float(tick_hz),
+        tick_hz=float(res.edges.tick_hz),
         wheel_teeth=n_teeth,
         wheel_missing=n_missing,
         first_tooth_deg=first,
         cam_deg=None,
         pressure_cylinders=(1,),
     )
-    return info, _blocks(res, block_s, tick_hz)
+    return info, _blocks(res, block_s, res.edges.tick_hz)
 
 
 def _blocks(res: DaqResult, block_s: float, tick_hz: float) -> list[StreamRecord]:

@@ -143,11 +143,14 @@ DAQ_OPTS = ["--tdc-deg", "90", "--gain-bar-per-v", "10"]
 
 
 def test_import_daq_reads_the_wheel_from_the_file_and_says_it(tmp_path, capsys):
+    """The wheel is said first; the made-up bump is no compression, so every cycle is refused and, since issue 25,
+    that is exit code 2 with nothing written (it used to write a log of NaN pressure and exit 0)."""
     path = daq_file(tmp_path / "wheel60.txt.gz", teeth=60, missing=2)
-    assert main(["import-daq", str(path), "--engine", "deutz-1cyl", *DAQ_OPTS, "-o", str(tmp_path / "o.mcap")]) == 0
-    out = capsys.readouterr().out
-    assert "wheel 60-2, read from the file: 58 teeth and a 2-tooth gap per revolution" in out, out
-    assert (tmp_path / "o.mcap").stat().st_size > 0
+    assert main(["import-daq", str(path), "--engine", "deutz-1cyl", *DAQ_OPTS, "-o", str(tmp_path / "o.mcap")]) == 2
+    said = capsys.readouterr()
+    assert "wheel 60-2, read from the file: 58 teeth and a 2-tooth gap per revolution" in said.out, said.out
+    assert "every cycle was refused" in said.err and said.err.count("\n") == 1, said.err
+    assert not (tmp_path / "o.mcap").exists()
 
 
 def test_import_daq_refuses_an_engine_whose_wheel_is_not_the_files(tmp_path, capsys):
