@@ -51,6 +51,12 @@ def print_table(doc: dict) -> None:
               + ("uncalibrated, a typical installation's TDC ±0.5° (±0.2° per cylinder), pressure gain ±3 % per "
                  "channel and ±1 % common, J ±5 % assumed; `frictionwatch commission` measures them"
                  if fr["calibration"] == "uncalibrated" else "as commissioned"))
+    tdc = doc.get("tdc_from_pressure")
+    if tdc and tdc["wheel_offset_deg"] is not None:
+        print(f"  TDC from the pressure (newest 100 cycles): the wheel {tdc['wheel_offset_deg']:+.2f} ± "
+              f"{tdc['wheel_sigma_deg']:.2f}° from the model's (+ = the true TDC later)"
+              + (f"; flagged: {', '.join(tdc['flags'])} (`frictionwatch commission` measures TDC)" if tdc["flags"]
+                 else ""))
     rb = doc["friction_run_mean_balance"]
     if rb["status"] == "measured":
         print(f"  mean over the whole run of each cycle's torque balance: FMEP "

@@ -90,11 +90,27 @@ def summary(analysis: LogAnalysis) -> dict:
         "friction_run_mean_balance": run_mean_balance(analysis, cyc["friction"]["status"]),
         "active_flags": sorted(active),
         "sensor_health": cyc["sensor_health"],
+        "tdc_from_pressure": tdc_from_pressure(analysis),
         "last": {k: cyc[k] for k in LAST_CYCLE_KEYS},
         "flags": flag_summary([r.index for r in results], flags),
         "cylinders": [_cylinder_run(c, k, analysis) for k, c in enumerate(cyc["cylinders"])],
     })
     return doc
+
+
+def tdc_from_pressure(analysis: LogAnalysis) -> dict | None:
+    """The newest window of the TDC watch (core.monitor.calibration.tdc_watch): each cylinder's TDC found from its
+    pressure against the one the model states (after its corrections) [deg], the wheel's (their median), and the
+    flags it raised; None before a whole window (100 cycles)."""
+    watch = analysis.tdc_watch
+    if watch is None or watch.last is None:
+        return None
+    found = [e for e in watch.last if e is not None]
+    cyl = [None if e is None else {"offset_deg": e.offset_deg, "sigma_deg": e.sigma_deg, "method": e.method}
+           for e in watch.last]
+    return {"wheel_offset_deg": float(np.median([e.offset_deg for e in found])) if found else None,
+            "wheel_sigma_deg": float(np.median([e.sigma_deg for e in found])) if found else None,
+            "flags": list(watch.flags), "cylinders": cyl}
 
 
 def _cylinder_run(c: dict, k: int, analysis: LogAnalysis) -> dict:

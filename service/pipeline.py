@@ -8,7 +8,7 @@ from __future__ import annotations
 import logging
 from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +22,7 @@ from frictionwatch.core.discrepancy.view import (
 )
 from frictionwatch.core.model.engine import EngineSpec, spec_from_toml_text
 from frictionwatch.core.model.engine_model import EngineModel, as_model, load_model
+from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState, watch_cycle
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
 from frictionwatch.core.monitor.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
@@ -57,10 +58,19 @@ class EnginePipeline:
             self._make_view(None)
         self.monitor_skipped: Counter[str] = Counter()
         self.cycles_ok = 0
+        self.tdc_watch = TdcWatchState.empty()
 
     def _make_view(self, ref: Reference | None) -> None:
         self.view = monitor_view(self.model, ref, self.config)
         self.state = initial_state(self.view.model, self.view.config)
+
+    def cylinder_twist(self) -> np.ndarray:
+        """(z,) [rad] each throw's static twist ahead of the flywheel in the monitor's model of the newest cycle (its
+        harmonic balance's m = 0 term); zeros on a rigid shaft line or before the first cycle."""
+        st = self.state
+        if st is None or st.static is None or st.op is None or st.static.shape[0] != st.op.cylinders.n_nodes:
+            return np.zeros(self.spec.n_cyl)
+        return np.asarray(st.static[st.op.cylinders.node], dtype=np.float64)
 
     @property
     def skipped(self) -> Counter[str]:
@@ -89,6 +99,12 @@ class EnginePipeline:
             log.warning("cycle %d: %s", cycle.index, exc)
         else:
             self.cycles_ok += 1
+            # TDC from the pressure, window by window, against the model's calibration (a hidden or drifting TDC
+            # error is flagged and withholds the figures it touches: core.monitor.calibration.tdc_watch)
+            self.tdc_watch = watch_cycle(view.spec, self.model.calibration, self.tdc_watch, cycle,
+                                         self.cylinder_twist())
+            if self.tdc_watch.flags:
+                result = replace(result, flags=result.flags + self.tdc_watch.flags)
             return result
         if self.monitor_skipped[reason] == 0:
             log.warning("cycle %d skipped: %s", cycle.index, reason)
@@ -139,13 +155,17 @@ class ResultHistory:
 @dataclass
 class LogAnalysis:
     """``results``: the analysed cycles in order (older ones slim, see ``ResultHistory``); ``dropped``: analysed
-    cycles no longer held (a live session's bounded history), counted in ``cycles_ok``."""
+    cycles no longer held (a live session's bounded history), counted in ``cycles_ok``; ``tdc_watch``: the TDC
+    found from the pressure at the end (core.monitor.calibration.tdc_watch; its newest window's estimates);
+    ``cylinder_twist`` (z,) [rad] the throws' static twist ahead of the flywheel in the newest cycle's model."""
 
     spec: EngineSpec
     results: list[CycleResult]
     skipped: Counter[str]
     damage: Counter[str] = field(default_factory=Counter)
     dropped: int = 0
+    tdc_watch: TdcWatchState | None = None
+    cylinder_twist: np.ndarray | None = None
 
     @property
     def last(self) -> CycleResult | None:
@@ -226,7 +246,8 @@ def analyze_records(
         history.append(r)
         if on_result:
             on_result(r)
-    return LogAnalysis(pipe.spec, history.to_list(), pipe.skipped)
+    return LogAnalysis(pipe.spec, history.to_list(), pipe.skipped, tdc_watch=pipe.tdc_watch,
+                       cylinder_twist=pipe.cylinder_twist())
 
 
 BENCH_EXPORTS = {".mf4": "an MDF4 bus log", ".mdf": "an MDF4 bus log", ".csv": "a table",
