@@ -57,6 +57,11 @@ from frictionwatch.core.monitor.coastdown import (
 from frictionwatch.core.monitor.identification import mid_cycle_speed
 from frictionwatch.core.types import Cycle
 
+# J's relative 1-sigma assumed for a spec nobody has commissioned: what this commissioning step pins J to from plain
+# coast-downs on the TU/e 4GB10 (bench/inertia_from_coastdowns.py: 0.02077 +- 0.00124, 6.0 %; the records' J moves
+# by 9 % between 1300 and 2400 rpm). A datasheet or CAD inertia is not known better than that without a coast-down.
+INERTIA_UNCALIBRATED_REL = 0.06
+
 TWO_PI = 2.0 * np.pi
 FOUR_PI = 4.0 * np.pi
 
