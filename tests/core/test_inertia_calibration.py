@@ -12,14 +12,12 @@ import pytest
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.monitor.calibration.inertia import (
-    CycleGeometry,
     coastdown_record,
     commission_inertia,
-    fit_ripple_inertia,
     pool_random_effects,
-    ripple_rows,
     speed_trend,
 )
+from frictionwatch.core.monitor.calibration.ripple import CycleGeometry, fit_ripple_inertia, ripple_rows
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.commission_inertia import assembled_cycles
 from numpy.testing import assert_allclose

@@ -1,41 +1,32 @@
 """Engine + load inertia J and a friction-vs-speed law from coast-downs (ignition off, cylinder pressure measured,
 no load or a known one), pooled over several records: the commissioning step of issue 25.
 
-Two things in a coast-down carry J, and they are used separately, then combined:
+Two things in a coast-down carry J; they are used separately, then combined:
 
-1. **The speed ripple within each cycle against the known gas torque** (``ripple_rows``, ``fit_ripple_inertia``).
-   Over one cycle, with a friction (+ load) torque tau that is constant within the cycle,
+1. **The speed ripple within each cycle against the measured gas torque** (core.monitor.calibration.ripple). Each
+   tooth interval's kinetic energy E = omega^2 / 2 minus the same interval's one revolution earlier is regressed on
+   the gas-torque work between them (the reciprocating J_rec = m_rec x'^2 from the spec taken out), with one free
+   intercept per cycle. The intercept takes the cycle's mean deceleration and with it any friction or load level,
+   so J comes from the ripple alone, independent of any friction law; whatever repeats every revolution (tooth-
+   spacing error, a pressure offset) drops out of the difference. The speed noise sits in the regressand, so it
+   does not bias J low (regressing the work on the speed would: errors in variables).
 
-       J0 E(theta) + J_rec(theta) E(theta) = C + G(theta) - tau theta,     E = omega^2 / 2,  G = int T_gas dtheta
+2. **The mean deceleration** (core.monitor.coastdown, its one implementation) over the 720 deg from the middle of
+   one cycle to the middle of the next: J a = T_gas,mean - T_f(W). In a plain coast-down a(W) is a smooth function
+   of W, so J and c0 + c1 W are nearly collinear and this pins J weakly (TU/e ENGINEOFF2-6: 0.0076 +- 0.0050
+   against 0.0208 +- 0.0012 from the ripple: 6 % of the information). It enters J only when it resolves J (sigma
+   <= 10 %) and agrees with the ripple within 3 sigma; a torque step at one speed (ignition off) is what makes it
+   resolve J.
 
-   (physics.md §3: d/dtheta of J(theta) E is the torque; J_rec = m_rec x'^2 the reciprocating part, known from the
-   spec). Differencing each tooth interval with the same interval one revolution later, D(theta) = E(theta + 2 pi)
-   - E(theta) for theta in [0, 2 pi), removes everything that repeats every revolution: the tooth-spacing error (a
-   fixed angle error of each tooth), a constant pressure offset (its torque is first order), and leaves
-
-       D(theta) = u dG(theta) - 2 pi u tau,      u = 1 / J0,
-       dG(theta) = int_theta^{theta + 2 pi} T_gas - [J_rec E](theta + 2 pi) + [J_rec E](theta).
-
-   D is regressed on dG with one free intercept per cycle: the intercept takes the cycle's mean deceleration (and
-   with it any friction or load level), so J0 comes from the ripple alone, independent of any friction law. The
-   speed samples' noise sits in D (the regressand), not in the regressor, so it does not bias J low (regressing
-   dG on D would: errors in variables). Each tooth interval's E is that interval's mean speed squared; dG is averaged
-   over the same interval.
-
-2. **The mean deceleration** (core.monitor.coastdown, its one implementation): per cycle J a = T_gas,mean - T_f(W).
-   In a plain coast-down a(W) is a smooth function of W, so J and a + b W are nearly collinear: it pins J only
-   weakly (TU/e ENGINEOFF2-6: +-0.003 against +-0.0004 from the ripple).
-
-``commission_inertia`` takes J from the ripple of every record (one J per record, then pooled across records with
-a random effect: the records' spread, not only each fit's formula, sets sigma), combines it with the mean-balance J
-by inverse variance and says which dominates, and then fits the friction law with that J and its sigma carried.
-The friction law is pooled over the records (one a + b W): a single coast-down covers a few hundred rpm, too little
-for its own slope; the records' offsets from the pooled law scale its covariance (Birge ratio) when they exceed
-the fit's own scatter.
-
-Systematics carried in J's sigma: the friction ripple within the cycle (J re-fitted with the friction torque shaped
-like the model's loss terms instead of constant; the difference), and, when the caller states it, the pressure
-gain's relative sigma (the gas torque, hence J, scales with the gain). Arrays in, arrays out; SI units.
+``commission_inertia`` takes one ripple J per record and pools them with a random effect (DerSimonian-Laird). Its
+sigma counts in full, not over sqrt(records), the larger of the records' spread beyond their own sigmas and the
+change of the cycles' J with speed (a rigid engine's J does not depend on it; on the TU/e rig it moves 9 % between
+1300 and 2400 rpm), plus the friction-ripple systematic (J re-fitted with the friction shaped like the model's loss
+terms instead of constant) and, when the caller states it, the pressure gain's relative sigma (the gas torque, hence
+J, scales with the gain). The friction law is then fitted with J fixed and its sigma carried into the covariance,
+pooled over the records (one c0 + c1 W): a single coast-down covers a few hundred rpm, too little for a slope of its
+own; the records' offsets about the pooled law beyond their cycles' scatter are added to c0's variance (over the
+number of records). Arrays in, arrays out; SI units.
 """
 
 from __future__ import annotations
@@ -45,9 +36,16 @@ from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.model.engine_model import EngineModel
-from frictionwatch.core.model.kinematics import variable_inertia
 from frictionwatch.core.model.terms import cylinder_samples
 from frictionwatch.core.model.torques import gas_torque
+from frictionwatch.core.monitor.calibration.ripple import (
+    CycleGeometry,
+    RippleFit,
+    RippleRows,
+    fit_ripple_inertia,
+    order_inertia,
+    ripple_rows,
+)
 from frictionwatch.core.monitor.coastdown import (
     CoastdownFit,
     cycle_mean_deceleration,
@@ -63,80 +61,6 @@ from frictionwatch.core.types import Cycle
 INERTIA_UNCALIBRATED_REL = 0.06
 
 TWO_PI = 2.0 * np.pi
-FOUR_PI = 4.0 * np.pi
-
-
-@dataclass(frozen=True)
-class CycleGeometry:
-    """What the estimate needs of the engine: firing angles phases (z,) [rad], kinematics params [R, L, e] [m],
-    piston area [m^2], reciprocating mass per cylinder [kg]."""
-
-    phases: np.ndarray
-    params: np.ndarray
-    area: float
-    m_rec: float
-
-
-@dataclass(frozen=True)
-class RippleRows:
-    """One cycle's revolution-difference rows (module docstring): theta (m,) interval mid angles in [0, 2 pi)
-    [rad]; d_energy (m,) D = E(theta + 2 pi) - E(theta) [rad^2/s^2]; d_work (m,) dG [N m rad]; d_shape (m,) the same
-    difference of the integral of a friction shape of mean 1 [rad] (2 pi for a constant friction); omega the cycle's
-    mean speed [rad/s]."""
-
-    theta: np.ndarray
-    d_energy: np.ndarray
-    d_work: np.ndarray
-    d_shape: np.ndarray
-    omega: float
-
-
-def _interval_mean(grid: np.ndarray, values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Mean of the integral F(theta) = int_0^theta values over [lo, hi] (angles within [0, 4 pi]), values periodic on
-    the uniform ``grid`` over [0, 4 pi) (trapezoid)."""
-    h = grid[1] - grid[0]
-    g = np.append(grid, FOUR_PI)
-    v = np.append(values, values[0])
-    f = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * h)])
-    ff = np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) * h)])
-    return (np.interp(hi, g, ff) - np.interp(lo, g, ff)) / (hi - lo)
-
-
-def ripple_rows(tooth_angle: np.ndarray, tooth_time: np.ndarray, keep: np.ndarray, grid: np.ndarray,
-                torque: np.ndarray, friction_shape: np.ndarray, geometry: CycleGeometry) -> RippleRows:
-    """The revolution-difference rows of one cycle.
-
-    tooth_angle (m,) nominal edge angles [rad] (cylinder 1's firing TDC = 0, the cycle over [0, 4 pi]); tooth_time
-    (m,) edge times [s]; keep (m - 1,) bool: intervals to use (False: the gap, the distorted intervals next to it);
-    grid (n,) uniform over [0, 4 pi); torque (n,) total gas torque on it [N m]; friction_shape (n,) a friction torque
-    shape of mean 1 (ones: constant). Only intervals inside [0, 4 pi] whose partner one revolution later is kept too.
-    """
-    a = np.asarray(tooth_angle, dtype=np.float64)
-    t = np.asarray(tooth_time, dtype=np.float64)
-    k = np.asarray(keep, dtype=bool)
-    if a.ndim != 1 or a.shape != t.shape or k.shape != (a.shape[0] - 1,):
-        raise ValueError("tooth_angle and tooth_time need one value per edge, keep one per interval")
-    if np.any(np.diff(a) <= 0) or np.any(np.diff(t) <= 0):
-        raise ValueError("tooth_angle and tooth_time must increase")
-    lo, hi = a[:-1], a[1:]
-    mid = 0.5 * (lo + hi)
-    ok = k & (lo >= -1e-12) & (hi <= FOUR_PI + 1e-12)
-    first = np.flatnonzero(ok & (mid < TWO_PI))
-    later = np.minimum(np.searchsorted(mid, mid[first] + TWO_PI - 1e-9), mid.shape[0] - 1)
-    pair = (np.abs(mid[later] - mid[first] - TWO_PI) < 1e-6) & ok[later]
-    i, j = first[pair], later[pair]
-    omega = (hi - lo) / np.diff(t)
-    energy = 0.5 * omega * omega
-    j_rec, _ = variable_inertia(mid, geometry.phases, geometry.params, geometry.m_rec, 0.0)
-    lo_c, hi_c = np.clip(lo, 0.0, FOUR_PI), np.clip(hi, 0.0, FOUR_PI)
-    both = np.concatenate([i, j])
-    work = np.full(mid.shape, np.nan)
-    shape = np.full(mid.shape, np.nan)
-    work[both] = _interval_mean(grid, torque, lo_c[both], hi_c[both])
-    shape[both] = _interval_mean(grid, friction_shape, lo_c[both], hi_c[both])
-    rec = j_rec * energy
-    return RippleRows(theta=mid[i], d_energy=energy[j] - energy[i], d_work=work[j] - work[i] - (rec[j] - rec[i]),
-                      d_shape=shape[j] - shape[i], omega=float((a[-1] - a[0]) / (t[-1] - t[0])))
 
 
 def cycle_torque(grid: np.ndarray, pressure: np.ndarray, geometry: CycleGeometry, p_cc: float = 1.0e5) -> np.ndarray:
@@ -168,75 +92,6 @@ def window_balance(mid_times: tuple[float, float], mid_speeds: tuple[float, floa
     omega = float(cycle_mean_speed(np.array([mid_times[0]]), np.array([mid_times[1]]))[0])
     decel = float(cycle_mean_deceleration(np.array(mid_speeds[0]), np.array(mid_speeds[1])))
     return CycleBalance(omega=omega, decel=decel, gas_mean=gas)
-
-
-@dataclass(frozen=True)
-class RippleFit:
-    """J from the ripple of some cycles: inertia, inertia_std [kg m^2] (least-squares, scaled by the residual);
-    per_cycle (c,) each cycle's own J [kg m^2]; resisting (c,) each cycle's friction + load level tau [N m] from its
-    intercept at the pooled J; residual_rms [rad^2/s^2]."""
-
-    inertia: float
-    inertia_std: float
-    per_cycle: np.ndarray
-    resisting: np.ndarray
-    residual_rms: float
-
-
-def fit_ripple_inertia(rows: Sequence[RippleRows], shaped: bool = False) -> RippleFit:
-    """D = u dG + s_c d_c per cycle c (module docstring), u shared, s_c free; d_c = 1 (constant friction: the
-    intercept) or the cycle's ``d_shape`` (``shaped``). J = 1 / u, its sigma by the delta rule."""
-    if not rows:
-        raise ValueError("no cycles to fit")
-    y = np.concatenate([r.d_energy for r in rows])
-    if y.shape[0] < len(rows) + 4:
-        raise ValueError(f"{y.shape[0]} ripple samples cannot fit {len(rows)} cycles")
-    x = np.zeros((y.shape[0], 1 + len(rows)))
-    x[:, 0] = np.concatenate([r.d_work for r in rows])
-    start = 0
-    for c, r in enumerate(rows):
-        n = r.d_energy.shape[0]
-        x[start:start + n, 1 + c] = r.d_shape if shaped else 1.0
-        start += n
-    sol, *_ = np.linalg.lstsq(x, y, rcond=None)
-    res = y - x @ sol
-    dof = x.shape[0] - x.shape[1]
-    cov = float(res @ res) / dof * np.linalg.inv(x.T @ x)
-    u = float(sol[0])
-    per_cycle = np.empty(len(rows))
-    for c, r in enumerate(rows):
-        xc = np.column_stack([r.d_work, r.d_shape if shaped else np.ones_like(r.d_work)])
-        per_cycle[c] = 1.0 / np.linalg.lstsq(xc, r.d_energy, rcond=None)[0][0]
-    # intercept s = -u tau (2 pi: D per revolution; the shape's difference is 2 pi mean times tau)
-    tau = -sol[1:] / u / (1.0 if shaped else TWO_PI)
-    return RippleFit(inertia=1.0 / u, inertia_std=float(np.sqrt(cov[0, 0])) / u**2, per_cycle=per_cycle,
-                     resisting=tau, residual_rms=float(np.sqrt(np.mean(res * res))))
-
-
-HALF_ORDERS = np.arange(0.5, 7.0, 1.0)  # the revolution difference holds half orders only; fitted up to 6.5
-
-
-def order_inertia(rows: Sequence[RippleRows], orders: np.ndarray = HALF_ORDERS) -> tuple[np.ndarray, np.ndarray]:
-    """J read from each half order alone: (J_n (k,) [kg m^2], weight_n (k,) = sum |dG_n|^2 [(N m rad)^2]).
-
-    D and dG of every cycle are decomposed on a constant and the half orders (least squares over [0, 2 pi));
-    1 / J_n = Re(sum conj(dG_n) D_n) / sum |dG_n|^2 over the cycles. A rigid shaft line seen by a rigidly mounted
-    sensor gives one J at every order (the friction level sits in the constant); a compliant coupling, a rocking
-    block or a sensor's own dynamics make J_n depend on the frequency n omega / 2 pi."""
-    o = np.asarray(orders, dtype=np.float64)
-    num = np.zeros(o.shape[0], dtype=np.complex128)
-    den = np.zeros(o.shape[0])
-    for r in rows:
-        basis = [np.ones_like(r.theta)]
-        for n in o:
-            basis += [np.cos(n * r.theta), np.sin(n * r.theta)]
-        x = np.column_stack(basis)
-        sol = np.linalg.lstsq(x, np.column_stack([r.d_energy, r.d_work]), rcond=None)[0]
-        d_n = sol[1::2, 0] - 1j * sol[2::2, 0]
-        g_n = sol[1::2, 1] - 1j * sol[2::2, 1]
-        num += np.conj(g_n) * d_n
-        den += np.abs(g_n) ** 2
-    return den / num.real, den
 
 
 def pool_random_effects(values: np.ndarray, stds: np.ndarray) -> tuple[float, float, float]:
