@@ -54,7 +54,7 @@ def _print_pool(title: str, cal: InertiaCalibration) -> None:
           f"{cal.order_systematic:.5f} not in σ)")
     mb = cal.mean_balance
     if mb is not None:
-        print(f"mean balance (J free, friction c0 + c1 W): J {mb.inertia:.5f} ± {mb.inertia_std:.5f}, "
+        print(f"mean balance (J free, friction c0 + c1 W): J {mb.inertia:.5f} ± {cal.mean_std:.5f}, "
               f"{100 * cal.mean_weight:.0f} % of the information, {'used' if cal.mean_used else 'not used'}")
     print(f"J = {cal.inertia:.5f} ± {cal.inertia_std:.5f} kg m² (gain systematic {cal.gain_systematic:.5f})")
     print(f"friction = {_law(cal)}; records' spread about it {cal.friction_between_std:.3f} N m; offsets "
@@ -74,6 +74,10 @@ def real(folder: Path, gain_rel_std: float) -> None:
     print(f"TU/e 4GB10, TDC {TUE_TDC_DEG} deg, gain {TUE_GAIN_PA_PER_V / 1e5} bar/V; preset J "
           f"{model.spec.total_inertia} kg m²")
     _print_pool("ENGINEOFF2-6 pooled", commission_inertia([records[n] for n in POOL], gain_rel_std=gain_rel_std))
+    stepped = coastdown_record("group14_E0FULLOAD4EngineOff", cycles["group14_E0FULLOAD4EngineOff"], model,
+                               motored_only=False, load_group=0)
+    _print_pool("ENGINEOFF2-6 + E0FULLOAD4EngineOff (ignition-off torque step, generator on: its own d0 + d1 W)",
+                commission_inertia([records[n] for n in POOL] + [stepped], gain_rel_std=gain_rel_std))
     one = records["group14_ENGINEOFF"]
     p = record_inertia(one)
     print(f"\nENGINEOFF (1): {len(cycles['group14_ENGINEOFF'])} cycles, {len(one.rows)} motored, "

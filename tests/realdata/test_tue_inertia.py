@@ -116,3 +116,18 @@ def test_engineoff_one_is_left_out_and_why(cycles, pooled):
         commission_inertia([rec])
     alone = commission_inertia([rec, *[coastdown_record(n, cycles[n], MODEL) for n in POOL[1:2]]]).records[0]
     assert abs(alone.inertia - pooled.inertia) <= 2.0 * pooled.inertia_std
+
+
+def test_a_torque_step_record_adds_the_mean_balance(records, cycles, pooled):
+    # E0FULLOAD4EngineOff as a commissioning record: its ignition-off step resolves J in the mean balance (its
+    # generator load its own d0 + d1 W; sigma with the 10 % friction-step allowance of core.monitor.transient).
+    # measured: mean balance 0.02057 +- 0.00162 (36 % of the information), J 0.02064 +- 0.00097
+    stepped = coastdown_record("E0FULLOAD4EngineOff", cycles["group14_E0FULLOAD4EngineOff"], MODEL,
+                               motored_only=False, load_group=0)
+    cal = commission_inertia([*records, stepped])
+    assert cal.mean_used and 0.2 < cal.mean_weight < 0.6
+    assert cal.mean_std < 0.1 * cal.mean_balance.inertia
+    assert abs(cal.inertia / J_REF - 1.0) < 0.05 and abs(cal.inertia - J_REF) <= 2.0 * cal.inertia_std
+    assert cal.inertia_std < pooled.inertia_std
+    assert np.isnan(cal.record_offsets[-1])  # a loaded record is not in the friction law's spread
+    assert abs(cal.friction_between_std - pooled.friction_between_std) < 0.01

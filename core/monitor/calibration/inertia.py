@@ -53,6 +53,7 @@ from frictionwatch.core.monitor.coastdown import (
     fit_inertia_friction,
 )
 from frictionwatch.core.monitor.identification import mid_cycle_speed
+from frictionwatch.core.monitor.transient import FRICTION_STEP
 from frictionwatch.core.types import Cycle
 
 # J's relative 1-sigma assumed for a spec nobody has commissioned: what this commissioning step pins J to from plain
@@ -126,12 +127,15 @@ def speed_trend(inertia: np.ndarray, omega: np.ndarray) -> float:
 @dataclass(frozen=True)
 class CoastdownRecord:
     """One coast-down record: rows one cycle's ripple rows each (constant friction), shaped_rows the same with the
-    model's friction shape (the systematic check); balance one CycleBalance per two consecutive usable cycles."""
+    model's friction shape (the systematic check); balance one CycleBalance per two consecutive usable cycles;
+    load_group: -1 no load (friction only), g >= 0 a load that stayed on (its own d0 + d1 W in the mean balance,
+    records of one g share it; the record is left out of the friction law's spread)."""
 
     name: str
     rows: tuple[RippleRows, ...]
     shaped_rows: tuple[RippleRows, ...]
     balance: tuple[CycleBalance, ...]
+    load_group: int = -1
 
 
 @dataclass(frozen=True)
@@ -160,7 +164,7 @@ class InertiaCalibration:
     their speed (``speed_trend``), ripple_std its sigma with the larger of those two and the shape systematic;
     order_systematic: the weighted spread of J read from each half order of each record (a diagnostic); shape_systematic [kg m^2]: constant vs shaped
     friction; gain_systematic [kg m^2]: J times the stated relative gain sigma; mean_balance: the mean-balance fit
-    with J free (None: too few cycles), mean_weight: its share of the information on J (0..1), mean_used: whether it
+    with J free (None: too few cycles), mean_std its J sigma with the friction-step allowance, mean_weight: its share of the information on J (0..1), mean_used: whether it
     entered J (resolved and consistent with the ripple within 3 sigma); friction: c0 + c1 W (+ c2 W^2) pooled over
     the records with J's sigma carried (CoastdownFit, J fixed); friction_between_std [N m]: the records' spread about
     it beyond the cycles' scatter (added to c0's variance over the number of records); record_offsets [N m]: each
@@ -177,6 +181,7 @@ class InertiaCalibration:
     shape_systematic: float
     gain_systematic: float
     mean_balance: CoastdownFit | None
+    mean_std: float
     mean_weight: float
     mean_used: bool
     friction: CoastdownFit
@@ -232,29 +237,31 @@ def commission_inertia(records: Sequence[CoastdownRecord], n_friction: int = 2, 
     a = np.array([b.decel for b in bal])
     w = np.array([b.omega for b in bal])
     y = np.array([b.gas_mean for b in bal])
+    grp = np.concatenate([np.full(len(r.balance), r.load_group, dtype=np.int64) for r in records])
     if not np.all(np.isfinite(a) & np.isfinite(w) & np.isfinite(y)):
         raise ValueError("a cycle's mean balance is not finite; leave that cycle out of its record")
-    n_fr = n_friction if (w.max() - w.min()) >= min_span * w.mean() else 1
-    mean_fit = fit_inertia_friction(a, w, y, n_friction=n_fr) if a.shape[0] > n_fr + 2 else None
+    free = grp < 0
+    n_fr = n_friction if np.any(free) and np.ptp(w[free]) >= min_span * w[free].mean() else 1
+    mean_fit, mean_std = _mean_balance(a, w, y, grp, n_fr)
     mean_weight, mean_used, j, s = 0.0, False, j_r, s_ripple
-    if mean_fit is not None and np.isfinite(mean_fit.inertia_std) and mean_fit.inertia_std > 0:
-        wm, wr = 1.0 / mean_fit.inertia_std**2, 1.0 / s_ripple**2
+    if mean_fit is not None and np.isfinite(mean_std) and mean_std > 0:
+        wm, wr = 1.0 / mean_std**2, 1.0 / s_ripple**2
         mean_weight = wm / (wm + wr)
-        consistent = abs(mean_fit.inertia - j_r) <= 3.0 * np.hypot(mean_fit.inertia_std, s_ripple)
-        mean_used = bool(consistent and mean_fit.inertia_std <= resolve_rel * abs(mean_fit.inertia))
+        consistent = abs(mean_fit.inertia - j_r) <= 3.0 * np.hypot(mean_std, s_ripple)
+        mean_used = bool(consistent and mean_std <= resolve_rel * abs(mean_fit.inertia))
         if mean_used:
             j = (wm * mean_fit.inertia + wr * j_r) / (wm + wr)
             s = float(1.0 / np.sqrt(wm + wr))
     s_total = float(np.hypot(s, gain_sys))
-    friction = fit_inertia_friction(a, w, y, n_friction=n_fr, inertia=j, inertia_std=s_total)
-    # the records' offsets about the pooled law beyond what their cycles' scatter explains
+    friction = fit_inertia_friction(a, w, y, grp, n_friction=n_fr, inertia=j, inertia_std=s_total)
+    # the unloaded records' offsets about the pooled law beyond what their cycles' scatter explains
     resid = y - j * a - friction.friction_torque(w)
     sizes = np.array([len(r.balance) for r in records])
     bounds = np.concatenate([[0], np.cumsum(sizes)])
-    offsets = np.array([resid[bounds[k]:bounds[k + 1]].mean() if sizes[k] else np.nan for k in range(len(records))])
-    dof = max(resid.shape[0] - (n_fr + (1 if mean_used else 0)), 1)
-    s2 = float(resid @ resid) / dof
-    have = sizes > 0
+    have = np.array([r.load_group < 0 and len(r.balance) > 0 for r in records])
+    offsets = np.array([resid[bounds[k]:bounds[k + 1]].mean() if have[k] else np.nan for k in range(len(records))])
+    dof = max(int(np.count_nonzero(free)) - (n_fr + (1 if mean_used else 0)), 1)
+    s2 = float(resid[free] @ resid[free]) / dof
     f_between = float(np.sqrt(max(0.0, np.var(offsets[have], ddof=1) - s2 * np.mean(1.0 / sizes[have])))) \
         if np.count_nonzero(have) >= 2 else 0.0
     if f_between > 0:
@@ -263,12 +270,32 @@ def commission_inertia(records: Sequence[CoastdownRecord], n_friction: int = 2, 
         friction = CoastdownFit(friction.inertia, friction.inertia_std, friction.friction_coeffs,
                                 friction.load_coeffs, cov, friction.residual_rms, friction.n_cycles)
     return InertiaCalibration(inertia=float(j), inertia_std=s_total, records=per, ripple_inertia=j_r,
+                              mean_std=mean_std,
                               ripple_std=s_ripple, between_std=between, speed_systematic=trend,
                               order_systematic=order_sys,
                               shape_systematic=shape_sys,
                               gain_systematic=gain_sys, mean_balance=mean_fit, mean_weight=float(mean_weight),
                               mean_used=mean_used, friction=friction, friction_between_std=f_between,
                               record_offsets=offsets)
+
+
+def _mean_balance(a: np.ndarray, w: np.ndarray, y: np.ndarray, grp: np.ndarray,
+                  n_fr: int) -> tuple[CoastdownFit | None, float]:
+    """The mean balance with J free (core.monitor.coastdown) and J's sigma with an allowance for a friction step: a
+    loaded record's torque step (ignition off) also steps its friction (the cylinder pressure loads rings and
+    bearings), which its smooth d0 + d1 W cannot follow and J absorbs: FRICTION_STEP of its resisting torque over the
+    span of its dw/dt, as core.monitor.transient allows. (None, inf) with too few rows."""
+    n_par = 1 + n_fr + 2 * np.unique(grp[grp >= 0]).shape[0]
+    if a.shape[0] < n_par + 2:
+        return None, float("inf")
+    fit = fit_inertia_friction(a, w, y, grp, n_friction=n_fr)
+    std = fit.inertia_std
+    for g in np.unique(grp[grp >= 0]):
+        sel = grp == g
+        span = float(np.ptp(a[sel]))
+        level = float(np.mean(np.abs(y[sel] - fit.inertia * a[sel])))
+        std = float(np.hypot(std, FRICTION_STEP * level / span)) if span > 0 else float("inf")
+    return fit, std
 
 
 def geometry_of(model: EngineModel) -> CycleGeometry:
@@ -302,15 +329,18 @@ def interval_mask(tooth_angle: np.ndarray, tooth_index: np.ndarray) -> np.ndarra
 
 
 def coastdown_record(name: str, cycles: Sequence[Cycle], model: EngineModel, motored_only: bool = True,
-                     min_rows: int = 40) -> CoastdownRecord | None:
-    """One record's ripple rows (one per usable cycle) and mean balances (one per two consecutive usable cycles)
-    from its assembled cycles (core.types.Cycle, pressure of every instrumented cylinder on the cycle grid). Cycles
-    with a NaN pressure sample of an instrumented cylinder, fewer than ``min_rows`` paired intervals, or
-    (``motored_only``) a positive mean gas torque (fired) are left out; None when none is left."""
+                     min_rows: int = 40, load_group: int = -1) -> CoastdownRecord | None:
+    """One record's ripple rows (one per usable motored cycle) and mean balances (one per two consecutive usable
+    cycles) from its assembled cycles (core.types.Cycle, pressure of every instrumented cylinder on the cycle grid).
+
+    A cycle with a NaN pressure sample of an instrumented cylinder or fewer than ``min_rows`` paired intervals is
+    left out. A fired cycle (positive mean gas torque) never gives ripple rows (its friction ripple is large and not
+    modelled) and enters the mean balances only when ``motored_only`` is False (a torque step: ignition off).
+    load_group: ``CoastdownRecord.load_group``. None when no ripple row is left."""
     geo = geometry_of(model)
     spec = model.spec
     rows, shaped, bal = [], [], []
-    prev = None  # (index, mid time, mid speed, torque) of the last usable cycle
+    prev = None  # (index, mid time, mid speed, torque) of the last cycle in the balance
     for c in cycles:
         p = np.asarray(c.pressure, dtype=np.float64)
         have = np.any(np.isfinite(p), axis=1)
@@ -319,20 +349,21 @@ def coastdown_record(name: str, cycles: Sequence[Cycle], model: EngineModel, mot
         p = np.where(have[:, None], p, 1.0e5)  # an uninstrumented cylinder's gas torque is not knowable: none
         t = c.tooth_ticks.astype(np.float64) / c.tick_hz
         torque = cycle_torque(c.grid, p, geo)
-        if motored_only and float(np.mean(torque)) > 0:
+        fired = float(np.mean(torque)) > 0
+        if fired and motored_only:
             continue
         keep = interval_mask(c.tooth_angle, c.tooth_index)
         r = ripple_rows(c.tooth_angle, t, keep, c.grid, torque, np.ones_like(torque), geo)
         if r.d_energy.shape[0] < min_rows:
             continue
-        omega = 4.0 * np.pi / (t[-1] - t[0])
-        rows.append(r)
-        shaped.append(ripple_rows(c.tooth_angle, t, keep, c.grid, torque,
-                                  friction_shape(model, c.grid, p, omega), geo))
+        if not fired:
+            rows.append(r)
+            shaped.append(ripple_rows(c.tooth_angle, t, keep, c.grid, torque,
+                                      friction_shape(model, c.grid, p, r.omega), geo))
         mid = (float(np.interp(TWO_PI, c.tooth_angle, t)), mid_cycle_speed(spec, c), torque)
         if prev is not None and prev[0] == c.index - 1 and np.isfinite(prev[2]) and np.isfinite(mid[1]):
             bal.append(window_balance((prev[1], mid[0]), (prev[2], mid[1]), prev[3], torque))
         prev = (c.index, *mid)
     if not rows:
         return None
-    return CoastdownRecord(name, tuple(rows), tuple(shaped), tuple(bal))
+    return CoastdownRecord(name, tuple(rows), tuple(shaped), tuple(bal), int(load_group))
