@@ -87,24 +87,28 @@ def real(folder: Path, gain_rel_std: float) -> None:
     print(f"E5FULLOAD4EngineOff (generator on, ignition off): ripple J {p.inertia:.5f} ± {p.inertia_std:.5f} "
           f"({len(e5.rows)} cycles; its resisting torque is friction + generator load)")
     step = coastdown_record("E0FULLOAD4EngineOff", cycles["group14_E0FULLOAD4EngineOff"], model, motored_only=False)
-    a, w, y = (np.array([getattr(b, k) for b in step.balance]) for k in ("decel", "omega", "gas_mean"))
+    a = np.array([b.acceleration(model.spec.total_inertia) for b in step.balance])
+    w, y = (np.array([getattr(b, k) for b in step.balance]) for k in ("omega", "gas_mean"))
     fit = fit_inertia_friction(a, w, y)
     print(f"E0FULLOAD4EngineOff torque step (mean balance, {a.shape[0]} rows, friction + load c0 + c1 W): "
           f"J {fit.inertia:.5f} ± {fit.inertia_std:.5f}")
 
 
 def simulated() -> None:
-    spec = load_engine("tue-4gb10")
-    print("\nsimulated tue-4gb10, 3000 rpm, load 0.6, 24 cycles, coast_down:time_s=0.4; the estimate never sees the "
-          "plant's J")
-    print(f"{'plant J':>8s} {'seed':>4s} {'J':>8s} {'1σ':>8s} {'error':>7s} {'error/σ':>7s}  friction law")
-    for scale, seed in ((1.0, 3), (1.12, 3), (0.9, 4), (1.25, 5)):
+    print("\nsimulated, load 0.6, coast_down (tue-4gb10 3000 rpm 24 cycles cut at 0.4 s, deutz-1cyl 2400 rpm 30 cycles "
+          "cut at 0.3 s); the estimate never sees the plant's J")
+    print(f"{'engine':>10s} {'plant J':>8s} {'seed':>4s} {'J':>8s} {'1σ':>8s} {'error':>7s} {'error/σ':>7s}  "
+          "friction law")
+    for engine, scale, seed in (("tue-4gb10", 1.0, 3), ("tue-4gb10", 1.12, 3), ("tue-4gb10", 0.9, 4),
+                                ("tue-4gb10", 1.25, 5), ("deutz-1cyl", 1.1, 3)):
+        spec = load_engine(engine)
+        rpm, cycles_n, cut = (3000.0, 24, 0.4) if engine == "tue-4gb10" else (2400.0, 30, 0.3)
         plant = dataclasses.replace(spec, node_inertia=spec.node_inertia * scale)
-        sim = simulate(plant, 3000.0, load=0.6, cycles=24, seed=seed, effects={"coast_down": {"time_s": 0.4}})
+        sim = simulate(plant, rpm, load=0.6, cycles=cycles_n, seed=seed, effects={"coast_down": {"time_s": cut}})
         cycles, _ = assembled_cycles(spec, sim.info, sim.records)
         cal = commission_inertia([coastdown_record("sim", cycles, EngineModel.from_spec(spec))])
         j = plant.total_inertia
-        print(f"{j:8.5f} {seed:4d} {cal.inertia:8.5f} {cal.inertia_std:8.5f} {100 * (cal.inertia / j - 1):+6.2f}% "
+        print(f"{engine:>10s} {j:8.5f} {seed:4d} {cal.inertia:8.5f} {cal.inertia_std:8.5f} {100 * (cal.inertia / j - 1):+6.2f}% "
               f"{(cal.inertia - j) / cal.inertia_std:+7.2f}  {_law(cal)}")
 
 
