@@ -166,19 +166,20 @@ class RecordInertia:
 
 @dataclass(frozen=True)
 class InertiaCalibration:
-    """J and the friction law from coast-downs (module docstring).
+    """J and the friction law from coast-downs (module docstring). All sigmas 1-sigma, [kg m^2] unless stated.
 
-    inertia, inertia_std [kg m^2]: the value used and its 1-sigma, all parts below in quadrature;
-    records: each record's ripple J; ripple_inertia: the ripple J pooled over the records (random effect),
-    between_std the records' spread beyond their own sigmas, speed_systematic the change of the cycles' J with
-    their speed (``speed_trend``), ripple_std its sigma with the larger of those two and the shape systematic;
-    order_systematic: the weighted spread of J read from each half order of each record (a diagnostic); shape_systematic [kg m^2]: constant vs shaped
-    friction; gain_systematic [kg m^2]: J times the stated relative gain sigma; mean_balance: the mean-balance fit
-    with J free (None: too few cycles), mean_std its J sigma with the friction-step allowance, mean_weight: its share of the information on J (0..1), mean_used: whether it
-    entered J (resolved and consistent with the ripple within 3 sigma); friction: c0 + c1 W (+ c2 W^2) pooled over
-    the records with J's sigma carried (CoastdownFit, J fixed); friction_between_std [N m]: the records' spread about
-    it beyond the cycles' scatter (added to c0's variance over the number of records); record_offsets [N m]: each
-    record's mean resisting torque minus the law at its speeds."""
+    inertia, inertia_std: the value used and its sigma (the parts below in quadrature); records: each record's
+    ripple J; ripple_inertia: those pooled (random effect); between_std: the records' spread beyond their own
+    sigmas; speed_systematic: the change of the cycles' J with their speed (``speed_trend``); ripple_std: the pooled
+    ripple J's sigma with the larger of those two and shape_systematic (constant vs shaped friction) in full;
+    order_systematic: the weighted spread of J read from each half order of each record (a diagnostic, not in
+    sigma); gain_systematic: J times the stated relative gain sigma; mean_balance: the mean-balance fit with J free
+    (None: too few rows), mean_std: its J sigma with the friction-step allowance, mean_weight: its share of the
+    information on J (0..1), mean_used: whether it entered J (sigma <= 10 % and within 3 sigma of the ripple's);
+    friction: c0 + c1 W (+ c2 W^2) pooled over the records with J fixed and its sigma carried (CoastdownFit);
+    friction_between_std [N m]: the unloaded records' spread about it beyond their cycles' scatter (added to c0's
+    variance over the number of records); record_offsets [N m]: each unloaded record's mean resisting torque minus
+    the law at its speeds (NaN for a loaded record)."""
 
     inertia: float
     inertia_std: float
