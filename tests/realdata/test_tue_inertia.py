@@ -107,9 +107,10 @@ def test_torque_step_of_another_file_agrees(pooled, cycles):
 
 
 def test_engineoff_one_is_left_out_and_why(cycles, pooled):
-    # ENGINEOFF (1241 -> 999 rpm): 3 cycles, the third with positive gas work (+1.3 N m mean: a late burn or a
-    # mis-pegged cycle), so 2 motored cycles and 1 mean-balance row: too little for a friction law of its own; its
-    # ripple J (measured 0.0210) agrees with the pool's
+    # ENGINEOFF (1241 -> 999 rpm): 3 cycles; the third has positive gas work (+1.33 N m, IMEP +0.86 bar) with the
+    # same 13.8 bar peak but 0.28 bar at intake BDC (0.96-1.00 in the other two): its pressure after compression is
+    # off (the record's last cycle), not a burn. So 2 motored cycles and 1 mean-balance row: too little for a
+    # friction law of its own; its ripple J (measured 0.02100 +- 0.00019) agrees with the pool's
     rec = coastdown_record("ENGINEOFF", cycles["group14_ENGINEOFF"], MODEL)
     assert len(cycles["group14_ENGINEOFF"]) == 3 and len(rec.rows) == 2 and len(rec.balance) == 1
     with pytest.raises(ValueError, match="too few"):
