@@ -4,6 +4,7 @@ on friction figures the monitor withheld. Wiring and units only; the numbers com
 from __future__ import annotations
 
 import numpy as np
+from frictionwatch.core.monitor.calibration.inertia import INERTIA_UNCALIBRATED_REL
 from frictionwatch.core.monitor.identification import LOAD_STEP_FRACTION, mid_cycle_inertia
 from frictionwatch.core.monitor.transient import transient_friction
 from frictionwatch.service.pipeline import LogAnalysis
@@ -26,7 +27,8 @@ def transient_section(analysis: LogAnalysis) -> dict | None:
     j_spec = mid_cycle_inertia(spec)
     tf = transient_friction(np.array([r.index for r in res]), col("omega_mean"), col("acceleration"),
                             col("indicated_window"), col("load_torque"), col("coupling_loss"),
-                            j_spec, LOAD_STEP_FRACTION * spec.rated_torque_nm)
+                            j_spec, LOAD_STEP_FRACTION * spec.rated_torque_nm,
+                            inertia_prior_std=INERTIA_UNCALIBRATED_REL * j_spec)
     if tf is None:
         return None
     lo, hi = float(tf.speed.min()), float(tf.speed.max())
@@ -42,9 +44,11 @@ def transient_section(analysis: LogAnalysis) -> dict | None:
         "cycles": int(tf.speed.shape[0]),
         "rows": "motored cycles" if tf.motored else "all consecutive cycles",
         "inertia_kgm2": tf.inertia,
-        "inertia_sigma_kgm2": tf.inertia_std if tf.inertia_identified else None,
+        # the spec's J is uncalibrated: its assumed sigma is in every friction sigma below (friction = T_i - J a)
+        "inertia_sigma_kgm2": tf.inertia_std,
         "inertia_source": "identified (torque step)" if tf.inertia_identified else "engine spec (not resolved by the "
-                          "run: no torque step at one speed)",
+                          f"run: no torque step at one speed; uncalibrated, ±{100 * INERTIA_UNCALIBRATED_REL:.0f} % "
+                          "assumed)",
         "inertia_spec_kgm2": j_spec,
         "inertia_mismatch": bool(tf.inertia_identified and abs(tf.inertia - j_spec) > 2.0 * tf.inertia_std),
         "friction_label": label,
@@ -69,10 +73,8 @@ def print_lines(doc: dict) -> None:
     t = doc.get("transient")
     if not t:
         return
-    j_sig = t["inertia_sigma_kgm2"]
     print(f"speed transient ({t['cycles']} {t['rows']}, {t['speed_range_rpm'][0]:.0f}-{t['speed_range_rpm'][1]:.0f}"
-          f" rpm): J = {t['inertia_kgm2']:.4f}" + (f" ± {j_sig:.4f}" if j_sig is not None else "")
-          + f" kg m², {t['inertia_source']}")
+          f" rpm): J = {t['inertia_kgm2']:.4f} ± {t['inertia_sigma_kgm2']:.4f} kg m², {t['inertia_source']}")
     if t["inertia_mismatch"]:
         print(f"  the engine spec's J = {t['inertia_spec_kgm2']:.4f} kg m² is off the identified one: the monitor's "
               "per-cycle balance in this run is biased by the difference times dw/dt")

@@ -28,7 +28,7 @@ FRICTION_STEP = 0.1  # assumed 1-sigma change of the friction across a torque st
 @dataclass(frozen=True)
 class TransientFriction:
     """inertia, inertia_std [kg m^2]: J from the rows (inertia_identified; sigma with the friction-step allowance) or
-    the prior given (sigma 0: not from these data); fit: c0 + c1 W with J fixed at ``inertia``, its covariance
+    the prior given with its stated sigma (not from these data); fit: c0 + c1 W with J fixed at ``inertia``, its covariance
     carrying J's sigma; speed (c,) [rad/s], acceleration (c,) [rad/s^2], resisting (c,) [N m] (indicated - measured
     load - coupling loss) of the rows the friction was fitted to: the motored ones when the run has motored and fired
     rows (fired friction is higher: the cylinder pressure loads rings and bearings), else all; motored: those rows
@@ -52,7 +52,8 @@ class TransientFriction:
 
 def transient_friction(index: np.ndarray, omega: np.ndarray, acceleration: np.ndarray, indicated: np.ndarray,
                        load: np.ndarray, coupling: np.ndarray, inertia_prior: float, load_step_nm: float,
-                       min_span: float = 0.03, resolve_rel: float = 0.1) -> TransientFriction | None:
+                       min_span: float = 0.03, resolve_rel: float = 0.1,
+                       inertia_prior_std: float = 0.0) -> TransientFriction | None:
     """The fit of one run's consecutive cycles, or None when the run is not a transient (its window speeds span less
     than ``min_span`` of their mean) or has too few rows (fewer than 3; J is fitted from 5 rows on, friction is
     c0 + c1 W from 4 rows on and a constant from 3).
@@ -61,7 +62,9 @@ def transient_friction(index: np.ndarray, omega: np.ndarray, acceleration: np.nd
     dw/dt [rad/s^2] and indicated torque [N m] (NaN without the cycle before); load (c,) measured load [N m] (NaN:
     none); coupling (c,) modelled coupling loss [N m]; inertia_prior: J [kg m^2] at theta = 2 pi from the spec;
     load_step_nm: a row whose load differs from the cycle before by more is dropped (the window's load is unknown);
-    resolve_rel: J is taken from the rows when its sigma is at most this fraction of it.
+    resolve_rel: J is taken from the rows when its sigma is at most this fraction of it; inertia_prior_std: the
+    prior J's 1-sigma [kg m^2] (a commissioned J's, or an uncalibrated spec's assumed one), carried into the
+    friction's covariance when J is not taken from the rows (friction = T_i - J a: sigma_J |a| goes straight in).
     """
     idx = np.asarray(index, dtype=np.int64)
     arrays = [np.asarray(x, dtype=np.float64) for x in (omega, acceleration, indicated, load, coupling)]
@@ -98,7 +101,7 @@ def transient_friction(index: np.ndarray, omega: np.ndarray, acceleration: np.nd
         level = float(np.mean(np.abs(free.friction_torque(w))))
         j_std = float(np.hypot(free.inertia_std, FRICTION_STEP * level / span_a)) if span_a > 0 else np.inf
         identified = bool(free.inertia > 0 and np.isfinite(j_std) and j_std <= resolve_rel * free.inertia)
-    j, j_std = (free.inertia, j_std) if identified else (float(inertia_prior), 0.0)
+    j, j_std = (free.inertia, j_std) if identified else (float(inertia_prior), float(inertia_prior_std))
     motored = t_i[rows] <= 0.0
     use = motored if 3 <= np.count_nonzero(motored) < motored.shape[0] else np.ones_like(motored)
     # c0 + c1 W from 4 rows on (2 degrees of freedom), a constant from 3

@@ -97,9 +97,13 @@ def test_no_load_coast_downs_give_friction_against_speed(runs, name):
     # J: no torque step in a plain coast-down, so it is the spec's (0.0206, itself from these files)
     assert t["inertia_source"].startswith("engine spec") and abs(t["inertia_kgm2"] / J_REF - 1.0) < 0.10
     assert t["rows"] == "motored cycles" and t["friction_label"].startswith("friction + any load")
-    for p in t["friction_vs_speed"]:  # measured: -15 .. +4 % (ENGINEOFF2 -6..0 %)
+    # the spec's J is uncalibrated (+-6 %, core.monitor.calibration.inertia): sigma_J |dw/dt| is in the friction's
+    # sigma (before: 0.006-0.028 N m, J left out, while the files spread by 0.10 N m)
+    assert abs(t["inertia_sigma_kgm2"] / t["inertia_kgm2"] - 0.06) < 1e-9
+    for p in t["friction_vs_speed"]:  # measured: -15 .. +4 % (ENGINEOFF2 -6..0 %), sigma 11-13 %, within 1.1 sigma
         assert abs(p["friction_nm"] / friction_ref(p["rpm"]) - 1.0) < 0.15, p
-        assert 0.0 < p["sigma_nm"] < 0.1 * p["friction_nm"]
+        assert 0.05 * p["friction_nm"] < p["sigma_nm"] < 0.2 * p["friction_nm"]
+        assert abs(p["friction_nm"] - friction_ref(p["rpm"])) <= 2.0 * p["sigma_nm"], p
 
 
 def test_too_short_a_coast_down_is_not_fitted(runs):
