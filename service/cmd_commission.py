@@ -23,7 +23,13 @@ from pathlib import Path
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.engine_model import EngineModel
-from frictionwatch.core.monitor.calibration.commission import Commissioning, commissioned_model, without_sensor_effects
+from frictionwatch.core.monitor.calibration.commission import (
+    Commissioning,
+    InertiaFinding,
+    commissioned_model,
+    without_sensor_effects,
+)
+from frictionwatch.core.monitor.calibration.inertia import coastdown_record, commission_inertia
 from frictionwatch.core.monitor.calibration.pressure_gain import sibling_gains
 from frictionwatch.core.monitor.calibration.tdc import tdc_of_cycles
 from frictionwatch.core.monitor.results import CycleResult
@@ -134,18 +140,42 @@ def commission(logs: list[Path], engine: str | None, gain_sigma: float | None, m
     correction = np.array([t.offset_rad if t is not None else np.nan for t in used])
     correction = np.where(np.isfinite(correction), correction, np.nanmedian(correction))
     gains = sibling_gains(spec, fired, correction) if fired else None
+    inertia, inertia_note = _inertia(model, logs, motored)
     stated = gain_sigma is not None
-    if gain_sigma is None:  # the channels' mean gain is as unknown as before: 3 % over sqrt(z), and the shared 1 %
+    if gain_sigma is None:
+        # compared with their siblings, the channels' own errors are measured, but their mean is as unknown as
+        # before: 3 % over sqrt(z), and the shared 1 %; without a comparison (under three cylinders) each channel
+        # keeps its own 3 % (core.monitor.calibration.commission) and the shared 1 % stays
         base = Calibration()
-        gain_sigma = math.hypot(base.gain_sigma / math.sqrt(spec.n_cyl), base.gain_common_sigma)
+        gain_sigma = (math.hypot(base.gain_sigma / math.sqrt(spec.n_cyl), base.gain_common_sigma) if gains is not None
+                      else base.gain_common_sigma)
     today = datetime.date.today().isoformat()
     source = (f"frictionwatch commission {today}: {len(logs)} log(s), {len(fired)} fired and {len(motored)} motored "
               f"cycles; TDC from the pressure ({'fired' if used is tdc_fired else 'motored'}), gains against the "
               f"siblings, common gain {'stated' if stated else 'unreferenced'}")
-    result = commissioned_model(model, tdc_fired, tdc_motored, gains, gain_sigma, None, source)
+    result = commissioned_model(model, tdc_fired, tdc_motored, gains, gain_sigma, inertia, source)
     report = {"engine": spec.name, "logs": [str(p) for p in logs], "cycles_fired": len(fired),
-              "cycles_motored": len(motored), "cycles_skipped": skipped, **result.report}
+              "cycles_motored": len(motored), "cycles_skipped": skipped, **result.report,
+              "inertia_note": inertia_note}
     return result, report
+
+
+def _inertia(model: EngineModel, logs: list[Path], motored: list[Cycle]) -> tuple[InertiaFinding | None, str]:
+    """J from the motored (coast-down) cycles, one record per log (core.monitor.calibration.inertia), or None and
+    why not."""
+    by_log: dict[int, list[Cycle]] = {}
+    for c in motored:
+        by_log.setdefault(c.index // LOG_INDEX_STRIDE, []).append(c)
+    try:
+        records = [r for n, cycles in sorted(by_log.items())
+                   if (r := coastdown_record(logs[n].name, cycles, model)) is not None]
+        if not records:
+            return None, "no coast-down (motored) cycles: J stays the engine file's, its sigma as uncalibrated"
+        found = commission_inertia(records)
+    except ValueError as exc:
+        return None, f"J not measured: {exc}"
+    return (InertiaFinding(found.inertia, found.inertia_std, float(model.spec.total_inertia), len(records)),
+            f"J from the speed ripple of {len(records)} coast-down record(s)")
 
 
 def _twist_added(estimates: list, twist: np.ndarray) -> list:
@@ -191,5 +221,11 @@ def print_report(doc: dict) -> None:
     print(f"calibration written: TDC ±{cal['tdc_wheel_sigma_deg']:.3f}° (wheel), ±{cal['tdc_cylinder_sigma_deg']:.3f}° "
           f"(each cylinder), gain ±{100 * cal['gain_sigma']:.2f} % per channel and ±{100 * cal['gain_common_sigma']:.2f} "
           f"% common ({doc['gain_reference']}), J ±{100 * cal['inertia_sigma']:.1f} %")
+    inertia = doc.get("inertia")
+    if inertia:
+        print(f"J: {inertia['measured_kgm2']:.5f} ± {inertia['sigma_kgm2']:.5f} kg·m² measured, the engine file's "
+              f"{inertia['engine_file_kgm2']:.5f} (the monitor runs with the file's; the difference is in J's sigma)")
+    else:
+        print(doc["inertia_note"])
     print("* gain corrected (beyond the siblings' spread); a TDC or pegging beyond its threshold is a model effect")
     print(f"model written to {doc['model_written']}")
