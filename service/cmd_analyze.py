@@ -117,7 +117,7 @@ def run_mean_balance(analysis: LogAnalysis, engine_status: str) -> dict:
     results = analysis.results
     used = [r for r in results if np.isfinite(r.friction_balance)]
     mean, sem, n = mean_and_sem([r.friction_balance for r in used])
-    mep = results[-1].mep_per_nm() / results[-1].n_cyl / 1e5  # bar per N m of the engine
+    mep = results[-1].mep_per_nm(engine=True) / 1e5  # bar per N m of the engine: 4 pi / V_d of all cylinders
     if engine_status == "withheld":
         status, reason = "withheld", "a sensor fault is flagged (see friction.reason)"
     elif n == 0:

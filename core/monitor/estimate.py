@@ -8,13 +8,11 @@ from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
-from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.engine import EngineSpec, mep_per_torque
 from frictionwatch.core.monitor.accumulate import Posterior
 from frictionwatch.core.monitor.estimate_kernels import estimate_kernel
 from frictionwatch.core.monitor.identify import ParameterLayout
 from frictionwatch.core.monitor.results import FrictionEstimate
-
-FOUR_PI = 4.0 * np.pi
 
 
 @dataclass(frozen=True)
@@ -93,10 +91,10 @@ class ModelErrorFloor:
         tot_sig = math.sqrt(s_tot ** 2 + (self.indicated_rel * float(ind.sum())) ** 2 + excess2)
         resolved = est.resolved & (sig <= resolve_rel * np.abs(t_cyl))
         t_mean = np.where(resolved, est.friction_torque_mean, np.nan)
-        to_cyl = FOUR_PI / spec.displacement_cyl
+        to_cyl = mep_per_torque(spec.displacement_cyl)
         return replace(est, friction_torque_mean=t_mean, friction_torque_mean_sigma=sig, fmep=t_mean * to_cyl,
                        fmep_sigma=sig * to_cyl, resolved=resolved, total_friction_torque_sigma=tot_sig,
-                       total_fmep_sigma=tot_sig * to_cyl / spec.n_cyl)
+                       total_fmep_sigma=tot_sig * mep_per_torque(spec.displacement))
 
 
 def friction_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior, basis_mean: np.ndarray,
@@ -126,8 +124,8 @@ def friction_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
         float(limits.coefficient_snr), float(limits.min_data_gain))
     coef, coef_sig, norm, norm_sig = coef_table
     t_mean, t_sig, gain = cylinder_table
-    to_cyl = FOUR_PI / spec.displacement_cyl
-    to_eng = to_cyl / z
+    to_cyl = mep_per_torque(spec.displacement_cyl)
+    to_eng = mep_per_torque(spec.displacement)
     est = FrictionEstimate(
         friction_torque_mean=t_mean,
         friction_torque_mean_sigma=t_sig,
