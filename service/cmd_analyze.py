@@ -13,8 +13,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
-from frictionwatch.core.monitor.figure_status import friction_status
-from frictionwatch.core.monitor.run_summary import active_flags, estimate_window, flag_summary, mean_and_sem
+from frictionwatch.core.monitor.run_summary import end_of_run_status, flag_summary, mean_and_sem
 from frictionwatch.service import coastdown_report
 from frictionwatch.service.analyze_output import print_table, write_csv
 from frictionwatch.service.output_files import check_output_path
@@ -69,9 +68,7 @@ def summary(analysis: LogAnalysis) -> dict:
         return doc
     last = results[-1]
     flags = [r.flags for r in results]
-    window = estimate_window([r.index for r in results], [r.smoothed.weight for r in results])
-    active = active_flags(flags, window.effective_cycles)
-    status = friction_status(last.smoothed, active)
+    window, active, status = end_of_run_status(results)
     cyc = last.to_json(status=status, window=asdict(window))
     load = mean_and_sem([r.load_torque for r in results])
     power = mean_and_sem([r.load_power for r in results])
