@@ -39,6 +39,16 @@ def print_table(doc: dict) -> None:
             f"load {doc['load_torque_mean_nm']:.1f} N·m = {_fmt(doc.get('load_power_mean_kw'), '.2f')} kW")
     print(f"run means (measured): speed {_fmt(doc.get('rpm_mean'), '.1f')} rpm, {load}, "
           f"IMEP {_fmt(doc.get('imep_bar'), '.3f')} bar")
+    regimes = doc.get("regimes") or []
+    if len(regimes) > 1 or any(g["regime"] == "motored" for g in regimes):
+        for g in regimes:
+            f = g["friction"]
+            cov = "" if g["imep_cov"] is None else f", COV {100 * g['imep_cov']:.1f} %"
+            print(f"  {g['regime']}: {g['cycles']} cycles ({g['first_cycle']}-{g['last_cycle']}), IMEP "
+                  f"{_pm(g['imep_bar'], g['imep_sigma_bar'], '.3f')} bar{cov}, misfire in {g['misfire_cycles']}; "
+                  f"friction " + (f"{_pm(f['friction_torque_mean_nm'], f['friction_torque_sigma_nm'], '.2f')} N·m, "
+                                  f"FMEP {_pm(f['fmep_bar'], f['fmep_sigma_bar'], '.3f')} bar (mean torque balance)"
+                                  if f["status"] == "measured" else f"{f['status']} ({f['reason']})"))
     fr = doc["friction"]
     w = fr["window"]
     print(f"engine friction, {_window_words(w)}:")

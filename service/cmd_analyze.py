@@ -20,7 +20,7 @@ from frictionwatch.service.output_files import check_output_path
 from frictionwatch.service.pipeline import LogAnalysis, analyze_log
 from frictionwatch.service.progress import log_extent, progress_bar
 
-SCHEMA_VERSION = "2.0"  # major: a key renamed, removed or its meaning changed; minor: keys added
+SCHEMA_VERSION = "2.1"  # major: a key renamed, removed or its meaning changed; minor: keys added
 SCHEMA_FILE = Path(__file__).with_name("schema") / "analyze-result.schema.json"
 LAST_CYCLE_KEYS = ("cycle", "t_start_s", "rpm", "load_torque_nm", "load_power_kw", "friction_balance_nm",
                    "coupling_loss_nm", "residual_rms_rad_s", "r_squared", "chi2_reduced", "flags")
@@ -84,6 +84,7 @@ def summary(analysis: LogAnalysis) -> dict:
         **{k: cyc[k] for k in ("friction_torque_mean_nm", "friction_torque_sigma_nm", "fmep_bar", "fmep_sigma_bar")},
         "friction": cyc["friction"],
         "friction_run_mean_balance": run_mean_balance(analysis, cyc["friction"]["status"]),
+        "regimes": regimes(analysis, cyc["friction"]["status"]),
         "active_flags": sorted(active),
         "sensor_health": cyc["sensor_health"],
         "last": {k: cyc[k] for k in LAST_CYCLE_KEYS},
@@ -111,7 +112,36 @@ def _cylinder_run(c: dict, k: int, analysis: LogAnalysis) -> dict:
 def run_mean_balance(analysis: LogAnalysis, engine_status: str) -> dict:
     """The engine's friction as the mean over every analysed cycle of its mean torque balance (indicated - load -
     modelled coupling loss): the run's mean, where the smoothed estimate is the end of a forgetting window."""
-    results = analysis.results
+    return balance_figure(analysis.results, engine_status)
+
+
+def regimes(analysis: LogAnalysis, engine_status: str) -> list[dict]:
+    """The run split by regime, each that occurs once: ``fired`` (some cylinder burned) and ``motored`` (no cylinder
+    burned: the cycle's ``motored`` flag, core.monitor.condition), each with its cycles, IMEP (mean over the
+    cylinders, per cycle; run mean, its 1-sigma and the cycle-to-cycle scatter; COV for the fired regime), the
+    cycles with a misfire flag and the friction as the mean of its cycles' torque balances (``balance_figure``)."""
+    groups: dict[str, list] = {"fired": [], "motored": []}
+    for r in analysis.results:
+        groups["motored" if "motored" in r.flags else "fired"].append(r)
+    out = []
+    for name, rs in groups.items():
+        if not rs:
+            continue
+        mean, sem, n = mean_and_sem([float(np.mean(r.imep)) / 1e5 for r in rs])
+        std = sem * np.sqrt(n)
+        out.append({
+            "regime": name, "cycles": len(rs), "first_cycle": int(rs[0].index), "last_cycle": int(rs[-1].index),
+            "imep_bar": _num(mean), "imep_sigma_bar": _num(sem), "imep_std_bar": _num(std),
+            "imep_cov": _num(std / mean) if name == "fired" and mean > 0 else None,
+            "misfire_cycles": sum(any(f.startswith("misfire_cyl") for f in r.flags) for r in rs),
+            "friction": balance_figure(rs, engine_status),
+        })
+    return out
+
+
+def balance_figure(results: list, engine_status: str) -> dict:
+    """The mean of the cycles' torque balances over ``results`` as a figure (status, reason, window, torque and
+    FMEP with the 1-sigma of the mean from their scatter)."""
     used = [r for r in results if np.isfinite(r.friction_balance)]
     mean, sem, n = mean_and_sem([r.friction_balance for r in used])
     mep = results[-1].mep_per_nm(engine=True) / 1e5  # bar per N m of the engine: 4 pi / V_d of all cylinders

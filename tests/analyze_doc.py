@@ -27,7 +27,7 @@ def _check_figure(fig: dict, bar_per_nm: float, rtol: float, where: str) -> int:
 
 def assert_fmep_is_torque_over_displacement(doc: dict, spec: EngineSpec | None = None, rtol: float = 1e-9) -> int:
     """Every friction figure of an analyze document (the flat keys, ``friction``, ``friction_run_mean_balance``,
-    each cylinder's) has fmep_bar = friction_torque_mean_nm * 4 pi / V_d and the same for its 1-sigma, to ``rtol``;
+    each regime's, each cylinder's) has fmep_bar = friction_torque_mean_nm * 4 pi / V_d and the same for its 1-sigma, to ``rtol``;
     V_d computed here from the engine's bore and stroke (``spec``; default the preset the document names). Returns
     how many values were compared (a figure without a value has neither)."""
     spec = load_engine(doc["engine"]) if spec is None else spec
@@ -40,6 +40,8 @@ def assert_fmep_is_torque_over_displacement(doc: dict, spec: EngineSpec | None =
     checked += _check_figure(doc, per_engine, rtol, "engine (flat keys)")
     checked += _check_figure(doc["friction"], per_engine, rtol, "engine friction")
     checked += _check_figure(doc["friction_run_mean_balance"], per_engine, rtol, "run mean balance")
+    for g in doc.get("regimes", []):
+        checked += _check_figure(g["friction"], per_engine, rtol, f"{g['regime']} regime")
     assert len(doc["cylinders"]) == spec.n_cyl
     for c in doc["cylinders"]:
         checked += _check_figure(c, per_cyl, rtol, f"cylinder {c['cylinder']} (flat keys)")

@@ -181,8 +181,6 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         flags += health.flags
         ident = replace(ident, smoothed_estimate=inflate(spec, ident.smoothed_estimate, health),
                         cycle_estimate=inflate(spec, ident.cycle_estimate, health))
-    if not ident.fire.all():
-        flags += [f"misfire_cyl{k + 1}" for k in np.flatnonzero(~ident.fire)]
     cond = assess_condition(spec, state.condition, cycle.grid, pressure, exc.indicated_mean, pmax, ident,
                             rows.cylinder_rows[:, :state.layout.n_params], op is not state.op and state.op is not None)
     flags += cond.flags

@@ -114,7 +114,9 @@ class MonitorConfig:
 class ConditionState:
     """The condition flags' window (core.monitor.condition): cycles used, EWMA means and variances (z,) of each
     cylinder's deviation from its siblings in ln(compression rise), ln(pmax) and ln(indicated torque), the EWMA of the
-    reduced chi^2, the change detector (core.monitor.change) and the cycles since the last operating-point change."""
+    reduced chi^2, the change detector (core.monitor.change) and the cycles since the last operating-point change;
+    burn_reference (z,) N m: each cylinder's EWMA indicated torque over its fully burned cycles (NaN before the first),
+    and burn_cycles (z,) how many fed it: the reference a single cylinder's partial burn is judged against."""
 
     count: int
     compression: np.ndarray
@@ -126,11 +128,14 @@ class ConditionState:
     misfit: float
     detector: ChangeDetector | None
     since_op_change: int = 1 << 30
+    burn_reference: np.ndarray | None = None
+    burn_cycles: np.ndarray | None = None
 
     @staticmethod
     def empty(n_cyl: int) -> ConditionState:
         zero = np.zeros(n_cyl)
-        return ConditionState(0, zero, zero, zero, zero, zero, zero, 1.0, None)
+        return ConditionState(0, zero, zero, zero, zero, zero, zero, 1.0, None,
+                              burn_reference=np.full(n_cyl, np.nan), burn_cycles=np.zeros(n_cyl, dtype=np.int64))
 
 
 class PreviousCycle(NamedTuple):
