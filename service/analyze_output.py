@@ -32,6 +32,8 @@ def print_table(doc: dict) -> None:
           + (f" ({', '.join(f'{k} {v}' for k, v in skipped.items())})" if skipped else ""))
     if doc["log_damage"]:
         print("log damage: " + ", ".join(f"{k} {v}" for k, v in doc["log_damage"].items()))
+    for c in doc.get("implausible") or []:
+        print(f"NOT PHYSICAL / NOT SUPPORTED ({c['check']}): {c['reason']}")
     if doc["data_gaps"]:
         print("not analysed: " + ", ".join(f"{g['from_s']:.3f}-{g['to_s']:.3f} s (~{g['cycles']:g} cycles)"
                                            for g in doc["data_gaps"]))

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 from frictionwatch.core.monitor.run_summary import end_of_run_status, flag_summary, mean_and_sem
+from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.service import coastdown_report
 from frictionwatch.service.analyze_output import print_table, write_csv
 from frictionwatch.service.output_files import check_output_path
@@ -41,7 +42,25 @@ def document(analysis: LogAnalysis) -> dict:
     """What `analyze --json` prints (also what `reanalyze` writes per log): the summary with the coast-down block."""
     doc = summary(analysis)
     coastdown_report.add_to(doc, analysis)
+    if analysis.results:
+        doc["implausible"] = implausible(doc, analysis)
     return doc
+
+
+def implausible(doc: dict, analysis: LogAnalysis) -> list[dict]:
+    """Every physically impossible or unsupported result of the run, one line each (docs/results.md): cycles whose
+    speed fit explains almost none of the speed ripple (flag ``speed_fit_poor``) and the transient block's checks."""
+    out = []
+    poor = [r.r_squared for r in analysis.results if "speed_fit_poor" in r.flags]
+    if poor:
+        n = len(analysis.results)
+        out.append({"check": "speed_fit", "cycles": len(poor), "reason": (
+            f"the speed model explains {100 * min(poor):.0f}-{100 * max(poor):.0f} % of the measured speed ripple in "
+            f"{len(poor)} of {n} cycles (R² below {MonitorConfig().r_squared_floor:g}): what is read from the speed "
+            "signal (the per-cylinder split, the ripple's harmonics) is not supported by it")})
+    transient = doc.get("transient") or {}
+    out += transient.get("checks", [])
+    return out
 
 
 def no_cycle_reason(analysis: LogAnalysis, name: str) -> str:

@@ -63,6 +63,11 @@ class MonitorConfig:
     sensor_health: TDC, pressure gain and offset checks and corrections (core.monitor.sensor_health); None: off
     model_error_floor: the systematic sigma the equations cannot see (core.monitor.estimate.ModelErrorFloor),
     calibrated on model-mismatch logs (bench/mismatch_coverage.py)
+    r_squared_floor: a cycle whose speed fit explains less of the speed ripple is flagged ``speed_fit_poor``: what
+    rests on the speed signal (the per-cylinder split) is not supported by it. Calibrated on 24-cycle simulated logs
+    of every preset (lowest: genset-v20, 0.11-0.13, its ripple near the sensor noise) and TU/e E0NOLOAD1
+    (0.016-0.027); tested on E0NOLOAD2-4 (flagged) and the other group14 files (0.08-0.87, not flagged: R^2 alone
+    does not separate them from the healthy simulated genset)
     """
 
     max_order: float | None = None
@@ -100,6 +105,7 @@ class MonitorConfig:
     # SensorHealthConfig()) turns it on
     sensor_health: SensorHealthConfig | None = None
     model_error_floor: ModelErrorFloor = ModelErrorFloor()
+    r_squared_floor: float = 0.05
 
     def __post_init__(self) -> None:
         tau = self.forgetting_time_s

@@ -63,3 +63,35 @@ def test_the_partial_burn_is_a_misfire(realdata, tmp_path):
     g = _regimes(doc)
     assert list(g) == ["fired"] and g["fired"]["misfire_cycles"] == 1
     assert doc["flags"]["run"]["misfire_cyl1"] == 1 and "motored" not in doc["flags"]["run"]
+
+
+# ---- physically impossible or unsupported results are flagged, never printed plain (issue 25 item 4) ----------------
+@pytest.mark.parametrize("name", ["E0FULLOAD4EngineOff", "E5FULLOAD4EngineOff"])
+def test_a_coast_down_law_negative_at_low_speed_is_flagged(realdata, tmp_path, name, capsys):
+    """Ignition off with the generator still connected and no load reading: the law (e.g. -5.8 + 4.68e-3 rpm N m)
+    is negative at the engine's lowest speed, 900 rpm: flagged in the transient block, the run's list and the table."""
+    doc = _analyze(realdata, tmp_path, name)
+    checks = doc["transient"]["checks"]
+    assert [c["check"] for c in checks] == ["negative_friction"] and "cannot be negative" in checks[0]["reason"]
+    assert checks[0] in doc["implausible"]
+    c0, c1 = doc["transient"]["friction_c0_nm"], doc["transient"]["friction_c1_nm_per_rpm"]
+    assert c0 + c1 * 900.0 < 0.0  # the flag says what the numbers say
+    capsys.readouterr()
+    assert main(["analyze", str(tmp_path / f"{name}.mcap")]) == 0
+    out = capsys.readouterr().out
+    assert "NOT PHYSICAL" in out and "negative_friction" in out
+
+
+@pytest.mark.parametrize("name", ["ENGINEOFF2", "ENGINEOFF4", "ENGINEOFF5", "ENGINEOFF6"])
+def test_a_plain_coast_down_law_is_not_flagged(realdata, tmp_path, name):
+    doc = _analyze(realdata, tmp_path, name)
+    assert doc["transient"]["checks"] == [] and not any(c["check"] == "negative_friction" for c in doc["implausible"])
+
+
+@pytest.mark.parametrize("name", ["E0NOLOAD2", "E0NOLOAD3", "E0NOLOAD4"])
+def test_a_speed_fit_that_explains_almost_nothing_is_flagged(realdata, tmp_path, name):
+    """R² 0.016-0.033 on the no-load files (the floor 0.05 was set on E0NOLOAD1 and simulated logs)."""
+    doc = _analyze(realdata, tmp_path, name)
+    assert doc["flags"]["run"]["speed_fit_poor"] == doc["cycles_ok"]
+    fit = [c for c in doc["implausible"] if c["check"] == "speed_fit"]
+    assert len(fit) == 1 and fit[0]["cycles"] == doc["cycles_ok"] and "not supported" in fit[0]["reason"]

@@ -47,5 +47,7 @@ def test_every_fmep_is_the_torque_times_4pi_over_the_displacement(engine, log, t
         assert doc["friction"]["status"] in ("prior", "measured") and checked >= 4
     elif log == "healthy":
         assert doc["friction"]["status"] == "measured" and checked >= 6 + 2 * spec.n_cyl
+        # and nothing implausible on a healthy log (the speed-fit floor was set on other simulated logs)
+        assert doc["implausible"] == [] and "speed_fit_poor" not in doc["flags"]["run"]
     else:
         assert checked >= 2

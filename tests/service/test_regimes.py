@@ -55,6 +55,8 @@ def test_each_regime_is_reported_and_motored_cycles_are_not_misfires(coast, caps
         # within 3 sigma of the mean and 3 % (coast-down: 0.70 vs 0.699; fired: 0.79 vs 0.778 N m when written)
         assert abs(f["friction_torque_mean_nm"] - true_f) < 3 * f["friction_torque_sigma_nm"] + 0.03 * true_f
     assert regimes["fired"]["imep_cov"] is not None and regimes["motored"]["imep_cov"] is None
+    # a healthy coast-down: its friction law is positive down to the engine's lowest speed, nothing implausible
+    assert doc["transient"]["checks"] == [] and doc["implausible"] == []
 
 
 def test_the_table_prints_each_regime(coast, capsys):
