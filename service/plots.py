@@ -91,7 +91,8 @@ def write_plots(analysis: LogAnalysis, out_dir: Path, status: FrictionStatus | N
     ax.plot(deg, last.speed_model * 30 / np.pi, lw=1.0, ls="--", label="model")
     ax.set(xlabel="crank angle [°CA]", ylabel="flywheel speed [rpm]",
            title=f"flywheel speed, cycle {last.index}: residual {last.residual_rms * 30 / np.pi:.3f} rpm rms, "
-                 f"R² {last.r_squared:.3f}")
+                 f"R² {last.r_squared:.3f}" + (" (below the floor: the fit is not supported by the data)"
+                                                 if "speed_fit_poor" in last.flags else ""))
     ax.legend()
     paths.append(_save(fig, out_dir / "speed_measured_vs_model.png"))
 
