@@ -39,11 +39,14 @@ def run_case(engine: str, rpm: float, load: float, effect: str | None, cycles: i
     if cli(args) != 0:
         raise RuntimeError(f"simulate failed: {args}")
     truth = json.loads((tmp / "log.truth.json").read_text())
-    est = analyze_log(log).results[-1].smoothed
+    last = analyze_log(log).results[-1]
+    est = last.smoothed
+    flags = sorted(f for f in last.flags if f.startswith("sensor_"))
     t, s, true = est.total_friction_torque, est.total_friction_torque_sigma, truth["friction_torque_mean_nm"]
     return {"engine": engine, "rpm": rpm, "load": load, "effect": effect or "healthy", "truth_nm": true,
             "friction_nm": t, "sigma_nm": s, "calibration_sigma_nm": est.total_calibration_sigma,
-            "error_pct": 100.0 * (t - true) / true, "z": (t - true) / s if s > 0 else float("nan")}
+            "error_pct": 100.0 * (t - true) / true, "z": (t - true) / s if s > 0 else float("nan"),
+            "flags": flags}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -59,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.quick:
         effects = [None, OFFSETS[2], OFFSETS[3], OFFSETS[6], GAINS[0]]
     print(f"{'engine':<12} {'rpm':>6} {'load':>5} {'effect':<38} {'truth':>7} {'read':>7} {'±1σ':>6} {'cal σ':>6} "
-          f"{'err %':>7} {'z':>6}")
+          f"{'err %':>7} {'z':>6}  sensor flags (withhold the figure)")
     for engine in a.engines.split(","):
         for rpm, load in POINTS[engine][: 1 if a.quick else None]:
             for eff in effects:
@@ -69,10 +72,14 @@ def main(argv: list[str] | None = None) -> int:
                 rows.append(r)
                 print(f"{engine:<12} {rpm:6.0f} {load:5.2f} {r['effect']:<38} {r['truth_nm']:7.2f} "
                       f"{r['friction_nm']:7.2f} {r['sigma_nm']:6.2f} {r['calibration_sigma_nm']:6.2f} "
-                      f"{r['error_pct']:+7.1f} {r['z']:+6.2f}  ({time.perf_counter() - t0:.0f} s)", flush=True)
+                      f"{r['error_pct']:+7.1f} {r['z']:+6.2f}  {','.join(r['flags']) or '-'} "
+                      f"({time.perf_counter() - t0:.0f} s)", flush=True)
     beyond2 = [r for r in rows if abs(r["z"]) > 2.0]
     beyond3 = [r for r in rows if abs(r["z"]) > 3.0]
-    print(f"{len(rows)} cases: {len(beyond2)} beyond 2 sigma, {len(beyond3)} beyond 3 sigma")
+    unflagged = [r for r in beyond2 if not r["flags"]]
+    false = [r for r in rows if r["effect"] == "healthy" and r["flags"]]
+    print(f"{len(rows)} cases: {len(beyond2)} beyond 2 sigma ({len(unflagged)} of them unflagged), {len(beyond3)} "
+          f"beyond 3 sigma; {len(false)} healthy case(s) flagged")
     if a.json:
         a.json.write_text(json.dumps(rows, indent=1))
     return 0

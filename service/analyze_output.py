@@ -32,6 +32,8 @@ def print_table(doc: dict) -> None:
           + (f" ({', '.join(f'{k} {v}' for k, v in skipped.items())})" if skipped else ""))
     if doc["log_damage"]:
         print("log damage: " + ", ".join(f"{k} {v}" for k, v in doc["log_damage"].items()))
+    for c in doc.get("implausible") or []:
+        print(f"NOT PHYSICAL / NOT SUPPORTED ({c['check']}): {c['reason']}")
     if doc["data_gaps"]:
         print("not analysed: " + ", ".join(f"{g['from_s']:.3f}-{g['to_s']:.3f} s (~{g['cycles']:g} cycles)"
                                            for g in doc["data_gaps"]))
@@ -39,6 +41,16 @@ def print_table(doc: dict) -> None:
             f"load {doc['load_torque_mean_nm']:.1f} N·m = {_fmt(doc.get('load_power_mean_kw'), '.2f')} kW")
     print(f"run means (measured): speed {_fmt(doc.get('rpm_mean'), '.1f')} rpm, {load}, "
           f"IMEP {_fmt(doc.get('imep_bar'), '.3f')} bar")
+    regimes = doc.get("regimes") or []
+    if len(regimes) > 1 or any(g["regime"] == "motored" for g in regimes):
+        for g in regimes:
+            f = g["friction"]
+            cov = "" if g["imep_cov"] is None else f", COV {100 * g['imep_cov']:.1f} %"
+            print(f"  {g['regime']}: {g['cycles']} cycles ({g['first_cycle']}-{g['last_cycle']}), IMEP "
+                  f"{_pm(g['imep_bar'], g['imep_sigma_bar'], '.3f')} bar{cov}, misfire in {g['misfire_cycles']}; "
+                  f"friction " + (f"{_pm(f['friction_torque_mean_nm'], f['friction_torque_sigma_nm'], '.2f')} N·m, "
+                                  f"FMEP {_pm(f['fmep_bar'], f['fmep_sigma_bar'], '.3f')} bar (mean torque balance)"
+                                  if f["status"] == "measured" else f"{f['status']} ({f['reason']})"))
     fr = doc["friction"]
     w = fr["window"]
     print(f"engine friction, {_window_words(w)}:")

@@ -14,8 +14,8 @@ from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
-from frictionwatch.core.monitor.figure_status import friction_status
-from frictionwatch.core.monitor.run_summary import active_flags, estimate_window, flag_summary, mean_and_sem
+from frictionwatch.core.monitor.run_summary import end_of_run_status, flag_summary, mean_and_sem
+from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.service import coastdown_report
 from frictionwatch.service.analyze_output import print_table, write_csv
 from frictionwatch.service.output_files import check_output_path
@@ -43,7 +43,25 @@ def document(analysis: LogAnalysis) -> dict:
     """What `analyze --json` prints (also what `reanalyze` writes per log): the summary with the coast-down block."""
     doc = summary(analysis)
     coastdown_report.add_to(doc, analysis)
+    if analysis.results:
+        doc["implausible"] = implausible(doc, analysis)
     return doc
+
+
+def implausible(doc: dict, analysis: LogAnalysis) -> list[dict]:
+    """Every physically impossible or unsupported result of the run, one line each (docs/results.md): cycles whose
+    speed fit explains almost none of the speed ripple (flag ``speed_fit_poor``) and the transient block's checks."""
+    out = []
+    poor = [r.r_squared for r in analysis.results if "speed_fit_poor" in r.flags]
+    if poor:
+        n = len(analysis.results)
+        out.append({"check": "speed_fit", "cycles": len(poor), "reason": (
+            f"the speed model explains {100 * min(poor):.0f}-{100 * max(poor):.0f} % of the measured speed ripple in "
+            f"{len(poor)} of {n} cycles (R² below {MonitorConfig().r_squared_floor:g}): what is read from the speed "
+            "signal (the per-cylinder split, the ripple's harmonics) is not supported by it")})
+    transient = doc.get("transient") or {}
+    out += transient.get("checks", [])
+    return out
 
 
 def no_cycle_reason(analysis: LogAnalysis, name: str) -> str:
@@ -70,9 +88,7 @@ def summary(analysis: LogAnalysis) -> dict:
         return doc
     last = results[-1]
     flags = [r.flags for r in results]
-    window = estimate_window([r.index for r in results], [r.smoothed.weight for r in results])
-    active = active_flags(flags, window.effective_cycles)
-    status = friction_status(last.smoothed, active)
+    window, active, status = end_of_run_status(results)
     cyc = last.to_json(status=status, window=asdict(window))
     load = mean_and_sem([r.load_torque for r in results])
     power = mean_and_sem([r.load_power for r in results])
@@ -88,6 +104,7 @@ def summary(analysis: LogAnalysis) -> dict:
         **{k: cyc[k] for k in ("friction_torque_mean_nm", "friction_torque_sigma_nm", "fmep_bar", "fmep_sigma_bar")},
         "friction": cyc["friction"],
         "friction_run_mean_balance": run_mean_balance(analysis, cyc["friction"]["status"]),
+        "regimes": regimes(analysis, cyc["friction"]["status"]),
         "active_flags": sorted(active),
         "sensor_health": cyc["sensor_health"],
         "tdc_from_pressure": tdc_from_pressure(analysis),
@@ -131,10 +148,39 @@ def _cylinder_run(c: dict, k: int, analysis: LogAnalysis) -> dict:
 def run_mean_balance(analysis: LogAnalysis, engine_status: str) -> dict:
     """The engine's friction as the mean over every analysed cycle of its mean torque balance (indicated - load -
     modelled coupling loss): the run's mean, where the smoothed estimate is the end of a forgetting window."""
-    results = analysis.results
+    return balance_figure(analysis.results, engine_status)
+
+
+def regimes(analysis: LogAnalysis, engine_status: str) -> list[dict]:
+    """The run split by regime, each that occurs once: ``fired`` (some cylinder burned) and ``motored`` (no cylinder
+    burned: the cycle's ``motored`` flag, core.monitor.condition), each with its cycles, IMEP (mean over the
+    cylinders, per cycle; run mean, its 1-sigma and the cycle-to-cycle scatter; COV for the fired regime), the
+    cycles with a misfire flag and the friction as the mean of its cycles' torque balances (``balance_figure``)."""
+    groups: dict[str, list] = {"fired": [], "motored": []}
+    for r in analysis.results:
+        groups["motored" if "motored" in r.flags else "fired"].append(r)
+    out = []
+    for name, rs in groups.items():
+        if not rs:
+            continue
+        mean, sem, n = mean_and_sem([float(np.mean(r.imep)) / 1e5 for r in rs])
+        std = sem * np.sqrt(n)
+        out.append({
+            "regime": name, "cycles": len(rs), "first_cycle": int(rs[0].index), "last_cycle": int(rs[-1].index),
+            "imep_bar": _num(mean), "imep_sigma_bar": _num(sem), "imep_std_bar": _num(std),
+            "imep_cov": _num(std / mean) if name == "fired" and mean > 0 else None,
+            "misfire_cycles": sum(any(f.startswith("misfire_cyl") for f in r.flags) for r in rs),
+            "friction": balance_figure(rs, engine_status),
+        })
+    return out
+
+
+def balance_figure(results: list, engine_status: str) -> dict:
+    """The mean of the cycles' torque balances over ``results`` as a figure (status, reason, window, torque and
+    FMEP with the 1-sigma of the mean from their scatter)."""
     used = [r for r in results if np.isfinite(r.friction_balance)]
     mean, sem, n = mean_and_sem([r.friction_balance for r in used])
-    mep = results[-1].mep_per_nm() / results[-1].n_cyl / 1e5  # bar per N m of the engine
+    mep = results[-1].mep_per_nm(engine=True) / 1e5  # bar per N m of the engine: 4 pi / V_d of all cylinders
     if engine_status == "withheld":
         status, reason = "withheld", "a sensor fault is flagged (see friction.reason)"
     elif n == 0:

@@ -40,6 +40,15 @@ def transient_section(analysis: LogAnalysis) -> dict | None:
     # (TU/e: the ENGINEOFF coast-downs read the friction, E5FULLOAD4EngineOff twice that with its generator on)
     label = "friction" if tf.load_measured else "friction + any load (no load measured)"
     centred = [r for r in res if "no_previous_cycle" not in r.flags]
+    low = min(spec.speed_range_rpm[0] / RPM_PER_RAD_S, lo)  # the engine's lowest speed, or the run's if lower
+    negative = tf.negative_friction(low)
+    checks = [] if negative is None else [{
+        "check": "negative_friction",
+        "reason": (f"the law gives {negative[1]:.2f} ± {negative[2]:.2f} N m at {negative[0] * RPM_PER_RAD_S:.0f} rpm"
+                   + (f" (negative below {-c0 / c1 * RPM_PER_RAD_S:.0f} rpm)" if c0 < 0 < c1 else "")
+                   + ": friction cannot be negative; the rows hold a torque the balance does not (a load connected "
+                   "without a reading, a wrong J), so this is not the engine's friction"),
+    }]
     return {
         "cycles": int(tf.speed.shape[0]),
         "rows": "motored cycles" if tf.motored else "all consecutive cycles",
@@ -58,6 +67,7 @@ def transient_section(analysis: LogAnalysis) -> dict | None:
         "friction_vs_speed": [{"rpm": float(w * RPM_PER_RAD_S), "friction_nm": float(f), "sigma_nm": float(s)}
                               for w, f, s in zip(speeds, fric, sig, strict=True)],
         "residual_rms_nm": tf.fit.residual_rms,
+        "checks": checks,
         "imep_bar_centred": (float(np.mean([r.imep.mean() for r in centred])) / 1e5) if centred else None,
     }
 
@@ -80,6 +90,9 @@ def print_lines(doc: dict) -> None:
               "per-cycle balance in this run is biased by the difference times dw/dt")
     slope = t["friction_c1_nm_per_rpm"]
     law = f"{t['friction_c0_nm']:.3f}" + (f" + {slope * 1e3:.4f}e-3·rpm" if slope is not None else " (constant: 3 cycles)")
-    print(f"{t['friction_label']} = {law} N m:")
+    bad = t.get("checks") or []
+    print(("NOT PHYSICAL: " if bad else "") + f"{t['friction_label']} = {law} N m:")
+    for c in bad:
+        print(f"  {c['check']}: {c['reason']}")
     print("  " + ", ".join(f"{p['rpm']:.0f} rpm {p['friction_nm']:.3f} ± {p['sigma_nm']:.3f}"
                            for p in t["friction_vs_speed"]) + " N m")

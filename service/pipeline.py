@@ -74,7 +74,7 @@ class EnginePipeline:
 
     @property
     def skipped(self) -> Counter[str]:
-        return Counter(self.assembler.skipped) + self.monitor_skipped
+        return Counter(self.assembler.skipped) + self.assembler.truncated + self.monitor_skipped
 
     def feed(self, record: StreamRecord) -> list[CycleResult]:
         return [r for c in self.assembler.feed(record) if (r := self._process(c)) is not None]

@@ -23,6 +23,14 @@ import numpy as np
 PRESET_DIR = Path(__file__).parent / "engines"
 
 
+def mep_per_torque(displacement_m3: float) -> float:
+    """4 pi / V_d [Pa per N m]: the one definition of a mean effective pressure from a mean torque (4-stroke: one
+    cycle is 4 pi rad). ``displacement_m3``: one cylinder's swept volume for a cylinder's figure, the engine's total
+    for the engine's (its total torque). Every FMEP, IMEP-from-torque and MEP-to-torque in the package goes through
+    it (``EngineSpec.torque_to_mep`` / ``mep_to_torque``, the estimates, the cycle documents)."""
+    return 4.0 * math.pi / displacement_m3
+
+
 class SpecError(ValueError):
     """An engine file is missing a field or holds an impossible value."""
 
@@ -158,11 +166,11 @@ class EngineSpec:
     def mep_to_torque(self, mep_pa: float, cylinders: int | None = None) -> float:
         """Mean torque [N m] of a mean effective pressure [Pa] over ``cylinders`` (default all), 4-stroke."""
         n = self.n_cyl if cylinders is None else cylinders
-        return mep_pa * self.displacement_cyl * n / (4.0 * math.pi)
+        return mep_pa / mep_per_torque(self.displacement_cyl * n)
 
     def torque_to_mep(self, torque_nm: float, cylinders: int | None = None) -> float:
         n = self.n_cyl if cylinders is None else cylinders
-        return torque_nm * 4.0 * math.pi / (self.displacement_cyl * n)
+        return torque_nm * mep_per_torque(self.displacement_cyl * n)
 
     def kinematics_params(self) -> np.ndarray:
         """[R, L, pin_offset] for the kinematics kernels."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 from frictionwatch.core.model.dynamics import rigid_friction_torque
-from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.engine import EngineSpec, mep_per_torque
 from frictionwatch.core.monitor.excitation import Excitation
 from frictionwatch.core.monitor.excitation_kernels import interp_rows_periodic
 from frictionwatch.core.monitor.flywheel import FlywheelMotion, harmonic_series, harmonics_of
@@ -66,9 +66,10 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
     return CycleResult(
         index=cycle.index, t_start=cycle.t_start, rpm_mean=fly.omega_mean * 60.0 / (2.0 * np.pi),
         omega_mean=fly.omega_mean, load_torque=float(load), load_power=float(cycle.load_power),
-        imep=exc.indicated_mean * FOUR_PI / spec.displacement_cyl if mean.imep_centred is None else mean.imep_centred,
-        pmax=pmax, pmax_angle=pmax_angle,
-        indicated_torque=exc.indicated_mean, friction_balance=float(mean.friction),
+        imep=(exc.indicated_mean * mep_per_torque(spec.displacement_cyl) if mean.imep_centred is None else
+              mean.imep_centred),
+        pmax=pmax, pmax_angle=pmax_angle, indicated_torque=exc.indicated_mean,
+        displacement_cyl=float(spec.displacement_cyl), friction_balance=float(mean.friction),
         coupling_loss=float(mean.coupling_loss), cycle=ident.cycle_estimate, smoothed=ident.smoothed_estimate,
         grid=grid.copy(), friction_torque=total,
         friction_torque_cyl_time=cyl_time, time_angles=theta_fly, speed_measured=speed_meas,

@@ -9,13 +9,11 @@ from typing import NamedTuple
 
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
-from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.engine import EngineSpec, mep_per_torque
 from frictionwatch.core.monitor.accumulate import Posterior
 from frictionwatch.core.monitor.estimate_kernels import estimate_kernel
 from frictionwatch.core.monitor.identify import ParameterLayout
 from frictionwatch.core.monitor.results import FrictionEstimate
-
-FOUR_PI = 4.0 * np.pi
 
 
 @dataclass(frozen=True)
@@ -94,10 +92,10 @@ class ModelErrorFloor:
         tot_sig = math.sqrt(s_tot ** 2 + (self.indicated_rel * float(ind.sum())) ** 2 + excess2)
         resolved = est.resolved & (sig <= resolve_rel * np.abs(t_cyl))
         t_mean = np.where(resolved, est.friction_torque_mean, np.nan)
-        to_cyl = FOUR_PI / spec.displacement_cyl
+        to_cyl = mep_per_torque(spec.displacement_cyl)
         return replace(est, friction_torque_mean=t_mean, friction_torque_mean_sigma=sig, fmep=t_mean * to_cyl,
                        fmep_sigma=sig * to_cyl, resolved=resolved, total_friction_torque_sigma=tot_sig,
-                       total_fmep_sigma=tot_sig * to_cyl / spec.n_cyl)
+                       total_fmep_sigma=tot_sig * mep_per_torque(spec.displacement))
 
 
 class CalibrationSensitivity(NamedTuple):
@@ -121,7 +119,7 @@ def indicated_tdc_sensitivity(grid: np.ndarray, pressure: np.ndarray, piston_acc
     a steady cycle's compression of the next cycle is this one's. piston_acceleration (z, n) [m/rad^2]: x'' of each
     cylinder on the grid (core.monitor.state.GridGeometry)."""
     step = float(grid[1] - grid[0])
-    return -area * step / FOUR_PI * np.einsum("kn,kn->k", pressure, piston_acceleration)
+    return -area * step / (4.0 * np.pi) * np.einsum("kn,kn->k", pressure, piston_acceleration)
 
 
 def calibration_variance(cal: Calibration, sens: CalibrationSensitivity) -> tuple[np.ndarray, float]:
@@ -147,9 +145,9 @@ def with_calibration(est: FrictionEstimate, cal: Calibration, sens: CalibrationS
     var_cyl, var_tot = calibration_variance(cal, sens)
     sig = np.sqrt(est.friction_torque_mean_sigma ** 2 + var_cyl)
     tot_sig = math.sqrt(est.total_friction_torque_sigma ** 2 + var_tot)
-    to_cyl = FOUR_PI / spec.displacement_cyl
-    return replace(est, friction_torque_mean_sigma=sig, fmep_sigma=sig * to_cyl, total_friction_torque_sigma=tot_sig,
-                   total_fmep_sigma=tot_sig * to_cyl / spec.n_cyl, calibration=cal.status,
+    return replace(est, friction_torque_mean_sigma=sig, fmep_sigma=sig * mep_per_torque(spec.displacement_cyl),
+                   total_friction_torque_sigma=tot_sig, total_fmep_sigma=tot_sig * mep_per_torque(spec.displacement),
+                   calibration=cal.status,
                    calibration_sigma=np.sqrt(var_cyl), total_calibration_sigma=math.sqrt(var_tot))
 
 
@@ -180,8 +178,8 @@ def friction_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
         float(limits.coefficient_snr), float(limits.min_data_gain))
     coef, coef_sig, norm, norm_sig = coef_table
     t_mean, t_sig, gain = cylinder_table
-    to_cyl = FOUR_PI / spec.displacement_cyl
-    to_eng = to_cyl / z
+    to_cyl = mep_per_torque(spec.displacement_cyl)
+    to_eng = mep_per_torque(spec.displacement)
     est = FrictionEstimate(
         friction_torque_mean=t_mean,
         friction_torque_mean_sigma=t_sig,

@@ -184,14 +184,14 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         flags += health.flags
         ident = replace(ident, smoothed_estimate=inflate(spec, ident.smoothed_estimate, health),
                         cycle_estimate=inflate(spec, ident.cycle_estimate, health))
-    if not ident.fire.all():
-        flags += [f"misfire_cyl{k + 1}" for k in np.flatnonzero(~ident.fire)]
     cond = assess_condition(spec, state.condition, cycle.grid, pressure, exc.indicated_mean, pmax, ident,
                             rows.cylinder_rows[:, :state.layout.n_params], op is not state.op and state.op is not None)
     flags += cond.flags
 
     result = build_result(spec, cycle, fly, exc, rows, state.layout, ident, mean, pmax, pmax_angle, flags, tables)
-    result = replace(result, sensor_health=health, ring=cond.ring)  # one replace: the stage results not in build_result
+    fit_flags = ("speed_fit_poor",) if result.r_squared < cfg.r_squared_floor else ()  # NaN (no ripple): no flag
+    result = replace(result, sensor_health=health, ring=cond.ring,  # one replace: the stage results not in build_result
+                     flags=result.flags + fit_flags)
     new_state = MonitorState(
         layout=state.layout, n_harmonics=m, n_nuisance=state.n_nuisance, accumulator=cond.accumulator,
         stats=ident.stats, params=ident.smoothed.params, op=op, relative_motion=rel, static=static, teeth=teeth,

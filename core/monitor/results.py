@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+from frictionwatch.core.model.engine import mep_per_torque
 from frictionwatch.core.monitor.figure_status import FigureStatus, FrictionStatus, friction_status
 from frictionwatch.core.monitor.ring_pressure import RingIndicators
 
@@ -136,7 +137,8 @@ class CycleResult:
     index, t_start [s], rpm_mean, omega_mean [rad/s], load_torque [N m], load_power [W]
     imep (z,) Pa over each cylinder's own firing cycle (-360..+360 deg around its TDC; over the assembled cycle when
     the cycle before is not at hand, flagged no_previous_cycle), pmax (z,) Pa, pmax_angle (z,) rad after its TDC
-    indicated_torque (z,) N m work mean; friction_balance N m: this cycle's T_fM = T_iM - T_LM - losses - dE/4pi
+    indicated_torque (z,) N m work mean; displacement_cyl m^3 one cylinder's swept volume (every FMEP of the
+    documents is its torque times ``mep_per_nm``: 4 pi / V_d, core.model.engine.mep_per_torque); friction_balance N m: this cycle's T_fM = T_iM - T_LM - losses - dE/4pi
     coupling_loss N m: modelled mean dissipation of dampers/couplings/shaft (physics.md §12.4), excluded from friction
     grid (n,) rad crank angle; friction_torque (n,) N m total, from the smoothed coefficients with this cycle's
     pressure and speed; per cylinder on the monitor's time samples: friction_torque_cyl_time (z, n_t) N m at the
@@ -166,6 +168,7 @@ class CycleResult:
     pmax: np.ndarray
     pmax_angle: np.ndarray
     indicated_torque: np.ndarray
+    displacement_cyl: float
     friction_balance: float
     coupling_loss: float
     cycle: FrictionEstimate
@@ -254,8 +257,8 @@ class CycleResult:
                        "centre_cycle": float(self.index), "forgetting": None})
         mep_per_nm = self.mep_per_nm()  # Pa per N m of one cylinder: 4 pi / V_d
         z = self.n_cyl
-        total = _figure(st.engine, window, est.total_friction_torque, est.total_friction_torque_sigma, mep_per_nm / z,
-                        est.calibration, est.total_calibration_sigma)
+        total = _figure(st.engine, window, est.total_friction_torque, est.total_friction_torque_sigma,
+                        self.mep_per_nm(engine=True), est.calibration, est.total_calibration_sigma)
         doc = {
             "cycle": int(self.index),
             "t_start_s": _num(self.t_start),
@@ -299,11 +302,14 @@ class CycleResult:
             "coefficients_normalised_sigma": [_num(v) for v in est.coefficients_normalised_sigma[k]],
         }
 
-    def mep_per_nm(self) -> float:
-        """4 pi / V_d [Pa per N m] from this cycle's IMEP and indicated torque (the cylinder with the most work)."""
-        j = int(np.argmax(np.abs(self.indicated_torque)))
-        t = float(self.indicated_torque[j])
-        return float(self.imep[j]) / t if t != 0.0 else math.nan
+    def mep_per_nm(self, engine: bool = False) -> float:
+        """4 pi / V_d [Pa per N m]: of one cylinder, or of the engine (its total displacement) with ``engine``.
+
+        Not the ratio of a cycle's IMEP to its indicated torque: the IMEP is over each cylinder's own 720 deg centred
+        on its firing TDC and the indicated torque over the assembled cycle, so that ratio moves with the cycle's
+        cyclic variation (-4.9 % on a genset-v20 log with a misfiring cylinder, whose FMEP it made read -3.5 % against
+        the truth where its torque read +1.5 %)."""
+        return mep_per_torque(self.displacement_cyl * (self.n_cyl if engine else 1))
 
 
 def _figure(status: FigureStatus, window: dict, torque: float, sigma: float, mep_per_nm: float,

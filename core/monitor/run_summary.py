@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from frictionwatch.core.monitor.figure_status import split_flag
+from frictionwatch.core.monitor.figure_status import FrictionStatus, friction_status, split_flag
 
 FLAG_WINDOW_CYCLES = 100  # flag counts per consecutive window of this many cycle indices (and for the whole run)
 ACTIVE_SHARE = 0.1  # a flag applies to an accumulated estimate when raised in >= this share of its window
@@ -68,6 +68,15 @@ def active_flags(flags: Sequence[Sequence[str]], window_cycles: float) -> frozen
         for f in set(fl):
             counts[f] = counts.get(f, 0) + 1
     return frozenset(flags[-1]) | {f for f, c in counts.items() if c >= ACTIVE_SHARE * n}
+
+
+def end_of_run_status(results: Sequence) -> tuple[EstimateWindow, frozenset[str], FrictionStatus]:
+    """The window of the newest smoothed estimate, the flags that apply to it and the status of its figures, from a
+    run's results in order (``CycleResult``: index, smoothed.weight, flags): what `analyze` reports, its table,
+    JSON and plots alike."""
+    window = estimate_window([r.index for r in results], [r.smoothed.weight for r in results])
+    active = active_flags([r.flags for r in results], window.effective_cycles)
+    return window, active, friction_status(results[-1].smoothed, active)
 
 
 def flag_kinds(flags: Sequence[Sequence[str]]) -> list[str]:

@@ -67,6 +67,11 @@ class MonitorConfig:
     calibration: how well TDC, pressure gain and J are known (core.model.calibration; the model's, through
     core.discrepancy.view): its remaining uncertainty is added to every friction sigma. The default is an
     uncalibrated installation's, never perfect sensors
+    r_squared_floor: a cycle whose speed fit explains less of the speed ripple is flagged ``speed_fit_poor``: what
+    rests on the speed signal (the per-cylinder split) is not supported by it. Calibrated on 24-cycle simulated logs
+    of every preset (lowest: genset-v20, 0.11-0.13, its ripple near the sensor noise) and TU/e E0NOLOAD1
+    (0.016-0.027); tested on E0NOLOAD2-4 (flagged) and the other group14 files (0.08-0.87, not flagged: R^2 alone
+    does not separate them from the healthy simulated genset)
     """
 
     max_order: float | None = None
@@ -105,6 +110,7 @@ class MonitorConfig:
     sensor_health: SensorHealthConfig | None = None
     model_error_floor: ModelErrorFloor = ModelErrorFloor()
     calibration: Calibration = Calibration()
+    r_squared_floor: float = 0.05
 
     def __post_init__(self) -> None:
         tau = self.forgetting_time_s
@@ -119,7 +125,9 @@ class MonitorConfig:
 class ConditionState:
     """The condition flags' window (core.monitor.condition): cycles used, EWMA means and variances (z,) of each
     cylinder's deviation from its siblings in ln(compression rise), ln(pmax) and ln(indicated torque), the EWMA of the
-    reduced chi^2, the change detector (core.monitor.change) and the cycles since the last operating-point change."""
+    reduced chi^2, the change detector (core.monitor.change) and the cycles since the last operating-point change;
+    burn_reference (z,) N m: each cylinder's EWMA indicated torque over its fully burned cycles (NaN before the first),
+    and burn_cycles (z,) how many fed it: the reference a single cylinder's partial burn is judged against."""
 
     count: int
     compression: np.ndarray
@@ -131,11 +139,14 @@ class ConditionState:
     misfit: float
     detector: ChangeDetector | None
     since_op_change: int = 1 << 30
+    burn_reference: np.ndarray | None = None
+    burn_cycles: np.ndarray | None = None
 
     @staticmethod
     def empty(n_cyl: int) -> ConditionState:
         zero = np.zeros(n_cyl)
-        return ConditionState(0, zero, zero, zero, zero, zero, zero, 1.0, None)
+        return ConditionState(0, zero, zero, zero, zero, zero, zero, 1.0, None,
+                              burn_reference=np.full(n_cyl, np.nan), burn_cycles=np.zeros(n_cyl, dtype=np.int64))
 
 
 class PreviousCycle(NamedTuple):

@@ -23,6 +23,7 @@ import numpy as np
 from frictionwatch.core.monitor.coastdown import CoastdownFit, fit_inertia_friction
 
 FRICTION_STEP = 0.1  # assumed 1-sigma change of the friction across a torque step, relative
+NEGATIVE_SIGMAS = 2.0  # a law's friction below zero by more than this many sigma is flagged (TransientFriction)
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,15 @@ class TransientFriction:
     def friction_at(self, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(T_f, 1-sigma) [N m] at speeds ``omega`` [rad/s]."""
         return self.fit.friction_torque(omega), self.fit.friction_std(omega)
+
+    def negative_friction(self, omega_low: float, sigmas: float = NEGATIVE_SIGMAS) -> tuple[float, float, float] | None:
+        """Where the law gives a friction below zero by more than ``sigmas`` 1-sigma at ``omega_low`` [rad/s] (the
+        lowest speed the engine runs at, or the run reached if lower): (omega_low, T_f, 1-sigma) there, else None.
+        Friction cannot be negative: such a law says the rows hold a torque the balance does not (a load still
+        connected without a reading, a wrong J), not the engine's friction."""
+        f, s = (float(v[0]) for v in self.friction_at(np.array([omega_low])))
+        return (omega_low, f, s) if f + sigmas * s < 0.0 else None
+
 
 
 def transient_friction(index: np.ndarray, omega: np.ndarray, acceleration: np.ndarray, indicated: np.ndarray,

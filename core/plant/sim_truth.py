@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.engine import EngineSpec, mep_per_torque
 from frictionwatch.core.plant.plant import FOUR_PI
 from frictionwatch.core.plant.plant_setup import PlantModel
 
@@ -113,7 +113,7 @@ class TruthAccumulator:
         coef, vd = plant.coef, spec.displacement_cyl
         fmean = s["basis"] / (FOUR_PI * n_c)  # (z, L) cycle-mean of F_l over the output, angle mean
         cylinders = [{"cylinder": k + 1, "friction_torque_mean_nm": float(s["fric"][k]) / (FOUR_PI * n_c),
-                      "fmep_bar": float(s["fric"][k]) / (vd * n_c) / 1e5,
+                      "fmep_bar": float(s["fric"][k]) / (FOUR_PI * n_c) * mep_per_torque(vd) / 1e5,
                       "imep_bar": float(s["gas"][k]) / (vd * n_c) / 1e5,
                       "pmax_bar_mean": float(s["pmax"][k] / n_c / 1e5),
                       "extra_friction_torque_nm": float(s["extra"][k]) / (FOUR_PI * n_c),
@@ -126,7 +126,8 @@ class TruthAccumulator:
         return {
             "engine": spec.name, "rpm": rpm, "load": load, "seed": seed, "cycles_count": n_c,
             "rpm_mean": float(120.0 * n_c / s["dt"]),
-            "fmep_bar": fric / vd_tot / 1e5, "imep_bar": gas / vd_tot / 1e5, "bmep_bar": s["load"] / vd_tot / 1e5,
+            "fmep_bar": fric / (FOUR_PI * n_c) * mep_per_torque(vd * spec.n_cyl) / 1e5,
+            "imep_bar": gas / vd_tot / 1e5, "bmep_bar": s["load"] / vd_tot / 1e5,
             "friction_torque_mean_nm": fric / (FOUR_PI * n_c),
             "indicated_torque_mean_nm": gas / (FOUR_PI * n_c),
             "load_torque_mean_nm": s["load"] / (FOUR_PI * n_c),

@@ -9,7 +9,11 @@ contradictions in a row) and resync across short disturbances (the next cycle co
 drivers/assembly/cycle_sync.py.
 
 Skips (``skipped``, cycles by reason): spurious_tooth, missing_tooth, sync_lost, data_gap, buffer_overflow,
-speed_out_of_range, pressure_missing, pressure_nan, phase_mismatch, clock_reset.
+speed_out_of_range, pressure_missing, pressure_nan, phase_mismatch, clock_reset. ``truncated``: the cycle the stream
+ends in, counted (``log_ends_mid_cycle``) when the stream holds at least ``TAIL_COUNTED_DEG`` of it (cylinder 1's
+compression and expansion: its burn is in the log but not analysed); a shorter tail is not a cycle. At the end of
+the stream (``flush``) a cycle whose every edge arrived is kept although the edge that would verify its last one
+never comes.
 ``stats`` counts events (segments, bridges, rejected candidates, cam votes, ring overflows, ...).
 """
 
@@ -67,6 +71,9 @@ class _Pending:
     t_last: int
 
 
+TAIL_COUNTED_DEG = 360.0  # a stream that ends this far into a cycle lost that cycle (counted, not silent)
+
+
 class CycleAssembler(EpochSync):
     """Assemble ``Cycle`` values from the records of one engine.
 
@@ -115,6 +122,7 @@ class CycleAssembler(EpochSync):
         self.phase_cyl = (1 if 1 in info.pressure_cylinders else min(info.pressure_cylinders)) \
             if info.pressure_cylinders else None
         self.skipped: Counter[str] = Counter()
+        self.truncated: Counter[str] = Counter()  # the cycle the stream ended in (module docstring)
         self.stats: Counter[str] = Counter()
         self._epoch: Epoch | None = None
         self._pending: deque[_Pending] = deque()
@@ -215,7 +223,11 @@ class CycleAssembler(EpochSync):
             c = ep.next_c
             ps, pe = self._window(ep, c)
             status, seg = window_status(ep, ps, pe)
+            if flushing and status == "wait" and self._arrived_whole(seg, ps, pe):
+                status = "complete"  # the stream ended right after it: no edge will come to verify its last
             if status in ("wait", "before"):
+                if flushing and status == "wait":
+                    self._count_tail(ep, c, seg, ps, pe)
                 return
             index = ep.index_of(c)
             ep.next_c = c + 1
@@ -243,6 +255,21 @@ class CycleAssembler(EpochSync):
             cycle_edges(col, i0, m, w.ordinal(seg.first_pos) + (s0 - seg.first_seq), w.n, w.t,
                          -2 * w.n * c + w.n * int(ep.phase), self.a0_deg, self.grid, ticks, pos, tooth, theta, t_grid)
             self._pending.append(_Pending(index, ep, c, ticks, pos, theta, t_grid, tooth, t_first, t_last))
+
+    def _arrived_whole(self, seg, ps: int, pe: int) -> bool:
+        """Every edge of window ps..pe is in the ring and verified but its last (which waits for the next)."""
+        return seg is not None and seg.reason is None and seg.seq_of(pe) <= min(seg.good + 1, self.buf.teeth.end - 1)
+
+    def _count_tail(self, ep: Epoch, c: int, seg, ps: int, pe: int) -> None:
+        """The stream ended inside cycle c's window: count it when it holds >= TAIL_COUNTED_DEG of it."""
+        if seg is None:
+            return
+        held_deg = 720.0 * (min(seg.good_pos, pe) - ps) / (pe - ps)
+        if held_deg >= TAIL_COUNTED_DEG:
+            ep.next_c = c + 1
+            self.truncated["log_ends_mid_cycle"] += 1
+            log.warning("cycle %d skipped: the stream ends %.0f deg into it (a cycle is 720 deg)", ep.index_of(c),
+                        held_deg)
 
     def _skip(self, reason: str, index: int) -> None:
         if self.skipped[reason] == 0:

@@ -208,7 +208,9 @@ def test_a_wrong_cam_angle_is_caught_by_the_pressure_check():
     recs = s.records(Motion(1500), 1.0)
     wrong = Stream(cam_deg=s.cam_deg + 360.0)  # the log states the cam one revolution off
     out, asm = run(recs, wrong)
-    assert out == [] and asm.skipped["phase_mismatch"] == 11
+    # 12: the one-revolution shift puts a window's closing edge on the stream's last edge; kept at the end of the
+    # stream (no edge comes to verify it), it is checked and refused like the others
+    assert out == [] and asm.skipped["phase_mismatch"] == 12
 
 
 def test_late_pressure_gives_the_same_cycles(k4):
@@ -394,3 +396,39 @@ def test_tooth_batches_beyond_the_ring_are_counted_not_raised(k4):
                        and np.array_equal(c.tooth_ticks, by_first_edge[int(c.tooth_ticks[0])].tooth_ticks)
                        for c in out)
     assert [c.index for c in out] == sorted({c.index for c in out})
+
+
+# ---- the end of the stream: no cycle lost silently (issue 25 item 4) ---------------------------------------------------
+def _cut(records, t_cut: int) -> list:
+    """The stream as if it had ended at tick ``t_cut`` (every record cut there)."""
+    import dataclasses
+
+    out = []
+    for r in records:
+        if isinstance(r, ToothBatch | CamBatch):
+            t = r.ticks[r.ticks <= t_cut]
+            if t.size:
+                out.append(type(r)(t))
+        elif isinstance(r, PressureBlock):
+            n = int(math.floor((t_cut - r.t0_ticks) / r.period_ticks)) + 1
+            if n > 0:
+                out.append(dataclasses.replace(r, values=r.values[:n]))
+        elif r.ticks <= t_cut:
+            out.append(r)
+    return out
+
+
+@pytest.mark.parametrize("into_deg,counted", [(0.0, 0), (100.0, 0), (400.0, 1), (700.0, 1)])
+def test_the_cycle_the_stream_ends_in_is_kept_or_counted(k4, into_deg, counted):
+    """Cut after cycle k's closing edge: cycle k is kept (no edge comes to verify its last); cut 400 or 700 deg into
+    cycle k+1: k+1 is counted as log_ends_mid_cycle (its first half, cylinder 1's burn, is in the stream); 100 deg
+    into it: a tail, not a cycle."""
+    s, m, recs, clean, _ = k4
+    k = 6
+    t_close = int(clean[k].tooth_ticks[-1])
+    cycle_ticks = int(clean[k + 1].tooth_ticks[-1]) - t_close
+    out, asm = run(_cut(recs, t_close + round(into_deg / 720.0 * cycle_ticks)), s)
+    assert [c.index for c in out] == [c.index for c in clean[:k + 1]]
+    assert same(out[-1], clean[k])
+    assert not asm.skipped
+    assert asm.truncated == ({"log_ends_mid_cycle": 1} if counted else {})

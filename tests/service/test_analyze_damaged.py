@@ -25,6 +25,7 @@ from frictionwatch.service.cli import main
 from frictionwatch.service.pipeline import analyze_log
 from mcap.reader import make_reader
 
+from tests.analyze_doc import assert_fmep_is_torque_over_displacement
 from tests.service.live_helpers import RPM, per_cycle, session
 
 BATCH_S = 0.02  # a message holds at most about 10 ms of data before its log time; 20 ms to be safe
@@ -64,6 +65,7 @@ def test_intact_log_reports_no_damage(intact, capsys):
     assert [r.index for r in full.results] == list(range(20))
     rc, out, _ = analyze_cli(path, capsys, "--json")
     doc = json.loads(out)
+    assert_fmep_is_torque_over_displacement(doc)
     assert rc == 0 and doc["cycles_ok"] == 20
     assert doc["log_damage"] == {} and doc["cycles_skipped"] == {} and doc["data_gaps"] == []
 

@@ -29,6 +29,8 @@ from frictionwatch.service.cmd_analyze import SCHEMA_FILE, SCHEMA_VERSION
 from frictionwatch.service.progress import Bar, log_extent
 from numpy.testing import assert_allclose
 
+from tests.analyze_doc import assert_fmep_is_torque_over_displacement
+
 jsonschema = pytest.importorskip("jsonschema")
 CYCLES = 80
 
@@ -50,6 +52,7 @@ def misfire_run(misfire_log, tmp_path_factory):
     with cap:
         assert main(["analyze", str(misfire_log), "--json", "--csv", str(csv_path)]) == 0
     text = csv_path.read_bytes().decode()
+    assert assert_fmep_is_torque_over_displacement(json.loads(cap.out)) >= 6
     return json.loads(cap.out), list(csv.DictReader(text.splitlines())), text, cap.err, csv_path
 
 
@@ -184,6 +187,7 @@ def test_no_load_measurement_gives_no_engine_friction(misfire_log, tmp_path, cap
                 writer.write(record)
     assert main(["analyze", str(noload), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
+    assert_fmep_is_torque_over_displacement(doc)
     jsonschema.validate(doc, json.loads(SCHEMA_FILE.read_text()))
     assert doc["friction"]["status"] == "unresolved" and "no load measurement" in doc["friction"]["reason"]
     assert doc["fmep_bar"] is None and doc["friction"]["fmep_bar"] is None
@@ -371,6 +375,7 @@ def test_real_fired_file_without_a_load_reports_no_friction(tmp_path, capsys):
     capsys.readouterr()
     assert main(["analyze", str(log), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
+    assert_fmep_is_torque_over_displacement(doc)
     jsonschema.validate(doc, json.loads(SCHEMA_FILE.read_text()))
     assert doc["friction"]["status"] == "unresolved" and doc["fmep_bar"] is None
     assert doc["friction"]["fmep_bar"] is None and doc["friction_run_mean_balance"]["fmep_bar"] is None

@@ -15,6 +15,7 @@ from frictionwatch.service.cmd_analyze import summary
 from numpy.testing import assert_allclose
 from prometheus_client.parser import text_string_to_metric_families
 
+from tests.analyze_doc import assert_fmep_is_torque_over_displacement
 from tests.service.serve_helpers import DEMO, FakeAlerts, demo_service, wait_until
 
 TOKEN = "t0ken-for-the-tests-0123456789"
@@ -37,7 +38,9 @@ def served():
 def analyzed(served):
     """`frictionwatch analyze --json`'s document made from engine a's own results."""
     session = served[1].session
-    return summary(replace(session.analysis(), spec=session.pipeline.spec))  # the session holds the model as .spec
+    doc = summary(replace(session.analysis(), spec=session.pipeline.spec))  # the session holds the model as .spec
+    assert_fmep_is_torque_over_displacement(doc)
+    return doc
 
 
 def test_engines_are_independent(served) -> None:

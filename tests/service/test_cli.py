@@ -8,6 +8,8 @@ from pathlib import Path
 import pytest
 from frictionwatch.service.cli import main
 
+from tests.analyze_doc import assert_fmep_is_torque_over_displacement
+
 
 @pytest.fixture(scope="module")
 def small_log(tmp_path_factory):
@@ -29,6 +31,7 @@ def test_analyze_json_has_the_truth_keys_and_is_close(small_log, capsys, tmp_pat
     assert main(["analyze", str(small_log), "--json", "--csv", str(tmp_path / "c.csv"), "--plot",
                  str(tmp_path / "plots")]) == 0
     doc = json.loads(capsys.readouterr().out)
+    assert assert_fmep_is_torque_over_displacement(doc) >= 2
     truth = json.loads(small_log.with_name("k9k.truth.json").read_text())
     assert doc["cycles_ok"] >= 10 and isinstance(doc["cycles_skipped"], dict)
     for got, want in zip(doc["cylinders"], truth["cylinders"]):
@@ -118,4 +121,5 @@ def test_analyze_takes_a_model_file(tmp_path, capsys):
     log = Path(__file__).resolve().parents[2] / "replay_logs" / "deutz-1cyl.mcap"
     assert main(["analyze", str(log), "--engine", str(path), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
+    assert_fmep_is_torque_over_displacement(doc)
     assert len(doc["cylinders"][0]["coefficients"]) == 7  # the six Rezeka-Henein terms and the added one

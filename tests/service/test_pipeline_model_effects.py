@@ -15,6 +15,8 @@ from frictionwatch.core.model.engine_model import load_model
 from frictionwatch.service.cli import main
 from frictionwatch.service.pipeline import EnginePipeline, analyze_log
 
+from tests.analyze_doc import assert_fmep_is_torque_over_displacement
+
 GAIN = 1.06
 
 
@@ -68,6 +70,7 @@ def test_cli_analyze_with_the_model_file(logs, capsys):
         with contextlib.redirect_stdout(buf):
             assert main(["analyze", str(log), "--json", *extra]) == 0
         docs.append(json.loads(buf.getvalue()))
+        assert_fmep_is_torque_over_displacement(docs[-1])
     imep = [np.array([c["imep_bar"] for c in d["cylinders"]]) for d in docs]
     true = np.array([c["imep_bar"] for c in truth["cylinders"]])
     assert abs(imep[1][2] - true[2]) < abs(imep[0][2] - true[2]) / 4

@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 from frictionwatch.service.cli import main
 
+from tests.analyze_doc import assert_fmep_is_torque_over_displacement
 from tests.json_close import assert_json_close
 
 distributed = pytest.importorskip("distributed")
@@ -66,7 +67,9 @@ def rows(index: dict) -> dict[str, dict]:
 
 def analyze_json(log: Path, capsys, *extra: str) -> dict:
     assert main(["analyze", str(log), "--json", *extra]) == 0
-    return json.loads(capsys.readouterr().out)
+    doc = json.loads(capsys.readouterr().out)
+    assert_fmep_is_torque_over_displacement(doc)
+    return doc
 
 
 def test_one_result_per_log_and_failed_rows_with_reasons(archive, scheduler, tmp_path, capsys):
