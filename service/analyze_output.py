@@ -65,7 +65,7 @@ def print_table(doc: dict) -> None:
                  if fr["calibration"] == "uncalibrated" else "as commissioned"))
     tdc = doc.get("tdc_from_pressure")
     if tdc and tdc["wheel_offset_deg"] is not None:
-        print(f"  TDC from the pressure (newest 100 cycles): the wheel {tdc['wheel_offset_deg']:+.2f} ± "
+        print(f"  TDC from the pressure (newest window): the wheel {tdc['wheel_offset_deg']:+.2f} ± "
               f"{tdc['wheel_sigma_deg']:.2f}° from the model's (+ = the true TDC later)"
               + (f"; flagged: {', '.join(tdc['flags'])} (`frictionwatch commission` measures TDC)" if tdc["flags"]
                  else ""))

@@ -75,3 +75,26 @@ def test_healthy_at_another_operating_point_raises_nothing(model_path, tmp_path)
     assert flags == [] and first == -1
     flags, first = _sensor_flags(analyze_log(log))  # and with the bare preset (uncalibrated)
     assert flags == [] and first == -1
+
+
+@pytest.mark.parametrize("engine", ["maruti-3cyl", "genset-v20"])
+def test_local_traces_cut_as_the_reference(engine):
+    """All cylinders in one indexing (local_traces) against tdc.local_cycles, one cylinder at a time."""
+    import types
+
+    import numpy as np
+    from frictionwatch.core.model.engine import load_engine
+    from frictionwatch.core.monitor.calibration.tdc import local_cycles
+    from frictionwatch.core.monitor.calibration.tdc_watch import local_traces
+
+    spec = load_engine(engine)
+    n = 720
+    grid = np.linspace(0.0, 4 * np.pi, n, endpoint=False)
+    rng = np.random.default_rng(3)
+    prev = types.SimpleNamespace(index=7, grid=grid, pressure=rng.uniform(1e5, 1e7, (spec.n_cyl, n)))
+    cur = types.SimpleNamespace(index=8, grid=grid, pressure=rng.uniform(1e5, 1e7, (spec.n_cyl, n)))
+    got, angle = local_traces(prev, cur, spec.firing_angles)
+    for k, phase in enumerate(spec.firing_angles):
+        ref, ref_angle = local_cycles([prev, cur], k, float(phase))
+        np.testing.assert_array_equal(got[k], ref[0])
+        np.testing.assert_allclose(angle, ref_angle, rtol=0, atol=1e-12)
