@@ -118,7 +118,7 @@ def summary(analysis: LogAnalysis) -> dict:
 def tdc_from_pressure(analysis: LogAnalysis) -> dict | None:
     """The newest window of the TDC watch (core.monitor.calibration.tdc_watch): each cylinder's TDC found from its
     pressure against the one the model states (after its corrections) [deg], the wheel's (their median), and the
-    flags it raised; None before a whole window (core.monitor.calibration.tdc_watch.window_cycles)."""
+    flags it raised; None before a whole window (100 cycles)."""
     watch = analysis.tdc_watch
     if watch is None or watch.last is None:
         return None

@@ -22,7 +22,7 @@ from frictionwatch.core.discrepancy.view import (
 )
 from frictionwatch.core.model.engine import EngineSpec, spec_from_toml_text
 from frictionwatch.core.model.engine_model import EngineModel, as_model, load_model
-from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState, watch_cycle, window_cycles
+from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState, watch_cycle
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
 from frictionwatch.core.monitor.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
@@ -102,7 +102,7 @@ class EnginePipeline:
             # TDC from the pressure, window by window, against the model's calibration (a hidden or drifting TDC
             # error is flagged and withholds the figures it touches: core.monitor.calibration.tdc_watch)
             self.tdc_watch = watch_cycle(view.spec, self.model.calibration, self.tdc_watch, cycle,
-                                         self.cylinder_twist(), window_cycles(self.spec.n_cyl))
+                                         self.cylinder_twist())
             if self.tdc_watch.flags:
                 result = replace(result, flags=result.flags + self.tdc_watch.flags)
             return result

@@ -2,10 +2,10 @@
 model's calibration says (issue 25 items 2-3: a hidden TDC error is flagged, never a confident figure).
 
 Every cycle adds each cylinder's pressure about its firing TDC to one of ``BLOCKS`` running block sums; every
-``window_cycles`` (100, 100 per 4 cylinders on a larger engine) the thermodynamic fit
-(core.monitor.calibration.tdc.tdc_from_pressure) runs on the block means (the
-fit is on a mean cycle anyway; the blocks give its statistical sigma) and the sums start again. The cost is one fit
-of BLOCKS traces per cylinder per window, not a fit per cycle.
+``window`` cycles (100) the thermodynamic fit (core.monitor.calibration.tdc.tdc_from_pressure) runs on the block
+means (the fit is on a mean cycle anyway; the blocks give its statistical sigma) and the sums start again: on every
+cylinder of a small engine, on four in turn of a large one (each keeps its newest estimate). The cost is one fit of
+BLOCKS traces per cylinder fitted, not a fit per cycle.
 
 What is flagged (flags ``sensor_tdc_offset`` for the wheel, ``sensor_tdc_offset_cyl<k>`` for a cylinder's own; the
 ``sensor_`` prefix withholds the figures they touch, core.monitor.figure_status):
@@ -38,9 +38,9 @@ from frictionwatch.core.monitor.calibration.tdc import BLOCKS, TdcEstimate, tdc_
 from frictionwatch.core.types import Cycle
 
 WINDOW_CYCLES = 100
-# cylinders per 100 cycles of window: the fit costs ~40 ms per cylinder and window (genset-v20: 0.8 s for 20
-# cylinders under load, 4-8 ms per cycle over a 100-cycle window, more than the monitor itself), so a large engine's
-# window grows with its cylinder count (genset-v20: 500 cycles, 40 s at 1500 rpm) to keep the watch a fraction of it
+# cylinders fitted per window: the fit costs ~40 ms per cylinder and window (genset-v20: 0.8 s for all 20 under load,
+# 4-8 ms per cycle over a 100-cycle window, more than the monitor itself), so a large engine's cylinders take turns,
+# four per window (genset-v20: each cylinder every 500 cycles, the wheel from the first window on)
 CYLINDERS_PER_WINDOW = 4
 # 1.5: chosen on bench/calibration_coverage.py's k9k 1700 rpm / 1.0 and maruti 3000 rpm / 0.8 rows (seed 5): at 2.0
 # the maruti's +-1.5 deg wheels read at 2.0-2.1 sigma unflagged; at 1.5 they are flagged and no healthy row is.
@@ -65,6 +65,7 @@ class TdcWatchState:
     flags: tuple[str, ...]
     omega_sum: float
     twist_sum: np.ndarray | float = 0.0
+    next_cylinder: int = 0
 
     @staticmethod
     def empty() -> TdcWatchState:
@@ -85,11 +86,6 @@ def local_traces(prev: Cycle, cycle: Cycle, phases: np.ndarray,
                             axis=1)
     idx = (n + centre - half)[:, None] + np.arange(2 * half)[None, :]
     return np.take_along_axis(joined, idx, axis=1), step * np.arange(-half, half)
-
-
-def window_cycles(n_cyl: int) -> int:
-    """Cycles per window for an engine of ``n_cyl`` cylinders: WINDOW_CYCLES, longer for a large engine."""
-    return WINDOW_CYCLES * max(1, math.ceil(n_cyl / CYLINDERS_PER_WINDOW))
 
 
 def _omega(cycle: Cycle) -> float:
@@ -119,18 +115,25 @@ def watch_cycle(spec: EngineSpec, cal: Calibration, state: TdcWatchState, cycle:
     twist_sum = state.twist_sum + np.asarray(twist, dtype=np.float64)
     n = state.cycles + 1
     if n < window:
-        return TdcWatchState(sums, counts, n, cycle, state.last, state.flags, omega, twist_sum)
+        return TdcWatchState(sums, counts, n, cycle, state.last, state.flags, omega, twist_sum, state.next_cylinder)
     means = sums / np.maximum(counts, 1)[:, None, None]
     twist_mean = np.broadcast_to(twist_sum / n, (spec.n_cyl,))
-    estimates: list[TdcEstimate | None] = []
-    for k in range(spec.n_cyl):
+    z = spec.n_cyl
+    # this window's cylinders: all of a small engine, CYLINDERS_PER_WINDOW in turn on a large one (each keeps its
+    # newest estimate; the wheel, their median, is known after the first window)
+    turn = range(z) if z <= CYLINDERS_PER_WINDOW else [(state.next_cylinder + i) % z
+                                                       for i in range(CYLINDERS_PER_WINDOW)]
+    estimates = list(state.last) if state.last is not None else [None] * z
+    for k in turn:
         try:
             e = tdc_from_pressure(means[:, k, :], angle, spec, omega / n)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError):
-            estimates.append(None)
+            estimates[k] = None
             continue
-        estimates.append(dataclasses.replace(e, offset_rad=e.offset_rad + float(twist_mean[k])))
-    return TdcWatchState(None, np.zeros(BLOCKS), 0, cycle, tuple(estimates), tdc_flags(cal, estimates), 0.0, 0.0)
+        estimates[k] = dataclasses.replace(e, offset_rad=e.offset_rad + float(twist_mean[k]))
+    nxt = (state.next_cylinder + len(turn)) % z
+    return TdcWatchState(None, np.zeros(BLOCKS), 0, cycle, tuple(estimates), tdc_flags(cal, estimates), 0.0, 0.0,
+                         nxt)
 
 
 def tdc_flags(cal: Calibration, estimates: list[TdcEstimate | None]) -> tuple[str, ...]:
@@ -157,4 +160,4 @@ def tdc_flags(cal: Calibration, estimates: list[TdcEstimate | None]) -> tuple[st
     return tuple(flags)
 
 
-__all__ = ["TdcWatchState", "WINDOW_CYCLES", "local_traces", "tdc_flags", "watch_cycle", "window_cycles"]
+__all__ = ["TdcWatchState", "WINDOW_CYCLES", "local_traces", "tdc_flags", "watch_cycle"]
