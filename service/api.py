@@ -151,8 +151,13 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
 
     @app.get("/api/v1/engines/{engine_id}/sensor-health", response_model=SensorHealth, responses=ERRORS)
     def sensor_health(svc: Svc) -> dict:
+        """What checks the engine's sensors, as of the newest cycle: the TDC watch (on by default: every 100 cycles
+        each cylinder's TDC found from its pressure, flagged against the calibration), the model's calibration
+        (uncalibrated: a typical installation's errors assumed in every sigma; commissioned: measured by
+        `frictionwatch commission`), and the speed-based stage's figures where it is switched on (`enabled`;
+        `serve --sensor-health`, off by default: unreliable where the model is not the engine)."""
         whole, _ = newest(svc, 1)
-        return views.sensor_health(whole)
+        return views.sensor_health(whole, svc.tdc_watch, svc.model.calibration)
 
     @app.get("/api/v1/engines/{engine_id}/alerts", response_model=list[Alert], responses=ERRORS)
     def alerts(svc: Svc, state: Literal["active", "all"] = "active") -> list[dict]:

@@ -115,10 +115,64 @@ class Speed(_Open):
     history: SpeedHistory
 
 
+class TdcCylinder(_Open):
+    cylinder: int
+    offset_deg: float | None = Field(description="this cylinder's TDC found from its pressure, against the TDC the "
+                                                 "model states after its corrections [deg crank]; + = the true TDC "
+                                                 "is later; null: the fit failed in this window")
+    sigma_deg: float | None = Field(description="1 sigma of offset_deg [deg]")
+    method: str | None = Field(description="the fit: rohr-compression-expansion (fired) or "
+                                           "rohr-motored-heat-loss-shaping (motored)")
+
+
+class TdcWatch(_Open):
+    """The TDC watch (core/monitor/calibration/tdc_watch.py, on by default): every window_cycles cycles each
+    cylinder's TDC is found from its own pressure and judged against the model's calibration."""
+
+    window_cycles: int = Field(description="cycles per window (100)")
+    cycles_gathered: int = Field(description="cycles gathered towards the next window")
+    window_last_cycle: int | None = Field(description="the cycle that closed the newest window; null before the "
+                                                      "first window (after window_cycles cycles)")
+    wheel_offset_deg: float | None = Field(description="the wheel's TDC offset: the median of the cylinders' [deg]; "
+                                                       "null before the first window")
+    wheel_sigma_deg: float | None = Field(description="1 sigma of wheel_offset_deg: the median of the cylinders' "
+                                                      "sigmas [deg]")
+    flags: list[str] = Field(description="flags the newest window raised: sensor_tdc_offset (the wheel beyond what "
+                                         "the calibration allows: every figure withheld), sensor_tdc_offset_cyl<k> "
+                                         "(cylinder k moved against its siblings: its figures withheld)")
+    cylinders: list[TdcCylinder] = Field(description="one per cylinder; empty before the first window")
+
+
+class CalibrationState(_Open):
+    """The engine model's calibration section (core/model/calibration.py) every friction sigma carries."""
+
+    status: Calibrated = Field(description=CALIBRATION_WORDS)
+    source: str = Field(description="where the numbers come from, in words")
+    tdc_wheel_sigma_deg: float = Field(description="1 sigma of the wheel's TDC, common to every cylinder [deg]")
+    tdc_cylinder_sigma_deg: float = Field(description="1 sigma of each cylinder's own TDC beyond the wheel's [deg]")
+    gain_sigma_pct: float = Field(description="1 sigma of each pressure channel's gain [%]")
+    gain_common_sigma_pct: float = Field(description="1 sigma of the gain common to every channel [%]")
+    inertia_sigma_pct: float = Field(description="1 sigma of the inertia J [%]")
+
+
 class SensorHealth(_Open):
-    enabled: bool
-    cylinders: list[dict]
-    flags: list[str]
+    """What checks the sensors: the TDC watch and the calibration always; the speed-based stage where switched on."""
+
+    cycle_index: int = Field(description="the newest cycle, whose flags these are")
+    enabled: bool = Field(description="the speed-based sensor-health stage (core/monitor/sensor_health.py) is on: "
+                                      "opt-in, `serve --sensor-health`; off by default because where the model is "
+                                      "not the engine its TDC is not reliable (docs/design-notes.md item 13)")
+    cylinders: list[dict] = Field(description="the speed-based stage's per-cylinder TDC offset, pressure gain and "
+                                              "pegging with 1 sigma and the corrections in use; empty when it is off")
+    flags: list[str] = Field(description="every sensor_* flag of the newest cycle, from either check; each "
+                                         "withholds the figures it touches")
+    wheel_tdc_offset_deg: float | None = Field(description="the speed-based stage's wheel TDC offset; null when off")
+    wheel_tdc_offset_sigma_deg: float | None
+    friction_sigma_nm: float | None = Field(description="what the speed-based stage's remaining TDC and gain "
+                                                        "uncertainty adds to the engine friction's 1 sigma")
+    speed_based_flags: list[str] = Field(description="the flags the speed-based stage raised; empty when off")
+    tdc_watch: TdcWatch
+    calibration: CalibrationState
 
 
 class Alert(_Open):

@@ -13,9 +13,12 @@ from collections.abc import Sequence
 from dataclasses import asdict
 
 import numpy as np
+from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.monitor.figure_status import friction_status, split_flag
 from frictionwatch.core.monitor.results import PA_PER_BAR, CycleResult
 from frictionwatch.core.monitor.run_summary import active_flags, estimate_window, mean_and_sem
+from frictionwatch.service.cmd_analyze import tdc_watch_document
+from frictionwatch.service.engine_service import TdcWatchView
 
 RPM_PER_RAD_S = 30.0 / math.pi
 FIGURE_VALUES = ("fmep_bar", "fmep_sigma_bar", "friction_torque_mean_nm", "friction_torque_sigma_nm")
@@ -147,12 +150,47 @@ def speed(r: CycleResult, history: Sequence[CycleResult]) -> dict:
             "history": {"cycle_index": [int(h.index) for h in history], "rpm_mean": [num(h.rpm_mean) for h in history]}}
 
 
-def sensor_health(r: CycleResult) -> dict:
-    """The sensor-health stage's estimates (docs/results.md); ``enabled`` False when the stage is off."""
-    if r.sensor_health is None:
-        return {"enabled": False, "cylinders": [], "flags": sorted(f for f in r.flags if split_flag(f)[0].startswith("sensor_"))}
-    doc = r.sensor_health.to_json()
-    return {"enabled": True, **doc}
+def sensor_health(r: CycleResult, watch: TdcWatchView, cal: Calibration) -> dict:
+    """SensorHealth (contract): what checks the sensors on this engine, as of the newest result ``r``.
+
+    ``tdc_watch``: the TDC found from each cylinder's pressure every ``window_cycles`` cycles (on by default,
+    core.monitor.calibration.tdc_watch; the same block as ``analyze --json``'s ``tdc_from_pressure``, with the
+    cylinders numbered, the cycle that closed the window and the cycles gathered towards the next one).
+    ``calibration``: the model's calibration section (core.model.calibration) every friction sigma carries.
+    ``enabled`` and the keys beside it: the speed-based sensor-health stage (core.monitor.sensor_health), opt-in
+    (``serve --sensor-health``); ``cylinders`` empty and its figures null when it is off. ``flags``: every
+    ``sensor_*`` flag of the newest cycle, whichever check raised it (each withholds the figures it touches)."""
+    flags = sorted(f for f in r.flags if split_flag(f)[0].startswith("sensor_"))
+    stage = r.sensor_health.to_json() if r.sensor_health is not None else None
+    doc = tdc_watch_document(watch.state)
+    cylinders = [] if doc is None else [
+        {"cylinder": k + 1, "offset_deg": None, "sigma_deg": None, "method": None} if c is None
+        else {"cylinder": k + 1, **c} for k, c in enumerate(doc["cylinders"])]
+    return {
+        "cycle_index": int(r.index),
+        "enabled": stage is not None,
+        "flags": flags,
+        "cylinders": [] if stage is None else stage["cylinders"],
+        "wheel_tdc_offset_deg": None if stage is None else stage["wheel_tdc_offset_deg"],
+        "wheel_tdc_offset_sigma_deg": None if stage is None else stage["wheel_tdc_offset_sigma_deg"],
+        "friction_sigma_nm": None if stage is None else stage["friction_sigma_nm"],
+        "speed_based_flags": [] if stage is None else list(stage["flags"]),
+        "tdc_watch": {
+            "window_cycles": watch.window_cycles,
+            "cycles_gathered": int(watch.state.cycles),
+            "window_last_cycle": watch.window_cycle,
+            "wheel_offset_deg": None if doc is None else doc["wheel_offset_deg"],
+            "wheel_sigma_deg": None if doc is None else doc["wheel_sigma_deg"],
+            "flags": [] if doc is None else doc["flags"],
+            "cylinders": cylinders,
+        },
+        "calibration": {
+            "status": cal.status, "source": cal.source,
+            "tdc_wheel_sigma_deg": cal.tdc_wheel_sigma_deg, "tdc_cylinder_sigma_deg": cal.tdc_cylinder_sigma_deg,
+            "gain_sigma_pct": 100.0 * cal.gain_sigma, "gain_common_sigma_pct": 100.0 * cal.gain_common_sigma,
+            "inertia_sigma_pct": 100.0 * cal.inertia_sigma,
+        },
+    }
 
 
 def _finite_list(a: np.ndarray) -> list[float | None]:

@@ -14,7 +14,9 @@ from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
+from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState
 from frictionwatch.core.monitor.run_summary import end_of_run_status, flag_summary, mean_and_sem
+from frictionwatch.core.monitor.sensor_health import SensorHealthConfig
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.service import coastdown_report
 from frictionwatch.service.analyze_output import print_table, write_csv
@@ -36,7 +38,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON document (docs/results.md) instead of the table")
     p.add_argument("--csv", type=Path, metavar="OUT", help="write per-cycle, per-cylinder rows to OUT")
     p.add_argument("--plot", type=Path, metavar="DIR", help="write PNG plots to DIR")
+    p.add_argument("--sensor-health", action="store_true", help=(
+        "switch on the speed-based sensor-health stage: each cylinder's TDC, pressure gain and pegging estimated "
+        "from the flywheel speed and the compression stroke, flagged and corrected. Off by default because where "
+        "the engine model is not the engine its TDC is not reliable (on the simulator a 1 deg wheel offset read "
+        "0.05 deg and a healthy engine's FMEP moved 7.8 %%: docs/design-notes.md item 13). The TDC found from each "
+        "cylinder's pressure every 100 cycles (the TDC watch) is on with or without it"))
     p.set_defaults(func=run)
+
+
+def monitor_config(sensor_health: bool) -> MonitorConfig:
+    """The monitor's settings for ``--sensor-health`` (analyze, serve): the defaults, with the speed-based
+    sensor-health stage (core.monitor.sensor_health) on when asked for."""
+    return MonitorConfig(sensor_health=SensorHealthConfig()) if sensor_health else MonitorConfig()
 
 
 def document(analysis: LogAnalysis) -> dict:
@@ -119,8 +133,13 @@ def tdc_from_pressure(analysis: LogAnalysis) -> dict | None:
     """The newest window of the TDC watch (core.monitor.calibration.tdc_watch): each cylinder's TDC found from its
     pressure against the one the model states (after its corrections) [deg], the wheel's (their median), and the
     flags it raised; None before a whole window (100 cycles)."""
-    watch = analysis.tdc_watch
-    if watch is None or watch.last is None:
+    return None if analysis.tdc_watch is None else tdc_watch_document(analysis.tdc_watch)
+
+
+def tdc_watch_document(watch: TdcWatchState) -> dict | None:
+    """``tdc_from_pressure``'s block from the watch's state (the API's sensor-health shows the same); None before
+    the watch's first whole window."""
+    if watch.last is None:
         return None
     found = [e for e in watch.last if e is not None]
     cyl = [None if e is None else {"offset_deg": e.offset_deg, "sigma_deg": e.sigma_deg, "method": e.method}
@@ -232,7 +251,8 @@ def run(args: argparse.Namespace) -> int:
     extent = log_extent(args.log)
     with progress_bar(total=1 if extent.known else 0, desc=f"analyze {args.log.name}",
                       estimated_total=extent.known) as bar:
-        analysis = analyze_log(args.log, args.engine, on_result=lambda r: bar.advance(extent.fraction(r.t_start)))
+        analysis = analyze_log(args.log, args.engine, on_result=lambda r: bar.advance(extent.fraction(r.t_start)),
+                               config=monitor_config(args.sensor_health))
     if not analysis.results:
         print(f"frictionwatch analyze: error: {no_cycle_reason(analysis, args.log.name)}", file=sys.stderr)
         return 2

@@ -13,6 +13,7 @@ import logging
 import os
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from frictionwatch.service.output_files import atomic_write_text, check_output_path
@@ -47,6 +48,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, metavar="N", help="local cluster worker processes (default: the cores)")
     p.add_argument("--force", action="store_true", help="analyse logs whose result is up to date too")
     p.add_argument("--json", action="store_true", help="print the index document instead of the table")
+    p.add_argument("--sensor-health", action="store_true", help="switch on the speed-based sensor-health stage, as "
+                   "`analyze --sensor-health` does (off by default: unreliable where the model is not the engine); a "
+                   "result made with it off is not up to date for a run with it on, and the other way round")
     p.set_defaults(func=run)
 
 
@@ -59,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     out = args.out if args.out is not None else root / "reanalysis"
     check_output_path(out / INDEX_NAME)
     name = args.model or args.engine
-    model = ModelChoice.load(name) if name else ModelChoice.stored()
+    model = replace(ModelChoice.load(name) if name else ModelChoice.stored(), sensor_health=args.sensor_health)
     logs = find_logs(root, skip=out)
     if not logs:
         raise FileNotFoundError(f"no *.mcap log under {root}")
@@ -103,7 +107,7 @@ def _analyse(todo: list[Path], root: Path, out: Path, model: ModelChoice, args: 
     t = time.perf_counter()
     with start_client(args.scheduler, args.workers) as client, \
             progress_bar(total=len(todo), desc="reanalyze", unit="logs", waiting_note=STARTING_NOTE) as bar:
-        warm_workers(client, todo, model.arg)
+        warm_workers(client, todo, model.arg, model.sensor_health)
         startup["s"] = time.perf_counter() - t
         for path, row in run_on_dask(client, todo, model):
             rel = path.relative_to(root).as_posix()
@@ -122,7 +126,7 @@ def _index(root: Path, model: ModelChoice, where: str, logs: list[Path], rows: d
     done = [r for r in listed if r["this_run"]]
     return {
         "index_version": INDEX_VERSION, "archive": str(root.resolve()), "model": model.label,
-        "model_sha256": model.sha256, "cluster": where,
+        "model_sha256": model.sha256, "sensor_health": model.sensor_health, "cluster": where,
         "logs_found": len(logs), "analysed_this_run": len(done), "up_to_date_kept": len(listed) - len(done),
         "not_reached": analysed - len(done),
         "ok": sum(r["status"] == "ok" for r in listed), "failed": sum(r["status"] == "failed" for r in listed),

@@ -24,10 +24,13 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from frictionwatch.core.model.engine_model import EngineModel
+from frictionwatch.core.monitor.calibration.tdc_watch import WINDOW_CYCLES, TdcWatchState
 from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 from frictionwatch.drivers.source import Source
 from frictionwatch.service.listeners import Fanout, LatestState, ServiceEvent
@@ -104,6 +107,17 @@ class StampedSource(Source):
         return stamps[0][1] if stamps and stamps[0][0] >= tick else None
 
 
+@dataclass(frozen=True)
+class TdcWatchView:
+    """The pipeline's TDC watch (core.monitor.calibration.tdc_watch) as of the newest published result: its state
+    (the newest window's estimates and flags, the cycles gathered towards the next window), the cycle that closed
+    the newest window (None before the first) and the window's length in cycles."""
+
+    state: TdcWatchState
+    window_cycle: int | None
+    window_cycles: int = WINDOW_CYCLES
+
+
 class EngineService:
     """See the module docstring. ``sources``: {name: Source} (the service closes them); ``urls``: how they were
     named (shown by /engines); ``alerts``: a factory of the engine's AlertEngine, or None (no alerts)."""
@@ -133,6 +147,13 @@ class EngineService:
         # own counters, which wait on the session's lock for the cycle being analysed (~20 ms on a genset)
         self.cycles_ok = 0
         self.skipped: dict[str, int] = {}
+        self.tdc_watch = TdcWatchView(TdcWatchState.empty(), None)  # replaced whole on the ingest thread
+
+    @property
+    def config(self) -> MonitorConfig:
+        """The monitor's settings the engine runs with (MonitorConfig: ``sensor_health`` None = the speed-based
+        stage off, the default)."""
+        return self.session.pipeline.config
 
     # --- life cycle ----------------------------------------------------------------------------------------------
     def add_listener(self, listener: Any) -> None:
@@ -164,7 +185,9 @@ class EngineService:
         now = time.monotonic()
         self.last_result_s = now
         self.cycles_ok += 1
-        self.skipped = dict(self.session.pipeline.skipped)  # the session's lock is held here (its on_result)
+        pipe = self.session.pipeline
+        self.skipped = dict(pipe.skipped)  # the session's lock is held here (its on_result)
+        self.tdc_watch = TdcWatchView(pipe.tdc_watch, pipe.tdc_window_cycle)
         self.term_names = self._monitor_terms()  # a model with a friction shape has its view from the first cycle
         alerts: tuple[dict, ...] = ()
         if self.alerts is not None:

@@ -48,6 +48,7 @@ from typing import Self
 
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import (
     AcquisitionInfo,
     CamBatch,
@@ -177,13 +178,16 @@ class LiveSession:
     on_record : called on the ingest thread with each merged raw record, before the pipeline sees it (cheap: keep a
     reference; exceptions are logged and counted).
     max_results : how many recent results the session holds (``results``); older ones are dropped, still counted.
+    config : the monitor's settings (``MonitorConfig``; None: the defaults), e.g. the speed-based sensor-health
+    stage switched on (``serve --sensor-health``).
     """
 
     def __init__(self, spec: EngineSpec, info: AcquisitionInfo, sources: Mapping[str, Source] | Sequence[Source], *,
                  recorder: Recorder | None = None, window_s: float = 1.0, slack_s: float = 0.005,
                  quiet_s: float = 0.5, read_timeout_s: float = 0.05,
                  on_result: Callable[[CycleResult], None] | None = None, max_results: int = 20_000,
-                 start: bool = True, on_record: Callable[[StreamRecord], None] | None = None) -> None:
+                 start: bool = True, on_record: Callable[[StreamRecord], None] | None = None,
+                 config: MonitorConfig | None = None) -> None:
         if isinstance(sources, Mapping):
             self.sources = dict(sources)
         else:
@@ -191,7 +195,7 @@ class LiveSession:
         if not self.sources:
             raise ValueError("a live session needs at least one source")
         self.spec, self.info = spec, info
-        self.pipeline = EnginePipeline(spec, info)
+        self.pipeline = EnginePipeline(spec, info, config)
         self.merge = RecordMerge(self.sources, window_s * info.tick_hz, slack_s * info.tick_hz)
         self.recorder = recorder
         self.quiet_s, self.read_timeout_s = quiet_s, read_timeout_s
@@ -303,7 +307,8 @@ class LiveSession:
         damage = Counter({f"{n}: {k}": v for n, c in self.damage.items() for k, v in c.items()})
         with self._cond:
             return LogAnalysis(self.spec, self._history.to_list(), Counter(self.pipeline.skipped), damage,
-                               dropped=self._history.dropped)
+                               dropped=self._history.dropped, tdc_watch=self.pipeline.tdc_watch,
+                               cylinder_twist=self.pipeline.cylinder_twist())
 
     # --- threads -------------------------------------------------------------------------------------------------
     def _read_loop(self, name: str, src: Source) -> None:

@@ -59,6 +59,7 @@ class EnginePipeline:
         self.monitor_skipped: Counter[str] = Counter()
         self.cycles_ok = 0
         self.tdc_watch = TdcWatchState.empty()
+        self.tdc_window_cycle: int | None = None  # the cycle that closed the TDC watch's newest window
 
     def _make_view(self, ref: Reference | None) -> None:
         self.view = monitor_view(self.model, ref, self.config)
@@ -101,8 +102,11 @@ class EnginePipeline:
             self.cycles_ok += 1
             # TDC from the pressure, window by window, against the model's calibration (a hidden or drifting TDC
             # error is flagged and withholds the figures it touches: core.monitor.calibration.tdc_watch)
+            before = self.tdc_watch.last
             self.tdc_watch = watch_cycle(view.spec, self.model.calibration, self.tdc_watch, cycle,
                                          self.cylinder_twist())
+            if self.tdc_watch.last is not before:
+                self.tdc_window_cycle = int(cycle.index)
             if self.tdc_watch.flags:
                 result = replace(result, flags=result.flags + self.tdc_watch.flags)
             return result

@@ -29,7 +29,7 @@ log = logging.getLogger(__name__)
 
 LOG_SUFFIX = ".mcap"
 INDEX_NAME = "index.json"
-INDEX_VERSION = "1.0"  # major: a key renamed, removed or its meaning changed; minor: keys added
+INDEX_VERSION = "1.1"  # major: a key renamed, removed or its meaning changed; minor: keys added
 WARM_CANDIDATES = 5  # logs a worker tries, smallest first, until one gives a cycle to warm its kernels on
 EXPECTED_ERRORS = (SpecError, DriverError, ValueError, OSError, EOFError)
 
@@ -38,12 +38,14 @@ EXPECTED_ERRORS = (SpecError, DriverError, ValueError, OSError, EOFError)
 class ModelChoice:
     """The model every log is analysed with. ``arg``: what `analyze --engine` would be given (None: the spec each
     log carries); ``sha256`` of its TOML (``EngineModel.to_toml``) and ``mtime`` of its file decide whether an
-    earlier result is still this model's."""
+    earlier result is still this model's; ``sensor_health``: the speed-based sensor-health stage on (`analyze
+    --sensor-health`), which an earlier result must have had the same way to be kept."""
 
     arg: str | None
     label: str
     sha256: str | None
     mtime: float | None
+    sensor_health: bool = False
 
     @classmethod
     def stored(cls) -> ModelChoice:
@@ -80,15 +82,16 @@ def result_path(out: Path, root: Path, log_file: Path) -> Path:
     return out / rel.parent / (rel.name + ".json")
 
 
-def analyze_one(log_file: str, engine: str | None) -> dict:
-    """One log through `analyze --json` (service.pipeline.analyze_log, cmd_analyze.document): a row with status
-    "ok" and the document, or "failed" with a one-line reason for what `analyze` refuses. Runs on a worker."""
-    from frictionwatch.service.cmd_analyze import document, no_cycle_reason
+def analyze_one(log_file: str, engine: str | None, sensor_health: bool = False) -> dict:
+    """One log through `analyze --json [--sensor-health]` (service.pipeline.analyze_log, cmd_analyze.document): a row
+    with status "ok" and the document, or "failed" with a one-line reason for what `analyze` refuses. Runs on a
+    worker."""
+    from frictionwatch.service.cmd_analyze import document, monitor_config, no_cycle_reason
     from frictionwatch.service.pipeline import analyze_log
 
     t = time.perf_counter()
     try:
-        analysis = analyze_log(Path(log_file), engine)
+        analysis = analyze_log(Path(log_file), engine, config=monitor_config(sensor_health))
     except EXPECTED_ERRORS as exc:
         return failed_row(f"{type(exc).__name__}: {exc}", time.perf_counter() - t)
     if not analysis.results:
@@ -102,10 +105,11 @@ def failed_row(reason: str, elapsed_s: float | None) -> dict:
     return {"status": "failed", "reason": line, "doc": None, "elapsed_s": elapsed_s}
 
 
-def warm_kernels(candidates: list[str], engine: str | None) -> float:
+def warm_kernels(candidates: list[str], engine: str | None, sensor_health: bool = False) -> float:
     """Load (or compile, on an empty cache) the monitor's numba kernels in this process by running the pipeline
     over the first cycles of the first candidate log that has any; the seconds it took. Nothing is written."""
     from frictionwatch.drivers.logs.mcap_log import LogReader
+    from frictionwatch.service.cmd_analyze import monitor_config
     from frictionwatch.service.pipeline import EnginePipeline, resolve_model
 
     t = time.perf_counter()
@@ -115,7 +119,7 @@ def warm_kernels(candidates: list[str], engine: str | None) -> float:
                 if reader.info is None:
                     continue
                 pipe = EnginePipeline(resolve_model(reader.engine_toml, engine, Path(name).name, reader.info),
-                                      reader.info)
+                                      reader.info, monitor_config(sensor_health))
                 done = 0
                 for record in reader.records():
                     done += len(pipe.feed(record))
@@ -145,12 +149,13 @@ def start_client(scheduler: str | None, workers: int | None, processes: bool = T
         yield client
 
 
-def warm_workers(client, logs: list[Path], engine: str | None = None) -> None:
+def warm_workers(client, logs: list[Path], engine: str | None = None, sensor_health: bool = False) -> None:
     """One warm-up task pinned to each worker (in its task thread: its event loop keeps answering the scheduler
     during a long first compile). The kernels' on-disk cache (numba: NUMBA_CACHE_DIR, else beside the sources) is
     shared by the processes of one machine, so only the first process on an empty cache compiles each kernel."""
     candidates = [str(p) for p in sorted(logs, key=_size)[:WARM_CANDIDATES]]
-    futures = [client.submit(warm_kernels, candidates, engine, workers=[w], allow_other_workers=False, pure=False)
+    futures = [client.submit(warm_kernels, candidates, engine, sensor_health, workers=[w], allow_other_workers=False,
+                             pure=False)
                for w in client.scheduler_info()["workers"]]
     client.gather(futures)
 
@@ -163,7 +168,8 @@ def run_on_dask(client, logs: list[Path], model: ModelChoice) -> Iterator[tuple[
     from dask.distributed import as_completed
 
     logs = sorted(logs, key=_size, reverse=True)
-    futures = client.map(analyze_one, [str(p) for p in logs], engine=model.arg, pure=False)
+    futures = client.map(analyze_one, [str(p) for p in logs], engine=model.arg, sensor_health=model.sensor_health,
+                         pure=False)
     which = {f.key: p for f, p in zip(futures, logs)}
     for future in as_completed(futures):
         path = which[future.key]
@@ -177,9 +183,11 @@ def run_on_dask(client, logs: list[Path], model: ModelChoice) -> Iterator[tuple[
 
 
 def up_to_date(result: Path, log_file: Path, model: ModelChoice, previous: dict | None) -> bool:
-    """An earlier result is kept when the index says it was this model's (same TOML digest) and the file is newer
-    than both the log and the model file."""
+    """An earlier result is kept when the index says it was this model's (same TOML digest, the speed-based stage on
+    or off the same way) and the file is newer than both the log and the model file."""
     if previous is None or previous.get("status") != "ok" or previous.get("model_sha256") != model.sha256:
+        return False
+    if bool(previous.get("sensor_health", False)) != model.sensor_health:  # an index before 1.1: the stage was off
         return False
     try:
         written = result.stat().st_mtime
@@ -213,7 +221,7 @@ def index_row(rel: str, result_rel: str | None, row: dict, model: ModelChoice) -
         "fmep_bar": friction.get("fmep_bar"), "fmep_sigma_bar": friction.get("fmep_sigma_bar"),
         "friction_status": friction.get("status"),
         "elapsed_s": None if row["elapsed_s"] is None else round(row["elapsed_s"], 3),
-        "model_sha256": model.sha256, "this_run": True,
+        "model_sha256": model.sha256, "sensor_health": model.sensor_health, "this_run": True,
     }
 
 

@@ -27,6 +27,7 @@ from frictionwatch.drivers.source import Source, open_source
 from frictionwatch.drivers.timebase import Clocks
 from frictionwatch.service.alert_baseline import Baseline
 from frictionwatch.service.alerts import AlertConfig, AlertEngine
+from frictionwatch.service.cmd_analyze import monitor_config
 from frictionwatch.service.engine_service import EngineService
 from frictionwatch.service.pipeline import resolve_model
 from frictionwatch.service.security import ENGINE_ID, check_bind, new_token, read_token
@@ -47,6 +48,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data-dir", type=Path, help="keep cycles, estimates, alerts and baselines in DIR/frictionwatch.db")
     p.add_argument("--token-file", type=Path, help="file holding the token state changes need (required off loopback)")
     p.add_argument("--history-cycles", type=int, default=5000, help="recent cycles each engine holds for the API")
+    p.add_argument("--sensor-health", action="store_true", help=(
+        "switch on the speed-based sensor-health stage: each cylinder's TDC, pressure gain and pegging estimated "
+        "from the flywheel speed and the compression stroke, flagged and corrected. Off by default because where "
+        "the engine model is not the engine its TDC is not reliable (on the simulator a 1 deg wheel offset read "
+        "0.05 deg and a healthy engine's FMEP moved 7.8 %%: docs/design-notes.md item 13). The TDC found from each "
+        "cylinder's pressure every 100 cycles (the TDC watch) is on with or without it"))
     p.set_defaults(func=run)
 
 
@@ -97,6 +104,28 @@ def build_engine(ident: str | None, urls: list[str], engine: str | None, taken: 
         raise
 
 
+def build_engines(args: argparse.Namespace, data: DataDir | None) -> list[EngineService]:
+    """Every engine the command line names, wired (not started): its sources, its model, the alert engine with the
+    stored baseline (--data-dir), the monitor's settings (--sensor-health). On a failure the engines made so far
+    are stopped again."""
+    alerts = _alerts_factory()
+    services: list[EngineService] = []
+    taken: set[str] = set()
+    try:
+        for ident, urls in engine_groups(args.source or [DEFAULT_SOURCE]):
+            svc = build_engine(ident, urls, args.engine, taken, history_cycles=args.history_cycles,
+                               alerts=data.with_baseline(alerts) if data else alerts,
+                               config=monitor_config(args.sensor_health))
+            if data:
+                data.attach(svc)
+            services.append(svc)
+    except BaseException:
+        for s in services:
+            s.stop()
+        raise
+    return services
+
+
 def _free_id(base: str, taken: set[str]) -> str:
     if base not in taken:
         return base
@@ -117,16 +146,9 @@ def run(args: argparse.Namespace) -> int:
     if args.history_cycles < 64:
         raise ValueError(f"--history-cycles must be >= 64, got {args.history_cycles}")
     data = DataDir(args.data_dir) if args.data_dir else None
-    alerts = _alerts_factory()
     services: list[EngineService] = []
-    taken: set[str] = set()
     try:
-        for ident, urls in engine_groups(args.source or [DEFAULT_SOURCE]):
-            svc = build_engine(ident, urls, args.engine, taken, history_cycles=args.history_cycles,
-                               alerts=data.with_baseline(alerts) if data else alerts)
-            if data:
-                data.attach(svc)
-            services.append(svc)
+        services += build_engines(args, data)
         sock = _bind(args.host, args.port)
     except BaseException:
         for s in services:

@@ -143,7 +143,13 @@ def test_traces_and_sensor_health(served) -> None:
     assert_allclose(np.mean(sp["speed_measured_rpm"]), 1500, rtol=0.02)
     assert len(sp["history"]["cycle_index"]) == 5 and sp["history"]["cycle_index"][-1] == sp["cycle_index"]
     sh = client.get("/api/v1/engines/demo-a/sensor-health").json()
-    assert sh["enabled"] is (a.session.results[-1].sensor_health is not None)
+    assert sh["enabled"] is False and a.session.results[-1].sensor_health is None  # the speed-based stage: opt-in
+    assert sh["cylinders"] == [] and sh["wheel_tdc_offset_deg"] is None
+    # the TDC watch is on: the demo's 40 cycles are fewer than its first window, which it says
+    watch = a.session.pipeline.tdc_watch
+    assert watch.last is None and sh["tdc_watch"]["window_last_cycle"] is None and sh["tdc_watch"]["cylinders"] == []
+    assert 0 < sh["tdc_watch"]["cycles_gathered"] == watch.cycles < sh["tdc_watch"]["window_cycles"] == 100
+    assert sh["calibration"]["status"] == "uncalibrated" and sh["calibration"]["tdc_wheel_sigma_deg"] == 0.5
 
 
 def test_state_changes_need_the_token(served) -> None:

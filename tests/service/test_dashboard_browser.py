@@ -4,7 +4,7 @@ Starts ``frictionwatch serve --source mcap:replay_logs/demo.mcap?loop=1&speed=1`
 free loopback port, opens ``/`` in Debian's headless Chromium (driven over the DevTools pipe:
 tests/service/dashboard_browser.py) and checks what the page SHOWS against what the API says: the engine's name, one
 bar per cylinder with its number and status word, the live indicator, a cycle counter that grows by the event stream,
-the alerts, no request to any other host, no JavaScript error, the engine picker; then stops the server and checks
+the alerts, the calibration and the TDC found from the pressure (the sensor panel), no request to any other host, no JavaScript error, the engine picker; then stops the server and checks
 that the page says it is reconnecting. A screenshot goes to the test's tmp dir; set
 FW_DASHBOARD_SCREENSHOT=docs/dashboard.png to refresh the README's picture too.
 
@@ -158,6 +158,46 @@ def test_alerts_match_the_api_and_the_token_is_kept_per_tab(page, server):
                   " t.dispatchEvent(new Event('input')); })()")
 
 
+def test_sensor_panel_says_the_calibration_and_the_tdc_watch(page, server):
+    """The calibration and the TDC found from the pressure, in words and figures the API gives; the speed-based stage
+    off (opt-in). The demo log (40 cycles) loops: the watch's first window of 100 cycles closes in its third pass."""
+    engine_id = server["engines"][0]["engine_id"]
+    url = f"{server['base']}/api/v1/engines/{engine_id}/sensor-health"
+    calibration = text(page, "losses-calibration")
+    assert calibration.startswith("Calibration: uncalibrated.") and "frictionwatch commission" in calibration
+    page.wait_for("document.querySelector('[data-testid=health-calibration]') !== null", timeout=30)
+    said = page.evaluate("document.querySelector('[data-testid=health-calibration]').textContent")
+    assert said.startswith("Uncalibrated: nobody has measured this installation's TDC")
+    assert "TDC ±0.50° for the whole wheel and ±0.20° per cylinder, pressure gain ±3.0 % per channel" in said
+    assert "frictionwatch commission" in text(page, "health")
+    assert "Off. It estimates each cylinder's TDC" in text(page, "health")
+    assert "serve --sensor-health" in text(page, "health")
+    # the first window: until then the page says how many cycles it has gathered
+    page.wait_for("document.querySelector('[data-testid=tdc-watch-table]') !== null", timeout=120)
+    for _ in range(3):  # a window that closed between the page's read and the API's: read both again
+        shown = page.evaluate("""(() => {
+            const t = document.querySelector('[data-testid=tdc-watch-table]');
+            return { status: document.querySelector('[data-testid=tdc-watch-status]').textContent,
+                     cylinders: [...t.tHead.rows[0].cells].slice(1).map(c => c.textContent),
+                     offsets: [...t.tBodies[0].rows[0].cells].slice(1).map(c => c.textContent),
+                     sigmas: [...t.tBodies[0].rows[1].cells].slice(1).map(c => c.textContent) };
+        })()""")
+        api = httpx.get(url, timeout=5).json()["tdc_watch"]
+        if f"Newest check at cycle {api['window_last_cycle']} " in shown["status"]:
+            break
+        time.sleep(1.5)
+    assert f"Newest check at cycle {api['window_last_cycle']} (the 100 cycles before it)" in shown["status"]
+    wheel = api["wheel_offset_deg"]
+    assert f"the wheel's TDC is {'+' if wheel >= 0 else '−'}{abs(wheel):.2f} ± {api['wheel_sigma_deg']:.2f}°" \
+        in shown["status"]
+    assert ("No flag: the pressure agrees" in shown["status"]) is (api["flags"] == [])
+    assert shown["cylinders"] == [str(c["cylinder"]) for c in api["cylinders"]] == [str(k + 1) for k in range(20)]
+    # the figures as the API gives them, to the two decimals shown (a minus sign, not a hyphen)
+    assert [float(v.replace("−", "-")) for v in shown["offsets"]] == pytest.approx(
+        [c["offset_deg"] for c in api["cylinders"]], abs=0.0051)
+    assert [float(v) for v in shown["sigmas"]] == pytest.approx([c["sigma_deg"] for c in api["cylinders"]], abs=0.0051)
+
+
 def test_no_foreign_request_no_error_and_a_screenshot(page, server, tmp_path):
     host = urlsplit(server["base"]).netloc
     foreign = [u for u in page.requests if not u.startswith("data:") and urlsplit(u).netloc != host]
@@ -202,6 +242,47 @@ def test_a_share_or_a_prior_is_never_drawn_like_a_measurement(page):
     for status in ("unresolved", "withheld"):  # no value: an empty dashed outline and a dash, no whiskers
         assert by_status[status]["cls"] == "bar-missing" and by_status[status]["value"] == "—"
         assert by_status[status]["whiskers"] == 0
+
+
+def test_a_flagged_sensor_a_commissioned_model_and_the_speed_stage_in_words(page):
+    """The sensor panel's own code on what the demo does not show: a cylinder's TDC flagged, a commissioned model,
+    the speed-based stage on (rendered and read in one script: the page's next refresh puts the live state back)."""
+    said = page.evaluate("""(async () => {
+        const { renderHealth } = await import(new URL('static/render.js', location.href).href);
+        const cyl = (k, off) => ({ cylinder: k, offset_deg: off, sigma_deg: 0.1, method: 'rohr-compression-expansion' });
+        renderHealth({ cycle_index: 7, enabled: true, flags: ['sensor_tdc_offset_cyl3'],
+            cylinders: [1, 2, 3, 4].map(k => ({ cylinder: k, tdc_offset_deg: 0.01, pressure_gain: 1.0 })),
+            wheel_tdc_offset_deg: -0.04, wheel_tdc_offset_sigma_deg: 0.2, friction_sigma_nm: 1.5, speed_based_flags: [],
+            tdc_watch: { window_cycles: 100, cycles_gathered: 12, window_last_cycle: 300, wheel_offset_deg: 0.02,
+                         wheel_sigma_deg: 0.1, flags: ['sensor_tdc_offset_cyl3'],
+                         cylinders: [cyl(1, 0.02), cyl(2, -0.01), cyl(3, 0.9), cyl(4, 0.03)] },
+            calibration: { status: 'commissioned', source: 'commission, 2 files', tdc_wheel_sigma_deg: 0.07,
+                           tdc_cylinder_sigma_deg: 0.05, gain_sigma_pct: 0.4, gain_common_sigma_pct: 1.2,
+                           inertia_sigma_pct: 6 } });
+        const q = (sel) => document.querySelector(sel);
+        const t = q('[data-testid=tdc-watch-table]');
+        return { summary: q('[data-testid=health-summary]').textContent,
+                 calibration: q('[data-testid=health-calibration]').textContent,
+                 status: q('[data-testid=tdc-watch-status]').textContent,
+                 flags: [...document.querySelectorAll('[data-testid=tdc-watch-flags] li')].map(li => li.textContent),
+                 flagRow: [...t.tBodies[0].rows[2].cells].slice(1).map(c => c.textContent),
+                 offsets: [...t.tBodies[0].rows[0].cells].slice(1).map(c => c.textContent),
+                 all: document.getElementById('health').textContent,
+                 speedRows: document.querySelectorAll('#health table:not(.across) tbody tr').length };
+    })()""")
+    assert said["summary"].startswith("Sensor flags on cycle 7: 1. A flagged sensor withholds the figures it touches")
+    assert said["calibration"].startswith("Commissioned: TDC, pressure gains and J were measured on this engine "
+                                          "(commission, 2 files)")
+    assert "TDC ±0.07° for the whole wheel and ±0.05° per cylinder, pressure gain ±0.4 % per channel" in \
+        said["calibration"]
+    assert "Newest check at cycle 300" in said["status"] and "Flagged:" in said["status"]
+    assert "Next check in 88 cycles" in said["status"]
+    assert said["flags"] == ["cylinder 3: this cylinder's TDC differs from the other cylinders' by more than the "
+                             "calibration allows: its friction figures are withheld (sensor_tdc_offset_cyl3)"]
+    assert said["flagRow"] == ["—", "—", "flagged", "—"]
+    assert said["offsets"] == ["+0.02", "−0.01", "+0.90", "+0.03"]
+    assert "On. No sensor flagged by it. Its wheel TDC: −0.04 ± 0.20°." in said["all"]
+    assert said["speedRows"] == 4
 
 
 def test_engine_picker_switches_engine_and_stream(page, server):

@@ -142,6 +142,24 @@ def test_rerun_keeps_up_to_date_results_and_force_or_a_newer_log_redoes(archive,
     assert not any((out / (rel + ".json")).exists() for rel in OK)
 
 
+def test_sensor_health_is_analyze_sensor_health_and_part_of_up_to_date(archive, scheduler, tmp_path, capsys):
+    out = tmp_path / "out"
+    common = [str(archive / "a"), "--out", str(out), "--scheduler", scheduler]
+    _, index = reanalyze(capsys, *common)
+    assert index["sensor_health"] is False and all(r["sensor_health"] is False for r in index["logs"])
+    _, index = reanalyze(capsys, *common, "--sensor-health")  # results without the stage are not its results
+    by = rows(index)
+    assert index["sensor_health"] is True and by["x.mcap"]["this_run"] and by["x.mcap"]["sensor_health"] is True
+    got = json.loads((out / "x.mcap.json").read_text())
+    assert got["sensor_health"] is not None and len(got["sensor_health"]["cylinders"]) == 4
+    assert_json_close(got, analyze_json(archive / "a" / "x.mcap", capsys, "--sensor-health"), rtol=1e-12, atol=0.0,
+                      where="x.mcap")
+    _, index = reanalyze(capsys, *common, "--sensor-health")
+    assert not rows(index)["x.mcap"]["this_run"]  # the same settings: kept
+    _, index = reanalyze(capsys, *common)
+    assert rows(index)["x.mcap"]["this_run"] and json.loads((out / "x.mcap.json").read_text())["sensor_health"] is None
+
+
 def test_the_default_local_cluster_of_worker_processes(archive, tmp_path, capsys):
     single = tmp_path / "one"
     single.mkdir()

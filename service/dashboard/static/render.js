@@ -31,7 +31,7 @@ export function renderLosses(losses, summary) {
   // a window: the cycles behind the figures; the smoothed estimate: its effective number of cycles
   const span = w && isNum(w.first_cycle) ? `cycles ${w.first_cycle}–${w.last_cycle}` : `up to cycle ${losses.cycle_index}`;
   $("losses-window").textContent = !w || !isNum(w.cycles) ? `as of cycle ${losses.cycle_index}`
-    : isNum(w.forgetting) ? `smoothed over ${span}: about ${fmt(w.cycles, 0)} effective cycles (forgetting factor ${w.forgetting})`
+    : isNum(w.forgetting) ? `smoothed over ${span}: about ${fmt(w.cycles, 0)} effective cycles (forgetting factor ${Number(w.forgetting.toPrecision(6))})`
       : `${span} (${fmt(w.cycles, 0)} cycles)`;
   const body = $("losses-table").tBodies[0];
   body.replaceChildren();
@@ -124,19 +124,148 @@ export function renderSpeed(sp) {
   }
 }
 
-export function renderHealth(health) {
-  const box = $("health");
-  box.replaceChildren();
-  const p = document.createElement("p");
-  box.appendChild(p);
-  if (!health.enabled) {
-    p.textContent = "Off: the sensor-health stage is opt-in, so TDC offset, pressure gain and pegging are not "
-      + "checked on this engine.";
+const SENSOR_FLAG_WORDS = {
+  sensor_tdc_offset: "the whole wheel's TDC is off by more than the calibration allows: every friction figure is "
+    + "withheld until it is corrected",
+  sensor_tdc_offset_cyl: "this cylinder's TDC differs from the other cylinders' by more than the calibration allows: "
+    + "its friction figures are withheld",
+  sensor_pressure_gain_cyl: "this cylinder's pressure sensor reads high or low against its siblings: its figures are "
+    + "withheld",
+  sensor_pressure_offset_cyl: "this cylinder's pressure is offset (pegging) against its siblings: its figures are "
+    + "withheld",
+};
+
+/** One sensor flag in words: "sensor_tdc_offset_cyl3" -> "cylinder 3: this cylinder's TDC differs ...". */
+export function sensorFlagWords(flag) {
+  const m = /^(.*_cyl)(\d+)$/.exec(flag);
+  const words = SENSOR_FLAG_WORDS[m ? m[1] : flag];
+  if (!words) return `${flag} (the figures it touches are withheld)`;
+  return m ? `cylinder ${m[2]}: ${words} (${flag})` : `${words} (${flag})`;
+}
+
+function addBlock(box, title, ...lines) {
+  const h = document.createElement("h3");
+  h.textContent = title;
+  box.appendChild(h);
+  return lines.filter(Boolean).map((text) => {
+    const p = document.createElement("p");
+    setWithCode(p, text);
+    box.appendChild(p);
+    return p;
+  });
+}
+
+/** Text whose `quoted` parts (a command to type) are shown as code; no HTML is parsed. */
+function setWithCode(el, text) {
+  el.replaceChildren(...text.split("`").map((part, i) => {
+    if (i % 2 === 0) return document.createTextNode(part);
+    const code = document.createElement("code");
+    code.textContent = part;
+    return code;
+  }));
+}
+
+function addFlagList(box, flags, testId) {
+  if (!flags.length) return;
+  const ul = document.createElement("ul");
+  ul.className = "sensor-flags";
+  ul.dataset.testid = testId;
+  for (const f of flags) {
+    const li = document.createElement("li");
+    li.textContent = sensorFlagWords(f);
+    ul.appendChild(li);
+  }
+  box.appendChild(ul);
+}
+
+const signed = (v, digits = 2) => (isNum(v) ? `${v >= 0 ? "+" : "−"}${Math.abs(v).toFixed(digits)}` : "—");
+const METHOD_WORDS = { "rohr-compression-expansion": "fired cycles (heat release before and after combustion)",
+  "rohr-motored-heat-loss-shaping": "motored cycles (heat loss over the closed cycle)" };
+
+/** The installation's calibration (the model's [model.calibration]) in words. */
+function calibrationText(cal) {
+  const sig = `TDC ±${fmt(cal.tdc_wheel_sigma_deg, 2)}° for the whole wheel and ±${fmt(cal.tdc_cylinder_sigma_deg, 2)}° `
+    + `per cylinder, pressure gain ±${fmt(cal.gain_sigma_pct, 1)} % per channel and ±${fmt(cal.gain_common_sigma_pct, 1)} % `
+    + `common to all, flywheel inertia J ±${fmt(cal.inertia_sigma_pct, 1)} %`;
+  if (cal.status === "commissioned") {
+    return [`Commissioned: TDC, pressure gains and J were measured on this engine (${cal.source}). What is still `
+      + `unknown, and is in every ±1σ: ${sig}.`];
+  }
+  return [`Uncalibrated: nobody has measured this installation's TDC, pressure-sensor gains or flywheel inertia. `
+    + `Every friction ±1σ therefore assumes a typical installation's errors: ${sig}.`,
+  "To measure them, run `frictionwatch commission` on a recording of this engine: it finds each cylinder's TDC, "
+    + "the gains and J and writes a commissioned engine model to run with."];
+}
+
+/** The TDC watch: each cylinder's TDC found again from its own pressure every window_cycles cycles. */
+function renderTdcWatch(box, w) {
+  const every = `Every ${w.window_cycles} cycles each cylinder's TDC is found again from its own pressure and `
+    + "compared with where the engine model puts it. If the wheel is found further off than the calibration "
+    + "allows, it is flagged and every friction figure is withheld; if one cylinder's TDC has moved against the "
+    + "others, that cylinder's figures are withheld. `frictionwatch commission` measures TDC again.";
+  if (!isNum(w.window_last_cycle)) {
+    addBlock(box, "TDC from the cylinder pressure (always on)", every,
+      `First check after ${w.window_cycles} cycles: ${w.cycles_gathered} of ${w.window_cycles} gathered so far.`)[1]
+      .dataset.testid = "tdc-watch-status";
     return;
   }
-  const flags = health.flags || [];
-  p.textContent = flags.length ? `Flagged: ${flags.join(", ")} (the figures these touch are withheld)`
-    : "No sensor flagged.";
+  const verdict = w.flags.length ? "Flagged:" : "No flag: the pressure agrees with the model's TDC within what the "
+    + "calibration allows.";
+  const ps = addBlock(box, "TDC from the cylinder pressure (always on)", every,
+    `Newest check at cycle ${w.window_last_cycle} (the ${w.window_cycles} cycles before it): the wheel's TDC is `
+    + `${signed(w.wheel_offset_deg)} ± ${fmt(w.wheel_sigma_deg, 2)}° from the model's (+ means the true TDC is later). `
+    + `${verdict} Next check in ${w.window_cycles - w.cycles_gathered} cycles.`);
+  ps[1].dataset.testid = "tdc-watch-status";
+  addFlagList(box, w.flags, "tdc-watch-flags");
+  const cyls = w.cylinders || [];
+  if (!cyls.length) return;
+  const table = document.createElement("table");
+  table.className = "across";
+  table.dataset.testid = "tdc-watch-table";
+  const methods = [...new Set(cyls.map((c) => c.method).filter(Boolean))];
+  const cap = table.createCaption();
+  cap.textContent = `TDC found from each cylinder's pressure, in ° crank angle from the model's, ±1σ; from `
+    + (methods.map((m) => METHOD_WORDS[m] || m).join(" and ") || "no cycle");
+  const head = table.createTHead().insertRow();
+  const th0 = document.createElement("th");
+  th0.textContent = "cylinder";
+  th0.scope = "row";
+  head.appendChild(th0);
+  for (const c of cyls) {
+    const th = document.createElement("th");
+    th.textContent = String(c.cylinder);
+    th.scope = "col";
+    head.appendChild(th);
+  }
+  const body = table.createTBody();
+  const flagged = new Set(w.flags.map((f) => (/_cyl(\d+)$/.exec(f) || [])[1]).filter(Boolean).map(Number));
+  for (const [label, value] of [["TDC found (°)", (c) => signed(c.offset_deg)],
+    ["±1σ (°)", (c) => fmt(c.sigma_deg, 2)],
+    ["flag", (c) => (flagged.has(c.cylinder) ? "flagged" : "—")]]) {
+    const row = body.insertRow();
+    const th = document.createElement("th");
+    th.textContent = label;
+    th.scope = "row";
+    row.appendChild(th);
+    for (const c of cyls) cell(row, value(c), flagged.has(c.cylinder) && label === "flag" ? "flagged" : "");
+  }
+  box.appendChild(table);
+}
+
+/** The speed-based sensor-health stage (opt-in): its per-cylinder estimates, or why it is off. */
+function renderSpeedStage(box, health) {
+  const title = "Speed-based check of TDC, gain and pegging (opt-in)";
+  if (!health.enabled) {
+    addBlock(box, title, "Off. It estimates each cylinder's TDC, pressure gain and pegging from the flywheel speed "
+      + "and corrects them, but where the engine model differs from the real engine its TDC reading is not "
+      + "reliable, so it is off by default. `frictionwatch serve --sensor-health` switches it on.");
+    return;
+  }
+  const flags = health.speed_based_flags || [];
+  addBlock(box, title, `On. ${flags.length ? "Flagged:" : "No sensor flagged by it."}`
+    + (isNum(health.wheel_tdc_offset_deg) ? ` Its wheel TDC: ${signed(health.wheel_tdc_offset_deg)} ± `
+      + `${fmt(health.wheel_tdc_offset_sigma_deg, 2)}°.` : ""));
+  addFlagList(box, flags, "speed-flags");
   const rows = health.cylinders || [];
   if (!rows.length || typeof rows[0] !== "object") return;
   const keys = Object.keys(rows[0]).filter((k) => k !== "cylinder");
@@ -156,6 +285,25 @@ export function renderHealth(health) {
     for (const k of keys) cell(row, isNum(r[k]) ? fmtAuto(r[k]) : describeValue(k, r[k]));  // unit in the header
   });
   box.appendChild(table);
+}
+
+export function renderHealth(health) {
+  const box = $("health");
+  box.replaceChildren();
+  const flags = health.flags || [];
+  const top = document.createElement("p");
+  top.dataset.testid = "health-summary";
+  top.className = flags.length ? "health-flagged" : "";
+  top.textContent = flags.length
+    ? `Sensor flags on cycle ${health.cycle_index}: ${flags.length}. A flagged sensor withholds the figures it `
+      + "touches (no number is shown for them) until it is corrected."
+    : `No sensor flagged on cycle ${health.cycle_index}.`;
+  box.appendChild(top);
+  if (health.calibration) {
+    addBlock(box, "Calibration", ...calibrationText(health.calibration))[0].dataset.testid = "health-calibration";
+  }
+  if (health.tdc_watch) renderTdcWatch(box, health.tdc_watch);
+  renderSpeedStage(box, health);
 }
 
 const STATE_ORDER = { active: 0, acknowledged: 1, cleared: 2 };
