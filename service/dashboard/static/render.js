@@ -209,12 +209,15 @@ function renderTdcWatch(box, w) {
       .dataset.testid = "tdc-watch-status";
     return;
   }
+  const cyls_missing = (x) => (x.cylinders || []).some((c) => !isNum(c.offset_deg));
   const verdict = w.flags.length ? "Flagged:" : "No flag: the pressure agrees with the model's TDC within what the "
     + "calibration allows.";
   const ps = addBlock(box, "TDC from the cylinder pressure (always on)", every,
     `Newest check at cycle ${w.window_last_cycle} (the ${w.window_cycles} cycles before it): the wheel's TDC is `
     + `${signed(w.wheel_offset_deg)} ± ${fmt(w.wheel_sigma_deg, 2)}° from the model's (+ means the true TDC is later). `
-    + `${verdict} Next check in ${w.window_cycles - w.cycles_gathered} cycles.`);
+    + `${verdict} Next check in ${w.window_cycles - w.cycles_gathered} cycles.`
+    + (cyls_missing(w) ? " A large engine's cylinders are checked four at a time in turn: — until a cylinder's first "
+      + "check." : ""));
   ps[1].dataset.testid = "tdc-watch-status";
   addFlagList(box, w.flags, "tdc-watch-flags");
   const cyls = w.cylinders || [];
