@@ -30,6 +30,14 @@ LAST_CYCLE_KEYS = ("cycle", "t_start_s", "rpm", "load_torque_nm", "load_power_kw
                    "coupling_loss_nm", "residual_rms_rad_s", "r_squared", "chi2_reduced", "flags")
 
 
+SENSOR_HEALTH_HELP = (
+    "switch on the speed-based sensor-health stage: each cylinder's TDC, pressure gain and pegging estimated from the "
+    "flywheel speed and the compression stroke, flagged and corrected. Off by default because where the engine model "
+    "is not the engine its TDC is not reliable (on the simulator a 1 deg wheel offset read 0.05 deg and a healthy "
+    "engine's FMEP moved 7.8 %%: docs/design-notes.md item 13). The TDC found from each cylinder's pressure every 100 "
+    "cycles (the TDC watch) is on with or without it")
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("analyze", help="analyse a replay log: per-cylinder losses")
     p.add_argument("log", type=Path, help="LOG.mcap")
@@ -38,12 +46,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON document (docs/results.md) instead of the table")
     p.add_argument("--csv", type=Path, metavar="OUT", help="write per-cycle, per-cylinder rows to OUT")
     p.add_argument("--plot", type=Path, metavar="DIR", help="write PNG plots to DIR")
-    p.add_argument("--sensor-health", action="store_true", help=(
-        "switch on the speed-based sensor-health stage: each cylinder's TDC, pressure gain and pegging estimated "
-        "from the flywheel speed and the compression stroke, flagged and corrected. Off by default because where "
-        "the engine model is not the engine its TDC is not reliable (on the simulator a 1 deg wheel offset read "
-        "0.05 deg and a healthy engine's FMEP moved 7.8 %%: docs/design-notes.md item 13). The TDC found from each "
-        "cylinder's pressure every 100 cycles (the TDC watch) is on with or without it"))
+    p.add_argument("--sensor-health", action="store_true", help=SENSOR_HEALTH_HELP)
     p.set_defaults(func=run)
 
 

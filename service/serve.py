@@ -27,7 +27,7 @@ from frictionwatch.drivers.source import Source, open_source
 from frictionwatch.drivers.timebase import Clocks
 from frictionwatch.service.alert_baseline import Baseline
 from frictionwatch.service.alerts import AlertConfig, AlertEngine
-from frictionwatch.service.cmd_analyze import monitor_config
+from frictionwatch.service.cmd_analyze import SENSOR_HEALTH_HELP, monitor_config
 from frictionwatch.service.engine_service import EngineService
 from frictionwatch.service.pipeline import resolve_model
 from frictionwatch.service.security import ENGINE_ID, check_bind, new_token, read_token
@@ -48,12 +48,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data-dir", type=Path, help="keep cycles, estimates, alerts and baselines in DIR/frictionwatch.db")
     p.add_argument("--token-file", type=Path, help="file holding the token state changes need (required off loopback)")
     p.add_argument("--history-cycles", type=int, default=5000, help="recent cycles each engine holds for the API")
-    p.add_argument("--sensor-health", action="store_true", help=(
-        "switch on the speed-based sensor-health stage: each cylinder's TDC, pressure gain and pegging estimated "
-        "from the flywheel speed and the compression stroke, flagged and corrected. Off by default because where "
-        "the engine model is not the engine its TDC is not reliable (on the simulator a 1 deg wheel offset read "
-        "0.05 deg and a healthy engine's FMEP moved 7.8 %%: docs/design-notes.md item 13). The TDC found from each "
-        "cylinder's pressure every 100 cycles (the TDC watch) is on with or without it"))
+    p.add_argument("--sensor-health", action="store_true", help=SENSOR_HEALTH_HELP)
     p.set_defaults(func=run)
 
 

@@ -116,15 +116,22 @@ def compression_rise(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, s
                      ) -> np.ndarray:
     """(z,) ln(p(late) / p(early)) of each cylinder before its firing TDC (NaN where a pressure is not positive)."""
     late = min(settings.late_max_deg, settings.late_margin_deg - spec.combustion.start_deg)
+    return log_pressure_ratio(spec, grid, pressure, -settings.early_deg, -late)
+
+
+def log_pressure_ratio(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, first_deg: float,
+                       second_deg: float) -> np.ndarray:
+    """(z,) ln(p(second) / p(first)) of each cylinder at two angles [deg] from its firing TDC (NaN where a pressure
+    is not positive): linear interpolation on the uniform periodic grid, every cylinder at once (np.interp sorts per
+    call)."""
     n = grid.shape[0]
-    # linear interpolation on the uniform periodic grid, every cylinder at once (np.interp sorts per call)
-    pos = np.mod(np.radians([-settings.early_deg, -late])[None, :] + spec.firing_angles[:, None] - grid[0],
+    pos = np.mod(np.radians([first_deg, second_deg])[None, :] + spec.firing_angles[:, None] - grid[0],
                  FOUR_PI) * (n / FOUR_PI)
     i = np.floor(pos)
     frac = pos - i
     i = i.astype(np.int64) % n
     rows = np.arange(spec.n_cyl)[:, None]
-    p = pressure[rows, i] * (1.0 - frac) + pressure[rows, (i + 1) % n] * frac  # (z, 2): early, late
+    p = pressure[rows, i] * (1.0 - frac) + pressure[rows, (i + 1) % n] * frac  # (z, 2): first, second
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where((p[:, 0] > 0) & (p[:, 1] > 0), np.log(p[:, 1] / p[:, 0]), np.nan)
 
@@ -133,16 +140,7 @@ def burn_ratio(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, half_de
     """(z,) ln(p(TDC + half_deg) / p(TDC - half_deg)) of each cylinder about its firing TDC: a pressure ratio at
     mirrored crank angles (the volumes are equal, so a gain error cancels). Without a burn the expansion side is
     lower (heat loss, blow-by): slightly negative; any burn raises it. NaN where a pressure is not positive."""
-    n = grid.shape[0]
-    pos = np.mod(np.radians([-half_deg, half_deg])[None, :] + spec.firing_angles[:, None] - grid[0],
-                 FOUR_PI) * (n / FOUR_PI)
-    i = np.floor(pos)
-    frac = pos - i
-    i = i.astype(np.int64) % n
-    rows = np.arange(spec.n_cyl)[:, None]
-    p = pressure[rows, i] * (1.0 - frac) + pressure[rows, (i + 1) % n] * frac  # (z, 2): before, after
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where((p[:, 0] > 0) & (p[:, 1] > 0), np.log(p[:, 1] / p[:, 0]), np.nan)
+    return log_pressure_ratio(spec, grid, pressure, -half_deg, half_deg)
 
 
 def combustion_flags(burn: np.ndarray, work: np.ndarray, reference: np.ndarray, cycles: np.ndarray,
