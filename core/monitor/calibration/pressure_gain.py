@@ -11,7 +11,6 @@ every channel cannot be seen by a sibling comparison: it stays what the caller s
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
