@@ -107,7 +107,9 @@ class EnginePipeline:
             self.tdc_watch = watch_cycle(view.spec, self.model.calibration, self.tdc_watch, cycle, twist)
             # each channel's gain and pegging against its siblings, likewise (core.monitor.calibration.gain_watch)
             self.gain_watch = watch_gains(view.spec, self.model.calibration, self.gain_watch, cycle, twist)
-            flags = self.tdc_watch.flags + self.gain_watch.flags
+            # (the opt-in sensor-health stage names a gain or pegging flag the same way: each flag once)
+            flags = tuple(f for f in dict.fromkeys(self.tdc_watch.flags + self.gain_watch.flags)
+                          if f not in result.flags)
             if flags:
                 result = replace(result, flags=result.flags + flags)
             return result

@@ -37,8 +37,13 @@ def test_commissioned_gain_flagged_beyond_its_sigma_and_the_minimum():
     assert gain_flags(COMMISSIONED, _stats([0.1, -2.5, 0.3, -0.1])) == ()
     # a noisy window: 3 x its statistical sigma (1.5 %) is beyond the reading
     assert gain_flags(COMMISSIONED, _stats([0.1, -3.6, 0.3, -0.1], sem_pct=1.5)) == ()
-    # siblings that spread by themselves: beyond 3 x their robust spread only
-    assert gain_flags(COMMISSIONED, _stats([2.0, -3.6, 1.8, -2.2, 2.4, -1.9])) == ()
+    # siblings that spread by themselves (robust spread of the others 3 %): beyond 3 x that only
+    assert gain_flags(COMMISSIONED, _stats([2.0, -3.6, 1.0, -1.0, -2.0, 0.0, 3.0, -3.0])) == ()
+    assert gain_flags(COMMISSIONED, _stats([2.0, -9.6, 1.0, -1.0, -2.0, 0.0, 3.0, -3.0])) == (
+        "sensor_pressure_gain_cyl2",)
+    # three cylinders: the channel judged is left out of its siblings' spread (one faulty channel of three would
+    # otherwise set the spread itself)
+    assert gain_flags(Calibration(), _stats([1.1, -5.6, 0.1])) == ("sensor_pressure_gain_cyl2",)
     # a tight calibration: the 2 % minimum still holds
     tight = Calibration(status="commissioned", gain_sigma=0.001)
     assert gain_flags(tight, _stats([0.1, -1.5, 0.3, -0.1])) == ()

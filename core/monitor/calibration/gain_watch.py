@@ -13,8 +13,8 @@ that cylinder's figures, core.monitor.figure_status), only with three or more cy
 off; a one-cylinder engine has no sibling and no check):
 - the minimum a reading must exceed, for both kinds of model: the sensor-health stage's thresholds
   (core.monitor.sensor_health.SensorHealthConfig: gain 2 %, offset 0.2 bar, and ``spread_sigmas`` = 3 of the
-  siblings' own robust spread; tuned there on bench/sensor_faults.py) and ``DRIFT_SIGMAS`` of the window's
-  statistical sigma;
+  siblings' own robust spread; tuned there on bench/sensor_faults.py; here the spread of the siblings without the
+  channel judged, ``sibling_spread``) and ``DRIFT_SIGMAS`` of the window's statistical sigma;
 - commissioned model (its gain and pegging corrections applied, so every channel is expected at 1 and 0 against its
   siblings): a gain beyond ``DRIFT_SIGMAS`` of the window's statistical sigma and the calibration's per-channel
   ``gain_sigma`` together;
@@ -91,7 +91,7 @@ def gain_limits(cal: Calibration, stats: SiblingStats) -> tuple[np.ndarray, np.n
     """(gain (z,), offset (z,) Pa): how far from 1 and 0 each channel may read against its siblings before it is
     flagged (module doc)."""
     sem_g, sem_o = stats.sem
-    spread_g, spread_o = (float(s) for s in stats.spread)
+    spread_g, spread_o = sibling_spread(stats.mean)
     min_g = np.maximum(MIN_GAIN, np.maximum(SPREAD_SIGMAS * spread_g, DRIFT_SIGMAS * sem_g))
     min_o = np.maximum(MIN_OFFSET_PA, np.maximum(SPREAD_SIGMAS * spread_o, DRIFT_SIGMAS * sem_o))
     if cal.commissioned:
@@ -99,6 +99,19 @@ def gain_limits(cal: Calibration, stats: SiblingStats) -> tuple[np.ndarray, np.n
     else:
         lim_g = cal.gain_sigma + min_g
     return lim_g, min_o
+
+
+def sibling_spread(mean: np.ndarray) -> np.ndarray:
+    """(2, z): for each channel the robust spread (1.4826 MAD) of its siblings' readings without its own, gain and
+    offset. Leaving the channel out matters on three cylinders: there the spread of all three is the distance of
+    one healthy channel from the median, which a faulty third one moves (maruti, a channel at 0.94: the healthy
+    pair read +1.1 and +0.1 %, the spread of all three 1.5 %, of the pair 0.7 %; bench/sensor_flags.py --faults)."""
+    z = mean.shape[1]
+    out = np.empty_like(mean)
+    for k in range(z):
+        others = np.delete(mean, k, axis=1)
+        out[:, k] = 1.4826 * np.median(np.abs(others - np.median(others, axis=1, keepdims=True)), axis=1)
+    return out
 
 
 def gain_flags(cal: Calibration, stats: SiblingStats) -> tuple[str, ...]:
@@ -113,5 +126,6 @@ def gain_flags(cal: Calibration, stats: SiblingStats) -> tuple[str, ...]:
                  + [f"sensor_pressure_offset_cyl{k + 1}" for k in range(z) if abs(offset[k]) > lim_o[k]])
 
 
-__all__ = ["GainWatchState", "MIN_GAIN", "MIN_OFFSET_PA", "SPREAD_SIGMAS", "gain_flags", "gain_limits", "watch_gains"]
+__all__ = ["GainWatchState", "MIN_GAIN", "MIN_OFFSET_PA", "SPREAD_SIGMAS", "gain_flags", "gain_limits", "sibling_spread",
+           "watch_gains"]
 
