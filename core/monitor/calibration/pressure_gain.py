@@ -103,7 +103,8 @@ class SiblingGains:
 
 def sibling_gains(spec: EngineSpec, cycles: Sequence[Cycle], tdc_correction_rad: np.ndarray) -> SiblingGains | None:
     """The channels' gains against their siblings over ``cycles`` (fired cycles of one engine), the pistons placed
-    with the TDC correction found (tdc_correction_rad (z,): + = true TDC later than stated). None below three
+    with the TDC correction found (tdc_correction_rad (z,): + = the piston's TDC later than the flywheel angle
+    stated, i.e. the TDC correction less the throw's static twist ahead of the flywheel). None below three
     cylinders (two cannot say which one is off) or without cycles."""
     z = spec.n_cyl
     if z < 3 or not cycles:
