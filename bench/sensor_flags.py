@@ -15,7 +15,7 @@ not run there (and the TDC watch judges its wheel only).
 ``--faults``: on k9k, maruti and the genset (cylinder 2, 200 cycles, seed 8), bare: gain 0.94 / 1.06, pegging
 +0.3 bar; commissioned on a healthy 120-cycle log at the first point (seed 9), then a log at the second point with
 gain 0.96 / 1.04 (the drift after commissioning). Printed: the first cycle with a gain-watch flag, the flags at the
-end, and what the watch read on the faulted channel.
+end, and what the watch's last window read on the faulted channel against its limit (gain_watch.gain_limits).
 """
 
 from __future__ import annotations
@@ -32,8 +32,9 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from frictionwatch.core.model.calibration import Calibration  # noqa: E402
 from frictionwatch.core.model.engine import load_engine  # noqa: E402
-from frictionwatch.core.model.engine_model import EngineModel  # noqa: E402
+from frictionwatch.core.model.engine_model import EngineModel, load_model  # noqa: E402
 from frictionwatch.core.monitor.calibration.gain_watch import gain_limits  # noqa: E402
 from frictionwatch.core.plant.simulate import simulate  # noqa: E402
 from frictionwatch.service.cli import main as cli  # noqa: E402
@@ -97,14 +98,17 @@ def _detection(log: Path, engine: str | None) -> dict:
     a = analyze_log(log, engine=engine)
     first = next((r.index for r in a.results if any(f.startswith("sensor_pressure") for f in r.flags)), None)
     s = a.gain_watch.last
+    lim = None if s is None else gain_limits(load_model(engine).calibration if engine else Calibration(), s)
     return {"first_flag_cycle": first, "flags": sorted(f for f in a.results[-1].flags if f.startswith("sensor_")),
             "gain_cyl2": None if s is None else 1.0 + float(s.mean[0, 1]),
-            "offset_cyl2_bar": None if s is None else float(s.mean[1, 1]) / 1e5}
+            "offset_cyl2_bar": None if s is None else float(s.mean[1, 1]) / 1e5,
+            "gain_limit_cyl2": None if lim is None else float(lim[0][1]),
+            "offset_limit_cyl2_bar": None if lim is None else float(lim[1][1]) / 1e5}
 
 
 def faults() -> list[dict]:
     rows = []
-    print(f"{'engine':<12} {'model':<13} {'rpm':>5} {'load':>4} {'effect':<38} {'first':>5} {'read':>14}  flags at end")
+    print(f"{'engine':<12} {'model':<13} {'rpm':>5} {'load':>4} {'effect':<38} {'first':>5} {'read / limit':>20}  flags at end")
     with tempfile.TemporaryDirectory() as tmp:
         for engine in ("k9k-4cyl", "maruti-3cyl", "genset-v20"):
             (rpm1, load1), (rpm2, load2) = POINTS[engine]
@@ -120,10 +124,11 @@ def faults() -> list[dict]:
                 r = {"engine": engine, "model": kind, "rpm": rpm, "load": load, "effect": effect,
                      **_detection(log, str(model) if kind == "commissioned" else None)}
                 rows.append(r)
-                read = (f"gain {r['gain_cyl2']:.4f}" if "gain" in effect else f"{r['offset_cyl2_bar']:+.3f} bar") \
+                read = (f"{r['gain_cyl2'] - 1:+.2%} / {r['gain_limit_cyl2']:.2%}" if "gain" in effect else
+                        f"{r['offset_cyl2_bar']:+.3f} / {r['offset_limit_cyl2_bar']:.3f} bar") \
                     if r["gain_cyl2"] is not None else "-"
                 first = "-" if r["first_flag_cycle"] is None else str(r["first_flag_cycle"])
-                print(f"{engine:<12} {kind:<13} {rpm:5.0f} {load:4.2f} {effect:<38} {first:>5} {read:>14}  "
+                print(f"{engine:<12} {kind:<13} {rpm:5.0f} {load:4.2f} {effect:<38} {first:>5} {read:>20}  "
                       f"{','.join(r['flags']) or '-'}", flush=True)
     return rows
 
