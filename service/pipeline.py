@@ -22,6 +22,7 @@ from frictionwatch.core.discrepancy.view import (
 )
 from frictionwatch.core.model.engine import EngineSpec, spec_from_toml_text
 from frictionwatch.core.model.engine_model import EngineModel, as_model, load_model
+from frictionwatch.core.monitor.calibration.gain_watch import GainWatchState, watch_gains
 from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState, watch_cycle
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
 from frictionwatch.core.monitor.results import CycleResult
@@ -60,6 +61,7 @@ class EnginePipeline:
         self.cycles_ok = 0
         self.tdc_watch = TdcWatchState.empty()
         self.tdc_window_cycle: int | None = None  # the cycle that closed the TDC watch's newest window
+        self.gain_watch = GainWatchState.empty()
 
     def _make_view(self, ref: Reference | None) -> None:
         self.view = monitor_view(self.model, ref, self.config)
@@ -103,12 +105,17 @@ class EnginePipeline:
             # TDC from the pressure, window by window, against the model's calibration (a hidden or drifting TDC
             # error is flagged and withholds the figures it touches: core.monitor.calibration.tdc_watch)
             before = self.tdc_watch.last
-            self.tdc_watch = watch_cycle(view.spec, self.model.calibration, self.tdc_watch, cycle,
-                                         self.cylinder_twist())
+            twist = self.cylinder_twist()
+            self.tdc_watch = watch_cycle(view.spec, self.model.calibration, self.tdc_watch, cycle, twist)
             if self.tdc_watch.last is not before:
                 self.tdc_window_cycle = int(cycle.index)
-            if self.tdc_watch.flags:
-                result = replace(result, flags=result.flags + self.tdc_watch.flags)
+            # each channel's gain and pegging against its siblings, likewise (core.monitor.calibration.gain_watch)
+            self.gain_watch = watch_gains(view.spec, self.model.calibration, self.gain_watch, cycle, twist)
+            # (the opt-in sensor-health stage names a gain or pegging flag the same way: each flag once)
+            flags = tuple(f for f in dict.fromkeys(self.tdc_watch.flags + self.gain_watch.flags)
+                          if f not in result.flags)
+            if flags:
+                result = replace(result, flags=result.flags + flags)
             return result
         if self.monitor_skipped[reason] == 0:
             log.warning("cycle %d skipped: %s", cycle.index, reason)
@@ -161,7 +168,9 @@ class LogAnalysis:
     """``results``: the analysed cycles in order (older ones slim, see ``ResultHistory``); ``dropped``: analysed
     cycles no longer held (a live session's bounded history), counted in ``cycles_ok``; ``tdc_watch``: the TDC
     found from the pressure at the end (core.monitor.calibration.tdc_watch; its newest window's estimates);
-    ``cylinder_twist`` (z,) [rad] the throws' static twist ahead of the flywheel in the newest cycle's model."""
+    ``cylinder_twist`` (z,) [rad] the throws' static twist ahead of the flywheel in the newest cycle's model;
+    ``gain_watch``: the channels' gains and pegging against their siblings at the end
+    (core.monitor.calibration.gain_watch)."""
 
     spec: EngineSpec
     results: list[CycleResult]
@@ -170,6 +179,7 @@ class LogAnalysis:
     dropped: int = 0
     tdc_watch: TdcWatchState | None = None
     cylinder_twist: np.ndarray | None = None
+    gain_watch: GainWatchState | None = None
 
     @property
     def last(self) -> CycleResult | None:
@@ -251,7 +261,7 @@ def analyze_records(
         if on_result:
             on_result(r)
     return LogAnalysis(pipe.spec, history.to_list(), pipe.skipped, tdc_watch=pipe.tdc_watch,
-                       cylinder_twist=pipe.cylinder_twist())
+                       cylinder_twist=pipe.cylinder_twist(), gain_watch=pipe.gain_watch)
 
 
 BENCH_EXPORTS = {".mf4": "an MDF4 bus log", ".mdf": "an MDF4 bus log", ".csv": "a table",
