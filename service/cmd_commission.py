@@ -34,6 +34,7 @@ from frictionwatch.core.monitor.calibration.pressure_gain import sibling_gains
 from frictionwatch.core.monitor.calibration.tdc import tdc_of_cycles
 from frictionwatch.core.monitor.results import CycleResult
 from frictionwatch.core.types import Cycle
+from frictionwatch.service.alerts import AlertEngine
 from frictionwatch.service.output_files import atomic_path, check_output_path
 from frictionwatch.service.pipeline import analyze_records, resolve_model
 
@@ -64,8 +65,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 class _Collector:
     """Every assembled cycle the monitor accepted, per log, re-indexed so that two logs never join."""
 
-    def __init__(self, max_cycles: int):
+    def __init__(self, max_cycles: int, alerts: AlertEngine | None = None):
         self.max_cycles = max_cycles
+        self.alerts = alerts
         self.cycles: dict[int, Cycle] = {}
         self.imep: dict[int, np.ndarray] = {}
         self.offset = 0
@@ -81,6 +83,8 @@ class _Collector:
 
     def on_result(self, result: CycleResult) -> None:
         self.imep[self.offset + result.index] = np.asarray(result.imep, dtype=np.float64)
+        if self.alerts is not None:  # the healthy state per load band, learnt as a serving engine learns it
+            self.alerts.update(dataclasses.replace(result, index=self.offset + result.index))
 
     def split(self) -> tuple[list[Cycle], list[Cycle]]:
         """(fired, motored) cycles the monitor analysed, in order; misfiring and partly fired cycles in neither."""
@@ -112,6 +116,7 @@ def commission(logs: list[Path], engine: str | None, gain_sigma: float | None, m
             found = resolve_model(reader.engine_toml, engine, path.name, reader.info)
             if model is None:
                 model = without_sensor_effects(found)
+                collector.alerts = AlertEngine(model.spec)
             elif found.spec.name != model.spec.name:
                 raise ValueError(f"{path.name} is engine {found.spec.name!r}, the first log {model.spec.name!r}: "
                                  "one engine per commissioning")
@@ -157,9 +162,17 @@ def commission(logs: list[Path], engine: str | None, gain_sigma: float | None, m
               f"cycles; TDC from the pressure ({'fired' if used is tdc_fired else 'motored'}), gains against the "
               f"siblings, common gain {'stated' if stated else 'unreferenced'}")
     result = commissioned_model(model, tdc_fired, tdc_motored, gains, gain_sigma, inertia, source)
+    # the alert baseline as learnt over these logs (the recording is the engine's healthy state: commissioning
+    # assumes it), carried in the calibration section; a serving engine compares with it from its first cycle
+    baseline = collector.alerts.baseline if collector.alerts is not None else None
+    if baseline is not None:
+        cal = dataclasses.replace(result.model.calibration, baseline=json.dumps(baseline.to_dict()))
+        result = dataclasses.replace(result, model=dataclasses.replace(result.model, calibration=cal))
     report = {"engine": spec.name, "logs": [str(p) for p in logs], "cycles_fired": len(fired),
               "cycles_motored": len(motored), "cycles_skipped": skipped, **result.report,
-              "inertia_note": inertia_note}
+              "inertia_note": inertia_note,
+              "alert_baseline_bands": [] if baseline is None else [
+                  {"imep_bar": b.imep_pa / 1e5, "cycles": b.cycles} for b in baseline.bands]}
     return result, report
 
 
@@ -230,5 +243,9 @@ def print_report(doc: dict) -> None:
               f"{inertia['engine_file_kgm2']:.5f} (the monitor runs with the file's; the difference is in J's sigma)")
     else:
         print(doc["inertia_note"])
+    bands = doc["alert_baseline_bands"]
+    print("alert baseline (the healthy state the alerts compare with): " + (
+        ", ".join(f"IMEP {b['imep_bar']:.2f} bar ({b['cycles']} cycles)" for b in bands) if bands else
+        "none learnt: it needs 200 healthy cycles at one load (service/alerts.py AlertConfig.baseline_cycles)"))
     print("* gain corrected (beyond the siblings' spread); a TDC or pegging beyond its threshold is a model effect")
     print(f"model written to {doc['model_written']}")

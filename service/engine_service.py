@@ -19,6 +19,7 @@ Recorded window. The ingest thread also keeps references to the newest ``recent_
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import time
@@ -33,6 +34,7 @@ from frictionwatch.core.monitor.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 from frictionwatch.drivers.source import Source
+from frictionwatch.service.alert_baseline import Baseline
 from frictionwatch.service.listeners import Fanout, LatestState, ServiceEvent
 from frictionwatch.service.live import LiveSession, record_key
 from frictionwatch.service.security import valid_engine_id
@@ -131,6 +133,10 @@ class EngineService:
         self.engine_id, self.model, self.spec, self.info = engine_id, model, model.spec, info
         self.urls = list(urls)
         self.alerts = alerts(engine_id, model.spec) if alerts is not None else None
+        if self.alerts is not None and self.alerts.baseline is None and model.calibration.baseline:
+            # no stored baseline (--data-dir) yet: the commissioned one, so that the first cycle is compared with
+            # the engine as commissioned, not learnt as the normal state (a wear present at start would be)
+            self.alerts.baseline = Baseline.from_dict(json.loads(model.calibration.baseline))
         self._alerts_lock = threading.Lock()
         self.state = LatestState(max_results=history_cycles)
         self.fanout = Fanout([self.state, *listeners], queue_size=queue_size)

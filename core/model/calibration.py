@@ -22,11 +22,13 @@ In the model's TOML (core.model.engine_model), every key optional (the defaults 
     gain_common_sigma = 0.01         # the gain common to every channel (their mean; a shared amplifier or DAQ scale)
     inertia_sigma = 0.02             # the relative error of J (kinetic-energy term of the mean balance)
     source = "frictionwatch commission, 3 files, 2026-11-28"
+    baseline = "{...}"               # the healthy state per load band the alerts compare with (JSON, see below)
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -54,7 +56,10 @@ class Calibration:
     unknown after the corrections in the model's effects are applied: tdc_wheel_sigma_deg (common to all cylinders),
     tdc_cylinder_sigma_deg (each cylinder's own), gain_sigma (relative, each channel on its own), gain_common_sigma
     (relative, common to all channels), inertia_sigma (relative J);
-    source: where the numbers come from, in words."""
+    source: where the numbers come from, in words; baseline: the commissioning recording's healthy state per load
+    band, friction and pressure indicators, as the alert engine learns it (service.alert_baseline.Baseline.to_dict
+    as JSON text; empty: none). Core does not read it: it travels with the model so that the alerts compare with
+    the commissioned engine from the first cycle of any later session, not with whatever state it starts in."""
 
     status: str = "uncalibrated"
     tdc_wheel_sigma_deg: float = 0.5
@@ -63,6 +68,7 @@ class Calibration:
     gain_common_sigma: float = 0.01
     inertia_sigma: float = 0.05
     source: str = UNCALIBRATED_SOURCE
+    baseline: str = ""
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -72,6 +78,8 @@ class Calibration:
             v = getattr(self, name)
             if not (isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"calibration {name} = {v!r} must be a number >= 0")
+        if not isinstance(self.baseline, str) or not isinstance(self.source, str):
+            raise ValueError("calibration source and baseline must be text")
         if max(self.gain_sigma, self.gain_common_sigma, self.inertia_sigma) >= 0.5 or self.tdc_wheel_sigma_deg > 10.0:
             raise ValueError("calibration sigmas beyond 50 % of gain or J, or 10 deg of TDC, are not a calibration")
 
@@ -112,9 +120,10 @@ def calibration_toml(cal: Calibration) -> str:
         return ""
     lines = ["[model.calibration]"]
     for key, value in cal.to_dict().items():
-        if isinstance(value, str):
-            text = value.replace("\\", "\\\\").replace('"', '\\"')
-            lines.append(f'{key} = "{text}"')
+        if key == "baseline" and not value:
+            continue
+        if isinstance(value, str):  # a JSON string (ASCII, escaped) is a TOML basic string
+            lines.append(f"{key} = {json.dumps(value)}")
         else:
             lines.append(f"{key} = {float(value)!r}")
     return "\n".join(lines) + "\n"
