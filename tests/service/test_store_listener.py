@@ -126,7 +126,8 @@ CHILD = textwrap.dedent("""
     store = open_store(sys.argv[1])
     store.register_engine("eng-1", TOML)
     first = (store.latest_cycle("eng-1") or -1) + 1
-    report = lambda cycles: print(*cycles, sep="\\n", flush=True)
+    # a commit may hold no cycle (estimates only): print nothing then, not an empty line
+    report = lambda cycles: cycles and print(*cycles, sep="\\n", flush=True)
     listener = StoreListener(store, "eng-1", batch_cycles=7, max_delay_s=0.05, estimate_every=3, on_commit=report)
     for i in itertools.count(first):
         listener.on_cycle(summary(i, z=20), losses(i, z=20))
