@@ -2,11 +2,13 @@
 by window, against what the model's calibration says (issue 25 item 3: a gain that drifts after commissioning is
 flagged on its cylinder and withholds that cylinder's figures; never a confident figure on a wrong channel).
 
-Every cycle adds the sibling comparison of the compression stroke (core.monitor.sensor_evidence.sibling_compare via
-core.monitor.calibration.pressure_gain.cycle_comparison: the same comparison commissioning averages over its
-recording) to running sums; every ``window`` cycles the window's statistics (pressure_gain.sibling_stats: mean,
-standard error, the siblings' robust spread) decide the flags and the sums start again, as in the TDC watch
-(core.monitor.calibration.tdc_watch). The cost per cycle is one comparison (a few small least-squares solves).
+Every cycle adds its pressure to one of ``BLOCKS`` running block sums; every ``window`` cycles each block's mean
+cycle is compared over the compression stroke (core.monitor.sensor_evidence.sibling_compare via
+core.monitor.calibration.pressure_gain.cycle_comparison: the comparison commissioning averages over its recording),
+the blocks' comparisons give the window's statistics (pressure_gain.sibling_stats: mean, standard error from the
+blocks' scatter, the siblings' robust spread), they decide the flags and the sums start again, as in the TDC watch
+(core.monitor.calibration.tdc_watch). Per cycle that is one addition; a comparison per cycle (a few small
+least-squares solves) had cost 0.26 ms on k9k and 0.47 ms on genset-v20 (h-gainwatch's figures, under load).
 
 What is flagged (``sensor_pressure_gain_cyl<k>``, ``sensor_pressure_offset_cyl<k>``; the ``sensor_`` prefix withholds
 that cylinder's figures, core.monitor.figure_status), only with three or more cylinders (two cannot say which one is
@@ -30,6 +32,7 @@ monitor's model (the caller's spec already carries the model's TDC corrections i
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,6 +44,7 @@ from frictionwatch.core.monitor.calibration.pressure_gain import (
     cycle_comparison,
     sibling_stats,
 )
+from frictionwatch.core.monitor.calibration.tdc import BLOCKS
 from frictionwatch.core.monitor.calibration.tdc_watch import DRIFT_SIGMAS, WINDOW_CYCLES
 from frictionwatch.core.monitor.sensor_health import SensorHealthConfig
 from frictionwatch.core.types import Cycle
@@ -54,14 +58,18 @@ MIN_CYLINDERS = 3
 
 @dataclass(frozen=True)
 class GainWatchState:
-    """sums: the current window's running sums of the per-cycle comparison (None before its first cycle); cycles
-    seen in the window (a cycle with a NaN sample counts here, not in the sums); last: the newest window's
-    statistics or None; flags in force."""
+    """sums (BLOCKS, z, n): the current window's block sums of the cycles' pressure (None before its first cycle),
+    counts (BLOCKS,) the cycles in each; cycles seen in the window (a cycle with a NaN sample counts here, not in
+    the sums), used: those in the sums, lead_sum (z,) their leads summed [rad]; last: the newest window's statistics
+    (over its blocks) or None; flags in force."""
 
-    sums: SiblingSums | None
+    sums: np.ndarray | None
     cycles: int
     last: SiblingStats | None
     flags: tuple[str, ...]
+    counts: np.ndarray | None = None
+    lead_sum: np.ndarray | float = 0.0
+    used: int = 0
 
     @staticmethod
     def empty() -> GainWatchState:
@@ -76,13 +84,30 @@ def watch_gains(spec: EngineSpec, cal: Calibration, state: GainWatchState, cycle
     z = spec.n_cyl
     if z < MIN_CYLINDERS:
         return state
-    sums = state.sums if state.sums is not None and state.sums.total.shape == (2, z) else SiblingSums.empty(z)
-    sums = sums.add(cycle_comparison(spec, cycle, lead))
+    p = np.asarray(cycle.pressure, dtype=np.float64)
+    shape = (BLOCKS,) + p.shape
+    fresh = state.sums is None or state.sums.shape != shape
+    sums = np.zeros(shape) if fresh else state.sums.copy()
+    counts = np.zeros(BLOCKS) if fresh or state.counts is None else state.counts.copy()
+    used, lead_sum = (0, 0.0) if fresh else (state.used, state.lead_sum)
+    if np.all(np.isfinite(p)):  # a NaN sample: the cycle counts in the window, not in the sums
+        b = state.cycles % BLOCKS
+        sums[b] += p
+        counts[b] += 1
+        used += 1
+        lead_sum = lead_sum + np.asarray(lead, dtype=np.float64)
     n = state.cycles + 1
     if n < window:
-        return GainWatchState(sums, n, state.last, state.flags)
-    stats = sibling_stats(sums)
-    if stats is None or stats.n < window // 2:  # most of the window unusable: no verdict, the old one stands
+        return GainWatchState(sums, n, state.last, state.flags, counts, lead_sum, used)
+    if used < window // 2:  # most of the window unusable: no verdict, the old one stands
+        return GainWatchState(None, 0, state.last, state.flags)
+    lead_mean = np.broadcast_to(lead_sum / used, (z,))
+    rows = SiblingSums.empty(z)
+    for b in np.flatnonzero(counts):
+        mean_cycle = dataclasses.replace(cycle, pressure=sums[b] / counts[b])
+        rows = rows.add(cycle_comparison(spec, mean_cycle, lead_mean))
+    stats = sibling_stats(rows)
+    if stats is None or stats.n < 2:
         return GainWatchState(None, 0, state.last, state.flags)
     return GainWatchState(None, 0, stats, gain_flags(cal, stats))
 
