@@ -25,7 +25,7 @@ from frictionwatch.core.monitor.calibration.inertia import (
 from frictionwatch.core.monitor.coastdown import fit_inertia_friction
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.drivers.daq.raw import TUE_GAIN_PA_PER_V, TUE_TDC_DEG, daq_to_records
-from frictionwatch.service.commission_inertia import assembled_cycles
+from frictionwatch.service.pipeline import assembled_cycles
 
 FOLDER = "tue-4gb10-si-encoder-pressure"
 POOL = [f"group14_ENGINEOFF{i}" for i in range(2, 7)]

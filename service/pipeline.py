@@ -50,9 +50,7 @@ class EnginePipeline:
         self.on_cycle = on_cycle  # sees each assembled cycle as the monitor gets it (commissioning reads its pressure)
         self.model = as_model(engine)
         self.spec = spec = self.model.spec
-        self.assembler = CycleAssembler(
-            info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm
-        )
+        self.assembler = cycle_assembler(spec, info)
         self.view: MonitorView | None = None
         self.state: MonitorState | None = None
         if not needs_reference(self.model):
@@ -121,6 +119,20 @@ class EnginePipeline:
             log.warning("cycle %d skipped: %s", cycle.index, reason)
         self.monitor_skipped[reason] += 1
         return None
+
+
+def cycle_assembler(spec: EngineSpec, info: AcquisitionInfo) -> CycleAssembler:
+    """The assembler of an engine's records into cycles, at the phases its wheel states (the pipeline's own)."""
+    return CycleAssembler(info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
+
+
+def assembled_cycles(engine: EngineModel | EngineSpec, info: AcquisitionInfo,
+                     records: Iterable[StreamRecord]) -> tuple[list[Cycle], Counter[str]]:
+    """Every cycle the pipeline's assembler completes from ``records``, without the monitor, and what it skipped, by
+    reason (the coast-down inertia's input: core.monitor.calibration.inertia.coastdown_record)."""
+    asm = cycle_assembler(as_model(engine).spec, info)
+    cycles = [c for record in records for c in asm.feed(record)] + asm.flush()
+    return cycles, Counter(asm.skipped)
 
 
 KEEP_TRACES = 64  # the newest results keep their traces (plots, a dashboard's recent cycles)

@@ -18,6 +18,8 @@ from frictionwatch.core.monitor.figure_status import friction_status
 from frictionwatch.service.cli import main
 from frictionwatch.service.pipeline import analyze_log
 
+from tests.sim_logs import simulate_log
+
 COMMISSIONED = Calibration(status="commissioned", tdc_wheel_sigma_deg=0.2, tdc_cylinder_sigma_deg=0.02,
                            gain_sigma=0.0093)  # what commissioning k9k 2200 rpm / 0.7 wrote (its per-channel gain)
 
@@ -88,9 +90,7 @@ def test_running_sums_give_the_recording_statistics():
 
 
 def _simulate(path, engine, rpm, load, seed, effect=None, cycles=150):
-    args = ["simulate", "--engine", engine, "--rpm", str(rpm), "--load", str(load), "--cycles", str(cycles),
-            "--seed", str(seed), "-o", str(path)]
-    assert main(args + (["--effect", effect] if effect else [])) == 0
+    simulate_log(path, engine, rpm, load, seed, cycles, effect)
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,7 @@ from frictionwatch.core.monitor.calibration.inertia import (
 )
 from frictionwatch.core.monitor.calibration.ripple import CycleGeometry, fit_ripple_inertia, ripple_rows
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.service.commission_inertia import assembled_cycles
+from frictionwatch.service.pipeline import assembled_cycles
 from numpy.testing import assert_allclose
 
 SPEC = load_engine("tue-4gb10")

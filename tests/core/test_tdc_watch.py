@@ -16,6 +16,8 @@ from frictionwatch.core.monitor.figure_status import friction_status
 from frictionwatch.service.cli import main
 from frictionwatch.service.pipeline import analyze_log
 
+from tests.sim_logs import simulate_log
+
 
 def _est(deg: float, sigma: float = 0.2, stat: float = 0.03) -> TdcEstimate:
     return TdcEstimate(math.radians(deg), math.radians(sigma), 0.0, 100, "test", {"statistical_deg": stat})
@@ -36,9 +38,7 @@ def test_flags_against_the_calibration():
 
 
 def _simulate(path, rpm, load, seed, effect=None, cycles=150):
-    args = ["simulate", "--engine", "k9k-4cyl", "--rpm", str(rpm), "--load", str(load), "--cycles", str(cycles),
-            "--seed", str(seed), "-o", str(path)]
-    assert main(args + (["--effect", effect] if effect else [])) == 0
+    simulate_log(path, "k9k-4cyl", rpm, load, seed, cycles, effect)
 
 
 @pytest.fixture(scope="module")

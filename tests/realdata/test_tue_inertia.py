@@ -17,7 +17,7 @@ from frictionwatch.core.model.engine_model import load_model
 from frictionwatch.core.monitor.calibration.inertia import coastdown_record, commission_inertia
 from frictionwatch.core.monitor.coastdown import fit_inertia_friction
 from frictionwatch.drivers.daq.raw import TUE_GAIN_PA_PER_V, TUE_TDC_DEG, daq_to_records
-from frictionwatch.service.commission_inertia import assembled_cycles
+from frictionwatch.service.pipeline import assembled_cycles
 
 FOLDER = "tue-4gb10-si-encoder-pressure"
 MODEL = load_model("tue-4gb10")

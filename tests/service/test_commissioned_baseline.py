@@ -22,6 +22,8 @@ from frictionwatch.service.cli import main
 from frictionwatch.service.pipeline import analyze_log
 from frictionwatch.service.serve import _alerts_factory, build_engine
 
+from tests.sim_logs import simulate_log
+
 RING_KINDS = ("ring_wear", "blow_by")
 
 
@@ -29,9 +31,7 @@ SESSION_START = 250
 
 
 def _simulate(path, seed, cycles, effect=None):
-    args = ["simulate", "--engine", "k9k-4cyl", "--rpm", "2000", "--load", "0.8", "--cycles", str(cycles), "--seed",
-            str(seed), "-o", str(path)]
-    assert main(args + (["--effect", effect] if effect else [])) == 0
+    simulate_log(path, "k9k-4cyl", 2000, 0.8, seed, cycles, effect)
 
 
 @pytest.fixture(scope="module")
