@@ -14,3 +14,16 @@ def simulate_log(path: Path, engine: str, rpm: float, load: float, seed: int, cy
             "--seed", str(seed), "-o", str(path)]
     assert main(args + (["--effect", effect] if effect else [])) == 0
     return path
+
+
+def commissioned_model(folder: Path, engine: str, rpm: float, load: float, seed: int, cycles: int) -> Path:
+    """MODEL.toml written by `frictionwatch commission` from a healthy simulated log in ``folder``."""
+    log = simulate_log(folder / "commissioning.mcap", engine, rpm, load, seed, cycles)
+    assert main(["commission", str(log), "-o", str(folder / "model.toml")]) == 0
+    return folder / "model.toml"
+
+
+def sensor_flags(analysis) -> tuple[list[str], int]:
+    """The sensor flags of an analysis's last cycle, and the first cycle that had any (-1: none)."""
+    first = next((r.index for r in analysis.results if any(f.startswith("sensor_") for f in r.flags)), -1)
+    return sorted(f for f in analysis.results[-1].flags if f.startswith("sensor_")), first

@@ -15,10 +15,9 @@ from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.monitor.calibration.gain_watch import gain_flags
 from frictionwatch.core.monitor.calibration.pressure_gain import SiblingStats, SiblingSums, sibling_stats
 from frictionwatch.core.monitor.figure_status import friction_status
-from frictionwatch.service.cli import main
 from frictionwatch.service.pipeline import analyze_log
 
-from tests.sim_logs import simulate_log
+from tests.sim_logs import commissioned_model, sensor_flags, simulate_log
 
 COMMISSIONED = Calibration(status="commissioned", tdc_wheel_sigma_deg=0.2, tdc_cylinder_sigma_deg=0.02,
                            gain_sigma=0.0093)  # what commissioning k9k 2200 rpm / 0.7 wrote (its per-channel gain)
@@ -95,23 +94,14 @@ def _simulate(path, engine, rpm, load, seed, effect=None, cycles=150):
 
 @pytest.fixture(scope="module")
 def model_path(tmp_path_factory):
-    out = tmp_path_factory.mktemp("gainwatch")
-    _simulate(out / "commissioning.mcap", "k9k-4cyl", 2200, 0.7, 41, cycles=120)
-    assert main(["commission", str(out / "commissioning.mcap"), "-o", str(out / "model.toml")]) == 0
-    return out / "model.toml"
-
-
-def _sensor_flags(analysis) -> tuple[list[str], int]:
-    """The sensor flags of the last cycle, and the first cycle that had any (-1: none)."""
-    first = next((r.index for r in analysis.results if any(f.startswith("sensor_") for f in r.flags)), -1)
-    return sorted(f for f in analysis.results[-1].flags if f.startswith("sensor_")), first
+    return commissioned_model(tmp_path_factory.mktemp("gainwatch"), "k9k-4cyl", 2200, 0.7, 41, 120)
 
 
 def test_a_gain_drift_after_commissioning_is_flagged_on_that_cylinder_and_withheld(model_path, tmp_path):
     log = tmp_path / "drift.mcap"
     _simulate(log, "k9k-4cyl", 2000, 0.8, 42, effect="pressure_gain:cylinder=2,gain=0.96")
     analysis = analyze_log(log, engine=str(model_path))
-    flags, first = _sensor_flags(analysis)
+    flags, first = sensor_flags(analysis)
     assert flags == ["sensor_pressure_gain_cyl2"], flags
     assert 0 <= first <= 200
     last = analysis.results[-1]
@@ -128,13 +118,13 @@ def test_healthy_at_another_operating_point_raises_nothing(model_path, tmp_path)
     for engine in (str(model_path), None):  # commissioned, and the bare preset (uncalibrated)
         analysis = analyze_log(log, engine=engine)
         assert analysis.gain_watch.last is not None  # a window was judged
-        assert _sensor_flags(analysis) == ([], -1)
+        assert sensor_flags(analysis) == ([], -1)
 
 
 def test_uncalibrated_channel_far_beyond_the_assumed_installation_is_flagged(tmp_path):
     log = tmp_path / "gain3.mcap"
     _simulate(log, "k9k-4cyl", 2000, 0.8, 44, effect="pressure_gain:cylinder=3,gain=0.94")
-    flags, first = _sensor_flags(analyze_log(log))
+    flags, first = sensor_flags(analyze_log(log))
     assert flags == ["sensor_pressure_gain_cyl3"] and 0 <= first <= 200
 
 
@@ -145,4 +135,4 @@ def test_healthy_bare_engines_raise_no_sensor_flag(tmp_path, engine, rpm, load):
     _simulate(log, engine, rpm, load, 45)
     analysis = analyze_log(log)
     assert analysis.gain_watch.last is not None
-    assert _sensor_flags(analysis) == ([], -1)
+    assert sensor_flags(analysis) == ([], -1)

@@ -13,10 +13,9 @@ from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.monitor.calibration.tdc import TdcEstimate
 from frictionwatch.core.monitor.calibration.tdc_watch import tdc_flags
 from frictionwatch.core.monitor.figure_status import friction_status
-from frictionwatch.service.cli import main
 from frictionwatch.service.pipeline import analyze_log
 
-from tests.sim_logs import simulate_log
+from tests.sim_logs import commissioned_model, sensor_flags, simulate_log
 
 
 def _est(deg: float, sigma: float = 0.2, stat: float = 0.03) -> TdcEstimate:
@@ -43,23 +42,14 @@ def _simulate(path, rpm, load, seed, effect=None, cycles=150):
 
 @pytest.fixture(scope="module")
 def model_path(tmp_path_factory):
-    out = tmp_path_factory.mktemp("watch")
-    _simulate(out / "commissioning.mcap", 2200, 0.7, 31, cycles=120)
-    assert main(["commission", str(out / "commissioning.mcap"), "-o", str(out / "model.toml")]) == 0
-    return out / "model.toml"
-
-
-def _sensor_flags(analysis) -> tuple[list[str], int]:
-    """The sensor flags of the last cycle, and the first cycle that had any (-1: none)."""
-    first = next((r.index for r in analysis.results if any(f.startswith("sensor_") for f in r.flags)), -1)
-    return sorted(f for f in analysis.results[-1].flags if f.startswith("sensor_")), first
+    return commissioned_model(tmp_path_factory.mktemp("watch"), "k9k-4cyl", 2200, 0.7, 31, 120)
 
 
 def test_a_cylinder_tdc_drift_after_commissioning_is_flagged_on_that_cylinder(model_path, tmp_path):
     log = tmp_path / "drift.mcap"
     _simulate(log, 2000, 0.8, 32, effect="tdc_offset:deg=0.5,cylinder=2", cycles=210)
     analysis = analyze_log(log, engine=str(model_path))
-    flags, first = _sensor_flags(analysis)
+    flags, first = sensor_flags(analysis)
     assert flags == ["sensor_tdc_offset_cyl2"], flags
     assert 0 <= first <= 200
     last = analysis.results[-1]
@@ -71,9 +61,9 @@ def test_a_cylinder_tdc_drift_after_commissioning_is_flagged_on_that_cylinder(mo
 def test_healthy_at_another_operating_point_raises_nothing(model_path, tmp_path):
     log = tmp_path / "healthy.mcap"
     _simulate(log, 2000, 0.8, 33, cycles=210)
-    flags, first = _sensor_flags(analyze_log(log, engine=str(model_path)))
+    flags, first = sensor_flags(analyze_log(log, engine=str(model_path)))
     assert flags == [] and first == -1
-    flags, first = _sensor_flags(analyze_log(log))  # and with the bare preset (uncalibrated)
+    flags, first = sensor_flags(analyze_log(log))  # and with the bare preset (uncalibrated)
     assert flags == [] and first == -1
 
 
