@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.figure_status import friction_status
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
+from frictionwatch.core.monitor.report.figure_status import friction_status
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.plant.simulate import start_simulation
 from frictionwatch.drivers.assembly.cycles import CycleAssembler

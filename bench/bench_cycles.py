@@ -1,4 +1,4 @@
-"""Cycle assembly + speed on a genset-v20 stream (160-2 wheel, 20 cylinders at 20 kHz, 1500 rpm).
+"""Cycle assembly on a genset-v20 stream (160-2 wheel, 20 cylinders at 20 kHz, 1500 rpm).
 
     python -m bench.bench_cycles
 
@@ -9,9 +9,6 @@ one 10 ms pressure frame of all cylinders, load at 100 Hz). Stages, each timed p
   resampling of 20 cylinders onto 720 points), i.e. the whole input-side work of one cycle; ``assemble_blocks`` is
   the same with the pressure as one block per cylinder (as CAN / DAQ drivers deliver it);
 - latency: the single ``feed`` call that returned the cycle (what stands between the last tooth and the cycle);
-- speed: ``cycle_speed`` (tooth speed with the learned correction, pitch samples, FFT filter to order 20, grid)
-  plus one ``ToothSpacingLearner.update``; the correction itself is refreshed every 20 cycles (timed apart);
-- stream: ``speed_stream_update`` (FIR variant, one-cycle delay).
 Real time at 1500 rpm is 12.5 cycles/s.
 """
 
@@ -21,9 +18,6 @@ import time
 
 import numpy as np
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.speed import cycle_speed
-from frictionwatch.core.monitor.speed_spacing import ToothSpacingLearner, engine_orders
-from frictionwatch.core.monitor.speed_stream import SpeedStreamState, design_stream_filter, speed_stream_update
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 
@@ -31,7 +25,6 @@ from bench.common import as_blocks, assembler_for, timed_assembly
 
 CYCLES = 60
 RPM = 1500.0
-REFRESH = 20  # cycles between refreshes of the tooth-spacing correction
 
 
 def _stats(ms: list[float]) -> dict:
@@ -65,41 +58,15 @@ def run() -> dict:
     _, per_cycle_blocks, _, _ = _assemble(spec, res.info, blocks)
     n_rec = len(res.records)
 
-    learner = ToothSpacingLearner(spec.sensors.wheel_teeth, spec.sensors.wheel_missing,
-                                  engine_orders=engine_orders(spec.n_cyl, 79))
-    state = learner.initial()
-    eps = None
-    speed_ms, correction_ms = [], []
-    for i, c in enumerate(cycles):
-        t1 = time.perf_counter()
-        state = learner.update(state, c.tooth_ticks, c.tooth_index)
-        cycle_speed(c, eps, 20, 720)
-        speed_ms.append(1e3 * (time.perf_counter() - t1))
-        if i % REFRESH == REFRESH - 1:  # the correction is refreshed now and then, not every cycle
-            t2 = time.perf_counter()
-            eps = learner.correction(state)
-            correction_ms.append(1e3 * (time.perf_counter() - t2))
-
-    flt = design_stream_filter(20, spec.sensors.wheel_teeth)
-    stream_ms, st = [], SpeedStreamState()
-    st, _ = speed_stream_update(flt, st, cycles[0], eps)  # builds the cached grid operator
-    for c in cycles[1:]:
-        t1 = time.perf_counter()
-        st, _ = speed_stream_update(flt, st, c, eps)
-        stream_ms.append(1e3 * (time.perf_counter() - t1))
-
     asm_s = _stats(per_cycle)
-    spd_s = _stats(speed_ms[1:])
-    both = float(np.mean(per_cycle) + np.mean(speed_ms[1:]))
+    both = float(np.mean(per_cycle))
     return {
         "engine": spec.name, "rpm": RPM, "wheel": f"{spec.sensors.wheel_teeth}-{spec.sensors.wheel_missing}",
         "cylinders": spec.n_cyl, "pressure_hz": spec.sensors.pressure_rate_hz, "records": n_rec,
         "records_per_cycle": round(n_rec / CYCLES, 1), "records_per_cycle_blocks": round(len(blocks) / CYCLES, 1),
         "cycles_in": CYCLES, "cycles_out": len(cycles), "skipped": dict(asm.skipped),
         "assemble": asm_s, "assemble_blocks": _stats(per_cycle_blocks), "emit_latency": _stats(latency),
-        "speed_incl_learning": spd_s, "spacing_correction_ms": round(float(np.mean(correction_ms)), 3),
-        "speed_stream_fir": _stats(stream_ms),
-        "assemble_plus_speed_cycles_per_s": round(1000.0 / both, 1),
+        "assemble_cycles_per_s": round(1000.0 / both, 1),
         "real_time_factor": round(1000.0 / both / (RPM / 120.0), 1),
         "simulate_s": round(sim_s, 2),
     }
@@ -111,11 +78,10 @@ def main() -> None:
           f"{r['rpm']:g} rpm: {r['cycles_out']}/{r['cycles_in']} cycles from {r['records']} records "
           f"(skipped {r['skipped'] or 'none'})")
     print(f"{'stage':28s} {'cycles/s':>10s} {'p50 ms':>9s} {'p99 ms':>9s}")
-    for key in ("assemble", "assemble_blocks", "emit_latency", "speed_incl_learning", "speed_stream_fir"):
+    for key in ("assemble", "assemble_blocks", "emit_latency"):
         s = r[key]
         print(f"{key:28s} {s['cycles_per_s']:10.1f} {s['p50_ms']:9.3f} {s['p99_ms']:9.3f}")
-    print(f"assemble + speed: {r['assemble_plus_speed_cycles_per_s']} cycles/s = {r['real_time_factor']}x real time; "
-          f"spacing correction (on demand) {r['spacing_correction_ms']} ms")
+    print(f"assemble: {r['assemble_cycles_per_s']} cycles/s = {r['real_time_factor']}x real time")
 
 
 if __name__ == "__main__":

@@ -6,8 +6,6 @@ For deutz-1cyl (3000 rpm), k9k-4cyl (4000 rpm) and genset-v20 (1500 rpm), all at
 makes ``CYCLES`` cycles once (not timed); then, on one core (BLAS/numba threads pinned to 1):
 
 - assemble: ``CycleAssembler.feed`` calls per cycle (records -> Cycle) and the emitting call alone (latency);
-- speed: ``core.monitor.speed.cycle_speed`` + ``ToothSpacingLearner.update`` (the display/analysis speed; the monitor fits
-  the teeth itself, so this is not on its path: timed in a pass of its own over the same cycles);
 - monitor: ``process_cycle``, split into its stages by timing the functions it calls (wrapped for one extra pass,
   nothing in core/ edited; ``identify_cycle`` is noise model, accumulation, sharing, posteriors and estimates);
   ``other`` is process_cycle's own bookkeeping;
@@ -46,7 +44,6 @@ import frictionwatch.core.monitor.monitor as monitor_module  # noqa: E402
 import numpy as np  # noqa: E402
 from frictionwatch.core.model.engine import load_engine  # noqa: E402
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle  # noqa: E402
-from frictionwatch.core.monitor.speed import ToothSpacingLearner, cycle_speed, engine_orders  # noqa: E402
 from frictionwatch.core.plant.simulate import simulate  # noqa: E402
 from frictionwatch.service.pipeline import ResultHistory  # noqa: E402
 
@@ -159,7 +156,6 @@ import json, pickle, sys, time
 t0 = time.perf_counter()
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.monitor.monitor import initial_state, process_cycle
-from frictionwatch.core.monitor.speed import cycle_speed
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 t_import = time.perf_counter() - t0
 runs = pickle.load(open(sys.argv[1], 'rb'))
@@ -170,7 +166,6 @@ def one(name, info, records):
     t = time.perf_counter()
     for r in records:
         for c in asm.feed(r):
-            cycle_speed(c, None, 12.0, 720)
             state, _ = process_cycle(spec, state, c)
     return time.perf_counter() - t
 out = {'import_s': t_import}
@@ -182,7 +177,7 @@ print(json.dumps(out))
 
 
 def cold_compile(short_runs: list) -> dict:
-    """First pass minus warm pass of assembly + speed + monitor on a few cycles, in a fresh process with an empty
+    """First pass minus warm pass of assembly + monitor on a few cycles, in a fresh process with an empty
     numba cache: the JIT compile cost of the monitor's kernels (the plant's kernels are not involved)."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "runs.pkl"
@@ -228,7 +223,7 @@ def pipeline_pass(spec, sim, keep_last: int = 1) -> dict:
 
 def monitored_cycles(spec, sim) -> list:
     """The cycles of the timed pass again (assembled untimed, monitor-rejected ones dropped), for the passes that
-    need them all: the display speed route, the stage split, the profile and the scipy baseline."""
+    need them all: the stage split, the profile and the scipy baseline."""
     asm = assembler_for(spec, sim.info)
     out, state = [], initial_state(spec)
     for c in [c for r in sim.records for c in asm.feed(r)] + asm.flush():
@@ -238,23 +233,6 @@ def monitored_cycles(spec, sim) -> list:
             continue
         out.append(c)
     return out
-
-
-def speed_pass(spec, cycles) -> np.ndarray:
-    """ms per cycle of the display speed route (``ToothSpacingLearner.update`` + ``cycle_speed``) over the cycles, in
-    a pass of its own: the pipeline does not run it (interleaved, it would evict the monitor's data from the cache
-    and bill that to the monitor)."""
-    learner = ToothSpacingLearner(spec.sensors.wheel_teeth, spec.sensors.wheel_missing,
-                                  engine_orders=engine_orders(spec.n_cyl, 79))
-    sp_state = learner.initial()
-    order = min(20.0, 0.25 * (spec.sensors.wheel_teeth - spec.sensors.wheel_missing))
-    speed_ms = []
-    for c in cycles:
-        t0 = time.perf_counter()
-        sp_state = learner.update(sp_state, c.tooth_ticks, c.tooth_index)
-        cycle_speed(c, None, order, 720)
-        speed_ms.append(1e3 * (time.perf_counter() - t0))
-    return np.array(speed_ms)
 
 
 def heap_peak_mb(spec, sim, n: int = 20) -> float:
@@ -297,7 +275,6 @@ def engine_bench(name: str, rpm: float, load: float, scipy_cycles: int) -> tuple
     if len(cycles) != rows.shape[0] or any(c.index != k[0].index for c, k in zip(cycles[-len(run["kept"]):],
                                                                                    run["kept"])):
         raise RuntimeError("the untimed assembly does not give the timed pass's cycles")
-    speed_ms = speed_pass(spec, cycles)
     e2e = asm_ms + mon_ms
     duration_ms = 120.0 / rpm * 1e3
     stages = stage_times(spec, cycles)
@@ -308,7 +285,7 @@ def engine_bench(name: str, rpm: float, load: float, scipy_cycles: int) -> tuple
         "harmonics": run["first_state"].n_harmonics if run["first_state"] else None,
         "cycle_duration_ms": round(duration_ms, 3), "cycles": int(rows.shape[0]), "skipped": run["skipped"],
         "rejected": run["rejected"], "simulate_s": round(sim_s, 2), "warm_first_calls_s": round(warm_s, 3),
-        "assemble": summary_ms(asm_ms), "speed": summary_ms(speed_ms), "monitor": summary_ms(mon_ms),
+        "assemble": summary_ms(asm_ms), "monitor": summary_ms(mon_ms),
         "end_to_end": summary_ms(e2e), "latency": summary_ms(emit_ms + mon_ms),
         "end_to_end_mean_ms_per_pass": [round(v, 4) for v in pass_means],
         "real_time_factor": round(duration_ms / float(e2e.mean()), 1),
@@ -328,7 +305,7 @@ def engine_bench(name: str, rpm: float, load: float, scipy_cycles: int) -> tuple
 def print_table(r: dict) -> None:
     print(f"\n{'engine':12s} {'stage':12s} {'cycles/s':>10s} {'p50 ms':>9s} {'p99 ms':>9s}   real time")
     for name, e in r["engines"].items():
-        for st in ("assemble", "speed", "monitor", "end_to_end", "latency"):
+        for st in ("assemble", "monitor", "end_to_end", "latency"):
             s = e[st]
             rtf = f"{e['real_time_factor']:8.1f}x (cycle {e['cycle_duration_ms']:.1f} ms)" if st == "end_to_end" \
                 else ""

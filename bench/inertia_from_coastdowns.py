@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.engine_model import EngineModel, load_model
+from frictionwatch.core.monitor.balance.coastdown import fit_inertia_friction
 from frictionwatch.core.monitor.calibration.inertia import (
     InertiaCalibration,
     coastdown_record,
     commission_inertia,
     record_inertia,
 )
-from frictionwatch.core.monitor.coastdown import fit_inertia_friction
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.drivers.daq.raw import TUE_GAIN_PA_PER_V, TUE_TDC_DEG, daq_to_records
 from frictionwatch.service.pipeline import assembled_cycles

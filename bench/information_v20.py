@@ -29,11 +29,11 @@ from pathlib import Path
 import numpy as np
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import kinematics
-from frictionwatch.core.monitor.harmonic_balance import harmonic_balance, operating_point
+from frictionwatch.core.monitor.balance.harmonic_balance import harmonic_balance, operating_point
+from frictionwatch.core.monitor.identify.priors import prior_normal
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
-from frictionwatch.core.monitor.priors import prior_normal
 from frictionwatch.core.monitor.state import MonitorConfig
-from frictionwatch.core.monitor.tooth_fit import fit_cycle_teeth
+from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 
@@ -282,7 +282,7 @@ def cmd_report(args) -> None:
     }
     doc["floors"] = floors
     # what the monitor itself would state after N cycles at one load: the statistical bound with its priors plus its
-    # repeatable-error budget through the same N cycles' rows (core.monitor.accumulate's N^-1 B C B^T N^-1)
+    # repeatable-error budget through the same N cycles' rows (core.monitor.identify.accumulate's N^-1 B C B^T N^-1)
     doc["monitor_prediction"] = {}
     n_nu = int(d0["n_nuisance"])
     two = two_wheel(one, d0["free"], p_f, n_nu)

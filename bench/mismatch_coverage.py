@@ -19,8 +19,8 @@ import sys
 import numpy as np
 from frictionwatch.core.model.effects import parse_effect
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.estimate import ModelErrorFloor
-from frictionwatch.core.monitor.identification import forgetting_factor
+from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
+from frictionwatch.core.monitor.identify.identification import forgetting_factor
 from frictionwatch.core.monitor.monitor import MonitorConfig, initial_state, process_cycle
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.drivers.assembly.cycles import CycleAssembler

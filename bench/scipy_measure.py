@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.flywheel import fit_flywheel, harmonic_series
-from frictionwatch.core.monitor.identify import tooth_patterns
+from frictionwatch.core.monitor.identify.layout import tooth_patterns
+from frictionwatch.core.monitor.teeth.flywheel import fit_flywheel, harmonic_series
 from frictionwatch.core.types import Cycle
 
 FOUR_PI = 4.0 * np.pi
@@ -19,7 +19,7 @@ class MeasuredCycle:
     """What the baseline takes from one assembled cycle: mean speed, the flywheel speed on the crank-angle grid
     (band-limited to ``n_harmonics``, drift removed), pressure and load, and how an in-band tooth-spacing error
     moves the measured speed harmonics (``tooth_columns`` (M, 2 n_orders) complex, per rad of each cos/sin pattern,
-    core.monitor.identify.tooth_patterns: fixed in angle, such errors look like engine response at integer orders)."""
+    core.monitor.identify.layout.tooth_patterns: fixed in angle, such errors look like engine response at integer orders)."""
 
     omega: float  # rad/s
     period: float  # s
@@ -36,7 +36,7 @@ class MeasuredCycle:
 
 def measure(spec: EngineSpec, cycle: Cycle, n_harmonics: int, correction: np.ndarray | None = None,
             tooth_orders: int | None = None) -> MeasuredCycle:
-    """Flywheel speed of one cycle from its tooth edges (core.monitor.flywheel.fit_flywheel with the drift fitted apart).
+    """Flywheel speed of one cycle from its tooth edges (core.monitor.teeth.flywheel.fit_flywheel with the drift fitted apart).
 
     correction : (wheel_teeth,) learned tooth-angle corrections [rad] (e.g. the monitor's), or None
     tooth_orders : integer orders of the in-band tooth-error patterns (default n_harmonics // 2, as the monitor)"""

@@ -1,4 +1,4 @@
-"""Sensor faults on every preset: what the sensor-health stage (core.monitor.sensor_health) finds, and total FMEP
+"""Sensor faults on every preset: what the sensor-health stage (core.monitor.checks.sensor_health) finds, and total FMEP
 with the stage on (corrected, sigma including the sensors' remaining uncertainty) and off (raw).
 
     python -m bench.sensor_faults [--cycles N] [--engines k9k-4cyl,...] [--faults "healthy,cyl2 gain 1.05"]
@@ -15,8 +15,8 @@ import math
 
 from frictionwatch.core.model.effects.catalog import PressureGain, PressureOffset, TdcOffset
 from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig
 from frictionwatch.core.monitor.monitor import MonitorConfig, initial_state, process_cycle
-from frictionwatch.core.monitor.sensor_health import SensorHealthConfig
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 

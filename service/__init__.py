@@ -3,7 +3,7 @@
 The service (`frictionwatch serve`, serve.py): engine_service.py (one engine: live.LiveSession + its alert engine +
 the fan-out), listeners.py (the fan-out after python-can's Notifier: a bounded queue and a thread per listener; the
 API's LatestState and the SSE broadcaster), api.py (FastAPI routes), api_models.py (the contract's JSON shapes),
-api_views.py (results -> those shapes, statuses from core.monitor.figure_status), metrics.py (Prometheus),
+api_views.py (results -> those shapes, statuses from core.monitor.report.figure_status), metrics.py (Prometheus),
 security.py (bind check, token, engine ids).
 
 alerts.py (AlertEngine: per-cycle alert decisions with hysteresis), alert_baseline.py (the commissioning baseline),

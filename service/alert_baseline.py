@@ -3,7 +3,7 @@ per load band.
 
 A healthy cylinder is not its siblings' median: fuel spread, heat transfer and its own sensor (a gain or TDC error
 the calibration left) give it a persistent offset in every pressure indicator. The baseline learns, per cylinder, the
-mean and the per-cycle covariance of the indicators (core.monitor.ring_pressure, sibling-relative) over the first
+mean and the per-cycle covariance of the indicators (core.monitor.checks.ring_pressure, sibling-relative) over the first
 healthy cycles, so the alerts see a change from the engine's own commissioning state, in units of its own scatter;
 and each cylinder's friction excess over its siblings when that friction is first measured. No physics here.
 
@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-# the indicators compared (fields of core.monitor.ring_pressure.RingIndicators), in this order everywhere
+# the indicators compared (fields of core.monitor.checks.ring_pressure.RingIndicators), in this order everywhere
 INDICATORS = ("compression_ratio", "n_compression_dev", "n_expansion_dev", "expansion_deficit")
 VERSION = 2  # 1: one band, learnt without its IMEP (read back as valid at every load, as it was used)
 

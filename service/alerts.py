@@ -5,7 +5,7 @@ cleared). Each alert kind is a statistic per cylinder (or for the engine) with h
 the statistic is above ``raise`` for ``raise_cycles`` consecutive cycles and cleared after it is below ``clear`` for
 ``clear_cycles`` (between the two nothing changes: no flapping). What each kind reads:
 
-    blow_by      the leak signature of the pressure (core.monitor.ring_pressure): the compression exponent down and
+    blow_by      the leak signature of the pressure (core.monitor.checks.ring_pressure): the compression exponent down and
                  the expansion exponent up against the siblings, as a change from the cylinder's commissioning
                  baseline (service.alert_baseline), in units of its own per-cycle scatter: Z = EWMA of the combined
                  standardised change / its standard error. Covers every cylinder from the end of commissioning, with
@@ -27,7 +27,7 @@ the statistic is above ``raise`` for ``raise_cycles`` consecutive cycles and cle
     model_misfit the core's model_misfit flag (the speed fit's chi^2 window), persisting
 
 A leak-like signature on a cylinder whose sensor is flagged is reported as a sensor_fault: a TDC error bends the
-polytropes like a leak (core.monitor.ring_pressure), and the sensor-health stage is what can tell them apart.
+polytropes like a leak (core.monitor.checks.ring_pressure), and the sensor-health stage is what can tell them apart.
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.figure_status import friction_status, split_flag
-from frictionwatch.core.monitor.results import PA_PER_BAR, CycleResult, change_sigma
+from frictionwatch.core.monitor.report.figure_status import friction_status, split_flag
+from frictionwatch.core.monitor.report.results import PA_PER_BAR, CycleResult, change_sigma
 from frictionwatch.service.alert_baseline import INDICATORS, Baseline, BaselineLearner
 from frictionwatch.service.alert_rules import Latch, leak_statistics
 
@@ -60,7 +60,7 @@ class AlertConfig:
     third of their per-cycle scatter over a K9K load step 0.69 -> 0.40, and the monitor flags a change every ~20
     cycles of a steady run with 3 % COV); skip_cycles: first cycles never used. band_width: relative half-width in
     mean IMEP of a load band of the baseline (service.alert_baseline): a step 0.75 -> 0.45 on genset-v20 moves the
-    sibling-relative leak effect of single cylinders by up to 0.0028 (the shaft's twist, core.monitor.ring_pressure),
+    sibling-relative leak effect of single cylinders by up to 0.0028 (the shaft's twist, core.monitor.checks.ring_pressure),
     smoothly with the load; +-10 % of IMEP is about a fifth of that step, so its share stays under leak_floor.
     settle_cycles: after the mean IMEP moves by more than half a band, the pressure statistics and the learning
     wait this many usable cycles, and a cycle the monitor flags operating_point_changed is not used: on genset-v20
@@ -237,7 +237,7 @@ class AlertEngine:
             out += self._decide(("sensor_fault", k + 1), "sensor_fault", bool(sensor), not sensor, k_on, k_off, result, "warning",
                                 f"sensor check on cylinder {k + 1}: " + ", ".join(sensor or ["-"]),
                                 {"flags": sensor, "n_compression": _num(ring.n_compression[k]) if ring else None})
-            if self.baseline is None:  # before a baseline: the core's sibling-floor flags (core.monitor.condition)
+            if self.baseline is None:  # before a baseline: the core's sibling-floor flags (core.monitor.checks.condition)
                 for kind in RING_KINDS:
                     out += self._decide(("core_" + kind, k + 1), kind, kind in fl, kind not in fl, 4 * k_on, k_off, result,
                                         "warning", f"cylinder {k + 1}: {kind.replace('_', ' ')} against its "

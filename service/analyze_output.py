@@ -7,8 +7,8 @@ import csv
 from pathlib import Path
 
 import numpy as np
-from frictionwatch.core.monitor.figure_status import split_flag
-from frictionwatch.core.monitor.run_summary import estimate_window, flag_kinds, smoothed_mean_and_sigma
+from frictionwatch.core.monitor.report.figure_status import split_flag
+from frictionwatch.core.monitor.report.run_summary import estimate_window, flag_kinds, smoothed_mean_and_sigma
 from frictionwatch.service.output_files import atomic_output
 from frictionwatch.service.pipeline import LogAnalysis
 

@@ -4,7 +4,7 @@
     uvicorn.run(app, host="127.0.0.1", port=8080)  # the app's lifespan starts and stops the engines
 
 Reads come from each engine's LatestState (service/listeners.py); what a friction figure is comes from
-core/monitor/figure_status.py through service/api_views.py. State changes (acknowledge, baseline) need the
+core/monitor/report/figure_status.py through service/api_views.py. State changes (acknowledge, baseline) need the
 token (service/security.py), and so does starting a discrepancy job (service/discrepancy_jobs.py: one at a
 time, in the background; its state and report are polled). No request value becomes a file path: the dashboard's files are listed once at start
 and served by name from that list.

@@ -67,7 +67,7 @@ class CylinderLoss(_Open):
     coefficients: dict[str, float | None]
     coefficient_sigmas: dict[str, float | None]
     data_weight: float | None
-    status: Status = Field(description="core/monitor/figure_status.py: only 'measured' is a measurement")
+    status: Status = Field(description="core/monitor/report/figure_status.py: only 'measured' is a measurement")
     reason: str | None
     calibration: Calibrated = Field(description=CALIBRATION_WORDS)
     calibration_sigma_nm: float | None = Field(description=CALIBRATION_SIGMA_WORDS)
@@ -159,7 +159,7 @@ class SensorHealth(_Open):
     """What checks the sensors: the TDC watch and the calibration always; the speed-based stage where switched on."""
 
     cycle_index: int = Field(description="the newest cycle, whose flags these are")
-    enabled: bool = Field(description="the speed-based sensor-health stage (core/monitor/sensor_health.py) is on: "
+    enabled: bool = Field(description="the speed-based sensor-health stage (core/monitor/checks/sensor_health.py) is on: "
                                       "opt-in, `serve --sensor-health`; off by default because where the model is "
                                       "not the engine its TDC is not reliable (docs/design-notes.md item 13)")
     cylinders: list[dict] = Field(description="the speed-based stage's per-cylinder TDC offset, pressure gain and "

@@ -1,7 +1,7 @@
 """What the API shows of the monitor's results, as the contract's plain dicts (service/api_models.py types them).
 
 No figure is decided here: what a friction figure is (measured, share, prior, unresolved, withheld) comes from
-``core.monitor.figure_status.friction_status`` through ``CycleResult.to_json``, with the window and the active flags
+``core.monitor.report.figure_status.friction_status`` through ``CycleResult.to_json``, with the window and the active flags
 chosen exactly as ``frictionwatch analyze`` chooses them (service/cmd_analyze.summary, docs/results.md), so the API
 never shows a prior or a share as a measurement and says the same as the analyze JSON for the same cycles.
 """
@@ -14,9 +14,9 @@ from dataclasses import asdict
 
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
-from frictionwatch.core.monitor.figure_status import friction_status, split_flag
-from frictionwatch.core.monitor.results import PA_PER_BAR, CycleResult
-from frictionwatch.core.monitor.run_summary import active_flags, estimate_window, mean_and_sem
+from frictionwatch.core.monitor.report.figure_status import friction_status, split_flag
+from frictionwatch.core.monitor.report.results import PA_PER_BAR, CycleResult
+from frictionwatch.core.monitor.report.run_summary import active_flags, estimate_window, mean_and_sem
 from frictionwatch.service.cmd_analyze import tdc_watch_document
 from frictionwatch.service.engine_service import TdcWatchView
 
@@ -157,7 +157,7 @@ def sensor_health(r: CycleResult, watch: TdcWatchView, cal: Calibration) -> dict
     core.monitor.calibration.tdc_watch; the same block as ``analyze --json``'s ``tdc_from_pressure``, with the
     cylinders numbered, the cycle that closed the window and the cycles gathered towards the next one).
     ``calibration``: the model's calibration section (core.model.calibration) every friction sigma carries.
-    ``enabled`` and the keys beside it: the speed-based sensor-health stage (core.monitor.sensor_health), opt-in
+    ``enabled`` and the keys beside it: the speed-based sensor-health stage (core.monitor.checks.sensor_health), opt-in
     (``serve --sensor-health``); ``cylinders`` empty and its figures null when it is off. ``flags``: every
     ``sensor_*`` flag of the newest cycle, whichever check raised it (each withholds the figures it touches)."""
     flags = sorted(f for f in r.flags if split_flag(f)[0].startswith("sensor_"))

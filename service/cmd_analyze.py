@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState
-from frictionwatch.core.monitor.run_summary import end_of_run_status, flag_summary, mean_and_sem
-from frictionwatch.core.monitor.sensor_health import SensorHealthConfig
+from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig
+from frictionwatch.core.monitor.report.run_summary import end_of_run_status, flag_summary, mean_and_sem
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.service import coastdown_report
 from frictionwatch.service.analyze_output import print_table, write_csv
@@ -52,7 +52,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def monitor_config(sensor_health: bool) -> MonitorConfig:
     """The monitor's settings for ``--sensor-health`` (analyze, serve): the defaults, with the speed-based
-    sensor-health stage (core.monitor.sensor_health) on when asked for."""
+    sensor-health stage (core.monitor.checks.sensor_health) on when asked for."""
     return MonitorConfig(sensor_health=SensorHealthConfig()) if sensor_health else MonitorConfig()
 
 
@@ -175,7 +175,7 @@ def run_mean_balance(analysis: LogAnalysis, engine_status: str) -> dict:
 
 def regimes(analysis: LogAnalysis, engine_status: str) -> list[dict]:
     """The run split by regime, each that occurs once: ``fired`` (some cylinder burned) and ``motored`` (no cylinder
-    burned: the cycle's ``motored`` flag, core.monitor.condition), each with its cycles, IMEP (mean over the
+    burned: the cycle's ``motored`` flag, core.monitor.checks.condition), each with its cycles, IMEP (mean over the
     cylinders, per cycle; run mean, its 1-sigma and the cycle-to-cycle scatter; COV for the fired regime), the
     cycles with a misfire flag and the friction as the mean of its cycles' torque balances (``balance_figure``)."""
     groups: dict[str, list] = {"fired": [], "motored": []}

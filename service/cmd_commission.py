@@ -32,7 +32,7 @@ from frictionwatch.core.monitor.calibration.commission import (
 from frictionwatch.core.monitor.calibration.inertia import coastdown_record, commission_inertia
 from frictionwatch.core.monitor.calibration.pressure_gain import sibling_gains
 from frictionwatch.core.monitor.calibration.tdc import tdc_of_cycles
-from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.types import Cycle
 from frictionwatch.service.alerts import AlertEngine
 from frictionwatch.service.output_files import atomic_path, check_output_path

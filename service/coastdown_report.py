@@ -1,12 +1,12 @@
-"""`analyze` on a run whose speed changes: inertia J and friction against speed (core.monitor.transient), and a word
+"""`analyze` on a run whose speed changes: inertia J and friction against speed (core.monitor.balance.transient), and a word
 on friction figures the monitor withheld. Wiring and units only; the numbers come from core."""
 
 from __future__ import annotations
 
 import numpy as np
+from frictionwatch.core.monitor.balance.transient import transient_friction
 from frictionwatch.core.monitor.calibration.inertia import INERTIA_UNCALIBRATED_REL
-from frictionwatch.core.monitor.identification import LOAD_STEP_FRACTION, mid_cycle_inertia
-from frictionwatch.core.monitor.transient import transient_friction
+from frictionwatch.core.monitor.identify.identification import LOAD_STEP_FRACTION, mid_cycle_inertia
 from frictionwatch.service.pipeline import LogAnalysis
 
 RPM_PER_RAD_S = 30.0 / np.pi
@@ -79,7 +79,7 @@ def add_to(doc: dict, analysis: LogAnalysis) -> None:
 
 def print_lines(doc: dict) -> None:
     """Printed under ``analyze``'s table: the transient block (why a figure is not measured is the table's own
-    status line, core.monitor.figure_status)."""
+    status line, core.monitor.report.figure_status)."""
     t = doc.get("transient")
     if not t:
         return

@@ -30,7 +30,7 @@ from typing import Any
 
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.monitor.calibration.tdc_watch import WINDOW_CYCLES, TdcWatchState
-from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 from frictionwatch.drivers.source import Source

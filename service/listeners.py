@@ -26,7 +26,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.monitor.report.results import CycleResult
 
 log = logging.getLogger(__name__)
 

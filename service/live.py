@@ -47,7 +47,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Self
 
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import (
     AcquisitionInfo,

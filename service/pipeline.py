@@ -25,7 +25,7 @@ from frictionwatch.core.model.engine_model import EngineModel, as_model, load_mo
 from frictionwatch.core.monitor.calibration.gain_watch import GainWatchState, watch_gains
 from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState, watch_cycle
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
-from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 from frictionwatch.core.types import AcquisitionInfo, Cycle, StreamRecord
 from frictionwatch.drivers.assembly.cycles import CycleAssembler

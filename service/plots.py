@@ -2,7 +2,7 @@
 flywheel speed, per-cylinder friction with its uncertainty over the run. Matplotlib with the Agg backend (no screen).
 Each file is written whole or not at all (service.output_files.atomic_output).
 
-A curve is drawn as what its figure's status (core.monitor.figure_status, the same as the JSON's) says it is:
+A curve is drawn as what its figure's status (core.monitor.report.figure_status, the same as the JSON's) says it is:
 a measured figure solid; a share or the prior dashed and labelled as the model's shape, not a measurement; an
 unresolved or withheld figure not drawn, named with its status in the plot's note (``angle_curves``)."""
 
@@ -16,8 +16,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from frictionwatch.core.monitor.figure_status import FigureStatus, FrictionStatus, friction_status  # noqa: E402
-from frictionwatch.core.monitor.run_summary import end_of_run_status  # noqa: E402
+from frictionwatch.core.monitor.report.figure_status import FigureStatus, FrictionStatus, friction_status  # noqa: E402
+from frictionwatch.core.monitor.report.run_summary import end_of_run_status  # noqa: E402
 from frictionwatch.service.output_files import atomic_output  # noqa: E402
 from frictionwatch.service.pipeline import LogAnalysis  # noqa: E402
 
@@ -60,7 +60,7 @@ def _curve(k: int | None, name: str, st: FigureStatus) -> Curve | None:
 
 def write_plots(analysis: LogAnalysis, out_dir: Path, status: FrictionStatus | None = None) -> list[Path]:
     """The three PNGs in ``out_dir``; ``status``: the run's figure status (default: the one `analyze` reports,
-    core.monitor.run_summary.end_of_run_status)."""
+    core.monitor.report.run_summary.end_of_run_status)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     last = analysis.last
     if last is None:

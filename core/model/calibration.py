@@ -4,7 +4,7 @@ Every friction figure rests on the pressure's crank-angle reference (TDC), the p
 inertia the kinetic-energy term uses. A TDC error moves a cylinder's indicated work by dW/dDelta = -A ∮ p x'' dtheta
 and a gain error by W itself; the mean balance passes both into friction whole (0.1 deg of TDC is 6-7 % of the
 genset-v20's friction, 1 % of gain 8-12 %: docs/information.md). The monitor adds what the calibration leaves
-uncertain to every friction sigma through those sensitivities (core.monitor.estimate.calibration_variance), so a
+uncertain to every friction sigma through those sensitivities (core.monitor.identify.estimate.calibration_variance), so a
 figure never claims to know more than its sensors allow.
 
 A model without a calibration section is ``uncalibrated``: its sigmas assume a typical installation whose TDC was set

@@ -5,7 +5,7 @@ its name, its physics (a plain-numpy ``reference`` written from the equation and
 numbers), the group the monitor scales it with by default ("cylinder": one scale per cylinder, "engine": one scale
 shared by all cylinders), the unit of its coefficient and a prior coefficient. A ``TermLibrary`` is an ordered tuple of
 terms; libraries compose with ``+`` (after pysindy's feature libraries), so a model gains a term without any solver
-being edited: the simulator (core.plant.plant) and the monitor's harmonic balance (core.monitor.harmonic_balance)
+being edited: the simulator (core.plant.plant) and the monitor's harmonic balance (core.monitor.balance.harmonic_balance)
 both evaluate whatever library the model carries, and the number of terms is ``len(library)`` everywhere.
 
     lib = rezeka_henein(spec.friction.coefficients) + my_term
@@ -331,7 +331,7 @@ def loaded_bearings_kernel(s, c, out):
 def rezeka_henein(coefficients: np.ndarray | None = None) -> TermLibrary:
     """The six Rezeka-Henein terms, in the paper's order. ``coefficients`` (one per term): their priors (default 0: the engine
     spec carries its own, ``EngineSpec.friction.coefficients``). Ring and skirt terms are scaled per cylinder by
-    default (the group ring wear changes), valve train, auxiliaries and bearings engine-wide (core.monitor.identify)."""
+    default (the group ring wear changes), valve train, auxiliaries and bearings engine-wide (core.monitor.identify.layout)."""
     spec = [
         ("ring_viscous", "sqrt(mu |c| (P_e + p) e) pi D (n_o + 0.4 n_c) |x'|", "cylinder", "-",
          ring_viscous_kernel, ring_viscous_reference),

@@ -5,12 +5,12 @@
         state, result = process_cycle(model, state, cycle)
 
 Per cycle:
-1. Fit the flywheel motion to the raw tooth times (core.monitor.flywheel): harmonics of the cycle period, no sinc to undo.
+1. Fit the flywheel motion to the raw tooth times (core.monitor.teeth.flywheel): harmonics of the cycle period, no sinc to undo.
    The tooth-spacing error above the band is learned from the fit residuals; inside the band it is fixed in angle and
    repeats every revolution, so at one operating point it cannot be told from a steady engine response at integer
    orders: it is carried as accumulated nuisance parameters E_n with a prior of its expected size, their columns
    computed exactly by passing the angle patterns through the same fit.
-2. Torques on the cycle's time grid (core.monitor.excitation): gas from the measured pressure, the reciprocating remainder,
+2. Torques on the cycle's time grid (core.monitor.balance.excitation): gas from the measured pressure, the reciprocating remainder,
    the model's loss terms per cylinder (core.model.terms: the six Rezeka-Henein terms by default), each at its own
    throw's angle and speed, static twist included.
 3. Harmonic balance through the torsional chain (core.model.dynamics; the transfer functions depend on Omega only and are
@@ -19,10 +19,10 @@ Per cycle:
    motion (warm start), refreshed once on the first cycle (physics.md §12.3: one refresh is enough).
 4. Mean balance T_fM = T_iM - T_LM - modelled damper/coupling dissipation - d/dt(1/2 J w^2)/w (physics.md §6, §12.4)
    over the window centred on cylinder 1's firing TDC, from this cycle and the one before (two measured mid-cycle
-   speeds, no drift fitted: core.monitor.identification.transient_balance); IMEP over each cylinder's own window.
+   speeds, no drift fitted: core.monitor.identify.identification.transient_balance); IMEP over each cylinder's own window.
 5. The cycle's own speed drift is a per-cycle random effect (never accumulated); the whitened equations are
-   accumulated with forgetting and solved with the priors (core.monitor.priors) and params >= 0, per cycle and smoothed
-   (core.monitor.accumulate); reported with honest sigmas and resolved flags (core.monitor.estimate, core.monitor.cycle_report).
+   accumulated with forgetting and solved with the priors (core.monitor.identify.priors) and params >= 0, per cycle and smoothed
+   (core.monitor.identify.accumulate); reported with honest sigmas and resolved flags (core.monitor.identify.estimate, core.monitor.report.cycle_report).
 """
 
 from __future__ import annotations
@@ -34,26 +34,26 @@ import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel, as_model
 from frictionwatch.core.model.indicated import peak_pressure
-from frictionwatch.core.monitor.accumulate import Accumulator, ResidualStats
-from frictionwatch.core.monitor.condition import assess_condition
-from frictionwatch.core.monitor.cycle_report import build_result
-from frictionwatch.core.monitor.estimate import indicated_tdc_sensitivity
-from frictionwatch.core.monitor.flywheel import ToothLearner
-from frictionwatch.core.monitor.harmonic_balance import harmonic_balance, operating_point
-from frictionwatch.core.monitor.identification import (
+from frictionwatch.core.monitor.balance.harmonic_balance import harmonic_balance, operating_point
+from frictionwatch.core.monitor.checks.condition import assess_condition
+from frictionwatch.core.monitor.checks.sensor_health import SensorHealthState, check_cycle, corrected_inputs, inflate
+from frictionwatch.core.monitor.identify.accumulate import Accumulator, ResidualStats
+from frictionwatch.core.monitor.identify.estimate import indicated_tdc_sensitivity
+from frictionwatch.core.monitor.identify.identification import (
     MeanBalance,
     grid_geometry,
     identify_cycle,
     mid_cycle_speed,
     transient_balance,
 )
-from frictionwatch.core.monitor.identify import parameter_layout
-from frictionwatch.core.monitor.priors import prior_normal
-from frictionwatch.core.monitor.report_kernels import trig_tables
-from frictionwatch.core.monitor.results import CycleResult
-from frictionwatch.core.monitor.sensor_health import SensorHealthState, check_cycle, corrected_inputs, inflate
+from frictionwatch.core.monitor.identify.layout import parameter_layout
+from frictionwatch.core.monitor.identify.priors import prior_normal
+from frictionwatch.core.monitor.report.cycle_report import build_result
+from frictionwatch.core.monitor.report.report_kernels import trig_tables
+from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState, PreviousCycle
-from frictionwatch.core.monitor.tooth_fit import fit_cycle_teeth
+from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
+from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth
 from frictionwatch.core.types import Cycle
 
 __all__ = ["CycleRejected", "MonitorConfig", "MonitorState", "default_max_order", "initial_state", "process_cycle"]

@@ -1,5 +1,5 @@
 """The monitor's configuration and the state it carries from cycle to cycle (core.monitor.monitor), in a module of
-their own so that the stages (core.monitor.identification, core.monitor.cycle_report) can take them without
+their own so that the stages (core.monitor.identify.identification, core.monitor.report.cycle_report) can take them without
 importing the monitor."""
 
 from __future__ import annotations
@@ -9,16 +9,16 @@ from typing import NamedTuple
 
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
-from frictionwatch.core.monitor.accumulate import Accumulator, ResidualStats
-from frictionwatch.core.monitor.change import ChangeDetector
-from frictionwatch.core.monitor.estimate import ModelErrorFloor
-from frictionwatch.core.monitor.flywheel import ToothLearner
-from frictionwatch.core.monitor.harmonic_balance import OperatingPoint
-from frictionwatch.core.monitor.identify import ParameterLayout
-from frictionwatch.core.monitor.priors import PriorNormal
-from frictionwatch.core.monitor.report_kernels import TrigTables
-from frictionwatch.core.monitor.sensor_health import SensorHealthConfig, SensorHealthState
-from frictionwatch.core.monitor.tooth_fit import ToothPatterns
+from frictionwatch.core.monitor.balance.harmonic_balance import OperatingPoint
+from frictionwatch.core.monitor.checks.change import ChangeDetector
+from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig, SensorHealthState
+from frictionwatch.core.monitor.identify.accumulate import Accumulator, ResidualStats
+from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
+from frictionwatch.core.monitor.identify.layout import ParameterLayout
+from frictionwatch.core.monitor.identify.priors import PriorNormal
+from frictionwatch.core.monitor.report.report_kernels import TrigTables
+from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
+from frictionwatch.core.monitor.teeth.tooth_fit import ToothPatterns
 
 
 @dataclass(frozen=True)
@@ -35,13 +35,13 @@ class MonitorConfig:
     Against 256: per-cylinder errors within 0.5 points (K9K, Maruti; V20 within its sigma), total FMEP within 0.1
     point, deutz NRMSE within 0.5 point; 128 shifted the K9K total by up to -0.25 point (the friction terms' sharp
     features alias into the band), 512 moved nothing beyond noise
-    scheme, prior_coefficients: parameter grouping and baseline a0 (core.monitor.identify.parameter_layout)
+    scheme, prior_coefficients: parameter grouping and baseline a0 (core.monitor.identify.layout.parameter_layout)
     forgetting: per-cycle factor of the accumulated equations, 1 - 1/N_window (None: from ``forgetting_time_s``)
     forgetting_time_s: time constant [s of running] of the accumulated equations, sized to the wear time scale: the
     window is N_window = max(400, 100 z, tau / T_cycle) cycles (more cylinders need more cycles, physics.md §12.5;
     never shorter than that cycle rule). Default 4 h (genset-v20 at 1500 rpm: 180,000 cycles): rings wear over days,
     so a gradual wear lags the estimate by about its rate x tau (a +30 % wear over three days: 1.7 %), while a step
-    change is followed through the change detector's discount (core.monitor.change); bench/accuracy_v20_long.py and
+    change is followed through the change detector's discount (core.monitor.checks.change); bench/accuracy_v20_long.py and
     docs/information.md. None: the cycle rule alone (the window of 2,000 cycles, 80 s, on genset-v20)
     noise_memory: EWMA factor of the residual statistics that whiten the equations
     share_spread: 1-sigma of the Eq. 6 sharing prior, relative; parameter_sigma: weak prior on each scale (params ~ 1)
@@ -53,16 +53,16 @@ class MonitorConfig:
     resolve_rel: a per-cylinder mean is reported when its 1-sigma is at most this fraction of it
     coefficient_snr: a coefficient is reported when it exceeds this many sigmas
     min_data_gain: ... and either only when the speed signal, not the priors, gave at least this share of what is
-    known about it (core.monitor.accumulate.Posterior.data_gain; for a cylinder: its deviation from the equal share)
+    known about it (core.monitor.identify.accumulate.Posterior.data_gain; for a cylinder: its deviation from the equal share)
     passes: harmonic-balance passes per cycle; rebuild_tolerance: relative Omega change that rebuilds Z^-1
     tooth_nuisance: carry the in-band tooth-spacing error (integer orders) as accumulated nuisance parameters with
-    a prior from ``tooth_error_deg``, the expected rms per-tooth angle error (core.monitor.identify.tooth_patterns)
+    a prior from ``tooth_error_deg``, the expected rms per-tooth angle error (core.monitor.identify.layout.tooth_patterns)
     variable_inertia: model J(theta) and the mass torque (off only to analyse a plant without them)
-    learn_teeth: learn the out-of-band tooth pattern from the fit residuals (core.monitor.flywheel.ToothLearner) with EWMA
+    learn_teeth: learn the out-of-band tooth pattern from the fit residuals (core.monitor.teeth.flywheel.ToothLearner) with EWMA
     factor ``tooth_memory``; the fit is repeated with the fresh correction for the first ``tooth_refit_cycles``
     warmup_cycles: cycles whose equations are not accumulated (the tooth learner and noise model settle first)
-    sensor_health: TDC, pressure gain and offset checks and corrections (core.monitor.sensor_health); None: off
-    model_error_floor: the systematic sigma the equations cannot see (core.monitor.estimate.ModelErrorFloor),
+    sensor_health: TDC, pressure gain and offset checks and corrections (core.monitor.checks.sensor_health); None: off
+    model_error_floor: the systematic sigma the equations cannot see (core.monitor.identify.estimate.ModelErrorFloor),
     calibrated on model-mismatch logs (bench/mismatch_coverage.py)
     calibration: how well TDC, pressure gain and J are known (core.model.calibration; the model's, through
     core.discrepancy.view): its remaining uncertainty is added to every friction sigma. The default is an
@@ -123,9 +123,9 @@ class MonitorConfig:
 
 @dataclass(frozen=True)
 class ConditionState:
-    """The condition flags' window (core.monitor.condition): cycles used, EWMA means and variances (z,) of each
+    """The condition flags' window (core.monitor.checks.condition): cycles used, EWMA means and variances (z,) of each
     cylinder's deviation from its siblings in ln(compression rise), ln(pmax) and ln(indicated torque), the EWMA of the
-    reduced chi^2, the change detector (core.monitor.change) and the cycles since the last operating-point change;
+    reduced chi^2, the change detector (core.monitor.checks.change) and the cycles since the last operating-point change;
     burn_reference (z,) N m: each cylinder's EWMA indicated torque over its fully burned cycles (NaN before the first),
     and burn_cycles (z,) how many fed it: the reference a single cylinder's partial burn is judged against."""
 
@@ -153,7 +153,7 @@ class PreviousCycle(NamedTuple):
     """What the next cycle's balance needs of the last analysed one: the ticks of its first and last tooth edges (it
     is the cycle just before only if the next one's first edge lies after its first and at or before its last:
     consecutive cycles share their boundary edges, core.types.Cycle; a stream index may be renumbered after a lost
-    sync), pressure (z, n) [Pa], speed at theta = 2 pi [rad/s] (core.monitor.identification.mid_cycle_speed) and
+    sync), pressure (z, n) [Pa], speed at theta = 2 pi [rad/s] (core.monitor.identify.identification.mid_cycle_speed) and
     measured load [N m]."""
 
     start_tick: int
@@ -164,10 +164,10 @@ class PreviousCycle(NamedTuple):
 
 
 class GridGeometry(NamedTuple):
-    """What the cycles' crank-angle grid fixes once (core.monitor.identification.grid_geometry): the grid's first
+    """What the cycles' crank-angle grid fixes once (core.monitor.identify.identification.grid_geometry): the grid's first
     angle [rad] and size (a cycle on another grid makes it anew), every cylinder's piston displacement on it
     positions (z, n) [m], J(theta = 2 pi) [kg m^2] and each piston's x'' (z, n) [m/rad^2] (the indicated work's
-    sensitivity to a TDC error, core.monitor.estimate.indicated_tdc_sensitivity)."""
+    sensitivity to a TDC error, core.monitor.identify.estimate.indicated_tdc_sensitivity)."""
 
     first_angle: float
     size: int
@@ -196,14 +196,14 @@ class MonitorState:
     balance_mean: float
     indicated_mean: np.ndarray
     cycles: int
-    prior: PriorNormal  # normal equations of the fixed priors (core.monitor.priors)
+    prior: PriorNormal  # normal equations of the fixed priors (core.monitor.identify.priors)
     lower: np.ndarray  # lower bounds of the parameters: 0 for the friction scales, -inf (free) for the nuisances
-    report_tables: TrigTables  # cos/sin tables of the result's speed series (core.monitor.report_kernels)
+    report_tables: TrigTables  # cos/sin tables of the result's speed series (core.monitor.report.report_kernels)
     prev_omega: float = float("nan")
     drift_var: float = 0.0
-    tooth_patterns: ToothPatterns | None = None  # the in-band tooth-error patterns at the edges (core.monitor.tooth_fit)
-    sensor: SensorHealthState | None = None  # sensor-health estimates and corrections (core.monitor.sensor_health)
-    condition: ConditionState | None = None  # the condition flags' window and change detector (core.monitor.condition)
+    tooth_patterns: ToothPatterns | None = None  # the in-band tooth-error patterns at the edges (core.monitor.teeth.tooth_fit)
+    sensor: SensorHealthState | None = None  # sensor-health estimates and corrections (core.monitor.checks.sensor_health)
+    condition: ConditionState | None = None  # the condition flags' window and change detector (core.monitor.checks.condition)
     previous: PreviousCycle | None = None  # the last analysed cycle: centred windows and the kinetic-energy term
     grid_geometry: GridGeometry | None = None  # the crank-angle grid's piston positions and J(2 pi)
 

@@ -1,4 +1,4 @@
-"""One cycle's normal-equation terms and their fold (core.monitor.accumulate_kernels behind Accumulator.cycle_terms / fold)
+"""One cycle's normal-equation terms and their fold (core.monitor.identify.accumulate_kernels behind Accumulator.cycle_terms / fold)
 against the numpy code they replace (kept here verbatim as ``_cycle_terms_reference`` / ``_fold_reference``).
 
 Sizes: genset-v20 R=49 rows (2 x 24 harmonics + the mean balance) by P=47 parameters; k9k-4cyl 47 x 29,
@@ -9,8 +9,8 @@ the largest entry (a few roundings of a 49-term sum), and exactly symmetric.
 
 import numpy as np
 import pytest
-from frictionwatch.core.monitor.accumulate import Accumulator, CycleTerms
-from frictionwatch.core.monitor.accumulate_kernels import cycle_terms_kernel
+from frictionwatch.core.monitor.identify.accumulate import Accumulator, CycleTerms
+from frictionwatch.core.monitor.identify.accumulate_kernels import cycle_terms_kernel
 from numpy.testing import assert_allclose, assert_array_equal
 
 SIZES = {"genset-v20": (49, 47), "k9k-4cyl": (47, 29), "deutz-1cyl": (47, 28)}

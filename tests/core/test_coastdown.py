@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import cylinder_volume, kinematics
-from frictionwatch.core.monitor import coastdown as cd
+from frictionwatch.core.monitor.balance import coastdown as cd
 from numpy.testing import assert_allclose
 
 ENG = load_engine("tue-4gb10")

@@ -1,4 +1,4 @@
-"""Engine-condition flags and the change detector (core/monitor/condition.py, core/monitor/change.py).
+"""Engine-condition flags and the change detector (core/monitor/checks/condition.py, core/monitor/checks/change.py).
 
 Unit checks on constructed inputs first (sibling deviations, the compression rise under sensor errors, the CUSUM's
 false-alarm rate and delay, the one-off forgetting step); then simulator logs the monitor is never told about: blow-by
@@ -12,9 +12,9 @@ import pytest
 from frictionwatch.core.model.effects import parse_effect
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import kinematics
-from frictionwatch.core.monitor.accumulate import Accumulator, Prior, solve_posterior
-from frictionwatch.core.monitor.change import ChangeSettings, detect_change
-from frictionwatch.core.monitor.condition import DEFAULT_SETTINGS, compression_rise, sibling_deviation
+from frictionwatch.core.monitor.checks.change import ChangeSettings, detect_change
+from frictionwatch.core.monitor.checks.condition import DEFAULT_SETTINGS, compression_rise, sibling_deviation
+from frictionwatch.core.monitor.identify.accumulate import Accumulator, Prior, solve_posterior
 from frictionwatch.core.monitor.monitor import initial_state, process_cycle
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.drivers.assembly.cycles import CycleAssembler

@@ -1,4 +1,4 @@
-"""The pressure-based ring indicators (core/monitor/ring_pressure.py) on constructed polytropic traces: what a gain
+"""The pressure-based ring indicators (core/monitor/checks/ring_pressure.py) on constructed polytropic traces: what a gain
 error, a pegging offset, a common load change and a leak do to each; and the ramp of a change mid-run
 (core.model.effects ramp_cycles, core.plant.simulate.stage_onsets)."""
 
@@ -7,7 +7,7 @@ import pytest
 from frictionwatch.core.model.effects import parse_effect
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import kinematics
-from frictionwatch.core.monitor.ring_pressure import ring_indicators, ring_windows
+from frictionwatch.core.monitor.checks.ring_pressure import ring_indicators, ring_windows
 from frictionwatch.core.plant.simulate import MAX_RAMP_STEPS, cylinders_at, stage_onsets
 from numpy.testing import assert_allclose
 
@@ -95,8 +95,8 @@ def test_a_ramp_grows_linearly_from_its_onset():
 def test_the_misfit_statistic_counts_only_the_parameters_the_data_determine():
     """10 rows, 8 parameters, 6 of them held by tight priors (a genset-v20 cycle: 49 rows, 47 parameters): the
     posterior's chi^2 / (rows - P) reads ~4 on a right model; over rows - tr(H) it reads ~1."""
-    from frictionwatch.core.monitor.accumulate import Accumulator, Prior, solve_posterior
-    from frictionwatch.core.monitor.condition import cycle_chi2_reduced
+    from frictionwatch.core.monitor.checks.condition import cycle_chi2_reduced
+    from frictionwatch.core.monitor.identify.accumulate import Accumulator, Prior, solve_posterior
 
     rng = np.random.default_rng(8)
     rows, p = 10, 8

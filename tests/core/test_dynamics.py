@@ -24,7 +24,7 @@ from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import kinematics, variable_inertia
 from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
 from frictionwatch.core.model.torques import gas_torque
-from frictionwatch.core.monitor.flywheel import fit_flywheel, harmonic_series, harmonics_of
+from frictionwatch.core.monitor.teeth.flywheel import fit_flywheel, harmonic_series, harmonics_of
 from numpy.testing import assert_allclose
 
 

@@ -1,8 +1,8 @@
-"""The periodic row interpolation (core.monitor.excitation_kernels.interp_rows_periodic) against np.interp."""
+"""The periodic row interpolation (core.monitor.balance.excitation_kernels.interp_rows_periodic) against np.interp."""
 
 import numpy as np
 import pytest
-from frictionwatch.core.monitor.excitation_kernels import interp_rows_periodic
+from frictionwatch.core.monitor.balance.excitation_kernels import interp_rows_periodic
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

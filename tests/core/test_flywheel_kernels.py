@@ -1,10 +1,10 @@
-"""The flywheel-fit kernels against their plain numpy definitions (core.monitor.flywheel docstring: columns 1, u(u-1),
+"""The flywheel-fit kernels against their plain numpy definitions (core.monitor.teeth.flywheel docstring: columns 1, u(u-1),
 cos(w_m tau), sin(w_m tau), w_m = m Omega / 2; the recurrence agrees with direct trig to 1e-13), and the whole fit
 against an SVD least squares."""
 
 import numpy as np
 import pytest
-from frictionwatch.core.monitor.flywheel import fit_flywheel
+from frictionwatch.core.monitor.teeth.flywheel import fit_flywheel
 from numpy.testing import assert_allclose
 
 
@@ -40,7 +40,7 @@ def test_fit_flywheel_is_the_least_squares_fit(seed):
 def test_prepare_fit_design_and_normal_matrix(seed, n_drift, n_harm):
     """prepare_fit_kernel's design rows (recurrence across edges, no re-seed) match direct trig to 1e-13, and its
     Cholesky factor reproduces D^T D on unit-scaled columns (power-sum identities, module docstring)."""
-    from frictionwatch.core.monitor.flywheel_kernels import OK, prepare_fit_kernel
+    from frictionwatch.core.monitor.teeth.flywheel_kernels import OK, prepare_fit_kernel
 
     rng = np.random.default_rng(seed)
     n = 317

@@ -1,10 +1,10 @@
-"""The accumulated equations' forgetting (core.monitor.identification.forgetting_factor): a window sized to the wear
+"""The accumulated equations' forgetting (core.monitor.identify.identification.forgetting_factor): a window sized to the wear
 time scale, never shorter than the cycle rule max(400, 100 z)."""
 
 import math
 
 import pytest
-from frictionwatch.core.monitor.identification import forgetting_factor
+from frictionwatch.core.monitor.identify.identification import forgetting_factor
 from frictionwatch.core.monitor.state import MonitorConfig
 from numpy.testing import assert_allclose
 

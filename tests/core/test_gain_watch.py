@@ -14,7 +14,7 @@ import pytest
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.monitor.calibration.gain_watch import gain_flags
 from frictionwatch.core.monitor.calibration.pressure_gain import SiblingStats, SiblingSums, sibling_stats
-from frictionwatch.core.monitor.figure_status import friction_status
+from frictionwatch.core.monitor.report.figure_status import friction_status
 from frictionwatch.service.pipeline import analyze_log
 
 from tests.sim_logs import commissioned_model, sensor_flags, simulate_log

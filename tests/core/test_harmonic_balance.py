@@ -1,4 +1,4 @@
-"""The monitor's harmonic balance (core.monitor.harmonic_balance: pass_samples -> the term library's kernels ->
+"""The monitor's harmonic balance (core.monitor.balance.harmonic_balance: pass_samples -> the term library's kernels ->
 pass_rows) against a plain-numpy reference written from the physics, not from the kernels:
 
 - motion: the flywheel fit and the node-minus-flywheel harmonics as series by np.fft.irfft (design.md §4 convention);
@@ -21,11 +21,11 @@ from frictionwatch.core.model.dynamics import dissipated_power, static_twist
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.terms import cylinder_samples_reference, rezeka_henein
 from frictionwatch.core.model.torques import gas_torque, reciprocating_torque
-from frictionwatch.core.monitor.excitation import CRANKCASE_PA, Excitation
-from frictionwatch.core.monitor.flywheel import FlywheelMotion, harmonic_series, harmonics_of
-from frictionwatch.core.monitor.harmonic_balance import harmonic_balance, operating_point
-from frictionwatch.core.monitor.identify import friction_design, parameter_layout
+from frictionwatch.core.monitor.balance.excitation import CRANKCASE_PA, Excitation
+from frictionwatch.core.monitor.balance.harmonic_balance import harmonic_balance, operating_point
+from frictionwatch.core.monitor.identify.layout import friction_design, parameter_layout
 from frictionwatch.core.monitor.monitor import default_max_order
+from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion, harmonic_series, harmonics_of
 from numpy.testing import assert_allclose
 
 from tests.core.test_terms import AUX_QUADRATIC

@@ -8,9 +8,9 @@ import scipy.optimize
 from frictionwatch.core.model.dynamics import receptance, shaft_model
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
-from frictionwatch.core.monitor.accumulate import Accumulator, Prior, ResidualStats, solve_posterior
-from frictionwatch.core.monitor.identify import bounded_solve, friction_design, p_omega_fit, parameter_layout
-from frictionwatch.core.monitor.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
+from frictionwatch.core.monitor.identify.accumulate import Accumulator, Prior, ResidualStats, solve_posterior
+from frictionwatch.core.monitor.identify.layout import bounded_solve, friction_design, p_omega_fit, parameter_layout
+from frictionwatch.core.monitor.identify.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
 from numpy.testing import assert_allclose
 
 

@@ -1,7 +1,7 @@
 """Sigma that holds on data the model did not make (issue 16 item 5): a small subset of bench/mismatch_coverage.py.
 
 The monitor is never told about the mismatch. On each log the smoothed total friction must hold the truth within
-2 sigma, and the model-error floor (core.monitor.estimate.ModelErrorFloor) must not inflate the sigma of a healthy
+2 sigma, and the model-error floor (core.monitor.identify.estimate.ModelErrorFloor) must not inflate the sigma of a healthy
 log by more than a quarter. The full table (every mismatch, four operating points) is the bench's.
 """
 
@@ -11,7 +11,7 @@ from frictionwatch.core.model.effects import parse_effect
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
 from frictionwatch.core.model.thermo import cylinder_model
-from frictionwatch.core.monitor.estimate import ModelErrorFloor
+from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
 from frictionwatch.core.monitor.monitor import MonitorConfig
 from frictionwatch.core.plant.operating_point import cylinder_means, sized_transfers
 from numpy.testing import assert_allclose

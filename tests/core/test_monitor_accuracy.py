@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from frictionwatch.core.model.engine import EngineSpec, load_engine
 from frictionwatch.core.monitor.monitor import MonitorConfig, initial_state, process_cycle
-from frictionwatch.core.monitor.results import CycleResult, change_sigma
+from frictionwatch.core.monitor.report.results import CycleResult, change_sigma
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 

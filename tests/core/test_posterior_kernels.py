@@ -1,6 +1,6 @@
-"""The posterior kernels (core.monitor.posterior_kernels) against the LAPACK/scipy reference they replace.
+"""The posterior kernels (core.monitor.identify.posterior_kernels) against the LAPACK/scipy reference they replace.
 
-References: ``core.monitor.accumulate.posterior_from_normal_reference`` and ``core.monitor.identify.bounded_solve_nnls`` (the code
+References: ``core.monitor.identify.accumulate.posterior_from_normal_reference`` and ``core.monitor.identify.layout.bounded_solve_nnls`` (the code
 before the kernels, kept verbatim), numpy's cholesky / inv / solve for the helpers. Problems are built like the
 monitor's (core.monitor.monitor): whitened rows of a few cycles accumulated with forgetting, a weak prior per parameter plus
 a few share rows, the nuisances last and free (lower = -inf), the coefficients bounded below by 0, and badly scaled
@@ -19,9 +19,13 @@ full natural-order Cholesky factor's.
 
 import numpy as np
 import pytest
-from frictionwatch.core.monitor import posterior_kernels as pk
-from frictionwatch.core.monitor.accumulate import Accumulator, posterior_from_normal, posterior_from_normal_reference
-from frictionwatch.core.monitor.identify import bounded_solve, bounded_solve_nnls
+from frictionwatch.core.monitor.identify import posterior_kernels as pk
+from frictionwatch.core.monitor.identify.accumulate import (
+    Accumulator,
+    posterior_from_normal,
+    posterior_from_normal_reference,
+)
+from frictionwatch.core.monitor.identify.layout import bounded_solve, bounded_solve_nnls
 from numpy.testing import assert_allclose, assert_array_equal
 
 SIZES = {"genset-v20": (47, 24, 49), "k9k-4cyl": (29, 24, 47), "deutz-1cyl": (28, 22, 47)}

@@ -1,4 +1,4 @@
-"""Sensor health (core.monitor.sensor_health): TDC offset of each cylinder and of the wheel, pressure gain and
+"""Sensor health (core.monitor.checks.sensor_health): TDC offset of each cylinder and of the wheel, pressure gain and
 pegging offset, each estimated, flagged and corrected, on logs from the plant simulator the monitor is never told
 about (effects tdc_offset, pressure_gain, pressure_offset), plus the sibling comparison on synthetic traces.
 Longer sweeps over every preset and fault: bench/sensor_faults.py."""
@@ -10,9 +10,9 @@ import pytest
 from frictionwatch.core.model.effects.catalog import PressureGain, PressureOffset, TdcOffset
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import cylinder_volume
+from frictionwatch.core.monitor.checks.sensor_evidence import sibling_compare
+from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig, SensorHealthState, corrected_inputs
 from frictionwatch.core.monitor.monitor import initial_state, process_cycle
-from frictionwatch.core.monitor.sensor_evidence import sibling_compare
-from frictionwatch.core.monitor.sensor_health import SensorHealthConfig, SensorHealthState, corrected_inputs
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
@@ -56,7 +56,7 @@ def test_corrections_repeg_rescale_and_move_the_kinematic_phase():
     z = spec.n_cyl
     state = initial_state(spec)
     _, p = _synthetic(spec, np.zeros(z), np.ones(z), np.zeros(z))
-    from frictionwatch.core.monitor.harmonic_balance import operating_point
+    from frictionwatch.core.monitor.balance.harmonic_balance import operating_point
 
     op = operating_point(spec, None, 300.0, 50.0, state.n_harmonics, 0.005, True, state.layout)
     same_p, same_op = corrected_inputs(SensorHealthState.empty(z), p, op)

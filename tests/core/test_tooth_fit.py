@@ -1,4 +1,4 @@
-"""The fused tooth fit (core.monitor.flywheel prepare_fit / fit_prepared / ToothLearner.update, core.monitor.tooth_fit) against the
+"""The fused tooth fit (core.monitor.teeth.flywheel prepare_fit / fit_prepared / ToothLearner.update, core.monitor.teeth.tooth_fit) against the
 plain numpy/scipy implementation it replaced (kept here as ``*_reference``): same FlywheelMotion, learner state and
 pattern cache to 1e-10 relative (the bar of this speed work), on seeded cycles of the real sizes (genset-v20: 317
 edges, 24 harmonics, 24 tooth nuisances + the drift pattern) and small ones (deutz-1cyl, k9k-4cyl)."""
@@ -9,9 +9,9 @@ import numba
 import numpy as np
 import pytest
 import scipy.linalg
-from frictionwatch.core.monitor.flywheel import FitSetup, ToothLearner, fit_prepared, prepare_fit
-from frictionwatch.core.monitor.identify import tooth_patterns
-from frictionwatch.core.monitor.tooth_fit import fit_cycle_teeth
+from frictionwatch.core.monitor.identify.layout import tooth_patterns
+from frictionwatch.core.monitor.teeth.flywheel import FitSetup, ToothLearner, fit_prepared, prepare_fit
+from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth
 
 FOUR_PI = 4.0 * np.pi
 REL = 1e-10
@@ -284,7 +284,7 @@ def window_reference(nominal, cached_rel):
 @pytest.mark.parametrize("seed", range(4))
 def test_cycle_window_matches_numpy(seed):
     """_cycle_window = np.searchsorted + np.array_equal of the relative angles + the revolution period."""
-    from frictionwatch.core.monitor.tooth_fit_kernels import _cycle_window
+    from frictionwatch.core.monitor.teeth.tooth_fit_kernels import _cycle_window
 
     rng = np.random.default_rng(seed)
     wheel, gap = [(60, 2), (36, 1), (160, 1), (120, 0)][seed]

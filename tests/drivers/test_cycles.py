@@ -357,7 +357,6 @@ def test_real_tue_wheel(name, cycles, rpm):
     complete cycle of the 0.5 s file comes out, phased by the pressure, at the README's speed range."""
     if not REAL.is_dir():
         pytest.skip("../shared/realdata is absent")
-    from frictionwatch.core.monitor.speed import cycle_speed
     from frictionwatch.drivers.daq.raw import daq_to_records
 
     info, recs = daq_to_records(REAL / f"{name}.txt.gz")
@@ -365,7 +364,9 @@ def test_real_tue_wheel(name, cycles, rpm):
     out = [c for r in recs for c in asm.feed(r)] + asm.flush()
     assert len(out) == cycles and not asm.skipped and asm.stats["epochs"] == 1
     assert all(c.phase_source == "pressure" for c in out)
-    means = [cycle_speed(c, None, 6, 720).rpm_mean for c in out]
+    # each cycle's mean speed: its tooth-edge angle span over its time span
+    means = [60.0 / (2 * np.pi) * (c.tooth_angle[-1] - c.tooth_angle[0]) * c.tick_hz
+             / float(c.tooth_ticks[-1] - c.tooth_ticks[0]) for c in out]
     assert rpm[0] <= min(means) and max(means) <= rpm[1]
 
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import kinematics
-from frictionwatch.core.monitor import coastdown as cd
+from frictionwatch.core.monitor.balance import coastdown as cd
 from frictionwatch.drivers.daq.raw import TUE_GAIN_PA_PER_V, TUE_TDC_DEG, process_daq, read_daq_table
 
 DATASET = "tue-4gb10-si-encoder-pressure"

@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from frictionwatch.core.model.engine_model import load_model
+from frictionwatch.core.monitor.balance.coastdown import fit_inertia_friction
 from frictionwatch.core.monitor.calibration.inertia import coastdown_record, commission_inertia
-from frictionwatch.core.monitor.coastdown import fit_inertia_friction
 from frictionwatch.drivers.daq.raw import TUE_GAIN_PA_PER_V, TUE_TDC_DEG, daq_to_records
 from frictionwatch.service.pipeline import assembled_cycles
 
@@ -121,7 +121,7 @@ def test_engineoff_one_is_left_out_and_why(cycles, pooled):
 
 def test_a_torque_step_record_adds_the_mean_balance(records, cycles, pooled):
     # E0FULLOAD4EngineOff as a commissioning record: its ignition-off step resolves J in the mean balance (its
-    # generator load its own d0 + d1 W; sigma with the 10 % friction-step allowance of core.monitor.transient).
+    # generator load its own d0 + d1 W; sigma with the 10 % friction-step allowance of core.monitor.balance.transient).
     # measured: mean balance 0.02047 +- 0.00161 (36 % of the information), J 0.02060 +- 0.00097
     stepped = coastdown_record("E0FULLOAD4EngineOff", cycles["group14_E0FULLOAD4EngineOff"], MODEL,
                                motored_only=False, load_group=0)

@@ -2,7 +2,7 @@
 coast-downs) carry the ``motored`` flag and are reported as their own regime, never as misfires; the partial burn of
 E0NOLOAD4 (IMEP 0.11 bar among full burns of 0.9-2.0 bar) is a misfire.
 
-The burn threshold (core.monitor.condition.ConditionSettings.burn_log_ratio) was calibrated on ENGINEOFF, ENGINEOFF2
+The burn threshold (core.monitor.checks.condition.ConditionSettings.burn_log_ratio) was calibrated on ENGINEOFF, ENGINEOFF2
 and E0NOLOAD1..3 (and simulated logs); the files here are the others."""
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.indicated import net_imep
-from frictionwatch.core.monitor.identification import NO_BALANCE
+from frictionwatch.core.monitor.identify.identification import NO_BALANCE
 from frictionwatch.drivers.daq.raw import daq_to_records, process_daq, read_daq_table
 from frictionwatch.service.coastdown_report import transient_section
 from frictionwatch.service.pipeline import analyze_records

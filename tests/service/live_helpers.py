@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from can.interfaces import virtual
 from frictionwatch.core.model.engine import EngineSpec, load_engine
-from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.plant.simulate import SimResult, simulate
 from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 from frictionwatch.drivers.bridge import WireEvent, received_records, wire_events

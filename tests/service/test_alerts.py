@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.ring_pressure import RingIndicators
+from frictionwatch.core.monitor.checks.ring_pressure import RingIndicators
 from frictionwatch.service.alert_baseline import INDICATORS, Baseline
 from frictionwatch.service.alerts import RING_KINDS, AlertConfig, AlertEngine
 from numpy.testing import assert_allclose

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from frictionwatch.core.monitor.figure_status import friction_status, split_flag
-from frictionwatch.core.monitor.run_summary import (
+from frictionwatch.core.monitor.report.figure_status import friction_status, split_flag
+from frictionwatch.core.monitor.report.run_summary import (
     active_flags,
     estimate_window,
     flag_summary,

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from frictionwatch.core.monitor.run_summary import end_of_run_status
+from frictionwatch.core.monitor.report.run_summary import end_of_run_status
 from frictionwatch.core.types import LoadSample
 from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
 from frictionwatch.service.cli import main

@@ -5,7 +5,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from frictionwatch.core.monitor.results import CycleResult
+from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.service.pipeline import ResultHistory
 
 

@@ -3,7 +3,7 @@ by window, against what the model's calibration says (issue 25 item 3: a gain th
 flagged on its cylinder and withholds that cylinder's figures; never a confident figure on a wrong channel).
 
 Every cycle adds its pressure to one of ``BLOCKS`` running block sums; every ``window`` cycles each block's mean
-cycle is compared over the compression stroke (core.monitor.sensor_evidence.sibling_compare via
+cycle is compared over the compression stroke (core.monitor.checks.sensor_evidence.sibling_compare via
 core.monitor.calibration.pressure_gain.cycle_comparison: the comparison commissioning averages over its recording),
 the blocks' comparisons give the window's statistics (pressure_gain.sibling_stats: mean, standard error from the
 blocks' scatter, the siblings' robust spread), they decide the flags and the sums start again, as in the TDC watch
@@ -11,10 +11,10 @@ blocks' scatter, the siblings' robust spread), they decide the flags and the sum
 least-squares solves) had cost 0.26 ms on k9k and 0.47 ms on genset-v20 (h-gainwatch's figures, under load).
 
 What is flagged (``sensor_pressure_gain_cyl<k>``, ``sensor_pressure_offset_cyl<k>``; the ``sensor_`` prefix withholds
-that cylinder's figures, core.monitor.figure_status), only with three or more cylinders (two cannot say which one is
+that cylinder's figures, core.monitor.report.figure_status), only with three or more cylinders (two cannot say which one is
 off; a one-cylinder engine has no sibling and no check):
 - the minimum a reading must exceed, for both kinds of model: the sensor-health stage's thresholds
-  (core.monitor.sensor_health.SensorHealthConfig: gain 2 %, offset 0.2 bar, and ``spread_sigmas`` = 3 of the
+  (core.monitor.checks.sensor_health.SensorHealthConfig: gain 2 %, offset 0.2 bar, and ``spread_sigmas`` = 3 of the
   siblings' own robust spread; tuned there on bench/sensor_faults.py; here the spread of the siblings without the
   channel judged, ``sibling_spread``) and ``DRIFT_SIGMAS`` of the window's statistical sigma;
 - commissioned model (its gain and pegging corrections applied, so every channel is expected at 1 and 0 against its
@@ -46,7 +46,7 @@ from frictionwatch.core.monitor.calibration.pressure_gain import (
 )
 from frictionwatch.core.monitor.calibration.tdc import BLOCKS
 from frictionwatch.core.monitor.calibration.tdc_watch import DRIFT_SIGMAS, WINDOW_CYCLES
-from frictionwatch.core.monitor.sensor_health import SensorHealthConfig
+from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig
 from frictionwatch.core.types import Cycle
 
 _HEALTH = SensorHealthConfig()

@@ -11,7 +11,7 @@ Two things in a coast-down carry J; they are used separately, then combined:
    spacing error, a pressure offset) drops out of the difference. The speed noise sits in the regressand, so it
    does not bias J low (regressing the work on the speed would: errors in variables).
 
-2. **The mean deceleration** (core.monitor.coastdown, its one implementation) over the 720 deg from the middle of
+2. **The mean deceleration** (core.monitor.balance.coastdown, its one implementation) over the 720 deg from the middle of
    one cycle to the middle of the next: J a = T_gas,mean - T_f(W). In a plain coast-down a(W) is a smooth function
    of W, so J and c0 + c1 W are nearly collinear and this pins J weakly (TU/e ENGINEOFF2-6: 0.0075 +- 0.0049
    against 0.0208 +- 0.0012 from the ripple: 6 % of the information). It enters J only when it resolves J (sigma
@@ -39,6 +39,13 @@ from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.kinematics import variable_inertia
 from frictionwatch.core.model.terms import cylinder_samples
 from frictionwatch.core.model.torques import gas_torque
+from frictionwatch.core.monitor.balance.coastdown import (
+    CoastdownFit,
+    cycle_mean_deceleration,
+    cycle_mean_speed,
+    fit_inertia_friction,
+)
+from frictionwatch.core.monitor.balance.transient import FRICTION_STEP
 from frictionwatch.core.monitor.calibration.ripple import (
     CycleGeometry,
     RippleFit,
@@ -47,14 +54,7 @@ from frictionwatch.core.monitor.calibration.ripple import (
     order_inertia,
     ripple_rows,
 )
-from frictionwatch.core.monitor.coastdown import (
-    CoastdownFit,
-    cycle_mean_deceleration,
-    cycle_mean_speed,
-    fit_inertia_friction,
-)
-from frictionwatch.core.monitor.identification import MID_SPEED_HALF_WIDTH, mid_cycle_speed
-from frictionwatch.core.monitor.transient import FRICTION_STEP
+from frictionwatch.core.monitor.identify.identification import MID_SPEED_HALF_WIDTH, mid_cycle_speed
 from frictionwatch.core.types import Cycle
 
 # J's relative 1-sigma assumed for a spec nobody has commissioned: what this commissioning step pins J to from plain
@@ -73,7 +73,7 @@ def cycle_torque(grid: np.ndarray, pressure: np.ndarray, geometry: CycleGeometry
 @dataclass(frozen=True)
 class CycleBalance:
     """The mean balance over the 720 deg from the middle of one cycle to the middle of the next (the monitor's
-    window, core.monitor.identification.transient_balance): omega its mean speed [rad/s], decel its angle-averaged
+    window, core.monitor.identify.identification.transient_balance): omega its mean speed [rad/s], decel its angle-averaged
     dw/dt from the two mid-cycle speeds [rad/s^2] (the same angle, so the gas-torque ripple drops out), gas_mean its
     mean gas torque [N m]; rec_inertia [kg m^2] the reciprocating inertia m_rec x'^2 averaged over the mid-cycle
     speed's window. That speed is the window's mean, and within the window J(theta) omega^2 / 2 stays (nearly)
@@ -298,10 +298,10 @@ def commission_inertia(records: Sequence[CoastdownRecord], n_friction: int = 2, 
 
 def _mean_balance(a: np.ndarray, w: np.ndarray, y: np.ndarray, grp: np.ndarray,
                   n_fr: int) -> tuple[CoastdownFit | None, float]:
-    """The mean balance with J free (core.monitor.coastdown) and J's sigma with an allowance for a friction step: a
+    """The mean balance with J free (core.monitor.balance.coastdown) and J's sigma with an allowance for a friction step: a
     loaded record's torque step (ignition off) also steps its friction (the cylinder pressure loads rings and
     bearings), which its smooth d0 + d1 W cannot follow and J absorbs: FRICTION_STEP of its resisting torque over the
-    span of its dw/dt, as core.monitor.transient allows. (None, inf) with too few rows."""
+    span of its dw/dt, as core.monitor.balance.transient allows. (None, inf) with too few rows."""
     n_par = 1 + n_fr + 2 * np.unique(grp[grp >= 0]).shape[0]
     if a.shape[0] < n_par + 2:
         return None, float("inf")

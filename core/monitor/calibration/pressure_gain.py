@@ -2,7 +2,7 @@
 
 Cylinders share the intake manifold, so over the compression stroke (after IVC, before combustion) their traces
 differ by each channel's gain and pegging and by what differs in their trapped charge. The per-cycle comparison is
-core.monitor.sensor_evidence.sibling_compare (the sensor-health stage's own); here it is averaged over the
+core.monitor.checks.sensor_evidence.sibling_compare (the sensor-health stage's own); here it is averaged over the
 recording. What a healthy set of cylinders differs by in charge is not a sensor error, so a channel's gain is
 corrected only where it stands out of its siblings' own robust spread (1.4826 MAD across the channels) by
 ``SPREAD_SIGMAS``; a channel left uncorrected keeps its reading (and that spread) in its sigma. A gain common to
@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.sensor_evidence import sibling_compare
+from frictionwatch.core.monitor.checks.sensor_evidence import sibling_compare
 from frictionwatch.core.types import Cycle
 
-COMPRESSION_WINDOW_DEG = (-100.0, -25.0)  # the sensor-health stage's (core.monitor.sensor_health.SensorHealthConfig)
+COMPRESSION_WINDOW_DEG = (-100.0, -25.0)  # the sensor-health stage's (core.monitor.checks.sensor_health.SensorHealthConfig)
 # a channel is corrected when beyond this many robust spreads of its siblings and MIN_GAIN_ERROR: the sensor-health
 # stage's spread_sigmas and its gain threshold (tuned there on bench/sensor_faults.py, not on the cases here)
 SPREAD_SIGMAS = 3.0
@@ -29,7 +29,7 @@ FLOOR_GAIN = 0.003  # what a sibling comparison cannot resolve whatever the cycl
 
 @dataclass(frozen=True)
 class SiblingSums:
-    """Running sums of the per-cycle sibling comparison (core.monitor.sensor_evidence.sibling_compare) of one
+    """Running sums of the per-cycle sibling comparison (core.monitor.checks.sensor_evidence.sibling_compare) of one
     engine's channels: n cycles, total (2, z) and squares (2, z) of [gain - 1, offset Pa]. The recording's
     comparison (``sibling_gains``) and the running watch (core.monitor.calibration.gain_watch) both add cycles here
     and read ``SiblingStats`` from it: one comparison, one statistic."""

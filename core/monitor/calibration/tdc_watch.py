@@ -8,7 +8,7 @@ cylinder of a small engine, on four in turn of a large one (each keeps its newes
 BLOCKS traces per cylinder fitted, not a fit per cycle.
 
 What is flagged (flags ``sensor_tdc_offset`` for the wheel, ``sensor_tdc_offset_cyl<k>`` for a cylinder's own; the
-``sensor_`` prefix withholds the figures they touch, core.monitor.figure_status):
+``sensor_`` prefix withholds the figures they touch, core.monitor.report.figure_status):
 - uncalibrated model: the wheel's TDC found beyond ``UNCALIBRATED_SIGMAS`` of the found sigma and the assumed
   installation's (core.model.calibration) together: the data contradict what the sigma assumes;
 - commissioned model (its TDC corrections applied, so the expected reading is 0): the wheel found beyond

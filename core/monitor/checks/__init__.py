@@ -1,0 +1,8 @@
+"""Per-cycle checks on the result: are the sensors and the engine what the model assumes?
+
+    sensor_health.py     the speed-based sensor checks (TDC, gain) and their corrections   (evidence: sensor_evidence.py)
+    condition.py         engine-condition flags from sibling windows (blow-by, ring wear, model misfit)
+    change.py            the CUSUM change detector that discounts the accumulated equations once
+    ring_pressure.py     the pressure ring indicators of every cylinder, for service.alerts
+The running calibration watches (TDC, gain, pegging against the commissioned state) are in ../calibration/.
+"""

@@ -1,0 +1,205 @@
+"""From a posterior over the parameters to a reported ``FrictionEstimate`` (per-cylinder means, coefficients,
+sigmas, resolved masks; results.py). The numbers come from two kernels (core.monitor.identify.estimate_kernels)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import NamedTuple
+
+import numpy as np
+from frictionwatch.core.model.calibration import Calibration
+from frictionwatch.core.model.engine import EngineSpec, mep_per_torque
+from frictionwatch.core.monitor.identify.accumulate import Posterior
+from frictionwatch.core.monitor.identify.estimate_kernels import estimate_kernel
+from frictionwatch.core.monitor.identify.layout import ParameterLayout
+from frictionwatch.core.monitor.report.results import FrictionEstimate
+
+
+@dataclass(frozen=True)
+class ReportLimits:
+    """When an estimate is reported: a per-cylinder mean when its 1-sigma is at most ``resolve_rel`` of its value,
+    a coefficient when its normalised value exceeds ``coefficient_snr`` sigmas; both only when the speed signal gave
+    at least ``min_data_gain`` of what is known about them (the rest coming from the priors and the mean balance)."""
+
+    resolve_rel: float
+    coefficient_snr: float
+    min_data_gain: float = 0.0
+
+
+class BalanceCheck(NamedTuple):
+    """What the floor compares an estimate with: the cylinders' indicated torques (z,) [N m], the mean balance
+    T_i - T_L - coupling loss over the same cycles [N m] (NaN without a load) and its 1-sigma from the balance's own
+    scatter [N m], the modelled damper/coupling dissipation in that balance [N m] and the window's mean reduced chi^2
+    of the speed fit (core.monitor.checks.condition's ``model_misfit`` statistic; 1 where the noise model holds)."""
+
+    indicated: np.ndarray
+    balance: float
+    balance_sigma: float
+    coupling_loss: float = 0.0
+    misfit: float = 1.0
+
+
+@dataclass(frozen=True)
+class ModelErrorFloor:
+    """The systematic part of the friction sigma that the monitor's equations cannot see: errors that repeat every
+    cycle because the model is not the engine (a drive train stiffer or softer than the spec, a friction law of
+    another shape), checked on logs of such mismatches (bench/mismatch_coverage.py).
+
+    The speed fit and the mean balance both measure the total friction; where the model is right they agree within
+    their own sigmas. Their disagreement beyond that, excess^2 = max(0, (T_fit - T_balance)^2 - sigma_fit^2 -
+    sigma_balance^2), is what the data says about the model error at this operating point, and is added in
+    quadrature to the total's sigma and, in proportion, to each cylinder's (a healthy log adds ~0; a chain 20 %
+    too soft, where the fit reads the K9K's friction +30 %, adds about that). ``indicated_rel`` adds
+    (indicated_rel T_i)^2, T_i the indicated torque behind the figure: an error of the indicated work that the balance
+    passes into friction whole (off by default: no simulator case needs it; the sensor checks own pressure errors).
+    ``balance_check`` off leaves only that term.
+
+    A drive train other than the model's moves both alike: the balance subtracts the damper and coupling dissipation
+    the model computes from its own chain (physics.md §12.4), and a chain 20 % softer and better damped than the
+    spec's dissipates 2.4 times the modelled 3.6 N m on the K9K at 1700 rpm, so both the fit and the balance read
+    friction +29 %. What shows it is the speed fit's residual: the window's reduced chi^2 (per effective degree of
+    freedom, core.monitor.checks.condition) rises. ``coupling_per_misfit`` k adds (k max(0, misfit - misfit_free)
+    coupling_loss)^2: the modelled dissipation is not trusted once the fit says the chain is not the engine's.
+    k = 1.0, misfit_free = 1.0 from the K9K after 100 cycles (bench.mismatch_coverage cases; window misfit, modelled
+    dissipation, friction error): 1700 rpm healthy 0.73, 4.1 N m, +0.00; chain k+20 % 2.16, 4.2 N m, -2.93; k-20 %
+    c+20 % 2.31, 3.8 N m, +5.27; c-20 % 1.12, 4.1 N m, -0.32; 1100 rpm healthy 0.69, 0.7 N m, +0.01; k+20 % 1.71,
+    0.7 N m, +0.87; k-20 % c+20 % 1.73, 0.7 N m, +0.03. The hardest is 1100 rpm k+20 %: a floor of 1.0 x 0.71 x 0.71
+    = 0.50 N m puts it at ~1.6 sigma (k = 0.8 at ~2.0); the 1700 rpm k-20 % case is then at ~1.1 sigma and a
+    healthy window (0.69-0.73) adds nothing. (Calibrated anew when the misfit statistic moved from the cycle's own
+    degrees of freedom to the effective ones: the old k = 0.6 at 1.25 left the 1700 rpm k-20 % case at 2.2 sigma.)"""
+
+    indicated_rel: float = 0.0
+    balance_check: bool = True
+    coupling_per_misfit: float = 1.0
+    misfit_free: float = 1.0
+
+    def apply(self, est: FrictionEstimate, check: BalanceCheck, spec: EngineSpec,
+              resolve_rel: float) -> FrictionEstimate:
+        """``est`` with the floor added to its sigmas; a cylinder no longer within ``resolve_rel`` is unresolved."""
+        ind = np.asarray(check.indicated, dtype=np.float64)
+        t_tot, s_tot = est.total_friction_torque, est.total_friction_torque_sigma
+        excess2 = 0.0
+        if self.balance_check and math.isfinite(check.balance) and t_tot > 0:
+            excess2 = max(0.0, (t_tot - check.balance) ** 2 - s_tot ** 2 - check.balance_sigma ** 2)
+        excess2 += (self.coupling_per_misfit * max(0.0, check.misfit - self.misfit_free) * check.coupling_loss) ** 2
+        if excess2 == 0.0 and self.indicated_rel == 0.0:
+            return est
+        t_cyl = np.where(np.isfinite(est.friction_torque_mean), est.friction_torque_mean,
+                         est.prior_friction_torque_mean)
+        rel2 = excess2 / t_tot ** 2 if t_tot > 0 else 0.0
+        sig = np.sqrt(est.friction_torque_mean_sigma ** 2 + (self.indicated_rel * ind) ** 2 + rel2 * t_cyl ** 2)
+        tot_sig = math.sqrt(s_tot ** 2 + (self.indicated_rel * float(ind.sum())) ** 2 + excess2)
+        resolved = est.resolved & (sig <= resolve_rel * np.abs(t_cyl))
+        t_mean = np.where(resolved, est.friction_torque_mean, np.nan)
+        to_cyl = mep_per_torque(spec.displacement_cyl)
+        return replace(est, friction_torque_mean=t_mean, friction_torque_mean_sigma=sig, fmep=t_mean * to_cyl,
+                       fmep_sigma=sig * to_cyl, resolved=resolved, total_friction_torque_sigma=tot_sig,
+                       total_fmep_sigma=tot_sig * mep_per_torque(spec.displacement))
+
+
+class CalibrationSensitivity(NamedTuple):
+    """How one cycle's mean balance moves with the calibration: tdc (z,) [N m/rad] dT_iM,k/dDelta_k, each cylinder's
+    work-mean indicated torque per radian of its TDC (``indicated_tdc_sensitivity``); indicated (z,) [N m] T_iM,k,
+    which a relative gain error scales; kinetic [N m] the kinetic-energy term J a, which a relative J error scales
+    (NaN: no term, e.g. no cycle before)."""
+
+    tdc: np.ndarray
+    indicated: np.ndarray
+    kinetic: float = float("nan")
+
+
+def indicated_tdc_sensitivity(grid: np.ndarray, pressure: np.ndarray, piston_acceleration: np.ndarray,
+                              area: float) -> np.ndarray:
+    """(z,) [N m/rad] d T_iM,k / d Delta_k for a cylinder whose true TDC lies Delta_k later than its stated one.
+
+    T_iM,k = A/(4 pi) ∮ p_k x'(theta - phi_k) dtheta; the stated phase is Delta_k early, so the work taken moves by
+    -A/(4 pi) ∮ p_k x''(theta - phi_k) dtheta per radian (a constant part of p does no work: ∮ x'' = 0). The cycle's
+    pressure (z, n) [Pa] on its uniform grid (n,) [rad] closes on itself (the last sample's neighbour is the first):
+    a steady cycle's compression of the next cycle is this one's. piston_acceleration (z, n) [m/rad^2]: x'' of each
+    cylinder on the grid (core.monitor.state.GridGeometry)."""
+    step = float(grid[1] - grid[0])
+    return -area * step / (4.0 * np.pi) * np.einsum("kn,kn->k", pressure, piston_acceleration)
+
+
+def calibration_variance(cal: Calibration, sens: CalibrationSensitivity) -> tuple[np.ndarray, float]:
+    """(per cylinder (z,), engine total) [N^2 m^2]: the variance the calibration's remaining uncertainty adds to the
+    friction figures. The mean balance passes an error of the indicated work into friction whole: the wheel's TDC
+    moves every cylinder alike (the total by sum_k dT_k, fully correlated), a cylinder's own TDC and gain its own;
+    J's error moves the kinetic-energy term (the engine total only: it is not a cylinder's). A gain common to all
+    channels moves the total by its sum, like the wheel's TDC."""
+    s, t_i = np.abs(sens.tdc), np.abs(sens.indicated)
+    w2, c2 = cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2
+    g2, gc2 = cal.gain_sigma ** 2, cal.gain_common_sigma ** 2
+    per = s * s * (w2 + c2) + t_i * t_i * (g2 + gc2)
+    kinetic = sens.kinetic if math.isfinite(sens.kinetic) else 0.0
+    total = (float(np.sum(sens.tdc)) ** 2 * w2 + float(np.sum(s * s)) * c2 + float(np.sum(t_i * t_i)) * g2
+             + float(np.sum(sens.indicated)) ** 2 * gc2 + (cal.inertia_sigma * kinetic) ** 2)
+    return per, total
+
+
+def with_calibration(est: FrictionEstimate, cal: Calibration, sens: CalibrationSensitivity,
+                     spec: EngineSpec) -> FrictionEstimate:
+    """``est`` with the calibration's variance added to every friction and FMEP sigma (the figures themselves
+    unchanged; ``resolved`` stays what the data resolve), the part it added and the calibration's status kept."""
+    var_cyl, var_tot = calibration_variance(cal, sens)
+    sig = np.sqrt(est.friction_torque_mean_sigma ** 2 + var_cyl)
+    tot_sig = math.sqrt(est.total_friction_torque_sigma ** 2 + var_tot)
+    return replace(est, friction_torque_mean_sigma=sig, fmep_sigma=sig * mep_per_torque(spec.displacement_cyl),
+                   total_friction_torque_sigma=tot_sig, total_fmep_sigma=tot_sig * mep_per_torque(spec.displacement),
+                   calibration=cal.status,
+                   calibration_sigma=np.sqrt(var_cyl), total_calibration_sigma=math.sqrt(var_tot))
+
+
+def friction_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior, basis_mean: np.ndarray,
+                      prior_mean: np.ndarray, limits: ReportLimits,
+                      cylinder_rows: np.ndarray | None = None, floor: ModelErrorFloor | None = None,
+                      check: BalanceCheck | None = None) -> FrictionEstimate:
+    """Report the friction part of a posterior: its leading ``layout.n_params`` parameters (friction scales first,
+    then any nuisances, which are not reported).
+
+    basis_mean (z, n_terms): work means <F_kl> of this cycle (they turn a_kl into N m); prior_mean (z,) Eq. 6 shares
+    [N m]; cylinder_rows (z, n_params): ``layout.cylinder_rows(basis_mean)`` if already at hand; floor: the model-error
+    floor added to the sigmas, from ``check`` (the indicated torques and the mean balance over the same cycles)."""
+    z = spec.n_cyl
+    p_f = layout.n_params
+    n_terms = layout.prior.shape[1]
+    params = post.params[:p_f]
+    basis_mean = np.asarray(basis_mean, dtype=np.float64)
+    rows = layout.cylinder_rows(basis_mean) if cylinder_rows is None else np.asarray(cylinder_rows, dtype=np.float64)
+    # no copies to C order: the kernel reads any layout (another layout is another compiled specialisation)
+    cov, cov_stat, cov_ref = post.covariance, post.cov_statistical, post.cov_reference
+    if (params.shape[0] != p_f or rows.shape != (z, p_f) or basis_mean.shape != (z, n_terms)
+            or not cov.shape == cov_stat.shape == cov_ref.shape or cov.shape[0] < p_f or cov.shape[0] != cov.shape[1]):
+        raise ValueError(f"need a posterior over >= {p_f} parameters, rows ({z}, {p_f}) and basis means "
+                         f"({z}, {n_terms}); got {params.shape}, {rows.shape}, {basis_mean.shape}")
+    coef_table, coef_ok, cylinder_table, resolved, t_tot, t_tot_sig = estimate_kernel(
+        params, cov, cov_stat, cov_ref, layout.group, layout.prior, basis_mean, rows, float(limits.resolve_rel),
+        float(limits.coefficient_snr), float(limits.min_data_gain))
+    coef, coef_sig, norm, norm_sig = coef_table
+    t_mean, t_sig, gain = cylinder_table
+    to_cyl = mep_per_torque(spec.displacement_cyl)
+    to_eng = mep_per_torque(spec.displacement)
+    est = FrictionEstimate(
+        friction_torque_mean=t_mean,
+        friction_torque_mean_sigma=t_sig,
+        fmep=t_mean * to_cyl,
+        fmep_sigma=t_sig * to_cyl,
+        coefficients=coef,
+        coefficients_sigma=coef_sig,
+        coefficients_normalised=norm,
+        coefficients_normalised_sigma=norm_sig,
+        resolved=resolved,
+        coefficient_resolved=coef_ok,
+        total_friction_torque=float(t_tot),
+        total_friction_torque_sigma=float(t_tot_sig),
+        total_fmep=float(t_tot * to_eng),
+        total_fmep_sigma=float(t_tot_sig * to_eng),
+        prior_friction_torque_mean=np.asarray(prior_mean, dtype=np.float64).reshape(z),
+        data_gain=gain,
+        weight=float(post.weight),
+        chi2_reduced=float(post.chi2_reduced),
+    )
+    if floor is None or check is None:
+        return est
+    return floor.apply(est, check, spec, float(limits.resolve_rel))

@@ -1,0 +1,260 @@
+"""The identification stage of one cycle (design.md §4 step 5): from the harmonic balance's rows to the smoothed
+and this cycle's estimates.
+
+1. Noise model and whitened rows (core.monitor.identify.noise_model); the whitened equations accumulated with forgetting
+   (core.monitor.identify.accumulate.Accumulator) once the warm-up cycles are over.
+2. Eq. 6 shares of the mean balance (core.monitor.identify.sharing): of the running balance by the running indicated means
+   for the smoothed estimate, of this cycle's own for the cycle's estimate; added to the fixed priors' normal
+   equations (core.monitor.identify.priors.PriorNormal).
+3. Posteriors (core.monitor.identify.accumulate.posterior_from_normal): the accumulated equations, and this cycle's alone.
+4. Reported estimates (core.monitor.identify.estimate.friction_estimate).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.indicated import piston_positions, tdc_centres, window_works
+from frictionwatch.core.model.kinematics import cylinder_kinematics_kernel, kinematics
+from frictionwatch.core.monitor.balance.excitation import Excitation
+from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterior, ResidualStats, posterior_from_normal
+from frictionwatch.core.monitor.identify.estimate import (
+    BalanceCheck,
+    CalibrationSensitivity,
+    ReportLimits,
+    friction_estimate,
+    with_calibration,
+)
+from frictionwatch.core.monitor.identify.layout import CycleRows
+from frictionwatch.core.monitor.identify.noise_model import NoiseSettings, whitened_rows
+from frictionwatch.core.monitor.identify.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
+from frictionwatch.core.monitor.report.results import FrictionEstimate
+from frictionwatch.core.monitor.state import GridGeometry, MonitorConfig, MonitorState, PreviousCycle
+from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion
+from frictionwatch.core.types import Cycle
+
+FOUR_PI = 4.0 * np.pi
+
+
+@dataclass(frozen=True)
+class MeanBalance:
+    """This cycle's mean torque balance [N m]: indicated (sum over cylinders, the cycle's own window), load
+    (measured, plus the load's own ripple work), coupling_loss (modelled damper/coupling dissipation), kinetic =
+    d/dt(1/2 J w^2) / w over the window centred on cylinder 1's firing TDC (``transient_balance``) and friction =
+    indicated_centred - load - coupling - kinetic (NaN without a load measurement or without the previous cycle);
+    imep_centred (z,) [Pa] over each cylinder's own firing window, None without the previous cycle; acceleration
+    [rad/s^2] and indicated_window [N m] the window's angle-averaged dw/dt and indicated torque (kinetic = J a);
+    tdc_sensitivity (z,) [N m/rad] each cylinder's dT_iM/dDelta (core.monitor.identify.estimate.indicated_tdc_sensitivity),
+    None where not computed (then the calibration adds no TDC term)."""
+
+    indicated: float
+    load: float
+    coupling_loss: float
+    friction: float
+    kinetic: float = float("nan")
+    imep_centred: np.ndarray | None = None
+    acceleration: float = float("nan")
+    indicated_window: float = float("nan")
+    tdc_sensitivity: np.ndarray | None = None
+
+
+def mid_cycle_speed(spec: EngineSpec, cycle: Cycle) -> float:
+    """Speed [rad/s] at the middle of the cycle (cylinder 1's gas-exchange TDC, theta = 2 pi): 1 / (dt/dtheta) of a
+    quadratic in angle fitted to the edge times within +-MID_SPEED_HALF_WIDTH (about 30 edges of a 60-2 wheel). Two
+    edges +-18 deg apart quantised the speed to 1 timer tick in 2 ms (simulated Deutz at 1 MHz: J a in steps of
+    0.115 N m on 7.6); the fit averages that down ~10x. A tooth-spacing error and the speed ripple repeat every
+    cycle at this angle and drop out of a difference of two cycles; the quadratic keeps the linear deceleration out
+    of the slope at the centre."""
+    ang = cycle.tooth_angle - 2.0 * np.pi
+    near = np.abs(ang) <= MID_SPEED_HALF_WIDTH
+    if np.count_nonzero(near) < 5:
+        return float("nan")
+    t = (cycle.tooth_ticks[near] - cycle.tooth_ticks[near][0]) / cycle.tick_hz
+    a = ang[near]
+    dt_dtheta = np.linalg.lstsq(np.stack([np.ones_like(a), a, a * a], axis=1), t, rcond=None)[0][1]
+    return float(1.0 / dt_dtheta) if dt_dtheta > 0 else float("nan")
+
+
+MID_SPEED_HALF_WIDTH = np.radians(90.0)
+
+
+def mid_cycle_inertia(spec: EngineSpec) -> float:
+    """J(theta) [kg m^2] at theta = 2 pi: the rotating inertia plus each reciprocating mass times x'(theta)^2."""
+    local = np.mod(2.0 * np.pi - spec.firing_angles, 4.0 * np.pi)
+    _, dx, _ = kinematics(local, spec.kinematics_params())
+    return spec.total_inertia + spec.reciprocating_mass * float(np.sum(dx * dx))
+
+
+def grid_geometry(spec: EngineSpec, grid: np.ndarray) -> GridGeometry:
+    """The piston positions of every cylinder on the cycles' grid and J at theta = 2 pi (made once per grid)."""
+    positions = piston_positions(grid, spec.firing_angles, spec.kinematics_params())
+    z, n = spec.n_cyl, grid.shape[0]
+    dx, ddx = np.empty((z, n)), np.empty((z, n))
+    cylinder_kinematics_kernel(np.ascontiguousarray(grid, dtype=np.float64),
+                               np.ascontiguousarray(spec.firing_angles, dtype=np.float64),
+                               np.ascontiguousarray(spec.kinematics_params(), dtype=np.float64), dx, ddx)
+    return GridGeometry(float(grid[0]), int(n), positions, mid_cycle_inertia(spec), ddx)
+
+
+def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indicated_cycle: np.ndarray,
+                      mid_speed: float, previous: PreviousCycle | None, load: float, coupling_loss: float,
+                      geometry: GridGeometry) -> tuple[float, float, float, float, np.ndarray | None]:
+    """(friction, kinetic, acceleration, indicated, imep_centred) of one cycle and the cycle just before it
+    (``previous``; None when that cycle is not at hand: all NaN and None); indicated_cycle (z,) [N m] the
+    cylinders' work means over this cycle's own window (``Excitation.indicated_mean``).
+
+    Over the 720 deg window from the middle of the previous cycle to the middle of this one (centred on cylinder 1's
+    firing TDC) the rigid shaft line's energy balance is exact: indicated - T_L - T_coupling - T_f = kinetic =
+    (E_c - E_c-1) / 4 pi = J a, E = 1/2 J(theta) w^2 at the same crank angle in both cycles (J(theta) is the same
+    number at both ends), a = (w_c^2 - w_c-1^2) / 8 pi the window's angle-averaged dw/dt [rad/s^2]. Cycle mean
+    speeds would not do: within a fired single-cylinder cycle E swings by ~13 %, so the mean-to-mid offset changes
+    by more than the balance at a fired -> motored step (simulated TU/e: 1.5 N m on 0.8). Two measured speeds and no
+    fitted drift (which biased an earlier per-cycle estimate, design notes §3): the term telescopes over a run, a
+    steady run gets no bias, a coast-down or a load step gets the torque that changed the speed.
+
+    The load is a whole cycle's measured mean, the window half a cycle earlier: when it steps between the two
+    cycles by more than 2 % of the rated torque the window's load is not known and friction is NaN (that cycle)."""
+    nan = float("nan")
+    if previous is None or not (math.isfinite(previous.mid_speed) and math.isfinite(mid_speed)):
+        return nan, nan, nan, nan, None
+    # the windows' works on the crank-angle grid enter as differences from this cycle's own on the same grid: the
+    # 720-point trapezoid reads ~0.5 % below the work the monitor's time grid takes (K9K 1100 rpm: 0.28 N m of
+    # indicated torque, 2 % of the friction), a bias the difference cancels
+    ph, x = spec.firing_angles, geometry.positions
+    own, around_tdc1 = window_works(cycle.grid, x, previous.pressure, pressure,
+                                    np.stack([tdc_centres(ph), np.zeros(spec.n_cyl)]), spec.piston_area)
+    alone = window_works(cycle.grid, x, pressure, pressure, np.zeros((1, spec.n_cyl)), spec.piston_area)[0]
+    accel = (mid_speed**2 - previous.mid_speed**2) / (2.0 * FOUR_PI)
+    kinetic = geometry.inertia_mid * accel
+    indicated = float(np.sum(indicated_cycle)) + float(around_tdc1.sum() - alone.sum()) / FOUR_PI
+    imep = (np.asarray(indicated_cycle) * FOUR_PI + own - alone) / spec.displacement_cyl
+    load_stepped = abs(load - previous.load) > LOAD_STEP_FRACTION * spec.rated_torque_nm
+    friction = nan if load_stepped else indicated - load - coupling_loss - kinetic
+    return friction, kinetic, accel, indicated, imep
+
+
+LOAD_STEP_FRACTION = 0.02  # of the rated torque: a larger load change between two cycles voids that balance
+
+
+@dataclass(frozen=True)
+class Identification:
+    """The identification's results of one cycle: updated residual statistics and accumulator, the running means
+    of the sharing prior (indicated_mean (z,), balance_mean), the posteriors and reported estimates of the
+    accumulated equations (smoothed) and of this cycle's alone (cycle), the firing mask (z,), the harmonic
+    frequencies freq (M,) and this cycle's drift column (M,) complex (None: not used); cycle_terms: this cycle's
+    own normal equations (the model-misfit statistic's effective degrees of freedom, core.monitor.checks.condition)."""
+
+    stats: ResidualStats
+    accumulator: Accumulator
+    indicated_mean: np.ndarray
+    balance_mean: float
+    smoothed: Posterior
+    cycle: Posterior
+    smoothed_estimate: FrictionEstimate
+    cycle_estimate: FrictionEstimate
+    fire: np.ndarray
+    freq: np.ndarray
+    drift_col: np.ndarray | None
+    cycle_terms: Accumulator | None = None
+
+
+NO_BALANCE = ("prior: no mean balance (no load measurement, no cycle before for the kinetic-energy term, or the load "
+              "stepped between the two)")
+
+
+def _source(balanced: bool) -> str:
+    return "data" if balanced else NO_BALANCE
+
+
+def measured_or_withheld(est: FrictionEstimate, source: str) -> FrictionEstimate:
+    """``est`` when its ``source`` is the data; otherwise the same with every friction figure withheld (NaN, not
+    resolved) and ``source`` saying why. Without a mean balance (no load measurement, or no cycle before for the
+    kinetic-energy term) the speed ripple alone does not pin the engine's total friction: the posterior is then the
+    prior's numbers (TU/e fired files: scaling the preset's coefficients scaled the output), and so is the Eq. 6
+    share (``prior_friction_torque_mean``), withheld too."""
+    if source == "data":
+        return est
+    nan_z = np.full_like(est.friction_torque_mean, np.nan)
+    nan_c = np.full_like(est.coefficients, np.nan)
+    nan = float("nan")
+    return replace(est, friction_torque_mean=nan_z, friction_torque_mean_sigma=nan_z, fmep=nan_z, fmep_sigma=nan_z,
+                   coefficients=nan_c, coefficients_sigma=nan_c, coefficients_normalised=nan_c,
+                   coefficients_normalised_sigma=nan_c, resolved=np.zeros_like(est.resolved),
+                   coefficient_resolved=np.zeros_like(est.coefficient_resolved), total_friction_torque=nan,
+                   total_friction_torque_sigma=nan, total_fmep=nan, total_fmep_sigma=nan, source=source,
+                   prior_friction_torque_mean=nan_z)
+
+
+def forgetting_factor(cfg: MonitorConfig, n_cyl: int, period_s: float = float("nan")) -> float:
+    """Per-cycle factor of the accumulated equations: ``cfg.forgetting`` if set, else 1 - 1/N_window with N_window =
+    max(400, 100 z, tau / period_s) cycles, tau = ``cfg.forgetting_time_s`` (the wear time scale; more cylinders
+    need more cycles, physics.md §12.5); period_s the cycle's duration (not finite: the cycle rule alone)."""
+    if cfg.forgetting is not None:
+        return cfg.forgetting
+    window = max(400.0, 100.0 * n_cyl)
+    tau = cfg.forgetting_time_s
+    if tau is not None and math.isfinite(period_s) and period_s > 0.0:
+        window = max(window, tau / period_s)
+    return 1.0 - 1.0 / window
+
+
+def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fly: FlywheelMotion, rows: CycleRows,
+                   exc: Excitation, pmax: np.ndarray, mean: MeanBalance, drift_var: float) -> Identification:
+    """One cycle's identification; ``state`` is the monitor's state before the cycle (not changed)."""
+    lam = forgetting_factor(cfg, spec.n_cyl, fly.period)
+    sys_balance = ((cfg.balance_rel_error * mean.indicated) ** 2 + (cfg.coupling_rel_error * mean.coupling_loss) ** 2
+                   + (cfg.load_rel_error * spec.rated_torque_nm) ** 2)
+    noise = NoiseSettings(memory=cfg.noise_memory, model_rel_error=cfg.model_rel_error,
+                          use_drift=cfg.drift_nuisance, sys_balance=sys_balance)
+    white = whitened_rows(noise, state.stats, fly, rows, state.params, mean.friction, mean.indicated, drift_var)
+    terms = state.accumulator.cycle_terms(white.a, white.y, white.inv_sigma, 1)  # the mean-balance row: reference
+    acc = state.accumulator.fold(terms, lam) if state.cycles >= cfg.warmup_cycles else state.accumulator
+
+    # running means of the sharing prior of the smoothed estimate
+    g = max(1.0 - lam, 1.0 / (state.cycles + 1))
+    t_i = exc.indicated_mean
+    ind_mean = t_i.copy() if state.cycles == 0 else state.indicated_mean + g * (t_i - state.indicated_mean)
+    balance = mean.friction
+    if not math.isfinite(balance):
+        bal_mean = state.balance_mean
+    elif not math.isfinite(state.balance_mean):
+        bal_mean = balance
+    else:
+        bal_mean = state.balance_mean + g * (balance - state.balance_mean)
+    fire = firing_mask(t_i)
+    pmax_motored = float(np.mean(pmax[~fire])) if not fire.all() else 0.0
+    motored = motored_friction_per_cylinder(spec, fly.omega_mean * 60.0 / (2.0 * np.pi), pmax_motored)
+    share_s = share_mean_loss(bal_mean, ind_mean, motored, cfg.share_spread)
+    share_c = share_mean_loss(balance if math.isfinite(balance) else bal_mean, t_i, motored, cfg.share_spread)
+    layout = state.layout
+    cyl_rows = rows.cylinder_rows[:, :layout.n_params]  # the friction parameters' part
+    post_s = posterior_from_normal(acc, *state.prior.with_share(cyl_rows, share_s), white.sys_var, state.lower)
+    acc_c = Accumulator.of_terms(terms)
+    post_c = posterior_from_normal(acc_c, *state.prior.with_share(cyl_rows, share_c), white.sys_var, state.lower)
+    limits = ReportLimits(cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain)
+    # the model-error floor compares each estimate with the mean balance over the same cycles (its EWMA's sigma
+    # from the balance's own scatter: g / (2 - g) of the per-cycle variance)
+    floor, bal_sigma = cfg.model_error_floor, math.sqrt(white.stats.balance_var)
+    misfit = state.condition.misfit if state.condition is not None else 1.0  # the window up to the last cycle
+    check_s = BalanceCheck(ind_mean, bal_mean, bal_sigma * math.sqrt(g / (2.0 - g)), mean.coupling_loss, misfit)
+    check_c = BalanceCheck(t_i, balance, bal_sigma, mean.coupling_loss, misfit)
+    est_s = friction_estimate(spec, layout, post_s, exc.basis_mean, share_s.friction_mean, limits, cyl_rows, floor,
+                              check_s)
+    est_c = friction_estimate(spec, layout, post_c, exc.basis_mean, share_c.friction_mean, limits, cyl_rows, floor,
+                              check_c)
+    # the smoothed estimate stands on a balance when one was accumulated, or, during the warm-up (nothing
+    # accumulated), when the Eq. 6 share it holds is of a measured running balance; the cycle's on its own
+    balanced = float(np.trace(acc.info_reference)) > 0.0 or (acc.weight == 0.0 and math.isfinite(bal_mean))
+    # the calibration's remaining uncertainty (TDC, gain, J) on top: the mean balance passes it into friction whole
+    tdc = mean.tdc_sensitivity if mean.tdc_sensitivity is not None else np.zeros(spec.n_cyl)
+    cal = cfg.calibration
+    est_s = with_calibration(est_s, cal, CalibrationSensitivity(tdc, ind_mean), spec)
+    est_c = with_calibration(est_c, cal, CalibrationSensitivity(tdc, t_i, mean.kinetic), spec)
+    est_s = measured_or_withheld(est_s, _source(balanced))
+    est_c = measured_or_withheld(est_c, _source(math.isfinite(balance)))
+    return Identification(stats=white.stats, accumulator=acc, indicated_mean=ind_mean, balance_mean=bal_mean,
+                          smoothed=post_s, cycle=post_c, smoothed_estimate=est_s, cycle_estimate=est_c, fire=fire,
+                          freq=white.freq, drift_col=white.drift_col, cycle_terms=acc_c)

@@ -1,0 +1,308 @@
+"""Numba kernels of the bounded MAP estimate and its posterior (core.monitor.identify.layout.bounded_solve,
+core.monitor.identify.accumulate.posterior_from_normal) for the monitor's sizes (P <= ~50 parameters).
+
+The bounded problem min params^T N params - 2 r^T params, params >= lower, is convex with N positive definite: when the
+unconstrained minimiser (free nuisances eliminated exactly) already satisfies the bounds, it is the bounded optimum,
+and NNLS is needed only when a bound is active. These kernels do that common case - Cholesky factors, triangular
+solves and SPD inverses of small matrices, where the time of the scipy/LAPACK path went into Python call overhead -
+and report a status instead of guessing near any decision the reference makes differently:
+
+- ``NEEDS_BOUND``: a bound is active, or so nearly active (``FEASIBLE_MARGIN``) that NNLS's own tolerance decides;
+- ``FALLBACK``: a factor's smallest pivot ratio L_jj^2 / A_jj is below ``PIVOT_RATIO_MIN`` (nearly singular: the
+  reference's LAPACK factorisation might fail or differ by more than rounding), or the trace bound of the reference
+  covariance is near ``max_condition`` (the reference switches to a pseudo-inverse there).
+
+The callers then run the reference code (kept verbatim), so their behaviour in those cases is exactly the old one.
+Otherwise the results equal the reference to rounding (<= 1e-10 relative on the monitor's matrices, whose scaled
+condition numbers are ~1e2..5e3; tests/core/test_posterior_kernels.py).
+
+``posterior_kernel`` (genset-v20, P = 47: ~23 us a call) works from one inverse of N = acc.info + n_pr:
+- params = N^-1 r minus the first-order effect of the reference's 1e-12 ridge on the unit-diagonal problem (its
+  second order is < 1e-16 relative), so the bounded solve needs no factor of its own;
+- the inverse goes by the Schur complement of the leading half (two half-size Cholesky inverses, four small BLAS
+  gemms) from ``core.monitor.identify.spd_kernels.BLOCKED_MIN`` parameters on: loops over ~47-long rows are bound by their overhead, not by flops;
+- a decoupled diagonal tail (the monitor's reference information: nuisances that only their priors see) is
+  inverted by reciprocals, the head alone by Cholesky;
+- chi^2 = y^T y - 2 params^T r + params^T A params cancels ~5 digits: it takes the reference's BLAS calls (ddot,
+  dgemv) in its order, so its rounding is reproduced rather than a different one added;
+- the systematic covariance G S G^T (G = N^-1 B) is W^T W, W = S^1/2 B^T N^-1: two transposed-first gemms.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from frictionwatch.core.monitor.identify.spd_kernels import (  # noqa: F401  (cho_inverse, spd_inverse_into: the tests' handles)
+    FASTMATH,
+    cho_inverse,
+    cho_solve,
+    cholesky,
+    decoupled_tail,
+    spd_inverse_into,
+    spd_inverse_of_sum,
+)
+
+OK = 0
+NEEDS_BOUND = 1
+FALLBACK = 2
+BAD_SHAPE = 3  # the arrays' shapes do not fit together (the caller's validating path raises the ValueError)
+
+PIVOT_RATIO_MIN = 1e-4  # below: left to the reference (rounding may exceed 1e-10; the monitor's are >= 3e-3)
+FEASIBLE_MARGIN = 1e-9  # scaled distance to a bound, relative to max |x|, below which NNLS decides
+REGULARISATION = 1e-12  # the reference's ridge on the unit-diagonal blocks (bounded_solve)
+
+
+@numba.njit(cache=True, fastmath=FASTMATH)
+def bounded_solve_kernel(info, rhs, lo):
+    """Unconstrained minimiser of params^T info params - 2 rhs^T params as ``bounded_solve`` forms it (unit-diagonal
+    scaling, non-finite ``lo`` = free nuisance eliminated by its Schur complement, ridge 1e-12 on both blocks).
+
+    Returns (status, params (n,)); params is valid only with status OK (all bounds inactive)."""
+    n = info.shape[0]
+    params = np.empty(n)
+    d = np.empty(n)
+    for i in range(n):
+        v = info[i, i]
+        if v < 1e-300:
+            v = 1e-300
+        d[i] = np.sqrt(v)
+    nf = 0
+    for i in range(n):
+        if not np.isfinite(lo[i]):
+            nf += 1
+    nb = n - nf
+    bi = np.empty(nb, np.int64)
+    fi = np.empty(nf, np.int64)
+    jb = 0
+    jf = 0
+    for i in range(n):
+        if np.isfinite(lo[i]):
+            bi[jb] = i
+            jb += 1
+        else:
+            fi[jf] = i
+            jf += 1
+    # unit-diagonal blocks in the order (free, bounded); products with 1/d (a division per element is slow)
+    dinv = 1.0 / d
+    s_ff = np.empty((nf, nf))
+    s_fb = np.empty((nf, nb))
+    s_bb = np.empty((nb, nb))
+    for a in range(nf):
+        da = dinv[fi[a]]
+        for b in range(nf):
+            s_ff[a, b] = info[fi[a], fi[b]] * (da * dinv[fi[b]])
+        s_ff[a, a] += REGULARISATION
+        for b in range(nb):
+            s_fb[a, b] = info[fi[a], bi[b]] * (da * dinv[bi[b]])
+    for a in range(nb):
+        da = dinv[bi[a]]
+        for b in range(nb):
+            s_bb[a, b] = info[bi[a], bi[b]] * (da * dinv[bi[b]])
+        s_bb[a, a] += REGULARISATION
+    r = rhs / d
+    # free block s_ff + ridge = Lf Lf^T; W = Lf^-1 s_fb and zf = Lf^-1 r_f by row updates
+    chol_f = np.empty((nf, nf))
+    if cholesky(s_ff, chol_f) < PIVOT_RATIO_MIN:
+        return FALLBACK, params
+    w = s_fb.copy()
+    zf = np.empty(nf)
+    for a in range(nf):
+        zf[a] = r[fi[a]]
+    for a in range(nf):
+        for k in range(a):
+            f = chol_f[a, k]
+            for b in range(nb):
+                w[a, b] -= f * w[k, b]
+            zf[a] -= f * zf[k]
+        f = 1.0 / chol_f[a, a]
+        for b in range(nb):
+            w[a, b] = w[a, b] * f
+        zf[a] = zf[a] * f
+    # bounded block: Schur complement s_bb - W^T W (+ ridge, already in s_bb), its unconstrained solution
+    s_red = s_bb
+    r_red = np.empty(nb)
+    for a in range(nb):
+        r_red[a] = r[bi[a]]
+    for k in range(nf):
+        for a in range(nb):
+            f = w[k, a]
+            for b in range(a + 1):
+                s_red[a, b] -= f * w[k, b]
+            r_red[a] -= f * zf[k]
+    for a in range(nb):
+        for b in range(a):
+            s_red[b, a] = s_red[a, b]
+    chol_b = np.empty((nb, nb))
+    if cholesky(s_red, chol_b) < PIVOT_RATIO_MIN:
+        return FALLBACK, params
+    xb = cho_solve(chol_b, r_red)
+    scale = 0.0
+    for a in range(nb):
+        if abs(xb[a]) > scale:
+            scale = abs(xb[a])
+    for a in range(nb):
+        if not xb[a] - lo[bi[a]] * d[bi[a]] > FEASIBLE_MARGIN * scale:
+            return NEEDS_BOUND, params
+    # free parameters given the bounded ones: s_ff xf = r_f - s_fb xb
+    rf = np.empty(nf)
+    for a in range(nf):
+        t = r[fi[a]]
+        for b in range(nb):
+            t -= s_fb[a, b] * xb[b]
+        rf[a] = t
+    xf = cho_solve(chol_f, rf)
+    for a in range(nb):
+        params[bi[a]] = xb[a] / d[bi[a]]
+    for a in range(nf):
+        params[fi[a]] = xf[a] / d[fi[a]]
+    return OK, params
+
+
+@numba.njit(cache=True, fastmath=FASTMATH)
+def _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, params, max_condition,
+                          inv):
+    """``posterior_moments_kernel`` given inv = (acc_info + n_pr)^-1 (n, n), which becomes cov_stat (scaled in
+    place: the caller must not use it afterwards)."""
+    n = acc_info.shape[0]
+    dof = rows - n
+    # chi^2 cancels ~5 digits (yty ~ params^T rhs ~ 1e5 chi^2): the reference's BLAS calls (ddot, dgemv) in its
+    # order, so that its rounding is reproduced rather than a different one added
+    lin = np.dot(params, acc_rhs)
+    quad = np.dot(np.dot(params, acc_info), params)
+    chi2 = yty - 2.0 * lin + quad
+    chi2_red = chi2 / dof if dof > 0 else 1.0
+    c = chi2_red if chi2_red > 1.0 else 1.0  # Python's max(1.0, x): nan keeps 1.0
+    empty = np.empty((0, 0))
+    ref = np.empty((n, n))  # cov_reference = c (info_reference + n_pr)^-1
+    if spd_inverse_of_sum(info_reference, n_pr, ref, c) < PIVOT_RATIO_MIN:
+        return FALLBACK, chi2_red, empty, empty, empty
+    if np.isfinite(max_condition):
+        t_info = 0.0
+        t_ref = 0.0
+        for i in range(n):
+            t_info += info_reference[i, i] + n_pr[i, i]
+            t_ref += ref[i, i]
+        if not t_info * t_ref < max_condition * (1.0 - 1e-6) * c:  # at or near the reference's pinv switch
+            return FALLBACK, chi2_red, empty, empty, empty
+    # G = inv B: a repeated raw error e moves params by G e; cov_sys = G S G^T = W^T W with W = S^1/2 G^T from
+    # G^T = B^T inv (inv is exactly symmetric): two transposed-first gemms on contiguous operands, no transposed
+    # copy, one (R, P) temporary (the square roots change the rounding by ~1e-16 relative)
+    w = np.dot(sys_map.T, inv)
+    m = w.shape[0]
+    nonnegative = True
+    for j in range(m):
+        nonnegative &= sys_var[j] >= 0.0  # False for NaN too
+    if nonnegative:
+        for j in range(m):
+            v = np.sqrt(sys_var[j])
+            for i in range(n):
+                w[j, i] *= v
+        cov = np.dot(w.T, w)
+    else:  # a negative or NaN variance: (G S) G^T as the reference forms it
+        h = np.empty((m, n))
+        for j in range(m):
+            for i in range(n):
+                h[j, i] = w[j, i] * sys_var[j]
+        cov = np.dot(w.T, h)
+    for i in range(n):  # cov_stat = inv * c (in place), cov = cov_stat + cov_sys
+        for j in range(n):
+            v = inv[i, j] * c
+            inv[i, j] = v
+            cov[i, j] = v + cov[i, j]
+    return OK, chi2_red, inv, cov, ref
+
+
+@numba.njit(cache=True, fastmath=FASTMATH)
+def posterior_moments_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, params,
+                             max_condition):
+    """chi^2 reduced, statistical, total and reference covariances of ``posterior_from_normal`` at params.
+
+    Returns (status, chi2_red, cov_stat, covariance, cov_reference); the arrays are valid only with status OK."""
+    n = acc_info.shape[0]
+    inv = np.empty((n, n))
+    if spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < PIVOT_RATIO_MIN:
+        empty = np.empty((0, 0))
+        return FALLBACK, 1.0, empty, empty, empty
+    return _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, params,
+                                 max_condition, inv)
+
+
+@numba.njit(cache=True, fastmath=FASTMATH)
+def posterior_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, r_pr, sys_var, lo, max_condition):
+    """The posterior of ``posterior_from_normal`` from one inverse of info = acc_info + n_pr.
+
+    params: the unconstrained minimiser of ``bounded_solve_kernel`` (unit-diagonal scaling, ridge 1e-12 on the
+    scaled diagonal): (info + 1e-12 D^2)^-1 rhs = params0 - 1e-12 info^-1 D^2 params0 + O(1e-24 |S^-1|^2), params0 =
+    info^-1 rhs, D^2 = diag(info) (the neglected term is < 1e-16 relative for scaled pivots >= PIVOT_RATIO_MIN);
+    when it meets the bounds with the margin it is the bounded optimum, else NEEDS_BOUND.
+
+    Returns (status, params, chi2_red, cov_stat, covariance, cov_reference); the arrays are valid only with status
+    OK (params also with NEEDS_BOUND: the unconstrained minimiser)."""
+    n = acc_info.shape[0]
+    empty = np.empty((0, 0))
+    params = np.empty(n)
+    m = sys_map.shape[1]
+    if (acc_info.shape[1] != n or acc_rhs.shape[0] != n or sys_map.shape[0] != n or info_reference.shape != (n, n)
+            or n_pr.shape != (n, n) or r_pr.shape[0] != n or sys_var.shape[0] != m or lo.shape[0] != n):
+        return BAD_SHAPE, params, 1.0, empty, empty, empty
+    inv = np.empty((n, n))
+    if spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < PIVOT_RATIO_MIN:
+        return FALLBACK, params, 1.0, empty, empty, empty
+    rhs = np.empty(n)
+    for i in range(n):
+        rhs[i] = acc_rhs[i] + r_pr[i]
+    t0 = np.empty(n)
+    ridge = np.empty(n)
+    for i in range(n):
+        t = 0.0
+        for j in range(n):
+            t += inv[i, j] * rhs[j]
+        t0[i] = t
+        v = acc_info[i, i] + n_pr[i, i]
+        ridge[i] = REGULARISATION * (v if v > 1e-300 else 1e-300) * t
+    scale = 0.0
+    for i in range(n):
+        t = 0.0
+        for j in range(n):
+            t += inv[i, j] * ridge[j]
+        params[i] = t0[i] - t
+        if np.isfinite(lo[i]):
+            v = acc_info[i, i] + n_pr[i, i]
+            x = abs(params[i] * np.sqrt(v if v > 1e-300 else 1e-300))
+            if x > scale:
+                scale = x
+    for i in range(n):
+        if np.isfinite(lo[i]):
+            v = acc_info[i, i] + n_pr[i, i]
+            d = np.sqrt(v if v > 1e-300 else 1e-300)
+            if not params[i] * d - lo[i] * d > FEASIBLE_MARGIN * scale:
+                return NEEDS_BOUND, params, 1.0, empty, empty, empty
+    status, chi2_red, cov_stat, cov, ref = _moments_from_inverse(
+        acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, params, max_condition, inv)
+    return status, params, chi2_red, cov_stat, cov, ref
+
+
+def lower_vector(lower: float | np.ndarray, n: int) -> np.ndarray:
+    """``lower`` broadcast to a contiguous float64 (n,) (raises ValueError if it does not broadcast)."""
+    lo = np.asarray(lower, dtype=np.float64)
+    if lo.shape == (n,):
+        return lo if lo.flags.c_contiguous else np.ascontiguousarray(lo)
+    return np.ascontiguousarray(np.broadcast_to(lo, (n,)))
+
+
+def as_matrix(a: np.ndarray, n: int, m: int | None = None, name: str = "matrix") -> np.ndarray:
+    """a as a C-contiguous float64 (n, m) array (m = n by default); ValueError on another shape."""
+    out = np.ascontiguousarray(a, dtype=np.float64)
+    shape = (n, n if m is None else m)
+    if out.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {out.shape}")
+    return out
+
+
+def as_vector(a: np.ndarray, n: int, name: str = "vector") -> np.ndarray:
+    """a as a C-contiguous float64 (n,) array; ValueError on another shape."""
+    out = np.ascontiguousarray(a, dtype=np.float64)
+    if out.shape != (n,):
+        raise ValueError(f"{name} must have shape {(n,)}, got {out.shape}")
+    return out
+
