@@ -20,9 +20,8 @@ from pathlib import Path
 from frictionwatch.core.discrepancy import Discovery, Options, discover
 from frictionwatch.core.model.engine_model import EngineModel, load_model
 from frictionwatch.core.types import AcquisitionInfo, Cycle, StreamRecord
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
 from frictionwatch.service.output_files import atomic_paths, check_output_path
-from frictionwatch.service.pipeline import resolve_model
+from frictionwatch.service.pipeline import assembled_cycles, resolve_model
 
 BASELINES = "default | rigid | without:NAME[,NAME...]"
 
@@ -68,11 +67,8 @@ class Assembled:
 
 
 def assemble(model: EngineModel, info: AcquisitionInfo, records: Iterable[StreamRecord]) -> Assembled:
-    spec = model.spec
-    asm = CycleAssembler(info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
-    cycles = [c for r in records for c in asm.feed(r)]
-    cycles += asm.flush()
-    return Assembled(cycles, Counter(asm.skipped))
+    """The log's cycles as the pipeline's assembler makes them (service.pipeline.assembled_cycles)."""
+    return Assembled(*assembled_cycles(model, info, records))
 
 
 def run_discrepancy(source: Path | tuple[AcquisitionInfo, Iterable[StreamRecord]], model: EngineModel | str | None = None,

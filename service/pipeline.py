@@ -8,23 +8,16 @@ from __future__ import annotations
 import logging
 from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from frictionwatch.core.discrepancy.view import (
-    MonitorView,
-    Reference,
-    monitor_view,
-    needs_reference,
-    reference,
-    viewed_cycle,
-)
 from frictionwatch.core.model.engine import EngineSpec, spec_from_toml_text
 from frictionwatch.core.model.engine_model import EngineModel, as_model, load_model
-from frictionwatch.core.monitor.calibration.gain_watch import GainWatchState, watch_gains
-from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState, watch_cycle
-from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
+from frictionwatch.core.model.view import MonitorView
+from frictionwatch.core.monitor.calibration.gain_watch import GainWatchState
+from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState
+from frictionwatch.core.monitor.pipeline import CycleOutcome, CyclePipeline
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 from frictionwatch.core.types import AcquisitionInfo, Cycle, StreamRecord
@@ -34,91 +27,93 @@ log = logging.getLogger(__name__)
 
 
 class EnginePipeline:
-    """Feeds records of one engine through assembly and the monitor; ``skipped`` counts lost cycles by reason.
+    """Records of one engine through the cycle assembler and the monitor's one pipeline
+    (core.monitor.pipeline.CyclePipeline: the model's view, the monitor, the running calibration watches).
 
-    The monitor gets the model as core.discrepancy.view translates its effects (``monitor_view``, unpinned: the
-    model's coefficients are the prior, the identification free): a TDC offset moves the cylinder's phase, a
-    pressure gain or offset corrects each assembled cycle's pressure, a chain mismatch scales the shaft line, a
-    model without torsional_flexibility / variable_inertia runs rigid / at constant inertia, friction shapes become
-    loss terms. A spec or preset model (its default effects, none of those corrections) runs exactly as it is.
-    The cycles are assembled at the phases the wheel states (the model's spec); a friction shape is sized at the
-    operating point of the first assembled cycle (the view is made then; without shapes, at once)."""
+    ``outcomes(record)`` gives every cycle's ``CycleOutcome``: a result, a monitor refusal with its reason, or a cycle
+    the assembler lost (stage 'assembly', one outcome per lost cycle); ``feed`` keeps the results only. ``skipped``
+    counts lost cycles by reason over both. The cycles are assembled at the phases the wheel states (the model's
+    spec)."""
 
     def __init__(self, engine: EngineModel | EngineSpec, info: AcquisitionInfo, config: MonitorConfig | None = None,
                  on_cycle: Callable[[Cycle], None] | None = None):
-        self.config = config or MonitorConfig()
-        self.on_cycle = on_cycle  # sees each assembled cycle as the monitor gets it (commissioning reads its pressure)
-        self.model = as_model(engine)
-        self.spec = spec = self.model.spec
-        self.assembler = cycle_assembler(spec, info)
-        self.view: MonitorView | None = None
-        self.state: MonitorState | None = None
-        if not needs_reference(self.model):
-            self._make_view(None)
-        self.monitor_skipped: Counter[str] = Counter()
-        self.cycles_ok = 0
-        self.tdc_watch = TdcWatchState.empty()
-        self.tdc_window_cycle: int | None = None  # the cycle that closed the TDC watch's newest window
-        self.gain_watch = GainWatchState.empty()
+        self.cycles = CyclePipeline(engine, config, on_cycle=on_cycle)
+        self.model, self.spec, self.config = self.cycles.model, self.cycles.spec, self.cycles.config
+        self.assembler = cycle_assembler(self.spec, info)
+        self._given: Counter[str] = Counter()  # the assembler's losses already given out as outcomes, by reason
 
-    def _make_view(self, ref: Reference | None) -> None:
-        self.view = monitor_view(self.model, ref, self.config)
-        self.state = initial_state(self.view.model, self.view.config)
+    @property
+    def state(self) -> MonitorState | None:
+        return self.cycles.state
+
+    @property
+    def view(self) -> MonitorView | None:
+        """The model as the monitor runs it (None until a friction shape has its operating point)."""
+        return self.cycles.view
+
+    @property
+    def cycles_ok(self) -> int:
+        return self.cycles.cycles_ok
+
+    @property
+    def tdc_watch(self) -> TdcWatchState:
+        return self.cycles.stages["tdc_watch"]
+
+    @property
+    def tdc_window_cycle(self) -> int | None:
+        """The cycle that closed the TDC watch's newest window."""
+        return self.cycles.stage_cycle.get("tdc_watch")
+
+    @property
+    def gain_watch(self) -> GainWatchState:
+        return self.cycles.stages["gain_watch"]
 
     def cylinder_twist(self) -> np.ndarray:
-        """(z,) [rad] each throw's static twist ahead of the flywheel in the monitor's model of the newest cycle (its
-        harmonic balance's m = 0 term); zeros on a rigid shaft line or before the first cycle."""
-        st = self.state
-        if st is None or st.static is None or st.op is None or st.static.shape[0] != st.op.cylinders.n_nodes:
-            return np.zeros(self.spec.n_cyl)
-        return np.asarray(st.static[st.op.cylinders.node], dtype=np.float64)
+        return self.cycles.cylinder_twist()
+
+    def _assembler_lost(self) -> Counter[str]:
+        return Counter(self.assembler.skipped) + self.assembler.truncated
 
     @property
     def skipped(self) -> Counter[str]:
-        return Counter(self.assembler.skipped) + self.assembler.truncated + self.monitor_skipped
+        return self._assembler_lost() + self.cycles.skipped
+
+    def outcomes(self, record: StreamRecord | None) -> list[CycleOutcome]:
+        """The outcomes of the cycles ``record`` completes (None: the end of the stream, flushing the assembler),
+        each cycle the assembler lost on the way first."""
+        cycles = self.assembler.feed(record) if record is not None else self.assembler.flush()
+        out = self._losses()
+        out.extend(self.cycles.process(c) for c in cycles)
+        return out
+
+    def _losses(self) -> list[CycleOutcome]:
+        """One outcome per cycle the assembler lost since the last call (its counters only grow)."""
+        asm = self.assembler
+        if sum(asm.skipped.values()) + sum(asm.truncated.values()) == self._given.total():
+            return []
+        lost = self._assembler_lost()
+        out = [CycleOutcome(None, skipped=reason, stage="assembly")
+               for reason, n in sorted(lost.items()) for _ in range(n - self._given[reason])]
+        self._given = lost
+        return out
 
     def feed(self, record: StreamRecord) -> list[CycleResult]:
-        return [r for c in self.assembler.feed(record) if (r := self._process(c)) is not None]
+        return [o.result for o in self.outcomes(record) if o.result is not None]
 
     def flush(self) -> list[CycleResult]:
-        return [r for c in self.assembler.flush() if (r := self._process(c)) is not None]
+        return [o.result for o in self.outcomes(None) if o.result is not None]
 
-    def _process(self, cycle: Cycle) -> CycleResult | None:
-        if self.view is None:
-            self._make_view(reference([cycle]))
-        view = self.view
-        cycle = viewed_cycle(view, cycle)
-        if self.on_cycle is not None:
-            self.on_cycle(cycle)
-        try:
-            self.state, result = process_cycle(view.model, self.state, cycle, view.config)
-        except CycleRejected as exc:
-            reason = exc.reason
-        except (ValueError, FloatingPointError, ArithmeticError) as exc:
-            # an unexpected numeric failure: counted and logged with its text, the stream goes on
-            reason = f"monitor_error: {type(exc).__name__}"
-            log.warning("cycle %d: %s", cycle.index, exc)
-        else:
-            self.cycles_ok += 1
-            # TDC from the pressure, window by window, against the model's calibration (a hidden or drifting TDC
-            # error is flagged and withholds the figures it touches: core.monitor.calibration.tdc_watch)
-            before = self.tdc_watch.last
-            twist = self.cylinder_twist()
-            self.tdc_watch = watch_cycle(view.spec, self.model.calibration, self.tdc_watch, cycle, twist)
-            if self.tdc_watch.last is not before:
-                self.tdc_window_cycle = int(cycle.index)
-            # each channel's gain and pegging against its siblings, likewise (core.monitor.calibration.gain_watch)
-            self.gain_watch = watch_gains(view.spec, self.model.calibration, self.gain_watch, cycle, twist)
-            # (the opt-in sensor-health stage names a gain or pegging flag the same way: each flag once)
-            flags = tuple(f for f in dict.fromkeys(self.tdc_watch.flags + self.gain_watch.flags)
-                          if f not in result.flags)
-            if flags:
-                result = replace(result, flags=result.flags + flags)
-            return result
-        if self.monitor_skipped[reason] == 0:
-            log.warning("cycle %d skipped: %s", cycle.index, reason)
-        self.monitor_skipped[reason] += 1
-        return None
+
+def run(engine: EngineModel | EngineSpec, info: AcquisitionInfo, records: Iterable[StreamRecord],
+        config: MonitorConfig | None = None, on_cycle: Callable[[Cycle], None] | None = None
+        ) -> Iterator[CycleOutcome]:
+    """The one pipeline from records: every cycle's outcome in order (``EnginePipeline``), the stream's end
+    flushed. analyze, serve, reanalyze, commission and the benches run this (or ``EnginePipeline`` record by
+    record)."""
+    pipe = EnginePipeline(engine, info, config, on_cycle)
+    for record in records:
+        yield from pipe.outcomes(record)
+    yield from pipe.outcomes(None)
 
 
 def cycle_assembler(spec: EngineSpec, info: AcquisitionInfo) -> CycleAssembler:
@@ -263,15 +258,11 @@ def analyze_records(
 ) -> LogAnalysis:
     pipe = EnginePipeline(engine, info, config, on_cycle)
     history = ResultHistory()
-    for record in records:
-        for r in pipe.feed(record):
+    for record in [*records, None]:
+        for r in pipe.feed(record) if record is not None else pipe.flush():
             history.append(r)
             if on_result:
                 on_result(r)
-    for r in pipe.flush():
-        history.append(r)
-        if on_result:
-            on_result(r)
     return LogAnalysis(pipe.spec, history.to_list(), pipe.skipped, tdc_watch=pipe.tdc_watch,
                        cylinder_twist=pipe.cylinder_twist(), gain_watch=pipe.gain_watch)
 

@@ -23,10 +23,10 @@ import numpy as np
 from frictionwatch.core.discrepancy.candidates import Candidate, candidate_library
 from frictionwatch.core.discrepancy.features import coherent_terms, gap, localise, noise_scale
 from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, rank, refine
-from frictionwatch.core.discrepancy.residuals import Residuals, run_view
-from frictionwatch.core.discrepancy.view import monitor_view, pinned_config, reference
+from frictionwatch.core.discrepancy.residuals import Residuals, pinned_config, run_model
 from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine_model import EngineModel
+from frictionwatch.core.model.view import reference
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import Cycle
 
@@ -114,10 +114,10 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     pinned = pinned_config(opt.monitor_config)  # the question is whether each model reproduces the log as it stands
 
     def full(m: EngineModel) -> Residuals:
-        return run_view(monitor_view(m, ref, pinned), cycles)
+        return run_model(m, ref, pinned, cycles)
 
     def sub(m: EngineModel) -> Residuals:
-        return run_view(monitor_view(m, ref, pinned), window)
+        return run_model(m, ref, pinned, window)
 
     def parts(res: Residuals) -> tuple[Residuals, Residuals]:
         return res.take((res.index >= first) & (res.index < held)), res.take(res.index >= held)

@@ -10,7 +10,7 @@ figure never claims to know more than its sensors allow.
 A model without a calibration section is ``uncalibrated``: its sigmas assume a typical installation whose TDC was set
 statically and whose sensors carry their data-sheet sensitivity, the values of ``Calibration()`` below. ``frictionwatch
 commission`` replaces them with what it measured (status ``commissioned``) and writes the corrections themselves as
-the model's sensor effects (tdc_offset, pressure_gain, pressure_offset), which core.discrepancy.view applies.
+the model's sensor effects (tdc_offset, pressure_gain, pressure_offset), which core.model.view applies.
 
 In the model's TOML (core.model.engine_model), every key optional (the defaults below):
 

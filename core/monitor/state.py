@@ -65,7 +65,7 @@ class MonitorConfig:
     model_error_floor: the systematic sigma the equations cannot see (core.monitor.identify.estimate.ModelErrorFloor),
     calibrated on model-mismatch logs (bench/mismatch_coverage.py)
     calibration: how well TDC, pressure gain and J are known (core.model.calibration; the model's, through
-    core.discrepancy.view): its remaining uncertainty is added to every friction sigma. The default is an
+    core.model.view): its remaining uncertainty is added to every friction sigma. The default is an
     uncalibrated installation's, never perfect sensors
     r_squared_floor: a cycle whose speed fit explains less of the speed ripple is flagged ``speed_fit_poor``: what
     rests on the speed signal (the per-cylinder split) is not supported by it. Calibrated on 24-cycle simulated logs

@@ -8,10 +8,10 @@ import pytest
 from frictionwatch.core.discrepancy.candidates import candidate_library
 from frictionwatch.core.discrepancy.features import gap, localise, noise_scale, order_table
 from frictionwatch.core.discrepancy.residuals import ANGLE_POINTS, Residuals
-from frictionwatch.core.discrepancy.view import Reference, corrected_pressure, monitor_view, rigid_spec
 from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.engine_model import EngineModel
+from frictionwatch.core.model.view import Reference, corrected_pressure, monitor_view, rigid_spec
 
 
 def made_up(n: int, m: int, coherent: np.ndarray, balance_mean: float, seed: int = 0) -> Residuals:
@@ -83,10 +83,10 @@ def test_view_of_default_and_reduced_models():
     spec = load_engine("k9k-4cyl")
     ref = reference(spec)
     full = monitor_view(EngineModel.from_spec(spec), ref)
-    assert full.config.variable_inertia and full.spec.stiffness.size == spec.stiffness.size
+    assert full.variable_inertia and full.spec.stiffness.size == spec.stiffness.size
     assert not full.corrects_pressure
     bare = monitor_view(EngineModel.from_spec(spec, without={"torsional_flexibility", "variable_inertia"}), ref)
-    assert not bare.config.variable_inertia and bare.spec.node_inertia.shape == (1,)
+    assert not bare.variable_inertia and bare.spec.node_inertia.shape == (1,)
     np.testing.assert_allclose(rigid_spec(spec).node_inertia.sum(), spec.node_inertia.sum(), rtol=1e-12)
     worn = monitor_view(EngineModel.from_spec(spec, effects=[make_effect("ring_wear", {"cylinder": 2, "gain": 2.0})]),
                         ref)
@@ -98,7 +98,7 @@ def test_view_of_default_and_reduced_models():
 def test_friction_law_keeps_the_mean_at_the_reference_point():
     spec = load_engine("k9k-4cyl")
     ref = reference(spec)
-    from frictionwatch.core.discrepancy.view import basis_means
+    from frictionwatch.core.model.view import basis_means
 
     base = monitor_view(EngineModel.from_spec(spec), ref)
     law = monitor_view(EngineModel.from_spec(spec, effects=[make_effect("bearings_load", {"fraction": 0.5})]), ref)
@@ -124,17 +124,21 @@ def test_library_leaves_out_what_the_model_holds():
 
 
 def test_view_runs_with_the_callers_config():
-    """The workflow pins the friction (pinned_config), analyze and serve do not: the view takes either as given."""
-    from frictionwatch.core.discrepancy.view import PINNED_SIGMA, pinned_config
+    """The workflow pins the friction (pinned_config), analyze and serve do not: the pipeline takes either as given
+    and adds what the view decides (the model's calibration, constant inertia without variable_inertia)."""
+    from frictionwatch.core.discrepancy.residuals import PINNED_SIGMA, pinned_config
+    from frictionwatch.core.monitor.pipeline import monitor_config
     from frictionwatch.core.monitor.state import MonitorConfig
 
     spec = load_engine("k9k-4cyl")
     ref = reference(spec)
     free = monitor_view(EngineModel.from_spec(spec), ref)
-    assert free.config == MonitorConfig()
+    assert monitor_config(free, None) == MonitorConfig()
     assert free.spec is spec and not free.corrects_pressure
-    pinned = monitor_view(EngineModel.from_spec(spec), ref, pinned_config())
-    assert pinned.config.parameter_sigma == PINNED_SIGMA and pinned.config.warmup_cycles == 2
+    pinned = monitor_config(free, pinned_config())
+    assert pinned.parameter_sigma == PINNED_SIGMA and pinned.warmup_cycles == 2 and pinned.variable_inertia
+    bare = monitor_view(EngineModel.from_spec(spec, without={"variable_inertia"}), ref)
+    assert not monitor_config(bare, pinned_config()).variable_inertia
     law = EngineModel.from_spec(spec, effects=[make_effect("bearings_load", {"fraction": 0.5})])
     with pytest.raises(ValueError, match="Reference"):
         monitor_view(law, None)

@@ -1,4 +1,4 @@
-"""`analyze --engine MODEL.toml` applies the model's effects (service.pipeline through core.discrepancy.view): a k9k
+"""`analyze --engine MODEL.toml` applies the model's effects (service.pipeline through core.model.view): a k9k
 log whose cylinder 3 pressure sensor reads 6 % high, analysed with the preset model and with the preset model plus
 that pressure_gain; the second reads cylinder 3's IMEP at the truth, the other cylinders exactly as before."""
 
@@ -87,7 +87,7 @@ def test_preset_model_runs_as_it_is():
                            pressure_cylinders=tuple(range(1, spec.n_cyl + 1)))
     pipe = EnginePipeline(model, info)
     view = pipe.view
-    assert view is not None and not view.corrects_pressure and view.config.variable_inertia
+    assert view is not None and not view.corrects_pressure and view.variable_inertia
     assert view.spec is spec and view.terms is model.terms
     np.testing.assert_array_equal(view.coefficients, model.coefficients)
 

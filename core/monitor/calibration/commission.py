@@ -2,7 +2,7 @@
 
 What was measured becomes the model's sensor effects (core.model.effects: ``tdc_offset`` for the wheel and for a
 cylinder whose own TDC stands out, ``pressure_gain`` / ``pressure_offset`` for a channel that stands out of its
-siblings; core.discrepancy.view applies them) and what stays unknown becomes its calibration section
+siblings; core.model.view applies them) and what stays unknown becomes its calibration section
 (core.model.calibration, status "commissioned"): the sigmas every friction figure then carries.
 
 Rules, each for a reason:

@@ -1,11 +1,12 @@
-"""What the monitor makes of an EngineModel's effects: the model as the discrepancy workflow predicts with it.
+"""What the monitor makes of an EngineModel's effects: the model as the monitor runs it (core.monitor.pipeline) and as
+the discrepancy workflow predicts with it.
 
 The monitor (core.monitor) reads a spec, a loss-term library and its coefficients. The effects of a model are
 plant physics; this module turns each into what the monitor can use, so that a model augmented with a found effect
 predicts the flywheel speed with it:
 
     torsional_flexibility absent   the spec's shaft line collapsed to one rigid node
-    variable_inertia absent        MonitorConfig(variable_inertia=False): constant inertia, no mass torque
+    variable_inertia absent        ``variable_inertia`` False: constant inertia, no mass torque
     chain_mismatch                 the spec's section stiffnesses and dampings x their scales
     tdc_offset                     the cylinder's kinematic phase: its firing angle + deg (cylinder 0, a wheel
                                    mounted off: every cylinder's), as the plant has it; the pressure stays as read
@@ -16,10 +17,11 @@ predicts the flywheel speed with it:
     friction laws (mismatch.py)    ``fraction`` of the base term's mean moved into the law's term, sized at the
                                    reference operating point as the simulator sizes it
 
-One translation for two users. The workflow pins the friction scales to the model (it passes
-``pinned_config(...)``): its question is whether the model, as it stands, reproduces the measured speed and mean
-torque balance, not what the monitor would refit. ``analyze`` and ``serve`` (service.pipeline) pass their config
-as it is: the model's coefficients are the prior and the identification is free, as for any model.
+One translation for every user: core.monitor.pipeline turns the view into the monitor's model and config
+(``monitor_config``). The discrepancy workflow pins the friction scales to the model (its ``pinned_config``): its
+question is whether the model, as it stands, reproduces the measured speed and mean torque balance, not what the
+monitor would refit. ``analyze`` and ``serve`` pass their config as it is: the model's coefficients are the prior and
+the identification is free, as for any model.
 """
 
 from __future__ import annotations
@@ -29,16 +31,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.effects import Effect
 from frictionwatch.core.model.effects.loss_terms import extra_friction_term
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.terms import TermLibrary, cylinder_samples
 from frictionwatch.core.model.thermo import P_CRANKCASE
-from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import Cycle
-
-PINNED_SIGMA = 1e-4  # prior sigma of every friction scale: the model's coefficients are used as they are
 
 
 @dataclass(frozen=True)
@@ -68,15 +68,17 @@ def needs_reference(model: EngineModel) -> bool:
 
 @dataclass(frozen=True)
 class MonitorView:
-    """spec (firing angles with any TDC offset), terms and coefficients the monitor identifies with; its config; the
-    pressure corrections per cylinder: gain (z,), offset (z,) Pa."""
+    """spec (firing angles with any TDC offset), terms and coefficients the monitor identifies with; whether the
+    inertia varies with crank angle (the model has ``variable_inertia``); the pressure corrections per cylinder:
+    gain (z,), offset (z,) Pa; the model's calibration (what its sensor effects leave unknown)."""
 
     spec: EngineSpec
     terms: TermLibrary
     coefficients: np.ndarray
-    config: MonitorConfig
+    variable_inertia: bool
     gain: np.ndarray
     offset: np.ndarray
+    calibration: Calibration
 
     @property
     def model(self) -> EngineModel:
@@ -85,15 +87,6 @@ class MonitorView:
     @property
     def corrects_pressure(self) -> bool:
         return bool(np.any(self.gain != 1) or np.any(self.offset != 0))
-
-
-def pinned_config(config: MonitorConfig | None = None) -> MonitorConfig:
-    """The friction scales pinned to the model; equations accumulated from the third cycle: with the friction pinned
-    only the in-band tooth nuisance is learned from them, and until it is the residual carries the wheel's pattern
-    (measured, k9k 2500 rpm: the held-out gap of the true model 59 over cycles 12-36 with the default 20-cycle
-    warm-up, 2.2 with 2, its floor)."""
-    return dataclasses.replace(config or MonitorConfig(), parameter_sigma=PINNED_SIGMA, sibling_spread=0.0,
-                               warmup_cycles=2)
 
 
 def rigid_spec(spec: EngineSpec) -> EngineSpec:
@@ -112,16 +105,13 @@ def basis_means(spec: EngineSpec, terms: TermLibrary, ref: Reference) -> np.ndar
     return terms.evaluate(np.stack(rows, axis=1), consts).mean(axis=2)
 
 
-def monitor_view(model: EngineModel, ref: Reference | None, config: MonitorConfig | None = None) -> MonitorView:
-    """The monitor's side of ``model`` (see the module doc) with ``config`` as given (pinned or not: the caller's
-    choice); ``ref`` sizes the friction shapes (None only when ``needs_reference(model)`` is false)."""
+def monitor_view(model: EngineModel, ref: Reference | None) -> MonitorView:
+    """The monitor's side of ``model`` (see the module doc); ``ref`` sizes the friction shapes (None only when
+    ``needs_reference(model)`` is false)."""
     if ref is None and needs_reference(model):
         raise ValueError("the model's friction shapes are sized at an operating point: monitor_view needs a Reference")
     spec, terms, coef = model.spec, model.terms, np.array(model.coefficients, dtype=np.float64)
     names = {e.name for e in model.effects}
-    cfg = dataclasses.replace(config or MonitorConfig(), calibration=model.calibration)
-    if "variable_inertia" not in names:
-        cfg = dataclasses.replace(cfg, variable_inertia=False)
     if "torsional_flexibility" not in names:
         spec = rigid_spec(spec)
     z = spec.n_cyl
@@ -145,7 +135,7 @@ def monitor_view(model: EngineModel, ref: Reference | None, config: MonitorConfi
         terms, coef = _add_shape(e, spec, terms, coef, ref)
     if np.any(tdc):  # after the shapes: the plant sizes them at the stated phases
         spec = dataclasses.replace(spec, firing_angles=spec.firing_angles + tdc)
-    return MonitorView(spec, terms, coef, cfg, gain, offset)
+    return MonitorView(spec, terms, coef, "variable_inertia" in names, gain, offset, model.calibration)
 
 
 def _add_shape(e: Effect, spec: EngineSpec, terms: TermLibrary, coef: np.ndarray, ref: Reference
@@ -187,4 +177,4 @@ def viewed_cycle(view: MonitorView, cycle: Cycle) -> Cycle:
 
 
 __all__ = ["MonitorView", "Reference", "basis_means", "corrected_pressure", "monitor_view", "needs_reference",
-           "pinned_config", "reference", "rigid_spec", "viewed_cycle"]
+           "reference", "rigid_spec", "viewed_cycle"]

@@ -1,0 +1,206 @@
+"""The one pipeline of the monitor: a model and its assembled cycles in, one typed outcome per cycle out.
+
+    pipe = CyclePipeline(model, config)          # an EngineModel (effects, calibration) or an EngineSpec
+    for cycle in cycles:
+        outcome = pipe.process(cycle)             # CycleOutcome: a result, or the reason there is none
+    # or: for outcome in run_cycles(model, cycles, config): ...
+
+What a cycle goes through, in order:
+1. the model's view (core.model.view): the pressure corrected for the model's sensor effects, the phases its TDC
+   offsets state, its loss terms; made at the first cycle when a friction shape is sized at an operating point;
+2. the monitor (core.monitor.monitor.process_cycle): teeth, balance, identify, checks, report;
+3. the running stages of ``STAGES``, each ``update(state, StageInput) -> state`` with ``flags`` on its state: the
+   calibration watches (TDC from the pressure, each channel's gain and pegging), judged against the model's
+   calibration; their flags are added to the cycle's result (and withhold the figures they touch).
+Adding a running stage is one class with ``initial()`` and ``update()`` and one line in ``STAGES``.
+
+service.pipeline puts the cycle assembler (drivers/) in front: analyze, serve, reanalyze and commission run that,
+and the discrepancy workflow runs its models through ``run_cycles``. A cycle the monitor refuses is an outcome with
+its reason, never an exception; an unexpected numeric failure is one too (``monitor_error: <type>``), logged once.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections import Counter
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, replace
+from typing import Any, Protocol
+
+import numpy as np
+from frictionwatch.core.model.calibration import Calibration
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.engine_model import EngineModel, as_model
+from frictionwatch.core.model.view import MonitorView, Reference, monitor_view, needs_reference, reference, viewed_cycle
+from frictionwatch.core.monitor.calibration.gain_watch import GainWatchState, watch_gains
+from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState, watch_cycle
+from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
+from frictionwatch.core.monitor.report.results import CycleResult
+from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
+from frictionwatch.core.types import Cycle
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class CycleOutcome:
+    """What became of one cycle: its ``result``, or why there is none (``skipped``: the reason, e.g.
+    'operating_point' from the monitor, 'data_gap' from the assembler; ``stage``: 'monitor' or 'assembly').
+    ``index`` is the cycle's number (None for an assembler skip, which has no cycle)."""
+
+    index: int | None
+    result: CycleResult | None = None
+    skipped: str | None = None
+    stage: str = "monitor"
+
+    @property
+    def ok(self) -> bool:
+        return self.result is not None
+
+
+@dataclass(frozen=True)
+class StageInput:
+    """What a running stage sees of an analysed cycle: the monitor's spec (the view's phases), the model's
+    calibration, the cycle as the monitor got it, its result, and each throw's static twist ahead of the flywheel
+    (z,) rad in the monitor's model of this cycle."""
+
+    spec: EngineSpec
+    calibration: Calibration
+    cycle: Cycle
+    result: CycleResult
+    twist: np.ndarray
+
+
+class RunningStage(Protocol):
+    """A stage run on every analysed cycle after the monitor; its state carries ``flags`` (a tuple of str) and, for
+    a stage that reads in windows, ``last`` (the newest window's reading, a new object when a window closes)."""
+
+    name: str
+
+    def initial(self) -> Any: ...
+
+    def update(self, state: Any, inp: StageInput) -> Any: ...
+
+
+class TdcWatch:
+    """TDC from the pressure, window by window, against the calibration (core.monitor.calibration.tdc_watch)."""
+
+    name = "tdc_watch"
+
+    def initial(self) -> TdcWatchState:
+        return TdcWatchState.empty()
+
+    def update(self, state: TdcWatchState, inp: StageInput) -> TdcWatchState:
+        return watch_cycle(inp.spec, inp.calibration, state, inp.cycle, inp.twist)
+
+
+class GainWatch:
+    """Each channel's gain and pegging against its siblings (core.monitor.calibration.gain_watch)."""
+
+    name = "gain_watch"
+
+    def initial(self) -> GainWatchState:
+        return GainWatchState.empty()
+
+    def update(self, state: GainWatchState, inp: StageInput) -> GainWatchState:
+        return watch_gains(inp.spec, inp.calibration, state, inp.cycle, inp.twist)
+
+
+STAGES: tuple[RunningStage, ...] = (TdcWatch(), GainWatch())
+
+
+def monitor_config(view: MonitorView, config: MonitorConfig | None) -> MonitorConfig:
+    """The caller's config with what the view decides: the model's calibration, and constant inertia where the
+    model has no ``variable_inertia``."""
+    cfg = dataclasses.replace(config or MonitorConfig(), calibration=view.calibration)
+    return cfg if view.variable_inertia else dataclasses.replace(cfg, variable_inertia=False)
+
+
+class CyclePipeline:
+    """One engine's cycles through the view, the monitor and the running stages (module doc); state explicit in its
+    attributes: ``state`` the monitor's, ``stages`` each running stage's by name, ``skipped`` the monitor's refusals
+    by reason, ``cycles_ok`` the analysed count.
+
+    ``reference``: the operating point a friction shape is sized at (None: the first cycle's); ``on_cycle`` sees
+    each cycle as the monitor gets it (commissioning reads its pressure)."""
+
+    def __init__(self, engine: EngineModel | EngineSpec, config: MonitorConfig | None = None,
+                 reference: Reference | None = None, on_cycle: Callable[[Cycle], None] | None = None,
+                 stages: tuple[RunningStage, ...] = STAGES):
+        self.model = as_model(engine)
+        self.spec = self.model.spec
+        self.config = config or MonitorConfig()
+        self.on_cycle = on_cycle
+        self.running = stages
+        self.view: MonitorView | None = None
+        self.monitor_model: EngineModel | None = None
+        self.monitor_cfg: MonitorConfig | None = None
+        self.state: MonitorState | None = None
+        self.stages = {s.name: s.initial() for s in stages}
+        self.stage_cycle: dict[str, int] = {}  # the cycle that closed each stage's newest window (its ``last``)
+        self.skipped: Counter[str] = Counter()
+        self.cycles_ok = 0
+        if reference is not None or not needs_reference(self.model):
+            self._make_view(reference)
+
+    def _make_view(self, ref: Reference | None) -> None:
+        self.view = monitor_view(self.model, ref)
+        self.monitor_model = self.view.model
+        self.monitor_cfg = monitor_config(self.view, self.config)
+        self.state = initial_state(self.monitor_model, self.monitor_cfg)
+
+    def cylinder_twist(self) -> np.ndarray:
+        """(z,) [rad] each throw's static twist ahead of the flywheel in the monitor's model of the newest cycle (its
+        harmonic balance's m = 0 term); zeros on a rigid shaft line or before the first cycle."""
+        st = self.state
+        if st is None or st.static is None or st.op is None or st.static.shape[0] != st.op.cylinders.n_nodes:
+            return np.zeros(self.spec.n_cyl)
+        return np.asarray(st.static[st.op.cylinders.node], dtype=np.float64)
+
+    def process(self, cycle: Cycle) -> CycleOutcome:
+        if self.view is None:
+            self._make_view(reference([cycle]))
+        view = self.view
+        cycle = viewed_cycle(view, cycle)
+        if self.on_cycle is not None:
+            self.on_cycle(cycle)
+        try:
+            self.state, result = process_cycle(self.monitor_model, self.state, cycle, self.monitor_cfg)
+        except CycleRejected as exc:
+            return self._skip(cycle, exc.reason)
+        except (ValueError, FloatingPointError, ArithmeticError) as exc:
+            # an unexpected numeric failure: counted and logged with its text, the stream goes on
+            log.warning("cycle %d: %s", cycle.index, exc)
+            return self._skip(cycle, f"monitor_error: {type(exc).__name__}")
+        self.cycles_ok += 1
+        inp = StageInput(view.spec, self.model.calibration, cycle, result, self.cylinder_twist())
+        flags: list[str] = []
+        for stage in self.running:
+            before = self.stages[stage.name]
+            after = self.stages[stage.name] = stage.update(before, inp)
+            if getattr(after, "last", None) is not getattr(before, "last", None):  # a window closed: its reading
+                self.stage_cycle[stage.name] = int(cycle.index)
+            flags.extend(after.flags)
+        new = tuple(f for f in dict.fromkeys(flags) if f not in result.flags)  # each flag once
+        if new:
+            result = replace(result, flags=result.flags + new)
+        return CycleOutcome(int(cycle.index), result)
+
+    def _skip(self, cycle: Cycle, reason: str) -> CycleOutcome:
+        if self.skipped[reason] == 0:
+            log.warning("cycle %d skipped: %s", cycle.index, reason)
+        self.skipped[reason] += 1
+        return CycleOutcome(int(cycle.index), skipped=reason)
+
+
+def run_cycles(engine: EngineModel | EngineSpec, cycles: Iterable[Cycle], config: MonitorConfig | None = None,
+               reference: Reference | None = None) -> Iterator[CycleOutcome]:
+    """Every cycle's outcome, in order (``CyclePipeline`` over ``cycles``)."""
+    pipe = CyclePipeline(engine, config, reference)
+    for cycle in cycles:
+        yield pipe.process(cycle)
+
+
+__all__ = ["STAGES", "CycleOutcome", "CyclePipeline", "GainWatch", "RunningStage", "StageInput", "TdcWatch",
+           "monitor_config", "run_cycles"]

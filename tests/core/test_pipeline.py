@@ -1,0 +1,93 @@
+"""The one pipeline (core.monitor.pipeline, service.pipeline.run): every cycle a typed outcome, and the same numbers
+whichever command runs it (analyze's records path, the discrepancy workflow's cycles path)."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+import pytest
+from frictionwatch.core.discrepancy.residuals import run_model
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.engine_model import EngineModel
+from frictionwatch.core.model.view import reference
+from frictionwatch.core.monitor.pipeline import STAGES, CyclePipeline, run_cycles
+from frictionwatch.core.monitor.state import MonitorConfig
+from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.core.types import ToothBatch
+from frictionwatch.service.pipeline import analyze_records, assembled_cycles, run
+from numpy.testing import assert_allclose
+
+
+@pytest.fixture(scope="module")
+def k9k():
+    spec = load_engine("k9k-4cyl")
+    sim = simulate(spec, 2100.0, 0.7, 40, seed=31)  # a point and seed no calibration uses
+    return EngineModel.from_spec(spec), sim
+
+
+def test_every_cycle_is_an_outcome_and_the_lost_ones_say_why(k9k):
+    """A stream with a hole: the assembler's lost cycles come out as outcomes of stage 'assembly' with their reason,
+    the monitor's refusals as stage 'monitor'; outcomes with a result are exactly what analyze keeps."""
+    model, sim = k9k
+    records = list(sim.records)
+    teeth = [i for i, r in enumerate(records) if isinstance(r, ToothBatch)]
+    del records[teeth[len(teeth) // 2]: teeth[len(teeth) // 2 + 3]]  # three tooth batches lost mid-log
+    outcomes = list(run(model, sim.info, records))
+    analysis = analyze_records(model, sim.info, records)
+    by_assembler = Counter(o.skipped for o in outcomes if o.stage == "assembly")
+    by_monitor = Counter(o.skipped for o in outcomes if not o.ok and o.stage == "monitor")
+    assert by_assembler + by_monitor == analysis.skipped and sum(by_assembler.values()) >= 1
+    assert all(o.index is None and not o.ok for o in outcomes if o.stage == "assembly")
+    assert all(o.index is not None for o in outcomes if o.stage == "monitor")
+    ok = [o.result for o in outcomes if o.ok]
+    assert [r.index for r in ok] == [r.index for r in analysis.results]
+    assert_allclose([r.smoothed.friction_torque_mean for r in ok],
+                    [r.smoothed.friction_torque_mean for r in analysis.results], rtol=1e-12)
+
+
+def test_the_discrepancy_path_gives_analyzes_numbers(k9k):
+    """The discrepancy workflow's runs (core.discrepancy.residuals.run_model on assembled cycles) and analyze's
+    (records through the assembler) are one pipeline: with the same config, the same per-cycle speed residual and
+    mean balance, to 1e-12."""
+    model, sim = k9k
+    cycles, _ = assembled_cycles(model, sim.info, sim.records)
+    analysis = analyze_records(model, sim.info, sim.records)
+    res = run_model(model, reference(cycles), MonitorConfig(), cycles)
+    by_index = {r.index: r for r in analysis.results}
+    assert res.n_cycles == len(analysis.results) >= 30
+    for i, idx in enumerate(res.index):
+        r = by_index[int(idx)]
+        assert_allclose(res.harmonics[i], r.residual_harmonics, rtol=1e-12, atol=1e-12)
+        assert_allclose(res.omega[i], r.omega_mean, rtol=1e-12)
+
+
+def test_running_stages_run_in_order_and_add_their_flags(k9k):
+    """A running stage is one class and one entry: a stage that flags every tenth cycle shows on those results only,
+    after the calibration watches (STAGES), whose states the pipeline keeps by name."""
+    model, sim = k9k
+    cycles, _ = assembled_cycles(model, sim.info, sim.records)
+
+    class Every10:
+        name = "every10"
+
+        def initial(self):
+            return _Flags(())
+
+        def update(self, state, inp):
+            return _Flags(("test_flag",) if inp.cycle.index % 10 == 0 else ())
+
+    pipe = CyclePipeline(model, stages=(*STAGES, Every10()))
+    out = [pipe.process(c) for c in cycles]
+    assert set(pipe.stages) == {"tdc_watch", "gain_watch", "every10"}
+    flagged = [o.index for o in out if o.ok and "test_flag" in o.result.flags]
+    assert flagged and all(i % 10 == 0 for i in flagged)
+    plain = [o.result for o in run_cycles(model, cycles)]
+    assert_allclose([r.smoothed.friction_torque_mean for r in plain if r is not None],
+                    [o.result.smoothed.friction_torque_mean for o in out if o.ok], rtol=1e-12)
+    assert np.all([("test_flag" not in r.flags) for r in plain if r is not None])
+
+
+class _Flags:
+    def __init__(self, flags):
+        self.flags = flags
