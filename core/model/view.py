@@ -2,8 +2,9 @@
 the discrepancy workflow predicts with it.
 
 The monitor (core.monitor) reads a spec, a loss-term library and its coefficients. The effects of a model are
-plant physics; this module turns each into what the monitor can use, so that a model augmented with a found effect
-predicts the flywheel speed with it:
+plant physics; each effect also says what the monitor makes of it (``Effect.apply_view`` and, for a friction shape
+sized at an operating point, ``Effect.size_view``: core/model/effects), so that a model augmented with a found effect
+predicts the flywheel speed with it. What the catalogue's effects do here:
 
     torsional_flexibility absent   the spec's shaft line collapsed to one rigid node
     variable_inertia absent        ``variable_inertia`` False: constant inertia, no mass torque
@@ -32,8 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
-from frictionwatch.core.model.effects import Effect
-from frictionwatch.core.model.effects.loss_terms import extra_friction_term
+from frictionwatch.core.model.effects.base import ViewSetup
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.terms import TermLibrary, cylinder_samples
@@ -63,7 +63,7 @@ def reference(cycles: Sequence[Cycle]) -> Reference:
 def needs_reference(model: EngineModel) -> bool:
     """Whether ``monitor_view`` sizes a friction shape of ``model`` at an operating point (extra_friction, a
     friction law): only then does it read its ``ref``."""
-    return any(e.name == "extra_friction" or getattr(e, "base", "") for e in model.effects)
+    return any(e.sized_at_reference for e in model.effects)
 
 
 @dataclass(frozen=True)
@@ -106,60 +106,21 @@ def basis_means(spec: EngineSpec, terms: TermLibrary, ref: Reference) -> np.ndar
 
 
 def monitor_view(model: EngineModel, ref: Reference | None) -> MonitorView:
-    """The monitor's side of ``model`` (see the module doc); ``ref`` sizes the friction shapes (None only when
-    ``needs_reference(model)`` is false)."""
+    """The monitor's side of ``model``: every effect's ``apply_view``, then every shape's ``size_view`` at ``ref``
+    (None only when ``needs_reference(model)`` is false), then the shaft line made rigid where no effect made it
+    flexible, and the phases moved (after the shapes: the plant sizes them at the stated phases)."""
     if ref is None and needs_reference(model):
         raise ValueError("the model's friction shapes are sized at an operating point: monitor_view needs a Reference")
-    spec, terms, coef = model.spec, model.terms, np.array(model.coefficients, dtype=np.float64)
-    names = {e.name for e in model.effects}
-    if "torsional_flexibility" not in names:
-        spec = rigid_spec(spec)
-    z = spec.n_cyl
-    tdc, gain, offset = np.zeros(z), np.ones(z), np.zeros(z)
+    setup = ViewSetup.nominal(model.spec, model.terms, model.coefficients)
     for e in model.effects:
-        v = e.values
-        if e.name == "chain_mismatch" and spec.stiffness.size:
-            spec = dataclasses.replace(spec, stiffness=spec.stiffness * v["stiffness_scale"],
-                                       damping=spec.damping * v["damping_scale"])
-        elif e.name == "tdc_offset":
-            rows = slice(None) if v["cylinder"] == 0 else v["cylinder"] - 1
-            tdc[rows] += np.radians(v["deg"])
-        elif e.name == "pressure_gain":
-            gain[v["cylinder"] - 1] *= v["gain"]
-        elif e.name == "pressure_offset":
-            offset[v["cylinder"] - 1] += v["pa"]
-        elif e.scales_terms:
-            cols = [i for i, n in enumerate(terms.names) if n in e.scales_terms]
-            coef[v["cylinder"] - 1, cols] *= v["gain"]
-    for e in model.effects:  # shapes last: sized on the coefficients the scalings left
-        terms, coef = _add_shape(e, spec, terms, coef, ref)
-    if np.any(tdc):  # after the shapes: the plant sizes them at the stated phases
-        spec = dataclasses.replace(spec, firing_angles=spec.firing_angles + tdc)
-    return MonitorView(spec, terms, coef, "variable_inertia" in names, gain, offset, model.calibration)
-
-
-def _add_shape(e: Effect, spec: EngineSpec, terms: TermLibrary, coef: np.ndarray, ref: Reference
-               ) -> tuple[TermLibrary, np.ndarray]:
-    if e.name == "extra_friction":
-        v = e.values
-        k = v["cylinder"] - 1
-        t_ref = float(coef[k] @ basis_means(spec, terms, ref)[k])  # the cylinder's mean friction, as the plant
-        term = extra_friction_term(v["cylinder"], v["mean_frac"], v["amp_frac"], v["order"], np.radians(v["phase_deg"]))
-        return terms + term, np.column_stack([coef, np.full(spec.n_cyl, max(t_ref, 0.0))])
-    base = getattr(e, "base", "")
-    new = e.plant_terms(spec)
-    if not new or base not in terms.names or new[0].name in terms.names:
-        return terms, coef
-    lib = terms + new[0]
-    coef = np.column_stack([coef, np.zeros(spec.n_cyl)])
-    means = basis_means(spec, lib, ref)
-    i, j, frac = lib.index(base), lib.index(new[0].name), e.values["fraction"]
-    for k in range(spec.n_cyl):  # the simulator's rule (core.plant.operating_point.sized_transfers)
-        moved = frac * coef[k, i] * means[k, i]
-        if moved > 0.0 and means[k, j] > 0.0:
-            coef[k, j] += moved / means[k, j]
-            coef[k, i] *= 1.0 - frac
-    return lib, coef
+        setup = e.apply_view(setup)
+    for e in model.effects:
+        setup = e.size_view(setup, lambda spec, terms: basis_means(spec, terms, ref))
+    spec = setup.spec if setup.flexible else rigid_spec(setup.spec)
+    if np.any(setup.tdc):
+        spec = dataclasses.replace(spec, firing_angles=spec.firing_angles + setup.tdc)
+    return MonitorView(spec, setup.terms, setup.coefficients, setup.variable_inertia, setup.gain, setup.offset,
+                       model.calibration)
 
 
 def corrected_pressure(view: MonitorView, pressure: np.ndarray) -> np.ndarray:

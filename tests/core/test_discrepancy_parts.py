@@ -143,3 +143,47 @@ def test_view_runs_with_the_callers_config():
     with pytest.raises(ValueError, match="Reference"):
         monitor_view(law, None)
     assert monitor_view(EngineModel.from_spec(spec), None).spec is spec  # nothing to size: no reference needed
+
+
+def test_an_effect_brings_its_own_monitor_view():
+    """A new effect is one class: its ``apply_view`` and ``size_view`` reach the monitor's model without a line in
+    core.model.view (a made-up sensor effect and a made-up friction shape sized at the reference point)."""
+    from dataclasses import replace
+
+    from frictionwatch.core.model.effects.base import Effect, Param, cylinder_param
+    from frictionwatch.core.model.view import basis_means
+
+    class DoubleReading(Effect):
+        name = "double_reading"
+        parameters = {"cylinder": cylinder_param()}
+
+        def apply_view(self, setup):
+            k = self.values["cylinder"] - 1
+            gain = setup.gain.copy()
+            gain[k] *= 2.0
+            return replace(setup, gain=gain)
+
+    class MoreOfTheFirstTerm(Effect):
+        name = "more_of_the_first_term"
+        parameters = {"frac": Param(0.5, "-", 0.0, 1.0)}
+        sized_at_reference = True
+
+        def size_view(self, setup, means):
+            m = means(setup.spec, setup.terms)  # (z, L) at the reference point
+            coef = setup.coefficients.copy()
+            coef[:, 0] *= 1.0 + self.values["frac"]
+            assert m.shape == coef.shape
+            return replace(setup, coefficients=coef)
+
+    spec = load_engine("k9k-4cyl")
+    ref = reference(spec)
+    base = EngineModel.from_spec(spec)
+    model = EngineModel(spec, base.terms, base.coefficients, base.effects + (DoubleReading(cylinder=3),
+                                                                             MoreOfTheFirstTerm(frac=0.25)))
+    with pytest.raises(ValueError, match="Reference"):
+        monitor_view(model, None)
+    view = monitor_view(model, ref)
+    np.testing.assert_allclose(view.gain, [1.0, 1.0, 2.0, 1.0], rtol=0)
+    np.testing.assert_allclose(view.coefficients[:, 0], 1.25 * base.coefficients[:, 0], rtol=1e-12)
+    np.testing.assert_allclose(view.coefficients[:, 1:], base.coefficients[:, 1:], rtol=1e-12)
+    assert basis_means(view.spec, view.terms, ref).shape == view.coefficients.shape

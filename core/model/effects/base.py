@@ -11,6 +11,13 @@ effect's hook, in the order the effects are listed:
     apply_load(LoadSetup)           -> LoadSetup        load-torque ripple
     apply_sensors(SensorSetup)      -> SensorSetup      wheel offset, tooth errors, noise, pressure gain/offset
 
+The monitor's side of an effect is its own too (core.model.view builds the model the monitor runs from it):
+
+    apply_view(ViewSetup)           -> ViewSetup        shaft line, inertia, phases, pressure corrections, scaled
+                                                        coefficients
+    size_view(ViewSetup, means)     -> ViewSetup        a friction shape sized at the reference operating point
+                                                        (``sized_at_reference``: extra friction, friction laws)
+
 A hook returns a new value (``dataclasses.replace`` with fresh arrays) and never changes the one it got, so an effect
 cannot touch shared state and two instances (worn rings in cylinders 2 and 3) simply compose. An effect that is a
 missing torque term also names the identification columns it adds (``monitor_terms``) or the existing terms it
@@ -20,14 +27,14 @@ scales (``scales_terms``), for the monitor's augmented model.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
 from types import MappingProxyType
 from typing import ClassVar
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.model.terms import LossTerm
+from frictionwatch.core.model.terms import LossTerm, TermLibrary
 
 ONCE, PER_CYLINDER = "once", "per_cylinder"
 
@@ -123,6 +130,33 @@ class SensorSetup:
         return cls(np.ones(n_cyl), np.zeros(n_cyl))
 
 
+@dataclass(frozen=True)
+class ViewSetup:
+    """The model as the monitor runs it, while the effects build it (core.model.view.monitor_view): the spec, the
+    loss terms and their coefficients (z, L); the shaft line flexible or one rigid node and the inertia variable or
+    constant (as the plant's ChainSetup: off unless an effect says so); per cylinder the kinematic phase offset
+    ``tdc`` (z,) rad and the pressure reading's ``gain`` (z,) and ``offset`` (z,) Pa that the monitor undoes."""
+
+    spec: EngineSpec
+    terms: TermLibrary
+    coefficients: np.ndarray
+    tdc: np.ndarray
+    gain: np.ndarray
+    offset: np.ndarray
+    flexible: bool = False
+    variable_inertia: bool = False
+
+    @classmethod
+    def nominal(cls, spec: EngineSpec, terms: TermLibrary, coefficients: np.ndarray) -> ViewSetup:
+        z = spec.n_cyl
+        return cls(spec, terms, np.array(coefficients, dtype=np.float64), np.zeros(z), np.ones(z), np.zeros(z))
+
+
+# the (z, L) cycle means of each term's basis in every cylinder at the reference operating point, for a spec and a
+# term library (core.model.view.basis_means at the view's reference)
+BasisMeans = Callable[[EngineSpec, TermLibrary], np.ndarray]
+
+
 def with_row(a: np.ndarray, k: int, value) -> np.ndarray:
     """A copy of ``a`` with row (or element) k set to ``value``: hooks never write into the array they were given."""
     out = np.array(a, dtype=np.float64)
@@ -146,6 +180,7 @@ class Effect:
     parameters: ClassVar[Mapping[str, Param]] = MappingProxyType({})
     repeat: ClassVar[str] = ONCE  # PER_CYLINDER: one instance per cylinder allowed (worn rings in 2 and 3)
     scales_terms: ClassVar[tuple[str, ...]] = ()  # loss terms whose per-cylinder coefficients this effect scales
+    sized_at_reference: ClassVar[bool] = False  # size_view needs the reference operating point
 
     __slots__ = ("values", "sigma")
 
@@ -225,6 +260,21 @@ class Effect:
     def apply_sensors(self, setup: SensorSetup) -> SensorSetup:
         return setup
 
+    def apply_view(self, setup: ViewSetup) -> ViewSetup:
+        """The monitor's side: by default the coefficients of ``scales_terms`` in the effect's cylinder x its gain
+        (an effect without them leaves the view as it is)."""
+        if not self.scales_terms:
+            return setup
+        cols = [i for i, n in enumerate(setup.terms.names) if n in self.scales_terms]
+        coef = np.array(setup.coefficients, dtype=np.float64)
+        coef[self.values["cylinder"] - 1, cols] *= self.values["gain"]
+        return replace(setup, coefficients=coef)
+
+    def size_view(self, setup: ViewSetup, means: BasisMeans) -> ViewSetup:
+        """The monitor's side of a friction shape, sized at the reference operating point (``means``); run after
+        every effect's ``apply_view`` (a shape is sized on the coefficients the scalings left)."""
+        return setup
+
     def monitor_terms(self, spec: EngineSpec) -> tuple[LossTerm, ...]:
         """Loss terms (identification columns) this effect adds when the monitor's model is augmented with it."""
         return ()
@@ -265,5 +315,5 @@ def _number(effect: str, key: str, raw: object) -> float:
     return float(raw)
 
 
-__all__ = ["ONCE", "PER_CYLINDER", "ChainSetup", "CylinderSetup", "Effect", "LoadSetup", "Param", "SensorSetup",
-           "cylinder_param", "with_row"]
+__all__ = ["ONCE", "PER_CYLINDER", "BasisMeans", "ChainSetup", "CylinderSetup", "Effect", "LoadSetup", "Param",
+           "SensorSetup", "ViewSetup", "cylinder_param", "with_row"]

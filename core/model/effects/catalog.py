@@ -12,12 +12,14 @@ from types import MappingProxyType
 import numpy as np
 from frictionwatch.core.model.effects.base import (
     PER_CYLINDER,
+    BasisMeans,
     ChainSetup,
     CylinderSetup,
     Effect,
     LoadSetup,
     Param,
     SensorSetup,
+    ViewSetup,
     cylinder_param,
     with_row,
 )
@@ -60,6 +62,9 @@ class TorsionalFlexibility(Effect):
     def apply_chain(self, setup: ChainSetup) -> ChainSetup:
         return replace(setup, flexible=True)
 
+    def apply_view(self, setup: ViewSetup) -> ViewSetup:
+        return replace(setup, flexible=True)
+
 
 class VariableInertia(Effect):
     name = "variable_inertia"
@@ -68,6 +73,9 @@ class VariableInertia(Effect):
     default_on = True
 
     def apply_chain(self, setup: ChainSetup) -> ChainSetup:
+        return replace(setup, variable_inertia=True)
+
+    def apply_view(self, setup: ViewSetup) -> ViewSetup:
         return replace(setup, variable_inertia=True)
 
 
@@ -130,6 +138,14 @@ class TdcOffset(Effect):
             return setup
         return replace(setup, wheel_offset_rad=setup.wheel_offset_rad + np.radians(self.values["deg"]))
 
+    def apply_view(self, setup: ViewSetup) -> ViewSetup:
+        # the cylinder's kinematic phase (cylinder 0, a wheel mounted off: every cylinder's), as the plant has it;
+        # the pressure stays as read
+        k = self.values["cylinder"] - 1
+        tdc = np.array(setup.tdc, dtype=np.float64)
+        tdc[slice(None) if k < 0 else k] += np.radians(self.values["deg"])
+        return replace(setup, tdc=tdc)
+
 
 class PressureOffset(Effect):
     """Sensor error; the plant is unchanged. Monitor side: corrected on the pressure side (pegging), not by an
@@ -145,6 +161,10 @@ class PressureOffset(Effect):
         return replace(setup, pressure_offset_pa=with_row(setup.pressure_offset_pa, k,
                                                           setup.pressure_offset_pa[k] + self.values["pa"]))
 
+    def apply_view(self, setup: ViewSetup) -> ViewSetup:
+        k = self.values["cylinder"] - 1
+        return replace(setup, offset=with_row(setup.offset, k, setup.offset[k] + self.values["pa"]))
+
 
 class PressureGain(Effect):
     """Sensor error; the plant is unchanged. Monitor side: corrected on the pressure side (calibration), not by an
@@ -159,6 +179,10 @@ class PressureGain(Effect):
         k = self.values["cylinder"] - 1
         return replace(setup, pressure_gain=with_row(setup.pressure_gain, k,
                                                      setup.pressure_gain[k] * self.values["gain"]))
+
+    def apply_view(self, setup: ViewSetup) -> ViewSetup:
+        k = self.values["cylinder"] - 1
+        return replace(setup, gain=with_row(setup.gain, k, setup.gain[k] * self.values["gain"]))
 
 
 class LoadRipple(Effect):
@@ -246,6 +270,7 @@ class ExtraFriction(Effect):
     description = ("a friction term the 6-term model lacks: T = T_ref (mean_frac + amp_frac cos(order theta_k + "
                    "phase)) in one cylinder")
     repeat = PER_CYLINDER  # the plant holds one extra-friction shape per cylinder
+    sized_at_reference = True
     parameters = _table(
         cylinder=cylinder_param(),
         mean_frac=Param(0.1, "-", -1.0, 5.0, doc="constant part, fraction of the cylinder's mean friction"),
@@ -263,6 +288,13 @@ class ExtraFriction(Effect):
         v = self.values
         return (extra_friction_term(v["cylinder"], v["mean_frac"], v["amp_frac"], v["order"],
                                     float(np.radians(v["phase_deg"]))),)
+
+    def size_view(self, setup: ViewSetup, means: BasisMeans) -> ViewSetup:
+        # its shape as one more loss term, T_ref = the cylinder's mean friction at the reference point, as the plant
+        k = self.values["cylinder"] - 1
+        t_ref = float(setup.coefficients[k] @ means(setup.spec, setup.terms)[k])
+        coef = np.column_stack([setup.coefficients, np.full(setup.spec.n_cyl, max(t_ref, 0.0))])
+        return replace(setup, terms=setup.terms + self.monitor_terms(setup.spec)[0], coefficients=coef)
 
 
 class Misfire(Effect):

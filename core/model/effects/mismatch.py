@@ -25,7 +25,7 @@ from dataclasses import replace
 from types import MappingProxyType
 
 import numpy as np
-from frictionwatch.core.model.effects.base import ChainSetup, CylinderSetup, Effect, Param
+from frictionwatch.core.model.effects.base import BasisMeans, ChainSetup, CylinderSetup, Effect, Param, ViewSetup
 from frictionwatch.core.model.effects.loss_terms import auxiliaries_quadratic_kernel, auxiliaries_quadratic_reference
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.terms import (
@@ -133,6 +133,7 @@ class _FrictionLaw(Effect):
 
     base: str = ""
     term: LossTerm | None = None
+    sized_at_reference = True
 
     def plant_terms(self, spec: EngineSpec) -> tuple[LossTerm, ...]:
         return (self.term,) if self.term is not None else ()
@@ -141,6 +142,23 @@ class _FrictionLaw(Effect):
         if self.term is None or self.base not in setup.term_names:
             raise ValueError(f"effect '{self.name}': the model has no '{self.base}' term to reshape")
         return replace(setup, transfers=setup.transfers + ((self.base, self.term.name, self.values["fraction"]),))
+
+    def size_view(self, setup: ViewSetup, means: BasisMeans) -> ViewSetup:
+        """The law's term beside its base, ``fraction`` of the base's mean at the reference point moved into it by
+        the simulator's rule (core.plant.operating_point.sized_transfers): the view predicts as the plant runs."""
+        terms = setup.terms
+        if self.term is None or self.base not in terms.names or self.term.name in terms.names:
+            return setup
+        lib = terms + self.term
+        coef = np.column_stack([setup.coefficients, np.zeros(setup.spec.n_cyl)])
+        m = means(setup.spec, lib)
+        i, j, frac = lib.index(self.base), lib.index(self.term.name), self.values["fraction"]
+        for k in range(setup.spec.n_cyl):
+            moved = frac * coef[k, i] * m[k, i]
+            if moved > 0.0 and m[k, j] > 0.0:
+                coef[k, j] += moved / m[k, j]
+                coef[k, i] *= 1.0 - frac
+        return replace(setup, terms=lib, coefficients=coef)
 
 
 class ChainMismatch(Effect):
@@ -154,6 +172,11 @@ class ChainMismatch(Effect):
     def apply_chain(self, setup: ChainSetup) -> ChainSetup:
         return replace(setup, stiffness_scale=setup.stiffness_scale * self.values["stiffness_scale"],
                        damping_scale=setup.damping_scale * self.values["damping_scale"])
+
+    def apply_view(self, setup: ViewSetup) -> ViewSetup:
+        spec = setup.spec
+        return replace(setup, spec=replace(spec, stiffness=spec.stiffness * self.values["stiffness_scale"],
+                                           damping=spec.damping * self.values["damping_scale"]))
 
 
 class StribeckRing(_FrictionLaw):
