@@ -1,16 +1,10 @@
-"""import-daq's checks of what the user states against what the file's own pressure says (issue 25).
+"""import-daq's checks of what the user states against what the file's own pressure says (issue 25): the wiring of
+the DAQ reader (drivers.daq.raw) with the physics of core.monitor.calibration.pressure_regime.
 
-TDC: the file's TDC-centred cycles go to core.monitor.calibration.tdc (the ROHR fit; motored cycles through its
-motored variant), starting from the pressure peak and re-centred on each answer until it moves by less than
-``CONVERGED_DEG``. Cycles are told motored from fired by the asymmetry of the pressure about TDC (``FIRED_ASYMMETRY``);
-where a file has both, the motored estimate is used (it does not depend on where combustion ends, and on the TU/e
-engine it moves by 0.15 deg for a 1.7x change of the wall heat against about 0.4 deg for the fired one) and the fired
-one is reported beside it.
-
-Self-calibration (p at intake BDC = 1 bar) holds at wide-open throttle only. A throttled engine draws its charge
-well below the exhaust pressure, which stays near 1 bar whatever the throttle: the mean pressure over the middle of
-the exhaust stroke against that over the middle of the intake stroke, both pegged by the same polytropic zero, is a
-ratio the gain cancels from (``pumping_ratio``). Above ``THROTTLED_RATIO`` the BDC assumption is refused.
+TDC: the file's TDC-centred cycles go to the ROHR fit, starting from the pressure peak and re-centred on each answer
+until it moves by less than ``CONVERGED_DEG``; where a file has motored and fired cycles, the motored estimate is
+used and the fired one reported beside it. Self-calibration (p at intake BDC = 1 bar) holds at wide-open throttle
+only: above ``THROTTLED_RATIO`` of the pumping ratio the BDC assumption is refused.
 """
 
 from __future__ import annotations
@@ -20,17 +14,20 @@ from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.calibration.tdc import TdcEstimate, tdc_from_pressure
+from frictionwatch.core.monitor.calibration.pressure_regime import (
+    GRID_DEG,
+    MIN_CYCLES,
+    PUMPING_GRID_DEG,
+    fired_cycles,
+    tdc_estimates,
+)
+from frictionwatch.core.monitor.calibration.pressure_regime import pumping_ratio as cycles_pumping_ratio
+from frictionwatch.core.monitor.calibration.tdc import TdcEstimate
 from frictionwatch.drivers.daq.raw import DaqResult, DaqTrace, pressure_peak_deg, process_daq
 
-GRID_DEG = np.arange(-180.0, 180.0, 0.5)  # the local grid the cycles are put on for the fit [deg from TDC]
-# mean p(+60..+100 deg) / p(-100..-60 deg) above which a cycle burnt (motored: below 1, heat and mass lost); wide
-# of TDC so that a first guess 25 deg off (a fired peak) still tells the two apart
-FIRED_ASYMMETRY = 1.15
 FIRED_PEAK_AFTER_TDC_DEG = 15.0  # first guess of where a fired peak lies after TDC (refined by the fit)
 CONVERGED_DEG = 0.01
 MAX_PASSES = 6
-MIN_CYCLES = 3
 WARN_DEG = 0.3  # a stated TDC this far from the data's is a warning
 # a stated TDC this far from the data's (and REFUSE_SIGMAS of its sigma) is refused: beyond where the pressure peak
 # of any cycle can lie for that TDC (a motored peak lies 0.4-1.3 deg before TDC, a fired one after it)
@@ -72,20 +69,7 @@ def local_cycles(res: DaqResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     period = np.array([(ticks[min(k + 1, ticks.shape[0] - 1)] - ticks[max(k - 1, 0)])
                        / max(min(k + 1, ticks.shape[0] - 1) - max(k - 1, 0), 1) for k in keep]) / tick_hz
     omega = 4.0 * math.pi / period
-    after = (GRID_DEG >= 60.0) & (GRID_DEG <= 100.0)
-    before = (GRID_DEG >= -100.0) & (GRID_DEG <= -60.0)
-    fired = p[:, after].mean(axis=1) > FIRED_ASYMMETRY * p[:, before].mean(axis=1)
-    return p, omega, fired
-
-
-def _estimate(p: np.ndarray, omega: np.ndarray, sel: np.ndarray, spec: EngineSpec, motored: bool
-              ) -> TdcEstimate | None:
-    if np.count_nonzero(sel) < MIN_CYCLES:
-        return None
-    try:
-        return tdc_from_pressure(p[sel], np.radians(GRID_DEG), spec, float(np.mean(omega[sel])), motored)
-    except ValueError:
-        return None
+    return p, omega, fired_cycles(p, GRID_DEG)
 
 
 def find_tdc(trace: DaqTrace, spec: EngineSpec, wheel: str, start_deg: float | None = None, **calibration
@@ -110,8 +94,7 @@ def find_tdc(trace: DaqTrace, spec: EngineSpec, wheel: str, start_deg: float | N
             if np.count_nonzero(fired) > fired.shape[0] // 2:
                 guess -= FIRED_PEAK_AFTER_TDC_DEG
                 continue
-        motored = _estimate(p, omega, ~fired, spec, True)
-        burnt = _estimate(p, omega, fired, spec, False)
+        motored, burnt = tdc_estimates(p, omega, fired, spec, GRID_DEG)
         use = motored if motored is not None else burnt
         if use is None:
             return None, (f"the TDC fit failed on {np.count_nonzero(~fired)} motored and {np.count_nonzero(fired)} "
@@ -127,15 +110,8 @@ def find_tdc(trace: DaqTrace, spec: EngineSpec, wheel: str, start_deg: float | N
 
 
 def pumping_ratio(res: DaqResult) -> float:
-    """Median over complete cycles of mean p(exhaust stroke, 220..320 deg) / mean p(intake stroke, -320..-220 deg):
-    ~1 at wide-open throttle, the manifold depression's inverse when throttled; the gain cancels."""
-    grid = np.arange(-360.0, 360.0, 1.0)
-    exhaust = (grid >= 220.0) & (grid <= 320.0)
-    intake = (grid >= -320.0) & (grid <= -220.0)
-    ratios = []
-    for k in res.complete_cycles():
-        p = res.cycle_on_grid(k, grid)
-        low = p[intake].mean()
-        if low > 0:
-            ratios.append(p[exhaust].mean() / low)
-    return float(np.median(ratios)) if ratios else math.nan
+    """The file's pumping ratio (core.monitor.calibration.pressure_regime.pumping_ratio) over its complete cycles."""
+    keep = res.complete_cycles()
+    if not keep:
+        return math.nan
+    return cycles_pumping_ratio(np.array([res.cycle_on_grid(k, PUMPING_GRID_DEG) for k in keep]), PUMPING_GRID_DEG)
