@@ -2,6 +2,10 @@
 
 Sign convention (physics.md §0): gas and mass torques positive in the direction of rotation; friction and load are
 magnitudes that oppose rotation.
+
+``gas_torque_sample`` and ``reciprocating_torque_sample`` are the one per-sample definition: the plant
+(core.plant.plant), the monitor's harmonic balance (core.monitor.balance.harmonic_balance_kernels), the array
+functions below and the coast-down's mean gas torque all call them.
 """
 
 from __future__ import annotations
@@ -11,6 +15,19 @@ import numpy as np
 from frictionwatch.core.model.kinematics import cylinder_kinematics_kernel
 
 
+@numba.njit(cache=True, inline="always")
+def gas_torque_sample(p_gauge: float, area: float, dx: float) -> float:
+    """T_g = (p - p_cc) A_p x' [N m] at one sample: gauge pressure [Pa], piston area [m^2], x' = dx/dtheta [m/rad]."""
+    return p_gauge * area * dx
+
+
+@numba.njit(cache=True, inline="always")
+def reciprocating_torque_sample(m_rec: float, dx: float, ddx: float, omega: float, alpha: float) -> float:
+    """T_a = m_rec x'(x'' omega^2 + x' alpha) [N m] at one sample (Cruz-Peragon; the reciprocating part of
+    J(theta) alpha + 1/2 J' omega^2, physics.md §3)."""
+    return m_rec * dx * (ddx * omega * omega + dx * alpha)
+
+
 @numba.njit(cache=True)
 def _gas_torque(theta, pressure, phases, params, area, p_cc, out):
     dx = np.empty_like(out)
@@ -18,7 +35,7 @@ def _gas_torque(theta, pressure, phases, params, area, p_cc, out):
     cylinder_kinematics_kernel(theta, phases, params, dx, ddx)
     for k in range(phases.shape[0]):
         for i in range(theta.shape[0]):
-            out[k, i] = (pressure[k, i] - p_cc) * area * dx[k, i]
+            out[k, i] = gas_torque_sample(pressure[k, i] - p_cc, area, dx[k, i])
 
 
 def gas_torque(
@@ -46,7 +63,7 @@ def _mass_torque(theta, omega, alpha, phases, params, m_rec, out):
     cylinder_kinematics_kernel(theta, phases, params, dx, ddx)
     for k in range(phases.shape[0]):
         for i in range(theta.shape[0]):
-            out[k, i] = m_rec * dx[k, i] * (ddx[k, i] * omega[i] * omega[i] + dx[k, i] * alpha[i])
+            out[k, i] = reciprocating_torque_sample(m_rec, dx[k, i], ddx[k, i], omega[i], alpha[i])
 
 
 def reciprocating_torque(

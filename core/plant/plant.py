@@ -40,6 +40,7 @@ import numba
 import numpy as np
 from frictionwatch.core.model.terms import N_FIELDS, fill_sample, sample_rows
 from frictionwatch.core.model.thermo import cycle_pressure_kernel
+from frictionwatch.core.model.torques import gas_torque_sample
 from numba.core.errors import NumbaExperimentalFeatureWarning
 
 # the library's kernels reach the RK4 kernel as a tuple of first-class functions of one signature (numba calls that
@@ -227,7 +228,7 @@ def plant_rhs(t, th, om, model, w, acc, pw):
     m_rec = sc[S_MREC]
     for k in range(phase.shape[0]):
         j = cyl_node[k]
-        tg = pg[k] * sc[S_AREA] * dx[k]
+        tg = gas_torque_sample(pg[k], sc[S_AREA], dx[k])
         tf = _friction_torque(k, coef, extra, fb, loc)
         tq[j] += tg - tf
         if varj:

@@ -26,7 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from frictionwatch.core.model.kinematics import kinematics
+from frictionwatch.core.model.torques import gas_torque
 
 CYCLE = 4.0 * np.pi  # 4-stroke cycle angle [rad]
 
@@ -81,8 +81,9 @@ def mean_gas_torque(
         raise ValueError(f"theta must cover one 720 deg cycle without its endpoint; it covers {span:.3f} deg")
     if not np.all(np.isfinite(p)):
         raise ValueError("pressure has NaN or inf samples; skip that cycle first")
-    _, dx, _ = kinematics(th, params)
-    return ((p - p_cc) * area * dx).mean(axis=1)  # rectangle rule = exact for a periodic trapezoid
+    # each row as one cylinder at phase 0 (core.model.torques: the one gas-torque definition); the rectangle rule
+    # is exact for a periodic trapezoid
+    return gas_torque(th, p, np.zeros(p.shape[0]), params, area, p_cc).mean(axis=1)
 
 
 @dataclass(frozen=True)

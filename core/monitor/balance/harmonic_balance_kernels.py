@@ -25,6 +25,7 @@ import numba
 import numpy as np
 import rocket_fft  # noqa: F401  (registers numpy.fft for numba; must be imported before a cached kernel loads)
 from frictionwatch.core.model.terms import N_FIELDS, fill_sample, sample_rows
+from frictionwatch.core.model.torques import gas_torque_sample, reciprocating_torque_sample
 
 FOUR_PI = 4.0 * np.pi
 _FAST = {"reassoc", "nsz"}  # the loops over samples may be vectorised (reordered sums; no signed zeros)
@@ -266,10 +267,10 @@ def _cylinder_rows(cyl, motion, theta_f, grid, pressure, samples, gas, known):
                 st = s_q[i] * c_ph - c_q[i] * s_ph  # sin, cos of the local angle ang - phi_k
                 ct = c_q[i] * c_ph + s_q[i] * s_ph
                 dx, ddx = fill_sample(rows, i, ang[i] - ph, st, ct, w_node[i], pg, r, inv_rod, e)
-                t_gas = pg * cyl.area * dx
+                t_gas = gas_torque_sample(pg, cyl.area, dx)
                 gas[k, i] = t_gas
                 row[i] += t_gas
-                recip[i] += cyl.m_rec * dx * (ddx * w_node[i] * w_node[i] + dx * a_node[i])
+                recip[i] += reciprocating_torque_sample(cyl.m_rec, dx, ddx, w_node[i], a_node[i])
         if cyl.variable_inertia:
             c_inertia = cyl.j_rec * n_on
             for i in range(n):
