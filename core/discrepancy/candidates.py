@@ -1,11 +1,12 @@
 """Name: the library of candidate augmentations, each an effect of core.model.effects with a few free parameters.
 
-A candidate is one effect (and cylinder, for a per-cylinder one) with the parameters the fit moves, the values at
-which it does nothing (``x0``: the model as it is), a finite-difference step and bounds. ``effect_at(x)`` is the
-Effect instance the augmented model carries; toggles (a default effect the baseline left out: the flexible shaft
-line, J(theta)) have no parameters.
+Each effect declares whether and how it may be a candidate (``Effect.candidate``, a ``CandidateSpec``: the
+parameters the fit moves, the values at which it does nothing, a finite-difference step, bounds, the cylinders);
+this module only expands those declarations over the cylinders of a model. A candidate is one effect (and cylinder,
+for a per-cylinder one); ``effect_at(x)`` is the Effect instance the augmented model carries; toggles (a default
+effect the baseline left out: the flexible shaft line, J(theta)) have no parameters.
 
-Not in the library, and why (the monitor cannot be told, or there is nothing to tell it):
+Not in the library today, and why (the monitor cannot be told, or there is nothing to tell it):
 - load_ripple: the monitor has no known load-torque input to put it in (it would need a hook in core/monitor);
 - misfire, blow_by: they change the cylinder pressure, which the monitor measures: the model already sees them;
 - tooth_spacing_error: the monitor learns the wheel's tooth pattern itself;
@@ -18,11 +19,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
-from frictionwatch.core.model.effects import Effect, make_effect
+from frictionwatch.core.model.effects import EFFECTS, Effect, make_effect
+from frictionwatch.core.model.effects.mismatch import MISMATCHES
 from frictionwatch.core.model.engine_model import EngineModel
 
-FRICTION_LAWS = ("stribeck_ring", "side_thrust_skirt", "cam_valve_train", "auxiliaries_speed_squared", "bearings_load")
-TOGGLES = ("torsional_flexibility", "variable_inertia")
+FRICTION_LAWS = tuple(c.name for c in MISMATCHES if getattr(c, "base", ""))  # the laws a candidate may bring
 
 
 @dataclass(frozen=True)
@@ -65,27 +66,27 @@ class Candidate:
         return model.with_effect(self.effect_at(x))
 
 
-def _per_cylinder(name: str, z: int, param: str, x0: float, step: float, lo: float, hi: float,
-                  fixed: Mapping[str, float] | None = None, cylinders=None) -> list[Candidate]:
-    cyls = range(1, z + 1) if cylinders is None else cylinders
-    return [Candidate(name, k, (param,), (x0,), (step,), (lo,), (hi,), dict(fixed or {})) for k in cyls]
-
-
 def candidate_library(model: EngineModel) -> list[Candidate]:
-    """Every candidate that can still be added to ``model`` (a slot it already holds is left out)."""
+    """Every candidate that can still be added to ``model`` (a slot it already holds is left out), in the effect
+    registry's order, each as its effect declares it (``Effect.candidate``)."""
     z = model.spec.n_cyl
     have = {e.slot for e in model.effects}
     names = {e.name for e in model.effects}
-    out = [Candidate(t, None, (), (), (), (), ()) for t in TOGGLES if t not in names]
-    out += _per_cylinder("tdc_offset", z, "deg", 0.0, 0.5, -10.0, 10.0, cylinders=range(0, z + 1))
-    out += _per_cylinder("pressure_gain", z, "gain", 1.0, 0.02, 0.5, 1.5)
-    out += _per_cylinder("pressure_offset", z, "pa", 0.0, 2e4, -1e6, 1e6)
-    out += _per_cylinder("ring_wear", z, "gain", 1.0, 0.2, 1.0, 5.0, fixed={"mass_loss": 0.0})
-    out += _per_cylinder("extra_friction", z, "mean_frac", 0.0, 0.1, 0.0, 5.0, fixed={"amp_frac": 0.0})
-    out += [Candidate(n, None, ("fraction",), (0.0,), (0.25,), (0.0,), (1.0,)) for n in FRICTION_LAWS]
-    if "torsional_flexibility" in names and model.spec.stiffness.size:
-        out.append(Candidate("chain_mismatch", None, ("stiffness_scale", "damping_scale"), (1.0, 1.0), (0.1, 0.5),
-                             (0.5, 0.2), (2.0, 5.0)))
+    out = []
+    for name, cls in EFFECTS.items():
+        spec = cls.candidate
+        if spec is None:
+            continue
+        if not spec.params:  # a toggle: only where the model left its default effect out
+            if name not in names:
+                out.append(Candidate(name, None, (), (), (), (), ()))
+            continue
+        if spec.requires and (spec.requires not in names or (spec.requires == "torsional_flexibility"
+                                                             and not model.spec.stiffness.size)):
+            continue
+        cylinders = {"each": range(1, z + 1), "each_and_wheel": range(0, z + 1)}.get(spec.where, (None,))
+        out += [Candidate(name, k, spec.params, spec.x0, spec.step, spec.lo, spec.hi, dict(spec.fixed))
+                for k in cylinders]
     return [c for c in out if _slot(c) not in have]
 
 
@@ -93,4 +94,4 @@ def _slot(c: Candidate) -> tuple:
     return (c.effect, c.cylinder) if c.cylinder is not None else (c.effect,)
 
 
-__all__ = ["FRICTION_LAWS", "TOGGLES", "Candidate", "candidate_library"]
+__all__ = ["FRICTION_LAWS", "Candidate", "candidate_library"]

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import ClassVar
 
@@ -152,6 +152,24 @@ class ViewSetup:
         return cls(spec, terms, np.array(coefficients, dtype=np.float64), np.zeros(z), np.ones(z), np.zeros(z))
 
 
+@dataclass(frozen=True)
+class CandidateSpec:
+    """How the discrepancy workflow may add an effect to a model (core.discrepancy.candidates): the parameters
+    it fits, their no-effect values ``x0``, finite-difference steps and bounds, the other parameters ``fixed``; where:
+    ``each`` cylinder, ``each_and_wheel`` (cylinder 0 too: the whole wheel), or ``engine``-wide; ``requires``: an
+    effect the model must hold (and a shaft line with sections, for ``torsional_flexibility``). No parameters: a
+    toggle (a default effect the model left out)."""
+
+    params: tuple[str, ...] = ()
+    x0: tuple[float, ...] = ()
+    step: tuple[float, ...] = ()
+    lo: tuple[float, ...] = ()
+    hi: tuple[float, ...] = ()
+    fixed: Mapping[str, float] = field(default_factory=dict)
+    where: str = "engine"
+    requires: str = ""
+
+
 # the (z, L) cycle means of each term's basis in every cylinder at the reference operating point, for a spec and a
 # term library (core.model.view.basis_means at the view's reference)
 BasisMeans = Callable[[EngineSpec, TermLibrary], np.ndarray]
@@ -181,6 +199,7 @@ class Effect:
     repeat: ClassVar[str] = ONCE  # PER_CYLINDER: one instance per cylinder allowed (worn rings in 2 and 3)
     scales_terms: ClassVar[tuple[str, ...]] = ()  # loss terms whose per-cylinder coefficients this effect scales
     sized_at_reference: ClassVar[bool] = False  # size_view needs the reference operating point
+    candidate: ClassVar[CandidateSpec | None] = None  # how the discrepancy workflow may add it (None: it may not)
 
     __slots__ = ("values", "sigma")
 
@@ -315,5 +334,5 @@ def _number(effect: str, key: str, raw: object) -> float:
     return float(raw)
 
 
-__all__ = ["ONCE", "PER_CYLINDER", "BasisMeans", "ChainSetup", "CylinderSetup", "Effect", "LoadSetup", "Param",
+__all__ = ["ONCE", "PER_CYLINDER", "BasisMeans", "CandidateSpec", "ChainSetup", "CylinderSetup", "Effect", "LoadSetup", "Param",
            "SensorSetup", "ViewSetup", "cylinder_param", "with_row"]

@@ -13,6 +13,7 @@ import numpy as np
 from frictionwatch.core.model.effects.base import (
     PER_CYLINDER,
     BasisMeans,
+    CandidateSpec,
     ChainSetup,
     CylinderSetup,
     Effect,
@@ -58,6 +59,7 @@ class TorsionalFlexibility(Effect):
     name = "torsional_flexibility"
     description = ("multi-DOF shaft line (damper, throws, flywheel, coupling, load); off = one rigid lumped shaft")
     default_on = True
+    candidate = CandidateSpec()  # a toggle: the model left the flexible shaft line out
 
     def apply_chain(self, setup: ChainSetup) -> ChainSetup:
         return replace(setup, flexible=True)
@@ -71,6 +73,7 @@ class VariableInertia(Effect):
     description = ("each throw's J(theta) = J_rot + sum m_rec x'^2 and its 1/2 J' omega^2 term; off = constant mean "
                    "inertia, no mass torque")
     default_on = True
+    candidate = CandidateSpec()  # a toggle: the model left J(theta) out
 
     def apply_chain(self, setup: ChainSetup) -> ChainSetup:
         return replace(setup, variable_inertia=True)
@@ -121,6 +124,7 @@ class TdcOffset(Effect):
     description = ("the cylinder's true firing TDC lies deg later than the wheel says (cylinder=0: the whole wheel is "
                    "mounted off, all cylinders)")
     repeat = PER_CYLINDER
+    candidate = CandidateSpec(("deg",), (0.0,), (0.5,), (-10.0,), (10.0,), where="each_and_wheel")
     parameters = _table(
         deg=Param(0.5, "deg", -10.0, 10.0, doc="offset, + = TDC later than stated"),
         cylinder=cylinder_param("cylinder, 0 = all (wheel offset)", allow_all=True),
@@ -154,6 +158,7 @@ class PressureOffset(Effect):
     name = "pressure_offset"
     description = "pressure sensor of one cylinder reads p + offset (bad pegging, charge-amplifier drift)"
     repeat = PER_CYLINDER
+    candidate = CandidateSpec(("pa",), (0.0,), (2e4,), (-1e6,), (1e6,), where="each")
     parameters = _table(cylinder=cylinder_param(), pa=Param(2e4, "Pa", -1e6, 1e6, doc="additive offset"))
 
     def apply_sensors(self, setup: SensorSetup) -> SensorSetup:
@@ -173,6 +178,7 @@ class PressureGain(Effect):
     name = "pressure_gain"
     description = "pressure sensor of one cylinder reads gain * p (sensitivity / charge-amplifier gain error)"
     repeat = PER_CYLINDER
+    candidate = CandidateSpec(("gain",), (1.0,), (0.02,), (0.5,), (1.5,), where="each")
     parameters = _table(cylinder=cylinder_param(), gain=Param(1.02, "-", 0.5, 1.5, doc="multiplicative gain"))
 
     def apply_sensors(self, setup: SensorSetup) -> SensorSetup:
@@ -222,6 +228,9 @@ class RingWear(Effect):
     name = "ring_wear"
     description = "worn rings in one cylinder: F1-F3 coefficients x gain and a blow-by leak"
     repeat = PER_CYLINDER
+    # the monitor sees the leak in the measured pressure: only the friction scale is fitted
+    candidate = CandidateSpec(("gain",), (1.0,), (0.2,), (1.0,), (5.0,), MappingProxyType({"mass_loss": 0.0}),
+                              where="each")
     scales_terms = ("ring_viscous", "ring_mixed", "skirt_viscous")
     parameters = _table(
         cylinder=cylinder_param(),
@@ -271,6 +280,8 @@ class ExtraFriction(Effect):
                    "phase)) in one cylinder")
     repeat = PER_CYLINDER  # the plant holds one extra-friction shape per cylinder
     sized_at_reference = True
+    candidate = CandidateSpec(("mean_frac",), (0.0,), (0.1,), (0.0,), (5.0,), MappingProxyType({"amp_frac": 0.0}),
+                              where="each")
     parameters = _table(
         cylinder=cylinder_param(),
         mean_frac=Param(0.1, "-", -1.0, 5.0, doc="constant part, fraction of the cylinder's mean friction"),

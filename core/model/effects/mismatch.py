@@ -25,7 +25,15 @@ from dataclasses import replace
 from types import MappingProxyType
 
 import numpy as np
-from frictionwatch.core.model.effects.base import BasisMeans, ChainSetup, CylinderSetup, Effect, Param, ViewSetup
+from frictionwatch.core.model.effects.base import (
+    BasisMeans,
+    CandidateSpec,
+    ChainSetup,
+    CylinderSetup,
+    Effect,
+    Param,
+    ViewSetup,
+)
 from frictionwatch.core.model.effects.loss_terms import auxiliaries_quadratic_kernel, auxiliaries_quadratic_reference
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.terms import (
@@ -134,6 +142,7 @@ class _FrictionLaw(Effect):
     base: str = ""
     term: LossTerm | None = None
     sized_at_reference = True
+    candidate = CandidateSpec(("fraction",), (0.0,), (0.25,), (0.0,), (1.0,))
 
     def plant_terms(self, spec: EngineSpec) -> tuple[LossTerm, ...]:
         return (self.term,) if self.term is not None else ()
@@ -163,6 +172,8 @@ class _FrictionLaw(Effect):
 
 class ChainMismatch(Effect):
     name = "chain_mismatch"
+    candidate = CandidateSpec(("stiffness_scale", "damping_scale"), (1.0, 1.0), (0.1, 0.5), (0.5, 0.2), (2.0, 5.0),
+                              requires="torsional_flexibility")
     description = "the shaft line's section stiffnesses and dampings differ from the spec's by a factor"
     parameters = MappingProxyType({
         "stiffness_scale": Param(1.2, "-", 0.5, 2.0, doc="plant stiffness / spec stiffness, every section"),
