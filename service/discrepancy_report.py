@@ -69,7 +69,7 @@ def _fmt(v: object) -> str:
 
 def render(doc: dict, found: Discovery) -> str:
     parts = [f"<h1>Discrepancy: {html.escape(doc.get('engine', ''))}</h1>",
-             f"<p><b>{html.escape(doc['verdict'])}</b>. Baseline {html.escape(str(doc.get('baseline', '')))}, "
+             f"<p><b>{html.escape(doc['verdict'])}</b> Baseline {html.escape(str(doc.get('baseline', '')))}, "
              f"{doc.get('cycles', '?')} cycles. Gap on held-out cycles {doc['gap_before']:.3g} → "
              f"{doc['gap_after']:.3g}.</p>", f"<p class=small>Gap: {html.escape(doc['metric'])}.</p>"]
     rows = [[f["effect"], _fmt(f["cylinder"]) if f["cylinder"] is not None else "–",
@@ -80,6 +80,17 @@ def render(doc: dict, found: Discovery) -> str:
             for f in doc["found"]]
     if rows:
         parts.append(_table(rows, ["effect", "cylinder", "parameters", "sigma", "gap", "held-out Δχ²", "runner-up"]))
+    rest = doc.get("remainder")
+    if rest:
+        parts.append("<p>What remains unexplained on the held-out cycles: engine orders "
+                     f"{html.escape(', '.join(_fmt(o) for o in rest['engine_orders']) or 'none')}"
+                     f" (half-order share {rest['half_order_share']:.2f}), peak at {rest['peak_deg']:.0f}° crank angle,"
+                     f" largest in the windows of cylinder(s) {', '.join(str(c) for c in rest['cylinder_windows'])}"
+                     + (f", torque balance {rest['balance_nm']:+.3g} N·m" if rest["balance_nm"] is not None else "")
+                     + ".</p>")
+    for r in doc.get("refused", []):
+        parts.append(f"<p>Refused: {html.escape(r['candidate'])}: {html.escape(r['reason'])} (held-out gap "
+                     f"{r['gap_before']:.3g} → {r['gap_after']:.3g}); the model was left as it was.</p>")
     parts += ["<h2>Residual against crank angle</h2>", angle_plot(found), "<h2>Residual against engine order</h2>"]
     prev = found.localisation
     for s in found.steps:

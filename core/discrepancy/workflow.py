@@ -10,8 +10,15 @@ scored; of the rest the first half trains (the fits, on its first ``fit_cycles``
 model, refines the ``refine`` best by predicted cost, re-runs the best ``confirm`` of those over the whole log,
 takes one more Gauss-Newton step for the best of them on all training cycles (its sigma from there), and adds it if
 its held-out gain is significant: the held-out coherent chi^2 falls by at least ``min_delta_chi2`` (its noise under no effect is about
-sqrt(2 F) ~ 10 for F ~ 50 features) and the gap by at least ``min_reduction``. Otherwise: no significant missing
-effect, and the model is returned as it was.
+sqrt(2 F) ~ 10 for F ~ 50 features) and the gap by at least ``min_reduction``. A significant step is still refused,
+and the model left as it was, when it makes a channel worse on the held-out cycles (the flywheel speed or the mean
+torque balance, beyond that channel's noise: ``channel_worse``) or when a fitted parameter ends on the bound of its
+range (the fit ran into the wall: not a physical value); the refusal and its reason are reported.
+
+The outcome says which of three it is: ``named`` (effects added), ``nothing`` (nothing significant before or after)
+or ``unexplained`` (a coherent residual remains that no candidate explains: significant engine orders or a
+significant balance residual on the held-out cycles, with its signature); ``named`` and a remainder are both said.
+When ``max_steps`` is used up, that is said too.
 """
 
 from __future__ import annotations
@@ -75,6 +82,48 @@ class Discovery:
     curves: list[tuple[str, np.ndarray, np.ndarray]] = field(default_factory=list)  # (label, angles, mean residual)
     rejected: dict = field(default_factory=dict)  # considered and not significant: label -> held-out gap
     evaluations: int = 0
+    refused: list = field(default_factory=list)  # significant but refused: {"candidate", "reason"}
+    step_limit_reached: bool = False
+
+    @property
+    def remainder(self) -> dict | None:
+        """The signature of what the final model leaves coherent on the held-out cycles (None: nothing significant)."""
+        f = self.final
+        if not f or not (f["significant_orders"] or f["balance"]["significant"]):
+            return None
+        top = sorted(f["cylinders"], key=lambda c: -c["relative"])[:2]
+        return {"engine_orders": f["significant_orders"], "half_order_share": f["half_order_share"],
+                "balance_nm": f["balance"]["mean_nm"] if f["balance"]["significant"] else None,
+                "peak_deg": f["angle"]["peak_deg"], "cylinder_windows": [c["cylinder"] for c in top],
+                "channels": f["channels"]}
+
+    @property
+    def outcome(self) -> str:
+        if self.steps:
+            return "named"
+        return "unexplained" if self.remainder is not None else "nothing"
+
+    def verdict(self) -> str:
+        """One sentence for the top of the report."""
+        named = ", ".join(_said(s.effect) for s in self.steps)
+        rest = self.remainder
+        if self.steps:
+            text = f"Found {named}"
+            if rest is not None:
+                text += ("; a discrepancy remains that no candidate explains (engine orders "
+                         f"{_orders(rest['engine_orders'])})")
+        elif rest is not None:
+            text = ("A discrepancy remains that no candidate explains (engine orders "
+                    f"{_orders(rest['engine_orders'])}"
+                    + (f", torque balance {rest['balance_nm']:+.3g} N m" if rest["balance_nm"] is not None else "")
+                    + ")")
+        else:
+            text = "No significant missing effect: the model reproduces the held-out cycles within their noise"
+        if self.refused:
+            text += f"; {len(self.refused)} significant candidate(s) refused (see refused)"
+        if self.step_limit_reached:
+            text += f"; the step limit ({len(self.steps)}) was reached, more may be missing"
+        return text + "."
 
     def to_json(self) -> dict:
         found = []
@@ -89,8 +138,8 @@ class Discovery:
                                        "significant_orders_before": s.before["significant_orders"],
                                        "balance_before_nm": s.before["balance"]["mean_nm"]}})
         return {"found": found, "gap_before": self.gap_before, "gap_after": self.gap_after, "metric": METRIC,
-                "verdict": (f"{len(found)} significant missing effect(s)" if found
-                            else "no significant missing effect"),
+                "outcome": self.outcome, "verdict": self.verdict(), "remainder": self.remainder,
+                "refused": self.refused, "step_limit_reached": self.step_limit_reached,
                 "localisation": self.localisation, "final": self.final, "not_significant": self.rejected,
                 "monitor_runs": self.evaluations}
 
@@ -132,7 +181,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     found = Discovery(model, model, [], gap(test, scale), gap(test, scale), localise(test, model.spec, scale),
                       {}, [("baseline", test.angles, test.speed.mean(axis=0))])
     current = model
-    for _ in range(opt.max_steps):
+    for step in range(opt.max_steps):
         ev = Evaluator(sub, scale, first)
         base = ev.vector(current)
         lins = sorted((linearise(c, current, ev, base) for c in candidate_library(current)), key=lambda x: x.predicted)
@@ -160,17 +209,68 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             found.rejected.update({c[1].candidate.label: c[0] for c in confirmed})
             break
         test_new = parts(res)[1]
+        why = channel_worse(test, test_new, scale) or _off_physics(t)
+        if why:  # significant, but it makes something else worse or is not physical: the model stays as it was
+            found.refused.append({"candidate": t.candidate.label, "reason": why,
+                                  "gap_before": g_cur, "gap_after": gap(test_new, scale)})
+            break
         g_new, chi_after = gap(test_new, scale), _chi2(test_new, scale)
         runner = confirmed[1][1].candidate.label if len(confirmed) > 1 else None
         found.steps.append(Step(t, new_model.effects[-1], g_cur, g_new, chi_before, chi_after, runner,
                                 localise(test, model.spec, scale), localise(test_new, model.spec, scale)))
         found.curves.append((f"+ {t.candidate.label}", test_new.angles, test_new.speed.mean(axis=0)))
         current, test = new_model, test_new
+        found.step_limit_reached = step == opt.max_steps - 1
     found.model = current
     found.gap_after = gap(test, scale)
     found.final = localise(test, model.spec, scale)
     found.evaluations = runs
     return found
+
+
+# a channel is worse when its held-out coherent chi^2 grows by more than this many of its noise sigmas,
+# sqrt(2 F_channel) (the coherent chi^2 of F whitened features under no effect: mean 0, sigma ~ sqrt(2 F))
+WORSE_SIGMAS = 3.0
+
+
+def channel_worse(before: Residuals, after: Residuals, scale: np.ndarray) -> str:
+    """Which channel the step makes worse on the held-out cycles, in words ('' when none): the flywheel speed
+    (every engine order) or the mean torque balance, each judged on its own chi^2 against its noise."""
+    m = before.harmonics.shape[1]
+    tb, ta = before.n_cycles * coherent_terms(before, scale), after.n_cycles * coherent_terms(after, scale)
+    for name, sl in (("flywheel speed", slice(0, 2 * m)), ("torque balance", slice(2 * m, None))):
+        f = tb[sl].size
+        grow = float(ta[sl].sum() - tb[sl].sum())
+        if grow > WORSE_SIGMAS * np.sqrt(2.0 * f):
+            return f"it makes the {name} residual worse on the held-out cycles (coherent chi^2 +{grow:.3g})"
+    return ""
+
+
+def _off_physics(t: Trial) -> str:
+    """'' when every fitted parameter lies inside its range; else which one sits on its bound (the fit ran into the
+    wall of the range: the value is not a physical estimate)."""
+    cand = t.candidate
+    for name, x, x0, lo, hi in zip(cand.params, t.x, cand.x0, cand.lo, cand.hi):
+        if (lo, hi) == (0.0, 1.0):  # a share: both ends are physical values
+            continue
+        edge = 1e-3 * (hi - lo)
+        if (x <= lo + edge and lo != x0) or (x >= hi - edge and hi != x0):
+            return f"its {name} = {x:.4g} sits on the bound of its range [{lo:g}, {hi:g}]"
+    return ""
+
+
+def _said(e) -> str:
+    """An effect in an operator's words: 'tdc_offset (the whole wheel, deg=-0.81 +- 0.05)'."""
+    cyl = e.values.get("cylinder")
+    where = "" if cyl is None else ("the whole wheel" if cyl == 0 else f"cylinder {cyl}")
+    vals = ", ".join(f"{k}={v:.3g}" + (f" +- {e.sigma[k]:.2g}" if k in e.sigma else "")
+                     for k, v in e.values.items() if k != "cylinder" and (k in e.sigma or not e.sigma))
+    inner = ", ".join(s for s in (where, vals) if s)
+    return f"{e.name} ({inner})" if inner else e.name
+
+
+def _orders(orders) -> str:
+    return ", ".join(f"{o:g}" for o in orders) if orders else "none"
 
 
 def _significance(test: Residuals, scale: np.ndarray, opt: Options, held_out_of):

@@ -40,7 +40,8 @@ def test_nothing_hidden_nothing_found(healthy):
     model = EngineModel.from_spec(load_engine(ENGINE))
     found = discover(model, healthy, OPTIONS)
     doc = found.to_json()
-    assert doc["found"] == [] and doc["verdict"] == "no significant missing effect"
+    assert doc["found"] == [] and doc["outcome"] == "nothing" and doc["remainder"] is None
+    assert doc["verdict"].startswith("No significant missing effect") and not doc["step_limit_reached"]
     assert found.model == model
     assert doc["gap_after"] == doc["gap_before"]
 
@@ -55,6 +56,14 @@ def test_hidden_pressure_gain_is_named_and_fitted(gain_fault):
     assert doc["gap_after"] <= 0.2 * doc["gap_before"]
     added = found.model.effects[-len(doc["found"]):]
     assert added[0].name == "pressure_gain" and added[0].sigma["gain"] == pytest.approx(first["sigma"]["gain"])
+    assert doc["outcome"] == "named" and doc["verdict"].startswith("Found pressure_gain (cylinder 3, gain=")
+
+
+def test_the_step_limit_is_said(gain_fault):
+    """One step allowed and one taken: the report says the limit was reached and that more may be missing."""
+    doc = discover(EngineModel.from_spec(load_engine(ENGINE)), gain_fault, Options(max_steps=1)).to_json()
+    assert len(doc["found"]) == 1 and doc["step_limit_reached"]
+    assert "the step limit (1) was reached" in doc["verdict"]
 
 
 def test_rigid_baseline_finds_the_flexible_shaft_line(healthy):
@@ -67,3 +76,42 @@ def test_rigid_baseline_finds_the_flexible_shaft_line(healthy):
 def test_too_few_cycles_is_refused(healthy):
     with pytest.raises(ValueError, match="at least"):
         discover(EngineModel.from_spec(load_engine(ENGINE)), healthy[:20])
+
+
+def _residuals(harmonics, balance):
+    from frictionwatch.core.discrepancy.residuals import ANGLE_POINTS, Residuals
+
+    n = harmonics.shape[0]
+    return Residuals(np.arange(n), np.full(n, 250.0), np.full(n, 50.0), harmonics, balance,
+                     np.zeros((n, ANGLE_POINTS)), np.linspace(0, 4 * np.pi, ANGLE_POINTS, endpoint=False))
+
+
+def test_a_step_that_makes_a_channel_worse_is_named_so():
+    """channel_worse judges each channel on its own: a speed gap traded for a torque-balance offset is refused, and
+    noise-sized changes are not (made-up residuals with unit per-cycle noise, 40 cycles)."""
+    from frictionwatch.core.discrepancy.workflow import channel_worse
+
+    rng = np.random.default_rng(3)
+    n, m = 40, 6
+    noise = rng.standard_normal((n, m)) + 1j * rng.standard_normal((n, m))
+    before = _residuals(noise + 2.0, rng.standard_normal(n))
+    scale = np.ones(2 * m + 1)
+    traded = _residuals(noise, rng.standard_normal(n) + 1.5)  # speed explained, balance now off by 1.5 sigma
+    assert "torque balance" in channel_worse(before, traded, scale)
+    fine = _residuals(noise, rng.standard_normal(n))  # speed explained, balance noise only
+    assert channel_worse(before, fine, scale) == ""
+    worse_speed = _residuals(noise + 3.0, rng.standard_normal(n))
+    assert "flywheel speed" in channel_worse(before, worse_speed, scale)
+
+
+def test_a_parameter_on_its_bound_is_not_physical():
+    from frictionwatch.core.discrepancy.candidates import candidate_library
+    from frictionwatch.core.discrepancy.fit import Trial
+    from frictionwatch.core.discrepancy.workflow import _off_physics
+
+    lib = {c.label: c for c in candidate_library(EngineModel.from_spec(load_engine(ENGINE)))}
+    tdc = lib["tdc_offset[cyl 2]"]
+    assert "bound" in _off_physics(Trial(tdc, np.array([10.0]), np.array([0.1]), 1.0, 2.0, 1))
+    assert _off_physics(Trial(tdc, np.array([1.1]), np.array([0.1]), 1.0, 2.0, 1)) == ""
+    law = lib["stribeck_ring"]  # a share: 1.0 (all of the base term) is a physical value
+    assert _off_physics(Trial(law, np.array([1.0]), np.array([0.1]), 1.0, 2.0, 1)) == ""
