@@ -210,7 +210,12 @@ def resolve_model(engine_toml: str | None, engine: str | None, origin: str,
         return model
     if not engine_toml:
         raise ValueError(f"{origin} carries no engine spec; name one with --engine")
-    return EngineModel.from_spec(spec_from_toml_text(engine_toml, origin=origin))
+    spec = spec_from_toml_text(engine_toml, origin=origin)
+    problems = engine_mismatch(spec, None, info, origin)  # the log's engine record against its own acquisition
+    if problems:
+        raise ValueError(f"{origin} is inconsistent: {'; '.join(problems)} (its engine record against its "
+                         "acquisition); name the engine with --engine")
+    return EngineModel.from_spec(spec)
 
 
 def engine_mismatch(spec: EngineSpec, engine_toml: str | None, info: AcquisitionInfo | None,

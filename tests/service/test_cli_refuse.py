@@ -213,3 +213,19 @@ def test_analyze_refuses_an_engine_that_is_not_the_logged_one(tmp_path, capsys):
 def test_a_rigid_engine_may_list_no_couplings():
     text = (PRESET_DIR / "deutz-1cyl.toml").read_text().replace("[shaft]", "[shaft]\nstiffness_nm_per_rad = []", 1)
     assert spec_from_toml_text(text).n_nodes == 1
+
+
+def test_a_log_whose_engine_record_and_acquisition_disagree_is_refused(tmp_path, capsys):
+    """A log that says one wheel in its engine record (maruti-3cyl's 36-1) and another in its acquisition (the k9k
+    log's 60-2) is refused in one line naming both, instead of being analysed on either silently."""
+    from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
+
+    bad = tmp_path / "mixed.mcap"
+    with LogReader(REPLAY / "k9k-4cyl.mcap") as reader, \
+            LogWriter(bad, (PRESET_DIR / "maruti-3cyl.toml").read_text(), reader.info) as writer:
+        for i, record in enumerate(reader.records()):
+            writer.write(record)
+            if i > 200:
+                break
+    one_line_error(["analyze", str(bad)], capsys, "mixed.mcap is inconsistent", "the log's wheel is 60-2",
+                   "the engine's 36-1", "--engine")
