@@ -4,7 +4,8 @@
 
 Per engine and point: total FMEP error and its sigma (relative), per-cylinder mean friction errors (%), and for the
 single-cylinder deutz the mean NRMSE of the instantaneous friction torque. Same simulations as
-tests/core/test_monitor_accuracy.py (seed 1, default effects); figures, not pass/fail.
+tests/core/test_monitor_accuracy.py (seed 1, default effects), through the same one pipeline (service.pipeline.run:
+assembler, monitor, running calibration watches); figures, not pass/fail.
 """
 
 from __future__ import annotations
@@ -14,9 +15,8 @@ import json
 
 import numpy as np
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.monitor import initial_state, process_cycle
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.service.pipeline import run
 
 POINTS = {
     "k9k-4cyl": ([(1100.0, 0.28), (1400.0, 0.5), (1700.0, 0.69)], 200),
@@ -29,16 +29,12 @@ WARMUP = 50
 def point(name: str, rpm: float, load: float, cycles: int) -> dict:
     spec = load_engine(name)
     sim = simulate(spec, rpm, load, cycles, seed=1)
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, grid_points=720, speed_range_rpm=spec.speed_range_rpm)
-    state = initial_state(spec)
-    results = []
-    for c in [c for r in sim.records for c in asm.feed(r)] + asm.flush():
-        state, res = process_cycle(spec, state, c)
-        results.append(res)
+    outcomes = list(run(spec, sim.info, sim.records))
+    results = [o.result for o in outcomes if o.ok]
     est = results[-1].smoothed
     truth_fmep = sim.truth["fmep_bar"] * 1e5
     truth_cyl = np.array([c["friction_torque_mean_nm"] for c in sim.truth["cylinders"]])
-    out = {"rpm": rpm, "load": load, "cycles": len(results),
+    out = {"rpm": rpm, "load": load, "cycles": len(results), "lost": len(outcomes) - len(results),
            "total_err_pct": round(100 * (est.total_fmep / truth_fmep - 1), 2),
            "total_sigma_pct": round(100 * est.total_fmep_sigma / truth_fmep, 2),
            "cyl_err_pct": [round(float(v), 2) for v in 100 * (est.friction_torque_mean / truth_cyl - 1)],

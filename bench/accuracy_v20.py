@@ -1,11 +1,13 @@
-"""Full genset-v20 accuracy run: 3 loads x 2000 cycles through simulate -> CycleAssembler -> monitor.
+"""Full genset-v20 accuracy run: 3 loads x 2000 cycles through simulate -> the one pipeline (assembler, monitor, watches).
 
     .venv/bin/python -m bench.accuracy_v20 [--cycles 2000] [--loads 0.5 0.75 1.0] [--seed 1]
 
 Too slow for the test suite (about 80 s of simulation per load); tests/core/test_monitor_accuracy.py runs one load
 for 1000 cycles. Prints, per load, the total FMEP error and sigma and, per cylinder, the error, sigma, data weight and
 whether the data resolve it (design.md §5 target: within 10 % after at most 2000 cycles); writes
-bench/accuracy_v20.json.
+bench/accuracy_v20.json. The cycles are assembled by the pipeline's assembler (service.pipeline.assembled_cycles) and
+run through core.monitor.pipeline.CyclePipeline, the path analyze and serve run: ``pipeline_ms_per_cycle`` is the
+monitor with the running calibration watches (before the one pipeline: ``monitor_ms_per_cycle``, the monitor alone).
 """
 
 from __future__ import annotations
@@ -17,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.monitor import initial_state, process_cycle
+from frictionwatch.core.monitor.pipeline import CyclePipeline
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.service.pipeline import assembled_cycles
 
 OUT = Path(__file__).with_name("accuracy_v20.json")
 
@@ -29,21 +31,20 @@ def run_load(load: float, cycles: int, seed: int) -> dict:
     t0 = time.perf_counter()
     sim = simulate(spec, 1500.0, load, cycles, seed=seed)
     t_sim = time.perf_counter() - t0
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, grid_points=720,
-                         speed_range_rpm=spec.speed_range_rpm)
-    cycs = [c for r in sim.records for c in asm.feed(r)] + asm.flush()
-    state = initial_state(spec)
+    cycs, skipped = assembled_cycles(spec, sim.info, sim.records)
+    pipe = CyclePipeline(spec)
     t0 = time.perf_counter()
-    for c in cycs:
-        state, res = process_cycle(spec, state, c)
+    outcomes = [pipe.process(c) for c in cycs]
     t_mon = time.perf_counter() - t0
+    res = [o.result for o in outcomes if o.ok][-1]
+    skipped.update(o.skipped for o in outcomes if not o.ok)
     est = res.smoothed
     truth = np.array([c["friction_torque_mean_nm"] for c in sim.truth["cylinders"]])
     total_truth = sim.truth["fmep_bar"] * 1e5
     posterior_rel = est.friction_torque_mean / truth - 1.0
     return {
-        "load": load, "cycles": len(cycs), "skipped": dict(asm.skipped),
-        "simulate_s": round(t_sim, 1), "monitor_ms_per_cycle": round(1e3 * t_mon / max(len(cycs), 1), 2),
+        "load": load, "cycles": len(cycs), "skipped": dict(skipped),
+        "simulate_s": round(t_sim, 1), "pipeline_ms_per_cycle": round(1e3 * t_mon / max(len(cycs), 1), 2),
         "total_fmep_error_pct": round(100 * (est.total_fmep / total_truth - 1.0), 3),
         "total_fmep_sigma_pct": round(100 * est.total_fmep_sigma / total_truth, 3),
         "coupling_loss_nm": [round(res.coupling_loss, 3), round(sim.truth["damper_coupling_loss_nm"], 3)],
@@ -69,7 +70,7 @@ def main() -> None:
         worst = max((abs(c["error_pct"]) for c in res), default=float("nan"))
         print(f"load {load:.2f}: total FMEP {r['total_fmep_error_pct']:+.2f} % (sigma {r['total_fmep_sigma_pct']:.2f} %),"
               f" {len(res)}/20 cylinders resolved, worst resolved error {worst:.1f} %, "
-              f"monitor {r['monitor_ms_per_cycle']} ms/cycle, simulate {r['simulate_s']} s", flush=True)
+              f"pipeline {r['pipeline_ms_per_cycle']} ms/cycle, simulate {r['simulate_s']} s", flush=True)
         for c in r["cylinders"]:
             err = "unresolved" if c["error_pct"] is None else f"{c['error_pct']:+6.2f} %"
             print(f"   cyl {c['cylinder']:2d}: {err:>11s}  sigma {c['sigma_pct']:5.2f} %  data weight {c['data_weight']:.2f}")

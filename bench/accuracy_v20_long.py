@@ -7,7 +7,9 @@
 log OUT/seedS.mcap and the per-cycle truth OUT/seedS.truth.npz (each cycle's per-cylinder friction and load; the log
 is what the monitor reads, the truth never is), and feeds the same cycles live to the monitor variants; every
 ``--every`` cycles it rewrites bench/accuracy_v20_long.json whole (a run cut short still leaves its last checkpoint).
-``analyze`` re-reads a log with the monitor variants (the monitor is ~1 ms a cycle; the simulation ~40 ms).
+``analyze`` re-reads a log with the monitor variants (the monitor is ~1 ms a cycle; the simulation ~40 ms). Each
+variant is the one pipeline (service.pipeline.EnginePipeline: its own assembler, the monitor with the variant's
+config, the running calibration watches), fed the same records; ``pipeline_ms_per_cycle`` is all of that per cycle.
 
 The check (issue 19): after 45,000 cycles (one hour at 1500 rpm) >= 16 of 20 cylinders measured (figure_status),
 each within 5 % of the truth, the truth within 2 sigma. The truth compared is the mean of each cylinder's true
@@ -18,18 +20,18 @@ coverage is also counted over every checkpoint.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import time
 from pathlib import Path
 
 import numpy as np
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
 from frictionwatch.core.monitor.report.figure_status import friction_status
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.plant.simulate import start_simulation
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
 from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
+from frictionwatch.service.pipeline import EnginePipeline
 
 OUT_JSON = Path(__file__).with_name("accuracy_v20_long.json")
 ENGINE, RPM, BASE_LOAD = "genset-v20", 1500.0, 0.75
@@ -70,25 +72,39 @@ def variant_configs(names: list[str]) -> dict[str, MonitorConfig]:
 
 
 class Runs:
-    """The monitor variants fed with the same cycles; checkpoints against the per-cycle truth."""
+    """The monitor variants, each the one pipeline, fed with the same records; checkpoints against the per-cycle
+    truth."""
 
-    def __init__(self, spec, configs: dict[str, MonitorConfig]):
+    def __init__(self, spec, info, configs: dict[str, MonitorConfig]):
         self.spec, self.configs = spec, configs
-        self.states = {n: initial_state(spec, c) for n, c in configs.items()}
+        self.pipes = {n: EnginePipeline(spec, info, c) for n, c in configs.items()}
         self.last = {n: None for n in configs}
         self.rejected = {n: 0 for n in configs}
         self.ms = {n: 0.0 for n in configs}
-        self.n = 0
+        self.n = 0  # cycles assembled (the first variant's; every variant assembles the same records alike)
+        self.last_index = -1
 
-    def feed(self, cycle) -> None:
-        self.n += 1
-        for name, cfg in self.configs.items():
+    def feed(self, record) -> int:
+        """One record (None: the end of the stream) to every variant; the number of cycles it completed."""
+        new = 0
+        for i, name in enumerate(self.configs):
             t0 = time.perf_counter()
-            try:
-                self.states[name], self.last[name] = process_cycle(self.spec, self.states[name], cycle, cfg)
-            except CycleRejected:
-                self.rejected[name] += 1
+            outcomes = self.pipes[name].outcomes(record)
             self.ms[name] += 1e3 * (time.perf_counter() - t0)
+            for o in outcomes:
+                if o.ok:
+                    self.last[name] = o.result
+                elif o.stage == "monitor":
+                    self.rejected[name] += 1
+                if i == 0 and o.index is not None:
+                    new += 1
+                    self.last_index = o.index
+        self.n += new
+        return new
+
+    @property
+    def skipped(self) -> dict:
+        return dict(next(iter(self.pipes.values())).skipped)
 
     def checkpoint(self, truth_fric: np.ndarray, cycle_index: int) -> dict:
         """Each variant's smoothed estimate against the truth (mean of the last TRUTH_WINDOW cycles' friction)."""
@@ -99,7 +115,7 @@ class Runs:
             res = self.last[name]
             if res is None:
                 continue
-            est = res.smoothed
+            est, state = res.smoothed, self.pipes[name].state
             status = friction_status(est, ())
             measured = np.array([s.status == "measured" for s in status.cylinders])
             err = est.friction_torque_mean / truth - 1.0
@@ -116,9 +132,9 @@ class Runs:
                 "data_gain": [round(float(g), 3) for g in est.data_gain],
                 # the posterior's scales (truth 1: this run has no effect on the coefficients), also where the
                 # cylinder's figure is not reported
-                "scale_err": [round(float(v) - 1.0, 4) for v in self.states[name].params[:self.states[name].layout.n_params]],
+                "scale_err": [round(float(v) - 1.0, 4) for v in state.params[:state.layout.n_params]],
                 "weight": round(float(est.weight), 1), "rejected": self.rejected[name],
-                "monitor_ms_per_cycle": round(self.ms[name] / max(self.n, 1), 3)}
+                "pipeline_ms_per_cycle": round(self.ms[name] / max(self.n, 1), 3)}
         return out
 
 
@@ -145,9 +161,7 @@ def cmd_simulate(args) -> None:
     out.mkdir(parents=True, exist_ok=True)
     log_path = out / f"seed{args.seed}.mcap"
     sim = start_simulation(spec, RPM, BASE_LOAD, args.cycles, args.seed, load_steps=steps)
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, grid_points=720,
-                         speed_range_rpm=spec.speed_range_rpm)
-    runs = Runs(spec, variant_configs(args.variants))
+    runs = Runs(spec, sim.info, variant_configs(args.variants))
     truth_fric = np.full((args.cycles, spec.n_cyl), np.nan)
     truth_load = np.full(args.cycles, np.nan)
     doc = {"engine": ENGINE, "rpm": RPM, "seed": args.seed, "cycles_requested": args.cycles, "load_steps": steps,
@@ -161,24 +175,20 @@ def cmd_simulate(args) -> None:
                 truth_load[e["index"]] = e["load_torque_nm"]
             for record in chunk.records:
                 writer.write(record)
-                for cyc in asm.feed(record):
-                    runs.feed(cyc)
-                    last_index = cyc.index
+                runs.feed(record)
             if runs.n >= next_cp:
                 next_cp += args.every
-                cp = runs.checkpoint(truth_fric, last_index)
+                cp = runs.checkpoint(truth_fric, runs.last_index)
                 cp["wall_s"] = round(time.perf_counter() - t0, 1)
                 doc["checkpoints"].append(cp)
                 write_json(OUT_JSON, doc)
                 np.savez(out / f"seed{args.seed}.truth.npz", friction=truth_fric, load=truth_load)
                 print(summary_line(cp, runs.configs), flush=True)
-    for cyc in asm.flush():
-        runs.feed(cyc)
-        last_index = cyc.index
-    cp = runs.checkpoint(truth_fric, last_index)
+    runs.feed(None)
+    cp = runs.checkpoint(truth_fric, runs.last_index)
     cp["wall_s"] = round(time.perf_counter() - t0, 1)
     doc["checkpoints"].append(cp)
-    doc["skipped"] = dict(asm.skipped)
+    doc["skipped"] = runs.skipped
     doc["final"] = cp
     write_json(OUT_JSON, doc)
     np.savez(out / f"seed{args.seed}.truth.npz", friction=truth_fric, load=truth_load)
@@ -190,23 +200,18 @@ def cmd_analyze(args) -> None:
     truth = np.load(log_path.with_name(log_path.name.removesuffix(".mcap") + ".truth.npz"))
     spec = load_engine(ENGINE)
     log = LogReader(log_path)
-    asm = CycleAssembler(log.info, spec.n_cyl, spec.firing_angles, grid_points=720,
-                         speed_range_rpm=spec.speed_range_rpm)
-    runs = Runs(spec, variant_configs(args.variants))
+    runs = Runs(spec, log.info, variant_configs(args.variants))
     doc = {"engine": ENGINE, "log": str(log_path), "truth_window": TRUTH_WINDOW, "checkpoints": []}
     next_cp = args.every
-    for record in log.records():
-        for cyc in asm.feed(record):
-            if args.cycles and runs.n >= args.cycles:
-                break
-            runs.feed(cyc)
-            if runs.n >= next_cp:
-                next_cp += args.every
-                cp = runs.checkpoint(truth["friction"], cyc.index)
-                doc["checkpoints"].append(cp)
-                print(summary_line(cp, runs.configs), flush=True)
+    for record in itertools.chain(log.records(), [None]):  # the stream's end (None) flushes the assemblers
         if args.cycles and runs.n >= args.cycles:
             break
+        runs.feed(record)
+        if runs.n >= next_cp:
+            next_cp += args.every
+            cp = runs.checkpoint(truth["friction"], runs.last_index)
+            doc["checkpoints"].append(cp)
+            print(summary_line(cp, runs.configs), flush=True)
     doc["final"] = doc["checkpoints"][-1] if doc["checkpoints"] else None
     path = Path(args.json) if args.json else OUT_JSON.with_name("accuracy_v20_long_analyze.json")
     write_json(path, doc)

@@ -16,8 +16,9 @@ alarm (the load bands the baseline learnt are listed: service.alert_baseline). m
 with ``--given-baseline``, against a baseline learnt on the same engine without them (a sensor changed after
 commissioning). A ring alert there is wrong; a sensor_fault or nothing is right.
 
-Every run streams the simulator chunk by chunk (core.plant.sim_stream) through the assembler, the monitor with its
-default configuration and the AlertEngine with its default AlertConfig; prints one JSON line.
+Every run streams the simulator chunk by chunk (core.plant.sim_stream) through the one pipeline
+(service.pipeline.EnginePipeline: the assembler, the monitor with its default configuration, the running calibration
+watches) and the AlertEngine with its default AlertConfig; prints one JSON line.
 """
 
 from __future__ import annotations
@@ -29,11 +30,10 @@ import time
 
 from frictionwatch.core.model.effects import parse_effect
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
 from frictionwatch.core.plant.simulate import start_simulation
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
 from frictionwatch.service.alert_baseline import Baseline
 from frictionwatch.service.alerts import RING_KINDS, AlertEngine
+from frictionwatch.service.pipeline import EnginePipeline
 
 POINTS = {"k9k-4cyl": (1700.0, 0.69), "maruti-3cyl": (3000.0, 0.8), "deutz-1cyl": (2400.0, 0.8),
           "genset-v20": (1500.0, 0.75)}
@@ -52,18 +52,15 @@ def run(engine: str, cycles: int, effects: list[str], seed: int, cov: float, ste
         steps = [(i * step_every * t_cycle, load * (0.6 if i % 2 else 1.0)) for i in range(1, cycles // step_every)]
     sim = start_simulation(spec, rpm, load, cycles, seed, effects=[parse_effect(e) for e in effects],
                            cov_imep=cov, load_steps=steps or None)
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
-    state, alerts, events = initial_state(spec), AlertEngine(spec, baseline=baseline), []
-    counts = {"cycles": 0, "rejected": 0, "load_steps": len(steps)}
+    pipe, alerts, events = EnginePipeline(spec, sim.info), AlertEngine(spec, baseline=baseline), []
+    counts = {"cycles": 0, "rejected": 0, "lost_in_assembly": 0, "load_steps": len(steps)}
     t0, done_reports = time.perf_counter(), 0
     for chunk in sim.chunks():
-        cyc = [c for r in chunk.records for c in asm.feed(r)]
-        for c in cyc:
-            try:
-                state, res = process_cycle(spec, state, c)
-            except CycleRejected:
-                counts["rejected"] += 1
+        for outcome in (o for r in chunk.records for o in pipe.outcomes(r)):
+            if not outcome.ok:
+                counts["rejected" if outcome.stage == "monitor" else "lost_in_assembly"] += 1
                 continue
+            res = outcome.result
             counts["cycles"] += 1
             events += [(res.index, e.kind, e.alert) for e in alerts.update(res)]
         if stop_when is not None and stop_when(events):

@@ -5,11 +5,16 @@
 For deutz-1cyl (3000 rpm), k9k-4cyl (4000 rpm) and genset-v20 (1500 rpm), all at full load, the plant simulator
 makes ``CYCLES`` cycles once (not timed); then, on one core (BLAS/numba threads pinned to 1):
 
-- assemble: ``CycleAssembler.feed`` calls per cycle (records -> Cycle) and the emitting call alone (latency);
-- monitor: ``process_cycle``, split into its stages by timing the functions it calls (wrapped for one extra pass,
+- the timed pass is the product path, the one pipeline: ``service.pipeline.EnginePipeline.outcomes`` per record (what
+  analyze and serve run). end_to_end: its whole time per cycle, i.e. assembly + the model's view + the monitor + the
+  running calibration watches (core.monitor.pipeline.STAGES; before the one pipeline, end_to_end was assembly +
+  process_cycle, without the watches); monitor: ``CyclePipeline.process`` per cycle (view, process_cycle, watches);
+  assemble: the rest of the ``outcomes`` calls per cycle (records -> Cycle), and the emitting call's assembly alone
+  (latency = that + monitor);
+- monitor stages, an extra measurement: ``CyclePipeline.process`` split into its stages by timing the functions it
+  calls (process_cycle's, the running stages' ``update`` and the pipeline module's own; wrapped for one extra pass,
   nothing in core/ edited; ``identify_cycle`` is noise model, accumulation, sharing, posteriors and estimates);
-  ``other`` is process_cycle's own bookkeeping;
-- end_to_end: assemble + monitor, the path of service/pipeline.py; latency = emitting feed call + monitor.
+  ``other`` is the inline bookkeeping of process_cycle and CyclePipeline.process.
 Real-time factor = engine cycle duration / mean end-to-end time per cycle (genset-v20 at 1500 rpm: 80 ms per cycle;
 target >= 100x, i.e. <= 0.8 ms); the timed pass runs ``PASSES`` times from a fresh start (each mean includes its
 first cycle's set-up) and the pass with the median mean is the one reported. Numba compile time is measured apart in a fresh process with an empty cache.
@@ -41,43 +46,48 @@ from collections import deque  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import frictionwatch.core.monitor.monitor as monitor_module  # noqa: E402
+import frictionwatch.core.monitor.pipeline as pipeline_module  # noqa: E402
 import numpy as np  # noqa: E402
 from frictionwatch.core.model.engine import load_engine  # noqa: E402
-from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle  # noqa: E402
+from frictionwatch.core.monitor.pipeline import STAGES, CyclePipeline  # noqa: E402
 from frictionwatch.core.plant.simulate import simulate  # noqa: E402
-from frictionwatch.service.pipeline import ResultHistory  # noqa: E402
+from frictionwatch.service.pipeline import EnginePipeline, ResultHistory, assembled_cycles  # noqa: E402
+from frictionwatch.service.pipeline import run as run_records  # noqa: E402
 
-from bench.common import assembler_for, summary_ms, timed_assembly  # noqa: E402
+from bench.common import summary_ms  # noqa: E402
 
 POINTS = (("deutz-1cyl", 3000.0, 1.0), ("k9k-4cyl", 4000.0, 1.0), ("genset-v20", 1500.0, 1.0))
 CYCLES = 120
-PASSES = 3  # timed pipeline passes over the same records (fresh assembler and monitor state each); median reported
+PASSES = 3  # timed pipeline passes over the same records (a fresh EnginePipeline each); median reported
 SCIPY_CYCLES = {"deutz-1cyl": 3, "k9k-4cyl": 4, "genset-v20": 2}
 TARGET_RTF = 100.0
 TARGET_SPEEDUP = 30.0
 SEED = 1
 
-# process_cycle's stages are the functions and methods it calls from core/ (found in core.monitor.monitor's namespace, so the
-# split follows the monitor as it changes). Each is wrapped for one extra pass: a call made directly from
-# process_cycle is a stage; a wrapped call inside a stage is listed under it ("of which"). 'other' is the inline code
-# of process_cycle itself (mean balance, drift variance, state bookkeeping).
-ENTRY_POINTS = {"process_cycle", "initial_state", "default_max_order"}
+# The pipeline's stages are the functions and methods process_cycle calls from core/ (found in core.monitor.monitor's
+# namespace, so the split follows the monitor as it changes), the running stages' ``update`` (core.monitor.pipeline
+# STAGES) and the functions of core.monitor.pipeline's namespace (the view, the watches). Each is wrapped for one extra
+# pass: a call made directly from process_cycle or CyclePipeline.process is a stage; a wrapped call inside a stage is
+# listed under it ("of which"). 'other' is the inline code of process_cycle (mean balance, drift variance, state
+# bookkeeping) and of CyclePipeline.process (its flags).
+ENTRY_POINTS = {"process_cycle", "initial_state", "default_max_order", "as_model", "monitor_config"}
 
 
 def _monitor_pass(spec, cycles):
-    state, out = initial_state(spec), []
+    """The cycles through the one pipeline (CyclePipeline: view, monitor, running watches): (state, result) of each
+    analysed one."""
+    pipe, out = CyclePipeline(spec), []
     for c in cycles:
-        try:
-            state, res = process_cycle(spec, state, c)
-        except CycleRejected:
-            continue
-        out.append((state, res))
+        o = pipe.process(c)
+        if o.ok:
+            out.append((pipe.state, o.result))
     return out
 
 
 def _stage_targets() -> list[tuple[object, str, str]]:
     """(owner, attribute, label) of every core/ function in core.monitor.monitor's namespace and every plain method of the
-    core/ classes it imports."""
+    core/ classes it imports; each running stage's ``update``; every core/ function in core.monitor.pipeline's
+    namespace but the monitor's entry points (labelled ``pipeline.<name>``)."""
     out = []
     for name, obj in vars(monitor_module).items():
         mod = getattr(obj, "__module__", "") or ""
@@ -89,11 +99,18 @@ def _stage_targets() -> list[tuple[object, str, str]]:
             for attr, raw in vars(obj).items():
                 if isinstance(raw, types.FunctionType) and not attr.startswith("__"):
                     out.append((obj, attr, f"{obj.__name__}.{attr}"))
+    for stage in STAGES:
+        out.append((type(stage), "update", f"{type(stage).__name__}.update (running stage)"))
+    for name, obj in vars(pipeline_module).items():
+        mod = getattr(obj, "__module__", "") or ""
+        if isinstance(obj, types.FunctionType) and mod.startswith("frictionwatch.core.") and name not in ENTRY_POINTS \
+                and name != "run_cycles":
+            out.append((pipeline_module, name, f"pipeline.{name}"))
     return out
 
 
 def stage_times(spec, cycles) -> dict:
-    """Mean ms per cycle of each stage of process_cycle (one extra pass with the stage functions wrapped)."""
+    """Mean ms per cycle of each stage of CyclePipeline.process (one extra pass with the stage functions wrapped)."""
     direct: dict[str, float] = {}
     nested: dict[str, dict[str, float]] = {}
     stack: list[str] = []
@@ -131,13 +148,14 @@ def stage_times(spec, cycles) -> dict:
         for sub, sec2 in sorted(nested.get(label, {}).items(), key=lambda kv: -kv[1]):
             if sec2 >= 0.1 * sec:  # the parts that matter
                 ms[f"  {sub}"] = round(1e3 * sec2 / n, 4)
-    ms["other (inline in process_cycle)"] = round(1e3 * (total - sum(direct.values())) / n, 4)
+    ms["other (inline in process_cycle, CyclePipeline.process)"] = round(1e3 * (total - sum(direct.values())) / n, 4)
     ms["total (instrumented)"] = round(1e3 * total / n, 4)
     return ms
 
 
 def profile_top(spec, cycles, n_top: int = 10) -> list[dict]:
-    """cProfile of the monitor over the cycles: the top functions by own time, per cycle."""
+    """cProfile of the pipeline (CyclePipeline: view, monitor, watches) over the cycles: the top functions by own
+    time, per cycle."""
     prof = cProfile.Profile()
     prof.enable()
     n = len(_monitor_pass(spec, cycles))
@@ -155,18 +173,14 @@ _COLD = """
 import json, pickle, sys, time
 t0 = time.perf_counter()
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.monitor import initial_state, process_cycle
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.service.pipeline import run
 t_import = time.perf_counter() - t0
 runs = pickle.load(open(sys.argv[1], 'rb'))
 def one(name, info, records):
     spec = load_engine(name)
-    asm = CycleAssembler(info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
-    state = initial_state(spec)
     t = time.perf_counter()
-    for r in records:
-        for c in asm.feed(r):
-            state, _ = process_cycle(spec, state, c)
+    for _ in run(spec, info, records):
+        pass
     return time.perf_counter() - t
 out = {'import_s': t_import}
 for name, info, records in runs:
@@ -177,8 +191,9 @@ print(json.dumps(out))
 
 
 def cold_compile(short_runs: list) -> dict:
-    """First pass minus warm pass of assembly + monitor on a few cycles, in a fresh process with an empty
-    numba cache: the JIT compile cost of the monitor's kernels (the plant's kernels are not involved)."""
+    """First pass minus warm pass of the one pipeline (service.pipeline.run: assembly, monitor, watches) on a few
+    cycles, in a fresh process with an empty numba cache: the JIT compile cost of the monitor's kernels (the plant's
+    kernels are not involved)."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "runs.pkl"
         path.write_bytes(pickle.dumps(short_runs))
@@ -194,57 +209,72 @@ def cold_compile(short_runs: list) -> dict:
 
 
 def pipeline_pass(spec, sim, keep_last: int = 1) -> dict:
-    """The timed pass: assembly and monitor per cycle, exactly the path of service/pipeline.py. It holds what the
-    pipeline holds: results as its ResultHistory keeps them, no Cycle after the monitor has used it (keeping every
-    Cycle put each new pressure matrix on never-touched pages: ~1.2 us per 4 kB page on a VM, ~0.04 ms per genset
-    cycle billed to the assembler), plus the last ``keep_last`` cycles with their states and results for the scipy
-    baseline."""
-    asm = assembler_for(spec, sim.info)
-    rows, rejected = [], 0
+    """The timed pass: the product path, ``EnginePipeline.outcomes`` per record (assembly, the model's view, the
+    monitor, the running calibration watches; the stream's end flushed), as analyze and serve run it. Each
+    ``CyclePipeline.process`` call is timed inside it (the monitor's share); the rest of each ``outcomes`` call is
+    assembly, shared among the cycles it completes since the previous emission (the emitting call's own share is the
+    latency's). It holds what the pipeline holds: results as its ResultHistory keeps them, no Cycle after the
+    monitor has used it (keeping every Cycle put each new pressure matrix on never-touched pages: ~1.2 us per 4 kB
+    page on a VM, ~0.04 ms per genset cycle billed to the assembler), plus the last ``keep_last`` cycles with their
+    states and results for the scipy baseline."""
+    pipe = EnginePipeline(spec, sim.info)
+    cycles = pipe.cycles
+    process = cycles.process
+    done: list[tuple[float, object, object]] = []  # per process call of this record: (seconds, cycle, state)
+
+    def timed_process(cycle):
+        t0 = time.perf_counter()
+        out = process(cycle)
+        done.append((time.perf_counter() - t0, cycle, cycles.state))
+        return out
+
+    cycles.process = timed_process  # this pass's instance only
+    rows, rejected, lost = [], 0, {}
     history, kept = ResultHistory(), deque(maxlen=max(keep_last, 1))
-    state = initial_state(spec)
     first_state = None
-    for c, asm_ms, emit_ms in timed_assembly(asm, sim.records):
-        t1 = time.perf_counter()
-        try:
-            state, res = process_cycle(spec, state, c)
-        except CycleRejected:
-            rejected += 1
+    acc = 0.0
+    for record in [*sim.records, None]:
+        done.clear()
+        t0 = time.perf_counter()
+        outcomes = pipe.outcomes(record)
+        dt = time.perf_counter() - t0
+        asm_s = dt - sum(d[0] for d in done)
+        acc += asm_s
+        for o in outcomes:
+            if o.stage == "assembly":
+                lost[o.skipped] = lost.get(o.skipped, 0) + 1
+        if not done:
             continue
-        t2 = time.perf_counter()
-        rows.append((asm_ms, emit_ms, 1e3 * (t2 - t1)))
-        history.append(res)
-        kept.append((c, state, res))
-        if first_state is None:
-            first_state = state
+        for o, (mon_s, cycle, state) in zip([o for o in outcomes if o.stage == "monitor"], done, strict=True):
+            if not o.ok:
+                rejected += 1
+                continue
+            rows.append((1e3 * acc / len(done), 1e3 * asm_s, 1e3 * mon_s))
+            history.append(o.result)
+            kept.append((cycle, state, o.result))
+            if first_state is None:
+                first_state = state
+        acc = 0.0
     return {"rows": np.array(rows).reshape(-1, 3), "kept": list(kept), "first_state": first_state,
-            "skipped": dict(asm.skipped), "rejected": rejected}
+            "skipped": lost, "rejected": rejected}
 
 
 def monitored_cycles(spec, sim) -> list:
-    """The cycles of the timed pass again (assembled untimed, monitor-rejected ones dropped), for the passes that
-    need them all: the stage split, the profile and the scipy baseline."""
-    asm = assembler_for(spec, sim.info)
-    out, state = [], initial_state(spec)
-    for c in [c for r in sim.records for c in asm.feed(r)] + asm.flush():
-        try:
-            state, _ = process_cycle(spec, state, c)
-        except CycleRejected:
-            continue
-        out.append(c)
-    return out
+    """The cycles of the timed pass again (the pipeline's assembler, untimed; the ones the pipeline refuses dropped),
+    for the passes that need them all: the stage split, the profile and the scipy baseline."""
+    cycles, _ = assembled_cycles(spec, sim.info, sim.records)
+    pipe = CyclePipeline(spec)
+    return [c for c in cycles if pipe.process(c).ok]
 
 
 def heap_peak_mb(spec, sim, n: int = 20) -> float:
-    """tracemalloc peak of assembly + monitor over the first ``n`` cycles (Python heap incl. numpy buffers)."""
-    asm = assembler_for(spec, sim.info)
-    state = initial_state(spec)
+    """tracemalloc peak of the one pipeline (EnginePipeline: assembly, monitor, watches) over the first ``n``
+    cycles (Python heap incl. numpy buffers)."""
+    pipe = EnginePipeline(spec, sim.info)
     tracemalloc.start()
     done = 0
     for r in sim.records:
-        for c in asm.feed(r):
-            state, _ = process_cycle(spec, state, c)
-            done += 1
+        done += len(pipe.outcomes(r))
         if done >= n:
             break
     peak = tracemalloc.get_traced_memory()[1]
@@ -261,8 +291,8 @@ def engine_bench(name: str, rpm: float, load: float, scipy_cycles: int) -> tuple
     # ~8 cycles in) loads its compiled code here, not inside the timed pass
     short = simulate(spec, rpm, load, 12, seed=SEED + 1)
     t0 = time.perf_counter()
-    asm = assembler_for(spec, short.info)  # warm: numba cache load and first calls, this process
-    _monitor_pass(spec, [c for r in short.records for c in asm.feed(r)])
+    for _ in run_records(spec, short.info, short.records):  # warm: numba cache load and first calls, this process
+        pass
     warm_s = time.perf_counter() - t0
     # the pass is repeated and the one with the median end-to-end mean is reported: a 120-cycle mean moves by
     # ~0.05 ms with one descheduled cycle (3-10 ms) on a shared 2-core box; every pass's mean is kept in the output
@@ -330,7 +360,9 @@ def print_table(r: dict) -> None:
         s = e.get("scipy")
         if s:
             print(f"\nscipy baseline, {name}: {s['summary']}")
-    g = r["genset_v20_target"]
+    g = r.get("genset_v20_target")
+    if g is None:  # a run without genset-v20 (POINTS cut down)
+        return
     print(f"\ngenset-v20 at 1500 rpm: {g['end_to_end_ms']} ms per cycle end to end = {g['real_time_factor']}x real "
           f"time (target >= {TARGET_RTF:g}x: {'met' if g['met'] else 'NOT met'}); scipy speed-up "
           f"{g.get('scipy_speedup')}x (target >= {TARGET_SPEEDUP:g}x)")

@@ -1,4 +1,5 @@
-"""Small helpers shared by the benchmarks: percentile summaries and per-cycle timing of the cycle assembler."""
+"""Small helpers shared by the benchmarks: percentile summaries and per-cycle timing of the cycle assembler alone
+(bench/bench_cycles.py; the assembler the pipeline builds, service.pipeline.cycle_assembler)."""
 
 from __future__ import annotations
 
@@ -6,8 +7,7 @@ import time
 from collections.abc import Iterable
 
 import numpy as np
-from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.types import AcquisitionInfo, Cycle, PressureFrame, StreamRecord
+from frictionwatch.core.types import Cycle, PressureFrame, StreamRecord
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 from frictionwatch.drivers.assembly.pressure_ring import frame_blocks
 
@@ -21,11 +21,6 @@ def summary_ms(values_ms: Iterable[float]) -> dict:
     return {"n": int(a.size), "p50_ms": round(float(np.percentile(a, 50)), 4),
             "p99_ms": round(float(np.percentile(a, 99)), 4), "mean_ms": round(mean, 4),
             "max_ms": round(float(a.max()), 4), "cycles_per_s": round(1000.0 / mean, 1) if mean > 0 else None}
-
-
-def assembler_for(spec: EngineSpec, info: AcquisitionInfo) -> CycleAssembler:
-    """The assembler exactly as the pipeline builds it (service/pipeline.py)."""
-    return CycleAssembler(info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
 
 
 def as_blocks(records: Iterable[StreamRecord]) -> list[StreamRecord]:

@@ -4,7 +4,8 @@
     .venv/bin/python -m bench.information_v20 report                  # -> bench/information_v20.json, docs/information/
 
 ``collect`` simulates each load (plant noise, tooth-spacing error and combustion variability at their defaults) and
-runs the monitor with no forgetting. Per cycle after the warm-up it keeps what the monitor accumulates: the whitened
+runs the one pipeline (core.monitor.pipeline.CyclePipeline over the pipeline's assembled cycles) with no forgetting.
+Per cycle after the warm-up it keeps what the monitor accumulates: the whitened
 information A^T A of the flywheel rows (the difference of the accumulator, exact) and of the mean-balance row. For
 a second wheel at the free end (the front hub) it evaluates the same harmonic balance with the chain's transfer to
 that node (core.model.chain, core.model.dynamics.Receptance.speed_transfer), whitened with the flywheel's noise
@@ -31,11 +32,12 @@ from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import kinematics
 from frictionwatch.core.monitor.balance.harmonic_balance import harmonic_balance, operating_point
 from frictionwatch.core.monitor.identify.priors import prior_normal
-from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
+from frictionwatch.core.monitor.monitor import CycleRejected
+from frictionwatch.core.monitor.pipeline import CyclePipeline
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.service.pipeline import assembled_cycles
 
 from bench.information_figures import figures, print_table
 
@@ -91,23 +93,24 @@ def whitened_info(design: np.ndarray, sigma: np.ndarray) -> np.ndarray:
 
 def collect_load(load: float, cycles: int, seed: int) -> dict:
     """One load's per-cycle averages (see the module doc)."""
-    spec = load_engine(ENGINE)
-    cfg = MonitorConfig(forgetting=1.0)
-    sim = simulate(spec, RPM, load, cycles, seed=seed)
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, grid_points=720,
-                         speed_range_rpm=spec.speed_range_rpm)
-    cycs = [c for r in sim.records for c in asm.feed(r)] + asm.flush()
+    sim = simulate(load_engine(ENGINE), RPM, load, cycles, seed=seed)
+    pipe = CyclePipeline(load_engine(ENGINE), MonitorConfig(forgetting=1.0))
+    spec, cfg = pipe.view.spec, pipe.monitor_cfg  # the spec and config the monitor runs with
+    cycs, _ = assembled_cycles(spec, sim.info, sim.records)
     node = spec.node_names.index(FREE_END_NODE)
-    state = initial_state(spec, cfg)
+    state = pipe.state
     m = state.n_harmonics
     sums = {"fly": 0.0, "free": 0.0, "balance": 0.0, "sys_map": 0.0, "e2": 0.0, "budget": 0.0, "free_sys_map": 0.0,
             "free_e2": 0.0}
     t_i, d_tdc, n = [], [], 0
     for c in cycs:
         before = state
-        try:
+        outcome = pipe.process(c)
+        if not outcome.ok:
+            continue
+        state, res = pipe.state, outcome.result
+        try:  # this cycle's equations at the free end, from the state the monitor analysed it with
             design2, floor, size, size2 = second_wheel_design(spec, before, c, cfg, node)
-            state, res = process_cycle(spec, before, c, cfg)
         except CycleRejected:
             continue
         if before.cycles < cfg.warmup_cycles:

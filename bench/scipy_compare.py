@@ -96,7 +96,7 @@ def compare(spec: EngineSpec, sim, cycles: list, kept: list, n: int, monitor_ms:
     summary = (f"{len(per)} cycles, {secs[0]:.1f} s for the first (from constant speed), "
                f"{steady.mean():.1f} s per warm-started cycle ({methods['used']}, "
                f"{methods[methods['used']]['us_per_rhs_call']} us per RHS call); speed-up of the monitor "
-               f"{speedup:,.0f}x (process_cycle) / {float(steady.mean()) / (1e-3 * e2e_ms):,.0f}x (end to end); "
+               f"{speedup:,.0f}x (monitor: CyclePipeline.process) / {float(steady.mean()) / (1e-3 * e2e_ms):,.0f}x (end to end); "
                f"last cycle total friction scipy {tot['scipy']:.3f}, monitor {tot['monitor_cycle']:.3f}, "
                f"truth {tot['truth']:.3f} N m; r2 scipy {per[-1]['r_squared']:.4f}, monitor "
                f"{per[-1]['monitor_r_squared']:.4f}")

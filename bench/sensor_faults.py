@@ -4,8 +4,10 @@ with the stage on (corrected, sigma including the sensors' remaining uncertainty
     python -m bench.sensor_faults [--cycles N] [--engines k9k-4cyl,...] [--faults "healthy,cyl2 gain 1.05"]
     python -m bench.sensor_faults --timing --engines genset-v20 --cycles 40
 
-Simulated logs the monitor is not told about (seed 1, default effects, cov_imep 0.02). Figures, not pass/fail: the
-table is quoted in the work's report; the pass/fail checks are tests/core/test_sensor_health.py.
+Simulated logs the monitor is not told about (seed 1, default effects, cov_imep 0.02), assembled by the pipeline's
+assembler and run through the one pipeline (core.monitor.pipeline.CyclePipeline: the monitor and the running
+calibration watches, whose flags join the stage's in the results). Figures, not pass/fail: the table is quoted in the
+work's report; the pass/fail checks are tests/core/test_sensor_health.py.
 """
 
 from __future__ import annotations
@@ -16,9 +18,10 @@ import math
 from frictionwatch.core.model.effects.catalog import PressureGain, PressureOffset, TdcOffset
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig
-from frictionwatch.core.monitor.monitor import MonitorConfig, initial_state, process_cycle
+from frictionwatch.core.monitor.pipeline import CyclePipeline
+from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.service.pipeline import assembled_cycles
 
 POINTS = {"k9k-4cyl": (1700.0, 1.0), "maruti-3cyl": (3000.0, 0.8), "deutz-1cyl": (2400.0, 0.8),
           "genset-v20": (1500.0, 0.75)}
@@ -36,21 +39,24 @@ def run(name: str, effects: list, cycles: int) -> dict:
     spec = load_engine(name)
     rpm, load = POINTS[name]
     sim = simulate(spec, rpm, load, cycles, seed=1, effects=effects or None)
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, grid_points=720,
-                         speed_range_rpm=spec.speed_range_rpm)
-    cyc = [c for r in sim.records for c in asm.feed(r)] + asm.flush()
+    cyc, _ = assembled_cycles(spec, sim.info, sim.records)
     out = {}
     for label, cfg in (("on", MonitorConfig(sensor_health=SensorHealthConfig())), ("off", MonitorConfig())):
-        state = initial_state(spec, cfg)
+        pipe = CyclePipeline(spec, cfg)
         flagged = 0
         for c in cyc:
-            state, res = process_cycle(spec, state, c, cfg)
+            o = pipe.process(c)
+            if not o.ok:
+                continue
+            res = o.result
             flagged += bool(res.sensor_health and res.sensor_health.flags)
         out[label] = (res, flagged)
     res, flagged = out["on"]
     h = res.sensor_health
     truth = sim.truth["fmep_bar"] * 1e5
+    watches = [f for f in res.flags if f.startswith("sensor_") and f not in h.flags]  # the calibration watches'
     return {"flags": ",".join(f.replace("sensor_", "") for f in h.flags) or "-", "flagged": flagged / len(cyc),
+            "watch_flags": ",".join(f.replace("sensor_", "") for f in watches) or "-",
             "wheel": math.degrees(h.wheel_tdc_offset), "wheel_sigma": math.degrees(h.wheel_tdc_offset_sigma),
             "cyl2_tdc": math.degrees(h.tdc_offset[min(1, spec.n_cyl - 1)]),
             "cyl2_gain": float(h.pressure_gain[min(1, spec.n_cyl - 1)]),
@@ -61,17 +67,15 @@ def run(name: str, effects: list, cycles: int) -> dict:
 
 
 def timing(name: str, cycles: int) -> None:
-    """Per-cycle cost of the stage: its two calls timed inside the monitor (best of 3 passes), and the monitor's
-    whole cycle with it."""
+    """Per-cycle cost of the stage: its two calls timed inside the monitor (best of 3 passes), and the pipeline's
+    whole cycle with it (core.monitor.pipeline.CyclePipeline.process: the monitor and the running watches)."""
     import time
 
     from frictionwatch.core.monitor import monitor
 
     spec = load_engine(name)
     sim = simulate(spec, *POINTS[name], cycles, seed=1)
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, grid_points=720,
-                         speed_range_rpm=spec.speed_range_rpm)
-    cyc = [c for r in sim.records for c in asm.feed(r)] + asm.flush()
+    cyc, _ = assembled_cycles(spec, sim.info, sim.records)
     spent = [0.0]
 
     def timed(fn):
@@ -87,16 +91,16 @@ def timing(name: str, cycles: int) -> None:
     stage = whole = math.inf
     try:
         for _ in range(3):
-            state = initial_state(spec)
+            pipe = CyclePipeline(spec)
             spent[0] = 0.0
             t0 = time.perf_counter()
             for c in cyc:
-                state, _ = process_cycle(spec, state, c)
+                pipe.process(c)
             whole = min(whole, (time.perf_counter() - t0) / len(cyc))
             stage = min(stage, spent[0] / len(cyc))
     finally:
         monitor.check_cycle, monitor.corrected_inputs = originals
-    print(f"{name}: the sensor-health stage {1e3 * stage:.3f} ms/cycle of the monitor's {1e3 * whole:.3f} "
+    print(f"{name}: the sensor-health stage {1e3 * stage:.3f} ms/cycle of the pipeline's {1e3 * whole:.3f} "
           f"({len(cyc)} cycles, best of 3 passes)")
 
 
@@ -112,7 +116,8 @@ def main() -> None:
             timing(name, args.cycles)
         return
     print(f"{'engine':12} {'fault':22} {'wheel deg':>13} {'cyl2 deg':>8} {'gain2':>6} {'off2 bar':>8} "
-          f"{'FMEP err':>8} {'sigma':>6} {'raw err':>8} {'raw sig':>7} {'flagged':>7}  flags at the end")
+          f"{'FMEP err':>8} {'sigma':>6} {'raw err':>8} {'raw sig':>7} {'flagged':>7}  flags at the end "
+          f"(stage; watches)")
     for name in args.engines.split(","):
         for fault in args.faults.split(","):
             effects = FAULTS[fault]
@@ -121,7 +126,7 @@ def main() -> None:
             r = run(name, effects, args.cycles)
             print(f"{name:12} {fault:22} {r['wheel']:+6.2f}±{r['wheel_sigma']:.2f} {r['cyl2_tdc']:+8.2f} "
                   f"{r['cyl2_gain']:6.3f} {r['cyl2_off']:+8.2f} {100 * r['err']:+7.1f}% {100 * r['sig']:5.1f}% "
-                  f"{100 * r['raw_err']:+7.1f}% {100 * r['raw_sig']:6.1f}% {100 * r['flagged']:6.0f}%  {r['flags']}",
+                  f"{100 * r['raw_err']:+7.1f}% {100 * r['raw_sig']:6.1f}% {100 * r['flagged']:6.0f}%  {r['flags']}; {r['watch_flags']}",
                   flush=True)
 
 

@@ -28,7 +28,7 @@ from frictionwatch.core.model.effects import make_effect  # noqa: E402
 from frictionwatch.core.model.engine import load_engine  # noqa: E402
 from frictionwatch.core.monitor.calibration.tdc import tdc_of_cycles  # noqa: E402
 from frictionwatch.core.plant.simulate import simulate  # noqa: E402
-from frictionwatch.drivers.assembly.cycles import CycleAssembler  # noqa: E402
+from frictionwatch.service.pipeline import assembled_cycles  # noqa: E402
 
 TOLERANCE_DEG = 0.15
 # The thermodynamic TDC is that of the throw. On the default (flexible) crank each throw twists against the wheel
@@ -53,9 +53,7 @@ def assembled(engine: str, rpm: float, load: float, cycles: int, seed: int, deg:
     spec = load_engine(engine)
     effects = [make_effect("tdc_offset", {"cylinder": 0, "deg": deg})] if deg else []
     sim = simulate(spec, rpm, load, cycles, seed, effects=effects, without=RIGID if rigid else ())
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
-    out = [c for r in sim.records for c in asm.feed(r)] + asm.flush()
-    return spec, out
+    return spec, assembled_cycles(spec, sim.info, sim.records)[0]  # the pipeline's assembler
 
 
 def case(engine: str, rpm: float, load: float, deg: float, cycles: int, seed: int, flexible: bool = False) -> dict:

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
+from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.service.cli import main
+from frictionwatch.service.pipeline import run
 
 
 def simulate_log(path: Path, engine: str, rpm: float, load: float, seed: int, cycles: int,
@@ -27,3 +30,11 @@ def sensor_flags(analysis) -> tuple[list[str], int]:
     """The sensor flags of an analysis's last cycle, and the first cycle that had any (-1: none)."""
     first = next((r.index for r in analysis.results if any(f.startswith("sensor_") for f in r.flags)), -1)
     return sorted(f for f in analysis.results[-1].flags if f.startswith("sensor_")), first
+
+
+def pipeline_results(engine, sim, config=None) -> tuple[list[CycleResult], Counter[str]]:
+    """A simulated log (``simulate``'s records) through the one pipeline (service.pipeline.run: the assembler, the
+    monitor, the running calibration watches): the analysed cycles' results in order, and the cycles lost on the
+    way by reason (the assembler's and the monitor's refusals alike)."""
+    outcomes = list(run(engine, sim.info, sim.records, config))
+    return [o.result for o in outcomes if o.ok], Counter(o.skipped for o in outcomes if not o.ok)

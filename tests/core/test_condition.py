@@ -15,9 +15,8 @@ from frictionwatch.core.model.kinematics import kinematics
 from frictionwatch.core.monitor.checks.change import ChangeSettings, detect_change
 from frictionwatch.core.monitor.checks.condition import DEFAULT_SETTINGS, compression_rise, sibling_deviation
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, Prior, solve_posterior
-from frictionwatch.core.monitor.monitor import initial_state, process_cycle
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.service.pipeline import run
 from numpy.testing import assert_allclose
 
 MARUTI = load_engine("maruti-3cyl")
@@ -108,12 +107,11 @@ def test_discounted_accumulator_keeps_the_systematic_covariance():
 
 def _monitor(spec, rpm, load, cycles, effects=(), seed=1, **kw):
     sim = simulate(spec, rpm, load, cycles, seed=seed, effects=[parse_effect(e) for e in effects], **kw)
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, grid_points=720,
-                         speed_range_rpm=spec.speed_range_rpm)
-    state, out = initial_state(spec), []
-    for c in [c for r in sim.records for c in asm.feed(r)] + asm.flush():
-        state, res = process_cycle(spec, state, c)
-        out.append(res.slim())
+    out = []
+    for outcome in run(spec, sim.info, sim.records):  # the one pipeline: assembler, monitor, calibration watches
+        assert outcome.ok or outcome.stage == "assembly", outcome  # the monitor refuses no cycle
+        if outcome.ok:
+            out.append(outcome.result.slim())
     return sim.truth, out
 
 

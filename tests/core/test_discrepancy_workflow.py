@@ -12,7 +12,7 @@ from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.service.pipeline import assembled_cycles
 
 ENGINE = "k9k-4cyl"
 CYCLES = 84
@@ -22,8 +22,7 @@ OPTIONS = Options(max_steps=2)
 def cycles_of(rpm, load, seed, effects=()):
     spec = load_engine(ENGINE)
     sim = simulate(spec, rpm, load, CYCLES, seed, effects=list(effects))
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
-    return [c for r in sim.records for c in asm.feed(r)] + asm.flush()
+    return assembled_cycles(spec, sim.info, sim.records)[0]
 
 
 @pytest.fixture(scope="module")

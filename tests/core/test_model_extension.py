@@ -16,9 +16,9 @@ import pytest
 from frictionwatch.core.model import EngineModel, LossTerm, load_engine, loss_kernel
 from frictionwatch.core.model.effects import CylinderSetup, Effect, Param
 from frictionwatch.core.model.terms import ANGLE
-from frictionwatch.core.monitor.monitor import initial_state, process_cycle
+from frictionwatch.core.monitor.pipeline import CyclePipeline
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.service.pipeline import assembled_cycles
 
 PULSE_POWER = 8
 
@@ -92,17 +92,15 @@ def test_a_new_effect_and_term_are_simulated_and_identified():
 
 
 def assembled(spec, sim):
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, grid_points=720,
-                         speed_range_rpm=spec.speed_range_rpm)
-    return [c for r in sim.records for c in asm.feed(r)] + asm.flush()
+    return assembled_cycles(spec, sim.info, sim.records)[0]
 
 
 def monitored(model, cycles):
-    state, results = initial_state(model), []
-    for c in cycles:
-        state, res = process_cycle(model, state, c)
-        results.append(res)
-    return results, state
+    """The cycles through the one pipeline (core.monitor.pipeline): every result, and the monitor's state at the end."""
+    pipe = CyclePipeline(model)
+    outcomes = [pipe.process(c) for c in cycles]
+    assert all(o.ok for o in outcomes), [o.skipped for o in outcomes if not o.ok]
+    return [o.result for o in outcomes], pipe.state
 
 
 def nrmse(results, truth, warmup=50):

@@ -2,7 +2,8 @@
 
 The chain under test is the product's own: core.plant.simulate (time-domain RK4 plant with its default realistic effects:
 sensor noise, combustion variability COV 2 %, cylinder-to-cylinder fuel spread, flexible crank, variable inertia,
-tooth-spacing errors 0.03 deg rms) -> drivers.assembly.cycles.CycleAssembler -> core.monitor.monitor.process_cycle, default config.
+tooth-spacing errors 0.03 deg rms) -> the one pipeline (service.pipeline.run: the cycle assembler, the monitor with its default config, the
+running calibration watches).
 Each log is simulated and monitored once per test session (session-scoped cache).
 
 Targets (design.md §5): total FMEP within 2 %; per-cylinder mean friction within 5 % (maruti-3cyl, k9k-4cyl, 200
@@ -17,10 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 from frictionwatch.core.model.engine import EngineSpec, load_engine
-from frictionwatch.core.monitor.monitor import MonitorConfig, initial_state, process_cycle
 from frictionwatch.core.monitor.report.results import CycleResult, change_sigma
+from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
+
+from tests.sim_logs import pipeline_results
 
 pytestmark = pytest.mark.slow
 WARMUP = 50  # cycles before the smoothed estimate is judged (also skipped in the per-cycle NRMSE)
@@ -50,15 +52,8 @@ def monitored():
         if key not in cache:
             spec = load_engine(name)
             sim = simulate(spec, rpm, load, cycles, seed=seed, effects=effects)
-            asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, grid_points=720,
-                                 speed_range_rpm=spec.speed_range_rpm)
-            cycs = [c for r in sim.records for c in asm.feed(r)] + asm.flush()
-            state = initial_state(spec)
-            results = []
-            for c in cycs:
-                state, res = process_cycle(spec, state, c)
-                results.append(res)
-            cache[key] = Run(spec, sim.truth, results, dict(asm.skipped))
+            results, skipped = pipeline_results(spec, sim)
+            cache[key] = Run(spec, sim.truth, results, dict(skipped))
         return cache[key]
 
     return get
@@ -75,7 +70,7 @@ def _check_points(get, name: str, points: list[tuple[float, float]], cycles: int
     inside, count = 0, 0
     for rpm, load in points:
         run = get(name, rpm, load, cycles)
-        assert not run.skipped, f"{name} {rpm} rpm: the assembler skipped cycles {run.skipped}"
+        assert not run.skipped, f"{name} {rpm} rpm: the pipeline lost cycles {run.skipped}"
         assert len(run.results) == cycles
         err, sig = _total_error(run)
         assert abs(err) <= 0.02, f"{name} {rpm}/{load}: total FMEP off by {err:+.2%}"
@@ -101,13 +96,10 @@ def test_k9k_does_not_need_the_true_coefficients_as_prior():
     merely repeats the answer)."""
     spec = load_engine("k9k-4cyl")
     sim = simulate(spec, 1400.0, 0.5, 200, seed=1)
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, grid_points=720,
-                         speed_range_rpm=spec.speed_range_rpm)
     cfg = MonitorConfig(prior_coefficients=spec.friction.coefficients * np.array([1.5, 0.7, 1.3, 0.8, 1.2, 0.6]))
-    state = initial_state(spec, cfg)
-    for c in [c for r in sim.records for c in asm.feed(r)] + asm.flush():
-        state, res = process_cycle(spec, state, c, cfg)
-    est = res.smoothed
+    results, skipped = pipeline_results(spec, sim, cfg)
+    assert not skipped
+    est = results[-1].smoothed
     truth = np.array([c["friction_torque_mean_nm"] for c in sim.truth["cylinders"]])
     assert abs(est.total_fmep / (sim.truth["fmep_bar"] * 1e5) - 1.0) <= 0.02
     assert est.resolved.all()

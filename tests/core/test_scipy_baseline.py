@@ -12,9 +12,9 @@ from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import kinematics
 from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
 from frictionwatch.core.monitor.identify.layout import parameter_layout
-from frictionwatch.core.monitor.monitor import initial_state, process_cycle
+from frictionwatch.core.monitor.pipeline import CyclePipeline
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.service.pipeline import assembled_cycles
 from numpy.testing import assert_allclose
 
 from bench.scipy_baseline import (
@@ -38,9 +38,7 @@ CLEAN = {"without": {"tooth_spacing_error"}, "cov_imep": 0.0}
 
 def _cycles(spec, rpm, cycles, seed=3):
     sim = simulate(spec, rpm, 1.0, cycles, seed=seed, **CLEAN)
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, grid_points=720,
-                         speed_range_rpm=spec.speed_range_rpm)
-    return sim, [c for r in sim.records for c in asm.feed(r)] + asm.flush()
+    return sim, assembled_cycles(spec, sim.info, sim.records)[0]
 
 
 @pytest.mark.parametrize("name", ["deutz-1cyl", "k9k-4cyl", "genset-v20"])
@@ -82,9 +80,10 @@ def test_time_domain_chain_reproduces_the_plant():
 def deutz_fit():
     spec = load_engine("deutz-1cyl")
     sim, cycles = _cycles(spec, 3000.0, 25)
-    state = initial_state(spec)
-    for c in cycles:
-        state, res = process_cycle(spec, state, c)
+    pipe = CyclePipeline(spec)  # the monitor as the product runs it
+    outcomes = [pipe.process(c) for c in cycles]
+    assert all(o.ok for o in outcomes)
+    state, res = pipe.state, outcomes[-1].result
     meas = measure(spec, cycles[-1], state.n_harmonics, state.teeth.correction)
     sigma, s_bal = monitor_noise(state, res, meas)  # the monitor's whitening of this cycle
     fit = identify_cycle(spec, meas, state.layout, sigma, s_bal)

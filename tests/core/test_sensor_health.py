@@ -12,11 +12,12 @@ from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import cylinder_volume
 from frictionwatch.core.monitor.checks.sensor_evidence import sibling_compare
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig, SensorHealthState, corrected_inputs
-from frictionwatch.core.monitor.monitor import initial_state, process_cycle
+from frictionwatch.core.monitor.pipeline import CyclePipeline
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
 from numpy.testing import assert_allclose
+
+from tests.sim_logs import pipeline_results
 
 FOUR_PI = 4.0 * np.pi
 
@@ -54,7 +55,7 @@ def test_sibling_comparison_recovers_one_cylinders_gain_and_offset_at_a_known_td
 def test_corrections_repeg_rescale_and_move_the_kinematic_phase():
     spec = load_engine("maruti-3cyl")
     z = spec.n_cyl
-    state = initial_state(spec)
+    state = CyclePipeline(spec).state  # the monitor's state as the pipeline starts it
     _, p = _synthetic(spec, np.zeros(z), np.ones(z), np.zeros(z))
     from frictionwatch.core.monitor.balance.harmonic_balance import operating_point
 
@@ -86,13 +87,8 @@ def _run(name, effects, cycles, seed=1, rpm_load=None, config=None):
     spec = load_engine(name)
     rpm, load = rpm_load or POINTS[name]
     sim = simulate(spec, rpm, load, cycles, seed=seed, effects=effects or None)
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, grid_points=720,
-                         speed_range_rpm=spec.speed_range_rpm)
-    state = initial_state(spec, config)
-    out = []
-    for c in [c for r in sim.records for c in asm.feed(r)] + asm.flush():
-        state, res = process_cycle(spec, state, c, config)
-        out.append(res)
+    out, skipped = pipeline_results(spec, sim, config)  # the one pipeline: assembler, monitor, calibration watches
+    assert not skipped, skipped
     return sim.truth, out
 
 
@@ -163,13 +159,9 @@ def test_one_cylinders_sensor_fault_is_named_and_fmep_holds(effect, flag, check)
 def test_healthy_logs_raise_no_sensor_flag(name, rpm_load, seed):
     spec = load_engine(name)
     sim = simulate(spec, *rpm_load, 60, seed=seed, cov_imep=0.03)
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, grid_points=720,
-                         speed_range_rpm=spec.speed_range_rpm)
-    state = initial_state(spec, ON)
-    flagged = 0
-    cycles = [c for r in sim.records for c in asm.feed(r)] + asm.flush()
-    for c in cycles:
-        state, res = process_cycle(spec, state, c, ON)
-        flagged += _sensor_flagged(res)
-    assert flagged <= 0.01 * len(cycles)
+    results, skipped = pipeline_results(spec, sim, ON)
+    assert not skipped, skipped
+    flagged = sum(_sensor_flagged(res) for res in results)
+    assert flagged <= 0.01 * len(results)
+    res = results[-1]
     assert res.sensor_health.applied_gain.tolist() == [1.0] * spec.n_cyl  # nothing corrected either

@@ -27,7 +27,7 @@ from frictionwatch.core.monitor.calibration.tdc import (
     volume_and_derivative,
 )
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.service.pipeline import assembled_cycles
 
 TOLERANCE_DEG = 0.15  # issue 25's target for a found offset
 
@@ -36,8 +36,7 @@ def sim_cycles(engine: str, rpm: float, load: float, cycles: int, seed: int, deg
     spec = load_engine(engine)
     effects = [make_effect("tdc_offset", {"cylinder": 0, "deg": deg})] if deg else []
     sim = simulate(spec, rpm, load, cycles, seed, effects=[*effects, *more], without=("torsional_flexibility",))
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
-    return spec, [c for r in sim.records for c in asm.feed(r)] + asm.flush()
+    return spec, assembled_cycles(spec, sim.info, sim.records)[0]
 
 
 def adiabatic_trace(spec, angle: np.ndarray, p_ivc: float, t_ivc: float) -> np.ndarray:
@@ -155,7 +154,6 @@ def test_one_cylinders_offset_is_found_on_that_cylinder_only():
     spec = load_engine("maruti-3cyl")
     sim = simulate(spec, 2500.0, 0.6, 12, 8, effects=[make_effect("tdc_offset", {"cylinder": 2, "deg": -0.8})],
                    without=("torsional_flexibility",))
-    asm = CycleAssembler(sim.info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
-    cycles = [c for r in sim.records for c in asm.feed(r)] + asm.flush()
+    cycles, _ = assembled_cycles(spec, sim.info, sim.records)
     offsets = np.array([f.offset_deg for f in tdc_of_cycles(cycles, spec)])
     np.testing.assert_allclose(offsets, [0.0, -0.8, 0.0], atol=TOLERANCE_DEG)

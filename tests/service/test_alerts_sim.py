@@ -5,10 +5,9 @@ healthy log with a load step raises nothing. The long runs (20,000 cycles, gense
 import pytest
 from frictionwatch.core.model.effects import parse_effect
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.monitor import initial_state, process_cycle
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
 from frictionwatch.service.alerts import RING_KINDS, AlertConfig, AlertEngine
+from frictionwatch.service.pipeline import run
 
 K9K = load_engine("k9k-4cyl")
 RPM, LOAD = 1700.0, 0.69
@@ -18,11 +17,12 @@ CONFIG = AlertConfig(baseline_cycles=100)  # a short commissioning: the log is s
 def _alerts(cycles, effects=(), load_steps=None):
     sim = simulate(K9K, RPM, LOAD, cycles, seed=11, cov_imep=0.03, effects=[parse_effect(e) for e in effects],
                    load_steps=load_steps)
-    asm = CycleAssembler(sim.info, K9K.n_cyl, K9K.firing_angles, speed_range_rpm=K9K.speed_range_rpm)
-    state, alerts, raised = initial_state(K9K), AlertEngine(K9K, CONFIG), []
-    for c in [c for r in sim.records for c in asm.feed(r)] + asm.flush():
-        state, res = process_cycle(K9K, state, c)
-        raised += [e.alert for e in alerts.update(res) if e.kind == "raised"]
+    alerts, raised = AlertEngine(K9K, CONFIG), []
+    for outcome in run(K9K, sim.info, sim.records):  # the one pipeline: assembler, monitor, calibration watches
+        assert outcome.ok or outcome.stage == "assembly", outcome  # the monitor refuses no cycle
+        if not outcome.ok:
+            continue
+        raised += [e.alert for e in alerts.update(outcome.result) if e.kind == "raised"]
     return raised, alerts
 
 
