@@ -127,7 +127,7 @@ def assembled_cycles(engine: EngineModel | EngineSpec, info: AcquisitionInfo,
     reason (the coast-down inertia's input: core.monitor.calibration.inertia.coastdown_record)."""
     asm = cycle_assembler(as_model(engine).spec, info)
     cycles = [c for record in records for c in asm.feed(record)] + asm.flush()
-    return cycles, Counter(asm.skipped)
+    return cycles, Counter(asm.skipped) + asm.truncated  # counted as EnginePipeline.skipped counts them
 
 
 KEEP_TRACES = 64  # the newest results keep their traces (plots, a dashboard's recent cycles)

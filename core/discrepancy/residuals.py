@@ -38,7 +38,9 @@ def pinned_config(config: MonitorConfig | None = None) -> MonitorConfig:
 class Residuals:
     """N analysed cycles. index (N,) cycle numbers; omega (N,) rad/s; load (N,) N m; harmonics (N, M) complex rad/s;
     balance (N,) N m (NaN without the cycle before); speed (N, ANGLE_POINTS) rad/s residual on ``angles`` (rad);
-    rejected: cycles the monitor refused."""
+    rejected: cycles the monitor refused; measured (N, M) rad/s the amplitude of the measured speed at each engine order
+    in each cycle: the engine's own speed fluctuation, the scale of the model-error floor
+    (core.discrepancy.features.speed_floor_rpm)."""
 
     index: np.ndarray
     omega: np.ndarray
@@ -48,6 +50,7 @@ class Residuals:
     speed: np.ndarray
     angles: np.ndarray
     rejected: int = 0
+    measured: np.ndarray | None = None
 
     @property
     def n_cycles(self) -> int:
@@ -55,7 +58,8 @@ class Residuals:
 
     def take(self, mask: np.ndarray) -> Residuals:
         return dataclasses.replace(self, index=self.index[mask], omega=self.omega[mask], load=self.load[mask],
-                                   harmonics=self.harmonics[mask], balance=self.balance[mask], speed=self.speed[mask])
+                                   harmonics=self.harmonics[mask], balance=self.balance[mask], speed=self.speed[mask],
+                                   measured=None if self.measured is None else self.measured[mask])
 
     def features(self) -> np.ndarray:
         """(N, 2M + 1) real features: Re and Im of each residual harmonic, then the balance residual (0 where NaN:
@@ -76,13 +80,16 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
             continue
         friction = float(np.mean(r.friction_torque)) if r.friction_torque is not None else math.nan
         resid = np.interp(angles, r.grid, r.speed_measured - r.speed_model, period=4.0 * np.pi)
-        rows.append((r.index, r.omega_mean, r.load_torque, r.residual_harmonics, r.friction_balance - friction, resid))
+        m = r.residual_harmonics.shape[0]
+        measured = 2.0 * np.abs(np.fft.rfft(r.speed_measured)[1:m + 1]) / r.speed_measured.shape[0]
+        rows.append((r.index, r.omega_mean, r.load_torque, r.residual_harmonics, r.friction_balance - friction, resid,
+                     measured))
     if not rows:
         raise ValueError(f"the monitor analysed none of the {len(cycles)} cycles")
     return Residuals(index=np.array([r[0] for r in rows]), omega=np.array([r[1] for r in rows]),
                      load=np.array([r[2] for r in rows]), harmonics=np.array([r[3] for r in rows]),
                      balance=np.array([r[4] for r in rows]), speed=np.array([r[5] for r in rows]), angles=angles,
-                     rejected=rejected)
+                     rejected=rejected, measured=np.array([r[6] for r in rows]))
 
 
 __all__ = ["ANGLE_POINTS", "PINNED_SIGMA", "Residuals", "pinned_config", "run_model"]

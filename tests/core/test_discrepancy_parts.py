@@ -187,3 +187,26 @@ def test_an_effect_brings_its_own_monitor_view():
     np.testing.assert_allclose(view.coefficients[:, 0], 1.25 * base.coefficients[:, 0], rtol=1e-12)
     np.testing.assert_allclose(view.coefficients[:, 1:], base.coefficients[:, 1:], rtol=1e-12)
     assert basis_means(view.spec, view.terms, ref).shape == view.coefficients.shape
+
+
+def test_a_coherent_residual_within_the_model_error_floor_is_not_significant():
+    """The floor (features.speed_floor_rpm): NULL_OWN x the order's measured amplitude + NULL_FLOOR x the largest.
+    A residual of many sigmas but inside it is the monitor's model, not a missing effect; above it, significant."""
+    import dataclasses
+
+    from frictionwatch.core.discrepancy.features import NULL_FLOOR, NULL_OWN, RPM_PER_RAD_S, order_table
+
+    m, n = 8, 400
+    measured = np.full((n, m), 0.05)
+    measured[:, 3] = 10.0  # the firing order dominates: 10 rad/s, the others 0.05
+    floor = NULL_OWN * measured[0] + NULL_FLOOR * 10.0  # rad/s
+    coherent = np.zeros(m, complex)
+    coherent[3] = 0.8 * floor[3]  # tens of sigmas (noise 1/sqrt(n) per part), but inside the floor
+    coherent[5] = 1.5 * floor[5]
+    res = dataclasses.replace(made_up(n, m, coherent, 0.0), measured=measured)
+    res = dataclasses.replace(res, harmonics=res.harmonics * 0.01 + (coherent - 0.01 * coherent)[None, :])
+    table = order_table(res)
+    np.testing.assert_allclose([o["floor_rpm"] for o in table], floor * RPM_PER_RAD_S, rtol=1e-12)
+    assert [o["order"] for o in table if o["significant"]] == [3.0]
+    without = dataclasses.replace(res, measured=None)  # no measured scale: the sigma test alone
+    assert {o["order"] for o in order_table(without) if o["significant"]} == {2.0, 3.0}

@@ -1,0 +1,99 @@
+"""The discrepancy workflow's null: what a healthy log's coherent residual looks like, and where the model-error floor
+(core.discrepancy.features.NULL_FLOOR) puts "significant" (issue 27 item 1). Not run by the test suite.
+
+    python -m bench.discrepancy_null --tune        # the tuning logs: the largest significant healthy residual
+    python -m bench.discrepancy_null               # validation: healthy logs the floor was not tuned on, and
+                                                   # logs with a hidden effect (the floor must not hide them)
+
+Each log: the product's simulator (default realistic effects on), 84 cycles, the baseline model through the
+workflow's own residual run (core.discrepancy.residuals.run_model, friction pinned), the second half held out.
+Printed per log: the largest measured speed harmonic [rpm], the coherent residual orders beyond 4 sigma with their
+amplitude as fractions of the measured amplitude at that order and of the largest, the orders still significant
+with the floor, the balance residual and its sigma.
+
+The floor (core.discrepancy.features.speed_floor_rpm) is NULL_OWN x the order's own measured amplitude + NULL_FLOOR x
+the largest. --tune reads both off the tuning logs, each with a margin of MARGIN: NULL_FLOOR from the orders whose
+own amplitude is below a tenth of the largest (their floor is the largest's share), NULL_OWN from the others (the
+firing orders: their floor is their own share).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _v in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import argparse  # noqa: E402
+
+import numpy as np  # noqa: E402
+from frictionwatch.core.discrepancy.features import RPM_PER_RAD_S, SIGNIFICANT, localise, noise_scale  # noqa: E402
+from frictionwatch.core.discrepancy.residuals import pinned_config, run_model  # noqa: E402
+from frictionwatch.core.model.effects import make_effect  # noqa: E402
+from frictionwatch.core.model.engine import load_engine  # noqa: E402
+from frictionwatch.core.model.engine_model import EngineModel  # noqa: E402
+from frictionwatch.core.model.view import reference  # noqa: E402
+from frictionwatch.core.plant.simulate import simulate  # noqa: E402
+from frictionwatch.service.pipeline import assembled_cycles  # noqa: E402
+
+CYCLES = 84
+MARGIN = 1.5
+TUNE = (("k9k-4cyl", 1800.0, 0.6, 1), ("k9k-4cyl", 3000.0, 0.9, 2), ("maruti-3cyl", 2000.0, 0.4, 1),
+        ("deutz-1cyl", 2600.0, 1.0, 1), ("k9k-4cyl", 1800.0, 0.7, 3), ("k9k-4cyl", 2200.0, 0.5, 4),
+        ("maruti-3cyl", 2000.0, 0.7, 5), ("deutz-1cyl", 2200.0, 0.7, 3), ("k9k-4cyl", 1600.0, 0.8, 6),
+        ("genset-v20", 1500.0, 1.0, 1))
+VALIDATE = (("k9k-4cyl", 2500.0, 0.8, 5), ("k9k-4cyl", 1800.0, 0.7, 11), ("maruti-3cyl", 3000.0, 0.8, 2),
+            ("deutz-1cyl", 1800.0, 0.5, 2), ("maruti-3cyl", 2600.0, 0.6, 3))
+FAULTS = (("k9k-4cyl", 2500.0, 0.7, 11, "load_ripple", {"order": 0.5, "fraction": 0.05}),
+          ("k9k-4cyl", 2500.0, 0.8, 6, "pressure_gain", {"cylinder": 3, "gain": 1.06}),
+          ("maruti-3cyl", 2000.0, 0.4, 4, "tdc_offset", {"cylinder": 2, "deg": 0.6}),
+          ("k9k-4cyl", 2500.0, 0.7, 11, "load_ripple", {"order": 1.0, "fraction": 0.05}))
+
+
+def held_out(engine: str, rpm: float, load: float, seed: int, effects=()):
+    spec = load_engine(engine)
+    sim = simulate(spec, rpm, load, CYCLES, seed, effects=list(effects))
+    cycles, _ = assembled_cycles(spec, sim.info, sim.records)
+    res = run_model(EngineModel.from_spec(spec), reference(cycles), pinned_config(), cycles)
+    n = res.n_cycles
+    return spec, res.take(np.arange(n) < n // 2), res.take(np.arange(n) >= n // 2)
+
+
+def one(label: str, engine: str, rpm: float, load: float, seed: int, effects=()) -> tuple[float, float]:
+    """Prints the log's line; returns the largest (share of the largest harmonic among small orders, share of its own
+    amplitude among the others) of the coherent residual beyond 4 sigma."""
+    spec, train, test = held_out(engine, rpm, load, seed, effects)
+    loc = localise(test, spec, noise_scale(train))
+    own = test.measured.mean(axis=0) * RPM_PER_RAD_S
+    largest = float(own.max())
+    beyond = [(o["order"], o["amplitude_rpm"] / largest, o["amplitude_rpm"] / own[i], own[i] < 0.1 * largest)
+              for i, o in enumerate(loc["orders"]) if o["amplitude_rpm"] > SIGNIFICANT * o["sigma_rpm"]]
+    bal = loc["balance"]
+    print(f"{label:44s} largest harmonic {largest:8.2f} rpm; beyond 4 sigma (of largest, of own): "
+          + (", ".join(f"{o:g} ({f:.4f}, {g:.4f})" for o, f, g, _ in beyond) or "none")
+          + f"; significant with the floor: {', '.join(f'{o:g}' for o in loc['significant_orders']) or 'none'}"
+          + f"; balance {bal['mean_nm']:+.3f} +- {bal['sigma_nm']:.3f} N m{' SIGNIFICANT' if bal['significant'] else ''}",
+          flush=True)
+    return (max((f for _, f, _, small in beyond if small), default=0.0),
+            max((g for _, _, g, small in beyond if not small), default=0.0))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--tune", action="store_true", help="the tuning logs only")
+    args = ap.parse_args()
+    if args.tune:
+        worst = [one(f"tune {e} {r:g} rpm {ld:g} seed {s}", e, r, ld, s) for e, r, ld, s in TUNE]
+        small, big = max(w[0] for w in worst), max(w[1] for w in worst)
+        print(f"largest healthy residual beyond 4 sigma: small orders {small:.4f} of the largest harmonic -> "
+              f"NULL_FLOOR {MARGIN * small:.4f}; large orders {big:.4f} of their own -> NULL_OWN {MARGIN * big:.4f}"
+              f" (margin {MARGIN:g})")
+        return
+    for e, r, ld, s in VALIDATE:
+        one(f"healthy {e} {r:g} rpm {ld:g} seed {s}", e, r, ld, s)
+    for e, r, ld, s, name, params in FAULTS:
+        one(f"{name} {params} {e} {r:g}", e, r, ld, s, [make_effect(name, params)])
+
+
+if __name__ == "__main__":
+    main()
