@@ -88,6 +88,12 @@ def render(doc: dict, found: Discovery) -> str:
                      f" largest in the windows of cylinder(s) {', '.join(str(c) for c in rest['cylinder_windows'])}"
                      + (f", torque balance {rest['balance_nm']:+.3g} N·m" if rest["balance_nm"] is not None else "")
                      + ".</p>")
+    amb = doc.get("ambiguous")
+    if amb:
+        parts.append(f"<p>Ambiguous: {html.escape(' and '.join(amb['candidates']))} explain the held-out cycles "
+                     "equally well; neither was added. " + html.escape(
+                         "; or ".join(amb["separated_by"]) + " would tell them apart." if amb["separated_by"] else "")
+                     + "</p>")
     for r in doc.get("refused", []):
         parts.append(f"<p>Refused: {html.escape(r['candidate'])}: {html.escape(r['reason'])} (held-out gap "
                      f"{r['gap_before']:.3g} → {r['gap_after']:.3g}); the model was left as it was.</p>")

@@ -39,6 +39,7 @@ class Candidate:
     lo: tuple[float, ...]
     hi: tuple[float, ...]
     fixed: Mapping[str, float] = field(default_factory=dict)
+    separated_by: str = ""  # the measurement that tells it from another explanation (its effect's declaration)
 
     @property
     def label(self) -> str:
@@ -79,14 +80,14 @@ def candidate_library(model: EngineModel) -> list[Candidate]:
             continue
         if not spec.params:  # a toggle: only where the model left its default effect out
             if name not in names:
-                out.append(Candidate(name, None, (), (), (), (), ()))
+                out.append(Candidate(name, None, (), (), (), (), (), separated_by=spec.separated_by))
             continue
         if spec.requires and (spec.requires not in names or (spec.requires == "torsional_flexibility"
                                                              and not model.spec.stiffness.size)):
             continue
         cylinders = {"each": range(1, z + 1), "each_and_wheel": range(0, z + 1)}.get(spec.where, (None,))
-        out += [Candidate(name, k, spec.params, spec.x0, spec.step, spec.lo, spec.hi, dict(spec.fixed))
-                for k in cylinders]
+        out += [Candidate(name, k, spec.params, spec.x0, spec.step, spec.lo, spec.hi, dict(spec.fixed),
+                          spec.separated_by) for k in cylinders]
     return [c for c in out if _slot(c) not in have]
 
 

@@ -83,6 +83,7 @@ class Discovery:
     rejected: dict = field(default_factory=dict)  # considered and not significant: label -> held-out gap
     evaluations: int = 0
     refused: list = field(default_factory=list)  # significant but refused: {"candidate", "reason"}
+    ambiguous: dict | None = None  # two explanations within the noise: {"candidates", "separated_by"}
     step_limit_reached: bool = False
 
     @property
@@ -101,6 +102,8 @@ class Discovery:
     def outcome(self) -> str:
         if self.steps:
             return "named"
+        if self.ambiguous:
+            return "ambiguous"
         return "unexplained" if self.remainder is not None else "nothing"
 
     def verdict(self) -> str:
@@ -112,6 +115,8 @@ class Discovery:
             if rest is not None:
                 text += ("; a discrepancy remains that no candidate explains (engine orders "
                          f"{_orders(rest['engine_orders'])})")
+        elif self.ambiguous:
+            text = "A discrepancy is found that more than one effect explains"
         elif rest is not None:
             text = ("A discrepancy remains that no candidate explains (engine orders "
                     f"{_orders(rest['engine_orders'])}"
@@ -119,6 +124,10 @@ class Discovery:
                     + ")")
         else:
             text = "No significant missing effect: the model reproduces the held-out cycles within their noise"
+        if self.ambiguous:
+            a = self.ambiguous
+            text += (f"; {' and '.join(a['candidates'])} explain the rest equally well and neither was added"
+                     + (f": {'; or '.join(a['separated_by'])} would tell them apart" if a["separated_by"] else ""))
         if self.refused:
             text += f"; {len(self.refused)} significant candidate(s) refused (see refused)"
         if self.step_limit_reached:
@@ -139,6 +148,7 @@ class Discovery:
                                        "balance_before_nm": s.before["balance"]["mean_nm"]}})
         return {"found": found, "gap_before": self.gap_before, "gap_after": self.gap_after, "metric": METRIC,
                 "outcome": self.outcome, "verdict": self.verdict(), "remainder": self.remainder,
+                "ambiguous": self.ambiguous,
                 "refused": self.refused, "step_limit_reached": self.step_limit_reached,
                 "localisation": self.localisation, "final": self.final, "not_significant": self.rejected,
                 "monitor_runs": self.evaluations}
@@ -202,6 +212,12 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         g_cur, chi_before = gap(test, scale), _chi2(test, scale)
         significant = _significance(test, scale, opt, lambda r: parts(r)[1])
         _, t, new_model, res = confirmed[0]
+        rival = _rival(confirmed, significant, lambda r: _chi2(parts(r)[1], scale))
+        if rival is not None:  # two explanations within the noise: say both, add neither
+            found.ambiguous = {"candidates": [t.candidate.label, rival.candidate.label],
+                               "separated_by": list(dict.fromkeys(c.separated_by for c in (t.candidate, rival.candidate)
+                                                                  if c.separated_by))}
+            break
         if significant(res):  # polished only if significant as it stands, and kept only if still significant
             t, new_model, res, extra = _polish(t, current, new_model, res, full, lambda r: parts(r)[0], scale)
             runs += extra
@@ -244,6 +260,23 @@ def channel_worse(before: Residuals, after: Residuals, scale: np.ndarray) -> str
         if grow > WORSE_SIGMAS * np.sqrt(2.0 * f):
             return f"it makes the {name} residual worse on the held-out cycles (coherent chi^2 +{grow:.3g})"
     return ""
+
+
+# two candidates are one explanation within the noise when their held-out coherent chi^2 differ by less than this:
+# about one sigma of that chi^2 under no effect, sqrt(2 F) for F ~ 50 features (the same noise figure
+# min_delta_chi2 = 40 is four of); from the statistic, not tuned on a case
+AMBIGUOUS_DCHI2 = 10.0
+
+
+def _rival(confirmed: list, significant, chi2_of) -> Trial | None:
+    """The runner-up's trial when it is significant too and explains the held-out cycles within AMBIGUOUS_DCHI2 of
+    the best (another effect, or the same effect in another cylinder); else None."""
+    if len(confirmed) < 2:
+        return None
+    (_, _, _, r0), (_, t1, _, r1) = confirmed[0], confirmed[1]
+    if not (significant(r0) and significant(r1)):
+        return None
+    return t1 if chi2_of(r1) - chi2_of(r0) < AMBIGUOUS_DCHI2 else None
 
 
 def _off_physics(t: Trial) -> str:

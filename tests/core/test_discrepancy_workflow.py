@@ -114,3 +114,26 @@ def test_a_parameter_on_its_bound_is_not_physical():
     assert _off_physics(Trial(tdc, np.array([1.1]), np.array([0.1]), 1.0, 2.0, 1)) == ""
     law = lib["stribeck_ring"]  # a share: 1.0 (all of the base term) is a physical value
     assert _off_physics(Trial(law, np.array([1.0]), np.array([0.1]), 1.0, 2.0, 1)) == ""
+
+
+def test_two_explanations_within_the_noise_are_said_both_and_neither_added():
+    """_rival: the runner-up counts as a second explanation when it is significant too and its held-out chi^2 is
+    within AMBIGUOUS_DCHI2 of the best; the verdict then names both and what would separate them."""
+    from frictionwatch.core.discrepancy.candidates import candidate_library
+    from frictionwatch.core.discrepancy.fit import Trial
+    from frictionwatch.core.discrepancy.workflow import AMBIGUOUS_DCHI2, Discovery, _rival
+
+    lib = {c.label: c for c in candidate_library(EngineModel.from_spec(load_engine(ENGINE)))}
+    tdc, gain = lib["tdc_offset[cyl 2]"], lib["pressure_gain[cyl 2]"]
+    trial = [Trial(c, np.array([x]), np.array([0.1]), 1.0, 2.0, 1) for c, x in ((tdc, 0.8), (gain, 1.05))]
+    chi2 = {"a": 30.0, "b": 30.0 + 0.5 * AMBIGUOUS_DCHI2, "c": 30.0 + 2.0 * AMBIGUOUS_DCHI2}
+    yes = lambda r: True  # noqa: E731
+    assert _rival([(1.0, trial[0], None, "a"), (1.1, trial[1], None, "b")], yes, chi2.get) is trial[1]
+    assert _rival([(1.0, trial[0], None, "a"), (1.3, trial[1], None, "c")], yes, chi2.get) is None
+    assert _rival([(1.0, trial[0], None, "a"), (1.1, trial[1], None, "b")], lambda r: r == "a", chi2.get) is None
+    model = EngineModel.from_spec(load_engine(ENGINE))
+    found = Discovery(model, model, [], 5.0, 5.0, {}, {},
+                      ambiguous={"candidates": [tdc.label, gain.label], "separated_by": [tdc.separated_by]})
+    assert found.outcome == "ambiguous"
+    assert "tdc_offset[cyl 2] and pressure_gain[cyl 2] explain the rest equally well" in found.verdict()
+    assert "motored stretch" in found.verdict()

@@ -157,8 +157,9 @@ class CandidateSpec:
     """How the discrepancy workflow may add an effect to a model (core.discrepancy.candidates): the parameters
     it fits, their no-effect values ``x0``, finite-difference steps and bounds, the other parameters ``fixed``; where:
     ``each`` cylinder, ``each_and_wheel`` (cylinder 0 too: the whole wheel), or ``engine``-wide; ``requires``: an
-    effect the model must hold (and a shaft line with sections, for ``torsional_flexibility``). No parameters: a
-    toggle (a default effect the model left out)."""
+    effect the model must hold (and a shaft line with sections, for ``torsional_flexibility``); ``separated_by``: the
+    measurement that tells this effect from another that explains a log as well (said when the workflow finds two).
+    No parameters: a toggle (a default effect the model left out)."""
 
     params: tuple[str, ...] = ()
     x0: tuple[float, ...] = ()
@@ -168,6 +169,7 @@ class CandidateSpec:
     fixed: Mapping[str, float] = field(default_factory=dict)
     where: str = "engine"
     requires: str = ""
+    separated_by: str = ""
 
 
 # the (z, L) cycle means of each term's basis in every cylinder at the reference operating point, for a spec and a

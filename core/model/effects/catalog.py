@@ -59,7 +59,8 @@ class TorsionalFlexibility(Effect):
     name = "torsional_flexibility"
     description = ("multi-DOF shaft line (damper, throws, flywheel, coupling, load); off = one rigid lumped shaft")
     default_on = True
-    candidate = CandidateSpec()  # a toggle: the model left the flexible shaft line out
+    # a toggle: the model left the flexible shaft line out
+    candidate = CandidateSpec(separated_by="a run at another speed (the shaft line's resonances move with it)")
 
     def apply_chain(self, setup: ChainSetup) -> ChainSetup:
         return replace(setup, flexible=True)
@@ -73,7 +74,8 @@ class VariableInertia(Effect):
     description = ("each throw's J(theta) = J_rot + sum m_rec x'^2 and its 1/2 J' omega^2 term; off = constant mean "
                    "inertia, no mass torque")
     default_on = True
-    candidate = CandidateSpec()  # a toggle: the model left J(theta) out
+    # a toggle: the model left J(theta) out
+    candidate = CandidateSpec(separated_by="a run at another speed (J(theta)'s mass torque grows with speed squared)")
 
     def apply_chain(self, setup: ChainSetup) -> ChainSetup:
         return replace(setup, variable_inertia=True)
@@ -124,7 +126,9 @@ class TdcOffset(Effect):
     description = ("the cylinder's true firing TDC lies deg later than the wheel says (cylinder=0: the whole wheel is "
                    "mounted off, all cylinders)")
     repeat = PER_CYLINDER
-    candidate = CandidateSpec(("deg",), (0.0,), (0.5,), (-10.0,), (10.0,), where="each_and_wheel")
+    candidate = CandidateSpec(("deg",), (0.0,), (0.5,), (-10.0,), (10.0,), where="each_and_wheel",
+                              separated_by="a motored stretch or a coast-down (TDC from the pressure without "
+                                           "combustion: frictionwatch commission)")
     parameters = _table(
         deg=Param(0.5, "deg", -10.0, 10.0, doc="offset, + = TDC later than stated"),
         cylinder=cylinder_param("cylinder, 0 = all (wheel offset)", allow_all=True),
@@ -158,7 +162,8 @@ class PressureOffset(Effect):
     name = "pressure_offset"
     description = "pressure sensor of one cylinder reads p + offset (bad pegging, charge-amplifier drift)"
     repeat = PER_CYLINDER
-    candidate = CandidateSpec(("pa",), (0.0,), (2e4,), (-1e6,), (1e6,), where="each")
+    candidate = CandidateSpec(("pa",), (0.0,), (2e4,), (-1e6,), (1e6,), where="each",
+                              separated_by="the intake pressure at BDC against the manifold pressure")
     parameters = _table(cylinder=cylinder_param(), pa=Param(2e4, "Pa", -1e6, 1e6, doc="additive offset"))
 
     def apply_sensors(self, setup: SensorSetup) -> SensorSetup:
@@ -178,7 +183,8 @@ class PressureGain(Effect):
     name = "pressure_gain"
     description = "pressure sensor of one cylinder reads gain * p (sensitivity / charge-amplifier gain error)"
     repeat = PER_CYLINDER
-    candidate = CandidateSpec(("gain",), (1.0,), (0.02,), (0.5,), (1.5,), where="each")
+    candidate = CandidateSpec(("gain",), (1.0,), (0.02,), (0.5,), (1.5,), where="each",
+                              separated_by="a pressure reference (a motored compression, the sensor's calibration)")
     parameters = _table(cylinder=cylinder_param(), gain=Param(1.02, "-", 0.5, 1.5, doc="multiplicative gain"))
 
     def apply_sensors(self, setup: SensorSetup) -> SensorSetup:
@@ -230,7 +236,8 @@ class RingWear(Effect):
     repeat = PER_CYLINDER
     # the monitor sees the leak in the measured pressure: only the friction scale is fitted
     candidate = CandidateSpec(("gain",), (1.0,), (0.2,), (1.0,), (5.0,), MappingProxyType({"mass_loss": 0.0}),
-                              where="each")
+                              where="each", separated_by="a motored stretch or another load (ring friction with "
+                                                         "and without the gas load)")
     scales_terms = ("ring_viscous", "ring_mixed", "skirt_viscous")
     parameters = _table(
         cylinder=cylinder_param(),
@@ -281,7 +288,8 @@ class ExtraFriction(Effect):
     repeat = PER_CYLINDER  # the plant holds one extra-friction shape per cylinder
     sized_at_reference = True
     candidate = CandidateSpec(("mean_frac",), (0.0,), (0.1,), (0.0,), (5.0,), MappingProxyType({"amp_frac": 0.0}),
-                              where="each")
+                              where="each", separated_by="another speed or load (a constant torque against the "
+                                                         "model's laws)")
     parameters = _table(
         cylinder=cylinder_param(),
         mean_frac=Param(0.1, "-", -1.0, 5.0, doc="constant part, fraction of the cylinder's mean friction"),

@@ -142,7 +142,9 @@ class _FrictionLaw(Effect):
     base: str = ""
     term: LossTerm | None = None
     sized_at_reference = True
-    candidate = CandidateSpec(("fraction",), (0.0,), (0.25,), (0.0,), (1.0,))
+    candidate = CandidateSpec(("fraction",), (0.0,), (0.25,), (0.0,), (1.0,),
+                              separated_by="another speed or load (friction laws agree where they were sized and part "
+                                           "away from it)")
 
     def plant_terms(self, spec: EngineSpec) -> tuple[LossTerm, ...]:
         return (self.term,) if self.term is not None else ()
@@ -173,7 +175,8 @@ class _FrictionLaw(Effect):
 class ChainMismatch(Effect):
     name = "chain_mismatch"
     candidate = CandidateSpec(("stiffness_scale", "damping_scale"), (1.0, 1.0), (0.1, 0.5), (0.5, 0.2), (2.0, 5.0),
-                              requires="torsional_flexibility")
+                              requires="torsional_flexibility",
+                              separated_by="the second wheel at the free end (the shaft line's twist)")
     description = "the shaft line's section stiffnesses and dampings differ from the spec's by a factor"
     parameters = MappingProxyType({
         "stiffness_scale": Param(1.2, "-", 0.5, 2.0, doc="plant stiffness / spec stiffness, every section"),
