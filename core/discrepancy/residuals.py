@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.view import Reference
-from frictionwatch.core.monitor.pipeline import run_cycles
+from frictionwatch.core.monitor.pipeline import CyclePipeline
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import Cycle
 
@@ -40,7 +40,9 @@ class Residuals:
     balance (N,) N m (NaN without the cycle before); speed (N, ANGLE_POINTS) rad/s residual on ``angles`` (rad);
     rejected: cycles the monitor refused; measured (N, M) rad/s the amplitude of the measured speed at each engine order
     in each cycle: the engine's own speed fluctuation, the scale of the model-error floor
-    (core.discrepancy.features.speed_floor_rpm)."""
+    (core.discrepancy.features.speed_floor_rpm); tdc_deg, tdc_sigma_deg (z,) each cylinder's TDC offset from its
+    pressure at the end of the run (the pipeline's TDC watch, core.monitor.calibration.tdc_watch; NaN where no window
+    closed) [deg, + = TDC later than the model says]."""
 
     index: np.ndarray
     omega: np.ndarray
@@ -51,6 +53,8 @@ class Residuals:
     angles: np.ndarray
     rejected: int = 0
     measured: np.ndarray | None = None
+    tdc_deg: np.ndarray | None = None
+    tdc_sigma_deg: np.ndarray | None = None
 
     @property
     def n_cycles(self) -> int:
@@ -73,8 +77,9 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
     angles = np.linspace(0.0, 4.0 * np.pi, ANGLE_POINTS, endpoint=False)
     rows: list[tuple] = []
     rejected = 0
-    for outcome in run_cycles(model, cycles, config, ref):
-        r = outcome.result
+    pipe = CyclePipeline(model, config, ref)
+    for cycle in cycles:
+        r = pipe.process(cycle).result
         if r is None:
             rejected += 1
             continue
@@ -89,7 +94,17 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
     return Residuals(index=np.array([r[0] for r in rows]), omega=np.array([r[1] for r in rows]),
                      load=np.array([r[2] for r in rows]), harmonics=np.array([r[3] for r in rows]),
                      balance=np.array([r[4] for r in rows]), speed=np.array([r[5] for r in rows]), angles=angles,
-                     rejected=rejected, measured=np.array([r[6] for r in rows]))
+                     rejected=rejected, measured=np.array([r[6] for r in rows]), **_tdc_reading(pipe))
+
+
+def _tdc_reading(pipe: CyclePipeline) -> dict:
+    """The TDC watch's newest per-cylinder offsets and sigmas [deg] (NaN where it has none)."""
+    last = pipe.stages["tdc_watch"].last
+    z = pipe.spec.n_cyl
+    if last is None:
+        return {"tdc_deg": np.full(z, np.nan), "tdc_sigma_deg": np.full(z, np.nan)}
+    return {"tdc_deg": np.array([np.degrees(e.offset_rad) if e is not None else np.nan for e in last]),
+            "tdc_sigma_deg": np.array([np.degrees(e.sigma_rad) if e is not None else np.nan for e in last])}
 
 
 __all__ = ["ANGLE_POINTS", "PINNED_SIGMA", "Residuals", "pinned_config", "run_model"]

@@ -198,7 +198,11 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         # a toggle's window cost is exact (one run, nothing to refine): it competes with the refined, whose
         # linear predictions can promise more than they keep
         chosen = lins[:opt.refine] + [lin for lin in lins[opt.refine:] if lin.candidate.toggle]
-        trials = rank([refine(lin, current, ev) for lin in chosen])
+        # what the pressure says of TDC (the pipeline's TDC watch on the current model's run) starts a TDC
+        # candidate's refinement at that reading: the linear step from 0 can stop short of a large offset
+        chosen += [replace(lin, x_gn=lin.candidate.clip(np.array([x]))) for lin in lins
+                   for label, x in pressure_seeds(cur_res).items() if lin.candidate.label == label]
+        trials = _one_per_candidate(rank([refine(lin, current, ev) for lin in chosen]))
         runs += ev.calls
         confirmed = []
         for t in trials[:opt.confirm]:
@@ -235,7 +239,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         found.steps.append(Step(t, new_model.effects[-1], g_cur, g_new, chi_before, chi_after, runner,
                                 localise(test, model.spec, scale), localise(test_new, model.spec, scale)))
         found.curves.append((f"+ {t.candidate.label}", test_new.angles, test_new.speed.mean(axis=0)))
-        current, test = new_model, test_new
+        current, test, cur_res = new_model, test_new, res
         found.step_limit_reached = step == opt.max_steps - 1
     found.model = current
     found.gap_after = gap(test, scale)
@@ -260,6 +264,36 @@ def channel_worse(before: Residuals, after: Residuals, scale: np.ndarray) -> str
         if grow > WORSE_SIGMAS * np.sqrt(2.0 * f):
             return f"it makes the {name} residual worse on the held-out cycles (coherent chi^2 +{grow:.3g})"
     return ""
+
+
+# a TDC reading from the pressure proposes a candidate (it is not a decision: the held-out test decides) when it is
+# beyond SEED_SIGMAS of its sigma and SEED_MIN_DEG
+SEED_SIGMAS = 2.0
+SEED_MIN_DEG = 0.2
+
+
+def pressure_seeds(res: Residuals) -> dict[str, float]:
+    """{candidate label: start value [deg]} from each cylinder's TDC offset read from its pressure in the run
+    ``res``: the whole wheel at the median reading (every cylinder's off alike), each cylinder at its own reading
+    less the wheel's, where beyond SEED_SIGMAS x its sigma and SEED_MIN_DEG."""
+    if res.tdc_deg is None or not np.any(np.isfinite(res.tdc_deg)):
+        return {}
+    ok = np.isfinite(res.tdc_deg)
+    wheel, wheel_sigma = float(np.median(res.tdc_deg[ok])), float(np.median(res.tdc_sigma_deg[ok]))
+    out = {}
+    if abs(wheel) > max(SEED_SIGMAS * wheel_sigma, SEED_MIN_DEG):
+        out["tdc_offset[cyl 0]"] = wheel
+    for k in np.flatnonzero(ok):
+        own = float(res.tdc_deg[k]) - (wheel if "tdc_offset[cyl 0]" in out else 0.0)
+        if abs(own) > max(SEED_SIGMAS * float(res.tdc_sigma_deg[k]), SEED_MIN_DEG):
+            out[f"tdc_offset[cyl {k + 1}]"] = own
+    return out
+
+
+def _one_per_candidate(trials: list[Trial]) -> list[Trial]:
+    """The best trial of each candidate (a seeded and a plain refinement of one candidate are one explanation)."""
+    seen: set[str] = set()
+    return [t for t in trials if not (t.candidate.label in seen or seen.add(t.candidate.label))]
 
 
 # two candidates are one explanation within the noise when their held-out coherent chi^2 differ by less than this:

@@ -210,3 +210,21 @@ def test_a_coherent_residual_within_the_model_error_floor_is_not_significant():
     assert [o["order"] for o in table if o["significant"]] == [3.0]
     without = dataclasses.replace(res, measured=None)  # no measured scale: the sigma test alone
     assert {o["order"] for o in order_table(without) if o["significant"]} == {2.0, 3.0}
+
+
+def test_the_pressures_tdc_reading_proposes_tdc_candidates():
+    """pressure_seeds: every cylinder read 1.5 deg late -> the whole wheel at their median; one cylinder off -> that
+    cylinder alone; readings within their noise propose nothing."""
+    import dataclasses
+
+    from frictionwatch.core.discrepancy.workflow import pressure_seeds
+
+    base = made_up(10, 4, np.zeros(4, complex), 0.0)
+    sigma = np.full(4, 0.19)
+    wheel = dataclasses.replace(base, tdc_deg=np.array([1.45, 1.50, 1.51, 1.47]), tdc_sigma_deg=sigma)
+    assert pressure_seeds(wheel) == pytest.approx({"tdc_offset[cyl 0]": 1.485})
+    one = dataclasses.replace(base, tdc_deg=np.array([-0.05, 1.50, 0.01, -0.04]), tdc_sigma_deg=sigma)
+    assert pressure_seeds(one) == pytest.approx({"tdc_offset[cyl 2]": 1.50})
+    quiet = dataclasses.replace(base, tdc_deg=np.array([-0.06, -0.02, 0.0, 0.3]), tdc_sigma_deg=sigma)
+    assert pressure_seeds(quiet) == {}
+    assert pressure_seeds(base) == {}  # no reading at all
