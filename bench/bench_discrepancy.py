@@ -89,7 +89,9 @@ def judge(label: str, name: str | None, params: dict, main: str | None, tol, doc
     expected = EXPECT.get(label, name if main is not None else None)
     out = {"case": label, "named": (named["effect"] if named else "nothing"),
            "cylinder": named["cylinder"] if named else None, "gap_before": doc["gap_before"],
-           "gap_after": doc["gap_after"], "all": [(f["effect"], f["cylinder"]) for f in found]}
+           "gap_after": doc["gap_after"], "all": [(f["effect"], f["cylinder"]) for f in found],
+           "outcome": doc.get("outcome"), "ambiguous": (doc.get("ambiguous") or {}).get("candidates"),
+           "refused": [r["candidate"] for r in doc.get("refused", [])], "verdict": doc.get("verdict")}
     if expected is None and label.startswith("none"):
         out["pass"] = not found
         return out
@@ -129,8 +131,11 @@ def matrix(n_cycles: int, points=POINTS, seeds=SEEDS, cases=None) -> dict:
     confusion: dict = defaultdict(Counter)
     for r in rows:
         confusion[r["case"]][r["named"] + (f"[{r['cylinder']}]" if r["cylinder"] is not None else "")] += 1
+    wrong = [r for r in rows if r["pass"] is False and r["named"] != "nothing"]
     return {"rows": rows, "confusion": {k: dict(v) for k, v in confusion.items()},
-            "passed": sum(r["pass"] is True for r in rows), "judged": sum(r["pass"] is not None for r in rows)}
+            "passed": sum(r["pass"] is True for r in rows), "judged": sum(r["pass"] is not None for r in rows),
+            "outcomes": dict(Counter(r["outcome"] for r in rows)),
+            "named_wrong": [f"{r['case']} -> {r['named']}[{r['cylinder']}]" for r in wrong]}
 
 
 def main() -> int:
@@ -148,7 +153,8 @@ def main() -> int:
     text = json.dumps(result, indent=1, default=float)
     if args.out:
         args.out.write_text(text)
-    print(text if not args.matrix else json.dumps({k: result[k] for k in ("confusion", "passed", "judged")},
+    print(text if not args.matrix else json.dumps({k: result[k] for k in ("confusion", "passed", "judged", "outcomes",
+                                                                         "named_wrong")},
                                                   indent=1))
     return 0
 
