@@ -29,8 +29,10 @@ ago (genset-v20: 500 cycles; a 0.5 deg drift from cycle 300 went unfitted to cyc
 median of mostly old estimates to cycle 599 and meanwhile named the freshly fitted cylinders). So every window also
 screens the cylinders out of turn: the shift of its mean compression stroke against the cylinder's trace at its
 last fit (``screen_shift``, the static twist's change added back), and a cylinder that moved by more than
-``SCREEN_DEG`` is fitted in this window too. The screen costs a small least-squares solve per cylinder; a screen that
-fires costs a fit, never a flag (the flags are the fits').
+``SCREEN_DEG`` is fitted in this window too; one that moved less keeps its last fit moved by the screen's shift, so
+every estimate refers to the newest window (a wheel slipping mid-window, half of it in the window, screened some
+cylinders and not others: the stale ones beside the fresh read as own offsets, genset-v20 cylinder 15 flagged).
+The screen costs a small least-squares solve per cylinder; a screen that fires costs a fit, never a flag.
 
 The static twist of the drive train (the monitor's model of it, MonitorState.static) puts a loaded throw ahead of the
 flywheel the pressure is sampled against: its thermodynamic TDC reads early by that twist (healthy k9k at full load:
@@ -90,6 +92,7 @@ class TdcWatchState:
     reference: np.ndarray | None = None  # (z, n_local) each cylinder's mean trace at its last fit (NaN rows: none)
     reference_twist: np.ndarray | None = None  # (z,) the window's mean twist then [rad]
     screened: tuple[int, ...] = ()  # cylinders the newest window fitted out of turn (0-based), for the record
+    fitted: tuple[TdcEstimate | None, ...] | None = None  # each cylinder's newest fit (``last``: moved by the screen)
 
     @staticmethod
     def empty() -> TdcWatchState:
@@ -152,26 +155,34 @@ def watch_cycle(spec: EngineSpec, cal: Calibration, state: TdcWatchState, cycle:
     turn = list(range(z)) if z <= CYLINDERS_PER_WINDOW else [(state.next_cylinder + i) % z
                                                              for i in range(CYLINDERS_PER_WINDOW)]
     screened: list[int] = []
+    moved = np.zeros(z)  # each unfitted cylinder's shift since its last fit [rad] (the screen's; 0: none read)
     ref, ref_twist = state.reference, state.reference_twist
     if z > CYLINDERS_PER_WINDOW and ref is not None and ref.shape == mean_trace.shape and ref_twist is not None:
         for k in range(z):
             if k in turn or not np.all(np.isfinite(ref[k])):
                 continue
-            shift = screen_shift(ref[k], mean_trace[k], angle, spec)
-            if abs(shift + float(twist_mean[k] - ref_twist[k])) > math.radians(SCREEN_DEG):
+            shift = screen_shift(ref[k], mean_trace[k], angle, spec) + float(twist_mean[k] - ref_twist[k])
+            if abs(shift) > math.radians(SCREEN_DEG):
                 screened.append(k)
+            elif math.isfinite(shift):
+                moved[k] = shift
     if ref is None or ref.shape != mean_trace.shape:
         ref, ref_twist = np.full(mean_trace.shape, np.nan), np.zeros(z)
     ref, ref_twist = ref.copy(), np.array(ref_twist, dtype=np.float64)
-    estimates = list(state.last) if state.last is not None else [None] * z
+    fitted = list(state.fitted) if state.fitted is not None else [None] * z
     for k in turn + screened:
         ref[k], ref_twist[k] = mean_trace[k], float(twist_mean[k])
         try:
             e = tdc_from_pressure(means[:, k, :], angle, spec, omega / n)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError):
-            estimates[k] = None
+            fitted[k] = None
             continue
-        estimates[k] = dataclasses.replace(e, offset_rad=e.offset_rad + float(twist_mean[k]))
+        fitted[k] = dataclasses.replace(e, offset_rad=e.offset_rad + float(twist_mean[k]))
+    # an unfitted cylinder's estimate is its last fit moved by the screen's shift since: every estimate refers to
+    # this window (a wheel that slipped mid-window, half of it in the window, moves the screened cylinders' fits and
+    # the unscreened ones' alike; a stale estimate beside fresh ones read as that cylinder's own offset)
+    estimates = [None if e is None else dataclasses.replace(e, offset_rad=e.offset_rad + float(moved[k]))
+                 for k, e in enumerate(fitted)]
     nxt = (state.next_cylinder + len(turn)) % z
     first = own_offsets(estimates) if state.first_own is None else state.first_own.copy()
     if state.first_own is not None:  # a cylinder read for the first time keeps that reading
@@ -179,7 +190,7 @@ def watch_cycle(spec: EngineSpec, cal: Calibration, state: TdcWatchState, cycle:
         new = ~np.isfinite(first[0]) & np.isfinite(now[0])
         first[:, new] = now[:, new]
     return TdcWatchState(None, np.zeros(BLOCKS), 0, cycle, tuple(estimates), tdc_flags(cal, estimates, first), 0.0,
-                         0.0, nxt, first, ref, ref_twist, tuple(screened))
+                         0.0, nxt, first, ref, ref_twist, tuple(screened), tuple(fitted))
 
 
 def own_offsets(estimates: list[TdcEstimate | None]) -> np.ndarray:
