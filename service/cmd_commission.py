@@ -34,6 +34,7 @@ from frictionwatch.core.monitor.calibration.pressure_gain import sibling_gains
 from frictionwatch.core.monitor.calibration.tdc import tdc_of_cycles
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.types import Cycle
+from frictionwatch.service.alert_baseline import Baseline
 from frictionwatch.service.alerts import AlertEngine
 from frictionwatch.service.output_files import atomic_path, check_output_path
 from frictionwatch.service.pipeline import analyze_records, resolve_model
@@ -65,9 +66,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 class _Collector:
     """Every assembled cycle the monitor accepted, per log, re-indexed so that two logs never join."""
 
-    def __init__(self, max_cycles: int, alerts: AlertEngine | None = None):
+    def __init__(self, max_cycles: int):
         self.max_cycles = max_cycles
-        self.alerts = alerts
         self.cycles: dict[int, Cycle] = {}
         self.imep: dict[int, np.ndarray] = {}
         self.offset = 0
@@ -83,8 +83,6 @@ class _Collector:
 
     def on_result(self, result: CycleResult) -> None:
         self.imep[self.offset + result.index] = np.asarray(result.imep, dtype=np.float64)
-        if self.alerts is not None:  # the healthy state per load band, learnt as a serving engine learns it
-            self.alerts.update(dataclasses.replace(result, index=self.offset + result.index))
 
     def split(self) -> tuple[list[Cycle], list[Cycle]]:
         """(fired, motored) cycles the monitor analysed, in order; misfiring and partly fired cycles in neither."""
@@ -116,7 +114,6 @@ def commission(logs: list[Path], engine: str | None, gain_sigma: float | None, m
             found = resolve_model(reader.engine_toml, engine, path.name, reader.info)
             if model is None:
                 model = without_sensor_effects(found)
-                collector.alerts = AlertEngine(model.spec)
             elif found.spec.name != model.spec.name:
                 raise ValueError(f"{path.name} is engine {found.spec.name!r}, the first log {model.spec.name!r}: "
                                  "one engine per commissioning")
@@ -164,7 +161,7 @@ def commission(logs: list[Path], engine: str | None, gain_sigma: float | None, m
     result = commissioned_model(model, tdc_fired, tdc_motored, gains, gain_sigma, inertia, source)
     # the alert baseline as learnt over these logs (the recording is the engine's healthy state: commissioning
     # assumes it), carried in the calibration section; a serving engine compares with it from its first cycle
-    baseline = collector.alerts.baseline if collector.alerts is not None else None
+    baseline = _alert_baseline(result.model, logs)
     if baseline is not None:
         cal = dataclasses.replace(result.model.calibration, baseline=json.dumps(baseline.to_dict()))
         result = dataclasses.replace(result, model=dataclasses.replace(result.model, calibration=cal))
@@ -174,6 +171,24 @@ def commission(logs: list[Path], engine: str | None, gain_sigma: float | None, m
               "alert_baseline_bands": [] if baseline is None else [
                   {"imep_bar": b.imep_pa / 1e5, "cycles": b.cycles} for b in baseline.bands]}
     return result, report
+
+
+def _alert_baseline(model: EngineModel, logs: list[Path]) -> Baseline | None:
+    """The alerts' healthy state per load band over ``logs``, learnt as a serving engine learns it, with the
+    commissioned ``model``: its TDC, gain and pegging corrections applied, as a serving engine with that model will
+    apply them. (Learnt on the uncorrected pressure, a corrected channel read as a change from commissioning by its
+    correction: a healthy genset-v20 whose cylinder 5 was corrected by +2.1 % raised "compression pressure 1.021x
+    its commissioning value" 14 cycles into a session; bench/ring_after_commission.py.)"""
+    from frictionwatch.drivers.logs.mcap_log import LogReader
+
+    alerts = AlertEngine(model.spec)
+    for n, path in enumerate(logs):
+        def learn(result: CycleResult, offset: int = n * LOG_INDEX_STRIDE) -> None:
+            alerts.update(dataclasses.replace(result, index=offset + result.index))
+
+        with LogReader(path) as reader:
+            analyze_records(model, reader.info, reader.records(), learn)
+    return alerts.baseline
 
 
 def _inertia(model: EngineModel, logs: list[Path], motored: list[Cycle]) -> tuple[InertiaFinding | None, str]:

@@ -66,7 +66,8 @@ def to_ticks(times_s: np.ndarray, tick_hz: float, jitter_s: float, rng: np.rando
 
 def pressure_adc(p: np.ndarray, sensors: SensorParams, noise_pa: float, rng: np.random.Generator,
                  offset_pa: float = 0.0, gain: float = 1.0) -> np.ndarray:
-    """Sensor reading [Pa]: gain * p + offset + noise, quantised to the ADC step and clipped to 0..range."""
+    """Sensor reading [Pa]: gain * p + offset + noise, quantised to the ADC step and clipped to 0..range (gain and
+    offset scalars or one per sample: a fault with an onset, core.plant.sim_records)."""
     y = gain * p + offset_pa
     if noise_pa > 0:
         y = y + rng.normal(0.0, noise_pa, p.shape)

@@ -54,6 +54,13 @@ class SensorRecords:
         self.last = {"edge": -1, "cam": -1, "load": 0}  # last tick seen per stream
         self.pending: list[tuple[int, int, StreamRecord]] = []
         self.first_edge_index: int | None = None
+        self.switches: list[tuple[float, SensorSetup]] = []  # (time since tick 0 [s], the set-up from then on)
+
+    def switch(self, time_s: float, sensors: SensorSetup) -> None:
+        """From ``time_s`` [s since tick 0] on, the pressure readings take ``sensors``' gains and pegging (a sensor
+        fault with an onset, core.plant.sim_stream); the noise streams go on as before. Call it before the samples
+        of that time are added."""
+        self.switches.append((float(time_s), sensors))
 
     def add(self, edges: np.ndarray, cam: np.ndarray, samples: np.ndarray, load: np.ndarray) -> list[StreamRecord]:
         """Records releasable after these events: edges (n, 2) = (time s, tooth index), cam (c,) times [s],
@@ -76,6 +83,20 @@ class SensorRecords:
     def _cam_bound(self) -> float:
         return self.last["cam"] + 1 if self.spec.sensors.has_cam else np.inf
 
+    def _channel_errors(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """(gain, offset [Pa]), each (m, z), of the next m samples (sample i of the run at i / rate s since tick 0):
+        the run's set-up, then each switch from its time on."""
+        fx, z = self.fx, self.spec.n_cyl
+        gain = np.broadcast_to(np.asarray(fx.pressure_gain, dtype=np.float64), (m, z)).copy()
+        offset = np.broadcast_to(np.asarray(fx.pressure_offset_pa, dtype=np.float64), (m, z)).copy()
+        if self.switches and m:
+            t = (self.first_sample + len(self.samples) + np.arange(m)) / self.spec.sensors.pressure_rate_hz
+            for t_switch, setup in self.switches:
+                after = t >= t_switch
+                gain[after] = setup.pressure_gain
+                offset[after] = setup.pressure_offset_pa
+        return gain, offset
+
     def _convert(self, edges, cam, samples, load, *, final: bool) -> None:
         se, fx, t0 = self.spec.sensors, self.fx, self.t0
         jitter = fx.edge_jitter_ns * 1e-9
@@ -93,9 +114,10 @@ class SensorRecords:
         self.edges = all_edges[n_edges:]
 
         readings = samples.copy()
+        gain, offset = self._channel_errors(len(samples))
         for k in range(self.spec.n_cyl):
             readings[:, k] = pressure_adc(samples[:, k], se, se.pressure_noise_pa * fx.pressure_noise_scale,
-                                          self.rng_pressure[k], fx.pressure_offset_pa[k], fx.pressure_gain[k])
+                                          self.rng_pressure[k], offset[:, k], gain[:, k])
         all_samples = np.concatenate([self.samples, readings])
         n_samples = len(all_samples) if final else len(all_samples) - len(all_samples) % self.block
         first_sample = self.first_sample

@@ -9,12 +9,13 @@ depend on the chunk size.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from frictionwatch.core.model.effects import SensorSetup
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.thermo import charge_pressures
+from frictionwatch.core.plant.plant import S_WHEEL_OFF
 from frictionwatch.core.plant.sim_records import SensorRecords, acquisition_info
 from frictionwatch.core.plant.sim_run import PlantRun
 from frictionwatch.core.plant.sim_truth import TruthAccumulator
@@ -28,11 +29,15 @@ CHUNK_CYCLES = 8  # output cycles per hand-over: genset-v20 about 1.4 MB of reco
 @dataclass(frozen=True)
 class StageSwitches:
     """A change mid-run (an effect's ``from_cycle``): from output cycle ``onsets[i]`` on the plant runs with the
-    loss coefficients ``coefficients[i]`` (z, L) and the leak areas ``leaks[i]`` (z,) m^2; ``onsets[0]`` = 0."""
+    loss coefficients ``coefficients[i]`` (z, L) and the leak areas ``leaks[i]`` (z,) m^2, the true firing angles
+    ``phases[i]`` (z,) rad, and the acquisition with ``sensors[i]`` (its wheel offset, the channels' gains and
+    pegging); ``onsets[0]`` = 0. The phases and sensors may be left empty (no such change)."""
 
     onsets: list[int]
     coefficients: list[np.ndarray]
     leaks: list[np.ndarray]
+    phases: list[np.ndarray] = field(default_factory=list)
+    sensors: list[SensorSetup] = field(default_factory=list)
 
     def coefficients_of(self, cycles: np.ndarray) -> np.ndarray:
         """(n, z, L): the coefficients each of the output ``cycles`` ran with."""
@@ -95,6 +100,7 @@ class Simulation:
         pending = [] if stages is None else list(range(1, len(stages.onsets)))  # stage switches still to come
         truth = TruthAccumulator(spec, run.plant, cycles, run.t_out0,
                                  stages.coefficients_of if pending else None)
+        changes: list[dict] = []  # the acquisition's changes mid-run, for the truth
 
         def advance(stop: float, t_stop: float | None = None) -> bool:
             """``run.advance_to(stop, t_stop=...)``, switching stages at their onset cycles on the way (the kernel
@@ -105,6 +111,14 @@ class Simulation:
                     return True
                 run.plant.coef[:] = stages.coefficients[i]
                 run.set_leak(stages.leaks[i])
+                if stages.phases:  # a cylinder's TDC moves (the kernel reads the plant's phase array in place)
+                    run.plant.phase[:] = stages.phases[i]
+                if stages.sensors:  # the wheel frame moves, a channel's gain or pegging changes
+                    run.sc[S_WHEEL_OFF] = stages.sensors[i].wheel_offset_rad
+                    t_switch = float(run.state[6][0]) - run.t_out0
+                    sensors.switch(t_switch, stages.sensors[i])
+                    changes.append(_sensor_change(stages.onsets[i], t_switch, stages.sensors[i],
+                                                  stages.phases[i] if stages.phases else None))
                 pending.pop(0)
             return run.advance_to(stop, report, t_stop=t_stop)
 
@@ -141,5 +155,18 @@ class Simulation:
                  "first_tooth_deg_true": se.first_tooth_deg - float(np.degrees(self.sensors.wheel_offset_rad)),
                  "tooth_errors_deg": run.tooth_err.tolist(), "cam_deg_stated": self.info.cam_deg,
                  "edge_ticks_first_tooth_index": sensors.first_edge_index}
+        if changes:
+            wheel["changes"] = changes
         self.truth = truth.summary(**self.request, active=[e.to_dict() for e in self.model.effects], wheel=wheel,
                                    operating=self.operating)
+
+
+def _sensor_change(cycle: int, time_s: float, sensors: SensorSetup, phases: np.ndarray | None) -> dict:
+    """The truth's record of the acquisition from output ``cycle`` on (switched at ``time_s`` since tick 0): the
+    wheel offset [deg], each channel's gain and pegging [Pa], the true firing angles [deg]."""
+    out = {"cycle": int(cycle), "time_s": time_s, "wheel_offset_deg": float(np.degrees(sensors.wheel_offset_rad)),
+           "pressure_gain": [float(g) for g in sensors.pressure_gain],
+           "pressure_offset_pa": [float(o) for o in sensors.pressure_offset_pa]}
+    if phases is not None:
+        out["firing_angles_deg"] = [float(a) for a in np.degrees(phases)]
+    return out

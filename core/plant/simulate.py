@@ -67,6 +67,16 @@ def cylinders_at(spec: EngineSpec, effects: Sequence[Effect], coefficients: np.n
     return cyl
 
 
+def sensors_at(effects: Sequence[Effect], n_cyl: int, cycle: int) -> SensorSetup:
+    """The acquisition's set-up in output cycle ``cycle``: every effect whose onset is at or before it, in order
+    (a sensor fault with ``from_cycle``: the wheel frame, a channel's gain or pegging from that cycle on)."""
+    sensors = SensorSetup.ideal(n_cyl)
+    for e in effects:
+        if e.onset_cycle <= cycle:
+            sensors = e.apply_sensors(sensors)
+    return sensors
+
+
 MAX_RAMP_STEPS = 200  # a ramp switches the plant at most this many times (each switch sizes a leak orifice)
 
 
@@ -175,12 +185,15 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
             lib = lib if t.name in lib.names else lib + t
     coef_nominal = np.zeros((z, len(lib)))
     coef_nominal[:, :len(model.terms)] = model.coefficients
-    chain, load_fx, sensors = ChainSetup(), LoadSetup(), SensorSetup.ideal(z)
+    chain, load_fx = ChainSetup(), LoadSetup()
     for e in model.effects:  # each hook returns a new set-up: instances compose in the order listed
-        chain, load_fx, sensors = e.apply_chain(chain), e.apply_load(load_fx), e.apply_sensors(sensors)
-    # a change mid-run: the cylinders' set-up from each effect's onset cycle on (stage 0 from the start)
+        chain, load_fx = e.apply_chain(chain), e.apply_load(load_fx)
+    # a change mid-run: the cylinders' and the sensors' set-up from each effect's onset cycle on (stage 0 from the
+    # start)
     onsets = stage_onsets(model.effects, cycles)
     stages = [cylinders_at(spec, model.effects, coef_nominal, lib.names, c) for c in onsets]
+    sensor_stages = [sensors_at(model.effects, z, c) for c in onsets]
+    sensors = sensor_stages[0]
     cyl = stages[0]
     coef, phase, misfire = cyl.coefficients, cyl.firing_angles, cyl.misfire
     spread = np.ones(z)
@@ -265,4 +278,5 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
         steps = sorted([*steps, (float(load_fx.coast_down_s), None)], key=lambda st: st[0])
     return Simulation(model, run, cycles=cycles, steps=steps, point=point, theta_start=theta_start,
                       operating=operating, request={"rpm": rpm, "load": load, "seed": seed}, sensors=sensors,
-                      rngs=rngs, stages=StageSwitches(onsets, coefs, leaks))
+                      rngs=rngs, stages=StageSwitches(onsets, coefs, leaks, [s.firing_angles for s in stages],
+                                                      sensor_stages))

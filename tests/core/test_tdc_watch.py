@@ -36,6 +36,50 @@ def test_flags_against_the_calibration():
     assert tdc_flags(done, [None, None]) == ()
 
 
+def test_a_commissioned_cylinder_changed_since_its_first_reading_is_flagged():
+    import numpy as np
+
+    # a large engine's commissioning leaves each cylinder's own TDC known to 0.14 deg (genset-v20): its absolute limit
+    # is 3 x 0.14 = 0.42 deg, which a 0.5 deg drift on a cylinder that read -0.1 before does not pass (+0.35)
+    done = Calibration(status="commissioned", tdc_wheel_sigma_deg=0.22, tdc_cylinder_sigma_deg=0.14)
+    now = [_est(0.0), _est(0.35, stat=0.01), _est(0.02), _est(-0.03), _est(0.01)]
+    assert tdc_flags(done, now) == ()
+    first = np.radians([[0.0, -0.1, 0.02, -0.03, 0.01], [0.01] * 5])
+    # the change since then, 0.45 deg, against max(3 x sqrt(0.01^2 + 0.01^2 + 0.1^2), 0.3) = 0.3 deg
+    assert tdc_flags(done, now, first) == ("sensor_tdc_offset_cyl2",)
+    first[0, 1] = np.radians(0.1)  # a change of 0.25 deg: within the limit
+    assert tdc_flags(done, now, first) == ()
+    first[0, 1] = np.nan  # not read before: only the absolute limit
+    assert tdc_flags(done, now, first) == ()
+    # uncalibrated: no change rule (nothing was commissioned to change from)
+    assert tdc_flags(Calibration(), now, np.radians([[0.0, -0.3, 0.0, 0.0, 0.0], [0.01] * 5])) == ()
+
+
+def test_screen_reads_a_shift_of_the_compression_stroke():
+    import numpy as np
+    from frictionwatch.core.model.engine import load_engine
+    from frictionwatch.core.monitor.calibration.tdc import volume_and_derivative
+    from frictionwatch.core.monitor.calibration.tdc_watch import screen_shift
+
+    spec = load_engine("genset-v20")
+    angle = np.radians(np.arange(-180.0, 180.0, 0.5))
+
+    def trace(shift_deg, scale=1.0, offset=0.0):  # a polytropic compression on the local grid, peak at 60 bar
+        v, _ = volume_and_derivative(angle - np.radians(shift_deg), spec)
+        return scale * 2e5 * (v.max() / v) ** 1.35 + offset
+
+    ref = trace(0.0)
+    for shift in (0.4, -0.25):
+        # tolerance 10 %: the screen is a first-order expansion in the shift (0.4 deg reads 0.38), a trigger for
+        # the fit at SCREEN_DEG = 0.15 deg, not a measurement
+        np.testing.assert_allclose(math.degrees(screen_shift(ref, trace(shift), angle, spec)), shift, rtol=0.1)
+        # a charge pressure 10 % up and the pegging 0.2 bar off move the scale and the offset, not the shift
+        np.testing.assert_allclose(math.degrees(screen_shift(ref, trace(shift, 1.1, 2e4), angle, spec)), shift,
+                                   rtol=0.1)
+    np.testing.assert_allclose(math.degrees(screen_shift(ref, trace(0.0, 0.9, -1e4), angle, spec)), 0.0, rtol=0,
+                               atol=1e-6)
+
+
 def _simulate(path, rpm, load, seed, effect=None, cycles=150):
     simulate_log(path, "k9k-4cyl", rpm, load, seed, cycles, effect)
 

@@ -120,7 +120,9 @@ class SensorNoise(Effect):
 class TdcOffset(Effect):
     """A phase error between the wheel and a cylinder's (or every cylinder's) true TDC. Monitor side: corrected on the
     pressure side (the angle the pressure is referred to), not by an identification column, so ``monitor_terms``
-    is ()."""
+    is (). With ``from_cycle`` > 0 the error appears at the start of that output cycle (the wheel slips on the
+    crank, a cylinder's angle moves: a drift after commissioning; core.plant.simulate switches the plant's firing
+    angle or the wheel frame there)."""
 
     name = "tdc_offset"
     description = ("the cylinder's true firing TDC lies deg later than the wheel says (cylinder=0: the whole wheel is "
@@ -132,6 +134,7 @@ class TdcOffset(Effect):
     parameters = _table(
         deg=Param(0.5, "deg", -10.0, 10.0, doc="offset, + = TDC later than stated"),
         cylinder=cylinder_param("cylinder, 0 = all (wheel offset)", allow_all=True),
+        from_cycle=_from_cycle(),
     )
 
     def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
@@ -160,11 +163,13 @@ class PressureOffset(Effect):
     identification column, so ``monitor_terms`` is ()."""
 
     name = "pressure_offset"
-    description = "pressure sensor of one cylinder reads p + offset (bad pegging, charge-amplifier drift)"
+    description = ("pressure sensor of one cylinder reads p + offset (bad pegging, charge-amplifier drift; from_cycle: "
+                   "from that output cycle on)")
     repeat = PER_CYLINDER
     candidate = CandidateSpec(("pa",), (0.0,), (2e4,), (-1e6,), (1e6,), where="each",
                               separated_by="the intake pressure at BDC against the manifold pressure")
-    parameters = _table(cylinder=cylinder_param(), pa=Param(2e4, "Pa", -1e6, 1e6, doc="additive offset"))
+    parameters = _table(cylinder=cylinder_param(), pa=Param(2e4, "Pa", -1e6, 1e6, doc="additive offset"),
+                        from_cycle=_from_cycle())
 
     def apply_sensors(self, setup: SensorSetup) -> SensorSetup:
         k = self.values["cylinder"] - 1
@@ -181,11 +186,13 @@ class PressureGain(Effect):
     identification column, so ``monitor_terms`` is ()."""
 
     name = "pressure_gain"
-    description = "pressure sensor of one cylinder reads gain * p (sensitivity / charge-amplifier gain error)"
+    description = ("pressure sensor of one cylinder reads gain * p (sensitivity / charge-amplifier gain error; "
+                   "from_cycle: from that output cycle on)")
     repeat = PER_CYLINDER
     candidate = CandidateSpec(("gain",), (1.0,), (0.02,), (0.5,), (1.5,), where="each",
                               separated_by="a pressure reference (a motored compression, the sensor's calibration)")
-    parameters = _table(cylinder=cylinder_param(), gain=Param(1.02, "-", 0.5, 1.5, doc="multiplicative gain"))
+    parameters = _table(cylinder=cylinder_param(), gain=Param(1.02, "-", 0.5, 1.5, doc="multiplicative gain"),
+                        from_cycle=_from_cycle())
 
     def apply_sensors(self, setup: SensorSetup) -> SensorSetup:
         k = self.values["cylinder"] - 1

@@ -17,7 +17,22 @@ What is flagged (flags ``sensor_tdc_offset`` for the wheel, ``sensor_tdc_offset_
   -0.17 to +0.05 deg at different points: k9k, genset-v20);
 - a cylinder's own offset (its TDC less the median of all) beyond ``DRIFT_SIGMAS`` of its statistical sigma and the
   calibration's per-cylinder sigma, and beyond ``MIN_FLAG_DEG``.
+- commissioned model, also: a cylinder's own offset changed since the run's first reading of it (``own_offsets``)
+  beyond ``DRIFT_SIGMAS`` of both windows' statistical sigmas and ``OPERATING_POINT_DEG``, and beyond
+  ``MIN_FLAG_DEG``: the method's own bias on that cylinder is the same then and now and cancels, where the absolute
+  rule above must allow the commissioning's per-cylinder sigma (genset-v20: 0.14 deg, so 3 sigma = 0.42 deg, and a
+  0.5 deg drift from cycle 300 read +0.40 to +0.44; bench/sensor_drift.py).
 A flag holds until a window says otherwise. Three or more cylinders are needed for a cylinder's own flag.
+
+A large engine's cylinders take turns (below), so a cylinder's TDC was fitted up to z / CYLINDERS_PER_WINDOW windows
+ago (genset-v20: 500 cycles; a 0.5 deg drift from cycle 300 went unfitted to cycle 599, a wheel slip was judged on a
+median of mostly old estimates to cycle 599 and meanwhile named the freshly fitted cylinders). So every window also
+screens the cylinders out of turn: the shift of its mean compression stroke against the cylinder's trace at its
+last fit (``screen_shift``, the static twist's change added back), and a cylinder that moved by more than
+``SCREEN_DEG`` is fitted in this window too; one that moved less keeps its last fit moved by the screen's shift, so
+every estimate refers to the newest window (a wheel slipping mid-window, half of it in the window, screened some
+cylinders and not others: the stale ones beside the fresh read as own offsets, genset-v20 cylinder 15 flagged).
+The screen costs a small least-squares solve per cylinder; a screen that fires costs a fit, never a flag.
 
 The static twist of the drive train (the monitor's model of it, MonitorState.static) puts a loaded throw ahead of the
 flywheel the pressure is sampled against: its thermodynamic TDC reads early by that twist (healthy k9k at full load:
@@ -49,6 +64,12 @@ UNCALIBRATED_SIGMAS = 1.5
 DRIFT_SIGMAS = 3.0
 OPERATING_POINT_DEG = 0.1
 MIN_FLAG_DEG = 0.3  # SensorHealthConfig.tdc_deg: a smaller TDC error is carried in the sigma, not flagged
+# the screen of a large engine's cylinders that are not fitted in a window: a shift of the compression stroke against
+# the cylinder's trace at its last fit beyond this (half the smallest flagged error, so a change that can be flagged
+# is fitted at once; a screen that fires only costs a fit: the flag rule is the fit's, unchanged)
+SCREEN_DEG = 0.5 * MIN_FLAG_DEG
+SCREEN_FROM_DEG = -70.0  # the screen's stretch of the compression stroke: from here to BEFORE_SOC_DEG before the SOC
+SCREEN_BEFORE_SOC_DEG = 10.0
 
 
 @dataclass(frozen=True)
@@ -66,6 +87,12 @@ class TdcWatchState:
     omega_sum: float
     twist_sum: np.ndarray | float = 0.0
     next_cylinder: int = 0
+    first_own: np.ndarray | None = None  # (2, z) each cylinder's first own offset in this run and its statistical
+    # sigma [rad] (NaN: not yet read), what a commissioned cylinder's own offset is compared with for a change
+    reference: np.ndarray | None = None  # (z, n_local) each cylinder's mean trace at its last fit (NaN rows: none)
+    reference_twist: np.ndarray | None = None  # (z,) the window's mean twist then [rad]
+    screened: tuple[int, ...] = ()  # cylinders the newest window fitted out of turn (0-based), for the record
+    fitted: tuple[TdcEstimate | None, ...] | None = None  # each cylinder's newest fit (``last``: moved by the screen)
 
     @staticmethod
     def empty() -> TdcWatchState:
@@ -115,29 +142,92 @@ def watch_cycle(spec: EngineSpec, cal: Calibration, state: TdcWatchState, cycle:
     twist_sum = state.twist_sum + np.asarray(twist, dtype=np.float64)
     n = state.cycles + 1
     if n < window:
-        return TdcWatchState(sums, counts, n, cycle, state.last, state.flags, omega, twist_sum, state.next_cylinder)
+        return dataclasses.replace(state, sums=sums, counts=counts, cycles=n, previous=cycle, omega_sum=omega,
+                                   twist_sum=twist_sum)
     means = sums / np.maximum(counts, 1)[:, None, None]
     twist_mean = np.broadcast_to(twist_sum / n, (spec.n_cyl,))
     z = spec.n_cyl
     # this window's cylinders: all of a small engine, CYLINDERS_PER_WINDOW in turn on a large one (each keeps its
-    # newest estimate; the wheel, their median, is known after the first window)
-    turn = range(z) if z <= CYLINDERS_PER_WINDOW else [(state.next_cylinder + i) % z
-                                                       for i in range(CYLINDERS_PER_WINDOW)]
-    estimates = list(state.last) if state.last is not None else [None] * z
-    for k in turn:
+    # newest estimate; the wheel, their median, is known after the first window), and on a large one any other
+    # cylinder whose compression stroke moved against its trace at its last fit (``screen_shift``): a TDC that
+    # drifts is fitted in the window it shows in, not up to z / CYLINDERS_PER_WINDOW windows later
+    mean_trace = np.sum(sums, axis=0) / max(float(np.sum(counts)), 1.0)
+    turn = list(range(z)) if z <= CYLINDERS_PER_WINDOW else [(state.next_cylinder + i) % z
+                                                             for i in range(CYLINDERS_PER_WINDOW)]
+    screened: list[int] = []
+    moved = np.zeros(z)  # each unfitted cylinder's shift since its last fit [rad] (the screen's; 0: none read)
+    ref, ref_twist = state.reference, state.reference_twist
+    if z > CYLINDERS_PER_WINDOW and ref is not None and ref.shape == mean_trace.shape and ref_twist is not None:
+        for k in range(z):
+            if k in turn or not np.all(np.isfinite(ref[k])):
+                continue
+            shift = screen_shift(ref[k], mean_trace[k], angle, spec) + float(twist_mean[k] - ref_twist[k])
+            if abs(shift) > math.radians(SCREEN_DEG):
+                screened.append(k)
+            elif math.isfinite(shift):
+                moved[k] = shift
+    if ref is None or ref.shape != mean_trace.shape:
+        ref, ref_twist = np.full(mean_trace.shape, np.nan), np.zeros(z)
+    ref, ref_twist = ref.copy(), np.array(ref_twist, dtype=np.float64)
+    fitted = list(state.fitted) if state.fitted is not None else [None] * z
+    for k in turn + screened:
+        ref[k], ref_twist[k] = mean_trace[k], float(twist_mean[k])
         try:
             e = tdc_from_pressure(means[:, k, :], angle, spec, omega / n)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError):
-            estimates[k] = None
+            fitted[k] = None
             continue
-        estimates[k] = dataclasses.replace(e, offset_rad=e.offset_rad + float(twist_mean[k]))
+        fitted[k] = dataclasses.replace(e, offset_rad=e.offset_rad + float(twist_mean[k]))
+    # an unfitted cylinder's estimate is its last fit moved by the screen's shift since: every estimate refers to
+    # this window (a wheel that slipped mid-window, half of it in the window, moves the screened cylinders' fits and
+    # the unscreened ones' alike; a stale estimate beside fresh ones read as that cylinder's own offset)
+    estimates = [None if e is None else dataclasses.replace(e, offset_rad=e.offset_rad + float(moved[k]))
+                 for k, e in enumerate(fitted)]
     nxt = (state.next_cylinder + len(turn)) % z
-    return TdcWatchState(None, np.zeros(BLOCKS), 0, cycle, tuple(estimates), tdc_flags(cal, estimates), 0.0, 0.0,
-                         nxt)
+    first = own_offsets(estimates) if state.first_own is None else state.first_own.copy()
+    if state.first_own is not None:  # a cylinder read for the first time keeps that reading
+        now = own_offsets(estimates)
+        new = ~np.isfinite(first[0]) & np.isfinite(now[0])
+        first[:, new] = now[:, new]
+    return TdcWatchState(None, np.zeros(BLOCKS), 0, cycle, tuple(estimates), tdc_flags(cal, estimates, first), 0.0,
+                         0.0, nxt, first, ref, ref_twist, tuple(screened), tuple(fitted))
 
 
-def tdc_flags(cal: Calibration, estimates: list[TdcEstimate | None]) -> tuple[str, ...]:
-    """The flags one window's estimates raise against the calibration (module doc)."""
+def own_offsets(estimates: list[TdcEstimate | None]) -> np.ndarray:
+    """(2, z): each cylinder's own offset (its offset less the median of all found) and its statistical sigma [rad];
+    NaN where not found or fewer than three cylinders are."""
+    z = len(estimates)
+    out = np.full((2, z), np.nan)
+    found = [k for k, e in enumerate(estimates) if e is not None]
+    if len(found) < 3:
+        return out
+    offsets = np.array([estimates[k].offset_rad for k in found])
+    out[0, found] = offsets - float(np.median(offsets))
+    out[1, found] = [math.radians(estimates[k].evidence.get("statistical_deg", 0.0)) for k in found]
+    return out
+
+
+def screen_shift(reference: np.ndarray, trace: np.ndarray, angle: np.ndarray, spec: EngineSpec) -> float:
+    """The angle [rad] by which ``trace`` lies later than ``reference`` (one cylinder's mean pressure on the local
+    grid ``angle``, 0 = its assumed firing TDC) over the compression stroke before the combustion, where the trace's
+    shape is the volume's: least squares of trace = a reference + b + c reference' (a, b: the charge pressure and a
+    pegging move with the load; c = -a shift for a small shift). NaN where the stretch is too short."""
+    deg = np.degrees(angle)
+    hi = min(spec.combustion.start_deg - SCREEN_BEFORE_SOC_DEG, -SCREEN_BEFORE_SOC_DEG)
+    sel = (deg >= max(SCREEN_FROM_DEG, spec.combustion.ivc_deg)) & (deg <= hi)
+    if np.count_nonzero(sel) < 8:
+        return math.nan
+    d_ref = np.gradient(reference, angle)
+    cols = np.column_stack([reference[sel], np.ones(np.count_nonzero(sel)), d_ref[sel]])
+    (a, _, c), *_ = np.linalg.lstsq(cols, trace[sel], rcond=None)
+    return float(-c / a) if a > 0 else math.nan
+
+
+def tdc_flags(cal: Calibration, estimates: list[TdcEstimate | None],
+              first_own: np.ndarray | None = None) -> tuple[str, ...]:
+    """The flags one window's estimates raise against the calibration (module doc); ``first_own`` (2, z): each
+    cylinder's first own offset in this run and its statistical sigma [rad] (``own_offsets``), for a commissioned
+    model's change rule."""
     found = [(k, e) for k, e in enumerate(estimates) if e is not None]
     if not found:
         return ()
@@ -155,9 +245,23 @@ def tdc_flags(cal: Calibration, estimates: list[TdcEstimate | None]) -> tuple[st
     if len(found) >= 3:
         own = offsets - wheel
         own_limit = np.maximum(DRIFT_SIGMAS * np.hypot(stats, cal.tdc_cylinder_sigma_rad), math.radians(MIN_FLAG_DEG))
-        flags += [f"sensor_tdc_offset_cyl{k + 1}" for (k, _), o, lim in zip(found, own, own_limit, strict=True)
-                  if abs(o) > lim]
+        moved = np.zeros(len(found), dtype=bool)
+        if cal.commissioned and first_own is not None:
+            # a change since the run's first reading of the cylinder: the method's own bias on this engine (the
+            # commissioning's per-cylinder sigma, 0.14 deg on genset-v20, against which a 0.5 deg drift read +0.40
+            # to +0.44: bench/sensor_drift.py) is the same then and now and cancels; what a change of operating
+            # point moves is allowed as for the wheel
+            idx = [k for k, _ in found]
+            then, then_stat = first_own[0, idx], first_own[1, idx]
+            change_limit = np.maximum(DRIFT_SIGMAS * np.sqrt(stats**2 + then_stat**2
+                                                             + math.radians(OPERATING_POINT_DEG) ** 2),
+                                      math.radians(MIN_FLAG_DEG))
+            moved = np.isfinite(then) & (np.abs(own - then) > change_limit)
+        flags += [f"sensor_tdc_offset_cyl{k + 1}" for (k, _), o, lim, m in zip(found, own, own_limit, moved,
+                                                                                 strict=True)
+                  if abs(o) > lim or m]
     return tuple(flags)
 
 
-__all__ = ["TdcWatchState", "WINDOW_CYCLES", "local_traces", "tdc_flags", "watch_cycle"]
+__all__ = ["SCREEN_DEG", "TdcWatchState", "WINDOW_CYCLES", "local_traces", "own_offsets", "screen_shift", "tdc_flags",
+           "watch_cycle"]
