@@ -22,7 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from frictionwatch.core.monitor.figure_status import friction_status
+from frictionwatch.core.monitor.report.figure_status import friction_status
 from frictionwatch.service.cli import main as cli
 from frictionwatch.service.pipeline import analyze_log
 

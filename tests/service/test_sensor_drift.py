@@ -10,7 +10,7 @@ module docs), and bench/sensor_drift.py uses seeds 61 / 62. The TDC case moves c
 from __future__ import annotations
 
 import pytest
-from frictionwatch.core.monitor.figure_status import friction_status
+from frictionwatch.core.monitor.report.figure_status import friction_status
 from frictionwatch.service.pipeline import analyze_log
 
 from tests.sim_logs import commissioned_model, simulate_log
