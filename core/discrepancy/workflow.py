@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from frictionwatch.core.discrepancy.candidates import Candidate, candidate_library
 from frictionwatch.core.discrepancy.features import coherent_terms, gap, localise, noise_scale
-from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, rank, refine
+from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, refine
 from frictionwatch.core.discrepancy.residuals import Residuals, pinned_config, run_model
 from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine_model import EngineModel
@@ -202,7 +202,13 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         # candidate's refinement at that reading: the linear step from 0 can stop short of a large offset
         chosen += [replace(lin, x_gn=lin.candidate.clip(np.array([x]))) for lin in lins
                    for label, x in pressure_seeds(cur_res).items() if lin.candidate.label == label]
-        trials = _one_per_candidate(rank([refine(lin, current, ev) for lin in chosen]))
+        # the pressure channel: what each model leaves of the TDC offsets the pressure read in the current model's
+        # run, a chi^2 beside the speed and balance ones (independent data, added once per run)
+        def pressure(m: EngineModel, reading: Residuals = cur_res, base: EngineModel = current) -> float:
+            return tdc_chi2(reading, tdc_offsets_deg(m) - tdc_offsets_deg(base))
+
+        refined = [refine(lin, current, ev) for lin in chosen]
+        trials = _one_per_candidate(sorted(refined, key=lambda tr: tr.cost + pressure(_with_fit(current, tr))))
         runs += ev.calls
         confirmed = []
         for t in trials[:opt.confirm]:
@@ -212,11 +218,11 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             confirmed.append((gap(parts(res)[1], scale), t, trial_model, res))
         if not confirmed:
             break
-        confirmed.sort(key=lambda c: c[0])
+        confirmed.sort(key=lambda c: _chi2(parts(c[3])[1], scale) + pressure(c[2]))
         g_cur, chi_before = gap(test, scale), _chi2(test, scale)
         significant = _significance(test, scale, opt, lambda r: parts(r)[1])
         _, t, new_model, res = confirmed[0]
-        rival = _rival(confirmed, significant, lambda r: _chi2(parts(r)[1], scale))
+        rival = _rival(confirmed, significant, lambda c: _chi2(parts(c[3])[1], scale) + pressure(c[2]))
         if rival is not None:  # two explanations within the noise: say both, add neither
             found.ambiguous = {"candidates": [t.candidate.label, rival.candidate.label],
                                "separated_by": list(dict.fromkeys(c.separated_by for c in (t.candidate, rival.candidate)
@@ -290,6 +296,25 @@ def pressure_seeds(res: Residuals) -> dict[str, float]:
     return out
 
 
+def tdc_offsets_deg(model: EngineModel) -> np.ndarray:
+    """(z,) each cylinder's TDC offset the model states [deg] (its tdc_offset effects; cylinder 0: every one)."""
+    out = np.zeros(model.spec.n_cyl)
+    for e in model.effects:
+        if e.name == "tdc_offset":
+            k = e.values["cylinder"]
+            out[slice(None) if k == 0 else k - 1] += e.values["deg"]
+    return out
+
+
+def tdc_chi2(res: Residuals, moved_deg: np.ndarray) -> float:
+    """The pressure channel's chi^2: each cylinder's TDC offset read from its pressure in the run ``res``, less what a
+    model moves it by against that run's model (``moved_deg`` (z,)), over the reading's sigma; 0 without a reading."""
+    if res.tdc_deg is None:
+        return 0.0
+    ok = np.isfinite(res.tdc_deg) & np.isfinite(res.tdc_sigma_deg) & (res.tdc_sigma_deg > 0)
+    return float(np.sum(((res.tdc_deg[ok] - moved_deg[ok]) / res.tdc_sigma_deg[ok]) ** 2))
+
+
 def _one_per_candidate(trials: list[Trial]) -> list[Trial]:
     """The best trial of each candidate (a seeded and a plain refinement of one candidate are one explanation)."""
     seen: set[str] = set()
@@ -307,10 +332,10 @@ def _rival(confirmed: list, significant, chi2_of) -> Trial | None:
     the best (another effect, or the same effect in another cylinder); else None."""
     if len(confirmed) < 2:
         return None
-    (_, _, _, r0), (_, t1, _, r1) = confirmed[0], confirmed[1]
-    if not (significant(r0) and significant(r1)):
+    first, second = confirmed[0], confirmed[1]
+    if not (significant(first[3]) and significant(second[3])):
         return None
-    return t1 if chi2_of(r1) - chi2_of(r0) < AMBIGUOUS_DCHI2 else None
+    return second[1] if chi2_of(second) - chi2_of(first) < AMBIGUOUS_DCHI2 else None
 
 
 def _off_physics(t: Trial) -> str:

@@ -128,12 +128,33 @@ def test_two_explanations_within_the_noise_are_said_both_and_neither_added():
     trial = [Trial(c, np.array([x]), np.array([0.1]), 1.0, 2.0, 1) for c, x in ((tdc, 0.8), (gain, 1.05))]
     chi2 = {"a": 30.0, "b": 30.0 + 0.5 * AMBIGUOUS_DCHI2, "c": 30.0 + 2.0 * AMBIGUOUS_DCHI2}
     yes = lambda r: True  # noqa: E731
-    assert _rival([(1.0, trial[0], None, "a"), (1.1, trial[1], None, "b")], yes, chi2.get) is trial[1]
-    assert _rival([(1.0, trial[0], None, "a"), (1.3, trial[1], None, "c")], yes, chi2.get) is None
-    assert _rival([(1.0, trial[0], None, "a"), (1.1, trial[1], None, "b")], lambda r: r == "a", chi2.get) is None
+    of = lambda c: chi2[c[3]]  # noqa: E731  (a confirmed entry: gap, trial, model, run)
+    assert _rival([(1.0, trial[0], None, "a"), (1.1, trial[1], None, "b")], yes, of) is trial[1]
+    assert _rival([(1.0, trial[0], None, "a"), (1.3, trial[1], None, "c")], yes, of) is None
+    assert _rival([(1.0, trial[0], None, "a"), (1.1, trial[1], None, "b")], lambda r: r == "a", of) is None
     model = EngineModel.from_spec(load_engine(ENGINE))
     found = Discovery(model, model, [], 5.0, 5.0, {}, {},
                       ambiguous={"candidates": [tdc.label, gain.label], "separated_by": [tdc.separated_by]})
     assert found.outcome == "ambiguous"
     assert "tdc_offset[cyl 2] and pressure_gain[cyl 2] explain the rest equally well" in found.verdict()
     assert "motored stretch" in found.verdict()
+
+
+def test_the_pressure_channel_counts_what_a_model_leaves_of_the_tdc_reading():
+    """tdc_chi2: the pressure read every cylinder 1.5 deg late (sigma 0.2): a model that moves the wheel by 1.5 deg
+    leaves nothing, one that moves nothing leaves 4 x (1.5 / 0.2)^2; tdc_offsets_deg reads a model's TDC effects."""
+    import dataclasses
+
+    from frictionwatch.core.discrepancy.workflow import tdc_chi2, tdc_offsets_deg
+
+    spec = load_engine(ENGINE)
+    model = EngineModel.from_spec(spec, effects=[make_effect("tdc_offset", {"cylinder": 0, "deg": 1.5}),
+                                                 make_effect("tdc_offset", {"cylinder": 3, "deg": -0.4})])
+    np.testing.assert_allclose(tdc_offsets_deg(model), [1.5, 1.5, 1.1, 1.5], rtol=0, atol=1e-12)
+    from tests.core.test_discrepancy_parts import made_up
+
+    res = dataclasses.replace(made_up(10, 4, np.zeros(4, complex), 0.0), tdc_deg=np.full(4, 1.5),
+                              tdc_sigma_deg=np.full(4, 0.2))
+    np.testing.assert_allclose(tdc_chi2(res, np.full(4, 1.5)), 0.0, atol=1e-12)
+    np.testing.assert_allclose(tdc_chi2(res, np.zeros(4)), 4 * (1.5 / 0.2) ** 2, rtol=1e-12)
+    assert tdc_chi2(dataclasses.replace(res, tdc_deg=None), np.zeros(4)) == 0.0
