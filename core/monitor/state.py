@@ -5,7 +5,7 @@ importing the monitor."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
@@ -19,6 +19,9 @@ from frictionwatch.core.monitor.identify.priors import PriorNormal
 from frictionwatch.core.monitor.report.report_kernels import TrigTables
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
 from frictionwatch.core.monitor.teeth.tooth_fit import ToothPatterns
+
+if TYPE_CHECKING:
+    from frictionwatch.core.monitor.checks.condition import ConditionTables
 
 
 @dataclass(frozen=True)
@@ -123,30 +126,52 @@ class MonitorConfig:
 
 @dataclass(frozen=True)
 class ConditionState:
-    """The condition flags' window (core.monitor.checks.condition): cycles used, EWMA means and variances (z,) of each
-    cylinder's deviation from its siblings in ln(compression rise), ln(pmax) and ln(indicated torque), the EWMA of the
-    reduced chi^2, the change detector (core.monitor.checks.change) and the cycles since the last operating-point change;
-    burn_reference (z,) N m: each cylinder's EWMA indicated torque over its fully burned cycles (NaN before the first),
-    and burn_cycles (z,) how many fed it: the reference a single cylinder's partial burn is judged against."""
+    """The condition flags' window (core.monitor.checks.condition): cycles used, ``window`` (2, 3, z) the EWMA means
+    (row 0) and variances about them (row 1) of each cylinder's deviation from its siblings in ln(compression rise),
+    ln(pmax) and ln(indicated torque) (the properties name them), the EWMA of the reduced chi^2, the change detector
+    (core.monitor.checks.change) and the cycles since the last operating-point change; burn_reference (z,) N m: each
+    cylinder's EWMA indicated torque over its fully burned cycles (NaN before the first), and burn_cycles (z,) how
+    many fed it: the reference a single cylinder's partial burn is judged against; tables: what the cycles' grid
+    fixes of the pressure samples the flags read (core.monitor.checks.condition.condition_tables; None: made on the
+    next cycle)."""
 
     count: int
-    compression: np.ndarray
-    compression_var: np.ndarray
-    peak: np.ndarray
-    peak_var: np.ndarray
-    indicated: np.ndarray
-    indicated_var: np.ndarray
+    window: np.ndarray
     misfit: float
     detector: ChangeDetector | None
     since_op_change: int = 1 << 30
     burn_reference: np.ndarray | None = None
     burn_cycles: np.ndarray | None = None
+    tables: ConditionTables | None = None
 
     @staticmethod
     def empty(n_cyl: int) -> ConditionState:
-        zero = np.zeros(n_cyl)
-        return ConditionState(0, zero, zero, zero, zero, zero, zero, 1.0, None,
-                              burn_reference=np.full(n_cyl, np.nan), burn_cycles=np.zeros(n_cyl, dtype=np.int64))
+        return ConditionState(0, np.zeros((2, 3, n_cyl)), 1.0, None, burn_reference=np.full(n_cyl, np.nan),
+                              burn_cycles=np.zeros(n_cyl, dtype=np.int64))
+
+    @property
+    def compression(self) -> np.ndarray:
+        return self.window[0, 0]
+
+    @property
+    def compression_var(self) -> np.ndarray:
+        return self.window[1, 0]
+
+    @property
+    def peak(self) -> np.ndarray:
+        return self.window[0, 1]
+
+    @property
+    def peak_var(self) -> np.ndarray:
+        return self.window[1, 1]
+
+    @property
+    def indicated(self) -> np.ndarray:
+        return self.window[0, 2]
+
+    @property
+    def indicated_var(self) -> np.ndarray:
+        return self.window[1, 2]
 
 
 class PreviousCycle(NamedTuple):
