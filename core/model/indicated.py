@@ -80,19 +80,24 @@ def _positions(local, params, x):
 @numba.njit(cache=True)
 def _window_works(x, previous, current, starts, out):
     """Trapezoid sum of p dx (z rows) over n samples from starts[w, k] in the joined pressure [previous | current]
-    (2n samples), the last sample joined to the first (a closed loop); x (z, n) the 4 pi periodic positions."""
+    (2n samples), the last sample joined to the first (a closed loop); x (z, n) the 4 pi periodic positions. Each
+    cylinder's two cycles and positions are laid end to end once, so the loop over a window has no branch (the sum
+    is taken in the same order as sample by sample)."""
     z, n = x.shape
-    for w in range(starts.shape[0]):
-        for k in range(z):
+    p = np.empty(2 * n)
+    xx = np.empty(2 * n)
+    for k in range(z):
+        p[:n] = previous[k]
+        p[n:] = current[k]
+        xx[:n] = x[k]
+        xx[n:] = x[k]
+        for w in range(starts.shape[0]):
             s = starts[w, k]
+            e = s + n - 1  # the window's last sample (< 2n), joined to its first
             acc = 0.0
-            for a in range(s, s + n):  # a < 2n: the sample and its position index without a modulo
-                b = a + 1 if a + 1 < s + n else s
-                pa = previous[k, a] if a < n else current[k, a - n]
-                pb = previous[k, b] if b < n else current[k, b - n]
-                xa = x[k, a] if a < n else x[k, a - n]
-                xb = x[k, b] if b < n else x[k, b - n]
-                acc += (pa + pb) * (xb - xa)
+            for a in range(s, e):
+                acc += (p[a] + p[a + 1]) * (xx[a + 1] - xx[a])
+            acc += (p[e] + p[s]) * (xx[s] - xx[e])
             out[w, k] = 0.5 * acc
 
 
@@ -123,6 +128,23 @@ def window_works(theta: np.ndarray, positions: np.ndarray, previous: np.ndarray,
     np.clip(starts, 0, n, out=starts)
     out = np.empty(c.shape)
     _window_works(np.ascontiguousarray(positions, dtype=np.float64), prev, cur, starts, out)
+    return out * area
+
+
+def window_works_reference(theta: np.ndarray, positions: np.ndarray, previous: np.ndarray, current: np.ndarray,
+                           centres: np.ndarray, area: float) -> np.ndarray:
+    """Plain numpy ``window_works`` (the kernel's reference, tests/core/test_indicated.py): each window's n samples
+    of [previous | current] and their positions, closed on the first sample, integrated by the trapezoid rule."""
+    n = theta.shape[0]
+    step = theta[1] - theta[0]
+    c = np.atleast_2d(np.asarray(centres, dtype=np.float64))
+    starts = np.clip(np.rint((c - 2 * np.pi - theta[0]) / step).astype(np.int64) + n, 0, n)
+    joined, x2 = np.concatenate((previous, current), axis=1), np.concatenate((positions, positions), axis=1)
+    out = np.empty(c.shape)
+    for w, k in np.ndindex(*c.shape):
+        idx = np.arange(starts[w, k], starts[w, k] + n)
+        p, x = joined[k, idx], x2[k, idx]
+        out[w, k] = np.sum(0.5 * (p + np.roll(p, -1)) * (np.roll(x, -1) - x))
     return out * area
 
 

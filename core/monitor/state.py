@@ -22,6 +22,7 @@ from frictionwatch.core.monitor.teeth.tooth_fit import ToothPatterns
 
 if TYPE_CHECKING:
     from frictionwatch.core.monitor.checks.condition import ConditionTables
+    from frictionwatch.core.monitor.identify.identification import MidSpeedFit
 
 
 @dataclass(frozen=True)
@@ -231,6 +232,7 @@ class MonitorState:
     condition: ConditionState | None = None  # the condition flags' window and change detector (core.monitor.checks.condition)
     previous: PreviousCycle | None = None  # the last analysed cycle: centred windows and the kinetic-energy term
     grid_geometry: GridGeometry | None = None  # the crank-angle grid's piston positions and J(2 pi)
+    mid_speed_fit: MidSpeedFit | None = None  # the mid-cycle speed's slope row at the edges' angles
 
     def previous_of(self, first_tick: int) -> PreviousCycle | None:
         """``previous`` if it is the cycle just before one whose first tooth edge is at ``first_tick``, else None."""

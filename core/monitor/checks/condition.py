@@ -302,21 +302,14 @@ def combustion_flags(burn: np.ndarray, work: np.ndarray, reference: np.ndarray, 
                      settings: ConditionSettings) -> tuple[list[str], np.ndarray, np.ndarray]:
     """This cycle's ``motored`` / ``misfire_cyl<k>`` flags (module docstring) from each cylinder's burn ratio (z,)
     and indicated torque (z,) [N m], and the burn reference (z,) [N m] with its cycle counts carried on (updated by
-    the cylinders that burned fully): ``combustion_flags_reference`` with the siblings' medians from a kernel."""
-    judged = np.isfinite(burn)
-    burned = judged & (burn > settings.burn_log_ratio)
-    if not burned.any():
-        return (["motored"] if judged.any() else []), reference, cycles
-    work = np.ascontiguousarray(work, dtype=np.float64)
-    ref = _burn_reference_kernel(work, burned, np.ascontiguousarray(reference, dtype=np.float64))
-    with np.errstate(invalid="ignore"):
-        partial = burned & np.isfinite(ref) & (ref > 0) & (work < settings.partial_fraction * ref)
-    full = burned & ~partial
-    flags = [f"misfire_cyl{k + 1}" for k in np.flatnonzero((judged & ~burned) | partial)]
-    cycles = cycles + full
-    g = np.maximum(1.0 / settings.burn_window, 1.0 / np.maximum(cycles, 1))
-    reference = np.where(full, np.where(np.isfinite(reference), reference + g * (work - reference), work), reference)
-    return flags, reference, cycles
+    the cylinders that burned fully): ``combustion_flags_reference`` in one kernel (``_combustion_kernel``)."""
+    limits = np.array([settings.burn_log_ratio, settings.partial_fraction, settings.burn_window])
+    judged, misfire, new_ref, new_cycles = _combustion_kernel(
+        np.ascontiguousarray(burn, dtype=np.float64), np.ascontiguousarray(work, dtype=np.float64),
+        np.ascontiguousarray(reference, dtype=np.float64), np.ascontiguousarray(cycles, dtype=np.int64), limits)
+    if new_ref is None:  # nothing burned: the reference stays
+        return (["motored"] if judged else []), reference, cycles
+    return [f"misfire_cyl{k + 1}" for k in np.flatnonzero(misfire)], new_ref, new_cycles
 
 
 @numba.njit(cache=True)
@@ -326,13 +319,27 @@ def _median_sorted(s, n):
 
 
 @numba.njit(cache=True)
-def _burn_reference_kernel(work, burned, reference):
-    """(z,) what cylinder k's work is judged against: the median of its burned siblings' work (NaN if one is NaN),
-    its own ``reference`` when no sibling burned."""
-    z = work.shape[0]
-    out = reference.copy()
+def _combustion_kernel(burn, work, reference, cycles, limits):
+    """(any judged, misfire (z,) bool, reference (z,), cycles (z,)) of ``combustion_flags_reference``; reference
+    None when no cylinder burned. limits: burn_log_ratio, partial_fraction, burn_window."""
+    z = burn.shape[0]
+    judged = np.isfinite(burn)
+    burned = np.zeros(z, dtype=np.bool_)
+    any_judged = False
+    any_burned = False
+    for k in range(z):
+        any_judged = any_judged or judged[k]
+        burned[k] = judged[k] and burn[k] > limits[0]
+        any_burned = any_burned or burned[k]
+    misfire = judged & ~burned
+    if not any_burned:
+        return any_judged, misfire, None, cycles
+    ref_out = reference.copy()
+    cycles_out = cycles.copy()
     others = np.empty(z)
     for k in range(z):
+        if not burned[k]:
+            continue
         n = 0
         nan = False
         for j in range(z):
@@ -340,9 +347,17 @@ def _burn_reference_kernel(work, burned, reference):
                 nan = nan or np.isnan(work[j])
                 others[n] = work[j]
                 n += 1
-        if n:
-            out[k] = np.nan if nan else _median_sorted(np.sort(others[:n]), n)
-    return out
+        if n == 0:
+            ref = reference[k]  # no burned sibling: its own reference
+        else:
+            ref = np.nan if nan else _median_sorted(np.sort(others[:n]), n)  # np.median: NaN in, NaN out
+        if np.isfinite(ref) and ref > 0 and work[k] < limits[1] * ref:
+            misfire[k] = True  # a partial burn
+            continue
+        cycles_out[k] += 1
+        g = max(1.0 / limits[2], 1.0 / max(cycles_out[k], 1))
+        ref_out[k] = reference[k] + g * (work[k] - reference[k]) if np.isfinite(reference[k]) else work[k]
+    return any_judged, misfire, ref_out, cycles_out
 
 
 @numba.njit(cache=True)
