@@ -193,13 +193,18 @@ class GridGeometry(NamedTuple):
     """What the cycles' crank-angle grid fixes once (core.monitor.identify.identification.grid_geometry): the grid's first
     angle [rad] and size (a cycle on another grid makes it anew), every cylinder's piston displacement on it
     positions (z, n) [m], J(theta = 2 pi) [kg m^2] and each piston's x'' (z, n) [m/rad^2] (the indicated work's
-    sensitivity to a TDC error, core.monitor.identify.estimate.indicated_tdc_sensitivity)."""
+    sensitivity to a TDC error, core.monitor.identify.estimate.indicated_tdc_sensitivity); the transient balance's
+    window starts (core.model.indicated.window_starts): window_starts (2, z) of each cylinder's own firing window and
+    the window centred on cylinder 1's firing TDC in [previous | current], alone_starts (1, z) of the cycle's own
+    closed loop (None: made by the balance)."""
 
     first_angle: float
     size: int
     positions: np.ndarray
     inertia_mid: float
     piston_acceleration: np.ndarray
+    window_starts: np.ndarray | None = None
+    alone_starts: np.ndarray | None = None
 
     def fits(self, grid: np.ndarray) -> bool:
         return grid.shape[0] == self.size and float(grid[0]) == self.first_angle

@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.model.indicated import piston_positions, tdc_centres, window_works
+from frictionwatch.core.model.indicated import piston_positions, tdc_centres, window_starts, works_at
 from frictionwatch.core.model.kinematics import cylinder_kinematics_kernel, kinematics
 from frictionwatch.core.monitor.balance.excitation import Excitation
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterior, ResidualStats, posterior_from_normal
@@ -138,7 +138,9 @@ def grid_geometry(spec: EngineSpec, grid: np.ndarray) -> GridGeometry:
     cylinder_kinematics_kernel(np.ascontiguousarray(grid, dtype=np.float64),
                                np.ascontiguousarray(spec.firing_angles, dtype=np.float64),
                                np.ascontiguousarray(spec.kinematics_params(), dtype=np.float64), dx, ddx)
-    return GridGeometry(float(grid[0]), int(n), positions, mid_cycle_inertia(spec), ddx)
+    centres = np.stack([tdc_centres(spec.firing_angles), np.zeros(z)])
+    return GridGeometry(float(grid[0]), int(n), positions, mid_cycle_inertia(spec), ddx,
+                        window_starts(grid, centres), window_starts(grid, np.zeros((1, z))))
 
 
 def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indicated_cycle: np.ndarray,
@@ -165,10 +167,14 @@ def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indi
     # the windows' works on the crank-angle grid enter as differences from this cycle's own on the same grid: the
     # 720-point trapezoid reads ~0.5 % below the work the monitor's time grid takes (K9K 1100 rpm: 0.28 N m of
     # indicated torque, 2 % of the friction), a bias the difference cancels
-    ph, x = spec.firing_angles, geometry.positions
-    own, around_tdc1 = window_works(cycle.grid, x, previous.pressure, pressure,
-                                    np.stack([tdc_centres(ph), np.zeros(spec.n_cyl)]), spec.piston_area)
-    alone = window_works(cycle.grid, x, pressure, pressure, np.zeros((1, spec.n_cyl)), spec.piston_area)[0]
+    # the windows' first samples are fixed by the grid (GridGeometry); the pressures are the monitor's checked ones
+    if geometry.window_starts is None or geometry.alone_starts is None:
+        geometry = grid_geometry(spec, cycle.grid)
+    x, area = geometry.positions, spec.piston_area
+    cur = np.ascontiguousarray(pressure, dtype=np.float64)
+    own, around_tdc1 = works_at(x, np.ascontiguousarray(previous.pressure, dtype=np.float64), cur,
+                                geometry.window_starts, area)
+    alone = works_at(x, cur, cur, geometry.alone_starts, area)[0]
     accel = (mid_speed**2 - previous.mid_speed**2) / (2.0 * FOUR_PI)
     kinetic = geometry.inertia_mid * accel
     indicated = float(np.sum(indicated_cycle)) + float(around_tdc1.sum() - alone.sum()) / FOUR_PI
