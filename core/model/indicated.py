@@ -89,10 +89,11 @@ def _window_works(x, previous, current, starts, out):
     xx = np.empty(2 * n)
     t = np.empty(2 * n - 1)
     for k in range(z):
-        p[:n] = previous[k]
-        p[n:] = current[k]
-        xx[:n] = x[k]
-        xx[n:] = x[k]
+        for a in range(n):  # element loops: a slice assignment compiles ten times longer
+            p[a] = previous[k, a]
+            p[n + a] = current[k, a]
+            xx[a] = x[k, a]
+            xx[n + a] = x[k, a]
         for a in range(2 * n - 1):
             t[a] = (p[a] + p[a + 1]) * (xx[a + 1] - xx[a])
         for w in range(starts.shape[0]):

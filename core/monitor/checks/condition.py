@@ -46,6 +46,7 @@ from frictionwatch.core.monitor.checks.change import ChangeSettings, detect_chan
 from frictionwatch.core.monitor.checks.ring_pressure import (
     RingIndicators,
     RingTables,
+    median_of_first,
     ring_indicators,
     ring_tables,
     ring_windows,
@@ -304,38 +305,32 @@ def combustion_flags(burn: np.ndarray, work: np.ndarray, reference: np.ndarray, 
     and indicated torque (z,) [N m], and the burn reference (z,) [N m] with its cycle counts carried on (updated by
     the cylinders that burned fully): ``combustion_flags_reference`` in one kernel (``_combustion_kernel``)."""
     limits = np.array([settings.burn_log_ratio, settings.partial_fraction, settings.burn_window])
-    judged, misfire, new_ref, new_cycles = _combustion_kernel(
+    state, misfire, new_ref, new_cycles = _combustion_kernel(
         np.ascontiguousarray(burn, dtype=np.float64), np.ascontiguousarray(work, dtype=np.float64),
         np.ascontiguousarray(reference, dtype=np.float64), np.ascontiguousarray(cycles, dtype=np.int64), limits)
-    if new_ref is None:  # nothing burned: the reference stays
-        return (["motored"] if judged else []), reference, cycles
+    if state < 2:  # nothing burned: the reference stays
+        return (["motored"] if state == 1 else []), reference, cycles
     return [f"misfire_cyl{k + 1}" for k in np.flatnonzero(misfire)], new_ref, new_cycles
 
 
 @numba.njit(cache=True)
-def _median_sorted(s, n):
-    """The median of the first n >= 1 values of the sorted s, as np.median takes it."""
-    return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
-
-
-@numba.njit(cache=True)
 def _combustion_kernel(burn, work, reference, cycles, limits):
-    """(any judged, misfire (z,) bool, reference (z,), cycles (z,)) of ``combustion_flags_reference``; reference
-    None when no cylinder burned. limits: burn_log_ratio, partial_fraction, burn_window."""
+    """(state, misfire (z,) bool, reference (z,), cycles (z,)) of ``combustion_flags_reference``: state 0 nothing
+    judged, 1 judged and none burned (motored; reference and cycles as given), 2 burned. limits: burn_log_ratio,
+    partial_fraction, burn_window."""
     z = burn.shape[0]
-    judged = np.isfinite(burn)
     burned = np.zeros(z, dtype=np.bool_)
-    any_judged = False
-    any_burned = False
+    misfire = np.zeros(z, dtype=np.bool_)
+    state = 0
     for k in range(z):
-        any_judged = any_judged or judged[k]
-        burned[k] = judged[k] and burn[k] > limits[0]
-        any_burned = any_burned or burned[k]
-    misfire = judged & ~burned
-    if not any_burned:
-        return any_judged, misfire, None, cycles
+        if np.isfinite(burn[k]):
+            burned[k] = burn[k] > limits[0]
+            misfire[k] = not burned[k]
+            state = max(state, 2 if burned[k] else 1)
     ref_out = reference.copy()
     cycles_out = cycles.copy()
+    if state < 2:
+        return state, misfire, ref_out, cycles_out
     others = np.empty(z)
     for k in range(z):
         if not burned[k]:
@@ -350,14 +345,14 @@ def _combustion_kernel(burn, work, reference, cycles, limits):
         if n == 0:
             ref = reference[k]  # no burned sibling: its own reference
         else:
-            ref = np.nan if nan else _median_sorted(np.sort(others[:n]), n)  # np.median: NaN in, NaN out
+            ref = np.nan if nan else median_of_first(others, n)  # np.median: NaN in, NaN out
         if np.isfinite(ref) and ref > 0 and work[k] < limits[1] * ref:
             misfire[k] = True  # a partial burn
             continue
         cycles_out[k] += 1
         g = max(1.0 / limits[2], 1.0 / max(cycles_out[k], 1))
         ref_out[k] = reference[k] + g * (work[k] - reference[k]) if np.isfinite(reference[k]) else work[k]
-    return any_judged, misfire, ref_out, cycles_out
+    return state, misfire, ref_out, cycles_out
 
 
 @numba.njit(cache=True)
@@ -385,14 +380,18 @@ def _window_kernel(levels, window, g, first):
     z = levels.shape[1]
     out = np.empty_like(window)
     dev = np.zeros(z)
+    buf = np.empty(z)
     for r in range(3):
         x = levels[r]
         if z == 2:
             dev[0] = x[0] - x[1]
             dev[1] = x[1] - x[0]
         elif z > 2:
-            s = np.sort(x)
-            med = np.nan if np.isnan(s[z - 1]) else _median_sorted(s, z)  # np.sort puts NaN last
+            nan = False
+            for k in range(z):
+                nan = nan or np.isnan(x[k])
+                buf[k] = x[k]
+            med = np.nan if nan else median_of_first(buf, z)  # np.median: NaN in, NaN out
             for k in range(z):
                 dev[k] = x[k] - med
         for k in range(z):

@@ -252,28 +252,34 @@ def _slope(x, y):
 
 
 @numba.njit(cache=True)
+def median_of_first(buf, n):
+    """The median of buf[:n] (n >= 1, no NaN) as np.median takes it. One compiled sort shared by the checks'
+    kernels (core.monitor.checks.condition calls it too)."""
+    s = np.sort(buf[:n])
+    return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
+
+
+@numba.njit(cache=True)
 def _sibling_median_kernel(x, out):
-    """``_sibling_median`` into out (z,)."""
+    """``_sibling_median`` into out (z,) (element loops: slice assignment and mask indexing compile slowly)."""
     z = x.shape[0]
-    ok = np.isfinite(x)
+    buf = np.empty(z)
     n_ok = 0
     for k in range(z):
-        n_ok += ok[k]
-    if z < 2:
-        for k in range(z):
-            out[k] = 0.0 if ok[k] else np.nan
-        return
-    if n_ok < 2:
-        out[:] = np.nan
-        return
-    if z == 2:
-        out[0] = x[0] - x[1]
-        out[1] = x[1] - x[0]
-        return
-    s = np.sort(x[ok])
-    med = s[n_ok // 2] if n_ok % 2 else 0.5 * (s[n_ok // 2 - 1] + s[n_ok // 2])
+        if np.isfinite(x[k]):
+            buf[n_ok] = x[k]
+            n_ok += 1
     for k in range(z):
-        out[k] = x[k] - med
+        if z < 2:
+            out[k] = 0.0 if np.isfinite(x[k]) else np.nan
+        elif n_ok < 2:
+            out[k] = np.nan
+        elif z == 2:
+            out[k] = x[k] - x[1 - k]
+    if z > 2 and n_ok >= 2:
+        med = median_of_first(buf, n_ok)
+        for k in range(z):
+            out[k] = x[k] - med
 
 
 @numba.njit(cache=True)
