@@ -5,12 +5,13 @@ importing the monitor."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.monitor.balance.harmonic_balance import OperatingPoint
 from frictionwatch.core.monitor.checks.change import ChangeDetector
+from frictionwatch.core.monitor.checks.ring_pressure import RingTables
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig, SensorHealthState
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, ResidualStats
 from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
@@ -19,10 +20,7 @@ from frictionwatch.core.monitor.identify.priors import PriorNormal
 from frictionwatch.core.monitor.report.report_kernels import TrigTables
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
 from frictionwatch.core.monitor.teeth.tooth_fit import ToothPatterns
-
-if TYPE_CHECKING:
-    from frictionwatch.core.monitor.checks.condition import ConditionTables
-    from frictionwatch.core.monitor.identify.identification import MidSpeedFit
+from frictionwatch.core.types import Cycle
 
 
 @dataclass(frozen=True)
@@ -125,6 +123,24 @@ class MonitorConfig:
             raise ValueError(f"forgetting = {lam!r} must be a per-cycle factor in [0, 1], or None")
 
 
+class ConditionTables(NamedTuple):
+    """What the cycles' grid and the condition settings fix once (core.monitor.checks.condition.condition_tables): the
+    grid's first angle [rad] and size, the settings' angles they were made for (``key``: early_deg, late_margin_deg,
+    late_max_deg, burn_half_deg), each cylinder's grid columns (z, 4) int64 and fractions towards the next column
+    (z, 4) at ``early_deg`` and ``late`` before its firing TDC (the compression rise) and -+ ``burn_half_deg`` about
+    it (the burn ratio), and the ring indicators' tables (None: the valve timing leaves no room for the windows)."""
+
+    first_angle: float
+    size: int
+    key: tuple[float, ...]
+    cols: np.ndarray
+    frac: np.ndarray
+    ring: RingTables | None
+
+    def fits(self, grid: np.ndarray, key: tuple[float, ...]) -> bool:
+        return grid.shape[0] == self.size and float(grid[0]) == self.first_angle and key == self.key
+
+
 @dataclass(frozen=True)
 class ConditionState:
     """The condition flags' window (core.monitor.checks.condition): cycles used, ``window`` (2, 3, z) the EWMA means
@@ -208,6 +224,21 @@ class GridGeometry(NamedTuple):
 
     def fits(self, grid: np.ndarray) -> bool:
         return grid.shape[0] == self.size and float(grid[0]) == self.first_angle
+
+
+class MidSpeedFit(NamedTuple):
+    """What the mid-cycle speed fits of a cycle's edges, fixed by their nominal angles
+    (core.monitor.identify.identification.mid_speed_fit): the cycle's edge angles (m,) [rad] it was made for, the
+    indices of the edges within +-MID_SPEED_HALF_WIDTH of theta = 2 pi, and the row that takes their times [s] to the
+    fitted dt/dtheta at 2 pi [s/rad]."""
+
+    tooth_angle: np.ndarray
+    edges: np.ndarray
+    slope_row: np.ndarray
+
+    def fits(self, cycle: Cycle) -> bool:
+        return self.tooth_angle.shape == cycle.tooth_angle.shape and bool(np.array_equal(self.tooth_angle,
+                                                                                         cycle.tooth_angle))
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -45,7 +44,6 @@ from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.checks.change import ChangeSettings, detect_change
 from frictionwatch.core.monitor.checks.ring_pressure import (
     RingIndicators,
-    RingTables,
     median_of_first,
     ring_indicators,
     ring_tables,
@@ -54,7 +52,7 @@ from frictionwatch.core.monitor.checks.ring_pressure import (
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterior
 from frictionwatch.core.monitor.identify.identification import Identification
 from frictionwatch.core.monitor.report.results import FrictionEstimate
-from frictionwatch.core.monitor.state import ConditionState
+from frictionwatch.core.monitor.state import ConditionState, ConditionTables
 
 FOUR_PI = 4.0 * np.pi
 
@@ -216,7 +214,7 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
     z = spec.n_cyl
     st = ConditionState.empty(z) if state is None else state
     tab = st.tables
-    if tab is None or not tab.fits(grid, settings):
+    if tab is None or not tab.fits(grid, _table_key(settings)):
         tab = condition_tables(spec, grid, settings)
     g = max(1.0 / settings.window, 1.0 / (st.count + 1))
     first = st.count == 0
@@ -265,24 +263,6 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
     return ConditionStep(new, tuple(flags), acc, ring)
 
 
-class ConditionTables(NamedTuple):
-    """What the cycles' grid and the settings fix once (``condition_tables``): the grid's first angle [rad] and size,
-    the settings they were made for, each cylinder's grid columns (z, 4) int64 and fractions towards the next column
-    (z, 4) at ``early_deg`` and ``late`` before its firing TDC (the compression rise) and -+ ``burn_half_deg`` about
-    it (the burn ratio), and the ring indicators' tables (None: the valve timing leaves no room for the windows)."""
-
-    first_angle: float
-    size: int
-    settings: ConditionSettings
-    cols: np.ndarray
-    frac: np.ndarray
-    ring: RingTables | None
-
-    def fits(self, grid: np.ndarray, settings: ConditionSettings) -> bool:
-        return (grid.shape[0] == self.size and float(grid[0]) == self.first_angle
-                and (settings is self.settings or settings == self.settings))
-
-
 def condition_tables(spec: EngineSpec, grid: np.ndarray, settings: ConditionSettings = DEFAULT_SETTINGS
                      ) -> ConditionTables:
     """The columns and fractions of the four angles on ``grid`` (n,) [rad], ``log_pressure_ratio``'s arithmetic."""
@@ -296,7 +276,12 @@ def condition_tables(spec: EngineSpec, grid: np.ndarray, settings: ConditionSett
         ring = ring_tables(spec, grid, ring_windows(spec))
     except ValueError:
         ring = None  # the engine's valve timing leaves no room for the ring indicators' windows
-    return ConditionTables(float(grid[0]), int(n), settings, i.astype(np.int64) % n, frac, ring)
+    return ConditionTables(float(grid[0]), int(n), _table_key(settings), i.astype(np.int64) % n, frac, ring)
+
+
+def _table_key(settings: ConditionSettings) -> tuple[float, ...]:
+    """The settings the tables depend on."""
+    return (settings.early_deg, settings.late_margin_deg, settings.late_max_deg, settings.burn_half_deg)
 
 
 def combustion_flags(burn: np.ndarray, work: np.ndarray, reference: np.ndarray, cycles: np.ndarray,

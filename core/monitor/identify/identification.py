@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import NamedTuple
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
@@ -33,7 +32,7 @@ from frictionwatch.core.monitor.identify.layout import CycleRows
 from frictionwatch.core.monitor.identify.noise_model import NoiseSettings, whitened_rows
 from frictionwatch.core.monitor.identify.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
 from frictionwatch.core.monitor.report.results import FrictionEstimate
-from frictionwatch.core.monitor.state import GridGeometry, MonitorConfig, MonitorState, PreviousCycle
+from frictionwatch.core.monitor.state import GridGeometry, MidSpeedFit, MonitorConfig, MonitorState, PreviousCycle
 from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion
 from frictionwatch.core.types import Cycle
 
@@ -80,20 +79,6 @@ def mid_cycle_speed(spec: EngineSpec, cycle: Cycle, fit: MidSpeedFit | None = No
     ticks = cycle.tooth_ticks[fit.edges]
     dt_dtheta = float(fit.slope_row @ ((ticks - ticks[0]) / cycle.tick_hz))
     return float(1.0 / dt_dtheta) if dt_dtheta > 0 else float("nan")
-
-
-class MidSpeedFit(NamedTuple):
-    """What ``mid_cycle_speed`` fits of a cycle's edges, fixed by their nominal angles (``mid_speed_fit``): the
-    cycle's edge angles (m,) [rad] it was made for, the indices of the edges within +-MID_SPEED_HALF_WIDTH of
-    theta = 2 pi, and the row that takes their times [s] to the fitted dt/dtheta at 2 pi [s/rad]."""
-
-    tooth_angle: np.ndarray
-    edges: np.ndarray
-    slope_row: np.ndarray
-
-    def fits(self, cycle: Cycle) -> bool:
-        return self.tooth_angle.shape == cycle.tooth_angle.shape and bool(np.array_equal(self.tooth_angle,
-                                                                                         cycle.tooth_angle))
 
 
 def mid_speed_fit(cycle: Cycle) -> MidSpeedFit | None:
