@@ -27,10 +27,10 @@ The window statistics are EWMAs carried in ``ConditionState`` (core.monitor.stat
 cycle from the window that ends there, so it stays on while the condition lasts. The sibling comparison uses the
 median of the cylinders (a single-cylinder engine has no siblings: no blow-by or ring-wear flag).
 
-The per-cycle numbers come from small kernels (``_levels_kernel``, ``_window_kernel``, ``_burn_reference_kernel``)
-on pressure samples whose grid columns are fixed once per grid (``condition_tables``, carried in the state); the
-plain numpy functions beside them (``compression_rise``, ``burn_ratio``, ``sibling_deviation``, ``_ewma``,
-``combustion_flags_reference``) are their references (tests/core/test_condition.py).
+The per-cycle numbers come from small kernels (``_levels_kernel``, ``_window_kernel``, ``_combustion_kernel``) on
+pressure samples whose grid columns are fixed once per grid (``condition_tables``, carried in the state); the plain
+numpy functions beside them (``compression_rise``, ``burn_ratio``, ``sibling_deviation``, ``_ewma``,
+``combustion_flags_reference``) are their references (tests/core/test_condition_kernels.py).
 """
 
 from __future__ import annotations

@@ -33,7 +33,7 @@ keeps its commissioning baseline per load band (service.alert_baseline) rather t
 Arrays in, arrays out, no state: the windows are fixed by the engine spec, so each cycle stands alone. What the grid
 fixes (every window sample's grid columns, -ln V there) is made once per grid (``ring_tables``, carried by the caller);
 the per-cycle numbers come from one kernel (``_ring_kernel``), checked against the plain numpy
-``ring_indicators_reference`` (tests/core/test_condition_ring.py).
+``ring_indicators_reference`` (tests/core/test_condition_kernels.py).
 """
 
 from __future__ import annotations
