@@ -80,20 +80,40 @@ def _positions(local, params, x):
 @numba.njit(cache=True)
 def _window_works(x, previous, current, starts, out):
     """Trapezoid sum of p dx (z rows) over n samples from starts[w, k] in the joined pressure [previous | current]
-    (2n samples), the last sample joined to the first (a closed loop); x (z, n) the 4 pi periodic positions."""
+    (2n samples), the last sample joined to the first (a closed loop); x (z, n) the 4 pi periodic positions. Each
+    cylinder's terms (p_a + p_a+1)(x_a+1 - x_a) along the joined cycles are formed once, and a window's sum runs in
+    four interleaved partial sums (no per-sample branch, no chain of dependent additions): the same sum as numpy's
+    reference to rounding (window_works_reference, tests/core/test_indicated.py)."""
     z, n = x.shape
-    for w in range(starts.shape[0]):
-        for k in range(z):
+    p = np.empty(2 * n)
+    xx = np.empty(2 * n)
+    t = np.empty(2 * n - 1)
+    for k in range(z):
+        for a in range(n):  # element loops: a slice assignment compiles ten times longer
+            p[a] = previous[k, a]
+            p[n + a] = current[k, a]
+            xx[a] = x[k, a]
+            xx[n + a] = x[k, a]
+        for a in range(2 * n - 1):
+            t[a] = (p[a] + p[a + 1]) * (xx[a + 1] - xx[a])
+        for w in range(starts.shape[0]):
             s = starts[w, k]
-            acc = 0.0
-            for a in range(s, s + n):  # a < 2n: the sample and its position index without a modulo
-                b = a + 1 if a + 1 < s + n else s
-                pa = previous[k, a] if a < n else current[k, a - n]
-                pb = previous[k, b] if b < n else current[k, b - n]
-                xa = x[k, a] if a < n else x[k, a - n]
-                xb = x[k, b] if b < n else x[k, b - n]
-                acc += (pa + pb) * (xb - xa)
-            out[w, k] = 0.5 * acc
+            e = s + n - 1  # the window's last sample (< 2n), joined to its first
+            s0 = 0.0
+            s1 = 0.0
+            s2 = 0.0
+            s3 = 0.0
+            a = s
+            while a + 3 < e:
+                s0 += t[a]
+                s1 += t[a + 1]
+                s2 += t[a + 2]
+                s3 += t[a + 3]
+                a += 4
+            while a < e:
+                s0 += t[a]
+                a += 1
+            out[w, k] = 0.5 * ((s0 + s1) + (s2 + s3) + (p[e] + p[s]) * (xx[s] - xx[e]))
 
 
 def window_works(theta: np.ndarray, positions: np.ndarray, previous: np.ndarray, current: np.ndarray,
@@ -113,16 +133,46 @@ def window_works(theta: np.ndarray, positions: np.ndarray, previous: np.ndarray,
     if prev.shape != cur.shape or positions.shape != cur.shape or cur.shape[1] != n or c.shape[1] != cur.shape[0]:
         raise ValueError(f"previous, current and positions must have shape (z, n) = ({c.shape[1]}, {n}) and "
                          f"centres (w, z); got {prev.shape}, {cur.shape}, {positions.shape}, {c.shape}")
-    step = th[1] - th[0]
-    if abs(step * n - 4 * np.pi) > 4e-6 * np.pi or np.abs(c).max() > 2 * np.pi + 0.5 * step:
-        raise ValueError("theta must cover one 720 deg cycle and every centre lie within +-360 deg")
     if not math.isfinite(prev.sum() + cur.sum()):  # NaN and inf propagate into the sum
         raise ValueError("pressure has NaN or inf samples; the cycle must be skipped before IMEP")
-    # each window's first sample in [prev | cur] (2n samples); rounding may put a centre at +-360 deg half a step out
-    starts = np.rint((c - 2 * np.pi - th[0]) / step).astype(np.int64) + n
-    np.clip(starts, 0, n, out=starts)
+    return works_at(np.ascontiguousarray(positions, dtype=np.float64), prev, cur, window_starts(th, c), area)
+
+
+def window_starts(theta: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """(w, z) int64: each window's first sample in [previous | current] (2n samples) for ``window_works``' centres
+    (w, z) [rad] on the uniform grid theta (n,) (fixed by the grid: a caller with a fixed grid makes them once)."""
+    n = theta.shape[0]
+    step = theta[1] - theta[0]
+    if abs(step * n - 4 * np.pi) > 4e-6 * np.pi or np.abs(centres).max() > 2 * np.pi + 0.5 * step:
+        raise ValueError("theta must cover one 720 deg cycle and every centre lie within +-360 deg")
+    # rounding may put a centre at +-360 deg half a step out
+    return np.clip(np.rint((centres - 2 * np.pi - theta[0]) / step).astype(np.int64) + n, 0, n)
+
+
+def works_at(positions: np.ndarray, previous: np.ndarray, current: np.ndarray, starts: np.ndarray,
+             area: float) -> np.ndarray:
+    """``window_works`` from the windows' first samples ``starts`` (w, z) (``window_starts``), the arrays already
+    checked: positions, previous, current C-contiguous float64 (z, n), the pressures finite (as the monitor's
+    checked pressure is). One kernel call."""
+    out = np.empty(starts.shape)
+    _window_works(positions, previous, current, starts, out)
+    return out * area
+
+
+def window_works_reference(theta: np.ndarray, positions: np.ndarray, previous: np.ndarray, current: np.ndarray,
+                           centres: np.ndarray, area: float) -> np.ndarray:
+    """Plain numpy ``window_works`` (the kernel's reference, tests/core/test_indicated.py): each window's n samples
+    of [previous | current] and their positions, closed on the first sample, integrated by the trapezoid rule."""
+    n = theta.shape[0]
+    step = theta[1] - theta[0]
+    c = np.atleast_2d(np.asarray(centres, dtype=np.float64))
+    starts = np.clip(np.rint((c - 2 * np.pi - theta[0]) / step).astype(np.int64) + n, 0, n)
+    joined, x2 = np.concatenate((previous, current), axis=1), np.concatenate((positions, positions), axis=1)
     out = np.empty(c.shape)
-    _window_works(np.ascontiguousarray(positions, dtype=np.float64), prev, cur, starts, out)
+    for w, k in np.ndindex(*c.shape):
+        idx = np.arange(starts[w, k], starts[w, k] + n)
+        p, x = joined[k, idx], x2[k, idx]
+        out[w, k] = np.sum(0.5 * (p + np.roll(p, -1)) * (np.roll(x, -1) - x))
     return out * area
 
 

@@ -44,6 +44,7 @@ from frictionwatch.core.monitor.identify.identification import (
     grid_geometry,
     identify_cycle,
     mid_cycle_speed,
+    mid_speed_fit,
     transient_balance,
 )
 from frictionwatch.core.monitor.identify.layout import parameter_layout
@@ -152,7 +153,9 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         load = load + p_gnd / omega
     t_i = float(exc.indicated_mean.sum())
     prev = state.previous_of(int(cycle.tooth_ticks[0]))
-    mid_speed = mid_cycle_speed(spec, cycle)
+    mid_fit = state.mid_speed_fit if state.mid_speed_fit is not None and state.mid_speed_fit.fits(cycle) \
+        else mid_speed_fit(cycle)
+    mid_speed = mid_cycle_speed(spec, cycle, mid_fit)
     geometry = (state.grid_geometry if state.grid_geometry is not None and state.grid_geometry.fits(cycle.grid)
                 else grid_geometry(spec, cycle.grid))
     balance, kinetic, accel, t_window, imep_c = transient_balance(spec, cycle, pressure, exc.indicated_mean,
@@ -200,7 +203,7 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         tooth_patterns=patterns, sensor=sensor, condition=cond.state,
         previous=PreviousCycle(int(cycle.tooth_ticks[0]), int(cycle.tooth_ticks[-1]), pressure.copy(), mid_speed,
                                load),  # a copy: a live source may reuse the cycle's buffer
-        grid_geometry=geometry,
+        grid_geometry=geometry, mid_speed_fit=mid_fit,
     )  # every field (dataclasses.replace costs twice as much per cycle)
     return new_state, result
 

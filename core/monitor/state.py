@@ -11,6 +11,7 @@ import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.monitor.balance.harmonic_balance import OperatingPoint
 from frictionwatch.core.monitor.checks.change import ChangeDetector
+from frictionwatch.core.monitor.checks.ring_pressure import RingTables
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig, SensorHealthState
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, ResidualStats
 from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
@@ -19,6 +20,7 @@ from frictionwatch.core.monitor.identify.priors import PriorNormal
 from frictionwatch.core.monitor.report.report_kernels import TrigTables
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
 from frictionwatch.core.monitor.teeth.tooth_fit import ToothPatterns
+from frictionwatch.core.types import Cycle
 
 
 @dataclass(frozen=True)
@@ -121,32 +123,72 @@ class MonitorConfig:
             raise ValueError(f"forgetting = {lam!r} must be a per-cycle factor in [0, 1], or None")
 
 
+class ConditionTables(NamedTuple):
+    """What the cycles' grid and the condition settings fix once (core.monitor.checks.condition.condition_tables): the
+    grid's first angle [rad] and size, the settings' angles they were made for (``key``: early_deg, late_margin_deg,
+    late_max_deg, burn_half_deg), each cylinder's grid columns (z, 4) int64 and fractions towards the next column
+    (z, 4) at ``early_deg`` and ``late`` before its firing TDC (the compression rise) and -+ ``burn_half_deg`` about
+    it (the burn ratio), and the ring indicators' tables (None: the valve timing leaves no room for the windows)."""
+
+    first_angle: float
+    size: int
+    key: tuple[float, ...]
+    cols: np.ndarray
+    frac: np.ndarray
+    ring: RingTables | None
+
+    def fits(self, grid: np.ndarray, key: tuple[float, ...]) -> bool:
+        return grid.shape[0] == self.size and float(grid[0]) == self.first_angle and key == self.key
+
+
 @dataclass(frozen=True)
 class ConditionState:
-    """The condition flags' window (core.monitor.checks.condition): cycles used, EWMA means and variances (z,) of each
-    cylinder's deviation from its siblings in ln(compression rise), ln(pmax) and ln(indicated torque), the EWMA of the
-    reduced chi^2, the change detector (core.monitor.checks.change) and the cycles since the last operating-point change;
-    burn_reference (z,) N m: each cylinder's EWMA indicated torque over its fully burned cycles (NaN before the first),
-    and burn_cycles (z,) how many fed it: the reference a single cylinder's partial burn is judged against."""
+    """The condition flags' window (core.monitor.checks.condition): cycles used, ``window`` (2, 3, z) the EWMA means
+    (row 0) and variances about them (row 1) of each cylinder's deviation from its siblings in ln(compression rise),
+    ln(pmax) and ln(indicated torque) (the properties name them), the EWMA of the reduced chi^2, the change detector
+    (core.monitor.checks.change) and the cycles since the last operating-point change; burn_reference (z,) N m: each
+    cylinder's EWMA indicated torque over its fully burned cycles (NaN before the first), and burn_cycles (z,) how
+    many fed it: the reference a single cylinder's partial burn is judged against; tables: what the cycles' grid
+    fixes of the pressure samples the flags read (core.monitor.checks.condition.condition_tables; None: made on the
+    next cycle)."""
 
     count: int
-    compression: np.ndarray
-    compression_var: np.ndarray
-    peak: np.ndarray
-    peak_var: np.ndarray
-    indicated: np.ndarray
-    indicated_var: np.ndarray
+    window: np.ndarray
     misfit: float
     detector: ChangeDetector | None
     since_op_change: int = 1 << 30
     burn_reference: np.ndarray | None = None
     burn_cycles: np.ndarray | None = None
+    tables: ConditionTables | None = None
 
     @staticmethod
     def empty(n_cyl: int) -> ConditionState:
-        zero = np.zeros(n_cyl)
-        return ConditionState(0, zero, zero, zero, zero, zero, zero, 1.0, None,
-                              burn_reference=np.full(n_cyl, np.nan), burn_cycles=np.zeros(n_cyl, dtype=np.int64))
+        return ConditionState(0, np.zeros((2, 3, n_cyl)), 1.0, None, burn_reference=np.full(n_cyl, np.nan),
+                              burn_cycles=np.zeros(n_cyl, dtype=np.int64))
+
+    @property
+    def compression(self) -> np.ndarray:
+        return self.window[0, 0]
+
+    @property
+    def compression_var(self) -> np.ndarray:
+        return self.window[1, 0]
+
+    @property
+    def peak(self) -> np.ndarray:
+        return self.window[0, 1]
+
+    @property
+    def peak_var(self) -> np.ndarray:
+        return self.window[1, 1]
+
+    @property
+    def indicated(self) -> np.ndarray:
+        return self.window[0, 2]
+
+    @property
+    def indicated_var(self) -> np.ndarray:
+        return self.window[1, 2]
 
 
 class PreviousCycle(NamedTuple):
@@ -167,16 +209,36 @@ class GridGeometry(NamedTuple):
     """What the cycles' crank-angle grid fixes once (core.monitor.identify.identification.grid_geometry): the grid's first
     angle [rad] and size (a cycle on another grid makes it anew), every cylinder's piston displacement on it
     positions (z, n) [m], J(theta = 2 pi) [kg m^2] and each piston's x'' (z, n) [m/rad^2] (the indicated work's
-    sensitivity to a TDC error, core.monitor.identify.estimate.indicated_tdc_sensitivity)."""
+    sensitivity to a TDC error, core.monitor.identify.estimate.indicated_tdc_sensitivity); the transient balance's
+    window starts (core.model.indicated.window_starts): window_starts (2, z) of each cylinder's own firing window and
+    the window centred on cylinder 1's firing TDC in [previous | current], alone_starts (1, z) of the cycle's own
+    closed loop (None: made by the balance)."""
 
     first_angle: float
     size: int
     positions: np.ndarray
     inertia_mid: float
     piston_acceleration: np.ndarray
+    window_starts: np.ndarray | None = None
+    alone_starts: np.ndarray | None = None
 
     def fits(self, grid: np.ndarray) -> bool:
         return grid.shape[0] == self.size and float(grid[0]) == self.first_angle
+
+
+class MidSpeedFit(NamedTuple):
+    """What the mid-cycle speed fits of a cycle's edges, fixed by their nominal angles
+    (core.monitor.identify.identification.mid_speed_fit): the cycle's edge angles (m,) [rad] it was made for, the
+    indices of the edges within +-MID_SPEED_HALF_WIDTH of theta = 2 pi, and the row that takes their times [s] to the
+    fitted dt/dtheta at 2 pi [s/rad]."""
+
+    tooth_angle: np.ndarray
+    edges: np.ndarray
+    slope_row: np.ndarray
+
+    def fits(self, cycle: Cycle) -> bool:
+        return self.tooth_angle.shape == cycle.tooth_angle.shape and bool(np.array_equal(self.tooth_angle,
+                                                                                         cycle.tooth_angle))
 
 
 @dataclass(frozen=True)
@@ -206,6 +268,7 @@ class MonitorState:
     condition: ConditionState | None = None  # the condition flags' window and change detector (core.monitor.checks.condition)
     previous: PreviousCycle | None = None  # the last analysed cycle: centred windows and the kinetic-energy term
     grid_geometry: GridGeometry | None = None  # the crank-angle grid's piston positions and J(2 pi)
+    mid_speed_fit: MidSpeedFit | None = None  # the mid-cycle speed's slope row at the edges' angles
 
     def previous_of(self, first_tick: int) -> PreviousCycle | None:
         """``previous`` if it is the cycle just before one whose first tooth edge is at ``first_tick``, else None."""

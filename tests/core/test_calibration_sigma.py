@@ -26,6 +26,7 @@ from frictionwatch.core.model.kinematics import cylinder_kinematics_kernel
 from frictionwatch.core.monitor.identify.estimate import (
     CalibrationSensitivity,
     calibration_variance,
+    calibration_variance_reference,
     indicated_tdc_sensitivity,
 )
 from frictionwatch.service.cli import main
@@ -77,6 +78,20 @@ def test_calibration_variance_by_hand():
                        gain_common_sigma=0.0, inertia_sigma=0.0)
     per0, total0 = calibration_variance(none, CalibrationSensitivity(s, t_i))
     assert_allclose(per0, 0.0) and math.isclose(total0, 0.0)
+
+
+@pytest.mark.parametrize("z", [1, 3, 4, 20])
+def test_calibration_variance_kernel_matches_its_numpy_reference(z):
+    """Seeded sensitivities of both signs; the kernel sums in order where numpy sums pairwise: 1e-14 relative."""
+    rng = np.random.default_rng(z)
+    cal = Calibration(tdc_wheel_sigma_deg=0.4, tdc_cylinder_sigma_deg=0.15, gain_sigma=0.02, gain_common_sigma=0.015,
+                      inertia_sigma=0.04)
+    for kinetic in (float("nan"), -3.0, 7.5):
+        sens = CalibrationSensitivity(rng.normal(0.0, 20.0, z), rng.normal(40.0, 30.0, z), kinetic)
+        per, total = calibration_variance(cal, sens)
+        per_r, total_r = calibration_variance_reference(cal, sens)
+        assert_allclose(per, per_r, rtol=1e-14)
+        assert_allclose(total, total_r, rtol=1e-14)
 
 
 def test_model_file_keeps_its_calibration_and_refuses_unknown_keys():

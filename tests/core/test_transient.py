@@ -12,11 +12,17 @@ import pytest
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.indicated import centred_work, net_imep, tdc_centres
 from frictionwatch.core.model.kinematics import cylinder_volume
-from frictionwatch.core.monitor.identify.identification import NO_BALANCE, mid_cycle_inertia
+from frictionwatch.core.monitor.identify.identification import (
+    NO_BALANCE,
+    mid_cycle_inertia,
+    mid_cycle_speed,
+    mid_cycle_speed_reference,
+    mid_speed_fit,
+)
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.core.types import LoadSample
 from frictionwatch.service.coastdown_report import transient_section
-from frictionwatch.service.pipeline import analyze_records
+from frictionwatch.service.pipeline import analyze_records, assembled_cycles
 from numpy.testing import assert_allclose
 
 SPEC = load_engine("tue-4gb10")
@@ -183,3 +189,17 @@ def test_the_first_cycle_has_no_balance_and_says_so(coast):
     assert all(r.smoothed.source == r.cycle.source == "data" for r in res[1:] if np.isfinite(r.friction_balance))
     last = res[-1]
     assert_allclose(last.cycle.total_friction_torque, truth[last.index]["friction_torque_mean_nm"], rtol=0.05)
+
+
+@pytest.mark.parametrize("engine, rpm", [("k9k-4cyl", 4000.0), ("genset-v20", 1500.0), ("deutz-1cyl", 3000.0)])
+def test_mid_cycle_speed_from_the_kept_fit_matches_the_lstsq_of_each_cycle(engine, rpm):
+    """The slope row made once (pseudo-inverse, SVD) against one lstsq per cycle (SVD too): the same linear map of the
+    edge times, so ~1e-15 of the speed (1e-12 relative stated); the fit is kept over cycles with the same edges."""
+    spec = load_engine(engine)
+    sim = simulate(spec, rpm, 0.7, 5, seed=4)
+    cycles, _ = assembled_cycles(spec, sim.info, sim.records)
+    fit = mid_speed_fit(cycles[0])
+    assert fit is not None and all(fit.fits(c) for c in cycles)
+    for c in cycles:
+        assert_allclose(mid_cycle_speed(spec, c, fit), mid_cycle_speed_reference(c), rtol=1e-12)
+        assert_allclose(mid_cycle_speed(spec, c), mid_cycle_speed_reference(c), rtol=1e-12)

@@ -30,13 +30,18 @@ load, and a step 0.75 -> 0.45 moved single cylinders' sibling-relative leak effe
 0.0028 (0.0006 with the same simulator's shaft made rigid; K9K, a short stiff crank: 0.0002). The service therefore
 keeps its commissioning baseline per load band (service.alert_baseline) rather than reading a load change as a leak.
 
-Arrays in, arrays out, no state: the windows are fixed by the engine spec, so each cycle stands alone.
+Arrays in, arrays out, no state: the windows are fixed by the engine spec, so each cycle stands alone. What the grid
+fixes (every window sample's grid columns, -ln V there) is made once per grid (``ring_tables``, carried by the caller);
+the per-cycle numbers come from one kernel (``_ring_kernel``), checked against the plain numpy
+``ring_indicators_reference`` (tests/core/test_condition_kernels.py).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
+import numba
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.kinematics import kinematics
@@ -151,9 +156,10 @@ def _slopes(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return (y - y.mean(axis=1, keepdims=True)) @ xc / (xc @ xc)
 
 
-def ring_indicators(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray,
-                    windows: RingWindows | None = None) -> RingIndicators:
-    """This cycle's ring indicators from the pressure (z, n) [Pa] on ``grid`` (n,) [rad, cylinder 1's 0..4 pi]."""
+def ring_indicators_reference(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray,
+                              windows: RingWindows | None = None) -> RingIndicators:
+    """This cycle's ring indicators from the pressure (z, n) [Pa] on ``grid`` (n,) [rad, cylinder 1's 0..4 pi]: the
+    plain numpy reference of ``ring_indicators`` (the module doc's definitions, step by step)."""
     win = windows or ring_windows(spec)
     c_ang, c_x = _window(spec, win.comp_start, win.comp_end)
     e_ang, e_x = _window(spec, win.exp_start, win.exp_end)
@@ -170,3 +176,149 @@ def ring_indicators(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray,
     return RingIndicators(compression_pa=np.exp(comp_ln), compression_ratio=_sibling_median(comp_ln),
                           n_compression=n_c, n_expansion=n_e, n_compression_dev=_sibling_median(n_c),
                           n_expansion_dev=n_e_dev, expansion_deficit=deficit)
+
+
+# ---- the kernel: what the grid fixes once, the rest per cycle ---------------------------------------------------
+
+
+class RingTables(NamedTuple):
+    """What the cycles' grid fixes of the ring indicators (``ring_tables``): the grid's first angle [rad] and size (a
+    cycle on another grid makes them anew), each window sample's grid column (z, m) int64 and fraction towards the
+    next column (z, m) (linear, periodic), -ln V at the samples (m,): the compression window's first ``n_comp``, then
+    the expansion window's, and ``edge`` samples at each end of the expansion window for the deficit."""
+
+    first_angle: float
+    size: int
+    cols: np.ndarray
+    frac: np.ndarray
+    neg_log_volume: np.ndarray
+    n_comp: int
+    edge: int
+
+    def fits(self, grid: np.ndarray) -> bool:
+        return grid.shape[0] == self.size and float(grid[0]) == self.first_angle
+
+
+def ring_tables(spec: EngineSpec, grid: np.ndarray, windows: RingWindows | None = None) -> RingTables:
+    """The sample columns and fractions of both windows on ``grid`` (n,) [rad] (exactly ``_sample``'s: one
+    searchsorted on the grid extended by one point at each end) and -ln V there."""
+    win = windows or ring_windows(spec)
+    c_ang, c_x = _window(spec, win.comp_start, win.comp_end)
+    e_ang, e_x = _window(spec, win.exp_start, win.exp_end)
+    local = np.concatenate((c_ang, e_ang))
+    z, n = spec.n_cyl, grid.shape[0]
+    at = np.mod(local[None, :] + spec.firing_angles[:, None], FOUR_PI).ravel()
+    ext = np.concatenate(([grid[-1] - FOUR_PI], grid, [grid[0] + FOUR_PI]))
+    j = np.searchsorted(ext, at, side="right") - 1
+    frac = (at - ext[j]) / (ext[j + 1] - ext[j])
+    cols = (j - 1) % n
+    edge = max(1, int(round(win.edge_deg / STEP_DEG)))
+    return RingTables(float(grid[0]), int(n), cols.reshape(z, -1).astype(np.int64), frac.reshape(z, -1),
+                      np.concatenate((c_x, e_x)), int(c_ang.shape[0]), edge)
+
+
+def ring_indicators(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, windows: RingWindows | None = None,
+                    tables: RingTables | None = None) -> RingIndicators:
+    """This cycle's ring indicators from the pressure (z, n) [Pa] on ``grid`` (n,) [rad, cylinder 1's 0..4 pi];
+    ``tables`` from ``ring_tables`` for this grid (made here when None or made for another grid)."""
+    tab = tables if tables is not None and tables.fits(grid) else ring_tables(spec, grid, windows)
+    p = np.asarray(pressure, dtype=np.float64)
+    if p.shape != (spec.n_cyl, tab.size):
+        raise ValueError(f"pressure must have shape ({spec.n_cyl}, {tab.size}) on the cycle's grid; got {p.shape}")
+    out = _ring_kernel(p, tab.cols, tab.frac, tab.neg_log_volume, tab.n_comp, tab.edge)
+    return RingIndicators(compression_pa=out[0], compression_ratio=out[1], n_compression=out[2],
+                          n_expansion=out[3], n_compression_dev=out[4], n_expansion_dev=out[5],
+                          expansion_deficit=out[6])
+
+
+@numba.njit(cache=True)
+def _slope(x, y):
+    """Least-squares slope of y (m,) on x (m,) (NaN where y has a NaN)."""
+    m = x.shape[0]
+    xm = 0.0
+    ym = 0.0
+    for i in range(m):
+        xm += x[i]
+        ym += y[i]
+    xm /= m
+    ym /= m
+    sxy = 0.0
+    sxx = 0.0
+    for i in range(m):
+        d = x[i] - xm
+        sxy += (y[i] - ym) * d
+        sxx += d * d
+    return sxy / sxx
+
+
+@numba.njit(cache=True)
+def median_of_first(buf, n):
+    """The median of buf[:n] (n >= 1, no NaN) as np.median takes it. One compiled sort shared by the checks'
+    kernels (core.monitor.checks.condition calls it too)."""
+    s = np.sort(buf[:n])
+    return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
+
+
+@numba.njit(cache=True)
+def _sibling_median_kernel(x, out):
+    """``_sibling_median`` into out (z,) (element loops: slice assignment and mask indexing compile slowly)."""
+    z = x.shape[0]
+    buf = np.empty(z)
+    n_ok = 0
+    for k in range(z):
+        if np.isfinite(x[k]):
+            buf[n_ok] = x[k]
+            n_ok += 1
+    for k in range(z):
+        if z < 2:
+            out[k] = 0.0 if np.isfinite(x[k]) else np.nan
+        elif n_ok < 2:
+            out[k] = np.nan
+        elif z == 2:
+            out[k] = x[k] - x[1 - k]
+    if z > 2 and n_ok >= 2:
+        med = median_of_first(buf, n_ok)
+        for k in range(z):
+            out[k] = x[k] - med
+
+
+@numba.njit(cache=True)
+def _ring_kernel(pressure, cols, frac, neg_log_volume, n_comp, edge):
+    """(7, z): compression_pa, compression_ratio, n_compression, n_expansion, n_compression_dev, n_expansion_dev,
+    expansion_deficit (``ring_indicators_reference``) from the pressure (z, n) sampled at cols/frac (z, m)."""
+    z, n = pressure.shape
+    m = cols.shape[1]
+    lnp = np.empty((z, m))
+    for k in range(z):
+        for i in range(m):
+            c = cols[k, i]
+            p0 = pressure[k, c]
+            p = p0 + (pressure[k, (c + 1) % n] - p0) * frac[k, i]
+            lnp[k, i] = np.log(p) if p > 0.0 else np.nan
+    out = np.empty((7, z))
+    x_c, x_e = neg_log_volume[:n_comp], neg_log_volume[n_comp:]
+    comp_ln = np.empty(z)
+    for k in range(z):
+        comp_ln[k] = lnp[k, n_comp - 1]
+        out[0, k] = np.exp(comp_ln[k])
+        out[2, k] = _slope(x_c, lnp[k, :n_comp])
+        out[3, k] = _slope(x_e, lnp[k, n_comp:])
+    _sibling_median_kernel(comp_ln, out[1])
+    _sibling_median_kernel(out[2], out[4])
+    _sibling_median_kernel(out[3], out[5])
+    m_e = m - n_comp
+    x_late = 0.0
+    x_early = 0.0
+    for i in range(edge):
+        x_late += x_e[m_e - edge + i]
+        x_early += x_e[i]
+    dx = x_late / edge - x_early / edge
+    for k in range(z):
+        n_sib = out[3, k] - out[5, k] if z > 1 else out[3, k]
+        late = 0.0
+        early = 0.0
+        for i in range(edge):
+            late += lnp[k, m - edge + i]
+            early += lnp[k, n_comp + i]
+        out[6, k] = late / edge - early / edge - n_sib * dx
+    return out

@@ -7,6 +7,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import NamedTuple
 
+import numba
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.engine import EngineSpec, mep_per_torque
@@ -127,7 +128,19 @@ def calibration_variance(cal: Calibration, sens: CalibrationSensitivity) -> tupl
     friction figures. The mean balance passes an error of the indicated work into friction whole: the wheel's TDC
     moves every cylinder alike (the total by sum_k dT_k, fully correlated), a cylinder's own TDC and gain its own;
     J's error moves the kinetic-energy term (the engine total only: it is not a cylinder's). A gain common to all
-    channels moves the total by its sum, like the wheel's TDC."""
+    channels moves the total by its sum, like the wheel's TDC. One kernel (``_calibration_variance_kernel``; its
+    numpy reference ``calibration_variance_reference``)."""
+    kinetic = sens.kinetic if math.isfinite(sens.kinetic) else 0.0
+    var = np.array([cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2, cal.gain_sigma ** 2,
+                    cal.gain_common_sigma ** 2, (cal.inertia_sigma * kinetic) ** 2])
+    tdc, t_i = np.asarray(sens.tdc, dtype=np.float64), np.asarray(sens.indicated, dtype=np.float64)
+    if tdc.shape != t_i.shape or tdc.ndim != 1:
+        raise ValueError(f"the TDC sensitivities {tdc.shape} and indicated torques {t_i.shape} need one per cylinder")
+    return _calibration_variance_kernel(tdc, t_i, var)
+
+
+def calibration_variance_reference(cal: Calibration, sens: CalibrationSensitivity) -> tuple[np.ndarray, float]:
+    """``calibration_variance`` in plain numpy (its reference)."""
     s, t_i = np.abs(sens.tdc), np.abs(sens.indicated)
     w2, c2 = cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2
     g2, gc2 = cal.gain_sigma ** 2, cal.gain_common_sigma ** 2
@@ -136,6 +149,27 @@ def calibration_variance(cal: Calibration, sens: CalibrationSensitivity) -> tupl
     total = (float(np.sum(sens.tdc)) ** 2 * w2 + float(np.sum(s * s)) * c2 + float(np.sum(t_i * t_i)) * g2
              + float(np.sum(sens.indicated)) ** 2 * gc2 + (cal.inertia_sigma * kinetic) ** 2)
     return per, total
+
+
+@numba.njit(cache=True)
+def _calibration_variance_kernel(tdc, indicated, var):
+    """(per (z,), total) of ``calibration_variance_reference``; var: the variances of the wheel's and each
+    cylinder's TDC [rad^2], each channel's and the common gain, and the kinetic term's [N^2 m^2]."""
+    w2, c2, g2, gc2, kinetic2 = var[0], var[1], var[2], var[3], var[4]
+    z = tdc.shape[0]
+    per = np.empty(z)
+    s_sum = 0.0
+    s2_sum = 0.0
+    t_sum = 0.0
+    t2_sum = 0.0
+    for k in range(z):
+        s, t = abs(tdc[k]), abs(indicated[k])
+        per[k] = s * s * (w2 + c2) + t * t * (g2 + gc2)
+        s_sum += tdc[k]
+        s2_sum += s * s
+        t_sum += indicated[k]
+        t2_sum += t * t
+    return per, s_sum ** 2 * w2 + s2_sum * c2 + t2_sum * g2 + t_sum ** 2 * gc2 + kinetic2
 
 
 def with_calibration(est: FrictionEstimate, cal: Calibration, sens: CalibrationSensitivity,

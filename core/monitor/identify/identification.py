@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.model.indicated import piston_positions, tdc_centres, window_works
+from frictionwatch.core.model.indicated import piston_positions, tdc_centres, window_starts, works_at
 from frictionwatch.core.model.kinematics import cylinder_kinematics_kernel, kinematics
 from frictionwatch.core.monitor.balance.excitation import Excitation
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterior, ResidualStats, posterior_from_normal
@@ -32,7 +32,7 @@ from frictionwatch.core.monitor.identify.layout import CycleRows
 from frictionwatch.core.monitor.identify.noise_model import NoiseSettings, whitened_rows
 from frictionwatch.core.monitor.identify.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
 from frictionwatch.core.monitor.report.results import FrictionEstimate
-from frictionwatch.core.monitor.state import GridGeometry, MonitorConfig, MonitorState, PreviousCycle
+from frictionwatch.core.monitor.state import GridGeometry, MidSpeedFit, MonitorConfig, MonitorState, PreviousCycle
 from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion
 from frictionwatch.core.types import Cycle
 
@@ -61,13 +61,40 @@ class MeanBalance:
     tdc_sensitivity: np.ndarray | None = None
 
 
-def mid_cycle_speed(spec: EngineSpec, cycle: Cycle) -> float:
+def mid_cycle_speed(spec: EngineSpec, cycle: Cycle, fit: MidSpeedFit | None = None) -> float:
     """Speed [rad/s] at the middle of the cycle (cylinder 1's gas-exchange TDC, theta = 2 pi): 1 / (dt/dtheta) of a
     quadratic in angle fitted to the edge times within +-MID_SPEED_HALF_WIDTH (about 30 edges of a 60-2 wheel). Two
     edges +-18 deg apart quantised the speed to 1 timer tick in 2 ms (simulated Deutz at 1 MHz: J a in steps of
     0.115 N m on 7.6); the fit averages that down ~10x. A tooth-spacing error and the speed ripple repeat every
     cycle at this angle and drop out of a difference of two cycles; the quadratic keeps the linear deceleration out
-    of the slope at the centre."""
+    of the slope at the centre.
+
+    The fit is linear in the times: its slope row (``mid_speed_fit``) depends on the edges' nominal angles only, so a
+    caller that keeps ``fit`` (made for an earlier cycle whose edge angles ``fit.fits`` this one's) takes the slope as
+    one dot product; None: made here. ``mid_cycle_speed_reference`` is the lstsq of every cycle's own edges."""
+    if fit is None:
+        fit = mid_speed_fit(cycle)
+    if fit is None:
+        return float("nan")
+    ticks = cycle.tooth_ticks[fit.edges]
+    dt_dtheta = float(fit.slope_row @ ((ticks - ticks[0]) / cycle.tick_hz))
+    return float(1.0 / dt_dtheta) if dt_dtheta > 0 else float("nan")
+
+
+def mid_speed_fit(cycle: Cycle) -> MidSpeedFit | None:
+    """The slope row of the quadratic fit at ``cycle``'s edges (the second row of the design's pseudo-inverse,
+    numpy's SVD), None with fewer than 5 edges in the window."""
+    ang = cycle.tooth_angle - 2.0 * np.pi
+    edges = np.flatnonzero(np.abs(ang) <= MID_SPEED_HALF_WIDTH)
+    if edges.shape[0] < 5:
+        return None
+    a = ang[edges]
+    row = np.linalg.pinv(np.stack([np.ones_like(a), a, a * a], axis=1))[1]
+    return MidSpeedFit(np.array(cycle.tooth_angle, dtype=np.float64), edges, np.ascontiguousarray(row))
+
+
+def mid_cycle_speed_reference(cycle: Cycle) -> float:
+    """``mid_cycle_speed`` by one least-squares solve of the cycle's own edges (its reference)."""
     ang = cycle.tooth_angle - 2.0 * np.pi
     near = np.abs(ang) <= MID_SPEED_HALF_WIDTH
     if np.count_nonzero(near) < 5:
@@ -96,7 +123,9 @@ def grid_geometry(spec: EngineSpec, grid: np.ndarray) -> GridGeometry:
     cylinder_kinematics_kernel(np.ascontiguousarray(grid, dtype=np.float64),
                                np.ascontiguousarray(spec.firing_angles, dtype=np.float64),
                                np.ascontiguousarray(spec.kinematics_params(), dtype=np.float64), dx, ddx)
-    return GridGeometry(float(grid[0]), int(n), positions, mid_cycle_inertia(spec), ddx)
+    centres = np.stack([tdc_centres(spec.firing_angles), np.zeros(z)])
+    return GridGeometry(float(grid[0]), int(n), positions, mid_cycle_inertia(spec), ddx,
+                        window_starts(grid, centres), window_starts(grid, np.zeros((1, z))))
 
 
 def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indicated_cycle: np.ndarray,
@@ -123,10 +152,14 @@ def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indi
     # the windows' works on the crank-angle grid enter as differences from this cycle's own on the same grid: the
     # 720-point trapezoid reads ~0.5 % below the work the monitor's time grid takes (K9K 1100 rpm: 0.28 N m of
     # indicated torque, 2 % of the friction), a bias the difference cancels
-    ph, x = spec.firing_angles, geometry.positions
-    own, around_tdc1 = window_works(cycle.grid, x, previous.pressure, pressure,
-                                    np.stack([tdc_centres(ph), np.zeros(spec.n_cyl)]), spec.piston_area)
-    alone = window_works(cycle.grid, x, pressure, pressure, np.zeros((1, spec.n_cyl)), spec.piston_area)[0]
+    # the windows' first samples are fixed by the grid (GridGeometry); the pressures are the monitor's checked ones
+    if geometry.window_starts is None or geometry.alone_starts is None:
+        geometry = grid_geometry(spec, cycle.grid)
+    x, area = geometry.positions, spec.piston_area
+    cur = np.ascontiguousarray(pressure, dtype=np.float64)
+    own, around_tdc1 = works_at(x, np.ascontiguousarray(previous.pressure, dtype=np.float64), cur,
+                                geometry.window_starts, area)
+    alone = works_at(x, cur, cur, geometry.alone_starts, area)[0]
     accel = (mid_speed**2 - previous.mid_speed**2) / (2.0 * FOUR_PI)
     kinetic = geometry.inertia_mid * accel
     indicated = float(np.sum(indicated_cycle)) + float(around_tdc1.sum() - alone.sum()) / FOUR_PI

@@ -1,0 +1,98 @@
+"""The condition stage's kernels (core/monitor/checks/condition.py, ring_pressure.py) against the plain numpy
+references beside them, on seeded pressure traces of the presets' sizes (1, 3, 4 and 20 cylinders; 720 and 1440
+grid points, a grid not starting at 0) with per-cylinder gains, noise, a non-positive sample and a NaN.
+
+Tolerances: the samples and logs are the same arithmetic (1e-14 relative: an ulp of a log); the slopes, means and
+medians sum in plain order where numpy sums pairwise or through BLAS, and a sibling deviation is a difference of two
+exponents ~1.3 read to ~1e-3, so those are compared to 1e-12 absolute. Masks and flags are compared exactly."""
+
+import numpy as np
+import pytest
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.kinematics import kinematics
+from frictionwatch.core.monitor.checks.condition import (
+    DEFAULT_SETTINGS,
+    _ewma,
+    _levels_kernel,
+    _window_kernel,
+    burn_ratio,
+    combustion_flags,
+    combustion_flags_reference,
+    compression_rise,
+    condition_tables,
+    sibling_deviation,
+)
+from frictionwatch.core.monitor.checks.ring_pressure import ring_indicators, ring_indicators_reference, ring_tables
+from numpy.testing import assert_allclose, assert_array_equal
+
+ENGINES = ("deutz-1cyl", "maruti-3cyl", "k9k-4cyl", "genset-v20")
+
+
+def _pressure(spec, grid, rng):
+    """Polytropic traces with a burn bump after TDC, a gain per cylinder and 0.3 % noise [Pa]."""
+    p = np.empty((spec.n_cyl, grid.shape[0]))
+    for k in range(spec.n_cyl):
+        local = np.mod(grid - spec.firing_angles[k] + 2 * np.pi, 4 * np.pi) - 2 * np.pi
+        x, _, _ = kinematics(local, np.asarray(spec.kinematics_params()))
+        vol = spec.clearance_volume + spec.piston_area * x
+        burn = 1.0 + 2.0 * np.exp(-((local - 0.3) / 0.3) ** 2)
+        p[k] = 1e5 * rng.uniform(0.95, 1.05) * (vol.max() / vol) ** 1.35 * burn
+    return p * (1.0 + 0.003 * rng.standard_normal(p.shape))
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+@pytest.mark.parametrize("n, start", [(720, 0.0), (1440, 0.01)])
+def test_condition_levels_and_ring_indicators_match_their_references(engine, n, start):
+    spec = load_engine(engine)
+    grid = start + np.arange(n) * (4 * np.pi / n)
+    rng = np.random.default_rng(n + spec.n_cyl)
+    p = _pressure(spec, grid, rng)
+    if spec.n_cyl > 2:
+        p[1, ::7] = -1.0  # a cylinder with non-positive samples: NaN where they are read
+    tab = condition_tables(spec, grid, DEFAULT_SETTINGS)
+    pmax, work = p.max(axis=1), rng.uniform(-1.0, 50.0, spec.n_cyl)
+    levels = _levels_kernel(p, tab.cols, tab.frac, pmax, work)
+    assert_allclose(levels[0], compression_rise(spec, grid, p, DEFAULT_SETTINGS), rtol=1e-14, atol=1e-15)
+    assert_allclose(levels[1], np.log(np.maximum(pmax, 1.0)), rtol=1e-14)
+    assert_allclose(levels[2], np.log(np.maximum(work, 1e-9)), rtol=1e-14)
+    assert_allclose(levels[3], burn_ratio(spec, grid, p, DEFAULT_SETTINGS.burn_half_deg), rtol=1e-14, atol=1e-15)
+    got, want = ring_indicators(spec, grid, p, tables=ring_tables(spec, grid)), ring_indicators_reference(spec, grid, p)
+    for name in ("compression_pa", "n_compression", "n_expansion"):
+        assert_allclose(getattr(got, name), getattr(want, name), rtol=1e-12, err_msg=name)
+    for name in ("compression_ratio", "n_compression_dev", "n_expansion_dev", "expansion_deficit"):
+        assert_allclose(getattr(got, name), getattr(want, name), rtol=0, atol=1e-12, err_msg=name)
+
+
+@pytest.mark.parametrize("z", [1, 2, 3, 4, 20])
+def test_the_window_kernel_is_the_ewma_of_sibling_deviations(z):
+    rng = np.random.default_rng(z)
+    window = np.zeros((2, 3, z))
+    for cycle in range(6):
+        levels = rng.standard_normal((4, z))
+        if cycle == 3 and z > 1:
+            levels[0, 0] = np.nan  # a cylinder's compression rise not read: its row's median is NaN
+        g, first = max(1.0 / 50.0, 1.0 / (cycle + 1)), cycle == 0
+        want = np.array([_ewma(window[0, r], window[1, r], sibling_deviation(levels[r]), g, first)
+                         for r in range(3)]).transpose(1, 0, 2)
+        window = _window_kernel(levels, window, g, first)
+        assert_allclose(window, want, rtol=1e-14, atol=1e-15)
+
+
+@pytest.mark.parametrize("z", [1, 2, 3, 4, 20])
+def test_combustion_flags_match_the_reference(z):
+    """The siblings' medians from one sort against one np.median per cylinder: equal (same two samples averaged)."""
+    rng = np.random.default_rng(100 + z)
+    ref, n = np.full(z, np.nan), np.zeros(z, dtype=np.int64)
+    ref_r, n_r = ref.copy(), n.copy()
+    for cycle in range(40):
+        burn = rng.choice([-0.1, 0.05, 0.5, 0.8, np.nan], size=z, p=[0.1, 0.1, 0.4, 0.35, 0.05])
+        work = rng.uniform(0.0, 3.0, z) * rng.choice([0.05, 1.0], size=z, p=[0.15, 0.85])
+        if cycle % 5 == 0:
+            work = np.round(work)  # ties among the siblings
+        if cycle == 7:
+            work[0] = np.nan
+        flags, ref, n = combustion_flags(burn, work, ref, n, DEFAULT_SETTINGS)
+        flags_r, ref_r, n_r = combustion_flags_reference(burn, work, ref_r, n_r, DEFAULT_SETTINGS)
+        assert flags == flags_r
+        assert_array_equal(n, n_r)
+        assert_allclose(ref, ref_r, rtol=1e-15)
