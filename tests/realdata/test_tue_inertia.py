@@ -37,6 +37,7 @@ def cycles(realdata):
         info, records = daq_to_records(realdata / FOLDER / f"{name}.txt.gz", tdc_deg=TUE_TDC_DEG,
                                        gain_pa_per_v=TUE_GAIN_PA_PER_V)
         out[name], skipped = assembled_cycles(MODEL, info, records)
+        skipped.pop("log_ends_mid_cycle", None)  # the file stops inside a cycle: counted, not a lost good cycle
         assert not skipped, (name, skipped)
     return out
 
