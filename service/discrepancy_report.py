@@ -67,6 +67,14 @@ def _fmt(v: object) -> str:
     return f"{v:.4g}" if isinstance(v, float) else str(v)
 
 
+def _fmep_change(evidence: dict) -> str:
+    """The engine FMEP the mean balance measures, without and with the found effect (what analyze would read)."""
+    a, b = evidence.get("measured_friction_before"), evidence.get("measured_friction_after")
+    if not a or not b:
+        return "–"
+    return f"{a['fmep_bar']:.3f} → {b['fmep_bar']:.3f} ± {b['fmep_sigma_bar']:.2g}"
+
+
 def render(doc: dict, found: Discovery) -> str:
     parts = [f"<h1>Discrepancy: {html.escape(doc.get('engine', ''))}</h1>",
              f"<p><b>{html.escape(doc['verdict'])}</b> Baseline {html.escape(str(doc.get('baseline', '')))}, "
@@ -76,10 +84,12 @@ def render(doc: dict, found: Discovery) -> str:
              ", ".join(f"{k} = {_fmt(v)}" for k, v in f["parameters"].items()),
              ", ".join(f"{k} ± {_fmt(v)}" for k, v in f["sigma"].items()) or "–",
              f"{f['evidence']['gap_before']:.3g} → {f['evidence']['gap_after']:.3g}",
-             f"{f['evidence']['delta_chi2_heldout']:.1f}", str(f["evidence"]["runner_up"] or "–")]
+             f"{f['evidence']['delta_chi2_heldout']:.1f}", _fmep_change(f["evidence"]),
+             str(f["evidence"]["runner_up"] or "–")]
             for f in doc["found"]]
     if rows:
-        parts.append(_table(rows, ["effect", "cylinder", "parameters", "sigma", "gap", "held-out Δχ²", "runner-up"]))
+        parts.append(_table(rows, ["effect", "cylinder", "parameters", "sigma", "gap", "held-out Δχ²",
+                                   "measured FMEP [bar]", "runner-up"]))
     rest = doc.get("remainder")
     if rest:
         parts.append("<p>What remains unexplained on the held-out cycles: engine orders "

@@ -133,6 +133,17 @@ def trends(res: Residuals) -> dict:
     return out
 
 
+def _measured_friction(res: Residuals, spec: EngineSpec) -> dict | None:
+    """The engine's friction the mean balance measured over the cycles [N m] and as FMEP [bar] (one definition:
+    EngineSpec.torque_to_mep): what ``analyze`` would report of it under this model."""
+    ok = res.friction is not None and np.isfinite(res.friction)
+    if res.friction is None or not np.any(ok):
+        return None
+    mean, sigma = _mean_sigma(res.friction[ok])
+    return {"mean_nm": mean, "sigma_nm": sigma, "fmep_bar": spec.torque_to_mep(mean) / 1e5,
+            "fmep_sigma_bar": spec.torque_to_mep(sigma) / 1e5}
+
+
 def localise(res: Residuals, spec: EngineSpec, scale: np.ndarray) -> dict:
     """Find: the coherent residual by engine order, crank-angle window and cylinder, the balance, the trends and
     per channel (flywheel encoder: the speed residual; pressure and load sensors: the balance residual)."""
@@ -156,6 +167,7 @@ def localise(res: Residuals, spec: EngineSpec, scale: np.ndarray) -> dict:
         "cylinders": cylinder_windows(res, spec),
         "balance": {"mean_nm": bal, "sigma_nm": bal_sig,
                     "significant": bool(np.isfinite(bal) and abs(bal) > SIGNIFICANT * bal_sig)},
+        "friction": _measured_friction(res, spec),
         "channels": {"flywheel_speed": float(max(terms[:2 * m].sum(), 0.0)),
                      "torque_balance": float(max(terms[2 * m:].sum(), 0.0))},
         "trends": trends(res),

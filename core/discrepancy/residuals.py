@@ -55,6 +55,7 @@ class Residuals:
     measured: np.ndarray | None = None
     tdc_deg: np.ndarray | None = None
     tdc_sigma_deg: np.ndarray | None = None
+    friction: np.ndarray | None = None  # (N,) N m the engine's friction the mean balance measured in each cycle
 
     @property
     def n_cycles(self) -> int:
@@ -63,7 +64,8 @@ class Residuals:
     def take(self, mask: np.ndarray) -> Residuals:
         return dataclasses.replace(self, index=self.index[mask], omega=self.omega[mask], load=self.load[mask],
                                    harmonics=self.harmonics[mask], balance=self.balance[mask], speed=self.speed[mask],
-                                   measured=None if self.measured is None else self.measured[mask])
+                                   measured=None if self.measured is None else self.measured[mask],
+                                   friction=None if self.friction is None else self.friction[mask])
 
     def features(self) -> np.ndarray:
         """(N, 2M + 1) real features: Re and Im of each residual harmonic, then the balance residual (0 where NaN:
@@ -88,13 +90,14 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
         m = r.residual_harmonics.shape[0]
         measured = 2.0 * np.abs(np.fft.rfft(r.speed_measured)[1:m + 1]) / r.speed_measured.shape[0]
         rows.append((r.index, r.omega_mean, r.load_torque, r.residual_harmonics, r.friction_balance - friction, resid,
-                     measured))
+                     measured, r.friction_balance))
     if not rows:
         raise ValueError(f"the monitor analysed none of the {len(cycles)} cycles")
     return Residuals(index=np.array([r[0] for r in rows]), omega=np.array([r[1] for r in rows]),
                      load=np.array([r[2] for r in rows]), harmonics=np.array([r[3] for r in rows]),
                      balance=np.array([r[4] for r in rows]), speed=np.array([r[5] for r in rows]), angles=angles,
-                     rejected=rejected, measured=np.array([r[6] for r in rows]), **_tdc_reading(pipe))
+                     rejected=rejected, measured=np.array([r[6] for r in rows]),
+                     friction=np.array([r[7] for r in rows]), **_tdc_reading(pipe))
 
 
 def _tdc_reading(pipe: CyclePipeline) -> dict:

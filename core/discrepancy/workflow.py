@@ -145,7 +145,11 @@ class Discovery:
                                        "delta_chi2_heldout": s.chi2_before - s.chi2_after,
                                        "train_cost_reduction": s.trial.gain, "runner_up": s.runner_up,
                                        "significant_orders_before": s.before["significant_orders"],
-                                       "balance_before_nm": s.before["balance"]["mean_nm"]}})
+                                       "balance_before_nm": s.before["balance"]["mean_nm"],
+                                       "balance_after_nm": s.after["balance"]["mean_nm"],
+                                       # what adding it does to the friction the balance measures (analyze's)
+                                       "measured_friction_before": s.before.get("friction"),
+                                       "measured_friction_after": s.after.get("friction")}})
         return {"found": found, "gap_before": self.gap_before, "gap_after": self.gap_after, "metric": METRIC,
                 "outcome": self.outcome, "verdict": self.verdict(), "remainder": self.remainder,
                 "ambiguous": self.ambiguous,

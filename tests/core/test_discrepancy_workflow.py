@@ -56,6 +56,11 @@ def test_hidden_pressure_gain_is_named_and_fitted(gain_fault):
     added = found.model.effects[-len(doc["found"]):]
     assert added[0].name == "pressure_gain" and added[0].sigma["gain"] == pytest.approx(first["sigma"]["gain"])
     assert doc["outcome"] == "named" and doc["verdict"].startswith("Found pressure_gain (cylinder 3, gain=")
+    # a channel reading 6 % high overstates the indicated work and so the measured friction: corrected, it falls
+    ev = first["evidence"]
+    before, after = ev["measured_friction_before"], ev["measured_friction_after"]
+    assert after["mean_nm"] < before["mean_nm"] - 3 * after["sigma_nm"]
+    np.testing.assert_allclose(after["fmep_bar"] * 1e5, load_engine(ENGINE).torque_to_mep(after["mean_nm"]), rtol=1e-12)
 
 
 def test_the_step_limit_is_said(gain_fault):
