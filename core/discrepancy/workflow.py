@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from frictionwatch.core.discrepancy.candidates import Candidate, candidate_library
-from frictionwatch.core.discrepancy.features import coherent_terms, gap, localise, noise_scale
+from frictionwatch.core.discrepancy.features import SIGNIFICANT, coherent_terms, gap, localise, noise_scale, order_table
 from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, refine
 from frictionwatch.core.discrepancy.residuals import Residuals, pinned_config, run_model
 from frictionwatch.core.model.effects import make_effect
@@ -215,7 +215,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         trials = _one_per_candidate(sorted(refined, key=lambda tr: tr.cost + pressure(_with_fit(current, tr))))
         runs += ev.calls
         confirmed = []
-        for t in trials[:opt.confirm]:
+        for t in _to_confirm(trials, opt.confirm):
             trial_model = _with_fit(current, t)
             res = full(trial_model)
             runs += 1
@@ -264,16 +264,32 @@ WORSE_SIGMAS = 3.0
 
 
 def channel_worse(before: Residuals, after: Residuals, scale: np.ndarray) -> str:
-    """Which channel the step makes worse on the held-out cycles, in words ('' when none): the flywheel speed
-    (every engine order) or the mean torque balance, each judged on its own chi^2 against its noise."""
+    """Which channel the step makes worse on the held-out cycles, in words ('' when none): the flywheel speed or the
+    mean torque balance, each judged on its own: its coherent chi^2 grows beyond WORSE_SIGMAS of its noise AND it
+    leaves a residual the null calls significant that was not there before (an engine order above the model-error
+    floor, features.order_table; a balance residual beyond its sigmas, larger than before). A rise inside the
+    model-error floor is the model's, not the step's."""
     m = before.harmonics.shape[1]
     tb, ta = before.n_cycles * coherent_terms(before, scale), after.n_cycles * coherent_terms(after, scale)
-    for name, sl in (("flywheel speed", slice(0, 2 * m)), ("torque balance", slice(2 * m, None))):
-        f = tb[sl].size
+    orders_before = {o["order"] for o in order_table(before) if o["significant"]}
+    new_orders = [o["order"] for o in order_table(after) if o["significant"] and o["order"] not in orders_before]
+    bal_b, bal_a = (_balance(r) for r in (before, after))
+    checks = (("flywheel speed", slice(0, 2 * m), bool(new_orders)),
+              ("torque balance", slice(2 * m, None), bal_a[1] and abs(bal_a[0]) > abs(bal_b[0])))
+    for name, sl, shows in checks:
         grow = float(ta[sl].sum() - tb[sl].sum())
-        if grow > WORSE_SIGMAS * np.sqrt(2.0 * f):
+        if shows and grow > WORSE_SIGMAS * np.sqrt(2.0 * tb[sl].size):
             return f"it makes the {name} residual worse on the held-out cycles (coherent chi^2 +{grow:.3g})"
     return ""
+
+
+def _balance(res: Residuals) -> tuple[float, bool]:
+    """(mean balance residual [N m], whether it is significant: beyond SIGNIFICANT of its sigma)."""
+    ok = np.isfinite(res.balance)
+    if ok.sum() < 2:
+        return 0.0, False
+    mean, sem = float(res.balance[ok].mean()), float(res.balance[ok].std(ddof=1) / np.sqrt(ok.sum()))
+    return mean, abs(mean) > SIGNIFICANT * sem
 
 
 # a TDC reading from the pressure proposes a candidate (it is not a decision: the held-out test decides) when it is
@@ -317,6 +333,24 @@ def tdc_chi2(res: Residuals, moved_deg: np.ndarray) -> float:
         return 0.0
     ok = np.isfinite(res.tdc_deg) & np.isfinite(res.tdc_sigma_deg) & (res.tdc_sigma_deg > 0)
     return float(np.sum(((res.tdc_deg[ok] - moved_deg[ok]) / res.tdc_sigma_deg[ok]) ** 2))
+
+
+def _to_confirm(trials: list[Trial], n_effects: int) -> list[Trial]:
+    """The trials to run over the whole log: the best of each of the first ``n_effects`` distinct effects, and the
+    best's runner-up in another cylinder (the same effect elsewhere: is its cylinder told?). Several cylinders of one
+    effect at the top would otherwise crowd another effect out of the held-out test."""
+    out: list[Trial] = []
+    effects: list[str] = []
+    for t in trials:
+        name = t.candidate.effect
+        if name not in effects and len(effects) < n_effects:
+            effects.append(name)
+            out.append(t)
+    if out:
+        sibling = next((t for t in trials if t.candidate.effect == out[0].candidate.effect and t is not out[0]), None)
+        if sibling is not None:
+            out.append(sibling)
+    return out
 
 
 def _one_per_candidate(trials: list[Trial]) -> list[Trial]:

@@ -91,21 +91,25 @@ def _residuals(harmonics, balance):
 
 
 def test_a_step_that_makes_a_channel_worse_is_named_so():
-    """channel_worse judges each channel on its own: a speed gap traded for a torque-balance offset is refused, and
-    noise-sized changes are not (made-up residuals with unit per-cycle noise, 40 cycles)."""
+    """channel_worse judges each channel on its own, against its noise and the null: a speed gap traded for a
+    torque-balance offset is refused; a step that explains the speed but leaves a coherent residual at an order that
+    was clean before is refused; noise-sized changes are not (made-up residuals, unit per-cycle noise, 40 cycles)."""
     from frictionwatch.core.discrepancy.workflow import channel_worse
 
     rng = np.random.default_rng(3)
     n, m = 40, 6
     noise = rng.standard_normal((n, m)) + 1j * rng.standard_normal((n, m))
-    before = _residuals(noise + 2.0, rng.standard_normal(n))
+    coherent = np.zeros(m, complex)
+    coherent[:3] = 2.0
+    before = _residuals(noise + coherent, rng.standard_normal(n))
     scale = np.ones(2 * m + 1)
     traded = _residuals(noise, rng.standard_normal(n) + 1.5)  # speed explained, balance now off by 1.5 sigma
     assert "torque balance" in channel_worse(before, traded, scale)
     fine = _residuals(noise, rng.standard_normal(n))  # speed explained, balance noise only
     assert channel_worse(before, fine, scale) == ""
-    worse_speed = _residuals(noise + 3.0, rng.standard_normal(n))
-    assert "flywheel speed" in channel_worse(before, worse_speed, scale)
+    moved = np.zeros(m, complex)
+    moved[4] = 5.0  # the first orders explained, a larger coherent residual where there was none
+    assert "flywheel speed" in channel_worse(before, _residuals(noise + moved, rng.standard_normal(n)), scale)
 
 
 def test_a_parameter_on_its_bound_is_not_physical():
