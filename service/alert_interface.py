@@ -100,8 +100,8 @@ class Hold:
 class Pressure:
     """The engine's pressure statistics in a usable cycle. imep_pa: the engine's mean IMEP; held: why the statistics
     hold still this cycle (a load change settling, a load not commissioned yet) with the learner's learning_cycles,
-    else None and ewma (4, z), the EWMA of the indicators' change from ``band``'s mean (rows as INDICATORS), and
-    ``stats`` (leak_statistics of it)."""
+    else None and ewma (4, z), the EWMA of the indicators' change from ``band``'s mean (rows as INDICATORS; the
+    engine's own array: read it, never write it), and ``stats`` (leak_statistics of it)."""
 
     imep_pa: float
     held: str | None = None
