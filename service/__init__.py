@@ -6,8 +6,10 @@ API's LatestState and the SSE broadcaster), api.py (FastAPI routes), api_models.
 api_views.py (results -> those shapes, statuses from core.monitor.report.figure_status), metrics.py (Prometheus),
 security.py (bind check, token, engine ids).
 
-alerts.py (AlertEngine: per-cycle alert decisions with hysteresis), alert_baseline.py (the commissioning baseline),
-alert_rules.py (the hysteresis latch and the leak statistics): decision logic on CycleResults, no physics.
+alerts.py (AlertEngine: per-cycle alert decisions with hysteresis), alert_rules.py (one class per alert statistic),
+alert_interface.py (what the engine and its rules exchange, the hysteresis latch, the leak statistics),
+alert_config.py (the thresholds), alert_baseline.py (the commissioning baseline): decision logic on CycleResults,
+no physics.
 
 One engine's pipeline is one thread of small dense linear algebra (47 x 47): multi-threaded BLAS only adds
 contention on a small box (measured: eigh/pinv 0.15 ms single-threaded vs 0.7-1.7 ms with OpenBLAS threading on 2

@@ -1,64 +1,318 @@
-"""The two small pieces of decision logic the alerts share (service.alerts): the hysteresis latch and the leak
-statistics of the pressure indicators against the commissioning baseline. No physics."""
+"""The alert rules (service.alerts): one small class per statistic an alert rests on, all with one interface
+(service.alert_interface). No physics.
+
+A rule has a ``name`` (the key of its statistics: one latch and at most one open alert per name and cylinder),
+``rests_on_baseline`` (a rebaseline clears its alerts and restarts its latches) and ``update(result, ctx)``: it
+reads one cycle's ``CycleResult`` and the engine's shared view of that cycle (``Context``: the flags per cylinder,
+the pressure statistics against the commissioning baseline, the baseline, the latches) and returns one ``Decision``
+per statistic it watches (on, off, the hysteresis counts, severity, message, evidence), or a ``Hold`` where the
+statistic has no value this cycle. Its thresholds are its own fields of ``AlertConfig``; its state is its own.
+The engine (service.alerts.AlertEngine) owns what they share: the latches, the alert records and their ids, the
+baseline and its learning, the events. A new alert kind is one class here and one line in
+``service.alerts.default_rules``.
+
+    rule            name            raises         from
+    MisfireRule     misfire         misfire        the EWMA rate of the misfire_cyl<k> flags
+    ModelMisfitRule model_misfit    model_misfit   the core's model_misfit flag (the speed fit's chi^2 window)
+    SensorFlagRule  sensor_fault    sensor_fault   sensor_* flags, pressure_repaired, a stuck or dropped pressure
+    CoreFlagRule    core_blow_by,   blow_by,       the core's sibling-floor flags (core.monitor.checks.condition),
+                    core_ring_wear  ring_wear      only until the commissioning baseline exists
+    LeakRule        leak            blow_by        the leak signature of the pressure against the baseline
+    GainRule        gain            sensor_fault   the compression ratio moved with both exponents unchanged
+    FrictionRule    friction        ring_wear      the measured friction's excess over its siblings, against the
+                                                   excess at its first measurement; not while the gain check is raised
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from typing import Any
 
 import numpy as np
-from frictionwatch.service.alert_baseline import Band
+from frictionwatch.core.monitor.report.figure_status import friction_status
+from frictionwatch.core.monitor.report.results import PA_PER_BAR, CycleResult, change_sigma
+from frictionwatch.service.alert_config import AlertConfig
+from frictionwatch.service.alert_interface import Context, Decision, Hold, Pressure
 
 
-class Latch:
-    """Hysteresis of one statistic: ``step`` returns "raise" after ``k_on`` consecutive cycles with ``on``, "clear"
-    after ``k_off`` consecutive cycles with ``off`` while raised, else None; ``since`` is the first cycle of the
-    current run of ``on`` cycles (the evidence's start)."""
+# ---- the rules --------------------------------------------------------------------------------------------------
+class MisfireRule:
+    """Each cylinder's misfire rate, the EWMA over ``misfire_window`` cycles of its misfire flag: raised from
+    ``misfire_raise`` and cleared below ``misfire_clear`` at once (the EWMA is the persistence); an alarm from
+    ``misfire_alarm``.
 
-    __slots__ = ("active", "on_count", "off_count", "since")
+    >>> rule = MisfireRule(AlertConfig(misfire_window=10.0), n_cyl=2)
+    >>> [(d.cylinder, d.on, round(d.evidence["misfire_rate"], 2)) for d in rule.update(None, Context([{"misfire"}, set()]))]
+    [(1, True, 0.1), (2, False, 0.0)]
+    """
 
-    def __init__(self) -> None:
-        self.active, self.on_count, self.off_count, self.since = False, 0, 0, -1
+    name, rests_on_baseline = "misfire", False
 
-    def step(self, on: bool, off: bool, k_on: int, k_off: int, cycle: int) -> str | None:
-        if not self.active:
-            if on:
-                self.since = cycle if self.on_count == 0 else self.since
-                self.on_count += 1
-                if self.on_count >= k_on:
-                    self.active, self.off_count = True, 0
-                    return "raise"
-            else:
-                self.on_count = 0
-            return None
-        self.off_count = self.off_count + 1 if off else 0
-        if self.off_count >= k_off:
-            self.active, self.on_count = False, 0
-            return "clear"
-        return None
+    def __init__(self, config: AlertConfig, n_cyl: int):
+        self.config = config
+        self.rate = np.zeros(n_cyl)
 
-
-@dataclass(frozen=True)
-class LeakStatistics:
-    """Per cylinder (z,): z_leak the leak signature's EWMA in standard errors (> 0: compression exponent down and
-    expansion exponent up from commissioning), effect its size in exponent units (-dn_c + dn_e) / 2, z_ratio the
-    compression ratio's EWMA change in standard errors (signed)."""
-
-    z_leak: np.ndarray
-    effect: np.ndarray
-    z_ratio: np.ndarray
+    def update(self, result: CycleResult, ctx: Context) -> list[Decision | Hold]:
+        cfg = self.config
+        hit = np.array([1.0 if "misfire" in f else 0.0 for f in ctx.cyl_flags])
+        self.rate += (1.0 / cfg.misfire_window) * (hit - self.rate)
+        out: list[Decision | Hold] = []
+        for k in range(ctx.n_cyl):
+            rate = float(self.rate[k])
+            sev = "alarm" if rate >= cfg.misfire_alarm else "warning"
+            out.append(Decision(k + 1, "misfire", rate >= cfg.misfire_raise, rate < cfg.misfire_clear, 1, 1, sev,
+                                f"cylinder {k + 1} misfires: {100 * rate:.1f} % of recent cycles",
+                                {"misfire_rate": rate, "window_cycles": cfg.misfire_window}))
+        return out
 
 
-def leak_statistics(ewma: np.ndarray, baseline: Band, g: float) -> LeakStatistics:
-    """From the EWMA (4, z) of the indicators' change from the mean of the baseline's load band they were compared
-    with (rows as alert_baseline.INDICATORS), its factor g. The leak signature
-    s = (-dn_c / sd_c + dn_e / sd_e) / sqrt(2) is scaled by its own per-cycle spread from the band's covariance (the two exponents' scatter is correlated: one trapped-mass error moves
-    both) and by the EWMA's standard error per unit of spread, sqrt(g / (2 - g)), for independent cycles."""
-    sd = baseline.sd
-    w = np.zeros_like(ewma)
-    w[1], w[2] = -1.0 / sd[1], 1.0 / sd[2]
-    w /= np.sqrt(2.0)
-    s = np.sum(w * ewma, axis=0)
-    s_sd = np.sqrt(np.maximum(np.einsum("iz,zij,jz->z", w, baseline.cov, w), 1e-30))
-    se = np.sqrt(g / (2.0 - g))
-    return LeakStatistics(z_leak=s / (s_sd * se), effect=0.5 * (ewma[2] - ewma[1]),
-                          z_ratio=ewma[0] / (np.maximum(sd[0], 1e-12) * se))
+class ModelMisfitRule:
+    """The core's model_misfit flag (the speed fit worse than its noise model), raised after ``flag_raise_cycles``
+    flagged cycles in a row, cleared after ``clear_cycles`` without.
+
+    >>> from types import SimpleNamespace
+    >>> d, = ModelMisfitRule(AlertConfig()).update(SimpleNamespace(cycle=SimpleNamespace(chi2_reduced=4.0)),
+    ...                                             Context([set()], {"model_misfit"}))
+    >>> (d.cylinder, d.kind, d.on, d.k_on, d.evidence)
+    (None, 'model_misfit', True, 5, {'chi2_reduced': 4.0})
+    """
+
+    name, rests_on_baseline = "model_misfit", False
+
+    def __init__(self, config: AlertConfig):
+        self.config = config
+
+    def update(self, result: CycleResult, ctx: Context) -> list[Decision | Hold]:
+        on = "model_misfit" in ctx.engine_flags
+        return [Decision(None, "model_misfit", on, not on, self.config.flag_raise_cycles, self.config.clear_cycles,
+                         "warning", "the speed fit is worse than its noise model allows: the engine model does not "
+                         "describe this engine (friction figures may be biased)",
+                         {"chi2_reduced": result.cycle.chi2_reduced})]
+
+
+class SensorFlagRule:
+    """Sensor checks from flags: the engine's sensor_* flags (the wheel) and each cylinder's (with pressure_repaired
+    and a stuck or dropped pressure: a flat or non-positive compression, n_compression not above 0.5), raised after
+    ``flag_raise_cycles`` cycles, cleared after ``clear_cycles``.
+
+    >>> from types import SimpleNamespace
+    >>> ds = SensorFlagRule(AlertConfig()).update(SimpleNamespace(ring=None), Context([{"sensor_tdc"}], set()))
+    >>> [(d.cylinder, d.on, d.message) for d in ds]
+    [(None, False, 'sensor check on the engine: -'), (1, True, 'sensor check on cylinder 1: sensor_tdc')]
+    """
+
+    name, rests_on_baseline = "sensor_fault", False
+
+    def __init__(self, config: AlertConfig):
+        self.config = config
+
+    def update(self, result: CycleResult, ctx: Context) -> list[Decision | Hold]:
+        k_on, k_off, ring = self.config.flag_raise_cycles, self.config.clear_cycles, result.ring
+        wheel = sorted(f for f in ctx.engine_flags if f.startswith("sensor_"))
+        out: list[Decision | Hold] = [Decision(None, "sensor_fault", bool(wheel), not wheel, k_on, k_off, "warning",
+                                               "sensor check on the engine: " + ", ".join(wheel or ["-"]),
+                                               {"flags": wheel})]
+        for k, fl in enumerate(ctx.cyl_flags):
+            sensor = sorted(f for f in fl if f.startswith("sensor_") or f == "pressure_repaired")
+            if ring is not None and not (np.isfinite(ring.n_compression[k]) and ring.n_compression[k] > 0.5):
+                sensor.append("pressure_stuck_or_dropped")
+            out.append(Decision(k + 1, "sensor_fault", bool(sensor), not sensor, k_on, k_off, "warning",
+                                f"sensor check on cylinder {k + 1}: " + ", ".join(sensor or ["-"]),
+                                {"flags": sensor, "n_compression": _num(ring.n_compression[k]) if ring else None}))
+        return out
+
+
+class CoreFlagRule:
+    """The core's sibling-floor flag ``kind`` (blow_by or ring_wear, core.monitor.checks.condition) of each
+    cylinder, while no commissioning baseline exists at the start of the cycle: raised after 4 x
+    ``flag_raise_cycles`` flagged cycles, cleared after ``clear_cycles`` (once the baseline exists it is no longer
+    stepped: an alert it raised stays open until a rebaseline).
+
+    >>> ds = CoreFlagRule(AlertConfig(), "ring_wear").update(None, Context([set(), {"ring_wear"}]))
+    >>> [(d.cylinder, d.kind, d.on, d.k_on) for d in ds]
+    [(1, 'ring_wear', False, 20), (2, 'ring_wear', True, 20)]
+    """
+
+    rests_on_baseline = True
+
+    def __init__(self, config: AlertConfig, kind: str):
+        self.config, self.kind, self.name = config, kind, "core_" + kind
+
+    def update(self, result: CycleResult, ctx: Context) -> list[Decision | Hold]:
+        if ctx.baseline_at_start is not None:
+            return []
+        kind, k_on, k_off = self.kind, 4 * self.config.flag_raise_cycles, self.config.clear_cycles
+        return [Decision(k + 1, kind, kind in fl, kind not in fl, k_on, k_off, "warning",
+                         f"cylinder {k + 1}: {kind.replace('_', ' ')} against its siblings (before a commissioning "
+                         "baseline)", {"source": "core_flag"}) for k, fl in enumerate(ctx.cyl_flags)]
+
+
+def _pressure_evidence(p: Pressure, k: int, window: float) -> dict:
+    """The evidence a pressure alert of cylinder k (0-based) carries."""
+    st, ewma, band = p.stats, p.ewma, p.band
+    ev = {"source": "pressure", "z_leak": st.z_leak[k], "n_compression_change": ewma[1, k],
+          "n_expansion_change": ewma[2, k], "compression_ratio_change_ln": ewma[0, k],
+          "expansion_deficit_change_ln": ewma[3, k], "z_compression_ratio": st.z_ratio[k],
+          "baseline_cycles": band.cycles, "window_cycles": window, "commissioned_at_this_load": True,
+          "suspended": None,
+          "imep_bar": p.imep_pa / PA_PER_BAR, "load_band_imep_bar": [band.imep_lo_pa / PA_PER_BAR,
+                                                                     band.imep_hi_pa / PA_PER_BAR]}
+    ev = {key: (_num(v) if isinstance(v, float | np.floating) else v) for key, v in ev.items()}
+    ev["load_band_imep_bar"] = [_num(v) for v in ev["load_band_imep_bar"]]
+    return ev
+
+
+def _holds(p: Pressure, n_cyl: int) -> list[Decision | Hold]:
+    """While the pressure statistics hold still: every cylinder's open pressure alert says why."""
+    ev = {"commissioned_at_this_load": False, "suspended": p.held, "imep_bar": _num(p.imep_pa / PA_PER_BAR),
+          "learning_cycles": p.learning_cycles}
+    return [Hold(k + 1, ev) for k in range(n_cyl)]
+
+
+class LeakRule:
+    """The leak signature of each cylinder's pressure (service.alerts module doc): raised when its Z exceeds
+    ``raise_z`` with a mean exponent change above ``leak_floor`` for ``raise_cycles`` cycles, cleared below
+    ``clear_z`` for ``clear_cycles``; an alarm from ``alarm_z`` and 3 x ``leak_floor``. A blow_by, or a sensor_fault
+    where that cylinder has a sensor flag (a TDC error bends the polytropes like a leak). Held while the pressure
+    statistics are.
+
+    >>> from types import SimpleNamespace
+    >>> from frictionwatch.service.alert_interface import LeakStatistics
+    >>> band = SimpleNamespace(cycles=100, imep_lo_pa=10.8e5, imep_hi_pa=13.2e5)
+    >>> p = Pressure(12e5, ewma=np.array([[-0.004], [-0.003], [0.003], [-0.002]]), band=band,
+    ...              stats=LeakStatistics(z_leak=np.array([9.0]), effect=np.array([0.003]), z_ratio=np.array([-4.0])))
+    >>> d, = LeakRule(AlertConfig()).update(None, Context([set()], pressure=p))
+    >>> (d.kind, d.on, d.severity, d.evidence["z_leak"])
+    ('blow_by', True, 'warning', 9.0)
+    """
+
+    name, rests_on_baseline = "leak", True
+
+    def __init__(self, config: AlertConfig):
+        self.config = config
+
+    def update(self, result: CycleResult, ctx: Context) -> list[Decision | Hold]:
+        cfg, p = self.config, ctx.pressure
+        if p is None:
+            return []
+        if p.held:
+            return _holds(p, ctx.n_cyl)
+        st, out = p.stats, []
+        for k in range(ctx.n_cyl):
+            sensor = any(s.startswith("sensor_") for s in ctx.cyl_flags[k])
+            sev = "alarm" if st.z_leak[k] >= cfg.alarm_z and st.effect[k] > 3 * cfg.leak_floor else "warning"
+            msg = (f"cylinder {k + 1}: leak-like pressure signature (compression exponent "
+                   f"{p.ewma[1, k]:+.4f}, expansion exponent {p.ewma[2, k]:+.4f} from commissioning)"
+                   + (" with a flagged sensor: a TDC or pegging error is suspected" if sensor else ""))
+            out.append(Decision(k + 1, "sensor_fault" if sensor else "blow_by",
+                                bool(st.z_leak[k] > cfg.raise_z and st.effect[k] > cfg.leak_floor),
+                                bool(st.z_leak[k] < cfg.clear_z), cfg.raise_cycles, cfg.clear_cycles, sev, msg,
+                                _pressure_evidence(p, k, cfg.window)))
+        return out
+
+
+class GainRule:
+    """A pressure-gain check of each cylinder's sensor: the compression ratio against the siblings moved by more
+    than ``gain_floor`` (|d ln p|) and ``raise_z`` standard errors while the leak signature stays below ``clear_z``
+    (the exponents are gain-invariant, the ratio is not); cleared when the ratio is back below ``clear_z`` or the leak
+    signature rises above ``raise_z``. Severity info: never a ring alert. Held while the pressure statistics are.
+
+    >>> from types import SimpleNamespace
+    >>> from frictionwatch.service.alert_interface import LeakStatistics
+    >>> band = SimpleNamespace(cycles=100, imep_lo_pa=10.8e5, imep_hi_pa=13.2e5)
+    >>> p = Pressure(12e5, ewma=np.array([[0.03], [0.0], [0.0], [0.0]]), band=band,
+    ...              stats=LeakStatistics(z_leak=np.array([0.5]), effect=np.array([0.0]), z_ratio=np.array([25.0])))
+    >>> d, = GainRule(AlertConfig()).update(None, Context([set()], pressure=p))
+    >>> (d.kind, d.on, d.severity, round(d.evidence["gain_estimate"], 4))
+    ('sensor_fault', True, 'info', 1.0305)
+    """
+
+    name, rests_on_baseline = "gain", True
+
+    def __init__(self, config: AlertConfig):
+        self.config = config
+
+    def update(self, result: CycleResult, ctx: Context) -> list[Decision | Hold]:
+        cfg, p = self.config, ctx.pressure
+        if p is None:
+            return []
+        if p.held:
+            return _holds(p, ctx.n_cyl)
+        st, out = p.stats, []
+        for k in range(ctx.n_cyl):
+            on = bool(abs(st.z_ratio[k]) > cfg.raise_z and abs(p.ewma[0, k]) > cfg.gain_floor
+                      and st.z_leak[k] < cfg.clear_z)
+            off = bool(abs(st.z_ratio[k]) < cfg.clear_z or st.z_leak[k] > cfg.raise_z)
+            out.append(Decision(k + 1, "sensor_fault", on, off, cfg.raise_cycles, cfg.clear_cycles, "info",
+                                f"cylinder {k + 1}: compression pressure {math.exp(p.ewma[0, k]):.3f}x "
+                                "its commissioning value against the siblings with both polytropic exponents "
+                                "unchanged: a pressure-gain error of this sensor (or a leak too small to bend the "
+                                "exponents); check the sensor",
+                                {**_pressure_evidence(p, k, cfg.window), "suspect": "pressure_gain",
+                                 "gain_estimate": _num(math.exp(p.ewma[0, k]))}))
+        return out
+
+
+class FrictionRule:
+    """Ring wear from the friction where it is measured (figure status "measured"): each cylinder's excess over its
+    measured siblings' mean (at least two), against that excess at its first measurement after commissioning (kept
+    in the baseline), in combined sigmas: raised above ``friction_raise_sigmas`` for ``raise_cycles`` cycles (an
+    alarm above twice that), cleared below ``friction_clear_sigmas`` for ``clear_cycles``. A cylinder whose gain check
+    (GainRule) is raised is skipped: its friction rests on its suspect pressure. Nothing before a baseline.
+
+    >>> from types import SimpleNamespace
+    >>> from frictionwatch.service.alert_baseline import BaselineLearner
+    >>> est = SimpleNamespace(resolved=np.ones(3, bool), data_gain=np.ones(3), friction_torque_mean=np.array(
+    ...     [5.0, 5.0, 6.0]), friction_torque_mean_sigma=np.full(3, 0.05), prior_friction_torque_mean=np.full(3, 5.0),
+    ...     total_friction_torque=16.0, weight=10.0, source="data")
+    >>> ctx = Context([set()] * 3, baseline=BaselineLearner(3).baseline(0.1))
+    >>> FrictionRule(AlertConfig()).update(SimpleNamespace(index=7, flags=(), smoothed=est), ctx)  # first: references
+    []
+    >>> ctx.baseline.friction_cycle.tolist()
+    [7, 7, 7]
+    """
+
+    name, rests_on_baseline = "friction", True
+    gain_check = GainRule.name
+
+    def __init__(self, config: AlertConfig):
+        self.config = config
+
+    def update(self, result: CycleResult, ctx: Context) -> list[Decision | Hold]:
+        cfg, est = self.config, result.smoothed
+        if ctx.baseline is None:
+            return []
+        status = friction_status(est, result.flags)
+        measured = np.array([c.status == "measured" for c in status.cylinders])
+        # a change against the baseline: the calibration's error is the same then and now and cancels
+        t, s = est.friction_torque_mean, change_sigma(est)
+        out: list[Decision | Hold] = []
+        for k in np.flatnonzero(measured):
+            if ctx.latched(self.gain_check, int(k) + 1):  # its pressure is suspect, and its friction rests on it
+                continue
+            others = np.flatnonzero(measured)
+            others = others[others != k]
+            if others.size < 2:
+                continue
+            ref = float(np.mean(t[others]))
+            excess = t[k] / ref - 1.0
+            sigma = math.sqrt(s[k] ** 2 + float(np.mean(s[others] ** 2)) / others.size) / ref
+            if not np.isfinite(ctx.baseline.friction_excess[k]):
+                ctx.baseline = ctx.baseline.with_friction(k, excess, sigma, int(result.index))
+                continue
+            base, base_s = ctx.baseline.friction_excess[k], ctx.baseline.friction_excess_sigma[k]
+            zf = (excess - base) / math.hypot(sigma, base_s)
+            out.append(Decision(int(k) + 1, "ring_wear", zf > cfg.friction_raise_sigmas,
+                                zf < cfg.friction_clear_sigmas, cfg.raise_cycles, cfg.clear_cycles,
+                                "alarm" if zf > 2 * cfg.friction_raise_sigmas else "warning",
+                                f"cylinder {k + 1}: friction {100 * (excess - base):+.1f} % against its siblings "
+                                f"since cycle {int(ctx.baseline.friction_cycle[k])}",
+                                {"source": "friction", "z_friction": _num(zf), "friction_excess": _num(excess),
+                                 "friction_excess_baseline": _num(base), "friction_torque_nm": _num(t[k]),
+                                 "friction_torque_sigma_nm": _num(s[k])}))
+        return out
+
+
+def _num(v: Any) -> float | None:
+    v = float(v)
+    return v if math.isfinite(v) else None

@@ -1,0 +1,144 @@
+"""What the alert engine (service.alerts) and its rules (service.alert_rules) exchange: a rule's ``Decision`` or
+``Hold`` per statistic, the ``Context`` of a cycle, the ``Pressure`` statistics, the ``Rule`` interface itself; and
+the two pieces of decision logic they share, the hysteresis latch and the leak statistics. No physics."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from frictionwatch.core.monitor.report.results import CycleResult
+from frictionwatch.service.alert_baseline import Band, Baseline
+
+
+class Latch:
+    """Hysteresis of one statistic: ``step`` returns "raise" after ``k_on`` consecutive cycles with ``on``, "clear"
+    after ``k_off`` consecutive cycles with ``off`` while raised, else None; ``since`` is the first cycle of the
+    current run of ``on`` cycles (the evidence's start)."""
+
+    __slots__ = ("active", "on_count", "off_count", "since")
+
+    def __init__(self) -> None:
+        self.active, self.on_count, self.off_count, self.since = False, 0, 0, -1
+
+    def step(self, on: bool, off: bool, k_on: int, k_off: int, cycle: int) -> str | None:
+        if not self.active:
+            if on:
+                self.since = cycle if self.on_count == 0 else self.since
+                self.on_count += 1
+                if self.on_count >= k_on:
+                    self.active, self.off_count = True, 0
+                    return "raise"
+            else:
+                self.on_count = 0
+            return None
+        self.off_count = self.off_count + 1 if off else 0
+        if self.off_count >= k_off:
+            self.active, self.on_count = False, 0
+            return "clear"
+        return None
+
+
+@dataclass(frozen=True)
+class LeakStatistics:
+    """Per cylinder (z,): z_leak the leak signature's EWMA in standard errors (> 0: compression exponent down and
+    expansion exponent up from commissioning), effect its size in exponent units (-dn_c + dn_e) / 2, z_ratio the
+    compression ratio's EWMA change in standard errors (signed)."""
+
+    z_leak: np.ndarray
+    effect: np.ndarray
+    z_ratio: np.ndarray
+
+
+def leak_statistics(ewma: np.ndarray, baseline: Band, g: float) -> LeakStatistics:
+    """From the EWMA (4, z) of the indicators' change from the mean of the baseline's load band they were compared
+    with (rows as alert_baseline.INDICATORS), its factor g. The leak signature
+    s = (-dn_c / sd_c + dn_e / sd_e) / sqrt(2) is scaled by its own per-cycle spread from the band's covariance (the two exponents' scatter is correlated: one trapped-mass error moves
+    both) and by the EWMA's standard error per unit of spread, sqrt(g / (2 - g)), for independent cycles."""
+    sd = baseline.sd
+    w = np.zeros_like(ewma)
+    w[1], w[2] = -1.0 / sd[1], 1.0 / sd[2]
+    w /= np.sqrt(2.0)
+    s = np.sum(w * ewma, axis=0)
+    s_sd = np.sqrt(np.maximum(np.einsum("iz,zij,jz->z", w, baseline.cov, w), 1e-30))
+    se = np.sqrt(g / (2.0 - g))
+    return LeakStatistics(z_leak=s / (s_sd * se), effect=0.5 * (ewma[2] - ewma[1]),
+                          z_ratio=ewma[0] / (np.maximum(sd[0], 1e-12) * se))
+
+
+# ---- the interface ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Decision:
+    """One statistic's verdict this cycle. cylinder: 1-based, None for the engine; kind: the alert it raises (fixed
+    when raised); on / off: the raise and clear conditions, k_on / k_off the consecutive cycles each needs; severity
+    (info | warning | alarm: an open alert escalates, never de-escalates), message and evidence: the alert's, renewed
+    every cycle while it is open."""
+
+    cylinder: int | None
+    kind: str
+    on: bool
+    off: bool
+    k_on: int
+    k_off: int
+    severity: str
+    message: str
+    evidence: dict
+
+
+@dataclass(frozen=True)
+class Hold:
+    """The statistic has no value this cycle: its latch holds still (neither count moves) and its open alert, if
+    any, takes ``evidence`` (why)."""
+
+    cylinder: int | None
+    evidence: dict
+
+
+@dataclass(frozen=True)
+class Pressure:
+    """The engine's pressure statistics in a usable cycle. imep_pa: the engine's mean IMEP; held: why the statistics
+    hold still this cycle (a load change settling, a load not commissioned yet) with the learner's learning_cycles,
+    else None and ewma (4, z), the EWMA of the indicators' change from ``band``'s mean (rows as INDICATORS; the
+    engine's own array: read it, never write it), and ``stats`` (leak_statistics of it)."""
+
+    imep_pa: float
+    held: str | None = None
+    learning_cycles: int = 0
+    ewma: np.ndarray | None = None
+    stats: LeakStatistics | None = None
+    band: Band | None = None
+
+
+def _never(name: str, cylinder: int | None) -> bool:
+    return False
+
+
+@dataclass
+class Context:
+    """What the engine shares with its rules in one cycle. cyl_flags: each cylinder's flag kinds (z sets, the
+    ``_cyl<k>`` stripped); engine_flags: the others; baseline_at_start: the baseline before this cycle's learning;
+    baseline: after it (a rule may add to it, the friction references: the engine keeps it as the rules leave it);
+    pressure: the pressure statistics (None: no usable pressure this cycle); latched(name, cylinder): whether that
+    statistic's latch is raised (as the earlier stages of this cycle left it)."""
+
+    cyl_flags: list[set[str]]
+    engine_flags: set[str] = field(default_factory=set)
+    baseline_at_start: Baseline | None = None
+    baseline: Baseline | None = None
+    pressure: Pressure | None = None
+    latched: Callable[[str, int | None], bool] = _never
+
+    @property
+    def n_cyl(self) -> int:
+        return len(self.cyl_flags)
+
+
+class Rule(Protocol):
+    """The interface every alert rule has (module doc)."""
+
+    name: str
+    rests_on_baseline: bool
+
+    def update(self, result: CycleResult, ctx: Context) -> list[Decision | Hold]: ...
