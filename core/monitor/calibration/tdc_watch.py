@@ -53,9 +53,11 @@ from frictionwatch.core.monitor.calibration.tdc import BLOCKS, TdcEstimate, tdc_
 from frictionwatch.core.types import Cycle
 
 WINDOW_CYCLES = 100
-# cylinders fitted per window: the fit costs ~40 ms per cylinder and window (genset-v20: 0.8 s for all 20 under load,
-# 4-8 ms per cycle over a 100-cycle window, more than the monitor itself), so a large engine's cylinders take turns,
-# four per window (genset-v20: each cylinder every 500 cycles, the wheel from the first window on)
+# cylinders fitted per window: the fit cost ~40 ms per cylinder and window when this was set (genset-v20: 0.8 s for
+# all 20 under load, 4-8 ms per cycle over a 100-cycle window, more than the monitor itself); now ~2.6 ms of CPU per
+# cylinder (k9k 4000 rpm, genset-v20 1500 rpm, full load), all 20 of genset-v20 would still be ~55 ms per window,
+# ~0.55 ms per cycle, half the monitor; so a large engine's cylinders take turns, four per window (genset-v20: each
+# cylinder every 500 cycles, the wheel from the first window on)
 CYLINDERS_PER_WINDOW = 4
 # 1.5: chosen on bench/calibration_coverage.py's k9k 1700 rpm / 1.0 and maruti 3000 rpm / 0.8 rows (seed 5): at 2.0
 # the maruti's +-1.5 deg wheels read at 2.0-2.1 sigma unflagged; at 1.5 they are flagged and no healthy row is.
