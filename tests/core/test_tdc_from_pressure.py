@@ -157,3 +157,26 @@ def test_one_cylinders_offset_is_found_on_that_cylinder_only():
     cycles, _ = assembled_cycles(spec, sim.info, sim.records)
     offsets = np.array([f.offset_deg for f in tdc_of_cycles(cycles, spec)])
     np.testing.assert_allclose(offsets, [0.0, -0.8, 0.0], atol=TOLERANCE_DEG)
+
+
+@pytest.mark.parametrize("engine", ["deutz-1cyl", "genset-v20"])
+def test_model_terms_at_several_points_at_once_are_each_points_alone(engine):
+    """A Gauss-Newton iteration evaluates the ROHR model at (delta, peg) and its two forward steps in one call
+    (columns of deltas and pegs); each row must be the one-point call's numbers. Tolerance rtol 1e-13: the same
+    operations on the same values, only numpy's vectorised loops could round differently; seeded inputs."""
+    from frictionwatch.core.monitor.calibration.tdc import _model_terms, _Setting
+
+    spec = load_engine(engine)
+    rng = np.random.default_rng(11)
+    angle = np.radians(np.arange(-140.0, 120.0, 0.5))
+    p = 1e5 * (5.0 + 40.0 * np.exp(-((angle / 0.6) ** 2))) + rng.normal(0.0, 2e3, angle.shape)
+    dp = np.gradient(p, angle)
+    st = _Setting(spec, 150.0, 1.1e5, math.radians(2.0), 1.3)
+    deltas = np.array([[0.01], [0.01 + math.radians(0.05)], [-0.02]])
+    pegs = np.array([[-3e3], [-3e3], [5e3]])
+    q, w = _model_terms(p, dp, angle, deltas, pegs, st)
+    assert q.shape == w.shape == (3, angle.shape[0])
+    for k in range(3):
+        q1, w1 = _model_terms(p, dp, angle, float(deltas[k, 0]), float(pegs[k, 0]), st)
+        np.testing.assert_allclose(q[k], q1, rtol=1e-13, atol=0)
+        np.testing.assert_allclose(w[k], w1, rtol=1e-13, atol=0)

@@ -132,3 +132,26 @@ def test_local_traces_cut_as_the_reference(engine):
         ref, ref_angle = local_cycles([prev, cur], k, float(phase))
         np.testing.assert_array_equal(got[k], ref[0])
         np.testing.assert_allclose(angle, ref_angle, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("engine", ["maruti-3cyl", "genset-v20"])
+def test_the_watch_cut_takes_what_local_traces_cuts(engine):
+    """The watch's take indices made once per grid (trace_cut, cut_traces) against local_traces, which joins both
+    cycles' pressure on every call: the same samples, exactly (a copy, no arithmetic)."""
+    import types
+
+    import numpy as np
+    from frictionwatch.core.model.engine import load_engine
+    from frictionwatch.core.monitor.calibration.tdc_watch import cut_traces, local_traces, trace_cut
+
+    spec = load_engine(engine)
+    for n in (720, 1440):
+        grid = np.linspace(0.0, 4 * np.pi, n, endpoint=False)
+        rng = np.random.default_rng(5)
+        prev = types.SimpleNamespace(index=7, grid=grid, pressure=rng.uniform(1e5, 1e7, (spec.n_cyl, n)))
+        cur = types.SimpleNamespace(index=8, grid=grid, pressure=rng.uniform(1e5, 1e7, (spec.n_cyl, n)))
+        ref, ref_angle = local_traces(prev, cur, spec.firing_angles)
+        cut = trace_cut(n, spec.firing_angles)
+        assert cut.fits(n, spec.firing_angles) and not cut.fits(n // 2, spec.firing_angles)
+        np.testing.assert_array_equal(cut_traces(prev, cur, cut), ref)
+        np.testing.assert_array_equal(cut.angle, ref_angle)

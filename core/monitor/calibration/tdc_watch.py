@@ -53,9 +53,11 @@ from frictionwatch.core.monitor.calibration.tdc import BLOCKS, TdcEstimate, tdc_
 from frictionwatch.core.types import Cycle
 
 WINDOW_CYCLES = 100
-# cylinders fitted per window: the fit costs ~40 ms per cylinder and window (genset-v20: 0.8 s for all 20 under load,
-# 4-8 ms per cycle over a 100-cycle window, more than the monitor itself), so a large engine's cylinders take turns,
-# four per window (genset-v20: each cylinder every 500 cycles, the wheel from the first window on)
+# cylinders fitted per window: the fit cost ~40 ms per cylinder and window when this was set (genset-v20: 0.8 s for
+# all 20 under load, 4-8 ms per cycle over a 100-cycle window, more than the monitor itself); now ~2.6 ms of CPU per
+# cylinder (k9k 4000 rpm, genset-v20 1500 rpm, full load), all 20 of genset-v20 would still be ~55 ms per window,
+# ~0.55 ms per cycle, half the monitor; so a large engine's cylinders take turns, four per window (genset-v20: each
+# cylinder every 500 cycles, the wheel from the first window on)
 CYLINDERS_PER_WINDOW = 4
 # 1.5: chosen on bench/calibration_coverage.py's k9k 1700 rpm / 1.0 and maruti 3000 rpm / 0.8 rows (seed 5): at 2.0
 # the maruti's +-1.5 deg wheels read at 2.0-2.1 sigma unflagged; at 1.5 they are flagged and no healthy row is.
@@ -76,7 +78,8 @@ SCREEN_BEFORE_SOC_DEG = 10.0
 class TdcWatchState:
     """sums (BLOCKS, z, n_local) and counts (BLOCKS,) of the current window's local traces; cycles in the window;
     previous: the last cycle's (index, pressure (z, n)) for the trace across the cycle boundary; last: the newest
-    window's estimates (z,) or None; flags in force; omega_sum: the window's speeds summed [rad/s]."""
+    window's estimates (z,) or None; flags in force; omega_sum: the window's speeds summed [rad/s]; cut: the take
+    indices of ``local_traces`` for this grid and these phases, made at the first pair (``trace_cut``)."""
 
     sums: np.ndarray | None
     counts: np.ndarray
@@ -93,10 +96,54 @@ class TdcWatchState:
     reference_twist: np.ndarray | None = None  # (z,) the window's mean twist then [rad]
     screened: tuple[int, ...] = ()  # cylinders the newest window fitted out of turn (0-based), for the record
     fitted: tuple[TdcEstimate | None, ...] | None = None  # each cylinder's newest fit (``last``: moved by the screen)
+    cut: TraceCut | None = None  # where each cylinder's local trace lies in two cycles' pressure (``trace_cut``)
 
     @staticmethod
     def empty() -> TdcWatchState:
         return TdcWatchState(None, np.zeros(BLOCKS), 0, None, None, (), 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class TraceCut:
+    """Where ``local_traces`` takes each cylinder's trace from for an n-sample grid and the firing phases (z,) [rad]:
+    the flat positions in the previous cycle's pressure (z*n,) and the trace positions (z*n_local,) they go to
+    (``from_prev``, ``to_prev``), the same for the current cycle (``from_cur``, ``to_cur``), the local angle
+    (n_local,) [rad]. Made once per grid (``trace_cut``), it replaces the joining of both cycles' whole pressure on
+    every cycle (17 us per k9k cycle, 57 us per genset-v20 one, against 3 and 10 for the take)."""
+
+    n: int
+    phases: np.ndarray
+    from_prev: np.ndarray
+    to_prev: np.ndarray
+    from_cur: np.ndarray
+    to_cur: np.ndarray
+    angle: np.ndarray
+
+    def fits(self, n: int, phases: np.ndarray) -> bool:
+        return self.n == n and np.array_equal(self.phases, phases)
+
+
+def trace_cut(n: int, phases: np.ndarray, half_width_rad: float = math.pi) -> TraceCut:
+    """The take indices of ``local_traces`` (its cut, as indices into the two cycles apart, not their join)."""
+    ph = np.array(phases, dtype=np.float64)
+    step = 4.0 * math.pi / n
+    half = int(round(half_width_rad / step))
+    centre = np.rint(np.mod(ph, 4.0 * math.pi) / step).astype(np.int64) % n
+    centre = np.where(centre + half > n, centre - n, centre)
+    idx = (n + centre - half)[:, None] + np.arange(2 * half)[None, :]  # into the join (z, 2n), as local_traces
+    in_cur = idx >= n
+    flat = np.arange(ph.shape[0])[:, None] * n + idx - n  # flat position in the current cycle's (z, n)
+    return TraceCut(n, ph, (flat + n)[~in_cur], np.flatnonzero(~in_cur), flat[in_cur], np.flatnonzero(in_cur),
+                    step * np.arange(-half, half))
+
+
+def cut_traces(prev: Cycle, cycle: Cycle, cut: TraceCut) -> np.ndarray:
+    """``local_traces(prev, cycle, cut.phases)[0]`` by ``cut``'s take indices (tested equal to it)."""
+    z = cut.phases.shape[0]
+    out = np.empty(z * cut.angle.shape[0])
+    out[cut.to_prev] = np.asarray(prev.pressure, dtype=np.float64).reshape(-1)[cut.from_prev]
+    out[cut.to_cur] = np.asarray(cycle.pressure, dtype=np.float64).reshape(-1)[cut.from_cur]
+    return out.reshape(z, -1)
 
 
 def local_traces(prev: Cycle, cycle: Cycle, phases: np.ndarray,
@@ -126,12 +173,17 @@ def watch_cycle(spec: EngineSpec, cal: Calibration, state: TdcWatchState, cycle:
     twist ahead of the flywheel in the monitor's model of this cycle; at the end of a window the fit runs and the
     flags are decided (module doc). A cycle that does not follow the previous one only starts the next pair."""
     prev = state.previous
-    state = dataclasses.replace(state, previous=cycle)
     if prev is None or cycle.index != prev.index + 1 or prev.grid.shape != cycle.grid.shape:
-        return state
-    traces, angle = local_traces(prev, cycle, spec.firing_angles)
+        return dataclasses.replace(state, previous=cycle)
+    n_grid = cycle.grid.shape[0]
+    cut = state.cut if state.cut is not None and state.cut.fits(n_grid, spec.firing_angles) \
+        else trace_cut(n_grid, spec.firing_angles)
+    if np.shape(prev.pressure) == np.shape(cycle.pressure) == (cut.phases.shape[0], n_grid):
+        traces, angle = cut_traces(prev, cycle, cut), cut.angle
+    else:  # not one row per cylinder: the reference cut (and its error)
+        traces, angle = local_traces(prev, cycle, spec.firing_angles)
     if not np.all(np.isfinite(traces)):
-        return state  # a NaN sample: the pair is left out
+        return dataclasses.replace(state, previous=cycle, cut=cut)  # a NaN sample: the pair is left out
     sums = np.zeros((BLOCKS,) + traces.shape) if state.sums is None or state.sums.shape[1:] != traces.shape \
         else state.sums.copy()
     counts = state.counts.copy()
@@ -143,7 +195,7 @@ def watch_cycle(spec: EngineSpec, cal: Calibration, state: TdcWatchState, cycle:
     n = state.cycles + 1
     if n < window:
         return dataclasses.replace(state, sums=sums, counts=counts, cycles=n, previous=cycle, omega_sum=omega,
-                                   twist_sum=twist_sum)
+                                   twist_sum=twist_sum, cut=cut)
     means = sums / np.maximum(counts, 1)[:, None, None]
     twist_mean = np.broadcast_to(twist_sum / n, (spec.n_cyl,))
     z = spec.n_cyl
@@ -190,7 +242,7 @@ def watch_cycle(spec: EngineSpec, cal: Calibration, state: TdcWatchState, cycle:
         new = ~np.isfinite(first[0]) & np.isfinite(now[0])
         first[:, new] = now[:, new]
     return TdcWatchState(None, np.zeros(BLOCKS), 0, cycle, tuple(estimates), tdc_flags(cal, estimates, first), 0.0,
-                         0.0, nxt, first, ref, ref_twist, tuple(screened), tuple(fitted))
+                         0.0, nxt, first, ref, ref_twist, tuple(screened), tuple(fitted), cut)
 
 
 def own_offsets(estimates: list[TdcEstimate | None]) -> np.ndarray:
@@ -263,5 +315,5 @@ def tdc_flags(cal: Calibration, estimates: list[TdcEstimate | None],
     return tuple(flags)
 
 
-__all__ = ["SCREEN_DEG", "TdcWatchState", "WINDOW_CYCLES", "local_traces", "own_offsets", "screen_shift", "tdc_flags",
-           "watch_cycle"]
+__all__ = ["SCREEN_DEG", "TdcWatchState", "TraceCut", "WINDOW_CYCLES", "cut_traces", "local_traces", "own_offsets",
+           "screen_shift", "tdc_flags", "trace_cut", "watch_cycle"]
