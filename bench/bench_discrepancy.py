@@ -167,6 +167,7 @@ def judge(label: str, truths: tuple, doc: dict, n_cyl: int = 4) -> dict:
            "gap_after": doc["gap_after"], "all": [(f["effect"], f["cylinder"]) for f in found],
            "outcome": doc.get("outcome"), "ambiguous": (doc.get("ambiguous") or {}).get("candidates"),
            "refused": [r["candidate"] for r in doc.get("refused", [])],
+           "refused_why": [f"{r['candidate']}: {r['reason']}" for r in doc.get("refused", [])],
            "step_limit_reached": doc.get("step_limit_reached"), "verdict": doc.get("verdict"),
            "truth": [{"effect": n, **p} for n, p, _, _ in truths]}
     expected = EXPECT.get(label)
@@ -181,6 +182,7 @@ def judge(label: str, truths: tuple, doc: dict, n_cyl: int = 4) -> dict:
     out["gap_reduction"] = red
     if expected is not None:  # a default effect the baseline left out (a toggle, no parameter)
         ok = named is not None and named["effect"] == expected
+        out["named_right"] = bool(ok)
         out["pass"] = bool(ok and red >= 0.8)
         return out
     checks, ok = [], True
@@ -200,6 +202,7 @@ def judge(label: str, truths: tuple, doc: dict, n_cyl: int = 4) -> dict:
     if len(checks) == 1 and checks[0]["found"]:
         out["parameter"], out["truth_value"] = checks[0]["parameter"], checks[0]["truth"]
     out["sigma_covered"] = [c.get("within_2sigma") for c in checks if c["found"]]
+    out["named_right"] = bool(ok)  # issue 27's rule: effect, cylinder, parameter (no gap condition)
     out["pass"] = bool(ok and red >= 0.8)
     return out
 
@@ -229,19 +232,58 @@ def matrix(n_cycles: int, points=None, seeds=SEEDS, cases=None, engine: str = EN
 
 
 def summarise(rows: list[dict]) -> dict:
+    """Totals over the rows. named_right: issue 27's rule (effect, cylinder, parameter) over the judged cases with a
+    hidden effect; passed: that and the gap shrinking by >= 80 % (healthy: nothing found); named_wrong: a judged case
+    with something named that is not named right; named_outside_library: something named for an effect the library
+    does not hold (load ripple, misfire)."""
     confusion: dict = defaultdict(Counter)
     for r in rows:
         confusion[r["case"]][r["named"] + (f"[{r['cylinder']}]" if r["cylinder"] is not None else "")] += 1
-    wrong = [r for r in rows if r["pass"] is False and r["named"] != "nothing" and r["truth"]]
+    for r in rows:  # rows written before named_right was a field
+        if "named_right" not in r and "checks" in r:
+            r["named_right"] = all(c["found"] and c["within_tol"] for c in r["checks"])
+        elif "named_right" not in r and r["case"] in EXPECT:
+            r["named_right"] = r["named"] == EXPECT[r["case"]]
+    judged = [r for r in rows if r["pass"] is not None and "named_right" in r]
+    wrong = [r for r in judged if not r["named_right"] and r["all"]]
     healthy = [r for r in rows if not r["truth"] and r["case"] not in EXPECT]
-    cover = [v for r in rows if r["pass"] is not None for v in r.get("sigma_covered", []) if v is not None]
+    outside = [r for r in rows if r["pass"] is None and r["all"]]
+    cover = [v for r in judged if r["named_right"] for v in r.get("sigma_covered", []) if v is not None]
+
+    def listed(rs):
+        return [f"{r['case']} -> {', '.join(f'{e}[{c}]' for e, c in r['all'])}" for r in rs]
+
     return {"rows": rows, "confusion": {k: dict(v) for k, v in confusion.items()},
             "passed": sum(r["pass"] is True for r in rows), "judged": sum(r["pass"] is not None for r in rows),
+            "named_right": [sum(r["named_right"] for r in judged), len(judged)],
             "outcomes": dict(Counter(r["outcome"] for r in rows)),
-            "named_wrong": [f"{r['case']} -> {', '.join(f'{e}[{c}]' for e, c in r['all'])}" for r in wrong],
+            "outcomes_judged_not_right": dict(Counter(r["outcome"] for r in judged if not r["named_right"])),
+            "named_wrong": listed(wrong), "named_outside_library": listed(outside),
             "named_on_healthy": sum(bool(r["all"]) for r in healthy), "healthy": len(healthy),
-            "sigma_coverage": [sum(cover), len(cover)],
+            "sigma_coverage_named_right": [sum(cover), len(cover)],
             "cpu_s": round(sum(r["cpu_s"] for r in rows), 1)}
+
+
+def table(rows: list[dict]) -> str:
+    """The rows as a markdown table: outcome, named, parameter vs truth, sigma coverage, gap, CPU."""
+    lines = ["| engine | rpm/load | case | outcome | named | parameter vs truth (sigma) | truth in 2 sigma | right | "
+             "gap before -> after | CPU s |", "|" + "---|" * 10]
+    for r in rows:
+        named = ", ".join(f"{e}[{c}]" if c is not None else e for e, c in r["all"]) or (
+            "amb: " + " / ".join(r["ambiguous"]) if r["ambiguous"] else "-")
+        if r["refused"]:
+            named += " (refused: " + ", ".join(r["refused"]) + ")"
+        par = "; ".join(f"{c['parameter']:.4g} vs {c['truth']:.4g} (+-{c['sigma']:.2g})" if c["found"]
+                        and c.get("sigma") is not None else (f"{c['parameter']:.4g} vs {c['truth']:.4g}"
+                                                            if c["found"] else f"- vs {c['truth']:.4g}")
+                        for c in r.get("checks", []))
+        cov = ", ".join("yes" if v else "no" for v in r.get("sigma_covered", []) if v is not None)
+        right = {True: "yes", False: "no", None: "-"}[r.get("named_right")] if r["truth"] or r["case"] in EXPECT \
+            else ("yes" if not r["all"] else "no")
+        lines.append(f"| {r['engine']} | {r['rpm']:g}/{r['load']:g} | {r['case']} | {r['outcome']} | {named} | "
+                     f"{par or '-'} | {cov or '-'} | {right} | {r['gap_before']:.1f} -> {r['gap_after']:.1f} | "
+                     f"{r['cpu_s']:.1f} |")
+    return "\n".join(lines)
 
 
 def main() -> int:
@@ -254,7 +296,19 @@ def main() -> int:
     ap.add_argument("--seed", type=int, help="only this seed")
     ap.add_argument("--case", action="append", help="only these cases (labels of CASES)")
     ap.add_argument("--new", action="store_true", help="only issue 27's further cases (NEW_CASES)")
+    ap.add_argument("--summarise", type=Path, nargs="+", help="recompute the totals of saved --matrix outputs "
+                    "(their rows, judged again by today's rule: rows need 'checks' to be re-judged as they are)")
+    ap.add_argument("--table", type=Path, nargs="+", help="print saved --matrix outputs as one markdown table")
     args = ap.parse_args()
+    if args.table:
+        print(table([r for path in args.table for r in json.loads(path.read_text())["rows"]]))
+        return 0
+    if args.summarise:
+        for path in args.summarise:
+            doc = summarise(json.loads(path.read_text())["rows"])
+            path.write_text(json.dumps(doc, indent=1, default=float))
+            print(path, json.dumps({k: v for k, v in doc.items() if k != "rows"}, indent=1))
+        return 0
     points = ENGINES[args.engine]["points"]
     points = points if args.point is None else (points[args.point],)
     seeds = SEEDS if args.seed is None else (args.seed,)
