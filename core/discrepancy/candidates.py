@@ -85,7 +85,9 @@ def candidate_library(model: EngineModel) -> list[Candidate]:
         if spec.requires and (spec.requires not in names or (spec.requires == "torsional_flexibility"
                                                              and not model.spec.stiffness.size)):
             continue
-        cylinders = {"each": range(1, z + 1), "each_and_wheel": range(0, z + 1)}.get(spec.where, (None,))
+        # on a one-cylinder engine the whole wheel and its one cylinder are one offset to the monitor: offer it once
+        each_and_wheel = range(1, z + 1) if z == 1 else range(0, z + 1)
+        cylinders = {"each": range(1, z + 1), "each_and_wheel": each_and_wheel}.get(spec.where, (None,))
         out += [Candidate(name, k, spec.params, spec.x0, spec.step, spec.lo, spec.hi, dict(spec.fixed),
                           spec.separated_by) for k in cylinders]
     return [c for c in out if _slot(c) not in have]

@@ -99,6 +99,16 @@ class Discovery:
                 "channels": f["channels"]}
 
     @property
+    def within_floor(self) -> list[float]:
+        """Engine orders whose held-out coherent speed residual is beyond its sigmas but inside the model-error
+        floor: what the model leaves that the null attributes to the model itself (said, not named)."""
+        f = self.final
+        if not f:
+            return []
+        return [o["order"] for o in f["orders"]
+                if o["amplitude_rpm"] > SIGNIFICANT * o["sigma_rpm"] and not o["significant"]]
+
+    @property
     def outcome(self) -> str:
         if self.steps:
             return "named"
@@ -113,17 +123,18 @@ class Discovery:
         if self.steps:
             text = f"Found {named}"
             if rest is not None:
-                text += ("; a discrepancy remains that no candidate explains (engine orders "
-                         f"{_orders(rest['engine_orders'])})")
+                text += "; a discrepancy remains that no candidate explains (" + _signature(rest) + ")"
         elif self.ambiguous:
             text = "A discrepancy is found that more than one effect explains"
         elif rest is not None:
-            text = ("A discrepancy remains that no candidate explains (engine orders "
-                    f"{_orders(rest['engine_orders'])}"
-                    + (f", torque balance {rest['balance_nm']:+.3g} N m" if rest["balance_nm"] is not None else "")
-                    + ")")
+            text = "A discrepancy remains that no candidate explains (" + _signature(rest) + ")"
         else:
             text = "No significant missing effect: the model reproduces the held-out cycles within their noise"
+            inside = self.within_floor
+            if inside:
+                text = ("No missing effect beyond the model's own error: a coherent residual at engine orders "
+                        f"{_orders(inside)} lies within the model-error floor (features.speed_floor_rpm), not within "
+                        "the noise alone")
         if self.ambiguous:
             a = self.ambiguous
             text += (f"; {' and '.join(a['candidates'])} explain the rest equally well and neither was added"
@@ -152,6 +163,7 @@ class Discovery:
                                        "measured_friction_after": s.after.get("friction")}})
         return {"found": found, "gap_before": self.gap_before, "gap_after": self.gap_after, "metric": METRIC,
                 "outcome": self.outcome, "verdict": self.verdict(), "remainder": self.remainder,
+                "within_model_error_floor": self.within_floor,
                 "ambiguous": self.ambiguous,
                 "refused": self.refused, "step_limit_reached": self.step_limit_reached,
                 "localisation": self.localisation, "final": self.final, "not_significant": self.rejected,
@@ -306,6 +318,8 @@ def pressure_seeds(res: Residuals) -> dict[str, float]:
         return {}
     ok = np.isfinite(res.tdc_deg)
     wheel, wheel_sigma = float(np.median(res.tdc_deg[ok])), float(np.median(res.tdc_sigma_deg[ok]))
+    if res.tdc_deg.size == 1:  # one cylinder: its offset is the wheel's (the library offers it once, as cylinder 1)
+        return {"tdc_offset[cyl 1]": wheel} if abs(wheel) > max(SEED_SIGMAS * wheel_sigma, SEED_MIN_DEG) else {}
     out = {}
     if abs(wheel) > max(SEED_SIGMAS * wheel_sigma, SEED_MIN_DEG):
         out["tdc_offset[cyl 0]"] = wheel
@@ -397,6 +411,14 @@ def _said(e) -> str:
                      for k, v in e.values.items() if k != "cylinder" and (k in e.sigma or not e.sigma))
     inner = ", ".join(s for s in (where, vals) if s)
     return f"{e.name} ({inner})" if inner else e.name
+
+
+def _signature(rest: dict) -> str:
+    """What remains, in words: the significant engine orders and / or the torque balance residual."""
+    parts = [f"engine orders {_orders(rest['engine_orders'])}"] if rest["engine_orders"] else []
+    if rest["balance_nm"] is not None:
+        parts.append(f"torque balance {rest['balance_nm']:+.3g} N m")
+    return ", ".join(parts) or "no single order"
 
 
 def _orders(orders) -> str:
