@@ -13,8 +13,9 @@ order a cycle walks through them.
 """
 
 from frictionwatch.core.monitor.monitor import CycleRejected, default_max_order, initial_state, process_cycle
+from frictionwatch.core.monitor.pipeline import CycleOutcome, CyclePipeline, run_cycles
 from frictionwatch.core.monitor.report.results import CycleResult, FrictionEstimate
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 
-__all__ = ["CycleRejected", "CycleResult", "FrictionEstimate", "MonitorConfig", "MonitorState", "default_max_order",
-           "initial_state", "process_cycle"]
+__all__ = ["CycleOutcome", "CyclePipeline", "CycleRejected", "CycleResult", "FrictionEstimate", "MonitorConfig",
+           "MonitorState", "default_max_order", "initial_state", "process_cycle", "run_cycles"]
