@@ -133,6 +133,15 @@ def trends(res: Residuals) -> dict:
     return out
 
 
+def balance_residual(res: Residuals) -> dict:
+    """The mean torque-balance residual over the cycles [N m], its sigma, and whether it is significant (beyond
+    SIGNIFICANT of its sigma); NaN and inf with fewer than two finite cycles."""
+    ok = np.isfinite(res.balance)
+    bal, bal_sig = _mean_sigma(res.balance[ok]) if ok.sum() > 1 else (float("nan"), float("inf"))
+    return {"mean_nm": bal, "sigma_nm": bal_sig,
+            "significant": bool(np.isfinite(bal) and abs(bal) > SIGNIFICANT * bal_sig)}
+
+
 def _measured_friction(res: Residuals, spec: EngineSpec) -> dict | None:
     """The engine's friction the mean balance measured over the cycles [N m] and as FMEP [bar] (one definition:
     EngineSpec.torque_to_mep): what ``analyze`` would report of it under this model."""
@@ -147,8 +156,7 @@ def _measured_friction(res: Residuals, spec: EngineSpec) -> dict | None:
 def localise(res: Residuals, spec: EngineSpec, scale: np.ndarray) -> dict:
     """Find: the coherent residual by engine order, crank-angle window and cylinder, the balance, the trends and
     per channel (flywheel encoder: the speed residual; pressure and load sensors: the balance residual)."""
-    ok = np.isfinite(res.balance)
-    bal, bal_sig = _mean_sigma(res.balance[ok]) if ok.sum() > 1 else (float("nan"), float("inf"))
+    balance = balance_residual(res)
     mean_speed = res.speed.mean(axis=0)
     peak = int(np.argmax(np.abs(mean_speed)))
     terms = coherent_terms(res, scale)
@@ -165,8 +173,7 @@ def localise(res: Residuals, spec: EngineSpec, scale: np.ndarray) -> dict:
                   "peak_rpm": float(mean_speed[peak] * RPM_PER_RAD_S),
                   "rms_rpm": float(np.sqrt(np.mean(mean_speed**2)) * RPM_PER_RAD_S)},
         "cylinders": cylinder_windows(res, spec),
-        "balance": {"mean_nm": bal, "sigma_nm": bal_sig,
-                    "significant": bool(np.isfinite(bal) and abs(bal) > SIGNIFICANT * bal_sig)},
+        "balance": balance,
         "friction": _measured_friction(res, spec),
         "channels": {"flywheel_speed": float(max(terms[:2 * m].sum(), 0.0)),
                      "torque_balance": float(max(terms[2 * m:].sum(), 0.0))},
@@ -174,5 +181,5 @@ def localise(res: Residuals, spec: EngineSpec, scale: np.ndarray) -> dict:
     }
 
 
-__all__ = ["NULL_FLOOR", "NULL_OWN", "RPM_PER_RAD_S", "SIGNIFICANT", "speed_floor_rpm", "coherent_terms", "cost", "cylinder_windows", "gap", "localise",
-           "noise_scale", "order_table", "trends"]
+__all__ = ["NULL_FLOOR", "NULL_OWN", "RPM_PER_RAD_S", "SIGNIFICANT", "balance_residual", "coherent_terms", "cost",
+           "cylinder_windows", "gap", "localise", "noise_scale", "order_table", "speed_floor_rpm", "trends"]

@@ -28,7 +28,15 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from frictionwatch.core.discrepancy.candidates import Candidate, candidate_library
-from frictionwatch.core.discrepancy.features import SIGNIFICANT, coherent_terms, gap, localise, noise_scale, order_table
+from frictionwatch.core.discrepancy.features import (
+    SIGNIFICANT,
+    balance_residual,
+    coherent_terms,
+    gap,
+    localise,
+    noise_scale,
+    order_table,
+)
 from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, refine
 from frictionwatch.core.discrepancy.residuals import Residuals, pinned_config, run_model
 from frictionwatch.core.model.effects import make_effect
@@ -285,23 +293,15 @@ def channel_worse(before: Residuals, after: Residuals, scale: np.ndarray) -> str
     tb, ta = before.n_cycles * coherent_terms(before, scale), after.n_cycles * coherent_terms(after, scale)
     orders_before = {o["order"] for o in order_table(before) if o["significant"]}
     new_orders = [o["order"] for o in order_table(after) if o["significant"] and o["order"] not in orders_before]
-    bal_b, bal_a = (_balance(r) for r in (before, after))
+    bal_b, bal_a = balance_residual(before), balance_residual(after)
     checks = (("flywheel speed", slice(0, 2 * m), bool(new_orders)),
-              ("torque balance", slice(2 * m, None), bal_a[1] and abs(bal_a[0]) > abs(bal_b[0])))
+              ("torque balance", slice(2 * m, None),
+               bal_a["significant"] and not abs(bal_a["mean_nm"]) <= abs(bal_b["mean_nm"])))  # before NaN: larger
     for name, sl, shows in checks:
         grow = float(ta[sl].sum() - tb[sl].sum())
         if shows and grow > WORSE_SIGMAS * np.sqrt(2.0 * tb[sl].size):
             return f"it makes the {name} residual worse on the held-out cycles (coherent chi^2 +{grow:.3g})"
     return ""
-
-
-def _balance(res: Residuals) -> tuple[float, bool]:
-    """(mean balance residual [N m], whether it is significant: beyond SIGNIFICANT of its sigma)."""
-    ok = np.isfinite(res.balance)
-    if ok.sum() < 2:
-        return 0.0, False
-    mean, sem = float(res.balance[ok].mean()), float(res.balance[ok].std(ddof=1) / np.sqrt(ok.sum()))
-    return mean, abs(mean) > SIGNIFICANT * sem
 
 
 # a TDC reading from the pressure proposes a candidate (it is not a decision: the held-out test decides) when it is
