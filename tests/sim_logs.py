@@ -32,6 +32,14 @@ def sensor_flags(analysis) -> tuple[list[str], int]:
     return sorted(f for f in analysis.results[-1].flags if f.startswith("sensor_")), first
 
 
+def withheld_cylinders(analysis) -> list[int]:
+    """The cylinders (1-based) whose friction figure the last result withholds, under its own flags."""
+    from frictionwatch.core.monitor.report.figure_status import friction_status
+
+    last = analysis.results[-1]
+    return [k + 1 for k, c in enumerate(friction_status(last.smoothed, last.flags).cylinders) if c.status == "withheld"]
+
+
 def pipeline_results(engine, sim, config=None) -> tuple[list[CycleResult], Counter[str]]:
     """A simulated log (``simulate``'s records) through the one pipeline (service.pipeline.run: the assembler, the
     monitor, the running calibration watches): the analysed cycles' results in order, and the cycles lost on the

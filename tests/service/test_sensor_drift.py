@@ -10,10 +10,9 @@ module docs), and bench/sensor_drift.py uses seeds 61 / 62. The TDC case moves c
 from __future__ import annotations
 
 import pytest
-from frictionwatch.core.monitor.report.figure_status import friction_status
 from frictionwatch.service.pipeline import analyze_log
 
-from tests.sim_logs import commissioned_model, simulate_log
+from tests.sim_logs import commissioned_model, simulate_log, withheld_cylinders
 
 ONSET, CYCLES, WITHIN = 300, 900, 200
 
@@ -38,5 +37,4 @@ def test_a_drift_after_commissioning_is_flagged_on_its_cylinder_and_withheld(mod
     assert first is not None and ONSET <= first <= ONSET + WITHIN, first
     last = analysis.results[-1]
     assert sorted(f for f in last.flags if f.startswith("sensor_")) == [flag]
-    status = friction_status(last.smoothed, last.flags)
-    assert [k + 1 for k, c in enumerate(status.cylinders) if c.status == "withheld"] == [cylinder]
+    assert withheld_cylinders(analysis) == [cylinder]
