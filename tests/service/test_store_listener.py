@@ -153,8 +153,12 @@ def test_kill_9_mid_run_loses_nothing_reported_committed(tmp_path, synchronous):
             reported.add(int(line))
             got += 1
         child.send_signal(signal.SIGKILL)
-        tail, _ = child.communicate(timeout=30)
-        reported.update(int(x) for x in tail.splitlines()[:-1])  # the last line may be cut by the kill
+        # read the rest through the same buffered pipe object: communicate(timeout=...) reads the raw descriptor
+        # and would skip what readline had already buffered, starting the tail mid-line
+        tail = child.stdout.read()
+        child.stdout.close()
+        child.wait(timeout=30)
+        reported.update(int(x) for x in tail.split("\n")[:-1])  # the text after the last newline may be cut
         assert child.returncode == -signal.SIGKILL
         assert got == stop_after, f"the writer reported only {got} cycles"
         store = open_store(url)
