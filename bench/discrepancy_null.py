@@ -27,7 +27,14 @@ for _v in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_
 import argparse  # noqa: E402
 
 import numpy as np  # noqa: E402
-from frictionwatch.core.discrepancy.features import RPM_PER_RAD_S, SIGNIFICANT, localise, noise_scale  # noqa: E402
+from frictionwatch.core.discrepancy.features import (  # noqa: E402
+    RPM_PER_RAD_S,
+    SIGNIFICANT,
+    coherent_terms,
+    feature_floor,
+    localise,
+    noise_scale,
+)
 from frictionwatch.core.discrepancy.residuals import pinned_config, run_model  # noqa: E402
 from frictionwatch.core.model.effects import make_effect  # noqa: E402
 from frictionwatch.core.model.engine import load_engine  # noqa: E402
@@ -59,23 +66,31 @@ def held_out(engine: str, rpm: float, load: float, seed: int, effects=()):
     return spec, res.take(np.arange(n) < n // 2), res.take(np.arange(n) >= n // 2)
 
 
-def one(label: str, engine: str, rpm: float, load: float, seed: int, effects=()) -> tuple[float, float]:
+def one(label: str, engine: str, rpm: float, load: float, seed: int, effects=()) -> tuple[float, ...]:
     """Prints the log's line; returns the largest (share of the largest harmonic among small orders, share of its own
-    amplitude among the others) of the coherent residual beyond 4 sigma."""
+    amplitude among the others) of the coherent residual beyond 4 sigma, the held-out mean balance residual's
+    size relative to the friction the balance measured, and the mean over the speed features and the balance
+    feature of the noise-corrected coherent power relative to the floor's (core.discrepancy.features.feature_floor
+    at FLOOR_RMS 1): what the rms model error is of the floor."""
     spec, train, test = held_out(engine, rpm, load, seed, effects)
-    loc = localise(test, spec, noise_scale(train))
+    scale = noise_scale(train)
+    loc = localise(test, spec, scale)
+    power = coherent_terms(test, scale) / (feature_floor(test, scale, rms=(1.0, 1.0)) ** 2 + 1e-300)
     own = test.measured.mean(axis=0) * RPM_PER_RAD_S
     largest = float(own.max())
     beyond = [(o["order"], o["amplitude_rpm"] / largest, o["amplitude_rpm"] / own[i], own[i] < 0.1 * largest)
               for i, o in enumerate(loc["orders"]) if o["amplitude_rpm"] > SIGNIFICANT * o["sigma_rpm"]]
     bal = loc["balance"]
+    friction = abs(loc["friction"]["mean_nm"]) if loc["friction"] else float("nan")
     print(f"{label:44s} largest harmonic {largest:8.2f} rpm; beyond 4 sigma (of largest, of own): "
           + (", ".join(f"{o:g} ({f:.4f}, {g:.4f})" for o, f, g, _ in beyond) or "none")
           + f"; significant with the floor: {', '.join(f'{o:g}' for o in loc['significant_orders']) or 'none'}"
-          + f"; balance {bal['mean_nm']:+.3f} +- {bal['sigma_nm']:.3f} N m{' SIGNIFICANT' if bal['significant'] else ''}",
+          + f"; balance {bal['mean_nm']:+.3f} +- {bal['sigma_nm']:.3f} N m{' SIGNIFICANT' if bal['significant'] else ''}"
+          + f" ({abs(bal['mean_nm']) / friction:.4f} of the friction {friction:.2f} N m)",
           flush=True)
     return (max((f for _, f, _, small in beyond if small), default=0.0),
-            max((g for _, _, g, small in beyond if not small), default=0.0))
+            max((g for _, _, g, small in beyond if not small), default=0.0), abs(bal["mean_nm"]) / friction,
+            float(np.mean(power[:-1])), float(power[-1]))
 
 
 def main() -> None:
@@ -84,10 +99,13 @@ def main() -> None:
     args = ap.parse_args()
     if args.tune:
         worst = [one(f"tune {e} {r:g} rpm {ld:g} seed {s}", e, r, ld, s) for e, r, ld, s in TUNE]
-        small, big = max(w[0] for w in worst), max(w[1] for w in worst)
+        small, big, bal = (max(w[i] for w in worst) for i in range(3))
+        speed_rms, bal_rms = (float(np.sqrt(max(np.mean([w[i] for w in worst]), 0.0))) for i in (3, 4))
+        print(f"rms healthy coherent residual over the tuning logs, of its floor: speed {speed_rms:.3f}, balance "
+              f"{bal_rms:.3f} -> FLOOR_RMS")
         print(f"largest healthy residual beyond 4 sigma: small orders {small:.4f} of the largest harmonic -> "
               f"NULL_FLOOR {MARGIN * small:.4f}; large orders {big:.4f} of their own -> NULL_OWN {MARGIN * big:.4f}"
-              f" (margin {MARGIN:g})")
+              f"; balance {bal:.4f} of the friction -> NULL_BALANCE {MARGIN * bal:.4f} (margin {MARGIN:g})")
         return
     for e, r, ld, s in VALIDATE:
         one(f"healthy {e} {r:g} rpm {ld:g} seed {s}", e, r, ld, s)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.discrepancy.candidates import Candidate
+from frictionwatch.core.discrepancy.features import coherent_power
 from frictionwatch.core.discrepancy.residuals import Residuals
 from frictionwatch.core.model.engine_model import EngineModel
 
@@ -40,10 +41,13 @@ class Trial:
 
 class Evaluator:
     """Whitened residual vectors of models on one training window: ``run(model) -> Residuals`` (a monitor run),
-    features from ``first`` cycle index on, whitened by ``scale``."""
+    features from ``first`` cycle index on, whitened by ``scale``; ``floor`` (F,) the whitened model-error floor of
+    each feature (core.discrepancy.features.feature_floor; zeros: the statistical sigma alone)."""
 
-    def __init__(self, run: Callable[[EngineModel], Residuals], scale: np.ndarray, first: int):
+    def __init__(self, run: Callable[[EngineModel], Residuals], scale: np.ndarray, first: int,
+                 floor: np.ndarray | None = None):
         self._run, self.scale, self.first = run, scale, first
+        self.floor = np.zeros_like(scale) if floor is None else floor
         self.calls = 0
 
     def vector(self, model: EngineModel) -> tuple[np.ndarray, np.ndarray]:
@@ -109,15 +113,34 @@ def _solve(jac: np.ndarray, r: np.ndarray) -> np.ndarray:
     return np.linalg.solve(jtj + DAMPING * np.max(np.diag(jtj), initial=1e-300) * np.eye(jtj.shape[0]), jac.T @ r)
 
 
+def parameter_sigma(jac: np.ndarray, n_cycles: int, cost: float, floor: np.ndarray,
+                    residual: np.ndarray | None = None) -> np.ndarray:
+    """(p,) 1-sigma of the parameters fitted with ``jac`` (N F, p: cycle-major rows of whitened features) at the
+    whitened sum of squares ``cost``: the statistical part, (J'J)^-1 inflated by the reduced chi^2 when above 1, and
+    the model-error part, a coherent error in every cycle propagated through the same least-squares step:
+    A (sum_n J_n)' diag(e^2) (sum_n J_n) A' with A = (J'J)^-1, e^2 = floor^2 (the healthy model's rms error, (F,))
+    + the coherent power the fit leaves in ``residual`` (N F,) (a sandwich estimate: the found effect's own model
+    is not the engine's either). The second part does not shrink with more cycles; without it the found
+    parameters' sigma was 7-22x too small against the truth (issue 27)."""
+    p = jac.shape[1]
+    if residual is not None:
+        floor = np.sqrt(floor**2 + np.maximum(coherent_power(residual.reshape(n_cycles, -1)), 0.0))
+    jtj = jac.T @ jac
+    a = np.linalg.pinv(jtj + DAMPING * np.max(np.diag(jtj), initial=1e-300) * np.eye(p))
+    stat = a * max(1.0, cost / max(jac.shape[0] - p, 1))
+    b = a @ jac.reshape(n_cycles, -1, p).sum(axis=0).T  # (p, F): a coherent feature error -> parameter shift
+    return np.sqrt(np.diag(stat) + np.sum(b**2 * floor**2, axis=1))
+
+
 def refine(lin: Linearised, model: EngineModel, ev: Evaluator) -> Trial:
     """Evaluate the Gauss-Newton point, take one chord step (same sensitivities, the new residual), keep the better;
-    sigma from the sensitivities, inflated by the reduced chi^2 when above 1."""
+    sigma from the sensitivities and the model-error floor (parameter_sigma)."""
     cand = lin.candidate
     calls = ev.calls
     if cand.toggle:
         return Trial(cand, np.zeros(0), np.zeros(0), lin.predicted, lin.base_cost, 0)
     x0 = np.asarray(cand.x0, float)
-    best_x, best_cost = x0, float(lin.r0 @ lin.r0)
+    best_x, best_cost, best_r = x0, float(lin.r0 @ lin.r0), lin.r0
     x = lin.x_gn
     for step in range(2):
         idx, r = ev.vector(cand.model_at(model, x))
@@ -126,18 +149,16 @@ def refine(lin: Linearised, model: EngineModel, ev: Evaluator) -> Trial:
         r_now = r.ravel()
         cost = float(r_now @ r_now)
         if cost < best_cost:
-            best_x, best_cost = x, cost
+            best_x, best_cost, best_r = x, cost, r_now
         if step == 0:
             x = cand.clip(x - _solve(lin.jac, r_now))
-    jtj = lin.jac.T @ lin.jac
-    inflate = max(1.0, best_cost / max(lin.r0.size - len(cand.params), 1))
-    cov = np.linalg.pinv(jtj + DAMPING * np.max(np.diag(jtj), initial=1e-300) * np.eye(jtj.shape[0])) * inflate
+    sigma = parameter_sigma(lin.jac, lin.idx.shape[0], best_cost, ev.floor, best_r)
     scale = best_cost / max(float(lin.r0 @ lin.r0), 1e-300)  # costs on the base's cycle count
-    return Trial(cand, best_x, np.sqrt(np.diag(cov)), scale * lin.base_cost, lin.base_cost, ev.calls - calls)
+    return Trial(cand, best_x, sigma, scale * lin.base_cost, lin.base_cost, ev.calls - calls)
 
 
 def rank(trials: Sequence[Trial]) -> list[Trial]:
     return sorted(trials, key=lambda t: t.cost)
 
 
-__all__ = ["Evaluator", "Linearised", "Trial", "linearise", "rank", "refine"]
+__all__ = ["Evaluator", "Linearised", "Trial", "linearise", "parameter_sigma", "rank", "refine"]

@@ -32,12 +32,13 @@ from frictionwatch.core.discrepancy.features import (
     SIGNIFICANT,
     balance_residual,
     coherent_terms,
+    feature_floor,
     gap,
     localise,
     noise_scale,
     order_table,
 )
-from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, refine
+from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, parameter_sigma, refine
 from frictionwatch.core.discrepancy.residuals import Residuals, pinned_config, run_model
 from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine_model import EngineModel
@@ -216,7 +217,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
                       {}, [("baseline", test.angles, test.speed.mean(axis=0))])
     current = model
     for step in range(opt.max_steps):
-        ev = Evaluator(sub, scale, first)
+        floor = feature_floor(parts(cur_res)[0], scale)  # of the current model, what a found sigma adds
+        ev = Evaluator(sub, scale, first, floor)
         base = ev.vector(current)
         lins = sorted((linearise(c, current, ev, base) for c in candidate_library(current)), key=lambda x: x.predicted)
         # a toggle's window cost is exact (one run, nothing to refine): it competes with the refined, whose
@@ -253,7 +255,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
                                                                   if c.separated_by))}
             break
         if significant(res):  # polished only if significant as it stands, and kept only if still significant
-            t, new_model, res, extra = _polish(t, current, new_model, res, full, lambda r: parts(r)[0], scale)
+            t, new_model, res, extra = _polish(t, current, new_model, res, full, lambda r: parts(r)[0], scale, floor)
             runs += extra
         if not significant(res):
             found.rejected.update({c[1].candidate.label: c[0] for c in confirmed})
@@ -438,10 +440,11 @@ def _significance(test: Residuals, scale: np.ndarray, opt: Options, held_out_of)
     return significant
 
 
-def _polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, full, train_of, scale: np.ndarray
-            ) -> tuple[Trial, EngineModel, Residuals, int]:
+def _polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, full, train_of, scale: np.ndarray,
+            floor: np.ndarray) -> tuple[Trial, EngineModel, Residuals, int]:
     """One more Gauss-Newton step for the chosen candidate on all training cycles (the window was a short part of
-    them): sensitivities from whole-log runs at x + step, kept if the training cost falls; sigma from them. Returns
+    them): sensitivities from whole-log runs at x + step, kept if the training cost falls; sigma from them and the
+    model-error floor (core.discrepancy.fit.parameter_sigma). Returns
     the (possibly) new trial, model, its run and the monitor runs spent."""
     cand = t.candidate
     if cand.toggle:
@@ -458,7 +461,6 @@ def _polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, 
             return t, model, res, runs
         cols.append(((ri.features() / scale).ravel() - r0) / (xi[i] - t.x[i]))
     jac = np.stack(cols, axis=1)
-    jtj = jac.T @ jac
     x_new = cand.clip(t.x - np.linalg.lstsq(jac, r0, rcond=None)[0])
     trial = replace(t, x=x_new)
     new_model = _with_fit(current, trial)
@@ -470,7 +472,7 @@ def _polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, 
     r1 = (new_train.features() / scale).ravel()
     better = float(r1 @ r1) < float(r0 @ r0)
     cost = float(min(r1 @ r1, r0 @ r0))
-    sigma = np.sqrt(np.diag(np.linalg.pinv(jtj)) * max(1.0, cost / max(r0.size - len(cand.params), 1)))
+    sigma = parameter_sigma(jac, train.n_cycles, cost, floor, r1 if better else r0)
     chosen = replace(trial if better else t, sigma=sigma)
     return chosen, _with_fit(current, chosen), new_res if better else res, runs
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from frictionwatch.core.discrepancy.candidates import candidate_library
 from frictionwatch.core.discrepancy.features import gap, localise, noise_scale, order_table
+from frictionwatch.core.discrepancy.fit import parameter_sigma
 from frictionwatch.core.discrepancy.residuals import ANGLE_POINTS, Residuals
 from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine import load_engine
@@ -228,3 +229,37 @@ def test_the_pressures_tdc_reading_proposes_tdc_candidates():
     quiet = dataclasses.replace(base, tdc_deg=np.array([-0.06, -0.02, 0.0, 0.3]), tdc_sigma_deg=sigma)
     assert pressure_seeds(quiet) == {}
     assert pressure_seeds(base) == {}  # no reading at all
+
+
+def test_a_found_parameters_sigma_carries_the_model_error_floor_that_more_cycles_do_not_average():
+    """A linear model of two parameters fitted by least squares on N cycles of F whitened features, each cycle with
+    unit noise and every cycle with the same coherent error drawn at the floor's size: the spread of the fitted
+    parameters over many draws is what parameter_sigma states (Monte Carlo, 4000 draws: rtol 0.08), at 20 and at 200
+    cycles (the floor's part does not shrink); with a zero floor it is the classical (J'J)^-1 sigma."""
+    rng = np.random.default_rng(7)
+    f, p = 12, 2
+    per_cycle = rng.standard_normal((f, p))
+    floor = np.linspace(0.2, 1.5, f)
+    for n in (20, 200):
+        jac = np.tile(per_cycle, (n, 1)) * (1.0 + 0.1 * rng.standard_normal((n * f, 1)))
+        a = np.linalg.pinv(jac.T @ jac) @ jac.T
+        coherent = rng.standard_normal((4000, f)) * floor
+        noise = rng.standard_normal((4000, n * f))
+        fitted = (np.tile(coherent, (1, n)) + noise) @ a.T
+        stated = parameter_sigma(jac, n, cost=float(n * f - p), floor=floor)
+        np.testing.assert_allclose(fitted.std(axis=0), stated, rtol=0.08)
+        np.testing.assert_allclose(parameter_sigma(jac, n, float(n * f - p), np.zeros(f)),
+                                   np.sqrt(np.diag(np.linalg.inv(jac.T @ jac))), rtol=1e-4)
+    assert stated.min() > 2.0 * np.sqrt(np.diag(np.linalg.inv(jac.T @ jac))).max()  # the floor dominates at 200
+
+
+def test_what_a_fit_leaves_coherent_counts_as_model_error_in_its_parameters_sigma():
+    """The coherent residual after a fit (the same in every cycle, here 0.7 in every feature on top of unit noise)
+    enters a found parameter's sigma as a floor of its own size would (rtol 0.05: the noise correction of the
+    residual's coherent power is itself noisy)."""
+    rng = np.random.default_rng(3)
+    n, f, p = 400, 10, 1
+    jac = np.tile(rng.standard_normal((f, p)), (n, 1))
+    residual = (0.7 + rng.standard_normal((n, f))).ravel()
+    np.testing.assert_allclose(parameter_sigma(jac, n, float(n * f), np.zeros(f), residual),
+                               parameter_sigma(jac, n, float(n * f), np.full(f, 0.7)), rtol=0.05)
