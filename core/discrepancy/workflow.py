@@ -77,6 +77,11 @@ class Step:
     runner_up: str | None
     before: dict
     after: dict
+    also: tuple = ()  # the further effects a toggle of several default effects added at once
+
+    @property
+    def effects(self) -> tuple:
+        return (self.effect, *self.also)
 
 
 @dataclass
@@ -127,7 +132,7 @@ class Discovery:
 
     def verdict(self) -> str:
         """One sentence for the top of the report."""
-        named = ", ".join(_said(s.effect) for s in self.steps)
+        named = ", ".join(_said(e) for s in self.steps for e in s.effects)
         rest = self.remainder
         if self.steps:
             text = f"Found {named}"
@@ -156,8 +161,7 @@ class Discovery:
 
     def to_json(self) -> dict:
         found = []
-        for s in self.steps:
-            e = s.effect
+        for s, e in [(st, ef) for st in self.steps for ef in st.effects]:
             params = {k: v for k, v in e.values.items() if k != "cylinder"}
             found.append({"effect": e.name, "cylinder": e.values.get("cylinder"), "parameters": params,
                           "sigma": dict(e.sigma),
@@ -268,8 +272,9 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             break
         g_new, chi_after = gap(test_new, scale), _chi2(test_new, scale)
         runner = confirmed[1][1].candidate.label if len(confirmed) > 1 else None
-        found.steps.append(Step(t, new_model.effects[-1], g_cur, g_new, chi_before, chi_after, runner,
-                                localise(test, model.spec, scale), localise(test_new, model.spec, scale)))
+        added = new_model.effects[-len(t.candidate.names):]
+        found.steps.append(Step(t, added[0], g_cur, g_new, chi_before, chi_after, runner,
+                                localise(test, model.spec, scale), localise(test_new, model.spec, scale), added[1:]))
         found.curves.append((f"+ {t.candidate.label}", test_new.angles, test_new.speed.mean(axis=0)))
         current, test, cur_res = new_model, test_new, res
         found.step_limit_reached = step == opt.max_steps - 1

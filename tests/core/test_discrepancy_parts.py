@@ -118,6 +118,10 @@ def test_library_leaves_out_what_the_model_holds():
     rigid = EngineModel.from_spec(spec, without={"torsional_flexibility"})
     labels = {c.label for c in candidate_library(rigid)}
     assert "torsional_flexibility" in labels and "chain_mismatch" not in labels
+    assert "torsional_flexibility+variable_inertia" not in labels  # one default effect left out: no combination
+    bare = EngineModel.from_spec(spec, without={"torsional_flexibility", "variable_inertia"})
+    both = next(c for c in candidate_library(bare) if c.label == "torsional_flexibility+variable_inertia")
+    assert both.toggle and [e.name for e in both.model_at(bare, None).effects[-2:]] == list(both.names)
     cand = next(c for c in candidate_library(model) if c.label == "tdc_offset[cyl 0]")
     assert cand.model_at(model, np.array([0.0])) is model
     e = cand.effect_at(np.array([25.0]))  # clipped to the effect's range
