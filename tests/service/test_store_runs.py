@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import sqlite3
 
-from frictionwatch.service.store import open_store
+from frictionwatch.service.store import StoreListener, open_store
 from frictionwatch.service.store.schema import MIGRATIONS, SCHEMA_VERSION
 
 from tests.json_close import assert_json_close
@@ -97,5 +97,22 @@ def test_a_schema_2_database_is_migrated_with_its_rows_kept(tmp_path):
         (old,) = s.cycles(ENG, 0, 100)
         assert old["run_id"] is None and old["rpm_mean"] == 1500.25  # exact: written and read as float64
         assert (run.run_id, run.first_cycle) == (1, 42)
+    finally:
+        s.close()
+
+
+def test_the_listener_counts_and_logs_rows_an_earlier_run_holds(store_url, caplog):  # noqa: F811
+    s, _ = _started(store_url)
+    s.write_cycles(ENG, [summary(i) for i in range(3)])
+    s.close()
+    s, _ = _started(store_url)
+    try:
+        listener = StoreListener(s, ENG, batch_cycles=100)
+        for i in range(2, 5):  # cycle 2 is run 1's
+            listener.on_cycle(summary(i))
+        listener.stop()
+        assert listener.stats["rows_refused"] == 1 and listener.stats["cycles_written"] == 3
+        assert any("earlier run holds" in r.getMessage() for r in caplog.records)
+        assert [r["run_id"] for r in s.cycles(ENG, 0, 10)] == [1, 1, 1, 2, 2]
     finally:
         s.close()
