@@ -97,3 +97,30 @@ def test_retention_is_scheduled_and_deletes_only_old_cycles(tmp_path) -> None:
     assert broken.sweep() == {} and broken.retention["errors"] == 1
     with pytest.raises(ValueError, match="--keep-days must be > 0"):
         DataDir(tmp_path / "third", keep_days=0.0)
+
+
+def test_a_rebaseline_stored_as_a_reset_keeps_the_old_baseline_out_after_a_restart(tmp_path) -> None:
+    folder = tmp_path / "data"
+    earlier = DataDir(folder)
+    probe = demo_service("probe")
+    probe.session.stop()
+    earlier.store.register_engine("demo-a", probe.model.to_toml())
+    earlier.store.save_baseline("demo-a", _saved_baseline(probe.spec.n_cyl).to_dict())
+    earlier.close()
+
+    def alerts(engine_id, spec, baseline=None):
+        return AlertEngine(spec, AlertConfig(), baseline=baseline)
+
+    for reset, bands in ((False, 1), (True, 0)):
+        data = DataDir(folder)
+        if reset:  # what EngineService.rebaseline publishes and the store listener saves
+            data.store.register_engine("demo-a", probe.model.to_toml())
+            data.store.save_baseline("demo-a", {"reset": True, "at_s": 1.0})
+        svc = demo_service("demo-a", alerts=data.with_baseline(alerts))
+        try:
+            said = data.attach(svc)
+            assert f"baseline of {bands} load bands" in said
+            assert (svc.alerts.baseline is None) == reset
+        finally:
+            svc.session.stop()
+            data.close()
