@@ -37,7 +37,8 @@ polytropes like a leak (core.monitor.checks.ring_pressure), and the sensor-healt
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, replace
+import time
+from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
@@ -58,6 +59,7 @@ from frictionwatch.service.alert_rules import (
 
 __all__ = ["KINDS", "RING_KINDS", "Alert", "AlertConfig", "AlertEngine", "AlertEvent", "default_rules"]
 
+MAX_ACKNOWLEDGEMENTS = 100  # kept per alert (the first is always kept)
 KINDS = ("ring_wear", "blow_by", "misfire", "sensor_fault", "model_misfit")
 RING_KINDS = ("ring_wear", "blow_by")
 
@@ -75,7 +77,11 @@ def default_rules(config: AlertConfig, n_cyl: int) -> tuple[tuple[Rule, ...], ..
 
 @dataclass
 class Alert:
-    """One alert (the contract's shape; ``to_dict`` without engine_id: the service adds it). 1-based cylinder."""
+    """One alert (the contract's shape; ``to_dict`` without engine_id: the service adds it). 1-based cylinder.
+
+    ``acknowledged_by`` is the first person who acknowledged it (kept); ``acknowledgements`` every acknowledgement
+    in order, {by, at_s (wall-clock Unix s), cycle}. ``rule`` names the rule that raised it (the key an alert
+    restored from the store is found under again)."""
 
     alert_id: int
     cylinder: int | None
@@ -88,11 +94,27 @@ class Alert:
     evidence: dict = field(default_factory=dict)
     cleared_cycle: int | None = None
     acknowledged_by: str | None = None
+    acknowledgements: list = field(default_factory=list)
+    rule: str | None = None
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["evidence"] = dict(self.evidence)
         return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Alert:
+        """An alert from ``to_dict`` output (extra keys such as engine_id ignored); ValueError (one line) otherwise."""
+        names = {f.name for f in fields(cls)}
+        try:
+            a = cls(**{k: v for k, v in d.items() if k in names})
+            a.alert_id, a.raised_cycle = int(a.alert_id), int(a.raised_cycle)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"not an alert: {exc}") from None
+        if a.state not in ("active", "acknowledged", "cleared") or a.severity not in ("info", "warning", "alarm"):
+            raise ValueError(f"alert {a.alert_id}: state {a.state!r} / severity {a.severity!r} not known")
+        a.evidence, a.acknowledgements = dict(a.evidence or {}), list(a.acknowledgements or [])
+        return a
 
 
 @dataclass(frozen=True)
@@ -104,7 +126,14 @@ class AlertEvent:
 
 
 def _snapshot(a: Alert) -> Alert:
-    return replace(a, evidence=dict(a.evidence))
+    return replace(a, evidence=dict(a.evidence), acknowledgements=[dict(x) for x in a.acknowledgements])
+
+
+# the rule that raises each kind, for an alert stored before alerts named their rule (a guess: ring_wear and
+# blow_by may also come from the core's flags before a baseline; the guessed rule then clears it when its own
+# evidence is absent)
+RULE_OF_KIND = {"ring_wear": "friction", "blow_by": "leak", "misfire": "misfire", "sensor_fault": "sensor_fault",
+                "model_misfit": "model_misfit"}
 
 
 class AlertEngine:
@@ -138,14 +167,48 @@ class AlertEngine:
     def history(self) -> list[Alert]:
         return [_snapshot(a) for a in sorted([*self._history, *self._open.values()], key=lambda a: a.alert_id)]
 
-    def acknowledge(self, alert_id: int, by: str) -> Alert:
+    def acknowledge(self, alert_id: int, by: str, at_s: float | None = None) -> Alert:
         """Mark an open alert acknowledged (it stays open until its evidence clears); KeyError for an unknown or
-        cleared id."""
+        cleared id. The first acknowledger stays ``acknowledged_by``; each acknowledgement (who, when: ``at_s``,
+        wall-clock, now by default; the newest cycle) is appended to ``acknowledgements``, none overwritten."""
         for a in self._open.values():
             if a.alert_id == alert_id:
-                a.state, a.acknowledged_by = "acknowledged", str(by)[:80]
+                who = str(by)[:80]
+                a.state = "acknowledged"
+                a.acknowledged_by = a.acknowledged_by or who
+                if len(a.acknowledgements) < MAX_ACKNOWLEDGEMENTS:  # bounded: a script acknowledging in a loop
+                    a.acknowledgements.append({"by": who, "at_s": time.time() if at_s is None else float(at_s),
+                                               "cycle": self._last_cycle})
                 return _snapshot(a)
         raise KeyError(f"no open alert {alert_id}")
+
+    def restore(self, alerts: list[dict]) -> list[str]:
+        """Take back the alerts a store kept (service.store ``load_alerts``) before the first ``update``: cleared
+        ones into the history, open ones open again with their latch raised (they clear as any open alert does,
+        after clear_cycles without their evidence), and alert ids numbered on after the highest. Returns one
+        line per alert that could not be read (it is skipped; the store still holds it)."""
+        skipped = []
+        for doc in alerts:
+            try:
+                a = Alert.from_dict(doc)
+            except ValueError as exc:
+                skipped.append(str(exc))
+                continue
+            self._next_id = max(self._next_id, a.alert_id + 1)
+            if a.state == "cleared":
+                self._history.append(a)
+                continue
+            a.rule = a.rule or RULE_OF_KIND.get(a.kind, a.kind)
+            key = (a.rule, a.cylinder)
+            if key in self._open:  # two open alerts for one statistic (ids ascending): the first stays open
+                skipped.append(f"alert {a.alert_id}: alert {self._open[key].alert_id} is open for {key} already")
+                continue
+            latch = self._latches.setdefault(key, Latch())
+            latch.active, latch.since = True, int(a.evidence.get("first_evidence_cycle", a.raised_cycle))
+            self._open[key] = a
+        self._history.sort(key=lambda a: a.alert_id)
+        del self._history[:-self.config.max_history]
+        return skipped
 
     def rebaseline(self) -> list[AlertEvent]:
         """Learn a new commissioning baseline from the next cycle on (after an overhaul: the state now is the normal
@@ -251,7 +314,7 @@ class AlertEngine:
         change = latch.step(bool(d.on), bool(d.off), d.k_on, d.k_off, int(result.index))
         if change == "raise":
             a = Alert(self._next_id, key[1], d.kind, d.severity, "active", int(result.index), float(result.t_start),
-                      d.message, {**d.evidence, "first_evidence_cycle": latch.since})
+                      d.message, {**d.evidence, "first_evidence_cycle": latch.since}, rule=name)
             self._next_id += 1
             self._open[key] = a
             return [AlertEvent("raised", _snapshot(a))]

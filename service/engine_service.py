@@ -165,6 +165,14 @@ class EngineService:
     def add_listener(self, listener: Any) -> None:
         self.fanout.add(listener)
 
+    def number_cycles_from(self, first_index: int) -> None:
+        """Number this run's cycles from ``first_index`` on (before ``start``): a store's next cycle, so that a
+        restart continues the engine's numbering instead of writing cycle 0 again (issue 28). The assembler gives
+        the indices; the core only compares neighbours (index == previous + 1), so an offset changes nothing else."""
+        if self.started_s is not None:
+            raise RuntimeError(f"{self.engine_id}: the cycle numbering is set before start")
+        self.session.pipeline.assembler._next_index = int(first_index)  # drivers.assembly.cycles: the next epoch's base
+
     def start(self) -> EngineService:
         self.started_s = time.monotonic()
         self.fanout.start()
@@ -196,16 +204,20 @@ class EngineService:
         self.tdc_watch = TdcWatchView(pipe.tdc_watch, pipe.tdc_window_cycle)
         self.term_names = self._monitor_terms()  # a model with a friction shape has its view from the first cycle
         alerts: tuple[dict, ...] = ()
+        learnt: dict | None = None
         if self.alerts is not None:
             with self._alerts_lock:
                 try:
+                    before = self.alerts.baseline
                     alerts = tuple(self._alert_dict(ev.alert) for ev in self.alerts.update(result))
+                    if self.alerts.baseline is not before and self.alerts.baseline is not None:
+                        learnt = self.alerts.baseline.to_dict()  # a band or a friction reference learnt: kept
                 except Exception as exc:  # noqa: BLE001 - a fault in the alert layer must not stop the monitor
                     if self.alert_errors == 0:
                         log.error("%s: alert update failed: %s", self.engine_id, exc, exc_info=exc)
                     self.alert_errors += 1
         self.fanout.publish(ServiceEvent(self.engine_id, result, now, self._arrival(result), alerts,
-                                         term_names=self.term_names))
+                                         term_names=self.term_names, baseline=learnt))
 
     def _monitor_terms(self) -> tuple[str, ...]:
         """The loss terms the monitor identifies: those of the model's view (service.pipeline.EnginePipeline)."""
@@ -249,5 +261,7 @@ class EngineService:
             self.alerts.rebaseline()
             baseline = self.alerts.baseline
             doc = baseline.to_dict() if baseline is not None else None
-        self.fanout.publish(ServiceEvent(self.engine_id, None, time.monotonic(), baseline=doc))
+        # a store keeps the reset too: a restart before the new baseline is learnt must not bring the old one back
+        self.fanout.publish(ServiceEvent(self.engine_id, None, time.monotonic(),
+                                         baseline=doc if doc is not None else {"reset": True, "at_s": time.time()}))
         return {"ok": True, "engine_id": self.engine_id, "baseline": doc}

@@ -25,13 +25,12 @@ from pathlib import Path
 
 from frictionwatch.drivers.source import Source, open_source
 from frictionwatch.drivers.timebase import Clocks
-from frictionwatch.service.alert_baseline import Baseline
 from frictionwatch.service.alerts import AlertConfig, AlertEngine
 from frictionwatch.service.cmd_analyze import SENSOR_HEALTH_HELP, monitor_config
+from frictionwatch.service.data_dir import DataDir
 from frictionwatch.service.engine_service import EngineService
 from frictionwatch.service.pipeline import resolve_model
 from frictionwatch.service.security import ENGINE_ID, check_bind, new_token, read_token
-from frictionwatch.service.store import StoreListener, open_store
 
 log = logging.getLogger(__name__)
 DEFAULT_SOURCE = "mcap:replay_logs/demo.mcap?loop=1&speed=1"
@@ -45,7 +44,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                     "the source carries)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 picks a free one)")
-    p.add_argument("--data-dir", type=Path, help="keep cycles, estimates, alerts and baselines in DIR/frictionwatch.db")
+    p.add_argument("--data-dir", type=Path, help="keep cycles, estimates, alerts and baselines in DIR/frictionwatch.db; "
+                                                 "a restart with the same DIR continues from them")
+    p.add_argument("--keep-days", type=float, help="with --data-dir: delete cycles and estimates older than this many "
+                                                   "days (at start, then hourly; alerts and baselines are kept)")
     p.add_argument("--token-file", type=Path, help="file holding the token state changes need (required off loopback)")
     p.add_argument("--history-cycles", type=int, default=5000, help="recent cycles each engine holds for the API")
     p.add_argument("--sensor-health", action="store_true", help=SENSOR_HEALTH_HELP)
@@ -111,9 +113,9 @@ def build_engines(args: argparse.Namespace, data: DataDir | None) -> list[Engine
             svc = build_engine(ident, urls, args.engine, taken, history_cycles=args.history_cycles,
                                alerts=data.with_baseline(alerts) if data else alerts,
                                config=monitor_config(args.sensor_health))
-            if data:
-                data.attach(svc)
             services.append(svc)
+            if data:
+                print(f"frictionwatch serve: {data.attach(svc)}", flush=True)
     except BaseException:
         for s in services:
             s.stop()
@@ -140,7 +142,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--port must be 0..65535, got {args.port}")
     if args.history_cycles < 64:
         raise ValueError(f"--history-cycles must be >= 64, got {args.history_cycles}")
-    data = DataDir(args.data_dir) if args.data_dir else None
+    if args.keep_days is not None and not args.data_dir:
+        raise ValueError("--keep-days needs --data-dir")
+    data = DataDir(args.data_dir, keep_days=args.keep_days) if args.data_dir else None
     services: list[EngineService] = []
     try:
         services += build_engines(args, data)
@@ -151,6 +155,8 @@ def run(args: argparse.Namespace) -> int:
         if data:
             data.close()
         raise
+    if data:
+        data.start_retention()
     made = token is None
     token = token or new_token()
     app = create_app(services, token=token)
@@ -178,33 +184,6 @@ def _alerts_factory():
     """(engine_id, spec, baseline=None) -> the engine's AlertEngine (service/alerts.py) with the default settings."""
     config = AlertConfig()
     return lambda engine_id, spec, baseline=None: AlertEngine(spec, config, baseline=baseline)
-
-
-class DataDir:
-    """--data-dir: the store (service/store, SQLite in WAL mode) at DIR/frictionwatch.db. Each engine is registered
-    (its model version), its alert baseline is loaded at start, and a StoreListener joins its fan-out."""
-
-    def __init__(self, folder: Path) -> None:
-        if folder.exists() and not folder.is_dir():
-            raise NotADirectoryError(f"--data-dir {folder} is a file, expected a folder")
-        folder.mkdir(parents=True, exist_ok=True)
-        self.store = open_store(str(folder / "frictionwatch.db"))
-        self._listener = StoreListener
-
-    def with_baseline(self, make):
-        def factory(engine_id, spec):
-            saved = self.store.load_baseline(engine_id)
-            if saved is None:
-                return make(engine_id, spec)
-            return make(engine_id, spec, baseline=Baseline.from_dict(saved))
-        return factory
-
-    def attach(self, svc: EngineService) -> None:
-        self.store.register_engine(svc.engine_id, svc.model.to_toml())
-        svc.add_listener(self._listener(self.store, svc.engine_id))
-
-    def close(self) -> None:
-        self.store.close()
 
 
 def _bind(host: str, port: int) -> socket.socket:

@@ -2,12 +2,15 @@
 
     store = open_store("sqlite:///var/lib/frictionwatch/fw.db")   # or a bare path; or "postgresql://user@host/db"
     version = store.register_engine("genset-v20", engine_toml)    # a new model version when the TOML changes
+    run = store.begin_run("genset-v20")                            # this start: run.run_id, run.first_cycle (the
+    #                                                                number after every cycle stored: a restart appends)
     store.write_cycles("genset-v20", [summary, ...])               # CycleSummary dicts (the service contract)
     store.write_estimate("genset-v20", cycle_index, [loss, ...])   # CylinderLoss dicts
-    store.upsert_alert("genset-v20", alert)                        # Alert dict, replaced by alert_id
+    store.upsert_alert("genset-v20", alert)                        # Alert dict, replaced by a later state of it
+    # each write returns the rows refused: a row of another run under the same key is kept, never overwritten
     store.save_baseline("genset-v20", baseline) ; store.load_baseline("genset-v20") -> dict | None
     store.latest_cycle(id) -> int | None ; store.cycles(id, first, last) ; store.estimates(id, first, last)
-    store.load_alerts(id, state=None) ; store.apply_retention(keep_days) ; store.close()
+    store.runs(id) ; store.next_cycle(id) ; store.load_alerts(id, state=None) ; store.apply_retention(keep_days) ; store.close()
     StoreListener(store, id)                                       # the fan-out's batching writer
 
 URLs: ``sqlite:PATH``, ``sqlite:///ABSOLUTE/PATH`` or a bare path (SQLite in WAL mode, ``?synchronous=normal``

@@ -16,7 +16,8 @@ status or flags change, not every cycle; every cycle summary is kept. A new base
 
 Failures never reach the caller: a failed write is counted (``stats['write_errors']``) and logged, the batch is tried
 once more after ``retry_delay_s``; if that fails too the batch is lost, counted in ``stats['lost_batches']`` and
-``stats['lost_cycles']``, and the listener goes on with the next one.
+``stats['lost_cycles']``, and the listener goes on with the next one. Rows the store refused because an earlier run
+holds their keys (service/store/sql_store.py, runs) are counted in ``stats['rows_refused']`` and logged.
 
 What is lost. The fan-out gives this listener its own bounded queue (``Fanout.queue_size`` events) and drops what
 does not fit, counting it (``Fanout.drops``): a dropped event is a cycle the store never sees, as is a lost batch,
@@ -172,8 +173,9 @@ class StoreListener:
             return
         self._cycles, self._estimates, self._alerts, self._oldest = [], [], {}, None
         what = f"{len(cycles)} cycles, {len(estimates)} estimates, {len(alerts)} alerts"
-        if not self._retrying(what, lambda: self.store.write_batch(self.engine_id, cycles=cycles, estimates=estimates,
-                                                                  alerts=alerts), "lost_batches"):
+        refused: list[int] = []
+        if not self._retrying(what, lambda: refused.append(self.store.write_batch(
+                self.engine_id, cycles=cycles, estimates=estimates, alerts=alerts)), "lost_batches"):
             self.stats["lost_cycles"] += len(cycles)
             self.stats["lost_alert_updates"] += len(alerts)
             return
@@ -181,6 +183,10 @@ class StoreListener:
         self.stats["cycles_written"] += len(cycles)
         self.stats["estimates_written"] += len(estimates)
         self.stats["alert_updates_written"] += len(alerts)
+        if refused and refused[-1]:  # rows of an earlier run under the same keys: kept, these dropped (sql_store)
+            self.stats["rows_refused"] += refused[-1]
+            log.warning("store %s: %d rows not written: an earlier run holds their cycles (another service writing "
+                        "this engine?)", self.engine_id, refused[-1])
         if self.on_commit is not None:
             try:
                 self.on_commit([int(c["cycle_index"]) for c in cycles])

@@ -85,6 +85,25 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
         "CREATE INDEX estimates_written_at ON estimates (written_at)",
         "CREATE INDEX alerts_state ON alerts (engine_id, state)",
     ),
+    # 2 -> 3: runs (issue 28). Each start of the service is a run of each engine it serves; every row written names
+    # its run, and a run numbers its cycles on from the last cycle the store holds, so a restart appends and never
+    # replaces an earlier run's rows (the upserts only replace rows of their own run: a retried batch).
+    # last_cycle: the newest cycle the run committed, so the numbering continues even after retention deleted the
+    # cycles. Rows written before this version keep run_id NULL: "before runs were recorded".
+    (
+        """CREATE TABLE runs (
+            engine_id TEXT NOT NULL REFERENCES engines (engine_id),
+            run_id BIGINT NOT NULL,
+            started_at DOUBLE PRECISION NOT NULL,
+            first_cycle BIGINT NOT NULL,
+            last_cycle BIGINT,
+            model_version BIGINT,
+            PRIMARY KEY (engine_id, run_id))""",
+        "ALTER TABLE cycles ADD COLUMN run_id BIGINT",
+        "ALTER TABLE estimates ADD COLUMN run_id BIGINT",
+        "ALTER TABLE alerts ADD COLUMN run_id BIGINT",
+        "ALTER TABLE baselines ADD COLUMN run_id BIGINT",
+    ),
 )
 
 SCHEMA_VERSION = len(MIGRATIONS)

@@ -3,6 +3,11 @@
 Rows go in and come out as the service contract's dicts (CycleSummary, CylinderLoss, Alert), read back as they were
 written (service/store/columns.py maps them to columns).
 
+Runs (issue 28): each start of a service is a run of each engine (``begin_run``; the first write begins one when
+nobody did). A run numbers its cycles on from the newest cycle the store knows (``next_cycle``), every row written
+carries its ``run_id``, and an upsert replaces only a row of its own run (a retried batch): a row of another run under
+the same key is kept and the new one counted as refused (``write_batch``'s return), never silently overwritten.
+
 Threads: one connection, every call under one lock, each write one transaction (``write_batch``: several kinds of
 row in one). Other processes read the same SQLite file concurrently (WAL); PostgreSQL serves any number of clients.
 """
@@ -15,7 +20,7 @@ import threading
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from frictionwatch.service.store.columns import (
@@ -46,6 +51,16 @@ class Dialect:
         return text if self.placeholder == "?" else text.replace("?", self.placeholder)
 
 
+@dataclass(frozen=True)
+class Run:
+    """One run of an engine: its id (1, 2, ... per engine), the wall-clock start [Unix s] and its first cycle index."""
+
+    run_id: int
+    started_at: float
+    first_cycle: int
+    model_version: int | None = field(default=None, compare=False)
+
+
 class SqlStore:
     """The store interface (service/store/__init__.py) on an open connection; ``migrate`` runs on construction."""
 
@@ -53,6 +68,7 @@ class SqlStore:
         self._conn, self.dialect, self.where = conn, dialect, where
         self._lock = threading.RLock()
         self._model_version: dict[str, int] = {}
+        self._run: dict[str, Run] = {}  # the run this store object writes for each engine
         self.schema_version = self._migrate()
 
     # ---- plumbing ---------------------------------------------------------------------------------------------
@@ -130,47 +146,102 @@ class SqlStore:
         except KeyError:
             raise StoreError(f"engine {engine_id!r} is not registered in this store: register_engine first") from None
 
+    # ---- runs ---------------------------------------------------------------------------------------------------
+    def begin_run(self, engine_id: str) -> Run:
+        """A new run of the engine, numbering its cycles from ``next_cycle``; the rows this store writes for the
+        engine from now on carry its id."""
+        version = self._version_of(engine_id)
+        with self._transaction() as cur:
+            run_id = int(self._x(cur, "SELECT COALESCE(MAX(run_id), 0) + 1 FROM runs WHERE engine_id = ?",
+                                 (engine_id,)).fetchone()[0])
+            run = Run(run_id, time.time(), self._next_cycle(cur, engine_id), version)
+            self._x(cur, "INSERT INTO runs (engine_id, run_id, started_at, first_cycle, model_version) "
+                         "VALUES (?, ?, ?, ?, ?)", (engine_id, run.run_id, run.started_at, run.first_cycle, version))
+        self._run[engine_id] = run
+        return run
+
+    def run_of(self, engine_id: str) -> Run:
+        """The run this store object writes for the engine (begun now if none was)."""
+        run = self._run.get(engine_id)
+        return run if run is not None else self.begin_run(engine_id)
+
+    def next_cycle(self, engine_id: str) -> int:
+        """The first cycle index after everything the store knows of the engine (0 for a new one)."""
+        with self._transaction() as cur:
+            return self._next_cycle(cur, engine_id)
+
+    def _next_cycle(self, cur: Any, engine_id: str) -> int:
+        # runs.last_cycle survives retention; alerts and estimates name cycles too (a cycle row may be lost alone)
+        row = self._x(cur, "SELECT MAX(c) FROM (SELECT MAX(cycle_index) AS c FROM cycles WHERE engine_id = ? "
+                           "UNION ALL SELECT MAX(cycle_index) FROM estimates WHERE engine_id = ? "
+                           "UNION ALL SELECT MAX(raised_cycle) FROM alerts WHERE engine_id = ? "
+                           "UNION ALL SELECT MAX(last_cycle) FROM runs WHERE engine_id = ? "
+                           "UNION ALL SELECT MAX(first_cycle) - 1 FROM runs WHERE engine_id = ?) AS known",
+                      (engine_id,) * 5).fetchone()
+        return 0 if row[0] is None else int(row[0]) + 1
+
+    def runs(self, engine_id: str) -> list[dict]:
+        rows = self._query("SELECT run_id, started_at, first_cycle, last_cycle, model_version FROM runs "
+                           "WHERE engine_id = ? ORDER BY run_id", (engine_id,))
+        return [{"run_id": int(r), "started_at": s, "first_cycle": int(f), "last_cycle": None if la is None
+                 else int(la), "model_version": v} for r, s, f, la, v in rows]
+
     # ---- writes -----------------------------------------------------------------------------------------------
-    def write_cycles(self, engine_id: str, rows: Sequence[dict]) -> None:
-        self.write_batch(engine_id, cycles=rows)
+    def write_cycles(self, engine_id: str, rows: Sequence[dict]) -> int:
+        return self.write_batch(engine_id, cycles=rows)
 
-    def write_estimate(self, engine_id: str, cycle_index: int, cylinders: Sequence[dict]) -> None:
-        self.write_batch(engine_id, estimates=[(cycle_index, cylinders)])
+    def write_estimate(self, engine_id: str, cycle_index: int, cylinders: Sequence[dict]) -> int:
+        return self.write_batch(engine_id, estimates=[(cycle_index, cylinders)])
 
-    def upsert_alert(self, engine_id: str, alert: dict) -> None:
-        self.write_batch(engine_id, alerts=[alert])
+    def upsert_alert(self, engine_id: str, alert: dict) -> int:
+        return self.write_batch(engine_id, alerts=[alert])
 
     def write_batch(self, engine_id: str, cycles: Sequence[dict] = (),
-                    estimates: Sequence[tuple[int, Sequence[dict]]] = (), alerts: Sequence[dict] = ()) -> None:
-        """Cycle summaries, per-cylinder estimates and alerts in one transaction: all of them or none.
+                    estimates: Sequence[tuple[int, Sequence[dict]]] = (), alerts: Sequence[dict] = ()) -> int:
+        """Cycle summaries, per-cylinder estimates and alerts in one transaction: all of them or none. Returns the
+        number of rows refused (module doc: a row of another run under the same key is kept, the new one dropped).
 
-        A row already stored under the same key (engine, cycle[, cylinder]; engine, alert_id) is replaced: a
-        retried batch writes the same rows again, and an alert changes state over its life."""
+        A row this run already stored under the same key (engine, cycle[, cylinder]) is replaced: a retried batch
+        writes the same rows again. An alert (engine, alert_id) is replaced by a later state of the same alert (the
+        same kind raised at the same cycle), whichever run writes it: an alert lives across restarts."""
         version, now = self._version_of(engine_id), time.time()
-        cycle_rows = [cycle_params(engine_id, version, r, now) for r in cycles]
-        loss_rows = [loss_params(engine_id, int(i), c, now) for i, cyls in estimates for c in cyls]
-        alert_rows = [alert_params(engine_id, a, now) for a in alerts]
+        run = self.run_of(engine_id).run_id
+        cycle_rows = [(*cycle_params(engine_id, version, r, now), run) for r in cycles]
+        loss_rows = [(*loss_params(engine_id, int(i), c, now), run) for i, cyls in estimates for c in cyls]
+        alert_rows = [(*alert_params(engine_id, a, now), run) for a in alerts]
+        same_run = "{t}.run_id = excluded.run_id"
+        written = 0
         with self._transaction() as cur:
             if cycle_rows:
                 cur.executemany(self.dialect.sql(_upsert("cycles", ("engine_id", "cycle_index", "model_version",
-                                                                    *CYCLE_COLUMNS, "extra", "written_at"), 2)),
-                                cycle_rows)
+                                                                    *CYCLE_COLUMNS, "extra", "written_at", "run_id"),
+                                                         2, same_run)), cycle_rows)
+                written += cur.rowcount
+                self._x(cur, "UPDATE runs SET last_cycle = ? WHERE engine_id = ? AND run_id = ? AND "
+                             "(last_cycle IS NULL OR last_cycle < ?)",
+                        (max(r[1] for r in cycle_rows), engine_id, run, max(r[1] for r in cycle_rows)))
             if loss_rows:
                 cur.executemany(self.dialect.sql(_upsert("estimates", ("engine_id", "cycle_index", "cylinder",
-                                                                       *LOSS_COLUMNS, "extra", "written_at"), 3)),
-                                loss_rows)
+                                                                       *LOSS_COLUMNS, "extra", "written_at", "run_id"),
+                                                         3, same_run)), loss_rows)
+                written += cur.rowcount
             if alert_rows:
                 cur.executemany(self.dialect.sql(_upsert("alerts", ("engine_id", "alert_id", "cylinder", "kind",
                                                                     "severity", "state", "raised_cycle", "doc",
-                                                                    "updated_at"), 2)), alert_rows)
+                                                                    "updated_at", "run_id"), 2, SAME_ALERT)),
+                                alert_rows)
+                written += cur.rowcount
+        return len(cycle_rows) + len(loss_rows) + len(alert_rows) - written
 
     def save_baseline(self, engine_id: str, baseline: dict) -> None:
+        """Kept beside every earlier one (auditable); ``load_baseline`` gives the newest."""
         self._version_of(engine_id)
+        run = self.run_of(engine_id).run_id
         with self._transaction() as cur:
             seq = self._x(cur, "SELECT COALESCE(MAX(seq), 0) + 1 FROM baselines WHERE engine_id = ?",
                           (engine_id,)).fetchone()[0]
-            self._x(cur, "INSERT INTO baselines (engine_id, seq, doc, saved_at) VALUES (?, ?, ?, ?)",
-                    (engine_id, int(seq), json_text(baseline), time.time()))
+            self._x(cur, "INSERT INTO baselines (engine_id, seq, doc, saved_at, run_id) VALUES (?, ?, ?, ?, ?)",
+                    (engine_id, int(seq), json_text(baseline), time.time(), run))
 
     # ---- reads ------------------------------------------------------------------------------------------------
     def _query(self, sql: str, params: Sequence = ()) -> list[tuple]:
@@ -182,19 +253,21 @@ class SqlStore:
         return None if value is None else int(value)
 
     def cycles(self, engine_id: str, first: int, last: int) -> list[dict]:
-        """The CycleSummary rows with first <= cycle_index <= last, in order (``model_version`` added)."""
-        rows = self._query(f"SELECT cycle_index, model_version, {', '.join(CYCLE_COLUMNS)}, extra FROM cycles "
+        """The CycleSummary rows with first <= cycle_index <= last, in order (``model_version`` and ``run_id``
+        added; run_id None: written before runs were recorded)."""
+        rows = self._query(f"SELECT cycle_index, model_version, run_id, {', '.join(CYCLE_COLUMNS)}, extra FROM cycles "
                            "WHERE engine_id = ? AND cycle_index BETWEEN ? AND ? ORDER BY cycle_index",
                            (engine_id, int(first), int(last)))
-        return [{"engine_id": engine_id, "cycle_index": int(r[0]), "model_version": r[1],
-                 **from_columns(CYCLE_COLUMNS, r[2:-1]), **extra_fields(r[-1])} for r in rows]
+        return [{"engine_id": engine_id, "cycle_index": int(r[0]), "model_version": r[1], "run_id": r[2],
+                 **from_columns(CYCLE_COLUMNS, r[3:-1]), **extra_fields(r[-1])} for r in rows]
 
     def estimates(self, engine_id: str, first: int, last: int) -> list[dict]:
-        """The CylinderLoss rows kept for cycles first..last, each with its ``cycle_index``, by cycle and cylinder."""
-        rows = self._query(f"SELECT cycle_index, cylinder, {', '.join(LOSS_COLUMNS)}, extra FROM estimates "
+        """The CylinderLoss rows kept for cycles first..last, each with its ``cycle_index`` and ``run_id``, by cycle
+        and cylinder."""
+        rows = self._query(f"SELECT cycle_index, cylinder, run_id, {', '.join(LOSS_COLUMNS)}, extra FROM estimates "
                            "WHERE engine_id = ? AND cycle_index BETWEEN ? AND ? ORDER BY cycle_index, cylinder",
                            (engine_id, int(first), int(last)))
-        return [{"cycle_index": int(r[0]), "cylinder": int(r[1]), **from_columns(LOSS_COLUMNS, r[2:-1]),
+        return [{"cycle_index": int(r[0]), "cylinder": int(r[1]), "run_id": r[2], **from_columns(LOSS_COLUMNS, r[3:-1]),
                  **extra_fields(r[-1])} for r in rows]
 
     def load_alerts(self, engine_id: str, state: str | None = None) -> list[dict]:
@@ -233,8 +306,15 @@ class SqlStore:
         return deleted
 
 
-def _upsert(table: str, columns: Sequence[str], n_key: int) -> str:
-    """INSERT ... ON CONFLICT (key) DO UPDATE: SQLite >= 3.24 and PostgreSQL read the same text."""
+# an alert row is another state of the same alert when its kind and raised cycle agree (an alert engine that had
+# lost its ids would otherwise overwrite an older alert with a new one under the same id)
+SAME_ALERT = "{t}.kind = excluded.kind AND COALESCE({t}.raised_cycle, -1) = COALESCE(excluded.raised_cycle, -1)"
+
+
+def _upsert(table: str, columns: Sequence[str], n_key: int, only_if: str) -> str:
+    """INSERT ... ON CONFLICT (key) DO UPDATE ... WHERE ``only_if`` (``{t}``: the table): SQLite >= 3.24 and
+    PostgreSQL read the same text. A conflicting row that fails ``only_if`` is left as it is (rowcount 0)."""
     key, rest = columns[:n_key], columns[n_key:]
     return (f"INSERT INTO {table} ({', '.join(columns)}) VALUES ({', '.join('?' * len(columns))}) "
-            f"ON CONFLICT ({', '.join(key)}) DO UPDATE SET {', '.join(f'{c} = excluded.{c}' for c in rest)}")
+            f"ON CONFLICT ({', '.join(key)}) DO UPDATE SET {', '.join(f'{c} = excluded.{c}' for c in rest)} "
+            f"WHERE {only_if.format(t=table)}")

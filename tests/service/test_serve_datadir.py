@@ -13,6 +13,7 @@ from frictionwatch.service.store import open_store
 from numpy.testing import assert_allclose
 
 from tests.service.serve_helpers import demo_service, wait_until
+from tests.service.store_samples import TOML, alert, summary
 
 
 def _saved_baseline(n_cyl: int) -> Baseline:
@@ -70,3 +71,56 @@ def test_data_dir_that_is_a_file_is_refused(tmp_path) -> None:
     f.write_text("x")
     with pytest.raises(NotADirectoryError, match="is a file"):
         DataDir(f)
+
+
+def test_retention_is_scheduled_and_deletes_only_old_cycles(tmp_path) -> None:
+    """--keep-days: a sweep at start and then every retention_every_s (here 0.05 s); rows written 3 days ago go,
+    today's stay, alerts stay; a sweep that fails is counted, not raised."""
+    folder = tmp_path / "data"
+    data = DataDir(folder, keep_days=2.0, retention_every_s=0.05)
+    store = data.store
+    store.register_engine("eng-1", TOML)
+    store.write_batch("eng-1", cycles=[summary(i) for i in range(10)], alerts=[alert(1)])
+    with store._transaction() as cur:  # cycles 0..5 written three days ago
+        cur.execute("UPDATE cycles SET written_at = written_at - 3 * 86400 WHERE cycle_index < 6")
+    data.start_retention()
+    try:
+        assert wait_until(lambda: data.retention["sweeps"] >= 2, timeout=10.0)
+        assert data.retention["cycles"] == 6 and data.retention["errors"] == 0
+        assert [r["cycle_index"] for r in store.cycles("eng-1", 0, 100)] == list(range(6, 10))
+        assert [a["alert_id"] for a in store.load_alerts("eng-1")] == [1]
+    finally:
+        data.close()
+    assert not data._retention_thread.is_alive()
+    broken = DataDir(tmp_path / "other", keep_days=1.0)
+    broken.store.close()  # a sweep on a closed store: counted and logged
+    assert broken.sweep() == {} and broken.retention["errors"] == 1
+    with pytest.raises(ValueError, match="--keep-days must be > 0"):
+        DataDir(tmp_path / "third", keep_days=0.0)
+
+
+def test_a_rebaseline_stored_as_a_reset_keeps_the_old_baseline_out_after_a_restart(tmp_path) -> None:
+    folder = tmp_path / "data"
+    earlier = DataDir(folder)
+    probe = demo_service("probe")
+    probe.session.stop()
+    earlier.store.register_engine("demo-a", probe.model.to_toml())
+    earlier.store.save_baseline("demo-a", _saved_baseline(probe.spec.n_cyl).to_dict())
+    earlier.close()
+
+    def alerts(engine_id, spec, baseline=None):
+        return AlertEngine(spec, AlertConfig(), baseline=baseline)
+
+    for reset, bands in ((False, 1), (True, 0)):
+        data = DataDir(folder)
+        if reset:  # what EngineService.rebaseline publishes and the store listener saves
+            data.store.register_engine("demo-a", probe.model.to_toml())
+            data.store.save_baseline("demo-a", {"reset": True, "at_s": 1.0})
+        svc = demo_service("demo-a", alerts=data.with_baseline(alerts))
+        try:
+            said = data.attach(svc)
+            assert f"baseline of {bands} load bands" in said
+            assert (svc.alerts.baseline is None) == reset
+        finally:
+            svc.session.stop()
+            data.close()

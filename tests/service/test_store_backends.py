@@ -79,7 +79,7 @@ def test_cycles_round_trip_with_missing_values_and_added_fields(store):
     store.write_cycles(ENG, rows[10:])
     got = store.cycles(ENG, 2, 27)
     assert [r["cycle_index"] for r in got] == list(range(2, 28))
-    expected = [dict(r, model_version=1) for r in rows[2:28]]
+    expected = [dict(r, model_version=1, run_id=1) for r in rows[2:28]]
     expected[1]["load_torque_nm"] = None
     expected[2]["imep_bar"][2] = None
     for g, e in zip(got, expected):
@@ -102,8 +102,8 @@ def test_estimates_round_trip(store):
     store.write_estimate(ENG, 50, losses(50, status="unresolved"))
     got = store.estimates(ENG, 0, 100)
     assert [(r["cycle_index"], r["cylinder"]) for r in got] == [(c, k) for c in (25, 50) for k in range(1, 5)]
-    for g, e in zip(got, [dict(r, cycle_index=25) for r in losses(25)] +
-                    [dict(r, cycle_index=50) for r in losses(50, status="unresolved")]):
+    for g, e in zip(got, [dict(r, cycle_index=25, run_id=1) for r in losses(25)] +
+                    [dict(r, cycle_index=50, run_id=1) for r in losses(50, status="unresolved")]):
         assert_json_close(g, e, rtol=EXACT, where=f"cycle {e['cycle_index']} cylinder {e['cylinder']}")
     assert all(r["fmep_bar"] is None and r["status"] == "unresolved" for r in got[4:])
 
