@@ -171,7 +171,7 @@ class EngineService:
         the indices; the core only compares neighbours (index == previous + 1), so an offset changes nothing else."""
         if self.started_s is not None:
             raise RuntimeError(f"{self.engine_id}: the cycle numbering is set before start")
-        self.session.pipeline.assembler._next_index = int(first_index)  # drivers.assembly.cycles: the next epoch's base
+        self.session.pipeline.assembler.number_from(first_index)
 
     def start(self) -> EngineService:
         self.started_s = time.monotonic()

@@ -146,6 +146,16 @@ class CycleAssembler(EpochSync):
         self._cam_rad = math.radians(info.cam_deg) if info.cam_deg is not None else math.nan  # stated cam angle
 
     # ---- input ------------------------------------------------------------------------------------------------
+    def number_from(self, first_index: int) -> None:
+        """Number the cycles from ``first_index`` on (before the first record): a service restarting on a store
+        continues the engine's numbering (service.data_dir). Only neighbours are compared downstream (index ==
+        previous + 1), so an offset changes nothing else."""
+        if self._epoch is not None or self._pending:
+            raise RuntimeError("the cycle numbering is set before the first record")
+        if first_index < 0:
+            raise ValueError(f"first_index must be >= 0, got {first_index}")
+        self._next_index = int(first_index)
+
     def feed(self, record: StreamRecord) -> list[Cycle]:
         """File one record and return the cycles it completed (possibly none)."""
         if isinstance(record, ToothBatch):
