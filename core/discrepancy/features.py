@@ -30,8 +30,8 @@ NULL_OWN = 0.035
 NULL_FLOOR = 0.011
 # The model-error floor of the mean torque-balance residual, relative to the friction the balance measured: tuned on
 # the same ten healthy TUNE logs (`--tune`, 2026-11-28: the largest held-out |balance mean| was 0.0078 of the
-# friction, k9k 1800 rpm seed 3, noise included, x 1.5); used only for the found parameters' sigma
-# (feature_floor); validated on the hidden-effect matrix (bench/bench_discrepancy.py, other points and seeds)
+# friction, k9k 1800 rpm seed 3, noise included, x 1.5): a balance residual is significant only above it
+# (balance_residual); validated on the hidden-effect matrix (bench/bench_discrepancy.py, other points and seeds)
 NULL_BALANCE = 0.012
 # The rms of the healthy coherent residual as a fraction of the floor above (speed features, the balance feature):
 # the floors are the largest healthy residual x 1.5, a threshold; a found parameter's sigma needs the typical model
@@ -97,9 +97,7 @@ def feature_floor(res: Residuals, scale: np.ndarray, rms: tuple[float, float] = 
     of a speed harmonic (speed_floor_rpm); the balance feature's floor is NULL_BALANCE x the measured friction. What
     a fitted parameter's sigma cannot average away with more cycles (core.discrepancy.fit.parameter_sigma)."""
     per_component = rms[0] * speed_floor_rpm(res) / RPM_PER_RAD_S / np.sqrt(2.0)
-    ok = res.friction is not None and np.isfinite(res.friction)
-    friction = abs(float(np.mean(res.friction[ok]))) if res.friction is not None and np.any(ok) else 0.0
-    return np.concatenate([per_component, per_component, [rms[1] * NULL_BALANCE * friction]]) / scale
+    return np.concatenate([per_component, per_component, [rms[1] * balance_floor_nm(res)]]) / scale
 
 
 def order_table(res: Residuals) -> list[dict]:
@@ -158,13 +156,22 @@ def trends(res: Residuals) -> dict:
     return out
 
 
+def balance_floor_nm(res: Residuals) -> float:
+    """The model-error floor of the mean torque-balance residual [N m]: NULL_BALANCE x the friction the balance
+    measured (0 where the residuals do not carry it)."""
+    ok = res.friction is not None and np.isfinite(res.friction)
+    return NULL_BALANCE * abs(float(np.mean(res.friction[ok]))) if res.friction is not None and np.any(ok) else 0.0
+
+
 def balance_residual(res: Residuals) -> dict:
-    """The mean torque-balance residual over the cycles [N m], its sigma, and whether it is significant (beyond
-    SIGNIFICANT of its sigma); NaN and inf with fewer than two finite cycles."""
+    """The mean torque-balance residual over the cycles [N m], its sigma, its model-error floor and whether it is
+    significant (beyond SIGNIFICANT of its sigma and above the floor, as a speed order is: the balance of a healthy
+    log carries the model's own error too); NaN and inf with fewer than two finite cycles."""
     ok = np.isfinite(res.balance)
     bal, bal_sig = _mean_sigma(res.balance[ok]) if ok.sum() > 1 else (float("nan"), float("inf"))
-    return {"mean_nm": bal, "sigma_nm": bal_sig,
-            "significant": bool(np.isfinite(bal) and abs(bal) > SIGNIFICANT * bal_sig)}
+    floor = balance_floor_nm(res)
+    return {"mean_nm": bal, "sigma_nm": bal_sig, "floor_nm": floor,
+            "significant": bool(np.isfinite(bal) and abs(bal) > SIGNIFICANT * bal_sig and abs(bal) > floor)}
 
 
 def _measured_friction(res: Residuals, spec: EngineSpec) -> dict | None:
@@ -206,5 +213,5 @@ def localise(res: Residuals, spec: EngineSpec, scale: np.ndarray) -> dict:
     }
 
 
-__all__ = ["FLOOR_RMS", "NULL_BALANCE", "NULL_FLOOR", "NULL_OWN", "RPM_PER_RAD_S", "SIGNIFICANT", "balance_residual", "coherent_terms", "cost",
+__all__ = ["FLOOR_RMS", "NULL_BALANCE", "NULL_FLOOR", "NULL_OWN", "RPM_PER_RAD_S", "SIGNIFICANT", "balance_floor_nm", "balance_residual", "coherent_terms", "cost",
            "coherent_power", "cylinder_windows", "feature_floor", "gap", "localise", "noise_scale", "order_table", "speed_floor_rpm", "trends"]
