@@ -10,8 +10,15 @@ whole, older ones without traces, ``service.pipeline.ResultHistory``; 20,000 gen
 
 Threads. One reader thread per source calls ``source.read(timeout)`` and queues what it gets; one ingest thread
 merges the streams into time order, writes them to the black-box recorder (if any) and feeds ``EnginePipeline``.
-``stop()`` ends the readers, lets the ingest thread drain the queue, release every held record and flush the
-pipeline, then closes the sources and the recorder (the session owns what it is given). ``read`` never raising is
+``stop()`` ends the readers, lets the ingest thread drain the queue for at most ``drain_s`` (what is left then is
+dropped, counted in ``left_at_stop`` and logged), release every held record and flush the pipeline, then closes the
+sources and the recorder (the session owns what it is given).
+
+Backpressure. The reader -> ingest queue is bounded by the acquisition time it holds (``max_queue_s``, default
+10 s; service/ingest_queue.py states the policy): a real-time source (serial, CAN, a replay paced by the wall clock)
+never waits — the oldest queued batches are dropped, the newest kept, counted in ``lag().dropped_*`` — while a log
+replayed as fast as it can be read waits for room. Memory of the queue is bounded by the sources' data rate times
+``max_queue_s`` (genset-v20: ~3.2 MB/s of pressure, ~32 MB). ``lag()`` says how far the ingest is behind. ``read`` never raising is
 the sources' contract; an exception that escapes anyway is counted (``reader_error: <type>``) and the reader goes on.
 A failing recorder, ``on_result`` callback or pipeline step is counted in ``errors`` and logged once; the session
 goes on.
@@ -61,12 +68,25 @@ from frictionwatch.core.types import (
 from frictionwatch.drivers.errors import EndOfStream
 from frictionwatch.drivers.logs.recorder import Recorder
 from frictionwatch.drivers.source import Source
+from frictionwatch.service.ingest_queue import IngestLag, IngestQueue
 from frictionwatch.service.pipeline import EnginePipeline, LogAnalysis, ResultHistory
 
 log = logging.getLogger(__name__)
 
 _RANK = {ToothBatch: 0, CamBatch: 1, PressureBlock: 2, PressureFrame: 2, LoadSample: 3}  # ties: the simulator's order
 _END = object()
+LIVE_DRIVERS = ("frictionwatch.drivers.serial", "frictionwatch.drivers.can")  # sources that cannot wait for us
+
+
+def is_realtime(source: Source) -> bool:
+    """Whether a source produces at the wall clock's pace and cannot be made to wait: a serial or CAN board, or a
+    replay with a speed. A log read as fast as possible (mcap ``speed=max``: None; mdf4 speed 0) and test doubles
+    can wait. Read from the drivers' attributes, since Source has no such flag."""
+    inner = getattr(source, "inner", source)  # engine_service.StampedSource wraps the driver
+    if type(inner).__module__.startswith(LIVE_DRIVERS):
+        return True
+    speed = getattr(inner, "speed", None)
+    return speed is not None and speed > 0
 
 
 def record_key(record: StreamRecord) -> float:
@@ -178,6 +198,8 @@ class LiveSession:
     on_record : called on the ingest thread with each merged raw record, before the pipeline sees it (cheap: keep a
     reference; exceptions are logged and counted).
     max_results : how many recent results the session holds (``results``); older ones are dropped, still counted.
+    max_queue_s : the most acquisition time the reader -> ingest queue holds (see Backpressure above).
+    drain_s : how long ``stop`` lets the ingest thread work through the queue before dropping the rest.
     config : the monitor's settings (``MonitorConfig``; None: the defaults), e.g. the speed-based sensor-health
     stage switched on (``serve --sensor-health``).
     """
@@ -187,7 +209,7 @@ class LiveSession:
                  quiet_s: float = 0.5, read_timeout_s: float = 0.05,
                  on_result: Callable[[CycleResult], None] | None = None, max_results: int = 20_000,
                  start: bool = True, on_record: Callable[[StreamRecord], None] | None = None,
-                 config: MonitorConfig | None = None) -> None:
+                 config: MonitorConfig | None = None, max_queue_s: float = 10.0, drain_s: float = 5.0) -> None:
         if isinstance(sources, Mapping):
             self.sources = dict(sources)
         else:
@@ -205,7 +227,12 @@ class LiveSession:
         self.errors: Counter[str] = Counter()  # the session's own trouble: recorder, on_result, pipeline bugs
         self._reader_counts: dict[str, Counter[str]] = {n: Counter() for n in self.sources}
         self._heard = dict.fromkeys(self.sources, time.monotonic())  # wall time a reader last got records
-        self._queue: queue.Queue = queue.Queue()
+        self.max_queue_s = max_queue_s
+        self._queue = IngestQueue(max_queue_s * info.tick_hz, info.tick_hz)
+        self._realtime = {n: is_realtime(s) for n, s in self.sources.items()}
+        self.drain_s = drain_s
+        self._drain_until = math.inf  # set by stop(): past it the ingest thread drops what is still queued
+        self.left_at_stop: tuple[int, float] | None = None  # (records, acquisition s) dropped when the drain ran out
         self._stop = threading.Event()
         self._cond = threading.Condition()  # guards results, pipeline counters and the merge's counters
         self._readers = [threading.Thread(target=self._read_loop, args=(n, s), name=f"live-read-{n}", daemon=True)
@@ -226,17 +253,22 @@ class LiveSession:
             t.start()
         return self
 
-    def stop(self, timeout: float = 5.0) -> None:
-        """End the readers, drain and flush, close sources and recorder. Idempotent."""
+    def stop(self, timeout: float | None = None) -> None:
+        """End the readers, drain (at most ``timeout`` s, default ``drain_s``) and flush, close sources and
+        recorder. Idempotent."""
         if self._stopped:
             return
         self._stopped = True
+        drain = self.drain_s = self.drain_s if timeout is None else timeout
+        self._drain_until = time.monotonic() + drain
         self._stop.set()
+        self._queue.close()  # a replay reader waiting for room gives up
         if self._started:
             for t in self._readers:
-                t.join(timeout)
-            self._queue.put((None, _END))
-            self._ingest.join(timeout)
+                t.join(drain)
+            self._queue.put_marker(None, _END)
+            # the drain's deadline, plus the cycle in progress and the pipeline's flush
+            self._ingest.join(max(0.0, self._drain_until - time.monotonic()) + 2.0)
         for name, src in self.sources.items():
             try:
                 src.close()
@@ -247,6 +279,15 @@ class LiveSession:
         alive = [t.name for t in (*self._readers, self._ingest) if t.is_alive()]
         if alive:
             log.error("live session: threads still running after stop: %s", alive)
+
+    def lag(self) -> IngestLag:
+        """How far the ingest thread is behind the readers (never waits for the ingest thread)."""
+        return self._queue.lag()
+
+    @property
+    def realtime(self) -> bool:
+        """Whether any source is real-time (its lag is a lag behind the engine, not a replay's read-ahead)."""
+        return any(self._realtime.values())
 
     @property
     def threads(self) -> list[threading.Thread]:
@@ -316,7 +357,7 @@ class LiveSession:
             try:
                 records = src.read(timeout=self.read_timeout_s)
             except EndOfStream:
-                self._queue.put((name, _END))
+                self._queue.put_marker(name, _END)
                 return
             except Exception as exc:  # noqa: BLE001 - counted; a reader thread must not die of one bad read
                 reason = f"reader_error: {type(exc).__name__}"
@@ -329,7 +370,7 @@ class LiveSession:
                 continue
             if records:
                 self._heard[name] = time.monotonic()  # stamped here: a busy ingest thread must not see silence
-                self._queue.put((name, records))
+                self._queue.put(name, records, max(record_key(r) for r in records), self._realtime[name])
 
     def _ingest_loop(self) -> None:
         while True:
@@ -339,6 +380,8 @@ class LiveSession:
                 name, item = "", None
             if name is None:  # stop(): the readers have ended; what is still queued came before this
                 break
+            if time.monotonic() > self._drain_until and self.left_at_stop is None:
+                self._left_at_stop()
             now = time.monotonic()
             quiet = {n for n, t in self._heard.items() if now - t >= self.quiet_s}
             with self._cond:  # the merge's progress and counts are read by other threads
@@ -355,6 +398,14 @@ class LiveSession:
         with self._cond:
             self._publish(self.pipeline.flush())
             self._cond.notify_all()
+
+    def _left_at_stop(self) -> None:
+        """The drain's time is up: drop what is queued, say how much."""
+        records, span_s = self._queue.discard()
+        self.left_at_stop = (records, span_s)
+        if records:
+            log.warning("live session: stop left %d queued records (%.1f s of acquisition) unanalysed: the drain's "
+                        "%.1f s were up", records, span_s, self.drain_s)
 
     def _deliver(self, records: list[StreamRecord]) -> None:
         if not records:
