@@ -131,14 +131,9 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
     @app.get("/api/v1/health", response_model=Health)
     def health() -> dict:
         now = time.monotonic()
-        rows = []
-        for s in engines.values():
-            lag = s.backlog()
-            dropping = lag["last_drop_age_s"] is not None and lag["last_drop_age_s"] < DROPPED_RECENTLY_S
-            behind = lag["realtime"] and (max(lag["behind_s"], lag["queued_s"]) > LAG_DEGRADED_S or dropping)
-            rows.append({"engine_id": s.engine_id, "running": s.running, "sources_ended": s.sources_ended,
-                         "last_cycle_age_s": None if s.last_result_s is None else now - s.last_result_s,
-                         "behind": behind, **{k: lag[k] for k in LAG_KEYS}})
+        rows = [{"engine_id": s.engine_id, "running": s.running, "sources_ended": s.sources_ended,
+                 "last_cycle_age_s": None if s.last_result_s is None else now - s.last_result_s, **backlog(s)}
+                for s in engines.values()]
         ok = all(r["running"] and r["last_cycle_age_s"] is not None and r["last_cycle_age_s"] < STALE_S
                  and not r["behind"] for r in rows)
         return {"status": "ok" if ok else "degraded", "uptime_s": now - started, "engines": rows,
@@ -154,7 +149,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
                         "rpm_latest": None if whole is None else views.num(whole.rpm_mean),
                         "listener_drops": s.fanout.drops, "listener_errors": s.fanout.errors,
                         "session_errors": dict(s.session.errors), "alert_errors": s.alert_errors,
-                        "sse_clients": sse.clients})
+                        "sse_clients": sse.clients, "backlog": backlog(s)})
         return out
 
     @app.get("/api/v1/engines/{engine_id}/cycles/latest", response_model=CycleSummary, responses=ERRORS)
@@ -284,6 +279,15 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
         return FileResponse(path)
 
     return app
+
+
+def backlog(svc: EngineService) -> dict:
+    """The engine's lag (EngineService.backlog) and whether it makes the engine 'degraded' (``behind``): a real-time
+    source's data waiting past LAG_DEGRADED_S, or the bounded queue having dropped within DROPPED_RECENTLY_S."""
+    lag = svc.backlog()
+    dropping = lag["last_drop_age_s"] is not None and lag["last_drop_age_s"] < DROPPED_RECENTLY_S
+    behind = lag["realtime"] and (max(lag["behind_s"], lag["queued_s"]) > LAG_DEGRADED_S or dropping)
+    return {"behind": bool(behind), **{k: lag[k] for k in LAG_KEYS}}
 
 
 def service(request: Request, engine_id: EngineId) -> EngineService:

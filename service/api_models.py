@@ -55,6 +55,8 @@ class EngineInfo(_Open):
     skipped: dict[str, int]
     rpm_latest: float | None
     listener_drops: dict[str, int] = Field(description="events each fan-out listener lost to a full queue")
+    backlog: dict | None = Field(None, description="the monitor's lag as in /health's engine rows (queued_cycles, "
+                                                   "behind_s, dropped_records, behind, ...)")
 
 
 class CycleSummary(_Open):

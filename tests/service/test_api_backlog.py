@@ -41,6 +41,7 @@ def test_lag_shows_in_health_and_metrics(held_back) -> None:
 
     assert wait_until(behind, timeout=10.0), row  # the check: within 10 s
     assert client.get("/api/v1/health").json()["status"] == "degraded"
+    assert client.get("/api/v1/engines").json()[0]["backlog"]["behind"] is True  # what the dashboard shows
     assert row["realtime"] is True
     assert row["dropped_records"] > 0 or row["behind_s"] > LAG_DEGRADED_S
     assert wait_until(lambda: svc.backlog()["dropped_records"] > 0, timeout=10.0)
