@@ -2,8 +2,8 @@
 speed=1, one engine per --source), then one of two loads:
 
 - ``mix``: ``--rate`` requests/s for ``--seconds`` s of a dashboard mix that includes window means (100, 1000 and 5000
-  cycles) and the large speed history; reports cycles analysed against offered (the log's cycles per wall second
-  times the engines), records the bounded queues dropped, the client's p50 / p99 and the replies by status.
+  cycles) and the large speed history; reports cycles analysed (and skipped: the loop's seam) against offered (each
+  engine's speed / 120 times the wall seconds: the looped log plays continuously at real time), records the bounded queues dropped, the client's p50 / p99 and the replies by status.
 - ``lag``: no requests; polls /health every 0.5 s and reports when each engine first shows ``behind`` (and the
   status 'degraded'), the largest queue seen, what was dropped, and the server's RSS each second (memory bounded:
   it must stop growing once the queues are full).
@@ -34,7 +34,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from bench.bench_service_load import cpu_s, load
 
 ROOT = Path(__file__).resolve().parents[1]
-DEMO_CYCLES_PER_S = 40 / (3.2 + 1.0)  # the demo log: 40 cycles in 3.2 s, then the loop's 1 s gap
+CYCLE_REVS = 2.0  # four-stroke: a cycle is two revolutions
 
 
 def mix_routes(engines: list[str]) -> list[str]:
@@ -95,13 +95,14 @@ def run_mix(args, client: httpx.Client, url: str, pid: int, engines: list[str]) 
     time.sleep(2.0)  # the cycles whose data came during the load
     c1, cpu1, w1 = counters(client), cpu_s(pid), time.monotonic()
     ms = lat["latency_s"] * 1e3
-    offered = DEMO_CYCLES_PER_S * len(engines) * (w1 - w0)
+    rpm = [client.get(f"/api/v1/engines/{e}/cycles/latest").json()["rpm_mean"] for e in engines]
+    offered = sum(r / 60.0 / CYCLE_REVS for r in rpm) * (w1 - w0)
     codes, counts = np.unique(lat["status"], return_counts=True)
     return {"requests": lat["n"], "by_status": {str(k): int(v) for k, v in zip(codes, counts)},
             "latency_ms": {"p50": float(np.nanpercentile(ms, 50)), "p99": float(np.nanpercentile(ms, 99)),
                            "max": float(np.nanmax(ms))},
             "client_send_late_ms_p99": float(np.percentile(lat["send_late_s"] * 1e3, 99)),
-            "cycles_analysed": c1["processed"] - c0["processed"], "cycles_offered_estimate": offered,
+            "cycles_analysed": c1["processed"] - c0["processed"], "cycles_offered": offered,
             "cycles_skipped": c1["skipped"] - c0["skipped"],
             "records_dropped_by_the_bounded_queue": c1["dropped_records"] - c0["dropped_records"],
             "server_cpu_s_per_wall_s": (cpu1 - cpu0) / (w1 - w0)}

@@ -64,6 +64,7 @@ class IngestQueue:
         self.max_span, self.tick_hz = float(max_span_ticks), float(tick_hz)
         self._items: deque[_Item] = deque()
         self._data = 0  # batches (not markers) queued
+        self._newest_key = -float("inf")  # of the batches put (lag() need not scan the queue for it)
         self._cond = threading.Condition()
         self._closed = False
         self.dropped_records = 0
@@ -78,6 +79,7 @@ class IngestQueue:
                 self._cond.wait_for(lambda: self._closed or self._span_with(key) <= self.max_span)
             self._items.append(_Item(source, records, float(key), time.monotonic()))
             self._data += 1
+            self._newest_key = max(self._newest_key, float(key))
             if realtime:
                 self._drop_oldest()
             self._cond.notify_all()
@@ -119,8 +121,7 @@ class IngestQueue:
     def lag(self) -> IngestLag:
         with self._cond:
             first = next((it for it in self._items if it.key is not None), None)
-            newest = max((it.key for it in self._items if it.key is not None), default=None)
-            queued = 0.0 if first is None or newest is None else (newest - first.key) / self.tick_hz
+            queued = 0.0 if first is None else max(0.0, self._newest_key - first.key) / self.tick_hz
             behind = 0.0 if first is None else time.monotonic() - first.read_s
             dropped_age = None if self._last_drop_s is None else time.monotonic() - self._last_drop_s
             return IngestLag(queued, behind, self._data, self.dropped_records, self.dropped_ticks / self.tick_hz,
