@@ -31,7 +31,7 @@ import httpx
 import numpy as np
 from prometheus_client.parser import text_string_to_metric_families
 
-from bench.bench_service_load import cpu_s, load
+from bench.bench_service_load import cpu_s, hist_quantile, load
 
 ROOT = Path(__file__).resolve().parents[1]
 CYCLE_REVS = 2.0  # four-stroke: a cycle is two revolutions
@@ -49,7 +49,11 @@ def mix_routes(engines: list[str]) -> list[str]:
 
 def counters(client: httpx.Client) -> dict:
     fams = {f.name: f for f in text_string_to_metric_families(client.get("/metrics").text)}
-    out = {"processed": 0.0, "dropped_records": 0.0, "skipped": 0.0}
+    out = {"processed": 0.0, "dropped_records": 0.0, "skipped": 0.0, "requests_hist": {}}
+    for s in fams["frictionwatch_http_request_seconds"].samples:  # all routes together, cumulative by bound
+        if s.name.endswith("_bucket"):
+            le = float(s.labels["le"])
+            out["requests_hist"][le] = out["requests_hist"].get(le, 0.0) + s.value
     for name, key in (("frictionwatch_cycles_processed", "processed"), ("frictionwatch_cycles_skipped", "skipped"),
                       ("frictionwatch_ingest_dropped_records", "dropped_records")):
         out[key] = sum(s.value for s in fams[name].samples if s.name.endswith("_total"))
@@ -102,6 +106,8 @@ def run_mix(args, client: httpx.Client, url: str, pid: int, engines: list[str]) 
             "latency_ms": {"p50": float(np.nanpercentile(ms, 50)), "p99": float(np.nanpercentile(ms, 99)),
                            "max": float(np.nanmax(ms))},
             "client_send_late_ms_p99": float(np.percentile(lat["send_late_s"] * 1e3, 99)),
+            "server_request_s": {f"p{q}_le": hist_quantile(c0["requests_hist"], c1["requests_hist"], q / 100)
+                                 for q in (50, 99)},
             "cycles_analysed": c1["processed"] - c0["processed"], "cycles_offered": offered,
             "cycles_skipped": c1["skipped"] - c0["skipped"],
             "records_dropped_by_the_bounded_queue": c1["dropped_records"] - c0["dropped_records"],

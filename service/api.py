@@ -50,7 +50,7 @@ from frictionwatch.service.api_models import (
 from frictionwatch.service.discrepancy_jobs import KEPT, BusyError, DiscrepancyJobs
 from frictionwatch.service.engine_service import EngineService
 from frictionwatch.service.listeners import ServiceEvent, SseBroadcaster
-from frictionwatch.service.metrics import ServiceMetrics
+from frictionwatch.service.metrics import RequestTimer, ServiceMetrics
 from frictionwatch.service.rate_limit import TokenBucket
 from frictionwatch.service.request_guard import MAX_BODY_BYTES, UNAUTHORISED, RequestGuard, validation_error
 from frictionwatch.service.security import ENGINE_ID, bearer_ok
@@ -110,6 +110,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
                   description="Live per-cylinder friction losses and alerts. Units in field names.")
     app.state.services, app.state.sse, app.state.metrics, app.state.token = engines, sse, metrics, token
     app.add_middleware(RequestGuard, token=lambda: app.state.token, max_body_bytes=MAX_BODY_BYTES)
+    app.add_middleware(RequestTimer, metrics=metrics)  # added last: outermost, so a refused request is timed too
     app.add_exception_handler(RequestValidationError, validation_error)
     large = app.state.large_queries = TokenBucket(LARGE_PER_S, LARGE_BURST)
     metrics.rate_limited = lambda: large.refused

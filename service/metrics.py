@@ -16,11 +16,15 @@ in one process, or a test, never share series).
     frictionwatch_ingest_dropped_records_total{engine}  records the bounded queue dropped (the oldest go)
     frictionwatch_ingest_dropped_seconds_total{engine}  acquisition seconds they covered
     frictionwatch_rate_limited_total                large queries refused with 429
+    frictionwatch_http_request_seconds{route}       histogram: a request's time in the server (queued for a worker
+                                                    thread included), by route function (what a client's p99 is
+                                                    made of, without the client's own delays)
 """
 
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -45,6 +49,8 @@ class ServiceMetrics:
                                  ["engine"], buckets=LATENCY_BUCKETS_S, registry=self.registry)
         self.to_api = Histogram("frictionwatch_cycle_to_api_seconds", "Result -> visible to the API",
                                 ["engine"], buckets=LATENCY_BUCKETS_S, registry=self.registry)
+        self.requests = Histogram("frictionwatch_http_request_seconds", "Request received -> response sent",
+                                  ["route"], buckets=LATENCY_BUCKETS_S, registry=self.registry)
         self.rate_limited: Callable[[], int] = lambda: 0  # the app sets its bucket's count
         self.registry.register(_EngineCounters(engines, sse_dropped))
         self.registry.register(_Backlog(engines, lambda: self.rate_limited()))
@@ -54,6 +60,27 @@ class ServiceMetrics:
 
     def text(self) -> bytes:
         return generate_latest(self.registry)
+
+
+class RequestTimer:
+    """Pure ASGI middleware: each HTTP request's time into ``metrics.requests``, labelled by the route's function
+    name (a fixed set; 'other' for a path no route matched). The event stream is left out: it lasts as long as its
+    client."""
+
+    def __init__(self, app: Any, metrics: ServiceMetrics) -> None:
+        self.app, self.metrics = app, metrics
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        if scope["type"] != "http" or scope["path"].endswith("/stream"):
+            await self.app(scope, receive, send)
+            return
+        t = time.perf_counter()
+        try:
+            await self.app(scope, receive, send)
+        finally:
+            endpoint = scope.get("endpoint")
+            route = getattr(endpoint, "__name__", "other")
+            self.metrics.requests.labels(route).observe(time.perf_counter() - t)
 
 
 class MetricsListener(Listener):

@@ -86,4 +86,6 @@ def test_large_queries_are_rate_limited(client) -> None:
     assert all(r.status_code in (429, 503) for r in codes)  # no result yet: 503 where let through
     small = client.get("/api/v1/engines/demo/speed", params={"cycles": 200})
     assert small.status_code == 503  # a small history is never limited
-    assert "frictionwatch_rate_limited_total" in client.get("/metrics").text
+    text = client.get("/metrics").text
+    assert "frictionwatch_rate_limited_total" in text
+    assert 'frictionwatch_http_request_seconds_count{route="speed"}' in text  # the server's side of a client's p99
