@@ -181,6 +181,13 @@ class EngineService:
         the process, logged by the session), then the listeners after they have delivered what is queued."""
         self.session.stop(timeout)
         self.skipped = dict(self.session.skipped)
+        left = self.session.left_at_stop
+        if left is not None and left[0]:
+            newest = self.state.newest
+            cycles = (f"~{left[1] * newest.rpm_mean / 60.0 / CYCLE_REVS:.0f} cycles" if newest is not None
+                      and newest.rpm_mean > 0 else "cycles unknown")
+            log.warning("%s: stopped with %s (%.1f s of acquisition, %d records) not analysed", self.engine_id, cycles,
+                        left[1], left[0])
         self.fanout.stop(timeout)
 
     def backlog(self) -> dict:
@@ -243,9 +250,9 @@ class EngineService:
     def alert_list(self, active_only: bool) -> list[dict]:
         if self.alerts is None:
             return []
-        with self._alerts_lock:
+        with self._alerts_lock:  # the ingest thread takes this lock each cycle: only the copy is made under it
             alerts = self.alerts.active() if active_only else self.alerts.history()
-            return [self._alert_dict(a) for a in alerts]
+        return [self._alert_dict(a) for a in alerts]
 
     def acknowledge(self, alert_id: int, by: str) -> dict:
         """Raises LookupError when the engine has no such alert (the alert engine's KeyError)."""

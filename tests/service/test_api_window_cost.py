@@ -13,7 +13,7 @@ from frictionwatch.service.api import create_app
 from frictionwatch.service.window_figures import figures_from_cycles
 
 from tests.json_close import assert_json_close
-from tests.service.serve_helpers import demo_service, wait_until
+from tests.service.serve_helpers import DEMO, demo_service, wait_until
 
 HISTORY = 16  # fewer than the demo's cycles: the running sums wrap around
 
@@ -65,3 +65,18 @@ def test_a_fast_replay_loses_no_cycle_to_the_bounded_queue(served) -> None:
     _, svc = served
     lag = svc.backlog()
     assert lag["realtime"] is False and lag["dropped_records"] == 0 and lag["queued_batches"] == 0
+
+
+def test_the_monitor_never_waits_for_the_api() -> None:
+    """A request holding the API-state lock (the longest any route holds it) does not hold the ingest thread: cycles
+    go on being analysed while it is held; the API catches up after."""
+    svc = demo_service("held", "mcap:" + str(DEMO) + "?loop=1", history_cycles=64)
+    svc.start()
+    try:
+        assert wait_until(lambda: svc.cycles_ok > 5, timeout=900)
+        with svc.state._lock:
+            before = svc.session.cycles_ok
+            assert wait_until(lambda: svc.session.cycles_ok >= before + 20, timeout=60)
+        assert wait_until(lambda: svc.state.newest is not None and svc.state.newest.index >= before + 19, timeout=60)
+    finally:
+        svc.stop()
