@@ -67,8 +67,8 @@ def rss_mb(pid: int) -> float:
     return float("nan")
 
 
-def start_server(n: int, cpu: int | None) -> tuple[subprocess.Popen, str]:
-    cmd = [sys.executable, "-m", "frictionwatch.service.cli", "serve", "--port", "0"]
+def start_server(n: int, cpu: int | None, history: int) -> tuple[subprocess.Popen, str]:
+    cmd = [sys.executable, "-m", "frictionwatch.service.cli", "serve", "--port", "0", "--history-cycles", str(history)]
     for i in range(n):
         cmd += ["--source", f"mcap:replay_logs/demo.mcap?loop=1&speed=1#g{i + 1}"]
     if cpu is not None:
@@ -144,9 +144,11 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=200.0)
     ap.add_argument("--settle", type=float, default=10.0, help="seconds after the first results before the load")
     ap.add_argument("--cpu", type=int, help="pin the server to this core (taskset)")
+    ap.add_argument("--history-cycles", type=int, default=5000,
+                    help="serve's history per engine: a short one shows the memory plateau in a short run")
     args = ap.parse_args()
     engines = [f"g{i + 1}" for i in range(args.engines)]
-    proc, url = start_server(args.engines, args.cpu)
+    proc, url = start_server(args.engines, args.cpu, args.history_cycles)
     try:
         with httpx.Client(base_url=url, timeout=10) as client:
             first = wait_first_results(client, engines)
@@ -157,7 +159,7 @@ def main() -> None:
         proc.wait(60)
         out.update(first_results_s=first, sigterm_exit_s=time.monotonic() - t, exit_code=proc.returncode)
         print(json.dumps({"mode": args.mode, "engines": args.engines, "seconds": args.seconds, "rate": args.rate,
-                          "cpu": args.cpu, "loadavg": os.getloadavg(), **out}, indent=1, default=float))
+                          "cpu": args.cpu, "history_cycles": args.history_cycles, "loadavg": os.getloadavg(), **out}, indent=1, default=float))
     finally:
         if proc.poll() is None:
             proc.kill()
