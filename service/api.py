@@ -5,15 +5,24 @@
 
 Reads come from each engine's LatestState (service/listeners.py); what a friction figure is comes from
 core/monitor/report/figure_status.py through service/api_views.py. State changes (acknowledge, baseline) need the
-token (service/security.py), and so does starting a discrepancy job (service/discrepancy_jobs.py: one at a
+token (service/security.py), checked before any body is read (service/request_guard.py, with the body-size limit
+and one-line errors that never echo the input), and so does starting a discrepancy job (service/discrepancy_jobs.py: one at a
 time, in the background; its state and report are polled). No request value becomes a file path: the dashboard's files are listed once at start
 and served by name from that list.
+
+Bounded work per request (issue 28 item 2): every route reads a snapshot the engine's API-state listener published,
+never the session, and costs the same whatever the history: a window mean reads running sums (service/window_sums.py),
+window lengths stop at ``MAX_WINDOW_CYCLES``, and the large replies (a speed history past ``LARGE_CYCLES`` cycles) are
+rate-limited (service/rate_limit.py: 429 with Retry-After). /health says each engine's backlog (cycles queued,
+seconds behind) and is 'degraded' past ``LAG_DEGRADED_S``.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import math
+import threading
 import time
 from collections.abc import AsyncIterator, Sequence
 from contextlib import asynccontextmanager
@@ -21,6 +30,7 @@ from pathlib import Path as FilePath
 from typing import Annotated, Literal
 
 from fastapi import Body, Depends, FastAPI, Header, HTTPException, Path, Query, Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, Response
 from frictionwatch.service import api_views as views
 from frictionwatch.service.api_models import (
@@ -41,16 +51,24 @@ from frictionwatch.service.api_models import (
 from frictionwatch.service.discrepancy_jobs import KEPT, BusyError, DiscrepancyJobs
 from frictionwatch.service.engine_service import EngineService
 from frictionwatch.service.listeners import ServiceEvent, SseBroadcaster
-from frictionwatch.service.metrics import ServiceMetrics
+from frictionwatch.service.metrics import RequestTimer, ServiceMetrics
+from frictionwatch.service.rate_limit import TokenBucket
+from frictionwatch.service.request_guard import MAX_BODY_BYTES, UNAUTHORISED, RequestGuard, validation_error
 from frictionwatch.service.security import ENGINE_ID, bearer_ok
 from sse_starlette import EventSourceResponse
 
 DASHBOARD_DIR = FilePath(__file__).with_name("dashboard")
 STALE_S = 10.0  # an engine whose newest result is older than this is 'degraded' in /health
-MAX_CYCLES = 100_000
+MAX_WINDOW_CYCLES = 5000  # the longest window or history a request may ask for (= serve's history per engine)
+LARGE_CYCLES = 1000  # a speed history longer than this is a large reply: rate-limited
+LARGE_PER_S, LARGE_BURST = 5.0, 10.0  # large replies a second the whole app gives, and the burst
+LAG_DEGRADED_S = 2.0  # an engine whose real-time sources' data wait longer than this to be analysed is 'degraded'
+DROPPED_RECENTLY_S = 30.0  # ... and so is one whose bounded queue dropped records this recently
 ERRORS = {404: {"model": ErrorBody}, 422: {"model": ErrorBody}}
 EngineId = Annotated[str, Path(pattern=ENGINE_ID.pattern, description="engine slug [a-z0-9-]{1,40}")]
 JOB_ID = r"^[0-9a-f]{16}$"
+LAG_KEYS = ("queued_cycles", "queued_s", "behind_s", "dropped_records", "dropped_s", "dropped_cycles", "realtime",
+            "last_drop_age_s")
 
 
 def encode_event(event: ServiceEvent) -> list[tuple[str, str]]:
@@ -77,6 +95,9 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
     files = _dashboard_files(dashboard_dir)
     started = time.monotonic()
     cache: dict[str, tuple[int, dict]] = {}  # engine id -> (newest index, smoothed losses): one computation a cycle
+    # one request computes a new cycle's smoothed losses (~2-4 ms over 5000 results); the others wait for it instead
+    # of computing the same thing at once on every worker thread
+    computing = {s.engine_id: threading.Lock() for s in services}
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -92,6 +113,11 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
     app = FastAPI(title="frictionwatch", version="1", lifespan=lifespan,
                   description="Live per-cylinder friction losses and alerts. Units in field names.")
     app.state.services, app.state.sse, app.state.metrics, app.state.token = engines, sse, metrics, token
+    app.add_middleware(RequestGuard, token=lambda: app.state.token, max_body_bytes=MAX_BODY_BYTES)
+    app.add_middleware(RequestTimer, metrics=metrics)  # added last: outermost, so a refused request is timed too
+    app.add_exception_handler(RequestValidationError, validation_error)
+    large = app.state.large_queries = TokenBucket(LARGE_PER_S, LARGE_BURST)
+    metrics.rate_limited = lambda: large.refused
     jobs = app.state.discrepancy_jobs = DiscrepancyJobs()
 
     def newest(svc: EngineService, last: int | None = None) -> tuple:
@@ -100,14 +126,23 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
             raise HTTPException(503, f"engine '{svc.engine_id}' has no analysed cycle yet", headers={"Retry-After": "2"})
         return whole, ring
 
+    def limit_large(what: str) -> None:
+        wait_s = large.take()
+        if wait_s > 0:
+            raise HTTPException(429, f"{what}: at most {LARGE_PER_S:g} large replies a second are served; retry "
+                                     f"after {math.ceil(wait_s)} s or ask for at most {LARGE_CYCLES} cycles",
+                                headers={"Retry-After": str(math.ceil(wait_s))})
+
     @app.get("/api/v1/health", response_model=Health)
     def health() -> dict:
         now = time.monotonic()
         rows = [{"engine_id": s.engine_id, "running": s.running, "sources_ended": s.sources_ended,
-                 "last_cycle_age_s": None if s.last_result_s is None else now - s.last_result_s}
+                 "last_cycle_age_s": None if s.last_result_s is None else now - s.last_result_s, **backlog(s)}
                 for s in engines.values()]
-        ok = all(r["running"] and r["last_cycle_age_s"] is not None and r["last_cycle_age_s"] < STALE_S for r in rows)
-        return {"status": "ok" if ok else "degraded", "uptime_s": now - started, "engines": rows}
+        ok = all(r["running"] and r["last_cycle_age_s"] is not None and r["last_cycle_age_s"] < STALE_S
+                 and not r["behind"] for r in rows)
+        return {"status": "ok" if ok else "degraded", "uptime_s": now - started, "engines": rows,
+                "lag_degraded_s": LAG_DEGRADED_S}
 
     @app.get("/api/v1/engines", response_model=list[EngineInfo])
     def engine_list() -> list[dict]:
@@ -119,7 +154,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
                         "rpm_latest": None if whole is None else views.num(whole.rpm_mean),
                         "listener_drops": s.fanout.drops, "listener_errors": s.fanout.errors,
                         "session_errors": dict(s.session.errors), "alert_errors": s.alert_errors,
-                        "sse_clients": sse.clients})
+                        "sse_clients": sse.clients, "backlog": backlog(s)})
         return out
 
     @app.get("/api/v1/engines/{engine_id}/cycles/latest", response_model=CycleSummary, responses=ERRORS)
@@ -128,15 +163,23 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
         return views.cycle_summary(svc.engine_id, whole)
 
     @app.get("/api/v1/engines/{engine_id}/losses", response_model=Losses, responses=ERRORS)
-    def losses(svc: Svc, window_cycles: Annotated[int | None, Query(ge=1, le=MAX_CYCLES)] = None) -> dict:
+    def losses(svc: Svc, window_cycles: Annotated[int | None, Query(ge=1, le=MAX_WINDOW_CYCLES)] = None) -> dict:
+        """The smoothed estimate at the newest cycle, or (``window_cycles``) each cycle's own estimate averaged over
+        the newest N cycles (fewer when fewer are held): read from running sums, the same cost for any N."""
         if window_cycles is not None:
-            _, ring = newest(svc, window_cycles)
-            return views.losses_window(svc.engine_id, ring, svc.term_names)
+            last, figures = svc.state.window(window_cycles)
+            if last is None or figures is None:
+                newest(svc, 1)  # the 503 with its Retry-After
+            return views.losses_window(svc.engine_id, last, figures, svc.term_names)
         whole, _ = newest(svc, 1)
         hit = cache.get(svc.engine_id)
         if hit is None or hit[0] != whole.index:
-            whole, ring = newest(svc)
-            hit = cache[svc.engine_id] = (whole.index, views.losses_now(svc.engine_id, ring, svc.term_names))
+            with computing[svc.engine_id]:
+                hit = cache.get(svc.engine_id)
+                if hit is None or hit[0] < whole.index:  # not done by the request this one waited for
+                    whole, ring = newest(svc)
+                    hit = cache[svc.engine_id] = (whole.index, views.losses_now(svc.engine_id, ring,
+                                                                                 svc.term_names))
         return hit[1]
 
     @app.get("/api/v1/engines/{engine_id}/friction-torque", response_model=FrictionTorque, responses=ERRORS)
@@ -145,7 +188,9 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
         return views.friction_torque(whole)
 
     @app.get("/api/v1/engines/{engine_id}/speed", response_model=Speed, responses=ERRORS)
-    def speed(svc: Svc, cycles: Annotated[int, Query(ge=1, le=MAX_CYCLES)] = 200) -> dict:
+    def speed(svc: Svc, cycles: Annotated[int, Query(ge=1, le=MAX_WINDOW_CYCLES)] = 200) -> dict:
+        if cycles > LARGE_CYCLES:
+            limit_large(f"a speed history of more than {LARGE_CYCLES} cycles")
         whole, ring = newest(svc, cycles)
         return views.speed(whole, ring)
 
@@ -245,6 +290,15 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
     return app
 
 
+def backlog(svc: EngineService) -> dict:
+    """The engine's lag (EngineService.backlog) and whether it makes the engine 'degraded' (``behind``): a real-time
+    source's data waiting past LAG_DEGRADED_S, or the bounded queue having dropped within DROPPED_RECENTLY_S."""
+    lag = svc.backlog()
+    dropping = lag["last_drop_age_s"] is not None and lag["last_drop_age_s"] < DROPPED_RECENTLY_S
+    behind = lag["realtime"] and (max(lag["behind_s"], lag["queued_s"]) > LAG_DEGRADED_S or dropping)
+    return {"behind": bool(behind), **{k: lag[k] for k in LAG_KEYS}}
+
+
 def service(request: Request, engine_id: EngineId) -> EngineService:
     """The engine named in the path (404 naming the known ones; the pattern gives 422 before this)."""
     engines = request.app.state.services
@@ -254,9 +308,9 @@ def service(request: Request, engine_id: EngineId) -> EngineService:
 
 
 def authorised(request: Request, authorization: Annotated[str | None, Header()] = None) -> None:
+    # request_guard checked it before the body was read; kept here so each state-changing route says it needs it
     if not bearer_ok(authorization, request.app.state.token):
-        raise HTTPException(401, "this change needs 'Authorization: Bearer <token>' (the serve --token-file)",
-                            headers={"WWW-Authenticate": "Bearer"})
+        raise HTTPException(401, UNAUTHORISED, headers={"WWW-Authenticate": "Bearer"})
 
 
 Svc = Annotated[EngineService, Depends(service)]

@@ -26,11 +26,23 @@ class HealthEngine(_Open):
     engine_id: str
     running: bool
     last_cycle_age_s: float | None = Field(description="seconds since the newest result; null before the first")
+    behind: bool = Field(False, description="a real-time source's data wait longer than lag_degraded_s: 'degraded'")
+    queued_cycles: float | None = Field(None, description="cycles of data queued for the monitor (at the newest "
+                                                          "result's speed; null before the first)")
+    queued_s: float = Field(0.0, description="acquisition seconds queued for the monitor")
+    behind_s: float = Field(0.0, description="wall seconds the oldest queued data have waited")
+    dropped_records: int = Field(0, description="records dropped to keep the queue bounded (the oldest go)")
+    dropped_s: float = Field(0.0, description="acquisition seconds those records covered")
+    dropped_cycles: float | None = Field(None, description="cycles those seconds hold at the newest speed")
+    realtime: bool = Field(False, description="a source runs at the engine's pace (a fast replay only reads ahead)")
+    last_drop_age_s: float | None = Field(None, description="seconds since the queue last dropped records (degraded "
+                                                            "for 30 s after a drop); null: never")
 
 
 class Health(_Open):
     status: Literal["ok", "degraded"]
     uptime_s: float
+    lag_degraded_s: float = Field(2.0, description="an engine is 'degraded' when its data wait longer than this")
     engines: list[HealthEngine]
 
 
@@ -43,6 +55,8 @@ class EngineInfo(_Open):
     skipped: dict[str, int]
     rpm_latest: float | None
     listener_drops: dict[str, int] = Field(description="events each fan-out listener lost to a full queue")
+    backlog: dict | None = Field(None, description="the monitor's lag as in /health's engine rows (queued_cycles, "
+                                                   "behind_s, dropped_records, behind, ...)")
 
 
 class CycleSummary(_Open):

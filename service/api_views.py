@@ -14,11 +14,12 @@ from dataclasses import asdict
 
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
-from frictionwatch.core.monitor.report.figure_status import friction_status, split_flag
+from frictionwatch.core.monitor.report.figure_status import STATUSES, friction_status, split_flag
 from frictionwatch.core.monitor.report.results import PA_PER_BAR, CycleResult
-from frictionwatch.core.monitor.report.run_summary import active_flags, estimate_window, mean_and_sem
+from frictionwatch.core.monitor.report.run_summary import ACTIVE_SHARE, active_flags, estimate_window
 from frictionwatch.service.cmd_analyze import tdc_watch_document
 from frictionwatch.service.engine_service import TdcWatchView
+from frictionwatch.service.window_figures import WindowFigures
 
 RPM_PER_RAD_S = 30.0 / math.pi
 FIGURE_VALUES = ("fmep_bar", "fmep_sigma_bar", "friction_torque_mean_nm", "friction_torque_sigma_nm")
@@ -72,61 +73,56 @@ def losses_now(engine_id: str, results: Sequence[CycleResult], names: Sequence[s
             "cylinders": [_cylinder_loss(k, c, names, active) for k, c in enumerate(doc["cylinders"])]}
 
 
-def losses_window(engine_id: str, results: Sequence[CycleResult], names: Sequence[str]) -> dict:
-    """Each cylinder's per-cycle friction (each cycle's own estimate) averaged over ``results`` (the window), with
-    the 1-sigma of the mean from the cycle-to-cycle scatter. A mean is given only where every cycle of the window
-    shows the figure with the same status (all measured, or all shares); otherwise the status of the window is the
-    newest cycle's with the active flags, or 'unresolved' saying how many cycles measured it."""
-    last = results[-1]
-    active = active_flags([r.flags for r in results], len(results))
-    docs = [r.to_json(smoothed=False) for r in results]
+def losses_window(engine_id: str, last: CycleResult, win: WindowFigures, names: Sequence[str]) -> dict:
+    """Each cylinder's per-cycle friction (each cycle's own estimate) averaged over the window ``win`` (its figures:
+    service/window_figures.py; ``last`` its newest cycle), with the 1-sigma of the mean from the cycle-to-cycle
+    scatter. A mean is given only where every cycle of the window shows the figure with the same status (all
+    measured, or all shares); otherwise the status of the window is the newest cycle's with the active flags, or
+    'unresolved' saying how many cycles measured it."""
+    n_cycles, lay = win.cycles, win.layout
+    # active_flags (run_summary) over the window, from the window's counts: the newest cycle's and the frequent ones
+    active = frozenset(last.flags) | {f for f, c in win.flag_counts.items() if c >= ACTIVE_SHARE * n_cycles}
     status = last.to_json(smoothed=False, status=friction_status(last.cycle, active))
     mep_per_nm = last.mep_per_nm() / PA_PER_BAR  # bar per N m of one cylinder
     cylinders = []
     for k, cyl in enumerate(status["cylinders"]):
-        figs = [d["cylinders"][k]["friction"] for d in docs]
         loss = _cylinder_loss(k, cyl, names, active)
-        kinds = {f["status"] for f in figs}
+        kinds = win.status_counts[k]
         if loss["status"] in ("withheld", "unresolved"):
             pass  # the newest cycle's status with the window's flags: no value
-        elif len(kinds) == 1 and loss["status"] in kinds:
+        elif kinds[STATUSES.index(loss["status"])] == n_cycles:
             # the scatter's sem knows nothing of the calibration, whose error is the same in every cycle: added back
             cal = loss["calibration_sigma_nm"] or 0.0
-            for key, sigma_key, per_nm in (("friction_torque_mean_nm", "friction_torque_sigma_nm", 1.0),
-                                           ("fmep_bar", "fmep_sigma_bar", mep_per_nm)):
-                mean, sem, n = mean_and_sem([np.nan if f[key] is None else f[key] for f in figs])
+            for key, sigma_key, per_nm, col in (("friction_torque_mean_nm", "friction_torque_sigma_nm", 1.0, lay.torque(k)),
+                                                ("fmep_bar", "fmep_sigma_bar", mep_per_nm, lay.fmep(k))):
+                mean, sem, n = win.stat(col)
                 loss[key], loss[sigma_key] = num(mean), (num(math.hypot(sem, cal * per_nm)) if n > 1
                                                          else loss[sigma_key])
-            weights = [f["data_weight"] for f in figs if f["data_weight"] is not None]
-            loss["data_weight"] = float(np.mean(weights)) if weights else None
-            loss["coefficients"], loss["coefficient_sigmas"] = _mean_and_sem([d["cylinders"][k] for d in docs],
-                                                                             list(loss["coefficients"]))
+            weight, _, n_weights = win.stat(lay.weight(k))
+            loss["data_weight"] = weight if n_weights else None
+            labels = list(loss["coefficients"])
+            loss["coefficients"] = {name: num(win.mean[lay.coef(k, j)]) for j, name in enumerate(labels)}
+            loss["coefficient_sigmas"] = {name: num(win.sem[lay.coef(k, j)]) for j, name in enumerate(labels)}
         else:
-            n_measured = sum(f["status"] == "measured" for f in figs)
+            n_measured = int(kinds[STATUSES.index("measured")])
             loss.update(dict.fromkeys(FIGURE_VALUES), status="unresolved",
                         reason=f"the figure's status changed within the window (measured in {n_measured} of "
-                               f"{len(figs)} cycles): no mean over the window; see the estimate without a window")
+                               f"{n_cycles} cycles): no mean over the window; see the estimate without a window")
         cylinders.append(loss)
-    eng_mean, eng_sem, n = mean_and_sem([np.nan if d["fmep_bar"] is None else d["fmep_bar"] for d in docs])
+    eng_mean, eng_sem, n = win.stat(0)
     eng_cal = status["friction"]["calibration_sigma_nm"] or 0.0
     eng_sem = math.hypot(eng_sem, eng_cal * mep_per_nm / last.n_cyl)
+    whole = n == n_cycles
     return {"engine_id": engine_id, "cycle_index": int(last.index), "estimate": "window",
-            "window": {"first_cycle": int(results[0].index), "last_cycle": int(last.index), "cycles": len(results)},
-            "engine": {"fmep_bar": num(eng_mean) if n == len(docs) else None,
-                       "fmep_sigma_bar": num(eng_sem) if n == len(docs) else None,
-                       "status": "measured" if n == len(docs) else "unresolved",
+            "window": {"first_cycle": win.first_cycle, "last_cycle": int(last.index), "cycles": n_cycles},
+            "engine": {"fmep_bar": num(eng_mean) if whole else None,
+                       "fmep_sigma_bar": num(eng_sem) if whole else None,
+                       "status": "measured" if whole else "unresolved",
                        "calibration": status["friction"]["calibration"],
-                       "calibration_sigma_nm": num(eng_cal) if n == len(docs) else None,
-                       "reason": None if n == len(docs) else f"the engine's friction was measured in {n} of "
-                                                             f"{len(docs)} cycles of the window"},
+                       "calibration_sigma_nm": num(eng_cal) if whole else None,
+                       "reason": None if whole else f"the engine's friction was measured in {n} of "
+                                                    f"{n_cycles} cycles of the window"},
             "active_flags": sorted(active), "cylinders": cylinders}
-
-
-def _mean_and_sem(cyls: list[dict], names: list[str]) -> tuple[dict, dict]:
-    """Each coefficient's mean over the window's cycles and the 1-sigma of that mean from their scatter."""
-    stats = [mean_and_sem([np.nan if c["coefficients"][j] is None else c["coefficients"][j] for c in cyls])
-             for j in range(len(names))]
-    return ({n: num(m) for n, (m, _, _) in zip(names, stats)}, {n: num(s) for n, (_, s, _) in zip(names, stats)})
 
 
 def friction_torque(r: CycleResult) -> dict:

@@ -13,6 +13,10 @@ Latency. Each source is wrapped so the time its reader got each batch is kept wi
 result's arrival time is when, for the last source to get there, the batch reaching the cycle's end tick was read.
 ``result_s - arrived_s`` is what the metrics histogram shows (record arrival -> result).
 
+Backlog. ``backlog()`` says how far the ingest is behind its sources (service/ingest_queue.py: the queue is bounded
+by ``max_queue_s`` of acquisition, real-time sources keep the newest and count what is dropped), in cycles at the
+newest result's speed; /health, /metrics and the dashboard show it.
+
 Recorded window. The ingest thread also keeps references to the newest ``recent_s`` (30 s) of raw records
 (``RecentRecords``) for the discrepancy workflow on demand (service/discrepancy_jobs.py, POST .../discrepancy).
 """
@@ -25,7 +29,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 from frictionwatch.core.model.engine_model import EngineModel
@@ -44,6 +48,7 @@ log = logging.getLogger(__name__)
 AlertsFactory = Callable[[str, Any], Any]  # (engine id, EngineSpec) -> an AlertEngine (contract: update, active,
 #                                            history, acknowledge, rebaseline, baseline)
 STAMPS_KEPT = 4096  # batches remembered per source for the latency (a few seconds of a genset's records)
+CYCLE_REVS = 2.0  # crank revolutions per (four-stroke) cycle: turns queued seconds into cycles
 RECENT_S = 30.0  # raw records kept for an on-demand discrepancy run: genset-v20 pressure ~3.2 MB/s -> ~100 MB
 
 
@@ -184,7 +189,26 @@ class EngineService:
         the process, logged by the session), then the listeners after they have delivered what is queued."""
         self.session.stop(timeout)
         self.skipped = dict(self.session.skipped)
+        left = self.session.left_at_stop
+        if left is not None and left[0]:
+            newest = self.state.newest
+            cycles = (f"~{left[1] * newest.rpm_mean / 60.0 / CYCLE_REVS:.0f} cycles" if newest is not None
+                      and newest.rpm_mean > 0 else "cycles unknown")
+            log.warning("%s: stopped with %s (%.1f s of acquisition, %d records) not analysed", self.engine_id, cycles,
+                        left[1], left[0])
         self.fanout.stop(timeout)
+
+    def backlog(self) -> dict:
+        """The ingest's lag (live.LiveSession.lag) with cycles estimated at the newest result's speed (None before
+        the first result). ``realtime``: whether a source runs at the engine's pace (a fast replay's queue is
+        read-ahead, not lag)."""
+        lag = asdict(self.session.lag())
+        newest = self.state.newest
+        rpm = float(newest.rpm_mean) if newest is not None else float("nan")
+        per_s = rpm / 60.0 / CYCLE_REVS if rpm > 0 else None
+        return {**lag, "queued_cycles": None if per_s is None else lag["queued_s"] * per_s,
+                "dropped_cycles": None if per_s is None else lag["dropped_s"] * per_s,
+                "realtime": self.session.realtime, "max_queue_s": self.session.max_queue_s}
 
     @property
     def running(self) -> bool:
@@ -238,9 +262,9 @@ class EngineService:
     def alert_list(self, active_only: bool) -> list[dict]:
         if self.alerts is None:
             return []
-        with self._alerts_lock:
+        with self._alerts_lock:  # the ingest thread takes this lock each cycle: only the copy is made under it
             alerts = self.alerts.active() if active_only else self.alerts.history()
-            return [self._alert_dict(a) for a in alerts]
+        return [self._alert_dict(a) for a in alerts]
 
     def acknowledge(self, alert_id: int, by: str) -> dict:
         """Raises LookupError when the engine has no such alert (the alert engine's KeyError)."""

@@ -17,6 +17,7 @@ The listeners of the API live here: ``LatestState`` (what the routes read) and `
 from __future__ import annotations
 
 import asyncio
+import itertools
 import logging
 import queue
 import threading
@@ -27,6 +28,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from frictionwatch.core.monitor.report.results import CycleResult
+from frictionwatch.service.window_figures import WindowFigures
+from frictionwatch.service.window_sums import WindowSums
 
 log = logging.getLogger(__name__)
 
@@ -183,7 +186,9 @@ class Fanout:
 
 class LatestState(Listener):
     """What the API reads of one engine: the newest whole result, a bounded ring of recent results (slim: no
-    traces), the alert changes. Thread-safe; ``snapshot`` copies under the lock."""
+    traces), the running sums of window means (service/window_sums.py). Thread-safe; ``snapshot`` copies under the
+    lock only the results asked for, ``window`` reads the sums in O(1): a request never holds this listener's
+    thread for longer than that (the ingest thread never waits for it: the fan-out does not block)."""
 
     name = "api-state"
 
@@ -192,6 +197,7 @@ class LatestState(Listener):
             raise ValueError(f"max_results must be >= 2, got {max_results}")
         self._lock = threading.Lock()
         self._ring: deque[CycleResult] = deque(maxlen=max_results)
+        self.sums = WindowSums(max_results)  # windows up to the ring's length
         self.newest: CycleResult | None = None
         self.newest_s: float | None = None  # monotonic time the newest result became visible here
         self.updated = threading.Condition(self._lock)
@@ -200,7 +206,9 @@ class LatestState(Listener):
     def on_message_received(self, event: ServiceEvent) -> None:
         if event.result is None:
             return
+        row = self.sums.row_for(event.result)  # the per-cycle cost, outside the lock
         with self._lock:
+            self.sums.append(int(event.result.index), row)
             if self._ring and self.newest is not None:
                 self._ring[-1] = self.newest.slim()  # only the newest keeps its traces
             self._ring.append(event.result)
@@ -212,8 +220,15 @@ class LatestState(Listener):
     def snapshot(self, last: int | None = None) -> tuple[CycleResult | None, list[CycleResult]]:
         """The newest whole result and the last ``last`` results held (all when None), oldest first."""
         with self._lock:
-            ring = list(self._ring) if last is None else list(self._ring)[-last:]
-            return self.newest, ring
+            if last is None or last >= len(self._ring):
+                return self.newest, list(self._ring)
+            newest_first = list(itertools.islice(reversed(self._ring), max(0, last)))
+            return self.newest, newest_first[::-1]
+
+    def window(self, cycles: int) -> tuple[CycleResult | None, WindowFigures | None]:
+        """The newest whole result and the figures of the newest ``cycles`` cycles, read together."""
+        with self._lock:
+            return self.newest, self.sums.figures(cycles)
 
     def wait_index(self, index: int, timeout: float) -> bool:
         with self._lock:

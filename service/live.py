@@ -10,157 +10,59 @@ whole, older ones without traces, ``service.pipeline.ResultHistory``; 20,000 gen
 
 Threads. One reader thread per source calls ``source.read(timeout)`` and queues what it gets; one ingest thread
 merges the streams into time order, writes them to the black-box recorder (if any) and feeds ``EnginePipeline``.
-``stop()`` ends the readers, lets the ingest thread drain the queue, release every held record and flush the
-pipeline, then closes the sources and the recorder (the session owns what it is given). ``read`` never raising is
+``stop()`` ends the readers, lets the ingest thread drain the queue for at most ``drain_s`` (what is left then is
+dropped, counted in ``left_at_stop`` and logged), release every held record and flush the pipeline, then closes the
+sources and the recorder (the session owns what it is given).
+
+Backpressure. The reader -> ingest queue is bounded by the acquisition time it holds (``max_queue_s``, default
+10 s; service/ingest_queue.py states the policy): a real-time source (serial, CAN, a replay paced by the wall clock)
+never waits — the oldest queued batches are dropped, the newest kept, counted in ``lag().dropped_*`` — while a log
+replayed as fast as it can be read waits for room. Memory of the queue is bounded by the sources' data rate times
+``max_queue_s`` (genset-v20: ~3.2 MB/s of pressure, ~32 MB). ``lag()`` says how far the ingest is behind. ``read`` never raising is
 the sources' contract; an exception that escapes anyway is counted (``reader_error: <type>``) and the reader goes on.
 A failing recorder, ``on_result`` callback or pipeline step is counted in ``errors`` and logged once; the session
 goes on.
 
-Merge (``RecordMerge``). Each record is keyed by the tick of its last element (the replay log's time,
-docs/replay-format.md §2). Within one source records come nearly in order (a serial CAM frame can overtake the TEETH
-frame still being filled, by at most 2 ms; see drivers/bridge.py), so a source vouches for "nothing older will come"
-only up to ``slack`` ticks behind the newest key it gave. A held record is released once every source vouches for
-its key, except sources that have ended or gone quiet: a source that gave no record for ``quiet_s`` of wall time (an
-engine at rest sends no teeth, a port is lost) stops holding the others back until it speaks again. Whatever the
-vouches, a record is released once it is ``window`` ticks older than the newest key seen (memory stays bounded when
-one source lags). A record older than one already released is still fed (the cycle assembler tolerates streams that
-run a little apart) and counted as ``late_record`` for its source. ``merge.stats`` counts records released without
-every vouch (by quiet sources, the window, or the final flush).
-
-Choosing the window: it bounds how long a source that lags (not a silent one) holds the others, in acquisition time.
-Within it the order is kept whatever the lag, at the cost of memory (1 s of genset-v20 pressure is 3.2 MB) and of
-latency only while a source lags. Beyond it, teeth released more than the assembler's pressure wait (0.5 s) ahead of
-their pressure lose their cycle ('pressure_missing'). The default is 1 s.
+Merge: service/record_merge.py (``RecordMerge``: the streams into time order with a bounded reorder window).
 """
 
 from __future__ import annotations
 
-import heapq
-import itertools
 import logging
 import math
 import queue
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Self
 
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig
-from frictionwatch.core.types import (
-    AcquisitionInfo,
-    CamBatch,
-    LoadSample,
-    PressureBlock,
-    PressureFrame,
-    StreamRecord,
-    ToothBatch,
-)
+from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 from frictionwatch.drivers.errors import EndOfStream
 from frictionwatch.drivers.logs.recorder import Recorder
 from frictionwatch.drivers.source import Source
+from frictionwatch.service.ingest_queue import IngestLag, IngestQueue
 from frictionwatch.service.pipeline import EnginePipeline, LogAnalysis, ResultHistory
+from frictionwatch.service.record_merge import RecordMerge, record_key
 
 log = logging.getLogger(__name__)
 
-_RANK = {ToothBatch: 0, CamBatch: 1, PressureBlock: 2, PressureFrame: 2, LoadSample: 3}  # ties: the simulator's order
 _END = object()
+LIVE_DRIVERS = ("frictionwatch.drivers.serial", "frictionwatch.drivers.can")  # sources that cannot wait for us
 
 
-def record_key(record: StreamRecord) -> float:
-    """Tick of the record's last element (when it was complete): drivers.logs.mcap_schema.last_tick as a float."""
-    if isinstance(record, ToothBatch | CamBatch):
-        return float(record.ticks[-1])
-    if isinstance(record, PressureBlock):
-        return float(record.t0_ticks) + (len(record.values) - 1) * float(record.period_ticks)
-    if isinstance(record, PressureFrame):
-        return float(record.t0_ticks) + (record.values.shape[-1] - 1) * float(record.period_ticks)
-    if isinstance(record, LoadSample):
-        return float(record.ticks)
-    raise TypeError(f"not a stream record: {type(record).__name__}")
-
-
-class RecordMerge:
-    """Time-ordered merge of named record streams with a bounded reorder window (no threads, no clock).
-
-    Parameters
-    ----------
-    sources : names of the streams.
-    window_ticks : a held record is released at the latest when it is this much older than the newest key seen.
-    slack_ticks : how far behind its own newest key a source may still deliver (its internal disorder).
-    """
-
-    def __init__(self, sources: Iterable[str], window_ticks: float, slack_ticks: float = 0.0) -> None:
-        names = list(sources)
-        if not names or len(set(names)) != len(names):
-            raise ValueError(f"need one or more distinct source names, got {names}")
-        if not (window_ticks > 0 and slack_ticks >= 0):
-            raise ValueError("need window_ticks > 0 and slack_ticks >= 0")
-        self.window, self.slack = float(window_ticks), float(slack_ticks)
-        self.progress: dict[str, float] = {n: -math.inf for n in names}  # newest key per source
-        self.ended: set[str] = set()
-        self.quiet: set[str] = set()
-        self.counts: dict[str, Counter[str]] = {n: Counter() for n in names}
-        self.stats: Counter[str] = Counter()  # released_by_quiet / _window / _flush: records not vouched for
-        self.released_key = -math.inf
-        self._heap: list[tuple[float, int, int, StreamRecord]] = []
-        self._order = itertools.count()
-
-    @property
-    def held(self) -> int:
-        return len(self._heap)
-
-    def push(self, source: str, records: Iterable[StreamRecord]) -> list[StreamRecord]:
-        """File the records of one source; returns those now released, in key order."""
-        if source not in self.progress:
-            raise ValueError(f"unknown source {source!r}; known: {sorted(self.progress)}")
-        self.quiet.discard(source)
-        late: list[StreamRecord] = []
-        for r in records:
-            key = record_key(r)
-            self.progress[source] = max(self.progress[source], key)
-            if key < self.released_key:
-                if not self.counts[source]["late_record"]:
-                    log.warning("%s: a record %.0f ticks older than what was released (%s)", source,
-                                self.released_key - key, dict(self.stats))
-                self.counts[source]["late_record"] += 1
-                late.append(r)
-            else:
-                heapq.heappush(self._heap, (key, _RANK[type(r)], next(self._order), r))
-        late.sort(key=record_key)  # a CAN batch comes ordered by first sample, the streams meet by last
-        return late + self._release()
-
-    def end(self, source: str) -> list[StreamRecord]:
-        """The source has ended: it no longer holds the others back."""
-        self.ended.add(source)
-        return self._release()
-
-    def set_quiet(self, sources: Iterable[str]) -> list[StreamRecord]:
-        """These sources are silent (wall clock): they stop holding the others back until they deliver again."""
-        self.quiet = set(sources) & set(self.progress)
-        return self._release()
-
-    def flush(self) -> list[StreamRecord]:
-        """Release everything held, in key order."""
-        return self._release(flushing=True)
-
-    def _release(self, flushing: bool = False) -> list[StreamRecord]:
-        all_live = [p - self.slack for n, p in self.progress.items() if n not in self.ended]
-        voiced = [p - self.slack for n, p in self.progress.items() if n not in self.ended and n not in self.quiet]
-        strict, vouched = min(all_live, default=math.inf), min(voiced, default=math.inf)
-        window = max(self.progress.values()) - self.window
-        limit = math.inf if flushing else max(vouched, window)
-        out = []
-        while self._heap and self._heap[0][0] <= limit:
-            key, _, _, r = heapq.heappop(self._heap)
-            if key > strict:
-                why = "flush" if flushing else ("window" if key > vouched else "quiet")
-                self.stats[f"released_by_{why}"] += 1
-            self.released_key = max(self.released_key, key)
-            out.append(r)
-        return out
+def is_realtime(source: Source) -> bool:
+    """Whether a source produces at the wall clock's pace and cannot be made to wait: a serial or CAN board, or a
+    replay with a speed. A log read as fast as possible (mcap ``speed=max``: None; mdf4 speed 0) and test doubles
+    can wait. Read from the drivers' attributes, since Source has no such flag."""
+    inner = getattr(source, "inner", source)  # engine_service.StampedSource wraps the driver
+    if type(inner).__module__.startswith(LIVE_DRIVERS):
+        return True
+    speed = getattr(inner, "speed", None)
+    return speed is not None and speed > 0
 
 
 class LiveSession:
@@ -178,6 +80,8 @@ class LiveSession:
     on_record : called on the ingest thread with each merged raw record, before the pipeline sees it (cheap: keep a
     reference; exceptions are logged and counted).
     max_results : how many recent results the session holds (``results``); older ones are dropped, still counted.
+    max_queue_s : the most acquisition time the reader -> ingest queue holds (see Backpressure above).
+    drain_s : how long ``stop`` lets the ingest thread work through the queue before dropping the rest.
     config : the monitor's settings (``MonitorConfig``; None: the defaults), e.g. the speed-based sensor-health
     stage switched on (``serve --sensor-health``).
     """
@@ -187,7 +91,7 @@ class LiveSession:
                  quiet_s: float = 0.5, read_timeout_s: float = 0.05,
                  on_result: Callable[[CycleResult], None] | None = None, max_results: int = 20_000,
                  start: bool = True, on_record: Callable[[StreamRecord], None] | None = None,
-                 config: MonitorConfig | None = None) -> None:
+                 config: MonitorConfig | None = None, max_queue_s: float = 10.0, drain_s: float = 5.0) -> None:
         if isinstance(sources, Mapping):
             self.sources = dict(sources)
         else:
@@ -205,7 +109,12 @@ class LiveSession:
         self.errors: Counter[str] = Counter()  # the session's own trouble: recorder, on_result, pipeline bugs
         self._reader_counts: dict[str, Counter[str]] = {n: Counter() for n in self.sources}
         self._heard = dict.fromkeys(self.sources, time.monotonic())  # wall time a reader last got records
-        self._queue: queue.Queue = queue.Queue()
+        self.max_queue_s = max_queue_s
+        self._queue = IngestQueue(max_queue_s * info.tick_hz, info.tick_hz)
+        self._realtime = {n: is_realtime(s) for n, s in self.sources.items()}
+        self.drain_s = drain_s
+        self._drain_until = math.inf  # set by stop(): past it the ingest thread drops what is still queued
+        self.left_at_stop: tuple[int, float] | None = None  # (records, acquisition s) dropped when the drain ran out
         self._stop = threading.Event()
         self._cond = threading.Condition()  # guards results, pipeline counters and the merge's counters
         self._readers = [threading.Thread(target=self._read_loop, args=(n, s), name=f"live-read-{n}", daemon=True)
@@ -226,17 +135,22 @@ class LiveSession:
             t.start()
         return self
 
-    def stop(self, timeout: float = 5.0) -> None:
-        """End the readers, drain and flush, close sources and recorder. Idempotent."""
+    def stop(self, timeout: float | None = None) -> None:
+        """End the readers, drain (at most ``timeout`` s, default ``drain_s``) and flush, close sources and
+        recorder. Idempotent."""
         if self._stopped:
             return
         self._stopped = True
+        drain = self.drain_s = self.drain_s if timeout is None else timeout
+        self._drain_until = time.monotonic() + drain
         self._stop.set()
+        self._queue.close()  # a replay reader waiting for room gives up
         if self._started:
             for t in self._readers:
-                t.join(timeout)
-            self._queue.put((None, _END))
-            self._ingest.join(timeout)
+                t.join(drain)
+            self._queue.put_marker(None, _END)
+            # the drain's deadline, plus the cycle in progress and the pipeline's flush
+            self._ingest.join(max(0.0, self._drain_until - time.monotonic()) + 2.0)
         for name, src in self.sources.items():
             try:
                 src.close()
@@ -247,6 +161,15 @@ class LiveSession:
         alive = [t.name for t in (*self._readers, self._ingest) if t.is_alive()]
         if alive:
             log.error("live session: threads still running after stop: %s", alive)
+
+    def lag(self) -> IngestLag:
+        """How far the ingest thread is behind the readers (never waits for the ingest thread)."""
+        return self._queue.lag()
+
+    @property
+    def realtime(self) -> bool:
+        """Whether any source is real-time (its lag is a lag behind the engine, not a replay's read-ahead)."""
+        return any(self._realtime.values())
 
     @property
     def threads(self) -> list[threading.Thread]:
@@ -316,7 +239,7 @@ class LiveSession:
             try:
                 records = src.read(timeout=self.read_timeout_s)
             except EndOfStream:
-                self._queue.put((name, _END))
+                self._queue.put_marker(name, _END)
                 return
             except Exception as exc:  # noqa: BLE001 - counted; a reader thread must not die of one bad read
                 reason = f"reader_error: {type(exc).__name__}"
@@ -329,7 +252,7 @@ class LiveSession:
                 continue
             if records:
                 self._heard[name] = time.monotonic()  # stamped here: a busy ingest thread must not see silence
-                self._queue.put((name, records))
+                self._queue.put(name, records, max(record_key(r) for r in records), self._realtime[name])
 
     def _ingest_loop(self) -> None:
         while True:
@@ -339,6 +262,8 @@ class LiveSession:
                 name, item = "", None
             if name is None:  # stop(): the readers have ended; what is still queued came before this
                 break
+            if time.monotonic() > self._drain_until and self.left_at_stop is None:
+                self._left_at_stop()
             now = time.monotonic()
             quiet = {n for n, t in self._heard.items() if now - t >= self.quiet_s}
             with self._cond:  # the merge's progress and counts are read by other threads
@@ -355,6 +280,14 @@ class LiveSession:
         with self._cond:
             self._publish(self.pipeline.flush())
             self._cond.notify_all()
+
+    def _left_at_stop(self) -> None:
+        """The drain's time is up: drop what is queued, say how much."""
+        records, span_s = self._queue.discard()
+        self.left_at_stop = (records, span_s)
+        if records:
+            log.warning("live session: stop left %d queued records (%.1f s of acquisition) unanalysed: the drain's "
+                        "%.1f s were up", records, span_s, self.drain_s)
 
     def _deliver(self, records: list[StreamRecord]) -> None:
         if not records:

@@ -10,17 +10,27 @@ in one process, or a test, never share series).
     frictionwatch_cycle_to_api_seconds{engine}      histogram: a result -> visible to the API's routes
     frictionwatch_listener_drops_total{engine,listener}  events a full listener queue dropped
     frictionwatch_sse_dropped_total                 events slow stream clients lost
+    frictionwatch_ingest_queued_cycles{engine}      gauge: cycles of data waiting for the monitor (NaN before the first)
+    frictionwatch_ingest_queued_seconds{engine}     gauge: acquisition seconds waiting
+    frictionwatch_ingest_behind_seconds{engine}     gauge: wall seconds the oldest waiting data have waited
+    frictionwatch_ingest_dropped_records_total{engine}  records the bounded queue dropped (the oldest go)
+    frictionwatch_ingest_dropped_seconds_total{engine}  acquisition seconds they covered
+    frictionwatch_rate_limited_total                large queries refused with 429
+    frictionwatch_http_request_seconds{route}       histogram: a request's time in the server (queued for a worker
+                                                    thread included), by route function (what a client's p99 is
+                                                    made of, without the client's own delays)
 """
 
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Iterable
 from typing import Any
 
 from frictionwatch.service.listeners import Listener, ServiceEvent
 from prometheus_client import CollectorRegistry, Gauge, Histogram, generate_latest
-from prometheus_client.core import CounterMetricFamily
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
 from prometheus_client.registry import Collector
 
 LATENCY_BUCKETS_S = (0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
@@ -39,13 +49,38 @@ class ServiceMetrics:
                                  ["engine"], buckets=LATENCY_BUCKETS_S, registry=self.registry)
         self.to_api = Histogram("frictionwatch_cycle_to_api_seconds", "Result -> visible to the API",
                                 ["engine"], buckets=LATENCY_BUCKETS_S, registry=self.registry)
+        self.requests = Histogram("frictionwatch_http_request_seconds", "Request received -> response sent",
+                                  ["route"], buckets=LATENCY_BUCKETS_S, registry=self.registry)
+        self.rate_limited: Callable[[], int] = lambda: 0  # the app sets its bucket's count
         self.registry.register(_EngineCounters(engines, sse_dropped))
+        self.registry.register(_Backlog(engines, lambda: self.rate_limited()))
 
     def listener(self, engine_id: str) -> MetricsListener:
         return MetricsListener(self, engine_id)
 
     def text(self) -> bytes:
         return generate_latest(self.registry)
+
+
+class RequestTimer:
+    """Pure ASGI middleware: each HTTP request's time into ``metrics.requests``, labelled by the route's function
+    name (a fixed set; 'other' for a path no route matched). The event stream is left out: it lasts as long as its
+    client."""
+
+    def __init__(self, app: Any, metrics: ServiceMetrics) -> None:
+        self.app, self.metrics = app, metrics
+
+    async def __call__(self, scope: Any, receive: Any, send: Any) -> None:
+        if scope["type"] != "http" or scope["path"].endswith("/stream"):
+            await self.app(scope, receive, send)
+            return
+        t = time.perf_counter()
+        try:
+            await self.app(scope, receive, send)
+        finally:
+            endpoint = scope.get("endpoint")
+            route = getattr(endpoint, "__name__", "other")
+            self.metrics.requests.labels(route).observe(time.perf_counter() - t)
 
 
 class MetricsListener(Listener):
@@ -96,4 +131,30 @@ class _EngineCounters(Collector):
         yield from (ok, skipped, drops, sse)
 
     def describe(self) -> Iterable[CounterMetricFamily]:
+        return []
+
+
+class _Backlog(Collector):
+    """Each engine's ingest backlog (EngineService.backlog), read at scrape time."""
+
+    def __init__(self, engines: Callable[[], Iterable[Any]], rate_limited: Callable[[], int]) -> None:
+        self.engines, self.rate_limited = engines, rate_limited
+
+    def collect(self) -> Iterable[Any]:
+        gauges = {key: GaugeMetricFamily(f"frictionwatch_ingest_{name}", text, labels=["engine"]) for key, name, text in (
+            ("queued_cycles", "queued_cycles", "Cycles of data waiting for the monitor"),
+            ("queued_s", "queued_seconds", "Acquisition seconds waiting for the monitor"),
+            ("behind_s", "behind_seconds", "Wall seconds the oldest waiting data have waited"))}
+        counters = {key: CounterMetricFamily(f"frictionwatch_ingest_{name}", text, labels=["engine"]) for key, name, text
+                    in (("dropped_records", "dropped_records", "Records the bounded ingest queue dropped"),
+                        ("dropped_s", "dropped_seconds", "Acquisition seconds the dropped records covered"))}
+        for e in self.engines():
+            lag = e.backlog()
+            for key, fam in (*gauges.items(), *counters.items()):
+                fam.add_metric([e.engine_id], math.nan if lag[key] is None else float(lag[key]))
+        limited = CounterMetricFamily("frictionwatch_rate_limited", "Large queries refused with 429")
+        limited.add_metric([], self.rate_limited())
+        yield from (*gauges.values(), *counters.values(), limited)
+
+    def describe(self) -> Iterable[Any]:
         return []

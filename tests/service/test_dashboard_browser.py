@@ -13,6 +13,7 @@ Chromium comes from scripts/install-chromium.sh (.ci/run calls it); without it t
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -138,6 +139,9 @@ def test_live_indicator_and_cycle_counter(page):
     assert page.evaluate(events) > first_events  # by the event stream, not the page's fallback poll
     for element_id, unit in (("rpm", "rpm"), ("load", "kW"), ("friction-balance", "N·m"), ("engine-fmep", "bar")):
         assert unit in text(page, element_id), element_id
+    # the monitor's backlog (GET /engines' backlog): what is queued and how far behind, in words
+    assert re.fullmatch(r"[\d.]+ cycles queued, [\d.]+ s behind(; dropped .+)?", text(page, "backlog")), \
+        text(page, "backlog")
 
 
 def test_alerts_match_the_api_and_the_token_is_kept_per_tab(page, server):

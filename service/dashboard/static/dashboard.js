@@ -43,6 +43,20 @@ function showEngine(e) {
   const total = skipped.reduce((n, [, v]) => n + v, 0);
   $("cycles-skipped").textContent = total
     ? `${total} (${skipped.map(([k, v]) => `${k.replaceAll("_", " ")}: ${v}`).join(", ")})` : "0";
+  showBacklog(e.backlog);
+}
+
+/** The monitor's backlog (GET /engines' `backlog`): cycles waiting, seconds behind, what the bounded queue dropped.
+ * Marked when /health would call the engine degraded for it. */
+function showBacklog(b) {
+  const box = $("backlog");
+  if (!b) { box.textContent = "—"; return; }
+  const cycles = isNum(b.queued_cycles) ? `${fmt(b.queued_cycles, 0)} cycles` : `${fmt(b.queued_s, 1)} s of data`;
+  const dropped = b.dropped_records ? `; dropped ${isNum(b.dropped_cycles) ? `~${fmt(b.dropped_cycles, 0)} cycles`
+    : `${b.dropped_records} records`} to keep up` : "";
+  box.textContent = `${cycles} queued, ${fmt(b.behind_s, 1)} s behind${dropped}`;
+  box.className = b.behind ? "backlog-behind" : "";
+  box.dataset.behind = b.behind ? "1" : "0";
 }
 
 function selectedEngine() {

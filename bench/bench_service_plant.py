@@ -1,0 +1,169 @@
+"""A plant on one `frictionwatch serve` (issue 28 checks): several genset-v20 at real time (the demo log looped,
+speed=1, one engine per --source), then one of two loads:
+
+- ``mix``: ``--rate`` requests/s for ``--seconds`` s of a dashboard mix that includes window means (100, 1000 and 5000
+  cycles) and the large speed history; reports cycles analysed (and skipped: the loop's seam) against offered (each
+  engine's speed / 120 times the wall seconds: the looped log plays continuously at real time), records the bounded queues dropped, the client's p50 / p99 and the replies by status.
+- ``lag``: no requests; polls /health every 0.5 s and reports when each engine first shows ``behind`` (and the
+  status 'degraded'), the largest queue seen, what was dropped, and the server's RSS each second (memory bounded:
+  it must stop growing once the queues are full).
+
+    .venv/bin/python -m bench.bench_service_plant mix --engines 4 --rate 200 --seconds 60
+    .venv/bin/python -m bench.bench_service_plant lag --engines 12 --seconds 60 --cpu 1   # the server on one core
+
+Minutes of wall time; not part of `make bench` nor the tests. On a shared box quote `uptime` beside the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import queue
+import re
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+from prometheus_client.parser import text_string_to_metric_families
+
+from bench.bench_service_load import cpu_s, hist_quantile, load
+
+ROOT = Path(__file__).resolve().parents[1]
+CYCLE_REVS = 2.0  # four-stroke: a cycle is two revolutions
+
+
+def mix_routes(engines: list[str]) -> list[str]:
+    per = []
+    for e in engines:
+        base = f"/api/v1/engines/{e}"
+        per += [f"{base}/losses", f"{base}/losses?window_cycles=100", f"{base}/losses?window_cycles=1000",
+                f"{base}/losses?window_cycles=5000", f"{base}/cycles/latest", f"{base}/cycles/latest",
+                f"{base}/speed", f"{base}/friction-torque", f"{base}/speed?cycles=5000"]
+    return per + ["/api/v1/health", "/api/v1/engines", "/metrics"]
+
+
+def counters(client: httpx.Client) -> dict:
+    fams = {f.name: f for f in text_string_to_metric_families(client.get("/metrics").text)}
+    out = {"processed": 0.0, "dropped_records": 0.0, "skipped": 0.0, "requests_hist": {}}
+    for s in fams["frictionwatch_http_request_seconds"].samples:  # all routes together, cumulative by bound
+        if s.name.endswith("_bucket"):
+            le = float(s.labels["le"])
+            out["requests_hist"][le] = out["requests_hist"].get(le, 0.0) + s.value
+    for name, key in (("frictionwatch_cycles_processed", "processed"), ("frictionwatch_cycles_skipped", "skipped"),
+                      ("frictionwatch_ingest_dropped_records", "dropped_records")):
+        out[key] = sum(s.value for s in fams[name].samples if s.name.endswith("_total"))
+    return out
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def start_server(n: int, cpu: int | None, history: int) -> tuple[subprocess.Popen, str]:
+    cmd = [sys.executable, "-m", "frictionwatch.service.cli", "serve", "--port", "0", "--history-cycles", str(history)]
+    for i in range(n):
+        cmd += ["--source", f"mcap:replay_logs/demo.mcap?loop=1&speed=1#g{i + 1}"]
+    if cpu is not None:
+        cmd = ["taskset", "-c", str(cpu), *cmd]
+    proc = subprocess.Popen(cmd, cwd=ROOT, text=True, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    lines: queue.Queue = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(x) for x in proc.stdout], daemon=True).start()
+    while True:
+        m = re.search(r"dashboard at (\S+)", lines.get(timeout=600))
+        if m:
+            return proc, m[1]
+
+
+def wait_first_results(client: httpx.Client, engines: list[str]) -> float:
+    t0 = time.monotonic()
+    while not all(client.get(f"/api/v1/engines/{e}/cycles/latest").status_code == 200 for e in engines):
+        time.sleep(0.5)
+    return time.monotonic() - t0
+
+
+def run_mix(args, client: httpx.Client, url: str, pid: int, engines: list[str]) -> dict:
+    time.sleep(args.settle)
+    c0, cpu0, w0 = counters(client), cpu_s(pid), time.monotonic()
+    import bench.bench_service_load as single
+
+    single.ROUTES = mix_routes(engines)  # load() sends ROUTES[i % len(ROUTES)]
+    lat = load(url, args.rate, args.seconds)
+    time.sleep(2.0)  # the cycles whose data came during the load
+    c1, cpu1, w1 = counters(client), cpu_s(pid), time.monotonic()
+    ms = lat["latency_s"] * 1e3
+    rpm = [client.get(f"/api/v1/engines/{e}/cycles/latest").json()["rpm_mean"] for e in engines]
+    offered = sum(r / 60.0 / CYCLE_REVS for r in rpm) * (w1 - w0)
+    codes, counts = np.unique(lat["status"], return_counts=True)
+    return {"requests": lat["n"], "by_status": {str(k): int(v) for k, v in zip(codes, counts)},
+            "latency_ms": {"p50": float(np.nanpercentile(ms, 50)), "p99": float(np.nanpercentile(ms, 99)),
+                           "max": float(np.nanmax(ms))},
+            "client_send_late_ms_p99": float(np.percentile(lat["send_late_s"] * 1e3, 99)),
+            "server_request_s": {f"p{q}_le": hist_quantile(c0["requests_hist"], c1["requests_hist"], q / 100)
+                                 for q in (50, 99)},
+            "cycles_analysed": c1["processed"] - c0["processed"], "cycles_offered": offered,
+            "cycles_skipped": c1["skipped"] - c0["skipped"],
+            "records_dropped_by_the_bounded_queue": c1["dropped_records"] - c0["dropped_records"],
+            "server_cpu_s_per_wall_s": (cpu1 - cpu0) / (w1 - w0)}
+
+
+def run_lag(args, client: httpx.Client, pid: int, engines: list[str]) -> dict:
+    t0 = time.monotonic()
+    first_behind: dict[str, float] = {}
+    degraded_at, rss, max_queued = None, [], dict.fromkeys(engines, 0.0)
+    while time.monotonic() - t0 < args.seconds:
+        doc = client.get("/api/v1/health").json()
+        now = time.monotonic() - t0
+        if doc["status"] == "degraded" and degraded_at is None:
+            degraded_at = now
+        for row in doc["engines"]:
+            max_queued[row["engine_id"]] = max(max_queued[row["engine_id"]], row["queued_s"])
+            if row["behind"] and row["engine_id"] not in first_behind:
+                first_behind[row["engine_id"]] = now
+        rss.append((round(now, 1), round(rss_mb(pid))))
+        time.sleep(0.5)
+    end = {r["engine_id"]: r for r in client.get("/api/v1/health").json()["engines"]}
+    return {"degraded_after_s": degraded_at, "first_behind_s": first_behind,
+            "max_queued_s": max(max_queued.values()), "dropped_records": sum(r["dropped_records"] for r in end.values()),
+            "dropped_cycles": sum(r["dropped_cycles"] or 0 for r in end.values()),
+            "rss_mb_first_last_max": (rss[0][1], rss[-1][1], max(m for _, m in rss)), "rss_mb_every_5s": rss[::10]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("mode", choices=("mix", "lag"))
+    ap.add_argument("--engines", type=int, default=4)
+    ap.add_argument("--seconds", type=float, default=60.0)
+    ap.add_argument("--rate", type=float, default=200.0)
+    ap.add_argument("--settle", type=float, default=10.0, help="seconds after the first results before the load")
+    ap.add_argument("--cpu", type=int, help="pin the server to this core (taskset)")
+    ap.add_argument("--history-cycles", type=int, default=5000,
+                    help="serve's history per engine: a short one shows the memory plateau in a short run")
+    args = ap.parse_args()
+    engines = [f"g{i + 1}" for i in range(args.engines)]
+    proc, url = start_server(args.engines, args.cpu, args.history_cycles)
+    try:
+        with httpx.Client(base_url=url, timeout=10) as client:
+            first = wait_first_results(client, engines)
+            out = (run_mix(args, client, url, proc.pid, engines) if args.mode == "mix"
+                   else run_lag(args, client, proc.pid, engines))
+        proc.terminate()
+        t = time.monotonic()
+        proc.wait(60)
+        out.update(first_results_s=first, sigterm_exit_s=time.monotonic() - t, exit_code=proc.returncode)
+        print(json.dumps({"mode": args.mode, "engines": args.engines, "seconds": args.seconds, "rate": args.rate,
+                          "cpu": args.cpu, "history_cycles": args.history_cycles, "loadavg": os.getloadavg(), **out}, indent=1, default=float))
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,160 @@
+"""The queue between a live session's reader threads and its ingest thread, bounded by the acquisition time it holds.
+
+    q = IngestQueue(max_span_ticks=10 * tick_hz, tick_hz=tick_hz)
+    q.put("teeth", records, key, realtime=True)   # reader thread; key: the batch's newest tick (live.record_key)
+    name, item = q.get(timeout=0.05)              # ingest thread; queue.Empty when nothing came
+    q.lag()                                       # IngestLag: acquisition seconds queued, wall seconds behind
+
+Policy (issue 28 item 3). The queue never holds more than ``max_span_ticks`` of acquisition time (newest queued
+key minus oldest queued key), whatever the ingest thread's speed:
+
+- a real-time source (a serial board, a CAN bus, a replay paced by the wall clock) cannot be asked to wait — its
+  bytes would pile up in the OS or be lost unseen — so its batch is queued and the *oldest* queued batches are
+  dropped until the span fits again: the newest data are kept, and what is dropped is counted (records and
+  acquisition seconds) and logged (the first time, then at most once a minute);
+- a source that can wait (a log replayed as fast as it can be read) blocks in ``put`` until the span fits: a replay
+  loses nothing and no longer loads the whole log into memory.
+
+Markers (a source's end, the session's stop) are never dropped and never wait. ``discard`` empties the queue on a
+stop whose drain time is up and says how much it threw away.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+DROP_LOG_EVERY_S = 60.0  # a session that keeps falling behind logs its drop count this often, not per batch
+
+
+@dataclass(frozen=True)
+class IngestLag:
+    """How far the ingest thread is behind its readers. ``queued_s``: acquisition time waiting (newest queued key
+    minus oldest); ``behind_s``: wall time the oldest waiting batch has waited; ``dropped_*``: thrown away so far."""
+
+    queued_s: float
+    behind_s: float
+    queued_batches: int
+    dropped_records: int
+    dropped_s: float
+    last_drop_age_s: float | None  # wall seconds since records were last dropped (None: never)
+
+
+@dataclass
+class _Item:
+    source: str
+    payload: Any  # a list of records, or a marker object
+    key: float | None  # newest tick of the batch; None for a marker
+    read_s: float  # monotonic time the reader got it
+
+
+class IngestQueue:
+    """See the module docstring. Thread-safe; one consumer."""
+
+    def __init__(self, max_span_ticks: float, tick_hz: float) -> None:
+        if not (max_span_ticks > 0 and tick_hz > 0):
+            raise ValueError(f"need max_span_ticks > 0 and tick_hz > 0, got {max_span_ticks}, {tick_hz}")
+        self.max_span, self.tick_hz = float(max_span_ticks), float(tick_hz)
+        self._items: deque[_Item] = deque()
+        self._data = 0  # batches (not markers) queued
+        self._newest_key = -float("inf")  # of the batches put (lag() need not scan the queue for it)
+        self._cond = threading.Condition()
+        self._closed = False
+        self.dropped_records = 0
+        self.dropped_ticks = 0.0
+        self._last_drop_log = -float("inf")
+        self._last_drop_s: float | None = None
+
+    # --- readers -------------------------------------------------------------------------------------------------
+    def put(self, source: str, records: list, key: float, realtime: bool) -> None:
+        with self._cond:
+            if not realtime:  # a replay waits for room; a closed queue (stop) takes it without waiting
+                self._cond.wait_for(lambda: self._closed or self._span_with(key) <= self.max_span)
+            self._items.append(_Item(source, records, float(key), time.monotonic()))
+            self._data += 1
+            self._newest_key = max(self._newest_key, float(key))
+            if realtime:
+                self._drop_oldest()
+            self._cond.notify_all()
+
+    def put_marker(self, source: str | None, marker: object) -> None:
+        with self._cond:
+            self._items.append(_Item(source, marker, None, time.monotonic()))  # type: ignore[arg-type]
+            self._cond.notify_all()
+
+    def close(self) -> None:
+        """Readers that wait for room stop waiting (the session is stopping)."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    # --- the ingest thread ---------------------------------------------------------------------------------------
+    def get(self, timeout: float) -> tuple[str | None, Any]:
+        with self._cond:
+            if not self._cond.wait_for(lambda: bool(self._items), timeout):
+                raise queue.Empty
+            item = self._items.popleft()
+            if item.key is not None:
+                self._data -= 1
+            self._cond.notify_all()  # a waiting replay reader may have room now
+            return item.source, item.payload
+
+    def discard(self) -> tuple[int, float]:
+        """Drop every queued batch (markers stay): (records, acquisition seconds) thrown away."""
+        with self._cond:
+            keys = [it.key for it in self._items if it.key is not None]
+            records = sum(len(it.payload) for it in self._items if it.key is not None)
+            self._items = deque(it for it in self._items if it.key is None)
+            self._data = 0
+            span = (max(keys) - min(keys)) / self.tick_hz if keys else 0.0
+            self._cond.notify_all()
+            return records, span
+
+    # --- what it shows -------------------------------------------------------------------------------------------
+    def lag(self) -> IngestLag:
+        with self._cond:
+            first = next((it for it in self._items if it.key is not None), None)
+            queued = 0.0 if first is None else max(0.0, self._newest_key - first.key) / self.tick_hz
+            behind = 0.0 if first is None else time.monotonic() - first.read_s
+            dropped_age = None if self._last_drop_s is None else time.monotonic() - self._last_drop_s
+            return IngestLag(queued, behind, self._data, self.dropped_records, self.dropped_ticks / self.tick_hz,
+                             dropped_age)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    # --- policy --------------------------------------------------------------------------------------------------
+    def _span_with(self, key: float) -> float:
+        first = next((it for it in self._items if it.key is not None), None)
+        return 0.0 if first is None else key - first.key  # type: ignore[operator]
+
+    def _drop_oldest(self) -> None:
+        """Called with the lock held, after an append: drop the oldest batches until the span fits (the newest
+        batch itself is always kept)."""
+        newest = self._items[-1].key
+        dropped, first_dropped = 0, None
+        while self._data > 1:
+            i, first = next((i, it) for i, it in enumerate(self._items) if it.key is not None)
+            if newest - first.key <= self.max_span:
+                break
+            del self._items[i]
+            self._data -= 1
+            dropped += len(first.payload)
+            first_dropped = first.key if first_dropped is None else first_dropped
+        if dropped:
+            nxt = next(it.key for it in self._items if it.key is not None)
+            self.dropped_records += dropped
+            self.dropped_ticks += max(0.0, nxt - first_dropped)  # the acquisition time the dropped batches covered
+            now = self._last_drop_s = time.monotonic()
+            if now - self._last_drop_log >= DROP_LOG_EVERY_S:
+                self._last_drop_log = now
+                log.warning("ingest is behind by more than %.1f s of acquisition: the oldest queued records are "
+                            "dropped, the newest kept (%d records, %.1f s of acquisition dropped so far)",
+                            self.max_span / self.tick_hz, self.dropped_records, self.dropped_ticks / self.tick_hz)

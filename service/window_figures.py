@@ -1,0 +1,112 @@
+"""What a window mean (GET .../losses?window_cycles=N) is made of, and the plain way to compute it from every cycle.
+
+Each cycle's own estimate (``CycleResult.to_json(smoothed=False)``) becomes one row of numbers (``cycle_row``): the
+engine's measured FMEP, and per cylinder the friction torque, the FMEP, the data weight, each loss coefficient and
+the figure's status. A window's figures (``WindowFigures``) are each number's mean, the 1-sigma of that mean from
+the cycle-to-cycle scatter and how many cycles had it, the status counts per cylinder and the flag counts.
+
+``figures_from_cycles`` computes them from the window's cycles one by one: the reference. The service reads them
+from running sums kept once per cycle (service/window_sums.py, O(1) per request); a test holds the two together.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from frictionwatch.core.monitor.report.figure_status import STATUSES
+from frictionwatch.core.monitor.report.results import CycleResult
+from frictionwatch.core.monitor.report.run_summary import mean_and_sem
+
+
+@dataclass(frozen=True)
+class RowLayout:
+    """Where each number of a cycle's row sits: column 0 the engine FMEP, then per cylinder torque, FMEP, data
+    weight and the ``n_coefs`` coefficients."""
+
+    n_cyl: int
+    n_coefs: int
+
+    @property
+    def per_cyl(self) -> int:
+        return 3 + self.n_coefs
+
+    @property
+    def width(self) -> int:
+        return 1 + self.n_cyl * self.per_cyl
+
+    def torque(self, k: int) -> int:
+        return 1 + k * self.per_cyl
+
+    def fmep(self, k: int) -> int:
+        return self.torque(k) + 1
+
+    def weight(self, k: int) -> int:
+        return self.torque(k) + 2
+
+    def coef(self, k: int, j: int) -> int:
+        return self.torque(k) + 3 + j
+
+
+def _f(x: float | None) -> float:
+    return math.nan if x is None else float(x)
+
+
+def layout_of(doc: dict) -> RowLayout:
+    cyls = doc["cylinders"]
+    return RowLayout(len(cyls), len(cyls[0]["coefficients"]) if cyls else 0)
+
+
+def cycle_row(doc: dict, layout: RowLayout) -> tuple[np.ndarray, np.ndarray]:
+    """One cycle's numbers (NaN where a figure is null) and each cylinder's status as an index into STATUSES."""
+    row = np.full(layout.width, np.nan)
+    row[0] = _f(doc["fmep_bar"])  # the flat key: a value only where the engine's friction is measured
+    status = np.empty(layout.n_cyl, np.int64)
+    for k, cyl in enumerate(doc["cylinders"]):
+        fig = cyl["friction"]
+        row[layout.torque(k)] = _f(fig["friction_torque_mean_nm"])
+        row[layout.fmep(k)] = _f(fig["fmep_bar"])
+        row[layout.weight(k)] = _f(fig["data_weight"])
+        start = layout.coef(k, 0)
+        row[start:start + layout.n_coefs] = [_f(c) for c in cyl["coefficients"]]
+        status[k] = STATUSES.index(fig["status"])
+    return row, status
+
+
+@dataclass(frozen=True)
+class WindowFigures:
+    """The figures of a window of ``cycles`` consecutive cycles (``first_cycle`` .. ``last_cycle``): per column of
+    ``layout``, the mean of the finite values, the 1-sigma of that mean (NaN for fewer than two) and how many;
+    ``status_counts`` (n_cyl, len(STATUSES)); ``flag_counts``: cycles of the window that raised each flag."""
+
+    layout: RowLayout
+    cycles: int
+    first_cycle: int
+    last_cycle: int
+    mean: np.ndarray
+    sem: np.ndarray
+    count: np.ndarray
+    status_counts: np.ndarray
+    flag_counts: dict[str, int]
+
+    def stat(self, col: int) -> tuple[float, float, int]:
+        return float(self.mean[col]), float(self.sem[col]), int(self.count[col])
+
+
+def figures_from_cycles(results: Sequence[CycleResult]) -> WindowFigures:
+    """The reference: every cycle of the window read again (cost grows with the window)."""
+    docs = [r.to_json(smoothed=False) for r in results]
+    layout = layout_of(docs[-1])
+    rows, statuses = zip(*(cycle_row(d, layout) for d in docs))
+    values = np.array(rows)
+    stats = [mean_and_sem(values[:, c]) for c in range(layout.width)]
+    counts = np.zeros((layout.n_cyl, len(STATUSES)), np.int64)
+    for st in statuses:
+        counts[np.arange(layout.n_cyl), st] += 1
+    flags = Counter(f for r in results for f in set(r.flags))
+    return WindowFigures(layout, len(results), int(results[0].index), int(results[-1].index),
+                         np.array([s[0] for s in stats]), np.array([s[1] for s in stats]),
+                         np.array([s[2] for s in stats]), counts, dict(flags))

@@ -1,0 +1,78 @@
+"""The bounded reader -> ingest queue (service/ingest_queue.py): a real-time source keeps the newest and counts what it
+drops; a replay waits for room and loses nothing; markers are never dropped."""
+
+from __future__ import annotations
+
+import queue
+import threading
+
+import pytest
+from frictionwatch.service.ingest_queue import IngestQueue
+
+HZ = 1000.0  # ticks per second of these tests
+
+
+def drain(q: IngestQueue) -> list:
+    out = []
+    while True:
+        try:
+            out.append(q.get(timeout=0.0))
+        except queue.Empty:
+            return out
+
+
+def test_realtime_keeps_the_newest_and_counts_the_dropped() -> None:
+    q = IngestQueue(max_span_ticks=2.0 * HZ, tick_hz=HZ)
+    for i in range(10):  # one batch of 3 records a second of acquisition, for 10 s: never more than 2 s queued
+        q.put("teeth", [i] * 3, key=i * HZ, realtime=True)
+        assert q.lag().queued_s <= 2.0
+    kept = [payload[0] for _, payload in drain(q)]
+    assert kept == [7, 8, 9]  # the newest 2 s (keys 7, 8, 9 s span exactly 2 s)
+    lag = q.lag()
+    assert lag.dropped_records == 7 * 3
+    assert lag.dropped_s == pytest.approx(7.0)  # batches at 0..6 s dropped: 7 s of acquisition (0 -> 7)
+    assert lag.last_drop_age_s is not None and lag.queued_batches == 0
+
+
+def test_markers_are_never_dropped() -> None:
+    q = IngestQueue(max_span_ticks=1.0 * HZ, tick_hz=HZ)
+    end = object()
+    q.put("a", [0], key=0.0, realtime=True)
+    q.put_marker("b", end)
+    for i in range(1, 6):
+        q.put("a", [i], key=i * HZ, realtime=True)
+    items = drain(q)
+    assert ("b", end) in items and [p for _, p in items if p is not end] == [[4], [5]]
+
+
+def test_a_replay_waits_for_room_and_loses_nothing() -> None:
+    q = IngestQueue(max_span_ticks=2.0 * HZ, tick_hz=HZ)
+    done = threading.Event()
+
+    def reader() -> None:
+        for i in range(20):
+            q.put("log", [i], key=i * HZ, realtime=False)
+        done.set()
+
+    threading.Thread(target=reader, daemon=True).start()
+    assert not done.wait(0.3)  # blocked: 3 batches (0, 1, 2 s) fill the 2 s span
+    assert q.lag().queued_s <= 2.0
+    got = []
+    while len(got) < 20:
+        got.append(q.get(timeout=5.0)[1][0])
+        assert q.lag().queued_s <= 2.0
+    assert got == list(range(20)) and done.wait(5.0) and q.lag().dropped_records == 0
+
+
+def test_close_releases_a_waiting_replay_and_discard_says_what_it_dropped() -> None:
+    q = IngestQueue(max_span_ticks=1.0 * HZ, tick_hz=HZ)
+    q.put("log", [0, 0], key=0.0, realtime=False)
+    q.put("log", [1, 1], key=1.0 * HZ, realtime=False)
+    t = threading.Thread(target=q.put, args=("log", [2], 2.0 * HZ, False), daemon=True)
+    t.start()
+    t.join(0.2)
+    assert t.is_alive()
+    q.close()
+    t.join(5.0)
+    assert not t.is_alive()
+    assert q.discard() == (5, pytest.approx(2.0)) and len(q) == 0
