@@ -60,24 +60,26 @@ from frictionwatch.core.types import (
 )
 from frictionwatch.drivers.errors import EndOfStream
 from frictionwatch.drivers.logs.recorder import Recorder
-from frictionwatch.drivers.source import Source
+from frictionwatch.drivers.source import Source, StreamRestart
 from frictionwatch.service.pipeline import EnginePipeline, LogAnalysis, ResultHistory
 
 log = logging.getLogger(__name__)
 
-_RANK = {ToothBatch: 0, CamBatch: 1, PressureBlock: 2, PressureFrame: 2, LoadSample: 3}  # ties: the simulator's order
+# ties: the simulator's order; a restart mark before the records it precedes
+_RANK = {StreamRestart: -1, ToothBatch: 0, CamBatch: 1, PressureBlock: 2, PressureFrame: 2, LoadSample: 3}
 _END = object()
 
 
-def record_key(record: StreamRecord) -> float:
-    """Tick of the record's last element (when it was complete): drivers.logs.mcap_schema.last_tick as a float."""
+def record_key(record: StreamRecord | StreamRestart) -> float:
+    """Tick of the record's last element (when it was complete): drivers.logs.mcap_schema.last_tick as a float; a
+    restart mark's own tick."""
     if isinstance(record, ToothBatch | CamBatch):
         return float(record.ticks[-1])
     if isinstance(record, PressureBlock):
         return float(record.t0_ticks) + (len(record.values) - 1) * float(record.period_ticks)
     if isinstance(record, PressureFrame):
         return float(record.t0_ticks) + (record.values.shape[-1] - 1) * float(record.period_ticks)
-    if isinstance(record, LoadSample):
+    if isinstance(record, LoadSample | StreamRestart):
         return float(record.ticks)
     raise TypeError(f"not a stream record: {type(record).__name__}")
 
@@ -293,6 +295,12 @@ class LiveSession:
             return Counter(self.pipeline.skipped)
 
     @property
+    def restarts(self) -> Counter[str]:
+        """Stream restarts the pipeline met, by reason (a looped replay's ``loop_restart``): not lost cycles."""
+        with self._cond:
+            return Counter(self.pipeline.restarts)
+
+    @property
     def damage(self) -> dict[str, Counter[str]]:
         """Input damage per source: the source's own counts (decoder, transport) plus reader and merge counts."""
         with self._cond:
@@ -360,6 +368,10 @@ class LiveSession:
         if not records:
             return
         for r in records:
+            if isinstance(r, StreamRestart):  # not data: neither recorded nor handed on, the pipeline restarts
+                with self._cond:
+                    self._publish(self.pipeline.feed(r))
+                continue
             if self.recorder is not None:
                 try:
                     self.recorder.write(r)
