@@ -58,12 +58,22 @@ class CycleSummary(_Open):
     flags: list[str]
 
 
+MEASURED_ONLY = "a measurement only: null where the status is not 'measured' (a share's value is under share_*)"
+SHARE_ONLY = ("the cylinder's share of the engine's measured friction in proportion to its indicated work (paper 000 "
+              "Eq. 6), where the status is 'share': a rule applied to the measured total, not a measurement of this "
+              "cylinder; null otherwise")
+
+
 class CylinderLoss(_Open):
     cylinder: int
-    fmep_bar: float | None
-    fmep_sigma_bar: float | None
-    friction_torque_mean_nm: float | None
-    friction_torque_sigma_nm: float | None
+    fmep_bar: float | None = Field(description=MEASURED_ONLY)
+    fmep_sigma_bar: float | None = Field(description=MEASURED_ONLY)
+    friction_torque_mean_nm: float | None = Field(description=MEASURED_ONLY)
+    friction_torque_sigma_nm: float | None = Field(description=MEASURED_ONLY)
+    share_fmep_bar: float | None = Field(default=None, description=SHARE_ONLY)
+    share_fmep_sigma_bar: float | None = Field(default=None, description=SHARE_ONLY)
+    share_friction_torque_mean_nm: float | None = Field(default=None, description=SHARE_ONLY)
+    share_friction_torque_sigma_nm: float | None = Field(default=None, description=SHARE_ONLY)
     coefficients: dict[str, float | None]
     coefficient_sigmas: dict[str, float | None]
     data_weight: float | None
