@@ -42,6 +42,7 @@ from frictionwatch.service.discrepancy_jobs import KEPT, BusyError, DiscrepancyJ
 from frictionwatch.service.engine_service import EngineService
 from frictionwatch.service.listeners import ServiceEvent, SseBroadcaster
 from frictionwatch.service.metrics import ServiceMetrics
+from frictionwatch.service.routes_startup import startup_router
 from frictionwatch.service.security import ENGINE_ID, bearer_ok
 from sse_starlette import EventSourceResponse
 
@@ -92,6 +93,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
     app = FastAPI(title="frictionwatch", version="1", lifespan=lifespan,
                   description="Live per-cylinder friction losses and alerts. Units in field names.")
     app.state.services, app.state.sse, app.state.metrics, app.state.token = engines, sse, metrics, token
+    app.include_router(startup_router(lambda: list(engines.values())))  # the dashboard's words before a first cycle
     jobs = app.state.discrepancy_jobs = DiscrepancyJobs()
 
     def newest(svc: EngineService, last: int | None = None) -> tuple:

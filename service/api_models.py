@@ -34,6 +34,25 @@ class Health(_Open):
     engines: list[HealthEngine]
 
 
+class StartupEngine(_Open):
+    engine_id: str
+    state: Literal["compiling", "starting", "running"] = Field(
+        description="running: it has analysed a cycle; compiling: not yet, and this process is compiling numba "
+                    "kernels (a fresh install: 1-2 min, first run only); starting: not yet, kernels from the cache")
+    cycles_ok: int
+
+
+class Startup(_Open):
+    """What the service does before each engine's first cycle (service/startup.py); the data routes answer 503
+    until then."""
+
+    state: Literal["compiling", "starting", "running"] = Field(description="the least advanced engine's state")
+    message: str | None = Field(description="the state in words for a person; null when running")
+    kernels_compiled: int = Field(description="numba compilations in this process so far (0: all from the cache)")
+    elapsed_s: float = Field(description="seconds since the process started")
+    engines: list[StartupEngine]
+
+
 class EngineInfo(_Open):
     engine_id: str
     engine_name: str
