@@ -23,17 +23,21 @@ from numba.core import event
 COMPILING_WORDS = "compiling the numerical kernels (first run only)"
 STARTING_WORDS = "waiting for the first cycle"
 TICK_S = 5.0  # the terminal's progress line while an engine waits for its first cycle
+OURS = "frictionwatch."  # the modules whose kernels are counted and named (numba's own overloads are not)
 POLL_S = 0.25  # how soon the end of the start is noticed (and its time printed)
 
 
 class KernelCompiles(event.Listener):
-    """Counts numba's compilations (each kernel and each kernel it calls, per signature) as they end."""
+    """Counts numba's compilations as they end: ``total`` every one (numba's own overloads too), ``done`` our
+    kernels' (each signature once; what the terminal and the dashboard count), ``last`` the newest of ours."""
 
-    def __init__(self) -> None:
+    def __init__(self, ours: str = OURS) -> None:
+        self.ours = ours
         self._lock = threading.Lock()
+        self.total = 0
         self.done = 0
         self.active = 0
-        self.last = ""  # the kernel compiled last (module.name): what the terminal names
+        self.last = ""  # module.name, without the frictionwatch. prefix
 
     def on_start(self, ev: event.Event) -> None:
         with self._lock:
@@ -41,20 +45,23 @@ class KernelCompiles(event.Listener):
 
     def on_end(self, ev: event.Event) -> None:
         func = getattr(ev.data.get("dispatcher"), "py_func", None) if isinstance(ev.data, dict) else None
+        ours = func is not None and str(func.__module__).startswith(self.ours)
         with self._lock:
             self.active -= 1
-            self.done += 1
-            if func is not None:
-                self.last = f"{func.__module__.removeprefix('frictionwatch.')}.{func.__qualname__}"
+            self.total += 1
+            if ours:
+                self.done += 1
+                self.last = f"{func.__module__.removeprefix(self.ours)}.{func.__qualname__}"
 
 
 class StartupState:
-    """The start of this process: when it began and the kernels compiled since (``compiles``)."""
+    """The start of this process: when it began and the kernels compiled since (``compiles``; ``ours``: the
+    module prefix of the kernels counted by name)."""
 
-    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, clock: Callable[[], float] = time.monotonic, ours: str = OURS) -> None:
         self.clock = clock
         self.started_s = clock()
-        self.compiles = KernelCompiles()
+        self.compiles = KernelCompiles(ours)
         event.register("numba:compile", self.compiles)
 
     def close(self) -> None:
@@ -66,7 +73,7 @@ class StartupState:
         (a cold cache: the first cycle waits for the rest), else 'starting'."""
         if cycles_ok > 0:
             return "running"
-        return "compiling" if self.compiles.done or self.compiles.active else "starting"
+        return "compiling" if self.compiles.total or self.compiles.active else "starting"
 
     def document(self, engines: Iterable[Any]) -> dict:
         """The Startup contract (service/api_models.py) for engines with ``engine_id`` and ``cycles_ok``."""

@@ -25,7 +25,7 @@ class Clock:
 
 @pytest.fixture
 def startup():
-    state = StartupState(clock=Clock())
+    state = StartupState(clock=Clock(), ours="tests.")  # the kernels this test compiles count as ours
     yield state
     state.close()
 
@@ -62,7 +62,7 @@ def test_the_terminal_says_what_it_waits_for(startup):
     _compile_a_new_kernel(1.5)
     text, done = ticker.line()
     assert not done and text.startswith(f"frictionwatch serve: {COMPILING_WORDS}: ")
-    assert "test_startup_state" in text  # the kernel compiled last, named
+    assert "service.test_startup_state" in text  # the kernel compiled last, named
     engine.cycles_ok = 3
     text, done = ticker.line()
     assert done and "first cycle analysed after" in text and "cached for the next start" in text
