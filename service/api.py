@@ -118,6 +118,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
             whole, _ = s.state.snapshot(1)
             out.append({"engine_id": s.engine_id, "engine_name": s.spec.name, "n_cylinders": s.spec.n_cyl,
                         "sources": s.urls, "cycles_ok": s.cycles_ok, "skipped": s.skipped,
+                        "restarts": s.restarts,
                         "rpm_latest": None if whole is None else views.num(whole.rpm_mean),
                         "listener_drops": s.fanout.drops, "listener_errors": s.fanout.errors,
                         "session_errors": dict(s.session.errors), "alert_errors": s.alert_errors,

@@ -22,7 +22,7 @@ from frictionwatch.service.live import LiveSession
 from frictionwatch.service.metrics import ServiceMetrics
 from frictionwatch.service.pipeline import EnginePipeline, analyze_log, resolve_model
 
-from tests.service.serve_helpers import DEMO
+from tests.service.serve_helpers import DEMO, demo_service, wait_until
 
 PASSES = 3
 SETTLED = 40  # the first pass is the warm-up: the figures go from the prior to measured there
@@ -65,6 +65,17 @@ def test_a_live_session_restarts_at_the_seam(tmp_path):
         assert session.wait_results(90, timeout=120.0)  # past the second seam
         restarts, skipped = session.restarts, session.skipped
     assert restarts["loop_restart"] >= 2 and "data_gap" not in skipped
+
+
+def test_the_api_counts_restarts_apart_from_lost_cycles():
+    from fastapi.testclient import TestClient
+    from frictionwatch.service.api import create_app
+
+    svc = demo_service("demo", f"mcap:{DEMO}?loop=1")
+    with TestClient(create_app([svc])) as client:
+        assert wait_until(lambda: svc.cycles_ok > 2 * 40 + 5, timeout=120.0)  # past the second seam
+        info = client.get("/api/v1/engines").json()[0]
+    assert info["restarts"]["loop_restart"] >= 2 and "data_gap" not in info["skipped"]
 
 
 def _change_sigma_bar(doc: dict, bar_per_nm: float) -> float:

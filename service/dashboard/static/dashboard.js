@@ -81,8 +81,10 @@ function showEngine(e) {
   $("cycles-processed").textContent = String(e.cycles_ok);
   const skipped = Object.entries(e.skipped || {});
   const total = skipped.reduce((n, [, v]) => n + v, 0);
-  $("cycles-skipped").textContent = total
-    ? `${total} (${skipped.map(([k, v]) => `${k.replaceAll("_", " ")}: ${v}`).join(", ")})` : "0";
+  const restarts = Object.entries(e.restarts || {}).map(([k, v]) => `${k.replaceAll("_", " ")}s: ${v}`);
+  $("cycles-skipped").textContent = (total
+    ? `${total} (${skipped.map(([k, v]) => `${k.replaceAll("_", " ")}: ${v}`).join(", ")})` : "0")
+    + (restarts.length ? ` · ${restarts.join(", ")} (no cycle lost)` : "");
 }
 
 function selectedEngine() {
