@@ -18,7 +18,7 @@ const BY_KEY = "frictionwatch.acknowledged-by";
 const $ = (id) => document.getElementById(id);
 // startup: what the service does before the engine's first cycle (GET api/v1/startup), in words; null once running
 const state = { engines: [], engineId: null, summary: null, es: null, lastCycleAt: 0, connected: false, cycleEvents: 0,
-  startup: null };
+  startup: null, startupTimer: null };
 
 function setLive(mode) {
   if (mode === "live" && state.startup) mode = "starting";  // connected, but nothing to show yet: not green
@@ -35,6 +35,7 @@ function setLive(mode) {
  *  in the banner and in place of the panels, whose routes answer 503 until the first cycle. Asked again every
  *  STARTUP_POLL_MS until the engine runs. An older service without the route (404): no start-up state. */
 async function checkStartup() {
+  clearTimeout(state.startupTimer);  // one chain of checks, whoever asked (a cycle event, an engine change)
   const r = await getJSON("api/v1/startup");
   const mine = r.ok ? (r.data.engines || []).find((e) => e.engine_id === state.engineId) : null;
   const running = !r.ok || !mine || mine.state === "running";
@@ -50,7 +51,8 @@ async function checkStartup() {
   setLive(state.connected ? "live" : $("live").dataset.state || "connecting");
   if (state.startup) {
     startupPanels();
-    setTimeout(checkStartup, STARTUP_POLL_MS);
+    clearTimeout(state.startupTimer);
+    state.startupTimer = setTimeout(checkStartup, STARTUP_POLL_MS);
   } else if (was) { refreshLatest(); plots(); alerts(); }
 }
 
