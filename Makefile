@@ -6,10 +6,13 @@ STAMP := $(VENV)/.installed
 
 .PHONY: run test bench lint clean clean-numba demo-logs
 
+# setuptools' "Editable installation ... careful with folders of the same name" note comes with every editable
+# install (ours maps core/, drivers/, service/ under frictionwatch.*, so no folder shadows the package): filtered;
+# every other build warning still shows
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e '.[test]'
+	PYTHONWARNINGS='ignore:Editable installation' $(BIN)/pip install -q -e '.[test]'
 	touch $(STAMP)
 
 # serve the demo log in a loop at real time; it prints the dashboard URL (Ctrl-C stops it)

@@ -8,7 +8,8 @@ Subpackages:
     assembly  ring buffers, wheel sync and the cycle assembler: stream records -> one ``Cycle`` per 720 deg
 
 Modules here:
-    source    ``Source`` (the base of every live / replay source) and ``open_source`` (the URL registry)
+    source    ``Source`` (the base of every live / replay source), ``open_source`` (the URL registry) and
+              ``StreamRestart`` (the mark of a stream starting again: a looped replay's seam)
     errors    the driver error tree
     timebase  unwrapping the board's 32-bit timer into one int64 tick stream
     sequence  putting frames back in order by their modular sequence counter
@@ -17,7 +18,7 @@ Modules here:
 """
 
 from frictionwatch.drivers.errors import CorruptLog, DeviceLost, DriverError, EndOfStream, FramingError, SyncLost
-from frictionwatch.drivers.source import Source, open_source
+from frictionwatch.drivers.source import Source, StreamRestart, open_source
 
-__all__ = ["CorruptLog", "DeviceLost", "DriverError", "EndOfStream", "FramingError", "Source", "SyncLost",
+__all__ = ["CorruptLog", "DeviceLost", "DriverError", "EndOfStream", "FramingError", "Source", "StreamRestart", "SyncLost",
            "open_source"]

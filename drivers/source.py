@@ -9,6 +9,7 @@ import importlib
 import logging
 from abc import ABC, abstractmethod
 from collections import Counter
+from dataclasses import dataclass
 from urllib.parse import parse_qsl, urlsplit
 
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
@@ -25,6 +26,18 @@ SOURCES: dict[str, tuple[str, str]] = {
 }
 
 
+@dataclass(frozen=True)
+class StreamRestart:
+    """Not data: a mark in a source's record stream that the stream starts again at ``ticks`` and nothing before it
+    continues into what follows (a replayed log looping back to its start, ``mcap:...?loop=1``). The engine pipeline
+    restarts its cycle assembler there and counts a ``reason`` (service.pipeline.EnginePipeline.restarts) instead of
+    reading the seam as a data gap; a recorder does not write it. ``ticks`` lies after every record before the mark
+    and before every record after it, so a time-ordered merge keeps it in place."""
+
+    ticks: int
+    reason: str = "loop_restart"
+
+
 class Source(ABC):
     """A stream of records in acquisition order. ``read`` is written once here; drivers override ``_read_internal``.
 
@@ -39,8 +52,9 @@ class Source(ABC):
         self.damage: Counter[str] = Counter()
         self._closed = False
 
-    def read(self, timeout: float | None = None) -> list[StreamRecord]:
-        """Records available within ``timeout`` seconds ([] if none). Raises EndOfStream when a finite source ends."""
+    def read(self, timeout: float | None = None) -> list[StreamRecord | StreamRestart]:
+        """Records available within ``timeout`` seconds ([] if none), with a ``StreamRestart`` mark where the stream
+        starts again (a looped replay). Raises EndOfStream when a finite source ends."""
         if self._closed:
             raise ValueError("read from a closed source")
         return self._read_internal(timeout)
@@ -52,7 +66,7 @@ class Source(ABC):
         self.damage[reason] += n
 
     @abstractmethod
-    def _read_internal(self, timeout: float | None) -> list[StreamRecord]: ...
+    def _read_internal(self, timeout: float | None) -> list[StreamRecord | StreamRestart]: ...
 
     def _close_internal(self) -> None:  # noqa: B027 - optional hook
         pass

@@ -54,6 +54,7 @@ from frictionwatch.service.listeners import ServiceEvent, SseBroadcaster
 from frictionwatch.service.metrics import RequestTimer, ServiceMetrics
 from frictionwatch.service.rate_limit import TokenBucket
 from frictionwatch.service.request_guard import MAX_BODY_BYTES, UNAUTHORISED, RequestGuard, validation_error
+from frictionwatch.service.routes_startup import startup_router
 from frictionwatch.service.security import ENGINE_ID, bearer_ok
 from sse_starlette import EventSourceResponse
 
@@ -118,6 +119,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
     app.add_exception_handler(RequestValidationError, validation_error)
     large = app.state.large_queries = TokenBucket(LARGE_PER_S, LARGE_BURST)
     metrics.rate_limited = lambda: large.refused
+    app.include_router(startup_router(lambda: list(engines.values())))  # the dashboard's words before a first cycle
     jobs = app.state.discrepancy_jobs = DiscrepancyJobs()
 
     def newest(svc: EngineService, last: int | None = None) -> tuple:
@@ -151,6 +153,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
             whole, _ = s.state.snapshot(1)
             out.append({"engine_id": s.engine_id, "engine_name": s.spec.name, "n_cylinders": s.spec.n_cyl,
                         "sources": s.urls, "cycles_ok": s.cycles_ok, "skipped": s.skipped,
+                        "restarts": s.restarts,
                         "rpm_latest": None if whole is None else views.num(whole.rpm_mean),
                         "listener_drops": s.fanout.drops, "listener_errors": s.fanout.errors,
                         "session_errors": dict(s.session.errors), "alert_errors": s.alert_errors,

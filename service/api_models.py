@@ -46,6 +46,25 @@ class Health(_Open):
     engines: list[HealthEngine]
 
 
+class StartupEngine(_Open):
+    engine_id: str
+    state: Literal["compiling", "starting", "running"] = Field(
+        description="running: it has analysed a cycle; compiling: not yet, and this process is compiling numba "
+                    "kernels (a fresh install: 1-2 min, first run only); starting: not yet, kernels from the cache")
+    cycles_ok: int
+
+
+class Startup(_Open):
+    """What the service does before each engine's first cycle (service/startup.py); the data routes answer 503
+    until then."""
+
+    state: Literal["compiling", "starting", "running"] = Field(description="the least advanced engine's state")
+    message: str | None = Field(description="the state in words for a person; null when running")
+    kernels_compiled: int = Field(description="numba compilations in this process so far (0: all from the cache)")
+    elapsed_s: float = Field(description="seconds since the process started")
+    engines: list[StartupEngine]
+
+
 class EngineInfo(_Open):
     engine_id: str
     engine_name: str
@@ -53,6 +72,8 @@ class EngineInfo(_Open):
     sources: list[str]
     cycles_ok: int
     skipped: dict[str, int]
+    restarts: dict[str, int] = Field(default_factory=dict, description="stream restarts by reason (loop_restart: a "
+                                     "looped replay's seam, where the cycle assembler starts again): not lost cycles")
     rpm_latest: float | None
     listener_drops: dict[str, int] = Field(description="events each fan-out listener lost to a full queue")
     backlog: dict | None = Field(None, description="the monitor's lag as in /health's engine rows (queued_cycles, "
@@ -72,12 +93,22 @@ class CycleSummary(_Open):
     flags: list[str]
 
 
+MEASURED_ONLY = "a measurement only: null where the status is not 'measured' (a share's value is under share_*)"
+SHARE_ONLY = ("the cylinder's share of the engine's measured friction in proportion to its indicated work (paper 000 "
+              "Eq. 6), where the status is 'share': a rule applied to the measured total, not a measurement of this "
+              "cylinder; null otherwise")
+
+
 class CylinderLoss(_Open):
     cylinder: int
-    fmep_bar: float | None
-    fmep_sigma_bar: float | None
-    friction_torque_mean_nm: float | None
-    friction_torque_sigma_nm: float | None
+    fmep_bar: float | None = Field(description=MEASURED_ONLY)
+    fmep_sigma_bar: float | None = Field(description=MEASURED_ONLY)
+    friction_torque_mean_nm: float | None = Field(description=MEASURED_ONLY)
+    friction_torque_sigma_nm: float | None = Field(description=MEASURED_ONLY)
+    share_fmep_bar: float | None = Field(default=None, description=SHARE_ONLY)
+    share_fmep_sigma_bar: float | None = Field(default=None, description=SHARE_ONLY)
+    share_friction_torque_mean_nm: float | None = Field(default=None, description=SHARE_ONLY)
+    share_friction_torque_sigma_nm: float | None = Field(default=None, description=SHARE_ONLY)
     coefficients: dict[str, float | None]
     coefficient_sigmas: dict[str, float | None]
     data_weight: float | None

@@ -50,10 +50,23 @@ def _cylinder_loss(k: int, cyl: dict, names: Sequence[str], flags: frozenset[str
             "flags": sorted(f for f in flags if split_flag(f)[1] == k + 1)}
 
 
+def values_by_status(loss: dict) -> dict:
+    """A CylinderLoss with its figure's values under the name of what they are: the measurement keys
+    (FIGURE_VALUES) hold a value only where the status is 'measured', as ``analyze --json``'s flat keys; a share's
+    value is under ``share_*`` (null otherwise). A client that reads ``fmep_bar`` without ``status`` never takes a
+    share for a measurement. (A cylinder's figure is never the prior: figure_status makes it unresolved then.)"""
+    share = loss["status"] == "share"
+    out = dict(loss)
+    out.update({f"share_{key}": loss[key] if share else None for key in FIGURE_VALUES})
+    if loss["status"] != "measured":
+        out.update(dict.fromkeys(FIGURE_VALUES))
+    return out
+
+
 def cylinder_losses(r: CycleResult, names: Sequence[str]) -> list[dict]:
     """Each cylinder's smoothed loss as this one result reads it (its own flags): what a store keeps per cycle."""
     doc = r.to_json()
-    return [_cylinder_loss(k, c, names, r.flags) for k, c in enumerate(doc["cylinders"])]
+    return [values_by_status(_cylinder_loss(k, c, names, r.flags)) for k, c in enumerate(doc["cylinders"])]
 
 
 def losses_now(engine_id: str, results: Sequence[CycleResult], names: Sequence[str]) -> dict:
@@ -70,7 +83,7 @@ def losses_now(engine_id: str, results: Sequence[CycleResult], names: Sequence[s
             "engine": {**{key: eng[key] for key in FIGURE_VALUES}, "status": eng["status"], "reason": eng["reason"],
                        "calibration": eng["calibration"], "calibration_sigma_nm": eng["calibration_sigma_nm"]},
             "active_flags": sorted(active),
-            "cylinders": [_cylinder_loss(k, c, names, active) for k, c in enumerate(doc["cylinders"])]}
+            "cylinders": [values_by_status(_cylinder_loss(k, c, names, active)) for k, c in enumerate(doc["cylinders"])]}
 
 
 def losses_window(engine_id: str, last: CycleResult, win: WindowFigures, names: Sequence[str]) -> dict:
@@ -108,7 +121,7 @@ def losses_window(engine_id: str, last: CycleResult, win: WindowFigures, names: 
             loss.update(dict.fromkeys(FIGURE_VALUES), status="unresolved",
                         reason=f"the figure's status changed within the window (measured in {n_measured} of "
                                f"{n_cycles} cycles): no mean over the window; see the estimate without a window")
-        cylinders.append(loss)
+        cylinders.append(values_by_status(loss))
     eng_mean, eng_sem, n = win.stat(0)
     eng_cal = status["friction"]["calibration_sigma_nm"] or 0.0
     eng_sem = math.hypot(eng_sem, eng_cal * mep_per_nm / last.n_cyl)

@@ -158,6 +158,7 @@ class EngineService:
         # own counters, which wait on the session's lock for the cycle being analysed (~20 ms on a genset)
         self.cycles_ok = 0
         self.skipped: dict[str, int] = {}
+        self.restarts: dict[str, int] = {}  # stream restarts met (a looped replay's seams): not lost cycles
         self.tdc_watch = TdcWatchView(TdcWatchState.empty(), None)  # replaced whole on the ingest thread
 
     @property
@@ -225,6 +226,7 @@ class EngineService:
         self.cycles_ok += 1
         pipe = self.session.pipeline
         self.skipped = dict(pipe.skipped)  # the session's lock is held here (its on_result)
+        self.restarts = dict(pipe.restarts)
         self.tdc_watch = TdcWatchView(pipe.tdc_watch, pipe.tdc_window_cycle)
         self.term_names = self._monitor_terms()  # a model with a friction shape has its view from the first cycle
         alerts: tuple[dict, ...] = ()

@@ -43,7 +43,7 @@ from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 from frictionwatch.drivers.errors import EndOfStream
 from frictionwatch.drivers.logs.recorder import Recorder
-from frictionwatch.drivers.source import Source
+from frictionwatch.drivers.source import Source, StreamRestart
 from frictionwatch.service.ingest_queue import IngestLag, IngestQueue
 from frictionwatch.service.pipeline import EnginePipeline, LogAnalysis, ResultHistory
 from frictionwatch.service.record_merge import RecordMerge, record_key
@@ -216,6 +216,12 @@ class LiveSession:
             return Counter(self.pipeline.skipped)
 
     @property
+    def restarts(self) -> Counter[str]:
+        """Stream restarts the pipeline met, by reason (a looped replay's ``loop_restart``): not lost cycles."""
+        with self._cond:
+            return Counter(self.pipeline.restarts)
+
+    @property
     def damage(self) -> dict[str, Counter[str]]:
         """Input damage per source: the source's own counts (decoder, transport) plus reader and merge counts."""
         with self._cond:
@@ -293,6 +299,10 @@ class LiveSession:
         if not records:
             return
         for r in records:
+            if isinstance(r, StreamRestart):  # not data: neither recorded nor handed on, the pipeline restarts
+                with self._cond:
+                    self._publish(self.pipeline.feed(r))
+                continue
             if self.recorder is not None:
                 try:
                     self.recorder.write(r)

@@ -22,6 +22,7 @@ from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 from frictionwatch.core.types import AcquisitionInfo, Cycle, StreamRecord
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.drivers.source import StreamRestart
 
 log = logging.getLogger(__name__)
 
@@ -33,14 +34,22 @@ class EnginePipeline:
     ``outcomes(record)`` gives every cycle's ``CycleOutcome``: a result, a monitor refusal with its reason, or a cycle
     the assembler lost (stage 'assembly', one outcome per lost cycle); ``feed`` keeps the results only. ``skipped``
     counts lost cycles by reason over both. The cycles are assembled at the phases the wheel states (the model's
-    spec)."""
+    spec).
+
+    A ``StreamRestart`` mark (a looped replay's seam, drivers/source.py) flushes the assembler and starts a fresh one
+    that continues the cycle numbering; ``restarts`` counts them by reason. The monitor's state goes on (the same
+    engine); the first cycle after the mark has no cycle before it (flagged ``no_previous_cycle``, as after a real
+    stop)."""
 
     def __init__(self, engine: EngineModel | EngineSpec, info: AcquisitionInfo, config: MonitorConfig | None = None,
                  on_cycle: Callable[[Cycle], None] | None = None):
         self.cycles = CyclePipeline(engine, config, on_cycle=on_cycle)
         self.model, self.spec, self.config = self.cycles.model, self.cycles.spec, self.cycles.config
+        self.info = info
         self.assembler = cycle_assembler(self.spec, info)
         self._given: Counter[str] = Counter()  # the assembler's losses already given out as outcomes, by reason
+        self._retired: Counter[str] = Counter()  # the losses of assemblers replaced at a restart
+        self.restarts: Counter[str] = Counter()  # StreamRestart marks met, by reason
 
     @property
     def state(self) -> MonitorState | None:
@@ -72,24 +81,43 @@ class EnginePipeline:
         return self.cycles.cylinder_twist()
 
     def _assembler_lost(self) -> Counter[str]:
-        return Counter(self.assembler.skipped) + self.assembler.truncated
+        return self._retired + Counter(self.assembler.skipped) + self.assembler.truncated
 
     @property
     def skipped(self) -> Counter[str]:
         return self._assembler_lost() + self.cycles.skipped
 
-    def outcomes(self, record: StreamRecord | None) -> list[CycleOutcome]:
-        """The outcomes of the cycles ``record`` completes (None: the end of the stream, flushing the assembler),
-        each cycle the assembler lost on the way first."""
+    def outcomes(self, record: StreamRecord | StreamRestart | None) -> list[CycleOutcome]:
+        """The outcomes of the cycles ``record`` completes (None: the end of the stream, flushing the assembler;
+        a ``StreamRestart``: the cycles complete before it, then a fresh assembler), each cycle the assembler lost on
+        the way first."""
+        if isinstance(record, StreamRestart):
+            return self.restart(record.reason)
         cycles = self.assembler.feed(record) if record is not None else self.assembler.flush()
         out = self._losses()
         out.extend(self.cycles.process(c) for c in cycles)
         return out
 
+    def restart(self, reason: str) -> list[CycleOutcome]:
+        """The stream starts again (drivers/source.py StreamRestart): the cycles complete so far, then a fresh
+        assembler numbering on from the old one. The partial cycle the old stream ends in is dropped uncounted: at a
+        loop seam it is the log's end (``analyze`` counts it once, as ``log_ends_mid_cycle``), not a cycle of the
+        engine's run that went missing; counted per pass it would make every loop cost a lost cycle again."""
+        old = self.assembler
+        cycles = old.flush()
+        old.truncated.clear()
+        out = self._losses()
+        out.extend(self.cycles.process(c) for c in cycles)
+        self._retired += Counter(old.skipped)
+        self.assembler = cycle_assembler(self.spec, self.info, first_index=old.next_index)
+        self.restarts[reason] += 1
+        log.info("stream restart (%s): the cycle assembler starts again at cycle %d", reason, old.next_index)
+        return out
+
     def _losses(self) -> list[CycleOutcome]:
         """One outcome per cycle the assembler lost since the last call (its counters only grow)."""
         asm = self.assembler
-        if sum(asm.skipped.values()) + sum(asm.truncated.values()) == self._given.total():
+        if self._retired.total() + sum(asm.skipped.values()) + sum(asm.truncated.values()) == self._given.total():
             return []
         lost = self._assembler_lost()
         out = [CycleOutcome(None, skipped=reason, stage="assembly")
@@ -97,7 +125,7 @@ class EnginePipeline:
         self._given = lost
         return out
 
-    def feed(self, record: StreamRecord) -> list[CycleResult]:
+    def feed(self, record: StreamRecord | StreamRestart) -> list[CycleResult]:
         return [o.result for o in self.outcomes(record) if o.result is not None]
 
     def flush(self) -> list[CycleResult]:
@@ -116,9 +144,11 @@ def run(engine: EngineModel | EngineSpec, info: AcquisitionInfo, records: Iterab
     yield from pipe.outcomes(None)
 
 
-def cycle_assembler(spec: EngineSpec, info: AcquisitionInfo) -> CycleAssembler:
-    """The assembler of an engine's records into cycles, at the phases its wheel states (the pipeline's own)."""
-    return CycleAssembler(info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
+def cycle_assembler(spec: EngineSpec, info: AcquisitionInfo, first_index: int = 0) -> CycleAssembler:
+    """The assembler of an engine's records into cycles, at the phases its wheel states (the pipeline's own);
+    ``first_index``: the first cycle's index (a restart within one stream numbers on)."""
+    return CycleAssembler(info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm,
+                          first_index=first_index)
 
 
 def assembled_cycles(engine: EngineModel | EngineSpec, info: AcquisitionInfo,

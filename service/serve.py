@@ -31,6 +31,7 @@ from frictionwatch.service.data_dir import DataDir
 from frictionwatch.service.engine_service import EngineService
 from frictionwatch.service.pipeline import resolve_model
 from frictionwatch.service.security import ENGINE_ID, check_bind, new_token, read_token
+from frictionwatch.service.startup import StartupTicker
 
 log = logging.getLogger(__name__)
 DEFAULT_SOURCE = "mcap:replay_logs/demo.mcap?loop=1&speed=1"
@@ -166,6 +167,8 @@ def run(args: argparse.Namespace) -> int:
           + ", ".join(f"{s.engine_id} ({s.spec.name}, {' + '.join(s.urls)})" for s in services), flush=True)
     if made:
         print(f"frictionwatch serve: token for acknowledge and baseline (this run only): {token}", flush=True)
+    # until each engine's first cycle the terminal says what it waits for (a fresh install compiles for 1-2 min)
+    ticker = StartupTicker(lambda: services).start()
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on"))
     # uvicorn shuts down on SIGINT / SIGTERM (the lifespan stops every engine), then raises the signal again with
     # the handlers it found: these make that a normal end (exit 0) instead of death by the signal
@@ -174,6 +177,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         server.run(sockets=[sock])
     finally:
+        ticker.stop()
         sock.close()
         if data:
             data.close()

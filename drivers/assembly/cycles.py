@@ -85,11 +85,12 @@ class CycleAssembler(EpochSync):
     grid_points : samples of the uniform grid over [0, 4 pi)
     speed_range_rpm : cycles whose mean speed is outside are skipped
     max_wait_s : how long (stream time) a complete cycle waits for late pressure before 'pressure_missing'
+    first_index : the index of the first cycle (an assembler restarted within one stream continues its numbering)
     """
 
     def __init__(self, info: AcquisitionInfo, n_cyl: int, firing_angles: np.ndarray, grid_points: int = 720,
                  speed_range_rpm: tuple[float, float] = (50.0, 25000.0), max_wait_s: float = 0.5,
-                 buffers: EngineBuffers | None = None):
+                 buffers: EngineBuffers | None = None, first_index: int = 0):
         fa = np.asarray(firing_angles, dtype=np.float64).ravel()
         if fa.shape[0] != n_cyl or n_cyl < 1:
             raise ValueError(f"firing_angles has {fa.shape[0]} values for {n_cyl} cylinders")
@@ -126,7 +127,7 @@ class CycleAssembler(EpochSync):
         self.stats: Counter[str] = Counter()
         self._epoch: Epoch | None = None
         self._pending: deque[_Pending] = deque()
-        self._next_index = 0
+        self._next_index = int(first_index)
         self._now = 0  # latest stream time seen [ticks]
         self._cam_next = 0  # next cam row to place
         self._discarded_at = 0  # tooth ring end at the last discard
@@ -196,6 +197,11 @@ class CycleAssembler(EpochSync):
                 or (isinstance(record, PressureFrame) and self._waiting_for not in tuple(record.cylinders)):
             return []  # the head cycle waits for another cylinder's pressure
         return self._emit(flushing=False)
+
+    @property
+    def next_index(self) -> int:
+        """The index the next cycle gets (every cycle met so far, assembled or skipped, has a lower one)."""
+        return self._next_index
 
     def flush(self) -> list[Cycle]:
         """End of stream: emit every complete cycle now, without waiting for more pressure."""

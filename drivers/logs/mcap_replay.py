@@ -3,9 +3,11 @@
 URL (drivers/source.py): ``mcap:PATH?speed=1|10|max&start=SECONDS&loop=1`` -- ``speed`` defaults to ``max``;
 ``start`` is seconds after the first record of the log; ``loop=1`` plays the log again from ``start`` when it ends,
 for ever (a demonstration service): each pass is moved later in timer ticks by the span of the pass before plus
-``LOOP_GAP_S`` of silence, so the stream's time never runs back (the cycle assembler sees an engine that stopped
-for a second and starts again, and resynchronises; the cycle cut at the seam is counted as skipped). Pacing follows the MCAP log time (derived from the timer ticks,
-docs/replay-format.md); a record is released once the wall clock, scaled by ``speed``, has reached its log time.
+``LOOP_GAP_S`` of silence, so the stream's time never runs back, and starts with a ``StreamRestart`` mark
+(drivers/source.py): the engine pipeline restarts its cycle assembler there and counts a ``loop_restart``, not a
+data gap (the log's end and its start are not one engine's continuous run: nothing there is lost data). Pacing
+follows the MCAP log time (derived from the timer ticks, docs/replay-format.md); a record is released once the wall
+clock, scaled by ``speed``, has reached its log time.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, Pressu
 from frictionwatch.drivers.errors import EndOfStream
 from frictionwatch.drivers.logs.mcap_log import LogReader
 from frictionwatch.drivers.logs.mcap_schema import last_tick
-from frictionwatch.drivers.source import Source
+from frictionwatch.drivers.source import Source, StreamRestart
 
 _OPTIONS = ("speed", "start", "loop")
 LOOP_GAP_S = 1.0  # acquisition time between the end of one pass and the start of the next
@@ -69,6 +71,7 @@ class McapSource(Source):
         self._start_s = start_s
         self._shift = 0  # ticks added to every record of this pass (loop)
         self._pass_ticks: tuple[int, int] | None = None  # first and last tick of this pass, before the shift
+        self._restart: StreamRestart | None = None  # the mark the next read gives first (loop: a new pass began)
         if loop and self.info is None:
             self._reader.close()
             raise ValueError(f"{path}: loop=1 needs the log's acquisition metadata (its tick clock)")
@@ -130,16 +133,20 @@ class McapSource(Source):
         if self._pass_ticks is None:  # nothing readable after start: looping would spin
             raise EndOfStream(f"end of {self._reader.path}: nothing to loop over after {self._start_s} s")
         first, last = self._pass_ticks
+        self._restart = StreamRestart(ticks=last + self._shift + 1)  # after this pass, before the next (its silence)
         self._shift += last - first + round(LOOP_GAP_S * self.info.tick_hz)
         self._pass_ticks = None
         self.passes += 1
         self.seek(self._start_s)
 
-    def _read_internal(self, timeout: float | None) -> list[StreamRecord]:
+    def _read_internal(self, timeout: float | None) -> list[StreamRecord | StreamRestart]:
         if self._next is None:
             if not self.loop:
                 raise EndOfStream(f"end of {self._reader.path}")
             self._next_pass()
+        if self._restart is not None:  # alone in its read: the records of the new pass follow it
+            mark, self._restart = self._restart, None
+            return [mark]
         if self.speed is None:
             return [self._advance() for _ in range(self._max) if self._next is not None]
         now = self._clock()
@@ -154,7 +161,7 @@ class McapSource(Source):
             self._sleep(wait)
             now = self._clock()
         due = max(log0 + (now - wall0) * self.speed * 1e9, self._next[0] if wait > 0 else 0)
-        out: list[StreamRecord] = []
+        out: list[StreamRecord | StreamRestart] = []
         while self._next is not None and self._next[0] <= due and len(out) < self._max:
             out.append(self._advance())
         return out

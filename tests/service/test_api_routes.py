@@ -88,11 +88,21 @@ def test_losses_now_say_what_analyze_says(served, analyzed) -> None:
     for got, want in zip(doc["cylinders"], analyzed["cylinders"], strict=True):
         f = want["friction"]
         assert (got["cylinder"], got["status"], got["reason"]) == (want["cylinder"], f["status"], f["reason"])
-        for key in ("fmep_bar", "fmep_sigma_bar", "friction_torque_mean_nm", "data_weight"):
-            if f[key] is None:
-                assert got[key] is None, key  # never a number where analyze shows none
-            else:
-                assert_allclose(got[key], f[key], rtol=1e-9, err_msg=key)
+        # a value under the name of what it is: the measurement keys as analyze's flat keys (null unless measured),
+        # a share under share_*
+        named = {"measured": "", "share": "share_"}.get(f["status"])
+        for key in ("fmep_bar", "fmep_sigma_bar", "friction_torque_mean_nm", "friction_torque_sigma_nm"):
+            for prefix in ("", "share_"):
+                if prefix == named and f[key] is not None:
+                    assert_allclose(got[prefix + key], f[key], rtol=1e-9, err_msg=prefix + key)
+                else:
+                    assert got[prefix + key] is None, prefix + key  # never a number where analyze shows none
+            if want[key] is not None:
+                assert_allclose(got[key], want[key], rtol=1e-9, err_msg=key)
+        if f["data_weight"] is None:
+            assert got["data_weight"] is None
+        else:
+            assert_allclose(got["data_weight"], f["data_weight"], rtol=1e-9)
         assert list(got["coefficients"]) == list(got["coefficient_sigmas"]) and len(got["coefficients"]) >= 6
     # a prior or an unresolved figure is never labelled measured
     assert all(c["status"] != "measured" or c["fmep_bar"] is not None for c in doc["cylinders"])
@@ -111,11 +121,12 @@ def test_losses_over_a_window(served) -> None:
             shown += 1
             assert all(f["status"] == c["status"] for f in per_cycle)
             values = [f["friction_torque_mean_nm"] for f in per_cycle]
-            assert_allclose(c["friction_torque_mean_nm"], np.mean(values), rtol=1e-12)
+            key = ("" if c["status"] == "measured" else "share_") + "friction_torque_mean_nm"  # a share's own keys
+            assert_allclose(c[key], np.mean(values), rtol=1e-12)
             # the sem of the window's scatter and the calibration's part, which no number of cycles averages down
             assert c["calibration"] == "uncalibrated" and c["calibration_sigma_nm"] > 0
             assert_allclose(c["calibration_sigma_nm"], per_cycle[-1]["calibration_sigma_nm"], rtol=1e-12)
-            assert_allclose(c["friction_torque_sigma_nm"], np.hypot(np.std(values, ddof=1) / np.sqrt(10),
+            assert_allclose(c[key.replace("mean", "sigma")], np.hypot(np.std(values, ddof=1) / np.sqrt(10),
                                                                     c["calibration_sigma_nm"]), rtol=1e-9)
             for j, name in enumerate(c["coefficients"]):  # a coefficient the data do not resolve stays null
                 finite = [x["coefficients"][j] for x in cyls if x["coefficients"][j] is not None]

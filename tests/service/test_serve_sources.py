@@ -10,30 +10,36 @@ from frictionwatch.drivers.can.pressure import CanSource
 from frictionwatch.drivers.logs.mcap_replay import LOOP_GAP_S, McapSource
 from frictionwatch.drivers.logs.mcap_schema import last_tick
 from frictionwatch.drivers.serial.teeth import SerialSource
-from frictionwatch.drivers.source import open_source
+from frictionwatch.drivers.source import StreamRestart, open_source
 from frictionwatch.drivers.timebase import Clocks, shared_unwrapper
 
 from tests.service.serve_helpers import DEMO
 
 
-def read_passes(src: McapSource, passes: int) -> list[list]:
+def read_passes(src: McapSource, passes: int) -> tuple[list[list], list[StreamRestart]]:
+    """The records of each pass, and the restart marks met (each the first thing a new pass gives)."""
     out: list[list] = [[]]
+    marks: list[StreamRestart] = []
     while src.passes < passes:
         before = src.passes
         records = src.read(0.1)
         if src.passes != before:
             out.append([])
-        out[-1].extend(records)
-    return out
+            assert records and isinstance(records[0], StreamRestart)
+        marks += [r for r in records if isinstance(r, StreamRestart)]
+        out[-1].extend(r for r in records if not isinstance(r, StreamRestart))
+    return out, marks
 
 
 def test_loop_replays_the_log_later_on_the_timer() -> None:
     with open_source(f"mcap:{DEMO}?loop=1") as src:
         assert isinstance(src, McapSource) and src.loop
-        first, second = read_passes(src, 2)[:2]  # the read that starts a third pass ends the loop
+        (first, second, _), marks = read_passes(src, 2)  # the read that starts a third pass ends the loop
         tick_hz = src.info.tick_hz
     keys = np.array([float(last_tick(r)) for r in first + second])
     assert np.all(np.diff(keys) >= 0)  # the stream's time never runs back across the seam
+    assert [m.reason for m in marks] == ["loop_restart"] * 2
+    assert float(last_tick(first[-1])) < marks[0].ticks < float(last_tick(second[0]))  # in place for a merge
     assert len(first) == len(second) > 100
     gap = float(last_tick(second[0])) - float(last_tick(first[-1]))
     assert gap >= LOOP_GAP_S * tick_hz  # a second of silence: the assembler does not bridge the seam

@@ -11,20 +11,62 @@ const FIGURES_INTERVAL_MS = 500;  // counters, per-cylinder bars and table: at m
 const TRACES_INTERVAL_MS = 1000;  // the traces (z+1 curves of a few hundred points each): once a second
 const POLL_MS = 5000;           // without cycle events: poll this often
 const STALE_S = 10;             // "live" but no cycle for this long: say so
+const STARTUP_POLL_MS = 2000;   // before the engine's first cycle: how often to ask what the service is doing
 const TOKEN_KEY = "frictionwatch.token";
 const BY_KEY = "frictionwatch.acknowledged-by";
 
 const $ = (id) => document.getElementById(id);
-const state = { engines: [], engineId: null, summary: null, es: null, lastCycleAt: 0, connected: false, cycleEvents: 0 };
+// startup: what the service does before the engine's first cycle (GET api/v1/startup), in words; null once running
+const state = { engines: [], engineId: null, summary: null, es: null, lastCycleAt: 0, connected: false, cycleEvents: 0,
+  startup: null, startupTimer: null };
 
 function setLive(mode) {
+  if (mode === "live" && state.startup) mode = "starting";  // connected, but nothing to show yet: not green
   const p = $("live");
   p.className = `live ${mode === "live" ? "live-on" : mode}`;
   p.dataset.state = mode;
   const age = (Date.now() - state.lastCycleAt) / 1000;
   $("live-text").textContent = mode === "live"
     ? (state.lastCycleAt && age > STALE_S ? `live — no cycle for ${age.toFixed(0)} s` : "live")
-    : mode === "reconnecting" ? "reconnecting…" : "connecting…";
+    : mode === "reconnecting" ? "reconnecting…" : mode === "starting" ? "starting…" : "connecting…";
+}
+
+/** The selected engine's start-up (compiling the kernels on a fresh install, or waiting for its first cycle): shown
+ *  in the banner and in place of the panels, whose routes answer 503 until the first cycle. Asked again every
+ *  STARTUP_POLL_MS until the engine runs. An older service without the route (404): no start-up state. */
+async function checkStartup() {
+  clearTimeout(state.startupTimer);  // one chain of checks, whoever asked (a cycle event, an engine change)
+  const r = await getJSON("api/v1/startup");
+  const mine = r.ok ? (r.data.engines || []).find((e) => e.engine_id === state.engineId) : null;
+  const running = !r.ok || !mine || mine.state === "running";
+  const was = state.startup;
+  state.startup = running ? null
+    : `${mine.state === "compiling" ? r.data.message || "compiling the numerical kernels (first run only)"
+      : r.data.message || "waiting for the first cycle"} — ${Math.round(r.data.elapsed_s)} s`
+      + (r.data.kernels_compiled ? `, ${r.data.kernels_compiled} kernels compiled so far` : "");
+  const banner = $("startup");
+  banner.hidden = !state.startup;
+  banner.textContent = state.startup || "";
+  banner.dataset.state = running ? "running" : mine.state;
+  setLive(state.connected ? "live" : $("live").dataset.state || "connecting");
+  if (state.startup) {
+    startupPanels();
+    clearTimeout(state.startupTimer);
+    state.startupTimer = setTimeout(checkStartup, STARTUP_POLL_MS);
+  } else if (was) { refreshLatest(); plots(); alerts(); }
+}
+
+/** Each panel says what the service is doing, not the HTTP status of a route that has nothing yet. */
+function startupPanels() {
+  for (const id of ["losses-error", "torque-error", "speed-error", "health-error"]) showError(id, "");
+  for (const id of ["losses-plot", "torque-plot", "speed-plot", "history-plot"]) emptyPlot($(id), state.startup);
+}
+
+/** A panel's request that failed: while the engine starts (503: no cycle yet) the start-up words, else the error. */
+function panelError(id, what, r) {
+  if (r.ok || (r.status === 503 && state.startup)) showError(id, "");
+  else showError(id, `${what} not available: ${r.message}`);
+  return r.ok;
 }
 
 function showSummary(s) {
@@ -41,8 +83,10 @@ function showEngine(e) {
   $("cycles-processed").textContent = String(e.cycles_ok);
   const skipped = Object.entries(e.skipped || {});
   const total = skipped.reduce((n, [, v]) => n + v, 0);
-  $("cycles-skipped").textContent = total
-    ? `${total} (${skipped.map(([k, v]) => `${k.replaceAll("_", " ")}: ${v}`).join(", ")})` : "0";
+  const restarts = Object.entries(e.restarts || {}).map(([k, v]) => `${k.replaceAll("_", " ")}s: ${v}`);
+  $("cycles-skipped").textContent = (total
+    ? `${total} (${skipped.map(([k, v]) => `${k.replaceAll("_", " ")}: ${v}`).join(", ")})` : "0")
+    + (restarts.length ? ` · ${restarts.join(", ")} (no cycle lost)` : "");
   showBacklog(e.backlog);
 }
 
@@ -73,8 +117,7 @@ async function refreshFigures() {
   ]);
   if (id !== state.engineId) return;  // the engine was changed while these were in flight
   if (engines.ok) { state.engines = engines.data; showEngine(selectedEngine()); }
-  showError("losses-error", losses.ok ? "" : `Per-cylinder figures not available: ${losses.message}`);
-  if (losses.ok) renderLosses(losses.data, state.summary);
+  if (panelError("losses-error", "Per-cylinder figures", losses)) renderLosses(losses.data, state.summary);
 }
 
 async function refreshTraces() {
@@ -86,12 +129,11 @@ async function refreshTraces() {
     getJSON(enginePath(id, "sensor-health")),
   ]);
   if (id !== state.engineId) return;
-  showError("torque-error", torque.ok ? "" : `Friction torque not available: ${torque.message}`);
-  if (torque.ok) renderTorque(torque.data, Number($("highlight-select").value) || null, $("show-total").checked);
-  showError("speed-error", speed.ok ? "" : `Speed not available: ${speed.message}`);
-  if (speed.ok) renderSpeed(speed.data);
-  showError("health-error", health.ok ? "" : `Sensor health not available: ${health.message}`);
-  if (health.ok) renderHealth(health.data);
+  if (panelError("torque-error", "Friction torque", torque)) {
+    renderTorque(torque.data, Number($("highlight-select").value) || null, $("show-total").checked);
+  }
+  if (panelError("speed-error", "Speed", speed)) renderSpeed(speed.data);
+  if (panelError("health-error", "Sensor health", health)) renderHealth(health.data);
 }
 
 async function refreshLatest() {
@@ -150,6 +192,7 @@ function connectStream() {
     if (s.engine_id !== id) return;
     state.lastCycleAt = Date.now();
     state.cycleEvents += 1;
+    if (state.startup) checkStartup();  // the first cycle: the start is over
     $("live").dataset.cycleEvents = state.cycleEvents;  // read by the browser test: the numbers came by the stream
     showSummary(s);
     setLive("live");
@@ -190,11 +233,13 @@ function chooseEngine(id) {
   state.engineId = id;
   state.summary = null;
   state.lastCycleAt = 0;
+  state.startup = null;
   clearEngine();
   history.replaceState(null, "", `#engine=${id}`);
   fillPickers();
   showEngine(selectedEngine());
   connectStream();
+  checkStartup();
   refreshLatest();
   plots();
   alerts();

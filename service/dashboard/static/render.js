@@ -20,11 +20,22 @@ export function showError(id, message) {
   p.textContent = message || "";
 }
 
+/** A cylinder's figure as drawn: the API keeps a measurement in fmep_bar and the like, a share's number under
+ *  share_* (never in a measurement field); either is shown with its status word, a share hatched. */
+function shownFigure(c) {
+  const p = c.status === "share" ? "share_" : "";
+  return { fmep: c[`${p}fmep_bar`], sigma: c[`${p}fmep_sigma_bar`], torque: c[`${p}friction_torque_mean_nm`],
+    torqueSigma: c[`${p}friction_torque_sigma_nm`] };
+}
+
 /** losses: the /losses body; summary: the latest CycleSummary (its IMEP and pmax per cylinder) or null. */
 export function renderLosses(losses, summary) {
   const cyls = losses.cylinders || [];
   barPlot($("losses-plot"), {
-    bars: cyls.map((c) => ({ cylinder: c.cylinder, value: c.fmep_bar, sigma: c.fmep_sigma_bar, status: c.status })),
+    bars: cyls.map((c) => {
+      const f = shownFigure(c);
+      return { cylinder: c.cylinder, value: f.fmep, sigma: f.sigma, status: c.status };
+    }),
     yLabel: "FMEP (bar)", unit: "bar",
   });
   const w = losses.window;
@@ -38,14 +49,14 @@ export function renderLosses(losses, summary) {
   const notes = new Map();  // reason (its data weight left out: the table has a column for it) -> cylinders
   for (const c of cyls) {
     const row = body.insertRow();
+    const f = shownFigure(c);
     row.dataset.cylinder = c.cylinder;
     cell(row, String(c.cylinder));
-    cell(row, fmt(c.fmep_bar), "fmep");
-    cell(row, fmt(c.fmep_sigma_bar));
+    cell(row, fmt(f.fmep), "fmep");
+    cell(row, fmt(f.sigma));
     cell(row, c.status, `text status status-${c.status}`);
     cell(row, fmt(c.data_weight, 2));
-    cell(row, isNum(c.friction_torque_mean_nm)
-      ? `${fmt(c.friction_torque_mean_nm, 2)} ± ${fmt(c.friction_torque_sigma_nm, 2)}` : "—");
+    cell(row, isNum(f.torque) ? `${fmt(f.torque, 2)} ± ${fmt(f.torqueSigma, 2)}` : "—");
     const k = c.cylinder - 1;
     cell(row, summary && summary.imep_bar ? fmt(summary.imep_bar[k], 2) : "—");
     cell(row, summary && summary.pmax_bar ? fmt(summary.pmax_bar[k], 1) : "—");
