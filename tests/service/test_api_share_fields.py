@@ -11,6 +11,7 @@ import pytest
 from frictionwatch.service.api_models import Losses
 from frictionwatch.service.api_views import FIGURE_VALUES, cylinder_losses, losses_now, losses_window
 from frictionwatch.service.pipeline import analyze_log
+from frictionwatch.service.window_figures import figures_from_cycles
 from numpy.testing import assert_allclose
 
 from tests.service.serve_helpers import ROOT
@@ -25,7 +26,9 @@ def analysed(request):
 
 def test_values_sit_under_the_name_of_what_they_are(analysed):
     name, a = analysed
-    docs = {"now": losses_now(name, a.results, ()), "window": losses_window(name, a.results[-10:], ())}
+    window = a.results[-10:]
+    docs = {"now": losses_now(name, a.results, ()),
+            "window": losses_window(name, window[-1], figures_from_cycles(window), ())}
     for kind, doc in docs.items():
         Losses.model_validate(doc)  # the contract's model takes the new keys
         statuses = {c["status"] for c in doc["cylinders"]}
