@@ -445,12 +445,6 @@ def _significance(test: Residuals, scale: np.ndarray, opt: Options, held_out_of)
     return significant
 
 
-# the polish's finite-difference steps, of the candidate's (sized to find a signal from no effect): near the fit a
-# nonlinear candidate needs the local slope (maruti 1500 rpm, shaft line 20 % softer: with the whole steps the
-# polish left a balance residual of -0.17 N m and the step was refused; the truth's is 0.005)
-POLISH_STEP = 0.25
-
-
 def _polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, full, train_of, scale: np.ndarray,
             floor: np.ndarray) -> tuple[Trial, EngineModel, Residuals, int]:
     """One more Gauss-Newton step for the chosen candidate on all training cycles (the window was a short part of
@@ -463,7 +457,7 @@ def _polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, 
     train = train_of(res)
     r0 = (train.features() / scale).ravel()
     cols, runs = [], 0
-    for i, h in enumerate(np.asarray(cand.step) * POLISH_STEP):
+    for i, h in enumerate(cand.step):
         xi = t.x.copy()
         xi[i] = xi[i] + h if xi[i] + h <= cand.hi[i] else xi[i] - h
         ri = train_of(full(cand.model_at(current, xi)))
