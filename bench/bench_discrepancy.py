@@ -53,9 +53,9 @@ TARGET_S = 30.0
 # the speed check per engine (issue 27): (operating point, cycles, CPU target [s]) of one discover run
 SPEED = {"k9k-4cyl": ((2500.0, 0.8), 200, 30.0), "maruti-3cyl": ((3000.0, 0.8), 200, 30.0),
          "deutz-1cyl": ((2000.0, 0.8), 200, 30.0), "genset-v20": ((1500.0, 0.8), 300, 60.0)}
-# two operating points per engine, inside its speed_range_rpm, none of them a point bench/discrepancy_null.py TUNE
-# uses (k9k's are the matrix's historical ones; TUNE has them with seeds 1 and 2 respectively); and where the cases'
-# cylinders (numbered as on k9k-4cyl, 1..4) land on each engine
+# two operating points per engine, inside its speed_range_rpm, none of their logs (point and seed) one that
+# bench/discrepancy_null.py TUNE or bench/discrepancy_sigma.py TUNE tunes on (tests/core/test_tuned_provenance.py);
+# and where the cases' cylinders (numbered as on k9k-4cyl, 1..4) land on each engine
 ENGINES = {
     "k9k-4cyl": {"points": ((1800.0, 0.6), (3000.0, 0.9)), "cylinders": {1: 1, 2: 2, 3: 3, 4: 4}},
     "maruti-3cyl": {"points": ((1500.0, 0.5), (4000.0, 0.8)), "cylinders": {1: 1, 2: 2, 3: 3, 4: 3}},

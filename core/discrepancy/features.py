@@ -14,30 +14,27 @@ from __future__ import annotations
 
 import numpy as np
 from frictionwatch.core.discrepancy.residuals import Residuals
+from frictionwatch.core.discrepancy.tuned import tuned_constants
 from frictionwatch.core.model.engine import EngineSpec
 
 RPM_PER_RAD_S = 30.0 / np.pi
 SIGNIFICANT = 4.0  # a coherent figure is reported as significant above this many sigmas of its mean
-# The model-error floor of the speed residual at engine order m [rpm]: NULL_OWN x the measured amplitude at m plus
-# NULL_FLOOR x the largest measured harmonic. A coherent residual is significant only above it, whatever its sigma:
-# healthy logs carry a coherent residual that is the monitor's model, not a missing effect (the plant's
-# discretisation, the tooth learner, the pinned friction at the firing orders). Both are tuned on the ten healthy
-# logs of bench/discrepancy_null.py TUNE (k9k, maruti, deutz, genset-v20; `--tune`, 2026-11-28): the largest healthy
-# residual beyond 4 sigma was 0.0071 of the largest harmonic among the small orders (genset-v20 order 9) and 0.0231
-# of its own amplitude among the large ones (k9k 1800 rpm seed 3, the firing order), each x 1.5. Validated on the
-# VALIDATE logs (other seeds and points) and FAULTS (the floor must not hide them) of the same bench.
-NULL_OWN = 0.035
-NULL_FLOOR = 0.011
-# The model-error floor of the mean torque-balance residual, relative to the friction the balance measured: tuned on
-# the same ten healthy TUNE logs (`--tune`, 2026-11-28: the largest held-out |balance mean| was 0.0078 of the
-# friction, k9k 1800 rpm seed 3, noise included, x 1.5): a balance residual is significant only above it
-# (balance_residual); validated on the hidden-effect matrix (bench/bench_discrepancy.py, other points and seeds)
-NULL_BALANCE = 0.012
-# The rms of the healthy coherent residual as a fraction of the floor above (speed features, the balance feature):
-# the floors are the largest healthy residual x 1.5, a threshold; a found parameter's sigma needs the typical model
-# error: the same TUNE logs' noise-corrected coherent power over the floor's, averaged (`--tune`, 2026-11-28: speed
-# 0.045; balance below its noise on every log, the mean power negative, so none is claimed)
-FLOOR_RMS = (0.045, 0.0)
+# The model-error floors and their rms, tuned numbers with their provenance in tuned.json (core.discrepancy.tuned:
+# the logs, the figure, the run that wrote them; none of them a log that validates them).
+# NULL_OWN, NULL_FLOOR: the floor of the speed residual at engine order m [rpm] is NULL_OWN x the measured amplitude
+# at m plus NULL_FLOOR x the largest measured harmonic. A coherent residual is significant only above it, whatever
+# its sigma: healthy logs carry a coherent residual that is the monitor's model, not a missing effect (the plant's
+# discretisation, the tooth learner, the pinned friction at the firing orders). Validated on bench/discrepancy_null.py
+# VALIDATE (other seeds and points) and FAULTS (the floor must not hide them).
+# NULL_BALANCE: the floor of the mean torque-balance residual, relative to the friction the balance measured: a
+# balance residual is significant only above it (balance_residual); validated on the hidden-effect matrix.
+# FLOOR_RMS (speed, balance): the rms healthy coherent residual as a fraction of those floors (a floor is a
+# threshold, the largest healthy residual x 1.5; a found parameter's sigma needs the typical model error).
+_TUNED = tuned_constants()
+NULL_OWN = _TUNED["NULL_OWN"].value
+NULL_FLOOR = _TUNED["NULL_FLOOR"].value
+NULL_BALANCE = _TUNED["NULL_BALANCE"].value
+FLOOR_RMS = (_TUNED["FLOOR_RMS_SPEED"].value, _TUNED["FLOOR_RMS_BALANCE"].value)
 
 
 def noise_scale(res: Residuals) -> np.ndarray:
