@@ -19,9 +19,12 @@ for _v in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+from datetime import date  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from frictionwatch.core.discrepancy.fit import SIGMA_SCALE  # noqa: E402
+from frictionwatch.core.discrepancy.tuned import TUNED_PATH, Tuned, round_up, write_tuned  # noqa: E402
 from frictionwatch.core.model.effects import EFFECTS  # noqa: E402
 
 from bench.bench_discrepancy import ENGINES, cases_for, matrix  # noqa: E402
@@ -61,6 +64,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--engine", action="append", choices=sorted(TUNE))
     ap.add_argument("--out", type=Path)
+    ap.add_argument("--write", action="store_true", help="write SIGMA_SCALE (the current one x the factor, never "
+                                                         "below 1, rounded up) into core/discrepancy/tuned.json")
     args = ap.parse_args()
     zs = [z for e in (args.engine or sorted(TUNE)) for z in z_scores(e)]
     for z in zs:
@@ -73,6 +78,15 @@ def main() -> None:
     print(json.dumps(summary))
     if args.out:
         args.out.write_text(json.dumps({"rows": zs, **summary}, indent=1))
+    if args.write:
+        engines = args.engine or sorted(TUNE)
+        on = tuple(f"{e} {TUNE[e][0][0]:g} rpm {TUNE[e][0][1]:g} seed {TUNE[e][1]}" for e in engines)
+        value = round_up(max(1.0, SIGMA_SCALE * factor))
+        figure = (f"{summary['within_2_sigma']} of {summary['named_right']} found parameters within 2 sigma at scale "
+                  f"{SIGMA_SCALE:g}; the 90th percentile of |z| {2.0 * factor:.3f}, so x {factor:.3f}, rounded up")
+        write_tuned({"SIGMA_SCALE": Tuned(value, "python -m bench.discrepancy_sigma --write", on, figure,
+                                          date.today().isoformat())})
+        print(f"SIGMA_SCALE {value:g} written to {TUNED_PATH}")
 
 
 if __name__ == "__main__":

@@ -16,9 +16,14 @@ import numpy as np
 from frictionwatch.core.discrepancy.candidates import Candidate
 from frictionwatch.core.discrepancy.features import coherent_power
 from frictionwatch.core.discrepancy.residuals import Residuals
+from frictionwatch.core.discrepancy.tuned import tuned_constants
 from frictionwatch.core.model.engine_model import EngineModel
 
 DAMPING = 1e-6  # Levenberg term relative to the largest diagonal of J'J: keeps a flat direction finite
+# every found parameter's sigma x this: what the statistical and model-error parts still leave out, tuned on logs none
+# of the matrix's so that 90 % of the truths lie within 2 sigma (core/discrepancy/tuned.json: its provenance)
+_TUNED = tuned_constants()
+SIGMA_SCALE = _TUNED["SIGMA_SCALE"].value if "SIGMA_SCALE" in _TUNED else 1.0
 
 
 @dataclass(frozen=True)
@@ -121,7 +126,7 @@ def parameter_sigma(jac: np.ndarray, n_cycles: int, cost: float, floor: np.ndarr
     A (sum_n J_n)' diag(e^2) (sum_n J_n) A' with A = (J'J)^-1, e^2 = floor^2 (the healthy model's rms error, (F,))
     + the coherent power the fit leaves in ``residual`` (N F,) (a sandwich estimate: the found effect's own model
     is not the engine's either). The second part does not shrink with more cycles; without it the found
-    parameters' sigma was 7-22x too small against the truth (issue 27)."""
+    parameters' sigma was 7-22x too small against the truth (issue 27). All x SIGMA_SCALE."""
     p = jac.shape[1]
     if residual is not None:
         floor = np.sqrt(floor**2 + np.maximum(coherent_power(residual.reshape(n_cycles, -1)), 0.0))
@@ -129,7 +134,7 @@ def parameter_sigma(jac: np.ndarray, n_cycles: int, cost: float, floor: np.ndarr
     a = np.linalg.pinv(jtj + DAMPING * np.max(np.diag(jtj), initial=1e-300) * np.eye(p))
     stat = a * max(1.0, cost / max(jac.shape[0] - p, 1))
     b = a @ jac.reshape(n_cycles, -1, p).sum(axis=0).T  # (p, F): a coherent feature error -> parameter shift
-    return np.sqrt(np.diag(stat) + np.sum(b**2 * floor**2, axis=1))
+    return SIGMA_SCALE * np.sqrt(np.diag(stat) + np.sum(b**2 * floor**2, axis=1))
 
 
 SECANT_STEPS = 3  # monitor runs along the main parameter when the full linear step fails (module doc of refine)
