@@ -49,6 +49,7 @@ AlertsFactory = Callable[[str, Any], Any]  # (engine id, EngineSpec) -> an Alert
 #                                            history, acknowledge, rebaseline, baseline)
 STAMPS_KEPT = 4096  # batches remembered per source for the latency (a few seconds of a genset's records)
 CYCLE_REVS = 2.0  # crank revolutions per (four-stroke) cycle: turns queued seconds into cycles
+LISTENER_STOP_S = 2.0  # what a stop gives the listeners (the store's last batch) after the drain
 RECENT_S = 30.0  # raw records kept for an on-demand discrepancy run: genset-v20 pressure ~3.2 MB/s -> ~100 MB
 
 
@@ -185,9 +186,10 @@ class EngineService:
         self.session.start()
         return self
 
-    def stop(self, timeout: float = 2.0) -> None:
-        """Stop the session (its ingest thread gets ``timeout`` to drain; a backlog beyond that is abandoned with
-        the process, logged by the session), then the listeners after they have delivered what is queued."""
+    def stop(self, timeout: float | None = None) -> None:
+        """Stop the session (its ingest thread gets ``timeout`` to drain, default the session's ``drain_s``, serve
+        --drain-s; a backlog beyond that is abandoned with the process, logged), then the listeners after they have
+        delivered what is queued (at most ``LISTENER_STOP_S``, or ``timeout``)."""
         self.session.stop(timeout)
         self.skipped = dict(self.session.skipped)
         left = self.session.left_at_stop
@@ -197,7 +199,7 @@ class EngineService:
                       and newest.rpm_mean > 0 else "cycles unknown")
             log.warning("%s: stopped with %s (%.1f s of acquisition, %d records) not analysed", self.engine_id, cycles,
                         left[1], left[0])
-        self.fanout.stop(timeout)
+        self.fanout.stop(LISTENER_STOP_S if timeout is None else timeout)
 
     def backlog(self) -> dict:
         """The ingest's lag (live.LiveSession.lag) with cycles estimated at the newest result's speed (None before
