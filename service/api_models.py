@@ -228,6 +228,9 @@ class SensorHealth(_Open):
 
 
 class Alert(_Open):
+    """One alert. GET .../alerts returns a bounded list of them: the newest ``limit`` (default 100, at most 1000),
+    oldest first; the X-Total-Count header says how many the service holds (the store keeps every one)."""
+
     alert_id: int
     engine_id: str
     cylinder: int | None

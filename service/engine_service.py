@@ -263,12 +263,16 @@ class EngineService:
     def _alert_dict(self, alert: Any) -> dict:
         return {"engine_id": self.engine_id, **alert.to_dict()}
 
-    def alert_list(self, active_only: bool) -> list[dict]:
+    def alert_list(self, active_only: bool, limit: int | None = None) -> tuple[list[dict], int]:
+        """The open alerts (``active_only``) or the history (the alert engine keeps the newest
+        AlertConfig.max_history cleared ones and every open one), by alert id; only the newest ``limit`` converted
+        and returned. Also returns how many there are."""
         if self.alerts is None:
-            return []
+            return [], 0
         with self._alerts_lock:  # the ingest thread takes this lock each cycle: only the copy is made under it
             alerts = self.alerts.active() if active_only else self.alerts.history()
-        return [self._alert_dict(a) for a in alerts]
+        shown = alerts if limit is None else alerts[-limit:] if limit > 0 else []
+        return [self._alert_dict(a) for a in shown], len(alerts)
 
     def acknowledge(self, alert_id: int, by: str) -> dict:
         """Raises LookupError when the engine has no such alert (the alert engine's KeyError)."""
