@@ -40,9 +40,13 @@ RUN frictionwatch analyze replay_logs/demo.mcap >/dev/null \
 
 VOLUME /data
 EXPOSE 8080
-# healthy while the API answers and every engine runs (status "ok"); "degraded" or no answer counts as a failure
+# healthy while the API answers /health, "ok" or "degraded": a degraded engine (lagging, stale, not yet analysing)
+# is still alive and serving, /health says what is wrong, and a restart would cure none of it (it drops the queue and
+# lags again: an orchestrator restarting on "unhealthy" would make a slow plant a restart loop). Unhealthy: no
+# answer, or an engine whose threads all ended while its sources run (a restart can cure those).
+# service/healthcheck.py; its one line shows in `docker inspect`.
 HEALTHCHECK --interval=30s --timeout=5s --start-period=60s --retries=3 \
-    CMD ["python", "-c", "import json, sys, urllib.request; r = urllib.request.urlopen('http://127.0.0.1:8080/api/v1/health', timeout=4); sys.exit(0 if json.load(r).get('status') == 'ok' else 1)"]
+    CMD ["python", "-m", "frictionwatch.service.healthcheck", "http://127.0.0.1:8080/api/v1/health"]
 ENTRYPOINT ["frictionwatch"]
 CMD ["serve", "--source", "mcap:replay_logs/demo.mcap?loop=1&speed=1", "--host", "0.0.0.0", "--port", "8080", \
      "--data-dir", "/data", "--token-file", "/run/secrets/frictionwatch_token"]

@@ -65,6 +65,9 @@ LARGE_CYCLES = 1000  # a speed history longer than this is a large reply: rate-l
 LARGE_PER_S, LARGE_BURST = 5.0, 10.0  # large replies a second the whole app gives, and the burst
 LAG_DEGRADED_S = 2.0  # an engine whose real-time sources' data wait longer than this to be analysed is 'degraded'
 DROPPED_RECENTLY_S = 30.0  # ... and so is one whose bounded queue dropped records this recently
+DEFAULT_ALERTS, MAX_ALERTS = 100, 1000  # alerts one reply holds: by default, at most (= AlertConfig.max_history)
+ALERTS_LIMIT_WORDS = (f"the newest N alerts (by alert id) are returned, default {DEFAULT_ALERTS}, at most {MAX_ALERTS}; "
+                      "X-Total-Count says how many there are")
 ERRORS = {404: {"model": ErrorBody}, 422: {"model": ErrorBody}}
 EngineId = Annotated[str, Path(pattern=ENGINE_ID.pattern, description="engine slug [a-z0-9-]{1,40}")]
 JOB_ID = r"^[0-9a-f]{16}$"
@@ -208,8 +211,15 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
         return views.sensor_health(whole, svc.tdc_watch, svc.model.calibration)
 
     @app.get("/api/v1/engines/{engine_id}/alerts", response_model=list[Alert], responses=ERRORS)
-    def alerts(svc: Svc, state: Literal["active", "all"] = "active") -> list[dict]:
-        return svc.alert_list(active_only=state == "active")
+    def alerts(svc: Svc, response: Response, state: Literal["active", "all"] = "active",
+               limit: Annotated[int, Query(ge=1, le=MAX_ALERTS, description=ALERTS_LIMIT_WORDS)] = DEFAULT_ALERTS
+               ) -> list[dict]:
+        """The engine's open alerts (``state=active``) or its alert history (``state=all``: the cleared ones the
+        service holds, AlertConfig.max_history, and the open ones), oldest first: the newest ``limit`` of them.
+        The header X-Total-Count says how many there are; the store (--data-dir) keeps every alert."""
+        shown, total = svc.alert_list(active_only=state == "active", limit=limit)
+        response.headers["X-Total-Count"] = str(total)
+        return shown
 
     @app.post("/api/v1/engines/{engine_id}/alerts/{alert_id}/acknowledge", response_model=Alert,
               dependencies=[Depends(authorised)], responses={401: {"model": ErrorBody}, **ERRORS})

@@ -123,6 +123,13 @@ class LossWindow(_Open):
     first_cycle: int | None
     last_cycle: int
     cycles: float | None = Field(description="cycles behind the figures (effective cycles for the smoothed estimate)")
+    cycles_left_out: int | None = Field(default=None, description=(
+        "a window mean only: cycles of the window without a previous cycle (a log's first, each loop seam of a "
+        "replay, a stream restart), which have no estimate of their own and are left out of the means; 'cycles' "
+        "does not count them"))
+    left_out: str | None = Field(default=None, description="a window mean only: what was left out, in words "
+                                                           "('1 cycle without a previous cycle left out'); null "
+                                                           "when nothing was")
 
 
 class EngineLoss(_Open):
@@ -221,6 +228,9 @@ class SensorHealth(_Open):
 
 
 class Alert(_Open):
+    """One alert. GET .../alerts returns a bounded list of them: the newest ``limit`` (default 100, at most 1000),
+    oldest first; the X-Total-Count header says how many the service holds (the store keeps every one)."""
+
     alert_id: int
     engine_id: str
     cylinder: int | None

@@ -19,7 +19,7 @@ from frictionwatch.core.monitor.report.results import PA_PER_BAR, CycleResult
 from frictionwatch.core.monitor.report.run_summary import ACTIVE_SHARE, active_flags, estimate_window
 from frictionwatch.service.cmd_analyze import tdc_watch_document
 from frictionwatch.service.engine_service import TdcWatchView
-from frictionwatch.service.window_figures import WindowFigures
+from frictionwatch.service.window_figures import NO_PREVIOUS_CYCLE, WindowFigures
 
 RPM_PER_RAD_S = 30.0 / math.pi
 FIGURE_VALUES = ("fmep_bar", "fmep_sigma_bar", "friction_torque_mean_nm", "friction_torque_sigma_nm")
@@ -88,22 +88,32 @@ def losses_now(engine_id: str, results: Sequence[CycleResult], names: Sequence[s
 
 def losses_window(engine_id: str, last: CycleResult, win: WindowFigures, names: Sequence[str]) -> dict:
     """Each cylinder's per-cycle friction (each cycle's own estimate) averaged over the window ``win`` (its figures:
-    service/window_figures.py; ``last`` its newest cycle), with the 1-sigma of the mean from the cycle-to-cycle
-    scatter. A mean is given only where every cycle of the window shows the figure with the same status (all
-    measured, or all shares); otherwise the status of the window is the newest cycle's with the active flags, or
+    service/window_figures.py), with the 1-sigma of the mean from the cycle-to-cycle scatter. ``last``: the result
+    the statuses are read from, the window's newest cycle with a previous cycle (LatestState.window).
+
+    Cycles without a previous cycle (a log's first, each loop seam of a replay, a stream restart) have no estimate of
+    their own: left out of the means and said (``window.cycles_left_out``), not a reason to call the window
+    unresolved. A mean is given only where every other cycle of the window shows the figure with the same status
+    (all measured, or all shares); otherwise the status of the window is ``last``'s with the active flags, or
     'unresolved' saying how many cycles measured it."""
-    n_cycles, lay = win.cycles, win.layout
-    # active_flags (run_summary) over the window, from the window's counts: the newest cycle's and the frequent ones
-    active = frozenset(last.flags) | {f for f, c in win.flag_counts.items() if c >= ACTIVE_SHARE * n_cycles}
+    n_cycles, n_counted, lay = win.cycles, win.counted, win.layout
+    # active_flags (run_summary) over the window, from the window's counts: the newest cycle's and the frequent ones;
+    # no_previous_cycle is not one of them: those cycles are out of the figures, counted in cycles_left_out
+    active = (frozenset(last.flags) | {f for f, c in win.flag_counts.items() if c >= ACTIVE_SHARE * n_cycles}) - {
+        NO_PREVIOUS_CYCLE}
     status = last.to_json(smoothed=False, status=friction_status(last.cycle, active))
     mep_per_nm = last.mep_per_nm() / PA_PER_BAR  # bar per N m of one cylinder
+    left = _left_out_words(win.left_out)
     cylinders = []
     for k, cyl in enumerate(status["cylinders"]):
         loss = _cylinder_loss(k, cyl, names, active)
         kinds = win.status_counts[k]
-        if loss["status"] in ("withheld", "unresolved"):
-            pass  # the newest cycle's status with the window's flags: no value
-        elif kinds[STATUSES.index(loss["status"])] == n_cycles:
+        if n_counted == 0:
+            loss.update(dict.fromkeys(FIGURE_VALUES), status="unresolved", data_weight=None,
+                        reason=f"no cycle of the window has its own estimate ({left})")
+        elif loss["status"] in ("withheld", "unresolved"):
+            pass  # the newest counted cycle's status with the window's flags: no value
+        elif kinds[STATUSES.index(loss["status"])] == n_counted:
             # the scatter's sem knows nothing of the calibration, whose error is the same in every cycle: added back
             cal = loss["calibration_sigma_nm"] or 0.0
             for key, sigma_key, per_nm, col in (("friction_torque_mean_nm", "friction_torque_sigma_nm", 1.0, lay.torque(k)),
@@ -120,22 +130,28 @@ def losses_window(engine_id: str, last: CycleResult, win: WindowFigures, names: 
             n_measured = int(kinds[STATUSES.index("measured")])
             loss.update(dict.fromkeys(FIGURE_VALUES), status="unresolved",
                         reason=f"the figure's status changed within the window (measured in {n_measured} of "
-                               f"{n_cycles} cycles): no mean over the window; see the estimate without a window")
+                               f"{n_counted} cycles{'; ' + left if win.left_out else ''}): no mean over the "
+                               "window; see the estimate without a window")
         cylinders.append(values_by_status(loss))
     eng_mean, eng_sem, n = win.stat(0)
     eng_cal = status["friction"]["calibration_sigma_nm"] or 0.0
     eng_sem = math.hypot(eng_sem, eng_cal * mep_per_nm / last.n_cyl)
-    whole = n == n_cycles
-    return {"engine_id": engine_id, "cycle_index": int(last.index), "estimate": "window",
-            "window": {"first_cycle": win.first_cycle, "last_cycle": int(last.index), "cycles": n_cycles},
+    whole = n_counted > 0 and n == n_counted
+    return {"engine_id": engine_id, "cycle_index": win.last_cycle, "estimate": "window",
+            "window": {"first_cycle": win.first_cycle, "last_cycle": win.last_cycle, "cycles": n_counted,
+                       "cycles_left_out": win.left_out, "left_out": left if win.left_out else None},
             "engine": {"fmep_bar": num(eng_mean) if whole else None,
                        "fmep_sigma_bar": num(eng_sem) if whole else None,
                        "status": "measured" if whole else "unresolved",
                        "calibration": status["friction"]["calibration"],
                        "calibration_sigma_nm": num(eng_cal) if whole else None,
-                       "reason": None if whole else f"the engine's friction was measured in {n} of "
-                                                    f"{n_cycles} cycles of the window"},
+                       "reason": None if whole else f"the engine's friction was measured in {n} of {n_counted} "
+                                                    f"cycles of the window{'; ' + left if win.left_out else ''}"},
             "active_flags": sorted(active), "cylinders": cylinders}
+
+
+def _left_out_words(n: int) -> str:
+    return f"{n} cycle{'' if n == 1 else 's'} without a previous cycle left out"
 
 
 def friction_torque(r: CycleResult) -> dict:

@@ -39,16 +39,22 @@ def is_reset(doc: dict | None) -> bool:
 
 class DataDir:
     """--data-dir: the store (SQLite in WAL mode) at DIR/frictionwatch.db; each engine registered (its model
-    version), begun as a new run and given back what the store kept (module doc); a StoreListener joins its fan-out."""
+    version), begun as a new run and given back what the store kept (module doc); a StoreListener joins its fan-out.
 
-    def __init__(self, folder: Path, keep_days: float | None = None, retention_every_s: float = RETENTION_EVERY_S
-                 ) -> None:
-        if folder.exists() and not folder.is_dir():
-            raise NotADirectoryError(f"--data-dir {folder} is a file, expected a folder")
+    ``where``: the folder (a Path), or a store URL (a str, service/store: ``postgresql://...``). serve passes the
+    folder only; the URL lets the same restart behaviour be checked on PostgreSQL
+    (tests/service/test_restart_store_backends.py)."""
+
+    def __init__(self, where: Path | str, keep_days: float | None = None,
+                 retention_every_s: float = RETENTION_EVERY_S) -> None:
         if keep_days is not None and not keep_days > 0:
             raise ValueError(f"--keep-days must be > 0, got {keep_days}")
-        folder.mkdir(parents=True, exist_ok=True)
-        self.store = open_store(str(folder / "frictionwatch.db"))
+        if isinstance(where, Path):
+            if where.exists() and not where.is_dir():
+                raise NotADirectoryError(f"--data-dir {where} is a file, expected a folder")
+            where.mkdir(parents=True, exist_ok=True)
+            where = str(where / "frictionwatch.db")
+        self.store = open_store(where)
         self._listener = StoreListener
         self.keep_days, self.retention_every_s = keep_days, retention_every_s
         self.retention: Counter[str] = Counter()  # rows deleted by table, sweeps, errors

@@ -49,6 +49,7 @@ AlertsFactory = Callable[[str, Any], Any]  # (engine id, EngineSpec) -> an Alert
 #                                            history, acknowledge, rebaseline, baseline)
 STAMPS_KEPT = 4096  # batches remembered per source for the latency (a few seconds of a genset's records)
 CYCLE_REVS = 2.0  # crank revolutions per (four-stroke) cycle: turns queued seconds into cycles
+LISTENER_STOP_S = 2.0  # what a stop gives the listeners (the store's last batch) after the drain
 RECENT_S = 30.0  # raw records kept for an on-demand discrepancy run: genset-v20 pressure ~3.2 MB/s -> ~100 MB
 
 
@@ -185,9 +186,10 @@ class EngineService:
         self.session.start()
         return self
 
-    def stop(self, timeout: float = 2.0) -> None:
-        """Stop the session (its ingest thread gets ``timeout`` to drain; a backlog beyond that is abandoned with
-        the process, logged by the session), then the listeners after they have delivered what is queued."""
+    def stop(self, timeout: float | None = None) -> None:
+        """Stop the session (its ingest thread gets ``timeout`` to drain, default the session's ``drain_s``, serve
+        --drain-s; a backlog beyond that is abandoned with the process, logged), then the listeners after they have
+        delivered what is queued (at most ``LISTENER_STOP_S``, or ``timeout``)."""
         self.session.stop(timeout)
         self.skipped = dict(self.session.skipped)
         left = self.session.left_at_stop
@@ -197,7 +199,7 @@ class EngineService:
                       and newest.rpm_mean > 0 else "cycles unknown")
             log.warning("%s: stopped with %s (%.1f s of acquisition, %d records) not analysed", self.engine_id, cycles,
                         left[1], left[0])
-        self.fanout.stop(timeout)
+        self.fanout.stop(LISTENER_STOP_S if timeout is None else timeout)
 
     def backlog(self) -> dict:
         """The ingest's lag (live.LiveSession.lag) with cycles estimated at the newest result's speed (None before
@@ -261,12 +263,16 @@ class EngineService:
     def _alert_dict(self, alert: Any) -> dict:
         return {"engine_id": self.engine_id, **alert.to_dict()}
 
-    def alert_list(self, active_only: bool) -> list[dict]:
+    def alert_list(self, active_only: bool, limit: int | None = None) -> tuple[list[dict], int]:
+        """The open alerts (``active_only``) or the history (the alert engine keeps the newest
+        AlertConfig.max_history cleared ones and every open one), by alert id; only the newest ``limit`` converted
+        and returned. Also returns how many there are."""
         if self.alerts is None:
-            return []
+            return [], 0
         with self._alerts_lock:  # the ingest thread takes this lock each cycle: only the copy is made under it
             alerts = self.alerts.active() if active_only else self.alerts.history()
-        return [self._alert_dict(a) for a in alerts]
+        shown = alerts if limit is None else alerts[-limit:] if limit > 0 else []
+        return [self._alert_dict(a) for a in shown], len(alerts)
 
     def acknowledge(self, alert_id: int, by: str) -> dict:
         """Raises LookupError when the engine has no such alert (the alert engine's KeyError)."""

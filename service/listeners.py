@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from frictionwatch.core.monitor.report.results import CycleResult
-from frictionwatch.service.window_figures import WindowFigures
+from frictionwatch.service.window_figures import WindowFigures, left_out
 from frictionwatch.service.window_sums import WindowSums
 
 log = logging.getLogger(__name__)
@@ -199,6 +199,9 @@ class LatestState(Listener):
         self._ring: deque[CycleResult] = deque(maxlen=max_results)
         self.sums = WindowSums(max_results)  # windows up to the ring's length
         self.newest: CycleResult | None = None
+        # the newest result with a cycle before it: a window's figures take their statuses from it, as its means
+        # leave out the cycles without one (service/window_figures.py)
+        self.newest_counted: CycleResult | None = None
         self.newest_s: float | None = None  # monotonic time the newest result became visible here
         self.updated = threading.Condition(self._lock)
         self.on_visible: Callable[[float], None] | None = None  # gets result -> visible here [s] (metrics)
@@ -213,6 +216,8 @@ class LatestState(Listener):
                 self._ring[-1] = self.newest.slim()  # only the newest keeps its traces
             self._ring.append(event.result)
             self.newest, self.newest_s = event.result, time.monotonic()
+            if not left_out(event.result.flags):
+                self.newest_counted = event.result
             self.updated.notify_all()
         if self.on_visible is not None:
             self.on_visible(self.newest_s - event.result_s)
@@ -226,9 +231,10 @@ class LatestState(Listener):
             return self.newest, newest_first[::-1]
 
     def window(self, cycles: int) -> tuple[CycleResult | None, WindowFigures | None]:
-        """The newest whole result and the figures of the newest ``cycles`` cycles, read together."""
+        """The result a window's statuses are read from (the newest with a previous cycle; the newest when none has
+        one) and the figures of the newest ``cycles`` cycles, read together."""
         with self._lock:
-            return self.newest, self.sums.figures(cycles)
+            return self.newest_counted or self.newest, self.sums.figures(cycles)
 
     def wait_index(self, index: int, timeout: float) -> bool:
         with self._lock:

@@ -35,6 +35,11 @@ from frictionwatch.service.startup import StartupTicker
 
 log = logging.getLogger(__name__)
 DEFAULT_SOURCE = "mcap:replay_logs/demo.mcap?loop=1&speed=1"
+MAX_QUEUE_S, DRAIN_S = 10.0, 5.0  # LiveSession's defaults (service/live.py, Backpressure)
+# below ~1 s the queue would drop on an ordinary hiccup of the ingest thread (a batch spans 50-100 ms, the merge's
+# reorder window 1 s); above 600 s one genset-v20 queues ~2 GB
+QUEUE_LIMITS = (1.0, 600.0)
+DRAIN_LIMITS = (0.0, 600.0)  # 0: abandon what is queued at once (logged)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -51,6 +56,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                                                    "days (at start, then hourly; alerts and baselines are kept)")
     p.add_argument("--token-file", type=Path, help="file holding the token state changes need (required off loopback)")
     p.add_argument("--history-cycles", type=int, default=5000, help="recent cycles each engine holds for the API")
+    p.add_argument("--max-queue-s", type=float, default=MAX_QUEUE_S, metavar="S",
+                   help=f"the most acquisition time each engine's ingest queue holds; a real-time source that gets "
+                        f"further ahead of the analysis loses its oldest queued data, counted (default {MAX_QUEUE_S:g}; "
+                        f"{QUEUE_LIMITS[0]:g}-{QUEUE_LIMITS[1]:g}; genset-v20: ~3.2 MB a second)")
+    p.add_argument("--drain-s", type=float, default=DRAIN_S, metavar="S",
+                   help=f"at stop (SIGTERM, Ctrl-C), how long each engine may go on analysing what is queued; what is "
+                        f"left then is logged, not analysed (default {DRAIN_S:g}; {DRAIN_LIMITS[0]:g}-"
+                        f"{DRAIN_LIMITS[1]:g}; keep it under the stop grace time, docker's is 10 s)")
     p.add_argument("--sensor-health", action="store_true", help=SENSOR_HEALTH_HELP)
     p.set_defaults(func=run)
 
@@ -113,7 +126,8 @@ def build_engines(args: argparse.Namespace, data: DataDir | None) -> list[Engine
         for ident, urls in engine_groups(args.source or [DEFAULT_SOURCE]):
             svc = build_engine(ident, urls, args.engine, taken, history_cycles=args.history_cycles,
                                alerts=data.with_baseline(alerts) if data else alerts,
-                               config=monitor_config(args.sensor_health))
+                               config=monitor_config(args.sensor_health), max_queue_s=args.max_queue_s,
+                               drain_s=args.drain_s)
             services.append(svc)
             if data:
                 print(f"frictionwatch serve: {data.attach(svc)}", flush=True)
@@ -145,6 +159,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--history-cycles must be >= 64, got {args.history_cycles}")
     if args.keep_days is not None and not args.data_dir:
         raise ValueError("--keep-days needs --data-dir")
+    check_seconds("--max-queue-s", args.max_queue_s, QUEUE_LIMITS)
+    check_seconds("--drain-s", args.drain_s, DRAIN_LIMITS)
     data = DataDir(args.data_dir, keep_days=args.keep_days) if args.data_dir else None
     services: list[EngineService] = []
     try:
@@ -182,6 +198,12 @@ def run(args: argparse.Namespace) -> int:
         if data:
             data.close()
     return 0
+
+
+def check_seconds(flag: str, value: float, limits: tuple[float, float]) -> None:
+    """A one-line error unless ``limits[0] <= value <= limits[1]`` (NaN and inf fail too)."""
+    if not limits[0] <= value <= limits[1]:
+        raise ValueError(f"{flag} must be {limits[0]:g} to {limits[1]:g} seconds, got {value:g}")
 
 
 def _alerts_factory():

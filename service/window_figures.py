@@ -5,6 +5,11 @@ engine's measured FMEP, and per cylinder the friction torque, the FMEP, the data
 the figure's status. A window's figures (``WindowFigures``) are each number's mean, the 1-sigma of that mean from
 the cycle-to-cycle scatter and how many cycles had it, the status counts per cylinder and the flag counts.
 
+A cycle without a cycle before it (flag ``no_previous_cycle``: a log's first cycle, the first after each loop
+seam of a replay or after a stream restart) has no estimate of its own (nothing to balance its indicated work
+against: every figure null or unresolved). It is left out of the means and the status counts and counted
+(``left_out``), so that one such cycle does not make a whole window 'unresolved'; its flags still count.
+
 ``figures_from_cycles`` computes them from the window's cycles one by one: the reference. The service reads them
 from running sums kept once per cycle (service/window_sums.py, O(1) per request); a test holds the two together.
 """
@@ -20,6 +25,13 @@ import numpy as np
 from frictionwatch.core.monitor.report.figure_status import STATUSES
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.report.run_summary import mean_and_sem
+
+NO_PREVIOUS_CYCLE = "no_previous_cycle"  # core.monitor.monitor: the cycle has no cycle before it
+
+
+def left_out(flags) -> bool:
+    """Whether a cycle with these flags stays out of a window's means (module doc)."""
+    return NO_PREVIOUS_CYCLE in flags
 
 
 @dataclass(frozen=True)
@@ -80,7 +92,9 @@ def cycle_row(doc: dict, layout: RowLayout) -> tuple[np.ndarray, np.ndarray]:
 class WindowFigures:
     """The figures of a window of ``cycles`` consecutive cycles (``first_cycle`` .. ``last_cycle``): per column of
     ``layout``, the mean of the finite values, the 1-sigma of that mean (NaN for fewer than two) and how many;
-    ``status_counts`` (n_cyl, len(STATUSES)); ``flag_counts``: cycles of the window that raised each flag."""
+    ``status_counts`` (n_cyl, len(STATUSES)) of the counted cycles; ``flag_counts``: cycles of the window that raised
+    each flag (all of them); ``left_out``: cycles of the window without a previous cycle, in neither the means nor
+    the status counts (module doc)."""
 
     layout: RowLayout
     cycles: int
@@ -91,6 +105,12 @@ class WindowFigures:
     count: np.ndarray
     status_counts: np.ndarray
     flag_counts: dict[str, int]
+    left_out: int = 0
+
+    @property
+    def counted(self) -> int:
+        """The cycles the means and status counts stand for."""
+        return self.cycles - self.left_out
 
     def stat(self, col: int) -> tuple[float, float, int]:
         return float(self.mean[col]), float(self.sem[col]), int(self.count[col])
@@ -100,13 +120,13 @@ def figures_from_cycles(results: Sequence[CycleResult]) -> WindowFigures:
     """The reference: every cycle of the window read again (cost grows with the window)."""
     docs = [r.to_json(smoothed=False) for r in results]
     layout = layout_of(docs[-1])
-    rows, statuses = zip(*(cycle_row(d, layout) for d in docs))
-    values = np.array(rows)
+    made = [cycle_row(d, layout) for d, r in zip(docs, results) if not left_out(r.flags)]
+    values = np.array([row for row, _ in made]).reshape(len(made), layout.width)
     stats = [mean_and_sem(values[:, c]) for c in range(layout.width)]
     counts = np.zeros((layout.n_cyl, len(STATUSES)), np.int64)
-    for st in statuses:
+    for _, st in made:
         counts[np.arange(layout.n_cyl), st] += 1
     flags = Counter(f for r in results for f in set(r.flags))
     return WindowFigures(layout, len(results), int(results[0].index), int(results[-1].index),
                          np.array([s[0] for s in stats]), np.array([s[1] for s in stats]),
-                         np.array([s[2] for s in stats]), counts, dict(flags))
+                         np.array([s[2] for s in stats]), counts, dict(flags), len(results) - len(made))

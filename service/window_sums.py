@@ -9,7 +9,8 @@ of finite values, their sum and their sum of squares over cycles 1..n; a window 
 positions n and n - w. Precision: each column is summed about a fixed shift (its first finite value), so the sum of
 squares does not lose the scatter to the mean; and every ``capacity`` cycles all positions are rebased on the oldest
 one still needed, so the sums never grow past ~2 x capacity cycles' worth (a year of cycles loses nothing).
-Flag counts are integers (exact). Memory: (capacity + 1) x 3 x columns float64, ~25 MB for genset-v20 at 5000.
+Flag counts are integers (exact). A cycle without a previous cycle (window_figures.left_out) adds nothing to the
+sums and status counts, only its flags: the window says how many it left out. Memory: (capacity + 1) x 3 x columns float64, ~25 MB for genset-v20 at 5000.
 """
 
 from __future__ import annotations
@@ -19,7 +20,14 @@ import logging
 import numpy as np
 from frictionwatch.core.monitor.report.figure_status import STATUSES
 from frictionwatch.core.monitor.report.results import CycleResult
-from frictionwatch.service.window_figures import RowLayout, WindowFigures, cycle_row, layout_of
+from frictionwatch.service.window_figures import (
+    NO_PREVIOUS_CYCLE,
+    RowLayout,
+    WindowFigures,
+    cycle_row,
+    layout_of,
+    left_out,
+)
 
 log = logging.getLogger(__name__)
 
@@ -54,13 +62,15 @@ class WindowSums:
         slots = self.capacity + 1
         n = self.count + 1
         prev, pos = (n - 1) % slots, n % slots
-        finite = np.isfinite(row)
+        skip = left_out(flags)  # no estimate of its own: only its flags count (window_figures module doc)
+        finite = np.isfinite(row) & (not skip)
         new = finite & np.isnan(self._shift)
         self._shift[new] = row[new]  # a column's first finite value: no earlier cycle contributed to it
         x = np.where(finite, row - self._shift, 0.0)
         self._sums[pos] = self._sums[prev] + np.concatenate([finite, x, x * x])
         onehot = np.zeros_like(self._status[0])
-        onehot[np.arange(layout.n_cyl) * len(STATUSES) + status] = 1
+        if not skip:
+            onehot[np.arange(layout.n_cyl) * len(STATUSES) + status] = 1
         self._status[pos] = self._status[prev] + onehot
         for f in flags - self._flag_col.keys():
             self._flag_col[f] = len(self._flag_col)
@@ -93,7 +103,7 @@ class WindowSums:
         flags = {f: int(flag_n[c]) for f, c in self._flag_col.items() if flag_n[c] > 0}
         first = int(self._index[(self.count - w + 1) % slots])
         return WindowFigures(self.layout, w, first, int(self._index[new]), mean, sem, n.astype(np.int64), status,
-                             flags)
+                             flags, flags.get(NO_PREVIOUS_CYCLE, 0))
 
     def _reset(self, layout: RowLayout) -> None:
         slots = self.capacity + 1

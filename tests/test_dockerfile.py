@@ -67,6 +67,8 @@ def test_the_service_runs_unprivileged_on_the_port_it_exposes_and_checks():
     assert (ROOT / source.removeprefix("mcap:").split("?")[0]).exists()
     health = next(args for op, args in ops if op == "HEALTHCHECK")
     assert f"127.0.0.1:{expose}/api/v1/health" in health and "curl" not in health
+    # service/healthcheck.py: 'degraded' (lagging, not yet analysing) is healthy for the container
+    assert "frictionwatch.service.healthcheck" in health
 
 
 def test_the_numba_cache_is_compiled_at_build_time_for_a_generic_cpu():

@@ -84,3 +84,31 @@ def test_a_new_shape_starts_the_windows_again() -> None:
     got = sums.figures(10)
     assert got.cycles == 1 and got.layout == b and got.mean[0] == 2.0
     assert WindowSums(3).figures(5) is None
+
+
+def test_a_cycle_without_a_previous_cycle_is_left_out_and_counted() -> None:
+    """Its row (here 1e6, far from the others, so that any part of it in the sums would show) adds nothing to the
+    means, counts or statuses; its flags still count, and the window says how many it left out."""
+    layout = RowLayout(n_cyl=2, n_coefs=1)
+    rows, status, _ = synthetic(30, layout, seed=2)
+    seams = {0, 11, 23}
+    flags = [frozenset({"no_previous_cycle"}) if i in seams else frozenset() for i in range(30)]
+    sums = WindowSums(50)
+    for i in range(30):
+        sums.append(i, (layout, np.full(layout.width, 1e6) if i in seams else rows[i], status[i], flags[i]))
+    for w in (1, 5, 7, 19, 30):
+        got = sums.figures(w)
+        kept = [i for i in range(30 - w, 30) if i not in seams]
+        plain = WindowSums(50)
+        for i in kept:
+            plain.append(i, (layout, rows[i], status[i], frozenset()))
+        want = plain.figures(len(kept)) if kept else None
+        assert got.cycles == w and got.left_out == w - len(kept) and got.counted == len(kept)
+        assert got.flag_counts == ({"no_previous_cycle": got.left_out} if got.left_out else {})
+        if want is None:
+            assert_array_equal(got.count, 0) and assert_array_equal(got.status_counts, 0)
+            continue
+        assert_array_equal(got.count, want.count)
+        assert_allclose(got.mean, want.mean, rtol=1e-12, equal_nan=True)
+        assert_allclose(got.sem, want.sem, rtol=1e-6, atol=1e-12, equal_nan=True)
+        assert_array_equal(got.status_counts, want.status_counts)
