@@ -477,8 +477,9 @@ def _polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, 
     r1 = (new_train.features() / scale).ravel()
     better = float(r1 @ r1) < float(r0 @ r0)
     cost = float(min(r1 @ r1, r0 @ r0))
-    sigma = parameter_sigma(jac, train.n_cycles, cost, floor, r1 if better else r0)
-    chosen = replace(trial if better else t, sigma=sigma)
+    kept = trial if better else t
+    sigma = parameter_sigma(jac, train.n_cycles, cost, floor, r1 if better else r0, np.abs(kept.x - cand.x0))
+    chosen = replace(kept, sigma=sigma)
     return chosen, _with_fit(current, chosen), new_res if better else res, runs
 
 

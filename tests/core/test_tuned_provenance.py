@@ -49,8 +49,8 @@ def test_the_code_uses_the_recorded_numbers():
     assert features.NULL_OWN == TUNED["NULL_OWN"].value and features.NULL_FLOOR == TUNED["NULL_FLOOR"].value
     assert features.NULL_BALANCE == TUNED["NULL_BALANCE"].value
     assert features.FLOOR_RMS == (TUNED["FLOOR_RMS_SPEED"].value, TUNED["FLOOR_RMS_BALANCE"].value)
-    if "SIGMA_SCALE" in TUNED:
-        assert fit.SIGMA_SCALE == TUNED["SIGMA_SCALE"].value
+    if "EFFECT_REL_ERROR" in TUNED:
+        assert fit.EFFECT_REL_ERROR == TUNED["EFFECT_REL_ERROR"].value
 
 
 def test_a_floor_is_rounded_up_never_down():
