@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.jit import BORROWING
 from frictionwatch.core.model.kinematics import kinematics
 
 R_AIR = 287.0  # J/(kg K)
@@ -48,7 +49,7 @@ WOSCHNI_SCALE = 0.6  # calibration multiplier on Woschni h: reproduces the CHK p
 _Q, _SOC, _BETA, _LEAK, _OMEGA, _PIVC, _PINT, _PEXH, _NCYC = range(9)
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def _cp_air(temp):
     """Sonntag c_p of air [J/(kg K)], T clipped to the fit's 300..3500 K range (physics.md §13)."""
     t = min(max(temp, 300.0), 3500.0)
@@ -73,14 +74,14 @@ def cp_air(temp_k: np.ndarray) -> np.ndarray:
     return out.reshape(t.shape)
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def _wiebe_rate(u, a, expo, dur):
     """d x_b / d theta of one Wiebe function at u = theta - theta_s >= 0 [1/rad]."""
     r = u / dur
     return a * expo / dur * r ** (expo - 1.0) * math.exp(-a * r**expo)
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def _orifice_flow(area, p, temp, p_down, g):
     """Isentropic mass flow [kg/s] through an effective area [m^2] from (p, T) to p_down (choked or subsonic)."""
     pr = p_down / p
@@ -91,7 +92,7 @@ def _orifice_flow(area, p, temp, p_down, g):
     return area * p / rt * math.sqrt(2.0 * g / (g - 1.0) * (pr ** (2.0 / g) - pr ** ((g + 1.0) / g)))
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def _closed_rhs(theta, vol, dvol, p, m, c, q):
     """(dp/dtheta [Pa/rad], dm/dtheta [kg/rad]) of the closed cylinder; c = constants, q = cycle parameters."""
     temp = p * vol / (m * R_AIR)
@@ -123,7 +124,7 @@ def _closed_rhs(theta, vol, dvol, p, m, c, q):
     return dp, dm
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def cycle_pressure_kernel(vol_half, dvol_half, c, q, out):
     """Fill ``out`` (n+1,) with p [Pa] at theta_i = -2 pi + i*step; returns the trapped-mass fraction lost by leak.
 
