@@ -11,6 +11,31 @@ arithmetic is unchanged, so its results are bit-identical.
 
 from __future__ import annotations
 
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
 BORROWING = {"cache": True, "_nrt": False}
 
-__all__ = ["BORROWING"]
+__all__ = ["BORROWING", "sincos"]
+
+
+@intrinsic
+def sincos(typingctx, x):
+    """(sin x, cos x) from one call of the C library's ``sincos`` (one argument reduction for both: the plant takes
+    both of every cylinder's angle four times a step). glibc's sincos gives the very numbers of its sin and cos
+    (tests/core/test_jit.py checks it against np.sin, np.cos on this machine's library)."""
+    if not isinstance(x, types.Float):
+        return None
+    sig = types.UniTuple(types.float64, 2)(types.float64)
+
+    def codegen(context, builder, signature, args):
+        dbl = ir.DoubleType()
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [dbl, dbl.as_pointer(),
+                                                                                             dbl.as_pointer()]), "sincos")
+        s, c = cgutils.alloca_once(builder, dbl), cgutils.alloca_once(builder, dbl)
+        builder.call(fn, [context.cast(builder, args[0], signature.args[0], types.float64), s, c])
+        return context.make_tuple(builder, signature.return_type, [builder.load(s), builder.load(c)])
+
+    return sig, codegen

@@ -38,7 +38,7 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
-from frictionwatch.core.model.jit import BORROWING
+from frictionwatch.core.model.jit import BORROWING, sincos
 from frictionwatch.core.model.terms import N_FIELDS, fill_sample, sample_rows
 from frictionwatch.core.model.thermo import cycle_pressure_kernel
 from frictionwatch.core.model.torques import gas_torque_sample
@@ -176,8 +176,8 @@ def _cylinder_terms(th, om, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep
         omc[k] = om[j]
         pres[k] = _trace_lookup(traces, slot_cycle, k, loc[k], tstep)
         pg[k] = pres[k] - sc[S_PCC]
-        dx[k], ddx[k] = fill_sample(sample_rows(samples, k), 0, loc[k], np.sin(loc[k]), np.cos(loc[k]), omc[k], pg[k],
-                                    r, inv_rod, e)
+        sin_a, cos_a = sincos(loc[k])
+        dx[k], ddx[k] = fill_sample(sample_rows(samples, k), 0, loc[k], sin_a, cos_a, omc[k], pg[k], r, inv_rod, e)
     for m in range(len(kernels)):
         kernels[m](samples, fprm, fb[m])
 
