@@ -93,9 +93,12 @@ def _orifice_flow(area, p, temp, p_down, g):
 
 
 @numba.njit(**BORROWING)
-def _heat_release(theta, c, q):
-    """Combustion heat release rate dQc/dtheta [J/rad] at theta (dual Wiebe after SOC, 0 before)."""
+def _angle_terms(theta, vol, c, q):
+    """What the closed cylinder's rate depends on through the angle alone: (combustion heat release rate dQc/dtheta
+    [J/rad], dual Wiebe; Woschni's motored pressure p_mot [Pa]), both 0 before SOC. The kernel takes them once per
+    angle (RK4's two mid-point stages share theta): the same numbers as computed in each stage."""
     dqc = 0.0
+    p_mot = 0.0
     u = theta - q[_SOC]
     if u > 0.0 and q[_Q] > 0.0:
         beta = q[_BETA]
@@ -104,26 +107,36 @@ def _heat_release(theta, c, q):
         if beta < 1.0:
             dqc += (1.0 - beta) * _wiebe_rate(u, c[_WA], c[_EXP_D], c[_DUR_D])
         dqc *= q[_Q]
-    return dqc
+    if u > 0.0:
+        p_mot = q[_PIVC] * (c[_VIVC] / vol) ** N_MOTORED
+    return dqc, p_mot
 
 
 @numba.njit(**BORROWING)
-def _closed_rhs(theta, vol, dvol, p, m, c, q, dqc, h_pre):
+def _woschni_constants(c, q):
+    """A cycle's Woschni constants: (3.26 B^-0.2 times the scale, C1 cbar [m/s], (C1 cbar)^0.8 (w before SOC),
+    C2 Vd T_r/(p_r V_r) [m/(s Pa)])."""
+    cbar = c[_VD] / c[_AREA] * q[_OMEGA] / np.pi  # 2 S n = S omega / pi
+    w0 = WOSCHNI_C1 * cbar
+    return (c[_HT] * 3.26 * c[_BORE] ** -0.2, w0, w0**0.8,
+            WOSCHNI_C2 * c[_VD] * c[_TIVC] / (q[_PIVC] * c[_VIVC]))
+
+
+@numba.njit(**BORROWING)
+def _closed_rhs(theta, vol, dvol, p, m, c, q, angle, wo):
     """(dp/dtheta [Pa/rad], dm/dtheta [kg/rad]) of the closed cylinder; c = constants, q = cycle parameters,
-    dqc = ``_heat_release`` at theta and h_pre = ``c[_HT] * 3.26 * c[_BORE] ** -0.2``: the kernel computes these once
-    per angle and cycle (RK4's two mid-point stages share theta), the same numbers as inline."""
+    angle = ``_angle_terms`` at theta, wo = ``_woschni_constants``."""
+    dqc, p_mot = angle
+    h_pre, w0, w0_08, wc2 = wo
     temp = p * vol / (m * R_AIR)
     cp = _cp_air(temp)
     g = cp / (cp - R_AIR)
-    u = theta - q[_SOC]
     # Woschni: h = 3.26 B^-0.2 p[kPa]^0.8 T^-0.55 w^0.8 with w = C1 cbar + C2 Vd T_r/(p_r V_r) (p - p_mot)
     omega = q[_OMEGA]
-    cbar = c[_VD] / c[_AREA] * omega / np.pi  # 2 S n = S omega / pi
-    w = WOSCHNI_C1 * cbar
-    if u > 0.0:
-        p_mot = q[_PIVC] * (c[_VIVC] / vol) ** N_MOTORED
-        w += WOSCHNI_C2 * c[_VD] * c[_TIVC] / (q[_PIVC] * c[_VIVC]) * max(p - p_mot, 0.0)
-    h = h_pre * (p * 1e-3) ** 0.8 * temp**-0.55 * w**0.8
+    w08 = w0_08
+    if theta - q[_SOC] > 0.0:
+        w08 = (w0 + wc2 * max(p - p_mot, 0.0)) ** 0.8
+    h = h_pre * (p * 1e-3) ** 0.8 * temp**-0.55 * w08
     area_w = c[_AW0] + np.pi * c[_BORE] * vol / c[_AREA]
     dqw = h * area_w * (temp - c[_TW]) / omega
     dm = 0.0
@@ -164,17 +177,19 @@ def cycle_pressure_kernel(vol_half, dvol_half, c, q, out):
     p = p_ivc
     m = p_ivc * c[_VIVC] / (R_AIR * c[_TIVC])
     m0 = m
-    h_pre = c[_HT] * 3.26 * c[_BORE] ** -0.2
+    wo = _woschni_constants(c, q)
     for i in range(i_ivc, i_evo):
         th = i * h - 2.0 * np.pi
         j = 2 * i
-        q1, q2, q4 = _heat_release(th, c, q), _heat_release(th + 0.5 * h, c, q), _heat_release(th + h, c, q)
-        k1p, k1m = _closed_rhs(th, vol_half[j], dvol_half[j], p, m, c, q, q1, h_pre)
+        a1 = _angle_terms(th, vol_half[j], c, q)
+        a2 = _angle_terms(th + 0.5 * h, vol_half[j + 1], c, q)
+        a4 = _angle_terms(th + h, vol_half[j + 2], c, q)
+        k1p, k1m = _closed_rhs(th, vol_half[j], dvol_half[j], p, m, c, q, a1, wo)
         k2p, k2m = _closed_rhs(th + 0.5 * h, vol_half[j + 1], dvol_half[j + 1], p + 0.5 * h * k1p, m + 0.5 * h * k1m,
-                               c, q, q2, h_pre)
+                               c, q, a2, wo)
         k3p, k3m = _closed_rhs(th + 0.5 * h, vol_half[j + 1], dvol_half[j + 1], p + 0.5 * h * k2p, m + 0.5 * h * k2m,
-                               c, q, q2, h_pre)
-        k4p, k4m = _closed_rhs(th + h, vol_half[j + 2], dvol_half[j + 2], p + h * k3p, m + h * k3m, c, q, q4, h_pre)
+                               c, q, a2, wo)
+        k4p, k4m = _closed_rhs(th + h, vol_half[j + 2], dvol_half[j + 2], p + h * k3p, m + h * k3m, c, q, a4, wo)
         p += h / 6.0 * (k1p + 2.0 * k2p + 2.0 * k3p + k4p)
         m += h / 6.0 * (k1m + 2.0 * k2m + 2.0 * k3m + k4m)
         p = max(p, 1e3)
