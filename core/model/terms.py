@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
+from frictionwatch.core.model.jit import BORROWING
 
 FIELDS = ("angle", "sin", "cos", "dx", "ddx", "omega", "p_gauge")
 ANGLE, SIN, COS, DX, DDX, OMEGA, P_GAUGE = range(len(FIELDS))
@@ -52,8 +53,9 @@ KERNEL_SIGNATURE = numba.types.void(numba.types.float64[:, :, ::1], numba.types.
 
 
 def loss_kernel(func: Callable) -> Callable:
-    """Decorator of a term kernel ``func(samples, consts, out)``: numba-compiled with ``KERNEL_SIGNATURE``, cached."""
-    return numba.njit(KERNEL_SIGNATURE, cache=True)(func)
+    """Decorator of a term kernel ``func(samples, consts, out)``: numba-compiled with ``KERNEL_SIGNATURE``, cached,
+    borrowing its arrays (core.model.jit: the plant calls each kernel per RK4 stage, so the kernel must not allocate)."""
+    return numba.njit(KERNEL_SIGNATURE, **BORROWING)(func)
 
 
 @dataclass(frozen=True)

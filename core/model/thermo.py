@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.jit import BORROWING
 from frictionwatch.core.model.kinematics import kinematics
 
 R_AIR = 287.0  # J/(kg K)
@@ -48,7 +49,7 @@ WOSCHNI_SCALE = 0.6  # calibration multiplier on Woschni h: reproduces the CHK p
 _Q, _SOC, _BETA, _LEAK, _OMEGA, _PIVC, _PINT, _PEXH, _NCYC = range(9)
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def _cp_air(temp):
     """Sonntag c_p of air [J/(kg K)], T clipped to the fit's 300..3500 K range (physics.md §13)."""
     t = min(max(temp, 300.0), 3500.0)
@@ -73,14 +74,14 @@ def cp_air(temp_k: np.ndarray) -> np.ndarray:
     return out.reshape(t.shape)
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def _wiebe_rate(u, a, expo, dur):
     """d x_b / d theta of one Wiebe function at u = theta - theta_s >= 0 [1/rad]."""
     r = u / dur
     return a * expo / dur * r ** (expo - 1.0) * math.exp(-a * r**expo)
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def _orifice_flow(area, p, temp, p_down, g):
     """Isentropic mass flow [kg/s] through an effective area [m^2] from (p, T) to p_down (choked or subsonic)."""
     pr = p_down / p
@@ -91,13 +92,13 @@ def _orifice_flow(area, p, temp, p_down, g):
     return area * p / rt * math.sqrt(2.0 * g / (g - 1.0) * (pr ** (2.0 / g) - pr ** ((g + 1.0) / g)))
 
 
-@numba.njit(cache=True)
-def _closed_rhs(theta, vol, dvol, p, m, c, q):
-    """(dp/dtheta [Pa/rad], dm/dtheta [kg/rad]) of the closed cylinder; c = constants, q = cycle parameters."""
-    temp = p * vol / (m * R_AIR)
-    cp = _cp_air(temp)
-    g = cp / (cp - R_AIR)
+@numba.njit(**BORROWING)
+def _angle_terms(theta, vol, c, q):
+    """What the closed cylinder's rate depends on through the angle alone: (combustion heat release rate dQc/dtheta
+    [J/rad], dual Wiebe; Woschni's motored pressure p_mot [Pa]), both 0 before SOC. The kernel takes them once per
+    angle (RK4's two mid-point stages share theta): the same numbers as computed in each stage."""
     dqc = 0.0
+    p_mot = 0.0
     u = theta - q[_SOC]
     if u > 0.0 and q[_Q] > 0.0:
         beta = q[_BETA]
@@ -106,14 +107,36 @@ def _closed_rhs(theta, vol, dvol, p, m, c, q):
         if beta < 1.0:
             dqc += (1.0 - beta) * _wiebe_rate(u, c[_WA], c[_EXP_D], c[_DUR_D])
         dqc *= q[_Q]
-    # Woschni: h = 3.26 B^-0.2 p[kPa]^0.8 T^-0.55 w^0.8 with w = C1 cbar + C2 Vd T_r/(p_r V_r) (p - p_mot)
-    omega = q[_OMEGA]
-    cbar = c[_VD] / c[_AREA] * omega / np.pi  # 2 S n = S omega / pi
-    w = WOSCHNI_C1 * cbar
     if u > 0.0:
         p_mot = q[_PIVC] * (c[_VIVC] / vol) ** N_MOTORED
-        w += WOSCHNI_C2 * c[_VD] * c[_TIVC] / (q[_PIVC] * c[_VIVC]) * max(p - p_mot, 0.0)
-    h = c[_HT] * 3.26 * c[_BORE] ** -0.2 * (p * 1e-3) ** 0.8 * temp**-0.55 * w**0.8
+    return dqc, p_mot
+
+
+@numba.njit(**BORROWING)
+def _woschni_constants(c, q):
+    """A cycle's Woschni constants: (3.26 B^-0.2 times the scale, C1 cbar [m/s], (C1 cbar)^0.8 (w before SOC),
+    C2 Vd T_r/(p_r V_r) [m/(s Pa)])."""
+    cbar = c[_VD] / c[_AREA] * q[_OMEGA] / np.pi  # 2 S n = S omega / pi
+    w0 = WOSCHNI_C1 * cbar
+    return (c[_HT] * 3.26 * c[_BORE] ** -0.2, w0, w0**0.8,
+            WOSCHNI_C2 * c[_VD] * c[_TIVC] / (q[_PIVC] * c[_VIVC]))
+
+
+@numba.njit(**BORROWING)
+def _closed_rhs(theta, vol, dvol, p, m, c, q, angle, wo):
+    """(dp/dtheta [Pa/rad], dm/dtheta [kg/rad]) of the closed cylinder; c = constants, q = cycle parameters,
+    angle = ``_angle_terms`` at theta, wo = ``_woschni_constants``."""
+    dqc, p_mot = angle
+    h_pre, w0, w0_08, wc2 = wo
+    temp = p * vol / (m * R_AIR)
+    cp = _cp_air(temp)
+    g = cp / (cp - R_AIR)
+    # Woschni: h = 3.26 B^-0.2 p[kPa]^0.8 T^-0.55 w^0.8 with w = C1 cbar + C2 Vd T_r/(p_r V_r) (p - p_mot)
+    omega = q[_OMEGA]
+    w08 = w0_08
+    if theta - q[_SOC] > 0.0:
+        w08 = (w0 + wc2 * max(p - p_mot, 0.0)) ** 0.8
+    h = h_pre * (p * 1e-3) ** 0.8 * temp**-0.55 * w08
     area_w = c[_AW0] + np.pi * c[_BORE] * vol / c[_AREA]
     dqw = h * area_w * (temp - c[_TW]) / omega
     dm = 0.0
@@ -123,7 +146,7 @@ def _closed_rhs(theta, vol, dvol, p, m, c, q):
     return dp, dm
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def cycle_pressure_kernel(vol_half, dvol_half, c, q, out):
     """Fill ``out`` (n+1,) with p [Pa] at theta_i = -2 pi + i*step; returns the trapped-mass fraction lost by leak.
 
@@ -154,13 +177,19 @@ def cycle_pressure_kernel(vol_half, dvol_half, c, q, out):
     p = p_ivc
     m = p_ivc * c[_VIVC] / (R_AIR * c[_TIVC])
     m0 = m
+    wo = _woschni_constants(c, q)
     for i in range(i_ivc, i_evo):
         th = i * h - 2.0 * np.pi
         j = 2 * i
-        k1p, k1m = _closed_rhs(th, vol_half[j], dvol_half[j], p, m, c, q)
-        k2p, k2m = _closed_rhs(th + 0.5 * h, vol_half[j + 1], dvol_half[j + 1], p + 0.5 * h * k1p, m + 0.5 * h * k1m, c, q)
-        k3p, k3m = _closed_rhs(th + 0.5 * h, vol_half[j + 1], dvol_half[j + 1], p + 0.5 * h * k2p, m + 0.5 * h * k2m, c, q)
-        k4p, k4m = _closed_rhs(th + h, vol_half[j + 2], dvol_half[j + 2], p + h * k3p, m + h * k3m, c, q)
+        a1 = _angle_terms(th, vol_half[j], c, q)
+        a2 = _angle_terms(th + 0.5 * h, vol_half[j + 1], c, q)
+        a4 = _angle_terms(th + h, vol_half[j + 2], c, q)
+        k1p, k1m = _closed_rhs(th, vol_half[j], dvol_half[j], p, m, c, q, a1, wo)
+        k2p, k2m = _closed_rhs(th + 0.5 * h, vol_half[j + 1], dvol_half[j + 1], p + 0.5 * h * k1p, m + 0.5 * h * k1m,
+                               c, q, a2, wo)
+        k3p, k3m = _closed_rhs(th + 0.5 * h, vol_half[j + 1], dvol_half[j + 1], p + 0.5 * h * k2p, m + 0.5 * h * k2m,
+                               c, q, a2, wo)
+        k4p, k4m = _closed_rhs(th + h, vol_half[j + 2], dvol_half[j + 2], p + h * k3p, m + h * k3m, c, q, a4, wo)
         p += h / 6.0 * (k1p + 2.0 * k2p + 2.0 * k3p + k4p)
         m += h / 6.0 * (k1m + 2.0 * k2m + 2.0 * k3m + k4m)
         p = max(p, 1e3)

@@ -38,6 +38,7 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
+from frictionwatch.core.model.jit import BORROWING, sincos
 from frictionwatch.core.model.terms import N_FIELDS, fill_sample, sample_rows
 from frictionwatch.core.model.thermo import cycle_pressure_kernel
 from frictionwatch.core.model.torques import gas_torque_sample
@@ -105,12 +106,12 @@ def nq_cyl(n_terms):
 
 def work_arrays(z: int, n_terms: int) -> tuple:
     """The per-cylinder work arrays of ``plant_rhs``: local angle, speed, gauge pressure, sample rows
-    (N_FIELDS, z, 1), x', x'', pressure, basis (n_terms, z, 1)."""
+    (N_FIELDS, z, 1), x', x'', pressure, basis (n_terms, z, 1) (a term may depend on the cylinder: one row each)."""
     return (np.zeros(z), np.zeros(z), np.zeros(z), np.zeros((N_FIELDS, z, 1)), np.zeros(z), np.zeros(z), np.zeros(z),
             np.zeros((n_terms, z, 1)))
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def _trace_lookup(traces, slot_cycle, k, theta, tstep):
     """Pressure [Pa] of cylinder k at unwrapped local angle theta from the trace of its cycle (linear interpolation);
     traces, slot_cycle, tstep: the fields of PressureTraces (plain arguments: this runs per cylinder and RK4 stage)."""
@@ -127,7 +128,7 @@ def _trace_lookup(traces, slot_cycle, k, theta, tstep):
     return traces[k, slot, i] * (1.0 - f) + traces[k, slot, i + 1] * f
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def _ensure_traces(th, model, firing, q):
     """Make sure every cylinder holds the trace of its current combustion cycle, and of the next one once it is
     within ``TRACE_LEAD`` of the gas-exchange TDC that starts it (so a load step reaches the next intake).
@@ -161,7 +162,7 @@ def _ensure_traces(th, model, firing, q):
             slot_cycle[k, slot] = c
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def _cylinder_terms(th, om, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep, w, kernels):
     """Per-cylinder local angle, speed, pressure, sample rows, x', x'' and the library's friction basis into ``w``
     (the record fields as plain arguments: this runs once per RK4 stage)."""
@@ -175,22 +176,31 @@ def _cylinder_terms(th, om, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep
         omc[k] = om[j]
         pres[k] = _trace_lookup(traces, slot_cycle, k, loc[k], tstep)
         pg[k] = pres[k] - sc[S_PCC]
-        dx[k], ddx[k] = fill_sample(sample_rows(samples, k), 0, loc[k], np.sin(loc[k]), np.cos(loc[k]), omc[k], pg[k],
-                                    r, inv_rod, e)
+        sin_a, cos_a = sincos(loc[k])
+        dx[k], ddx[k] = fill_sample(sample_rows(samples, k), 0, loc[k], sin_a, cos_a, omc[k], pg[k], r, inv_rod, e)
     for m in range(len(kernels)):
         kernels[m](samples, fprm, fb[m])
 
 
-@numba.njit(cache=True)
-def _friction_torque(k, coef, extra, fb, loc):
-    """T_f,k = sum_l a_kl F_kl + extra_mean + extra_amp cos(order theta_k + phase) [N m]."""
+@numba.njit(**BORROWING)
+def _extra_ripple(k, extra, loc):
+    """extra_amp cos(order theta_k + phase) [N m]; no cosine where the amplitude is 0 (every cylinder but an
+    extra-friction one: two cosines per cylinder and RK4 stage saved), which adds the same exact 0 to the sums."""
+    if extra[k, 1] == 0.0:
+        return 0.0
+    return extra[k, 1] * math.cos(extra[k, 2] * loc[k] + extra[k, 3])
+
+
+@numba.njit(**BORROWING)
+def _friction_torque(k, coef, extra, fb, ripple):
+    """T_f,k = sum_l a_kl F_kl + extra_mean + ripple [N m] (ripple = ``_extra_ripple``)."""
     s = 0.0
     for m in range(coef.shape[1]):
         s += coef[k, m] * fb[m, k, 0]
-    return s + extra[k, 0] + extra[k, 1] * math.cos(extra[k, 2] * loc[k] + extra[k, 3])
+    return s + extra[k, 0] + ripple
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def _load_torque(t, th_l, om_l, lp):
     if lp[0] == 0.0:
         tl = lp[1] + lp[2] * max(om_l, 0.0) ** lp[3]
@@ -199,7 +209,7 @@ def _load_torque(t, th_l, om_l, lp):
     return tl + lp[9] * math.sin(lp[10] * th_l + lp[11])
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def plant_rhs(t, th, om, model, w, acc, pw):
     """Angular accelerations ``acc`` [rad/s^2] and integrand powers ``pw`` at (t, th, om) of the plant ``model``
     (PlantArrays); w = ``work_arrays(z, L)``."""
@@ -229,7 +239,8 @@ def plant_rhs(t, th, om, model, w, acc, pw):
     for k in range(phase.shape[0]):
         j = cyl_node[k]
         tg = gas_torque_sample(pg[k], sc[S_AREA], dx[k])
-        tf = _friction_torque(k, coef, extra, fb, loc)
+        ripple = _extra_ripple(k, extra, loc)
+        tf = _friction_torque(k, coef, extra, fb, ripple)
         tq[j] += tg - tf
         if varj:
             jv[j] += m_rec * dx[k] * dx[k]
@@ -238,7 +249,7 @@ def plant_rhs(t, th, om, model, w, acc, pw):
         pw[b] = tg * omc[k]
         for m in range(n_terms):
             pw[b + 1 + m] = fb[m, k, 0] * omc[k]
-        pw[b + n_terms + 1] = (extra[k, 0] + extra[k, 1] * math.cos(extra[k, 2] * loc[k] + extra[k, 3])) * omc[k]
+        pw[b + n_terms + 1] = (extra[k, 0] + ripple) * omc[k]
     ln = int(sc[S_LOAD])
     tl = _load_torque(t, th[ln], om[ln], lp)
     tq[ln] -= tl
@@ -251,7 +262,7 @@ def plant_rhs(t, th, om, model, w, acc, pw):
     pw[g + 3] = th[ln] - lp[8] * t
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def _herm(s, h, y0, d0, y1, d1):
     """Cubic Hermite value at fraction s of a step of length h (y, dy/dt at both ends)."""
     s2 = s * s
@@ -259,14 +270,14 @@ def _herm(s, h, y0, d0, y1, d1):
     return (2 * s3 - 3 * s2 + 1) * y0 + (s3 - 2 * s2 + s) * h * d0 + (3 * s2 - 2 * s3) * y1 + (s3 - s2) * h * d1
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def _herm_rate(s, h, y0, d0, y1, d1):
     """d/dt of ``_herm`` at fraction s."""
     s2 = s * s
     return ((6 * s2 - 6 * s) * y0 + (3 * s2 - 4 * s + 1) * h * d0 + (6 * s - 6 * s2) * y1 + (3 * s2 - 2 * s) * h * d1) / h
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def _crossing(target, h, y0, d0, y1, d1):
     """Fraction s in [0, 1] where the (monotone) Hermite angle reaches ``target`` (Newton from the chord)."""
     s = (target - y0) / (y1 - y0)
@@ -280,7 +291,7 @@ def _crossing(target, h, y0, d0, y1, d1):
     return s
 
 
-@numba.njit(cache=True)
+@numba.njit(**BORROWING)
 def _state_at(s, h, th0, om0, a0, th1, om1, a1, ths, oms):
     for i in range(th0.shape[0]):
         ths[i] = _herm(s, h, th0[i], om0[i], th1[i], om1[i])
@@ -392,7 +403,7 @@ def advance(model, firing, edges, state, ist, outs, theta_stop, t_stop):
             _cylinder_terms(ths, oms, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep, w, kernels)
             tf = 0.0
             for k in range(z):
-                tf += _friction_torque(k, coef, extra, w[7], w[0])
+                tf += _friction_torque(k, coef, extra, w[7], _extra_ripple(k, extra, w[0]))
             g = o_grid[ist[I_N_GRID]]
             g[0] = t + s * h
             g[1] = tf

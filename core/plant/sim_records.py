@@ -11,6 +11,8 @@ it (its key below every stream's lower bound for what is still to come).
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 from frictionwatch.core.model.effects import SensorSetup
 from frictionwatch.core.model.engine import EngineSpec
@@ -55,6 +57,22 @@ class SensorRecords:
         self.pending: list[tuple[int, int, StreamRecord]] = []
         self.first_edge_index: int | None = None
         self.switches: list[tuple[float, SensorSetup]] = []  # (time since tick 0 [s], the set-up from then on)
+
+    _FIELDS = ("edges", "samples", "first_sample", "load_row", "last", "pending", "first_edge_index", "switches")
+
+    def checkpoint(self) -> dict:
+        """The streams' state between chunks: partial batches and frames, pending records, the noise generators'
+        states (so the continued run draws the same numbers)."""
+        out = {name: copy.deepcopy(getattr(self, name)) for name in self._FIELDS}
+        out["rng"] = [g.bit_generator.state for g in (self.rng_edge, self.rng_cam, self.rng_load, *self.rng_pressure)]
+        return out
+
+    def restore(self, ck: dict) -> None:
+        """Continue from ``checkpoint()`` of the same run (this object made for it, at the same tick 0)."""
+        for name in self._FIELDS:
+            setattr(self, name, copy.deepcopy(ck[name]))
+        for g, state in zip((self.rng_edge, self.rng_cam, self.rng_load, *self.rng_pressure), ck["rng"]):
+            g.bit_generator.state = state
 
     def switch(self, time_s: float, sensors: SensorSetup) -> None:
         """From ``time_s`` [s since tick 0] on, the pressure readings take ``sensors``' gains and pegging (a sensor

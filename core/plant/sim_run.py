@@ -221,6 +221,39 @@ class PlantRun:
         self.lp[3] = 1.0
         self.law.update(coast_down=True)
 
+    # ---- checkpoints (core.plant.sim_stream: a run continued in another process) ----------------------------------
+    _ARRAYS = ("ist", "sc", "lp", "op")
+    _SCALARS = ("t_out0", "cycle_n0", "rows_drained", "brake_full", "min_frac")
+
+    def checkpoint(self) -> dict:
+        """Everything of the plant that changes as it runs (state, counters, law, operating point, the pressure
+        traces in hand, switched coefficients, phases and leaks), as copies; between chunks only (nothing collected
+        and not drained). The rest is made again, identically, by ``start_simulation`` from the same arguments."""
+        if any(self.collected):
+            raise RuntimeError("a plant checkpoint is taken between chunks (events not yet drained)")
+        out = {name: getattr(self, name).copy() for name in self._ARRAYS}
+        out.update({name: getattr(self, name) for name in self._SCALARS})
+        traces = self.model.traces
+        out.update(state=[a.copy() for a in self.state], pressure=traces.pressure.copy(), cycle=traces.cycle.copy(),
+                   leak=self.leak.copy(), coef=self.plant.coef.copy(), phase=self.plant.phase.copy(), law=dict(self.law))
+        return out
+
+    def restore(self, ck: dict) -> None:
+        """Continue from ``checkpoint()`` of the same run: the kernel's arrays are overwritten in place (its records
+        hold them), the rest replaced."""
+        for name in self._ARRAYS:
+            getattr(self, name)[:] = ck[name]
+        for name in self._SCALARS:
+            setattr(self, name, ck[name])
+        for a, b in zip(self.state, ck["state"]):
+            a[:] = b
+        self.model.traces.pressure[:] = ck["pressure"]
+        self.model.traces.cycle[:] = ck["cycle"]
+        self.plant.coef[:] = ck["coef"]
+        self.plant.phase[:] = ck["phase"]
+        self.leak = ck["leak"].copy()
+        self.law = dict(ck["law"])
+
     # ---- running ----------------------------------------------------------------------------------------------
     @property
     def theta_fly(self) -> float:

@@ -8,6 +8,7 @@ depend on the chunk size.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
@@ -72,11 +73,13 @@ class Simulation:
         self.info = acquisition_info(model.spec)
         self.truth: dict | None = None
         self._started = False
+        self._state: _RunState | None = None  # set by the settling or by resume()
 
     def chunks(self, chunk_cycles: int = CHUNK_CYCLES,
                progress: Callable[[float], None] | None = None) -> Iterator[SimChunk]:
         """Run the simulation, yielding a ``SimChunk`` every ``chunk_cycles`` output cycles (the last one may be
-        shorter and carries the records left); ``progress(fraction)`` is called as it goes."""
+        shorter and carries the records left); ``progress(fraction)`` is called as it goes. After ``resume`` it
+        goes on from the checkpoint's cycle (no settling: that is in the checkpoint)."""
         if self._started:
             raise RuntimeError("a Simulation runs once; start another one")
         if not (isinstance(chunk_cycles, int | np.integer) and chunk_cycles >= 1):
@@ -89,22 +92,14 @@ class Simulation:
             if progress is not None:
                 progress(float(np.clip((run.theta_fly - theta_start) / total_angle, 0.0, 1.0)))
 
-        for i in range(SETTLE_A_CYCLES):
-            run.advance_to(theta_start + 2.0 * np.pi + 4.0 * np.pi * (i + 1), report)
-            run.govern()
-        law_info = run.final_law()
-        run.advance_to(-2.0 * np.pi, report)
-        run.start_output()
-        sensors = SensorRecords(spec, self.sensors, self.rngs, run.t_out0, run.omega)
-        stages = self.stages
-        pending = [] if stages is None else list(range(1, len(stages.onsets)))  # stage switches still to come
-        truth = TruthAccumulator(spec, run.plant, cycles, run.t_out0,
-                                 stages.coefficients_of if pending else None)
-        changes: list[dict] = []  # the acquisition's changes mid-run, for the truth
+        if self._state is None:
+            self._state = self._settle(report)
+        st, stages = self._state, self.stages
 
         def advance(stop: float, t_stop: float | None = None) -> bool:
             """``run.advance_to(stop, t_stop=...)``, switching stages at their onset cycles on the way (the kernel
             reads the plant's coefficient array: switched in place)."""
+            pending = st.pending
             while pending and 4.0 * np.pi * stages.onsets[pending[0]] <= stop:
                 i = pending[0]
                 if run.advance_to(4.0 * np.pi * stages.onsets[i], report, t_stop=t_stop):
@@ -116,49 +111,123 @@ class Simulation:
                 if stages.sensors:  # the wheel frame moves, a channel's gain or pegging changes
                     run.sc[S_WHEEL_OFF] = stages.sensors[i].wheel_offset_rad
                     t_switch = float(run.state[6][0]) - run.t_out0
-                    sensors.switch(t_switch, stages.sensors[i])
-                    changes.append(_sensor_change(stages.onsets[i], t_switch, stages.sensors[i],
-                                                  stages.phases[i] if stages.phases else None))
+                    st.sensors.switch(t_switch, stages.sensors[i])
+                    st.changes.append(_sensor_change(stages.onsets[i], t_switch, stages.sensors[i],
+                                                     stages.phases[i] if stages.phases else None))
                 pending.pop(0)
             return run.advance_to(stop, report, t_stop=t_stop)
 
-        correction = law_info["load_torque_settled_nm"] - self.operating["brake_torque_estimate_nm"]
-        steps, step_log, brake_full = list(self.steps), [], run.brake_full
-        end, done = 4.0 * np.pi * cycles + 0.5 * np.pi, 0
-        while done < cycles:
-            done = min(done + chunk_cycles, cycles)
-            stop = end if done == cycles else 4.0 * np.pi * done
-            while steps and advance(stop, t_stop=steps[0][0]):
-                t_step, frac = steps.pop(0)  # a step time reached: the new operating point and load law
+        end = 4.0 * np.pi * cycles + 0.5 * np.pi
+        while st.done < cycles:
+            st.done = min(st.done + chunk_cycles, cycles)
+            stop = end if st.done == cycles else 4.0 * np.pi * st.done
+            while st.steps and advance(stop, t_stop=st.steps[0][0]):
+                t_step, frac = st.steps.pop(0)  # a step time reached: the new operating point and load law
                 if frac is None:  # the coast-down: motored cycles against zero load from here on
                     run.coast(*charge_pressures(spec, 0.0))
-                    step_log.append({"time_s": t_step, "coast_down": True})
+                    st.step_log.append({"time_s": t_step, "coast_down": True})
                     continue
                 fuel, tb, _ = self.point(frac)
                 run.set_operating(fuel, *charge_pressures(spec, frac))
-                run.change_law(tb + correction, brake_full + correction)
-                step_log.append({"time_s": t_step, "load": frac, "fuel_kg": fuel, "brake_torque_estimate_nm": tb})
+                run.change_law(tb + st.correction, st.brake_full + st.correction)
+                st.step_log.append({"time_s": t_step, "load": frac, "fuel_kg": fuel, "brake_torque_estimate_nm": tb})
             advance(stop)
             ev = run.drain()
-            entries, diag = truth.add(ev["cycle_rows"], ev["cycle_index"], ev["grid"])
-            records = sensors.add(ev["edges"], ev["cam"], ev["samples"], ev["load"])
-            if done == cycles:
-                records += sensors.finish()
+            entries, diag = st.truth.add(ev["cycle_rows"], ev["cycle_index"], ev["grid"])
+            records = st.sensors.add(ev["edges"], ev["cam"], ev["samples"], ev["load"])
+            if st.done == cycles:
+                records += st.sensors.finish()
             diag.update(edge_times_s=ev["edges"][:, 0] - run.t_out0, edge_index=ev["edges"][:, 1].astype(int),
                         pressure_true_pa=ev["samples"])
             yield SimChunk(records, entries, diag)
         if progress is not None:
             progress(1.0)
-        self.operating.update(load_law=law_info, load_steps=step_log)
+        self.operating.update(load_law=st.law_info, load_steps=st.step_log)
         se = spec.sensors
         wheel = {"first_tooth_deg_stated": se.first_tooth_deg,
                  "first_tooth_deg_true": se.first_tooth_deg - float(np.degrees(self.sensors.wheel_offset_rad)),
                  "tooth_errors_deg": run.tooth_err.tolist(), "cam_deg_stated": self.info.cam_deg,
-                 "edge_ticks_first_tooth_index": sensors.first_edge_index}
-        if changes:
-            wheel["changes"] = changes
-        self.truth = truth.summary(**self.request, active=[e.to_dict() for e in self.model.effects], wheel=wheel,
-                                   operating=self.operating)
+                 "edge_ticks_first_tooth_index": st.sensors.first_edge_index}
+        if st.changes:
+            wheel["changes"] = st.changes
+        self.truth = st.truth.summary(**self.request, active=[e.to_dict() for e in self.model.effects], wheel=wheel,
+                                      operating=self.operating)
+
+    def _settle(self, report: Callable[[], None]) -> _RunState:
+        """The unlogged settling (governed, then the final law), tick 0, and the output streams' fresh state."""
+        run, theta_start = self.run, self.theta_start
+        for i in range(SETTLE_A_CYCLES):
+            run.advance_to(theta_start + 2.0 * np.pi + 4.0 * np.pi * (i + 1), report)
+            run.govern()
+        law_info = run.final_law()
+        run.advance_to(-2.0 * np.pi, report)
+        run.start_output()
+        sensors, truth = self._streams()
+        pending = [] if self.stages is None else list(range(1, len(self.stages.onsets)))  # stage switches to come
+        correction = law_info["load_torque_settled_nm"] - self.operating["brake_torque_estimate_nm"]
+        return _RunState(sensors, truth, pending, [], list(self.steps), [], correction, run.brake_full, law_info, 0)
+
+    def _streams(self) -> tuple[SensorRecords, TruthAccumulator]:
+        spec, stages = self.model.spec, self.stages
+        sensors = SensorRecords(spec, self.sensors, self.rngs, self.run.t_out0, self.run.omega)
+        switching = stages is not None and len(stages.onsets) > 1
+        truth = TruthAccumulator(spec, self.run.plant, self.cycles, self.run.t_out0,
+                                 stages.coefficients_of if switching else None)
+        return sensors, truth
+
+    # ---- segments: a run checkpointed between chunks and continued elsewhere --------------------------------------
+    def checkpoint(self) -> dict:
+        """The run's state after the chunk just yielded (call it between two chunks of ``chunks()``): the plant's,
+        the output streams' and the truth's, as plain data (picklable; no model). ``start_simulation`` with the same
+        arguments, then ``resume(checkpoint)``, then ``chunks()`` gives the rest of this run: the records and truth
+        entries it would have yielded, bit for bit (tests/core/test_simulate_segments.py)."""
+        st = self._state
+        if st is None:
+            raise RuntimeError("a checkpoint is taken between chunks of a running simulation")
+        return {"key": self._key(), "plant": self.run.checkpoint(), "sensors": st.sensors.checkpoint(),
+                "truth": st.truth.checkpoint(), "run": copy.deepcopy({
+                    "pending": st.pending, "changes": st.changes, "steps": st.steps, "step_log": st.step_log,
+                    "correction": st.correction, "brake_full": st.brake_full, "law_info": st.law_info,
+                    "done": st.done})}
+
+    def resume(self, checkpoint: dict) -> None:
+        """Continue this (not yet started) simulation from ``checkpoint`` of a run set up with the same arguments."""
+        if self._started or self._state is not None:
+            raise RuntimeError("resume a simulation before its chunks() start")
+        if checkpoint["key"] != self._key():
+            raise ValueError(f"the checkpoint is of another run: {checkpoint['key']} against {self._key()}; start "
+                             "the simulation with the same engine, arguments and seed")
+        self.run.restore(checkpoint["plant"])
+        sensors, truth = self._streams()
+        sensors.restore(checkpoint["sensors"])
+        truth.restore(checkpoint["truth"])
+        r = copy.deepcopy(checkpoint["run"])
+        self._state = _RunState(sensors, truth, r["pending"], r["changes"], r["steps"], r["step_log"],
+                                r["correction"], r["brake_full"], r["law_info"], r["done"])
+
+    def _key(self) -> dict:
+        """What identifies a run's set-up (its checkpoints fit only a run set up the same)."""
+        return {"engine": self.model.spec.name, "cycles": self.cycles, **self.request,
+                "effects": [e.to_dict() for e in self.model.effects], "steps": [list(x) for x in self.steps]}
+
+
+@dataclass
+class _RunState:
+    """What ``chunks()`` carries from one chunk to the next besides the plant: the output streams, the truth so far,
+    the stage switches and load steps still to come (indices, [(time_s, fraction)]), the acquisition's changes and
+    the steps taken (for the truth), the load-law correction, the settled full-load brake torque [N m] and law, and
+    the output cycles done."""
+
+    sensors: SensorRecords
+    truth: TruthAccumulator
+    pending: list[int]
+    changes: list[dict]
+    steps: list
+    step_log: list[dict]
+    correction: float
+    brake_full: float
+    law_info: dict
+    done: int
 
 
 def _sensor_change(cycle: int, time_s: float, sensors: SensorSetup, phases: np.ndarray | None) -> dict:

@@ -6,6 +6,7 @@ the run goes (``TruthAccumulator``): per-cycle entries as each cycle completes, 
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 
 import numpy as np
@@ -39,6 +40,15 @@ class TruthAccumulator:
         self.grid = np.zeros((0, 3))  # grid rows from cycle ``done`` on
         self.sums = {"fric": np.zeros(z), "gas": np.zeros(z), "extra": np.zeros(z), "pmax": np.zeros(z),
                      "basis": np.zeros((z, n_terms)), "load": 0.0, "damp": 0.0, "dt": 0.0}
+
+    def checkpoint(self) -> dict:
+        """The running sums and the cycle in hand between chunks, as copies."""
+        return copy.deepcopy({"done": self.done, "prev": self.prev, "grid": self.grid, "sums": self.sums})
+
+    def restore(self, ck: dict) -> None:
+        """Continue from ``checkpoint()`` of the same run."""
+        ck = copy.deepcopy(ck)
+        self.done, self.prev, self.grid, self.sums = ck["done"], ck["prev"], ck["grid"], ck["sums"]
 
     def add(self, rows: np.ndarray, index: np.ndarray, grid: np.ndarray) -> tuple[list[dict], dict]:
         """rows: cycle-boundary rows with their boundary ``index`` (negative while settling); grid: (g, 3) rows

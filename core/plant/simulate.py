@@ -7,6 +7,8 @@
     for chunk in sim.chunks(chunk_cycles=8):          # SimChunk: records, truth entries of the cycles it completes
         ...
     sim.truth                                         # the per-run truth (without "cycles") once chunks() ended
+    ck = sim.checkpoint()                             # between two chunks: the run's state as plain (picklable) data
+    sim2 = start_simulation(<same arguments>); sim2.resume(ck); sim2.chunks()   # the rest of it, to the bit
 
 ``simulate`` collects ``start_simulation(...).chunks()``: there is one simulator, and a run's memory is one chunk's
 worth whatever the number of cycles when its chunks are consumed as they come. The records and truth do not depend
