@@ -43,12 +43,10 @@ class Candidate:
     hi: tuple[float, ...]
     fixed: Mapping[str, float] = field(default_factory=dict)
     separated_by: str = ""  # the measurement that tells it from another explanation (its effect's declaration)
-    variant: str = ""  # which of its effect's declarations ('order 0.5'; CandidateSpec.variant)
 
     @property
     def label(self) -> str:
-        where = ", ".join(w for w in ("" if self.cylinder is None else f"cyl {self.cylinder}", self.variant) if w)
-        return f"{self.effect}[{where}]" if where else self.effect
+        return self.effect if self.cylinder is None else f"{self.effect}[cyl {self.cylinder}]"
 
     @property
     def toggle(self) -> bool:
@@ -84,24 +82,14 @@ class Candidate:
 def candidate_library(model: EngineModel) -> list[Candidate]:
     """Every candidate that can still be added to ``model`` (a slot it already holds is left out), in the effect
     registry's order, each as its effect declares it (``Effect.candidate``)."""
+    z = model.spec.n_cyl
     have = {e.slot for e in model.effects}
     names = {e.name for e in model.effects}
     out = []
     for name, cls in EFFECTS.items():
-        specs = cls.candidate if isinstance(cls.candidate, tuple) else (cls.candidate,)
-        out += _declared(name, [s for s in specs if s is not None], model, names)
-    toggles = [c for c in out if c.toggle]
-    if len(toggles) > 1:  # every default effect the model left out, at once
-        out.append(Candidate("+".join(c.effect for c in toggles), None, (), (), (), (), (),
-                             separated_by="; ".join(c.separated_by for c in toggles if c.separated_by)))
-    return [c for c in out if _slot(c) not in have]
-
-
-def _declared(name: str, specs: list, model: EngineModel, names: set[str]) -> list[Candidate]:
-    """The candidates of one effect's declarations (CandidateSpec) on ``model``."""
-    z = model.spec.n_cyl
-    out: list[Candidate] = []
-    for spec in specs:
+        spec = cls.candidate
+        if spec is None:
+            continue
         if not spec.params:  # a toggle: only where the model left its default effect out
             if name not in names:
                 out.append(Candidate(name, None, (), (), (), (), (), separated_by=spec.separated_by))
@@ -113,8 +101,12 @@ def _declared(name: str, specs: list, model: EngineModel, names: set[str]) -> li
         each_and_wheel = range(1, z + 1) if z == 1 else range(0, z + 1)
         cylinders = {"each": range(1, z + 1), "each_and_wheel": each_and_wheel}.get(spec.where, (None,))
         out += [Candidate(name, k, spec.params, spec.x0, spec.step, spec.lo, spec.hi, dict(spec.fixed),
-                          spec.separated_by, spec.variant) for k in cylinders]
-    return out
+                          spec.separated_by) for k in cylinders]
+    toggles = [c for c in out if c.toggle]
+    if len(toggles) > 1:  # every default effect the model left out, at once
+        out.append(Candidate("+".join(c.effect for c in toggles), None, (), (), (), (), (),
+                             separated_by="; ".join(c.separated_by for c in toggles if c.separated_by)))
+    return [c for c in out if _slot(c) not in have]
 
 
 def _slot(c: Candidate) -> tuple:

@@ -159,8 +159,7 @@ class CandidateSpec:
     ``each`` cylinder, ``each_and_wheel`` (cylinder 0 too: the whole wheel), or ``engine``-wide; ``requires``: an
     effect the model must hold (and a shaft line with sections, for ``torsional_flexibility``); ``separated_by``: the
     measurement that tells this effect from another that explains a log as well (said when the workflow finds two).
-    No parameters: a toggle (a default effect the model left out). An effect may declare several (a tuple), each
-    with its ``variant`` words: extra friction as a constant torque, and at each cam order."""
+    No parameters: a toggle (a default effect the model left out)."""
 
     params: tuple[str, ...] = ()
     x0: tuple[float, ...] = ()
@@ -171,7 +170,6 @@ class CandidateSpec:
     where: str = "engine"
     requires: str = ""
     separated_by: str = ""
-    variant: str = ""  # what tells this declaration from the effect's others in a label ('order 0.5'); "" for one
 
 
 # the (z, L) cycle means of each term's basis in every cylinder at the reference operating point, for a spec and a
@@ -203,8 +201,7 @@ class Effect:
     repeat: ClassVar[str] = ONCE  # PER_CYLINDER: one instance per cylinder allowed (worn rings in 2 and 3)
     scales_terms: ClassVar[tuple[str, ...]] = ()  # loss terms whose per-cylinder coefficients this effect scales
     sized_at_reference: ClassVar[bool] = False  # size_view needs the reference operating point
-    # how the discrepancy workflow may add it (None: it may not; a tuple: several ways, each with its variant)
-    candidate: ClassVar[CandidateSpec | tuple[CandidateSpec, ...] | None] = None
+    candidate: ClassVar[CandidateSpec | None] = None  # how the discrepancy workflow may add it (None: it may not)
 
     __slots__ = ("values", "sigma")
 

@@ -294,46 +294,26 @@ class ExtraFriction(Effect):
                    "phase)) in one cylinder")
     repeat = PER_CYLINDER  # the plant holds one extra-friction shape per cylinder
     sized_at_reference = True
-    # a constant torque, and one at each of the first cam orders (a valve train or a pump driven at half speed: the
-    # ripple's Re and Im, cos_frac and sin_frac, are linear where an amplitude and a phase are not)
-    candidate = (CandidateSpec(("mean_frac",), (0.0,), (0.1,), (0.0,), (5.0,), MappingProxyType({"amp_frac": 0.0}),
-                               where="each", separated_by="another speed or load (a constant torque against the "
-                                                          "model's laws)"),
-                 *(CandidateSpec(("mean_frac", "cos_frac", "sin_frac"), (0.0, 0.0, 0.0), (0.1, 0.2, 0.2),
-                                 (0.0, -5.0, -5.0), (5.0, 5.0, 5.0),
-                                 MappingProxyType({"amp_frac": 0.0, "order": order}), where="each",
-                                 separated_by="nothing in the speed at one operating point: it gives the order and "
-                                              "size, any cylinder's ripple can take the phase; a sensor at the "
-                                              "cylinder's valve train, or its phase against the cam if known",
-                                 variant=f"order {order:g}") for order in (0.5, 1.5)))
+    candidate = CandidateSpec(("mean_frac",), (0.0,), (0.1,), (0.0,), (5.0,), MappingProxyType({"amp_frac": 0.0}),
+                              where="each", separated_by="another speed or load (a constant torque against the "
+                                                         "model's laws)")
     parameters = _table(
         cylinder=cylinder_param(),
         mean_frac=Param(0.1, "-", -1.0, 5.0, doc="constant part, fraction of the cylinder's mean friction"),
         amp_frac=Param(0.0, "-", 0.0, 5.0, doc="order-n amplitude, fraction of the mean friction"),
         order=Param(2.0, "-", 0.5, 50.0, doc="engine order of the varying part"),
         phase_deg=Param(0.0, "deg", -360.0, 360.0),
-        cos_frac=Param(0.0, "-", -5.0, 5.0, doc="a further order-n part, + cos_frac cos(order theta_k)"),
-        sin_frac=Param(0.0, "-", -5.0, 5.0, doc="... + sin_frac sin(order theta_k)"),
     )
-
-    def amplitude_phase(self) -> tuple[float, float]:
-        """The order-n part as one amplitude and phase [rad]: amp_frac cos(n theta + phase) + cos_frac cos(n theta)
-        + sin_frac sin(n theta) = A cos(n theta + phi)."""
-        v = self.values
-        c = v["amp_frac"] * np.cos(np.radians(v["phase_deg"])) + v["cos_frac"]
-        s = -v["amp_frac"] * np.sin(np.radians(v["phase_deg"])) + v["sin_frac"]
-        return float(np.hypot(c, s)), float(np.arctan2(-s, c))
 
     def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
         v = self.values
-        amp, phase = self.amplitude_phase()
-        row = [v["mean_frac"], amp, v["order"], phase]
+        row = [v["mean_frac"], v["amp_frac"], v["order"], np.radians(v["phase_deg"])]
         return replace(setup, extra_friction=with_row(setup.extra_friction, v["cylinder"] - 1, row))
 
     def monitor_terms(self, spec: EngineSpec) -> tuple[LossTerm, ...]:
         v = self.values
-        amp, phase = self.amplitude_phase()
-        return (extra_friction_term(v["cylinder"], v["mean_frac"], amp, v["order"], phase),)
+        return (extra_friction_term(v["cylinder"], v["mean_frac"], v["amp_frac"], v["order"],
+                                    float(np.radians(v["phase_deg"]))),)
 
     def size_view(self, setup: ViewSetup, means: BasisMeans) -> ViewSetup:
         # its shape as one more loss term, T_ref = the cylinder's mean friction at the reference point, as the plant
