@@ -16,8 +16,8 @@ from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
 from frictionwatch.drivers.assembly.frame_store import FrameChannel, FrameGroup
 from frictionwatch.drivers.assembly.pressure_kernels import ROW_NAN, ROW_OK, pressure_row
 from frictionwatch.drivers.assembly.pressure_ring import PressureGroup
+from frictionwatch.drivers.assembly.resample import pchip_eval
 from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
-from scipy.interpolate import PchipInterpolator
 
 
 @dataclass(frozen=True)
@@ -123,8 +123,7 @@ def nominal_angle(n: int, a0_deg: float, pos: np.ndarray, c: int, phase: int) ->
 def grid_times(theta: np.ndarray, ticks: np.ndarray, grid: np.ndarray) -> np.ndarray:
     """Timer ticks (float) at the ``grid`` angles from the monotone t(theta) through the tooth edges."""
     t0 = ticks[0]
-    # scipy's PCHIP without pchip_eval's checks: the verified edges increase, and the grid lies within them
-    return PchipInterpolator(theta, (ticks - t0).astype(np.float64))(grid) + float(t0)
+    return pchip_eval(theta, (ticks - t0).astype(np.float64), grid) + float(t0)
 
 
 def bridge_offset(prev: Segment, first_pos_rel: int, t_first: int, max_revs: float = 3.0) -> int | None:

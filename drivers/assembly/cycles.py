@@ -42,7 +42,6 @@ from frictionwatch.drivers.assembly.cycle_parts import (
     Segment,
     Wheel,
     grid_plan,
-    grid_times,
     load_mean,
     plan_ready,
     pressure_matrix,
@@ -265,12 +264,12 @@ class CycleAssembler(EpochSync):
             if not lo_rpm <= rpm <= hi_rpm:
                 self._skip("speed_out_of_range", index)
                 continue
-            m = s1 - s0 + 1  # edges, their positions and angles: one kernel (drivers/assembly/cycle_kernels.py)
+            m = s1 - s0 + 1  # edges, their positions and angles, the grid times: one kernel (drivers/assembly/cycle_kernels.py)
             ticks, pos, tooth, theta = (np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.int64),
                                         np.empty(m))
+            t_grid = np.empty(self.grid.shape[0])
             cycle_edges(col, i0, m, w.ordinal(seg.first_pos) + (s0 - seg.first_seq), w.n, w.t,
-                         -2 * w.n * c + w.n * int(ep.phase), self.a0_deg, ticks, pos, tooth, theta)
-            t_grid = grid_times(theta, ticks, self.grid)  # scipy's PCHIP through the edges
+                         -2 * w.n * c + w.n * int(ep.phase), self.a0_deg, self.grid, ticks, pos, tooth, theta, t_grid)
             self._pending.append(_Pending(index, ep, c, ticks, pos, theta, t_grid, tooth, t_first, t_last))
 
     def _arrived_whole(self, seg, ps: int, pe: int) -> bool:
