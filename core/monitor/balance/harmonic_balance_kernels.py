@@ -230,7 +230,9 @@ def _cylinder_rows(cyl, motion, theta_f, grid, pressure, samples, gas, known):
         ang = motion[0, q]
         w_node = motion[1, q]
         a_node = motion[2, q]
-        s_q = np.sin(ang)  # libm per node (a Taylor series of the twist by the addition theorem: no > 20 % gain)
+        # libm per node: the former Taylor series of the twist by the addition theorem gave < 20 % end to end
+        # (issue 26 item 6)
+        s_q = np.sin(ang)
         c_q = np.cos(ang)
         for k in range(z):
             if cyl.node[k] != q:

@@ -105,11 +105,12 @@ def prepare_fit_kernel(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, pattern
 
     Fills ``prepared`` = (tau, design_t, scale, normal_inv): tau (n,) [s], design_t (p, n) = D^T with rows [1,
     (u (u - 1)), cos k w1 tau (k = 1..m_fit), sin ...], scale (p,) = column norms of D, normal_inv (p, p) = inverse of
-    the unit-scaled normal matrix (LAPACK, exactly symmetric); and pat (n_harm, q) complex = fitted harmonics of the patterns (n, q0) and, with
-    ``drift_pattern``, of a last pattern u (u - 1), u from the ticks. With ``pattern_period`` T > 0, patterns holds
-    only the first T rows: edge e uses row e % T (tooth patterns repeat every revolution), and the design rows are
-    summed over the repeats before the product (half the work for a two-revolution cycle). Returns a status code
-    (OK, NOT_INCREASING); a normal matrix that is not positive definite raises np.linalg.LinAlgError."""
+    the unit-scaled normal matrix (LAPACK, exactly symmetric); and pat (n_harm, q) complex = fitted harmonics of the
+    patterns (n, q0) and, with ``drift_pattern``, of a last pattern u (u - 1), u from the ticks. With
+    ``pattern_period`` T > 0, patterns holds only the first T rows: edge e uses row e % T (tooth patterns repeat every
+    revolution), and the design rows are summed over the repeats before the product (half the work for a
+    two-revolution cycle). Returns a status code (OK, NOT_INCREASING); a normal matrix that is not positive definite
+    raises np.linalg.LinAlgError."""
     tau, design_t, scale, normal_inv = prepared
     n = ticks.shape[0]
     p = n_drift + 2 * m_fit
@@ -160,11 +161,13 @@ def prepare_fit_kernel(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, pattern
             v = normal[j, k] / (scale[j] * scale[k])
             normal[j, k] = v
             normal[k, j] = v
-    np.linalg.cholesky(normal)  # LAPACK potrf: raises LinAlgError if not positive definite
-    inv = np.linalg.inv(normal)  # the solves below are then BLAS products (well conditioned: see above)
+    # numba's np.linalg, not hand triangular solves (< 20 % end to end, issue 26 item 6): potrf raises LinAlgError if
+    # not positive definite; with the inverse (well conditioned: see above) the solves below are BLAS products
+    np.linalg.cholesky(normal)
+    normal_inverse = np.linalg.inv(normal)
     for j in range(p):
         for k in range(p):
-            normal_inv[j, k] = 0.5 * (inv[j, k] + inv[k, j])
+            normal_inv[j, k] = 0.5 * (normal_inverse[j, k] + normal_inverse[k, j])
     q0 = patterns.shape[1]
     if q0 == 0 and not drift_pattern:
         return OK
