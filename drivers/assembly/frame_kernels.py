@@ -6,9 +6,10 @@ A group's retained rows are split into chunks (one per filed frame). Chunk c sta
 timer ticks: the very expression (same operands, same order) with which ``drivers.assembly.pressure_ring.write_frame``
 fills a ring's time column, so a time computed here is the float a ring would hold.
 
-The searches run numpy's binary-search loop (``drivers.assembly.ringbuffer.search_sorted``) over those computed times, so
-they return the same row as a search of the equivalent ring, whatever the input; the resampling then treats the
-window exactly as ``drivers.assembly.pressure_kernels.pressure_rows`` treats a ring's.
+The time search (``chunk_search``) runs numpy's binary-search loop over those computed times, so it returns the same
+row as np.searchsorted on the equivalent ring, whatever the input: np.searchsorted itself would need the times
+materialised (O(n) per search instead of O(log n)); the chunk lookup over ``ci`` is np.searchsorted. The resampling
+then treats the window exactly as ``drivers.assembly.pressure_kernels.pressure_rows`` treats a ring's.
 """
 
 from __future__ import annotations
@@ -17,66 +18,12 @@ import numba
 import numpy as np
 from frictionwatch.drivers.assembly.pressure_kernels import ROW_HOLE, ROW_MISSING, ROW_NAN, ROW_OK, window_weights
 from frictionwatch.drivers.assembly.ringbuffer import sorts_before
-from llvmlite import ir
-from numba import types
-from numba.core import cgutils
-from numba.extending import intrinsic
-
-
-@intrinsic
-def _prefetch(typingctx, arr, r, q):
-    """Hint (``llvm.prefetch``, read, keep in cache): start loading the cache line of ``arr[r, q]`` (2-D). No effect
-    on any value; it lets the next frame's samples arrive while the current one is computed."""
-    sig = types.void(arr, r, q)
-
-    def codegen(context, builder, signature, args):
-        aryty = signature.args[0]
-        ary = context.make_array(aryty)(context, builder, args[0])
-        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [args[1], args[2]], wraparound=False)
-        i8p = ir.IntType(8).as_pointer()
-        i32 = ir.IntType(32)
-        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
-                                            "llvm.prefetch.p0")
-        builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-@numba.njit(cache=True)
-def _prefetch_part(frames, ci, n_chunks, end, rows, c, lo, hi):
-    """Prefetch hint for the wanted rows of chunk c over the absolute rows [lo, hi) it holds (one per cache line).
-    A frame's samples are usually cold (filed a cycle ago): hinting the next frame while the current one is
-    resampled overlaps the memory reads with the arithmetic."""
-    if c < 0 or c >= n_chunks:
-        return
-    s0 = max(lo, ci[c, 0])
-    s1 = min(hi, ci[c + 1, 0] if c + 1 < n_chunks else end)
-    if s1 <= s0:
-        return
-    src = frames[c]
-    col0 = ci[c, 1] + s0 - ci[c, 0]
-    col1 = col0 + s1 - s0
-    for r in range(rows.shape[0]):
-        if rows[r] < 0:
-            continue
-        for q in range(col0, col1, 8):
-            _prefetch(src, r, q)
-        _prefetch(src, r, col1 - 1)
 
 
 @numba.njit(cache=True)
 def _chunk_of(ci, n_chunks, s):
     """Index of the chunk holding absolute row s: the last chunk that starts at or before s (-1: none)."""
-    lo = 0
-    hi = n_chunks
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if ci[mid, 0] <= s:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo - 1
+    return np.searchsorted(ci[:n_chunks, 0], s, side="right") - 1
 
 
 @numba.njit(cache=True)
@@ -88,7 +35,8 @@ def _time_at(ci, cf, n_chunks, s):
 
 @numba.njit(cache=True)
 def chunk_search(ci, cf, n_chunks, start, n, key, right):
-    """``search_sorted`` over the times of absolute rows [start, start + n): the same probes, the same answer."""
+    """np.searchsorted over the times of absolute rows [start, start + n) (computed, not stored): numpy's probes and
+    NaN order (``sorts_before``), so the same answer as on a ring."""
     lo = 0
     hi = n
     while lo < hi:
@@ -140,9 +88,7 @@ def frame_rows(frames, ci, cf, n_chunks, start, end, t_grid, rows, out, codes, x
     ``pressure_rows`` on the equivalent ring (the same arithmetic): the window's times are computed into x_buf (>= its
     length) and give the same window, hole and weights (``window_weights``); then each frame that holds part of
     the window is read once, in memory order: per wanted row the NaN check of its part (up to the first hole) and
-    ``y[j] + w (y[j+1] - y[j])`` for the grid times whose interval j starts in it (y[j+1] may open the next frame).
-    Cache hints (``_prefetch_part``) ask for the first frame before the window's weights and for frame c + 1 while
-    frame c is read: they change no value, they only overlap the (usually cold) frame reads with the arithmetic."""
+    ``y[j] + w (y[j+1] - y[j])`` for the grid times whose interval j starts in it (y[j+1] may open the next frame)."""
     k = rows.shape[0]
     m = t_grid.shape[0]
     n = end - start
@@ -161,7 +107,6 @@ def frame_rows(frames, ci, cf, n_chunks, start, end, t_grid, rows, out, codes, x
         return bad
     nx = b - a
     x = x_buf[:nx]
-    _prefetch_part(frames, ci, n_chunks, end, rows, _chunk_of(ci, n_chunks, start + a), start + a, start + b)
     chunk_times(ci, cf, n_chunks, start + a, start + b, x)
     jj = np.empty(m, np.int64)
     ww = np.empty(m)
@@ -177,7 +122,6 @@ def frame_rows(frames, ci, cf, n_chunks, start, end, t_grid, rows, out, codes, x
         w1 = min((ci[c + 1, 0] if c + 1 < n_chunks else end) - lo, need)
         src = frames[c]
         col = ci[c, 1] + lo + w0 - ci[c, 0]  # column of window sample w0
-        _prefetch_part(frames, ci, n_chunks, end, rows, c + 1, lo, lo + need)
         i1 = i0  # grid times [i0, i1) have their interval j in this part; [i0, i2) also j + 1
         if interp:
             while i1 < m and jj[i1] < w1:

@@ -171,19 +171,12 @@ def sorts_before(a, b):
 
 @numba.njit(cache=True)
 def search_sorted(col, i0, n, key, right):
-    """np.searchsorted(col[i0:i0 + n], key, side='right' if right else 'left') with numpy's binary-search loop, so
-    the same index even on unsorted input; mixed int/float compare as float64, as numpy's common type."""
-    lo = 0
-    hi = n
-    while lo < hi:
-        mid = lo + ((hi - lo) >> 1)
-        v = col[i0 + mid]
-        go_right = (not sorts_before(key, v)) if right else sorts_before(v, key)
-        if go_right:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
+    """np.searchsorted(col[i0:i0 + n], key, side='right' if right else 'left'): numba's np.searchsorted (numpy's
+    loop and NaN order; mixed int/float compare as numpy's common type), one compiled call on the mirrored storage."""
+    x = col[i0 : i0 + n]
+    if right:
+        return np.searchsorted(x, key, side="right")
+    return np.searchsorted(x, key, side="left")
 
 
 @numba.njit(cache=True)

@@ -9,20 +9,20 @@ import numpy as np
 import pytest
 from frictionwatch.drivers.assembly.cycle_kernels import cycle_edges
 from frictionwatch.drivers.assembly.cycle_parts import Segment, Wheel
-from frictionwatch.drivers.assembly.resample import pchip_eval
 from numpy.testing import assert_allclose, assert_array_equal
+from scipy.interpolate import PchipInterpolator
 
 FOUR_PI = 4.0 * math.pi
 
 
 def cycle_edges_reference(col, cap, seg, s0, s1, c, phase, a0_deg, grid):
-    """Ring view, positions, nominal angle in degrees, monotone cubic grid times, in numpy."""
+    """Ring view, positions, nominal angle in degrees (numpy), grid times by scipy's PCHIP."""
     ticks = col[s0 % cap: s0 % cap + s1 + 1 - s0].copy()
     pos = np.asarray(seg.pos_of(np.arange(s0, s1 + 1)), dtype=np.int64)
     n = seg.wheel.n
     theta = np.radians(a0_deg + (pos - 2 * n * c + n * phase) * (360.0 / n))
     t0 = ticks[0]
-    t_grid = pchip_eval(theta, (ticks - t0).astype(np.float64), grid) + float(t0)
+    t_grid = PchipInterpolator(theta, (ticks - t0).astype(np.float64))(grid) + float(t0)
     return ticks, pos, (pos % n).astype(np.int64), theta, t_grid
 
 

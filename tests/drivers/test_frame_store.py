@@ -124,22 +124,3 @@ def test_one_row_through_the_channel_and_bad_use():
         ch.view("p", group.start - 1, group.end)
     with pytest.raises(ValueError):
         FrameGroup((1,), 10)
-
-
-def test_prefetch_hint_changes_nothing_and_tolerates_any_chunk():
-    """``_prefetch_part`` (a cache hint inside ``frame_rows``) reads no value into any result and accepts chunk
-    numbers and row ranges outside the group (before the first chunk, past the last, empty ranges)."""
-    from frictionwatch.drivers.assembly.frame_kernels import _prefetch_part
-
-    rng = np.random.default_rng(7)
-    group = FrameGroup((1, 2, 3), 1000)
-    frames = [rng.normal(size=(3, 50)) for _ in range(4)]
-    copies = [f.copy() for f in frames]
-    for q, f in enumerate(frames):
-        group.add(100.0 * 50 * q, 100.0, f, 0)
-    rows = np.array([0, -1, 2], dtype=np.int64)
-    for c in (-1, 0, 2, 3, 4, 99):
-        for lo, hi in ((0, 200), (60, 70), (150, 150), (300, 400)):
-            _prefetch_part(group.frames, group.ci, group.n_chunks, group.end, rows, c, lo, hi)
-    for f, g in zip(frames, copies):
-        np.testing.assert_array_equal(f, g)

@@ -205,26 +205,6 @@ def _pressure_brackets(theta_f, grid, jlo, jhi, frac):
 
 
 @numba.njit(cache=True, fastmath=_FAST)
-def _sin_cos_twisted(ang, theta_f, s_fly, c_fly, s_out, c_out):
-    """sin, cos of a node's angle from those of the flywheel angle: the twist d = ang - theta_f is small, so
-    sin/cos(theta_f + d) by the addition theorem with Taylor series of sin d, cos d (1e-16 below 0.05 rad; the loop
-    vectorises), the direct evaluation wherever the twist is 0.05 rad or more."""
-    for i in range(ang.shape[0]):
-        d = ang[i] - theta_f[i]
-        d2 = d * d
-        sd = d * (1.0 - d2 * (1.0 / 6.0) * (1.0 - d2 * (1.0 / 20.0) * (1.0 - d2 * (1.0 / 42.0)
-                                                                        * (1.0 - d2 * (1.0 / 72.0)))))
-        cd = 1.0 - d2 * 0.5 * (1.0 - d2 * (1.0 / 12.0) * (1.0 - d2 * (1.0 / 30.0) * (1.0 - d2 * (1.0 / 56.0)
-                                                                                    * (1.0 - d2 * (1.0 / 90.0)))))
-        s_out[i] = s_fly[i] * cd + c_fly[i] * sd
-        c_out[i] = c_fly[i] * cd - s_fly[i] * sd
-    for i in range(ang.shape[0]):
-        if not abs(ang[i] - theta_f[i]) < 0.05:
-            s_out[i] = np.sin(ang[i])
-            c_out[i] = np.cos(ang[i])
-
-
-@numba.njit(cache=True, fastmath=_FAST)
 def _cylinder_rows(cyl, motion, theta_f, grid, pressure, samples, gas, known):
     """Sample rows, gas torque and known node torque of every cylinder (see the module docstring)."""
     n_nodes = motion.shape[1]
@@ -234,10 +214,6 @@ def _cylinder_rows(cyl, motion, theta_f, grid, pressure, samples, gas, known):
     jhi = np.empty(n, dtype=np.int64)
     frac = np.empty(n)
     _pressure_brackets(theta_f, grid, jlo, jhi, frac)
-    s_fly = np.sin(theta_f)
-    c_fly = np.cos(theta_f)
-    s_q = np.empty(n)
-    c_q = np.empty(n)
     recip = np.empty(n)
     r, inv_rod, e = cyl.crank_radius, cyl.inv_rod, cyl.pin_offset
     for q in range(n_nodes):
@@ -254,7 +230,10 @@ def _cylinder_rows(cyl, motion, theta_f, grid, pressure, samples, gas, known):
         ang = motion[0, q]
         w_node = motion[1, q]
         a_node = motion[2, q]
-        _sin_cos_twisted(ang, theta_f, s_fly, c_fly, s_q, c_q)
+        # libm per node: the former Taylor series of the twist by the addition theorem gave < 20 % end to end
+        # (issue 26 item 6)
+        s_q = np.sin(ang)
+        c_q = np.cos(ang)
         for k in range(z):
             if cyl.node[k] != q:
                 continue

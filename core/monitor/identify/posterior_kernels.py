@@ -16,13 +16,13 @@ The callers then run the reference code (kept verbatim), so their behaviour in t
 Otherwise the results equal the reference to rounding (<= 1e-10 relative on the monitor's matrices, whose scaled
 condition numbers are ~1e2..5e3; tests/core/test_posterior_kernels.py).
 
-``posterior_kernel`` (genset-v20, P = 47: ~23 us a call) works from one inverse of N = acc.info + n_pr:
+``posterior_kernel`` (genset-v20, P = 47) works from one inverse of N = acc.info + n_pr:
 - params = N^-1 r minus the first-order effect of the reference's 1e-12 ridge on the unit-diagonal problem (its
   second order is < 1e-16 relative), so the bounded solve needs no factor of its own;
-- the inverse goes by the Schur complement of the leading half (two half-size Cholesky inverses, four small BLAS
-  gemms) from ``core.monitor.identify.spd_kernels.BLOCKED_MIN`` parameters on: loops over ~47-long rows are bound by their overhead, not by flops;
+- the inverse is numba's np.linalg (core.monitor.identify.spd_kernels: Cholesky for the pivot ratio, the inverse of
+  the unit-diagonal form);
 - a decoupled diagonal tail (the monitor's reference information: nuisances that only their priors see) is
-  inverted by reciprocals, the head alone by Cholesky;
+  inverted by reciprocals, the head alone by np.linalg;
 - chi^2 = y^T y - 2 params^T r + params^T A params cancels ~5 digits: it takes the reference's BLAS calls (ddot,
   dgemv) in its order, so its rounding is reproduced rather than a different one added;
 - the systematic covariance G S G^T (G = N^-1 B) is W^T W, W = S^1/2 B^T N^-1: two transposed-first gemms.
@@ -32,12 +32,12 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from frictionwatch.core.monitor.identify.spd_kernels import (  # noqa: F401  (cho_inverse, spd_inverse_into: the tests' handles)
+from frictionwatch.core.monitor.identify.spd_kernels import (  # noqa: F401  (spd_inverse_into: the tests' handle)
     FASTMATH,
-    cho_inverse,
     cho_solve,
     cholesky,
     decoupled_tail,
+    solve_or_nan,
     spd_inverse_into,
     spd_inverse_of_sum,
 )
@@ -100,24 +100,18 @@ def bounded_solve_kernel(info, rhs, lo):
             s_bb[a, b] = info[bi[a], bi[b]] * (da * dinv[bi[b]])
         s_bb[a, a] += REGULARISATION
     r = rhs / d
-    # free block s_ff + ridge = Lf Lf^T; W = Lf^-1 s_fb and zf = Lf^-1 r_f by row updates
+    # free block s_ff + ridge = Lf Lf^T; W = Lf^-1 s_fb and zf = Lf^-1 r_f in one solve
     chol_f = np.empty((nf, nf))
     if cholesky(s_ff, chol_f) < PIVOT_RATIO_MIN:
         return FALLBACK, params
-    w = s_fb.copy()
-    zf = np.empty(nf)
+    rhs_f = np.empty((nf, nb + 1))
     for a in range(nf):
-        zf[a] = r[fi[a]]
-    for a in range(nf):
-        for k in range(a):
-            f = chol_f[a, k]
-            for b in range(nb):
-                w[a, b] -= f * w[k, b]
-            zf[a] -= f * zf[k]
-        f = 1.0 / chol_f[a, a]
         for b in range(nb):
-            w[a, b] = w[a, b] * f
-        zf[a] = zf[a] * f
+            rhs_f[a, b] = s_fb[a, b]
+        rhs_f[a, nb] = r[fi[a]]
+    wz = solve_or_nan(chol_f, rhs_f)
+    w = wz[:, :nb]
+    zf = wz[:, nb]
     # bounded block: Schur complement s_bb - W^T W (+ ridge, already in s_bb), its unconstrained solution
     s_red = s_bb
     r_red = np.empty(nb)

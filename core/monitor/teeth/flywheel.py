@@ -149,17 +149,17 @@ def fit_flywheel(
 @dataclass(frozen=True)
 class FitSetup:
     """The angle-independent part of one cycle's flywheel fit (``prepare_fit``): time grid, design matrix, the
-    Cholesky-factored normal equations on unit-scaled columns and the fitted pattern harmonics.
+    inverse of the normal matrix on unit-scaled columns and the fitted pattern harmonics.
 
     design_rows (p, n_edges) = design^T, C-contiguous (``design`` is its (n_edges, p) transpose view);
-    scale (p,) column norms of the design; chol (p, p) upper U with U^T U = the unit-scaled normal matrix."""
+    scale (p,) column norms of the design; normal_inv (p, p) the inverse of the unit-scaled normal matrix."""
 
     tau: np.ndarray
     period: float
     omega: float
     design_rows: np.ndarray
     scale: np.ndarray
-    chol: np.ndarray
+    normal_inv: np.ndarray
     n_harmonics: int
     m_fit: int
     n_drift: int
@@ -213,12 +213,12 @@ def prepare_fit(tooth_ticks: np.ndarray, tick_hz: float, n_harmonics: int, patte
     tau = np.empty(n_edges)
     design_rows = np.empty((n_par, n_edges))
     scale = np.empty(n_par)
-    chol = np.empty((n_par, n_par))
+    normal_inv = np.empty((n_par, n_par))
     pat = np.empty((n_harmonics, pat_in.shape[1] + (1 if drift_pattern else 0)), dtype=np.complex128)
     try:
         status = prepare_fit_kernel(ticks, float(tick_hz), n_drift, m_fit, n_harmonics, pat_in,
                                     int(pattern_period) if patterns is not None else 0, bool(drift_pattern),
-                                    (tau, design_rows, scale, chol), pat)
+                                    (tau, design_rows, scale, normal_inv), pat)
     except np.linalg.LinAlgError as exc:
         raise ValueError(f"the tooth edges give a singular flywheel fit ({exc})") from exc
     if status == NOT_INCREASING:
@@ -226,7 +226,7 @@ def prepare_fit(tooth_ticks: np.ndarray, tick_hz: float, n_harmonics: int, patte
     if status != OK:
         raise ValueError("the tooth edges give a singular flywheel fit")
     period = float(tau[-1])
-    return FitSetup(tau, period, FOUR_PI / period, design_rows, scale, chol, n_harmonics, m_fit, n_drift, pat)
+    return FitSetup(tau, period, FOUR_PI / period, design_rows, scale, normal_inv, n_harmonics, m_fit, n_drift, pat)
 
 
 _NO_PATTERNS = np.zeros((4096, 0))  # a C-contiguous (n, 0) for fits without patterns
@@ -242,7 +242,7 @@ def fit_prepared(setup: FitSetup, tooth_angle: np.ndarray) -> FlywheelMotion:
         ang = np.ascontiguousarray(ang)
     harm = np.empty(setup.n_harmonics, dtype=np.complex128)
     resid = np.empty(tau.shape[0])
-    status, offset, drift, rms = fit_angles_kernel(setup.design_rows, setup.scale, setup.chol, tau, setup.omega, ang,
+    status, offset, drift, rms = fit_angles_kernel(setup.design_rows, setup.scale, setup.normal_inv, tau, setup.omega, ang,
                                              setup.n_drift, setup.m_fit, harm, resid)
     if status == NOT_INCREASING:
         raise ValueError("tooth times and angles must be strictly increasing")

@@ -1,5 +1,5 @@
 """Numba kernels of the flywheel fit (core.monitor.teeth.flywheel): Fourier design over the tooth-edge times, normal equations,
-Cholesky, the pattern fit, the angle fit with its residual, and the tooth-learner update.
+their inverse (numba's np.linalg), the pattern fit, the angle fit with its residual, and the tooth-learner update.
 
 cos(m w1 tau) and sin(m w1 tau) come from the angle-addition recurrence: cos/sin once per edge, then the recurrence
 across the edges (vectorised), not re-seeded (the former per-edge kernel re-seeded every 8 orders; that costs as much
@@ -75,50 +75,6 @@ def _angle_sum_sums(ca, sa, cb, sb):
 
 
 @numba.njit(cache=True)
-def _cholesky_solve_rows(u, x):
-    """In place: x (p, q) <- (U^T U)^-1 x for the upper factor u (p, p) (row updates: the inner loop over the q
-    right-hand sides is contiguous and vectorises)."""
-    p = u.shape[0]
-    q = x.shape[1]
-    for j in range(p):  # U^T y = b
-        d = u[j, j]
-        xj = x[j]
-        for c in range(q):
-            xj[c] /= d
-        for i in range(j + 1, p):
-            f = u[j, i]
-            xi = x[i]
-            for c in range(q):
-                xi[c] -= f * xj[c]
-    for j in range(p - 1, -1, -1):  # U x = y
-        d = u[j, j]
-        xj = x[j]
-        for c in range(q):
-            xj[c] /= d
-        for i in range(j):
-            f = u[i, j]
-            xi = x[i]
-            for c in range(q):
-                xi[c] -= f * xj[c]
-
-
-@numba.njit(cache=True)
-def _cholesky_solve_vec(u, x):
-    """In place: x (p,) <- (U^T U)^-1 x for the upper factor u (p, p)."""
-    p = u.shape[0]
-    for j in range(p):
-        xj = x[j] / u[j, j]
-        x[j] = xj
-        for i in range(j + 1, p):
-            x[i] -= u[j, i] * xj
-    for j in range(p - 1, -1, -1):
-        xj = x[j] / u[j, j]
-        x[j] = xj
-        for i in range(j):
-            x[i] -= u[i, j] * xj
-
-
-@numba.njit(cache=True)
 def _normal_matrix(design_t, n_drift, m_fit, csum, ssum, out):
     """Upper triangle of D^T D (p, p) from the power sums csum, ssum (2 m_fit + 1,) (module docstring)."""
     n = design_t.shape[1]
@@ -147,14 +103,15 @@ def _normal_matrix(design_t, n_drift, m_fit, csum, ssum, out):
 def prepare_fit_kernel(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, pattern_period, drift_pattern, prepared, pat):
     """Angle-independent part of the flywheel fit of the edges ``ticks`` (n,) (core.monitor.teeth.flywheel.prepare_fit).
 
-    Fills ``prepared`` = (tau, design_t, scale, chol): tau (n,) [s], design_t (p, n) = D^T with rows [1, (u (u - 1)),
-    cos k w1 tau (k = 1..m_fit), sin ...], scale (p,) = column norms of D, chol (p, p) = upper Cholesky factor of the
-    unit-scaled normal matrix; and pat (n_harm, q) complex = fitted harmonics of the patterns (n, q0) and, with
-    ``drift_pattern``, of a last pattern u (u - 1), u from the ticks. With ``pattern_period`` T > 0, patterns holds
-    only the first T rows: edge e uses row e % T (tooth patterns repeat every revolution), and the design rows are
-    summed over the repeats before the product (half the work for a two-revolution cycle). Returns a status code
-    (OK, NOT_INCREASING); a normal matrix that is not positive definite raises np.linalg.LinAlgError."""
-    tau, design_t, scale, chol = prepared
+    Fills ``prepared`` = (tau, design_t, scale, normal_inv): tau (n,) [s], design_t (p, n) = D^T with rows [1,
+    (u (u - 1)), cos k w1 tau (k = 1..m_fit), sin ...], scale (p,) = column norms of D, normal_inv (p, p) = inverse of
+    the unit-scaled normal matrix (LAPACK, exactly symmetric); and pat (n_harm, q) complex = fitted harmonics of the
+    patterns (n, q0) and, with ``drift_pattern``, of a last pattern u (u - 1), u from the ticks. With
+    ``pattern_period`` T > 0, patterns holds only the first T rows: edge e uses row e % T (tooth patterns repeat every
+    revolution), and the design rows are summed over the repeats before the product (half the work for a
+    two-revolution cycle). Returns a status code (OK, NOT_INCREASING); a normal matrix that is not positive definite
+    raises np.linalg.LinAlgError."""
+    tau, design_t, scale, normal_inv = prepared
     n = ticks.shape[0]
     p = n_drift + 2 * m_fit
     t0 = ticks[0]
@@ -204,10 +161,13 @@ def prepare_fit_kernel(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, pattern
             v = normal[j, k] / (scale[j] * scale[k])
             normal[j, k] = v
             normal[k, j] = v
-    low = np.linalg.cholesky(normal)  # LAPACK potrf (~2x a plain loop at p = 49); raises LinAlgError if not SPD
+    # numba's np.linalg, not hand triangular solves (< 20 % end to end, issue 26 item 6): potrf raises LinAlgError if
+    # not positive definite; with the inverse (well conditioned: see above) the solves below are BLAS products
+    np.linalg.cholesky(normal)
+    normal_inverse = np.linalg.inv(normal)
     for j in range(p):
         for k in range(p):
-            chol[j, k] = low[k, j]
+            normal_inv[j, k] = 0.5 * (normal_inverse[j, k] + normal_inverse[k, j])
     q0 = patterns.shape[1]
     if q0 == 0 and not drift_pattern:
         return OK
@@ -236,9 +196,9 @@ def prepare_fit_kernel(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, pattern
             x[j, c] /= inv
         xd[j] /= inv
     if q0 > 0:
-        _cholesky_solve_rows(chol, x)
+        x = np.dot(normal_inv, x)
     if drift_pattern:
-        _cholesky_solve_vec(chol, xd)
+        xd = np.dot(normal_inv, xd)
     for k in range(n_harm):
         a = scale[c0 + k]
         b = scale[s0 + k]
@@ -269,7 +229,7 @@ def _fold_row(row, period, out, qp, with_dot):
 
 
 @numba.njit(cache=True)
-def fit_angles_kernel(design_t, scale, chol, tau, omega, ang, n_drift, m_fit, harm, resid):
+def fit_angles_kernel(design_t, scale, normal_inv, tau, omega, ang, n_drift, m_fit, harm, resid):
     """Least-squares fit of the edge angles ang (n,) [rad] on a prepared design (core.monitor.teeth.flywheel.fit_prepared).
 
     Fills harm (n_harm,) complex and resid (n,) [rad]; returns (status, offset, drift, rms residual)."""
@@ -283,10 +243,10 @@ def fit_angles_kernel(design_t, scale, chol, tau, omega, ang, n_drift, m_fit, ha
         return BAD_SPAN, 0.0, 0.0, 0.0
     for i in range(n):
         resid[i] = ang[i] - a0 - omega * tau[i]  # phi, the angle deviation
-    coef = np.empty(p)
+    rhs = np.empty(p)
     for j in range(p):
-        coef[j] = _dot(design_t[j], resid) / scale[j]
-    _cholesky_solve_vec(chol, coef)
+        rhs[j] = _dot(design_t[j], resid) / scale[j]
+    coef = np.dot(normal_inv, rhs)
     for j in range(p):
         coef[j] /= scale[j]
     for j in range(p):

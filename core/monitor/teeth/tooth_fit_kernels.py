@@ -130,9 +130,9 @@ def tooth_fit_cycle_kernel(nominal_all, ticks_all, index_all, settings, cached_r
     tau = np.empty(n)
     design_t = np.empty((p, n))
     scale = np.empty(p)
-    chol = np.empty((p, p))
+    normal_inv = np.empty((p, p))
     status = prepare_fit_kernel(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, period_rows, drift_pattern,
-                                (tau, design_t, scale, chol), pat)
+                                (tau, design_t, scale, normal_inv), pat)
     if status != OK:
         return status, n, 0.0, 0.0, 0.0, 0.0, no_resid, correction
     period = tau[n - 1]
@@ -140,12 +140,12 @@ def tooth_fit_cycle_kernel(nominal_all, ticks_all, index_all, settings, cached_r
     angle = np.empty(n)
     resid = np.empty(n)
     _corrected_angles(nominal, correction, index, angle)
-    status, offset, drift, rms = fit_angles_kernel(design_t, scale, chol, tau, omega, angle, n_drift, m_fit, harm, resid)
+    status, offset, drift, rms = fit_angles_kernel(design_t, scale, normal_inv, tau, omega, angle, n_drift, m_fit, harm, resid)
     if status != OK or not learn:
         return status, n, period, offset, drift, rms, resid, correction
     corr = tooth_update_kernel(correction, index, resid, gain)
     if refit:  # while the learner is young, use what this cycle taught at once
         _corrected_angles(nominal, corr, index, angle)
-        status, offset, drift, rms = fit_angles_kernel(design_t, scale, chol, tau, omega, angle, n_drift, m_fit, harm,
+        status, offset, drift, rms = fit_angles_kernel(design_t, scale, normal_inv, tau, omega, angle, n_drift, m_fit, harm,
                                                  resid)
     return status, n, period, offset, drift, rms, resid, corr
