@@ -6,8 +6,10 @@ from collections import Counter
 from pathlib import Path
 
 from frictionwatch.core.monitor.report.results import CycleResult
+from frictionwatch.core.types import CamBatch, LoadSample, PressureFrame, ToothBatch
 from frictionwatch.service.cli import main
 from frictionwatch.service.pipeline import run
+from numpy.testing import assert_allclose, assert_array_equal
 
 
 def simulate_log(path: Path, engine: str, rpm: float, load: float, seed: int, cycles: int,
@@ -46,3 +48,18 @@ def pipeline_results(engine, sim, config=None) -> tuple[list[CycleResult], Count
     way by reason (the assembler's and the monitor's refusals alike)."""
     outcomes = list(run(engine, sim.info, sim.records, config))
     return [o.result for o in outcomes if o.ok], Counter(o.skipped for o in outcomes if not o.ok)
+
+
+def assert_same_records(got: list, want: list, rtol: float = 0.0) -> None:
+    """Two simulated record streams alike: the same kinds in the same order, ticks equal, pressures and load
+    samples within ``rtol`` (0: to the bit)."""
+    assert [type(r) for r in got] == [type(r) for r in want]
+    for a, b in zip(got, want):
+        if isinstance(b, ToothBatch | CamBatch):
+            assert_array_equal(a.ticks, b.ticks)
+        elif isinstance(b, PressureFrame):
+            assert (a.cylinders, a.t0_ticks, a.period_ticks) == (b.cylinders, b.t0_ticks, b.period_ticks)
+            assert_allclose(a.values, b.values, rtol=rtol, atol=0.0)
+        else:
+            assert isinstance(b, LoadSample) and a.ticks == b.ticks
+            assert_allclose([a.torque, a.power], [b.torque, b.power], rtol=rtol, atol=0.0)

@@ -10,10 +10,11 @@ import pytest
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.plant.sensors import to_ticks
 from frictionwatch.core.plant.simulate import simulate, start_simulation
-from frictionwatch.core.types import CamBatch, LoadSample, PressureFrame, ToothBatch
+from frictionwatch.core.types import CamBatch, PressureFrame, ToothBatch
 from numpy.testing import assert_allclose, assert_array_equal
 
 from tests.json_close import assert_json_close
+from tests.sim_logs import assert_same_records
 
 RTOL = 1e-12
 
@@ -22,19 +23,6 @@ def streamed(engine: str, rpm: float, load: float, cycles: int, chunk_cycles: in
     sim = start_simulation(load_engine(engine), rpm, load, cycles, 7, **kw)
     chunks = list(sim.chunks(chunk_cycles=chunk_cycles))
     return chunks, {**sim.truth, "cycles": [e for c in chunks for e in c.cycles]}
-
-
-def assert_same_records(got: list, want: list) -> None:
-    assert [type(r) for r in got] == [type(r) for r in want]
-    for a, b in zip(got, want):
-        if isinstance(b, ToothBatch | CamBatch):
-            assert_array_equal(a.ticks, b.ticks)
-        elif isinstance(b, PressureFrame):
-            assert (a.cylinders, a.t0_ticks, a.period_ticks) == (b.cylinders, b.t0_ticks, b.period_ticks)
-            assert_allclose(a.values, b.values, rtol=RTOL)
-        else:
-            assert isinstance(b, LoadSample) and a.ticks == b.ticks
-            assert_allclose([a.torque, a.power], [b.torque, b.power], rtol=RTOL)
 
 
 @pytest.mark.parametrize(("engine", "rpm", "load", "cycles", "kw"), [
@@ -51,7 +39,7 @@ def test_chunked_run_equals_one_chunk(engine, rpm, load, cycles, kw):
         assert len(chunks) == -(-cycles // size)
         assert sum(len(c.cycles) for c in chunks) == cycles
         assert all(len(c.cycles) == min(size, cycles - i * size) for i, c in enumerate(chunks))
-        assert_same_records([r for c in chunks for r in c.records], whole[0].records)
+        assert_same_records([r for c in chunks for r in c.records], whole[0].records, rtol=RTOL)
         assert_json_close(got, truth, rtol=RTOL, atol=1e-300, where=f"chunks of {size}")
         for key in ("pressure_true_pa", "edge_times_s", "friction_grid_nm", "cycle_increments"):
             assert_allclose(np.concatenate([c.diagnostics[key] for c in chunks]), whole[0].diagnostics[key],

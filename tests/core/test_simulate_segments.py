@@ -11,23 +11,9 @@ import numpy as np
 import pytest
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.plant.simulate import start_simulation
-from frictionwatch.core.types import CamBatch, LoadSample, PressureFrame, ToothBatch
-from numpy.testing import assert_array_equal
 
 from tests.json_close import assert_json_close
-
-
-def assert_identical_records(got: list, want: list) -> None:
-    assert [type(r) for r in got] == [type(r) for r in want]
-    for a, b in zip(got, want):
-        if isinstance(b, ToothBatch | CamBatch):
-            assert_array_equal(a.ticks, b.ticks)
-        elif isinstance(b, PressureFrame):
-            assert (a.cylinders, a.t0_ticks, a.period_ticks) == (b.cylinders, b.t0_ticks, b.period_ticks)
-            assert_array_equal(a.values, b.values)
-        else:
-            assert isinstance(b, LoadSample)
-            assert (a.ticks, a.torque, a.power) == (b.ticks, b.torque, b.power)
+from tests.sim_logs import assert_same_records
 
 
 def run(engine, rpm, load, cycles, chunk, split=None, **kw):
@@ -57,7 +43,7 @@ def run(engine, rpm, load, cycles, chunk, split=None, **kw):
 def test_segments_chain_to_the_bit(engine, rpm, load, cycles, kw):
     want_records, want_truth = run(engine, rpm, load, cycles, 2, **kw)
     got_records, got_truth = run(engine, rpm, load, cycles, 2, split=1, **kw)
-    assert_identical_records(got_records, want_records)
+    assert_same_records(got_records, want_records)
     assert_json_close(got_truth, want_truth, rtol=0.0, atol=0.0)
 
 

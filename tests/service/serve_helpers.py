@@ -3,6 +3,8 @@ that implements exactly the contract's interface (service/alerts.py, h-alerts, r
 
 from __future__ import annotations
 
+import signal
+import subprocess
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -85,6 +87,17 @@ def demo_service(engine_id: str, url: str = f"mcap:{DEMO}", **options) -> Engine
     src = open_source(url, Clocks())
     model = resolve_model(src.engine_toml, None, "demo", src.info)
     return EngineService(engine_id, model, src.info, {"log": src}, urls=[url], **options)
+
+
+def stop_server(proc, timeout: float = 30.0) -> None:
+    """SIGTERM a serve process (if it still runs) and wait; killed if it does not stop within ``timeout`` s."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
 
 def wait_until(pred, timeout: float, every: float = 0.1) -> bool:

@@ -27,6 +27,7 @@ import pytest
 from matplotlib.image import imread
 
 from tests.service.dashboard_browser import BrowserError, Chromium, find_chromium, free_port
+from tests.service.serve_helpers import stop_server
 
 if find_chromium() is None:
     pytest.skip("no chromium on PATH: scripts/install-chromium.sh installs Debian's", allow_module_level=True)
@@ -39,6 +40,7 @@ STATUSES = {"measured", "share", "prior", "unresolved", "withheld"}
 # time (2.3 min of CPU) on this 2-core machine with eight other jobs running
 START_TIMEOUT_S = 900
 pytestmark = pytest.mark.timeout(START_TIMEOUT_S + 300)  # pytest-timeout counts the module fixtures' set-up
+
 
 
 def wait_for_first_cycle(base: str, proc: subprocess.Popen[bytes], log: Path) -> list[dict]:
@@ -74,13 +76,7 @@ def server(tmp_path_factory: pytest.TempPathFactory):
         engines = wait_for_first_cycle(base, proc, log)
         yield {"base": base, "proc": proc, "engines": engines, "token": "dashboard-test-token"}
     finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop_server(proc)
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,6 @@ Chromium comes from scripts/install-chromium.sh; without it the module skips wit
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -19,6 +18,7 @@ import httpx
 import pytest
 
 from tests.service.dashboard_browser import Chromium, find_chromium, free_port
+from tests.service.serve_helpers import stop_server
 
 if find_chromium() is None:
     pytest.skip("no chromium on PATH: scripts/install-chromium.sh installs Debian's", allow_module_level=True)
@@ -26,6 +26,7 @@ if find_chromium() is None:
 REPO = Path(__file__).resolve().parents[2]
 COMPILING = "compiling the numerical kernels (first run only)"
 pytestmark = pytest.mark.timeout(300)
+
 
 
 @pytest.fixture(scope="module")
@@ -53,12 +54,7 @@ def cold_server(tmp_path_factory: pytest.TempPathFactory):
             pytest.fail(f"the server never said it was compiling: {log.read_text()[-2000:]}")
         yield {"base": base, "proc": proc, "log": log}
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_server(proc)
 
 
 def test_a_cold_start_says_it_compiles_instead_of_showing_503(cold_server, tmp_path):
