@@ -54,6 +54,13 @@ _END = object()
 LIVE_DRIVERS = ("frictionwatch.drivers.serial", "frictionwatch.drivers.can")  # sources that cannot wait for us
 
 
+def is_replay_paced(source: Source) -> bool:
+    """A log replayed at the wall clock's pace (not a serial or CAN board): real time, but it *can* wait, and start
+    its clock again (``reanchor``)."""
+    inner = getattr(source, "inner", source)
+    return is_realtime(source) and not type(inner).__module__.startswith(LIVE_DRIVERS) and hasattr(inner, "reanchor")
+
+
 def is_realtime(source: Source) -> bool:
     """Whether a source produces at the wall clock's pace and cannot be made to wait: a serial or CAN board, or a
     replay with a speed. A log read as fast as possible (mcap ``speed=max``: None; mdf4 speed 0) and test doubles
@@ -82,6 +89,10 @@ class LiveSession:
     max_results : how many recent results the session holds (``results``); older ones are dropped, still counted.
     max_queue_s : the most acquisition time the reader -> ingest queue holds (see Backpressure above).
     drain_s : how long ``stop`` lets the ingest thread work through the queue before dropping the rest.
+    warmup_s : before the first result (a fresh install compiles its numba kernels on the first cycle: 35 s on a
+    2-core machine), a replay paced by the wall clock waits for room instead of having its oldest data dropped, for
+    at most this long; at the first result its clock starts again (``reanchor``), so it does not race to catch up.
+    A serial or CAN board never waits. 0: no such wait.
     config : the monitor's settings (``MonitorConfig``; None: the defaults), e.g. the speed-based sensor-health
     stage switched on (``serve --sensor-health``).
     """
@@ -91,7 +102,8 @@ class LiveSession:
                  quiet_s: float = 0.5, read_timeout_s: float = 0.05,
                  on_result: Callable[[CycleResult], None] | None = None, max_results: int = 20_000,
                  start: bool = True, on_record: Callable[[StreamRecord], None] | None = None,
-                 config: MonitorConfig | None = None, max_queue_s: float = 10.0, drain_s: float = 5.0) -> None:
+                 config: MonitorConfig | None = None, max_queue_s: float = 10.0, drain_s: float = 5.0,
+                 warmup_s: float = 120.0) -> None:
         if isinstance(sources, Mapping):
             self.sources = dict(sources)
         else:
@@ -112,6 +124,10 @@ class LiveSession:
         self.max_queue_s = max_queue_s
         self._queue = IngestQueue(max_queue_s * info.tick_hz, info.tick_hz)
         self._realtime = {n: is_realtime(s) for n, s in self.sources.items()}
+        self._paced_replays = [n for n, s in self.sources.items() if is_replay_paced(s)]
+        self.warmup_s = warmup_s
+        self._first_result = threading.Event()
+        self._start_s = math.inf
         self.drain_s = drain_s
         self._drain_until = math.inf  # set by stop(): past it the ingest thread drops what is still queued
         self.left_at_stop: tuple[int, float] | None = None  # (records, acquisition s) dropped when the drain ran out
@@ -128,6 +144,7 @@ class LiveSession:
     def start(self) -> LiveSession:
         if self._started:
             raise ValueError("a live session starts once")
+        self._start_s = time.monotonic()
         self._started = True
         self._heard = dict.fromkeys(self.sources, time.monotonic())
         self._ingest.start()
@@ -258,7 +275,8 @@ class LiveSession:
                 continue
             if records:
                 self._heard[name] = time.monotonic()  # stamped here: a busy ingest thread must not see silence
-                self._queue.put(name, records, max(record_key(r) for r in records), self._realtime[name])
+                self._queue.put(name, records, max(record_key(r) for r in records),
+                                self._realtime[name] and not self._replay_waits(name))
 
     def _ingest_loop(self) -> None:
         while True:
@@ -324,8 +342,18 @@ class LiveSession:
         with self._cond:
             self._cond.notify_all()
 
+    def _replay_waits(self, name: str) -> bool:
+        """Whether this source's batch waits for room rather than pushing the oldest out: a paced replay before the
+        first result, within ``warmup_s`` of the start."""
+        return (name in self._paced_replays and not self._first_result.is_set()
+                and time.monotonic() - self._start_s < self.warmup_s)
+
     def _publish(self, results: list[CycleResult]) -> None:
         """Called with ``_cond`` held."""
+        if results and not self._first_result.is_set():
+            self._first_result.set()
+            for name in self._paced_replays:  # their clocks start again from where they waited
+                getattr(self.sources[name], "inner", self.sources[name]).reanchor()
         for res in results:
             self._history.append(res)
             if self.on_result is not None:

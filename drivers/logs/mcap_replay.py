@@ -139,6 +139,11 @@ class McapSource(Source):
         self.passes += 1
         self.seek(self._start_s)
 
+    def reanchor(self) -> None:
+        """Pace from the next record on as if the replay started now: a reader that was made to wait (a live session
+        while its kernels compile) does not then race through what it owes the clock."""
+        self._anchor = None
+
     def _read_internal(self, timeout: float | None) -> list[StreamRecord | StreamRestart]:
         if self._next is None:
             if not self.loop:

@@ -24,7 +24,8 @@ def slow_feed(record) -> list:
 
 @pytest.fixture()
 def held_back():
-    svc = demo_service("slow", f"mcap:{DEMO}?speed=1&loop=1", max_queue_s=MAX_QUEUE_S)
+    svc = demo_service("slow", f"mcap:{DEMO}?speed=1&loop=1", max_queue_s=MAX_QUEUE_S,
+                       warmup_s=0.0)  # a stand-in for a live board, which never waits
     svc.session.pipeline.feed = slow_feed
     with TestClient(create_app([svc])) as client:
         yield client, svc
@@ -55,7 +56,8 @@ def test_lag_shows_in_health_and_metrics(held_back) -> None:
 
 
 def test_a_stop_with_a_backlog_says_what_it_left(caplog) -> None:
-    svc = demo_service("slow", f"mcap:{DEMO}?speed=1&loop=1", max_queue_s=MAX_QUEUE_S)
+    svc = demo_service("slow", f"mcap:{DEMO}?speed=1&loop=1", max_queue_s=MAX_QUEUE_S,
+                       warmup_s=0.0)  # a stand-in for a live board, which never waits
     svc.session.pipeline.feed = slow_feed
     svc.start()
     try:

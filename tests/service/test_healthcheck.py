@@ -37,7 +37,8 @@ def test_verdict(doc, healthy: bool, words: str) -> None:
 def test_a_lagging_engine_is_degraded_and_healthy() -> None:
     """/health's own reply for an engine held back (the pipeline a slow stand-in, as in test_api_backlog.py): it
     falls behind, /health says 'degraded' and why; the container stays healthy."""
-    svc = demo_service("slow", f"mcap:{DEMO}?speed=1&loop=1", max_queue_s=1.0)
+    svc = demo_service("slow", f"mcap:{DEMO}?speed=1&loop=1", max_queue_s=1.0,
+                       warmup_s=0.0)  # a stand-in for a live board, which never waits
     svc.session.pipeline.feed = lambda record: (time.sleep(0.05), [])[1]
     with TestClient(create_app([svc])) as client:
         assert wait_until(lambda: client.get("/api/v1/health").json()["engines"][0]["behind"], timeout=10.0)
