@@ -52,6 +52,9 @@ log = logging.getLogger(__name__)
 
 _END = object()
 LIVE_DRIVERS = ("frictionwatch.drivers.serial", "frictionwatch.drivers.can")  # sources that cannot wait for us
+# results after which the monitor is warm: past the TDC watch's first window (100 cycles) and its first fit, whose
+# kernels compile then (a cold `make run` dropped 2.6 s of the demo just after its first result with 1 here)
+WARM_RESULTS = 150
 
 
 def is_replay_paced(source: Source) -> bool:
@@ -89,10 +92,10 @@ class LiveSession:
     max_results : how many recent results the session holds (``results``); older ones are dropped, still counted.
     max_queue_s : the most acquisition time the reader -> ingest queue holds (see Backpressure above).
     drain_s : how long ``stop`` lets the ingest thread work through the queue before dropping the rest.
-    warmup_s : before the first result (a fresh install compiles its numba kernels on the first cycle: 35 s on a
-    2-core machine), a replay paced by the wall clock waits for room instead of having its oldest data dropped, for
-    at most this long; at the first result its clock starts again (``reanchor``), so it does not race to catch up.
-    A serial or CAN board never waits. 0: no such wait.
+    warmup_s : while the monitor warms up (a fresh install compiles its numba kernels on the first cycle, 35 s on a
+    2-core machine, and more at the first TDC-watch window: until WARM_RESULTS results), a replay paced by the wall
+    clock waits for room instead of having its oldest data dropped, for at most this long; then its clock starts
+    again (``reanchor``), so it does not race to catch up. A serial or CAN board never waits. 0: no such wait.
     config : the monitor's settings (``MonitorConfig``; None: the defaults), e.g. the speed-based sensor-health
     stage switched on (``serve --sensor-health``).
     """
@@ -126,7 +129,8 @@ class LiveSession:
         self._realtime = {n: is_realtime(s) for n, s in self.sources.items()}
         self._paced_replays = [n for n, s in self.sources.items() if is_replay_paced(s)]
         self.warmup_s = warmup_s
-        self._first_result = threading.Event()
+        self._warm = threading.Event()
+        self._results_seen = 0
         self._start_s = math.inf
         self.drain_s = drain_s
         self._drain_until = math.inf  # set by stop(): past it the ingest thread drops what is still queued
@@ -343,15 +347,16 @@ class LiveSession:
             self._cond.notify_all()
 
     def _replay_waits(self, name: str) -> bool:
-        """Whether this source's batch waits for room rather than pushing the oldest out: a paced replay before the
-        first result, within ``warmup_s`` of the start."""
-        return (name in self._paced_replays and not self._first_result.is_set()
+        """Whether this source's batch waits for room rather than pushing the oldest out: a paced replay while the
+        monitor warms up (WARM_RESULTS results), within ``warmup_s`` of the start."""
+        return (name in self._paced_replays and not self._warm.is_set()
                 and time.monotonic() - self._start_s < self.warmup_s)
 
     def _publish(self, results: list[CycleResult]) -> None:
         """Called with ``_cond`` held."""
-        if results and not self._first_result.is_set():
-            self._first_result.set()
+        self._results_seen += len(results)
+        if self._results_seen >= WARM_RESULTS and not self._warm.is_set():
+            self._warm.set()
             for name in self._paced_replays:  # their clocks start again from where they waited
                 getattr(self.sources[name], "inner", self.sources[name]).reanchor()
         for res in results:
