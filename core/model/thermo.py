@@ -50,7 +50,7 @@ _Q, _SOC, _BETA, _LEAK, _OMEGA, _PIVC, _PINT, _PEXH, _NCYC = range(9)
 
 
 @numba.njit(**BORROWING)
-def _cp_air(temp):
+def cp_air_kernel(temp):
     """Sonntag c_p of air [J/(kg K)], T clipped to the fit's 300..3500 K range (physics.md §13)."""
     t = min(max(temp, 300.0), 3500.0)
     s = math.sqrt(t)
@@ -61,7 +61,7 @@ def _cp_air(temp):
 @numba.njit(cache=True)
 def _cp_air_array(temp, out):
     for i in range(temp.shape[0]):
-        out[i] = _cp_air(temp[i])
+        out[i] = cp_air_kernel(temp[i])
 
 
 def cp_air(temp_k: np.ndarray) -> np.ndarray:
@@ -129,7 +129,7 @@ def _closed_rhs(theta, vol, dvol, p, m, c, q, angle, wo):
     dqc, p_mot = angle
     h_pre, w0, w0_08, wc2 = wo
     temp = p * vol / (m * R_AIR)
-    cp = _cp_air(temp)
+    cp = cp_air_kernel(temp)
     g = cp / (cp - R_AIR)
     # Woschni: h = 3.26 B^-0.2 p[kPa]^0.8 T^-0.55 w^0.8 with w = C1 cbar + C2 Vd T_r/(p_r V_r) (p - p_mot)
     omega = q[_OMEGA]

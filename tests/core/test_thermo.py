@@ -10,7 +10,7 @@ from frictionwatch.core.model.thermo import (
     R_AIR,
     WOSCHNI_C1,
     WOSCHNI_C2,
-    _cp_air,
+    cp_air_kernel,
     cycle_params,
     cylinder_model,
     cylinder_pressure,
@@ -86,7 +86,7 @@ def ref_closed_cycle(spec, omega, fuel, leak=0.0, ht_scale=0.6):
 
 def test_sonntag_cp_matches_air_tables():
     # physics.md §13 [checked]: 1.006 / 1.142 / 1.249 kJ/(kg K) at 300 / 1000 / 2000 K
-    got = [_cp_air(t) for t in (300.0, 1000.0, 2000.0)]
+    got = [cp_air_kernel(t) for t in (300.0, 1000.0, 2000.0)]
     assert_allclose(got, [1006.0, 1142.0, 1249.0], atol=1.5)
     assert_allclose(got, ref_cp(np.array([300.0, 1000.0, 2000.0])), rtol=1e-12)
 

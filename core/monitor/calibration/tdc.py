@@ -44,6 +44,23 @@ from frictionwatch.core.model.thermo import (
     WOSCHNI_SCALE,
     cp_air,
 )
+from frictionwatch.core.monitor.calibration.tdc_kernels import (
+    C_AREA,
+    C_BORE,
+    C_CLEAR,
+    C_DISP,
+    C_E,
+    C_HEAT,
+    C_IVC,
+    C_OMEGA,
+    C_PIVC,
+    C_R,
+    C_SOC,
+    C_TIVC,
+    C_TWALL,
+    N_CONST,
+    gauss_newton_kernel,
+)
 from frictionwatch.core.types import Cycle
 from scipy.signal import savgol_filter
 
@@ -73,6 +90,8 @@ HEAT_LOSS_REL_SIGMA = 0.3
 BLOCKS = 5  # disjoint blocks of cycles whose fits give the statistical sigma
 FD_DELTA_RAD = math.radians(0.05)
 FD_PEG_PA = 2.0e3
+# the kernel's iteration settings: [iterations, FD delta, FD peg, largest step, stop below this step] (rad, Pa)
+_GN_STEPS = np.array([GN_ITERATIONS, FD_DELTA_RAD, FD_PEG_PA, MAX_STEP_RAD, math.radians(1e-4)])
 
 
 @dataclass(frozen=True)
@@ -208,14 +227,33 @@ def _windows(angle_deg: np.ndarray, spec: EngineSpec, motored: bool, q_mean: np.
 
 def _gauss_newton(p: np.ndarray, dp: np.ndarray, ang: np.ndarray, st: _Setting, delta: float, peg: float,
                   constant_loss: bool = False) -> tuple[float, float]:
+    """``_gauss_newton_reference`` by its kernel (``tdc_kernels.gauss_newton_kernel``, tested equal): a window's
+    fits on k9k took 180 us each in numpy, 82 us in the kernel, the same per-sample arithmetic without ~40 numpy
+    calls and an SVD per iteration (a kernel of the residual alone was no faster: the loop and lstsq are the cost)."""
+    return gauss_newton_kernel(np.ascontiguousarray(p, dtype=np.float64), np.ascontiguousarray(dp, dtype=np.float64),
+                               np.ascontiguousarray(ang, dtype=np.float64), _constants(st),
+                               np.array([delta, peg, 1.0 if constant_loss else 0.0]), _GN_STEPS)
+
+
+def _constants(st: _Setting) -> np.ndarray:
+    """The constants array of the kernels (``tdc_kernels`` C_* layout) for one setting."""
+    spec, cb = st.spec, st.spec.combustion
+    c = np.empty(N_CONST)
+    c[C_R:C_E + 1] = spec.kinematics_params()
+    c[[C_AREA, C_CLEAR, C_DISP, C_BORE, C_IVC, C_TIVC, C_TWALL, C_OMEGA, C_PIVC, C_SOC, C_HEAT]] = (
+        spec.piston_area, spec.clearance_volume, spec.displacement_cyl, spec.bore, math.radians(cb.ivc_deg),
+        cb.t_ivc_k, cb.t_wall_k, st.omega, st.p_ivc, st.soc_rad, st.heat_loss_scale)
+    return c
+
+
+def _gauss_newton_reference(p: np.ndarray, dp: np.ndarray, ang: np.ndarray, st: _Setting, delta: float, peg: float,
+                  constant_loss: bool = False) -> tuple[float, float]:
     """(delta, peg) minimising sum (ROHR + wall heat [+ c])^2 over the window samples of the mean of the rows of p:
     Gauss-Newton, both columns by forward differences; ``constant_loss`` adds a free constant loss power c (a loss
     the Woschni shape does not have: blow-by, crevices), the variant whose effect is a part of sigma."""
     pm, dpm = p.mean(axis=0), dp.mean(axis=0)
     for _ in range(GN_ITERATIONS):
-        # the residual at (delta, peg) and at each forward step in one call (k9k, ~200 window samples: 55 us against
-        # 3 x 50 us, numpy's per-call overhead; a numba loop of the same terms was no faster, 86 against 85 us at 520
-        # samples: scalar pow against numpy's vectorised one, and 0.7 s of compile)
+        # the residual at (delta, peg) and at each forward step in one call
         q, w = _model_terms(pm, dpm, ang, np.array([[delta], [delta + FD_DELTA_RAD], [delta]]),
                             np.array([[peg], [peg], [peg + FD_PEG_PA]]), st)
         r, rd, rp = q + w

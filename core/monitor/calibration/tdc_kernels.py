@@ -1,0 +1,101 @@
+"""The Gauss-Newton fit of ``core.monitor.calibration.tdc`` as one kernel: its numpy reference is
+``tdc._gauss_newton_reference`` with ``tdc._model_terms`` (tested equal in tests/core/test_tdc_kernels.py).
+
+Why a kernel: ``tdc_from_pressure`` runs 9 Gauss-Newton fits of ~2.5 iterations on ~115 window samples (k9k); in
+numpy they were 1.7 of its 2.6 ms per cylinder (180 us a fit: ~40 small array operations per residual
+and an SVD ``lstsq`` per step, numpy's per-call overhead), in one kernel 82 us a fit. The per-sample arithmetic is
+the same (``kinematics_kernel``, ``cp_air_kernel``, the order of operations of ``_model_terms``), the step is
+LAPACK's least squares as numpy's (same rcond), so the fits agree to ~1e-14 rad.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from frictionwatch.core.model.kinematics import kinematics_kernel
+from frictionwatch.core.model.thermo import (
+    N_MOTORED,
+    R_AIR,
+    WALL_AREA_HEAD_PISTON,
+    WOSCHNI_C1,
+    WOSCHNI_C2,
+    WOSCHNI_SCALE,
+    cp_air_kernel,
+)
+
+# layout of the constants array (``tdc._constants``)
+(C_R, C_L, C_E, C_AREA, C_CLEAR, C_DISP, C_BORE, C_IVC, C_TIVC, C_TWALL, C_OMEGA, C_PIVC, C_SOC, C_HEAT,
+ N_CONST) = range(15)
+EPS = 2.220446049250313e-16  # float64 machine epsilon
+
+
+@numba.njit(cache=True)
+def residual_kernel(p, dp, ang, delta, peg, c, out):
+    """out (m,) = net apparent ROHR + Woschni wall heat [J/rad] of the mean pressure p (m,), dp/dtheta (m,) at the
+    angles ang - delta (m,), pressure + peg (``tdc._model_terms`` summed, sample by sample); c: the constants."""
+    m = ang.shape[0]
+    kin = c[C_R:C_E + 1]
+    shifted = np.empty(m)
+    for i in range(m):
+        shifted[i] = ang[i] - delta
+    x, dx, ddx = np.empty(m), np.empty(m), np.empty(m)
+    kinematics_kernel(shifted, kin, x, dx, ddx)
+    ivc = np.empty(1)
+    ivc[0] = c[C_IVC] - delta
+    xi, dxi, ddxi = np.empty(1), np.empty(1), np.empty(1)
+    kinematics_kernel(ivc, kin, xi, dxi, ddxi)
+    area = c[C_AREA]
+    v_ivc = c[C_CLEAR] + area * xi[0]
+    p_ivc = max(c[C_PIVC] + peg, 1e3)
+    mass = p_ivc * v_ivc / (R_AIR * c[C_TIVC])
+    omega = c[C_OMEGA]
+    cbar = c[C_DISP] / area * omega / math.pi
+    burn = WOSCHNI_C2 * c[C_DISP] * c[C_TIVC] / (p_ivc * v_ivc)
+    h0 = WOSCHNI_SCALE * 3.26 * c[C_BORE] ** -0.2
+    for i in range(m):
+        vol = c[C_CLEAR] + area * x[i]
+        dvol = area * dx[i]
+        pc = max(p[i] + peg, 1e3)
+        temp = pc * vol / (mass * R_AIR)
+        cp = cp_air_kernel(temp)
+        gamma = cp / (cp - R_AIR)
+        q = (gamma * pc * dvol + vol * dp[i]) / (gamma - 1.0)
+        w = WOSCHNI_C1 * cbar + (burn * max(pc - p_ivc * (v_ivc / vol) ** N_MOTORED, 0.0)
+                                 if shifted[i] > c[C_SOC] else 0.0)
+        h = h0 * (pc * 1e-3) ** 0.8 * temp ** -0.55 * w ** 0.8
+        area_w = WALL_AREA_HEAD_PISTON * area + math.pi * c[C_BORE] * vol / area
+        out[i] = q + c[C_HEAT] * h * area_w * (temp - c[C_TWALL]) / omega
+
+
+@numba.njit(cache=True)
+def gauss_newton_kernel(p, dp, ang, c, start, steps):
+    """(delta, peg) of ``tdc._gauss_newton`` from the mean of the rows of p, dp (k, m) at the window angles ang (m,)
+    from start = [delta, peg, constant_loss (0/1)]; steps = [iterations, FD delta, FD peg, max step, stop]."""
+    k, m = p.shape
+    pm, dpm = np.zeros(m), np.zeros(m)
+    for j in range(k):
+        for i in range(m):
+            pm[i] += p[j, i]
+            dpm[i] += dp[j, i]
+    for i in range(m):
+        pm[i] /= k
+        dpm[i] /= k
+    delta, peg = start[0], start[1]
+    n_col = 3 if start[2] != 0.0 else 2
+    r, rd, rp = np.empty(m), np.empty(m), np.empty(m)
+    jac = np.ones((m, n_col))
+    for _ in range(int(steps[0])):
+        residual_kernel(pm, dpm, ang, delta, peg, c, r)
+        residual_kernel(pm, dpm, ang, delta + steps[1], peg, c, rd)
+        residual_kernel(pm, dpm, ang, delta, peg + steps[2], c, rp)
+        for i in range(m):
+            jac[i, 0] = (rd[i] - r[i]) / steps[1]
+            jac[i, 1] = (rp[i] - r[i]) / steps[2]
+        sol = np.linalg.lstsq(jac, -r, rcond=EPS * max(m, n_col))[0]  # numpy's rcond=None
+        delta += min(max(sol[0], -steps[3]), steps[3])
+        peg += sol[1]
+        if abs(sol[0]) < steps[4]:
+            break
+    return delta, peg

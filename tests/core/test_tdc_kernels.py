@@ -1,0 +1,58 @@
+"""The TDC fit's kernels against their numpy reference (core.monitor.calibration.tdc: ``_model_terms``,
+``_gauss_newton_reference``) on seeded inputs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.monitor.calibration.tdc import (
+    _constants,
+    _gauss_newton,
+    _gauss_newton_reference,
+    _model_terms,
+    _Setting,
+)
+from frictionwatch.core.monitor.calibration.tdc_kernels import residual_kernel
+
+from tests.core.test_tdc_from_pressure import adiabatic_trace
+
+
+def _window(engine: str, seed: int) -> tuple[object, np.ndarray, np.ndarray, np.ndarray]:
+    """(spec, p (8, m), dp (8, m), angle (m,)): 8 noisy adiabatic compression-expansion cycles around TDC."""
+    spec = load_engine(engine)
+    cb = spec.combustion
+    angle = np.radians(np.arange(cb.ivc_deg, cb.evo_deg, 1.0))
+    base = adiabatic_trace(spec, angle, 1.2e5, cb.t_ivc_k)
+    rng = np.random.default_rng(seed)
+    p = base[None, :] * (1.0 + rng.normal(0.0, 2e-3, (8, 1))) + rng.normal(0.0, 3e3, (8, angle.shape[0]))
+    return spec, p, np.gradient(p, angle, axis=1), angle
+
+
+@pytest.mark.parametrize("engine", ["deutz-1cyl", "k9k-4cyl", "genset-v20"])
+def test_residual_kernel_is_the_model_terms_sum(engine):
+    """rtol 1e-12: the same operations per sample (only numpy's vectorised pow could round differently)."""
+    spec, p, dp, angle = _window(engine, 3)
+    st = _Setting(spec, 150.0, 1.2e5, math.radians(-5.0), 1.3)
+    for delta, peg in ((0.0, 0.0), (0.012, -4e3), (-0.03, 7e3)):
+        q, w = _model_terms(p[0], dp[0], angle, delta, peg, st)
+        got = np.empty_like(angle)
+        residual_kernel(p[0], dp[0], angle, delta, peg, _constants(st), got)
+        np.testing.assert_allclose(got, q + w, rtol=1e-12, atol=1e-12 * np.max(np.abs(q)))
+
+
+@pytest.mark.parametrize("engine", ["deutz-1cyl", "k9k-4cyl", "genset-v20"])
+@pytest.mark.parametrize("constant_loss", [False, True])
+def test_gauss_newton_kernel_is_its_numpy_reference(engine, constant_loss):
+    """From a start 1 deg and 5 kPa off: the fits agree to 1e-10 rad and 1e-6 relative pegging (the iterations'
+    rounding, ~1e-14 rad on the k9k windows of the bench), and move from the start (the fit ran)."""
+    spec, p, dp, angle = _window(engine, 5)
+    st = _Setting(spec, 200.0, float(p[:, 0].mean()), math.radians(-5.0), 1.0)
+    start = (math.radians(1.0), 5e3)
+    want = _gauss_newton_reference(p, dp, angle, st, *start, constant_loss=constant_loss)
+    got = _gauss_newton(p, dp, angle, st, *start, constant_loss=constant_loss)
+    assert abs(got[0] - want[0]) < 1e-10
+    assert got[1] == pytest.approx(want[1], rel=1e-6, abs=1e-6)
+    assert abs(got[0] - start[0]) > 1e-6
