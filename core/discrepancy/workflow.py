@@ -123,6 +123,12 @@ class Discovery:
                 if o["amplitude_rpm"] > SIGNIFICANT * o["sigma_rpm"] and not o["significant"]]
 
     @property
+    def one_operating_point(self) -> bool:
+        """Whether the log varies too little in speed and in load for a trend (features.trends: both None)."""
+        trends = (self.localisation or {}).get("trends") or {}
+        return trends.get("speed") is None and trends.get("load") is None
+
+    @property
     def outcome(self) -> str:
         if self.steps:
             return "named"
@@ -149,6 +155,9 @@ class Discovery:
                 text = ("No missing effect beyond the model's own error: a coherent residual at engine orders "
                         f"{_orders(inside)} lies within the model-error floor (features.speed_floor_rpm), not within "
                         "the noise alone")
+        if not self.steps and not self.ambiguous and self.one_operating_point:
+            text += ("; the log holds one steady speed and load, where a friction law that differs from the model's "
+                     "only elsewhere cannot show: a run across speeds and loads would test the laws")
         if self.ambiguous:
             a = self.ambiguous
             text += (f"; {' and '.join(a['candidates'])} explain the rest equally well and neither was added"
@@ -179,6 +188,7 @@ class Discovery:
                 "within_model_error_floor": self.within_floor,
                 "ambiguous": self.ambiguous,
                 "refused": self.refused, "step_limit_reached": self.step_limit_reached,
+                "one_operating_point": self.one_operating_point,
                 "localisation": self.localisation, "final": self.final, "not_significant": self.rejected,
                 "monitor_runs": self.evaluations}
 

@@ -267,3 +267,21 @@ def test_what_a_fit_leaves_coherent_counts_as_model_error_in_its_parameters_sigm
     residual = (0.7 + rng.standard_normal((n, f))).ravel()
     np.testing.assert_allclose(parameter_sigma(jac, n, float(n * f), np.zeros(f), residual),
                                parameter_sigma(jac, n, float(n * f), np.full(f, 0.7)), rtol=0.05)
+
+
+def test_nothing_found_at_one_operating_point_says_what_that_cannot_show():
+    """A log at one steady speed and load (no trend against either) cannot show a friction law that differs from the
+    model's only elsewhere: 'nothing' says so, and a log across speeds does not get the sentence."""
+    from frictionwatch.core.discrepancy.workflow import Discovery
+
+    model = EngineModel.from_spec(load_engine("k9k-4cyl"))
+    final = {"significant_orders": [], "balance": {"significant": False, "mean_nm": 0.0}, "orders": []}
+
+    def found(trends: dict) -> Discovery:
+        return Discovery(model, model, [], 0.7, 0.7, {"trends": trends}, final)
+
+    steady = found({"speed": None, "load": None})
+    assert steady.outcome == "nothing" and steady.one_operating_point
+    assert "one steady speed and load" in steady.verdict() and steady.to_json()["one_operating_point"] is True
+    swept = found({"speed": {"unit": "rpm"}, "load": None})
+    assert not swept.one_operating_point and "one steady speed" not in swept.verdict()
