@@ -222,7 +222,7 @@ def test_the_pressures_tdc_reading_proposes_tdc_candidates():
     cylinder alone; readings within their noise propose nothing."""
     import dataclasses
 
-    from frictionwatch.core.discrepancy.workflow import pressure_seeds
+    from frictionwatch.core.discrepancy.pressure_channel import pressure_seeds
 
     base = made_up(10, 4, np.zeros(4, complex), 0.0)
     sigma = np.full(4, 0.19)

@@ -155,7 +155,7 @@ def test_the_pressure_channel_counts_what_a_model_leaves_of_the_tdc_reading():
     leaves nothing, one that moves nothing leaves 4 x (1.5 / 0.2)^2; tdc_offsets_deg reads a model's TDC effects."""
     import dataclasses
 
-    from frictionwatch.core.discrepancy.workflow import tdc_chi2, tdc_offsets_deg
+    from frictionwatch.core.discrepancy.pressure_channel import tdc_chi2, tdc_offsets_deg
 
     spec = load_engine(ENGINE)
     model = EngineModel.from_spec(spec, effects=[make_effect("tdc_offset", {"cylinder": 0, "deg": 1.5}),
