@@ -169,7 +169,28 @@ def _holds(p: Pressure, n_cyl: int) -> list[Decision | Hold]:
     return [Hold(k + 1, ev) for k in range(n_cyl)]
 
 
-class LeakRule:
+class _PressureRule:
+    """What the rules on the pressure statistics share: nothing without them, every cylinder held while they are,
+    else one decision per cylinder (``decide``)."""
+
+    rests_on_baseline = True
+
+    def __init__(self, config: AlertConfig):
+        self.config = config
+
+    def update(self, result: CycleResult, ctx: Context) -> list[Decision | Hold]:
+        p = ctx.pressure
+        if p is None:
+            return []
+        if p.held:
+            return _holds(p, ctx.n_cyl)
+        return [self.decide(k, p, ctx) for k in range(ctx.n_cyl)]
+
+    def decide(self, k: int, p: Pressure, ctx: Context) -> Decision:
+        raise NotImplementedError
+
+
+class LeakRule(_PressureRule):
     """The leak signature of each cylinder's pressure (service.alerts module doc): raised when its Z exceeds
     ``raise_z`` with a mean exponent change above ``leak_floor`` for ``raise_cycles`` cycles, cleared below
     ``clear_z`` for ``clear_cycles``; an alarm from ``alarm_z`` and 3 x ``leak_floor``. A blow_by, or a sensor_fault
@@ -186,32 +207,22 @@ class LeakRule:
     ('blow_by', True, 'warning', 9.0)
     """
 
-    name, rests_on_baseline = "leak", True
+    name = "leak"
 
-    def __init__(self, config: AlertConfig):
-        self.config = config
-
-    def update(self, result: CycleResult, ctx: Context) -> list[Decision | Hold]:
-        cfg, p = self.config, ctx.pressure
-        if p is None:
-            return []
-        if p.held:
-            return _holds(p, ctx.n_cyl)
-        st, out = p.stats, []
-        for k in range(ctx.n_cyl):
-            sensor = any(s.startswith("sensor_") for s in ctx.cyl_flags[k])
-            sev = "alarm" if st.z_leak[k] >= cfg.alarm_z and st.effect[k] > 3 * cfg.leak_floor else "warning"
-            msg = (f"cylinder {k + 1}: leak-like pressure signature (compression exponent "
-                   f"{p.ewma[1, k]:+.4f}, expansion exponent {p.ewma[2, k]:+.4f} from commissioning)"
-                   + (" with a flagged sensor: a TDC or pegging error is suspected" if sensor else ""))
-            out.append(Decision(k + 1, "sensor_fault" if sensor else "blow_by",
-                                bool(st.z_leak[k] > cfg.raise_z and st.effect[k] > cfg.leak_floor),
-                                bool(st.z_leak[k] < cfg.clear_z), cfg.raise_cycles, cfg.clear_cycles, sev, msg,
-                                _pressure_evidence(p, k, cfg.window)))
-        return out
+    def decide(self, k: int, p: Pressure, ctx: Context) -> Decision:
+        cfg, st = self.config, p.stats
+        sensor = any(s.startswith("sensor_") for s in ctx.cyl_flags[k])
+        sev = "alarm" if st.z_leak[k] >= cfg.alarm_z and st.effect[k] > 3 * cfg.leak_floor else "warning"
+        msg = (f"cylinder {k + 1}: leak-like pressure signature (compression exponent "
+               f"{p.ewma[1, k]:+.4f}, expansion exponent {p.ewma[2, k]:+.4f} from commissioning)"
+               + (" with a flagged sensor: a TDC or pegging error is suspected" if sensor else ""))
+        return Decision(k + 1, "sensor_fault" if sensor else "blow_by",
+                        bool(st.z_leak[k] > cfg.raise_z and st.effect[k] > cfg.leak_floor),
+                        bool(st.z_leak[k] < cfg.clear_z), cfg.raise_cycles, cfg.clear_cycles, sev, msg,
+                        _pressure_evidence(p, k, cfg.window))
 
 
-class GainRule:
+class GainRule(_PressureRule):
     """A pressure-gain check of each cylinder's sensor: the compression ratio against the siblings moved by more
     than ``gain_floor`` (|d ln p|) and ``raise_z`` standard errors while the leak signature stays below ``clear_z``
     (the exponents are gain-invariant, the ratio is not); cleared when the ratio is back below ``clear_z`` or the leak
@@ -227,30 +238,20 @@ class GainRule:
     ('sensor_fault', True, 'info', 1.0305)
     """
 
-    name, rests_on_baseline = "gain", True
+    name = "gain"
 
-    def __init__(self, config: AlertConfig):
-        self.config = config
-
-    def update(self, result: CycleResult, ctx: Context) -> list[Decision | Hold]:
-        cfg, p = self.config, ctx.pressure
-        if p is None:
-            return []
-        if p.held:
-            return _holds(p, ctx.n_cyl)
-        st, out = p.stats, []
-        for k in range(ctx.n_cyl):
-            on = bool(abs(st.z_ratio[k]) > cfg.raise_z and abs(p.ewma[0, k]) > cfg.gain_floor
-                      and st.z_leak[k] < cfg.clear_z)
-            off = bool(abs(st.z_ratio[k]) < cfg.clear_z or st.z_leak[k] > cfg.raise_z)
-            out.append(Decision(k + 1, "sensor_fault", on, off, cfg.raise_cycles, cfg.clear_cycles, "info",
-                                f"cylinder {k + 1}: compression pressure {math.exp(p.ewma[0, k]):.3f}x "
-                                "its commissioning value against the siblings with both polytropic exponents "
-                                "unchanged: a pressure-gain error of this sensor (or a leak too small to bend the "
-                                "exponents); check the sensor",
-                                {**_pressure_evidence(p, k, cfg.window), "suspect": "pressure_gain",
-                                 "gain_estimate": _num(math.exp(p.ewma[0, k]))}))
-        return out
+    def decide(self, k: int, p: Pressure, ctx: Context) -> Decision:
+        cfg, st = self.config, p.stats
+        on = bool(abs(st.z_ratio[k]) > cfg.raise_z and abs(p.ewma[0, k]) > cfg.gain_floor
+                  and st.z_leak[k] < cfg.clear_z)
+        off = bool(abs(st.z_ratio[k]) < cfg.clear_z or st.z_leak[k] > cfg.raise_z)
+        return Decision(k + 1, "sensor_fault", on, off, cfg.raise_cycles, cfg.clear_cycles, "info",
+                        f"cylinder {k + 1}: compression pressure {math.exp(p.ewma[0, k]):.3f}x "
+                        "its commissioning value against the siblings with both polytropic exponents "
+                        "unchanged: a pressure-gain error of this sensor (or a leak too small to bend the "
+                        "exponents); check the sensor",
+                        {**_pressure_evidence(p, k, cfg.window), "suspect": "pressure_gain",
+                         "gain_estimate": _num(math.exp(p.ewma[0, k]))})
 
 
 class FrictionRule:
