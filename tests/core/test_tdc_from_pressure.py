@@ -159,6 +159,20 @@ def test_one_cylinders_offset_is_found_on_that_cylinder_only():
     np.testing.assert_allclose(offsets, [0.0, -0.8, 0.0], atol=TOLERANCE_DEG)
 
 
+def test_a_channel_clipped_at_its_floor_by_a_negative_offset_reads_its_tdc_and_pegging():
+    """pressure_offset -1.5 bar on maruti-3cyl cylinder 3 at 2000 rpm / 0.4 (throttled: the reading is below zero,
+    so clipped at the converter's floor, over the first part of the compression; 12 cycles, seed 9): the clipped
+    samples are left out and the IVC state extrapolated, so the TDC reads as on a healthy channel and the pegging
+    finds the offset (with them in, maruti 1500 rpm read 4.6 deg and 0.93 bar)."""
+    spec, cycles = sim_cycles("maruti-3cyl", 2000.0, 0.4, 12, 9, 0.0,
+                              make_effect("pressure_offset", {"cylinder": 3, "pa": -1.5e5}))
+    assert min(float(np.min(c.pressure[2])) for c in cycles) == 0.0  # the case is what it says: clipped
+    found = tdc_of_cycles(cycles, spec)
+    np.testing.assert_allclose([f.offset_deg for f in found], 0.0, atol=TOLERANCE_DEG)
+    np.testing.assert_allclose(found[2].pegging_pa, 1.5e5, atol=0.05e5)  # what to add: +1.5 bar
+    np.testing.assert_allclose([f.pegging_pa for f in found[:2]], 0.0, atol=0.05e5)
+
+
 @pytest.mark.parametrize("engine", ["deutz-1cyl", "genset-v20"])
 def test_model_terms_at_several_points_at_once_are_each_points_alone(engine):
     """A Gauss-Newton iteration evaluates the ROHR model at (delta, peg) and its two forward steps in one call

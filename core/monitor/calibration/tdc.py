@@ -104,7 +104,8 @@ class TdcEstimate:
     pegging_pa : pegging correction of the mean cycle (add to the pressure) [Pa]
     n_cycles   : cycles used (rows with finite pressure)
     method     : METHOD_FIRED or METHOD_MOTORED
-    evidence   : windows [deg], the parts of sigma [deg], the block fits' offsets [deg], the wall-heat scale and its
+    evidence   : windows [deg], the parts of sigma [deg], the block fits' offsets [deg], the pegging's sampling
+                 error [Pa] (from the same blocks), the wall-heat scale and its
                  relative sigma, the rms residual in the windows relative to the rms wall heat there
     """
 
@@ -304,24 +305,35 @@ def tdc_from_pressure(pressure_pa: np.ndarray, angle_rad: np.ndarray, spec: Engi
     cb = spec.combustion
     if deg[0] > cb.ivc_deg or deg[-1] < cb.evo_deg:
         raise ValueError(f"the grid {deg[0]:.0f}..{deg[-1]:.0f} deg must cover IVC {cb.ivc_deg:g}..EVO {cb.evo_deg:g}")
+    clipped = _clipped(p, float(step.mean()))
     p, dp = smoothed_pressure(p, float(step.mean()))
-    p_ivc = float(np.mean(p[:, int(np.argmin(np.abs(deg - cb.ivc_deg)))]))
+    i_ivc = int(np.argmin(np.abs(deg - cb.ivc_deg)))
+    p_ivc = float(np.mean(p[:, i_ivc]))
     omega = float(speed_rad_s)
-    # windows from the mean cycle's ROHR at no correction, then again at the first pass's correction
+    # windows from the mean cycle's ROHR at no correction, then again at the first pass's correction (and once more
+    # where the IVC state is extrapolated: it moves with the pegging)
     delta, peg = 0.0, 0.0
     st = _Setting(spec, omega, p_ivc, math.pi if motored else 0.0, heat_loss_scale)
-    for _ in range(2):
+    for _ in range(3 if clipped[i_ivc] else 2):
+        if clipped[i_ivc]:
+            p_ivc = _ivc_from_polytrope(p.mean(axis=0), ang, clipped, i_ivc, delta, peg, spec)
+            st = _Setting(spec, omega, p_ivc, st.soc_rad, heat_loss_scale)
         q0, _ = _model_terms(p.mean(axis=0), dp.mean(axis=0), ang, delta, peg, st)
         mask, edges = _windows(deg, spec, motored, q0)
+        mask &= ~clipped
+        if np.count_nonzero(mask) < 8:
+            raise ValueError("the pressure is clipped at its floor over the fit windows")
         soc = math.pi if motored else math.radians(edges[0][1] + BEFORE_SOC_DEG)
         st = _Setting(spec, omega, p_ivc, soc, heat_loss_scale)
         delta, peg = _gauss_newton(p[:, mask], dp[:, mask], ang[mask], st, delta, peg)
     pw, dpw, aw = p[:, mask], dp[:, mask], ang[mask]
     n = p.shape[0]
     n_blocks = min(BLOCKS, n)
-    block = [_gauss_newton(pw[i::n_blocks], dpw[i::n_blocks], aw, st, delta, peg)[0] for i in range(n_blocks)]
+    blocks = np.array([_gauss_newton(pw[i::n_blocks], dpw[i::n_blocks], aw, st, delta, peg) for i in range(n_blocks)])
+    block, block_peg = blocks[:, 0], blocks[:, 1]
     # blocks of n / B cycles: the scatter of their fits over sqrt(B) is the sampling error of the whole mean's fit
     stat = float(np.std(block, ddof=1) / math.sqrt(n_blocks)) if n_blocks > 1 else math.radians(0.5)
+    stat_peg = float(np.std(block_peg, ddof=1) / math.sqrt(n_blocks)) if n_blocks > 1 else math.nan
     hot = _Setting(spec, omega, p_ivc, soc, heat_loss_scale * (1.0 + heat_loss_rel_sigma))
     heat = abs(_gauss_newton(pw, dpw, aw, hot, delta, peg)[0] - delta)
     other_loss = abs(_gauss_newton(pw, dpw, aw, st, delta, peg, constant_loss=True)[0] - delta)
@@ -336,10 +348,36 @@ def tdc_from_pressure(pressure_pa: np.ndarray, angle_rad: np.ndarray, spec: Engi
         "heat_loss_scale": heat_loss_scale,
         "heat_loss_rel_sigma": heat_loss_rel_sigma,
         "block_offsets_deg": np.degrees(block).tolist(),
+        "pegging_statistical_pa": stat_peg,  # the pegging's sampling error, as the offset's (NaN: one block)
         # rms of ROHR + wall heat left in the windows, relative to the rms wall heat there
         "residual_rel": float(np.sqrt(np.mean((q + w) ** 2)) / max(float(np.sqrt(np.mean(w**2))), 1e-12)),
     }
     return TdcEstimate(delta, sigma, peg, n, METHOD_MOTORED if motored else METHOD_FIRED, evidence)
+
+
+def _clipped(pressure_pa: np.ndarray, step_rad: float) -> np.ndarray:
+    """(n_angle,) the angles the fit leaves out: an absolute pressure is never <= 0, so a sample there is the
+    converter's floor (a channel whose offset takes its reading below zero is clipped: the simulator's ADC, a real one
+    at the bottom of its range; maruti 1500 rpm at half load with -1.5 bar read its TDC 4.6 deg off and its pegging
+    0.93 bar for 1.5 with those samples in), in any row, widened by half the smoothing span on each side (the
+    smoothed p and p' there mix in the floor)."""
+    bad = np.any(pressure_pa <= 0.0, axis=0)
+    half = max(5, 2 * int(round(0.5 * SMOOTH_DEG / math.degrees(step_rad))) + 1) // 2
+    if not bad.any():
+        return bad
+    return np.convolve(bad.astype(np.float64), np.ones(2 * half + 1), mode="same") > 0.0
+
+
+def _ivc_from_polytrope(p_mean: np.ndarray, ang: np.ndarray, clipped: np.ndarray, i_ivc: int, delta: float,
+                        peg: float, spec: EngineSpec) -> float:
+    """The reading at IVC where it is clipped: the first unclipped sample of the compression, pegged (``peg``),
+    taken back along the motored polytrope (thermo.N_MOTORED) to IVC, less the pegging again."""
+    after = np.flatnonzero(~clipped[i_ivc:])
+    if after.size == 0:
+        raise ValueError("the pressure is clipped at its floor over the whole compression")
+    j = i_ivc + int(after[0])
+    v, _ = volume_and_derivative(np.array([ang[i_ivc], ang[j]]) - delta, spec)
+    return float((p_mean[j] + peg) * (v[1] / v[0]) ** N_MOTORED - peg)
 
 
 def local_cycles(cycles: Sequence[Cycle], row: int, phase_rad: float, half_width_rad: float = math.pi
