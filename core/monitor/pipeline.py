@@ -26,7 +26,7 @@ import logging
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, replace
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
@@ -34,7 +34,13 @@ from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel, as_model
 from frictionwatch.core.model.view import MonitorView, Reference, monitor_view, needs_reference, reference, viewed_cycle
 from frictionwatch.core.monitor.calibration.gain_watch import GainWatchState, watch_gains
-from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState, watch_cycle
+from frictionwatch.core.monitor.calibration.tdc_watch import (
+    CYLINDERS_PER_WINDOW,
+    WINDOW_CYCLES,
+    TdcWatchState,
+    close_window,
+    watch_cycle,
+)
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
@@ -83,16 +89,26 @@ class RunningStage(Protocol):
     def update(self, state: Any, inp: StageInput) -> Any: ...
 
 
+@dataclass(frozen=True)
 class TdcWatch:
-    """TDC from the pressure, window by window, against the calibration (core.monitor.calibration.tdc_watch)."""
+    """TDC from the pressure, window by window, against the calibration (core.monitor.calibration.tdc_watch):
+    windows of ``window`` cycles, ``per_window`` cylinders fitted per window in turn (an offline run that wants one
+    reading of every cylinder over the whole log: the engine's cylinders, a window longer than the log, and
+    ``CyclePipeline.close_windows`` at its end)."""
 
-    name = "tdc_watch"
+    per_window: int = CYLINDERS_PER_WINDOW
+    window: int = WINDOW_CYCLES
+    name: ClassVar[str] = "tdc_watch"
 
     def initial(self) -> TdcWatchState:
         return TdcWatchState.empty()
 
     def update(self, state: TdcWatchState, inp: StageInput) -> TdcWatchState:
-        return watch_cycle(inp.spec, inp.calibration, state, inp.cycle, inp.twist)
+        return watch_cycle(inp.spec, inp.calibration, state, inp.cycle, inp.twist, self.window, self.per_window)
+
+    def close(self, state: TdcWatchState, spec: EngineSpec, calibration: Calibration) -> TdcWatchState:
+        """The open window read now (``CyclePipeline.close_windows``)."""
+        return close_window(spec, calibration, state, per_window=self.per_window)
 
 
 class GainWatch:
@@ -186,6 +202,17 @@ class CyclePipeline:
         if new:
             result = replace(result, flags=result.flags + new)
         return CycleOutcome(int(cycle.index), result)
+
+    def close_windows(self) -> None:
+        """Every running stage that reads in windows and can (a ``close`` method) reads its open window now: a run
+        that ends mid-window (an offline log shorter than the TDC watch's 100 cycles) still gets its reading. Not
+        called while serving: there a window closes when it is full."""
+        if self.view is None:
+            return
+        for stage in self.running:
+            close = getattr(stage, "close", None)
+            if close is not None:
+                self.stages[stage.name] = close(self.stages[stage.name], self.view.spec, self.model.calibration)
 
     def _skip(self, cycle: Cycle, reason: str) -> CycleOutcome:
         if self.skipped[reason] == 0:

@@ -168,10 +168,11 @@ def _omega(cycle: Cycle) -> float:
 
 
 def watch_cycle(spec: EngineSpec, cal: Calibration, state: TdcWatchState, cycle: Cycle, twist: np.ndarray,
-                window: int = WINDOW_CYCLES) -> TdcWatchState:
+                window: int = WINDOW_CYCLES, per_window: int = CYLINDERS_PER_WINDOW) -> TdcWatchState:
     """``state`` with ``cycle`` (the pressure as the monitor gets it) added; twist (z,) [rad] each throw's static
     twist ahead of the flywheel in the monitor's model of this cycle; at the end of a window the fit runs and the
-    flags are decided (module doc). A cycle that does not follow the previous one only starts the next pair."""
+    flags are decided (module doc): on ``per_window`` cylinders in turn and the screened ones (all of them where z <=
+    per_window). A cycle that does not follow the previous one only starts the next pair."""
     prev = state.previous
     if prev is None or cycle.index != prev.index + 1 or prev.grid.shape != cycle.grid.shape:
         return dataclasses.replace(state, previous=cycle)
@@ -193,9 +194,24 @@ def watch_cycle(spec: EngineSpec, cal: Calibration, state: TdcWatchState, cycle:
     omega = state.omega_sum + _omega(cycle)
     twist_sum = state.twist_sum + np.asarray(twist, dtype=np.float64)
     n = state.cycles + 1
-    if n < window:
-        return dataclasses.replace(state, sums=sums, counts=counts, cycles=n, previous=cycle, omega_sum=omega,
-                                   twist_sum=twist_sum, cut=cut)
+    state = dataclasses.replace(state, sums=sums, counts=counts, cycles=n, previous=cycle, omega_sum=omega,
+                                twist_sum=twist_sum, cut=cut)
+    return state if n < window else close_window(spec, cal, state, angle, per_window)
+
+
+def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle: np.ndarray | None = None,
+                 per_window: int = CYLINDERS_PER_WINDOW) -> TdcWatchState:
+    """The window's fits and flags on what ``state`` has gathered (``watch_cycle`` calls it when a window is full;
+    a run that ends mid-window may call it to read what it has): a new state, the sums started again. ``angle``
+    the traces' local angle (None: the state's cut's). Fewer than BLOCKS pairs gathered: ``state`` as it is."""
+    if state.sums is None or state.cycles < BLOCKS:
+        return state
+    if angle is None:
+        if state.cut is None or state.cut.angle.shape[0] != state.sums.shape[-1]:
+            return state
+        angle = state.cut.angle
+    sums, counts, n, omega, twist_sum, cycle = (state.sums, state.counts, state.cycles, state.omega_sum,
+                                                state.twist_sum, state.previous)
     means = sums / np.maximum(counts, 1)[:, None, None]
     twist_mean = np.broadcast_to(twist_sum / n, (spec.n_cyl,))
     z = spec.n_cyl
@@ -204,12 +220,11 @@ def watch_cycle(spec: EngineSpec, cal: Calibration, state: TdcWatchState, cycle:
     # cylinder whose compression stroke moved against its trace at its last fit (``screen_shift``): a TDC that
     # drifts is fitted in the window it shows in, not up to z / CYLINDERS_PER_WINDOW windows later
     mean_trace = np.sum(sums, axis=0) / max(float(np.sum(counts)), 1.0)
-    turn = list(range(z)) if z <= CYLINDERS_PER_WINDOW else [(state.next_cylinder + i) % z
-                                                             for i in range(CYLINDERS_PER_WINDOW)]
+    turn = list(range(z)) if z <= per_window else [(state.next_cylinder + i) % z for i in range(per_window)]
     screened: list[int] = []
     moved = np.zeros(z)  # each unfitted cylinder's shift since its last fit [rad] (the screen's; 0: none read)
     ref, ref_twist = state.reference, state.reference_twist
-    if z > CYLINDERS_PER_WINDOW and ref is not None and ref.shape == mean_trace.shape and ref_twist is not None:
+    if z > per_window and ref is not None and ref.shape == mean_trace.shape and ref_twist is not None:
         for k in range(z):
             if k in turn or not np.all(np.isfinite(ref[k])):
                 continue
@@ -242,7 +257,7 @@ def watch_cycle(spec: EngineSpec, cal: Calibration, state: TdcWatchState, cycle:
         new = ~np.isfinite(first[0]) & np.isfinite(now[0])
         first[:, new] = now[:, new]
     return TdcWatchState(None, np.zeros(BLOCKS), 0, cycle, tuple(estimates), tdc_flags(cal, estimates, first), 0.0,
-                         0.0, nxt, first, ref, ref_twist, tuple(screened), tuple(fitted), cut)
+                         0.0, nxt, first, ref, ref_twist, tuple(screened), tuple(fitted), state.cut)
 
 
 def own_offsets(estimates: list[TdcEstimate | None]) -> np.ndarray:
@@ -315,5 +330,5 @@ def tdc_flags(cal: Calibration, estimates: list[TdcEstimate | None],
     return tuple(flags)
 
 
-__all__ = ["SCREEN_DEG", "TdcWatchState", "TraceCut", "WINDOW_CYCLES", "cut_traces", "local_traces", "own_offsets",
+__all__ = ["SCREEN_DEG", "TdcWatchState", "TraceCut", "WINDOW_CYCLES", "close_window", "cut_traces", "local_traces", "own_offsets",
            "screen_shift", "tdc_flags", "trace_cut", "watch_cycle"]
