@@ -11,7 +11,8 @@ shaft alone 35.8, J(theta) alone 12.3).
 
 Not in the library today, and why (the monitor cannot be told, or there is nothing to tell it):
 - load_ripple: the monitor has no known load-torque input to put it in (it would need a hook in core/monitor);
-- misfire, blow_by: they change the cylinder pressure, which the monitor measures: the model already sees them;
+- misfire, blow_by: they change the cylinder pressure, which the monitor measures: the model already sees them
+  (a misfire, and a sensor's pegging offset, are named from the pressure itself: pressure_channel.pressure_findings);
 - tooth_spacing_error: the monitor learns the wheel's tooth pattern itself;
 - an element's inertia: no effect holds it (the spec's node inertia would be edited, not augmented).
 """

@@ -1,12 +1,23 @@
-"""The pressure channel of the discrepancy workflow: what each cylinder's pressure says of its TDC (the pipeline's TDC
-watch, read in every monitor run: Residuals.tdc_deg) against what a model states. It proposes TDC candidates'
-starting values (``pressure_seeds``) and scores each model beside the speed and balance channels (``tdc_chi2``)."""
+"""The pressure channel of the discrepancy workflow: what each cylinder's pressure says against what a model states.
+
+- Its TDC (the pipeline's TDC watch, read in every monitor run: Residuals.tdc_deg) proposes TDC candidates' starting
+  values (``pressure_seeds``) and scores each model beside the speed and balance channels (``tdc_chi2``).
+- Its pegging (the same watch's fit) and its burns (the monitor's misfire check) name two effects outright
+  (``pressure_findings``): a sensor offset and a misfiring cylinder. Neither is a question for the speed: a constant
+  offset does no work over a cycle and the monitor reads every misfire in the pressure it measures, so the speed
+  gap hardly moves (genset-v20: pegging 1.5 bar and misfire 30 % both read "nothing" through the speed alone) while
+  the pressure shows them cycle by cycle.
+"""
 
 from __future__ import annotations
+
+import math
+from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.discrepancy.residuals import Residuals
 from frictionwatch.core.model.engine_model import EngineModel
+from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig
 
 # a TDC reading from the pressure proposes a candidate (it is not a decision: the held-out test decides) when it is
 # beyond SEED_SIGMAS of its sigma and SEED_MIN_DEG
@@ -53,4 +64,69 @@ def tdc_chi2(res: Residuals, moved_deg: np.ndarray) -> float:
     return float(np.sum(((res.tdc_deg[ok] - moved_deg[ok]) / res.tdc_sigma_deg[ok]) ** 2))
 
 
-__all__ = ["SEED_MIN_DEG", "SEED_SIGMAS", "pressure_seeds", "tdc_chi2", "tdc_offsets_deg"]
+_HEALTH = SensorHealthConfig()
+# a pegging reading names a sensor offset beyond the sensor-health flag's sigmas and threshold (0.2 bar, the same
+# commissioning corrects from: core.monitor.calibration.commission.PEGGING_MIN_PA); its sigma adds the floor the
+# method cannot resolve (SensorHealthConfig.floor_offset_pa, 0.02 bar) to the sampling error. Healthy logs read
+# |pegging| <= 0.034 bar (k9k 1800/3000 rpm, maruti 1500/4000 rpm, seeds 1-2): no new number is tuned here.
+PEG_SIGMAS = _HEALTH.flag_sigmas
+PEG_MIN_PA = _HEALTH.offset_pa
+PEG_FLOOR_PA = _HEALTH.floor_offset_pa
+# a cylinder is named misfiring when the monitor called its burn a misfire in at least MISFIRE_MIN_CYCLES cycles and
+# in both halves of the log (a pattern, not one odd cycle), and the rate is beyond MISFIRE_SIGMAS binomial sigmas of
+# zero. MISFIRE_MIN_CYCLES = 3 from the healthy tuning logs (bench/pressure_findings.py: k9k 2500 rpm 0.8 and 1500
+# rpm 0.3, maruti 3000 rpm 0.8 and 2000 rpm 0.3, seeds 3-4): see that bench for the counts.
+MISFIRE_MIN_CYCLES = 3
+MISFIRE_SIGMAS = 3.0
+
+
+@dataclass(frozen=True)
+class PressureFinding:
+    """An effect the pressure names: ``effect`` (pressure_offset, misfire), its cylinder (1-based), its parameter and
+    value with 1-sigma, and what the pressure showed, in words."""
+
+    effect: str
+    cylinder: int
+    parameter: str
+    value: float
+    sigma: float
+    reading: str
+
+    @property
+    def label(self) -> str:
+        return f"{self.effect}[cyl {self.cylinder}]"
+
+
+def pressure_findings(res: Residuals, halves: tuple[np.ndarray, np.ndarray] | None = None) -> list[PressureFinding]:
+    """The effects each cylinder's pressure names in the run ``res`` against that run's model: a pegging beyond
+    PEG_SIGMAS of its sigma and PEG_MIN_PA (effect pressure_offset, pa = minus the pegging: the sensor reads p + pa),
+    a misfire rate (effect misfire, probability = the cycles called misfired over those judged) seen in both
+    ``halves`` (two boolean masks over the run's cycles; default: its first and second half)."""
+    out: list[PressureFinding] = []
+    if res.pegging_pa is not None:
+        stat = np.nan_to_num(np.asarray(res.pegging_sigma_pa, dtype=np.float64), nan=0.0)
+        sigma = np.sqrt(stat**2 + PEG_FLOOR_PA**2)
+        for k in np.flatnonzero(np.isfinite(res.pegging_pa)):
+            peg = float(res.pegging_pa[k])
+            if abs(peg) > max(PEG_SIGMAS * sigma[k], PEG_MIN_PA):
+                out.append(PressureFinding("pressure_offset", int(k) + 1, "pa", -peg, float(sigma[k]),
+                                           f"the pressure's pegging reads {-peg / 1e5:+.2f} bar"))
+    if res.misfired is not None and res.n_cycles:
+        n = res.n_cycles
+        if halves is None:
+            first = np.arange(n) < n // 2
+            halves = (first, ~first)
+        for k in range(res.misfired.shape[1]):
+            hits = res.misfired[:, k]
+            count = int(hits.sum())
+            rate = count / n
+            sigma = math.sqrt(max(rate * (1.0 - rate), 1.0 / n) / n)  # binomial; at 0 or 1 one cycle's worth
+            if (count >= MISFIRE_MIN_CYCLES and all(hits[h].any() for h in halves)
+                    and rate > MISFIRE_SIGMAS * sigma):
+                out.append(PressureFinding("misfire", k + 1, "probability", rate, sigma,
+                                           f"the pressure shows no full burn in {count} of {n} cycles"))
+    return out
+
+
+__all__ = ["MISFIRE_MIN_CYCLES", "PEG_MIN_PA", "PEG_SIGMAS", "PressureFinding", "SEED_MIN_DEG", "SEED_SIGMAS",
+           "pressure_findings", "pressure_seeds", "tdc_chi2", "tdc_offsets_deg"]

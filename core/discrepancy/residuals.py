@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.view import Reference
-from frictionwatch.core.monitor.pipeline import CyclePipeline
+from frictionwatch.core.monitor.pipeline import STAGES, CyclePipeline, TdcWatch
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import Cycle
 
@@ -56,6 +56,13 @@ class Residuals:
     tdc_deg: np.ndarray | None = None
     tdc_sigma_deg: np.ndarray | None = None
     friction: np.ndarray | None = None  # (N,) N m the engine's friction the mean balance measured in each cycle
+    # each cylinder's pegging read from its pressure (the TDC watch's, what to add to the pressure against the run's
+    # model) and its sampling sigma [Pa]; NaN where no window closed
+    pegging_pa: np.ndarray | None = None
+    pegging_sigma_pa: np.ndarray | None = None
+    # (N, z) whether the monitor's condition check called cylinder k's burn in cycle i a misfire (misfire_cyl<k>:
+    # unburned or partial while a sibling burned, core.monitor.checks.condition); False in a motored cycle
+    misfired: np.ndarray | None = None
 
     @property
     def n_cycles(self) -> int:
@@ -65,7 +72,8 @@ class Residuals:
         return dataclasses.replace(self, index=self.index[mask], omega=self.omega[mask], load=self.load[mask],
                                    harmonics=self.harmonics[mask], balance=self.balance[mask], speed=self.speed[mask],
                                    measured=None if self.measured is None else self.measured[mask],
-                                   friction=None if self.friction is None else self.friction[mask])
+                                   friction=None if self.friction is None else self.friction[mask],
+                                   misfired=None if self.misfired is None else self.misfired[mask])
 
     def features(self) -> np.ndarray:
         """(N, 2M + 1) real features: Re and Im of each residual harmonic, then the balance residual (0 where NaN:
@@ -79,7 +87,13 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
     angles = np.linspace(0.0, 4.0 * np.pi, ANGLE_POINTS, endpoint=False)
     rows: list[tuple] = []
     rejected = 0
-    pipe = CyclePipeline(model, config, ref)
+    z = model.spec.n_cyl
+    # the TDC watch reads every cylinder once, over the whole log (close_windows below): serving, it fits four of a
+    # large engine's cylinders per 100-cycle window in turn, so a 120-cycle log read four of genset-v20's twenty, and
+    # a log shorter than 100 cycles none
+    stages = tuple(dataclasses.replace(s, per_window=z, window=len(cycles) + 1) if isinstance(s, TdcWatch) else s
+                   for s in STAGES)
+    pipe = CyclePipeline(model, config, ref, stages=stages)
     for cycle in cycles:
         r = pipe.process(cycle).result
         if r is None:
@@ -89,25 +103,34 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
         resid = np.interp(angles, r.grid, r.speed_measured - r.speed_model, period=4.0 * np.pi)
         m = r.residual_harmonics.shape[0]
         measured = 2.0 * np.abs(np.fft.rfft(r.speed_measured)[1:m + 1]) / r.speed_measured.shape[0]
+        misfired = np.array([f"misfire_cyl{k + 1}" in r.flags for k in range(z)])
         rows.append((r.index, r.omega_mean, r.load_torque, r.residual_harmonics, r.friction_balance - friction, resid,
-                     measured, r.friction_balance))
+                     measured, r.friction_balance, misfired))
     if not rows:
         raise ValueError(f"the monitor analysed none of the {len(cycles)} cycles")
+    pipe.close_windows()  # the pressure's reading of the whole log
     return Residuals(index=np.array([r[0] for r in rows]), omega=np.array([r[1] for r in rows]),
                      load=np.array([r[2] for r in rows]), harmonics=np.array([r[3] for r in rows]),
                      balance=np.array([r[4] for r in rows]), speed=np.array([r[5] for r in rows]), angles=angles,
                      rejected=rejected, measured=np.array([r[6] for r in rows]),
-                     friction=np.array([r[7] for r in rows]), **_tdc_reading(pipe))
+                     friction=np.array([r[7] for r in rows]), misfired=np.array([r[8] for r in rows]),
+                     **_tdc_reading(pipe))
 
 
 def _tdc_reading(pipe: CyclePipeline) -> dict:
-    """The TDC watch's newest per-cylinder offsets and sigmas [deg] (NaN where it has none)."""
+    """The TDC watch's newest per-cylinder offsets and sigmas [deg] and peggings and their sampling sigmas [Pa] (NaN
+    where it has none)."""
     last = pipe.stages["tdc_watch"].last
     z = pipe.spec.n_cyl
     if last is None:
-        return {"tdc_deg": np.full(z, np.nan), "tdc_sigma_deg": np.full(z, np.nan)}
-    return {"tdc_deg": np.array([np.degrees(e.offset_rad) if e is not None else np.nan for e in last]),
-            "tdc_sigma_deg": np.array([np.degrees(e.sigma_rad) if e is not None else np.nan for e in last])}
+        last = (None,) * z
+
+    def each(value) -> np.ndarray:
+        return np.array([value(e) if e is not None else np.nan for e in last], dtype=np.float64)
+
+    return {"tdc_deg": each(lambda e: np.degrees(e.offset_rad)), "tdc_sigma_deg": each(lambda e: np.degrees(e.sigma_rad)),
+            "pegging_pa": each(lambda e: e.pegging_pa),
+            "pegging_sigma_pa": each(lambda e: e.evidence.get("pegging_statistical_pa", np.nan))}
 
 
 __all__ = ["ANGLE_POINTS", "PINNED_SIGMA", "Residuals", "pinned_config", "run_model"]

@@ -39,7 +39,12 @@ from frictionwatch.core.discrepancy.features import (
     order_table,
 )
 from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, parameter_sigma, refine
-from frictionwatch.core.discrepancy.pressure_channel import pressure_seeds, tdc_chi2, tdc_offsets_deg
+from frictionwatch.core.discrepancy.pressure_channel import (
+    pressure_findings,
+    pressure_seeds,
+    tdc_chi2,
+    tdc_offsets_deg,
+)
 from frictionwatch.core.discrepancy.residuals import Residuals, pinned_config, run_model
 from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine_model import EngineModel
@@ -66,10 +71,11 @@ class Options:
 
 @dataclass(frozen=True)
 class Step:
-    """One added effect: the trial that named it, the effect (fitted values and sigma), held-out gaps and coherent
-    chi^2 before and after, the runner-up and the localisation of the residual it explained."""
+    """One added effect: the trial that named it (None: the pressure named it, ``readings`` say how), the effect
+    (fitted values and sigma), held-out gaps and coherent chi^2 before and after, the runner-up and the localisation of
+    the residual it explained."""
 
-    trial: Trial
+    trial: Trial | None
     effect: object
     gap_before: float
     gap_after: float
@@ -79,6 +85,7 @@ class Step:
     before: dict
     after: dict
     also: tuple = ()  # the further effects a toggle of several default effects added at once
+    readings: tuple = ()  # a pressure step's: what the pressure showed of each effect, in words (trial None)
 
     @property
     def effects(self) -> tuple:
@@ -177,7 +184,10 @@ class Discovery:
                           "sigma": dict(e.sigma),
                           "evidence": {"gap_before": s.gap_before, "gap_after": s.gap_after,
                                        "delta_chi2_heldout": s.chi2_before - s.chi2_after,
-                                       "train_cost_reduction": s.trial.gain, "runner_up": s.runner_up,
+                                       "channel": "speed" if s.trial is not None else "pressure",
+                                       "pressure_reading": s.readings[s.effects.index(e)] if s.readings else None,
+                                       "train_cost_reduction": s.trial.gain if s.trial is not None else None,
+                                       "runner_up": s.runner_up,
                                        "significant_orders_before": s.before["significant_orders"],
                                        "balance_before_nm": s.before["balance"]["mean_nm"],
                                        "balance_after_nm": s.after["balance"]["mean_nm"],
@@ -231,6 +241,10 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     found = Discovery(model, model, [], gap(test, scale), gap(test, scale), localise(test, model.spec, scale),
                       {}, [("baseline", test.angles, test.speed.mean(axis=0))])
     current = model
+    # what the pressure names outright (pegging, misfire: pressure_channel.pressure_findings), first and apart from
+    # the step limit; the speed steps then start from the corrected pressure
+    current, cur_res, test, extra = _pressure_step(found, current, cur_res, test, full, parts, scale, first, held)
+    runs += extra
     for step in range(opt.max_steps):
         floor = feature_floor(parts(cur_res)[0], scale)  # of the current model, what a found sigma adds
         ev = Evaluator(sub, scale, first, floor)
@@ -294,6 +308,46 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     found.final = localise(test, model.spec, scale)
     found.evaluations = runs
     return found
+
+
+def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, test: Residuals, full, parts,
+                   scale: np.ndarray, first: int, held: int) -> tuple[EngineModel, Residuals, Residuals, int]:
+    """Add what the pressure names (module doc) as one step: its sensor offsets only if the run with them does not
+    make the speed or the balance worse on the held-out cycles (``channel_worse``; refused and said otherwise), its
+    misfires as they are (the monitor reads them in the pressure: the run does not change). Returns the model, its
+    run, its held-out part and the monitor runs spent. A misfire must show in the training and the held-out cycles
+    (cycle index ``first`` on, held out from ``held``)."""
+    scored = cur_res.take(cur_res.index >= first)
+    findings = pressure_findings(scored, (scored.index < held, scored.index >= held))
+    if not findings:
+        return current, cur_res, test, 0
+    offsets = [f for f in findings if f.effect == "pressure_offset"]
+    new_model, res, runs = current, cur_res, 0
+    if offsets:
+        for f in offsets:
+            new_model = new_model.with_effect(_finding_effect(f))
+        res, runs = full(new_model), 1
+        why = channel_worse(test, parts(res)[1], scale)
+        if why:  # the offsets stay out: the model is left as it was
+            found.refused += [{"candidate": f.label, "reason": why, "channel": "pressure"} for f in offsets]
+            new_model, res = current, cur_res
+            findings = [f for f in findings if f.effect != "pressure_offset"]
+    for f in findings:
+        if f.effect != "pressure_offset":
+            new_model = new_model.with_effect(_finding_effect(f))
+    if not findings:
+        return current, cur_res, test, runs
+    test_new = parts(res)[1]
+    added = new_model.effects[-len(findings):]
+    found.steps.append(Step(None, added[0], gap(test, scale), gap(test_new, scale), _chi2(test, scale),
+                            _chi2(test_new, scale), None, localise(test, current.spec, scale),
+                            localise(test_new, current.spec, scale), added[1:], tuple(f.reading for f in findings)))
+    found.curves.append(("+ " + ", ".join(f.label for f in findings), test_new.angles, test_new.speed.mean(axis=0)))
+    return new_model, res, test_new, runs
+
+
+def _finding_effect(f):
+    return make_effect(f.effect, {"cylinder": f.cylinder, f.parameter: f.value}, {f.parameter: f.sigma})
 
 
 # a channel is worse when its held-out coherent chi^2 grows by more than this many of its noise sigmas,

@@ -168,3 +168,51 @@ def test_the_pressure_channel_counts_what_a_model_leaves_of_the_tdc_reading():
     np.testing.assert_allclose(tdc_chi2(res, np.full(4, 1.5)), 0.0, atol=1e-12)
     np.testing.assert_allclose(tdc_chi2(res, np.zeros(4)), 4 * (1.5 / 0.2) ** 2, rtol=1e-12)
     assert tdc_chi2(dataclasses.replace(res, tdc_deg=None), np.zeros(4)) == 0.0
+
+
+def test_the_pressure_names_a_pegging_offset_and_a_misfiring_cylinder():
+    """pressure_findings on made-up readings: a pegging of +1.5 bar to add on cylinder 2 (sampling sigma 500 Pa) is a
+    sensor reading 1.5 bar low, its sigma with the method's floor; 0.1 bar is under the 0.2 bar threshold; cylinder 3
+    misfired in 30 of 100 cycles, in both halves: probability 0.3 +- binomial; cylinder 1's two misfires, and
+    cylinder 4's ten all in the first half, are not a pattern."""
+    import dataclasses
+
+    from frictionwatch.core.discrepancy.pressure_channel import PEG_FLOOR_PA, pressure_findings
+
+    from tests.core.test_discrepancy_parts import made_up
+
+    n = 100
+    misfired = np.zeros((n, 4), dtype=bool)
+    misfired[::10, 2] = misfired[1::10, 2] = misfired[2::10, 2] = True  # 30, spread over the log
+    misfired[[5, 60], 0] = True
+    misfired[:10, 3] = True
+    res = dataclasses.replace(made_up(n, 4, np.zeros(4, complex), 0.0), misfired=misfired,
+                              pegging_pa=np.array([0.0, 1.5e5, 0.1e5, np.nan]), pegging_sigma_pa=np.full(4, 500.0))
+    found = {f.label: f for f in pressure_findings(res)}
+    assert sorted(found) == ["misfire[cyl 3]", "pressure_offset[cyl 2]"]
+    peg, mis = found["pressure_offset[cyl 2]"], found["misfire[cyl 3]"]
+    np.testing.assert_allclose([peg.value, peg.sigma], [-1.5e5, np.hypot(500.0, PEG_FLOOR_PA)], rtol=1e-12)
+    np.testing.assert_allclose([mis.value, mis.sigma], [0.3, np.sqrt(0.3 * 0.7 / n)], rtol=1e-12)
+    assert "30 of 100" in mis.reading and "-1.50 bar" in peg.reading
+
+
+@pytest.fixture(scope="module")
+def pressure_faults():
+    """k9k-4cyl 2200 rpm / 0.7, seed 8: cylinder 2 misfires in 30 % of its cycles and cylinder 4's sensor reads
+    1.5 bar high (neither moves the speed much: the monitor reads both in the pressure it measures)."""
+    return cycles_of(2200.0, 0.7, 8, [make_effect("misfire", {"cylinder": 2, "probability": 0.3}),
+                                      make_effect("pressure_offset", {"cylinder": 4, "pa": 1.5e5})])
+
+
+def test_pegging_and_misfire_are_named_from_the_pressure(pressure_faults):
+    found = discover(EngineModel.from_spec(load_engine(ENGINE)), pressure_faults, OPTIONS)
+    doc = found.to_json()
+    pressure = {(f["effect"], f["cylinder"]): f for f in doc["found"] if f["evidence"]["channel"] == "pressure"}
+    assert sorted(pressure) == [("misfire", 2), ("pressure_offset", 4)], doc["verdict"]
+    pa, mis = pressure[("pressure_offset", 4)], pressure[("misfire", 2)]
+    np.testing.assert_allclose(pa["parameters"]["pa"], 1.5e5, rtol=0.1)
+    assert abs(pa["parameters"]["pa"] - 1.5e5) <= 3 * pa["sigma"]["pa"] + 0.05e5
+    np.testing.assert_allclose(mis["parameters"]["probability"], 0.3, atol=0.1)  # ~70 scored cycles: +-0.055
+    assert mis["evidence"]["pressure_reading"].startswith("the pressure shows no full burn in")
+    assert "misfire (cylinder 2" in doc["verdict"] and "pressure_offset (cylinder 4" in doc["verdict"]
+    assert not any(f["effect"] == "tdc_offset" for f in doc["found"])  # the offset is not read as a TDC error
