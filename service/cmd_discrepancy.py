@@ -137,8 +137,9 @@ def print_summary(doc: dict) -> None:
         params = ", ".join(f"{k}={v:.4g}" + (f" ± {f['sigma'][k]:.2g}" if k in f["sigma"] else "")
                            for k, v in f["parameters"].items() if k in f["sigma"] or not f["sigma"])
         ev = f["evidence"]
-        print(f"  + {f['effect']}{cyl}: {params}  (gap {ev['gap_before']:.3g} -> {ev['gap_after']:.3g}, "
-              f"held-out delta chi2 {ev['delta_chi2_heldout']:.1f})")
+        how = (f"named from the pressure: {ev['pressure_reading']}" if ev.get("channel") == "pressure" else
+               f"gap {ev['gap_before']:.3g} -> {ev['gap_after']:.3g}, held-out delta chi2 {ev['delta_chi2_heldout']:.1f}")
+        print(f"  + {f['effect']}{cyl}: {params}  ({how})")
     print(f"gap (held-out) {doc['gap_before']:.3g} -> {doc['gap_after']:.3g}")
     for key in ("model_written", "report_written"):
         if key in doc:

@@ -83,7 +83,9 @@ def render(doc: dict, found: Discovery) -> str:
     rows = [[f["effect"], _fmt(f["cylinder"]) if f["cylinder"] is not None else "–",
              ", ".join(f"{k} = {_fmt(v)}" for k, v in f["parameters"].items()),
              ", ".join(f"{k} ± {_fmt(v)}" for k, v in f["sigma"].items()) or "–",
-             f"{f['evidence']['gap_before']:.3g} → {f['evidence']['gap_after']:.3g}",
+             f"{f['evidence']['gap_before']:.3g} → {f['evidence']['gap_after']:.3g}"
+             + (f" (named from the pressure: {f['evidence']['pressure_reading']})"
+                if f["evidence"].get("channel") == "pressure" else ""),
              f"{f['evidence']['delta_chi2_heldout']:.1f}", _fmep_change(f["evidence"]),
              str(f["evidence"]["runner_up"] or "–")]
             for f in doc["found"]]
@@ -110,7 +112,7 @@ def render(doc: dict, found: Discovery) -> str:
     parts += ["<h2>Residual against crank angle</h2>", angle_plot(found), "<h2>Residual against engine order</h2>"]
     prev = found.localisation
     for s in found.steps:
-        parts.append(order_plot(s.before, s.after, f"before and after + {s.trial.candidate.label}"))
+        parts.append(order_plot(s.before, s.after, f"before and after + {s.label}"))
         prev = s.after
     if not found.steps:
         parts.append(order_plot(prev, found.final, "baseline (nothing added)"))

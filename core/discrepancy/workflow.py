@@ -91,6 +91,14 @@ class Step:
     def effects(self) -> tuple:
         return (self.effect, *self.also)
 
+    @property
+    def label(self) -> str:
+        """What was added, as candidates are labelled ('ring_wear[cyl 4]'; a pressure step's effects, each)."""
+        if self.trial is not None:
+            return self.trial.candidate.label
+        return ", ".join(e.name if e.values.get("cylinder") is None else f"{e.name}[cyl {e.values['cylinder']}]"
+                         for e in self.effects)
+
 
 @dataclass
 class Discovery:
@@ -329,7 +337,8 @@ def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, t
         res, runs = full(new_model), 1
         why = channel_worse(test, parts(res)[1], scale)
         if why:  # the offsets stay out: the model is left as it was
-            found.refused += [{"candidate": f.label, "reason": why, "channel": "pressure"} for f in offsets]
+            found.refused += [{"candidate": f.label, "reason": why, "channel": "pressure", "gap_before": gap(test, scale),
+                               "gap_after": gap(parts(res)[1], scale)} for f in offsets]
             new_model, res = current, cur_res
             findings = [f for f in findings if f.effect != "pressure_offset"]
     for f in findings:
@@ -342,7 +351,7 @@ def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, t
     found.steps.append(Step(None, added[0], gap(test, scale), gap(test_new, scale), _chi2(test, scale),
                             _chi2(test_new, scale), None, localise(test, current.spec, scale),
                             localise(test_new, current.spec, scale), added[1:], tuple(f.reading for f in findings)))
-    found.curves.append(("+ " + ", ".join(f.label for f in findings), test_new.angles, test_new.speed.mean(axis=0)))
+    found.curves.append((f"+ {found.steps[-1].label}", test_new.angles, test_new.speed.mean(axis=0)))
     return new_model, res, test_new, runs
 
 
