@@ -57,7 +57,7 @@ class Residuals:
     tdc_sigma_deg: np.ndarray | None = None
     friction: np.ndarray | None = None  # (N,) N m the engine's friction the mean balance measured in each cycle
     # each cylinder's pegging read from its pressure (the TDC watch's, what to add to the pressure against the run's
-    # model) and its sampling sigma [Pa]; NaN where no window closed
+    # model) and its sigma [Pa] (sampling, wall heat and a loss the model lacks, as the TDC's); NaN where none
     pegging_pa: np.ndarray | None = None
     pegging_sigma_pa: np.ndarray | None = None
     # (N, z) whether the monitor's condition check called cylinder k's burn in cycle i a misfire (misfire_cyl<k>:
@@ -130,7 +130,8 @@ def _tdc_reading(pipe: CyclePipeline) -> dict:
 
     return {"tdc_deg": each(lambda e: np.degrees(e.offset_rad)), "tdc_sigma_deg": each(lambda e: np.degrees(e.sigma_rad)),
             "pegging_pa": each(lambda e: e.pegging_pa),
-            "pegging_sigma_pa": each(lambda e: e.evidence.get("pegging_statistical_pa", np.nan))}
+            "pegging_sigma_pa": each(lambda e: math.hypot(*(e.evidence.get(f"pegging_{part}_pa", np.nan) for part in
+                                                             ("statistical", "heat_loss", "constant_loss"))))}
 
 
 __all__ = ["ANGLE_POINTS", "PINNED_SIGMA", "Residuals", "pinned_config", "run_model"]

@@ -104,8 +104,8 @@ class TdcEstimate:
     pegging_pa : pegging correction of the mean cycle (add to the pressure) [Pa]
     n_cycles   : cycles used (rows with finite pressure)
     method     : METHOD_FIRED or METHOD_MOTORED
-    evidence   : windows [deg], the parts of sigma [deg], the block fits' offsets [deg], the pegging's sampling
-                 error [Pa] (from the same blocks), the wall-heat scale and its
+    evidence   : windows [deg], the parts of sigma [deg], the block fits' offsets [deg], the pegging's parts of
+                 sigma [Pa] (sampling, heat loss, constant loss: as the offset's), the wall-heat scale and its
                  relative sigma, the rms residual in the windows relative to the rms wall heat there
     """
 
@@ -335,8 +335,9 @@ def tdc_from_pressure(pressure_pa: np.ndarray, angle_rad: np.ndarray, spec: Engi
     stat = float(np.std(block, ddof=1) / math.sqrt(n_blocks)) if n_blocks > 1 else math.radians(0.5)
     stat_peg = float(np.std(block_peg, ddof=1) / math.sqrt(n_blocks)) if n_blocks > 1 else math.nan
     hot = _Setting(spec, omega, p_ivc, soc, heat_loss_scale * (1.0 + heat_loss_rel_sigma))
-    heat = abs(_gauss_newton(pw, dpw, aw, hot, delta, peg)[0] - delta)
-    other_loss = abs(_gauss_newton(pw, dpw, aw, st, delta, peg, constant_loss=True)[0] - delta)
+    hot_fit = _gauss_newton(pw, dpw, aw, hot, delta, peg)
+    loss_fit = _gauss_newton(pw, dpw, aw, st, delta, peg, constant_loss=True)
+    heat, other_loss = abs(hot_fit[0] - delta), abs(loss_fit[0] - delta)
     sigma = math.sqrt(stat**2 + math.radians(SYSTEMATIC_SIGMA_DEG) ** 2 + heat**2 + other_loss**2)
     q, w = _model_terms(pw.mean(axis=0), dpw.mean(axis=0), aw, delta, peg, st)
     evidence = {
@@ -348,7 +349,10 @@ def tdc_from_pressure(pressure_pa: np.ndarray, angle_rad: np.ndarray, spec: Engi
         "heat_loss_scale": heat_loss_scale,
         "heat_loss_rel_sigma": heat_loss_rel_sigma,
         "block_offsets_deg": np.degrees(block).tolist(),
-        "pegging_statistical_pa": stat_peg,  # the pegging's sampling error, as the offset's (NaN: one block)
+        # the pegging's sampling error and what the same two refits move it by, as the offset's parts (NaN: one block)
+        "pegging_statistical_pa": stat_peg,
+        "pegging_heat_loss_pa": abs(hot_fit[1] - peg),
+        "pegging_constant_loss_pa": abs(loss_fit[1] - peg),
         # rms of ROHR + wall heat left in the windows, relative to the rms wall heat there
         "residual_rel": float(np.sqrt(np.mean((q + w) ** 2)) / max(float(np.sqrt(np.mean(w**2))), 1e-12)),
     }
