@@ -234,4 +234,10 @@ def checked_pressure(spec: EngineSpec, cycle: Cycle) -> tuple[np.ndarray, list[s
             idx = np.arange(n)
             p[k, b] = np.interp(idx[b], idx[~b], p[k, ~b], period=n)
             flags.append(f"pressure_repaired_cyl{k + 1}")
+    # an absolute pressure is never <= 0: a channel that reads so is clipped at its converter's floor or pegged
+    # wrong (maruti at part load with a -1.5 bar offset: the intake and early compression read 0), and its gas
+    # torque and work are wrong there; the sensor_ prefix withholds the figures it touches (figure_status)
+    low = p.min(axis=1) <= 0.0
+    if low.any():
+        flags += [f"sensor_pressure_nonpositive_cyl{k + 1}" for k in np.flatnonzero(low)]
     return p, flags

@@ -130,6 +130,17 @@ def test_bad_cycles_are_rejected_with_a_reason(log):
     p[2, 300] = np.nan  # one lost sample is repaired and flagged
     _, res = process_cycle(SPEC, state, dataclasses.replace(c, pressure=p))
     assert "pressure_repaired_cyl3" in res.flags
+    assert not any(f.startswith("sensor_pressure_nonpositive") for f in res.flags)
+    # a channel reading 0 Pa absolute (clipped at its converter's floor) or less (pegged wrong): flagged, and the
+    # flag withholds that cylinder's figures
+    p = c.pressure.copy()
+    p[1, 100:140] = 0.0
+    _, res = process_cycle(SPEC, state, dataclasses.replace(c, pressure=p))
+    assert "sensor_pressure_nonpositive_cyl2" in res.flags
+    assert [f for f in res.flags if f.startswith("sensor_pressure_nonpositive")] == ["sensor_pressure_nonpositive_cyl2"]
+    from frictionwatch.core.monitor.report.figure_status import split_flag, withholds
+
+    assert withholds(split_flag("sensor_pressure_nonpositive_cyl2")[0])
     # no load reading at all: the cycle is still analysed, the mean is not measured and it says so
     _, res = process_cycle(SPEC, state, dataclasses.replace(c, load_torque=float("nan"), load_power=float("nan")))
     assert "no_load_measurement" in res.flags and np.isnan(res.friction_balance)
