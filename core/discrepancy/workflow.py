@@ -326,7 +326,9 @@ def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, t
     run, its held-out part and the monitor runs spent. A misfire must show in the training and the held-out cycles
     (cycle index ``first`` on, held out from ``held``)."""
     scored = cur_res.take(cur_res.index >= first)
-    findings = pressure_findings(scored, (scored.index < held, scored.index >= held))
+    have = {(e.name, e.values.get("cylinder")) for e in current.effects}  # a model that states one already: left
+    findings = [f for f in pressure_findings(scored, (scored.index < held, scored.index >= held))
+                if (f.effect, f.cylinder) not in have]
     if not findings:
         return current, cur_res, test, 0
     offsets = [f for f in findings if f.effect == "pressure_offset"]

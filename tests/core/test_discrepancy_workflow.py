@@ -216,3 +216,5 @@ def test_pegging_and_misfire_are_named_from_the_pressure(pressure_faults):
     assert mis["evidence"]["pressure_reading"].startswith("the pressure shows no full burn in")
     assert "misfire (cylinder 2" in doc["verdict"] and "pressure_offset (cylinder 4" in doc["verdict"]
     assert not any(f["effect"] == "tdc_offset" for f in doc["found"])  # the offset is not read as a TDC error
+    again = discover(found.model, pressure_faults, OPTIONS)  # the model that states them: nothing more to name
+    assert again.to_json()["found"] == [], again.verdict()
