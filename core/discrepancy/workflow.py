@@ -298,7 +298,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             found.rejected.update({c[1].candidate.label: c[0] for c in confirmed})
             break
         test_new = parts(res)[1]
-        why = channel_worse(test, test_new, scale) or _off_physics(t)
+        why = (channel_worse(test, test_new, scale) or _pressure_worse(pressure(current), pressure(new_model),
+                                                                        model.spec.n_cyl) or _off_physics(t))
         if why:  # significant, but it makes something else worse or is not physical: the model stays as it was
             found.refused.append({"candidate": t.candidate.label, "reason": why,
                                   "gap_before": g_cur, "gap_after": gap(test_new, scale)})
@@ -384,6 +385,18 @@ def channel_worse(before: Residuals, after: Residuals, scale: np.ndarray) -> str
         grow = float(ta[sl].sum() - tb[sl].sum())
         if shows and grow > WORSE_SIGMAS * np.sqrt(2.0 * tb[sl].size):
             return f"it makes the {name} residual worse on the held-out cycles (coherent chi^2 +{grow:.3g})"
+    return ""
+
+
+def _pressure_worse(before: float, after: float, n_cyl: int) -> str:
+    """'' unless a step moves the model's TDC against what the pressure reads (``tdc_chi2``) by more than
+    WORSE_SIGMAS of that chi^2's noise, sqrt(2 z) (z readings, each within its sigma under no effect): the pressure
+    is a channel too, and a TDC the speed asks for that the cylinders' own pressure contradicts is not taken (maruti
+    1500 rpm: a cam-order friction was explained by the wheel's TDC 0.48 deg off, the pressure reading it within
+    0.05 deg of the model's)."""
+    grow = after - before
+    if grow > WORSE_SIGMAS * np.sqrt(2.0 * n_cyl):
+        return f"it moves TDC against what the cylinders' pressure reads (chi^2 +{grow:.3g})"
     return ""
 
 

@@ -57,7 +57,8 @@ from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
 from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth
 from frictionwatch.core.types import Cycle
 
-__all__ = ["CycleRejected", "MonitorConfig", "MonitorState", "default_max_order", "initial_state", "process_cycle"]
+__all__ = ["CycleRejected", "MonitorConfig", "MonitorState", "default_max_order", "initial_state", "nonpositive_flags",
+           "process_cycle"]
 
 FOUR_PI = 4.0 * np.pi
 
@@ -234,10 +235,19 @@ def checked_pressure(spec: EngineSpec, cycle: Cycle) -> tuple[np.ndarray, list[s
             idx = np.arange(n)
             p[k, b] = np.interp(idx[b], idx[~b], p[k, ~b], period=n)
             flags.append(f"pressure_repaired_cyl{k + 1}")
-    # an absolute pressure is never <= 0: a channel that reads so is clipped at its converter's floor or pegged
-    # wrong (maruti at part load with a -1.5 bar offset: the intake and early compression read 0), and its gas
-    # torque and work are wrong there; the sensor_ prefix withholds the figures it touches (figure_status)
-    low = p.min(axis=1) <= 0.0
-    if low.any():
-        flags += [f"sensor_pressure_nonpositive_cyl{k + 1}" for k in np.flatnonzero(low)]
+    flags += [f for f in nonpositive_flags(p) if f not in flags]
     return p, flags
+
+
+def nonpositive_flags(pressure: np.ndarray) -> list[str]:
+    """``sensor_pressure_nonpositive_cyl<k>`` for each channel of ``pressure`` (z, n) [Pa] that reads 0 or less: an
+    absolute pressure never does, so the channel is clipped at its converter's floor or pegged wrong (maruti at
+    part load with a -1.5 bar offset: the intake and early compression read 0), and its gas torque and work are
+    wrong there; the sensor_ prefix withholds the figures it touches (figure_status). Read on the reading as it
+    came (core.monitor.pipeline: before a view's pegging correction lifts a clipped floor off zero) and as the
+    monitor gets it."""
+    p = np.asarray(pressure)
+    if p.ndim != 2 or p.size == 0:  # not a channel per row: checked_pressure refuses the cycle
+        return []
+    low = p.min(axis=1) <= 0.0
+    return [f"sensor_pressure_nonpositive_cyl{k + 1}" for k in np.flatnonzero(low)] if low.any() else []

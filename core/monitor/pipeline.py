@@ -41,7 +41,7 @@ from frictionwatch.core.monitor.calibration.tdc_watch import (
     close_window,
     watch_cycle,
 )
-from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, process_cycle
+from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, nonpositive_flags, process_cycle
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 from frictionwatch.core.types import Cycle
@@ -178,6 +178,9 @@ class CyclePipeline:
         if self.view is None:
             self._make_view(reference([cycle]))
         view = self.view
+        if view.corrects_pressure:  # a clipped floor is read before the correction lifts it off zero
+            low = [f for f in nonpositive_flags(cycle.pressure) if f not in cycle.flags]
+            cycle = replace(cycle, flags=cycle.flags + tuple(low)) if low else cycle
         cycle = viewed_cycle(view, cycle)
         if self.on_cycle is not None:
             self.on_cycle(cycle)

@@ -91,3 +91,26 @@ def test_running_stages_run_in_order_and_add_their_flags(k9k):
 class _Flags:
     def __init__(self, flags):
         self.flags = flags
+
+
+def test_a_clipped_channel_is_flagged_also_where_the_model_corrects_its_pegging(k9k):
+    """Cylinder 3 reads 0 Pa (its converter's floor) over part of every cycle. A model that corrects a pegging of
+    -1.5 bar on that channel lifts the floor to +1.5 bar before the monitor sees it: the pipeline reads the floor on
+    the reading as it came, so the cycle is flagged either way (and the flag withholds cylinder 3's figures)."""
+    import dataclasses
+
+    from frictionwatch.core.model.effects import make_effect
+
+    model, sim = k9k
+    cycles = assembled_cycles(model, sim.info, sim.records)[0][:6]
+    clipped = []
+    for c in cycles:
+        p = c.pressure.copy()
+        p[2, : p.shape[1] // 8] = 0.0
+        clipped.append(dataclasses.replace(c, pressure=p))
+    corrected = model.with_effect(make_effect("pressure_offset", {"cylinder": 3, "pa": -1.5e5}))
+    for m in (model, corrected):
+        pipe = CyclePipeline(m)
+        flags = [f for c in clipped if (o := pipe.process(c)).ok for f in o.result.flags]
+        assert flags.count("sensor_pressure_nonpositive_cyl3") == pipe.cycles_ok >= 4
+        assert not any(f.startswith("sensor_pressure_nonpositive_cyl") and f[-1] != "3" for f in flags)
