@@ -54,6 +54,7 @@ from frictionwatch.service.alert_rules import (
     LeakRule,
     MisfireRule,
     ModelMisfitRule,
+    RingConditionRule,
     SensorFlagRule,
 )
 
@@ -72,7 +73,8 @@ def default_rules(config: AlertConfig, n_cyl: int) -> tuple[tuple[Rule, ...], ..
             (ModelMisfitRule(config), SensorFlagRule(config), CoreFlagRule(config, "blow_by"),
              CoreFlagRule(config, "ring_wear")),
             (LeakRule(config), GainRule(config)),
-            (FrictionRule(config),))
+            (FrictionRule(config),),
+            (RingConditionRule(config, n_cyl),))
 
 
 @dataclass
@@ -273,7 +275,7 @@ class AlertEngine:
         self._ewma_n += 1
         g = max(1.0 / cfg.window, 1.0 / self._ewma_n)
         self._ewma += g * (x - band.mean - self._ewma)
-        return Pressure(imep, ewma=self._ewma, stats=leak_statistics(self._ewma, band, g), band=band)
+        return Pressure(imep, ewma=self._ewma, stats=leak_statistics(self._ewma, band, g), band=band, g=g)
 
     def _learn(self, x: np.ndarray, cycle: int, imep: float) -> None:
         """One healthy cycle at a load no band holds: into the learner, which restarts where the IMEP has left the
