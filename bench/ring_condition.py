@@ -19,7 +19,7 @@ output cycle ``--onset`` (0: from the first cycle) with a linear ``--ramp``; sto
 first ring alert naming that cylinder or ``--max-delay`` cycles after the onset. healthy: no fault (or a
 ``--mismatch``: a 3 % pressure gain error, a 0.5 deg TDC offset, a Stribeck ring-friction law, on cylinder 2 where it
 is per cylinder) with combustion variability and a load step every ``--step-every`` cycles between the point's load
-and 60 % of it; every ring alert is false (a sensor_fault on the mismatched cylinder is right).
+and ``--low-load`` (60 %) of it; every ring alert is false (a sensor_fault on the mismatched cylinder is right).
 Prints one JSON line: the first ring alert per rule, wrong-cylinder and early ring alerts, and the ring-condition
 figures (largest since / against siblings z per cylinder over the run, the faulty cylinder's at the end);
 ``--trace F.npz`` keeps the per-cycle figures.
@@ -64,7 +64,8 @@ def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: i
     steps = []
     if step_every:
         t_cycle = 120.0 / rpm
-        steps = [(i * step_every * t_cycle, load * (LOW_LOAD if i % 2 else 1.0)) for i in range(1, cycles // step_every)]
+        steps = [(i * step_every * t_cycle, load * (args.low_load if i % 2 else 1.0))
+                 for i in range(1, cycles // step_every)]
     sim = start_simulation(load_engine(args.engine), rpm, load, cycles, args.seed,
                            effects=[parse_effect(e) for e in effects], cov_imep=args.cov, load_steps=steps or None)
     from frictionwatch.service.pipeline import EnginePipeline
@@ -173,6 +174,7 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--commission-loads", default=f"1.0,{LOW_LOAD}")
         p.add_argument("--trace", default="", help="keep the per-cycle figures in this .npz")
         p.add_argument("--step-every", type=int, default=0 if name == "ring" else 500)
+        p.add_argument("--low-load", type=float, default=LOW_LOAD, help="the steps' other load, a fraction of the point's")
         if name == "ring":
             p.add_argument("--fault", choices=("ring_wear", "blow_by"), default="ring_wear")
             p.add_argument("--cylinder", type=int, default=2)

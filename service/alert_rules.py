@@ -330,16 +330,18 @@ class FrictionRule:
 
 class RingConditionRule:
     """Ring wear in any cylinder from one figure per cylinder with its sigma (core.monitor.checks.ring_condition):
-    the leak effect's change since the baseline of this load band and the measured friction's change since its
-    first measurement (reference "since_baseline"), or the windowed leak effect and the measured friction against
+    the leak effect's change since the commissioning baseline (chained through the load bands learnt during the
+    run, ``_chained``: a band learnt after a fault began does not hide it) and the measured friction's change since
+    its first measurement (reference "since_baseline"), or the windowed leak effect and the measured friction against
     the siblings (reference "against_siblings": a fault present from the first cycle, or grown into a baseline).
     Raised for ``raise_cycles`` cycles where either reference's figure is above 1 (a worn ring at the floor) and
     above ``raise_z`` (since) or ``ring_sibling_z`` (siblings) of its sigma; cleared when both are below
     ``clear_z`` / ``ring_sibling_clear_z`` for ``clear_cycles``. A cylinder with a sensor flag (or its gain check
     raised) leaves its friction out (its friction rests on its pressure) and its alert is a sensor_fault: a TDC error
     bends the polytropes like a leak. Nothing is raised on a cylinder whose leak or friction alert is raised already
-    (one ring alert per cylinder; this figure is its explanation too). The sibling window learns only from usable cycles (no misfire, no sensor
-    flag, not across an operating-point change). ``last`` is the newest figure (for the API's explanation).
+    (one ring alert per cylinder; this figure is its explanation too). The sibling window learns only from usable
+    cycles (no misfire, no sensor flag, not across an operating-point change); after a rebaseline (the present
+    state declared normal) the sibling reference is off. ``last`` is the newest figure (for the API's explanation).
 
     >>> from types import SimpleNamespace
     >>> rule = RingConditionRule(AlertConfig())
@@ -363,9 +365,16 @@ class RingConditionRule:
                                               leak_allowance=config.ring_leak_allowance)
         self.window: SiblingWindow | None = None
         self.last: RingCondition | None = None
+        self._native: set | None = None  # the baseline's bands when the rule first saw one (module: _chained)
+        self._carry: dict = {}  # band key -> the leak change (z,) and sigma carried into it
+        self._last: tuple[np.ndarray, np.ndarray] | None = None  # the newest chained change and sigma
+        self.siblings = True  # False after a rebaseline (the state then is declared normal)
 
     def update(self, result: CycleResult, ctx: Context) -> list[Decision | Hold]:
         cfg, ring, z = self.config, result.ring, ctx.n_cyl
+        if ctx.baseline is None and self._native is not None:  # a rebaseline: the chain starts again, and the
+            # present state is declared normal: the siblings no longer judge it
+            self._native, self._carry, self._last, self.siblings = None, {}, None, False
         if ring is None:
             return []
         if self.window is None:
@@ -379,10 +388,10 @@ class RingConditionRule:
             self.window = update_window(self.window, effect, self.settings)
         nan = np.full(z, np.nan)
         p = ctx.pressure
-        lc, lc_s = (leak_change(p.ewma, p.band.cov, p.g, p.band.cycles)
+        lc, lc_s = (self._chained(*leak_change(p.ewma, p.band.cov, p.g, p.band.cycles), p.band, ctx)
                     if p is not None and p.held is None and p.ewma is not None and p.band is not None else (nan, nan))
         fc, fc_s, fn, fn_s = self._friction(result, ctx, sensor)
-        rc = self.last = ring_condition(lc, lc_s, self.window, fc, fc_s, fn, fn_s, self.settings)
+        rc = self.last = ring_condition(lc, lc_s, self.window, fc, fc_s, fn, fn_s, self.settings, self.siblings)
         out: list[Decision | Hold] = []
         with np.errstate(invalid="ignore", divide="ignore"):
             z_since, z_sib = rc.since / rc.since_sigma, rc.siblings / rc.siblings_sigma
@@ -407,6 +416,27 @@ class RingConditionRule:
                                 cfg.clear_cycles, sev, msg,
                                 {"source": "ring_condition", **rc.evidence(k)}))
         return out
+
+    def _chained(self, change: np.ndarray, sigma: np.ndarray, band: Any, ctx: Context
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """The leak change since commissioning through the load bands learnt since: a band learnt during the run
+        (after a load change to a load no band held) took in whatever had changed by then, so its first use carries
+        the newest change measured before it (and its sigma) on; the bands of the baseline the rule first saw (the
+        commissioning's) and the first band of a run without one carry nothing. A rebaseline starts again."""
+        if ctx.baseline is None:
+            return change, sigma
+        if self._native is None:  # the bands this run began with: true references
+            self._native = {(b.first_cycle, b.last_cycle) for b in ctx.baseline.bands}
+        key = (band.first_cycle, band.last_cycle)
+        if key not in self._carry:
+            z = change.shape[0]
+            new = key not in self._native and self._last is not None
+            self._carry[key] = self._last if new else (np.zeros(z), np.zeros(z))
+        c0, s0 = self._carry[key]
+        total = (change + c0, np.hypot(sigma, s0))
+        if np.all(np.isfinite(total[0])):
+            self._last = total
+        return total
 
     def _friction(self, result: CycleResult, ctx: Context, sensor: np.ndarray) -> tuple[np.ndarray, ...]:
         """(change since the friction baseline, its sigma, the excess over the siblings now, its sigma) (z,): NaN

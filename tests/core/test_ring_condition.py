@@ -31,10 +31,11 @@ def test_one_outlier_among_many_is_named_and_moves_no_other(z):
     zz = dev / sig
     assert int(np.argmax(zz)) == z // 2 and zz[z // 2] > 3.0
     assert np.all(np.delete(zz, z // 2) < 1.0)
-    # the spread: the allowance (the others scatter less); the centre's share pi/2 * allowance^2 / (z - 1)
+    # the spread: the allowance (the others scatter less); the centre's share pi/2 * (MAD spread^2 + se^2) / (z - 1)
     k = z // 2
     o = np.delete(x, k)
-    want = np.sqrt(1e-8 + 1e-6 + np.pi / 2 * 1e-6 / (z - 1) + 1e-8 / (z - 1))
+    mad = 1.4826 * np.median(np.abs(o - np.median(o)))
+    want = np.sqrt(1e-8 + 1e-6 + np.pi / 2 * (mad ** 2 + 1e-8) / (z - 1))
     assert_allclose(sig[k], want, rtol=1e-12)
     assert_allclose(dev[k], x[k] - np.median(o), rtol=1e-12)
 

@@ -189,7 +189,9 @@ def sibling_excess(x: np.ndarray, se: np.ndarray, allowance: float) -> tuple[np.
         else:
             centre = float(np.median(o))
             spread = 1.4826 * float(np.median(np.abs(o - centre)))
-            centre_var = (np.pi / 2.0) * (max(spread, allowance) ** 2 / o.shape[0]) + float(np.mean(o_se ** 2)) / o.shape[0]
+            # the median's own sigma from the others' measured scatter (as the two others' for three cylinders);
+            # the allowance is the suspect's own healthy offset, counted once below
+            centre_var = (np.pi / 2.0) * (spread ** 2 + float(np.mean(o_se ** 2))) / o.shape[0]
         dev[k] = x[k] - centre
         sig[k] = np.sqrt(se[k] ** 2 + max(spread, allowance) ** 2 + centre_var)
     return dev, sig
@@ -244,20 +246,21 @@ def combine(values: np.ndarray, sigmas: np.ndarray, scales: np.ndarray) -> tuple
 def ring_condition(leak_change: np.ndarray, leak_change_sigma: np.ndarray, window: SiblingWindow,
                    friction_change: np.ndarray, friction_change_sigma: np.ndarray,
                    friction_now: np.ndarray, friction_now_sigma: np.ndarray,
-                   settings: RingConditionSettings = DEFAULT) -> RingCondition:
+                   settings: RingConditionSettings = DEFAULT, siblings: bool = True) -> RingCondition:
     """The ring condition of every cylinder (module doc) from: the leak effect's change since the baseline (z,) and
     its sigma (NaN: no baseline at this load); the sibling window of the leak effect; the friction excess's change
     since its baseline (z,) and its sigma, and the friction excess over the siblings now (z,) and its sigma (NaN
-    where not measured: ``friction_excess``)."""
+    where not measured: ``friction_excess``). ``siblings`` False leaves the sibling reference out (NaN): after an
+    operator declared the present state normal (a rebaseline), the siblings would name what was declared."""
     z = window.mean.shape[0]
     scales = np.array([settings.leak_scale, settings.friction_scale])
     since, since_s = combine(np.vstack([leak_change, friction_change]),
                              np.vstack([leak_change_sigma, friction_change_sigma]), scales)
-    if window.count >= settings.warmup:
+    if siblings and window.count >= settings.warmup:
         leak_sib, leak_sib_s = sibling_excess(window.mean, window_sigma(window, settings), settings.leak_allowance)
     else:
         leak_sib, leak_sib_s = np.full(z, np.nan), np.full(z, np.nan)
-    fr_now = np.asarray(friction_now, dtype=np.float64)
+    fr_now = np.asarray(friction_now, dtype=np.float64) if siblings else np.full(z, np.nan)
     fr_now_s = np.sqrt(np.asarray(friction_now_sigma, dtype=np.float64) ** 2 + settings.friction_allowance ** 2)
     sib, sib_s = combine(np.vstack([leak_sib, fr_now]), np.vstack([leak_sib_s, fr_now_s]), scales)
     with np.errstate(divide="ignore", invalid="ignore"):
