@@ -212,6 +212,14 @@ class AlertEngine:
         del self._history[:-self.config.max_history]
         return skipped
 
+    def ring_condition(self) -> list[dict]:
+        """The newest ring-condition figure of every cylinder (service.alert_rules.RingConditionRule's evidence, with
+        ``cylinder`` 1-based), [] before its first cycle or without that rule."""
+        rule = next((r for stage in self.rules for r in stage if isinstance(r, RingConditionRule)), None)
+        if rule is None or rule.last is None:
+            return []
+        return [{"cylinder": k + 1, **rule.last.evidence(k)} for k in range(self.spec.n_cyl)]
+
     def rebaseline(self) -> list[AlertEvent]:
         """Learn a new commissioning baseline from the next cycle on (after an overhaul: the state now is the normal
         one); the alerts of the rules that rest on the old baseline are cleared (their events returned) and their
