@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 from frictionwatch.core.monitor.checks.ring_condition import (
     SIBLINGS,
+    TDC_LEAK_PER_DEG,
     RingCondition,
     RingConditionSettings,
     SiblingWindow,
@@ -402,13 +403,15 @@ class RingConditionRule:
             if not (np.isfinite(rc.since[k]) or np.isfinite(rc.siblings[k])):
                 out.append(Hold(k + 1, {"ring_condition": None}))
                 continue
-            ref = "against its siblings" if rc.reference[k] == SIBLINGS else "since the baseline"
+            sib = rc.reference[k] == SIBLINGS
             kind = "sensor_fault" if sensor[k] else "ring_wear"
             msg = (f"cylinder {k + 1}: ring condition {rc.figure[k]:.1f} +- {rc.sigma[k]:.1f} (1.0: a worn ring at "
-                   f"the floor) {ref}" + (" with a flagged sensor: a TDC or pegging error is suspected" if sensor[k]
-                                          else ""))
-            sev = "alarm" if (on_since and z_since[k] > 2 * cfg.raise_z) or (on_sib and rc.siblings[k] > 3.0) \
-                else "warning"
+                   f"the floor) " + ("against its siblings" if sib else "since the baseline")
+                   + (" with a flagged sensor: a TDC or pegging error is suspected" if sensor[k] else "")
+                   + (f"; or a TDC error of {rc.leak_siblings[k] / TDC_LEAK_PER_DEG:+.2f} deg of this cylinder, which "
+                      "reads the same (commissioning measures each cylinder's TDC)" if sib and not sensor[k] else ""))
+            # against the siblings a TDC error reads the same: never more than a warning
+            sev = "alarm" if on_since and z_since[k] > 2 * cfg.raise_z else "warning"
             # one ring alert per cylinder: where the leak or friction rule has raised one, this figure explains it
             # (the API's ring condition) and raises nothing more
             other = any(ctx.latched(name, k + 1) for name in self.ring_rules)

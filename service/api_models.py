@@ -250,7 +250,8 @@ class RingCondition(_Open):
     at the alerts' floor (1.0: a leak effect of AlertConfig.leak_floor, or a friction excess of 10 %) with its 1
     sigma, under ``ring_condition_reference`` (since_baseline: the change since commissioning; against_siblings: the
     deviation from the other cylinders now, for a fault present from the start); the evidence under it, each None
-    where it has no value: the leak effect [polytropic-exponent units] and the measured friction excess (relative)."""
+    where it has no value: the leak effect [polytropic-exponent units] and the measured friction excess (relative);
+    the TDC error that reads as the same leak against the siblings."""
 
     cylinder: int
     ring_condition: float | None
@@ -266,6 +267,9 @@ class RingCondition(_Open):
     leak_effect_against_siblings_sigma: float | None
     friction_excess_change: float | None
     friction_excess_against_siblings: float | None
+    tdc_equivalent_deg: float | None = Field(None, description="the TDC error of this cylinder [deg] that would read "
+                                             "as the leak effect against the siblings: the pressure indicators cannot "
+                                             "tell the two apart (commissioning measures each cylinder's TDC)")
 
 
 class BaselineResult(_Open):

@@ -34,6 +34,9 @@ def test_a_leak_from_the_first_cycle_is_named_against_two_siblings_that_agree():
     assert ev["ring_condition"] == pytest.approx(4.0, abs=0.6)
     assert ev["ring_condition_sigma"] == pytest.approx(1.0, abs=0.1)
     assert ring[0].raised_cycle < 150  # the window's warm-up (100) and raise_cycles (10) and a little
+    # a TDC error of this cylinder reads the same against the siblings: said, and never more than a warning
+    assert ring[0].severity == "warning" and "TDC error" in ring[0].message
+    assert ev["tdc_equivalent_deg"] == pytest.approx(0.004 / 0.022, abs=0.03)
 
 
 @pytest.mark.parametrize("engine", ["k9k-4cyl", "maruti-3cyl"])

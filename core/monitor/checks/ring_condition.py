@@ -18,7 +18,10 @@ variance, and the figure is the reference whose ratio figure / sigma is the larg
 1 siblings). The leak effect is (n_expansion_dev - n_compression_dev) / 2 of core.monitor.checks.ring_pressure: a leak
 lowers the compression exponent and raises the expansion exponent against the siblings; a pressure gain error of the
 cylinder's sensor cancels in both exponents (so it never reads as a leak); a TDC error of one cylinder bends both
-exponents like a leak (the caller names it a sensor fault where the sensor checks flag it).
+exponents like a leak (the caller names it a sensor fault where the sensor checks flag it; where they do not, the
+leak against the siblings is given as the TDC error that would read the same, ``TDC_LEAK_PER_DEG``: these
+indicators cannot tell the two apart, and on an uncommissioned engine a per-cylinder TDC error of 0.2 deg is within
+the installation's assumed tolerance).
 
 How the siblings decide (``sibling_excess``): with four or more cylinders the centre is the median of the others and
 the spread the others' median absolute deviation (one faulty cylinder moves neither). With three, a cylinder is a
@@ -39,6 +42,11 @@ from typing import NamedTuple
 import numpy as np
 
 SINCE, SIBLINGS = 0, 1
+# leak effect [exponent units] a TDC error of one cylinder of +1 deg reads as (the trace read late bends both
+# polytropes like a leak): k9k-4cyl seed 5, 1700 rpm / 0.69, tdc_offset 0.5 deg on cylinder 2, uncommissioned, read
+# +0.0113 against its siblings (bench/ring_condition.py healthy --mismatch tdc): 0.0227 / deg; genset-v20's windows
+# 0.1 deg -> dn_c -0.0019, dn_e +0.0023 (core.monitor.checks.ring_pressure): 0.021 / deg
+TDC_LEAK_PER_DEG = 0.022
 REFERENCES = ("since_baseline", "against_siblings")
 
 
@@ -127,7 +135,8 @@ class RingCondition:
                 "leak_effect_against_siblings": num(self.leak_siblings[k]),
                 "leak_effect_against_siblings_sigma": num(self.leak_siblings_sigma[k]),
                 "friction_excess_change": num(self.friction_change[k]),
-                "friction_excess_against_siblings": num(self.friction_siblings[k])}
+                "friction_excess_against_siblings": num(self.friction_siblings[k]),
+                "tdc_equivalent_deg": num(self.leak_siblings[k] / TDC_LEAK_PER_DEG)}
 
 
 def leak_effect(n_compression_dev: np.ndarray, n_expansion_dev: np.ndarray) -> np.ndarray:
