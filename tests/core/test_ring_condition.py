@@ -132,3 +132,19 @@ def test_the_measured_friction_adds_its_evidence():
     # 1.5 +- 0.5 (leak) and 2.0 +- 0.5 (friction): 1.75 +- 0.354
     assert_allclose([rc.since[0], rc.since_sigma[0]], [1.75, 0.5 / np.sqrt(2.0)], rtol=1e-12)
     assert_allclose([rc.since[2], rc.since_sigma[2]], [0.0, 0.5], rtol=1e-12, atol=1e-15)
+
+
+def test_against_the_siblings_a_friction_excess_alone_is_not_a_worn_ring():
+    # a gain error of cylinder 1's sensor: +46 % friction against its siblings, its exponents like theirs
+    s = RingConditionSettings(window=50.0, warmup=10, leak_allowance=0.001, friction_allowance=0.1)
+    nan4 = np.full(4, NAN)
+    w = SiblingWindow(np.array([-0.0002, 0.0001, 0.0, 0.0001]), np.full(4, 1e-6), 200)
+    fn = np.array([0.46, -0.15, -0.15, -0.15])
+    rc = ring_condition(nan4, nan4, w, nan4, nan4, fn, np.full(4, 0.05), s)
+    assert np.all(rc.siblings < 1.0) and np.isnan(rc.friction_siblings[0])
+    # with a leak there too the friction adds its evidence: (3 +- 1) and (4.6 +- 1.12) -> 3.71 +- 0.75
+    w = SiblingWindow(np.array([0.003, 0.0, 0.0, 0.0]), np.zeros(4), 200)
+    rc = ring_condition(nan4, nan4, w, nan4, nan4, fn, np.full(4, 0.05), s)
+    sf = np.hypot(0.05, 0.1) / 0.1
+    want = (3.0 + 4.6 / sf ** 2) / (1.0 + 1.0 / sf ** 2)
+    assert_allclose([rc.siblings[0], rc.siblings_sigma[0]], [want, 1.0 / np.sqrt(1.0 + 1.0 / sf ** 2)], rtol=1e-9)

@@ -269,7 +269,9 @@ def ring_condition(leak_change: np.ndarray, leak_change_sigma: np.ndarray, windo
         leak_sib, leak_sib_s = sibling_excess(window.mean, window_sigma(window, settings), settings.leak_allowance)
     else:
         leak_sib, leak_sib_s = np.full(z, np.nan), np.full(z, np.nan)
-    fr_now = np.asarray(friction_now, dtype=np.float64) if siblings else np.full(z, np.nan)
+    # against the siblings the friction only adds to a leak that is there: an uncalibrated cylinder's gain error
+    # books its indicated work as friction (3 % on a K9K cylinder read +46 %) and leaves both exponents alone
+    fr_now = np.where(siblings & (leak_sib > 0.0), np.asarray(friction_now, dtype=np.float64), np.nan)
     fr_now_s = np.sqrt(np.asarray(friction_now_sigma, dtype=np.float64) ** 2 + settings.friction_allowance ** 2)
     sib, sib_s = combine(np.vstack([leak_sib, fr_now]), np.vstack([leak_sib_s, fr_now_s]), scales)
     with np.errstate(divide="ignore", invalid="ignore"):
