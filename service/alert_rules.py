@@ -341,7 +341,8 @@ class RingConditionRule:
     raised) leaves its friction out (its friction rests on its pressure) and its alert is a sensor_fault: a TDC error
     bends the polytropes like a leak. Nothing is raised on a cylinder whose leak or friction alert is raised already
     (one ring alert per cylinder; this figure is its explanation too). The sibling window learns only from usable
-    cycles (no misfire, no sensor flag, not across an operating-point change); after a rebaseline (the present
+    cycles (no misfire, not across an operating-point change; a cylinder with a flagged sensor is left out of it
+    while flagged); after a rebaseline (the present
     state declared normal) the sibling reference is off. ``last`` is the newest figure (for the API's explanation).
 
     >>> from types import SimpleNamespace
@@ -382,9 +383,10 @@ class RingConditionRule:
             self.window = SiblingWindow.empty(z)
         sensor = np.array([any(f.startswith("sensor_") for f in fl) or ctx.latched(self.gain_check, k + 1)
                            for k, fl in enumerate(ctx.cyl_flags)])
-        effect = leak_effect(ring.n_compression_dev, ring.n_expansion_dev)
-        usable = (np.all(np.isfinite(effect)) and "operating_point_changed" not in result.flags
-                  and not any("misfire" in fl for fl in ctx.cyl_flags) and not sensor.any())
+        # a cylinder with a flagged sensor keeps its window entry as it was (its siblings go on)
+        effect = np.where(sensor, np.nan, leak_effect(ring.n_compression_dev, ring.n_expansion_dev))
+        usable = (np.sum(np.isfinite(effect)) >= 2 and "operating_point_changed" not in result.flags
+                  and not any("misfire" in fl for fl in ctx.cyl_flags))
         if usable:
             self.window = update_window(self.window, effect, self.settings)
         nan = np.full(z, np.nan)
