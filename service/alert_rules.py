@@ -21,9 +21,10 @@ baseline and its learning, the events. A new alert kind is one class here and on
     GainRule        gain            sensor_fault   the compression ratio moved with both exponents unchanged
     FrictionRule    friction        ring_wear      the measured friction's excess over its siblings, against the
                                                    excess at its first measurement; not while the gain check is raised
-    RingConditionRule ring_condition ring_wear   the per-cylinder ring-condition figure (core.monitor.checks.
-                                   (sensor_fault  ring_condition): the leak effect and the measured friction since the
-                                    where flagged) baseline and against the siblings; from the first cycle
+    RingConditionRule
+                    ring_condition  ring_wear      one figure per cylinder with its sigma (core.monitor.checks.
+                                    (sensor_fault  ring_condition): the leak effect and the measured friction since
+                                    if flagged)    the baseline or against the siblings; from the first cycle
 """
 
 from __future__ import annotations
@@ -342,8 +343,8 @@ class RingConditionRule:
     bends the polytropes like a leak. Nothing is raised on a cylinder whose leak or friction alert is raised already
     (one ring alert per cylinder; this figure is its explanation too). The sibling window learns only from usable
     cycles (no misfire, not across an operating-point change; a cylinder with a flagged sensor is left out of it
-    while flagged); after a rebaseline (the present
-    state declared normal) the sibling reference is off. ``last`` is the newest figure (for the API's explanation).
+    while flagged); after a rebaseline (the present state declared normal) the sibling reference is off. ``last`` is
+    the newest figure (for the API's explanation).
 
     >>> from types import SimpleNamespace
     >>> rule = RingConditionRule(AlertConfig())
