@@ -40,7 +40,7 @@ from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.engine_model import load_model
 from frictionwatch.core.plant.simulate import start_simulation
 from frictionwatch.service.alert_baseline import Baseline
-from frictionwatch.service.alert_rules import RingConditionRule
+from frictionwatch.service.alert_ring_rule import RingConditionRule
 from frictionwatch.service.alerts import RING_KINDS, AlertEngine
 
 from bench.ring_after_commission import LOW_LOAD, POINTS, commission

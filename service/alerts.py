@@ -47,6 +47,7 @@ from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.service.alert_baseline import INDICATORS, Baseline, BaselineLearner
 from frictionwatch.service.alert_config import AlertConfig
 from frictionwatch.service.alert_interface import Context, Decision, Hold, Latch, Pressure, Rule, leak_statistics
+from frictionwatch.service.alert_ring_rule import RingConditionRule
 from frictionwatch.service.alert_rules import (
     CoreFlagRule,
     FrictionRule,
@@ -54,7 +55,6 @@ from frictionwatch.service.alert_rules import (
     LeakRule,
     MisfireRule,
     ModelMisfitRule,
-    RingConditionRule,
     SensorFlagRule,
 )
 
@@ -213,7 +213,7 @@ class AlertEngine:
         return skipped
 
     def ring_condition(self) -> list[dict]:
-        """The newest ring-condition figure of every cylinder (service.alert_rules.RingConditionRule's evidence, with
+        """The newest ring-condition figure of every cylinder (service.alert_ring_rule.RingConditionRule's evidence, with
         ``cylinder`` 1-based), [] before its first cycle or without that rule."""
         rule = next((r for stage in self.rules for r in stage if isinstance(r, RingConditionRule)), None)
         if rule is None or rule.last is None:

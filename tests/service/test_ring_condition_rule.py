@@ -1,4 +1,4 @@
-"""The ring-condition rule (service.alert_rules.RingConditionRule) in the alert engine, on constructed per-cycle
+"""The ring-condition rule (service.alert_ring_rule.RingConditionRule) in the alert engine, on constructed per-cycle
 results (tests/service/test_alerts.py's): a leak present from the first cycle is in the learnt baseline, so only
 the siblings name it (three cylinders: a minority; two: nobody); a cylinder whose sensor is flagged is a sensor
 fault; the figure is in the alert's evidence."""
@@ -71,3 +71,12 @@ def test_two_cylinders_have_no_minority():
     eng = AlertEngine(spec, CONFIG)
     raised = _raised(eng, 400, _leak(2, 0.004, z=2), 2)
     assert [a for a in raised if a.kind in RING_KINDS] == []
+
+
+def test_the_rule_s_example_runs():
+    import doctest
+
+    from frictionwatch.service import alert_ring_rule
+
+    result = doctest.testmod(alert_ring_rule)
+    assert result.failed == 0 and result.attempted >= 5
