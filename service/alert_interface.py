@@ -101,7 +101,8 @@ class Pressure:
     """The engine's pressure statistics in a usable cycle. imep_pa: the engine's mean IMEP; held: why the statistics
     hold still this cycle (a load change settling, a load not commissioned yet) with the learner's learning_cycles,
     else None and ewma (4, z), the EWMA of the indicators' change from ``band``'s mean (rows as INDICATORS; the
-    engine's own array: read it, never write it), and ``stats`` (leak_statistics of it)."""
+    engine's own array: read it, never write it), and ``stats`` (leak_statistics of it); g the EWMA's factor this
+    cycle."""
 
     imep_pa: float
     held: str | None = None
@@ -109,6 +110,7 @@ class Pressure:
     ewma: np.ndarray | None = None
     stats: LeakStatistics | None = None
     band: Band | None = None
+    g: float = float("nan")
 
 
 def _never(name: str, cylinder: int | None) -> bool:

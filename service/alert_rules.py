@@ -21,6 +21,11 @@ baseline and its learning, the events. A new alert kind is one class here and on
     GainRule        gain            sensor_fault   the compression ratio moved with both exponents unchanged
     FrictionRule    friction        ring_wear      the measured friction's excess over its siblings, against the
                                                    excess at its first measurement; not while the gain check is raised
+    RingConditionRule
+                    ring_condition  ring_wear      one figure per cylinder with its sigma (core.monitor.checks.
+                                    (sensor_fault  ring_condition): the leak effect and the measured friction since
+                                    if flagged)    the baseline or against the siblings; from the first cycle
+                                                   (its own module: service.alert_ring_rule)
 """
 
 from __future__ import annotations

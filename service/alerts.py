@@ -47,6 +47,7 @@ from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.service.alert_baseline import INDICATORS, Baseline, BaselineLearner
 from frictionwatch.service.alert_config import AlertConfig
 from frictionwatch.service.alert_interface import Context, Decision, Hold, Latch, Pressure, Rule, leak_statistics
+from frictionwatch.service.alert_ring_rule import RingConditionRule
 from frictionwatch.service.alert_rules import (
     CoreFlagRule,
     FrictionRule,
@@ -72,7 +73,8 @@ def default_rules(config: AlertConfig, n_cyl: int) -> tuple[tuple[Rule, ...], ..
             (ModelMisfitRule(config), SensorFlagRule(config), CoreFlagRule(config, "blow_by"),
              CoreFlagRule(config, "ring_wear")),
             (LeakRule(config), GainRule(config)),
-            (FrictionRule(config),))
+            (FrictionRule(config),),
+            (RingConditionRule(config, n_cyl),))
 
 
 @dataclass
@@ -210,6 +212,14 @@ class AlertEngine:
         del self._history[:-self.config.max_history]
         return skipped
 
+    def ring_condition(self) -> list[dict]:
+        """The newest ring-condition figure of every cylinder (service.alert_ring_rule.RingConditionRule's evidence, with
+        ``cylinder`` 1-based), [] before its first cycle or without that rule."""
+        rule = next((r for stage in self.rules for r in stage if isinstance(r, RingConditionRule)), None)
+        if rule is None or rule.last is None:
+            return []
+        return [{"cylinder": k + 1, **rule.last.evidence(k)} for k in range(self.spec.n_cyl)]
+
     def rebaseline(self) -> list[AlertEvent]:
         """Learn a new commissioning baseline from the next cycle on (after an overhaul: the state now is the normal
         one); the alerts of the rules that rest on the old baseline are cleared (their events returned) and their
@@ -273,7 +283,7 @@ class AlertEngine:
         self._ewma_n += 1
         g = max(1.0 / cfg.window, 1.0 / self._ewma_n)
         self._ewma += g * (x - band.mean - self._ewma)
-        return Pressure(imep, ewma=self._ewma, stats=leak_statistics(self._ewma, band, g), band=band)
+        return Pressure(imep, ewma=self._ewma, stats=leak_statistics(self._ewma, band, g), band=band, g=g)
 
     def _learn(self, x: np.ndarray, cycle: int, imep: float) -> None:
         """One healthy cycle at a load no band holds: into the learner, which restarts where the IMEP has left the

@@ -45,6 +45,7 @@ from frictionwatch.service.api_models import (
     FrictionTorque,
     Health,
     Losses,
+    RingCondition,
     SensorHealth,
     Speed,
 )
@@ -220,6 +221,13 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
         shown, total = svc.alert_list(active_only=state == "active", limit=limit)
         response.headers["X-Total-Count"] = str(total)
         return shown
+
+    @app.get("/api/v1/engines/{engine_id}/ring-condition", response_model=list[RingCondition], responses=ERRORS)
+    def ring_condition(svc: Svc) -> list[dict]:
+        """Each cylinder's ring condition as of the newest cycle: the one figure (with its sigma) the ring alerts
+        rest on, and the evidence under it (the leak effect and the measured friction since the baseline and
+        against the siblings). Empty before the first cycle or without alerts."""
+        return svc.ring_condition()
 
     @app.post("/api/v1/engines/{engine_id}/alerts/{alert_id}/acknowledge", response_model=Alert,
               dependencies=[Depends(authorised)], responses={401: {"model": ErrorBody}, **ERRORS})

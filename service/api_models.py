@@ -245,6 +245,33 @@ class Alert(_Open):
     evidence: dict
 
 
+class RingCondition(_Open):
+    """One cylinder's ring condition (core.monitor.checks.ring_condition): ``ring_condition`` in units of a worn ring
+    at the alerts' floor (1.0: a leak effect of AlertConfig.leak_floor, or a friction excess of 10 %) with its 1
+    sigma, under ``ring_condition_reference`` (since_baseline: the change since commissioning; against_siblings: the
+    deviation from the other cylinders now, for a fault present from the start); the evidence under it, each None
+    where it has no value: the leak effect [polytropic-exponent units] and the measured friction excess (relative);
+    the TDC error that reads as the same leak against the siblings."""
+
+    cylinder: int
+    ring_condition: float | None
+    ring_condition_sigma: float | None
+    ring_condition_reference: Literal["since_baseline", "against_siblings"] | None
+    ring_condition_since_baseline: float | None
+    ring_condition_since_baseline_sigma: float | None
+    ring_condition_against_siblings: float | None
+    ring_condition_against_siblings_sigma: float | None
+    leak_effect_change: float | None
+    leak_effect_change_sigma: float | None
+    leak_effect_against_siblings: float | None
+    leak_effect_against_siblings_sigma: float | None
+    friction_excess_change: float | None
+    friction_excess_against_siblings: float | None
+    tdc_equivalent_deg: float | None = Field(None, description="the TDC error of this cylinder [deg] that would read "
+                                             "as the leak effect against the siblings: the pressure indicators cannot "
+                                             "tell the two apart (commissioning measures each cylinder's TDC)")
+
+
 class BaselineResult(_Open):
     ok: bool
     engine_id: str

@@ -46,7 +46,7 @@ from frictionwatch.service.security import valid_engine_id
 log = logging.getLogger(__name__)
 
 AlertsFactory = Callable[[str, Any], Any]  # (engine id, EngineSpec) -> an AlertEngine (contract: update, active,
-#                                            history, acknowledge, rebaseline, baseline)
+#                                            history, acknowledge, rebaseline, baseline; optionally ring_condition)
 STAMPS_KEPT = 4096  # batches remembered per source for the latency (a few seconds of a genset's records)
 CYCLE_REVS = 2.0  # crank revolutions per (four-stroke) cycle: turns queued seconds into cycles
 LISTENER_STOP_S = 2.0  # what a stop gives the listeners (the store's last batch) after the drain
@@ -273,6 +273,14 @@ class EngineService:
             alerts = self.alerts.active() if active_only else self.alerts.history()
         shown = alerts if limit is None else alerts[-limit:] if limit > 0 else []
         return [self._alert_dict(a) for a in shown], len(alerts)
+
+    def ring_condition(self) -> list[dict]:
+        """Each cylinder's newest ring-condition figure (AlertEngine.ring_condition); [] without alerts."""
+        figures = getattr(self.alerts, "ring_condition", None)  # an alert engine of its own may have none
+        if figures is None:
+            return []
+        with self._alerts_lock:
+            return figures()
 
     def acknowledge(self, alert_id: int, by: str) -> dict:
         """Raises LookupError when the engine has no such alert (the alert engine's KeyError)."""

@@ -75,6 +75,6 @@ def test_a_new_rule_s_alert_is_acknowledged_and_survives_a_rebaseline_unless_it_
 
 def test_the_default_rules_have_distinct_names_and_their_examples_run():
     names = [r.name for stage in default_rules(CONFIG, 4) for r in stage]
-    assert len(names) == len(set(names)) == 8
+    assert len(names) == len(set(names)) == 9
     result = doctest.testmod(alert_rules, optionflags=doctest.ELLIPSIS)
     assert result.failed == 0 and result.attempted >= 7
