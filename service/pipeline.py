@@ -22,6 +22,7 @@ from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 from frictionwatch.core.types import AcquisitionInfo, Cycle, StreamRecord
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.drivers.assembly.two_wheels import TwoWheelAssembler
 from frictionwatch.drivers.source import StreamRestart
 
 log = logging.getLogger(__name__)
@@ -147,8 +148,8 @@ def run(engine: EngineModel | EngineSpec, info: AcquisitionInfo, records: Iterab
 def cycle_assembler(spec: EngineSpec, info: AcquisitionInfo, first_index: int = 0) -> CycleAssembler:
     """The assembler of an engine's records into cycles, at the phases its wheel states (the pipeline's own);
     ``first_index``: the first cycle's index (a restart within one stream numbers on)."""
-    return CycleAssembler(info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm,
-                          first_index=first_index)
+    kind = CycleAssembler if info.second_wheel is None else TwoWheelAssembler  # a second wheel: its edges cut too
+    return kind(info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm, first_index=first_index)
 
 
 def assembled_cycles(engine: EngineModel | EngineSpec, info: AcquisitionInfo,
