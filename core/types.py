@@ -108,11 +108,13 @@ class AcquisitionInfo:
 class WheelTeeth:
     """One cycle's edges of the second wheel, cut as ``Cycle``'s own (the same bracketing of [0, 4 pi], in that
     wheel's nominal angle): ``ticks`` (m,) int64, ``angle`` (m,) rad nominal (first_tooth_deg + j 360/N, unwrapped),
-    ``index`` (m,) int64 tooth index on that wheel (0 = first after its gap)."""
+    ``index`` (m,) int64 tooth index on that wheel (0 = first after its gap), ``teeth`` its tooth positions
+    (missing ones included: the index runs modulo it)."""
 
     ticks: np.ndarray
     angle: np.ndarray
     index: np.ndarray
+    teeth: int
 
 
 @dataclass(frozen=True)

@@ -54,6 +54,7 @@ from frictionwatch.core.monitor.report.report_kernels import trig_tables
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState, PreviousCycle
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
+from frictionwatch.core.monitor.teeth.second_wheel import fit_second_wheel
 from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth
 from frictionwatch.core.types import Cycle
 
@@ -129,6 +130,10 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
             cfg.tooth_memory, cfg.tooth_refit_cycles)
     except ValueError as exc:
         raise CycleRejected("bad_teeth", str(exc)) from exc
+    free_end, wheel2, wheel2_flag = fit_second_wheel(  # the free end's own speed and tooth spacing (none: nothing)
+        cycle, state.wheel2, m, state.n_nuisance, (cfg.drift_nuisance, round(2 * cfg.fit_order) if cfg.fit_order
+                                                   else m, cfg.fit_drift, cfg.learn_teeth, cfg.tooth_memory,
+                                                   cfg.tooth_refit_cycles))
     omega = fly.omega_mean
     load = cycle.load_torque if math.isfinite(cycle.load_torque) else cycle.load_power / omega
     if not math.isfinite(load):
@@ -193,8 +198,10 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
 
     result = build_result(spec, cycle, fly, exc, rows, state.layout, ident, mean, pmax, pmax_angle, flags, tables)
     fit_flags = ("speed_fit_poor",) if result.r_squared < cfg.r_squared_floor else ()  # NaN (no ripple): no flag
+    if wheel2_flag is not None:
+        fit_flags += (wheel2_flag,)
     result = replace(result, sensor_health=health, ring=cond.ring,  # one replace: the stage results not in build_result
-                     flags=result.flags + fit_flags)
+                     flags=result.flags + fit_flags, free_end=free_end)
     new_state = MonitorState(
         layout=state.layout, n_harmonics=m, n_nuisance=state.n_nuisance, accumulator=cond.accumulator,
         stats=ident.stats, params=ident.smoothed.params, op=op, relative_motion=rel, static=static, teeth=teeth,
@@ -203,7 +210,7 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         tooth_patterns=patterns, sensor=sensor, condition=cond.state,
         previous=PreviousCycle(int(cycle.tooth_ticks[0]), int(cycle.tooth_ticks[-1]), pressure.copy(), mid_speed,
                                load),  # a copy: a live source may reuse the cycle's buffer
-        grid_geometry=geometry, mid_speed_fit=mid_fit,
+        grid_geometry=geometry, mid_speed_fit=mid_fit, wheel2=wheel2,
     )  # every field (dataclasses.replace costs twice as much per cycle)
     return new_state, result
 

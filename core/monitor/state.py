@@ -19,6 +19,7 @@ from frictionwatch.core.monitor.identify.layout import ParameterLayout
 from frictionwatch.core.monitor.identify.priors import PriorNormal
 from frictionwatch.core.monitor.report.report_kernels import TrigTables
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
+from frictionwatch.core.monitor.teeth.second_wheel import SecondWheelState
 from frictionwatch.core.monitor.teeth.tooth_fit import ToothPatterns
 from frictionwatch.core.types import Cycle
 
@@ -269,6 +270,7 @@ class MonitorState:
     previous: PreviousCycle | None = None  # the last analysed cycle: centred windows and the kinetic-energy term
     grid_geometry: GridGeometry | None = None  # the crank-angle grid's piston positions and J(2 pi)
     mid_speed_fit: MidSpeedFit | None = None  # the mid-cycle speed's slope row at the edges' angles
+    wheel2: SecondWheelState | None = None  # the second wheel's tooth learner (core.monitor.teeth.second_wheel)
 
     def previous_of(self, first_tick: int) -> PreviousCycle | None:
         """``previous`` if it is the cycle just before one whose first tooth edge is at ``first_tick``, else None."""

@@ -128,5 +128,6 @@ class SecondWheelCut:
         if a.size == 0 or b.size == 0:  # the margin holds both ends: an end missing is a gap in the edges
             return "second_wheel_sync"
         s, e = int(a[-1]), int(b[0]) + 1
-        return WheelTeeth(ticks=ticks[s:e].copy(), angle=phi[s:e], index=(pos[s:e] % self.n).astype(np.int64))
+        return WheelTeeth(ticks=ticks[s:e].copy(), angle=phi[s:e], index=(pos[s:e] % self.n).astype(np.int64),
+                          teeth=self.n)
 

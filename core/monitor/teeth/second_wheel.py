@@ -1,0 +1,81 @@
+"""Step 1b of a cycle with a second (free-end) wheel: its own motion from its own tooth times (issue 29 item 1).
+
+The second wheel's edges (``Cycle.wheel2``, cut by the assembler on the crank angle of that wheel) go through the very
+fit the flywheel's do (core.monitor.teeth.tooth_fit.fit_cycle_teeth: harmonics of the cycle period in time, the
+in-band tooth pattern as nuisance columns, the out-of-band tooth-spacing error learnt from the residuals) with a
+``ToothLearner`` and pattern cache of its own: a wheel with another tooth count, another gap and other tooth errors.
+
+``FreeEndSpeed`` keeps what the balance needs of it: the mean speed, the angle harmonics of the free-end node and
+the time of its window's first edge relative to the flywheel's (each fit's harmonics are referred to its own first
+edge; ``harmonics_at(t)`` refers them to another origin). The joint fit of both wheels in the harmonic balance and
+the identification is not built yet (docs/design-notes.md: "The second wheel in the balance").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
+from frictionwatch.core.monitor.teeth.tooth_fit import ToothPatterns, fit_cycle_teeth
+from frictionwatch.core.types import Cycle
+
+FOUR_PI = 4.0 * np.pi
+
+
+@dataclass(frozen=True)
+class SecondWheelState:
+    """The second wheel's tooth learner (its positions) and in-band pattern cache, carried cycle to cycle."""
+
+    teeth: ToothLearner
+    patterns: ToothPatterns | None = None
+
+
+@dataclass(frozen=True)
+class FreeEndSpeed:
+    """The free-end node's motion over one cycle, from the second wheel.
+
+    omega_mean [rad/s]; harmonics (M,) complex Phi_m [rad] of the angle deviation, order m/2, referred to the time of
+    its own first edge; t_first_s [s] that time minus the flywheel window's first edge; residual_rms [rad] of its
+    fit (timing noise, tooth errors not yet learnt, orders above the band); n_edges used."""
+
+    omega_mean: float
+    harmonics: np.ndarray
+    t_first_s: float
+    residual_rms: float
+    n_edges: int
+
+    def harmonics_at(self, t_s: float) -> np.ndarray:
+        """The harmonics referred to an origin ``t_s`` [s] after the flywheel window's first edge (0: that edge)."""
+        w = 0.5 * self.omega_mean * np.arange(1, self.harmonics.shape[0] + 1)
+        return self.harmonics * np.exp(1j * w * (self.t_first_s - t_s))
+
+    @property
+    def speed_harmonics(self) -> np.ndarray:
+        """(M,) complex [rad/s] speed harmonics i w_m Phi_m (same reference as ``harmonics``)."""
+        return 1j * 0.5 * self.omega_mean * np.arange(1, self.harmonics.shape[0] + 1) * self.harmonics
+
+
+def fit_second_wheel(cycle: Cycle, state: SecondWheelState | None, n_harmonics: int, n_nuisance: int,
+                     settings: tuple) -> tuple[FreeEndSpeed | None, SecondWheelState | None, str | None]:
+    """The second wheel's fit of ``cycle`` (None and the state unchanged when the cycle has no second wheel), its
+    learner updated, and a flag when its edges could not be fitted ('second_wheel_bad_teeth': the flywheel's cycle
+    goes on without it).
+
+    settings : (drift_nuisance, fit_harmonics, fit_drift, learn_teeth, tooth_memory, tooth_refit_cycles), the
+    flywheel fit's own (core.monitor.teeth.tooth_fit.fit_cycle_teeth)."""
+    w = cycle.wheel2
+    if w is None:
+        return None, state, None
+    if state is None or state.teeth.correction.shape[0] != w.teeth:  # first sight, or another wheel stated
+        state = SecondWheelState(ToothLearner.empty(w.teeth))
+    view = replace(cycle, tooth_ticks=w.ticks, tooth_angle=w.angle, tooth_index=w.index, wheel2=None)
+    try:
+        fly, teeth, _, patterns = fit_cycle_teeth(view, w.teeth, n_harmonics, n_nuisance, state.teeth,
+                                                  state.patterns, *settings)
+    except ValueError:
+        return None, state, "second_wheel_bad_teeth"
+    speed = FreeEndSpeed(omega_mean=fly.omega_mean, harmonics=fly.harmonics.copy(),
+                         t_first_s=float(w.ticks[0] - cycle.tooth_ticks[0]) / cycle.tick_hz,
+                         residual_rms=fly.residual_rms, n_edges=fly.n_edges)
+    return speed, SecondWheelState(teeth, patterns), None
