@@ -5,6 +5,7 @@ No physics here: the pipeline counts and logs what it skips and never dies of ba
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator
@@ -44,6 +45,9 @@ class EnginePipeline:
 
     def __init__(self, engine: EngineModel | EngineSpec, info: AcquisitionInfo, config: MonitorConfig | None = None,
                  on_cycle: Callable[[Cycle], None] | None = None):
+        if info.second_wheel is not None and as_model(engine).spec.sensors.second_wheel is not None:
+            # two wheels and the engine file says where the second one sits: the joint fit of both
+            config = dataclasses.replace(config or MonitorConfig(), second_wheel=True)
         self.cycles = CyclePipeline(engine, config, on_cycle=on_cycle)
         self.model, self.spec, self.config = self.cycles.model, self.cycles.spec, self.cycles.config
         self.info = info

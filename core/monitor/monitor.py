@@ -39,6 +39,7 @@ from frictionwatch.core.monitor.checks.condition import assess_condition
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthState, check_cycle, corrected_inputs, inflate
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, ResidualStats
 from frictionwatch.core.monitor.identify.estimate import indicated_tdc_sensitivity
+from frictionwatch.core.monitor.identify.free_end_rows import free_end_whitened, half_order_rows, no_free_end_rows
 from frictionwatch.core.monitor.identify.identification import (
     MeanBalance,
     grid_geometry,
@@ -54,7 +55,7 @@ from frictionwatch.core.monitor.report.report_kernels import trig_tables
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState, PreviousCycle
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
-from frictionwatch.core.monitor.teeth.second_wheel import fit_second_wheel
+from frictionwatch.core.monitor.teeth.second_wheel import fit_second_wheel, free_end_input
 from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth
 from frictionwatch.core.types import Cycle
 
@@ -100,11 +101,12 @@ def initial_state(engine: EngineModel | EngineSpec, config: MonitorConfig | None
         raise ValueError(f"tooth_correction must have one angle per wheel position ({spec.sensors.wheel_teeth})")
     n_nuis = 2 * (m // 2) if cfg.tooth_nuisance else 0
     p = layout.n_params + n_nuis
+    rows = 2 * m + 1 + (2 * half_order_rows(m).size if cfg.second_wheel else 0)  # the joint fit: the free end's too
     lower = np.concatenate([np.zeros(layout.n_params), np.full(n_nuis, -np.inf)])
     lower.flags.writeable = False
     correction = (np.zeros(spec.sensors.wheel_teeth) if tooth_correction is None
                   else np.asarray(tooth_correction, dtype=np.float64).copy())
-    return MonitorState(layout=layout, n_harmonics=m, n_nuisance=n_nuis, accumulator=Accumulator.empty(p, 2 * m + 1),
+    return MonitorState(layout=layout, n_harmonics=m, n_nuisance=n_nuis, accumulator=Accumulator.empty(p, rows),
                         stats=ResidualStats.empty(m), params=np.concatenate([np.ones(layout.n_params),
                                                                              np.zeros(n_nuis)]),
                         op=None, relative_motion=None, static=None, teeth=ToothLearner(correction, 0),
@@ -146,8 +148,9 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     sensor = state.sensor if state.sensor is not None else SensorHealthState.empty(spec.n_cyl)
     raw_pressure, (pressure, op_used) = pressure, (corrected_inputs(sensor, pressure, op) if cfg.sensor_health
                                                    else (pressure, op))
+    free_in = free_end_input(spec, op_used, free_end) if cfg.second_wheel else None
     bal = harmonic_balance(op_used, state.params, state.n_nuisance, state.relative_motion, state.static, cycle.grid,
-                           pressure, fly, theta_start, cfg.passes, cfg.time_samples)
+                           pressure, fly, theta_start, cfg.passes, cfg.time_samples, free_in)
     exc, rows, rel, static = bal.excitation, bal.rows, bal.relative_motion, bal.static
     p_rel, p_gnd = bal.power_relative, bal.power_ground
     # relative dampers (damper, shaft, coupling) dissipate mean power that a balance against the load behind the
@@ -184,7 +187,16 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     tables = state.report_tables
     if tables.shape != (m, cfg.time_samples):
         tables = trig_tables(m, cfg.time_samples)
-    ident = identify_cycle(cfg, spec, state, fly, rows, exc, pmax, mean, drift_var)
+    free_rows = None
+    if cfg.second_wheel:  # the joint fit: the free end's rows (zero rows for a cycle without them)
+        if bal.free_rows is not None and free_end is not None:
+            stats2, *free_rows = free_end_whitened(wheel2.stats, *bal.free_rows, state.params, free_end.harmonics,
+                                                   free_end.omega_mean, free_end.residual_rms, free_end.n_edges,
+                                                   cfg.noise_memory, cfg.model_rel_error)
+            wheel2 = replace(wheel2, stats=stats2)
+        else:
+            free_rows = no_free_end_rows(m, state.params.shape[0])
+    ident = identify_cycle(cfg, spec, state, fly, rows, exc, pmax, mean, drift_var, free_rows)
     health = None
     if cfg.sensor_health is not None:
         sensor, health = check_cycle(cfg.sensor_health, spec, sensor, cycle.grid, raw_pressure, pressure, op_used,

@@ -114,6 +114,10 @@ class MonitorConfig:
     model_error_floor: ModelErrorFloor = ModelErrorFloor()
     calibration: Calibration = Calibration()
     r_squared_floor: float = 0.05
+    # the joint fit of both wheels: the second wheel's half-order speed equations accumulated with the flywheel's
+    # (core.monitor.identify.free_end_rows; its node: the engine file's [sensors.second_wheel]); set by the pipeline
+    # when the acquisition states a second wheel
+    second_wheel: bool = False
 
     def __post_init__(self) -> None:
         tau = self.forgetting_time_s

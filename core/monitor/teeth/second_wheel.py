@@ -7,8 +7,8 @@ in-band tooth pattern as nuisance columns, the out-of-band tooth-spacing error l
 
 ``FreeEndSpeed`` keeps what the balance needs of it: the mean speed, the angle harmonics of the free-end node and
 the time of its window's first edge relative to the flywheel's (each fit's harmonics are referred to its own first
-edge; ``harmonics_at(t)`` refers them to another origin). The joint fit of both wheels in the harmonic balance and
-the identification is not built yet (docs/design-notes.md: "The second wheel in the balance").
+edge; ``harmonics_at(t)`` refers them to another origin). The joint fit of both wheels (its half-order speed
+equations with the flywheel's): core.monitor.identify.free_end_rows.
 """
 
 from __future__ import annotations
@@ -16,6 +16,9 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.monitor.balance.harmonic_balance import OperatingPoint
+from frictionwatch.core.monitor.identify.accumulate import ResidualStats
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
 from frictionwatch.core.monitor.teeth.tooth_fit import ToothPatterns, fit_cycle_teeth
 from frictionwatch.core.types import Cycle
@@ -25,10 +28,12 @@ FOUR_PI = 4.0 * np.pi
 
 @dataclass(frozen=True)
 class SecondWheelState:
-    """The second wheel's tooth learner (its positions) and in-band pattern cache, carried cycle to cycle."""
+    """The second wheel's tooth learner (its positions) and in-band pattern cache, carried cycle to cycle, and the
+    residual statistics of its speed equations in the joint fit (core.monitor.identify.free_end_rows)."""
 
     teeth: ToothLearner
     patterns: ToothPatterns | None = None
+    stats: ResidualStats | None = None
 
 
 @dataclass(frozen=True)
@@ -46,9 +51,11 @@ class FreeEndSpeed:
     n_edges: int
 
     def harmonics_at(self, t_s: float) -> np.ndarray:
-        """The harmonics referred to an origin ``t_s`` [s] after the flywheel window's first edge (0: that edge)."""
+        """The harmonics referred to an origin ``t_s`` [s] after the flywheel window's first edge (0: that edge):
+        phi(tau) = sum Re(Phi_m exp(i w_m tau)) with tau from its own first edge (core.monitor.teeth.flywheel) is
+        sum Re(Phi_m exp(-i w_m (t_first_s - t_s)) exp(i w_m tau')) with tau' from ``t_s``."""
         w = 0.5 * self.omega_mean * np.arange(1, self.harmonics.shape[0] + 1)
-        return self.harmonics * np.exp(1j * w * (self.t_first_s - t_s))
+        return self.harmonics * np.exp(-1j * w * (self.t_first_s - t_s))
 
     @property
     def speed_harmonics(self) -> np.ndarray:
@@ -68,7 +75,7 @@ def fit_second_wheel(cycle: Cycle, state: SecondWheelState | None, n_harmonics: 
     if w is None:
         return None, state, None
     if state is None or state.teeth.correction.shape[0] != w.teeth:  # first sight, or another wheel stated
-        state = SecondWheelState(ToothLearner.empty(w.teeth))
+        state = SecondWheelState(ToothLearner.empty(w.teeth), None, None if state is None else state.stats)
     view = replace(cycle, tooth_ticks=w.ticks, tooth_angle=w.angle, tooth_index=w.index, wheel2=None)
     try:
         fly, teeth, _, patterns = fit_cycle_teeth(view, w.teeth, n_harmonics, n_nuisance, state.teeth,
@@ -78,4 +85,16 @@ def fit_second_wheel(cycle: Cycle, state: SecondWheelState | None, n_harmonics: 
     speed = FreeEndSpeed(omega_mean=fly.omega_mean, harmonics=fly.harmonics.copy(),
                          t_first_s=float(w.ticks[0] - cycle.tooth_ticks[0]) / cycle.tick_hz,
                          residual_rms=fly.residual_rms, n_edges=fly.n_edges)
-    return speed, SecondWheelState(teeth, patterns), None
+    return speed, SecondWheelState(teeth, patterns, state.stats), None
+
+
+def free_end_input(spec: EngineSpec, op: OperatingPoint, free: FreeEndSpeed | None
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+    """What the harmonic balance needs for the second wheel's equations (core.monitor.balance.harmonic_balance):
+    the chain's speed transfer to its node (the engine file's [sensors.second_wheel] node; a one-node chain: that
+    node) and its harmonics referred to the flywheel window's first edge; None without a fit or a stated node."""
+    if free is None or spec.sensors.second_wheel is None:
+        return None
+    n_nodes = op.receptance.inverse.shape[1]
+    node = spec.sensors.second_wheel.node if n_nodes == len(spec.node_names) else 0
+    return op.receptance.speed_transfer(node), free.harmonics_at(0.0)
