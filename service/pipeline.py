@@ -45,9 +45,10 @@ class EnginePipeline:
 
     def __init__(self, engine: EngineModel | EngineSpec, info: AcquisitionInfo, config: MonitorConfig | None = None,
                  on_cycle: Callable[[Cycle], None] | None = None):
-        if info.second_wheel is not None and as_model(engine).spec.sensors.second_wheel is not None:
-            # two wheels and the engine file says where the second one sits: the joint fit of both
-            config = dataclasses.replace(config or MonitorConfig(), second_wheel=True)
+        if config is not None and config.second_wheel and (info.second_wheel is None or
+                                                           as_model(engine).spec.sensors.second_wheel is None):
+            # the joint fit asked for without a second wheel in the log or its node in the engine file: one wheel
+            config = dataclasses.replace(config, second_wheel=False)
         self.cycles = CyclePipeline(engine, config, on_cycle=on_cycle)
         self.model, self.spec, self.config = self.cycles.model, self.cycles.spec, self.cycles.config
         self.info = info

@@ -190,9 +190,11 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     free_rows = None
     if cfg.second_wheel:  # the joint fit: the free end's rows (zero rows for a cycle without them)
         if bal.free_rows is not None and free_end is not None:
-            stats2, *free_rows = free_end_whitened(wheel2.stats, *bal.free_rows, state.params, free_end.harmonics,
-                                                   free_end.omega_mean, free_end.residual_rms, free_end.n_edges,
-                                                   cfg.noise_memory, cfg.model_rel_error)
+            drift2 = None if free_end.drift_harmonics is None else free_end.harmonics_at(0.0, free_end.drift_harmonics)
+            stats2, *free_rows = free_end_whitened(
+                wheel2.stats, *bal.free_rows, state.params, free_end.harmonics,
+                (free_end.omega_mean, FOUR_PI / free_end.omega_mean, free_end.residual_rms, free_end.n_edges),
+                (drift2, drift_var), (cfg.noise_memory, cfg.model_rel_error))
             wheel2 = replace(wheel2, stats=stats2)
         else:
             free_rows = no_free_end_rows(m, state.params.shape[0])

@@ -49,13 +49,16 @@ class FreeEndSpeed:
     t_first_s: float
     residual_rms: float
     n_edges: int
+    drift_harmonics: np.ndarray | None = None  # (M,) complex [rad]: its fit's drift pattern q(u), same reference
 
-    def harmonics_at(self, t_s: float) -> np.ndarray:
+    def harmonics_at(self, t_s: float, values: np.ndarray | None = None) -> np.ndarray:
         """The harmonics referred to an origin ``t_s`` [s] after the flywheel window's first edge (0: that edge):
         phi(tau) = sum Re(Phi_m exp(i w_m tau)) with tau from its own first edge (core.monitor.teeth.flywheel) is
-        sum Re(Phi_m exp(-i w_m (t_first_s - t_s)) exp(i w_m tau')) with tau' from ``t_s``."""
-        w = 0.5 * self.omega_mean * np.arange(1, self.harmonics.shape[0] + 1)
-        return self.harmonics * np.exp(-1j * w * (self.t_first_s - t_s))
+        sum Re(Phi_m exp(-i w_m (t_first_s - t_s)) exp(i w_m tau')) with tau' from ``t_s``. ``values``: other
+        harmonics of the same reference (the drift pattern's) instead of the angle's."""
+        h = self.harmonics if values is None else values
+        w = 0.5 * self.omega_mean * np.arange(1, h.shape[0] + 1)
+        return h * np.exp(-1j * w * (self.t_first_s - t_s))
 
     @property
     def speed_harmonics(self) -> np.ndarray:
@@ -84,7 +87,8 @@ def fit_second_wheel(cycle: Cycle, state: SecondWheelState | None, n_harmonics: 
         return None, state, "second_wheel_bad_teeth"
     speed = FreeEndSpeed(omega_mean=fly.omega_mean, harmonics=fly.harmonics.copy(),
                          t_first_s=float(w.ticks[0] - cycle.tooth_ticks[0]) / cycle.tick_hz,
-                         residual_rms=fly.residual_rms, n_edges=fly.n_edges)
+                         residual_rms=fly.residual_rms, n_edges=fly.n_edges,
+                         drift_harmonics=fly.pattern_harmonics[:, -1].copy() if settings[0] else None)
     return speed, SecondWheelState(teeth, patterns, state.stats), None
 
 
