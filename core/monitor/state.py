@@ -117,7 +117,7 @@ class MonitorConfig:
     # the joint fit of both wheels: the second wheel's half-order speed equations accumulated with the flywheel's
     # (core.monitor.identify.free_end_rows; its node: the engine file's [sensors.second_wheel]). Off by default: on
     # genset-v20 (seed 29, 600-1,000 cycles at one load) it pulls the ring-group scales 0.1-0.6 low and F5/F6 high
-    # (bench/accuracy_v20_wheels.py): the free end's equations miss the plant by 2-52 % of the harmonic at orders
+    # (bench/accuracy_v20_wheels.py): the free end's equations miss the plant by 1.7-52 % of the harmonic at orders
     # 5.5-11.5, around the crankshaft's first mode (bench/second_wheel_consistency.py; docs/design-notes.md "The
     # second wheel"). The second wheel's own speed and tooth learning run whatever this says.
     second_wheel: bool = False
