@@ -101,7 +101,7 @@ def initial_state(engine: EngineModel | EngineSpec, config: MonitorConfig | None
         raise ValueError(f"tooth_correction must have one angle per wheel position ({spec.sensors.wheel_teeth})")
     n_nuis = 2 * (m // 2) if cfg.tooth_nuisance else 0
     p = layout.n_params + n_nuis
-    rows = 2 * m + 1 + (2 * half_order_rows(m).size if cfg.second_wheel else 0)  # the joint fit: the free end's too
+    rows = 2 * m + 1 + (2 * half_order_rows(m, cfg.second_wheel_max_order).size if cfg.second_wheel else 0)
     lower = np.concatenate([np.zeros(layout.n_params), np.full(n_nuis, -np.inf)])
     lower.flags.writeable = False
     correction = (np.zeros(spec.sensors.wheel_teeth) if tooth_correction is None
@@ -194,10 +194,10 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
             stats2, *free_rows = free_end_whitened(
                 wheel2.stats, *bal.free_rows, state.params, free_end.harmonics,
                 (free_end.omega_mean, FOUR_PI / free_end.omega_mean, free_end.residual_rms, free_end.n_edges),
-                (drift2, drift_var), (cfg.noise_memory, cfg.model_rel_error))
+                (drift2, drift_var), (cfg.noise_memory, cfg.model_rel_error), cfg.second_wheel_max_order)
             wheel2 = replace(wheel2, stats=stats2)
         else:
-            free_rows = no_free_end_rows(m, state.params.shape[0])
+            free_rows = no_free_end_rows(m, state.params.shape[0], cfg.second_wheel_max_order)
     ident = identify_cycle(cfg, spec, state, fly, rows, exc, pmax, mean, drift_var, free_rows)
     health = None
     if cfg.sensor_health is not None:

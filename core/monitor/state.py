@@ -121,6 +121,10 @@ class MonitorConfig:
     # 5.5-11.5, around the crankshaft's first mode (bench/second_wheel_consistency.py; docs/design-notes.md "The
     # second wheel"). The second wheel's own speed and tooth learning run whatever this says.
     second_wheel: bool = False
+    # the highest half order of the free end's equations in the joint fit: 4.5, the highest whose residual at the
+    # true scales is within 1.5 standard errors on genset-v20 (bench/second_wheel_consistency.py, seed 7, load
+    # 0.75, 120 cycles; 5.5: 3.4, 8.5: 17.5 standard errors); validated on seed 29 by bench/accuracy_v20_wheels.py
+    second_wheel_max_order: float = 4.5
 
     def __post_init__(self) -> None:
         tau = self.forgetting_time_s

@@ -22,25 +22,28 @@ import numpy as np
 from frictionwatch.core.monitor.identify.accumulate import ResidualStats
 
 
-def half_order_rows(m: int) -> np.ndarray:
-    """Indices j of the harmonics m = j + 1 that are half orders (j even)."""
-    return np.arange(0, m, 2)
+def half_order_rows(m: int, max_order: float = np.inf) -> np.ndarray:
+    """Indices j of the harmonics m = j + 1 that are half orders (j even), up to order ``max_order``."""
+    j = np.arange(0, m, 2)
+    return j[(j + 1) / 2.0 <= max_order]
 
 
 def free_end_whitened(stats: ResidualStats | None, design: np.ndarray, target: np.ndarray, params: np.ndarray,
                       harmonics: np.ndarray, fit: tuple[float, float, float, int], drift: tuple[np.ndarray | None, float],
-                      noise: tuple[float, float]) -> tuple[ResidualStats, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                      noise: tuple[float, float], max_order: float = np.inf
+                      ) -> tuple[ResidualStats, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(stats, a (2H, P), y (2H,), inv_sigma (2H,), sys_var (2H,)) of the H half-order rows of one cycle.
 
     design (M, P) complex, target (M,) complex: the free-end speed equations; params (P,) the previous estimate;
     harmonics (M,) complex [rad]: the free end's fitted angle harmonics; fit = (omega [rad/s], period [s],
     residual_rms [rad], n_edges) of its tooth fit; drift = (its drift pattern's harmonics (M,) complex [rad] or None,
     the variance of the cycle-to-cycle mean-speed step [rad^2/s^2]); noise = (memory of the statistics,
-    model_rel_error); stats: the rows' residual statistics before this cycle (None: none yet)."""
+    model_rel_error); stats: the rows' residual statistics before this cycle (None: none yet); max_order: the
+    highest half order taken (MonitorConfig.second_wheel_max_order)."""
     omega, period, residual_rms, n_edges = fit
     drift_harm, drift_var = drift
     memory, model_rel_error = noise
-    rows = half_order_rows(design.shape[0])
+    rows = half_order_rows(design.shape[0], max_order)
     d, t = design[rows], target[rows]
     if stats is None or stats.mean.shape[0] != rows.size:
         stats = ResidualStats.empty(rows.size)
@@ -68,7 +71,8 @@ def free_end_whitened(stats: ResidualStats | None, design: np.ndarray, target: n
     return stats, a, y, inv, np.concatenate([v, v])
 
 
-def no_free_end_rows(m: int, p: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def no_free_end_rows(m: int, p: int, max_order: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                          np.ndarray]:
     """Zero rows (a cycle without the second wheel): (a, y, inv_sigma, sys_var) of the same shapes."""
-    h = 2 * half_order_rows(m).size
+    h = 2 * half_order_rows(m, max_order).size
     return np.zeros((h, p)), np.zeros(h), np.zeros(h), np.zeros(h)
