@@ -3,8 +3,8 @@ monitor measures within 5 % and 2 sigma, and what the two-wheel monitor path cos
 
     nice .venv/bin/python -m bench.accuracy_v20_wheels [--cycles 4000] [--seed 29] [--every 500] [--dwell-s 30]
 
-The plant streams genset-v20 with its free-end wheel (``simulate --second-wheel``: the engine file's 120-1 at the
-front hub) under bench.accuracy_v20_long's load profile (set-points within 0.75 +- 0.20 of rated), compressed for a
+The plant streams genset-v20 with a free-end wheel (``simulate --second-wheel`` on bench/genset-v20-two-wheels.toml:
+the preset's text plus a 120-1 wheel at the front hub) under bench.accuracy_v20_long's load profile (set-points within 0.75 +- 0.20 of rated), compressed for a
 short run (``--dwell-s`` at each set-point, ``--ramp`` % of rated per minute). The same records go to three pipelines
 (service.pipeline.EnginePipeline): "one_wheel" told of no second wheel (its records ignored), "two_wheels" the
 default path with both (the second wheel's own speed and tooth learning; the estimates are one_wheel's), "joint"
@@ -28,6 +28,7 @@ from frictionwatch.core.plant.simulate import start_simulation
 from bench.accuracy_v20_long import BASE_LOAD, ENGINE, RPM, TRUTH_WINDOW, Runs, load_profile, summary_line, write_json
 
 OUT_JSON = Path(__file__).with_name("accuracy_v20_wheels.json")
+TWO_WHEELS = Path(__file__).with_name("genset-v20-two-wheels.toml")  # the preset's text plus its free-end wheel
 
 
 def main() -> None:
@@ -39,7 +40,7 @@ def main() -> None:
     ap.add_argument("--ramp", type=float, default=60.0, help="ramp between set-points [% of rated per minute]")
     ap.add_argument("--json", default=str(OUT_JSON))
     args = ap.parse_args()
-    spec = load_engine(ENGINE)
+    spec = load_engine(TWO_WHEELS)
     hours = args.cycles / (RPM / 120.0) / 3600.0
     steps = load_profile(hours, dwell_s=args.dwell_s, ramp_pct_per_min=args.ramp)
     sim = start_simulation(spec, RPM, BASE_LOAD, args.cycles, args.seed, load_steps=steps, second_wheel=True)

@@ -21,6 +21,8 @@ from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.pipeline import EnginePipeline
 
+from bench.accuracy_v20_wheels import TWO_WHEELS
+
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -37,7 +39,7 @@ def main() -> None:
 
     mon.free_end_whitened = keep
     try:
-        spec = load_engine("genset-v20")
+        spec = load_engine(TWO_WHEELS)
         sim = simulate(spec, 1500.0, args.load, args.cycles, args.seed, second_wheel=True)
         pipe = EnginePipeline(spec, sim.info, MonitorConfig(second_wheel=True))
         for record in sim.records:

@@ -123,7 +123,9 @@ class MonitorConfig:
     second_wheel: bool = False
     # the highest half order of the free end's equations in the joint fit: 4.5, the highest whose residual at the
     # true scales is within 1.5 standard errors on genset-v20 (bench/second_wheel_consistency.py, seed 7, load
-    # 0.75, 120 cycles; 5.5: 3.4, 8.5: 17.5 standard errors); validated on seed 29 by bench/accuracy_v20_wheels.py
+    # 0.75, 120 cycles; 5.5: 3.4, 8.5: 17.5 standard errors). Not validated: on seed 29 (+-20 % profile,
+    # bench/accuracy_v20_wheels.py --cycles 2000) the joint fit with it measured 3 cylinders, 0 within 5 % and 2 sigma,
+    # against one wheel's 9 and 6
     second_wheel_max_order: float = 4.5
 
     def __post_init__(self) -> None:

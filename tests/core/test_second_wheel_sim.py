@@ -90,3 +90,17 @@ def test_a_second_wheel_must_be_declared_and_named_right(tmp_path):
     spec = load_engine(k9k_with_wheel(tmp_path, WHEEL.replace('node = "pulley_hub"\n', "")))
     assert spec.sensors.second_wheel.node == 0  # default: the free end (the shaft's first node)
     assert load_engine("k9k-4cyl").sensors.second_wheel is None
+
+
+def test_the_two_wheel_genset_file_is_the_preset_plus_its_wheel():
+    """bench/genset-v20-two-wheels.toml (the benches' two-wheel genset) is the preset verbatim plus the table, so
+    the two cannot drift apart; the preset itself has no second wheel (its logs embed its text)."""
+    root = Path(__file__).resolve().parents[2]
+    two = (root / "bench" / "genset-v20-two-wheels.toml").read_text()
+    preset = (PRESET_DIR / "genset-v20.toml").read_text()
+    body = two.split("\n", 2)[2]  # without its two comment lines
+    start, end = body.index("\n[sensors.second_wheel]"), body.index("\n[operating]")
+    assert body[:start] + body[end:] == preset
+    spec = load_engine(root / "bench" / "genset-v20-two-wheels.toml")
+    assert spec.sensors.second_wheel is not None and spec.node_names[spec.sensors.second_wheel.node] == "front_hub"
+    assert load_engine("genset-v20").sensors.second_wheel is None
