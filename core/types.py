@@ -3,6 +3,7 @@
 Stream records (what a driver yields, in acquisition order, time in integer timer ticks):
 
 - ``ToothBatch``    rising-edge times of the crank wheel teeth
+- ``FreeEndToothBatch`` rising-edge times of a second wheel's teeth (at the free end of the crankshaft), same clock
 - ``CamBatch``      edges of the cam / phase sensor (one per 720 deg)
 - ``PressureBlock`` equally spaced samples of one cylinder's pressure
 - ``PressureFrame`` equally spaced samples of several cylinders taken together on one clock (an indicating system
@@ -22,6 +23,14 @@ import numpy as np
 @dataclass(frozen=True)
 class ToothBatch:
     """Rising edges of the crank-wheel sensor. ``ticks`` int64, strictly increasing, timer clock ``tick_hz``."""
+
+    ticks: np.ndarray
+
+
+@dataclass(frozen=True)
+class FreeEndToothBatch:
+    """Rising edges of the second wheel's sensor (``AcquisitionInfo.second_wheel``): int64 ticks, strictly increasing,
+    on the same timer clock as ``ToothBatch``."""
 
     ticks: np.ndarray
 
@@ -69,7 +78,17 @@ class LoadSample:
     power: float
 
 
-StreamRecord = ToothBatch | CamBatch | PressureBlock | PressureFrame | LoadSample
+StreamRecord = ToothBatch | CamBatch | PressureBlock | PressureFrame | LoadSample | FreeEndToothBatch
+
+
+@dataclass(frozen=True)
+class WheelInfo:
+    """A tooth wheel as the acquisition states it: tooth positions including missing ones, missing teeth (the gap),
+    and the crank angle [deg] (cylinder-1 firing TDC = 0, at the wheel's own node) of the first edge after the gap."""
+
+    teeth: int
+    missing: int
+    first_tooth_deg: float
 
 
 @dataclass(frozen=True)
@@ -82,6 +101,20 @@ class AcquisitionInfo:
     first_tooth_deg: float  # crank angle (cyl-1 firing TDC = 0) of the first edge after the gap
     cam_deg: float | None = None  # crank angle of the cam edge, None if no cam signal
     pressure_cylinders: tuple[int, ...] = ()
+    second_wheel: WheelInfo | None = None  # the free-end wheel (FreeEndToothBatch), None if there is none
+
+
+@dataclass(frozen=True)
+class WheelTeeth:
+    """One cycle's edges of the second wheel, cut as ``Cycle``'s own (the same bracketing of [0, 4 pi], in that
+    wheel's nominal angle): ``ticks`` (m,) int64, ``angle`` (m,) rad nominal (first_tooth_deg + j 360/N, unwrapped),
+    ``index`` (m,) int64 tooth index on that wheel (0 = first after its gap), ``teeth`` its tooth positions
+    (missing ones included: the index runs modulo it)."""
+
+    ticks: np.ndarray
+    angle: np.ndarray
+    index: np.ndarray
+    teeth: int
 
 
 @dataclass(frozen=True)
@@ -106,6 +139,8 @@ class Cycle:
     load_power       mean electrical power [W] (NaN if not measured)
     phase_source     how the 4-stroke phase was found: 'cam' or 'pressure' (physics.md §14.5)
     flags            notes that do not void the cycle, e.g. 'phase_unchecked', 'no_cam_edge'
+    wheel2           the second wheel's edges of this cycle (``WheelTeeth``), None without a second wheel or when
+                     its edges do not cover the cycle (then flag 'no_second_wheel')
     """
 
     index: int
@@ -119,6 +154,7 @@ class Cycle:
     load_power: float
     phase_source: str = "cam"  # 'cam' or 'pressure'
     flags: tuple[str, ...] = field(default=())
+    wheel2: WheelTeeth | None = None
 
     @property
     def t_start(self) -> float:

@@ -36,6 +36,7 @@ import numpy as np
 from frictionwatch.core.types import (
     AcquisitionInfo,
     CamBatch,
+    FreeEndToothBatch,
     LoadSample,
     PressureBlock,
     PressureFrame,
@@ -47,7 +48,7 @@ from frictionwatch.drivers.can.codec import FD_SAMPLES, SA_GENSET, encode_load
 from frictionwatch.drivers.can.decoder import CanDecoder
 from frictionwatch.drivers.can.encoder import PressureEncoder
 from frictionwatch.drivers.logs.mcap_schema import last_tick
-from frictionwatch.drivers.serial.codec import CamFrame, Decoder, Encoder, TeethFrame
+from frictionwatch.drivers.serial.codec import CamFrame, Decoder, Encoder, Teeth2Frame, TeethFrame
 from frictionwatch.drivers.timebase import TimerUnwrapper
 
 log = logging.getLogger(__name__)
@@ -56,7 +57,7 @@ SERIAL, CAN = "serial", "can"
 FRAME_SPAN_S = 0.002  # docs/protocols.md §2.6 rule 1
 HEARTBEAT_S = 0.1  # rule 2
 INFO_EVERY_S = 1.0  # rule 3
-_RANK = {ToothBatch: 0, CamBatch: 1, PressureBlock: 2, PressureFrame: 2, LoadSample: 3}
+_RANK = {ToothBatch: 0, CamBatch: 1, PressureBlock: 2, PressureFrame: 2, LoadSample: 3, FreeEndToothBatch: 4}
 
 
 @dataclass(frozen=True)
@@ -96,7 +97,8 @@ def _edge_groups(ticks: np.ndarray, max_edges: int, span: float) -> list[tuple[f
 def serial_events(records: Iterable[StreamRecord], info: AcquisitionInfo, *, encoder: Encoder | None = None,
                   max_edges: int = 32, frame_span_s: float = FRAME_SPAN_S, heartbeat_s: float = HEARTBEAT_S,
                   info_every_s: float = INFO_EVERY_S) -> list[WireEvent]:
-    """The tooth board's serial output for the ToothBatch / CamBatch records (others are ignored).
+    """The tooth board's serial output for the ToothBatch / CamBatch / FreeEndToothBatch records (others are ignored;
+    the second wheel's edges go out as TEETH2 frames and its description in the INFO frame, when ``info`` has one).
 
     Frames are numbered (SEQ) in send order by ``encoder`` (a fresh one by default; pass one to continue a link).
     """
@@ -104,9 +106,11 @@ def serial_events(records: Iterable[StreamRecord], info: AcquisitionInfo, *, enc
     records = list(records)
     teeth = [r.ticks for r in records if isinstance(r, ToothBatch)]
     cams = [r.ticks for r in records if isinstance(r, CamBatch)]
+    teeth2 = [r.ticks for r in records if isinstance(r, FreeEndToothBatch)]
     t = np.concatenate(teeth).astype(np.int64) if teeth else np.empty(0, np.int64)
     c = np.concatenate(cams).astype(np.int64) if cams else np.empty(0, np.int64)
-    if t.size == 0 and c.size == 0:
+    t2 = np.concatenate(teeth2).astype(np.int64) if teeth2 else np.empty(0, np.int64)
+    if t.size == 0 and c.size == 0 and t2.size == 0:
         return []
     hz = info.tick_hz
     plan: list[tuple[float, int, Callable[[], bytes]]] = []  # (send tick, order on ties, encoder call)
@@ -114,14 +118,19 @@ def serial_events(records: Iterable[StreamRecord], info: AcquisitionInfo, *, enc
         plan.append((send, 1, lambda e=edges: enc.teeth(e)))
     for tc in c:
         plan.append((float(tc), 2, lambda tc=tc: enc.cam([tc])))
-    start = float(min(t[:1].tolist() + c[:1].tolist()))
+    for send, edges in _edge_groups(t2, max_edges, frame_span_s * hz):
+        plan.append((send, 4, lambda e=edges: enc.teeth2(e)))
+    start = float(min(t[:1].tolist() + c[:1].tolist() + t2[:1].tolist()))
+    w2 = info.second_wheel
+    wheel2 = None if w2 is None else (w2.teeth, w2.missing, _wrapped_deg(w2.first_tooth_deg))
     end = max(p[0] for p in plan)
     for tick in np.arange(start, end + 1.0, heartbeat_s * hz):
         plan.append((float(tick), 3, lambda tick=tick: enc.heartbeat(int(tick))))
     for tick in np.arange(start, end + 1.0, info_every_s * hz):
         plan.append((float(tick), 0, lambda: enc.info(hz, info.wheel_teeth, info.wheel_missing,
                                                       _wrapped_deg(info.first_tooth_deg),
-                                                      None if info.cam_deg is None else _wrapped_deg(info.cam_deg))))
+                                                      None if info.cam_deg is None else _wrapped_deg(info.cam_deg),
+                                                      second_wheel=wheel2)))
     plan.sort(key=lambda p: (p[0], p[1]))
     return [WireEvent(tick, SERIAL, make()) for tick, _, make in plan]  # SEQ assigned here, in send order
 
@@ -180,8 +189,8 @@ def received_records(events: Iterable[WireEvent], info: AcquisitionInfo,
     batch: list[can.Message] = []
 
     def teeth_and_cams(frames: list) -> list[StreamRecord]:
-        return [ToothBatch(f.ticks) if isinstance(f, TeethFrame) else CamBatch(f.ticks)
-                for f in frames if isinstance(f, TeethFrame | CamFrame)]
+        kinds = {TeethFrame: ToothBatch, CamFrame: CamBatch, Teeth2Frame: FreeEndToothBatch}
+        return [kinds[type(f)](f.ticks) for f in frames if type(f) in kinds]
 
     for ev in events:
         if ev.channel == CAN:

@@ -33,6 +33,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cov-imep", type=float, default=None, help="cycle-to-cycle COV of IMEP (fraction)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME[:key=value,...]", help="turn an effect on (repeat it for another cylinder)")
     p.add_argument("--without", action="append", default=[], metavar="NAME", help="turn a default effect off")
+    p.add_argument("--second-wheel", action="store_true",
+                   help="log the engine file's second wheel too ([sensors.second_wheel], e.g. genset-v20's free end)")
     p.add_argument("-o", "--output", required=True, type=Path, help="OUT.mcap (truth goes to OUT.truth.json)")
     p.set_defaults(func=run)
 
@@ -84,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     for path in (truth_file, log_path):  # before the run, not after it
         check_output_path(path)
     sim = start_simulation(spec, args.rpm, args.load, args.cycles, args.seed, effects=effects,
-                           without=set(args.without), **kwargs)
+                           without=set(args.without), second_wheel=args.second_wheel, **kwargs)
     try:
         with progress_bar(total=1.0, desc=f"simulate {spec.name}") as bar, \
                 atomic_paths(truth_file, log_path) as (truth_tmp, log_tmp):

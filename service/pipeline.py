@@ -5,6 +5,7 @@ No physics here: the pipeline counts and logs what it skips and never dies of ba
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator
@@ -22,6 +23,7 @@ from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 from frictionwatch.core.types import AcquisitionInfo, Cycle, StreamRecord
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.drivers.assembly.two_wheels import TwoWheelAssembler
 from frictionwatch.drivers.source import StreamRestart
 
 log = logging.getLogger(__name__)
@@ -43,6 +45,10 @@ class EnginePipeline:
 
     def __init__(self, engine: EngineModel | EngineSpec, info: AcquisitionInfo, config: MonitorConfig | None = None,
                  on_cycle: Callable[[Cycle], None] | None = None):
+        if config is not None and config.second_wheel and (info.second_wheel is None or
+                                                           as_model(engine).spec.sensors.second_wheel is None):
+            # the joint fit asked for without a second wheel in the log or its node in the engine file: one wheel
+            config = dataclasses.replace(config, second_wheel=False)
         self.cycles = CyclePipeline(engine, config, on_cycle=on_cycle)
         self.model, self.spec, self.config = self.cycles.model, self.cycles.spec, self.cycles.config
         self.info = info
@@ -147,8 +153,8 @@ def run(engine: EngineModel | EngineSpec, info: AcquisitionInfo, records: Iterab
 def cycle_assembler(spec: EngineSpec, info: AcquisitionInfo, first_index: int = 0) -> CycleAssembler:
     """The assembler of an engine's records into cycles, at the phases its wheel states (the pipeline's own);
     ``first_index``: the first cycle's index (a restart within one stream numbers on)."""
-    return CycleAssembler(info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm,
-                          first_index=first_index)
+    kind = CycleAssembler if info.second_wheel is None else TwoWheelAssembler  # a second wheel: its edges cut too
+    return kind(info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm, first_index=first_index)
 
 
 def assembled_cycles(engine: EngineModel | EngineSpec, info: AcquisitionInfo,

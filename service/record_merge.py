@@ -26,19 +26,28 @@ import math
 from collections import Counter
 from collections.abc import Iterable
 
-from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
+from frictionwatch.core.types import (
+    CamBatch,
+    FreeEndToothBatch,
+    LoadSample,
+    PressureBlock,
+    PressureFrame,
+    StreamRecord,
+    ToothBatch,
+)
 from frictionwatch.drivers.source import StreamRestart
 
 log = logging.getLogger(__name__)
 
 # ties: the simulator's order; a restart mark before the records it precedes
-_RANK = {StreamRestart: -1, ToothBatch: 0, CamBatch: 1, PressureBlock: 2, PressureFrame: 2, LoadSample: 3}
+_RANK = {StreamRestart: -1, ToothBatch: 0, CamBatch: 1, PressureBlock: 2, PressureFrame: 2, LoadSample: 3,
+         FreeEndToothBatch: 4}
 
 
 def record_key(record: StreamRecord | StreamRestart) -> float:
     """Tick of the record's last element (when it was complete): drivers.logs.mcap_schema.last_tick as a float; a
     restart mark's own tick."""
-    if isinstance(record, ToothBatch | CamBatch):
+    if isinstance(record, ToothBatch | CamBatch | FreeEndToothBatch):
         return float(record.ticks[-1])
     if isinstance(record, PressureBlock):
         return float(record.t0_ticks) + (len(record.values) - 1) * float(record.period_ticks)

@@ -6,7 +6,7 @@ from collections import Counter
 from pathlib import Path
 
 from frictionwatch.core.monitor.report.results import CycleResult
-from frictionwatch.core.types import CamBatch, LoadSample, PressureFrame, ToothBatch
+from frictionwatch.core.types import CamBatch, FreeEndToothBatch, LoadSample, PressureFrame, ToothBatch
 from frictionwatch.service.cli import main
 from frictionwatch.service.pipeline import run
 from numpy.testing import assert_allclose, assert_array_equal
@@ -55,7 +55,7 @@ def assert_same_records(got: list, want: list, rtol: float = 0.0) -> None:
     samples within ``rtol`` (0: to the bit)."""
     assert [type(r) for r in got] == [type(r) for r in want]
     for a, b in zip(got, want):
-        if isinstance(b, ToothBatch | CamBatch):
+        if isinstance(b, ToothBatch | CamBatch | FreeEndToothBatch):
             assert_array_equal(a.ticks, b.ticks)
         elif isinstance(b, PressureFrame):
             assert (a.cylinders, a.t0_ticks, a.period_ticks) == (b.cylinders, b.t0_ticks, b.period_ticks)

@@ -25,6 +25,7 @@ ALLOWED = {
     "tests/core/test_monitor_state.py": "the unit tests of the monitor state (initial_state, process_cycle)",
     "tests/drivers/test_cycles.py": "the unit tests of the cycle assembler",
     "tests/drivers/test_pressure_frames.py": "the assembler's tests on pressure frames and blocks",
+    "tests/drivers/test_two_wheels.py": "the unit tests of the two-wheel assembler (its wheel2_missing counters)",
     "bench/common.py": "timed_assembly times the assembler alone (bench/bench_cycles.py)",
 }
 

@@ -87,6 +87,18 @@ class LoadParams:
 
 
 @dataclass(frozen=True)
+class SecondWheelParams:
+    """A second tooth wheel (``[sensors.second_wheel]``), at shaft node ``node`` (index into ``EngineSpec.node_names``;
+    default the free end, node 0): its own tooth count, missing-tooth gap and first edge after the gap, in the
+    crank angle of cylinder 1's convention measured at that node."""
+
+    teeth: int  # tooth positions including the missing ones
+    missing: int
+    first_tooth_deg: float
+    node: int
+
+
+@dataclass(frozen=True)
 class SensorParams:
     wheel_teeth: int  # teeth positions on the wheel including the missing ones
     wheel_missing: int
@@ -97,6 +109,7 @@ class SensorParams:
     pressure_adc_bits: int
     pressure_range_pa: float
     has_cam: bool
+    second_wheel: SecondWheelParams | None = None  # none unless the engine file has [sensors.second_wheel]
 
 
 @dataclass(frozen=True)
@@ -245,6 +258,21 @@ def spec_from_toml_text(text: str, origin: str = "<text>") -> EngineSpec:
     except tomllib.TOMLDecodeError as exc:
         raise SpecError(f"{origin}: not valid TOML: {exc}") from exc
     return spec_from_dict(data, source_text=text, origin=origin)
+
+
+def _second_wheel(se: _Reader, names: list[str], origin: str) -> SecondWheelParams:
+    """``[sensors.second_wheel]``: teeth, missing, first_tooth_deg, node (a shaft node name, default the free end)."""
+    w = se.table("second_wheel")
+    teeth = w.int_("teeth", 4, 2000)
+    missing = w.int_("missing", 0, 4)
+    if missing >= teeth // 2:
+        raise SpecError(f"{origin}: sensors.second_wheel.missing = {missing} is too many for {teeth} teeth")
+    node = w.str_("node", default=names[0])
+    if node not in names:
+        raise SpecError(f"{origin}: sensors.second_wheel.node = {node!r} is not in shaft.nodes")
+    return SecondWheelParams(teeth=teeth, missing=missing,
+                             first_tooth_deg=w.num("first_tooth_deg", -360.0, 360.0, "deg", default=0.0),
+                             node=names.index(node))
 
 
 class _Reader:
@@ -444,6 +472,7 @@ def spec_from_dict(data: dict, source_text: str = "", origin: str = "<dict>") ->
         pressure_adc_bits=se.int_("pressure_adc_bits", 8, 24, default=16),
         pressure_range_pa=se.num("pressure_range_pa", 1e6, 1e8, "Pa", default=25e6),
         has_cam=se.bool_("has_cam", True),
+        second_wheel=_second_wheel(se, names, origin) if "second_wheel" in se.data else None,
     )
     if sensors.wheel_missing >= teeth // 2:
         raise SpecError(f"{origin}: sensors.wheel_missing = {sensors.wheel_missing} is too many for {teeth} teeth")

@@ -39,6 +39,7 @@ from frictionwatch.core.monitor.checks.condition import assess_condition
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthState, check_cycle, corrected_inputs, inflate
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, ResidualStats
 from frictionwatch.core.monitor.identify.estimate import indicated_tdc_sensitivity
+from frictionwatch.core.monitor.identify.free_end_rows import free_end_whitened, half_order_rows, no_free_end_rows
 from frictionwatch.core.monitor.identify.identification import (
     MeanBalance,
     grid_geometry,
@@ -54,6 +55,7 @@ from frictionwatch.core.monitor.report.report_kernels import trig_tables
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState, PreviousCycle
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
+from frictionwatch.core.monitor.teeth.second_wheel import fit_second_wheel, free_end_input
 from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth
 from frictionwatch.core.types import Cycle
 
@@ -100,11 +102,12 @@ def initial_state(engine: EngineModel | EngineSpec, config: MonitorConfig | None
         raise ValueError(f"tooth_correction must have one angle per wheel position ({spec.sensors.wheel_teeth})")
     n_nuis = 2 * (m // 2) if cfg.tooth_nuisance else 0
     p = layout.n_params + n_nuis
+    rows = 2 * m + 1 + (2 * half_order_rows(m, cfg.second_wheel_max_order).size if cfg.second_wheel else 0)
     lower = np.concatenate([np.zeros(layout.n_params), np.full(n_nuis, -np.inf)])
     lower.flags.writeable = False
     correction = (np.zeros(spec.sensors.wheel_teeth) if tooth_correction is None
                   else np.asarray(tooth_correction, dtype=np.float64).copy())
-    return MonitorState(layout=layout, n_harmonics=m, n_nuisance=n_nuis, accumulator=Accumulator.empty(p, 2 * m + 1),
+    return MonitorState(layout=layout, n_harmonics=m, n_nuisance=n_nuis, accumulator=Accumulator.empty(p, rows),
                         stats=ResidualStats.empty(m), params=np.concatenate([np.ones(layout.n_params),
                                                                              np.zeros(n_nuis)]),
                         op=None, relative_motion=None, static=None, teeth=ToothLearner(correction, 0),
@@ -130,6 +133,10 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
             cfg.tooth_memory, cfg.tooth_refit_cycles)
     except ValueError as exc:
         raise CycleRejected("bad_teeth", str(exc)) from exc
+    free_end, wheel2, wheel2_flag = fit_second_wheel(  # the free end's own speed and tooth spacing (none: nothing)
+        cycle, state.wheel2, m, state.n_nuisance, (cfg.drift_nuisance, round(2 * cfg.fit_order) if cfg.fit_order
+                                                   else m, cfg.fit_drift, cfg.learn_teeth, cfg.tooth_memory,
+                                                   cfg.tooth_refit_cycles))
     omega = fly.omega_mean
     load = cycle.load_torque if math.isfinite(cycle.load_torque) else cycle.load_power / omega
     if not math.isfinite(load):
@@ -142,8 +149,9 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     sensor = state.sensor if state.sensor is not None else SensorHealthState.empty(spec.n_cyl)
     raw_pressure, (pressure, op_used) = pressure, (corrected_inputs(sensor, pressure, op) if cfg.sensor_health
                                                    else (pressure, op))
+    free_in = free_end_input(spec, op_used, free_end) if cfg.second_wheel else None
     bal = harmonic_balance(op_used, state.params, state.n_nuisance, state.relative_motion, state.static, cycle.grid,
-                           pressure, fly, theta_start, cfg.passes, cfg.time_samples)
+                           pressure, fly, theta_start, cfg.passes, cfg.time_samples, free_in)
     exc, rows, rel, static = bal.excitation, bal.rows, bal.relative_motion, bal.static
     p_rel, p_gnd = bal.power_relative, bal.power_ground
     # relative dampers (damper, shaft, coupling) dissipate mean power that a balance against the load behind the
@@ -180,7 +188,18 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     tables = state.report_tables
     if tables.shape != (m, cfg.time_samples):
         tables = trig_tables(m, cfg.time_samples)
-    ident = identify_cycle(cfg, spec, state, fly, rows, exc, pmax, mean, drift_var)
+    free_rows = None
+    if cfg.second_wheel:  # the joint fit: the free end's rows (zero rows for a cycle without them)
+        if bal.free_rows is not None and free_end is not None:
+            drift2 = None if free_end.drift_harmonics is None else free_end.harmonics_at(0.0, free_end.drift_harmonics)
+            stats2, *free_rows = free_end_whitened(
+                wheel2.stats, *bal.free_rows, state.params, free_end.harmonics,
+                (free_end.omega_mean, FOUR_PI / free_end.omega_mean, free_end.residual_rms, free_end.n_edges),
+                (drift2, drift_var), (cfg.noise_memory, cfg.model_rel_error), cfg.second_wheel_max_order)
+            wheel2 = replace(wheel2, stats=stats2)
+        else:
+            free_rows = no_free_end_rows(m, state.params.shape[0], cfg.second_wheel_max_order)
+    ident = identify_cycle(cfg, spec, state, fly, rows, exc, pmax, mean, drift_var, free_rows)
     health = None
     if cfg.sensor_health is not None:
         sensor, health = check_cycle(cfg.sensor_health, spec, sensor, cycle.grid, raw_pressure, pressure, op_used,
@@ -194,8 +213,10 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
 
     result = build_result(spec, cycle, fly, exc, rows, state.layout, ident, mean, pmax, pmax_angle, flags, tables)
     fit_flags = ("speed_fit_poor",) if result.r_squared < cfg.r_squared_floor else ()  # NaN (no ripple): no flag
+    if wheel2_flag is not None:
+        fit_flags += (wheel2_flag,)
     result = replace(result, sensor_health=health, ring=cond.ring,  # one replace: the stage results not in build_result
-                     flags=result.flags + fit_flags)
+                     flags=result.flags + fit_flags, free_end=free_end)
     new_state = MonitorState(
         layout=state.layout, n_harmonics=m, n_nuisance=state.n_nuisance, accumulator=cond.accumulator,
         stats=ident.stats, params=ident.smoothed.params, op=op, relative_motion=rel, static=static, teeth=teeth,
@@ -204,7 +225,7 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         tooth_patterns=patterns, sensor=sensor, condition=cond.state,
         previous=PreviousCycle(int(cycle.tooth_ticks[0]), int(cycle.tooth_ticks[-1]), pressure.copy(), mid_speed,
                                load),  # a copy: a live source may reuse the cycle's buffer
-        grid_geometry=geometry, mid_speed_fit=mid_fit,
+        grid_geometry=geometry, mid_speed_fit=mid_fit, wheel2=wheel2,
     )  # every field (dataclasses.replace costs twice as much per cycle)
     return new_state, result
 

@@ -19,6 +19,7 @@ from frictionwatch.core.monitor.identify.layout import ParameterLayout
 from frictionwatch.core.monitor.identify.priors import PriorNormal
 from frictionwatch.core.monitor.report.report_kernels import TrigTables
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
+from frictionwatch.core.monitor.teeth.second_wheel import SecondWheelState
 from frictionwatch.core.monitor.teeth.tooth_fit import ToothPatterns
 from frictionwatch.core.types import Cycle
 
@@ -113,6 +114,19 @@ class MonitorConfig:
     model_error_floor: ModelErrorFloor = ModelErrorFloor()
     calibration: Calibration = Calibration()
     r_squared_floor: float = 0.05
+    # the joint fit of both wheels: the second wheel's half-order speed equations accumulated with the flywheel's
+    # (core.monitor.identify.free_end_rows; its node: the engine file's [sensors.second_wheel]). Off by default: on
+    # genset-v20 (seed 29, 600-1,000 cycles at one load) it pulls the ring-group scales 0.1-0.6 low and F5/F6 high
+    # (bench/accuracy_v20_wheels.py): the free end's equations miss the plant by 1.7-52 % of the harmonic at orders
+    # 5.5-11.5, around the crankshaft's first mode (bench/second_wheel_consistency.py; docs/design-notes.md "The
+    # second wheel"). The second wheel's own speed and tooth learning run whatever this says.
+    second_wheel: bool = False
+    # the highest half order of the free end's equations in the joint fit: 4.5, the highest whose residual at the
+    # true scales is within 1.5 standard errors on genset-v20 (bench/second_wheel_consistency.py, seed 7, load
+    # 0.75, 120 cycles; 5.5: 3.4, 8.5: 17.5 standard errors). Not validated: on seed 29 (+-20 % profile,
+    # bench/accuracy_v20_wheels.py --cycles 2000) the joint fit with it measured 3 cylinders, 0 within 5 % and 2 sigma,
+    # against one wheel's 9 and 6
+    second_wheel_max_order: float = 4.5
 
     def __post_init__(self) -> None:
         tau = self.forgetting_time_s
@@ -269,6 +283,7 @@ class MonitorState:
     previous: PreviousCycle | None = None  # the last analysed cycle: centred windows and the kinetic-energy term
     grid_geometry: GridGeometry | None = None  # the crank-angle grid's piston positions and J(2 pi)
     mid_speed_fit: MidSpeedFit | None = None  # the mid-cycle speed's slope row at the edges' angles
+    wheel2: SecondWheelState | None = None  # the second wheel's tooth learner (core.monitor.teeth.second_wheel)
 
     def previous_of(self, first_tick: int) -> PreviousCycle | None:
         """``previous`` if it is the cycle just before one whose first tooth edge is at ``first_tick``, else None."""

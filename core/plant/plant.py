@@ -51,12 +51,12 @@ warnings.filterwarnings("ignore", message="First-class function type", category=
 NQ_GLOBAL = 4
 # scalar layout ``sc``
 (S_R, S_L, S_E, S_AREA, S_PCC, S_MREC, S_VARJ, S_FLY, S_LOAD, S_WHEEL_OFF, S_CAM, S_PPERIOD, S_T0OUT, S_LPERIOD,
- S_GRID, S_CMIN, S_H, S_QPERKG, S_NSC) = range(19)
+ S_GRID, S_CMIN, S_H, S_QPERKG, S_NODE2, S_NSC) = range(20)
 # operating point ``op`` (updated between calls): fuel [kg], SOC [rad], beta_p, p_IVC, p_int, p_exh [Pa], omega est
 OP_FUEL, OP_SOC, OP_BETA, OP_PIVC, OP_PINT, OP_PEXH, OP_OMEGA, OP_N = range(8)
 # integer state ``ist``
 (I_NEXT_CYCLE, I_NEXT_GRID, I_NEXT_EDGE, I_NEXT_CAM, I_NEXT_SAMPLE, I_NEXT_LOAD, I_N_CYC, I_N_GRID, I_N_EDGE,
- I_N_CAM, I_N_SAMPLE, I_N_LOAD, I_STATUS, I_NIST) = range(14)
+ I_N_CAM, I_N_SAMPLE, I_N_LOAD, I_STATUS, I_NEXT_EDGE2, I_N_EDGE2, I_NIST) = range(16)
 TWO_PI = 2.0 * np.pi
 FOUR_PI = 4.0 * np.pi
 TRACE_LEAD = np.radians(30.0)  # next cycle's trace is made 30 deg before its gas-exchange TDC
@@ -303,9 +303,10 @@ def advance(model, firing, edges, state, ist, outs, theta_stop, t_stop):
     """Integrate the plant ``model`` (PlantArrays) with the cycles' pressure made from ``firing`` (Firing) until the
     flywheel angle reaches ``theta_stop`` [rad], t reaches ``t_stop`` [s] or a buffer fills.
 
-    edges = (wheel edge angles [rad], their tooth index); state = (th, om, acc, cumulative integrals, powers, pmax,
-    [t, last cycle time]), updated in place. Writes events into ``outs`` = (cycles, grid, edge, cam, samples, load)
-    at the counters in ``ist`` and returns the status: 0 angle reached, 1 time reached, 2 a buffer is full,
+    edges = (wheel edge angles [rad], their tooth index, the second wheel's edge angles [rad] and tooth index, both
+    empty without one); state = (th, om, acc, cumulative integrals, powers, pmax, [t, last cycle time]), updated in
+    place. Writes events into ``outs`` = (cycles, grid, edge, cam, samples, load, second-wheel edge) at the counters
+    in ``ist``. The second wheel turns with node ``sc[S_NODE2]`` (its own frame: no wheel offset) and returns the status: 0 angle reached, 1 time reached, 2 a buffer is full,
     3 a pressure lookup failed (bug), 4 state not finite.
     """
     inertia = model.nodes[0]
@@ -314,9 +315,9 @@ def advance(model, firing, edges, state, ist, outs, theta_stop, t_stop):
     fprm = model.friction
     traces, slot_cycle, tstep = model.traces
     op = firing.op
-    edge_angle, edge_index = edges
+    edge_angle, edge_index, edge_angle2, edge_index2 = edges
     th, om, acc, cum, pw, pmax, tarr = state
-    o_cyc, o_grid, o_edge, o_cam, o_samp, o_load = outs
+    o_cyc, o_grid, o_edge, o_cam, o_samp, o_load, o_edge2 = outs
     n = inertia.shape[0]
     z = phase.shape[0]
     nq = cum.shape[0]
@@ -330,6 +331,8 @@ def advance(model, firing, edges, state, ist, outs, theta_stop, t_stop):
     ths, oms = np.zeros(n), np.zeros(n)
     pw2, pw3, pw4, pw1n = np.zeros(nq), np.zeros(nq), np.zeros(nq), np.zeros(nq)
     npres = edge_angle.shape[0]
+    npres2 = edge_angle2.shape[0]
+    node2 = int(sc[S_NODE2])
     t0out = sc[S_T0OUT]
     _ensure_traces(th, model, firing, q)
     t = tarr[0]
@@ -343,7 +346,8 @@ def advance(model, firing, edges, state, ist, outs, theta_stop, t_stop):
             return 1
         if (ist[I_N_CYC] + 2 > o_cyc.shape[0] or ist[I_N_GRID] + 8 > o_grid.shape[0] or
                 ist[I_N_EDGE] + 8 > o_edge.shape[0] or ist[I_N_CAM] + 2 > o_cam.shape[0] or
-                ist[I_N_SAMPLE] + 16 > o_samp.shape[0] or ist[I_N_LOAD] + 2 > o_load.shape[0]):
+                ist[I_N_SAMPLE] + 16 > o_samp.shape[0] or ist[I_N_LOAD] + 2 > o_load.shape[0] or
+                (npres2 > 0 and ist[I_N_EDGE2] + 8 > o_edge2.shape[0])):
             return 2
         # ---- RK4 step (k1 = (om, acc) and pw at the current state are known) ----
         for i in range(n):
@@ -424,6 +428,18 @@ def advance(model, firing, edges, state, ist, outs, theta_stop, t_stop):
             o_edge[ist[I_N_EDGE], 1] = edge_index[j]
             ist[I_N_EDGE] += 1
             ist[I_NEXT_EDGE] += 1
+        while npres2 > 0:  # the second wheel's edges, at its own node
+            e = ist[I_NEXT_EDGE2]
+            r = e // npres2
+            j = e - r * npres2
+            target = edge_angle2[j] + TWO_PI * r
+            if target > th1[node2]:
+                break
+            s = _crossing(target, h, th[node2], om[node2], th1[node2], om1[node2])
+            o_edge2[ist[I_N_EDGE2], 0] = t + s * h
+            o_edge2[ist[I_N_EDGE2], 1] = edge_index2[j]
+            ist[I_N_EDGE2] += 1
+            ist[I_NEXT_EDGE2] += 1
         while sc[S_CAM] + FOUR_PI * ist[I_NEXT_CAM] - off <= th1[fly]:
             target = sc[S_CAM] + FOUR_PI * ist[I_NEXT_CAM] - off
             s = _crossing(target, h, th[fly], om[fly], th1[fly], om1[fly])

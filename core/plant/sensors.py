@@ -11,13 +11,33 @@ start of the records. ``core.plant.sim_records`` turns the plant's events into r
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
-from frictionwatch.core.model.engine import SensorParams
-from frictionwatch.core.types import CamBatch, LoadSample, PressureFrame, StreamRecord, ToothBatch
+from frictionwatch.core.model.engine import EngineSpec, SensorParams
+from frictionwatch.core.types import (
+    CamBatch,
+    FreeEndToothBatch,
+    LoadSample,
+    PressureFrame,
+    StreamRecord,
+    ToothBatch,
+)
 
 CAM_DEG = 630.0  # cam / phase edge: 90 deg before cylinder-1 firing TDC, wheel frame
 LOAD_RATE_HZ = 100.0
 PRESSURE_BLOCK_S = 0.010
+
+
+def second_wheel_sensors(spec: EngineSpec) -> SensorParams:
+    """The engine file's second wheel as a ``SensorParams`` of its own (its teeth, gap and first edge; the timer and
+    the rest as the flywheel's), so the wheel functions here serve both wheels."""
+    w = spec.sensors.second_wheel
+    if w is None:
+        raise ValueError(f"{spec.name} has no second wheel: add [sensors.second_wheel] (teeth, missing, "
+                         "first_tooth_deg, node) to its engine file")
+    return replace(spec.sensors, wheel_teeth=w.teeth, wheel_missing=w.missing, first_tooth_deg=w.first_tooth_deg,
+                   second_wheel=None)
 
 
 def tooth_errors(sensors: SensorParams, rng: np.random.Generator, sigma_deg: float, runout_deg: float = 0.0,
@@ -78,9 +98,10 @@ def pressure_adc(p: np.ndarray, sensors: SensorParams, noise_pa: float, rng: np.
 
 def keyed_records(edge_ticks: np.ndarray, teeth_per_batch: int, cam_ticks: np.ndarray, samples: np.ndarray,
                   sample_period_ticks: float, block_samples: int, load_ticks: np.ndarray, load_torque: np.ndarray,
-                  load_power: np.ndarray, first_sample: int = 0) -> list[tuple[int, int, StreamRecord]]:
-    """Stream records, each with its arrival key (its last tick, then the stream: teeth, cam, pressure, load), in
-    stream order; sorting by the first two (stably) gives the arrival order.
+                  load_power: np.ndarray, first_sample: int = 0, edge2_ticks: np.ndarray | None = None,
+                  teeth2_per_batch: int = 1) -> list[tuple[int, int, StreamRecord]]:
+    """Stream records, each with its arrival key (its last tick, then the stream: teeth, cam, pressure, load, second
+    wheel), in stream order; sorting by the first two (stably) gives the arrival order.
 
     samples : (m, z) pressure readings [Pa] of cylinders 1..z, sample i at (first_sample + i) * sample_period_ticks,
     cut into ``PressureFrame`` s of ``block_samples`` (all z cylinders sampled together, as an indicating system
@@ -104,4 +125,8 @@ def keyed_records(edge_ticks: np.ndarray, teeth_per_batch: int, cam_ticks: np.nd
         keyed.append((last, 2, frame))
     for t, tq, pw in zip(load_ticks, load_torque, load_power):
         keyed.append((int(t), 3, LoadSample(ticks=int(t), torque=float(tq), power=float(pw))))
+    if edge2_ticks is not None:
+        for i in range(0, edge2_ticks.shape[0], teeth2_per_batch):
+            b = edge2_ticks[i:i + teeth2_per_batch]
+            keyed.append((int(b[-1]), 4, FreeEndToothBatch(ticks=b.copy())))
     return keyed

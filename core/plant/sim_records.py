@@ -23,26 +23,35 @@ from frictionwatch.core.plant.sensors import (
     pressure_adc,
     to_ticks,
 )
-from frictionwatch.core.types import AcquisitionInfo, StreamRecord
+from frictionwatch.core.types import AcquisitionInfo, StreamRecord, WheelInfo
 
 
-def acquisition_info(spec: EngineSpec) -> AcquisitionInfo:
-    """What the simulated acquisition states (known before the run starts)."""
+def acquisition_info(spec: EngineSpec, second_wheel: bool = False) -> AcquisitionInfo:
+    """What the simulated acquisition states (known before the run starts); ``second_wheel``: the engine file's
+    second wheel is logged too."""
     se = spec.sensors
+    w = se.second_wheel if second_wheel else None
     return AcquisitionInfo(tick_hz=se.tick_hz, wheel_teeth=se.wheel_teeth, wheel_missing=se.wheel_missing,
                            first_tooth_deg=se.first_tooth_deg, cam_deg=CAM_DEG if se.has_cam else None,
-                           pressure_cylinders=tuple(range(1, spec.n_cyl + 1)))
+                           pressure_cylinders=tuple(range(1, spec.n_cyl + 1)),
+                           second_wheel=None if w is None else WheelInfo(w.teeth, w.missing, w.first_tooth_deg))
 
 
 class SensorRecords:
     """Sensor models applied to the plant's events of one run, chunk by chunk (see the module docstring).
 
     rngs: the run's eight generators; 3 edge jitter, 7 cam jitter, 4 pressure noise (one child stream per cylinder),
-    5 load noise. t_out0: the plant time [s] of tick 0; omega: the requested speed [rad/s] (load power noise)."""
+    5 load noise (a ninth, rngs[8], only with a second wheel: its edge jitter from a child of it). t_out0: the plant
+    time [s] of tick 0; omega: the requested speed [rad/s] (load power noise); second_wheel: its edges come in
+    ``add``'s ``edges2`` and leave as ``FreeEndToothBatch`` es of one revolution."""
 
     def __init__(self, spec: EngineSpec, sensors: SensorSetup, rngs: list[np.random.Generator], t_out0: float,
-                 omega: float):
+                 omega: float, second_wheel: bool = False):
         se = spec.sensors
+        w = se.second_wheel if second_wheel else None
+        self.per_rev2 = 0 if w is None else w.teeth - w.missing
+        self.rng_edge2 = rngs[8].spawn(1)[0] if w is not None else None
+        self.edges2 = np.zeros(0, np.int64)  # second-wheel edge ticks not yet in a full batch
         self.spec, self.fx, self.t0, self.omega = spec, sensors, t_out0, omega
         self.rng_edge, self.rng_cam, self.rng_load = rngs[3], rngs[7], rngs[5]
         self.rng_pressure = rngs[4].spawn(spec.n_cyl)
@@ -58,20 +67,25 @@ class SensorRecords:
         self.first_edge_index: int | None = None
         self.switches: list[tuple[float, SensorSetup]] = []  # (time since tick 0 [s], the set-up from then on)
 
-    _FIELDS = ("edges", "samples", "first_sample", "load_row", "last", "pending", "first_edge_index", "switches")
+    _FIELDS = ("edges", "samples", "first_sample", "load_row", "last", "pending", "first_edge_index", "switches",
+               "edges2")
+
+    def _generators(self) -> list[np.random.Generator]:
+        extra = [] if self.rng_edge2 is None else [self.rng_edge2]
+        return [self.rng_edge, self.rng_cam, self.rng_load, *self.rng_pressure, *extra]
 
     def checkpoint(self) -> dict:
         """The streams' state between chunks: partial batches and frames, pending records, the noise generators'
         states (so the continued run draws the same numbers)."""
         out = {name: copy.deepcopy(getattr(self, name)) for name in self._FIELDS}
-        out["rng"] = [g.bit_generator.state for g in (self.rng_edge, self.rng_cam, self.rng_load, *self.rng_pressure)]
+        out["rng"] = [g.bit_generator.state for g in self._generators()]
         return out
 
     def restore(self, ck: dict) -> None:
         """Continue from ``checkpoint()`` of the same run (this object made for it, at the same tick 0)."""
         for name in self._FIELDS:
             setattr(self, name, copy.deepcopy(ck[name]))
-        for g, state in zip((self.rng_edge, self.rng_cam, self.rng_load, *self.rng_pressure), ck["rng"]):
+        for g, state in zip(self._generators(), ck["rng"], strict=True):
             g.bit_generator.state = state
 
     def switch(self, time_s: float, sensors: SensorSetup) -> None:
@@ -80,14 +94,18 @@ class SensorRecords:
         of that time are added."""
         self.switches.append((float(time_s), sensors))
 
-    def add(self, edges: np.ndarray, cam: np.ndarray, samples: np.ndarray, load: np.ndarray) -> list[StreamRecord]:
+    def add(self, edges: np.ndarray, cam: np.ndarray, samples: np.ndarray, load: np.ndarray,
+            edges2: np.ndarray | None = None) -> list[StreamRecord]:
         """Records releasable after these events: edges (n, 2) = (time s, tooth index), cam (c,) times [s],
-        samples (m, z) true pressure [Pa] at the next m sample instants, load (l, 3) cumulative load rows."""
-        self._convert(edges, cam, samples, load, final=False)
+        samples (m, z) true pressure [Pa] at the next m sample instants, load (l, 3) cumulative load rows, edges2
+        (n2, 2) the second wheel's edges (with one)."""
+        self._convert(edges, cam, samples, load, final=False, edges2=edges2)
         # the least key any record still to come can have: tooth and cam ticks strictly increase, a frame not yet
         # cut ends at or after the next sample, a load sample may round to the tick of the last one
         bound = min(self.last["edge"] + 1, self._cam_bound(),
                     round((self.first_sample + len(self.samples)) * self.period_ticks), self.last["load"])
+        if self.per_rev2:
+            bound = min(bound, self.last.get("edge2", -1) + 1)
         ready = [r for r in self.pending if r[0] < bound]
         self.pending = [r for r in self.pending if r[0] >= bound]
         return [r[2] for r in ready]
@@ -115,7 +133,7 @@ class SensorRecords:
                 offset[after] = setup.pressure_offset_pa
         return gain, offset
 
-    def _convert(self, edges, cam, samples, load, *, final: bool) -> None:
+    def _convert(self, edges, cam, samples, load, *, final: bool, edges2=None) -> None:
         se, fx, t0 = self.spec.sensors, self.fx, self.t0
         jitter = fx.edge_jitter_ns * 1e-9
         if self.first_edge_index is None and edges.size:
@@ -154,6 +172,16 @@ class SensorRecords:
             load_ticks = np.round((rows[1:, 0] - t0) * se.tick_hz).astype(np.int64)
             if load_ticks.size:
                 self.last["load"] = int(load_ticks[-1])
+        ready2 = None
+        if self.per_rev2:  # the second wheel: its own jitter stream, batches of one revolution of its wheel
+            e2 = np.zeros((0, 2)) if edges2 is None else edges2
+            ticks2 = to_ticks(e2[:, 0] - t0, se.tick_hz, jitter, self.rng_edge2, after=self.last.get("edge2", -1))
+            if ticks2.size:
+                self.last["edge2"] = int(ticks2[-1])
+            all2 = np.concatenate([self.edges2, ticks2])
+            n2 = all2.size if final else all2.size - all2.size % self.per_rev2
+            ready2, self.edges2 = all2[:n2], all2[n2:]
         self.pending += keyed_records(all_edges[:n_edges], self.per_rev, cam_ticks, all_samples[:n_samples],
-                                      self.period_ticks, self.block, load_ticks, torque, power, first_sample)
+                                      self.period_ticks, self.block, load_ticks, torque, power, first_sample,
+                                      ready2, max(self.per_rev2, 1))
         self.pending.sort(key=lambda r: r[:2])  # stable: records of one stream and key keep their order

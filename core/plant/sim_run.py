@@ -18,12 +18,14 @@ from frictionwatch.core.plant.plant import (
     I_N_CAM,
     I_N_CYC,
     I_N_EDGE,
+    I_N_EDGE2,
     I_N_GRID,
     I_N_LOAD,
     I_N_SAMPLE,
     I_NEXT_CAM,
     I_NEXT_CYCLE,
     I_NEXT_EDGE,
+    I_NEXT_EDGE2,
     I_NIST,
     NQ_GLOBAL,
     OP_BETA,
@@ -38,6 +40,7 @@ from frictionwatch.core.plant.plant import (
     S_CMIN,
     S_H,
     S_LPERIOD,
+    S_NODE2,
     S_PPERIOD,
     S_QPERKG,
     S_T0OUT,
@@ -49,14 +52,23 @@ from frictionwatch.core.plant.plant import (
     advance,
 )
 from frictionwatch.core.plant.plant_setup import PlantModel, scalars
-from frictionwatch.core.plant.sensors import CAM_DEG, LOAD_RATE_HZ, edge_angles, first_index_at_or_after, tooth_errors
+from frictionwatch.core.plant.sensors import (
+    CAM_DEG,
+    LOAD_RATE_HZ,
+    edge_angles,
+    first_index_at_or_after,
+    second_wheel_sensors,
+    tooth_errors,
+)
 
 FAR = 1 << 50  # event index that never fires
 
 
 class PlantRun:
     def __init__(self, spec: EngineSpec, plant: PlantModel, tmodel: CylinderModel, *, h: float, omega: float,
-                 sensors: SensorSetup, rngs: list[np.random.Generator]):
+                 sensors: SensorSetup, rngs: list[np.random.Generator], second_wheel: bool = False):
+        """second_wheel: also the edges of the engine file's second wheel (``spec.sensors.second_wheel``), its tooth
+        errors drawn from ``rngs[8]`` (the run's ninth generator, made only then: every other stream unchanged)."""
         self.spec, self.plant, self.sensors, self.rngs, self.omega = spec, plant, sensors, rngs, omega
         z, n = spec.n_cyl, plant.n
         sc = scalars(spec, plant)
@@ -78,19 +90,32 @@ class PlantRun:
                                  plant.cylinders, sc, spec.friction_params(), self.lp, traces)
         self.tooth_err = tooth_errors(spec.sensors, rngs[2], sensors.tooth_sigma_deg, sensors.runout_deg,
                                       sensors.runout_phase_deg)
+        self.wheel2 = second_wheel_sensors(spec) if second_wheel else None
+        self.tooth_err2 = np.zeros(0)
+        edges2 = (np.zeros(0), np.zeros(0))
+        if self.wheel2 is not None:
+            # its own wheel: random errors of the same rms, its own runout phase (another wheel, mounted apart)
+            g = rngs[8]
+            self.tooth_err2 = tooth_errors(self.wheel2, g, sensors.tooth_sigma_deg, sensors.runout_deg,
+                                           float(g.uniform(0.0, 360.0)))
+            edges2 = (edge_angles(self.wheel2, self.tooth_err2),
+                      np.arange(self.wheel2.wheel_teeth - self.wheel2.wheel_missing, dtype=np.float64))
+            # rigid plant: one node carries everything; flexible: the wheel's own node
+            sc[S_NODE2] = spec.sensors.second_wheel.node if plant.n == len(spec.node_names) else 0
         self.edges = (edge_angles(spec.sensors, self.tooth_err),
-                      np.arange(spec.sensors.wheel_teeth - spec.sensors.wheel_missing, dtype=np.float64))
+                      np.arange(spec.sensors.wheel_teeth - spec.sensors.wheel_missing, dtype=np.float64), *edges2)
         nq = z * plant.nq_cyl + NQ_GLOBAL
         self.state = (np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(nq), np.zeros(nq), np.zeros(z),
                       np.array([0.0, -1.0]))
         self.ist = np.zeros(I_NIST, dtype=np.int64)
-        for i in (I_NEXT_EDGE, I_NEXT_CAM):
+        for i in (I_NEXT_EDGE, I_NEXT_CAM, I_NEXT_EDGE2):
             self.ist[i] = FAR
         t_cyc = FOUR_PI / omega
         n_edge = 2 * spec.sensors.wheel_teeth + 16
+        n_edge2 = 2 * self.wheel2.wheel_teeth + 16 if self.wheel2 is not None else 1
         n_samp = int(1.5 * t_cyc * spec.sensors.pressure_rate_hz) + 32
         self.outs = (np.zeros((4, 1 + nq + z)), np.zeros((760, 3)), np.zeros((n_edge, 2)), np.zeros(4),
-                     np.zeros((n_samp, z)), np.zeros((int(1.5 * t_cyc * LOAD_RATE_HZ) + 4, 3)))
+                     np.zeros((n_samp, z)), np.zeros((int(1.5 * t_cyc * LOAD_RATE_HZ) + 4, 3)), np.zeros((n_edge2, 2)))
         self.collected: list[list[np.ndarray]] = [[] for _ in self.outs]
         self.cycle_n0 = 0
         self.rows_drained = 0
@@ -282,7 +307,7 @@ class PlantRun:
         return Firing(self.op, self.pert, self.leak, tm.constants, tm.vol_half, tm.dvol_half)
 
     def _flush(self) -> None:
-        counts = (I_N_CYC, I_N_GRID, I_N_EDGE, I_N_CAM, I_N_SAMPLE, I_N_LOAD)
+        counts = (I_N_CYC, I_N_GRID, I_N_EDGE, I_N_CAM, I_N_SAMPLE, I_N_LOAD, I_N_EDGE2)
         for buf, store, ci in zip(self.outs, self.collected, counts):
             m = int(self.ist[ci])
             if m:
@@ -297,6 +322,9 @@ class PlantRun:
         self.ist[I_NEXT_EDGE] = first_index_at_or_after(theta_w, self.edges[0], TWO_PI)
         if self.spec.sensors.has_cam:
             self.ist[I_NEXT_CAM] = int(np.ceil((theta_w - self.sc[S_CAM]) / FOUR_PI))
+        if self.wheel2 is not None:
+            theta2 = float(self.state[0][int(self.sc[S_NODE2])])
+            self.ist[I_NEXT_EDGE2] = first_index_at_or_after(theta2, self.edges[2], TWO_PI)
 
     def drain(self) -> dict:
         """The events recorded since the last drain, handed over and forgotten here (so a long run holds one stretch
@@ -309,7 +337,7 @@ class PlantRun:
         rows = cat(0, self.outs[0].shape[1])
         out = {"cycle_rows": rows, "cycle_index": self.cycle_n0 + self.rows_drained + np.arange(rows.shape[0]),
                "grid": cat(1, 3), "edges": cat(2, 2), "cam": np.concatenate(self.collected[3] or [np.zeros(0)]),
-               "samples": cat(4, self.spec.n_cyl), "load": cat(5, 3)}
+               "samples": cat(4, self.spec.n_cyl), "load": cat(5, 3), "edges2": cat(6, 2)}
         self.rows_drained += rows.shape[0]
         for store in self.collected:
             store.clear()

@@ -70,7 +70,8 @@ class Simulation:
         self.theta_start, self.operating, self.request = theta_start, operating, request
         self.sensors, self.rngs = sensors, rngs
         self.stages = stages
-        self.info = acquisition_info(model.spec)
+        self.second_wheel = run.wheel2 is not None
+        self.info = acquisition_info(model.spec, self.second_wheel)
         self.truth: dict | None = None
         self._started = False
         self._state: _RunState | None = None  # set by the settling or by resume()
@@ -134,11 +135,15 @@ class Simulation:
             advance(stop)
             ev = run.drain()
             entries, diag = st.truth.add(ev["cycle_rows"], ev["cycle_index"], ev["grid"])
-            records = st.sensors.add(ev["edges"], ev["cam"], ev["samples"], ev["load"])
+            records = st.sensors.add(ev["edges"], ev["cam"], ev["samples"], ev["load"],
+                                     ev["edges2"] if self.second_wheel else None)
             if st.done == cycles:
                 records += st.sensors.finish()
             diag.update(edge_times_s=ev["edges"][:, 0] - run.t_out0, edge_index=ev["edges"][:, 1].astype(int),
                         pressure_true_pa=ev["samples"])
+            if self.second_wheel:
+                diag.update(edge2_times_s=ev["edges2"][:, 0] - run.t_out0,
+                            edge2_index=ev["edges2"][:, 1].astype(int))
             yield SimChunk(records, entries, diag)
         if progress is not None:
             progress(1.0)
@@ -150,6 +155,10 @@ class Simulation:
                  "edge_ticks_first_tooth_index": st.sensors.first_edge_index}
         if st.changes:
             wheel["changes"] = st.changes
+        if self.second_wheel:
+            w2 = spec.sensors.second_wheel
+            wheel["second_wheel"] = {"teeth": w2.teeth, "missing": w2.missing, "first_tooth_deg": w2.first_tooth_deg,
+                                     "node": spec.node_names[w2.node], "tooth_errors_deg": run.tooth_err2.tolist()}
         self.truth = st.truth.summary(**self.request, active=[e.to_dict() for e in self.model.effects], wheel=wheel,
                                       operating=self.operating)
 
@@ -169,7 +178,7 @@ class Simulation:
 
     def _streams(self) -> tuple[SensorRecords, TruthAccumulator]:
         spec, stages = self.model.spec, self.stages
-        sensors = SensorRecords(spec, self.sensors, self.rngs, self.run.t_out0, self.run.omega)
+        sensors = SensorRecords(spec, self.sensors, self.rngs, self.run.t_out0, self.run.omega, self.second_wheel)
         switching = stages is not None and len(stages.onsets) > 1
         truth = TruthAccumulator(spec, self.run.plant, self.cycles, self.run.t_out0,
                                  stages.coefficients_of if switching else None)
@@ -208,6 +217,7 @@ class Simulation:
     def _key(self) -> dict:
         """What identifies a run's set-up (its checkpoints fit only a run set up the same)."""
         return {"engine": self.model.spec.name, "cycles": self.cycles, **self.request,
+                **({"second_wheel": True} if self.second_wheel else {}),
                 "effects": [e.to_dict() for e in self.model.effects], "steps": [list(x) for x in self.steps]}
 
 

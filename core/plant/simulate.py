@@ -138,14 +138,11 @@ def _as_model(engine: EngineSpec | EngineModel, effects, without, coefficients) 
 
 
 def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: int, seed: int,
-             effects: Mapping[str, dict] | Sequence[Effect] | None = None, without: set[str] | tuple = (),
-             cov_imep: float = 0.02, load_steps: list[tuple[float, float]] | None = None,
-             progress: Callable[[float], None] | None = None,
-             coefficients: np.ndarray | None = None, fuel_spread: float = 0.01) -> SimResult:
+             progress: Callable[[float], None] | None = None, **options) -> SimResult:
     """Simulate ``cycles`` steady engine cycles (after an unlogged settling period) and return records and truth:
-    ``start_simulation`` (same parameters) with its chunks collected."""
-    sim = start_simulation(engine, rpm, load, cycles, seed, effects=effects, without=without, cov_imep=cov_imep,
-                           load_steps=load_steps, coefficients=coefficients, fuel_spread=fuel_spread)
+    ``start_simulation`` (the same parameters; ``options`` its keyword ones: effects, without, cov_imep,
+    load_steps, coefficients, fuel_spread, second_wheel) with its chunks collected."""
+    sim = start_simulation(engine, rpm, load, cycles, seed, **options)
     chunks = list(sim.chunks(progress=progress))
     records = [r for c in chunks for r in c.records]
     truth = {**sim.truth, "cycles": [e for c in chunks for e in c.cycles]}
@@ -158,7 +155,8 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
 def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: int, seed: int,
                      effects: Mapping[str, dict] | Sequence[Effect] | None = None, without: set[str] | tuple = (),
                      cov_imep: float = 0.02, load_steps: list[tuple[float, float]] | None = None,
-                     coefficients: np.ndarray | None = None, fuel_spread: float = 0.01) -> Simulation:
+                     coefficients: np.ndarray | None = None, fuel_spread: float = 0.01,
+                     second_wheel: bool = False) -> Simulation:
     """Set up a run of ``cycles`` steady engine cycles (after an unlogged settling period); ``chunks()`` runs it.
 
     Parameters
@@ -170,14 +168,22 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
     (core.model.effects); without : default-on effects turned off (both only with an EngineSpec).
     cov_imep : cycle-to-cycle COV of IMEP (fraction, default 2 %). load_steps : [(time_s, fraction)], time in the
     tick time base. coefficients : (z, 6) raw a_kl per cylinder (default: the preset's a_l for every cylinder).
-    fuel_spread : rms of the fixed cylinder-to-cylinder fuel spread (fraction). The ``coast_down`` effect turns the
+    fuel_spread : rms of the fixed cylinder-to-cylinder fuel spread (fraction). second_wheel : log the engine
+    file's second wheel too (``[sensors.second_wheel]``, at its node of the shaft; its own tooth errors of the
+    ``tooth_spacing_error`` effect's size and edge jitter from a ninth generator, so every other stream is unchanged). The ``coast_down`` effect turns the
     ignition off and disconnects the load at its ``time_s`` (after any load steps).
     """
     model = _as_model(engine, effects, without, coefficients)
     spec = model.spec
     steps = _validate(spec, rpm, load, cycles, cov_imep, load_steps)
     z = spec.n_cyl
-    rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(8)]
+    if second_wheel and spec.sensors.second_wheel is None:
+        raise ValueError(f"{spec.name} has no second wheel: add [sensors.second_wheel] (teeth, missing, "
+                         "first_tooth_deg, node) to its engine file")
+    seeds = np.random.SeedSequence(seed)
+    rngs = [np.random.default_rng(s) for s in seeds.spawn(8)]
+    if second_wheel:  # child 8 of the same sequence: the first eight are those of a run without it
+        rngs.append(np.random.default_rng(seeds.spawn(1)[0]))
     omega = rpm * np.pi / 30.0
     tmodel = cylinder_model(spec)
 
@@ -253,7 +259,7 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
         node_torque[plant.cyl_node[k]] += means[k].indicated_nm - means[k].friction_nm - extra[k, 0]
     node_torque[plant.load] -= node_torque.sum()
 
-    run = PlantRun(spec, plant, tmodel, h=h, omega=omega, sensors=sensors, rngs=rngs)
+    run = PlantRun(spec, plant, tmodel, h=h, omega=omega, sensors=sensors, rngs=rngs, second_wheel=second_wheel)
     theta_start = -4.0 * np.pi * (SETTLE_A_CYCLES + SETTLE_B_CYCLES) - 2.0 * np.pi
     theta_switch = -4.0 * np.pi * SETTLE_B_CYCLES
     run.set_state(theta_start + static_twist(plant, node_torque), omega)

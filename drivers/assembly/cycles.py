@@ -29,6 +29,7 @@ from frictionwatch.core.types import (
     AcquisitionInfo,
     CamBatch,
     Cycle,
+    FreeEndToothBatch,
     LoadSample,
     PressureBlock,
     PressureFrame,
@@ -188,6 +189,9 @@ class CycleAssembler(EpochSync):
                 self._now = max(self._now, int(record.t0_ticks + record.period_ticks * (len(record.values) - 1)))
         elif isinstance(record, CamBatch):
             self.buf.add(record)
+        elif isinstance(record, FreeEndToothBatch):  # a second wheel: TwoWheelAssembler cuts it, not this one
+            self.stats["second_wheel_ignored"] += 1
+            return []
         else:
             raise TypeError(f"not a stream record: {type(record).__name__}")
         # pressure or cam: only a waiting phase decision or a cycle waiting for its pressure can move

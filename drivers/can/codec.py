@@ -48,7 +48,7 @@ def j1939_pgn(can_id: np.ndarray | int) -> np.ndarray | int:
     return int(pgn) if np.ndim(pgn) == 0 else pgn
 
 
-def _field(msg: cantools.database.can.Message, name: str) -> tuple[int, str, float, float]:
+def byte_field(msg: cantools.database.can.Message, name: str) -> tuple[int, str, float, float]:
     """(byte offset, numpy dtype, factor, offset) of a byte-aligned little-endian signal."""
     sig = msg.get_signal_by_name(name)
     if sig.byte_order != "little_endian" or sig.start % 8 or sig.length not in (8, 16, 32):
@@ -83,10 +83,10 @@ class Layouts:
 
 
 def _struct(msg: cantools.database.can.Message, names: list[str], samples: list[str], size: int) -> np.dtype:
-    fields = {n: _field(msg, n) for n in names}
-    first = _field(msg, samples[0])
+    fields = {n: byte_field(msg, n) for n in names}
+    first = byte_field(msg, samples[0])
     for i, s in enumerate(samples):  # samples must be a contiguous array of one type
-        off, dt, _, _ = _field(msg, s)
+        off, dt, _, _ = byte_field(msg, s)
         if off != first[0] + i * np.dtype(first[1]).itemsize or dt != first[1]:
             raise ValueError(f"{msg.name}: samples are not a contiguous {first[1]} array")
     return np.dtype({"names": [*names, "samples"],
@@ -110,8 +110,8 @@ def layouts() -> Layouts:
     fd_dtype = _with_flags(fd_dtype, flags_byte)
     ref = db.get_message_by_name("PressureRef_C01")
     ref_dtype = np.dtype({"names": ["Seq", "T0Ticks", "PeriodTicks"],
-                          "formats": [_field(ref, n)[1] for n in ("Seq", "T0Ticks", "PeriodTicks")],
-                          "offsets": [_field(ref, n)[0] for n in ("Seq", "T0Ticks", "PeriodTicks")], "itemsize": 8})
+                          "formats": [byte_field(ref, n)[1] for n in ("Seq", "T0Ticks", "PeriodTicks")],
+                          "offsets": [byte_field(ref, n)[0] for n in ("Seq", "T0Ticks", "PeriodTicks")], "itemsize": 8})
     classic = db.get_message_by_name("PressureClassic_C01")
     classic_dtype = _struct(classic, ["Seq"], [f"S{i}" for i in range(CLASSIC_SAMPLES)], 8)
     for table, proto in ((fd_id, fd), (ref_id, ref), (classic_id, classic)):  # every cylinder the same layout
@@ -121,10 +121,10 @@ def layouts() -> Layouts:
                     [(s.start, s.length, s.is_signed, s.scale) for s in proto.signals]:
                 raise ValueError(f"{other.name} differs from {proto.name}")
     return Layouts(
-        fd_dtype=fd_dtype, fd_period_factor=_field(fd, "PeriodTicks")[2], fd_scale_factor=_field(fd, "Scale")[2],
+        fd_dtype=fd_dtype, fd_period_factor=byte_field(fd, "PeriodTicks")[2], fd_scale_factor=byte_field(fd, "Scale")[2],
         fd_flag_bits={n: fd.get_signal_by_name(n).start - 8 * flags_byte
                       for n in (FLAG_SENSOR_FAULT, FLAG_DAQ_OVERRUN, FLAG_RESTART)},
-        ref_dtype=ref_dtype, classic_dtype=classic_dtype, classic_factor=_field(classic, "S0")[2],
+        ref_dtype=ref_dtype, classic_dtype=classic_dtype, classic_factor=byte_field(classic, "S0")[2],
         fd_id=fd_id, ref_id=ref_id, classic_id=classic_id, cylinders=len(fd_id),
         load=db.get_message_by_name("GensetLoad"), results=db.get_message_by_name("FrictionResults"))
 

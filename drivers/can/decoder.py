@@ -1,4 +1,4 @@
-"""CAN frames -> PressureBlock / LoadSample records (docs/protocols.md §3), batch-vectorised.
+"""CAN frames -> PressureBlock / LoadSample / FreeEndToothBatch records (docs/protocols.md §3), batch-vectorised.
 
 Per cylinder, frames are put in order by their counter (drivers/sequence.py, a few frames of reordering undone),
 then merged into one block while both the counter and the time reference continue (next T0 = T0 + n * period,
@@ -20,7 +20,7 @@ from collections.abc import Callable, Iterable, Sequence
 
 import can
 import numpy as np
-from frictionwatch.core.types import LoadSample, PressureBlock, StreamRecord
+from frictionwatch.core.types import FreeEndToothBatch, LoadSample, PressureBlock, StreamRecord
 from frictionwatch.drivers.can.codec import (
     CLASSIC_SAMPLES,
     FD_SAMPLES,
@@ -35,10 +35,11 @@ from frictionwatch.drivers.can.codec import (
     j1939_value,
     layouts,
 )
+from frictionwatch.drivers.can.teeth import FreeEndTeethTrack, teeth_layout
 from frictionwatch.drivers.sequence import SequenceTracker
 from frictionwatch.drivers.timebase import TimerUnwrapper
 
-KIND_FD, KIND_REF, KIND_CLASSIC, KIND_LOAD, KIND_OURS = 0, 1, 2, 3, 4
+KIND_FD, KIND_REF, KIND_CLASSIC, KIND_LOAD, KIND_OURS, KIND_TEETH2 = 0, 1, 2, 3, 4, 5
 Row = tuple[int, int, float, int, float, int, np.ndarray, float]  # seq, t0, period, n, scale, flags, samples, ts
 
 
@@ -89,6 +90,8 @@ class CanDecoder:
         for kind, table in ((KIND_FD, self.lay.fd_id), (KIND_REF, self.lay.ref_id), (KIND_CLASSIC, self.lay.classic_id)):
             for fid, cyl in table.items():
                 self._kind[fid], self._cyl[fid] = kind, cyl
+        self._kind[teeth_layout().frame_id] = KIND_TEETH2
+        self.teeth2 = FreeEndTeethTrack(self.unwrapper, self._count, reorder_window)  # the free-end wheel's edges
         bits = self.lay.fd_flag_bits
         self._bit_fault = 1 << bits[FLAG_SENSOR_FAULT]
         self._bit_overrun = 1 << bits[FLAG_DAQ_OVERRUN]
@@ -138,7 +141,7 @@ class CanDecoder:
             kind[extended] = np.where(is_load, KIND_LOAD, np.where(pgn == PGN_RESULTS, KIND_OURS, -1))
         if (kind == -1).any():
             self._count("unknown_can_id", int((kind == -1).sum()))
-        need = np.where(kind == KIND_FD, 64, 8)
+        need = np.where((kind == KIND_FD) | (kind == KIND_TEETH2), 64, 8)
         bad = (kind >= 0) & (kind != KIND_OURS) & ((lengths != need) | (need > data.shape[1]))
         if bad.any():
             self._count("wrong_dlc", int(bad.sum()))
@@ -156,6 +159,9 @@ class CanDecoder:
             out += self._classic(ids, ts, data, ref_rows, ref, t0[fd_rows.size:], cls_rows)
         for i in np.flatnonzero(kind == KIND_LOAD):
             out += self._load(float(ts[i]), bytes(data[i, :8]))
+        teeth2 = np.flatnonzero(kind == KIND_TEETH2)
+        if teeth2.size:
+            out += self.teeth2.feed(data[teeth2])
         out.sort(key=_time_of)
         return out
 
@@ -164,6 +170,7 @@ class CanDecoder:
         out: list[StreamRecord] = []
         for (_, cyl), tr in self.tracks.items():
             out += self._assemble_rows(cyl, tr, [r for r, _ in tr.tracker.flush()])
+        out += self.teeth2.flush()
         self._sync_counts()
         out.sort(key=_time_of)
         return out
@@ -343,4 +350,6 @@ def _time_of(rec: StreamRecord) -> float:
         return float(rec.t0_ticks)
     if isinstance(rec, LoadSample):
         return float(rec.ticks)
+    if isinstance(rec, FreeEndToothBatch):
+        return float(rec.ticks[0])
     return math.inf

@@ -17,7 +17,14 @@ import math
 from fractions import Fraction
 
 import numpy as np
-from frictionwatch.core.types import CamBatch, PressureBlock, PressureFrame, StreamRecord, ToothBatch
+from frictionwatch.core.types import (
+    CamBatch,
+    FreeEndToothBatch,
+    PressureBlock,
+    PressureFrame,
+    StreamRecord,
+    ToothBatch,
+)
 
 
 class _Pressure:
@@ -60,7 +67,7 @@ class Batcher:
         self._pressure: dict[int | tuple[int, ...], _Pressure] = {}  # block cylinder or frame cylinders
 
     def add(self, record: StreamRecord) -> list[StreamRecord]:
-        if isinstance(record, ToothBatch | CamBatch):
+        if isinstance(record, ToothBatch | CamBatch | FreeEndToothBatch):
             return self._add_edges(record)
         if isinstance(record, PressureBlock):
             return self._add_pressure(record, record.cylinder)
@@ -68,7 +75,7 @@ class Batcher:
             return self._add_pressure(record, tuple(record.cylinders))
         return [record]
 
-    def _add_edges(self, record: ToothBatch | CamBatch) -> list[StreamRecord]:
+    def _add_edges(self, record: ToothBatch | CamBatch | FreeEndToothBatch) -> list[StreamRecord]:
         kind = type(record)
         out: list[StreamRecord] = []
         pending = self._edges.pop(kind, None)

@@ -2,6 +2,7 @@
 
     with LogWriter("run.mcap", engine_toml, info) as log:     # info: core.types.AcquisitionInfo
         for record in stream:                    # ToothBatch | CamBatch | PressureBlock | PressureFrame | LoadSample
+                                                 # | FreeEndToothBatch
             log.write(record)
     log = LogReader("run.mcap")                              # CorruptLog if nothing at all is readable
     log.info, log.engine_toml, log.metadata
@@ -26,6 +27,7 @@ import numpy as np
 from frictionwatch.core.types import (
     AcquisitionInfo,
     CamBatch,
+    FreeEndToothBatch,
     LoadSample,
     PressureBlock,
     PressureFrame,
@@ -43,7 +45,7 @@ _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none"
 
 def _checked(record: Any) -> StreamRecord | None:
     """The record with canonical dtypes, None if it holds no data; ValueError/TypeError if it cannot be logged."""
-    if isinstance(record, ToothBatch | CamBatch):
+    if isinstance(record, ToothBatch | CamBatch | FreeEndToothBatch):
         ticks = np.asarray(record.ticks)
         if ticks.ndim != 1 or not (ticks.size == 0 or np.issubdtype(ticks.dtype, np.integer)):
             raise ValueError(

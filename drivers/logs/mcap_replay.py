@@ -18,7 +18,15 @@ from collections.abc import Callable, Iterator
 from dataclasses import replace
 from pathlib import Path
 
-from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
+from frictionwatch.core.types import (
+    CamBatch,
+    FreeEndToothBatch,
+    LoadSample,
+    PressureBlock,
+    PressureFrame,
+    StreamRecord,
+    ToothBatch,
+)
 from frictionwatch.drivers.errors import EndOfStream
 from frictionwatch.drivers.logs.mcap_log import LogReader
 from frictionwatch.drivers.logs.mcap_schema import last_tick
@@ -179,7 +187,7 @@ def shifted(record: StreamRecord, ticks: int) -> StreamRecord:
     """The record moved ``ticks`` later on the timer (the same record when ``ticks`` is 0)."""
     if ticks == 0:
         return record
-    if isinstance(record, ToothBatch | CamBatch):
+    if isinstance(record, ToothBatch | CamBatch | FreeEndToothBatch):
         return replace(record, ticks=record.ticks + ticks)
     if isinstance(record, PressureBlock | PressureFrame):
         return replace(record, t0_ticks=record.t0_ticks + ticks)

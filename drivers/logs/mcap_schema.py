@@ -21,11 +21,13 @@ import numpy as np
 from frictionwatch.core.types import (
     AcquisitionInfo,
     CamBatch,
+    FreeEndToothBatch,
     LoadSample,
     PressureBlock,
     PressureFrame,
     StreamRecord,
     ToothBatch,
+    WheelInfo,
 )
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.message import DecodeError
@@ -75,6 +77,7 @@ MESSAGES: dict[str, tuple[str, list[tuple[str, int, int, bool]]]] = {
             ("invalid", 8, _F.TYPE_UINT32, True),  # flat indices row * n + i of NaN samples in counts form
         ],
     ),
+    "FreeEndToothBatch": ("free_end_teeth", [("ticks", 1, _F.TYPE_INT64, True)]),  # the second wheel's edges (last: older indices kept)
 }
 TOPICS = {name: topic for name, (topic, _) in MESSAGES.items()}
 
@@ -177,8 +180,8 @@ class PressureCounts:
 
 def encode(record: StreamRecord, counts: PressureCounts | None = None) -> tuple[str, bytes]:
     """``(message name, protobuf bytes)`` of one validated record; pressure as counts where ``counts`` can."""
-    if isinstance(record, ToothBatch | CamBatch):
-        name = "ToothBatch" if isinstance(record, ToothBatch) else "CamBatch"
+    if isinstance(record, ToothBatch | CamBatch | FreeEndToothBatch):
+        name = type(record).__name__
         return name, _CLASSES[name](ticks=record.ticks).SerializeToString()
     if isinstance(record, PressureBlock):
         values = counts.fields(record) if counts is not None else {"values_pa": record.values}
@@ -199,7 +202,7 @@ def encode(record: StreamRecord, counts: PressureCounts | None = None) -> tuple[
     raise TypeError(f"not a stream record: {type(record).__name__}")
 
 
-def _decode_teeth(cls: type[ToothBatch | CamBatch], name: str) -> Callable[[bytes], StreamRecord]:
+def _decode_teeth(cls: type[ToothBatch | CamBatch | FreeEndToothBatch], name: str) -> Callable[[bytes], StreamRecord]:
     parse = _CLASSES[name].FromString
 
     def decode(data: bytes) -> StreamRecord:
@@ -264,6 +267,7 @@ def _decode_load(data: bytes) -> LoadSample:
 DECODERS: dict[str, Callable[[bytes], StreamRecord]] = {
     f"{PACKAGE}.ToothBatch": _decode_teeth(ToothBatch, "ToothBatch"),
     f"{PACKAGE}.CamBatch": _decode_teeth(CamBatch, "CamBatch"),
+    f"{PACKAGE}.FreeEndToothBatch": _decode_teeth(FreeEndToothBatch, "FreeEndToothBatch"),
     f"{PACKAGE}.PressureBlock": _decode_pressure,
     f"{PACKAGE}.PressureFrame": _decode_frame,
     f"{PACKAGE}.LoadSample": _decode_load,
@@ -288,7 +292,7 @@ class TickClock:
 
 def last_tick(record: StreamRecord) -> Fraction:
     """Tick of the record's last element (the moment the record was complete); exact."""
-    if isinstance(record, ToothBatch | CamBatch):
+    if isinstance(record, ToothBatch | CamBatch | FreeEndToothBatch):
         return Fraction(int(record.ticks[-1]))
     if isinstance(record, PressureBlock):
         return Fraction(record.t0_ticks) + (len(record.values) - 1) * Fraction(record.period_ticks)
@@ -327,6 +331,10 @@ def acquisition_metadata(info: AcquisitionInfo) -> dict[str, str]:
     }
     if info.cam_deg is not None:
         data["cam_deg"] = repr(float(info.cam_deg))
+    if info.second_wheel is not None:  # keys absent = no second wheel (every log before it)
+        w = info.second_wheel
+        data.update(wheel2_teeth=str(int(w.teeth)), wheel2_missing=str(int(w.missing)),
+                    wheel2_first_tooth_deg=repr(float(w.first_tooth_deg)))
     return with_crc(data)
 
 
@@ -341,6 +349,8 @@ def acquisition_from_metadata(data: dict[str, str]) -> AcquisitionInfo:
         teeth, missing = int(data["wheel_teeth"]), int(data["wheel_missing"])
         first = float(data["first_tooth_deg"])
         cam = float(data["cam_deg"]) if data.get("cam_deg", "") != "" else None
+        wheel2 = (WheelInfo(int(data["wheel2_teeth"]), int(data["wheel2_missing"]),
+                            float(data["wheel2_first_tooth_deg"])) if data.get("wheel2_teeth", "") != "" else None)
         cyls = data.get("pressure_cylinders", "")
         cylinders = tuple(int(c) for c in cyls.split(",")) if cyls.strip() else ()
     except (KeyError, ValueError) as exc:
@@ -351,4 +361,8 @@ def acquisition_from_metadata(data: dict[str, str]) -> AcquisitionInfo:
         raise ValueError(f"acquisition metadata: wheel {teeth}-{missing} is impossible")
     if any(c < 1 for c in cylinders) or not math.isfinite(first):
         raise ValueError("acquisition metadata: cylinders must be >= 1 and first_tooth_deg finite")
-    return AcquisitionInfo(tick_hz, teeth, missing, first, cam, cylinders)
+    if wheel2 is not None and not (wheel2.teeth > 0 and 0 <= wheel2.missing < wheel2.teeth
+                                   and math.isfinite(wheel2.first_tooth_deg)):
+        raise ValueError(f"acquisition metadata: second wheel {wheel2.teeth}-{wheel2.missing} at "
+                         f"{wheel2.first_tooth_deg} deg is impossible")
+    return AcquisitionInfo(tick_hz, teeth, missing, first, cam, cylinders, wheel2)

@@ -30,11 +30,12 @@ OVERHEAD = HEADER_SIZE + 2  # header + CRC
 MAX_PAYLOAD = 255
 MAX_EDGES = 1 + (254 - 4) // 2  # 126 edges: base + 125 deltas in a 254-byte payload
 
-TYPE_TEETH, TYPE_CAM, TYPE_HEARTBEAT, TYPE_INFO = 0x01, 0x02, 0x03, 0x04
+TYPE_TEETH, TYPE_CAM, TYPE_HEARTBEAT, TYPE_INFO, TYPE_TEETH2 = 0x01, 0x02, 0x03, 0x04, 0x05
 FLAG_OVERFLOW, FLAG_SENSOR_FAULT, FLAG_BOOT = 0x01, 0x02, 0x04
 _U32 = struct.Struct("<I")
 INFO = struct.Struct("<IHBBhhH")  # tick_hz, teeth, missing, reserved, first_tooth_cdeg, cam_cdeg, firmware
 NO_CAM = 0x7FFF
+INFO_WHEEL2 = struct.Struct("<HBBh")  # INFO bytes 14..19 (optional): teeth2 (0 = none), missing2, reserved, first2_cdeg
 
 
 def crc16_ccitt_false(data: bytes | bytearray | memoryview) -> int:
@@ -46,6 +47,16 @@ def crc16_ccitt_false(data: bytes | bytearray | memoryview) -> int:
 @dataclass(frozen=True, slots=True)
 class TeethFrame:
     """Crank-wheel edges, ``ticks`` int64 unwrapped, strictly increasing across all TeethFrames of a decoder."""
+
+    seq: int
+    flags: int
+    ticks: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class Teeth2Frame:
+    """The second (free-end) wheel's edges, int64 unwrapped ticks on the same timer, strictly increasing across all
+    Teeth2Frames of a decoder."""
 
     seq: int
     flags: int
@@ -82,9 +93,10 @@ class InfoFrame:
     first_tooth_deg: float
     cam_deg: float | None
     firmware: int
+    second_wheel: tuple[int, int, float] | None = None  # (teeth, missing, first_tooth_deg) of the free-end wheel
 
 
-Frame = TeethFrame | CamFrame | HeartbeatFrame | InfoFrame
+Frame = TeethFrame | CamFrame | HeartbeatFrame | InfoFrame | Teeth2Frame
 
 
 # --- encoder ----------------------------------------------------------------------------------------------------
@@ -117,15 +129,25 @@ def encode_cam(seq: int, ticks: Iterable[int], flags: int = 0) -> bytes:
     return encode_frame(TYPE_CAM, seq, flags, _edges_payload(ticks))
 
 
+def encode_teeth2(seq: int, ticks: Iterable[int], flags: int = 0) -> bytes:
+    """A TEETH2 frame: the second wheel's edges (same payload as TEETH)."""
+    return encode_frame(TYPE_TEETH2, seq, flags, _edges_payload(ticks))
+
+
 def encode_heartbeat(seq: int, timer: int, flags: int = 0) -> bytes:
     return encode_frame(TYPE_HEARTBEAT, seq, flags, struct.pack("<I", int(timer) & 0xFFFFFFFF))
 
 
 def encode_info(seq: int, tick_hz: float, wheel_teeth: int, wheel_missing: int, first_tooth_deg: float,
-                cam_deg: float | None = None, firmware: int = 0, flags: int = 0) -> bytes:
-    """An INFO frame; angles travel in 0.01 deg, ``cam_deg=None`` means no cam sensor."""
+                cam_deg: float | None = None, firmware: int = 0, flags: int = 0,
+                second_wheel: tuple[int, int, float] | None = None) -> bytes:
+    """An INFO frame; angles travel in 0.01 deg, ``cam_deg=None`` means no cam sensor; ``second_wheel`` = (teeth,
+    missing, first_tooth_deg) adds the 6 bytes of the free-end wheel (LEN 20; without it LEN 14 as before)."""
     cam = NO_CAM if cam_deg is None else round(cam_deg * 100)
     payload = INFO.pack(round(tick_hz), wheel_teeth, wheel_missing, 0, round(first_tooth_deg * 100), cam, firmware)
+    if second_wheel is not None:
+        teeth2, missing2, first2 = second_wheel
+        payload += INFO_WHEEL2.pack(teeth2, missing2, 0, round(first2 * 100))
     return encode_frame(TYPE_INFO, seq, flags, payload)
 
 
@@ -164,13 +186,17 @@ class Encoder:
     def cam(self, ticks: Iterable[int], flags: int = 0) -> bytes:
         return self._edges(TYPE_CAM, ticks, flags)
 
+    def teeth2(self, ticks: Iterable[int], flags: int = 0) -> bytes:
+        return self._edges(TYPE_TEETH2, ticks, flags)
+
     def heartbeat(self, timer: int, flags: int = 0) -> bytes:
         return encode_heartbeat(self._next(), timer, flags)
 
     def info(self, tick_hz: float, wheel_teeth: int, wheel_missing: int, first_tooth_deg: float,
-             cam_deg: float | None = None, firmware: int = 0, flags: int = 0) -> bytes:
+             cam_deg: float | None = None, firmware: int = 0, flags: int = 0,
+             second_wheel: tuple[int, int, float] | None = None) -> bytes:
         return encode_info(self._next(), tick_hz, wheel_teeth, wheel_missing, first_tooth_deg, cam_deg, firmware,
-                           flags)
+                           flags, second_wheel)
 
 
 # --- decoder ----------------------------------------------------------------------------------------------------
@@ -187,6 +213,7 @@ class Decoder:
         self._buf = bytearray()
         self._last_tooth: int | None = None
         self._last_cam: int | None = None
+        self._last_tooth2: int | None = None
         self._restart_hint = False  # the sender restarted: its timer may have restarted too
         self._force_rebase = False
         self._last_boot: tuple[int, int, bytes] | None = None
@@ -279,7 +306,7 @@ class Decoder:
 
     def _decode_one(self, ftype: int, seq: int, flags: int, payload: bytes) -> Frame | None:
         n = len(payload)
-        if ftype in (TYPE_TEETH, TYPE_CAM):
+        if ftype in (TYPE_TEETH, TYPE_CAM, TYPE_TEETH2):
             if n < 4 or n % 2:
                 self._count("bad_length", 1)
                 return None
@@ -297,8 +324,15 @@ class Decoder:
             if hz == 0 or teeth == 0 or missing >= teeth:
                 self._count("bad_info_frame", 1)
                 return None
+            wheel2 = None
+            if n >= INFO.size + INFO_WHEEL2.size:
+                teeth2, missing2, _, first2 = INFO_WHEEL2.unpack_from(payload, INFO.size)
+                if teeth2 and missing2 >= teeth2:
+                    self._count("bad_info_frame", 1)
+                    return None
+                wheel2 = (teeth2, missing2, first2 / 100.0) if teeth2 else None
             return InfoFrame(seq, flags, float(hz), teeth, missing, first / 100.0,
-                             None if cam == NO_CAM else cam / 100.0, fw)
+                             None if cam == NO_CAM else cam / 100.0, fw, wheel2)
         self._count("unknown_frame_type", 1)
         return None
 
@@ -319,7 +353,7 @@ class Decoder:
         if flags & FLAG_SENSOR_FAULT:
             self._count("sensor_fault_edges", ticks.size)
             return None
-        last = self._last_tooth if ftype == TYPE_TEETH else self._last_cam
+        last = {TYPE_TEETH: self._last_tooth, TYPE_CAM: self._last_cam, TYPE_TEETH2: self._last_tooth2}[ftype]
         if not ok or (last is not None and start <= last):
             keep = np.ones(ticks.size, bool)
             keep[1:] = np.diff(ticks) > 0
@@ -332,5 +366,8 @@ class Decoder:
         if ftype == TYPE_TEETH:
             self._last_tooth = int(ticks[-1])
             return TeethFrame(seq, flags, ticks)
+        if ftype == TYPE_TEETH2:
+            self._last_tooth2 = int(ticks[-1])
+            return Teeth2Frame(seq, flags, ticks)
         self._last_cam = int(ticks[-1])
         return CamFrame(seq, flags, ticks)

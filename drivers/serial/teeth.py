@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 import serial
-from frictionwatch.core.types import AcquisitionInfo, CamBatch, StreamRecord, ToothBatch
+from frictionwatch.core.types import AcquisitionInfo, CamBatch, FreeEndToothBatch, StreamRecord, ToothBatch, WheelInfo
 from frictionwatch.drivers.backoff import Backoff, ReconnectingLink
-from frictionwatch.drivers.serial.codec import CamFrame, Decoder, Frame, InfoFrame, TeethFrame
+from frictionwatch.drivers.serial.codec import CamFrame, Decoder, Frame, InfoFrame, Teeth2Frame, TeethFrame
 from frictionwatch.drivers.source import Source
 from frictionwatch.drivers.timebase import Clocks, TimerUnwrapper, shared_unwrapper
 
@@ -156,6 +156,8 @@ class SerialSource(ReconnectingLink, Source):
                 teeth = []
             if isinstance(f, CamFrame):
                 out.append(CamBatch(f.ticks))
+            elif isinstance(f, Teeth2Frame):
+                out.append(FreeEndToothBatch(f.ticks))
             elif isinstance(f, InfoFrame):
                 self._take_info(f)
         if teeth:
@@ -164,7 +166,8 @@ class SerialSource(ReconnectingLink, Source):
 
     def _take_info(self, f: InfoFrame) -> None:
         info = AcquisitionInfo(tick_hz=f.tick_hz, wheel_teeth=f.wheel_teeth, wheel_missing=f.wheel_missing,
-                               first_tooth_deg=f.first_tooth_deg, cam_deg=f.cam_deg)
+                               first_tooth_deg=f.first_tooth_deg, cam_deg=f.cam_deg,
+                               second_wheel=None if f.second_wheel is None else WheelInfo(*f.second_wheel))
         if self._stated_info:
             if self.info is not None and (self.info.tick_hz, self.info.wheel_teeth, self.info.wheel_missing) != (
                     info.tick_hz, info.wheel_teeth, info.wheel_missing):

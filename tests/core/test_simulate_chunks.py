@@ -29,8 +29,9 @@ def streamed(engine: str, rpm: float, load: float, cycles: int, chunk_cycles: in
     ("k9k-4cyl", 1700, 1.0, 7, {}),  # cam, 1-deg grid in the truth
     ("deutz-1cyl", 2600, 0.8, 6, {"load_steps": [(0.08, 0.5)]}),  # a load step inside a chunk
     ("genset-v20", 1500, 0.75, 4, {}),  # flexible chain, 20 pressure channels
+    ("genset-v20", 1500, 0.75, 3, {"second_wheel": True}),  # its free-end wheel: batches of its own revolution
     ("maruti-3cyl", 3000, 1.0, 7, {"effects": {"ring_wear": {"cylinder": 2, "from_cycle": 4}}}),  # onset mid-chunk
-], ids=["k9k", "deutz-step", "genset-v20", "maruti-ring-wear-from-4"])
+], ids=["k9k", "deutz-step", "genset-v20", "genset-v20-second-wheel", "maruti-ring-wear-from-4"])
 def test_chunked_run_equals_one_chunk(engine, rpm, load, cycles, kw):
     whole, truth = streamed(engine, rpm, load, cycles, chunk_cycles=cycles, **kw)
     assert len(whole) == 1
@@ -44,6 +45,9 @@ def test_chunked_run_equals_one_chunk(engine, rpm, load, cycles, kw):
         for key in ("pressure_true_pa", "edge_times_s", "friction_grid_nm", "cycle_increments"):
             assert_allclose(np.concatenate([c.diagnostics[key] for c in chunks]), whole[0].diagnostics[key],
                             rtol=RTOL, err_msg=key)
+        if kw.get("second_wheel"):
+            assert_allclose(np.concatenate([c.diagnostics["edge2_times_s"] for c in chunks]),
+                            whole[0].diagnostics["edge2_times_s"], rtol=RTOL)
 
 
 def test_simulate_collects_the_stream_and_records_arrive_in_order():

@@ -72,7 +72,9 @@ def operating_point(spec: EngineSpec, op: OperatingPoint | None, omega: float, l
 class BalanceResult:
     """One cycle's harmonic balance: the last pass's excitation and rows, the node speed harmonics (N, M), the
     node-minus-flywheel motion for the next cycle's warm start (harmonics (N, M) and static twist (N,)), and the
-    mean power [W] the relative and the ground dampers dissipate."""
+    mean power [W] the relative and the ground dampers dissipate; with a second wheel its speed equations
+    ``free_rows`` = (design (M, P + n_nuisance) complex, target (M,) complex: measured - modelled free-end speed
+    harmonics, the flywheel's tooth nuisances not in them), else None."""
 
     excitation: Excitation
     rows: CycleRows
@@ -81,15 +83,20 @@ class BalanceResult:
     static: np.ndarray
     power_relative: float
     power_ground: float
+    free_rows: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def harmonic_balance(op: OperatingPoint, theta: np.ndarray, n_nuisance: int, relative_motion: np.ndarray | None,
                      static: np.ndarray | None, grid: np.ndarray, pressure: np.ndarray, fly: FlywheelMotion,
-                     theta_start: float, passes: int, time_samples: int) -> BalanceResult:
+                     theta_start: float, passes: int, time_samples: int,
+                     free_end: tuple[np.ndarray, np.ndarray] | None = None) -> BalanceResult:
     """Passes of excitation + chain response at the current parameters ``theta`` (friction first, then the
     ``n_nuisance`` tooth-error nuisances); ``relative_motion`` (N, M) and ``static`` (N,) are the previous cycle's
     node-minus-flywheel motion (None on the first cycle); grid (n_g,) and pressure (z, n_g) the cycle's pressure on
-    its crank-angle grid [Pa]; fly the flywheel fit; theta_start the flywheel angle at its first sample [rad]."""
+    its crank-angle grid [Pa]; fly the flywheel fit; theta_start the flywheel angle at its first sample [rad].
+    free_end: a second wheel's (transfer (M, N) complex: its node's speed per node torque, harmonics (M,) complex
+    [rad]: its measured angle harmonics referred to the flywheel window's first edge): its speed equations from the
+    last pass's excitation, the same chain and parameters (one more ``pass_rows``)."""
     cyl = op.cylinders
     library = op.layout.library
     n_nodes = cyl.n_nodes
@@ -130,8 +137,16 @@ def harmonic_balance(op: OperatingPoint, theta: np.ndarray, n_nuisance: int, rel
                            alpha_fly=on_grid.alpha_fly)
     rows = CycleRows(design=out.design, target=out.target, mean_row=out.mean_row, mean_target=float("nan"),
                       cylinder_rows=out.cylinder_rows)
+    free_rows = None
+    if free_end is not None:  # the same torques through the chain to the second wheel's node; no flywheel nuisance
+        transfer2, harmonics2 = free_end
+        chain2 = op.chain._replace(transfer=np.ascontiguousarray(transfer2, dtype=np.complex128))
+        out2 = pass_rows(np.ascontiguousarray(harmonics2, dtype=np.complex128), omega_mean, on_grid.known,
+                         on_grid.motion, on_grid.gas, basis, op.mix, chain2, params,
+                         np.zeros((m, int(n_nuisance)), np.complex128), int(n_nuisance))
+        free_rows = (out2.design, out2.target)
     return BalanceResult(exc, rows, out.node_speed, out.relative_motion, out.static, out.power_relative,
-                         out.power_ground)
+                         out.power_ground, free_rows)
 
 
 

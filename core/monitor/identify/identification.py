@@ -235,14 +235,23 @@ def forgetting_factor(cfg: MonitorConfig, n_cyl: int, period_s: float = float("n
 
 
 def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fly: FlywheelMotion, rows: CycleRows,
-                   exc: Excitation, pmax: np.ndarray, mean: MeanBalance, drift_var: float) -> Identification:
-    """One cycle's identification; ``state`` is the monitor's state before the cycle (not changed)."""
+                   exc: Excitation, pmax: np.ndarray, mean: MeanBalance, drift_var: float,
+                   free_rows: tuple | None = None) -> Identification:
+    """One cycle's identification; ``state`` is the monitor's state before the cycle (not changed). ``free_rows``:
+    a second wheel's whitened rows (a, y, inv_sigma, sys_var; core.monitor.identify.free_end_rows), accumulated with
+    the flywheel's (the joint fit of both wheels), before the mean-balance row."""
     lam = forgetting_factor(cfg, spec.n_cyl, fly.period)
     sys_balance = ((cfg.balance_rel_error * mean.indicated) ** 2 + (cfg.coupling_rel_error * mean.coupling_loss) ** 2
                    + (cfg.load_rel_error * spec.rated_torque_nm) ** 2)
     noise = NoiseSettings(memory=cfg.noise_memory, model_rel_error=cfg.model_rel_error,
                           use_drift=cfg.drift_nuisance, sys_balance=sys_balance)
     white = whitened_rows(noise, state.stats, fly, rows, state.params, mean.friction, mean.indicated, drift_var)
+    if free_rows is not None:  # both wheels: the free end's rows between the flywheel's and the mean balance
+        a2, y2, inv2, sys2 = free_rows
+        white = replace(white, a=np.concatenate([white.a[:-1], a2, white.a[-1:]]),
+                        y=np.concatenate([white.y[:-1], y2, white.y[-1:]]),
+                        inv_sigma=np.concatenate([white.inv_sigma[:-1], inv2, white.inv_sigma[-1:]]),
+                        sys_var=np.concatenate([white.sys_var[:-1], sys2, white.sys_var[-1:]]))
     terms = state.accumulator.cycle_terms(white.a, white.y, white.inv_sigma, 1)  # the mean-balance row: reference
     acc = state.accumulator.fold(terms, lam) if state.cycles >= cfg.warmup_cycles else state.accumulator
 

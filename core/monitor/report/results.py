@@ -19,6 +19,7 @@ import numpy as np
 from frictionwatch.core.model.engine import mep_per_torque
 from frictionwatch.core.monitor.checks.ring_pressure import RingIndicators
 from frictionwatch.core.monitor.report.figure_status import FigureStatus, FrictionStatus, friction_status
+from frictionwatch.core.monitor.teeth.second_wheel import FreeEndSpeed
 
 PA_PER_BAR = 1e5
 
@@ -188,6 +189,7 @@ class CycleResult:
     acceleration: float = float("nan")
     indicated_window: float = float("nan")
     ring: RingIndicators | None = None
+    free_end: FreeEndSpeed | None = None  # the second wheel's speed of this cycle (core.monitor.teeth.second_wheel)
 
     @cached_property
     def friction_torque_cyl(self) -> np.ndarray | None:

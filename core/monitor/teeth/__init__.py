@@ -2,4 +2,5 @@
 
     tooth_fit.py     fit_cycle_teeth: one cycle's tooth edges -> FlywheelMotion, with on-line tooth-spacing learning
     flywheel.py      the Fourier series in time fitted to tooth times; the ToothLearner   (+ flywheel_kernels.py)
+    second_wheel.py  fit_second_wheel: a second (free-end) wheel's own speed and tooth-spacing learning
 """

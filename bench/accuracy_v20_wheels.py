@@ -1,0 +1,92 @@
+"""genset-v20 under a +-20 % load profile with one wheel and with two (issue 29): how many of the 20 cylinders the
+monitor measures within 5 % and 2 sigma, and what the two-wheel monitor path costs.
+
+    nice .venv/bin/python -m bench.accuracy_v20_wheels [--cycles 4000] [--seed 29] [--every 500] [--dwell-s 30]
+
+The plant streams genset-v20 with a free-end wheel (``simulate --second-wheel`` on bench/genset-v20-two-wheels.toml:
+the preset's text plus a 120-1 wheel at the front hub) under bench.accuracy_v20_long's load profile (set-points within 0.75 +- 0.20 of rated), compressed for a
+short run (``--dwell-s`` at each set-point, ``--ramp`` % of rated per minute). The same records go to three pipelines
+(service.pipeline.EnginePipeline): "one_wheel" told of no second wheel (its records ignored), "two_wheels" the
+default path with both (the second wheel's own speed and tooth learning; the estimates are one_wheel's), "joint"
+with the joint fit asked for (MonitorConfig(second_wheel=True): core.monitor.identify.free_end_rows). Checkpoints as bench.accuracy_v20_long's (truth = the mean of each
+cylinder's true friction over the last 200 cycles) to bench/accuracy_v20_wheels.json; ``pipeline_ms_per_cycle`` is
+the whole pipeline (assembler, monitor, watches) per cycle on this machine, real time being 80 ms a cycle.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.monitor.state import MonitorConfig
+from frictionwatch.core.plant.simulate import start_simulation
+
+from bench.accuracy_v20_long import BASE_LOAD, ENGINE, RPM, TRUTH_WINDOW, Runs, load_profile, summary_line, write_json
+
+OUT_JSON = Path(__file__).with_name("accuracy_v20_wheels.json")
+TWO_WHEELS = Path(__file__).with_name("genset-v20-two-wheels.toml")  # the preset's text plus its free-end wheel
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cycles", type=int, default=4000)
+    ap.add_argument("--seed", type=int, default=29)
+    ap.add_argument("--every", type=int, default=500)
+    ap.add_argument("--dwell-s", type=float, default=30.0)
+    ap.add_argument("--ramp", type=float, default=60.0, help="ramp between set-points [% of rated per minute]")
+    ap.add_argument("--json", default=str(OUT_JSON))
+    args = ap.parse_args()
+    spec = load_engine(TWO_WHEELS)
+    hours = args.cycles / (RPM / 120.0) / 3600.0
+    steps = load_profile(hours, dwell_s=args.dwell_s, ramp_pct_per_min=args.ramp)
+    sim = start_simulation(spec, RPM, BASE_LOAD, args.cycles, args.seed, load_steps=steps, second_wheel=True)
+    runs = {"one_wheel": Runs(spec, replace(sim.info, second_wheel=None), {"one_wheel": MonitorConfig()}),
+            "two_wheels": Runs(spec, sim.info, {"two_wheels": MonitorConfig(),
+                                                "joint": MonitorConfig(second_wheel=True)})}
+    truth = np.full((args.cycles, spec.n_cyl), np.nan)
+    doc = {"engine": ENGINE, "rpm": RPM, "seed": args.seed, "cycles_requested": args.cycles, "load_steps": steps,
+           "dwell_s": args.dwell_s, "ramp_pct_per_min": args.ramp, "truth_window": TRUTH_WINDOW,
+           "command": f"python -m bench.accuracy_v20_wheels --cycles {args.cycles} --seed {args.seed} --every "
+                      f"{args.every} --dwell-s {args.dwell_s} --ramp {args.ramp}", "checkpoints": []}
+    t0, sim_s, next_cp = time.perf_counter(), 0.0, args.every
+
+    def checkpoint() -> None:
+        r1, r2 = runs["one_wheel"], runs["two_wheels"]
+        cp = {**r1.checkpoint(truth, r1.last_index), **r2.checkpoint(truth, r2.last_index)}
+        if r2.n:  # Runs times its variants together: each variant's own share
+            for name in r2.configs:
+                cp[name]["pipeline_ms_per_cycle"] = round(r2.ms[name] / r2.n, 3)
+        cp.update(wall_s=round(time.perf_counter() - t0, 1), simulate_s=round(sim_s, 1))
+        doc["checkpoints"].append(cp)
+        write_json(Path(args.json), doc)
+        print(summary_line(cp, ["one_wheel", "two_wheels", "joint"]), flush=True)
+
+    chunks = iter(sim.chunks())
+    while True:
+        ts = time.perf_counter()
+        chunk = next(chunks, None)
+        sim_s += time.perf_counter() - ts
+        if chunk is None:
+            break
+        for e in chunk.cycles:
+            truth[e["index"]] = [c["friction_torque_mean_nm"] for c in e["cylinders"]]
+        for record in chunk.records:
+            for r in runs.values():
+                r.feed(record)
+        if runs["one_wheel"].n >= next_cp:
+            next_cp += args.every
+            checkpoint()
+    for r in runs.values():
+        r.feed(None)
+    checkpoint()
+    doc["final"] = doc["checkpoints"][-1]
+    doc["skipped"] = {k: r.skipped for k, r in runs.items()}
+    write_json(Path(args.json), doc)
+
+
+if __name__ == "__main__":
+    main()
