@@ -407,7 +407,7 @@ def _clipped(pressure_pa: np.ndarray, step_rad: float) -> np.ndarray:
     0.93 bar for 1.5 with those samples in), in any row, widened by half the smoothing span on each side (the
     smoothed p and p' there mix in the floor)."""
     bad = np.any(pressure_pa <= 0.0, axis=0)
-    half = max(5, 2 * int(round(0.5 * SMOOTH_DEG / math.degrees(step_rad))) + 1) // 2
+    half = _smooth_width(step_rad) // 2
     if not bad.any():
         return bad
     return np.convolve(bad.astype(np.float64), np.ones(2 * half + 1), mode="same") > 0.0
