@@ -305,7 +305,7 @@ def test_report_traces_and_residual_match_reference(name, m, n_t):
     basis = rng.normal(size=(z, 6, n_t))
     extra = rng.normal(size=(2, n_t))
     cyl_time, on_grid = np.empty((z, n_t)), np.empty((3, 720))
-    report_traces(grid, theta_fly, coef, basis, extra, cyl_time, on_grid)
+    report_traces(grid, theta_fly, coef, np.ascontiguousarray(basis.transpose(1, 0, 2)), extra, cyl_time, on_grid)
     r_cyl, r_total, r_ex = traces_reference(grid, theta_fly, coef, basis, extra)
     assert_allclose(cyl_time, np.einsum("kl,klt->kt", coef, basis), rtol=1e-13, atol=1e-13)
     cyl = np.empty((z, 720))

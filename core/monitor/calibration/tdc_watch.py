@@ -76,12 +76,14 @@ SCREEN_BEFORE_SOC_DEG = 10.0
 
 @dataclass(frozen=True)
 class TdcWatchState:
-    """sums (BLOCKS, z, n_local) and counts (BLOCKS,) of the current window's local traces; cycles in the window;
+    """sums: BLOCKS arrays (z, n_local), the current window's block sums of the local traces (a cycle replaces its
+    block's array by a new one, never writes into one: no copy of all five per cycle), counts (BLOCKS,) the cycles
+    in each; cycles in the window;
     previous: the last cycle's (index, pressure (z, n)) for the trace across the cycle boundary; last: the newest
     window's estimates (z,) or None; flags in force; omega_sum: the window's speeds summed [rad/s]; cut: the take
     indices of ``local_traces`` for this grid and these phases, made at the first pair (``trace_cut``)."""
 
-    sums: np.ndarray | None
+    sums: tuple[np.ndarray, ...] | None
     counts: np.ndarray
     cycles: int
     previous: Cycle | None
@@ -185,11 +187,11 @@ def watch_cycle(spec: EngineSpec, cal: Calibration, state: TdcWatchState, cycle:
         traces, angle = local_traces(prev, cycle, spec.firing_angles)
     if not np.all(np.isfinite(traces)):
         return dataclasses.replace(state, previous=cycle, cut=cut)  # a NaN sample: the pair is left out
-    sums = np.zeros((BLOCKS,) + traces.shape) if state.sums is None or state.sums.shape[1:] != traces.shape \
-        else state.sums.copy()
+    sums = (np.zeros(traces.shape),) * BLOCKS if state.sums is None or state.sums[0].shape != traces.shape \
+        else state.sums  # read only: a block is replaced, not written
     counts = state.counts.copy()
     b = state.cycles % BLOCKS
-    sums[b] += traces
+    sums = sums[:b] + (sums[b] + traces,) + sums[b + 1:]
     counts[b] += 1
     omega = state.omega_sum + _omega(cycle)
     twist_sum = state.twist_sum + np.asarray(twist, dtype=np.float64)
@@ -207,19 +209,20 @@ def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle
     if state.sums is None or state.cycles < BLOCKS:
         return state
     if angle is None:
-        if state.cut is None or state.cut.angle.shape[0] != state.sums.shape[-1]:
+        if state.cut is None or state.cut.angle.shape[0] != state.sums[0].shape[-1]:
             return state
         angle = state.cut.angle
     sums, counts, n, omega, twist_sum, cycle = (state.sums, state.counts, state.cycles, state.omega_sum,
                                                 state.twist_sum, state.previous)
-    means = sums / np.maximum(counts, 1)[:, None, None]
+    block_sums = np.stack(sums)  # (BLOCKS, z, n_local)
+    means = block_sums / np.maximum(counts, 1)[:, None, None]
     twist_mean = np.broadcast_to(twist_sum / n, (spec.n_cyl,))
     z = spec.n_cyl
     # this window's cylinders: all of a small engine, CYLINDERS_PER_WINDOW in turn on a large one (each keeps its
     # newest estimate; the wheel, their median, is known after the first window), and on a large one any other
     # cylinder whose compression stroke moved against its trace at its last fit (``screen_shift``): a TDC that
     # drifts is fitted in the window it shows in, not up to z / CYLINDERS_PER_WINDOW windows later
-    mean_trace = np.sum(sums, axis=0) / max(float(np.sum(counts)), 1.0)
+    mean_trace = np.sum(block_sums, axis=0) / max(float(np.sum(counts)), 1.0)
     turn = list(range(z)) if z <= per_window else [(state.next_cylinder + i) % z for i in range(per_window)]
     screened: list[int] = []
     moved = np.zeros(z)  # each unfitted cylinder's shift since its last fit [rad] (the screen's; 0: none read)

@@ -57,9 +57,9 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
     cyl_time = np.empty((z, n_t))
     on_grid = np.empty((1 + extra.shape[0], grid.shape[0]))
     theta_fly = np.ascontiguousarray(exc.theta_fly, dtype=np.float64)
-    # exc.basis (z, L, n_t) is a view of the term-major block the balance filled: read in place (a C-order copy
-    # would move the whole basis every cycle)
-    report_traces(grid, theta_fly, coef, exc.basis, extra, cyl_time, on_grid)
+    # exc.basis (z, L, n_t) is a view of the term-major block the balance filled: that block read in place (a C-order
+    # copy would move the whole basis every cycle)
+    report_traces(grid, theta_fly, coef, exc.basis.transpose(1, 0, 2), extra, cyl_time, on_grid)
     total = on_grid[0]
     speed_meas, speed_model = on_grid[1], on_grid[2]
     balance_trace = on_grid[3] if spec.n_nodes == 1 else None

@@ -244,24 +244,26 @@ def _interp_rows(vals, js, dxs, special, n_special, dxp, out):
 
 
 @numba.njit(cache=True)
-def report_traces(grid, theta, coef, basis, extra, cyl_time, out):
-    """The friction traces of one cycle: per cylinder sum_l coef[k, l] basis[k, l, :] on the time grid into
+def report_traces(grid, theta, coef, basis_terms, extra, cyl_time, out):
+    """The friction traces of one cycle: per cylinder sum_l coef[k, l] basis_terms[l, k, :] on the time grid into
     cyl_time (z, n_t) (kept in the result; onto the crank-angle grid only when asked for, ``rows_on_grid``), and onto
     the crank-angle ``grid`` (ng,): out[0] = their sum over cylinders, out[1:] = the rows ``extra`` (r, n_t); all
     sampled at the flywheel angles ``theta`` (n_t,) (periodic in 4 pi: theta spans one cycle from the first edge),
     interpolated as np.interp does. The engine total is summed on the time grid (interpolation is linear: the sum of
-    the per-cylinder grid traces up to rounding)."""
-    z, n_terms, n = basis.shape
+    the per-cylinder grid traces up to rounding). basis_terms (L, z, n_t) is the term-major block the balance fills
+    (C order on every engine: Excitation.basis is its (z, L, n_t) view, C order on one cylinder only, and each
+    layout was another compiled specialisation, ~1.5 s of cold compile)."""
+    n_terms, z, n = basis_terms.shape
     r = extra.shape[0]
     vals = np.empty((1 + r, n))  # the rows to interpolate: engine total, then the extra rows
     for k in range(z):
         row = cyl_time[k]
         for t in range(n):
-            row[t] = coef[k, 0] * basis[k, 0, t]
+            row[t] = coef[k, 0] * basis_terms[0, k, t]
         for term in range(1, n_terms):
             c = coef[k, term]
             for t in range(n):
-                row[t] += c * basis[k, term, t]
+                row[t] += c * basis_terms[term, k, t]
     for t in range(n):
         vals[0, t] = cyl_time[0, t]
     for k in range(1, z):
