@@ -5,6 +5,8 @@ cycles must give the same records in the same order (tooth, cam and load ticks e
 1e-12 relative: the same arithmetic) and the same truth (per-run sums accumulated chunk by chunk: 1e-12 relative).
 """
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from frictionwatch.core.model.engine import load_engine
@@ -29,7 +31,9 @@ def streamed(engine: str, rpm: float, load: float, cycles: int, chunk_cycles: in
     ("k9k-4cyl", 1700, 1.0, 7, {}),  # cam, 1-deg grid in the truth
     ("deutz-1cyl", 2600, 0.8, 6, {"load_steps": [(0.08, 0.5)]}),  # a load step inside a chunk
     ("genset-v20", 1500, 0.75, 4, {}),  # flexible chain, 20 pressure channels
-    ("genset-v20", 1500, 0.75, 3, {"second_wheel": True}),  # its free-end wheel: batches of its own revolution
+    # the benches' two-wheel genset (the preset plus a free-end wheel): batches of that wheel's own revolution
+    (str(Path(__file__).resolve().parents[2] / "bench" / "genset-v20-two-wheels.toml"), 1500, 0.75, 3,
+     {"second_wheel": True}),
     ("maruti-3cyl", 3000, 1.0, 7, {"effects": {"ring_wear": {"cylinder": 2, "from_cycle": 4}}}),  # onset mid-chunk
 ], ids=["k9k", "deutz-step", "genset-v20", "genset-v20-second-wheel", "maruti-ring-wear-from-4"])
 def test_chunked_run_equals_one_chunk(engine, rpm, load, cycles, kw):
