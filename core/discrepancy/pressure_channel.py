@@ -80,6 +80,11 @@ PEG_FLOOR_PA = _HEALTH.floor_offset_pa
 # blow-by log had a single misfire flag.
 MISFIRE_MIN_CYCLES = 3
 MISFIRE_SIGMAS = 3.0
+# a single cylinder has no sibling to burn while it does not: the monitor calls such a cycle motored (one cycle cannot
+# tell a misfire from the ignition off). Over a log it can: the ignition off, a coast-down or a motored test is one
+# long stretch, a misfire a cycle or a few between burned ones. Runs of motored cycles up to this long, burned cycles
+# on both sides, count as misfires (a 30 % misfire makes a run of four 0.8 % of the time).
+MISFIRE_MAX_RUN = 3
 
 
 @dataclass(frozen=True)
@@ -118,8 +123,11 @@ def pressure_findings(res: Residuals, halves: tuple[np.ndarray, np.ndarray] | No
         if halves is None:
             first = np.arange(n) < n // 2
             halves = (first, ~first)
-        for k in range(res.misfired.shape[1]):
-            hits = res.misfired[:, k]
+        misfired = res.misfired
+        if misfired.shape[1] == 1 and res.motored is not None:
+            misfired = misfired | single_cylinder_misfires(res.motored)[:, None]
+        for k in range(misfired.shape[1]):
+            hits = misfired[:, k]
             count = int(hits.sum())
             rate = count / n
             sigma = math.sqrt(max(rate * (1.0 - rate), 1.0 / n) / n)  # binomial; at 0 or 1 one cycle's worth
@@ -130,5 +138,28 @@ def pressure_findings(res: Residuals, halves: tuple[np.ndarray, np.ndarray] | No
     return out
 
 
+def single_cylinder_misfires(motored: np.ndarray) -> np.ndarray:
+    """(N,) the motored cycles of a single-cylinder log that are misfires: those in runs of at most MISFIRE_MAX_RUN
+    with a burned cycle on both sides (MISFIRE_MAX_RUN's comment).
+
+    >>> single_cylinder_misfires(np.array([0, 1, 0, 1, 1, 0, 1, 1, 1, 1, 0, 1], bool)).astype(int).tolist()
+    [0, 1, 0, 1, 1, 0, 0, 0, 0, 0, 0, 0]
+    """
+    m = np.asarray(motored, dtype=bool)
+    out = np.zeros(m.shape, dtype=bool)
+    i, n = 0, m.shape[0]
+    while i < n:
+        if not m[i]:
+            i += 1
+            continue
+        j = i
+        while j < n and m[j]:
+            j += 1
+        if i > 0 and j < n and j - i <= MISFIRE_MAX_RUN:
+            out[i:j] = True
+        i = j
+    return out
+
+
 __all__ = ["MISFIRE_MIN_CYCLES", "PEG_MIN_PA", "PEG_SIGMAS", "PressureFinding", "SEED_MIN_DEG", "SEED_SIGMAS",
-           "pressure_findings", "pressure_seeds", "tdc_chi2", "tdc_offsets_deg"]
+           "pressure_findings", "pressure_seeds", "single_cylinder_misfires", "tdc_chi2", "tdc_offsets_deg"]

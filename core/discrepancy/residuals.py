@@ -63,6 +63,7 @@ class Residuals:
     # (N, z) whether the monitor's condition check called cylinder k's burn in cycle i a misfire (misfire_cyl<k>:
     # unburned or partial while a sibling burned, core.monitor.checks.condition); False in a motored cycle
     misfired: np.ndarray | None = None
+    motored: np.ndarray | None = None  # (N,) the monitor called the cycle motored (no cylinder burned)
 
     @property
     def n_cycles(self) -> int:
@@ -73,7 +74,8 @@ class Residuals:
                                    harmonics=self.harmonics[mask], balance=self.balance[mask], speed=self.speed[mask],
                                    measured=None if self.measured is None else self.measured[mask],
                                    friction=None if self.friction is None else self.friction[mask],
-                                   misfired=None if self.misfired is None else self.misfired[mask])
+                                   misfired=None if self.misfired is None else self.misfired[mask],
+                                   motored=None if self.motored is None else self.motored[mask])
 
     def features(self) -> np.ndarray:
         """(N, 2M + 1) real features: Re and Im of each residual harmonic, then the balance residual (0 where NaN:
@@ -105,7 +107,7 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
         measured = 2.0 * np.abs(np.fft.rfft(r.speed_measured)[1:m + 1]) / r.speed_measured.shape[0]
         misfired = np.array([f"misfire_cyl{k + 1}" in r.flags for k in range(z)])
         rows.append((r.index, r.omega_mean, r.load_torque, r.residual_harmonics, r.friction_balance - friction, resid,
-                     measured, r.friction_balance, misfired))
+                     measured, r.friction_balance, misfired, "motored" in r.flags))
     if not rows:
         raise ValueError(f"the monitor analysed none of the {len(cycles)} cycles")
     pipe.close_windows()  # the pressure's reading of the whole log
@@ -114,6 +116,7 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
                      balance=np.array([r[4] for r in rows]), speed=np.array([r[5] for r in rows]), angles=angles,
                      rejected=rejected, measured=np.array([r[6] for r in rows]),
                      friction=np.array([r[7] for r in rows]), misfired=np.array([r[8] for r in rows]),
+                     motored=np.array([r[9] for r in rows]),
                      **_tdc_reading(pipe))
 
 

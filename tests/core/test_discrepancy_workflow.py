@@ -218,3 +218,14 @@ def test_pegging_and_misfire_are_named_from_the_pressure(pressure_faults):
     assert not any(f["effect"] == "tdc_offset" for f in doc["found"])  # the offset is not read as a TDC error
     again = discover(found.model, pressure_faults, OPTIONS)  # the model that states them: nothing more to name
     assert again.to_json()["found"] == [], again.verdict()
+
+
+def test_a_single_cylinders_misfires_are_the_short_motored_runs_between_burns():
+    """One cylinder: the monitor calls an unburned cycle motored (no sibling burned); over the log, runs of up to
+    three motored cycles between burned ones are misfires, a long stretch (ignition off) and the log's ends are not."""
+    from frictionwatch.core.discrepancy.pressure_channel import single_cylinder_misfires
+
+    motored = np.array([1, 0, 1, 0, 1, 1, 1, 0, 1, 1, 1, 1, 0, 1], dtype=bool)
+    expected = np.array([0, 0, 1, 0, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0], dtype=bool)
+    np.testing.assert_array_equal(single_cylinder_misfires(motored), expected)
+    assert not single_cylinder_misfires(np.ones(5, bool)).any() and not single_cylinder_misfires(np.zeros(0, bool)).size
