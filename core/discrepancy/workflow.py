@@ -6,14 +6,16 @@
 
 The cycles are split in time: the first ``warmup`` settle the monitor (tooth learner, noise model) and are not
 scored; of the rest the first half trains (the fits, on its first ``fit_cycles``) and the second half is held out
-(the choice and every reported gap). Each step linearises every candidate of the library on top of the current
+(the choice and every reported gap). First, what the pressure names outright (a pegging offset, a misfiring
+cylinder: core.discrepancy.pressure_channel) is added as one step. Then each step linearises every candidate of the library on top of the current
 model, refines the ``refine`` best by predicted cost, re-runs the best ``confirm`` of those over the whole log,
 takes one more Gauss-Newton step for the best of them on all training cycles (its sigma from there), and adds it if
 its held-out gain is significant: the held-out coherent chi^2 falls by at least ``min_delta_chi2`` (its noise under no effect is about
 sqrt(2 F) ~ 10 for F ~ 50 features) and the gap by at least ``min_reduction``. A significant step is still refused,
 and the model left as it was, when it makes a channel worse on the held-out cycles (the flywheel speed or the mean
-torque balance, beyond that channel's noise: ``channel_worse``) or when a fitted parameter ends on the bound of its
-range (the fit ran into the wall: not a physical value); the refusal and its reason are reported.
+torque balance, beyond that channel's noise; TDC against the cylinders' pressure) or when a fitted parameter ends on
+the bound of its range (the fit ran into the wall: not a physical value); the refusal and its reason are reported.
+Which trials are held out, when two are one explanation and why a step is refused: core.discrepancy.choice.
 
 The outcome says which of three it is: ``named`` (effects added), ``nothing`` (nothing significant before or after)
 or ``unexplained`` (a coherent residual remains that no candidate explains: significant engine orders or a
@@ -28,15 +30,22 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from frictionwatch.core.discrepancy.candidates import Candidate, candidate_library
+from frictionwatch.core.discrepancy.choice import (
+    channel_worse,
+    close_cylinders,
+    off_physics,
+    one_per_candidate,
+    pressure_worse,
+    rival,
+    to_confirm,
+)
 from frictionwatch.core.discrepancy.features import (
     SIGNIFICANT,
-    balance_residual,
     coherent_terms,
     feature_floor,
     gap,
     localise,
     noise_scale,
-    order_table,
 )
 from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, parameter_sigma, refine
 from frictionwatch.core.discrepancy.pressure_channel import (
@@ -261,8 +270,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         # a toggle's window cost is exact (one run, nothing to refine): it competes with the refined, whose
         # linear predictions can promise more than they keep
         chosen = lins[:opt.refine] + [lin for lin in lins[opt.refine:] if lin.candidate.toggle]
-        # and the same effect in the other cylinders that the window cannot tell from the lead's (_close_cylinders)
-        chosen += _close_cylinders(lins, lins[:opt.refine], lambda lin: lin.predicted)
+        # and the same effect in the other cylinders that the window cannot tell from the lead's (close_cylinders)
+        chosen += close_cylinders(lins, lins[:opt.refine], lambda lin: lin.predicted)
         # what the pressure says of TDC (the pipeline's TDC watch on the current model's run) starts a TDC
         # candidate's refinement at that reading: the linear step from 0 can stop short of a large offset
         chosen += [replace(lin, x_gn=lin.candidate.clip(np.array([x]))) for lin in lins
@@ -273,10 +282,10 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             return tdc_chi2(reading, tdc_offsets_deg(m) - tdc_offsets_deg(base))
 
         refined = [refine(lin, current, ev) for lin in chosen]
-        trials = _one_per_candidate(sorted(refined, key=lambda tr: tr.cost + pressure(_with_fit(current, tr))))
+        trials = one_per_candidate(sorted(refined, key=lambda tr: tr.cost + pressure(_with_fit(current, tr))))
         runs += ev.calls
         confirmed = []
-        for t in _to_confirm(trials, opt.confirm):
+        for t in to_confirm(trials, opt.confirm):
             trial_model = _with_fit(current, t)
             res = full(trial_model)
             runs += 1
@@ -287,10 +296,10 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         g_cur, chi_before = gap(test, scale), _chi2(test, scale)
         significant = _significance(test, scale, opt, lambda r: parts(r)[1])
         _, t, new_model, res = confirmed[0]
-        rival = _rival(confirmed, significant, lambda c: _chi2(parts(c[3])[1], scale) + pressure(c[2]))
-        if rival is not None:  # two explanations within the noise: say both, add neither
-            found.ambiguous = {"candidates": [t.candidate.label, rival.candidate.label],
-                               "separated_by": list(dict.fromkeys(c.separated_by for c in (t.candidate, rival.candidate)
+        other = rival(confirmed, significant, lambda c: _chi2(parts(c[3])[1], scale) + pressure(c[2]))
+        if other is not None:  # two explanations within the noise: say both, add neither
+            found.ambiguous = {"candidates": [t.candidate.label, other.candidate.label],
+                               "separated_by": list(dict.fromkeys(c.separated_by for c in (t.candidate, other.candidate)
                                                                   if c.separated_by))}
             break
         if significant(res):  # polished only if significant as it stands, and kept only if still significant
@@ -300,8 +309,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             found.rejected.update({c[1].candidate.label: c[0] for c in confirmed})
             break
         test_new = parts(res)[1]
-        why = (channel_worse(test, test_new, scale) or _pressure_worse(pressure(current), pressure(new_model),
-                                                                        model.spec.n_cyl) or _off_physics(t))
+        why = (channel_worse(test, test_new, scale) or pressure_worse(pressure(current), pressure(new_model),
+                                                                        model.spec.n_cyl) or off_physics(t))
         if why:  # significant, but it makes something else worse or is not physical: the model stays as it was
             found.refused.append({"candidate": t.candidate.label, "reason": why,
                                   "gap_before": g_cur, "gap_after": gap(test_new, scale)})
@@ -362,126 +371,6 @@ def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, t
 
 def _finding_effect(f):
     return make_effect(f.effect, {"cylinder": f.cylinder, f.parameter: f.value}, {f.parameter: f.sigma})
-
-
-# a channel is worse when its held-out coherent chi^2 grows by more than this many of its noise sigmas,
-# sqrt(2 F_channel) (the coherent chi^2 of F whitened features under no effect: mean 0, sigma ~ sqrt(2 F))
-WORSE_SIGMAS = 3.0
-
-
-def channel_worse(before: Residuals, after: Residuals, scale: np.ndarray) -> str:
-    """Which channel the step makes worse on the held-out cycles, in words ('' when none): the flywheel speed or the
-    mean torque balance, each judged on its own: its coherent chi^2 grows beyond WORSE_SIGMAS of its noise AND it
-    leaves a residual the null calls significant that was not there before (an engine order above the model-error
-    floor, features.order_table; a balance residual beyond its sigmas, larger than before). A rise inside the
-    model-error floor is the model's, not the step's."""
-    m = before.harmonics.shape[1]
-    tb, ta = before.n_cycles * coherent_terms(before, scale), after.n_cycles * coherent_terms(after, scale)
-    orders_before = {o["order"] for o in order_table(before) if o["significant"]}
-    new_orders = [o["order"] for o in order_table(after) if o["significant"] and o["order"] not in orders_before]
-    bal_b, bal_a = balance_residual(before), balance_residual(after)
-    checks = (("flywheel speed", slice(0, 2 * m), bool(new_orders)),
-              ("torque balance", slice(2 * m, None),
-               bal_a["significant"] and not abs(bal_a["mean_nm"]) <= abs(bal_b["mean_nm"])))  # before NaN: larger
-    for name, sl, shows in checks:
-        grow = float(ta[sl].sum() - tb[sl].sum())
-        if shows and grow > WORSE_SIGMAS * np.sqrt(2.0 * tb[sl].size):
-            return f"it makes the {name} residual worse on the held-out cycles (coherent chi^2 +{grow:.3g})"
-    return ""
-
-
-def _pressure_worse(before: float, after: float, n_cyl: int) -> str:
-    """'' unless a step moves the model's TDC against what the pressure reads (``tdc_chi2``) by more than
-    WORSE_SIGMAS of that chi^2's noise, sqrt(2 z) (z readings, each within its sigma under no effect): the pressure
-    is a channel too, and a TDC the speed asks for that the cylinders' own pressure contradicts is not taken (maruti
-    1500 rpm: a cam-order friction was explained by the wheel's TDC 0.48 deg off, the pressure reading it within
-    0.05 deg of the model's)."""
-    grow = after - before
-    if grow > WORSE_SIGMAS * np.sqrt(2.0 * n_cyl):
-        return f"it moves TDC against what the cylinders' pressure reads (chi^2 +{grow:.3g})"
-    return ""
-
-
-# same-effect candidates in other cylinders held out beside a lead, at most (each costs a refinement and a whole-log
-# run: on genset-v20 a worn ring's cylinder is within the window's noise of two or three others at 300 cycles)
-MAX_CLOSE_CYLINDERS = 3
-
-
-def _close_cylinders(items: list, leads: list, cost) -> list:
-    """The same per-cylinder effect as each of ``leads`` in other cylinders whose ``cost`` (a window chi^2) is within
-    AMBIGUOUS_DCHI2 of the lead's, at most MAX_CLOSE_CYLINDERS per lead, best first; ``items`` sorted by cost."""
-    out: list = []
-    have = {id(x) for x in leads}
-    for lead in leads:
-        if lead.candidate.cylinder is None:
-            continue
-        close = [x for x in items if x.candidate.effect == lead.candidate.effect and id(x) not in have
-                 and x.candidate.label != lead.candidate.label and cost(x) - cost(lead) < AMBIGUOUS_DCHI2]
-        for x in close[:MAX_CLOSE_CYLINDERS]:
-            have.add(id(x))
-            out.append(x)
-    return out
-
-
-def _to_confirm(trials: list[Trial], n_effects: int) -> list[Trial]:
-    """The trials to run over the whole log: the best of each of the first ``n_effects`` distinct effects; for each,
-    the same effect in every other cylinder the window cannot tell from it (``_close_cylinders``), and for the best
-    at least its runner-up in another cylinder (is its cylinder told?). Several cylinders of one effect at the top
-    would otherwise crowd another effect out of the held-out test; with the best's runner-up alone, genset-v20's worn
-    ring on cylinder 12 was named on cylinder 8 while cylinders 2 and 12 fitted the window within 5 of its chi^2 and
-    12 was never held out."""
-    out: list[Trial] = []
-    effects: list[str] = []
-    for t in trials:
-        name = t.candidate.effect
-        if name not in effects and len(effects) < n_effects:
-            effects.append(name)
-            out.append(t)
-    for lead in list(out):
-        close = _close_cylinders(trials, [lead], lambda t: t.cost)
-        if close:  # every cylinder the window cannot tell from the lead's: the held-out cycles decide, or say so
-            out += close
-        elif lead is out[0]:
-            sibling = next((t for t in trials if t.candidate.effect == lead.candidate.effect and t is not lead), None)
-            if sibling is not None:
-                out.append(sibling)
-    return out
-
-
-def _one_per_candidate(trials: list[Trial]) -> list[Trial]:
-    """The best trial of each candidate (a seeded and a plain refinement of one candidate are one explanation)."""
-    seen: set[str] = set()
-    return [t for t in trials if not (t.candidate.label in seen or seen.add(t.candidate.label))]
-
-
-# two candidates are one explanation within the noise when their held-out coherent chi^2 differ by less than this:
-# about one sigma of that chi^2 under no effect, sqrt(2 F) for F ~ 50 features (the same noise figure
-# min_delta_chi2 = 40 is four of); from the statistic, not tuned on a case
-AMBIGUOUS_DCHI2 = 10.0
-
-
-def _rival(confirmed: list, significant, chi2_of) -> Trial | None:
-    """The runner-up's trial when it is significant too and explains the held-out cycles within AMBIGUOUS_DCHI2 of
-    the best (another effect, or the same effect in another cylinder); else None."""
-    if len(confirmed) < 2:
-        return None
-    first, second = confirmed[0], confirmed[1]
-    if not (significant(first[3]) and significant(second[3])):
-        return None
-    return second[1] if chi2_of(second) - chi2_of(first) < AMBIGUOUS_DCHI2 else None
-
-
-def _off_physics(t: Trial) -> str:
-    """'' when every fitted parameter lies inside its range; else which one sits on its bound (the fit ran into the
-    wall of the range: the value is not a physical estimate)."""
-    cand = t.candidate
-    for name, x, x0, lo, hi in zip(cand.params, t.x, cand.x0, cand.lo, cand.hi):
-        if (lo, hi) == (0.0, 1.0):  # a share: both ends are physical values
-            continue
-        edge = 1e-3 * (hi - lo)
-        if (x <= lo + edge and lo != x0) or (x >= hi - edge and hi != x0):
-            return f"its {name} = {x:.4g} sits on the bound of its range [{lo:g}, {hi:g}]"
-    return ""
 
 
 def _said(e) -> str:

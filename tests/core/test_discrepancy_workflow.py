@@ -95,7 +95,7 @@ def test_a_step_that_makes_a_channel_worse_is_named_so():
     """channel_worse judges each channel on its own, against its noise and the null: a speed gap traded for a
     torque-balance offset is refused; a step that explains the speed but leaves a coherent residual at an order that
     was clean before is refused; noise-sized changes are not (made-up residuals, unit per-cycle noise, 40 cycles)."""
-    from frictionwatch.core.discrepancy.workflow import channel_worse
+    from frictionwatch.core.discrepancy.choice import channel_worse
 
     rng = np.random.default_rng(3)
     n, m = 40, 6
@@ -115,8 +115,8 @@ def test_a_step_that_makes_a_channel_worse_is_named_so():
 
 def test_a_parameter_on_its_bound_is_not_physical():
     from frictionwatch.core.discrepancy.candidates import candidate_library
+    from frictionwatch.core.discrepancy.choice import off_physics as _off_physics
     from frictionwatch.core.discrepancy.fit import Trial
-    from frictionwatch.core.discrepancy.workflow import _off_physics
 
     lib = {c.label: c for c in candidate_library(EngineModel.from_spec(load_engine(ENGINE)))}
     tdc = lib["tdc_offset[cyl 2]"]
@@ -130,8 +130,10 @@ def test_two_explanations_within_the_noise_are_said_both_and_neither_added():
     """_rival: the runner-up counts as a second explanation when it is significant too and its held-out chi^2 is
     within AMBIGUOUS_DCHI2 of the best; the verdict then names both and what would separate them."""
     from frictionwatch.core.discrepancy.candidates import candidate_library
+    from frictionwatch.core.discrepancy.choice import AMBIGUOUS_DCHI2
+    from frictionwatch.core.discrepancy.choice import rival as _rival
     from frictionwatch.core.discrepancy.fit import Trial
-    from frictionwatch.core.discrepancy.workflow import AMBIGUOUS_DCHI2, Discovery, _rival
+    from frictionwatch.core.discrepancy.workflow import Discovery
 
     lib = {c.label: c for c in candidate_library(EngineModel.from_spec(load_engine(ENGINE)))}
     tdc, gain = lib["tdc_offset[cyl 2]"], lib["pressure_gain[cyl 2]"]
@@ -237,13 +239,13 @@ def test_every_cylinder_the_window_cannot_tell_from_the_lead_is_held_out_too():
     Now 2 and 12 go to the held-out test beside it (19 does not, nor another effect, nor an engine-wide lead's)."""
     from types import SimpleNamespace as NS
 
-    from frictionwatch.core.discrepancy import workflow
+    from frictionwatch.core.discrepancy.choice import close_cylinders
 
     def item(effect, cyl, cost):
         return NS(candidate=NS(effect=effect, cylinder=cyl, label=f"{effect}[cyl {cyl}]"), cost=cost)
 
     items = [item("ring_wear", 8, 1166.9), item("ring_wear", 2, 1169.0), item("tdc_offset", 17, 1170.0),
              item("ring_wear", 12, 1171.7), item("ring_wear", 19, 1183.6)]
-    close = workflow._close_cylinders(items, [items[0]], lambda x: x.cost)
+    close = close_cylinders(items, [items[0]], lambda x: x.cost)
     assert [x.candidate.label for x in close] == ["ring_wear[cyl 2]", "ring_wear[cyl 12]"]
-    assert workflow._close_cylinders(items, [item("side_thrust_skirt", None, 1160.0)], lambda x: x.cost) == []
+    assert close_cylinders(items, [item("side_thrust_skirt", None, 1160.0)], lambda x: x.cost) == []
