@@ -96,6 +96,7 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
     stages = tuple(dataclasses.replace(s, per_window=z, window=len(cycles) + 1) if isinstance(s, TdcWatch) else s
                    for s in STAGES)
     pipe = CyclePipeline(model, config, ref, stages=stages)
+    misfire_flags = [f"misfire_cyl{k + 1}" for k in range(z)]  # the condition check's, made once per run
     for cycle in cycles:
         r = pipe.process(cycle).result
         if r is None:
@@ -105,7 +106,7 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
         resid = np.interp(angles, r.grid, r.speed_measured - r.speed_model, period=4.0 * np.pi)
         m = r.residual_harmonics.shape[0]
         measured = 2.0 * np.abs(np.fft.rfft(r.speed_measured)[1:m + 1]) / r.speed_measured.shape[0]
-        misfired = np.array([f"misfire_cyl{k + 1}" in r.flags for k in range(z)])
+        misfired = np.array([f in r.flags for f in misfire_flags])
         rows.append((r.index, r.omega_mean, r.load_torque, r.residual_harmonics, r.friction_balance - friction, resid,
                      measured, r.friction_balance, misfired, "motored" in r.flags))
     if not rows:
