@@ -66,14 +66,14 @@ class RingConditionRule:
         self.last: RingCondition | None = None
         self._native: set | None = None  # the baseline's bands when the rule first saw one (module: _chained)
         self._carry: dict = {}  # band key -> the leak change (z,) and sigma carried into it
-        self._last: tuple[np.ndarray, np.ndarray] | None = None  # the newest chained change and sigma
+        self._newest_change: tuple[np.ndarray, np.ndarray] | None = None  # the newest chained change and sigma
         self.siblings = True  # False after a rebaseline (the state then is declared normal)
 
     def update(self, result: CycleResult, ctx: Context) -> list[Decision | Hold]:
         cfg, ring, z = self.config, result.ring, ctx.n_cyl
         if ctx.baseline is None and self._native is not None:  # a rebaseline: the chain starts again, and the
             # present state is declared normal: the siblings no longer judge it
-            self._native, self._carry, self._last, self.siblings = None, {}, None, False
+            self._native, self._carry, self._newest_change, self.siblings = None, {}, None, False
         if ring is None:
             return []
         if self.window is None:
@@ -132,12 +132,12 @@ class RingConditionRule:
         key = (band.first_cycle, band.last_cycle)
         if key not in self._carry:
             z = change.shape[0]
-            new = key not in self._native and self._last is not None
-            self._carry[key] = self._last if new else (np.zeros(z), np.zeros(z))
+            new = key not in self._native and self._newest_change is not None
+            self._carry[key] = self._newest_change if new else (np.zeros(z), np.zeros(z))
         c0, s0 = self._carry[key]
         total = (change + c0, np.hypot(sigma, s0))
         if np.all(np.isfinite(total[0])):
-            self._last = total
+            self._newest_change = total
         return total
 
     def _friction(self, result: CycleResult, ctx: Context, sensor: np.ndarray) -> tuple[np.ndarray, ...]:
