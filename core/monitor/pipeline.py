@@ -80,7 +80,9 @@ class StageInput:
 
 class RunningStage(Protocol):
     """A stage run on every analysed cycle after the monitor; its state carries ``flags`` (a tuple of str) and, for
-    a stage that reads in windows, ``last`` (the newest window's reading, a new object when a window closes)."""
+    a stage that reads in windows, ``last`` (the newest window's reading, a new object when a window closes); such a
+    stage may also have ``close(state, spec, calibration) -> state`` to read its open window now
+    (``CyclePipeline.close_windows``)."""
 
     name: str
 
