@@ -49,6 +49,7 @@ from frictionwatch.core.discrepancy.features import (
 )
 from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, parameter_sigma, refine
 from frictionwatch.core.discrepancy.pressure_channel import (
+    PressureFinding,
     pressure_findings,
     pressure_seeds,
     tdc_chi2,
@@ -344,22 +345,21 @@ def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, t
     if not findings:
         return current, cur_res, test, 0
     offsets = [f for f in findings if f.effect == "pressure_offset"]
-    new_model, res, runs = current, cur_res, 0
+    res, runs = cur_res, 0
     if offsets:
-        for f in offsets:
-            new_model = new_model.with_effect(_finding_effect(f))
-        res, runs = full(new_model), 1
-        why = channel_worse(test, parts(res)[1], scale)
-        if why:  # the offsets stay out: the model is left as it was
+        run = full(_with_findings(current, offsets))
+        runs = 1
+        why = channel_worse(test, parts(run)[1], scale)
+        if why:  # the offsets stay out
             found.refused += [{"candidate": f.label, "reason": why, "channel": "pressure", "gap_before": gap(test, scale),
-                               "gap_after": gap(parts(res)[1], scale)} for f in offsets]
-            new_model, res = current, cur_res
-            findings = [f for f in findings if f.effect != "pressure_offset"]
-    for f in findings:
-        if f.effect != "pressure_offset":
-            new_model = new_model.with_effect(_finding_effect(f))
+                               "gap_after": gap(parts(run)[1], scale)} for f in offsets]
+            offsets = []
+        else:
+            res = run
+    findings = offsets + [f for f in findings if f.effect != "pressure_offset"]  # in the order they are added
     if not findings:
         return current, cur_res, test, runs
+    new_model = _with_findings(current, findings)
     test_new = parts(res)[1]
     added = new_model.effects[-len(findings):]
     found.steps.append(Step(None, added[0], gap(test, scale), gap(test_new, scale), _chi2(test, scale),
@@ -369,8 +369,12 @@ def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, t
     return new_model, res, test_new, runs
 
 
-def _finding_effect(f):
-    return make_effect(f.effect, {"cylinder": f.cylinder, f.parameter: f.value}, {f.parameter: f.sigma})
+def _with_findings(model: EngineModel, findings: list[PressureFinding]) -> EngineModel:
+    """``model`` with each finding's effect (its value and sigma) added, in order."""
+    for f in findings:
+        model = model.with_effect(make_effect(f.effect, {"cylinder": f.cylinder, f.parameter: f.value},
+                                              {f.parameter: f.sigma}))
+    return model
 
 
 def _said(e) -> str:
