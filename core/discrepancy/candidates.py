@@ -9,8 +9,13 @@ several, all of them at once is one more toggle ('torsional_flexibility+variable
 constant inertia is not made right by either alone (k9k 3000 rpm, rigid baseline: held-out gap 11.8; the flexible
 shaft alone 35.8, J(theta) alone 12.3).
 
+A load ripple is engine-wide, one candidate per engine order its effect declares (``CandidateSpec.variants``: the
+half orders 0.5 and 1.5; an integer order is the tooth-spacing learner's, core/model/effects/catalog.py says why).
+An effect may declare further shapes (``CandidateSpec.also``): an extra friction is a constant torque in each
+cylinder, and a cam-order torque fitted in a stand-in cylinder (``places_cylinder`` False: the speed cannot tell
+which cylinder; the workflow says that and adds nothing).
+
 Not in the library today, and why (the monitor cannot be told, or there is nothing to tell it):
-- load_ripple: the monitor has no known load-torque input to put it in (it would need a hook in core/monitor);
 - misfire, blow_by: they change the cylinder pressure, which the monitor measures: the model already sees them
   (a misfire, and a sensor's pegging offset, are named from the pressure itself: pressure_channel.pressure_findings);
 - tooth_spacing_error: the monitor learns the wheel's tooth pattern itself;
@@ -24,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from frictionwatch.core.model.effects import EFFECTS, Effect, make_effect
+from frictionwatch.core.model.effects.base import CandidateSpec
 from frictionwatch.core.model.effects.mismatch import MISMATCHES
 from frictionwatch.core.model.engine_model import EngineModel
 
@@ -44,9 +50,13 @@ class Candidate:
     hi: tuple[float, ...]
     fixed: Mapping[str, float] = field(default_factory=dict)
     separated_by: str = ""  # the measurement that tells it from another explanation (its effect's declaration)
+    variant: str = ""  # an engine-wide candidate's fixed variant, e.g. "order 0.5" (its values are in ``fixed``)
+    places_cylinder: bool = True  # False: fitted in a stand-in cylinder the speed cannot tell from the others
 
     @property
     def label(self) -> str:
+        if self.variant:
+            return f"{self.effect}[{self.variant}]"
         return self.effect if self.cylinder is None else f"{self.effect}[cyl {self.cylinder}]"
 
     @property
@@ -83,26 +93,12 @@ class Candidate:
 def candidate_library(model: EngineModel) -> list[Candidate]:
     """Every candidate that can still be added to ``model`` (a slot it already holds is left out), in the effect
     registry's order, each as its effect declares it (``Effect.candidate``)."""
-    z = model.spec.n_cyl
     have = {e.slot for e in model.effects}
     names = {e.name for e in model.effects}
     out = []
     for name, cls in EFFECTS.items():
-        spec = cls.candidate
-        if spec is None:
-            continue
-        if not spec.params:  # a toggle: only where the model left its default effect out
-            if name not in names:
-                out.append(Candidate(name, None, (), (), (), (), (), separated_by=spec.separated_by))
-            continue
-        if spec.requires and (spec.requires not in names or (spec.requires == "torsional_flexibility"
-                                                             and not model.spec.stiffness.size)):
-            continue
-        # on a one-cylinder engine the whole wheel and its one cylinder are one offset to the monitor: offer it once
-        each_and_wheel = range(1, z + 1) if z == 1 else range(0, z + 1)
-        cylinders = {"each": range(1, z + 1), "each_and_wheel": each_and_wheel}.get(spec.where, (None,))
-        out += [Candidate(name, k, spec.params, spec.x0, spec.step, spec.lo, spec.hi, dict(spec.fixed),
-                          spec.separated_by) for k in cylinders]
+        for spec in (() if cls.candidate is None else (cls.candidate, *cls.candidate.also)):
+            out += _expanded(name, spec, model, names)
     toggles = [c for c in out if c.toggle]
     if len(toggles) > 1:  # every default effect the model left out, at once
         out.append(Candidate("+".join(c.effect for c in toggles), None, (), (), (), (), (),
@@ -110,8 +106,26 @@ def candidate_library(model: EngineModel) -> list[Candidate]:
     return [c for c in out if _slot(c) not in have]
 
 
+def _expanded(name: str, spec: CandidateSpec, model: EngineModel, names: set[str]) -> list[Candidate]:
+    """One effect's declaration (``CandidateSpec``) over the cylinders (and variants) of ``model``."""
+    z = model.spec.n_cyl
+    if not spec.params:  # a toggle: only where the model left its default effect out
+        return [] if name in names else [Candidate(name, None, (), (), (), (), (), separated_by=spec.separated_by)]
+    if spec.requires and (spec.requires not in names or (spec.requires == "torsional_flexibility"
+                                                         and not model.spec.stiffness.size)):
+        return []
+    # on a one-cylinder engine the whole wheel and its one cylinder are one offset to the monitor: offer it once
+    each_and_wheel = range(1, z + 1) if z == 1 else range(0, z + 1)
+    cylinders = {"each": range(1, z + 1), "each_and_wheel": each_and_wheel}.get(spec.where, (None,))
+    return [Candidate(name, k, spec.params, spec.x0, spec.step, spec.lo, spec.hi, {**spec.fixed, **v},
+                      spec.separated_by, ", ".join(f"{a} {b:g}" for a, b in v.items()), spec.places_cylinder)
+            for k in cylinders for v in (spec.variants or ({},))]
+
+
 def _slot(c: Candidate) -> tuple:
-    return (c.effect, c.cylinder) if c.cylinder is not None else (c.effect,)
+    """The slot a candidate would take (a stand-in's: the cylinder it is fitted in)."""
+    cyl = c.cylinder if c.cylinder is not None else c.fixed.get("cylinder")
+    return (c.effect, int(cyl)) if cyl is not None else (c.effect,)
 
 
 __all__ = ["FRICTION_LAWS", "Candidate", "candidate_library"]

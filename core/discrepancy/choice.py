@@ -130,5 +130,16 @@ def off_physics(t: Trial) -> str:
     return ""
 
 
+def unphysical(t: Trial, load_torque: float) -> str:
+    """'' when the trial's fitted values (with their sigma) can be its effect's physics at a mean load torque of
+    ``load_torque`` [N m] (``Effect.unphysical``); else why not: such a fit is some other torque than the effect's,
+    and is no explanation (dropped before the held-out test)."""
+    if t.candidate.toggle:
+        return ""
+    sigma = dict(zip(t.candidate.params, (float(s) for s in t.sigma)))
+    return t.candidate.effect_at(t.x).unphysical(sigma, load_torque)
+
+
 __all__ = ["AMBIGUOUS_DCHI2", "MAX_CLOSE_CYLINDERS", "WORSE_SIGMAS", "channel_worse", "close_cylinders",
-           "off_physics", "one_per_candidate", "pressure_worse", "rival", "to_confirm"]
+           "off_physics", "one_per_candidate", "pressure_worse", "rival", "to_confirm",
+           "unphysical"]

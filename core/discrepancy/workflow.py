@@ -38,6 +38,7 @@ from frictionwatch.core.discrepancy.choice import (
     pressure_worse,
     rival,
     to_confirm,
+    unphysical,
 )
 from frictionwatch.core.discrepancy.features import (
     SIGNIFICANT,
@@ -184,7 +185,11 @@ class Discovery:
         if not self.steps and not self.ambiguous and self.one_operating_point:
             text += ("; the log holds one steady speed and load, where a friction law that differs from the model's "
                      "only elsewhere cannot show: a run across speeds and loads would test the laws")
-        if self.ambiguous:
+        if self.ambiguous and len(self.ambiguous["candidates"]) == 1:  # one effect, its cylinder not told
+            a = self.ambiguous
+            text += (f"; {a['candidates'][0]} explains the rest, but the speed cannot tell which, so it was not "
+                     "added" + (f": {'; or '.join(a['separated_by'])} would tell" if a["separated_by"] else ""))
+        elif self.ambiguous:
             a = self.ambiguous
             text += (f"; {' and '.join(a['candidates'])} explain the rest equally well and neither was added"
                      + (f": {'; or '.join(a['separated_by'])} would tell them apart" if a["separated_by"] else ""))
@@ -234,6 +239,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         raise ValueError(f"{len(cycles)} cycles: the workflow needs at least {opt.warmup + 16} "
                          f"({opt.warmup} to settle, 8 to train, 8 held out)")
     ref = reference(cycles)
+    load_nm = _mean_load(cycles, ref.omega)  # what a load ripple's swing is measured against (Effect.unphysical)
     split = opt.warmup + (len(cycles) - opt.warmup) // 2
     first, held = cycles[opt.warmup].index, cycles[split].index
     window = cycles[:min(split, opt.warmup + opt.fit_cycles)]
@@ -283,7 +289,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             return tdc_chi2(reading, tdc_offsets_deg(m) - tdc_offsets_deg(base))
 
         refined = [refine(lin, current, ev) for lin in chosen]
-        trials = one_per_candidate(sorted(refined, key=lambda tr: tr.cost + pressure(_with_fit(current, tr))))
+        trials = [t for t in one_per_candidate(sorted(refined, key=lambda tr: tr.cost + pressure(_with_fit(current, tr))))
+                  if not unphysical(t, load_nm)]
         runs += ev.calls
         confirmed = []
         for t in to_confirm(trials, opt.confirm):
@@ -308,6 +315,10 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             runs += extra
         if not significant(res):
             found.rejected.update({c[1].candidate.label: c[0] for c in confirmed})
+            break
+        if not t.candidate.places_cylinder and model.spec.n_cyl > 1:  # explained, but the speed cannot say where
+            found.ambiguous = {"candidates": [f"{t.candidate.label} in any one of the {model.spec.n_cyl} cylinders"],
+                               "separated_by": [t.candidate.separated_by] if t.candidate.separated_by else []}
             break
         test_new = parts(res)[1]
         why = (channel_worse(test, test_new, scale) or pressure_worse(pressure(current), pressure(new_model),
@@ -377,12 +388,23 @@ def _with_findings(model: EngineModel, findings: list[PressureFinding]) -> Engin
     return model
 
 
+def _mean_load(cycles: Sequence[Cycle], omega: float) -> float:
+    """The log's median load torque [N m] as the monitor reads it (the torque, else the power over the speed); NaN
+    where neither is measured."""
+    loads = np.array([c.load_torque if np.isfinite(c.load_torque) else c.load_power / omega for c in cycles])
+    loads = loads[np.isfinite(loads)]
+    return float(np.median(loads)) if loads.size else float("nan")
+
+
 def _said(e) -> str:
     """An effect in an operator's words: 'tdc_offset (the whole wheel, deg=-0.81 +- 0.05)'."""
     cyl = e.values.get("cylinder")
     where = "" if cyl is None else ("the whole wheel" if cyl == 0 else f"cylinder {cyl}")
+    spec = type(e).candidate
+    variant = {k for v in (spec.variants if spec is not None else ()) for k in v}  # e.g. a load ripple's order
     vals = ", ".join(f"{k}={v:.3g}" + (f" +- {e.sigma[k]:.2g}" if k in e.sigma else "")
-                     for k, v in e.values.items() if k != "cylinder" and (k in e.sigma or not e.sigma))
+                     for k, v in e.values.items()
+                     if k != "cylinder" and (k in e.sigma or k in variant or not e.sigma))
     inner = ", ".join(s for s in (where, vals) if s)
     return f"{e.name} ({inner})" if inner else e.name
 

@@ -17,6 +17,8 @@ predicts the flywheel speed with it. What the catalogue's effects do here:
                                    cylinder's mean friction at the reference operating point
     friction laws (mismatch.py)    ``fraction`` of the base term's mean moved into the law's term, sized at the
                                    reference operating point as the simulator sizes it
+    load_ripple                    a known load torque at the load node (the monitor subtracts it from the known
+                                   node torques, core.monitor.balance.harmonic_balance)
 
 One translation for every user: core.monitor.pipeline turns the view into the monitor's model and config
 (``monitor_config``). The discrepancy workflow pins the friction scales to the model (its ``pinned_config``): its
@@ -70,7 +72,8 @@ def needs_reference(model: EngineModel) -> bool:
 class MonitorView:
     """spec (firing angles with any TDC offset), terms and coefficients the monitor identifies with; whether the
     inertia varies with crank angle (the model has ``variable_inertia``); the pressure corrections per cylinder:
-    gain (z,), offset (z,) Pa; the model's calibration (what its sensor effects leave unknown)."""
+    gain (z,), offset (z,) Pa; the model's calibration (what its sensor effects leave unknown); a known load-torque
+    ripple (amplitude [N m], fraction of the mean load torque, order, phase [rad]; zeros: none)."""
 
     spec: EngineSpec
     terms: TermLibrary
@@ -79,6 +82,7 @@ class MonitorView:
     gain: np.ndarray
     offset: np.ndarray
     calibration: Calibration
+    load_ripple: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
     @property
     def model(self) -> EngineModel:
@@ -120,7 +124,7 @@ def monitor_view(model: EngineModel, ref: Reference | None) -> MonitorView:
     if np.any(setup.tdc):
         spec = dataclasses.replace(spec, firing_angles=spec.firing_angles + setup.tdc)
     return MonitorView(spec, setup.terms, setup.coefficients, setup.variable_inertia, setup.gain, setup.offset,
-                       model.calibration)
+                       model.calibration, setup.load_ripple)
 
 
 def corrected_pressure(view: MonitorView, pressure: np.ndarray) -> np.ndarray:

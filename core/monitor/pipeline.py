@@ -129,9 +129,9 @@ STAGES: tuple[RunningStage, ...] = (TdcWatch(), GainWatch())
 
 
 def monitor_config(view: MonitorView, config: MonitorConfig | None) -> MonitorConfig:
-    """The caller's config with what the view decides: the model's calibration, and constant inertia where the
-    model has no ``variable_inertia``."""
-    cfg = dataclasses.replace(config or MonitorConfig(), calibration=view.calibration)
+    """The caller's config with what the view decides: the model's calibration, its known load ripple, and constant
+    inertia where the model has no ``variable_inertia``."""
+    cfg = dataclasses.replace(config or MonitorConfig(), calibration=view.calibration, load_ripple=view.load_ripple)
     return cfg if view.variable_inertia else dataclasses.replace(cfg, variable_inertia=False)
 
 

@@ -114,6 +114,9 @@ class MonitorConfig:
     model_error_floor: ModelErrorFloor = ModelErrorFloor()
     calibration: Calibration = Calibration()
     r_squared_floor: float = 0.05
+    # a known load-torque ripple at the load node (the model's load_ripple effect, core.model.view): amplitude [N m],
+    # fraction of the measured mean load torque (where the amplitude is 0), engine order, phase [rad]; zeros: none
+    load_ripple: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     # the joint fit of both wheels: the second wheel's half-order speed equations accumulated with the flywheel's
     # (core.monitor.identify.free_end_rows; its node: the engine file's [sensors.second_wheel]). Off by default: on
     # genset-v20 (seed 29, 600-1,000 cycles at one load) it pulls the ring-group scales 0.1-0.6 low and F5/F6 high

@@ -128,6 +128,40 @@ def test_library_leaves_out_what_the_model_holds():
     assert e["deg"] == pytest.approx(10.0) and e["cylinder"] == 0
 
 
+def test_the_library_offers_load_ripples_at_half_orders_and_a_cam_order_friction_in_a_stand_in_cylinder():
+    spec = load_engine("k9k-4cyl")
+    lib = {c.label: c for c in candidate_library(EngineModel.from_spec(spec))}
+    for order in (0.5, 1.5):
+        ripple = lib[f"load_ripple[order {order:g}]"]
+        assert ripple.params == ("in_phase_nm", "quadrature_nm") and ripple.cylinder is None
+        assert ripple.effect_at(np.array([3.0, 4.0])).ripple() == pytest.approx((5.0, 0.0, order, np.arctan2(4, 3)))
+        cam = lib[f"extra_friction[order {order:g}]"]
+        assert not cam.places_cylinder and cam.cylinder is None and cam.fixed["cylinder"] == 1
+        assert cam.effect_at(np.array([0.2, 0.0, 0.5])).shape() == pytest.approx((0.2, 0.5, order, np.pi / 2))
+    assert "load_ripple[order 1]" not in lib  # an integer order is the tooth learner's
+    # the stand-in's cylinder already holds an extra friction: the cam shape is not offered (it could not be added)
+    held = EngineModel.from_spec(spec, effects=[make_effect("extra_friction", {"cylinder": 1, "mean_frac": 0.1})])
+    labels = {c.label for c in candidate_library(held)}
+    assert "extra_friction[order 0.5]" not in labels and "extra_friction[cyl 1]" not in labels
+    assert "extra_friction[cyl 2]" in labels and "load_ripple[order 0.5]" in labels
+
+
+def test_a_friction_swing_larger_than_the_friction_it_rides_on_is_not_friction():
+    ef = make_effect("extra_friction", {"cylinder": 2, "mean_frac": 0.0, "cos_frac": 1.6, "sin_frac": 1.2})
+    nan = float("nan")
+    assert "would drive the engine" in ef.unphysical({}, nan)  # a swing of 2.0 on a friction of 1.0
+    assert "would drive" in ef.unphysical({"cos_frac": 0.4, "sin_frac": 0.4}, nan)  # 1.0 over: 2.5 sigma (0.4)
+    assert ef.unphysical({"cos_frac": 0.6, "sin_frac": 0.6}, nan) == ""  # 1.0 over: within 2 sigma (0.6)
+    assert make_effect("extra_friction", {"cylinder": 2, "mean_frac": 1.2, "cos_frac": 1.6,
+                                          "sin_frac": 1.2}).unphysical({}, nan) == ""
+    # a load ripple beyond its load's mean torque; an unmeasured load bounds nothing
+    ripple = make_effect("load_ripple", {"order": 1.5, "in_phase_nm": -60.8, "quadrature_nm": 40.4})
+    assert "the load would drive the engine" in ripple.unphysical({"in_phase_nm": 0.8, "quadrature_nm": 0.8}, 40.0)
+    assert ripple.unphysical({}, 80.0) == "" and ripple.unphysical({}, nan) == ""
+    with pytest.raises(ValueError, match="not both"):
+        make_effect("extra_friction", {"cylinder": 2, "amp_frac": 0.3, "cos_frac": 0.1})
+
+
 def test_view_runs_with_the_callers_config():
     """The workflow pins the friction (pinned_config), analyze and serve do not: the pipeline takes either as given
     and adds what the view decides (the model's calibration, constant inertia without variable_inertia)."""

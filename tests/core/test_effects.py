@@ -250,6 +250,36 @@ def test_load_ripple_appears_at_its_order(base):
     assert r.truth["operating"]["load_ripple_nm"] == 20.0
 
 
+def test_load_ripple_in_phase_and_quadrature_are_its_amplitude_and_phase():
+    """The discrepancy workflow's form (A cos phase, A sin phase) makes the same plant as amplitude and phase; both
+    forms at once are refused."""
+    polar = run({"load_ripple": {"amplitude_nm": 20.0, "order": 1.5, "phase_deg": 120.0}})
+    parts = run({"load_ripple": {"in_phase_nm": 20.0 * np.cos(np.radians(120.0)), "order": 1.5,
+                                 "quadrature_nm": 20.0 * np.sin(np.radians(120.0))}})
+    assert_allclose(parts.truth["operating"]["load_ripple_nm"], 20.0, rtol=1e-12)
+    assert_allclose(parts.diagnostics["flywheel_speed_grid_rad_s"], polar.diagnostics["flywheel_speed_grid_rad_s"],
+                    rtol=1e-9)
+    with pytest.raises(ValueError, match="not both"):
+        LoadRipple(amplitude_nm=5.0, in_phase_nm=1.0)
+
+
+def test_the_monitor_takes_a_stated_load_ripple_as_a_known_torque_at_the_load_node():
+    from frictionwatch.core.model.effects.base import ViewSetup
+    from frictionwatch.core.monitor.balance.harmonic_balance import known_load_ripple, subtract_load_ripple
+
+    view = LoadRipple(in_phase_nm=3.0, quadrature_nm=4.0, order=0.5).apply_view(
+        ViewSetup.nominal(SPEC, rezeka_henein(), np.zeros((SPEC.n_cyl, 6))))
+    assert_allclose(view.load_ripple, (5.0, 0.0, 0.5, np.arctan2(4.0, 3.0)), rtol=1e-12)
+    # a fraction of the mean load: of the measured one; none where the load is not measured
+    assert known_load_ripple((0.0, 0.1, 1.5, 0.0), float("nan"), 2) is None
+    r = known_load_ripple((0.0, 0.1, 1.5, 0.3), -200.0, 2)
+    assert r.node == 2 and r.amplitude == pytest.approx(20.0) and (r.order, r.phase) == (1.5, 0.3)
+    known, theta = np.ones((3, 8)), np.linspace(0.0, 4.0 * np.pi, 8, endpoint=False)
+    subtract_load_ripple(known, theta, np.array([0.0, 0.0, 0.01]), r)  # its static twist: 0.01 rad ahead of the flywheel
+    assert_allclose(known[2], 1.0 - 20.0 * np.sin(1.5 * (theta + 0.01) + 0.3), rtol=1e-12)
+    assert_allclose(known[:2], 1.0)
+
+
 def test_tooth_spacing_error_sum_zero_and_rms(base):
     err = np.asarray(base.truth["wheel"]["tooth_errors_deg"])
     assert abs(err.sum()) < 1e-9 and 0.015 < err.std() < 0.05

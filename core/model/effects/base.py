@@ -135,7 +135,9 @@ class ViewSetup:
     """The model as the monitor runs it, while the effects build it (core.model.view.monitor_view): the spec, the
     loss terms and their coefficients (z, L); the shaft line flexible or one rigid node and the inertia variable or
     constant (as the plant's ChainSetup: off unless an effect says so); per cylinder the kinematic phase offset
-    ``tdc`` (z,) rad and the pressure reading's ``gain`` (z,) and ``offset`` (z,) Pa that the monitor undoes."""
+    ``tdc`` (z,) rad and the pressure reading's ``gain`` (z,) and ``offset`` (z,) Pa that the monitor undoes; a known
+    load-torque ripple at the load node ``load_ripple`` = (amplitude [N m], fraction of the measured mean load torque
+    (used where the amplitude is 0), engine order, phase [rad]) as the plant's LoadSetup, all 0: none."""
 
     spec: EngineSpec
     terms: TermLibrary
@@ -145,6 +147,7 @@ class ViewSetup:
     offset: np.ndarray
     flexible: bool = False
     variable_inertia: bool = False
+    load_ripple: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
     @classmethod
     def nominal(cls, spec: EngineSpec, terms: TermLibrary, coefficients: np.ndarray) -> ViewSetup:
@@ -156,7 +159,11 @@ class ViewSetup:
 class CandidateSpec:
     """How the discrepancy workflow may add an effect to a model (core.discrepancy.candidates): the parameters
     it fits, their no-effect values ``x0``, finite-difference steps and bounds, the other parameters ``fixed``; where:
-    ``each`` cylinder, ``each_and_wheel`` (cylinder 0 too: the whole wheel), or ``engine``-wide; ``requires``: an
+    ``each`` cylinder, ``each_and_wheel`` (cylinder 0 too: the whole wheel), or ``engine``-wide (once, or once per
+    fixed ``variants`` entry, e.g. a load ripple at each of a few engine orders); ``also``: further shapes of the
+    effect, each declared so (an extra friction's constant and its cam-order shape); ``places_cylinder`` False: a
+    shape the speed reads alike from every cylinder, fitted in the one its ``fixed`` names and never added, only
+    said (the workflow's outcome is then ambiguous over the cylinders); ``requires``: an
     effect the model must hold (and a shaft line with sections, for ``torsional_flexibility``); ``separated_by``: the
     measurement that tells this effect from another that explains a log as well (said when the workflow finds two).
     No parameters: a toggle (a default effect the model left out)."""
@@ -170,6 +177,9 @@ class CandidateSpec:
     where: str = "engine"
     requires: str = ""
     separated_by: str = ""
+    variants: tuple[Mapping[str, float], ...] = ()  # engine-wide: one candidate per variant (its values fixed too)
+    also: tuple[CandidateSpec, ...] = ()  # further shapes of the same effect, each a candidate of its own
+    places_cylinder: bool = True  # False: the speed cannot tell in which cylinder it is (fitted in a stand-in one)
 
 
 # the (z, L) cycle means of each term's basis in every cylinder at the reference operating point, for a spec and a
@@ -299,6 +309,12 @@ class Effect:
     def monitor_terms(self, spec: EngineSpec) -> tuple[LossTerm, ...]:
         """Loss terms (identification columns) this effect adds when the monitor's model is augmented with it."""
         return ()
+
+    def unphysical(self, sigma: Mapping[str, float], load_torque: float) -> str:
+        """'' when these values (with their ``sigma``) can be the physics the effect stands for at an operating
+        point whose mean load torque is ``load_torque`` [N m] (NaN: not measured); else why not, in words (the
+        discrepancy workflow drops such a fit: it is some other torque than this effect's)."""
+        return ""
 
     def plant_terms(self, spec: EngineSpec) -> tuple[LossTerm, ...]:
         """Loss terms the plant evaluates for this effect and the monitor is never told about (a model mismatch);

@@ -6,6 +6,8 @@ tooth_spacing_error, sensor_noise. Off by default: the faults and model gaps the
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
 from dataclasses import replace
 from types import MappingProxyType
 
@@ -205,19 +207,69 @@ class PressureGain(Effect):
 
 
 class LoadRipple(Effect):
+    """A load-torque ripple at an engine order (a driven machine's own pulsation: a compressor, a generator's rotor
+    eccentricity or unbalanced phases). Given as an amplitude and phase, or (where either is non-zero) as its
+    in-phase and quadrature parts A cos(phase), A sin(phase) [N m]: the form the discrepancy workflow fits, since the
+    speed response is linear in them and a phase is not defined at zero amplitude."""
+
     name = "load_ripple"
     description = "extra load torque ripple A sin(order theta_L + phase) at the load node"
+    # half orders only: an integer-order speed harmonic repeats every revolution, as a tooth-spacing error does, and
+    # the monitor's tooth nuisances take it (k9k, order 1 or 2 at 5 % of the load: the speed gap stays at a healthy
+    # log's); 0.5 and 1.5 are the orders a four-stroke's cam-driven load or a misbalanced cylinder pair would show
+    candidate = CandidateSpec(("in_phase_nm", "quadrature_nm"), (0.0, 0.0), (1.0, 1.0), (-1e6, -1e6), (1e6, 1e6),
+                              MappingProxyType({"fraction": 0.0}),
+                              separated_by="a run at another load, or the load's own torque or power signal "
+                                           "sampled within the cycle (a load ripple follows the load, not the "
+                                           "cylinders)",
+                              variants=(MappingProxyType({"order": 0.5}), MappingProxyType({"order": 1.5})))
     parameters = _table(
         amplitude_nm=Param(0.0, "N m", 0.0, 1e6, doc="amplitude; 0 = fraction x mean load torque"),
         fraction=Param(0.02, "-", 0.0, 1.0, doc="amplitude as a fraction of the mean load torque"),
         order=Param(1.0, "-", 0.5, 50.0, doc="engine order (events per crank revolution)"),
         phase_deg=Param(0.0, "deg", -360.0, 360.0),
+        in_phase_nm=Param(0.0, "N m", -1e6, 1e6, doc="A cos(phase); with quadrature_nm, replaces amplitude and phase"),
+        quadrature_nm=Param(0.0, "N m", -1e6, 1e6, doc="A sin(phase)"),
     )
 
-    def apply_load(self, setup: LoadSetup) -> LoadSetup:
+    def __init__(self, sigma=None, **values: object):
+        super().__init__(sigma, **values)
         v = self.values
-        return replace(setup, amplitude_nm=v["amplitude_nm"], fraction=v["fraction"], order=v["order"],
-                       phase_rad=float(np.radians(v["phase_deg"])))
+        if (v["in_phase_nm"] or v["quadrature_nm"]) and (v["amplitude_nm"] or v["phase_deg"]):
+            raise ValueError("effect 'load_ripple': give amplitude_nm and phase_deg, or in_phase_nm and "
+                             "quadrature_nm, not both")
+
+    def ripple(self) -> tuple[float, float, float, float]:
+        """(amplitude [N m], fraction, order, phase [rad]) as LoadSetup and ViewSetup hold it."""
+        v = self.values
+        if v["in_phase_nm"] or v["quadrature_nm"]:
+            return (float(np.hypot(v["in_phase_nm"], v["quadrature_nm"])), 0.0, v["order"],
+                    float(np.arctan2(v["quadrature_nm"], v["in_phase_nm"])))
+        return v["amplitude_nm"], v["fraction"], v["order"], float(np.radians(v["phase_deg"]))
+
+    def unphysical(self, sigma: Mapping[str, float], load_torque: float = float("nan")) -> str:
+        """A load whose ripple swings beyond its own mean torque (beyond 2 sigma) would drive the engine for part of
+        each cycle: not a load's ripple (maruti, a 50 % stiffer crank: 73 N m at order 1.5 on a 30 N m load had
+        been named)."""
+        amplitude, fraction, _, _ = self.ripple()
+        if not math.isfinite(load_torque):
+            return ""
+        amplitude = amplitude if amplitude > 0 else fraction * abs(load_torque)
+        v = self.values
+        s_amp = (float(np.hypot(v["in_phase_nm"] * sigma.get("in_phase_nm", 0.0),
+                                v["quadrature_nm"] * sigma.get("quadrature_nm", 0.0))) / amplitude
+                 if amplitude > 0 and (v["in_phase_nm"] or v["quadrature_nm"]) else sigma.get("amplitude_nm", 0.0))
+        if amplitude - abs(load_torque) > 2.0 * s_amp:
+            return (f"its swing ({amplitude:.3g} N m) exceeds the mean load torque ({abs(load_torque):.3g} N m): the "
+                    "load would drive the engine for part of each cycle")
+        return ""
+
+    def apply_load(self, setup: LoadSetup) -> LoadSetup:
+        amplitude, fraction, order, phase = self.ripple()
+        return replace(setup, amplitude_nm=amplitude, fraction=fraction, order=order, phase_rad=phase)
+
+    def apply_view(self, setup: ViewSetup) -> ViewSetup:
+        return replace(setup, load_ripple=self.ripple())
 
 
 class CoastDown(Effect):
@@ -287,33 +339,74 @@ class BlowBy(Effect):
 class ExtraFriction(Effect):
     """A friction torque the six-term model lacks; ``monitor_terms`` gives its shape as one column (zero in the other
     cylinders). The plant still carries it in its own (z, 4) extra-friction table, not as a library term, because its
-    reference torque is the cylinder's friction at the operating point (core.plant.simulate)."""
+    reference torque is the cylinder's friction at the operating point (core.plant.simulate). Its order-n part is
+    given as an amplitude and phase, or (where either is non-zero) as ``cos_frac`` = amp cos(phase) and ``sin_frac``
+    = amp sin(phase): the form the discrepancy workflow fits (linear in the speed it makes)."""
 
     name = "extra_friction"
     description = ("a friction term the 6-term model lacks: T = T_ref (mean_frac + amp_frac cos(order theta_k + "
                    "phase)) in one cylinder")
     repeat = PER_CYLINDER  # the plant holds one extra-friction shape per cylinder
     sized_at_reference = True
-    candidate = CandidateSpec(("mean_frac",), (0.0,), (0.1,), (0.0,), (5.0,), MappingProxyType({"amp_frac": 0.0}),
-                              where="each", separated_by="another speed or load (a constant torque against the "
-                                                         "model's laws)")
+    # a constant torque, per cylinder; and a torque at a cam order with its mean, fitted in cylinder 1 only: at orders
+    # 0.5 and 1.5, far below the crank's first torsional mode, a cylinder's torque reaches the flywheel as any other's
+    # does but for a phase (order x the firing-angle difference) that the fitted phase takes, and a constant torque
+    # is the same from every cylinder; so the speed does not place it: the workflow says so (``places_cylinder``
+    # False) and adds nothing
+    candidate = CandidateSpec(
+        ("mean_frac",), (0.0,), (0.1,), (0.0,), (5.0,), MappingProxyType({"amp_frac": 0.0}), where="each",
+        separated_by="another speed or load (a constant torque against the model's laws)",
+        also=(CandidateSpec(("mean_frac", "cos_frac", "sin_frac"), (0.0, 0.0, 0.0), (0.1, 0.1, 0.1),
+                            (0.0, -5.0, -5.0), (5.0, 5.0, 5.0), MappingProxyType({"amp_frac": 0.0, "cylinder": 1}),
+                            separated_by="a measurement at each cylinder's valve train (motored on its own, head by "
+                                         "head)",
+                            variants=(MappingProxyType({"order": 0.5}), MappingProxyType({"order": 1.5})),
+                            places_cylinder=False),))
     parameters = _table(
         cylinder=cylinder_param(),
         mean_frac=Param(0.1, "-", -1.0, 5.0, doc="constant part, fraction of the cylinder's mean friction"),
         amp_frac=Param(0.0, "-", 0.0, 5.0, doc="order-n amplitude, fraction of the mean friction"),
         order=Param(2.0, "-", 0.5, 50.0, doc="engine order of the varying part"),
         phase_deg=Param(0.0, "deg", -360.0, 360.0),
+        cos_frac=Param(0.0, "-", -5.0, 5.0, doc="amp_frac cos(phase); with sin_frac, replaces amp_frac and phase"),
+        sin_frac=Param(0.0, "-", -5.0, 5.0, doc="amp_frac sin(phase)"),
     )
 
-    def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
+    def __init__(self, sigma=None, **values: object):
+        super().__init__(sigma, **values)
         v = self.values
-        row = [v["mean_frac"], v["amp_frac"], v["order"], np.radians(v["phase_deg"])]
-        return replace(setup, extra_friction=with_row(setup.extra_friction, v["cylinder"] - 1, row))
+        if (v["cos_frac"] or v["sin_frac"]) and (v["amp_frac"] or v["phase_deg"]):
+            raise ValueError("effect 'extra_friction': give amp_frac and phase_deg, or cos_frac and sin_frac, "
+                             "not both")
+
+    def shape(self) -> tuple[float, float, float, float]:
+        """(mean_frac, amp_frac, order, phase [rad]) of T / T_ref = mean_frac + amp_frac cos(order theta + phase)."""
+        v = self.values
+        if v["cos_frac"] or v["sin_frac"]:
+            return (v["mean_frac"], float(np.hypot(v["cos_frac"], v["sin_frac"])), v["order"],
+                    float(np.arctan2(v["sin_frac"], v["cos_frac"])))
+        return v["mean_frac"], v["amp_frac"], v["order"], float(np.radians(v["phase_deg"]))
+
+    def unphysical(self, sigma: Mapping[str, float], load_torque: float = float("nan")) -> str:
+        """A friction torque never drives: the cylinder's whole friction, about T_ref (1 + mean_frac) on average
+        with this part's swing amp_frac on top, stays >= 0 only if amp_frac <= 1 + mean_frac (beyond 2 sigma of it:
+        what a larger swing says is a torque that is not this cylinder's friction)."""
+        mean, amp, _, _ = self.shape()
+        v = self.values
+        s_amp = (float(np.hypot(v["cos_frac"] * sigma.get("cos_frac", 0.0), v["sin_frac"] * sigma.get("sin_frac", 0.0)))
+                 / amp if amp > 0 and (v["cos_frac"] or v["sin_frac"]) else sigma.get("amp_frac", 0.0))
+        if amp - (1.0 + mean) > 2.0 * float(np.hypot(s_amp, sigma.get("mean_frac", 0.0))):
+            return (f"its swing ({amp:.3g} of the cylinder's friction) exceeds the friction it rides on "
+                    f"(1 + {mean:.3g}): the torque would drive the engine for part of each cycle")
+        return ""
+
+    def apply_cylinders(self, setup: CylinderSetup) -> CylinderSetup:
+        mean, amp, order, phase = self.shape()
+        return replace(setup, extra_friction=with_row(setup.extra_friction, self.values["cylinder"] - 1,
+                                                      [mean, amp, order, phase]))
 
     def monitor_terms(self, spec: EngineSpec) -> tuple[LossTerm, ...]:
-        v = self.values
-        return (extra_friction_term(v["cylinder"], v["mean_frac"], v["amp_frac"], v["order"],
-                                    float(np.radians(v["phase_deg"]))),)
+        return (extra_friction_term(self.values["cylinder"], *self.shape()),)
 
     def size_view(self, setup: ViewSetup, means: BasisMeans) -> ViewSetup:
         # its shape as one more loss term, T_ref = the cylinder's mean friction at the reference point, as the plant

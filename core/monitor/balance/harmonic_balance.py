@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from frictionwatch.core.model.dynamics import Receptance, ShaftModel, receptance, shaft_model
@@ -86,17 +87,47 @@ class BalanceResult:
     free_rows: tuple[np.ndarray, np.ndarray] | None = None
 
 
+class KnownLoadRipple(NamedTuple):
+    """A load torque A sin(order theta_L + phase) [N m] at node ``node`` that the model states (its load_ripple
+    effect), resolved for one cycle."""
+
+    node: int
+    amplitude: float
+    order: float
+    phase: float
+
+
+def known_load_ripple(ripple: tuple[float, float, float, float], load: float, node: int) -> KnownLoadRipple | None:
+    """The model's ripple (amplitude [N m], fraction, order, phase [rad]) for a cycle whose mean load torque is
+    ``load`` [N m] (NaN: not measured): the amplitude, or where it is 0 the fraction of |load| (the plant's rule); None
+    where there is none (a fraction of an unmeasured load is none: nothing says how large it is)."""
+    amplitude, fraction, order, phase = ripple
+    if amplitude <= 0.0 and fraction > 0.0 and math.isfinite(load):
+        amplitude = fraction * abs(load)
+    return KnownLoadRipple(int(node), float(amplitude), float(order), float(phase)) if amplitude > 0.0 else None
+
+
+def subtract_load_ripple(known: np.ndarray, theta_fly: np.ndarray, static: np.ndarray, ripple: KnownLoadRipple) -> None:
+    """known[node] -= A sin(order theta_L + phase) in place: the load torque opposes the driving torques; theta_L is
+    the flywheel angle plus the load node's static twist against it (the previous iterate's; none on a rigid crank or
+    the first pass: a twist of a few tenths of a degree moves a half-order ripple's phase by less)."""
+    twist = float(static[ripple.node]) if static.shape[0] > ripple.node else 0.0
+    known[ripple.node] -= ripple.amplitude * np.sin(ripple.order * (theta_fly + twist) + ripple.phase)
+
+
 def harmonic_balance(op: OperatingPoint, theta: np.ndarray, n_nuisance: int, relative_motion: np.ndarray | None,
                      static: np.ndarray | None, grid: np.ndarray, pressure: np.ndarray, fly: FlywheelMotion,
                      theta_start: float, passes: int, time_samples: int,
-                     free_end: tuple[np.ndarray, np.ndarray] | None = None) -> BalanceResult:
+                     free_end: tuple[np.ndarray, np.ndarray] | None = None,
+                     load_ripple: KnownLoadRipple | None = None) -> BalanceResult:
     """Passes of excitation + chain response at the current parameters ``theta`` (friction first, then the
     ``n_nuisance`` tooth-error nuisances); ``relative_motion`` (N, M) and ``static`` (N,) are the previous cycle's
     node-minus-flywheel motion (None on the first cycle); grid (n_g,) and pressure (z, n_g) the cycle's pressure on
     its crank-angle grid [Pa]; fly the flywheel fit; theta_start the flywheel angle at its first sample [rad].
     free_end: a second wheel's (transfer (M, N) complex: its node's speed per node torque, harmonics (M,) complex
     [rad]: its measured angle harmonics referred to the flywheel window's first edge): its speed equations from the
-    last pass's excitation, the same chain and parameters (one more ``pass_rows``)."""
+    last pass's excitation, the same chain and parameters (one more ``pass_rows``). load_ripple: a load torque the
+    model states (``known_load_ripple``), taken off the load node's known torque every pass."""
     cyl = op.cylinders
     library = op.layout.library
     n_nodes = cyl.n_nodes
@@ -126,6 +157,8 @@ def harmonic_balance(op: OperatingPoint, theta: np.ndarray, n_nuisance: int, rel
     basis = np.empty((len(library), z, int(time_samples)))  # term-major: each term's kernel fills one block
     for _ in range(n_pass):
         on_grid = pass_samples(cyc, cyl, rel_in, static_in, grid, pressure)
+        if load_ripple is not None:
+            subtract_load_ripple(on_grid.known, on_grid.theta_fly, static_in, load_ripple)
         library.evaluate_into(on_grid.samples, cyl.friction, basis)
         out: PassRows = pass_rows(harmonics, omega_mean, on_grid.known, on_grid.motion, on_grid.gas, basis, op.mix,
                                   op.chain, params, pattern, int(n_nuisance))
