@@ -104,6 +104,30 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
         "ALTER TABLE alerts ADD COLUMN run_id BIGINT",
         "ALTER TABLE baselines ADD COLUMN run_id BIGINT",
     ),
+    # 3 -> 4: several serve processes on one database (issue 28 item 7, service/store/fleet.py). writers: the lease
+    # of each engine id, held by the one process that writes it (writer: host, pid and a token of that start;
+    # heartbeat_at on the database's own clock, so the boxes' clocks need not agree). engine_latest: each engine's
+    # newest committed cycle and its engine friction figure, written in the transaction of every batch, so the
+    # fleet view reads one row per engine instead of scanning cycles.
+    (
+        """CREATE TABLE writers (
+            engine_id TEXT PRIMARY KEY REFERENCES engines (engine_id),
+            writer TEXT NOT NULL,
+            host TEXT NOT NULL,
+            pid BIGINT NOT NULL,
+            claimed_at DOUBLE PRECISION NOT NULL,
+            heartbeat_at DOUBLE PRECISION NOT NULL)""",
+        """CREATE TABLE engine_latest (
+            engine_id TEXT PRIMARY KEY REFERENCES engines (engine_id),
+            run_id BIGINT,
+            cycle_index BIGINT NOT NULL,
+            t_start_s DOUBLE PRECISION,
+            written_at DOUBLE PRECISION NOT NULL,
+            fmep_bar DOUBLE PRECISION,
+            fmep_sigma_bar DOUBLE PRECISION,
+            status TEXT,
+            reason TEXT)""",
+    ),
 )
 
 SCHEMA_VERSION = len(MIGRATIONS)

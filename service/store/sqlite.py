@@ -18,7 +18,8 @@ from pathlib import Path
 
 from frictionwatch.service.store.sql_store import Dialect, SqlStore, StoreError
 
-SQLITE = Dialect(name="sqlite", begin="BEGIN IMMEDIATE", placeholder="?", lock_rows="")
+SQLITE = Dialect(name="sqlite", begin="BEGIN IMMEDIATE", placeholder="?", lock_rows="",
+                 now="((julianday('now') - 2440587.5) * 86400.0)")
 SYNCHRONOUS = ("full", "normal")
 
 
