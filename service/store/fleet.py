@@ -130,13 +130,7 @@ class FleetStore:
     def fleet(self, timeout_s: float = LEASE_TIMEOUT_S, limit: int = MAX_FLEET) -> list[dict]:
         """Every engine of the store (by id, at most ``limit``): its writer and whether that one is live, its newest
         committed cycle and how long ago it was written, the engine's friction figure there, and its open alerts."""
-        rows = self._query(
-            f"SELECT e.engine_id, w.writer, {self.dialect.now} - w.heartbeat_at, l.run_id, l.cycle_index, "
-            f"l.t_start_s, {self.dialect.now} - l.written_at, l.fmep_bar, l.fmep_sigma_bar, l.status, l.reason, "
-            "(SELECT COUNT(*) FROM alerts a WHERE a.engine_id = e.engine_id AND a.state = 'active'), "
-            "(SELECT COUNT(*) FROM alerts a WHERE a.engine_id = e.engine_id AND a.state = 'acknowledged') "
-            "FROM engines e LEFT JOIN writers w ON w.engine_id = e.engine_id "
-            "LEFT JOIN engine_latest l ON l.engine_id = e.engine_id ORDER BY e.engine_id LIMIT ?", (int(limit),))
+        rows = self._query(self._fleet_sql(), (int(limit),))
         out = []
         for eid, writer, beat_age, run, cycle, t_start, age, fmep, sigma, status, reason, active, acked in rows:
             out.append({"engine_id": eid, "writer": writer,
@@ -148,6 +142,17 @@ class FleetStore:
                                    "reason": reason},
                         "active_alerts": int(active), "acknowledged_alerts": int(acked)})
         return out
+
+
+    def _fleet_sql(self) -> str:
+        """The fleet view's one query (its parameter: the limit)."""
+        now = self.dialect.now
+        return (f"SELECT e.engine_id, w.writer, {now} - w.heartbeat_at, l.run_id, l.cycle_index, l.t_start_s, "
+                f"{now} - l.written_at, l.fmep_bar, l.fmep_sigma_bar, l.status, l.reason, "
+                "(SELECT COUNT(*) FROM alerts a WHERE a.engine_id = e.engine_id AND a.state = 'active'), "
+                "(SELECT COUNT(*) FROM alerts a WHERE a.engine_id = e.engine_id AND a.state = 'acknowledged') "
+                "FROM engines e LEFT JOIN writers w ON w.engine_id = e.engine_id "
+                "LEFT JOIN engine_latest l ON l.engine_id = e.engine_id ORDER BY e.engine_id LIMIT ?")
 
 
 def _number(x: Any) -> float | None:

@@ -48,6 +48,7 @@ from frictionwatch.service.store.sql_store import SqlStore, StoreUnavailable
 
 log = logging.getLogger(__name__)
 BACKLOG_CYCLES = 7500
+DROP_LOG_EVERY_S = 60.0  # a store down for hours drops a batch every few seconds: one line a minute says it
 
 
 @dataclass
@@ -89,6 +90,7 @@ class StoreListener:
         self.backlog_cycles = backlog_cycles
         self._backlog: deque[_Batch] = deque()  # batches handed over and not yet written, oldest first
         self._down = False  # the store said it is unavailable and has not taken a batch since
+        self._drop_logged = -DROP_LOG_EVERY_S  # monotonic time of the last "backlog full" line
         self._figure: dict | Callable[[], dict] | None = None  # the newest pending cycle's engine figure
         self.stats: Counter[str] = Counter()
         self._lock = threading.Lock()
@@ -227,7 +229,8 @@ class StoreListener:
                 refused = self._write(batch)
             except StoreUnavailable as e:
                 self.stats["write_errors"] += 1
-                batch.delayed = True
+                for waiting in self._backlog:
+                    waiting.delayed = True
                 if not self._down:
                     self._down = True
                     log.warning("store %s: unavailable (%s); keeping batches (at most %d cycles) until it is back",
@@ -264,9 +267,10 @@ class StoreListener:
             batch = self._backlog.popleft()
             dropped += len(batch.cycles)
             self._lose(batch)
-        if dropped:
+        if dropped and time.monotonic() - self._drop_logged >= DROP_LOG_EVERY_S:
+            self._drop_logged = time.monotonic()
             log.error("store %s: the store is still unavailable and the backlog is full (%d cycles): the oldest %d "
-                      "cycles dropped (%d lost so far)", self.engine_id, self.backlog_cycles, dropped,
+                      "cycles dropped (%d lost so far; said at most once a minute)", self.engine_id, self.backlog_cycles, dropped,
                       self.stats["lost_cycles"])
 
     def _lose(self, batch: _Batch) -> None:
