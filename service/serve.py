@@ -188,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
         data.start_retention()
     made = token is None
     token = token or new_token()
-    app = create_app(services, token=token)
+    app = create_app(services, token=token, fleet=data.store.fleet if data else None)
     host, port = sock.getsockname()[:2]
     shown = f"[{host}]" if ":" in host else host
     print(f"frictionwatch serve: dashboard at http://{shown}:{port}/ ; engines: "

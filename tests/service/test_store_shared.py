@@ -247,3 +247,64 @@ def test_the_fleet_query_reads_no_cycles_estimates_or_whole_alert_table(store):
             cur.execute("RESET enable_seqscan")
         assert "alerts_state" in plan and "Seq Scan on alerts" not in plan, plan
     assert "cycles" not in sql.replace("engine_latest", "") and "estimates" not in sql
+
+
+def test_get_fleet_serves_the_store_rows_and_says_when_there_is_no_store(store):
+    from fastapi.testclient import TestClient
+    from frictionwatch.service.api import create_app
+
+    me = Writer.this_process()
+    store.claim_engine(ENG, me)
+    store.write_batch(ENG, cycles=[summary(i) for i in range(3)], alerts=[alert(1)],
+                      engine_figure={"fmep_bar": 1.85, "fmep_sigma_bar": 0.025, "status": "measured", "reason": None})
+
+    def down() -> list[dict]:
+        raise StoreUnavailable(f"{store.where}: connection lost; next attempt in 0.5 s")
+
+    with TestClient(create_app([], token="t", fleet=store.fleet)) as client:
+        (row,) = client.get("/api/v1/fleet").json()
+        assert row["engine_id"] == ENG and row["writer"] == me.name and row["last_cycle"] == 2
+        assert row["engine"]["fmep_bar"] == 1.85 and row["active_alerts"] == 1
+    with TestClient(create_app([], token="t")) as client:
+        reply = client.get("/api/v1/fleet")
+        assert reply.status_code == 404 and "--store" in reply.json()["detail"]
+    with TestClient(create_app([], token="t", fleet=down)) as client:
+        reply = client.get("/api/v1/fleet")
+        assert reply.status_code == 503 and reply.headers["retry-after"] == "5"
+        assert "connection" not in reply.json()["detail"]  # the store's URL and words stay in the log
+
+
+# ---- serve --store ------------------------------------------------------------------------------------------------
+def _serve(capsys, *argv: str) -> tuple[int, str]:
+    from frictionwatch.service.cli import main
+
+    rc = main(["serve", "--port", "0", *argv])
+    return rc, capsys.readouterr().err
+
+
+def test_serve_store_refuses_an_engine_another_live_process_writes(store_url, capsys):  # noqa: F811
+    if not store_url.startswith("postgresql"):
+        pytest.skip("--store takes a PostgreSQL URL (SQLite: --data-dir)")
+    from tests.service.serve_helpers import DEMO
+
+    holder = open_store(store_url)
+    try:
+        holder.claim_engine("genset-a", Writer("plant-b", 4242, "0badc0de"))
+        rc, err = _serve(capsys, "--store", store_url, "--source", f"mcap:{DEMO}#genset-a")
+        assert rc == 2 and err.count("\n") == 1, err
+        assert "engine genset-a is written by plant-b:4242:0badc0de" in err and "one engine id, one writer" in err
+        assert [r["writer"] for r in holder.fleet()] == ["plant-b:4242:0badc0de"]  # its lease untouched
+    finally:
+        holder.close()
+
+
+def test_serve_store_says_in_one_line_what_is_wrong(capsys, monkeypatch, tmp_path):
+    rc, err = _serve(capsys, "--store", "postgresql://fw:s3cret@127.0.0.1:1/fw")  # nothing listens on port 1
+    assert rc == 2 and err.count("\n") == 1 and "cannot connect" in err and "s3cret" not in err and "fw:***@" in err
+    rc, err = _serve(capsys, "--store", f"sqlite:{tmp_path / 'x.db'}")
+    assert rc == 2 and "--store takes a postgresql://" in err
+    rc, err = _serve(capsys, "--store", "postgresql://fw@127.0.0.1:1/fw", "--data-dir", str(tmp_path))
+    assert rc == 2 and "not both" in err
+    monkeypatch.setitem(sys.modules, "psycopg", None)  # psycopg not installed
+    rc, err = _serve(capsys, "--store", "postgresql://fw@127.0.0.1:1/fw")
+    assert rc == 2 and err.count("\n") == 1 and "needs psycopg 3" in err
