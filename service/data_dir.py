@@ -7,10 +7,13 @@ acknowledgements taken back into the alert engine (ids numbered on), and the new
 band and friction reference learnt so far, saved as learnt) in force, so nothing is relearnt and a ring worn while
 the service was down is not learnt as the healthy state. A re-baseline saved as a reset keeps the old baseline out.
 
-Not restored: the monitor's smoothed estimates and the EWMA / latch counts of the alert statistics. They start again
-as at a first start: the first cycles of a run are its warm-up (the ``runs`` table says where each run began; the
-/losses window's ``effective_cycles`` says how many cycles a smoothed figure rests on), and said so at start. A band
-being learnt when the service stopped is learnt again from its first cycle.
+The monitor's smoothed estimates (its whole carried state: accumulated information, tooth learner, sensor and
+condition state, the calibration watches) are saved at a clean stop (``close``, after the engines stopped) and taken
+back at the next start when it is the very next run of the engine, with the same engine model (model version) and
+the same core/ code (service/monitor_snapshot.py: its fingerprint; the text is read without loading any code). Else,
+and after a ``kill -9`` (nothing saved), they start again as at a first start: the first cycles of the run are its
+warm-up, and the start line says which and why. Not restored: the EWMA / latch counts of the alert statistics; a
+band being learnt when the service stopped is learnt again from its first cycle.
 
 One writer per engine id (service/store/fleet.py): ``attach`` claims the engine's lease before anything else and
 refuses (StoreError, one line) an engine another live process writes; a thread renews the leases every
@@ -31,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from frictionwatch.service.alert_baseline import Baseline
+from frictionwatch.service.monitor_snapshot import SnapshotError, dumps, fingerprint, loads
 from frictionwatch.service.store import StoreError, StoreListener, open_store
 from frictionwatch.service.store.fleet import HEARTBEAT_S, LEASE_TIMEOUT_S, Writer
 
@@ -75,6 +79,7 @@ class DataDir:
         self._stop = threading.Event()
         self._retention_thread: threading.Thread | None = None
         self._heartbeat_thread: threading.Thread | None = None
+        self._services: list[Any] = []  # the engines attached: their monitor state is saved at close
 
     def with_baseline(self, make):
         """An alerts factory (engine_id, spec) that gives the engine's newest stored baseline to ``make``."""
@@ -110,10 +115,51 @@ class DataDir:
             bands = 0 if alerts.baseline is None else len(alerts.baseline.bands)
             said.append(f"{len(kept)} alerts taken back ({n_open} open), baseline of {bands} load bands")
         if run.run_id > 1:
-            said.append("the smoothed estimates start again: the first cycles of this run are a warm-up")
+            said.append(self._resume(svc, run))
+        self._services.append(svc)
         listener = self.listeners[engine_id] = self._listener(store, engine_id)
         svc.add_listener(listener)
         return "; ".join(said)
+
+    def _resume(self, svc: Any, run: Any) -> str:
+        """Take back the monitor state the engine's previous run saved at its stop, if it may (module doc)."""
+        saved = self.store.load_monitor_state(svc.engine_id)
+        if saved is None:
+            why = "no state saved (no earlier run stopped cleanly)"
+        elif saved["run_id"] != run.run_id - 1:
+            why = f"the saved state is run {saved['run_id']}'s; run {run.run_id - 1} did not stop cleanly"
+        elif saved["model_version"] != run.model_version:
+            why = "the engine model changed"
+        elif saved["fingerprint"] != fingerprint():
+            why = "the saved state was made by another version of frictionwatch's core"
+        else:
+            try:
+                svc.resume_monitor(loads(saved["doc"]))
+                return f"the smoothed estimates taken back from run {saved['run_id']} (saved at its stop)"
+            except (SnapshotError, ValueError) as exc:
+                log.warning("%s: the saved monitor state not taken back: %s", svc.engine_id, exc)
+                why = f"the saved state did not fit: {exc}"
+        return f"the smoothed estimates start again ({why}): the first cycles of this run are a warm-up"
+
+    def save_states(self) -> int:
+        """Save each attached engine's monitor state (after its stop; one still running is skipped and logged).
+        Returns how many were saved; a failure is logged, never raised."""
+        saved, code = 0, None
+        for svc in self._services:
+            carried = svc.monitor_carried()
+            if carried is None:
+                if svc.running:
+                    log.warning("%s: still running at close: its monitor state is not saved", svc.engine_id)
+                continue
+            try:
+                code = code or fingerprint()
+                newest = svc.state.newest
+                self.store.save_monitor_state(svc.engine_id, code, dumps(carried),
+                                              None if newest is None else int(newest.index))
+                saved += 1
+            except Exception as exc:  # noqa: BLE001 - the next start is then a warm-up, said
+                log.warning("%s: the monitor state not saved: %s: %s", svc.engine_id, type(exc).__name__, exc)
+        return saved
 
     def _start_heartbeat(self) -> None:
         if self._heartbeat_thread is None:
@@ -174,7 +220,9 @@ class DataDir:
                 return
 
     def close(self) -> None:
-        """Stop the threads, release the leases (a successor may start at once) and close the store."""
+        """Save the stopped engines' monitor states, stop the threads, release the leases (a successor may start at
+        once) and close the store."""
+        self.save_states()
         self._stop.set()
         for thread in (self._retention_thread, self._heartbeat_thread):
             if thread is not None:

@@ -45,6 +45,7 @@ from frictionwatch.service.store.columns import (
     loss_params,
 )
 from frictionwatch.service.store.fleet import FleetStore
+from frictionwatch.service.store.monitor_states import MonitorStateStore
 from frictionwatch.service.store.schema import MIGRATIONS, SCHEMA_VERSION, VERSION_TABLE
 
 log = logging.getLogger(__name__)
@@ -81,7 +82,7 @@ class Run:
     model_version: int | None = field(default=None, compare=False)
 
 
-class SqlStore(FleetStore):
+class SqlStore(FleetStore, MonitorStateStore):
     """The store interface (service/store/__init__.py) on an open connection; ``migrate`` runs on construction.
 
     ``reopen`` (PostgreSQL) makes a new connection and ``is_lost(conn)`` says whether a failed connection is gone
