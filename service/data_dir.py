@@ -125,7 +125,7 @@ class DataDir:
         """Take back the monitor state the engine's previous run saved at its stop, if it may (module doc)."""
         saved = self.store.load_monitor_state(svc.engine_id)
         if saved is None:
-            why = "no state saved (no earlier run stopped cleanly)"
+            why = "no earlier run saved one at a clean stop"
         elif saved["run_id"] != run.run_id - 1:
             why = f"the saved state is run {saved['run_id']}'s; run {run.run_id - 1} did not stop cleanly"
         elif saved["model_version"] != run.model_version:
