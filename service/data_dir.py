@@ -123,16 +123,14 @@ class DataDir:
 
     def _resume(self, svc: Any, run: Any) -> str:
         """Take back the monitor state the engine's previous run saved at its stop, if it may (module doc)."""
-        saved = self.store.load_monitor_state(svc.engine_id)
-        if saved is None:
-            why = "no earlier run saved one at a clean stop"
-        elif saved["run_id"] != run.run_id - 1:
-            why = f"the saved state is run {saved['run_id']}'s; run {run.run_id - 1} did not stop cleanly"
-        elif saved["model_version"] != run.model_version:
-            why = "the engine model changed"
-        elif saved["fingerprint"] != fingerprint():
-            why = "the saved state was made by another version of frictionwatch's core"
+        try:
+            saved = self.store.load_monitor_state(svc.engine_id)
+        except StoreError as exc:  # optional: a start is not refused for it
+            log.warning("%s: the saved monitor state not read: %s", svc.engine_id, exc)
+            saved, why = None, f"it could not be read: {exc}"
         else:
+            why = _why_not(saved, run)
+        if saved is not None and why is None:
             try:
                 svc.resume_monitor(loads(saved["doc"]))
                 return f"the smoothed estimates taken back from run {saved['run_id']} (saved at its stop)"
@@ -233,3 +231,16 @@ class DataDir:
             log.warning("store leases: not released (stale after %g s): %s: %s", self.lease_timeout_s,
                         type(exc).__name__, exc)
         self.store.close()
+
+
+def _why_not(saved: dict | None, run: Any) -> str | None:
+    """Why a saved monitor state may not be taken back by ``run`` (None: it may)."""
+    if saved is None:
+        return "no earlier run saved one at a clean stop"
+    if saved["run_id"] != run.run_id - 1:
+        return f"the saved state is run {saved['run_id']}'s; run {run.run_id - 1} did not stop cleanly"
+    if saved["model_version"] != run.model_version:
+        return "the engine model changed"
+    if saved["fingerprint"] != fingerprint():
+        return "the saved state was made by another version of frictionwatch's core"
+    return None

@@ -39,7 +39,8 @@ def open_postgres(url: str) -> SqlStore:
         return psycopg.connect(url, autocommit=True, connect_timeout=RECONNECT_TIMEOUT_S)
 
     try:
-        return SqlStore(conn, POSTGRES, where, reopen=reopen, is_lost=lambda c: bool(c.broken or c.closed))
+        return SqlStore(conn, POSTGRES, where, reopen=reopen, is_lost=lambda c: bool(c.broken or c.closed),
+                        errors=(psycopg.Error,))
     except psycopg.Error as e:
         conn.close()
         raise StoreError(f"{where}: {str(e).strip().splitlines()[0]}") from None

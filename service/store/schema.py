@@ -108,8 +108,7 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
     # of each engine id, held by the one process that writes it (writer: host, pid and a token of that start;
     # heartbeat_at on the database's own clock, so the boxes' clocks need not agree). engine_latest: each engine's
     # newest committed cycle and its engine friction figure, written in the transaction of every batch, so the
-    # fleet view reads one row per engine instead of scanning cycles. monitor_states: the smoothed state across a
-    # clean restart.
+    # fleet view reads one row per engine instead of scanning cycles.
     (
         """CREATE TABLE writers (
             engine_id TEXT PRIMARY KEY REFERENCES engines (engine_id),
@@ -128,8 +127,10 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
             fmep_sigma_bar DOUBLE PRECISION,
             status TEXT,
             reason TEXT)""",
-        # the monitor's carried state saved at a clean stop (service/monitor_snapshot.py), one row per engine: the
-        # next run of the engine goes on from it instead of a warm-up (service/data_dir.py says when it may)
+    ),
+    # 4 -> 5: the monitor's carried state saved at a clean stop (service/monitor_snapshot.py), one row per engine: the
+    # next run of the engine goes on from it instead of a warm-up (service/data_dir.py says when it may)
+    (
         """CREATE TABLE monitor_states (
             engine_id TEXT PRIMARY KEY REFERENCES engines (engine_id),
             run_id BIGINT NOT NULL,

@@ -86,11 +86,13 @@ class SqlStore(FleetStore, MonitorStateStore):
     """The store interface (service/store/__init__.py) on an open connection; ``migrate`` runs on construction.
 
     ``reopen`` (PostgreSQL) makes a new connection and ``is_lost(conn)`` says whether a failed connection is gone
-    (module doc: reconnecting); without ``reopen`` a lost connection stays lost."""
+    (module doc: reconnecting); without ``reopen`` a lost connection stays lost. ``errors``: the driver's exception
+    classes, raised on as a one-line StoreError naming the store (the driver's error chained)."""
 
     def __init__(self, conn: Any, dialect: Dialect, where: str, reopen: Callable[[], Any] | None = None,
-                 is_lost: Callable[[Any], bool] | None = None, reconnect_s: tuple[float, float] = RECONNECT_S) -> None:
-        self._conn, self.dialect, self.where = conn, dialect, where
+                 is_lost: Callable[[Any], bool] | None = None, reconnect_s: tuple[float, float] = RECONNECT_S,
+                 errors: tuple[type[BaseException], ...] = ()) -> None:
+        self._conn, self.dialect, self.where, self._errors = conn, dialect, where, errors
         self._reopen, self._is_lost, self._reconnect_s = reopen, is_lost, reconnect_s
         self._next_attempt, self._backoff_s = 0.0, reconnect_s[0]
         self.connection: Counter[str] = Counter()  # lost, reconnects, reconnect_failures
@@ -108,10 +110,12 @@ class SqlStore(FleetStore, MonitorStateStore):
             try:
                 yield cur
             except Exception as e:
-                if self._reopen is None or self._conn is None or not self._is_lost(self._conn):
-                    raise
-                self._lost(e)
-                raise StoreUnavailable(f"{self.where}: connection lost: {_one_line(e)}") from None
+                if self._reopen is not None and self._conn is not None and self._is_lost(self._conn):
+                    self._lost(e)
+                    raise StoreUnavailable(f"{self.where}: connection lost: {_one_line(e)}") from None
+                if isinstance(e, self._errors):
+                    raise StoreError(f"{self.where}: {_one_line(e)}") from e
+                raise
 
     def _connected(self) -> Any:
         if self._conn is not None:

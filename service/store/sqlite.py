@@ -42,7 +42,7 @@ def open_sqlite(path: str, synchronous: str = "full") -> SqlStore:
     except sqlite3.DatabaseError as e:
         raise StoreError(f"sqlite store {path}: {e}") from None
     try:
-        return SqlStore(conn, SQLITE, f"sqlite store {path}")
+        return SqlStore(conn, SQLITE, f"sqlite store {path}", errors=(sqlite3.Error,))
     except sqlite3.DatabaseError as e:
         conn.close()
         raise StoreError(f"sqlite store {path}: {e}") from None
