@@ -308,3 +308,26 @@ def test_serve_store_says_in_one_line_what_is_wrong(capsys, monkeypatch, tmp_pat
     monkeypatch.setitem(sys.modules, "psycopg", None)  # psycopg not installed
     rc, err = _serve(capsys, "--store", "postgresql://fw@127.0.0.1:1/fw")
     assert rc == 2 and err.count("\n") == 1 and "needs psycopg 3" in err
+
+
+def test_data_dir_attach_holds_the_lease_until_close(store_url):  # noqa: F811
+    """What serve does: DataDir.attach claims the engine before anything is written (a second process's attach of
+    the same engine id refused, its store untouched), the heartbeat thread renews it, close releases it."""
+    from tests.service.serve_helpers import demo_service
+
+    first, second = DataDir(store_url, heartbeat_s=0.2), DataDir(store_url)
+    a, b = demo_service("genset-a"), demo_service("genset-a")
+    try:
+        first.attach(a)
+        with pytest.raises(StoreError, match="engine genset-a is written by"):
+            second.attach(b)
+        assert second.engines == [] and second.store.runs("genset-a") == [{**first.store.runs("genset-a")[0]}]
+        assert wait_until(lambda: first.leases["heartbeats"] >= 2, timeout=10.0)
+        first.close()
+        assert "run 2" in second.attach(b)  # the lease released at close: taken at once
+        assert second.store.fleet()[0]["writer"] == second.writer.name
+    finally:
+        a.session.stop()
+        b.session.stop()
+        first.close()
+        second.close()
