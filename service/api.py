@@ -14,7 +14,7 @@ Bounded work per request (issue 28 item 2): every route reads a snapshot the eng
 never the session, and costs the same whatever the history: a window mean reads running sums (service/window_sums.py),
 window lengths stop at ``MAX_WINDOW_CYCLES``, and the large replies (a speed history past ``LARGE_CYCLES`` cycles) are
 rate-limited (service/rate_limit.py: 429 with Retry-After). /health says each engine's backlog (cycles queued,
-seconds behind) and is 'degraded' past ``LAG_DEGRADED_S``.
+seconds behind) and is 'degraded' past ``LAG_DEGRADED_S``, and while cycles wait for a store that is down.
 """
 
 from __future__ import annotations
@@ -146,10 +146,10 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
     def health() -> dict:
         now = time.monotonic()
         rows = [{"engine_id": s.engine_id, "running": s.running, "sources_ended": s.sources_ended,
-                 "last_cycle_age_s": None if s.last_result_s is None else now - s.last_result_s, **backlog(s)}
-                for s in engines.values()]
+                 "last_cycle_age_s": None if s.last_result_s is None else now - s.last_result_s, **backlog(s),
+                 **store_waiting(s)} for s in engines.values()]
         ok = all(r["running"] and r["last_cycle_age_s"] is not None and r["last_cycle_age_s"] < STALE_S
-                 and not r["behind"] for r in rows)
+                 and not r["behind"] and not r["store_waiting_cycles"] for r in rows)
         return {"status": "ok" if ok else "degraded", "uptime_s": now - started, "engines": rows,
                 "lag_degraded_s": LAG_DEGRADED_S}
 
@@ -342,6 +342,14 @@ def store_stats(svc: EngineService) -> dict | None:
     if listener is None:
         return None
     return {**{k: int(v) for k, v in listener.stats.items()}, "backlog_cycles": listener.backlog}
+
+
+def store_waiting(svc: EngineService) -> dict:
+    """Cycles kept for a store that is down (the store listener's backlog: 'degraded' while any wait) and lost."""
+    listener = svc.fanout.listener("store")
+    if listener is None:
+        return {"store_waiting_cycles": 0, "store_lost_cycles": 0}
+    return {"store_waiting_cycles": listener.backlog, "store_lost_cycles": int(listener.stats["lost_cycles"])}
 
 
 def service(request: Request, engine_id: EngineId) -> EngineService:

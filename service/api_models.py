@@ -37,6 +37,10 @@ class HealthEngine(_Open):
     realtime: bool = Field(False, description="a source runs at the engine's pace (a fast replay only reads ahead)")
     last_drop_age_s: float | None = Field(None, description="seconds since the queue last dropped records (degraded "
                                                             "for 30 s after a drop); null: never")
+    store_waiting_cycles: int = Field(0, description="cycles kept for the store while it is down, written when it is "
+                                                     "back ('degraded' while any wait)")
+    store_lost_cycles: int = Field(0, description="cycles the store never got (its backlog full, or a write that "
+                                                  "failed twice)")
 
 
 class Health(_Open):

@@ -89,6 +89,7 @@ class StoreListener:
         self._figure_of = figure_of  # CycleResult -> the engine's friction figure (fleet view); the API's when None
         self.backlog_cycles = backlog_cycles
         self._backlog: deque[_Batch] = deque()  # batches handed over and not yet written, oldest first
+        self._waiting = 0  # the cycles in them
         self._down = False  # the store said it is unavailable and has not taken a batch since
         self._drop_logged = -DROP_LOG_EVERY_S  # monotonic time of the last "backlog full" line
         self._figure: dict | Callable[[], dict] | None = None  # the newest pending cycle's engine figure
@@ -126,7 +127,7 @@ class StoreListener:
         """Saved at once (with the pending rows first, so the store never holds a baseline newer than its cycles)."""
         with self._lock:
             self._flush_locked(drain=False)
-            self._backlog.append(_Batch([], baseline=baseline))
+            self._push(_Batch([], baseline=baseline))
             self._drain_locked()
 
     def on_cycle(self, summary: dict, cylinders: Sequence[dict] | Callable[[], Sequence[dict]] | None = None,
@@ -173,14 +174,23 @@ class StoreListener:
             self._flush_locked()
             if self._backlog:
                 log.error("store %s: %d cycles not written at stop: the store is unavailable", self.engine_id,
-                          sum(len(b.cycles) for b in self._backlog))
+                          self._waiting)
                 while self._backlog:
-                    self._lose(self._backlog.popleft())
+                    self._lose(self._pop())
 
     @property
     def backlog(self) -> int:
         """Cycles handed to the store and not yet written (the store down), at most ``backlog_cycles``."""
-        return sum(len(b.cycles) for b in self._backlog)
+        return self._waiting  # an int kept under the lock: read without it (/health must not wait for a write)
+
+    def _push(self, batch: _Batch) -> None:
+        self._backlog.append(batch)
+        self._waiting += len(batch.cycles)
+
+    def _pop(self) -> _Batch:
+        batch = self._backlog.popleft()
+        self._waiting -= len(batch.cycles)
+        return batch
 
     # ---- inside -----------------------------------------------------------------------------------------------
     def _due(self, cycle: int) -> bool:
@@ -215,7 +225,7 @@ class StoreListener:
                     self.stats["figure_errors"] += 1
                     log.exception("store %s: the engine figure for the fleet view failed", self.engine_id)
                     figure = None
-            self._backlog.append(_Batch(self._cycles, self._estimates, list(self._alerts.values()), figure))
+            self._push(_Batch(self._cycles, self._estimates, list(self._alerts.values()), figure))
             self._cycles, self._estimates, self._alerts, self._oldest, self._figure = [], [], {}, None, None
         if drain:
             self._drain_locked()
@@ -245,9 +255,9 @@ class StoreListener:
                 if batch.failures < 2:
                     time.sleep(self.retry_delay_s)
                 else:
-                    self._lose(self._backlog.popleft())
+                    self._lose(self._pop())
                 continue
-            self._backlog.popleft()
+            self._pop()
             self._written(batch, refused)
         if self._down:
             self._down = False
@@ -264,7 +274,7 @@ class StoreListener:
     def _bound_backlog(self) -> None:
         dropped = 0
         while len(self._backlog) > 1 and sum(b.size for b in self._backlog) > self.backlog_cycles:
-            batch = self._backlog.popleft()
+            batch = self._pop()
             dropped += len(batch.cycles)
             self._lose(batch)
         if dropped and time.monotonic() - self._drop_logged >= DROP_LOG_EVERY_S:

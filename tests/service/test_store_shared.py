@@ -331,3 +331,21 @@ def test_data_dir_attach_holds_the_lease_until_close(store_url):  # noqa: F811
         b.session.stop()
         first.close()
         second.close()
+
+
+def test_health_says_what_waits_for_a_store_that_is_down(store):
+    """/health's engine row (service/api.py store_waiting): the cycles kept for the store while it is down make the
+    service 'degraded'; what was lost stays counted."""
+    from types import SimpleNamespace
+
+    from frictionwatch.service.api import store_waiting
+
+    listener = StoreListener(Unavailable(store), ENG, batch_cycles=5, max_delay_s=60.0)
+    svc = SimpleNamespace(fanout=SimpleNamespace(listener=lambda name: listener if name == "store" else None))
+    for i in range(7):  # one batch of 5 handed over and kept, 2 cycles still pending
+        listener.on_cycle(summary(i))
+    assert store_waiting(svc) == {"store_waiting_cycles": 5, "store_lost_cycles": 0}
+    listener.stop()  # still down at stop: lost, counted
+    assert store_waiting(svc) == {"store_waiting_cycles": 0, "store_lost_cycles": 7}
+    no_store = SimpleNamespace(fanout=SimpleNamespace(listener=lambda name: None))
+    assert store_waiting(no_store) == {"store_waiting_cycles": 0, "store_lost_cycles": 0}
