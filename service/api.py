@@ -14,7 +14,7 @@ Bounded work per request (issue 28 item 2): every route reads a snapshot the eng
 never the session, and costs the same whatever the history: a window mean reads running sums (service/window_sums.py),
 window lengths stop at ``MAX_WINDOW_CYCLES``, and the large replies (a speed history past ``LARGE_CYCLES`` cycles) are
 rate-limited (service/rate_limit.py: 429 with Retry-After). /health says each engine's backlog (cycles queued,
-seconds behind) and is 'degraded' past ``LAG_DEGRADED_S``.
+seconds behind) and is 'degraded' past ``LAG_DEGRADED_S``, and while cycles wait for a store that is down.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import json
 import math
 import threading
 import time
-from collections.abc import AsyncIterator, Sequence
+from collections.abc import AsyncIterator, Callable, Sequence
 from contextlib import asynccontextmanager
 from pathlib import Path as FilePath
 from typing import Annotated, Literal
@@ -42,6 +42,7 @@ from frictionwatch.service.api_models import (
     DiscrepancyRequest,
     EngineInfo,
     ErrorBody,
+    FleetEngine,
     FrictionTorque,
     Health,
     Losses,
@@ -86,8 +87,10 @@ def encode_event(event: ServiceEvent) -> list[tuple[str, str]]:
 
 
 def create_app(services: Sequence[EngineService], token: str | None = None, *, ping_s: float = 15.0,
-               client_queue: int = 64, dashboard_dir: FilePath = DASHBOARD_DIR, manage: bool = True) -> FastAPI:
-    """``manage``: the app's lifespan starts the engines and stops them at shutdown."""
+               client_queue: int = 64, dashboard_dir: FilePath = DASHBOARD_DIR, manage: bool = True,
+               fleet: Callable[[], list[dict]] | None = None) -> FastAPI:
+    """``manage``: the app's lifespan starts the engines and stops them at shutdown. ``fleet``: every engine of
+    the store this process writes to (service/store/fleet.py), for GET /api/v1/fleet; None without a store."""
     engines = {s.engine_id: s for s in services}
     if len(engines) != len(services):
         raise ValueError(f"engine ids must be distinct: {[s.engine_id for s in services]}")
@@ -143,10 +146,10 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
     def health() -> dict:
         now = time.monotonic()
         rows = [{"engine_id": s.engine_id, "running": s.running, "sources_ended": s.sources_ended,
-                 "last_cycle_age_s": None if s.last_result_s is None else now - s.last_result_s, **backlog(s)}
-                for s in engines.values()]
+                 "last_cycle_age_s": None if s.last_result_s is None else now - s.last_result_s, **backlog(s),
+                 **store_waiting(s)} for s in engines.values()]
         ok = all(r["running"] and r["last_cycle_age_s"] is not None and r["last_cycle_age_s"] < STALE_S
-                 and not r["behind"] for r in rows)
+                 and not r["behind"] and not r["store_waiting_cycles"] for r in rows)
         return {"status": "ok" if ok else "degraded", "uptime_s": now - started, "engines": rows,
                 "lag_degraded_s": LAG_DEGRADED_S}
 
@@ -161,8 +164,21 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
                         "rpm_latest": None if whole is None else views.num(whole.rpm_mean),
                         "listener_drops": s.fanout.drops, "listener_errors": s.fanout.errors,
                         "session_errors": dict(s.session.errors), "alert_errors": s.alert_errors,
-                        "sse_clients": sse.clients, "backlog": backlog(s)})
+                        "sse_clients": sse.clients, "backlog": backlog(s), "store": store_stats(s)})
         return out
+
+    @app.get("/api/v1/fleet", response_model=list[FleetEngine], responses={503: {"model": ErrorBody}})
+    def fleet_view() -> list[dict]:
+        """Every engine in the store this process writes to, whichever process writes it (serve --store: a
+        PostgreSQL several processes share; --data-dir: this process's file): its writer, its newest stored cycle,
+        the engine's friction figure there and its open alerts. One query on per-engine rows, at most 1000 engines."""
+        if fleet is None:
+            raise HTTPException(404, "no store: start serve with --store or --data-dir for a fleet view")
+        try:
+            return fleet()
+        except Exception as exc:  # noqa: BLE001 - the store down (being reconnected) or failing: said, not raised
+            raise HTTPException(503, f"the store did not answer: {type(exc).__name__}",
+                                headers={"Retry-After": "5"}) from None
 
     @app.get("/api/v1/engines/{engine_id}/cycles/latest", response_model=CycleSummary, responses=ERRORS)
     def latest_cycle(svc: Svc) -> dict:
@@ -318,6 +334,22 @@ def backlog(svc: EngineService) -> dict:
     dropping = lag["last_drop_age_s"] is not None and lag["last_drop_age_s"] < DROPPED_RECENTLY_S
     behind = lag["realtime"] and (max(lag["behind_s"], lag["queued_s"]) > LAG_DEGRADED_S or dropping)
     return {"behind": bool(behind), **{k: lag[k] for k in LAG_KEYS}}
+
+
+def store_stats(svc: EngineService) -> dict | None:
+    """The engine's store listener's counts (service/store/listener.py) and its backlog; None without a store."""
+    listener = svc.fanout.listener("store")
+    if listener is None:
+        return None
+    return {**{k: int(v) for k, v in listener.stats.items()}, "backlog_cycles": listener.backlog}
+
+
+def store_waiting(svc: EngineService) -> dict:
+    """Cycles kept for a store that is down (the store listener's backlog: 'degraded' while any wait) and lost."""
+    listener = svc.fanout.listener("store")
+    if listener is None:
+        return {"store_waiting_cycles": 0, "store_lost_cycles": 0}
+    return {"store_waiting_cycles": listener.backlog, "store_lost_cycles": int(listener.stats["lost_cycles"])}
 
 
 def service(request: Request, engine_id: EngineId) -> EngineService:

@@ -37,6 +37,10 @@ class HealthEngine(_Open):
     realtime: bool = Field(False, description="a source runs at the engine's pace (a fast replay only reads ahead)")
     last_drop_age_s: float | None = Field(None, description="seconds since the queue last dropped records (degraded "
                                                             "for 30 s after a drop); null: never")
+    store_waiting_cycles: int = Field(0, description="cycles kept for the store while it is down, written when it is "
+                                                     "back ('degraded' while any wait)")
+    store_lost_cycles: int = Field(0, description="cycles the store never got (its backlog full, or a write that "
+                                                  "failed twice)")
 
 
 class Health(_Open):
@@ -78,6 +82,31 @@ class EngineInfo(_Open):
     listener_drops: dict[str, int] = Field(description="events each fan-out listener lost to a full queue")
     backlog: dict | None = Field(None, description="the monitor's lag as in /health's engine rows (queued_cycles, "
                                                    "behind_s, dropped_records, behind, ...)")
+    store: dict[str, int] | None = Field(None, description="what the store listener wrote (cycles_written, "
+                                         "cycles_written_late: kept while the store was down), lost (lost_cycles, "
+                                         "lost_batches), and holds now (backlog_cycles); null without a store")
+
+
+class FleetFigure(_Open):
+    fmep_bar: float | None = Field(description="the engine's smoothed FMEP at its newest stored cycle; null unless "
+                                               "measured")
+    fmep_sigma_bar: float | None
+    status: str | None = Field(description="measured, prior, unresolved, withheld; null: stored without a figure")
+    reason: str | None
+
+
+class FleetEngine(_Open):
+    engine_id: str
+    writer: str | None = Field(description="host:pid:token of the process that writes this engine; null: none")
+    writer_live: bool = Field(description="the writer's heartbeat younger than the lease timeout (60 s)")
+    heartbeat_age_s: float | None
+    run_id: int | None
+    last_cycle: int | None = Field(description="the newest cycle committed to the store")
+    t_start_s: float | None = Field(description="its acquisition time [s]")
+    last_cycle_age_s: float | None = Field(description="seconds since it was committed (the database's clock)")
+    engine: FleetFigure
+    active_alerts: int
+    acknowledged_alerts: int
 
 
 class CycleSummary(_Open):

@@ -69,6 +69,16 @@ def cylinder_losses(r: CycleResult, names: Sequence[str]) -> list[dict]:
     return [values_by_status(_cylinder_loss(k, c, names, r.flags)) for k, c in enumerate(doc["cylinders"])]
 
 
+def engine_figure(r: CycleResult) -> dict:
+    """The engine's smoothed friction figure as this one result reads it (its own flags), for the fleet view: the
+    value and its sigma only where the status is 'measured' (a prior is never shown as a measurement)."""
+    fig = r.to_json()["friction"]
+    measured = fig["status"] == "measured"
+    return {"fmep_bar": fig["fmep_bar"] if measured else None,
+            "fmep_sigma_bar": fig["fmep_sigma_bar"] if measured else None,
+            "status": fig["status"], "reason": fig["reason"]}
+
+
 def losses_now(engine_id: str, results: Sequence[CycleResult], names: Sequence[str]) -> dict:
     """The monitor's smoothed estimate at the newest result, over the window it stands for (cmd_analyze.summary)."""
     last = results[-1]

@@ -14,6 +14,7 @@ from typing import NoReturn
 
 from frictionwatch.core.model.engine import SpecError
 from frictionwatch.drivers.errors import DriverError
+from frictionwatch.service.store.columns import StoreError
 
 COMMANDS = {
     "simulate": "frictionwatch.service.cmd_simulate",
@@ -58,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # e.g. `frictionwatch analyze LOG | head`: the reader left, that is not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
-    except (UsageError, SpecError, DriverError, ValueError, OSError) as exc:
+    except (UsageError, SpecError, DriverError, StoreError, ValueError, OSError) as exc:
         if args.verbose:
             raise
         print(f"frictionwatch {args.command}: error: {exc}", file=sys.stderr)

@@ -1,5 +1,5 @@
-"""`serve --data-dir DIR`: what a restarted service takes back from DIR/frictionwatch.db (service/store), and the
-retention that keeps the file from growing for ever.
+"""`serve --data-dir DIR` or `serve --store postgresql://...`: what a restarted service takes back from its store
+(service/store), one writer per engine id, and the retention that keeps the store from growing for ever.
 
 At start, per engine (``DataDir.attach``): a new run in the store (issue 28), the cycle numbering continued after
 the newest cycle stored (a restart appends, never overwrites), the alert history and open alerts with their
@@ -7,14 +7,22 @@ acknowledgements taken back into the alert engine (ids numbered on), and the new
 band and friction reference learnt so far, saved as learnt) in force, so nothing is relearnt and a ring worn while
 the service was down is not learnt as the healthy state. A re-baseline saved as a reset keeps the old baseline out.
 
-Not restored: the monitor's smoothed estimates and the EWMA / latch counts of the alert statistics. They start again
-as at a first start: the first cycles of a run are its warm-up (the ``runs`` table says where each run began; the
-/losses window's ``effective_cycles`` says how many cycles a smoothed figure rests on), and said so at start. A band
-being learnt when the service stopped is learnt again from its first cycle.
+The monitor's smoothed estimates (its whole carried state: accumulated information, tooth learner, sensor and
+condition state, the calibration watches) are saved at a clean stop (``close``, after the engines stopped) and taken
+back at the next start when it is the very next run of the engine, with the same engine model (model version) and
+the same core/ code (service/monitor_snapshot.py: its fingerprint; the text is read without loading any code). Else,
+and after a ``kill -9`` (nothing saved), they start again as at a first start: the first cycles of the run are its
+warm-up, and the start line says which and why. Not restored: the EWMA / latch counts of the alert statistics; a
+band being learnt when the service stopped is learnt again from its first cycle.
+
+One writer per engine id (service/store/fleet.py): ``attach`` claims the engine's lease before anything else and
+refuses (StoreError, one line) an engine another live process writes; a thread renews the leases every
+``HEARTBEAT_S`` and logs, counts (``leases``) and tries to take back a lease it finds lost; ``close`` releases them.
 
 Retention (``--keep-days N``): cycles and estimates written more than N days ago are deleted at start and then
 every hour, in batches (service.store.sql_store.SqlStore.apply_retention); alerts, baselines, runs and model
-versions are kept whatever their age.
+versions are kept whatever their age. In a ``--data-dir`` (this process's own file) every engine is swept; in a
+``--store`` URL (a database other processes may share) only the engines this process attached.
 """
 
 from __future__ import annotations
@@ -26,7 +34,9 @@ from pathlib import Path
 from typing import Any
 
 from frictionwatch.service.alert_baseline import Baseline
-from frictionwatch.service.store import StoreListener, open_store
+from frictionwatch.service.monitor_snapshot import SnapshotError, dumps, fingerprint, loads
+from frictionwatch.service.store import StoreError, StoreListener, open_store
+from frictionwatch.service.store.fleet import HEARTBEAT_S, LEASE_TIMEOUT_S, Writer
 
 log = logging.getLogger(__name__)
 RETENTION_EVERY_S = 3600.0
@@ -41,14 +51,18 @@ class DataDir:
     """--data-dir: the store (SQLite in WAL mode) at DIR/frictionwatch.db; each engine registered (its model
     version), begun as a new run and given back what the store kept (module doc); a StoreListener joins its fan-out.
 
-    ``where``: the folder (a Path), or a store URL (a str, service/store: ``postgresql://...``). serve passes the
-    folder only; the URL lets the same restart behaviour be checked on PostgreSQL
-    (tests/service/test_restart_store_backends.py)."""
+    ``where``: the folder (a Path: ``--data-dir``), or a store URL (a str: ``--store``, service/store:
+    ``postgresql://...``, shared with other processes). ``lease_timeout_s``, ``heartbeat_s``: the leases'
+    (service/store/fleet.py; shorter in tests)."""
 
     def __init__(self, where: Path | str, keep_days: float | None = None,
-                 retention_every_s: float = RETENTION_EVERY_S) -> None:
+                 retention_every_s: float = RETENTION_EVERY_S, lease_timeout_s: float = LEASE_TIMEOUT_S,
+                 heartbeat_s: float = HEARTBEAT_S) -> None:
         if keep_days is not None and not keep_days > 0:
             raise ValueError(f"--keep-days must be > 0, got {keep_days}")
+        if not 0 < heartbeat_s < lease_timeout_s:
+            raise ValueError(f"need 0 < heartbeat_s < lease_timeout_s, got {heartbeat_s}, {lease_timeout_s}")
+        self.shared = not isinstance(where, Path)
         if isinstance(where, Path):
             if where.exists() and not where.is_dir():
                 raise NotADirectoryError(f"--data-dir {where} is a file, expected a folder")
@@ -56,10 +70,16 @@ class DataDir:
             where = str(where / "frictionwatch.db")
         self.store = open_store(where)
         self._listener = StoreListener
+        self.listeners: dict[str, StoreListener] = {}
         self.keep_days, self.retention_every_s = keep_days, retention_every_s
         self.retention: Counter[str] = Counter()  # rows deleted by table, sweeps, errors
+        self.writer, self.lease_timeout_s, self.heartbeat_s = Writer.this_process(), lease_timeout_s, heartbeat_s
+        self.engines: list[str] = []  # the engines this process writes (holds the lease of)
+        self.leases: Counter[str] = Counter()  # heartbeats, heartbeat_errors, lost, taken_back
         self._stop = threading.Event()
         self._retention_thread: threading.Thread | None = None
+        self._heartbeat_thread: threading.Thread | None = None
+        self._services: list[Any] = []  # the engines attached: their monitor state is saved at close
 
     def with_baseline(self, make):
         """An alerts factory (engine_id, spec) that gives the engine's newest stored baseline to ``make``."""
@@ -75,10 +95,15 @@ class DataDir:
         alerts, and join the store to its fan-out (before ``svc.start``). Returns a line saying what was taken
         back."""
         store, engine_id = self.store, svc.engine_id
+        took_over = store.claim_engine(engine_id, self.writer, self.lease_timeout_s)  # StoreError: another writes it
+        self.engines.append(engine_id)
+        self._start_heartbeat()
         store.register_engine(engine_id, svc.model.to_toml())
         run = store.begin_run(engine_id)
         svc.number_cycles_from(run.first_cycle)
         said = [f"{engine_id}: run {run.run_id}, cycles from {run.first_cycle}"]
+        if took_over is not None:
+            said.append(f"the lease of {took_over} taken over")
         alerts = svc.alerts
         if alerts is not None and hasattr(alerts, "restore"):
             if is_reset(store.load_baseline(engine_id)):  # re-baselined last: not the commissioned one either
@@ -90,9 +115,80 @@ class DataDir:
             bands = 0 if alerts.baseline is None else len(alerts.baseline.bands)
             said.append(f"{len(kept)} alerts taken back ({n_open} open), baseline of {bands} load bands")
         if run.run_id > 1:
-            said.append("the smoothed estimates start again: the first cycles of this run are a warm-up")
-        svc.add_listener(self._listener(store, engine_id))
+            said.append(self._resume(svc, run))
+        self._services.append(svc)
+        listener = self.listeners[engine_id] = self._listener(store, engine_id)
+        svc.add_listener(listener)
         return "; ".join(said)
+
+    def _resume(self, svc: Any, run: Any) -> str:
+        """Take back the monitor state the engine's previous run saved at its stop, if it may (module doc)."""
+        try:
+            saved = self.store.load_monitor_state(svc.engine_id)
+        except StoreError as exc:  # optional: a start is not refused for it
+            log.warning("%s: the saved monitor state not read: %s", svc.engine_id, exc)
+            saved, why = None, f"it could not be read: {exc}"
+        else:
+            why = _why_not(saved, run)
+        if saved is not None and why is None:
+            try:
+                svc.resume_monitor(loads(saved["doc"]))
+                return f"the smoothed estimates taken back from run {saved['run_id']} (saved at its stop)"
+            except (SnapshotError, ValueError) as exc:
+                log.warning("%s: the saved monitor state not taken back: %s", svc.engine_id, exc)
+                why = f"the saved state did not fit: {exc}"
+        return f"the smoothed estimates start again ({why}): the first cycles of this run are a warm-up"
+
+    def save_states(self) -> int:
+        """Save each attached engine's monitor state (after its stop; one still running is skipped and logged).
+        Returns how many were saved; a failure is logged, never raised."""
+        saved, code = 0, None
+        for svc in self._services:
+            carried = svc.monitor_carried()
+            if carried is None:
+                if svc.running:
+                    log.warning("%s: still running at close: its monitor state is not saved", svc.engine_id)
+                continue
+            try:
+                code = code or fingerprint()
+                newest = svc.state.newest
+                self.store.save_monitor_state(svc.engine_id, code, dumps(carried),
+                                              None if newest is None else int(newest.index))
+                saved += 1
+            except Exception as exc:  # noqa: BLE001 - the next start is then a warm-up, said
+                log.warning("%s: the monitor state not saved: %s: %s", svc.engine_id, type(exc).__name__, exc)
+        return saved
+
+    def _start_heartbeat(self) -> None:
+        if self._heartbeat_thread is None:
+            self._heartbeat_thread = threading.Thread(target=self._heartbeat_loop, name="store-leases", daemon=True)
+            self._heartbeat_thread.start()
+
+    def _heartbeat_loop(self) -> None:
+        while not self._stop.wait(self.heartbeat_s):
+            self.renew()
+
+    def renew(self) -> list[str]:
+        """Renew this process's leases; one it no longer holds (taken over while the store was out of reach for
+        longer than the timeout) is logged, counted and claimed back when its holder is gone. Returns those lost."""
+        try:
+            lost = self.store.heartbeat(list(self.engines), self.writer)
+        except Exception as exc:  # noqa: BLE001 - the store down: the next heartbeat tries again
+            self.leases["heartbeat_errors"] += 1
+            log.warning("store leases: heartbeat failed: %s: %s", type(exc).__name__, exc)
+            return []
+        self.leases["heartbeats"] += 1
+        for engine_id in lost:
+            self.leases["lost"] += 1
+            try:
+                self.store.claim_engine(engine_id, self.writer, self.lease_timeout_s)
+                self.leases["taken_back"] += 1
+                log.error("store leases: %s: the lease had been lost (the store out of reach too long?) and is "
+                          "taken back", engine_id)
+            except StoreError as exc:
+                log.error("store leases: %s: lost to another writer, whose rows and ours now compete: %s",
+                          engine_id, exc)
+        return lost
 
     def start_retention(self) -> None:
         """Sweep now and every ``retention_every_s`` on a thread of its own (no-op without ``keep_days``)."""
@@ -104,7 +200,7 @@ class DataDir:
     def sweep(self) -> dict[str, int]:
         """One retention sweep; a failure is counted and logged, never raised (the service goes on)."""
         try:
-            deleted = self.store.apply_retention(self.keep_days)
+            deleted = self.store.apply_retention(self.keep_days, engine_ids=list(self.engines) if self.shared else None)
         except Exception as exc:  # noqa: BLE001 - a failed sweep is tried again at the next one
             self.retention["errors"] += 1
             log.warning("store retention failed: %s: %s", type(exc).__name__, exc)
@@ -122,7 +218,29 @@ class DataDir:
                 return
 
     def close(self) -> None:
+        """Save the stopped engines' monitor states, stop the threads, release the leases (a successor may start at
+        once) and close the store."""
+        self.save_states()
         self._stop.set()
-        if self._retention_thread is not None:
-            self._retention_thread.join(timeout=30.0)
+        for thread in (self._retention_thread, self._heartbeat_thread):
+            if thread is not None:
+                thread.join(timeout=30.0)
+        try:
+            self.store.release(list(self.engines), self.writer)
+        except Exception as exc:  # noqa: BLE001 - they go stale after the timeout instead
+            log.warning("store leases: not released (stale after %g s): %s: %s", self.lease_timeout_s,
+                        type(exc).__name__, exc)
         self.store.close()
+
+
+def _why_not(saved: dict | None, run: Any) -> str | None:
+    """Why a saved monitor state may not be taken back by ``run`` (None: it may)."""
+    if saved is None:
+        return "no earlier run saved one at a clean stop"
+    if saved["run_id"] != run.run_id - 1:
+        return f"the saved state is run {saved['run_id']}'s; run {run.run_id - 1} did not stop cleanly"
+    if saved["model_version"] != run.model_version:
+        return "the engine model changed"
+    if saved["fingerprint"] != fingerprint():
+        return "the saved state was made by another version of frictionwatch's core"
+    return None

@@ -180,6 +180,19 @@ class EngineService:
             raise RuntimeError(f"{self.engine_id}: the cycle numbering is set before start")
         self.session.pipeline.assembler.number_from(first_index)
 
+    def monitor_carried(self) -> dict | None:
+        """The monitor's carried state (core CyclePipeline.carried) once the session has stopped; None while a thread
+        of it may still change the state, or before the first cycle."""
+        if any(t.is_alive() for t in self.session.threads):
+            return None
+        return self.session.pipeline.cycles.carried()
+
+    def resume_monitor(self, carried: dict) -> None:
+        """Go on from an earlier run's ``monitor_carried`` (before ``start``; ValueError if it does not fit)."""
+        if self.started_s is not None:
+            raise RuntimeError(f"{self.engine_id}: the monitor's state is taken back before start")
+        self.session.pipeline.cycles.resume(carried)
+
     def start(self) -> EngineService:
         self.started_s = time.monotonic()
         self.fanout.start()

@@ -171,6 +171,10 @@ class Fanout:
     def names(self) -> list[str]:
         return [w.name for w in self._workers]
 
+    def listener(self, name: str) -> Any | None:
+        """The listener added under ``name`` (e.g. 'store'), or None."""
+        return next((w.listener for w in self._workers if w.name == name), None)
+
     @property
     def drops(self) -> dict[str, int]:
         return {w.name: w.drops for w in self._workers}

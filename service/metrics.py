@@ -15,6 +15,9 @@ in one process, or a test, never share series).
     frictionwatch_ingest_behind_seconds{engine}     gauge: wall seconds the oldest waiting data have waited
     frictionwatch_ingest_dropped_records_total{engine}  records the bounded queue dropped (the oldest go)
     frictionwatch_ingest_dropped_seconds_total{engine}  acquisition seconds they covered
+    frictionwatch_store_cycles_total{engine,outcome}  the store listener's cycles: written, written_late (kept while
+                                                    the store was down, then written), lost
+    frictionwatch_store_backlog_cycles{engine}      gauge: cycles kept for a store that is down (bounded)
     frictionwatch_rate_limited_total                large queries refused with 429
     frictionwatch_http_request_seconds{route}       histogram: a request's time in the server (queued for a worker
                                                     thread included), by route function (what a client's p99 is
@@ -126,9 +129,20 @@ class _EngineCounters(Collector):
                 skipped.add_metric([e.engine_id, reason], n)
             for name, n in e.fanout.drops.items():
                 drops.add_metric([e.engine_id, name], n)
+        stored = CounterMetricFamily("frictionwatch_store_cycles", "Cycles the store listener wrote, wrote late, "
+                                     "lost", labels=["engine", "outcome"])
+        waiting = GaugeMetricFamily("frictionwatch_store_backlog_cycles", "Cycles kept for a store that is down",
+                                    labels=["engine"])
+        for e in self.engines():
+            listener = e.fanout.listener("store")
+            if listener is not None:
+                for outcome, key in (("written", "cycles_written"), ("written_late", "cycles_written_late"),
+                                     ("lost", "lost_cycles")):
+                    stored.add_metric([e.engine_id, outcome], listener.stats[key])
+                waiting.add_metric([e.engine_id], listener.backlog)
         sse = CounterMetricFamily("frictionwatch_sse_dropped", "Events lost to slow stream clients")
         sse.add_metric([], self.sse_dropped())
-        yield from (ok, skipped, drops, sse)
+        yield from (ok, skipped, drops, stored, waiting, sse)
 
     def describe(self) -> Iterable[CounterMetricFamily]:
         return []

@@ -52,8 +52,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 picks a free one)")
     p.add_argument("--data-dir", type=Path, help="keep cycles, estimates, alerts and baselines in DIR/frictionwatch.db; "
                                                  "a restart with the same DIR continues from them")
-    p.add_argument("--keep-days", type=float, help="with --data-dir: delete cycles and estimates older than this many "
-                                                   "days (at start, then hourly; alerts and baselines are kept)")
+    p.add_argument("--store", metavar="URL",
+                   help="instead of --data-dir: keep them in a PostgreSQL database several serve processes may share "
+                        "(postgresql://user[:password]@host[:port]/db; each engine id written by one process only; "
+                        "docs/scaling.md)")
+    p.add_argument("--keep-days", type=float, help="with --data-dir or --store: delete cycles and estimates older than "
+                                                   "this many days (at start, then hourly; alerts and baselines are "
+                                                   "kept; with --store only this process's engines)")
     p.add_argument("--token-file", type=Path, help="file holding the token state changes need (required off loopback)")
     p.add_argument("--history-cycles", type=int, default=5000, help="recent cycles each engine holds for the API")
     p.add_argument("--max-queue-s", type=float, default=MAX_QUEUE_S, metavar="S",
@@ -157,11 +162,18 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--port must be 0..65535, got {args.port}")
     if args.history_cycles < 64:
         raise ValueError(f"--history-cycles must be >= 64, got {args.history_cycles}")
-    if args.keep_days is not None and not args.data_dir:
-        raise ValueError("--keep-days needs --data-dir")
+    if args.data_dir and args.store:
+        raise ValueError("give --data-dir (SQLite in a folder) or --store (a PostgreSQL URL), not both")
+    if args.store and not args.store.startswith(("postgresql://", "postgres://")):
+        raise ValueError("--store takes a postgresql://user@host/db URL (for SQLite give --data-dir)")
+    if args.keep_days is not None and not (args.data_dir or args.store):
+        raise ValueError("--keep-days needs --data-dir or --store")
     check_seconds("--max-queue-s", args.max_queue_s, QUEUE_LIMITS)
     check_seconds("--drain-s", args.drain_s, DRAIN_LIMITS)
-    data = DataDir(args.data_dir, keep_days=args.keep_days) if args.data_dir else None
+    where = args.data_dir or args.store
+    data = DataDir(where, keep_days=args.keep_days) if where else None
+    if data:
+        print(f"frictionwatch serve: keeping data in the {data.store.where}", flush=True)  # no password (redact)
     services: list[EngineService] = []
     try:
         services += build_engines(args, data)
@@ -176,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
         data.start_retention()
     made = token is None
     token = token or new_token()
-    app = create_app(services, token=token)
+    app = create_app(services, token=token, fleet=data.store.fleet if data else None)
     host, port = sock.getsockname()[:2]
     shown = f"[{host}]" if ":" in host else host
     print(f"frictionwatch serve: dashboard at http://{shown}:{port}/ ; engines: "

@@ -152,6 +152,7 @@ class CyclePipeline:
         self.on_cycle = on_cycle
         self.running = stages
         self.view: MonitorView | None = None
+        self.reference: Reference | None = None
         self.monitor_model: EngineModel | None = None
         self.monitor_cfg: MonitorConfig | None = None
         self.state: MonitorState | None = None
@@ -163,6 +164,7 @@ class CyclePipeline:
             self._make_view(reference)
 
     def _make_view(self, ref: Reference | None) -> None:
+        self.reference = ref
         self.view = monitor_view(self.model, ref)
         self.monitor_model = self.view.model
         self.monitor_cfg = monitor_config(self.view, self.config)
@@ -207,6 +209,30 @@ class CyclePipeline:
         if new:
             result = replace(result, flags=result.flags + new)
         return CycleOutcome(int(cycle.index), result)
+
+    def carried(self) -> dict | None:
+        """What this pipeline carries from one cycle to the next, as plain values (None before the first cycle): the
+        reference the view was sized at, the monitor's state without what the model rebuilds (``layout``: the
+        model's terms; ``op``: the operating point, rebuilt at the next cycle as at a first one), each running
+        stage's state and the cycle that closed its newest window, and the config they were made with."""
+        if self.view is None or self.state is None:
+            return None
+        return {"reference": self.reference, "state": replace(self.state, layout=None, op=None),
+                "stages": dict(self.stages), "stage_cycle": dict(self.stage_cycle), "config": self.config}
+
+    def resume(self, carried: dict) -> None:
+        """Go on from ``carried()`` of an earlier pipeline of the same model and config (ValueError otherwise): the
+        view sized again at its reference, the state's layout from this model."""
+        if carried["config"] != self.config:
+            raise ValueError("the monitor's settings differ from those the carried state was made with")
+        self._make_view(carried["reference"])
+        state = carried["state"]
+        if state.params.shape != self.state.params.shape:
+            raise ValueError(f"the carried state has {state.params.shape[0]} parameters, this model "
+                             f"{self.state.params.shape[0]}")
+        self.state = replace(state, layout=self.state.layout, op=None)
+        self.stages = {**self.stages, **carried["stages"]}
+        self.stage_cycle = dict(carried["stage_cycle"])
 
     def close_windows(self) -> None:
         """Every running stage that reads in windows and can (a ``close`` method) reads its open window now: a run

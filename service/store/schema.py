@@ -104,6 +104,42 @@ MIGRATIONS: tuple[tuple[str, ...], ...] = (
         "ALTER TABLE alerts ADD COLUMN run_id BIGINT",
         "ALTER TABLE baselines ADD COLUMN run_id BIGINT",
     ),
+    # 3 -> 4: several serve processes on one database (issue 28 item 7, service/store/fleet.py). writers: the lease
+    # of each engine id, held by the one process that writes it (writer: host, pid and a token of that start;
+    # heartbeat_at on the database's own clock, so the boxes' clocks need not agree). engine_latest: each engine's
+    # newest committed cycle and its engine friction figure, written in the transaction of every batch, so the
+    # fleet view reads one row per engine instead of scanning cycles.
+    (
+        """CREATE TABLE writers (
+            engine_id TEXT PRIMARY KEY REFERENCES engines (engine_id),
+            writer TEXT NOT NULL,
+            host TEXT NOT NULL,
+            pid BIGINT NOT NULL,
+            claimed_at DOUBLE PRECISION NOT NULL,
+            heartbeat_at DOUBLE PRECISION NOT NULL)""",
+        """CREATE TABLE engine_latest (
+            engine_id TEXT PRIMARY KEY REFERENCES engines (engine_id),
+            run_id BIGINT,
+            cycle_index BIGINT NOT NULL,
+            t_start_s DOUBLE PRECISION,
+            written_at DOUBLE PRECISION NOT NULL,
+            fmep_bar DOUBLE PRECISION,
+            fmep_sigma_bar DOUBLE PRECISION,
+            status TEXT,
+            reason TEXT)""",
+    ),
+    # 4 -> 5: the monitor's carried state saved at a clean stop (service/monitor_snapshot.py), one row per engine: the
+    # next run of the engine goes on from it instead of a warm-up (service/data_dir.py says when it may)
+    (
+        """CREATE TABLE monitor_states (
+            engine_id TEXT PRIMARY KEY REFERENCES engines (engine_id),
+            run_id BIGINT NOT NULL,
+            model_version BIGINT NOT NULL,
+            fingerprint TEXT NOT NULL,
+            last_cycle BIGINT,
+            saved_at DOUBLE PRECISION NOT NULL,
+            doc TEXT NOT NULL)""",
+    ),
 )
 
 SCHEMA_VERSION = len(MIGRATIONS)

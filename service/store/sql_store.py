@@ -10,15 +10,24 @@ the same key is kept and the new one counted as refused (``write_batch``'s retur
 
 Threads: one connection, every call under one lock, each write one transaction (``write_batch``: several kinds of
 row in one). Other processes read the same SQLite file concurrently (WAL); PostgreSQL serves any number of clients.
+
+A dropped connection (PostgreSQL: a server restart, a network cut, ``pg_terminate_backend``) is reopened: the call
+that finds it gone fails with ``StoreUnavailable`` (a ``StoreError``), the next call reconnects, and while
+reconnecting fails the calls fail at once with ``StoreUnavailable`` until the next attempt is due (backoff from
+``RECONNECT_S[0]``, doubling, at most ``RECONNECT_S[1]``). ``connection`` counts it (lost, reconnects, failed
+attempts). Whoever writes keeps what failed and writes it again (service/store/listener.py); a write whose COMMIT
+was cut off is harmless to repeat (upserts of the run's own rows). SQLite is given no reopen: a file does not drop.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections import Counter
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
@@ -35,7 +44,18 @@ from frictionwatch.service.store.columns import (
     json_text,
     loss_params,
 )
+from frictionwatch.service.store.fleet import FleetStore
+from frictionwatch.service.store.monitor_states import MonitorStateStore
 from frictionwatch.service.store.schema import MIGRATIONS, SCHEMA_VERSION, VERSION_TABLE
+
+log = logging.getLogger(__name__)
+# reconnecting: the first attempt at the next call after the loss, then after 0.5 s, 1 s, 2 s, ... at most 30 s (a
+# server restart takes seconds; 30 s bounds how late a store that is back is seen, at one cheap attempt per 30 s)
+RECONNECT_S = (0.5, 30.0)
+
+
+class StoreUnavailable(StoreError):
+    """The store's connection is down (being reopened): what failed may be written again later."""
 
 
 @dataclass(frozen=True)
@@ -46,6 +66,7 @@ class Dialect:
     begin: str  # SQLite: BEGIN IMMEDIATE takes the write lock at once (no lock upgrade deadlock between writers)
     placeholder: str
     lock_rows: str  # appended to the SELECT of schema_version while migrating: one migrator at a time
+    now: str  # the database's wall clock [Unix s] as an SQL expression: one clock for every process (leases)
 
     def sql(self, text: str) -> str:
         return text if self.placeholder == "?" else text.replace("?", self.placeholder)
@@ -61,11 +82,20 @@ class Run:
     model_version: int | None = field(default=None, compare=False)
 
 
-class SqlStore:
-    """The store interface (service/store/__init__.py) on an open connection; ``migrate`` runs on construction."""
+class SqlStore(FleetStore, MonitorStateStore):
+    """The store interface (service/store/__init__.py) on an open connection; ``migrate`` runs on construction.
 
-    def __init__(self, conn: Any, dialect: Dialect, where: str) -> None:
-        self._conn, self.dialect, self.where = conn, dialect, where
+    ``reopen`` (PostgreSQL) makes a new connection and ``is_lost(conn)`` says whether a failed connection is gone
+    (module doc: reconnecting); without ``reopen`` a lost connection stays lost. ``errors``: the driver's exception
+    classes, raised on as a one-line StoreError naming the store (the driver's error chained)."""
+
+    def __init__(self, conn: Any, dialect: Dialect, where: str, reopen: Callable[[], Any] | None = None,
+                 is_lost: Callable[[Any], bool] | None = None, reconnect_s: tuple[float, float] = RECONNECT_S,
+                 errors: tuple[type[BaseException], ...] = ()) -> None:
+        self._conn, self.dialect, self.where, self._errors = conn, dialect, where, errors
+        self._reopen, self._is_lost, self._reconnect_s = reopen, is_lost, reconnect_s
+        self._next_attempt, self._backoff_s = 0.0, reconnect_s[0]
+        self.connection: Counter[str] = Counter()  # lost, reconnects, reconnect_failures
         self._lock = threading.RLock()
         self._model_version: dict[str, int] = {}
         self._run: dict[str, Run] = {}  # the run this store object writes for each engine
@@ -73,9 +103,53 @@ class SqlStore:
 
     # ---- plumbing ---------------------------------------------------------------------------------------------
     @contextmanager
-    def _transaction(self) -> Iterator[Any]:
+    def _cursor(self) -> Iterator[Any]:
+        """A cursor on the open connection (reopened if it was lost and an attempt is due), under the lock."""
         with self._lock:
-            cur = self._conn.cursor()
+            cur = self._connected().cursor()
+            try:
+                yield cur
+            except Exception as e:
+                if self._reopen is not None and self._conn is not None and self._is_lost(self._conn):
+                    self._lost(e)
+                    raise StoreUnavailable(f"{self.where}: connection lost: {_one_line(e)}") from None
+                if isinstance(e, self._errors):
+                    raise StoreError(f"{self.where}: {_one_line(e)}") from e
+                raise
+
+    def _connected(self) -> Any:
+        if self._conn is not None:
+            return self._conn
+        now = time.monotonic()
+        if self._reopen is None:
+            raise StoreUnavailable(f"{self.where}: the connection is closed")
+        if now < self._next_attempt:
+            raise StoreUnavailable(f"{self.where}: connection lost; next attempt in {self._next_attempt - now:.1f} s")
+        try:
+            conn = self._reopen()
+        except Exception as e:  # noqa: BLE001 - any failure to connect is the same to the caller: not now
+            self.connection["reconnect_failures"] += 1
+            self._next_attempt = now + self._backoff_s
+            self._backoff_s = min(2.0 * self._backoff_s, self._reconnect_s[1])
+            raise StoreUnavailable(f"{self.where}: reconnecting failed ({_one_line(e)}); next attempt in "
+                                   f"{self._next_attempt - now:.1f} s") from None
+        self._conn, self._backoff_s = conn, self._reconnect_s[0]
+        self.connection["reconnects"] += 1
+        log.warning("%s: reconnected", self.where)
+        return conn
+
+    def _lost(self, e: BaseException) -> None:
+        try:
+            self._conn.close()
+        except Exception:  # noqa: BLE001 - it is gone already
+            pass
+        self._conn, self._next_attempt = None, 0.0  # the next call tries at once; the backoff starts if that fails
+        self.connection["lost"] += 1
+        log.warning("%s: connection lost (%s); reopening it at the next call", self.where, _one_line(e))
+
+    @contextmanager
+    def _transaction(self) -> Iterator[Any]:
+        with self._cursor() as cur:
             cur.execute(self.dialect.begin)
             try:
                 yield cur
@@ -112,7 +186,9 @@ class SqlStore:
 
     def close(self) -> None:
         with self._lock:
-            self._conn.close()
+            if self._conn is not None:
+                self._conn.close()
+            self._conn, self._reopen = None, None  # closed for good: no reconnect
 
     # ---- engines and model versions ---------------------------------------------------------------------------
     def register_engine(self, engine_id: str, engine_toml: str) -> int:
@@ -134,10 +210,8 @@ class SqlStore:
         return version
 
     def model_versions(self, engine_id: str) -> list[dict]:
-        with self._lock:
-            rows = self._x(self._conn.cursor(), "SELECT version, toml_sha256, engine_toml, registered_at FROM "
-                                                "model_versions WHERE engine_id = ? ORDER BY version",
-                           (engine_id,)).fetchall()
+        rows = self._query("SELECT version, toml_sha256, engine_toml, registered_at FROM model_versions "
+                           "WHERE engine_id = ? ORDER BY version", (engine_id,))
         return [{"version": int(v), "toml_sha256": s, "engine_toml": t, "registered_at": a} for v, s, t, a in rows]
 
     def _version_of(self, engine_id: str) -> int:
@@ -197,9 +271,12 @@ class SqlStore:
         return self.write_batch(engine_id, alerts=[alert])
 
     def write_batch(self, engine_id: str, cycles: Sequence[dict] = (),
-                    estimates: Sequence[tuple[int, Sequence[dict]]] = (), alerts: Sequence[dict] = ()) -> int:
+                    estimates: Sequence[tuple[int, Sequence[dict]]] = (), alerts: Sequence[dict] = (),
+                    engine_figure: dict | None = None) -> int:
         """Cycle summaries, per-cylinder estimates and alerts in one transaction: all of them or none. Returns the
         number of rows refused (module doc: a row of another run under the same key is kept, the new one dropped).
+        The newest cycle becomes the engine's row in ``engine_latest`` (the fleet view), with ``engine_figure``
+        (the engine's friction figure at that cycle: fmep_bar, fmep_sigma_bar, status, reason) when given.
 
         A row this run already stored under the same key (engine, cycle[, cylinder]) is replaced: a retried batch
         writes the same rows again. An alert (engine, alert_id) is replaced by a later state of the same alert (the
@@ -220,6 +297,7 @@ class SqlStore:
                 self._x(cur, "UPDATE runs SET last_cycle = ? WHERE engine_id = ? AND run_id = ? AND "
                              "(last_cycle IS NULL OR last_cycle < ?)",
                         (max(r[1] for r in cycle_rows), engine_id, run, max(r[1] for r in cycle_rows)))
+                self._latest(cur, engine_id, run, max(cycles, key=lambda r: int(r["cycle_index"])), engine_figure)
             if loss_rows:
                 cur.executemany(self.dialect.sql(_upsert("estimates", ("engine_id", "cycle_index", "cylinder",
                                                                        *LOSS_COLUMNS, "extra", "written_at", "run_id"),
@@ -245,8 +323,8 @@ class SqlStore:
 
     # ---- reads ------------------------------------------------------------------------------------------------
     def _query(self, sql: str, params: Sequence = ()) -> list[tuple]:
-        with self._lock:
-            return self._x(self._conn.cursor(), sql, params).fetchall()
+        with self._cursor() as cur:
+            return self._x(cur, sql, params).fetchall()
 
     def latest_cycle(self, engine_id: str) -> int | None:
         value = self._query("SELECT MAX(cycle_index) FROM cycles WHERE engine_id = ?", (engine_id,))[0][0]
@@ -286,24 +364,35 @@ class SqlStore:
         return json.loads(rows[0][0]) if rows else None
 
     # ---- retention --------------------------------------------------------------------------------------------
-    def apply_retention(self, keep_days: float, now: float | None = None, batch_rows: int = 5000) -> dict[str, int]:
+    def apply_retention(self, keep_days: float, now: float | None = None, batch_rows: int = 5000,
+                        engine_ids: Sequence[str] | None = None) -> dict[str, int]:
         """Delete cycles and estimates written more than ``keep_days`` ago, ``batch_rows`` per transaction (a
-        writer waits for one batch at most, never for the whole sweep). Alerts, baselines and model versions are
+        writer waits for one batch at most, never for the whole sweep); only those of ``engine_ids`` when given (a
+        database several processes share: each sweeps its own engines). Alerts, baselines and model versions are
         kept whatever their age. Returns the rows deleted per table."""
         if not (keep_days > 0 and batch_rows > 0):
             raise StoreError(f"retention needs keep_days > 0 and batch_rows > 0, got {keep_days}, {batch_rows}")
         cutoff = (time.time() if now is None else now) - keep_days * 86400.0
+        if engine_ids is not None and not engine_ids:
+            return {"cycles": 0, "estimates": 0}
+        only = "" if engine_ids is None else f" AND engine_id IN ({', '.join('?' * len(engine_ids))})"
         deleted = {}
         for table, key in (("cycles", "engine_id, cycle_index"), ("estimates", "engine_id, cycle_index, cylinder")):
             deleted[table] = 0
             while True:
                 with self._transaction() as cur:
                     n = self._x(cur, f"DELETE FROM {table} WHERE ({key}) IN (SELECT {key} FROM {table} "
-                                     "WHERE written_at < ? LIMIT ?)", (cutoff, batch_rows)).rowcount
+                                     f"WHERE written_at < ?{only} LIMIT ?)",
+                                (cutoff, *(engine_ids or ()), batch_rows)).rowcount
                 deleted[table] += n
                 if n < batch_rows:
                     break
         return deleted
+
+
+def _one_line(e: BaseException) -> str:
+    text = str(e).strip()
+    return f"{type(e).__name__}: {text.splitlines()[0] if text else ''}"
 
 
 # an alert row is another state of the same alert when its kind and raised cycle agree (an alert engine that had

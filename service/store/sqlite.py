@@ -18,7 +18,8 @@ from pathlib import Path
 
 from frictionwatch.service.store.sql_store import Dialect, SqlStore, StoreError
 
-SQLITE = Dialect(name="sqlite", begin="BEGIN IMMEDIATE", placeholder="?", lock_rows="")
+SQLITE = Dialect(name="sqlite", begin="BEGIN IMMEDIATE", placeholder="?", lock_rows="",
+                 now="((julianday('now') - 2440587.5) * 86400.0)")
 SYNCHRONOUS = ("full", "normal")
 
 
@@ -41,7 +42,7 @@ def open_sqlite(path: str, synchronous: str = "full") -> SqlStore:
     except sqlite3.DatabaseError as e:
         raise StoreError(f"sqlite store {path}: {e}") from None
     try:
-        return SqlStore(conn, SQLITE, f"sqlite store {path}")
+        return SqlStore(conn, SQLITE, f"sqlite store {path}", errors=(sqlite3.Error,))
     except sqlite3.DatabaseError as e:
         conn.close()
         raise StoreError(f"sqlite store {path}: {e}") from None

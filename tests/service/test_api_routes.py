@@ -232,5 +232,5 @@ def test_openapi_lists_every_route(served) -> None:
                      "/api/v1/engines/{engine_id}/losses", "/api/v1/engines/{engine_id}/friction-torque",
                      "/api/v1/engines/{engine_id}/speed", "/api/v1/engines/{engine_id}/sensor-health",
                      "/api/v1/engines/{engine_id}/alerts", "/api/v1/engines/{engine_id}/alerts/{alert_id}/acknowledge",
-                     "/api/v1/engines/{engine_id}/baseline", "/api/v1/stream"}
+                     "/api/v1/engines/{engine_id}/baseline", "/api/v1/stream", "/api/v1/fleet"}
     json.dumps(client.get("/openapi.json").json())

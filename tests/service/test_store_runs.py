@@ -93,7 +93,7 @@ def test_a_schema_2_database_is_migrated_with_its_rows_kept(tmp_path):
 
     s, run = _started(f"sqlite:{path}")
     try:
-        assert s.schema_version == SCHEMA_VERSION == 3
+        assert s.schema_version == SCHEMA_VERSION == 5
         (old,) = s.cycles(ENG, 0, 100)
         assert old["run_id"] is None and old["rpm_mean"] == 1500.25  # exact: written and read as float64
         assert (run.run_id, run.first_cycle) == (1, 42)
