@@ -34,7 +34,7 @@ import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel, as_model
 from frictionwatch.core.model.indicated import peak_pressure
-from frictionwatch.core.monitor.balance.harmonic_balance import harmonic_balance, known_load_ripple, operating_point
+from frictionwatch.core.monitor.balance.harmonic_balance import harmonic_balance, operating_point
 from frictionwatch.core.monitor.checks.condition import assess_condition
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthState, check_cycle, corrected_inputs, inflate
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, ResidualStats
@@ -141,7 +141,8 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     load = cycle.load_torque if math.isfinite(cycle.load_torque) else cycle.load_power / omega
     if not math.isfinite(load):
         flags.append("no_load_measurement")
-    op = operating_point(spec, state.op, omega, load, m, cfg.rebuild_tolerance, cfg.variable_inertia, state.layout)
+    op = operating_point(spec, state.op, omega, load, m, cfg.rebuild_tolerance, cfg.variable_inertia, state.layout,
+                         cfg.load_ripple)
     if op is not state.op and state.op is not None:
         flags.append("operating_point_changed")
 
@@ -151,8 +152,7 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
                                                    else (pressure, op))
     free_in = free_end_input(spec, op_used, free_end) if cfg.second_wheel else None
     bal = harmonic_balance(op_used, state.params, state.n_nuisance, state.relative_motion, state.static, cycle.grid,
-                           pressure, fly, theta_start, cfg.passes, cfg.time_samples, free_in,
-                           known_load_ripple(cfg.load_ripple, load, spec.load_node))
+                           pressure, fly, theta_start, cfg.passes, cfg.time_samples, free_in)
     exc, rows, rel, static = bal.excitation, bal.rows, bal.relative_motion, bal.static
     p_rel, p_gnd = bal.power_relative, bal.power_ground
     # relative dampers (damper, shaft, coupling) dissipate mean power that a balance against the load behind the

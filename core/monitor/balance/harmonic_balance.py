@@ -29,64 +29,6 @@ from frictionwatch.core.monitor.identify.layout import CycleRows, ParameterLayou
 from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion
 
 
-@dataclass(frozen=True)
-class OperatingPoint:
-    """Chain matrices and transfer functions at one mean speed and load, and the constant records of the pass
-    kernels for one engine and parameter layout (kept in the monitor state)."""
-
-    omega_mean: float
-    load_torque: float
-    shaft: ShaftModel
-    receptance: Receptance
-    transfer: np.ndarray  # (M, N) flywheel speed per node torque
-    layout: ParameterLayout  # the layout (and term library) the records below were built for
-    variable_inertia: bool
-    chain: ChainRecord
-    cylinders: CylinderRecord
-    mix: MixPlan
-
-
-def operating_point(spec: EngineSpec, op: OperatingPoint | None, omega: float, load: float, m: int,
-                    rebuild_tolerance: float, variable_inertia: bool, layout: ParameterLayout) -> OperatingPoint:
-    """``op`` itself while Omega is within ``rebuild_tolerance`` (relative), the load within 5 % and the layout and
-    inertia model the same, else a new one."""
-    load_ok = math.isfinite(load)
-    if op is not None and op.layout is layout and op.variable_inertia == variable_inertia and op.transfer.shape[0] == m \
-            and abs(omega / op.omega_mean - 1.0) <= rebuild_tolerance and (
-            not load_ok or abs(load - op.load_torque) <= 0.05 * max(abs(op.load_torque), 1e-9)):
-        return op
-    shaft = shaft_model(spec, load if load_ok else 0.0, omega)
-    rec = receptance(shaft, omega, m)
-    transfer = np.ascontiguousarray(rec.speed_transfer(shaft.flywheel), dtype=np.complex128)
-    chain = ChainRecord(np.ascontiguousarray(shaft.train.stiffness, dtype=np.float64), int(shaft.flywheel),
-                        np.ascontiguousarray(rec.inverse, dtype=np.complex128),
-                        np.ascontiguousarray(rec.freq, dtype=np.float64), transfer,
-                        np.ascontiguousarray(shaft.edges, dtype=np.int64).reshape(-1, 2),
-                        np.ascontiguousarray(shaft.edge_damping, dtype=np.float64),
-                        np.ascontiguousarray(shaft.ground_damping, dtype=np.float64))
-    return OperatingPoint(omega, load if load_ok else 0.0, shaft, rec, transfer, layout, bool(variable_inertia), chain,
-                          cylinder_record(spec, shaft.recip_inertia_mean, variable_inertia),
-                          mix_plan(layout.group, layout.prior, spec.cylinder_node, layout.n_params))
-
-
-@dataclass(frozen=True)
-class BalanceResult:
-    """One cycle's harmonic balance: the last pass's excitation and rows, the node speed harmonics (N, M), the
-    node-minus-flywheel motion for the next cycle's warm start (harmonics (N, M) and static twist (N,)), and the
-    mean power [W] the relative and the ground dampers dissipate; with a second wheel its speed equations
-    ``free_rows`` = (design (M, P + n_nuisance) complex, target (M,) complex: measured - modelled free-end speed
-    harmonics, the flywheel's tooth nuisances not in them), else None."""
-
-    excitation: Excitation
-    rows: CycleRows
-    node_speed: np.ndarray
-    relative_motion: np.ndarray
-    static: np.ndarray
-    power_relative: float
-    power_ground: float
-    free_rows: tuple[np.ndarray, np.ndarray] | None = None
-
-
 class KnownLoadRipple(NamedTuple):
     """A load torque A sin(order theta_L + phase) [N m] at node ``node`` that the model states (its load_ripple
     effect), resolved for one cycle."""
@@ -107,6 +49,69 @@ def known_load_ripple(ripple: tuple[float, float, float, float], load: float, no
     return KnownLoadRipple(int(node), float(amplitude), float(order), float(phase)) if amplitude > 0.0 else None
 
 
+@dataclass(frozen=True)
+class OperatingPoint:
+    """Chain matrices and transfer functions at one mean speed and load, and the constant records of the pass
+    kernels for one engine and parameter layout (kept in the monitor state)."""
+
+    omega_mean: float
+    load_torque: float
+    shaft: ShaftModel
+    receptance: Receptance
+    transfer: np.ndarray  # (M, N) flywheel speed per node torque
+    layout: ParameterLayout  # the layout (and term library) the records below were built for
+    variable_inertia: bool
+    chain: ChainRecord
+    cylinders: CylinderRecord
+    mix: MixPlan
+    load_ripple: KnownLoadRipple | None = None  # the model's known load ripple at this load (None: none)
+
+
+def operating_point(spec: EngineSpec, op: OperatingPoint | None, omega: float, load: float, m: int,
+                    rebuild_tolerance: float, variable_inertia: bool, layout: ParameterLayout,
+                    load_ripple: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)) -> OperatingPoint:
+    """``op`` itself while Omega is within ``rebuild_tolerance`` (relative), the load within 5 % and the layout,
+    inertia model and load ripple the same, else a new one; ``load_ripple``: the model's (MonitorConfig's), resolved
+    at this load (``known_load_ripple``: a fraction of the load is sized at the point's load, within its 5 %)."""
+    load_ok = math.isfinite(load)
+    if op is not None and op.layout is layout and op.variable_inertia == variable_inertia and op.transfer.shape[0] == m \
+            and abs(omega / op.omega_mean - 1.0) <= rebuild_tolerance and (
+            not load_ok or abs(load - op.load_torque) <= 0.05 * max(abs(op.load_torque), 1e-9)) \
+            and op.load_ripple == known_load_ripple(load_ripple, op.load_torque, spec.load_node):
+        return op
+    shaft = shaft_model(spec, load if load_ok else 0.0, omega)
+    rec = receptance(shaft, omega, m)
+    transfer = np.ascontiguousarray(rec.speed_transfer(shaft.flywheel), dtype=np.complex128)
+    chain = ChainRecord(np.ascontiguousarray(shaft.train.stiffness, dtype=np.float64), int(shaft.flywheel),
+                        np.ascontiguousarray(rec.inverse, dtype=np.complex128),
+                        np.ascontiguousarray(rec.freq, dtype=np.float64), transfer,
+                        np.ascontiguousarray(shaft.edges, dtype=np.int64).reshape(-1, 2),
+                        np.ascontiguousarray(shaft.edge_damping, dtype=np.float64),
+                        np.ascontiguousarray(shaft.ground_damping, dtype=np.float64))
+    return OperatingPoint(omega, load if load_ok else 0.0, shaft, rec, transfer, layout, bool(variable_inertia), chain,
+                          cylinder_record(spec, shaft.recip_inertia_mean, variable_inertia),
+                          mix_plan(layout.group, layout.prior, spec.cylinder_node, layout.n_params),
+                          known_load_ripple(load_ripple, load, spec.load_node))
+
+
+@dataclass(frozen=True)
+class BalanceResult:
+    """One cycle's harmonic balance: the last pass's excitation and rows, the node speed harmonics (N, M), the
+    node-minus-flywheel motion for the next cycle's warm start (harmonics (N, M) and static twist (N,)), and the
+    mean power [W] the relative and the ground dampers dissipate; with a second wheel its speed equations
+    ``free_rows`` = (design (M, P + n_nuisance) complex, target (M,) complex: measured - modelled free-end speed
+    harmonics, the flywheel's tooth nuisances not in them), else None."""
+
+    excitation: Excitation
+    rows: CycleRows
+    node_speed: np.ndarray
+    relative_motion: np.ndarray
+    static: np.ndarray
+    power_relative: float
+    power_ground: float
+    free_rows: tuple[np.ndarray, np.ndarray] | None = None
+
+
 def subtract_load_ripple(known: np.ndarray, theta_fly: np.ndarray, static: np.ndarray, ripple: KnownLoadRipple) -> None:
     """known[node] -= A sin(order theta_L + phase) in place: the load torque opposes the driving torques; theta_L is
     the flywheel angle plus the load node's static twist against it (the previous iterate's; none on a rigid crank or
@@ -118,16 +123,15 @@ def subtract_load_ripple(known: np.ndarray, theta_fly: np.ndarray, static: np.nd
 def harmonic_balance(op: OperatingPoint, theta: np.ndarray, n_nuisance: int, relative_motion: np.ndarray | None,
                      static: np.ndarray | None, grid: np.ndarray, pressure: np.ndarray, fly: FlywheelMotion,
                      theta_start: float, passes: int, time_samples: int,
-                     free_end: tuple[np.ndarray, np.ndarray] | None = None,
-                     load_ripple: KnownLoadRipple | None = None) -> BalanceResult:
+                     free_end: tuple[np.ndarray, np.ndarray] | None = None) -> BalanceResult:
     """Passes of excitation + chain response at the current parameters ``theta`` (friction first, then the
     ``n_nuisance`` tooth-error nuisances); ``relative_motion`` (N, M) and ``static`` (N,) are the previous cycle's
     node-minus-flywheel motion (None on the first cycle); grid (n_g,) and pressure (z, n_g) the cycle's pressure on
     its crank-angle grid [Pa]; fly the flywheel fit; theta_start the flywheel angle at its first sample [rad].
     free_end: a second wheel's (transfer (M, N) complex: its node's speed per node torque, harmonics (M,) complex
     [rad]: its measured angle harmonics referred to the flywheel window's first edge): its speed equations from the
-    last pass's excitation, the same chain and parameters (one more ``pass_rows``). load_ripple: a load torque the
-    model states (``known_load_ripple``), taken off the load node's known torque every pass."""
+    last pass's excitation, the same chain and parameters (one more ``pass_rows``). A load torque the model states
+    (``op.load_ripple``) is taken off the load node's known torque every pass."""
     cyl = op.cylinders
     library = op.layout.library
     n_nodes = cyl.n_nodes
@@ -157,8 +161,8 @@ def harmonic_balance(op: OperatingPoint, theta: np.ndarray, n_nuisance: int, rel
     basis = np.empty((len(library), z, int(time_samples)))  # term-major: each term's kernel fills one block
     for _ in range(n_pass):
         on_grid = pass_samples(cyc, cyl, rel_in, static_in, grid, pressure)
-        if load_ripple is not None:
-            subtract_load_ripple(on_grid.known, on_grid.theta_fly, static_in, load_ripple)
+        if op.load_ripple is not None:
+            subtract_load_ripple(on_grid.known, on_grid.theta_fly, static_in, op.load_ripple)
         library.evaluate_into(on_grid.samples, cyl.friction, basis)
         out: PassRows = pass_rows(harmonics, omega_mean, on_grid.known, on_grid.motion, on_grid.gas, basis, op.mix,
                                   op.chain, params, pattern, int(n_nuisance))
