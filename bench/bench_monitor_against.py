@@ -11,11 +11,21 @@ per engine, timed by wall clock (the bench's own figure) and, in another process
 shared box's descheduling does not move). Reported: the median of every pass's mean end-to-end ms per cycle, its
 real-time factor, and the median (min-max) over the repeats of base / this. Quote ``uptime`` with any absolute
 figure; the ratio is what a shared box can say.
+
+Before any timing, the same records go once through each checkout's one pipeline (service.pipeline.run) and every
+cycle's outcome is compared: skipped or not and why, the flags (equal), and every number of the result, nested
+estimates, sensor health and ring indicators included (float arrays within rtol ``RTOL``, NaN where NaN; ints and
+strings equal). A difference is listed by cycle and field and the run stops (exit 1): a speed-up is only claimed
+for code that gives the same figures. ``--check-only`` stops after the check. Each side runs the check with a fresh
+numba cache (a compile of its own, ~1 min each): the last digits depend on what compiled the cache (see
+``same_outcomes``).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import inspect
 import json
 import os
 import pickle
@@ -25,7 +35,11 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 from bench.bench_monitor import POINTS, SEED
+
+RTOL = 1e-12  # what "the same figures" means between two checkouts (issue 26 item 7: rtol 1e-12 or bit-identical)
 
 _PASS = """
 import json, os, pickle, sys, time, types
@@ -52,6 +66,105 @@ print("@@" + json.dumps(out))
 """
 
 
+_OUTCOMES = """
+import dataclasses, pickle, sys
+import numpy as np
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.service.pipeline import run
+data = pickle.load(open(sys.argv[1], "rb"))
+out = {name: [plain(o) for o in run(load_engine(name), info, records)] for name, (info, records, _, _) in data.items()}
+pickle.dump(out, open(sys.argv[2], "wb"))
+"""  # run by each checkout's python with ``plain`` (below) put in front: the base need not have it
+
+
+def plain(obj):
+    """``obj`` (an outcome, a result and what it holds) as builtins and numpy arrays only: dataclasses and named
+    tuples as dicts of their fields (a cached property not yet asked for is not a field), so two checkouts' results
+    compare without importing either's classes."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {"<type>": type(obj).__name__, **{f.name: plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}}
+    if isinstance(obj, tuple) and hasattr(obj, "_fields"):
+        return {"<type>": type(obj).__name__, **{k: plain(v) for k, v in zip(obj._fields, obj, strict=True)}}
+    if isinstance(obj, (list, tuple)):
+        return [plain(v) for v in obj]
+    if isinstance(obj, dict):
+        return {k: plain(v) for k, v in obj.items()}
+    if isinstance(obj, np.ndarray | np.generic) or obj is None or isinstance(obj, (bool, int, float, complex, str)):
+        return obj
+    if hasattr(obj, "__dict__"):
+        return {"<type>": type(obj).__name__, **{k: plain(v) for k, v in vars(obj).items()}}
+    return repr(obj)
+
+
+def differences(a, b, where: str = "", rtol: float = RTOL) -> tuple[list[str], int]:
+    """(each place where ``a`` and ``b`` (``plain`` trees) differ, the count of numbers compared): numbers within
+    ``rtol`` (NaN equal to NaN; atol 0: a zero stays a zero), everything else equal."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        if a.keys() != b.keys():
+            return [f"{where}: fields {sorted(set(a) ^ set(b))} in one only"], 0
+        out, n = [], 0
+        for k in a:
+            d, m = differences(a[k], b[k], f"{where}.{k}", rtol)
+            out += d
+            n += m
+        return out, n
+    if isinstance(a, list) and isinstance(b, list) and not _numeric(a):
+        if len(a) != len(b):
+            return [f"{where}: {len(a)} against {len(b)} items"], 0
+        out, n = [], 0
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            d, m = differences(x, y, f"{where}[{i}]", rtol)
+            out += d
+            n += m
+        return out, n
+    if _numeric(a) and _numeric(b):
+        x, y = np.asarray(a), np.asarray(b)
+        if x.shape != y.shape or x.dtype.kind != y.dtype.kind:
+            return [f"{where}: shape/kind {x.shape} {x.dtype} against {y.shape} {y.dtype}"], 0
+        if x.dtype.kind in "fc":
+            try:
+                np.testing.assert_allclose(y, x, rtol=rtol, atol=0.0, equal_nan=True)
+            except AssertionError:
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    rel = np.nanmax(np.abs(y - x) / np.abs(x)) if x.size else 0.0
+                return [f"{where}: max relative difference {rel:.3g}"], x.size
+            return [], x.size
+        return ([] if np.array_equal(x, y) else [f"{where}: {x!r} against {y!r}"]), x.size
+    return ([] if a == b else [f"{where}: {a!r} against {b!r}"]), 0
+
+
+def _numeric(v) -> bool:
+    if isinstance(v, np.ndarray | np.generic) or (isinstance(v, (int, float, complex)) and not isinstance(v, bool)):
+        return True
+    return isinstance(v, list) and len(v) > 0 and all(
+        isinstance(e, (int, float, complex)) and not isinstance(e, bool) for e in v)
+
+
+def same_outcomes(this: Path, base: Path, records: Path) -> dict:
+    """Every cycle's outcome from both checkouts on the same records, compared (module doc): per engine the cycles,
+    the numbers compared and the differences (empty: the same figures)."""
+    trees = {}
+    for label, checkout in (("base", base), ("this", this)):
+        out = records.with_name(f"outcomes_{label}.pkl")
+        # a fresh numba cache each, compiled by this script alone: a cache first filled by a process that ran the
+        # plant simulator before the monitor gave the same commit's figures other last digits (up to 6e-10
+        # relative, e.g. friction_torque_balance; two fresh caches agree exactly), so a shared or older cache
+        # would show differences the code does not make
+        env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
+                   NUMBA_CACHE_DIR=str(records.with_name(f"numba_cache_{label}")))
+        script = _OUTCOMES.replace("\nfrom frictionwatch", "\n" + inspect.getsource(plain) + "\nfrom frictionwatch", 1)
+        proc = subprocess.run([str(checkout / ".venv" / "bin" / "python"), "-c", script, str(records), str(out)],
+                              capture_output=True, text=True, env=env, cwd=checkout, check=False)
+        if proc.returncode != 0:
+            raise RuntimeError(f"{checkout}: {proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else 'failed'}")
+        trees[label] = pickle.loads(out.read_bytes())
+    report = {}
+    for name in trees["base"]:
+        diffs, n = differences(trees["base"][name], trees["this"][name], name)
+        report[name] = {"cycles": len(trees["base"][name]), "numbers": n, "differences": diffs}
+    return report
+
+
 def _records(cycles: int, path: Path) -> None:
     from frictionwatch.core.model.engine import load_engine
     from frictionwatch.core.plant.simulate import simulate
@@ -74,11 +187,14 @@ def _one(checkout: Path, records: Path, passes: int, clock: str) -> dict:
     return json.loads(proc.stdout.split("@@", 1)[1])
 
 
-def compare(this: Path, base: Path, repeat: int, passes: int, cycles: int) -> dict:
+def compare(this: Path, base: Path, repeat: int, passes: int, cycles: int, check_only: bool = False) -> dict:
     out: dict = {"uptime_before": subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()}
     with tempfile.TemporaryDirectory() as tmp:
         records = Path(tmp) / "records.pkl"
         _records(cycles, records)
+        out["same"] = same_outcomes(this, base, records)
+        if check_only or any(e["differences"] for e in out["same"].values()):
+            return out
         for clock in ("wall", "cpu"):
             runs: dict[str, list[dict]] = {"base": [], "this": []}
             for i in range(repeat):
@@ -109,8 +225,20 @@ def main() -> None:
     ap.add_argument("--passes", type=int, default=3)
     ap.add_argument("--cycles", type=int, default=120)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--check-only", action="store_true", help="compare the figures, no timing")
     args = ap.parse_args()
-    r = compare(Path(__file__).resolve().parents[1], args.base.resolve(), args.repeat, args.passes, args.cycles)
+    r = compare(Path(__file__).resolve().parents[1], args.base.resolve(), args.repeat, args.passes, args.cycles,
+                args.check_only)
+    if args.out:
+        args.out.write_text(json.dumps(r, indent=1))
+    for name, e in r["same"].items():
+        print(f"same figures, {name}: {e['cycles']} cycles, {e['numbers']} numbers compared (rtol {RTOL:g}): "
+              + ("equal" if not e["differences"] else f"{len(e['differences'])} DIFFER, e.g. "
+                 + "; ".join(e["differences"][:5])))
+    if any(e["differences"] for e in r["same"].values()):
+        return 1
+    if args.check_only:
+        return 0
     print(f"uptime: {r['uptime_before']} ... {r['uptime_after']}")
     for clock in ("wall", "cpu"):
         print(f"\nend to end, ms per cycle ({clock} clock): base | this | base/this median (min-max over repeats)")
@@ -118,8 +246,7 @@ def main() -> None:
             print(f"  {name:11s} {e['base_ms']:7.3f} ({e['base_x_real_time']:5.1f}x) | {e['this_ms']:7.3f} "
                   f"({e['this_x_real_time']:5.1f}x) | {e['base_over_this']:.2f} ({e['ratio_range'][0]:.2f}-"
                   f"{e['ratio_range'][1]:.2f})")
-    if args.out:
-        args.out.write_text(json.dumps(r, indent=1))
+    return 0
 
 
 if __name__ == "__main__":
