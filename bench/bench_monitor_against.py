@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.bench_monitor import POINTS, SEED
+from bench.bench_monitor import POINTS, SEED, warm_up
 
 RTOL = 1e-12  # what "the same figures" means between two checkouts (issue 26 item 7: rtol 1e-12 or bit-identical)
 
@@ -47,15 +47,14 @@ sys.path.insert(0, os.getcwd())
 import numpy as np
 import bench.bench_monitor as bm
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.service.pipeline import run as run_records
+from frictionwatch.service.pipeline import EnginePipeline
 if sys.argv[3] == "cpu":
     bm.time = types.SimpleNamespace(perf_counter=time.thread_time)  # the pass's clock: this thread's CPU time
 data = pickle.load(open(sys.argv[1], "rb"))
 out = {}
 for name, (info, records, short_info, short_records) in data.items():
     spec = load_engine(name)
-    for _ in run_records(spec, short_info, short_records):  # numba cache load and first calls
-        pass
+    warm_up(spec, types.SimpleNamespace(info=short_info, records=short_records))  # numba cache, first calls
     sim = types.SimpleNamespace(info=info, records=records)
     means = []
     for _ in range(int(sys.argv[2])):
@@ -178,9 +177,11 @@ def _records(cycles: int, path: Path) -> None:
 
 
 def _one(checkout: Path, records: Path, passes: int, clock: str) -> dict:
+    # this bench's warm-up (bench_monitor.warm_up) in both checkouts: the base's bench may warm up otherwise
+    script = _PASS.replace("\nif sys.argv[3]", "\n" + inspect.getsource(warm_up) + "\nif sys.argv[3]", 1)
     # one NUMBA_CACHE_DIR may serve both: numba keys its cache by each kernel's source path
     env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    proc = subprocess.run([str(checkout / ".venv" / "bin" / "python"), "-c", _PASS, str(records), str(passes), clock],
+    proc = subprocess.run([str(checkout / ".venv" / "bin" / "python"), "-c", script, str(records), str(passes), clock],
                           capture_output=True, text=True, env=env, cwd=checkout, check=False)
     if proc.returncode != 0:
         raise RuntimeError(f"{checkout}: {proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else 'failed'}")
