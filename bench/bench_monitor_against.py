@@ -124,8 +124,12 @@ def differences(a, b, where: str = "", rtol: float = RTOL) -> tuple[list[str], i
             try:
                 np.testing.assert_allclose(y, x, rtol=rtol, atol=0.0, equal_nan=True)
             except AssertionError:
+                nan_x, nan_y = np.isnan(x), np.isnan(y)
+                if np.any(nan_x != nan_y):
+                    return [f"{where}: NaN in one only at {int(np.sum(nan_x != nan_y))} of {x.size}"], x.size
+                both = ~nan_x
                 with np.errstate(divide="ignore", invalid="ignore"):
-                    rel = np.nanmax(np.abs(y - x) / np.abs(x)) if x.size else 0.0
+                    rel = float(np.max(np.abs(y[both] - x[both]) / np.abs(x[both])))
                 return [f"{where}: max relative difference {rel:.3g}"], x.size
             return [], x.size
         return ([] if np.array_equal(x, y) else [f"{where}: {x!r} against {y!r}"]), x.size
