@@ -90,9 +90,9 @@ def plain(obj):
         return {k: plain(v) for k, v in obj.items()}
     if isinstance(obj, np.ndarray | np.generic) or obj is None or isinstance(obj, (bool, int, float, complex, str)):
         return obj
-    if hasattr(obj, "__dict__"):
+    if hasattr(obj, "__dict__") and not isinstance(obj, type) and not callable(obj) and not hasattr(obj, "_value_"):
         return {"<type>": type(obj).__name__, **{k: plain(v) for k, v in vars(obj).items()}}
-    return repr(obj)
+    return repr(obj)  # a class, a function, an enum member: compared by what it prints
 
 
 def differences(a, b, where: str = "", rtol: float = RTOL) -> tuple[list[str], int]:
