@@ -33,9 +33,11 @@ for _v in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_
 
 import argparse  # noqa: E402
 import cProfile  # noqa: E402
+import gc  # noqa: E402
 import json  # noqa: E402
 import pickle  # noqa: E402
 import pstats  # noqa: E402
+import resource  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -52,7 +54,6 @@ from frictionwatch.core.model.engine import load_engine  # noqa: E402
 from frictionwatch.core.monitor.pipeline import STAGES, CyclePipeline  # noqa: E402
 from frictionwatch.core.plant.simulate import simulate  # noqa: E402
 from frictionwatch.service.pipeline import EnginePipeline, ResultHistory, assembled_cycles  # noqa: E402
-from frictionwatch.service.pipeline import run as run_records  # noqa: E402
 
 from bench.common import summary_ms  # noqa: E402
 
@@ -216,7 +217,8 @@ def pipeline_pass(spec, sim, keep_last: int = 1) -> dict:
     latency's). It holds what the pipeline holds: results as its ResultHistory keeps them, no Cycle after the
     monitor has used it (keeping every Cycle put each new pressure matrix on never-touched pages: ~1.2 us per 4 kB
     page on a VM, ~0.04 ms per genset cycle billed to the assembler), plus the last ``keep_last`` cycles with their
-    states and results for the scipy baseline."""
+    states and results for the scipy baseline. Counted over the pass too: garbage collections by generation
+    (gc.callbacks) and the process's minor page faults (getrusage)."""
     pipe = EnginePipeline(spec, sim.info)
     cycles = pipe.cycles
     process = cycles.process
@@ -229,6 +231,25 @@ def pipeline_pass(spec, sim, keep_last: int = 1) -> dict:
         return out
 
     cycles.process = timed_process  # this pass's instance only
+    collections: list[int] = []  # the generation of each garbage collection during the pass
+
+    def on_gc(phase, info):
+        if phase == "stop":
+            collections.append(info["generation"])
+
+    gc.callbacks.append(on_gc)
+    faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    try:
+        out = _timed_records(pipe, sim, done, keep_last)
+    finally:
+        gc.callbacks.remove(on_gc)
+    out["page_faults"] = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
+    out["gc_collections"] = [collections.count(g) for g in range(3)]
+    return out
+
+
+def _timed_records(pipe, sim, done, keep_last: int) -> dict:
+    """pipeline_pass's loop: ``pipe.outcomes`` per record, each timed, ``done`` filled by its timed process."""
     rows, rejected, lost = [], 0, {}
     history, kept = ResultHistory(), deque(maxlen=max(keep_last, 1))
     first_state = None
@@ -257,6 +278,18 @@ def pipeline_pass(spec, sim, keep_last: int = 1) -> dict:
         acc = 0.0
     return {"rows": np.array(rows).reshape(-1, 3), "kept": list(kept), "first_state": first_state,
             "skipped": lost, "rejected": rejected}
+
+
+def warm_up(spec, short) -> None:
+    """The one pipeline over a short stream, its windows then read (``close_windows``): numba's cache loaded and
+    every first call made in this process before a timed pass, the TDC watch's window fit included. Without the
+    window read, its first call (loading its kernels, ~15 ms on genset-v20) fell on cycle 100 of the first timed pass
+    (23 ms there against 8 ms in the next passes): +0.12 ms on that pass's mean per genset cycle, and the first pass
+    is often the median one reported."""
+    pipe = EnginePipeline(spec, short.info)
+    for record in [*short.records, None]:
+        pipe.outcomes(record)
+    pipe.cycles.close_windows()
 
 
 def monitored_cycles(spec, sim) -> list:
@@ -291,8 +324,7 @@ def engine_bench(name: str, rpm: float, load: float, scipy_cycles: int) -> tuple
     # ~8 cycles in) loads its compiled code here, not inside the timed pass
     short = simulate(spec, rpm, load, 12, seed=SEED + 1)
     t0 = time.perf_counter()
-    for _ in run_records(spec, short.info, short.records):  # warm: numba cache load and first calls, this process
-        pass
+    warm_up(spec, short)
     warm_s = time.perf_counter() - t0
     # the pass is repeated and the one with the median end-to-end mean is reported: a 120-cycle mean moves by
     # ~0.05 ms with one descheduled cycle (3-10 ms) on a shared 2-core box; every pass's mean is kept in the output
@@ -318,6 +350,7 @@ def engine_bench(name: str, rpm: float, load: float, scipy_cycles: int) -> tuple
         "assemble": summary_ms(asm_ms), "monitor": summary_ms(mon_ms),
         "end_to_end": summary_ms(e2e), "latency": summary_ms(emit_ms + mon_ms),
         "end_to_end_mean_ms_per_pass": [round(v, 4) for v in pass_means],
+        "gc_collections_by_generation": run["gc_collections"], "page_faults": run["page_faults"],
         "real_time_factor": round(duration_ms / float(e2e.mean()), 1),
         "monitor_stages_ms": stages,
         "profile_top10": profile_top(spec, cycles),
@@ -340,6 +373,13 @@ def print_table(r: dict) -> None:
             rtf = f"{e['real_time_factor']:8.1f}x (cycle {e['cycle_duration_ms']:.1f} ms)" if st == "end_to_end" \
                 else ""
             print(f"{name:12s} {st:12s} {s['cycles_per_s']:10.1f} {s['p50_ms']:9.3f} {s['p99_ms']:9.3f}   {rtf}")
+    print("the reported pass's mean end to end = assembly + monitor, and the stage split's instrumented total (an extra "
+          "pass of the monitor alone), ms per cycle; garbage collections (gen 0, 1, 2) and minor page faults in the "
+          "pass:")
+    for name, e in r["engines"].items():
+        print(f"  {name:11s} {e['end_to_end']['mean_ms']:.3f} = {e['assemble']['mean_ms']:.3f} + "
+              f"{e['monitor']['mean_ms']:.3f}; stage split {e['monitor_stages_ms']['total (instrumented)']:.3f}; "
+              f"gc {e['gc_collections_by_generation']}, page faults {e['page_faults']}")
     print("end-to-end mean ms per cycle of each timed pass (the median pass is reported): " + "; ".join(
         f"{name} {', '.join(f'{v:.3f}' for v in e['end_to_end_mean_ms_per_pass'])}" for name, e in r["engines"].items()))
     print(f"\nmonitor stages, ms per cycle ({', '.join(r['engines'])}):")
