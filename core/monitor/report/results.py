@@ -132,6 +132,21 @@ class SensorHealth:
 
 
 @dataclass(frozen=True)
+class ChainSample:
+    """One cycle's input and output of the drive train, for its identification from both wheels
+    (core.monitor.calibration.drive_train, which passes the torques through other chains).
+
+    torque (N, M) complex [N m]: the node torque harmonics the balance put through the chain (known torques and
+    friction at the cycle's parameters); flywheel (M,) complex [rad/s]: the measured flywheel speed harmonics, referred
+    to the window's first edge (the free end's: ``CycleResult.free_end.harmonics_at(0)``); flywheel_patterns
+    (M, n_nuisance) complex: its in-band tooth-error patterns through its fit (what they leak into half orders)."""
+
+    torque: np.ndarray
+    flywheel: np.ndarray
+    flywheel_patterns: np.ndarray
+
+
+@dataclass(frozen=True)
 class CycleResult:
     """Everything the monitor knows about one cycle.
 
@@ -190,6 +205,7 @@ class CycleResult:
     indicated_window: float = float("nan")
     ring: RingIndicators | None = None
     free_end: FreeEndSpeed | None = None  # the second wheel's speed of this cycle (core.monitor.teeth.second_wheel)
+    chain: ChainSample | None = None  # with a second wheel: what the drive train's identification needs
 
     @cached_property
     def friction_torque_cyl(self) -> np.ndarray | None:
