@@ -15,6 +15,9 @@ Rules, each for a reason:
   and their difference is reported beside it, never averaged away.
 - J: the coast-downs' pooled J where there is one. The monitor's J is the engine file's (node inertias), so a
   measured J is reported and its disagreement with the file carried in ``inertia_sigma``, not written silently.
+- The drive train (a second wheel, core.monitor.calibration.drive_train): a fit that explains both wheels becomes a
+  ``chain_mismatch`` effect (the monitor's view scales its chain by it) with the scales' sigmas in the calibration
+  section; a poor fit changes nothing, its words say why, and the sigmas stay the engine file's.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine_model import EngineModel
+from frictionwatch.core.monitor.calibration.drive_train import DriveTrainFit
 from frictionwatch.core.monitor.calibration.pressure_gain import SiblingGains
 from frictionwatch.core.monitor.calibration.tdc import TdcEstimate
 
@@ -119,6 +123,32 @@ def commissioned_model(model: EngineModel, tdc_fired: Sequence[TdcEstimate | Non
                                       cal))
 
 
+def commissioned_drive_train(model: EngineModel, fit: DriveTrainFit) -> Commissioning:
+    """``model`` with the drive train a good ``fit`` identified (module doc): its chain_mismatch effect replaced by
+    one of the identified scales (relative to the engine file's chain) and the scales' relative sigmas in the
+    calibration section. A poor fit returns ``model`` as it is, with the fit's words in the report."""
+    report = {"drive_train": fit.to_dict()}
+    if fit.poor:
+        report["drive_train"]["applied"] = False
+        return Commissioning(model, report)
+    prior = [e for e in model.effects if e.name == "chain_mismatch"]  # the fit is relative to the chain it ran with
+    k0 = prior[0].values["stiffness_scale"] if prior else 1.0
+    d0 = prior[0].values["damping_scale"] if prior else 1.0
+    effect = make_effect("chain_mismatch", {"stiffness_scale": round(k0 * fit.stiffness_scale, 5),
+                                            "damping_scale": round(d0 * fit.damping_scale, 4)},
+                         {"stiffness_scale": round(k0 * fit.stiffness_sigma, 5),
+                          "damping_scale": round(d0 * fit.damping_sigma, 4)})
+    kept = tuple(e for e in model.effects if e.name != "chain_mismatch")
+    said = f"drive train from both wheels ({fit.cycles} cycles, chi2 {fit.chi2:.1f} on {fit.dof} dof)"
+    cal = dataclasses.replace(model.calibration, status="commissioned",
+                              stiffness_sigma=round(fit.stiffness_sigma / fit.stiffness_scale, 5),
+                              damping_sigma=round(fit.damping_sigma / fit.damping_scale, 4),
+                              source=f"{model.calibration.source}; {said}" if model.calibration.commissioned
+                              else f"frictionwatch commission: {said}")
+    report["drive_train"]["applied"] = True
+    return Commissioning(dataclasses.replace(model, effects=kept + (effect,), calibration=cal), report)
+
+
 def _tdc_json(t: TdcEstimate | None) -> dict | None:
     if t is None:
         return None
@@ -157,4 +187,5 @@ def _report(z: int, fired, motored, wheel: float, wheel_sigma: float, own: np.nd
     }
 
 
-__all__ = ["Commissioning", "InertiaFinding", "SENSOR_EFFECTS", "commissioned_model", "without_sensor_effects"]
+__all__ = ["Commissioning", "InertiaFinding", "SENSOR_EFFECTS", "commissioned_drive_train", "commissioned_model",
+           "without_sensor_effects"]

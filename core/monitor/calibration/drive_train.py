@@ -125,7 +125,11 @@ class DriveTrainFit:
                 "residual_pct_before": {"flywheel": self.residual_pct_before[0].tolist(),
                                         "free_end": self.residual_pct_before[1].tolist()},
                 "residual_pct_after": {"flywheel": self.residual_pct_after[0].tolist(),
-                                       "free_end": self.residual_pct_after[1].tolist()}}
+                                       "free_end": self.residual_pct_after[1].tolist()},
+                "residual_sigmas_before": {"flywheel": self.residual_sigmas_before[0].tolist(),
+                                           "free_end": self.residual_sigmas_before[1].tolist()},
+                "residual_sigmas_after": {"flywheel": self.residual_sigmas_after[0].tolist(),
+                                          "free_end": self.residual_sigmas_after[1].tolist()}}
 
 
 def drive_train_data(spec: EngineSpec, results: Sequence, tooth_error_deg: float) -> DriveTrainData:
