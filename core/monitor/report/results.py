@@ -12,7 +12,7 @@ measured and model flywheel speed on the crank-angle grid.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -171,7 +171,8 @@ class CycleResult:
     ring: the pressure-based ring indicators of every cylinder (core.monitor.checks.ring_pressure; service.alerts)
 
     The traces (grid, friction_torque, friction_torque_cyl_time, time_angles, speed_measured, speed_model,
-    friction_torque_balance) are None in the copy ``slim()`` makes for a long history: ~85 % of a result's memory.
+    friction_torque_balance) are None in the copy ``slim()`` makes for a long history: ~85 % of a result's memory;
+    so are the drive train identification's inputs (``chain``, the free end's ``pattern_harmonics``).
     """
 
     index: int
@@ -229,6 +230,8 @@ class CycleResult:
         fields = dict(self.__dict__)
         fields.pop("friction_torque_cyl", None)  # the grid traces, if asked for (cached_property)
         fields.update(dict.fromkeys(_TRACES))
+        if self.free_end is not None and self.free_end.pattern_harmonics is not None:  # the identification's, too
+            fields["free_end"] = replace(self.free_end, pattern_harmonics=None)
         return CycleResult(**fields)
 
     # the per-cycle estimate under the names of the brief
@@ -360,7 +363,7 @@ def _measured_only(figure: dict) -> dict:
 
 
 _TRACES = ("grid", "friction_torque", "friction_torque_cyl_time", "time_angles", "speed_measured", "speed_model",
-           "friction_torque_balance")
+           "friction_torque_balance", "chain")
 
 
 def _num(x: float) -> float | None:
