@@ -88,7 +88,8 @@ def commissioned_model(model: EngineModel, tdc_fired: Sequence[TdcEstimate | Non
                        tdc_motored: Sequence[TdcEstimate | None] | None, gains: SiblingGains | None,
                        gain_common_sigma: float, inertia: InertiaFinding | None, source: str) -> Commissioning:
     """The model with the measured corrections as effects and the calibration section (module doc); ``model``
-    without sensor effects (``without_sensor_effects``); gain_common_sigma: the relative 1-sigma of the gain common
+    without sensor effects (``without_sensor_effects``), its drive train's sigmas (``commissioned_drive_train``,
+    before) carried into the new calibration section; gain_common_sigma: the relative 1-sigma of the gain common
     to every channel, which the data cannot give (a stated reference)."""
     z = model.spec.n_cyl
     tdc = tdc_fired if tdc_fired is not None and any(t is not None for t in tdc_fired) else tdc_motored
@@ -117,7 +118,8 @@ def commissioned_model(model: EngineModel, tdc_fired: Sequence[TdcEstimate | Non
     cal = Calibration(status="commissioned", tdc_wheel_sigma_deg=round(math.degrees(wheel_sigma), 4),
                       tdc_cylinder_sigma_deg=round(math.degrees(float(np.sqrt(np.mean(own_sigma ** 2)))), 4),
                       gain_sigma=round(gain_sigma, 5), gain_common_sigma=round(gain_common_sigma, 5),
-                      inertia_sigma=round(min(inertia_sigma, 0.49), 5), source=source)
+                      inertia_sigma=round(min(inertia_sigma, 0.49), 5), stiffness_sigma=model.calibration.stiffness_sigma,
+                      damping_sigma=model.calibration.damping_sigma, source=source)
     out = dataclasses.replace(model, effects=model.effects + tuple(effects), calibration=cal)
     return Commissioning(out, _report(z, tdc_fired, tdc_motored, wheel, wheel_sigma, own, gains, pegging, inertia,
                                       cal))

@@ -269,7 +269,7 @@ def identify_drive_train(spec: EngineSpec, data: DriveTrainData, model_rel_error
 
 
 def identify_iteratively(spec: EngineSpec, results_for: Callable[[EngineSpec], Sequence], tooth_error_deg: float,
-                         model_rel_error: float, rounds: int = 4, skip: int = 10, max_order: float = np.inf
+                         model_rel_error: float, rounds: int = 4, skip: int = 30, max_order: float = np.inf
                          ) -> DriveTrainFit:
     """The drive train of ``spec`` from the cycles ``results_for(chain)`` gives (the same records through the
     monitor running with ``chain``), in rounds: the excitation a chain's balance computes depends on that chain (the
