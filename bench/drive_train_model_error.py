@@ -26,6 +26,7 @@ Switches, to find what makes the error (the same engine for plant and monitor un
 from __future__ import annotations
 
 import argparse
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -68,13 +69,6 @@ def run(spec: EngineSpec, cycles: int, seed: int, load: float, without: tuple[st
     speed), "free": (...)} of the cycles after ``skip``."""
     kept: list = []
     balance = mon.harmonic_balance
-    draw = sim_run.tooth_errors
-
-    def errors(sensors, *args, **kw):  # the flywheel's are drawn with the spec's sensors (the second wheel's: its
-        err = draw(sensors, *args, **kw)  # own SensorParams, second_wheel None: core.plant.sensors)
-        is_fly = sensors.second_wheel is not None
-        keep_it = teeth_errors == "both" or (teeth_errors == "flywheel") == is_fly
-        return err if keep_it else np.zeros_like(err)
 
     def keep(op, theta, n_nuis, rel, static, grid, pressure, fly, theta_start, passes, samples, free_end=None):
         bal = balance(op, theta, n_nuis, rel, static, grid, pressure, fly, theta_start, passes, samples, free_end)
@@ -89,16 +83,15 @@ def run(spec: EngineSpec, cycles: int, seed: int, load: float, without: tuple[st
         effects["chain_mismatch"] = {"stiffness_scale": stiffness_scale, "damping_scale": damping_scale_plant}
     cfg = config or MonitorConfig(second_wheel=True, variable_inertia="variable_inertia" not in without)
     mon.harmonic_balance = keep
-    sim_run.tooth_errors = errors
     try:
-        sim = simulate(spec, 1500.0, load, cycles, seed, second_wheel=True, effects=effects, without=set(without))
+        with tooth_errors_on(teeth_errors):
+            sim = simulate(spec, 1500.0, load, cycles, seed, second_wheel=True, effects=effects, without=set(without))
         pipe = EnginePipeline(spec, sim.info, cfg)
         for record in sim.records:
             pipe.feed(record)
         pipe.flush()
     finally:
         mon.harmonic_balance = balance
-        sim_run.tooth_errors = draw
     rows = kept[skip:]
     if not rows:
         raise SystemExit(f"no cycle with both wheels after the first {skip}")
@@ -106,6 +99,24 @@ def run(spec: EngineSpec, cycles: int, seed: int, load: float, without: tuple[st
     fly = tuple(np.array([r[i] for r in rows]) for i in range(3))
     free = tuple(np.array([r[i] for r in rows]) for i in range(3, 6))
     return wheel_error(*fly, p), wheel_error(*free, p), {"fly": fly, "free": free, "n_params": p}
+
+
+@contextmanager
+def tooth_errors_on(which: str):
+    """While open, the simulator draws tooth-spacing errors for ``which`` wheel only ("flywheel", "free_end"; "both":
+    as it always does), the other's zeroed (a diagnostic plant: core.plant.sim_run draws them)."""
+    draw = sim_run.tooth_errors
+
+    def errors(sensors, *args, **kw):  # the flywheel's are drawn with the spec's sensors (the second wheel's: its
+        err = draw(sensors, *args, **kw)  # own SensorParams, second_wheel None: core.plant.sensors)
+        is_fly = sensors.second_wheel is not None
+        return err if which == "both" or (which == "flywheel") == is_fly else np.zeros_like(err)
+
+    sim_run.tooth_errors = errors
+    try:
+        yield
+    finally:
+        sim_run.tooth_errors = draw
 
 
 def engine(damping_scale: float, node: str | None) -> EngineSpec:
