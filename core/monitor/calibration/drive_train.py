@@ -33,6 +33,7 @@ import scipy.linalg
 import scipy.stats
 from frictionwatch.core.model.dynamics import dynamic_stiffness, shaft_model
 from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.monitor.identify.priors import tooth_coefficient_sigma
 
 POOR_FIT_TAIL = 1e-3  # a chi^2 beyond this upper tail of its distribution is a poor fit (a 1-in-1000 false alarm)
 MIN_FLEXIBLE_HZ = 5.0  # the first flexible mode: above the rigid and the grid's electromechanical mode
@@ -150,7 +151,7 @@ def drive_train_data(spec: EngineSpec, results: Sequence, tooth_error_deg: float
     leak = np.empty((2, len(used), m))
     for i, patterns in enumerate(([r.chain.flywheel_patterns for r in used],
                                   [r.free_end.pattern_harmonics for r in used])):
-        coef_var = math.radians(tooth_error_deg) ** 2 * 2.0 / edges[i]  # per real Fourier part (core...priors)
+        coef_var = tooth_coefficient_sigma(tooth_error_deg, edges[i]) ** 2
         leak[i] = w**2 * coef_var * np.array([np.sum(np.abs(p) ** 2, axis=1) for p in patterns])
     load = np.array([r.load_torque for r in used])
     return DriveTrainData(omega, np.array([r.chain.torque for r in used]), np.stack([fly, free]), leak,
@@ -166,13 +167,18 @@ class _Chain:
     """The chain's parts, sections apart from the ground terms: Z = kappa K_s + K_g - w^2 M + i w (delta C_s + C_g)."""
 
     def __init__(self, spec: EngineSpec, data: DriveTrainData):
+        if spec.n_nodes < 2 or spec.sensors.second_wheel is None:
+            raise ValueError(f"{spec.name}: the drive train needs a flexible shaft line and a second wheel on it")
         omega = float(np.mean(data.omega))
         shaft = shaft_model(spec, data.load_torque, omega)
+        if data.torque.shape[1] != shaft.n_nodes:
+            raise ValueError(f"the monitor ran a chain of {data.torque.shape[1]} node(s), {spec.name}'s has "
+                             f"{shaft.n_nodes}: the drive train needs torsional flexibility on")
         _, self.k_sec, self.c_sec = shaft.train.matrices()
         self.k_gnd = shaft.stiffness - self.k_sec
         self.c_gnd = shaft.damping - self.c_sec
         self.shaft = shaft
-        self.nodes = (shaft.flywheel, spec.sensors.second_wheel.node if spec.sensors.second_wheel is not None else 0)
+        self.nodes = (shaft.flywheel, spec.sensors.second_wheel.node)
         m = data.torque.shape[2]
         self.w = 0.5 * data.omega[:, None] * np.arange(1, m + 1)[None, :]  # (n, M)
         self.torque = np.transpose(data.torque, (0, 2, 1))  # (n, M, N)
