@@ -82,6 +82,7 @@ def main() -> None:
     ap.add_argument("--seeds", default="7,11")
     ap.add_argument("--load", type=float, default=0.75)
     ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--json", default=str(OUT_JSON))
     args = ap.parse_args()
     spec = load_engine(TWO_WHEELS)
     runs = []
@@ -98,8 +99,8 @@ def main() -> None:
             print("   flywheel % after: ", np.round(r["residual_pct_after"]["flywheel"], 2).tolist())
             print("   free end sigmas before / after:", np.round(r["residual_sigmas_before"]["free_end"], 1).tolist(),
                   np.round(r["residual_sigmas_after"]["free_end"], 1).tolist())
-    OUT_JSON.write_text(json.dumps({"command": "python -m bench.drive_train_identification " + " ".join(
-        f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()), "runs": runs}, indent=1) + "\n")
+    Path(args.json).write_text(json.dumps({"command": "python -m bench.drive_train_identification " + " ".join(
+        f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items() if k != "json"), "runs": runs}, indent=1) + "\n")
 
 
 if __name__ == "__main__":

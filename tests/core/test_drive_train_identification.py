@@ -64,7 +64,7 @@ def test_a_softer_shaft_line_is_identified_and_commissioned(spec):
     model = commissioned_drive_train(EngineModel.from_spec(spec), fit).model
     (effect,) = [e for e in model.effects if e.name == "chain_mismatch"]
     assert_allclose(effect.values["stiffness_scale"], fit.stiffness_scale, rtol=1e-4)
-    assert_allclose(model.calibration.stiffness_sigma, fit.stiffness_sigma / fit.stiffness_scale, rtol=1e-3)
+    assert_allclose(model.calibration.stiffness_sigma, fit.stiffness_sigma / fit.stiffness_scale, rtol=0.01)  # rounded
     # the monitor runs the identified chain (the effect's view)
     assert_allclose(monitor_view(model, None).model.spec.stiffness, spec.stiffness * fit.stiffness_scale, rtol=1e-4)
 
