@@ -60,9 +60,14 @@ class Commissioning:
 
 def without_sensor_effects(model: EngineModel) -> EngineModel:
     """``model`` with its TDC, gain and pegging corrections removed: commissioning measures them anew against the
-    raw readings (a model commissioned before would otherwise be corrected twice)."""
+    raw readings (a model commissioned before would otherwise be corrected twice). A drive train correction
+    (chain_mismatch) is not a sensor's: it stays, and so do its sigmas."""
     kept = tuple(e for e in model.effects if e.name not in SENSOR_EFFECTS)
-    return dataclasses.replace(model, effects=kept, calibration=Calibration())
+    cal = Calibration()
+    if any(e.name == "chain_mismatch" for e in kept):  # a drive train commissioned before stays, with its sigmas
+        cal = Calibration(stiffness_sigma=model.calibration.stiffness_sigma,
+                          damping_sigma=model.calibration.damping_sigma)
+    return dataclasses.replace(model, effects=kept, calibration=cal)
 
 
 def _tdc_part(tdc: Sequence[TdcEstimate | None]) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
