@@ -39,19 +39,28 @@ def main() -> None:
     ap.add_argument("--dwell-s", type=float, default=30.0)
     ap.add_argument("--ramp", type=float, default=60.0, help="ramp between set-points [% of rated per minute]")
     ap.add_argument("--json", default=str(OUT_JSON))
+    ap.add_argument("--tooth-errors", choices=("both", "flywheel", "free_end"), default="both",
+                    help="diagnostic plant: the wheel(s) with tooth-spacing errors (bench.drive_train_model_error)")
+    ap.add_argument("--max-order", type=float, default=MonitorConfig().second_wheel_max_order,
+                    help="the joint fit's highest free-end half order (MonitorConfig.second_wheel_max_order)")
     args = ap.parse_args()
     spec = load_engine(TWO_WHEELS)
     hours = args.cycles / (RPM / 120.0) / 3600.0
     steps = load_profile(hours, dwell_s=args.dwell_s, ramp_pct_per_min=args.ramp)
-    sim = start_simulation(spec, RPM, BASE_LOAD, args.cycles, args.seed, load_steps=steps, second_wheel=True)
+    from bench.drive_train_model_error import tooth_errors_on  # (it imports this module's TWO_WHEELS)
+
+    with tooth_errors_on(args.tooth_errors):  # drawn when the run is set up
+        sim = start_simulation(spec, RPM, BASE_LOAD, args.cycles, args.seed, load_steps=steps, second_wheel=True)
     runs = {"one_wheel": Runs(spec, replace(sim.info, second_wheel=None), {"one_wheel": MonitorConfig()}),
             "two_wheels": Runs(spec, sim.info, {"two_wheels": MonitorConfig(),
-                                                "joint": MonitorConfig(second_wheel=True)})}
+                                                "joint": MonitorConfig(second_wheel=True,
+                                                                       second_wheel_max_order=args.max_order)})}
     truth = np.full((args.cycles, spec.n_cyl), np.nan)
     doc = {"engine": ENGINE, "rpm": RPM, "seed": args.seed, "cycles_requested": args.cycles, "load_steps": steps,
            "dwell_s": args.dwell_s, "ramp_pct_per_min": args.ramp, "truth_window": TRUTH_WINDOW,
            "command": f"python -m bench.accuracy_v20_wheels --cycles {args.cycles} --seed {args.seed} --every "
-                      f"{args.every} --dwell-s {args.dwell_s} --ramp {args.ramp}", "checkpoints": []}
+                      f"{args.every} --dwell-s {args.dwell_s} --ramp {args.ramp} --tooth-errors {args.tooth_errors} "
+                      f"--max-order {args.max_order}", "checkpoints": []}
     t0, sim_s, next_cp = time.perf_counter(), 0.0, args.every
 
     def checkpoint() -> None:

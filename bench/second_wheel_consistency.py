@@ -33,9 +33,9 @@ def main() -> None:
     kept = []
     whiten = mon.free_end_whitened
 
-    def keep(stats, design, target, params, harmonics, fit, drift, noise):
+    def keep(stats, design, target, params, harmonics, fit, *rest):
         kept.append((design.copy(), target.copy(), harmonics.copy(), fit[0]))
-        return whiten(stats, design, target, params, harmonics, fit, drift, noise)
+        return whiten(stats, design, target, params, harmonics, fit, *rest)
 
     mon.free_end_whitened = keep
     try:

@@ -26,13 +26,16 @@ from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.monitor.calibration.commission import (
     Commissioning,
     InertiaFinding,
+    commissioned_drive_train,
     commissioned_model,
     without_sensor_effects,
 )
+from frictionwatch.core.monitor.calibration.drive_train import DriveTrainFit, identify_iteratively
 from frictionwatch.core.monitor.calibration.inertia import coastdown_record, commission_inertia
 from frictionwatch.core.monitor.calibration.pressure_gain import sibling_gains
 from frictionwatch.core.monitor.calibration.tdc import tdc_of_cycles
 from frictionwatch.core.monitor.report.results import CycleResult
+from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import Cycle
 from frictionwatch.service.alert_baseline import Baseline
 from frictionwatch.service.alerts import AlertEngine
@@ -103,20 +106,31 @@ def commission(logs: list[Path], engine: str | None, gain_sigma: float | None, m
     """The commissioned model and the report (JSON-able) from ``logs`` (module doc)."""
     from frictionwatch.drivers.logs.mcap_log import LogReader
 
-    collector = _Collector(max_cycles)
     model: EngineModel | None = None
-    skipped: dict[str, dict] = {}
-    twists: list[tuple[np.ndarray, int]] = []  # each log's static twist of the throws and its cycles
-    for n, path in enumerate(logs):
+    for path in logs:  # one engine, its model without sensor corrections (they are measured anew)
         with LogReader(path) as reader:
             if reader.info is None:
                 raise ValueError(f"{path.name} has no acquisition metadata; is it a frictionwatch log?")
             found = resolve_model(reader.engine_toml, engine, path.name, reader.info)
-            if model is None:
-                model = without_sensor_effects(found)
-            elif found.spec.name != model.spec.name:
-                raise ValueError(f"{path.name} is engine {found.spec.name!r}, the first log {model.spec.name!r}: "
-                                 "one engine per commissioning")
+        if model is None:
+            model = without_sensor_effects(found)
+        elif found.spec.name != model.spec.name:
+            raise ValueError(f"{path.name} is engine {found.spec.name!r}, the first log {model.spec.name!r}: "
+                             "one engine per commissioning")
+    assert model is not None  # argparse: at least one log
+    # the drive train first (a second wheel): the throws' static twist, which the TDCs below are corrected by,
+    # is the chain's (a 15 % softer shaft line read as a -0.29 deg TDC of one genset-v20 cylinder otherwise)
+    drive, drive_note = _drive_train(model, logs, max_cycles)
+    if drive is not None:
+        own = dataclasses.replace(model, effects=tuple(e for e in model.effects if e.name != "chain_mismatch"))
+        drive_found = commissioned_drive_train(own, drive)
+        if not drive.poor:
+            model = drive_found.model
+    collector = _Collector(max_cycles)
+    skipped: dict[str, dict] = {}
+    twists: list[tuple[np.ndarray, int]] = []  # each log's static twist of the throws and its cycles
+    for n, path in enumerate(logs):
+        with LogReader(path) as reader:
             collector.next_log(n)
             analysis = analyze_records(model, reader.info, reader.records(), collector.on_result,
                                        on_cycle=collector.on_cycle)
@@ -125,7 +139,6 @@ def commission(logs: list[Path], engine: str | None, gain_sigma: float | None, m
                 twists.append((analysis.cylinder_twist, collector.taken))
         if progress:
             progress(f"{path.name}: {analysis.cycles_ok} cycles analysed")
-    assert model is not None  # argparse: at least one log
     fired, motored = collector.split()
     if len(fired) < MIN_FIRED and len(motored) < MIN_MOTORED:
         raise ValueError(f"commissioning needs >= {MIN_FIRED} fired or >= {MIN_MOTORED} motored cycles; the logs gave "
@@ -158,7 +171,11 @@ def commission(logs: list[Path], engine: str | None, gain_sigma: float | None, m
     source = (f"frictionwatch commission {today}: {len(logs)} log(s), {len(fired)} fired and {len(motored)} motored "
               f"cycles; TDC from the pressure ({'fired' if used is tdc_fired else 'motored'}), gains against the "
               f"siblings, common gain {'stated' if stated else 'unreferenced'}")
+    if drive is not None and not drive.poor:
+        source += f"; drive train from the second wheel (chi2 {drive.chi2:.1f} on {drive.dof} dof)"
     result = commissioned_model(model, tdc_fired, tdc_motored, gains, gain_sigma, inertia, source)
+    if drive is not None:
+        result = dataclasses.replace(result, report={**result.report, **drive_found.report})
     # the alert baseline as learnt over these logs (the recording is the engine's healthy state: commissioning
     # assumes it), carried in the calibration section; a serving engine compares with it from its first cycle
     baseline = _alert_baseline(result.model, logs)
@@ -167,7 +184,7 @@ def commission(logs: list[Path], engine: str | None, gain_sigma: float | None, m
         result = dataclasses.replace(result, model=dataclasses.replace(result.model, calibration=cal))
     report = {"engine": spec.name, "logs": [str(p) for p in logs], "cycles_fired": len(fired),
               "cycles_motored": len(motored), "cycles_skipped": skipped, **result.report,
-              "inertia_note": inertia_note,
+              "inertia_note": inertia_note, "drive_train_note": drive_note,
               "alert_baseline_bands": [] if baseline is None else [
                   {"imep_bar": b.imep_pa / 1e5, "cycles": b.cycles} for b in baseline.bands]}
     return result, report
@@ -189,6 +206,41 @@ def _alert_baseline(model: EngineModel, logs: list[Path]) -> Baseline | None:
         with LogReader(path) as reader:
             analyze_records(model, reader.info, reader.records(), learn)
     return alerts.baseline
+
+
+def _drive_train(model: EngineModel, logs: list[Path], max_cycles: int) -> tuple[DriveTrainFit | None, str]:
+    """The shaft line's stiffness and damping scales from the logs that carry the second wheel
+    (core.monitor.calibration.drive_train), relative to the engine file's chain: each round runs those logs'
+    first ``max_cycles`` cycles through the monitor with the chain the round before identified. None and why not
+    when no log has a second wheel or the cycles do not allow it."""
+    from frictionwatch.drivers.logs.mcap_log import LogReader
+
+    if model.spec.sensors.second_wheel is None:
+        return None, "the engine file states no second wheel: the drive train is the engine file's"
+    with_wheel = []
+    for path in logs:
+        with LogReader(path) as reader:
+            if reader.info is not None and reader.info.second_wheel is not None:
+                with_wheel.append(path)
+    if not with_wheel:
+        return None, "no log carries the second wheel: the drive train is the engine file's"
+    base = dataclasses.replace(model, effects=tuple(e for e in model.effects if e.name != "chain_mismatch"))
+
+    def results_for(chain) -> list[CycleResult]:
+        out: list[CycleResult] = []
+        for path in with_wheel:
+            taken: list[CycleResult] = []
+            with LogReader(path) as reader:
+                analyze_records(dataclasses.replace(base, spec=chain), reader.info, reader.records(), taken.append)
+            out.extend(taken[:max_cycles])
+        return out
+
+    cfg = MonitorConfig()
+    try:
+        fit = identify_iteratively(base.spec, results_for, cfg.tooth_error_deg, cfg.model_rel_error)
+    except ValueError as exc:
+        return None, f"the drive train was not identified: {exc}"
+    return fit, fit.words
 
 
 def _inertia(model: EngineModel, logs: list[Path], motored: list[Cycle]) -> tuple[InertiaFinding | None, str]:
@@ -258,6 +310,9 @@ def print_report(doc: dict) -> None:
               f"{inertia['engine_file_kgm2']:.5f} (the monitor runs with the file's; the difference is in J's sigma)")
     else:
         print(doc["inertia_note"])
+    drive = doc.get("drive_train")
+    print(doc["drive_train_note"] + ("" if drive is None else " (written as the model's chain_mismatch effect)"
+                                     if drive["applied"] else " (nothing written)"))
     bands = doc["alert_baseline_bands"]
     print("alert baseline (the healthy state the alerts compare with): " + (
         ", ".join(f"IMEP {b['imep_bar']:.2f} bar ({b['cycles']} cycles)" for b in bands) if bands else

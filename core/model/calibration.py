@@ -21,6 +21,8 @@ In the model's TOML (core.model.engine_model), every key optional (the defaults 
     gain_sigma = 0.005               # each pressure channel's relative gain, independent between cylinders
     gain_common_sigma = 0.01         # the gain common to every channel (their mean; a shared amplifier or DAQ scale)
     inertia_sigma = 0.02             # the relative error of J (kinetic-energy term of the mean balance)
+    stiffness_sigma = 0.003          # the relative error of the shaft line's section stiffnesses (drive train)
+    damping_sigma = 0.02             # the relative error of its section dampings
     source = "frictionwatch commission, 3 files, 2026-11-28"
     baseline = "{...}"               # the healthy state per load band the alerts compare with (JSON, see below)
 """
@@ -45,6 +47,10 @@ STATUSES = ("uncalibrated", "commissioned")
 #   temperature and age (the independent logs' faulty channels read 0.94-0.96); the issue's "typical installation".
 # - gain 1 % common to all channels: a shared charge-amplifier range or DAQ scale (a data-sheet accuracy class).
 # - J 5 %: the preset's J against what the TU/e coast-downs say (0.0206 against 0.0215 kg m^2, 4.4 %).
+# - shaft line stiffness 20 %, damping 50 %: an engine file's stiffnesses are a maker's or a calculation's, the
+#   chain_mismatch effect's stated +-20 %; dampings (a viscous damper's, the shaft's hysteresis) are known worse.
+#   Commissioning with a second wheel measures them (core.monitor.calibration.drive_train) and writes the
+#   correction as a chain_mismatch effect of the model.
 UNCALIBRATED_SOURCE = ("uncalibrated: a typical installation is assumed (TDC +-0.5 deg wheel and +-0.2 deg per "
                        "cylinder, pressure gain +-3 % per channel and +-1 % common, J +-5 %); `frictionwatch "
                        "commission` measures them")
@@ -55,7 +61,8 @@ class Calibration:
     """status: "uncalibrated" (assumed, the defaults) or "commissioned" (measured); the 1-sigma of what is still
     unknown after the corrections in the model's effects are applied: tdc_wheel_sigma_deg (common to all cylinders),
     tdc_cylinder_sigma_deg (each cylinder's own), gain_sigma (relative, each channel on its own), gain_common_sigma
-    (relative, common to all channels), inertia_sigma (relative J);
+    (relative, common to all channels), inertia_sigma (relative J), stiffness_sigma and damping_sigma (relative, the
+    shaft line's sections: what is left after a chain_mismatch correction, or the engine file's own uncertainty);
     source: where the numbers come from, in words; baseline: the commissioning recording's healthy state per load
     band, friction and pressure indicators, as the alert engine learns it (service.alert_baseline.Baseline.to_dict
     as JSON text; empty: none). Core does not read it: it travels with the model so that the alerts compare with
@@ -67,6 +74,8 @@ class Calibration:
     gain_sigma: float = 0.03
     gain_common_sigma: float = 0.01
     inertia_sigma: float = 0.05
+    stiffness_sigma: float = 0.2
+    damping_sigma: float = 0.5
     source: str = UNCALIBRATED_SOURCE
     baseline: str = ""
 
@@ -74,7 +83,7 @@ class Calibration:
         if self.status not in STATUSES:
             raise ValueError(f"calibration status {self.status!r} is not one of {', '.join(STATUSES)}")
         for name in ("tdc_wheel_sigma_deg", "tdc_cylinder_sigma_deg", "gain_sigma", "gain_common_sigma",
-                     "inertia_sigma"):
+                     "inertia_sigma", "stiffness_sigma", "damping_sigma"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"calibration {name} = {v!r} must be a number >= 0")

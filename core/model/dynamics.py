@@ -131,10 +131,26 @@ def receptance(shaft: ShaftModel, omega_mean: float, n_harmonics: int) -> Recept
         raise ValueError(f"omega_mean must be > 0 rad/s, got {omega_mean}")
     m = np.arange(1, n_harmonics + 1)
     w = 0.5 * omega_mean * m
-    z = (shaft.stiffness[None, :, :] - (w**2)[:, None, None] * np.diag(shaft.mass)[None, :, :]
-         + 1j * w[:, None, None] * shaft.damping[None, :, :])
-    inv = np.linalg.inv(z)
+    inv = np.linalg.inv(dynamic_stiffness(shaft, w))
     return Receptance(omega_mean=float(omega_mean), harmonics=m, freq=w, inverse=inv)
+
+
+def dynamic_stiffness(shaft: ShaftModel, freq: np.ndarray) -> np.ndarray:
+    """(M, N, N) complex Z_m = K - w_m^2 M + i w_m C at the frequencies ``freq`` (M,) [rad/s]."""
+    w = np.asarray(freq, dtype=np.float64)
+    return (shaft.stiffness[None, :, :] - (w**2)[:, None, None] * np.diag(shaft.mass)[None, :, :]
+            + 1j * w[:, None, None] * shaft.damping[None, :, :])
+
+
+def node_torque_harmonics(shaft: ShaftModel, rec: Receptance, speed: np.ndarray) -> np.ndarray:
+    """The node torque harmonics (N, M) [N m] that drive node speed harmonics ``speed`` (N, M) [rad/s] through
+    the chain: Z_m (speed / i w_m), the inverse of ``node_speed_harmonics`` (what the balance put through the chain,
+    kept for the drive train's identification, core.monitor.calibration.drive_train)."""
+    s = np.asarray(speed)
+    if s.shape != (rec.inverse.shape[1], rec.n_harmonics):
+        raise ValueError(f"node speed harmonics must have shape (N, M) = {(rec.inverse.shape[1], rec.n_harmonics)}")
+    phi = s / (1j * rec.freq[None, :])
+    return np.einsum("mij,jm->im", dynamic_stiffness(shaft, rec.freq), phi)
 
 
 def node_speed_harmonics(rec: Receptance, torque: np.ndarray) -> np.ndarray:

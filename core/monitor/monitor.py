@@ -31,6 +31,7 @@ import math
 from dataclasses import replace
 
 import numpy as np
+from frictionwatch.core.model.dynamics import node_torque_harmonics
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel, as_model
 from frictionwatch.core.model.indicated import peak_pressure
@@ -52,7 +53,7 @@ from frictionwatch.core.monitor.identify.layout import parameter_layout
 from frictionwatch.core.monitor.identify.priors import prior_normal
 from frictionwatch.core.monitor.report.cycle_report import build_result
 from frictionwatch.core.monitor.report.report_kernels import trig_tables
-from frictionwatch.core.monitor.report.results import CycleResult
+from frictionwatch.core.monitor.report.results import ChainSample, CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState, PreviousCycle
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
 from frictionwatch.core.monitor.teeth.second_wheel import fit_second_wheel, free_end_input
@@ -217,7 +218,11 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     if wheel2_flag is not None:
         fit_flags += (wheel2_flag,)
     result = replace(result, sensor_health=health, ring=cond.ring,  # one replace: the stage results not in build_result
-                     flags=result.flags + fit_flags, free_end=free_end)
+                     flags=result.flags + fit_flags, free_end=free_end,
+                     chain=None if free_end is None else ChainSample(
+                         node_torque_harmonics(op_used.shaft, op_used.receptance, bal.node_speed),
+                         0.5j * fly.omega_mean * np.arange(1, m + 1) * fly.harmonics,
+                         fly.pattern_harmonics[:, :state.n_nuisance].copy()))
     new_state = MonitorState(
         layout=state.layout, n_harmonics=m, n_nuisance=state.n_nuisance, accumulator=cond.accumulator,
         stats=ident.stats, params=ident.smoothed.params, op=op, relative_motion=rel, static=static, teeth=teeth,

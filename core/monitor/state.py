@@ -121,8 +121,11 @@ class MonitorConfig:
     # (core.monitor.identify.free_end_rows; its node: the engine file's [sensors.second_wheel]). Off by default: on
     # genset-v20 (seed 29, 600-1,000 cycles at one load) it pulls the ring-group scales 0.1-0.6 low and F5/F6 high
     # (bench/accuracy_v20_wheels.py): the free end's equations miss the plant by 1.7-52 % of the harmonic at orders
-    # 5.5-11.5, around the crankshaft's first mode (bench/second_wheel_consistency.py; docs/design-notes.md "The
-    # second wheel"). The second wheel's own speed and tooth learning run whatever this says.
+    # 5.5-11.5 (bench/second_wheel_consistency.py). Not the chain: with the free-end wheel's tooth errors zeroed
+    # in the plant they are 0.3-1.8 % there (bench/drive_train_model_error.py); its in-band tooth errors, integer
+    # orders in angle, leak into the half orders seen in time, and its rows carry no nuisance for them
+    # (docs/design-notes.md "The drive train from both wheels"). The second wheel's own speed and tooth learning
+    # run whatever this says.
     second_wheel: bool = False
     # the highest half order of the free end's equations in the joint fit: 4.5, the highest whose residual at the
     # true scales is within 1.5 standard errors on genset-v20 (bench/second_wheel_consistency.py, seed 7, load

@@ -67,3 +67,23 @@ def test_commission_refuses_too_few_cycles_and_writes_nothing(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "fired" in err[0], err
     assert not model.exists() and not list(tmp_path.glob("*.tmp*"))
+
+
+def test_commission_identifies_the_drive_train_from_the_second_wheel(tmp_path):
+    """genset-v20 with its free-end wheel, every shaft section 15 % softer than its engine file says, seed 21 (not
+    a seed the identification was explored on: 5, 7, 11): the written model carries the identified chain_mismatch
+    (0.850 +- 0.001 seen) and its sigmas in the calibration section, and no cylinder TDC of its own (the TDCs are
+    found after the drive train, with its twist: before, a -0.29 deg offset of cylinder 8 was written)."""
+    from bench.drive_train_identification import TWO_WHEELS
+
+    log = tmp_path / "g.mcap"
+    assert main(["simulate", "--engine", str(TWO_WHEELS), "--rpm", "1500", "--load", "0.75", "--cycles", "80",
+                 "--seed", "21", "--second-wheel", "--effect", "chain_mismatch:stiffness_scale=0.85,damping_scale=1.0",
+                 "-o", str(log)]) == 0
+    assert main(["commission", str(log), "--engine", str(TWO_WHEELS), "-o", str(tmp_path / "m.toml"), "--json"]) == 0
+    model = load_model(str(tmp_path / "m.toml"))
+    (chain,) = [e for e in model.effects if e.name == "chain_mismatch"]
+    k, sk = chain.values["stiffness_scale"], chain.sigma["stiffness_scale"]
+    assert abs(k - 0.85) <= 2.0 * sk, f"stiffness x {k} +- {sk}"
+    np.testing.assert_allclose(model.calibration.stiffness_sigma, sk / k, rtol=0.02)
+    assert [e.values["cylinder"] for e in model.effects if e.name == "tdc_offset"] == [0]

@@ -15,6 +15,9 @@ Rules, each for a reason:
   and their difference is reported beside it, never averaged away.
 - J: the coast-downs' pooled J where there is one. The monitor's J is the engine file's (node inertias), so a
   measured J is reported and its disagreement with the file carried in ``inertia_sigma``, not written silently.
+- The drive train (a second wheel, core.monitor.calibration.drive_train): a fit that explains both wheels becomes a
+  ``chain_mismatch`` effect (the monitor's view scales its chain by it) with the scales' sigmas in the calibration
+  section; a poor fit changes nothing, its words say why, and the sigmas stay the engine file's.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine_model import EngineModel
+from frictionwatch.core.monitor.calibration.drive_train import DriveTrainFit
 from frictionwatch.core.monitor.calibration.pressure_gain import SiblingGains
 from frictionwatch.core.monitor.calibration.tdc import TdcEstimate
 
@@ -56,9 +60,14 @@ class Commissioning:
 
 def without_sensor_effects(model: EngineModel) -> EngineModel:
     """``model`` with its TDC, gain and pegging corrections removed: commissioning measures them anew against the
-    raw readings (a model commissioned before would otherwise be corrected twice)."""
+    raw readings (a model commissioned before would otherwise be corrected twice). A drive train correction
+    (chain_mismatch) is not a sensor's: it stays, and so do its sigmas."""
     kept = tuple(e for e in model.effects if e.name not in SENSOR_EFFECTS)
-    return dataclasses.replace(model, effects=kept, calibration=Calibration())
+    cal = Calibration()
+    if any(e.name == "chain_mismatch" for e in kept):  # a drive train commissioned before stays, with its sigmas
+        cal = Calibration(stiffness_sigma=model.calibration.stiffness_sigma,
+                          damping_sigma=model.calibration.damping_sigma)
+    return dataclasses.replace(model, effects=kept, calibration=cal)
 
 
 def _tdc_part(tdc: Sequence[TdcEstimate | None]) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
@@ -84,7 +93,8 @@ def commissioned_model(model: EngineModel, tdc_fired: Sequence[TdcEstimate | Non
                        tdc_motored: Sequence[TdcEstimate | None] | None, gains: SiblingGains | None,
                        gain_common_sigma: float, inertia: InertiaFinding | None, source: str) -> Commissioning:
     """The model with the measured corrections as effects and the calibration section (module doc); ``model``
-    without sensor effects (``without_sensor_effects``); gain_common_sigma: the relative 1-sigma of the gain common
+    without sensor effects (``without_sensor_effects``), its drive train's sigmas (``commissioned_drive_train``,
+    before) carried into the new calibration section; gain_common_sigma: the relative 1-sigma of the gain common
     to every channel, which the data cannot give (a stated reference)."""
     z = model.spec.n_cyl
     tdc = tdc_fired if tdc_fired is not None and any(t is not None for t in tdc_fired) else tdc_motored
@@ -113,10 +123,37 @@ def commissioned_model(model: EngineModel, tdc_fired: Sequence[TdcEstimate | Non
     cal = Calibration(status="commissioned", tdc_wheel_sigma_deg=round(math.degrees(wheel_sigma), 4),
                       tdc_cylinder_sigma_deg=round(math.degrees(float(np.sqrt(np.mean(own_sigma ** 2)))), 4),
                       gain_sigma=round(gain_sigma, 5), gain_common_sigma=round(gain_common_sigma, 5),
-                      inertia_sigma=round(min(inertia_sigma, 0.49), 5), source=source)
+                      inertia_sigma=round(min(inertia_sigma, 0.49), 5), stiffness_sigma=model.calibration.stiffness_sigma,
+                      damping_sigma=model.calibration.damping_sigma, source=source)
     out = dataclasses.replace(model, effects=model.effects + tuple(effects), calibration=cal)
     return Commissioning(out, _report(z, tdc_fired, tdc_motored, wheel, wheel_sigma, own, gains, pegging, inertia,
                                       cal))
+
+
+def commissioned_drive_train(model: EngineModel, fit: DriveTrainFit) -> Commissioning:
+    """``model`` with the drive train a good ``fit`` identified (module doc): its chain_mismatch effect replaced by
+    one of the identified scales (relative to the engine file's chain) and the scales' relative sigmas in the
+    calibration section. A poor fit returns ``model`` as it is, with the fit's words in the report."""
+    report = {"drive_train": fit.to_dict()}
+    if fit.poor:
+        report["drive_train"]["applied"] = False
+        return Commissioning(model, report)
+    prior = [e for e in model.effects if e.name == "chain_mismatch"]  # the fit is relative to the chain it ran with
+    k0 = prior[0].values["stiffness_scale"] if prior else 1.0
+    d0 = prior[0].values["damping_scale"] if prior else 1.0
+    effect = make_effect("chain_mismatch", {"stiffness_scale": round(k0 * fit.stiffness_scale, 5),
+                                            "damping_scale": round(d0 * fit.damping_scale, 4)},
+                         {"stiffness_scale": round(k0 * fit.stiffness_sigma, 5),
+                          "damping_scale": round(d0 * fit.damping_sigma, 4)})
+    kept = tuple(e for e in model.effects if e.name != "chain_mismatch")
+    said = f"drive train from both wheels ({fit.cycles} cycles, chi2 {fit.chi2:.1f} on {fit.dof} dof)"
+    cal = dataclasses.replace(model.calibration, status="commissioned",
+                              stiffness_sigma=round(fit.stiffness_sigma / fit.stiffness_scale, 5),
+                              damping_sigma=round(fit.damping_sigma / fit.damping_scale, 4),
+                              source=f"{model.calibration.source}; {said}" if model.calibration.commissioned
+                              else f"frictionwatch commission: {said}")
+    report["drive_train"]["applied"] = True
+    return Commissioning(dataclasses.replace(model, effects=kept + (effect,), calibration=cal), report)
 
 
 def _tdc_json(t: TdcEstimate | None) -> dict | None:
@@ -157,4 +194,5 @@ def _report(z: int, fired, motored, wheel: float, wheel_sigma: float, own: np.nd
     }
 
 
-__all__ = ["Commissioning", "InertiaFinding", "SENSOR_EFFECTS", "commissioned_model", "without_sensor_effects"]
+__all__ = ["Commissioning", "InertiaFinding", "SENSOR_EFFECTS", "commissioned_drive_train", "commissioned_model",
+           "without_sensor_effects"]

@@ -32,6 +32,12 @@ class FixedPriors:
         return Prior.stack(self.base, Prior(self.cylinder_rows, share.friction_mean, np.maximum(share.sigma, 1e-6)))
 
 
+def tooth_coefficient_sigma(tooth_error_deg: float, edges: int) -> float:
+    """rms [rad] of each real Fourier part of white per-tooth angle errors of rms ``tooth_error_deg`` over ``edges``
+    edges a revolution: s sqrt(2 / N) (the in-band tooth nuisances' prior; the drive train's leak noise)."""
+    return float(np.radians(tooth_error_deg) * np.sqrt(2.0 / edges))
+
+
 def build_priors(spec: EngineSpec, layout: ParameterLayout, n_nuisance: int, cylinder_rows: np.ndarray,
                  parameter_sigma: float, tooth_error_deg: float, sibling_spread: float) -> FixedPriors:
     """Priors over [friction scales (P_f), tooth nuisances (n_nuisance)]; cylinder_rows (z, P_f + n_nuisance)."""
@@ -40,9 +46,7 @@ def build_priors(spec: EngineSpec, layout: ParameterLayout, n_nuisance: int, cyl
     sig = np.full(p, parameter_sigma)
     target = np.concatenate([np.ones(p_f), np.zeros(n_nuisance)])
     if n_nuisance:
-        # white per-tooth errors of rms s over N edges per revolution: each real Fourier part has rms s sqrt(2/N)
-        edges = spec.sensors.wheel_teeth - spec.sensors.wheel_missing
-        sig[p_f:] = np.radians(tooth_error_deg) * np.sqrt(2.0 / edges)
+        sig[p_f:] = tooth_coefficient_sigma(tooth_error_deg, spec.sensors.wheel_teeth - spec.sensors.wheel_missing)
     base = Prior(np.eye(p), target, sig)
     z = spec.n_cyl
     per_cyl = np.flatnonzero(layout.per_cylinder)

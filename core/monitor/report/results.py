@@ -12,7 +12,7 @@ measured and model flywheel speed on the crank-angle grid.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -132,6 +132,21 @@ class SensorHealth:
 
 
 @dataclass(frozen=True)
+class ChainSample:
+    """One cycle's input and output of the drive train, for its identification from both wheels
+    (core.monitor.calibration.drive_train, which passes the torques through other chains).
+
+    torque (N, M) complex [N m]: the node torque harmonics the balance put through the chain (known torques and
+    friction at the cycle's parameters); flywheel (M,) complex [rad/s]: the measured flywheel speed harmonics, referred
+    to the window's first edge (the free end's: ``CycleResult.free_end.harmonics_at(0)``); flywheel_patterns
+    (M, n_nuisance) complex: its in-band tooth-error patterns through its fit (what they leak into half orders)."""
+
+    torque: np.ndarray
+    flywheel: np.ndarray
+    flywheel_patterns: np.ndarray
+
+
+@dataclass(frozen=True)
 class CycleResult:
     """Everything the monitor knows about one cycle.
 
@@ -156,7 +171,8 @@ class CycleResult:
     ring: the pressure-based ring indicators of every cylinder (core.monitor.checks.ring_pressure; service.alerts)
 
     The traces (grid, friction_torque, friction_torque_cyl_time, time_angles, speed_measured, speed_model,
-    friction_torque_balance) are None in the copy ``slim()`` makes for a long history: ~85 % of a result's memory.
+    friction_torque_balance) are None in the copy ``slim()`` makes for a long history: ~85 % of a result's memory;
+    so are the drive train identification's inputs (``chain``, the free end's ``pattern_harmonics``).
     """
 
     index: int
@@ -190,6 +206,7 @@ class CycleResult:
     indicated_window: float = float("nan")
     ring: RingIndicators | None = None
     free_end: FreeEndSpeed | None = None  # the second wheel's speed of this cycle (core.monitor.teeth.second_wheel)
+    chain: ChainSample | None = None  # with a second wheel: what the drive train's identification needs
 
     @cached_property
     def friction_torque_cyl(self) -> np.ndarray | None:
@@ -213,6 +230,8 @@ class CycleResult:
         fields = dict(self.__dict__)
         fields.pop("friction_torque_cyl", None)  # the grid traces, if asked for (cached_property)
         fields.update(dict.fromkeys(_TRACES))
+        if self.free_end is not None and self.free_end.pattern_harmonics is not None:  # the identification's, too
+            fields["free_end"] = replace(self.free_end, pattern_harmonics=None)
         return CycleResult(**fields)
 
     # the per-cycle estimate under the names of the brief
@@ -344,7 +363,7 @@ def _measured_only(figure: dict) -> dict:
 
 
 _TRACES = ("grid", "friction_torque", "friction_torque_cyl_time", "time_angles", "speed_measured", "speed_model",
-           "friction_torque_balance")
+           "friction_torque_balance", "chain")
 
 
 def _num(x: float) -> float | None:

@@ -50,6 +50,11 @@ class FreeEndSpeed:
     residual_rms: float
     n_edges: int
     drift_harmonics: np.ndarray | None = None  # (M,) complex [rad]: its fit's drift pattern q(u), same reference
+    # (M, n_nuisance) complex [rad per rad]: its in-band tooth-error patterns through its fit, same reference. Fixed
+    # in angle, they are integer orders; seen in time on a shaft whose speed ripples at half orders they leak into
+    # the half orders too (bench/drive_train_model_error.py: up to ~50 % of the free end's small harmonics at orders
+    # 7.5-8.5 on genset-v20). The drive train's identification counts that leak as noise of its free-end rows.
+    pattern_harmonics: np.ndarray | None = None
 
     def harmonics_at(self, t_s: float, values: np.ndarray | None = None) -> np.ndarray:
         """The harmonics referred to an origin ``t_s`` [s] after the flywheel window's first edge (0: that edge):
@@ -88,7 +93,8 @@ def fit_second_wheel(cycle: Cycle, state: SecondWheelState | None, n_harmonics: 
     speed = FreeEndSpeed(omega_mean=fly.omega_mean, harmonics=fly.harmonics.copy(),
                          t_first_s=float(w.ticks[0] - cycle.tooth_ticks[0]) / cycle.tick_hz,
                          residual_rms=fly.residual_rms, n_edges=fly.n_edges,
-                         drift_harmonics=fly.pattern_harmonics[:, -1].copy() if settings[0] else None)
+                         drift_harmonics=fly.pattern_harmonics[:, -1].copy() if settings[0] else None,
+                         pattern_harmonics=fly.pattern_harmonics[:, :n_nuisance].copy())
     return speed, SecondWheelState(teeth, patterns, state.stats), None
 
 
