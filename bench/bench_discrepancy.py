@@ -40,9 +40,8 @@ import time  # noqa: E402
 from collections import Counter, defaultdict  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-import numpy as np  # noqa: E402
 from frictionwatch.core.discrepancy import Options, discover  # noqa: E402
-from frictionwatch.core.model.effects import make_effect  # noqa: E402
+from frictionwatch.core.model.effects import EFFECTS, make_effect  # noqa: E402
 from frictionwatch.core.model.engine import load_engine  # noqa: E402
 from frictionwatch.core.model.engine_model import EngineModel  # noqa: E402
 from frictionwatch.core.plant.simulate import simulate  # noqa: E402
@@ -182,14 +181,11 @@ def _sized(truths: tuple, truth: dict) -> tuple:
 
 def _found_value(hit: dict, main: str) -> tuple[float, float | None]:
     """A found effect's judged parameter and its sigma; a load ripple's amplitude from its in-phase and quadrature
-    parts (sigma propagated to first order)."""
+    parts (the effect's own HarmonicForm: sigma propagated to first order)."""
     p, s = hit["parameters"], hit.get("sigma", {})
-    if main == "amplitude_nm" and ("in_phase_nm" in s or p.get("in_phase_nm") or p.get("quadrature_nm")):
-        a, b = p["in_phase_nm"], p["quadrature_nm"]
-        amp = float(np.hypot(a, b))
-        if "in_phase_nm" not in s or amp == 0.0:
-            return amp, None
-        return amp, float(np.hypot(a * s["in_phase_nm"], b * s["quadrature_nm"]) / amp)
+    if main == "amplitude_nm" and hit["effect"] == "load_ripple":
+        form = EFFECTS["load_ripple"].form
+        return form.polar(p)[0], (form.amplitude_sigma(p, s) if s else None)
     return p[main], s.get(main)
 
 

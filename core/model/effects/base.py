@@ -182,6 +182,39 @@ class CandidateSpec:
     places_cylinder: bool = True  # False: the speed cannot tell in which cylinder it is (fitted in a stand-in one)
 
 
+@dataclass(frozen=True)
+class HarmonicForm:
+    """One harmonic part of an effect, A cos/sin(order theta + phase), given either as amplitude and phase [deg]
+    (``amplitude``, ``phase``) or, where either is non-zero, as A cos(phase) and A sin(phase) (``cos``, ``sin``): the
+    form the discrepancy workflow fits, since the speed it makes is linear in them and a phase means nothing at zero
+    amplitude. The names are the effect's parameters."""
+
+    amplitude: str
+    phase: str
+    cos: str
+    sin: str
+
+    def check(self, effect: str, v: Mapping[str, float]) -> None:
+        """One form only: a one-line ValueError where both are given."""
+        if (v[self.cos] or v[self.sin]) and (v[self.amplitude] or v[self.phase]):
+            raise ValueError(f"effect '{effect}': give {self.amplitude} and {self.phase}, or {self.cos} and "
+                             f"{self.sin}, not both")
+
+    def polar(self, v: Mapping[str, float]) -> tuple[float, float]:
+        """(A, phase [rad]) from whichever form is given."""
+        if v[self.cos] or v[self.sin]:
+            return float(np.hypot(v[self.cos], v[self.sin])), float(np.arctan2(v[self.sin], v[self.cos]))
+        return float(v[self.amplitude]), float(np.radians(v[self.phase]))
+
+    def amplitude_sigma(self, v: Mapping[str, float], sigma: Mapping[str, float]) -> float:
+        """The amplitude's sigma from the given form's (the parts' propagated to first order)."""
+        a, b = v[self.cos], v[self.sin]
+        amp = float(np.hypot(a, b))
+        if amp == 0.0:
+            return sigma.get(self.amplitude, 0.0)
+        return float(np.hypot(a * sigma.get(self.cos, 0.0), b * sigma.get(self.sin, 0.0))) / amp
+
+
 # the (z, L) cycle means of each term's basis in every cylinder at the reference operating point, for a spec and a
 # term library (core.model.view.basis_means at the view's reference)
 BasisMeans = Callable[[EngineSpec, TermLibrary], np.ndarray]
@@ -352,5 +385,6 @@ def _number(effect: str, key: str, raw: object) -> float:
     return float(raw)
 
 
-__all__ = ["ONCE", "PER_CYLINDER", "BasisMeans", "CandidateSpec", "ChainSetup", "CylinderSetup", "Effect", "LoadSetup", "Param",
+__all__ = ["ONCE", "PER_CYLINDER", "BasisMeans", "CandidateSpec", "ChainSetup", "CylinderSetup", "Effect",
+           "HarmonicForm", "LoadSetup", "Param",
            "SensorSetup", "ViewSetup", "cylinder_param", "with_row"]

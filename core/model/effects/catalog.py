@@ -19,6 +19,7 @@ from frictionwatch.core.model.effects.base import (
     ChainSetup,
     CylinderSetup,
     Effect,
+    HarmonicForm,
     LoadSetup,
     Param,
     SensorSetup,
@@ -232,20 +233,18 @@ class LoadRipple(Effect):
         quadrature_nm=Param(0.0, "N m", -1e6, 1e6, doc="A sin(phase)"),
     )
 
+    form = HarmonicForm("amplitude_nm", "phase_deg", "in_phase_nm", "quadrature_nm")
+
     def __init__(self, sigma=None, **values: object):
         super().__init__(sigma, **values)
-        v = self.values
-        if (v["in_phase_nm"] or v["quadrature_nm"]) and (v["amplitude_nm"] or v["phase_deg"]):
-            raise ValueError("effect 'load_ripple': give amplitude_nm and phase_deg, or in_phase_nm and "
-                             "quadrature_nm, not both")
+        self.form.check(self.name, self.values)
 
     def ripple(self) -> tuple[float, float, float, float]:
-        """(amplitude [N m], fraction, order, phase [rad]) as LoadSetup and ViewSetup hold it."""
+        """(amplitude [N m], fraction, order, phase [rad]) as LoadSetup and ViewSetup hold it (the parts' form has
+        no fraction)."""
         v = self.values
-        if v["in_phase_nm"] or v["quadrature_nm"]:
-            return (float(np.hypot(v["in_phase_nm"], v["quadrature_nm"])), 0.0, v["order"],
-                    float(np.arctan2(v["quadrature_nm"], v["in_phase_nm"])))
-        return v["amplitude_nm"], v["fraction"], v["order"], float(np.radians(v["phase_deg"]))
+        amplitude, phase = self.form.polar(v)
+        return amplitude, (0.0 if v["in_phase_nm"] or v["quadrature_nm"] else v["fraction"]), v["order"], phase
 
     def unphysical(self, sigma: Mapping[str, float], load_torque: float = float("nan")) -> str:
         """A load whose ripple swings beyond its own mean torque (beyond 2 sigma) would drive the engine for part of
@@ -255,11 +254,7 @@ class LoadRipple(Effect):
         if not math.isfinite(load_torque):
             return ""
         amplitude = amplitude if amplitude > 0 else fraction * abs(load_torque)
-        v = self.values
-        s_amp = (float(np.hypot(v["in_phase_nm"] * sigma.get("in_phase_nm", 0.0),
-                                v["quadrature_nm"] * sigma.get("quadrature_nm", 0.0))) / amplitude
-                 if amplitude > 0 and (v["in_phase_nm"] or v["quadrature_nm"]) else sigma.get("amplitude_nm", 0.0))
-        if amplitude - abs(load_torque) > 2.0 * s_amp:
+        if amplitude - abs(load_torque) > 2.0 * self.form.amplitude_sigma(self.values, sigma):
             return (f"its swing ({amplitude:.3g} N m) exceeds the mean load torque ({abs(load_torque):.3g} N m): the "
                     "load would drive the engine for part of each cycle")
         return ""
@@ -372,29 +367,23 @@ class ExtraFriction(Effect):
         sin_frac=Param(0.0, "-", -5.0, 5.0, doc="amp_frac sin(phase)"),
     )
 
+    form = HarmonicForm("amp_frac", "phase_deg", "cos_frac", "sin_frac")
+
     def __init__(self, sigma=None, **values: object):
         super().__init__(sigma, **values)
-        v = self.values
-        if (v["cos_frac"] or v["sin_frac"]) and (v["amp_frac"] or v["phase_deg"]):
-            raise ValueError("effect 'extra_friction': give amp_frac and phase_deg, or cos_frac and sin_frac, "
-                             "not both")
+        self.form.check(self.name, self.values)
 
     def shape(self) -> tuple[float, float, float, float]:
         """(mean_frac, amp_frac, order, phase [rad]) of T / T_ref = mean_frac + amp_frac cos(order theta + phase)."""
-        v = self.values
-        if v["cos_frac"] or v["sin_frac"]:
-            return (v["mean_frac"], float(np.hypot(v["cos_frac"], v["sin_frac"])), v["order"],
-                    float(np.arctan2(v["sin_frac"], v["cos_frac"])))
-        return v["mean_frac"], v["amp_frac"], v["order"], float(np.radians(v["phase_deg"]))
+        amp, phase = self.form.polar(self.values)
+        return self.values["mean_frac"], amp, self.values["order"], phase
 
     def unphysical(self, sigma: Mapping[str, float], load_torque: float = float("nan")) -> str:
         """A friction torque never drives: the cylinder's whole friction, about T_ref (1 + mean_frac) on average
         with this part's swing amp_frac on top, stays >= 0 only if amp_frac <= 1 + mean_frac (beyond 2 sigma of it:
         what a larger swing says is a torque that is not this cylinder's friction)."""
         mean, amp, _, _ = self.shape()
-        v = self.values
-        s_amp = (float(np.hypot(v["cos_frac"] * sigma.get("cos_frac", 0.0), v["sin_frac"] * sigma.get("sin_frac", 0.0)))
-                 / amp if amp > 0 and (v["cos_frac"] or v["sin_frac"]) else sigma.get("amp_frac", 0.0))
+        s_amp = self.form.amplitude_sigma(self.values, sigma)
         if amp - (1.0 + mean) > 2.0 * float(np.hypot(s_amp, sigma.get("mean_frac", 0.0))):
             return (f"its swing ({amp:.3g} of the cylinder's friction) exceeds the friction it rides on "
                     f"(1 + {mean:.3g}): the torque would drive the engine for part of each cycle")
