@@ -52,6 +52,7 @@ class Candidate:
     separated_by: str = ""  # the measurement that tells it from another explanation (its effect's declaration)
     variant: str = ""  # an engine-wide candidate's fixed variant, e.g. "order 0.5" (its values are in ``fixed``)
     places_cylinder: bool = True  # False: fitted in a stand-in cylinder the speed cannot tell from the others
+    seeds: tuple[tuple[float, ...], ...] = ()  # further starting points of its refinement (its effect's declaration)
 
     @property
     def label(self) -> str:
@@ -118,7 +119,8 @@ def _expanded(name: str, spec: CandidateSpec, model: EngineModel, names: set[str
     each_and_wheel = range(1, z + 1) if z == 1 else range(0, z + 1)
     cylinders = {"each": range(1, z + 1), "each_and_wheel": each_and_wheel}.get(spec.where, (None,))
     return [Candidate(name, k, spec.params, spec.x0, spec.step, spec.lo, spec.hi, {**spec.fixed, **v},
-                      spec.separated_by, ", ".join(f"{a} {b:g}" for a, b in v.items()), spec.places_cylinder)
+                      spec.separated_by, ", ".join(f"{a} {b:g}" for a, b in v.items()), spec.places_cylinder,
+                      spec.seeds)
             for k in cylinders for v in (spec.variants or ({},))]
 
 

@@ -283,6 +283,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         # candidate's refinement at that reading: the linear step from 0 can stop short of a large offset
         chosen += [replace(lin, x_gn=lin.candidate.clip(np.array([x]))) for lin in lins
                    for label, x in pressure_seeds(cur_res).items() if lin.candidate.label == label]
+        # and where the effect declares further starting points (a strongly nonlinear fit), from each of them
+        chosen += [replace(lin, x_gn=lin.candidate.clip(np.array(x))) for lin in lins for x in lin.candidate.seeds]
         # the pressure channel: what each model leaves of the TDC offsets the pressure read in the current model's
         # run, a chi^2 beside the speed and balance ones (independent data, added once per run)
         def pressure(m: EngineModel, reading: Residuals = cur_res, base: EngineModel = current) -> float:

@@ -180,6 +180,7 @@ class CandidateSpec:
     variants: tuple[Mapping[str, float], ...] = ()  # engine-wide: one candidate per variant (its values fixed too)
     also: tuple[CandidateSpec, ...] = ()  # further shapes of the same effect, each a candidate of its own
     places_cylinder: bool = True  # False: the speed cannot tell in which cylinder it is (fitted in a stand-in one)
+    seeds: tuple[tuple[float, ...], ...] = ()  # further starting points of its refinement (a strongly nonlinear fit)
 
 
 @dataclass(frozen=True)

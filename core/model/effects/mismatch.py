@@ -174,9 +174,14 @@ class _FrictionLaw(Effect):
 
 class ChainMismatch(Effect):
     name = "chain_mismatch"
+    # the speed is far from linear in the stiffness where a resonance moves through the engine orders: one
+    # linearisation at the spec's line can point the wrong way (genset-v20 20 % softer: the candidate never reached
+    # the held-out test). Refinements also start a third softer and a third stiffer than the spec (a shaft line
+    # modelled from drawings is rarely known better; not set from the matrix's 0.8 and 1.5)
     candidate = CandidateSpec(("stiffness_scale", "damping_scale"), (1.0, 1.0), (0.1, 0.5), (0.5, 0.2), (2.0, 5.0),
                               requires="torsional_flexibility",
-                              separated_by="the second wheel at the free end (the shaft line's twist)")
+                              separated_by="the second wheel at the free end (the shaft line's twist)",
+                              seeds=((0.75, 1.0), (4.0 / 3.0, 1.0)))
     description = "the shaft line's section stiffnesses and dampings differ from the spec's by a factor"
     parameters = MappingProxyType({
         "stiffness_scale": Param(1.2, "-", 0.5, 2.0, doc="plant stiffness / spec stiffness, every section"),
