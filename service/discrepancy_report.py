@@ -101,7 +101,12 @@ def render(doc: dict, found: Discovery) -> str:
                      + (f", torque balance {rest['balance_nm']:+.3g} N·m" if rest["balance_nm"] is not None else "")
                      + ".</p>")
     amb = doc.get("ambiguous")
-    if amb:
+    if amb and len(amb["candidates"]) == 1:  # one effect the speed cannot place in a cylinder
+        parts.append(f"<p>Ambiguous: {html.escape(amb['candidates'][0])} explains the held-out cycles, but the speed "
+                     "cannot tell which cylinder; it was not added. " + html.escape(
+                         "; or ".join(amb["separated_by"]) + " would tell." if amb["separated_by"] else "")
+                     + "</p>")
+    elif amb:
         parts.append(f"<p>Ambiguous: {html.escape(' and '.join(amb['candidates']))} explain the held-out cycles "
                      "equally well; neither was added. " + html.escape(
                          "; or ".join(amb["separated_by"]) + " would tell them apart." if amb["separated_by"] else "")
