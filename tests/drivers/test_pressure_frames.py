@@ -118,6 +118,17 @@ def test_frames_and_blocks_give_identical_cycles(k4, genset):
         assert len(out) >= 5 and not asm.skipped
 
 
+def test_list_frames_give_the_cycles_of_array_frames(k4):
+    """A frame whose values are nested lists (filed as a copy) moves the assembler's clock as its array does: the
+    same cycles, skips and counts (the assembler reads an array's length off its shape, a list's through np.shape)."""
+    s, recs = k4
+    frames = to_frames(recs)
+    lists = [PressureFrame(r.cylinders, r.t0_ticks, r.period_ticks, r.values.tolist())
+             if isinstance(r, PressureFrame) else r for r in frames]
+    out, asm = assert_same_assembly(frames, lists, s.info(), s.firing_deg)
+    assert len(out) >= 5 and not asm.skipped
+
+
 def test_same_skips_with_nan_hole_and_repeated_data(genset):
     s, recs = genset
     frames = to_frames(recs)

@@ -128,11 +128,19 @@ def test_discard_older_is_discard_before_a_search(seed):
 def test_append_is_extend_of_one_row():
     a = RingBuffer(5, {"t": np.int64, "x": np.float64})
     b = RingBuffer(5, {"t": np.int64, "x": np.float64})
-    for k in range(13):  # wraps twice, overflows
+    assert a.last("t") is None
+    for k in range(13):  # wraps twice, overflows (with and without released rows: append's two paths)
         a.append(10 * k, 0.5 * k)
         b.extend(np.array([10 * k]), np.array([0.5 * k]))
         assert (a.start, a.end, a.dropped) == (b.start, b.end, b.dropped)
         assert_array_equal(a.view("t"), b.view("t"))
         assert_array_equal(a.view("x"), b.view("x"))
+        assert a.last("t") == b.get("t", b.end - 1) == 10 * k and type(a.last("t")) is int
+        assert a.last("x") == 0.5 * k
+        if k == 6:
+            a.discard_before(a.end - 1)
+            b.discard_before(b.end - 1)
+    a.clear()
+    assert a.last("t") is None
     with pytest.raises(ValueError):
         a.append(1)
