@@ -133,6 +133,9 @@ def render(doc: dict, found: Discovery) -> str:
     if doc.get("not_significant"):
         parts.append("<p>Tried and not significant (held-out gap): " + html.escape(", ".join(
             f"{k} {v:.3g}" for k, v in doc["not_significant"].items())) + "</p>")
+    if doc.get("not_physical"):
+        parts.append("<p>Fits dropped as not their effect's physics: " + html.escape("; ".join(
+            f"{k}: {v}" for k, v in doc["not_physical"].items())) + "</p>")
     style = ("body{font-family:sans-serif;max-width:960px;margin:2em auto}table{border-collapse:collapse}"
              "td,th{border:1px solid #bbb;padding:2px 8px}.small{font-size:85%;color:#444}")
     return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>frictionwatch discrepancy</title>"

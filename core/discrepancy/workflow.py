@@ -125,6 +125,7 @@ class Discovery:
     evaluations: int = 0
     refused: list = field(default_factory=list)  # significant but refused: {"candidate", "reason"}
     ambiguous: dict | None = None  # two explanations within the noise: {"candidates", "separated_by"}
+    dropped: dict = field(default_factory=dict)  # fits that cannot be their effect's physics: label -> why
     step_limit_reached: bool = False
 
     @property
@@ -224,6 +225,7 @@ class Discovery:
                 "refused": self.refused, "step_limit_reached": self.step_limit_reached,
                 "one_operating_point": self.one_operating_point,
                 "localisation": self.localisation, "final": self.final, "not_significant": self.rejected,
+                "not_physical": self.dropped,
                 "monitor_runs": self.evaluations}
 
 
@@ -291,8 +293,10 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             return tdc_chi2(reading, tdc_offsets_deg(m) - tdc_offsets_deg(base))
 
         refined = [refine(lin, current, ev) for lin in chosen]
-        trials = [t for t in one_per_candidate(sorted(refined, key=lambda tr: tr.cost + pressure(_with_fit(current, tr))))
-                  if not unphysical(t, load_nm)]
+        trials = one_per_candidate(sorted(refined, key=lambda tr: tr.cost + pressure(_with_fit(current, tr))))
+        dropped = {t.candidate.label: unphysical(t, load_nm) for t in trials}
+        found.dropped.update({label: why for label, why in dropped.items() if why})
+        trials = [t for t in trials if not dropped[t.candidate.label]]
         runs += ev.calls
         confirmed = []
         for t in to_confirm(trials, opt.confirm):
@@ -403,7 +407,8 @@ def _said(e) -> str:
     cyl = e.values.get("cylinder")
     where = "" if cyl is None else ("the whole wheel" if cyl == 0 else f"cylinder {cyl}")
     spec = type(e).candidate
-    variant = {k for v in (spec.variants if spec is not None else ()) for k in v}  # e.g. a load ripple's order
+    shapes = () if spec is None else (spec, *spec.also)
+    variant = {k for sh in shapes for v in sh.variants for k in v}  # e.g. a load ripple's order
     vals = ", ".join(f"{k}={v:.3g}" + (f" +- {e.sigma[k]:.2g}" if k in e.sigma else "")
                      for k, v in e.values.items()
                      if k != "cylinder" and (k in e.sigma or k in variant or not e.sigma))

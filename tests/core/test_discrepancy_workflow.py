@@ -271,6 +271,9 @@ def test_a_half_order_load_ripple_is_named_with_its_order_amplitude_and_phase():
     np.testing.assert_allclose(np.degrees(np.arctan2(b, a)), 60.0, atol=5.0)
     assert doc["gap_after"] <= 0.2 * doc["gap_before"]
     assert "order=0.5" in doc["verdict"]
+    # 6.9 N m is more than one cylinder's friction can swing (amp > 1 + mean): the cam-order friction fitted to it
+    # is dropped, and the JSON says why
+    assert "would drive the engine" in doc["not_physical"].get("extra_friction[order 0.5]", ""), doc["not_physical"]
 
 
 def test_a_cam_order_friction_is_said_without_a_cylinder_the_speed_cannot_tell():
