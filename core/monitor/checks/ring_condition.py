@@ -184,6 +184,52 @@ def sibling_excess(x: np.ndarray, se: np.ndarray, allowance: float) -> tuple[np.
     dev, sig = np.full(z, np.nan), np.full(z, np.nan)
     if z < 3:
         return dev, sig
+    # every cylinder's others at once, one row each (z, z - 1): one median per call instead of one per cylinder
+    # (genset-v20: 528 us a cycle one at a time, the ring rule's largest cost in serve)
+    off = ~np.eye(z, dtype=bool)
+    others = np.broadcast_to(x, (z, z))[off].reshape(z, z - 1)
+    o_se = np.broadcast_to(se, (z, z))[off].reshape(z, z - 1)
+    ok = np.isfinite(others)
+    n_ok = ok.sum(axis=1)
+    decided = np.isfinite(x) & (n_ok >= 2)
+    for k in np.flatnonzero(decided & (n_ok == 2)):  # the mean of the two others, their disagreement as spread
+        o, o_s = others[k][ok[k]], o_se[k][ok[k]]
+        centre = 0.5 * (o[0] + o[1])
+        spread = abs(o[0] - o[1]) / np.sqrt(2.0)
+        centre_var = 0.25 * (o_s[0] ** 2 + o_s[1] ** 2) + 0.5 * spread ** 2
+        dev[k] = x[k] - centre
+        sig[k] = np.sqrt(se[k] ** 2 + max(spread, allowance) ** 2 + centre_var)
+    many = decided & (n_ok >= 3)
+    if many.any():  # the median of the others, their median absolute deviation as spread
+        o = np.where(ok, others, np.nan)[many]
+        n = n_ok[many]
+        centre = _row_median(o, n)
+        spread = 1.4826 * _row_median(np.abs(o - centre[:, None]), n)
+        mean_se2 = np.where(ok, o_se ** 2, 0.0)[many].sum(axis=1) / n
+        centre_var = (np.pi / 2.0) * (spread ** 2 + mean_se2) / n
+        dev[many] = x[many] - centre
+        sig[many] = np.sqrt(se[many] ** 2 + np.maximum(spread, allowance) ** 2 + centre_var)
+    return dev, sig
+
+
+def _row_median(a: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Each row's median of its ``n`` finite values (NaN elsewhere): np.median's values, one sort for all rows
+    (np.nanmedian goes row by row)."""
+    s = np.sort(a, axis=1)  # NaN last
+    lo = np.take_along_axis(s, ((n - 1) // 2)[:, None], axis=1)[:, 0]
+    hi = np.take_along_axis(s, (n // 2)[:, None], axis=1)[:, 0]
+    return np.where(n % 2 == 1, lo, 0.5 * (lo + hi))
+
+
+def sibling_excess_reference(x: np.ndarray, se: np.ndarray, allowance: float) -> tuple[np.ndarray, np.ndarray]:
+    """``sibling_excess`` one cylinder at a time, as the module doc reads: the readable reference its tests compare
+    with (rtol 1e-12)."""
+    x = np.asarray(x, dtype=np.float64)
+    se = np.asarray(se, dtype=np.float64)
+    z = x.shape[0]
+    dev, sig = np.full(z, np.nan), np.full(z, np.nan)
+    if z < 3:
+        return dev, sig
     for k in range(z):
         others = np.delete(x, k)
         o_se = np.delete(se, k)
