@@ -60,7 +60,7 @@ def run_case(spec, name: str, cycles: int, seed: int, load: float) -> dict:
     mismatch, change, truth = CASES[name]
     effects = {"chain_mismatch": mismatch} if mismatch else {}
     sim = simulate(plant_spec(spec, change), 1500.0, load, cycles, seed, second_wheel=True, effects=effects)
-    cfg = MonitorConfig()
+    cfg = MonitorConfig(drive_train_inputs=True)
 
     def results_for(chain):
         pipe = EnginePipeline(chain, sim.info, cfg)

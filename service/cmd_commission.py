@@ -225,17 +225,18 @@ def _drive_train(model: EngineModel, logs: list[Path], max_cycles: int) -> tuple
     if not with_wheel:
         return None, "no log carries the second wheel: the drive train is the engine file's"
     base = dataclasses.replace(model, effects=tuple(e for e in model.effects if e.name != "chain_mismatch"))
+    cfg = MonitorConfig(drive_train_inputs=True)
 
     def results_for(chain) -> list[CycleResult]:
         out: list[CycleResult] = []
         for path in with_wheel:
             taken: list[CycleResult] = []
             with LogReader(path) as reader:
-                analyze_records(dataclasses.replace(base, spec=chain), reader.info, reader.records(), taken.append)
+                analyze_records(dataclasses.replace(base, spec=chain), reader.info, reader.records(), taken.append,
+                                cfg)
             out.extend(taken[:max_cycles])
         return out
 
-    cfg = MonitorConfig()
     try:
         fit = identify_iteratively(base.spec, results_for, cfg.tooth_error_deg, cfg.model_rel_error)
     except ValueError as exc:

@@ -219,7 +219,7 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         fit_flags += (wheel2_flag,)
     result = replace(result, sensor_health=health, ring=cond.ring,  # one replace: the stage results not in build_result
                      flags=result.flags + fit_flags, free_end=free_end,
-                     chain=None if free_end is None else ChainSample(
+                     chain=None if free_end is None or not cfg.drive_train_inputs else ChainSample(
                          node_torque_harmonics(op_used.shaft, op_used.receptance, bal.node_speed),
                          0.5j * fly.omega_mean * np.arange(1, m + 1) * fly.harmonics,
                          fly.pattern_harmonics[:, :state.n_nuisance].copy()))

@@ -133,6 +133,10 @@ class MonitorConfig:
     # bench/accuracy_v20_wheels.py --cycles 2000) the joint fit with it measured 3 cylinders, 0 within 5 % and 2 sigma,
     # against one wheel's 9 and 6
     second_wheel_max_order: float = 4.5
+    # keep each two-wheel cycle's drive-train identification inputs (CycleResult.chain: node torques, flywheel speed
+    # and patterns): what commissioning reads (core.monitor.calibration.drive_train); off when serving, where nothing
+    # reads them (32 us a genset-v20 two-wheel cycle)
+    drive_train_inputs: bool = False
 
     def __post_init__(self) -> None:
         tau = self.forgetting_time_s

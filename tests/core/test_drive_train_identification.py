@@ -34,7 +34,7 @@ def spec():
 
 def identified(spec, effects=None, change=None):
     sim = simulate(plant_spec(spec, change), 1500.0, 0.75, CYCLES, SEED, second_wheel=True, effects=effects or {})
-    cfg = MonitorConfig()
+    cfg = MonitorConfig(drive_train_inputs=True)
 
     def results_for(chain):
         pipe = EnginePipeline(chain, sim.info, cfg)
