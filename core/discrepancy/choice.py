@@ -28,7 +28,7 @@ def channel_worse(before: Residuals, after: Residuals, scale: np.ndarray) -> str
     bal_b, bal_a = balance_residual(before), balance_residual(after)
     checks = (("flywheel speed", slice(0, 2 * m), bool(new_orders)),
               ("torque balance", slice(2 * m, None),
-               bal_a["significant"] and not abs(bal_a["mean_nm"]) <= abs(bal_b["mean_nm"])))  # before NaN: larger
+               bal_a["significant"] and not bal_a["rms_nm"] <= bal_b["rms_nm"]))  # before NaN: larger
     for name, sl, shows in checks:
         grow = float(ta[sl].sum() - tb[sl].sum())
         if shows and grow > WORSE_SIGMAS * np.sqrt(2.0 * tb[sl].size):

@@ -1,7 +1,9 @@
 """Find: where the model and the measurement disagree, and by how much (the gap).
 
 A missing effect repeats from cycle to cycle; noise does not. So every figure here is of the *coherent* residual:
-the mean over cycles of a residual feature, with its noise variance (per-cycle scatter / N) removed or stated.
+the mean over cycles of a residual feature, with its noise variance (per-cycle scatter / N) removed or stated. A log
+at several operating points (Residuals.groups) is that per operating point: each point's own mean and scatter,
+their coherent powers summed with the point's share of the cycles as its weight (one point: as before).
 
     noise_scale(res)          per-feature per-cycle scatter (robust), the whitening of the fit
     gap(res, scale)           sqrt(sum_j (mean_j^2 - var_j / N) / scale_j^2): the coherent misfit in units of the
@@ -37,11 +39,21 @@ NULL_BALANCE = _TUNED["NULL_BALANCE"].value
 FLOOR_RMS = (_TUNED["FLOOR_RMS_SPEED"].value, _TUNED["FLOOR_RMS_BALANCE"].value)
 
 
+def _group_slices(groups: np.ndarray | None, n: int) -> list[np.ndarray]:
+    """The row indices of each operating-point group (all rows: one group; a label < 0, between points, none)."""
+    if groups is None or n == 0:
+        return [np.arange(n)]
+    return [np.flatnonzero(groups == g) for g in np.unique(groups) if g >= 0]
+
+
 def noise_scale(res: Residuals) -> np.ndarray:
-    """(F,) per-cycle scatter of each feature (1.4826 x median absolute deviation; Re and Im of one harmonic share
-    theirs), floored at a small fraction of the largest so that no feature gets an infinite weight."""
+    """(F,) per-cycle scatter of each feature about its operating point's median (1.4826 x median absolute deviation,
+    pooled over the points with at least three cycles; Re and Im of one harmonic share theirs), floored at a small
+    fraction of the largest so that no feature gets an infinite weight."""
     x = res.features()
-    mad = 1.4826 * np.median(np.abs(x - np.median(x, axis=0)), axis=0)
+    parts = [i for i in _group_slices(res.groups(), x.shape[0]) if i.size >= 3] or [np.arange(x.shape[0])]
+    dev = np.concatenate([x[i] - np.median(x[i], axis=0) for i in parts])
+    mad = 1.4826 * np.median(np.abs(dev), axis=0)
     m = res.harmonics.shape[1]
     pair = np.sqrt(0.5 * (mad[:m] ** 2 + mad[m:2 * m] ** 2))
     out = np.concatenate([pair, pair, mad[2 * m:]])
@@ -51,17 +63,27 @@ def noise_scale(res: Residuals) -> np.ndarray:
     return out
 
 
-def coherent_power(x: np.ndarray) -> np.ndarray:
-    """(F,) mean_j^2 - var_j / N of each column of x (N, F) over its rows: the noise-corrected coherent power."""
-    n = x.shape[0]
-    mean = x.mean(axis=0)
-    var = x.var(axis=0, ddof=1) if n > 1 else np.zeros_like(mean)
-    return mean**2 - var / n
+def coherent_power(x: np.ndarray, groups: np.ndarray | None = None) -> np.ndarray:
+    """(F,) mean_j^2 - var_j / N of each column of x (N, F) over its rows: the noise-corrected coherent power; with
+    ``groups`` (N,), sum_g (N_g / N)(mean_gj^2 - var_gj / N_g) over the operating points (a point of one row, whose
+    noise cannot be told, adds nothing; rows between points, label < 0, neither)."""
+    parts = _group_slices(groups, x.shape[0])
+    if len(parts) > 1:
+        parts = [i for i in parts if i.size >= 2]
+    n = sum(i.size for i in parts)
+    out = np.zeros(x.shape[1])
+    for i in parts:
+        xi = x[i]
+        mean = xi.mean(axis=0)
+        var = xi.var(axis=0, ddof=1) if i.size > 1 else np.zeros_like(mean)
+        out += (i.size / n) * (mean**2 - var / i.size)
+    return out
 
 
 def coherent_terms(res: Residuals, scale: np.ndarray) -> np.ndarray:
-    """(F,) (mean_j^2 - var_j / N) / scale_j^2 of each feature over the cycles (the noise-corrected coherent power)."""
-    return coherent_power(res.features()) / scale**2
+    """(F,) (mean_j^2 - var_j / N) / scale_j^2 of each feature over the cycles (the noise-corrected coherent power),
+    per operating point and weighted by its cycles (coherent_power)."""
+    return coherent_power(res.features(), res.group) / scale**2
 
 
 def gap(res: Residuals, scale: np.ndarray) -> float:
@@ -97,17 +119,33 @@ def feature_floor(res: Residuals, scale: np.ndarray, rms: tuple[float, float] = 
     return np.concatenate([per_component, per_component, [rms[1] * balance_floor_nm(res)]]) / scale
 
 
+def _point_means(x: np.ndarray, groups: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per operating point with at least two rows: the mean of x (N, ...) over its rows, its share of those rows, and
+    the pooled within-point variance (ddof 1 per point); one point: x's mean, 1 and its variance."""
+    parts = [i for i in _group_slices(groups, x.shape[0]) if i.size >= 2] or [np.arange(x.shape[0])]
+    means = np.array([x[i].mean(axis=0) for i in parts])
+    weights = np.array([i.size for i in parts], dtype=np.float64)
+    dof = max(float(sum(i.size - 1 for i in parts)), 1.0)
+    var = sum(((x[i] - x[i].mean(axis=0)) ** 2).sum(axis=0) for i in parts) / dof
+    return means, weights / weights.sum(), var
+
+
 def order_table(res: Residuals) -> list[dict]:
-    """Each engine order m/2: the coherent amplitude of the speed residual [rpm], its sigma and whether it is
-    significant (> SIGNIFICANT sigmas and above the model-error floor, ``speed_floor_rpm``)."""
+    """Each engine order m/2: the coherent amplitude of the speed residual [rpm] (over several operating points, the
+    rms of each point's mean weighted by its cycles: a residual whose phase turns between points does not cancel),
+    its sigma (from the scatter within the points) and whether it is significant (> SIGNIFICANT sigmas and above
+    the model-error floor, ``speed_floor_rpm``); the phase is that of the mean over all cycles."""
     h = res.harmonics
     n = h.shape[0]
+    m_all = h.shape[1]
+    means, w, var = _point_means(np.concatenate([h.real, h.imag], axis=1), res.group)
+    amp_all = np.sqrt(w @ (means[:, :m_all] ** 2 + means[:, m_all:] ** 2))
+    sig = np.sqrt((var[:m_all] + var[m_all:]) / max(n, 2))
     mean = h.mean(axis=0)
-    sig = np.sqrt((h.real.var(axis=0, ddof=1) + h.imag.var(axis=0, ddof=1)) / max(n, 2))
     floor = speed_floor_rpm(res)
     out = []
     for m in range(h.shape[1]):
-        amp, s = abs(mean[m]) * RPM_PER_RAD_S, sig[m] * RPM_PER_RAD_S
+        amp, s = amp_all[m] * RPM_PER_RAD_S, sig[m] * RPM_PER_RAD_S
         out.append({"order": (m + 1) / 2, "amplitude_rpm": amp, "sigma_rpm": s,
                     "phase_deg": float(np.degrees(np.angle(mean[m]))),
                     "floor_rpm": float(floor[m]), "significant": bool(amp > SIGNIFICANT * s and amp > floor[m]),
@@ -163,12 +201,24 @@ def balance_floor_nm(res: Residuals) -> float:
 def balance_residual(res: Residuals) -> dict:
     """The mean torque-balance residual over the cycles [N m], its sigma, its model-error floor and whether it is
     significant (beyond SIGNIFICANT of its sigma and above the floor, as a speed order is: the balance of a healthy
-    log carries the model's own error too); NaN and inf with fewer than two finite cycles."""
+    log carries the model's own error too); NaN and inf with fewer than two finite cycles. Over several operating
+    points the test is on ``rms_nm``, each point's mean weighted by its cycles (a friction law that the model has
+    wrong may read + at one load and - at another), and ``points`` lists them; one point: rms_nm = |mean_nm|."""
     ok = np.isfinite(res.balance)
     bal, bal_sig = _mean_sigma(res.balance[ok]) if ok.sum() > 1 else (float("nan"), float("inf"))
     floor = balance_floor_nm(res)
-    return {"mean_nm": bal, "sigma_nm": bal_sig, "floor_nm": floor,
-            "significant": bool(np.isfinite(bal) and abs(bal) > SIGNIFICANT * bal_sig and abs(bal) > floor)}
+    out = {"mean_nm": bal, "sigma_nm": bal_sig, "floor_nm": floor, "rms_nm": abs(bal)}
+    groups = None if res.group is None else res.group[ok]
+    if ok.sum() > 1 and groups is not None and np.unique(groups).size > 1:
+        means, w, var = _point_means(res.balance[ok], groups)
+        out["rms_nm"] = float(np.sqrt(w @ means**2))
+        out["sigma_nm"] = bal_sig = float(np.sqrt(var / ok.sum()))
+        loads = _point_means(res.load[ok], groups)[0]
+        rpm = _point_means(res.omega[ok], groups)[0] * RPM_PER_RAD_S
+        out["points"] = [{"rpm": float(r), "load_nm": float(ld), "mean_nm": float(b), "share": float(s)}
+                         for r, ld, b, s in zip(rpm, loads, means, w, strict=True)]
+    out["significant"] = bool(np.isfinite(bal) and out["rms_nm"] > SIGNIFICANT * bal_sig and out["rms_nm"] > floor)
+    return out
 
 
 def _measured_friction(res: Residuals, spec: EngineSpec) -> dict | None:
@@ -193,6 +243,7 @@ def localise(res: Residuals, spec: EngineSpec, scale: np.ndarray) -> dict:
     orders = order_table(res)
     return {
         "cycles": res.n_cycles,
+        "cycles_between_points": res.between_points,  # a load step's, left out of every figure
         "gap": gap(res, scale),
         "orders": orders,
         "significant_orders": [o["order"] for o in orders if o["significant"]],

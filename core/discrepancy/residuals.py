@@ -22,6 +22,15 @@ from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import Cycle
 
 ANGLE_POINTS = 144  # residual speed kept on a 5 deg grid
+# A log that steps between loads (or speeds) is several operating points, and a missing effect's residual differs
+# between them (a load-dependent friction law's sign may even flip): pooled, the coherent mean averages it away
+# while the between-point spread reads as noise (a k9k log stepping 0.8 <-> 0.45: the gap read 0, healthy and with
+# a Stribeck ring or a load-dependent bearing law alike). Cycles are grouped where the sorted per-cycle loads (or
+# speeds) jump by more than this fraction of the log's median: a design choice (an operating point another by 5 % of
+# load or 2 % of speed, well above a steady log's per-cycle scatter of the measured load power), not tuned on a case
+GROUP_LOAD_STEP = 0.05
+GROUP_SPEED_STEP = 0.02
+GROUP_NOISE = 8.0  # and by more than 8 sigma of the cycle-to-cycle scatter: noise alone never splits a steady log
 PINNED_SIGMA = 1e-4  # prior sigma of every friction scale: the model's coefficients are used as they are
 
 
@@ -64,6 +73,10 @@ class Residuals:
     # unburned or partial while a sibling burned, core.monitor.checks.condition); False in a motored cycle
     misfired: np.ndarray | None = None
     motored: np.ndarray | None = None  # (N,) the monitor called the cycle motored (no cylinder burned)
+    # (N,) the operating point each cycle ran at (operating_groups over the whole run: the same cycles fall in the
+    # same group in every model's run, since speed and load are the measurement's); None: one group
+    group: np.ndarray | None = None
+    between_points: int = 0  # cycles left out as a load step's (operating_groups: -1)
 
     @property
     def n_cycles(self) -> int:
@@ -75,12 +88,50 @@ class Residuals:
                                    measured=None if self.measured is None else self.measured[mask],
                                    friction=None if self.friction is None else self.friction[mask],
                                    misfired=None if self.misfired is None else self.misfired[mask],
-                                   motored=None if self.motored is None else self.motored[mask])
+                                   motored=None if self.motored is None else self.motored[mask],
+                                   group=None if self.group is None else self.group[mask])
+
+    def groups(self) -> np.ndarray:
+        """(N,) each cycle's operating-point group (0 for every cycle where none were formed)."""
+        return np.zeros(self.n_cycles, dtype=np.int64) if self.group is None else self.group
 
     def features(self) -> np.ndarray:
         """(N, 2M + 1) real features: Re and Im of each residual harmonic, then the balance residual (0 where NaN:
         the first cycle has no balance)."""
         return np.column_stack([self.harmonics.real, self.harmonics.imag, np.nan_to_num(self.balance)])
+
+
+def _clusters(x: np.ndarray, step: float) -> tuple[np.ndarray, float]:
+    """(N,) labels of ``x`` split where its sorted values jump by more than ``step``, or than GROUP_NOISE x its own
+    cycle-to-cycle scatter (from successive differences in time, which a few steps hardly move), the larger; and
+    that threshold."""
+    noise = 1.4826 * float(np.median(np.abs(np.diff(x)))) / np.sqrt(2.0) if x.shape[0] > 2 else 0.0
+    threshold = max(step, GROUP_NOISE * noise)
+    order = np.argsort(x, kind="stable")
+    labels = np.empty(x.shape[0], dtype=np.int64)
+    labels[order] = np.concatenate([[0], np.cumsum(np.diff(x[order]) > threshold)])
+    return labels, threshold
+
+
+def operating_groups(omega: np.ndarray, load: np.ndarray, torque_scale: float) -> np.ndarray:
+    """(N,) a label per cycle (in time order), one per operating point: cycles whose sorted speeds or loads are
+    separated by a jump of more than GROUP_SPEED_STEP of the median speed / GROUP_LOAD_STEP of ``torque_scale`` (the
+    engine's indicated torque, load + friction: at zero load a step is one of the friction's size, never of the load's
+    noise) and of their own scatter; a ramp without such a jump stays one group. -1: between points, a cycle whose
+    load jumps by that much from the cycle before or after it (the step happened in it), and the cycle after such
+    a one (the speed still settling): its residual is the step's, not the model's (k9k: 8 rpm at order 0.5 in the
+    step's cycle, 0.6 in the next, noise 0.07). A cycle whose speed or load is not finite (unknown point) is put
+    at 0, a group of its own where the others run."""
+    omega, load = np.nan_to_num(omega, posinf=0.0, neginf=0.0), np.nan_to_num(load, posinf=0.0, neginf=0.0)
+    if omega.shape[0] < 2:
+        return np.zeros(omega.shape[0], dtype=np.int64)
+    by_speed, _ = _clusters(omega, GROUP_SPEED_STEP * abs(float(np.median(omega))))
+    by_load, load_step = _clusters(load, GROUP_LOAD_STEP * abs(torque_scale))
+    labels = np.unique(by_speed * (by_load.max() + 1) + by_load, return_inverse=True)[1].astype(np.int64)
+    jump = np.abs(np.diff(load)) > load_step
+    step = np.r_[False, jump] | np.r_[jump, False]
+    labels[step | np.r_[False, step[:-1]]] = -1
+    return labels
 
 
 def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles: Sequence[Cycle]) -> Residuals:
@@ -112,13 +163,19 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
     if not rows:
         raise ValueError(f"the monitor analysed none of the {len(cycles)} cycles")
     pipe.close_windows()  # the pressure's reading of the whole log
-    return Residuals(index=np.array([r[0] for r in rows]), omega=np.array([r[1] for r in rows]),
-                     load=np.array([r[2] for r in rows]), harmonics=np.array([r[3] for r in rows]),
+    omega, load, friction = (np.array([r[i] for r in rows]) for i in (1, 2, 7))
+    indicated = load + friction
+    scale = float(np.median(np.abs(indicated[np.isfinite(indicated)]))) if np.isfinite(indicated).any() else 0.0
+    group = operating_groups(omega, load, scale)
+    res = Residuals(index=np.array([r[0] for r in rows]), omega=omega, load=load, group=group,
+                     harmonics=np.array([r[3] for r in rows]),
                      balance=np.array([r[4] for r in rows]), speed=np.array([r[5] for r in rows]), angles=angles,
                      rejected=rejected, measured=np.array([r[6] for r in rows]),
-                     friction=np.array([r[7] for r in rows]), misfired=np.array([r[8] for r in rows]),
+                     friction=friction, misfired=np.array([r[8] for r in rows]),
                      motored=np.array([r[9] for r in rows]),
                      **_tdc_reading(pipe))
+    # the cycles of a load step are no operating point's: left out of every figure, and counted
+    return dataclasses.replace(res.take(group >= 0), between_points=int(np.sum(group < 0)))
 
 
 def _tdc_reading(pipe: CyclePipeline) -> dict:
@@ -138,4 +195,5 @@ def _tdc_reading(pipe: CyclePipeline) -> dict:
                                                              ("statistical", "heat_loss", "constant_loss"))))}
 
 
-__all__ = ["ANGLE_POINTS", "PINNED_SIGMA", "Residuals", "pinned_config", "run_model"]
+__all__ = ["ANGLE_POINTS", "GROUP_LOAD_STEP", "GROUP_NOISE", "GROUP_SPEED_STEP", "PINNED_SIGMA", "Residuals", "operating_groups",
+           "pinned_config", "run_model"]

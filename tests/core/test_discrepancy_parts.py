@@ -3,12 +3,14 @@ pressure corrections, the monitor's view of a model's effects, the candidate lib
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from frictionwatch.core.discrepancy.candidates import candidate_library
-from frictionwatch.core.discrepancy.features import gap, localise, noise_scale, order_table
+from frictionwatch.core.discrepancy.features import balance_residual, gap, localise, noise_scale, order_table
 from frictionwatch.core.discrepancy.fit import parameter_sigma
-from frictionwatch.core.discrepancy.residuals import ANGLE_POINTS, Residuals
+from frictionwatch.core.discrepancy.residuals import ANGLE_POINTS, Residuals, operating_groups
 from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.engine_model import EngineModel
@@ -319,3 +321,49 @@ def test_nothing_found_at_one_operating_point_says_what_that_cannot_show():
     assert "one steady speed and load" in steady.verdict() and steady.to_json()["one_operating_point"] is True
     swept = found({"speed": {"unit": "rpm"}, "load": None})
     assert not swept.one_operating_point and "one steady speed" not in swept.verdict()
+
+
+def test_operating_points_are_grouped_at_jumps_of_load_or_speed_not_along_a_ramp():
+    rng = np.random.default_rng(3)
+    load = np.r_[np.full(50, 137.0), np.full(50, 80.0), np.full(40, 137.0)] + 0.5 * rng.standard_normal(140)
+    omega = np.full(140, 230.0) + 0.3 * rng.standard_normal(140)
+    groups = operating_groups(omega, load, 160.0)
+    steps = np.r_[49:52, 99:102]  # the cycles either side of a step, and the one after those: between points
+    assert np.all(groups[steps] == -1) and np.sum(groups == -1) == steps.size
+    assert np.unique(groups[groups >= 0]).size == 2
+    assert np.all(groups[:49] == groups[102:][0]) and np.all(groups[52:99] != groups[0])
+    ramp = np.linspace(80.0, 137.0, 140)  # a slow ramp has no jump: one point, as a steady log
+    assert np.unique(operating_groups(omega, ramp, 130.0)).size == 1
+    omega2 = np.r_[np.full(70, 230.0), np.full(70, 240.0)]  # 4 % apart in speed at one load
+    assert np.unique(operating_groups(omega2, np.full(140, 100.0), 120.0)).size == 2  # no -1: a speed change is none
+    unknown = operating_groups(omega, np.r_[np.nan, load[1:]], 160.0)  # a cycle without a load reading: alone
+    assert unknown[0] == -1 and unknown[1] == -1  # a jump from 0 to the load: the cycle and the next set aside
+    idle = 0.8 * rng.standard_normal(140)  # zero load, its reading's noise: one point (the step is the friction's)
+    assert np.unique(operating_groups(omega, idle, 20.0)).size == 1
+    noisy = np.r_[np.full(70, 120.0), np.full(70, 132.0)] + 4.0 * rng.standard_normal(140)  # 10 % step, 3 % noise
+    assert np.unique(operating_groups(omega, noisy, 150.0)).size == 1
+
+
+def test_a_residual_that_turns_sign_between_loads_is_coherent_per_point_not_noise():
+    """A friction law the model has wrong can read +a at one load and -a at another: pooled, its mean is 0 and the
+    spread reads as noise (the gap of a log with load steps read 0); per operating point it is a^2 each."""
+    m, n = 6, 2000
+    coherent = np.zeros(m, complex)
+    coherent[1] = 1.5
+    plus, minus = made_up(n, m, coherent, 2.0, seed=4), made_up(n, m, -coherent, -2.0, seed=5)
+    both = Residuals(index=np.arange(2 * n), omega=np.full(2 * n, 200.0), load=np.r_[np.full(n, 80.0), np.full(n, 40.0)],
+                     harmonics=np.r_[plus.harmonics, minus.harmonics], balance=np.r_[plus.balance, minus.balance],
+                     speed=np.zeros((2 * n, ANGLE_POINTS)), angles=plus.angles)
+    pooled = dataclasses.replace(both, group=None)
+    grouped = dataclasses.replace(both, group=operating_groups(both.omega, both.load, 80.0))
+    unit = np.r_[np.full(2 * m, np.sqrt(0.5)), 1.0]
+    np.testing.assert_allclose(noise_scale(grouped), unit, rtol=0.1)  # the scatter within each point
+    assert noise_scale(pooled)[2 * m] > 1.8  # pooled, the +-2 N m between the points reads as noise
+    assert gap(pooled, unit) < 0.3
+    np.testing.assert_allclose(gap(grouped, unit), np.sqrt(1.5**2 / 0.5 + 2.0**2), rtol=0.05)
+    bal = balance_residual(grouped)
+    assert abs(bal["mean_nm"]) < 0.1 and bal["significant"]  # the mean cancels, each point's does not
+    np.testing.assert_allclose([p["mean_nm"] for p in bal["points"]], [-2.0, 2.0], atol=0.1)  # ordered by load
+    row = order_table(grouped)[1]
+    assert row["significant"] and not order_table(pooled)[1]["significant"]
+    np.testing.assert_allclose(row["amplitude_rpm"], 1.5 * 30 / np.pi, rtol=0.05)

@@ -303,3 +303,23 @@ def test_a_softer_shaft_line_is_found_from_the_refinement_that_starts_softer():
     assert first["effect"] == "chain_mismatch", doc["verdict"]
     np.testing.assert_allclose(first["parameters"]["stiffness_scale"] - 1.0, -0.25, rtol=0.1)
     assert doc["gap_after"] <= 0.2 * doc["gap_before"]
+
+
+def test_a_log_with_load_steps_is_judged_per_operating_point():
+    """A log stepping between two loads (0.8 <-> 0.45 every 30 cycles): healthy, nothing is named; with a TDC offset
+    it is named, and what a found model leaves is measured within each point (pooled over both, the between-point
+    spread read as noise and the gap left after a found effect read 0)."""
+    spec = load_engine(ENGINE)
+    rpm, n = 2400.0, 150
+    steps = [(120.0 / rpm * k, 0.45 if (k // 30) % 2 else 0.8) for k in range(30, n + 30, 30)]
+    found = {}
+    for label, effects in (("healthy", []), ("tdc", [make_effect("tdc_offset", {"cylinder": 2, "deg": 1.5})])):
+        sim = simulate(spec, rpm, 0.8, n, 12, effects=effects, load_steps=steps)
+        cycles = assembled_cycles(spec, sim.info, sim.records)[0]
+        found[label] = discover(EngineModel.from_spec(spec), cycles, OPTIONS).to_json()
+    assert found["healthy"]["outcome"] == "nothing", found["healthy"]["verdict"]
+    tdc = found["tdc"]
+    assert [(f["effect"], f["cylinder"]) for f in tdc["found"]] == [("tdc_offset", 2)], tdc["verdict"]
+    np.testing.assert_allclose(tdc["found"][0]["parameters"]["deg"], 1.5, atol=0.2)
+    assert len(tdc["localisation"]["balance"].get("points", [])) == 2  # the two loads, each its own point
+    assert tdc["gap_after"] <= 0.2 * tdc["gap_before"]
