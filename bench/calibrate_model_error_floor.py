@@ -2,6 +2,7 @@
 cases that validate it (issue 26 item 5).
 
     python -m bench.calibrate_model_error_floor [--cycles 100] [--write]
+    python -m bench.calibrate_model_error_floor --validate [--against 1.0]
 
 The floor adds (k max(0, misfit - misfit_free) coupling_loss)^2 to the total friction's variance: the modelled
 damper/coupling dissipation is not trusted once the speed fit's window misfit says the chain is not the engine's.
@@ -22,7 +23,9 @@ are not among them.
   Every log then runs at the tuned numbers and the table says |err| / sigma (a check of the linear reading: the
   floor moves only the sigma, not the estimate).
 
-With --write the two numbers and their provenance go into core/monitor/tuned.json (core.tuned).
+With --write the two numbers and their provenance go into core/monitor/tuned.json (core.tuned). --validate runs the
+held-out table instead (bench.mismatch_coverage's POINTS, seed 1, every case, both installations) at the recorded
+numbers and at k = --against: |err| / sigma and the coverage of each.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.tuned import MONITOR_RECORD, Case, Tuned, round_up, write_tuned
 
-from bench.mismatch_coverage import CASES, COMMISSIONED, monitor_case, simulate_case
+from bench.mismatch_coverage import CASES, COMMISSIONED, POINTS, monitor_case, simulate_case
 
 CHAIN_CASES = ("healthy", "chain_k+20", "chain_k-20_c+20", "chain_c-20")
 # k9k-4cyl points and seeds none of the validating ones (1700 / 0.69 and 1100 / 0.28 seed 1) nor another test's
@@ -125,12 +128,43 @@ def records(k: float, free: float, rows: list[dict], cycles: int) -> dict[str, T
     }
 
 
+def validate(cycles: int, against: float) -> str:
+    """The held-out table at the recorded k and at ``against`` (same misfit_free), side by side."""
+    k = ModelErrorFloor().coupling_per_misfit
+    free = ModelErrorFloor().misfit_free
+    lines = [f"{'engine':<12} {'rpm':>5} {'load':>4} {'case':<18} {'install':<12} {'err %':>6} "
+             f"{'s %':>6} {'|e|/s':>5} {'s ref %':>7} {'|e|/s':>5}"]
+    inside = {(inst, kk): 0 for inst in INSTALLATIONS for kk in (k, against)}
+    for engine, rpm, load in POINTS:
+        for name, effects in CASES.items():
+            spec, sim = simulate_case(engine, rpm, load, effects, cycles, seed=1)
+            for inst, cal in INSTALLATIONS.items():
+                rk = monitor_case(spec, sim, floor(k, free), cal)
+                ra = monitor_case(spec, sim, floor(against, free), cal)
+                t, err = rk["truth_nm"], rk["estimate_nm"] - rk["truth_nm"]
+                for kk, r in ((k, rk), (against, ra)):
+                    inside[(inst, kk)] += abs(err) <= 2.0 * r["sigma_nm"]
+                lines.append(f"{engine:<12} {rpm:5.0f} {load:4.2f} {name:<18} {inst:<12} {100 * err / t:+6.2f} "
+                             f"{100 * rk['sigma_nm'] / t:6.2f} {abs(err) / rk['sigma_nm']:5.2f} "
+                             f"{100 * ra['sigma_nm'] / t:7.2f} {abs(err) / ra['sigma_nm']:5.2f}")
+            print(lines[-1], file=sys.stderr, flush=True)
+    n = len(POINTS) * len(CASES)
+    for (inst, kk), m in inside.items():
+        lines.append(f"{inst} k = {kk:g}: {m}/{n} held-out logs within 2 sigma")
+    return "\n".join(lines)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cycles", type=int, default=100)
     ap.add_argument("--write", action="store_true", help="write the numbers and their provenance into "
                                                          "core/monitor/tuned.json")
+    ap.add_argument("--validate", action="store_true", help="the held-out table at the recorded numbers instead")
+    ap.add_argument("--against", type=float, default=1.0, help="with --validate: the k to compare with")
     args = ap.parse_args()
+    if args.validate:
+        print(validate(args.cycles, args.against))
+        return
     k, free, rows = run(args.cycles)
     print(table(rows, k, free))
     if args.write:
