@@ -89,12 +89,16 @@ def read_tuned(path: Path) -> dict[str, Tuned]:
                       e.get("status", "tuned"))
         except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"{path}: entry {name!r} is malformed ({err})") from err
-        if t.status == "tuned" and any(c.seed == UNKNOWN_SEED for c in t.cases()):
-            raise ValueError(f"{path}: entry {name!r} is tuned but names a log without its seed")
-        if t.status not in STATUSES:
-            raise ValueError(f"{path}: entry {name!r} has status {t.status!r}, not one of {STATUSES}")
-        out[name] = t
+        out[name] = _check(name, t, path)
     return out
+
+
+def _check(name: str, t: Tuned, path: Path) -> Tuned:
+    if t.status not in STATUSES:
+        raise ValueError(f"{path}: entry {name!r} has status {t.status!r}, not one of {STATUSES}")
+    if t.status == "tuned" and any(c.seed == UNKNOWN_SEED for c in t.cases()):
+        raise ValueError(f"{path}: entry {name!r} is tuned but names a log without its seed")
+    return t
 
 
 def round_up(x: float, digits: int = 2) -> float:
@@ -109,8 +113,8 @@ def round_up(x: float, digits: int = 2) -> float:
 def write_tuned(updates: dict[str, Tuned], path: Path) -> None:
     """Replace the named entries of the record at ``path`` (the others kept), atomically."""
     path = Path(path)
-    for t in updates.values():
-        [parse_case(x) for x in t.on]  # a malformed case is refused before anything is written
+    for name, t in updates.items():  # a malformed entry is refused before anything is written
+        _check(name, t, path)
     doc = json.loads(path.read_text()) if path.exists() else {}
     doc.update({name: {**asdict(t), "on": list(t.on)} for name, t in updates.items()})
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tuned-", suffix=".json")

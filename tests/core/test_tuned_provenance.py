@@ -29,7 +29,16 @@ from frictionwatch.core.monitor.checks.ring_condition import RingConditionSettin
 from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.plant.simulate import simulate, start_simulation
-from frictionwatch.core.tuned import MONITOR_RECORD, UNKNOWN_SEED, Case, parse_case, read_tuned, round_up
+from frictionwatch.core.tuned import (
+    MONITOR_RECORD,
+    UNKNOWN_SEED,
+    Case,
+    Tuned,
+    parse_case,
+    read_tuned,
+    round_up,
+    write_tuned,
+)
 from frictionwatch.service.alert_config import ALERT_RECORD, AlertConfig
 
 from bench import bench_discrepancy, discrepancy_null, mismatch_coverage
@@ -221,6 +230,24 @@ def test_the_code_uses_the_recorded_numbers():
     assert set(used_alerts) == set(alerts)
     for name, value in used_alerts.items():
         assert value == alerts[name].value, name
+
+
+def test_a_record_is_written_whole_or_not_at_all(tmp_path):
+    path = tmp_path / "tuned.json"
+    good = Tuned(0.5, "python -m bench.calibrate_x --write", ("k9k-4cyl 1500 rpm 0.45 seed 41",), "a figure", "2026-11-29")
+    write_tuned({"A": good}, path)
+    write_tuned({"B": Tuned(2.0, "hand-set from x, not yet re-tuned apart", ("log E0NOLOAD1",), "f", "2026-11-29",
+                            "hand-set")}, path)
+    back = read_tuned(path)
+    assert back["A"] == good and back["B"].status == "hand-set" and back["B"].value == 2.0
+    before = path.read_text()
+    with pytest.raises(ValueError, match="tuning case"):
+        write_tuned({"C": Tuned(1.0, "python -m bench.calibrate_x --write", ("k9k at 1500",), "f", "2026-11-29")}, path)
+    assert path.read_text() == before and [p.name for p in tmp_path.iterdir()] == ["tuned.json"]
+    unseeded = Tuned(1.0, "python -m bench.calibrate_x --write", ("k9k-4cyl 1500 rpm 0.45 seed ?",), "f", "2026-11-29")
+    with pytest.raises(ValueError, match="'D' is tuned but names a log without its seed"):
+        write_tuned({"D": unseeded}, path)
+    assert path.read_text() == before
 
 
 def test_a_floor_is_rounded_up_never_down():
