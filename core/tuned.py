@@ -13,7 +13,8 @@ service/alert_tuned.json); the code reads its defaults from there, never from a 
   fails where a test validates on one of them, unless the test is a self-consistency check named as such;
 - ``figure``: what was measured and how the number follows from it; ``date`` of that run.
 
-Written only by ``write_tuned`` (atomic: a reader never sees half a file), from the bench that tunes the number.
+Written only by ``write_tuned`` (atomic: a reader never sees half a file), from the bench that tunes the number
+(docs/design-notes.md, note 29).
 """
 
 from __future__ import annotations

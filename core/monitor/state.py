@@ -69,7 +69,7 @@ class MonitorConfig:
     warmup_cycles: cycles whose equations are not accumulated (the tooth learner and noise model settle first)
     sensor_health: TDC, pressure gain and offset checks and corrections (core.monitor.checks.sensor_health); None: off
     model_error_floor: the systematic sigma the equations cannot see (core.monitor.identify.estimate.ModelErrorFloor),
-    calibrated on model-mismatch logs (bench/mismatch_coverage.py)
+    tuned on chain-mismatch logs apart from those that validate it (bench/calibrate_model_error_floor.py)
     calibration: how well TDC, pressure gain and J are known (core.model.calibration; the model's, through
     core.model.view): its remaining uncertainty is added to every friction sigma. The default is an
     uncalibrated installation's, never perfect sensors
