@@ -9,7 +9,8 @@ service/alert_tuned.json); the code reads its defaults from there, never from a 
 - ``value``; ``tuned_by``: the command that wrote it (``python -m bench.calibrate_x --write``), or for a number not
   yet re-tuned apart from its tests, ``hand-set from ...`` and ``status`` "hand-set";
 - ``on``: the cases it was tuned on, each ``"<engine> <rpm> rpm <load> seed <seed>[ <effect> ...]"`` (a simulated
-  log; effects as the CLI writes them; ``seed ?`` where a hand-set number's seed was never recorded) or ``"log <name>"`` (a recorded one). tests/core/test_tuned_provenance.py
+  log; effects as the CLI writes them, ``-name`` for a default effect left out; ``seed ?`` where a hand-set
+  number's seed was never recorded) or ``"log <name>"`` (a recorded one). tests/core/test_tuned_provenance.py
   fails where a test validates on one of them, unless the test is a self-consistency check named as such;
 - ``figure``: what was measured and how the number follows from it; ``date`` of that run.
 
