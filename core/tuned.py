@@ -98,7 +98,7 @@ def read_tuned(path: Path) -> dict[str, Tuned]:
 def _check(name: str, t: Tuned, path: Path) -> Tuned:
     if t.status not in STATUSES:
         raise ValueError(f"{path}: entry {name!r} has status {t.status!r}, not one of {STATUSES}")
-    if t.status == "tuned" and any(c.seed == UNKNOWN_SEED for c in t.cases()):
+    if t.status == "tuned" and any(not c.log and c.seed == UNKNOWN_SEED for c in t.cases()):
         raise ValueError(f"{path}: entry {name!r} is tuned but names a log without its seed")
     return t
 

@@ -74,10 +74,11 @@ class MonitorConfig:
     core.model.view): its remaining uncertainty is added to every friction sigma. The default is an
     uncalibrated installation's, never perfect sensors
     r_squared_floor: a cycle whose speed fit explains less of the speed ripple is flagged ``speed_fit_poor``: what
-    rests on the speed signal (the per-cylinder split) is not supported by it. Calibrated on 24-cycle simulated logs
-    of every preset (lowest: genset-v20, 0.11-0.13, its ripple near the sensor noise) and TU/e E0NOLOAD1
-    (0.016-0.027); tested on E0NOLOAD2-4 (flagged) and the other group14 files (0.08-0.87, not flagged: R^2 alone
-    does not separate them from the healthy simulated genset). Hand-set, not yet re-tuned apart (core/monitor/tuned.json)
+    rests on the speed signal (the per-cylinder split) is not supported by it. Tuned by
+    bench/calibrate_r_squared_floor.py (core/monitor/tuned.json: the logs and figure) between 24-cycle simulated logs
+    of every preset but k9k, seeds 51-52 (lowest: genset-v20, 0.115, its ripple near the sensor noise) and TU/e
+    E0NOLOAD1 (0.019-0.027); tested on E0NOLOAD2-4 (flagged) and the other group14 files (0.08-0.87, not flagged:
+    R^2 alone does not separate them from the healthy simulated genset)
     """
 
     max_order: float | None = None
