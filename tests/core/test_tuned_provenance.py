@@ -308,7 +308,8 @@ def test_the_code_uses_the_recorded_numbers():
 
 def test_a_record_is_written_whole_or_not_at_all(tmp_path):
     path = tmp_path / "tuned.json"
-    good = Tuned(0.5, "python -m bench.calibrate_x --write", ("k9k-4cyl 1500 rpm 0.45 seed 41",), "a figure", "2026-11-29")
+    good = Tuned(0.5, "python -m bench.calibrate_x --write", ("k9k-4cyl 1500 rpm 0.45 seed 41",), "a figure",
+                 "2026-11-29")
     write_tuned({"A": good}, path)
     write_tuned({"B": Tuned(2.0, "hand-set from x, not yet re-tuned apart", ("log E0NOLOAD1",), "f", "2026-11-29",
                             "hand-set")}, path)

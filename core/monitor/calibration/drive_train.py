@@ -45,8 +45,9 @@ POOR_FIT_TAIL = 1e-3  # a chi^2 beyond this upper tail of its distribution is a 
 # 1.1489 against 1.15); validated on seed 13 (largest there: damping 1.993 against 2, stiffness 1.1498 against 1.15).
 STIFFNESS_FLOOR = _TUNED["DRIVE_TRAIN_STIFFNESS_FLOOR"].value
 DAMPING_FLOOR = _TUNED["DRIVE_TRAIN_DAMPING_FLOOR"].value
-SETTLED = _TUNED["DRIVE_TRAIN_SETTLED"].value  # rounds stop when a round's correction is within this part of its sigma (1 left the damping 0.5 %
+# rounds stop when a round's correction is within this part of its sigma (1 left the damping 0.5 %
 # short and chi2 81-85 on 46 dof on seeds 11 and 13, stiffness 0.85; 0.2: chi2 10-22, damping within 0.3 %)
+SETTLED = _TUNED["DRIVE_TRAIN_SETTLED"].value
 MIN_FLEXIBLE_HZ = 5.0  # the first flexible mode: above the rigid and the grid's electromechanical mode
 
 

@@ -82,7 +82,8 @@ BEFORE_EVO_DEG = _TUNED["TDC_BEFORE_EVO_DEG"].value
 # cylinder estimates, bench/tdc_from_pressure.py --tune), rounded up.
 SYSTEMATIC_SIGMA_DEG = _TUNED["TDC_SYSTEMATIC_SIGMA_DEG"].value
 BURN_FRACTION = 0.05  # of the peak net ROHR: the start and end of combustion (_combustion_edges)
-SMOOTH_DEG = _TUNED["TDC_SMOOTH_DEG"].value  # Savitzky-Golay span of the pressure before its derivative (same tuning cases)
+# Savitzky-Golay span of the pressure before its derivative (same tuning cases)
+SMOOTH_DEG = _TUNED["TDC_SMOOTH_DEG"].value
 GN_ITERATIONS = 8
 MAX_STEP_RAD = math.radians(3.0)  # a Gauss-Newton step larger than this is cut (the windows move with delta)
 # Relative 1-sigma of the wall heat on an engine whose heat transfer nobody measured (Woschni's correlation against
