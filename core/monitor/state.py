@@ -21,7 +21,10 @@ from frictionwatch.core.monitor.report.report_kernels import TrigTables
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
 from frictionwatch.core.monitor.teeth.second_wheel import SecondWheelState
 from frictionwatch.core.monitor.teeth.tooth_fit import ToothPatterns
+from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 from frictionwatch.core.types import Cycle
+
+_TUNED = read_tuned(MONITOR_RECORD)  # the tuned defaults below, with their provenance (core.tuned)
 
 
 @dataclass(frozen=True)
@@ -66,15 +69,16 @@ class MonitorConfig:
     warmup_cycles: cycles whose equations are not accumulated (the tooth learner and noise model settle first)
     sensor_health: TDC, pressure gain and offset checks and corrections (core.monitor.checks.sensor_health); None: off
     model_error_floor: the systematic sigma the equations cannot see (core.monitor.identify.estimate.ModelErrorFloor),
-    calibrated on model-mismatch logs (bench/mismatch_coverage.py)
+    tuned on chain-mismatch logs apart from those that validate it (bench/calibrate_model_error_floor.py)
     calibration: how well TDC, pressure gain and J are known (core.model.calibration; the model's, through
     core.model.view): its remaining uncertainty is added to every friction sigma. The default is an
     uncalibrated installation's, never perfect sensors
     r_squared_floor: a cycle whose speed fit explains less of the speed ripple is flagged ``speed_fit_poor``: what
-    rests on the speed signal (the per-cylinder split) is not supported by it. Calibrated on 24-cycle simulated logs
-    of every preset (lowest: genset-v20, 0.11-0.13, its ripple near the sensor noise) and TU/e E0NOLOAD1
-    (0.016-0.027); tested on E0NOLOAD2-4 (flagged) and the other group14 files (0.08-0.87, not flagged: R^2 alone
-    does not separate them from the healthy simulated genset)
+    rests on the speed signal (the per-cylinder split) is not supported by it. Tuned by
+    bench/calibrate_r_squared_floor.py (core/monitor/tuned.json: the logs and figure) between 24-cycle simulated logs
+    of every preset but k9k, seeds 51-52 (lowest: genset-v20, 0.115, its ripple near the sensor noise) and TU/e
+    E0NOLOAD1 (0.019-0.027); tested on E0NOLOAD2-4 (flagged) and the other group14 files (0.08-0.87, not flagged:
+    R^2 alone does not separate them from the healthy simulated genset)
     """
 
     max_order: float | None = None
@@ -113,7 +117,7 @@ class MonitorConfig:
     sensor_health: SensorHealthConfig | None = None
     model_error_floor: ModelErrorFloor = ModelErrorFloor()
     calibration: Calibration = Calibration()
-    r_squared_floor: float = 0.05
+    r_squared_floor: float = _TUNED["R_SQUARED_FLOOR"].value
     # a known load-torque ripple at the load node (the model's load_ripple effect, core.model.view): amplitude [N m],
     # fraction of the measured mean load torque (where the amplitude is 0), engine order, phase [rad]; zeros: none
     load_ripple: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
@@ -127,12 +131,13 @@ class MonitorConfig:
     # (docs/design-notes.md "The drive train from both wheels"). The second wheel's own speed and tooth learning
     # run whatever this says.
     second_wheel: bool = False
-    # the highest half order of the free end's equations in the joint fit: 4.5, the highest whose residual at the
+    # the highest half order of the free end's equations in the joint fit (hand-set, core/monitor/tuned.json):
+    # 4.5, the highest whose residual at the
     # true scales is within 1.5 standard errors on genset-v20 (bench/second_wheel_consistency.py, seed 7, load
     # 0.75, 120 cycles; 5.5: 3.4, 8.5: 17.5 standard errors). Not validated: on seed 29 (+-20 % profile,
     # bench/accuracy_v20_wheels.py --cycles 2000) the joint fit with it measured 3 cylinders, 0 within 5 % and 2 sigma,
     # against one wheel's 9 and 6
-    second_wheel_max_order: float = 4.5
+    second_wheel_max_order: float = _TUNED["SECOND_WHEEL_MAX_ORDER"].value
     # keep each two-wheel cycle's drive-train identification inputs (CycleResult.chain: node torques, flywheel speed
     # and patterns): what commissioning reads (core.monitor.calibration.drive_train); off when serving, where nothing
     # reads them (32 us a genset-v20 two-wheel cycle)

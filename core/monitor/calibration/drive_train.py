@@ -35,15 +35,19 @@ import scipy.stats
 from frictionwatch.core.model.dynamics import dynamic_stiffness, shaft_model
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.identify.priors import tooth_coefficient_sigma
+from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
+
+_TUNED = read_tuned(MONITOR_RECORD)  # the floors and SETTLED, hand-set, with their provenance (core.tuned)
 
 POOR_FIT_TAIL = 1e-3  # a chi^2 beyond this upper tail of its distribution is a poor fit (a 1-in-1000 false alarm)
 # What the curvature's sigma leaves out, relative, added in quadrature: the largest error of a good fit seen on
 # genset-v20 seeds 7 and 11 (bench/drive_train_identification.py, rounds settled: damping 1.986 against 2, stiffness
 # 1.1489 against 1.15); validated on seed 13 (largest there: damping 1.993 against 2, stiffness 1.1498 against 1.15).
-STIFFNESS_FLOOR = 0.001
-DAMPING_FLOOR = 0.007
-SETTLED = 0.2  # rounds stop when a round's correction is within this part of its sigma (1 left the damping 0.5 %
+STIFFNESS_FLOOR = _TUNED["DRIVE_TRAIN_STIFFNESS_FLOOR"].value
+DAMPING_FLOOR = _TUNED["DRIVE_TRAIN_DAMPING_FLOOR"].value
+# rounds stop when a round's correction is within this part of its sigma (1 left the damping 0.5 %
 # short and chi2 81-85 on 46 dof on seeds 11 and 13, stiffness 0.85; 0.2: chi2 10-22, damping within 0.3 %)
+SETTLED = _TUNED["DRIVE_TRAIN_SETTLED"].value
 MIN_FLEXIBLE_HZ = 5.0  # the first flexible mode: above the rigid and the grid's electromechanical mode
 
 

@@ -50,6 +50,7 @@ import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.calibration.tdc import BLOCKS, TdcEstimate, tdc_from_pressure
+from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 from frictionwatch.core.types import Cycle
 
 WINDOW_CYCLES = 100
@@ -62,7 +63,7 @@ CYLINDERS_PER_WINDOW = 4
 # 1.5: chosen on bench/calibration_coverage.py's k9k 1700 rpm / 1.0 and maruti 3000 rpm / 0.8 rows (seed 5): at 2.0
 # the maruti's +-1.5 deg wheels read at 2.0-2.1 sigma unflagged; at 1.5 they are flagged and no healthy row is.
 # Tested on the other rows (k9k 2500 / 0.5, maruti 2000 / 0.4, deutz, genset-v20) and in tests/core/test_tdc_watch.py
-UNCALIBRATED_SIGMAS = 1.5
+UNCALIBRATED_SIGMAS = read_tuned(MONITOR_RECORD)["TDC_UNCALIBRATED_SIGMAS"].value  # hand-set (core.tuned)
 DRIFT_SIGMAS = 3.0
 OPERATING_POINT_DEG = 0.1
 MIN_FLAG_DEG = 0.3  # SensorHealthConfig.tdc_deg: a smaller TDC error is carried in the sigma, not flagged

@@ -53,8 +53,10 @@ from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterio
 from frictionwatch.core.monitor.identify.identification import Identification
 from frictionwatch.core.monitor.report.results import FrictionEstimate
 from frictionwatch.core.monitor.state import ConditionState, ConditionTables
+from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 
 FOUR_PI = 4.0 * np.pi
+_TUNED = read_tuned(MONITOR_RECORD)  # the floors' hand-set values with their provenance (core.tuned)
 
 
 @dataclass(frozen=True)
@@ -94,9 +96,9 @@ class ConditionSettings:
     early_deg: float = 100.0
     late_margin_deg: float = 10.0
     late_max_deg: float = 20.0
-    compression_floor: float = 0.008
-    peak_floor: float = 0.01
-    indicated_floor: float = 0.03
+    compression_floor: float = _TUNED["CONDITION_COMPRESSION_FLOOR"].value
+    peak_floor: float = _TUNED["CONDITION_PEAK_FLOOR"].value
+    indicated_floor: float = _TUNED["CONDITION_INDICATED_FLOOR"].value
     z_flag: float = 3.0
     misfit_excess: float = 0.5
     misfit_cap: float = 3.0
@@ -104,8 +106,8 @@ class ConditionSettings:
     settle: int = 60
     ring_sigmas: float = 2.0
     burn_half_deg: float = 45.0
-    burn_log_ratio: float = 0.10
-    partial_fraction: float = 0.15
+    burn_log_ratio: float = _TUNED["CONDITION_BURN_LOG_RATIO"].value
+    partial_fraction: float = _TUNED["CONDITION_PARTIAL_FRACTION"].value
     burn_window: float = 50.0
     change: ChangeSettings = ChangeSettings()
 

@@ -40,8 +40,10 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 
 SINCE, SIBLINGS = 0, 1
+_TUNED = read_tuned(MONITOR_RECORD)  # leak_allowance, hand-set, with its provenance (core.tuned)
 # leak effect [exponent units] a TDC error of one cylinder of +1 deg reads as (the trace read late bends both
 # polytropes like a leak): k9k-4cyl seed 5, 1700 rpm / 0.69, tdc_offset 0.5 deg on cylinder 2, uncommissioned, read
 # +0.0113 against its siblings (bench/ring_condition.py healthy --mismatch tdc): 0.0227 / deg; genset-v20's windows
@@ -69,7 +71,7 @@ class RingConditionSettings:
     # sibling leak effect at most 0.00058 (k9k) and 0.00123 (maruti cylinder 2, at 60 % load) off its siblings
     # (bench/ring_condition.py healthy runs); 0.001 as 1 sigma (genset-v20 draws a larger one from its 19 siblings'
     # own spread where they scatter more)
-    leak_allowance: float = 0.001
+    leak_allowance: float = _TUNED["RING_LEAK_ALLOWANCE"].value
     # the friction excess of a healthy measured cylinder over its siblings: the calibration's TDC / gain share
     # (uncalibrated, ~10 % of a cylinder's friction on K9K; core/model/calibration.py) -- a prior, not tuned
     friction_allowance: float = 0.1
