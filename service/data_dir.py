@@ -80,6 +80,7 @@ class DataDir:
         self._retention_thread: threading.Thread | None = None
         self._heartbeat_thread: threading.Thread | None = None
         self._services: list[Any] = []  # the engines attached: their monitor state is saved at close
+        self.runs: dict[str, Any] = {}  # the run each attached engine began
 
     def with_baseline(self, make):
         """An alerts factory (engine_id, spec) that gives the engine's newest stored baseline to ``make``."""
@@ -99,7 +100,7 @@ class DataDir:
         self.engines.append(engine_id)
         self._start_heartbeat()
         store.register_engine(engine_id, svc.model.to_toml())
-        run = store.begin_run(engine_id)
+        run = self.runs[engine_id] = store.begin_run(engine_id)
         svc.number_cycles_from(run.first_cycle)
         said = [f"{engine_id}: run {run.run_id}, cycles from {run.first_cycle}"]
         if took_over is not None:
@@ -217,10 +218,18 @@ class DataDir:
             if self._stop.wait(self.retention_every_s):
                 return
 
-    def close(self) -> None:
+    def close(self, failed_start: bool = False) -> None:
         """Save the stopped engines' monitor states, stop the threads, release the leases (a successor may start at
-        once) and close the store."""
-        self.save_states()
+        once) and close the store. ``failed_start``: serve did not come up; the runs it began are forgotten where
+        they wrote nothing (SqlStore.forget_run) and no monitor state is saved (none was made by this run)."""
+        if failed_start:
+            for engine_id, run in self.runs.items():
+                try:
+                    self.store.forget_run(engine_id, run.run_id)
+                except Exception as exc:  # noqa: BLE001 - an empty run left behind is logged, not raised
+                    log.warning("%s: the failed start's run %d not forgotten: %s", engine_id, run.run_id, exc)
+        else:
+            self.save_states()
         self._stop.set()
         for thread in (self._retention_thread, self._heartbeat_thread):
             if thread is not None:

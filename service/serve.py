@@ -175,14 +175,17 @@ def run(args: argparse.Namespace) -> int:
     if data:
         print(f"frictionwatch serve: keeping data in the {data.store.where}", flush=True)  # no password (redact)
     services: list[EngineService] = []
+    sock = None
     try:
+        sock = _bind(args.host, args.port)  # first: a port in use begins no run
         services += build_engines(args, data)
-        sock = _bind(args.host, args.port)
     except BaseException:
         for s in services:
             s.stop()
+        if sock is not None:
+            sock.close()
         if data:
-            data.close()
+            data.close(failed_start=True)
         raise
     if data:
         data.start_retention()

@@ -234,6 +234,21 @@ class SqlStore(FleetStore, MonitorStateStore):
         self._run[engine_id] = run
         return run
 
+    def forget_run(self, engine_id: str, run_id: int) -> bool:
+        """Delete a run that wrote nothing (a start that failed before its first cycle: left, it would number the
+        next start one further, and the run before it would look as if it had not stopped cleanly, so its saved
+        monitor state would not be taken back). A run with any cycle, estimate, alert or baseline row is kept.
+        Returns whether it was deleted."""
+        with self._transaction() as cur:
+            for table in ("cycles", "estimates", "alerts", "baselines"):
+                if self._x(cur, f"SELECT 1 FROM {table} WHERE engine_id = ? AND run_id = ? LIMIT 1",
+                           (engine_id, run_id)).fetchone() is not None:
+                    return False
+            self._x(cur, "DELETE FROM runs WHERE engine_id = ? AND run_id = ?", (engine_id, run_id))
+        if self._run.get(engine_id) is not None and self._run[engine_id].run_id == run_id:
+            del self._run[engine_id]
+        return True
+
     def run_of(self, engine_id: str) -> Run:
         """The run this store object writes for the engine (begun now if none was)."""
         run = self._run.get(engine_id)

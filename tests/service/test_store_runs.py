@@ -116,3 +116,19 @@ def test_the_listener_counts_and_logs_rows_an_earlier_run_holds(store_url, caplo
         assert [r["run_id"] for r in s.cycles(ENG, 0, 10)] == [1, 1, 1, 2, 2]
     finally:
         s.close()
+
+
+def test_a_run_that_wrote_nothing_is_forgotten_and_one_that_wrote_is_kept(store_url):  # noqa: F811
+    s, run = _started(store_url)
+    s.write_batch(ENG, cycles=[summary(i) for i in range(3)])
+    assert not s.forget_run(ENG, run.run_id)  # it wrote: kept
+    s.close()
+    s, failed = _started(store_url)  # a start that failed before its first cycle
+    assert failed.run_id == 2 and s.forget_run(ENG, failed.run_id)
+    s.close()
+    s, run = _started(store_url)
+    try:
+        assert (run.run_id, run.first_cycle) == (2, 3)  # the failed start left no trace in the numbering
+        assert [r["run_id"] for r in s.runs(ENG)] == [1, 2]
+    finally:
+        s.close()
