@@ -126,6 +126,12 @@ def render(doc: dict, found: Discovery) -> str:
     parts.append(_table([[str(c["cylinder"]), f"{c['rms_rpm']:.4g}", f"{c['relative']:.2f}"] for c in loc["cylinders"]],
                         ["cylinder window (TDC..+180°)", "residual rms [rpm]", "of the cycle's"]))
     bal = loc["balance"]
+    if bal.get("points"):  # a log at several operating points: each judged on its own (core.discrepancy.features)
+        parts.append(f"<p>The held-out cycles ran at {len(bal['points'])} operating points, each judged against its "
+                     f"own noise ({loc.get('cycles_between_points', 0)} cycles of the log, in its load steps, were "
+                     "left out). Torque balance residual by point: " + "; ".join(
+                         f"{p['rpm']:.0f} rpm, {p['load_nm']:.4g} N·m load: {p['mean_nm']:+.3g} N·m"
+                         for p in bal["points"]) + ".</p>")
     parts.append(f"<p>Torque balance residual (measured − model friction): {bal['mean_nm']:.3g} ± "
                  f"{bal['sigma_nm']:.2g} N·m. Channels, coherent χ² per cycle: flywheel speed "
                  f"{loc['channels']['flywheel_speed']:.3g}, torque balance {loc['channels']['torque_balance']:.3g}."

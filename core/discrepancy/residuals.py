@@ -117,9 +117,9 @@ def operating_groups(omega: np.ndarray, load: np.ndarray, torque_scale: float) -
     """(N,) a label per cycle (in time order), one per operating point: cycles whose sorted speeds or loads are
     separated by a jump of more than GROUP_SPEED_STEP of the median speed / GROUP_LOAD_STEP of ``torque_scale`` (the
     engine's indicated torque, load + friction: at zero load a step is one of the friction's size, never of the load's
-    noise) and of their own scatter; a ramp without such a jump stays one group. -1: between points, a cycle whose
-    load jumps by that much from the cycle before or after it (the step happened in it), and the cycle after such
-    a one (the speed still settling): its residual is the step's, not the model's (k9k: 8 rpm at order 0.5 in the
+    noise) and of their own scatter; a ramp without such a jump stays one group. -1: between points, both cycles of
+    a load jump that large from one cycle to the next (a step within a cycle makes two: before and after its
+    intermediate load), and the cycle after those (the speed still settling): its residual is the step's, not the model's (k9k: 8 rpm at order 0.5 in the
     step's cycle, 0.6 in the next, noise 0.07). A cycle whose speed or load is not finite (unknown point) is put
     at 0, a group of its own where the others run."""
     omega, load = np.nan_to_num(omega, posinf=0.0, neginf=0.0), np.nan_to_num(load, posinf=0.0, neginf=0.0)

@@ -12,6 +12,7 @@ from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.service.discrepancy_report import render
 from frictionwatch.service.pipeline import assembled_cycles
 
 ENGINE = "k9k-4cyl"
@@ -312,14 +313,18 @@ def test_a_log_with_load_steps_is_judged_per_operating_point():
     spec = load_engine(ENGINE)
     rpm, n = 2400.0, 150
     steps = [(120.0 / rpm * k, 0.45 if (k // 30) % 2 else 0.8) for k in range(30, n + 30, 30)]
-    found = {}
+    found, runs = {}, {}
     for label, effects in (("healthy", []), ("tdc", [make_effect("tdc_offset", {"cylinder": 2, "deg": 1.5})])):
         sim = simulate(spec, rpm, 0.8, n, 12, effects=effects, load_steps=steps)
         cycles = assembled_cycles(spec, sim.info, sim.records)[0]
-        found[label] = discover(EngineModel.from_spec(spec), cycles, OPTIONS).to_json()
+        runs[label] = discover(EngineModel.from_spec(spec), cycles, OPTIONS)
+        found[label] = runs[label].to_json()
     assert found["healthy"]["outcome"] == "nothing", found["healthy"]["verdict"]
     tdc = found["tdc"]
     assert [(f["effect"], f["cylinder"]) for f in tdc["found"]] == [("tdc_offset", 2)], tdc["verdict"]
     np.testing.assert_allclose(tdc["found"][0]["parameters"]["deg"], 1.5, atol=0.2)
     assert len(tdc["localisation"]["balance"].get("points", [])) == 2  # the two loads, each its own point
     assert tdc["gap_after"] <= 0.2 * tdc["gap_before"]
+    # both cycles of each jump and the one after; a step within a cycle makes two jumps: at most 4 per step
+    assert 0 < tdc["localisation"]["cycles_between_points"] <= 4 * len(steps)
+    assert "ran at 2 operating points" in render(tdc, runs["tdc"])  # the operator's report says so
