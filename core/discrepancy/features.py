@@ -244,6 +244,7 @@ def localise(res: Residuals, spec: EngineSpec, scale: np.ndarray) -> dict:
     return {
         "cycles": res.n_cycles,
         "cycles_between_points": res.between_points,  # a load step's, left out of every figure
+        "load_nm": float(np.nanmean(res.load)) if res.n_cycles else float("nan"),  # the measured load torque
         "gap": gap(res, scale),
         "orders": orders,
         "significant_orders": [o["order"] for o in orders if o["significant"]],

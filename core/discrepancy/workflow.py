@@ -25,6 +25,7 @@ When ``max_steps`` is used up, that is said too.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -138,7 +139,7 @@ class Discovery:
         return {"engine_orders": f["significant_orders"], "half_order_share": f["half_order_share"],
                 "balance_nm": f["balance"]["mean_nm"] if f["balance"]["significant"] else None,
                 "peak_deg": f["angle"]["peak_deg"], "cylinder_windows": [c["cylinder"] for c in top],
-                "channels": f["channels"]}
+                "channels": f["channels"], "friction": f.get("friction"), "load_nm": f.get("load_nm")}
 
     @property
     def within_floor(self) -> list[float]:
@@ -417,11 +418,34 @@ def _said(e) -> str:
 
 
 def _signature(rest: dict) -> str:
-    """What remains, in words: the significant engine orders and / or the torque balance residual."""
+    """What remains, in words: the significant engine orders and / or the torque balance residual; a balance residual
+    alone, what it is in friction and in load and what would tell them apart."""
     parts = [f"engine orders {_orders(rest['engine_orders'])}"] if rest["engine_orders"] else []
     if rest["balance_nm"] is not None:
         parts.append(f"torque balance {rest['balance_nm']:+.3g} N m")
+        if not rest["engine_orders"]:
+            parts.append(_balance_only(rest))
     return ", ".join(parts) or "no single order"
+
+
+def _balance_only(rest: dict) -> str:
+    """A mean torque residual with no trace in the speed's orders: a constant torque has no harmonic, so the speed
+    cannot place it in a cylinder, nor tell an extra friction from a measurement that is off by as much (the balance
+    books indicated - load - the model's friction as friction: a load reading low, or an indicated work reading
+    high, by the residual reads as that much more friction)."""
+    bal, fr, load = rest["balance_nm"], rest.get("friction"), rest.get("load_nm")
+    said = f"the engine's friction reads {abs(bal):.3g} N m {'above' if bal > 0 else 'below'} the model's"
+    measured = fr["mean_nm"] if fr and math.isfinite(fr["mean_nm"]) else math.nan
+    if math.isfinite(measured) and measured != bal:
+        said += f" ({100 * bal / (measured - bal):+.2g} %, FMEP {fr['fmep_bar'] * bal / measured:+.2g} bar)"
+    said += (" with nothing in the speed: a constant torque the speed cannot place in a cylinder -- an extra friction"
+             " anywhere in the engine")
+    if load is not None and math.isfinite(load) and load > 0:
+        said += f", or the load reading {100 * abs(bal) / load:.2g} % {'low' if bal > 0 else 'high'}"
+        if math.isfinite(measured):
+            said += (f", or the indicated work {100 * abs(bal) / (load + measured):.2g} % "
+                     f"{'high' if bal > 0 else 'low'}")
+    return said + "; a motored run (no load, no combustion) would tell friction from the readings"
 
 
 def _orders(orders) -> str:

@@ -367,3 +367,22 @@ def test_a_residual_that_turns_sign_between_loads_is_coherent_per_point_not_nois
     row = order_table(grouped)[1]
     assert row["significant"] and not order_table(pooled)[1]["significant"]
     np.testing.assert_allclose(row["amplitude_rpm"], 1.5 * 30 / np.pi, rtol=0.05)
+
+
+def test_a_torque_balance_residual_alone_is_said_in_friction_and_in_the_readings_it_could_be():
+    """A constant extra torque has no harmonic: with nothing in the speed, the verdict says how much friction it is
+    (N m, % of the model's, FMEP) and which readings off by how much would read the same (genset-v20 with a 60 %
+    extra friction in one cylinder read 'torque balance +55.1 N m' and nothing more)."""
+    from frictionwatch.core.discrepancy.workflow import Discovery
+
+    model = EngineModel.from_spec(load_engine("genset-v20"))
+    final = {"significant_orders": [], "half_order_share": 0.0, "orders": [], "angle": {"peak_deg": 0.0},
+             "cylinders": [{"cylinder": 1, "relative": 1.0}], "channels": {}, "load_nm": 9000.0,
+             "balance": {"significant": True, "mean_nm": 55.0},
+             "friction": {"mean_nm": 1655.0, "fmep_bar": 1.97, "sigma_nm": 2.0, "fmep_sigma_bar": 0.002}}
+    found = Discovery(model, model, [], 0.8, 0.8, {"trends": {"speed": None, "load": None}}, final)
+    assert found.outcome == "unexplained"
+    text = found.verdict()
+    assert "55 N m above the model's (+3.4 %, FMEP +0.065 bar)" in text, text
+    assert "cannot place in a cylinder" in text and "load reading 0.61 % low" in text
+    assert "indicated work 0.52 % high" in text and "motored run" in text
