@@ -151,7 +151,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
         ok = all(r["running"] and r["last_cycle_age_s"] is not None and r["last_cycle_age_s"] < STALE_S
                  and not r["behind"] and not r["store_waiting_cycles"] for r in rows)
         return {"status": "ok" if ok else "degraded", "uptime_s": now - started, "engines": rows,
-                "lag_degraded_s": LAG_DEGRADED_S}
+                "lag_degraded_s": LAG_DEGRADED_S, "fleet": fleet is not None}
 
     @app.get("/api/v1/engines", response_model=list[EngineInfo])
     def engine_list() -> list[dict]:

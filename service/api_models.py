@@ -47,6 +47,7 @@ class Health(_Open):
     status: Literal["ok", "degraded"]
     uptime_s: float
     lag_degraded_s: float = Field(2.0, description="an engine is 'degraded' when its data wait longer than this")
+    fleet: bool = Field(False, description="GET /api/v1/fleet answers: this service keeps a store")
     engines: list[HealthEngine]
 
 

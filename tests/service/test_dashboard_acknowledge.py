@@ -89,14 +89,27 @@ def alerts_raised(base: str) -> bool:
         return False
 
 
+# the store's fleet view as service/store/fleet.py gives it: this engine, and one another process wrote and left
+FLEET = [
+    {"engine_id": "genset-v20", "writer": "box-a:4242:abcd", "writer_live": True, "heartbeat_age_s": 3.0,
+     "run_id": 2, "last_cycle": 1843, "t_start_s": 147.4, "last_cycle_age_s": 0.4,
+     "engine": {"fmep_bar": 1.9512, "fmep_sigma_bar": 0.0251, "status": "measured", "reason": None},
+     "active_alerts": 1, "acknowledged_alerts": 0},
+    {"engine_id": "genset-7", "writer": "box-b:99:ef01", "writer_live": False, "heartbeat_age_s": 600.0,
+     "run_id": 5, "last_cycle": 120, "t_start_s": 9.6, "last_cycle_age_s": 612.0,
+     "engine": {"fmep_bar": None, "fmep_sigma_bar": None, "status": "unresolved", "reason": "warm-up"},
+     "active_alerts": 0, "acknowledged_alerts": 2},
+]
+
+
 @pytest.fixture(scope="module")
 def base_url():
     src = open_source(f"mcap:{DEMO}?loop=1&speed=1", Clocks())  # real time: the other test worker needs the CPU too
     model = resolve_model(src.engine_toml, None, "demo", src.info)
     svc = EngineService("genset-v20", model, src.info, {"log": src}, urls=["demo"], alerts=lambda _id, spec: OneAlarm(spec))
     port = free_port()
-    server = uvicorn.Server(uvicorn.Config(create_app([svc], token=TOKEN), host="127.0.0.1", port=port,
-                                           log_level="warning"))
+    server = uvicorn.Server(uvicorn.Config(create_app([svc], token=TOKEN, fleet=lambda: FLEET), host="127.0.0.1",
+                                           port=port, log_level="warning"))
     thread = threading.Thread(target=server.run, name="dashboard-ack-server", daemon=True)
     thread.start()
     base = f"http://127.0.0.1:{port}"
@@ -155,3 +168,18 @@ def test_acknowledge_from_the_page(base_url, tmp_path):
 
     api = httpx.get(f"{base_url}/api/v1/engines/genset-v20/alerts", params={"state": "all"}, timeout=5).json()
     assert [(a["state"], a["acknowledged_by"]) for a in api] == [("acknowledged", "night shift")]
+
+
+def test_the_fleet_panel_lists_every_engine_of_the_store(base_url, tmp_path):
+    """With a store the page shows the fleet: each engine's writer (or that none is live), its newest cycle and the
+    engine's FMEP only where measured."""
+    with Chromium.start(tmp_path / "profile") as browser:
+        page = browser.new_page(width=1400, height=1000)
+        page.navigate(f"{base_url}/")
+        page.wait_for("document.querySelectorAll('#fleet-table tbody tr').length === 2", timeout=60)
+        assert page.evaluate("document.getElementById('fleet-panel').hidden") is False
+        rows = page.evaluate("[...document.querySelectorAll('#fleet-table tbody tr')].map(tr => "
+                             "[...tr.children].map(td => td.textContent))")
+        assert rows[0] == ["genset-v20 (here)", "box-a:4242", "#1843", "0", "1.951", "0.025", "measured", "1"]
+        assert rows[1] == ["genset-7", "no live writer", "#120", "612", "—", "—", "unresolved",
+                           "0 (+2 acknowledged)"]

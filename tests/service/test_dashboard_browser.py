@@ -99,6 +99,7 @@ def text(page, element_id: str) -> str:
 def test_page_names_the_engine_and_draws_one_bar_per_cylinder(page, server):
     engine = server["engines"][0]
     assert text(page, "engine-name") == engine["engine_name"]
+    assert page.evaluate("document.getElementById('fleet-panel').hidden") is True  # no store: no fleet panel
     bars = page.evaluate("""[...document.querySelectorAll('#losses-plot g.bar')].map(g => ({
         cylinder: g.querySelector('.bar-cylinder').textContent, value: g.querySelector('.bar-value').textContent,
         status: g.querySelector('.status-word').textContent, drawn: !!g.querySelector('rect:not(.bar-missing)')}))""")

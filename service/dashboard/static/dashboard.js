@@ -5,7 +5,7 @@
 import { ENGINE_ID, enginePath, getJSON, postWithToken, throttle } from "./api.js";
 import { fmt, isNum } from "./format.js";
 import { emptyPlot } from "./plot.js";
-import { renderAlerts, renderHealth, renderLosses, renderSpeed, renderTorque, showError } from "./render.js";
+import { renderAlerts, renderFleet, renderHealth, renderLosses, renderSpeed, renderTorque, showError } from "./render.js";
 
 const FIGURES_INTERVAL_MS = 500;  // counters, per-cylinder bars and table: at most twice a second, whatever the cycle rate
 const TRACES_INTERVAL_MS = 1000;  // the traces (z+1 curves of a few hundred points each): once a second
@@ -245,6 +245,19 @@ function chooseEngine(id) {
   alerts();
 }
 
+/** The fleet panel: shown where the service keeps a store (health says ``fleet``); without one the fleet route
+ *  answers 404, which is not asked (the browser would log it as an error). */
+async function refreshFleet() {
+  const panel = $("fleet-panel");
+  const health = await getJSON("api/v1/health");
+  if (!health.ok || !health.data.fleet) { panel.hidden = true; return; }
+  const r = await getJSON("api/v1/fleet");
+  panel.hidden = false;
+  if (!r.ok) { showError("fleet-error", `Fleet not available: ${r.message}`); return; }
+  showError("fleet-error", "");
+  renderFleet(r.data, new Set(state.engines.map((e) => e.engine_id)));
+}
+
 async function start() {
   const r = await getJSON("api/v1/engines");
   if (!r.ok || !Array.isArray(r.data) || !r.data.length) {
@@ -275,7 +288,8 @@ function setup() {
     if (Date.now() - state.lastCycleAt > POLL_MS) { refreshLatest(); plots(); }
     alerts();  // an alert's state may change (cleared, acknowledged elsewhere) without an event reaching us
   }, POLL_MS);
-  start();
+  setInterval(refreshFleet, POLL_MS);
+  start().then(refreshFleet);
 }
 
 setup();

@@ -380,3 +380,26 @@ export function renderAlerts(alerts, onAck) {
     list.appendChild(li);
   }
 }
+
+/** The fleet table (GET api/v1/fleet): one row per engine of the store; ``served`` the ids this service runs (the
+ *  others are another process's, or none's: "no live writer"). A share or unresolved figure shows no number. */
+export function renderFleet(rows, served) {
+  const body = $("fleet-table").querySelector("tbody");
+  body.replaceChildren();
+  for (const e of rows) {
+    const tr = document.createElement("tr");
+    tr.dataset.engine = e.engine_id;
+    cell(tr, e.engine_id + (served.has(e.engine_id) ? " (here)" : ""), "text");
+    cell(tr, e.writer ? (e.writer_live ? e.writer.split(":").slice(0, 2).join(":") : "no live writer") : "none",
+      "text");
+    cell(tr, isNum(e.last_cycle) ? `#${e.last_cycle}` : "—");
+    cell(tr, isNum(e.last_cycle_age_s) ? fmt(e.last_cycle_age_s, 0) : "—");
+    const f = e.engine || {};
+    const measured = f.status === "measured";
+    cell(tr, measured ? fmt(f.fmep_bar, 3) : "—");
+    cell(tr, measured ? fmt(f.fmep_sigma_bar, 3) : "—");
+    cell(tr, f.status || "—", "text");
+    cell(tr, `${e.active_alerts}` + (e.acknowledged_alerts ? ` (+${e.acknowledged_alerts} acknowledged)` : ""));
+    body.appendChild(tr);
+  }
+}
