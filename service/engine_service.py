@@ -41,6 +41,7 @@ from frictionwatch.drivers.source import Source
 from frictionwatch.service.alert_baseline import Baseline
 from frictionwatch.service.listeners import Fanout, LatestState, ServiceEvent
 from frictionwatch.service.live import LiveSession, record_key
+from frictionwatch.service.monitor_snapshot import pickled
 from frictionwatch.service.security import valid_engine_id
 
 log = logging.getLogger(__name__)
@@ -186,6 +187,14 @@ class EngineService:
         if any(t.is_alive() for t in self.session.threads):
             return None
         return self.session.pipeline.cycles.carried()
+
+    def monitor_checkpoint(self) -> tuple[bytes, int] | None:
+        """The running monitor's carried state, pickled between two records (service.monitor_snapshot.pickled), and
+        the newest cycle it has seen; None before the first cycle. Holds the monitor for the pickling (~ms)."""
+        def take(pipeline) -> tuple[bytes, int] | None:
+            carried = pipeline.cycles.carried()
+            return None if carried is None else (pickled(carried), pipeline.assembler.next_index - 1)
+        return self.session.with_pipeline(take)
 
     def resume_monitor(self, carried: dict) -> None:
         """Go on from an earlier run's ``monitor_carried`` (before ``start``; ValueError if it does not fit)."""

@@ -203,6 +203,13 @@ class LiveSession:
         self.stop()
 
     # --- what it has found ---------------------------------------------------------------------------------------
+    def with_pipeline(self, fn):
+        """``fn(pipeline)`` between two records, under the lock the ingest thread feeds the pipeline under: a
+        consistent view of the running monitor (a checkpoint of its state). The monitor waits while ``fn`` runs:
+        keep it short."""
+        with self._cond:
+            return fn(self.pipeline)
+
     def wait_results(self, n: int, timeout: float) -> bool:
         """Wait until at least ``n`` cycles have been analysed (True) or ``timeout`` seconds passed (False)."""
         with self._cond:

@@ -49,7 +49,17 @@ def fingerprint() -> str:
 
 
 def dumps(carried: dict) -> str:
-    return base64.b64encode(zlib.compress(pickle.dumps(carried, protocol=5), 6)).decode("ascii")
+    return encode(pickled(carried))
+
+
+def pickled(carried: dict) -> bytes:
+    """The carried state's bytes (the fast part: what a checkpoint of a running monitor takes under its lock)."""
+    return pickle.dumps(carried, protocol=5)
+
+
+def encode(raw: bytes) -> str:
+    """``pickled`` bytes as the stored text (compressed, base64)."""
+    return base64.b64encode(zlib.compress(raw, 6)).decode("ascii")
 
 
 class _CoreOnly(pickle.Unpickler):

@@ -27,7 +27,7 @@ from frictionwatch.drivers.source import Source, open_source
 from frictionwatch.drivers.timebase import Clocks
 from frictionwatch.service.alerts import AlertConfig, AlertEngine
 from frictionwatch.service.cmd_analyze import SENSOR_HEALTH_HELP, monitor_config
-from frictionwatch.service.data_dir import DataDir
+from frictionwatch.service.data_dir import CHECKPOINT_S, DataDir
 from frictionwatch.service.engine_service import EngineService
 from frictionwatch.service.pipeline import resolve_model
 from frictionwatch.service.security import ENGINE_ID, check_bind, new_token, read_token
@@ -59,6 +59,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--keep-days", type=float, help="with --data-dir or --store: delete cycles and estimates older than "
                                                    "this many days (at start, then hourly; alerts and baselines are "
                                                    "kept; with --store only this process's engines)")
+    p.add_argument("--checkpoint-s", type=float, default=CHECKPOINT_S, metavar="S",
+                   help=f"with --data-dir or --store: save each engine's smoothed estimates this often while it runs "
+                        f"(default {CHECKPOINT_S:g}: what a kill -9 loses of them; a clean stop saves them too)")
     p.add_argument("--token-file", type=Path, help="file holding the token state changes need (required off loopback)")
     p.add_argument("--history-cycles", type=int, default=5000, help="recent cycles each engine holds for the API")
     p.add_argument("--max-queue-s", type=float, default=MAX_QUEUE_S, metavar="S",
@@ -171,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
     check_seconds("--max-queue-s", args.max_queue_s, QUEUE_LIMITS)
     check_seconds("--drain-s", args.drain_s, DRAIN_LIMITS)
     where = args.data_dir or args.store
-    data = DataDir(where, keep_days=args.keep_days) if where else None
+    data = DataDir(where, keep_days=args.keep_days, checkpoint_s=args.checkpoint_s) if where else None
     if data:
         print(f"frictionwatch serve: keeping data in the {data.store.where}", flush=True)  # no password (redact)
     services: list[EngineService] = []
@@ -189,6 +192,7 @@ def run(args: argparse.Namespace) -> int:
         raise
     if data:
         data.start_retention()
+        data.start_checkpoints()
     made = token is None
     token = token or new_token()
     app = create_app(services, token=token, fleet=data.store.fleet if data else None)

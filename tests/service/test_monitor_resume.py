@@ -142,3 +142,33 @@ def test_a_tampered_state_runs_no_code_and_is_said(tmp_path):
         run2.svc.session.stop()
         run2.data._services.clear()
         run2.data.close()
+
+
+def test_after_a_crash_the_run_goes_on_from_the_newest_checkpoint_and_says_what_it_missed(tmp_path):
+    """While the engine runs its state is checkpointed (DataDir.checkpoint: every --checkpoint-s in serve); a run
+    that dies without its stop's save (kill -9) is followed by one that takes the checkpoint back and says from which
+    cycle, instead of a warm-up of hours."""
+    folder = tmp_path / "data"
+    run1 = Run(folder)
+    run1.svc.start()
+    try:
+        assert wait_until(lambda: len(run1.results) >= 40, timeout=300)
+        assert run1.data.checkpoint() == 1  # the running monitor's state, taken between two records
+        at = run1.data.store.load_monitor_state(ENGINE)["last_cycle"]
+        assert wait_until(lambda: len(run1.results) >= 80, timeout=300)  # cycles after the checkpoint
+    finally:
+        run1.svc.stop()
+    last = run1.results[-1].index
+    run1.data.store.release(run1.data.engines, run1.data.writer)  # as kill -9: no save at the stop
+    run1.data.store.close()
+    assert at < last
+
+    run2 = Run(folder)
+    try:
+        assert f"taken back from run 1 (a checkpoint at cycle {at}" in run2.said, run2.said
+        assert "cycles after the checkpoint are stored but not in the smoothed estimates" in run2.said
+        assert 40 <= run2.carried.cycles < 80  # the checkpoint's, not a first start's 0 nor the end's
+    finally:
+        run2.svc.session.stop()
+        run2.data._services.clear()
+        run2.data.close()
