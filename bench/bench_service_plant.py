@@ -4,10 +4,12 @@ speed=1, one engine per --source), then one of two loads:
 - ``mix``: ``--rate`` requests/s for ``--seconds`` s of a dashboard mix that includes window means (100, 1000 and 5000
   cycles) and the large speed history; reports cycles analysed (and skipped: the loop's seam) against offered (each
   engine's speed / 120 times the wall seconds: the looped log plays continuously at real time), records the bounded queues dropped, the client's p50 / p99 and the replies by status.
-- ``idle``: no requests; the server's CPU over ``--seconds`` s (from /proc: all its threads) per wall second and per
-  engine, and the cycles it analysed against those offered; from that, how many genset-v20 one core would hold
-  at real time at this cost (``gensets_per_core``: 1 / the CPU share per engine; issue 28 item 7's target
-  ``TARGET_PER_CORE``). Run it with ``--cpu 1`` so that the figure is one core's.
+- ``idle``: no requests; the server's CPU over ``--seconds`` s (from /proc: all its threads) per wall second, per
+  engine and per cycle analysed, and the cycles it analysed against those offered; from the CPU per cycle, how
+  many genset-v20 one core would hold at real time at this cost (``gensets_per_core``: one core over the CPU
+  seconds a genset's cycles take a second, at the engines' speed; issue 28 item 7's target ``TARGET_PER_CORE``).
+  Per cycle, not per wall second: a looped replay's passes each start their clock again, so two checkouts
+  offer a few per cent different cycles in the same wall time. Run it with ``--cpu 1`` (one core's figure).
 - ``lag``: no requests; polls /health every 0.5 s and reports when each engine first shows ``behind`` (and the
   status 'degraded'), the largest queue seen, what was dropped, and the server's RSS each second (memory bounded:
   it must stop growing once the queues are full).
@@ -128,10 +130,12 @@ def run_idle(args, client: httpx.Client, pid: int, engines: list[str]) -> dict:
     rpm = [client.get(f"/api/v1/engines/{e}/cycles/latest").json()["rpm_mean"] for e in engines]
     offered = sum(r / 60.0 / CYCLE_REVS for r in rpm) * (w1 - w0)
     share = (cpu1 - cpu0) / (w1 - w0)
-    per_engine = share / len(engines)
-    return {"server_cpu_s_per_wall_s": share, "cpu_share_per_engine": per_engine,
-            "gensets_per_core": 1.0 / per_engine if per_engine > 0 else None, "target_per_core": TARGET_PER_CORE,
-            "cycles_analysed": c1["processed"] - c0["processed"], "cycles_offered": offered,
+    analysed = c1["processed"] - c0["processed"]
+    per_cycle_s = (cpu1 - cpu0) / analysed if analysed > 0 else float("nan")
+    cycles_per_s = float(np.mean(rpm)) / 60.0 / CYCLE_REVS  # one genset's
+    return {"server_cpu_s_per_wall_s": share, "cpu_share_per_engine": share / len(engines),
+            "cpu_ms_per_cycle": 1e3 * per_cycle_s, "gensets_per_core": 1.0 / (per_cycle_s * cycles_per_s),
+            "target_per_core": TARGET_PER_CORE, "cycles_analysed": analysed, "cycles_offered": offered,
             "cycles_skipped": c1["skipped"] - c0["skipped"],
             "records_dropped_by_the_bounded_queue": c1["dropped_records"] - c0["dropped_records"]}
 

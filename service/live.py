@@ -287,7 +287,9 @@ class LiveSession:
                 self._heard[name] = time.monotonic()  # stamped here: a busy ingest thread must not see silence
                 self._queue.put(name, records, max(record_key(r) for r in records),
                                 self._realtime[name] and not self._replay_waits(name))
-                if batch_s > 0.0:  # what comes due meanwhile stays in the replay: the next read takes it in one
+                # what comes due meanwhile stays in the replay: the next read takes it in one (not after a loop's
+                # restart mark, which comes alone: the pass after it starts its clock at its first read)
+                if batch_s > 0.0 and not isinstance(records[-1], StreamRestart):
                     self._stop.wait(batch_s)
 
     def _ingest_loop(self) -> None:
