@@ -61,8 +61,8 @@ from frictionwatch.core.monitor.teeth.second_wheel import fit_second_wheel, free
 from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth
 from frictionwatch.core.types import Cycle
 
-__all__ = ["CHECKS", "CycleRejected", "MonitorConfig", "MonitorState", "default_max_order", "initial_state", "nonpositive_flags",
-           "process_cycle"]
+__all__ = ["CHECKS", "CycleRejected", "MonitorConfig", "MonitorState", "default_max_order", "initial_state",
+           "nonpositive_flags", "process_cycle"]
 
 FOUR_PI = 4.0 * np.pi
 
@@ -76,7 +76,8 @@ class CycleRejected(ValueError):
 
 
 _DEFAULT_CONFIG = MonitorConfig()  # frozen: one instance serves every call without a config
-# the per-cycle checks in the order they run (core.monitor.checks.check): a new check is one class and one line here
+# the per-cycle checks in the order they run (core.monitor.checks.check): a new check is one class, one line here
+# and the MonitorState field that carries its state (its name)
 CHECKS: tuple[Check, ...] = (SensorHealthCheck(), ConditionCheck())
 
 

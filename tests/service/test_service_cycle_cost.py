@@ -77,3 +77,12 @@ def test_the_metrics_figures_are_the_documents_measured_fmep(demo_results):
                 seen_nan += 1
     # both paths met: k9k's cylinders are measured, most of genset-v20's 20 not in 40 cycles
     assert seen_measured >= 8 and seen_nan >= 20
+
+
+def test_the_decision_example_runs():
+    import doctest
+
+    from frictionwatch.service import alert_interface
+
+    result = doctest.testmod(alert_interface)
+    assert result.failed == 0 and result.attempted >= 2
