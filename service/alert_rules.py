@@ -5,7 +5,8 @@ A rule has a ``name`` (the key of its statistics: one latch and at most one open
 ``rests_on_baseline`` (a rebaseline clears its alerts and restarts its latches) and ``update(result, ctx)``: it
 reads one cycle's ``CycleResult`` and the engine's shared view of that cycle (``Context``: the flags per cylinder,
 the pressure statistics against the commissioning baseline, the baseline, the latches) and returns one ``Decision``
-per statistic it watches (on, off, the hysteresis counts, severity, message, evidence), or a ``Hold`` where the
+per statistic it watches (on, off, the hysteresis counts, severity, and its message and evidence, here given as a
+``detail`` that makes them only where the engine reads them: a raise, an open alert), or a ``Hold`` where the
 statistic has no value this cycle. Its thresholds are its own fields of ``AlertConfig``; its state is its own.
 The engine (service.alerts.AlertEngine) owns what they share: the latches, the alert records and their ids, the
 baseline and its learning, the events. A new alert kind is one class here and one line in
