@@ -4,12 +4,19 @@ speed=1, one engine per --source), then one of two loads:
 - ``mix``: ``--rate`` requests/s for ``--seconds`` s of a dashboard mix that includes window means (100, 1000 and 5000
   cycles) and the large speed history; reports cycles analysed (and skipped: the loop's seam) against offered (each
   engine's speed / 120 times the wall seconds: the looped log plays continuously at real time), records the bounded queues dropped, the client's p50 / p99 and the replies by status.
+- ``idle``: no requests; the server's CPU over ``--seconds`` s (from /proc: all its threads) per wall second, per
+  engine and per cycle analysed, and the cycles it analysed against those offered; from the CPU per cycle, how
+  many genset-v20 one core would hold at real time at this cost (``gensets_per_core``: one core over the CPU
+  seconds a genset's cycles take a second, at the engines' speed; issue 28 item 7's target ``TARGET_PER_CORE``).
+  Per cycle, not per wall second: a looped replay's passes each start their clock again, so two checkouts
+  offer a few per cent different cycles in the same wall time. Run it with ``--cpu 1`` (one core's figure).
 - ``lag``: no requests; polls /health every 0.5 s and reports when each engine first shows ``behind`` (and the
   status 'degraded'), the largest queue seen, what was dropped, and the server's RSS each second (memory bounded:
   it must stop growing once the queues are full).
 
     .venv/bin/python -m bench.bench_service_plant mix --engines 4 --rate 200 --seconds 60
     .venv/bin/python -m bench.bench_service_plant lag --engines 12 --seconds 60 --cpu 1   # the server on one core
+    .venv/bin/python -m bench.bench_service_plant idle --engines 4 --seconds 60 --cpu 1
 
 Minutes of wall time; not part of `make bench` nor the tests. On a shared box quote `uptime` beside the figures.
 """
@@ -35,6 +42,7 @@ from bench.bench_service_load import cpu_s, hist_quantile, load
 
 ROOT = Path(__file__).resolve().parents[1]
 CYCLE_REVS = 2.0  # four-stroke: a cycle is two revolutions
+TARGET_PER_CORE = 25  # genset-v20 per core at real time, one process (issue 28 item 7)
 
 
 def mix_routes(engines: list[str]) -> list[str]:
@@ -114,6 +122,24 @@ def run_mix(args, client: httpx.Client, url: str, pid: int, engines: list[str]) 
             "server_cpu_s_per_wall_s": (cpu1 - cpu0) / (w1 - w0)}
 
 
+def run_idle(args, client: httpx.Client, pid: int, engines: list[str]) -> dict:
+    time.sleep(args.settle)
+    c0, cpu0, w0 = counters(client), cpu_s(pid), time.monotonic()
+    time.sleep(args.seconds)
+    c1, cpu1, w1 = counters(client), cpu_s(pid), time.monotonic()
+    rpm = [client.get(f"/api/v1/engines/{e}/cycles/latest").json()["rpm_mean"] for e in engines]
+    offered = sum(r / 60.0 / CYCLE_REVS for r in rpm) * (w1 - w0)
+    share = (cpu1 - cpu0) / (w1 - w0)
+    analysed = c1["processed"] - c0["processed"]
+    per_cycle_s = (cpu1 - cpu0) / analysed if analysed > 0 else float("nan")
+    cycles_per_s = float(np.mean(rpm)) / 60.0 / CYCLE_REVS  # one genset's
+    return {"server_cpu_s_per_wall_s": share, "cpu_share_per_engine": share / len(engines),
+            "cpu_ms_per_cycle": 1e3 * per_cycle_s, "gensets_per_core": 1.0 / (per_cycle_s * cycles_per_s),
+            "target_per_core": TARGET_PER_CORE, "cycles_analysed": analysed, "cycles_offered": offered,
+            "cycles_skipped": c1["skipped"] - c0["skipped"],
+            "records_dropped_by_the_bounded_queue": c1["dropped_records"] - c0["dropped_records"]}
+
+
 def run_lag(args, client: httpx.Client, pid: int, engines: list[str]) -> dict:
     t0 = time.monotonic()
     first_behind: dict[str, float] = {}
@@ -138,7 +164,7 @@ def run_lag(args, client: httpx.Client, pid: int, engines: list[str]) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("mode", choices=("mix", "lag"))
+    ap.add_argument("mode", choices=("mix", "lag", "idle"))
     ap.add_argument("--engines", type=int, default=4)
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--rate", type=float, default=200.0)
@@ -152,8 +178,10 @@ def main() -> None:
     try:
         with httpx.Client(base_url=url, timeout=10) as client:
             first = wait_first_results(client, engines)
-            out = (run_mix(args, client, url, proc.pid, engines) if args.mode == "mix"
-                   else run_lag(args, client, proc.pid, engines))
+            run = {"mix": lambda: run_mix(args, client, url, proc.pid, engines),
+                   "lag": lambda: run_lag(args, client, proc.pid, engines),
+                   "idle": lambda: run_idle(args, client, proc.pid, engines)}[args.mode]
+            out = run()
         proc.terminate()
         t = time.monotonic()
         proc.wait(60)

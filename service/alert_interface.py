@@ -69,22 +69,51 @@ def leak_statistics(ewma: np.ndarray, baseline: Band, g: float) -> LeakStatistic
 
 
 # ---- the interface ----------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
 class Decision:
     """One statistic's verdict this cycle. cylinder: 1-based, None for the engine; kind: the alert it raises (fixed
     when raised); on / off: the raise and clear conditions, k_on / k_off the consecutive cycles each needs; severity
     (info | warning | alarm: an open alert escalates, never de-escalates), message and evidence: the alert's, renewed
-    every cycle while it is open."""
+    every cycle while it is open.
 
-    cylinder: int | None
-    kind: str
-    on: bool
-    off: bool
-    k_on: int
-    k_off: int
-    severity: str
-    message: str
-    evidence: dict
+    The message and evidence are what costs (formatting every cylinder's every cycle was most of the alert engine's
+    time, design notes 31), and the engine reads them only when the statistic raises or its alert is open: a rule
+    passes either both, or ``detail``, a callable giving (message, evidence) that is called at most once, during
+    the same ``AlertEngine.update`` (so it may read the cycle's arrays as they are then).
+
+    >>> d = Decision(2, "overheat", True, False, 3, 2, "warning", detail=lambda: ("cylinder 2 hot", {"t_c": 95.0}))
+    >>> (d.on, d.message, d.evidence)
+    (True, 'cylinder 2 hot', {'t_c': 95.0})
+    """
+
+    __slots__ = ("cylinder", "kind", "on", "off", "k_on", "k_off", "severity", "_message", "_evidence", "_detail")
+
+    def __init__(self, cylinder: int | None, kind: str, on: bool, off: bool, k_on: int, k_off: int, severity: str,
+                 message: str | None = None, evidence: dict | None = None, *,
+                 detail: Callable[[], tuple[str, dict]] | None = None):
+        if detail is None and (message is None or evidence is None):
+            raise ValueError("a Decision needs its message and evidence, or a detail that gives them")
+        self.cylinder, self.kind, self.on, self.off = cylinder, kind, on, off
+        self.k_on, self.k_off, self.severity = k_on, k_off, severity
+        self._message, self._evidence, self._detail = message, evidence, detail
+
+    def _explain(self) -> None:
+        if self._detail is not None:
+            self._message, self._evidence = self._detail()
+            self._detail = None
+
+    @property
+    def message(self) -> str:
+        self._explain()
+        return self._message
+
+    @property
+    def evidence(self) -> dict:
+        self._explain()
+        return self._evidence
+
+    def __repr__(self) -> str:
+        return (f"Decision({self.cylinder!r}, {self.kind!r}, on={self.on!r}, off={self.off!r}, k_on={self.k_on}, "
+                f"k_off={self.k_off}, {self.severity!r})")
 
 
 @dataclass(frozen=True)

@@ -4,6 +4,7 @@ own for its length). No physics: the figure is the core's; this rule gathers its
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -102,22 +103,27 @@ class RingConditionRule:
             if not (np.isfinite(rc.since[k]) or np.isfinite(rc.siblings[k])):
                 out.append(Hold(k + 1, {"ring_condition": None}))
                 continue
-            sib = rc.reference[k] == SIBLINGS
             kind = "sensor_fault" if sensor[k] else "ring_wear"
-            msg = (f"cylinder {k + 1}: ring condition {rc.figure[k]:.1f} +- {rc.sigma[k]:.1f} (1.0: a worn ring at "
-                   f"the floor) " + ("against its siblings" if sib else "since the baseline")
-                   + (" with a flagged sensor: a TDC or pegging error is suspected" if sensor[k] else "")
-                   + (f"; or a TDC error of {rc.leak_siblings[k] / TDC_LEAK_PER_DEG:+.2f} deg of this cylinder, which "
-                      "reads the same (commissioning measures each cylinder's TDC)" if sib and not sensor[k] else ""))
             # against the siblings a TDC error reads the same: never more than a warning
             sev = "alarm" if on_since and z_since[k] > 2 * cfg.raise_z else "warning"
             # one ring alert per cylinder: where the leak or friction rule has raised one, this figure explains it
             # (the API's ring condition) and raises nothing more
             other = any(ctx.latched(name, k + 1) for name in self.ring_rules)
             out.append(Decision(k + 1, kind, (on_since or on_sib) and not other, off, cfg.raise_cycles,
-                                cfg.clear_cycles, sev, msg,
-                                {"source": "ring_condition", **rc.evidence(k)}))
+                                cfg.clear_cycles, sev, detail=partial(self.explain, k, rc, bool(sensor[k]))))
         return out
+
+    @staticmethod
+    def explain(k: int, rc: RingCondition, sensor: bool) -> tuple[str, dict]:
+        """Cylinder k's (0-based) message and evidence from the figure ``rc``: made only where the engine reads them
+        (a raise, an open alert: service.alert_interface.Decision)."""
+        sib = rc.reference[k] == SIBLINGS
+        msg = (f"cylinder {k + 1}: ring condition {rc.figure[k]:.1f} +- {rc.sigma[k]:.1f} (1.0: a worn ring at "
+               f"the floor) " + ("against its siblings" if sib else "since the baseline")
+               + (" with a flagged sensor: a TDC or pegging error is suspected" if sensor else "")
+               + (f"; or a TDC error of {rc.leak_siblings[k] / TDC_LEAK_PER_DEG:+.2f} deg of this cylinder, which "
+                  "reads the same (commissioning measures each cylinder's TDC)" if sib and not sensor else ""))
+        return msg, {"source": "ring_condition", **rc.evidence(k)}
 
     def _chained(self, change: np.ndarray, sigma: np.ndarray, band: Any, ctx: Context
                  ) -> tuple[np.ndarray, np.ndarray]:

@@ -5,7 +5,8 @@ A rule has a ``name`` (the key of its statistics: one latch and at most one open
 ``rests_on_baseline`` (a rebaseline clears its alerts and restarts its latches) and ``update(result, ctx)``: it
 reads one cycle's ``CycleResult`` and the engine's shared view of that cycle (``Context``: the flags per cylinder,
 the pressure statistics against the commissioning baseline, the baseline, the latches) and returns one ``Decision``
-per statistic it watches (on, off, the hysteresis counts, severity, message, evidence), or a ``Hold`` where the
+per statistic it watches (on, off, the hysteresis counts, severity, and its message and evidence, here given as a
+``detail`` that makes them only where the engine reads them: a raise, an open alert), or a ``Hold`` where the
 statistic has no value this cycle. Its thresholds are its own fields of ``AlertConfig``; its state is its own.
 The engine (service.alerts.AlertEngine) owns what they share: the latches, the alert records and their ids, the
 baseline and its learning, the events. A new alert kind is one class here and one line in
@@ -31,6 +32,7 @@ baseline and its learning, the events. A new alert kind is one class here and on
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -62,13 +64,15 @@ class MisfireRule:
         hit = np.array([1.0 if "misfire" in f else 0.0 for f in ctx.cyl_flags])
         self.rate += (1.0 / cfg.misfire_window) * (hit - self.rate)
         out: list[Decision | Hold] = []
-        for k in range(ctx.n_cyl):
-            rate = float(self.rate[k])
+        for k, rate in enumerate(self.rate.tolist()):
             sev = "alarm" if rate >= cfg.misfire_alarm else "warning"
             out.append(Decision(k + 1, "misfire", rate >= cfg.misfire_raise, rate < cfg.misfire_clear, 1, 1, sev,
-                                f"cylinder {k + 1} misfires: {100 * rate:.1f} % of recent cycles",
-                                {"misfire_rate": rate, "window_cycles": cfg.misfire_window}))
+                                detail=partial(self.explain, k, rate)))
         return out
+
+    def explain(self, k: int, rate: float) -> tuple[str, dict]:
+        return (f"cylinder {k + 1} misfires: {100 * rate:.1f} % of recent cycles",
+                {"misfire_rate": rate, "window_cycles": self.config.misfire_window})
 
 
 class ModelMisfitRule:
@@ -90,9 +94,12 @@ class ModelMisfitRule:
     def update(self, result: CycleResult, ctx: Context) -> list[Decision | Hold]:
         on = "model_misfit" in ctx.engine_flags
         return [Decision(None, "model_misfit", on, not on, self.config.flag_raise_cycles, self.config.clear_cycles,
-                         "warning", "the speed fit is worse than its noise model allows: the engine model does not "
-                         "describe this engine (friction figures may be biased)",
-                         {"chi2_reduced": result.cycle.chi2_reduced})]
+                         "warning", detail=partial(self.explain, result.cycle.chi2_reduced))]
+
+    @staticmethod
+    def explain(chi2_reduced: float) -> tuple[str, dict]:
+        return ("the speed fit is worse than its noise model allows: the engine model does not describe this engine "
+                "(friction figures may be biased)", {"chi2_reduced": chi2_reduced})
 
 
 class SensorFlagRule:
@@ -115,16 +122,22 @@ class SensorFlagRule:
         k_on, k_off, ring = self.config.flag_raise_cycles, self.config.clear_cycles, result.ring
         wheel = sorted(f for f in ctx.engine_flags if f.startswith("sensor_"))
         out: list[Decision | Hold] = [Decision(None, "sensor_fault", bool(wheel), not wheel, k_on, k_off, "warning",
-                                               "sensor check on the engine: " + ", ".join(wheel or ["-"]),
-                                               {"flags": wheel})]
+                                               detail=partial(self.explain, None, wheel, None))]
+        n_comp = ring.n_compression.tolist() if ring is not None else None
         for k, fl in enumerate(ctx.cyl_flags):
             sensor = sorted(f for f in fl if f.startswith("sensor_") or f == "pressure_repaired")
-            if ring is not None and not (np.isfinite(ring.n_compression[k]) and ring.n_compression[k] > 0.5):
+            if n_comp is not None and not (math.isfinite(n_comp[k]) and n_comp[k] > 0.5):
                 sensor.append("pressure_stuck_or_dropped")
             out.append(Decision(k + 1, "sensor_fault", bool(sensor), not sensor, k_on, k_off, "warning",
-                                f"sensor check on cylinder {k + 1}: " + ", ".join(sensor or ["-"]),
-                                {"flags": sensor, "n_compression": _num(ring.n_compression[k]) if ring else None}))
+                                detail=partial(self.explain, k + 1, sensor, n_comp)))
         return out
+
+    @staticmethod
+    def explain(cylinder: int | None, sensor: list[str], n_comp: list[float] | None) -> tuple[str, dict]:
+        if cylinder is None:
+            return "sensor check on the engine: " + ", ".join(sensor or ["-"]), {"flags": sensor}
+        return (f"sensor check on cylinder {cylinder}: " + ", ".join(sensor or ["-"]),
+                {"flags": sensor, "n_compression": _num(n_comp[cylinder - 1]) if n_comp is not None else None})
 
 
 class CoreFlagRule:
@@ -148,8 +161,11 @@ class CoreFlagRule:
             return []
         kind, k_on, k_off = self.kind, 4 * self.config.flag_raise_cycles, self.config.clear_cycles
         return [Decision(k + 1, kind, kind in fl, kind not in fl, k_on, k_off, "warning",
-                         f"cylinder {k + 1}: {kind.replace('_', ' ')} against its siblings (before a commissioning "
-                         "baseline)", {"source": "core_flag"}) for k, fl in enumerate(ctx.cyl_flags)]
+                         detail=partial(self.explain, k)) for k, fl in enumerate(ctx.cyl_flags)]
+
+    def explain(self, k: int) -> tuple[str, dict]:
+        return (f"cylinder {k + 1}: {self.kind.replace('_', ' ')} against its siblings (before a commissioning "
+                "baseline)", {"source": "core_flag"})
 
 
 def _pressure_evidence(p: Pressure, k: int, window: float) -> dict:
@@ -218,13 +234,16 @@ class LeakRule(_PressureRule):
         cfg, st = self.config, p.stats
         sensor = any(s.startswith("sensor_") for s in ctx.cyl_flags[k])
         sev = "alarm" if st.z_leak[k] >= cfg.alarm_z and st.effect[k] > 3 * cfg.leak_floor else "warning"
-        msg = (f"cylinder {k + 1}: leak-like pressure signature (compression exponent "
-               f"{p.ewma[1, k]:+.4f}, expansion exponent {p.ewma[2, k]:+.4f} from commissioning)"
-               + (" with a flagged sensor: a TDC or pegging error is suspected" if sensor else ""))
         return Decision(k + 1, "sensor_fault" if sensor else "blow_by",
                         bool(st.z_leak[k] > cfg.raise_z and st.effect[k] > cfg.leak_floor),
-                        bool(st.z_leak[k] < cfg.clear_z), cfg.raise_cycles, cfg.clear_cycles, sev, msg,
-                        _pressure_evidence(p, k, cfg.window))
+                        bool(st.z_leak[k] < cfg.clear_z), cfg.raise_cycles, cfg.clear_cycles, sev,
+                        detail=partial(self.explain, k, p, sensor))
+
+    def explain(self, k: int, p: Pressure, sensor: bool) -> tuple[str, dict]:
+        return (f"cylinder {k + 1}: leak-like pressure signature (compression exponent "
+                f"{p.ewma[1, k]:+.4f}, expansion exponent {p.ewma[2, k]:+.4f} from commissioning)"
+                + (" with a flagged sensor: a TDC or pegging error is suspected" if sensor else ""),
+                _pressure_evidence(p, k, self.config.window))
 
 
 class GainRule(_PressureRule):
@@ -251,12 +270,15 @@ class GainRule(_PressureRule):
                   and st.z_leak[k] < cfg.clear_z)
         off = bool(abs(st.z_ratio[k]) < cfg.clear_z or st.z_leak[k] > cfg.raise_z)
         return Decision(k + 1, "sensor_fault", on, off, cfg.raise_cycles, cfg.clear_cycles, "info",
-                        f"cylinder {k + 1}: compression pressure {math.exp(p.ewma[0, k]):.3f}x "
-                        "its commissioning value against the siblings with both polytropic exponents "
-                        "unchanged: a pressure-gain error of this sensor (or a leak too small to bend the "
-                        "exponents); check the sensor",
-                        {**_pressure_evidence(p, k, cfg.window), "suspect": "pressure_gain",
-                         "gain_estimate": _num(math.exp(p.ewma[0, k]))})
+                        detail=partial(self.explain, k, p))
+
+    def explain(self, k: int, p: Pressure) -> tuple[str, dict]:
+        return (f"cylinder {k + 1}: compression pressure {math.exp(p.ewma[0, k]):.3f}x "
+                "its commissioning value against the siblings with both polytropic exponents "
+                "unchanged: a pressure-gain error of this sensor (or a leak too small to bend the "
+                "exponents); check the sensor",
+                {**_pressure_evidence(p, k, self.config.window), "suspect": "pressure_gain",
+                 "gain_estimate": _num(math.exp(p.ewma[0, k]))})
 
 
 class FrictionRule:
@@ -311,12 +333,17 @@ class FrictionRule:
             out.append(Decision(int(k) + 1, "ring_wear", zf > cfg.friction_raise_sigmas,
                                 zf < cfg.friction_clear_sigmas, cfg.raise_cycles, cfg.clear_cycles,
                                 "alarm" if zf > 2 * cfg.friction_raise_sigmas else "warning",
-                                f"cylinder {k + 1}: friction {100 * (excess - base):+.1f} % against its siblings "
-                                f"since cycle {int(ctx.baseline.friction_cycle[k])}",
-                                {"source": "friction", "z_friction": _num(zf), "friction_excess": _num(excess),
-                                 "friction_excess_baseline": _num(base), "friction_torque_nm": _num(t[k]),
-                                 "friction_torque_sigma_nm": _num(s[k])}))
+                                detail=partial(self.explain, int(k), zf, excess, base,
+                                               int(ctx.baseline.friction_cycle[k]), t[k], s[k])))
         return out
+
+    @staticmethod
+    def explain(k: int, zf: float, excess: float, base: float, since: int, torque: float, sigma: float
+                ) -> tuple[str, dict]:
+        return (f"cylinder {k + 1}: friction {100 * (excess - base):+.1f} % against its siblings since cycle {since}",
+                {"source": "friction", "z_friction": _num(zf), "friction_excess": _num(excess),
+                 "friction_excess_baseline": _num(base), "friction_torque_nm": _num(torque),
+                 "friction_torque_sigma_nm": _num(sigma)})
 
 
 def _num(v: Any) -> float | None:

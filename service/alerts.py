@@ -320,7 +320,11 @@ class AlertEngine:
             if key in self._open:
                 self._open[key].evidence.update(d.evidence)
             return []
-        latch = self._latches.setdefault(key, Latch())
+        latch = self._latches.get(key)
+        if latch is None:
+            if not d.on:  # a fresh latch stepped with nothing on stays fresh: none is kept until it counts
+                return []
+            latch = self._latches[key] = Latch()
         change = latch.step(bool(d.on), bool(d.off), d.k_on, d.k_off, int(result.index))
         if change == "raise":
             a = Alert(self._next_id, key[1], d.kind, d.severity, "active", int(result.index), float(result.t_start),

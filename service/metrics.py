@@ -99,16 +99,12 @@ class MetricsListener(Listener):
         m = self.metrics
         if event.arrived_s is not None:
             m.latency.labels(self.engine_id).observe(max(0.0, event.result_s - event.arrived_s))
-        doc = r.to_json()  # status from this cycle's flags (figure_status): only a measurement is exported
-        eng = doc["friction"]
-        m.engine_fmep.labels(self.engine_id).set(_measured(eng))
-        for c in doc["cylinders"]:
-            m.fmep.labels(self.engine_id, str(c["cylinder"])).set(_measured(c["friction"]))
-
-
-def _measured(figure: dict) -> float:
-    v = figure["fmep_bar"]
-    return float(v) if figure["status"] == "measured" and v is not None else math.nan
+        # status from this cycle's flags (figure_status): only a measurement is exported; the figures alone, not
+        # the whole document (to_json was this listener's cost, design notes 31)
+        engine, cylinders = r.measured_fmep_bar()
+        m.engine_fmep.labels(self.engine_id).set(engine)
+        for k, v in enumerate(cylinders):
+            m.fmep.labels(self.engine_id, str(k + 1)).set(v)
 
 
 class _EngineCounters(Collector):

@@ -36,8 +36,9 @@ from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel, as_model
 from frictionwatch.core.model.indicated import peak_pressure
 from frictionwatch.core.monitor.balance.harmonic_balance import harmonic_balance, operating_point
-from frictionwatch.core.monitor.checks.condition import assess_condition
-from frictionwatch.core.monitor.checks.sensor_health import SensorHealthState, check_cycle, corrected_inputs, inflate
+from frictionwatch.core.monitor.checks.check import Check, CheckInput
+from frictionwatch.core.monitor.checks.condition import ConditionCheck
+from frictionwatch.core.monitor.checks.sensor_health import SensorHealthCheck, SensorHealthState, corrected_inputs
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, ResidualStats
 from frictionwatch.core.monitor.identify.estimate import indicated_tdc_sensitivity
 from frictionwatch.core.monitor.identify.free_end_rows import free_end_whitened, half_order_rows, no_free_end_rows
@@ -60,8 +61,8 @@ from frictionwatch.core.monitor.teeth.second_wheel import fit_second_wheel, free
 from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth
 from frictionwatch.core.types import Cycle
 
-__all__ = ["CycleRejected", "MonitorConfig", "MonitorState", "default_max_order", "initial_state", "nonpositive_flags",
-           "process_cycle"]
+__all__ = ["CHECKS", "CycleRejected", "MonitorConfig", "MonitorState", "default_max_order", "initial_state",
+           "nonpositive_flags", "process_cycle"]
 
 FOUR_PI = 4.0 * np.pi
 
@@ -75,6 +76,9 @@ class CycleRejected(ValueError):
 
 
 _DEFAULT_CONFIG = MonitorConfig()  # frozen: one instance serves every call without a config
+# the per-cycle checks in the order they run (core.monitor.checks.check): a new check is one class, one line here
+# and the MonitorState field that carries its state (its name)
+CHECKS: tuple[Check, ...] = (SensorHealthCheck(), ConditionCheck())
 
 
 def default_max_order(spec: EngineSpec) -> float:
@@ -119,9 +123,11 @@ def initial_state(engine: EngineModel | EngineSpec, config: MonitorConfig | None
 
 
 def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: Cycle,
-                  config: MonitorConfig | None = None) -> tuple[MonitorState, CycleResult]:
+                  config: MonitorConfig | None = None, checks: tuple[Check, ...] = CHECKS
+                  ) -> tuple[MonitorState, CycleResult]:
     """Analyse one cycle of ``engine`` (the model ``state`` was made for, or its spec: the loss terms travel in the
-    state). Raises ``CycleRejected`` (state unchanged) when the cycle cannot be used."""
+    state). Raises ``CycleRejected`` (state unchanged) when the cycle cannot be used. ``checks``: the per-cycle
+    checks, in order, each carrying its state in the ``MonitorState`` field of its name."""
     cfg = config or _DEFAULT_CONFIG
     spec = engine.spec if isinstance(engine, EngineModel) else engine
     pressure, flags = checked_pressure(spec, cycle)
@@ -202,33 +208,35 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         else:
             free_rows = no_free_end_rows(m, state.params.shape[0], cfg.second_wheel_max_order)
     ident = identify_cycle(cfg, spec, state, fly, rows, exc, pmax, mean, drift_var, free_rows)
-    health = None
-    if cfg.sensor_health is not None:
-        sensor, health = check_cycle(cfg.sensor_health, spec, sensor, cycle.grid, raw_pressure, pressure, op_used,
-                                     bal, state.params, ident.stats, prior.info, cfg.model_rel_error)
-        flags += health.flags
-        ident = replace(ident, smoothed_estimate=inflate(spec, ident.smoothed_estimate, health),
-                        cycle_estimate=inflate(spec, ident.cycle_estimate, health))
-    cond = assess_condition(spec, state.condition, cycle.grid, pressure, exc.indicated_mean, pmax, ident,
-                            rows.cylinder_rows[:, :state.layout.n_params], op is not state.op and state.op is not None)
-    flags += cond.flags
+    # the checks in order, each seeing the identification the one before left (sigmas inflated by the sensors'
+    # uncertainty, the accumulator discounted after a change) and filling its fields of the result
+    inp = CheckInput(spec, cfg, cycle.grid, raw_pressure, pressure, op_used, bal, state.params, prior.info, pmax,
+                     rows.cylinder_rows[:, :state.layout.n_params], op is not state.op and state.op is not None, ident)
+    checked, report = {}, {}
+    for check in checks:
+        step = check.update(getattr(state, check.name), inp)
+        checked[check.name] = step.state
+        flags += step.flags
+        report.update(step.report)
+        inp = replace(inp, ident=step.ident)
+    ident = inp.ident
 
     result = build_result(spec, cycle, fly, exc, rows, state.layout, ident, mean, pmax, pmax_angle, flags, tables)
     fit_flags = ("speed_fit_poor",) if result.r_squared < cfg.r_squared_floor else ()  # NaN (no ripple): no flag
     if wheel2_flag is not None:
         fit_flags += (wheel2_flag,)
-    result = replace(result, sensor_health=health, ring=cond.ring,  # one replace: the stage results not in build_result
+    result = replace(result, **report,  # one replace: the stage results not in build_result
                      flags=result.flags + fit_flags, free_end=free_end,
                      chain=None if free_end is None or not cfg.drive_train_inputs else ChainSample(
                          node_torque_harmonics(op_used.shaft, op_used.receptance, bal.node_speed),
                          0.5j * fly.omega_mean * np.arange(1, m + 1) * fly.harmonics,
                          fly.pattern_harmonics[:, :state.n_nuisance].copy()))
     new_state = MonitorState(
-        layout=state.layout, n_harmonics=m, n_nuisance=state.n_nuisance, accumulator=cond.accumulator,
+        layout=state.layout, n_harmonics=m, n_nuisance=state.n_nuisance, accumulator=ident.accumulator,
         stats=ident.stats, params=ident.smoothed.params, op=op, relative_motion=rel, static=static, teeth=teeth,
         balance_mean=ident.balance_mean, indicated_mean=ident.indicated_mean, cycles=state.cycles + 1,
         prior=state.prior, lower=state.lower, report_tables=tables, prev_omega=omega, drift_var=drift_var,
-        tooth_patterns=patterns, sensor=sensor, condition=cond.state,
+        tooth_patterns=patterns, **checked,
         previous=PreviousCycle(int(cycle.tooth_ticks[0]), int(cycle.tooth_ticks[-1]), pressure.copy(), mid_speed,
                                load),  # a copy: a live source may reuse the cycle's buffer
         grid_geometry=geometry, mid_speed_fit=mid_fit, wheel2=wheel2,

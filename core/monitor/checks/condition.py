@@ -36,12 +36,13 @@ numpy functions beside them (``compression_rise``, ``burn_ratio``, ``sibling_dev
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.checks.change import ChangeSettings, detect_change
+from frictionwatch.core.monitor.checks.check import CheckInput, CheckStep
 from frictionwatch.core.monitor.checks.ring_pressure import (
     RingIndicators,
     median_of_first,
@@ -263,6 +264,27 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
                          burn_reference=burn_ref, burn_cycles=burn_n, tables=tab)
     ring = ring_indicators(spec, grid, pressure, tables=tab.ring) if tab.ring is not None else None
     return ConditionStep(new, tuple(flags), acc, ring)
+
+
+class ConditionCheck:
+    """The condition flags as one of the monitor's checks (core.monitor.checks.check): ``assess_condition`` with
+    ``settings`` (the module's thresholds); the accumulator it discounts after a detected change goes on in the
+    identification, the ring indicators into the result (``ring``).
+
+    >>> ConditionCheck().name, ConditionCheck().settings.window
+    ('condition', 50.0)
+    """
+
+    name = "condition"
+
+    def __init__(self, settings: ConditionSettings = DEFAULT_SETTINGS):
+        self.settings = settings
+
+    def update(self, state: ConditionState | None, inp: CheckInput) -> CheckStep:
+        ident = inp.ident
+        step = assess_condition(inp.spec, state, inp.grid, inp.pressure, inp.balance.excitation.indicated_mean,
+                                inp.pmax, ident, inp.cylinder_rows, inp.op_changed, self.settings)
+        return CheckStep(step.state, step.flags, replace(ident, accumulator=step.accumulator), {"ring": step.ring})
 
 
 def condition_tables(spec: EngineSpec, grid: np.ndarray, settings: ConditionSettings = DEFAULT_SETTINGS

@@ -38,6 +38,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.balance.harmonic_balance import OperatingPoint
+from frictionwatch.core.monitor.checks.check import CheckInput, CheckStep
 from frictionwatch.core.monitor.checks.sensor_evidence import sibling_compare, speed_sensitivity, tdc_information
 from frictionwatch.core.monitor.report.results import FrictionEstimate, SensorHealth
 
@@ -269,3 +270,33 @@ def check_cycle(cfg: SensorHealthConfig, spec: EngineSpec, state: SensorHealthSt
     twist = static[op.cylinders.node] if static is not None and static.shape[0] == op.cylinders.n_nodes else None
     speed = SpeedEvidence(exc.theta_fly, omega, alpha, resid, sigma, rows.design, prior_info)
     return assess(cfg, spec, state, grid, raw_pressure, pressure, op, speed, exc.indicated_mean, twist)
+
+
+class SensorHealthCheck:
+    """Sensor health as one of the monitor's checks (core.monitor.checks.check): ``check_cycle`` with the monitor's
+    ``config.sensor_health`` (None: off, the state passed on as it came, no flags, ``sensor_health`` None), the
+    friction estimates' sigmas inflated by what the sensors leave uncertain (``inflate``). Its state is the one the
+    corrections before the balance were taken from (``corrected_inputs``).
+
+    >>> from types import SimpleNamespace
+    >>> off = SimpleNamespace(config=SimpleNamespace(sensor_health=None), ident="the identification",
+    ...                       spec=SimpleNamespace(n_cyl=2))
+    >>> step = SensorHealthCheck().update(None, off)
+    >>> (step.flags, step.ident, step.report, step.state.count)
+    ((), 'the identification', {'sensor_health': None}, 0)
+    """
+
+    name = "sensor"
+
+    def update(self, state: SensorHealthState | None, inp: CheckInput) -> CheckStep:
+        cfg = inp.config
+        state = state if state is not None else SensorHealthState.empty(inp.spec.n_cyl)  # kept even when off
+        if cfg.sensor_health is None:
+            return CheckStep(state, (), inp.ident, {"sensor_health": None})
+        ident = inp.ident
+        state, health = check_cycle(cfg.sensor_health, inp.spec, state, inp.grid, inp.raw_pressure, inp.pressure,
+                                    inp.op, inp.balance, inp.params, ident.stats, inp.prior_info,
+                                    cfg.model_rel_error)
+        ident = replace(ident, smoothed_estimate=inflate(inp.spec, ident.smoothed_estimate, health),
+                        cycle_estimate=inflate(inp.spec, ident.cycle_estimate, health))
+        return CheckStep(state, tuple(health.flags), ident, {"sensor_health": health})

@@ -301,6 +301,24 @@ class CycleResult:
         }
         return doc
 
+    def measured_fmep_bar(self) -> tuple[float, list[float]]:
+        """The smoothed engine FMEP and each cylinder's [bar] where that figure's status is "measured" (this cycle's
+        flags, core.monitor.report.figure_status), NaN elsewhere: the ``fmep_bar`` of ``to_json()``'s measured
+        figures, by the same arithmetic, without making the document (a gauge reads them every cycle)."""
+        est = self.smoothed
+        st = friction_status(est, self.flags)
+
+        def fmep(torque: float, mep_per_nm: float) -> float:  # _figure's fmep_bar, None as NaN
+            t = _num(torque)
+            v = None if t is None else _num(t * mep_per_nm / PA_PER_BAR)
+            return math.nan if v is None else v
+
+        mep = self.mep_per_nm()
+        engine = (fmep(est.total_friction_torque, self.mep_per_nm(engine=True)) if st.engine.status == "measured"
+                  else math.nan)
+        return engine, [fmep(est.friction_torque_mean[k], mep) if c.status == "measured" else math.nan
+                        for k, c in enumerate(st.cylinders)]
+
     def _cylinder_json(self, k: int, est: FrictionEstimate, status: FigureStatus, window: dict,
                        mep_per_nm: float) -> dict:
         if status.status == "share":
