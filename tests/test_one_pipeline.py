@@ -23,6 +23,7 @@ ASSEMBLER_METHODS = ("feed", "flush")
 ALLOWED = {
     "tests/core/test_monitor.py": "the unit tests of process_cycle itself",
     "tests/core/test_monitor_state.py": "the unit tests of the monitor state (initial_state, process_cycle)",
+    "tests/core/test_checks_interface.py": "the unit tests of process_cycle's checks (a spy check passed in)",
     "tests/drivers/test_cycles.py": "the unit tests of the cycle assembler",
     "tests/drivers/test_pressure_frames.py": "the assembler's tests on pressure frames and blocks",
     "tests/drivers/test_two_wheels.py": "the unit tests of the two-wheel assembler (its wheel2_missing counters)",
