@@ -37,6 +37,7 @@ from frictionwatch.core.model.engine_model import EngineModel, as_model
 from frictionwatch.core.model.indicated import peak_pressure
 from frictionwatch.core.monitor.balance.harmonic_balance import harmonic_balance, operating_point
 from frictionwatch.core.monitor.checks.condition import assess_condition
+from frictionwatch.core.monitor.checks.ring_pressure import ThrowMotion
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthState, check_cycle, corrected_inputs, inflate
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, ResidualStats
 from frictionwatch.core.monitor.identify.estimate import indicated_tdc_sensitivity
@@ -209,8 +210,12 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         flags += health.flags
         ident = replace(ident, smoothed_estimate=inflate(spec, ident.smoothed_estimate, health),
                         cycle_estimate=inflate(spec, ident.cycle_estimate, health))
+    node = op_used.cylinders.node
+    motion = (ThrowMotion(static[node], rel[node], float(theta_start))  # each cylinder's throw against the wheel
+              if static.shape[0] == op_used.cylinders.n_nodes and rel.shape[0] == static.shape[0] else None)
     cond = assess_condition(spec, state.condition, cycle.grid, pressure, exc.indicated_mean, pmax, ident,
-                            rows.cylinder_rows[:, :state.layout.n_params], op is not state.op and state.op is not None)
+                            rows.cylinder_rows[:, :state.layout.n_params], op is not state.op and state.op is not None,
+                            motion=motion)
     flags += cond.flags
 
     result = build_result(spec, cycle, fly, exc, rows, state.layout, ident, mean, pmax, pmax_angle, flags, tables)

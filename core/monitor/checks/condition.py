@@ -44,7 +44,9 @@ from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.checks.change import ChangeSettings, detect_change
 from frictionwatch.core.monitor.checks.ring_pressure import (
     RingIndicators,
+    ThrowMotion,
     median_of_first,
+    moved_tables,
     ring_indicators,
     ring_tables,
     ring_windows,
@@ -204,11 +206,14 @@ def _ewma(mean: np.ndarray, var: np.ndarray, x: np.ndarray, g: float, first: boo
 
 def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.ndarray, pressure: np.ndarray,
                      indicated: np.ndarray, pmax: np.ndarray, ident: Identification, cylinder_rows: np.ndarray,
-                     op_changed: bool, settings: ConditionSettings = DEFAULT_SETTINGS) -> ConditionStep:
+                     op_changed: bool, settings: ConditionSettings = DEFAULT_SETTINGS,
+                     motion: ThrowMotion | None = None) -> ConditionStep:
     """This cycle's condition flags from its pressure (z, n) on ``grid``, indicated torques (z,) [N m], peak
     pressures (z,), the cycle's identification (firing mask, the cycle's and the smoothed posteriors and estimate,
     the accumulator just folded, returned discounted when a change is detected), the cylinder rows (z, p_f) that
-    turn the friction parameters into per-cylinder torques, and whether the operating point changed this cycle."""
+    turn the friction parameters into per-cylinder torques, and whether the operating point changed this cycle;
+    ``motion``: the throws' motion against the flywheel this cycle (the ring indicators read each cylinder at its
+    own throw's angle; None: at the flywheel's)."""
     fired, cycle, smoothed = ident.fire, ident.cycle, ident.smoothed
     estimate, accumulator = ident.smoothed_estimate, ident.accumulator
     z = spec.n_cyl
@@ -259,7 +264,10 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
         acc = accumulator.discounted(min(1.0, settings.change.reset_weight / max(accumulator.weight, 1e-9)))
     new = ConditionState(count=count, window=window, misfit=misfit, detector=detector, since_op_change=since_op,
                          burn_reference=burn_ref, burn_cycles=burn_n, tables=tab)
-    ring = ring_indicators(spec, grid, pressure, tables=tab.ring) if tab.ring is not None else None
+    ring = None
+    if tab.ring is not None:
+        ring_tab = tab.ring if motion is None or tab.ring.local is None else moved_tables(spec, grid, tab.ring, motion)
+        ring = ring_indicators(spec, grid, pressure, tables=ring_tab)
     return ConditionStep(new, tuple(flags), acc, ring)
 
 
