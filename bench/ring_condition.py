@@ -73,7 +73,7 @@ def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: i
     alerts = AlertEngine(model.spec, baseline=baseline)
     rule = next(r for stage in alerts.rules for r in stage if isinstance(r, RingConditionRule))
     events, trace = [], {"cycle": [], "since": [], "since_sigma": [], "siblings": [], "siblings_sigma": []}
-    t0, n = time.perf_counter(), 0
+    t0, c0, n = time.perf_counter(), time.process_time(), 0
     for chunk in sim.chunks():
         for record in chunk.records:
             for res in pipe.feed(record):
@@ -88,6 +88,7 @@ def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: i
             break
     arr = {k: np.array(v) for k, v in trace.items()}
     return {"events": events, "trace": arr, "cycles": n, "wall_s": round(time.perf_counter() - t0, 1),
+            "cpu_s": round(time.process_time() - c0, 1),
             "load_steps": len(steps), "commissioned": not args.no_commission,
             "bands_at_end": [round(b.imep_pa / 1e5, 2) for b in (alerts.baseline.bands if alerts.baseline else ())]}
 
@@ -142,7 +143,8 @@ def ring(args: argparse.Namespace) -> dict:
             "wrong_cylinder": [r for r in raised if r["kind"] in RING_KINDS and r["cylinder"] != args.cylinder],
             "before_onset": [r for r in raised if r["cycle"] < args.onset and r["kind"] in RING_KINDS],
             "other": [r for r in raised if r["kind"] not in RING_KINDS][:8], "faulty_at_end": end,
-            **_z_summary(tr), "cycles": out["cycles"], "wall_s": out["wall_s"], "bands_at_end": out["bands_at_end"]}
+            **_z_summary(tr), "cycles": out["cycles"], "wall_s": out["wall_s"], "cpu_s": out["cpu_s"],
+            "bands_at_end": out["bands_at_end"]}
 
 
 def healthy(args: argparse.Namespace) -> dict:
@@ -153,7 +155,7 @@ def healthy(args: argparse.Namespace) -> dict:
             "commissioned": out["commissioned"], "step_every": args.step_every, "load_steps": out["load_steps"],
             "ring_alerts": [r for r in raised if r["kind"] in RING_KINDS],
             "other": [r for r in raised if r["kind"] not in RING_KINDS][:12], **_z_summary(out["trace"]),
-            "cycles": out["cycles"], "wall_s": out["wall_s"], "bands_at_end": out["bands_at_end"]}
+            "cycles": out["cycles"], "wall_s": out["wall_s"], "cpu_s": out["cpu_s"], "bands_at_end": out["bands_at_end"]}
 
 
 def _save(args: argparse.Namespace, trace: dict) -> None:
