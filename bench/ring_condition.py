@@ -10,7 +10,8 @@ into the work's report.
 Every run streams the simulator (core.plant.sim_stream) through ``EnginePipeline`` and the ``AlertEngine`` serve makes
 (default AlertConfig, every rule, RingConditionRule among them). With commissioning (the default), healthy logs of
 the same seed are commissioned first as bench/ring_after_commission.py does (``frictionwatch commission``: TDC,
-gains, the alert baseline per load band), and the run starts with that model and baseline; ``--no-commission``
+gains, the alert baseline per load band; with ``--onset 0`` the fault is in the commissioning logs too: the engine
+was commissioned with it), and the run starts with that model and baseline; ``--no-commission``
 starts from the engine preset with no baseline (the alerts learn theirs from the run's first healthy cycles: a fault
 present from the first cycle is in it).
 
@@ -49,15 +50,17 @@ MISMATCH = {"gain": ["pressure_gain:cylinder=2,gain=1.03"], "tdc": ["tdc_offset:
             "friction_law": ["stribeck_ring:fraction=1.0"], "none": []}
 
 
-def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: int, stop=None) -> dict:
-    """Stream one run; the events, the rule's per-cycle figures and counts."""
+def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: int, stop=None,
+        commission_effects: tuple[str, ...] = ()) -> dict:
+    """Stream one run; the events, the rule's per-cycle figures and counts. ``commission_effects``: simulator
+    effects in the commissioning logs too (a fault there from the first cycle)."""
     rpm, load = POINTS[args.engine]
     with tempfile.TemporaryDirectory(prefix="ring-cond-") as tmp:
         if args.no_commission:
             model, baseline = load_model(args.engine), None
         else:
             path = commission(Path(tmp), args.engine, args.seed, args.commission_cycles,
-                              [float(f) for f in args.commission_loads.split(",")], args.cov)
+                              [float(f) for f in args.commission_loads.split(",")], args.cov, commission_effects)
             model = load_model(str(path))
             baseline = (Baseline.from_dict(json.loads(model.calibration.baseline))
                         if model.calibration.baseline else None)
@@ -123,7 +126,10 @@ def ring(args: argparse.Namespace) -> dict:
         f = first(events)
         return f is not None and n >= f + args.after
 
-    out = run(args, args.onset + args.max_delay, [effect], args.step_every, stop)
+    # from the first cycle the fault is there when the engine is commissioned, too (without a ramp there)
+    at_commission = (f"{effect.split(':')[0]}:" + params.replace(f"ramp_cycles={args.ramp}", "ramp_cycles=0")
+                     + (f",gain={args.gain}" if args.fault == "ring_wear" else ""),) if args.onset == 0 else ()
+    out = run(args, args.onset + args.max_delay, [effect], args.step_every, stop, at_commission)
     raised = _raised(out["events"])
     firsts = {}
     for r in raised:
@@ -137,8 +143,8 @@ def ring(args: argparse.Namespace) -> dict:
         end = {key: (round(float(tr[key][-1, k]), 3) if np.isfinite(tr[key][-1, k]) else None)
                for key in ("since", "since_sigma", "siblings", "siblings_sigma")}
     return {"mode": "ring", "engine": args.engine, "seed": args.seed, "effect": effect, "onset": args.onset,
-            "commissioned": out["commissioned"], "step_every": args.step_every,
-            "delay_cycles": None if first(out["events"]) is None else first(out["events"]) - args.onset,
+            "commissioned": out["commissioned"], "commissioned_with": list(at_commission) if out["commissioned"] else [],
+            "step_every": args.step_every, "delay_cycles": None if first(out["events"]) is None else first(out["events"]) - args.onset,
             "first_by_rule": firsts,
             "wrong_cylinder": [r for r in raised if r["kind"] in RING_KINDS and r["cylinder"] != args.cylinder],
             "before_onset": [r for r in raised if r["cycle"] < args.onset and r["kind"] in RING_KINDS],
