@@ -12,8 +12,9 @@ where the monitor's model has a flexible shaft) and the monitor's static twist o
 flywheel (``EnginePipeline.cylinder_twist``). Prints one JSON line: per cylinder the mean leak effect
 (n_expansion_dev - n_compression_dev) / 2 over the cycles after ``--skip`` and the mean twist [deg]; over the
 cylinders without an effect the spread (min, max, SD) about their median and the least-squares slope of the effect
-on the twist [per deg]; the faulty cylinders' effect against the healthy median; the per-cycle scatter's standard
-error of a mean (``mean_se``).
+on the twist [per deg]; the faulty cylinders' effect and their indicators (both exponents' deviation, the expansion
+deficit, the compression ratio) against the healthy median, and the healthy cylinders' SD of each indicator; the
+per-cycle scatter's standard error of a mean (``mean_se``).
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ def measure(engine: str, seed: int, cycles: int, skip: int, without: tuple[str, 
                            effects=[parse_effect(e) for e in effects], without=set(without), cov_imep=0.03,
                            fuel_spread=fuel_spread)
     pipe = EnginePipeline(spec, sim.info)
-    raw, twist = [], []
+    raw, twist, rows = [], [], []
     t0 = time.process_time()
     for chunk in sim.chunks():
         for record in chunk.records:
@@ -51,8 +52,11 @@ def measure(engine: str, seed: int, cycles: int, skip: int, without: tuple[str, 
                 tw = pipe.cylinder_twist()
                 eff = leak_effect(res.ring.n_compression_dev, res.ring.n_expansion_dev)
                 raw.append(eff)
+                rows.append(np.array([res.ring.n_compression_dev, res.ring.n_expansion_dev,
+                                      res.ring.expansion_deficit, res.ring.compression_ratio]))
                 twist.append(np.degrees(tw))
     raw_m, tw_m = (np.nanmean(np.array(a), axis=0) for a in (raw, twist))
+    ind_m = np.nanmean(np.array(rows), axis=0)  # (4, z)
     faulty = {int(e.split("cylinder=")[1].split(",")[0]) - 1 for e in effects if "cylinder=" in e}
     healthy = np.array([k for k in range(spec.n_cyl) if k not in faulty])
 
@@ -70,6 +74,12 @@ def measure(engine: str, seed: int, cycles: int, skip: int, without: tuple[str, 
             "slope_per_deg": round(slope, 5),
             "faulty_vs_healthy_median": {str(k + 1): round(float(raw_m[k] - np.median(raw_m[healthy])), 5)
                                          for k in faulty},
+            "faulty_indicators": {str(k + 1): dict(zip(("n_compression", "n_expansion", "expansion_deficit",
+                                                        "compression_ratio"),
+                                                       (round(float(v), 5) for v in (ind_m[:, k] - np.median(
+                                                           ind_m[:, healthy], axis=1)))))
+                                  for k in faulty},
+            "healthy_indicator_sd": [round(float(v), 5) for v in ind_m[:, healthy].std(axis=1)],
             "cpu_s": round(time.process_time() - t0, 1)}
 
 

@@ -31,7 +31,7 @@ load, and a step 0.75 -> 0.45 moved single cylinders' sibling-relative leak effe
 keeps its commissioning baseline per load band (service.alert_baseline) rather than reading a load change as a leak.
 Where the monitor's harmonic balance gives the throws' motion (``ThrowMotion``: each throw's static twist and
 node-minus-flywheel angle harmonics of the cycle), each window sample is read where the cylinder's own throw is at
-the window's angle, not the flywheel (``throw_lag``): the twist's share of each cylinder's sibling offset goes
+the window's angle, not the flywheel (``moved_tables``): the twist's share of each cylinder's sibling offset goes
 (design note 29: genset-v20 seed 7, healthy, the sibling spread of the leak effect SD 0.0037 -> see the note).
 
 Arrays in, arrays out, no state: the windows are fixed by the engine spec, so each cycle stands alone. What the grid
@@ -159,24 +159,6 @@ def throw_lag_reference(motion: ThrowMotion, angles: np.ndarray) -> np.ndarray:
     return motion.static[:, None] + np.real((waves * motion.relative[:, None, :]).sum(axis=2))
 
 
-def throw_lag(motion: ThrowMotion, angles: np.ndarray, per_harmonic: int = 32) -> np.ndarray:
-    """``throw_lag_reference`` by one inverse FFT per cylinder on ``per_harmonic`` samples per period of the
-    highest harmonic and linear interpolation (genset-v20: 20 x 117 samples x 40 harmonics would be 94,000 complex
-    exponentials a cycle; the interpolation's error is below (pi / per_harmonic)^2 / 2, 0.5 %, of the highest
-    harmonic's amplitude)."""
-    z, m_h = motion.relative.shape
-    n_t = 2 * ((per_harmonic * (m_h + 1) + 1) // 2)  # even, far above twice the highest harmonic
-    spectrum = np.zeros((z, n_t // 2 + 1), dtype=np.complex128)
-    spectrum[:, 1:m_h + 1] = motion.relative * (0.5 * n_t)
-    series = np.fft.irfft(spectrum, n_t, axis=-1)  # (z, n_t) over one cycle from theta_start
-    pos = np.mod(np.asarray(angles, dtype=np.float64) - motion.theta_start, FOUR_PI) * (n_t / FOUR_PI)
-    i = np.floor(pos).astype(np.int64)
-    frac = pos - i
-    i %= n_t
-    rows = np.arange(z)[:, None]
-    return motion.static[:, None] + series[rows, i] * (1.0 - frac) + series[rows, (i + 1) % n_t] * frac
-
-
 def _sample(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, local: np.ndarray,
             motion: ThrowMotion | None = None) -> np.ndarray:
     """(z, m) ln p of each cylinder at ``local`` angles from its firing TDC (of its throw where ``motion`` is given:
@@ -265,11 +247,54 @@ def ring_tables(spec: EngineSpec, grid: np.ndarray, windows: RingWindows | None 
 
 def moved_tables(spec: EngineSpec, grid: np.ndarray, tables: RingTables, motion: ThrowMotion) -> RingTables:
     """``tables`` (made by ``ring_tables`` for ``grid``) with every window sample moved to where the cylinder's
-    throw, not the flywheel, is at the sample's angle from its firing TDC this cycle (``throw_lag``; to first order
-    in the lag, a few tenths of a degree)."""
-    at = tables.local[None, :] + spec.firing_angles[:, None]
-    cols, frac = _columns(grid, at - throw_lag(motion, at))
+    throw, not the flywheel, is at the sample's angle from its firing TDC this cycle (to first order in the lag, a
+    few tenths of a degree): ``_sample``'s columns with ``throw_lag_reference`` by one kernel (``_moved_kernel``;
+    numpy's 94,000 complex exponentials and a searchsorted took 1.6 ms a genset-v20 cycle)."""
+    z, m = tables.cols.shape
+    cols, frac = np.empty((z, m), dtype=np.int64), np.empty((z, m))
+    _moved_kernel(np.ascontiguousarray(grid, dtype=np.float64), tables.local,
+                  np.ascontiguousarray(spec.firing_angles, dtype=np.float64),
+                  np.ascontiguousarray(motion.static, dtype=np.float64),
+                  np.ascontiguousarray(motion.relative, dtype=np.complex128), float(motion.theta_start), cols, frac)
     return tables._replace(cols=cols, frac=frac)
+
+
+@numba.njit(cache=True)
+def _moved_kernel(grid, local, phases, static, rel, theta_start, cols, frac):
+    """cols/frac (z, m) in place: each sample at flywheel angle a = local + phase minus the throw's lag there
+    (static + Re sum_j rel_j exp(i (j + 1) (a - theta_start) / 2), the harmonics by rotation), then its bracket on
+    the grid extended by one point at each end, periodic over 4 pi (``_columns``)."""
+    z, m = cols.shape
+    n = grid.shape[0]
+    n_h = rel.shape[1]
+    for k in range(z):
+        for i in range(m):
+            a = local[i] + phases[k]
+            u = 0.5 * (a - theta_start)
+            step = complex(np.cos(u), np.sin(u))
+            w = step
+            lag = static[k]
+            for j in range(n_h):
+                lag += (rel[k, j] * w).real
+                w *= step
+            at = a - lag
+            at -= FOUR_PI * np.floor(at / FOUR_PI)
+            # ext = [grid[-1] - 4 pi, grid..., grid[0] + 4 pi]; the last ext index e with ext[e] <= at
+            if at < grid[0]:
+                lo_val, hi_val, col = grid[n - 1] - FOUR_PI, grid[0], n - 1
+            elif at >= grid[n - 1]:
+                lo_val, hi_val, col = grid[n - 1], grid[0] + FOUR_PI, n - 1
+            else:
+                lo, hi = 0, n - 1  # grid[lo] <= at < grid[hi]
+                while hi - lo > 1:
+                    mid = (lo + hi) >> 1
+                    if grid[mid] <= at:
+                        lo = mid
+                    else:
+                        hi = mid
+                lo_val, hi_val, col = grid[lo], grid[hi], lo
+            cols[k, i] = col
+            frac[k, i] = (at - lo_val) / (hi_val - lo_val)
 
 
 def _columns(grid: np.ndarray, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
