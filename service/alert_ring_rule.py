@@ -108,7 +108,9 @@ class RingConditionRule:
                    f"the floor) " + ("against its siblings" if sib else "since the baseline")
                    + (" with a flagged sensor: a TDC or pegging error is suspected" if sensor[k] else "")
                    + (f"; or a TDC error of {rc.leak_siblings[k] / TDC_LEAK_PER_DEG:+.2f} deg of this cylinder, which "
-                      "reads the same (commissioning measures each cylinder's TDC)" if sib and not sensor[k] else ""))
+                      "reads the same in the pressure (a TDC found from the pressure, commissioning's too, reads a "
+                      "leak as TDC: only a TDC measured apart from it tells the two apart)"
+                      if sib and not sensor[k] else ""))
             # against the siblings a TDC error reads the same: never more than a warning
             sev = "alarm" if on_since and z_since[k] > 2 * cfg.raise_z else "warning"
             # one ring alert per cylinder: where the leak or friction rule has raised one, this figure explains it
