@@ -19,7 +19,7 @@ ring: a ``ring_wear`` (F1-F3 x ``--gain``, a ``--mass-loss`` leak) or ``blow_by`
 output cycle ``--onset`` (0: from the first cycle) with a linear ``--ramp``; stops ``--after`` cycles after the
 first ring alert naming that cylinder or ``--max-delay`` cycles after the onset. healthy: no fault (or a
 ``--mismatch``: a 3 % pressure gain error, a 0.5 deg TDC offset, a Stribeck ring-friction law, on cylinder 2 where it
-is per cylinder) with combustion variability and a load step every ``--step-every`` cycles between the point's load
+is per cylinder; a shaft line 15 % softer or stiffer than the model's) with combustion variability and a load step every ``--step-every`` cycles between the point's load
 and ``--low-load`` (60 %) of it; every ring alert is false (a sensor_fault on the mismatched cylinder is right).
 Prints one JSON line: the first ring alert per rule, wrong-cylinder and early ring alerts, and the ring-condition
 figures (largest since / against siblings z per cylinder over the run, the faulty cylinder's at the end);
@@ -47,7 +47,10 @@ from frictionwatch.service.alerts import RING_KINDS, AlertEngine
 from bench.ring_after_commission import LOW_LOAD, POINTS, commission
 
 MISMATCH = {"gain": ["pressure_gain:cylinder=2,gain=1.03"], "tdc": ["tdc_offset:cylinder=2,deg=0.5"],
-            "friction_law": ["stribeck_ring:fraction=1.0"], "none": []}
+            "friction_law": ["stribeck_ring:fraction=1.0"], "none": [],
+            # the shaft line 15 % softer / stiffer than the monitor's model: the throws' twist it reads each cylinder
+            # at is off (core.monitor.checks.ring_pressure.ThrowMotion)
+            "chain_soft": ["chain_mismatch:stiffness_scale=0.85"], "chain_stiff": ["chain_mismatch:stiffness_scale=1.15"]}
 
 
 def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: int, stop=None,
