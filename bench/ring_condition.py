@@ -21,9 +21,9 @@ first ring alert naming that cylinder or ``--max-delay`` cycles after the onset.
 ``--mismatch``: a 3 % pressure gain error, a 0.5 deg TDC offset, a Stribeck ring-friction law, on cylinder 2 where it
 is per cylinder; a shaft line 15 % softer or stiffer than the model's) with combustion variability and a load step every ``--step-every`` cycles between the point's load
 and ``--low-load`` (60 %) of it; every ring alert is false (a sensor_fault on the mismatched cylinder is right).
-Prints one JSON line: the first ring alert per rule, wrong-cylinder and early ring alerts, and the ring-condition
-figures (largest since / against siblings z per cylinder over the run, the faulty cylinder's at the end);
-``--trace F.npz`` keeps the per-cycle figures.
+Prints one JSON line (``--progress N``: a line with "progress": true every N cycles before it): the first ring alert
+per rule, wrong-cylinder and early ring alerts, and the ring-condition figures (largest since / against siblings z per
+cylinder over the run, the faulty cylinder's at the end); ``--trace F.npz`` keeps the per-cycle figures.
 """
 
 from __future__ import annotations
@@ -85,6 +85,11 @@ def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: i
             for res in pipe.feed(record):
                 n += 1
                 events += [(int(res.index), e.kind, e.alert) for e in alerts.update(res)]
+                if args.progress and n % args.progress == 0:  # a long run's partial figures, should it be cut
+                    raised = [r for r in _raised(events) if r["kind"] in RING_KINDS]
+                    print(json.dumps({"progress": True, "cycles": n, "ring_alerts": raised[:10],
+                                      "cpu_s": round(time.process_time() - c0, 1),
+                                      "wall_s": round(time.perf_counter() - t0, 1)}), flush=True)
                 rc = rule.last
                 if rc is not None:
                     trace["cycle"].append(int(res.index))
@@ -185,6 +190,7 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--commission-loads", default=f"1.0,{LOW_LOAD}")
         p.add_argument("--trace", default="", help="keep the per-cycle figures in this .npz")
         p.add_argument("--step-every", type=int, default=0 if name == "ring" else 500)
+        p.add_argument("--progress", type=int, default=0, help="a progress line every N cycles (0: none)")
         p.add_argument("--low-load", type=float, default=LOW_LOAD, help="the steps' other load, a fraction of the point's")
         if name == "ring":
             p.add_argument("--fault", choices=("ring_wear", "blow_by"), default="ring_wear")
