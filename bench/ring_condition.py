@@ -19,8 +19,8 @@ ring: a ``ring_wear`` (F1-F3 x ``--gain``, a ``--mass-loss`` leak) or ``blow_by`
 output cycle ``--onset`` (0: from the first cycle) with a linear ``--ramp``; stops ``--after`` cycles after the
 first ring alert naming that cylinder or ``--max-delay`` cycles after the onset. healthy: no fault (or a
 ``--mismatch``: a 3 % pressure gain error, a 0.5 deg TDC offset, a Stribeck ring-friction law, on cylinder 2 where it
-is per cylinder; a shaft line 15 % softer or stiffer than the model's) with combustion variability and a load step every ``--step-every`` cycles between the point's load
-and ``--low-load`` (60 %) of it; every ring alert is false (a sensor_fault on the mismatched cylinder is right).
+is per cylinder; a shaft line 15 % softer or stiffer than the model's) with combustion variability and a load
+step every ``--step-every`` cycles between the point's load and ``--low-load`` (60 %) of it; every ring alert is false (a sensor_fault on the mismatched cylinder is right).
 Prints one JSON line (``--progress N``: a line with "progress": true every N cycles before it): the first ring alert
 per rule, wrong-cylinder and early ring alerts, and the ring-condition figures (largest since / against siblings z per
 cylinder over the run, the faulty cylinder's at the end); ``--trace F.npz`` keeps the per-cycle figures.
