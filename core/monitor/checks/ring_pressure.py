@@ -32,11 +32,13 @@ keeps its commissioning baseline per load band (service.alert_baseline) rather t
 Where the monitor's harmonic balance gives the throws' motion (``ThrowMotion``: each throw's static twist and
 node-minus-flywheel angle harmonics of the cycle), each window sample is read where the cylinder's own throw is at
 the window's angle, not the flywheel (``moved_tables``): the twist's share of each cylinder's sibling offset goes
-(design note 29: genset-v20 seed 7, healthy, the sibling spread of the leak effect SD 0.0037 -> see the note).
+(design note 29: healthy genset-v20 seed 7, the leak effect's sibling spread SD 0.0037 at the flywheel's angle,
+0.00044 at the throws', as on a rigid shaft).
 
 Arrays in, arrays out, no state: the windows are fixed by the engine spec, so each cycle stands alone. What the grid
-fixes (every window sample's grid columns, -ln V there) is made once per grid (``ring_tables``, carried by the caller);
-the per-cycle numbers come from one kernel (``_ring_kernel``), checked against the plain numpy
+fixes (every window sample's grid columns, -ln V there) is made once per grid (``ring_tables``, carried by the caller;
+a cycle's throw motion moves the columns, ``moved_tables``, one kernel ``_moved_kernel``); the per-cycle numbers come
+from one kernel (``_ring_kernel``), checked against the plain numpy
 ``ring_indicators_reference`` (tests/core/test_condition_kernels.py).
 """
 
