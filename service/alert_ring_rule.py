@@ -110,7 +110,13 @@ class RingConditionRule:
                    + (f"; or a TDC error of {rc.leak_siblings[k] / TDC_LEAK_PER_DEG:+.2f} deg of this cylinder, which "
                       "reads the same in the pressure (a TDC found from the pressure, commissioning's too, reads a "
                       "leak as TDC: only a TDC measured apart from it tells the two apart)"
-                      if sib and not sensor[k] else ""))
+                      if sib and not sensor[k] else "")
+                   # each cylinder is read at the shaft twist the model predicts (core ThrowMotion): a shaft line 15 %
+                   # off the model's moved healthy genset-v20 cylinders up to 3.6 units against their siblings, and
+                   # the speed fit flagged model_misfit by cycle 34 (design note 29)
+                   + ("; the speed fit flags the engine model (model_misfit): the shaft's twist this cylinder is read "
+                      "at may be off, which reads like a leak against the siblings"
+                      if sib and "model_misfit" in ctx.engine_flags else ""))
             # against the siblings a TDC error reads the same: never more than a warning
             sev = "alarm" if on_since and z_since[k] > 2 * cfg.raise_z else "warning"
             # one ring alert per cylinder: where the leak or friction rule has raised one, this figure explains it
