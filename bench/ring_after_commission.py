@@ -48,15 +48,18 @@ POINTS = {"k9k-4cyl": (1700.0, 0.69), "maruti-3cyl": (3000.0, 0.8), "genset-v20"
 LOW_LOAD = 0.6  # the healthy run's load steps: between the point's load and this fraction of it
 
 
-def commission(folder: Path, engine: str, seed: int, cycles: int, fractions: list[float], cov: float) -> Path:
-    """MODEL.toml from healthy logs of ``engine`` (seed ``seed``) at each fraction of the point's load."""
+def commission(folder: Path, engine: str, seed: int, cycles: int, fractions: list[float], cov: float,
+               effects: tuple[str, ...] = ()) -> Path:
+    """MODEL.toml from logs of ``engine`` (seed ``seed``) at each fraction of the point's load: healthy, or with
+    ``effects`` (simulator effects, e.g. a worn ring there from the first cycle: the engine as commissioned)."""
     rpm, load = POINTS[engine]
     logs = []
     for f in fractions:
         log = folder / f"commission_{f:g}.mcap"
+        extra = [a for e in effects for a in ("--effect", e)]
         with contextlib.redirect_stdout(sys.stderr):
             assert cli(["simulate", "--engine", engine, "--rpm", str(rpm), "--load", str(load * f), "--cycles",
-                        str(cycles), "--seed", str(seed), "--cov-imep", str(cov), "-o", str(log)]) == 0
+                        str(cycles), "--seed", str(seed), "--cov-imep", str(cov), *extra, "-o", str(log)]) == 0
         logs.append(str(log))
     model = folder / "model.toml"
     with contextlib.redirect_stdout(sys.stderr):  # the commissioning report is not this bench's line

@@ -10,7 +10,8 @@ into the work's report.
 Every run streams the simulator (core.plant.sim_stream) through ``EnginePipeline`` and the ``AlertEngine`` serve makes
 (default AlertConfig, every rule, RingConditionRule among them). With commissioning (the default), healthy logs of
 the same seed are commissioned first as bench/ring_after_commission.py does (``frictionwatch commission``: TDC,
-gains, the alert baseline per load band), and the run starts with that model and baseline; ``--no-commission``
+gains, the alert baseline per load band; with ``--onset 0`` the fault is in the commissioning logs too: the engine
+was commissioned with it), and the run starts with that model and baseline; ``--no-commission``
 starts from the engine preset with no baseline (the alerts learn theirs from the run's first healthy cycles: a fault
 present from the first cycle is in it).
 
@@ -18,11 +19,11 @@ ring: a ``ring_wear`` (F1-F3 x ``--gain``, a ``--mass-loss`` leak) or ``blow_by`
 output cycle ``--onset`` (0: from the first cycle) with a linear ``--ramp``; stops ``--after`` cycles after the
 first ring alert naming that cylinder or ``--max-delay`` cycles after the onset. healthy: no fault (or a
 ``--mismatch``: a 3 % pressure gain error, a 0.5 deg TDC offset, a Stribeck ring-friction law, on cylinder 2 where it
-is per cylinder) with combustion variability and a load step every ``--step-every`` cycles between the point's load
-and ``--low-load`` (60 %) of it; every ring alert is false (a sensor_fault on the mismatched cylinder is right).
-Prints one JSON line: the first ring alert per rule, wrong-cylinder and early ring alerts, and the ring-condition
-figures (largest since / against siblings z per cylinder over the run, the faulty cylinder's at the end);
-``--trace F.npz`` keeps the per-cycle figures.
+is per cylinder; a shaft line 15 % softer or stiffer than the model's) with combustion variability and a load
+step every ``--step-every`` cycles between the point's load and ``--low-load`` (60 %) of it; every ring alert is false (a sensor_fault on the mismatched cylinder is right).
+Prints one JSON line (``--progress N``: a line with "progress": true every N cycles before it): the first ring alert
+per rule, wrong-cylinder and early ring alerts, and the ring-condition figures (largest since / against siblings z per
+cylinder over the run, the faulty cylinder's at the end); ``--trace F.npz`` keeps the per-cycle figures.
 """
 
 from __future__ import annotations
@@ -46,18 +47,23 @@ from frictionwatch.service.alerts import RING_KINDS, AlertEngine
 from bench.ring_after_commission import LOW_LOAD, POINTS, commission
 
 MISMATCH = {"gain": ["pressure_gain:cylinder=2,gain=1.03"], "tdc": ["tdc_offset:cylinder=2,deg=0.5"],
-            "friction_law": ["stribeck_ring:fraction=1.0"], "none": []}
+            "friction_law": ["stribeck_ring:fraction=1.0"], "none": [],
+            # the shaft line 15 % softer / stiffer than the monitor's model: the throws' twist it reads each cylinder
+            # at is off (core.monitor.checks.ring_pressure.ThrowMotion)
+            "chain_soft": ["chain_mismatch:stiffness_scale=0.85"], "chain_stiff": ["chain_mismatch:stiffness_scale=1.15"]}
 
 
-def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: int, stop=None) -> dict:
-    """Stream one run; the events, the rule's per-cycle figures and counts."""
+def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: int, stop=None,
+        commission_effects: tuple[str, ...] = ()) -> dict:
+    """Stream one run; the events, the rule's per-cycle figures and counts. ``commission_effects``: simulator
+    effects in the commissioning logs too (a fault there from the first cycle)."""
     rpm, load = POINTS[args.engine]
     with tempfile.TemporaryDirectory(prefix="ring-cond-") as tmp:
         if args.no_commission:
             model, baseline = load_model(args.engine), None
         else:
             path = commission(Path(tmp), args.engine, args.seed, args.commission_cycles,
-                              [float(f) for f in args.commission_loads.split(",")], args.cov)
+                              [float(f) for f in args.commission_loads.split(",")], args.cov, commission_effects)
             model = load_model(str(path))
             baseline = (Baseline.from_dict(json.loads(model.calibration.baseline))
                         if model.calibration.baseline else None)
@@ -73,12 +79,17 @@ def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: i
     alerts = AlertEngine(model.spec, baseline=baseline)
     rule = next(r for stage in alerts.rules for r in stage if isinstance(r, RingConditionRule))
     events, trace = [], {"cycle": [], "since": [], "since_sigma": [], "siblings": [], "siblings_sigma": []}
-    t0, n = time.perf_counter(), 0
+    t0, c0, n = time.perf_counter(), time.process_time(), 0
     for chunk in sim.chunks():
         for record in chunk.records:
             for res in pipe.feed(record):
                 n += 1
                 events += [(int(res.index), e.kind, e.alert) for e in alerts.update(res)]
+                if args.progress and n % args.progress == 0:  # a long run's partial figures, should it be cut
+                    raised = [r for r in _raised(events) if r["kind"] in RING_KINDS]
+                    print(json.dumps({"progress": True, "cycles": n, "ring_alerts": raised[:10],
+                                      "cpu_s": round(time.process_time() - c0, 1),
+                                      "wall_s": round(time.perf_counter() - t0, 1)}), flush=True)
                 rc = rule.last
                 if rc is not None:
                     trace["cycle"].append(int(res.index))
@@ -88,6 +99,7 @@ def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: i
             break
     arr = {k: np.array(v) for k, v in trace.items()}
     return {"events": events, "trace": arr, "cycles": n, "wall_s": round(time.perf_counter() - t0, 1),
+            "cpu_s": round(time.process_time() - c0, 1),
             "load_steps": len(steps), "commissioned": not args.no_commission,
             "bands_at_end": [round(b.imep_pa / 1e5, 2) for b in (alerts.baseline.bands if alerts.baseline else ())]}
 
@@ -122,7 +134,10 @@ def ring(args: argparse.Namespace) -> dict:
         f = first(events)
         return f is not None and n >= f + args.after
 
-    out = run(args, args.onset + args.max_delay, [effect], args.step_every, stop)
+    # from the first cycle the fault is there when the engine is commissioned, too (without a ramp there)
+    at_commission = (f"{effect.split(':')[0]}:" + params.replace(f"ramp_cycles={args.ramp}", "ramp_cycles=0")
+                     + (f",gain={args.gain}" if args.fault == "ring_wear" else ""),) if args.onset == 0 else ()
+    out = run(args, args.onset + args.max_delay, [effect], args.step_every, stop, at_commission)
     raised = _raised(out["events"])
     firsts = {}
     for r in raised:
@@ -136,13 +151,14 @@ def ring(args: argparse.Namespace) -> dict:
         end = {key: (round(float(tr[key][-1, k]), 3) if np.isfinite(tr[key][-1, k]) else None)
                for key in ("since", "since_sigma", "siblings", "siblings_sigma")}
     return {"mode": "ring", "engine": args.engine, "seed": args.seed, "effect": effect, "onset": args.onset,
-            "commissioned": out["commissioned"], "step_every": args.step_every,
-            "delay_cycles": None if first(out["events"]) is None else first(out["events"]) - args.onset,
+            "commissioned": out["commissioned"], "commissioned_with": list(at_commission) if out["commissioned"] else [],
+            "step_every": args.step_every, "delay_cycles": None if first(out["events"]) is None else first(out["events"]) - args.onset,
             "first_by_rule": firsts,
             "wrong_cylinder": [r for r in raised if r["kind"] in RING_KINDS and r["cylinder"] != args.cylinder],
             "before_onset": [r for r in raised if r["cycle"] < args.onset and r["kind"] in RING_KINDS],
             "other": [r for r in raised if r["kind"] not in RING_KINDS][:8], "faulty_at_end": end,
-            **_z_summary(tr), "cycles": out["cycles"], "wall_s": out["wall_s"], "bands_at_end": out["bands_at_end"]}
+            **_z_summary(tr), "cycles": out["cycles"], "wall_s": out["wall_s"], "cpu_s": out["cpu_s"],
+            "bands_at_end": out["bands_at_end"]}
 
 
 def healthy(args: argparse.Namespace) -> dict:
@@ -153,7 +169,7 @@ def healthy(args: argparse.Namespace) -> dict:
             "commissioned": out["commissioned"], "step_every": args.step_every, "load_steps": out["load_steps"],
             "ring_alerts": [r for r in raised if r["kind"] in RING_KINDS],
             "other": [r for r in raised if r["kind"] not in RING_KINDS][:12], **_z_summary(out["trace"]),
-            "cycles": out["cycles"], "wall_s": out["wall_s"], "bands_at_end": out["bands_at_end"]}
+            "cycles": out["cycles"], "wall_s": out["wall_s"], "cpu_s": out["cpu_s"], "bands_at_end": out["bands_at_end"]}
 
 
 def _save(args: argparse.Namespace, trace: dict) -> None:
@@ -174,6 +190,7 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--commission-loads", default=f"1.0,{LOW_LOAD}")
         p.add_argument("--trace", default="", help="keep the per-cycle figures in this .npz")
         p.add_argument("--step-every", type=int, default=0 if name == "ring" else 500)
+        p.add_argument("--progress", type=int, default=0, help="a progress line every N cycles (0: none)")
         p.add_argument("--low-load", type=float, default=LOW_LOAD, help="the steps' other load, a fraction of the point's")
         if name == "ring":
             p.add_argument("--fault", choices=("ring_wear", "blow_by"), default="ring_wear")

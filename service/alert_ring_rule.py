@@ -110,19 +110,28 @@ class RingConditionRule:
             # (the API's ring condition) and raises nothing more
             other = any(ctx.latched(name, k + 1) for name in self.ring_rules)
             out.append(Decision(k + 1, kind, (on_since or on_sib) and not other, off, cfg.raise_cycles,
-                                cfg.clear_cycles, sev, detail=partial(self.explain, k, rc, bool(sensor[k]))))
+                                cfg.clear_cycles, sev, detail=partial(self.explain, k, rc, bool(sensor[k]),
+                                                                      "model_misfit" in ctx.engine_flags)))
         return out
 
     @staticmethod
-    def explain(k: int, rc: RingCondition, sensor: bool) -> tuple[str, dict]:
-        """Cylinder k's (0-based) message and evidence from the figure ``rc``: made only where the engine reads them
-        (a raise, an open alert: service.alert_interface.Decision)."""
+    def explain(k: int, rc: RingCondition, sensor: bool, misfit: bool = False) -> tuple[str, dict]:
+        """Cylinder k's (0-based) message and evidence from the figure ``rc`` (``misfit``: the speed fit flagged the
+        engine model this cycle): made only where the engine reads them (a raise, an open alert:
+        service.alert_interface.Decision)."""
         sib = rc.reference[k] == SIBLINGS
         msg = (f"cylinder {k + 1}: ring condition {rc.figure[k]:.1f} +- {rc.sigma[k]:.1f} (1.0: a worn ring at "
                f"the floor) " + ("against its siblings" if sib else "since the baseline")
                + (" with a flagged sensor: a TDC or pegging error is suspected" if sensor else "")
                + (f"; or a TDC error of {rc.leak_siblings[k] / TDC_LEAK_PER_DEG:+.2f} deg of this cylinder, which "
-                  "reads the same (commissioning measures each cylinder's TDC)" if sib and not sensor else ""))
+                  "reads the same in the pressure (a TDC found from the pressure, commissioning's too, reads a "
+                  "leak as TDC: only a TDC measured apart from it tells the two apart)"
+                  if sib and not sensor else "")
+               # each cylinder is read at the shaft twist the model predicts (core ThrowMotion): a shaft line 15 %
+               # off the model's moved healthy genset-v20 cylinders up to 3.6 units against their siblings, and
+               # the speed fit flagged model_misfit by cycle 34 (design note 32)
+               + ("; the speed fit flags the engine model (model_misfit): the shaft's twist this cylinder is read "
+                  "at may be off, which reads like a leak against the siblings" if sib and misfit else ""))
         return msg, {"source": "ring_condition", **rc.evidence(k)}
 
     def _chained(self, change: np.ndarray, sigma: np.ndarray, band: Any, ctx: Context

@@ -38,6 +38,7 @@ from frictionwatch.core.model.indicated import peak_pressure
 from frictionwatch.core.monitor.balance.harmonic_balance import harmonic_balance, operating_point
 from frictionwatch.core.monitor.checks.check import Check, CheckInput
 from frictionwatch.core.monitor.checks.condition import ConditionCheck
+from frictionwatch.core.monitor.checks.ring_pressure import ThrowMotion
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthCheck, SensorHealthState, corrected_inputs
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, ResidualStats
 from frictionwatch.core.monitor.identify.estimate import indicated_tdc_sensitivity
@@ -210,8 +211,12 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     ident = identify_cycle(cfg, spec, state, fly, rows, exc, pmax, mean, drift_var, free_rows)
     # the checks in order, each seeing the identification the one before left (sigmas inflated by the sensors'
     # uncertainty, the accumulator discounted after a change) and filling its fields of the result
+    node = op_used.cylinders.node
+    motion = (ThrowMotion(static[node], rel[node], float(theta_start))  # each cylinder's throw against the wheel
+              if static.shape[0] == op_used.cylinders.n_nodes and rel.shape[0] == static.shape[0] else None)
     inp = CheckInput(spec, cfg, cycle.grid, raw_pressure, pressure, op_used, bal, state.params, prior.info, pmax,
-                     rows.cylinder_rows[:, :state.layout.n_params], op is not state.op and state.op is not None, ident)
+                     rows.cylinder_rows[:, :state.layout.n_params], op is not state.op and state.op is not None, ident,
+                     motion)
     checked, report = {}, {}
     for check in checks:
         step = check.update(getattr(state, check.name), inp)

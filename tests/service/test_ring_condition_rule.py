@@ -80,3 +80,23 @@ def test_the_rule_s_example_runs():
 
     result = doctest.testmod(alert_ring_rule)
     assert result.failed == 0 and result.attempted >= 5
+
+
+def test_a_sibling_alert_under_a_misfitting_model_says_the_twist_may_be_off():
+    """Each cylinder is read at the shaft twist the model predicts: where the speed fit flags the model, a sibling
+    alert says so (design note 32: a shaft line 15 % off moved healthy cylinders up to 3.6 units)."""
+    from types import SimpleNamespace
+
+    from frictionwatch.service.alert_interface import Context
+    from frictionwatch.service.alert_ring_rule import RingConditionRule
+
+    ring = SimpleNamespace(n_compression_dev=np.array([-0.002, 0.001, 0.001]),
+                           n_expansion_dev=np.array([0.004, -0.002, -0.002]))
+    res = SimpleNamespace(ring=ring, flags=(), smoothed=None)
+    words = {}
+    for flags in (set(), {"model_misfit"}):
+        rule = RingConditionRule(CONFIG)
+        out = [rule.update(res, Context([set()] * 3, flags)) for _ in range(150)][-1]
+        words[bool(flags)] = out[0].message
+        assert out[0].on and out[0].evidence["ring_condition_reference"] == "against_siblings"
+    assert "model_misfit" in words[True] and "model_misfit" not in words[False]

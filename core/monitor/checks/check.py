@@ -39,7 +39,9 @@ class CheckInput:
     use; op: the operating point the balance ran with (corrected phases); balance: the harmonic balance's result;
     params: the friction parameters the residual is taken at (the state's, before this cycle); prior_info: the
     prior's information matrix; pmax (z,) Pa; cylinder_rows (z, p_f): friction parameters -> per-cylinder torques;
-    op_changed: the operating point moved this cycle; ident: the identification as the checks before left it."""
+    op_changed: the operating point moved this cycle; ident: the identification as the checks before left it;
+    motion: each cylinder's throw against the wheel (core.monitor.checks.ring_pressure.ThrowMotion: the pressure
+    read at the throw's own angle), None where the balance has no shaft line."""
 
     spec: EngineSpec
     config: Any
@@ -54,6 +56,7 @@ class CheckInput:
     cylinder_rows: np.ndarray
     op_changed: bool
     ident: Any  # core.monitor.identify.identification.Identification: it imports the state, which imports the checks
+    motion: Any = None  # core.monitor.checks.ring_pressure.ThrowMotion | None
 
 
 @dataclass(frozen=True)

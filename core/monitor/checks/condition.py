@@ -45,7 +45,9 @@ from frictionwatch.core.monitor.checks.change import ChangeSettings, detect_chan
 from frictionwatch.core.monitor.checks.check import CheckInput, CheckStep
 from frictionwatch.core.monitor.checks.ring_pressure import (
     RingIndicators,
+    ThrowMotion,
     median_of_first,
+    moved_tables,
     ring_indicators,
     ring_tables,
     ring_windows,
@@ -207,11 +209,14 @@ def _ewma(mean: np.ndarray, var: np.ndarray, x: np.ndarray, g: float, first: boo
 
 def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.ndarray, pressure: np.ndarray,
                      indicated: np.ndarray, pmax: np.ndarray, ident: Identification, cylinder_rows: np.ndarray,
-                     op_changed: bool, settings: ConditionSettings = DEFAULT_SETTINGS) -> ConditionStep:
+                     op_changed: bool, settings: ConditionSettings = DEFAULT_SETTINGS,
+                     motion: ThrowMotion | None = None) -> ConditionStep:
     """This cycle's condition flags from its pressure (z, n) on ``grid``, indicated torques (z,) [N m], peak
     pressures (z,), the cycle's identification (firing mask, the cycle's and the smoothed posteriors and estimate,
     the accumulator just folded, returned discounted when a change is detected), the cylinder rows (z, p_f) that
-    turn the friction parameters into per-cylinder torques, and whether the operating point changed this cycle."""
+    turn the friction parameters into per-cylinder torques, and whether the operating point changed this cycle;
+    ``motion``: the throws' motion against the flywheel this cycle (the ring indicators read each cylinder at its
+    own throw's angle; None: at the flywheel's)."""
     fired, cycle, smoothed = ident.fire, ident.cycle, ident.smoothed
     estimate, accumulator = ident.smoothed_estimate, ident.accumulator
     z = spec.n_cyl
@@ -262,7 +267,10 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
         acc = accumulator.discounted(min(1.0, settings.change.reset_weight / max(accumulator.weight, 1e-9)))
     new = ConditionState(count=count, window=window, misfit=misfit, detector=detector, since_op_change=since_op,
                          burn_reference=burn_ref, burn_cycles=burn_n, tables=tab)
-    ring = ring_indicators(spec, grid, pressure, tables=tab.ring) if tab.ring is not None else None
+    ring = None
+    if tab.ring is not None:
+        ring_tab = tab.ring if motion is None or tab.ring.local is None else moved_tables(spec, grid, tab.ring, motion)
+        ring = ring_indicators(spec, grid, pressure, tables=ring_tab)
     return ConditionStep(new, tuple(flags), acc, ring)
 
 
@@ -283,7 +291,7 @@ class ConditionCheck:
     def update(self, state: ConditionState | None, inp: CheckInput) -> CheckStep:
         ident = inp.ident
         step = assess_condition(inp.spec, state, inp.grid, inp.pressure, inp.balance.excitation.indicated_mean,
-                                inp.pmax, ident, inp.cylinder_rows, inp.op_changed, self.settings)
+                                inp.pmax, ident, inp.cylinder_rows, inp.op_changed, self.settings, motion=inp.motion)
         return CheckStep(step.state, step.flags, replace(ident, accumulator=step.accumulator), {"ring": step.ring})
 
 

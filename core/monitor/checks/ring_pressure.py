@@ -29,10 +29,16 @@ Each cylinder is read on the flywheel encoder's angle while its piston follows i
 load, and a step 0.75 -> 0.45 moved single cylinders' sibling-relative leak effect (-dn_c + dn_e) / 2 by up to
 0.0028 (0.0006 with the same simulator's shaft made rigid; K9K, a short stiff crank: 0.0002). The service therefore
 keeps its commissioning baseline per load band (service.alert_baseline) rather than reading a load change as a leak.
+Where the monitor's harmonic balance gives the throws' motion (``ThrowMotion``: each throw's static twist and
+node-minus-flywheel angle harmonics of the cycle), each window sample is read where the cylinder's own throw is at
+the window's angle, not the flywheel (``moved_tables``): the twist's share of each cylinder's sibling offset goes
+(design note 32: healthy genset-v20 seed 7, the leak effect's sibling spread SD 0.0037 at the flywheel's angle,
+0.00044 at the throws', as on a rigid shaft).
 
 Arrays in, arrays out, no state: the windows are fixed by the engine spec, so each cycle stands alone. What the grid
-fixes (every window sample's grid columns, -ln V there) is made once per grid (``ring_tables``, carried by the caller);
-the per-cycle numbers come from one kernel (``_ring_kernel``), checked against the plain numpy
+fixes (every window sample's grid columns, -ln V there) is made once per grid (``ring_tables``, carried by the caller;
+a cycle's throw motion moves the columns, ``moved_tables``, one kernel ``_moved_kernel``); the per-cycle numbers come
+from one kernel (``_ring_kernel``), checked against the plain numpy
 ``ring_indicators_reference`` (tests/core/test_condition_kernels.py).
 """
 
@@ -134,12 +140,38 @@ def _window(spec: EngineSpec, lo: float, hi: float) -> tuple[np.ndarray, np.ndar
     return local, -np.log(vol)
 
 
-def _sample(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, local: np.ndarray) -> np.ndarray:
-    """(z, m) ln p of each cylinder at ``local`` angles from its firing TDC, linear between grid points and periodic
-    over 4 pi (NaN where p <= 0). One searchsorted for all cylinders on the grid extended by one point at each end
-    (np.interp's period mode sorts per call)."""
+class ThrowMotion(NamedTuple):
+    """Each cylinder's throw against the flywheel in one cycle (the monitor's harmonic balance): ``static`` (z,)
+    [rad] the static twist (throw minus flywheel), ``relative`` (z, M) complex the node-minus-flywheel angle
+    harmonics [rad] (harmonic j at 0.5 (j + 1) times the mean speed, time from the cycle's first edge: its flywheel
+    angle ``theta_start`` [rad])."""
+
+    static: np.ndarray
+    relative: np.ndarray
+    theta_start: float
+
+
+def throw_lag_reference(motion: ThrowMotion, angles: np.ndarray) -> np.ndarray:
+    """(z, m) each throw's angle minus the flywheel's [rad] at flywheel angles (z, m) [rad], the harmonic sum as
+    written: static + Re sum_j b_j exp(i (j + 1) (theta - theta_start) / 2) (the flywheel's own ripple in the
+    angle-to-time map left out: a tenth of a degree moves a harmonic's phase by less than its order in tenths)."""
+    u = 0.5 * (np.asarray(angles, dtype=np.float64) - motion.theta_start)
+    orders = np.arange(1, motion.relative.shape[1] + 1)
+    waves = np.exp(1j * u[:, :, None] * orders[None, None, :])  # (z, m, M)
+    return motion.static[:, None] + np.real((waves * motion.relative[:, None, :]).sum(axis=2))
+
+
+def _sample(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, local: np.ndarray,
+            motion: ThrowMotion | None = None) -> np.ndarray:
+    """(z, m) ln p of each cylinder at ``local`` angles from its firing TDC (of its throw where ``motion`` is given:
+    at the flywheel angle minus the throw's lag there), linear between grid points and periodic over 4 pi (NaN
+    where p <= 0). One searchsorted for all cylinders on the grid extended by one point at each end (np.interp's
+    period mode sorts per call)."""
     z, n = pressure.shape
-    at = np.mod(local[None, :] + spec.firing_angles[:, None], FOUR_PI).ravel()
+    at = local[None, :] + spec.firing_angles[:, None]
+    if motion is not None:
+        at = at - throw_lag_reference(motion, at)
+    at = np.mod(at, FOUR_PI).ravel()
     ext = np.concatenate(([grid[-1] - FOUR_PI], grid, [grid[0] + FOUR_PI]))
     j = np.searchsorted(ext, at, side="right") - 1  # ext[j] <= at < ext[j + 1], j in 0..n
     frac = (at - ext[j]) / (ext[j + 1] - ext[j])
@@ -157,13 +189,15 @@ def _slopes(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def ring_indicators_reference(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray,
-                              windows: RingWindows | None = None) -> RingIndicators:
-    """This cycle's ring indicators from the pressure (z, n) [Pa] on ``grid`` (n,) [rad, cylinder 1's 0..4 pi]: the
-    plain numpy reference of ``ring_indicators`` (the module doc's definitions, step by step)."""
+                              windows: RingWindows | None = None, motion: ThrowMotion | None = None
+                              ) -> RingIndicators:
+    """This cycle's ring indicators from the pressure (z, n) [Pa] on ``grid`` (n,) [rad, cylinder 1's 0..4 pi], each
+    cylinder read at its throw's angle where ``motion`` is given: the plain numpy reference of ``ring_indicators``
+    (the module doc's definitions, step by step)."""
     win = windows or ring_windows(spec)
     c_ang, c_x = _window(spec, win.comp_start, win.comp_end)
     e_ang, e_x = _window(spec, win.exp_start, win.exp_end)
-    both = _sample(spec, grid, pressure, np.concatenate((c_ang, e_ang)))  # one pass for the two windows
+    both = _sample(spec, grid, pressure, np.concatenate((c_ang, e_ang)), motion)  # one pass for the two windows
     c_lnp, e_lnp = both[:, :c_ang.shape[0]], both[:, c_ang.shape[0]:]
     n_c, n_e = _slopes(c_x, c_lnp), _slopes(e_x, e_lnp)
     comp_ln = c_lnp[:, -1]
@@ -194,6 +228,7 @@ class RingTables(NamedTuple):
     neg_log_volume: np.ndarray
     n_comp: int
     edge: int
+    local: np.ndarray | None = None  # (m,) the window samples' angles from firing TDC [rad] (``moved_tables``)
 
     def fits(self, grid: np.ndarray) -> bool:
         return grid.shape[0] == self.size and float(grid[0]) == self.first_angle
@@ -206,15 +241,74 @@ def ring_tables(spec: EngineSpec, grid: np.ndarray, windows: RingWindows | None 
     c_ang, c_x = _window(spec, win.comp_start, win.comp_end)
     e_ang, e_x = _window(spec, win.exp_start, win.exp_end)
     local = np.concatenate((c_ang, e_ang))
-    z, n = spec.n_cyl, grid.shape[0]
-    at = np.mod(local[None, :] + spec.firing_angles[:, None], FOUR_PI).ravel()
+    cols, frac = _columns(grid, local[None, :] + spec.firing_angles[:, None])
+    edge = max(1, int(round(win.edge_deg / STEP_DEG)))
+    return RingTables(float(grid[0]), int(grid.shape[0]), cols, frac, np.concatenate((c_x, e_x)),
+                      int(c_ang.shape[0]), edge, local)
+
+
+def moved_tables(spec: EngineSpec, grid: np.ndarray, tables: RingTables, motion: ThrowMotion) -> RingTables:
+    """``tables`` (made by ``ring_tables`` for ``grid``) with every window sample moved to where the cylinder's
+    throw, not the flywheel, is at the sample's angle from its firing TDC this cycle (to first order in the lag, a
+    few tenths of a degree): ``_sample``'s columns with ``throw_lag_reference`` by one kernel (``_moved_kernel``;
+    numpy's 94,000 complex exponentials and a searchsorted took 1.6 ms a genset-v20 cycle)."""
+    z, m = tables.cols.shape
+    cols, frac = np.empty((z, m), dtype=np.int64), np.empty((z, m))
+    _moved_kernel(np.ascontiguousarray(grid, dtype=np.float64), tables.local,
+                  np.ascontiguousarray(spec.firing_angles, dtype=np.float64),
+                  np.ascontiguousarray(motion.static, dtype=np.float64),
+                  np.ascontiguousarray(motion.relative, dtype=np.complex128), float(motion.theta_start), cols, frac)
+    return tables._replace(cols=cols, frac=frac)
+
+
+@numba.njit(cache=True)
+def _moved_kernel(grid, local, phases, static, rel, theta_start, cols, frac):
+    """cols/frac (z, m) in place: each sample at flywheel angle a = local + phase minus the throw's lag there
+    (static + Re sum_j rel_j exp(i (j + 1) (a - theta_start) / 2), the harmonics by rotation), then its bracket on
+    the grid extended by one point at each end, periodic over 4 pi (``_columns``)."""
+    z, m = cols.shape
+    n = grid.shape[0]
+    n_h = rel.shape[1]
+    for k in range(z):
+        for i in range(m):
+            a = local[i] + phases[k]
+            u = 0.5 * (a - theta_start)
+            step = complex(np.cos(u), np.sin(u))
+            w = step
+            lag = static[k]
+            for j in range(n_h):
+                lag += (rel[k, j] * w).real
+                w *= step
+            at = a - lag
+            at -= FOUR_PI * np.floor(at / FOUR_PI)
+            # ext = [grid[-1] - 4 pi, grid..., grid[0] + 4 pi]; the last ext index e with ext[e] <= at
+            if at < grid[0]:
+                lo_val, hi_val, col = grid[n - 1] - FOUR_PI, grid[0], n - 1
+            elif at >= grid[n - 1]:
+                lo_val, hi_val, col = grid[n - 1], grid[0] + FOUR_PI, n - 1
+            else:
+                lo, hi = 0, n - 1  # grid[lo] <= at < grid[hi]
+                while hi - lo > 1:
+                    mid = (lo + hi) >> 1
+                    if grid[mid] <= at:
+                        lo = mid
+                    else:
+                        hi = mid
+                lo_val, hi_val, col = grid[lo], grid[hi], lo
+            cols[k, i] = col
+            frac[k, i] = (at - lo_val) / (hi_val - lo_val)
+
+
+def _columns(grid: np.ndarray, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Grid column (z, m) int64 and fraction towards the next column of every angle (z, m) [rad], periodic over
+    4 pi: exactly ``_sample``'s (one searchsorted on the grid extended by one point at each end)."""
+    n = grid.shape[0]
+    at = np.mod(angles, FOUR_PI).ravel()
     ext = np.concatenate(([grid[-1] - FOUR_PI], grid, [grid[0] + FOUR_PI]))
     j = np.searchsorted(ext, at, side="right") - 1
     frac = (at - ext[j]) / (ext[j + 1] - ext[j])
     cols = (j - 1) % n
-    edge = max(1, int(round(win.edge_deg / STEP_DEG)))
-    return RingTables(float(grid[0]), int(n), cols.reshape(z, -1).astype(np.int64), frac.reshape(z, -1),
-                      np.concatenate((c_x, e_x)), int(c_ang.shape[0]), edge)
+    return cols.reshape(angles.shape).astype(np.int64), frac.reshape(angles.shape)
 
 
 def ring_indicators(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, windows: RingWindows | None = None,
