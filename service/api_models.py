@@ -299,7 +299,9 @@ class RingCondition(_Open):
     friction_excess_against_siblings: float | None
     tdc_equivalent_deg: float | None = Field(None, description="the TDC error of this cylinder [deg] that would read "
                                              "as the leak effect against the siblings: the pressure indicators cannot "
-                                             "tell the two apart (commissioning measures each cylinder's TDC)")
+                                             "tell the two apart, and a TDC found from the pressure (commissioning's "
+                                             "too) reads a leak as TDC: only a TDC measured apart from it tells them "
+                                             "apart (design note 32)")
 
 
 class BaselineResult(_Open):
