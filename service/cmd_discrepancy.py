@@ -141,6 +141,12 @@ def print_summary(doc: dict) -> None:
                f"gap {ev['gap_before']:.3g} -> {ev['gap_after']:.3g}, held-out delta chi2 {ev['delta_chi2_heldout']:.1f}")
         print(f"  + {f['effect']}{cyl}: {params}  ({how})")
     print(f"gap (held-out) {doc['gap_before']:.3g} -> {doc['gap_after']:.3g}")
+    loc = doc.get("localisation") or {}
+    points = (loc.get("balance") or {}).get("points")
+    if points:  # several operating points: each judged on its own (core.discrepancy.features)
+        print(f"the held-out cycles ran at {len(points)} operating points, each judged against its own noise "
+              f"({loc.get('cycles_between_points', 0)} cycles of the log's load steps left out): "
+              + "; ".join(f"{p['rpm']:.0f} rpm {p['load_nm']:.4g} N m" for p in points))
     for key in ("model_written", "report_written"):
         if key in doc:
             print(f"wrote {doc[key]}")

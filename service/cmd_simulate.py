@@ -33,6 +33,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cov-imep", type=float, default=None, help="cycle-to-cycle COV of IMEP (fraction)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME[:key=value,...]", help="turn an effect on (repeat it for another cylinder)")
     p.add_argument("--without", action="append", default=[], metavar="NAME", help="turn a default effect off")
+    p.add_argument("--load-step", action="append", default=[], metavar="T:FRACTION",
+                   help="at T seconds of the log the load becomes FRACTION of full load (repeat for more steps)")
     p.add_argument("--second-wheel", action="store_true",
                    help="log the engine file's second wheel too ([sensors.second_wheel], e.g. genset-v20's free end)")
     p.add_argument("-o", "--output", required=True, type=Path, help="OUT.mcap (truth goes to OUT.truth.json)")
@@ -69,6 +71,18 @@ class TruthSpool:
         self._spool.close()
 
 
+def _load_step(text: str) -> tuple[float, float]:
+    """'T:FRACTION' -> (T [s], fraction); a clear one-line error on anything else (the range is the simulator's)."""
+    t, sep, f = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        return float(t), float(f)
+    except ValueError:
+        raise ValueError(f"--load-step {text!r}: expected T:FRACTION, e.g. 2.5:0.45 (seconds, fraction of full "
+                         "load)") from None
+
+
 def run(args: argparse.Namespace) -> int:
     spec = load_engine(args.engine)
     lo, hi = spec.speed_range_rpm
@@ -82,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--seed {args.seed} must be >= 0")
     effects = [parse_effect(text) for text in args.effect]  # several instances allowed (ring_wear in 1 and 2)
     kwargs = {} if args.cov_imep is None else {"cov_imep": args.cov_imep}
+    if args.load_step:
+        kwargs["load_steps"] = [_load_step(text) for text in args.load_step]
     log_path, truth_file = args.output, truth_path(args.output)
     for path in (truth_file, log_path):  # before the run, not after it
         check_output_path(path)

@@ -3,6 +3,7 @@ understood'): unknown or misspelled engine keys, text where a number belongs, bi
 a repeated effect, DAQ files whose wheel or channel count does not fit, an --engine that is not the logged one."""
 
 import gzip
+import json
 import warnings
 from pathlib import Path
 
@@ -229,3 +230,15 @@ def test_a_log_whose_engine_record_and_acquisition_disagree_is_refused(tmp_path,
                 break
     one_line_error(["analyze", str(bad)], capsys, "mixed.mcap is inconsistent", "the log's wheel is 60-2",
                    "the engine's 36-1", "--engine")
+
+
+def test_load_steps_change_the_logs_load_and_a_malformed_one_is_one_line(tmp_path, capsys):
+    out = tmp_path / "steps.mcap"
+    assert main(["simulate", "--engine", "k9k-4cyl", "--rpm", "2400", "--cycles", "12", "--load", "0.8",
+                 "--load-step", "0.3:0.45", "-o", str(out)]) == 0
+    loads = [c["load_torque_nm"] for c in json.loads(out.with_suffix(".truth.json").read_text())["cycles"]]
+    assert loads[-1] < 0.7 * loads[0], loads  # 0.8 -> 0.45 of full load after 0.3 s (~6 cycles)
+    one_line_error(["simulate", "--engine", "k9k-4cyl", "--rpm", "2400", "--load-step", "0.3", "-o", str(out)],
+                   capsys, "--load-step '0.3': expected T:FRACTION")
+    one_line_error(["simulate", "--engine", "k9k-4cyl", "--rpm", "2400", "--load-step", "0.3:7", "-o", str(out)],
+                   capsys, "load step")
