@@ -234,6 +234,21 @@ def _chi2(res: Residuals, scale: np.ndarray) -> float:
     return float(res.n_cycles * coherent_terms(res, scale).sum())
 
 
+def _nested(a: Candidate, b: Candidate) -> bool:
+    """Whether one toggle adds a strict subset of the other's default effects (a rigid baseline: the shaft's
+    flexibility alone, or with the variable inertia too): not two explanations but one and a larger one."""
+    return a.toggle and b.toggle and set(a.names) != set(b.names) and (set(a.names) <= set(b.names)
+                                                                      or set(b.names) <= set(a.names))
+
+
+def _chi2_floored(res: Residuals, scale: np.ndarray, floor: np.ndarray) -> float:
+    """The held-out coherent chi^2 with the model-error floor (whitened, per feature: features.feature_floor) in the
+    variance of each feature's mean: sum_j N p_j / (1 + N floor_j^2), the error that does not average away with
+    more cycles beside the noise that does."""
+    n = res.n_cycles
+    return float(np.sum(n * coherent_terms(res, scale) / (1.0 + n * floor**2)))
+
+
 def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | None = None) -> Discovery:
     """Run the workflow (module doc). Raises ValueError when the cycles are too few to train and hold out."""
     opt = options or Options()
@@ -311,7 +326,14 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         g_cur, chi_before = gap(test, scale), _chi2(test, scale)
         significant = _significance(test, scale, opt, lambda r: parts(r)[1])
         _, t, new_model, res = confirmed[0]
-        other = rival(confirmed, significant, lambda c: _chi2(parts(c[3])[1], scale) + pressure(c[2]))
+        # whether the runner-up explains the held-out cycles as well: judged with the model-error floor in each
+        # feature's variance (a difference inside the model's own error is no evidence for either)
+        other = rival(confirmed, significant,
+                      lambda c, f=floor: _chi2_floored(parts(c[3])[1], scale, f) + pressure(c[2]))
+        if other is not None and _nested(t.candidate, other.candidate):  # one explanation within the other's
+            if len(other.candidate.names) < len(t.candidate.names):  # as good and simpler: the simpler one
+                _, t, new_model, res = confirmed[1]
+            other = None
         if other is not None:  # two explanations within the noise: say both, add neither
             found.ambiguous = {"candidates": [t.candidate.label, other.candidate.label],
                                "separated_by": list(dict.fromkeys(c.separated_by for c in (t.candidate, other.candidate)

@@ -8,7 +8,14 @@ import dataclasses
 import numpy as np
 import pytest
 from frictionwatch.core.discrepancy.candidates import candidate_library
-from frictionwatch.core.discrepancy.features import balance_residual, gap, localise, noise_scale, order_table
+from frictionwatch.core.discrepancy.features import (
+    balance_residual,
+    coherent_terms,
+    gap,
+    localise,
+    noise_scale,
+    order_table,
+)
 from frictionwatch.core.discrepancy.fit import parameter_sigma
 from frictionwatch.core.discrepancy.residuals import ANGLE_POINTS, Residuals, operating_groups
 from frictionwatch.core.model.effects import make_effect
@@ -386,3 +393,24 @@ def test_a_torque_balance_residual_alone_is_said_in_friction_and_in_the_readings
     assert "55 N m above the model's (+3.4 %, FMEP +0.065 bar)" in text, text
     assert "cannot place in a cylinder" in text and "load reading 0.61 % low" in text
     assert "indicated work 0.52 % high" in text and "motored run" in text
+
+
+def test_two_explanations_are_compared_with_the_model_error_floor_in_each_features_variance():
+    """A difference between two candidates that lies inside the model's own error (a floor that does not average
+    away with more cycles) is no evidence for either: the floored chi^2 weighs a feature by 1 / (1 + N floor^2)
+    (deutz-1cyl: a half-order load ripple was named a cam-order friction, 550 better in the plain chi^2 through
+    orders where the engine's model error sits; now the two are said ambiguous)."""
+    from frictionwatch.core.discrepancy.workflow import _chi2, _chi2_floored
+
+    m, n = 6, 400
+    coherent = np.zeros(m, complex)
+    coherent[2] = 0.5
+    res = made_up(n, m, coherent, 0.0, seed=6)
+    scale = noise_scale(res)
+    floor = np.zeros(2 * m + 1)
+    np.testing.assert_allclose(_chi2_floored(res, scale, floor), _chi2(res, scale), rtol=1e-12)
+    floor[[2, m + 2]] = 0.5  # the order's Re and Im carry a model error of half the per-cycle noise
+    terms = n * coherent_terms(res, scale)
+    np.testing.assert_allclose(_chi2_floored(res, scale, floor),
+                               terms.sum() - terms[[2, m + 2]].sum() * (1 - 1 / (1 + n * 0.25)), rtol=1e-12)
+    assert _chi2_floored(res, scale, floor) < 0.1 * _chi2(res, scale)
