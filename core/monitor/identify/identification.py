@@ -291,7 +291,7 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
                               check_c, cal, CalibrationSensitivity(tdc, t_i, mean.kinetic))
     # the smoothed estimate stands on a balance when one was accumulated, or, during the warm-up (nothing
     # accumulated), when the Eq. 6 share it holds is of a measured running balance; the cycle's on its own
-    balanced = float(np.trace(acc.info_reference)) > 0.0 or (acc.weight == 0.0 and math.isfinite(bal_mean))
+    balanced = float(acc.info_reference.trace()) > 0.0 or (acc.weight == 0.0 and math.isfinite(bal_mean))
     est_s = measured_or_withheld(est_s, _source(balanced))
     est_c = measured_or_withheld(est_c, _source(math.isfinite(balance)))
     return Identification(stats=white.stats, accumulator=acc, indicated_mean=ind_mean, balance_mean=bal_mean,
