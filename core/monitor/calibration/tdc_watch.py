@@ -46,6 +46,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.engine import EngineSpec
@@ -149,6 +150,42 @@ def cut_traces(prev: Cycle, cycle: Cycle, cut: TraceCut) -> np.ndarray:
     return out.reshape(z, -1)
 
 
+def add_traces(block: np.ndarray, prev: Cycle, cycle: Cycle, cut: TraceCut) -> np.ndarray | None:
+    """``block + cut_traces(prev, cycle, cut)`` (z, n_local), a new array, or None when a sample of the traces is not
+    finite (the pair is then left out): the watch's per-cycle step as one kernel (``_add_traces_kernel``: one pass,
+    one array, where the take, the finiteness test and the sum were three passes and two arrays; its numpy reference
+    ``add_traces_reference``, tested equal)."""
+    out = np.empty(block.shape)
+    ok = _add_traces_kernel(np.ascontiguousarray(block, dtype=np.float64).reshape(-1),
+                            np.ascontiguousarray(prev.pressure, dtype=np.float64).reshape(-1),
+                            np.ascontiguousarray(cycle.pressure, dtype=np.float64).reshape(-1),
+                            cut.from_prev, cut.to_prev, cut.from_cur, cut.to_cur, out.reshape(-1))
+    return out if ok else None
+
+
+def add_traces_reference(block: np.ndarray, prev: Cycle, cycle: Cycle, cut: TraceCut) -> np.ndarray | None:
+    """``add_traces`` in plain numpy (its reference)."""
+    traces = cut_traces(prev, cycle, cut)
+    return block + traces if np.all(np.isfinite(traces)) else None
+
+
+@numba.njit(cache=True)
+def _add_traces_kernel(block, prev, cur, from_prev, to_prev, from_cur, to_cur, out):
+    """out[to] = block[to] + pressure[from] for the previous and the current cycle's flat pressure (z*n,); False if a
+    taken sample is not finite (out is then incomplete)."""
+    for i in range(to_prev.shape[0]):
+        v = prev[from_prev[i]]
+        if not math.isfinite(v):
+            return False
+        out[to_prev[i]] = block[to_prev[i]] + v
+    for i in range(to_cur.shape[0]):
+        v = cur[from_cur[i]]
+        if not math.isfinite(v):
+            return False
+        out[to_cur[i]] = block[to_cur[i]] + v
+    return True
+
+
 def local_traces(prev: Cycle, cycle: Cycle, phases: np.ndarray,
                  half_width_rad: float = math.pi) -> tuple[np.ndarray, np.ndarray]:
     """(traces (z, n_local), local angle (n_local,)): every cylinder's pressure about its firing TDC from two
@@ -182,17 +219,23 @@ def watch_cycle(spec: EngineSpec, cal: Calibration, state: TdcWatchState, cycle:
     n_grid = cycle.grid.shape[0]
     cut = state.cut if state.cut is not None and state.cut.fits(n_grid, spec.firing_angles) \
         else trace_cut(n_grid, spec.firing_angles)
+    b = state.cycles % BLOCKS
+    shape = (cut.phases.shape[0], cut.angle.shape[0])
     if np.shape(prev.pressure) == np.shape(cycle.pressure) == (cut.phases.shape[0], n_grid):
-        traces, angle = cut_traces(prev, cycle, cut), cut.angle
+        sums = (np.zeros(shape),) * BLOCKS if state.sums is None or state.sums[0].shape != shape \
+            else state.sums  # read only: a block is replaced, not written
+        block, angle = add_traces(sums[b], prev, cycle, cut), cut.angle
+        if block is None:
+            return dataclasses.replace(state, previous=cycle, cut=cut)  # a NaN sample: the pair is left out
     else:  # not one row per cylinder: the reference cut (and its error)
         traces, angle = local_traces(prev, cycle, spec.firing_angles)
-    if not np.all(np.isfinite(traces)):
-        return dataclasses.replace(state, previous=cycle, cut=cut)  # a NaN sample: the pair is left out
-    sums = (np.zeros(traces.shape),) * BLOCKS if state.sums is None or state.sums[0].shape != traces.shape \
-        else state.sums  # read only: a block is replaced, not written
+        if not np.all(np.isfinite(traces)):
+            return dataclasses.replace(state, previous=cycle, cut=cut)
+        sums = (np.zeros(traces.shape),) * BLOCKS if state.sums is None or state.sums[0].shape != traces.shape \
+            else state.sums
+        block = sums[b] + traces
     counts = state.counts.copy()
-    b = state.cycles % BLOCKS
-    sums = sums[:b] + (sums[b] + traces,) + sums[b + 1:]
+    sums = sums[:b] + (block,) + sums[b + 1:]
     counts[b] += 1
     omega = state.omega_sum + _omega(cycle)
     twist_sum = state.twist_sum + np.asarray(twist, dtype=np.float64)
@@ -334,5 +377,5 @@ def tdc_flags(cal: Calibration, estimates: list[TdcEstimate | None],
     return tuple(flags)
 
 
-__all__ = ["SCREEN_DEG", "TdcWatchState", "TraceCut", "WINDOW_CYCLES", "close_window", "cut_traces", "local_traces", "own_offsets",
+__all__ = ["SCREEN_DEG", "TdcWatchState", "TraceCut", "WINDOW_CYCLES", "add_traces", "close_window", "cut_traces", "local_traces", "own_offsets",
            "screen_shift", "tdc_flags", "trace_cut", "watch_cycle"]

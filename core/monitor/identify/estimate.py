@@ -239,3 +239,96 @@ def friction_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
     if floor is None or check is None:
         return est
     return floor.apply(est, check, spec, float(limits.resolve_rel))
+
+
+def reported_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior, basis_mean: np.ndarray,
+                      prior_mean: np.ndarray, limits: ReportLimits, cylinder_rows: np.ndarray,
+                      floor: ModelErrorFloor | None, check: BalanceCheck, cal: Calibration,
+                      sens: CalibrationSensitivity) -> FrictionEstimate:
+    """``with_calibration(friction_estimate(..., floor, check), cal, sens, spec)`` (its reference, tested equal) with
+    one FrictionEstimate built instead of three: the floor's and the calibration's per-cylinder arithmetic in one
+    kernel (``_floor_calibration_kernel``) after the estimate's, the scalars in Python in the reference's order.
+    Per monitored cycle this runs twice (the smoothed and the cycle's estimate)."""
+    z = spec.n_cyl
+    p_f = layout.n_params
+    params = post.params[:p_f]
+    basis_mean = np.asarray(basis_mean, dtype=np.float64)
+    rows = np.asarray(cylinder_rows, dtype=np.float64)
+    cov, cov_stat, cov_ref = post.covariance, post.cov_statistical, post.cov_reference
+    n_terms = layout.prior.shape[1]
+    if (params.shape[0] != p_f or rows.shape != (z, p_f) or basis_mean.shape != (z, n_terms)
+            or not cov.shape == cov_stat.shape == cov_ref.shape or cov.shape[0] < p_f or cov.shape[0] != cov.shape[1]):
+        raise ValueError(f"need a posterior over >= {p_f} parameters, rows ({z}, {p_f}) and basis means "
+                         f"({z}, {n_terms}); got {params.shape}, {rows.shape}, {basis_mean.shape}")
+    resolve_rel = float(limits.resolve_rel)
+    coef_table, coef_ok, cylinder_table, resolved, t_tot, s_tot = estimate_kernel(
+        params, cov, cov_stat, cov_ref, layout.group, layout.prior, basis_mean, rows, resolve_rel,
+        float(limits.coefficient_snr), float(limits.min_data_gain))
+    prior = np.asarray(prior_mean, dtype=np.float64).reshape(z)
+    ind = np.asarray(check.indicated, dtype=np.float64)
+    # the floor's scalars (ModelErrorFloor.apply's arithmetic, its order)
+    floor_on, rel2, ind_rel = False, 0.0, 0.0
+    if floor is not None:
+        excess2 = 0.0
+        if floor.balance_check and math.isfinite(check.balance) and t_tot > 0:
+            excess2 = max(0.0, (t_tot - check.balance) ** 2 - s_tot ** 2 - check.balance_sigma ** 2)
+        excess2 += (floor.coupling_per_misfit * max(0.0, check.misfit - floor.misfit_free) * check.coupling_loss) ** 2
+        floor_on = not (excess2 == 0.0 and floor.indicated_rel == 0.0)
+        if floor_on:
+            ind_rel = floor.indicated_rel
+            rel2 = excess2 / t_tot ** 2 if t_tot > 0 else 0.0
+            s_tot = math.sqrt(s_tot ** 2 + (ind_rel * float(ind.sum())) ** 2 + excess2)
+    kinetic = sens.kinetic if math.isfinite(sens.kinetic) else 0.0
+    to_cyl, to_eng = mep_per_torque(spec.displacement_cyl), mep_per_torque(spec.displacement)
+    settings = np.array([1.0 if floor_on else 0.0, ind_rel, rel2, resolve_rel, to_cyl,
+                         cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2, cal.gain_sigma ** 2,
+                         cal.gain_common_sigma ** 2, (cal.inertia_sigma * kinetic) ** 2])
+    tdc, t_i = np.asarray(sens.tdc, dtype=np.float64), np.asarray(sens.indicated, dtype=np.float64)
+    if tdc.shape != t_i.shape or tdc.shape != (z,) or ind.shape != (z,):
+        raise ValueError(f"the TDC sensitivities {tdc.shape}, indicated torques {t_i.shape} and the check's "
+                         f"{ind.shape} need one per cylinder ({z})")
+    table, resolved, var_tot = _floor_calibration_kernel(cylinder_table, resolved, prior, ind, tdc, t_i, settings)
+    tot_sig = math.sqrt(s_tot ** 2 + var_tot)
+    coef, coef_sig, norm, norm_sig = coef_table
+    return FrictionEstimate(
+        friction_torque_mean=table[0], friction_torque_mean_sigma=table[1], fmep=table[2], fmep_sigma=table[3],
+        coefficients=coef, coefficients_sigma=coef_sig, coefficients_normalised=norm,
+        coefficients_normalised_sigma=norm_sig, resolved=resolved, coefficient_resolved=coef_ok,
+        total_friction_torque=float(t_tot), total_friction_torque_sigma=tot_sig, total_fmep=float(t_tot * to_eng),
+        total_fmep_sigma=tot_sig * to_eng, prior_friction_torque_mean=prior, data_gain=cylinder_table[2],
+        weight=float(post.weight), chi2_reduced=float(post.chi2_reduced), calibration=cal.status,
+        calibration_sigma=table[4], total_calibration_sigma=math.sqrt(var_tot))
+
+
+@numba.njit(cache=True)
+def _floor_calibration_kernel(cylinder_table, resolved, prior, ind, tdc, indicated, settings):
+    """The per-cylinder part of ``ModelErrorFloor.apply`` then ``with_calibration`` on ``estimate_kernel``'s
+    cylinder_table (3, z) (t_mean NaN where unresolved, t_sig, gain) and resolved (z,); prior (z,) the Eq. 6 share
+    [N m], ind (z,) the floor check's indicated torques, tdc and indicated (z,) the calibration's sensitivities;
+    settings: floor on (0/1), its indicated_rel, rel2 (excess^2 / T_tot^2), resolve_rel, MEP per N m of a cylinder,
+    then the calibration's five variances (``_calibration_variance_kernel``'s var).
+
+    Returns (table (5, z): t_mean, sigma, fmep, fmep_sigma, calibration sigma; resolved (z,); the calibration's
+    total variance)."""
+    z = prior.shape[0]
+    floor_on, ind_rel, rel2, resolve_rel, to_cyl = settings[0] != 0.0, settings[1], settings[2], settings[3], settings[4]
+    var_cyl, var_tot = _calibration_variance_kernel(tdc, indicated, settings[5:10])
+    out = np.empty((5, z))
+    ok = resolved.copy()
+    for k in range(z):
+        t_mean = cylinder_table[0, k]
+        sig = cylinder_table[1, k]
+        if floor_on:
+            t_cyl = t_mean if np.isfinite(t_mean) else prior[k]
+            a = ind_rel * ind[k]
+            sig = np.sqrt(sig * sig + a * a + rel2 * (t_cyl * t_cyl))
+            ok[k] = ok[k] and sig <= resolve_rel * abs(t_cyl)
+            if not ok[k]:
+                t_mean = np.nan
+        sig = np.sqrt(sig * sig + var_cyl[k])
+        out[0, k] = t_mean
+        out[1, k] = sig
+        out[2, k] = t_mean * to_cyl
+        out[3, k] = sig * to_cyl
+        out[4, k] = np.sqrt(var_cyl[k])
+    return out, ok, var_tot

@@ -25,8 +25,7 @@ from frictionwatch.core.monitor.identify.estimate import (
     BalanceCheck,
     CalibrationSensitivity,
     ReportLimits,
-    friction_estimate,
-    with_calibration,
+    reported_estimate,
 )
 from frictionwatch.core.monitor.identify.layout import CycleRows
 from frictionwatch.core.monitor.identify.noise_model import NoiseSettings, whitened_rows
@@ -283,18 +282,16 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     misfit = state.condition.misfit if state.condition is not None else 1.0  # the window up to the last cycle
     check_s = BalanceCheck(ind_mean, bal_mean, bal_sigma * math.sqrt(g / (2.0 - g)), mean.coupling_loss, misfit)
     check_c = BalanceCheck(t_i, balance, bal_sigma, mean.coupling_loss, misfit)
-    est_s = friction_estimate(spec, layout, post_s, exc.basis_mean, share_s.friction_mean, limits, cyl_rows, floor,
-                              check_s)
-    est_c = friction_estimate(spec, layout, post_c, exc.basis_mean, share_c.friction_mean, limits, cyl_rows, floor,
-                              check_c)
-    # the smoothed estimate stands on a balance when one was accumulated, or, during the warm-up (nothing
-    # accumulated), when the Eq. 6 share it holds is of a measured running balance; the cycle's on its own
-    balanced = float(np.trace(acc.info_reference)) > 0.0 or (acc.weight == 0.0 and math.isfinite(bal_mean))
     # the calibration's remaining uncertainty (TDC, gain, J) on top: the mean balance passes it into friction whole
     tdc = mean.tdc_sensitivity if mean.tdc_sensitivity is not None else np.zeros(spec.n_cyl)
     cal = cfg.calibration
-    est_s = with_calibration(est_s, cal, CalibrationSensitivity(tdc, ind_mean), spec)
-    est_c = with_calibration(est_c, cal, CalibrationSensitivity(tdc, t_i, mean.kinetic), spec)
+    est_s = reported_estimate(spec, layout, post_s, exc.basis_mean, share_s.friction_mean, limits, cyl_rows, floor,
+                              check_s, cal, CalibrationSensitivity(tdc, ind_mean))
+    est_c = reported_estimate(spec, layout, post_c, exc.basis_mean, share_c.friction_mean, limits, cyl_rows, floor,
+                              check_c, cal, CalibrationSensitivity(tdc, t_i, mean.kinetic))
+    # the smoothed estimate stands on a balance when one was accumulated, or, during the warm-up (nothing
+    # accumulated), when the Eq. 6 share it holds is of a measured running balance; the cycle's on its own
+    balanced = float(acc.info_reference.trace()) > 0.0 or (acc.weight == 0.0 and math.isfinite(bal_mean))
     est_s = measured_or_withheld(est_s, _source(balanced))
     est_c = measured_or_withheld(est_c, _source(math.isfinite(balance)))
     return Identification(stats=white.stats, accumulator=acc, indicated_mean=ind_mean, balance_mean=bal_mean,
