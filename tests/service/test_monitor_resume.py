@@ -159,7 +159,8 @@ def test_after_a_crash_the_run_goes_on_from_the_newest_checkpoint_and_says_what_
     finally:
         run1.svc.stop()
     last = run1.results[-1].index
-    run1.data.store.release(run1.data.engines, run1.data.writer)  # as kill -9: no save at the stop
+    run1.data._stop.set()  # as kill -9: its threads gone, no save at the stop
+    run1.data.store.release(run1.data.engines, run1.data.writer)
     run1.data.store.close()
     assert at < last
 
