@@ -246,6 +246,8 @@ class Effect:
     scales_terms: ClassVar[tuple[str, ...]] = ()  # loss terms whose per-cylinder coefficients this effect scales
     sized_at_reference: ClassVar[bool] = False  # size_view needs the reference operating point
     candidate: ClassVar[CandidateSpec | None] = None  # how the discrepancy workflow may add it (None: it may not)
+    # a harmonic given either as amplitude and phase or as its two parts: checked at construction (HarmonicForm)
+    form: ClassVar[HarmonicForm | None] = None
 
     __slots__ = ("values", "sigma")
 
@@ -263,6 +265,8 @@ class Effect:
             sig[key] = v
         object.__setattr__(self, "values", MappingProxyType(full))
         object.__setattr__(self, "sigma", MappingProxyType(sig))
+        if self.form is not None:
+            self.form.check(self.name, self.values)
 
     def _checked(self, key: str, raw: object) -> float | int:
         if key not in self.parameters:

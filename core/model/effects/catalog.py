@@ -235,10 +235,6 @@ class LoadRipple(Effect):
 
     form = HarmonicForm("amplitude_nm", "phase_deg", "in_phase_nm", "quadrature_nm")
 
-    def __init__(self, sigma=None, **values: object):
-        super().__init__(sigma, **values)
-        self.form.check(self.name, self.values)
-
     def ripple(self) -> tuple[float, float, float, float]:
         """(amplitude [N m], fraction, order, phase [rad]) as LoadSetup and ViewSetup hold it (the parts' form has
         no fraction)."""
@@ -368,10 +364,6 @@ class ExtraFriction(Effect):
     )
 
     form = HarmonicForm("amp_frac", "phase_deg", "cos_frac", "sin_frac")
-
-    def __init__(self, sigma=None, **values: object):
-        super().__init__(sigma, **values)
-        self.form.check(self.name, self.values)
 
     def shape(self) -> tuple[float, float, float, float]:
         """(mean_frac, amp_frac, order, phase [rad]) of T / T_ref = mean_frac + amp_frac cos(order theta + phase)."""
