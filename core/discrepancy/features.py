@@ -51,7 +51,7 @@ def noise_scale(res: Residuals) -> np.ndarray:
     pooled over the points with at least three cycles; Re and Im of one harmonic share theirs), floored at a small
     fraction of the largest so that no feature gets an infinite weight."""
     x = res.features()
-    parts = [i for i in _group_slices(res.groups(), x.shape[0]) if i.size >= 3] or [np.arange(x.shape[0])]
+    parts = [i for i in _group_slices(res.group, x.shape[0]) if i.size >= 3] or [np.arange(x.shape[0])]
     dev = np.concatenate([x[i] - np.median(x[i], axis=0) for i in parts])
     mad = 1.4826 * np.median(np.abs(dev), axis=0)
     m = res.harmonics.shape[1]
@@ -210,13 +210,11 @@ def balance_residual(res: Residuals) -> dict:
     out = {"mean_nm": bal, "sigma_nm": bal_sig, "floor_nm": floor, "rms_nm": abs(bal)}
     groups = None if res.group is None else res.group[ok]
     if ok.sum() > 1 and groups is not None and np.unique(groups).size > 1:
-        means, w, var = _point_means(res.balance[ok], groups)
-        out["rms_nm"] = float(np.sqrt(w @ means**2))
-        out["sigma_nm"] = bal_sig = float(np.sqrt(var / ok.sum()))
-        loads = _point_means(res.load[ok], groups)[0]
-        rpm = _point_means(res.omega[ok], groups)[0] * RPM_PER_RAD_S
-        out["points"] = [{"rpm": float(r), "load_nm": float(ld), "mean_nm": float(b), "share": float(s)}
-                         for r, ld, b, s in zip(rpm, loads, means, w, strict=True)]
+        means, w, var = _point_means(np.column_stack([res.balance[ok], res.load[ok], res.omega[ok]]), groups)
+        out["rms_nm"] = float(np.sqrt(w @ means[:, 0] ** 2))
+        out["sigma_nm"] = bal_sig = float(np.sqrt(var[0] / ok.sum()))
+        out["points"] = [{"rpm": float(om * RPM_PER_RAD_S), "load_nm": float(ld), "mean_nm": float(b),
+                          "share": float(s)} for (b, ld, om), s in zip(means, w, strict=True)]
     out["significant"] = bool(np.isfinite(bal) and out["rms_nm"] > SIGNIFICANT * bal_sig and out["rms_nm"] > floor)
     return out
 

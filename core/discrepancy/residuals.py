@@ -91,10 +91,6 @@ class Residuals:
                                    motored=None if self.motored is None else self.motored[mask],
                                    group=None if self.group is None else self.group[mask])
 
-    def groups(self) -> np.ndarray:
-        """(N,) each cycle's operating-point group (0 for every cycle where none were formed)."""
-        return np.zeros(self.n_cycles, dtype=np.int64) if self.group is None else self.group
-
     def features(self) -> np.ndarray:
         """(N, 2M + 1) real features: Re and Im of each residual harmonic, then the balance residual (0 where NaN:
         the first cycle has no balance)."""
