@@ -6,6 +6,7 @@ from it), whether two explanations are one within the noise (``rival``), and why
 from __future__ import annotations
 
 import numpy as np
+from frictionwatch.core.discrepancy.candidates import Candidate
 from frictionwatch.core.discrepancy.features import balance_residual, coherent_terms, order_table
 from frictionwatch.core.discrepancy.fit import Trial
 from frictionwatch.core.discrepancy.residuals import Residuals
@@ -140,6 +141,21 @@ def unphysical(t: Trial, load_torque: float) -> str:
     return t.candidate.effect_at(t.x).unphysical(sigma, load_torque)
 
 
-__all__ = ["AMBIGUOUS_DCHI2", "MAX_CLOSE_CYLINDERS", "WORSE_SIGMAS", "channel_worse", "close_cylinders",
-           "off_physics", "one_per_candidate", "pressure_worse", "rival", "to_confirm",
+def nested(a: Candidate, b: Candidate) -> bool:
+    """Whether one toggle adds a strict subset of the other's default effects (a rigid baseline: the shaft's
+    flexibility alone, or with the variable inertia too): not two explanations but one and a larger one."""
+    return a.toggle and b.toggle and set(a.names) != set(b.names) and (set(a.names) <= set(b.names)
+                                                                      or set(b.names) <= set(a.names))
+
+
+def chi2_floored(res: Residuals, scale: np.ndarray, floor: np.ndarray) -> float:
+    """The held-out coherent chi^2 with the model-error floor (whitened, per feature: features.feature_floor) in the
+    variance of each feature's mean: sum_j N p_j / (1 + N floor_j^2), the error that does not average away with
+    more cycles beside the noise that does."""
+    n = res.n_cycles
+    return float(np.sum(n * coherent_terms(res, scale) / (1.0 + n * floor**2)))
+
+
+__all__ = ["AMBIGUOUS_DCHI2", "MAX_CLOSE_CYLINDERS", "WORSE_SIGMAS", "channel_worse", "chi2_floored",
+           "close_cylinders", "nested", "off_physics", "one_per_candidate", "pressure_worse", "rival", "to_confirm",
            "unphysical"]

@@ -115,9 +115,9 @@ def operating_groups(omega: np.ndarray, load: np.ndarray, torque_scale: float) -
     engine's indicated torque, load + friction: at zero load a step is one of the friction's size, never of the load's
     noise) and of their own scatter; a ramp without such a jump stays one group. -1: between points, both cycles of
     a load jump that large from one cycle to the next (a step within a cycle makes two: before and after its
-    intermediate load), and the cycle after those (the speed still settling): its residual is the step's, not the model's (k9k: 8 rpm at order 0.5 in the
-    step's cycle, 0.6 in the next, noise 0.07). A cycle whose speed or load is not finite (unknown point) is put
-    at 0, a group of its own where the others run."""
+    intermediate load), and the cycle after those (the speed still settling): its residual is the step's, not the
+    model's (k9k: 8 rpm at order 0.5 in the step's cycle, 0.6 in the next, noise 0.07). A cycle whose speed or load
+    is not finite (unknown point) is put at 0, a group of its own where the others run."""
     omega, load = np.nan_to_num(omega, posinf=0.0, neginf=0.0), np.nan_to_num(load, posinf=0.0, neginf=0.0)
     if omega.shape[0] < 2:
         return np.zeros(omega.shape[0], dtype=np.int64)

@@ -25,7 +25,6 @@ When ``max_steps`` is used up, that is said too.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -33,7 +32,9 @@ import numpy as np
 from frictionwatch.core.discrepancy.candidates import Candidate, candidate_library
 from frictionwatch.core.discrepancy.choice import (
     channel_worse,
+    chi2_floored,
     close_cylinders,
+    nested,
     off_physics,
     one_per_candidate,
     pressure_worse,
@@ -58,6 +59,7 @@ from frictionwatch.core.discrepancy.pressure_channel import (
     tdc_offsets_deg,
 )
 from frictionwatch.core.discrepancy.residuals import Residuals, pinned_config, run_model
+from frictionwatch.core.discrepancy.words import orders_text, said, signature
 from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.view import reference
@@ -167,22 +169,22 @@ class Discovery:
 
     def verdict(self) -> str:
         """One sentence for the top of the report."""
-        named = ", ".join(_said(e) for s in self.steps for e in s.effects)
+        named = ", ".join(said(e) for s in self.steps for e in s.effects)
         rest = self.remainder
         if self.steps:
             text = f"Found {named}"
             if rest is not None:
-                text += "; a discrepancy remains that no candidate explains (" + _signature(rest) + ")"
+                text += "; a discrepancy remains that no candidate explains (" + signature(rest) + ")"
         elif self.ambiguous:
             text = "A discrepancy is found that more than one effect explains"
         elif rest is not None:
-            text = "A discrepancy remains that no candidate explains (" + _signature(rest) + ")"
+            text = "A discrepancy remains that no candidate explains (" + signature(rest) + ")"
         else:
             text = "No significant missing effect: the model reproduces the held-out cycles within their noise"
             inside = self.within_floor
             if inside:
                 text = ("No missing effect beyond the model's own error: a coherent residual at engine orders "
-                        f"{_orders(inside)} lies within the model-error floor (features.speed_floor_rpm), not within "
+                        f"{orders_text(inside)} lies within the model-error floor (features.speed_floor_rpm), not within "
                         "the noise alone")
         if not self.steps and not self.ambiguous and self.one_operating_point:
             text += ("; the log holds one steady speed and load, where a friction law that differs from the model's "
@@ -232,21 +234,6 @@ class Discovery:
 
 def _chi2(res: Residuals, scale: np.ndarray) -> float:
     return float(res.n_cycles * coherent_terms(res, scale).sum())
-
-
-def _nested(a: Candidate, b: Candidate) -> bool:
-    """Whether one toggle adds a strict subset of the other's default effects (a rigid baseline: the shaft's
-    flexibility alone, or with the variable inertia too): not two explanations but one and a larger one."""
-    return a.toggle and b.toggle and set(a.names) != set(b.names) and (set(a.names) <= set(b.names)
-                                                                      or set(b.names) <= set(a.names))
-
-
-def _chi2_floored(res: Residuals, scale: np.ndarray, floor: np.ndarray) -> float:
-    """The held-out coherent chi^2 with the model-error floor (whitened, per feature: features.feature_floor) in the
-    variance of each feature's mean: sum_j N p_j / (1 + N floor_j^2), the error that does not average away with
-    more cycles beside the noise that does."""
-    n = res.n_cycles
-    return float(np.sum(n * coherent_terms(res, scale) / (1.0 + n * floor**2)))
 
 
 def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | None = None) -> Discovery:
@@ -329,8 +316,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         # whether the runner-up explains the held-out cycles as well: judged with the model-error floor in each
         # feature's variance (a difference inside the model's own error is no evidence for either)
         other = rival(confirmed, significant,
-                      lambda c, f=floor: _chi2_floored(parts(c[3])[1], scale, f) + pressure(c[2]))
-        if other is not None and _nested(t.candidate, other.candidate):  # one explanation within the other's
+                      lambda c, f=floor: chi2_floored(parts(c[3])[1], scale, f) + pressure(c[2]))
+        if other is not None and nested(t.candidate, other.candidate):  # one explanation within the other's
             if len(other.candidate.names) < len(t.candidate.names):  # as good and simpler: the simpler one
                 _, t, new_model, res = confirmed[1]
             other = None
@@ -423,55 +410,6 @@ def _mean_load(cycles: Sequence[Cycle], omega: float) -> float:
     loads = np.array([c.load_torque if np.isfinite(c.load_torque) else c.load_power / omega for c in cycles])
     loads = loads[np.isfinite(loads)]
     return float(np.median(loads)) if loads.size else float("nan")
-
-
-def _said(e) -> str:
-    """An effect in an operator's words: 'tdc_offset (the whole wheel, deg=-0.81 +- 0.05)'."""
-    cyl = e.values.get("cylinder")
-    where = "" if cyl is None else ("the whole wheel" if cyl == 0 else f"cylinder {cyl}")
-    spec = type(e).candidate
-    shapes = () if spec is None else (spec, *spec.also)
-    variant = {k for sh in shapes for v in sh.variants for k in v}  # e.g. a load ripple's order
-    vals = ", ".join(f"{k}={v:.3g}" + (f" +- {e.sigma[k]:.2g}" if k in e.sigma else "")
-                     for k, v in e.values.items()
-                     if k != "cylinder" and (k in e.sigma or k in variant or not e.sigma))
-    inner = ", ".join(s for s in (where, vals) if s)
-    return f"{e.name} ({inner})" if inner else e.name
-
-
-def _signature(rest: dict) -> str:
-    """What remains, in words: the significant engine orders and / or the torque balance residual; a balance residual
-    alone, what it is in friction and in load and what would tell them apart."""
-    parts = [f"engine orders {_orders(rest['engine_orders'])}"] if rest["engine_orders"] else []
-    if rest["balance_nm"] is not None:
-        parts.append(f"torque balance {rest['balance_nm']:+.3g} N m")
-        if not rest["engine_orders"]:
-            parts.append(_balance_only(rest))
-    return ", ".join(parts) or "no single order"
-
-
-def _balance_only(rest: dict) -> str:
-    """A mean torque residual with no trace in the speed's orders: a constant torque has no harmonic, so the speed
-    cannot place it in a cylinder, nor tell an extra friction from a measurement that is off by as much (the balance
-    books indicated - load - the model's friction as friction: a load reading low, or an indicated work reading
-    high, by the residual reads as that much more friction)."""
-    bal, fr, load = rest["balance_nm"], rest.get("friction"), rest.get("load_nm")
-    said = f"the engine's friction reads {abs(bal):.3g} N m {'above' if bal > 0 else 'below'} the model's"
-    measured = fr["mean_nm"] if fr and math.isfinite(fr["mean_nm"]) else math.nan
-    if math.isfinite(measured) and measured != bal:
-        said += f" ({100 * bal / (measured - bal):+.2g} %, FMEP {fr['fmep_bar'] * bal / measured:+.2g} bar)"
-    said += (" with nothing in the speed: a constant torque the speed cannot place in a cylinder -- an extra friction"
-             " anywhere in the engine")
-    if load is not None and math.isfinite(load) and load > 0:
-        said += f", or the load reading {100 * abs(bal) / load:.2g} % {'low' if bal > 0 else 'high'}"
-        if math.isfinite(measured):
-            said += (f", or the indicated work {100 * abs(bal) / (load + measured):.2g} % "
-                     f"{'high' if bal > 0 else 'low'}")
-    return said + "; a motored run (no load, no combustion) would tell friction from the readings"
-
-
-def _orders(orders) -> str:
-    return ", ".join(f"{o:g}" for o in orders) if orders else "none"
 
 
 def _significance(test: Residuals, scale: np.ndarray, opt: Options, held_out_of):

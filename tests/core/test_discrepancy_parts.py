@@ -400,7 +400,8 @@ def test_two_explanations_are_compared_with_the_model_error_floor_in_each_featur
     away with more cycles) is no evidence for either: the floored chi^2 weighs a feature by 1 / (1 + N floor^2)
     (deutz-1cyl: a half-order load ripple was named a cam-order friction, 550 better in the plain chi^2 through
     orders where the engine's model error sits; now the two are said ambiguous)."""
-    from frictionwatch.core.discrepancy.workflow import _chi2, _chi2_floored
+    from frictionwatch.core.discrepancy.choice import chi2_floored
+    from frictionwatch.core.discrepancy.workflow import _chi2
 
     m, n = 6, 400
     coherent = np.zeros(m, complex)
@@ -408,9 +409,9 @@ def test_two_explanations_are_compared_with_the_model_error_floor_in_each_featur
     res = made_up(n, m, coherent, 0.0, seed=6)
     scale = noise_scale(res)
     floor = np.zeros(2 * m + 1)
-    np.testing.assert_allclose(_chi2_floored(res, scale, floor), _chi2(res, scale), rtol=1e-12)
+    np.testing.assert_allclose(chi2_floored(res, scale, floor), _chi2(res, scale), rtol=1e-12)
     floor[[2, m + 2]] = 0.5  # the order's Re and Im carry a model error of half the per-cycle noise
     terms = n * coherent_terms(res, scale)
-    np.testing.assert_allclose(_chi2_floored(res, scale, floor),
+    np.testing.assert_allclose(chi2_floored(res, scale, floor),
                                terms.sum() - terms[[2, m + 2]].sum() * (1 - 1 / (1 + n * 0.25)), rtol=1e-12)
-    assert _chi2_floored(res, scale, floor) < 0.1 * _chi2(res, scale)
+    assert chi2_floored(res, scale, floor) < 0.1 * _chi2(res, scale)

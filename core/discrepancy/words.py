@@ -1,0 +1,59 @@
+"""The discrepancy workflow's verdict in an operator's words: an effect as found, what remains unexplained (its
+signature), a torque-balance residual with nothing in the speed. Pure text from the workflow's figures."""
+
+from __future__ import annotations
+
+import math
+
+
+def said(e) -> str:
+    """An effect in an operator's words: 'tdc_offset (the whole wheel, deg=-0.81 +- 0.05)'."""
+    cyl = e.values.get("cylinder")
+    where = "" if cyl is None else ("the whole wheel" if cyl == 0 else f"cylinder {cyl}")
+    spec = type(e).candidate
+    shapes = () if spec is None else (spec, *spec.also)
+    variant = {k for sh in shapes for v in sh.variants for k in v}  # e.g. a load ripple's order
+    vals = ", ".join(f"{k}={v:.3g}" + (f" +- {e.sigma[k]:.2g}" if k in e.sigma else "")
+                     for k, v in e.values.items()
+                     if k != "cylinder" and (k in e.sigma or k in variant or not e.sigma))
+    inner = ", ".join(s for s in (where, vals) if s)
+    return f"{e.name} ({inner})" if inner else e.name
+
+
+def signature(rest: dict) -> str:
+    """What remains, in words: the significant engine orders and / or the torque balance residual; a balance residual
+    alone, what it is in friction and in load and what would tell them apart."""
+    parts = [f"engine orders {orders_text(rest['engine_orders'])}"] if rest["engine_orders"] else []
+    if rest["balance_nm"] is not None:
+        parts.append(f"torque balance {rest['balance_nm']:+.3g} N m")
+        if not rest["engine_orders"]:
+            parts.append(balance_only(rest))
+    return ", ".join(parts) or "no single order"
+
+
+def balance_only(rest: dict) -> str:
+    """A mean torque residual with no trace in the speed's orders: a constant torque has no harmonic, so the speed
+    cannot place it in a cylinder, nor tell an extra friction from a measurement that is off by as much (the balance
+    books indicated - load - the model's friction as friction: a load reading low, or an indicated work reading
+    high, by the residual reads as that much more friction)."""
+    bal, fr, load = rest["balance_nm"], rest.get("friction"), rest.get("load_nm")
+    said = f"the engine's friction reads {abs(bal):.3g} N m {'above' if bal > 0 else 'below'} the model's"
+    measured = fr["mean_nm"] if fr and math.isfinite(fr["mean_nm"]) else math.nan
+    if math.isfinite(measured) and measured != bal:
+        said += f" ({100 * bal / (measured - bal):+.2g} %, FMEP {fr['fmep_bar'] * bal / measured:+.2g} bar)"
+    said += (" with nothing in the speed: a constant torque the speed cannot place in a cylinder -- an extra friction"
+             " anywhere in the engine")
+    if load is not None and math.isfinite(load) and load > 0:
+        said += f", or the load reading {100 * abs(bal) / load:.2g} % {'low' if bal > 0 else 'high'}"
+        if math.isfinite(measured):
+            said += (f", or the indicated work {100 * abs(bal) / (load + measured):.2g} % "
+                     f"{'high' if bal > 0 else 'low'}")
+    return said + "; a motored run (no load, no combustion) would tell friction from the readings"
+
+
+def orders_text(orders) -> str:
+    """Engine orders as '0.5, 1.5' ('none' without any)."""
+    return ", ".join(f"{o:g}" for o in orders) if orders else "none"
+
+
+__all__ = ["balance_only", "orders_text", "said", "signature"]
