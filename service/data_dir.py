@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from frictionwatch.service.alert_baseline import Baseline
-from frictionwatch.service.monitor_snapshot import SnapshotError, dumps, encode, fingerprint, loads
+from frictionwatch.service.monitor_snapshot import SnapshotError, encode, fingerprint, loads
 from frictionwatch.service.store import StoreError, StoreListener, open_store
 from frictionwatch.service.store.fleet import HEARTBEAT_S, LEASE_TIMEOUT_S, Writer
 
@@ -164,22 +164,10 @@ class DataDir:
     def save_states(self) -> int:
         """Save each attached engine's monitor state (after its stop; one still running is skipped and logged).
         Returns how many were saved; a failure is logged, never raised."""
-        saved, code = 0, None
         for svc in self._services:
-            carried = svc.monitor_carried()
-            if carried is None:
-                if svc.running:
-                    log.warning("%s: still running at close: its monitor state is not saved", svc.engine_id)
-                continue
-            try:
-                code = code or fingerprint()
-                newest = svc.state.newest
-                self.store.save_monitor_state(svc.engine_id, code, dumps(carried),
-                                              None if newest is None else int(newest.index))
-                saved += 1
-            except Exception as exc:  # noqa: BLE001 - the next start is then a warm-up, said
-                log.warning("%s: the monitor state not saved: %s: %s", svc.engine_id, type(exc).__name__, exc)
-        return saved
+            if svc.running:
+                log.warning("%s: still running at close: its monitor state is not saved", svc.engine_id)
+        return self._save_states([s for s in self._services if not s.running], "at the stop")
 
     def _start_heartbeat(self) -> None:
         if self._heartbeat_thread is None:
@@ -222,10 +210,16 @@ class DataDir:
     def checkpoint(self) -> int:
         """Save each running engine's monitor state now; returns how many were saved. A failure is counted and
         logged, never raised."""
+        saved = self._save_states([s for s in self._services if s.running], "checkpoint")
+        self.checkpoints["saved"] += saved
+        return saved
+
+    def _save_states(self, services: list, what: str) -> int:
+        """Each of ``services``' monitor state as its monitor holds it between two records
+        (EngineService.monitor_checkpoint), stored; how many were. A failure is logged (and for checkpoints counted),
+        never raised: the next checkpoint tries again, the next start is a warm-up that says so."""
         saved, code = 0, None
-        for svc in list(self._services):
-            if not svc.running:
-                continue
+        for svc in services:
             try:
                 taken = svc.monitor_checkpoint()
                 if taken is None:  # before the first cycle
@@ -233,11 +227,11 @@ class DataDir:
                 code = code or fingerprint()
                 self.store.save_monitor_state(svc.engine_id, code, encode(taken[0]), taken[1])
                 saved += 1
-            except Exception as exc:  # noqa: BLE001 - the next checkpoint tries again
-                self.checkpoints["errors"] += 1
-                log.warning("%s: the monitor state checkpoint not saved: %s: %s", svc.engine_id,
+            except Exception as exc:  # noqa: BLE001 - see the docstring
+                if what == "checkpoint":
+                    self.checkpoints["errors"] += 1
+                log.warning("%s: the monitor state (%s) not saved: %s: %s", svc.engine_id, what,
                             type(exc).__name__, exc)
-        self.checkpoints["saved"] += saved
         return saved
 
     def _checkpoint_loop(self) -> None:

@@ -181,23 +181,17 @@ class EngineService:
             raise RuntimeError(f"{self.engine_id}: the cycle numbering is set before start")
         self.session.pipeline.assembler.number_from(first_index)
 
-    def monitor_carried(self) -> dict | None:
-        """The monitor's carried state (core CyclePipeline.carried) once the session has stopped; None while a thread
-        of it may still change the state, or before the first cycle."""
-        if any(t.is_alive() for t in self.session.threads):
-            return None
-        return self.session.pipeline.cycles.carried()
-
     def monitor_checkpoint(self) -> tuple[bytes, int] | None:
-        """The running monitor's carried state, pickled between two records (service.monitor_snapshot.pickled), and
-        the newest cycle it has seen; None before the first cycle. Holds the monitor for the pickling (~ms)."""
+        """The monitor's carried state (core CyclePipeline.carried), pickled between two records
+        (service.monitor_snapshot.pickled), and the newest cycle it has seen; None before the first cycle. Running or
+        stopped: it holds the monitor for the pickling (~ms)."""
         def take(pipeline) -> tuple[bytes, int] | None:
             carried = pipeline.cycles.carried()
             return None if carried is None else (pickled(carried), pipeline.assembler.next_index - 1)
         return self.session.with_pipeline(take)
 
     def resume_monitor(self, carried: dict) -> None:
-        """Go on from an earlier run's ``monitor_carried`` (before ``start``; ValueError if it does not fit)."""
+        """Go on from an earlier run's ``monitor_checkpoint`` (before ``start``; ValueError if it does not fit)."""
         if self.started_s is not None:
             raise RuntimeError(f"{self.engine_id}: the monitor's state is taken back before start")
         self.session.pipeline.cycles.resume(carried)
