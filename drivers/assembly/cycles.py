@@ -183,10 +183,13 @@ class CycleAssembler(EpochSync):
         if isinstance(record, PressureFrame):  # an indicating system: all cylinders in one record
             if self.buf.add_frame(record):
                 end = int(record.t0_ticks + record.period_ticks * (np.shape(record.values)[-1] - 1))
+                self._long_record(record.t0_ticks, end)
                 self._now = max(self._now, end)
         elif isinstance(record, PressureBlock):  # CAN / DAQ: tens of blocks per cycle
             if self.buf.add_pressure(record):
-                self._now = max(self._now, int(record.t0_ticks + record.period_ticks * (len(record.values) - 1)))
+                end = int(record.t0_ticks + record.period_ticks * (len(record.values) - 1))
+                self._long_record(record.t0_ticks, end)
+                self._now = max(self._now, end)
         elif isinstance(record, CamBatch):
             self.buf.add(record)
         elif isinstance(record, FreeEndToothBatch):  # a second wheel: TwoWheelAssembler cuts it, not this one
@@ -201,6 +204,17 @@ class CycleAssembler(EpochSync):
                 or (isinstance(record, PressureFrame) and self._waiting_for not in tuple(record.cylinders)):
             return []  # the head cycle waits for another cylinder's pressure
         return self._emit(flushing=False)
+
+    def _long_record(self, t0: float, end: int) -> None:
+        """A pressure record spanning more than the pressure wait comes (keyed by its last sample) after the teeth
+        have gone past its first samples: their cycles may already have been given up as pressure_missing. Counted
+        and said once, so that the skips are not read as a sensor's fault (docs/replay-format.md, Batching)."""
+        if end - t0 > self.wait_ticks:
+            if not self.stats["pressure_record_longer_than_wait"]:
+                log.warning("a pressure record spans %.2f s, more than the %.2f s a cycle waits for its pressure: "
+                            "cycles before its end may be skipped as pressure_missing (write shorter records)",
+                            (end - t0) / self.info.tick_hz, self.wait_ticks / self.info.tick_hz)
+            self.stats["pressure_record_longer_than_wait"] += 1
 
     @property
     def next_index(self) -> int:

@@ -51,6 +51,12 @@ class _Track:
         self.ref: tuple[int, int, int, float] | None = None  # classic: seq, t0, period, host time
 
 
+# the longest acquisition time one PressureBlock spans (see _assemble): a tenth of the cycle assembler's pressure
+# wait (drivers/assembly/cycles.py max_wait_s), and ~40 CAN FD frames of a 20 kHz channel, so a batch still makes
+# few records
+MAX_BLOCK_S = 0.05
+
+
 class CanDecoder:
     """Stateful decoder of frictionwatch CAN traffic; ``feed`` a batch of messages, get records in time order.
 
@@ -59,7 +65,7 @@ class CanDecoder:
     unwrapper : TimerUnwrapper, optional
         Shared with the serial source of the same board (see drivers/timebase.py).
     tick_hz : float
-        Acquisition timer clock [Hz], only to place load frames in time.
+        Acquisition timer clock [Hz]: to place load frames in time and to cut long blocks (MAX_BLOCK_S).
     reorder_window : int
         Frames per cylinder held to undo reordering before a gap is declared.
     ref_timeout_s : float
@@ -238,6 +244,13 @@ class CanDecoder:
         start_break[1:] = ~(seq_next & time_next & (period[1:] == period[:-1]))
         overrun = (flags & self._bit_overrun) != 0
         start_break |= overrun
+        # and every MAX_BLOCK_S within a run: the record merge and the replay log key a block by its last sample,
+        # so a long block holds its first samples back until the teeth have gone on past them; past the cycle
+        # assembler's pressure wait (0.5 s) their cycles are lost as pressure_missing. A reader starved for a
+        # moment drains that much at once (tests/drivers/test_can_block_span.py)
+        run_t0 = t0[np.flatnonzero(start_break)][np.cumsum(start_break) - 1]
+        piece = (t0 - run_t0) // (MAX_BLOCK_S * self.tick_hz)
+        start_break[1:] |= piece[1:] != piece[:-1]
         gaps = int((seq_next & ~time_next).sum())
         if gaps:
             self._count("time_gap_in_sequence", gaps)

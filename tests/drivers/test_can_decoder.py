@@ -19,7 +19,7 @@ from frictionwatch.drivers.can.codec import (
     encode_pressure_ref,
     j1939_id,
 )
-from frictionwatch.drivers.can.decoder import CanDecoder
+from frictionwatch.drivers.can.decoder import MAX_BLOCK_S, CanDecoder
 from frictionwatch.drivers.can.encoder import PressureEncoder
 from frictionwatch.drivers.timebase import REBASE_GAP
 from hypothesis import given, settings
@@ -66,8 +66,12 @@ def test_fd_round_trip_merges_and_chunks() -> None:
     msgs = fd_frames((1, 2, 20), 200)
     dec = CanDecoder()
     out = dec.feed(msgs)
-    assert [len(blocks(out, c)) for c in (1, 2, 20)] == [1, 1, 1] and assert_true_samples(out) == 3 * 5000
-    assert not dec.damage and [b.t0_ticks for b in blocks(out, 1)] == [1_000_000]
+    # 200 frames (0.104 s) per cylinder in one batch: joined, and cut every MAX_BLOCK_S (0.05 s) into three
+    assert [len(blocks(out, c)) for c in (1, 2, 20)] == [3, 3, 3] and assert_true_samples(out) == 3 * 5000
+    assert not dec.damage and blocks(out, 1)[0].t0_ticks == 1_000_000
+    assert max(b.values.size * b.period_ticks for b in blocks(out)) <= MAX_BLOCK_S * 10e6
+    for a, b in itertools.pairwise(blocks(out, 1)):
+        assert abs(a.t0_ticks + a.values.size * a.period_ticks - b.t0_ticks) <= 1
     rng = np.random.default_rng(4)
     dec, out, i = CanDecoder(), [], 0
     while i < len(msgs):
@@ -93,7 +97,10 @@ def test_classic_round_trip_with_references_and_partial_frames() -> None:
     dec = CanDecoder()
     out = dec.feed(msgs)
     # classic scale is fixed at 1000 Pa/count (DBC): half a count is 500 Pa; 3100 % 3 = 1 sample waits for more
-    assert assert_true_samples(out, atol=500.0 + 1e-6) == 3099 and len(blocks(out)) == 1 and not dec.damage
+    # (0.62 s of samples in one batch: joined, cut every MAX_BLOCK_S into 13 contiguous blocks)
+    assert assert_true_samples(out, atol=500.0 + 1e-6) == 3099 and len(blocks(out)) == 13 and not dec.damage
+    for a, b in itertools.pairwise(blocks(out)):
+        assert a.t0_ticks + a.values.size * a.period_ticks == b.t0_ticks
 
 
 def test_dropped_frame_splits_block_and_is_counted() -> None:
