@@ -92,6 +92,7 @@ def test_after_an_unclean_stop_or_with_other_code_the_run_is_a_warm_up_and_says_
     run2 = Run(folder)  # takes run 1's state back, then dies without saving (as kill -9)
     assert "taken back from run 1" in run2.said
     run2.run(3)
+    run2.data._stop.set()  # as kill -9: its threads gone (no heartbeat against the closed store), no save
     run2.data.store.release(run2.data.engines, run2.data.writer)  # a killed process's lease, taken over at once
     run2.data.store.close()
 
