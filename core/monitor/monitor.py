@@ -53,7 +53,7 @@ from frictionwatch.core.monitor.identify.identification import (
 )
 from frictionwatch.core.monitor.identify.layout import parameter_layout
 from frictionwatch.core.monitor.identify.priors import prior_normal
-from frictionwatch.core.monitor.report.cycle_report import build_result
+from frictionwatch.core.monitor.report.cycle_report import StageReport, build_result
 from frictionwatch.core.monitor.report.report_kernels import trig_tables
 from frictionwatch.core.monitor.report.results import ChainSample, CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState, PreviousCycle
@@ -232,8 +232,8 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         node_torque_harmonics(op_used.shaft, op_used.receptance, bal.node_speed),
         0.5j * fly.omega_mean * np.arange(1, m + 1) * fly.harmonics,
         fly.pattern_harmonics[:, :state.n_nuisance].copy()))
-    result = build_result(spec, cycle, fly, exc, rows, state.layout, ident, mean, pmax, pmax_angle, flags, tables,
-                          cfg.r_squared_floor, () if wheel2_flag is None else (wheel2_flag,), report)
+    result = build_result(spec, cycle, fly, exc, rows, state.layout, ident, mean, pmax, pmax_angle, tables,
+                          StageReport(flags, cfg.r_squared_floor, () if wheel2_flag is None else (wheel2_flag,), report))
     new_state = MonitorState(
         layout=state.layout, n_harmonics=m, n_nuisance=state.n_nuisance, accumulator=ident.accumulator,
         stats=ident.stats, params=ident.smoothed.params, op=op, relative_motion=rel, static=static, teeth=teeth,
