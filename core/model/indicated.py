@@ -78,12 +78,14 @@ def _positions(local, params, x):
 
 
 @numba.njit(cache=True)
-def _window_works(x, previous, current, starts, out):
+def _window_works(x, previous, current, starts, alone_starts, out, out_alone):
     """Trapezoid sum of p dx (z rows) over n samples from starts[w, k] in the joined pressure [previous | current]
-    (2n samples), the last sample joined to the first (a closed loop); x (z, n) the 4 pi periodic positions. Each
-    cylinder's terms (p_a + p_a+1)(x_a+1 - x_a) along the joined cycles are formed once, and a window's sum runs in
-    four interleaved partial sums (no per-sample branch, no chain of dependent additions): the same sum as numpy's
-    reference to rounding (window_works_reference, tests/core/test_indicated.py)."""
+    (2n samples), the last sample joined to the first (a closed loop), into out (w, z); and from alone_starts[w, k]
+    in [current | current] into out_alone (w', z; w' = 0: none); x (z, n) the 4 pi periodic positions. Each
+    cylinder's terms (p_a + p_a+1)(x_a+1 - x_a) along the joined cycles are formed once (for [current | current]
+    only the first n, the rest are [previous | current]'s), and a window's sum runs in four interleaved partial sums
+    (no per-sample branch, no chain of dependent additions): the same sum as numpy's reference to rounding
+    (window_works_reference, tests/core/test_indicated.py), and the same bits as two calls, one per pair."""
     z, n = x.shape
     p = np.empty(2 * n)
     xx = np.empty(2 * n)
@@ -97,23 +99,36 @@ def _window_works(x, previous, current, starts, out):
         for a in range(2 * n - 1):
             t[a] = (p[a] + p[a + 1]) * (xx[a + 1] - xx[a])
         for w in range(starts.shape[0]):
-            s = starts[w, k]
-            e = s + n - 1  # the window's last sample (< 2n), joined to its first
-            s0 = 0.0
-            s1 = 0.0
-            s2 = 0.0
-            s3 = 0.0
-            a = s
-            while a + 3 < e:
-                s0 += t[a]
-                s1 += t[a + 1]
-                s2 += t[a + 2]
-                s3 += t[a + 3]
-                a += 4
-            while a < e:
-                s0 += t[a]
-                a += 1
-            out[w, k] = 0.5 * ((s0 + s1) + (s2 + s3) + (p[e] + p[s]) * (xx[s] - xx[e]))
+            out[w, k] = _window_sum(p, xx, t, starts[w, k], n)
+        if alone_starts.shape[0] == 0:
+            continue
+        for a in range(n):
+            p[a] = current[k, a]
+        for a in range(n):  # t[n - 1] joins current's last sample to its first (p[n])
+            t[a] = (p[a] + p[a + 1]) * (xx[a + 1] - xx[a])
+        for w in range(alone_starts.shape[0]):
+            out_alone[w, k] = _window_sum(p, xx, t, alone_starts[w, k], n)
+
+
+@numba.njit(cache=True)
+def _window_sum(p, xx, t, s, n):
+    """The closed trapezoid over the n samples from s of the joined p (2n,), xx, with their terms t (2n - 1,)."""
+    e = s + n - 1  # the window's last sample (< 2n), joined to its first
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    s3 = 0.0
+    a = s
+    while a + 3 < e:
+        s0 += t[a]
+        s1 += t[a + 1]
+        s2 += t[a + 2]
+        s3 += t[a + 3]
+        a += 4
+    while a < e:
+        s0 += t[a]
+        a += 1
+    return 0.5 * ((s0 + s1) + (s2 + s3) + (p[e] + p[s]) * (xx[s] - xx[e]))
 
 
 def window_works(theta: np.ndarray, positions: np.ndarray, previous: np.ndarray, current: np.ndarray,
@@ -155,8 +170,22 @@ def works_at(positions: np.ndarray, previous: np.ndarray, current: np.ndarray, s
     checked: positions, previous, current C-contiguous float64 (z, n), the pressures finite (as the monitor's
     checked pressure is). One kernel call."""
     out = np.empty(starts.shape)
-    _window_works(positions, previous, current, starts, out)
+    _window_works(positions, previous, current, starts, _NO_WINDOWS, out, _NO_WORKS)
     return out * area
+
+
+def works_with_alone(positions: np.ndarray, previous: np.ndarray, current: np.ndarray, starts: np.ndarray,
+                     alone_starts: np.ndarray, area: float) -> tuple[np.ndarray, np.ndarray]:
+    """``works_at(positions, previous, current, starts, area)`` and ``works_at(positions, current, current,
+    alone_starts, area)`` by one kernel call (the transient balance's two, the second's terms half taken from the
+    first's: ~2 % of a genset-v20 cycle less), the same numbers bit for bit (tests/core/test_indicated.py)."""
+    out, alone = np.empty(starts.shape), np.empty(alone_starts.shape)
+    _window_works(positions, previous, current, starts, alone_starts, out, alone)
+    return out * area, alone * area
+
+
+_NO_WINDOWS = np.zeros((0, 0), dtype=np.int64)  # works_at's empty alone_starts (read only, never written)
+_NO_WORKS = np.zeros((0, 0))
 
 
 def window_works_reference(theta: np.ndarray, positions: np.ndarray, previous: np.ndarray, current: np.ndarray,

@@ -53,7 +53,7 @@ from frictionwatch.core.monitor.identify.identification import (
 )
 from frictionwatch.core.monitor.identify.layout import parameter_layout
 from frictionwatch.core.monitor.identify.priors import prior_normal
-from frictionwatch.core.monitor.report.cycle_report import build_result
+from frictionwatch.core.monitor.report.cycle_report import StageReport, build_result
 from frictionwatch.core.monitor.report.report_kernels import trig_tables
 from frictionwatch.core.monitor.report.results import ChainSample, CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState, PreviousCycle
@@ -223,19 +223,17 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         checked[check.name] = step.state
         flags += step.flags
         report.update(step.report)
-        inp = replace(inp, ident=step.ident)
+        if step.ident is not inp.ident:  # (a check that leaves it as it was costs no new input: ~14 fields)
+            inp = replace(inp, ident=step.ident)
     ident = inp.ident
 
-    result = build_result(spec, cycle, fly, exc, rows, state.layout, ident, mean, pmax, pmax_angle, flags, tables)
-    fit_flags = ("speed_fit_poor",) if result.r_squared < cfg.r_squared_floor else ()  # NaN (no ripple): no flag
-    if wheel2_flag is not None:
-        fit_flags += (wheel2_flag,)
-    result = replace(result, **report,  # one replace: the stage results not in build_result
-                     flags=result.flags + fit_flags, free_end=free_end,
-                     chain=None if free_end is None or not cfg.drive_train_inputs else ChainSample(
-                         node_torque_harmonics(op_used.shaft, op_used.receptance, bal.node_speed),
-                         0.5j * fly.omega_mean * np.arange(1, m + 1) * fly.harmonics,
-                         fly.pattern_harmonics[:, :state.n_nuisance].copy()))
+    # the stage results not in build_result go in with the rest: one CycleResult made, not one and a replace
+    report.update(free_end=free_end, chain=None if free_end is None or not cfg.drive_train_inputs else ChainSample(
+        node_torque_harmonics(op_used.shaft, op_used.receptance, bal.node_speed),
+        0.5j * fly.omega_mean * np.arange(1, m + 1) * fly.harmonics,
+        fly.pattern_harmonics[:, :state.n_nuisance].copy()))
+    result = build_result(spec, cycle, fly, exc, rows, state.layout, ident, mean, pmax, pmax_angle, tables,
+                          StageReport(flags, cfg.r_squared_floor, () if wheel2_flag is None else (wheel2_flag,), report))
     new_state = MonitorState(
         layout=state.layout, n_harmonics=m, n_nuisance=state.n_nuisance, accumulator=ident.accumulator,
         stats=ident.stats, params=ident.smoothed.params, op=op, relative_motion=rel, static=static, teeth=teeth,

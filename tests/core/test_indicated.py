@@ -6,8 +6,11 @@ from frictionwatch.core.model.indicated import (
     net_imep,
     peak_pressure,
     piston_positions,
+    window_starts,
     window_works,
     window_works_reference,
+    works_at,
+    works_with_alone,
 )
 from frictionwatch.core.model.kinematics import cylinder_volume
 from numpy.testing import assert_allclose
@@ -58,3 +61,22 @@ def test_window_works_match_the_numpy_trapezoid_over_two_cycles():
                         np.full(spec.n_cyl, 2 * np.pi), np.zeros(spec.n_cyl)])
     got = window_works(th, x, prev, cur, centres, spec.piston_area)
     assert_allclose(got, window_works_reference(th, x, prev, cur, centres, spec.piston_area), rtol=1e-12)
+
+
+def test_works_with_alone_are_the_two_windowed_calls():
+    """The transient balance's one call (windows over [previous | current] and over [current | current]) against
+    two ``works_at`` calls and the numpy trapezoid: the same terms summed in the same order, so equal to 1e-15
+    relative (stated; they agree to the bit), and the reference to 1e-12."""
+    spec = load_engine("k9k-4cyl")
+    th = 0.01 + np.arange(720) * (4 * np.pi / 720)
+    rng = np.random.default_rng(12)
+    prev, cur = (1e5 + rng.uniform(0, 80e5, (spec.n_cyl, th.size)) for _ in range(2))
+    x = piston_positions(th, spec.firing_angles, spec.kinematics_params())
+    centres = np.stack([rng.uniform(-2 * np.pi, 2 * np.pi, spec.n_cyl), np.zeros(spec.n_cyl)])
+    alone_centres = np.stack([np.zeros(spec.n_cyl), np.full(spec.n_cyl, 2 * np.pi)])
+    starts, alone_starts = window_starts(th, centres), window_starts(th, alone_centres)
+    own, alone = works_with_alone(x, prev, cur, starts, alone_starts, spec.piston_area)
+    assert_allclose(own, works_at(x, prev, cur, starts, spec.piston_area), rtol=1e-15, atol=0)
+    assert_allclose(alone, works_at(x, cur, cur, alone_starts, spec.piston_area), rtol=1e-15, atol=0)
+    assert_allclose(alone, window_works_reference(th, x, cur, cur, alone_centres, spec.piston_area), rtol=1e-12)
+    assert_allclose(own, window_works_reference(th, x, prev, cur, centres, spec.piston_area), rtol=1e-12)

@@ -179,3 +179,36 @@ def test_an_offline_run_reads_its_open_window_on_every_cylinder():
     last = offline.stages["tdc_watch"].last
     assert last is not None and all(e is not None for e in last)
     assert all(abs(e.offset_deg) <= 3.0 * e.sigma_deg for e in last), [(e.offset_deg, e.sigma_deg) for e in last]
+
+
+def test_a_cycle_keeps_every_field_it_does_not_gather():
+    """watch_cycle builds its new state field by field (no dataclasses.replace, for speed): every field it does not
+    gather (the last window's reading, flags, turn, first readings, references, screened and fitted cylinders) is
+    carried as it was, and one cycle's pair is gathered (sums, counts, cycles, speed, twist)."""
+    import dataclasses
+    import types
+
+    import numpy as np
+    from frictionwatch.core.model.engine import load_engine
+    from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState, watch_cycle
+
+    spec = load_engine("k9k-4cyl")
+    n, z = 720, spec.n_cyl
+    grid = np.linspace(0.0, 4 * np.pi, n, endpoint=False)
+    rng = np.random.default_rng(6)
+
+    def cycle(index):
+        return types.SimpleNamespace(index=index, grid=grid, pressure=rng.uniform(1e5, 1e7, (z, n)),
+                                     tooth_ticks=np.array([0, 1000]), tick_hz=1e5, tooth_angle=np.array([0.0, 4 * np.pi]))
+
+    carried = dict(last=(None,) * z, flags=("sensor_tdc_offset",), next_cylinder=2, first_own=np.ones((2, z)),
+                   reference=np.zeros((z, 3)), reference_twist=np.full(z, 0.1), screened=(1,), fitted=(None,) * z)
+    state = dataclasses.replace(TdcWatchState.empty(), previous=cycle(7), **carried)
+    new = watch_cycle(spec, None, state, cycle(8), np.full(z, 0.01))
+    for name, value in carried.items():
+        assert getattr(new, name) is value, name
+    assert new.cycles == 1 and new.counts.sum() == 1 and new.previous.index == 8
+    np.testing.assert_allclose(new.omega_sum, 4 * np.pi / 0.01, rtol=1e-12)
+    np.testing.assert_allclose(new.twist_sum, np.full(z, 0.01), rtol=1e-12)
+    assert {f.name for f in dataclasses.fields(TdcWatchState)} == {*carried, "sums", "counts", "cycles", "previous",
+                                                                   "omega_sum", "twist_sum", "cut"}

@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.model.indicated import piston_positions, tdc_centres, window_starts, works_at
+from frictionwatch.core.model.indicated import piston_positions, tdc_centres, window_starts, works_with_alone
 from frictionwatch.core.model.kinematics import cylinder_kinematics_kernel, kinematics
 from frictionwatch.core.monitor.balance.excitation import Excitation
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterior, ResidualStats, posterior_from_normal
@@ -156,9 +156,8 @@ def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indi
         geometry = grid_geometry(spec, cycle.grid)
     x, area = geometry.positions, spec.piston_area
     cur = np.ascontiguousarray(pressure, dtype=np.float64)
-    own, around_tdc1 = works_at(x, np.ascontiguousarray(previous.pressure, dtype=np.float64), cur,
-                                geometry.window_starts, area)
-    alone = works_at(x, cur, cur, geometry.alone_starts, area)[0]
+    (own, around_tdc1), (alone,) = works_with_alone(x, np.ascontiguousarray(previous.pressure, dtype=np.float64),
+                                                    cur, geometry.window_starts, geometry.alone_starts, area)
     accel = (mid_speed**2 - previous.mid_speed**2) / (2.0 * FOUR_PI)
     kinetic = geometry.inertia_mid * accel
     indicated = float(np.sum(indicated_cycle)) + float(around_tdc1.sum() - alone.sum()) / FOUR_PI

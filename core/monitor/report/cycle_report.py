@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from frictionwatch.core.model.dynamics import rigid_friction_torque
 from frictionwatch.core.model.engine import EngineSpec, mep_per_torque
@@ -17,12 +19,25 @@ from frictionwatch.core.types import Cycle
 FOUR_PI = 4.0 * np.pi
 
 
+class StageReport(NamedTuple):
+    """What the monitor's other stages put in a cycle's result: ``flags`` so far; ``speed_fit_poor`` after them where
+    the fit's R^2 is below ``r_squared_floor`` (NaN, no ripple: not added), then ``later_flags``; ``fields``: their
+    ``CycleResult`` fields by name (the checks' reports, the free end)."""
+
+    flags: list[str]
+    r_squared_floor: float
+    later_flags: tuple[str, ...]
+    fields: dict
+
+
 def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excitation, rows: CycleRows,
                  layout: ParameterLayout, ident: Identification, mean: MeanBalance, pmax: np.ndarray,
-                 pmax_angle: np.ndarray, flags: list[str], tables: TrigTables) -> CycleResult:
+                 pmax_angle: np.ndarray, tables: TrigTables, stages: StageReport) -> CycleResult:
     """The result of one cycle from its stages. The traces use the smoothed parameters [friction scales, tooth
     nuisances]; this cycle's drift (``ident.drift_col``) has its best fit taken out of the reported residual, as
-    it is out of the noise statistics; tables: ``trig_tables(M, n_t)`` of the harmonic-balance time grid."""
+    it is out of the noise statistics; tables: ``trig_tables(M, n_t)`` of the harmonic-balance time grid.
+    ``stages``: what the other stages add (``StageReport``), set in the one construction (a ``dataclasses.replace``
+    after it built the ~40-field result again)."""
     grid = np.ascontiguousarray(cycle.grid, dtype=np.float64)
     n_t = exc.tau.shape[0]
     p_f = layout.n_params
@@ -63,8 +78,9 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
     total = on_grid[0]
     speed_meas, speed_model = on_grid[1], on_grid[2]
     balance_trace = on_grid[3] if spec.n_nodes == 1 else None
+    fit_flags = ("speed_fit_poor",) if r2 < stages.r_squared_floor else ()  # NaN (no ripple): no flag
     return CycleResult(
-        index=cycle.index, t_start=cycle.t_start, rpm_mean=fly.omega_mean * 60.0 / (2.0 * np.pi),
+        **stages.fields, index=cycle.index, t_start=cycle.t_start, rpm_mean=fly.omega_mean * 60.0 / (2.0 * np.pi),
         omega_mean=fly.omega_mean, load_torque=float(load), load_power=float(cycle.load_power),
         imep=(exc.indicated_mean * mep_per_torque(spec.displacement_cyl) if mean.imep_centred is None else
               mean.imep_centred),
@@ -75,7 +91,7 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
         friction_torque_cyl_time=cyl_time, time_angles=theta_fly, speed_measured=speed_meas,
         speed_model=speed_model,
         residual_harmonics=resid, residual_rms=float(np.sqrt(0.5 * resid_sq)), r_squared=r2,
-        friction_torque_balance=balance_trace, flags=tuple(flags),
+        friction_torque_balance=balance_trace, flags=(*stages.flags, *fit_flags, *stages.later_flags),
         acceleration=float(mean.acceleration), indicated_window=float(mean.indicated_window))
 
 
