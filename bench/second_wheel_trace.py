@@ -65,8 +65,31 @@ class Tap:
 
     def __init__(self):
         self.inner = identification.reported_estimate
+        self.inner_post = identification.posterior_from_normal
         self.calls = 0
+        self.post_calls = 0
         self.last: dict | None = None
+        self.normal = None  # the smoothed posterior's accumulated equations, prior and budget
+        self.m = 0  # harmonics of the flywheel's rows (set by the caller)
+
+    def posterior(self, acc, n_pr, r_pr, sys_var, lower):
+        self.post_calls += 1
+        if self.post_calls % 2 == 1:  # the smoothed posterior first, then the cycle's
+            self.normal = (acc, n_pr, np.asarray(sys_var))
+        return self.inner_post(acc, n_pr, r_pr, sys_var, lower)
+
+    def sys_parts(self, rows: np.ndarray) -> dict:
+        """Each cylinder's systematic variance split by raw-row group: the flywheel's speed rows, the free end's
+        and the mean balance [(N m)^2], with the rows' own budget (rms of sqrt(sys_var) per group)."""
+        acc, n_pr, sys_var = self.normal
+        g = np.linalg.solve(acc.info + n_pr, acc.sys_map)[:rows.shape[1]]  # (p_f, R)
+        h = rows @ g  # (z, R): each cylinder's friction per unit raw error of each row
+        r = sys_var.shape[0]
+        groups = {"flywheel": slice(0, 2 * self.m), "free_end": slice(2 * self.m, r - 1), "balance": slice(r - 1, r)}
+        out = {}
+        for name, sl in groups.items():
+            out[f"sys_{name}"] = (h[:, sl] ** 2 * sys_var[sl][None, :]).sum(axis=1)
+        return out
 
     def __call__(self, spec, layout, post, basis_mean, prior_mean, limits, cyl_rows, floor, check, cal, sens):
         est = self.inner(spec, layout, post, basis_mean, prior_mean, limits, cyl_rows, floor, check, cal, sens)
@@ -87,7 +110,7 @@ class Tap:
                              misfit=check.misfit, coupling=check.coupling_loss, excess_rel=math.sqrt(
                                  excess2) / t_tot if t_tot > 0 else float("nan"),
                              misfit_rel=math.sqrt(mis) / t_tot if t_tot > 0 else float("nan"),
-                             weight=float(post.weight), chi2=float(post.chi2_reduced))
+                             weight=float(post.weight), chi2=float(post.chi2_reduced), **self.sys_parts(rows))
         return est
 
 
@@ -102,6 +125,7 @@ def cmd_trace(args) -> None:
     spec = load_engine(TWO_WHEELS)
     tap = Tap()
     identification.reported_estimate = tap
+    identification.posterior_from_normal = tap.posterior
     names = args.variants
     pipes = {n: EnginePipeline(spec, log.info if n != "one_wheel" else replace(log.info, second_wheel=None),
                                VARIANTS[n]) for n in names}
@@ -112,6 +136,8 @@ def cmd_trace(args) -> None:
     doc = {"log": str(log_path), "every": args.every, "variants": names, "trace": {n: [] for n in names}}
     for record in itertools.chain(log.records(), [None]):
         for n in names:
+            state = pipes[n].state
+            tap.m = state.n_harmonics if state is not None else 0
             for o in pipes[n].outcomes(record):
                 if not o.ok:
                     continue
@@ -152,6 +178,8 @@ def row(name, outcome, t, truth_all, pipe) -> dict:
             "excess_rel_pct": round(100 * t["excess_rel"], 3), "misfit": round(float(t["misfit"]), 3),
             "misfit_rel_pct": round(100 * t["misfit_rel"], 3), "coupling": round(float(t["coupling"]), 3),
             "weight": round(t["weight"], 1), "chi2": round(t["chi2"], 3),
+            **{f"{k}_pct": _r(100 * np.sqrt(t[k]) / np.abs(t["t_cyl"]), 2) for k in ("sys_flywheel", "sys_free_end",
+                                                                                     "sys_balance")},
             "scales": _r(state.params[:state.layout.n_params] if state is not None else [], 4)}
 
 
