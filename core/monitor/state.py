@@ -122,14 +122,13 @@ class MonitorConfig:
     # fraction of the measured mean load torque (where the amplitude is 0), engine order, phase [rad]; zeros: none
     load_ripple: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     # the joint fit of both wheels: the second wheel's half-order speed equations accumulated with the flywheel's
-    # (core.monitor.identify.free_end_rows; its node: the engine file's [sensors.second_wheel]). Off by default: on
-    # genset-v20 (seed 29, 600-1,000 cycles at one load) it pulls the ring-group scales 0.1-0.6 low and F5/F6 high
-    # (bench/accuracy_v20_wheels.py): the free end's equations miss the plant by 1.7-52 % of the harmonic at orders
-    # 5.5-11.5 (bench/second_wheel_consistency.py). Not the chain: with the free-end wheel's tooth errors zeroed
-    # in the plant they are 0.3-1.8 % there (bench/drive_train_model_error.py); its in-band tooth errors, integer
-    # orders in angle, leak into the half orders seen in time, and its rows carry no nuisance for them
-    # (docs/design-notes.md "The drive train from both wheels"). The second wheel's own speed and tooth learning
-    # run whatever this says.
+    # (core.monitor.identify.free_end_rows; its node: the engine file's [sensors.second_wheel]). Off by default.
+    # Since its rows are weighted by their repeatable error (design note 35) it measures more genset-v20 cylinders
+    # than one wheel (+-20 % profile, seeds 29 and 31, 4,000 cycles: 20 and 20 against 19 and 19), but not yet the
+    # issue's 16 within 5 %: the free end's in-band tooth errors still leak into its half orders (notes "The drive
+    # train from both wheels"), two of 485 measured figures on seed 29 were 2 sigma off, and it costs about twice a
+    # one-wheel cycle (19-21x real time measured in session 13, against the 30x the two-wheel path must keep).
+    # The second wheel's own speed and tooth learning run whatever this says.
     second_wheel: bool = False
     # the highest half order of the free end's equations in the joint fit (hand-set, core/monitor/tuned.json):
     # 4.5, the highest whose residual at the

@@ -92,7 +92,11 @@ def test_the_joint_fit_adds_the_free_ends_information(run):
         return (st.accumulator.info - st.accumulator.info_reference)[:p, :p]
 
     i1, i2 = speed_info(one), speed_info(two)
-    assert np.trace(i2) > 1.2 * np.trace(i1)  # seed 8: 833 -> 2073
-    assert np.linalg.eigvalsh(i2)[0] > 3.0 * np.linalg.eigvalsh(i1)[0]  # seed 8: 0.020 -> 0.090
+    # the free end's rows count each cycle with 1 / (var + n v), v their repeatable error (free_end_rows): less
+    # than by var alone (seed 8: trace 833 -> 2073, smallest eigenvalue 0.020 -> 0.090), still more than one wheel
+    assert np.trace(i2) > 1.2 * np.trace(i1)  # seed 8: 833 -> 1648
+    assert np.linalg.eigvalsh(i2)[0] > 1.5 * np.linalg.eigvalsh(i1)[0]  # seed 8: 0.020 -> 0.041
     s1, s2 = res1[-1].smoothed.friction_torque_mean_sigma, res2[-1].smoothed.friction_torque_mean_sigma
-    assert np.all(s2 <= s1 * 1.02)  # 60 cycles: the sigma is the prior's and the systematic budget's (seed 8: +0.3 %)
+    assert np.all(s2 <= s1 * 1.02)  # 60 cycles: the sigma is the prior's and the systematic budget's (seed 8:
+    # +0.3 % with the rows weighted by var alone; by var + n v -0.3 to -1.1 %, and -0.02 to -0.09 % with the speed
+    # rows' budget from the persistent residual, design note 35)

@@ -44,7 +44,9 @@ class Accumulator:
     """Exponentially weighted normal equations (P params, R raw rows per cycle incl. the mean-balance row).
 
     info (P, P), rhs (P,), yty whitened sum of squares, weight effective number of cycles, rows effective number of
-    rows, sys_map (P, R) = sum lambda^age A^T D."""
+    rows, sys_map (P, R) = sum lambda^age A^T D; raw_rows (R, P) and raw_target (R,): sum lambda^age of the raw
+    (unwhitened) rows and targets over raw_weight effective cycles, so the accumulated cycles' mean residual at any
+    estimate is at hand (``persistent_residual``; None: not kept, e.g. a state saved before they were)."""
 
     info: np.ndarray
     rhs: np.ndarray
@@ -53,6 +55,16 @@ class Accumulator:
     rows: float
     sys_map: np.ndarray
     info_reference: np.ndarray
+    raw_rows: np.ndarray | None = None
+    raw_target: np.ndarray | None = None
+    raw_weight: float = 0.0
+
+    def persistent_residual(self, params: np.ndarray) -> np.ndarray | None:
+        """(R,) the accumulated cycles' mean raw residual at ``params``: target minus rows @ params, weighted as
+        the equations are (None: raw rows not kept, or nothing accumulated)."""
+        if self.raw_rows is None or self.raw_target is None or self.raw_weight <= 0.0:
+            return None
+        return (self.raw_target - self.raw_rows @ np.asarray(params, dtype=np.float64)) / self.raw_weight
 
     @staticmethod
     def empty(n_params: int, n_rows: int) -> Accumulator:
@@ -86,8 +98,10 @@ class Accumulator:
                              f"a {a.shape}, and 0 <= reference_rows <= {a.shape[0]} (got {reference_rows})")
         return CycleTerms(info, rhs, yty, float(a.shape[0]), sys_map, ref)
 
-    def fold(self, terms: CycleTerms, forgetting: float) -> Accumulator:
-        """lambda * self + one cycle's ``terms`` (new arrays; self is unchanged)."""
+    def fold(self, terms: CycleTerms, forgetting: float,
+             raw: tuple[np.ndarray, np.ndarray] | None = None) -> Accumulator:
+        """lambda * self + one cycle's ``terms`` (new arrays; self is unchanged); ``raw``: that cycle's raw rows
+        (R, P) and targets (R,), summed into ``raw_rows`` / ``raw_target`` (None: those are dropped)."""
         lam = float(forgetting)
         if not 0.0 <= lam <= 1.0:
             raise ValueError(f"forgetting factor must be in [0, 1], got {lam}")
@@ -97,8 +111,19 @@ class Accumulator:
                 terms.info_reference)))
         if not ok:
             raise ValueError("the cycle's terms do not have the accumulator's shapes")
+        raw_rows = raw_target = None
+        raw_weight = 0.0
+        if raw is not None:
+            d, t = np.asarray(raw[0], dtype=np.float64), np.asarray(raw[1], dtype=np.float64)
+            if d.shape != sys_map.shape[::-1] or t.shape != (sys_map.shape[1],):
+                raise ValueError(f"raw rows {d.shape} and targets {t.shape} must be {sys_map.shape[::-1]} and "
+                                 f"({sys_map.shape[1]},)")
+            have = self.raw_rows is not None and self.raw_target is not None
+            raw_rows = lam * self.raw_rows + d if have else d.copy()
+            raw_target = lam * self.raw_target + t if have else t.copy()
+            raw_weight = lam * self.raw_weight + 1.0 if have else 1.0
         return Accumulator(info, rhs, lam * self.yty + terms.yty, lam * self.weight + 1.0,
-                           lam * self.rows + terms.rows, sys_map, ref)
+                           lam * self.rows + terms.rows, sys_map, ref, raw_rows, raw_target, raw_weight)
 
 
     def discounted(self, keep: float) -> Accumulator:
@@ -110,7 +135,9 @@ class Accumulator:
         if not 0.0 < k <= 1.0:
             raise ValueError(f"keep must be in (0, 1], got {k}")
         return Accumulator(self.info * k, self.rhs * k, self.yty * k, self.weight * k, self.rows * k,
-                           self.sys_map * k, self.info_reference * k)
+                           self.sys_map * k, self.info_reference * k,
+                           None if self.raw_rows is None else self.raw_rows * k,
+                           None if self.raw_target is None else self.raw_target * k, self.raw_weight * k)
 
 
 class CycleTerms(NamedTuple):
