@@ -9,10 +9,10 @@ A listener is any object with ``on_message_received(event)`` (python-can's name)
 ``stop()``, ``name`` and ``wants(event)``; a plain callable works too. ``wants`` is asked on the publishing thread
 (keep it a field read): False and the event is not queued for that listener at all, neither delivered nor counted
 as dropped; a queue hand-off wakes the listener's thread, ~50 us of CPU on a loaded 2-core box, every cycle of
-every engine (the SSE broadcaster wants nothing while no client listens). An exception in a listener is counted (``errors``), passed to
-its ``on_error`` and logged once; the listener keeps receiving. The events are ``ServiceEvent``: one per analysed
-cycle (``result`` set, with the alert changes that cycle caused) and one per state change made through the API
-(``result`` None: an acknowledged alert, a new baseline).
+every engine (the SSE broadcaster wants nothing while no client listens; design notes 34). An exception in a
+listener is counted (``errors``), passed to its ``on_error`` and logged once; the listener keeps receiving. The
+events are ``ServiceEvent``: one per analysed cycle (``result`` set, with the alert changes that cycle caused) and
+one per state change made through the API (``result`` None: an acknowledged alert, a new baseline).
 
 The listeners of the API live here: ``LatestState`` (what the routes read) and ``SseBroadcaster`` (the stream).
 """

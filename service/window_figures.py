@@ -12,6 +12,8 @@ against: every figure null or unresolved). It is left out of the means and the s
 
 ``figures_from_cycles`` computes them from the window's cycles one by one: the reference. The service reads them
 from running sums kept once per cycle (service/window_sums.py, O(1) per request); a test holds the two together.
+The sums take each cycle's row from ``result_row`` (the same numbers from the result's arrays, without the
+document; tests/service/test_window_row.py holds it to ``cycle_row``).
 """
 
 from __future__ import annotations
@@ -98,9 +100,9 @@ def _finite(x: np.ndarray) -> np.ndarray:
 
 def result_row(result: CycleResult) -> tuple[RowLayout, np.ndarray, np.ndarray]:
     """``layout_of`` and ``cycle_row`` of ``result.to_json(smoothed=False)``, by the document's own arithmetic from
-    the result's arrays, without making the document (which costs ~0.25 ms of a genset-v20 cycle for ~1 % of its
-    numbers; the API state makes one row a cycle). ``cycle_row`` of the document stays the reference: equal, NaN
-    as NaN (tests/service/test_window_sums.py)."""
+    the result's arrays, without making the document, of whose numbers the row takes ~1 % (the API state makes one
+    row a cycle: 0.24 ms a genset-v20 cycle through the document, 0.08 this way; design notes 34). ``cycle_row`` of
+    the document stays the reference: equal, NaN as NaN (tests/service/test_window_row.py)."""
     est = result.cycle
     st = friction_status(est, result.flags)
     coefs = np.asarray(est.coefficients, dtype=np.float64)
