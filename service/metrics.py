@@ -91,20 +91,32 @@ class MetricsListener(Listener):
 
     def __init__(self, metrics: ServiceMetrics, engine_id: str) -> None:
         self.metrics, self.engine_id = metrics, engine_id
+        # this engine's labelled series, looked up at its first result and kept (``labels`` takes the metric's lock
+        # and builds its key each call: 22 a genset-v20 cycle); the same child objects ``labels`` gives. Not before
+        # the first result: a series appears in /metrics when it has a value (a gauge would read 0 until then)
+        self._latency: Any = None
+        self._engine_fmep: Any = None
+        self._cylinder_fmep: list[Any] = []
 
     def on_message_received(self, event: ServiceEvent) -> None:
         r = event.result
         if r is None:
             return
-        m = self.metrics
         if event.arrived_s is not None:
-            m.latency.labels(self.engine_id).observe(max(0.0, event.result_s - event.arrived_s))
+            if self._latency is None:
+                self._latency = self.metrics.latency.labels(self.engine_id)
+            self._latency.observe(max(0.0, event.result_s - event.arrived_s))
         # status from this cycle's flags (figure_status): only a measurement is exported; the figures alone, not
         # the whole document (to_json was this listener's cost, design notes 31)
         engine, cylinders = r.measured_fmep_bar()
-        m.engine_fmep.labels(self.engine_id).set(engine)
-        for k, v in enumerate(cylinders):
-            m.fmep.labels(self.engine_id, str(k + 1)).set(v)
+        if self._engine_fmep is None:
+            self._engine_fmep = self.metrics.engine_fmep.labels(self.engine_id)
+        self._engine_fmep.set(engine)
+        gauges = self._cylinder_fmep
+        while len(gauges) < len(cylinders):
+            gauges.append(self.metrics.fmep.labels(self.engine_id, str(len(gauges) + 1)))
+        for gauge, v in zip(gauges, cylinders, strict=False):
+            gauge.set(v)
 
 
 class _EngineCounters(Collector):

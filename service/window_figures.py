@@ -12,6 +12,8 @@ against: every figure null or unresolved). It is left out of the means and the s
 
 ``figures_from_cycles`` computes them from the window's cycles one by one: the reference. The service reads them
 from running sums kept once per cycle (service/window_sums.py, O(1) per request); a test holds the two together.
+The sums take each cycle's row from ``result_row`` (the same numbers from the result's arrays, without the
+document; tests/service/test_window_row.py holds it to ``cycle_row``).
 """
 
 from __future__ import annotations
@@ -22,8 +24,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from frictionwatch.core.monitor.report.figure_status import STATUSES
-from frictionwatch.core.monitor.report.results import CycleResult
+from frictionwatch.core.monitor.report.figure_status import STATUSES, friction_status
+from frictionwatch.core.monitor.report.results import PA_PER_BAR, CycleResult
 from frictionwatch.core.monitor.report.run_summary import mean_and_sem
 
 NO_PREVIOUS_CYCLE = "no_previous_cycle"  # core.monitor.monitor: the cycle has no cycle before it
@@ -86,6 +88,43 @@ def cycle_row(doc: dict, layout: RowLayout) -> tuple[np.ndarray, np.ndarray]:
         row[start:start + layout.n_coefs] = [_f(c) for c in cyl["coefficients"]]
         status[k] = STATUSES.index(fig["status"])
     return row, status
+
+
+_HAS_VALUE = ("measured", "share", "prior")  # the statuses whose figure shows a value (results._figure)
+
+
+def _finite(x: np.ndarray) -> np.ndarray:
+    """``_num`` of each element: the value where finite, NaN (null) elsewhere."""
+    return np.where(np.isfinite(x), x, np.nan)
+
+
+def result_row(result: CycleResult) -> tuple[RowLayout, np.ndarray, np.ndarray]:
+    """``layout_of`` and ``cycle_row`` of ``result.to_json(smoothed=False)``, by the document's own arithmetic from
+    the result's arrays, without making the document, of whose numbers the row takes ~1 % (the API state makes one
+    row a cycle: 0.24 ms a genset-v20 cycle through the document, 0.08 this way; design notes 34). ``cycle_row`` of
+    the document stays the reference: equal, NaN as NaN (tests/service/test_window_row.py)."""
+    est = result.cycle
+    st = friction_status(est, result.flags)
+    coefs = np.asarray(est.coefficients, dtype=np.float64)
+    n_cyl = len(st.cylinders)
+    layout = RowLayout(n_cyl, coefs.shape[1] if n_cyl else 0)
+    row = np.full(layout.width, np.nan)
+    if st.engine.status == "measured":  # the flat key: the total's fmep_bar where measured (_measured_only)
+        torque = float(est.total_friction_torque)
+        if math.isfinite(torque):
+            row[0] = _finite(np.float64(torque * result.mep_per_nm(engine=True) / PA_PER_BAR))
+    status = np.array([STATUSES.index(c.status) for c in st.cylinders], np.int64)
+    if n_cyl:
+        share = np.array([c.status == "share" for c in st.cylinders])
+        valued = np.array([c.status in _HAS_VALUE for c in st.cylinders])
+        shown = np.where(share, est.prior_friction_torque_mean, est.friction_torque_mean).astype(np.float64)
+        torque = np.where(valued, _finite(shown), np.nan)
+        table = row[1:].reshape(n_cyl, layout.per_cyl)  # a view: torque, FMEP, weight, coefficients per cylinder
+        table[:, 0] = torque
+        table[:, 1] = _finite(torque * result.mep_per_nm() / PA_PER_BAR)
+        table[:, 2] = [math.nan if c.data_weight is None else float(c.data_weight) for c in st.cylinders]
+        table[:, 3:] = _finite(coefs)
+    return layout, row, status
 
 
 @dataclass(frozen=True)

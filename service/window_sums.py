@@ -24,9 +24,8 @@ from frictionwatch.service.window_figures import (
     NO_PREVIOUS_CYCLE,
     RowLayout,
     WindowFigures,
-    cycle_row,
-    layout_of,
     left_out,
+    result_row,
 )
 
 log = logging.getLogger(__name__)
@@ -46,10 +45,9 @@ class WindowSums:
 
     @staticmethod
     def row_for(result: CycleResult) -> tuple[RowLayout, np.ndarray, np.ndarray, frozenset[str]]:
-        """The cycle's row, made once (``to_json`` is the per-cycle cost a window request used to pay N times)."""
-        doc = result.to_json(smoothed=False)
-        layout = layout_of(doc)
-        row, status = cycle_row(doc, layout)
+        """The cycle's row, made once (``to_json`` was the per-cycle cost a window request used to pay N times; the
+        row is now made from the result's arrays, ``window_figures.result_row``)."""
+        layout, row, status = result_row(result)
         return layout, row, status, frozenset(result.flags)
 
     def append(self, index: int, made: tuple[RowLayout, np.ndarray, np.ndarray, frozenset[str]]) -> None:

@@ -118,3 +118,66 @@ def test_closed_source_and_corrupt_file(log_path: Path, tmp_path: Path) -> None:
     bad.write_bytes(b"\x00" * 1000)
     with pytest.raises(CorruptLog):
         open_source(f"mcap:{bad}")
+
+
+def _shape(record) -> tuple:
+    """What a record is, its ticks as integers and its pressures: to compare passes moved by whole ticks."""
+    from frictionwatch.drivers.logs.mcap_schema import last_tick
+    from frictionwatch.drivers.source import StreamRestart
+
+    if isinstance(record, StreamRestart):
+        return ("restart", record.ticks)
+    return (type(record).__name__, last_tick(record))
+
+
+@pytest.mark.parametrize("start_s", [0.0, 0.1])
+def test_every_pass_of_a_loop_is_the_first_moved_on(log_path: Path, start_s: float) -> None:
+    """Each pass is the first pass's records moved by its span (first to last tick, by ``last_tick`` on every record
+    of the first pass) plus LOOP_GAP_S, after a restart mark one tick past the pass before: also the passes whose span
+    the source takes from the first whole pass rather than working it out again."""
+    import math
+
+    from frictionwatch.drivers.logs.mcap_replay import LOOP_GAP_S
+    from frictionwatch.drivers.logs.mcap_schema import last_tick
+    from frictionwatch.drivers.source import StreamRestart
+
+    src = McapSource(log_path, loop=True, start_s=start_s)
+    passes: list[list] = [[]]
+    while len(passes) < 5:
+        for r in src.read():
+            if isinstance(r, StreamRestart):
+                passes.append([r])
+            else:
+                passes[-1].append(r)
+    src.close()
+    keys = [math.floor(last_tick(r)) for r in passes[0]]
+    span = max(keys) - min(keys) + round(LOOP_GAP_S * INFO.tick_hz)
+    for p, records in enumerate(passes[1:4], start=1):
+        assert records[0].ticks == max(keys) + (p - 1) * span + 1
+        assert len(records) == len(passes[0]) + 1
+        for first, again in zip(passes[0], records[1:], strict=True):
+            name, tick = _shape(first)
+            assert _shape(again) == (name, tick + p * span)
+
+
+def test_a_seek_in_a_looped_pass_keeps_time_going_on(log_path: Path) -> None:
+    """A seek in a later pass (whose span the source takes from the first whole pass): every restart mark still
+    comes after every tick the stream has given before it, and every pass after the seek is a whole one again."""
+    from frictionwatch.drivers.logs.mcap_schema import last_tick
+    from frictionwatch.drivers.source import StreamRestart
+
+    src = McapSource(log_path, loop=True, max_records=16)
+    stream, sought = [], False
+    while src.passes < 5:
+        stream += src.read()
+        if src.passes == 2 and not sought and len(stream) > 40:
+            src.seek(0.2)
+            sought = True
+    src.close()
+    newest, marks = -1.0, 0
+    for r in stream:
+        if isinstance(r, StreamRestart):
+            assert r.ticks > newest
+            marks += 1
+        newest = max(newest, float(r.ticks if isinstance(r, StreamRestart) else last_tick(r)))
+    assert sought and marks == 5

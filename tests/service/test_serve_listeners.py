@@ -89,3 +89,27 @@ def test_sse_slow_client_drops_alone() -> None:
 
     n_fast, slow_held, dropped, other = asyncio.run(scenario())
     assert (n_fast, slow_held, dropped, other) == (10, 3, 7, 0)  # e2's client sees none of e1's events
+
+
+def test_the_sse_listener_is_handed_nothing_while_no_client_listens() -> None:
+    """``wants``: no queue hand-off (no thread woken) for a broadcaster without clients; with one, every event again."""
+
+    async def scenario() -> tuple[int, int, int, list[str]]:
+        sse = SseBroadcaster(lambda ev: [("alert", str(ev.alerts[0]["alert_id"]))], client_queue=16)
+        fanout = Fanout([sse])
+        fanout.start()
+        for i in range(5):
+            fanout.publish(event(i))
+        await asyncio.sleep(0.2)
+        before = fanout._workers[0].delivered
+        client = sse.subscribe("e1")
+        for i in range(5, 8):
+            fanout.publish(event(i))
+        got = [(await asyncio.wait_for(client.queue.get(), 5.0))[1] for _ in range(3)]
+        after = fanout._workers[0].delivered
+        fanout.stop()
+        return before, after, fanout.drops["sse"], got
+
+    before, after, drops, got = asyncio.run(scenario())
+    assert (before, after, drops) == (0, 3, 0)
+    assert got == ["5", "6", "7"]

@@ -1,0 +1,46 @@
+"""The metrics listener (service/metrics.py): each cycle's measured FMEPs and its latency under the engine's labels,
+its series looked up once and kept; no series of an engine before its first result (a gauge would read 0)."""
+
+from __future__ import annotations
+
+import math
+
+from frictionwatch.service.listeners import ServiceEvent
+from frictionwatch.service.metrics import MetricsListener, ServiceMetrics
+from numpy.testing import assert_allclose
+from prometheus_client.parser import text_string_to_metric_families
+
+
+class FakeResult:
+    def __init__(self, engine: float, cylinders: list[float]) -> None:
+        self.figures = (engine, cylinders)
+
+    def measured_fmep_bar(self) -> tuple[float, list[float]]:
+        return self.figures
+
+
+def samples(metrics: ServiceMetrics, name: str, engine: str) -> dict:
+    fams = {f.name: f for f in text_string_to_metric_families(metrics.text().decode())}
+    return {s.labels.get("cylinder", s.name): s.value for s in fams[name].samples
+            if s.labels.get("engine") == engine}
+
+
+def test_each_cycle_sets_the_engines_series_and_no_series_before_the_first() -> None:
+    metrics = ServiceMetrics(lambda: [], lambda: 0)
+    a, b = metrics.listener("a"), metrics.listener("b")
+    assert isinstance(a, MetricsListener)
+    assert samples(metrics, "frictionwatch_engine_fmep_bar", "a") == {}
+    assert samples(metrics, "frictionwatch_fmep_bar", "a") == {}
+    a.on_message_received(ServiceEvent("a", FakeResult(1.5, [1.0, math.nan, 2.0]), 10.0, 9.9))
+    b.on_message_received(ServiceEvent("b", FakeResult(math.nan, [0.5, 0.25]), 10.0, None))
+    a.on_message_received(ServiceEvent("a", FakeResult(1.75, [1.25, 3.0, math.nan]), 10.5, 10.2))
+    assert_allclose(samples(metrics, "frictionwatch_engine_fmep_bar", "a")["frictionwatch_engine_fmep_bar"], 1.75)
+    assert math.isnan(samples(metrics, "frictionwatch_engine_fmep_bar", "b")["frictionwatch_engine_fmep_bar"])
+    cyl_a = samples(metrics, "frictionwatch_fmep_bar", "a")
+    assert_allclose([cyl_a["1"], cyl_a["2"]], [1.25, 3.0], rtol=0, atol=0)
+    assert math.isnan(cyl_a["3"]) and set(cyl_a) == {"1", "2", "3"}
+    assert samples(metrics, "frictionwatch_fmep_bar", "b") == {"1": 0.5, "2": 0.25}
+    lat = samples(metrics, "frictionwatch_cycle_latency_seconds", "a")
+    assert lat["frictionwatch_cycle_latency_seconds_count"] == 2
+    assert_allclose(lat["frictionwatch_cycle_latency_seconds_sum"], 0.1 + 0.3, rtol=1e-12)
+    assert samples(metrics, "frictionwatch_cycle_latency_seconds", "b") == {}  # no arrival time: no latency
