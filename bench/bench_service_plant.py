@@ -81,11 +81,16 @@ def start_server(n: int, cpu: int | None, history: int) -> tuple[subprocess.Pope
         cmd += ["--source", f"mcap:replay_logs/demo.mcap?loop=1&speed=1#g{i + 1}"]
     if cpu is not None:
         cmd = ["taskset", "-c", str(cpu), *cmd]
-    proc = subprocess.Popen(cmd, cwd=ROOT, text=True, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    return launched(cmd, ROOT, timeout_s=600)
+
+
+def launched(cmd: list[str], cwd: Path, timeout_s: float) -> tuple[subprocess.Popen, str]:
+    """Start ``serve`` and wait for the line with its dashboard URL: (process, URL)."""
+    proc = subprocess.Popen(cmd, cwd=cwd, text=True, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
     lines: queue.Queue = queue.Queue()
     threading.Thread(target=lambda: [lines.put(x) for x in proc.stdout], daemon=True).start()
     while True:
-        m = re.search(r"dashboard at (\S+)", lines.get(timeout=600))
+        m = re.search(r"dashboard at (\S+)", lines.get(timeout=timeout_s))
         if m:
             return proc, m[1]
 

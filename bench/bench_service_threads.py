@@ -19,17 +19,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import queue
 import re
 import subprocess
-import threading
 import time
 from collections import Counter
 from pathlib import Path
 
 import httpx
 
-from bench.bench_service_plant import CYCLE_REVS
+from bench.bench_service_plant import CYCLE_REVS, launched
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -64,13 +62,7 @@ def start_server(checkout: Path, n: int, cpu: int, batch_s: float | None) -> tup
     cmd = ["taskset", "-c", str(cpu), str(python), *launch, "serve", "--port", "0", "--history-cycles", "5000"]
     for i in range(n):
         cmd += ["--source", f"mcap:replay_logs/demo.mcap?loop=1&speed=1#g{i + 1}"]
-    proc = subprocess.Popen(cmd, cwd=checkout, text=True, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
-    lines: queue.Queue = queue.Queue()
-    threading.Thread(target=lambda: [lines.put(x) for x in proc.stdout], daemon=True).start()
-    while True:
-        m = re.search(r"dashboard at (\S+)", lines.get(timeout=900))
-        if m:
-            return proc, m[1]
+    return launched(cmd, checkout, timeout_s=900)
 
 
 def processed(client: httpx.Client) -> float:
