@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.monitor.report.figure_status import STATUSES, friction_status
-from frictionwatch.core.monitor.report.results import PA_PER_BAR, CycleResult
+from frictionwatch.core.monitor.report.results import PA_PER_BAR, VALUED_STATUSES, CycleResult
 from frictionwatch.core.monitor.report.run_summary import mean_and_sem
 
 NO_PREVIOUS_CYCLE = "no_previous_cycle"  # core.monitor.monitor: the cycle has no cycle before it
@@ -90,9 +90,6 @@ def cycle_row(doc: dict, layout: RowLayout) -> tuple[np.ndarray, np.ndarray]:
     return row, status
 
 
-_HAS_VALUE = ("measured", "share", "prior")  # the statuses whose figure shows a value (results._figure)
-
-
 def _finite(x: np.ndarray) -> np.ndarray:
     """``_num`` of each element: the value where finite, NaN (null) elsewhere."""
     return np.where(np.isfinite(x), x, np.nan)
@@ -116,7 +113,7 @@ def result_row(result: CycleResult) -> tuple[RowLayout, np.ndarray, np.ndarray]:
     status = np.array([STATUSES.index(c.status) for c in st.cylinders], np.int64)
     if n_cyl:
         share = np.array([c.status == "share" for c in st.cylinders])
-        valued = np.array([c.status in _HAS_VALUE for c in st.cylinders])
+        valued = np.array([c.status in VALUED_STATUSES for c in st.cylinders])
         shown = np.where(share, est.prior_friction_torque_mean, est.friction_torque_mean).astype(np.float64)
         torque = np.where(valued, _finite(shown), np.nan)
         table = row[1:].reshape(n_cyl, layout.per_cyl)  # a view: torque, FMEP, weight, coefficients per cylinder

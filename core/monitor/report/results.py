@@ -351,12 +351,15 @@ class CycleResult:
         return mep_per_torque(self.displacement_cyl * (self.n_cyl if engine else 1))
 
 
+VALUED_STATUSES = ("measured", "share", "prior")  # the statuses whose figure shows a value (the others: None)
+
+
 def _figure(status: FigureStatus, window: dict, torque: float, sigma: float, mep_per_nm: float,
             calibration: str = "uncalibrated", calibration_sigma: float = float("nan")) -> dict:
     """One friction figure as shown: its status, reason, data weight, window and value (None where the status has
     no value: unresolved, withheld); calibration: the model's calibration status, calibration_sigma [N m] the part
     of the sigma the calibration's remaining uncertainty adds (core.model.calibration)."""
-    has_value = status.status in ("measured", "share", "prior")
+    has_value = status.status in VALUED_STATUSES
     t = _num(torque) if has_value else None
     s = _num(sigma) if has_value else None
     return {
