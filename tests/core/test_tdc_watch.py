@@ -182,8 +182,7 @@ def test_an_offline_run_reads_its_open_window_on_every_cylinder():
 
 
 def test_a_cycle_keeps_every_field_it_does_not_gather():
-    """watch_cycle builds its new state field by field (no dataclasses.replace, for speed): every field it does not
-    gather (the last window's reading, flags, turn, first readings, references, screened and fitted cylinders) is
+    """watch_cycle's new state: every field it does not gather (the last window's reading, flags, turn, first readings, references, screened and fitted cylinders) is
     carried as it was, and one cycle's pair is gathered (sums, counts, cycles, speed, twist)."""
     import dataclasses
     import types
