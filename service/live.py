@@ -174,8 +174,8 @@ class LiveSession:
         self._stop.set()
         self._queue.close()  # a replay reader waiting for room gives up
         if self._started:
-            for t in self._readers:
-                t.join(drain)
+            for t in self._readers:  # all of them within the one drain, not a drain each
+                t.join(max(0.0, self._drain_until - time.monotonic()))
             self._queue.put_marker(None, _END)
             # the drain's deadline, plus the cycle in progress and the pipeline's flush
             self._ingest.join(max(0.0, self._drain_until - time.monotonic()) + 2.0)
