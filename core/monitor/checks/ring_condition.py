@@ -33,7 +33,8 @@ there is no minority (one against the other is not a majority): the sibling refe
 since a baseline can name a cylinder; likewise with one.
 
 Arrays in, arrays out, SI / dimensionless; the only state is the sibling window (``SiblingWindow``, explicit data:
-``update_window`` takes it and gives it back). Plain numpy: a few (z,) operations per cycle, no kernel.
+``update_window`` takes it and gives it back). Plain numpy but for the sibling medians (one kernel,
+``sibling_excess``, beside its readable reference ``sibling_excess_reference``).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import NamedTuple
 
+import numba
 import numpy as np
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 
@@ -184,47 +186,48 @@ def sibling_excess(x: np.ndarray, se: np.ndarray, allowance: float) -> tuple[np.
     >>> np.round(dev / s, 2).tolist()    # two against one: the healthy minority is not a fault (negative)
     [0.58, -4.0, 0.58]
     """
-    x = np.asarray(x, dtype=np.float64)
-    se = np.asarray(se, dtype=np.float64)
-    z = x.shape[0]
-    dev, sig = np.full(z, np.nan), np.full(z, np.nan)
-    if z < 3:
-        return dev, sig
-    # every cylinder's others at once, one row each (z, z - 1): one median per call instead of one per cylinder
-    # (genset-v20: 528 us a cycle one at a time, the ring rule's largest cost in serve)
-    off = ~np.eye(z, dtype=bool)
-    others = np.broadcast_to(x, (z, z))[off].reshape(z, z - 1)
-    o_se = np.broadcast_to(se, (z, z))[off].reshape(z, z - 1)
-    ok = np.isfinite(others)
-    n_ok = ok.sum(axis=1)
-    decided = np.isfinite(x) & (n_ok >= 2)
-    for k in np.flatnonzero(decided & (n_ok == 2)):  # the mean of the two others, their disagreement as spread
-        o, o_s = others[k][ok[k]], o_se[k][ok[k]]
-        centre = 0.5 * (o[0] + o[1])
-        spread = abs(o[0] - o[1]) / np.sqrt(2.0)
-        centre_var = 0.25 * (o_s[0] ** 2 + o_s[1] ** 2) + 0.5 * spread ** 2
-        dev[k] = x[k] - centre
-        sig[k] = np.sqrt(se[k] ** 2 + max(spread, allowance) ** 2 + centre_var)
-    many = decided & (n_ok >= 3)
-    if many.any():  # the median of the others, their median absolute deviation as spread
-        o = np.where(ok, others, np.nan)[many]
-        n = n_ok[many]
-        centre = _row_median(o, n)
-        spread = 1.4826 * _row_median(np.abs(o - centre[:, None]), n)
-        mean_se2 = np.where(ok, o_se ** 2, 0.0)[many].sum(axis=1) / n
-        centre_var = (np.pi / 2.0) * (spread ** 2 + mean_se2) / n
-        dev[many] = x[many] - centre
-        sig[many] = np.sqrt(se[many] ** 2 + np.maximum(spread, allowance) ** 2 + centre_var)
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    se = np.ascontiguousarray(se, dtype=np.float64)
+    dev, sig = np.full(x.shape[0], np.nan), np.full(x.shape[0], np.nan)
+    if x.shape[0] >= 3:
+        # one kernel for the z medians (``sibling_excess_reference``'s numbers): as numpy, one matrix of every
+        # cylinder's others and one sort, it cost ~80 us a genset-v20 cycle (load ~5), 9 % of serve's busy time
+        # with 4 gensets (py-spy), the ring rule's largest part
+        _sibling_kernel(x, se, float(allowance), dev, sig)
     return dev, sig
 
 
-def _row_median(a: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Each row's median of its ``n`` finite values (NaN elsewhere): np.median's values, one sort for all rows
-    (np.nanmedian goes row by row)."""
-    s = np.sort(a, axis=1)  # NaN last
-    lo = np.take_along_axis(s, ((n - 1) // 2)[:, None], axis=1)[:, 0]
-    hi = np.take_along_axis(s, (n // 2)[:, None], axis=1)[:, 0]
-    return np.where(n % 2 == 1, lo, 0.5 * (lo + hi))
+@numba.njit(cache=True)
+def _sibling_kernel(x, se, allowance, dev, sig):  # pragma: no cover - compiled; tested against the reference
+    z = x.shape[0]
+    o, o_se = np.empty(z - 1), np.empty(z - 1)
+    for k in range(z):
+        n = 0
+        for j in range(z):
+            if j != k and np.isfinite(x[j]):
+                o[n], o_se[n] = x[j], se[j]
+                n += 1
+        if not np.isfinite(x[k]) or n < 2:
+            continue
+        if n == 2:  # three cylinders: the mean of the two others, their disagreement as spread
+            centre = 0.5 * (o[0] + o[1])
+            spread = abs(o[0] - o[1]) / np.sqrt(2.0)
+            centre_var = 0.25 * (o_se[0] ** 2 + o_se[1] ** 2) + 0.5 * spread ** 2
+        else:  # the median of the others, their median absolute deviation as spread
+            centre = _sorted_median(np.sort(o[:n]))
+            spread = 1.4826 * _sorted_median(np.sort(np.abs(o[:n] - centre)))
+            se2 = 0.0
+            for j in range(n):
+                se2 += o_se[j] ** 2
+            centre_var = (np.pi / 2.0) * (spread ** 2 + se2 / n) / n
+        dev[k] = x[k] - centre
+        sig[k] = np.sqrt(se[k] ** 2 + max(spread, allowance) ** 2 + centre_var)
+
+
+@numba.njit(cache=True)
+def _sorted_median(s):  # pragma: no cover - compiled
+    n = s.shape[0]
+    return s[(n - 1) // 2] if n % 2 == 1 else 0.5 * (s[n // 2 - 1] + s[n // 2])
 
 
 def sibling_excess_reference(x: np.ndarray, se: np.ndarray, allowance: float) -> tuple[np.ndarray, np.ndarray]:
