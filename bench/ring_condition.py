@@ -2,6 +2,7 @@
 into the work's report.
 
     python -m bench.ring_condition ring --engine genset-v20 --cylinder 10 --onset 1000        # after commissioning
+    python -m bench.ring_condition ring --engine genset-v20 --cylinder 1 --onset 1000 --second-wheel   # two wheels
     python -m bench.ring_condition ring --engine maruti-3cyl --cylinder 2 --onset 0 --no-commission   # from the start
     python -m bench.ring_condition ring --engine k9k-4cyl --fault blow_by --cylinder 3 --onset 0 --no-commission
     python -m bench.ring_condition healthy --engine k9k-4cyl --cycles 3000 --step-every 500
@@ -39,6 +40,7 @@ import numpy as np
 from frictionwatch.core.model.effects import parse_effect
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.engine_model import load_model
+from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.plant.simulate import start_simulation
 from frictionwatch.service.alert_baseline import Baseline
 from frictionwatch.service.alert_ring_rule import RingConditionRule
@@ -73,9 +75,10 @@ def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: i
         steps = [(i * step_every * t_cycle, load * (args.low_load if i % 2 else 1.0))
                  for i in range(1, cycles // step_every)]
     sim = start_simulation(load_engine(args.engine), rpm, load, cycles, args.seed,
-                           effects=[parse_effect(e) for e in effects], cov_imep=args.cov, load_steps=steps or None)
+                           effects=[parse_effect(e) for e in effects], cov_imep=args.cov, load_steps=steps or None,
+                           second_wheel=args.second_wheel)
     from frictionwatch.service.pipeline import EnginePipeline
-    pipe = EnginePipeline(model, sim.info)
+    pipe = EnginePipeline(model, sim.info, MonitorConfig(second_wheel=True) if args.second_wheel else None)
     alerts = AlertEngine(model.spec, baseline=baseline)
     rule = next(r for stage in alerts.rules for r in stage if isinstance(r, RingConditionRule))
     events, trace = [], {"cycle": [], "since": [], "since_sigma": [], "siblings": [], "siblings_sigma": []}
@@ -101,6 +104,7 @@ def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: i
     return {"events": events, "trace": arr, "cycles": n, "wall_s": round(time.perf_counter() - t0, 1),
             "cpu_s": round(time.process_time() - c0, 1),
             "load_steps": len(steps), "commissioned": not args.no_commission,
+            "second_wheel": pipe.config.second_wheel,  # the joint fit ran (not only asked for)
             "bands_at_end": [round(b.imep_pa / 1e5, 2) for b in (alerts.baseline.bands if alerts.baseline else ())]}
 
 
@@ -152,6 +156,7 @@ def ring(args: argparse.Namespace) -> dict:
                for key in ("since", "since_sigma", "siblings", "siblings_sigma")}
     return {"mode": "ring", "engine": args.engine, "seed": args.seed, "effect": effect, "onset": args.onset,
             "commissioned": out["commissioned"], "commissioned_with": list(at_commission) if out["commissioned"] else [],
+            "second_wheel": out["second_wheel"],
             "step_every": args.step_every, "delay_cycles": None if first(out["events"]) is None else first(out["events"]) - args.onset,
             "first_by_rule": firsts,
             "wrong_cylinder": [r for r in raised if r["kind"] in RING_KINDS and r["cylinder"] != args.cylinder],
@@ -167,6 +172,7 @@ def healthy(args: argparse.Namespace) -> dict:
     _save(args, out["trace"])
     return {"mode": "healthy", "engine": args.engine, "seed": args.seed, "mismatch": MISMATCH[args.mismatch],
             "commissioned": out["commissioned"], "step_every": args.step_every, "load_steps": out["load_steps"],
+            "second_wheel": out["second_wheel"],
             "ring_alerts": [r for r in raised if r["kind"] in RING_KINDS],
             "other": [r for r in raised if r["kind"] not in RING_KINDS][:12], **_z_summary(out["trace"]),
             "cycles": out["cycles"], "wall_s": out["wall_s"], "cpu_s": out["cpu_s"], "bands_at_end": out["bands_at_end"]}
@@ -186,6 +192,8 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--seed", type=int, default=7, help="the engine (commissioning and run alike)")
         p.add_argument("--cov", type=float, default=0.03, help="COV of IMEP (combustion variability)")
         p.add_argument("--no-commission", action="store_true", help="no commissioning: the preset, no baseline")
+        p.add_argument("--second-wheel", action="store_true", help="log the engine file's free-end wheel too and "
+                       "fit both wheels (MonitorConfig.second_wheel; the commissioning logs stay one-wheel)")
         p.add_argument("--commission-cycles", type=int, default=300)
         p.add_argument("--commission-loads", default=f"1.0,{LOW_LOAD}")
         p.add_argument("--trace", default="", help="keep the per-cycle figures in this .npz")
