@@ -270,16 +270,18 @@ def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle
     turn = list(range(z)) if z <= per_window else [(state.next_cylinder + i) % z for i in range(per_window)]
     screened: list[int] = []
     moved = np.zeros(z)  # each unfitted cylinder's shift since its last fit [rad] (the screen's; 0: none read)
+    moved_sigma = np.zeros(z)  # and its 1 sigma [rad]
     ref, ref_twist = state.reference, state.reference_twist
     if z > per_window and ref is not None and ref.shape == mean_trace.shape and ref_twist is not None:
         for k in range(z):
             if k in turn or not np.all(np.isfinite(ref[k])):
                 continue
-            shift = screen_shift(ref[k], mean_trace[k], angle, spec) + float(twist_mean[k] - ref_twist[k])
+            shift, shift_sigma = screen_shift(ref[k], mean_trace[k], angle, spec)
+            shift += float(twist_mean[k] - ref_twist[k])
             if abs(shift) > math.radians(SCREEN_DEG):
                 screened.append(k)
             elif math.isfinite(shift):
-                moved[k] = shift
+                moved[k], moved_sigma[k] = shift, shift_sigma if math.isfinite(shift_sigma) else 0.0
     if ref is None or ref.shape != mean_trace.shape:
         ref, ref_twist = np.full(mean_trace.shape, np.nan), np.zeros(z)
     ref, ref_twist = ref.copy(), np.array(ref_twist, dtype=np.float64)
@@ -295,7 +297,7 @@ def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle
     # an unfitted cylinder's estimate is its last fit moved by the screen's shift since: every estimate refers to
     # this window (a wheel that slipped mid-window, half of it in the window, moves the screened cylinders' fits and
     # the unscreened ones' alike; a stale estimate beside fresh ones read as that cylinder's own offset)
-    estimates = [None if e is None else dataclasses.replace(e, offset_rad=e.offset_rad + float(moved[k]))
+    estimates = [None if e is None else moved_by(e, float(moved[k]), float(moved_sigma[k]))
                  for k, e in enumerate(fitted)]
     nxt = (state.next_cylinder + len(turn)) % z
     first = own_offsets(estimates) if state.first_own is None else state.first_own.copy()
@@ -305,6 +307,17 @@ def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle
         first[:, new] = now[:, new]
     return TdcWatchState(None, np.zeros(BLOCKS), 0, cycle, tuple(estimates), tdc_flags(cal, estimates, first), 0.0,
                          0.0, nxt, first, ref, ref_twist, tuple(screened), tuple(fitted), state.cut)
+
+
+def moved_by(fit: TdcEstimate, shift: float, sigma: float) -> TdcEstimate:
+    """A cylinder's last fit moved by the screen's ``shift`` since [rad] and carrying the screen's ``sigma`` [rad]
+    in its statistical part (and so in its whole sigma); the fit itself where nothing was moved."""
+    if shift == 0.0 and sigma == 0.0:
+        return fit
+    stat_deg = math.hypot(float(fit.evidence.get("statistical_deg", 0.0)), math.degrees(sigma))
+    return dataclasses.replace(fit, offset_rad=fit.offset_rad + shift, sigma_rad=math.hypot(fit.sigma_rad, sigma),
+                               evidence={**fit.evidence, "statistical_deg": stat_deg,
+                                         "screen_sigma_deg": math.degrees(sigma)})
 
 
 def own_offsets(estimates: list[TdcEstimate | None]) -> np.ndarray:
@@ -321,20 +334,37 @@ def own_offsets(estimates: list[TdcEstimate | None]) -> np.ndarray:
     return out
 
 
-def screen_shift(reference: np.ndarray, trace: np.ndarray, angle: np.ndarray, spec: EngineSpec) -> float:
-    """The angle [rad] by which ``trace`` lies later than ``reference`` (one cylinder's mean pressure on the local
-    grid ``angle``, 0 = its assumed firing TDC) over the compression stroke before the combustion, where the trace's
-    shape is the volume's: least squares of trace = a reference + b + c reference' (a, b: the charge pressure and a
-    pegging move with the load; c = -a shift for a small shift). NaN where the stretch is too short."""
+def screen_shift(reference: np.ndarray, trace: np.ndarray, angle: np.ndarray, spec: EngineSpec
+                 ) -> tuple[float, float]:
+    """(shift, its 1 sigma) [rad]: the angle by which ``trace`` lies later than ``reference`` (one cylinder's mean
+    pressure on the local grid ``angle``, 0 = its assumed firing TDC) over the compression stroke before the
+    combustion, where the trace's shape is the volume's: least squares of trace = a reference + b + c reference' (a,
+    b: the charge pressure and a pegging move with the load; c = -a shift for a small shift). NaN where the stretch
+    is too short."""
     deg = np.degrees(angle)
     hi = min(spec.combustion.start_deg - SCREEN_BEFORE_SOC_DEG, -SCREEN_BEFORE_SOC_DEG)
     sel = (deg >= max(SCREEN_FROM_DEG, spec.combustion.ivc_deg)) & (deg <= hi)
     if np.count_nonzero(sel) < 8:
-        return math.nan
+        return math.nan, math.nan
     d_ref = np.gradient(reference, angle)
     cols = np.column_stack([reference[sel], np.ones(np.count_nonzero(sel)), d_ref[sel]])
-    (a, _, c), *_ = np.linalg.lstsq(cols, trace[sel], rcond=None)
-    return float(-c / a) if a > 0 else math.nan
+    coef, *_ = np.linalg.lstsq(cols, trace[sel], rcond=None)
+    a, c = float(coef[0]), float(coef[2])
+    if not a > 0:
+        return math.nan, math.nan
+    # the shift's standard error from the fit's own residual (delta method on -c / a): a screened cylinder's estimate
+    # is its last fit moved by this shift, and carries this error too (genset-v20 seed 7, healthy, commissioned:
+    # shifts of rms 0.057 deg where nothing moved, their standard errors median 0.060 deg; the fits' own statistical
+    # sigma 0.003-0.012 deg, so without it a healthy cylinder's own offset wandered 0.2 -> 0.38 deg over windows at
+    # "3 sigma" and was flagged)
+    r = trace[sel] - cols @ coef
+    dof = max(int(np.count_nonzero(sel)) - 3, 1)
+    try:
+        cov = np.linalg.inv(cols.T @ cols) * float(r @ r) / dof
+    except np.linalg.LinAlgError:
+        return -c / a, math.nan
+    g = np.array([c / a**2, 0.0, -1.0 / a])
+    return -c / a, float(np.sqrt(max(float(g @ cov @ g), 0.0)))
 
 
 def tdc_flags(cal: Calibration, estimates: list[TdcEstimate | None],
@@ -378,4 +408,4 @@ def tdc_flags(cal: Calibration, estimates: list[TdcEstimate | None],
 
 
 __all__ = ["SCREEN_DEG", "TdcWatchState", "TraceCut", "WINDOW_CYCLES", "add_traces", "close_window", "cut_traces", "local_traces", "own_offsets",
-           "screen_shift", "tdc_flags", "trace_cut", "watch_cycle"]
+           "moved_by", "screen_shift", "tdc_flags", "trace_cut", "watch_cycle"]
