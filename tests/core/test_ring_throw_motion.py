@@ -108,3 +108,26 @@ def test_the_monitor_reads_a_healthy_genset_cylinders_together():
     mean = np.mean(effects, axis=0)
     assert np.std(mean) < 0.0012  # at the flywheel's angle 0.0037 (the shaft's twist)
     assert np.abs(mean - np.median(mean)).max() < 0.003  # a 3 % leak reads +0.004
+
+
+@pytest.mark.parametrize("start", [0.0, 0.004, -0.003])
+def test_the_kernels_bracket_is_the_searchsorted_one_from_any_guess(start):
+    """``_bracket`` (the moved kernel's column search from the cylinder's last bracket) gives ``_columns``'s column
+    and fraction (np.searchsorted on the extended grid) bit for bit: ordered angles walking the grid, angles in
+    random order (a guess far off), the ends of the grid and the wrap beyond them."""
+    from frictionwatch.core.monitor.checks.ring_pressure import _bracket, _columns
+
+    n = 720
+    grid = start + np.arange(n) * (FOUR_PI / n)
+    rng = np.random.default_rng(7)
+    walk = np.radians(np.arange(0.0, 720.0, 1.0)) + 0.37 * FOUR_PI / n
+    ends = np.array([0.0, grid[0], np.nextafter(grid[0], -1.0), grid[-1], np.nextafter(grid[-1], 9.0),
+                     np.nextafter(FOUR_PI, 0.0)])
+    for angles in (walk, rng.uniform(0.0, FOUR_PI, 500), ends[ends >= 0.0], grid[(grid >= 0.0) & (grid < FOUR_PI)]):
+        angles = angles[angles < grid[0] + FOUR_PI]  # (beyond: outside the extended grid, no reference column)
+        want_cols, want_frac = _columns(grid, angles)
+        last = -1
+        for at, col, fr in zip(angles, want_cols, want_frac):
+            got_col, got_frac, last = _bracket(grid, float(at), last)
+            assert got_col == col
+            assert got_frac == fr or (np.isnan(got_frac) and np.isnan(fr))

@@ -241,3 +241,22 @@ def test_a_cycle_keeps_every_field_it_does_not_gather():
     np.testing.assert_allclose(new.twist_sum, np.full(z, 0.01), rtol=1e-12)
     assert {f.name for f in dataclasses.fields(TdcWatchState)} == {*carried, "sums", "counts", "cycles", "previous",
                                                                    "omega_sum", "twist_sum", "cut"}
+
+
+def test_a_trace_cut_fits_the_phases_array_equal_accepts():
+    """``TraceCut.fits`` compares the phases as lists: the same answer as np.array_equal (equal values, one value
+    off, NaN, another length, the same values as ints)."""
+    import dataclasses
+
+    import numpy as np
+    from frictionwatch.core.monitor.calibration.tdc_watch import trace_cut
+
+    phases = np.radians(np.array([0.0, 180.0, 540.0, 360.0]))
+    cut = trace_cut(720, phases)
+    nan_cut = dataclasses.replace(trace_cut(720, np.zeros(2)), phases=np.array([0.0, np.nan]))
+    for other in (phases.copy(), phases + np.array([0.0, 0.0, 1e-15, 0.0]), phases[:3], np.append(phases, 0.0),
+                  np.array([np.nan, 0.0, 0.0, 0.0]), np.zeros(4, dtype=np.int64), np.zeros(0)):
+        assert cut.fits(720, other) == np.array_equal(cut.phases, other)
+        assert nan_cut.fits(720, other) == np.array_equal(nan_cut.phases, other)
+    assert not nan_cut.fits(720, nan_cut.phases.copy())  # NaN is not equal to NaN, as in np.array_equal
+    assert trace_cut(720, np.zeros(4)).fits(720, np.zeros(4, dtype=np.int64))

@@ -124,7 +124,9 @@ class TraceCut:
     angle: np.ndarray
 
     def fits(self, n: int, phases: np.ndarray) -> bool:
-        return self.n == n and np.array_equal(self.phases, phases)
+        # np.array_equal's answer (NaN unequal, shapes compared) from the phases as lists: ~0.6 against ~5.8 us a
+        # call, asked every cycle (0.6 % of a k9k cycle in py-spy; design note 37)
+        return self.n == n and np.asarray(phases).tolist() == self.phases.tolist()
 
 
 def trace_cut(n: int, phases: np.ndarray, half_width_rad: float = math.pi) -> TraceCut:

@@ -266,59 +266,81 @@ def moved_tables(spec: EngineSpec, grid: np.ndarray, tables: RingTables, motion:
 def _moved_kernel(grid, local, phases, static, rel, theta_start, cols, frac):
     """cols/frac (z, m) in place: each sample at flywheel angle a = local + phase minus the throw's lag there
     (static + Re sum_j rel_j exp(i (j + 1) (a - theta_start) / 2)), then its bracket on the grid extended by one
-    point at each end, periodic over 4 pi (``_columns``). The window samples are evenly spaced: along a run of them
-    each harmonic's term is turned by its own fixed rotation (independent products, not one serial chain per
-    sample: 156 -> 60 us a genset-v20 cycle, same run), recomputed directly every RESTART samples and wherever the
-    spacing changes (a window's start), so rounding never accumulates over more than RESTART products."""
+    point at each end, periodic over 4 pi (``_columns``; ``_bracket``, from the cylinder's last one). The samples
+    are evenly spaced: along a run of them each harmonic's term is turned by its own fixed rotation, recomputed
+    directly every RESTART samples and wherever the spacing changes (a window's start), so rounding never
+    accumulates over more than RESTART products. Rotation and restarts depend on the sample only, so the cylinders
+    step together: each lag is still its own terms summed in order (the same bits), but z sums run side by side,
+    not one serial chain of additions per sample (design note 37: 62 -> 37 us a genset-v20 cycle)."""
     z, m = cols.shape
-    n = grid.shape[0]
     n_h = rel.shape[1]
-    q = np.empty(n_h, dtype=np.complex128)  # each harmonic's term at the current sample
-    r = np.empty(n_h, dtype=np.complex128)  # its rotation from one sample to the next
-    for k in range(z):
-        spacing = np.nan
-        for i in range(m):
-            a = local[i] + phases[k]
-            d = local[i] - local[i - 1] if i > 0 else np.nan
-            if i % RESTART == 0 or not abs(d - spacing) <= 1e-12:  # the terms from scratch (and the rotations)
-                u = 0.5 * (a - theta_start)
+    qr, qi = np.empty((n_h, z)), np.empty((n_h, z))  # each harmonic's term at the sample (re, im), (j, cylinder)
+    rr, ri = np.empty(n_h), np.empty(n_h)  # its rotation from one sample to the next
+    lag = np.empty(z)
+    last = np.full(z, -1)  # each cylinder's last bracket (-1: none yet)
+    spacing = np.nan
+    for i in range(m):
+        d = local[i] - local[i - 1] if i > 0 else np.nan
+        restart = i % RESTART == 0 or not abs(d - spacing) <= 1e-12
+        if restart:  # the terms from scratch (and the rotations)
+            for k in range(z):
+                u = 0.5 * (local[i] + phases[k] - theta_start)
                 step = complex(np.cos(u), np.sin(u))
                 w = step
                 for j in range(n_h):
-                    q[j] = rel[k, j] * w
+                    q = rel[k, j] * w
+                    qr[j, k], qi[j, k] = q.real, q.imag
                     w *= step
-                if i + 1 < m:
-                    spacing = local[i + 1] - local[i]
-                    h = 0.5 * spacing
-                    rot = complex(np.cos(h), np.sin(h))
-                    v = rot
-                    for j in range(n_h):
-                        r[j] = v
-                        v *= rot
-            else:
+            if i + 1 < m:
+                spacing = local[i + 1] - local[i]
+                h = 0.5 * spacing
+                rot = complex(np.cos(h), np.sin(h))
+                v = rot
                 for j in range(n_h):
-                    q[j] *= r[j]
-            lag = static[k]
-            for j in range(n_h):
-                lag += q[j].real
-            at = a - lag
-            at -= FOUR_PI * np.floor(at / FOUR_PI)
-            # ext = [grid[-1] - 4 pi, grid..., grid[0] + 4 pi]; the last ext index e with ext[e] <= at
-            if at < grid[0]:
-                lo_val, hi_val, col = grid[n - 1] - FOUR_PI, grid[0], n - 1
-            elif at >= grid[n - 1]:
-                lo_val, hi_val, col = grid[n - 1], grid[0] + FOUR_PI, n - 1
+                    rr[j], ri[j] = v.real, v.imag
+                    v *= rot
+        for k in range(z):
+            lag[k] = static[k]
+        for j in range(n_h):
+            c, s = rr[j], ri[j]
+            if restart:
+                for k in range(z):
+                    lag[k] += qr[j, k]
             else:
-                lo, hi = 0, n - 1  # grid[lo] <= at < grid[hi]
-                while hi - lo > 1:
-                    mid = (lo + hi) >> 1
-                    if grid[mid] <= at:
-                        lo = mid
-                    else:
-                        hi = mid
-                lo_val, hi_val, col = grid[lo], grid[hi], lo
-            cols[k, i] = col
-            frac[k, i] = (at - lo_val) / (hi_val - lo_val)
+                for k in range(z):  # q *= rot, as complex multiplication forms it: (ac - bd) + i (ad + bc)
+                    a, b = qr[j, k], qi[j, k]
+                    qr[j, k] = a * c - b * s
+                    qi[j, k] = a * s + b * c
+                    lag[k] += qr[j, k]
+        for k in range(z):
+            at = local[i] + phases[k] - lag[k]
+            at -= FOUR_PI * np.floor(at / FOUR_PI)
+            cols[k, i], frac[k, i], last[k] = _bracket(grid, at, last[k])
+
+
+@numba.njit(cache=True)
+def _bracket(grid, at, guess):
+    """(column, fraction, lo) of the angle ``at`` in [0, 4 pi): the last index e of the grid extended by one point at each
+    end (ext = [grid[-1] - 4 pi, grid..., grid[0] + 4 pi]) with ext[e] <= at, as a grid column, and the fraction
+    towards the next. Inside the grid the bracket grid[lo] <= at < grid[lo + 1] is unique: it is tried at ``guess``
+    and the one after (window samples 1 deg apart on a ~1 deg grid) before a bisection; lo is -1 outside it."""
+    n = grid.shape[0]
+    if at < grid[0]:
+        return n - 1, (at - (grid[n - 1] - FOUR_PI)) / (grid[0] - (grid[n - 1] - FOUR_PI)), -1
+    if at >= grid[n - 1]:
+        return n - 1, (at - grid[n - 1]) / (grid[0] + FOUR_PI - grid[n - 1]), -1
+    lo = guess
+    if not (0 <= lo < n - 1 and grid[lo] <= at < grid[lo + 1]):
+        lo = guess + 1
+        if not (0 <= lo < n - 1 and grid[lo] <= at < grid[lo + 1]):
+            lo, hi = 0, n - 1  # grid[lo] <= at < grid[hi]
+            while hi - lo > 1:
+                mid = (lo + hi) >> 1
+                if grid[mid] <= at:
+                    lo = mid
+                else:
+                    hi = mid
+    return lo, (at - grid[lo]) / (grid[lo + 1] - grid[lo]), lo
 
 
 def _columns(grid: np.ndarray, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
