@@ -34,6 +34,7 @@ import json
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +49,8 @@ from frictionwatch.service.alerts import RING_KINDS, AlertEngine
 
 from bench.ring_after_commission import LOW_LOAD, POINTS, commission
 
+# engine files with a free-end wheel: the preset's text plus its [sensors.second_wheel]
+TWO_WHEELS = {"genset-v20": Path(__file__).with_name("genset-v20-two-wheels.toml")}
 MISMATCH = {"gain": ["pressure_gain:cylinder=2,gain=1.03"], "tdc": ["tdc_offset:cylinder=2,deg=0.5"],
             "friction_law": ["stribeck_ring:fraction=1.0"], "none": [],
             # the shaft line 15 % softer / stiffer than the monitor's model: the throws' twist it reads each cylinder
@@ -74,7 +77,11 @@ def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: i
         t_cycle = 120.0 / rpm
         steps = [(i * step_every * t_cycle, load * (args.low_load if i % 2 else 1.0))
                  for i in range(1, cycles // step_every)]
-    sim = start_simulation(load_engine(args.engine), rpm, load, cycles, args.seed,
+    spec = load_engine(args.engine)
+    if args.second_wheel:  # the same engine with its free-end wheel (the commissioning logs and model have one wheel)
+        spec = load_engine(TWO_WHEELS[args.engine])
+        model = replace(model, spec=replace(model.spec, sensors=spec.sensors))
+    sim = start_simulation(spec, rpm, load, cycles, args.seed,
                            effects=[parse_effect(e) for e in effects], cov_imep=args.cov, load_steps=steps or None,
                            second_wheel=args.second_wheel)
     from frictionwatch.service.pipeline import EnginePipeline
@@ -192,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--seed", type=int, default=7, help="the engine (commissioning and run alike)")
         p.add_argument("--cov", type=float, default=0.03, help="COV of IMEP (combustion variability)")
         p.add_argument("--no-commission", action="store_true", help="no commissioning: the preset, no baseline")
-        p.add_argument("--second-wheel", action="store_true", help="log the engine file's free-end wheel too and "
+        p.add_argument("--second-wheel", action="store_true", help="log the free-end wheel too (TWO_WHEELS) and "
                        "fit both wheels (MonitorConfig.second_wheel; the commissioning logs stay one-wheel)")
         p.add_argument("--commission-cycles", type=int, default=300)
         p.add_argument("--commission-loads", default=f"1.0,{LOW_LOAD}")
