@@ -43,7 +43,9 @@ def cmd_simulate(args) -> None:
     spec = load_engine(TWO_WHEELS)
     hours = args.cycles / (RPM / 120.0) / 3600.0
     steps = load_profile(hours, dwell_s=args.dwell_s, ramp_pct_per_min=args.ramp)
-    sim = start_simulation(spec, RPM, BASE_LOAD, args.cycles, args.seed, load_steps=steps, second_wheel=True)
+    from bench.drive_train_model_error import tooth_errors_on  # (it imports bench.accuracy_v20_wheels)
+    with tooth_errors_on(args.tooth_errors):  # drawn when the run is set up
+        sim = start_simulation(spec, RPM, BASE_LOAD, args.cycles, args.seed, load_steps=steps, second_wheel=True)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     truth = np.full((args.cycles, spec.n_cyl), np.nan)
@@ -192,6 +194,9 @@ def main() -> None:
     s.add_argument("--dwell-s", type=float, default=30.0)
     s.add_argument("--ramp", type=float, default=60.0)
     s.add_argument("--out", default="/tmp/fw-trace")
+    s.add_argument("--tooth-errors", choices=("both", "flywheel", "free_end"), default="both",
+                   help="which wheels have tooth-spacing errors (flywheel: the free-end wheel perfect, what its "
+                        "in-band nuisances would remove at most; design note 38)")
     s.set_defaults(func=cmd_simulate)
     t = sub.add_parser("trace")
     t.add_argument("log")
