@@ -46,8 +46,7 @@ class Accumulator:
     info (P, P), rhs (P,), yty whitened sum of squares, weight effective number of cycles, rows effective number of
     rows, sys_map (P, R) = sum lambda^age A^T D; raw_rows (R, P) and raw_target (R,): sum lambda^age of the raw
     (unwhitened) rows and targets over raw_weight effective cycles, so the accumulated cycles' mean residual at any
-    estimate is at hand (``persistent_residual``; None: not kept, e.g. a state saved before they were);
-    white_rows (R, P) and white_target (R,) the same sums of the whitened rows (``with_persistent_error``)."""
+    estimate is at hand (``persistent_residual``; None: not kept, e.g. a state saved before they were)."""
 
     info: np.ndarray
     rhs: np.ndarray
@@ -59,8 +58,6 @@ class Accumulator:
     raw_rows: np.ndarray | None = None
     raw_target: np.ndarray | None = None
     raw_weight: float = 0.0
-    white_rows: np.ndarray | None = None
-    white_target: np.ndarray | None = None
 
     def persistent_residual(self, params: np.ndarray) -> np.ndarray | None:
         """(R,) the accumulated cycles' mean raw residual at ``params``: target minus rows @ params, weighted as
@@ -102,11 +99,9 @@ class Accumulator:
         return CycleTerms(info, rhs, yty, float(a.shape[0]), sys_map, ref)
 
     def fold(self, terms: CycleTerms, forgetting: float,
-             raw: tuple[np.ndarray, np.ndarray] | None = None,
-             white: tuple[np.ndarray, np.ndarray] | None = None) -> Accumulator:
+             raw: tuple[np.ndarray, np.ndarray] | None = None) -> Accumulator:
         """lambda * self + one cycle's ``terms`` (new arrays; self is unchanged); ``raw``: that cycle's raw rows
-        (R, P) and targets (R,), summed into ``raw_rows`` / ``raw_target`` (None: those are dropped); ``white``:
-        its whitened rows and targets, summed into ``white_rows`` / ``white_target`` (with ``raw`` only)."""
+        (R, P) and targets (R,), summed into ``raw_rows`` / ``raw_target`` (None: those are dropped)."""
         lam = float(forgetting)
         if not 0.0 <= lam <= 1.0:
             raise ValueError(f"forgetting factor must be in [0, 1], got {lam}")
@@ -127,50 +122,9 @@ class Accumulator:
             raw_rows = lam * self.raw_rows + d if have else d.copy()
             raw_target = lam * self.raw_target + t if have else t.copy()
             raw_weight = lam * self.raw_weight + 1.0 if have else 1.0
-        white_rows = white_target = None
-        if raw is not None and white is not None:
-            a, y = np.asarray(white[0], dtype=np.float64), np.asarray(white[1], dtype=np.float64)
-            if a.shape != sys_map.shape[::-1] or y.shape != (sys_map.shape[1],):
-                raise ValueError(f"whitened rows {a.shape} and targets {y.shape} must be {sys_map.shape[::-1]} and "
-                                 f"({sys_map.shape[1]},)")
-            had = have and self.white_rows is not None and self.white_target is not None
-            white_rows = lam * self.white_rows + a if had else (a.copy() if not have else None)
-            white_target = lam * self.white_target + y if had else (y.copy() if not have else None)
         return Accumulator(info, rhs, lam * self.yty + terms.yty, lam * self.weight + 1.0,
-                           lam * self.rows + terms.rows, sys_map, ref, raw_rows, raw_target, raw_weight,
-                           white_rows, white_target)
+                           lam * self.rows + terms.rows, sys_map, ref, raw_rows, raw_target, raw_weight)
 
-
-    def with_persistent_error(self, v: np.ndarray, inv_sigma: np.ndarray) -> Accumulator:
-        """These equations with a repeated raw error of variance ``v`` (R,) per row taken as a random effect
-        common to every accumulated cycle (0: none), so it is in the statistical covariance and not a bias.
-
-        Per row r, the information sum_c a_c a_c^T (whitened rows) splits into the cycles' variation about their
-        mean, sum_c (a_c - a_bar)(a_c - a_bar)^T, which a constant error does not reach, and the mean's part
-        W a_bar a_bar^T, W the effective cycles. With the error common to all cycles the mean's variance is
-        var / W + v, not var / W: its part is divided by 1 + W v inv^2 (generalised least squares of the
-        random-effect model, exact for a constant error; inv (R,) this cycle's whitening, 1 / sqrt(var)), and so
-        are its right-hand side and y^T y. Each row keeps its variation's information, so the result stays
-        positive semi-definite. Weighting each cycle by 1 / (var + n v) instead (the free end's rows before,
-        design note 35) gave the first cycles the most weight and counted v twice, in the weight and in the
-        systematic covariance (design note 38). Without the whitened sums (a state saved before them): self."""
-        if self.white_rows is None or self.white_target is None or self.raw_weight <= 0.0:
-            return self
-        w = float(self.raw_weight)
-        inv = np.asarray(inv_sigma, dtype=np.float64)
-        s = w * np.asarray(v, dtype=np.float64) * inv * inv
-        f = s / (1.0 + s)  # the share of the mean's part removed
-        if not np.any(f > 0.0):
-            return self
-        k = f / w  # W f a_bar a_bar^T = (f / W) (sum a)(sum a)^T
-        ka = self.white_rows * k[:, None]
-        info = self.info - self.white_rows.T @ ka
-        info = 0.5 * (info + info.T)
-        # a raw error e_r repeated in every cycle reaches the right-hand side as sys_map[:, r] e_r less the
-        # removed share of the mean's, f_r inv_r sum_c a_c e_r: what the sandwich of what is left must use
-        sys_map = np.ascontiguousarray(self.sys_map - (self.white_rows * (f * inv)[:, None]).T)
-        return replace(self, info=info, rhs=self.rhs - ka.T @ self.white_target,
-                       yty=self.yty - float(k @ (self.white_target * self.white_target)), sys_map=sys_map)
 
     def discounted(self, keep: float) -> Accumulator:
         """This accumulator with every cycle's weight x ``keep`` (0 < keep <= 1): a one-off forgetting step, after
@@ -183,9 +137,7 @@ class Accumulator:
         return Accumulator(self.info * k, self.rhs * k, self.yty * k, self.weight * k, self.rows * k,
                            self.sys_map * k, self.info_reference * k,
                            None if self.raw_rows is None else self.raw_rows * k,
-                           None if self.raw_target is None else self.raw_target * k, self.raw_weight * k,
-                           None if self.white_rows is None else self.white_rows * k,
-                           None if self.white_target is None else self.white_target * k)
+                           None if self.raw_target is None else self.raw_target * k, self.raw_weight * k)
 
 
 class CycleTerms(NamedTuple):

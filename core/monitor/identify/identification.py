@@ -200,31 +200,6 @@ def speed_budget(acc: Accumulator, params: np.ndarray, white, model_rel_error: f
     return sys_var
 
 
-def speed_random_effect(acc: Accumulator, budget: np.ndarray, white, model_rel_error: float,
-                        harmonics: np.ndarray) -> tuple[Accumulator, np.ndarray]:
-    """(the accumulated equations with the speed rows' stated repeatable error as a random effect, the
-    systematic variance per raw row left for the sandwich N^-1 B C B^T N^-1).
-
-    budget (R,): ``speed_budget``'s. The flywheel's stated model error (``model_rel_error`` of each harmonic)
-    and the free end's whole repeatable part (core.monitor.identify.free_end_rows) enter the weights
-    (``Accumulator.with_persistent_error``: the accumulated cycles' mean of a row counts with var / W + v, their
-    variation about it with var); what the flywheel's persistent residual shows beyond its stated error stays in
-    the sandwich, as does the mean balance's. Only the stated error for the flywheel: a random effect from the
-    residual at the estimate would feed on itself (a weaker mean, a larger residual there, a larger v).
-    Weighted by var alone with the sandwich on top (before), a row's repeated error drew the estimate as if
-    averaged away and only its stated sigma grew (genset-v20, +-20 % profile: the flywheel rows' systematic part
-    4-7 % of each cylinder at 4,000 cycles, errors up to 11 %; design note 38)."""
-    m = white.freq.shape[0]
-    e = model_rel_error * white.freq * np.abs(harmonics)
-    v_re = np.zeros_like(budget)
-    v_re[:m] = np.minimum(budget[:m], e * e / 2.0)
-    v_re[m:2 * m] = np.minimum(budget[m:2 * m], e * e / 2.0)
-    marginal = acc.with_persistent_error(v_re, white.inv_sigma)
-    if marginal is acc:
-        return acc, budget
-    return marginal, budget - v_re
-
-
 def same_cycles_balance(stats: ResidualStats, fit_total: float) -> float:
     """The mean balance the model-error floor compares the smoothed estimate's total ``fit_total`` [N m] (at this
     cycle's operating point) with: that total plus the fit's mean disagreement with the balance over the same
@@ -331,7 +306,7 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
                         inv_sigma=np.concatenate([white.inv_sigma[:-1], inv2, white.inv_sigma[-1:]]),
                         sys_var=np.concatenate([white.sys_var[:-1], sys2, white.sys_var[-1:]]))
     terms = state.accumulator.cycle_terms(white.a, white.y, white.inv_sigma, 1)  # the mean-balance row: reference
-    acc = (state.accumulator.fold(terms, lam, raw_rows(white.a, white.y, white.inv_sigma), (white.a, white.y))
+    acc = (state.accumulator.fold(terms, lam, raw_rows(white.a, white.y, white.inv_sigma))
            if state.cycles >= cfg.warmup_cycles else state.accumulator)
 
     # running means of the sharing prior of the smoothed estimate
@@ -353,8 +328,7 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     layout = state.layout
     cyl_rows = rows.cylinder_rows[:, :layout.n_params]  # the friction parameters' part
     budget = speed_budget(acc, state.params, white, cfg.model_rel_error, fly.harmonics)
-    acc_s, budget = speed_random_effect(acc, budget, white, cfg.model_rel_error, fly.harmonics)
-    post_s = posterior_from_normal(acc_s, *state.prior.with_share(cyl_rows, share_s), budget, state.lower)
+    post_s = posterior_from_normal(acc, *state.prior.with_share(cyl_rows, share_s), budget, state.lower)
     acc_c = Accumulator.of_terms(terms)
     post_c = posterior_from_normal(acc_c, *state.prior.with_share(cyl_rows, share_c), white.sys_var, state.lower)
     limits = ReportLimits(cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain)
