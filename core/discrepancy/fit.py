@@ -186,7 +186,7 @@ def _along_main(lin: Linearised, model: EngineModel, ev: Evaluator, best: tuple,
     cand = lin.candidate
     x_a, r_a = best[0], lin.r0
     slope = lin.jac[:, 0]
-    if tried is not None:
+    if tried is not None and tried[0][0] != x_a[0]:  # a step clipped back to x0 (a share at 0) gives no chord
         slope = (tried[1] - r_a) / (tried[0][0] - x_a[0])
         x_a, r_a = tried
     for _ in range(SECANT_STEPS):

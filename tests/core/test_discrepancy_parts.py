@@ -148,11 +148,15 @@ def test_the_library_offers_load_ripples_at_half_orders_and_a_cam_order_friction
         assert not cam.places_cylinder and cam.cylinder is None and cam.fixed["cylinder"] == 1
         assert cam.effect_at(np.array([0.2, 0.0, 0.5])).shape() == pytest.approx((0.2, 0.5, order, np.pi / 2))
     assert "load_ripple[order 1]" not in lib  # an integer order is the tooth learner's
-    # the stand-in's cylinder already holds an extra friction: the cam shape is not offered (it could not be added)
+    # a constant extra friction is a stand-in too: no harmonic, the same from every cylinder (design note 39)
+    const = lib["extra_friction"]
+    assert not const.places_cylinder and const.cylinder is None and const.fixed["cylinder"] == 1
+    assert const.params == ("mean_frac",) and const.effect_at(np.array([0.6])).shape() == pytest.approx((0.6, 0, 2, 0))
+    assert not any(label.startswith("extra_friction[cyl") for label in lib)
+    # the stand-in's cylinder already holds an extra friction: neither shape is offered (it could not be added)
     held = EngineModel.from_spec(spec, effects=[make_effect("extra_friction", {"cylinder": 1, "mean_frac": 0.1})])
     labels = {c.label for c in candidate_library(held)}
-    assert "extra_friction[order 0.5]" not in labels and "extra_friction[cyl 1]" not in labels
-    assert "extra_friction[cyl 2]" in labels and "load_ripple[order 0.5]" in labels
+    assert not any(label.startswith("extra_friction") for label in labels) and "load_ripple[order 0.5]" in labels
 
 
 def test_a_friction_swing_larger_than_the_friction_it_rides_on_is_not_friction():
