@@ -155,6 +155,12 @@ def nested(a: Candidate, b: Candidate) -> bool:
                                                                       or set(b.names) <= set(a.names))
 
 
+def said_where(cand: Candidate, n_cyl: int) -> str:
+    """A candidate as the outcome says it: a stand-in shape on an engine of several cylinders as in any one of them
+    (the speed cannot place it)."""
+    return cand.label if cand.places_cylinder or n_cyl < 2 else f"{cand.label} in any one of the {n_cyl} cylinders"
+
+
 def chi2_floored(res: Residuals, scale: np.ndarray, floor: np.ndarray) -> float:
     """The held-out coherent chi^2 with the model-error floor (whitened, per feature: features.feature_floor) in the
     variance of each feature's mean: sum_j N p_j / (1 + N floor_j^2), the error that does not average away with
@@ -164,5 +170,5 @@ def chi2_floored(res: Residuals, scale: np.ndarray, floor: np.ndarray) -> float:
 
 
 __all__ = ["AMBIGUOUS_DCHI2", "MAX_CLOSE_CYLINDERS", "WORSE_SIGMAS", "best_of_shapes", "channel_worse", "chi2_floored",
-           "close_cylinders", "nested", "off_physics", "one_per_candidate", "pressure_worse", "rival", "to_confirm",
+           "close_cylinders", "nested", "off_physics", "one_per_candidate", "pressure_worse", "rival", "said_where", "to_confirm",
            "unphysical"]

@@ -7,8 +7,10 @@
 The cycles are split in time: the first ``warmup`` settle the monitor (tooth learner, noise model) and are not
 scored; of the rest the first half trains (the fits, on its first ``fit_cycles``) and the second half is held out
 (the choice and every reported gap). First, what the pressure names outright (a pegging offset, a misfiring
-cylinder: core.discrepancy.pressure_channel) is added as one step. Then each step linearises every candidate of the library on top of the current
-model, refines the ``refine`` best by predicted cost, re-runs the best ``confirm`` of those over the whole log,
+cylinder: core.discrepancy.pressure_channel) is added as one step. Then, while the held-out residual holds something beyond the healthy model's own error
+(``features.beyond_null``: an engine order above its model-error floor, or a significant balance residual), each step
+linearises every candidate of the library on top of the current model, refines the ``refine`` best by predicted cost
+and the best of each of the first ``confirm`` shapes, re-runs the best of each of those shapes over the whole log,
 takes one more Gauss-Newton step for the best of them on all training cycles (its sigma from there), and adds it if
 its held-out gain is significant: the held-out coherent chi^2 falls by at least ``min_delta_chi2`` (its noise under no effect is about
 sqrt(2 F) ~ 10 for F ~ 50 features) and the gap by at least ``min_reduction``. A significant step is still refused,
@@ -29,7 +31,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from frictionwatch.core.discrepancy.candidates import Candidate, candidate_library
+from frictionwatch.core.discrepancy.candidates import candidate_library
 from frictionwatch.core.discrepancy.choice import (
     best_of_shapes,
     channel_worse,
@@ -40,18 +42,20 @@ from frictionwatch.core.discrepancy.choice import (
     one_per_candidate,
     pressure_worse,
     rival,
+    said_where,
     to_confirm,
     unphysical,
 )
 from frictionwatch.core.discrepancy.features import (
     SIGNIFICANT,
+    beyond_null,
     coherent_terms,
     feature_floor,
     gap,
     localise,
     noise_scale,
 )
-from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, parameter_sigma, refine
+from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, polish, refine, with_fit
 from frictionwatch.core.discrepancy.pressure_channel import (
     PressureFinding,
     pressure_findings,
@@ -141,7 +145,7 @@ class Discovery:
     def remainder(self) -> dict | None:
         """The signature of what the final model leaves coherent on the held-out cycles (None: nothing significant)."""
         f = self.final
-        if not f or not (f["significant_orders"] or f["balance"]["significant"]):
+        if not f or not beyond_null(f):
             return None
         top = sorted(f["cylinders"], key=lambda c: -c["relative"])[:2]
         return {"engine_orders": f["significant_orders"], "half_order_share": f["half_order_share"],
@@ -281,6 +285,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     current, cur_res, test, extra = _pressure_step(found, current, cur_res, test, full, parts, scale, first, held)
     runs += extra
     for step in range(opt.max_steps):
+        if not beyond_null(localise(test, model.spec, scale)):  # nothing beyond the healthy model's own error
+            break
         floor = feature_floor(parts(cur_res)[0], scale)  # of the current model, what a found sigma adds
         ev = Evaluator(sub, scale, first, floor)
         base = ev.vector(current)
@@ -304,14 +310,14 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             return tdc_chi2(reading, tdc_offsets_deg(m) - tdc_offsets_deg(base))
 
         refined = [refine(lin, current, ev) for lin in chosen]
-        trials = one_per_candidate(sorted(refined, key=lambda tr: tr.cost + pressure(_with_fit(current, tr))))
+        trials = one_per_candidate(sorted(refined, key=lambda tr: tr.cost + pressure(with_fit(current, tr))))
         dropped = {t.candidate.label: unphysical(t, load_nm) for t in trials}
         found.dropped.update({label: why for label, why in dropped.items() if why})
         trials = [t for t in trials if not dropped[t.candidate.label]]
         runs += ev.calls
         confirmed = []
         for t in to_confirm(trials, opt.confirm):
-            trial_model = _with_fit(current, t)
+            trial_model = with_fit(current, t)
             res = full(trial_model)
             runs += 1
             confirmed.append((gap(parts(res)[1], scale), t, trial_model, res))
@@ -330,18 +336,18 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
                 _, t, new_model, res = confirmed[1]
             other = None
         if other is not None:  # two explanations within the noise: say both, add neither
-            found.ambiguous = {"candidates": [_where(c.candidate, model.spec.n_cyl) for c in (t, other)],
+            found.ambiguous = {"candidates": [said_where(c.candidate, model.spec.n_cyl) for c in (t, other)],
                                "separated_by": list(dict.fromkeys(c.separated_by for c in (t.candidate, other.candidate)
                                                                   if c.separated_by))}
             break
         if significant(res):  # polished only if significant as it stands, and kept only if still significant
-            t, new_model, res, extra = _polish(t, current, new_model, res, full, lambda r: parts(r)[0], scale, floor)
+            t, new_model, res, extra = polish(t, current, new_model, res, full, lambda r: parts(r)[0], scale, floor)
             runs += extra
         if not significant(res):
             found.rejected.update({c[1].candidate.label: c[0] for c in confirmed})
             break
         if not t.candidate.places_cylinder and model.spec.n_cyl > 1:  # explained, but the speed cannot say where
-            found.ambiguous = {"candidates": [_where(t.candidate, model.spec.n_cyl)],
+            found.ambiguous = {"candidates": [said_where(t.candidate, model.spec.n_cyl)],
                                "separated_by": [t.candidate.separated_by] if t.candidate.separated_by else []}
             break
         test_new = parts(res)[1]
@@ -431,59 +437,6 @@ def _significance(test: Residuals, scale: np.ndarray, opt: Options, held_out_of)
                 and gap(held_out, scale) <= (1.0 - opt.min_reduction) * g_cur)
 
     return significant
-
-
-def _polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, full, train_of, scale: np.ndarray,
-            floor: np.ndarray) -> tuple[Trial, EngineModel, Residuals, int]:
-    """One more Gauss-Newton step for the chosen candidate on all training cycles (the window was a short part of
-    them): sensitivities from whole-log runs at x + step, kept if the training cost falls; sigma from them and the
-    model-error floor (core.discrepancy.fit.parameter_sigma). Returns
-    the (possibly) new trial, model, its run and the monitor runs spent."""
-    cand = t.candidate
-    if cand.toggle:
-        return t, model, res, 0
-    train = train_of(res)
-    r0 = (train.features() / scale).ravel()
-    cols, runs = [], 0
-    for i, h in enumerate(cand.step):
-        xi = t.x.copy()
-        xi[i] = xi[i] + h if xi[i] + h <= cand.hi[i] else xi[i] - h
-        ri = train_of(full(cand.model_at(current, xi)))
-        runs += 1
-        if not np.array_equal(ri.index, train.index):
-            return t, model, res, runs
-        cols.append(((ri.features() / scale).ravel() - r0) / (xi[i] - t.x[i]))
-    jac = np.stack(cols, axis=1)
-    x_new = cand.clip(t.x - np.linalg.lstsq(jac, r0, rcond=None)[0])
-    trial = replace(t, x=x_new)
-    new_model = _with_fit(current, trial)
-    new_res = full(new_model)
-    runs += 1
-    new_train = train_of(new_res)
-    if not np.array_equal(new_train.index, train.index):
-        return t, model, res, runs
-    r1 = (new_train.features() / scale).ravel()
-    better = float(r1 @ r1) < float(r0 @ r0)
-    cost = float(min(r1 @ r1, r0 @ r0))
-    kept = trial if better else t
-    sigma = parameter_sigma(jac, train.n_cycles, cost, floor, r1 if better else r0, np.abs(kept.x - cand.x0))
-    chosen = replace(kept, sigma=sigma)
-    return chosen, _with_fit(current, chosen), new_res if better else res, runs
-
-
-def _where(cand: Candidate, n_cyl: int) -> str:
-    """A candidate as the outcome says it: a stand-in shape on an engine of several cylinders as in any one of them
-    (the speed cannot place it)."""
-    return cand.label if cand.places_cylinder or n_cyl < 2 else f"{cand.label} in any one of the {n_cyl} cylinders"
-
-
-def _with_fit(model: EngineModel, trial: Trial) -> EngineModel:
-    cand: Candidate = trial.candidate
-    if cand.toggle:
-        return cand.model_at(model, None)
-    e = cand.effect_at(trial.x)
-    sigma = {k: float(s) for k, s in zip(cand.params, trial.sigma) if np.isfinite(s)}
-    return model.with_effect(make_effect(e.name, dict(e.values), sigma))
 
 
 __all__ = ["METRIC", "Discovery", "Options", "Step", "discover", "reference"]
