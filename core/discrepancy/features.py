@@ -262,11 +262,9 @@ def localise(res: Residuals, spec: EngineSpec, scale: np.ndarray) -> dict:
 
 def beyond_null(loc: dict) -> bool:
     """Whether a held-out residual (``localise``'s) holds anything beyond the healthy model's own error: an engine
-    order above its model-error floor or a balance residual beyond its own. Nothing else is a discrepancy (issue 27:
-    significant = beyond the null), so no step is looked for without it: a candidate that lowers the plain chi^2
-    there only fits the model's own error (deutz 3000 rpm 0.9 seed 2, healthy: no order nor the balance beyond the
-    null, yet two cam-order shapes lowered that chi^2 by 40 each and the log was said to hold a discrepancy; and
-    after a right step, a second one was added from that error: design note 39)."""
+    order above its model-error floor or a balance residual beyond its own (issue 27: significant = beyond the null).
+    The workflow looks for no further step after one without it, and an ambiguity without it is no discrepancy
+    (design note 39)."""
     return bool(loc["significant_orders"] or loc["balance"]["significant"])
 
 
