@@ -464,3 +464,24 @@ def test_a_refinement_whose_step_is_clipped_back_to_no_effect_moves_along_its_sl
     x, cost, _ = _along_main(lin, model, Linear(), (np.zeros(1), 10.0, r0), (np.zeros(1), r0))
     np.testing.assert_allclose(x, [0.3], atol=1e-9)
     np.testing.assert_allclose(cost, 1.0, atol=1e-9)
+
+
+def test_two_fits_within_the_null_are_said_and_are_no_ambiguity():
+    """Where nothing in the held-out residual is beyond the null (features.beyond_null: no order above its floor, no
+    balance beyond its own), two candidates that fit it equally are the model's own error: the outcome is nothing,
+    the verdict says so and names neither (deutz 3000 rpm seed 2, healthy, had read "A discrepancy is found")."""
+    from frictionwatch.core.discrepancy.features import beyond_null
+    from frictionwatch.core.discrepancy.workflow import Discovery
+
+    quiet = {"significant_orders": [], "balance": {"significant": False}}
+    assert not beyond_null(quiet)
+    assert beyond_null({**quiet, "significant_orders": [0.5]})
+    assert beyond_null({**quiet, "balance": {"significant": True}})
+    model = EngineModel.from_spec(load_engine("deutz-1cyl"))
+    found = Discovery(model, model, [], 2.7, 2.7, {}, {},
+                      within_null_fits=["extra_friction[order 0.5]", "load_ripple[order 0.5]"])
+    doc = found.to_json()
+    assert doc["outcome"] == "nothing" and doc["ambiguous"] is None and doc["found"] == []
+    assert doc["verdict"].startswith("No significant missing effect")
+    assert "extra_friction[order 0.5] and load_ripple[order 0.5] fit as well as each other, which names neither" \
+        in doc["verdict"]
