@@ -300,7 +300,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         # pegging, an extra friction after the right Stribeck ring). Before any step the plain test stands (maruti
         # 4000 rpm seed 2: the Stribeck ring, the side-thrust skirt, the inertia left out are named right with no
         # order nor the balance beyond the null: the per-order floors are wide there), but an ambiguity within the
-        # null is no discrepancy (``Discovery.outcome``)
+        # null is no discrepancy (``_said_ambiguous``: Discovery.within_null_fits)
         if found.steps and not beyond:
             break
         # each shape held out is one more chance to fit that error: with nothing beyond the null, the narrower test
