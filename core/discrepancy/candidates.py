@@ -61,6 +61,12 @@ class Candidate:
         return self.effect if self.cylinder is None else f"{self.effect}[cyl {self.cylinder}]"
 
     @property
+    def shape(self) -> str:
+        """What it explains apart from where: its effect and variant (a per-cylinder effect's cylinders are one
+        shape, the held-out cycles choose among them; a stand-in shape, a variant, is one of its own)."""
+        return f"{self.effect}[{self.variant}]" if self.variant else self.effect
+
+    @property
     def toggle(self) -> bool:
         return not self.params
 

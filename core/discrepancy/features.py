@@ -260,5 +260,13 @@ def localise(res: Residuals, spec: EngineSpec, scale: np.ndarray) -> dict:
     }
 
 
-__all__ = ["FLOOR_RMS", "NULL_BALANCE", "NULL_FLOOR", "NULL_OWN", "RPM_PER_RAD_S", "SIGNIFICANT", "balance_floor_nm", "balance_residual", "coherent_terms", "cost",
+def beyond_null(loc: dict) -> bool:
+    """Whether a held-out residual (``localise``'s) holds anything beyond the healthy model's own error: an engine
+    order above its model-error floor or a balance residual beyond its own (issue 27: significant = beyond the null).
+    The workflow looks for no further step after one without it, and an ambiguity without it is no discrepancy
+    (design note 39)."""
+    return bool(loc["significant_orders"] or loc["balance"]["significant"])
+
+
+__all__ = ["FLOOR_RMS", "NULL_BALANCE", "NULL_FLOOR", "NULL_OWN", "RPM_PER_RAD_S", "SIGNIFICANT", "balance_floor_nm", "balance_residual", "beyond_null", "coherent_terms", "cost",
            "coherent_power", "cylinder_windows", "feature_floor", "gap", "localise", "noise_scale", "order_table", "speed_floor_rpm", "trends"]

@@ -10,13 +10,14 @@ best few on the whole log and chooses on held-out cycles.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from frictionwatch.core.discrepancy.candidates import Candidate
 from frictionwatch.core.discrepancy.features import coherent_power
 from frictionwatch.core.discrepancy.residuals import Residuals
 from frictionwatch.core.discrepancy.tuned import tuned_constants
+from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine_model import EngineModel
 
 DAMPING = 1e-6  # Levenberg term relative to the largest diagonal of J'J: keeps a flat direction finite
@@ -186,7 +187,7 @@ def _along_main(lin: Linearised, model: EngineModel, ev: Evaluator, best: tuple,
     cand = lin.candidate
     x_a, r_a = best[0], lin.r0
     slope = lin.jac[:, 0]
-    if tried is not None:
+    if tried is not None and tried[0][0] != x_a[0]:  # a step clipped back to x0 (a share at 0) gives no chord
         slope = (tried[1] - r_a) / (tried[0][0] - x_a[0])
         x_a, r_a = tried
     for _ in range(SECANT_STEPS):
@@ -208,8 +209,56 @@ def _along_main(lin: Linearised, model: EngineModel, ev: Evaluator, best: tuple,
     return best
 
 
+def polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, full, train_of, scale: np.ndarray,
+            floor: np.ndarray) -> tuple[Trial, EngineModel, Residuals, int]:
+    """One more Gauss-Newton step for the chosen candidate on all training cycles (the window was a short part of
+    them): sensitivities from whole-log runs at x + step, kept if the training cost falls; sigma from them and the
+    model-error floor (core.discrepancy.fit.parameter_sigma). Returns
+    the (possibly) new trial, model, its run and the monitor runs spent."""
+    cand = t.candidate
+    if cand.toggle:
+        return t, model, res, 0
+    train = train_of(res)
+    r0 = (train.features() / scale).ravel()
+    cols, runs = [], 0
+    for i, h in enumerate(cand.step):
+        xi = t.x.copy()
+        xi[i] = xi[i] + h if xi[i] + h <= cand.hi[i] else xi[i] - h
+        ri = train_of(full(cand.model_at(current, xi)))
+        runs += 1
+        if not np.array_equal(ri.index, train.index):
+            return t, model, res, runs
+        cols.append(((ri.features() / scale).ravel() - r0) / (xi[i] - t.x[i]))
+    jac = np.stack(cols, axis=1)
+    x_new = cand.clip(t.x - np.linalg.lstsq(jac, r0, rcond=None)[0])
+    trial = replace(t, x=x_new)
+    new_model = with_fit(current, trial)
+    new_res = full(new_model)
+    runs += 1
+    new_train = train_of(new_res)
+    if not np.array_equal(new_train.index, train.index):
+        return t, model, res, runs
+    r1 = (new_train.features() / scale).ravel()
+    better = float(r1 @ r1) < float(r0 @ r0)
+    cost = float(min(r1 @ r1, r0 @ r0))
+    kept = trial if better else t
+    sigma = parameter_sigma(jac, train.n_cycles, cost, floor, r1 if better else r0, np.abs(kept.x - cand.x0))
+    chosen = replace(kept, sigma=sigma)
+    return chosen, with_fit(current, chosen), new_res if better else res, runs
+
+
+def with_fit(model: EngineModel, trial: Trial) -> EngineModel:
+    cand: Candidate = trial.candidate
+    if cand.toggle:
+        return cand.model_at(model, None)
+    e = cand.effect_at(trial.x)
+    sigma = {k: float(s) for k, s in zip(cand.params, trial.sigma) if np.isfinite(s)}
+    return model.with_effect(make_effect(e.name, dict(e.values), sigma))
+
+
 def rank(trials: Sequence[Trial]) -> list[Trial]:
     return sorted(trials, key=lambda t: t.cost)
 
 
-__all__ = ["Evaluator", "Linearised", "Trial", "linearise", "parameter_sigma", "rank", "refine"]
+__all__ = ["Evaluator", "Linearised", "Trial", "linearise", "parameter_sigma", "polish", "rank", "refine",
+           "with_fit"]

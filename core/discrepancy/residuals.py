@@ -191,5 +191,14 @@ def _tdc_reading(pipe: CyclePipeline) -> dict:
                                                              ("statistical", "heat_loss", "constant_loss"))))}
 
 
-__all__ = ["ANGLE_POINTS", "GROUP_LOAD_STEP", "GROUP_NOISE", "GROUP_SPEED_STEP", "PINNED_SIGMA", "Residuals", "operating_groups",
+def mean_load(cycles: Sequence[Cycle], omega: float) -> float:
+    """The log's median load torque [N m] as the monitor reads it (the torque, else the power over the speed); NaN
+    where neither is measured."""
+    loads = np.array([c.load_torque if np.isfinite(c.load_torque) else c.load_power / omega for c in cycles])
+    loads = loads[np.isfinite(loads)]
+    return float(np.median(loads)) if loads.size else float("nan")
+
+
+__all__ = ["ANGLE_POINTS", "GROUP_LOAD_STEP", "GROUP_NOISE", "GROUP_SPEED_STEP", "PINNED_SIGMA", "Residuals", "mean_load",
+           "operating_groups",
            "pinned_config", "run_model"]
