@@ -111,6 +111,9 @@ def render(doc: dict, found: Discovery) -> str:
                      "equally well; neither was added. " + html.escape(
                          "; or ".join(amb["separated_by"]) + " would tell them apart." if amb["separated_by"] else "")
                      + "</p>")
+    if doc.get("within_null_fits"):  # fits of the model's own error: said, never named (core.discrepancy.workflow)
+        parts.append(f"<p>Within the model's own error: {html.escape(' and '.join(doc['within_null_fits']))} fit the "
+                     "held-out cycles as well as each other; that names neither, and nothing was added.</p>")
     for r in doc.get("refused", []):
         parts.append(f"<p>Refused: {html.escape(r['candidate'])}: {html.escape(r['reason'])} (held-out gap "
                      f"{r['gap_before']:.3g} → {r['gap_after']:.3g}); the model was left as it was.</p>")
