@@ -144,7 +144,7 @@ def cmd_trace(args) -> None:
     records = log.records()
     offset = 0  # cycles of the log before the monitor's first (``--start-cycle``): the truth's index is the log's
     if args.start_cycle:
-        records, offset = _from_cycle(records, args.start_cycle, log.info)
+        records, offset = records_from_cycle(records, args.start_cycle, log.info)
     for record in itertools.chain(records, [None]):
         for n in names:
             state = pipes[n].state
@@ -174,7 +174,7 @@ def _record_tick(record) -> int:
     return -1
 
 
-def _from_cycle(records, start_cycle: int, info):
+def records_from_cycle(records, start_cycle: int, info):
     """The log's records from (about) its ``start_cycle``-th cycle on, at the nominal speed (a governed genset: within
     a cycle or two over thousands), and that cycle count, so the monitor starts there as on a fresh start."""
     records = iter(records)

@@ -1,0 +1,117 @@
+"""What draws a genset-v20 cylinder's smoothed estimate away from its truth (issue 29, design note 41): one wheel,
+every ``--every`` cycles, from the accumulated equations the monitor itself keeps.
+
+    nice .venv/bin/python -m bench.second_wheel_pull LOG [--every 500] [--start-cycle 0] [--cylinder 13] [--json J]
+
+LOG is a replay log of ``bench.second_wheel_trace simulate`` (its truth beside it). Per checkpoint, for the cylinder:
+the posterior's error against the truth (mean of the last 200 cycles); the data-only fixed point N^-1 r of the
+accumulated normal equations (no prior, no bound) and its statistical sigma sqrt(c N^-1 c^T): where more cycles of
+the same equations lead the estimate; the sandwich's flywheel systematic sigma with the stated per-row budget C
+(independent rows: sqrt(sum h^2 C)) and the same C taken coherent over the rows (sum |h| sqrt(C): one physical error
+common to every harmonic); how many of the flywheel's harmonics have a budget above the 0.3 %-of-the-harmonic floor
+(``identification.speed_budget``: the persistent residual at the estimate seen), and the five raw rows that carry
+most of the cylinder's systematic part (row j < M: the real part of half order (j + 1) / 2, j >= M: its imaginary).
+The monitor is wrapped here (bench only); nothing in it changes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.monitor.identify import identification
+from frictionwatch.core.monitor.state import MonitorConfig
+from frictionwatch.drivers.logs.mcap_log import LogReader
+from frictionwatch.service.pipeline import EnginePipeline
+
+from bench.accuracy_v20_long import TRUTH_WINDOW
+from bench.accuracy_v20_wheels import TWO_WHEELS
+from bench.second_wheel_trace import Tap, records_from_cycle
+
+
+class PullTap(Tap):
+    """The trace's tap, also keeping the smoothed estimate's posterior, cylinder rows and the flywheel's budget."""
+
+    def __init__(self):
+        super().__init__()
+        self.inner_budget = identification.speed_budget
+        self.budget_seen: dict = {}
+
+    def budget(self, acc, params, white, model_rel_error, harmonics):
+        out = self.inner_budget(acc, params, white, model_rel_error, harmonics)
+        m = white.freq.shape[0]
+        e = model_rel_error * white.freq * np.abs(harmonics)
+        self.budget_seen = {"floor": e * e / 2.0, "budget": out[:m].copy()}
+        return out
+
+    def __call__(self, spec, layout, post, basis_mean, prior_mean, limits, cyl_rows, *rest):
+        est = super().__call__(spec, layout, post, basis_mean, prior_mean, limits, cyl_rows, *rest)
+        if self.calls % 2 == 1:
+            self.rows, self.post, self.p = np.asarray(cyl_rows, dtype=np.float64), post, layout.n_params
+        return est
+
+
+def checkpoint(tap: PullTap, truth: np.ndarray, k: int) -> dict:
+    acc, n_pr, sys_var = tap.normal
+    rows, p, m = tap.rows, tap.p, tap.m
+    t_post = rows @ tap.post.params[:p]
+    h = rows @ np.linalg.solve(acc.info + n_pr, acc.sys_map)[:p]  # (z, R) friction per unit raw error of each row
+    fly = slice(0, 2 * m)
+    c = sys_var[fly]
+    th_d = np.linalg.solve(acc.info, acc.rhs)
+    t_data = rows @ th_d[:p]
+    sd = float(np.sqrt(rows[k] @ np.linalg.inv(acc.info)[:p, :p] @ rows[k]))
+    b, f = tap.budget_seen["budget"], tap.budget_seen["floor"]
+    pct = 100.0 / truth[k]
+    return {"err_pct": float(pct * (t_post[k] - truth[k])), "data_only_err_pct": float(pct * (t_data[k] - truth[k])),
+            "data_only_sigma_pct": pct * sd,
+            "rms_err_pct": float(100 * np.sqrt(np.mean((t_post / truth - 1) ** 2))),
+            "data_only_rms_err_pct": float(100 * np.sqrt(np.mean((t_data / truth - 1) ** 2))),
+            "sys_flywheel_pct": float(pct * np.sqrt((h[k, fly] ** 2 * c).sum())),
+            "sys_flywheel_coherent_pct": float(pct * (np.abs(h[k, fly]) * np.sqrt(c)).sum()),
+            "harmonics_above_floor": int((b > 1.0001 * f).sum()), "harmonics": int(m),
+            "top_rows": [int(i) for i in np.argsort(-np.abs(h[k, fly]) * np.sqrt(c))[:5]]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("log")
+    ap.add_argument("--every", type=int, default=500)
+    ap.add_argument("--start-cycle", type=int, default=0)
+    ap.add_argument("--cylinder", type=int, default=13, help="1-based")
+    ap.add_argument("--json", default="/tmp/fw-trace/pull.json")
+    args = ap.parse_args()
+    log_path = Path(args.log)
+    truth_all = np.load(log_path.with_name(log_path.name.removesuffix(".mcap") + ".truth.npz"))["friction"]
+    tap = PullTap()
+    identification.reported_estimate, identification.posterior_from_normal = tap, tap.posterior
+    identification.speed_budget = tap.budget
+    log = LogReader(log_path)
+    pipe = EnginePipeline(load_engine(TWO_WHEELS), replace(log.info, second_wheel=None), MonitorConfig())
+    records, offset = log.records(), 0
+    if args.start_cycle:
+        records, offset = records_from_cycle(records, args.start_cycle, log.info)
+    n, out = 0, []
+    for record in records:
+        tap.m = pipe.state.n_harmonics if pipe.state is not None else 0
+        for o in pipe.outcomes(record):
+            if not o.ok:
+                continue
+            n += 1
+            if n % args.every == 0:
+                idx = o.index + offset
+                truth = truth_all[max(0, idx + 1 - TRUTH_WINDOW):idx + 1].mean(axis=0)
+                out.append({"cycles": idx + 1, **checkpoint(tap, truth, args.cylinder - 1)})
+                print(json.dumps({k: round(v, 2) if isinstance(v, float) else v for k, v in out[-1].items()}),
+                      flush=True)
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.json).write_text(json.dumps({"log": str(log_path), "cylinder": args.cylinder, "points": out}, indent=1))
+    print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()
