@@ -13,7 +13,7 @@ common to every harmonic); how many of the flywheel's harmonics have a budget ab
 most of the cylinder's systematic part (row j < M: the real part of half order (j + 1) / 2, j >= M: its imaginary);
 at the preset's coefficients (every friction scale 1, as the plant has them; the nuisances at their best given
 those) the cylinder's figure against the truth (a check that the truth is there) and the data-only point's offset
-from it.
+from it; with ``--split`` that offset split exactly by raw row (per half order, the mean balance's row, the rest).
 The monitor is wrapped here (bench only); nothing in it changes.
 """
 
@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.monitor.identify import identification
+from frictionwatch.core.monitor.identify.accumulate import Accumulator
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.drivers.logs.mcap_log import LogReader
 from frictionwatch.service.pipeline import EnginePipeline
@@ -58,7 +59,49 @@ class PullTap(Tap):
         return est
 
 
-def checkpoint(tap: PullTap, truth: np.ndarray, k: int) -> dict:
+class RowSums:
+    """Per raw row r, the smoothed accumulator's whitened sums a_r a_r^T (R, P, P) and a_r y_r (R, P) with its
+    forgetting, so that the data-only point's offset from any parameters splits exactly by row: the rows' score
+    sum_r (a_r y_r - a_r a_r^T theta) times N^-1 (``Accumulator.cycle_terms`` / ``fold`` wrapped, bench only)."""
+
+    def __init__(self):
+        self.aa = self.ay = None
+        self.pending: dict = {}
+        self.inner_terms, self.inner_fold = Accumulator.cycle_terms, Accumulator.fold
+
+    def install(self) -> None:
+        sums = self
+
+        def cycle_terms(acc, a, y, inv_sigma, reference_rows=0):
+            terms = sums.inner_terms(acc, a, y, inv_sigma, reference_rows)
+            sums.pending[id(terms)] = (np.array(a), np.array(y))
+            return terms
+
+        def fold(acc, terms, forgetting, raw=None):
+            out = sums.inner_fold(acc, terms, forgetting, raw)
+            ay = sums.pending.pop(id(terms), None)
+            if ay is not None and raw is not None:  # the smoothed accumulator's fold (it alone keeps raw sums)
+                a, y = ay
+                if sums.aa is None or sums.aa.shape[:2] != a.shape:
+                    sums.aa, sums.ay = np.zeros(a.shape + a.shape[1:]), np.zeros(a.shape)
+                lam = float(forgetting)
+                sums.aa = lam * sums.aa + a[:, :, None] * a[:, None, :]
+                sums.ay = lam * sums.ay + a * y[:, None]
+            sums.pending.clear()
+            return out
+
+        Accumulator.cycle_terms, Accumulator.fold = cycle_terms, fold
+
+    def split(self, acc: Accumulator, theta: np.ndarray, row: np.ndarray) -> tuple[np.ndarray, float]:
+        """(R,) each raw row's share of row @ (N^-1 r - theta)[:p], and how far the sums are from the accumulator's
+        N (relative; ~1e-15 when they are the same cycles)."""
+        score = self.ay - np.einsum("rij,j->ri", self.aa, theta)
+        p = row.shape[0]
+        share = score @ np.linalg.solve(acc.info, np.eye(acc.info.shape[0])[:, :p] @ row)
+        return share, float(np.abs(self.aa.sum(axis=0) - acc.info).max() / np.abs(acc.info).max())
+
+
+def checkpoint(tap: PullTap, truth: np.ndarray, k: int, sums: RowSums | None = None) -> dict:
     acc, n_pr, sys_var = tap.normal
     rows, p, m = tap.rows, tap.p, tap.m
     t_post = rows @ tap.post.params[:p]
@@ -71,12 +114,20 @@ def checkpoint(tap: PullTap, truth: np.ndarray, k: int) -> dict:
     b, f = tap.budget_seen["budget"], tap.budget_seen["floor"]
     pct = 100.0 / truth[k]
     # the plant's coefficients are the preset's (every friction scale 1); the other parameters (nuisances) at their
-    # best given those. A per-row split of the offset below (N^-1 sys_map times the mean raw residual) was tried and
-    # dropped: its sum was ~190-3,200 times the offset (the whitening varies between cycles; design note 41)
+    # best given those. (Split by row from sys_map times the mean raw residual, the offset did not add up: ~190-3,200
+    # times it, the whitening varies between cycles; ``--split`` keeps the per-row whitened sums instead, note 41)
     star = np.ones(acc.info.shape[0])
     if acc.info.shape[0] > p:
         star[p:] = np.linalg.solve(acc.info[p:, p:], acc.rhs[p:] - acc.info[p:, :p] @ star[:p])
-    return {"err_pct": float(pct * (t_post[k] - truth[k])), "data_only_err_pct": float(pct * (t_data[k] - truth[k])),
+    split = {}
+    if sums is not None and sums.aa is not None:
+        share, mismatch = sums.split(acc, star, rows[k])
+        share = pct * share
+        per_order = share[:m] + share[m:2 * m]  # real + imaginary part of each half order (j + 1) / 2
+        split = {"split_sum_pct": float(share.sum()), "split_n_mismatch": mismatch,
+                 "split_by_order_pct": {f"{(j + 1) / 2:.1f}": round(float(per_order[j]), 1) for j in range(m)},
+                 "split_balance_row_pct": float(share[-1]), "split_other_rows_pct": float(share[2 * m:-1].sum())}
+    return {**split, "err_pct": float(pct * (t_post[k] - truth[k])), "data_only_err_pct": float(pct * (t_data[k] - truth[k])),
             "data_only_sigma_pct": pct * sd,
             "rms_err_pct": float(100 * np.sqrt(np.mean((t_post / truth - 1) ** 2))),
             "data_only_rms_err_pct": float(100 * np.sqrt(np.mean((t_data / truth - 1) ** 2))),
@@ -94,6 +145,8 @@ def main() -> None:
     ap.add_argument("--every", type=int, default=500)
     ap.add_argument("--start-cycle", type=int, default=0)
     ap.add_argument("--cylinder", type=int, default=13, help="1-based")
+    ap.add_argument("--split", action="store_true",
+                    help="split the data-only offset from the truth by raw row (per-row sums kept; note 41)")
     ap.add_argument("--json", default="/tmp/fw-trace/pull.json")
     args = ap.parse_args()
     log_path = Path(args.log)
@@ -101,6 +154,9 @@ def main() -> None:
     tap = PullTap()
     identification.reported_estimate, identification.posterior_from_normal = tap, tap.posterior
     identification.speed_budget = tap.budget
+    sums = RowSums() if args.split else None
+    if sums is not None:
+        sums.install()
     log = LogReader(log_path)
     pipe = EnginePipeline(load_engine(TWO_WHEELS), replace(log.info, second_wheel=None), MonitorConfig())
     records, offset = log.records(), 0
@@ -116,7 +172,7 @@ def main() -> None:
             if n % args.every == 0:
                 idx = o.index + offset
                 truth = truth_all[max(0, idx + 1 - TRUTH_WINDOW):idx + 1].mean(axis=0)
-                out.append({"cycles": idx + 1, **checkpoint(tap, truth, args.cylinder - 1)})
+                out.append({"cycles": idx + 1, **checkpoint(tap, truth, args.cylinder - 1, sums)})
                 print(json.dumps({k: round(v, 2) if isinstance(v, float) else v for k, v in out[-1].items()}),
                       flush=True)
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
