@@ -141,7 +141,11 @@ def cmd_trace(args) -> None:
     counts = {n: 0 for n in names}
     resets = {n: 0 for n in names}  # change alarms: each discounts the accumulated equations (checks.condition)
     doc = {"log": str(log_path), "every": args.every, "variants": names, "trace": {n: [] for n in names}}
-    for record in itertools.chain(log.records(), [None]):
+    records = log.records()
+    offset = 0  # cycles of the log before the monitor's first (``--start-cycle``): the truth's index is the log's
+    if args.start_cycle:
+        records, offset = records_from_cycle(records, args.start_cycle, log.info)
+    for record in itertools.chain(records, [None]):
         for n in names:
             state = pipes[n].state
             tap.m = state.n_harmonics if state is not None else 0
@@ -153,7 +157,7 @@ def cmd_trace(args) -> None:
                 resets[n] += "estimate_reset" in o.result.flags
                 taps[n] = tap.last
                 if counts[n] % args.every == 0 or record is None:
-                    doc["trace"][n].append({**row(n, o, taps[n], truth, pipes[n]), "resets": resets[n]})
+                    doc["trace"][n].append({**row(n, o, taps[n], truth, pipes[n], offset), "resets": resets[n]})
         if args.cycles and min(counts.values()) >= args.cycles:
             break
     for n in names:
@@ -162,8 +166,31 @@ def cmd_trace(args) -> None:
     print(f"wrote {args.json}")
 
 
-def row(name, outcome, t, truth_all, pipe) -> dict:
-    res, idx = outcome.result, outcome.index
+def _record_tick(record) -> int:
+    for name in ("t0_ticks", "ticks"):
+        v = getattr(record, name, None)
+        if v is not None:
+            return int(np.atleast_1d(v)[0]) if np.size(v) else -1
+    return -1
+
+
+def records_from_cycle(records, start_cycle: int, info):
+    """The log's records from (about) its ``start_cycle``-th cycle on, at the nominal speed (a governed genset: within
+    a cycle or two over thousands), and that cycle count, so the monitor starts there as on a fresh start."""
+    records = iter(records)
+    first = None
+    for record in records:
+        tick = _record_tick(record)
+        if tick < 0:
+            continue
+        first = tick if first is None else first
+        if tick - first >= start_cycle * 120.0 / RPM * info.tick_hz:
+            return itertools.chain([record], records), start_cycle
+    return iter(()), start_cycle
+
+
+def row(name, outcome, t, truth_all, pipe, offset: int = 0) -> dict:
+    res, idx = outcome.result, outcome.index + offset
     lo = max(0, idx + 1 - TRUTH_WINDOW)
     truth = truth_all[lo:idx + 1].mean(axis=0)
     est = res.smoothed
@@ -240,6 +267,8 @@ def main() -> None:
     t.add_argument("--every", type=int, default=100)
     t.add_argument("--cycles", type=int, default=0)
     t.add_argument("--variants", nargs="+", default=DEFAULT_VARIANTS, choices=list(VARIANTS))
+    t.add_argument("--start-cycle", type=int, default=0,
+                   help="start the monitor fresh at about this cycle of the log (a steady stretch alone; note 41)")
     u = sub.add_parser("summary")
     u.add_argument("json", nargs="+")
     u.set_defaults(func=cmd_summary)
