@@ -47,10 +47,10 @@ from frictionwatch.service.alert_baseline import Baseline
 from frictionwatch.service.alert_ring_rule import RingConditionRule
 from frictionwatch.service.alerts import RING_KINDS, AlertEngine
 
+from bench.accuracy_v20_long import ENGINE
+from bench.accuracy_v20_wheels import TWO_WHEELS
 from bench.ring_after_commission import LOW_LOAD, POINTS, commission
 
-# engine files with a free-end wheel: the preset's text plus its [sensors.second_wheel]
-TWO_WHEELS = {"genset-v20": Path(__file__).with_name("genset-v20-two-wheels.toml")}
 MISMATCH = {"gain": ["pressure_gain:cylinder=2,gain=1.03"], "tdc": ["tdc_offset:cylinder=2,deg=0.5"],
             "friction_law": ["stribeck_ring:fraction=1.0"], "none": [],
             # the shaft line 15 % softer / stiffer than the monitor's model: the throws' twist it reads each cylinder
@@ -63,6 +63,8 @@ def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: i
     """Stream one run; the events, the rule's per-cycle figures and counts. ``commission_effects``: simulator
     effects in the commissioning logs too (a fault there from the first cycle)."""
     rpm, load = POINTS[args.engine]
+    if args.second_wheel and args.engine != ENGINE:
+        raise SystemExit(f"--second-wheel: only {ENGINE} has an engine file with a free-end wheel ({TWO_WHEELS.name})")
     with tempfile.TemporaryDirectory(prefix="ring-cond-") as tmp:
         if args.no_commission:
             model, baseline = load_model(args.engine), None
@@ -79,7 +81,7 @@ def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: i
                  for i in range(1, cycles // step_every)]
     spec = load_engine(args.engine)
     if args.second_wheel:  # the same engine with its free-end wheel (the commissioning logs and model have one wheel)
-        spec = load_engine(TWO_WHEELS[args.engine])
+        spec = load_engine(TWO_WHEELS)
         model = replace(model, spec=replace(model.spec, sensors=spec.sensors))
     sim = start_simulation(spec, rpm, load, cycles, args.seed,
                            effects=[parse_effect(e) for e in effects], cov_imep=args.cov, load_steps=steps or None,
@@ -199,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--seed", type=int, default=7, help="the engine (commissioning and run alike)")
         p.add_argument("--cov", type=float, default=0.03, help="COV of IMEP (combustion variability)")
         p.add_argument("--no-commission", action="store_true", help="no commissioning: the preset, no baseline")
-        p.add_argument("--second-wheel", action="store_true", help="log the free-end wheel too (TWO_WHEELS) and "
+        p.add_argument("--second-wheel", action="store_true", help="log the free-end wheel too (accuracy_v20_wheels.TWO_WHEELS) and "
                        "fit both wheels (MonitorConfig.second_wheel; the commissioning logs stay one-wheel)")
         p.add_argument("--commission-cycles", type=int, default=300)
         p.add_argument("--commission-loads", default=f"1.0,{LOW_LOAD}")
