@@ -290,7 +290,7 @@ def print_report(doc: dict) -> None:
           f"{doc['cycles_motored']} motored cycles")
     print(f"wheel TDC: {doc['wheel_tdc_offset_deg']:+.3f} ± {doc['wheel_tdc_sigma_deg']:.3f}° "
           "(+ = the true TDC lies later than the wheel says)")
-    print(f"{'cyl':>4} {'TDC fired °':>14} {'TDC motored °':>14} {'own °':>7} {'pegging bar':>12} "
+    print(f"{'cyl':>4} {'TDC fired °':>14} {'TDC motored °':>14} {'own °':>15} {'pegging bar':>12} "
           f"{'gain vs siblings':>17}")
     for c in doc["cylinders"]:
         f, m = c["tdc_fired"], c["tdc_motored"]
@@ -299,7 +299,10 @@ def print_report(doc: dict) -> None:
         gs = (f"{c['gain_vs_siblings']:.4f}±{c['gain_sigma']:.4f}" + (" *" if c["gain_corrected"] else "")
               if "gain_vs_siblings" in c else "—")
         agree = "" if c.get("methods_agree", True) else "  fired and motored disagree"
-        print(f"{c['cylinder']:>4} {fs:>14} {ms:>14} {c['own_tdc_offset_deg']:+7.3f} {c['pegging_bar']:+12.3f} "
+        # the own offset applied, or the reading left (the TDC watch compares the cylinder with it while running)
+        own = f"{c['own_tdc_offset_deg']:+.3f} applied" if c["own_tdc_offset_deg"] != 0.0 \
+            else f"{c.get('own_tdc_reading_deg', 0.0):+.3f} kept"
+        print(f"{c['cylinder']:>4} {fs:>14} {ms:>14} {own:>15} {c['pegging_bar']:+12.3f} "
               f"{gs:>17}{agree}")
     cal = doc["calibration"]
     print(f"calibration written: TDC ±{cal['tdc_wheel_sigma_deg']:.3f}° (wheel), ±{cal['tdc_cylinder_sigma_deg']:.3f}° "
@@ -318,5 +321,6 @@ def print_report(doc: dict) -> None:
     print("alert baseline (the healthy state the alerts compare with): " + (
         ", ".join(f"IMEP {b['imep_bar']:.2f} bar ({b['cycles']} cycles)" for b in bands) if bands else
         "none learnt: it needs 200 healthy cycles at one load (service/alerts.py AlertConfig.baseline_cycles)"))
-    print("* gain corrected (beyond the siblings' spread); a TDC or pegging beyond its threshold is a model effect")
+    print("* gain corrected (beyond the siblings' spread); an own TDC beyond twice its sigma is applied as a model effect, "
+          "one within it is kept as read (what the TDC watch expects of that cylinder while running)")
     print(f"model written to {doc['model_written']}")

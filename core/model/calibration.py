@@ -23,6 +23,8 @@ In the model's TOML (core.model.engine_model), every key optional (the defaults 
     inertia_sigma = 0.02             # the relative error of J (kinetic-energy term of the mean balance)
     stiffness_sigma = 0.003          # the relative error of the shaft line's section stiffnesses (drive train)
     damping_sigma = 0.02             # the relative error of its section dampings
+    tdc_cylinder_reading_deg = [0.0, -0.26, ...]    # each cylinder's own TDC as commissioning read and left it
+    tdc_cylinder_reading_sigma_deg = [0.01, ...]    # and that reading's statistical 1-sigma (both: one per cylinder)
     source = "frictionwatch commission, 3 files, 2026-11-28"
     baseline = "{...}"               # the healthy state per load band the alerts compare with (JSON, see below)
 """
@@ -78,6 +80,16 @@ class Calibration:
     damping_sigma: float = 0.5
     source: str = UNCALIBRATED_SOURCE
     baseline: str = ""
+    # what commissioning read of each cylinder's own TDC (its TDC less the median of all) after its corrections: 0
+    # where it applied one, the reading itself where it left it (a reading within twice its sigma: the pressure
+    # method's own bias on that cylinder, or a true offset too small to apply); () where none was kept (a model
+    # commissioned before these were). The TDC watch compares a commissioned cylinder's own
+    # offset with this, not with 0 (core.monitor.calibration.tdc_watch): the method's bias is the same at
+    # commissioning and while running (genset-v20 cylinder 8 read -0.26 at commissioning and -0.30 to -0.37 deg
+    # while running healthy on every seed looked at: design note 40). A cylinder commissioning could not read is
+    # kept as 0 +- 0.5 deg (as its calibration sigma is)
+    tdc_cylinder_reading_deg: tuple[float, ...] = ()
+    tdc_cylinder_reading_sigma_deg: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -87,6 +99,15 @@ class Calibration:
             v = getattr(self, name)
             if not (isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"calibration {name} = {v!r} must be a number >= 0")
+        readings = (self.tdc_cylinder_reading_deg, self.tdc_cylinder_reading_sigma_deg)
+        if not all(isinstance(r, tuple) for r in readings) or len(readings[0]) != len(readings[1]):
+            raise ValueError("calibration tdc_cylinder_reading_deg and tdc_cylinder_reading_sigma_deg must be two "
+                             "lists of one number per cylinder")
+        for v, s in zip(*readings, strict=True):
+            ok = isinstance(v, float | int) and isinstance(s, float | int) and not isinstance(v, bool)
+            if not (ok and math.isfinite(v) and math.isfinite(s) and abs(v) <= 10.0 and s >= 0.0):
+                raise ValueError(f"calibration TDC reading {v!r} +- {s!r} deg is not a reading (finite, |deg| <= 10, "
+                                 "sigma >= 0)")
         if not isinstance(self.baseline, str) or not isinstance(self.source, str):
             raise ValueError("calibration source and baseline must be text")
         if max(self.gain_sigma, self.gain_common_sigma, self.inertia_sigma) >= 0.5 or self.tdc_wheel_sigma_deg > 10.0:
@@ -118,6 +139,9 @@ def calibration_from_dict(table: Mapping) -> Calibration:
     if unknown:
         raise ValueError(f"[model.calibration] has unknown key(s) {', '.join(unknown)}; known: {', '.join(KEYS)}")
     values = dict(table)
+    for key in ("tdc_cylinder_reading_deg", "tdc_cylinder_reading_sigma_deg"):
+        if isinstance(values.get(key), list):
+            values[key] = tuple(values[key])
     if values.get("status") == "commissioned" and "source" not in values:
         values["source"] = "commissioned (no source given)"
     return Calibration(**values)
@@ -133,6 +157,9 @@ def calibration_toml(cal: Calibration) -> str:
             continue
         if isinstance(value, str):  # a JSON string (ASCII, escaped) is a TOML basic string
             lines.append(f"{key} = {json.dumps(value)}")
+        elif isinstance(value, tuple):  # a TOML array of floats
+            if value:
+                lines.append(f"{key} = [{', '.join(repr(float(v)) for v in value)}]")
         else:
             lines.append(f"{key} = {float(value)!r}")
     return "\n".join(lines) + "\n"

@@ -105,6 +105,18 @@ def test_model_file_keeps_its_calibration_and_refuses_unknown_keys():
     bad = commissioned.to_toml().replace("gain_sigma", "gain_sigmas")
     with pytest.raises(ValueError, match="gain_sigmas"):
         EngineModel.from_toml(bad)
+    # the cylinders' own TDC readings travel with it (a TOML array each), one per cylinder or none
+    read = dataclasses.replace(cal, tdc_cylinder_reading_deg=(0.0, -0.261, 0.05, 0.0),
+                               tdc_cylinder_reading_sigma_deg=(0.01, 0.012, 0.5, 0.009))
+    back = EngineModel.from_toml(dataclasses.replace(model, calibration=read).to_toml())
+    assert back.calibration == read
+    with pytest.raises(ValueError, match="3 numbers for 4 cylinders"):
+        EngineModel.from_toml(dataclasses.replace(model, calibration=dataclasses.replace(
+            read, tdc_cylinder_reading_deg=(0.0, 0.1, 0.2), tdc_cylinder_reading_sigma_deg=(0.01,) * 3)).to_toml())
+    with pytest.raises(ValueError, match="two lists"):
+        dataclasses.replace(read, tdc_cylinder_reading_sigma_deg=(0.01,))
+    with pytest.raises(ValueError, match="not a reading"):
+        dataclasses.replace(read, tdc_cylinder_reading_deg=(0.0, float("nan"), 0.0, 0.0))
     with pytest.raises(ValueError, match="status"):
         Calibration(status="calibrated")
     with pytest.raises(ValueError, match="gain_sigma"):

@@ -6,6 +6,7 @@ stage's (0.3 deg) and sigma multiples stated in the module; the engine points he
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -52,6 +53,38 @@ def test_a_commissioned_cylinder_changed_since_its_first_reading_is_flagged():
     assert tdc_flags(done, now, first) == ()
     # uncalibrated: no change rule (nothing was commissioned to change from)
     assert tdc_flags(Calibration(), now, np.radians([[0.0, -0.3, 0.0, 0.0, 0.0], [0.01] * 5])) == ()
+
+
+def test_a_commissioned_cylinder_is_judged_against_what_commissioning_read_of_it():
+    # genset-v20 seed 7 (design note 40): commissioning read cylinder 8's own TDC at -0.26 deg and left it (within
+    # twice its sigma); running healthy it reads -0.30 to -0.37, beyond 3 x hypot(stat, 0.121) against 0 but 0.1
+    # from what commissioning read
+    z = 6
+    cal = Calibration(status="commissioned", tdc_wheel_sigma_deg=0.2, tdc_cylinder_sigma_deg=0.121)
+    now = [_est(0.0, stat=0.01), _est(0.01), _est(-0.37, stat=0.01), _est(0.02), _est(-0.01), _est(0.0)]
+    assert tdc_flags(cal, now) == ("sensor_tdc_offset_cyl3",)  # no reading kept: against 0
+    kept = dataclasses.replace(cal, tdc_cylinder_reading_deg=(0.0, 0.0, -0.26, 0.0, 0.0, 0.0),
+                               tdc_cylinder_reading_sigma_deg=(0.01,) * z)
+    assert tdc_flags(kept, now) == ()
+    # a 0.5 deg move from that reading is flagged on that cylinder (beyond max(3 x sqrt(0.01^2 + 0.03^2 + 0.1^2),
+    # 0.3) = 0.33 deg), and one of a cylinder commissioning read at 0 too
+    assert tdc_flags(kept, now[:2] + [_est(+0.24)] + now[3:]) == ("sensor_tdc_offset_cyl3",)
+    assert tdc_flags(kept, [_est(0.45)] + now[1:]) == ("sensor_tdc_offset_cyl1",)
+    # the uncalibrated rule ignores readings (none can be kept without commissioning), another engine's are ignored
+    assert tdc_flags(dataclasses.replace(kept, status="uncalibrated"), now) == ("sensor_tdc_offset_cyl3",)
+    assert tdc_flags(dataclasses.replace(kept, tdc_cylinder_reading_deg=(0.0,) * 4,
+                                         tdc_cylinder_reading_sigma_deg=(0.01,) * 4), now) == ("sensor_tdc_offset_cyl3",)
+
+
+def test_commissioning_keeps_what_it_read_of_each_cylinder():
+    import numpy as np
+    from frictionwatch.core.monitor.calibration.commission import own_readings
+
+    tdc = [_est(0.5, stat=0.01), _est(0.24, stat=0.02), _est(0.5, stat=0.01), _est(1.4, stat=0.01), None]
+    applied = np.radians([0.0, 0.0, 0.0, 0.9, 0.0])  # the fourth's own offset was applied, the second's left
+    reading, sigma = own_readings(tdc, applied, np.radians([0.01, 0.02, 0.01, 0.01, np.nan]))
+    np.testing.assert_allclose(np.degrees(reading), [0.0, -0.26, 0.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(np.degrees(sigma), [0.01, 0.02, 0.01, 0.01, 0.5], atol=1e-12)
 
 
 def test_screen_reads_a_shift_of_the_compression_stroke():
@@ -108,6 +141,50 @@ def test_the_screens_sigma_covers_its_scatter_where_nothing_moved():
     np.testing.assert_allclose(moved.evidence["statistical_deg"], math.hypot(0.01, 0.06), rtol=1e-12)
     np.testing.assert_allclose(moved.sigma_rad, math.radians(math.hypot(0.1, 0.06)), rtol=1e-12)
     assert moved_by(fit, 0.0, 0.0) is fit
+
+def test_a_window_in_which_most_cylinders_moved_fits_every_cylinder(monkeypatch):
+    """A large engine fits four cylinders a window and screens the rest; where most screens fire at once (the wheel
+    moved), every cylinder is fitted, not only those whose screen passed SCREEN_DEG (the screen reads short: a 0.5
+    deg wheel step read 0.13 deg on genset-v20's cylinder 20, whose moved estimate was then flagged as its own
+    offset). The fit is replaced by a stand-in that records which cylinders it was asked for."""
+    import numpy as np
+    import frictionwatch.core.monitor.calibration.tdc_watch as tw
+    from frictionwatch.core.model.engine import load_engine
+    from frictionwatch.core.monitor.calibration.tdc import BLOCKS, volume_and_derivative
+
+    spec = load_engine("genset-v20")
+    z = spec.n_cyl
+    angle = np.radians(np.arange(-180.0, 180.0, 0.5))
+
+    def trace(shift_deg):
+        v, _ = volume_and_derivative(angle - np.radians(shift_deg), spec)
+        return 2e5 * (v.max() / v) ** 1.35
+
+    asked = []
+
+    def fit(pressure, angle_rad, spec_, speed):
+        asked.append(pressure.shape)
+        return _est(0.0, stat=0.01)
+
+    monkeypatch.setattr(tw, "tdc_from_pressure", fit)
+    ref = np.tile(trace(0.0), (z, 1))
+    fitted = tuple(_est(0.0, stat=0.01) for _ in range(z))
+
+    def window(shifts_deg):
+        now = np.stack([trace(d) for d in shifts_deg])
+        state = tw.TdcWatchState(tuple(now * 10.0 for _ in range(BLOCKS)), np.full(BLOCKS, 10.0), 10 * BLOCKS, None,
+                                 fitted, (), 0.0, 0.0, 0, None, ref, np.zeros(z), (), fitted)
+        asked.clear()
+        out = tw.close_window(spec, Calibration(status="commissioned"), state, angle)
+        return len(asked), out
+
+    n, out = window([0.0] * z)  # nothing moved: the four in turn
+    assert n == 4 and out.screened == ()
+    n, out = window([0.0] * 4 + [0.5] * 3 + [0.0] * (z - 7))  # three moved: those three besides the four
+    assert n == 7 and out.screened == (4, 5, 6)
+    n, out = window([0.0] * 4 + [0.5] * 15 + [0.05])  # the wheel: 15 of 16 screens fire, the last reads short
+    assert n == z and out.screened == tuple(range(4, z))
+
 
 def _simulate(path, rpm, load, seed, effect=None, cycles=150):
     simulate_log(path, "k9k-4cyl", rpm, load, seed, cycles, effect)

@@ -89,6 +89,19 @@ def _tdc_part(tdc: Sequence[TdcEstimate | None]) -> tuple[float, float, np.ndarr
     return wheel, wheel_sigma, own_applied, own_sigma, stat
 
 
+def own_readings(tdc: Sequence[TdcEstimate | None], own_applied: np.ndarray, stat: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Each cylinder's own TDC offset as the pressure will read it once the corrections are in, and that reading's
+    statistical sigma [rad] (z,): 0 where a correction was applied (it is the reading), the reading where it was left
+    (the method's own bias on that cylinder, which the TDC watch meets again: core.model.calibration), 0 +- 0.5 deg
+    where nothing was read."""
+    offsets = np.array([t.offset_rad if t is not None else np.nan for t in tdc])
+    own = offsets - float(np.nanmedian(offsets))
+    read = np.isfinite(own) & np.isfinite(stat)
+    reading = np.where(read & (own_applied == 0.0), own, 0.0)
+    return np.where(read, reading, 0.0), np.where(read, stat, math.radians(0.5))
+
+
 def commissioned_model(model: EngineModel, tdc_fired: Sequence[TdcEstimate | None] | None,
                        tdc_motored: Sequence[TdcEstimate | None] | None, gains: SiblingGains | None,
                        gain_common_sigma: float, inertia: InertiaFinding | None, source: str) -> Commissioning:
@@ -100,7 +113,8 @@ def commissioned_model(model: EngineModel, tdc_fired: Sequence[TdcEstimate | Non
     tdc = tdc_fired if tdc_fired is not None and any(t is not None for t in tdc_fired) else tdc_motored
     if tdc is None:
         raise ValueError("commissioning needs fired or motored cycles to find TDC from")
-    wheel, wheel_sigma, own, own_sigma, _ = _tdc_part(tdc)
+    wheel, wheel_sigma, own, own_sigma, stat = _tdc_part(tdc)
+    reading, reading_sigma = own_readings(tdc, own, stat)
     effects = [make_effect("tdc_offset", {"deg": round(math.degrees(wheel), 4), "cylinder": 0},
                            {"deg": round(math.degrees(wheel_sigma), 4)})]
     for k in np.flatnonzero(own):
@@ -124,7 +138,9 @@ def commissioned_model(model: EngineModel, tdc_fired: Sequence[TdcEstimate | Non
                       tdc_cylinder_sigma_deg=round(math.degrees(float(np.sqrt(np.mean(own_sigma ** 2)))), 4),
                       gain_sigma=round(gain_sigma, 5), gain_common_sigma=round(gain_common_sigma, 5),
                       inertia_sigma=round(min(inertia_sigma, 0.49), 5), stiffness_sigma=model.calibration.stiffness_sigma,
-                      damping_sigma=model.calibration.damping_sigma, source=source)
+                      damping_sigma=model.calibration.damping_sigma, source=source,
+                      tdc_cylinder_reading_deg=tuple(round(math.degrees(float(v)), 4) for v in reading),
+                      tdc_cylinder_reading_sigma_deg=tuple(round(math.degrees(float(v)), 4) for v in reading_sigma))
     out = dataclasses.replace(model, effects=model.effects + tuple(effects), calibration=cal)
     return Commissioning(out, _report(z, tdc_fired, tdc_motored, wheel, wheel_sigma, own, gains, pegging, inertia,
                                       cal))
@@ -173,6 +189,8 @@ def _report(z: int, fired, motored, wheel: float, wheel_sigma: float, own: np.nd
         m = _tdc_json(motored[k]) if motored is not None else None
         row = {"cylinder": k + 1, "tdc_fired": f, "tdc_motored": m,
                "own_tdc_offset_deg": math.degrees(float(own[k])), "pegging_bar": float(pegging[k]) / 1e5}
+        if cal.tdc_cylinder_reading_deg:  # what the TDC watch will compare this cylinder with (0 where applied)
+            row["own_tdc_reading_deg"] = cal.tdc_cylinder_reading_deg[k]
         if f is not None and m is not None:  # two methods: their difference said, not averaged away
             diff = f["offset_deg"] - m["offset_deg"]
             row["fired_minus_motored_deg"] = diff
@@ -195,4 +213,4 @@ def _report(z: int, fired, motored, wheel: float, wheel_sigma: float, own: np.nd
 
 
 __all__ = ["Commissioning", "InertiaFinding", "SENSOR_EFFECTS", "commissioned_drive_train", "commissioned_model",
-           "without_sensor_effects"]
+           "own_readings", "without_sensor_effects"]

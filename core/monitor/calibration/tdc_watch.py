@@ -16,7 +16,10 @@ What is flagged (flags ``sensor_tdc_offset`` for the wheel, ``sensor_tdc_offset_
   the same as at commissioning except for what a change of operating point moves (healthy simulated engines read
   -0.17 to +0.05 deg at different points: k9k, genset-v20);
 - a cylinder's own offset (its TDC less the median of all) beyond ``DRIFT_SIGMAS`` of its statistical sigma and the
-  calibration's per-cylinder sigma, and beyond ``MIN_FLAG_DEG``.
+  calibration's per-cylinder sigma, and beyond ``MIN_FLAG_DEG``; on a commissioned model that kept what it read of
+  each cylinder (core.model.calibration ``tdc_cylinder_reading_deg``), its own offset less that reading, beyond
+  ``DRIFT_SIGMAS`` of both readings' statistical sigmas and ``OPERATING_POINT_DEG``, and beyond ``MIN_FLAG_DEG``:
+  the pressure method's own bias on a cylinder is the same at commissioning and while running.
 - commissioned model, also: a cylinder's own offset changed since the run's first reading of it (``own_offsets``)
   beyond ``DRIFT_SIGMAS`` of both windows' statistical sigmas and ``OPERATING_POINT_DEG``, and beyond
   ``MIN_FLAG_DEG``: the method's own bias on that cylinder is the same then and now and cancels, where the absolute
@@ -24,7 +27,7 @@ What is flagged (flags ``sensor_tdc_offset`` for the wheel, ``sensor_tdc_offset_
   0.5 deg drift from cycle 300 read +0.40 to +0.44; bench/sensor_drift.py).
 A flag holds until a window says otherwise. Three or more cylinders are needed for a cylinder's own flag.
 
-A large engine's cylinders take turns (below), so a cylinder's TDC was fitted up to z / CYLINDERS_PER_WINDOW windows
+A large engine's cylinders take turns after the first window, which fits all (below), so a cylinder's TDC was fitted up to z / CYLINDERS_PER_WINDOW windows
 ago (genset-v20: 500 cycles; a 0.5 deg drift from cycle 300 went unfitted to cycle 599, a wheel slip was judged on a
 median of mostly old estimates to cycle 599 and meanwhile named the freshly fitted cylinders). So every window also
 screens the cylinders out of turn: the shift of its mean compression stroke against the cylinder's trace at its
@@ -32,7 +35,9 @@ last fit (``screen_shift``, the static twist's change added back), and a cylinde
 ``SCREEN_DEG`` is fitted in this window too; one that moved less keeps its last fit moved by the screen's shift, so
 every estimate refers to the newest window (a wheel slipping mid-window, half of it in the window, screened some
 cylinders and not others: the stale ones beside the fresh read as own offsets, genset-v20 cylinder 15 flagged).
-The screen costs a small least-squares solve per cylinder; a screen that fires costs a fit, never a flag.
+The screen costs a small least-squares solve per cylinder; a screen that fires costs a fit, never a flag. Where
+the screens of most cylinders fire at once (the wheel moved), every cylinder is fitted: a screen is a trigger, and
+reads a shift short.
 
 The static twist of the drive train (the monitor's model of it, MonitorState.static) puts a loaded throw ahead of the
 flywheel the pressure is sampled against: its thermodynamic TDC reads early by that twist (healthy k9k at full load:
@@ -269,7 +274,13 @@ def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle
     # cylinder whose compression stroke moved against its trace at its last fit (``screen_shift``): a TDC that
     # drifts is fitted in the window it shows in, not up to z / CYLINDERS_PER_WINDOW windows later
     mean_trace = np.sum(block_sums, axis=0) / max(float(np.sum(counts)), 1.0)
-    turn = list(range(z)) if z <= per_window else [(state.next_cylinder + i) % z for i in range(per_window)]
+    # The first window fits every cylinder, also of a large engine (once a run, ~55 ms on genset-v20): its own offsets
+    # and the change rule's first readings are then against the median of all, not of the four fitted so far
+    # (genset-v20 cylinder 8 read -0.18 deg against four and -0.36 against twenty, design note 40), and every
+    # cylinder has a trace for the screen from the second window on
+    first_window = state.fitted is None
+    turn = list(range(z)) if z <= per_window or first_window \
+        else [(state.next_cylinder + i) % z for i in range(per_window)]
     screened: list[int] = []
     moved = np.zeros(z)  # each unfitted cylinder's shift since its last fit [rad] (the screen's; 0: none read)
     moved_sigma = np.zeros(z)  # and its 1 sigma [rad]
@@ -284,6 +295,15 @@ def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle
                 screened.append(k)
             elif math.isfinite(shift):
                 moved[k], moved_sigma[k] = shift, shift_sigma if math.isfinite(shift_sigma) else 0.0
+    others = [k for k in range(z) if k not in turn]
+    if others and 2 * len(screened) > len(others):
+        # most cylinders moved at once: the wheel moved (a common cause), and a screen that stayed under SCREEN_DEG
+        # is not a reading of how far: the screen reads a shift short (its reference's noise in its own gradient;
+        # genset-v20, a 0.5 deg wheel step: 15 of 16 screens fired, cylinder 20's read 0.13 and 0.12 deg, and its
+        # moved estimate stood 0.3 deg behind the others' fresh fits, read as its own offset and flagged). So every
+        # cylinder is fitted in this window (~55 ms on genset-v20, once per such event)
+        screened = others
+        moved[:], moved_sigma[:] = 0.0, 0.0
     if ref is None or ref.shape != mean_trace.shape:
         ref, ref_twist = np.full(mean_trace.shape, np.nan), np.zeros(z)
     ref, ref_twist = ref.copy(), np.array(ref_twist, dtype=np.float64)
@@ -301,7 +321,7 @@ def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle
     # the unscreened ones' alike; a stale estimate beside fresh ones read as that cylinder's own offset)
     estimates = [None if e is None else moved_by(e, float(moved[k]), float(moved_sigma[k]))
                  for k, e in enumerate(fitted)]
-    nxt = (state.next_cylinder + len(turn)) % z
+    nxt = state.next_cylinder if first_window else (state.next_cylinder + len(turn)) % z
     first = own_offsets(estimates) if state.first_own is None else state.first_own.copy()
     if state.first_own is not None:  # a cylinder read for the first time keeps that reading
         now = own_offsets(estimates)
@@ -389,22 +409,32 @@ def tdc_flags(cal: Calibration, estimates: list[TdcEstimate | None],
     if abs(wheel) > max(limit, math.radians(MIN_FLAG_DEG)):
         flags.append("sensor_tdc_offset")
     if len(found) >= 3:
+        idx = [k for k, _ in found]
         own = offsets - wheel
         own_limit = np.maximum(DRIFT_SIGMAS * np.hypot(stats, cal.tdc_cylinder_sigma_rad), math.radians(MIN_FLAG_DEG))
+        expected = np.zeros(len(found))
+        if cal.commissioned and len(cal.tdc_cylinder_reading_deg) == len(estimates):
+            # the commissioning's own reading of each cylinder is what a healthy one reads (the pressure method's bias
+            # on that cylinder, the same then and now: genset-v20 cylinder 8 -0.26 deg then, -0.30 to -0.37 while
+            # running, flagged against 0 +- 3 x 0.14); the allowance is the two readings' statistical sigmas and an
+            # operating point's move, as for the change rule below
+            expected = np.radians(np.asarray(cal.tdc_cylinder_reading_deg, dtype=np.float64)[idx])
+            then_stat = np.radians(np.asarray(cal.tdc_cylinder_reading_sigma_deg, dtype=np.float64)[idx])
+            own_limit = np.maximum(DRIFT_SIGMAS * np.sqrt(stats**2 + then_stat**2 + math.radians(OPERATING_POINT_DEG) ** 2),
+                                   math.radians(MIN_FLAG_DEG))
         moved = np.zeros(len(found), dtype=bool)
         if cal.commissioned and first_own is not None:
             # a change since the run's first reading of the cylinder: the method's own bias on this engine (the
             # commissioning's per-cylinder sigma, 0.14 deg on genset-v20, against which a 0.5 deg drift read +0.40
             # to +0.44: bench/sensor_drift.py) is the same then and now and cancels; what a change of operating
             # point moves is allowed as for the wheel
-            idx = [k for k, _ in found]
             then, then_stat = first_own[0, idx], first_own[1, idx]
             change_limit = np.maximum(DRIFT_SIGMAS * np.sqrt(stats**2 + then_stat**2
                                                              + math.radians(OPERATING_POINT_DEG) ** 2),
                                       math.radians(MIN_FLAG_DEG))
             moved = np.isfinite(then) & (np.abs(own - then) > change_limit)
-        flags += [f"sensor_tdc_offset_cyl{k + 1}" for (k, _), o, lim, m in zip(found, own, own_limit, moved,
-                                                                                 strict=True)
+        flags += [f"sensor_tdc_offset_cyl{k + 1}" for (k, _), o, lim, m in zip(found, own - expected, own_limit,
+                                                                                 moved, strict=True)
                   if abs(o) > lim or m]
     return tuple(flags)
 
