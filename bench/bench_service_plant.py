@@ -115,7 +115,16 @@ def run_mix(args, client: httpx.Client, url: str, pid: int, engines: list[str]) 
     rpm = [client.get(f"/api/v1/engines/{e}/cycles/latest").json()["rpm_mean"] for e in engines]
     offered = sum(r / 60.0 / CYCLE_REVS for r in rpm) * (w1 - w0)
     codes, counts = np.unique(lat["status"], return_counts=True)
+    # which routes make the tail: each route (the engine's id taken out) with its share of the requests beyond the
+    # overall p99, and its own p50 / p99 (the client's clock: its sends and its parsing are in it)
+    routes = np.array([re.sub(r"/engines/[^/]+", "/engines/{id}", single.ROUTES[i % len(single.ROUTES)])
+                       for i in range(lat["n"])])
+    slow = ms > np.nanpercentile(ms, 99)
+    by_route = {r: {"p50": float(np.nanpercentile(ms[routes == r], 50)), "p99": float(np.nanpercentile(ms[routes == r], 99)),
+                    "share_of_slowest_1pct": float(np.mean(routes[slow] == r)) if slow.any() else 0.0}
+                for r in sorted(set(routes.tolist()))}
     return {"requests": lat["n"], "by_status": {str(k): int(v) for k, v in zip(codes, counts)},
+            "latency_ms_by_route": by_route,
             "latency_ms": {"p50": float(np.nanpercentile(ms, 50)), "p99": float(np.nanpercentile(ms, 99)),
                            "max": float(np.nanmax(ms))},
             "client_send_late_ms_p99": float(np.percentile(lat["send_late_s"] * 1e3, 99)),
