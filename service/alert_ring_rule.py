@@ -94,24 +94,28 @@ class RingConditionRule:
         fc, fc_s, fn, fn_s = self._friction(result, ctx, sensor)
         rc = self.last = ring_condition(lc, lc_s, self.window, fc, fc_s, fn, fn_s, self.settings, self.siblings)
         out: list[Decision | Hold] = []
+        # the conditions as arrays over the cylinders, each cylinder's read off them as Python values (per cylinder
+        # and per scalar they were the rule's largest cost in serve: design note 45)
         with np.errstate(invalid="ignore", divide="ignore"):
             z_since, z_sib = rc.since / rc.since_sigma, rc.siblings / rc.siblings_sigma
+            on_since = (rc.since > 1.0) & (z_since > cfg.raise_z)
+            on_sib = (rc.siblings > 1.0) & (z_sib > cfg.ring_sibling_z)
+            off = ~(z_since >= cfg.clear_z) & ~(z_sib >= cfg.ring_sibling_clear_z)
+            # against the siblings a TDC error reads the same: never more than a warning
+            alarm = on_since & (z_since > 2 * cfg.raise_z)
+        read = (np.isfinite(rc.since) | np.isfinite(rc.siblings)).tolist()
+        on, off_, alarm_, flagged = (on_since | on_sib).tolist(), off.tolist(), alarm.tolist(), sensor.tolist()
+        misfit = "model_misfit" in ctx.engine_flags
         for k in range(z):
-            on_since = bool(rc.since[k] > 1.0 and z_since[k] > cfg.raise_z)
-            on_sib = bool(rc.siblings[k] > 1.0 and z_sib[k] > cfg.ring_sibling_z)
-            off = bool(not (z_since[k] >= cfg.clear_z) and not (z_sib[k] >= cfg.ring_sibling_clear_z))
-            if not (np.isfinite(rc.since[k]) or np.isfinite(rc.siblings[k])):
+            if not read[k]:
                 out.append(Hold(k + 1, {"ring_condition": None}))
                 continue
-            kind = "sensor_fault" if sensor[k] else "ring_wear"
-            # against the siblings a TDC error reads the same: never more than a warning
-            sev = "alarm" if on_since and z_since[k] > 2 * cfg.raise_z else "warning"
             # one ring alert per cylinder: where the leak or friction rule has raised one, this figure explains it
             # (the API's ring condition) and raises nothing more
             other = any(ctx.latched(name, k + 1) for name in self.ring_rules)
-            out.append(Decision(k + 1, kind, (on_since or on_sib) and not other, off, cfg.raise_cycles,
-                                cfg.clear_cycles, sev, detail=partial(self.explain, k, rc, bool(sensor[k]),
-                                                                      "model_misfit" in ctx.engine_flags)))
+            out.append(Decision(k + 1, "sensor_fault" if flagged[k] else "ring_wear", on[k] and not other, off_[k],
+                                cfg.raise_cycles, cfg.clear_cycles, "alarm" if alarm_[k] else "warning",
+                                detail=partial(self.explain, k, rc, flagged[k], misfit)))
         return out
 
     @staticmethod
