@@ -107,6 +107,8 @@ class RingConditionRule:
         on, off_, alarm_, flagged = (on_since | on_sib).tolist(), off.tolist(), alarm.tolist(), sensor.tolist()
         misfit = "model_misfit" in ctx.engine_flags
         for k in range(z):
+            if not (on[k] or ctx.watched(self.name, k + 1)):
+                continue  # not on and nothing kept for it (a Hold or an off Decision would change nothing)
             if not read[k]:
                 out.append(Hold(k + 1, {"ring_condition": None}))
                 continue

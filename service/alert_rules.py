@@ -65,6 +65,8 @@ class MisfireRule:
         self.rate += (1.0 / cfg.misfire_window) * (hit - self.rate)
         out: list[Decision | Hold] = []
         for k, rate in enumerate(self.rate.tolist()):
+            if rate < cfg.misfire_raise and not ctx.watched(self.name, k + 1):
+                continue  # not on and nothing kept for it: the engine would do nothing with it
             sev = "alarm" if rate >= cfg.misfire_alarm else "warning"
             out.append(Decision(k + 1, "misfire", rate >= cfg.misfire_raise, rate < cfg.misfire_clear, 1, 1, sev,
                                 detail=partial(self.explain, k, rate)))
@@ -128,6 +130,8 @@ class SensorFlagRule:
             sensor = sorted(f for f in fl if f.startswith("sensor_") or f == "pressure_repaired")
             if n_comp is not None and not (math.isfinite(n_comp[k]) and n_comp[k] > 0.5):
                 sensor.append("pressure_stuck_or_dropped")
+            if not sensor and not ctx.watched(self.name, k + 1):
+                continue
             out.append(Decision(k + 1, "sensor_fault", bool(sensor), not sensor, k_on, k_off, "warning",
                                 detail=partial(self.explain, k + 1, sensor, n_comp)))
         return out
@@ -161,7 +165,8 @@ class CoreFlagRule:
             return []
         kind, k_on, k_off = self.kind, 4 * self.config.flag_raise_cycles, self.config.clear_cycles
         return [Decision(k + 1, kind, kind in fl, kind not in fl, k_on, k_off, "warning",
-                         detail=partial(self.explain, k)) for k, fl in enumerate(ctx.cyl_flags)]
+                         detail=partial(self.explain, k)) for k, fl in enumerate(ctx.cyl_flags)
+                if kind in fl or ctx.watched(self.name, k + 1)]
 
     def explain(self, k: int) -> tuple[str, dict]:
         return (f"cylinder {k + 1}: {self.kind.replace('_', ' ')} against its siblings (before a commissioning "
@@ -183,11 +188,11 @@ def _pressure_evidence(p: Pressure, k: int, window: float) -> dict:
     return ev
 
 
-def _holds(p: Pressure, n_cyl: int) -> list[Decision | Hold]:
+def _holds(p: Pressure, name: str, ctx: Context) -> list[Decision | Hold]:
     """While the pressure statistics hold still: every cylinder's open pressure alert says why."""
     ev = {"commissioned_at_this_load": False, "suspended": p.held, "imep_bar": _num(p.imep_pa / PA_PER_BAR),
           "learning_cycles": p.learning_cycles}
-    return [Hold(k + 1, ev) for k in range(n_cyl)]
+    return [Hold(k + 1, ev) for k in range(ctx.n_cyl) if ctx.watched(name, k + 1)]
 
 
 class _PressureRule:
@@ -204,7 +209,7 @@ class _PressureRule:
         if p is None:
             return []
         if p.held:
-            return _holds(p, ctx.n_cyl)
+            return _holds(p, self.name, ctx)
         return self.decide(p, ctx)
 
     def decide(self, p: Pressure, ctx: Context) -> list[Decision | Hold]:
@@ -239,6 +244,8 @@ class LeakRule(_PressureRule):
         alarm = ((st.z_leak >= cfg.alarm_z) & (st.effect > 3 * cfg.leak_floor)).tolist()
         out: list[Decision | Hold] = []
         for k, flags in enumerate(ctx.cyl_flags):
+            if not on[k] and not ctx.watched(self.name, k + 1):
+                continue
             sensor = any(s.startswith("sensor_") for s in flags)
             out.append(Decision(k + 1, "sensor_fault" if sensor else "blow_by", on[k], off[k], cfg.raise_cycles,
                                 cfg.clear_cycles, "alarm" if alarm[k] else "warning",
@@ -276,7 +283,8 @@ class GainRule(_PressureRule):
         on = ((ratio > cfg.raise_z) & (np.abs(p.ewma[0]) > cfg.gain_floor) & (st.z_leak < cfg.clear_z)).tolist()
         off = ((ratio < cfg.clear_z) | (st.z_leak > cfg.raise_z)).tolist()
         return [Decision(k + 1, "sensor_fault", on[k], off[k], cfg.raise_cycles, cfg.clear_cycles, "info",
-                         detail=partial(self.explain, k, p)) for k in range(ctx.n_cyl)]
+                         detail=partial(self.explain, k, p)) for k in range(ctx.n_cyl)
+                if on[k] or ctx.watched(self.name, k + 1)]
 
     def explain(self, k: int, p: Pressure) -> tuple[str, dict]:
         return (f"cylinder {k + 1}: compression pressure {math.exp(p.ewma[0, k]):.3f}x "
@@ -336,6 +344,8 @@ class FrictionRule:
                 continue
             base, base_s = ctx.baseline.friction_excess[k], ctx.baseline.friction_excess_sigma[k]
             zf = (excess - base) / math.hypot(sigma, base_s)
+            if not zf > cfg.friction_raise_sigmas and not ctx.watched(self.name, int(k) + 1):
+                continue
             out.append(Decision(int(k) + 1, "ring_wear", zf > cfg.friction_raise_sigmas,
                                 zf < cfg.friction_clear_sigmas, cfg.raise_cycles, cfg.clear_cycles,
                                 "alarm" if zf > 2 * cfg.friction_raise_sigmas else "warning",

@@ -247,7 +247,7 @@ class AlertEngine:
             (cyl_flags[cyl - 1] if cyl is not None and 1 <= cyl <= z else engine_flags).add(kind)
         at_start = self.baseline
         pressure = self._pressure(result, cyl_flags)  # learns the baseline where the cycle is healthy
-        ctx = Context(cyl_flags, engine_flags, at_start, self.baseline, pressure, self._latched)
+        ctx = Context(cyl_flags, engine_flags, at_start, self.baseline, pressure, self._latched, self._watched)
         events: list[AlertEvent] = []
         for stage in self.rules:
             decisions = [(rule.name, d) for rule in stage for d in rule.update(result, ctx)]
@@ -308,6 +308,10 @@ class AlertEngine:
         return math.isfinite(ref)
 
     # ---- hysteresis and the alert records -----------------------------------------------------------------
+    def _watched(self, name: str, cylinder: int | None) -> bool:
+        key = (name, cylinder)
+        return key in self._latches or key in self._open
+
     def _latched(self, name: str, cylinder: int | None) -> bool:
         latch = self._latches.get((name, cylinder))
         return latch is not None and latch.active

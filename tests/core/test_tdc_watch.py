@@ -147,8 +147,8 @@ def test_a_window_in_which_most_cylinders_moved_fits_every_cylinder(monkeypatch)
     moved), every cylinder is fitted, not only those whose screen passed SCREEN_DEG (the screen reads short: a 0.5
     deg wheel step read 0.13 deg on genset-v20's cylinder 20, whose moved estimate was then flagged as its own
     offset). The fit is replaced by a stand-in that records which cylinders it was asked for."""
-    import numpy as np
     import frictionwatch.core.monitor.calibration.tdc_watch as tw
+    import numpy as np
     from frictionwatch.core.model.engine import load_engine
     from frictionwatch.core.monitor.calibration.tdc import BLOCKS, volume_and_derivative
 

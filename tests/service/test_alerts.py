@@ -236,3 +236,39 @@ def test_one_wild_cycle_at_a_load_step_raises_nothing():
     assert _run(eng, rng, 100, 301) == []
     assert eng.update(_result(401, rng, wild)) == []  # the same cycle unflagged: the EWMA takes it (no alert yet)
     assert [e.alert.cylinder for _, e in _run(eng, rng, 20, 402) if e.kind == "raised"] == [2]
+
+
+def test_leaving_out_what_changes_nothing_gives_the_same_events():
+    """The rules leave out a Decision that is not on and a Hold where the engine keeps no latch or open alert for it
+    (``Context.watched``): the same events, cycle by cycle and field by field, as an engine that is handed every one
+    -- over learning, a load step (the pressure statistics held), a leak raised and cleared, a flagged sensor and
+    misfires."""
+    def script(i):
+        if i < 300:
+            return None, (), 12e5
+        if i < 340:
+            return None, (), 9e5  # a load step: the statistics settle, then learn a new band
+        if i < 700:  # a leak; a sensor flag; a load step while its alert is open (held: the alert says why)
+            return _leak(2, 0.003), ("sensor_tdc_offset_cyl4",) if 500 <= i < 560 else (), \
+                9e5 if 620 <= i < 650 else 12e5
+        return None, ("misfire_cyl1",) if i % 3 == 0 else (), 12e5
+
+    def run(every: bool):
+        rng = np.random.default_rng(7)
+        eng = AlertEngine(K9K, CONFIG)
+        if every:
+            eng._watched = lambda name, cylinder: True
+        out = []
+        for i in range(1000):
+            shift, flags, imep = script(i)
+            for e in eng.update(_result(i, rng, shift, flags, imep_pa=imep)):
+                out.append((i, e.kind, json.dumps(e.alert.to_dict(), sort_keys=True)))
+            if i == 640:  # held: the open leak alert's evidence says why
+                out.append((i, "open", json.dumps([a.to_dict() for a in eng.active()], sort_keys=True)))
+        return out
+
+    sparse, every = run(False), run(True)
+    assert len(sparse) >= 4, sparse  # the scenario raises and clears something
+    held = [json.loads(d) for i, k, d in sparse if k == "open"][0]
+    assert [a["evidence"]["suspended"] for a in held if a["kind"] == "blow_by"] == ["settling after a load change"]
+    assert sparse == every
