@@ -150,6 +150,8 @@ def main() -> None:
     ap.add_argument("--without", default="", help="as the log's ``simulate --without``: variable_inertia off in the "
                     "monitor too")
     ap.add_argument("--grid-scale", type=float, default=1.0, help="as the log's ``simulate --grid-scale``")
+    ap.add_argument("--fit-drift", action="store_true", help="the monitor fits each cycle's linear speed drift "
+                    "instead of taking it as a random effect (MonitorConfig fit_drift, drift_nuisance off; note 42)")
     args = ap.parse_args()
     log_path = Path(args.log)
     truth_all = np.load(log_path.with_name(log_path.name.removesuffix(".mcap") + ".truth.npz"))["friction"]
@@ -161,6 +163,8 @@ def main() -> None:
         sums.install()
     log = LogReader(log_path)
     cfg = MonitorConfig(variable_inertia="variable_inertia" not in args.without.split(","))
+    if args.fit_drift:
+        cfg = replace(cfg, fit_drift=True, drift_nuisance=False)
     pipe = EnginePipeline(plant_engine(args.grid_scale), replace(log.info, second_wheel=None), cfg)
     records, offset = log.records(), 0
     if args.start_cycle:
