@@ -1,8 +1,8 @@
 """The pull check's kappa (core.monitor.identify.pull_check, design note 42): tuned on some traces, counted on others.
 
     nice .venv/bin/python -m bench.second_wheel_trace trace LOG --variants one_wheel --pull-kappa inf --json J
-    nice .venv/bin/python -m bench.second_wheel_pull_check count J [J ...] [--kappa 2]
-    nice .venv/bin/python -m bench.second_wheel_pull_check tune J [J ...] --on "genset-v20 1500 rpm 0.75 seed 43"
+    nice .venv/bin/python -m bench.calibrate_pull_check count J [J ...] [--kappa 2]
+    nice .venv/bin/python -m bench.calibrate_pull_check tune J [J ...] --on "genset-v20 1500 rpm 0.75 seed 43"
         [--write]
 
 The traces are made with the check off (``--pull-kappa inf``): they hold, every checkpoint and cylinder, the figure's
@@ -109,7 +109,8 @@ def main() -> None:
         figure += "; next kappa " + "; ".join(line(p, nxt[0], table[nxt[0]][p]) for p in docs)
     print(f"kappa = {kappa:g}")
     if args.write:
-        cmd = "python -m bench.second_wheel_pull_check tune " + " ".join(Path(p).name for p in docs)
+        cmd = ("python -m bench.calibrate_pull_check tune " + " ".join(Path(p).name for p in docs) + " --on "
+               + " ".join(repr(c) for c in args.on) + " --write")
         write_tuned({"PULL_CHECK_KAPPA": Tuned(float(kappa), cmd, tuple(args.on), figure,
                                                datetime.date.today().isoformat())}, MONITOR_RECORD)
         print(f"wrote PULL_CHECK_KAPPA = {kappa:g} to {MONITOR_RECORD}")
