@@ -41,7 +41,13 @@ def applied(r: dict, kappa: float, resolve_rel: float) -> dict:
     d = np.array(r["pull_d_pct"], dtype=float)
     pull = np.zeros_like(err)
     if np.all(np.isfinite(d)) and np.isfinite(kappa):
-        pull = pull_sigma(DataPull(d, np.array(r["pull_v_pct2"]), np.array(r["pull_shift_pct"])), kappa)
+        if "pull_nm" in r:  # the check as the code takes it, in N m (its directions: its covariance's in N m^2)
+            q = r["pull_nm"]
+            cov = np.array(q["cov"])
+            pull = 100.0 * pull_sigma(DataPull(np.array(q["d"]), np.diag(cov), np.array(q["shift"]), cov),
+                                      kappa) / np.array(q["truth"])
+        else:  # a trace before the directions were recorded: per cylinder
+            pull = pull_sigma(DataPull(d, np.array(r["pull_v_pct2"]), np.array(r["pull_shift_pct"])), kappa)
     sig = np.sqrt(sig0 ** 2 + pull ** 2)
     meas = meas0 & (sig <= 100.0 * resolve_rel * scale)
     return {"err": err, "sigma": sig, "measured": meas, "pull": pull}

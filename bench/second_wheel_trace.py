@@ -129,6 +129,7 @@ class Tap:
             pull = data_only_pull(acc, post, rows, prior_mean)  # the pull check's inputs (note 42), recomputed here
             nan_z = np.full(rows.shape[0], np.nan)
             self.last = dict(pull_d=pull.d if pull else nan_z, pull_v=pull.v if pull else nan_z,
+                             pull_cov=pull.cov if pull else np.full((rows.shape[0],) * 2, np.nan),
                              pull_shift=pull.shift if pull else nan_z, t_cyl=t_cyl, t_sig=t_sig, t_sig_stat=t_sig_stat, gain=gain, t_tot=t_tot, s_tot=s_tot,
                              s_tot_stat=s_tot_stat, balance=check.balance, balance_sigma=check.balance_sigma,
                              misfit=check.misfit, coupling=check.coupling_loss, excess_rel=math.sqrt(
@@ -228,6 +229,9 @@ def row(name, outcome, t, truth_all, pipe, offset: int = 0) -> dict:
             "cal_sigma_pct": _r(100 * est.calibration_sigma / truth, 2) if est.calibration_sigma is not None else [],
             "pull_d_pct": _r(100 * t["pull_d"] / truth, 2), "pull_v_pct2": _r(1e4 * t["pull_v"] / truth ** 2, 3),
             "pull_shift_pct": _r(100 * t["pull_shift"] / truth, 2),
+            # in N m (the check's directions are those of its covariance in N m^2): d, shift, cov and the truth
+            "pull_nm": {"d": _r(t["pull_d"], 6), "shift": _r(t["pull_shift"], 6), "truth": _r(truth, 6),
+                        "cov": [_r(c, 8) for c in t["pull_cov"]]},
             "gain": _r(t["gain"], 3), "t_tot": round(float(t["t_tot"]), 3), "s_tot": round(float(t["s_tot"]), 3),
             "s_tot_stat": round(float(t["s_tot_stat"]), 3), "truth_tot": round(float(truth.sum()), 3),
             "balance": round(float(t["balance"]), 3), "balance_sigma": round(float(t["balance_sigma"]), 3),
