@@ -58,8 +58,9 @@ def data_only_pull(acc: Accumulator, post: Posterior, rows: np.ndarray, share: n
     """The data-only point's distance from the posterior per cylinder (``DataPull``); rows (z, p) the cylinders'
     rows over the leading p parameters, share (z,) the Eq. 6 shares [N m]. None where the accumulated equations
     alone do not fix a point (N not positive definite: nothing accumulated yet, or a direction only the prior
-    holds): then there is nothing to check against. The data-only covariance is scaled by the posterior's reduced
-    chi^2 where that is above 1, as the posterior's statistical one is."""
+    holds) or a number is not finite (no share without a balance): then there is nothing to check against. The
+    data-only covariance is scaled by the posterior's reduced chi^2 where that is above 1, as the posterior's
+    statistical one is."""
     rows = np.asarray(rows, dtype=np.float64)
     p = rows.shape[1]
     if acc.weight <= 0.0:
@@ -75,6 +76,8 @@ def data_only_pull(acc: Accumulator, post: Posterior, rows: np.ndarray, share: n
     cov = rows @ gap @ rows.T
     cov = 0.5 * (cov + cov.T)
     shift = rows @ post.params[:p] - np.asarray(share, dtype=np.float64)
+    if not (np.all(np.isfinite(cov)) and np.all(np.isfinite(d)) and np.all(np.isfinite(shift))):
+        return None  # (a share not at hand, a posterior not finite: nothing to check against)
     return DataPull(d, np.maximum(np.diag(cov), 0.0), shift, cov)
 
 
