@@ -106,8 +106,9 @@ def pull_sigma(pull: DataPull, kappa: float) -> np.ndarray:
 @dataclass(frozen=True)
 class PullCheck:
     """kappa: how many sigmas of its own scatter the data-only point may lie from a figure before the distance
-    counts as a repeated error (core/monitor/tuned.json PULL_CHECK_KAPPA: tuned on seed 43's base-load log,
-    validated on seed 47's and seeds 29/31/37 under the +-20 % profile; design note 42)."""
+    counts as a repeated error (core/monitor/tuned.json PULL_CHECK_KAPPA = 2.5: tuned on genset-v20 seed 43, its
+    3,000-cycle base-load log and its 8,000-cycle +-20 % profile log; validated on seed 47's base-load log, its cost
+    checked on seeds 29, 31, 37 under the profile; bench/calibrate_pull_check.py, design note 42)."""
 
     kappa: float = _TUNED["PULL_CHECK_KAPPA"].value
 
