@@ -25,7 +25,6 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.monitor.identify import identification
 from frictionwatch.core.monitor.identify.accumulate import Accumulator
 from frictionwatch.core.monitor.state import MonitorConfig
@@ -33,8 +32,7 @@ from frictionwatch.drivers.logs.mcap_log import LogReader
 from frictionwatch.service.pipeline import EnginePipeline
 
 from bench.accuracy_v20_long import TRUTH_WINDOW
-from bench.accuracy_v20_wheels import TWO_WHEELS
-from bench.second_wheel_trace import Tap, records_from_cycle
+from bench.second_wheel_trace import Tap, plant_engine, records_from_cycle
 
 
 class PullTap(Tap):
@@ -148,6 +146,12 @@ def main() -> None:
     ap.add_argument("--split", action="store_true",
                     help="split the data-only offset from the truth by raw row (per-row sums kept; note 41)")
     ap.add_argument("--json", default="/tmp/fw-trace/pull.json")
+    ap.add_argument("--cycles", type=int, default=0, help="stop after this many analysed cycles (0: the whole log)")
+    ap.add_argument("--without", default="", help="as the log's ``simulate --without``: variable_inertia off in the "
+                    "monitor too")
+    ap.add_argument("--grid-scale", type=float, default=1.0, help="as the log's ``simulate --grid-scale``")
+    ap.add_argument("--fit-drift", action="store_true", help="the monitor fits each cycle's linear speed drift "
+                    "instead of taking it as a random effect (MonitorConfig fit_drift, drift_nuisance off; note 42)")
     args = ap.parse_args()
     log_path = Path(args.log)
     truth_all = np.load(log_path.with_name(log_path.name.removesuffix(".mcap") + ".truth.npz"))["friction"]
@@ -158,7 +162,10 @@ def main() -> None:
     if sums is not None:
         sums.install()
     log = LogReader(log_path)
-    pipe = EnginePipeline(load_engine(TWO_WHEELS), replace(log.info, second_wheel=None), MonitorConfig())
+    cfg = MonitorConfig(variable_inertia="variable_inertia" not in args.without.split(","))
+    if args.fit_drift:
+        cfg = replace(cfg, fit_drift=True, drift_nuisance=False)
+    pipe = EnginePipeline(plant_engine(args.grid_scale), replace(log.info, second_wheel=None), cfg)
     records, offset = log.records(), 0
     if args.start_cycle:
         records, offset = records_from_cycle(records, args.start_cycle, log.info)
@@ -175,6 +182,8 @@ def main() -> None:
                 out.append({"cycles": idx + 1, **checkpoint(tap, truth, args.cylinder - 1, sums)})
                 print(json.dumps({k: round(v, 2) if isinstance(v, float) else v for k, v in out[-1].items()}),
                       flush=True)
+        if args.cycles and n >= args.cycles:
+            break
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps({"log": str(log_path), "cylinder": args.cylinder, "points": out}, indent=1))
     print(f"wrote {args.json}")

@@ -28,6 +28,7 @@ import numpy as np
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.monitor.identify import identification
 from frictionwatch.core.monitor.identify.estimate_kernels import cylinder_kernel
+from frictionwatch.core.monitor.identify.pull_check import PullCheck, data_only_pull
 from frictionwatch.core.monitor.report.figure_status import friction_status
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.plant.simulate import start_simulation
@@ -44,13 +45,25 @@ VARIANTS = {"one_wheel": MonitorConfig(), "joint": MonitorConfig(second_wheel=Tr
 DEFAULT_VARIANTS = ["one_wheel", "joint"]
 
 
-def cmd_simulate(args) -> None:
+def plant_engine(grid_scale: float = 1.0):
+    """genset-v20 with its free-end wheel; its grid coupling (K_e, D_e) x ``grid_scale`` (a diagnostic plant, told
+    to the monitor too: note 42)."""
     spec = load_engine(TWO_WHEELS)
+    if grid_scale != 1.0:
+        ld = spec.load
+        spec = replace(spec, load=replace(ld, grid_stiffness_nm_per_rad=ld.grid_stiffness_nm_per_rad * grid_scale,
+                                          grid_damping_nms_per_rad=ld.grid_damping_nms_per_rad * grid_scale))
+    return spec
+
+
+def cmd_simulate(args) -> None:
+    spec = plant_engine(args.grid_scale)
     hours = args.cycles / (RPM / 120.0) / 3600.0
     steps = load_profile(hours, dwell_s=args.dwell_s, ramp_pct_per_min=args.ramp)
     from bench.drive_train_model_error import tooth_errors_on  # (it imports bench.accuracy_v20_wheels)
     with tooth_errors_on(args.tooth_errors):  # drawn when the run is set up
-        sim = start_simulation(spec, RPM, BASE_LOAD, args.cycles, args.seed, load_steps=steps, second_wheel=True)
+        sim = start_simulation(spec, RPM, BASE_LOAD, args.cycles, args.seed, load_steps=steps, second_wheel=True,
+                               without=set(w for w in args.without.split(",") if w), cov_imep=args.cov_imep)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     truth = np.full((args.cycles, spec.n_cyl), np.nan)
@@ -112,7 +125,12 @@ class Tap:
             if math.isfinite(check.balance) and t_tot > 0:
                 excess2 = max(0.0, (t_tot - check.balance) ** 2 - s_tot ** 2 - check.balance_sigma ** 2)
             mis = (floor.coupling_per_misfit * max(0.0, check.misfit - floor.misfit_free) * check.coupling_loss) ** 2
-            self.last = dict(t_cyl=t_cyl, t_sig=t_sig, t_sig_stat=t_sig_stat, gain=gain, t_tot=t_tot, s_tot=s_tot,
+            acc = self.normal[0]
+            pull = data_only_pull(acc, post, rows, prior_mean)  # the pull check's inputs (note 42), recomputed here
+            nan_z = np.full(rows.shape[0], np.nan)
+            self.last = dict(pull_d=pull.d if pull else nan_z, pull_v=pull.v if pull else nan_z,
+                             pull_cov=pull.cov if pull else np.full((rows.shape[0],) * 2, np.nan),
+                             pull_shift=pull.shift if pull else nan_z, t_cyl=t_cyl, t_sig=t_sig, t_sig_stat=t_sig_stat, gain=gain, t_tot=t_tot, s_tot=s_tot,
                              s_tot_stat=s_tot_stat, balance=check.balance, balance_sigma=check.balance_sigma,
                              misfit=check.misfit, coupling=check.coupling_loss, excess_rel=math.sqrt(
                                  excess2) / t_tot if t_tot > 0 else float("nan"),
@@ -133,6 +151,8 @@ def cmd_trace(args) -> None:
     tap = Tap()
     identification.reported_estimate = tap
     identification.posterior_from_normal = tap.posterior
+    if args.pull_kappa is not None:  # the pull check at another kappa (inf: off), bench only
+        identification.PULL_CHECK = PullCheck(kappa=args.pull_kappa)
     names = args.variants
     pipes = {n: EnginePipeline(spec, log.info if n != "one_wheel" else replace(log.info, second_wheel=None),
                                VARIANTS[n]) for n in names}
@@ -206,6 +226,12 @@ def row(name, outcome, t, truth_all, pipe, offset: int = 0) -> dict:
             "sigma_pre_pct": _r(100 * sig_pre, 2), "sigma_stat_pct": _r(100 * t["t_sig_stat"] / np.abs(t["t_cyl"]), 2),
             "sigma_floor_pct": _r(100 * floor_sig / np.abs(t["t_cyl"]), 2),
             "sigma_reported_pct": _r(100 * est.friction_torque_mean_sigma / truth, 2),
+            "cal_sigma_pct": _r(100 * est.calibration_sigma / truth, 2) if est.calibration_sigma is not None else [],
+            "pull_d_pct": _r(100 * t["pull_d"] / truth, 2), "pull_v_pct2": _r(1e4 * t["pull_v"] / truth ** 2, 3),
+            "pull_shift_pct": _r(100 * t["pull_shift"] / truth, 2),
+            # in N m (the check's directions are those of its covariance in N m^2): d, shift, cov and the truth
+            "pull_nm": {"d": _r(t["pull_d"], 6), "shift": _r(t["pull_shift"], 6), "truth": _r(truth, 6),
+                        "cov": [_r(c, 8) for c in t["pull_cov"]]},
             "gain": _r(t["gain"], 3), "t_tot": round(float(t["t_tot"]), 3), "s_tot": round(float(t["s_tot"]), 3),
             "s_tot_stat": round(float(t["s_tot_stat"]), 3), "truth_tot": round(float(truth.sum()), 3),
             "balance": round(float(t["balance"]), 3), "balance_sigma": round(float(t["balance_sigma"]), 3),
@@ -261,12 +287,19 @@ def main() -> None:
     s.add_argument("--tooth-errors", choices=("both", "flywheel", "free_end"), default="both",
                    help="which wheels have tooth-spacing errors (flywheel: the free-end wheel perfect, what its "
                         "in-band nuisances would remove at most; design note 38)")
+    s.add_argument("--without", default="", help="default-on plant effects off, comma list (variable_inertia: "
+                   "also tell the monitor, ``second_wheel_pull --without``; note 42)")
+    s.add_argument("--cov-imep", type=float, default=0.02, help="cycle-to-cycle COV of IMEP (0: every cycle alike)")
+    s.add_argument("--grid-scale", type=float, default=1.0, help="the generator's grid stiffness and damping x this "
+                   "(plant; ``second_wheel_pull --grid-scale`` tells the monitor)")
     s.set_defaults(func=cmd_simulate)
     t = sub.add_parser("trace")
     t.add_argument("log")
     t.add_argument("--every", type=int, default=100)
     t.add_argument("--cycles", type=int, default=0)
     t.add_argument("--variants", nargs="+", default=DEFAULT_VARIANTS, choices=list(VARIANTS))
+    t.add_argument("--pull-kappa", type=float, default=None,
+                   help="the pull check's kappa (inf: off; default the tuned one, core/monitor/tuned.json)")
     t.add_argument("--start-cycle", type=int, default=0,
                    help="start the monitor fresh at about this cycle of the log (a steady stretch alone; note 41)")
     u = sub.add_parser("summary")

@@ -29,6 +29,7 @@ from frictionwatch.core.monitor.calibration import drive_train, tdc, tdc_watch
 from frictionwatch.core.monitor.checks.condition import ConditionSettings
 from frictionwatch.core.monitor.checks.ring_condition import RingConditionSettings
 from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
+from frictionwatch.core.monitor.identify.pull_check import PullCheck
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.plant.simulate import simulate, start_simulation
 from frictionwatch.core.tuned import (
@@ -294,6 +295,7 @@ def test_the_code_uses_the_recorded_numbers():
         "TDC_UNCALIBRATED_SIGMAS": tdc_watch.UNCALIBRATED_SIGMAS,
         "DRIVE_TRAIN_STIFFNESS_FLOOR": drive_train.STIFFNESS_FLOOR,
         "DRIVE_TRAIN_DAMPING_FLOOR": drive_train.DAMPING_FLOOR, "DRIVE_TRAIN_SETTLED": drive_train.SETTLED,
+        "PULL_CHECK_KAPPA": PullCheck().kappa,
     }
     assert set(used) == set(mon)
     for name, value in used.items():
