@@ -14,6 +14,7 @@ from frictionwatch.core.monitor.checks.condition import (
     DEFAULT_SETTINGS,
     _ewma,
     _levels_kernel,
+    _median_without,
     _window_kernel,
     burn_ratio,
     combustion_flags,
@@ -96,3 +97,35 @@ def test_combustion_flags_match_the_reference(z):
         assert flags == flags_r
         assert_array_equal(n, n_r)
         assert_allclose(ref, ref_r, rtol=1e-15)
+
+
+
+def test_combustion_sibling_medians_from_one_sort_are_np_median_of_the_siblings():
+    """``_median_without`` (the median of a sorted list without one element) against np.median of the list without
+    it, bit for bit, for every element of lists of 1-20 values with ties and signed zeros; and the flags, references
+    and counts of ``combustion_flags`` against its reference on draws whose works sit about the partial-burn fraction
+    of their siblings' medians (where the median decides), with one and two NaN works."""
+    rng = np.random.default_rng(7)
+    for trial in range(300):
+        n = int(rng.integers(1, 21))
+        v = np.round(rng.uniform(-1.0, 3.0, n), int(rng.integers(0, 3)))
+        if trial % 5 == 0:
+            v[rng.integers(0, n)] = -0.0
+        s = np.sort(v)
+        assert_array_equal(_median_without(s, n, -1), np.median(v))
+        for r in range(n if n > 1 else 0):
+            assert_array_equal(_median_without(s, n, r), np.median(np.delete(s, r)))
+    frac = DEFAULT_SETTINGS.partial_fraction
+    for trial in range(300):
+        z = int(rng.integers(2, 21))
+        burn = np.where(rng.random(z) < 0.85, 0.6, -0.2)
+        work = np.round(rng.uniform(1.0, 2.0, z), 1) * np.where(rng.random(z) < 0.3, frac, 1.0)
+        for _ in range(int(rng.integers(1, 3)) if trial % 4 == 0 else 0):
+            work[rng.integers(0, z)] = np.nan
+        ref0 = np.where(rng.random(z) < 0.5, np.nan, 1.5)
+        cycles0 = rng.integers(0, 5, z)
+        got = combustion_flags(burn, work, ref0, cycles0, DEFAULT_SETTINGS)
+        want = combustion_flags_reference(burn, work, ref0, cycles0, DEFAULT_SETTINGS)
+        assert got[0] == want[0]
+        assert_array_equal(got[1], want[1])
+        assert_array_equal(got[2], want[2])
