@@ -6,6 +6,8 @@ Tolerances: the samples and logs are the same arithmetic (1e-14 relative: an ulp
 medians sum in plain order where numpy sums pairwise or through BLAS, and a sibling deviation is a difference of two
 exponents ~1.3 read to ~1e-3, so those are compared to 1e-12 absolute. Masks and flags are compared exactly."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from frictionwatch.core.model.engine import load_engine
@@ -13,16 +15,18 @@ from frictionwatch.core.model.kinematics import kinematics
 from frictionwatch.core.monitor.checks.condition import (
     DEFAULT_SETTINGS,
     _ewma,
-    _levels_kernel,
-    _window_kernel,
     burn_ratio,
     combustion_flags,
     combustion_flags_reference,
     compression_rise,
     condition_tables,
+    cycle_chi2_reduced,
+    cycle_chi2_reduced_reference,
     sibling_deviation,
 )
+from frictionwatch.core.monitor.checks.condition_kernels import levels_kernel, median_without, numpy_sum, window_kernel
 from frictionwatch.core.monitor.checks.ring_pressure import ring_indicators, ring_indicators_reference, ring_tables
+from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterior
 from numpy.testing import assert_allclose, assert_array_equal
 
 ENGINES = ("deutz-1cyl", "maruti-3cyl", "k9k-4cyl", "genset-v20")
@@ -51,7 +55,7 @@ def test_condition_levels_and_ring_indicators_match_their_references(engine, n, 
         p[1, ::7] = -1.0  # a cylinder with non-positive samples: NaN where they are read
     tab = condition_tables(spec, grid, DEFAULT_SETTINGS)
     pmax, work = p.max(axis=1), rng.uniform(-1.0, 50.0, spec.n_cyl)
-    levels = _levels_kernel(p, tab.cols, tab.frac, pmax, work)
+    levels = levels_kernel(p, tab.cols, tab.frac, pmax, work)
     assert_allclose(levels[0], compression_rise(spec, grid, p, DEFAULT_SETTINGS), rtol=1e-14, atol=1e-15)
     assert_allclose(levels[1], np.log(np.maximum(pmax, 1.0)), rtol=1e-14)
     assert_allclose(levels[2], np.log(np.maximum(work, 1e-9)), rtol=1e-14)
@@ -74,7 +78,7 @@ def test_the_window_kernel_is_the_ewma_of_sibling_deviations(z):
         g, first = max(1.0 / 50.0, 1.0 / (cycle + 1)), cycle == 0
         want = np.array([_ewma(window[0, r], window[1, r], sibling_deviation(levels[r]), g, first)
                          for r in range(3)]).transpose(1, 0, 2)
-        window = _window_kernel(levels, window, g, first)
+        window = window_kernel(levels, window, g, first)
         assert_allclose(window, want, rtol=1e-14, atol=1e-15)
 
 
@@ -96,3 +100,65 @@ def test_combustion_flags_match_the_reference(z):
         assert flags == flags_r
         assert_array_equal(n, n_r)
         assert_allclose(ref, ref_r, rtol=1e-15)
+
+
+
+def test_combustion_sibling_medians_from_one_sort_are_np_median_of_the_siblings():
+    """``median_without`` (the median of a sorted list without one element) against np.median of the list without
+    it, bit for bit, for every element of lists of 1-20 values with ties and signed zeros; and the flags, references
+    and counts of ``combustion_flags`` against its reference on draws whose works sit about the partial-burn fraction
+    of their siblings' medians (where the median decides), with one and two NaN works."""
+    rng = np.random.default_rng(7)
+    for trial in range(300):
+        n = int(rng.integers(1, 21))
+        v = np.round(rng.uniform(-1.0, 3.0, n), int(rng.integers(0, 3)))
+        if trial % 5 == 0:
+            v[rng.integers(0, n)] = -0.0
+        s = np.sort(v)
+        assert_array_equal(median_without(s, n, -1), np.median(v))
+        for r in range(n if n > 1 else 0):
+            assert_array_equal(median_without(s, n, r), np.median(np.delete(s, r)))
+    frac = DEFAULT_SETTINGS.partial_fraction
+    for trial in range(300):
+        z = int(rng.integers(2, 21))
+        burn = np.where(rng.random(z) < 0.85, 0.6, -0.2)
+        work = np.round(rng.uniform(1.0, 2.0, z), 1) * np.where(rng.random(z) < 0.3, frac, 1.0)
+        for _ in range(int(rng.integers(1, 3)) if trial % 4 == 0 else 0):
+            work[rng.integers(0, z)] = np.nan
+        ref0 = np.where(rng.random(z) < 0.5, np.nan, 1.5)
+        cycles0 = rng.integers(0, 5, z)
+        got = combustion_flags(burn, work, ref0, cycles0, DEFAULT_SETTINGS)
+        want = combustion_flags_reference(burn, work, ref0, cycles0, DEFAULT_SETTINGS)
+        assert got[0] == want[0]
+        assert_array_equal(got[1], want[1])
+        assert_array_equal(got[2], want[2])
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 7, 8, 9, 16, 17, 128, 129, 300, 841, 2209, 5000])
+def test_numpy_sum_is_np_sum_bit_for_bit(n):
+    rng = np.random.default_rng(n)
+    for _ in range(20):
+        a = rng.standard_normal(n) * 10.0 ** rng.uniform(-3, 3, n)
+        assert numpy_sum(a, 0, n) == np.sum(a)
+
+
+@pytest.mark.parametrize("p", [2, 5, 29, 47])
+def test_cycle_chi2_reduced_is_its_reference_bit_for_bit(p):
+    """On posteriors of the monitor's sizes (k9k 29, genset-v20 47 parameters), chi2_reduced below and above 1,
+    a NaN one, and a dof at or below 0 (then 1)."""
+    rng = np.random.default_rng(p)
+    for trial in range(40):
+        a = rng.standard_normal((p + 3, p)) * 10.0 ** rng.uniform(-2, 3, p)
+        y = rng.standard_normal(p + 3)
+        terms = Accumulator.empty(p, p + 3).cycle_terms(a, y, np.ones(p + 3), 1)
+        terms = Accumulator.of_terms(terms)
+        cov = np.linalg.inv(terms.info + np.diag(rng.uniform(0.1, 10.0, p)))
+        cov = 0.5 * (cov + cov.T)
+        chi2_red = [0.5, 2.5, np.nan][trial % 3]
+        params = np.linalg.solve(terms.info + np.eye(p), terms.rhs) * rng.uniform(0.9, 1.1, p)
+        post = Posterior(params=params, covariance=cov, cov_statistical=cov * (chi2_red if chi2_red > 1 else 1.0),
+                         chi2_reduced=chi2_red, weight=1.0, cov_reference=cov)
+        if trial == 5:
+            terms = replace(terms, rows=0.5)  # dof <= 0
+        assert cycle_chi2_reduced(terms, post) == cycle_chi2_reduced_reference(terms, post)
+    assert_array_equal(cycle_chi2_reduced(None, post), post.chi2_reduced)

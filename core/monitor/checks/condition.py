@@ -27,7 +27,7 @@ The window statistics are EWMAs carried in ``ConditionState`` (core.monitor.stat
 cycle from the window that ends there, so it stays on while the condition lasts. The sibling comparison uses the
 median of the cylinders (a single-cylinder engine has no siblings: no blow-by or ring-wear flag).
 
-The per-cycle numbers come from three small kernels (``_levels_kernel``, ``_window_kernel``, ``_combustion_kernel``)
+The per-cycle numbers come from three small kernels (``levels_kernel``, ``window_kernel``, ``combustion_kernel``)
 on pressure samples whose grid columns are fixed once per grid (``condition_tables``, carried in the state); the plain
 numpy functions beside them (``compression_rise``, ``burn_ratio``, ``sibling_deviation``, ``_ewma``,
 ``combustion_flags_reference``) are their references (tests/core/test_condition_kernels.py).
@@ -38,15 +38,21 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-import numba
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.checks.change import ChangeSettings, detect_change
 from frictionwatch.core.monitor.checks.check import CheckInput, CheckStep
+from frictionwatch.core.monitor.checks.condition_kernels import (
+    FIRED,
+    MOTORED,
+    combustion_kernel,
+    cycle_chi2_kernel,
+    levels_kernel,
+    window_kernel,
+)
 from frictionwatch.core.monitor.checks.ring_pressure import (
     RingIndicators,
     ThrowMotion,
-    median_of_first,
     moved_tables,
     ring_indicators,
     ring_tables,
@@ -228,11 +234,11 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
     first = st.count == 0
     work = np.ascontiguousarray(indicated, dtype=np.float64)
     # ln compression rise, ln pmax, ln indicated torque and the burn ratio of each cylinder: (4, z)
-    levels = _levels_kernel(np.ascontiguousarray(pressure, dtype=np.float64), tab.cols, tab.frac,
+    levels = levels_kernel(np.ascontiguousarray(pressure, dtype=np.float64), tab.cols, tab.frac,
                             np.ascontiguousarray(pmax, dtype=np.float64), work)
     # a misfiring cycle is a known, flagged event: it would read as a step in every sibling statistic
     use = fired.all()
-    window = _window_kernel(levels, st.window, g, first) if use else st.window
+    window = window_kernel(levels, st.window, g, first) if use else st.window
     # an operating-point change (a load step) is a transient the noise model has not learnt yet: the innovations
     # move for a while without anything wrong with the engine
     since_op = 0 if op_changed else st.since_op_change + 1
@@ -322,9 +328,9 @@ def combustion_flags(burn: np.ndarray, work: np.ndarray, reference: np.ndarray, 
                      settings: ConditionSettings) -> tuple[list[str], np.ndarray, np.ndarray]:
     """This cycle's ``motored`` / ``misfire_cyl<k>`` flags (module docstring) from each cylinder's burn ratio (z,)
     and indicated torque (z,) [N m], and the burn reference (z,) [N m] with its cycle counts carried on (updated by
-    the cylinders that burned fully): ``combustion_flags_reference``'s numbers by one kernel (``_combustion_kernel``;
+    the cylinders that burned fully): ``combustion_flags_reference``'s numbers by one kernel (``combustion_kernel``;
     its siblings' medians and masks were ~15 numpy calls, 23 us per genset-v20 cycle)."""
-    status, misfire, new_reference, new_cycles = _combustion_kernel(
+    status, misfire, new_reference, new_cycles = combustion_kernel(
         np.ascontiguousarray(burn, dtype=np.float64), np.ascontiguousarray(work, dtype=np.float64),
         np.ascontiguousarray(reference, dtype=np.float64), np.ascontiguousarray(cycles, dtype=np.int64),
         np.array([settings.burn_log_ratio, settings.partial_fraction, settings.burn_window]))
@@ -333,111 +339,21 @@ def combustion_flags(burn: np.ndarray, work: np.ndarray, reference: np.ndarray, 
     return [f"misfire_cyl{k + 1}" for k in np.flatnonzero(misfire)], new_reference, new_cycles
 
 
-NOT_JUDGED, MOTORED, FIRED = 0, 1, 2  # _combustion_kernel's status: no burn ratio, none burned, some burned
-
-
-@numba.njit(cache=True)
-def _combustion_kernel(burn, work, reference, cycles, limits):
-    """(status, misfire (z,) bool, reference (z,), cycles (z,) int64) of ``combustion_flags_reference``: status
-    NOT_JUDGED / MOTORED (the arrays then unused) / FIRED; limits = (burn_log_ratio, partial_fraction, burn_window).
-    Each burned cylinder's reference is the median of its burned siblings' work (NaN when one is NaN, as np.median),
-    its own ``reference`` without a burned sibling."""
-    z = burn.shape[0]
-    burned = np.zeros(z, dtype=np.bool_)
-    judged_any = False
-    b = 0
-    for k in range(z):
-        if np.isfinite(burn[k]):
-            judged_any = True
-            if burn[k] > limits[0]:
-                burned[k] = True
-                b += 1
-    misfire = np.zeros(z, dtype=np.bool_)
-    new_reference = reference.copy()
-    new_cycles = cycles.copy()
-    if b == 0:
-        return (MOTORED if judged_any else NOT_JUDGED), misfire, new_reference, new_cycles
-    others = np.empty(z)
-    for k in range(z):
-        if not burned[k]:
-            misfire[k] = np.isfinite(burn[k])  # judged, did not burn
-            continue
-        ref = reference[k]
-        if b >= 2:
-            m = 0
-            nan = False
-            for j in range(z):
-                if j != k and burned[j]:
-                    nan = nan or np.isnan(work[j])
-                    others[m] = work[j]
-                    m += 1
-            ref = np.nan if nan else median_of_first(others, m)
-        if np.isfinite(ref) and ref > 0 and work[k] < limits[1] * ref:
-            misfire[k] = True  # burned partially
-            continue
-        new_cycles[k] += 1  # burned fully: the reference follows
-        g = max(1.0 / limits[2], 1.0 / max(new_cycles[k], 1))
-        new_reference[k] = reference[k] + g * (work[k] - reference[k]) if np.isfinite(reference[k]) else work[k]
-    return FIRED, misfire, new_reference, new_cycles
-
-
-@numba.njit(cache=True)
-def _levels_kernel(pressure, cols, frac, pmax, indicated):
-    """(4, z): ln compression rise, ln max(pmax, 1 Pa), ln max(indicated, 1e-9 N m) and the burn ratio of each
-    cylinder (``compression_rise``, ``burn_ratio``: p linear between grid columns; NaN where one is not positive)."""
-    z, n = pressure.shape
-    out = np.empty((4, z))
-    p = np.empty(4)
-    for k in range(z):
-        for a in range(4):
-            i = cols[k, a]
-            p[a] = pressure[k, i] * (1.0 - frac[k, a]) + pressure[k, (i + 1) % n] * frac[k, a]
-        out[0, k] = np.log(p[1] / p[0]) if p[0] > 0 and p[1] > 0 else np.nan
-        out[1, k] = np.log(pmax[k] if not pmax[k] < 1.0 else 1.0)  # np.maximum: NaN stays NaN
-        out[2, k] = np.log(indicated[k] if not indicated[k] < 1e-9 else 1e-9)
-        out[3, k] = np.log(p[3] / p[2]) if p[2] > 0 and p[3] > 0 else np.nan
-    return out
-
-
-@numba.njit(cache=True)
-def _window_kernel(levels, window, g, first):
-    """The window (2, 3, z) after this cycle: ``_ewma`` of the ``sibling_deviation`` of each of the first three
-    rows of levels (4, z)."""
-    z = levels.shape[1]
-    out = np.empty_like(window)
-    dev = np.zeros(z)
-    buf = np.empty(z)
-    for r in range(3):
-        x = levels[r]
-        if z == 2:
-            dev[0] = x[0] - x[1]
-            dev[1] = x[1] - x[0]
-        elif z > 2:
-            nan = False
-            for k in range(z):
-                nan = nan or np.isnan(x[k])
-                buf[k] = x[k]
-            med = np.nan if nan else median_of_first(buf, z)  # np.median: NaN in, NaN out
-            for k in range(z):
-                dev[k] = x[k] - med
-        for k in range(z):
-            ok = np.isfinite(dev[k])
-            if first:
-                out[0, r, k] = dev[k] if ok else 0.0
-                out[1, r, k] = 0.0
-            else:
-                d = dev[k] - window[0, r, k] if ok else 0.0
-                out[0, r, k] = window[0, r, k] + g * d
-                out[1, r, k] = (1.0 - g) * (window[1, r, k] + g * d * d)
-    return out
-
-
 def cycle_chi2_reduced(terms: Accumulator | None, post: Posterior) -> float:
     """This cycle's chi^2 at its posterior over its effective degrees of freedom rows - tr(H), H the hat matrix:
     tr(H) = tr(info_data cov) counts only the parameters the cycle's data determine, not those its priors hold.
     The posterior's own chi2_reduced divides by rows - P: on genset-v20 (49 rows, 47 parameters, most held by the
     priors) that is 2 and a healthy cycle read 5..19 (the false model_misfit of the demo log, cycles 30-39); over
-    rows - tr(H) the same residuals read below 1. Without the terms: the posterior's own value."""
+    rows - tr(H) the same residuals read below 1. Without the terms: the posterior's own value.
+    ``cycle_chi2_reduced_reference``'s numbers by one kernel (its six numpy calls were ~14 us a genset-v20 cycle)."""
+    if terms is None:
+        return float(post.chi2_reduced)
+    return float(cycle_chi2_kernel(float(terms.yty), float(terms.rows), post.params, terms.rhs, terms.info,
+                                    post.cov_statistical, float(post.chi2_reduced)))
+
+
+def cycle_chi2_reduced_reference(terms: Accumulator | None, post: Posterior) -> float:
+    """``cycle_chi2_reduced`` by numpy."""
     if terms is None:
         return float(post.chi2_reduced)
     p = post.params

@@ -96,3 +96,21 @@ def fold_kernel(lam, info, rhs, sys_map, info_reference, t_info, t_rhs, t_map, t
 
     Returns (ok, info, rhs, sys_map, info_reference); ok False (arrays empty) when the shapes differ."""
     return _fold(lam, info, rhs, sys_map, info_reference, t_info, t_rhs, t_map, t_ref)
+
+
+_RAW = numba.types.Tuple((_M, _V))  # raw rows (R, P) and targets (R,)
+
+
+@numba.njit([(numba.float64, _M, _V, _M, _M, _M, _V, _M, _M, _RAW, _RAW)], cache=True)
+def fold_raw_kernel(lam, info, rhs, sys_map, info_reference, t_info, t_rhs, t_map, t_ref, raw, cycle_raw):
+    """``fold_kernel`` and the raw sums lam * raw + cycle_raw, each a pair (rows (R, P), targets (R,)), in one call
+    (the accumulator's fold with its raw rows kept: six sums, numpy's rounding, one dispatch instead of one and four
+    numpy expressions). Returns (ok, info, rhs, sys_map, info_reference, raw_rows, raw_target); ok False (arrays
+    empty) when a shape differs."""
+    raw_rows, raw_target = raw
+    d, t = cycle_raw
+    if raw_rows.shape != d.shape or raw_target.shape != t.shape or d.shape != sys_map.shape[::-1]:
+        e2 = np.empty((0, 0))
+        return False, e2, np.empty(0), e2, e2, e2, np.empty(0)
+    ok, a, b, c, e = _fold(lam, info, rhs, sys_map, info_reference, t_info, t_rhs, t_map, t_ref)
+    return ok, a, b, c, e, _scaled_sum(lam, raw_rows, d), _scaled_sum_1d(lam, raw_target, t)
