@@ -485,3 +485,33 @@ def test_two_fits_within_the_null_are_said_and_are_no_ambiguity():
     assert doc["verdict"].startswith("No significant missing effect")
     assert "extra_friction[order 0.5] and load_ripple[order 0.5] fit as well as each other, which names neither" \
         in doc["verdict"]
+
+
+def test_the_pressure_names_a_tdc_offset_far_beyond_its_sigma_and_proposes_a_nearer_one():
+    """pressure_findings: a cylinder read 1.5 deg late at sigma 0.2 (7.5 sigma) is named tdc_offset at its reading
+    with the reading's sigma; 0.6 deg (3 sigma) is under TDC_SIGMAS: only a starting point for the speed
+    (pressure_seeds); every cylinder 1.5 deg late is the whole wheel (cylinder 0) at their median; on a one-cylinder
+    engine its offset is cylinder 1's; readings of a healthy log name nothing."""
+    import dataclasses
+
+    from frictionwatch.core.discrepancy.pressure_channel import TDC_SIGMAS, pressure_findings, pressure_seeds
+
+    def tdc(res):
+        return {f.label: (f.value, f.sigma) for f in pressure_findings(res) if f.effect == "tdc_offset"}
+
+    base = made_up(10, 4, np.zeros(4, complex), 0.0)
+    sigma = np.full(4, 0.2)
+    one = dataclasses.replace(base, tdc_deg=np.array([-0.05, 1.50, 0.06, -0.04]), tdc_sigma_deg=sigma)
+    np.testing.assert_allclose(tdc(one)["tdc_offset[cyl 2]"], (1.50, 0.2), rtol=1e-12)
+    assert list(tdc(one)) == ["tdc_offset[cyl 2]"]
+    near = dataclasses.replace(one, tdc_deg=np.array([-0.05, 0.60, 0.06, -0.04]))
+    assert 0.6 < TDC_SIGMAS * 0.2 and tdc(near) == {}
+    assert pressure_seeds(near) == pytest.approx({"tdc_offset[cyl 2]": 0.60})
+    wheel = dataclasses.replace(one, tdc_deg=np.array([1.45, 1.50, 1.56, 1.47]))
+    assert list(tdc(wheel)) == ["tdc_offset[cyl 0]"]
+    np.testing.assert_allclose(tdc(wheel)["tdc_offset[cyl 0]"], (1.485, 0.2), rtol=1e-12)
+    single = dataclasses.replace(made_up(10, 4, np.zeros(4, complex), 0.0), tdc_deg=np.array([1.44]),
+                                 tdc_sigma_deg=np.array([0.21]))
+    np.testing.assert_allclose(tdc(single)["tdc_offset[cyl 1]"], (1.44, 0.21), rtol=1e-12)
+    healthy = dataclasses.replace(one, tdc_deg=np.array([-0.05, 0.06, 0.06, -0.004]))  # k9k 3000 rpm, seed 2
+    assert tdc(healthy) == {}
