@@ -45,6 +45,7 @@ from frictionwatch.core.discrepancy.choice import (
     said_where,
     to_confirm,
     unphysical,
+    unresolved,
 )
 from frictionwatch.core.discrepancy.features import (
     SIGNIFICANT,
@@ -331,7 +332,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
 
         refined = [refine(lin, current, ev) for lin in chosen]
         trials = one_per_candidate(sorted(refined, key=lambda tr: tr.cost + pressure(with_fit(current, tr))))
-        dropped = {t.candidate.label: unphysical(t, load_nm) for t in trials}
+        dropped = {t.candidate.label: unphysical(t, load_nm) or unresolved(t) for t in trials}
         found.dropped.update({label: why for label, why in dropped.items() if why})
         trials = [t for t in trials if not dropped[t.candidate.label]]
         runs += ev.calls

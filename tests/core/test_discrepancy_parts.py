@@ -515,3 +515,24 @@ def test_the_pressure_names_a_tdc_offset_far_beyond_its_sigma_and_proposes_a_nea
     np.testing.assert_allclose(tdc(single)["tdc_offset[cyl 1]"], (1.44, 0.21), rtol=1e-12)
     healthy = dataclasses.replace(one, tdc_deg=np.array([-0.05, 0.06, 0.06, -0.004]))  # k9k 3000 rpm, seed 2
     assert tdc(healthy) == {}
+
+
+def test_a_sensor_correction_within_what_the_pressure_methods_resolve_is_not_named():
+    """unresolved: a pressure gain fitted 0.999 +- 0.0008 (deutz 3000 rpm seed 3, healthy) is within 2 x hypot(sigma,
+    SensorHealthConfig.floor_gain 0.003) of none: dropped, said why; 1.06 +- 0.001 is a sensor fault; a friction law
+    has no such floor; a TDC of 0.05 +- 0.01 deg is within the 0.03 deg floor's 2 sigma, 1.5 deg is not."""
+    from frictionwatch.core.discrepancy.candidates import candidate_library
+    from frictionwatch.core.discrepancy.choice import unresolved
+    from frictionwatch.core.discrepancy.fit import Trial
+
+    lib = {c.label: c for c in candidate_library(EngineModel.from_spec(load_engine("k9k-4cyl")))}
+
+    def trial(label, x, s):
+        return Trial(lib[label], np.array([x]), np.array([s]), 0.0, 1.0, 0)
+
+    why = unresolved(trial("pressure_gain[cyl 1]", 0.999, 0.0008))
+    assert why.startswith("gain 0.999 +- 0.0008 is within 2 sigma of none")
+    assert unresolved(trial("pressure_gain[cyl 1]", 1.06, 0.001)) == ""
+    assert unresolved(trial("stribeck_ring", 0.01, 0.5)) == ""
+    assert unresolved(trial("tdc_offset[cyl 2]", 0.05, 0.01)) != ""
+    assert unresolved(trial("tdc_offset[cyl 2]", 1.5, 0.02)) == ""
