@@ -16,7 +16,8 @@ its held-out gain is significant: the held-out coherent chi^2 falls by at least 
 sqrt(2 F) ~ 10 for F ~ 50 features) and the gap by at least ``min_reduction``. A significant step is still refused,
 and the model left as it was, when it makes a channel worse on the held-out cycles (the flywheel speed or the mean
 torque balance, beyond that channel's noise; TDC against the cylinders' pressure) or when a fitted parameter ends on
-the bound of its range (the fit ran into the wall: not a physical value); the refusal and its reason are reported.
+the bound of its range (the fit ran into the wall: not a physical value) or a sensor correction lies within what the
+pressure methods resolve (choice.unresolved); the refusal and its reason are reported.
 Which trials are held out, when two are one explanation and why a step is refused: core.discrepancy.choice.
 
 The outcome says which of three it is: ``named`` (effects added), ``nothing`` (nothing significant before or after)
@@ -332,7 +333,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
 
         refined = [refine(lin, current, ev) for lin in chosen]
         trials = one_per_candidate(sorted(refined, key=lambda tr: tr.cost + pressure(with_fit(current, tr))))
-        dropped = {t.candidate.label: unphysical(t, load_nm) or unresolved(t) for t in trials}
+        dropped = {t.candidate.label: unphysical(t, load_nm) for t in trials}
         found.dropped.update({label: why for label, why in dropped.items() if why})
         trials = [t for t in trials if not dropped[t.candidate.label]]
         runs += ev.calls
@@ -372,7 +373,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             break
         test_new = parts(res)[1]
         why = (channel_worse(test, test_new, scale) or pressure_worse(pressure(current), pressure(new_model),
-                                                                        model.spec.n_cyl) or off_physics(t))
+                                                                        model.spec.n_cyl) or off_physics(t)
+               or unresolved(t))
         if why:  # significant, but it makes something else worse or is not physical: the model stays as it was
             found.refused.append({"candidate": t.candidate.label, "reason": why,
                                   "gap_before": g_cur, "gap_after": gap(test_new, scale)})

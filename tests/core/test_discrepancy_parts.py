@@ -519,7 +519,7 @@ def test_the_pressure_names_a_tdc_offset_far_beyond_its_sigma_and_proposes_a_nea
 
 def test_a_sensor_correction_within_what_the_pressure_methods_resolve_is_not_named():
     """unresolved: a pressure gain fitted 0.999 +- 0.0008 (deutz 3000 rpm seed 3, healthy) is within 2 x hypot(sigma,
-    SensorHealthConfig.floor_gain 0.003) of none: dropped, said why; 1.06 +- 0.001 is a sensor fault; a friction law
+    SensorHealthConfig.floor_gain 0.003) of none: refused, said why; 1.06 +- 0.001 is a sensor fault; a friction law
     has no such floor; a TDC of 0.05 +- 0.01 deg is within the 0.03 deg floor's 2 sigma, 1.5 deg is not."""
     from frictionwatch.core.discrepancy.candidates import candidate_library
     from frictionwatch.core.discrepancy.choice import unresolved
