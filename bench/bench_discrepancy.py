@@ -286,8 +286,10 @@ def matrix(n_cycles: int, points=None, seeds=SEEDS, cases=None, engine: str = EN
 def summarise(rows: list[dict]) -> dict:
     """Totals over the rows. named_right: issue 27's rule (effect, cylinder, parameter) over the judged cases with a
     hidden effect; passed: that and the gap shrinking by >= 80 % (healthy: nothing found); named_wrong: a judged case
-    with something named that is not named right; named_outside_library: something named for an effect the library
-    does not hold (load ripple, misfire)."""
+    with something named that is not named right, of them named_partly: every effect named is a hidden one named
+    right (effect, cylinder, parameter) and another hidden one is not named (its rest said as ambiguous or
+    unexplained), the others named an effect that is not hidden or not right (named_not_right); named_outside_library:
+    something named for an effect the library does not hold (load ripple, misfire)."""
     confusion: dict = defaultdict(Counter)
     for r in rows:
         confusion[r["case"]][r["named"] + (f"[{r['cylinder']}]" if r["cylinder"] is not None else "")] += 1
@@ -298,6 +300,7 @@ def summarise(rows: list[dict]) -> dict:
             r["named_right"] = r["named"] == EXPECT[r["case"]]
     judged = [r for r in rows if r["pass"] is not None and "named_right" in r]
     wrong = [r for r in judged if not r["named_right"] and r["all"]]
+    partly = [r for r in wrong if _each_named_right(r)]
     healthy = [r for r in rows if not r["truth"] and r["case"] not in EXPECT]
     outside = [r for r in rows if r["pass"] is None and r["all"]]
     cover = [v for r in judged if r["named_right"] for v in r.get("sigma_covered", []) if v is not None]
@@ -310,10 +313,18 @@ def summarise(rows: list[dict]) -> dict:
             "named_right": [sum(r["named_right"] for r in judged), len(judged)],
             "outcomes": dict(Counter(r["outcome"] for r in rows)),
             "outcomes_judged_not_right": dict(Counter(r["outcome"] for r in judged if not r["named_right"])),
-            "named_wrong": listed(wrong), "named_outside_library": listed(outside),
+            "named_wrong": listed(wrong), "named_partly": listed(partly),
+            "named_not_right": listed([r for r in wrong if r not in partly]), "named_outside_library": listed(outside),
             "named_on_healthy": sum(bool(r["all"]) for r in healthy), "healthy": len(healthy),
             "sigma_coverage_named_right": [sum(cover), len(cover)],
             "cpu_s": round(sum(r["cpu_s"] for r in rows), 1)}
+
+
+def _each_named_right(row: dict) -> bool:
+    """Whether every effect a row named is one of its hidden effects named right (effect, cylinder, parameter within
+    the rule): a row that names part of the truth and nothing else."""
+    right = {(c["effect"], c["cylinder_found"]) for c in row.get("checks", []) if c["found"] and c["within_tol"]}
+    return bool(row["all"]) and all(tuple(a) in right for a in row["all"])
 
 
 def table(rows: list[dict]) -> str:

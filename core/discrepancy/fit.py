@@ -210,10 +210,12 @@ def _along_main(lin: Linearised, model: EngineModel, ev: Evaluator, best: tuple,
 
 
 def polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, full, train_of, scale: np.ndarray,
-            floor: np.ndarray) -> tuple[Trial, EngineModel, Residuals, int]:
+           floor: np.ndarray, held: Sequence[EngineModel] = ()) -> tuple[Trial, EngineModel, Residuals, int]:
     """One more Gauss-Newton step for the chosen candidate on all training cycles (the window was a short part of
     them): sensitivities from whole-log runs at x + step, kept if the training cost falls; sigma from them and the
-    model-error floor (core.discrepancy.fit.parameter_sigma). Returns
+    model-error floor (core.discrepancy.fit.parameter_sigma), and from each parameter the model holds at another
+    channel's reading: ``held``, ``current`` with one such parameter moved by its sigma (a TDC held at the
+    pressure's reading, pressure_tdc), one run each, its shift of the fit added in quadrature. Returns
     the (possibly) new trial, model, its run and the monitor runs spent."""
     cand = t.candidate
     if cand.toggle:
@@ -243,6 +245,12 @@ def polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, f
     cost = float(min(r1 @ r1, r0 @ r0))
     kept = trial if better else t
     sigma = parameter_sigma(jac, train.n_cycles, cost, floor, r1 if better else r0, np.abs(kept.x - cand.x0))
+    for other in held:  # what the fit moves by when a held parameter is off by its sigma (first order)
+        shifted = train_of(full(with_fit(other, kept)))
+        runs += 1
+        if np.array_equal(shifted.index, train.index):
+            dx = np.linalg.lstsq(jac, (shifted.features() / scale).ravel() - (r1 if better else r0), rcond=None)[0]
+            sigma = np.hypot(sigma, dx)
     chosen = replace(kept, sigma=sigma)
     return chosen, with_fit(current, chosen), new_res if better else res, runs
 

@@ -6,8 +6,8 @@
 
 The cycles are split in time: the first ``warmup`` settle the monitor (tooth learner, noise model) and are not
 scored; of the rest the first half trains (the fits, on its first ``fit_cycles``) and the second half is held out
-(the choice and every reported gap). First, what the pressure names outright (a pegging offset, a misfiring
-cylinder: core.discrepancy.pressure_channel) is added as one step. Then, while the held-out residual holds something beyond the healthy model's own error
+(the choice and every reported gap). First, what the pressure names outright (a pegging offset, a TDC offset far
+beyond its reading's sigma, a misfiring cylinder: core.discrepancy.pressure_channel) is added as one step. Then, while the held-out residual holds something beyond the healthy model's own error
 (``features.beyond_null``: an engine order above its model-error floor, or a significant balance residual), each step
 linearises every candidate of the library on top of the current model, refines the ``refine`` best by predicted cost
 and the best of each of the first ``confirm`` shapes, re-runs the best of each of those shapes over the whole log,
@@ -16,7 +16,8 @@ its held-out gain is significant: the held-out coherent chi^2 falls by at least 
 sqrt(2 F) ~ 10 for F ~ 50 features) and the gap by at least ``min_reduction``. A significant step is still refused,
 and the model left as it was, when it makes a channel worse on the held-out cycles (the flywheel speed or the mean
 torque balance, beyond that channel's noise; TDC against the cylinders' pressure) or when a fitted parameter ends on
-the bound of its range (the fit ran into the wall: not a physical value); the refusal and its reason are reported.
+the bound of its range (the fit ran into the wall: not a physical value) or a sensor correction lies within what the
+pressure methods resolve (choice.unresolved); the refusal and its reason are reported.
 Which trials are held out, when two are one explanation and why a step is refused: core.discrepancy.choice.
 
 The outcome says which of three it is: ``named`` (effects added), ``nothing`` (nothing significant before or after)
@@ -45,6 +46,7 @@ from frictionwatch.core.discrepancy.choice import (
     said_where,
     to_confirm,
     unphysical,
+    unresolved,
 )
 from frictionwatch.core.discrepancy.features import (
     SIGNIFICANT,
@@ -57,15 +59,14 @@ from frictionwatch.core.discrepancy.features import (
 )
 from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, polish, refine, with_fit
 from frictionwatch.core.discrepancy.pressure_channel import (
-    PressureFinding,
     pressure_findings,
     pressure_seeds,
     tdc_chi2,
     tdc_offsets_deg,
 )
+from frictionwatch.core.discrepancy.pressure_tdc import moved_by_sigma, refined_by_speed, with_findings
 from frictionwatch.core.discrepancy.residuals import Residuals, mean_load, pinned_config, run_model
 from frictionwatch.core.discrepancy.words import orders_text, said, signature
-from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.view import reference
 from frictionwatch.core.monitor.state import MonitorConfig
@@ -147,6 +148,7 @@ class Discovery:
     # the explanations a step found equally good where nothing was beyond the null (features.beyond_null): no
     # discrepancy, said in the verdict and never reported as an ambiguity (design note 39)
     within_null_fits: list = field(default_factory=list)
+    held: list = field(default_factory=list)  # the TDC offsets the pressure named: their sigma enters later fits'
 
     @property
     def remainder(self) -> dict | None:
@@ -289,7 +291,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     found = Discovery(model, model, [], gap(test, scale), gap(test, scale), localise(test, model.spec, scale),
                       {}, [("baseline", test.angles, test.speed.mean(axis=0))])
     current = model
-    # what the pressure names outright (pegging, misfire: pressure_channel.pressure_findings), first and apart from
+    # what the pressure names outright (pegging, TDC, misfire: pressure_channel.pressure_findings), first and apart from
     # the step limit; the speed steps then start from the corrected pressure
     current, cur_res, test, extra = _pressure_step(found, current, cur_res, test, full, parts, scale, first, held)
     runs += extra
@@ -360,7 +362,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
                             [c.separated_by for c in (t.candidate, other.candidate)])
             break
         if significant(res):  # polished only if significant as it stands, and kept only if still significant
-            t, new_model, res, extra = polish(t, current, new_model, res, full, lambda r: parts(r)[0], scale, floor)
+            t, new_model, res, extra = polish(t, current, new_model, res, full, lambda r: parts(r)[0], scale, floor,
+                                              [moved_by_sigma(current, f) for f in found.held])
             runs += extra
         if not significant(res):
             found.rejected.update({c[1].candidate.label: c[0] for c in confirmed})
@@ -370,7 +373,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             break
         test_new = parts(res)[1]
         why = (channel_worse(test, test_new, scale) or pressure_worse(pressure(current), pressure(new_model),
-                                                                        model.spec.n_cyl) or off_physics(t))
+                                                                        model.spec.n_cyl) or off_physics(t)
+               or unresolved(t))
         if why:  # significant, but it makes something else worse or is not physical: the model stays as it was
             found.refused.append({"candidate": t.candidate.label, "reason": why,
                                   "gap_before": g_cur, "gap_after": gap(test_new, scale)})
@@ -401,8 +405,9 @@ def _said_ambiguous(found: Discovery, beyond: bool, candidates: list[str], separ
 
 def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, test: Residuals, full, parts,
                    scale: np.ndarray, first: int, held: int) -> tuple[EngineModel, Residuals, Residuals, int]:
-    """Add what the pressure names (module doc) as one step: its sensor offsets only if the run with them does not
-    make the speed or the balance worse on the held-out cycles (``channel_worse``; refused and said otherwise), its
+    """Add what the pressure names (module doc) as one step: its sensor offsets and TDC offsets only if the run with
+    them does not make the speed or the balance worse on the held-out cycles (``channel_worse``; refused and said
+    otherwise), its
     misfires as they are (the monitor reads them in the pressure: the run does not change). Returns the model, its
     run, its held-out part and the monitor runs spent. A misfire must show in the training and the held-out cycles
     (cycle index ``first`` on, held out from ``held``)."""
@@ -412,22 +417,30 @@ def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, t
                 if (f.effect, f.cylinder) not in have]
     if not findings:
         return current, cur_res, test, 0
-    offsets = [f for f in findings if f.effect == "pressure_offset"]
-    res, runs = cur_res, 0
-    if offsets:
-        run = full(_with_findings(current, offsets))
-        runs = 1
-        why = channel_worse(test, parts(run)[1], scale)
-        if why:  # the offsets stay out
-            found.refused += [{"candidate": f.label, "reason": why, "channel": "pressure", "gap_before": gap(test, scale),
-                               "gap_after": gap(parts(run)[1], scale)} for f in offsets]
-            offsets = []
+    res, runs, kept = cur_res, 0, []
+    # the sensor corrections, the peggings first and then the TDC offsets on top, each kept only where its run does
+    # not make the speed or the balance worse on the held-out cycles; a refused group stays out, said
+    for group in [[f for f in findings if f.effect == name] for name in ("pressure_offset", "tdc_offset")]:
+        if not group:
+            continue
+        if group[0].effect == "tdc_offset":  # the speed refines each within the pressure's noise (pressure_tdc)
+            group, run, spent = refined_by_speed(with_findings(current, kept), group, full, lambda r: parts(r)[0],
+                                                 scale, feature_floor(parts(res)[0], scale))
         else:
-            res = run
-    findings = offsets + [f for f in findings if f.effect != "pressure_offset"]  # in the order they are added
+            run, spent = full(with_findings(current, kept + group)), 1
+        runs += spent
+        why = channel_worse(parts(res)[1], parts(run)[1], scale)
+        if why:
+            found.refused += [{"candidate": f.label, "reason": why, "channel": "pressure",
+                               "gap_before": gap(parts(res)[1], scale), "gap_after": gap(parts(run)[1], scale)}
+                              for f in group]
+        else:
+            res, kept = run, kept + group
+    found.held = [f for f in kept if f.effect == "tdc_offset"]
+    findings = kept + [f for f in findings if f.effect == "misfire"]  # in the order they are added
     if not findings:
         return current, cur_res, test, runs
-    new_model = _with_findings(current, findings)
+    new_model = with_findings(current, findings)
     test_new = parts(res)[1]
     added = new_model.effects[-len(findings):]
     found.steps.append(Step(None, added[0], gap(test, scale), gap(test_new, scale), _chi2(test, scale),
@@ -435,14 +448,6 @@ def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, t
                             localise(test_new, current.spec, scale), added[1:], tuple(f.reading for f in findings)))
     found.curves.append((f"+ {found.steps[-1].label}", test_new.angles, test_new.speed.mean(axis=0)))
     return new_model, res, test_new, runs
-
-
-def _with_findings(model: EngineModel, findings: list[PressureFinding]) -> EngineModel:
-    """``model`` with each finding's effect (its value and sigma) added, in order."""
-    for f in findings:
-        model = model.with_effect(make_effect(f.effect, {"cylinder": f.cylinder, f.parameter: f.value},
-                                              {f.parameter: f.sigma}))
-    return model
 
 
 def _significance(test: Residuals, scale: np.ndarray, opt: Options, held_out_of):

@@ -485,3 +485,54 @@ def test_two_fits_within_the_null_are_said_and_are_no_ambiguity():
     assert doc["verdict"].startswith("No significant missing effect")
     assert "extra_friction[order 0.5] and load_ripple[order 0.5] fit as well as each other, which names neither" \
         in doc["verdict"]
+
+
+def test_the_pressure_names_a_tdc_offset_far_beyond_its_sigma_and_proposes_a_nearer_one():
+    """pressure_findings: a cylinder read 1.5 deg late at sigma 0.2 (7.5 sigma) is named tdc_offset at its reading
+    with the reading's sigma; 0.6 deg (3 sigma) is under TDC_SIGMAS: only a starting point for the speed
+    (pressure_seeds); every cylinder 1.5 deg late is the whole wheel (cylinder 0) at their median; on a one-cylinder
+    engine its offset is cylinder 1's; readings of a healthy log name nothing."""
+    import dataclasses
+
+    from frictionwatch.core.discrepancy.pressure_channel import TDC_SIGMAS, pressure_findings, pressure_seeds
+
+    def tdc(res):
+        return {f.label: (f.value, f.sigma) for f in pressure_findings(res) if f.effect == "tdc_offset"}
+
+    base = made_up(10, 4, np.zeros(4, complex), 0.0)
+    sigma = np.full(4, 0.2)
+    one = dataclasses.replace(base, tdc_deg=np.array([-0.05, 1.50, 0.06, -0.04]), tdc_sigma_deg=sigma)
+    np.testing.assert_allclose(tdc(one)["tdc_offset[cyl 2]"], (1.50, 0.2), rtol=1e-12)
+    assert list(tdc(one)) == ["tdc_offset[cyl 2]"]
+    near = dataclasses.replace(one, tdc_deg=np.array([-0.05, 0.60, 0.06, -0.04]))
+    assert 0.6 < TDC_SIGMAS * 0.2 and tdc(near) == {}
+    assert pressure_seeds(near) == pytest.approx({"tdc_offset[cyl 2]": 0.60})
+    wheel = dataclasses.replace(one, tdc_deg=np.array([1.45, 1.50, 1.56, 1.47]))
+    assert list(tdc(wheel)) == ["tdc_offset[cyl 0]"]
+    np.testing.assert_allclose(tdc(wheel)["tdc_offset[cyl 0]"], (1.485, 0.2), rtol=1e-12)
+    single = dataclasses.replace(made_up(10, 4, np.zeros(4, complex), 0.0), tdc_deg=np.array([1.44]),
+                                 tdc_sigma_deg=np.array([0.21]))
+    np.testing.assert_allclose(tdc(single)["tdc_offset[cyl 1]"], (1.44, 0.21), rtol=1e-12)
+    healthy = dataclasses.replace(one, tdc_deg=np.array([-0.05, 0.06, 0.06, -0.004]))  # k9k 3000 rpm, seed 2
+    assert tdc(healthy) == {}
+
+
+def test_a_sensor_correction_within_what_the_pressure_methods_resolve_is_not_named():
+    """unresolved: a pressure gain fitted 0.999 +- 0.0008 (deutz 3000 rpm seed 3, healthy) is within 2 x hypot(sigma,
+    SensorHealthConfig.floor_gain 0.003) of none: refused, said why; 1.06 +- 0.001 is a sensor fault; a friction law
+    has no such floor; a TDC of 0.05 +- 0.01 deg is within the 0.03 deg floor's 2 sigma, 1.5 deg is not."""
+    from frictionwatch.core.discrepancy.candidates import candidate_library
+    from frictionwatch.core.discrepancy.choice import unresolved
+    from frictionwatch.core.discrepancy.fit import Trial
+
+    lib = {c.label: c for c in candidate_library(EngineModel.from_spec(load_engine("k9k-4cyl")))}
+
+    def trial(label, x, s):
+        return Trial(lib[label], np.array([x]), np.array([s]), 0.0, 1.0, 0)
+
+    why = unresolved(trial("pressure_gain[cyl 1]", 0.999, 0.0008))
+    assert why.startswith("gain 0.999 +- 0.0008 is within 2 sigma of none")
+    assert unresolved(trial("pressure_gain[cyl 1]", 1.06, 0.001)) == ""
+    assert unresolved(trial("stribeck_ring", 0.01, 0.5)) == ""
+    assert unresolved(trial("tdc_offset[cyl 2]", 0.05, 0.01)) != ""
+    assert unresolved(trial("tdc_offset[cyl 2]", 1.5, 0.02)) == ""

@@ -343,3 +343,25 @@ def test_a_constant_extra_friction_is_said_without_a_cylinder_and_never_named_a_
     assert doc["outcome"] == "ambiguous" and doc["found"] == [] and found.model == model, doc["verdict"]
     assert "extra_friction in any one of the 4 cylinders" in doc["ambiguous"]["candidates"], doc["ambiguous"]
     assert "a motored run cylinder by cylinder" in doc["verdict"]
+
+
+def test_a_tdc_offset_and_a_worn_ring_in_one_cylinder_are_both_named():
+    """deutz-1cyl, TDC 1.5 deg late and the ring worn 2.5x in its one cylinder: the speed's own TDC fit took the
+    ring's friction through the indicated work (3000 rpm seed 2: 3.37 deg, the ring then named 3.62 and the TDC
+    never). The pressure reads the TDC (held at its reading, or the speed's value where it lies within 2 of the
+    pressure's sigma) and the ring is fitted on top, its sigma carrying the held TDC's. 2000 rpm 0.8, seed 9: a log
+    no matrix uses (design note 43)."""
+    spec = load_engine("deutz-1cyl")
+    sim = simulate(spec, 2000.0, 0.8, CYCLES, 9, effects=[
+        make_effect("tdc_offset", {"cylinder": 1, "deg": 1.5}),
+        make_effect("ring_wear", {"cylinder": 1, "gain": 2.5, "mass_loss": 0.0})])
+    cycles = assembled_cycles(spec, sim.info, sim.records)[0]
+    doc = discover(EngineModel.from_spec(spec), cycles, OPTIONS).to_json()
+    named = {(f["effect"], f["cylinder"]): f for f in doc["found"]}
+    assert list(named)[:2] == [("tdc_offset", 1), ("ring_wear", 1)], doc["verdict"]
+    tdc, ring = named[("tdc_offset", 1)], named[("ring_wear", 1)]
+    assert tdc["evidence"]["channel"] == "pressure"
+    np.testing.assert_allclose(tdc["parameters"]["deg"], 1.5, atol=0.2)
+    assert abs(tdc["parameters"]["deg"] - 1.5) <= 2 * tdc["sigma"]["deg"]
+    np.testing.assert_allclose(ring["parameters"]["gain"] - 1.0, 1.5, rtol=0.2)
+    assert abs(ring["parameters"]["gain"] - 2.5) <= 2 * ring["sigma"]["gain"]
