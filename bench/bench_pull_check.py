@@ -2,13 +2,18 @@
 
     python -m bench.bench_pull_check capture OUT.pkl [--cycles 60]   (inputs of every call over a monitor run)
     python -m bench.bench_pull_check time IN.pkl [--repeat 200]       (the check alone, per call, on those inputs)
+    python -m bench.bench_pull_check monitor [--cycles 120] [--repeat 6]   (the monitor per cycle, either path)
 
 ``capture``: genset-v20 (1500 rpm) and k9k-4cyl (4000 rpm) at full load, seed 1 (bench.bench_monitor's points),
 simulated here and run through the one pipeline (CyclePipeline) with ``PullCheck.sigma`` wrapped to keep a copy of
 every call's inputs (accumulator, smoothed posterior, cylinder rows, shares) and its output. ``time``: per engine,
 the numpy reference (``pull_sigma_reference``: one LAPACK inverse, the products, eigh) split into its parts, and
 ``PullCheck.sigma`` (the kernel), alternated call by call over the captured inputs, ``repeat`` rounds; the median
-over rounds of the mean per call [us], and the ratio reference / kernel per round (its median, min-max). One core
+over rounds of the mean per call [us], and the ratio reference / kernel per round (its median, min-max). ``monitor``: the same points' cycles through
+CyclePipeline.process, the check by the kernel or by the reference (``PullCheck.sigma`` swapped), alternated pass by
+pass (A B B A ...), timed by the thread's CPU time; the median of the passes' mean ms per cycle per path and the
+median (min-max) of reference/kernel over pass pairs; before timing, every cycle's smoothed and cycle estimates of
+the two paths are compared (rtol 1e-10). One core
 (BLAS/numba threads pinned to 1); quote ``uptime`` beside any absolute figure (docs: quiet-bench.md)."""
 
 from __future__ import annotations
@@ -28,9 +33,11 @@ import numpy as np  # noqa: E402
 from frictionwatch.core.model.engine import load_engine  # noqa: E402
 from frictionwatch.core.monitor.identify import pull_check as pc  # noqa: E402
 from frictionwatch.core.monitor.identify.accumulate import spd_inverse  # noqa: E402
+from frictionwatch.core.monitor.pipeline import CyclePipeline  # noqa: E402
 from frictionwatch.core.plant.simulate import simulate  # noqa: E402
 
 from bench.bench_monitor import SEED, monitored_cycles  # noqa: E402
+from bench.bench_monitor_against import differences, plain  # noqa: E402
 
 POINTS = (("genset-v20", 1500.0, 1.0), ("k9k-4cyl", 4000.0, 1.0))
 
@@ -102,6 +109,57 @@ def timing(calls: list, repeat: int) -> dict:
             "reference parts, median us": {k: round(statistics.median(v), 1) for k, v in parts.items()}}
 
 
+def _reference_sigma(self, acc, post, rows, share):
+    return pc.pull_sigma_reference(acc, post, rows, share, self.kappa)
+
+
+def _run(spec, cycles, reference: bool) -> tuple[float, list]:
+    """CPU seconds of CyclePipeline.process over ``cycles`` and each analysed cycle's two estimates."""
+    kernel = pc.PullCheck.sigma
+    pc.PullCheck.sigma = _reference_sigma if reference else kernel
+    try:
+        pipe, out, spent = CyclePipeline(spec), [], 0.0
+        for c in cycles:
+            t0 = time.thread_time()
+            o = pipe.process(c)
+            spent += time.thread_time() - t0
+            if o.ok:
+                out.append(o.result)
+    finally:
+        pc.PullCheck.sigma = kernel
+    return spent, out
+
+
+def monitor(n_cycles: int, repeat: int) -> dict:
+    out = {}
+    for name, rpm, load in POINTS:
+        spec = load_engine(name)
+        cycles = monitored_cycles(spec, simulate(spec, rpm, load, n_cycles, seed=SEED))
+        _, ker = _run(spec, cycles, False)
+        _, ref = _run(spec, cycles, True)
+        diff, compared = differences(plain(ref), plain(ker), name, rtol=1e-10)  # every number of every result
+        if diff:
+            raise SystemExit(f"kernel and reference differ: {diff[:5]}")
+        exact, _ = differences(plain(ref), plain(ker), name, rtol=0.0)
+        times = {False: [], True: []}
+        ratio = []
+        for _ in range(repeat):
+            pair = {}
+            for ref_first in (False, True):
+                for use_ref in ((True, False) if ref_first else (False, True)):
+                    pair.setdefault(use_ref, []).append(_run(spec, cycles, use_ref)[0] / len(cycles) * 1e3)
+            for k, v in pair.items():
+                times[k].extend(v)
+            ratio.append(statistics.median(pair[True]) / statistics.median(pair[False]))
+        out[name] = {"cycles": len(cycles), "numbers compared (rtol 1e-10)": compared,
+                     "fields not bit-identical": exact[:4],
+                     "reference ms/cycle": round(statistics.median(times[True]), 4),
+                     "kernel ms/cycle": round(statistics.median(times[False]), 4),
+                     "reference/kernel": [round(statistics.median(ratio), 4), round(min(ratio), 4),
+                                          round(max(ratio), 4)]}
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -111,7 +169,14 @@ def main() -> None:
     t = sub.add_parser("time")
     t.add_argument("inp")
     t.add_argument("--repeat", type=int, default=200)
+    m = sub.add_parser("monitor")
+    m.add_argument("--cycles", type=int, default=120)
+    m.add_argument("--repeat", type=int, default=6)
     a = ap.parse_args()
+    if a.cmd == "monitor":
+        for name, r in monitor(a.cycles, a.repeat).items():
+            print(name, r)
+        return
     if a.cmd == "capture":
         data = capture(a.cycles)
         with open(a.out, "wb") as f:
