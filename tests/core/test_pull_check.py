@@ -3,12 +3,29 @@ when it must not, and what it does to a reported estimate."""
 
 from __future__ import annotations
 
+import copy
+from dataclasses import replace
+from pathlib import Path
+
 import numpy as np
-from frictionwatch.core.model.engine import load_engine
+import pytest
+from frictionwatch.core.model.engine import load_engine, spec_from_toml_text
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterior
-from frictionwatch.core.monitor.identify.pull_check import DataPull, data_only_pull, pull_sigma, with_pull
+from frictionwatch.core.monitor.identify.pull_check import (
+    DataPull,
+    PullCheck,
+    data_only_pull,
+    pull_sigma,
+    pull_sigma_reference,
+    with_pull,
+)
+from frictionwatch.core.monitor.pipeline import CyclePipeline
 from frictionwatch.core.monitor.report.results import FrictionEstimate
+from frictionwatch.drivers.assembly.cycles import CycleAssembler
+from frictionwatch.drivers.logs.mcap_log import LogReader
 from numpy.testing import assert_allclose
+
+LOGS = Path(__file__).resolve().parents[2] / "replay_logs"
 
 
 def _system(rng, p=4, n=40):
@@ -130,3 +147,117 @@ def test_by_direction_charges_only_the_inconsistent_direction():
     assert_allclose(sig[1], 0.0834, atol=5e-4)
     # within kappa along every direction: nothing
     assert_allclose(pull_sigma(DataPull(0.8 * d / 1.4, np.diag(cov), shift, cov), kappa=2.5), np.zeros(4), atol=1e-12)
+
+
+# --- the kernel (PullCheck.sigma: pull_sigma_kernel after LAPACK's inverse) against its numpy reference ---------------
+# rtol 1e-10 of each figure, atol 1e-10 of the largest of the call's figures: a cylinder's pull that is a tiny part of
+# the others' carries their rounding (genset-v20 below: 1.3e-12 of the largest at most, 6e-11 of each figure above
+# 1e-3 of the largest; bench/bench_pull_check.py)
+KAPPAS = (2.5, 1.0, 0.3)  # the tuned one, and smaller ones, so every direction's firing branch is exercised
+
+
+def _assert_kernel_is_reference(acc, post, rows, share, kappa) -> bool:
+    ref = pull_sigma_reference(acc, post, rows, share, kappa)
+    got = PullCheck(kappa).sigma(acc, post, rows, share)
+    assert got.shape == ref.shape
+    assert_allclose(got, ref, rtol=1e-10, atol=1e-10 * float(np.max(ref, initial=0.0)))
+    return bool(np.any(ref > 0.0))
+
+
+@pytest.fixture(scope="module")
+def captured():
+    """Every PullCheck.sigma call's inputs over the first 40 cycles of the genset-v20 demo log and the k9k-4cyl
+    replay log, through the one pipeline (CyclePipeline)."""
+    original, out = PullCheck.sigma, {}
+    try:
+        for log_name in ("demo", "k9k-4cyl"):
+            calls: list = []
+
+            def recorded(self, acc, post, rows, share, _calls=calls):
+                _calls.append(copy.deepcopy((acc, post, np.asarray(rows), np.asarray(share))))
+                return original(self, acc, post, rows, share)
+
+            PullCheck.sigma = recorded
+            with LogReader(LOGS / f"{log_name}.mcap") as log:
+                spec = spec_from_toml_text(log.engine_toml, origin=log_name)
+                asm = CycleAssembler(log.info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
+                cycles = [c for r in log.records() for c in asm.feed(r)] + asm.flush()
+            pipe = CyclePipeline(spec)
+            for c in cycles[:40]:
+                pipe.process(c)
+            out[spec.name] = calls
+    finally:
+        PullCheck.sigma = original
+    return out
+
+
+def test_kernel_is_the_reference_on_monitor_inputs(captured):
+    """genset-v20 (20 cylinders, 47 parameters) and k9k-4cyl (4, 29): every call with an accumulated weight, at the
+    tuned kappa and smaller ones; the pull fires on most of them (counted, so the comparison is of figures, not of
+    zeros)."""
+    assert set(captured) == {"genset-v20", "k9k-4cyl"}
+    for name, calls in captured.items():
+        live = [c for c in calls if c[0].weight > 0.0]
+        assert len(live) >= 10, name
+        fired = sum(_assert_kernel_is_reference(*c, kappa) for c in live for kappa in KAPPAS)
+        assert fired >= len(live), (name, fired)
+
+
+def _random_case(rng, n=12, p=7, z=5, prior=2.0, bias=0.0, twin=False):
+    a = rng.standard_normal((60, n)) * rng.uniform(0.05, 3.0, n)  # badly scaled columns, as the monitor's
+    truth = rng.uniform(0.5, 2.0, n)
+    y = a @ truth + rng.standard_normal(60) + bias * a[:, 0]
+    acc = _acc(a, y)
+    n_pr = np.diag(np.full(n, prior))
+    post = _posterior(acc, n_pr, n_pr @ truth)
+    post = replace(post, chi2_reduced=float(rng.uniform(0.5, 2.0)))  # both sides of max(1, chi2)
+    rows = rng.standard_normal((z, p))
+    if twin:  # two cylinders with one row: a direction of d without scatter (it carries nothing), their shares apart
+        rows[1] = rows[0]
+    return acc, post, rows, rows @ truth[:p] + rng.normal(0.0, 0.1, z)
+
+
+def test_kernel_is_the_reference_on_random_cases():
+    """200 random systems (12 parameters, 5 cylinders on the leading 7; half with a repeated error along the first
+    parameter, so the pull fires; every third with two cylinders of one row, so V has a direction of no scatter
+    whose shift is not zero), each at the three kappas."""
+    rng = np.random.default_rng(2)
+    fired = 0
+    for i in range(200):
+        case = _random_case(rng, bias=5.0 * (i % 2), twin=i % 3 == 0)
+        fired += sum(_assert_kernel_is_reference(*case, kappa) for kappa in KAPPAS)
+    assert fired >= 200
+
+
+def test_kernel_none_paths_give_zeros_as_the_reference():
+    """Where ``data_only_pull`` finds no data-only point both give zeros (z,): nothing accumulated (weight 0), N not
+    positive definite (singular, indefinite), a non-finite right-hand side, N, share or posterior; shapes that do not
+    fit are a one-line error."""
+    rng = np.random.default_rng(3)
+    acc, post, rows, share = _random_case(rng, bias=5.0)
+    assert np.any(PullCheck(1.0).sigma(acc, post, rows, share) > 0.0)  # the case fires before it is broken
+    singular = acc.info.copy()
+    singular[:, 3] = singular[:, 2]
+    singular[3, :] = singular[2, :]
+    indefinite = acc.info - 2.0 * np.linalg.eigvalsh(acc.info).max() * np.eye(acc.info.shape[0])
+    nan_info = acc.info.copy()
+    nan_info[4, 4] = np.nan
+    nan_rhs = acc.rhs.copy()
+    nan_rhs[1] = np.inf
+    nan_params = post.params.copy()
+    nan_params[0] = np.nan
+    nan_share = share.copy()
+    nan_share[2] = np.nan
+    nan_cov = post.cov_statistical.copy()
+    nan_cov[1, 2] = np.nan
+    cases = [(replace(acc, weight=0.0), post, share), (replace(acc, info=singular), post, share),
+             (replace(acc, info=indefinite), post, share), (replace(acc, info=nan_info), post, share),
+             (replace(acc, rhs=nan_rhs), post, share), (acc, replace(post, params=nan_params), share),
+             (acc, post, nan_share), (acc, replace(post, cov_statistical=nan_cov), share)]
+    for a, p, s in cases:
+        assert data_only_pull(a, p, rows, s) is None
+        assert_allclose(PullCheck(1.0).sigma(a, p, rows, s), np.zeros(rows.shape[0]), atol=0.0)
+    with pytest.raises(ValueError, match="do not fit"):
+        PullCheck(1.0).sigma(acc, post, rows, share[:3])
+    with pytest.raises(ValueError, match="do not fit"):
+        PullCheck(1.0).sigma(acc, post, np.ones((5, 13)), share)

@@ -33,13 +33,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numba
 import numpy as np
+import scipy.linalg.lapack
 from frictionwatch.core.model.engine import EngineSpec, mep_per_torque
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterior, spd_inverse
 from frictionwatch.core.monitor.report.results import FrictionEstimate
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 
 _TUNED = read_tuned(MONITOR_RECORD)
+_potrf = scipy.linalg.lapack.dpotrf
+_potri = scipy.linalg.lapack.dpotri
 
 
 @dataclass(frozen=True)
@@ -103,6 +107,88 @@ def pull_sigma(pull: DataPull, kappa: float) -> np.ndarray:
     return np.sqrt((u * u) @ (sig_j * sig_j))
 
 
+def pull_sigma_reference(acc: Accumulator, post: Posterior, rows: np.ndarray, share: np.ndarray,
+                         kappa: float) -> np.ndarray:
+    """(z,) [N m] ``PullCheck.sigma`` by numpy and LAPACK (``data_only_pull``, ``pull_sigma``): the reference of
+    ``pull_sigma_kernel``, and what the check computes, readably."""
+    pull = data_only_pull(acc, post, rows, share)
+    if pull is None:
+        return np.zeros(np.asarray(rows).shape[0])
+    return pull_sigma(pull, kappa)
+
+
+@numba.njit(cache=True)
+def pull_sigma_kernel(inv_lower, rhs, params, chi2_reduced, cov_statistical, rows, share, kappa):
+    """``pull_sigma_reference`` after its LAPACK inverse: inv_lower (P, P) holds N^-1 of the accumulated equations
+    in its lower triangle (potrf then potri, the calls ``spd_inverse`` makes: the figure's rounding is theirs, see
+    below), rhs (P,) their right-hand side, params (P,), chi2_reduced and cov_statistical (P, P) the posterior's,
+    rows (z, p), share (z,). Returns (z,) [N m], zeros where a number is not finite (the reference's None).
+
+    The inverse stays LAPACK's potri: another route to N^-1 (numba's LU of the unit-diagonal form, spd_kernels) is
+    as exact, but d = c (N^-1 r - theta) is sensitive to the last digits of N^-1 (genset-v20: the two inverses
+    differ by 5e-11 of sqrt(C_ii C_jj), the pull sigmas by up to 3e-8 of their largest; design note 42). The rest
+    is loops or numba's BLAS in the order of the reference's products, and numba's eigh (LAPACK syevd, as numpy's)."""
+    n = inv_lower.shape[0]
+    z, p = rows.shape
+    sigma = np.zeros(z)
+    inv = np.empty((n, n))
+    for i in range(n):  # spd_inverse's tril(inv) + tril(inv, -1).T
+        for j in range(i + 1):
+            inv[i, j] = inv_lower[i, j]
+            inv[j, i] = inv_lower[i, j]
+    theta_d = inv @ rhs
+    for i in range(n):
+        if not np.isfinite(theta_d[i]):
+            return sigma
+    scale = max(1.0, chi2_reduced)
+    delta = theta_d[:p] - params[:p]
+    gap = scale * inv[:p, :p] - cov_statistical[:p, :p]
+    d = rows @ delta
+    half = rows @ gap
+    cov = np.empty((z, z))
+    for a in range(z):
+        for b in range(z):
+            acc = 0.0
+            for k in range(p):
+                acc += half[a, k] * rows[b, k]
+            cov[a, b] = acc
+    for a in range(z):
+        for b in range(a):
+            v = 0.5 * (cov[a, b] + cov[b, a])
+            cov[a, b] = v
+            cov[b, a] = v
+    shift = rows @ params[:p] - share
+    for a in range(z):
+        if not (np.isfinite(d[a]) and np.isfinite(shift[a])):
+            return sigma
+        for b in range(z):
+            if not np.isfinite(cov[a, b]):
+                return sigma
+    lam, u = np.linalg.eigh(cov)
+    top = 0.0
+    for j in range(z):
+        top = max(top, lam[j])
+    floor = 1e-12 * max(top, 1e-300)
+    sig2 = np.zeros(z)
+    for j in range(z):
+        dj = 0.0
+        sj = 0.0
+        for k in range(z):
+            dj += u[k, j] * d[k]
+            sj += u[k, j] * shift[k]
+        live = lam[j] > floor
+        e = np.sqrt(max(dj * dj - kappa * kappa * (lam[j] if live else 0.0), 0.0))
+        span = abs(dj)
+        ratio = min(1.0, e / span) if live and span > 0.0 else 0.0
+        sig2[j] = (abs(sj) * ratio) ** 2
+    for k in range(z):
+        acc = 0.0
+        for j in range(z):
+            acc += u[k, j] * u[k, j] * sig2[j]
+        sigma[k] = np.sqrt(acc)
+    return sigma
+
+
 @dataclass(frozen=True)
 class PullCheck:
     """kappa: how many sigmas of its own scatter the data-only point may lie from a figure before the distance
@@ -113,11 +199,30 @@ class PullCheck:
     kappa: float = _TUNED["PULL_CHECK_KAPPA"].value
 
     def sigma(self, acc: Accumulator, post: Posterior, rows: np.ndarray, share: np.ndarray) -> np.ndarray:
-        """(z,) [N m] each cylinder's pull sigma (zeros where ``data_only_pull`` finds no data-only point)."""
-        pull = data_only_pull(acc, post, rows, share)
-        if pull is None:
-            return np.zeros(np.asarray(rows).shape[0])
-        return pull_sigma(pull, self.kappa)
+        """(z,) [N m] each cylinder's pull sigma (zeros where ``data_only_pull`` finds no data-only point):
+        ``pull_sigma_kernel``, the arithmetic of ``pull_sigma_reference`` in one call."""
+        f64 = np.float64
+        rows = np.ascontiguousarray(rows, dtype=f64)
+        z, p = rows.shape
+        if acc.weight <= 0.0:
+            return np.zeros(z)
+        share = np.ascontiguousarray(share, dtype=f64)
+        n = acc.info.shape[0]
+        if acc.info.shape != (n, n) or acc.rhs.shape != (n,) or share.shape != (z,) or not p <= n or \
+                post.params.shape[0] < p or post.cov_statistical.shape[0] < p:
+            raise ValueError(f"pull check: info {acc.info.shape}, rhs {acc.rhs.shape}, rows {rows.shape}, share "
+                             f"{share.shape}, params {post.params.shape}, cov {post.cov_statistical.shape} do not fit")
+        # spd_inverse's two LAPACK calls without its symmetrisation (np.tril: 12 of its 26 us on genset-v20's
+        # 47 x 47, bench/bench_pull_check.py); the kernel mirrors the triangle itself
+        low, info = _potrf(acc.info, lower=True, clean=False, overwrite_a=False)
+        if info == 0:
+            low, info = _potri(low, lower=True, overwrite_c=True)
+        if info != 0:  # not positive definite: no data-only point
+            return np.zeros(z)
+        return pull_sigma_kernel(low, np.ascontiguousarray(acc.rhs, dtype=f64),
+                                 np.ascontiguousarray(post.params, dtype=f64), float(post.chi2_reduced),
+                                 np.ascontiguousarray(post.cov_statistical, dtype=f64), rows, share,
+                                 float(self.kappa))
 
 
 def with_pull(est: FrictionEstimate, sigma: np.ndarray, resolve_rel: float, spec: EngineSpec) -> FrictionEstimate:
