@@ -128,6 +128,15 @@ def test_with_pull_adds_in_quadrature_and_unmeasures():
     assert np.isnan(out.friction_torque_mean[0]) and out.friction_torque_mean[1] == 80.0
     assert out.total_friction_torque == est.total_friction_torque
     assert with_pull(est, np.zeros(3), 0.10, spec) is est
+    # the figure the check made a share says why, apart from a share the data never separated
+    from frictionwatch.core.monitor.report.figure_status import friction_status
+
+    assert list(out.pulled) == [True, False, False]
+    status = friction_status(out, ())
+    assert status.cylinders[0].status == "share" and "pull check" in status.cylinders[0].reason
+    unseparated = friction_status(replace(est, resolved=np.array([False, True, True]),
+                                                      friction_torque_mean=np.array([np.nan, 80.0, 80.0])), ())
+    assert unseparated.cylinders[0].status == "share" and "pull check" not in unseparated.cylinders[0].reason
 
 
 def test_by_direction_charges_only_the_inconsistent_direction():

@@ -240,4 +240,4 @@ def with_pull(est: FrictionEstimate, sigma: np.ndarray, resolve_rel: float, spec
     t_mean = np.where(resolved, est.friction_torque_mean, np.nan)
     to_cyl = mep_per_torque(spec.displacement_cyl)
     return replace(est, friction_torque_mean=t_mean, friction_torque_mean_sigma=sig, fmep=t_mean * to_cyl,
-                   fmep_sigma=sig * to_cyl, resolved=resolved)
+                   fmep_sigma=sig * to_cyl, resolved=resolved, pulled=est.resolved & ~resolved)

@@ -117,10 +117,15 @@ def friction_status(est: Estimate, active_flags: Iterable[str]) -> FrictionStatu
             cylinders.append(FigureStatus("measured", None, weight))
         elif engine.status == "measured" and math.isfinite(share):
             w = "n/a" if weight is None else f"{weight:.2f}"
+            pulled_mask = getattr(est, "pulled", None)  # (an estimate made by hand may not have it)
+            pulled = pulled_mask is not None and bool(pulled_mask[k])
+            why = (f"the speed data lead this cylinder's figure further from its share than their own scatter "
+                   f"allows (data weight {w}): a repeated error of the engine model in the speed (the pull check)"
+                   if pulled else
+                   f"the speed data do not separate this cylinder from its siblings (data weight {w})")
             cylinders.append(FigureStatus(
-                "share", f"the speed data do not separate this cylinder from its siblings (data weight {w}): the "
-                         "value is its share of the engine's measured friction in proportion to its indicated work, "
-                         "not a measurement of this cylinder", weight))
+                "share", why + ": the value is its share of the engine's measured friction in proportion to its "
+                               "indicated work, not a measurement of this cylinder", weight))
         else:
             why = {"measured": "the data do not determine this cylinder's friction",
                    "prior": "no cycle accumulated yet (the monitor's warm-up): nothing from the data for this "

@@ -41,6 +41,8 @@ class FrictionEstimate:
     calibration_sigma (z,) N m, total_calibration_sigma N m: the part of the sigmas above that the calibration's
     remaining uncertainty (TDC, pressure gain, J) adds; it is the same in every cycle, so a change of a figure
     since commissioning has the sigma without it (``change_sigma``; None: not added, an estimate made by hand)
+    pulled (z,) bool: cylinders the pull check (core.monitor.identify.pull_check) turned from measured into a share:
+    the data lead their figure further than their own scatter allows (None: not checked)
     """
 
     friction_torque_mean: np.ndarray
@@ -65,6 +67,7 @@ class FrictionEstimate:
     calibration: str = "uncalibrated"
     calibration_sigma: np.ndarray | None = None
     total_calibration_sigma: float = 0.0
+    pulled: np.ndarray | None = None
 
 
 def change_sigma(est: FrictionEstimate) -> np.ndarray:
