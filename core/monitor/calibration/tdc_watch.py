@@ -27,7 +27,7 @@ What is flagged (flags ``sensor_tdc_offset`` for the wheel, ``sensor_tdc_offset_
   0.5 deg drift from cycle 300 read +0.40 to +0.44; bench/sensor_drift.py).
 A flag holds until a window says otherwise. Three or more cylinders are needed for a cylinder's own flag.
 
-A large engine's cylinders take turns after the first window, which fits all (below), so a cylinder's TDC was fitted up to z / CYLINDERS_PER_WINDOW windows
+A large engine's cylinders take turns after the first window, which on a commissioned model fits all (below), so a cylinder's TDC was fitted up to z / CYLINDERS_PER_WINDOW windows
 ago (genset-v20: 500 cycles; a 0.5 deg drift from cycle 300 went unfitted to cycle 599, a wheel slip was judged on a
 median of mostly old estimates to cycle 599 and meanwhile named the freshly fitted cylinders). So every window also
 screens the cylinders out of turn: the shift of its mean compression stroke against the cylinder's trace at its
@@ -274,11 +274,13 @@ def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle
     # cylinder whose compression stroke moved against its trace at its last fit (``screen_shift``): a TDC that
     # drifts is fitted in the window it shows in, not up to z / CYLINDERS_PER_WINDOW windows later
     mean_trace = np.sum(block_sums, axis=0) / max(float(np.sum(counts)), 1.0)
-    # The first window fits every cylinder, also of a large engine (once a run, ~55 ms on genset-v20): its own offsets
-    # and the change rule's first readings are then against the median of all, not of the four fitted so far
-    # (genset-v20 cylinder 8 read -0.18 deg against four and -0.36 against twenty, design note 40), and every
-    # cylinder has a trace for the screen from the second window on
-    first_window = state.fitted is None
+    # A commissioned model's first window fits every cylinder, also of a large engine (once a run, ~40 ms on
+    # genset-v20): its own offsets and the change rule's first readings are then against the median of all, not of
+    # the four fitted so far (genset-v20 cylinder 8 read -0.18 deg against four and -0.36 against twenty, design note
+    # 40), and every cylinder has a trace for the screen from the second window on. An uncalibrated model's limits
+    # (3 x the assumed 0.2 deg per cylinder and more) are wide beside that bias, and there it would cost a 400-cycle
+    # run 0.1 ms per cycle (genset-v20, design note 45)
+    first_window = state.fitted is None and cal.commissioned
     turn = list(range(z)) if z <= per_window or first_window \
         else [(state.next_cylinder + i) % z for i in range(per_window)]
     screened: list[int] = []
