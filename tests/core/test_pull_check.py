@@ -21,8 +21,8 @@ from frictionwatch.core.monitor.identify.pull_check import (
 )
 from frictionwatch.core.monitor.pipeline import CyclePipeline
 from frictionwatch.core.monitor.report.results import FrictionEstimate
-from frictionwatch.drivers.assembly.cycles import CycleAssembler
 from frictionwatch.drivers.logs.mcap_log import LogReader
+from frictionwatch.service.pipeline import assembled_cycles
 from numpy.testing import assert_allclose
 
 LOGS = Path(__file__).resolve().parents[2] / "replay_logs"
@@ -189,8 +189,7 @@ def captured():
             PullCheck.sigma = recorded
             with LogReader(LOGS / f"{log_name}.mcap") as log:
                 spec = spec_from_toml_text(log.engine_toml, origin=log_name)
-                asm = CycleAssembler(log.info, spec.n_cyl, spec.firing_angles, speed_range_rpm=spec.speed_range_rpm)
-                cycles = [c for r in log.records() for c in asm.feed(r)] + asm.flush()
+                cycles, _ = assembled_cycles(spec, log.info, log.records())
             pipe = CyclePipeline(spec)
             for c in cycles[:40]:
                 pipe.process(c)
