@@ -35,15 +35,12 @@ from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
-import scipy.linalg.lapack
 from frictionwatch.core.model.engine import EngineSpec, mep_per_torque
-from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterior, spd_inverse
+from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterior, spd_inverse, spd_inverse_lower
 from frictionwatch.core.monitor.report.results import FrictionEstimate
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 
 _TUNED = read_tuned(MONITOR_RECORD)
-_potrf = scipy.linalg.lapack.dpotrf
-_potri = scipy.linalg.lapack.dpotri
 
 
 @dataclass(frozen=True)
@@ -212,12 +209,10 @@ class PullCheck:
                 post.params.shape[0] < p or post.cov_statistical.shape[0] < p:
             raise ValueError(f"pull check: info {acc.info.shape}, rhs {acc.rhs.shape}, rows {rows.shape}, share "
                              f"{share.shape}, params {post.params.shape}, cov {post.cov_statistical.shape} do not fit")
-        # spd_inverse's two LAPACK calls without its symmetrisation (np.tril: 12 of its 26 us on genset-v20's
-        # 47 x 47, bench/bench_pull_check.py); the kernel mirrors the triangle itself
-        low, info = _potrf(acc.info, lower=True, clean=False, overwrite_a=False)
-        if info == 0:
-            low, info = _potri(low, lower=True, overwrite_c=True)
-        if info != 0:  # not positive definite: no data-only point
+        # spd_inverse without its symmetrisation (np.tril: 12 of its 26 us on genset-v20's 47 x 47,
+        # bench/bench_pull_check.py); the kernel mirrors the triangle itself
+        low = spd_inverse_lower(acc.info)
+        if low is None:  # not positive definite: no data-only point
             return np.zeros(z)
         return pull_sigma_kernel(low, np.ascontiguousarray(acc.rhs, dtype=f64),
                                  np.ascontiguousarray(post.params, dtype=f64), float(post.chi2_reduced),
