@@ -80,9 +80,9 @@ def test_commissioning_keeps_what_it_read_of_each_cylinder():
     import numpy as np
     from frictionwatch.core.monitor.calibration.commission import own_readings
 
-    tdc = [_est(0.5, stat=0.01), _est(0.24, stat=0.02), _est(0.5, stat=0.01), _est(1.4, stat=0.01), None]
-    applied = np.radians([0.0, 0.0, 0.0, 0.9, 0.0])  # the fourth's own offset was applied, the second's left
-    reading, sigma = own_readings(tdc, applied, np.radians([0.01, 0.02, 0.01, 0.01, np.nan]))
+    own = np.radians([0.0, -0.26, 0.0, 0.9, np.nan])  # as read (the fifth: nothing)
+    applied = np.array([False, False, False, True, False])  # the fourth's own offset was applied, the second's left
+    reading, sigma = own_readings(own, applied, np.radians([0.01, 0.02, 0.01, 0.01, np.nan]))
     np.testing.assert_allclose(np.degrees(reading), [0.0, -0.26, 0.0, 0.0, 0.0], atol=1e-12)
     np.testing.assert_allclose(np.degrees(sigma), [0.01, 0.02, 0.01, 0.01, 0.5], atol=1e-12)
 

@@ -70,8 +70,10 @@ def without_sensor_effects(model: EngineModel) -> EngineModel:
     return dataclasses.replace(model, effects=kept, calibration=cal)
 
 
-def _tdc_part(tdc: Sequence[TdcEstimate | None]) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
-    """(wheel rad, wheel sigma rad, own (z,) rad applied, own sigma (z,) rad, statistical (z,) rad)."""
+def _tdc_part(tdc: Sequence[TdcEstimate | None]) -> tuple[float, float, np.ndarray, np.ndarray,
+                                                           tuple[np.ndarray, np.ndarray]]:
+    """(wheel rad, wheel sigma rad, own (z,) rad applied, own sigma (z,) rad, each cylinder's reading kept and its
+    sigma (z,) rad: ``own_readings``)."""
     found = [t for t in tdc if t is not None]
     if not found:
         raise ValueError("no cylinder's TDC could be found from its pressure (no fired or motored cycle pairs)")
@@ -86,20 +88,16 @@ def _tdc_part(tdc: Sequence[TdcEstimate | None]) -> tuple[float, float, np.ndarr
     own_applied = np.where(apply, own, 0.0)
     # what is left per cylinder: the statistical part (the systematic is the wheel's), and a reading not applied
     own_sigma = np.where(np.isfinite(own), np.where(apply, stat, np.hypot(stat, own)), math.radians(0.5))
-    return wheel, wheel_sigma, own_applied, own_sigma, stat
+    return wheel, wheel_sigma, own_applied, own_sigma, own_readings(own, apply, stat)
 
 
-def own_readings(tdc: Sequence[TdcEstimate | None], own_applied: np.ndarray, stat: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def own_readings(own: np.ndarray, applied: np.ndarray, stat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each cylinder's own TDC offset as the pressure will read it once the corrections are in, and that reading's
-    statistical sigma [rad] (z,): 0 where a correction was applied (it is the reading), the reading where it was left
-    (the method's own bias on that cylinder, which the TDC watch meets again: core.model.calibration), 0 +- 0.5 deg
-    where nothing was read."""
-    offsets = np.array([t.offset_rad if t is not None else np.nan for t in tdc])
-    own = offsets - float(np.nanmedian(offsets))
+    statistical sigma [rad] (z,), from its own offset read (NaN: none), whether that was applied and its statistical
+    sigma: 0 where a correction was applied (it is the reading), the reading where it was left (the method's own bias
+    on that cylinder, which the TDC watch meets again: core.model.calibration), 0 +- 0.5 deg where nothing was read."""
     read = np.isfinite(own) & np.isfinite(stat)
-    reading = np.where(read & (own_applied == 0.0), own, 0.0)
-    return np.where(read, reading, 0.0), np.where(read, stat, math.radians(0.5))
+    return np.where(read & ~applied, own, 0.0), np.where(read, stat, math.radians(0.5))
 
 
 def commissioned_model(model: EngineModel, tdc_fired: Sequence[TdcEstimate | None] | None,
@@ -113,8 +111,7 @@ def commissioned_model(model: EngineModel, tdc_fired: Sequence[TdcEstimate | Non
     tdc = tdc_fired if tdc_fired is not None and any(t is not None for t in tdc_fired) else tdc_motored
     if tdc is None:
         raise ValueError("commissioning needs fired or motored cycles to find TDC from")
-    wheel, wheel_sigma, own, own_sigma, stat = _tdc_part(tdc)
-    reading, reading_sigma = own_readings(tdc, own, stat)
+    wheel, wheel_sigma, own, own_sigma, (reading, reading_sigma) = _tdc_part(tdc)
     effects = [make_effect("tdc_offset", {"deg": round(math.degrees(wheel), 4), "cylinder": 0},
                            {"deg": round(math.degrees(wheel_sigma), 4)})]
     for k in np.flatnonzero(own):
