@@ -418,27 +418,29 @@ def tdc_flags(cal: Calibration, estimates: list[TdcEstimate | None],
         if cal.commissioned and len(cal.tdc_cylinder_reading_deg) == len(estimates):
             # the commissioning's own reading of each cylinder is what a healthy one reads (the pressure method's bias
             # on that cylinder, the same then and now: genset-v20 cylinder 8 -0.26 deg then, -0.30 to -0.37 while
-            # running, flagged against 0 +- 3 x 0.14); the allowance is the two readings' statistical sigmas and an
-            # operating point's move, as for the change rule below
+            # running, flagged against 0 +- 3 x 0.14): judged as a change since that reading
             expected = np.radians(np.asarray(cal.tdc_cylinder_reading_deg, dtype=np.float64)[idx])
-            then_stat = np.radians(np.asarray(cal.tdc_cylinder_reading_sigma_deg, dtype=np.float64)[idx])
-            own_limit = np.maximum(DRIFT_SIGMAS * np.sqrt(stats**2 + then_stat**2 + math.radians(OPERATING_POINT_DEG) ** 2),
-                                   math.radians(MIN_FLAG_DEG))
+            own_limit = _change_limit(stats, np.radians(np.asarray(cal.tdc_cylinder_reading_sigma_deg,
+                                                                   dtype=np.float64)[idx]))
         moved = np.zeros(len(found), dtype=bool)
         if cal.commissioned and first_own is not None:
             # a change since the run's first reading of the cylinder: the method's own bias on this engine (the
             # commissioning's per-cylinder sigma, 0.14 deg on genset-v20, against which a 0.5 deg drift read +0.40
-            # to +0.44: bench/sensor_drift.py) is the same then and now and cancels; what a change of operating
-            # point moves is allowed as for the wheel
+            # to +0.44: bench/sensor_drift.py) is the same then and now and cancels
             then, then_stat = first_own[0, idx], first_own[1, idx]
-            change_limit = np.maximum(DRIFT_SIGMAS * np.sqrt(stats**2 + then_stat**2
-                                                             + math.radians(OPERATING_POINT_DEG) ** 2),
-                                      math.radians(MIN_FLAG_DEG))
-            moved = np.isfinite(then) & (np.abs(own - then) > change_limit)
+            moved = np.isfinite(then) & (np.abs(own - then) > _change_limit(stats, then_stat))
         flags += [f"sensor_tdc_offset_cyl{k + 1}" for (k, _), o, lim, m in zip(found, own - expected, own_limit,
                                                                                  moved, strict=True)
                   if abs(o) > lim or m]
     return tuple(flags)
+
+
+def _change_limit(stat_now: np.ndarray, stat_then: np.ndarray) -> np.ndarray:
+    """The limit [rad] on a cylinder's own offset changed since an earlier reading of it (commissioning's, or the
+    run's first): DRIFT_SIGMAS of both readings' statistical sigmas and what a change of operating point moves
+    (OPERATING_POINT_DEG, as for the wheel), and at least MIN_FLAG_DEG."""
+    return np.maximum(DRIFT_SIGMAS * np.sqrt(stat_now**2 + stat_then**2 + math.radians(OPERATING_POINT_DEG) ** 2),
+                      math.radians(MIN_FLAG_DEG))
 
 
 __all__ = ["SCREEN_DEG", "TdcWatchState", "TraceCut", "WINDOW_CYCLES", "add_traces", "close_window", "cut_traces", "local_traces", "own_offsets",
