@@ -52,6 +52,23 @@ class LeakStatistics:
     z_ratio: np.ndarray
 
 
+def change_against_siblings(change: np.ndarray) -> np.ndarray:
+    """(4, z) each cylinder's change from its baseline (rows as alert_baseline.INDICATORS) less the median change of
+    all cylinders, where there are three or more.
+
+    The indicators are already against the siblings' median *level* each cycle; a change of one cylinder's level
+    moves which cylinders that median is made of (a median of four is the mean of the middle two, of three the middle
+    one), so its siblings' changes from their baselines moved too: a k9k (seed 11) commissioned with a leaking
+    cylinder 3 whose leak then went (a bench run whose fault ramped in after commissioning) raised a leak warning on
+    cylinder 2 after 26 cycles, a maruti (seed 3, cylinder 2 likewise) on cylinder 1 after 42. The median of the
+    *changes* is the common part (load, temperature) and stays put when one cylinder changes: subtracted, a change of
+    one cylinder is seen on that cylinder only. Nothing tuned. Two cylinders: the rows are each against the other,
+    kept as they are; three: the median cylinder reads no change (two changed cylinders name nobody, as before)."""
+    if change.shape[1] < 3:
+        return change
+    return change - np.median(change, axis=1, keepdims=True)
+
+
 def leak_statistics(ewma: np.ndarray, baseline: Band, g: float) -> LeakStatistics:
     """From the EWMA (4, z) of the indicators' change from the mean of the baseline's load band they were compared
     with (rows as alert_baseline.INDICATORS), its factor g. The leak signature
@@ -129,9 +146,9 @@ class Hold:
 class Pressure:
     """The engine's pressure statistics in a usable cycle. imep_pa: the engine's mean IMEP; held: why the statistics
     hold still this cycle (a load change settling, a load not commissioned yet) with the learner's learning_cycles,
-    else None and ewma (4, z), the EWMA of the indicators' change from ``band``'s mean (rows as INDICATORS; the
-    engine's own array: read it, never write it), and ``stats`` (leak_statistics of it); g the EWMA's factor this
-    cycle."""
+    else None and ewma (4, z), the EWMA of the indicators' change from ``band``'s mean, against the siblings'
+    median change (``change_against_siblings``; rows as INDICATORS), and ``stats`` (leak_statistics of it); g the
+    EWMA's factor this cycle."""
 
     imep_pa: float
     held: str | None = None

@@ -11,7 +11,8 @@ learning, the pressure statistics, the latches, the alert records and ids, the e
 
     blow_by      the leak signature of the pressure (core.monitor.checks.ring_pressure): the compression exponent down and
                  the expansion exponent up against the siblings, as a change from the cylinder's commissioning
-                 baseline (service.alert_baseline), in units of its own per-cycle scatter: Z = EWMA of the combined
+                 baseline (service.alert_baseline) less the median of all cylinders' changes (one cylinder's change
+                 is seen on that cylinder only), in units of its own per-cycle scatter: Z = EWMA of the combined
                  standardised change / its standard error. Covers every cylinder from the end of commissioning, with
                  or without a friction figure. Before a baseline exists: the core's sibling-floor flag blow_by_cyl<k>.
                  The baseline is per load band (the engine's mean IMEP): at a load no band holds yet the engine is not
@@ -46,7 +47,16 @@ from frictionwatch.core.monitor.report.figure_status import split_flag
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.service.alert_baseline import INDICATORS, Baseline, BaselineLearner
 from frictionwatch.service.alert_config import AlertConfig
-from frictionwatch.service.alert_interface import Context, Decision, Hold, Latch, Pressure, Rule, leak_statistics
+from frictionwatch.service.alert_interface import (
+    Context,
+    Decision,
+    Hold,
+    Latch,
+    Pressure,
+    Rule,
+    change_against_siblings,
+    leak_statistics,
+)
 from frictionwatch.service.alert_ring_rule import RingConditionRule
 from frictionwatch.service.alert_rules import (
     CoreFlagRule,
@@ -283,7 +293,8 @@ class AlertEngine:
         self._ewma_n += 1
         g = max(1.0 / cfg.window, 1.0 / self._ewma_n)
         self._ewma += g * (x - band.mean - self._ewma)
-        return Pressure(imep, ewma=self._ewma, stats=leak_statistics(self._ewma, band, g), band=band, g=g)
+        change = change_against_siblings(self._ewma)
+        return Pressure(imep, ewma=change, stats=leak_statistics(change, band, g), band=band, g=g)
 
     def _learn(self, x: np.ndarray, cycle: int, imep: float) -> None:
         """One healthy cycle at a load no band holds: into the learner, which restarts where the IMEP has left the
