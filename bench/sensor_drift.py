@@ -7,7 +7,7 @@ Per engine: ``frictionwatch commission`` on a healthy log (seed 61, ``COMMISSION
 ``analyze`` (service.pipeline.analyze_log, the TDC and gain watches inside EnginePipeline) with the model written on
 900-cycle logs of another seed (62) at another point (``RUN``) with the fault from output cycle 300 (the simulator's
 ``from_cycle``): a cylinder's TDC +0.5 deg (cylinder 2), the wheel's +0.5 deg, a gain of 0.96 on cylinder 2; and the
-same log healthy. Per case one row: the first cycle with any sensor flag and the first with the right one, the
+same log healthy (``--cylinder`` another than 2). Per case one row: the first cycle with any sensor flag and the first with the right one, the
 flags in force at the end, whether cylinder 2's friction is withheld at the end (figure status) and which other
 cylinders are, and any sensor flag before the onset. Prints a table and one JSON line per row.
 """
@@ -47,8 +47,8 @@ def simulate(path: Path, engine: str, point: tuple[float, float], seed: int, cyc
     return path
 
 
-def row(folder: Path, engine: str, model: Path, case: str, onset: int = ONSET) -> dict:
-    effect, expected = (None if v is None else v.format(cyl=CYLINDER, onset=onset) for v in CASES[case])
+def row(folder: Path, engine: str, model: Path, case: str, onset: int = ONSET, cylinder: int = CYLINDER) -> dict:
+    effect, expected = (None if v is None else v.format(cyl=cylinder, onset=onset) for v in CASES[case])
     t0 = time.perf_counter()
     log = simulate(folder / f"{engine}-{case}.mcap", engine, RUN[engine], 62, CYCLES, effect)
     analysis = analyze_log(log, engine=str(model))
@@ -72,7 +72,7 @@ def row(folder: Path, engine: str, model: Path, case: str, onset: int = ONSET) -
             "first_sensor_flag": first_any, "first_right_flag": first_right,
             "delay": None if first_right is None else first_right - onset,
             "flags_at_end": sorted(f for f in last.flags if f.startswith("sensor_")),
-            "cylinder_withheld_at_end": CYLINDER in withheld, "withheld_at_end": withheld,
+            "cylinder_withheld_at_end": cylinder in withheld, "withheld_at_end": withheld,
             "engine_status_at_end": status.engine.status if hasattr(status, "engine") else None,
             "flags_before_onset": sorted(early), "other_flags_after_onset": sorted(other), "wall_s": round(time.perf_counter() - t0, 1)}
 
@@ -86,6 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--engine", choices=sorted(COMMISSION), action="append")
     ap.add_argument("--cases", default="tdc,gain,wheel,healthy")
     ap.add_argument("--onset", type=int, default=ONSET, help="first output cycle of the fault (of 900)")
+    ap.add_argument("--cylinder", type=int, default=CYLINDER, help="the faulty cylinder of the tdc and gain cases")
     args = ap.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory(prefix="sensor-drift-") as tmp:
@@ -95,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
             model = folder / f"{engine}-model.toml"
             _quiet(["commission", str(healthy), "-o", str(model)])
             for case in args.cases.split(","):
-                rows.append(row(folder, engine, model, case, args.onset))
+                rows.append(row(folder, engine, model, case, args.onset, args.cylinder))
                 print(json.dumps(rows[-1]), flush=True)
     print(f"\n{'engine':12} {'case':8} {'first flag':>10} {'right flag':>10} {'delay':>6}  {'withheld cyl':>12}  "
           f"{'flags at end':28} {'before onset':14} other flags after onset")

@@ -113,6 +113,49 @@ def test_screen_reads_a_shift_of_the_compression_stroke():
 
 
 
+def test_the_drift_trigger_reads_one_cylinders_step_and_not_a_charge_change():
+    """``own_drift``: window by window, a cylinder's shift against the last window's trace less the median of all
+    cylinders'. A charge pressure 5 % up on every cylinder (a load change: read as a shift by a fit without a scale
+    column, alike on all) moves no cylinder's drift; one cylinder's 0.5 deg step, half of it in each of two windows,
+    sums to 0.5 deg on that cylinder (within 0.03 deg: the fit's first-order expansion) and stays within 0.01 deg on
+    the others; the twist's change is added back; a fit clears a cylinder's sum (``close_window``)."""
+    import dataclasses
+
+    import numpy as np
+    from frictionwatch.core.model.engine import load_engine
+    from frictionwatch.core.monitor.calibration.tdc import volume_and_derivative
+    from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState, own_drift
+
+    spec = load_engine("genset-v20")
+    z = spec.n_cyl
+    angle = np.radians(np.arange(-180.0, 180.0, 0.5))
+
+    def traces(shifts_deg, scale=1.0):
+        out = np.empty((z, angle.shape[0]))
+        for k in range(z):
+            v, _ = volume_and_derivative(angle - np.radians(shifts_deg[k]), spec)
+            out[k] = scale * (2e5 + 1e3 * k) * (v.max() / v) ** 1.35  # the cylinders' charges differ a little
+        return out
+
+    no_twist = np.zeros(z)
+    step = np.zeros(z)
+    step[19] = 0.25
+    s0 = dataclasses.replace(TdcWatchState.empty(), window_trace=traces(np.zeros(z)), window_twist=no_twist)
+    charge = own_drift(s0, traces(np.zeros(z), 1.05), no_twist, angle, spec)
+    np.testing.assert_allclose(np.degrees(charge), 0.0, atol=1e-3)
+    d1 = own_drift(s0, traces(step, 1.05), no_twist, angle, spec)
+    s1 = dataclasses.replace(s0, window_trace=traces(step, 1.05), drift=d1)
+    d2 = own_drift(s1, traces(2 * step, 1.05), no_twist, angle, spec)
+    np.testing.assert_allclose(math.degrees(d2[19]), 0.5, atol=0.03)
+    np.testing.assert_allclose(np.degrees(d2[:19]), 0.0, atol=0.01)
+    # the static twist of a loaded throw moved by 0.1 deg between the windows: not a sensor's shift
+    twist = np.zeros(z)
+    twist[3] = math.radians(0.1)
+    moved = traces(np.where(np.arange(z) == 3, -0.1, 0.0))  # the throw ahead by the twist: its TDC reads early
+    np.testing.assert_allclose(np.degrees(own_drift(s0, moved, twist, angle, spec)), 0.0, atol=0.01)
+    # nothing to compare with: no drift read
+    assert np.all(own_drift(TdcWatchState.empty(), traces(step), no_twist, angle, spec) == 0.0)
+
 def test_the_screens_sigma_covers_its_scatter_where_nothing_moved():
     """A screened cylinder's estimate is its last fit moved by the screen's shift, so it carries the shift's standard
     error: over noisy windows of an unmoved cylinder the stated sigma never understates the shifts' scatter (ratio
@@ -222,7 +265,7 @@ def test_local_traces_cut_as_the_reference(engine):
     import numpy as np
     from frictionwatch.core.model.engine import load_engine
     from frictionwatch.core.monitor.calibration.tdc import local_cycles
-    from frictionwatch.core.monitor.calibration.tdc_watch import local_traces
+    from frictionwatch.core.monitor.calibration.tdc_traces import local_traces
 
     spec = load_engine(engine)
     n = 720
@@ -245,7 +288,7 @@ def test_the_watch_cut_takes_what_local_traces_cuts(engine):
 
     import numpy as np
     from frictionwatch.core.model.engine import load_engine
-    from frictionwatch.core.monitor.calibration.tdc_watch import cut_traces, local_traces, trace_cut
+    from frictionwatch.core.monitor.calibration.tdc_traces import cut_traces, local_traces, trace_cut
 
     spec = load_engine(engine)
     for n in (720, 1440):
@@ -308,7 +351,8 @@ def test_a_cycle_keeps_every_field_it_does_not_gather():
                                      tooth_ticks=np.array([0, 1000]), tick_hz=1e5, tooth_angle=np.array([0.0, 4 * np.pi]))
 
     carried = dict(last=(None,) * z, flags=("sensor_tdc_offset",), next_cylinder=2, first_own=np.ones((2, z)),
-                   reference=np.zeros((z, 3)), reference_twist=np.full(z, 0.1), screened=(1,), fitted=(None,) * z)
+                   reference=np.zeros((z, 3)), reference_twist=np.full(z, 0.1), screened=(1,), fitted=(None,) * z,
+                   window_trace=np.zeros((z, 3)), window_twist=np.full(z, 0.1), drift=np.zeros(z))
     state = dataclasses.replace(TdcWatchState.empty(), previous=cycle(7), **carried)
     new = watch_cycle(spec, None, state, cycle(8), np.full(z, 0.01))
     for name, value in carried.items():
@@ -326,7 +370,7 @@ def test_a_trace_cut_fits_the_phases_array_equal_accepts():
     import dataclasses
 
     import numpy as np
-    from frictionwatch.core.monitor.calibration.tdc_watch import trace_cut
+    from frictionwatch.core.monitor.calibration.tdc_traces import trace_cut
 
     phases = np.radians(np.array([0.0, 180.0, 540.0, 360.0]))
     cut = trace_cut(720, phases)

@@ -51,11 +51,11 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.calibration.tdc import BLOCKS, TdcEstimate, tdc_from_pressure
+from frictionwatch.core.monitor.calibration.tdc_traces import TraceCut, add_traces, local_traces, trace_cut
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 from frictionwatch.core.types import Cycle
 
@@ -105,108 +105,14 @@ class TdcWatchState:
     reference_twist: np.ndarray | None = None  # (z,) the window's mean twist then [rad]
     screened: tuple[int, ...] = ()  # cylinders the newest window fitted out of turn (0-based), for the record
     fitted: tuple[TdcEstimate | None, ...] | None = None  # each cylinder's newest fit (``last``: moved by the screen)
+    window_trace: np.ndarray | None = None  # (z, n_local) the last window's mean traces, for ``window_shift``
+    window_twist: np.ndarray | None = None  # (z,) its mean twist [rad]
+    drift: np.ndarray | None = None  # (z,) each cylinder's own shift summed window by window since its last fit [rad]
     cut: TraceCut | None = None  # where each cylinder's local trace lies in two cycles' pressure (``trace_cut``)
 
     @staticmethod
     def empty() -> TdcWatchState:
         return TdcWatchState(None, np.zeros(BLOCKS), 0, None, None, (), 0.0, 0.0)
-
-
-@dataclass(frozen=True)
-class TraceCut:
-    """Where ``local_traces`` takes each cylinder's trace from for an n-sample grid and the firing phases (z,) [rad]:
-    the flat positions in the previous cycle's pressure (z*n,) and the trace positions (z*n_local,) they go to
-    (``from_prev``, ``to_prev``), the same for the current cycle (``from_cur``, ``to_cur``), the local angle
-    (n_local,) [rad]. Made once per grid (``trace_cut``), it replaces the joining of both cycles' whole pressure on
-    every cycle (17 us per k9k cycle, 57 us per genset-v20 one, against 3 and 10 for the take)."""
-
-    n: int
-    phases: np.ndarray
-    from_prev: np.ndarray
-    to_prev: np.ndarray
-    from_cur: np.ndarray
-    to_cur: np.ndarray
-    angle: np.ndarray
-
-    def fits(self, n: int, phases: np.ndarray) -> bool:
-        # np.array_equal's answer (NaN unequal, shapes compared) from the phases as lists: ~0.6 against ~5.8 us a
-        # call, asked every cycle (0.6 % of a k9k cycle in py-spy; design note 37)
-        return self.n == n and np.asarray(phases).tolist() == self.phases.tolist()
-
-
-def trace_cut(n: int, phases: np.ndarray, half_width_rad: float = math.pi) -> TraceCut:
-    """The take indices of ``local_traces`` (its cut, as indices into the two cycles apart, not their join)."""
-    ph = np.array(phases, dtype=np.float64)
-    step = 4.0 * math.pi / n
-    half = int(round(half_width_rad / step))
-    centre = np.rint(np.mod(ph, 4.0 * math.pi) / step).astype(np.int64) % n
-    centre = np.where(centre + half > n, centre - n, centre)
-    idx = (n + centre - half)[:, None] + np.arange(2 * half)[None, :]  # into the join (z, 2n), as local_traces
-    in_cur = idx >= n
-    flat = np.arange(ph.shape[0])[:, None] * n + idx - n  # flat position in the current cycle's (z, n)
-    return TraceCut(n, ph, (flat + n)[~in_cur], np.flatnonzero(~in_cur), flat[in_cur], np.flatnonzero(in_cur),
-                    step * np.arange(-half, half))
-
-
-def cut_traces(prev: Cycle, cycle: Cycle, cut: TraceCut) -> np.ndarray:
-    """``local_traces(prev, cycle, cut.phases)[0]`` by ``cut``'s take indices (tested equal to it)."""
-    z = cut.phases.shape[0]
-    out = np.empty(z * cut.angle.shape[0])
-    out[cut.to_prev] = np.asarray(prev.pressure, dtype=np.float64).reshape(-1)[cut.from_prev]
-    out[cut.to_cur] = np.asarray(cycle.pressure, dtype=np.float64).reshape(-1)[cut.from_cur]
-    return out.reshape(z, -1)
-
-
-def add_traces(block: np.ndarray, prev: Cycle, cycle: Cycle, cut: TraceCut) -> np.ndarray | None:
-    """``block + cut_traces(prev, cycle, cut)`` (z, n_local), a new array, or None when a sample of the traces is not
-    finite (the pair is then left out): the watch's per-cycle step as one kernel (``_add_traces_kernel``: one pass,
-    one array, where the take, the finiteness test and the sum were three passes and two arrays; its numpy reference
-    ``add_traces_reference``, tested equal)."""
-    out = np.empty(block.shape)
-    ok = _add_traces_kernel(np.ascontiguousarray(block, dtype=np.float64).reshape(-1),
-                            np.ascontiguousarray(prev.pressure, dtype=np.float64).reshape(-1),
-                            np.ascontiguousarray(cycle.pressure, dtype=np.float64).reshape(-1),
-                            cut.from_prev, cut.to_prev, cut.from_cur, cut.to_cur, out.reshape(-1))
-    return out if ok else None
-
-
-def add_traces_reference(block: np.ndarray, prev: Cycle, cycle: Cycle, cut: TraceCut) -> np.ndarray | None:
-    """``add_traces`` in plain numpy (its reference)."""
-    traces = cut_traces(prev, cycle, cut)
-    return block + traces if np.all(np.isfinite(traces)) else None
-
-
-@numba.njit(cache=True)
-def _add_traces_kernel(block, prev, cur, from_prev, to_prev, from_cur, to_cur, out):
-    """out[to] = block[to] + pressure[from] for the previous and the current cycle's flat pressure (z*n,); False if a
-    taken sample is not finite (out is then incomplete)."""
-    for i in range(to_prev.shape[0]):
-        v = prev[from_prev[i]]
-        if not math.isfinite(v):
-            return False
-        out[to_prev[i]] = block[to_prev[i]] + v
-    for i in range(to_cur.shape[0]):
-        v = cur[from_cur[i]]
-        if not math.isfinite(v):
-            return False
-        out[to_cur[i]] = block[to_cur[i]] + v
-    return True
-
-
-def local_traces(prev: Cycle, cycle: Cycle, phases: np.ndarray,
-                 half_width_rad: float = math.pi) -> tuple[np.ndarray, np.ndarray]:
-    """(traces (z, n_local), local angle (n_local,)): every cylinder's pressure about its firing TDC from two
-    consecutive cycles, as core.monitor.calibration.tdc.local_cycles cuts one (its numpy reference, tested equal),
-    all cylinders in one indexing instead of one concatenation each (0.75 ms per genset-v20 cycle)."""
-    n = cycle.grid.shape[0]
-    step = 4.0 * math.pi / n
-    half = int(round(half_width_rad / step))
-    centre = np.rint(np.mod(np.asarray(phases, dtype=np.float64), 4.0 * math.pi) / step).astype(np.int64) % n
-    centre = np.where(centre + half > n, centre - n, centre)
-    joined = np.concatenate([np.asarray(prev.pressure, dtype=np.float64), np.asarray(cycle.pressure, dtype=np.float64)],
-                            axis=1)
-    idx = (n + centre - half)[:, None] + np.arange(2 * half)[None, :]
-    return np.take_along_axis(joined, idx, axis=1), step * np.arange(-half, half)
 
 
 def _omega(cycle: Cycle) -> float:
@@ -287,13 +193,14 @@ def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle
     moved = np.zeros(z)  # each unfitted cylinder's shift since its last fit [rad] (the screen's; 0: none read)
     moved_sigma = np.zeros(z)  # and its 1 sigma [rad]
     ref, ref_twist = state.reference, state.reference_twist
+    drift = own_drift(state, mean_trace, twist_mean, angle, spec) if z > per_window else np.zeros(z)
     if z > per_window and ref is not None and ref.shape == mean_trace.shape and ref_twist is not None:
         for k in range(z):
             if k in turn or not np.all(np.isfinite(ref[k])):
                 continue
             shift, shift_sigma = screen_shift(ref[k], mean_trace[k], angle, spec)
             shift += float(twist_mean[k] - ref_twist[k])
-            if abs(shift) > math.radians(SCREEN_DEG):
+            if abs(shift) > math.radians(SCREEN_DEG) or abs(drift[k]) > math.radians(SCREEN_DEG):
                 screened.append(k)
             elif math.isfinite(shift):
                 moved[k], moved_sigma[k] = shift, shift_sigma if math.isfinite(shift_sigma) else 0.0
@@ -311,7 +218,7 @@ def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle
     ref, ref_twist = ref.copy(), np.array(ref_twist, dtype=np.float64)
     fitted = list(state.fitted) if state.fitted is not None else [None] * z
     for k in turn + screened:
-        ref[k], ref_twist[k] = mean_trace[k], float(twist_mean[k])
+        ref[k], ref_twist[k], drift[k] = mean_trace[k], float(twist_mean[k]), 0.0
         try:
             e = tdc_from_pressure(means[:, k, :], angle, spec, omega / n)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError):
@@ -330,7 +237,8 @@ def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle
         new = ~np.isfinite(first[0]) & np.isfinite(now[0])
         first[:, new] = now[:, new]
     return TdcWatchState(None, np.zeros(BLOCKS), 0, cycle, tuple(estimates), tdc_flags(cal, estimates, first), 0.0,
-                         0.0, nxt, first, ref, ref_twist, tuple(screened), tuple(fitted), state.cut)
+                         0.0, nxt, first, ref, ref_twist, tuple(screened), tuple(fitted), mean_trace,
+                         np.array(twist_mean, dtype=np.float64), drift, state.cut)
 
 
 def moved_by(fit: TdcEstimate, shift: float, sigma: float) -> TdcEstimate:
@@ -391,6 +299,46 @@ def screen_shift(reference: np.ndarray, trace: np.ndarray, angle: np.ndarray, sp
     return -c / a, float(np.sqrt(max(float(g @ cov @ g), 0.0)))
 
 
+def own_drift(state: TdcWatchState, mean_trace: np.ndarray, twist_mean: np.ndarray, angle: np.ndarray,
+              spec: EngineSpec) -> np.ndarray:
+    """(z,) each cylinder's own shift since its last fit [rad], summed window by window: ``state.drift`` plus this
+    window's ``window_shift`` against the last window's trace (the twist's change added back) less the median of all
+    cylinders' (their common part: a wheel step, and a charge-pressure change, which this fit without a scale column
+    reads as a shift alike on every cylinder). A second trigger of the screen beside ``screen_shift``, whose scale
+    column leaves a shift and a scale nearly collinear over the compression stroke and read a single cylinder's step
+    short (genset-v20, cylinder 20's 0.5 deg: 0.14 and 0.17 deg; this fit read 0.500 and 0.492 there and 0.005 deg
+    rms where nothing moved; design note 49). Zeros where there is no last window or too few cylinders read."""
+    z = mean_trace.shape[0]
+    drift = np.zeros(z) if state.drift is None or state.drift.shape != (z,) else state.drift.copy()
+    prev, prev_twist = state.window_trace, state.window_twist
+    if prev is None or prev.shape != mean_trace.shape or prev_twist is None:
+        return drift
+    step = np.array([window_shift(prev[k], mean_trace[k], angle, spec) for k in range(z)])
+    step += twist_mean - prev_twist
+    ok = np.isfinite(step)
+    if np.count_nonzero(ok) < 3:
+        return drift
+    return drift + np.where(ok, step - np.median(step[ok]), 0.0)
+
+
+def window_shift(previous: np.ndarray, trace: np.ndarray, angle: np.ndarray, spec: EngineSpec) -> float:
+    """The angle [rad] by which ``trace`` lies later than ``previous`` (one cylinder's mean pressure on the local grid
+    ``angle``) over ``screen_shift``'s stretch: least squares of trace - previous = b + c previous', shift -c (b: a
+    pegging). No scale column: a change of the charge pressure reads as a shift (``own_drift`` takes the cylinders'
+    common part out). NaN where the stretch is too short."""
+    deg = np.degrees(angle)
+    hi = min(spec.combustion.start_deg - SCREEN_BEFORE_SOC_DEG, -SCREEN_BEFORE_SOC_DEG)
+    sel = (deg >= max(SCREEN_FROM_DEG, spec.combustion.ivc_deg)) & (deg <= hi)
+    if np.count_nonzero(sel) < 8:
+        return math.nan
+    d_prev = np.gradient(previous, angle)[sel]
+    if not (np.all(np.isfinite(d_prev)) and np.all(np.isfinite(trace[sel])) and np.all(np.isfinite(previous[sel]))):
+        return math.nan
+    cols = np.column_stack([np.ones(d_prev.shape[0]), d_prev])
+    coef, *_ = np.linalg.lstsq(cols, (trace - previous)[sel], rcond=None)
+    return -float(coef[1])
+
+
 def tdc_flags(cal: Calibration, estimates: list[TdcEstimate | None],
               first_own: np.ndarray | None = None) -> tuple[str, ...]:
     """The flags one window's estimates raise against the calibration (module doc); ``first_own`` (2, z): each
@@ -443,5 +391,5 @@ def _change_limit(stat_now: np.ndarray, stat_then: np.ndarray) -> np.ndarray:
                       math.radians(MIN_FLAG_DEG))
 
 
-__all__ = ["SCREEN_DEG", "TdcWatchState", "TraceCut", "WINDOW_CYCLES", "add_traces", "close_window", "cut_traces", "local_traces", "own_offsets",
-           "moved_by", "screen_shift", "tdc_flags", "trace_cut", "watch_cycle"]
+__all__ = ["SCREEN_DEG", "TdcWatchState", "WINDOW_CYCLES", "close_window", "own_drift", "own_offsets", "moved_by",
+           "screen_shift", "tdc_flags", "watch_cycle", "window_shift"]
