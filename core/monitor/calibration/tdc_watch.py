@@ -37,7 +37,10 @@ every estimate refers to the newest window (a wheel slipping mid-window, half of
 cylinders and not others: the stale ones beside the fresh read as own offsets, genset-v20 cylinder 15 flagged).
 The screen costs a small least-squares solve per cylinder; a screen that fires costs a fit, never a flag. Where
 the screens of most cylinders fire at once (the wheel moved), every cylinder is fitted: a screen is a trigger, and
-reads a shift short.
+reads a shift short (its scale column and the shift are nearly collinear over the compression stroke). A second
+trigger (``own_drift``) sums each cylinder's shift against the last window's trace, without a scale column, less
+the median of all cylinders' (a load change's charge pressure reads as a shift alike on every cylinder), from its
+last fit on: one cylinder's step fires it in the window it shows in.
 
 The static twist of the drive train (the monitor's model of it, MonitorState.static) puts a loaded throw ahead of the
 flywheel the pressure is sampled against: its thermodynamic TDC reads early by that twist (healthy k9k at full load:
