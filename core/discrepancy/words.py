@@ -20,9 +20,33 @@ def said(e) -> str:
     return f"{e.name} ({inner})" if inner else e.name
 
 
+def inside_floor(hg: dict) -> str:
+    """A speed gap far beyond a healthy log's but inside every order's model-error floor (features.healthy_gap), in
+    words: the channel, the orders, its size against the normal scale, and that the model's own error at those orders
+    is an explanation too."""
+    firing = set(hg.get("firing") or ())
+    orders = ", ".join(f"{o:g}" + (" (a firing order)" if o in firing else "") for o in hg["orders"])
+    return (f"flywheel speed at engine order{'s' if len(hg['orders']) > 1 else ''} {orders}: a coherent gap of "
+            f"{hg['speed_gap']:.3g} against the {hg['healthy_gap']:.2g} a healthy log shows at these amplitudes "
+            f"({hg['ratio']:.2g}x), inside the model-error floor there, where the model's own error at "
+            f"{'the firing order' if firing else 'those orders'} could be it as well as a missing effect")
+
+
+def within_floor_separation(hg: dict) -> str:
+    """The measurement that tells the model's own error at the orders of ``hg`` (features.healthy_gap) from a
+    missing effect."""
+    what = "the firing order" if hg.get("firing") else "those orders"
+    return (f"another load or speed (the model's error at {what} follows the engine's own amplitude there, a missing "
+            "effect its own law), or a motored stretch (no combustion: an error of the firing torque goes, a friction "
+            "or a load ripple stays)")
+
+
 def signature(rest: dict) -> str:
     """What remains, in words: the significant engine orders and / or the torque balance residual; a balance residual
-    alone, what it is in friction and in load and what would tell them apart."""
+    alone, what it is in friction and in load and what would tell them apart; a speed gap inside the model-error
+    floor (``inside_floor``), its orders and size against a healthy log's and what would tell."""
+    if rest.get("inside_floor"):
+        return f"{inside_floor(rest['inside_floor'])}; {within_floor_separation(rest['inside_floor'])} would tell"
     parts = [f"engine orders {orders_text(rest['engine_orders'])}"] if rest["engine_orders"] else []
     if rest["balance_nm"] is not None:
         parts.append(f"torque balance {rest['balance_nm']:+.3g} N m")
@@ -56,4 +80,4 @@ def orders_text(orders) -> str:
     return ", ".join(f"{o:g}" for o in orders) if orders else "none"
 
 
-__all__ = ["balance_only", "orders_text", "said", "signature"]
+__all__ = ["balance_only", "inside_floor", "orders_text", "said", "signature", "within_floor_separation"]
