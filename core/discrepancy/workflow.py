@@ -59,6 +59,7 @@ from frictionwatch.core.discrepancy.features import (
     noise_scale,
 )
 from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, polish, refine, with_fit
+from frictionwatch.core.discrepancy.pair import tdc_and_friction
 from frictionwatch.core.discrepancy.pressure_channel import (
     pressure_findings,
     pressure_seeds,
@@ -150,6 +151,7 @@ class Discovery:
     # discrepancy, said in the verdict and never reported as an ambiguity (design note 39)
     within_null_fits: list = field(default_factory=list)
     held: list = field(default_factory=list)  # the TDC offsets the pressure named: their sigma enters later fits'
+    pair_not_taken: str = ""  # why a TDC the pressure read beside a rival was not added (pair.tdc_and_friction)
 
     @property
     def remainder(self) -> dict | None:
@@ -265,7 +267,7 @@ class Discovery:
                 "refused": self.refused, "step_limit_reached": self.step_limit_reached,
                 "one_operating_point": self.one_operating_point,
                 "localisation": self.localisation, "final": self.final, "not_significant": self.rejected,
-                "not_physical": self.dropped,
+                "not_physical": self.dropped, "pair_not_taken": self.pair_not_taken,
                 "monitor_runs": self.evaluations}
 
 
@@ -377,7 +379,15 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             if len(other.candidate.names) < len(t.candidate.names):  # as good and simpler: the simpler one
                 _, t, new_model, res = confirmed[1]
             other = None
-        if other is not None:  # two explanations within the noise: say both, add neither
+        if other is not None:  # two explanations: a TDC the pressure reads beside one of them (pair.py), or neither
+            pair, spent, found.pair_not_taken = tdc_and_friction(
+                current, cur_res, [(c[1], c[3]) for c in confirmed[:2]], full, parts, scale, floor, pressure,
+                load_nm, opt.min_delta_chi2, significant)
+            runs += spent
+            if pair is not None:
+                current, test, cur_res = _add_pair(found, pair, test, scale, parts, model.spec)
+                found.step_limit_reached = step == opt.max_steps - 1
+                continue
             _said_ambiguous(found, beyond, [said_where(c.candidate, model.spec.n_cyl) for c in (t, other)],
                             [c.separated_by for c in (t.candidate, other.candidate)], inside)
             break
@@ -413,6 +423,23 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     found.final = localise(test, model.spec, scale)
     found.evaluations = runs
     return found
+
+
+def _add_pair(found: Discovery, pair, test: Residuals, scale: np.ndarray, parts, spec) -> tuple:
+    """Add a pair (pair.tdc_and_friction) as two steps: the TDC as the pressure read it (held: its sigma enters
+    later fits'), the friction refitted on top of it. Returns the model, its held-out part and its run."""
+    tdc_test, pair_test = parts(pair.tdc_res)[1], parts(pair.res)[1]
+    found.held.append(pair.tdc)
+    found.steps.append(Step(None, pair.tdc_model.effects[-1], gap(test, scale), gap(tdc_test, scale),
+                            _chi2(test, scale), _chi2(tdc_test, scale), None, localise(test, spec, scale),
+                            localise(tdc_test, spec, scale), (), (pair.tdc.reading,)))
+    added = pair.model.effects[-len(pair.trial.candidate.names):]
+    found.steps.append(Step(pair.trial, added[0], gap(tdc_test, scale), gap(pair_test, scale), _chi2(tdc_test, scale),
+                            _chi2(pair_test, scale), None, localise(tdc_test, spec, scale),
+                            localise(pair_test, spec, scale), added[1:]))
+    found.curves.append((f"+ {found.steps[-2].label} + {pair.trial.candidate.label}", pair_test.angles,
+                         pair_test.speed.mean(axis=0)))
+    return pair.model, pair_test, pair.res
 
 
 def _said_ambiguous(found: Discovery, beyond: bool, candidates: list[str], separated_by: list[str],
