@@ -80,4 +80,55 @@ def orders_text(orders) -> str:
     return ", ".join(f"{o:g}" for o in orders) if orders else "none"
 
 
-__all__ = ["balance_only", "inside_floor", "orders_text", "said", "signature", "within_floor_separation"]
+def verdict(d) -> str:
+    """The discrepancy workflow's verdict in one sentence for the top of the report, from a
+    core.discrepancy.workflow.Discovery ``d``: what was named, what remains (its signature), an ambiguity and what would
+    tell, what was refused, the step limit."""
+    named = ", ".join(said(e) for s in d.steps for e in s.effects)
+    rest = d.remainder
+    if d.steps:
+        text = f"Found {named}"
+        if rest is not None:
+            text += "; a discrepancy remains that no candidate explains (" + signature(rest) + ")"
+    elif d.ambiguous:
+        text = "A discrepancy is found that more than one effect explains"
+        if d.ambiguous.get("inside_floor"):
+            text += f" ({inside_floor(d.ambiguous['inside_floor'])})"
+    elif rest is not None:
+        text = "A discrepancy remains that no candidate explains (" + signature(rest) + ")"
+    else:
+        text = "No significant missing effect: the model reproduces the held-out cycles within their noise"
+        inside = d.within_floor
+        if inside:
+            text = ("No missing effect beyond the model's own error: a coherent residual at engine orders "
+                    f"{orders_text(inside)} lies within the model-error floor (features.speed_floor_rpm), not within "
+                    "the noise alone")
+        hg = (d.final or {}).get("healthy_gap")
+        if hg:  # the normal scale beside it (features.healthy_gap)
+            text += (f" (the speed's coherent gap {hg['speed_gap']:.2g}, a healthy log's at these amplitudes "
+                     f"{hg['healthy_gap']:.2g})")
+    if d.within_null_fits:  # fitted within the model's own error: said, not named
+        text += (f"; within that error {' and '.join(d.within_null_fits)} fit as well as each other, which "
+                 "names neither")
+    if not d.steps and not d.ambiguous and d.one_operating_point:
+        text += ("; the log holds one steady speed and load, where a friction law that differs from the model's "
+                 "only elsewhere cannot show: a run across speeds and loads would test the laws")
+    a = d.ambiguous
+    if a and a.get("inside_floor"):  # the model's own error at those orders is one more explanation
+        text += (f"; {', '.join(a['candidates'])} or the model's own error there explain it equally well and none "
+                 "was added" + (f": {'; or '.join(a['separated_by'])} would tell them apart"
+                                if a["separated_by"] else ""))
+    elif a and len(a["candidates"]) == 1:  # one effect, its cylinder not told
+        text += (f"; {a['candidates'][0]} explains the rest, but the speed cannot tell which, so it was not "
+                 "added" + (f": {'; or '.join(a['separated_by'])} would tell" if a["separated_by"] else ""))
+    elif a:
+        text += (f"; {' and '.join(a['candidates'])} explain the rest equally well and neither was added"
+                 + (f": {'; or '.join(a['separated_by'])} would tell them apart" if a["separated_by"] else ""))
+    if d.refused:
+        text += f"; {len(d.refused)} significant candidate(s) refused (see refused)"
+    if d.step_limit_reached:
+        text += f"; the step limit ({len(d.steps)}) was reached, more may be missing"
+    return text + "."
+
+
+__all__ = ["balance_only", "inside_floor", "orders_text", "said", "signature", "verdict", "within_floor_separation"]

@@ -68,7 +68,7 @@ from frictionwatch.core.discrepancy.pressure_channel import (
 )
 from frictionwatch.core.discrepancy.pressure_tdc import moved_by_sigma, refined_by_speed, with_findings
 from frictionwatch.core.discrepancy.residuals import Residuals, mean_load, pinned_config, run_model
-from frictionwatch.core.discrepancy.words import inside_floor, orders_text, said, signature, within_floor_separation
+from frictionwatch.core.discrepancy.words import verdict, within_floor_separation
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.view import reference
 from frictionwatch.core.monitor.state import MonitorConfig
@@ -195,52 +195,8 @@ class Discovery:
         return "unexplained" if self.remainder is not None else "nothing"
 
     def verdict(self) -> str:
-        """One sentence for the top of the report."""
-        named = ", ".join(said(e) for s in self.steps for e in s.effects)
-        rest = self.remainder
-        if self.steps:
-            text = f"Found {named}"
-            if rest is not None:
-                text += "; a discrepancy remains that no candidate explains (" + signature(rest) + ")"
-        elif self.ambiguous:
-            text = "A discrepancy is found that more than one effect explains"
-            if self.ambiguous.get("inside_floor"):
-                text += f" ({inside_floor(self.ambiguous['inside_floor'])})"
-        elif rest is not None:
-            text = "A discrepancy remains that no candidate explains (" + signature(rest) + ")"
-        else:
-            text = "No significant missing effect: the model reproduces the held-out cycles within their noise"
-            inside = self.within_floor
-            if inside:
-                text = ("No missing effect beyond the model's own error: a coherent residual at engine orders "
-                        f"{orders_text(inside)} lies within the model-error floor (features.speed_floor_rpm), not within "
-                        "the noise alone")
-            hg = (self.final or {}).get("healthy_gap")
-            if hg:  # the normal scale beside it (features.healthy_gap)
-                text += (f" (the speed's coherent gap {hg['speed_gap']:.2g}, a healthy log's at these amplitudes "
-                         f"{hg['healthy_gap']:.2g})")
-        if self.within_null_fits:  # fitted within the model's own error: said, not named
-            text += (f"; within that error {' and '.join(self.within_null_fits)} fit as well as each other, which "
-                     "names neither")
-        if not self.steps and not self.ambiguous and self.one_operating_point:
-            text += ("; the log holds one steady speed and load, where a friction law that differs from the model's "
-                     "only elsewhere cannot show: a run across speeds and loads would test the laws")
-        a = self.ambiguous
-        if a and a.get("inside_floor"):  # the model's own error at those orders is one more explanation
-            text += (f"; {', '.join(a['candidates'])} or the model's own error there explain it equally well and none "
-                     "was added" + (f": {'; or '.join(a['separated_by'])} would tell them apart"
-                                    if a["separated_by"] else ""))
-        elif a and len(a["candidates"]) == 1:  # one effect, its cylinder not told
-            text += (f"; {a['candidates'][0]} explains the rest, but the speed cannot tell which, so it was not "
-                     "added" + (f": {'; or '.join(a['separated_by'])} would tell" if a["separated_by"] else ""))
-        elif a:
-            text += (f"; {' and '.join(a['candidates'])} explain the rest equally well and neither was added"
-                     + (f": {'; or '.join(a['separated_by'])} would tell them apart" if a["separated_by"] else ""))
-        if self.refused:
-            text += f"; {len(self.refused)} significant candidate(s) refused (see refused)"
-        if self.step_limit_reached:
-            text += f"; the step limit ({len(self.steps)}) was reached, more may be missing"
-        return text + "."
+        """One sentence for the top of the report (words.verdict)."""
+        return verdict(self)
 
     def to_json(self) -> dict:
         found = []
