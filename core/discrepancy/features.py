@@ -108,7 +108,8 @@ def healthy_gap(res: Residuals, scale: np.ndarray) -> dict:
     it is a discrepancy even where every order lies inside its floor (deutz 3000 rpm seed 2, a 5 % load ripple at
     order 0.5, the single cylinder's firing order: gap 20.7 against 4.2 here, the healthy log's 2.7). ``orders``:
     the engine orders that carry it, each whose own coherent amplitude (whitened) exceeds the whole healthy gap (else
-    the largest); ``firing``: which of them are firing orders (multiples of n_cyl / 2), where the floor is widest."""
+    the largest). ``localise`` adds ``firing``: which of them are firing orders (multiples of n_cyl / 2), where the
+    floor is widest."""
     m = res.harmonics.shape[1]
     terms = coherent_terms(res, scale)[:2 * m]
     per_order = np.maximum(terms[:m] + terms[m:], 0.0)
