@@ -2,6 +2,8 @@
 (core.discrepancy.features.NULL_FLOOR) puts "significant" (issue 27 item 1). Not run by the test suite.
 
     python -m bench.discrepancy_null --tune        # the tuning logs: the largest significant healthy residual
+    python -m bench.discrepancy_null --tune-gap    # the tuning logs: the largest healthy speed gap over the
+                                                   # healthy gap at its amplitudes (GAP_NULL alone)
     python -m bench.discrepancy_null               # validation: healthy logs the floor was not tuned on, and
                                                    # logs with a hidden effect (the floor must not hide them)
 
@@ -33,6 +35,7 @@ from frictionwatch.core.discrepancy.features import (  # noqa: E402
     SIGNIFICANT,
     coherent_terms,
     feature_floor,
+    healthy_gap,
     localise,
     noise_scale,
 )
@@ -87,15 +90,18 @@ def one(label: str, engine: str, rpm: float, load: float, seed: int, effects=())
               for i, o in enumerate(loc["orders"]) if o["amplitude_rpm"] > SIGNIFICANT * o["sigma_rpm"]]
     bal = loc["balance"]
     friction = abs(loc["friction"]["mean_nm"]) if loc["friction"] else float("nan")
+    hg = healthy_gap(test, scale)
     print(f"{label:44s} largest harmonic {largest:8.2f} rpm; beyond 4 sigma (of largest, of own): "
           + (", ".join(f"{o:g} ({f:.4f}, {g:.4f})" for o, f, g, _ in beyond) or "none")
           + f"; significant with the floor: {', '.join(f'{o:g}' for o in loc['significant_orders']) or 'none'}"
           + f"; balance {bal['mean_nm']:+.3f} +- {bal['sigma_nm']:.3f} N m{' SIGNIFICANT' if bal['significant'] else ''}"
-          + f" ({abs(bal['mean_nm']) / friction:.4f} of the friction {friction:.2f} N m)",
+          + f" ({abs(bal['mean_nm']) / friction:.4f} of the friction {friction:.2f} N m)"
+          + f"; speed gap {hg['speed_gap']:.3g} against the healthy {hg['healthy_gap']:.3g} at its amplitudes "
+            f"({hg['ratio']:.3g}x{', BEYOND GAP_NULL' if hg['beyond'] else ''}; orders {hg['orders']})",
           flush=True)
     return (max((f for _, f, _, small in beyond if small), default=0.0),
             max((g for _, _, g, small in beyond if not small), default=0.0), abs(bal["mean_nm"]) / friction,
-            float(np.mean(power[:-1])), float(power[-1]))
+            float(np.mean(power[:-1])), float(power[-1]), hg["ratio"])
 
 
 def tuned_records(small: float, big: float, bal: float, speed_rms: float, bal_rms: float) -> dict[str, Tuned]:
@@ -117,12 +123,32 @@ def tuned_records(small: float, big: float, bal: float, speed_rms: float, bal_rm
     return {name: Tuned(round_up(value), by, on, text, day) for name, (value, text) in figures.items()}
 
 
+def gap_record(ratio: float) -> dict[str, Tuned]:
+    """GAP_NULL (core.discrepancy.features.healthy_gap) with its provenance: the largest healthy ratio on TUNE x
+    MARGIN, rounded up."""
+    on = tuple(f"{e} {r:g} rpm {ld:g} seed {s}" for e, r, ld, s in TUNE)
+    text = (f"the largest healthy held-out speed gap over the healthy gap at its amplitudes (features.healthy_gap): "
+            f"{ratio:.3f}, x {MARGIN:g}, rounded up")
+    return {"GAP_NULL": Tuned(round_up(MARGIN * ratio), "python -m bench.discrepancy_null --tune-gap --write", on,
+                              text, date.today().isoformat())}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--tune", action="store_true", help="the tuning logs only")
     ap.add_argument("--write", action="store_true", help="with --tune: write the tuned numbers and their provenance "
                                                          "into core/discrepancy/tuned.json")
+    ap.add_argument("--tune-gap", action="store_true", help="the tuning logs only, GAP_NULL alone (with --write: "
+                                                             "only it is written)")
     args = ap.parse_args()
+    if args.tune_gap:
+        ratio = max(one(f"tune {e} {r:g} rpm {ld:g} seed {s}", e, r, ld, s)[5] for e, r, ld, s in TUNE)
+        print(f"largest healthy speed gap over the healthy gap at its amplitudes: {ratio:.3f} -> GAP_NULL "
+              f"{MARGIN * ratio:.3f} (margin {MARGIN:g})")
+        if args.write:
+            write_tuned(gap_record(ratio))
+            print(f"wrote {TUNED_PATH}")
+        return
     if args.tune:
         worst = [one(f"tune {e} {r:g} rpm {ld:g} seed {s}", e, r, ld, s) for e, r, ld, s in TUNE]
         small, big, bal = (max(w[i] for w in worst) for i in range(3))

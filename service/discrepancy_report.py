@@ -18,6 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from frictionwatch.core.discrepancy import Discovery  # noqa: E402
+from frictionwatch.core.discrepancy.words import inside_floor  # noqa: E402
 from frictionwatch.service.output_files import atomic_path  # noqa: E402
 
 RPM_PER_RAD_S = 30.0 / np.pi
@@ -100,8 +101,16 @@ def render(doc: dict, found: Discovery) -> str:
                      f" largest in the windows of cylinder(s) {', '.join(str(c) for c in rest['cylinder_windows'])}"
                      + (f", torque balance {rest['balance_nm']:+.3g} N·m" if rest["balance_nm"] is not None else "")
                      + ".</p>")
+    for part in (rest, doc.get("ambiguous")):  # a speed gap far beyond a healthy log's, inside the floor (note 48)
+        if part and part.get("inside_floor"):
+            parts.append(f"<p>Inside the model-error floor: {html.escape(inside_floor(part['inside_floor']))}.</p>")
     amb = doc.get("ambiguous")
-    if amb and len(amb["candidates"]) == 1:  # one effect the speed cannot place in a cylinder
+    if amb and amb.get("inside_floor"):
+        parts.append(f"<p>Ambiguous: {html.escape(', '.join(amb['candidates']))} or the model's own error there "
+                     "explain the held-out cycles equally well; none was added. " + html.escape(
+                         "; or ".join(amb["separated_by"]) + " would tell them apart." if amb["separated_by"] else "")
+                     + "</p>")
+    elif amb and len(amb["candidates"]) == 1:  # one effect the speed cannot place in a cylinder
         parts.append(f"<p>Ambiguous: {html.escape(amb['candidates'][0])} explains the held-out cycles, but the speed "
                      "cannot tell which cylinder; it was not added. " + html.escape(
                          "; or ".join(amb["separated_by"]) + " would tell." if amb["separated_by"] else "")

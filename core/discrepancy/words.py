@@ -20,9 +20,33 @@ def said(e) -> str:
     return f"{e.name} ({inner})" if inner else e.name
 
 
+def inside_floor(hg: dict) -> str:
+    """A speed gap far beyond a healthy log's but inside every order's model-error floor (features.healthy_gap), in
+    words: the channel, the orders, its size against the normal scale, and that the model's own error at those orders
+    is an explanation too."""
+    firing = set(hg.get("firing") or ())
+    orders = ", ".join(f"{o:g}" + (" (a firing order)" if o in firing else "") for o in hg["orders"])
+    return (f"flywheel speed at engine order{'s' if len(hg['orders']) > 1 else ''} {orders}: a coherent gap of "
+            f"{hg['speed_gap']:.3g} against the {hg['healthy_gap']:.2g} a healthy log shows at these amplitudes "
+            f"({hg['ratio']:.2g}x), inside the model-error floor there, where the model's own error at "
+            f"{'the firing order' if firing else 'those orders'} could be it as well as a missing effect")
+
+
+def within_floor_separation(hg: dict) -> str:
+    """The measurement that tells the model's own error at the orders of ``hg`` (features.healthy_gap) from a
+    missing effect."""
+    what = "the firing order" if hg.get("firing") else "those orders"
+    return (f"another load or speed (the model's error at {what} follows the engine's own amplitude there, a missing "
+            "effect its own law), or a motored stretch (no combustion: an error of the firing torque goes, a friction "
+            "or a load ripple stays)")
+
+
 def signature(rest: dict) -> str:
     """What remains, in words: the significant engine orders and / or the torque balance residual; a balance residual
-    alone, what it is in friction and in load and what would tell them apart."""
+    alone, what it is in friction and in load and what would tell them apart; a speed gap inside the model-error
+    floor (``inside_floor``), its orders and size against a healthy log's and what would tell."""
+    if rest.get("inside_floor"):
+        return f"{inside_floor(rest['inside_floor'])}; {within_floor_separation(rest['inside_floor'])} would tell"
     parts = [f"engine orders {orders_text(rest['engine_orders'])}"] if rest["engine_orders"] else []
     if rest["balance_nm"] is not None:
         parts.append(f"torque balance {rest['balance_nm']:+.3g} N m")
@@ -56,4 +80,55 @@ def orders_text(orders) -> str:
     return ", ".join(f"{o:g}" for o in orders) if orders else "none"
 
 
-__all__ = ["balance_only", "orders_text", "said", "signature"]
+def verdict(d) -> str:
+    """The discrepancy workflow's verdict in one sentence for the top of the report, from a
+    core.discrepancy.workflow.Discovery ``d``: what was named, what remains (its signature), an ambiguity and what would
+    tell, what was refused, the step limit."""
+    named = ", ".join(said(e) for s in d.steps for e in s.effects)
+    rest = d.remainder
+    if d.steps:
+        text = f"Found {named}"
+        if rest is not None:
+            text += "; a discrepancy remains that no candidate explains (" + signature(rest) + ")"
+    elif d.ambiguous:
+        text = "A discrepancy is found that more than one effect explains"
+        if d.ambiguous.get("inside_floor"):
+            text += f" ({inside_floor(d.ambiguous['inside_floor'])})"
+    elif rest is not None:
+        text = "A discrepancy remains that no candidate explains (" + signature(rest) + ")"
+    else:
+        text = "No significant missing effect: the model reproduces the held-out cycles within their noise"
+        inside = d.within_floor
+        if inside:
+            text = ("No missing effect beyond the model's own error: a coherent residual at engine orders "
+                    f"{orders_text(inside)} lies within the model-error floor (features.speed_floor_rpm), not within "
+                    "the noise alone")
+        hg = (d.final or {}).get("healthy_gap")
+        if hg:  # the normal scale beside it (features.healthy_gap)
+            text += (f" (the speed's coherent gap {hg['speed_gap']:.2g}, a healthy log's at these amplitudes "
+                     f"{hg['healthy_gap']:.2g})")
+    if d.within_null_fits:  # fitted within the model's own error: said, not named
+        text += (f"; within that error {' and '.join(d.within_null_fits)} fit as well as each other, which "
+                 "names neither")
+    if not d.steps and not d.ambiguous and d.one_operating_point:
+        text += ("; the log holds one steady speed and load, where a friction law that differs from the model's "
+                 "only elsewhere cannot show: a run across speeds and loads would test the laws")
+    a = d.ambiguous
+    if a and a.get("inside_floor"):  # the model's own error at those orders is one more explanation
+        text += (f"; {', '.join(a['candidates'])} or the model's own error there explain it equally well and none "
+                 "was added" + (f": {'; or '.join(a['separated_by'])} would tell them apart"
+                                if a["separated_by"] else ""))
+    elif a and len(a["candidates"]) == 1:  # one effect, its cylinder not told
+        text += (f"; {a['candidates'][0]} explains the rest, but the speed cannot tell which, so it was not "
+                 "added" + (f": {'; or '.join(a['separated_by'])} would tell" if a["separated_by"] else ""))
+    elif a:
+        text += (f"; {' and '.join(a['candidates'])} explain the rest equally well and neither was added"
+                 + (f": {'; or '.join(a['separated_by'])} would tell them apart" if a["separated_by"] else ""))
+    if d.refused:
+        text += f"; {len(d.refused)} significant candidate(s) refused (see refused)"
+    if d.step_limit_reached:
+        text += f"; the step limit ({len(d.steps)}) was reached, more may be missing"
+    return text + "."
+
+
+__all__ = ["balance_only", "inside_floor", "orders_text", "said", "signature", "verdict", "within_floor_separation"]

@@ -50,6 +50,7 @@ from frictionwatch.core.discrepancy.choice import (
 )
 from frictionwatch.core.discrepancy.features import (
     SIGNIFICANT,
+    beyond_healthy_gap,
     beyond_null,
     coherent_terms,
     feature_floor,
@@ -58,6 +59,7 @@ from frictionwatch.core.discrepancy.features import (
     noise_scale,
 )
 from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, polish, refine, with_fit
+from frictionwatch.core.discrepancy.pair import tdc_and_friction
 from frictionwatch.core.discrepancy.pressure_channel import (
     pressure_findings,
     pressure_seeds,
@@ -66,7 +68,7 @@ from frictionwatch.core.discrepancy.pressure_channel import (
 )
 from frictionwatch.core.discrepancy.pressure_tdc import moved_by_sigma, refined_by_speed, with_findings
 from frictionwatch.core.discrepancy.residuals import Residuals, mean_load, pinned_config, run_model
-from frictionwatch.core.discrepancy.words import orders_text, said, signature
+from frictionwatch.core.discrepancy.words import verdict, within_floor_separation
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.view import reference
 from frictionwatch.core.monitor.state import MonitorConfig
@@ -149,18 +151,24 @@ class Discovery:
     # discrepancy, said in the verdict and never reported as an ambiguity (design note 39)
     within_null_fits: list = field(default_factory=list)
     held: list = field(default_factory=list)  # the TDC offsets the pressure named: their sigma enters later fits'
+    pair_not_taken: str = ""  # why a TDC the pressure read beside a rival was not added (pair.tdc_and_friction)
 
     @property
     def remainder(self) -> dict | None:
         """The signature of what the final model leaves coherent on the held-out cycles (None: nothing significant)."""
         f = self.final
-        if not f or not beyond_null(f):
+        if not f or not (beyond_null(f) or beyond_healthy_gap(f)):
             return None
         top = sorted(f["cylinders"], key=lambda c: -c["relative"])[:2]
-        return {"engine_orders": f["significant_orders"], "half_order_share": f["half_order_share"],
+        # nothing beyond the null but a speed gap far beyond a healthy log's (features.healthy_gap): its orders, said
+        # as inside the model-error floor (the model's own error there is an explanation too)
+        floor = None if beyond_null(f) else f["healthy_gap"]
+        return {"engine_orders": f["significant_orders"] if floor is None else floor["orders"],
+                "half_order_share": f["half_order_share"],
                 "balance_nm": f["balance"]["mean_nm"] if f["balance"]["significant"] else None,
                 "peak_deg": f["angle"]["peak_deg"], "cylinder_windows": [c["cylinder"] for c in top],
-                "channels": f["channels"], "friction": f.get("friction"), "load_nm": f.get("load_nm")}
+                "channels": f["channels"], "friction": f.get("friction"), "load_nm": f.get("load_nm"),
+                "inside_floor": floor}
 
     @property
     def within_floor(self) -> list[float]:
@@ -187,42 +195,8 @@ class Discovery:
         return "unexplained" if self.remainder is not None else "nothing"
 
     def verdict(self) -> str:
-        """One sentence for the top of the report."""
-        named = ", ".join(said(e) for s in self.steps for e in s.effects)
-        rest = self.remainder
-        if self.steps:
-            text = f"Found {named}"
-            if rest is not None:
-                text += "; a discrepancy remains that no candidate explains (" + signature(rest) + ")"
-        elif self.ambiguous:
-            text = "A discrepancy is found that more than one effect explains"
-        elif rest is not None:
-            text = "A discrepancy remains that no candidate explains (" + signature(rest) + ")"
-        else:
-            text = "No significant missing effect: the model reproduces the held-out cycles within their noise"
-            inside = self.within_floor
-            if inside:
-                text = ("No missing effect beyond the model's own error: a coherent residual at engine orders "
-                        f"{orders_text(inside)} lies within the model-error floor (features.speed_floor_rpm), not within "
-                        "the noise alone")
-        if self.within_null_fits:  # fitted within the model's own error: said, not named
-            text += (f"; within that error {' and '.join(self.within_null_fits)} fit as well as each other, which "
-                     "names neither")
-        if not self.steps and not self.ambiguous and self.one_operating_point:
-            text += ("; the log holds one steady speed and load, where a friction law that differs from the model's "
-                     "only elsewhere cannot show: a run across speeds and loads would test the laws")
-        a = self.ambiguous
-        if a and len(a["candidates"]) == 1:  # one effect, its cylinder not told
-            text += (f"; {a['candidates'][0]} explains the rest, but the speed cannot tell which, so it was not "
-                     "added" + (f": {'; or '.join(a['separated_by'])} would tell" if a["separated_by"] else ""))
-        elif a:
-            text += (f"; {' and '.join(a['candidates'])} explain the rest equally well and neither was added"
-                     + (f": {'; or '.join(a['separated_by'])} would tell them apart" if a["separated_by"] else ""))
-        if self.refused:
-            text += f"; {len(self.refused)} significant candidate(s) refused (see refused)"
-        if self.step_limit_reached:
-            text += f"; the step limit ({len(self.steps)}) was reached, more may be missing"
-        return text + "."
+        """One sentence for the top of the report (words.verdict)."""
+        return verdict(self)
 
     def to_json(self) -> dict:
         found = []
@@ -249,7 +223,7 @@ class Discovery:
                 "refused": self.refused, "step_limit_reached": self.step_limit_reached,
                 "one_operating_point": self.one_operating_point,
                 "localisation": self.localisation, "final": self.final, "not_significant": self.rejected,
-                "not_physical": self.dropped,
+                "not_physical": self.dropped, "pair_not_taken": self.pair_not_taken,
                 "monitor_runs": self.evaluations}
 
 
@@ -296,7 +270,11 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     current, cur_res, test, extra = _pressure_step(found, current, cur_res, test, full, parts, scale, first, held)
     runs += extra
     for step in range(opt.max_steps):
-        beyond = beyond_null(localise(test, model.spec, scale))
+        loc = localise(test, model.spec, scale)
+        beyond = beyond_null(loc)
+        # nothing beyond the null, but a speed gap far beyond a healthy log's at these amplitudes: an ambiguity with
+        # the model's own error at those orders, not a fit of it (``_said_ambiguous``; design note 48)
+        inside = loc["healthy_gap"] if beyond_healthy_gap(loc) else None
         # after a step, nothing beyond the healthy model's own error is left to explain: a further candidate that
         # lowers the plain chi^2 there fits that error (deutz 3000 rpm seed 2: a Stribeck ring added after the right
         # pegging, an extra friction after the right Stribeck ring). Before any step the plain test stands (maruti
@@ -357,9 +335,17 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             if len(other.candidate.names) < len(t.candidate.names):  # as good and simpler: the simpler one
                 _, t, new_model, res = confirmed[1]
             other = None
-        if other is not None:  # two explanations within the noise: say both, add neither
+        if other is not None:  # two explanations: a TDC the pressure reads beside one of them (pair.py), or neither
+            pair, spent, found.pair_not_taken = tdc_and_friction(
+                current, cur_res, [(c[1], c[3]) for c in confirmed[:2]], full, parts, scale, floor, pressure,
+                load_nm, opt.min_delta_chi2, significant)
+            runs += spent
+            if pair is not None:
+                current, test, cur_res = _add_pair(found, pair, test, scale, parts, model.spec)
+                found.step_limit_reached = step == opt.max_steps - 1
+                continue
             _said_ambiguous(found, beyond, [said_where(c.candidate, model.spec.n_cyl) for c in (t, other)],
-                            [c.separated_by for c in (t.candidate, other.candidate)])
+                            [c.separated_by for c in (t.candidate, other.candidate)], inside)
             break
         if significant(res):  # polished only if significant as it stands, and kept only if still significant
             t, new_model, res, extra = polish(t, current, new_model, res, full, lambda r: parts(r)[0], scale, floor,
@@ -369,7 +355,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             found.rejected.update({c[1].candidate.label: c[0] for c in confirmed})
             break
         if not t.candidate.places_cylinder and model.spec.n_cyl > 1:  # explained, but the speed cannot say where
-            _said_ambiguous(found, beyond, [said_where(t.candidate, model.spec.n_cyl)], [t.candidate.separated_by])
+            _said_ambiguous(found, beyond, [said_where(t.candidate, model.spec.n_cyl)], [t.candidate.separated_by],
+                            inside)
             break
         test_new = parts(res)[1]
         why = (channel_worse(test, test_new, scale) or pressure_worse(pressure(current), pressure(new_model),
@@ -394,11 +381,35 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     return found
 
 
-def _said_ambiguous(found: Discovery, beyond: bool, candidates: list[str], separated_by: list[str]) -> None:
+def _add_pair(found: Discovery, pair, test: Residuals, scale: np.ndarray, parts, spec) -> tuple:
+    """Add a pair (pair.tdc_and_friction) as two steps: the TDC as the pressure read it (held: its sigma enters
+    later fits'), the friction refitted on top of it. Returns the model, its held-out part and its run."""
+    tdc_test, pair_test = parts(pair.tdc_res)[1], parts(pair.res)[1]
+    found.held.append(pair.tdc)
+    found.steps.append(Step(None, pair.tdc_model.effects[-1], gap(test, scale), gap(tdc_test, scale),
+                            _chi2(test, scale), _chi2(tdc_test, scale), None, localise(test, spec, scale),
+                            localise(tdc_test, spec, scale), (), (pair.tdc.reading,)))
+    added = pair.model.effects[-len(pair.trial.candidate.names):]
+    found.steps.append(Step(pair.trial, added[0], gap(tdc_test, scale), gap(pair_test, scale), _chi2(tdc_test, scale),
+                            _chi2(pair_test, scale), None, localise(tdc_test, spec, scale),
+                            localise(pair_test, spec, scale), added[1:]))
+    found.curves.append((f"+ {found.steps[-2].label} + {pair.trial.candidate.label}", pair_test.angles,
+                         pair_test.speed.mean(axis=0)))
+    return pair.model, pair_test, pair.res
+
+
+def _said_ambiguous(found: Discovery, beyond: bool, candidates: list[str], separated_by: list[str],
+                    inside: dict | None = None) -> None:
     """Two explanations (or one the speed cannot place) within the noise: an ambiguity where the residual they
-    explain is beyond the null, else only said (``within_null_fits``): nothing there is a discrepancy."""
-    if beyond:
-        found.ambiguous = {"candidates": candidates, "separated_by": list(dict.fromkeys(x for x in separated_by if x))}
+    explain is beyond the null; where it is not, but the speed gap is far beyond a healthy log's (``inside``:
+    features.healthy_gap), an ambiguity with the model's own error at those orders as one more explanation and the
+    measurement that tells a model error from a missing effect; else only said (``within_null_fits``): nothing
+    there is a discrepancy."""
+    if beyond or inside is not None:
+        if inside is not None:
+            separated_by = [within_floor_separation(inside), *separated_by]
+        found.ambiguous = {"candidates": candidates, "separated_by": list(dict.fromkeys(x for x in separated_by if x)),
+                           "inside_floor": inside}
     else:
         found.within_null_fits = candidates
 

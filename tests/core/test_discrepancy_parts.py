@@ -359,3 +359,52 @@ def test_a_sensor_correction_within_what_the_pressure_methods_resolve_is_not_nam
     assert unresolved(trial("stribeck_ring", 0.01, 0.5)) == ""
     assert unresolved(trial("tdc_offset[cyl 2]", 0.05, 0.01)) != ""
     assert unresolved(trial("tdc_offset[cyl 2]", 1.5, 0.02)) == ""
+
+
+def test_a_speed_gap_far_beyond_a_healthy_logs_inside_every_floor_is_a_discrepancy_said_with_its_signature():
+    """features.healthy_gap: the speed gap against the rms model error at the log's amplitudes (FLOOR_RMS of each
+    order's floor). A coherent residual at the firing order at 0.8 of its floor is not beyond the null (no order
+    above its floor) but many times a healthy log's gap: said, with the order, its size against the normal scale
+    and what would tell the model's own error from a missing effect (deutz 3000 rpm seed 2, a load ripple at order
+    0.5, had read "No missing effect"); at 0.05 of its floor it is a healthy log's."""
+    from frictionwatch.core.discrepancy.features import (
+        FLOOR_RMS,
+        GAP_NULL,
+        NULL_FLOOR,
+        NULL_OWN,
+        beyond_healthy_gap,
+        beyond_null,
+        healthy_gap,
+    )
+    from frictionwatch.core.discrepancy.workflow import Discovery
+
+    spec = load_engine("k9k-4cyl")
+    m, n = 8, 400
+    measured = np.full((n, m), 0.05)
+    measured[:, 3] = 10.0  # order 2, k9k's firing order, dominates
+    floor = NULL_OWN * measured[0] + NULL_FLOOR * 10.0  # rad/s
+    normal = FLOOR_RMS[0] * np.sqrt(np.sum(floor**2))  # the rms healthy error, summed as the gap sums (rad/s)
+    for share, beyond in ((0.8, True), (0.05, False)):
+        coherent = np.zeros(m, complex)
+        coherent[3] = share * floor[3]
+        res = dataclasses.replace(made_up(n, m, coherent, 0.0), measured=measured)
+        res = dataclasses.replace(res, harmonics=res.harmonics * 0.01 + (coherent - 0.01 * coherent)[None, :])
+        scale = np.full(2 * m + 1, 0.01 / np.sqrt(2))
+        hg = healthy_gap(res, scale)
+        np.testing.assert_allclose(hg["ratio"], share * floor[3] / normal, rtol=0.05)
+        loc = localise(res, spec, scale)
+        assert not beyond_null(loc) and loc["healthy_gap"]["beyond"] == beyond == (hg["ratio"] > GAP_NULL)
+        assert beyond_healthy_gap(loc) == beyond
+    assert loc["healthy_gap"]["orders"] == [2.0]
+    model = EngineModel.from_spec(spec)
+    final = localise(dataclasses.replace(res, harmonics=res.harmonics * 0 + coherent * 16.0), spec, scale)
+    assert beyond_healthy_gap(final) and final["healthy_gap"]["firing"] == [2.0]
+    doc = Discovery(model, model, [], 20.0, 20.0, final, final).to_json()
+    assert doc["outcome"] == "unexplained" and doc["remainder"]["engine_orders"] == [2.0]
+    for words in ("engine order 2 (a firing order)", "inside the model-error floor", "a motored stretch"):
+        assert words in doc["verdict"]
+    amb = Discovery(model, model, [], 20.0, 20.0, final, final,
+                    ambiguous={"candidates": ["load_ripple[order 2]"], "separated_by": [],
+                               "inside_floor": final["healthy_gap"]}).to_json()
+    assert amb["outcome"] == "ambiguous"
+    assert "load_ripple[order 2] or the model's own error there explain it equally well" in amb["verdict"]
