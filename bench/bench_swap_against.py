@@ -14,7 +14,10 @@ runs pass by pass, base and this alternated (A B, B A, ...), timed by the thread
 each side's median ms per cycle and the median (min-max) of base / this over the pairs, with ``uptime``.
 
 A swapped function must be one the other code looks up where it is set (a module global read at call time, a class
-attribute); a name imported by value elsewhere (``from m import f``) keeps this checkout's there. The figures are
+attribute); a name imported by value elsewhere (``from m import f``) keeps this checkout's there: swap it where it is
+read with ``--swap reader_module:f=defining_module`` (the reader's global ``f`` set to the base's ``f`` of the
+defining module's file; e.g. ``--swap frictionwatch.core.monitor.monitor:transient_balance=
+frictionwatch.core.monitor.identify.identification``). The figures are
 only a comparison if the outcomes are equal: run ``bench_monitor_against --check-only`` first.
 """
 
@@ -50,16 +53,18 @@ def _owner_and_name(root: object, dotted: str) -> tuple[object, str]:
 
 
 def swaps(base: Path, specs: list[str]) -> list[tuple[object, str, object, object]]:
-    """(owner, attribute, base's value, this checkout's value) of each ``module:attr[.attr]``: the base's file of
-    that module (the same path under ``base`` as under this checkout) executed as a module of its own."""
+    """(owner, attribute, base's value, this checkout's value) of each ``module:attr[.attr][=source_module]``: the
+    base's file of the source module (default: that module; the same path under ``base`` as under this checkout)
+    executed as a module of its own, its ``attr`` set in the module's."""
     root = Path(__file__).resolve().parents[1]
     out = []
     for k, spec in enumerate(specs):
         mod_name, _, dotted = spec.partition(":")
+        dotted, _, source = dotted.partition("=")
         if not dotted:
-            raise SystemExit(f"--swap {spec!r}: expected module:attribute")
+            raise SystemExit(f"--swap {spec!r}: expected module:attribute[=source_module]")
         mod = importlib.import_module(mod_name)
-        rel = Path(mod.__file__).resolve().relative_to(root)
+        rel = Path(importlib.import_module(source or mod_name).__file__).resolve().relative_to(root)
         path = base / rel
         if not path.is_file():
             raise SystemExit(f"--swap {spec!r}: no {rel} under {base}")

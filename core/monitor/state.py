@@ -267,8 +267,10 @@ class MidSpeedFit(NamedTuple):
     slope_row: np.ndarray
 
     def fits(self, cycle: Cycle) -> bool:
-        return self.tooth_angle.shape == cycle.tooth_angle.shape and bool(np.array_equal(self.tooth_angle,
-                                                                                         cycle.tooth_angle))
+        # np.array_equal's answer (shapes, then every value; NaN unequal) without its asarray and wrapper calls:
+        # asked every cycle (~0.6 % of a k9k cycle through array_equal, design note 46)
+        mine, theirs = self.tooth_angle, cycle.tooth_angle
+        return mine.shape == theirs.shape and bool((mine == theirs).all())
 
 
 @dataclass(frozen=True)

@@ -90,3 +90,30 @@ def test_library_composes_and_refuses_repeats():
     assert "ring_mixed" in lib.equations(np.arange(float(len(lib))))
     with pytest.raises(ValueError, match="KERNEL_SIGNATURE"):
         LossTerm("plain", "omega", "engine", "-", 0.0, lambda s, c, out: None, aux_quadratic_reference)
+
+
+@pytest.mark.parametrize("engine", ["k9k-4cyl", "genset-v20"])
+def test_vectorised_division_kernels_give_the_default_models_bits(engine):
+    """valve_train and loaded_bearings divide only by sqrt(OMEGA) (floored) and are compiled with numba's numpy error
+    model (design note 46): every sample the very bits of the same function compiled with the default model, on
+    many cylinders at once and on a shaft at rest (OMEGA at its floor), and finite there."""
+    import numba
+    from frictionwatch.core.model import terms
+    from frictionwatch.core.model.jit import BORROWING
+
+    spec = load_engine(engine)
+    consts = spec.friction_params()
+    z = spec.n_cyl
+    angle, omega, p_gauge = random_cycle(spec, 5)
+    omega[::7] = 0.0  # stopped samples: floored to OMEGA_FLOOR by the sample rows
+    one = cylinder_samples(angle, omega, p_gauge, consts)
+    many = np.ascontiguousarray(np.repeat(one[:, None, :], z, axis=1))
+    many[OMEGA] *= np.linspace(0.5, 1.5, z)[:, None]
+    for name in ("valve_train_kernel", "loaded_bearings_kernel"):
+        fast = getattr(terms, name)
+        default = numba.njit(terms.KERNEL_SIGNATURE, **dict(BORROWING, cache=False))(fast.py_func)
+        out_fast, out_default = np.empty(many.shape[1:]), np.empty(many.shape[1:])
+        fast(many, consts, out_fast)
+        default(many, consts, out_default)
+        assert np.all(np.isfinite(out_fast))
+        np.testing.assert_array_equal(out_fast.view(np.int64), out_default.view(np.int64), err_msg=name)

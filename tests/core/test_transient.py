@@ -203,3 +203,27 @@ def test_mid_cycle_speed_from_the_kept_fit_matches_the_lstsq_of_each_cycle(engin
     for c in cycles:
         assert_allclose(mid_cycle_speed(spec, c, fit), mid_cycle_speed_reference(c), rtol=1e-12)
         assert_allclose(mid_cycle_speed(spec, c), mid_cycle_speed_reference(c), rtol=1e-12)
+
+
+def test_the_kept_mid_speed_fit_fits_a_cycle_where_array_equal_says_its_edges_are_equal():
+    """MidSpeedFit.fits compares the edges itself (not through np.array_equal's wrappers, design note 46): the same
+    answer as np.array_equal on equal edges, a copy, one edge moved by one ulp, a NaN edge (NaN unequal, also
+    against itself) and another number of edges."""
+    spec = load_engine("k9k-4cyl")
+    sim = simulate(spec, 3000.0, 0.7, 3, seed=4)
+    cycle = assembled_cycles(spec, sim.info, sim.records)[0][0]
+    fit = mid_speed_fit(cycle)
+    edges = np.array(cycle.tooth_angle, dtype=np.float64)
+    moved = edges.copy()
+    moved[7] = np.nextafter(moved[7], np.inf)
+    with_nan = edges.copy()
+    with_nan[3] = np.nan
+    cases = [edges, edges.copy(), moved, with_nan, edges[:-1], np.concatenate([edges, edges[-1:] + 0.1])]
+    answers = []
+    for angles in cases:
+        other = dataclasses.replace(cycle, tooth_angle=angles)
+        answers.append(fit.fits(other))
+        assert answers[-1] == np.array_equal(fit.tooth_angle, angles)
+    assert answers == [True, True, False, False, False, False]
+    nan_fit = fit._replace(tooth_angle=with_nan)
+    assert not nan_fit.fits(dataclasses.replace(cycle, tooth_angle=with_nan.copy()))

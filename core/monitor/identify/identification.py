@@ -161,8 +161,9 @@ def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indi
                                                     cur, geometry.window_starts, geometry.alone_starts, area)
     accel = (mid_speed**2 - previous.mid_speed**2) / (2.0 * FOUR_PI)
     kinetic = geometry.inertia_mid * accel
-    indicated = float(np.sum(indicated_cycle)) + float(around_tdc1.sum() - alone.sum()) / FOUR_PI
-    imep = (np.asarray(indicated_cycle) * FOUR_PI + own - alone) / spec.displacement_cyl
+    ind = np.asarray(indicated_cycle)
+    indicated = float(ind.sum()) + float(around_tdc1.sum() - alone.sum()) / FOUR_PI  # (np.sum's add.reduce)
+    imep = (ind * FOUR_PI + own - alone) / spec.displacement_cyl
     load_stepped = abs(load - previous.load) > LOAD_STEP_FRACTION * spec.rated_torque_nm
     friction = nan if load_stepped else indicated - load - coupling_loss - kinetic
     return friction, kinetic, accel, indicated, imep
@@ -175,7 +176,7 @@ LOAD_STEP_FRACTION = 0.02  # of the rated torque: a larger load change between t
 
 def raw_rows(a: np.ndarray, y: np.ndarray, inv_sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The raw rows and targets of one cycle's whitened equations (a zero weight, a row not there: zeros)."""
-    scale = np.divide(1.0, inv_sigma, out=np.zeros_like(inv_sigma), where=inv_sigma > 0.0)
+    scale = np.divide(1.0, inv_sigma, out=np.zeros(inv_sigma.shape, inv_sigma.dtype), where=inv_sigma > 0.0)
     return a * scale[:, None], y * scale
 
 
