@@ -17,6 +17,12 @@ speed=1, one engine per --source), then one of two loads:
     .venv/bin/python -m bench.bench_service_plant mix --engines 4 --rate 200 --seconds 60
     .venv/bin/python -m bench.bench_service_plant lag --engines 12 --seconds 60 --cpu 1   # the server on one core
     .venv/bin/python -m bench.bench_service_plant idle --engines 4 --seconds 60 --cpu 1
+    .venv/bin/python -m bench.bench_service_plant same --against ../base --seconds 40 --cpu 1
+
+- ``same``: whether two checkouts' serve store the same numbers (a cut of serve's cost must change none): each
+  checkout serves the four replay logs (looped, as fast as they can be read: nothing dropped) to a --data-dir of
+  its own for ``--seconds`` s after every engine's first result, then SIGTERM; every cycle, estimate, alert and baseline both stored (the cycles
+  the slower one reached) compared, numbers within rtol 1e-12, NaN as NaN, text equal; write times left out.
 
 Minutes of wall time; not part of `make bench` nor the tests. On a shared box quote `uptime` beside the figures.
 """
@@ -176,9 +182,107 @@ def run_lag(args, client: httpx.Client, pid: int, engines: list[str]) -> dict:
             "rss_mb_first_last_max": (rss[0][1], rss[-1][1], max(m for _, m in rss)), "rss_mb_every_5s": rss[::10]}
 
 
+SAME_LOGS = ("demo", "k9k-4cyl", "maruti-3cyl", "deutz-1cyl")
+WRITE_TIMES = {"written_at", "updated_at", "saved_at"}
+
+
+def serve_to(checkout: Path, data_dir: Path, seconds: float, cpu: int | None) -> None:
+    """``checkout``'s serve of SAME_LOGS (looped at max speed) into ``data_dir`` for ``seconds``, then SIGTERM."""
+    cmd = [str(checkout / ".venv" / "bin" / "python"), "-m", "frictionwatch.service.cli", "serve", "--port", "0",
+           "--data-dir", str(data_dir)]
+    for name in SAME_LOGS:
+        cmd += ["--source", f"mcap:replay_logs/{name}.mcap?loop=1&speed=max#{name.split('-')[0]}"]
+    if cpu is not None:
+        cmd = ["taskset", "-c", str(cpu), *cmd]
+    proc, url = launched(cmd, checkout, timeout_s=900)
+    try:
+        with httpx.Client(base_url=url, timeout=10) as client:
+            wait_first_results(client, [name.split("-")[0] for name in SAME_LOGS])
+        time.sleep(seconds)
+        proc.terminate()
+        proc.wait(120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+def stored(db: Path) -> dict[str, dict[tuple, dict]]:
+    """Each table's rows by key, write times left out, JSON text parsed."""
+    import sqlite3
+
+    keys = {"cycles": ("engine_id", "cycle_index"), "estimates": ("engine_id", "cycle_index", "cylinder"),
+            "alerts": ("engine_id", "alert_id"), "baselines": ("engine_id", "seq")}
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+    con.row_factory = sqlite3.Row
+    out: dict[str, dict[tuple, dict]] = {}
+    for table, key in keys.items():
+        rows = {}
+        for row in con.execute(f"SELECT * FROM {table}"):  # noqa: S608 - the table names above
+            doc = {k: row[k] for k in row.keys() if k not in WRITE_TIMES}
+            for k, v in doc.items():
+                if isinstance(v, str) and v[:1] in "[{":
+                    doc[k] = json.loads(v)
+            rows[tuple(row[k] for k in key)] = doc
+        out[table] = rows
+    con.close()
+    return out
+
+
+def same_value(a, b, path: str, bad: list[str]) -> None:
+    """``a`` equals ``b``: numbers within rtol 1e-12 (NaN as NaN, None as None), the rest equal; what differs goes
+    into ``bad``."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            if k in WRITE_TIMES or k == "at_s":
+                continue
+            same_value(a.get(k), b.get(k), f"{path}.{k}", bad)
+    elif isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            same_value(x, y, f"{path}[{i}]", bad)
+    elif isinstance(a, int | float) and isinstance(b, int | float) and not isinstance(a, bool):
+        if not np.isclose(a, b, rtol=1e-12, atol=0.0, equal_nan=True):
+            bad.append(f"{path}: {a!r} != {b!r}")
+    elif a != b:
+        bad.append(f"{path}: {a!r} != {b!r}")
+
+
+def run_same(args) -> dict:
+    import tempfile
+
+    other = Path(args.against).resolve()
+    with tempfile.TemporaryDirectory(prefix="fw-same-") as tmp:
+        dbs = {}
+        for name, checkout in (("this", ROOT), ("against", other)):
+            serve_to(checkout, Path(tmp) / name, args.seconds, args.cpu)
+            dbs[name] = stored(Path(tmp) / name / "frictionwatch.db")
+    this, base = dbs["this"], dbs["against"]
+    reached = {}  # per engine: the newest cycle both stored
+    for e in {k[0] for k in this["cycles"]} | {k[0] for k in base["cycles"]}:
+        reached[e] = min(max((k[1] for k in d["cycles"] if k[0] == e), default=-1) for d in (this, base))
+    out: dict = {"engines_newest_cycle_both": reached, "tables": {}}
+    for table in ("cycles", "estimates", "alerts", "baselines"):
+        def within(key, row, table=table):
+            cycle = row.get("raised_cycle") if table == "alerts" else key[1] if table != "baselines" else None
+            return cycle is None or cycle <= reached.get(key[0], -1)
+        a = {k: r for k, r in this[table].items() if within(k, r)}
+        b = {k: r for k, r in base[table].items() if within(k, r)}
+        if table == "baselines":  # the sequence both reached: the shorter one's
+            a = {k: r for k, r in a.items() if k in b}
+            b = {k: r for k, r in b.items() if k in a}
+        bad: list[str] = [f"{k}: only in this" for k in sorted(set(a) - set(b))][:5]
+        bad += [f"{k}: only in the other" for k in sorted(set(b) - set(a))][:5]
+        for k in sorted(set(a) & set(b)):
+            same_value(a[k], b[k], f"{table}{k}", bad)
+        out["tables"][table] = {"compared": len(set(a) & set(b)), "this_only": len(set(a) - set(b)),
+                                "other_only": len(set(b) - set(a)), "differences": len(bad), "first": bad[:5]}
+    out["same"] = all(t["differences"] == 0 for t in out["tables"].values())
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("mode", choices=("mix", "lag", "idle"))
+    ap.add_argument("mode", choices=("mix", "lag", "idle", "same"))
+    ap.add_argument("--against", help="same: the other checkout (its own .venv)")
     ap.add_argument("--engines", type=int, default=4)
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--rate", type=float, default=200.0)
@@ -187,6 +291,10 @@ def main() -> None:
     ap.add_argument("--history-cycles", type=int, default=5000,
                     help="serve's history per engine: a short one shows the memory plateau in a short run")
     args = ap.parse_args()
+    if args.mode == "same":
+        print(json.dumps({"mode": "same", "seconds": args.seconds, "against": args.against, **run_same(args),
+                          "loadavg": os.getloadavg()}, indent=1, default=str))
+        return
     engines = [f"g{i + 1}" for i in range(args.engines)]
     proc, url = start_server(args.engines, args.cpu, args.history_cycles)
     try:

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
+from frictionwatch.core.monitor.report.figure_status import FrictionStatus, friction_status
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.service.alert_baseline import Band, Baseline
 
@@ -186,10 +187,19 @@ class Context:
     pressure: Pressure | None = None
     latched: Callable[[str, int | None], bool] = _never
     watched: Callable[[str, int | None], bool] = _always
+    _smoothed_status: tuple[CycleResult, FrictionStatus] | None = field(default=None, repr=False)
 
     @property
     def n_cyl(self) -> int:
         return len(self.cyl_flags)
+
+    def smoothed_status(self, result: CycleResult) -> FrictionStatus:
+        """``friction_status(result.smoothed, result.flags)``, worked out once a cycle for every rule that reads it
+        (the ring and the friction rules: ~40-80 us a genset-v20 call)."""
+        kept = self._smoothed_status
+        if kept is None or kept[0] is not result:
+            kept = self._smoothed_status = (result, friction_status(result.smoothed, result.flags))
+        return kept[1]
 
 
 class Rule(Protocol):

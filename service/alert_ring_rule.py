@@ -20,7 +20,6 @@ from frictionwatch.core.monitor.checks.ring_condition import (
     ring_condition,
     update_window,
 )
-from frictionwatch.core.monitor.report.figure_status import friction_status
 from frictionwatch.core.monitor.report.results import CycleResult, change_sigma
 from frictionwatch.service.alert_config import AlertConfig
 from frictionwatch.service.alert_interface import Context, Decision, Hold
@@ -169,7 +168,7 @@ class RingConditionRule:
         est = getattr(result, "smoothed", None)
         if est is None:
             return nan, nan.copy(), nan.copy(), nan.copy()
-        status = friction_status(est, result.flags)
+        status = ctx.smoothed_status(result)  # est is result.smoothed
         measured = np.array([c.status == "measured" for c in status.cylinders]) & ~sensor
         t = np.asarray(est.friction_torque_mean, dtype=np.float64)
         now, now_s = friction_excess(t, np.asarray(est.friction_torque_mean_sigma, dtype=np.float64), measured)

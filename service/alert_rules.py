@@ -36,7 +36,6 @@ from functools import partial
 from typing import Any
 
 import numpy as np
-from frictionwatch.core.monitor.report.figure_status import friction_status
 from frictionwatch.core.monitor.report.results import PA_PER_BAR, CycleResult, change_sigma
 from frictionwatch.service.alert_config import AlertConfig
 from frictionwatch.service.alert_interface import Context, Decision, Hold, Pressure
@@ -324,7 +323,7 @@ class FrictionRule:
         cfg, est = self.config, result.smoothed
         if ctx.baseline is None:
             return []
-        status = friction_status(est, result.flags)
+        status = ctx.smoothed_status(result)  # est is result.smoothed
         measured = np.array([c.status == "measured" for c in status.cylinders])
         # a change against the baseline: the calibration's error is the same then and now and cancels
         t, s = est.friction_torque_mean, change_sigma(est)

@@ -56,8 +56,8 @@ RECENT_S = 30.0  # raw records kept for an on-demand discrepancy run: genset-v20
 
 class RecentRecords:
     """The engine's newest raw stream records spanning at most ``window_s`` of acquisition time (by each record's
-    last tick, ``record_key``), in the merged order the pipeline saw them. ``append`` runs on the ingest thread and
-    keeps a reference (records are never modified after they are made); ``window`` copies the list of references
+    last tick, ``record_key``), in the merged order the pipeline saw them. ``append`` / ``extend`` run on the ingest
+    thread and keep a reference (records are never modified after they are made); ``window`` copies the list of references
     under the lock, so a reader never holds the ingest thread up for more than that copy."""
 
     def __init__(self, window_s: float, tick_hz: float) -> None:
@@ -68,11 +68,18 @@ class RecentRecords:
         self._lock = threading.Lock()
 
     def append(self, record: StreamRecord) -> None:
-        key = record_key(record)
+        self.extend([record])
+
+    def extend(self, records: list[StreamRecord]) -> None:
+        """``append`` each of ``records`` (in order) under one taking of the lock (the ingest thread's batch)."""
+        if not records:
+            return
+        keyed = [(record_key(r), r) for r in records]
         with self._lock:
             items = self._items
-            items.append((key, record))
-            while items[0][0] < key - self.span:
+            items.extend(keyed)
+            newest = max(k for k, _ in keyed)  # what appending them one by one would have trimmed to
+            while items[0][0] < newest - self.span:
                 items.popleft()
 
     def window(self, span_s: float | None = None) -> list[StreamRecord]:
@@ -150,7 +157,7 @@ class EngineService:
         self._stamped = {name: StampedSource(src) for name, src in sources.items()}
         self.recent = RecentRecords(recent_s, info.tick_hz)  # what a discrepancy run on a recorded window reads
         self.session = LiveSession(model, info, self._stamped, on_result=self._on_result, start=False,
-                                   max_results=max(64, history_cycles), on_record=self.recent.append,
+                                   max_results=max(64, history_cycles), on_records=self.recent.extend,
                                    **session_options)
         self.term_names = self._monitor_terms()  # the columns of the monitor's estimates, named
         self.started_s: float | None = None

@@ -6,10 +6,14 @@
     fanout.stop()                # each thread delivers what is queued, then the listener's stop() is called
 
 A listener is any object with ``on_message_received(event)`` (python-can's name), optionally ``on_error(exc)``,
-``stop()``, ``name`` and ``wants(event)``; a plain callable works too. ``wants`` is asked on the publishing thread
+``stop()``, ``name``, ``wants(event)`` and ``inline``; a plain callable works too. ``wants`` is asked on the publishing thread
 (keep it a field read): False and the event is not queued for that listener at all, neither delivered nor counted
 as dropped; a queue hand-off wakes the listener's thread, ~50 us of CPU on a loaded 2-core box, every cycle of
-every engine (the SSE broadcaster wants nothing while no client listens; design notes 34). An exception in a
+every engine (the SSE broadcaster wants nothing while no client listens; design notes 34). A listener with
+``inline = True`` gets no queue and no thread: the publishing thread calls it. Only for a listener whose call is
+short and never waits on I/O or on a lock held for longer than a copy (the API's state, the metrics' gauges): its
+hand-over cost more than its work, and with many engines on one core every woken thread also took the GIL and a
+context switch from the monitor (design notes 47). An exception in a
 listener is counted (``errors``), passed to its ``on_error`` and logged once; the listener keeps receiving. The
 events are ``ServiceEvent``: one per analysed cycle (``result`` set, with the alert changes that cycle caused) and
 one per state change made through the API (``result`` None: an acknowledged alert, a new baseline).
@@ -76,11 +80,12 @@ class _Callback(Listener):
 
 
 class _Worker:
-    """One listener's queue and thread."""
+    """One listener's queue and thread (``inline``: neither; ``deliver`` runs on the publishing thread)."""
 
     def __init__(self, listener: Any, name: str, queue_size: int) -> None:
         self.listener, self.name = listener, name
         self.wants: Callable[[ServiceEvent], bool] | None = getattr(listener, "wants", None)
+        self.inline = getattr(listener, "inline", False) is True
         self.queue: queue.Queue = queue.Queue(maxsize=queue_size)
         self.drops = 0
         self.errors: Counter[str] = Counter()
@@ -96,20 +101,23 @@ class _Worker:
                 if self._stopping.is_set():
                     return
                 continue
-            try:
-                self.listener.on_message_received(event)
-                self.delivered += 1
-            except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the others or the monitor
-                reason = type(exc).__name__
-                if not self.errors:
-                    log.error("listener %s failed: %s", self.name, exc, exc_info=exc)
-                self.errors[reason] += 1
-                on_error = getattr(self.listener, "on_error", None)
-                if on_error is not None:
-                    try:
-                        on_error(exc)
-                    except Exception:  # noqa: BLE001 - its error hook failing is logged, nothing more
-                        log.exception("listener %s: on_error failed", self.name)
+            self.deliver(event)
+
+    def deliver(self, event: ServiceEvent) -> None:
+        try:
+            self.listener.on_message_received(event)
+            self.delivered += 1
+        except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the others or the monitor
+            reason = type(exc).__name__
+            if not self.errors:
+                log.error("listener %s failed: %s", self.name, exc, exc_info=exc)
+            self.errors[reason] += 1
+            on_error = getattr(self.listener, "on_error", None)
+            if on_error is not None:
+                try:
+                    on_error(exc)
+                except Exception:  # noqa: BLE001 - its error hook failing is logged, nothing more
+                    log.exception("listener %s: on_error failed", self.name)
 
 
 class Fanout:
@@ -136,19 +144,23 @@ class Fanout:
             unique, i = f"{name}-{i}", i + 1
         worker = _Worker(listener, unique, self.queue_size)
         self._workers.append(worker)
-        if self._started:
+        if self._started and not worker.inline:
             worker.thread.start()
 
     def start(self) -> None:
         if not self._started:
             self._started = True
             for w in self._workers:
-                w.thread.start()
+                if not w.inline:
+                    w.thread.start()
 
     def publish(self, event: ServiceEvent) -> None:
         """Never blocks: a listener whose queue is full loses this event (counted in ``drops``)."""
         for w in self._workers:
             if w.wants is not None and not w.wants(event):
+                continue
+            if w.inline:
+                w.deliver(event)
                 continue
             try:
                 w.queue.put_nowait(event)
@@ -164,7 +176,7 @@ class Fanout:
             w._stopping.set()
         deadline = time.monotonic() + timeout
         for w in self._workers:
-            if w.thread.is_alive():
+            if not w.inline and w.thread.is_alive():
                 w.thread.join(max(0.0, deadline - time.monotonic()))
             stop = getattr(w.listener, "stop", None)
             if stop is not None:
@@ -201,6 +213,9 @@ class LatestState(Listener):
     thread for longer than that (the ingest thread never waits for it: the fan-out does not block)."""
 
     name = "api-state"
+    # called on the ingest thread (Fanout, ``inline``): its work is one row and an append under a lock that a
+    # request holds only for a copy; a thread of its own cost each engine a hand-over and a wake-up per cycle
+    inline = True
 
     def __init__(self, max_results: int = 5000) -> None:
         if max_results < 2:

@@ -129,5 +129,11 @@ def test_recent_records_keep_the_newest_window():
     kept = [int(r.ticks[-1]) for r in ring.window()]
     assert kept == list(range(3900, 5000, 100))  # ticks within 1 s (1000 ticks) of the newest
     assert [int(r.ticks[-1]) for r in ring.window(0.25)] == [4700, 4800, 4900]
+    batched = RecentRecords(window_s=1.0, tick_hz=1000.0)  # the ingest thread's batches: the same records kept
+    records = [CamBatch(ticks=np.array([t], dtype=np.int64)) for t in range(0, 5000, 100)]
+    for i in range(0, len(records), 7):
+        batched.extend(records[i:i + 7])
+    batched.extend([])
+    assert [int(r.ticks[-1]) for r in batched.window()] == kept
     with pytest.raises(ValueError, match="window"):
         RecentRecords(0.0, 1000.0)

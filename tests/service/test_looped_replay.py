@@ -17,7 +17,6 @@ import pytest
 from frictionwatch.drivers.logs.mcap_replay import McapSource
 from frictionwatch.drivers.source import StreamRestart
 from frictionwatch.service.api_views import losses_now
-from frictionwatch.service.listeners import ServiceEvent
 from frictionwatch.service.live import LiveSession
 from frictionwatch.service.metrics import ServiceMetrics
 from frictionwatch.service.pipeline import EnginePipeline, analyze_log, resolve_model
@@ -89,8 +88,13 @@ def _change_sigma_bar(doc: dict, bar_per_nm: float) -> float:
 def test_the_smoothed_engine_fmep_moves_less_than_its_sigma(looped):
     _, outcomes, _ = looped
     results = [o.result for o in outcomes if o.result is not None]
-    metrics = ServiceMetrics(lambda: [], lambda: 0)
-    gauge = metrics.listener("demo")
+    from types import SimpleNamespace
+
+    engine = SimpleNamespace(engine_id="demo", cycles_ok=0, skipped={}, state=SimpleNamespace(newest=None),
+                             fanout=SimpleNamespace(drops={}, listener=lambda name: None),
+                             backlog=lambda: dict.fromkeys(("queued_cycles", "queued_s", "behind_s", "dropped_records",
+                                                            "dropped_s"), 0.0))
+    metrics = ServiceMetrics(lambda: [engine], lambda: 0)  # the gauges: the engine's newest result at scrape time
     api, shown, scraped, sigma = [], [], [], []
     for i in range(SETTLED, len(results)):
         r = results[i]
@@ -99,7 +103,7 @@ def test_the_smoothed_engine_fmep_moves_less_than_its_sigma(looped):
         api.append(doc["engine"]["fmep_bar"])
         sigma.append(_change_sigma_bar(doc, r.mep_per_nm(engine=True) / 1e5))
         shown.append(r.to_json()["fmep_bar"])  # the cycle document: the stream, the dashboard's live figure
-        gauge.on_message_received(ServiceEvent("demo", r, 0.0))
+        engine.state.newest = r
         scraped.append(metrics.registry.get_sample_value("frictionwatch_engine_fmep_bar", {"engine": "demo"}))
     api, shown, scraped = np.array(api), np.array(shown), np.array(scraped)
     tol = float(np.min(sigma))  # ~0.026 bar on the demo: the figure's own sigma at its smallest

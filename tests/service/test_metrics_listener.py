@@ -1,9 +1,11 @@
-"""The metrics listener (service/metrics.py): each cycle's measured FMEPs and its latency under the engine's labels,
-its series looked up once and kept; no series of an engine before its first result (a gauge would read 0)."""
+"""The metrics (service/metrics.py): each engine's measured FMEPs from its newest result at scrape time, and each
+cycle's latency (the listener) under the engine's labels; no series of an engine before its first result (a gauge
+would read 0)."""
 
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 from frictionwatch.service.listeners import ServiceEvent
 from frictionwatch.service.metrics import MetricsListener, ServiceMetrics
@@ -19,6 +21,18 @@ class FakeResult:
         return self.figures
 
 
+class FakeEngine:
+    """What the metrics' collectors read of an EngineService."""
+
+    def __init__(self, engine_id: str) -> None:
+        self.engine_id, self.cycles_ok, self.skipped = engine_id, 0, {}
+        self.state = SimpleNamespace(newest=None)
+        self.fanout = SimpleNamespace(drops={}, listener=lambda name: None)
+
+    def backlog(self) -> dict:
+        return dict.fromkeys(("queued_cycles", "queued_s", "behind_s", "dropped_records", "dropped_s"), 0.0)
+
+
 def samples(metrics: ServiceMetrics, name: str, engine: str) -> dict:
     fams = {f.name: f for f in text_string_to_metric_families(metrics.text().decode())}
     return {s.labels.get("cylinder", s.name): s.value for s in fams[name].samples
@@ -26,14 +40,17 @@ def samples(metrics: ServiceMetrics, name: str, engine: str) -> dict:
 
 
 def test_each_cycle_sets_the_engines_series_and_no_series_before_the_first() -> None:
-    metrics = ServiceMetrics(lambda: [], lambda: 0)
+    engines = {"a": FakeEngine("a"), "b": FakeEngine("b")}
+    metrics = ServiceMetrics(lambda: engines.values(), lambda: 0)
     a, b = metrics.listener("a"), metrics.listener("b")
     assert isinstance(a, MetricsListener)
     assert samples(metrics, "frictionwatch_engine_fmep_bar", "a") == {}
     assert samples(metrics, "frictionwatch_fmep_bar", "a") == {}
-    a.on_message_received(ServiceEvent("a", FakeResult(1.5, [1.0, math.nan, 2.0]), 10.0, 9.9))
-    b.on_message_received(ServiceEvent("b", FakeResult(math.nan, [0.5, 0.25]), 10.0, None))
-    a.on_message_received(ServiceEvent("a", FakeResult(1.75, [1.25, 3.0, math.nan]), 10.5, 10.2))
+    for engine_id, result, at in (("a", FakeResult(1.5, [1.0, math.nan, 2.0]), (10.0, 9.9)),
+                                  ("b", FakeResult(math.nan, [0.5, 0.25]), (10.0, None)),
+                                  ("a", FakeResult(1.75, [1.25, 3.0, math.nan]), (10.5, 10.2))):
+        engines[engine_id].state.newest = result  # the API's state has it (the engine's LatestState)
+        (a if engine_id == "a" else b).on_message_received(ServiceEvent(engine_id, result, *at))
     assert_allclose(samples(metrics, "frictionwatch_engine_fmep_bar", "a")["frictionwatch_engine_fmep_bar"], 1.75)
     assert math.isnan(samples(metrics, "frictionwatch_engine_fmep_bar", "b")["frictionwatch_engine_fmep_bar"])
     cyl_a = samples(metrics, "frictionwatch_fmep_bar", "a")

@@ -113,3 +113,40 @@ def test_the_sse_listener_is_handed_nothing_while_no_client_listens() -> None:
     before, after, drops, got = asyncio.run(scenario())
     assert (before, after, drops) == (0, 3, 0)
     assert got == ["5", "6", "7"]
+
+
+def test_an_inline_listener_is_called_on_the_publishing_thread_without_a_thread_of_its_own() -> None:
+    """``inline = True``: delivered by ``publish`` itself, in order, errors counted as a threaded one's, nothing
+    queued or dropped, no thread started; ``stop`` still calls its ``stop()``. The API's state and the metrics are
+    inline; the SSE broadcaster (it encodes whole results) is not."""
+    from frictionwatch.service.listeners import LatestState
+    from frictionwatch.service.metrics import MetricsListener
+
+    class Inline(Failing):
+        name = "inline"
+        inline = True
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.threads: set[int] = set()
+            self.stopped = False
+
+        def on_message_received(self, ev: ServiceEvent) -> None:
+            self.threads.add(threading.get_ident())
+            super().on_message_received(ev)
+
+        def stop(self) -> None:
+            self.stopped = True
+
+    inline, got = Inline(), []
+    fan = Fanout([inline, got.append], queue_size=4)
+    fan.start()
+    for i in range(50):
+        fan.publish(event(i))
+    assert inline.seen == 50 and inline.threads == {threading.get_ident()}  # all of them, before publish returned
+    assert fan.errors["inline"] == 25 and len(inline.errors) == 25 and fan.drops["inline"] == 0
+    assert not fan._workers[0].thread.is_alive() and fan._workers[1].thread.is_alive()
+    assert fan.queued["inline"] == 0
+    fan.stop()
+    assert inline.stopped
+    assert LatestState.inline is True and MetricsListener.inline is True and not getattr(SseBroadcaster, "inline", False)

@@ -1,0 +1,166 @@
+"""Where serve's CPU goes, component by component (issue 28 item 7; design notes 47): ``frictionwatch serve`` of one
+checkout with ``--engines`` genset-v20 (the demo log looped at real time, one engine per --source) pinned to one
+core, with CPU timers (``time.thread_time``, each exclusive of the timed calls inside it) around the monitor
+(core's ``CyclePipeline.process``), the assembler, the alert engine, the fan-out, the listeners, the record merge,
+the queue and the replay reader; what a thread spends outside them is its ``rest``. After the first results and
+``--settle`` s, the totals over ``--seconds`` s per cycle analysed, with each thread's CPU from /proc (named by
+``py-spy dump``; one a dump did not name is ``python``).
+
+    .venv/bin/python -m bench.bench_service_components --engines 8 --py-spy /tmp/spyenv/bin/py-spy
+    .venv/bin/python -m bench.bench_service_components --checkout ../base --engines 8 ...  # another checkout's serve
+
+The timers cost ~1 us a timed call (~35 calls a genset-v20 cycle, most of them per record: the assembler's and
+the pipeline's): compare checkouts with this bench, not its figures with bench_service_plant's. A checkout that
+lacks a timed function (renamed, removed) is told in one line and timed without it. Minutes; not in the tests.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import os
+import sys
+import threading
+import time
+from collections import Counter, defaultdict
+from pathlib import Path
+
+TIMED = (  # (module, class, method, component); the thread's prefix ("ingest", "reader", ...) names where it runs
+    ("frictionwatch.service.ingest_queue", "IngestQueue", "get", "ingest: queue get"),
+    ("frictionwatch.service.record_merge", "RecordMerge", "push", "ingest: merge"),
+    ("frictionwatch.service.record_merge", "RecordMerge", "set_quiet", "ingest: merge"),
+    ("frictionwatch.service.engine_service", "RecentRecords", "append", "ingest: recent records"),
+    ("frictionwatch.service.engine_service", "RecentRecords", "extend", "ingest: recent records"),
+    ("frictionwatch.service.pipeline", "EnginePipeline", "feed", "ingest: pipeline glue"),
+    ("frictionwatch.drivers.assembly.cycles", "CycleAssembler", "feed", "ingest: assembler"),
+    ("frictionwatch.core.monitor.pipeline", "CyclePipeline", "process", "ingest: monitor"),
+    ("frictionwatch.service.alerts", "AlertEngine", "update", "ingest: alert engine"),
+    ("frictionwatch.service.listeners", "Fanout", "publish", "ingest: fan-out publish"),
+    ("frictionwatch.service.pipeline", "ResultHistory", "append", "ingest: result history"),
+    ("frictionwatch.service.engine_service", "EngineService", "_on_result", "ingest: on_result glue"),
+    ("frictionwatch.drivers.logs.mcap_replay", "McapSource", "_read_internal", "reader: mcap read+decode"),
+    ("frictionwatch.service.ingest_queue", "IngestQueue", "put", "reader: queue put"),
+    ("frictionwatch.service.listeners", "LatestState", "on_message_received", "listener: api state"),
+    ("frictionwatch.service.metrics", "MetricsListener", "on_message_received", "listener: metrics"),
+    ("frictionwatch.service.listeners", "SseBroadcaster", "on_message_received", "listener: sse"),
+)
+
+
+def serve_timed(argv: list[str], out: str) -> None:
+    """Run serve (``argv``) with the TIMED functions wrapped; cumulative totals written to ``out`` every second."""
+    import importlib
+
+    total: defaultdict[str, float] = defaultdict(float)
+    calls: defaultdict[str, int] = defaultdict(int)
+    local = threading.local()
+
+    def wrap(cls, meth: str, comp: str) -> None:
+        f = getattr(cls, meth)
+
+        @functools.wraps(f)
+        def timed(*a, **k):
+            stack = getattr(local, "stack", None)
+            if stack is None:
+                stack = local.stack = []
+            t0 = time.thread_time()
+            stack.append(0.0)
+            try:
+                return f(*a, **k)
+            finally:
+                el = time.thread_time() - t0
+                total[comp] += el - stack.pop()  # exclusive of the timed calls inside
+                calls[comp] += 1
+                if stack:
+                    stack[-1] += el
+        setattr(cls, meth, timed)
+
+    for mod, cls, meth, comp in TIMED:
+        owner = getattr(importlib.import_module(mod), cls, None)
+        if owner is None or meth not in vars(owner):
+            print(f"bench_service_components: {mod}.{cls}.{meth} not in this checkout, not timed", file=sys.stderr)
+            continue
+        wrap(owner, meth, comp)
+
+    def dump() -> None:
+        while True:
+            time.sleep(1.0)
+            with open(out + ".tmp", "w") as fh:
+                json.dump({"total": dict(total), "calls": dict(calls)}, fh)
+            os.replace(out + ".tmp", out)
+
+    threading.Thread(target=dump, name="bench-dump", daemon=True).start()
+    from frictionwatch.service.cli import main
+    sys.exit(main(argv))
+
+
+def measure(args) -> dict:
+    import tempfile
+
+    import httpx
+
+    from bench.bench_service_plant import CYCLE_REVS, launched
+    from bench.bench_service_threads import processed, ready, thread_cpu, thread_names
+
+    checkout = Path(args.checkout).resolve()
+    live = tempfile.mktemp(prefix="fw-components-", suffix=".json")
+    cmd = ["taskset", "-c", str(args.cpu), str(checkout / ".venv" / "bin" / "python"), str(Path(__file__).resolve()),
+           "--serve-timed", live, "serve", "--port", "0", "--history-cycles", "5000"]
+    for i in range(args.engines):
+        cmd += ["--source", f"mcap:replay_logs/demo.mcap?loop=1&speed=1#g{i + 1}"]
+    proc, url = launched(cmd, checkout, timeout_s=900)
+    engines = [f"g{i + 1}" for i in range(args.engines)]
+    try:
+        with httpx.Client(base_url=url, timeout=10) as client:
+            while not ready(client, engines):
+                time.sleep(1.0)
+            time.sleep(args.settle)
+            s0, cpu0, n0, w0 = json.loads(Path(live).read_text()), thread_cpu(proc.pid), processed(client), time.monotonic()
+            time.sleep(args.seconds)
+            s1, cpu1, n1, w1 = json.loads(Path(live).read_text()), thread_cpu(proc.pid), processed(client), time.monotonic()
+            rpm = [client.get(f"/api/v1/engines/{e}/cycles/latest").json()["rpm_mean"] for e in engines]
+        names = thread_names(proc.pid, args.py_spy)
+    finally:
+        proc.terminate()
+        proc.wait(90)
+        Path(live).unlink(missing_ok=True)
+    by_thread: Counter[str] = Counter()
+    for tid, s in cpu1.items():
+        by_thread[names.get(tid, "python")] += s - cpu0.get(tid, 0.0)
+    cycles = n1 - n0
+    ms = {k: 1e3 * (v - s0["total"].get(k, 0.0)) / cycles for k, v in s1["total"].items()}
+    threads = {k: 1e3 * v / cycles for k, v in by_thread.items()}
+    inline = sum(v for k, v in ms.items() if k.startswith("listener")) if "listener-api-state" not in threads else 0.0
+    ingest = threads.get("live-ingest", 0.0) + threads.get("python", 0.0)  # an unnamed thread: an engine's ingest
+    rest = {"ingest: rest (loop, deliver, locks)": ingest - inline - sum(v for k, v in ms.items() if k.startswith("ingest")),
+            "reader: rest (loop, stamps)": threads.get("live-read-*", 0.0) - sum(v for k, v in ms.items()
+                                                                                 if k.startswith("reader"))}
+    total = sum(by_thread.values())
+    per_s = sum(rpm) / len(rpm) / 60.0 / CYCLE_REVS
+    return {"checkout": str(checkout), "engines": args.engines, "cycles_analysed": cycles,
+            "cycles_offered": per_s * args.engines * (w1 - w0), "cpu_ms_per_cycle": 1e3 * total / cycles,
+            "listeners_inline": "listener-api-state" not in threads,
+            "threads_ms_per_cycle": {k: round(v, 3) for k, v in sorted(threads.items(), key=lambda kv: -kv[1])},
+            "components_ms_per_cycle": {k: round(v, 3) for k, v in sorted({**ms, **rest}.items())},
+            "timed_calls_per_cycle": {k: round((v - s0["calls"].get(k, 0)) / cycles, 2)
+                                      for k, v in sorted(s1["calls"].items())},
+            "loadavg": os.getloadavg()}
+
+
+def main() -> None:
+    if len(sys.argv) > 2 and sys.argv[1] == "--serve-timed":  # the server process itself
+        serve_timed(sys.argv[3:], sys.argv[2])
+        return
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench.* when run as a script
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--checkout", default=str(Path(__file__).resolve().parents[1]))
+    ap.add_argument("--engines", type=int, default=8)
+    ap.add_argument("--seconds", type=float, default=40.0)
+    ap.add_argument("--settle", type=float, default=10.0)
+    ap.add_argument("--cpu", type=int, default=1)
+    ap.add_argument("--py-spy", help="py-spy's path, to name the threads")
+    print(json.dumps(measure(ap.parse_args()), indent=1))
+
+
+if __name__ == "__main__":
+    main()
