@@ -11,7 +11,8 @@ A listener is any object with ``on_message_received(event)`` (python-can's name)
 as dropped; a queue hand-off wakes the listener's thread, ~50 us of CPU on a loaded 2-core box, every cycle of
 every engine (the SSE broadcaster wants nothing while no client listens; design notes 34). A listener with
 ``inline = True`` gets no queue and no thread: the publishing thread calls it. Only for a listener whose call is
-short and never waits on I/O or on a lock held for longer than a copy (the API's state, the metrics' gauges): its
+short and never waits, on I/O or on a lock a request may hold (the API's state takes its lock only if it is free,
+else leaves the result pending; the metrics' histogram): its
 hand-over cost more than its work, and with many engines on one core every woken thread also took the GIL and a
 context switch from the monitor (design notes 47). An exception in a
 listener is counted (``errors``), passed to its ``on_error`` and logged once; the listener keeps receiving. The
@@ -209,12 +210,15 @@ class Fanout:
 class LatestState(Listener):
     """What the API reads of one engine: the newest whole result, a bounded ring of recent results (slim: no
     traces), the running sums of window means (service/window_sums.py). Thread-safe; ``snapshot`` copies under the
-    lock only the results asked for, ``window`` reads the sums in O(1): a request never holds this listener's
-    thread for longer than that (the ingest thread never waits for it: the fan-out does not block)."""
+    lock only the results asked for, ``window`` reads the sums in O(1).
+
+    Called on the ingest thread (Fanout, ``inline``: a thread of its own cost each engine a hand-over and a wake-up
+    per cycle, design note 47), and the ingest thread never waits for a request: it hands each result to a pending
+    queue and applies the queue only where it gets the lock at once; a request that holds the lock applies what is
+    pending when it takes it (``_apply_pending``), so every reader sees every result that came before it asked
+    (tests/service/test_api_window_cost.py holds the lock while cycles go on being analysed)."""
 
     name = "api-state"
-    # called on the ingest thread (Fanout, ``inline``): its work is one row and an append under a lock that a
-    # request holds only for a copy; a thread of its own cost each engine a hand-over and a wake-up per cycle
     inline = True
 
     def __init__(self, max_results: int = 5000) -> None:
@@ -230,12 +234,22 @@ class LatestState(Listener):
         self.newest_s: float | None = None  # monotonic time the newest result became visible here
         self.updated = threading.Condition(self._lock)
         self.on_visible: Callable[[float], None] | None = None  # gets result -> visible here [s] (metrics)
+        self._pending: deque[tuple[ServiceEvent, Any]] = deque()  # results not applied yet (the lock was held)
 
     def on_message_received(self, event: ServiceEvent) -> None:
         if event.result is None:
             return
-        row = self.sums.row_for(event.result)  # the per-cycle cost, outside the lock
-        with self._lock:
+        self._pending.append((event, self.sums.row_for(event.result)))  # the per-cycle cost, outside the lock
+        if self._lock.acquire(blocking=False):  # never waits: a request holding the lock applies it (class doc)
+            try:
+                self._apply_pending()
+            finally:
+                self._lock.release()
+
+    def _apply_pending(self) -> None:
+        """With the lock held: every pending result into the ring, the sums and the newest, in order."""
+        while self._pending:
+            event, row = self._pending.popleft()
             self.sums.append(int(event.result.index), row)
             if self._ring and self.newest is not None:
                 self._ring[-1] = self.newest.slim()  # only the newest keeps its traces
@@ -244,12 +258,19 @@ class LatestState(Listener):
             if not left_out(event.result.flags):
                 self.newest_counted = event.result
             self.updated.notify_all()
-        if self.on_visible is not None:
-            self.on_visible(self.newest_s - event.result_s)
+            if self.on_visible is not None:
+                self.on_visible(self.newest_s - event.result_s)
+
+    def latest(self) -> CycleResult | None:
+        """The newest result, pending ones applied."""
+        with self._lock:
+            self._apply_pending()
+            return self.newest
 
     def snapshot(self, last: int | None = None) -> tuple[CycleResult | None, list[CycleResult]]:
         """The newest whole result and the last ``last`` results held (all when None), oldest first."""
         with self._lock:
+            self._apply_pending()
             if last is None or last >= len(self._ring):
                 return self.newest, list(self._ring)
             newest_first = list(itertools.islice(reversed(self._ring), max(0, last)))
@@ -259,11 +280,13 @@ class LatestState(Listener):
         """The result a window's statuses are read from (the newest with a previous cycle; the newest when none has
         one) and the figures of the newest ``cycles`` cycles, read together."""
         with self._lock:
+            self._apply_pending()
             return self.newest_counted or self.newest, self.sums.figures(cycles)
 
     def wait_index(self, index: int, timeout: float) -> bool:
         with self._lock:
-            return self.updated.wait_for(lambda: self.newest is not None and self.newest.index >= index, timeout)
+            return self.updated.wait_for(lambda: self._apply_pending() or (self.newest is not None
+                                                                             and self.newest.index >= index), timeout)
 
 
 class SseClient:

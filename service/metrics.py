@@ -122,7 +122,7 @@ class _Fmep(Collector):
         engine = GaugeMetricFamily("frictionwatch_engine_fmep_bar", "Smoothed engine FMEP where measured (NaN "
                                    "otherwise)", labels=["engine"])
         for e in self.engines():
-            newest = e.state.newest
+            newest = e.state.latest()
             if newest is None:
                 continue
             total, each = newest.measured_fmep_bar()
