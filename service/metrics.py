@@ -88,9 +88,9 @@ class MetricsListener(Listener):
     (``_Fmep``): the same figures a per-cycle gauge would hold then, worked out per scrape instead of per cycle."""
 
     name = "metrics"
-    # called on the ingest thread (Fanout, ``inline``): one histogram observation under its own lock, which a
-    # scrape holds only to read it; a thread of its own cost more in hand-overs than its work
-    inline = True
+    # not inline (Fanout), as the API state (service/listeners.py LatestState: a fast replay outran the threaded
+    # listeners); its per-cycle work is one histogram observation now, the FMEP gauges are read at scrape time
+    inline = False
 
     def __init__(self, metrics: ServiceMetrics, engine_id: str) -> None:
         self.metrics, self.engine_id = metrics, engine_id
@@ -122,7 +122,7 @@ class _Fmep(Collector):
         engine = GaugeMetricFamily("frictionwatch_engine_fmep_bar", "Smoothed engine FMEP where measured (NaN "
                                    "otherwise)", labels=["engine"])
         for e in self.engines():
-            newest = e.state.latest()
+            newest = e.state.newest
             if newest is None:
                 continue
             total, each = newest.measured_fmep_bar()

@@ -27,7 +27,6 @@ class FakeEngine:
     def __init__(self, engine_id: str) -> None:
         self.engine_id, self.cycles_ok, self.skipped = engine_id, 0, {}
         self.state = SimpleNamespace(newest=None)
-        self.state.latest = lambda: self.state.newest  # LatestState.latest: the newest, pending ones applied
         self.fanout = SimpleNamespace(drops={}, listener=lambda name: None)
 
     def backlog(self) -> dict:
