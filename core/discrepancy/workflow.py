@@ -42,6 +42,7 @@ from frictionwatch.core.discrepancy.choice import (
     off_physics,
     one_per_candidate,
     pressure_worse,
+    quiet_residual,
     rival,
     said_where,
     to_confirm,
@@ -361,7 +362,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         test_new = parts(res)[1]
         why = (channel_worse(test, test_new, scale) or pressure_worse(pressure(current), pressure(new_model),
                                                                         model.spec.n_cyl) or off_physics(t)
-               or unresolved(t))
+               or unresolved(t, quiet_residual(loc)))
         if why:  # significant, but it makes something else worse or is not physical: the model stays as it was
             found.refused.append({"candidate": t.candidate.label, "reason": why,
                                   "gap_before": g_cur, "gap_after": gap(test_new, scale)})
