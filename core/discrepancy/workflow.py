@@ -17,7 +17,8 @@ sqrt(2 F) ~ 10 for F ~ 50 features) and the gap by at least ``min_reduction``. A
 and the model left as it was, when it makes a channel worse on the held-out cycles (the flywheel speed or the mean
 torque balance, beyond that channel's noise; TDC against the cylinders' pressure) or when a fitted parameter ends on
 the bound of its range (the fit ran into the wall: not a physical value) or a sensor correction lies within what the
-pressure methods resolve (choice.unresolved); the refusal and its reason are reported.
+pressure methods resolve, or any fit with every parameter within 2 sigma of none on a residual no larger than a
+healthy log's (choice.unresolved, choice.quiet_residual); the refusal and its reason are reported.
 Which trials are held out, when two are one explanation and why a step is refused: core.discrepancy.choice.
 
 The outcome says which of three it is: ``named`` (effects added), ``nothing`` (nothing significant before or after)
@@ -42,6 +43,7 @@ from frictionwatch.core.discrepancy.choice import (
     off_physics,
     one_per_candidate,
     pressure_worse,
+    quiet_residual,
     rival,
     said_where,
     to_confirm,
@@ -361,7 +363,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         test_new = parts(res)[1]
         why = (channel_worse(test, test_new, scale) or pressure_worse(pressure(current), pressure(new_model),
                                                                         model.spec.n_cyl) or off_physics(t)
-               or unresolved(t))
+               or unresolved(t, quiet_residual(loc)))
         if why:  # significant, but it makes something else worse or is not physical: the model stays as it was
             found.refused.append({"candidate": t.candidate.label, "reason": why,
                                   "gap_before": g_cur, "gap_after": gap(test_new, scale)})

@@ -387,3 +387,15 @@ def test_a_tdc_the_pressure_reads_below_its_threshold_is_named_with_the_friction
     assert abs(tdc["parameters"]["deg"] - 1.5) <= 2 * tdc["sigma"]["deg"]
     np.testing.assert_allclose(ring["parameters"]["gain"] - 1.0, 1.5, rtol=0.2)
     assert abs(ring["parameters"]["gain"] - 2.5) <= 2 * ring["sigma"]["gain"]
+
+
+def test_a_fit_within_the_noise_of_none_on_a_healthy_log_is_not_named():
+    """k9k 1800 rpm 0.7 seed 4, 84 cycles, nothing hidden (a log no matrix uses): nothing is beyond the null and the
+    speed gap is within a healthy log's, and the shaft line's chain_mismatch fits the model's own error with both
+    scales within 2 sigma of 1 -- named before design note 50, refused now, said why; the model stays as it was."""
+    model = EngineModel.from_spec(load_engine(ENGINE))
+    doc = discover(model, cycles_of(1800.0, 0.7, 4), OPTIONS).to_json()
+    assert doc["found"] == [] and doc["outcome"] == "nothing"
+    assert [r["candidate"] for r in doc["refused"]] == ["chain_mismatch"]
+    assert "within the noise of none" in doc["refused"][0]["reason"]
+    assert doc["gap_after"] == doc["gap_before"]
