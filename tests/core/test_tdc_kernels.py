@@ -15,7 +15,7 @@ from frictionwatch.core.monitor.calibration.tdc import (
     _model_terms,
     _Setting,
 )
-from frictionwatch.core.monitor.calibration.tdc_kernels import residual_kernel
+from frictionwatch.core.monitor.calibration.tdc_kernels import residual_kernel, residuals_kernel
 
 from tests.core.test_tdc_from_pressure import adiabatic_trace
 
@@ -41,6 +41,26 @@ def test_residual_kernel_is_the_model_terms_sum(engine):
         got = np.empty_like(angle)
         residual_kernel(p[0], dp[0], angle, delta, peg, _constants(st), got)
         np.testing.assert_allclose(got, q + w, rtol=1e-12, atol=1e-12 * np.max(np.abs(q)))
+
+
+@pytest.mark.parametrize("engine", ["deutz-1cyl", "k9k-4cyl", "genset-v20"])
+def test_residuals_at_several_peggings_are_each_alone(engine):
+    """``residuals_kernel`` (the Gauss-Newton step's residual and its pegging column at one delta, the delta terms
+    shared): each row the model terms' sum at its pegging (rtol 1e-12, as above) and the single-pegging kernel's
+    numbers exactly (rtol 0: the same operations per sample, only evaluated once for both rows), on samples before
+    and after the start of combustion and a pegging that takes the IVC pressure to its 1 kPa floor."""
+    spec, p, dp, angle = _window(engine, 4)
+    st = _Setting(spec, 180.0, 1.1e5, math.radians(-5.0), 1.1)
+    c = _constants(st)
+    for delta, pegs in ((0.0, (0.0, 2e3)), (0.02, (-4e3, 6e3, -1.5e5))):
+        got = np.empty((len(pegs), angle.shape[0]))
+        residuals_kernel(p[1], dp[1], angle, delta, np.array(pegs), c, got)
+        for row, peg in zip(got, pegs, strict=True):
+            q, w = _model_terms(p[1], dp[1], angle, delta, peg, st)
+            np.testing.assert_allclose(row, q + w, rtol=1e-12, atol=1e-12 * np.max(np.abs(q)))
+            alone = np.empty_like(angle)
+            residual_kernel(p[1], dp[1], angle, delta, peg, c, alone)
+            np.testing.assert_allclose(row, alone, rtol=0, atol=0)
 
 
 @pytest.mark.parametrize("engine", ["deutz-1cyl", "k9k-4cyl", "genset-v20"])

@@ -153,12 +153,20 @@ def watch_cycle(spec: EngineSpec, cal: Calibration, state: TdcWatchState, cycle:
     counts = state.counts.copy()
     sums = sums[:b] + (block,) + sums[b + 1:]
     counts[b] += 1
-    omega = state.omega_sum + _omega(cycle)
-    twist_sum = state.twist_sum + np.asarray(twist, dtype=np.float64)
     n = state.cycles + 1
-    state = dataclasses.replace(state, sums=sums, counts=counts, cycles=n, previous=cycle, omega_sum=omega,
-                                twist_sum=twist_sum, cut=cut)
+    state = _added(state, sums, counts, n, cycle, state.omega_sum + _omega(cycle),
+                   state.twist_sum + np.asarray(twist, dtype=np.float64), cut)
     return state if n < window else close_window(spec, cal, state, angle, per_window)
+
+
+def _added(s: TdcWatchState, sums: tuple[np.ndarray, ...], counts: np.ndarray, cycles: int, previous: Cycle,
+           omega_sum: float, twist_sum: np.ndarray, cut: TraceCut) -> TdcWatchState:
+    """``dataclasses.replace(s, sums=..., counts=..., cycles=..., previous=..., omega_sum=..., twist_sum=..., cut=...)``
+    by position: every cycle makes one, and replace's field-by-field keywords cost twice a positional construction
+    of these 18 fields (design note 51). The window's fields are the ones a window closes (``close_window``)."""
+    return TdcWatchState(sums, counts, cycles, previous, s.last, s.flags, omega_sum, twist_sum, s.next_cylinder,
+                         s.first_own, s.reference, s.reference_twist, s.screened, s.fitted, s.window_trace,
+                         s.window_twist, s.drift, cut)
 
 
 def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle: np.ndarray | None = None,
