@@ -92,3 +92,20 @@ def test_smoothed_pressure_is_savgol_filter(rows, step_deg, seed):
     for g, w in zip(got, want, strict=True):
         assert g.shape == w.shape
         np.testing.assert_allclose(g, w, rtol=0, atol=1e-12 * np.max(np.abs(w)))
+
+
+def test_a_smoothing_operator_made_once_smooths_as_one_made_per_call():
+    """``smoothing(step)`` made once (the TDC watch: once a window close) gives ``smoothed_pressure``'s numbers
+    exactly (rtol 0: the same operator, the same products); one made for another step is not used (the answer is
+    that step's own, within the savgol test's tolerance of scipy)."""
+    from frictionwatch.core.monitor.calibration.tdc import smoothed_pressure, smoothed_pressure_reference, smoothing
+
+    rng = np.random.default_rng(9)
+    step = math.radians(1.0)
+    p = 1e5 * (1.0 + rng.uniform(0.0, 1.0, (5, 360)))
+    once = smoothing(step)
+    for got, want in zip(smoothed_pressure(p, step, once), smoothed_pressure(p, step), strict=True):
+        np.testing.assert_allclose(got, want, rtol=0, atol=0)
+    other = smoothing(math.radians(0.5))
+    for got, want in zip(smoothed_pressure(p, step, other), smoothed_pressure_reference(p, step), strict=True):
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.max(np.abs(want)))

@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
@@ -148,22 +149,43 @@ def apparent_heat_release_rate(pressure_pa: np.ndarray, dpressure: np.ndarray, v
     return (gamma * pressure_pa * dvolume + volume * dpressure) / (gamma - 1.0)
 
 
-def smoothed_pressure(pressure_pa: np.ndarray, step_rad: float) -> tuple[np.ndarray, np.ndarray]:
+class Smoothing(NamedTuple):
+    """The Savitzky-Golay operator of ``smoothed_pressure`` for one grid step [rad] (``smoothing``): value and
+    derivative (width, width) each (``savgol_operator``)."""
+
+    step: float
+    value: np.ndarray
+    derivative: np.ndarray
+
+
+def smoothing(step_rad: float) -> Smoothing:
+    """The operator ``smoothed_pressure`` applies on a grid of ``step_rad``: made once by a caller that smooths the
+    same grid again (the TDC watch's window close: one a close, not one a fitted cylinder; its pinv was ~100 of the
+    ~127 us of a k9k cylinder's smoothing, design note 51)."""
+    value, derivative = savgol_operator(_smooth_width(step_rad), 3, step_rad)
+    return Smoothing(float(step_rad), value, derivative)
+
+
+def smoothed_pressure(pressure_pa: np.ndarray, step_rad: float, operator: Smoothing | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """(p, dp/dtheta) of each row by a local cubic over SMOOTH_DEG (Savitzky-Golay): the ROHR needs p', and a
     plain difference of 1-deg samples turns the sensor noise into a ROHR noise larger than a 1 deg TDC error.
 
     scipy's ``savgol_filter(..., mode="interp")`` (``smoothed_pressure_reference``, tested equal) as the linear map it
     is (``savgol_operator``): each sample a dot product with its window; 25 against 450 us for a TDC window's
-    (5, 360) block sums (scipy refits the edge polynomials and its coefficients on every call)."""
+    (5, 360) block sums (scipy refits the edge polynomials and its coefficients on every call). ``operator``: the
+    operator made for this step (``smoothing``; another step's, or None: made here)."""
     p = np.asarray(pressure_pa, dtype=np.float64)
     width = _smooth_width(step_rad)
     n = p.shape[1]
     if n < width:  # shorter than one window: scipy's own error
         return smoothed_pressure_reference(p, step_rad)
+    if operator is None or operator.step != step_rad or operator.value.shape != (width, width):
+        operator = smoothing(step_rad)
     h = width // 2
     windows = np.lib.stride_tricks.sliding_window_view(p, width, axis=1)  # (rows, n - 2h, width), no copy
     out = []
-    for op in savgol_operator(width, 3, step_rad):
+    for op in (operator.value, operator.derivative):
         y = np.empty_like(p)
         y[:, :h] = p[:, :width] @ op[:h].T
         y[:, h:n - h] = windows @ op[h]
@@ -314,7 +336,8 @@ def _gauss_newton_reference(p: np.ndarray, dp: np.ndarray, ang: np.ndarray, st: 
 
 def tdc_from_pressure(pressure_pa: np.ndarray, angle_rad: np.ndarray, spec: EngineSpec, speed_rad_s: float,
                       motored: bool = False, heat_loss_scale: float = 1.0,
-                      heat_loss_rel_sigma: float = HEAT_LOSS_REL_SIGMA) -> TdcEstimate:
+                      heat_loss_rel_sigma: float = HEAT_LOSS_REL_SIGMA, operator: Smoothing | None = None
+                      ) -> TdcEstimate:
     """TDC correction and pegging of one cylinder from its cycles (module docstring).
 
     pressure_pa : (n_cycles, n_angle) absolute pressure [Pa] on the local grid angle_rad
@@ -325,6 +348,7 @@ def tdc_from_pressure(pressure_pa: np.ndarray, angle_rad: np.ndarray, spec: Engi
     heat_loss_scale : multiplies the project's Woschni wall heat (1 = core.model.thermo as the simulator has it)
     heat_loss_rel_sigma : relative 1-sigma of that wall heat; its effect on the offset (a refit at
         heat_loss_scale * (1 + heat_loss_rel_sigma)) is a systematic part of sigma
+    operator    : the smoothing operator of this grid's step (``smoothing``), where a caller fits the grid again
 
     The fit is made on the mean cycle (noise averages out before the non-linear ROHR). sigma = sqrt(statistical^2
     + SYSTEMATIC_SIGMA_DEG^2 + heat-loss^2 + other-loss^2): statistical from the same fit on BLOCKS disjoint blocks
@@ -350,7 +374,7 @@ def tdc_from_pressure(pressure_pa: np.ndarray, angle_rad: np.ndarray, spec: Engi
     if deg[0] > cb.ivc_deg or deg[-1] < cb.evo_deg:
         raise ValueError(f"the grid {deg[0]:.0f}..{deg[-1]:.0f} deg must cover IVC {cb.ivc_deg:g}..EVO {cb.evo_deg:g}")
     clipped = _clipped(p, float(step.mean()))
-    p, dp = smoothed_pressure(p, float(step.mean()))
+    p, dp = smoothed_pressure(p, float(step.mean()), operator)
     i_ivc = int(np.argmin(np.abs(deg - cb.ivc_deg)))
     p_ivc = float(np.mean(p[:, i_ivc]))
     omega = float(speed_rad_s)

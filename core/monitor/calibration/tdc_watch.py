@@ -57,7 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.calibration.tdc import BLOCKS, TdcEstimate, tdc_from_pressure
+from frictionwatch.core.monitor.calibration.tdc import BLOCKS, TdcEstimate, smoothing, tdc_from_pressure
 from frictionwatch.core.monitor.calibration.tdc_traces import TraceCut, add_traces, local_traces, trace_cut
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 from frictionwatch.core.types import Cycle
@@ -228,10 +228,13 @@ def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle
         ref, ref_twist = np.full(mean_trace.shape, np.nan), np.zeros(z)
     ref, ref_twist = ref.copy(), np.array(ref_twist, dtype=np.float64)
     fitted = list(state.fitted) if state.fitted is not None else [None] * z
+    # the smoothing operator once a close, not once a fitted cylinder (its step as tdc_from_pressure reads it)
+    operator = smoothing(float(np.diff(np.asarray(angle, dtype=np.float64).ravel()).mean())) \
+        if np.size(angle) > 1 else None
     for k in turn + screened:
         ref[k], ref_twist[k], drift[k] = mean_trace[k], float(twist_mean[k]), 0.0
         try:
-            e = tdc_from_pressure(means[:, k, :], angle, spec, omega / n)
+            e = tdc_from_pressure(means[:, k, :], angle, spec, omega / n, operator=operator)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError):
             fitted[k] = None
             continue
