@@ -82,7 +82,7 @@ def test_gauss_newton_kernel_is_its_numpy_reference(engine, constant_loss):
 def test_smoothed_pressure_is_savgol_filter(rows, step_deg, seed):
     """The Savitzky-Golay operator against scipy's savgol_filter (mode="interp": the edges too), value and
     derivative: rtol 1e-12 of the trace's largest value (seen: 6e-15; the same least squares, another summation)."""
-    from frictionwatch.core.monitor.calibration.tdc import smoothed_pressure, smoothed_pressure_reference
+    from frictionwatch.core.monitor.calibration.tdc_smoothing import smoothed_pressure, smoothed_pressure_reference
 
     rng = np.random.default_rng(seed)
     angle = np.radians(np.arange(-180.0, 180.0, step_deg))
@@ -98,7 +98,11 @@ def test_a_smoothing_operator_made_once_smooths_as_one_made_per_call():
     """``smoothing(step)`` made once (the TDC watch: once a window close) gives ``smoothed_pressure``'s numbers
     exactly (rtol 0: the same operator, the same products); one made for another step is not used (the answer is
     that step's own, within the savgol test's tolerance of scipy)."""
-    from frictionwatch.core.monitor.calibration.tdc import smoothed_pressure, smoothed_pressure_reference, smoothing
+    from frictionwatch.core.monitor.calibration.tdc_smoothing import (
+        smoothed_pressure,
+        smoothed_pressure_reference,
+        smoothing,
+    )
 
     rng = np.random.default_rng(9)
     step = math.radians(1.0)

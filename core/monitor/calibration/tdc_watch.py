@@ -57,7 +57,8 @@ from dataclasses import dataclass
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.calibration.tdc import BLOCKS, TdcEstimate, smoothing, tdc_from_pressure
+from frictionwatch.core.monitor.calibration.tdc import BLOCKS, TdcEstimate, tdc_from_pressure
+from frictionwatch.core.monitor.calibration.tdc_smoothing import smoothing
 from frictionwatch.core.monitor.calibration.tdc_traces import TraceCut, add_traces, local_traces, trace_cut
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 from frictionwatch.core.types import Cycle
