@@ -15,7 +15,7 @@ from frictionwatch.core.monitor.calibration.tdc import (
     _model_terms,
     _Setting,
 )
-from frictionwatch.core.monitor.calibration.tdc_kernels import residual_kernel
+from frictionwatch.core.monitor.calibration.tdc_kernels import residual_kernel, residuals_kernel
 
 from tests.core.test_tdc_from_pressure import adiabatic_trace
 
@@ -44,6 +44,26 @@ def test_residual_kernel_is_the_model_terms_sum(engine):
 
 
 @pytest.mark.parametrize("engine", ["deutz-1cyl", "k9k-4cyl", "genset-v20"])
+def test_residuals_at_several_peggings_are_each_alone(engine):
+    """``residuals_kernel`` (the Gauss-Newton step's residual and its pegging column at one delta, the delta terms
+    shared): each row the model terms' sum at its pegging (rtol 1e-12, as above) and the single-pegging kernel's
+    numbers exactly (rtol 0: the same operations per sample, only evaluated once for both rows), on samples before
+    and after the start of combustion and a pegging that takes the IVC pressure to its 1 kPa floor."""
+    spec, p, dp, angle = _window(engine, 4)
+    st = _Setting(spec, 180.0, 1.1e5, math.radians(-5.0), 1.1)
+    c = _constants(st)
+    for delta, pegs in ((0.0, (0.0, 2e3)), (0.02, (-4e3, 6e3, -1.5e5))):
+        got = np.empty((len(pegs), angle.shape[0]))
+        residuals_kernel(p[1], dp[1], angle, delta, np.array(pegs), c, got)
+        for row, peg in zip(got, pegs, strict=True):
+            q, w = _model_terms(p[1], dp[1], angle, delta, peg, st)
+            np.testing.assert_allclose(row, q + w, rtol=1e-12, atol=1e-12 * np.max(np.abs(q)))
+            alone = np.empty_like(angle)
+            residual_kernel(p[1], dp[1], angle, delta, peg, c, alone)
+            np.testing.assert_allclose(row, alone, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("engine", ["deutz-1cyl", "k9k-4cyl", "genset-v20"])
 @pytest.mark.parametrize("constant_loss", [False, True])
 def test_gauss_newton_kernel_is_its_numpy_reference(engine, constant_loss):
     """From a start 1 deg and 5 kPa off: the fits agree to 1e-10 rad and 1e-6 relative pegging (the iterations'
@@ -62,7 +82,7 @@ def test_gauss_newton_kernel_is_its_numpy_reference(engine, constant_loss):
 def test_smoothed_pressure_is_savgol_filter(rows, step_deg, seed):
     """The Savitzky-Golay operator against scipy's savgol_filter (mode="interp": the edges too), value and
     derivative: rtol 1e-12 of the trace's largest value (seen: 6e-15; the same least squares, another summation)."""
-    from frictionwatch.core.monitor.calibration.tdc import smoothed_pressure, smoothed_pressure_reference
+    from frictionwatch.core.monitor.calibration.tdc_smoothing import smoothed_pressure, smoothed_pressure_reference
 
     rng = np.random.default_rng(seed)
     angle = np.radians(np.arange(-180.0, 180.0, step_deg))
@@ -72,3 +92,24 @@ def test_smoothed_pressure_is_savgol_filter(rows, step_deg, seed):
     for g, w in zip(got, want, strict=True):
         assert g.shape == w.shape
         np.testing.assert_allclose(g, w, rtol=0, atol=1e-12 * np.max(np.abs(w)))
+
+
+def test_a_smoothing_operator_made_once_smooths_as_one_made_per_call():
+    """``smoothing(step)`` made once (the TDC watch: once a window close) gives ``smoothed_pressure``'s numbers
+    exactly (rtol 0: the same operator, the same products); one made for another step is not used (the answer is
+    that step's own, within the savgol test's tolerance of scipy)."""
+    from frictionwatch.core.monitor.calibration.tdc_smoothing import (
+        smoothed_pressure,
+        smoothed_pressure_reference,
+        smoothing,
+    )
+
+    rng = np.random.default_rng(9)
+    step = math.radians(1.0)
+    p = 1e5 * (1.0 + rng.uniform(0.0, 1.0, (5, 360)))
+    once = smoothing(step)
+    for got, want in zip(smoothed_pressure(p, step, once), smoothed_pressure(p, step), strict=True):
+        np.testing.assert_allclose(got, want, rtol=0, atol=0)
+    other = smoothing(math.radians(0.5))
+    for got, want in zip(smoothed_pressure(p, step, other), smoothed_pressure_reference(p, step), strict=True):
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.max(np.abs(want)))

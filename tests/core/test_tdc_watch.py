@@ -205,7 +205,7 @@ def test_a_window_in_which_most_cylinders_moved_fits_every_cylinder(monkeypatch)
 
     asked = []
 
-    def fit(pressure, angle_rad, spec_, speed):
+    def fit(pressure, angle_rad, spec_, speed, **options):  # options: the close's smoothing operator
         asked.append(pressure.shape)
         return _est(0.0, stat=0.01)
 

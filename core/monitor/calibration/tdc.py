@@ -61,9 +61,14 @@ from frictionwatch.core.monitor.calibration.tdc_kernels import (
     N_CONST,
     gauss_newton_kernel,
 )
+from frictionwatch.core.monitor.calibration.tdc_smoothing import (  # noqa: F401 (SMOOTH_DEG: read here by core.tuned's test)
+    SMOOTH_DEG,
+    Smoothing,
+    smooth_width,
+    smoothed_pressure,
+)
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 from frictionwatch.core.types import Cycle
-from scipy.signal import savgol_filter
 
 METHOD_FIRED = "rohr-compression-expansion"  # Energies 2017, 10(1), 143 with the project's Woschni wall heat
 METHOD_MOTORED = "rohr-motored-heat-loss-shaping"  # SAE 2004-01-1458 idea, same fit over the whole closed part
@@ -82,8 +87,6 @@ BEFORE_EVO_DEG = _TUNED["TDC_BEFORE_EVO_DEG"].value
 # at seeds 14-15 by bench/calibrate_tdc_sigma.py (0.045 deg over 42 estimates; seed 1 by hand: 0.043 over 21).
 SYSTEMATIC_SIGMA_DEG = _TUNED["TDC_SYSTEMATIC_SIGMA_DEG"].value
 BURN_FRACTION = 0.05  # of the peak net ROHR: the start and end of combustion (_combustion_edges)
-# Savitzky-Golay span of the pressure before its derivative (same tuning cases)
-SMOOTH_DEG = _TUNED["TDC_SMOOTH_DEG"].value
 GN_ITERATIONS = 8
 MAX_STEP_RAD = math.radians(3.0)  # a Gauss-Newton step larger than this is cut (the windows move with delta)
 # Relative 1-sigma of the wall heat on an engine whose heat transfer nobody measured (Woschni's correlation against
@@ -146,55 +149,6 @@ def apparent_heat_release_rate(pressure_pa: np.ndarray, dpressure: np.ndarray, v
                                dvolume: np.ndarray, gamma: np.ndarray) -> np.ndarray:
     """First-law apparent (net) ROHR [J/rad]: gamma/(gamma-1) p V' + 1/(gamma-1) V p' (single zone, no mass flow)."""
     return (gamma * pressure_pa * dvolume + volume * dpressure) / (gamma - 1.0)
-
-
-def smoothed_pressure(pressure_pa: np.ndarray, step_rad: float) -> tuple[np.ndarray, np.ndarray]:
-    """(p, dp/dtheta) of each row by a local cubic over SMOOTH_DEG (Savitzky-Golay): the ROHR needs p', and a
-    plain difference of 1-deg samples turns the sensor noise into a ROHR noise larger than a 1 deg TDC error.
-
-    scipy's ``savgol_filter(..., mode="interp")`` (``smoothed_pressure_reference``, tested equal) as the linear map it
-    is (``savgol_operator``): each sample a dot product with its window; 25 against 450 us for a TDC window's
-    (5, 360) block sums (scipy refits the edge polynomials and its coefficients on every call)."""
-    p = np.asarray(pressure_pa, dtype=np.float64)
-    width = _smooth_width(step_rad)
-    n = p.shape[1]
-    if n < width:  # shorter than one window: scipy's own error
-        return smoothed_pressure_reference(p, step_rad)
-    h = width // 2
-    windows = np.lib.stride_tricks.sliding_window_view(p, width, axis=1)  # (rows, n - 2h, width), no copy
-    out = []
-    for op in savgol_operator(width, 3, step_rad):
-        y = np.empty_like(p)
-        y[:, :h] = p[:, :width] @ op[:h].T
-        y[:, h:n - h] = windows @ op[h]
-        y[:, n - h:] = p[:, n - width:] @ op[width - h:].T
-        out.append(y)
-    return out[0], out[1]
-
-
-def smoothed_pressure_reference(pressure_pa: np.ndarray, step_rad: float) -> tuple[np.ndarray, np.ndarray]:
-    """``smoothed_pressure`` by scipy.signal.savgol_filter (its reference)."""
-    width = _smooth_width(step_rad)
-    return (savgol_filter(pressure_pa, width, 3, axis=1, mode="interp"),
-            savgol_filter(pressure_pa, width, 3, deriv=1, delta=step_rad, axis=1, mode="interp"))
-
-
-def _smooth_width(step_rad: float) -> int:
-    return max(5, 2 * int(round(0.5 * SMOOTH_DEG / math.degrees(step_rad))) + 1)
-
-
-def savgol_operator(width: int, order: int, step: float) -> tuple[np.ndarray, np.ndarray]:
-    """(value, derivative) (width, width) each: row i maps ``width`` samples (spacing ``step``) to the least-squares
-    polynomial of ``order`` through them, and its derivative, at sample i. Row width // 2 is the Savitzky-Golay
-    filter inside a trace; the rows before and after it are savgol_filter's mode="interp" edges (the polynomial of
-    the first / last window evaluated at the edge samples)."""
-    t = np.arange(width, dtype=np.float64) - width // 2  # centred: a well-conditioned Vandermonde
-    powers = np.arange(order + 1)
-    vander = t[:, None] ** powers  # (width, order + 1)
-    fit = np.linalg.pinv(vander)  # (order + 1, width): the coefficients of the least-squares polynomial
-    dvander = np.zeros_like(vander)
-    dvander[:, 1:] = powers[1:] * t[:, None] ** (powers[1:] - 1)
-    return vander @ fit, (dvander @ fit) / step
 
 
 @dataclass(frozen=True)
@@ -314,7 +268,8 @@ def _gauss_newton_reference(p: np.ndarray, dp: np.ndarray, ang: np.ndarray, st: 
 
 def tdc_from_pressure(pressure_pa: np.ndarray, angle_rad: np.ndarray, spec: EngineSpec, speed_rad_s: float,
                       motored: bool = False, heat_loss_scale: float = 1.0,
-                      heat_loss_rel_sigma: float = HEAT_LOSS_REL_SIGMA) -> TdcEstimate:
+                      heat_loss_rel_sigma: float = HEAT_LOSS_REL_SIGMA, operator: Smoothing | None = None
+                      ) -> TdcEstimate:
     """TDC correction and pegging of one cylinder from its cycles (module docstring).
 
     pressure_pa : (n_cycles, n_angle) absolute pressure [Pa] on the local grid angle_rad
@@ -325,6 +280,7 @@ def tdc_from_pressure(pressure_pa: np.ndarray, angle_rad: np.ndarray, spec: Engi
     heat_loss_scale : multiplies the project's Woschni wall heat (1 = core.model.thermo as the simulator has it)
     heat_loss_rel_sigma : relative 1-sigma of that wall heat; its effect on the offset (a refit at
         heat_loss_scale * (1 + heat_loss_rel_sigma)) is a systematic part of sigma
+    operator    : the smoothing operator of this grid's step (``smoothing``), where a caller fits the grid again
 
     The fit is made on the mean cycle (noise averages out before the non-linear ROHR). sigma = sqrt(statistical^2
     + SYSTEMATIC_SIGMA_DEG^2 + heat-loss^2 + other-loss^2): statistical from the same fit on BLOCKS disjoint blocks
@@ -350,7 +306,7 @@ def tdc_from_pressure(pressure_pa: np.ndarray, angle_rad: np.ndarray, spec: Engi
     if deg[0] > cb.ivc_deg or deg[-1] < cb.evo_deg:
         raise ValueError(f"the grid {deg[0]:.0f}..{deg[-1]:.0f} deg must cover IVC {cb.ivc_deg:g}..EVO {cb.evo_deg:g}")
     clipped = _clipped(p, float(step.mean()))
-    p, dp = smoothed_pressure(p, float(step.mean()))
+    p, dp = smoothed_pressure(p, float(step.mean()), operator)
     i_ivc = int(np.argmin(np.abs(deg - cb.ivc_deg)))
     p_ivc = float(np.mean(p[:, i_ivc]))
     omega = float(speed_rad_s)
@@ -410,7 +366,7 @@ def _clipped(pressure_pa: np.ndarray, step_rad: float) -> np.ndarray:
     0.93 bar for 1.5 with those samples in), in any row, widened by half the smoothing span on each side (the
     smoothed p and p' there mix in the floor)."""
     bad = np.any(pressure_pa <= 0.0, axis=0)
-    half = _smooth_width(step_rad) // 2
+    half = smooth_width(step_rad) // 2
     if not bad.any():
         return bad
     return np.convolve(bad.astype(np.float64), np.ones(2 * half + 1), mode="same") > 0.0

@@ -35,6 +35,17 @@ EPS = 2.220446049250313e-16  # float64 machine epsilon
 def residual_kernel(p, dp, ang, delta, peg, c, out):
     """out (m,) = net apparent ROHR + Woschni wall heat [J/rad] of the mean pressure p (m,), dp/dtheta (m,) at the
     angles ang - delta (m,), pressure + peg (``tdc._model_terms`` summed, sample by sample); c: the constants."""
+    pegs = np.empty(1)
+    pegs[0] = peg
+    residuals_kernel(p, dp, ang, delta, pegs, c, out.reshape((1, out.shape[0])))
+
+
+@numba.njit(cache=True)
+def residuals_kernel(p, dp, ang, delta, pegs, c, out):
+    """out (k, m): ``residual_kernel`` at one delta and k peggings pegs (k,), each row the same numbers as alone.
+    What depends on delta only (the kinematics, the volumes, the motored polytrope's volume ratio, the wall area) is
+    evaluated once for all k: the Gauss-Newton step's residual and its pegging column share it (~1/3 of a fit's
+    kinematics and a pow per sample after the start of combustion)."""
     m = ang.shape[0]
     kin = c[C_R:C_E + 1]
     shifted = np.empty(m)
@@ -48,25 +59,30 @@ def residual_kernel(p, dp, ang, delta, peg, c, out):
     kinematics_kernel(ivc, kin, xi, dxi, ddxi)
     area = c[C_AREA]
     v_ivc = c[C_CLEAR] + area * xi[0]
-    p_ivc = max(c[C_PIVC] + peg, 1e3)
-    mass = p_ivc * v_ivc / (R_AIR * c[C_TIVC])
     omega = c[C_OMEGA]
     cbar = c[C_DISP] / area * omega / math.pi
-    burn = WOSCHNI_C2 * c[C_DISP] * c[C_TIVC] / (p_ivc * v_ivc)
     h0 = WOSCHNI_SCALE * 3.26 * c[C_BORE] ** -0.2
+    n_peg = pegs.shape[0]
+    p_ivc, mass, burn = np.empty(n_peg), np.empty(n_peg), np.empty(n_peg)
+    for j in range(n_peg):
+        p_ivc[j] = max(c[C_PIVC] + pegs[j], 1e3)
+        mass[j] = p_ivc[j] * v_ivc / (R_AIR * c[C_TIVC])
+        burn[j] = WOSCHNI_C2 * c[C_DISP] * c[C_TIVC] / (p_ivc[j] * v_ivc)
     for i in range(m):
         vol = c[C_CLEAR] + area * x[i]
         dvol = area * dx[i]
-        pc = max(p[i] + peg, 1e3)
-        temp = pc * vol / (mass * R_AIR)
-        cp = cp_air_kernel(temp)
-        gamma = cp / (cp - R_AIR)
-        q = (gamma * pc * dvol + vol * dp[i]) / (gamma - 1.0)
-        w = WOSCHNI_C1 * cbar + (burn * max(pc - p_ivc * (v_ivc / vol) ** N_MOTORED, 0.0)
-                                 if shifted[i] > c[C_SOC] else 0.0)
-        h = h0 * (pc * 1e-3) ** 0.8 * temp ** -0.55 * w ** 0.8
+        burning = shifted[i] > c[C_SOC]
+        polytrope = (v_ivc / vol) ** N_MOTORED if burning else 0.0
         area_w = WALL_AREA_HEAD_PISTON * area + math.pi * c[C_BORE] * vol / area
-        out[i] = q + c[C_HEAT] * h * area_w * (temp - c[C_TWALL]) / omega
+        for j in range(n_peg):
+            pc = max(p[i] + pegs[j], 1e3)
+            temp = pc * vol / (mass[j] * R_AIR)
+            cp = cp_air_kernel(temp)
+            gamma = cp / (cp - R_AIR)
+            q = (gamma * pc * dvol + vol * dp[i]) / (gamma - 1.0)
+            w = WOSCHNI_C1 * cbar + (burn[j] * max(pc - p_ivc[j] * polytrope, 0.0) if burning else 0.0)
+            h = h0 * (pc * 1e-3) ** 0.8 * temp ** -0.55 * w ** 0.8
+            out[j, i] = q + c[C_HEAT] * h * area_w * (temp - c[C_TWALL]) / omega
 
 
 @numba.njit(cache=True)
@@ -84,12 +100,14 @@ def gauss_newton_kernel(p, dp, ang, c, start, steps):
         dpm[i] /= k
     delta, peg = start[0], start[1]
     n_col = 3 if start[2] != 0.0 else 2
-    r, rd, rp = np.empty(m), np.empty(m), np.empty(m)
+    both, moved = np.empty((2, m)), np.empty((1, m))  # (r, rp) at delta, rd at delta + FD
+    r, rp, rd = both[0], both[1], moved[0]
+    pegs, peg_alone = np.empty(2), np.empty(1)
     jac = np.ones((m, n_col))
     for _ in range(int(steps[0])):
-        residual_kernel(pm, dpm, ang, delta, peg, c, r)
-        residual_kernel(pm, dpm, ang, delta + steps[1], peg, c, rd)
-        residual_kernel(pm, dpm, ang, delta, peg + steps[2], c, rp)
+        pegs[0], pegs[1], peg_alone[0] = peg, peg + steps[2], peg
+        residuals_kernel(pm, dpm, ang, delta, pegs, c, both)
+        residuals_kernel(pm, dpm, ang, delta + steps[1], peg_alone, c, moved)
         for i in range(m):
             jac[i, 0] = (rd[i] - r[i]) / steps[1]
             jac[i, 1] = (rp[i] - r[i]) / steps[2]

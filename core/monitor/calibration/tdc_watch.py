@@ -58,6 +58,7 @@ import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.calibration.tdc import BLOCKS, TdcEstimate, tdc_from_pressure
+from frictionwatch.core.monitor.calibration.tdc_smoothing import smoothing
 from frictionwatch.core.monitor.calibration.tdc_traces import TraceCut, add_traces, local_traces, trace_cut
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 from frictionwatch.core.types import Cycle
@@ -153,12 +154,20 @@ def watch_cycle(spec: EngineSpec, cal: Calibration, state: TdcWatchState, cycle:
     counts = state.counts.copy()
     sums = sums[:b] + (block,) + sums[b + 1:]
     counts[b] += 1
-    omega = state.omega_sum + _omega(cycle)
-    twist_sum = state.twist_sum + np.asarray(twist, dtype=np.float64)
     n = state.cycles + 1
-    state = dataclasses.replace(state, sums=sums, counts=counts, cycles=n, previous=cycle, omega_sum=omega,
-                                twist_sum=twist_sum, cut=cut)
+    state = _added(state, sums, counts, n, cycle, state.omega_sum + _omega(cycle),
+                   state.twist_sum + np.asarray(twist, dtype=np.float64), cut)
     return state if n < window else close_window(spec, cal, state, angle, per_window)
+
+
+def _added(s: TdcWatchState, sums: tuple[np.ndarray, ...], counts: np.ndarray, cycles: int, previous: Cycle,
+           omega_sum: float, twist_sum: np.ndarray, cut: TraceCut) -> TdcWatchState:
+    """``dataclasses.replace(s, sums=..., counts=..., cycles=..., previous=..., omega_sum=..., twist_sum=..., cut=...)``
+    by position: every cycle makes one, and replace's field-by-field keywords cost twice a positional construction
+    of these 18 fields (design note 51). The window's fields are the ones a window closes (``close_window``)."""
+    return TdcWatchState(sums, counts, cycles, previous, s.last, s.flags, omega_sum, twist_sum, s.next_cylinder,
+                         s.first_own, s.reference, s.reference_twist, s.screened, s.fitted, s.window_trace,
+                         s.window_twist, s.drift, cut)
 
 
 def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle: np.ndarray | None = None,
@@ -220,10 +229,13 @@ def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle
         ref, ref_twist = np.full(mean_trace.shape, np.nan), np.zeros(z)
     ref, ref_twist = ref.copy(), np.array(ref_twist, dtype=np.float64)
     fitted = list(state.fitted) if state.fitted is not None else [None] * z
+    # the smoothing operator once a close, not once a fitted cylinder (its step as tdc_from_pressure reads it)
+    operator = smoothing(float(np.diff(np.asarray(angle, dtype=np.float64).ravel()).mean())) \
+        if np.size(angle) > 1 else None
     for k in turn + screened:
         ref[k], ref_twist[k], drift[k] = mean_trace[k], float(twist_mean[k]), 0.0
         try:
-            e = tdc_from_pressure(means[:, k, :], angle, spec, omega / n)
+            e = tdc_from_pressure(means[:, k, :], angle, spec, omega / n, operator=operator)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError):
             fitted[k] = None
             continue
