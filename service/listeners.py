@@ -6,15 +6,10 @@
     fanout.stop()                # each thread delivers what is queued, then the listener's stop() is called
 
 A listener is any object with ``on_message_received(event)`` (python-can's name), optionally ``on_error(exc)``,
-``stop()``, ``name``, ``wants(event)`` and ``inline``; a plain callable works too. ``wants`` is asked on the publishing thread
+``stop()``, ``name`` and ``wants(event)``; a plain callable works too. ``wants`` is asked on the publishing thread
 (keep it a field read): False and the event is not queued for that listener at all, neither delivered nor counted
 as dropped; a queue hand-off wakes the listener's thread, ~50 us of CPU on a loaded 2-core box, every cycle of
-every engine (the SSE broadcaster wants nothing while no client listens; design notes 34). A listener with
-``inline = True`` gets no queue and no thread: the publishing thread calls it. Only for a listener whose call is
-short and never waits, on I/O or on a lock a request may hold (the API's state takes its lock only if it is free,
-else leaves the result pending; the metrics' histogram): its
-hand-over cost more than its work, and with many engines on one core every woken thread also took the GIL and a
-context switch from the monitor (design notes 47). An exception in a
+every engine (the SSE broadcaster wants nothing while no client listens; design notes 34). An exception in a
 listener is counted (``errors``), passed to its ``on_error`` and logged once; the listener keeps receiving. The
 events are ``ServiceEvent``: one per analysed cycle (``result`` set, with the alert changes that cycle caused) and
 one per state change made through the API (``result`` None: an acknowledged alert, a new baseline).
@@ -81,12 +76,11 @@ class _Callback(Listener):
 
 
 class _Worker:
-    """One listener's queue and thread (``inline``: neither; ``deliver`` runs on the publishing thread)."""
+    """One listener's queue and thread."""
 
     def __init__(self, listener: Any, name: str, queue_size: int) -> None:
         self.listener, self.name = listener, name
         self.wants: Callable[[ServiceEvent], bool] | None = getattr(listener, "wants", None)
-        self.inline = getattr(listener, "inline", False) is True
         self.queue: queue.Queue = queue.Queue(maxsize=queue_size)
         self.drops = 0
         self.errors: Counter[str] = Counter()
@@ -102,23 +96,20 @@ class _Worker:
                 if self._stopping.is_set():
                     return
                 continue
-            self.deliver(event)
-
-    def deliver(self, event: ServiceEvent) -> None:
-        try:
-            self.listener.on_message_received(event)
-            self.delivered += 1
-        except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the others or the monitor
-            reason = type(exc).__name__
-            if not self.errors:
-                log.error("listener %s failed: %s", self.name, exc, exc_info=exc)
-            self.errors[reason] += 1
-            on_error = getattr(self.listener, "on_error", None)
-            if on_error is not None:
-                try:
-                    on_error(exc)
-                except Exception:  # noqa: BLE001 - its error hook failing is logged, nothing more
-                    log.exception("listener %s: on_error failed", self.name)
+            try:
+                self.listener.on_message_received(event)
+                self.delivered += 1
+            except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the others or the monitor
+                reason = type(exc).__name__
+                if not self.errors:
+                    log.error("listener %s failed: %s", self.name, exc, exc_info=exc)
+                self.errors[reason] += 1
+                on_error = getattr(self.listener, "on_error", None)
+                if on_error is not None:
+                    try:
+                        on_error(exc)
+                    except Exception:  # noqa: BLE001 - its error hook failing is logged, nothing more
+                        log.exception("listener %s: on_error failed", self.name)
 
 
 class Fanout:
@@ -145,23 +136,19 @@ class Fanout:
             unique, i = f"{name}-{i}", i + 1
         worker = _Worker(listener, unique, self.queue_size)
         self._workers.append(worker)
-        if self._started and not worker.inline:
+        if self._started:
             worker.thread.start()
 
     def start(self) -> None:
         if not self._started:
             self._started = True
             for w in self._workers:
-                if not w.inline:
-                    w.thread.start()
+                w.thread.start()
 
     def publish(self, event: ServiceEvent) -> None:
         """Never blocks: a listener whose queue is full loses this event (counted in ``drops``)."""
         for w in self._workers:
             if w.wants is not None and not w.wants(event):
-                continue
-            if w.inline:
-                w.deliver(event)
                 continue
             try:
                 w.queue.put_nowait(event)
@@ -177,7 +164,7 @@ class Fanout:
             w._stopping.set()
         deadline = time.monotonic() + timeout
         for w in self._workers:
-            if not w.inline and w.thread.is_alive():
+            if w.thread.is_alive():
                 w.thread.join(max(0.0, deadline - time.monotonic()))
             stop = getattr(w.listener, "stop", None)
             if stop is not None:
@@ -210,19 +197,10 @@ class Fanout:
 class LatestState(Listener):
     """What the API reads of one engine: the newest whole result, a bounded ring of recent results (slim: no
     traces), the running sums of window means (service/window_sums.py). Thread-safe; ``snapshot`` copies under the
-    lock only the results asked for, ``window`` reads the sums in O(1).
-
-    Called on the ingest thread (Fanout, ``inline``: a thread of its own cost each engine a hand-over and a wake-up
-    per cycle, design note 47), and the ingest thread never waits for a request: it hands each result to a pending
-    queue and applies the queue only where it gets the lock at once; a request that holds the lock applies what is
-    pending when it takes it (``_apply_pending``), so every reader sees every result that came before it asked
-    (tests/service/test_api_window_cost.py holds the lock while cycles go on being analysed)."""
+    lock only the results asked for, ``window`` reads the sums in O(1): a request never holds this listener's
+    thread for longer than that (the ingest thread never waits for it: the fan-out does not block)."""
 
     name = "api-state"
-    # not inline: on the ingest thread it made a fast replay's monitor outrun the threaded listeners (a resume test's
-    # results listener fell 14-40 cycles behind on a quiet box, tests/service/test_monitor_resume.py); the pending
-    # queue above still keeps this listener's thread from waiting on a request's lock (design note 47)
-    inline = False
 
     def __init__(self, max_results: int = 5000) -> None:
         if max_results < 2:
@@ -237,22 +215,12 @@ class LatestState(Listener):
         self.newest_s: float | None = None  # monotonic time the newest result became visible here
         self.updated = threading.Condition(self._lock)
         self.on_visible: Callable[[float], None] | None = None  # gets result -> visible here [s] (metrics)
-        self._pending: deque[tuple[ServiceEvent, Any]] = deque()  # results not applied yet (the lock was held)
 
     def on_message_received(self, event: ServiceEvent) -> None:
         if event.result is None:
             return
-        self._pending.append((event, self.sums.row_for(event.result)))  # the per-cycle cost, outside the lock
-        if self._lock.acquire(blocking=False):  # never waits: a request holding the lock applies it (class doc)
-            try:
-                self._apply_pending()
-            finally:
-                self._lock.release()
-
-    def _apply_pending(self) -> None:
-        """With the lock held: every pending result into the ring, the sums and the newest, in order."""
-        while self._pending:
-            event, row = self._pending.popleft()
+        row = self.sums.row_for(event.result)  # the per-cycle cost, outside the lock
+        with self._lock:
             self.sums.append(int(event.result.index), row)
             if self._ring and self.newest is not None:
                 self._ring[-1] = self.newest.slim()  # only the newest keeps its traces
@@ -261,19 +229,12 @@ class LatestState(Listener):
             if not left_out(event.result.flags):
                 self.newest_counted = event.result
             self.updated.notify_all()
-            if self.on_visible is not None:
-                self.on_visible(self.newest_s - event.result_s)
-
-    def latest(self) -> CycleResult | None:
-        """The newest result, pending ones applied."""
-        with self._lock:
-            self._apply_pending()
-            return self.newest
+        if self.on_visible is not None:
+            self.on_visible(self.newest_s - event.result_s)
 
     def snapshot(self, last: int | None = None) -> tuple[CycleResult | None, list[CycleResult]]:
         """The newest whole result and the last ``last`` results held (all when None), oldest first."""
         with self._lock:
-            self._apply_pending()
             if last is None or last >= len(self._ring):
                 return self.newest, list(self._ring)
             newest_first = list(itertools.islice(reversed(self._ring), max(0, last)))
@@ -283,13 +244,11 @@ class LatestState(Listener):
         """The result a window's statuses are read from (the newest with a previous cycle; the newest when none has
         one) and the figures of the newest ``cycles`` cycles, read together."""
         with self._lock:
-            self._apply_pending()
             return self.newest_counted or self.newest, self.sums.figures(cycles)
 
     def wait_index(self, index: int, timeout: float) -> bool:
         with self._lock:
-            return self.updated.wait_for(lambda: self._apply_pending() or (self.newest is not None
-                                                                             and self.newest.index >= index), timeout)
+            return self.updated.wait_for(lambda: self.newest is not None and self.newest.index >= index, timeout)
 
 
 class SseClient:

@@ -88,9 +88,6 @@ class MetricsListener(Listener):
     (``_Fmep``): the same figures a per-cycle gauge would hold then, worked out per scrape instead of per cycle."""
 
     name = "metrics"
-    # not inline (Fanout), as the API state (service/listeners.py LatestState: a fast replay outran the threaded
-    # listeners); its per-cycle work is one histogram observation now, the FMEP gauges are read at scrape time
-    inline = False
 
     def __init__(self, metrics: ServiceMetrics, engine_id: str) -> None:
         self.metrics, self.engine_id = metrics, engine_id
