@@ -281,6 +281,15 @@ def own_offsets(estimates: list[TdcEstimate | None]) -> np.ndarray:
     return out
 
 
+def _stretch(angle: np.ndarray, spec: EngineSpec) -> np.ndarray | None:
+    """The screens' stretch of the local grid ``angle`` [rad]: the compression stroke from SCREEN_FROM_DEG (or the
+    IVC, if later) to SCREEN_BEFORE_SOC_DEG before the combustion's start, as a mask; None where it has < 8 samples."""
+    deg = np.degrees(angle)
+    hi = min(spec.combustion.start_deg - SCREEN_BEFORE_SOC_DEG, -SCREEN_BEFORE_SOC_DEG)
+    sel = (deg >= max(SCREEN_FROM_DEG, spec.combustion.ivc_deg)) & (deg <= hi)
+    return sel if np.count_nonzero(sel) >= 8 else None
+
+
 def screen_shift(reference: np.ndarray, trace: np.ndarray, angle: np.ndarray, spec: EngineSpec
                  ) -> tuple[float, float]:
     """(shift, its 1 sigma) [rad]: the angle by which ``trace`` lies later than ``reference`` (one cylinder's mean
@@ -288,10 +297,8 @@ def screen_shift(reference: np.ndarray, trace: np.ndarray, angle: np.ndarray, sp
     combustion, where the trace's shape is the volume's: least squares of trace = a reference + b + c reference' (a,
     b: the charge pressure and a pegging move with the load; c = -a shift for a small shift). NaN where the stretch
     is too short."""
-    deg = np.degrees(angle)
-    hi = min(spec.combustion.start_deg - SCREEN_BEFORE_SOC_DEG, -SCREEN_BEFORE_SOC_DEG)
-    sel = (deg >= max(SCREEN_FROM_DEG, spec.combustion.ivc_deg)) & (deg <= hi)
-    if np.count_nonzero(sel) < 8:
+    sel = _stretch(angle, spec)
+    if sel is None:
         return math.nan, math.nan
     d_ref = np.gradient(reference, angle)
     cols = np.column_stack([reference[sel], np.ones(np.count_nonzero(sel)), d_ref[sel]])
@@ -341,10 +348,8 @@ def window_shift(previous: np.ndarray, trace: np.ndarray, angle: np.ndarray, spe
     ``angle``) over ``screen_shift``'s stretch: least squares of trace - previous = b + c previous', shift -c (b: a
     pegging). No scale column: a change of the charge pressure reads as a shift (``own_drift`` takes the cylinders'
     common part out). NaN where the stretch is too short."""
-    deg = np.degrees(angle)
-    hi = min(spec.combustion.start_deg - SCREEN_BEFORE_SOC_DEG, -SCREEN_BEFORE_SOC_DEG)
-    sel = (deg >= max(SCREEN_FROM_DEG, spec.combustion.ivc_deg)) & (deg <= hi)
-    if np.count_nonzero(sel) < 8:
+    sel = _stretch(angle, spec)
+    if sel is None:
         return math.nan
     d_prev = np.gradient(previous, angle)[sel]
     if not (np.all(np.isfinite(d_prev)) and np.all(np.isfinite(trace[sel])) and np.all(np.isfinite(previous[sel]))):
