@@ -204,6 +204,11 @@ def said_where(cand: Candidate, n_cyl: int) -> str:
     return cand.label if cand.places_cylinder or n_cyl < 2 else f"{cand.label} in any one of the {n_cyl} cylinders"
 
 
+def chi2(res: Residuals, scale: np.ndarray) -> float:
+    """The held-out coherent chi^2 of a residual: N times the whitened coherent terms summed (no floor)."""
+    return float(res.n_cycles * coherent_terms(res, scale).sum())
+
+
 def chi2_floored(res: Residuals, scale: np.ndarray, floor: np.ndarray) -> float:
     """The held-out coherent chi^2 with the model-error floor (whitened, per feature: features.feature_floor) in the
     variance of each feature's mean: sum_j N p_j / (1 + N floor_j^2), the error that does not average away with
@@ -212,6 +217,6 @@ def chi2_floored(res: Residuals, scale: np.ndarray, floor: np.ndarray) -> float:
     return float(np.sum(n * coherent_terms(res, scale) / (1.0 + n * floor**2)))
 
 
-__all__ = ["AMBIGUOUS_DCHI2", "MAX_CLOSE_CYLINDERS", "RESOLUTION", "WORSE_SIGMAS", "best_of_shapes", "channel_worse", "chi2_floored",
+__all__ = ["AMBIGUOUS_DCHI2", "MAX_CLOSE_CYLINDERS", "RESOLUTION", "WORSE_SIGMAS", "best_of_shapes", "channel_worse", "chi2", "chi2_floored",
            "close_cylinders", "nested", "off_physics", "one_per_candidate", "pressure_worse", "quiet_residual", "rival", "said_where", "to_confirm",
            "unphysical", "unresolved"]

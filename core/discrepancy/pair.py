@@ -32,11 +32,12 @@ from frictionwatch.core.discrepancy.candidates import candidate_library
 from frictionwatch.core.discrepancy.choice import (
     AMBIGUOUS_DCHI2,
     channel_worse,
+    chi2,
     off_physics,
     pressure_worse,
     unphysical,
 )
-from frictionwatch.core.discrepancy.features import beyond_null, coherent_terms, localise
+from frictionwatch.core.discrepancy.features import beyond_null, localise
 from frictionwatch.core.discrepancy.fit import Trial, polish, with_fit
 from frictionwatch.core.discrepancy.pressure_channel import (
     SEED_MIN_DEG,
@@ -65,10 +66,6 @@ class Pair:
     tdc_model: EngineModel
     tdc_res: Residuals
     why: str
-
-
-def _chi2(res: Residuals, scale: np.ndarray) -> float:
-    return float(res.n_cycles * coherent_terms(res, scale).sum())
 
 
 def tdc_and_friction(current: EngineModel, cur_res: Residuals, rivals: list[tuple[Trial, Residuals]],
@@ -106,35 +103,35 @@ def tdc_and_friction(current: EngineModel, cur_res: Residuals, rivals: list[tupl
             start = Trial(cand, t.x, t.sigma, t.cost, t.base_cost, 0)
             res0 = full(with_fit(tdc_model, start))
             runs += 1
-            starts.append((_chi2(parts(res0)[1], scale), start, res0))
+            starts.append((chi2(parts(res0)[1], scale), start, res0))
     pairs = []
     for _, start, res0 in sorted(starts, key=lambda s: s[0])[:POLISHED]:
         t2, model2, res2, spent = polish(start, tdc_model, with_fit(tdc_model, start), res0, full,
                                          lambda r: parts(r)[0], scale, floor, held)
         runs += spent
-        pairs.append((_chi2(parts(res2)[1], scale) + pressure(model2), t2, model2, res2))
+        pairs.append((chi2(parts(res2)[1], scale) + pressure(model2), t2, model2, res2))
     if not pairs:
         return None, runs, ""
     pairs.sort(key=lambda p: p[0])
-    chi2, t2, model2, res2 = pairs[0]
-    best_single = min(_chi2(h, scale) + pressure(with_fit(current, t)) for (t, _), h in zip(rivals, singles,
+    best, t2, model2, res2 = pairs[0]
+    best_single = min(chi2(h, scale) + pressure(with_fit(current, t)) for (t, _), h in zip(rivals, singles,
                                                                                              strict=True))
     test_pair, test_cur = parts(res2)[1], parts(cur_res)[1]
     why = ("not significant against the current model" if not significant(res2) else
-           f"held-out chi^2 {chi2:.4g} is not {min_delta:g} below one effect alone's ({best_single:.4g})"
-           if best_single - chi2 < min_delta else
-           channel_worse(test_cur, test_pair, scale) or channel_worse(min(singles, key=lambda h: _chi2(h, scale)),
+           f"held-out chi^2 {best:.4g} is not {min_delta:g} below one effect alone's ({best_single:.4g})"
+           if best_single - best < min_delta else
+           channel_worse(test_cur, test_pair, scale) or channel_worse(min(singles, key=lambda h: chi2(h, scale)),
                                                                       test_pair, scale)
            or pressure_worse(pressure(current), pressure(model2), spec.n_cyl)
            or unphysical(t2, load_nm) or off_physics(t2)
            or ("the speed cannot place it in a cylinder" if not t2.candidate.places_cylinder and spec.n_cyl > 1
                else "")
            or (f"{pairs[1][1].candidate.label} with the TDC explains it as well" if len(pairs) > 1
-               and pairs[1][0] - chi2 < AMBIGUOUS_DCHI2 else ""))
+               and pairs[1][0] - best < AMBIGUOUS_DCHI2 else ""))
     if why:
         return None, runs, f"tdc_offset[cyl {k}] with {t2.candidate.label}: {why}"
     return (Pair(found[0], t2, model2, res2, tdc_model, tdc_res,
-                 f"held-out chi^2 {chi2:.4g} against {best_single:.4g} with one effect alone"), runs, "")
+                 f"held-out chi^2 {best:.4g} against {best_single:.4g} with one effect alone"), runs, "")
 
 
 __all__ = ["POLISHED", "Pair", "tdc_and_friction"]

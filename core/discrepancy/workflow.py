@@ -37,6 +37,7 @@ from frictionwatch.core.discrepancy.candidates import candidate_library
 from frictionwatch.core.discrepancy.choice import (
     best_of_shapes,
     channel_worse,
+    chi2,
     chi2_floored,
     close_cylinders,
     nested,
@@ -54,7 +55,6 @@ from frictionwatch.core.discrepancy.features import (
     SIGNIFICANT,
     beyond_healthy_gap,
     beyond_null,
-    coherent_terms,
     feature_floor,
     gap,
     localise,
@@ -229,10 +229,6 @@ class Discovery:
                 "monitor_runs": self.evaluations}
 
 
-def _chi2(res: Residuals, scale: np.ndarray) -> float:
-    return float(res.n_cycles * coherent_terms(res, scale).sum())
-
-
 def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | None = None) -> Discovery:
     """Run the workflow (module doc). Raises ValueError when the cycles are too few to train and hold out."""
     opt = options or Options()
@@ -325,8 +321,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             confirmed.append((gap(parts(res)[1], scale), t, trial_model, res))
         if not confirmed:
             break
-        confirmed.sort(key=lambda c: _chi2(parts(c[3])[1], scale) + pressure(c[2]))
-        g_cur, chi_before = gap(test, scale), _chi2(test, scale)
+        confirmed.sort(key=lambda c: chi2(parts(c[3])[1], scale) + pressure(c[2]))
+        g_cur, chi_before = gap(test, scale), chi2(test, scale)
         significant = _significance(test, scale, opt, lambda r: parts(r)[1])
         _, t, new_model, res = confirmed[0]
         # whether the runner-up explains the held-out cycles as well: judged with the model-error floor in each
@@ -368,7 +364,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             found.refused.append({"candidate": t.candidate.label, "reason": why,
                                   "gap_before": g_cur, "gap_after": gap(test_new, scale)})
             break
-        g_new, chi_after = gap(test_new, scale), _chi2(test_new, scale)
+        g_new, chi_after = gap(test_new, scale), chi2(test_new, scale)
         runner = confirmed[1][1].candidate.label if len(confirmed) > 1 else None
         added = new_model.effects[-len(t.candidate.names):]
         found.steps.append(Step(t, added[0], g_cur, g_new, chi_before, chi_after, runner,
@@ -389,11 +385,11 @@ def _add_pair(found: Discovery, pair, test: Residuals, scale: np.ndarray, parts,
     tdc_test, pair_test = parts(pair.tdc_res)[1], parts(pair.res)[1]
     found.held.append(pair.tdc)
     found.steps.append(Step(None, pair.tdc_model.effects[-1], gap(test, scale), gap(tdc_test, scale),
-                            _chi2(test, scale), _chi2(tdc_test, scale), None, localise(test, spec, scale),
+                            chi2(test, scale), chi2(tdc_test, scale), None, localise(test, spec, scale),
                             localise(tdc_test, spec, scale), (), (pair.tdc.reading,)))
     added = pair.model.effects[-len(pair.trial.candidate.names):]
-    found.steps.append(Step(pair.trial, added[0], gap(tdc_test, scale), gap(pair_test, scale), _chi2(tdc_test, scale),
-                            _chi2(pair_test, scale), None, localise(tdc_test, spec, scale),
+    found.steps.append(Step(pair.trial, added[0], gap(tdc_test, scale), gap(pair_test, scale), chi2(tdc_test, scale),
+                            chi2(pair_test, scale), None, localise(tdc_test, spec, scale),
                             localise(pair_test, spec, scale), added[1:]))
     found.curves.append((f"+ {found.steps[-2].label} + {pair.trial.candidate.label}", pair_test.angles,
                          pair_test.speed.mean(axis=0)))
@@ -456,8 +452,8 @@ def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, t
     new_model = with_findings(current, findings)
     test_new = parts(res)[1]
     added = new_model.effects[-len(findings):]
-    found.steps.append(Step(None, added[0], gap(test, scale), gap(test_new, scale), _chi2(test, scale),
-                            _chi2(test_new, scale), None, localise(test, current.spec, scale),
+    found.steps.append(Step(None, added[0], gap(test, scale), gap(test_new, scale), chi2(test, scale),
+                            chi2(test_new, scale), None, localise(test, current.spec, scale),
                             localise(test_new, current.spec, scale), added[1:], tuple(f.reading for f in findings)))
     found.curves.append((f"+ {found.steps[-1].label}", test_new.angles, test_new.speed.mean(axis=0)))
     return new_model, res, test_new, runs
@@ -466,11 +462,11 @@ def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, t
 def _significance(test: Residuals, scale: np.ndarray, opt: Options, held_out_of):
     """A test of a candidate's whole-log run against the current model's held-out residual ``test``: the held-out
     coherent chi^2 falls by at least ``min_delta_chi2`` and the gap by at least ``min_reduction``."""
-    g_cur, chi_cur = gap(test, scale), _chi2(test, scale)
+    g_cur, chi_cur = gap(test, scale), chi2(test, scale)
 
     def significant(res: Residuals) -> bool:
         held_out = held_out_of(res)
-        return (chi_cur - _chi2(held_out, scale) >= opt.min_delta_chi2
+        return (chi_cur - chi2(held_out, scale) >= opt.min_delta_chi2
                 and gap(held_out, scale) <= (1.0 - opt.min_reduction) * g_cur)
 
     return significant

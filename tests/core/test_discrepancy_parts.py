@@ -227,8 +227,8 @@ def test_two_explanations_are_compared_with_the_model_error_floor_in_each_featur
     away with more cycles) is no evidence for either: the floored chi^2 weighs a feature by 1 / (1 + N floor^2)
     (deutz-1cyl: a half-order load ripple was named a cam-order friction, 550 better in the plain chi^2 through
     orders where the engine's model error sits; now the two are said ambiguous)."""
+    from frictionwatch.core.discrepancy.choice import chi2 as _chi2
     from frictionwatch.core.discrepancy.choice import chi2_floored
-    from frictionwatch.core.discrepancy.workflow import _chi2
 
     m, n = 6, 400
     coherent = np.zeros(m, complex)
