@@ -61,8 +61,7 @@ from frictionwatch.core.monitor.calibration.tdc_kernels import (
     N_CONST,
     gauss_newton_kernel,
 )
-from frictionwatch.core.monitor.calibration.tdc_smoothing import (  # noqa: F401 (SMOOTH_DEG: read here by core.tuned's test)
-    SMOOTH_DEG,
+from frictionwatch.core.monitor.calibration.tdc_smoothing import (
     Smoothing,
     smooth_width,
     smoothed_pressure,
