@@ -151,11 +151,11 @@ def cmd_trace(args) -> None:
     tap = Tap()
     identification.reported_estimate = tap
     identification.posterior_from_normal = tap.posterior
-    if args.pull_kappa is not None:  # the pull check at another kappa (inf: off), bench only
-        identification.PULL_CHECK = PullCheck(kappa=args.pull_kappa)
     names = args.variants
+    # the pull check at another kappa (inf: off), bench only
+    pull = {} if args.pull_kappa is None else {"pull_check": PullCheck(kappa=args.pull_kappa)}
     pipes = {n: EnginePipeline(spec, log.info if n != "one_wheel" else replace(log.info, second_wheel=None),
-                               VARIANTS[n]) for n in names}
+                               replace(VARIANTS[n], **pull)) for n in names}
     taps = {n: None for n in names}
     last = {n: None for n in names}
     counts = {n: 0 for n in names}

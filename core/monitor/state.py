@@ -17,6 +17,7 @@ from frictionwatch.core.monitor.identify.accumulate import Accumulator, Residual
 from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
 from frictionwatch.core.monitor.identify.layout import ParameterLayout
 from frictionwatch.core.monitor.identify.priors import PriorNormal
+from frictionwatch.core.monitor.identify.pull_check import PullCheck
 from frictionwatch.core.monitor.report.report_kernels import TrigTables
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
 from frictionwatch.core.monitor.teeth.second_wheel import SecondWheelState
@@ -70,6 +71,8 @@ class MonitorConfig:
     sensor_health: TDC, pressure gain and offset checks and corrections (core.monitor.checks.sensor_health); None: off
     model_error_floor: the systematic sigma the equations cannot see (core.monitor.identify.estimate.ModelErrorFloor),
     tuned on chain-mismatch logs apart from those that validate it (bench/calibrate_model_error_floor.py)
+    pull_check: the smoothed figures' pull check (core.monitor.identify.pull_check.PullCheck: its kappa, tuned apart
+    from the logs that validate it, bench/calibrate_pull_check.py)
     calibration: how well TDC, pressure gain and J are known (core.model.calibration; the model's, through
     core.model.view): its remaining uncertainty is added to every friction sigma. The default is an
     uncalibrated installation's, never perfect sensors
@@ -116,6 +119,7 @@ class MonitorConfig:
     # SensorHealthConfig()) turns it on
     sensor_health: SensorHealthConfig | None = None
     model_error_floor: ModelErrorFloor = ModelErrorFloor()
+    pull_check: PullCheck = PullCheck()
     calibration: Calibration = Calibration()
     r_squared_floor: float = _TUNED["R_SQUARED_FLOOR"].value
     # a known load-torque ripple at the load node (the model's load_ripple effect, core.model.view): amplitude [N m],

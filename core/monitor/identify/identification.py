@@ -29,7 +29,7 @@ from frictionwatch.core.monitor.identify.estimate import (
 )
 from frictionwatch.core.monitor.identify.layout import CycleRows
 from frictionwatch.core.monitor.identify.noise_model import NoiseSettings, whitened_rows
-from frictionwatch.core.monitor.identify.pull_check import PullCheck, with_pull
+from frictionwatch.core.monitor.identify.pull_check import with_pull
 from frictionwatch.core.monitor.identify.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
 from frictionwatch.core.monitor.report.results import FrictionEstimate
 from frictionwatch.core.monitor.state import GridGeometry, MidSpeedFit, MonitorConfig, MonitorState, PreviousCycle
@@ -168,8 +168,6 @@ def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indi
     friction = nan if load_stepped else indicated - load - coupling_loss - kinetic
     return friction, kinetic, accel, indicated, imep
 
-
-PULL_CHECK = PullCheck()  # a constant (its kappa from core/monitor/tuned.json): no state
 
 LOAD_STEP_FRACTION = 0.02  # of the rated torque: a larger load change between two cycles voids that balance
 
@@ -353,7 +351,7 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
                               check_c, cal, CalibrationSensitivity(tdc, t_i, mean.kinetic))
     # the smoothed figures drawn by a repeated error the sandwich does not see (one cycle's equations alone fix no
     # data-only point: the cycle's estimate is not checked)
-    est_s = with_pull(est_s, PULL_CHECK.sigma(acc, post_s, cyl_rows, share_s.friction_mean), cfg.resolve_rel, spec)
+    est_s = with_pull(est_s, cfg.pull_check.sigma(acc, post_s, cyl_rows, share_s.friction_mean), cfg.resolve_rel, spec)
     # the smoothed estimate stands on a balance when one was accumulated, or, during the warm-up (nothing
     # accumulated), when the Eq. 6 share it holds is of a measured running balance; the cycle's on its own
     balanced = float(acc.info_reference.trace()) > 0.0 or (acc.weight == 0.0 and math.isfinite(bal_mean))
