@@ -106,8 +106,8 @@ def test_the_sse_listener_is_handed_nothing_while_no_client_listens() -> None:
         for i in range(5, 8):
             fanout.publish(event(i))
         got = [(await asyncio.wait_for(client.queue.get(), 5.0))[1] for _ in range(3)]
+        fanout.stop()  # joins the worker: its count is bumped after the hand-off the client may already have seen
         after = fanout._workers[0].delivered
-        fanout.stop()
         return before, after, fanout.drops["sse"], got
 
     before, after, drops, got = asyncio.run(scenario())
