@@ -113,3 +113,59 @@ def test_the_sse_listener_is_handed_nothing_while_no_client_listens() -> None:
     before, after, drops, got = asyncio.run(scenario())
     assert (before, after, drops) == (0, 3, 0)
     assert got == ["5", "6", "7"]
+
+
+class Slow(Listener):
+    """Keeps up, but slower than the publisher: a store under a log read as fast as possible."""
+
+    name = "slow"
+
+    def __init__(self) -> None:
+        self.got: list[int] = []
+
+    def on_message_received(self, ev: ServiceEvent) -> None:
+        time.sleep(0.002)
+        self.got.append(ev.alerts[0]["alert_id"])
+
+
+def test_a_publisher_that_can_wait_loses_nothing_to_a_slow_listener() -> None:
+    """``wait``: a replay faster than its slowest listener waits for room (every event delivered, none dropped);
+    without it the same burst overflows the queue of 4 (the behaviour an engine's source keeps)."""
+    outcomes = {}
+    for wait in (False, True):
+        slow = Slow()
+        fan = Fanout([slow], queue_size=4)
+        fan.start()
+        for i in range(60):
+            fan.publish(event(i), wait=wait)
+        fan.stop()
+        outcomes[wait] = (len(slow.got), fan.drops["slow"])
+    assert outcomes[True] == (60, 0)
+    kept, dropped = outcomes[False]
+    assert dropped > 0 and kept + dropped == 60
+
+
+def test_a_waiting_publisher_is_let_go_by_a_stop() -> None:
+    """A listener that never frees its queue cannot hold a waiting publisher past a stop: the event is dropped and
+    counted."""
+    stuck = Blocked()
+    fan = Fanout([stuck], queue_size=1)
+    fan.start()
+    fan.publish(event(0), wait=True)  # taken by the thread, which now holds it
+    fan.publish(event(1), wait=True)  # fills the queue
+    done = threading.Event()
+
+    def publish_third() -> None:
+        fan.publish(event(2), wait=True)
+        done.set()
+
+    t = threading.Thread(target=publish_third)
+    t.start()
+    assert not done.wait(0.5)  # it waits for room
+    for w in fan._workers:
+        w._stopping.set()  # what stop() sets first
+    assert done.wait(2.0)
+    stuck.release.set()
+    fan.stop()
+    t.join()
+    assert fan.drops["blocked"] == 1
