@@ -8,11 +8,16 @@ STAMP := $(VENV)/.installed
 
 # setuptools' "Editable installation ... careful with folders of the same name" note comes with every editable
 # install (ours maps core/, drivers/, service/ under frictionwatch.*, so no folder shadows the package): filtered;
-# every other build warning still shows
+# every other build warning still shows. A pip configuration whose extra index lacks a package prints one "Location
+# ... is ignored" line per package (108 on a machine whose index is a partial local mirror): kept in .venv/pip.log,
+# dropped from the terminal; a failed install prints its whole log
+PIP_NOTICE := is ignored: it is neither a file nor a directory
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
-	$(BIN)/pip install -q --upgrade pip
-	PYTHONWARNINGS='ignore:Editable installation' $(BIN)/pip install -q -e '.[test]'
+	@echo "installing frictionwatch and its dependencies into $(VENV) (first run only; pip's log: $(VENV)/pip.log)"
+	@{ $(BIN)/pip install -q --upgrade pip && PYTHONWARNINGS='ignore:Editable installation' \
+	    $(BIN)/pip install -q -e '.[test]'; } > $(VENV)/pip.log 2>&1 || { cat $(VENV)/pip.log; exit 1; }
+	@grep -v -e '$(PIP_NOTICE)' $(VENV)/pip.log || true
 	touch $(STAMP)
 
 # serve the demo log in a loop at real time; it prints the dashboard URL (Ctrl-C stops it)
