@@ -181,3 +181,84 @@ def test_a_seek_in_a_looped_pass_keeps_time_going_on(log_path: Path) -> None:
             marks += 1
         newest = max(newest, float(r.ticks if isinstance(r, StreamRestart) else last_tick(r)))
     assert sought and marks == 5
+
+
+def _passes(src: McapSource, n: int) -> list[list]:
+    from frictionwatch.drivers.source import StreamRestart
+
+    passes: list[list] = [[]]
+    while len(passes) <= n:
+        for r in src.read():
+            if isinstance(r, StreamRestart):
+                passes.append([])
+            else:
+                passes[-1].append(r)
+    return passes[:n]
+
+
+def _decodes(src: McapSource) -> list[int]:
+    """Counts the passes that read the log itself (LogReader.iter_timed), in a list the test reads."""
+    calls = [0]
+    inner = src._reader.iter_timed
+
+    def counted(*a, **k):
+        calls[0] += 1
+        return inner(*a, **k)
+
+    src._reader.iter_timed = counted
+    return calls
+
+
+@pytest.mark.parametrize("start_s", [0.0, 0.1])
+def test_a_looped_pass_is_decoded_once_and_replayed_the_same(log_path: Path, start_s: float) -> None:
+    """After one whole undamaged pass the later passes come from its decoded records: the log is not read again, and
+    every record's arrays are the first pass's (ticks moved on by the pass's span, pressure values as they were)."""
+    import numpy as np
+
+    src = McapSource(log_path, loop=True, start_s=start_s)
+    calls = _decodes(src)
+    first, second, third = _passes(src, 3)
+    src.close()
+    assert calls[0] == 0  # the first pass was opened in the constructor; none after it
+    key = "ticks" if hasattr(first[0], "ticks") else "t0_ticks"
+    shift = np.ravel(getattr(second[0], key))[0] - np.ravel(getattr(first[0], key))[0]
+    assert shift > 0
+    for a, b, c in zip(first, second, third, strict=True):
+        assert type(a) is type(b) is type(c)
+        for name, value in vars(a).items():
+            if name in ("ticks", "t0_ticks"):
+                np.testing.assert_array_equal(np.asarray(getattr(b, name)), np.asarray(value) + shift)
+                np.testing.assert_array_equal(np.asarray(getattr(c, name)), np.asarray(value) + 2 * shift)
+            else:
+                np.testing.assert_array_equal(getattr(b, name), value)
+                np.testing.assert_array_equal(getattr(c, name), value)
+
+
+def test_a_pass_over_the_bound_or_with_damage_is_decoded_every_time(log_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """Over PASS_CACHE_BYTES, or damage met during the pass (its count then grows each pass, as before): every pass
+    reads the log again."""
+    import frictionwatch.drivers.logs.mcap_replay as replay
+
+    monkeypatch.setattr(replay, "PASS_CACHE_BYTES", 1000)
+    src = McapSource(log_path, loop=True)
+    calls = _decodes(src)
+    _passes(src, 3)
+    src.close()
+    assert calls[0] == 3  # the second, third and fourth passes (the fourth begins as the third ends)
+    monkeypatch.undo()
+    src = McapSource(log_path, loop=True)  # a damaged log: its reader notes the damage again on every pass
+    inner, calls = src._reader.iter_timed, [0]
+
+    def damaged(*a, **k):
+        calls[0] += 1
+        for i, item in enumerate(inner(*a, **k)):
+            if i == 3:
+                src.damage["corrupt chunk (a stand-in)"] += 1
+            yield item
+
+    src._reader.iter_timed = damaged
+    src.seek(0.0)  # the first pass through the damaged reader
+    _passes(src, 3)
+    src.close()
+    assert calls[0] == 4 and src.damage["corrupt chunk (a stand-in)"] == 3  # the fourth pass has just begun
