@@ -70,18 +70,38 @@ def change_against_siblings(change: np.ndarray) -> np.ndarray:
     return change - np.median(change, axis=1, keepdims=True)
 
 
-def leak_statistics(ewma: np.ndarray, baseline: Band, g: float) -> LeakStatistics:
+def ewma_variance(previous: float, g: float) -> float:
+    """The variance of an EWMA of independent unit-variance cycles after one more cycle with factor ``g``:
+    (1 - g)^2 previous + g^2. With g = 1 / n it is a running mean's 1 / n; at a fixed g it tends to g / (2 - g).
+    The alerts' EWMA starts as a running mean (g = max(1 / window, 1 / n)), where g / (2 - g) = 1 / (2n - 1) said
+    half the variance: every z in its first ~2 windows read ~sqrt(2) high (design note 54)."""
+    return (1.0 - g) ** 2 * previous + g * g
+
+
+def sibling_reference_variance(n_cyl: int) -> float:
+    """The factor on a cylinder's EWMA variance for its figure against ``change_against_siblings``'s reference.
+    Three cylinders: the median change is one of the three; where one cylinder has moved (a fault coming or going)
+    it is one of the other two, so each of those reads its change less the other's -- a difference of two
+    cylinders, twice one's variance -- and on the side the moved one set: maruti seed 3, commissioned with a
+    leaking cylinder 2 whose leak then ramped in afresh, read cylinder 1 against cylinder 3 and warned "leak"
+    there (design note 54). Four or more: the median is a mean of two or more changes (1.0; note 49's iid
+    0.78-0.97). Two: the rows are already each against the other (their band spread is a difference's)."""
+    return 2.0 if n_cyl == 3 else 1.0
+
+
+def leak_statistics(ewma: np.ndarray, baseline: Band, var: float) -> LeakStatistics:
     """From the EWMA (4, z) of the indicators' change from the mean of the baseline's load band they were compared
-    with (rows as alert_baseline.INDICATORS), its factor g. The leak signature
-    s = (-dn_c / sd_c + dn_e / sd_e) / sqrt(2) is scaled by its own per-cycle spread from the band's covariance (the two exponents' scatter is correlated: one trapped-mass error moves
-    both) and by the EWMA's standard error per unit of spread, sqrt(g / (2 - g)), for independent cycles."""
+    with (rows as alert_baseline.INDICATORS) and ``var``, its variance per unit of per-cycle variance for independent
+    cycles (``ewma_variance`` times ``sibling_reference_variance``). The leak signature
+    s = (-dn_c / sd_c + dn_e / sd_e) / sqrt(2) is scaled by its own per-cycle spread from the band's covariance (the
+    two exponents' scatter is correlated: one trapped-mass error moves both) and by the standard error sqrt(var)."""
     sd = baseline.sd
     w = np.zeros_like(ewma)
     w[1], w[2] = -1.0 / sd[1], 1.0 / sd[2]
     w /= np.sqrt(2.0)
     s = np.sum(w * ewma, axis=0)
     s_sd = np.sqrt(np.maximum(np.einsum("iz,zij,jz->z", w, baseline.cov, w), 1e-30))
-    se = np.sqrt(g / (2.0 - g))
+    se = np.sqrt(var)
     return LeakStatistics(z_leak=s / (s_sd * se), effect=0.5 * (ewma[2] - ewma[1]),
                           z_ratio=ewma[0] / (np.maximum(sd[0], 1e-12) * se))
 
@@ -149,7 +169,8 @@ class Pressure:
     hold still this cycle (a load change settling, a load not commissioned yet) with the learner's learning_cycles,
     else None and ewma (4, z), the EWMA of the indicators' change from ``band``'s mean, against the siblings'
     median change (``change_against_siblings``; rows as INDICATORS), and ``stats`` (leak_statistics of it); g the
-    EWMA's factor this cycle."""
+    EWMA's factor this cycle; var each cylinder's figure's variance per unit of per-cycle variance (``ewma_variance``
+    times ``sibling_reference_variance``)."""
 
     imep_pa: float
     held: str | None = None
@@ -158,6 +179,7 @@ class Pressure:
     stats: LeakStatistics | None = None
     band: Band | None = None
     g: float = float("nan")
+    var: float = float("nan")
 
 
 def _never(name: str, cylinder: int | None) -> bool:

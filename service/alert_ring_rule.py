@@ -88,7 +88,7 @@ class RingConditionRule:
             self.window = update_window(self.window, effect, self.settings)
         nan = np.full(z, np.nan)
         p = ctx.pressure
-        lc, lc_s = (self._chained(*leak_change(p.ewma, p.band.cov, p.g, p.band.cycles), p.band, ctx)
+        lc, lc_s = (self._chained(*leak_change(p.ewma, p.band.cov, p.var, p.band.cycles), p.band, ctx)
                     if p is not None and p.held is None and p.ewma is not None and p.band is not None else (nan, nan))
         fc, fc_s, fn, fn_s = self._friction(result, ctx, sensor)
         rc = self.last = ring_condition(lc, lc_s, self.window, fc, fc_s, fn, fn_s, self.settings, self.siblings)

@@ -55,7 +55,9 @@ from frictionwatch.service.alert_interface import (
     Pressure,
     Rule,
     change_against_siblings,
+    ewma_variance,
     leak_statistics,
+    sibling_reference_variance,
 )
 from frictionwatch.service.alert_ring_rule import RingConditionRule
 from frictionwatch.service.alert_rules import (
@@ -168,6 +170,7 @@ class AlertEngine:
         self._latches: dict[tuple[str, int | None], Latch] = {}
         self._ewma = np.zeros((len(INDICATORS), z))
         self._ewma_n = 0
+        self._ewma_var = 0.0  # the EWMA's variance per unit of per-cycle variance (alert_interface.ewma_variance)
         self._imep_ref, self._settle = math.nan, 0  # the load-change hold of the pressure statistics
         self._cycles = 0
         self._last_cycle = -1
@@ -235,7 +238,7 @@ class AlertEngine:
         one); the alerts of the rules that rest on the old baseline are cleared (their events returned) and their
         latches restart."""
         self.baseline, self._learner = None, BaselineLearner(self.spec.n_cyl)
-        self._ewma[:], self._ewma_n = 0.0, 0
+        self._ewma[:], self._ewma_n, self._ewma_var = 0.0, 0, 0.0
         names = {rule.name for stage in self.rules for rule in stage if rule.rests_on_baseline}
         events = []
         for key in [k for k in self._open if k[0] in names]:
@@ -293,8 +296,10 @@ class AlertEngine:
         self._ewma_n += 1
         g = max(1.0 / cfg.window, 1.0 / self._ewma_n)
         self._ewma += g * (x - band.mean - self._ewma)
+        self._ewma_var = ewma_variance(self._ewma_var, g)
         change = change_against_siblings(self._ewma)
-        return Pressure(imep, ewma=change, stats=leak_statistics(change, band, g), band=band, g=g)
+        var = self._ewma_var * sibling_reference_variance(self.spec.n_cyl)
+        return Pressure(imep, ewma=change, stats=leak_statistics(change, band, var), band=band, g=g, var=var)
 
     def _learn(self, x: np.ndarray, cycle: int, imep: float) -> None:
         """One healthy cycle at a load no band holds: into the learner, which restarts where the IMEP has left the

@@ -97,7 +97,7 @@ def test_leak_effect_and_its_change_sigma():
     cov = np.zeros((2, 4, 4))
     cov[:, 1, 1], cov[:, 2, 2], cov[:, 1, 2], cov[:, 2, 1] = 4e-6, 9e-6, 3e-6, 3e-6
     ewma = np.array([[0.0, 0.0], [-0.001, 0.0], [0.002, 0.0], [0.0, 0.0]])
-    c, s = leak_change(ewma, cov, 0.02, 100)
+    c, s = leak_change(ewma, cov, 0.02 / 1.98, 100)
     var = 0.25 * (4e-6 + 9e-6 - 6e-6)  # correlated exponents: one trapped-mass error moves both the same way
     assert_allclose(c, [0.0015, 0.0], rtol=1e-12)
     assert_allclose(s, np.sqrt(var * (0.02 / 1.98 + 0.01)), rtol=1e-12)

@@ -341,15 +341,16 @@ def ring_condition(leak_change: np.ndarray, leak_change_sigma: np.ndarray, windo
                          leak_sib, leak_sib_s, np.asarray(friction_change, dtype=np.float64), fr_now)
 
 
-def leak_change(ewma: np.ndarray, cov: np.ndarray, g: float, baseline_cycles: int) -> tuple[np.ndarray, np.ndarray]:
+def leak_change(ewma: np.ndarray, cov: np.ndarray, ewma_var: float, baseline_cycles: int) -> tuple[np.ndarray, np.ndarray]:
     """The leak effect's change since a baseline and its 1 sigma (z,): from the EWMA (4, z) of the ring indicators'
     change from the baseline band's mean (rows compression_ratio, n_compression_dev, n_expansion_dev,
-    expansion_deficit: service.alert_baseline.INDICATORS) with factor g, and that band's per-cycle covariance
-    (z, 4, 4) over ``baseline_cycles``: the EWMA's standard error sqrt(g / (2 - g)) for independent cycles and the
-    band mean's own, both of the per-cycle spread of (dn_e - dn_c) / 2.
+    expansion_deficit: service.alert_baseline.INDICATORS) with ``ewma_var`` its variance per unit of per-cycle variance
+    for independent cycles (g / (2 - g) at a fixed factor g; the caller's, service.alert_interface.Pressure.var),
+    and that band's per-cycle covariance (z, 4, 4) over ``baseline_cycles``: the EWMA's standard error and the band
+    mean's own, both of the per-cycle spread of (dn_e - dn_c) / 2.
 
     >>> cov = np.zeros((1, 4, 4)); cov[0, 1, 1] = cov[0, 2, 2] = 4e-6
-    >>> c, s = leak_change(np.array([[0.0], [-0.001], [0.001], [0.0]]), cov, 0.02, 200)
+    >>> c, s = leak_change(np.array([[0.0], [-0.001], [0.001], [0.0]]), cov, 0.02 / 1.98, 200)
     >>> round(float(c[0]), 4), round(float(s[0]), 6)
     (0.001, 0.000174)
     """
@@ -357,5 +358,5 @@ def leak_change(ewma: np.ndarray, cov: np.ndarray, g: float, baseline_cycles: in
     c = np.asarray(cov, dtype=np.float64)
     change = 0.5 * (e[2] - e[1])
     var = 0.25 * (c[:, 1, 1] + c[:, 2, 2] - 2.0 * c[:, 1, 2])
-    se2 = g / (2.0 - g) + 1.0 / max(int(baseline_cycles), 1)
+    se2 = ewma_var + 1.0 / max(int(baseline_cycles), 1)
     return change, np.sqrt(np.maximum(var, 0.0) * se2)
