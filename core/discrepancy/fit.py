@@ -27,6 +27,13 @@ DAMPING = 1e-6  # Levenberg term relative to the largest diagonal of J'J: keeps 
 # (bench/discrepancy_sigma.py --write; core/discrepancy/tuned.json: its provenance); 0 until that has run
 _TUNED = tuned_constants()
 EFFECT_REL_ERROR = _TUNED["EFFECT_REL_ERROR"].value if "EFFECT_REL_ERROR" in _TUNED else 0.0
+# the 1-sigma error of the monitor's shaft line against the engine's, in the chain candidate's scales: near a
+# resonance of the line (k9k 1800 rpm, order 2) a healthy log read stiffness 0.993-1.006 at sigma ~0.001 and named it
+# (design note 50). Tuned on healthy logs none of the matrix's (bench/calibrate_chain_floor.py --write;
+# core/discrepancy/tuned.json: its provenance); 0 until that has run
+CHAIN_FLOOR = {("chain_mismatch", p): _TUNED[name].value if name in _TUNED else 0.0
+               for p, name in (("stiffness_scale", "CHAIN_FLOOR_STIFFNESS"),
+                               ("damping_scale", "CHAIN_FLOOR_DAMPING"))}
 
 
 @dataclass(frozen=True)
@@ -121,8 +128,15 @@ def _solve(jac: np.ndarray, r: np.ndarray) -> np.ndarray:
     return np.linalg.solve(jtj + DAMPING * np.max(np.diag(jtj), initial=1e-300) * np.eye(jtj.shape[0]), jac.T @ r)
 
 
+def parameter_floor(cand: Candidate) -> np.ndarray:
+    """(p,) the model's own 1-sigma error in each of the candidate's parameters that no cycle count removes
+    (CHAIN_FLOOR; 0 where none is known)."""
+    return np.array([CHAIN_FLOOR.get((cand.effect, p), 0.0) for p in cand.params], dtype=np.float64)
+
+
 def parameter_sigma(jac: np.ndarray, n_cycles: int, cost: float, floor: np.ndarray,
-                    residual: np.ndarray | None = None, size: np.ndarray | None = None) -> np.ndarray:
+                    residual: np.ndarray | None = None, size: np.ndarray | None = None,
+                    own_floor: np.ndarray | None = None) -> np.ndarray:
     """(p,) 1-sigma of the parameters fitted with ``jac`` (N F, p: cycle-major rows of whitened features) at the
     whitened sum of squares ``cost``: the statistical part, (J'J)^-1 inflated by the reduced chi^2 when above 1, and
     the model-error part, a coherent error in every cycle propagated through the same least-squares step:
@@ -130,7 +144,8 @@ def parameter_sigma(jac: np.ndarray, n_cycles: int, cost: float, floor: np.ndarr
     + the coherent power the fit leaves in ``residual`` (N F,) (a sandwich estimate: the found effect's own model
     is not the engine's either). The second part does not shrink with more cycles; without it the found
     parameters' sigma was 7-22x too small against the truth (issue 27). And the effect's own model error,
-    EFFECT_REL_ERROR x ``size`` (p,), each parameter's distance from its no-effect value."""
+    EFFECT_REL_ERROR x ``size`` (p,), each parameter's distance from its no-effect value; and ``own_floor`` (p,),
+    the model's own error in the parameter itself (parameter_floor: the shaft line's)."""
     p = jac.shape[1]
     if residual is not None:
         floor = np.sqrt(floor**2 + np.maximum(coherent_power(residual.reshape(n_cycles, -1)), 0.0))
@@ -139,6 +154,7 @@ def parameter_sigma(jac: np.ndarray, n_cycles: int, cost: float, floor: np.ndarr
     stat = a * max(1.0, cost / max(jac.shape[0] - p, 1))
     b = a @ jac.reshape(n_cycles, -1, p).sum(axis=0).T  # (p, F): a coherent feature error -> parameter shift
     own = 0.0 if size is None else (EFFECT_REL_ERROR * np.asarray(size, dtype=np.float64)) ** 2
+    own = own + (0.0 if own_floor is None else np.asarray(own_floor, dtype=np.float64) ** 2)
     return np.sqrt(np.diag(stat) + np.sum(b**2 * floor**2, axis=1) + own)
 
 
@@ -166,7 +182,8 @@ def refine(lin: Linearised, model: EngineModel, ev: Evaluator) -> Trial:
     elif r_gn is not None:
         best = _along_main(lin, model, ev, best, (lin.x_gn, r_gn) if len(x0) == 1 else None)
     best_x, best_cost, best_r = best
-    sigma = parameter_sigma(lin.jac, lin.idx.shape[0], best_cost, ev.floor, best_r, np.abs(best_x - x0))
+    sigma = parameter_sigma(lin.jac, lin.idx.shape[0], best_cost, ev.floor, best_r, np.abs(best_x - x0),
+                            parameter_floor(cand))
     scale = best_cost / max(float(lin.r0 @ lin.r0), 1e-300)  # costs on the base's cycle count
     return Trial(cand, best_x, sigma, scale * lin.base_cost, lin.base_cost, ev.calls - calls)
 
@@ -244,7 +261,8 @@ def polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, f
     better = float(r1 @ r1) < float(r0 @ r0)
     cost = float(min(r1 @ r1, r0 @ r0))
     kept = trial if better else t
-    sigma = parameter_sigma(jac, train.n_cycles, cost, floor, r1 if better else r0, np.abs(kept.x - cand.x0))
+    sigma = parameter_sigma(jac, train.n_cycles, cost, floor, r1 if better else r0, np.abs(kept.x - cand.x0),
+                            parameter_floor(cand))
     for other in held:  # what the fit moves by when a held parameter is off by its sigma (first order)
         shifted = train_of(full(with_fit(other, kept)))
         runs += 1
@@ -268,5 +286,6 @@ def rank(trials: Sequence[Trial]) -> list[Trial]:
     return sorted(trials, key=lambda t: t.cost)
 
 
-__all__ = ["Evaluator", "Linearised", "Trial", "linearise", "parameter_sigma", "polish", "rank", "refine",
+__all__ = ["CHAIN_FLOOR", "Evaluator", "Linearised", "Trial", "linearise", "parameter_floor", "parameter_sigma",
+           "polish", "rank", "refine",
            "with_fit"]

@@ -18,7 +18,8 @@ and the model left as it was, when it makes a channel worse on the held-out cycl
 torque balance, beyond that channel's noise; TDC against the cylinders' pressure) or when a fitted parameter ends on
 the bound of its range (the fit ran into the wall: not a physical value) or a sensor correction lies within what the
 pressure methods resolve, or any fit with every parameter within 2 sigma of none on a residual no larger than a
-healthy log's (choice.unresolved, choice.quiet_residual); the refusal and its reason are reported.
+healthy log's, or a shaft-line fit within 2 sigma of none with the line's own model error in its sigma
+(choice.unresolved, choice.quiet_residual, fit.CHAIN_FLOOR); the refusal and its reason are reported.
 Which trials are held out, when two are one explanation and why a step is refused: core.discrepancy.choice.
 
 The outcome says which of three it is: ``named`` (effects added), ``nothing`` (nothing significant before or after)
