@@ -19,10 +19,10 @@ condition numbers are ~1e2..5e3; tests/core/test_posterior_kernels.py).
 ``posterior_kernel`` (genset-v20, P = 47) works from one inverse of N = acc.info + n_pr:
 - params = N^-1 r minus the first-order effect of the reference's 1e-12 ridge on the unit-diagonal problem (its
   second order is < 1e-16 relative), so the bounded solve needs no factor of its own;
-- the inverse is numba's np.linalg (core.monitor.identify.spd_kernels: Cholesky for the pivot ratio, the inverse of
-  the unit-diagonal form);
+- the inverse is LAPACK's (core.monitor.identify.spd_kernels: the Cholesky factor of the unit-diagonal form, its
+  pivot ratio, and potri from that factor);
 - a decoupled diagonal tail (the monitor's reference information: nuisances that only their priors see) is
-  inverted by reciprocals, the head alone by np.linalg;
+  inverted by reciprocals, the head alone by LAPACK;
 - chi^2 = y^T y - 2 params^T r + params^T A params cancels ~5 digits: it takes the reference's BLAS calls (ddot,
   dgemv) in its order, so its rounding is reproduced rather than a different one added;
 - the systematic covariance G S G^T (G = N^-1 B) is W^T W, W = S^1/2 B^T N^-1: two transposed-first gemms.

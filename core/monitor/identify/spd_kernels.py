@@ -1,6 +1,8 @@
-"""Small symmetric positive-definite helpers of core.monitor.identify.posterior_kernels (P <= ~50), on numba's
-np.linalg (LAPACK potrf, getrf/getri, gesv): the Cholesky factor with its smallest pivot ratio, a solve, and the
-inverse of a sum of two matrices with a decoupled diagonal tail.
+"""Small symmetric positive-definite helpers of core.monitor.identify.posterior_kernels and the tooth fit (P <= ~50),
+on LAPACK: numba's np.linalg (potrf, gesv) and potri, which np.linalg does not wrap, bound from the same library
+numba's np.linalg calls (scipy.linalg.cython_lapack; ``inverse_from_factor``): the Cholesky factor with its smallest
+pivot ratio, a solve, the inverse from a factor, and the inverse of a sum of two matrices with a decoupled diagonal
+tail.
 
 The monitor's matrices are badly scaled (raw condition ~1e12, ~1e3 on a unit diagonal): the inverse is taken of the
 unit-diagonal matrix D A D and scaled back, so its error is relative to sqrt(C_ii C_jj) whatever the row scales
@@ -11,12 +13,21 @@ them (the branch's report quotes the same-run bench). Tested against numpy in te
 
 from __future__ import annotations
 
+import llvmlite.binding as llvm
 import numba
 import numpy as np
+from numba import types
+from numba.extending import get_cython_function_address
 
 # reassociation lets LLVM vectorise the callers' dot-product loops (their rounding differs from LAPACK's anyway); no
 # 'nnan'/'ninf': the positivity and finiteness tests must see NaN and inf
 FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
+
+# LAPACK dpotri(uplo, n, a, lda, info), all by pointer, bound by symbol name: a cached kernel resolves the name when
+# it is loaded (a ctypes pointer would be a constant address, which numba cannot cache)
+llvm.add_symbol("frictionwatch_dpotri", get_cython_function_address("scipy.linalg.cython_lapack", "dpotri"))
+_dpotri = types.ExternalFunction("frictionwatch_dpotri", types.void(*([types.voidptr] * 5)))
+_UPPER = ord("U")
 
 
 @numba.njit(cache=True)
@@ -75,9 +86,38 @@ def cho_solve(chol, b):
 
 
 @numba.njit(cache=True)
-def _scaled_inverse(h, scale, out):
-    """out = scale * h^-1 (n, n), exactly symmetric, for the symmetric positive-definite h (full): np.linalg.inv of
-    the unit-diagonal D h D, scaled back."""
+def inverse_from_factor(low, out):
+    """out = (L L^T)^-1 (n, n), exactly symmetric, from the lower Cholesky factor L (n, n) (C order; its strict upper
+    triangle is not read): LAPACK potri (numpy reference: ``inverse_from_factor_reference``). Returns LAPACK's info:
+    0, or > 0 if L has a zero pivot (out is then undefined)."""
+    n = low.shape[0]
+    x = np.empty((n, n))  # C-order lower = Fortran-order upper: potri with uplo 'U' reads and writes that triangle
+    for i in range(n):
+        for j in range(i + 1):
+            x[i, j] = low[i, j]
+    uplo = np.array([_UPPER], dtype=np.uint8)
+    dims = np.array([n, max(n, 1), 0], dtype=np.int32)  # n, lda, info
+    _dpotri(uplo.ctypes, dims[0:].ctypes, x.ctypes, dims[1:].ctypes, dims[2:].ctypes)
+    for i in range(n):
+        for j in range(i + 1):
+            v = x[i, j]
+            out[i, j] = v
+            out[j, i] = v
+    return int(dims[2])
+
+
+def inverse_from_factor_reference(low: np.ndarray) -> np.ndarray:
+    """``inverse_from_factor`` in numpy: the inverse of L L^T (L lower, its upper triangle ignored)."""
+    low = np.tril(low)
+    return np.linalg.inv(low @ low.T)
+
+
+@numba.njit(cache=True)
+def _scaled_factor_inverse(h, scale, out):
+    """out = scale * h^-1 (n, n), exactly symmetric, for the symmetric h (full) from the Cholesky factor of the
+    unit-diagonal D h D (``inverse_from_factor``), scaled back. Returns the factor's smallest pivot ratio
+    L_jj^2 / (D h D)_jj (= that of h's own factor: Cholesky is invariant under diagonal scaling), or -1 if h is not
+    positive definite."""
     n = h.shape[0]
     d = np.empty(n)
     for i in range(n):
@@ -86,12 +126,23 @@ def _scaled_inverse(h, scale, out):
     for i in range(n):
         for j in range(n):
             s[i, j] = h[i, j] * d[i] * d[j]
-    x = np.linalg.inv(s)
+    low = _factor(s)
+    if low.shape[0] != n:
+        return -1.0
+    worst = 1.0
+    for j in range(n):
+        ratio = low[j, j] * low[j, j] / s[j, j]
+        if ratio < worst:
+            worst = ratio
+    x = np.empty((n, n))
+    if inverse_from_factor(low, x) != 0:
+        return -1.0
     for i in range(n):
         for j in range(i + 1):
-            v = 0.5 * (x[i, j] + x[j, i]) * (d[i] * d[j]) * scale
+            v = x[i, j] * (d[i] * d[j]) * scale
             out[i, j] = v
             out[j, i] = v
+    return worst
 
 
 @numba.njit(cache=True, fastmath=FASTMATH)
@@ -115,8 +166,8 @@ def decoupled_tail(a, b):
 @numba.njit(cache=True)
 def spd_inverse_of_sum(a, b, out, scale):
     """out = scale * (a + b)^-1 (n, n), exactly symmetric, for the symmetric positive-definite a + b (lower
-    triangles read): the coupled head by np.linalg (Cholesky for the pivot ratio, the inverse of its unit-diagonal
-    form), reciprocals of a diagonal decoupled tail (``decoupled_tail``).
+    triangles read): the coupled head from the Cholesky factor of its unit-diagonal form (``_scaled_factor_inverse``:
+    the pivot ratio and the inverse from one factor), reciprocals of a diagonal decoupled tail (``decoupled_tail``).
 
     Returns the smallest pivot ratio L_jj^2 / (a + b)_jj of the factor of a + b (1 for n = 0), or -1 if it is not
     positive definite (out is then undefined)."""
@@ -133,14 +184,9 @@ def spd_inverse_of_sum(a, b, out, scale):
             head[j, i] = v
     worst = 1.0
     if k > 0:
-        low = _factor(head)
-        if low.shape[0] != k:
+        worst = _scaled_factor_inverse(head, scale, out[:k, :k])
+        if worst < 0.0:
             return -1.0
-        for j in range(k):
-            ratio = low[j, j] * low[j, j] / head[j, j]
-            if ratio < worst:
-                worst = ratio
-        _scaled_inverse(head, scale, out[:k, :k])
     for i in range(k):
         for j in range(k, n):
             out[i, j] = 0.0

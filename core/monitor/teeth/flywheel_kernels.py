@@ -1,5 +1,5 @@
 """Numba kernels of the flywheel fit (core.monitor.teeth.flywheel): Fourier design over the tooth-edge times, normal equations,
-their inverse (numba's np.linalg), the pattern fit, the angle fit with its residual, and the tooth-learner update.
+their inverse (LAPACK potrf, potri), the pattern fit, the angle fit with its residual, and the tooth-learner update.
 
 cos(m w1 tau) and sin(m w1 tau) come from the angle-addition recurrence: cos/sin once per edge, then the recurrence
 across the edges (vectorised), not re-seeded (the former per-edge kernel re-seeded every 8 orders; that costs as much
@@ -18,6 +18,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 import rocket_fft  # noqa: F401  (numpy.fft inside numba: ``series_rows_kernel``)
+from frictionwatch.core.monitor.identify.spd_kernels import inverse_from_factor
 
 FOUR_PI = 4.0 * np.pi
 
@@ -161,13 +162,10 @@ def prepare_fit_kernel(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, pattern
             v = normal[j, k] / (scale[j] * scale[k])
             normal[j, k] = v
             normal[k, j] = v
-    # numba's np.linalg, not hand triangular solves (< 20 % end to end, issue 26 item 6): potrf raises LinAlgError if
-    # not positive definite; with the inverse (well conditioned: see above) the solves below are BLAS products
-    np.linalg.cholesky(normal)
-    normal_inverse = np.linalg.inv(normal)
-    for j in range(p):
-        for k in range(p):
-            normal_inv[j, k] = 0.5 * (normal_inverse[j, k] + normal_inverse[k, j])
+    # LAPACK, not hand triangular solves (< 20 % end to end, issue 26 item 6): potrf raises LinAlgError if not
+    # positive definite, potri inverts from that factor (exactly symmetric); with the inverse (well conditioned: see
+    # above) the solves below are BLAS products
+    inverse_from_factor(np.linalg.cholesky(normal), normal_inv)
     q0 = patterns.shape[1]
     if q0 == 0 and not drift_pattern:
         return OK
