@@ -37,9 +37,11 @@ lint: $(STAMP)
 clean: clean-numba
 	rm -rf $(VENV) .pytest_cache
 
-# numba's on-disk cache is checked against each kernel's own file only: a kernel whose callee (in another module)
-# changed keeps running the old compiled callee until this is run (seen: results off by 1e-12 after a helper changed)
+# numba's compiled kernels: one folder per version of core/ and drivers/ (core/numba_cache.py), under
+# $NUMBA_CACHE_DIR or ~/.cache/frictionwatch/numba; this removes every version's, and any left beside the sources
 clean-numba:
+	[ -z "$$NUMBA_CACHE_DIR" ] || rm -rf "$$NUMBA_CACHE_DIR"/frictionwatch-*
+	rm -rf "$${XDG_CACHE_HOME:-$$HOME/.cache}/frictionwatch/numba"
 	find core drivers service bench tests -name '*.nbi' -delete -o -name '*.nbc' -delete
 
 demo-logs: $(STAMP)

@@ -4,4 +4,11 @@
     model/     the one engine model: spec, kinematics, drive train, loss-term and effect libraries, EngineModel
     plant/     the time-domain simulator built from a model
     monitor/   per-cycle identification of the model's losses from tooth times and pressures
+
+    numba_cache.py  where the compiled kernels are kept: one folder per version of the sources, set here, before any
+                    kernel is decorated (numba alone would not see a changed callee in another file)
 """
+
+from frictionwatch.core.numba_cache import use_fingerprinted_cache
+
+use_fingerprinted_cache()

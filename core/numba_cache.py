@@ -1,0 +1,77 @@
+"""One numba on-disk cache per version of the kernels' sources.
+
+    use_fingerprinted_cache()   # core/__init__.py and drivers/__init__.py: before any kernel is decorated
+
+Why: numba checks a cached kernel against its own file only (the index's stamp is that file's modification time and
+size). A kernel that calls a kernel of another module keeps running the old compiled callee after that module
+changed -- a silently stale number after an upgrade (seen: the tooth fit still ran the old inverse after
+spd_kernels.py changed, design notes 52; results off by 1e-12 after an earlier change). So the cache lives in a
+folder named by a fingerprint of every source file of core/ and drivers/ (where every kernel lives): any change there
+starts a fresh folder, compiled once; an unchanged tree finds its kernels as before.
+
+Where: ``$NUMBA_CACHE_DIR/frictionwatch-<fingerprint>`` when NUMBA_CACHE_DIR is set (the Docker image, the benches),
+else ``$XDG_CACHE_HOME`` or ``~/.cache``, ``frictionwatch/numba/<fingerprint>``. Where that cannot be written, numba's
+own default stays (beside the sources), said once in the log. Folders of earlier versions are left where they are
+(``make clean-numba`` removes them): a few tens of MB each.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import tempfile
+from pathlib import Path
+
+from numba import config
+
+log = logging.getLogger(__name__)
+
+PACKAGES = ("core", "drivers")  # the folders (installed as frictionwatch.core, frictionwatch.drivers) with kernels
+
+
+def source_fingerprint(root: Path) -> str:
+    """16 hex digits of a SHA-256 over every ``*.py`` file under ``root``/core and ``root``/drivers, by relative path
+    and content (~5 ms for the ~150 files; content, not modification times, so that a copy or a checkout with other
+    times keeps its cache)."""
+    h = hashlib.sha256()
+    for package in PACKAGES:
+        base = root / package
+        if not base.is_dir():
+            raise FileNotFoundError(f"numba cache: {base} not found beside {Path(__file__).name}")
+        for path in sorted(base.rglob("*.py")):
+            h.update(str(path.relative_to(root)).encode())
+            h.update(b"\0")
+            h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def fingerprinted_cache_dir(fingerprint: str, environ: dict | None = None) -> Path:
+    """Where the cache of this source version lives (module docstring)."""
+    env = os.environ if environ is None else environ
+    if env.get("NUMBA_CACHE_DIR"):
+        return Path(env["NUMBA_CACHE_DIR"]) / f"frictionwatch-{fingerprint}"
+    user = Path(env["XDG_CACHE_HOME"]) if env.get("XDG_CACHE_HOME") else Path.home() / ".cache"
+    return user / "frictionwatch" / "numba" / fingerprint
+
+
+def use_fingerprinted_cache() -> None:
+    """Point numba's cache at this source version's folder (idempotent; a no-op with the JIT disabled)."""
+    if config.DISABLE_JIT:
+        return
+    root = Path(__file__).resolve().parents[1]  # the checkout (editable) or site-packages/frictionwatch
+    fingerprint = source_fingerprint(root)
+    if str(config.CACHE_DIR or "").rstrip("/").endswith(fingerprint):
+        return
+    target = fingerprinted_cache_dir(fingerprint)
+    try:
+        target.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=target).close()
+    except OSError as exc:
+        log.warning("numba cache: %s cannot be written (%s); numba's default place is used, which does not see a "
+                    "changed callee in another file", target, exc)
+        return
+    config.CACHE_DIR = str(target)
+
+
+__all__ = ["fingerprinted_cache_dir", "source_fingerprint", "use_fingerprinted_cache"]

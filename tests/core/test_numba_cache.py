@@ -1,0 +1,58 @@
+"""One numba cache per version of the kernels' sources (core/numba_cache.py): a change in any file of core/ or
+drivers/ moves every kernel to a fresh folder, so a kernel never runs a stale compiled callee of another file."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from frictionwatch.core.numba_cache import fingerprinted_cache_dir, source_fingerprint
+
+
+def _tree(tmp_path: Path) -> Path:
+    for rel, text in {"core/a.py": "x = 1\n", "core/sub/b.py": "y = 2\n", "drivers/c.py": "z = 3\n",
+                      "service/d.py": "w = 4\n"}.items():
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text(text)
+    return tmp_path
+
+
+def test_the_fingerprint_follows_every_kernel_source_file_and_nothing_else(tmp_path: Path) -> None:
+    root = _tree(tmp_path)
+    first = source_fingerprint(root)
+    assert first == source_fingerprint(root) and len(first) == 16
+    (root / "service/d.py").write_text("w = 5\n")  # no kernel lives in service/
+    assert source_fingerprint(root) == first
+    os.utime(root / "core/a.py", (0, 0))  # times alone: the same sources
+    assert source_fingerprint(root) == first
+    (root / "core/sub/b.py").write_text("y = 3\n")  # a callee in another file
+    second = source_fingerprint(root)
+    assert second != first
+    (root / "drivers/e.py").write_text("")  # a new file
+    assert source_fingerprint(root) not in (first, second)
+
+
+def test_the_folder_under_numba_cache_dir_or_the_user_cache() -> None:
+    assert fingerprinted_cache_dir("abc", {"NUMBA_CACHE_DIR": "/x/nb"}) == Path("/x/nb/frictionwatch-abc")
+    assert fingerprinted_cache_dir("abc", {"XDG_CACHE_HOME": "/y"}) == Path("/y/frictionwatch/numba/abc")
+    assert fingerprinted_cache_dir("abc", {}) == Path.home() / ".cache/frictionwatch/numba/abc"
+
+
+def test_a_kernel_is_cached_in_this_source_versions_folder(tmp_path: Path) -> None:
+    code = ("import json, numba\n"
+            "from frictionwatch.core.monitor.identify import spd_kernels\n"
+            "from frictionwatch.drivers.assembly import frame_kernels\n"
+            "print(json.dumps([numba.config.CACHE_DIR, spd_kernels.cho_solve._cache._cache_path,\n"
+            "                  frame_kernels.frame_rows._cache._cache_path]))\n")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    cache_dir, core_kernel, driver_kernel = json.loads(out.stdout)
+    import frictionwatch.core
+
+    installed = Path(frictionwatch.core.__file__).resolve().parents[1]
+    expected = tmp_path / f"frictionwatch-{source_fingerprint(installed)}"
+    assert Path(cache_dir) == expected
+    assert Path(core_kernel).is_relative_to(expected) and Path(driver_kernel).is_relative_to(expected)
