@@ -6,9 +6,8 @@
     svc.state.snapshot()          # what the API reads (service.listeners.LatestState)
 
 Threads: the session's readers and ingest thread, one thread per listener. On the ingest thread, right after each
-result: the alert engine's update (cheap, its state is the engine's own), then ``Fanout.publish``, which never
-blocks for an engine's source and waits for room for a log read as fast as possible (a store slower than such a
-replay would otherwise lose cycles). Acknowledge and re-baseline come from the API's threads: the alert engine is guarded by a lock.
+result: the alert engine's update (cheap, its state is the engine's own), then ``Fanout.publish`` which never
+blocks. Acknowledge and re-baseline come from the API's threads: the alert engine is guarded by a lock.
 
 Latency. Each source is wrapped so the time its reader got each batch is kept with the batch's newest tick; a
 result's arrival time is when, for the last source to get there, the batch reaching the cycle's end tick was read.
@@ -268,11 +267,8 @@ class EngineService:
                     if self.alert_errors == 0:
                         log.error("%s: alert update failed: %s", self.engine_id, exc, exc_info=exc)
                     self.alert_errors += 1
-        # a source that can wait (a log read as fast as possible) waits for the listeners too: the store keeps every
-        # cycle; an engine's source cannot wait, and the monitor never waits for a listener then
         self.fanout.publish(ServiceEvent(self.engine_id, result, now, self._arrival(result), alerts,
-                                         term_names=self.term_names, baseline=learnt),
-                            wait=not self.session.realtime)
+                                         term_names=self.term_names, baseline=learnt))
 
     def _monitor_terms(self) -> tuple[str, ...]:
         """The loss terms the monitor identifies: those of the model's view (service.pipeline.EnginePipeline)."""

@@ -2,7 +2,6 @@
 
     fanout = Fanout([state, sse, metrics, store_listener])   # each listener gets its own bounded queue and thread
     fanout.publish(event)        # from the ingest thread: never blocks; a full queue drops the event and counts it
-    fanout.publish(event, wait=True)  # a source that can wait (a log read as fast as possible): waits for room
     fanout.drops, fanout.errors  # per listener name
     fanout.stop()                # each thread delivers what is queued, then the listener's stop() is called
 
@@ -36,9 +35,6 @@ from frictionwatch.service.window_figures import WindowFigures, left_out
 from frictionwatch.service.window_sums import WindowSums
 
 log = logging.getLogger(__name__)
-
-# how often a publisher that waits for room looks whether the listener is still there (stop, a dead thread)
-WAIT_POLL_S = 0.2
 
 
 @dataclass(frozen=True)
@@ -149,35 +145,18 @@ class Fanout:
             for w in self._workers:
                 w.thread.start()
 
-    def publish(self, event: ServiceEvent, wait: bool = False) -> None:
-        """By default never blocks: a listener whose queue is full loses this event (counted in ``drops``). With
-        ``wait`` (the monitor's source can wait: a log read as fast as possible, not an engine) a full queue is waited
-        for, so that a replay faster than its slowest listener (the store) loses nothing; a listener whose thread has
-        died, or a stop, ends the wait and the event is dropped and counted as before. Never ``wait`` from the API's
-        event loop."""
+    def publish(self, event: ServiceEvent) -> None:
+        """Never blocks: a listener whose queue is full loses this event (counted in ``drops``)."""
         for w in self._workers:
             if w.wants is not None and not w.wants(event):
                 continue
             try:
-                if wait:
-                    self._put_waiting(w, event)
-                else:
-                    w.queue.put_nowait(event)
+                w.queue.put_nowait(event)
             except queue.Full:
                 if w.drops == 0:
                     log.warning("listener %s is behind: its queue of %d is full, events dropped", w.name,
                                 self.queue_size)
                 w.drops += 1
-
-    @staticmethod
-    def _put_waiting(w: _Worker, event: ServiceEvent) -> None:
-        while True:
-            try:
-                w.queue.put(event, timeout=WAIT_POLL_S)
-                return
-            except queue.Full:
-                if w._stopping.is_set() or not w.thread.is_alive():
-                    raise
 
     def stop(self, timeout: float = 5.0) -> None:
         """Deliver what is queued, then stop each listener (its ``stop()``)."""

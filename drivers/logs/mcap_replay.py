@@ -8,12 +8,6 @@ for ever (a demonstration service): each pass is moved later in timer ticks by t
 data gap (the log's end and its start are not one engine's continuous run: nothing there is lost data). Pacing
 follows the MCAP log time (derived from the timer ticks, docs/replay-format.md); a record is released once the wall
 clock, scaled by ``speed``, has reached its log time.
-
-A looped pass from ``start`` decodes the same bytes into the same records every time: once one whole pass has been
-read without damage and its records' arrays hold at most ``PASS_CACHE_BYTES``, the later passes replay those decoded
-records (moved on in ticks as before) instead of decompressing and decoding the log again (~75 % of a looped demo
-reader's CPU; design notes 47). A longer log, or one whose pass met damage (counted again each pass, as before),
-is decoded every pass.
 """
 
 from __future__ import annotations
@@ -24,7 +18,6 @@ from collections.abc import Callable, Iterator
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 from frictionwatch.core.types import (
     CamBatch,
     FreeEndToothBatch,
@@ -41,9 +34,6 @@ from frictionwatch.drivers.source import Source, StreamRestart
 
 _OPTIONS = ("speed", "start", "loop")
 LOOP_GAP_S = 1.0  # acquisition time between the end of one pass and the start of the next
-# the most array bytes of one looped pass kept decoded (the demo log's pass: 10.5 MB for 3.2 s of genset-v20; an
-# hour's log is decoded every pass, as it was)
-PASS_CACHE_BYTES = 32 * 2**20
 
 
 class McapSource(Source):
@@ -96,12 +86,6 @@ class McapSource(Source):
         self._whole_pass: tuple[int, int] | None = None
         self._pass_from_start = True  # this pass began at start_s and has not been moved by a seek
         self._restart: StreamRestart | None = None  # the mark the next read gives first (loop: a new pass began)
-        # loop: the decoded (log time, record) of the whole pass from start_s once one has been read undamaged and
-        # within PASS_CACHE_BYTES (the later passes read these); _kept gathers the pass being read (None: not kept)
-        self._pass_cache: list[tuple[int, StreamRecord]] | None = None
-        self._kept: list[tuple[int, StreamRecord]] | None = None
-        self._kept_bytes = 0
-        self._damage_at_pass = 0
         if loop and self.info is None:
             self._reader.close()
             raise ValueError(f"{path}: loop=1 needs the log's acquisition metadata (its tick clock)")
@@ -142,28 +126,19 @@ class McapSource(Source):
             self._pass_ticks = self._whole_pass  # not tracked so far in this pass: take the whole pass's range
         self._whole_pass, self._pass_from_start = None, False
         self._start(seconds)
-        self._kept = None  # a pass moved by a seek is not the pass from start_s
 
     def _start(self, seconds: float) -> None:
         if not (seconds >= 0 and math.isfinite(seconds)):
             raise ValueError(f"seek position must be >= 0 s, got {seconds!r}")
         first = self._reader.start_ns
         start_ns = None if first is None or seconds == 0 else first + round(seconds * 1e9)
-        if self._pass_cache is not None and seconds == self._start_s:
-            self._iter = iter(self._pass_cache)
-            self._kept = None
-        else:
-            self._iter = self._reader.iter_timed(start_ns=start_ns)
-            self._kept, self._kept_bytes = ([] if self.loop and seconds == self._start_s else None), 0
-            self._damage_at_pass = self.damage.total()
+        self._iter = self._reader.iter_timed(start_ns=start_ns)
         self._next = next(self._iter, None)
         self._anchor = None
 
     def _advance(self) -> StreamRecord:
         assert self._next is not None
         record = self._next[1]
-        if self._kept is not None:
-            self._keep(self._next)
         self._next = next(self._iter, None)
         if not self.loop:
             return record
@@ -174,21 +149,9 @@ class McapSource(Source):
         self._pass_ticks = (key, key) if seen is None else (min(seen[0], key), max(seen[1], key))
         return shifted(record, self._shift)
 
-    def _keep(self, item: tuple[int, StreamRecord]) -> None:
-        """Gather the pass being read for the later passes, until it is over PASS_CACHE_BYTES."""
-        assert self._kept is not None
-        self._kept_bytes += sum(v.nbytes for v in vars(item[1]).values() if isinstance(v, np.ndarray))
-        if self._kept_bytes > PASS_CACHE_BYTES:
-            self._kept = None
-        else:
-            self._kept.append(item)
-
     def _next_pass(self) -> None:
         """Loop: the next pass starts LOOP_GAP_S after the last tick of this one."""
         assert self.info is not None
-        if self._kept is not None and self._pass_from_start and self.damage.total() == self._damage_at_pass:
-            self._pass_cache = self._kept  # a whole pass from start_s, undamaged: the later passes read it
-        self._kept = None
         if self._whole_pass is not None and self._pass_from_start:
             self._pass_ticks = self._whole_pass
         if self._pass_ticks is None:  # nothing readable after start: looping would spin

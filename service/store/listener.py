@@ -26,8 +26,7 @@ earlier run holds their keys (service/store/sql_store.py, runs) are counted in `
 The default backlog, 7500 cycles, is 10 min of a genset-v20 at 1500 rpm, ~25 MB of rows (20 cylinders).
 
 What is lost. The fan-out gives this listener its own bounded queue (``Fanout.queue_size`` events) and drops what
-does not fit, counting it (``Fanout.drops``) -- unless the source can wait (a log read as fast as possible: the
-monitor then waits for room, ``Fanout.publish(wait=True)``, and nothing is dropped there): a dropped event is a cycle the store never sees, as is a lost batch,
+does not fit, counting it (``Fanout.drops``): a dropped event is a cycle the store never sees, as is a lost batch,
 and a process killed between two commits loses the uncommitted batch (at most ``batch_cycles`` cycles or
 ``max_delay_s`` of them). Only committed rows are durable (service/store/sqlite.py says how durable). A genset-v20
 at 1500 rpm makes 12.5 cycles/s; a batch of 64 such cycles (20 cylinders) with 40 estimate rows committed in 46-48 ms
