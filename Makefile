@@ -24,9 +24,10 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(BIN)/frictionwatch serve --source 'mcap:replay_logs/demo.mcap?loop=1&speed=1'
 
-# two workers (the CI machine has 2 cores); a test file stays on one worker, so its module fixtures run once
+# two workers (the CI machine has 2 cores); a test file stays on one worker, so its module fixtures run once; one
+# BLAS thread each, as serve runs (two workers' OpenBLAS threads spinning on two cores doubled the suite's time)
 test: $(STAMP)
-	$(BIN)/python -m pytest -n 2 --dist loadfile
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -n 2 --dist loadfile
 
 bench: $(STAMP)
 	$(BIN)/python -m bench.run
