@@ -31,6 +31,18 @@ _UPPER = ord("U")
 
 
 @numba.njit(cache=True)
+def _pivot_ratio(low, a):
+    """The smallest pivot ratio L_jj^2 / a_jj of a's Cholesky factor ``low`` (1 for an empty one): how close a is to
+    losing positive definiteness, whatever its row scales."""
+    worst = 1.0
+    for j in range(low.shape[0]):
+        ratio = low[j, j] * low[j, j] / a[j, j]
+        if ratio < worst:
+            worst = ratio
+    return worst
+
+
+@numba.njit(cache=True)
 def _factor(a):
     """np.linalg.cholesky of the symmetric a (lower triangle read), or an empty (0, 0) array if it is not
     positive definite (LinAlgError, or a pivot that is NaN or inf: potrf lets them through)."""
@@ -56,14 +68,10 @@ def cholesky(a, out):
     low = _factor(a[:m, :m])
     if low.shape[0] != m:
         return -1.0
-    worst = 1.0
     for j in range(m):
-        ratio = low[j, j] * low[j, j] / a[j, j]
-        if ratio < worst:
-            worst = ratio
         for i in range(m):
             out[i, j] = low[i, j]
-    return worst
+    return _pivot_ratio(low, a)
 
 
 @numba.njit(cache=True)
@@ -129,11 +137,7 @@ def _scaled_factor_inverse(h, scale, out):
     low = _factor(s)
     if low.shape[0] != n:
         return -1.0
-    worst = 1.0
-    for j in range(n):
-        ratio = low[j, j] * low[j, j] / s[j, j]
-        if ratio < worst:
-            worst = ratio
+    worst = _pivot_ratio(low, s)
     x = np.empty((n, n))
     if inverse_from_factor(low, x) != 0:
         return -1.0
