@@ -168,9 +168,9 @@ class Pressure:
     """The engine's pressure statistics in a usable cycle. imep_pa: the engine's mean IMEP; held: why the statistics
     hold still this cycle (a load change settling, a load not commissioned yet) with the learner's learning_cycles,
     else None and ewma (4, z), the EWMA of the indicators' change from ``band``'s mean, against the siblings'
-    median change (``change_against_siblings``; rows as INDICATORS), and ``stats`` (leak_statistics of it); g the
-    EWMA's factor this cycle; var each cylinder's figure's variance per unit of per-cycle variance (``ewma_variance``
-    times ``sibling_reference_variance``)."""
+    median change (``change_against_siblings``; rows as INDICATORS), and ``stats`` (leak_statistics of it); var
+    each cylinder's figure's variance per unit of per-cycle variance (``ewma_variance`` times
+    ``sibling_reference_variance``)."""
 
     imep_pa: float
     held: str | None = None
@@ -178,7 +178,6 @@ class Pressure:
     ewma: np.ndarray | None = None
     stats: LeakStatistics | None = None
     band: Band | None = None
-    g: float = float("nan")
     var: float = float("nan")
 
 

@@ -299,7 +299,7 @@ class AlertEngine:
         self._ewma_var = ewma_variance(self._ewma_var, g)
         change = change_against_siblings(self._ewma)
         var = self._ewma_var * sibling_reference_variance(self.spec.n_cyl)
-        return Pressure(imep, ewma=change, stats=leak_statistics(change, band, var), band=band, g=g, var=var)
+        return Pressure(imep, ewma=change, stats=leak_statistics(change, band, var), band=band, var=var)
 
     def _learn(self, x: np.ndarray, cycle: int, imep: float) -> None:
         """One healthy cycle at a load no band holds: into the learner, which restarts where the IMEP has left the
