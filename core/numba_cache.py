@@ -1,6 +1,6 @@
 """One numba on-disk cache per version of the kernels' sources.
 
-    use_fingerprinted_cache()   # core/__init__.py and drivers/__init__.py: before any kernel is decorated
+    use_fingerprinted_cache()   # core/__init__.py, before any kernel is decorated (drivers import core first)
 
 Why: numba checks a cached kernel against its own file only (the index's stamp is that file's modification time and
 size). A kernel that calls a kernel of another module keeps running the old compiled callee after that module
@@ -30,20 +30,25 @@ log = logging.getLogger(__name__)
 PACKAGES = ("core", "drivers")  # the folders (installed as frictionwatch.core, frictionwatch.drivers) with kernels
 
 
-def source_fingerprint(root: Path) -> str:
-    """16 hex digits of a SHA-256 over every ``*.py`` file under ``root``/core and ``root``/drivers, by relative path
-    and content (~5 ms for the ~150 files; content, not modification times, so that a copy or a checkout with other
-    times keeps its cache)."""
-    h = hashlib.sha256()
-    for package in PACKAGES:
+def source_digest(root: Path, packages: tuple[str, ...] = PACKAGES, salt: bytes = b"") -> str:
+    """SHA-256 (hex) of ``salt`` and every ``*.py`` file under each of ``root``/``packages``, by relative path and
+    content (~5 ms for core/ and drivers/; content, not modification times, so that a copy or a checkout with other
+    times keeps its cache). Also the monitor state's code fingerprint (service/monitor_snapshot.py)."""
+    h = hashlib.sha256(salt)
+    for package in packages:
         base = root / package
         if not base.is_dir():
-            raise FileNotFoundError(f"numba cache: {base} not found beside {Path(__file__).name}")
+            raise FileNotFoundError(f"{base} not found beside {Path(__file__).name}")
         for path in sorted(base.rglob("*.py")):
-            h.update(str(path.relative_to(root)).encode())
+            h.update(path.relative_to(root).as_posix().encode())
             h.update(b"\0")
             h.update(path.read_bytes())
-    return h.hexdigest()[:16]
+    return h.hexdigest()
+
+
+def source_fingerprint(root: Path) -> str:
+    """16 hex digits of ``source_digest`` of core/ and drivers/ under ``root``: the cache folder's name."""
+    return source_digest(root)[:16]
 
 
 def fingerprinted_cache_dir(fingerprint: str, environ: dict | None = None) -> Path:
@@ -74,4 +79,4 @@ def use_fingerprinted_cache() -> None:
     config.CACHE_DIR = str(target)
 
 
-__all__ = ["fingerprinted_cache_dir", "source_fingerprint", "use_fingerprinted_cache"]
+__all__ = ["fingerprinted_cache_dir", "source_digest", "source_fingerprint", "use_fingerprinted_cache"]

@@ -15,7 +15,6 @@ have other fields (``fingerprint``).
 from __future__ import annotations
 
 import base64
-import hashlib
 import io
 import pickle
 import zlib
@@ -23,6 +22,7 @@ from importlib import metadata
 from pathlib import Path
 
 import frictionwatch.core
+from frictionwatch.core.numba_cache import source_digest
 
 ALLOWED_NUMPY = {("numpy", "dtype"), ("numpy._core.numeric", "_frombuffer"), ("numpy.core.numeric", "_frombuffer"),
                  ("numpy._core.multiarray", "_reconstruct"), ("numpy.core.multiarray", "_reconstruct"),
@@ -36,16 +36,11 @@ class SnapshotError(ValueError):
 
 def fingerprint() -> str:
     """sha256 of frictionwatch's version and every source file of core/ (any change there: a new fingerprint)."""
-    root = Path(frictionwatch.core.__file__).parent
-    digest = hashlib.sha256()
     try:
-        digest.update(metadata.version("frictionwatch").encode())
+        version = metadata.version("frictionwatch").encode()
     except metadata.PackageNotFoundError:
-        digest.update(b"unknown")
-    for path in sorted(root.rglob("*.py")):
-        digest.update(path.relative_to(root).as_posix().encode())
-        digest.update(path.read_bytes())
-    return digest.hexdigest()
+        version = b"unknown"
+    return source_digest(Path(frictionwatch.core.__file__).parents[1], ("core",), salt=version)
 
 
 def dumps(carried: dict) -> str:
