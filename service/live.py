@@ -90,7 +90,7 @@ class LiveSession:
     quiet_s : wall time without records after which a source stops holding the others back.
     read_timeout_s : how long one ``read`` of a source waits (bounds how fast ``stop`` returns).
     on_result : called on the ingest thread with each CycleResult (exceptions are logged and counted), under the
-    session's lock (the one ``with_pipeline``, the counters and ``stop``'s drain take): read the pipeline's state
+    session's lock (the one ``with_pipeline`` and the counters take): read the pipeline's state
     there, and keep it short.
     after_results : called on the ingest thread once the lock is released after results were given to
     ``on_result``, before the next record is fed: hand them on there. It may wait (a listener's backpressure on a

@@ -2,84 +2,31 @@
 and says what it left; a real-time source never waits (issue 28 items 1 and 3, design note 57).
 
 The store here is the real one (SQLite; PostgreSQL where FW_TEST_POSTGRES_URL is set), joined by DataDir as serve
-joins it, each cycle its own commit slowed to ~20 ms: ~50 cycles a second, several times slower than the monitor on
-the demo log read as fast as possible. The log is the demo played several times over and then ended, so the run has
-a last cycle to compare with."""
+joins it, each cycle its own commit slowed by ~20 ms (tests/service/slow_store.py): ~45 cycles a second, several
+times slower than the monitor on the demo log read as fast as possible. The log is the demo played several times
+over and then ended, so the run has a last cycle to compare with."""
 
 from __future__ import annotations
 
-import functools
 import logging
 import threading
 import time
 
 import pytest
-from frictionwatch.drivers.errors import EndOfStream
 from frictionwatch.drivers.logs.mcap_replay import McapSource
-from frictionwatch.drivers.source import Source, StreamRestart
-from frictionwatch.service.data_dir import DataDir
-from frictionwatch.service.engine_service import EngineService
 from frictionwatch.service.listeners import Listener, ServiceEvent
-from frictionwatch.service.pipeline import resolve_model
-from frictionwatch.service.store import StoreListener
 
 from tests.service.serve_helpers import DEMO, FakeAlerts, demo_service, wait_until
+from tests.service.slow_store import ENGINE, DemoPasses, slow_store_engine, stored
 from tests.service.test_store_backends import store_url  # noqa: F401 - the fixture, on both backends
 
-ENGINE = "genset-v20"
 WRITE_S = 0.02  # what each slowed commit takes on top of its own time
 pytestmark = [pytest.mark.timeout(300)]
 
 
-class Passes(Source):
-    """The demo log read as fast as it can be, ``passes`` times over, then its end: a longer log than the demo's
-    ~40 cycles, not real time (no ``speed``)."""
-
-    def __init__(self, passes: int) -> None:
-        super().__init__()
-        self._log = McapSource(DEMO, loop=True)
-        self.info, self.engine_toml, self.damage = self._log.info, self._log.engine_toml, self._log.damage
-        self.passes, self._seams = passes, 0
-
-    def _read_internal(self, timeout: float | None) -> list:
-        if self._seams >= self.passes:
-            raise EndOfStream("the last pass ended")
-        records = self._log.read(timeout)
-        for i, r in enumerate(records):
-            if isinstance(r, StreamRestart):
-                self._seams += 1
-                if self._seams >= self.passes:
-                    return records[:i]
-        return records
-
-    def _close_internal(self) -> None:
-        self._log.close()
-
-
-def slow_store_run(where, source: Source, **options) -> tuple[DataDir, EngineService]:
-    """An engine on ``source`` with a store at ``where`` whose every cycle is a commit slowed by WRITE_S."""
-    data = DataDir(where)
-    write = data.store.write_batch
-
-    def slow_write(*args, **kwargs):
-        time.sleep(WRITE_S)
-        return write(*args, **kwargs)
-
-    data.store.write_batch = slow_write
-    data._listener = functools.partial(StoreListener, batch_cycles=1)  # a commit a cycle
-    model = resolve_model(source.engine_toml, None, "demo", source.info)
-    svc = EngineService(ENGINE, model, source.info, {"log": source}, **options)
-    data.attach(svc)
-    return data, svc
-
-
-def stored(data: DataDir) -> list[int]:
-    return [int(r["cycle_index"]) for r in data.store.cycles(ENGINE, 0, 10**9)]
-
-
 def test_a_fast_replay_keeps_every_cycle_in_a_slow_store(store_url):  # noqa: F811
     # a queue of 8 events: the store falls behind within a pass (the default 256 would hide it on a short log)
-    data, svc = slow_store_run(store_url, Passes(5), queue_size=8)
+    data, svc = slow_store_engine(store_url, DemoPasses(5), WRITE_S, queue_size=8)
     assert not svc.session.realtime
     try:
         svc.start()
@@ -95,7 +42,7 @@ def test_a_fast_replay_keeps_every_cycle_in_a_slow_store(store_url):  # noqa: F8
 
 
 def test_a_stop_during_a_fast_replay_keeps_its_deadline_and_says_what_it_left(tmp_path, caplog):
-    data, svc = slow_store_run(tmp_path / "data", McapSource(DEMO, loop=True))
+    data, svc = slow_store_engine(tmp_path / "data", McapSource(DEMO, loop=True), WRITE_S)
     try:
         svc.start()
         # the store's queue full: the replay waits for room, its reader for the ingest thread
