@@ -5,7 +5,7 @@ threads, with only the ingest thread ever waiting (issue 28, design note 57).
     outbox.put(event)        # under the lock that orders the events (EngineService: the alert engine's lock)
     outbox.send(until)       # the ingest thread, the session's lock released: every queued event, in order, each
                              # waiting for its listeners' room until until() when given (Fanout.publish)
-    outbox.send_own()        # an API thread: never waits (see its docstring)
+    outbox.send_own()        # an API thread: never waits, never drops for a full queue (see its docstring)
 
 Why not publish where the event is made: a cycle's event is made under the session's lock, and a publish that waits
 for a listener there would hold the monitor (checkpoints, the API's counters, a stop's drain: design note 55). Why
@@ -39,9 +39,11 @@ class EventOutbox:
         self._drain(until, ingest=True)
 
     def send_own(self) -> None:
-        """An API thread: hand on the queued events before the first cycle's, never waiting. A cycle's event is left
-        to the ingest thread, which sends it right after making it (it is queued only between the two); so is every
-        event while the ingest thread sends (it looks again once it lets go)."""
+        """An API thread: hand on the queued events before the first cycle's, never waiting; a full listener queue
+        takes an API event past its bound (Fanout.publish ``past_bound``: a person's actions are few, and a replay
+        that waits for its store keeps that queue full). A cycle's event is left to the ingest thread, which sends
+        it right after making it (it is queued only between the two); so is every event while the ingest thread
+        sends (it looks again once it lets go)."""
         self._drain(None, ingest=False)
 
     def __len__(self) -> int:
@@ -55,6 +57,8 @@ class EventOutbox:
                 while self._events:
                     if not ingest and self._events[0].result is not None:
                         return
-                    self.fanout.publish(self._events.popleft(), until)
+                    event = self._events.popleft()
+                    # an API event (no result: a person's action) is never lost to a full queue, nor waited for
+                    self.fanout.publish(event, until, past_bound=event.result is None)
             finally:
                 self._sending.release()

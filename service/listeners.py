@@ -3,6 +3,7 @@
     fanout = Fanout([state, sse, metrics, store_listener])   # each listener gets its own bounded queue and thread
     fanout.publish(event)        # never blocks: a full queue drops the event and counts it
     fanout.publish(event, until=deadline)  # a source that can wait: waits for room until deadline() (a stop's)
+    fanout.publish(event, past_bound=True)  # a person's action: never waits, queued past a full queue's bound
     fanout.drops, fanout.errors  # per listener name
     fanout.stop(timeout)         # each thread delivers what is queued within timeout, then the listener's stop()
     fanout.left                  # per listener: events given up at a stop (not queued by its deadline, or still queued)
@@ -81,13 +82,29 @@ class _Callback(Listener):
         self.fn(event)
 
 
+class _EventQueue(queue.Queue):
+    """A listener's queue: ``maxsize`` events, and as many again for ``put_past_bound`` (after the standard
+    library's own subclasses, through Queue's ``_put`` / ``_qsize`` hooks)."""
+
+    def put_past_bound(self, event: ServiceEvent) -> bool:
+        """Queue ``event`` without waiting even when the queue is full, up to twice ``maxsize``; False past that.
+        For a person's actions (an acknowledgement, a re-baseline): few, and not to be lost to a busy store."""
+        with self.not_full:  # the queue's mutex
+            if self._qsize() >= 2 * self.maxsize:
+                return False
+            self._put(event)
+            self.unfinished_tasks += 1
+            self.not_empty.notify()
+            return True
+
+
 class _Worker:
     """One listener's queue and thread."""
 
     def __init__(self, listener: Any, name: str, queue_size: int) -> None:
         self.listener, self.name = listener, name
         self.wants: Callable[[ServiceEvent], bool] | None = getattr(listener, "wants", None)
-        self.queue: queue.Queue = queue.Queue(maxsize=queue_size)
+        self.queue = _EventQueue(maxsize=queue_size)
         self.drops = 0
         self.left = 0  # events given up at a stop (Fanout.left)
         self.errors: Counter[str] = Counter()
@@ -183,18 +200,20 @@ class Fanout:
             for w in self._workers:
                 w.thread.start()
 
-    def publish(self, event: ServiceEvent, until: Callable[[], float] | None = None) -> None:
+    def publish(self, event: ServiceEvent, until: Callable[[], float] | None = None,
+                past_bound: bool = False) -> None:
         """Without ``until`` never blocks: a listener whose queue is full loses this event (counted in ``drops``).
         With ``until`` (a source that can wait: a log read as fast as possible, never an engine nor the API) a full
         queue is waited for until the monotonic time ``until()`` (read again while waiting: a stop sets it), so that a
         replay faster than its slowest listener loses nothing; an event not queued by then is counted in ``left``
-        (so is one published after ``stop``)."""
+        (so is one published after ``stop``). ``past_bound`` (the API's events: a person's action) never waits
+        either, and a full queue takes it anyway, up to twice its size (``_EventQueue``)."""
         for w in self._workers:
             if w.wants is not None and not w.wants(event):
                 continue
             if w._abandon.is_set():
                 w.left += 1  # after the stop: nobody would deliver it
-            elif w.put(event, until):
+            elif w.queue.put_past_bound(event) if past_bound else w.put(event, until):
                 continue
             elif w._stopping.is_set() or (until is not None and time.monotonic() >= until()):
                 w.left += 1  # a stop's deadline ended the wait (EngineService.stop says how many)

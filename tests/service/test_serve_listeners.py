@@ -182,3 +182,25 @@ def wait_until_true(pred, timeout: float = 5.0) -> bool:
     while not pred() and time.monotonic() < end:
         time.sleep(0.01)
     return pred()
+
+
+def test_a_persons_action_is_queued_past_a_full_queue_without_waiting() -> None:
+    """``past_bound`` (the API's acknowledge and re-baseline): a full queue takes it at once, in order after what it
+    holds, up to twice its size; past that it is dropped and counted like any event."""
+    stuck = Blocked()
+    fan = Fanout([stuck], queue_size=2)
+    fan.start()
+    fan.publish(event(0))  # in hand
+    assert wait_until_true(lambda: fan.queued["blocked"] == 0)
+    fan.publish(event(1))
+    fan.publish(event(2))  # the queue full
+    t0 = time.monotonic()
+    fan.publish(event(3), past_bound=True)
+    fan.publish(event(4), past_bound=True)
+    assert time.monotonic() - t0 < 0.05 and fan.drops["blocked"] == 0
+    fan.publish(event(5), past_bound=True)  # twice the bound held
+    fan.publish(event(6))  # and an ordinary event on a full queue
+    assert fan.drops["blocked"] == 2
+    stuck.release.set()
+    fan.stop()
+    assert stuck.got == [0, 1, 2, 3, 4]
