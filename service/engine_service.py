@@ -6,8 +6,12 @@
     svc.state.snapshot()          # what the API reads (service.listeners.LatestState)
 
 Threads: the session's readers and ingest thread, one thread per listener. On the ingest thread, right after each
-result: the alert engine's update (cheap, its state is the engine's own), then ``Fanout.publish`` which never
-blocks. Acknowledge and re-baseline come from the API's threads: the alert engine is guarded by a lock.
+result and under the session's lock: the counters the API reads, the alert engine's update (cheap, its state is the
+engine's own) and the cycle's event, queued (service/event_outbox.py); then, the lock released, the event handed to
+the fan-out. An engine's source never waits there (a full listener queue drops, counted); a log read as fast as it
+can be (``session.realtime`` False) waits for its listeners' room, so that a store slower than the replay keeps
+every cycle, until a stop's deadline at the latest. Acknowledge and re-baseline come from the API's threads (the
+alert engine is guarded by a lock) and never wait; their events keep their place among the cycles'.
 
 Latency. Each source is wrapped so the time its reader got each batch is kept with the batch's newest tick; a
 result's arrival time is when, for the last source to get there, the batch reaching the cycle's end tick was read.
@@ -39,6 +43,7 @@ from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 from frictionwatch.drivers.source import Source
 from frictionwatch.service.alert_baseline import Baseline
+from frictionwatch.service.event_outbox import EventOutbox
 from frictionwatch.service.listeners import Fanout, LatestState, ServiceEvent
 from frictionwatch.service.live import LiveSession, record_key
 from frictionwatch.service.monitor_snapshot import pickled
@@ -154,11 +159,15 @@ class EngineService:
         self._alerts_lock = threading.Lock()
         self.state = LatestState(max_results=history_cycles)
         self.fanout = Fanout([self.state, *listeners], queue_size=queue_size)
+        self.outbox = EventOutbox(self.fanout)
         self._stamped = {name: StampedSource(src) for name, src in sources.items()}
         self.recent = RecentRecords(recent_s, info.tick_hz)  # what a discrepancy run on a recorded window reads
         self.session = LiveSession(model, info, self._stamped, on_result=self._on_result, start=False,
-                                   max_results=max(64, history_cycles), on_records=self.recent.extend,
-                                   **session_options)
+                                   after_results=self._send, max_results=max(64, history_cycles),
+                                   on_records=self.recent.extend, **session_options)
+        # a source that can wait (a log read as fast as possible) waits for the listeners, until a stop's deadline
+        self._until = None if self.session.realtime else (lambda: self.session.drain_until)
+        self._stopped = False
         self.term_names = self._monitor_terms()  # the columns of the monitor's estimates, named
         self.started_s: float | None = None
         self.last_result_s: float | None = None
@@ -211,18 +220,30 @@ class EngineService:
 
     def stop(self, timeout: float | None = None) -> None:
         """Stop the session (its ingest thread gets ``timeout`` to drain, default the session's ``drain_s``, serve
-        --drain-s; a backlog beyond that is abandoned with the process, logged), then the listeners after they have
-        delivered what is queued (at most ``LISTENER_STOP_S``, or ``timeout``)."""
+        --drain-s; a backlog beyond that is abandoned with the process; a replay waiting for its listeners waits no
+        longer than that), then the listeners after they have delivered what is queued (at most
+        ``LISTENER_STOP_S``, or ``timeout``, and listeners.IN_HAND_S for an event in hand). So it takes at most the
+        drain, 2 s (the session's, for the cycle in progress and its flush), the listeners' time and 0.5 s. What was
+        left, records not analysed and events a listener never got (``fanout.left``), is said in one line.
+        Idempotent."""
+        if self._stopped:
+            return
+        self._stopped = True
         self.session.stop(timeout)
         self.skipped = dict(self.session.skipped)
+        self.fanout.stop(LISTENER_STOP_S if timeout is None else timeout)
+        said = []
         left = self.session.left_at_stop
         if left is not None and left[0]:
             newest = self.state.newest
             cycles = (f"~{left[1] * newest.rpm_mean / 60.0 / CYCLE_REVS:.0f} cycles" if newest is not None
                       and newest.rpm_mean > 0 else "cycles unknown")
-            log.warning("%s: stopped with %s (%.1f s of acquisition, %d records) not analysed", self.engine_id, cycles,
-                        left[1], left[0])
-        self.fanout.stop(LISTENER_STOP_S if timeout is None else timeout)
+            said.append(f"{cycles} ({left[1]:.1f} s of acquisition, {left[0]} records) not analysed")
+        events = [f"{name} {n}" for name, n in self.fanout.left.items() if n]
+        if events:
+            said.append(f"events not handed to listeners: {', '.join(events)}")
+        if said:
+            log.warning("%s: stopped; the stop's time was up: %s", self.engine_id, "; ".join(said))
 
     def backlog(self) -> dict:
         """The ingest's lag (live.LiveSession.lag) with cycles estimated at the newest result's speed (None before
@@ -254,21 +275,28 @@ class EngineService:
         self.restarts = dict(pipe.restarts)
         self.tdc_watch = TdcWatchView(pipe.tdc_watch, pipe.tdc_window_cycle)
         self.term_names = self._monitor_terms()  # a model with a friction shape has its view from the first cycle
+        arrived = self._arrival(result)
+        if self.alerts is None:
+            self.outbox.put(ServiceEvent(self.engine_id, result, now, arrived, term_names=self.term_names))
+            return
         alerts: tuple[dict, ...] = ()
         learnt: dict | None = None
-        if self.alerts is not None:
-            with self._alerts_lock:
-                try:
-                    before = self.alerts.baseline
-                    alerts = tuple(self._alert_dict(ev.alert) for ev in self.alerts.update(result))
-                    if self.alerts.baseline is not before and self.alerts.baseline is not None:
-                        learnt = self.alerts.baseline.to_dict()  # a band or a friction reference learnt: kept
-                except Exception as exc:  # noqa: BLE001 - a fault in the alert layer must not stop the monitor
-                    if self.alert_errors == 0:
-                        log.error("%s: alert update failed: %s", self.engine_id, exc, exc_info=exc)
-                    self.alert_errors += 1
-        self.fanout.publish(ServiceEvent(self.engine_id, result, now, self._arrival(result), alerts,
-                                         term_names=self.term_names, baseline=learnt))
+        with self._alerts_lock:  # the event queued under it: in the order the alert engine changed
+            try:
+                before = self.alerts.baseline
+                alerts = tuple(self._alert_dict(ev.alert) for ev in self.alerts.update(result))
+                if self.alerts.baseline is not before and self.alerts.baseline is not None:
+                    learnt = self.alerts.baseline.to_dict()  # a band or a friction reference learnt: kept
+            except Exception as exc:  # noqa: BLE001 - a fault in the alert layer must not stop the monitor
+                if self.alert_errors == 0:
+                    log.error("%s: alert update failed: %s", self.engine_id, exc, exc_info=exc)
+                self.alert_errors += 1
+            self.outbox.put(ServiceEvent(self.engine_id, result, now, arrived, alerts, term_names=self.term_names,
+                                         baseline=learnt))
+
+    def _send(self) -> None:
+        """The session's ``after_results`` (its lock released): the queued events to the fan-out."""
+        self.outbox.send(self._until)
 
     def _monitor_terms(self) -> tuple[str, ...]:
         """The loss terms the monitor identifies: those of the model's view (service.pipeline.EnginePipeline)."""
@@ -314,7 +342,8 @@ class EngineService:
                 alert = self._alert_dict(self.alerts.acknowledge(alert_id, by))
             except KeyError as exc:
                 raise LookupError(f"engine {self.engine_id} has no alert {alert_id}") from exc
-        self.fanout.publish(ServiceEvent(self.engine_id, None, time.monotonic(), alerts=(alert,)))
+            self.outbox.put(ServiceEvent(self.engine_id, None, time.monotonic(), alerts=(alert,)))
+        self.outbox.send_own()
         return alert
 
     def rebaseline(self) -> dict:
@@ -324,7 +353,8 @@ class EngineService:
             self.alerts.rebaseline()
             baseline = self.alerts.baseline
             doc = baseline.to_dict() if baseline is not None else None
-        # a store keeps the reset too: a restart before the new baseline is learnt must not bring the old one back
-        self.fanout.publish(ServiceEvent(self.engine_id, None, time.monotonic(),
+            # a store keeps the reset too: a restart before the new baseline is learnt must not bring the old one back
+            self.outbox.put(ServiceEvent(self.engine_id, None, time.monotonic(),
                                          baseline=doc if doc is not None else {"reset": True, "at_s": time.time()}))
+        self.outbox.send_own()
         return {"ok": True, "engine_id": self.engine_id, "baseline": doc}

@@ -1,9 +1,12 @@
 """Fan-out of an engine's results to its consumers, after python-can's Notifier / Listener.
 
     fanout = Fanout([state, sse, metrics, store_listener])   # each listener gets its own bounded queue and thread
-    fanout.publish(event)        # from the ingest thread: never blocks; a full queue drops the event and counts it
+    fanout.publish(event)        # never blocks: a full queue drops the event and counts it
+    fanout.publish(event, until=deadline)  # a source that can wait: waits for room until deadline() (a stop's)
+    fanout.publish(event, past_bound=True)  # a person's action: never waits, queued past a full queue's bound
     fanout.drops, fanout.errors  # per listener name
-    fanout.stop()                # each thread delivers what is queued, then the listener's stop() is called
+    fanout.stop(timeout)         # each thread delivers what is queued within timeout, then the listener's stop()
+    fanout.left                  # per listener: events given up at a stop (not queued by its deadline, or still queued)
 
 A listener is any object with ``on_message_received(event)`` (python-can's name), optionally ``on_error(exc)``,
 ``stop()``, ``name`` and ``wants(event)``; a plain callable works too. ``wants`` is asked on the publishing thread
@@ -35,6 +38,10 @@ from frictionwatch.service.window_figures import WindowFigures, left_out
 from frictionwatch.service.window_sums import WindowSums
 
 log = logging.getLogger(__name__)
+# how often a publisher waiting for room looks at its deadline and the listener's thread (a stop moves the deadline)
+WAIT_POLL_S = 0.05
+# what a stop gives a listener's event in hand once its time is up, before its stop() (a store's commit: ~50 ms)
+IN_HAND_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -75,21 +82,69 @@ class _Callback(Listener):
         self.fn(event)
 
 
+class _EventQueue(queue.Queue):
+    """A listener's queue: ``maxsize`` events, and as many again for ``put_past_bound`` (after the standard
+    library's own subclasses, through Queue's ``_put`` / ``_qsize`` hooks)."""
+
+    def put_past_bound(self, event: ServiceEvent) -> bool:
+        """Queue ``event`` without waiting even when the queue is full, up to twice ``maxsize``; False past that.
+        For a person's actions (an acknowledgement, a re-baseline): few, and not to be lost to a busy store."""
+        with self.not_full:  # the queue's mutex
+            if self._qsize() >= 2 * self.maxsize:
+                return False
+            self._put(event)
+            self.unfinished_tasks += 1
+            self.not_empty.notify()
+            return True
+
+
 class _Worker:
     """One listener's queue and thread."""
 
     def __init__(self, listener: Any, name: str, queue_size: int) -> None:
         self.listener, self.name = listener, name
         self.wants: Callable[[ServiceEvent], bool] | None = getattr(listener, "wants", None)
-        self.queue: queue.Queue = queue.Queue(maxsize=queue_size)
+        self.queue = _EventQueue(maxsize=queue_size)
         self.drops = 0
+        self.left = 0  # events given up at a stop (Fanout.left)
         self.errors: Counter[str] = Counter()
         self.delivered = 0
         self._stopping = threading.Event()
+        self._abandon = threading.Event()  # the stop's time is up: deliver nothing more
         self.thread = threading.Thread(target=self._run, name=f"listener-{name}", daemon=True)
 
-    def _run(self) -> None:
+    def put(self, event: ServiceEvent, until: Callable[[], float] | None) -> bool:
+        """Queue ``event``: at once, or with ``until`` waiting for room while ``time.monotonic() < until()`` and the
+        thread runs. False: not queued."""
+        try:
+            self.queue.put_nowait(event)
+            return True
+        except queue.Full:
+            if until is None:
+                return False
+        while self.thread.is_alive() and not self._abandon.is_set():
+            wait = min(WAIT_POLL_S, until() - time.monotonic())
+            if wait <= 0:
+                return False
+            try:
+                self.queue.put(event, timeout=wait)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def discard(self) -> int:
+        """Empty the queue (nothing of it delivered); how many events it held."""
+        n = 0
         while True:
+            try:
+                self.queue.get_nowait()
+            except queue.Empty:
+                return n
+            n += 1
+
+    def _run(self) -> None:
+        while not self._abandon.is_set():
             try:
                 event = self.queue.get(timeout=0.1)
             except queue.Empty:
@@ -145,27 +200,47 @@ class Fanout:
             for w in self._workers:
                 w.thread.start()
 
-    def publish(self, event: ServiceEvent) -> None:
-        """Never blocks: a listener whose queue is full loses this event (counted in ``drops``)."""
+    def publish(self, event: ServiceEvent, until: Callable[[], float] | None = None,
+                past_bound: bool = False) -> None:
+        """Without ``until`` never blocks: a listener whose queue is full loses this event (counted in ``drops``).
+        With ``until`` (a source that can wait: a log read as fast as possible, never an engine nor the API) a full
+        queue is waited for until the monotonic time ``until()`` (read again while waiting: a stop sets it), so that a
+        replay faster than its slowest listener loses nothing; an event not queued by then is counted in ``left``
+        (so is one published after ``stop``). ``past_bound`` (the API's events: a person's action) never waits
+        either, and a full queue takes it anyway, up to twice its size (``_EventQueue``)."""
         for w in self._workers:
             if w.wants is not None and not w.wants(event):
                 continue
-            try:
-                w.queue.put_nowait(event)
-            except queue.Full:
+            if w._abandon.is_set():
+                w.left += 1  # after the stop: nobody would deliver it
+            elif w.queue.put_past_bound(event) if past_bound else w.put(event, until):
+                continue
+            elif w._stopping.is_set() or (until is not None and time.monotonic() >= until()):
+                w.left += 1  # a stop's deadline ended the wait (EngineService.stop says how many)
+            else:
                 if w.drops == 0:
                     log.warning("listener %s is behind: its queue of %d is full, events dropped", w.name,
                                 self.queue_size)
                 w.drops += 1
 
     def stop(self, timeout: float = 5.0) -> None:
-        """Deliver what is queued, then stop each listener (its ``stop()``)."""
+        """Deliver what is queued within ``timeout`` s, then stop each listener (its ``stop()``). What a listener
+        still holds then is not delivered: counted in ``left``, its event in hand given ``IN_HAND_S`` more, so that
+        a stop takes at most ``timeout + IN_HAND_S``."""
         for w in self._workers:
             w._stopping.set()
         deadline = time.monotonic() + timeout
         for w in self._workers:
             if w.thread.is_alive():
                 w.thread.join(max(0.0, deadline - time.monotonic()))
+        late = [w for w in self._workers if w.thread.is_alive()]
+        for w in self._workers:
+            w._abandon.set()  # a late thread stops after its event in hand
+            w.left += w.discard()  # a late thread's queue (or a publish's racing the stop)
+        in_hand = time.monotonic() + IN_HAND_S
+        for w in late:
+            w.thread.join(max(0.0, in_hand - time.monotonic()))
+        for w in self._workers:
             stop = getattr(w.listener, "stop", None)
             if stop is not None:
                 try:
@@ -186,6 +261,12 @@ class Fanout:
         return {w.name: w.drops for w in self._workers}
 
     @property
+    def left(self) -> dict[str, int]:
+        """Events each listener was not given because of a stop: a waiting publish's deadline passed, its queue
+        still held them when the stop's time was up, or they came after it."""
+        return {w.name: w.left for w in self._workers}
+
+    @property
     def errors(self) -> dict[str, int]:
         return {w.name: sum(w.errors.values()) for w in self._workers}
 
@@ -198,7 +279,8 @@ class LatestState(Listener):
     """What the API reads of one engine: the newest whole result, a bounded ring of recent results (slim: no
     traces), the running sums of window means (service/window_sums.py). Thread-safe; ``snapshot`` copies under the
     lock only the results asked for, ``window`` reads the sums in O(1): a request never holds this listener's
-    thread for longer than that (the ingest thread never waits for it: the fan-out does not block)."""
+    thread for longer than that (an engine's ingest thread never waits for it; a replay that can wait does so only
+    once its queue of ``Fanout.queue_size`` events is full, far longer than a request holds the lock)."""
 
     name = "api-state"
 

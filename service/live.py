@@ -9,7 +9,9 @@ whole, older ones without traces, ``service.pipeline.ResultHistory``; 20,000 gen
 1500 rpm, hold ~0.2 GB); ``on_result`` sees every one (a store keeps the history), ``cycles_ok`` counts them all.
 
 Threads. One reader thread per source calls ``source.read(timeout)`` and queues what it gets; one ingest thread
-merges the streams into time order, writes them to the black-box recorder (if any) and feeds ``EnginePipeline``.
+merges the streams into time order, writes them to the black-box recorder (if any) and feeds ``EnginePipeline``;
+each result goes to ``on_result`` under the session's lock, then to ``after_results`` with it released (a consumer
+that waits there never holds the monitor).
 ``stop()`` ends the readers, lets the ingest thread drain the queue for at most ``drain_s`` (what is left then is
 dropped, counted in ``left_at_stop`` and logged), release every held record and flush the pipeline, then closes the
 sources and the recorder (the session owns what it is given).
@@ -17,7 +19,8 @@ sources and the recorder (the session owns what it is given).
 Backpressure. The reader -> ingest queue is bounded by the acquisition time it holds (``max_queue_s``, default
 10 s; service/ingest_queue.py states the policy): a real-time source (serial, CAN, a replay paced by the wall clock)
 never waits — the oldest queued batches are dropped, the newest kept, counted in ``lag().dropped_*`` — while a log
-replayed as fast as it can be read waits for room. Memory of the queue is bounded by the sources' data rate times
+replayed as fast as it can be read waits for room (and, in serve, the ingest thread for its listeners: service/
+engine_service.py). Memory of the queue is bounded by the sources' data rate times
 ``max_queue_s`` (genset-v20: ~3.2 MB/s of pressure, ~32 MB). ``lag()`` says how far the ingest is behind. ``read`` never raising is
 the sources' contract; an exception that escapes anyway is counted (``reader_error: <type>``) and the reader goes on.
 A failing recorder, ``on_result`` callback or pipeline step is counted in ``errors`` and logged once; the session
@@ -86,7 +89,13 @@ class LiveSession:
     window_s, slack_s : merge window and per-source slack [s of acquisition time] (see ``RecordMerge``).
     quiet_s : wall time without records after which a source stops holding the others back.
     read_timeout_s : how long one ``read`` of a source waits (bounds how fast ``stop`` returns).
-    on_result : called on the ingest thread with each CycleResult (exceptions are logged and counted).
+    on_result : called on the ingest thread with each CycleResult (exceptions are logged and counted), under the
+    session's lock (the one ``with_pipeline`` and the counters take): read the pipeline's state
+    there, and keep it short.
+    after_results : called on the ingest thread once the lock is released after results were given to
+    ``on_result``, before the next record is fed: hand them on there. It may wait (a listener's backpressure on a
+    log read as fast as possible: ``realtime`` False), until ``drain_until`` at the latest; holding the lock, a
+    wait would hold every reader of the monitor's state with it.
     on_records : called on the ingest thread with each released batch of merged raw records (a list, in order; no
     restart marks), before the pipeline sees them (cheap: keep references; exceptions are logged and counted). Once
     a batch, not once a record: ~25 records a genset-v20 cycle (design notes 47).
@@ -110,7 +119,8 @@ class LiveSession:
     def __init__(self, spec: EngineSpec, info: AcquisitionInfo, sources: Mapping[str, Source] | Sequence[Source], *,
                  recorder: Recorder | None = None, window_s: float = 1.0, slack_s: float = 0.005,
                  quiet_s: float = 0.5, read_timeout_s: float = 0.05,
-                 on_result: Callable[[CycleResult], None] | None = None, max_results: int = 20_000,
+                 on_result: Callable[[CycleResult], None] | None = None,
+                 after_results: Callable[[], None] | None = None, max_results: int = 20_000,
                  start: bool = True, on_records: Callable[[list[StreamRecord]], None] | None = None,
                  config: MonitorConfig | None = None, max_queue_s: float = 10.0, drain_s: float = 5.0,
                  warmup_s: float = 120.0, replay_batch_s: float = 0.04) -> None:
@@ -125,7 +135,8 @@ class LiveSession:
         self.merge = RecordMerge(self.sources, window_s * info.tick_hz, slack_s * info.tick_hz)
         self.recorder = recorder
         self.quiet_s, self.read_timeout_s = quiet_s, read_timeout_s
-        self.on_result, self.on_records = on_result, on_records
+        self.on_result, self.on_records, self.after_results = on_result, on_records, after_results
+        self._unsent = False  # results given to on_result under the lock and not yet to after_results
         self._history = ResultHistory(max_len=max_results)
         self.records_fed = 0
         self.errors: Counter[str] = Counter()  # the session's own trouble: recorder, on_result, pipeline bugs
@@ -190,6 +201,11 @@ class LiveSession:
         alive = [t.name for t in (*self._readers, self._ingest) if t.is_alive()]
         if alive:
             log.error("live session: threads still running after stop: %s", alive)
+
+    @property
+    def drain_until(self) -> float:
+        """The monotonic time a stop's drain ends (inf while running): a wait in ``after_results`` ends there."""
+        return self._drain_until
 
     def lag(self) -> IngestLag:
         """How far the ingest thread is behind the readers (never waits for the ingest thread)."""
@@ -328,6 +344,7 @@ class LiveSession:
         with self._cond:
             self._publish(self.pipeline.flush())
             self._cond.notify_all()
+        self._hand_on()
 
     def _left_at_stop(self) -> None:
         """The drain's time is up: drop what is queued, say how much."""
@@ -356,6 +373,7 @@ class LiveSession:
             if isinstance(r, StreamRestart):  # neither recorded nor handed on: the pipeline restarts
                 with self._cond:
                     self._publish(self.pipeline.feed(r))
+                self._hand_on()
                 continue
             with self._cond:
                 self.records_fed += 1
@@ -366,6 +384,7 @@ class LiveSession:
                     continue
                 if results:
                     self._publish(results)
+            self._hand_on()  # out of the lock: it may wait for a listener (backpressure), the monitor free meanwhile
         with self._cond:
             self._cond.notify_all()
 
@@ -390,7 +409,18 @@ class LiveSession:
                 except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the monitor
                     self._error("on_result", exc)
         if results:
+            self._unsent = True
             self._cond.notify_all()
+
+    def _hand_on(self) -> None:
+        """``after_results`` for what ``_publish`` gave ``on_result`` (called with the lock released)."""
+        if self._unsent:
+            self._unsent = False
+            if self.after_results is not None:
+                try:
+                    self.after_results()
+                except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the monitor
+                    self._error("after_results", exc)
 
     def _error(self, where: str, exc: BaseException) -> None:
         reason = f"{where}: {type(exc).__name__}"

@@ -1,5 +1,7 @@
 """The fan-out (service/listeners.py): the publisher never waits, a slow listener drops and counts alone, a failing
-one is counted and keeps receiving, stop delivers what is queued; the SSE broadcaster drops per slow client."""
+one is counted and keeps receiving, stop delivers what is queued; a publisher that can wait (``until``) loses
+nothing to a slow listener and is let go at its deadline, what it left counted; the SSE broadcaster drops per slow
+client."""
 
 from __future__ import annotations
 
@@ -113,3 +115,92 @@ def test_the_sse_listener_is_handed_nothing_while_no_client_listens() -> None:
     before, after, drops, got = asyncio.run(scenario())
     assert (before, after, drops) == (0, 3, 0)
     assert got == ["5", "6", "7"]
+
+
+class Slow(Listener):
+    """Keeps up, but slower than the publisher: a store under a log read as fast as possible."""
+
+    name = "slow"
+
+    def __init__(self) -> None:
+        self.got: list[int] = []
+
+    def on_message_received(self, ev: ServiceEvent) -> None:
+        time.sleep(0.002)
+        self.got.append(ev.alerts[0]["alert_id"])
+
+
+def test_a_publisher_that_can_wait_loses_nothing_to_a_slow_listener() -> None:
+    """``until``: a replay faster than its slowest listener waits for room (every event delivered, in order, none
+    dropped); without it the same burst overflows the queue of 4 (what an engine's source keeps doing)."""
+    outcomes = {}
+    for until in (None, lambda: float("inf")):
+        slow = Slow()
+        fan = Fanout([slow], queue_size=4)
+        fan.start()
+        for i in range(60):
+            fan.publish(event(i), until)
+        fan.stop()
+        outcomes[until is None] = (slow.got, fan.drops["slow"], fan.left["slow"])
+    assert outcomes[False] == (list(range(60)), 0, 0)
+    got, dropped, left = outcomes[True]
+    assert dropped > 0 and len(got) + dropped == 60 and left == 0
+
+
+def test_a_waiting_publisher_is_let_go_at_its_deadline_and_what_it_left_is_counted() -> None:
+    """A listener that never frees its queue holds a waiting publisher until ``until()`` (moved by a stop while it
+    waits), not longer; the event is counted in ``left``, not ``drops``. The stop's own time being up, what is
+    still queued is counted too, and the listener's stop() is still called."""
+    stuck = Blocked()
+    stopped = []
+    stuck.stop = lambda: stopped.append(True)
+    fan = Fanout([stuck], queue_size=1)
+    fan.start()
+    fan.publish(event(0))  # taken by the thread, which now holds it
+    assert wait_until_true(lambda: fan.queued["blocked"] == 0)
+    fan.publish(event(1))  # fills the queue
+    deadline = [float("inf")]
+    done = threading.Event()
+    threading.Thread(target=lambda: (fan.publish(event(2), lambda: deadline[0]), done.set())).start()
+    assert not done.wait(0.3)  # waits while the deadline is far
+    t0 = time.monotonic()
+    deadline[0] = t0 + 0.2  # a stop sets it
+    assert done.wait(2.0)
+    assert 0.15 < time.monotonic() - t0 < 1.0
+    assert (fan.left["blocked"], fan.drops["blocked"]) == (1, 0)
+    t0 = time.monotonic()
+    fan.stop(timeout=0.2)  # event 1 still queued, event 0 in hand: the time is up
+    assert time.monotonic() - t0 < 0.2 + 0.5 + 0.3  # the listeners' time and IN_HAND_S
+    assert fan.left["blocked"] == 2 and stopped == [True]
+    fan.publish(event(3))  # after the stop: nobody delivers it
+    assert fan.left["blocked"] == 3 and fan.drops["blocked"] == 0
+    stuck.release.set()
+
+
+def wait_until_true(pred, timeout: float = 5.0) -> bool:
+    end = time.monotonic() + timeout
+    while not pred() and time.monotonic() < end:
+        time.sleep(0.01)
+    return pred()
+
+
+def test_a_persons_action_is_queued_past_a_full_queue_without_waiting() -> None:
+    """``past_bound`` (the API's acknowledge and re-baseline): a full queue takes it at once, in order after what it
+    holds, up to twice its size; past that it is dropped and counted like any event."""
+    stuck = Blocked()
+    fan = Fanout([stuck], queue_size=2)
+    fan.start()
+    fan.publish(event(0))  # in hand
+    assert wait_until_true(lambda: fan.queued["blocked"] == 0)
+    fan.publish(event(1))
+    fan.publish(event(2))  # the queue full
+    t0 = time.monotonic()
+    fan.publish(event(3), past_bound=True)
+    fan.publish(event(4), past_bound=True)
+    assert time.monotonic() - t0 < 0.05 and fan.drops["blocked"] == 0
+    fan.publish(event(5), past_bound=True)  # twice the bound held
+    fan.publish(event(6))  # and an ordinary event on a full queue
+    assert fan.drops["blocked"] == 2
+    stuck.release.set()
+    fan.stop()
+    assert stuck.got == [0, 1, 2, 3, 4]
