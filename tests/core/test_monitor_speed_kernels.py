@@ -5,7 +5,6 @@ trace leaves the pair out in both."""
 
 from __future__ import annotations
 
-import math
 import types
 
 import numpy as np
@@ -65,8 +64,7 @@ def _same_estimate(got, ref):
 
 
 def test_reported_estimate_matches_estimate_floor_and_calibration(monkeypatch):
-    """``reported_estimate`` (one kernel, ``reported_kernel``: the estimate's, the floor's and the calibration's
-    arithmetic) against its reference, friction_estimate ->
+    """``reported_estimate`` (one kernel for the floor and the calibration) against its reference, friction_estimate ->
     ModelErrorFloor.apply -> with_calibration, on every estimate of 8 monitored k9k cycles (2000 rpm, load 0.8, seed
     3), with the monitor's floor (which adds nothing on a healthy log), a floor that adds (indicated_rel 0.05, a misfit
     beyond misfit_free with a coupling loss: cylinders become unresolved), no floor, and a commissioned calibration:
@@ -115,12 +113,3 @@ def test_reported_estimate_matches_estimate_floor_and_calibration(monkeypatch):
     assert all(sigmas[i, 2, 0, d] > sigmas[i, 0, 0, d] for i in range(len(calls)) for d in (False, True))
     assert all(sigmas[i, 1, 1, d] > sigmas[i, 1, 0, d] for i in range(len(calls)) for d in (False, True))
     assert any(sigmas[i, 0, 0, True] != sigmas[i, 0, 0, False] for i in range(len(calls)))
-
-
-def test_larger_than_zero_is_pythons_max():
-    """The fused estimate kernel's max(0.0, x) is Python's, NaN and signed zeros included (the floor's excess^2)."""
-    from frictionwatch.core.monitor.identify.estimate import _larger_than_zero
-
-    for x in (2.5, 1e-300, 0.0, -0.0, -3.0, float("nan"), float("inf"), -float("inf")):
-        got, want = _larger_than_zero(x), max(0.0, x)
-        assert got == want and math.copysign(1.0, got) == math.copysign(1.0, want), x

@@ -11,7 +11,6 @@ import numba
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.engine import EngineSpec, mep_per_torque
-from frictionwatch.core.monitor.checks.condition_kernels import numpy_sum
 from frictionwatch.core.monitor.identify.accumulate import Posterior
 from frictionwatch.core.monitor.identify.estimate_kernels import estimate_kernel
 from frictionwatch.core.monitor.identify.layout import ParameterLayout
@@ -246,10 +245,10 @@ def reported_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
                       prior_mean: np.ndarray, limits: ReportLimits, cylinder_rows: np.ndarray,
                       floor: ModelErrorFloor | None, check: BalanceCheck, cal: Calibration,
                       sens: CalibrationSensitivity) -> FrictionEstimate:
-    """``with_calibration(friction_estimate(..., floor, check), cal, sens, spec)`` (its reference, tested equal) as one
-    kernel (``reported_kernel``: the estimate's, the floor's and the calibration's arithmetic, the floor's scalars in
-    the reference's order) and one FrictionEstimate instead of three. Per monitored cycle this runs twice (the
-    smoothed and the cycle's estimate)."""
+    """``with_calibration(friction_estimate(..., floor, check), cal, sens, spec)`` (its reference, tested equal) with
+    one FrictionEstimate built instead of three: the floor's and the calibration's per-cylinder arithmetic in one
+    kernel (``_floor_calibration_kernel``) after the estimate's, the scalars in Python in the reference's order.
+    Per monitored cycle this runs twice (the smoothed and the cycle's estimate)."""
     z = spec.n_cyl
     p_f = layout.n_params
     params = post.params[:p_f]
@@ -261,84 +260,44 @@ def reported_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
             or not cov.shape == cov_stat.shape == cov_ref.shape or cov.shape[0] < p_f or cov.shape[0] != cov.shape[1]):
         raise ValueError(f"need a posterior over >= {p_f} parameters, rows ({z}, {p_f}) and basis means "
                          f"({z}, {n_terms}); got {params.shape}, {rows.shape}, {basis_mean.shape}")
+    resolve_rel = float(limits.resolve_rel)
+    coef_table, coef_ok, cylinder_table, resolved, t_tot, s_tot = estimate_kernel(
+        params, cov, cov_stat, cov_ref, layout.group, layout.prior, basis_mean, rows, resolve_rel,
+        float(limits.coefficient_snr), float(limits.min_data_gain))
     prior = np.asarray(prior_mean, dtype=np.float64).reshape(z)
-    ind, tdc, t_i = check.indicated, sens.tdc, sens.indicated
-    if np.shape(ind) != (z,) or np.shape(tdc) != (z,) or np.shape(t_i) != (z,):
-        raise ValueError(f"the TDC sensitivities {np.shape(tdc)}, indicated torques {np.shape(t_i)} and the check's "
-                         f"{np.shape(ind)} need one per cylinder ({z})")
-    per_cyl = np.empty((4, z))  # the prior share, the check's indicated torques, the calibration's two sensitivities
-    per_cyl[0], per_cyl[1], per_cyl[2], per_cyl[3] = prior, ind, tdc, t_i
+    ind = np.asarray(check.indicated, dtype=np.float64)
+    # the floor's scalars (ModelErrorFloor.apply's arithmetic, its order)
+    floor_on, rel2, ind_rel = False, 0.0, 0.0
+    if floor is not None:
+        excess2 = 0.0
+        if floor.balance_check and math.isfinite(check.balance) and t_tot > 0:
+            excess2 = max(0.0, (t_tot - check.balance) ** 2 - s_tot ** 2 - check.balance_sigma ** 2)
+        excess2 += (floor.coupling_per_misfit * max(0.0, check.misfit - floor.misfit_free) * check.coupling_loss) ** 2
+        floor_on = not (excess2 == 0.0 and floor.indicated_rel == 0.0)
+        if floor_on:
+            ind_rel = floor.indicated_rel
+            rel2 = excess2 / t_tot ** 2 if t_tot > 0 else 0.0
+            s_tot = math.sqrt(s_tot ** 2 + (ind_rel * float(ind.sum())) ** 2 + excess2)
     kinetic = sens.kinetic if math.isfinite(sens.kinetic) else 0.0
-    on = floor is not None
-    settings = np.array([
-        float(limits.resolve_rel), float(limits.coefficient_snr), float(limits.min_data_gain),
-        mep_per_torque(spec.displacement_cyl), mep_per_torque(spec.displacement),
-        1.0 if on else 0.0, 1.0 if on and floor.balance_check else 0.0, float(check.balance),
-        float(check.balance_sigma), float(check.misfit), float(check.coupling_loss),
-        floor.coupling_per_misfit if on else 0.0, floor.misfit_free if on else 0.0, floor.indicated_rel if on else 0.0,
-        cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2, cal.gain_sigma ** 2, cal.gain_common_sigma ** 2,
-        (cal.inertia_sigma * kinetic) ** 2])
-    coef_table, coef_ok, table, resolved, totals = reported_kernel(
-        params, cov, cov_stat, cov_ref, layout.group, layout.prior, basis_mean, rows, per_cyl, settings)
-    t_tot, tot_sig, total_fmep, total_fmep_sig, total_cal_sig = totals
+    to_cyl, to_eng = mep_per_torque(spec.displacement_cyl), mep_per_torque(spec.displacement)
+    settings = np.array([1.0 if floor_on else 0.0, ind_rel, rel2, resolve_rel, to_cyl,
+                         cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2, cal.gain_sigma ** 2,
+                         cal.gain_common_sigma ** 2, (cal.inertia_sigma * kinetic) ** 2])
+    tdc, t_i = np.asarray(sens.tdc, dtype=np.float64), np.asarray(sens.indicated, dtype=np.float64)
+    if tdc.shape != t_i.shape or tdc.shape != (z,) or ind.shape != (z,):
+        raise ValueError(f"the TDC sensitivities {tdc.shape}, indicated torques {t_i.shape} and the check's "
+                         f"{ind.shape} need one per cylinder ({z})")
+    table, resolved, var_tot = _floor_calibration_kernel(cylinder_table, resolved, prior, ind, tdc, t_i, settings)
+    tot_sig = math.sqrt(s_tot ** 2 + var_tot)
     coef, coef_sig, norm, norm_sig = coef_table
     return FrictionEstimate(
         friction_torque_mean=table[0], friction_torque_mean_sigma=table[1], fmep=table[2], fmep_sigma=table[3],
         coefficients=coef, coefficients_sigma=coef_sig, coefficients_normalised=norm,
         coefficients_normalised_sigma=norm_sig, resolved=resolved, coefficient_resolved=coef_ok,
-        total_friction_torque=t_tot, total_friction_torque_sigma=tot_sig, total_fmep=total_fmep,
-        total_fmep_sigma=total_fmep_sig, prior_friction_torque_mean=prior, data_gain=table[5],
+        total_friction_torque=float(t_tot), total_friction_torque_sigma=tot_sig, total_fmep=float(t_tot * to_eng),
+        total_fmep_sigma=tot_sig * to_eng, prior_friction_torque_mean=prior, data_gain=cylinder_table[2],
         weight=float(post.weight), chi2_reduced=float(post.chi2_reduced), calibration=cal.status,
-        calibration_sigma=table[4], total_calibration_sigma=total_cal_sig)
-
-
-@numba.njit(cache=True)
-def _larger_than_zero(x):
-    """Python's max(0.0, x): x where x > 0, else 0.0 (NaN gives 0.0)."""
-    return x if x > 0.0 else 0.0
-
-
-@numba.njit(cache=True)
-def reported_kernel(params, cov, cov_stat, cov_ref, group, prior, basis_mean, rows, per_cyl, settings):
-    """``reported_estimate``'s numbers: ``estimate_kernel``, then ``ModelErrorFloor.apply``'s scalars (its order,
-    Python's max and ** 2) and ``_floor_calibration_kernel``. per_cyl (4, z): the prior share, the floor check's
-    indicated torques, the calibration's TDC sensitivities and indicated torques; settings: resolve_rel,
-    coefficient_snr, min_data_gain, MEP per N m of a cylinder and of the engine, the floor (present 0/1, its
-    balance_check 0/1), the check's balance, balance_sigma, misfit and coupling_loss, the floor's coupling_per_misfit,
-    misfit_free and indicated_rel, then the calibration's five variances (``_calibration_variance_kernel``'s var).
-
-    Returns coef_table (4, z, n_terms), coef_ok (z, n_terms), table (6, z): t_mean, sigma, fmep, fmep_sigma,
-    calibration sigma, data gain; resolved (z,); (total, its sigma, total FMEP, its sigma, total calibration sigma)."""
-    resolve_rel, to_cyl, to_eng = settings[0], settings[3], settings[4]
-    coef_table, coef_ok, cylinder_table, resolved, t_tot, s_tot = estimate_kernel(
-        params, cov, cov_stat, cov_ref, group, prior, basis_mean, rows, resolve_rel, settings[1], settings[2])
-    floor_on, rel2, ind_rel = False, 0.0, 0.0
-    if settings[5] != 0.0:
-        balance, balance_sigma, misfit, coupling_loss = settings[7], settings[8], settings[9], settings[10]
-        excess2 = 0.0
-        if settings[6] != 0.0 and np.isfinite(balance) and t_tot > 0:
-            excess2 = _larger_than_zero((t_tot - balance) ** 2 - s_tot ** 2 - balance_sigma ** 2)
-        excess2 += (settings[11] * _larger_than_zero(misfit - settings[12]) * coupling_loss) ** 2
-        floor_on = not (excess2 == 0.0 and settings[13] == 0.0)
-        if floor_on:
-            ind_rel = settings[13]
-            rel2 = excess2 / t_tot ** 2 if t_tot > 0 else 0.0
-            s_tot = math.sqrt(s_tot ** 2 + (ind_rel * numpy_sum(per_cyl[1], 0, per_cyl.shape[1])) ** 2 + excess2)
-    z = per_cyl.shape[1]
-    floor_settings = np.empty(10)
-    floor_settings[0] = 1.0 if floor_on else 0.0
-    floor_settings[1] = ind_rel
-    floor_settings[2] = rel2
-    floor_settings[3] = resolve_rel
-    floor_settings[4] = to_cyl
-    floor_settings[5:] = settings[14:19]
-    part, ok, var_tot = _floor_calibration_kernel(cylinder_table, resolved, per_cyl[0], per_cyl[1], per_cyl[2],
-                                                  per_cyl[3], floor_settings)
-    table = np.empty((6, z))
-    table[:5] = part
-    table[5] = cylinder_table[2]
-    tot_sig = math.sqrt(s_tot ** 2 + var_tot)
-    return coef_table, coef_ok, table, ok, (t_tot, tot_sig, t_tot * to_eng, tot_sig * to_eng, math.sqrt(var_tot))
+        calibration_sigma=table[4], total_calibration_sigma=math.sqrt(var_tot))
 
 
 @numba.njit(cache=True)
