@@ -5,7 +5,7 @@
     noise_model.py      the per-cycle noise model and whitening
     accumulate.py       the accumulated normal equations and the posterior             (+ accumulate_kernels.py)
       posterior_kernels.py, spd_kernels.py   the bounded MAP estimate on small SPD systems (LAPACK reference beside)
-    sharing.py          Eq. 6: a mean loss shared among cylinders                     (+ sharing_kernels.py)
+    sharing.py          Eq. 6: a mean loss shared among cylinders
     priors.py           the priors of the loss coefficients
     estimate.py         reported estimates with honest sigmas: model-error floor, calibration  (+ estimate_kernels.py)
 """
