@@ -184,7 +184,6 @@ def whitened_rows(settings: NoiseSettings, stats: ResidualStats, fly: FlywheelMo
     rec = np.array((fly.omega_mean, fly.period, fly.residual_rms, fly.n_edges, balance, t_i, drift_var,
                     stats.balance_mean, stats.balance_var, stats.count, settings.memory, settings.model_rel_error,
                     settings.sys_balance, settings.use_drift), dtype=np.float64)  # NOISE_FIELDS
-
     # the statistics' and rows' arrays come from kernels (C-contiguous; another layout is another specialisation);
     # the drift pattern is a column of the tooth patterns, copied to be contiguous
     mean, var, bal_mean, bal_var, a, y, inv_sigma, sys_var, freq, drift_col = noise_kernel(

@@ -9,9 +9,8 @@ angle patterns passed through the same fit (core.monitor.identify.layout.tooth_p
 Speed: the whole step (prepare, fit, learn, refit) is one kernel call (tooth_fit_cycle_kernel below), the
 same arithmetic as core.monitor.teeth.flywheel.prepare_fit / fit_prepared / ToothLearner.update (tests/core/test_tooth_fit.py).
 
-The numba kernels of the tooth step come first in this file: the cycle window
- and pattern-cache test, the learned
-correction applied to the nominal angles, and the whole step (prepare, fit, learn, refit) fused in one call so a
+The numba kernels of the tooth step come first in this file: the cycle window and pattern-cache
+test, the learned correction applied to the nominal angles, and the whole step (prepare, fit, learn, refit) fused in one call so a
 cycle costs one kernel dispatch instead of a dozen numpy calls (the arithmetic is core.monitor.teeth.flywheel_kernels').
 """
 
