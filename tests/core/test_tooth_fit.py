@@ -284,7 +284,7 @@ def window_reference(nominal, cached_rel):
 @pytest.mark.parametrize("seed", range(4))
 def test_cycle_window_matches_numpy(seed):
     """_cycle_window = np.searchsorted + np.array_equal of the relative angles + the revolution period."""
-    from frictionwatch.core.monitor.teeth.tooth_fit_kernels import _cycle_window
+    from frictionwatch.core.monitor.teeth.tooth_fit import _cycle_window
 
     rng = np.random.default_rng(seed)
     wheel, gap = [(60, 2), (36, 1), (160, 1), (120, 0)][seed]

@@ -2,10 +2,10 @@
 
     identification.py   identify_cycle and the mean balance (grid geometry, mid-cycle speed, transient balance)
     layout.py           ParameterLayout (which coefficients share a scale) and the bounded solve
-    noise_model.py      the per-cycle noise model and whitening                         (+ noise_model_kernels.py)
+    noise_model.py      the per-cycle noise model and whitening
     accumulate.py       the accumulated normal equations and the posterior             (+ accumulate_kernels.py)
       posterior_kernels.py, spd_kernels.py   the bounded MAP estimate on small SPD systems (LAPACK reference beside)
-    sharing.py          Eq. 6: a mean loss shared among cylinders                     (+ sharing_kernels.py)
+    sharing.py          Eq. 6: a mean loss shared among cylinders
     priors.py           the priors of the loss coefficients
     estimate.py         reported estimates with honest sigmas: model-error floor, calibration  (+ estimate_kernels.py)
 """

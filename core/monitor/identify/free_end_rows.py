@@ -7,7 +7,7 @@ angle and repeats every revolution, so it has integer orders only; at half order
 tooth-error nuisances of its own (its out-of-band pattern is learnt and removed by its tooth fit, its in-band
 pattern would need nuisance columns at integer orders: not carried yet, so those rows are left out).
 
-The noise model is the flywheel's (core.monitor.identify.noise_model_kernels.noise_kernel, written again here in numpy
+The noise model is the flywheel's (core.monitor.identify.noise_model.noise_kernel, written again here in numpy
 for the half-order subset): per row the EWMA variance of the residual about its EWMA mean (the residual without the
 cycle's best-fitting speed drift), floored by the tooth fit's own residual w^2 2 rms^2 / n_edges; the cycle's speed
 drift as a random effect of the flywheel's step variance (Sherman-Morrison on the whitened rows: the drift pattern

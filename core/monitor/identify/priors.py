@@ -15,8 +15,7 @@ import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.identify.accumulate import Prior
 from frictionwatch.core.monitor.identify.layout import ParameterLayout
-from frictionwatch.core.monitor.identify.sharing import SharedLoss
-from frictionwatch.core.monitor.identify.sharing_kernels import share_rows_kernel
+from frictionwatch.core.monitor.identify.sharing import SharedLoss, share_rows_kernel
 
 
 @dataclass(frozen=True)

@@ -184,7 +184,7 @@ def prepare_fit(tooth_ticks: np.ndarray, tick_hz: float, n_harmonics: int, patte
     ``drift_pattern`` appends one more pattern column, the angle of a linear speed drift over the cycle,
     u (u - 1) with u = (ticks - ticks[0]) / (ticks[-1] - ticks[0]) (built in the kernel, no (n, q) copy).
     ``pattern_period`` T > 0 states that pattern row e + T equals row e (tooth patterns repeat every revolution;
-    the caller checks it, e.g. with ``core.monitor.teeth.tooth_fit_kernels._revolution_period``): the fit then uses rows 0..T-1
+    the caller checks it, e.g. with ``core.monitor.teeth.tooth_fit._revolution_period``): the fit then uses rows 0..T-1
     only and sums the design over the repeats first (half the pattern product for a two-revolution cycle; the
     results move by the rounding of the patterns' own repeat, ~1e-14)."""
     ticks = np.asarray(tooth_ticks)

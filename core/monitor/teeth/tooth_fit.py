@@ -6,37 +6,168 @@ ToothLearner); inside the band it is fixed in angle and repeats every revolution
 be told from a steady engine response at integer orders: it is carried as nuisance parameters whose columns are the
 angle patterns passed through the same fit (core.monitor.identify.layout.tooth_patterns).
 
-Speed: the whole step (prepare, fit, learn, refit) is one kernel call (core.monitor.teeth.tooth_fit_kernels.tooth_fit_cycle_kernel), the
+Speed: the whole step (prepare, fit, learn, refit) is one kernel call (tooth_fit_cycle_kernel below), the
 same arithmetic as core.monitor.teeth.flywheel.prepare_fit / fit_prepared / ToothLearner.update (tests/core/test_tooth_fit.py).
+
+The numba kernels of the tooth step come first in this file: the cycle window and pattern-cache
+test, the learned correction applied to the nominal angles, and the whole step (prepare, fit, learn, refit) fused in one call so a
+cycle costs one kernel dispatch instead of a dozen numpy calls (the arithmetic is core.monitor.teeth.flywheel_kernels').
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from frictionwatch.core.monitor.identify.layout import tooth_patterns
 from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion, ToothLearner
-from frictionwatch.core.monitor.teeth.flywheel_kernels import BAD_SPAN, NOT_INCREASING, OK
-from frictionwatch.core.monitor.teeth.tooth_fit_kernels import (
-    BAD_SHAPES,
-    CACHE_MISS,
-    NO_WINDOW,
-    TF_DRIFT_PATTERN,
-    TF_GAIN,
-    TF_LEARN,
-    TF_M_FIT,
-    TF_N_DRIFT,
-    TF_N_SETTINGS,
-    TF_REFIT,
-    TF_TICK_HZ,
-    TF_USE_PATTERNS,
-    TOO_FEW,
-    tooth_fit_cycle_kernel,
+from frictionwatch.core.monitor.teeth.flywheel_kernels import (
+    BAD_SPAN,
+    FOUR_PI,
+    NOT_INCREASING,
+    OK,
+    fit_angles_kernel,
+    prepare_fit_kernel,
+    tooth_update_kernel,
 )
 from frictionwatch.core.types import Cycle
 
-FOUR_PI = 4.0 * np.pi
+
+@numba.njit(cache=True)
+def _corrected_angles(nominal, correction, tooth_index, out):
+    """out (n,) = nominal + correction[tooth_index % wheel positions] [rad] (the learned tooth-spacing correction
+    applied to the nominal edge angles)."""
+    n = correction.shape[0]
+    for e in range(out.shape[0]):
+        out[e] = nominal[e] + correction[tooth_index[e] % n]
+
+
+@numba.njit(cache=True)
+def _revolution_period(rel_angle):
+    """Edges per revolution T when every edge e + T sits exactly one revolution (2 pi, to 1e-9 rad) after edge e,
+    else 0. rel_angle (n,) [rad] nominal edge angles relative to the first, increasing."""
+    n = rel_angle.shape[0]
+    two_pi = 0.5 * FOUR_PI
+    period = 0
+    for e in range(n):
+        if rel_angle[e] > two_pi - 1e-9:
+            period = e
+            break
+    if period == 0:
+        return 0
+    for e in range(n - period):
+        if abs(rel_angle[e + period] - rel_angle[e] - two_pi) > 1e-9:
+            return 0
+    return period
+
+
+@numba.njit(cache=True)
+def _cycle_window(nominal, cached_rel):
+    """The cycle's 4 pi window and its pattern-cache test in one pass (core.monitor.teeth.tooth_fit.fit_cycle_teeth).
+
+    Returns (end, hit, period): ``end`` the index of the edge 4 pi after the first (np.searchsorted of
+    nominal[0] + 4 pi - 1e-6), -1 when there is none within 1e-6 rad; ``hit`` whether cached_rel equals
+    nominal[:end+1] - nominal[0] exactly (np.array_equal); ``period`` as ``_revolution_period`` of those angles."""
+    m = nominal.shape[0]
+    a0 = nominal[0]
+    target = a0 + FOUR_PI - 1e-6
+    lo = 0
+    hi = m
+    while lo < hi:  # first index with nominal[i] >= target (np.searchsorted, side="left")
+        mid = (lo + hi) // 2
+        if nominal[mid] < target:
+            lo = mid + 1
+        else:
+            hi = mid
+    end = lo
+    if end >= m or not abs(nominal[end] - a0 - FOUR_PI) <= 1e-6:
+        return -1, False, 0
+    n = end + 1
+    hit = cached_rel.shape[0] == n
+    if hit:
+        for e in range(n):
+            if not cached_rel[e] == nominal[e] - a0:
+                hit = False
+                break
+    rel = np.empty(n)
+    for e in range(n):
+        rel[e] = nominal[e] - a0
+    return end, hit, _revolution_period(rel)
+
+
+# statuses of tooth_fit_cycle_kernel beyond core.monitor.teeth.flywheel_kernels' (OK, NOT_INCREASING, BAD_SPAN)
+NO_WINDOW = 4  # no edge 4 pi after the first
+TOO_FEW = 5  # too few edges for the harmonics
+CACHE_MISS = 6  # the pattern cache does not match this cycle's edges: build the patterns and call again
+BAD_SHAPES = 7  # tooth_ticks / tooth_index shorter than the window
+
+# layout of the step's settings, one small float64 array (a single cheap argument per cycle; counts and flags are
+# stored as exact small floats): tick rate [Hz], drift columns (1 or 2), fitted harmonics, whether the in-band pattern
+# columns are fitted, whether the drift pattern is, whether the learner steps, its gain, whether to refit after it
+(TF_TICK_HZ, TF_N_DRIFT, TF_M_FIT, TF_USE_PATTERNS, TF_DRIFT_PATTERN, TF_LEARN, TF_GAIN, TF_REFIT,
+ TF_N_SETTINGS) = range(9)
+
+
+@numba.njit(cache=True)
+def tooth_fit_cycle_kernel(nominal_all, ticks_all, index_all, settings, cached_rel, cached_patterns, correction, harm,
+                           pat):
+    """The monitor's whole tooth step in one call (core.monitor.teeth.tooth_fit.fit_cycle_teeth): the cycle window and the
+    pattern-cache test (``_cycle_window``), ``prepare_fit_kernel`` (patterns folded per revolution when their rows
+    repeat), the fit of the corrected angles (``_corrected_angles``, ``fit_angles_kernel``), with TF_LEARN the
+    learner step (``tooth_update_kernel`` with TF_GAIN) and, with TF_REFIT, the fit again with the fresh correction.
+
+    settings (TF_N_SETTINGS,) in the TF_* layout. Fills harm (n_harm,) and pat (n_harm, q); returns (status,
+    n edges, period [s], offset, drift, rms, edge residual (n,), correction after the cycle)."""
+    tick_hz = settings[TF_TICK_HZ]
+    n_drift = int(settings[TF_N_DRIFT])
+    m_fit = int(settings[TF_M_FIT])
+    n_harm = harm.shape[0]
+    use_patterns = settings[TF_USE_PATTERNS] != 0.0
+    drift_pattern = settings[TF_DRIFT_PATTERN] != 0.0
+    learn = settings[TF_LEARN] != 0.0
+    gain = settings[TF_GAIN]
+    refit = settings[TF_REFIT] != 0.0
+    no_resid = np.empty(0)
+    end, hit, period_rows = _cycle_window(nominal_all, cached_rel)
+    if end < 0:
+        return NO_WINDOW, 0, 0.0, 0.0, 0.0, 0.0, no_resid, correction
+    n = end + 1
+    if ticks_all.shape[0] < n or index_all.shape[0] < n:
+        return BAD_SHAPES, n, 0.0, 0.0, 0.0, 0.0, no_resid, correction
+    p = n_drift + 2 * m_fit
+    if n < p + 4:
+        return TOO_FEW, n, 0.0, 0.0, 0.0, 0.0, no_resid, correction
+    if use_patterns and not hit:
+        return CACHE_MISS, n, 0.0, 0.0, 0.0, 0.0, no_resid, correction
+    if not use_patterns:
+        period_rows = 0
+    patterns = cached_patterns[:period_rows] if period_rows > 0 else cached_patterns
+    ticks = ticks_all[:n]
+    nominal = nominal_all[:n]
+    index = index_all[:n]
+    tau = np.empty(n)
+    design_t = np.empty((p, n))
+    scale = np.empty(p)
+    normal_inv = np.empty((p, p))
+    status = prepare_fit_kernel(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, period_rows, drift_pattern,
+                                (tau, design_t, scale, normal_inv), pat)
+    if status != OK:
+        return status, n, 0.0, 0.0, 0.0, 0.0, no_resid, correction
+    period = tau[n - 1]
+    omega = FOUR_PI / period
+    angle = np.empty(n)
+    resid = np.empty(n)
+    _corrected_angles(nominal, correction, index, angle)
+    status, offset, drift, rms = fit_angles_kernel(design_t, scale, normal_inv, tau, omega, angle, n_drift, m_fit, harm, resid)
+    if status != OK or not learn:
+        return status, n, period, offset, drift, rms, resid, correction
+    corr = tooth_update_kernel(correction, index, resid, gain)
+    if refit:  # while the learner is young, use what this cycle taught at once
+        _corrected_angles(nominal, corr, index, angle)
+        status, offset, drift, rms = fit_angles_kernel(design_t, scale, normal_inv, tau, omega, angle, n_drift, m_fit, harm,
+                                                 resid)
+    return status, n, period, offset, drift, rms, resid, corr
 
 
 

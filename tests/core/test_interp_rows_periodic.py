@@ -1,8 +1,8 @@
-"""The periodic row interpolation (core.monitor.balance.excitation_kernels.interp_rows_periodic) against np.interp."""
+"""The periodic row interpolation (core.monitor.report.cycle_report.interp_rows_periodic) against np.interp."""
 
 import numpy as np
 import pytest
-from frictionwatch.core.monitor.balance.excitation_kernels import interp_rows_periodic
+from frictionwatch.core.monitor.report.cycle_report import interp_rows_periodic
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
