@@ -140,21 +140,29 @@ def test_what_a_fit_leaves_coherent_counts_as_model_error_in_its_parameters_sigm
 
 
 def test_nothing_found_at_one_operating_point_says_what_that_cannot_show():
-    """A log at one steady speed and load (no trend against either) cannot show a friction law that differs from the
-    model's only elsewhere: 'nothing' says so, and a log across speeds does not get the sentence."""
+    """A log at one operating point (one group of residuals.operating_groups, localise's ``operating_points``) cannot
+    show a friction law that differs from the model's only elsewhere: 'nothing' and an ambiguity say so (the
+    sentence words.ONE_POINT, which the bench judges a one-point friction-law row by), whatever the trends' slopes (a
+    steady log's scatter always gives one: design note 58); a log at two points does not get the sentence."""
+    from frictionwatch.core.discrepancy.words import ONE_POINT
     from frictionwatch.core.discrepancy.workflow import Discovery
 
     model = EngineModel.from_spec(load_engine("k9k-4cyl"))
     final = {"significant_orders": [], "balance": {"significant": False, "mean_nm": 0.0}, "orders": []}
+    trends = {"speed": {"unit": "rpm"}, "load": {"unit": "N m"}}
 
-    def found(trends: dict) -> Discovery:
-        return Discovery(model, model, [], 0.7, 0.7, {"trends": trends}, final)
+    def found(points: int, ambiguous: dict | None = None) -> Discovery:
+        return Discovery(model, model, [], 0.7, 0.7, {"trends": trends, "operating_points": points}, final,
+                         ambiguous=ambiguous)
 
-    steady = found({"speed": None, "load": None})
+    steady = found(1)
     assert steady.outcome == "nothing" and steady.one_operating_point
-    assert "one steady speed and load" in steady.verdict() and steady.to_json()["one_operating_point"] is True
-    swept = found({"speed": {"unit": "rpm"}, "load": None})
-    assert not swept.one_operating_point and "one steady speed" not in swept.verdict()
+    assert ONE_POINT in steady.verdict() and steady.to_json()["one_operating_point"] is True
+    assert "a run across speeds and loads would separate the friction laws" in ONE_POINT
+    torn = found(1, {"candidates": ["stribeck_ring", "pressure_gain[cyl 1]"], "separated_by": []})
+    assert torn.outcome == "ambiguous" and ONE_POINT in torn.verdict()
+    two = found(2)
+    assert not two.one_operating_point and "one steady speed" not in two.verdict()
 
 
 def test_operating_points_are_grouped_at_jumps_of_load_or_speed_not_along_a_ramp():
