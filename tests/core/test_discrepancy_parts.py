@@ -462,3 +462,33 @@ def test_a_shaft_line_fit_within_its_own_model_error_of_none_is_not_named_quiet_
     assert unresolved(Trial(chain, np.array([0.8, 1.0119]), sigma, 0.0, 1.0, 0)) == ""
     monkeypatch.setattr(fit, "CHAIN_FLOOR", {})
     assert unresolved(Trial(chain, x, np.array([0.0009, 0.0052]), 0.0, 1.0, 0)) == ""
+
+
+def test_friction_laws_fitted_to_the_balance_point_by_point():
+    """core.discrepancy.laws on made-up points: the point where the law was sized reads 0, the other -2 N m (a law
+    whose friction there is 2 N m above the model's: in the model at fraction 1 it lowers that point's residual by
+    2). The law that moves only the second point fits fraction 1 (sigma from the weights); the constant (moving both
+    alike) leaves a chi^2 far above; a law moving it the wrong way is clipped at 0 and not physical; a second law
+    proportional to the first fits as well: both within AMBIGUOUS_CHI2, the points cannot tell them."""
+    from frictionwatch.core.discrepancy.laws import (
+        AMBIGUOUS_CHI2,
+        PointBalance,
+        chi2_none,
+        constant_fit,
+        fit_law,
+        rivals,
+    )
+
+    points = PointBalance(np.array([0.0, 2.0]), np.array([0.01, 0.04]), np.array([314.0, 188.0]),
+                          np.array([150.0, 100.0]))
+    law = fit_law("a", points, np.array([0.0, -2.0]), 0.0, 1.0)
+    np.testing.assert_allclose([law.fraction, law.sigma, law.chi2], [1.0, 0.1, 0.0], atol=1e-12)
+    assert law.physical
+    const = constant_fit(points)
+    assert const.chi2 > 50.0 and chi2_none(points) == pytest.approx(100.0)
+    wrong = fit_law("b", points, np.array([0.0, 2.0]), 0.0, 1.0)
+    assert wrong.fraction == 0.0 and not wrong.physical
+    twin = fit_law("c", points, np.array([0.0, -4.0]), 0.0, 1.0)
+    np.testing.assert_allclose(twin.fraction, 0.5, rtol=1e-12)
+    assert [f.label for f in rivals([const, law, wrong, twin])] == ["a", "c"]
+    assert twin.chi2 - law.chi2 < AMBIGUOUS_CHI2
