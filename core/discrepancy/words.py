@@ -11,6 +11,9 @@ ONE_POINT = ("the log holds one steady speed and load, where a friction law that
              "differs from it only in shape, inside the model's own error: a run across speeds and loads would "
              "separate the friction laws")
 
+# what a log of load steps at one speed cannot tell (a genset on the grid: its speed is the grid's)
+ONE_SPEED = ("the log's operating points share one speed, where a friction law of speed (speed^2 auxiliaries, a "
+             "bearing law without the speed's) cannot show: a run at another speed would separate those laws")
 # what parts friction laws that two operating points fit alike (core.discrepancy.laws: one number per point)
 ACROSS_POINTS_SEPARATION = ("a further operating point (another speed at the same load, another load at the same "
                             "speed): the laws' dependences on speed and on load part there")
@@ -122,6 +125,8 @@ def verdict(d) -> str:
                  "names neither")
     if not d.steps and d.one_operating_point:  # whatever else is said (nothing, a remainder, an ambiguity)
         text += "; " + ONE_POINT
+    elif not d.steps and d.one_speed:
+        text += "; " + ONE_SPEED
     a = d.ambiguous
     if a and a.get("inside_floor"):  # the model's own error at those orders is one more explanation
         text += (f"; {', '.join(a['candidates'])} or the model's own error there explain it equally well and none "
@@ -140,4 +145,4 @@ def verdict(d) -> str:
     return text + "."
 
 
-__all__ = ["ACROSS_POINTS_SEPARATION", "ONE_POINT", "balance_only", "inside_floor", "orders_text", "said", "signature", "verdict", "within_floor_separation"]
+__all__ = ["ACROSS_POINTS_SEPARATION", "ONE_POINT", "ONE_SPEED", "balance_only", "inside_floor", "orders_text", "said", "signature", "verdict", "within_floor_separation"]

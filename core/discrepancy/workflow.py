@@ -72,7 +72,13 @@ from frictionwatch.core.discrepancy.pressure_channel import (
     tdc_offsets_deg,
 )
 from frictionwatch.core.discrepancy.pressure_tdc import moved_by_sigma, refined_by_speed, with_findings
-from frictionwatch.core.discrepancy.residuals import Residuals, mean_load, pinned_config, run_model
+from frictionwatch.core.discrepancy.residuals import (
+    GROUP_SPEED_STEP,
+    Residuals,
+    mean_load,
+    pinned_config,
+    run_model,
+)
 from frictionwatch.core.discrepancy.words import ACROSS_POINTS_SEPARATION, verdict, within_floor_separation
 from frictionwatch.core.model.effects import EFFECTS, make_effect
 from frictionwatch.core.model.engine_model import EngineModel
@@ -196,6 +202,14 @@ class Discovery:
         cycle-to-cycle scatter always gives a slope: it was False on every matrix log, and the verdict never said
         that one point cannot tell a friction law."""
         return (self.localisation or {}).get("operating_points", 1) == 1
+
+    @property
+    def one_speed(self) -> bool:
+        """Whether the held-out cycles ran at several operating points of one speed (their mean speeds within
+        residuals.GROUP_SPEED_STEP of each other: load steps only, e.g. a genset on the grid)."""
+        points = ((self.localisation or {}).get("balance") or {}).get("points") or []
+        rpm = [p["rpm"] for p in points]
+        return len(rpm) > 1 and max(rpm) - min(rpm) <= GROUP_SPEED_STEP * float(np.mean(rpm))
 
     @property
     def outcome(self) -> str:

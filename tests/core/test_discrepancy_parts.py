@@ -163,6 +163,15 @@ def test_nothing_found_at_one_operating_point_says_what_that_cannot_show():
     assert torn.outcome == "ambiguous" and ONE_POINT in torn.verdict()
     two = found(2)
     assert not two.one_operating_point and "one steady speed" not in two.verdict()
+    # two points of one speed (load steps on the grid): the speed laws cannot show, said (words.ONE_SPEED)
+    from frictionwatch.core.discrepancy.words import ONE_SPEED
+
+    def at(rpms: list[float]) -> Discovery:
+        points = [{"rpm": r, "load_nm": 100.0, "mean_nm": 0.0, "share": 0.5} for r in rpms]
+        return Discovery(model, model, [], 0.7, 0.7, {"operating_points": 2, "balance": {"points": points}}, final)
+
+    assert at([1500.0, 1502.0]).one_speed and ONE_SPEED in at([1500.0, 1502.0]).verdict()
+    assert not at([1500.0, 1800.0]).one_speed and ONE_SPEED not in at([1500.0, 1800.0]).verdict()
 
 
 def test_operating_points_are_grouped_at_jumps_of_load_or_speed_not_along_a_ramp():
