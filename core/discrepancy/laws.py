@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from frictionwatch.core.discrepancy.features import NULL_BALANCE, _group_slices
+from frictionwatch.core.discrepancy.features import NULL_BALANCE
 from frictionwatch.core.discrepancy.residuals import Residuals
 
 # two fits explain the points equally well when their weighted chi^2 differ by less than this: 2 sigma of a one-
@@ -62,7 +62,7 @@ def point_balance(res: Residuals) -> PointBalance | None:
     if res.group is None or res.friction is None:
         return None
     rows = []
-    for i in _group_slices(res.group, res.n_cycles):
+    for i in (np.flatnonzero(res.group == g) for g in np.unique(res.group) if g >= 0):
         ok = i[np.isfinite(res.balance[i])]
         if ok.size < 2:
             continue
