@@ -33,8 +33,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cov-imep", type=float, default=None, help="cycle-to-cycle COV of IMEP (fraction)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME[:key=value,...]", help="turn an effect on (repeat it for another cylinder)")
     p.add_argument("--without", action="append", default=[], metavar="NAME", help="turn a default effect off")
-    p.add_argument("--load-step", action="append", default=[], metavar="T:FRACTION",
-                   help="at T seconds of the log the load becomes FRACTION of full load (repeat for more steps)")
+    p.add_argument("--load-step", action="append", default=[], metavar="T:FRACTION[:RPM]",
+                   help="at T seconds of the log the load becomes FRACTION of full load, and with RPM the speed that "
+                        "(a dyno engine: the dyno holds it a few cycles) (repeat for more steps)")
     p.add_argument("--second-wheel", action="store_true",
                    help="log the engine file's second wheel too ([sensors.second_wheel], e.g. genset-v20's free end)")
     p.add_argument("-o", "--output", required=True, type=Path, help="OUT.mcap (truth goes to OUT.truth.json)")
@@ -71,15 +72,16 @@ class TruthSpool:
         self._spool.close()
 
 
-def _load_step(text: str) -> tuple[float, float]:
-    """'T:FRACTION' -> (T [s], fraction); a clear one-line error on anything else (the range is the simulator's)."""
-    t, sep, f = text.partition(":")
+def _load_step(text: str) -> tuple[float, ...]:
+    """'T:FRACTION' -> (T [s], fraction), 'T:FRACTION:RPM' -> a speed step too (a dyno engine); a clear one-line
+    error on anything else (the range is the simulator's)."""
+    parts = text.split(":")
     try:
-        if not sep:
+        if len(parts) not in (2, 3):
             raise ValueError
-        return float(t), float(f)
+        return tuple(float(x) for x in parts)
     except ValueError:
-        raise ValueError(f"--load-step {text!r}: expected T:FRACTION, e.g. 2.5:0.45 (seconds, fraction of full "
+        raise ValueError(f"--load-step {text!r}: expected T:FRACTION[:RPM], e.g. 2.5:0.45 (seconds, fraction of full "
                          "load)") from None
 
 

@@ -129,14 +129,34 @@ def _mean_sigma(x: np.ndarray) -> tuple[float, float]:
     return float(x.mean()), float(x.std(ddof=1) / np.sqrt(n)) if n > 1 else float("inf")
 
 
+def _point_rms(res: Residuals, floor_of) -> np.ndarray:
+    """A floor over several operating points: sqrt(sum_g w_g floor_g^2), each point's own floor (``floor_of`` its row
+    indices) weighted by its share of the cycles, as ``coherent_power`` weights each point's residual power; one
+    point: its floor. A floor from the pooled cycles instead mixes the points' amplitudes: k9k stepping 3000 rpm 0.9
+    <-> 1800 rpm 0.6, order 2 (near the shaft line's resonance at 1800) carries ~4x the amplitude at 1800, and the
+    pooled floor, weighted the other way, read a healthy log's gap at 8.6x a healthy log's (design note 58)."""
+    parts = _group_slices(res.group, res.n_cycles)
+    if len(parts) > 1:
+        parts = [i for i in parts if i.size >= 2]
+    if len(parts) <= 1:
+        return floor_of(parts[0] if parts else np.arange(res.n_cycles))
+    n = sum(i.size for i in parts)
+    return np.sqrt(sum((i.size / n) * floor_of(i) ** 2 for i in parts))
+
+
 def speed_floor_rpm(res: Residuals) -> np.ndarray:
     """(M,) the model-error floor of a coherent speed residual at each engine order [rpm]: NULL_OWN x the mean measured
-    amplitude there + NULL_FLOOR x the largest (zeros where the residuals do not carry the measured speed)."""
+    amplitude there + NULL_FLOOR x the largest (zeros where the residuals do not carry the measured speed); over
+    several operating points each point's own, combined by ``_point_rms``."""
     m = res.harmonics.shape[1]
     if res.measured is None or not res.measured.size:
         return np.zeros(m)
-    mean = res.measured.mean(axis=0) * RPM_PER_RAD_S
-    return NULL_OWN * mean + NULL_FLOOR * float(mean.max(initial=0.0))
+
+    def floor_of(i: np.ndarray) -> np.ndarray:
+        mean = res.measured[i].mean(axis=0) * RPM_PER_RAD_S
+        return NULL_OWN * mean + NULL_FLOOR * float(mean.max(initial=0.0))
+
+    return _point_rms(res, floor_of)
 
 
 def feature_floor(res: Residuals, scale: np.ndarray, rms: tuple[float, float] = FLOOR_RMS) -> np.ndarray:
@@ -222,9 +242,17 @@ def trends(res: Residuals) -> dict:
 
 def balance_floor_nm(res: Residuals) -> float:
     """The model-error floor of the mean torque-balance residual [N m]: NULL_BALANCE x the friction the balance
-    measured (0 where the residuals do not carry it)."""
-    ok = res.friction is not None and np.isfinite(res.friction)
-    return NULL_BALANCE * abs(float(np.mean(res.friction[ok]))) if res.friction is not None and np.any(ok) else 0.0
+    measured (0 where the residuals do not carry it); over several operating points each point's own, combined by
+    ``_point_rms`` (as the balance's rms over the points is)."""
+    if res.friction is None:
+        return 0.0
+
+    def floor_of(i: np.ndarray) -> np.ndarray:
+        f = res.friction[i]
+        ok = np.isfinite(f)
+        return np.array(NULL_BALANCE * abs(float(np.mean(f[ok]))) if np.any(ok) else 0.0)
+
+    return float(_point_rms(res, floor_of))
 
 
 def balance_residual(res: Residuals) -> dict:
@@ -272,6 +300,9 @@ def localise(res: Residuals, spec: EngineSpec, scale: np.ndarray) -> dict:
     return {
         "cycles": res.n_cycles,
         "cycles_between_points": res.between_points,  # a load step's, left out of every figure
+        # the operating points the cycles ran at (Residuals.group): one, and a friction law sized to agree with the
+        # model's there cannot show in the mean friction (Discovery.one_operating_point)
+        "operating_points": 1 if res.group is None else max(int(np.unique(res.group[res.group >= 0]).size), 1),
         "load_nm": float(np.nanmean(res.load)) if res.n_cycles else float("nan"),  # the measured load torque
         "gap": gap(res, scale),
         "orders": orders,

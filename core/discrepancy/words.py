@@ -5,6 +5,19 @@ from __future__ import annotations
 
 import math
 
+# what a log at one operating point cannot tell, said wherever nothing is named there (bench/bench_discrepancy.py
+# judges a one-point friction-law row by it: design note 58)
+ONE_POINT = ("the log holds one steady speed and load, where a friction law that agrees with the model's there "
+             "differs from it only in shape, inside the model's own error: a run across speeds and loads would "
+             "separate the friction laws")
+
+# what a log of load steps at one speed cannot tell (a genset on the grid: its speed is the grid's)
+ONE_SPEED = ("the log's operating points share one speed, where a friction law of speed (speed^2 auxiliaries, a "
+             "bearing law without the speed's) cannot show: a run at another speed would separate those laws")
+# what parts friction laws that two operating points fit alike (core.discrepancy.laws: one number per point)
+ACROSS_POINTS_SEPARATION = ("a further operating point (another speed at the same load, another load at the same "
+                            "speed): the laws' dependences on speed and on load part there")
+
 
 def said(e) -> str:
     """An effect in an operator's words: 'tdc_offset (the whole wheel, deg=-0.81 +- 0.05)'."""
@@ -110,9 +123,10 @@ def verdict(d) -> str:
     if d.within_null_fits:  # fitted within the model's own error: said, not named
         text += (f"; within that error {' and '.join(d.within_null_fits)} fit as well as each other, which "
                  "names neither")
-    if not d.steps and not d.ambiguous and d.one_operating_point:
-        text += ("; the log holds one steady speed and load, where a friction law that differs from the model's "
-                 "only elsewhere cannot show: a run across speeds and loads would test the laws")
+    if not d.steps and d.one_operating_point:  # whatever else is said (nothing, a remainder, an ambiguity)
+        text += "; " + ONE_POINT
+    elif not d.steps and d.one_speed:
+        text += "; " + ONE_SPEED
     a = d.ambiguous
     if a and a.get("inside_floor"):  # the model's own error at those orders is one more explanation
         text += (f"; {', '.join(a['candidates'])} or the model's own error there explain it equally well and none "
@@ -131,4 +145,4 @@ def verdict(d) -> str:
     return text + "."
 
 
-__all__ = ["balance_only", "inside_floor", "orders_text", "said", "signature", "verdict", "within_floor_separation"]
+__all__ = ["ACROSS_POINTS_SEPARATION", "ONE_POINT", "ONE_SPEED", "balance_only", "inside_floor", "orders_text", "said", "signature", "verdict", "within_floor_separation"]

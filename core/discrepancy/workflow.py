@@ -54,6 +54,7 @@ from frictionwatch.core.discrepancy.choice import (
 )
 from frictionwatch.core.discrepancy.features import (
     SIGNIFICANT,
+    balance_residual,
     beyond_healthy_gap,
     beyond_null,
     feature_floor,
@@ -62,6 +63,7 @@ from frictionwatch.core.discrepancy.features import (
     noise_scale,
 )
 from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, polish, refine, with_fit
+from frictionwatch.core.discrepancy.laws import CONSTANT, constant_fit, fit_law, law_change, point_balance, rivals
 from frictionwatch.core.discrepancy.pair import tdc_and_friction
 from frictionwatch.core.discrepancy.pressure_channel import (
     pressure_findings,
@@ -70,8 +72,15 @@ from frictionwatch.core.discrepancy.pressure_channel import (
     tdc_offsets_deg,
 )
 from frictionwatch.core.discrepancy.pressure_tdc import moved_by_sigma, refined_by_speed, with_findings
-from frictionwatch.core.discrepancy.residuals import Residuals, mean_load, pinned_config, run_model
-from frictionwatch.core.discrepancy.words import verdict, within_floor_separation
+from frictionwatch.core.discrepancy.residuals import (
+    GROUP_SPEED_STEP,
+    Residuals,
+    mean_load,
+    pinned_config,
+    run_model,
+)
+from frictionwatch.core.discrepancy.words import ACROSS_POINTS_SEPARATION, verdict, within_floor_separation
+from frictionwatch.core.model.effects import EFFECTS, make_effect
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.view import reference
 from frictionwatch.core.monitor.state import MonitorConfig
@@ -120,6 +129,7 @@ class Step:
     after: dict
     also: tuple = ()  # the further effects a toggle of several default effects added at once
     readings: tuple = ()  # a pressure step's: what the pressure showed of each effect, in words (trial None)
+    channel: str = ""  # where it was named, when not by a speed trial or the pressure ("torque balance across points")
 
     @property
     def effects(self) -> tuple:
@@ -153,6 +163,8 @@ class Discovery:
     # the explanations a step found equally good where nothing was beyond the null (features.beyond_null): no
     # discrepancy, said in the verdict and never reported as an ambiguity (design note 39)
     within_null_fits: list = field(default_factory=list)
+    # the friction laws fitted to the balance point by point (laws.py; a log at several operating points): each fit
+    across_points: list = field(default_factory=list)
     held: list = field(default_factory=list)  # the TDC offsets the pressure named: their sigma enters later fits'
     pair_not_taken: str = ""  # why a TDC the pressure read beside a rival was not added (pair.tdc_and_friction)
 
@@ -185,9 +197,19 @@ class Discovery:
 
     @property
     def one_operating_point(self) -> bool:
-        """Whether the log varies too little in speed and in load for a trend (features.trends: both None)."""
-        trends = (self.localisation or {}).get("trends") or {}
-        return trends.get("speed") is None and trends.get("load") is None
+        """Whether the held-out cycles ran at one operating point (features.localise ``operating_points``, the
+        groups of residuals.operating_groups). Before design note 58 this read features.trends, which a steady log's
+        cycle-to-cycle scatter always gives a slope: it was False on every matrix log, and the verdict never said
+        that one point cannot tell a friction law."""
+        return (self.localisation or {}).get("operating_points", 1) == 1
+
+    @property
+    def one_speed(self) -> bool:
+        """Whether the held-out cycles ran at several operating points of one speed (their mean speeds within
+        residuals.GROUP_SPEED_STEP of each other: load steps only, e.g. a genset on the grid)."""
+        points = ((self.localisation or {}).get("balance") or {}).get("points") or []
+        rpm = [p["rpm"] for p in points]
+        return len(rpm) > 1 and max(rpm) - min(rpm) <= GROUP_SPEED_STEP * float(np.mean(rpm))
 
     @property
     def outcome(self) -> str:
@@ -209,7 +231,7 @@ class Discovery:
                           "sigma": dict(e.sigma),
                           "evidence": {"gap_before": s.gap_before, "gap_after": s.gap_after,
                                        "delta_chi2_heldout": s.chi2_before - s.chi2_after,
-                                       "channel": "speed" if s.trial is not None else "pressure",
+                                       "channel": s.channel or ("speed" if s.trial is not None else "pressure"),
                                        "pressure_reading": s.readings[s.effects.index(e)] if s.readings else None,
                                        "train_cost_reduction": s.trial.gain if s.trial is not None else None,
                                        "runner_up": s.runner_up,
@@ -227,6 +249,7 @@ class Discovery:
                 "one_operating_point": self.one_operating_point,
                 "localisation": self.localisation, "final": self.final, "not_significant": self.rejected,
                 "not_physical": self.dropped, "pair_not_taken": self.pair_not_taken,
+                "laws_across_points": self.across_points,
                 "monitor_runs": self.evaluations}
 
 
@@ -373,11 +396,75 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         found.curves.append((f"+ {t.candidate.label}", test_new.angles, test_new.speed.mean(axis=0)))
         current, test, cur_res = new_model, test_new, res
         found.step_limit_reached = step == opt.max_steps - 1
+    if not found.steps:  # the friction laws, told by the balance across operating points (laws.py)
+        current, test, cur_res, extra = _laws_across_points(found, current, cur_res, test, full, parts, scale,
+                                                            model.spec)
+        runs += extra
     found.model = current
     found.gap_after = gap(test, scale)
     found.final = localise(test, model.spec, scale)
     found.evaluations = runs
     return found
+
+
+def _laws_across_points(found: Discovery, current: EngineModel, cur_res: Residuals, test: Residuals, full, parts,
+                        scale: np.ndarray, spec) -> tuple[EngineModel, Residuals, Residuals, int]:
+    """Where nothing was named and the held-out balance residual is beyond its null at a log of several operating
+    points: each friction law of the library (a candidate of one ``fraction``, sized at the reference) fitted to the
+    training cycles' balance point by point (laws.py), beside a constant torque. The best is added, as a step of the
+    torque balance, when no other physical fit (the constant included) is within laws.AMBIGUOUS_CHI2 of it, and its
+    run leaves the held-out balance back inside its null without making the speed worse (choice.channel_worse);
+    two or more within it are an ambiguity, said with what would part them; the constant best: left to the
+    remainder's words. One whole-log run per law and one for the chosen fit. Returns the model, its held-out part,
+    its run and the runs spent."""
+    base = point_balance(parts(cur_res)[0])
+    if base is None or point_balance(test) is None or not balance_residual(test)["significant"]:
+        return current, test, cur_res, 0
+    laws = [c for c in candidate_library(current) if c.params == ("fraction",)
+            and EFFECTS[c.effect].sized_at_reference]
+    fits, runs = [], 0
+    for c in laws:
+        with_law = point_balance(parts(full(current.with_effect(make_effect(c.effect, {"fraction": 1.0}))))[0])
+        runs += 1
+        if with_law is not None and with_law.mean.shape == base.mean.shape:
+            fits.append((fit_law(c.label, base, law_change(base, with_law), c.lo[0], c.hi[0]), c))
+    const = constant_fit(base)
+    found.across_points = [{"label": f.label, "fraction": f.fraction, "sigma": f.sigma, "chi2": f.chi2,
+                            "physical": f.physical} for f in [const, *(f for f, _ in fits)]]
+    close = rivals([const, *(f for f, _ in fits)])
+    if not close or close[0].label == CONSTANT and len(close) == 1:
+        return current, test, cur_res, runs
+    if len(close) > 1:  # the points cannot tell them apart: said, nothing added
+        found.ambiguous = {"candidates": [f.label if f.label != CONSTANT else "a constant torque" for f in close],
+                           "separated_by": [ACROSS_POINTS_SEPARATION], "inside_floor": None}
+        return current, test, cur_res, runs
+    fit, cand = next((f, c) for f, c in fits if f is close[0])
+    new_model = current.with_effect(make_effect(cand.effect, {"fraction": fit.fraction}, {"fraction": fit.sigma}))
+    res = full(new_model)
+    runs += 1
+    test_new = parts(res)[1]
+    why = channel_worse(test, test_new, scale)
+    floor = feature_floor(parts(cur_res)[0], scale)
+    grow = chi2_floored(test_new, scale, floor) - chi2_floored(test, scale, floor)
+    if not why and grow > 0.0:  # worse over all, even with the model's own error in each feature's variance
+        why = f"it makes the held-out residual worse with the model-error floor allowed for (chi^2 +{grow:.3g})"
+    if not why and balance_residual(test_new)["significant"]:
+        why = "the held-out torque balance stays beyond its null with it"
+    if why:
+        found.refused.append({"candidate": cand.label, "reason": why, "channel": "torque balance across points",
+                              "gap_before": gap(test, scale), "gap_after": gap(test_new, scale)})
+        return current, test, cur_res, runs
+    runner = sorted((f for f in [const, *(f for f, _ in fits)] if f is not fit and f.physical),
+                    key=lambda f: f.chi2)
+    reading = (f"fraction {fit.fraction:.3g} +- {fit.sigma:.2g} from the torque balance at {base.mean.size} "
+               "operating points (" + ", ".join(f"{w * 30.0 / np.pi:.0f} rpm {ld:.0f} N m: {b:+.2f} N m"
+                                               for b, w, ld in zip(base.mean, base.omega, base.load)) + ")")
+    found.ambiguous = None  # the balance across the points told what the speed's step could not
+    found.steps.append(Step(None, new_model.effects[-1], gap(test, scale), gap(test_new, scale), chi2(test, scale),
+                            chi2(test_new, scale), runner[0].label if runner else None, localise(test, spec, scale),
+                            localise(test_new, spec, scale), (), (reading,), "torque balance across points"))
+    found.curves.append((f"+ {cand.label}", test_new.angles, test_new.speed.mean(axis=0)))
+    return new_model, test_new, res, runs
 
 
 def _add_pair(found: Discovery, pair, test: Residuals, scale: np.ndarray, parts, spec) -> tuple:

@@ -24,6 +24,14 @@ from frictionwatch.core.types import StreamRecord
 
 SETTLE_A_CYCLES = 6  # governed settle (dyno law re-tuned per cycle; grid mode damped), deterministic combustion
 SETTLE_B_CYCLES = 1  # final load law, combustion variability on (half a cycle, then one lead-in revolution)
+# A speed step (a load step with an rpm): the dyno holds the new speed as a speed-controlled one does (time constant
+# SPEED_TAU_CYCLES cycles) for SPEED_HOLD_CYCLES whole cycles (e^-5: 0.7 % of the step left), then its eddy-current
+# law again, carrying the engine's torque there. Design choices for a log at two speeds, not tuned: the held law
+# damps the shaft line's ripple (k9k's order-2 resonance at 1800 rpm read 24-37 rpm in held cycles, 1-5 at the
+# point), so the hold is short enough that its load still jumps from cycle to cycle in nearly every held cycle,
+# which the workflow leaves out (core.discrepancy.residuals.operating_groups)
+SPEED_TAU_CYCLES = 1.0
+SPEED_HOLD_CYCLES = 5
 CHUNK_CYCLES = 8  # output cycles per hand-over: genset-v20 about 1.4 MB of records and events per cycle
 
 
@@ -63,7 +71,7 @@ class Simulation:
                  theta_start: float, operating: dict, request: dict, sensors: SensorSetup,
                  rngs: list[np.random.Generator], stages: StageSwitches | None = None):
         """run: the plant set up at theta_start, not yet advanced; steps: [(time_s, load fraction or None for the
-        coast-down)], in time order; point(fraction)
+        coast-down[, rpm: a speed step])], in time order; point(fraction, omega)
         -> (fuel kg, brake torque estimate N m, per-cylinder means); operating: the truth's "operating" block (its
         load law and steps are filled in by the run); request: rpm, load, seed as asked (repeated in the truth)."""
         self.model, self.run, self.cycles, self.steps, self.point = model, run, cycles, steps, point
@@ -122,16 +130,30 @@ class Simulation:
         while st.done < cycles:
             st.done = min(st.done + chunk_cycles, cycles)
             stop = end if st.done == cycles else 4.0 * np.pi * st.done
-            while st.steps and advance(stop, t_stop=st.steps[0][0]):
-                t_step, frac = st.steps.pop(0)  # a step time reached: the new operating point and load law
+            while True:
+                # a speed step's hold ends at a cycle boundary (the load changes between two cycles, not inside one)
+                target = stop if not st.governed else min(stop, st.governed[0])
+                if not advance(target, t_stop=st.steps[0][0] if st.steps else None):
+                    if not st.governed or target < st.governed[0]:
+                        break
+                    run.release_speed()  # a speed step's hold ends at a cycle boundary: the eddy-current law
+                    st.governed.pop(0)
+                    continue
+                t_step, frac, rpm = (*st.steps.pop(0), None)[:3]  # a step time reached: the new point and law
                 if frac is None:  # the coast-down: motored cycles against zero load from here on
                     run.coast(*charge_pressures(spec, 0.0))
                     st.step_log.append({"time_s": t_step, "coast_down": True})
                     continue
-                fuel, tb, _ = self.point(frac)
+                omega = run.omega if rpm is None else rpm * np.pi / 30.0
+                fuel, tb, _ = self.point(frac, omega)
                 run.set_operating(fuel, *charge_pressures(spec, frac))
-                run.change_law(tb + st.correction, st.brake_full + st.correction)
-                st.step_log.append({"time_s": t_step, "load": frac, "fuel_kg": fuel, "brake_torque_estimate_nm": tb})
+                if rpm is None:
+                    run.change_law(tb + st.correction, st.brake_full + st.correction)
+                else:  # held at the new speed, released at the boundary SPEED_HOLD_CYCLES whole cycles on
+                    run.hold_speed(omega, tb + st.correction, SPEED_TAU_CYCLES * 4.0 * np.pi / omega)
+                    st.governed = [4.0 * np.pi * (np.ceil(run.theta_fly / (4.0 * np.pi)) + SPEED_HOLD_CYCLES)]
+                st.step_log.append({"time_s": t_step, "load": frac, "fuel_kg": fuel, "brake_torque_estimate_nm": tb,
+                                    **({} if rpm is None else {"rpm": rpm})})
             advance(stop)
             ev = run.drain()
             entries, diag = st.truth.add(ev["cycle_rows"], ev["cycle_index"], ev["grid"])
@@ -178,7 +200,9 @@ class Simulation:
 
     def _streams(self) -> tuple[SensorRecords, TruthAccumulator]:
         spec, stages = self.model.spec, self.stages
-        sensors = SensorRecords(spec, self.sensors, self.rngs, self.run.t_out0, self.run.omega, self.second_wheel)
+        # the requested speed scales the load power's noise, the run's first (a speed step does not rescale it)
+        sensors = SensorRecords(spec, self.sensors, self.rngs, self.run.t_out0, self.operating["omega_requested_rad_s"],
+                                self.second_wheel)
         switching = stages is not None and len(stages.onsets) > 1
         truth = TruthAccumulator(spec, self.run.plant, self.cycles, self.run.t_out0,
                                  stages.coefficients_of if switching else None)
@@ -197,7 +221,7 @@ class Simulation:
                 "truth": st.truth.checkpoint(), "run": copy.deepcopy({
                     "pending": st.pending, "changes": st.changes, "steps": st.steps, "step_log": st.step_log,
                     "correction": st.correction, "brake_full": st.brake_full, "law_info": st.law_info,
-                    "done": st.done})}
+                    "done": st.done, "governed": st.governed})}
 
     def resume(self, checkpoint: dict) -> None:
         """Continue this (not yet started) simulation from ``checkpoint`` of a run set up with the same arguments."""
@@ -212,7 +236,7 @@ class Simulation:
         truth.restore(checkpoint["truth"])
         r = copy.deepcopy(checkpoint["run"])
         self._state = _RunState(sensors, truth, r["pending"], r["changes"], r["steps"], r["step_log"],
-                                r["correction"], r["brake_full"], r["law_info"], r["done"])
+                                r["correction"], r["brake_full"], r["law_info"], r["done"], list(r.get("governed", [])))
 
     def _key(self) -> dict:
         """What identifies a run's set-up (its checkpoints fit only a run set up the same)."""
@@ -238,6 +262,7 @@ class _RunState:
     brake_full: float
     law_info: dict
     done: int
+    governed: list = field(default_factory=list)  # a speed step's hold ends at this cycle boundary [rad]
 
 
 def _sensor_change(cycle: int, time_s: float, sensors: SensorSetup, phases: np.ndarray | None) -> dict:

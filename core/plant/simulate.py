@@ -115,10 +115,15 @@ def _validate(spec: EngineSpec, rpm: float, load: float, cycles: int, cov_imep: 
         raise ValueError(f"cycles = {cycles!r} must be an integer >= 1")
     if not (np.isfinite(cov_imep) and 0.0 <= cov_imep <= 0.2):
         raise ValueError(f"cov_imep = {cov_imep!r} must be in 0..0.2 (a fraction)")
-    steps = sorted((float(t), float(f)) for t, f in (load_steps or []))
-    for t, f in steps:
-        if not (np.isfinite(t) and t >= 0 and np.isfinite(f) and 0.0 <= f <= 1.2):
-            raise ValueError(f"load step ({t}, {f}) needs time >= 0 s and a fraction in 0..1.2")
+    steps = sorted(tuple(float(x) for x in st) for st in (load_steps or []))
+    for st in steps:
+        t, f = st[:2]
+        if len(st) not in (2, 3) or not (np.isfinite(t) and t >= 0 and np.isfinite(f) and 0.0 <= f <= 1.2):
+            raise ValueError(f"load step {st} needs time >= 0 s and a fraction in 0..1.2 (and an rpm: a speed step)")
+        if len(st) == 3 and not (0.2 * spec.speed_range_rpm[0] <= st[2] <= 1.2 * spec.speed_range_rpm[1]):
+            raise ValueError(f"speed step to {st[2]!r} rpm is outside {spec.name}'s usable range {spec.speed_range_rpm}")
+        if len(st) == 3 and spec.load.kind == "grid":
+            raise ValueError(f"{spec.name}'s load is the grid: its speed is the grid's, a speed step is not possible")
     return steps
 
 
@@ -167,7 +172,9 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
     spread, wheel errors, noise) derives from it. effects : Effect instances or {name: {param: value}} turned on
     (core.model.effects); without : default-on effects turned off (both only with an EngineSpec).
     cov_imep : cycle-to-cycle COV of IMEP (fraction, default 2 %). load_steps : [(time_s, fraction)], time in the
-    tick time base. coefficients : (z, 6) raw a_kl per cylinder (default: the preset's a_l for every cylinder).
+    tick time base; (time_s, fraction, rpm) is a speed step as well (a dyno only: the dyno holds the new speed for a
+    few cycles, core.plant.sim_stream.SPEED_HOLD_CYCLES; effects sized at the operating point stay sized at the
+    requested one, so a friction law differs from the model's at the new speed as a real one would). coefficients : (z, 6) raw a_kl per cylinder (default: the preset's a_l for every cylinder).
     fuel_spread : rms of the fixed cylinder-to-cylinder fuel spread (fraction). second_wheel : log the engine
     file's second wheel too (``[sensors.second_wheel]``, at its node of the shaft; its own tooth errors of the
     ``tooth_spacing_error`` effect's size and edge jitter from a ninth generator, so every other stream is unchanged). The ``coast_down`` effect turns the
@@ -227,10 +234,9 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
             extra[k] = [ref * mean_frac, ref * amp_frac, order, phase_rad]
     m0 = idle_fuel(spec, tmodel, omega, spread, coef, leak, misfire, extra[:, 0], lib)
 
-    def point(frac: float) -> tuple[float, float, list]:
+    def point(frac: float, w: float = omega) -> tuple[float, float, list]:
         fuel = fuel_for_load(m0, spec, frac)
-        tb, means = engine_brake_torque(spec, tmodel, omega, fuel * spread, frac, coef, leak, misfire, extra[:, 0],
-                                        lib)
+        tb, means = engine_brake_torque(spec, tmodel, w, fuel * spread, frac, coef, leak, misfire, extra[:, 0], lib)
         return fuel, tb, means
 
     fuel0, brake0, means = point(load)

@@ -140,21 +140,38 @@ def test_what_a_fit_leaves_coherent_counts_as_model_error_in_its_parameters_sigm
 
 
 def test_nothing_found_at_one_operating_point_says_what_that_cannot_show():
-    """A log at one steady speed and load (no trend against either) cannot show a friction law that differs from the
-    model's only elsewhere: 'nothing' says so, and a log across speeds does not get the sentence."""
+    """A log at one operating point (one group of residuals.operating_groups, localise's ``operating_points``) cannot
+    show a friction law that differs from the model's only elsewhere: 'nothing' and an ambiguity say so (the
+    sentence words.ONE_POINT, which the bench judges a one-point friction-law row by), whatever the trends' slopes (a
+    steady log's scatter always gives one: design note 58); a log at two points does not get the sentence."""
+    from frictionwatch.core.discrepancy.words import ONE_POINT
     from frictionwatch.core.discrepancy.workflow import Discovery
 
     model = EngineModel.from_spec(load_engine("k9k-4cyl"))
     final = {"significant_orders": [], "balance": {"significant": False, "mean_nm": 0.0}, "orders": []}
+    trends = {"speed": {"unit": "rpm"}, "load": {"unit": "N m"}}
 
-    def found(trends: dict) -> Discovery:
-        return Discovery(model, model, [], 0.7, 0.7, {"trends": trends}, final)
+    def found(points: int, ambiguous: dict | None = None) -> Discovery:
+        return Discovery(model, model, [], 0.7, 0.7, {"trends": trends, "operating_points": points}, final,
+                         ambiguous=ambiguous)
 
-    steady = found({"speed": None, "load": None})
+    steady = found(1)
     assert steady.outcome == "nothing" and steady.one_operating_point
-    assert "one steady speed and load" in steady.verdict() and steady.to_json()["one_operating_point"] is True
-    swept = found({"speed": {"unit": "rpm"}, "load": None})
-    assert not swept.one_operating_point and "one steady speed" not in swept.verdict()
+    assert ONE_POINT in steady.verdict() and steady.to_json()["one_operating_point"] is True
+    assert "a run across speeds and loads would separate the friction laws" in ONE_POINT
+    torn = found(1, {"candidates": ["stribeck_ring", "pressure_gain[cyl 1]"], "separated_by": []})
+    assert torn.outcome == "ambiguous" and ONE_POINT in torn.verdict()
+    two = found(2)
+    assert not two.one_operating_point and "one steady speed" not in two.verdict()
+    # two points of one speed (load steps on the grid): the speed laws cannot show, said (words.ONE_SPEED)
+    from frictionwatch.core.discrepancy.words import ONE_SPEED
+
+    def at(rpms: list[float]) -> Discovery:
+        points = [{"rpm": r, "load_nm": 100.0, "mean_nm": 0.0, "share": 0.5} for r in rpms]
+        return Discovery(model, model, [], 0.7, 0.7, {"operating_points": 2, "balance": {"points": points}}, final)
+
+    assert at([1500.0, 1502.0]).one_speed and ONE_SPEED in at([1500.0, 1502.0]).verdict()
+    assert not at([1500.0, 1800.0]).one_speed and ONE_SPEED not in at([1500.0, 1800.0]).verdict()
 
 
 def test_operating_points_are_grouped_at_jumps_of_load_or_speed_not_along_a_ramp():
@@ -454,3 +471,33 @@ def test_a_shaft_line_fit_within_its_own_model_error_of_none_is_not_named_quiet_
     assert unresolved(Trial(chain, np.array([0.8, 1.0119]), sigma, 0.0, 1.0, 0)) == ""
     monkeypatch.setattr(fit, "CHAIN_FLOOR", {})
     assert unresolved(Trial(chain, x, np.array([0.0009, 0.0052]), 0.0, 1.0, 0)) == ""
+
+
+def test_friction_laws_fitted_to_the_balance_point_by_point():
+    """core.discrepancy.laws on made-up points: the point where the law was sized reads 0, the other -2 N m (a law
+    whose friction there is 2 N m above the model's: in the model at fraction 1 it lowers that point's residual by
+    2). The law that moves only the second point fits fraction 1 (sigma from the weights); the constant (moving both
+    alike) leaves a chi^2 far above; a law moving it the wrong way is clipped at 0 and not physical; a second law
+    proportional to the first fits as well: both within AMBIGUOUS_CHI2, the points cannot tell them."""
+    from frictionwatch.core.discrepancy.laws import (
+        AMBIGUOUS_CHI2,
+        PointBalance,
+        chi2_none,
+        constant_fit,
+        fit_law,
+        rivals,
+    )
+
+    points = PointBalance(np.array([0.0, 2.0]), np.array([0.01, 0.04]), np.array([314.0, 188.0]),
+                          np.array([150.0, 100.0]))
+    law = fit_law("a", points, np.array([0.0, -2.0]), 0.0, 1.0)
+    np.testing.assert_allclose([law.fraction, law.sigma, law.chi2], [1.0, 0.1, 0.0], atol=1e-12)
+    assert law.physical
+    const = constant_fit(points)
+    assert const.chi2 > 50.0 and chi2_none(points) == pytest.approx(100.0)
+    wrong = fit_law("b", points, np.array([0.0, 2.0]), 0.0, 1.0)
+    assert wrong.fraction == 0.0 and not wrong.physical
+    twin = fit_law("c", points, np.array([0.0, -4.0]), 0.0, 1.0)
+    np.testing.assert_allclose(twin.fraction, 0.5, rtol=1e-12)
+    assert [f.label for f in rivals([const, law, wrong, twin])] == ["a", "c"]
+    assert twin.chi2 - law.chi2 < AMBIGUOUS_CHI2

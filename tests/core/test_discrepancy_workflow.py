@@ -413,3 +413,56 @@ def test_a_shaft_line_fit_within_its_own_model_error_on_a_healthy_log_is_not_nam
     assert [r["candidate"] for r in doc["refused"]] == ["chain_mismatch"]
     assert "the model's own error in it" in doc["refused"][0]["reason"]
     assert doc["gap_after"] == doc["gap_before"]
+
+
+def _two_point_steps(rpm, load, rpm2, load2, cycles, blocks):
+    """Blocks of (rpm, load) and (rpm2, load2) in turn, the first point's first (where the simulator sizes a law)."""
+    steps, t, c, first = [], 60.0 / rpm, 0, True
+    while True:
+        t += blocks[0 if first else 1] * 120.0 / (rpm if first else rpm2)
+        c += blocks[0 if first else 1]
+        first = not first
+        if c >= cycles:
+            return steps
+        steps.append((t, load, rpm) if first else (t, load2, rpm2))
+
+
+def test_a_friction_law_is_named_across_two_operating_points():
+    """A log stepping between two speeds and loads (k9k 2800 rpm 0.85 <-> 1700 rpm 0.55, blocks of 20 and 14 cycles,
+    seed 7: no matrix log) with speed^2 auxiliaries: at 1700 rpm the law's friction differs from the model's and the
+    balance reads it; fitted to the balance point by point (core.discrepancy.laws) the law is named, its fraction
+    within 20 % and 2 sigma of the truth (1), the constant torque (its rival) worse by more than AMBIGUOUS_CHI2, and
+    the one-point sentence is not said. Measured when written: 0.917 +- 0.115, the constant's chi^2 19.1 against
+    0.1."""
+    from frictionwatch.core.discrepancy.laws import AMBIGUOUS_CHI2
+    from frictionwatch.core.discrepancy.words import ONE_POINT
+
+    spec = load_engine(ENGINE)
+    steps = _two_point_steps(2800.0, 0.85, 1700.0, 0.55, 120, (20, 14))
+    sim = simulate(spec, 2800.0, 0.85, 120, 7, effects=[make_effect("auxiliaries_speed_squared", {"fraction": 1.0})],
+                   load_steps=steps)
+    found = discover(EngineModel.from_spec(spec), assembled_cycles(spec, sim.info, sim.records)[0], OPTIONS)
+    doc = found.to_json()
+    assert doc["outcome"] == "named" and [f["effect"] for f in doc["found"]] == ["auxiliaries_speed_squared"]
+    hit = doc["found"][0]
+    assert hit["evidence"]["channel"] == "torque balance across points"
+    value, sigma = hit["parameters"]["fraction"], hit["sigma"]["fraction"]
+    np.testing.assert_allclose(value, 1.0, rtol=0.2)
+    assert abs(value - 1.0) <= 2.0 * sigma
+    fits = {f["label"]: f for f in doc["laws_across_points"]}
+    assert fits["constant"]["chi2"] - fits["auxiliaries_speed_squared"]["chi2"] > AMBIGUOUS_CHI2
+    assert not doc["one_operating_point"] and ONE_POINT not in doc["verdict"]
+
+
+def test_a_friction_law_at_one_operating_point_is_not_named_and_the_verdict_says_why():
+    """The same law at one point (2800 rpm 0.85, seed 7, 84 cycles): sized there to the model's mean friction, it
+    differs only in shape inside the model's own error; nothing is named and the verdict says that a run across
+    speeds and loads would separate the friction laws (words.ONE_POINT; the bench judges a one-point friction-law row
+    by it, design note 58)."""
+    from frictionwatch.core.discrepancy.words import ONE_POINT
+
+    found = discover(EngineModel.from_spec(load_engine(ENGINE)),
+                     cycles_of(2800.0, 0.85, 7, [make_effect("auxiliaries_speed_squared", {"fraction": 1.0})]),
+                     OPTIONS)
+    assert not found.steps and found.one_operating_point
+    assert ONE_POINT in found.verdict()

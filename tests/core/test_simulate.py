@@ -198,6 +198,22 @@ def test_load_step_and_progress():
     assert r.truth["operating"]["load_steps"][0]["load"] == 0.5
 
 
+def test_speed_step_reaches_and_holds_the_new_speed():
+    """A speed step (a load step with an rpm, core.plant.sim_stream.SPEED_HOLD_CYCLES): k9k from 1800 rpm 0.6 to
+    2400 rpm 0.6 after 4 cycles; from 4 cycles after the hold on, each cycle's mean speed within 1 % of 2400 and
+    the load steady (within 1 % of the last); a grid genset refuses one (its speed is the grid's)."""
+    spec = load_engine("k9k-4cyl")
+    r = simulate(spec, 1800, 0.6, 18, 3, load_steps=[(60.0 / 1800 + 4 * 120.0 / 1800, 0.6, 2400.0)])
+    rpm = np.array([c["rpm_mean"] for c in r.truth["cycles"]])
+    load = np.array([c["load_torque_nm"] for c in r.truth["cycles"]])
+    np.testing.assert_allclose(rpm[:4], 1800.0, rtol=0.01)
+    np.testing.assert_allclose(rpm[14:], 2400.0, rtol=0.01)
+    np.testing.assert_allclose(load[14:], load[-1], rtol=0.01)
+    assert r.truth["operating"]["load_steps"][0]["rpm"] == 2400.0
+    with pytest.raises(ValueError, match="grid"):
+        simulate(load_engine("genset-v20"), 1500, 0.7, 2, 0, load_steps=[(0.1, 0.7, 1400.0)])
+
+
 @pytest.mark.parametrize("kwargs,words", [
     ({"rpm": -5}, "rpm"), ({"load": 2.0}, "load"), ({"cycles": 0}, "cycles"), ({"cov_imep": 0.5}, "cov_imep"),
     ({"effects": {"misfire": {"cylinder": 9}}}, "cylinders"), ({"load_steps": [(-1.0, 0.5)]}, "load step"),

@@ -37,9 +37,11 @@ def run(engine, rpm, load, cycles, chunk, split=None, **kw):
     ("genset-v20", 1500, 0.75, 4, {}),  # flexible chain, 20 pressure channels, partial batches across the cut
     ("deutz-1cyl", 2600, 0.8, 6, {"load_steps": [(0.05, 0.6), (0.2, 0.5)]}),  # one step before, one after the cut
     ("maruti-3cyl", 3000, 1.0, 6, {"effects": {"ring_wear": {"cylinder": 2, "from_cycle": 4}}}),  # onset after it
+    # a speed step down whose hold spans the cut: its release and the larger output buffers carried over
+    ("deutz-1cyl", 2600, 0.8, 8, {"load_steps": [(0.05, 0.6, 1800.0)]}),
     # a channel gain switched before the cut: the switch carried over in the checkpoint
     ("k9k-4cyl", 1700, 1.0, 6, {"effects": {"pressure_gain": {"cylinder": 1, "gain": 1.03, "from_cycle": 1}}}),
-], ids=["genset-v20", "deutz-steps", "maruti-ring-wear-from-4", "k9k-gain-from-1"])
+], ids=["genset-v20", "deutz-steps", "maruti-ring-wear-from-4", "deutz-speed-step", "k9k-gain-from-1"])
 def test_segments_chain_to_the_bit(engine, rpm, load, cycles, kw):
     want_records, want_truth = run(engine, rpm, load, cycles, 2, **kw)
     got_records, got_truth = run(engine, rpm, load, cycles, 2, split=1, **kw)
