@@ -19,7 +19,10 @@ torque balance, beyond that channel's noise; TDC against the cylinders' pressure
 the bound of its range (the fit ran into the wall: not a physical value) or a sensor correction lies within what the
 pressure methods resolve, or any fit with every parameter within 2 sigma of none on a residual no larger than a
 healthy log's, or a shaft-line fit within 2 sigma of none with the line's own model error in its sigma
-(choice.unresolved, choice.quiet_residual, fit.CHAIN_FLOOR); the refusal and its reason are reported.
+(choice.unresolved, choice.quiet_residual, fit.CHAIN_FLOOR), or -- on a residual no larger than a healthy log's --
+a fit whose held-out chi^2 with the model-error floor allowed for falls by less than ``min_delta_chi2``
+(choice.within_model_error: the model's own error, coherent, passes the plain test); the refusal and its reason
+are reported.
 Which trials are held out, when two are one explanation and why a step is refused: core.discrepancy.choice.
 
 The outcome says which of three it is: ``named`` (effects added), ``nothing`` (nothing significant before or after)
@@ -51,6 +54,7 @@ from frictionwatch.core.discrepancy.choice import (
     to_confirm,
     unphysical,
     unresolved,
+    within_model_error,
 )
 from frictionwatch.core.discrepancy.features import (
     SIGNIFICANT,
@@ -109,6 +113,9 @@ class Options:
     confirm_within_null: int = 2
     min_delta_chi2: float = 40.0
     min_reduction: float = 0.15
+    # on a quiet residual (choice.quiet_residual) a step must also pass the held-out test with the model-error floor
+    # allowed for (choice.within_model_error; design note 61); False: the plain test alone, as before that note
+    floored_when_quiet: bool = True
     monitor_config: MonitorConfig | None = None
 
 
@@ -130,6 +137,10 @@ class Step:
     also: tuple = ()  # the further effects a toggle of several default effects added at once
     readings: tuple = ()  # a pressure step's: what the pressure showed of each effect, in words (trial None)
     channel: str = ""  # where it was named, when not by a speed trial or the pressure ("torque balance across points")
+    # a speed step's held-out chi^2 fall with the model-error floor allowed for (choice.chi2_floored) and whether the
+    # residual it explained was quiet (choice.quiet_residual): what choice.within_model_error judged (note 61)
+    floored_fall: float | None = None
+    quiet: bool | None = None
 
     @property
     def effects(self) -> tuple:
@@ -235,6 +246,7 @@ class Discovery:
                                        "pressure_reading": s.readings[s.effects.index(e)] if s.readings else None,
                                        "train_cost_reduction": s.trial.gain if s.trial is not None else None,
                                        "runner_up": s.runner_up,
+                                       "delta_chi2_heldout_floored": s.floored_fall, "quiet_before": s.quiet,
                                        "significant_orders_before": s.before["significant_orders"],
                                        "balance_before_nm": s.before["balance"]["mean_nm"],
                                        "balance_after_nm": s.after["balance"]["mean_nm"],
@@ -381,18 +393,24 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
                             inside)
             break
         test_new = parts(res)[1]
+        quiet = quiet_residual(loc)
+        floored_fall = chi2_floored(test, scale, floor) - chi2_floored(test_new, scale, floor)
         why = (channel_worse(test, test_new, scale) or pressure_worse(pressure(current), pressure(new_model),
                                                                         model.spec.n_cyl) or off_physics(t)
-               or unresolved(t, quiet_residual(loc)))
+               or unresolved(t, quiet) or within_model_error(quiet and opt.floored_when_quiet, floored_fall,
+                                                              opt.min_delta_chi2))
         if why:  # significant, but it makes something else worse or is not physical: the model stays as it was
             found.refused.append({"candidate": t.candidate.label, "reason": why,
-                                  "gap_before": g_cur, "gap_after": gap(test_new, scale)})
+                                  "gap_before": g_cur, "gap_after": gap(test_new, scale),
+                                  "delta_chi2_heldout": chi_before - chi2(test_new, scale),
+                                  "delta_chi2_heldout_floored": floored_fall, "quiet_before": quiet})
             break
         g_new, chi_after = gap(test_new, scale), chi2(test_new, scale)
         runner = confirmed[1][1].candidate.label if len(confirmed) > 1 else None
         added = new_model.effects[-len(t.candidate.names):]
         found.steps.append(Step(t, added[0], g_cur, g_new, chi_before, chi_after, runner,
-                                localise(test, model.spec, scale), localise(test_new, model.spec, scale), added[1:]))
+                                localise(test, model.spec, scale), localise(test_new, model.spec, scale), added[1:],
+                                floored_fall=floored_fall, quiet=quiet))
         found.curves.append((f"+ {t.candidate.label}", test_new.angles, test_new.speed.mean(axis=0)))
         current, test, cur_res = new_model, test_new, res
         found.step_limit_reached = step == opt.max_steps - 1

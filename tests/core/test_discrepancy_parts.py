@@ -402,6 +402,19 @@ def test_a_quiet_residual_is_nothing_beyond_the_null_and_a_speed_gap_within_a_he
     assert not quiet_residual({k: v for k, v in calm.items() if k != "healthy_gap"})
 
 
+def test_a_step_on_a_quiet_residual_must_pass_the_held_out_test_with_the_model_error_floor_allowed_for():
+    """choice.within_model_error: refused (a reason said) only on a quiet residual whose floored chi^2 falls by less
+    than the workflow's min_delta_chi2; a loud residual or a floored fall at or above it: not refused (design note
+    61; deutz 3000 rpm 0.9 seed 5's Stribeck ring fell by 16.5 floored, 215 plain)."""
+    from frictionwatch.core.discrepancy.choice import within_model_error
+
+    why = within_model_error(True, 16.5, 40.0)
+    assert "16.5" in why and "model-error floor" in why
+    assert within_model_error(False, 16.5, 40.0) == ""
+    assert within_model_error(True, 40.0, 40.0) == ""
+    assert within_model_error(True, 116.4, 40.0) == ""
+
+
 def test_a_speed_gap_far_beyond_a_healthy_logs_inside_every_floor_is_a_discrepancy_said_with_its_signature():
     """features.healthy_gap: the speed gap against the rms model error at the log's amplitudes (FLOOR_RMS of each
     order's floor). A coherent residual at the firing order at 0.8 of its floor is not beyond the null (no order
