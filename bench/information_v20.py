@@ -65,7 +65,7 @@ def _fit_and_point(spec, state, cycle, cfg):
     m = state.n_harmonics
     fly, _, theta_start, _ = fit_cycle_teeth(cycle, spec.sensors.wheel_teeth, m, state.n_nuisance, state.teeth,
                                              state.tooth_patterns, cfg.drift_nuisance, m, cfg.fit_drift,
-                                             cfg.learn_teeth, cfg.tooth_memory, cfg.tooth_refit_cycles)
+                                             cfg.tooth_learning)
     op = operating_point(spec, state.op, fly.omega_mean, cycle.load_torque, m, cfg.rebuild_tolerance,
                          cfg.variable_inertia, state.layout)
     return fly, theta_start, op

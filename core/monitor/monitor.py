@@ -138,14 +138,12 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     try:
         fly, teeth, theta_start, patterns = fit_cycle_teeth(
             cycle, spec.sensors.wheel_teeth, m, state.n_nuisance, state.teeth, state.tooth_patterns,
-            cfg.drift_nuisance, round(2 * cfg.fit_order) if cfg.fit_order else m, cfg.fit_drift, cfg.learn_teeth,
-            cfg.tooth_memory, cfg.tooth_refit_cycles)
+            cfg.drift_nuisance, round(2 * cfg.fit_order) if cfg.fit_order else m, cfg.fit_drift, cfg.tooth_learning)
     except ValueError as exc:
         raise CycleRejected("bad_teeth", str(exc)) from exc
     free_end, wheel2, wheel2_flag = fit_second_wheel(  # the free end's own speed and tooth spacing (none: nothing)
         cycle, state.wheel2, m, state.n_nuisance, (cfg.drift_nuisance, round(2 * cfg.fit_order) if cfg.fit_order
-                                                   else m, cfg.fit_drift, cfg.learn_teeth, cfg.tooth_memory,
-                                                   cfg.tooth_refit_cycles))
+                                                   else m, cfg.fit_drift, cfg.tooth_learning))
     omega = fly.omega_mean
     load = cycle.load_torque if math.isfinite(cycle.load_torque) else cycle.load_power / omega
     if not math.isfinite(load):

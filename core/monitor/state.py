@@ -19,7 +19,7 @@ from frictionwatch.core.monitor.identify.layout import ParameterLayout
 from frictionwatch.core.monitor.identify.priors import PriorNormal
 from frictionwatch.core.monitor.identify.pull_check import PullCheck
 from frictionwatch.core.monitor.report.report_kernels import TrigTables
-from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
+from frictionwatch.core.monitor.teeth.flywheel import LearnerSettings, ToothLearner
 from frictionwatch.core.monitor.teeth.second_wheel import SecondWheelState
 from frictionwatch.core.monitor.teeth.tooth_fit import ToothPatterns
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
@@ -67,6 +67,7 @@ class MonitorConfig:
     variable_inertia: model J(theta) and the mass torque (off only to analyse a plant without them)
     learn_teeth: learn the out-of-band tooth pattern from the fit residuals (core.monitor.teeth.flywheel.ToothLearner) with EWMA
     factor ``tooth_memory``; the fit is repeated with the fresh correction for the first ``tooth_refit_cycles``
+    tooth_speed_step: a cycle whose mean speed moved more than this fraction from the last fitted one's is not learnt from
     warmup_cycles: cycles whose equations are not accumulated (the tooth learner and noise model settle first)
     sensor_health: TDC, pressure gain and offset checks and corrections (core.monitor.checks.sensor_health); None: off
     model_error_floor: the systematic sigma the equations cannot see (core.monitor.identify.estimate.ModelErrorFloor),
@@ -112,6 +113,11 @@ class MonitorConfig:
     variable_inertia: bool = True
     tooth_memory: float = 1.0 - 1.0 / 100.0
     tooth_refit_cycles: int = 50
+    # the learner skips a cycle whose mean speed moved more than this (relative) from the previous fitted cycle's: a
+    # speed step's settling leaves in the residual what the band cannot follow, at the same wheel positions at every
+    # step (design note 60). Hand-set, core/monitor/tuned.json: twice the largest change between steady cycles of
+    # one-point logs (seed 11); validated on the two-point matrix logs (seeds 2, 3) and one more (tests/core)
+    tooth_speed_step: float = _TUNED["TOOTH_SPEED_STEP"].value
     warmup_cycles: int = 20
     # off by default until its speed-based TDC holds where the model is not the engine (issue 16): on, the merged
     # monitor read the healthy K9K 1400 rpm / half-load FMEP -7.8 % (target 2 %), moved the real TU/e IMEP off the
@@ -155,6 +161,11 @@ class MonitorConfig:
         lam = self.forgetting
         if lam is not None and not (isinstance(lam, int | float) and 0.0 <= lam <= 1.0):
             raise ValueError(f"forgetting = {lam!r} must be a per-cycle factor in [0, 1], or None")
+
+    @property
+    def tooth_learning(self) -> LearnerSettings:
+        """The tooth learner's settings as the tooth fit takes them (core.monitor.teeth.tooth_fit.fit_cycle_teeth)."""
+        return LearnerSettings(self.learn_teeth, self.tooth_memory, self.tooth_refit_cycles, self.tooth_speed_step)
 
 
 class ConditionTables(NamedTuple):

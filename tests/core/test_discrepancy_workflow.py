@@ -430,11 +430,12 @@ def _two_point_steps(rpm, load, rpm2, load2, cycles, blocks):
 def test_a_friction_law_is_named_across_two_operating_points():
     """A log stepping between two speeds and loads (k9k 2800 rpm 0.85 <-> 1700 rpm 0.55, blocks of 20 and 14 cycles,
     seed 7: no matrix log) with speed^2 auxiliaries: at 1700 rpm the law's friction differs from the model's and the
-    balance reads it; fitted to the balance point by point (core.discrepancy.laws) the law is named, its fraction
-    within 20 % and 2 sigma of the truth (1), the constant torque (its rival) worse by more than AMBIGUOUS_CHI2, and
-    the one-point sentence is not said. Measured when written: 0.917 +- 0.115, the constant's chi^2 19.1 against
-    0.1."""
-    from frictionwatch.core.discrepancy.laws import AMBIGUOUS_CHI2
+    balance reads it; the law is named, its fraction within 20 % and 2 sigma of the truth (1), and the one-point
+    sentence is not said. Measured when written (note 58): named by the balance point by point (core.discrepancy.
+    laws), 0.917 +- 0.115, the constant's chi^2 19.1 against 0.1, the workflow's first step having named nothing.
+    Since the tooth learner skips the steps' settling cycles (note 60) the speed residual no longer carries the
+    pattern they taught it, and the first step names the law itself (channel "speed"): 0.916 +- 0.133, runner-up
+    the bearing law. laws.py on made-up points: tests/core/test_discrepancy_parts.py."""
     from frictionwatch.core.discrepancy.words import ONE_POINT
 
     spec = load_engine(ENGINE)
@@ -445,12 +446,10 @@ def test_a_friction_law_is_named_across_two_operating_points():
     doc = found.to_json()
     assert doc["outcome"] == "named" and [f["effect"] for f in doc["found"]] == ["auxiliaries_speed_squared"]
     hit = doc["found"][0]
-    assert hit["evidence"]["channel"] == "torque balance across points"
+    assert hit["evidence"]["channel"] == "speed"
     value, sigma = hit["parameters"]["fraction"], hit["sigma"]["fraction"]
     np.testing.assert_allclose(value, 1.0, rtol=0.2)
     assert abs(value - 1.0) <= 2.0 * sigma
-    fits = {f["label"]: f for f in doc["laws_across_points"]}
-    assert fits["constant"]["chi2"] - fits["auxiliaries_speed_squared"]["chi2"] > AMBIGUOUS_CHI2
     assert not doc["one_operating_point"] and ONE_POINT not in doc["verdict"]
 
 

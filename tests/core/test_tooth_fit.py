@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 from frictionwatch.core.monitor.identify.layout import tooth_patterns
-from frictionwatch.core.monitor.teeth.flywheel import FitSetup, ToothLearner, fit_prepared, prepare_fit
+from frictionwatch.core.monitor.teeth.flywheel import FitSetup, LearnerSettings, ToothLearner, fit_prepared, prepare_fit
 from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth
 
 FOUR_PI = 4.0 * np.pi
@@ -98,8 +98,9 @@ def update_reference(correction, count, tooth_index, residual, memory):
 
 
 def fit_cycle_teeth_reference(cycle, wheel_teeth, n_harmonics, n_nuisance, teeth, cache, drift_nuisance,
-                              fit_harmonics, fit_drift, learn_teeth, tooth_memory, tooth_refit_cycles):
-    correction, count = teeth
+                              fit_harmonics, fit_drift, learn_teeth, tooth_memory, tooth_refit_cycles,
+                              tooth_speed_step=np.inf):
+    correction, count, last_period = teeth
     nominal = np.asarray(cycle.tooth_angle, dtype=np.float64)
     end = int(np.searchsorted(nominal, nominal[0] + FOUR_PI - 1e-6))
     ticks = cycle.tooth_ticks[: end + 1]
@@ -119,11 +120,12 @@ def fit_cycle_teeth_reference(cycle, wheel_teeth, n_harmonics, n_nuisance, teeth
         patterns = np.column_stack([patterns, u * (u - 1.0)])
     setup = prepare_fit_reference(ticks, cycle.tick_hz, n_harmonics, patterns, fit_harmonics, fit_drift)
     fly = fit_prepared_reference(setup, nominal + correction[pos])
-    if learn_teeth:
+    speed_moved = last_period > 0 and abs(last_period / fly.period - 1.0) > tooth_speed_step
+    if learn_teeth and not speed_moved:
         correction, count = update_reference(correction, count, pos, fly.edge_residual, tooth_memory)
         if count <= tooth_refit_cycles:
             fly = fit_prepared_reference(setup, nominal + correction[pos])
-    return fly, (correction, count), float(nominal[0] + correction[pos[0]]), cache
+    return fly, (correction, count, fly.period), float(nominal[0] + correction[pos[0]]), cache
 
 
 def rel_diff(a, b):
@@ -199,22 +201,36 @@ def test_fit_cycle_teeth_options_match_reference(n_nuis, drift_nuisance, learn):
     check_against_reference(60, 2, 12, 14, n_nuis, False, drift_nuisance, learn)
 
 
-def check_against_reference(wheel_teeth, gap, m, m_fit, n_nuis, fit_drift, drift_nuisance, learn):
+def test_fit_cycle_teeth_speed_step_matches_reference():
+    """The learner skips a cycle whose period moved beyond tooth_speed_step from the last fitted one's: the
+    synthetic cycles' periods scatter by 1 % rms, so a 1 % step skips some of the 8 and learns from others."""
+    skipped = check_against_reference(60, 2, 12, 12, 12, False, True, True, speed_step=0.01)
+    assert 0 < skipped < 7
+
+
+def check_against_reference(wheel_teeth, gap, m, m_fit, n_nuis, fit_drift, drift_nuisance, learn,
+                            speed_step=np.inf):
     cycles = synthetic_cycles(wheel_teeth, gap, 8, seed=wheel_teeth + m)
     # the monitor fits without the drift column (MonitorConfig.fit_drift=False): 1e-10. With it, the column is
     # nearly collinear with order 0.5 over one cycle (core.monitor.monitor docs): the scaled normal matrix has a condition
     # number 9e4..8e5 at these sizes (1.4..3.6 without) and either implementation is only good to ~1e-13 cond: 1e-6
     rel = 1e-6 if fit_drift else REL
     teeth_new = ToothLearner.empty(wheel_teeth)
-    teeth_ref = (np.zeros(wheel_teeth), 0)
+    teeth_ref = (np.zeros(wheel_teeth), 0, 0.0)
     cache_new = cache_ref = None
+    skipped = 0
     for cyc in cycles:
         args = (wheel_teeth, m, n_nuis)
-        tail = (drift_nuisance, m_fit, fit_drift, learn, 1.0 - 1.0 / 100.0, 4)
-        fly, teeth_new, th_new, cache_new = fit_cycle_teeth(cyc, *args, teeth_new, cache_new, *tail)
-        ref, teeth_ref, th_ref, cache_ref = fit_cycle_teeth_reference(cyc, *args, teeth_ref, cache_ref, *tail)
+        tail = (drift_nuisance, m_fit, fit_drift)
+        learning = (learn, 1.0 - 1.0 / 100.0, 4, speed_step)
+        count_before = teeth_new.count
+        fly, teeth_new, th_new, cache_new = fit_cycle_teeth(cyc, *args, teeth_new, cache_new, *tail,
+                                                            LearnerSettings(*learning))
+        ref, teeth_ref, th_ref, cache_ref = fit_cycle_teeth_reference(cyc, *args, teeth_ref, cache_ref, *tail,
+                                                                      *learning)
         assert_same_motion(fly, ref, float(np.max(np.abs(cyc.tooth_angle))), rel)
-        assert teeth_new.count == teeth_ref[1]
+        assert teeth_new.count == teeth_ref[1] and teeth_new.period == pytest.approx(teeth_ref[2], rel=1e-14)
+        skipped += learn and teeth_new.count == count_before
         assert rel_diff(teeth_new.correction, teeth_ref[0]) <= rel
         assert th_new == pytest.approx(th_ref, rel=1e-14)
         if n_nuis:
@@ -222,6 +238,7 @@ def check_against_reference(wheel_teeth, gap, m, m_fit, n_nuis, fit_drift, drift
         else:
             assert cache_new is None and cache_ref is None
         assert fly.pattern_harmonics.shape == (m, n_nuis + int(drift_nuisance))
+    return skipped
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -298,17 +315,20 @@ def test_cycle_window_matches_numpy(seed):
     assert _cycle_window(extra, rel)[2] == wheel - gap  # the tooth rows repeat after one revolution of edges
 
 
+LEARN = LearnerSettings(True, 0.99, 50)
+
+
 def test_fit_cycle_teeth_bad_cycles_raise_value_error():
     """Each way a cycle's edges cannot be fitted is a ValueError (the monitor's 'bad_teeth' rejection)."""
     cyc = synthetic_cycles(60, 2, 1, 7)[0]
-    args = (60, 12, 12, ToothLearner.empty(60), None, True, 12, False, True, 0.99, 50)
+    args = (60, 12, 12, ToothLearner.empty(60), None, True, 12, False, LEARN)
 
     def with_(**kw):
         return SimpleNamespace(**{**vars(cyc), **kw})
 
     fly, teeth, _, cache = fit_cycle_teeth(cyc, *args)
     assert fly.n_edges == cyc.tooth_angle.size and teeth.count == 1
-    again = fit_cycle_teeth(cyc, 60, 12, 12, teeth, cache, True, 12, False, True, 0.99, 50)
+    again = fit_cycle_teeth(cyc, 60, 12, 12, teeth, cache, True, 12, False, LEARN)
     assert again[3] is cache  # a hit keeps the cache object
     for bad, match in [
         (with_(tooth_angle=cyc.tooth_angle[:-1]), "720 deg"),
@@ -318,6 +338,6 @@ def test_fit_cycle_teeth_bad_cycles_raise_value_error():
         with pytest.raises(ValueError, match=match):
             fit_cycle_teeth(bad, *args)
     with pytest.raises(ValueError, match="cannot carry"):
-        fit_cycle_teeth(cyc, 60, 60, 12, ToothLearner.empty(60), None, True, 60, False, True, 0.99, 50)
+        fit_cycle_teeth(cyc, 60, 60, 12, ToothLearner.empty(60), None, True, 60, False, LEARN)
     with pytest.raises(ValueError, match="positions"):
-        fit_cycle_teeth(cyc, 60, 12, 12, ToothLearner.empty(59), None, True, 12, False, True, 0.99, 50)
+        fit_cycle_teeth(cyc, 60, 12, 12, ToothLearner.empty(59), None, True, 12, False, LEARN)

@@ -295,7 +295,7 @@ def test_the_code_uses_the_recorded_numbers():
         "TDC_UNCALIBRATED_SIGMAS": tdc_watch.UNCALIBRATED_SIGMAS,
         "DRIVE_TRAIN_STIFFNESS_FLOOR": drive_train.STIFFNESS_FLOOR,
         "DRIVE_TRAIN_DAMPING_FLOOR": drive_train.DAMPING_FLOOR, "DRIVE_TRAIN_SETTLED": drive_train.SETTLED,
-        "PULL_CHECK_KAPPA": PullCheck().kappa,
+        "PULL_CHECK_KAPPA": PullCheck().kappa, "TOOTH_SPEED_STEP": cfg.tooth_speed_step,
     }
     assert set(used) == set(mon)
     for name, value in used.items():

@@ -262,6 +262,18 @@ def fit_prepared(setup: FitSetup, tooth_angle: np.ndarray) -> FlywheelMotion:
 
 
 @dataclass(frozen=True)
+class LearnerSettings:
+    """How the tooth learner steps (MonitorConfig.tooth_learning): ``learn`` at all; EWMA factor ``memory``; refit
+    with the fresh correction for the first ``refit_cycles``; skip a cycle whose mean speed moved more than
+    ``speed_step`` (relative) from the last fitted cycle's (design note 60; inf: never)."""
+
+    learn: bool
+    memory: float
+    refit_cycles: int
+    speed_step: float = float("inf")
+
+
+@dataclass(frozen=True)
 class ToothLearner:
     """On-line estimate of the tooth-spacing error above the fitted band (physics.md §14.3).
 
@@ -269,11 +281,14 @@ class ToothLearner:
     noise. Averaged per wheel position over many revolutions (both revolutions of a cycle, so half orders of the
     engine cancel) it converges to the out-of-band part of the pattern, which is then added to the nominal angles.
     The in-band part cannot be told from the engine's own steady response at one operating point; the identification
-    carries it as nuisance parameters. ``correction`` (wheel positions,) [rad], ``count`` cycles seen.
+    carries it as nuisance parameters. ``correction`` (wheel positions,) [rad], ``count`` cycles folded in,
+    ``period`` [s] the last fitted cycle's period, learnt from or not (0: none yet): a cycle whose mean speed moved
+    beyond ``MonitorConfig.tooth_speed_step`` from it is not folded in (core.monitor.teeth.tooth_fit).
     """
 
     correction: np.ndarray
     count: int
+    period: float = 0.0
 
     @staticmethod
     def empty(wheel_positions: int) -> ToothLearner:
@@ -286,4 +301,4 @@ class ToothLearner:
         if idx.shape != r.shape or idx.ndim != 1:
             raise ValueError(f"tooth_index and residual must be 1-D of equal length, got {idx.shape}, {r.shape}")
         gain = max(1.0 - memory, 1.0 / (self.count + 1))
-        return ToothLearner(tooth_update_kernel(self.correction, idx, r, gain), self.count + 1)
+        return ToothLearner(tooth_update_kernel(self.correction, idx, r, gain), self.count + 1, self.period)

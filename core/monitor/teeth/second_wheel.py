@@ -77,7 +77,7 @@ def fit_second_wheel(cycle: Cycle, state: SecondWheelState | None, n_harmonics: 
     learner updated, and a flag when its edges could not be fitted ('second_wheel_bad_teeth': the flywheel's cycle
     goes on without it).
 
-    settings : (drift_nuisance, fit_harmonics, fit_drift, learn_teeth, tooth_memory, tooth_refit_cycles), the
+    settings : (drift_nuisance, fit_harmonics, fit_drift, learning: LearnerSettings), the
     flywheel fit's own (core.monitor.teeth.tooth_fit.fit_cycle_teeth)."""
     w = cycle.wheel2
     if w is None:

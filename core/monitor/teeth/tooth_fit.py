@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 from frictionwatch.core.monitor.identify.layout import tooth_patterns
-from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion, ToothLearner
+from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion, LearnerSettings, ToothLearner
 from frictionwatch.core.monitor.teeth.flywheel_kernels import (
     BAD_SPAN,
     FOUR_PI,
@@ -104,9 +104,10 @@ BAD_SHAPES = 7  # tooth_ticks / tooth_index shorter than the window
 
 # layout of the step's settings, one small float64 array (a single cheap argument per cycle; counts and flags are
 # stored as exact small floats): tick rate [Hz], drift columns (1 or 2), fitted harmonics, whether the in-band pattern
-# columns are fitted, whether the drift pattern is, whether the learner steps, its gain, whether to refit after it
-(TF_TICK_HZ, TF_N_DRIFT, TF_M_FIT, TF_USE_PATTERNS, TF_DRIFT_PATTERN, TF_LEARN, TF_GAIN, TF_REFIT,
- TF_N_SETTINGS) = range(9)
+# columns are fitted, whether the drift pattern is, whether the learner steps, its gain, whether to refit after it,
+# the previous fitted cycle's period [s] (0: none) and the relative speed change beyond which the learner skips a cycle
+(TF_TICK_HZ, TF_N_DRIFT, TF_M_FIT, TF_USE_PATTERNS, TF_DRIFT_PATTERN, TF_LEARN, TF_GAIN, TF_REFIT, TF_PREV_PERIOD,
+ TF_SPEED_STEP, TF_N_SETTINGS) = range(11)
 
 
 @numba.njit(cache=True)
@@ -116,9 +117,12 @@ def tooth_fit_cycle_kernel(nominal_all, ticks_all, index_all, settings, cached_r
     pattern-cache test (``_cycle_window``), ``prepare_fit_kernel`` (patterns folded per revolution when their rows
     repeat), the fit of the corrected angles (``_corrected_angles``, ``fit_angles_kernel``), with TF_LEARN the
     learner step (``tooth_update_kernel`` with TF_GAIN) and, with TF_REFIT, the fit again with the fresh correction.
+    The learner skips a cycle whose mean speed differs from the previous fitted cycle's (TF_PREV_PERIOD) by more
+    than TF_SPEED_STEP (relative): a speed step's settling is not a ramp, so what the band and the drift column
+    cannot follow stays in the residual, at the same wheel positions at every step (design note 60).
 
     settings (TF_N_SETTINGS,) in the TF_* layout. Fills harm (n_harm,) and pat (n_harm, q); returns (status,
-    n edges, period [s], offset, drift, rms, edge residual (n,), correction after the cycle)."""
+    n edges, period [s], offset, drift, rms, edge residual (n,), correction after the cycle, whether it learnt)."""
     tick_hz = settings[TF_TICK_HZ]
     n_drift = int(settings[TF_N_DRIFT])
     m_fit = int(settings[TF_M_FIT])
@@ -128,18 +132,20 @@ def tooth_fit_cycle_kernel(nominal_all, ticks_all, index_all, settings, cached_r
     learn = settings[TF_LEARN] != 0.0
     gain = settings[TF_GAIN]
     refit = settings[TF_REFIT] != 0.0
+    prev_period = settings[TF_PREV_PERIOD]
+    speed_step = settings[TF_SPEED_STEP]
     no_resid = np.empty(0)
     end, hit, period_rows = _cycle_window(nominal_all, cached_rel)
     if end < 0:
-        return NO_WINDOW, 0, 0.0, 0.0, 0.0, 0.0, no_resid, correction
+        return NO_WINDOW, 0, 0.0, 0.0, 0.0, 0.0, no_resid, correction, False
     n = end + 1
     if ticks_all.shape[0] < n or index_all.shape[0] < n:
-        return BAD_SHAPES, n, 0.0, 0.0, 0.0, 0.0, no_resid, correction
+        return BAD_SHAPES, n, 0.0, 0.0, 0.0, 0.0, no_resid, correction, False
     p = n_drift + 2 * m_fit
     if n < p + 4:
-        return TOO_FEW, n, 0.0, 0.0, 0.0, 0.0, no_resid, correction
+        return TOO_FEW, n, 0.0, 0.0, 0.0, 0.0, no_resid, correction, False
     if use_patterns and not hit:
-        return CACHE_MISS, n, 0.0, 0.0, 0.0, 0.0, no_resid, correction
+        return CACHE_MISS, n, 0.0, 0.0, 0.0, 0.0, no_resid, correction, False
     if not use_patterns:
         period_rows = 0
     patterns = cached_patterns[:period_rows] if period_rows > 0 else cached_patterns
@@ -153,21 +159,23 @@ def tooth_fit_cycle_kernel(nominal_all, ticks_all, index_all, settings, cached_r
     status = prepare_fit_kernel(ticks, tick_hz, n_drift, m_fit, n_harm, patterns, period_rows, drift_pattern,
                                 (tau, design_t, scale, normal_inv), pat)
     if status != OK:
-        return status, n, 0.0, 0.0, 0.0, 0.0, no_resid, correction
+        return status, n, 0.0, 0.0, 0.0, 0.0, no_resid, correction, False
     period = tau[n - 1]
     omega = FOUR_PI / period
     angle = np.empty(n)
     resid = np.empty(n)
     _corrected_angles(nominal, correction, index, angle)
     status, offset, drift, rms = fit_angles_kernel(design_t, scale, normal_inv, tau, omega, angle, n_drift, m_fit, harm, resid)
+    if learn and prev_period > 0.0 and abs(prev_period / period - 1.0) > speed_step:
+        learn = False
     if status != OK or not learn:
-        return status, n, period, offset, drift, rms, resid, correction
+        return status, n, period, offset, drift, rms, resid, correction, False
     corr = tooth_update_kernel(correction, index, resid, gain)
     if refit:  # while the learner is young, use what this cycle taught at once
         _corrected_angles(nominal, corr, index, angle)
         status, offset, drift, rms = fit_angles_kernel(design_t, scale, normal_inv, tau, omega, angle, n_drift, m_fit, harm,
                                                  resid)
-    return status, n, period, offset, drift, rms, resid, corr
+    return status, n, period, offset, drift, rms, resid, corr, True
 
 
 
@@ -193,13 +201,14 @@ _STATUS_TEXT = {
 
 def fit_cycle_teeth(cycle: Cycle, wheel_teeth: int, n_harmonics: int, n_nuisance: int, teeth: ToothLearner,
                     cache: ToothPatterns | None, drift_nuisance: bool, fit_harmonics: int, fit_drift: bool,
-                    learn_teeth: bool, tooth_memory: float, tooth_refit_cycles: int
-                    ) -> tuple[FlywheelMotion, ToothLearner, float, ToothPatterns | None]:
+                    learning: LearnerSettings) -> tuple[FlywheelMotion, ToothLearner, float, ToothPatterns | None]:
     """Flywheel fit of the cycle's 4 pi window (the assembler brackets [0, 4 pi] with an edge either side; the
     window starts at the first edge), tooth learning, and the angle of the first edge [rad].
 
     Pattern columns: ``n_nuisance`` in-band tooth-error patterns (orders 1..n_nuisance/2 per revolution), then, with
-    ``drift_nuisance``, the angle of a linear speed drift over the cycle, q(u) = u (u - 1), u = t / T. Raises
+    ``drift_nuisance``, the angle of a linear speed drift over the cycle, q(u) = u (u - 1), u = t / T. The learner
+    folds the cycle in (``learning``) only when its mean speed is within ``learning.speed_step`` (relative) of the
+    previous fitted cycle's (``teeth.period``; MonitorConfig.tooth_speed_step, design note 60). Raises
     ValueError when the edges cannot be fitted (the monitor rejects the cycle as 'bad_teeth')."""
     nominal = np.asarray(cycle.tooth_angle, dtype=np.float64)
     if nominal.ndim != 1 or nominal.shape[0] < 2:
@@ -226,12 +235,14 @@ def fit_cycle_teeth(cycle: Cycle, wheel_teeth: int, n_harmonics: int, n_nuisance
     settings[TF_M_FIT] = m_fit
     settings[TF_USE_PATTERNS] = use_patterns
     settings[TF_DRIFT_PATTERN] = bool(drift_nuisance)
-    settings[TF_LEARN] = bool(learn_teeth)
-    settings[TF_GAIN] = max(1.0 - tooth_memory, 1.0 / (teeth.count + 1))
-    settings[TF_REFIT] = teeth.count + 1 <= tooth_refit_cycles
+    settings[TF_LEARN] = bool(learning.learn)
+    settings[TF_GAIN] = max(1.0 - learning.memory, 1.0 / (teeth.count + 1))
+    settings[TF_REFIT] = teeth.count + 1 <= learning.refit_cycles
+    settings[TF_PREV_PERIOD] = teeth.period
+    settings[TF_SPEED_STEP] = learning.speed_step
     for _ in range(2):
         try:
-            status, n, period, offset, drift, rms, resid, new_corr = tooth_fit_cycle_kernel(
+            status, n, period, offset, drift, rms, resid, new_corr, learnt = tooth_fit_cycle_kernel(
                 nominal, ticks, index, settings, cached_rel, cached_patterns, correction, harm, pat)
         except np.linalg.LinAlgError as exc:
             raise ValueError(f"the tooth edges give a singular flywheel fit ({exc})") from exc
@@ -244,8 +255,7 @@ def fit_cycle_teeth(cycle: Cycle, wheel_teeth: int, n_harmonics: int, n_nuisance
         cache = ToothPatterns(edge_angles=cached_rel, patterns=cached_patterns)
     if status != OK:
         raise ValueError(_STATUS_TEXT.get(status, "flywheel fit failed").format(n=n, m=n_harmonics))
-    if learn_teeth:
-        teeth = ToothLearner(correction=new_corr, count=teeth.count + 1)
+    teeth = ToothLearner(correction=new_corr, count=teeth.count + learnt, period=period)
     fly = FlywheelMotion(period=period, omega_mean=FOUR_PI / period, harmonics=harm, offset=offset, drift=drift,
                        residual_rms=rms, n_edges=n, edge_residual=resid, pattern_harmonics=pat)
     return fly, teeth, float(nominal[0] + teeth.correction[int(index[0]) % wheel_teeth]), cache
