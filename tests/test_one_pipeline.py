@@ -28,6 +28,10 @@ ALLOWED = {
     "tests/drivers/test_pressure_frames.py": "the assembler's tests on pressure frames and blocks",
     "tests/drivers/test_two_wheels.py": "the unit tests of the two-wheel assembler (its wheel2_missing counters)",
     "bench/common.py": "timed_assembly times the assembler alone (bench/bench_cycles.py)",
+    # the tooth learner's step alone (fit_cycle_teeth from the initial state's learner), against the simulator's
+    # true tooth errors: no monitor runs there (design note 60)
+    "bench/tooth_learner_steps.py": "the tooth fit's learner step alone, cycle by cycle (no monitor)",
+    "tests/core/test_tooth_learner_steps.py": "the tooth fit's learner step alone, cycle by cycle (no monitor)",
 }
 
 
