@@ -67,7 +67,15 @@ from frictionwatch.core.discrepancy.features import (
     noise_scale,
 )
 from frictionwatch.core.discrepancy.fit import Evaluator, Trial, linearise, polish, refine, with_fit
-from frictionwatch.core.discrepancy.laws import CONSTANT, constant_fit, fit_law, law_change, point_balance, rivals
+from frictionwatch.core.discrepancy.laws import (
+    CONSTANT,
+    constant_fit,
+    fit_law,
+    law_change,
+    point_balance,
+    rivals,
+    speed_against_balance,
+)
 from frictionwatch.core.discrepancy.pair import tdc_and_friction
 from frictionwatch.core.discrepancy.pressure_channel import (
     pressure_findings,
@@ -399,6 +407,9 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
                                                                         model.spec.n_cyl) or off_physics(t)
                or unresolved(t, quiet) or within_model_error(quiet and opt.floored_when_quiet, floored_fall,
                                                               opt.min_delta_chi2))
+        if not why:  # a friction law on a log of several points: the balance across them must agree (note 62)
+            why, spent = _law_against_balance(t, current, cur_res, full, parts)
+            runs += spent
         if why:  # significant, but it makes something else worse or is not physical: the model stays as it was
             found.refused.append({"candidate": t.candidate.label, "reason": why,
                                   "gap_before": g_cur, "gap_after": gap(test_new, scale),
@@ -423,6 +434,25 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     found.final = localise(test, model.spec, scale)
     found.evaluations = runs
     return found
+
+
+def _law_against_balance(t: Trial, current: EngineModel, cur_res: Residuals, full, parts) -> tuple[str, int]:
+    """Why a friction law sized by the speed steps is refused on a log of several operating points: the same law
+    fitted to the training cycles' balance point by point (laws.py) reads another share (laws.speed_against_balance);
+    '' where it agrees, where the candidate is no friction law of one ``fraction`` or the log has one point. Refused,
+    nothing is named by the speed, and the balance across the points is asked next (``_laws_across_points``). Returns
+    the reason and the monitor runs spent (one: the law at fraction 1 over the log)."""
+    c = t.candidate
+    if c.params != ("fraction",) or not EFFECTS[c.effect].sized_at_reference:
+        return "", 0
+    base = point_balance(parts(cur_res)[0])
+    if base is None:
+        return "", 0
+    with_law = point_balance(parts(full(current.with_effect(make_effect(c.effect, {"fraction": 1.0}))))[0])
+    if with_law is None or with_law.mean.shape != base.mean.shape:
+        return "", 1
+    fit = fit_law(c.label, base, law_change(base, with_law), c.lo[0], c.hi[0])
+    return speed_against_balance(float(t.x[0]), float(t.sigma[0]), fit), 1
 
 
 def _laws_across_points(found: Discovery, current: EngineModel, cur_res: Residuals, test: Residuals, full, parts,

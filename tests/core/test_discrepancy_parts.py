@@ -514,3 +514,19 @@ def test_friction_laws_fitted_to_the_balance_point_by_point():
     np.testing.assert_allclose(twin.fraction, 0.5, rtol=1e-12)
     assert [f.label for f in rivals([const, law, wrong, twin])] == ["a", "c"]
     assert twin.chi2 - law.chi2 < AMBIGUOUS_CHI2
+
+def test_a_law_sized_by_the_speed_must_agree_with_the_balance_across_the_points():
+    """laws.speed_against_balance (design note 62): two measurements of one share, refused beyond 2 of their combined
+    sigma. k9k seed 2's Stribeck ring: the speed steps' 0.20 +- 0.066 against the balance's 0.907 +- 0.104 (5.7
+    sigma) is refused and says both; the same law at 0.916 +- 0.133 against 0.917 +- 0.115 agrees; 1 sigma short
+    of the bound and just past it; a balance that cannot see the law (infinite sigma) never refuses."""
+    from frictionwatch.core.discrepancy.laws import LawFit, speed_against_balance
+
+    balance = LawFit("stribeck_ring", 0.907, 0.104, 1.0, True)
+    why = speed_against_balance(0.20, 0.066, balance)
+    assert "0.907 +- 0.1" in why and "0.2 +- 0.066" in why
+    assert speed_against_balance(0.916, 0.133, LawFit("speed2", 0.917, 0.115, 1.0, True)) == ""
+    combined = float(np.hypot(0.1, 0.1))
+    assert speed_against_balance(1.0 - 1.99 * combined, 0.1, LawFit("x", 1.0, 0.1, 0.0, True)) == ""
+    assert speed_against_balance(1.0 - 2.01 * combined, 0.1, LawFit("x", 1.0, 0.1, 0.0, True)) != ""
+    assert speed_against_balance(0.2, 0.05, LawFit("cam", 1.0, float("inf"), 0.0, False)) == ""
