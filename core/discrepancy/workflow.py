@@ -442,17 +442,27 @@ def _law_against_balance(t: Trial, current: EngineModel, cur_res: Residuals, ful
     '' where it agrees, where the candidate is no friction law of one ``fraction`` or the log has one point. Refused,
     nothing is named by the speed, and the balance across the points is asked next (``_laws_across_points``). Returns
     the reason and the monitor runs spent (one: the law at fraction 1 over the log)."""
-    c = t.candidate
-    if c.params != ("fraction",) or not EFFECTS[c.effect].sized_at_reference:
+    if not _is_friction_law(t.candidate):
         return "", 0
     base = point_balance(parts(cur_res)[0])
     if base is None:
         return "", 0
+    fit = _balance_fit(t.candidate, current, base, full, parts)
+    return ("" if fit is None else speed_against_balance(float(t.x[0]), float(t.sigma[0]), fit)), 1
+
+
+def _is_friction_law(c) -> bool:
+    """A candidate of one ``fraction`` whose effect is sized at the reference operating point: a friction law."""
+    return c.params == ("fraction",) and EFFECTS[c.effect].sized_at_reference
+
+
+def _balance_fit(c, current: EngineModel, base, full, parts):
+    """laws.LawFit of friction law ``c`` to the training cycles' balance point by point (``base``, laws.PointBalance
+    of the current model): one run of the law at fraction 1 over the log; None where its points differ from base's."""
     with_law = point_balance(parts(full(current.with_effect(make_effect(c.effect, {"fraction": 1.0}))))[0])
     if with_law is None or with_law.mean.shape != base.mean.shape:
-        return "", 1
-    fit = fit_law(c.label, base, law_change(base, with_law), c.lo[0], c.hi[0])
-    return speed_against_balance(float(t.x[0]), float(t.sigma[0]), fit), 1
+        return None
+    return fit_law(c.label, base, law_change(base, with_law), c.lo[0], c.hi[0])
 
 
 def _laws_across_points(found: Discovery, current: EngineModel, cur_res: Residuals, test: Residuals, full, parts,
@@ -468,14 +478,9 @@ def _laws_across_points(found: Discovery, current: EngineModel, cur_res: Residua
     base = point_balance(parts(cur_res)[0])
     if base is None or point_balance(test) is None or not balance_residual(test)["significant"]:
         return current, test, cur_res, 0
-    laws = [c for c in candidate_library(current) if c.params == ("fraction",)
-            and EFFECTS[c.effect].sized_at_reference]
-    fits, runs = [], 0
-    for c in laws:
-        with_law = point_balance(parts(full(current.with_effect(make_effect(c.effect, {"fraction": 1.0}))))[0])
-        runs += 1
-        if with_law is not None and with_law.mean.shape == base.mean.shape:
-            fits.append((fit_law(c.label, base, law_change(base, with_law), c.lo[0], c.hi[0]), c))
+    laws = [c for c in candidate_library(current) if _is_friction_law(c)]
+    fits = [(f, c) for c in laws if (f := _balance_fit(c, current, base, full, parts)) is not None]
+    runs = len(laws)
     const = constant_fit(base)
     found.across_points = [{"label": f.label, "fraction": f.fraction, "sigma": f.sigma, "chi2": f.chi2,
                             "physical": f.physical} for f in [const, *(f for f, _ in fits)]]
