@@ -168,6 +168,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
                         "restarts": s.restarts,
                         "rpm_latest": None if whole is None else views.num(whole.rpm_mean),
                         "listener_drops": s.fanout.drops, "listener_errors": s.fanout.errors,
+                        "listener_left": s.fanout.left, "listener_waited_s": s.fanout.waited_s,
                         "session_errors": dict(s.session.errors), "alert_errors": s.alert_errors,
                         "sse_clients": sse.clients, "backlog": backlog(s), "store": store_stats(s)})
         return out
@@ -350,11 +351,14 @@ def store_stats(svc: EngineService) -> dict | None:
 
 
 def store_waiting(svc: EngineService) -> dict:
-    """Cycles kept for a store that is down (the store listener's backlog: 'degraded' while any wait) and lost."""
+    """Cycles kept for a store that is down (the store listener's backlog: 'degraded' while any wait) and lost; the
+    listener a replay faster than real time waits for now (not 'degraded': it loses nothing, it only runs slower)."""
     listener = svc.fanout.listener("store")
+    paced = {"paced_by_listener": svc.fanout.waiting_for}
     if listener is None:
-        return {"store_waiting_cycles": 0, "store_lost_cycles": 0}
-    return {"store_waiting_cycles": listener.backlog, "store_lost_cycles": int(listener.stats["lost_cycles"])}
+        return {"store_waiting_cycles": 0, "store_lost_cycles": 0, **paced}
+    return {"store_waiting_cycles": listener.backlog, "store_lost_cycles": int(listener.stats["lost_cycles"]),
+            **paced}
 
 
 def service(request: Request, engine_id: EngineId) -> EngineService:

@@ -41,6 +41,9 @@ class HealthEngine(_Open):
                                                      "back ('degraded' while any wait)")
     store_lost_cycles: int = Field(0, description="cycles the store never got (its backlog full, or a write that "
                                                   "failed twice)")
+    paced_by_listener: str | None = Field(None, description="a replay faster than real time waiting now for this "
+                                                        "listener's full queue (e.g. 'store'): it runs at that "
+                                                        "listener's pace and loses nothing; null: not waiting")
 
 
 class Health(_Open):
@@ -81,6 +84,10 @@ class EngineInfo(_Open):
                                      "looped replay's seam, where the cycle assembler starts again): not lost cycles")
     rpm_latest: float | None
     listener_drops: dict[str, int] = Field(description="events each fan-out listener lost to a full queue")
+    listener_left: dict[str, int] = Field(default_factory=dict, description="events a stop left undelivered, per "
+                                                                        "listener")
+    listener_waited_s: dict[str, float] = Field(default_factory=dict, description="seconds a replay faster than real "
+                                                "time waited for each listener's full queue (ran at its pace)")
     backlog: dict | None = Field(None, description="the monitor's lag as in /health's engine rows (queued_cycles, "
                                                    "behind_s, dropped_records, behind, ...)")
     store: dict[str, int] | None = Field(None, description="what the store listener wrote (cycles_written, "

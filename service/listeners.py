@@ -7,6 +7,7 @@
     fanout.drops, fanout.errors  # per listener name
     fanout.stop(timeout)         # each thread delivers what is queued within timeout, then the listener's stop()
     fanout.left                  # per listener: events given up at a stop (not queued by its deadline, or still queued)
+    fanout.waited_s, fanout.waiting_for  # seconds a waiting publisher spent on each listener; whom it waits for now
 
 A listener is any object with ``on_message_received(event)`` (python-can's name), optionally ``on_error(exc)``,
 ``stop()``, ``name`` and ``wants(event)``; a plain callable works too. ``wants`` is asked on the publishing thread
@@ -107,6 +108,10 @@ class _Worker:
         self.queue = _EventQueue(maxsize=queue_size)
         self.drops = 0
         self.left = 0  # events given up at a stop (Fanout.left)
+        # a waiting publisher's time on this listener's full queue (a replay paced by it), and when its current wait
+        # began (None: not waiting): written by the one publishing thread, read at a scrape
+        self.waited_s = 0.0
+        self.waiting_since: float | None = None
         self.errors: Counter[str] = Counter()
         self.delivered = 0
         self._stopping = threading.Event()
@@ -122,16 +127,21 @@ class _Worker:
         except queue.Full:
             if until is None:
                 return False
-        while self.thread.is_alive() and not self._abandon.is_set():
-            wait = min(WAIT_POLL_S, until() - time.monotonic())
-            if wait <= 0:
-                return False
-            try:
-                self.queue.put(event, timeout=wait)
-                return True
-            except queue.Full:
-                continue
-        return False
+        start = self.waiting_since = time.monotonic()
+        try:
+            while self.thread.is_alive() and not self._abandon.is_set():
+                wait = min(WAIT_POLL_S, until() - time.monotonic())
+                if wait <= 0:
+                    return False
+                try:
+                    self.queue.put(event, timeout=wait)
+                    return True
+                except queue.Full:
+                    continue
+            return False
+        finally:
+            self.waiting_since = None
+            self.waited_s += time.monotonic() - start
 
     def discard(self) -> int:
         """Empty the queue (nothing of it delivered); how many events it held."""
@@ -265,6 +275,19 @@ class Fanout:
         """Events each listener was not given because of a stop: a waiting publish's deadline passed, its queue
         still held them when the stop's time was up, or they came after it."""
         return {w.name: w.left for w in self._workers}
+
+    @property
+    def waited_s(self) -> dict[str, float]:
+        """Seconds a publisher that can wait (a replay faster than real time) has spent on each listener's full
+        queue: the replay ran at that listener's pace for so long (nothing lost: see ``publish``)."""
+        now = time.monotonic()
+        return {w.name: w.waited_s + (0.0 if (since := w.waiting_since) is None else now - since)
+                for w in self._workers}
+
+    @property
+    def waiting_for(self) -> str | None:
+        """The listener a publisher is waiting for now (its queue full), or None."""
+        return next((w.name for w in self._workers if w.waiting_since is not None), None)
 
     @property
     def errors(self) -> dict[str, int]:

@@ -9,6 +9,11 @@ in one process, or a test, never share series).
     frictionwatch_cycle_latency_seconds{engine}     histogram: the record completing a cycle read -> its result
     frictionwatch_cycle_to_api_seconds{engine}      histogram: a result -> visible to the API's routes
     frictionwatch_listener_drops_total{engine,listener}  events a full listener queue dropped
+    frictionwatch_listener_left_total{engine,listener}   events a stop left undelivered (EngineService.stop's line)
+    frictionwatch_listener_errors_total{engine,listener} events whose listener raised
+    frictionwatch_listener_queued_events{engine,listener}  gauge: events waiting in the listener's queue
+    frictionwatch_listener_waited_seconds_total{engine,listener}  seconds a replay faster than real time waited for
+                                                    the listener's full queue (it ran at that listener's pace)
     frictionwatch_sse_dropped_total                 events slow stream clients lost
     frictionwatch_ingest_queued_cycles{engine}      gauge: cycles of data waiting for the monitor (NaN before the first)
     frictionwatch_ingest_queued_seconds{engine}     gauge: acquisition seconds waiting
@@ -144,12 +149,24 @@ class _EngineCounters(Collector):
                                       labels=["engine", "reason"])
         drops = CounterMetricFamily("frictionwatch_listener_drops", "Events dropped by a full listener queue",
                                     labels=["engine", "listener"])
+        per_listener = {
+            "drops": drops,
+            "left": CounterMetricFamily("frictionwatch_listener_left", "Events a stop left undelivered",
+                                        labels=["engine", "listener"]),
+            "errors": CounterMetricFamily("frictionwatch_listener_errors", "Events whose listener raised",
+                                          labels=["engine", "listener"]),
+            "queued": GaugeMetricFamily("frictionwatch_listener_queued_events", "Events waiting in the listener's "
+                                        "queue", labels=["engine", "listener"]),
+            "waited_s": CounterMetricFamily("frictionwatch_listener_waited_seconds", "Seconds a replay faster than "
+                                            "real time waited for the listener's full queue",
+                                            labels=["engine", "listener"])}
         for e in self.engines():
             ok.add_metric([e.engine_id], e.cycles_ok)
             for reason, n in sorted(e.skipped.items()):
                 skipped.add_metric([e.engine_id, reason], n)
-            for name, n in e.fanout.drops.items():
-                drops.add_metric([e.engine_id, name], n)
+            for attr, family in per_listener.items():
+                for name, n in getattr(e.fanout, attr).items():
+                    family.add_metric([e.engine_id, name], n)
         stored = CounterMetricFamily("frictionwatch_store_cycles", "Cycles the store listener wrote, wrote late, "
                                      "lost", labels=["engine", "outcome"])
         waiting = GaugeMetricFamily("frictionwatch_store_backlog_cycles", "Cycles kept for a store that is down",
@@ -163,7 +180,7 @@ class _EngineCounters(Collector):
                 waiting.add_metric([e.engine_id], listener.backlog)
         sse = CounterMetricFamily("frictionwatch_sse_dropped", "Events lost to slow stream clients")
         sse.add_metric([], self.sse_dropped())
-        yield from (ok, skipped, drops, stored, waiting, sse)
+        yield from (ok, skipped, *per_listener.values(), stored, waiting, sse)
 
     def describe(self) -> Iterable[CounterMetricFamily]:
         return []

@@ -91,7 +91,8 @@ def test_the_smoothed_engine_fmep_moves_less_than_its_sigma(looped):
     from types import SimpleNamespace
 
     engine = SimpleNamespace(engine_id="demo", cycles_ok=0, skipped={}, state=SimpleNamespace(newest=None),
-                             fanout=SimpleNamespace(drops={}, listener=lambda name: None),
+                             fanout=SimpleNamespace(drops={}, left={}, errors={}, queued={}, waited_s={},
+                                                    listener=lambda name: None),
                              backlog=lambda: dict.fromkeys(("queued_cycles", "queued_s", "behind_s", "dropped_records",
                                                             "dropped_s"), 0.0))
     metrics = ServiceMetrics(lambda: [engine], lambda: 0)  # the gauges: the engine's newest result at scrape time

@@ -27,7 +27,7 @@ class FakeEngine:
     def __init__(self, engine_id: str) -> None:
         self.engine_id, self.cycles_ok, self.skipped = engine_id, 0, {}
         self.state = SimpleNamespace(newest=None)
-        self.fanout = SimpleNamespace(drops={}, listener=lambda name: None)
+        self.fanout = SimpleNamespace(drops={}, left={}, errors={}, queued={}, waited_s={}, listener=lambda name: None)
 
     def backlog(self) -> dict:
         return dict.fromkeys(("queued_cycles", "queued_s", "behind_s", "dropped_records", "dropped_s"), 0.0)

@@ -125,3 +125,37 @@ def test_the_api_never_waits_for_a_waiting_replay_and_its_events_keep_their_orde
     kinds = [(a["alert_id"], a["state"]) for e in stuck.got for a in e.alerts]
     assert kinds[:2] == [(1, "active"), (1, "acknowledged")], kinds
     assert svc.fanout.drops["stuck"] == 0
+
+
+def test_a_replay_waiting_for_a_listener_says_so_in_health_and_metrics():
+    """While a fast replay waits for a listener's full queue, /health names that listener (the replay runs at its
+    pace: 'ok', nothing lost) and /metrics counts the seconds waited; both go when the listener is released."""
+    from fastapi.testclient import TestClient
+    from frictionwatch.service.api import create_app
+    from prometheus_client.parser import text_string_to_metric_families
+
+    stuck = Stuck()
+    svc = demo_service(ENGINE, f"mcap:{DEMO}?loop=1", listeners=[stuck], queue_size=2)
+    assert not svc.session.realtime
+
+    def waited(client: TestClient) -> float:
+        fams = {f.name: f for f in text_string_to_metric_families(client.get("/metrics").text)}
+        return next(s.value for s in fams["frictionwatch_listener_waited_seconds"].samples
+                    if s.labels == {"engine": svc.engine_id, "listener": "stuck"} and s.name.endswith("_total"))
+
+    try:
+        with TestClient(create_app([svc])) as client:
+            assert wait_until(lambda: svc.fanout.waiting_for == "stuck", timeout=240)
+            first = waited(client)
+            time.sleep(0.3)
+            assert waited(client) >= first + 0.25  # the wait in progress counts, not only finished ones
+            row = client.get("/api/v1/health").json()["engines"][0]
+            assert row["paced_by_listener"] == "stuck"
+            info = client.get("/api/v1/engines").json()[0]
+            assert info["listener_waited_s"]["stuck"] >= 0.3 and info["listener_left"]["stuck"] == 0
+            stuck.release.set()
+            assert wait_until(lambda: svc.fanout.waiting_for is None, timeout=30)
+    finally:
+        stuck.release.set()
+        svc.stop()
+    assert svc.fanout.drops["stuck"] == 0
