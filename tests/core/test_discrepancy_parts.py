@@ -522,11 +522,11 @@ def test_a_law_sized_by_the_speed_must_agree_with_the_balance_across_the_points(
     of the bound and just past it; a balance that cannot see the law (infinite sigma) never refuses."""
     from frictionwatch.core.discrepancy.laws import LawFit, speed_against_balance
 
-    balance = LawFit("stribeck_ring", 0.907, 0.104, 1.0, True)
+    balance = LawFit("stribeck_ring", 0.907, 0.104, 1.0, True, 0.907)
     why = speed_against_balance(0.20, 0.066, balance)
     assert "0.907 +- 0.1" in why and "0.2 +- 0.066" in why
-    assert speed_against_balance(0.916, 0.133, LawFit("speed2", 0.917, 0.115, 1.0, True)) == ""
+    assert speed_against_balance(0.916, 0.133, LawFit("speed2", 0.917, 0.115, 1.0, True, 0.917)) == ""
     combined = float(np.hypot(0.1, 0.1))
-    assert speed_against_balance(1.0 - 1.99 * combined, 0.1, LawFit("x", 1.0, 0.1, 0.0, True)) == ""
-    assert speed_against_balance(1.0 - 2.01 * combined, 0.1, LawFit("x", 1.0, 0.1, 0.0, True)) != ""
-    assert speed_against_balance(0.2, 0.05, LawFit("cam", 1.0, float("inf"), 0.0, False)) == ""
+    assert speed_against_balance(1.0 - 1.99 * combined, 0.1, LawFit("x", 1.0, 0.1, 0.0, True, 1.0)) == ""
+    assert speed_against_balance(1.0 - 2.01 * combined, 0.1, LawFit("x", 1.0, 0.1, 0.0, True, 1.0)) != ""
+    assert speed_against_balance(0.2, 0.05, LawFit("cam", 1.0, float("inf"), 0.0, False, 1.0)) == ""
