@@ -101,6 +101,12 @@ def verdict(d) -> str:
     rest = d.remainder
     if d.steps:
         text = f"Found {named}"
+        for s in d.steps:  # issue 27's "never worse", on the plain gap too: a rise is said, not hidden (note 65)
+            if s.gap_after > s.gap_before:
+                text += (f" (with {s.effect.name} the plain held-out gap rises {s.gap_before:.2g} -> "
+                         f"{s.gap_after:.2g}" + ("" if s.floored_fall is None else
+                                                 f"; with the model-error floor allowed for its chi^2 falls by "
+                                                 f"{s.floored_fall:.3g}: inside the model's own error") + ")")
         if rest is not None:
             text += "; a discrepancy remains that no candidate explains (" + signature(rest) + ")"
     elif d.ambiguous:

@@ -528,7 +528,8 @@ def _laws_across_points(found: Discovery, current: EngineModel, cur_res: Residua
     found.ambiguous = None  # the balance across the points told what the speed's step could not
     found.steps.append(Step(None, new_model.effects[-1], gap(test, scale), gap(test_new, scale), chi2(test, scale),
                             chi2(test_new, scale), runner[0].label if runner else None, localise(test, spec, scale),
-                            localise(test_new, spec, scale), (), (reading,), "torque balance across points"))
+                            localise(test_new, spec, scale), (), (reading,), "torque balance across points",
+                            floored_fall=-grow))
     found.curves.append((f"+ {cand.label}", test_new.angles, test_new.speed.mean(axis=0)))
     return new_model, test_new, res, runs
 
