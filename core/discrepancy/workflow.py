@@ -503,7 +503,7 @@ def _laws_across_points(found: Discovery, current: EngineModel, cur_res: Residua
     fit, cand = next((f, c) for f, c in fits if f is close[0])
     if speed_law is not None and cand.label != speed_law:  # the speed named one law, the balance another: said
         found.ambiguous = {"candidates": [f"{speed_law} (by the speed)", f"{cand.label} (by the torque balance)"],
-                           "separated_by": [ACROSS_POINTS_SEPARATION], "inside_floor": None}
+                           "separated_by": [ACROSS_POINTS_SEPARATION], "inside_floor": None, "channels": True}
         return current, test, cur_res, runs
     new_model = current.with_effect(make_effect(cand.effect, {"fraction": fit.fraction}, {"fraction": fit.sigma}))
     res = full(new_model)

@@ -521,3 +521,4 @@ def test_a_law_the_speed_and_the_balance_read_apart_is_not_named_but_said_both()
     assert doc["ambiguous"]["candidates"] == ["side_thrust_skirt (by the speed)", "stribeck_ring (by the torque balance)"]
     refused = [r for r in doc["refused"] if r["candidate"] == "side_thrust_skirt"]
     assert len(refused) == 1 and "torque balance across the operating points" in refused[0]["reason"]
+    assert "the channels disagree: side_thrust_skirt (by the speed) and stribeck_ring" in doc["verdict"]
