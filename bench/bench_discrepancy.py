@@ -425,6 +425,44 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def balance_across_points(seeds: tuple[int, ...]) -> dict:
+    """The balance's model error at each point of a healthy two-point log (the matrix's two-point log: dyno engines
+    at their point 1, the grid genset at point 0, TWO_POINT_CYCLES cycles, nothing hidden): each point's mean balance
+    residual over its measured friction in the training and the held-out half (the workflow's split, Options()), as
+    laws.point_balance reads them; the figure is the largest, x 1.5, rounded up (as NULL_BALANCE from one-point
+    logs). Tune on seeds no matrix runs (SEEDS and the stored s3 rows validate; design note 65)."""
+    import numpy as np
+    from frictionwatch.core.discrepancy.residuals import pinned_config, run_model
+    from frictionwatch.core.model.view import reference
+    from frictionwatch.core.tuned import round_up
+
+    opt, rows = Options(), []
+    for engine in ENGINES:
+        p = 0 if load_engine(engine).load.kind == "grid" else 1
+        rpm, load = ENGINES[engine]["points"][p]
+        for seed in seeds:
+            model, cycles = cycles_of(rpm, load, TWO_POINT_CYCLES, seed, [], "default", engine, None,
+                                      two_point_steps(engine, p))
+            res = run_model(model, reference(cycles), pinned_config(), cycles)
+            split = opt.warmup + (len(cycles) - opt.warmup) // 2
+            first, held = cycles[opt.warmup].index, cycles[split].index
+            for half, mask in (("train", (res.index >= first) & (res.index < held)), ("held", res.index >= held)):
+                part = res.take(mask)
+                for g in np.unique(part.group if part.group is not None else [0]):
+                    i = np.flatnonzero(part.group == g) if part.group is not None else np.arange(part.n_cycles)
+                    ok = i[np.isfinite(part.balance[i]) & np.isfinite(part.friction[i])]
+                    if g < 0 or ok.size < 2:
+                        continue
+                    b, f = float(np.mean(part.balance[ok])), float(np.mean(part.friction[ok]))
+                    rows.append({"case": f"{engine} {rpm:.0f} rpm {load:g} seed {seed}", "half": half,
+                                 "rpm": float(np.mean(part.omega[ok])) * 30.0 / np.pi, "balance_nm": b,
+                                 "friction_nm": f, "ratio": abs(b) / f})
+                    print(json.dumps(rows[-1]), flush=True)
+    worst = max(r["ratio"] for r in rows)
+    return {"rows": rows, "largest_ratio": worst, "figure": round_up(1.5 * worst),
+            "on": sorted({r["case"] for r in rows})}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--matrix", action="store_true")
@@ -439,7 +477,16 @@ def main() -> int:
     ap.add_argument("--summarise", type=Path, nargs="+", help="recompute the totals of saved --matrix outputs "
                     "(their rows, judged again by today's rule: rows need 'checks' to be re-judged as they are)")
     ap.add_argument("--table", type=Path, nargs="+", help="print saved --matrix outputs as one markdown table")
+    ap.add_argument("--balance-across-points", type=int, nargs="+", metavar="SEED",
+                    help="the balance's model error at the points of healthy two-point logs of these seeds "
+                         "(laws.NULL_BALANCE_POINTS' figure)")
     args = ap.parse_args()
+    if args.balance_across_points:
+        doc = balance_across_points(tuple(args.balance_across_points))
+        if args.out:
+            args.out.write_text(json.dumps(doc, indent=1))
+        print(json.dumps({k: v for k, v in doc.items() if k != "rows"}, indent=1))
+        return 0
     if args.table:
         print(table([r for path in args.table for r in json.loads(path.read_text())["rows"]]))
         return 0

@@ -101,6 +101,12 @@ def verdict(d) -> str:
     rest = d.remainder
     if d.steps:
         text = f"Found {named}"
+        for s in d.steps:  # issue 27's "never worse", on the plain gap too: a rise is said, not hidden (note 65)
+            if s.gap_after > s.gap_before:
+                text += (f" (with {s.effect.name} the plain held-out gap rises {s.gap_before:.2g} -> "
+                         f"{s.gap_after:.2g}" + ("" if s.floored_fall is None else
+                                                 f"; with the model-error floor allowed for its chi^2 falls by "
+                                                 f"{s.floored_fall:.3g}: inside the model's own error") + ")")
         if rest is not None:
             text += "; a discrepancy remains that no candidate explains (" + signature(rest) + ")"
     elif d.ambiguous:
@@ -135,6 +141,9 @@ def verdict(d) -> str:
     elif a and len(a["candidates"]) == 1:  # one effect, its cylinder not told
         text += (f"; {a['candidates'][0]} explains the rest, but the speed cannot tell which, so it was not "
                  "added" + (f": {'; or '.join(a['separated_by'])} would tell" if a["separated_by"] else ""))
+    elif a and a.get("channels"):  # two channels, two explanations (workflow._laws_across_points; note 65)
+        text += (f"; the channels disagree: {' and '.join(a['candidates'])}, and neither was added"
+                 + (f": {'; or '.join(a['separated_by'])} would tell them apart" if a["separated_by"] else ""))
     elif a:
         text += (f"; {' and '.join(a['candidates'])} explain the rest equally well and neither was added"
                  + (f": {'; or '.join(a['separated_by'])} would tell them apart" if a["separated_by"] else ""))

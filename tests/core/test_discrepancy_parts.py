@@ -127,6 +127,29 @@ def test_a_found_parameters_sigma_carries_the_model_error_floor_that_more_cycles
     assert stated.min() > 2.0 * np.sqrt(np.diag(np.linalg.inv(jac.T @ jac))).max()  # the floor dominates at 200
 
 
+def test_a_parameter_fitted_over_several_points_carries_each_points_own_model_error():
+    """Two operating points, 60 cycles each, a linear one-parameter model whose sensitivity turns between them (at the
+    second point -0.8 of the first's, plus its own part); each point's coherent error drawn at its own floor, apart
+    from the other's. The spread of the fitted parameter over 4000 draws is what parameter_sigma states with the
+    points (rtol 0.08); one error shared by every cycle (no points, the floors' rms) states less than half of it --
+    the sensitivities cancel in the sum (design note 65)."""
+    rng = np.random.default_rng(11)
+    f, n = 8, 60
+    j1 = rng.standard_normal(f)
+    j2 = -0.8 * j1 + 0.3 * rng.standard_normal(f)
+    jac = np.concatenate([np.tile(j1, n), np.tile(j2, n)])[:, None]
+    floors = (np.full(f, 0.9), np.full(f, 0.5))
+    rows = (np.arange(2 * n) < n, np.arange(2 * n) >= n)
+    a = (np.linalg.pinv(jac.T @ jac) @ jac.T)[0]
+    e1, e2 = rng.standard_normal((4000, f)) * floors[0], rng.standard_normal((4000, f)) * floors[1]
+    fitted = (np.concatenate([np.tile(e1, (1, n)), np.tile(e2, (1, n))], axis=1)
+              + rng.standard_normal((4000, 2 * n * f))) @ a
+    stated = parameter_sigma(jac, 2 * n, float(2 * n * f - 1), np.zeros(f), points=list(zip(rows, floors)))
+    np.testing.assert_allclose(stated, fitted.std(), rtol=0.08)
+    shared = parameter_sigma(jac, 2 * n, float(2 * n * f - 1), np.sqrt((floors[0] ** 2 + floors[1] ** 2) / 2.0))
+    assert shared[0] < 0.5 * fitted.std()
+
+
 def test_what_a_fit_leaves_coherent_counts_as_model_error_in_its_parameters_sigma():
     """The coherent residual after a fit (the same in every cycle, here 0.7 in every feature on top of unit noise)
     enters a found parameter's sigma as a floor of its own size would (rtol 0.05: the noise correction of the
@@ -522,11 +545,45 @@ def test_a_law_sized_by_the_speed_must_agree_with_the_balance_across_the_points(
     of the bound and just past it; a balance that cannot see the law (infinite sigma) never refuses."""
     from frictionwatch.core.discrepancy.laws import LawFit, speed_against_balance
 
-    balance = LawFit("stribeck_ring", 0.907, 0.104, 1.0, True)
+    balance = LawFit("stribeck_ring", 0.907, 0.104, 1.0, True, 0.907)
     why = speed_against_balance(0.20, 0.066, balance)
     assert "0.907 +- 0.1" in why and "0.2 +- 0.066" in why
-    assert speed_against_balance(0.916, 0.133, LawFit("speed2", 0.917, 0.115, 1.0, True)) == ""
+    assert speed_against_balance(0.916, 0.133, LawFit("speed2", 0.917, 0.115, 1.0, True, 0.917)) == ""
     combined = float(np.hypot(0.1, 0.1))
-    assert speed_against_balance(1.0 - 1.99 * combined, 0.1, LawFit("x", 1.0, 0.1, 0.0, True)) == ""
-    assert speed_against_balance(1.0 - 2.01 * combined, 0.1, LawFit("x", 1.0, 0.1, 0.0, True)) != ""
-    assert speed_against_balance(0.2, 0.05, LawFit("cam", 1.0, float("inf"), 0.0, False)) == ""
+    assert speed_against_balance(1.0 - 1.99 * combined, 0.1, LawFit("x", 1.0, 0.1, 0.0, True, 1.0)) == ""
+    assert speed_against_balance(1.0 - 2.01 * combined, 0.1, LawFit("x", 1.0, 0.1, 0.0, True, 1.0)) != ""
+    assert speed_against_balance(0.2, 0.05, LawFit("cam", 1.0, float("inf"), 0.0, False, 1.0)) == ""
+
+
+def test_the_balance_is_read_at_its_free_share_not_the_one_clipped_to_the_range():
+    """maruti 4000/0.8 <-> 1500/0.5 seed 2's side-thrust skirt (design note 65): the balance reads the law at 1.68 +-
+    0.19, beyond its range [0, 1]; clipped to 1.0 it agreed with the speed's 0.71 +- 0.12 (0.29 < 2 x 0.22), free it
+    does not (0.97 > 0.45), and the reason gives the free share."""
+    from frictionwatch.core.discrepancy.laws import PointBalance, fit_law, speed_against_balance
+
+    points = PointBalance(np.array([0.82, -0.046]), np.array([0.093, 0.156]) ** 2, np.array([157.7, 417.6]),
+                          np.array([30.0, 50.0]))
+    law = fit_law("side_thrust_skirt", points, np.array([-0.49, 0.0]), 0.0, 1.0)
+    assert law.fraction == 1.0 and not law.physical
+    np.testing.assert_allclose(law.free, 0.82 / 0.49, rtol=1e-12)
+    why = speed_against_balance(0.71, 0.12, law)
+    assert why and f"{law.free:.3g}" in why
+
+
+def test_a_named_step_that_raises_the_plain_held_out_gap_says_so():
+    """Issue 27's "never worse" read on the plain gap too (design note 65): a step accepted because its chi^2 with the
+    model-error floor falls (the laws step; k9k 3000/0.9 <-> 1800/0.6 seed 2's Stribeck ring, plain gap 4.63 -> 6.19)
+    says the rise in the verdict with the floored fall beside it; a step whose plain gap falls says nothing of it."""
+    from types import SimpleNamespace
+
+    from frictionwatch.core.discrepancy.words import verdict
+    from frictionwatch.core.model.effects import make_effect
+
+    ring = make_effect("stribeck_ring", {"fraction": 0.906}, {"fraction": 0.104})
+    step = SimpleNamespace(effects=(ring,), effect=ring, gap_before=4.63, gap_after=6.19, floored_fall=12.5)
+    d = SimpleNamespace(steps=[step], remainder=None, ambiguous=None, within_null_fits=[], one_operating_point=False,
+                        one_speed=False, refused=[], step_limit_reached=False)
+    text = verdict(d)
+    assert "the plain held-out gap rises 4.6 -> 6.2" in text and "falls by 12.5" in text
+    d.steps = [SimpleNamespace(effects=(ring,), effect=ring, gap_before=6.19, gap_after=4.63, floored_fall=None)]
+    assert "rises" not in verdict(d)
