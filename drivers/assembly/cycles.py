@@ -146,9 +146,6 @@ class CycleAssembler(EpochSync):
         self._win = (0, 0)
         self._discard_every = 2 * self.wheel.t  # tooth edges between two discards: a cycle's (design note 64)
         self._cam_rad = math.radians(info.cam_deg) if info.cam_deg is not None else math.nan  # stated cam angle
-        self._filers = {ToothBatch: self._feed_teeth, PressureFrame: self._feed_frame, LoadSample: self._feed_load,
-                        PressureBlock: self._feed_block, CamBatch: self._feed_cam,
-                        FreeEndToothBatch: self._feed_second_wheel}
 
     # ---- input ------------------------------------------------------------------------------------------------
     def number_from(self, first_index: int) -> None:
@@ -163,14 +160,14 @@ class CycleAssembler(EpochSync):
 
     def feed(self, record: StreamRecord) -> list[Cycle]:
         """File one record and return the cycles it completed (possibly none)."""
-        filer = self._filers.get(type(record))  # one look-up instead of a chain of isinstance (~19 records a cycle)
+        filer = self._FILERS.get(type(record))  # one look-up instead of a chain of isinstance (~19 records a cycle)
         if filer is None:
             filer = self._filer_of(record)
-        return filer(record)
+        return filer(self, record)
 
     def _filer_of(self, record: StreamRecord):
         """The filer of a record whose type is not one of the six itself (a subclass), or TypeError."""
-        for kind, filer in self._filers.items():
+        for kind, filer in self._FILERS.items():
             if isinstance(record, kind):
                 return filer
         raise TypeError(f"not a stream record: {type(record).__name__}")
@@ -232,6 +229,11 @@ class CycleAssembler(EpochSync):
         """A second wheel: TwoWheelAssembler cuts it, not this one."""
         self.stats["second_wheel_ignored"] += 1
         return []
+
+    # the filer of each record type (functions, not bound methods: a table of bound methods on the instance would be
+    # a reference cycle, leaving every finished assembler with its rings to the cyclic garbage collector)
+    _FILERS = {ToothBatch: _feed_teeth, PressureFrame: _feed_frame, LoadSample: _feed_load, PressureBlock: _feed_block,
+               CamBatch: _feed_cam, FreeEndToothBatch: _feed_second_wheel}
 
     def _pressure_until(self, t0: float, end: int) -> None:
         if end - t0 > self.wait_ticks:
