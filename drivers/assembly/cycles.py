@@ -144,7 +144,7 @@ class CycleAssembler(EpochSync):
         self._phase_expected = self.phase_cyl in info.pressure_cylinders  # else: ask expected_cylinders
         self._win_h2: int | None = None  # the last wheel window asked for (EpochSync._window) and its answer
         self._win = (0, 0)
-        self._discard_every = self.wheel.n // 4  # tooth edges between two discards
+        self._discard_every = 2 * self.wheel.t  # tooth edges between two discards: a cycle's (design note 64)
         self._cam_rad = math.radians(info.cam_deg) if info.cam_deg is not None else math.nan  # stated cam angle
 
     # ---- input ------------------------------------------------------------------------------------------------
@@ -160,50 +160,86 @@ class CycleAssembler(EpochSync):
 
     def feed(self, record: StreamRecord) -> list[Cycle]:
         """File one record and return the cycles it completed (possibly none)."""
-        if isinstance(record, ToothBatch):
-            t = record.ticks
-            if len(t) == 0:
-                return []
-            last = self.buf.teeth.last("t")
-            if last is not None and int(t[0]) < last - self.wait_ticks:
-                self._clock_reset()
-            self.buf.add(record)
-            self._now = max(self._now, int(t[-1]))
-            self._run_tracker()
+        filer = self._FILERS.get(type(record))  # one look-up instead of a chain of isinstance (~19 records a cycle)
+        if filer is None:
+            filer = self._filer_of(record)
+        return filer(self, record)
+
+    def _filer_of(self, record: StreamRecord):
+        """The filer of a record whose type is not one of the six itself (a subclass), or TypeError."""
+        for kind, filer in self._FILERS.items():
+            if isinstance(record, kind):
+                return filer
+        raise TypeError(f"not a stream record: {type(record).__name__}")
+
+    def _feed_teeth(self, record: ToothBatch) -> list[Cycle]:
+        t = record.ticks
+        if len(t) == 0:
+            return []
+        last = self.buf.teeth.last("t")
+        if last is not None and int(t[0]) < last - self.wait_ticks:
+            self._clock_reset()
+        self.buf.add(record)
+        self._now = max(self._now, int(t[-1]))
+        self._run_tracker()
+        return self._advance(flushing=False)
+
+    def _feed_load(self, record: LoadSample) -> list[Cycle]:
+        """~8 a cycle: only a cycle waiting for its load can move."""
+        accepted = self.buf.add_load(record)
+        t = int(record.ticks)
+        if t > self._now:
+            self._now = t
+        if accepted:
+            self._load_newest = t
+            if self._waiting_for == _LOAD and self._pending:
+                return self._emit(flushing=False)
+        return []
+
+    def _feed_frame(self, record: PressureFrame) -> list[Cycle]:
+        """An indicating system: all cylinders in one record."""
+        if self.buf.add_frame(record):
+            v = record.values
+            n = v.shape[-1] if type(v) is np.ndarray else np.shape(v)[-1]
+            self._pressure_until(record.t0_ticks, int(record.t0_ticks + record.period_ticks * (n - 1)))
+        if self._epoch is not None and self._epoch.phase is None:  # a waiting phase decision can move
             return self._advance(flushing=False)
-        if isinstance(record, LoadSample):  # ~8 per cycle: only a cycle waiting for its load can move
-            accepted = self.buf.add_load(record)
-            t = int(record.ticks)
-            self._now = max(self._now, t)
-            if accepted:
-                self._load_newest = t
-                if self._waiting_for == _LOAD and self._pending:
-                    return self._emit(flushing=False)
-            return []
-        if isinstance(record, PressureFrame):  # an indicating system: all cylinders in one record
-            if self.buf.add_frame(record):
-                end = int(record.t0_ticks + record.period_ticks * (np.shape(record.values)[-1] - 1))
-                self._long_record(record.t0_ticks, end)
-                self._now = max(self._now, end)
-        elif isinstance(record, PressureBlock):  # CAN / DAQ: tens of blocks per cycle
-            if self.buf.add_pressure(record):
-                end = int(record.t0_ticks + record.period_ticks * (len(record.values) - 1))
-                self._long_record(record.t0_ticks, end)
-                self._now = max(self._now, end)
-        elif isinstance(record, CamBatch):
-            self.buf.add(record)
-        elif isinstance(record, FreeEndToothBatch):  # a second wheel: TwoWheelAssembler cuts it, not this one
-            self.stats["second_wheel_ignored"] += 1
-            return []
-        else:
-            raise TypeError(f"not a stream record: {type(record).__name__}")
-        # pressure or cam: only a waiting phase decision or a cycle waiting for its pressure can move
+        cyls = record.cylinders
+        if self._pending and self._waiting_for in (cyls if type(cyls) is tuple else tuple(cyls)):
+            return self._emit(flushing=False)
+        return []  # the head cycle waits for another cylinder's pressure
+
+    def _feed_block(self, record: PressureBlock) -> list[Cycle]:
+        """CAN / DAQ: tens of blocks a cycle."""
+        if self.buf.add_pressure(record):
+            self._pressure_until(record.t0_ticks, int(record.t0_ticks + record.period_ticks * (len(record.values) - 1)))
         if self._epoch is not None and self._epoch.phase is None:
             return self._advance(flushing=False)
-        if not self._pending or (isinstance(record, PressureBlock) and record.cylinder != self._waiting_for) \
-                or (isinstance(record, PressureFrame) and self._waiting_for not in tuple(record.cylinders)):
-            return []  # the head cycle waits for another cylinder's pressure
-        return self._emit(flushing=False)
+        if self._pending and record.cylinder == self._waiting_for:
+            return self._emit(flushing=False)
+        return []
+
+    def _feed_cam(self, record: CamBatch) -> list[Cycle]:
+        self.buf.add(record)
+        if self._epoch is not None and self._epoch.phase is None:
+            return self._advance(flushing=False)
+        return self._emit(flushing=False) if self._pending else []
+
+    def _feed_second_wheel(self, record: FreeEndToothBatch) -> list[Cycle]:
+        """A second wheel: TwoWheelAssembler cuts it, not this one."""
+        self.stats["second_wheel_ignored"] += 1
+        return []
+
+    # the filer of each record type (functions, not bound methods: a table of bound methods on the instance would be
+    # a reference cycle, leaving every finished assembler with its rings to the cyclic garbage collector)
+    _FILERS = {ToothBatch: _feed_teeth, PressureFrame: _feed_frame, LoadSample: _feed_load, PressureBlock: _feed_block,
+               CamBatch: _feed_cam, FreeEndToothBatch: _feed_second_wheel}
+
+    def _pressure_until(self, t0: float, end: int) -> None:
+        if end - t0 > self.wait_ticks:
+            self._long_record(t0, end)
+        if end > self._now:
+            self._now = end
 
     def _long_record(self, t0: float, end: int) -> None:
         """A pressure record spanning more than the pressure wait comes (keyed by its last sample) after the teeth
@@ -386,7 +422,8 @@ class CycleAssembler(EpochSync):
     # ---- housekeeping -------------------------------------------------------------------------------------------
     def _discard(self, force: bool = False) -> None:
         """Release ring rows nothing can need any more (so overflow counts only real losses). Runs when the
-        tooth ring has grown by a quarter of a revolution since the last time (it costs a few searches per ring)."""
+        tooth ring has grown by a cycle's edges since the last time (it costs a few searches per ring: once a cycle,
+        not once a tooth batch; the rings hold many cycles, so the later release loses nothing)."""
         teeth = self.buf.teeth
         start, end = teeth.start, teeth.end
         if not force and end - self._discarded_at < self._discard_every:

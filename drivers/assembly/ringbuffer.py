@@ -73,10 +73,16 @@ class RingBuffer:
         arrays (the load stream: a reading at a time)."""
         if len(values) != len(self.names):
             raise ValueError(f"expected {len(self.names)} values ({', '.join(self.names)}), got {len(values)}")
-        i, _ = self.reserve(1)
         cap = self.capacity
+        end = self.end
+        if end - self.start < cap:  # room for it: what reserve(1) does then, without the call
+            self.end = end + 1
+            i = end % cap
+        else:
+            i, _ = self.reserve(1)
+        cols = self.cols
         for name, v in zip(self.names, values):
-            col = self.cols[name]
+            col = cols[name]
             col[i] = col[i + cap] = v
 
     def extend_increasing(self, t: np.ndarray) -> bool:
