@@ -85,19 +85,18 @@ class Tap:
 
     def __init__(self):
         self.inner = identification.reported_estimate
-        self.inner_post = identification.shared_posteriors
+        self.inner_post = identification.posterior_from_normal
         self.calls = 0
+        self.post_calls = 0
         self.last: dict | None = None
         self.normal = None  # the smoothed posterior's accumulated equations, prior and budget
         self.m = 0  # harmonics of the flywheel's rows (set by the caller)
 
-    def posterior(self, accs, sys_vars, prior, cyl_rows, *rest):
-        """Wraps identification.shared_posteriors: the smoothed problem (the first of the pair) kept with its
-        prior's normal matrix, the Eq. 6 share rows included (as the kernel forms it)."""
-        out = self.inner_post(accs, sys_vars, prior, cyl_rows, *rest)
-        share_s = out[0][0]
-        self.normal = (accs[0], prior.with_share(cyl_rows, share_s)[0], np.asarray(sys_vars[0]))
-        return out
+    def posterior(self, acc, n_pr, r_pr, sys_var, lower):
+        self.post_calls += 1
+        if self.post_calls % 2 == 1:  # the smoothed posterior first, then the cycle's
+            self.normal = (acc, n_pr, np.asarray(sys_var))
+        return self.inner_post(acc, n_pr, r_pr, sys_var, lower)
 
     def sys_parts(self, rows: np.ndarray) -> dict:
         """Each cylinder's systematic variance split by raw-row group: the flywheel's speed rows, the free end's
@@ -151,7 +150,7 @@ def cmd_trace(args) -> None:
     spec = load_engine(TWO_WHEELS)
     tap = Tap()
     identification.reported_estimate = tap
-    identification.shared_posteriors = tap.posterior
+    identification.posterior_from_normal = tap.posterior
     names = args.variants
     # the pull check at another kappa (inf: off), bench only
     pull = {} if args.pull_kappa is None else {"pull_check": PullCheck(kappa=args.pull_kappa)}

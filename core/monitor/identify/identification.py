@@ -25,6 +25,7 @@ from frictionwatch.core.monitor.identify.accumulate import (
     CycleTerms,
     Posterior,
     ResidualStats,
+    posterior_from_normal,
 )
 from frictionwatch.core.monitor.identify.accumulate_kernels import cycle_step_kernel
 from frictionwatch.core.monitor.identify.estimate import (
@@ -36,8 +37,7 @@ from frictionwatch.core.monitor.identify.estimate import (
 from frictionwatch.core.monitor.identify.layout import CycleRows
 from frictionwatch.core.monitor.identify.noise_model import NoiseSettings, whitened_rows
 from frictionwatch.core.monitor.identify.pull_check import with_pull
-from frictionwatch.core.monitor.identify.shared_posterior import shared_posteriors
-from frictionwatch.core.monitor.identify.sharing import firing_mask, motored_friction_per_cylinder
+from frictionwatch.core.monitor.identify.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
 from frictionwatch.core.monitor.report.results import FrictionEstimate
 from frictionwatch.core.monitor.state import GridGeometry, MidSpeedFit, MonitorConfig, MonitorState, PreviousCycle
 from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion
@@ -373,14 +373,13 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     fire = firing_mask(t_i)
     pmax_motored = float(np.mean(pmax[~fire])) if not fire.all() else 0.0
     motored = motored_friction_per_cylinder(spec, fly.omega_mean * 60.0 / (2.0 * np.pi), pmax_motored)
+    share_s = share_mean_loss(bal_mean, ind_mean, motored, cfg.share_spread)
+    share_c = share_mean_loss(balance if math.isfinite(balance) else bal_mean, t_i, motored, cfg.share_spread)
     layout = state.layout
     cyl_rows = rows.cylinder_rows[:, :layout.n_params]  # the friction parameters' part
+    post_s = posterior_from_normal(acc, *state.prior.with_share(cyl_rows, share_s), budget, state.lower)
     acc_c = Accumulator.of_terms(terms)
-    # the smoothed problem: the running balance shared by the running indicated means; the cycle's: its own
-    (share_s, post_s), (share_c, post_c) = shared_posteriors(
-        (acc, acc_c), (budget, white.sys_var), state.prior, cyl_rows,
-        (bal_mean, balance if math.isfinite(balance) else bal_mean), (ind_mean, t_i), motored, cfg.share_spread,
-        state.lower)
+    post_c = posterior_from_normal(acc_c, *state.prior.with_share(cyl_rows, share_c), white.sys_var, state.lower)
     limits = ReportLimits(cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain)
     floor, bal_sigma = cfg.model_error_floor, math.sqrt(white.stats.balance_var)
     misfit = state.condition.misfit if state.condition is not None else 1.0  # the window up to the last cycle

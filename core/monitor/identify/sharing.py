@@ -109,11 +109,7 @@ def motored_friction_per_cylinder(spec: EngineSpec, rpm: float, pmax_motored_pa:
     return spec.mep_to_torque(fmep_bar * 1e5, cylinders=1)
 
 
-FIRING_FRACTION = 0.15  # of the median positive indicated work: a cylinder above it fires
-MOTORED_SPREAD = 0.3  # relative 1-sigma of a motored cylinder's T_fM,ml
-
-
-def firing_mask(indicated_mean: np.ndarray, fraction: float = FIRING_FRACTION) -> np.ndarray:
+def firing_mask(indicated_mean: np.ndarray, fraction: float = 0.15) -> np.ndarray:
     """True for cylinders that fire: indicated work above ``fraction`` of the median of the positive ones."""
     t = np.ascontiguousarray(indicated_mean, dtype=np.float64)
     return firing_kernel(t.reshape(-1), float(fraction)).reshape(t.shape)
@@ -124,8 +120,8 @@ def share_mean_loss(
     indicated_mean: np.ndarray,
     motored_friction: float,
     spread: float = 0.15,
-    motored_spread: float = MOTORED_SPREAD,
-    fraction: float = FIRING_FRACTION,
+    motored_spread: float = 0.3,
+    fraction: float = 0.15,
 ) -> SharedLoss:
     """Eq. 6 shares of ``friction_total`` T_fM [N m] by the per-cylinder indicated torques T_iM^k (z,) [N m].
 
