@@ -9,12 +9,12 @@ accumulated normal equations (no prior, no bound) and its statistical sigma sqrt
 the same equations lead the estimate; the sandwich's flywheel systematic sigma with the stated per-row budget C
 (independent rows: sqrt(sum h^2 C)) and the same C taken coherent over the rows (sum |h| sqrt(C): one physical error
 common to every harmonic); how many of the flywheel's harmonics have a budget above the 0.3 %-of-the-harmonic floor
-(``identification.speed_budget``: the persistent residual at the estimate seen), and the five raw rows that carry
-most of the cylinder's systematic part (row j < M: the real part of half order (j + 1) / 2, j >= M: its imaginary);
-at the preset's coefficients (every friction scale 1, as the plant has them; the nuisances at their best given
-those) the cylinder's figure against the truth (a check that the truth is there) and the data-only point's offset
-from it; with ``--split`` that offset split exactly by raw row (per half order, the mean balance's row, the rest).
-The monitor is wrapped here (bench only); nothing in it changes.
+(``identification.accumulate_cycle``'s budget: the persistent residual at the estimate seen), and the five raw
+rows that carry most of the cylinder's systematic part (row j < M: the real part of half order (j + 1) / 2,
+j >= M: its imaginary); at the preset's coefficients (every friction scale 1, as the plant has them; the nuisances
+at their best given those) the cylinder's figure against the truth (a check that the truth is there) and the
+data-only point's offset from it; with ``--split`` that offset split exactly by raw row (per half order, the mean
+balance's row, the rest). The monitor is wrapped here (bench only); nothing in it changes.
 """
 
 from __future__ import annotations
@@ -40,15 +40,16 @@ class PullTap(Tap):
 
     def __init__(self):
         super().__init__()
-        self.inner_budget = identification.speed_budget
+        self.inner_step = identification.accumulate_cycle
         self.budget_seen: dict = {}
 
-    def budget(self, acc, params, white, model_rel_error, harmonics):
-        out = self.inner_budget(acc, params, white, model_rel_error, harmonics)
+    def budget(self, acc, white, forgetting, fold, params, model_rel_error, harmonics):
+        """Wraps identification.accumulate_cycle (the budget is its third output)."""
+        terms, acc, out = self.inner_step(acc, white, forgetting, fold, params, model_rel_error, harmonics)
         m = white.freq.shape[0]
         e = model_rel_error * white.freq * np.abs(harmonics)
         self.budget_seen = {"floor": e * e / 2.0, "budget": out[:m].copy()}
-        return out
+        return terms, acc, out
 
     def __call__(self, spec, layout, post, basis_mean, prior_mean, limits, cyl_rows, *rest):
         est = super().__call__(spec, layout, post, basis_mean, prior_mean, limits, cyl_rows, *rest)
@@ -156,8 +157,8 @@ def main() -> None:
     log_path = Path(args.log)
     truth_all = np.load(log_path.with_name(log_path.name.removesuffix(".mcap") + ".truth.npz"))["friction"]
     tap = PullTap()
-    identification.reported_estimate, identification.posterior_from_normal = tap, tap.posterior
-    identification.speed_budget = tap.budget
+    identification.reported_estimate, identification.shared_posteriors = tap, tap.posterior
+    identification.accumulate_cycle = tap.budget
     sums = RowSums() if args.split else None
     if sums is not None:
         sums.install()

@@ -10,7 +10,7 @@ the largest entry (a few roundings of a 49-term sum), and exactly symmetric.
 import numpy as np
 import pytest
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, CycleTerms
-from frictionwatch.core.monitor.identify.accumulate_kernels import cycle_terms_kernel, fold_raw_kernel
+from frictionwatch.core.monitor.identify.accumulate_kernels import cycle_terms_kernel
 from numpy.testing import assert_allclose, assert_array_equal
 
 SIZES = {"genset-v20": (49, 47), "k9k-4cyl": (47, 29), "deutz-1cyl": (47, 28)}
@@ -134,9 +134,10 @@ def test_bad_shapes_raise():
 
 
 @pytest.mark.parametrize("engine", sorted(SIZES))
-def test_fold_with_raw_rows_in_one_kernel_matches_numpy_bit_for_bit(engine):
-    """The monitor's fold (raw rows kept: ``fold_raw_kernel``) against numpy's raw sums lam * old + new and the
-    general path (Fortran-ordered raw rows take it), over cycles; bad raw shapes still raise."""
+def test_fold_with_raw_rows_matches_numpy_bit_for_bit(engine):
+    """The fold with raw rows kept: numpy's raw sums lam * old + new, the same for Fortran-ordered raw rows, over
+    cycles; bad raw shapes raise. (The monitor's every cycle folds in accumulate_kernels.cycle_step_kernel:
+    tests/core/test_identify_fused.py.)"""
     r, p = SIZES[engine]
     rng = np.random.default_rng(r + p)
     acc = Accumulator.empty(p, r)
@@ -156,18 +157,3 @@ def test_fold_with_raw_rows_in_one_kernel_matches_numpy_bit_for_bit(engine):
         acc = new
     with pytest.raises(ValueError):
         acc.fold(terms, 0.99, (raw[0][:-1], raw[1][:-1]))
-
-
-def test_the_monitor_fold_takes_the_one_kernel():
-    """The accumulator's own arrays and C-ordered raw rows are what ``fold_raw_kernel`` accepts (a TypeError there
-    would send every cycle down the general path unseen)."""
-    r, p = SIZES["k9k-4cyl"]
-    rng = np.random.default_rng(1)
-    a, y, inv_sigma = _rows(rng, r, p)
-    acc = Accumulator.empty(p, r)
-    terms = acc.cycle_terms(a, y, inv_sigma, 1)
-    acc = acc.fold(terms, 0.99, (a, y))
-    out = fold_raw_kernel(0.99, acc.info, acc.rhs, acc.sys_map, acc.info_reference, terms.info, terms.rhs,
-                          terms.sys_map, terms.info_reference, (acc.raw_rows, acc.raw_target), (a, y))
-    assert out[0]
-    assert_array_equal(out[5], 0.99 * acc.raw_rows + a)

@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg.lapack
-from frictionwatch.core.monitor.identify.accumulate_kernels import cycle_terms_kernel, fold_kernel, fold_raw_kernel
+from frictionwatch.core.monitor.identify.accumulate_kernels import cycle_terms_kernel, fold_kernel
 from frictionwatch.core.monitor.identify.layout import bounded_solve_nnls
 from frictionwatch.core.monitor.identify.posterior_kernels import (
     BAD_SHAPE,
@@ -105,17 +105,6 @@ class Accumulator:
         lam = float(forgetting)
         if not 0.0 <= lam <= 1.0:
             raise ValueError(f"forgetting factor must be in [0, 1], got {lam}")
-        if raw is not None and self.raw_rows is not None and self.raw_target is not None:
-            try:  # the monitor's every cycle: all six sums in one kernel on the arrays as they are (no copies)
-                ok, info, rhs, sys_map, ref, raw_rows, raw_target = fold_raw_kernel(
-                    lam, self.info, self.rhs, self.sys_map, self.info_reference, terms.info, terms.rhs,
-                    terms.sys_map, terms.info_reference, (self.raw_rows, self.raw_target), (raw[0], raw[1]))
-            except TypeError:  # another dtype or layout: the general path below converts
-                ok = False
-            if ok:
-                return Accumulator(info, rhs, lam * self.yty + terms.yty, lam * self.weight + 1.0,
-                                   lam * self.rows + terms.rows, sys_map, ref, raw_rows, raw_target,
-                                   lam * self.raw_weight + 1.0)
         ok, info, rhs, sys_map, ref = fold_kernel(
             lam, *(np.ascontiguousarray(x, dtype=np.float64) for x in (
                 self.info, self.rhs, self.sys_map, self.info_reference, terms.info, terms.rhs, terms.sys_map,

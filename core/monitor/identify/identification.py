@@ -20,7 +20,14 @@ from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.indicated import piston_positions, tdc_centres, window_starts, works_with_alone
 from frictionwatch.core.model.kinematics import cylinder_kinematics_kernel, kinematics
 from frictionwatch.core.monitor.balance.excitation import Excitation
-from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterior, ResidualStats, posterior_from_normal
+from frictionwatch.core.monitor.identify.accumulate import (
+    Accumulator,
+    CycleTerms,
+    Posterior,
+    ResidualStats,
+    posterior_from_normal,
+)
+from frictionwatch.core.monitor.identify.accumulate_kernels import cycle_step_kernel
 from frictionwatch.core.monitor.identify.estimate import (
     BalanceCheck,
     CalibrationSensitivity,
@@ -202,6 +209,48 @@ def speed_budget(acc: Accumulator, params: np.ndarray, white, model_rel_error: f
     return sys_var
 
 
+def accumulate_cycle(acc: Accumulator, white, forgetting: float, fold: bool, params: np.ndarray,
+                     model_rel_error: float, harmonics: np.ndarray) -> tuple[CycleTerms, Accumulator, np.ndarray]:
+    """One cycle's accumulation step: (the cycle's terms (the last row, the mean balance, as the reference), the
+    accumulator after folding them in with ``forgetting`` and the raw rows when ``fold`` (else ``acc`` itself), the
+    speed rows' repeatable-error budget at ``params`` on that accumulator). One kernel call
+    (accumulate_kernels.cycle_step_kernel) where ``accumulate_cycle_reference`` makes four helper calls and builds
+    two records (design note 63); arrays of another dtype or layout, or shapes that do not fit, take the
+    reference (which converts, or names what does not fit)."""
+    lam = float(forgetting)
+    if not 0.0 <= lam <= 1.0:
+        return accumulate_cycle_reference(acc, white, lam, fold, params, model_rel_error, harmonics)
+    kept = acc.raw_rows is not None and acc.raw_target is not None
+    raw = (acc.raw_rows, acc.raw_target) if kept else (np.empty((0, 0)), np.empty(0))
+    raw_weight = (lam * acc.raw_weight + 1.0 if kept else 1.0) if fold else acc.raw_weight
+    try:
+        ok, terms, arrays, budget = cycle_step_kernel(
+            white.a, white.y, white.inv_sigma, lam, bool(fold),
+            (acc.info, acc.rhs, acc.sys_map, acc.info_reference, *raw), raw_weight,
+            np.asarray(params, dtype=np.float64), (white.sys_var, white.stats.var, white.freq, harmonics),
+            float(model_rel_error))
+    except TypeError:  # another dtype or layout: the reference converts
+        ok = False
+    if not ok:
+        return accumulate_cycle_reference(acc, white, lam, fold, params, model_rel_error, harmonics)
+    info, rhs, yty, sys_map, ref = terms
+    terms = CycleTerms(info, rhs, yty, float(white.a.shape[0]), sys_map, ref)
+    if fold:
+        acc = Accumulator(*arrays[:2], lam * acc.yty + yty, lam * acc.weight + 1.0, lam * acc.rows + terms.rows,
+                          *arrays[2:], raw_weight)
+    return terms, acc, budget
+
+
+def accumulate_cycle_reference(acc: Accumulator, white, forgetting: float, fold: bool, params: np.ndarray,
+                               model_rel_error: float, harmonics: np.ndarray) -> tuple[CycleTerms, Accumulator,
+                                                                                       np.ndarray]:
+    """``accumulate_cycle`` by its helpers, one after another (its reference, and the general path)."""
+    terms = acc.cycle_terms(white.a, white.y, white.inv_sigma, 1)  # the mean-balance row: reference
+    if fold:
+        acc = acc.fold(terms, forgetting, raw_rows(white.a, white.y, white.inv_sigma))
+    return terms, acc, speed_budget(acc, params, white, model_rel_error, harmonics)
+
+
 def same_cycles_balance(stats: ResidualStats, fit_total: float) -> float:
     """The mean balance the model-error floor compares the smoothed estimate's total ``fit_total`` [N m] (at this
     cycle's operating point) with: that total plus the fit's mean disagreement with the balance over the same
@@ -307,9 +356,8 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
                         y=np.concatenate([white.y[:-1], y2, white.y[-1:]]),
                         inv_sigma=np.concatenate([white.inv_sigma[:-1], inv2, white.inv_sigma[-1:]]),
                         sys_var=np.concatenate([white.sys_var[:-1], sys2, white.sys_var[-1:]]))
-    terms = state.accumulator.cycle_terms(white.a, white.y, white.inv_sigma, 1)  # the mean-balance row: reference
-    acc = (state.accumulator.fold(terms, lam, raw_rows(white.a, white.y, white.inv_sigma))
-           if state.cycles >= cfg.warmup_cycles else state.accumulator)
+    terms, acc, budget = accumulate_cycle(state.accumulator, white, lam, state.cycles >= cfg.warmup_cycles,
+                                          state.params, cfg.model_rel_error, fly.harmonics)
 
     # running means of the sharing prior of the smoothed estimate
     g = max(1.0 - lam, 1.0 / (state.cycles + 1))
@@ -329,7 +377,6 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     share_c = share_mean_loss(balance if math.isfinite(balance) else bal_mean, t_i, motored, cfg.share_spread)
     layout = state.layout
     cyl_rows = rows.cylinder_rows[:, :layout.n_params]  # the friction parameters' part
-    budget = speed_budget(acc, state.params, white, cfg.model_rel_error, fly.harmonics)
     post_s = posterior_from_normal(acc, *state.prior.with_share(cyl_rows, share_s), budget, state.lower)
     acc_c = Accumulator.of_terms(terms)
     post_c = posterior_from_normal(acc_c, *state.prior.with_share(cyl_rows, share_c), white.sys_var, state.lower)
