@@ -152,7 +152,10 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
         now = time.monotonic()
         rows = [{"engine_id": s.engine_id, "running": s.running, "sources_ended": s.sources_ended,
                  "last_cycle_age_s": None if s.last_result_s is None else now - s.last_result_s, **backlog(s),
-                 **store_waiting(s)} for s in engines.values()]
+                 **store_waiting(s),
+                 # the listener a replay faster than real time waits for now: not 'degraded' (nothing is lost, the
+                 # replay runs at that listener's pace)
+                 "paced_by_listener": s.fanout.waiting_for} for s in engines.values()]
         ok = all(r["running"] and r["last_cycle_age_s"] is not None and r["last_cycle_age_s"] < STALE_S
                  and not r["behind"] and not r["store_waiting_cycles"] for r in rows)
         return {"status": "ok" if ok else "degraded", "uptime_s": now - started, "engines": rows,
@@ -351,14 +354,11 @@ def store_stats(svc: EngineService) -> dict | None:
 
 
 def store_waiting(svc: EngineService) -> dict:
-    """Cycles kept for a store that is down (the store listener's backlog: 'degraded' while any wait) and lost; the
-    listener a replay faster than real time waits for now (not 'degraded': it loses nothing, it only runs slower)."""
+    """Cycles kept for a store that is down (the store listener's backlog: 'degraded' while any wait) and lost."""
     listener = svc.fanout.listener("store")
-    paced = {"paced_by_listener": svc.fanout.waiting_for}
     if listener is None:
-        return {"store_waiting_cycles": 0, "store_lost_cycles": 0, **paced}
-    return {"store_waiting_cycles": listener.backlog, "store_lost_cycles": int(listener.stats["lost_cycles"]),
-            **paced}
+        return {"store_waiting_cycles": 0, "store_lost_cycles": 0}
+    return {"store_waiting_cycles": listener.backlog, "store_lost_cycles": int(listener.stats["lost_cycles"])}
 
 
 def service(request: Request, engine_id: EngineId) -> EngineService:
