@@ -428,10 +428,15 @@ def table(rows: list[dict]) -> str:
 def balance_across_points(seeds: tuple[int, ...]) -> dict:
     """The balance's model error at each point of a healthy two-point log (the matrix's two-point log: dyno engines
     at their point 1, the grid genset at point 0, TWO_POINT_CYCLES cycles, nothing hidden): each point's mean balance
-    residual over its measured friction in the training and the held-out half (the workflow's split, Options()), as
-    laws.point_balance reads them; the figure is the largest, x 1.5, rounded up (as NULL_BALANCE from one-point
-    logs). Tune on seeds no matrix runs (SEEDS and the stored s3 rows validate; design note 65)."""
+    residual, its sigma, its measured friction and its mean kinetic term (Residuals.kinetic) in the training and the
+    held-out half (the workflow's split, Options()), as laws.point_balance reads them, and over both ("all").
+    ``figure``: NULL_KINETIC, the smallest share of a point's |mean kinetic term| that, added in quadrature to
+    NULL_BALANCE x its friction and 2 sigma of the point mean's own scatter, covers every point's |mean residual| over
+    the whole log ("all": the systematic error, least diluted by the scatter a half's 16-32 cycles carry), x
+    BALANCE_MARGIN, rounded up (features.balance_point_floor_nm; design note 68). ``largest_ratio``: the largest |mean residual| / friction (note 65's figure). Tune on
+    seeds no matrix or test runs (BALANCE_TUNE_SEEDS); SEEDS, the stored s3 rows and seeds 7, 9 validate."""
     import numpy as np
+    from frictionwatch.core.discrepancy.features import NULL_BALANCE
     from frictionwatch.core.discrepancy.residuals import pinned_config, run_model
     from frictionwatch.core.model.view import reference
     from frictionwatch.core.tuned import round_up
@@ -446,7 +451,8 @@ def balance_across_points(seeds: tuple[int, ...]) -> dict:
             res = run_model(model, reference(cycles), pinned_config(), cycles)
             split = opt.warmup + (len(cycles) - opt.warmup) // 2
             first, held = cycles[opt.warmup].index, cycles[split].index
-            for half, mask in (("train", (res.index >= first) & (res.index < held)), ("held", res.index >= held)):
+            for half, mask in (("train", (res.index >= first) & (res.index < held)), ("held", res.index >= held),
+                               ("all", res.index >= first)):
                 part = res.take(mask)
                 for g in np.unique(part.group if part.group is not None else [0]):
                     i = np.flatnonzero(part.group == g) if part.group is not None else np.arange(part.n_cycles)
@@ -454,13 +460,44 @@ def balance_across_points(seeds: tuple[int, ...]) -> dict:
                     if g < 0 or ok.size < 2:
                         continue
                     b, f = float(np.mean(part.balance[ok])), float(np.mean(part.friction[ok]))
-                    rows.append({"case": f"{engine} {rpm:.0f} rpm {load:g} seed {seed}", "half": half,
+                    se = float(np.std(part.balance[ok], ddof=1) / np.sqrt(ok.size))
+                    k = float(np.mean(part.kinetic[ok]))
+                    # the systematic part: beyond NULL_BALANCE's floor and 2 sigma of the mean's own scatter (which
+                    # point_balance adds to each point's variance apart)
+                    beyond = float(np.sqrt(max(b * b - (NULL_BALANCE * f) ** 2 - (2.0 * se) ** 2, 0.0)))
+                    rows.append({"case": f"{engine} {rpm:g} rpm {load:g} seed {seed}", "half": half,
                                  "rpm": float(np.mean(part.omega[ok])) * 30.0 / np.pi, "balance_nm": b,
-                                 "friction_nm": f, "ratio": abs(b) / f})
+                                 "sigma_nm": se, "friction_nm": f, "ratio": abs(b) / f, "kinetic_nm": k,
+                                 "beyond_balance_floor_nm": beyond,
+                                 "of_kinetic": beyond / abs(k) if beyond > 0 else 0.0})
                     print(json.dumps(rows[-1]), flush=True)
-    worst = max(r["ratio"] for r in rows)
-    return {"rows": rows, "largest_ratio": worst, "figure": round_up(1.5 * worst),
-            "on": sorted({r["case"] for r in rows})}
+    share = max(r["of_kinetic"] for r in rows if r["half"] == "all")
+    halves = [r for r in rows if r["half"] != "all"]
+    return {"rows": rows, "largest_ratio": max(r["ratio"] for r in halves), "largest_of_kinetic": share,
+            "figure": round_up(BALANCE_MARGIN * share), "on": sorted({r["case"] for r in rows})}
+
+
+# the seeds NULL_KINETIC is tuned on (--balance-across-points --write): none a matrix (SEEDS, s3) or a test runs
+BALANCE_TUNE_SEEDS = (21, 22)
+BALANCE_MARGIN = 1.5  # as every floor: the largest healthy figure x 1.5 (bench/discrepancy_null.MARGIN)
+
+
+def kinetic_record(doc: dict):
+    """NULL_KINETIC (core.discrepancy.features.balance_point_floor_nm) with its provenance, from
+    ``balance_across_points``' output."""
+    from datetime import date
+
+    from frictionwatch.core.discrepancy.tuned import Tuned
+
+    worst = max((r for r in doc["rows"] if r["half"] == "all"), key=lambda r: r["of_kinetic"])
+    text = (f"the largest healthy two-point log's point mean |balance residual| (the whole log) beyond NULL_BALANCE x "
+            f"friction and 2 sigma of its scatter (in quadrature) over the point's |mean kinetic term|: "
+            f"{doc['largest_of_kinetic']:.4f} "
+            f"({worst['case']}, {worst['rpm']:.0f} rpm, {worst['half']}: {worst['balance_nm']:+.3f} N m against "
+            f"{worst['kinetic_nm']:+.3f} N m), x {BALANCE_MARGIN:g}, rounded up")
+    return {"NULL_KINETIC": Tuned(doc["figure"], "python -m bench.bench_discrepancy --balance-across-points "
+                                  + " ".join(str(s) for s in BALANCE_TUNE_SEEDS) + " --write",
+                                  tuple(doc["on"]), text, date.today().isoformat())}
 
 
 def main() -> int:
@@ -479,12 +516,19 @@ def main() -> int:
     ap.add_argument("--table", type=Path, nargs="+", help="print saved --matrix outputs as one markdown table")
     ap.add_argument("--balance-across-points", type=int, nargs="+", metavar="SEED",
                     help="the balance's model error at the points of healthy two-point logs of these seeds "
-                         "(laws.NULL_BALANCE_POINTS' figure)")
+                         "(features.NULL_KINETIC's figure; tuned on BALANCE_TUNE_SEEDS)")
+    ap.add_argument("--write", action="store_true", help="with --balance-across-points on BALANCE_TUNE_SEEDS: write "
+                    "NULL_KINETIC into core/discrepancy/tuned.json")
     args = ap.parse_args()
     if args.balance_across_points:
         doc = balance_across_points(tuple(args.balance_across_points))
         if args.out:
             args.out.write_text(json.dumps(doc, indent=1))
+        if args.write:
+            if tuple(args.balance_across_points) != BALANCE_TUNE_SEEDS:
+                raise SystemExit(f"NULL_KINETIC is tuned on BALANCE_TUNE_SEEDS {BALANCE_TUNE_SEEDS} only")
+            from frictionwatch.core.discrepancy.tuned import write_tuned
+            write_tuned(kinetic_record(doc))
         print(json.dumps({k: v for k, v in doc.items() if k != "rows"}, indent=1))
         return 0
     if args.table:
