@@ -477,27 +477,61 @@ def balance_across_points(seeds: tuple[int, ...]) -> dict:
             "figure": round_up(BALANCE_MARGIN * share), "on": sorted({r["case"] for r in rows})}
 
 
-# the seeds NULL_KINETIC is tuned on (--balance-across-points --write): none a matrix (SEEDS, s3) or a test runs
+def balance_terms(engine: str, seed: int, without: tuple[str, ...] = (), learn_teeth: bool = True) -> dict:
+    """Per cycle of a healthy two-point log (as ``balance_across_points``): the balance residual and the terms the
+    monitor made it of (its friction from indicated - load - coupling loss - kinetic; the model's friction) beside
+    the simulator's truth of the same cycle (friction, indicated, load, coupling loss, and the kinetic term from its
+    flywheel speed at theta = 2 pi and from its cycle-mean speeds, J(2 pi) as the monitor's), with the cycles since
+    the point's first: which term is off where (design note 68). ``without``: default effects off in the plant
+    (sensor_noise, tooth_spacing_error); ``learn_teeth``: the monitor's tooth learner."""
+    import dataclasses
+
+    import numpy as np
+    from frictionwatch.core.discrepancy.residuals import STAGES, CyclePipeline, TdcWatch, pinned_config
+    from frictionwatch.core.model.view import reference
+    from frictionwatch.core.monitor.identify.identification import mid_cycle_inertia
+
+    spec = load_engine(engine)
+    p = 0 if spec.load.kind == "grid" else 1
+    rpm, load = ENGINES[engine]["points"][p]
+    sim = simulate(spec, rpm, load, TWO_POINT_CYCLES, seed, effects=[], without=without,
+                   load_steps=two_point_steps(engine, p))
+    model = EngineModel.from_spec(spec)
+    cycles = assemble(model, sim.info, sim.records).cycles
+    config = dataclasses.replace(pinned_config(), learn_teeth=learn_teeth)
+    stages = tuple(dataclasses.replace(s, per_window=spec.n_cyl, window=len(cycles) + 1) if isinstance(s, TdcWatch)
+                   else s for s in STAGES)
+    pipe = CyclePipeline(model, config, reference(cycles), stages=stages)
+    truth = {c["index"]: c for c in sim.truth["cycles"]}
+    w = sim.diagnostics["flywheel_speed_grid_rad_s"]  # (cycles, 720) true flywheel speed, 1-deg grid from theta 0
+    inertia = mid_cycle_inertia(spec)
+    rows, last_rpm, since = [], None, 0
+    for c in cycles:
+        r = pipe.process(c).result
+        if r is None or r.index not in truth or r.index < 1 or not np.isfinite(r.friction_balance):
+            continue
+        t = truth[r.index]
+        since = 0 if last_rpm is None or abs(r.rpm_mean - last_rpm) > 0.1 * last_rpm else since + 1
+        last_rpm = r.rpm_mean if since == 0 else last_rpm
+        i = r.index
+        rows.append({"index": i, "since": since, "rpm": r.rpm_mean, "residual_nm": r.friction_balance
+                     - float(np.mean(r.friction_torque)), "friction_nm": r.friction_balance,
+                     "true_friction_nm": t["friction_torque_mean_nm"], "model_friction_nm": float(np.mean(
+                         r.friction_torque)), "kinetic_nm": inertia * r.acceleration,
+                     "kinetic_true_mid_nm": inertia * (w[i, 360] ** 2 - w[i - 1, 360] ** 2) / (8.0 * np.pi),
+                     "kinetic_true_mean_nm": inertia * (w[i].mean() ** 2 - w[i - 1].mean() ** 2) / (8.0 * np.pi),
+                     "indicated_nm": r.indicated_window, "true_indicated_nm": t["indicated_torque_nm"],
+                     "load_nm": r.load_torque, "true_load_nm": t["load_torque_nm"], "coupling_nm": r.coupling_loss,
+                     "true_coupling_nm": t["damper_coupling_loss_nm"]})
+    for r in rows:  # what the kinetic term would have to be for the truth's friction
+        r["kinetic_needed_nm"] = r["kinetic_nm"] + r["friction_nm"] - r["true_friction_nm"]
+    return {"engine": engine, "seed": seed, "without": list(without), "learn_teeth": learn_teeth, "rows": rows}
+
+
+# the seeds NULL_KINETIC is tuned on (bench.discrepancy_null --tune-kinetic --write): none a matrix (SEEDS, s3) or a
+# test runs
 BALANCE_TUNE_SEEDS = (21, 22)
 BALANCE_MARGIN = 1.5  # as every floor: the largest healthy figure x 1.5 (bench/discrepancy_null.MARGIN)
-
-
-def kinetic_record(doc: dict):
-    """NULL_KINETIC (core.discrepancy.features.balance_point_floor_nm) with its provenance, from
-    ``balance_across_points``' output."""
-    from datetime import date
-
-    from frictionwatch.core.discrepancy.tuned import Tuned
-
-    worst = max((r for r in doc["rows"] if r["half"] == "all"), key=lambda r: r["of_kinetic"])
-    text = (f"the largest healthy two-point log's point mean |balance residual| (the whole log) beyond NULL_BALANCE x "
-            f"friction and 2 sigma of its scatter (in quadrature) over the point's |mean kinetic term|: "
-            f"{doc['largest_of_kinetic']:.4f} "
-            f"({worst['case']}, {worst['rpm']:.0f} rpm, {worst['half']}: {worst['balance_nm']:+.3f} N m against "
-            f"{worst['kinetic_nm']:+.3f} N m), x {BALANCE_MARGIN:g}, rounded up")
-    return {"NULL_KINETIC": Tuned(doc["figure"], "python -m bench.bench_discrepancy --balance-across-points "
-                                  + " ".join(str(s) for s in BALANCE_TUNE_SEEDS) + " --write",
-                                  tuple(doc["on"]), text, date.today().isoformat())}
 
 
 def main() -> int:
@@ -516,19 +550,24 @@ def main() -> int:
     ap.add_argument("--table", type=Path, nargs="+", help="print saved --matrix outputs as one markdown table")
     ap.add_argument("--balance-across-points", type=int, nargs="+", metavar="SEED",
                     help="the balance's model error at the points of healthy two-point logs of these seeds "
-                         "(features.NULL_KINETIC's figure; tuned on BALANCE_TUNE_SEEDS)")
-    ap.add_argument("--write", action="store_true", help="with --balance-across-points on BALANCE_TUNE_SEEDS: write "
-                    "NULL_KINETIC into core/discrepancy/tuned.json")
+                         "(features.NULL_KINETIC's figure; bench.discrepancy_null --tune-kinetic tunes it on BALANCE_TUNE_SEEDS)")
+    ap.add_argument("--balance-terms", nargs=2, metavar=("ENGINE", "SEED"), help="per cycle of a healthy two-point "
+                    "log: the balance residual's terms against the simulator's truth (design note 68)")
+    ap.add_argument("--without", action="append", default=[], help="with --balance-terms: a default plant effect off")
+    ap.add_argument("--no-tooth-learner", action="store_true", help="with --balance-terms: MonitorConfig(learn_teeth=False)")
     args = ap.parse_args()
+    if args.balance_terms:
+        doc = balance_terms(args.balance_terms[0], int(args.balance_terms[1]), tuple(args.without),
+                            not args.no_tooth_learner)
+        if args.out:
+            args.out.write_text(json.dumps(doc, indent=1))
+        for r in doc["rows"]:
+            print(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items()))
+        return 0
     if args.balance_across_points:
         doc = balance_across_points(tuple(args.balance_across_points))
         if args.out:
             args.out.write_text(json.dumps(doc, indent=1))
-        if args.write:
-            if tuple(args.balance_across_points) != BALANCE_TUNE_SEEDS:
-                raise SystemExit(f"NULL_KINETIC is tuned on BALANCE_TUNE_SEEDS {BALANCE_TUNE_SEEDS} only")
-            from frictionwatch.core.discrepancy.tuned import write_tuned
-            write_tuned(kinetic_record(doc))
         print(json.dumps({k: v for k, v in doc.items() if k != "rows"}, indent=1))
         return 0
     if args.table:
