@@ -34,14 +34,15 @@ SIGNIFICANT = 4.0  # a coherent figure is reported as significant above this man
 # monitor reads the shaft line's energy change from the flywheel's speed at one crank angle with a rigid J, and where
 # the speed still settles after a step that reading is off by a share of the term (maruti 1500 rpm after a step from
 # 4000: +0.34 N m against a mean kinetic term of -2.1, the truth's friction equal to the model's; design note 68).
-# Tuned on healthy two-point logs (bench_discrepancy --balance-across-points BALANCE_TUNE_SEEDS --write).
+# Tuned on healthy two-point logs (bench.discrepancy_null --tune-kinetic --write; bench_discrepancy.BALANCE_TUNE_SEEDS).
 # FLOOR_RMS (speed, balance): the rms healthy coherent residual as a fraction of those floors (a floor is a
 # threshold, the largest healthy residual x 1.5; a found parameter's sigma needs the typical model error).
 _TUNED = tuned_constants()
 NULL_OWN = _TUNED["NULL_OWN"].value
 NULL_FLOOR = _TUNED["NULL_FLOOR"].value
 NULL_BALANCE = _TUNED["NULL_BALANCE"].value
-NULL_KINETIC = _TUNED["NULL_KINETIC"].value if "NULL_KINETIC" in _TUNED else 0.0  # 0: not tuned yet, the one-point floor
+# 0 without its record (not tuned): the floor is NULL_BALANCE's alone, as before note 68
+NULL_KINETIC = _TUNED["NULL_KINETIC"].value if "NULL_KINETIC" in _TUNED else 0.0
 FLOOR_RMS = (_TUNED["FLOOR_RMS_SPEED"].value, _TUNED["FLOOR_RMS_BALANCE"].value)
 # GAP_NULL: the speed channel's held-out gap beyond this many times the healthy gap at the log's amplitudes
 # (``healthy_gap``) is a discrepancy even inside every order's floor; the largest healthy ratio on
