@@ -133,6 +133,21 @@ def gap_record(ratio: float) -> dict[str, Tuned]:
                               text, date.today().isoformat())}
 
 
+def kinetic_record(doc: dict):
+    """NULL_KINETIC (core.discrepancy.features.balance_point_floor_nm) with its provenance, from
+    ``balance_across_points``' output."""
+    from bench.bench_discrepancy import BALANCE_MARGIN
+
+    worst = max((r for r in doc["rows"] if r["half"] == "all"), key=lambda r: r["of_kinetic"])
+    text = (f"the largest healthy two-point log's point mean |balance residual| (the whole log) beyond NULL_BALANCE x "
+            f"friction and 2 sigma of its scatter (in quadrature) over the point's |mean kinetic term|: "
+            f"{doc['largest_of_kinetic']:.4f} "
+            f"({worst['case']}, {worst['rpm']:.0f} rpm, {worst['half']}: {worst['balance_nm']:+.3f} N m against "
+            f"{worst['kinetic_nm']:+.3f} N m), x {BALANCE_MARGIN:g}, rounded up")
+    return {"NULL_KINETIC": Tuned(doc["figure"], "python -m bench.discrepancy_null --tune-kinetic --write",
+                                  tuple(doc["on"]), text, date.today().isoformat())}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--tune", action="store_true", help="the tuning logs only")
@@ -140,7 +155,19 @@ def main() -> None:
                                                          "into core/discrepancy/tuned.json")
     ap.add_argument("--tune-gap", action="store_true", help="the tuning logs only, GAP_NULL alone (with --write: "
                                                              "only it is written)")
+    ap.add_argument("--tune-kinetic", action="store_true", help="NULL_KINETIC alone, from healthy two-point logs "
+                    "(bench_discrepancy.balance_across_points on its BALANCE_TUNE_SEEDS; with --write: only it is "
+                    "written)")
     args = ap.parse_args()
+    if args.tune_kinetic:
+        from bench.bench_discrepancy import BALANCE_TUNE_SEEDS, balance_across_points
+
+        doc = balance_across_points(BALANCE_TUNE_SEEDS)
+        print(f"largest share of the kinetic term: {doc['largest_of_kinetic']:.4f} -> NULL_KINETIC {doc['figure']}")
+        if args.write:
+            write_tuned(kinetic_record(doc))
+            print(f"wrote {TUNED_PATH}")
+        return
     if args.tune_gap:
         ratio = max(one(f"tune {e} {r:g} rpm {ld:g} seed {s}", e, r, ld, s)[5] for e, r, ld, s in TUNE)
         print(f"largest healthy speed gap over the healthy gap at its amplitudes: {ratio:.3f} -> GAP_NULL "

@@ -30,12 +30,19 @@ SIGNIFICANT = 4.0  # a coherent figure is reported as significant above this man
 # VALIDATE (other seeds and points) and FAULTS (the floor must not hide them).
 # NULL_BALANCE: the floor of the mean torque-balance residual, relative to the friction the balance measured: a
 # balance residual is significant only above it (balance_residual); validated on the hidden-effect matrix.
+# NULL_KINETIC: the balance's floor at a point also grows with the point's mean kinetic term (Residuals.kinetic): the
+# monitor reads the shaft line's energy change from the flywheel's speed at one crank angle with a rigid J, and where
+# the speed still settles after a step that reading is off by a share of the term (maruti 1500 rpm after a step from
+# 4000: +0.34 N m against a mean kinetic term of -2.1, the truth's friction equal to the model's; design note 68).
+# Tuned on healthy two-point logs (bench.discrepancy_null --tune-kinetic --write; bench_discrepancy.BALANCE_TUNE_SEEDS).
 # FLOOR_RMS (speed, balance): the rms healthy coherent residual as a fraction of those floors (a floor is a
 # threshold, the largest healthy residual x 1.5; a found parameter's sigma needs the typical model error).
 _TUNED = tuned_constants()
 NULL_OWN = _TUNED["NULL_OWN"].value
 NULL_FLOOR = _TUNED["NULL_FLOOR"].value
 NULL_BALANCE = _TUNED["NULL_BALANCE"].value
+# 0 without its record (not tuned): the floor is NULL_BALANCE's alone, as before note 68
+NULL_KINETIC = _TUNED["NULL_KINETIC"].value if "NULL_KINETIC" in _TUNED else 0.0
 FLOOR_RMS = (_TUNED["FLOOR_RMS_SPEED"].value, _TUNED["FLOOR_RMS_BALANCE"].value)
 # GAP_NULL: the speed channel's held-out gap beyond this many times the healthy gap at the log's amplitudes
 # (``healthy_gap``) is a discrepancy even inside every order's floor; the largest healthy ratio on
@@ -240,17 +247,28 @@ def trends(res: Residuals) -> dict:
     return out
 
 
+def balance_point_floor_nm(friction: np.ndarray, kinetic: np.ndarray | None) -> float:
+    """The model-error floor of one operating point's mean torque-balance residual [N m] from its cycles' measured
+    friction and kinetic terms (N m, NaN skipped): NULL_BALANCE x |mean friction| and NULL_KINETIC x |mean kinetic
+    term| in quadrature. The second is the transient balance's own error: a point whose speed still settles after a
+    step carries a kinetic term the flywheel's one-angle speed reads off by a share of it (design note 68); at a
+    steady point it is ~0 and the floor NULL_BALANCE's, as tuned on one-point logs."""
+    ok = np.isfinite(friction)
+    floor = NULL_BALANCE * abs(float(np.mean(friction[ok]))) if np.any(ok) else 0.0
+    if kinetic is not None and np.any(np.isfinite(kinetic)):
+        floor = float(np.hypot(floor, NULL_KINETIC * abs(float(np.mean(kinetic[np.isfinite(kinetic)])))))
+    return floor
+
+
 def balance_floor_nm(res: Residuals) -> float:
-    """The model-error floor of the mean torque-balance residual [N m]: NULL_BALANCE x the friction the balance
-    measured (0 where the residuals do not carry it); over several operating points each point's own, combined by
+    """The model-error floor of the mean torque-balance residual [N m]: ``balance_point_floor_nm`` of the cycles
+    (0 where the residuals do not carry the friction); over several operating points each point's own, combined by
     ``_point_rms`` (as the balance's rms over the points is)."""
     if res.friction is None:
         return 0.0
 
     def floor_of(i: np.ndarray) -> np.ndarray:
-        f = res.friction[i]
-        ok = np.isfinite(f)
-        return np.array(NULL_BALANCE * abs(float(np.mean(f[ok]))) if np.any(ok) else 0.0)
+        return np.array(balance_point_floor_nm(res.friction[i], None if res.kinetic is None else res.kinetic[i]))
 
     return float(_point_rms(res, floor_of))
 
@@ -338,5 +356,5 @@ def beyond_healthy_gap(loc: dict) -> bool:
     return bool(not beyond_null(loc) and loc.get("healthy_gap", {}).get("beyond"))
 
 
-__all__ = ["FLOOR_RMS", "GAP_NULL", "beyond_healthy_gap", "healthy_gap", "NULL_BALANCE", "NULL_FLOOR", "NULL_OWN", "RPM_PER_RAD_S", "SIGNIFICANT", "balance_floor_nm", "balance_residual", "beyond_null", "coherent_terms", "cost",
+__all__ = ["FLOOR_RMS", "GAP_NULL", "beyond_healthy_gap", "healthy_gap", "NULL_BALANCE", "NULL_FLOOR", "NULL_KINETIC", "NULL_OWN", "RPM_PER_RAD_S", "SIGNIFICANT", "balance_floor_nm", "balance_point_floor_nm", "balance_residual", "beyond_null", "coherent_terms", "cost",
            "coherent_power", "cylinder_windows", "feature_floor", "gap", "localise", "noise_scale", "order_table", "speed_floor_rpm", "trends"]

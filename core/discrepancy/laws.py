@@ -12,8 +12,9 @@ against a speed gap of 5.4 inside every order's floor). Here each law is fitted 
                         changes it by there (the model's friction up: the residual, measured - model, down)
 
 weighted by 1 / (sigma_g^2 + e_g^2), sigma_g the point's own scatter over its cycles and e_g the balance's
-model-error floor there (features.NULL_BALANCE x the point's friction, the threshold the balance is judged
-significant against: tuned, with its provenance, in tuned.json; not tuned here). With FLOOR_RMS of it (the typical
+model-error floor there (features.balance_point_floor_nm: NULL_BALANCE x the point's friction and NULL_KINETIC x
+its mean kinetic term in quadrature, the threshold the balance is judged significant against: tuned, with their
+provenance, in tuned.json; not tuned here). With FLOOR_RMS of it (the typical
 healthy error) instead, k9k's healthy -0.29 N m at 1800 rpm pushed the speed^2 law's fraction to beyond 1 + 2 sigma. A constant torque (an extra friction anywhere, or a load or indicated reading off) is
 the rival every law must beat: it moves every point alike. Pure arrays in, numbers out; the workflow runs the models.
 """
@@ -23,7 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from frictionwatch.core.discrepancy.features import NULL_BALANCE
+from frictionwatch.core.discrepancy.features import balance_point_floor_nm
 from frictionwatch.core.discrepancy.residuals import Residuals
 
 # two fits explain the points equally well when their weighted chi^2 differ by less than this: 2 sigma of a one-
@@ -59,8 +60,8 @@ class LawFit:
 
 def point_balance(res: Residuals) -> PointBalance | None:
     """Per operating point with at least two cycles of finite balance: the mean balance residual, its variance with
-    the model-error floor (NULL_BALANCE x the point's measured friction) added; None with fewer than two
-    such points."""
+    the model-error floor (features.balance_point_floor_nm: NULL_BALANCE x the point's measured friction, with
+    NULL_KINETIC x its mean kinetic term in quadrature) added; None with fewer than two such points."""
     if res.group is None or res.friction is None:
         return None
     rows = []
@@ -69,9 +70,7 @@ def point_balance(res: Residuals) -> PointBalance | None:
         if ok.size < 2:
             continue
         b = res.balance[ok]
-        friction = res.friction[ok]
-        err = NULL_BALANCE * abs(float(np.mean(friction[np.isfinite(friction)]))) \
-            if np.isfinite(friction).any() else 0.0
+        err = balance_point_floor_nm(res.friction[ok], None if res.kinetic is None else res.kinetic[ok])
         rows.append((float(b.mean()), float(b.var(ddof=1) / b.size) + err**2, float(np.mean(res.omega[ok])),
                      float(np.nanmean(res.load[ok]))))
     if len(rows) < 2:

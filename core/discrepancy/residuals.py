@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.view import Reference
+from frictionwatch.core.monitor.identify.identification import mid_cycle_inertia
 from frictionwatch.core.monitor.pipeline import STAGES, CyclePipeline, TdcWatch
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import Cycle
@@ -77,6 +78,10 @@ class Residuals:
     # same group in every model's run, since speed and load are the measurement's); None: one group
     group: np.ndarray | None = None
     between_points: int = 0  # cycles left out as a load step's (operating_groups: -1)
+    # (N,) N m the balance's kinetic term J(2 pi) x the window's angle-averaged dw/dt (what the monitor subtracted
+    # from indicated - load - coupling loss; NaN without the cycle before): the balance's own error grows with it
+    # (features.balance_point_floor_nm, design note 68)
+    kinetic: np.ndarray | None = None
 
     @property
     def n_cycles(self) -> int:
@@ -89,7 +94,8 @@ class Residuals:
                                    friction=None if self.friction is None else self.friction[mask],
                                    misfired=None if self.misfired is None else self.misfired[mask],
                                    motored=None if self.motored is None else self.motored[mask],
-                                   group=None if self.group is None else self.group[mask])
+                                   group=None if self.group is None else self.group[mask],
+                                   kinetic=None if self.kinetic is None else self.kinetic[mask])
 
     def features(self) -> np.ndarray:
         """(N, 2M + 1) real features: Re and Im of each residual harmonic, then the balance residual (0 where NaN:
@@ -144,6 +150,7 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
                    for s in STAGES)
     pipe = CyclePipeline(model, config, ref, stages=stages)
     misfire_flags = [f"misfire_cyl{k + 1}" for k in range(z)]  # the condition check's, made once per run
+    inertia = mid_cycle_inertia(model.spec)  # the transient balance's J (core.monitor.identify.identification)
     for cycle in cycles:
         r = pipe.process(cycle).result
         if r is None:
@@ -155,7 +162,7 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
         measured = 2.0 * np.abs(np.fft.rfft(r.speed_measured)[1:m + 1]) / r.speed_measured.shape[0]
         misfired = np.array([f in r.flags for f in misfire_flags])
         rows.append((r.index, r.omega_mean, r.load_torque, r.residual_harmonics, r.friction_balance - friction, resid,
-                     measured, r.friction_balance, misfired, "motored" in r.flags))
+                     measured, r.friction_balance, misfired, "motored" in r.flags, inertia * r.acceleration))
     if not rows:
         raise ValueError(f"the monitor analysed none of the {len(cycles)} cycles")
     pipe.close_windows()  # the pressure's reading of the whole log
@@ -168,7 +175,7 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
                      balance=np.array([r[4] for r in rows]), speed=np.array([r[5] for r in rows]), angles=angles,
                      rejected=rejected, measured=np.array([r[6] for r in rows]),
                      friction=friction, misfired=np.array([r[8] for r in rows]),
-                     motored=np.array([r[9] for r in rows]),
+                     motored=np.array([r[9] for r in rows]), kinetic=np.array([r[10] for r in rows]),
                      **_tdc_reading(pipe))
     # the cycles of a load step are no operating point's: left out of every figure, and counted
     return dataclasses.replace(res.take(group >= 0), between_points=int(np.sum(group < 0)))
