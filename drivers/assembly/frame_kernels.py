@@ -96,8 +96,10 @@ def frame_rows(frames, ci, cf, n_chunks, start, end, t_grid, rows, out, codes, x
     b = 0
     whole = n >= 2
     if whole:
-        a = chunk_search(ci, cf, n_chunks, start, n, t_grid[0], True) - 1
-        b = chunk_search(ci, cf, n_chunks, start, n, t_grid[m - 1], False) + 1
+        # np.bool_, not a literal True/False: one chunk_search specialisation (the plain bool the Python callers
+        # compile) serves both, not one more per literal value
+        a = chunk_search(ci, cf, n_chunks, start, n, t_grid[0], np.bool_(True)) - 1
+        b = chunk_search(ci, cf, n_chunks, start, n, t_grid[m - 1], np.bool_(False)) + 1
         whole = a >= 0 and b <= n
     bad = 0
     if not whole:

@@ -27,8 +27,10 @@ def pressure_row(col_t, col_p, start, end, t_grid, out):
     cap = col_t.shape[0] // 2
     i0 = start % cap
     m = t_grid.shape[0]
-    a = search_sorted(col_t, i0, n, t_grid[0], True) - 1
-    b = search_sorted(col_t, i0, n, t_grid[m - 1], False) + 1
+    # np.bool_, not a literal True/False: one search_sorted specialisation (the plain bool the Python callers
+    # compile) serves both, not one more per literal value
+    a = search_sorted(col_t, i0, n, t_grid[0], np.bool_(True)) - 1
+    b = search_sorted(col_t, i0, n, t_grid[m - 1], np.bool_(False)) + 1
     if a < 0 or b > n:
         return ROW_MISSING
     code = interp_checked_kernel(t_grid, col_t[i0 + a : i0 + b], col_p[i0 + a : i0 + b], out)
@@ -102,8 +104,8 @@ def pressure_rows(col_t, block_p, start, end, t_grid, rows, out, codes):
     b = 0
     whole = n >= 2
     if whole:
-        a = search_sorted(col_t, i0, n, t_grid[0], True) - 1
-        b = search_sorted(col_t, i0, n, t_grid[m - 1], False) + 1
+        a = search_sorted(col_t, i0, n, t_grid[0], np.bool_(True)) - 1  # np.bool_: see pressure_row
+        b = search_sorted(col_t, i0, n, t_grid[m - 1], np.bool_(False)) + 1
         whole = a >= 0 and b <= n
     bad = 0
     if not whole:

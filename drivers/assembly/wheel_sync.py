@@ -105,7 +105,7 @@ def _back_extend(ticks, base, prm, ist, ref0):
     h2 = ref0
     # the interval after the anchor is the later partner of the first pair test
     nxt_dt = float(ticks[anchor + 1 - base] - ticks[anchor - base])
-    nxt_m = 1
+    nxt_m = np.int64(1)  # not a literal: _interval_code compiles once, for the types _track passes
     pos_e1 = np.int64(0)  # pos of edge j+1 (first the anchor)
     pos_e2 = np.int64(1)  # pos of edge j+2
     first = anchor
@@ -119,7 +119,7 @@ def _back_extend(ticks, base, prm, ist, ref0):
         m = n - t + 1 if jj == 0 else 1
         dt = float(ticks[j + 1 - base] - ticks[j - base])
         ref = _median3(h0, h1, h2)
-        if _interval_code(dt, m, nxt_dt, nxt_m, True, ref, prm) != OK:
+        if _interval_code(dt, m, nxt_dt, nxt_m, np.bool_(True), ref, prm) != OK:
             first = j + 2  # edges j and j+1 are suspect
             first_pos = pos_e2
             break

@@ -36,7 +36,7 @@ def combustion_kernel(burn, work, reference, cycles, limits):
     # sample equal to its own, so their median is read off it (the same samples averaged as np.median's; one sort
     # per cylinder cost ~0.5 us each, 12 us a genset-v20 cycle)
     finite = np.empty(b)
-    n_fin = 0
+    n_fin = np.int64(0)  # typed int64 from the start: a literal 0 compiles median_without and _position once more
     for j in range(z):
         if burned[j] and not np.isnan(work[j]):
             finite[n_fin] = work[j]

@@ -402,7 +402,7 @@ def _sibling_median_kernel(x, out):
     """``_sibling_median`` into out (z,) (element loops: slice assignment and mask indexing compile slowly)."""
     z = x.shape[0]
     buf = np.empty(z)
-    n_ok = 0
+    n_ok = np.int64(0)  # typed int64 from the start: a literal 0 compiles median_of_first once more
     for k in range(z):
         if np.isfinite(x[k]):
             buf[n_ok] = x[k]
