@@ -6,9 +6,11 @@
     monitor/   per-cycle identification of the model's losses from tooth times and pressures
 
     numba_cache.py  where the compiled kernels are kept: one folder per version of the sources, set here, before any
-                    kernel is decorated (numba alone would not see a changed callee in another file)
+                    kernel is decorated (numba alone would not see a changed callee in another file); and Python's
+                    garbage collector paused while numba compiles (~3.4 s of a cold compile, design note 67)
 """
 
-from frictionwatch.core.numba_cache import use_fingerprinted_cache
+from frictionwatch.core.numba_cache import pause_gc_while_compiling, use_fingerprinted_cache
 
 use_fingerprinted_cache()
+pause_gc_while_compiling()

@@ -13,10 +13,20 @@ Where: ``$NUMBA_CACHE_DIR/frictionwatch-<fingerprint>`` when NUMBA_CACHE_DIR is 
 else ``$XDG_CACHE_HOME`` or ``~/.cache``, ``frictionwatch/numba/<fingerprint>``. Where that cannot be written, numba's
 own default stays (beside the sources), said once in the log. Folders of earlier versions are left where they are
 (``make clean-numba`` removes them): a few tens of MB each.
+
+    pause_gc_while_compiling()  # core/__init__.py too: Python's garbage collector off during each numba compile
+
+Why: a cold compile builds and drops a few hundred thousand small objects (numba's IR, types, LLVM wrappers);
+Python's generational collector ran ~25 full collections over a ~440k-object heap during the monitor's first run,
+~3.4 s of a ~48 s cold compile (design note 67, bench/compile_events.py). Off for the outermost compile, on again at
+its end (an exception included: numba ends the event in a ``finally``), so nothing is left uncollected for long: the
+next collection after the compile takes what it dropped. numba emits the event under its global compiler lock, so
+compiles never overlap and one depth count serves every thread. A collector that was off before stays off.
 """
 
 from __future__ import annotations
 
+import gc
 import hashlib
 import logging
 import os
@@ -24,6 +34,7 @@ import tempfile
 from pathlib import Path
 
 from numba import config
+from numba.core import event
 
 log = logging.getLogger(__name__)
 
@@ -79,4 +90,31 @@ def use_fingerprinted_cache() -> None:
     config.CACHE_DIR = str(target)
 
 
-__all__ = ["fingerprinted_cache_dir", "source_digest", "source_fingerprint", "use_fingerprinted_cache"]
+class CompileGcPause(event.Listener):
+    """Python's garbage collector off while numba compiles (module doc); ``depth``: compiles in progress (nested)."""
+
+    def __init__(self) -> None:
+        self.depth = 0
+        self._was_enabled = False
+
+    def on_start(self, ev: event.Event) -> None:
+        if self.depth == 0:
+            self._was_enabled = gc.isenabled()
+            gc.disable()
+        self.depth += 1
+
+    def on_end(self, ev: event.Event) -> None:
+        self.depth -= 1
+        if self.depth == 0 and self._was_enabled:
+            gc.enable()
+
+
+def pause_gc_while_compiling() -> CompileGcPause:
+    """Register a ``CompileGcPause`` for numba's compile events (once, from core/__init__.py) and return it."""
+    listener = CompileGcPause()
+    event.register("numba:compile", listener)
+    return listener
+
+
+__all__ = ["CompileGcPause", "fingerprinted_cache_dir", "pause_gc_while_compiling", "source_digest", "source_fingerprint",
+           "use_fingerprinted_cache"]

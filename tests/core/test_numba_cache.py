@@ -56,3 +56,42 @@ def test_a_kernel_is_cached_in_this_source_versions_folder(tmp_path: Path) -> No
     expected = tmp_path / f"frictionwatch-{source_fingerprint(installed)}"
     assert Path(cache_dir) == expected
     assert Path(core_kernel).is_relative_to(expected) and Path(driver_kernel).is_relative_to(expected)
+
+
+def test_the_garbage_collector_is_paused_while_numba_compiles_and_back_after():
+    """core/__init__.py registers CompileGcPause: a listener registered after it sees the collector off at each
+    compile's start; after the compile it is on again, and a collector that was off before stays off."""
+    import gc
+
+    from numba import njit
+    from numba.core import event
+
+    seen: list[bool] = []
+
+    class Probe(event.Listener):
+        def on_start(self, ev):
+            seen.append(gc.isenabled())
+
+        def on_end(self, ev):
+            pass
+
+    probe = Probe()
+    event.register("numba:compile", probe)
+    try:
+        assert gc.isenabled()
+
+        @njit(cache=False)
+        def plus_one(x):
+            return x + 1
+
+        assert plus_one(1) == 2
+        assert seen and not any(seen)  # off at every compile's start (nested ones included)
+        assert gc.isenabled()
+        gc.disable()
+        try:
+            assert plus_one(1.5) == 2.5  # a second specialisation compiled while the collector was off
+            assert not gc.isenabled()
+        finally:
+            gc.enable()
+    finally:
+        event.unregister("numba:compile", probe)
