@@ -236,21 +236,18 @@ class CycleAssembler(EpochSync):
                CamBatch: _feed_cam, FreeEndToothBatch: _feed_second_wheel}
 
     def _pressure_until(self, t0: float, end: int) -> None:
-        if end - t0 > self.wait_ticks:
-            self._long_record(t0, end)
-        if end > self._now:
-            self._now = end
-
-    def _long_record(self, t0: float, end: int) -> None:
-        """A pressure record spanning more than the pressure wait comes (keyed by its last sample) after the teeth
-        have gone past its first samples: their cycles may already have been given up as pressure_missing. Counted
-        and said once, so that the skips are not read as a sensor's fault (docs/replay-format.md, Batching)."""
+        """A pressure record's span filed: the newest time moved on, and a record spanning more than the pressure
+        wait counted (it comes, keyed by its last sample, after the teeth have gone past its first samples: their
+        cycles may already have been given up as pressure_missing); said once, so that the skips are not read as a
+        sensor's fault (docs/replay-format.md, Batching)."""
         if end - t0 > self.wait_ticks:
             if not self.stats["pressure_record_longer_than_wait"]:
                 log.warning("a pressure record spans %.2f s, more than the %.2f s a cycle waits for its pressure: "
                             "cycles before its end may be skipped as pressure_missing (write shorter records)",
                             (end - t0) / self.info.tick_hz, self.wait_ticks / self.info.tick_hz)
             self.stats["pressure_record_longer_than_wait"] += 1
+        if end > self._now:
+            self._now = end
 
     @property
     def next_index(self) -> int:
