@@ -135,15 +135,16 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     pressure, flags = checked_pressure(spec, cycle)
     pmax, pmax_angle = peak_pressure(cycle.grid, pressure, spec.firing_angles)
     m = state.n_harmonics
+    # the fit's settings, the same for both wheels: nuisance drift, band, drift term, the tooth learner's
+    fit_settings = (cfg.drift_nuisance, round(2 * cfg.fit_order) if cfg.fit_order else m, cfg.fit_drift,
+                    cfg.tooth_learning)
     try:
         fly, teeth, theta_start, patterns = fit_cycle_teeth(
-            cycle, spec.sensors.wheel_teeth, m, state.n_nuisance, state.teeth, state.tooth_patterns,
-            cfg.drift_nuisance, round(2 * cfg.fit_order) if cfg.fit_order else m, cfg.fit_drift, cfg.tooth_learning)
+            cycle, spec.sensors.wheel_teeth, m, state.n_nuisance, state.teeth, state.tooth_patterns, *fit_settings)
     except ValueError as exc:
         raise CycleRejected("bad_teeth", str(exc)) from exc
     free_end, wheel2, wheel2_flag = fit_second_wheel(  # the free end's own speed and tooth spacing (none: nothing)
-        cycle, state.wheel2, m, state.n_nuisance, (cfg.drift_nuisance, round(2 * cfg.fit_order) if cfg.fit_order
-                                                   else m, cfg.fit_drift, cfg.tooth_learning))
+        cycle, state.wheel2, m, state.n_nuisance, fit_settings)
     omega = fly.omega_mean
     load = cycle.load_torque if math.isfinite(cycle.load_torque) else cycle.load_power / omega
     if not math.isfinite(load):
