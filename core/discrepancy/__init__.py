@@ -8,11 +8,13 @@ service/ (cmd_discrepancy.py, discrepancy_report.py).
     candidates.py  Name: the candidate library (an effect, its cylinder, its free parameters)
     fit.py         finite-difference sensitivities, Gauss-Newton and a chord step on a training window
     workflow.py    Add: the loop (fit all, confirm the best on held-out cycles, add while significant)
+    discovery.py   what it found: the options, each step, the outcome and its JSON
 
     found = discover(model, cycles)      # found.model, found.to_json()
 """
 
 from frictionwatch.core.discrepancy.candidates import Candidate, candidate_library
-from frictionwatch.core.discrepancy.workflow import METRIC, Discovery, Options, discover
+from frictionwatch.core.discrepancy.discovery import METRIC, Discovery, Options
+from frictionwatch.core.discrepancy.workflow import discover
 
 __all__ = ["METRIC", "Candidate", "Discovery", "Options", "candidate_library", "discover"]

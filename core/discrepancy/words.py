@@ -95,7 +95,7 @@ def orders_text(orders) -> str:
 
 def verdict(d) -> str:
     """The discrepancy workflow's verdict in one sentence for the top of the report, from a
-    core.discrepancy.workflow.Discovery ``d``: what was named, what remains (its signature), an ambiguity and what would
+    core.discrepancy.discovery.Discovery ``d``: what was named, what remains (its signature), an ambiguity and what would
     tell, what was refused, the step limit."""
     named = ", ".join(said(e) for s in d.steps for e in s.effects)
     rest = d.remainder

@@ -167,8 +167,8 @@ def test_nothing_found_at_one_operating_point_says_what_that_cannot_show():
     show a friction law that differs from the model's only elsewhere: 'nothing' and an ambiguity say so (the
     sentence words.ONE_POINT, which the bench judges a one-point friction-law row by), whatever the trends' slopes (a
     steady log's scatter always gives one: design note 58); a log at two points does not get the sentence."""
+    from frictionwatch.core.discrepancy.discovery import Discovery
     from frictionwatch.core.discrepancy.words import ONE_POINT
-    from frictionwatch.core.discrepancy.workflow import Discovery
 
     model = EngineModel.from_spec(load_engine("k9k-4cyl"))
     final = {"significant_orders": [], "balance": {"significant": False, "mean_nm": 0.0}, "orders": []}
@@ -247,7 +247,7 @@ def test_a_torque_balance_residual_alone_is_said_in_friction_and_in_the_readings
     """A constant extra torque has no harmonic: with nothing in the speed, the verdict says how much friction it is
     (N m, % of the model's, FMEP) and which readings off by how much would read the same (genset-v20 with a 60 %
     extra friction in one cylinder read 'torque balance +55.1 N m' and nothing more)."""
-    from frictionwatch.core.discrepancy.workflow import Discovery
+    from frictionwatch.core.discrepancy.discovery import Discovery
 
     model = EngineModel.from_spec(load_engine("genset-v20"))
     final = {"significant_orders": [], "half_order_share": 0.0, "orders": [], "angle": {"peak_deg": 0.0},
@@ -333,8 +333,8 @@ def test_two_fits_within_the_null_are_said_and_are_no_ambiguity():
     """Where nothing in the held-out residual is beyond the null (features.beyond_null: no order above its floor, no
     balance beyond its own), two candidates that fit it equally are the model's own error: the outcome is nothing,
     the verdict says so and names neither (deutz 3000 rpm seed 2, healthy, had read "A discrepancy is found")."""
+    from frictionwatch.core.discrepancy.discovery import Discovery
     from frictionwatch.core.discrepancy.features import beyond_null
-    from frictionwatch.core.discrepancy.workflow import Discovery
 
     quiet = {"significant_orders": [], "balance": {"significant": False}}
     assert not beyond_null(quiet)
@@ -444,6 +444,7 @@ def test_a_speed_gap_far_beyond_a_healthy_logs_inside_every_floor_is_a_discrepan
     above its floor) but many times a healthy log's gap: said, with the order, its size against the normal scale
     and what would tell the model's own error from a missing effect (deutz 3000 rpm seed 2, a load ripple at order
     0.5, had read "No missing effect"); at 0.05 of its floor it is a healthy log's."""
+    from frictionwatch.core.discrepancy.discovery import Discovery
     from frictionwatch.core.discrepancy.features import (
         FLOOR_RMS,
         GAP_NULL,
@@ -453,7 +454,6 @@ def test_a_speed_gap_far_beyond_a_healthy_logs_inside_every_floor_is_a_discrepan
         beyond_null,
         healthy_gap,
     )
-    from frictionwatch.core.discrepancy.workflow import Discovery
 
     spec = load_engine("k9k-4cyl")
     m, n = 8, 400

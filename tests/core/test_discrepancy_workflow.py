@@ -133,8 +133,8 @@ def test_two_explanations_within_the_noise_are_said_both_and_neither_added():
     from frictionwatch.core.discrepancy.candidates import candidate_library
     from frictionwatch.core.discrepancy.choice import AMBIGUOUS_DCHI2
     from frictionwatch.core.discrepancy.choice import rival as _rival
+    from frictionwatch.core.discrepancy.discovery import Discovery
     from frictionwatch.core.discrepancy.fit import Trial
-    from frictionwatch.core.discrepancy.workflow import Discovery
 
     lib = {c.label: c for c in candidate_library(EngineModel.from_spec(load_engine(ENGINE)))}
     tdc, gain = lib["tdc_offset[cyl 2]"], lib["pressure_gain[cyl 2]"]
