@@ -131,7 +131,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     found = Discovery(model, model, [], gap(test, scale), gap(test, scale), localise(test, model.spec, scale),
                       {}, [("baseline", test.angles, test.speed.mean(axis=0))])
     current = model
-    speed_law = None  # a friction law the speed steps sized and the balance across the points read otherwise
+    speed_law = None  # (label, balance fit) of a friction law the speed steps sized and the balance read otherwise
     # what the pressure names outright (pegging, TDC, misfire: pressure_channel.pressure_findings), first and apart from
     # the step limit; the speed steps then start from the corrected pressure
     current, cur_res, test, extra = _pressure_step(found, current, cur_res, test, full, parts, scale, first, held)
@@ -233,9 +233,9 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
                or unresolved(t, quiet) or within_model_error(quiet and opt.floored_when_quiet, floored_fall,
                                                               opt.min_delta_chi2))
         if not why:  # a friction law on a log of several points: the balance across them must agree (note 62)
-            why, spent = _law_against_balance(t, current, cur_res, full, parts)
+            why, spent, law_fit = _law_against_balance(t, current, cur_res, full, parts)
             runs += spent
-            speed_law = t.candidate.label if why else None
+            speed_law = (t.candidate.label, law_fit) if why else None
         if why:  # significant, but it makes something else worse or is not physical: the model stays as it was
             found.refused.append({"candidate": t.candidate.label, "reason": why,
                                   "gap_before": g_cur, "gap_after": gap(test_new, scale),
@@ -262,19 +262,20 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     return found
 
 
-def _law_against_balance(t: Trial, current: EngineModel, cur_res: Residuals, full, parts) -> tuple[str, int]:
+def _law_against_balance(t: Trial, current: EngineModel, cur_res: Residuals, full, parts) -> tuple[str, int, object]:
     """Why a friction law sized by the speed steps is refused on a log of several operating points: the same law
     fitted to the training cycles' balance point by point (laws.py) reads another share (laws.speed_against_balance);
     '' where it agrees, where the candidate is no friction law of one ``fraction`` or the log has one point. Refused,
     nothing is named by the speed, and the balance across the points is asked next (``_laws_across_points``). Returns
-    the reason and the monitor runs spent (one: the law at fraction 1 over the log)."""
+    the reason, the monitor runs spent (one: the law at fraction 1 over the log) and the balance's laws.LawFit (None
+    where none was made), which ``_laws_across_points`` takes instead of a second run of the same law."""
     if not _is_friction_law(t.candidate):
-        return "", 0
+        return "", 0, None
     base = point_balance(parts(cur_res)[0])
     if base is None:
-        return "", 0
+        return "", 0, None
     fit = _balance_fit(t.candidate, current, base, full, parts)
-    return ("" if fit is None else speed_against_balance(float(t.x[0]), float(t.sigma[0]), fit)), 1
+    return ("" if fit is None else speed_against_balance(float(t.x[0]), float(t.sigma[0]), fit)), 1, fit
 
 
 def _is_friction_law(c) -> bool:
@@ -292,7 +293,7 @@ def _balance_fit(c, current: EngineModel, base, full, parts):
 
 
 def _laws_across_points(found: Discovery, current: EngineModel, cur_res: Residuals, test: Residuals, full, parts,
-                        scale: np.ndarray, spec, speed_law: str | None = None
+                        scale: np.ndarray, spec, speed_law: tuple | None = None
                         ) -> tuple[EngineModel, Residuals, Residuals, int]:
     """Where nothing was named and the held-out balance residual is beyond its null at a log of several operating
     points: each friction law of the library (a candidate of one ``fraction``, sized at the reference) fitted to the
@@ -302,7 +303,8 @@ def _laws_across_points(found: Discovery, current: EngineModel, cur_res: Residua
     two or more within it are an ambiguity, said with what would part them; the constant best: left to the
     remainder's words. One whole-log run per law and one for the chosen fit. Returns the model, its held-out part,
     its run and the runs spent.
-    ``speed_law``: the law the speed steps sized and the balance refused (``_law_against_balance``). Where the balance
+    ``speed_law``: (label, its balance LawFit) of the law the speed steps sized and the balance refused
+    (``_law_against_balance``, on this same model: that fit is taken, not run again). Where the balance
     then names another law, the two channels name two laws: an ambiguity, said, nothing added -- neither channel's
     model error is known well enough to prefer it (maruti 4000/0.8 <-> 1500/0.5 seed 2, a side-thrust skirt at 1: the
     speed sized the skirt at 0.71 +- 0.12, the balance read the skirt at 1.68 +- 0.19, beyond its range, and a
@@ -312,8 +314,11 @@ def _laws_across_points(found: Discovery, current: EngineModel, cur_res: Residua
     if base is None or point_balance(test) is None or not balance_residual(test)["significant"]:
         return current, test, cur_res, 0
     laws = [c for c in candidate_library(current) if _is_friction_law(c)]
-    fits = [(f, c) for c in laws if (f := _balance_fit(c, current, base, full, parts)) is not None]
-    runs = len(laws)
+    speed_label, speed_fit = speed_law if speed_law is not None else (None, None)
+    known = {speed_label: speed_fit} if speed_fit is not None else {}
+    fits = [(f, c) for c in laws
+            if (f := known[c.label] if c.label in known else _balance_fit(c, current, base, full, parts)) is not None]
+    runs = len(laws) - len(known)
     const = constant_fit(base)
     found.across_points = [{"label": f.label, "fraction": f.fraction, "sigma": f.sigma, "chi2": f.chi2,
                             "physical": f.physical} for f in [const, *(f for f, _ in fits)]]
@@ -325,8 +330,8 @@ def _laws_across_points(found: Discovery, current: EngineModel, cur_res: Residua
                            "separated_by": [ACROSS_POINTS_SEPARATION], "inside_floor": None}
         return current, test, cur_res, runs
     fit, cand = next((f, c) for f, c in fits if f is close[0])
-    if speed_law is not None and cand.label != speed_law:  # the speed named one law, the balance another: said
-        found.ambiguous = {"candidates": [f"{speed_law} (by the speed)", f"{cand.label} (by the torque balance)"],
+    if speed_label is not None and cand.label != speed_label:  # the speed named one law, the balance another: said
+        found.ambiguous = {"candidates": [f"{speed_label} (by the speed)", f"{cand.label} (by the torque balance)"],
                            "separated_by": [ACROSS_POINTS_SEPARATION], "inside_floor": None, "channels": True}
         return current, test, cur_res, runs
     new_model = current.with_effect(make_effect(cand.effect, {"fraction": fit.fraction}, {"fraction": fit.sigma}))
