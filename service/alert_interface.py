@@ -89,12 +89,88 @@ def sibling_reference_variance(n_cyl: int) -> float:
     return 2.0 if n_cyl == 3 else 1.0
 
 
-def leak_statistics(ewma: np.ndarray, baseline: Band, var: float) -> LeakStatistics:
+class LongRunVariance:
+    """How much more (or less) an EWMA of a healthy engine's per-cycle figures varies than independent cycles would
+    make it vary, estimated on line from the figures themselves (design note 71).
+
+    A cycle's pressure indicators are not independent of the last cycles' (maruti seed 3: a cylinder's exponent
+    less its sibling's, 30-cycle means, scattered 1.6x the independent-cycle figure, design note 54): the EWMA's
+    variance is sum_ij a_i a_j gamma(i - j), which is the independent figure times the long-run-variance factor
+    f = 1 + 2 sum_k rho_k (1 - g)^k for a fixed-factor EWMA (weights a_i = g (1 - g)^i). Here rho_k are the running
+    means (a running mean until ``horizon`` cycles, then an EWMA over ``horizon``) of the lag products
+    d_t d_(t-k) / d_t^2 for k = 1..``lags``, d each figure less its own mean over the same horizon (a healthy
+    cylinder's figure sits off zero by its baseline's error, a constant the lag products would count as correlation;
+    that error is the baseline's, not the cycles'), lag products only across contiguous cycles (``cut`` at a hold).
+    The centring costs the estimate ~2 sum_k (1 - g)^k / n of itself (the centre's own scatter: ~20 % at the
+    warm-up's end, ~5 % after a horizon).
+
+    ``add`` takes one cycle's figures (s, z): s series (figures) per cylinder. ``factor(g)`` gives per series the
+    median over the cylinders of each cylinder's f (one cylinder whose figure moved -- a fault -- has its lag products
+    raised by its shift and is outvoted; with fewer than three cylinders there is no majority and the factor is
+    1), bounded below by 1 (a standard error never smaller than the independent-cycle one: no rule raises where it
+    did not; negatively correlated figures, as a few genset-v20 cylinders' exponents, keep the larger figure) and above
+    by (2 - g) / g (the EWMA of a figure never varies more than the figure itself), and 1 until ``warmup`` cycles
+    have been added (the estimate's scatter is ~sqrt(2 / (g n)) relative per cylinder: at 8 windows, ~0.5)."""
+
+    __slots__ = ("lags", "horizon", "warmup", "n", "_centre", "_recent", "_fill", "_products", "_counts")
+
+    def __init__(self, n_series: int, n_cyl: int, lags: int, horizon: float, warmup: int):
+        self.lags, self.horizon, self.warmup = int(lags), float(horizon), int(warmup)
+        self.n = 0  # cycles added
+        self._centre = np.zeros((n_series, n_cyl))  # each figure's own running mean
+        self._recent = np.zeros((self.lags, n_series, n_cyl))  # the last cycles' figures, newest first
+        self._fill = 0  # how many of them are contiguous with the next cycle
+        self._products = np.zeros((self.lags + 1, n_series, n_cyl))  # running means of x_t x_(t-k), k = 0..lags
+        self._counts = np.zeros(self.lags + 1)  # the products each lag has taken
+
+    def cut(self) -> None:
+        """The next cycle is not contiguous with the last (a hold, a band learnt): no lag product spans the gap."""
+        self._fill = 0
+
+    def add(self, x: np.ndarray) -> None:
+        """One cycle's figures (s, z), contiguous with the last added unless ``cut`` came between; a non-finite
+        figure cuts the series (nothing is added)."""
+        x = np.asarray(x, dtype=np.float64)
+        if not np.all(np.isfinite(x)):
+            self.cut()
+            return
+        self.n += 1
+        self._centre += max(1.0 / self.horizon, 1.0 / self.n) * (x - self._centre)
+        d = x - self._centre
+        k = self._fill + 1  # lags 0..fill have a product this cycle
+        self._counts[:k] += 1.0
+        a = np.maximum(1.0 / self.horizon, 1.0 / self._counts[:k])[:, None, None]
+        lagged = np.concatenate([d[None], self._recent[:k - 1]])
+        self._products[:k] += a * (d[None] * lagged - self._products[:k])
+        self._recent[1:] = self._recent[:-1]
+        self._recent[0] = d
+        self._fill = min(self._fill + 1, self.lags)
+
+    def per_cylinder(self, g: float) -> np.ndarray:
+        """(s, z) each cylinder's factor f for an EWMA of factor ``g`` (unbounded; lags without products count 0)."""
+        c0 = self._products[0]
+        w = (1.0 - g) ** np.arange(1, self.lags + 1)
+        tail = np.einsum("k,ksz->sz", w, self._products[1:])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(c0 > 0.0, 1.0 + 2.0 * tail / np.where(c0 > 0.0, c0, 1.0), 1.0)
+
+    def factor(self, g: float) -> np.ndarray:
+        """(s,) the factor on each series' independent-cycle EWMA variance (class doc: median over the cylinders,
+        bounded to [1, (2 - g) / g], 1 during the warm-up or with fewer than three cylinders)."""
+        s, z = self._products.shape[1:]
+        if self.n < self.warmup or z < 3:
+            return np.ones(s)
+        return np.clip(np.median(self.per_cylinder(g), axis=1), 1.0, (2.0 - g) / g)
+
+
+def leak_statistics(ewma: np.ndarray, baseline: Band, var: float, var_ratio: float | None = None) -> LeakStatistics:
     """From the EWMA (4, z) of the indicators' change from the mean of the baseline's load band they were compared
-    with (rows as alert_baseline.INDICATORS) and ``var``, its variance per unit of per-cycle variance for independent
-    cycles (``ewma_variance`` times ``sibling_reference_variance``). The leak signature
+    with (rows as alert_baseline.INDICATORS) and ``var``, its variance per unit of per-cycle variance
+    (``ewma_variance`` times ``sibling_reference_variance`` times the leak signature's ``LongRunVariance`` factor;
+    ``var_ratio`` the compression ratio's, ``var`` if None). The leak signature
     s = (-dn_c / sd_c + dn_e / sd_e) / sqrt(2) is scaled by its own per-cycle spread from the band's covariance (the
-    two exponents' scatter is correlated: one trapped-mass error moves both) and by the standard error sqrt(var)."""
+    two exponents' scatter is correlated: one trapped-mass error moves both) and by the standard error sqrt(var).
+    With ``var`` 1 the statistics of one cycle's change are that cycle's standardised figures."""
     sd = baseline.sd
     w = np.zeros_like(ewma)
     w[1], w[2] = -1.0 / sd[1], 1.0 / sd[2]
@@ -102,8 +178,9 @@ def leak_statistics(ewma: np.ndarray, baseline: Band, var: float) -> LeakStatist
     s = np.sum(w * ewma, axis=0)
     s_sd = np.sqrt(np.maximum(np.einsum("iz,zij,jz->z", w, baseline.cov, w), 1e-30))
     se = np.sqrt(var)
+    se_ratio = se if var_ratio is None else np.sqrt(var_ratio)
     return LeakStatistics(z_leak=s / (s_sd * se), effect=0.5 * (ewma[2] - ewma[1]),
-                          z_ratio=ewma[0] / (np.maximum(sd[0], 1e-12) * se))
+                          z_ratio=ewma[0] / (np.maximum(sd[0], 1e-12) * se_ratio))
 
 
 # ---- the interface ----------------------------------------------------------------------------------------------
@@ -168,9 +245,11 @@ class Pressure:
     """The engine's pressure statistics in a usable cycle. imep_pa: the engine's mean IMEP; held: why the statistics
     hold still this cycle (a load change settling, a load not commissioned yet) with the learner's learning_cycles,
     else None and ewma (4, z), the EWMA of the indicators' change from ``band``'s mean, against the siblings'
-    median change (``change_against_siblings``; rows as INDICATORS), and ``stats`` (leak_statistics of it); var
-    each cylinder's figure's variance per unit of per-cycle variance (``ewma_variance`` times
-    ``sibling_reference_variance``)."""
+    median change (``change_against_siblings``; rows as INDICATORS), and ``stats`` (leak_statistics of it, its
+    standard errors those of the EWMA and of the band's mean); var each cylinder's EWMA's variance per unit of
+    per-cycle variance (``ewma_variance`` times ``sibling_reference_variance`` times the leak signature's
+    long-run-variance factor; the band mean's is not in it: core leak_change adds it), var_ratio the compression
+    ratio's; long_run the two factors (``LongRunVariance.factor``: leak signature, compression ratio)."""
 
     imep_pa: float
     held: str | None = None
@@ -179,6 +258,8 @@ class Pressure:
     stats: LeakStatistics | None = None
     band: Band | None = None
     var: float = float("nan")
+    var_ratio: float = float("nan")
+    long_run: tuple[float, float] = (1.0, 1.0)
 
 
 def _never(name: str, cylinder: int | None) -> bool:

@@ -52,6 +52,7 @@ from frictionwatch.service.alert_interface import (
     Decision,
     Hold,
     Latch,
+    LongRunVariance,
     Pressure,
     Rule,
     change_against_siblings,
@@ -74,6 +75,11 @@ __all__ = ["KINDS", "RING_KINDS", "Alert", "AlertConfig", "AlertEngine", "AlertE
 
 MAX_ACKNOWLEDGEMENTS = 100  # kept per alert (the first is always kept)
 KINDS = ("ring_wear", "blow_by", "misfire", "sensor_fault", "model_misfit")
+# the long-run-variance estimate of the pressure statistics (alert_interface.LongRunVariance, design note 71), in
+# windows of the statistics' EWMA: lags summed (the EWMA's weight at 3 windows is e^-3), the horizon its lag products
+# are averaged over, and the warm-up before it is used (its relative scatter ~sqrt(2 / warmup windows)). Chosen from
+# the EWMA's kernel and the estimate's scatter, not tuned on runs
+LONG_RUN_LAGS, LONG_RUN_HORIZON, LONG_RUN_WARMUP = 3, 40, 8
 RING_KINDS = ("ring_wear", "blow_by")
 
 
@@ -171,6 +177,10 @@ class AlertEngine:
         self._ewma = np.zeros((len(INDICATORS), z))
         self._ewma_n = 0
         self._ewma_var = 0.0  # the EWMA's variance per unit of per-cycle variance (alert_interface.ewma_variance)
+        # how far the healthy cycles' figures are from independent (None: taken as independent, as before note 71)
+        w = self.config.window
+        self.long_run_variance: LongRunVariance | None = LongRunVariance(
+            2, z, int(LONG_RUN_LAGS * w), LONG_RUN_HORIZON * w, int(LONG_RUN_WARMUP * w))
         self._imep_ref, self._settle = math.nan, 0  # the load-change hold of the pressure statistics
         self._cycles = 0
         self._last_cycle = -1
@@ -260,6 +270,8 @@ class AlertEngine:
             (cyl_flags[cyl - 1] if cyl is not None and 1 <= cyl <= z else engine_flags).add(kind)
         at_start = self.baseline
         pressure = self._pressure(result, cyl_flags)  # learns the baseline where the cycle is healthy
+        if self.long_run_variance is not None and (pressure is None or pressure.stats is None):
+            self.long_run_variance.cut()  # no figures this cycle: the next is not contiguous with the last
         ctx = Context(cyl_flags, engine_flags, at_start, self.baseline, pressure, self._latched, self._watched)
         events: list[AlertEvent] = []
         for stage in self.rules:
@@ -299,7 +311,17 @@ class AlertEngine:
         self._ewma_var = ewma_variance(self._ewma_var, g)
         change = change_against_siblings(self._ewma)
         var = self._ewma_var * sibling_reference_variance(self.spec.n_cyl)
-        return Pressure(imep, ewma=change, stats=leak_statistics(change, band, var), band=band, var=var)
+        f_leak, f_ratio, lrv = 1.0, 1.0, self.long_run_variance
+        if lrv is not None:  # this cycle's own standardised figures against the siblings: the estimate's input
+            one = leak_statistics(change_against_siblings(x - band.mean), band, 1.0)
+            lrv.add(np.stack([one.z_leak, one.z_ratio]))
+            f_leak, f_ratio = (float(f) for f in lrv.factor(g))
+        # the z's standard error holds the band mean's own error too (its cycles as correlated as the run's: the
+        # same factor); var, for the ring rule's leak change, is the EWMA's alone (core leak_change adds the band's)
+        band_var = sibling_reference_variance(self.spec.n_cyl) / max(band.cycles, 1)
+        stats = leak_statistics(change, band, (var + band_var) * f_leak, (var + band_var) * f_ratio)
+        return Pressure(imep, ewma=change, stats=stats, band=band, var=var * f_leak, var_ratio=var * f_ratio,
+                        long_run=(f_leak, f_ratio))
 
     def _learn(self, x: np.ndarray, cycle: int, imep: float) -> None:
         """One healthy cycle at a load no band holds: into the learner, which restarts where the IMEP has left the
