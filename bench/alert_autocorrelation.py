@@ -42,11 +42,12 @@ def load(path: str) -> dict:
         return pickle.load(fh)
 
 
-def pressure_series(run: dict) -> dict:
+def pressure_series(run: dict, args_contiguous: bool = False) -> dict:
     """Replays the alert engine on a kept run: per used cycle (the pressure statistics had a value) its cycle index,
     the indicators' change from the band's mean u (4, z), the band's sd (4, z) and cov (z, 4, 4), and a segment id
     (a new one at every hold, band change or gap); and per cycle the ring rule's leak effect (z,) and whether the
-    sibling window took it."""
+    sibling window took it. ``args_contiguous``: a segment runs on through holds (the used cycles in the order the
+    alerts' EWMA folds them) and ends only at a band change."""
     engine = AlertEngine(run["spec"], baseline=run["baseline"])
     rows: dict = {"cycle": [], "u": [], "sd": [], "cov": [], "segment": [], "band": [], "effect": [], "effect_used": []}
     seg, last_key = 0, None
@@ -56,7 +57,8 @@ def pressure_series(run: dict) -> dict:
         nonlocal seg, last_key
         p = original(result, cyl_flags)
         if p is None or p.held is not None or p.band is None:
-            last_key = None
+            if not args_contiguous:
+                last_key = None
             return p
         key = (p.band.first_cycle, p.band.last_cycle)
         if key != last_key:
@@ -149,8 +151,8 @@ def factors(args: argparse.Namespace) -> dict:
     out = {}
     for path in args.runs:
         run = load(path)
-        s = pressure_series(run)
-        res = {"cycles": len(run["results"]), "used": int(len(s["cycle"])),
+        s = pressure_series(run, args.through_holds)
+        res = {"through_holds": args.through_holds, "cycles": len(run["results"]), "used": int(len(s["cycle"])),
                "segments": int(len(np.unique(s["segment"]))), "effects": run["effects"]}
         for name, (x, seg, band) in figures(s).items():
             rho = acf(x, seg, band, args.lags)
@@ -243,6 +245,8 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("factors")
     p.add_argument("runs", nargs="+")
     p.add_argument("--lags", type=int, default=LAGS)
+    p.add_argument("--through-holds", action="store_true", help="lag products across holds within a band (the "
+                   "used cycles as the EWMA folds them); default: only across contiguous cycles")
     p = sub.add_parser("replay")
     p.add_argument("runs", nargs=1)
     p.add_argument("--cylinder", type=int, default=0, help="the faulty cylinder (1-based; 0: a healthy run)")

@@ -90,74 +90,70 @@ def sibling_reference_variance(n_cyl: int) -> float:
 
 
 class LongRunVariance:
-    """How much more (or less) an EWMA of a healthy engine's per-cycle figures varies than independent cycles would
-    make it vary, estimated on line from the figures themselves (design note 71).
+    """How much more an EWMA of a healthy engine's per-cycle figures varies than independent cycles would make it
+    vary, estimated on line from the figures themselves (design note 71).
 
-    A cycle's pressure indicators are not independent of the last cycles' (maruti seed 3: a cylinder's exponent
-    less its sibling's, 30-cycle means, scattered 1.6x the independent-cycle figure, design note 54): the EWMA's
-    variance is sum_ij a_i a_j gamma(i - j), which is the independent figure times the long-run-variance factor
-    f = 1 + 2 sum_k rho_k (1 - g)^k for a fixed-factor EWMA (weights a_i = g (1 - g)^i). Here rho_k are the running
-    means (a running mean until ``horizon`` cycles, then an EWMA over ``horizon``) of the lag products
-    d_t d_(t-k) / d_t^2 for k = 1..``lags``, d each figure less its own mean over the same horizon (a healthy
-    cylinder's figure sits off zero by its baseline's error, a constant the lag products would count as correlation;
-    that error is the baseline's, not the cycles'), lag products only across contiguous cycles (``cut`` at a hold).
-    The centring costs the estimate ~2 sum_k (1 - g)^k / n of itself (the centre's own scatter: ~20 % at the
-    warm-up's end, ~5 % after a horizon).
+    A cycle's figures need not be independent of the last cycle's (the residual gas one cycle leaves to the next is
+    combustion's known cycle-to-cycle coupling): for a first-order autoregression with lag-1 correlation phi the
+    variance of an EWMA of factor g is the independent-cycle g / (2 - g) times
+    f = (1 + phi (1 - g)) / (1 - phi (1 - g)). phi is each figure's lag-1 correlation: the running means (a running
+    mean until ``horizon`` cycles, then an EWMA over it) of d_t d_(t-1) and d_t^2, d each figure less its own EWMA
+    over ``centre`` cycles, in the order the alerts' EWMA folds the cycles.
+
+    Why only lag 1 and a short centre (design note 71): a fault is a lasting shift of the figure, and a sum of lag
+    products over a window's length counts a shift of delta (in per-cycle sd) as ~2 delta^2 sum_k (1 - g)^k of
+    factor: an estimate over 150 lags read a factor of 30 on independent synthetic cycles after one cylinder leaked
+    and then a second (the sibling median moves every cylinder's figure a little with a moved one, and the products
+    remember it for their horizon) -- the standard error grew with the fault it was to reveal. The lag-1 product
+    about a short centre sees a shift only while the centre catches up: a 5 sd shift adds ~0.3 to one cylinder's
+    phi for a horizon, a sibling's 0.25 sd none to speak of. What this leaves out: a slow wander without lag-1
+    correlation (the healthy figures' longer-lag sums on the simulator, 0.7-1.3 of the independent figure, are within
+    their own scatter of 1).
 
     ``add`` takes one cycle's figures (s, z): s series (figures) per cylinder. ``factor(g)`` gives per series the
-    median over the cylinders of each cylinder's f (one cylinder whose figure moved -- a fault -- has its lag products
-    raised by its shift and is outvoted; with fewer than three cylinders there is no majority and the factor is
-    1), bounded below by 1 (a standard error never smaller than the independent-cycle one: no rule raises where it
-    did not; negatively correlated figures, as a few genset-v20 cylinders' exponents, keep the larger figure) and above
-    by (2 - g) / g (the EWMA of a figure never varies more than the figure itself), and 1 until ``warmup`` cycles
-    have been added (the estimate's scatter is ~sqrt(2 / (g n)) relative per cylinder: at 8 windows, ~0.5)."""
+    median over the cylinders of each cylinder's f (a faulty cylinder is outvoted; with fewer than three cylinders
+    there is no majority and the factor is 1), bounded below by 1 (phi < 0 gives no smaller standard error: no rule
+    raises where it did not) and above by (2 - g) / g (an EWMA never varies more than its figure), and 1 until
+    ``warmup`` cycles have been added (phi's scatter is ~1 / sqrt(n) per cylinder)."""
 
-    __slots__ = ("lags", "horizon", "warmup", "n", "_centre", "_recent", "_fill", "_products", "_counts")
+    __slots__ = ("centre_cycles", "horizon", "warmup", "n", "_centre", "_last", "_c0", "_c1")
 
-    def __init__(self, n_series: int, n_cyl: int, lags: int, horizon: float, warmup: int):
-        self.lags, self.horizon, self.warmup = int(lags), float(horizon), int(warmup)
+    def __init__(self, n_series: int, n_cyl: int, centre: float, horizon: float, warmup: int):
+        self.centre_cycles, self.horizon, self.warmup = float(centre), float(horizon), int(warmup)
         self.n = 0  # cycles added
-        self._centre = np.zeros((n_series, n_cyl))  # each figure's own running mean
-        self._recent = np.zeros((self.lags, n_series, n_cyl))  # the last cycles' figures, newest first
-        self._fill = 0  # how many of them are contiguous with the next cycle
-        self._products = np.zeros((self.lags + 1, n_series, n_cyl))  # running means of x_t x_(t-k), k = 0..lags
-        self._counts = np.zeros(self.lags + 1)  # the products each lag has taken
-
-    def cut(self) -> None:
-        """The next cycle is not contiguous with the last (a hold, a band learnt): no lag product spans the gap."""
-        self._fill = 0
+        self._centre = np.zeros((n_series, n_cyl))  # each figure's short EWMA
+        self._last = np.zeros((n_series, n_cyl))  # the last cycle's deviation from it
+        self._c0 = np.zeros((n_series, n_cyl))  # running mean of d_t^2
+        self._c1 = np.zeros((n_series, n_cyl))  # running mean of d_t d_(t-1)
 
     def add(self, x: np.ndarray) -> None:
-        """One cycle's figures (s, z), contiguous with the last added unless ``cut`` came between; a non-finite
-        figure cuts the series (nothing is added)."""
+        """One cycle's figures (s, z), the next in the alerts' EWMA (a non-finite one is not added)."""
         x = np.asarray(x, dtype=np.float64)
         if not np.all(np.isfinite(x)):
-            self.cut()
             return
         self.n += 1
-        self._centre += max(1.0 / self.horizon, 1.0 / self.n) * (x - self._centre)
+        self._centre += max(1.0 / self.centre_cycles, 1.0 / self.n) * (x - self._centre)
         d = x - self._centre
-        k = self._fill + 1  # lags 0..fill have a product this cycle
-        self._counts[:k] += 1.0
-        a = np.maximum(1.0 / self.horizon, 1.0 / self._counts[:k])[:, None, None]
-        lagged = np.concatenate([d[None], self._recent[:k - 1]])
-        self._products[:k] += a * (d[None] * lagged - self._products[:k])
-        self._recent[1:] = self._recent[:-1]
-        self._recent[0] = d
-        self._fill = min(self._fill + 1, self.lags)
+        a = max(1.0 / self.horizon, 1.0 / self.n)
+        self._c0 += a * (d * d - self._c0)
+        if self.n > 1:
+            self._c1 += max(1.0 / self.horizon, 1.0 / (self.n - 1)) * (d * self._last - self._c1)
+        self._last = d
+
+    def lag_one(self) -> np.ndarray:
+        """(s, z) each figure's lag-1 correlation phi (0 where it has no spread yet)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(self._c0 > 0.0, self._c1 / np.where(self._c0 > 0.0, self._c0, 1.0), 0.0)
 
     def per_cylinder(self, g: float) -> np.ndarray:
-        """(s, z) each cylinder's factor f for an EWMA of factor ``g`` (unbounded; lags without products count 0)."""
-        c0 = self._products[0]
-        w = (1.0 - g) ** np.arange(1, self.lags + 1)
-        tail = np.einsum("k,ksz->sz", w, self._products[1:])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(c0 > 0.0, 1.0 + 2.0 * tail / np.where(c0 > 0.0, c0, 1.0), 1.0)
+        """(s, z) each cylinder's factor f for an EWMA of factor ``g`` (phi clipped to [0, 0.999]: class doc)."""
+        r = np.clip(self.lag_one(), 0.0, 0.999) * (1.0 - g)
+        return (1.0 + r) / (1.0 - r)
 
     def factor(self, g: float) -> np.ndarray:
         """(s,) the factor on each series' independent-cycle EWMA variance (class doc: median over the cylinders,
         bounded to [1, (2 - g) / g], 1 during the warm-up or with fewer than three cylinders)."""
-        s, z = self._products.shape[1:]
+        s, z = self._c0.shape
         if self.n < self.warmup or z < 3:
             return np.ones(s)
         return np.clip(np.median(self.per_cylinder(g), axis=1), 1.0, (2.0 - g) / g)

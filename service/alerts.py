@@ -76,10 +76,10 @@ __all__ = ["KINDS", "RING_KINDS", "Alert", "AlertConfig", "AlertEngine", "AlertE
 MAX_ACKNOWLEDGEMENTS = 100  # kept per alert (the first is always kept)
 KINDS = ("ring_wear", "blow_by", "misfire", "sensor_fault", "model_misfit")
 # the long-run-variance estimate of the pressure statistics (alert_interface.LongRunVariance, design note 71), in
-# windows of the statistics' EWMA: lags summed (the EWMA's weight at 3 windows is e^-3), the horizon its lag products
-# are averaged over, and the warm-up before it is used (its relative scatter ~sqrt(2 / warmup windows)). Chosen from
-# the EWMA's kernel and the estimate's scatter, not tuned on runs
-LONG_RUN_LAGS, LONG_RUN_HORIZON, LONG_RUN_WARMUP = 3, 40, 8
+# windows of the statistics' EWMA: the centre its lag-1 products are taken about, the horizon they are averaged
+# over, and the warm-up before it is used (phi's scatter ~1 / sqrt(n): ~0.07 per cylinder at 4 windows). Chosen
+# from the EWMA's window and the estimate's scatter, not tuned on runs
+LONG_RUN_CENTRE, LONG_RUN_HORIZON, LONG_RUN_WARMUP = 2, 40, 4
 RING_KINDS = ("ring_wear", "blow_by")
 
 
@@ -180,7 +180,7 @@ class AlertEngine:
         # how far the healthy cycles' figures are from independent (None: taken as independent, as before note 71)
         w = self.config.window
         self.long_run_variance: LongRunVariance | None = LongRunVariance(
-            2, z, int(LONG_RUN_LAGS * w), LONG_RUN_HORIZON * w, int(LONG_RUN_WARMUP * w))
+            2, z, LONG_RUN_CENTRE * w, LONG_RUN_HORIZON * w, int(LONG_RUN_WARMUP * w))
         self._imep_ref, self._settle = math.nan, 0  # the load-change hold of the pressure statistics
         self._cycles = 0
         self._last_cycle = -1
@@ -270,8 +270,6 @@ class AlertEngine:
             (cyl_flags[cyl - 1] if cyl is not None and 1 <= cyl <= z else engine_flags).add(kind)
         at_start = self.baseline
         pressure = self._pressure(result, cyl_flags)  # learns the baseline where the cycle is healthy
-        if self.long_run_variance is not None and (pressure is None or pressure.stats is None):
-            self.long_run_variance.cut()  # no figures this cycle: the next is not contiguous with the last
         ctx = Context(cyl_flags, engine_flags, at_start, self.baseline, pressure, self._latched, self._watched)
         events: list[AlertEvent] = []
         for stage in self.rules:
