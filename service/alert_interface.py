@@ -156,7 +156,9 @@ class LongRunVariance:
         s, z = self._c0.shape
         if self.n < self.warmup or z < 3:
             return np.ones(s)
-        return np.clip(np.median(self.per_cylinder(g), axis=1), 1.0, (2.0 - g) / g)
+        f = np.sort(self.per_cylinder(g), axis=1)  # the median by a sort: np.median's overhead is ~10x on z values
+        median = f[:, z // 2] if z % 2 else 0.5 * (f[:, z // 2 - 1] + f[:, z // 2])
+        return np.clip(median, 1.0, (2.0 - g) / g)
 
 
 def leak_statistics(ewma: np.ndarray, baseline: Band, var: float, var_ratio: float | None = None) -> LeakStatistics:

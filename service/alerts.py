@@ -177,10 +177,10 @@ class AlertEngine:
         self._ewma = np.zeros((len(INDICATORS), z))
         self._ewma_n = 0
         self._ewma_var = 0.0  # the EWMA's variance per unit of per-cycle variance (alert_interface.ewma_variance)
-        # how far the healthy cycles' figures are from independent (None: taken as independent, as before note 71)
+        # how far the healthy cycles' figures are from independent (the leak signature's and the ratio's)
         w = self.config.window
-        self.long_run_variance: LongRunVariance | None = LongRunVariance(
-            2, z, LONG_RUN_CENTRE * w, LONG_RUN_HORIZON * w, int(LONG_RUN_WARMUP * w))
+        self.long_run_variance = LongRunVariance(2, z, LONG_RUN_CENTRE * w, LONG_RUN_HORIZON * w,
+                                                 int(LONG_RUN_WARMUP * w))
         self._imep_ref, self._settle = math.nan, 0  # the load-change hold of the pressure statistics
         self._cycles = 0
         self._last_cycle = -1
@@ -309,11 +309,10 @@ class AlertEngine:
         self._ewma_var = ewma_variance(self._ewma_var, g)
         change = change_against_siblings(self._ewma)
         var = self._ewma_var * sibling_reference_variance(self.spec.n_cyl)
-        f_leak, f_ratio, lrv = 1.0, 1.0, self.long_run_variance
-        if lrv is not None:  # this cycle's own standardised figures against the siblings: the estimate's input
-            one = leak_statistics(change_against_siblings(x - band.mean), band, 1.0)
-            lrv.add(np.stack([one.z_leak, one.z_ratio]))
-            f_leak, f_ratio = (float(f) for f in lrv.factor(g))
+        # this cycle's own standardised figures against the siblings: the long-run estimate's input
+        one = leak_statistics(change_against_siblings(x - band.mean), band, 1.0)
+        self.long_run_variance.add(np.stack([one.z_leak, one.z_ratio]))
+        f_leak, f_ratio = (float(f) for f in self.long_run_variance.factor(g))
         # the z's standard error holds the band mean's own error too (its cycles as correlated as the run's: the
         # same factor); var, for the ring rule's leak change, is the EWMA's alone (core leak_change adds the band's)
         band_var = sibling_reference_variance(self.spec.n_cyl) / max(band.cycles, 1)
