@@ -163,9 +163,10 @@ class LongRunVariance:
 
 def leak_statistics(ewma: np.ndarray, baseline: Band, var: float, var_ratio: float | None = None) -> LeakStatistics:
     """From the EWMA (4, z) of the indicators' change from the mean of the baseline's load band they were compared
-    with (rows as alert_baseline.INDICATORS) and ``var``, its variance per unit of per-cycle variance
-    (``ewma_variance`` times ``sibling_reference_variance`` times the leak signature's ``LongRunVariance`` factor;
-    ``var_ratio`` the compression ratio's, ``var`` if None). The leak signature
+    with (rows as alert_baseline.INDICATORS) and ``var``, the figure's variance per unit of per-cycle variance (the
+    EWMA's, ``ewma_variance``, plus the band mean's, 1 / its cycles; times ``sibling_reference_variance`` and the
+    leak signature's ``LongRunVariance`` factor: service.alerts; ``var_ratio`` the compression ratio's, ``var`` if
+    None). The leak signature
     s = (-dn_c / sd_c + dn_e / sd_e) / sqrt(2) is scaled by its own per-cycle spread from the band's covariance (the
     two exponents' scatter is correlated: one trapped-mass error moves both) and by the standard error sqrt(var).
     With ``var`` 1 the statistics of one cycle's change are that cycle's standardised figures."""
