@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import pickle
 import sys
 import tempfile
 import time
@@ -91,11 +92,14 @@ def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: i
     alerts = AlertEngine(model.spec, baseline=baseline)
     rule = next(r for stage in alerts.rules for r in stage if isinstance(r, RingConditionRule))
     events, trace = [], {"cycle": [], "since": [], "since_sigma": [], "siblings": [], "siblings_sigma": []}
+    kept = []  # --save: every cycle's result, for bench.alert_autocorrelation's replays
     t0, c0, n = time.perf_counter(), time.process_time(), 0
     for chunk in sim.chunks():
         for record in chunk.records:
             for res in pipe.feed(record):
                 n += 1
+                if args.save:
+                    kept.append(res)
                 events += [(int(res.index), e.kind, e.alert) for e in alerts.update(res)]
                 if args.progress and n % args.progress == 0:  # a long run's partial figures, should it be cut
                     raised = [r for r in _raised(events) if r["kind"] in RING_KINDS]
@@ -110,6 +114,10 @@ def run(args: argparse.Namespace, cycles: int, effects: list[str], step_every: i
         if stop is not None and stop(events, n):
             break
     arr = {k: np.array(v) for k, v in trace.items()}
+    if args.save:  # the run's results and the baseline it started from: the alerts replay on them alone
+        with open(args.save, "wb") as fh:
+            pickle.dump({"argv": vars(args), "spec": model.spec, "baseline": baseline, "results": kept,
+                         "effects": effects}, fh)
     return {"events": events, "trace": arr, "cycles": n, "wall_s": round(time.perf_counter() - t0, 1),
             "cpu_s": round(time.process_time() - c0, 1),
             "load_steps": len(steps), "commissioned": not args.no_commission,
@@ -206,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--commission-cycles", type=int, default=300)
         p.add_argument("--commission-loads", default=f"1.0,{LOW_LOAD}")
         p.add_argument("--trace", default="", help="keep the per-cycle figures in this .npz")
+        p.add_argument("--save", default="", help="pickle the run's results and starting baseline here "
+                       "(bench.alert_autocorrelation replays the alerts on them)")
         p.add_argument("--step-every", type=int, default=0 if name == "ring" else 500)
         p.add_argument("--progress", type=int, default=0, help="a progress line every N cycles (0: none)")
         p.add_argument("--low-load", type=float, default=LOW_LOAD, help="the steps' other load, a fraction of the point's")

@@ -52,6 +52,7 @@ from frictionwatch.service.alert_interface import (
     Decision,
     Hold,
     Latch,
+    LongRunVariance,
     Pressure,
     Rule,
     change_against_siblings,
@@ -74,6 +75,11 @@ __all__ = ["KINDS", "RING_KINDS", "Alert", "AlertConfig", "AlertEngine", "AlertE
 
 MAX_ACKNOWLEDGEMENTS = 100  # kept per alert (the first is always kept)
 KINDS = ("ring_wear", "blow_by", "misfire", "sensor_fault", "model_misfit")
+# the long-run-variance estimate of the pressure statistics (alert_interface.LongRunVariance, design note 71), in
+# windows of the statistics' EWMA: the centre its lag-1 products are taken about, the horizon they are averaged
+# over, and the warm-up before it is used (phi's scatter ~1 / sqrt(n): ~0.07 per cylinder at 4 windows). Chosen
+# from the EWMA's window and the estimate's scatter, not tuned on runs
+LONG_RUN_CENTRE, LONG_RUN_HORIZON, LONG_RUN_WARMUP = 2, 40, 4
 RING_KINDS = ("ring_wear", "blow_by")
 
 
@@ -171,6 +177,10 @@ class AlertEngine:
         self._ewma = np.zeros((len(INDICATORS), z))
         self._ewma_n = 0
         self._ewma_var = 0.0  # the EWMA's variance per unit of per-cycle variance (alert_interface.ewma_variance)
+        # how far the healthy cycles' figures are from independent (the leak signature's and the ratio's)
+        w = self.config.window
+        self.long_run_variance = LongRunVariance(2, z, LONG_RUN_CENTRE * w, LONG_RUN_HORIZON * w,
+                                                 int(LONG_RUN_WARMUP * w))
         self._imep_ref, self._settle = math.nan, 0  # the load-change hold of the pressure statistics
         self._cycles = 0
         self._last_cycle = -1
@@ -299,7 +309,16 @@ class AlertEngine:
         self._ewma_var = ewma_variance(self._ewma_var, g)
         change = change_against_siblings(self._ewma)
         var = self._ewma_var * sibling_reference_variance(self.spec.n_cyl)
-        return Pressure(imep, ewma=change, stats=leak_statistics(change, band, var), band=band, var=var)
+        # this cycle's own standardised figures against the siblings: the long-run estimate's input
+        one = leak_statistics(change_against_siblings(x - band.mean), band, 1.0)
+        self.long_run_variance.add(np.stack([one.z_leak, one.z_ratio]))
+        f_leak, f_ratio = (float(f) for f in self.long_run_variance.factor(g))
+        # the z's standard error holds the band mean's own error too (its cycles as correlated as the run's: the
+        # same factor); var, for the ring rule's leak change, is the EWMA's alone (core leak_change adds the band's)
+        band_var = sibling_reference_variance(self.spec.n_cyl) / max(band.cycles, 1)
+        stats = leak_statistics(change, band, (var + band_var) * f_leak, (var + band_var) * f_ratio)
+        return Pressure(imep, ewma=change, stats=stats, band=band, var=var * f_leak, var_ratio=var * f_ratio,
+                        long_run=(f_leak, f_ratio))
 
     def _learn(self, x: np.ndarray, cycle: int, imep: float) -> None:
         """One healthy cycle at a load no band holds: into the learner, which restarts where the IMEP has left the

@@ -50,12 +50,15 @@ def test_a_restarted_engine_takes_back_its_baseline_and_alerts_and_goes_on():
     assert back.acknowledged_by == "alice" and back.acknowledgements[0]["at_s"] == 10.0
 
     # the leak is still there after the restart: no second alert, the same one stays open (no relearning either:
-    # the statistics compare with the stored baseline from the first cycle)
-    assert _run(after, rng, 100, 360, _leak(4, 0.004)) == []
+    # the statistics compare with the stored baseline from the first cycle); it may escalate (its z, whose standard
+    # error holds the band mean's, design note 71, reached the alarm level only after the restart here)
+    again = _run(after, rng, 100, 360, _leak(4, 0.004))
+    assert all(e.kind == "updated" and e.alert.alert_id == leak.alert_id for _, e in again)
+    assert [a.alert_id for a in after.active()] == [leak.alert_id]
     # the ring repaired: the restored alert clears as any open alert does
     ev = _run(after, rng, 300, 460)
     assert [(e.kind, e.alert.alert_id) for _, e in ev] == [("cleared", leak.alert_id)]
     # a new alert gets the next id, not 1 again
-    new = _run(after, rng, 100, 760, _leak(1, 0.004))
+    new = _run(after, rng, 200, 760, _leak(1, 0.004))
     assert [e.alert.alert_id for _, e in new if e.kind == "raised"] == [leak.alert_id + 1]
 

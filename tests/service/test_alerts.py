@@ -58,7 +58,9 @@ def test_a_leak_is_raised_on_its_cylinder_and_cleared_after_it_goes():
     ev = _run(eng, rng, 200, 400, _leak(3, 0.0025))
     raised = [(i, e.alert) for i, e in ev if e.kind == "raised"]
     assert len(raised) == 1 and raised[0][1].kind == "blow_by" and raised[0][1].cylinder == 3
-    assert raised[0][0] - 400 <= 40  # ~2 sigma per cycle: Z > 6 within a fraction of the 50-cycle window, + 10
+    # ~2 sigma per cycle: Z > 6 within a fraction of the 50-cycle window, + 10; the z's standard error holds the
+    # 100-cycle band mean's too (design note 71): 45 cycles here, 40 without it
+    assert raised[0][0] - 400 <= 50
     a = raised[0][1].to_dict()
     assert set(a) >= {"alert_id", "cylinder", "kind", "severity", "state", "raised_cycle", "raised_at_s",
                       "cleared_cycle", "acknowledged_by", "message", "evidence"}
@@ -191,7 +193,11 @@ def test_one_baseline_for_every_load_would_raise_on_the_load_step():
     eng = AlertEngine(K9K, AlertConfig(baseline_cycles=100, skip_cycles=0, band_width=1.0))
     _run(eng, rng, 300, 0)
     ev = _run_at(eng, rng, 300, 300, _load_offset(), 8e5)
-    assert sorted((e.alert.kind, e.alert.cylinder) for e in ev if e.kind == "raised") == [("blow_by", 2)]
+    # a ring alert on cylinder 2 (the leak rule's, or the ring condition's where it got there first: with the band
+    # mean's error in the leak z, design note 71, it does here), none elsewhere
+    raised = sorted((e.alert.kind, e.alert.cylinder) for e in ev if e.kind == "raised")
+    assert ("blow_by", 2) in raised and {c for _, c in raised} == {2}
+    assert {k for k, _ in raised} <= {"blow_by", "ring_wear"}
 
 
 def test_bands_round_trip_and_a_version_1_baseline_is_read_as_valid_at_every_load():

@@ -345,9 +345,10 @@ def leak_change(ewma: np.ndarray, cov: np.ndarray, ewma_var: float, baseline_cyc
     """The leak effect's change since a baseline and its 1 sigma (z,): from the EWMA (4, z) of the ring indicators'
     change from the baseline band's mean (rows compression_ratio, n_compression_dev, n_expansion_dev,
     expansion_deficit: service.alert_baseline.INDICATORS) with ``ewma_var`` its variance per unit of per-cycle variance
-    for independent cycles (g / (2 - g) at a fixed factor g; the caller's, service.alert_interface.Pressure.var),
-    and that band's per-cycle covariance (z, 4, 4) over ``baseline_cycles``: the EWMA's standard error and the band
-    mean's own, both of the per-cycle spread of (dn_e - dn_c) / 2.
+    (g / (2 - g) at a fixed factor g for independent cycles; the caller's, service.alert_interface.Pressure.var, holds
+    the healthy cycles' long-run-variance factor too: design note 71), and that band's per-cycle covariance (z, 4, 4)
+    over ``baseline_cycles``: the EWMA's standard error and the band mean's own (as for independent cycles), both of
+    the per-cycle spread of (dn_e - dn_c) / 2.
 
     >>> cov = np.zeros((1, 4, 4)); cov[0, 1, 1] = cov[0, 2, 2] = 4e-6
     >>> c, s = leak_change(np.array([[0.0], [-0.001], [0.001], [0.0]]), cov, 0.02 / 1.98, 200)
