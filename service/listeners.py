@@ -160,9 +160,9 @@ class _Worker:
         self.queue.put_past_bound(_WAKE)  # a full queue needs none: its thread is busy and looks before it sleeps
 
     def _run(self) -> None:
-        # Asleep until an event comes, not polling: a poll every 0.1 s woke each listener's thread (and made it take
-        # the GIL from the ingest thread) 10 times a second, ~1.5 context switches a genset-v20 cycle with three
-        # listeners an engine (design notes 70). Once stopping, what is queued is delivered, then the thread ends.
+        # Asleep until an event comes, not polling: a poll every 0.1 s woke each listener's thread 10 times a second,
+        # each wake-up needing the GIL an ingest thread holds (serve of 8 gensets: 2-4 fewer context switches a
+        # genset-v20 cycle without it, design notes 70). Once stopping, what is queued is delivered, then it ends.
         while not self._abandon.is_set():
             try:
                 event = self.queue.get(block=not self._stopping.is_set())
