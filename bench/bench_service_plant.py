@@ -5,9 +5,10 @@ speed=1, one engine per --source), then one of two loads:
   cycles) and the large speed history; reports cycles analysed (and skipped: the loop's seam) against offered (each
   engine's speed / 120 times the wall seconds: the looped log plays continuously at real time), records the bounded queues dropped, the client's p50 / p99 and the replies by status.
 - ``idle``: no requests; the server's CPU over ``--seconds`` s (from /proc: all its threads) per wall second, per
-  engine and per cycle analysed, and the cycles it analysed against those offered; from the CPU per cycle, how
-  many genset-v20 one core would hold at real time at this cost (``gensets_per_core``: one core over the CPU
-  seconds a genset's cycles take a second, at the engines' speed; issue 28 item 7's target ``TARGET_PER_CORE``).
+  engine and per cycle analysed, its threads' context switches per cycle, and the cycles it analysed against those
+  offered; from the CPU per cycle, how many genset-v20 one core would hold at real time at this cost
+  (``gensets_per_core``: one core over the CPU seconds a genset's cycles take a second, at the engines' speed;
+  issue 28 item 7's target ``TARGET_PER_CORE``).
   Per cycle, not per wall second: a looped replay's passes each start their clock again, so two checkouts
   offer a few per cent different cycles in the same wall time. Run it with ``--cpu 1`` (one core's figure).
 - ``lag``: no requests; polls /health every 0.5 s and reports when each engine first shows ``behind`` (and the
@@ -142,11 +143,25 @@ def run_mix(args, client: httpx.Client, url: str, pid: int, engines: list[str]) 
             "server_cpu_s_per_wall_s": (cpu1 - cpu0) / (w1 - w0)}
 
 
+def context_switches(pid: int) -> tuple[int, int]:
+    """(voluntary, involuntary) context switches of the live threads of ``pid`` so far. Voluntary: a thread went to
+    sleep (a queue, a lock, the GIL); involuntary: the kernel took its core (another thread or process)."""
+    vol = invol = 0
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        try:
+            text = Path(f"/proc/{pid}/task/{tid}/status").read_text()
+        except OSError:  # the thread ended meanwhile
+            continue
+        vol += int(re.search(r"^voluntary_ctxt_switches:\s+(\d+)", text, re.M)[1])
+        invol += int(re.search(r"^nonvoluntary_ctxt_switches:\s+(\d+)", text, re.M)[1])
+    return vol, invol
+
+
 def run_idle(args, client: httpx.Client, pid: int, engines: list[str]) -> dict:
     time.sleep(args.settle)
-    c0, cpu0, w0 = counters(client), cpu_s(pid), time.monotonic()
+    c0, cpu0, w0, x0 = counters(client), cpu_s(pid), time.monotonic(), context_switches(pid)
     time.sleep(args.seconds)
-    c1, cpu1, w1 = counters(client), cpu_s(pid), time.monotonic()
+    c1, cpu1, w1, x1 = counters(client), cpu_s(pid), time.monotonic(), context_switches(pid)
     rpm = [client.get(f"/api/v1/engines/{e}/cycles/latest").json()["rpm_mean"] for e in engines]
     offered = sum(r / 60.0 / CYCLE_REVS for r in rpm) * (w1 - w0)
     share = (cpu1 - cpu0) / (w1 - w0)
@@ -156,6 +171,8 @@ def run_idle(args, client: httpx.Client, pid: int, engines: list[str]) -> dict:
     return {"server_cpu_s_per_wall_s": share, "cpu_share_per_engine": share / len(engines),
             "cpu_ms_per_cycle": 1e3 * per_cycle_s, "gensets_per_core": 1.0 / (per_cycle_s * cycles_per_s),
             "target_per_core": TARGET_PER_CORE, "cycles_analysed": analysed, "cycles_offered": offered,
+            "context_switches_per_cycle": {"voluntary": (x1[0] - x0[0]) / analysed,
+                                           "involuntary": (x1[1] - x0[1]) / analysed} if analysed > 0 else None,
             "cycles_skipped": c1["skipped"] - c0["skipped"],
             "records_dropped_by_the_bounded_queue": c1["dropped_records"] - c0["dropped_records"]}
 

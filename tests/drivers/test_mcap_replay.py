@@ -181,3 +181,39 @@ def test_a_seek_in_a_looped_pass_keeps_time_going_on(log_path: Path) -> None:
             marks += 1
         newest = max(newest, float(r.ticks if isinstance(r, StreamRestart) else last_tick(r)))
     assert sought and marks == 5
+
+
+def test_a_shifted_record_is_the_record_with_its_ticks_moved() -> None:
+    """``shifted`` builds each record kind field by field (design notes 70): the same as dataclasses.replace of its
+    tick field, every other field the same object; a shift of 0 gives the record itself; anything else is refused."""
+    import dataclasses
+
+    import numpy as np
+    from frictionwatch.core.types import (
+        CamBatch,
+        FreeEndToothBatch,
+        LoadSample,
+        PressureBlock,
+        PressureFrame,
+        ToothBatch,
+    )
+    from frictionwatch.drivers.logs.mcap_replay import shifted
+
+    ticks = np.array([10, 25, 40], dtype=np.int64)
+    values = np.array([[1.0e5, np.nan], [2.0e5, 3.0e5]])
+    records = [ToothBatch(ticks), CamBatch(ticks[:1]), FreeEndToothBatch(ticks), LoadSample(7, 120.5, np.nan),
+               PressureBlock(3, 11, 2.5, values[0]), PressureFrame((2, 5), 11, 2.5, values)]
+    for record in records:
+        moved = shifted(record, 1_000_003)
+        field = "ticks" if hasattr(record, "ticks") else "t0_ticks"
+        want = dataclasses.replace(record, **{field: getattr(record, field) + 1_000_003})
+        assert type(moved) is type(record)
+        for f in dataclasses.fields(record):
+            got, expected = getattr(moved, f.name), getattr(want, f.name)
+            if f.name == field:
+                assert np.array_equal(got, expected) and np.asarray(got).dtype == np.asarray(expected).dtype
+            else:
+                assert got is getattr(record, f.name)
+        assert shifted(record, 0) is record
+    with pytest.raises(TypeError):
+        shifted("not a record", 5)  # type: ignore[arg-type]

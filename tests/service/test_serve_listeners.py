@@ -204,3 +204,48 @@ def test_a_persons_action_is_queued_past_a_full_queue_without_waiting() -> None:
     stuck.release.set()
     fan.stop()
     assert stuck.got == [0, 1, 2, 3, 4]
+
+
+class Counting(Listener):
+    name = "counting"
+
+    def __init__(self) -> None:
+        self.got: list[int] = []
+        self.stopped = False
+
+    def on_message_received(self, ev: ServiceEvent) -> None:
+        self.got.append(ev.alerts[0]["alert_id"])
+
+    def stop(self) -> None:
+        self.stopped = True
+
+
+def test_an_idle_listener_sleeps_until_an_event_and_a_stop_wakes_it() -> None:
+    """A listener's thread waits on its empty queue without polling (design notes 70): it is woken by an event, and
+    by a stop, which ends it with everything queued delivered; the stop's wake-up is neither delivered nor counted
+    as an event left. Before ``start`` a stop leaves exactly the events published."""
+    listener = Counting()
+    fan = Fanout([listener], queue_size=8)
+    worker = fan._workers[0]
+    gets = []
+    queue_get = worker.queue.get
+    worker.queue.get = lambda *a, **k: (gets.append(1), queue_get(*a, **k))[1]
+    fan.start()
+    for i in range(3):
+        fan.publish(event(i))
+    assert wait_until_true(lambda: listener.got == [0, 1, 2])
+    asleep = len(gets)
+    time.sleep(0.35)  # idle on its empty queue: still in the one get (a loop that looked every 0.1 s made 3 more)
+    assert len(gets) == asleep
+    fan.publish(event(3))
+    assert wait_until_true(lambda: listener.got == [0, 1, 2, 3])
+    fan.stop(timeout=5.0)
+    assert not worker.thread.is_alive() and listener.stopped
+    assert (fan.left["counting"], fan.drops["counting"], listener.got) == (0, 0, [0, 1, 2, 3])
+
+    never = Counting()
+    fan = Fanout([never], queue_size=8)
+    fan.publish(event(0))
+    fan.publish(event(1))
+    fan.stop(timeout=0.1)
+    assert (fan.left["counting"], never.got, never.stopped) == (2, [], True)
