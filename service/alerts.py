@@ -291,7 +291,7 @@ class AlertEngine:
             return None
         x = ring.compared()  # rows as INDICATORS
         imep = _mean_imep(result)
-        usable = (np.all(np.isfinite(x)) and imep > 0.0 and self._cycles > cfg.skip_cycles  # not motored
+        usable = (np.isfinite(x).all() and imep > 0.0 and self._cycles > cfg.skip_cycles  # not motored
                   and "operating_point_changed" not in result.flags  # a cycle spliced across a step
                   and not any(f and ("misfire" in f or any(s.startswith("sensor_") for s in f)) for f in cyl_flags))
         if not usable:
@@ -405,7 +405,8 @@ def _rank(severity: str) -> int:
 def _mean_imep(result: CycleResult) -> float:
     """The engine's mean IMEP this cycle [Pa] over the cylinders that have one (NaN: none), the load the bands key on."""
     imep = np.asarray(result.imep, dtype=float)
+    total = float(np.add.reduce(imep))  # np.mean's own sum; finite only where every value is
+    if imep.size and math.isfinite(total):
+        return total / imep.size
     ok = np.isfinite(imep)
-    if ok.all():  # the usual cycle: no copy of the finite ones (the same sum)
-        return float(imep.mean())
     return float(np.mean(imep[ok])) if ok.any() else math.nan
