@@ -54,7 +54,7 @@ class LeakStatistics:
 
 
 def change_against_siblings(change: np.ndarray) -> np.ndarray:
-    """(4, z) each cylinder's change from its baseline (rows as alert_baseline.INDICATORS) less the median change of
+    """(..., 4, z) each cylinder's change from its baseline (rows as alert_baseline.INDICATORS) less the median change of
     all cylinders, where there are three or more.
 
     The indicators are already against the siblings' median *level* each cycle; a change of one cylinder's level
@@ -65,9 +65,21 @@ def change_against_siblings(change: np.ndarray) -> np.ndarray:
     *changes* is the common part (load, temperature) and stays put when one cylinder changes: subtracted, a change of
     one cylinder is seen on that cylinder only. Nothing tuned. Two cylinders: the rows are each against the other,
     kept as they are; three: the median cylinder reads no change (two changed cylinders name nobody, as before)."""
-    if change.shape[1] < 3:
+    if change.shape[-1] < 3:
         return change
-    return change - np.median(change, axis=1, keepdims=True)
+    return change - sibling_median(change)
+
+
+def sibling_median(a: np.ndarray) -> np.ndarray:
+    """``np.median(a, axis=-1, keepdims=True)`` by a sort (the same values: the middle one, or half the sum of the two
+    middle ones): np.median costs ~10x on the z values of a (4, z) array, and the alerts take two a cycle. A row
+    with a NaN goes to np.median (which gives NaN there; a sort would put the NaN last)."""
+    z = a.shape[-1]
+    s = np.sort(a, axis=-1)
+    if not np.isfinite(s[..., -1]).all():  # a NaN sorts last: only the last column can tell
+        return np.median(a, axis=-1, keepdims=True)
+    m = s[..., z // 2:z // 2 + 1] if z % 2 else 0.5 * (s[..., z // 2 - 1:z // 2] + s[..., z // 2:z // 2 + 1])
+    return m
 
 
 def ewma_variance(previous: float, g: float) -> float:
@@ -129,7 +141,7 @@ class LongRunVariance:
     def add(self, x: np.ndarray) -> None:
         """One cycle's figures (s, z), the next in the alerts' EWMA (a non-finite one is not added)."""
         x = np.asarray(x, dtype=np.float64)
-        if not np.all(np.isfinite(x)):
+        if not np.isfinite(x).all():
             return
         self.n += 1
         self._centre += max(1.0 / self.centre_cycles, 1.0 / self.n) * (x - self._centre)
@@ -147,7 +159,7 @@ class LongRunVariance:
 
     def per_cylinder(self, g: float) -> np.ndarray:
         """(s, z) each cylinder's factor f for an EWMA of factor ``g`` (phi clipped to [0, 0.999]: class doc)."""
-        r = np.clip(self.lag_one(), 0.0, 0.999) * (1.0 - g)
+        r = np.minimum(np.maximum(self.lag_one(), 0.0), 0.999) * (1.0 - g)  # np.clip: 2x the cost on (2, z)
         return (1.0 + r) / (1.0 - r)
 
     def factor(self, g: float) -> np.ndarray:
@@ -158,10 +170,35 @@ class LongRunVariance:
             return np.ones(s)
         f = np.sort(self.per_cylinder(g), axis=1)  # the median by a sort: np.median's overhead is ~10x on z values
         median = f[:, z // 2] if z % 2 else 0.5 * (f[:, z // 2 - 1] + f[:, z // 2])
-        return np.clip(median, 1.0, (2.0 - g) / g)
+        return np.minimum(np.maximum(median, 1.0), (2.0 - g) / g)
 
 
-def leak_statistics(ewma: np.ndarray, baseline: Band, var: float, var_ratio: float | None = None) -> LeakStatistics:
+@dataclass(frozen=True)
+class LeakWeights:
+    """What ``leak_statistics`` takes from a load band, worked out once per band (the alert engine keeps the newest
+    band's: a cycle's statistics then cost no einsum and no square roots of the covariance). w1, w2 (z,) the leak
+    signature's weights on the compression and expansion exponents' changes (-1 / sd_c and 1 / sd_e, over sqrt(2)),
+    s_sd (z,) the signature's per-cycle spread from the band's covariance, sd_ratio (z,) the compression ratio's
+    (at least 1e-12)."""
+
+    band: Band
+    w1: np.ndarray
+    w2: np.ndarray
+    s_sd: np.ndarray
+    sd_ratio: np.ndarray
+
+    @classmethod
+    def of(cls, band: Band) -> LeakWeights:
+        sd = band.sd
+        w = np.zeros_like(sd)
+        w[1], w[2] = -1.0 / sd[1], 1.0 / sd[2]
+        w /= np.sqrt(2.0)
+        s_sd = np.sqrt(np.maximum(np.einsum("iz,zij,jz->z", w, band.cov, w), 1e-30))
+        return cls(band, w[1], w[2], s_sd, np.maximum(sd[0], 1e-12))
+
+
+def leak_statistics(ewma: np.ndarray, baseline: Band, var: float, var_ratio: float | None = None,
+                    weights: LeakWeights | None = None) -> LeakStatistics:
     """From the EWMA (4, z) of the indicators' change from the mean of the baseline's load band they were compared
     with (rows as alert_baseline.INDICATORS) and ``var``, the figure's variance per unit of per-cycle variance (the
     EWMA's, ``ewma_variance``, plus the band mean's, 1 / its cycles; times ``sibling_reference_variance`` and the
@@ -169,7 +206,21 @@ def leak_statistics(ewma: np.ndarray, baseline: Band, var: float, var_ratio: flo
     None). The leak signature
     s = (-dn_c / sd_c + dn_e / sd_e) / sqrt(2) is scaled by its own per-cycle spread from the band's covariance (the
     two exponents' scatter is correlated: one trapped-mass error moves both) and by the standard error sqrt(var).
-    With ``var`` 1 the statistics of one cycle's change are that cycle's standardised figures."""
+    With ``var`` 1 the statistics of one cycle's change are that cycle's standardised figures. ``weights``: the
+    band's ``LeakWeights`` if the caller keeps them (else worked out here). The compression ratio and the
+    expansion deficit rows do not enter the signature (a non-finite one leaves it finite)."""
+    lw = LeakWeights.of(baseline) if weights is None else weights
+    s = lw.w1 * ewma[1] + lw.w2 * ewma[2]
+    se = np.sqrt(var)
+    se_ratio = se if var_ratio is None else np.sqrt(var_ratio)
+    return LeakStatistics(z_leak=s / (lw.s_sd * se), effect=0.5 * (ewma[2] - ewma[1]),
+                          z_ratio=ewma[0] / (lw.sd_ratio * se_ratio))
+
+
+def leak_statistics_reference(ewma: np.ndarray, baseline: Band, var: float, var_ratio: float | None = None
+                              ) -> LeakStatistics:
+    """``leak_statistics`` as it was before the band's weights were kept (design note 72), each cycle from the band:
+    the reference the tests hold it to."""
     sd = baseline.sd
     w = np.zeros_like(ewma)
     w[1], w[2] = -1.0 / sd[1], 1.0 / sd[2]

@@ -78,11 +78,12 @@ class RingConditionRule:
             return []
         if self.window is None:
             self.window = SiblingWindow.empty(z)
-        sensor = np.array([any(f.startswith("sensor_") for f in fl) or ctx.latched(self.gain_check, k + 1)
+        latched, gain = ctx.latched, self.gain_check
+        sensor = np.array([(bool(fl) and any(f.startswith("sensor_") for f in fl)) or latched(gain, k + 1)
                            for k, fl in enumerate(ctx.cyl_flags)])
         # a cylinder with a flagged sensor keeps its window entry as it was (its siblings go on)
         effect = np.where(sensor, np.nan, leak_effect(ring.n_compression_dev, ring.n_expansion_dev))
-        usable = (np.sum(np.isfinite(effect)) >= 2 and "operating_point_changed" not in result.flags
+        usable = (np.count_nonzero(np.isfinite(effect)) >= 2 and "operating_point_changed" not in result.flags
                   and not any("misfire" in fl for fl in ctx.cyl_flags))
         if usable:
             self.window = update_window(self.window, effect, self.settings)

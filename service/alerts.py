@@ -52,6 +52,7 @@ from frictionwatch.service.alert_interface import (
     Decision,
     Hold,
     Latch,
+    LeakWeights,
     LongRunVariance,
     Pressure,
     Rule,
@@ -177,6 +178,7 @@ class AlertEngine:
         self._ewma = np.zeros((len(INDICATORS), z))
         self._ewma_n = 0
         self._ewma_var = 0.0  # the EWMA's variance per unit of per-cycle variance (alert_interface.ewma_variance)
+        self._leak_weights: LeakWeights | None = None  # the newest band's (leak_statistics' per-band part)
         # how far the healthy cycles' figures are from independent (the leak signature's and the ratio's)
         w = self.config.window
         self.long_run_variance = LongRunVariance(2, z, LONG_RUN_CENTRE * w, LONG_RUN_HORIZON * w,
@@ -289,9 +291,9 @@ class AlertEngine:
             return None
         x = ring.compared()  # rows as INDICATORS
         imep = _mean_imep(result)
-        usable = (np.all(np.isfinite(x)) and imep > 0.0 and self._cycles > cfg.skip_cycles  # not motored
+        usable = (np.isfinite(x).all() and imep > 0.0 and self._cycles > cfg.skip_cycles  # not motored
                   and "operating_point_changed" not in result.flags  # a cycle spliced across a step
-                  and not any(f & {"misfire"} or any(s.startswith("sensor_") for s in f) for f in cyl_flags))
+                  and not any(f and ("misfire" in f or any(s.startswith("sensor_") for s in f)) for f in cyl_flags))
         if not usable:
             return None
         if self._load_moved(imep):  # a load change: the statistics and the learning wait for it to settle
@@ -305,18 +307,23 @@ class AlertEngine:
             return Pressure(imep, held="not commissioned at this load: learning", learning_cycles=self._learner.n)
         self._ewma_n += 1
         g = max(1.0 / cfg.window, 1.0 / self._ewma_n)
-        self._ewma += g * (x - band.mean - self._ewma)
+        u = x - band.mean
+        self._ewma += g * (u - self._ewma)
         self._ewma_var = ewma_variance(self._ewma_var, g)
-        change = change_against_siblings(self._ewma)
+        # the EWMA's change and this cycle's own, against the siblings in one sort (design note 72)
+        change, u_rel = change_against_siblings(np.array((self._ewma, u)))
         var = self._ewma_var * sibling_reference_variance(self.spec.n_cyl)
+        if self._leak_weights is None or self._leak_weights.band is not band:  # the band's, once per band
+            self._leak_weights = LeakWeights.of(band)
+        lw = self._leak_weights
         # this cycle's own standardised figures against the siblings: the long-run estimate's input
-        one = leak_statistics(change_against_siblings(x - band.mean), band, 1.0)
-        self.long_run_variance.add(np.stack([one.z_leak, one.z_ratio]))
-        f_leak, f_ratio = (float(f) for f in self.long_run_variance.factor(g))
+        one = leak_statistics(u_rel, band, 1.0, weights=lw)
+        self.long_run_variance.add(np.array((one.z_leak, one.z_ratio)))
+        f_leak, f_ratio = self.long_run_variance.factor(g).tolist()
         # the z's standard error holds the band mean's own error too (its cycles as correlated as the run's: the
         # same factor); var, for the ring rule's leak change, is the EWMA's alone (core leak_change adds the band's)
         band_var = sibling_reference_variance(self.spec.n_cyl) / max(band.cycles, 1)
-        stats = leak_statistics(change, band, (var + band_var) * f_leak, (var + band_var) * f_ratio)
+        stats = leak_statistics(change, band, (var + band_var) * f_leak, (var + band_var) * f_ratio, weights=lw)
         return Pressure(imep, ewma=change, stats=stats, band=band, var=var * f_leak, var_ratio=var * f_ratio,
                         long_run=(f_leak, f_ratio))
 
@@ -398,5 +405,8 @@ def _rank(severity: str) -> int:
 def _mean_imep(result: CycleResult) -> float:
     """The engine's mean IMEP this cycle [Pa] over the cylinders that have one (NaN: none), the load the bands key on."""
     imep = np.asarray(result.imep, dtype=float)
+    total = float(np.add.reduce(imep))  # np.mean's own sum; finite only where every value is
+    if imep.size and math.isfinite(total):
+        return total / imep.size
     ok = np.isfinite(imep)
     return float(np.mean(imep[ok])) if ok.any() else math.nan
