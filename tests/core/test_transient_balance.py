@@ -13,6 +13,7 @@ from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import variable_inertia
 from frictionwatch.core.monitor.identify.identification import (
     cycle_energy,
+    cycle_energy_reference,
     energy_weights,
     grid_geometry,
     triangle_weights_reference,
@@ -64,6 +65,9 @@ def test_the_cycle_energy_from_the_edges_follows_the_flywheel_speed(settling):
     truth = 0.5 * np.mean(j * w * w, axis=1)
     idx = np.array([c.index for c in cycles])
     got = np.array([cycle_energy(c, energy_weights(MARUTI, c.tooth_angle)) for c in cycles])
+    # the kernel against its numpy reference: another summation order only (1e-12 stated)
+    assert_allclose(got, [cycle_energy_reference(c, energy_weights(MARUTI, c.tooth_angle)) for c in cycles],
+                    rtol=1e-12)
     kinetic, kinetic_true = np.diff(got) / (4 * np.pi), np.diff(truth[idx]) / (4 * np.pi)
     mean_speed = w[idx].mean(axis=1)
     settled = np.abs(np.diff(mean_speed)) < 0.03 * mean_speed[1:]

@@ -28,6 +28,7 @@ from frictionwatch.core.monitor.identify.accumulate import (
     posterior_from_normal,
 )
 from frictionwatch.core.monitor.identify.accumulate_kernels import cycle_step_kernel
+from frictionwatch.core.monitor.identify.energy_kernels import cycle_energy_kernel
 from frictionwatch.core.monitor.identify.estimate import (
     BalanceCheck,
     CalibrationSensitivity,
@@ -201,9 +202,18 @@ def cycle_energy(cycle: Cycle, weights: EnergyWeights) -> float:
     """The cycle's angle-averaged kinetic energy (1/4 pi) int_0^4pi 1/2 J(theta) w(theta)^2 dtheta [J], w in each
     tooth interval its pitch over its measured time (``energy_weights``). An edge time's error enters two adjacent
     intervals with opposite signs and telescopes to first order: of the cycle's ~120 edges only the two boundary
-    ones count, as in a difference of two speeds. NaN when an interval is not positive."""
-    dt = np.diff(cycle.tooth_ticks).astype(np.float64) / cycle.tick_hz
-    if not np.all(dt > 0):
+    ones count, as in a difference of two speeds. NaN when an interval is not positive. One kernel call
+    (core.monitor.identify.energy_kernels); ``cycle_energy_reference`` is its numpy."""
+    ticks = cycle.tooth_ticks
+    if ticks.dtype != np.int64 or not ticks.flags.c_contiguous or ticks.shape[0] != weights.weights.shape[0] + 1:
+        return cycle_energy_reference(cycle, weights)
+    return float(cycle_energy_kernel(ticks, weights.weights, float(cycle.tick_hz)))
+
+
+def cycle_energy_reference(cycle: Cycle, weights: EnergyWeights) -> float:
+    """``cycle_energy`` in numpy (its reference)."""
+    dt = np.diff(np.asarray(cycle.tooth_ticks)).astype(np.float64) / cycle.tick_hz
+    if dt.shape != weights.weights.shape or not np.all(dt > 0):
         return float("nan")
     return float(weights.weights @ (1.0 / (dt * dt)))
 
