@@ -481,13 +481,15 @@ def balance_terms(engine: str, seed: int, without: tuple[str, ...] = (), learn_t
     """Per cycle of a healthy two-point log (as ``balance_across_points``): the balance residual and the terms the
     monitor made it of (its friction from indicated - load - coupling loss - kinetic; the model's friction) beside
     the simulator's truth of the same cycle (friction, indicated, load, coupling loss, and the kinetic term from its
-    flywheel speed at theta = 2 pi and from its cycle-mean speeds, J(2 pi) as the monitor's), with the cycles since
-    the point's first: which term is off where (design note 68). ``without``: default effects off in the plant
-    (sensor_noise, tooth_spacing_error); ``learn_teeth``: the monitor's tooth learner."""
+    flywheel speed: at theta = 2 pi and from its cycle-mean speeds with J(2 pi), and from its cycles' angle-averaged
+    energies 1/2 J(theta) w^2 as the monitor's since design note 69), with the cycles since the point's first: which
+    term is off where (design notes 68, 69). ``without``: default effects off in the plant (sensor_noise,
+    tooth_spacing_error); ``learn_teeth``: the monitor's tooth learner."""
     import dataclasses
 
     import numpy as np
     from frictionwatch.core.discrepancy.residuals import STAGES, CyclePipeline, TdcWatch, pinned_config
+    from frictionwatch.core.model.kinematics import variable_inertia
     from frictionwatch.core.model.view import reference
     from frictionwatch.core.monitor.identify.identification import mid_cycle_inertia
 
@@ -505,6 +507,9 @@ def balance_terms(engine: str, seed: int, without: tuple[str, ...] = (), learn_t
     truth = {c["index"]: c for c in sim.truth["cycles"]}
     w = sim.diagnostics["flywheel_speed_grid_rad_s"]  # (cycles, 720) true flywheel speed, 1-deg grid from theta 0
     inertia = mid_cycle_inertia(spec)
+    j_theta = variable_inertia(np.radians(np.arange(w.shape[1]) * 720.0 / w.shape[1]), spec.firing_angles,
+                               spec.kinematics_params(), spec.reciprocating_mass, spec.total_inertia)[0]
+    energy = 0.5 * np.mean(j_theta * w * w, axis=1)  # each cycle's angle-averaged energy (1-deg grid)
     rows, last_rpm, since = [], None, 0
     for c in cycles:
         r = pipe.process(c).result
@@ -520,12 +525,43 @@ def balance_terms(engine: str, seed: int, without: tuple[str, ...] = (), learn_t
                          r.friction_torque)), "kinetic_nm": inertia * r.acceleration,
                      "kinetic_true_mid_nm": inertia * (w[i, 360] ** 2 - w[i - 1, 360] ** 2) / (8.0 * np.pi),
                      "kinetic_true_mean_nm": inertia * (w[i].mean() ** 2 - w[i - 1].mean() ** 2) / (8.0 * np.pi),
+                     "kinetic_true_energy_nm": (energy[i] - energy[i - 1]) / (4.0 * np.pi),
                      "indicated_nm": r.indicated_window, "true_indicated_nm": t["indicated_torque_nm"],
                      "load_nm": r.load_torque, "true_load_nm": t["load_torque_nm"], "coupling_nm": r.coupling_loss,
                      "true_coupling_nm": t["damper_coupling_loss_nm"]})
     for r in rows:  # what the kinetic term would have to be for the truth's friction
         r["kinetic_needed_nm"] = r["kinetic_nm"] + r["friction_nm"] - r["true_friction_nm"]
     return {"engine": engine, "seed": seed, "without": list(without), "learn_teeth": learn_teeth, "rows": rows}
+
+
+def balance_terms_points(doc: dict) -> list[dict]:
+    """Per point of ``balance_terms``' rows (a block: the rows from one 'since = 0' to the next; blocks whose first
+    speeds lie within 15 % pooled as one point): cycles, mean residual and its scatter, the floor NULL_BALANCE x
+    the mean friction, and the mean error of the monitor's kinetic term against the one the truth's friction needs
+    and against the truth's angle-averaged energies (N m; NaN where a saved output lacks a column)."""
+    import numpy as np
+    from frictionwatch.core.discrepancy.features import NULL_BALANCE
+
+    points: dict[float, list[dict]] = {}
+    block_rpm = None
+    for r in doc["rows"]:
+        if r["since"] == 0 or block_rpm is None:
+            block_rpm = next((k for k in points if abs(r["rpm"] - k) < 0.15 * k), r["rpm"])
+        points.setdefault(block_rpm, []).append(r)
+    out = []
+    for rpm, rows in sorted(points.items()):
+        keys = ("residual_nm", "friction_nm", "kinetic_nm", "kinetic_needed_nm", "kinetic_true_energy_nm",
+                "kinetic_true_mid_nm")
+        col = {k: np.array([r.get(k, np.nan) for r in rows], dtype=float) for k in keys}
+        out.append({"rpm": round(rpm), "cycles": len(rows), "residual_nm": float(col["residual_nm"].mean()),
+                    "residual_sd_nm": float(col["residual_nm"].std(ddof=1)) if len(rows) > 1 else float("nan"),
+                    "floor_nm": NULL_BALANCE * abs(float(col["friction_nm"].mean())),
+                    "kinetic_error_nm": float((col["kinetic_nm"] - col["kinetic_needed_nm"]).mean()),
+                    "kinetic_vs_true_energy_nm": float((col["kinetic_nm"] - col["kinetic_true_energy_nm"]).mean()),
+                    "true_mid_vs_needed_nm": float((col["kinetic_true_mid_nm"] - col["kinetic_needed_nm"]).mean()),
+                    "true_energy_vs_needed_nm": float((col["kinetic_true_energy_nm"]
+                                                       - col["kinetic_needed_nm"]).mean())})
+    return out
 
 
 # the seeds NULL_KINETIC is tuned on (bench.discrepancy_null --tune-kinetic --write): none a matrix (SEEDS, s3) or a
@@ -563,6 +599,8 @@ def main() -> int:
             args.out.write_text(json.dumps(doc, indent=1))
         for r in doc["rows"]:
             print(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items()))
+        for r in balance_terms_points(doc):
+            print("point " + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items()))
         return 0
     if args.balance_across_points:
         doc = balance_across_points(tuple(args.balance_across_points))

@@ -133,6 +133,8 @@ def differences(a, b, where: str = "", rtol: float = RTOL) -> tuple[list[str], i
                 return [f"{where}: max relative difference {rel:.3g}"], x.size
             return [], x.size
         return ([] if np.array_equal(x, y) else [f"{where}: {x!r} against {y!r}"]), x.size
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):  # an array against something else (None, a list)
+        return [f"{where}: {type(a).__name__} against {type(b).__name__}"], 0
     return ([] if a == b else [f"{where}: {a!r} against {b!r}"]), 0
 
 

@@ -46,10 +46,10 @@ from frictionwatch.core.monitor.identify.estimate import indicated_tdc_sensitivi
 from frictionwatch.core.monitor.identify.free_end_rows import free_end_whitened, half_order_rows, no_free_end_rows
 from frictionwatch.core.monitor.identify.identification import (
     MeanBalance,
+    cycle_energy,
+    energy_weights,
     grid_geometry,
     identify_cycle,
-    mid_cycle_speed,
-    mid_speed_fit,
     transient_balance,
 )
 from frictionwatch.core.monitor.identify.layout import parameter_layout
@@ -171,13 +171,13 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         load = load + p_gnd / omega
     t_i = float(exc.indicated_mean.sum())
     prev = state.previous_of(int(cycle.tooth_ticks[0]))
-    mid_fit = state.mid_speed_fit if state.mid_speed_fit is not None and state.mid_speed_fit.fits(cycle) \
-        else mid_speed_fit(cycle)
-    mid_speed = mid_cycle_speed(spec, cycle, mid_fit)
+    weights = state.energy_weights if state.energy_weights is not None and state.energy_weights.fits(cycle) \
+        else energy_weights(spec, cycle.tooth_angle)
+    energy = cycle_energy(cycle, weights)
     geometry = (state.grid_geometry if state.grid_geometry is not None and state.grid_geometry.fits(cycle.grid)
                 else grid_geometry(spec, cycle.grid))
     balance, kinetic, accel, t_window, imep_c = transient_balance(spec, cycle, pressure, exc.indicated_mean,
-                                                                  mid_speed, prev, load, coupling_loss, geometry)
+                                                                  energy, prev, load, coupling_loss, geometry)
     mean = MeanBalance(indicated=t_i, load=load, coupling_loss=coupling_loss, friction=balance, kinetic=kinetic,
                        imep_centred=imep_c, acceleration=accel, indicated_window=t_window,
                        tdc_sensitivity=indicated_tdc_sensitivity(cycle.grid, pressure, geometry.piston_acceleration,
@@ -240,9 +240,9 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         balance_mean=ident.balance_mean, indicated_mean=ident.indicated_mean, cycles=state.cycles + 1,
         prior=state.prior, lower=state.lower, report_tables=tables, prev_omega=omega, drift_var=drift_var,
         tooth_patterns=patterns, **checked,
-        previous=PreviousCycle(int(cycle.tooth_ticks[0]), int(cycle.tooth_ticks[-1]), pressure.copy(), mid_speed,
-                               load),  # a copy: a live source may reuse the cycle's buffer
-        grid_geometry=geometry, mid_speed_fit=mid_fit, wheel2=wheel2,
+        previous=PreviousCycle(int(cycle.tooth_ticks[0]), int(cycle.tooth_ticks[-1]), pressure.copy(), energy,
+                               load, t_i, coupling_loss),  # a copy: a live source may reuse the cycle's buffer
+        grid_geometry=geometry, energy_weights=weights, wheel2=wheel2,
     )  # every field (dataclasses.replace costs twice as much per cycle)
     return new_state, result
 

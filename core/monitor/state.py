@@ -240,14 +240,17 @@ class PreviousCycle(NamedTuple):
     """What the next cycle's balance needs of the last analysed one: the ticks of its first and last tooth edges (it
     is the cycle just before only if the next one's first edge lies after its first and at or before its last:
     consecutive cycles share their boundary edges, core.types.Cycle; a stream index may be renumbered after a lost
-    sync), pressure (z, n) [Pa], speed at theta = 2 pi [rad/s] (core.monitor.identify.identification.mid_cycle_speed) and
-    measured load [N m]."""
+    sync), pressure (z, n) [Pa], angle-averaged kinetic energy [J] (core.monitor.identify.identification.cycle_energy),
+    measured load [N m], indicated torque [N m] (the cylinders' work means over its own window, summed:
+    Excitation.indicated_mean) and coupling loss [N m]."""
 
     start_tick: int
     end_tick: int
     pressure: np.ndarray
-    mid_speed: float
+    energy: float
     load: float
+    indicated: float
+    coupling_loss: float
 
 
 class GridGeometry(NamedTuple):
@@ -255,9 +258,10 @@ class GridGeometry(NamedTuple):
     angle [rad] and size (a cycle on another grid makes it anew), every cylinder's piston displacement on it
     positions (z, n) [m], J(theta = 2 pi) [kg m^2] and each piston's x'' (z, n) [m/rad^2] (the indicated work's
     sensitivity to a TDC error, core.monitor.identify.estimate.indicated_tdc_sensitivity); the transient balance's
-    window starts (core.model.indicated.window_starts): window_starts (2, z) of each cylinder's own firing window and
-    the window centred on cylinder 1's firing TDC in [previous | current], alone_starts (1, z) of the cycle's own
-    closed loop (None: made by the balance)."""
+    window starts (core.model.indicated.window_starts): window_starts (1, z) of each cylinder's own firing window in
+    [previous | current], alone_starts (1, z) of the cycle's own closed loop, and its triangle's weights
+    triangle_previous, triangle_current (z, n) [m^2/rad] (core.monitor.identify.identification.triangle_weights)
+    (None: made by the balance)."""
 
     first_angle: float
     size: int
@@ -266,6 +270,8 @@ class GridGeometry(NamedTuple):
     piston_acceleration: np.ndarray
     window_starts: np.ndarray | None = None
     alone_starts: np.ndarray | None = None
+    triangle_previous: np.ndarray | None = None
+    triangle_current: np.ndarray | None = None
 
     def fits(self, grid: np.ndarray) -> bool:
         return grid.shape[0] == self.size and float(grid[0]) == self.first_angle
@@ -282,10 +288,25 @@ class MidSpeedFit(NamedTuple):
     slope_row: np.ndarray
 
     def fits(self, cycle: Cycle) -> bool:
-        # np.array_equal's answer (shapes, then every value; NaN unequal) without its asarray and wrapper calls:
-        # asked every cycle (~0.6 % of a k9k cycle through array_equal, design note 46)
-        mine, theirs = self.tooth_angle, cycle.tooth_angle
-        return mine.shape == theirs.shape and bool((mine == theirs).all())
+        return same_edges(self.tooth_angle, cycle.tooth_angle)
+
+
+class EnergyWeights(NamedTuple):
+    """What a cycle's angle-averaged kinetic energy weighs its tooth intervals' 1 / dt^2 by, fixed by the edges'
+    nominal angles (core.monitor.identify.identification.energy_weights): the cycle's edge angles (m,) [rad] they
+    were made for and the weights (m - 1,) [kg m^2 rad^2]."""
+
+    tooth_angle: np.ndarray
+    weights: np.ndarray
+
+    def fits(self, cycle: Cycle) -> bool:
+        return same_edges(self.tooth_angle, cycle.tooth_angle)
+
+
+def same_edges(mine: np.ndarray, theirs: np.ndarray) -> bool:
+    """np.array_equal's answer (shapes, then every value; NaN unequal) without its asarray and wrapper calls: asked
+    every cycle (~0.6 % of a k9k cycle through array_equal, design note 46)."""
+    return mine.shape == theirs.shape and bool((mine == theirs).all())
 
 
 @dataclass(frozen=True)
@@ -315,7 +336,7 @@ class MonitorState:
     condition: ConditionState | None = None  # the condition flags' window and change detector (core.monitor.checks.condition)
     previous: PreviousCycle | None = None  # the last analysed cycle: centred windows and the kinetic-energy term
     grid_geometry: GridGeometry | None = None  # the crank-angle grid's piston positions and J(2 pi)
-    mid_speed_fit: MidSpeedFit | None = None  # the mid-cycle speed's slope row at the edges' angles
+    energy_weights: EnergyWeights | None = None  # the cycle energy's weights at the edges' angles
     wheel2: SecondWheelState | None = None  # the second wheel's tooth learner (core.monitor.teeth.second_wheel)
 
     def previous_of(self, first_tick: int) -> PreviousCycle | None:

@@ -110,8 +110,10 @@ def test_coast_down_balance_follows_the_truth(coast):
     # measured: motored cycles within 0.031 N m (4 %) of the truth, 0.041 on the streaming simulator's noise draw
     assert np.nanmax(np.abs(bal - tf)[motored]) < 0.05 and abs(np.nanmean((bal - tf)[motored])) < 0.015
     assert np.nanmax(np.abs(bal - tf)[~motored]) < 0.08
-    # what the term carried: -1.9 N m of stored energy per cycle against 0.7 N m of friction
-    assert np.all(ja[motored] < -1.5)
+    # what the term carried: -1.9 N m of stored energy per cycle against 0.7 N m of friction; the first motored
+    # cycle's balance spans the last fired cycle too (the two cycles' triangle, design note 69): -0.93 there
+    first = np.flatnonzero(motored)[0]
+    assert np.all(ja[motored][1:] < -1.5) and -1.5 < ja[first] < -0.5
 
 
 def test_load_step_balance_follows_the_truth(step):

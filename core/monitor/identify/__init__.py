@@ -1,6 +1,7 @@
 """Step 5 of a cycle: the whitened equations, their accumulation with forgetting, and the friction posterior.
 
-    identification.py   identify_cycle and the mean balance (grid geometry, mid-cycle speed, transient balance)
+    identification.py   identify_cycle and the mean balance (grid geometry, cycle energy, transient balance)
+                                                                                     (+ energy_kernels.py)
     layout.py           ParameterLayout (which coefficients share a scale) and the bounded solve
     noise_model.py      the per-cycle noise model and whitening
     accumulate.py       the accumulated normal equations and the posterior             (+ accumulate_kernels.py)

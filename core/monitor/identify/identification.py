@@ -18,7 +18,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.indicated import piston_positions, tdc_centres, window_starts, works_with_alone
-from frictionwatch.core.model.kinematics import cylinder_kinematics_kernel, kinematics
+from frictionwatch.core.model.kinematics import cylinder_kinematics_kernel, kinematics, variable_inertia
 from frictionwatch.core.monitor.balance.excitation import Excitation
 from frictionwatch.core.monitor.identify.accumulate import (
     Accumulator,
@@ -28,6 +28,7 @@ from frictionwatch.core.monitor.identify.accumulate import (
     posterior_from_normal,
 )
 from frictionwatch.core.monitor.identify.accumulate_kernels import cycle_step_kernel
+from frictionwatch.core.monitor.identify.energy_kernels import cycle_energy_kernel
 from frictionwatch.core.monitor.identify.estimate import (
     BalanceCheck,
     CalibrationSensitivity,
@@ -39,7 +40,14 @@ from frictionwatch.core.monitor.identify.noise_model import NoiseSettings, white
 from frictionwatch.core.monitor.identify.pull_check import with_pull
 from frictionwatch.core.monitor.identify.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
 from frictionwatch.core.monitor.report.results import FrictionEstimate
-from frictionwatch.core.monitor.state import GridGeometry, MidSpeedFit, MonitorConfig, MonitorState, PreviousCycle
+from frictionwatch.core.monitor.state import (
+    EnergyWeights,
+    GridGeometry,
+    MidSpeedFit,
+    MonitorConfig,
+    MonitorState,
+    PreviousCycle,
+)
 from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion
 from frictionwatch.core.types import Cycle
 
@@ -50,10 +58,11 @@ FOUR_PI = 4.0 * np.pi
 class MeanBalance:
     """This cycle's mean torque balance [N m]: indicated (sum over cylinders, the cycle's own window), load
     (measured, plus the load's own ripple work), coupling_loss (modelled damper/coupling dissipation), kinetic =
-    d/dt(1/2 J w^2) / w over the window centred on cylinder 1's firing TDC (``transient_balance``) and friction =
-    indicated_centred - load - coupling - kinetic (NaN without a load measurement or without the previous cycle);
-    imep_centred (z,) [Pa] over each cylinder's own firing window, None without the previous cycle; acceleration
-    [rad/s^2] and indicated_window [N m] the window's angle-averaged dw/dt and indicated torque (kinetic = J a);
+    the change of the cycles' angle-averaged kinetic energy / 4 pi from the cycle before to this one
+    (``transient_balance``) and friction = indicated_window - the two cycles' mean load and coupling loss - kinetic
+    (NaN without a load measurement or without the previous cycle); imep_centred (z,) [Pa] over each cylinder's own
+    firing window, None without the previous cycle; acceleration [rad/s^2] kinetic / J(2 pi) and indicated_window
+    [N m] the two cycles' indicated torque under the balance's triangular weight;
     tdc_sensitivity (z,) [N m/rad] each cylinder's dT_iM/dDelta (core.monitor.identify.estimate.indicated_tdc_sensitivity),
     None where not computed (then the calibration adds no TDC term)."""
 
@@ -123,57 +132,142 @@ def mid_cycle_inertia(spec: EngineSpec) -> float:
 
 
 def grid_geometry(spec: EngineSpec, grid: np.ndarray) -> GridGeometry:
-    """The piston positions of every cylinder on the cycles' grid and J at theta = 2 pi (made once per grid)."""
+    """The piston positions of every cylinder on the cycles' grid, J at theta = 2 pi, each cylinder's own firing
+    window and the triangular weights of the transient balance's indicated torque (made once per grid)."""
     positions = piston_positions(grid, spec.firing_angles, spec.kinematics_params())
     z, n = spec.n_cyl, grid.shape[0]
     dx, ddx = np.empty((z, n)), np.empty((z, n))
     cylinder_kinematics_kernel(np.ascontiguousarray(grid, dtype=np.float64),
                                np.ascontiguousarray(spec.firing_angles, dtype=np.float64),
                                np.ascontiguousarray(spec.kinematics_params(), dtype=np.float64), dx, ddx)
-    centres = np.stack([tdc_centres(spec.firing_angles), np.zeros(z)])
+    centres = tdc_centres(spec.firing_angles)[None, :]
     return GridGeometry(float(grid[0]), int(n), positions, mid_cycle_inertia(spec), ddx,
-                        window_starts(grid, centres), window_starts(grid, np.zeros((1, z))))
+                        window_starts(grid, centres), window_starts(grid, np.zeros((1, z))),
+                        *triangle_weights(grid, positions, spec.piston_area))
+
+
+def triangle_weights(grid: np.ndarray, positions: np.ndarray, area: float) -> tuple[np.ndarray, np.ndarray]:
+    """(previous, current) (z, n) [m^2/rad]: the coefficients that take two consecutive cycles' pressures [Pa] to
+    the transient balance's indicated torque beyond the two cycles' plain mean [N m]:
+    sum(previous_p * previous) + sum(current_p * current) = (1/4 pi) [int over the previous cycle of T (phi/4 pi - 1/2)
+    + int over the current one of T (1/2 - phi/4 pi)] dphi, T = sum_k p_k A x_k' the gas torque, by the trapezoid
+    rule on the grid (each interval's weight at its middle; the previous cycle's last interval ends on the current
+    cycle's first sample, the current cycle's closes on its own first). The weights have zero mean over each cycle,
+    so the grid's trapezoid bias (~0.5 % of a work) enters only this small difference."""
+    n = grid.shape[0]
+    step = FOUR_PI / n
+    mid = (grid + 0.5 * step) / FOUR_PI  # each interval's middle, a fraction of the cycle
+    dx = np.roll(positions, -1, axis=1) - positions  # x is 4 pi periodic: the last interval ends on x[0]
+    g_prev, g_cur = (mid - 0.5) * dx, (0.5 - mid) * dx  # (z, n) an interval's weight x its dx
+    scale = 0.5 * area / FOUR_PI
+    prev = np.ascontiguousarray(scale * (g_prev + np.concatenate((np.zeros_like(g_prev[:, :1]), g_prev[:, :-1]), 1)))
+    cur = scale * (g_cur + np.roll(g_cur, 1, axis=1))
+    cur[:, 0] += scale * g_prev[:, -1]  # the previous cycle's last interval ends on the current cycle's first sample
+    return prev, np.ascontiguousarray(cur)
+
+
+def triangle_weights_reference(grid: np.ndarray, positions: np.ndarray, area: float, previous: np.ndarray,
+                               current: np.ndarray) -> float:
+    """``triangle_weights``' sum by the plain trapezoid of the weighted gas-torque work along [previous | current]
+    (its reference, tests/core/test_transient_balance.py)."""
+    n = grid.shape[0]
+    step = FOUR_PI / n
+    frac = (grid + 0.5 * step) / FOUR_PI
+    total = 0.0
+    for k in range(positions.shape[0]):
+        x_next = np.roll(positions[k], -1)
+        p_prev_next = np.append(previous[k, 1:], current[k, 0])
+        p_cur_next = np.roll(current[k], -1)
+        total += np.sum((frac - 0.5) * 0.5 * (previous[k] + p_prev_next) * (x_next - positions[k]))
+        total += np.sum((0.5 - frac) * 0.5 * (current[k] + p_cur_next) * (x_next - positions[k]))
+    return float(total * area / FOUR_PI)
+
+
+def energy_weights(spec: EngineSpec, tooth_angle: np.ndarray) -> EnergyWeights:
+    """The weights of ``cycle_energy`` at a cycle's edges (fixed by their nominal angles): per tooth interval,
+    1/2 J over the interval's part inside [0, 4 pi) (Simpson's rule over that part; J(theta) the rotating inertia
+    plus every reciprocating mass times x'^2, as ``mid_cycle_inertia`` at one angle) x its nominal pitch^2 x that
+    part's length / 4 pi, so that the interval's speed pitch / dt gives its share of the cycle's mean energy."""
+    a = np.array(tooth_angle, dtype=np.float64)
+    lo, hi = np.clip(a[:-1], 0.0, FOUR_PI), np.clip(a[1:], 0.0, FOUR_PI)
+    pts = np.concatenate((lo, 0.5 * (lo + hi), hi))
+    j = variable_inertia(pts, spec.firing_angles, spec.kinematics_params(), spec.reciprocating_mass,
+                         spec.total_inertia)[0].reshape(3, -1)
+    j_mean = (j[0] + 4.0 * j[1] + j[2]) / 6.0
+    pitch = a[1:] - a[:-1]
+    return EnergyWeights(a, np.ascontiguousarray(0.5 * j_mean * pitch * pitch * (hi - lo) / FOUR_PI))
+
+
+def cycle_energy(cycle: Cycle, weights: EnergyWeights) -> float:
+    """The cycle's angle-averaged kinetic energy (1/4 pi) int_0^4pi 1/2 J(theta) w(theta)^2 dtheta [J], w in each
+    tooth interval its pitch over its measured time (``energy_weights``). An edge time's error enters two adjacent
+    intervals with opposite signs and telescopes to first order: of the cycle's ~120 edges only the two boundary
+    ones count, as in a difference of two speeds. NaN when an interval is not positive. One kernel call
+    (core.monitor.identify.energy_kernels); ``cycle_energy_reference`` is its numpy."""
+    ticks = cycle.tooth_ticks
+    if ticks.dtype != np.int64 or not ticks.flags.c_contiguous or ticks.shape[0] != weights.weights.shape[0] + 1:
+        return cycle_energy_reference(cycle, weights)
+    return float(cycle_energy_kernel(ticks, weights.weights, float(cycle.tick_hz)))
+
+
+def cycle_energy_reference(cycle: Cycle, weights: EnergyWeights) -> float:
+    """``cycle_energy`` in numpy (its reference)."""
+    dt = np.diff(np.asarray(cycle.tooth_ticks)).astype(np.float64) / cycle.tick_hz
+    if dt.shape != weights.weights.shape or not np.all(dt > 0):
+        return float("nan")
+    return float(weights.weights @ (1.0 / (dt * dt)))
 
 
 def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indicated_cycle: np.ndarray,
-                      mid_speed: float, previous: PreviousCycle | None, load: float, coupling_loss: float,
+                      energy: float, previous: PreviousCycle | None, load: float, coupling_loss: float,
                       geometry: GridGeometry) -> tuple[float, float, float, float, np.ndarray | None]:
     """(friction, kinetic, acceleration, indicated, imep_centred) of one cycle and the cycle just before it
     (``previous``; None when that cycle is not at hand: all NaN and None); indicated_cycle (z,) [N m] the
-    cylinders' work means over this cycle's own window (``Excitation.indicated_mean``).
+    cylinders' work means over this cycle's own window (``Excitation.indicated_mean``); energy [J] this cycle's
+    angle-averaged kinetic energy (``cycle_energy``).
 
-    Over the 720 deg window from the middle of the previous cycle to the middle of this one (centred on cylinder 1's
-    firing TDC) the rigid shaft line's energy balance is exact: indicated - T_L - T_coupling - T_f = kinetic =
-    (E_c - E_c-1) / 4 pi = J a, E = 1/2 J(theta) w^2 at the same crank angle in both cycles (J(theta) is the same
-    number at both ends), a = (w_c^2 - w_c-1^2) / 8 pi the window's angle-averaged dw/dt [rad/s^2]. Cycle mean
-    speeds would not do: within a fired single-cylinder cycle E swings by ~13 %, so the mean-to-mid offset changes
-    by more than the balance at a fired -> motored step (simulated TU/e: 1.5 N m on 0.8). Two measured speeds and no
-    fitted drift (which biased an earlier per-cycle estimate, design notes §3): the term telescopes over a run, a
-    steady run gets no bias, a coast-down or a load step gets the torque that changed the speed.
+    The rigid shaft line's energy balance with each cycle's angle-averaged energy Ebar = (1/4 pi) int E dtheta,
+    E = 1/2 J(theta) w^2, over its own [0, 4 pi): (Ebar_c - Ebar_c-1) / 4 pi is exactly the mean net torque
+    under a triangular weight over the two cycles (phi / 4 pi on the previous cycle at its angle phi, 1 - phi / 4 pi
+    on this one; half the weight on each, centred on cylinder 1's firing TDC between them). So the indicated torque
+    is the two cycles' gas torque under that weight, the load and the coupling loss the two cycles' mean, and the
+    friction the two cycles' mean friction. Why the mean energy and not E at one angle: every engine order is
+    periodic in 4 pi, so the shaft's speed ripple drops out of Ebar to first order; E at theta = 2 pi holds the
+    ripple there, which repeats from cycle to cycle only at a steady speed: while the speed settles near a shaft
+    mode it does not (maruti 4000 -> 1500 rpm: the one-angle term was off by -0.34 N m, 5x the balance's floor;
+    design note 69). And why the triangle and not the plain cycle means: within a fired single-cylinder cycle E
+    swings by ~13 %, so plain cycle-mean speeds against the torques of one window were off at a fired -> motored
+    step (simulated TU/e: 1.5 N m on 0.8); weighting the torques as the energies weight them is exact for a rigid
+    shaft. Measured energies and no fitted drift (which biased an earlier per-cycle estimate, design notes §3): the
+    term telescopes over a run, a steady run gets no bias, a coast-down or a load step gets the torque that changed
+    the speed. acceleration [rad/s^2] is the kinetic term over J(2 pi) (kinetic = J(2 pi) a, as the transient fit
+    and the coast-down report take it: core.monitor.balance.transient).
 
-    The load is a whole cycle's measured mean, the window half a cycle earlier: when it steps between the two
-    cycles by more than 2 % of the rated torque the window's load is not known and friction is NaN (that cycle)."""
+    The load is each cycle's measured mean: when it steps between the two cycles by more than 2 % of the rated
+    torque the window's load is not known and friction is NaN (that cycle)."""
     nan = float("nan")
-    if previous is None or not (math.isfinite(previous.mid_speed) and math.isfinite(mid_speed)):
+    if previous is None or not (math.isfinite(previous.energy) and math.isfinite(energy)):
         return nan, nan, nan, nan, None
-    # the windows' works on the crank-angle grid enter as differences from this cycle's own on the same grid: the
-    # 720-point trapezoid reads ~0.5 % below the work the monitor's time grid takes (K9K 1100 rpm: 0.28 N m of
-    # indicated torque, 2 % of the friction), a bias the difference cancels
-    # the windows' first samples are fixed by the grid (GridGeometry); the pressures are the monitor's checked ones
-    if geometry.window_starts is None or geometry.alone_starts is None:
+    # the windows' first samples and the triangle's weights are fixed by the grid (GridGeometry); the pressures
+    # are the monitor's checked ones
+    if geometry.window_starts is None or geometry.alone_starts is None or geometry.triangle_previous is None:
         geometry = grid_geometry(spec, cycle.grid)
     x, area = geometry.positions, spec.piston_area
     cur = np.ascontiguousarray(pressure, dtype=np.float64)
-    (own, around_tdc1), (alone,) = works_with_alone(x, np.ascontiguousarray(previous.pressure, dtype=np.float64),
-                                                    cur, geometry.window_starts, geometry.alone_starts, area)
-    accel = (mid_speed**2 - previous.mid_speed**2) / (2.0 * FOUR_PI)
-    kinetic = geometry.inertia_mid * accel
+    prev = np.ascontiguousarray(previous.pressure, dtype=np.float64)
+    (own,), (alone,) = works_with_alone(x, prev, cur, geometry.window_starts, geometry.alone_starts, area)
+    kinetic = (energy - previous.energy) / FOUR_PI
     ind = np.asarray(indicated_cycle)
-    indicated = float(ind.sum()) + float(around_tdc1.sum() - alone.sum()) / FOUR_PI  # (np.sum's add.reduce)
+    # the grid's works enter only as the triangle's zero-mean weighting; the two cycles' accurate means carry the
+    # level: the 720-point trapezoid reads ~0.5 % below the work the monitor's time grid takes (K9K 1100 rpm:
+    # 0.28 N m of indicated torque, 2 % of the friction), a bias the weighting's zero mean cancels
+    indicated = 0.5 * (float(ind.sum()) + previous.indicated) + float(
+        np.vdot(prev, geometry.triangle_previous) + np.vdot(cur, geometry.triangle_current))
     imep = (ind * FOUR_PI + own - alone) / spec.displacement_cyl
     load_stepped = abs(load - previous.load) > LOAD_STEP_FRACTION * spec.rated_torque_nm
-    friction = nan if load_stepped else indicated - load - coupling_loss - kinetic
-    return friction, kinetic, accel, indicated, imep
+    window_load = 0.5 * (load + previous.load)
+    friction = nan if load_stepped else indicated - window_load - 0.5 * (coupling_loss + previous.coupling_loss) - kinetic
+    return friction, kinetic, kinetic / geometry.inertia_mid, indicated, imep
 
 
 LOAD_STEP_FRACTION = 0.02  # of the rated torque: a larger load change between two cycles voids that balance

@@ -168,9 +168,10 @@ class CycleResult:
     residual_harmonics (M,) complex rad/s: measured - model flywheel speed harmonics (order m/2)
     residual_rms rad/s, r_squared of the speed ripple; flags; sensor_health (SensorHealth, None with the stage off):
     TDC, pressure gain and pegging estimates, the corrections ``imep`` and the friction rest on, their sigmas
-    acceleration rad/s^2, indicated_window N m: over the 720 deg centred on cylinder 1's firing TDC (from the middle
-    of the cycle before), the angle-averaged dw/dt and the engine's indicated torque; friction_balance pairs them
-    with J at theta = 2 pi (NaN without the cycle before; core.monitor.identify.identification.transient_balance)
+    acceleration rad/s^2, indicated_window N m: of this cycle and the one before (a triangular weight centred on
+    cylinder 1's firing TDC between them), the change of their angle-averaged kinetic energy / 4 pi over J at
+    theta = 2 pi and the engine's indicated torque; friction_balance pairs them with J(2 pi) (NaN without the cycle
+    before; core.monitor.identify.identification.transient_balance)
     ring: the pressure-based ring indicators of every cylinder (core.monitor.checks.ring_pressure; service.alerts)
 
     The traces (grid, friction_torque, friction_torque_cyl_time, time_angles, speed_measured, speed_model,

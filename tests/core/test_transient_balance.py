@@ -1,0 +1,92 @@
+"""The transient balance's kinetic term from each cycle's angle-averaged energy and the torques under the two cycles'
+triangular weight (design note 69): the weights against their plain references, the tooth-edge energy against the
+simulator's flywheel speed, and a speed step settling near a shaft mode (maruti 4000 -> 1500 rpm: order 1.5 near
+the dyno coupling's ~40 Hz) whose balance at the second point is inside the balance's floor. The fired -> motored
+step the one-angle term was made for: tests/core/test_transient.py (test_coast_down_balance_follows_the_truth)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from frictionwatch.core.discrepancy.features import NULL_BALANCE
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.kinematics import variable_inertia
+from frictionwatch.core.monitor.identify.identification import (
+    cycle_energy,
+    cycle_energy_reference,
+    energy_weights,
+    grid_geometry,
+    triangle_weights_reference,
+)
+from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.service.pipeline import analyze_records, assembled_cycles
+from numpy.testing import assert_allclose
+
+MARUTI = load_engine("maruti-3cyl")
+FIRST, SECOND = 24, 16  # cycles at 4000 rpm 0.8, then at 1500 rpm 0.5
+
+
+@pytest.fixture(scope="module")
+def settling():
+    """maruti 4000 rpm 0.8 for 24 cycles, then 1500 rpm 0.5 for 16 (the dyno's speed step; seed 13, none of the
+    seeds NULL_BALANCE was tuned on): the speed settles through the whole second block."""
+    rpm, rpm2 = 4000.0, 1500.0
+    step_s = 60.0 / rpm + FIRST * 120.0 / rpm  # the first cycle starts one revolution after tick 0
+    return simulate(MARUTI, rpm, 0.8, FIRST + SECOND, 13, load_steps=[(step_s, 0.5, rpm2)])
+
+
+def test_triangle_weights_match_the_plain_trapezoid():
+    """The two cycles' weighted gas-torque work as one dot product per cycle against the trapezoid along the joined
+    cycles (rounding only: 1e-10 stated); a constant pressure does no work under any weight."""
+    spec = load_engine("k9k-4cyl")
+    grid = np.arange(720) * 4.0 * np.pi / 720
+    geo = grid_geometry(spec, grid)
+    rng = np.random.default_rng(2)
+    prev, cur = 1e5 + rng.uniform(0.0, 60e5, (2, spec.n_cyl, grid.size))
+    got = np.vdot(prev, geo.triangle_previous) + np.vdot(cur, geo.triangle_current)
+    assert_allclose(got, triangle_weights_reference(grid, geo.positions, spec.piston_area, prev, cur), rtol=1e-10)
+    flat = np.full((spec.n_cyl, grid.size), 3e5)
+    assert abs(np.vdot(flat, geo.triangle_previous) + np.vdot(flat, geo.triangle_current)) < 1e-9 * abs(got)
+
+
+def test_the_cycle_energy_from_the_edges_follows_the_flywheel_speed(settling):
+    """Each cycle's mean energy from its tooth intervals (noise, quantisation and the plant's tooth-spacing error
+    in) against 1/2 J(theta) w^2 of the simulator's flywheel speed on its 1-deg grid: the kinetic terms (the
+    differences / 4 pi) agree within 0.03 N m per cycle (measured 0.019 at 4000 rpm, the timer's quantisation;
+    0.01 at 1500) while the speed settles and the term reaches 6.6 N m. Left out: the dyno's braking cycles (the
+    mean speed 5.5-22 % below the cycle before's), where the two differ by up to 4e-4 of the energy (0.36 N m; the
+    same with the tooth-spacing error and the sensor noise off: not found which side) and the measured load steps,
+    so the monitor's balance is void there anyway."""
+    cycles = assembled_cycles(MARUTI, settling.info, settling.records)[0]
+    w = settling.diagnostics["flywheel_speed_grid_rad_s"]
+    theta = np.radians(np.arange(w.shape[1]) * 720.0 / w.shape[1])
+    j = variable_inertia(theta, MARUTI.firing_angles, MARUTI.kinematics_params(), MARUTI.reciprocating_mass,
+                         MARUTI.total_inertia)[0]
+    truth = 0.5 * np.mean(j * w * w, axis=1)
+    idx = np.array([c.index for c in cycles])
+    got = np.array([cycle_energy(c, energy_weights(MARUTI, c.tooth_angle)) for c in cycles])
+    # the kernel against its numpy reference: another summation order only (1e-12 stated)
+    assert_allclose(got, [cycle_energy_reference(c, energy_weights(MARUTI, c.tooth_angle)) for c in cycles],
+                    rtol=1e-12)
+    kinetic, kinetic_true = np.diff(got) / (4 * np.pi), np.diff(truth[idx]) / (4 * np.pi)
+    mean_speed = w[idx].mean(axis=1)
+    settled = np.abs(np.diff(mean_speed)) < 0.03 * mean_speed[1:]
+    assert np.all(np.diff(idx) == 1) and np.count_nonzero(~settled) <= 6
+    assert np.max(np.abs(kinetic_true[settled & (mean_speed[1:] < 200.0)])) > 3.0  # the settling at 1500 rpm
+    assert_allclose(kinetic[settled], kinetic_true[settled], atol=0.03)
+
+
+def test_a_speed_step_settling_near_a_shaft_mode_balances_inside_the_floor(settling):
+    """At 1500 rpm, while the speed settles, the balance's friction against the simulator's (every cycle with a
+    balance: the dyno's steps void the first ones) is inside NULL_BALANCE x the friction on average (0.075 N m;
+    NULL_BALANCE tuned on one-point logs). Measured: +0.005 +- 0.014 over 9 cycles; with the one-angle kinetic
+    term (before design note 69) +0.203 +- 0.048 (seeds 21, 22: +0.19, +0.18, now +0.020, -0.019). Per cycle within
+    0.21 N m: the largest of seeds 21 and 22 now, 0.14, x 1.5 (one-angle: up to 0.47)."""
+    res = analyze_records(MARUTI, settling.info, settling.records).results
+    truth = {c["index"]: c for c in settling.truth["cycles"]}
+    second = [r for r in res if r.index >= FIRST and np.isfinite(r.friction_balance)]
+    assert len(second) >= 8 and all(abs(r.rpm_mean - 1500.0) < 100.0 for r in second)
+    err = np.array([r.friction_balance - truth[r.index]["friction_torque_mean_nm"] for r in second])
+    friction = np.mean([truth[r.index]["friction_torque_mean_nm"] for r in second])
+    assert abs(err.mean()) < NULL_BALANCE * friction
+    assert np.max(np.abs(err)) < 0.21
