@@ -296,6 +296,7 @@ def test_the_code_uses_the_recorded_numbers():
         "DRIVE_TRAIN_STIFFNESS_FLOOR": drive_train.STIFFNESS_FLOOR,
         "DRIVE_TRAIN_DAMPING_FLOOR": drive_train.DAMPING_FLOOR, "DRIVE_TRAIN_SETTLED": drive_train.SETTLED,
         "PULL_CHECK_KAPPA": PullCheck().kappa, "TOOTH_SPEED_STEP": cfg.tooth_speed_step,
+        "CHANGE_INNOVATION_REL_FLOOR": cond.change.rel_floor,
     }
     assert set(used) == set(mon)
     for name, value in used.items():

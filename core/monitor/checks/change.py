@@ -9,7 +9,8 @@ the share prior make them so), so the detector learns what a healthy innovation 
 
     S+ = max(0, S+ + z - k),   S- = max(0, S- - z - k),   alarm when S+ or S- > h
 
-with z clipped to +-``clip`` (one odd cycle, a misfire, moves a sum by at most clip - k). An alarm names the cylinder
+with z clipped to +-``clip`` (one odd cycle, a misfire, moves a sum by at most clip - k) and the scale at least
+``rel_floor`` x the smoothed figure (ChangeSettings: the smoothed estimate's own wander). An alarm names the cylinder
 with the largest sum; then the sums restart after ``quiet`` cycles, and the caller discounts the accumulated
 equations (Accumulator.discounted) to ``reset_weight`` cycles.
 """
@@ -21,6 +22,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 from frictionwatch.core.monitor.identify.accumulate import Posterior
+from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
+
+_TUNED = read_tuned(MONITOR_RECORD)  # the innovation's floor with its provenance (core.tuned)
 
 
 @dataclass(frozen=True)
@@ -38,6 +42,13 @@ class ChangeSettings:
     clip: float = 4.0
     reset_weight: float = 30.0
     quiet: int = 60
+    # the innovation's scale is at least rel_floor x the smoothed figure (each cylinder's): the smoothed per-cylinder
+    # estimate itself moves by a few % while it learns (genset-v20: a slow wander the 200-cycle mean does not
+    # absorb, 50-cycle block means ~2x an independent cycle's), and with the transient balance's per-cycle scatter
+    # down 3x (design note 69) that wander raised ~10 false alarms in 1,000 healthy cycles, each discounting the
+    # accumulator to 30 cycles. Tuned on genset-v20 1500 rpm 1.0 seed 3 (bench.calibrate_change_floor); validated
+    # on seed 1 (tests/core/test_monitor_accuracy.py) and on maruti/k9k (tests/core/test_condition.py)
+    rel_floor: float = _TUNED["CHANGE_INNOVATION_REL_FLOOR"].value
 
 
 @dataclass(frozen=True)
@@ -66,13 +77,16 @@ def detect_change(detector: ChangeDetector | None, cycle: Posterior, smoothed: P
     """One cycle of the detector: the new detector and the alarm per cylinder (z,) bool. ``detect_change_reference``'s
     numbers by one kernel (``_cusum_kernel``) after the two torques: its ~20 small numpy calls were ~1.5 % of a k9k
     cycle (tests/core/test_change_kernel.py: equal within rtol 1e-12 over warm-up, alarms and quiet cycles)."""
-    u = cylinder_friction(cycle, rows) - cylinder_friction(smoothed, rows)
+    smooth = cylinder_friction(smoothed, rows)
+    u = cylinder_friction(cycle, rows) - smooth
     z_cyl = u.shape[0]
     det = ChangeDetector.empty(z_cyl) if detector is None else detector
     mean, var, sums, alarm = np.empty(z_cyl), np.empty(z_cyl), np.empty((2, z_cyl)), np.zeros(z_cyl, dtype=np.bool_)
     status = _cusum_kernel(np.ascontiguousarray(u, dtype=np.float64), det.mean, det.var, det.sums, det.count,
                            det.quiet, np.array((settings.k, settings.h, settings.memory, settings.warmup,
-                                                settings.clip)), mean, var, sums, alarm)
+                                                settings.clip)),
+                           np.ascontiguousarray(settings.rel_floor * np.abs(smooth), dtype=np.float64),
+                           mean, var, sums, alarm)
     if status == _NOT_FINITE:
         return det, alarm
     n = det.count + 1
@@ -87,11 +101,11 @@ _NOT_FINITE, _LEARNING, _NO_ALARM, _ALARM = 0, 1, 2, 3  # _cusum_kernel's status
 
 
 @numba.njit(cache=True)
-def _cusum_kernel(u, mean, var, sums, count, quiet, limits, new_mean, new_var, new_sums, alarm):
+def _cusum_kernel(u, mean, var, sums, count, quiet, limits, floor, new_mean, new_var, new_sums, alarm):
     """``detect_change_reference``'s step after the innovation u (z,), element by element in its arithmetic:
     fills new_mean, new_var (and new_sums, alarm where decided) and returns the status: _NOT_FINITE (u not finite,
     nothing filled), _LEARNING (warm-up or quiet: the sums unchanged), _NO_ALARM, _ALARM (alarm marks the cylinder
-    with the largest sum). limits = (k, h, memory, warmup, clip)."""
+    with the largest sum). limits = (k, h, memory, warmup, clip); floor (z,) the least scale of each innovation."""
     z = u.shape[0]
     for i in range(z):
         if not np.isfinite(u[i]):
@@ -105,8 +119,8 @@ def _cusum_kernel(u, mean, var, sums, count, quiet, limits, new_mean, new_var, n
     for i in range(z):
         sd = np.sqrt(var[i])
         if ready:
-            zs[i] = min(max((u[i] - mean[i]) / sd, -limits[4]), limits[4])
-            d = zs[i] * sd
+            zs[i] = min(max((u[i] - mean[i]) / max(sd, floor[i]), -limits[4]), limits[4])
+            d = min(max(u[i] - mean[i], -limits[4] * sd), limits[4] * sd)
         else:
             d = u[i] - mean[i]
         new_mean[i] = mean[i] + g * d
@@ -128,7 +142,14 @@ def _cusum_kernel(u, mean, var, sums, count, quiet, limits, new_mean, new_var, n
 def detect_change_reference(detector: ChangeDetector | None, cycle: Posterior, smoothed: Posterior, rows: np.ndarray,
                             settings: ChangeSettings) -> tuple[ChangeDetector, np.ndarray]:
     """``detect_change`` in plain numpy (its reference)."""
-    u = cylinder_friction(cycle, rows) - cylinder_friction(smoothed, rows)
+    smooth = cylinder_friction(smoothed, rows)
+    return cusum_step_reference(detector, cylinder_friction(cycle, rows) - smooth, smooth, settings)
+
+
+def cusum_step_reference(detector: ChangeDetector | None, u: np.ndarray, smooth: np.ndarray,
+                         settings: ChangeSettings) -> tuple[ChangeDetector, np.ndarray]:
+    """One step of the detector on the innovation u (z,) [N m] beside the smoothed figures smooth (z,) [N m]
+    (``detect_change_reference`` after its two torques; bench.calibrate_change_floor replays recorded ones)."""
     z_cyl = u.shape[0]
     det = ChangeDetector.empty(z_cyl) if detector is None else detector
     none = np.zeros(z_cyl, dtype=bool)
@@ -138,9 +159,11 @@ def detect_change_reference(detector: ChangeDetector | None, cycle: Posterior, s
     g = max(1.0 - settings.memory, 1.0 / n)
     sd = np.sqrt(det.var)
     ready = det.count >= settings.warmup and np.all(sd > 0)
-    zs = np.clip((u - det.mean) / np.where(sd > 0, sd, 1.0), -settings.clip, settings.clip) if ready else None
-    # the statistics learn from the clipped innovation, so one wild cycle does not inflate the scale
-    d = (zs * sd if zs is not None else u - det.mean)
+    scale = np.maximum(np.where(sd > 0, sd, 1.0), settings.rel_floor * np.abs(smooth))
+    zs = np.clip((u - det.mean) / scale, -settings.clip, settings.clip) if ready else None
+    # the statistics learn from the innovation clipped at clip x its own spread, so one wild cycle does not inflate
+    # the scale (the floor only widens the scale the sums see)
+    d = (np.clip(u - det.mean, -settings.clip * sd, settings.clip * sd) if zs is not None else u - det.mean)
     mean = det.mean + g * d
     var = (1.0 - g) * (det.var + g * d * d) if n > 1 else np.zeros(z_cyl)
     if zs is None or det.quiet > 0:
