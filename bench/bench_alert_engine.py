@@ -1,7 +1,8 @@
-"""The alert engine's CPU per cycle (issue 28 item 7, design note 72): ``AlertEngine.update`` replayed on kept runs
-(``bench.ring_condition --save``) or on synthetic cycles, as the branch has it and as a commit had it (service/alert*.py
-read from git, the rest of the tree as it is now), alternating in one process, and whether the two give the same
-alerts and pressure statistics.
+"""The alert engine's CPU per cycle (issue 28 item 7, design notes 72, 73): ``AlertEngine.update`` replayed on kept
+runs (``bench.ring_condition --save``) or on synthetic cycles, as the branch has it and as a commit had it
+(service/alert*.py and the core module the rules call most, core/monitor/checks/ring_condition.py, read from git; the
+rest of the tree as it is now), alternating in one process, and whether the two give the same alerts and pressure
+statistics.
 
     python -m bench.bench_alert_engine /tmp/v20_s7_h.pkl [more.pkl ...] --base 7f2dc33 --repeat 5
     python -m bench.bench_alert_engine synthetic --engine genset-v20 --base 7f2dc33
@@ -17,11 +18,15 @@ var_ratio, the long-run factors) and ring-condition figure equal within rtol 1e-
 from __future__ import annotations
 
 import argparse
+import atexit
+import importlib.util
 import json
 import os
 import pickle
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 import types
 from pathlib import Path
@@ -31,17 +36,37 @@ from frictionwatch.service.alerts import AlertConfig, AlertEngine
 
 ROOT = Path(__file__).resolve().parent.parent
 MODULES = ("alert_config", "alert_baseline", "alert_interface", "alert_rules", "alert_ring_rule", "alerts")
+# core modules taken from the commit too (dotted name under frictionwatch.): the rules' friction excess and ring figure
+CORE_MODULES = ("core.monitor.checks.ring_condition",)
+
+
+def _git_show(commit: str, path: str) -> str:
+    return subprocess.run(["git", "show", f"{commit}:{path}"], cwd=ROOT, check=True, capture_output=True,
+                          text=True).stdout
 
 
 def base_engine_class(commit: str) -> type:
-    """``AlertEngine`` as at ``commit``: every service/alert*.py module read from git under its own name."""
+    """``AlertEngine`` as at ``commit``: every service/alert*.py module and each of ``CORE_MODULES`` read from git
+    under its own name (the core ones from a file in a temporary folder: their numba kernels cache beside a file)."""
     prefix = f"_base_{commit[:10]}_"
+    folder = Path(tempfile.mkdtemp(prefix=f"bench_alert_engine_{commit[:10]}_"))
+    atexit.register(shutil.rmtree, folder, True)
+    renames = {}
+    for dotted in CORE_MODULES:
+        name = prefix + dotted.replace(".", "_")
+        path = folder / f"{name}.py"
+        path.write_text(_git_show(commit, dotted.replace(".", "/") + ".py"))
+        spec = importlib.util.spec_from_file_location(name, path)
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[name] = mod
+        spec.loader.exec_module(mod)
+        renames[f"frictionwatch.{dotted}"] = name
+    for other in MODULES:
+        renames[f"frictionwatch.service.{other}"] = prefix + other
     for name in MODULES:
-        src = subprocess.run(["git", "show", f"{commit}:service/{name}.py"], cwd=ROOT, check=True,
-                             capture_output=True, text=True).stdout
-        for other in MODULES:
-            src = src.replace(f"frictionwatch.service.{other} ", f"{prefix}{other} ")
-            src = src.replace(f"frictionwatch.service.{other}\n", f"{prefix}{other}\n")
+        src = _git_show(commit, f"service/{name}.py")
+        for old, new in renames.items():
+            src = src.replace(f"{old} ", f"{new} ").replace(f"{old}\n", f"{new}\n")
         mod = types.ModuleType(prefix + name)
         mod.__dict__["__file__"] = str(ROOT / "service" / f"{name}.py")  # alert_config reads its json beside it
         sys.modules[prefix + name] = mod

@@ -36,6 +36,7 @@ from functools import partial
 from typing import Any
 
 import numpy as np
+from frictionwatch.core.monitor.checks.ring_condition import friction_excess
 from frictionwatch.core.monitor.report.results import PA_PER_BAR, CycleResult, change_sigma
 from frictionwatch.service.alert_config import AlertConfig
 from frictionwatch.service.alert_interface import Context, Decision, Hold, Pressure
@@ -324,12 +325,14 @@ class FrictionRule:
         if ctx.baseline is None:
             return []
         status = ctx.smoothed_status(result)  # est is result.smoothed
-        idx = np.flatnonzero([c.status == "measured" for c in status.cylinders])
+        measured = np.array([c.status == "measured" for c in status.cylinders])
+        idx = np.flatnonzero(measured)
         if idx.size < 3:  # each needs two measured siblings
             return []
-        # a change against the baseline: the calibration's error is the same then and now and cancels
+        # a change against the baseline: the calibration's error is the same then and now and cancels. Core's
+        # excess unscreened: the figures this rule has always given (design note 73)
         t, s = np.asarray(est.friction_torque_mean, dtype=np.float64), change_sigma(est)
-        excess_all, sigma_all = excess_over_siblings(t, s, idx)
+        excess_all, sigma_all = (a[idx] for a in friction_excess(t, s, measured, screened=False))
         out: list[Decision | Hold] = []
         # the references as they were at the start (a cylinder's own is set below only where it had none, and then
         # not read again this cycle), as Python floats: per cylinder numpy scalars were half the rule's time
@@ -359,22 +362,6 @@ class FrictionRule:
                 {"source": "friction", "z_friction": _num(zf), "friction_excess": _num(excess),
                  "friction_excess_baseline": _num(base), "friction_torque_nm": _num(torque),
                  "friction_torque_sigma_nm": _num(sigma)})
-
-
-def excess_over_siblings(t: np.ndarray, s: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For each cylinder of ``idx`` (the measured ones, three or more): its friction ``t`` over the mean of the other
-    measured cylinders', minus 1, and that excess's sigma from ``s`` (its own and the siblings' mean's, the mean
-    square over their count), (len(idx),) each. Every leave-one-out mean in one reduction over a (n, n - 1) index
-    matrix: the same sums as a np.mean per cylinder (a row is summed as the 1-D array would be), at one call
-    instead of n (20 on genset-v20: ~0.2 ms a cycle; design note 72). tests/service/test_alert_cpu.py holds it to
-    the per-cylinder loop it replaced."""
-    n = idx.size
-    cols = np.arange(n - 1)
-    others = idx[cols + (cols >= np.arange(n)[:, None])]  # row j: idx without its j-th
-    ref = np.add.reduce(t[others], axis=1) / (n - 1)
-    sig2 = np.add.reduce(s[others] ** 2, axis=1) / (n - 1)
-    tk, sk = t[idx], s[idx]
-    return tk / ref - 1.0, np.sqrt(sk ** 2 + sig2 / (n - 1)) / ref
 
 
 def _num(v: Any) -> float | None:

@@ -10,6 +10,7 @@ from frictionwatch.core.monitor.checks.ring_condition import (
     SiblingWindow,
     combine,
     friction_excess,
+    friction_excess_reference,
     leak_change,
     leak_effect,
     ring_condition,
@@ -109,6 +110,70 @@ def test_friction_excess_needs_two_measured_siblings():
     assert_allclose(s[0], np.sqrt(0.04 + 0.04 / 2) / 4.5, rtol=1e-12)
     e, _ = friction_excess(np.array([6.0, 5.0, 5.0]), np.full(3, 0.2), np.array([True, True, False]))
     assert np.all(np.isnan(e))
+
+
+def _same_excess(a: tuple, b: tuple) -> None:
+    """Two (excess, sigma): within rtol 1e-12, NaN and inf where the other has them."""
+    for x, y in zip(a, b, strict=True):
+        assert_allclose(x, y, rtol=1e-12, atol=0.0, equal_nan=True)
+
+
+def _excess_sets(seed: int):
+    """Random (torque, sigma, measured) of 3-24 cylinders: healthy sets, torques about zero (references of either
+    sign), NaN / inf torques and sigmas, exact-zero references, a few measured."""
+    rng = np.random.default_rng(seed)
+    for _ in range(200):
+        z = int(rng.integers(3, 25))
+        t = 5.0 + 0.3 * rng.standard_normal(z) if rng.random() < 0.5 else rng.standard_normal(z)
+        s = 0.05 + 0.02 * rng.random(z)
+        bad = rng.random(z) if rng.random() < 0.5 else np.ones(z)
+        t[bad < 0.06] = NAN
+        t[(bad >= 0.06) & (bad < 0.09)] = np.inf
+        t[(bad >= 0.09) & (bad < 0.11)] = -np.inf
+        s[bad < 0.04] = NAN
+        s[(bad >= 0.11) & (bad < 0.13)] = np.inf
+        measured = rng.random(z) < rng.choice([0.3, 0.8, 1.0])
+        yield t, s, measured
+    yield np.array([1.0, -1.0, 0.0, 2.0]), np.full(4, 0.1), np.ones(4, bool)  # cylinder 4's siblings' mean: 0
+    yield np.array([1.0, -1.0, 0.0, 0.0]), np.full(4, 0.1), np.ones(4, bool)  # 0 / 0
+    yield np.array([-5.0, -5.0, -6.0]), np.full(3, 0.1), np.ones(3, bool)  # negative references
+
+
+@pytest.mark.parametrize("screened", [True, False])
+@pytest.mark.parametrize("seed", range(3))
+def test_friction_excess_in_one_reduction_is_the_per_cylinder_loop(seed, screened):
+    """friction_excess (every leave-one-out mean in one reduction) against its reference (a np.mean per cylinder),
+    screened and not: within rtol 1e-12 and NaN / inf in the same places, with non-finite torques and sigmas, zero
+    and negative references; the comparison fails on a 1e-9 change."""
+    n_nan = n_finite = 0
+    for t, s, measured in _excess_sets(seed):
+        new = friction_excess(t, s, measured, screened=screened)
+        ref = friction_excess_reference(t, s, measured, screened=screened)
+        _same_excess(new, ref)
+        n_nan += int(np.isnan(new[0]).sum())
+        ok = np.isfinite(ref[0]) & (ref[0] != 0.0)
+        n_finite += int(ok.sum())
+        if ok.any():
+            with pytest.raises(AssertionError):
+                _same_excess((new[0] * (1.0 + 1e-9), new[1]), ref)
+    assert n_nan > 100 and n_finite > 1000, (n_nan, n_finite)  # the sets reach both the masks and the sums
+
+
+def test_friction_excess_screens_what_its_unscreened_form_divides_by():
+    t, s = np.array([1.0, -1.0, 0.0, 2.0, NAN]), np.array([0.1, 0.1, 0.1, 0.1, 0.1])
+    e, g = friction_excess(t, s, np.array([True, True, True, True, False]))
+    # references: (-1 + 0 + 2) / 3, (1 + 0 + 2) / 3, (1 - 1 + 2) / 3, 0 / 3: the last one's excess is not defined
+    assert_allclose(e[:3], [1.0 / (1.0 / 3.0) - 1.0, -1.0 / 1.0 - 1.0, 0.0 / (2.0 / 3.0) - 1.0], rtol=1e-12)
+    assert np.isnan(e[3]) and np.isnan(g[3]) and np.isnan(e[4])
+    e, g = friction_excess(t, s, np.ones(5, bool), screened=False)  # the NaN torque enters every other's reference
+    assert np.isnan(e).all() and np.isnan(g[:4]).all()
+    assert_allclose(g[4], np.sqrt(0.01 + 0.01 / 4) / 0.5, rtol=1e-12)  # its own: the siblings' mean is 2 / 4
+    e, g = friction_excess(t[:4], s[:4], np.ones(4, bool), screened=False)
+    assert e[3] == np.inf and g[3] == np.inf  # 2 / 0
+    s[1] = np.inf
+    e, _ = friction_excess(t[:4], s[:4], np.ones(4, bool))  # an infinite sigma: not measured
+    assert np.isnan(e[1]) and np.isfinite(e[[0, 2]]).all()
+    assert_allclose(e[0], 1.0 / 1.0 - 1.0, rtol=1e-12)
 
 
 def test_combine_is_inverse_variance_in_units_of_the_floor():

@@ -1,4 +1,4 @@
-"""The alert engine's cheaper arithmetic (design note 72) gives what the per-cycle numpy it replaced gave: each
+"""The alert engine's cheaper arithmetic (design notes 72, 73) gives what the per-cycle numpy it replaced gave: each
 helper against its reference, and a whole run of the engine (a leak, a worn ring from the measured friction, a load
 step) against the same engine with the references put back."""
 
@@ -7,7 +7,8 @@ import math
 
 import numpy as np
 import pytest
-from frictionwatch.service import alert_rules, alerts
+from frictionwatch.core.monitor.checks.ring_condition import friction_excess, friction_excess_reference
+from frictionwatch.service import alert_ring_rule, alert_rules, alerts
 from frictionwatch.service.alert_baseline import BaselineLearner
 from frictionwatch.service.alert_interface import (
     LeakWeights,
@@ -15,7 +16,6 @@ from frictionwatch.service.alert_interface import (
     leak_statistics_reference,
     sibling_median,
 )
-from frictionwatch.service.alert_rules import excess_over_siblings
 from numpy.testing import assert_allclose
 
 from bench.bench_alert_engine import fold, synthetic_run
@@ -30,6 +30,28 @@ def _excess_loop(t: np.ndarray, s: np.ndarray, idx: np.ndarray) -> tuple[np.ndar
         exc.append(t[k] / ref - 1.0)
         sig.append(math.sqrt(s[k] ** 2 + float(np.mean(s[others] ** 2)) / others.size) / ref)
     return np.array(exc), np.array(sig)
+
+
+def _excess_over_siblings_72(t: np.ndarray, s: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """FrictionRule's reduction as design note 72 left it (service/alert_rules.py at f3d3e01): the numbers the rule
+    keeps now that it calls core's friction_excess unscreened."""
+    n = idx.size
+    cols = np.arange(n - 1)
+    others = idx[cols + (cols >= np.arange(n)[:, None])]
+    ref = np.add.reduce(t[others], axis=1) / (n - 1)
+    sig2 = np.add.reduce(s[others] ** 2, axis=1) / (n - 1)
+    tk, sk = t[idx], s[idx]
+    return tk / ref - 1.0, np.sqrt(sk ** 2 + sig2 / (n - 1)) / ref
+
+
+def _friction_excess_loop(t: np.ndarray, s: np.ndarray, measured: np.ndarray, *, screened: bool = True
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """core friction_excess's interface over the rule's old per-cylinder loop (the rule calls it unscreened)."""
+    assert not screened
+    idx = np.flatnonzero(measured)
+    exc, sig = np.full(t.shape[0], np.nan), np.full(t.shape[0], np.nan)
+    exc[idx], sig[idx] = _excess_loop(t, s, idx)
+    return exc, sig
 
 
 def _change_against_siblings_reference(change: np.ndarray) -> np.ndarray:
@@ -65,13 +87,27 @@ def test_leak_statistics_with_the_bands_weights_are_the_references():
 
 
 @pytest.mark.parametrize("n", [3, 4, 7, 20])
-def test_excess_over_siblings_is_the_per_cylinder_loop(n):
+def test_core_friction_excess_unscreened_is_the_friction_rules_own(n):
+    # healthy sets against the per-cylinder loop; with NaN / inf torques and sigmas, references about zero, against
+    # the rule's reduction of design note 72 (the loop would raise on a zero reference); a 1e-9 change fails
     rng = np.random.default_rng(n)
-    t = 5.0 + rng.standard_normal(24)
-    s = 0.05 + 0.01 * rng.random(24)
-    idx = np.sort(rng.choice(24, n, replace=False))
-    for a, b in zip(excess_over_siblings(t, s, idx), _excess_loop(t, s, idx), strict=True):
-        assert_allclose(a, b, rtol=1e-12, atol=0.0)
+    for trial in range(60):
+        healthy = trial < 20
+        t = 5.0 + rng.standard_normal(24) if healthy else rng.standard_normal(24)
+        s = 0.05 + 0.01 * rng.random(24)
+        if not healthy and trial % 2:
+            t[rng.random(24) < 0.05], t[rng.random(24) < 0.03], s[rng.random(24) < 0.05] = np.nan, np.inf, np.inf
+        idx = np.sort(rng.choice(24, n, replace=False))
+        measured = np.zeros(24, bool)
+        measured[idx] = True
+        new = [a[idx] for a in friction_excess(t, s, measured, screened=False)]
+        with np.errstate(all="ignore"):
+            old = _excess_loop(t, s, idx) if healthy else _excess_over_siblings_72(t, s, idx)
+        for a, b in zip(new, old, strict=True):
+            assert_allclose(a, b, rtol=1e-12, atol=0.0, equal_nan=True)
+        if healthy:
+            with pytest.raises(AssertionError):
+                assert_allclose(new[0] * (1.0 + 1e-9), old[0], rtol=1e-12, atol=0.0)
 
 
 def test_a_run_gives_the_same_alerts_and_statistics_as_the_references(monkeypatch):
@@ -86,7 +122,8 @@ def test_a_run_gives_the_same_alerts_and_statistics_as_the_references(monkeypatc
             } <= kinds
     monkeypatch.setattr(alerts, "change_against_siblings", _change_against_siblings_reference)
     monkeypatch.setattr(alerts, "leak_statistics", lambda *a, weights=None: leak_statistics_reference(*a))
-    monkeypatch.setattr(alert_rules, "excess_over_siblings", _excess_loop)
+    monkeypatch.setattr(alert_rules, "friction_excess", _friction_excess_loop)
+    monkeypatch.setattr(alert_ring_rule, "friction_excess", friction_excess_reference)
     _, events_ref, stats_ref = fold(alerts.AlertEngine, run, True)
     assert [e[:8] for e in events] == [e[:8] for e in events_ref]
     for e, r in zip(events, events_ref, strict=True):
