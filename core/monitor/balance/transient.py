@@ -1,12 +1,13 @@
 """Inertia and friction against speed from a run whose speed changes (a coast-down, a load step, a fired -> motored
 transition), from the monitor's per-cycle results (core.monitor.identify.identification.transient_balance).
 
-Each analysed cycle whose predecessor was analysed too gives one row of the mean balance over the 720 deg centred on
-cylinder 1's firing TDC (from the middle of the cycle before to the middle of this one):
+Each analysed cycle whose predecessor was analysed too gives one row of the mean balance over the two cycles under
+a triangular weight centred on cylinder 1's firing TDC between them (the change of the cycles' angle-averaged
+kinetic energy; design note 69):
 
     T_i,window - T_L - T_coupling = J a + T_f(W),    T_f(W) = c0 + c1 W,
 
-a the window's angle-averaged dw/dt, W its mean speed (the mean of the two cycles' mean speeds). The fit is
+a the kinetic term over J(2 pi) (CycleResult.acceleration), W the mean of the two cycles' mean speeds. The fit is
 core.monitor.balance.coastdown.fit_inertia_friction (one implementation). J is taken from the rows when they resolve it (a
 torque step at almost one speed: ignition off, a load step) and from the engine spec otherwise: in a plain
 coast-down J a(W) and c0 + c1 W are nearly collinear (coastdown.py).

@@ -72,8 +72,9 @@ def cycle_torque(grid: np.ndarray, pressure: np.ndarray, geometry: CycleGeometry
 
 @dataclass(frozen=True)
 class CycleBalance:
-    """The mean balance over the 720 deg from the middle of one cycle to the middle of the next (the monitor's
-    window, core.monitor.identify.identification.transient_balance): omega its mean speed [rad/s], decel its angle-averaged
+    """The mean balance over the 720 deg from the middle of one cycle to the middle of the next (the calibration's
+    own window; the monitor's transient balance weighs two whole cycles instead, design note 69): omega its mean
+    speed [rad/s], decel its angle-averaged
     dw/dt from the two mid-cycle speeds [rad/s^2] (the same angle, so the gas-torque ripple drops out), gas_mean its
     mean gas torque [N m]; rec_inertia [kg m^2] the reciprocating inertia m_rec x'^2 averaged over the mid-cycle
     speed's window. That speed is the window's mean, and within the window J(theta) omega^2 / 2 stays (nearly)
