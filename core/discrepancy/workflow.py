@@ -296,7 +296,13 @@ def _sized_by_balance(t: Trial, law_fit, current: EngineModel, test: Residuals, 
     once the monitor's kinetic term no longer carried the settling speed (design note 69): maruti 4000/0.8 <->
     1500/0.5 seed 7, a side-thrust skirt at 1, the speed 0.683 +- 0.110 (2.9 sigma off), the balance 1.02 +- 0.16;
     k9k 3000/0.9 <-> 1800/0.6 seed 2, a Stribeck ring at 1: the speed 0.20 +- 0.066, the balance 0.907 +- 0.10
-    (note 62). One more monitor run."""
+    (note 62). One more monitor run. A balance that does not pin the law (its sigma over a quarter of the law's range:
+    its 2-sigma interval wider than half of it) sizes nothing: deutz-1cyl 3000/1500 rpm seed 3, a cam-order
+    valve-train friction, the balance's share 1 +- 56 (the single cylinder's cam law barely moves the mean
+    friction between the points) beside the speed's 0.971 +- 0.17."""
+    c = t.candidate
+    if not float(law_fit.sigma) <= 0.25 * (float(c.hi[0]) - float(c.lo[0])):
+        return None
     balanced = current.with_effect(make_effect(t.candidate.effect, {"fraction": float(law_fit.fraction)},
                                                {"fraction": float(law_fit.sigma)}))
     res = full(balanced)
