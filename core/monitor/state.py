@@ -277,20 +277,6 @@ class GridGeometry(NamedTuple):
         return grid.shape[0] == self.size and float(grid[0]) == self.first_angle
 
 
-class MidSpeedFit(NamedTuple):
-    """What the mid-cycle speed fits of a cycle's edges, fixed by their nominal angles
-    (core.monitor.identify.identification.mid_speed_fit): the cycle's edge angles (m,) [rad] it was made for, the
-    indices of the edges within +-MID_SPEED_HALF_WIDTH of theta = 2 pi, and the row that takes their times [s] to the
-    fitted dt/dtheta at 2 pi [s/rad]."""
-
-    tooth_angle: np.ndarray
-    edges: np.ndarray
-    slope_row: np.ndarray
-
-    def fits(self, cycle: Cycle) -> bool:
-        return same_edges(self.tooth_angle, cycle.tooth_angle)
-
-
 class EnergyWeights(NamedTuple):
     """What a cycle's angle-averaged kinetic energy weighs its tooth intervals' 1 / dt^2 by, fixed by the edges'
     nominal angles (core.monitor.identify.identification.energy_weights): the cycle's edge angles (m,) [rad] they

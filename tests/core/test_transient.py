@@ -14,10 +14,8 @@ from frictionwatch.core.model.indicated import centred_work, net_imep, tdc_centr
 from frictionwatch.core.model.kinematics import cylinder_volume
 from frictionwatch.core.monitor.identify.identification import (
     NO_BALANCE,
+    energy_weights,
     mid_cycle_inertia,
-    mid_cycle_speed,
-    mid_cycle_speed_reference,
-    mid_speed_fit,
 )
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.core.types import LoadSample
@@ -193,28 +191,14 @@ def test_the_first_cycle_has_no_balance_and_says_so(coast):
     assert_allclose(last.cycle.total_friction_torque, truth[last.index]["friction_torque_mean_nm"], rtol=0.05)
 
 
-@pytest.mark.parametrize("engine, rpm", [("k9k-4cyl", 4000.0), ("genset-v20", 1500.0), ("deutz-1cyl", 3000.0)])
-def test_mid_cycle_speed_from_the_kept_fit_matches_the_lstsq_of_each_cycle(engine, rpm):
-    """The slope row made once (pseudo-inverse, SVD) against one lstsq per cycle (SVD too): the same linear map of the
-    edge times, so ~1e-15 of the speed (1e-12 relative stated); the fit is kept over cycles with the same edges."""
-    spec = load_engine(engine)
-    sim = simulate(spec, rpm, 0.7, 5, seed=4)
-    cycles, _ = assembled_cycles(spec, sim.info, sim.records)
-    fit = mid_speed_fit(cycles[0])
-    assert fit is not None and all(fit.fits(c) for c in cycles)
-    for c in cycles:
-        assert_allclose(mid_cycle_speed(spec, c, fit), mid_cycle_speed_reference(c), rtol=1e-12)
-        assert_allclose(mid_cycle_speed(spec, c), mid_cycle_speed_reference(c), rtol=1e-12)
-
-
-def test_the_kept_mid_speed_fit_fits_a_cycle_where_array_equal_says_its_edges_are_equal():
-    """MidSpeedFit.fits compares the edges itself (not through np.array_equal's wrappers, design note 46): the same
+def test_the_kept_energy_weights_fit_a_cycle_where_array_equal_says_its_edges_are_equal():
+    """EnergyWeights.fits compares the edges itself (not through np.array_equal's wrappers, design note 46): the same
     answer as np.array_equal on equal edges, a copy, one edge moved by one ulp, a NaN edge (NaN unequal, also
     against itself) and another number of edges."""
     spec = load_engine("k9k-4cyl")
     sim = simulate(spec, 3000.0, 0.7, 3, seed=4)
     cycle = assembled_cycles(spec, sim.info, sim.records)[0][0]
-    fit = mid_speed_fit(cycle)
+    fit = energy_weights(spec, cycle.tooth_angle)
     edges = np.array(cycle.tooth_angle, dtype=np.float64)
     moved = edges.copy()
     moved[7] = np.nextafter(moved[7], np.inf)

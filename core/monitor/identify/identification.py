@@ -43,7 +43,6 @@ from frictionwatch.core.monitor.report.results import FrictionEstimate
 from frictionwatch.core.monitor.state import (
     EnergyWeights,
     GridGeometry,
-    MidSpeedFit,
     MonitorConfig,
     MonitorState,
     PreviousCycle,
@@ -77,40 +76,14 @@ class MeanBalance:
     tdc_sensitivity: np.ndarray | None = None
 
 
-def mid_cycle_speed(spec: EngineSpec, cycle: Cycle, fit: MidSpeedFit | None = None) -> float:
+def mid_cycle_speed(spec: EngineSpec, cycle: Cycle) -> float:
     """Speed [rad/s] at the middle of the cycle (cylinder 1's gas-exchange TDC, theta = 2 pi): 1 / (dt/dtheta) of a
-    quadratic in angle fitted to the edge times within +-MID_SPEED_HALF_WIDTH (about 30 edges of a 60-2 wheel). Two
-    edges +-18 deg apart quantised the speed to 1 timer tick in 2 ms (simulated Deutz at 1 MHz: J a in steps of
-    0.115 N m on 7.6); the fit averages that down ~10x. A tooth-spacing error and the speed ripple repeat every
-    cycle at this angle and drop out of a difference of two cycles; the quadratic keeps the linear deceleration out
-    of the slope at the centre.
-
-    The fit is linear in the times: its slope row (``mid_speed_fit``) depends on the edges' nominal angles only, so a
-    caller that keeps ``fit`` (made for an earlier cycle whose edge angles ``fit.fits`` this one's) takes the slope as
-    one dot product; None: made here. ``mid_cycle_speed_reference`` is the lstsq of every cycle's own edges."""
-    if fit is None:
-        fit = mid_speed_fit(cycle)
-    if fit is None:
-        return float("nan")
-    ticks = cycle.tooth_ticks[fit.edges]
-    dt_dtheta = float(fit.slope_row @ ((ticks - ticks[0]) / cycle.tick_hz))
-    return float(1.0 / dt_dtheta) if dt_dtheta > 0 else float("nan")
-
-
-def mid_speed_fit(cycle: Cycle) -> MidSpeedFit | None:
-    """The slope row of the quadratic fit at ``cycle``'s edges (the second row of the design's pseudo-inverse,
-    numpy's SVD), None with fewer than 5 edges in the window."""
-    ang = cycle.tooth_angle - 2.0 * np.pi
-    edges = np.flatnonzero(np.abs(ang) <= MID_SPEED_HALF_WIDTH)
-    if edges.shape[0] < 5:
-        return None
-    a = ang[edges]
-    row = np.linalg.pinv(np.stack([np.ones_like(a), a, a * a], axis=1))[1]
-    return MidSpeedFit(np.array(cycle.tooth_angle, dtype=np.float64), edges, np.ascontiguousarray(row))
-
-
-def mid_cycle_speed_reference(cycle: Cycle) -> float:
-    """``mid_cycle_speed`` by one least-squares solve of the cycle's own edges (its reference)."""
+    quadratic in angle fitted (one least-squares solve) to the edge times within +-MID_SPEED_HALF_WIDTH (about 30
+    edges of a 60-2 wheel). Two edges +-18 deg apart quantised the speed to 1 timer tick in 2 ms (simulated Deutz
+    at 1 MHz: J a in steps of 0.115 N m on 7.6); the fit averages that down ~10x. A tooth-spacing error and the
+    speed ripple repeat every cycle at this angle and drop out of a difference of two cycles; the quadratic keeps
+    the linear deceleration out of the slope at the centre. The commissioning's inertia window uses it
+    (core.monitor.calibration.inertia); the monitor's balance takes each cycle's mean energy (design note 69)."""
     ang = cycle.tooth_angle - 2.0 * np.pi
     near = np.abs(ang) <= MID_SPEED_HALF_WIDTH
     if np.count_nonzero(near) < 5:
