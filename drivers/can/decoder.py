@@ -175,7 +175,7 @@ class CanDecoder:
         """Release frames held for reordering (bus idle, or end of a log)."""
         out: list[StreamRecord] = []
         for (_, cyl), tr in self.tracks.items():
-            out += self._assemble_rows(cyl, tr, [r for r, _ in tr.tracker.flush()])
+            out += self._assemble_rows(cyl, [r for r, _ in tr.tracker.flush()])
         out += self.teeth2.flush()
         self._sync_counts()
         out.sort(key=_time_of)
@@ -200,23 +200,43 @@ class CanDecoder:
         ok = (n >= 1) & (n <= FD_SAMPLES) & (period > 0)
         if not ok.all():
             self._count("bad_frame_header", int((~ok).sum()))
-        out: list[StreamRecord] = []
-        scale = rec["Scale"] * self.lay.fd_scale_factor
-        seq = rec["Seq"].astype(np.int64)
-        flags = rec["Flags"].astype(np.int64)
-        for c in np.unique(cyl[ok]):
-            i = np.flatnonzero((cyl == c) & ok)
-            cols = (seq[i], t0[i], period[i], n[i], scale[i], flags[i], rec["samples"][i], ts[i])
-            out += self._ordered(int(c), cols)
+        rows = np.flatnonzero(ok)
+        rows = rows[np.argsort(cyl[rows], kind="stable")]  # grouped by cylinder, each in arrival order
+        scale = rec["Scale"][rows] * self.lay.fd_scale_factor
+        cols = (rec["Seq"][rows].astype(np.int64), t0[rows], period[rows], n[rows], scale,
+                rec["Flags"][rows].astype(np.int64), rec["samples"][rows], ts[rows])
+        return self._grouped(cyl[rows], cols, KIND_FD)
+
+    def _grouped(self, cyl: np.ndarray, cols: tuple[np.ndarray, ...], kind: int) -> list[StreamRecord]:
+        """Frames grouped by cylinder (ascending, each group in arrival order) -> blocks, cylinder by cylinder.
+
+        A group that simply continues its counter (the common case) is assembled with the other such groups in one
+        vectorised pass: a decoder's cost per frame was mostly numpy's per-call overhead, paid once per cylinder
+        and batch. A group with a gap, a reordering or a restart goes frame by frame through its reorder window."""
+        seq, flags = cols[0], cols[5]
+        starts = np.flatnonzero(np.r_[True, cyl[1:] != cyl[:-1]])
+        ends = np.r_[starts[1:], seq.size]
+        continues = np.ones(seq.size, bool)
+        continues[1:] = np.diff(seq) % 65536 == 1
+        continues[starts] = True
+        continues &= (flags & self._bit_restart) == 0
+        simple = np.logical_and.reduceat(continues, starts)
+        fast = np.zeros(seq.size, bool)
+        slow: dict[int, list[StreamRecord]] = {}
+        for a, b, plain in zip(starts.tolist(), ends.tolist(), simple.tolist(), strict=True):
+            c = int(cyl[a])
+            tr = self._track(c, kind)
+            if plain and tr.tracker.advance(int(seq[a]), b - a):
+                fast[a:b] = True
+            else:
+                slow[c] = self._reordered(c, tr, tuple(col[a:b] for col in cols))
+        out = self._assemble(cyl[fast], *(col[fast] for col in cols)) if fast.any() else []
+        if slow:  # put them in cylinder order, as the fast ones are (ties in time then keep one order)
+            out = sorted(out + [r for blocks in slow.values() for r in blocks], key=_cylinder_of)
         return out
 
-    def _ordered(self, cyl: int, cols: tuple[np.ndarray, ...], kind: int = KIND_FD) -> list[StreamRecord]:
-        """Frames of one cylinder in arrival order -> blocks; vectorised when they simply continue."""
-        tr = self._track(cyl, kind)
+    def _reordered(self, cyl: int, tr: _Track, cols: tuple[np.ndarray, ...]) -> list[StreamRecord]:
         seq, flags = cols[0], cols[5]
-        simple = not (flags & self._bit_restart).any() and (np.diff(seq) % 65536 == 1).all()
-        if simple and tr.tracker.advance(int(seq[0]), seq.size):
-            return self._assemble(cyl, tr, *cols)
         released: list[Row] = []
         for k in range(seq.size):
             if flags[k] & self._bit_restart:
@@ -225,23 +245,25 @@ class CanDecoder:
             row = tuple(col[k] for col in cols)
             released += [r for r, _ in tr.tracker.push(int(seq[k]), row)]  # type: ignore[arg-type]
         self._sync_counts()
-        return self._assemble_rows(cyl, tr, released)
+        return self._assemble_rows(cyl, released)
 
-    def _assemble_rows(self, cyl: int, tr: _Track, rows: list[Row]) -> list[StreamRecord]:
+    def _assemble_rows(self, cyl: int, rows: list[Row]) -> list[StreamRecord]:
         if not rows:
             return []
         cols = [np.array([r[j] for r in rows]) for j in range(6)]
         samples = np.stack([r[6] for r in rows])
         ts = np.array([r[7] for r in rows])
-        return self._assemble(cyl, tr, *cols, samples, ts)
+        return self._assemble(np.full(len(rows), cyl), *cols, samples, ts)
 
-    def _assemble(self, cyl: int, tr: _Track, seq: np.ndarray, t0: np.ndarray, period: np.ndarray, n: np.ndarray,
+    def _assemble(self, cyl: np.ndarray, seq: np.ndarray, t0: np.ndarray, period: np.ndarray, n: np.ndarray,
                   scale: np.ndarray, flags: np.ndarray, samples: np.ndarray, ts: np.ndarray) -> list[StreamRecord]:
+        """Frames in order within each cylinder (rows grouped by cylinder) -> one block per continuous run."""
         end = t0 + n * period
         start_break = np.ones(seq.size, bool)
+        same_cyl = cyl[1:] == cyl[:-1]
         seq_next = (seq[1:] - seq[:-1]) % 65536 == 1
         time_next = np.abs(t0[1:] - end[:-1]) <= self.tol
-        start_break[1:] = ~(seq_next & time_next & (period[1:] == period[:-1]))
+        start_break[1:] = ~(same_cyl & seq_next & time_next & (period[1:] == period[:-1]))
         overrun = (flags & self._bit_overrun) != 0
         start_break |= overrun
         # and every MAX_BLOCK_S within a run: the record merge and the replay log key a block by its last sample,
@@ -251,7 +273,7 @@ class CanDecoder:
         run_t0 = t0[np.flatnonzero(start_break)][np.cumsum(start_break) - 1]
         piece = (t0 - run_t0) // (MAX_BLOCK_S * self.tick_hz)
         start_break[1:] |= piece[1:] != piece[:-1]
-        gaps = int((seq_next & ~time_next).sum())
+        gaps = int((same_cyl & seq_next & ~time_next).sum())
         if gaps:
             self._count("time_gap_in_sequence", gaps)
         if overrun.any():
@@ -272,7 +294,7 @@ class CanDecoder:
         out: list[StreamRecord] = []
         for a, b in itertools.pairwise(starts):
             vals = values[a:b].ravel() if full else values[a:b][valid[a:b]]
-            out.append(PressureBlock(cylinder=cyl, t0_ticks=int(t0[a]), period_ticks=float(period[a]), values=vals))
+            out.append(PressureBlock(cylinder=int(cyl[a]), t0_ticks=int(t0[a]), period_ticks=float(period[a]), values=vals))
         k = int(np.argmax(ts))
         self._clock = (float(ts[k]), float(end[k]))
         return out
@@ -287,7 +309,7 @@ class CanDecoder:
             self._count("bad_frame_header", int((~good_ref).sum()))
         ref_cyl = self._cyl[ids[ref_rows]]
         cls_cyl = self._cyl[ids[cls_rows]]
-        out: list[StreamRecord] = []
+        groups: list[tuple[np.ndarray, tuple[np.ndarray, ...]]] = []  # per cylinder, ascending: one _grouped call
         for c in np.unique(np.concatenate([ref_cyl, cls_cyl])):
             tr = self._track(int(c), KIND_CLASSIC)
             r = np.flatnonzero((ref_cyl == c) & good_ref)
@@ -321,8 +343,12 @@ class CanDecoder:
             cols = (seq[ok], r_t0[ok] + dist[ok] * CLASSIC_SAMPLES * r_per[ok], r_per[ok].astype(np.float64),
                     np.full(n, CLASSIC_SAMPLES), np.full(n, self.lay.classic_factor), np.zeros(n, np.int64),
                     cls["samples"][d][ok], ts[cls_rows[d]][ok])
-            out += self._ordered(int(c), cols, KIND_CLASSIC)
-        return out
+            groups.append((np.full(n, c), cols))
+        if not groups:
+            return []
+        return self._grouped(np.concatenate([g[0] for g in groups]),
+                             tuple(np.concatenate(col) for col in zip(*(g[1] for g in groups), strict=True)),
+                             KIND_CLASSIC)
 
     # --- load ----------------------------------------------------------------------------------------------------
     def _load(self, t_host: float, payload: bytes) -> list[StreamRecord]:
@@ -356,6 +382,10 @@ def _records(data: np.ndarray, rows: np.ndarray, dtype: np.dtype) -> np.ndarray:
     if rows.size == 0:
         return np.zeros(0, dtype)
     return np.ascontiguousarray(data[rows, :dtype.itemsize]).view(dtype).ravel()
+
+
+def _cylinder_of(rec: StreamRecord) -> int:
+    return rec.cylinder  # type: ignore[union-attr]  (only PressureBlocks are grouped)
 
 
 def _time_of(rec: StreamRecord) -> float:

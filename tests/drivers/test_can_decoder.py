@@ -256,3 +256,38 @@ def test_fuzz_damaged_stream_never_fabricates(ops: list[str], t0: int) -> None:
         t = b.t0_ticks + shift + np.arange(b.values.size) * b.period_ticks
         np.testing.assert_allclose(b.values, truth(b.cylinder, t), rtol=0, atol=ATOL)
     assert sum(b.values.size for b in blocks(out)) == intact * 25  # good data never lost
+
+
+@FUZZ
+@given(st.lists(st.sampled_from(["keep", "keep", "keep", "drop", "dup", "swap"]), min_size=3, max_size=30),
+       st.lists(st.integers(1, 89), max_size=4), st.integers(0, 2**32 - 1))
+def test_cylinders_decoded_together_as_each_alone(ops: list[str], cuts: list[int], t0: int) -> None:
+    """The decoder assembles the cylinders of a batch in one pass (the ones whose counters simply continue) and the
+    others frame by frame: each cylinder's blocks and counts must be those of its frames decoded on their own, with
+    damage (drops, duplicates, swaps) on some cylinders and batch boundaries anywhere."""
+    msgs = fd_frames((1, 2, 3), len(ops), t0=t0)
+    wire = []
+    for i, op in enumerate(ops):  # cylinder 2 keeps every frame; 1 and 3 take the damage
+        for m in msgs[3 * i:3 * i + 3]:
+            damaged = m.arbitration_id != msgs[1].arbitration_id
+            if damaged and op == "drop":
+                continue
+            wire += [m, m] if damaged and op == "dup" else [m]
+            if damaged and op == "swap" and len(wire) >= 4:
+                wire[-1], wire[-4] = wire[-4], wire[-1]
+    bounds = sorted({c for c in cuts if c < len(wire)})
+    batches = [wire[a:b] for a, b in itertools.pairwise([0, *bounds, len(wire)])]
+    together = CanDecoder(reorder_window=3)
+    out = [r for b in batches for r in together.feed(b)] + together.flush()
+    damage: dict[str, int] = {}
+    for cyl_id in {m.arbitration_id for m in msgs}:
+        alone = CanDecoder(reorder_window=3)
+        mine = [[m for m in b if m.arbitration_id == cyl_id] for b in batches]
+        ref = blocks([r for b in mine for r in alone.feed(b)] + alone.flush())
+        got = [b for b in blocks(out) if ref and b.cylinder == ref[0].cylinder]
+        assert [(b.t0_ticks, b.period_ticks) for b in got] == [(b.t0_ticks, b.period_ticks) for b in ref]
+        for g, r in zip(got, ref, strict=True):
+            np.testing.assert_allclose(g.values, r.values, rtol=0, atol=0)
+        for k, v in alone.damage.items():
+            damage[k] = damage.get(k, 0) + v
+    assert {k: v for k, v in together.damage.items() if v} == {k: v for k, v in damage.items() if v}
