@@ -106,7 +106,7 @@ def test_a_load_step_late_in_a_cycle_voids_its_balance_not_books_it_as_friction(
     booked the step as +10.2 N m of friction (deutz two-point s9 cycle 145 read +11.8 so). The readings weighted
     by their own spans: the cycle's load within 3 N m of the truth's (measured +2.1: a time mean, the truth's is over
     the angle and the shaft slows in the step's tail), so the cycles' loads step and its balance is void with the
-    reason said; the cycles before the step balance within 0.2 N m (measured 0.04)."""
+    reason said; the cycles before the step balance within 0.2 N m (measured 0.097)."""
     rpm, step_s = 2800.0, 0.57
     sim = simulate(DEUTZ, rpm, 0.9, 18, 13, load_steps=[(step_s, 0.6, 1500.0)])
     cycles = {c.index: c for c in assembled_cycles(DEUTZ, sim.info, sim.records)[0]}
