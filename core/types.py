@@ -137,6 +137,10 @@ class Cycle:
                      cylinders without a sensor), resampled through the monotone tooth angle -> time map
     load_torque      mean brake/generator torque over the cycle [N m] (NaN if not measured)
     load_power       mean electrical power [W] (NaN if not measured)
+    load_early       the torque's mean under the weight 2 (1 - u), u the cycle's time fraction, and
+    load_late        under 2 u [N m] (both load_torque for a constant load): the two halves of the transient
+                     balance's triangle (drivers.assembly.cycle_parts.load_mean; NaN: not given, the balance then
+                     takes load_torque)
     phase_source     how the 4-stroke phase was found: 'cam' or 'pressure' (physics.md §14.5)
     flags            notes that do not void the cycle, e.g. 'phase_unchecked', 'no_cam_edge'
     wheel2           the second wheel's edges of this cycle (``WheelTeeth``), None without a second wheel or when
@@ -155,6 +159,8 @@ class Cycle:
     phase_source: str = "cam"  # 'cam' or 'pressure'
     flags: tuple[str, ...] = field(default=())
     wheel2: WheelTeeth | None = None
+    load_early: float = float("nan")
+    load_late: float = float("nan")
 
     @property
     def t_start(self) -> float:

@@ -167,8 +167,13 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     # coupling would book as friction (physics.md §12.4); the load's own ripple work (ground damping) belongs to
     # the load: the measured torque is a time mean, the work it absorbs is that plus <T_L~ omega_L~>
     coupling_loss = p_rel / omega
+    # the load under the halves of the balance's triangle (the readings' own spans: a step late in a cycle enters
+    # the window as it entered the shaft, design note 76); not given: the cycle's mean
+    early, late = cycle.load_early, cycle.load_late
+    if not (math.isfinite(early) and math.isfinite(late)):
+        early = late = load
     if math.isfinite(load):
-        load = load + p_gnd / omega
+        load, early, late = load + p_gnd / omega, early + p_gnd / omega, late + p_gnd / omega
     t_i = float(exc.indicated_mean.sum())
     prev = state.previous_of(int(cycle.tooth_ticks[0]))
     weights = state.energy_weights if state.energy_weights is not None and state.energy_weights.fits(cycle) \
@@ -177,7 +182,8 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     geometry = (state.grid_geometry if state.grid_geometry is not None and state.grid_geometry.fits(cycle.grid)
                 else grid_geometry(spec, cycle.grid))
     balance, kinetic, accel, t_window, imep_c = transient_balance(spec, cycle, pressure, exc.indicated_mean,
-                                                                  energy, prev, load, coupling_loss, geometry)
+                                                                  energy, prev, load, coupling_loss, geometry,
+                                                                  early)
     mean = MeanBalance(indicated=t_i, load=load, coupling_loss=coupling_loss, friction=balance, kinetic=kinetic,
                        imep_centred=imep_c, acceleration=accel, indicated_window=t_window,
                        tdc_sensitivity=indicated_tdc_sensitivity(cycle.grid, pressure, geometry.piston_acceleration,
@@ -241,7 +247,7 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         prior=state.prior, lower=state.lower, report_tables=tables, prev_omega=omega, drift_var=drift_var,
         tooth_patterns=patterns, **checked,
         previous=PreviousCycle(int(cycle.tooth_ticks[0]), int(cycle.tooth_ticks[-1]), pressure.copy(), energy,
-                               load, t_i, coupling_loss),  # a copy: a live source may reuse the cycle's buffer
+                               load, t_i, coupling_loss, late),  # a copy: a live source may reuse the cycle's buffer
         grid_geometry=geometry, energy_weights=weights, wheel2=wheel2,
     )  # every field (dataclasses.replace costs twice as much per cycle)
     return new_state, result

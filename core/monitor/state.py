@@ -242,7 +242,8 @@ class PreviousCycle(NamedTuple):
     consecutive cycles share their boundary edges, core.types.Cycle; a stream index may be renumbered after a lost
     sync), pressure (z, n) [Pa], angle-averaged kinetic energy [J] (core.monitor.identify.identification.cycle_energy),
     measured load [N m], indicated torque [N m] (the cylinders' work means over its own window, summed:
-    Excitation.indicated_mean) and coupling loss [N m]."""
+    Excitation.indicated_mean), coupling loss [N m] and load_late [N m] its load under the rising half of the
+    balance's triangle (core.types.Cycle.load_late with the load's ripple work; NaN: ``load``)."""
 
     start_tick: int
     end_tick: int
@@ -251,6 +252,7 @@ class PreviousCycle(NamedTuple):
     load: float
     indicated: float
     coupling_loss: float
+    load_late: float = float("nan")
 
 
 class GridGeometry(NamedTuple):

@@ -410,11 +410,12 @@ class CycleAssembler(EpochSync):
             ep.mismatch_run = 0
             if verdict == 0:
                 flags.append("phase_unchecked")
-        torque, power = load_mean(self.buf.load, float(t_first), float(t_last), self.info.tick_hz)
+        load = load_mean(self.buf.load, p.ticks, p.theta, self.info.tick_hz)
         self.stats["cycles"] += 1
         return Cycle(index=p.index, tick_hz=self.info.tick_hz, tooth_ticks=p.ticks, tooth_angle=p.theta,
                      tooth_index=p.tooth, grid=self.grid.copy(), pressure=pressure,
-                     load_torque=torque, load_power=power, phase_source=ep.phase_source, flags=tuple(flags))
+                     load_torque=load.torque, load_power=load.power, phase_source=ep.phase_source, flags=tuple(flags),
+                     load_early=load.torque_early, load_late=load.torque_late)
 
     # ---- housekeeping -------------------------------------------------------------------------------------------
     def _discard(self, force: bool = False) -> None:

@@ -39,16 +39,29 @@ def test_segment_positions_and_wheel_windows_match_their_formulas():
             assert w.window(h2) == (w.tooth_at_or_before(lo), w.tooth_at_or_after(lo + 2 * w.n))
 
 
-def load_mean_reference(rows: list[tuple[int, float, float]], t_lo: float, t_hi: float, hold: float):
-    """Mean (torque, power) of the rows with t_lo <= t <= t_hi; else the last row before t_lo if it is at most
-    ``hold`` older; else NaN."""
-    inside = [(q, p) for t, q, p in rows if t_lo <= t <= t_hi]
-    if inside:
-        return float(np.mean([q for q, _ in inside])), float(np.mean([p for _, p in inside]))
-    before = [(t, q, p) for t, q, p in rows if t < t_lo]
-    if before and t_lo - before[-1][0] <= hold:
-        return before[-1][1], before[-1][2]
-    return math.nan, math.nan
+def load_mean_reference(rows: list[tuple[int, float, float]], ticks, angles, hold: float):
+    """(torque, power, torque early, torque late) over the cycle [0, 4 pi] of the edges (ticks, angles) of the rows,
+    each standing for the span from the row before it (at most ``hold`` back; the first row: from the cycle's first
+    edge) to its own tick, weighted by that span's part of the cycle's time u from theta = 0 to 4 pi (the edges'
+    times linear between them) under 1, 2 (1 - u) and 2 u; no part inside: the last row at or before the first edge if
+    it is at most ``hold`` older; else NaN."""
+    t0, t4 = np.interp(0.0, angles, ticks), np.interp(4.0 * math.pi, angles, ticks)
+
+    def u(t):
+        return min(max((t - t0) / (t4 - t0), 0.0), 1.0)
+
+    sums = np.zeros((3, 3))  # (weight, weight x torque, weight x power) x (mean, early, late)
+    for k, (t, q, p) in enumerate(rows):
+        u0, u1 = u(max(rows[k - 1][0] if k else ticks[0], t - hold)), u(t)
+        if u1 > u0:
+            for j, w in enumerate((u1 - u0, 2.0 * (u1 - u0) - (u1 * u1 - u0 * u0), u1 * u1 - u0 * u0)):
+                sums[j] += (w, w * q, w * p)
+    if sums[0, 0] > 0:
+        return sums[0, 1] / sums[0, 0], sums[0, 2] / sums[0, 0], sums[1, 1] / sums[1, 0], sums[2, 1] / sums[2, 0]
+    before = [(t, q, p) for t, q, p in rows if t <= ticks[0]]
+    if before and ticks[0] - before[-1][0] <= hold:
+        return before[-1][1], before[-1][2], before[-1][1], before[-1][1]
+    return (math.nan,) * 4
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -65,8 +78,32 @@ def test_load_mean_and_its_hold(seed):
         rows = list(zip(ring.view("t").tolist(), ring.view("torque").tolist(), ring.view("power").tolist()))
         lo = float(rng.uniform(t - 60000, t + 100))
         hi = lo + float(rng.choice([0.0, rng.uniform(0, 5000), rng.uniform(0, 80000)]))  # 0 to ~200 rows
-        # a mean of up to ~200 values summed in another order: agrees to a few ulp of the magnitudes (1e3, 2e5)
-        assert_allclose(load_mean(ring, lo, hi, 500.0), load_mean_reference(rows, lo, hi, 500.0), rtol=1e-12)
+        m = int(rng.integers(2, 12))  # the cycle's edges: uneven steps in time and angle, bracketing [0, 4 pi]
+        ticks = np.sort(np.round(rng.uniform(lo, hi, m))).astype(np.int64)
+        ticks[0], ticks[-1] = int(np.floor(lo)), int(np.ceil(hi)) + 1
+        angles = np.sort(rng.uniform(0.0, 4.0 * np.pi, m))
+        angles[0], angles[-1] = -rng.uniform(0.0, 0.2), 4.0 * np.pi + rng.uniform(0.0, 0.2)
+        # sums of up to ~200 values in another order: agree to a few ulp of the magnitudes (1e3, 2e5)
+        assert_allclose(load_mean(ring, ticks, angles, 500.0), load_mean_reference(rows, ticks, angles, 500.0),
+                        rtol=1e-10)
+
+
+def test_a_load_step_late_in_a_cycle_is_in_its_mean_and_late_half():
+    """Readings every 10 ms, each the mean since the one before (the simulator's): the load steps 30 -> 550 N m
+    8.7 ms before the end of a 40.3 ms cycle, in the reading 1.3 ms after its end (10 MHz ticks; deutz two-point
+    s9 cycle 145, design note 76). The readings stamped inside read 30 throughout; the cycle's mean, early and late halves are
+    the step's own figures to the last reading's part (within 1e-9)."""
+    buf = EngineBuffers(load_capacity=64)
+    tick_hz, t_step, t0, t1 = 1e7, 77_000_000, 76_683_655, 77_086_647  # that cycle's first and last edges
+    for t in range(76_400_000, 77_300_001, 100_000):
+        buf.add_load(LoadSample(t, 30.0 if t <= t_step else 550.0, 0.0))
+    ticks, angles = np.array([t0, t1]), np.array([0.0, 4.0 * np.pi])
+    got = load_mean(buf.load, ticks, angles, tick_hz)
+    f = (t1 - t_step) / (t1 - t0)  # the cycle's part the reading after its end stands for
+    assert_allclose(got.torque, 30.0 + 520.0 * f, rtol=1e-9)
+    assert_allclose(got.torque_early, 30.0 + 520.0 * f * f, rtol=1e-9)  # int of 2 (1 - u) over [1 - f, 1]
+    assert_allclose(got.torque_late, 30.0 + 520.0 * (2.0 * f - f * f), rtol=1e-9)
+    assert got.torque > 130.0  # the plain mean of the readings stamped inside: 30
 
 
 def test_cycle_votes_count_the_votes_inside_or_refuse_a_contrary_one():
