@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig
+from frictionwatch.core.monitor.identify.identification import LOAD_STEP_FRACTION
 from frictionwatch.core.monitor.report.run_summary import end_of_run_status, flag_summary, mean_and_sem
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.service import coastdown_report
@@ -205,8 +206,12 @@ def balance_figure(results: list, engine_status: str) -> dict:
     mep = results[-1].mep_per_nm(engine=True) / 1e5  # bar per N m of the engine: 4 pi / V_d of all cylinders
     if engine_status == "withheld":
         status, reason = "withheld", "a sensor fault is flagged (see friction.reason)"
-    elif n == 0:
+    elif n == 0 and not any(np.isfinite(r.load_torque) or np.isfinite(r.load_power) for r in results):
         status, reason = "unresolved", "no load measurement in any cycle: nothing balances the indicated work"
+    elif n == 0:  # the load is measured, but no two consecutive cycles have it steady enough for their window
+        status, reason = "unresolved", (
+            f"the load changed by more than {LOAD_STEP_FRACTION:.0%} of the rated torque between every two "
+            "consecutive cycles (or the cycle before was missing): no window's load is known, nothing balances")
     else:
         status = "measured"
         reason = None if n == len(results) else f"the load was measured in {n} of {len(results)} cycles"

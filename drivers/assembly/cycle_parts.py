@@ -320,27 +320,3 @@ def load_mean(ring: RingBuffer, ticks: np.ndarray, angles: np.ndarray, hold_tick
         q = float(ring.get("torque", a - 1))
         return LoadMeans(q, float(ring.get("power", a - 1)), q, q)
     return LoadMeans(nan, nan, nan, nan)
-    a = ring.searchsorted("t", t_lo, side="right")  # the first reading whose span reaches past t_lo
-    b = min(ring.searchsorted("t", t_hi, side="left") + 1, ring.end)  # through the first at or after t_hi
-    if b > a:
-        first = max(a - 1, ring.start)
-        t = ring.view("t", first, b).astype(np.float64)
-        start = np.empty(b - a)
-        start[:] = t[:-1] if first < a else np.concatenate(([t_lo], t[:-1]))
-        end = t[t.shape[0] - (b - a):]
-        start = np.maximum(np.maximum(start, end - hold_ticks), t_lo)
-        w = np.maximum(np.minimum(end, t_hi) - start, 0.0)
-        total = float(np.add.reduce(w))
-        if total > 0.0:
-            return float(w @ ring.view("torque", a, b)) / total, float(w @ ring.view("power", a, b)) / total
-    if a > ring.start and t_lo - ring.get("t", a - 1) <= hold_ticks:
-        return float(ring.get("torque", a - 1)), float(ring.get("power", a - 1))
-    return math.nan, math.nan
-    a = ring.searchsorted("t", t_lo, side="left")
-    b = ring.searchsorted("t", t_hi, side="right")
-    if b > a:  # np.mean of a float64 vector is np.add.reduce / n: the same numbers without its Python-level dispatch
-        return float(np.add.reduce(ring.view("torque", a, b))) / (b - a), \
-            float(np.add.reduce(ring.view("power", a, b))) / (b - a)
-    if a > ring.start and t_lo - ring.get("t", a - 1) <= hold_ticks:
-        return float(ring.get("torque", a - 1)), float(ring.get("power", a - 1))
-    return math.nan, math.nan

@@ -42,12 +42,19 @@ def test_every_fmep_is_the_torque_times_4pi_over_the_displacement(engine, log, t
     # (a value in its friction block); on the healthy 24 cycles it is measured (the flat keys too) and every
     # cylinder's figure has a value (measured or a share). The misfire logs may leave the engine unresolved (the
     # single-cylinder tue-4gb10's does).
-    assert doc["friction_run_mean_balance"]["status"] == "measured"
+    run_balance = doc["friction_run_mean_balance"]
+    if log == "misfire" and spec.n_cyl == 1 and run_balance["status"] != "measured":
+        # a misfiring single cylinder swings the speed, and tue-4gb10's speed-following load with it, by more than
+        # the balance's step guard (2 % of its 6 N m rated) between every two cycles: no window's load is known,
+        # no cycle balances, and the figure says why (design note 76; before, lagging load means hid the swings)
+        assert run_balance["reason"].startswith("the load changed by more than")
+    else:
+        assert run_balance["status"] == "measured"
     if log == "short":
         assert doc["friction"]["status"] in ("prior", "measured") and checked >= 4
     elif log == "healthy":
         assert doc["friction"]["status"] == "measured" and checked >= 6 + 2 * spec.n_cyl
         # and nothing implausible on a healthy log (the speed-fit floor was set on other simulated logs)
         assert doc["implausible"] == [] and "speed_fit_poor" not in doc["flags"]["run"]
-    else:
+    elif run_balance["status"] == "measured":
         assert checked >= 2
