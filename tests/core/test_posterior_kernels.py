@@ -18,6 +18,8 @@ The SPD inverse (LAPACK potrf, potri on the unit-diagonal form, a decoupled diag
 full natural-order Cholesky factor's.
 """
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from frictionwatch.core.monitor.identify import posterior_kernels as pk
@@ -25,9 +27,14 @@ from frictionwatch.core.monitor.identify.accumulate import (
     Accumulator,
     posterior_from_normal,
     posterior_from_normal_reference,
+    spd_inverse_decoupled,
 )
 from frictionwatch.core.monitor.identify.layout import bounded_solve, bounded_solve_nnls
-from frictionwatch.core.monitor.identify.spd_kernels import inverse_from_factor, inverse_from_factor_reference
+from frictionwatch.core.monitor.identify.spd_kernels import (
+    inverse_from_factor,
+    inverse_from_factor_reference,
+    lapack_inverse_of_sum,
+)
 from numpy.testing import assert_allclose, assert_array_equal
 
 SIZES = {"genset-v20": (47, 24, 49), "k9k-4cyl": (29, 24, 47), "deutz-1cyl": (28, 22, 47)}
@@ -148,7 +155,8 @@ def test_posterior_fallbacks_are_the_reference_exactly():
     want = posterior_from_normal_reference(acc, zero, np.zeros(p), sys_var, lower)
     for f in FIELDS:
         assert_array_equal(getattr(got, f), getattr(want, f), err_msg=f)
-    # positive definite but nearly singular (pivot ratio < PIVOT_RATIO_MIN): left to the reference
+    # positive definite but so nearly singular that the reference's trace bound is past its pseudo-inverse switch
+    # (condition ~4e13 > REFERENCE_MAX_CONDITION): left to the reference
     weak = 1e-9 * n_pr
     ri = acc.info_reference + weak
     assert pk.cholesky(ri, np.empty((p, p))) < pk.PIVOT_RATIO_MIN
@@ -172,6 +180,62 @@ def test_posterior_fallbacks_are_the_reference_exactly():
         got = posterior_from_normal(acc, bad, r_pr, sys_var, lo)
         for f in FIELDS:
             assert_array_equal(getattr(got, f), getattr(want, f), err_msg=f)
+
+
+def _balance_against_priors(seed, p, n_free, r, cycles):
+    """``_problem`` whose reference information is the mean-balance row of ``cycles`` cycles (no forgetting) on the
+    coefficients only (the nuisances a decoupled diagonal tail, as the monitor's): its condition grows with the
+    cycles against the fixed priors (design note 75)."""
+    acc, n_pr, r_pr, sys_var, lower = _problem(seed, p, n_free, r)
+    rng = np.random.default_rng(seed + 50)
+    nb = p - n_free
+    m = (1.0 + 1e-3 * rng.normal(size=(200, nb))) * np.logspace(-4, 2, nb)  # 200 rows stand for the cycles
+    ref = np.zeros((p, p))
+    ref[:nb, :nb] = (cycles / 200) * (m.T @ m) / 0.05**2
+    return replace(acc, info_reference=ref), n_pr, r_pr, sys_var, lower
+
+
+@pytest.mark.parametrize("cycles", [10, 10_000, 50_000])
+def test_reference_covariance_is_the_reference_bits_at_any_condition(cycles):
+    """The reference information's factor was the kernel's FALLBACK below pivot ratio 1e-4 (k9k: 64 of 240 solves);
+    now its inverse is the reference's own LAPACK calls: equal bits, however small the pivot ratio."""
+    p, n_free, r = SIZES["k9k-4cyl"]
+    acc, n_pr, r_pr, sys_var, lower = _balance_against_priors(5, p, n_free, r, cycles)
+    ri = acc.info_reference + n_pr
+    ratio = pk.cholesky(ri[: p - n_free, : p - n_free], np.empty((p - n_free, p - n_free)))
+    if cycles >= 10_000:
+        assert 0.0 < ratio < pk.PIVOT_RATIO_MIN  # the case that fell back
+    got = np.empty((p, p))
+    assert lapack_inverse_of_sum(acc.info_reference, n_pr, got, 1.0) == 0
+    want = spd_inverse_decoupled(ri)
+    assert_array_equal(got, want)
+    # the reference itself: numpy's inverse to rounding x the scaled condition (eps x cond <~ 1e-8 here)
+    d = np.sqrt(np.diag(ri))
+    cond = np.linalg.cond(ri / np.outer(d, d))
+    inv = np.linalg.inv(ri)
+    assert np.max(np.abs(want - inv) / np.sqrt(np.outer(np.diag(inv), np.diag(inv)))) < 1e-14 * cond
+    status = pk.posterior_kernel(acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, n_pr, r_pr,
+                                 sys_var, lower, 1e12)[0]
+    assert status == pk.OK
+    got = posterior_from_normal(acc, n_pr, r_pr, sys_var, lower)
+    want = posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lower)
+    _assert_same_posterior(got, want, skip=("chi2_reduced",))
+    # cov_reference: the same inverse x max(1, chi2 reduced), the kernel's chi2 against the reference's (rounding)
+    assert_allclose(got.cov_reference, want.cov_reference, rtol=1e-10, atol=0)
+
+
+def test_reference_inverse_refuses_what_the_reference_refuses():
+    """Not positive definite, in the coupled head (LAPACK's info) or in the decoupled tail: both refuse (the
+    kernel's FALLBACK, the reference's pseudo-inverse)."""
+    p, n_free, r = SIZES["k9k-4cyl"]
+    acc, n_pr, _, _, _ = _balance_against_priors(2, p, n_free, r, 100)
+    ri = acc.info_reference + n_pr
+    out = np.empty((p, p))
+    for i in (0, p - 1):  # a head entry, a tail entry
+        b = n_pr.copy()
+        b[i, i] = -ri[i, i] - 1.0 + n_pr[i, i]
+        assert spd_inverse_decoupled(acc.info_reference + b) is None
+        assert lapack_inverse_of_sum(acc.info_reference, b, out, 1.0) == -1
 
 
 def test_posterior_rejects_wrong_shapes():

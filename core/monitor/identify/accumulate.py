@@ -278,7 +278,7 @@ def posterior_from_normal_reference(acc: Accumulator, n_pr: np.ndarray, r_pr: np
     g = inv @ acc.sys_map
     cov_sys = (g * sys_var[None, :]) @ g.T
     ref_info = acc.info_reference + n_pr
-    ref = spd_inverse(ref_info, max_condition=REFERENCE_MAX_CONDITION)
+    ref = spd_inverse_decoupled(ref_info, max_condition=REFERENCE_MAX_CONDITION)
     if ref is None:  # (near-)singular: the pseudo-inverse drops what nothing pins down
         ref = np.linalg.pinv(ref_info, rcond=1e-13, hermitian=True)
     ref = ref * max(1.0, chi2_red)
@@ -310,6 +310,29 @@ def spd_inverse(a: np.ndarray, max_condition: float = np.inf) -> np.ndarray | No
         bound = float(np.trace(a)) * float(np.trace(inv))
         if not bound < max_condition:
             return None
+    return inv
+
+
+def spd_inverse_decoupled(a: np.ndarray, max_condition: float = np.inf) -> np.ndarray | None:
+    """``spd_inverse`` of a matrix whose trailing rows may have no off-diagonal entry (the reference information:
+    nuisances that only their priors see): the coupled head by ``spd_inverse``'s calls (potrf, potri), the diagonal
+    tail by reciprocals; None as ``spd_inverse`` (not positive definite, or trace(a) trace(a^-1) not below
+    ``max_condition``). The reference of core.monitor.identify.spd_kernels.lapack_inverse_of_sum (equal bits)."""
+    n = a.shape[0]
+    coupled = np.flatnonzero(np.any(np.tril(a, -1) != 0.0, axis=1))
+    k = int(coupled[-1]) + 1 if coupled.size else 0
+    tail = np.diag(a)[k:]
+    if not np.all(tail > 0.0):
+        return None
+    inv = np.zeros((n, n))
+    if k:
+        head = spd_inverse_lower(np.ascontiguousarray(a[:k, :k]))
+        if head is None:
+            return None
+        inv[:k, :k] = np.tril(head) + np.tril(head, -1).T
+    inv[k:, k:] = np.diag(1.0 / tail)
+    if np.isfinite(max_condition) and not float(np.trace(a)) * float(np.trace(inv)) < max_condition:
+        return None
     return inv
 
 

@@ -8,9 +8,12 @@ solves and SPD inverses of small matrices, where the time of the scipy/LAPACK pa
 and report a status instead of guessing near any decision the reference makes differently:
 
 - ``NEEDS_BOUND``: a bound is active, or so nearly active (``FEASIBLE_MARGIN``) that NNLS's own tolerance decides;
-- ``FALLBACK``: a factor's smallest pivot ratio L_jj^2 / A_jj is below ``PIVOT_RATIO_MIN`` (nearly singular: the
-  reference's LAPACK factorisation might fail or differ by more than rounding), or the trace bound of the reference
-  covariance is near ``max_condition`` (the reference switches to a pseudo-inverse there).
+- ``FALLBACK``: the information's factor has a smallest pivot ratio L_jj^2 / A_jj below ``PIVOT_RATIO_MIN`` (nearly
+  singular: the reference's LAPACK factorisation might fail or differ by more than rounding), the reference
+  information is not positive definite, or the trace bound of the reference covariance is near ``max_condition``
+  (the reference switches to a pseudo-inverse there). The reference covariance has no pivot-ratio test: it is
+  inverted by the reference's own LAPACK calls (spd_kernels.lapack_inverse_of_sum, its bits), because its
+  condition grows with the accumulated cycles (a balance row against fixed priors, design note 75).
 
 The callers then run the reference code (kept verbatim), so their behaviour in those cases is exactly the old one.
 Otherwise the results equal the reference to rounding (<= 1e-10 relative on the monitor's matrices, whose scaled
@@ -20,7 +23,8 @@ condition numbers are ~1e2..5e3; tests/core/test_posterior_kernels.py).
 - params = N^-1 r minus the first-order effect of the reference's 1e-12 ridge on the unit-diagonal problem (its
   second order is < 1e-16 relative), so the bounded solve needs no factor of its own;
 - the inverse is LAPACK's (core.monitor.identify.spd_kernels: the Cholesky factor of the unit-diagonal form, its
-  pivot ratio, and potri from that factor);
+  pivot ratio, and potri from that factor); the reference covariance's is the reference's own calls (potrf, potri
+  on the raw matrix's coupled head);
 - a decoupled diagonal tail (the monitor's reference information: nuisances that only their priors see) is
   inverted by reciprocals, the head alone by LAPACK;
 - chi^2 = y^T y - 2 params^T r + params^T A params cancels ~5 digits: it takes the reference's BLAS calls (ddot,
@@ -37,6 +41,7 @@ from frictionwatch.core.monitor.identify.spd_kernels import (  # noqa: F401  (sp
     cho_solve,
     cholesky,
     decoupled_tail,
+    lapack_inverse_of_sum,
     solve_or_nan,
     spd_inverse_into,
     spd_inverse_of_sum,
@@ -47,7 +52,7 @@ NEEDS_BOUND = 1
 FALLBACK = 2
 BAD_SHAPE = 3  # the arrays' shapes do not fit together (the caller's validating path raises the ValueError)
 
-PIVOT_RATIO_MIN = 1e-4  # below: left to the reference (rounding may exceed 1e-10; the monitor's are >= 3e-3)
+PIVOT_RATIO_MIN = 1e-4  # below: left to the reference (rounding may exceed 1e-10: ~1e-15 / ratio measured, note 75)
 FEASIBLE_MARGIN = 1e-9  # scaled distance to a bound, relative to max |x|, below which NNLS decides
 REGULARISATION = 1e-12  # the reference's ridge on the unit-diagonal blocks (bounded_solve)
 
@@ -167,8 +172,11 @@ def _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference,
     chi2_red = chi2 / dof if dof > 0 else 1.0
     c = chi2_red if chi2_red > 1.0 else 1.0  # Python's max(1.0, x): nan keeps 1.0
     empty = np.empty((0, 0))
-    ref = np.empty((n, n))  # cov_reference = c (info_reference + n_pr)^-1
-    if spd_inverse_of_sum(info_reference, n_pr, ref, c) < PIVOT_RATIO_MIN:
+    # cov_reference = c (info_reference + n_pr)^-1 by the reference's own LAPACK calls (its bits): a balance row
+    # accumulated against fixed priors makes this matrix's condition grow with the cycles (design note 75), so no
+    # pivot-ratio test; only a failed factor (the reference's pseudo-inverse) falls back
+    ref = np.empty((n, n))
+    if lapack_inverse_of_sum(info_reference, n_pr, ref, c) != 0:
         return FALLBACK, chi2_red, empty, empty, empty
     if np.isfinite(max_condition):
         t_info = 0.0

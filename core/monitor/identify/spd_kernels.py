@@ -2,7 +2,8 @@
 on LAPACK: numba's np.linalg (potrf, gesv) and potri, which np.linalg does not wrap, bound from the same library
 numba's np.linalg calls (scipy.linalg.cython_lapack; ``inverse_from_factor``): the Cholesky factor with its smallest
 pivot ratio, a solve, the inverse from a factor, and the inverse of a sum of two matrices with a decoupled diagonal
-tail.
+tail (``spd_inverse_of_sum``: unit-diagonal, with its pivot ratio; ``lapack_inverse_of_sum``: the reference's own calls
+on the raw matrix, its bits, for a matrix whose conditioning grows without bound).
 
 The monitor's matrices are badly scaled (raw condition ~1e12, ~1e3 on a unit diagonal): the inverse is taken of the
 unit-diagonal matrix D A D and scaled back, so its error is relative to sqrt(C_ii C_jj) whatever the row scales
@@ -27,7 +28,11 @@ FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
 # it is loaded (a ctypes pointer would be a constant address, which numba cannot cache)
 llvm.add_symbol("frictionwatch_dpotri", get_cython_function_address("scipy.linalg.cython_lapack", "dpotri"))
 _dpotri = types.ExternalFunction("frictionwatch_dpotri", types.void(*([types.voidptr] * 5)))
+# dpotrf likewise: with dpotri, the calls scipy.linalg.lapack makes in the reference (accumulate.spd_inverse)
+llvm.add_symbol("frictionwatch_dpotrf", get_cython_function_address("scipy.linalg.cython_lapack", "dpotrf"))
+_dpotrf = types.ExternalFunction("frictionwatch_dpotrf", types.void(*([types.voidptr] * 5)))
 _UPPER = ord("U")
+_LOWER = ord("L")
 
 
 @numba.njit(cache=True)
@@ -199,6 +204,51 @@ def spd_inverse_of_sum(a, b, out, scale):
             out[i, j] = 0.0
         out[i, i] = 1.0 / (a[i, i] + b[i, i]) * scale
     return worst
+
+
+@numba.njit(cache=True)
+def lapack_inverse_of_sum(a, b, out, scale):
+    """out = scale * (a + b)^-1 (n, n), exactly symmetric, by the calls of its reference
+    (core.monitor.identify.accumulate.spd_inverse_decoupled) on the same numbers: s = a + b element by element;
+    its coupled head (``decoupled_tail``) by LAPACK potrf then potri on the head's lower triangle in Fortran order
+    (as scipy.linalg.lapack passes it), the lower triangle mirrored; the diagonal tail by reciprocals; then x scale.
+    Same library, same calls, same input: the reference's bits however badly conditioned s is (equality checked in
+    tests/core/test_posterior_kernels.py).
+
+    For a matrix whose conditioning the data do not bound (the reference information: a rank-one balance that grows
+    with the accumulated cycles against fixed priors, design note 75), where an inverse by another route agrees with
+    the reference only to ~eps x cond. Returns 0, or -1 if s is not numerically positive definite (LAPACK's info
+    > 0, or a tail entry <= 0 or NaN; out is then undefined)."""
+    n = a.shape[0]
+    k = decoupled_tail(a, b)
+    for i in range(k, n):
+        if not a[i, i] + b[i, i] > 0.0:
+            return -1
+    x = np.empty((k, k))  # C order holding the transpose = Fortran order holding the head, as f2py passes it
+    for i in range(k):
+        for j in range(k):
+            x[j, i] = a[i, j] + b[i, j]
+    if k > 0:
+        uplo = np.array([_LOWER], dtype=np.uint8)
+        dims = np.array([k, k, 0], dtype=np.int32)  # n, lda, info
+        _dpotrf(uplo.ctypes, dims[0:].ctypes, x.ctypes, dims[1:].ctypes, dims[2:].ctypes)
+        if dims[2] != 0:
+            return -1
+        _dpotri(uplo.ctypes, dims[0:].ctypes, x.ctypes, dims[1:].ctypes, dims[2:].ctypes)
+        if dims[2] != 0:
+            return -1
+    for i in range(k):  # Fortran (i, j), i >= j: the lower triangle potri wrote; tril + tril(-1).T, then x scale
+        for j in range(i + 1):
+            v = x[j, i] * scale
+            out[i, j] = v
+            out[j, i] = v
+        for j in range(k, n):
+            out[i, j] = 0.0
+    for i in range(k, n):
+        for j in range(n):
+            out[i, j] = 0.0
+        out[i, i] = 1.0 / (a[i, i] + b[i, i]) * scale
+    return 0
 
 
 @numba.njit(cache=True)
