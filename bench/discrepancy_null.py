@@ -2,6 +2,8 @@
 (core.discrepancy.features.NULL_FLOOR) puts "significant" (issue 27 item 1). Not run by the test suite.
 
     python -m bench.discrepancy_null --tune        # the tuning logs: the largest significant healthy residual
+    python -m bench.discrepancy_null --tune --write --only FLOOR_RMS_BALANCE
+                                                   # the same run; only the named records are written
     python -m bench.discrepancy_null --tune-gap    # the tuning logs: the largest healthy speed gap over the
                                                    # healthy gap at its amplitudes (GAP_NULL alone)
     python -m bench.discrepancy_null               # validation: healthy logs the floor was not tuned on, and
@@ -104,10 +106,13 @@ def one(label: str, engine: str, rpm: float, load: float, seed: int, effects=())
             float(np.mean(power[:-1])), float(power[-1]), hg["ratio"])
 
 
-def tuned_records(small: float, big: float, bal: float, speed_rms: float, bal_rms: float) -> dict[str, Tuned]:
-    """The numbers --tune found, each with its provenance (core.discrepancy.tuned); floors rounded up to two figures."""
+def tuned_records(small: float, big: float, bal: float, speed_rms: float, bal_rms: float,
+                  only: tuple[str, ...] = ()) -> dict[str, Tuned]:
+    """The numbers --tune found, each with its provenance (core.discrepancy.tuned); floors rounded up to two figures.
+    ``only``: these records alone (the others keep their own run's provenance)."""
     on = tuple(f"{e} {r:g} rpm {ld:g} seed {s}" for e, r, ld, s in TUNE)
-    by, day = "python -m bench.discrepancy_null --tune --write", date.today().isoformat()
+    by = "python -m bench.discrepancy_null --tune --write" + "".join(f" --only {n}" for n in only)
+    day = date.today().isoformat()
     largest = "the largest healthy held-out coherent residual beyond 4 sigma"
     figures = {
         "NULL_OWN": (MARGIN * big, f"{largest} among the orders at least a tenth of the largest harmonic: {big:.4f} "
@@ -118,9 +123,11 @@ def tuned_records(small: float, big: float, bal: float, speed_rms: float, bal_rm
                                        f"friction: {bal:.4f} (noise included), x {MARGIN:g}, rounded up"),
         "FLOOR_RMS_SPEED": (speed_rms, f"the rms over the tuning logs and speed features of the noise-corrected "
                                        f"coherent residual over its floor: {speed_rms:.4f}, rounded up"),
-        "FLOOR_RMS_BALANCE": (bal_rms, f"the same for the balance feature: {bal_rms:.4f} (0: below the noise)"),
+        "FLOOR_RMS_BALANCE": (bal_rms, f"the same for the balance feature (its floor NULL_BALANCE x the measured "
+                                       f"friction): {bal_rms:.4f}, rounded up (0: below the noise)"),
     }
-    return {name: Tuned(round_up(value), by, on, text, day) for name, (value, text) in figures.items()}
+    return {name: Tuned(round_up(value), by, on, text, day) for name, (value, text) in figures.items()
+            if not only or name in only}
 
 
 def gap_record(ratio: float) -> dict[str, Tuned]:
@@ -158,6 +165,8 @@ def main() -> None:
     ap.add_argument("--tune-kinetic", action="store_true", help="NULL_KINETIC alone, from healthy two-point logs "
                     "(bench_discrepancy.balance_across_points on its BALANCE_TUNE_SEEDS; with --write: only it is "
                     "written)")
+    ap.add_argument("--only", nargs="+", default=(), metavar="NAME",
+                    help="with --tune --write: write only these of its records (e.g. FLOOR_RMS_BALANCE)")
     args = ap.parse_args()
     if args.tune_kinetic:
         from bench.bench_discrepancy import BALANCE_TUNE_SEEDS, balance_across_points
@@ -186,7 +195,7 @@ def main() -> None:
               f"NULL_FLOOR {MARGIN * small:.4f}; large orders {big:.4f} of their own -> NULL_OWN {MARGIN * big:.4f}"
               f"; balance {bal:.4f} of the friction -> NULL_BALANCE {MARGIN * bal:.4f} (margin {MARGIN:g})")
         if args.write:
-            write_tuned(tuned_records(small, big, bal, speed_rms, bal_rms))
+            write_tuned(tuned_records(small, big, bal, speed_rms, bal_rms, tuple(args.only)))
             print(f"wrote {TUNED_PATH}")
         return
     for e, r, ld, s in VALIDATE:
