@@ -196,13 +196,7 @@ def spd_inverse_of_sum(a, b, out, scale):
         worst = _scaled_factor_inverse(head, scale, out[:k, :k])
         if worst < 0.0:
             return -1.0
-    for i in range(k):
-        for j in range(k, n):
-            out[i, j] = 0.0
-    for i in range(k, n):
-        for j in range(n):
-            out[i, j] = 0.0
-        out[i, i] = 1.0 / (a[i, i] + b[i, i]) * scale
+    _decoupled_tail_inverse(a, b, out, k, scale)
     return worst
 
 
@@ -242,13 +236,22 @@ def lapack_inverse_of_sum(a, b, out, scale):
             v = x[j, i] * scale
             out[i, j] = v
             out[j, i] = v
+    _decoupled_tail_inverse(a, b, out, k, scale)
+    return 0
+
+
+@numba.njit(cache=True)
+def _decoupled_tail_inverse(a, b, out, k, scale):
+    """The rest of out = scale * (a + b)^-1 once its (k, k) head is in place: zero off the two diagonal blocks,
+    reciprocals of the decoupled tail (``decoupled_tail``) on the diagonal."""
+    n = a.shape[0]
+    for i in range(k):
         for j in range(k, n):
             out[i, j] = 0.0
     for i in range(k, n):
         for j in range(n):
             out[i, j] = 0.0
         out[i, i] = 1.0 / (a[i, i] + b[i, i]) * scale
-    return 0
 
 
 @numba.njit(cache=True)
