@@ -18,7 +18,10 @@ pressure_tdc.refined_by_speed) and each rival is refitted on top of it. The pair
   the pressure's reading (it is);
 - the other rival's pair does not explain the held-out cycles within AMBIGUOUS_DCHI2 as well.
 
-Otherwise nothing is added and the ambiguity stands. Not a joint Gauss-Newton fit of both: the TDC's value is the
+The same pair is tried where a step ends with one explanation, an effect in a cylinder whose own TDC offset is a
+significant second (``beside_own_tdc``: the friction may be the TDC's stand-in), with that cylinder's TDC as the
+pressure reads it however small; and in every pair the TDC is refined again with the friction in place (the speed's
+first refinement ran without it; design note 81). Otherwise nothing is added and the ambiguity stands. Not a joint Gauss-Newton fit of both: the TDC's value is the
 pressure's (its sigma enters the friction's by ``fit.polish``'s ``held``), the friction's the speed's on top of it.
 """
 
