@@ -76,7 +76,7 @@ from frictionwatch.core.discrepancy.laws import (
     rivals,
     speed_against_balance,
 )
-from frictionwatch.core.discrepancy.pair import tdc_and_friction
+from frictionwatch.core.discrepancy.pair import beside_own_tdc, tdc_and_friction
 from frictionwatch.core.discrepancy.pressure_channel import (
     pressure_findings,
     pressure_seeds,
@@ -214,6 +214,16 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             _said_ambiguous(found, beyond, [said_where(c.candidate, model.spec.n_cyl) for c in (t, other)],
                             [c.separated_by for c in (t.candidate, other.candidate)], inside)
             break
+        own = beside_own_tdc(t, [c[1].candidate.label for c in confirmed[1:] if significant(c[3])])
+        if other is None and own is not None:  # a friction where the TDC of its cylinder explains much too (pair.py)
+            pair, spent, found.pair_not_taken = tdc_and_friction(
+                current, cur_res, [(t, res)], full, parts, scale, floor, pressure, load_nm, opt.min_delta_chi2,
+                significant, cylinder=own)
+            runs += spent
+            if pair is not None:
+                current, test, cur_res = _add_pair(found, pair, test, scale, parts, model.spec)
+                found.step_limit_reached = step == opt.max_steps - 1
+                continue
         if significant(res):  # polished only if significant as it stands, and kept only if still significant
             t, new_model, res, extra = polish(t, current, new_model, res, full, lambda r: parts(r)[0], scale, floor,
                                               [moved_by_sigma(current, f) for f in found.held])
