@@ -204,10 +204,9 @@ def spd_inverse_of_sum(a, b, out, scale):
 def lapack_inverse_of_sum(a, b, out, scale):
     """out = scale * (a + b)^-1 (n, n), exactly symmetric, by the calls of its reference
     (core.monitor.identify.accumulate.spd_inverse_decoupled) on the same numbers: s = a + b element by element;
-    its coupled head (``decoupled_tail``) by LAPACK potrf then potri on the head's lower triangle in Fortran order
-    (as scipy.linalg.lapack passes it), the lower triangle mirrored; the diagonal tail by reciprocals; then x scale.
-    Same library, same calls, same input: the reference's bits however badly conditioned s is (equality checked in
-    tests/core/test_posterior_kernels.py).
+    its coupled head (``decoupled_tail``) by LAPACK potrf then potri (``_lapack_head_inverse``); the diagonal tail
+    by reciprocals; then x scale. Same library, same calls, same input: the reference's bits however badly
+    conditioned s is (equality checked in tests/core/test_posterior_kernels.py).
 
     For a matrix whose conditioning the data do not bound (the reference information: a rank-one balance that grows
     with the accumulated cycles against fixed priors, design note 75), where an inverse by another route agrees with
@@ -218,26 +217,58 @@ def lapack_inverse_of_sum(a, b, out, scale):
     for i in range(k, n):
         if not a[i, i] + b[i, i] > 0.0:
             return -1
+    if _lapack_head_inverse(a, b, out, k, scale) < 0.0:
+        return -1
+    _decoupled_tail_inverse(a, b, out, k, scale)
+    return 0
+
+
+@numba.njit(cache=True)
+def lapack_spd_inverse_of_sum(a, b, out, scale):
+    """out = scale * (a + b)^-1 (n, n), exactly symmetric, by the calls of its reference
+    (core.monitor.identify.accumulate.spd_inverse: potrf then potri on the whole raw matrix, no tail split) on the
+    same numbers: its bits at any condition. For the information matrix N = acc.info + priors, whose condition grows
+    with the accumulated cycles on genset-v20 (design note 80).
+
+    Returns the smallest pivot ratio L_jj^2 / s_jj of s's factor (that of the unit-diagonal form: Cholesky is
+    invariant under diagonal scaling; 1 for n = 0), or -1 if s is not numerically positive definite (LAPACK's info
+    > 0; out is then undefined)."""
+    return _lapack_head_inverse(a, b, out, a.shape[0], scale)
+
+
+@numba.njit(cache=True)
+def _lapack_head_inverse(a, b, out, k, scale):
+    """out[:k, :k] = scale * (a + b)[:k, :k]^-1 by LAPACK dpotrf then dpotri ('L') on the head's lower triangle in
+    Fortran order, as scipy.linalg.lapack passes a C-ordered array (a transposed copy), the lower triangle mirrored
+    (the reference's tril + tril(-1).T), then x scale. Returns the factor's smallest pivot ratio L_jj^2 / s_jj (1 for
+    k = 0), or -1 if LAPACK refuses (info > 0)."""
+    if k == 0:
+        return 1.0
     x = np.empty((k, k))  # C order holding the transpose = Fortran order holding the head, as f2py passes it
     for i in range(k):
         for j in range(k):
             x[j, i] = a[i, j] + b[i, j]
-    if k > 0:
-        uplo = np.array([_LOWER], dtype=np.uint8)
-        dims = np.array([k, k, 0], dtype=np.int32)  # n, lda, info
-        _dpotrf(uplo.ctypes, dims[0:].ctypes, x.ctypes, dims[1:].ctypes, dims[2:].ctypes)
-        if dims[2] != 0:
-            return -1
-        _dpotri(uplo.ctypes, dims[0:].ctypes, x.ctypes, dims[1:].ctypes, dims[2:].ctypes)
-        if dims[2] != 0:
-            return -1
+    uplo = np.array([_LOWER], dtype=np.uint8)
+    dims = np.array([k, k, 0], dtype=np.int32)  # n, lda, info
+    _dpotrf(uplo.ctypes, dims[0:].ctypes, x.ctypes, dims[1:].ctypes, dims[2:].ctypes)
+    if dims[2] != 0:
+        return -1.0
+    worst = 1.0
+    for j in range(k):
+        ratio = x[j, j] * x[j, j] / (a[j, j] + b[j, j])
+        if not ratio > 0.0:  # a NaN pivot that potrf let through
+            return -1.0
+        if ratio < worst:
+            worst = ratio
+    _dpotri(uplo.ctypes, dims[0:].ctypes, x.ctypes, dims[1:].ctypes, dims[2:].ctypes)
+    if dims[2] != 0:
+        return -1.0
     for i in range(k):  # Fortran (i, j), i >= j: the lower triangle potri wrote; tril + tril(-1).T, then x scale
         for j in range(i + 1):
             v = x[j, i] * scale
             out[i, j] = v
             out[j, i] = v
-    _decoupled_tail_inverse(a, b, out, k, scale)
-    return 0
+    return worst
 
 
 @numba.njit(cache=True)
