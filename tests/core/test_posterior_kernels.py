@@ -14,8 +14,9 @@ cancels ~5 digits (y^T y ~ 1e5 chi^2): the reference's own rounding of it is up 
 to 1e-10 of chi^2 from a long-double solve (``_chi2_reduced_truth``), not to each other (their difference is the sum
 of two roundings: 1.0e-10 for genset-v20 seed 0 since the inverse is potri's, design note 52).
 
-The SPD inverse (LAPACK potrf, potri on the unit-diagonal form, a decoupled diagonal tail by reciprocals) is checked against numpy's inv to 1e-11 of sqrt(C_ii C_jj), and its pivot ratio against the
-full natural-order Cholesky factor's.
+The SPD inverses (the reference's own LAPACK potrf, potri on the raw matrix, whole or its coupled head with a
+decoupled diagonal tail by reciprocals) are checked for the reference's bits and against numpy's inv to 1e-11 of
+sqrt(C_ii C_jj), and the whole one's pivot ratio against the full natural-order Cholesky factor's.
 """
 
 from dataclasses import replace
@@ -396,20 +397,23 @@ def test_spd_inverse_matches_numpy(n, tail):
     total = a + b
     assert pk.decoupled_tail(a, b) == (n - tail if n - tail > 1 else 0)  # a 1 x 1 head is a diagonal entry too
     out = np.empty((n, n))
-    ratio = pk.spd_inverse_of_sum(a, b, out, 2.5)
+    ratio = lapack_spd_inverse_of_sum(a, b, out, 2.5)  # N's inverse: the whole raw matrix (spd_inverse's calls)
+    assert_array_equal(out, 2.5 * spd_inverse(total))
     want = 2.5 * np.linalg.inv(total)
     assert_array_equal(out, out.T)
     s = np.sqrt(np.outer(np.diag(want), np.diag(want)))
     assert np.max(np.abs(out - want) / s) < 1e-11
-    # the pivot ratio is the full natural-order factor's min L_jj^2 / a_jj, whichever path (blocked, tail) ran
+    # the pivot ratio is the full natural-order factor's min L_jj^2 / a_jj
     chol = np.linalg.cholesky(total)
     assert_allclose(ratio, np.min(np.diag(chol) ** 2 / np.diag(total)), rtol=1e-12)
-    single = np.empty((n, n))
-    assert_allclose(pk.spd_inverse_into(total, single), ratio, rtol=1e-12)
-    assert np.max(np.abs(2.5 * single - want) / s) < 1e-11
+    split = np.empty((n, n))  # the reference information's: the coupled head, reciprocals on the tail
+    assert lapack_inverse_of_sum(a, b, split, 1.0) == 0  # scale 1: with 2.5 the tail's reciprocals differ by an ulp
+    assert_array_equal(split, spd_inverse_decoupled(total))
+    assert np.max(np.abs(2.5 * split - want) / s) < 1e-11
     indefinite = b.copy()
     indefinite[n // 2, n // 2] = -total[n // 2, n // 2] - 1.0
-    assert pk.spd_inverse_of_sum(a, indefinite, out, 1.0) == -1.0
+    assert lapack_spd_inverse_of_sum(a, indefinite, out, 1.0) == -1.0
+    assert lapack_inverse_of_sum(a, indefinite, out, 1.0) == -1
 
 
 @pytest.mark.parametrize("n", [1, 2, 7, 29, 33, 47, 49])

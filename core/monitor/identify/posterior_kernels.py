@@ -20,8 +20,8 @@ Otherwise the results equal the reference to rounding (<= 1e-10 relative on the 
 condition numbers are ~1e2..5e3; tests/core/test_posterior_kernels.py).
 
 ``posterior_kernel`` (genset-v20, P = 47) works from one inverse of N = acc.info + n_pr:
-- params = N^-1 r minus the first-order effect of the reference's 1e-12 ridge on the unit-diagonal problem (its
-  second order is < 1e-16 relative), so the bounded solve needs no factor of its own;
+- params = (N + 1e-12 D^2)^-1 r (the reference's ridge on the unit-diagonal problem) as N^-1 r and the ridge's
+  Neumann series in N^-1, summed to 1e-16 relative, so the bounded solve needs no factor of its own;
 - both inverses are the reference's own LAPACK calls (core.monitor.identify.spd_kernels: potrf, potri on the raw
   matrix, N's whole, the reference information's coupled head), its bits: N's condition grows with the accumulated
   cycles on genset-v20 (design note 80), the reference information's on every engine (note 75);
@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from frictionwatch.core.monitor.identify.spd_kernels import (  # noqa: F401  (spd_inverse_into: the tests' handle)
+from frictionwatch.core.monitor.identify.spd_kernels import (  # noqa: F401  (decoupled_tail: the tests' handle)
     FASTMATH,
     cho_solve,
     cholesky,
@@ -44,8 +44,6 @@ from frictionwatch.core.monitor.identify.spd_kernels import (  # noqa: F401  (sp
     lapack_inverse_of_sum,
     lapack_spd_inverse_of_sum,
     solve_or_nan,
-    spd_inverse_into,
-    spd_inverse_of_sum,
 )
 
 OK = 0

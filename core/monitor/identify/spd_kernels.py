@@ -1,13 +1,14 @@
 """Small symmetric positive-definite helpers of core.monitor.identify.posterior_kernels and the tooth fit (P <= ~50),
 on LAPACK: numba's np.linalg (potrf, gesv) and potri, which np.linalg does not wrap, bound from the same library
 numba's np.linalg calls (scipy.linalg.cython_lapack; ``inverse_from_factor``): the Cholesky factor with its smallest
-pivot ratio, a solve, the inverse from a factor, and the inverse of a sum of two matrices with a decoupled diagonal
-tail (``spd_inverse_of_sum``: unit-diagonal, with its pivot ratio; ``lapack_inverse_of_sum``: the reference's own calls
-on the raw matrix, its bits, for a matrix whose conditioning grows without bound).
+pivot ratio, a solve, the inverse from a factor, and the inverse of a sum of two matrices by the reference's own calls
+on the raw matrix, its bits, for matrices whose conditioning grows with the accumulated cycles
+(``lapack_spd_inverse_of_sum``: whole, with its pivot ratio, the information N, design note 80;
+``lapack_inverse_of_sum``: a coupled head and a decoupled diagonal tail, the reference information, note 75).
 
-The monitor's matrices are badly scaled (raw condition ~1e12, ~1e3 on a unit diagonal): the inverse is taken of the
-unit-diagonal matrix D A D and scaled back, so its error is relative to sqrt(C_ii C_jj) whatever the row scales
-(LU with partial pivoting is not invariant under diagonal scaling; Cholesky is). A hand-written Cholesky, inverse and
+The monitor's matrices are badly scaled (raw condition ~1e12, ~1e3 on a unit diagonal): Cholesky's error is relative
+to sqrt(C_ii C_jj) whatever the row scales (it is invariant under diagonal scaling; LU with partial pivoting is not),
+so the raw matrix is factored as the reference factors it. A hand-written Cholesky, inverse and
 blocked inverse stood here before issue 26 item 6; they gave less than the 20 % end to end that would justify
 them (the branch's report quotes the same-run bench). Tested against numpy in tests/core/test_posterior_kernels.py.
 """
@@ -125,35 +126,6 @@ def inverse_from_factor_reference(low: np.ndarray) -> np.ndarray:
     return np.linalg.inv(low @ low.T)
 
 
-@numba.njit(cache=True)
-def _scaled_factor_inverse(h, scale, out):
-    """out = scale * h^-1 (n, n), exactly symmetric, for the symmetric h (full) from the Cholesky factor of the
-    unit-diagonal D h D (``inverse_from_factor``), scaled back. Returns the factor's smallest pivot ratio
-    L_jj^2 / (D h D)_jj (= that of h's own factor: Cholesky is invariant under diagonal scaling), or -1 if h is not
-    positive definite."""
-    n = h.shape[0]
-    d = np.empty(n)
-    for i in range(n):
-        d[i] = 1.0 / np.sqrt(h[i, i])
-    s = np.empty((n, n))
-    for i in range(n):
-        for j in range(n):
-            s[i, j] = h[i, j] * d[i] * d[j]
-    low = _factor(s)
-    if low.shape[0] != n:
-        return -1.0
-    worst = _pivot_ratio(low, s)
-    x = np.empty((n, n))
-    if inverse_from_factor(low, x) != 0:
-        return -1.0
-    for i in range(n):
-        for j in range(i + 1):
-            v = x[i, j] * (d[i] * d[j]) * scale
-            out[i, j] = v
-            out[j, i] = v
-    return worst
-
-
 @numba.njit(cache=True, fastmath=FASTMATH)
 def decoupled_tail(a, b):
     """Start k of the trailing rows of the symmetric a + b (lower triangles read) that have no off-diagonal entry:
@@ -170,34 +142,6 @@ def decoupled_tail(a, b):
             return k
         k -= 1
     return 0
-
-
-@numba.njit(cache=True)
-def spd_inverse_of_sum(a, b, out, scale):
-    """out = scale * (a + b)^-1 (n, n), exactly symmetric, for the symmetric positive-definite a + b (lower
-    triangles read): the coupled head from the Cholesky factor of its unit-diagonal form (``_scaled_factor_inverse``:
-    the pivot ratio and the inverse from one factor), reciprocals of a diagonal decoupled tail (``decoupled_tail``).
-
-    Returns the smallest pivot ratio L_jj^2 / (a + b)_jj of the factor of a + b (1 for n = 0), or -1 if it is not
-    positive definite (out is then undefined)."""
-    n = a.shape[0]
-    k = decoupled_tail(a, b)
-    for i in range(k, n):
-        if not a[i, i] + b[i, i] > 0.0:
-            return -1.0
-    head = np.empty((k, k))
-    for i in range(k):
-        for j in range(i + 1):
-            v = a[i, j] + b[i, j]
-            head[i, j] = v
-            head[j, i] = v
-    worst = 1.0
-    if k > 0:
-        worst = _scaled_factor_inverse(head, scale, out[:k, :k])
-        if worst < 0.0:
-            return -1.0
-    _decoupled_tail_inverse(a, b, out, k, scale)
-    return worst
 
 
 @numba.njit(cache=True)
@@ -283,9 +227,3 @@ def _decoupled_tail_inverse(a, b, out, k, scale):
         for j in range(n):
             out[i, j] = 0.0
         out[i, i] = 1.0 / (a[i, i] + b[i, i]) * scale
-
-
-@numba.njit(cache=True)
-def spd_inverse_into(a, out):
-    """out = a^-1 (``spd_inverse_of_sum`` of a alone)."""
-    return spd_inverse_of_sum(a, np.zeros(a.shape), out, 1.0)
