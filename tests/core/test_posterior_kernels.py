@@ -14,8 +14,9 @@ cancels ~5 digits (y^T y ~ 1e5 chi^2): the reference's own rounding of it is up 
 to 1e-10 of chi^2 from a long-double solve (``_chi2_reduced_truth``), not to each other (their difference is the sum
 of two roundings: 1.0e-10 for genset-v20 seed 0 since the inverse is potri's, design note 52).
 
-The SPD inverse (LAPACK potrf, potri on the unit-diagonal form, a decoupled diagonal tail by reciprocals) is checked against numpy's inv to 1e-11 of sqrt(C_ii C_jj), and its pivot ratio against the
-full natural-order Cholesky factor's.
+The SPD inverses (the reference's own LAPACK potrf, potri on the raw matrix, whole or its coupled head with a
+decoupled diagonal tail by reciprocals) are checked for the reference's bits and against numpy's inv to 1e-11 of
+sqrt(C_ii C_jj), and the whole one's pivot ratio against the full natural-order Cholesky factor's.
 """
 
 from dataclasses import replace
@@ -27,6 +28,7 @@ from frictionwatch.core.monitor.identify.accumulate import (
     Accumulator,
     posterior_from_normal,
     posterior_from_normal_reference,
+    spd_inverse,
     spd_inverse_decoupled,
 )
 from frictionwatch.core.monitor.identify.layout import bounded_solve, bounded_solve_nnls
@@ -34,6 +36,7 @@ from frictionwatch.core.monitor.identify.spd_kernels import (
     inverse_from_factor,
     inverse_from_factor_reference,
     lapack_inverse_of_sum,
+    lapack_spd_inverse_of_sum,
 )
 from numpy.testing import assert_allclose, assert_array_equal
 
@@ -238,6 +241,81 @@ def test_reference_inverse_refuses_what_the_reference_refuses():
         assert lapack_inverse_of_sum(acc.info_reference, b, out, 1.0) == -1
 
 
+def _balance_in_information(seed, p, n_free, r, cycles):
+    """``_problem`` with a mean-balance-like row of ``cycles`` cycles (no forgetting) in the accumulated information
+    itself (rhs, y^T y and the row count with it): N's smallest pivot ratio falls ~1/cycles against the fixed
+    priors, as genset-v20's does over a long run (design note 80)."""
+    acc, n_pr, r_pr, sys_var, lower = _problem(seed, p, n_free, r)
+    rng = np.random.default_rng(seed + 60)
+    nb = p - n_free
+    m = (1.0 + 1e-3 * rng.normal(size=(200, nb))) * np.logspace(-4, 2, nb)  # 200 rows stand for the cycles
+    y = m @ (1.0 + 0.3 * rng.random(nb)) + 0.05 * rng.normal(size=200)
+    w = (cycles / 200) / 0.05**2
+    info, rhs = acc.info.copy(), acc.rhs.copy()
+    info[:nb, :nb] += w * (m.T @ m)
+    rhs[:nb] += w * (m.T @ y)
+    return replace(acc, info=info, rhs=rhs, yty=acc.yty + w * (y @ y), rows=acc.rows + cycles), n_pr, r_pr, sys_var, lower
+
+
+def _params_truth(acc, n_pr, r_pr):
+    """The reference's unconstrained minimiser (unit-diagonal form, its 1e-12 ridge) in long double: the Gaussian
+    elimination of ``_chi2_reduced_truth``."""
+    p = acc.info.shape[0]
+    a = (acc.info + n_pr).astype(np.longdouble)
+    b = (acc.rhs + r_pr).astype(np.longdouble)
+    d = 1.0 / np.sqrt(np.diag(a))
+    m = np.concatenate([a * d[:, None] * d[None, :] + np.longdouble(1e-12) * np.eye(p, dtype=np.longdouble),
+                        (b * d)[:, None]], axis=1)
+    for k in range(p):
+        piv = k + int(np.argmax(np.abs(m[k:, k])))
+        m[[k, piv]] = m[[piv, k]]
+        m[k + 1:] -= np.outer(m[k + 1:, k] / m[k, k], m[k])
+    x = np.zeros(p, dtype=np.longdouble)
+    for k in range(p - 1, -1, -1):
+        x[k] = (m[k, p] - m[k, k + 1:p] @ x[k + 1:]) / m[k, k]
+    return (x * d).astype(np.float64)
+
+
+@pytest.mark.parametrize(("engine", "seed", "cycles"),
+                         [("genset-v20", 1, 100_000), ("k9k-4cyl", 1, 10_000_000), ("genset-v20", 1, 10)])
+def test_information_inverse_is_the_reference_bits_at_low_pivot_ratios(engine, seed, cycles):
+    """N's factor was the kernel's FALLBACK below pivot ratio 1e-4 (a long genset-v20 run: every smoothed solve
+    from cycle ~893 of 1,000); now N^-1 is the reference's own LAPACK calls: cov_statistical is the reference's bits
+    x max(1, chi2), and params differ from the reference by roundings as large as the reference's own (both against a
+    long-double solve: ~1e-15 x the unit-diagonal condition of max |params|, note 80)."""
+    p, n_free, r = SIZES[engine]
+    acc, n_pr, r_pr, sys_var, lower = _balance_in_information(seed, p, n_free, r, cycles)
+    info = acc.info + n_pr
+    inv = np.empty((p, p))
+    ratio = lapack_spd_inverse_of_sum(acc.info, n_pr, inv, 1.0)
+    assert_array_equal(inv, spd_inverse(info))
+    assert_allclose(ratio, pk.cholesky(info, np.empty((p, p))), rtol=1e-8)  # the unit-diagonal factor's ratio
+    if cycles >= 100_000:
+        assert 0.0 < ratio < pk.PIVOT_RATIO_MIN  # the case that fell back
+    status = pk.posterior_kernel(acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, n_pr, r_pr,
+                                 sys_var, lower, 1e12)[0]
+    assert status == pk.OK
+    got = posterior_from_normal(acc, n_pr, r_pr, sys_var, lower)
+    want = posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lower)
+    # the same inverse: cov_statistical / max(1, chi2) equal to the last bit, when both chi2 are <= 1 equal outright
+    assert_allclose(got.cov_statistical / max(1.0, got.chi2_reduced), want.cov_statistical / max(1.0, want.chi2_reduced),
+                    rtol=1e-15, atol=0)
+    truth = _params_truth(acc, n_pr, r_pr)
+    scale = np.max(np.abs(truth))
+    err_kernel = np.max(np.abs(got.params - truth)) / scale
+    err_reference = np.max(np.abs(want.params - truth)) / scale
+    assert err_kernel < max(4.0 * err_reference, 1e-13)  # as exact as the reference
+    d = np.sqrt(np.diag(info))
+    cond = np.linalg.cond(info / np.outer(d, d))
+    # the bound of note 80: ~eps x the unit-diagonal condition (kernel 0.73-0.86, reference 0.59-1.18 x 1e-15 cond
+    # on these cases), not the pivot ratio (3.9e-13 at ratio 0.16)
+    assert err_kernel < 4e-15 * cond
+    # chi^2 is stationary at the minimiser: the params' roundings move it to second order only
+    assert_allclose(got.chi2_reduced, want.chi2_reduced, rtol=1e-8)
+    sd = np.sqrt(np.diag(want.cov_statistical))
+    assert np.max(np.abs(got.params - want.params) / sd) < 1e-5
+
+
 def test_posterior_rejects_wrong_shapes():
     p, n_free, r = SIZES["deutz-1cyl"]
     acc, n_pr, r_pr, sys_var, lower = _problem(0, p, n_free, r)
@@ -319,20 +397,23 @@ def test_spd_inverse_matches_numpy(n, tail):
     total = a + b
     assert pk.decoupled_tail(a, b) == (n - tail if n - tail > 1 else 0)  # a 1 x 1 head is a diagonal entry too
     out = np.empty((n, n))
-    ratio = pk.spd_inverse_of_sum(a, b, out, 2.5)
+    ratio = lapack_spd_inverse_of_sum(a, b, out, 2.5)  # N's inverse: the whole raw matrix (spd_inverse's calls)
+    assert_array_equal(out, 2.5 * spd_inverse(total))
     want = 2.5 * np.linalg.inv(total)
     assert_array_equal(out, out.T)
     s = np.sqrt(np.outer(np.diag(want), np.diag(want)))
     assert np.max(np.abs(out - want) / s) < 1e-11
-    # the pivot ratio is the full natural-order factor's min L_jj^2 / a_jj, whichever path (blocked, tail) ran
+    # the pivot ratio is the full natural-order factor's min L_jj^2 / a_jj
     chol = np.linalg.cholesky(total)
     assert_allclose(ratio, np.min(np.diag(chol) ** 2 / np.diag(total)), rtol=1e-12)
-    single = np.empty((n, n))
-    assert_allclose(pk.spd_inverse_into(total, single), ratio, rtol=1e-12)
-    assert np.max(np.abs(2.5 * single - want) / s) < 1e-11
+    split = np.empty((n, n))  # the reference information's: the coupled head, reciprocals on the tail
+    assert lapack_inverse_of_sum(a, b, split, 1.0) == 0  # scale 1: with 2.5 the tail's reciprocals differ by an ulp
+    assert_array_equal(split, spd_inverse_decoupled(total))
+    assert np.max(np.abs(2.5 * split - want) / s) < 1e-11
     indefinite = b.copy()
     indefinite[n // 2, n // 2] = -total[n // 2, n // 2] - 1.0
-    assert pk.spd_inverse_of_sum(a, indefinite, out, 1.0) == -1.0
+    assert lapack_spd_inverse_of_sum(a, indefinite, out, 1.0) == -1.0
+    assert lapack_inverse_of_sum(a, indefinite, out, 1.0) == -1
 
 
 @pytest.mark.parametrize("n", [1, 2, 7, 29, 33, 47, 49])

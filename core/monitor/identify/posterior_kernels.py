@@ -8,9 +8,9 @@ solves and SPD inverses of small matrices, where the time of the scipy/LAPACK pa
 and report a status instead of guessing near any decision the reference makes differently:
 
 - ``NEEDS_BOUND``: a bound is active, or so nearly active (``FEASIBLE_MARGIN``) that NNLS's own tolerance decides;
-- ``FALLBACK``: the information's factor has a smallest pivot ratio L_jj^2 / A_jj below ``PIVOT_RATIO_MIN`` (nearly
-  singular: the reference's LAPACK factorisation might fail or differ by more than rounding), the reference
-  information is not positive definite, or the trace bound of the reference covariance is near ``max_condition``
+- ``FALLBACK``: the information's factor has a smallest pivot ratio L_jj^2 / A_jj below
+  ``INFORMATION_PIVOT_RATIO_MIN`` (``PIVOT_RATIO_MIN`` in bounded_solve_kernel), the reference information is not
+  positive definite, or the trace bound of the reference covariance is near ``max_condition``
   (the reference switches to a pseudo-inverse there). The reference covariance has no pivot-ratio test: it is
   inverted by the reference's own LAPACK calls (spd_kernels.lapack_inverse_of_sum, its bits), because its
   condition grows with the accumulated cycles (a balance row against fixed priors, design note 75).
@@ -20,11 +20,11 @@ Otherwise the results equal the reference to rounding (<= 1e-10 relative on the 
 condition numbers are ~1e2..5e3; tests/core/test_posterior_kernels.py).
 
 ``posterior_kernel`` (genset-v20, P = 47) works from one inverse of N = acc.info + n_pr:
-- params = N^-1 r minus the first-order effect of the reference's 1e-12 ridge on the unit-diagonal problem (its
-  second order is < 1e-16 relative), so the bounded solve needs no factor of its own;
-- the inverse is LAPACK's (core.monitor.identify.spd_kernels: the Cholesky factor of the unit-diagonal form, its
-  pivot ratio, and potri from that factor); the reference covariance's is the reference's own calls (potrf, potri
-  on the raw matrix's coupled head);
+- params = (N + 1e-12 D^2)^-1 r (the reference's ridge on the unit-diagonal problem) as N^-1 r and the ridge's
+  Neumann series in N^-1, summed to 1e-16 relative, so the bounded solve needs no factor of its own;
+- both inverses are the reference's own LAPACK calls (core.monitor.identify.spd_kernels: potrf, potri on the raw
+  matrix, N's whole, the reference information's coupled head), its bits: N's condition grows with the accumulated
+  cycles on genset-v20 (design note 80), the reference information's on every engine (note 75);
 - a decoupled diagonal tail (the monitor's reference information: nuisances that only their priors see) is
   inverted by reciprocals, the head alone by LAPACK;
 - chi^2 = y^T y - 2 params^T r + params^T A params cancels ~5 digits: it takes the reference's BLAS calls (ddot,
@@ -36,15 +36,14 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from frictionwatch.core.monitor.identify.spd_kernels import (  # noqa: F401  (spd_inverse_into: the tests' handle)
+from frictionwatch.core.monitor.identify.spd_kernels import (  # noqa: F401  (decoupled_tail: the tests' handle)
     FASTMATH,
     cho_solve,
     cholesky,
     decoupled_tail,
     lapack_inverse_of_sum,
+    lapack_spd_inverse_of_sum,
     solve_or_nan,
-    spd_inverse_into,
-    spd_inverse_of_sum,
 )
 
 OK = 0
@@ -52,7 +51,14 @@ NEEDS_BOUND = 1
 FALLBACK = 2
 BAD_SHAPE = 3  # the arrays' shapes do not fit together (the caller's validating path raises the ValueError)
 
-PIVOT_RATIO_MIN = 1e-4  # below: left to the reference (rounding may exceed 1e-10: ~1e-15 / ratio measured, note 75)
+PIVOT_RATIO_MIN = 1e-4  # bounded_solve_kernel's factors: below, NNLS (its rounding ~1e-15 / ratio apart, note 75)
+# the information N's pivot ratio below which posterior_kernel leaves N to the reference. N is inverted by the
+# reference's own calls (its bits at any ratio, note 80); params and chi^2 differ from the reference by roundings
+# as large as its own (~1e-15 x N's unit-diagonal condition of max |params|, both against a long-double solve,
+# note 80). Not tuned: a guard against a factor with no digits left, far below the monitor's ratios (genset-v20
+# ~1e-6 with 1e4 x the accumulation, note 75); the ridge series (RIDGE_TERMS) is checked on its own
+INFORMATION_PIVOT_RATIO_MIN = 1e-9
+RIDGE_TERMS = 4  # terms of the ridge's Neumann series in params; not converged (1e-16 relative) after them: FALLBACK
 FEASIBLE_MARGIN = 1e-9  # scaled distance to a bound, relative to max |x|, below which NNLS decides
 REGULARISATION = 1e-12  # the reference's ridge on the unit-diagonal blocks (bounded_solve)
 
@@ -222,7 +228,7 @@ def posterior_moments_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_referen
     Returns (status, chi2_red, cov_stat, covariance, cov_reference); the arrays are valid only with status OK."""
     n = acc_info.shape[0]
     inv = np.empty((n, n))
-    if spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < PIVOT_RATIO_MIN:
+    if lapack_spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < INFORMATION_PIVOT_RATIO_MIN:
         empty = np.empty((0, 0))
         return FALLBACK, 1.0, empty, empty, empty
     return _moments_from_inverse(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, params,
@@ -234,9 +240,10 @@ def posterior_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr
     """The posterior of ``posterior_from_normal`` from one inverse of info = acc_info + n_pr.
 
     params: the unconstrained minimiser of ``bounded_solve_kernel`` (unit-diagonal scaling, ridge 1e-12 on the
-    scaled diagonal): (info + 1e-12 D^2)^-1 rhs = params0 - 1e-12 info^-1 D^2 params0 + O(1e-24 |S^-1|^2), params0 =
-    info^-1 rhs, D^2 = diag(info) (the neglected term is < 1e-16 relative for scaled pivots >= PIVOT_RATIO_MIN);
-    when it meets the bounds with the margin it is the bounded optimum, else NEEDS_BOUND.
+    scaled diagonal): (info + 1e-12 D^2)^-1 rhs = sum_k (-1e-12 info^-1 D^2)^k params0, params0 = info^-1 rhs,
+    D^2 = diag(info), summed until a term is below 1e-16 of params (FALLBACK if not within RIDGE_TERMS); when it
+    meets the bounds with the margin it is the bounded optimum, else NEEDS_BOUND. info^-1 is the reference's own
+    LAPACK calls (its bits), so only params and chi^2 differ from the reference, by roundings (design note 80).
 
     Returns (status, params, chi2_red, cov_stat, covariance, cov_reference); the arrays are valid only with status
     OK (params also with NEEDS_BOUND: the unconstrained minimiser)."""
@@ -248,26 +255,47 @@ def posterior_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr
             or n_pr.shape != (n, n) or r_pr.shape[0] != n or sys_var.shape[0] != m or lo.shape[0] != n):
         return BAD_SHAPE, params, 1.0, empty, empty, empty
     inv = np.empty((n, n))
-    if spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < PIVOT_RATIO_MIN:
+    # N^-1 by the reference's own calls (spd_inverse's potrf, potri on the raw matrix): cov_stat is its bits at any
+    # condition, which grows with the accumulated cycles on genset-v20 (design note 80)
+    if lapack_spd_inverse_of_sum(acc_info, n_pr, inv, 1.0) < INFORMATION_PIVOT_RATIO_MIN:
         return FALLBACK, params, 1.0, empty, empty, empty
     rhs = np.empty(n)
+    ridge = np.empty(n)  # e D^2 (e = REGULARISATION, D^2 = diag(N) floored as bounded_solve floors it)
     for i in range(n):
         rhs[i] = acc_rhs[i] + r_pr[i]
-    t0 = np.empty(n)
-    ridge = np.empty(n)
-    for i in range(n):
-        t = 0.0
-        for j in range(n):
-            t += inv[i, j] * rhs[j]
-        t0[i] = t
         v = acc_info[i, i] + n_pr[i, i]
-        ridge[i] = REGULARISATION * (v if v > 1e-300 else 1e-300) * t
+        ridge[i] = REGULARISATION * (v if v > 1e-300 else 1e-300)
+    # (N + e D^2)^-1 rhs = sum_k (-N^-1 e D^2)^k N^-1 rhs: terms until one is below 1e-16 of params (the ridge's
+    # effect is e |S^-1| relative per term, S the unit-diagonal N: ~1e-6 at the monitor's worst ratios)
+    term = np.empty(n)
+    t = np.empty(n)
+    for i in range(n):
+        acc_t = 0.0
+        for j in range(n):
+            acc_t += inv[i, j] * rhs[j]
+        params[i] = acc_t
+        term[i] = acc_t
+    converged = False
+    for _ in range(RIDGE_TERMS):
+        for i in range(n):
+            t[i] = ridge[i] * term[i]
+        big = 0.0
+        size = 0.0
+        for i in range(n):
+            acc_t = 0.0
+            for j in range(n):
+                acc_t += inv[i, j] * t[j]
+            term[i] = -acc_t
+            params[i] -= acc_t
+            big = max(big, abs(acc_t))
+            size = max(size, abs(params[i]))
+        if big <= 1e-16 * size:
+            converged = True
+            break
+    if not converged:
+        return FALLBACK, params, 1.0, empty, empty, empty
     scale = 0.0
     for i in range(n):
-        t = 0.0
-        for j in range(n):
-            t += inv[i, j] * ridge[j]
-        params[i] = t0[i] - t
         if np.isfinite(lo[i]):
             v = acc_info[i, i] + n_pr[i, i]
             x = abs(params[i] * np.sqrt(v if v > 1e-300 else 1e-300))

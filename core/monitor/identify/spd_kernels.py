@@ -1,13 +1,14 @@
 """Small symmetric positive-definite helpers of core.monitor.identify.posterior_kernels and the tooth fit (P <= ~50),
 on LAPACK: numba's np.linalg (potrf, gesv) and potri, which np.linalg does not wrap, bound from the same library
 numba's np.linalg calls (scipy.linalg.cython_lapack; ``inverse_from_factor``): the Cholesky factor with its smallest
-pivot ratio, a solve, the inverse from a factor, and the inverse of a sum of two matrices with a decoupled diagonal
-tail (``spd_inverse_of_sum``: unit-diagonal, with its pivot ratio; ``lapack_inverse_of_sum``: the reference's own calls
-on the raw matrix, its bits, for a matrix whose conditioning grows without bound).
+pivot ratio, a solve, the inverse from a factor, and the inverse of a sum of two matrices by the reference's own calls
+on the raw matrix, its bits, for matrices whose conditioning grows with the accumulated cycles
+(``lapack_spd_inverse_of_sum``: whole, with its pivot ratio, the information N, design note 80;
+``lapack_inverse_of_sum``: a coupled head and a decoupled diagonal tail, the reference information, note 75).
 
-The monitor's matrices are badly scaled (raw condition ~1e12, ~1e3 on a unit diagonal): the inverse is taken of the
-unit-diagonal matrix D A D and scaled back, so its error is relative to sqrt(C_ii C_jj) whatever the row scales
-(LU with partial pivoting is not invariant under diagonal scaling; Cholesky is). A hand-written Cholesky, inverse and
+The monitor's matrices are badly scaled (raw condition ~1e12, ~1e3 on a unit diagonal): Cholesky's error is relative
+to sqrt(C_ii C_jj) whatever the row scales (it is invariant under diagonal scaling; LU with partial pivoting is not),
+so the raw matrix is factored as the reference factors it. A hand-written Cholesky, inverse and
 blocked inverse stood here before issue 26 item 6; they gave less than the 20 % end to end that would justify
 them (the branch's report quotes the same-run bench). Tested against numpy in tests/core/test_posterior_kernels.py.
 """
@@ -125,35 +126,6 @@ def inverse_from_factor_reference(low: np.ndarray) -> np.ndarray:
     return np.linalg.inv(low @ low.T)
 
 
-@numba.njit(cache=True)
-def _scaled_factor_inverse(h, scale, out):
-    """out = scale * h^-1 (n, n), exactly symmetric, for the symmetric h (full) from the Cholesky factor of the
-    unit-diagonal D h D (``inverse_from_factor``), scaled back. Returns the factor's smallest pivot ratio
-    L_jj^2 / (D h D)_jj (= that of h's own factor: Cholesky is invariant under diagonal scaling), or -1 if h is not
-    positive definite."""
-    n = h.shape[0]
-    d = np.empty(n)
-    for i in range(n):
-        d[i] = 1.0 / np.sqrt(h[i, i])
-    s = np.empty((n, n))
-    for i in range(n):
-        for j in range(n):
-            s[i, j] = h[i, j] * d[i] * d[j]
-    low = _factor(s)
-    if low.shape[0] != n:
-        return -1.0
-    worst = _pivot_ratio(low, s)
-    x = np.empty((n, n))
-    if inverse_from_factor(low, x) != 0:
-        return -1.0
-    for i in range(n):
-        for j in range(i + 1):
-            v = x[i, j] * (d[i] * d[j]) * scale
-            out[i, j] = v
-            out[j, i] = v
-    return worst
-
-
 @numba.njit(cache=True, fastmath=FASTMATH)
 def decoupled_tail(a, b):
     """Start k of the trailing rows of the symmetric a + b (lower triangles read) that have no off-diagonal entry:
@@ -173,41 +145,12 @@ def decoupled_tail(a, b):
 
 
 @numba.njit(cache=True)
-def spd_inverse_of_sum(a, b, out, scale):
-    """out = scale * (a + b)^-1 (n, n), exactly symmetric, for the symmetric positive-definite a + b (lower
-    triangles read): the coupled head from the Cholesky factor of its unit-diagonal form (``_scaled_factor_inverse``:
-    the pivot ratio and the inverse from one factor), reciprocals of a diagonal decoupled tail (``decoupled_tail``).
-
-    Returns the smallest pivot ratio L_jj^2 / (a + b)_jj of the factor of a + b (1 for n = 0), or -1 if it is not
-    positive definite (out is then undefined)."""
-    n = a.shape[0]
-    k = decoupled_tail(a, b)
-    for i in range(k, n):
-        if not a[i, i] + b[i, i] > 0.0:
-            return -1.0
-    head = np.empty((k, k))
-    for i in range(k):
-        for j in range(i + 1):
-            v = a[i, j] + b[i, j]
-            head[i, j] = v
-            head[j, i] = v
-    worst = 1.0
-    if k > 0:
-        worst = _scaled_factor_inverse(head, scale, out[:k, :k])
-        if worst < 0.0:
-            return -1.0
-    _decoupled_tail_inverse(a, b, out, k, scale)
-    return worst
-
-
-@numba.njit(cache=True)
 def lapack_inverse_of_sum(a, b, out, scale):
     """out = scale * (a + b)^-1 (n, n), exactly symmetric, by the calls of its reference
     (core.monitor.identify.accumulate.spd_inverse_decoupled) on the same numbers: s = a + b element by element;
-    its coupled head (``decoupled_tail``) by LAPACK potrf then potri on the head's lower triangle in Fortran order
-    (as scipy.linalg.lapack passes it), the lower triangle mirrored; the diagonal tail by reciprocals; then x scale.
-    Same library, same calls, same input: the reference's bits however badly conditioned s is (equality checked in
-    tests/core/test_posterior_kernels.py).
+    its coupled head (``decoupled_tail``) by LAPACK potrf then potri (``_lapack_head_inverse``); the diagonal tail
+    by reciprocals; then x scale. Same library, same calls, same input: the reference's bits however badly
+    conditioned s is (equality checked in tests/core/test_posterior_kernels.py).
 
     For a matrix whose conditioning the data do not bound (the reference information: a rank-one balance that grows
     with the accumulated cycles against fixed priors, design note 75), where an inverse by another route agrees with
@@ -218,26 +161,58 @@ def lapack_inverse_of_sum(a, b, out, scale):
     for i in range(k, n):
         if not a[i, i] + b[i, i] > 0.0:
             return -1
+    if _lapack_head_inverse(a, b, out, k, scale) < 0.0:
+        return -1
+    _decoupled_tail_inverse(a, b, out, k, scale)
+    return 0
+
+
+@numba.njit(cache=True)
+def lapack_spd_inverse_of_sum(a, b, out, scale):
+    """out = scale * (a + b)^-1 (n, n), exactly symmetric, by the calls of its reference
+    (core.monitor.identify.accumulate.spd_inverse: potrf then potri on the whole raw matrix, no tail split) on the
+    same numbers: its bits at any condition. For the information matrix N = acc.info + priors, whose condition grows
+    with the accumulated cycles on genset-v20 (design note 80).
+
+    Returns the smallest pivot ratio L_jj^2 / s_jj of s's factor (that of the unit-diagonal form: Cholesky is
+    invariant under diagonal scaling; 1 for n = 0), or -1 if s is not numerically positive definite (LAPACK's info
+    > 0; out is then undefined)."""
+    return _lapack_head_inverse(a, b, out, a.shape[0], scale)
+
+
+@numba.njit(cache=True)
+def _lapack_head_inverse(a, b, out, k, scale):
+    """out[:k, :k] = scale * (a + b)[:k, :k]^-1 by LAPACK dpotrf then dpotri ('L') on the head's lower triangle in
+    Fortran order, as scipy.linalg.lapack passes a C-ordered array (a transposed copy), the lower triangle mirrored
+    (the reference's tril + tril(-1).T), then x scale. Returns the factor's smallest pivot ratio L_jj^2 / s_jj (1 for
+    k = 0), or -1 if LAPACK refuses (info > 0)."""
+    if k == 0:
+        return 1.0
     x = np.empty((k, k))  # C order holding the transpose = Fortran order holding the head, as f2py passes it
     for i in range(k):
         for j in range(k):
             x[j, i] = a[i, j] + b[i, j]
-    if k > 0:
-        uplo = np.array([_LOWER], dtype=np.uint8)
-        dims = np.array([k, k, 0], dtype=np.int32)  # n, lda, info
-        _dpotrf(uplo.ctypes, dims[0:].ctypes, x.ctypes, dims[1:].ctypes, dims[2:].ctypes)
-        if dims[2] != 0:
-            return -1
-        _dpotri(uplo.ctypes, dims[0:].ctypes, x.ctypes, dims[1:].ctypes, dims[2:].ctypes)
-        if dims[2] != 0:
-            return -1
+    uplo = np.array([_LOWER], dtype=np.uint8)
+    dims = np.array([k, k, 0], dtype=np.int32)  # n, lda, info
+    _dpotrf(uplo.ctypes, dims[0:].ctypes, x.ctypes, dims[1:].ctypes, dims[2:].ctypes)
+    if dims[2] != 0:
+        return -1.0
+    worst = 1.0
+    for j in range(k):
+        ratio = x[j, j] * x[j, j] / (a[j, j] + b[j, j])
+        if not ratio > 0.0:  # a NaN pivot that potrf let through
+            return -1.0
+        if ratio < worst:
+            worst = ratio
+    _dpotri(uplo.ctypes, dims[0:].ctypes, x.ctypes, dims[1:].ctypes, dims[2:].ctypes)
+    if dims[2] != 0:
+        return -1.0
     for i in range(k):  # Fortran (i, j), i >= j: the lower triangle potri wrote; tril + tril(-1).T, then x scale
         for j in range(i + 1):
             v = x[j, i] * scale
             out[i, j] = v
             out[j, i] = v
-    _decoupled_tail_inverse(a, b, out, k, scale)
-    return 0
+    return worst
 
 
 @numba.njit(cache=True)
@@ -252,9 +227,3 @@ def _decoupled_tail_inverse(a, b, out, k, scale):
         for j in range(n):
             out[i, j] = 0.0
         out[i, i] = 1.0 / (a[i, i] + b[i, i]) * scale
-
-
-@numba.njit(cache=True)
-def spd_inverse_into(a, out):
-    """out = a^-1 (``spd_inverse_of_sum`` of a alone)."""
-    return spd_inverse_of_sum(a, np.zeros(a.shape), out, 1.0)
