@@ -73,9 +73,9 @@ def _problem(seed, p, n_free, r, theta_true=None, cycles=6, noise=1.0, prior_rel
     return acc, n_pr, r_pr, sys_var, lower
 
 
-def _chi2_reduced_truth(acc, n_pr, r_pr):
-    """chi^2 reduced at the unconstrained minimiser of the reference (unit-diagonal form, its 1e-12 ridge), solved
-    by Gaussian elimination with partial pivoting in long double (x87: eps ~1e-19, the float64 roundings vanish)."""
+def _minimiser_long_double(acc, n_pr, r_pr):
+    """The reference's unconstrained minimiser (unit-diagonal form, its 1e-12 ridge), solved by Gaussian elimination
+    with partial pivoting in long double (x87: eps ~1e-19, the float64 roundings vanish)."""
     p = acc.info.shape[0]
     a = (acc.info + n_pr).astype(np.longdouble)
     b = (acc.rhs + r_pr).astype(np.longdouble)
@@ -89,7 +89,13 @@ def _chi2_reduced_truth(acc, n_pr, r_pr):
     x = np.zeros(p, dtype=np.longdouble)
     for k in range(p - 1, -1, -1):
         x[k] = (m[k, p] - m[k, k + 1:p] @ x[k + 1:]) / m[k, k]
-    theta = x * d
+    return x * d
+
+
+def _chi2_reduced_truth(acc, n_pr, r_pr):
+    """chi^2 reduced at ``_minimiser_long_double``, in long double."""
+    p = acc.info.shape[0]
+    theta = _minimiser_long_double(acc, n_pr, r_pr)
     chi2 = (np.longdouble(acc.yty) - 2 * theta @ acc.rhs.astype(np.longdouble)
             + theta @ acc.info.astype(np.longdouble) @ theta)
     return float(chi2 / (acc.rows - p))
@@ -258,22 +264,8 @@ def _balance_in_information(seed, p, n_free, r, cycles):
 
 
 def _params_truth(acc, n_pr, r_pr):
-    """The reference's unconstrained minimiser (unit-diagonal form, its 1e-12 ridge) in long double: the Gaussian
-    elimination of ``_chi2_reduced_truth``."""
-    p = acc.info.shape[0]
-    a = (acc.info + n_pr).astype(np.longdouble)
-    b = (acc.rhs + r_pr).astype(np.longdouble)
-    d = 1.0 / np.sqrt(np.diag(a))
-    m = np.concatenate([a * d[:, None] * d[None, :] + np.longdouble(1e-12) * np.eye(p, dtype=np.longdouble),
-                        (b * d)[:, None]], axis=1)
-    for k in range(p):
-        piv = k + int(np.argmax(np.abs(m[k:, k])))
-        m[[k, piv]] = m[[piv, k]]
-        m[k + 1:] -= np.outer(m[k + 1:, k] / m[k, k], m[k])
-    x = np.zeros(p, dtype=np.longdouble)
-    for k in range(p - 1, -1, -1):
-        x[k] = (m[k, p] - m[k, k + 1:p] @ x[k + 1:]) / m[k, k]
-    return (x * d).astype(np.float64)
+    """``_minimiser_long_double`` rounded to float64."""
+    return _minimiser_long_double(acc, n_pr, r_pr).astype(np.float64)
 
 
 @pytest.mark.parametrize(("engine", "seed", "cycles"),
