@@ -243,7 +243,7 @@ class PreviousCycle(NamedTuple):
     sync), pressure (z, n) [Pa], angle-averaged kinetic energy [J] (core.monitor.identify.identification.cycle_energy),
     measured load [N m], indicated torque [N m] (the cylinders' work means over its own window, summed:
     Excitation.indicated_mean), coupling loss [N m] and load_late [N m] its load under the rising half of the
-    balance's triangle (core.types.Cycle.load_late with the load's ripple work; NaN: ``load``)."""
+    balance's triangle (core.types.Cycle.load_late with the load's ripple work; not given: ``load``)."""
 
     start_tick: int
     end_tick: int
@@ -252,7 +252,7 @@ class PreviousCycle(NamedTuple):
     load: float
     indicated: float
     coupling_loss: float
-    load_late: float = float("nan")
+    load_late: float
 
 
 class GridGeometry(NamedTuple):

@@ -193,8 +193,8 @@ def cycle_energy_reference(cycle: Cycle, weights: EnergyWeights) -> float:
 
 def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indicated_cycle: np.ndarray,
                       energy: float, previous: PreviousCycle | None, load: float, coupling_loss: float,
-                      geometry: GridGeometry, load_early: float = float("nan")) -> tuple[float, float, float, float,
-                                                                                          np.ndarray | None]:
+                      geometry: GridGeometry, load_early: float) -> tuple[float, float, float, float,
+                                                                          np.ndarray | None]:
     """(friction, kinetic, acceleration, indicated, imep_centred) of one cycle and the cycle just before it
     (``previous``; None when that cycle is not at hand: all NaN and None); indicated_cycle (z,) [N m] the
     cylinders' work means over this cycle's own window (``Excitation.indicated_mean``); energy [J] this cycle's
@@ -219,8 +219,8 @@ def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indi
 
     The load under the same triangle: the previous cycle's late half (``previous.load_late``) and this cycle's
     early half (``load_early``), each from the load readings' own spans (drivers.assembly.cycle_parts.load_mean;
-    NaN: the cycle's mean ``load``). When the cycles' means step by more than 2 % of the rated torque the window's
-    load is still not known well enough (where in a reading's span the step fell; the coupling's wind-up) and
+    the caller puts the cycle's mean there where they are not given). When the cycles' means step by more than
+    2 % of the rated torque the window's load is still not known well enough (where in a reading's span the step fell; the coupling's wind-up) and
     friction is NaN (that cycle): a step late in this cycle, in the reading after its end, now shows in its mean
     and voids it (deutz two-point s9 cycle 145: +11.8 N m before, design note 76)."""
     nan = float("nan")
@@ -243,8 +243,7 @@ def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indi
         np.vdot(prev, geometry.triangle_previous) + np.vdot(cur, geometry.triangle_current))
     imep = (ind * FOUR_PI + own - alone) / spec.displacement_cyl
     load_stepped = abs(load - previous.load) > LOAD_STEP_FRACTION * spec.rated_torque_nm
-    late = previous.load_late if math.isfinite(previous.load_late) else previous.load
-    window_load = 0.5 * (late + (load_early if math.isfinite(load_early) else load))
+    window_load = 0.5 * (previous.load_late + load_early)
     friction = nan if load_stepped else indicated - window_load - 0.5 * (coupling_loss + previous.coupling_loss) - kinetic
     return friction, kinetic, kinetic / geometry.inertia_mid, indicated, imep
 
