@@ -220,9 +220,9 @@ def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indi
     The load under the same triangle: the previous cycle's late half (``previous.load_late``) and this cycle's
     early half (``load_early``), each from the load readings' own spans (drivers.assembly.cycle_parts.load_mean;
     the caller puts the cycle's mean there where they are not given). When the cycles' means step by more than
-    2 % of the rated torque the window's load is still not known well enough (where in a reading's span the step fell; the coupling's wind-up) and
-    friction is NaN (that cycle): a step late in this cycle, in the reading after its end, now shows in its mean
-    and voids it (deutz two-point s9 cycle 145: +11.8 N m before, design note 76)."""
+    2 % of the rated torque the window's load is still not known well enough (where in a reading's span the step
+    fell; the coupling's wind-up) and friction is NaN (that cycle): a step late in this cycle, in the reading after
+    its end, now shows in its mean and voids it (deutz two-point s9 cycle 145: +11.8 N m before, design note 76)."""
     nan = float("nan")
     if previous is None or not (math.isfinite(previous.energy) and math.isfinite(energy)):
         return nan, nan, nan, nan, None
