@@ -19,8 +19,11 @@ pressure_tdc.refined_by_speed) and each rival is refitted on top of it. The pair
 - the other rival's pair does not explain the held-out cycles within AMBIGUOUS_DCHI2 as well.
 
 The same pair is tried where a step ends with one explanation, an effect in a cylinder whose own TDC offset is a
-significant second (``beside_own_tdc``: the friction may be the TDC's stand-in), with that cylinder's TDC as the
-pressure reads it however small; and in every pair the TDC is refined again with the friction in place (the speed's
+significant second or whose pressure reads its TDC beyond SEED_SIGMAS (``beside_own_tdc``: the friction may be the
+TDC's stand-in), with that cylinder's TDC as the pressure reads it however small. Where that one explanation leaves
+nothing beyond the null but the pressure reads the TDC beyond SEED_SIGMAS, the TDC has evidence of its own and the
+pair is judged with the model's own error allowed for (its floored held-out chi^2 must fall by ``min_delta`` too);
+and in every pair the TDC is refined again with the friction in place (the speed's
 first refinement ran without it; design note 81). Otherwise nothing is added and the ambiguity stands. Not a joint Gauss-Newton fit of both: the TDC's value is the
 pressure's (its sigma enters the friction's by ``fit.polish``'s ``held``), the friction's the speed's on top of it.
 """
@@ -36,6 +39,7 @@ from frictionwatch.core.discrepancy.choice import (
     AMBIGUOUS_DCHI2,
     channel_worse,
     chi2,
+    chi2_floored,
     off_physics,
     pressure_worse,
     unphysical,
@@ -82,18 +86,22 @@ def own_tdc_reading(res: Residuals, cylinder: int) -> tuple[int, float, float] |
     return cylinder, float(res.tdc_deg[cylinder - 1]) - wheel, float(res.tdc_sigma_deg[cylinder - 1])
 
 
-def beside_own_tdc(t: Trial, confirmed_tdcs: list[str]) -> int | None:
+def beside_own_tdc(t: Trial, confirmed_tdcs: list[str], res: Residuals) -> int | None:
     """The cylinder of the step's one explanation ``t`` (no rival within AMBIGUOUS_DCHI2) where it is an effect
-    placed in a cylinder other than a TDC offset and that cylinder's TDC offset is a significant explanation too
-    (``confirmed_tdcs``: the labels of the step's significant confirmed TDC trials); else None. Both read one
-    cylinder's work: a TDC offset moves its indicated work, a friction there takes it, so a friction found there may
-    be the TDC's stand-in with the friction itself elsewhere (maruti 1500/0.5 s1: TDC 1.5 deg on 2, a worn ring on 3,
-    named ring_wear[2] 3.58; design note 81). The pair is then tried (``tdc_and_friction``) and its own tests
-    decide."""
+    placed in a cylinder other than a TDC offset and that cylinder's TDC is in question too: its TDC offset is a
+    significant explanation of the speed (``confirmed_tdcs``: the labels of the step's significant confirmed TDC
+    trials) or its pressure reads its TDC off beyond SEED_SIGMAS and SEED_MIN_DEG in the current model's run ``res``
+    (the threshold at which an ambiguous step tries the pair); else None. Both read one cylinder's work: a TDC offset
+    moves its indicated work, a friction there takes it, so a friction found there may be the TDC's stand-in with the
+    friction itself elsewhere (maruti 1500/0.5 s1: TDC 1.5 deg on 2, a worn ring on 3, named ring_wear[2] 3.58, the
+    TDC the speed's second; s3: the same, ring_wear[2] 3.39 +- 0.074 with no TDC among the speed's seconds while
+    the pressure read cylinder 2 at 1.49 +- 0.71 deg; design notes 81, 85). The pair is then tried
+    (``tdc_and_friction``) and its own tests decide."""
     c = t.candidate
     if c.effect == "tdc_offset" or not c.places_cylinder or c.cylinder is None:
         return None
-    return c.cylinder if f"tdc_offset[cyl {c.cylinder}]" in confirmed_tdcs else None
+    read = {k for k, _, _ in tdc_beyond(res, SEED_SIGMAS, SEED_MIN_DEG)}
+    return c.cylinder if f"tdc_offset[cyl {c.cylinder}]" in confirmed_tdcs or c.cylinder in read else None
 
 
 def tdc_and_friction(current: EngineModel, cur_res: Residuals, rivals: list[tuple[Trial, Residuals]],
@@ -116,7 +124,11 @@ def tdc_and_friction(current: EngineModel, cur_res: Residuals, rivals: list[tupl
     k, deg, sigma = max(seeds, key=lambda s: abs(s[1]) / s[2])  # the clearest reading: one pair per step
     spec = current.spec
     singles = [parts(r)[1] for _, r in rivals]
-    if not all(beyond_null(localise(h, spec, scale)) for h in singles):
+    # each alone must leave something beyond the model's own error (a second effect is not fitted to that error),
+    # except where the pressure itself reads this TDC (beyond SEED_SIGMAS and SEED_MIN_DEG): there the TDC has its own
+    # evidence and the pair is judged with the model-error floor in each feature's variance (``quiet`` below)
+    quiet = not all(beyond_null(localise(h, spec, scale)) for h in singles)
+    if quiet and not abs(deg) >= max(SEED_SIGMAS * sigma, SEED_MIN_DEG):
         return None, 0, "each alone leaves nothing beyond the model's own error"
     reading = PressureFinding("tdc_offset", k, "deg", deg, sigma,
                               f"the pressure reads TDC {deg:+.2f} +- {sigma:.2f} deg off (below the naming threshold; "
@@ -161,10 +173,14 @@ def tdc_and_friction(current: EngineModel, cur_res: Residuals, rivals: list[tupl
     best, t2, model2, res2, tdc_found, tdc_model, tdc_res = pairs[0]
     best_single = min(chi2(h, scale) + pressure(with_fit(current, t)) for (t, _), h in zip(rivals, singles,
                                                                                              strict=True))
+    floored_fall = (min(chi2_floored(h, scale, floor) for h in singles) - chi2_floored(parts(res2)[1], scale, floor)
+                    if quiet else np.inf)
     test_pair, test_cur = parts(res2)[1], parts(cur_res)[1]
     why = ("not significant against the current model" if not significant(res2) else
            f"held-out chi^2 {best:.4g} is not {min_delta:g} below one effect alone's ({best_single:.4g})"
            if best_single - best < min_delta else
+           f"with the model's own error allowed for, held-out chi^2 falls by {floored_fall:.3g} against one effect "
+           f"alone, not {min_delta:g}" if floored_fall < min_delta else
            channel_worse(test_cur, test_pair, scale) or channel_worse(min(singles, key=lambda h: chi2(h, scale)),
                                                                       test_pair, scale)
            or pressure_worse(pressure(current), pressure(model2), spec.n_cyl)
@@ -176,7 +192,8 @@ def tdc_and_friction(current: EngineModel, cur_res: Residuals, rivals: list[tupl
     if why:
         return None, runs, f"tdc_offset[cyl {k}] with {t2.candidate.label}: {why}"
     return (Pair(tdc_found, t2, model2, res2, tdc_model, tdc_res,
-                 f"held-out chi^2 {best:.4g} against {best_single:.4g} with one effect alone"), runs, "")
+                 f"held-out chi^2 {best:.4g} against {best_single:.4g} with one effect alone"
+                 + (f" ({floored_fall:.3g} lower with the model's own error allowed for)" if quiet else "")), runs, "")
 
 
 __all__ = ["POLISHED", "Pair", "beside_own_tdc", "own_tdc_reading", "tdc_and_friction"]

@@ -214,7 +214,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             _said_ambiguous(found, beyond, [said_where(c.candidate, model.spec.n_cyl) for c in (t, other)],
                             [c.separated_by for c in (t.candidate, other.candidate)], inside)
             break
-        own = beside_own_tdc(t, [c[1].candidate.label for c in confirmed[1:] if significant(c[3])])
+        own = beside_own_tdc(t, [c[1].candidate.label for c in confirmed[1:] if significant(c[3])], cur_res)
         if other is None and own is not None:  # a friction where the TDC of its cylinder explains much too (pair.py)
             pair, spent, found.pair_not_taken = tdc_and_friction(
                 current, cur_res, [(t, res)], full, parts, scale, floor, pressure, load_nm, opt.min_delta_chi2,
