@@ -369,6 +369,9 @@ def summarise(rows: list[dict]) -> dict:
     return {"rows": rows, "confusion": {k: dict(v) for k, v in confusion.items()},
             "passed": sum(r["pass"] is True for r in rows), "judged": sum(r["pass"] is not None for r in rows),
             "named_right": [sum(r["named_right"] for r in judged), len(judged)],
+            # the same with nothing else named beside the truth: named_right counts a row whose hidden effects are all
+            # named right even where a further effect (not hidden) is named too
+            "named_right_alone": [sum(r["named_right"] and _nothing_else_named(r) for r in judged), len(judged)],
             # design note 58: a one-point friction law also right when nothing is named and the verdict says a run
             # across speeds and loads would separate the laws; "strict": only where the outcome is ambiguous or
             # unexplained (not "nothing")
@@ -401,6 +404,14 @@ def _each_named_right(row: dict) -> bool:
     the rule): a row that names part of the truth and nothing else."""
     right = {(c["effect"], c["cylinder_found"]) for c in row.get("checks", []) if c["found"] and c["within_tol"]}
     return bool(row["all"]) and all(tuple(a) in right for a in row["all"])
+
+
+def _nothing_else_named(row: dict) -> bool:
+    """Whether every effect a row named is one of its hidden effects at its cylinder (a toggle's expected effect
+    counts as hidden): a named-right row that adds no effect the log does not hold."""
+    n_cyl = load_engine(row["engine"]).n_cyl if "engine" in row else 4
+    truth = [*((t["effect"], t.get("cylinder")) for t in row["truth"]), (EXPECT.get(row["case"]), None)]
+    return all(any(e == te and (tc is None or _same_place(e, c, tc, n_cyl)) for te, tc in truth) for e, c in row["all"])
 
 
 def table(rows: list[dict]) -> str:
