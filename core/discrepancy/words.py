@@ -141,7 +141,7 @@ def verdict(d) -> str:
     elif a and len(a["candidates"]) == 1:  # one effect, its cylinder not told
         text += (f"; {a['candidates'][0]} explains the rest, but the speed cannot tell which, so it was not "
                  "added" + (f": {'; or '.join(a['separated_by'])} would tell" if a["separated_by"] else ""))
-    elif a and a.get("channels"):  # two channels, two explanations (workflow._laws_across_points; note 65)
+    elif a and a.get("channels"):  # two channels, two explanations (across_points.laws_across_points; note 65)
         text += (f"; the channels disagree: {' and '.join(a['candidates'])}, and neither was added"
                  + (f": {'; or '.join(a['separated_by'])} would tell them apart" if a["separated_by"] else ""))
     elif a:

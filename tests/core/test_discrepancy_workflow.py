@@ -463,7 +463,7 @@ def test_a_friction_law_is_named_across_two_operating_points():
     Since the tooth learner skips the steps' settling cycles (note 60) the speed residual no longer carries the
     pattern they taught it, and the first step names the law itself: 0.916 +- 0.133 by the speed, runner-up the
     bearing law. Since the balance agrees with the speed there (design note 69's kinetic term), the step is sized by
-    the balance across the points (workflow._sized_by_balance; the speed's reading said beside it).
+    the balance across the points (across_points.sized_by_balance; the speed's reading said beside it).
     laws.py on made-up points: tests/core/test_discrepancy_parts.py."""
     from frictionwatch.core.discrepancy.words import ONE_POINT
 
