@@ -124,3 +124,21 @@ def test_one_row_through_the_channel_and_bad_use():
         ch.view("p", group.start - 1, group.end)
     with pytest.raises(ValueError):
         FrameGroup((1,), 10)
+
+
+@pytest.mark.parametrize("runs", [(1,), (3,), (8,), (9, 2), (17, 1, 5)])
+def test_the_typed_list_holds_every_filed_frame_once_in_order(runs):
+    """``_sync`` pads a short run to its one signature: the padding must not be appended (runs of 1, 3, 8 and
+    longer, across several syncs)."""
+    group = FrameGroup((1, 2), 10_000)
+    filed, t = [], 0.0
+    for n_run in runs:
+        for _ in range(n_run):
+            vals = np.full((2, 5), float(len(filed)))
+            group.add(t, 1.0, vals, 0)
+            filed.append(vals)
+            t += 5.0
+        frames = group.frames  # the sync
+        assert len(frames) == len(filed)
+        assert all(f is g or np.shares_memory(f, g) for f, g in zip(frames, filed, strict=True))
+        assert_array_equal([f[0, 0] for f in frames], np.arange(len(filed), dtype=float))
