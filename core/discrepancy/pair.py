@@ -129,7 +129,8 @@ def tdc_and_friction(current: EngineModel, cur_res: Residuals, rivals: list[tupl
     # evidence and the pair is judged with the model-error floor in each feature's variance (``quiet`` below)
     quiet = not all(beyond_null(localise(h, spec, scale)) for h in singles)
     if quiet and not abs(deg) >= max(SEED_SIGMAS * sigma, SEED_MIN_DEG):
-        return None, 0, "each alone leaves nothing beyond the model's own error"
+        return None, 0, (f"tdc_offset[cyl {k}] as the pressure reads it ({deg:+.2f} +- {sigma:.2f} deg) with a friction "
+                         "beside it: each alone leaves nothing beyond the model's own error")
     reading = PressureFinding("tdc_offset", k, "deg", deg, sigma,
                               f"the pressure reads TDC {deg:+.2f} +- {sigma:.2f} deg off (below the naming threshold; "
                               "taken with the friction beside it)")

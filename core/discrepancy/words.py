@@ -147,6 +147,8 @@ def verdict(d) -> str:
     elif a:
         text += (f"; {' and '.join(a['candidates'])} explain the rest equally well and neither was added"
                  + (f": {'; or '.join(a['separated_by'])} would tell them apart" if a["separated_by"] else ""))
+    if d.pair_not_taken:  # a TDC the pressure read beside the named effect or a rival, tried and not added (pair.py)
+        text += f"; tried and not added: {d.pair_not_taken}"
     if d.refused:
         text += f"; {len(d.refused)} significant candidate(s) refused (see refused)"
     if d.step_limit_reached:

@@ -197,6 +197,21 @@ def test_nothing_found_at_one_operating_point_says_what_that_cannot_show():
     assert not at([1500.0, 1800.0]).one_speed and ONE_SPEED not in at([1500.0, 1800.0]).verdict()
 
 
+def test_a_tdc_pair_tried_and_not_taken_is_said_in_the_verdict():
+    """Where the pair of a TDC the pressure read and a friction beside it was tried and not added (pair.py), the
+    verdict says what was tried and why not (it was in the JSON only: an operator reading the sentence saw a friction
+    named alone with no word of the TDC the pressure read in its cylinder)."""
+    from frictionwatch.core.discrepancy.discovery import Discovery
+
+    model = EngineModel.from_spec(load_engine("k9k-4cyl"))
+    final = {"significant_orders": [], "balance": {"significant": False, "mean_nm": 0.0}, "orders": []}
+    why = ("tdc_offset[cyl 2] as the pressure reads it (+1.21 +- 0.70 deg) with a friction beside it: each alone "
+           "leaves nothing beyond the model's own error")
+    tried = Discovery(model, model, [], 0.7, 0.7, {"operating_points": 2}, final, pair_not_taken=why)
+    assert f"tried and not added: {why}" in tried.verdict()
+    assert "tried and not added" not in Discovery(model, model, [], 0.7, 0.7, {"operating_points": 2}, final).verdict()
+
+
 def test_operating_points_are_grouped_at_jumps_of_load_or_speed_not_along_a_ramp():
     rng = np.random.default_rng(3)
     load = np.r_[np.full(50, 137.0), np.full(50, 80.0), np.full(40, 137.0)] + 0.5 * rng.standard_normal(140)
