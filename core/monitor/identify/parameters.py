@@ -85,15 +85,6 @@ class ParameterLayout:
     def coefficients(self, theta: np.ndarray) -> np.ndarray:
         return self.prior * np.asarray(theta)[self.group]
 
-    def collapse(self, per_coefficient: np.ndarray) -> np.ndarray:
-        """Sum a per-coefficient quantity (..., z, L), weighted by the prior, into parameters (..., P)."""
-        x = np.asarray(per_coefficient) * self.prior
-        out = np.zeros(x.shape[:-2] + (self.n_params,), dtype=x.dtype)
-        flat = x.reshape(x.shape[:-2] + (-1,))
-        for p in range(self.n_params):
-            out[..., p] = flat[..., self.group.ravel() == p].sum(axis=-1)
-        return out
-
     def cylinder_rows(self, basis_mean: np.ndarray) -> np.ndarray:
         """(z, P): d(mean friction of cylinder k)/d theta_p, given work means <F_kl> (z, L)."""
         z = self.group.shape[0]
@@ -185,7 +176,7 @@ def friction_design(layout: ParameterLayout, transfer: np.ndarray, basis_harm: n
     h = transfer[:, cylinder_node]  # (M, z)
     per_coef = -h.T[:, None, :] * basis_harm  # (z, L, M)
     z, n_terms, m = per_coef.shape
-    return (layout._collapse_matrix.T @ per_coef.reshape(z * n_terms, m)).T  # (M, P), = layout.collapse
+    return (layout._collapse_matrix.T @ per_coef.reshape(z * n_terms, m)).T  # (M, P): per coefficient, weighted by the prior, summed into its parameter
 
 
 def tooth_patterns(tooth_angle: np.ndarray, n_orders: int) -> np.ndarray:

@@ -102,32 +102,6 @@ class Posterior:
         return Posterior(self.params[:n], self.covariance[:n, :n], self.cov_statistical[:n, :n], self.chi2_reduced,
                          self.weight, self.cov_reference[:n, :n])
 
-    def data_gain(self, rows: np.ndarray) -> np.ndarray:
-        """1 - var_posterior / var_reference of linear functions rows (Q, P) @ params: the share of what is known
-        about them that the speed signal contributed (0: prior and mean balance only, 1: all from the speed)."""
-        r = np.atleast_2d(rows)
-        post = _quadratic_forms(r, self.cov_statistical)
-        ref = _quadratic_forms(r, self.cov_reference)
-        # a function the reference already pins down (e.g. a share of one cylinder) is not left to any prior
-        pinned = ref <= 1e-12 * max(float(np.max(ref, initial=0.0)), 1e-300) + 1e-300
-        return np.where(pinned, 1.0, np.clip(1.0 - post / np.maximum(ref, 1e-300), 0.0, 1.0))
-
-    def sigma_of(self, rows: np.ndarray) -> np.ndarray:
-        """1-sigma of linear functions rows (Q, P) @ params."""
-        r = np.atleast_2d(rows)
-        return np.sqrt(np.clip(_quadratic_forms(r, self.covariance), 0.0, None))
-
-    def diagonal_gain(self) -> np.ndarray:
-        """``data_gain(np.eye(P))`` from the diagonals alone."""
-        post = np.diag(self.cov_statistical)
-        ref = np.diag(self.cov_reference)
-        pinned = ref <= 1e-12 * max(float(np.max(ref, initial=0.0)), 1e-300) + 1e-300
-        return np.where(pinned, 1.0, np.clip(1.0 - post / np.maximum(ref, 1e-300), 0.0, 1.0))
-
-def _quadratic_forms(rows: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """r_q^T C r_q for every row r_q of rows (Q, P)."""
-    return np.einsum("qp,qp->q", rows @ cov, rows)
-
 
 def solve_posterior(acc: Accumulator, prior: Prior, sys_var: np.ndarray,
                     lower: float | np.ndarray = 0.0) -> Posterior:
