@@ -10,7 +10,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
-from frictionwatch.core.model.engine import EngineSpec, mep_per_torque
+from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.identify.parameters import ParameterLayout
 from frictionwatch.core.monitor.identify.posterior import Posterior
 from frictionwatch.core.monitor.report.results import FrictionEstimate
@@ -94,10 +94,10 @@ class ModelErrorFloor:
         tot_sig = math.sqrt(s_tot ** 2 + (self.indicated_rel * float(ind.sum())) ** 2 + excess2)
         resolved = est.resolved & (sig <= resolve_rel * np.abs(t_cyl))
         t_mean = np.where(resolved, est.friction_torque_mean, np.nan)
-        to_cyl = mep_per_torque(spec.displacement_cyl)
+        to_cyl = spec.mep_per_torque_cyl
         return replace(est, friction_torque_mean=t_mean, friction_torque_mean_sigma=sig, fmep=t_mean * to_cyl,
                        fmep_sigma=sig * to_cyl, resolved=resolved, total_friction_torque_sigma=tot_sig,
-                       total_fmep_sigma=tot_sig * mep_per_torque(spec.displacement))
+                       total_fmep_sigma=tot_sig * spec.mep_per_torque_engine)
 
 
 class CalibrationSensitivity(NamedTuple):
@@ -167,8 +167,8 @@ def with_calibration(est: FrictionEstimate, cal: Calibration, sens: CalibrationS
     var_cyl, var_tot = calibration_variance(cal, sens)
     sig = np.sqrt(est.friction_torque_mean_sigma ** 2 + var_cyl)
     tot_sig = math.sqrt(est.total_friction_torque_sigma ** 2 + var_tot)
-    return replace(est, friction_torque_mean_sigma=sig, fmep_sigma=sig * mep_per_torque(spec.displacement_cyl),
-                   total_friction_torque_sigma=tot_sig, total_fmep_sigma=tot_sig * mep_per_torque(spec.displacement),
+    return replace(est, friction_torque_mean_sigma=sig, fmep_sigma=sig * spec.mep_per_torque_cyl,
+                   total_friction_torque_sigma=tot_sig, total_fmep_sigma=tot_sig * spec.mep_per_torque_engine,
                    calibration=cal.status,
                    calibration_sigma=np.sqrt(var_cyl), total_calibration_sigma=math.sqrt(var_tot))
 
@@ -200,8 +200,8 @@ def friction_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
         float(limits.coefficient_snr), float(limits.min_data_gain))
     coef, coef_sig, norm, norm_sig = coef_table
     t_mean, t_sig, gain = cylinder_table
-    to_cyl = mep_per_torque(spec.displacement_cyl)
-    to_eng = mep_per_torque(spec.displacement)
+    to_cyl = spec.mep_per_torque_cyl
+    to_eng = spec.mep_per_torque_engine
     est = FrictionEstimate(
         friction_torque_mean=t_mean,
         friction_torque_mean_sigma=t_sig,
@@ -265,7 +265,7 @@ def reported_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
             rel2 = excess2 / t_tot ** 2 if t_tot > 0 else 0.0
             s_tot = math.sqrt(s_tot ** 2 + (ind_rel * float(ind.sum())) ** 2 + excess2)
     kinetic = sens.kinetic if math.isfinite(sens.kinetic) else 0.0
-    to_cyl, to_eng = mep_per_torque(spec.displacement_cyl), mep_per_torque(spec.displacement)
+    to_cyl, to_eng = spec.mep_per_torque_cyl, spec.mep_per_torque_engine
     settings = np.array([1.0 if floor_on else 0.0, ind_rel, rel2, resolve_rel, to_cyl,
                          cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2, cal.gain_sigma ** 2,
                          cal.gain_common_sigma ** 2, (cal.inertia_sigma * kinetic) ** 2])

@@ -77,10 +77,9 @@ class ParameterLayout:
         weights = np.zeros((g.size, p))
         weights[np.flatnonzero(used), g[used]] = np.asarray(self.prior, dtype=np.float64).ravel()[used]
         object.__setattr__(self, "_collapse_matrix", weights)  # (z*L, P): a0_kl where (k, l) is in group p
-
-    @property
-    def n_params(self) -> int:
-        return len(self.names)
+        # the parameter count P, a plain attribute (read ~7 times a cycle, from the balance, the report and here: as a
+        # property each read was a call into this file; design note 82)
+        object.__setattr__(self, "n_params", p)
 
     def coefficients(self, theta: np.ndarray) -> np.ndarray:
         return self.prior * np.asarray(theta)[self.group]
@@ -281,7 +280,7 @@ def motored_friction_per_cylinder(spec: EngineSpec, rpm: float, pmax_motored_pa:
     a, b, c, d = chen_flynn_bar
     cbar = 2.0 * spec.stroke * rpm / 60.0
     fmep_bar = a + b * pmax_motored_pa / 1e5 + c * cbar + d * cbar * cbar
-    return spec.mep_to_torque(fmep_bar * 1e5, cylinders=1)
+    return fmep_bar * 1e5 / spec.mep_per_torque_cyl  # spec.mep_to_torque(..., cylinders=1), its arithmetic
 
 
 def firing_mask(indicated_mean: np.ndarray, fraction: float = 0.15) -> np.ndarray:

@@ -35,7 +35,7 @@ from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
-from frictionwatch.core.model.engine import EngineSpec, mep_per_torque
+from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.identify.accumulate import Accumulator
 from frictionwatch.core.monitor.identify.posterior import Posterior
 from frictionwatch.core.monitor.identify.spd import spd_inverse, spd_inverse_lower
@@ -235,6 +235,6 @@ def with_pull(est: FrictionEstimate, sigma: np.ndarray, resolve_rel: float, spec
     t_cyl = np.where(np.isfinite(est.friction_torque_mean), est.friction_torque_mean, est.prior_friction_torque_mean)
     resolved = est.resolved & (before_cal <= resolve_rel * np.abs(t_cyl))
     t_mean = np.where(resolved, est.friction_torque_mean, np.nan)
-    to_cyl = mep_per_torque(spec.displacement_cyl)
+    to_cyl = spec.mep_per_torque_cyl
     return replace(est, friction_torque_mean=t_mean, friction_torque_mean_sigma=sig, fmep=t_mean * to_cyl,
                    fmep_sigma=sig * to_cyl, resolved=resolved, pulled=est.resolved & ~resolved)
