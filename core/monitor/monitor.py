@@ -182,9 +182,9 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     prev = state.previous_of(int(cycle.tooth_ticks[0]))
     weights = state.energy_weights if state.energy_weights is not None and state.energy_weights.fits(cycle) \
         else energy_weights(spec, cycle.tooth_angle)
-    energy = cycle_energy(cycle, weights)
     geometry = (state.grid_geometry if state.grid_geometry is not None and state.grid_geometry.fits(cycle.grid)
                 else grid_geometry(spec, cycle.grid))
+    energy = cycle_energy(cycle, weights)
     balance, kinetic, accel, t_window, imep_c = transient_balance(spec, cycle, pressure, exc.indicated_mean,
                                                                   energy, prev, load, coupling_loss, geometry,
                                                                   early)

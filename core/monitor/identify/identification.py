@@ -147,6 +147,7 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
                         sys_var=np.concatenate([white.sys_var[:-1], sys2, white.sys_var[-1:]]))
     terms, acc, budget = accumulate_cycle(state.accumulator, white, lam, state.cycles >= cfg.warmup_cycles,
                                           state.params, cfg.model_rel_error, fly.harmonics)
+    acc_c = Accumulator.of_terms(terms)  # this cycle's equations alone
 
     # running means of the sharing prior of the smoothed estimate
     g = max(1.0 - lam, 1.0 / (state.cycles + 1))
@@ -166,9 +167,10 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     share_c = share_mean_loss(balance if math.isfinite(balance) else bal_mean, t_i, motored, cfg.share_spread)
     layout = state.layout
     cyl_rows = rows.cylinder_rows[:, :layout.n_params]  # the friction parameters' part
-    post_s = posterior_from_normal(acc, *state.prior.with_share(cyl_rows, share_s), budget, state.lower)
-    acc_c = Accumulator.of_terms(terms)
-    post_c = posterior_from_normal(acc_c, *state.prior.with_share(cyl_rows, share_c), white.sys_var, state.lower)
+    # both priors, then both posteriors (independent: in this order each stage's file is entered once)
+    prior_s, prior_c = state.prior.with_share(cyl_rows, share_s), state.prior.with_share(cyl_rows, share_c)
+    post_s = posterior_from_normal(acc, *prior_s, budget, state.lower)
+    post_c = posterior_from_normal(acc_c, *prior_c, white.sys_var, state.lower)
     limits = ReportLimits(cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain)
     floor, bal_sigma = cfg.model_error_floor, math.sqrt(white.stats.balance_var)
     misfit = state.condition.misfit if state.condition is not None else 1.0  # the window up to the last cycle
