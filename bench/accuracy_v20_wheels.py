@@ -8,7 +8,7 @@ the preset's text plus a 120-1 wheel at the front hub) under bench.accuracy_v20_
 short run (``--dwell-s`` at each set-point, ``--ramp`` % of rated per minute). The same records go to three pipelines
 (service.pipeline.EnginePipeline): "one_wheel" told of no second wheel (its records ignored), "two_wheels" the
 default path with both (the second wheel's own speed and tooth learning; the estimates are one_wheel's), "joint"
-with the joint fit asked for (MonitorConfig(second_wheel=True): core.monitor.identify.free_end_rows). Checkpoints as bench.accuracy_v20_long's (truth = the mean of each
+with the joint fit asked for (MonitorConfig(second_wheel=True): core.monitor.identify.noise_model). Checkpoints as bench.accuracy_v20_long's (truth = the mean of each
 cylinder's true friction over the last 200 cycles) to bench/accuracy_v20_wheels.json; ``pipeline_ms_per_cycle`` is
 the whole pipeline (assembler, monitor, watches) per cycle on this machine, real time being 80 ms a cycle.
 """

@@ -32,7 +32,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 from frictionwatch.core.model.engine import load_engine  # noqa: E402
 from frictionwatch.core.monitor.identify import pull_check as pc  # noqa: E402
-from frictionwatch.core.monitor.identify.accumulate import spd_inverse  # noqa: E402
+from frictionwatch.core.monitor.identify.spd import spd_inverse  # noqa: E402
 from frictionwatch.core.monitor.pipeline import CyclePipeline  # noqa: E402
 from frictionwatch.core.plant.simulate import simulate  # noqa: E402
 

@@ -31,7 +31,7 @@ import numpy as np
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import kinematics
 from frictionwatch.core.monitor.balance.harmonic_balance import harmonic_balance, operating_point
-from frictionwatch.core.monitor.identify.priors import prior_normal
+from frictionwatch.core.monitor.identify.parameters import prior_normal
 from frictionwatch.core.monitor.monitor import CycleRejected
 from frictionwatch.core.monitor.pipeline import CyclePipeline
 from frictionwatch.core.monitor.state import MonitorConfig

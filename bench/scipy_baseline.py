@@ -12,10 +12,10 @@ Same method, same inputs, plain tools (paper 000 Fig. 7a; physics.md §10-11):
   the mean torque imbalance, and a free shaft line (dyno) is re-tuned each cycle, so the mean speed is the measured
   one (the monitor takes the mean from the measurement and leaves the mean balance to its Eq. 7 row);
 - identification: ``scipy.optimize.least_squares`` (trf, bounds theta >= 0, 2-point finite-difference Jacobian) over
-  the grouped scales theta of core.monitor.identify.layout.parameter_layout; residual = whitened harmonics (orders <= the monitor's
+  the grouped scales theta of core.monitor.identify.parameters.parameter_layout; residual = whitened harmonics (orders <= the monitor's
   limit) of measured minus modelled flywheel speed on the grid, the in-band tooth-error nuisances of the monitor
   (linear, so eliminated in closed form), the mean-balance row (paper 000 Eq. 7) and the monitor's priors (weak
-  theta ~ 1, siblings, Eq. 6 sharing; core.monitor.identify.priors, core.monitor.identify.sharing);
+  theta ~ 1, siblings, Eq. 6 sharing; core.monitor.identify.parameters, core.monitor.identify.parameters);
 - outer loop as paper 000 Fig. 7a: share the mean loss (with the model's damper/coupling dissipation), identify,
   re-simulate until periodic, until the shares and the modelled speed stop moving.
 
@@ -34,9 +34,14 @@ import numpy as np
 from frictionwatch.core.model.dynamics import shaft_model
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.indicated import peak_pressure
-from frictionwatch.core.monitor.identify.layout import ParameterLayout, parameter_layout
-from frictionwatch.core.monitor.identify.priors import build_priors
-from frictionwatch.core.monitor.identify.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
+from frictionwatch.core.monitor.identify.parameters import (
+    ParameterLayout,
+    build_priors,
+    firing_mask,
+    motored_friction_per_cylinder,
+    parameter_layout,
+    share_mean_loss,
+)
 from scipy.integrate import solve_ivp
 from scipy.optimize import least_squares
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.identify.layout import tooth_patterns
+from frictionwatch.core.monitor.identify.parameters import tooth_patterns
 from frictionwatch.core.monitor.teeth.flywheel import fit_flywheel, harmonic_series
 from frictionwatch.core.types import Cycle
 
@@ -19,7 +19,7 @@ class MeasuredCycle:
     """What the baseline takes from one assembled cycle: mean speed, the flywheel speed on the crank-angle grid
     (band-limited to ``n_harmonics``, drift removed), pressure and load, and how an in-band tooth-spacing error
     moves the measured speed harmonics (``tooth_columns`` (M, 2 n_orders) complex, per rad of each cos/sin pattern,
-    core.monitor.identify.layout.tooth_patterns: fixed in angle, such errors look like engine response at integer orders)."""
+    core.monitor.identify.parameters.tooth_patterns: fixed in angle, such errors look like engine response at integer orders)."""
 
     omega: float  # rad/s
     period: float  # s

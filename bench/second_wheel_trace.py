@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.monitor.identify import identification
-from frictionwatch.core.monitor.identify.estimate_kernels import cylinder_kernel
+from frictionwatch.core.monitor.identify.estimate import cylinder_kernel
 from frictionwatch.core.monitor.identify.pull_check import PullCheck, data_only_pull
 from frictionwatch.core.monitor.report.figure_status import friction_status
 from frictionwatch.core.monitor.state import MonitorConfig

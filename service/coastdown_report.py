@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from frictionwatch.core.monitor.balance.transient import transient_friction
 from frictionwatch.core.monitor.calibration.inertia import INERTIA_UNCALIBRATED_REL
-from frictionwatch.core.monitor.identify.identification import LOAD_STEP_FRACTION, mid_cycle_inertia
+from frictionwatch.core.monitor.identify.mean_balance import LOAD_STEP_FRACTION, mid_cycle_inertia
 from frictionwatch.service.pipeline import LogAnalysis
 
 RPM_PER_RAD_S = 30.0 / np.pi

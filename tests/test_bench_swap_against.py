@@ -46,23 +46,23 @@ def test_a_module_the_other_checkout_lacks_is_refused(tmp_path):
 
 def test_a_name_imported_by_value_is_swapped_where_it_is_read(tmp_path):
     """``reader:f=defining_module``: the reader's global ``f`` set to the base's ``f`` of the defining module's file
-    (core.monitor.monitor reads transient_balance, imported from identification by value); the defining module
+    (core.monitor.monitor reads transient_balance, imported from mean_balance by value); the defining module
     itself is not touched."""
     from frictionwatch.core.monitor import monitor
-    from frictionwatch.core.monitor.identify import identification
+    from frictionwatch.core.monitor.identify import mean_balance
 
-    rel = "core/monitor/identify/identification.py"
+    rel = "core/monitor/identify/mean_balance.py"
     (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
     shutil.copy(ROOT / rel, tmp_path / rel)
     this = monitor.transient_balance
     table = swaps(tmp_path, ["frictionwatch.core.monitor.monitor:transient_balance="
-                             "frictionwatch.core.monitor.identify.identification"])
+                             "frictionwatch.core.monitor.identify.mean_balance"])
     try:
         _use(table, True)
         assert monitor.transient_balance is not this
         assert monitor.transient_balance.__module__ != this.__module__
         assert monitor.transient_balance.__code__.co_filename == str(tmp_path / rel)
-        assert identification.transient_balance is this
+        assert mean_balance.transient_balance is this
     finally:
         _use(table, False)
     assert monitor.transient_balance is this

@@ -136,29 +136,25 @@ class EngineSpec:
     source_text: str = field(default="", repr=False, compare=False)
 
     # ---- derived quantities -------------------------------------------------------------------------------
-    @property
-    def n_cyl(self) -> int:
-        return int(self.firing_angles.shape[0])
-
-    @property
-    def n_nodes(self) -> int:
-        return int(self.node_inertia.shape[0])
+    # Made once, at construction, from what cannot change (floats of a frozen record, array shapes), and plain
+    # attributes rather than properties: the monitor reads them ~40 times a cycle, and as properties each read was
+    # a call back into this file (design note 82). Not fields: equality, repr, asdict and replace see the record as
+    # before (replace makes them again). n_cyl, n_nodes; piston_area [m^2]; displacement_cyl, displacement [m^3]
+    # (one cylinder's swept volume, the engine's); mep_per_torque_cyl, mep_per_torque_engine [Pa per N m]:
+    # mep_per_torque of those two volumes.
+    def __post_init__(self) -> None:
+        put = object.__setattr__  # a frozen record: its derived constants are set once, at construction
+        put(self, "n_cyl", int(self.firing_angles.shape[0]))
+        put(self, "n_nodes", int(self.node_inertia.shape[0]))
+        put(self, "piston_area", math.pi * self.bore**2 / 4.0)
+        put(self, "displacement_cyl", self.piston_area * self.stroke)
+        put(self, "displacement", self.displacement_cyl * self.n_cyl)
+        put(self, "mep_per_torque_cyl", mep_per_torque(self.displacement_cyl))
+        put(self, "mep_per_torque_engine", mep_per_torque(self.displacement))
 
     @property
     def crank_radius(self) -> float:
         return 0.5 * self.stroke
-
-    @property
-    def piston_area(self) -> float:
-        return math.pi * self.bore**2 / 4.0
-
-    @property
-    def displacement_cyl(self) -> float:
-        return self.piston_area * self.stroke
-
-    @property
-    def displacement(self) -> float:
-        return self.displacement_cyl * self.n_cyl
 
     @property
     def clearance_volume(self) -> float:

@@ -343,7 +343,7 @@ def loaded_bearings_kernel(s, c, out):
 def rezeka_henein(coefficients: np.ndarray | None = None) -> TermLibrary:
     """The six Rezeka-Henein terms, in the paper's order. ``coefficients`` (one per term): their priors (default 0: the engine
     spec carries its own, ``EngineSpec.friction.coefficients``). Ring and skirt terms are scaled per cylinder by
-    default (the group ring wear changes), valve train, auxiliaries and bearings engine-wide (core.monitor.identify.layout)."""
+    default (the group ring wear changes), valve train, auxiliaries and bearings engine-wide (core.monitor.identify.parameters)."""
     spec = [
         ("ring_viscous", "sqrt(mu |c| (P_e + p) e) pi D (n_o + 0.4 n_c) |x'|", "cylinder", "-",
          ring_viscous_kernel, ring_viscous_reference),

@@ -19,9 +19,9 @@ Per cycle:
    motion (warm start), refreshed once on the first cycle (physics.md §12.3: one refresh is enough).
 4. Mean balance T_fM = T_iM - T_LM - modelled damper/coupling dissipation - d/dt(1/2 J w^2)/w (physics.md §6, §12.4)
    over the window centred on cylinder 1's firing TDC, from this cycle and the one before (two measured mid-cycle
-   speeds, no drift fitted: core.monitor.identify.identification.transient_balance); IMEP over each cylinder's own window.
+   speeds, no drift fitted: core.monitor.identify.mean_balance.transient_balance); IMEP over each cylinder's own window.
 5. The cycle's own speed drift is a per-cycle random effect (never accumulated); the whitened equations are
-   accumulated with forgetting and solved with the priors (core.monitor.identify.priors) and params >= 0, per cycle and smoothed
+   accumulated with forgetting and solved with the priors (core.monitor.identify.parameters) and params >= 0, per cycle and smoothed
    (core.monitor.identify.accumulate); reported with honest sigmas and resolved flags (core.monitor.identify.estimate, core.monitor.report.cycle_report).
 """
 
@@ -41,19 +41,23 @@ from frictionwatch.core.monitor.checks.check import Check, CheckInput
 from frictionwatch.core.monitor.checks.condition import ConditionCheck
 from frictionwatch.core.monitor.checks.ring_pressure import ThrowMotion
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthCheck, SensorHealthState, corrected_inputs
-from frictionwatch.core.monitor.identify.accumulate import Accumulator, ResidualStats
-from frictionwatch.core.monitor.identify.estimate import indicated_tdc_sensitivity
-from frictionwatch.core.monitor.identify.free_end_rows import free_end_whitened, half_order_rows, no_free_end_rows
-from frictionwatch.core.monitor.identify.identification import (
+from frictionwatch.core.monitor.identify.accumulate import Accumulator
+from frictionwatch.core.monitor.identify.identification import identify_cycle
+from frictionwatch.core.monitor.identify.mean_balance import (
     MeanBalance,
     cycle_energy,
     energy_weights,
     grid_geometry,
-    identify_cycle,
+    indicated_tdc_sensitivity,
     transient_balance,
 )
-from frictionwatch.core.monitor.identify.layout import parameter_layout
-from frictionwatch.core.monitor.identify.priors import prior_normal
+from frictionwatch.core.monitor.identify.noise_model import (
+    ResidualStats,
+    free_end_whitened,
+    half_order_rows,
+    no_free_end_rows,
+)
+from frictionwatch.core.monitor.identify.parameters import parameter_layout, prior_normal
 from frictionwatch.core.monitor.report.cycle_report import StageReport, build_result
 from frictionwatch.core.monitor.report.report_kernels import trig_tables
 from frictionwatch.core.monitor.report.results import ChainSample, CycleResult
@@ -178,9 +182,9 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     prev = state.previous_of(int(cycle.tooth_ticks[0]))
     weights = state.energy_weights if state.energy_weights is not None and state.energy_weights.fits(cycle) \
         else energy_weights(spec, cycle.tooth_angle)
-    energy = cycle_energy(cycle, weights)
     geometry = (state.grid_geometry if state.grid_geometry is not None and state.grid_geometry.fits(cycle.grid)
                 else grid_geometry(spec, cycle.grid))
+    energy = cycle_energy(cycle, weights)
     balance, kinetic, accel, t_window, imep_c = transient_balance(spec, cycle, pressure, exc.indicated_mean,
                                                                   energy, prev, load, coupling_loss, geometry,
                                                                   early)

@@ -13,10 +13,10 @@ from frictionwatch.core.monitor.balance.harmonic_balance import OperatingPoint
 from frictionwatch.core.monitor.checks.change import ChangeDetector
 from frictionwatch.core.monitor.checks.ring_pressure import RingTables
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig, SensorHealthState
-from frictionwatch.core.monitor.identify.accumulate import Accumulator, ResidualStats
+from frictionwatch.core.monitor.identify.accumulate import Accumulator
 from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
-from frictionwatch.core.monitor.identify.layout import ParameterLayout
-from frictionwatch.core.monitor.identify.priors import PriorNormal
+from frictionwatch.core.monitor.identify.noise_model import ResidualStats
+from frictionwatch.core.monitor.identify.parameters import ParameterLayout, PriorNormal
 from frictionwatch.core.monitor.identify.pull_check import PullCheck
 from frictionwatch.core.monitor.report.report_kernels import TrigTables
 from frictionwatch.core.monitor.teeth.flywheel import LearnerSettings, ToothLearner
@@ -42,7 +42,7 @@ class MonitorConfig:
     Against 256: per-cylinder errors within 0.5 points (K9K, Maruti; V20 within its sigma), total FMEP within 0.1
     point, deutz NRMSE within 0.5 point; 128 shifted the K9K total by up to -0.25 point (the friction terms' sharp
     features alias into the band), 512 moved nothing beyond noise
-    scheme, prior_coefficients: parameter grouping and baseline a0 (core.monitor.identify.layout.parameter_layout)
+    scheme, prior_coefficients: parameter grouping and baseline a0 (core.monitor.identify.parameters.parameter_layout)
     forgetting: per-cycle factor of the accumulated equations, 1 - 1/N_window (None: from ``forgetting_time_s``)
     forgetting_time_s: time constant [s of running] of the accumulated equations, sized to the wear time scale: the
     window is N_window = max(400, 100 z, tau / T_cycle) cycles (more cylinders need more cycles, physics.md §12.5;
@@ -60,10 +60,10 @@ class MonitorConfig:
     resolve_rel: a per-cylinder mean is reported when its 1-sigma is at most this fraction of it
     coefficient_snr: a coefficient is reported when it exceeds this many sigmas
     min_data_gain: ... and either only when the speed signal, not the priors, gave at least this share of what is
-    known about it (core.monitor.identify.accumulate.Posterior.data_gain; for a cylinder: its deviation from the equal share)
+    known about it (core.monitor.identify.posterior.Posterior.data_gain; for a cylinder: its deviation from the equal share)
     passes: harmonic-balance passes per cycle; rebuild_tolerance: relative Omega change that rebuilds Z^-1
     tooth_nuisance: carry the in-band tooth-spacing error (integer orders) as accumulated nuisance parameters with
-    a prior from ``tooth_error_deg``, the expected rms per-tooth angle error (core.monitor.identify.layout.tooth_patterns)
+    a prior from ``tooth_error_deg``, the expected rms per-tooth angle error (core.monitor.identify.parameters.tooth_patterns)
     variable_inertia: model J(theta) and the mass torque (off only to analyse a plant without them)
     learn_teeth: learn the out-of-band tooth pattern from the fit residuals (core.monitor.teeth.flywheel.ToothLearner) with EWMA
     factor ``tooth_memory``; the fit is repeated with the fresh correction for the first ``tooth_refit_cycles``
@@ -132,7 +132,7 @@ class MonitorConfig:
     # fraction of the measured mean load torque (where the amplitude is 0), engine order, phase [rad]; zeros: none
     load_ripple: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     # the joint fit of both wheels: the second wheel's half-order speed equations accumulated with the flywheel's
-    # (core.monitor.identify.free_end_rows; its node: the engine file's [sensors.second_wheel]). Off by default.
+    # (core.monitor.identify.noise_model; its node: the engine file's [sensors.second_wheel]). Off by default.
     # Since its rows are weighted by their repeatable error (design note 35) it measures as many genset-v20 cylinders
     # as one wheel or a few more, but not more of them right (note 38; +-20 % profile, within 5 % and 2 sigma at
     # 4,000 cycles: seeds 29 / 31 / 37 / 43 joint 12 / 13 / 15 / 12, one wheel 10 / 15 / 15 / 12; the issue's 16 not
@@ -240,7 +240,7 @@ class PreviousCycle(NamedTuple):
     """What the next cycle's balance needs of the last analysed one: the ticks of its first and last tooth edges (it
     is the cycle just before only if the next one's first edge lies after its first and at or before its last:
     consecutive cycles share their boundary edges, core.types.Cycle; a stream index may be renumbered after a lost
-    sync), pressure (z, n) [Pa], angle-averaged kinetic energy [J] (core.monitor.identify.identification.cycle_energy),
+    sync), pressure (z, n) [Pa], angle-averaged kinetic energy [J] (core.monitor.identify.mean_balance.cycle_energy),
     measured load [N m], indicated torque [N m] (the cylinders' work means over its own window, summed:
     Excitation.indicated_mean), coupling loss [N m] and load_late [N m] its load under the rising half of the
     balance's triangle (core.types.Cycle.load_late with the load's ripple work; not given: ``load``)."""
@@ -256,13 +256,13 @@ class PreviousCycle(NamedTuple):
 
 
 class GridGeometry(NamedTuple):
-    """What the cycles' crank-angle grid fixes once (core.monitor.identify.identification.grid_geometry): the grid's first
+    """What the cycles' crank-angle grid fixes once (core.monitor.identify.mean_balance.grid_geometry): the grid's first
     angle [rad] and size (a cycle on another grid makes it anew), every cylinder's piston displacement on it
     positions (z, n) [m], J(theta = 2 pi) [kg m^2] and each piston's x'' (z, n) [m/rad^2] (the indicated work's
-    sensitivity to a TDC error, core.monitor.identify.estimate.indicated_tdc_sensitivity); the transient balance's
+    sensitivity to a TDC error, core.monitor.identify.mean_balance.indicated_tdc_sensitivity); the transient balance's
     window starts (core.model.indicated.window_starts): window_starts (1, z) of each cylinder's own firing window in
     [previous | current], alone_starts (1, z) of the cycle's own closed loop, and its triangle's weights
-    triangle_previous, triangle_current (z, n) [m^2/rad] (core.monitor.identify.identification.triangle_weights)
+    triangle_previous, triangle_current (z, n) [m^2/rad] (core.monitor.identify.mean_balance.triangle_weights)
     (None: made by the balance)."""
 
     first_angle: float
@@ -281,7 +281,7 @@ class GridGeometry(NamedTuple):
 
 class EnergyWeights(NamedTuple):
     """What a cycle's angle-averaged kinetic energy weighs its tooth intervals' 1 / dt^2 by, fixed by the edges'
-    nominal angles (core.monitor.identify.identification.energy_weights): the cycle's edge angles (m,) [rad] they
+    nominal angles (core.monitor.identify.mean_balance.energy_weights): the cycle's edge angles (m,) [rad] they
     were made for and the weights (m - 1,) [kg m^2 rad^2]."""
 
     tooth_angle: np.ndarray
@@ -314,7 +314,7 @@ class MonitorState:
     balance_mean: float
     indicated_mean: np.ndarray
     cycles: int
-    prior: PriorNormal  # normal equations of the fixed priors (core.monitor.identify.priors)
+    prior: PriorNormal  # normal equations of the fixed priors (core.monitor.identify.parameters)
     lower: np.ndarray  # lower bounds of the parameters: 0 for the friction scales, -inf (free) for the nuisances
     report_tables: TrigTables  # cos/sin tables of the result's speed series (core.monitor.report.report_kernels)
     prev_omega: float = float("nan")

@@ -1,4 +1,4 @@
-"""One cycle's normal-equation terms and their fold (core.monitor.identify.accumulate_kernels behind Accumulator.cycle_terms / fold)
+"""One cycle's normal-equation terms and their fold (core.monitor.identify.accumulate behind Accumulator.cycle_terms / fold)
 against the numpy code they replace (kept here verbatim as ``_cycle_terms_reference`` / ``_fold_reference``).
 
 Sizes: genset-v20 R=49 rows (2 x 24 harmonics + the mean balance) by P=47 parameters; k9k-4cyl 47 x 29,
@@ -9,8 +9,7 @@ the largest entry (a few roundings of a 49-term sum), and exactly symmetric.
 
 import numpy as np
 import pytest
-from frictionwatch.core.monitor.identify.accumulate import Accumulator, CycleTerms
-from frictionwatch.core.monitor.identify.accumulate_kernels import cycle_terms_kernel
+from frictionwatch.core.monitor.identify.accumulate import Accumulator, CycleTerms, cycle_terms_kernel
 from numpy.testing import assert_allclose, assert_array_equal
 
 SIZES = {"genset-v20": (49, 47), "k9k-4cyl": (47, 29), "deutz-1cyl": (47, 28)}
@@ -136,7 +135,7 @@ def test_bad_shapes_raise():
 @pytest.mark.parametrize("engine", sorted(SIZES))
 def test_fold_with_raw_rows_matches_numpy_bit_for_bit(engine):
     """The fold with raw rows kept: numpy's raw sums lam * old + new, the same for Fortran-ordered raw rows, over
-    cycles; bad raw shapes raise. (The monitor's every cycle folds in accumulate_kernels.cycle_step_kernel:
+    cycles; bad raw shapes raise. (The monitor's every cycle folds in accumulate.cycle_step_kernel:
     tests/core/test_identify_fused.py.)"""
     r, p = SIZES[engine]
     rng = np.random.default_rng(r + p)

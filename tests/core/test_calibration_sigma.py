@@ -27,8 +27,8 @@ from frictionwatch.core.monitor.identify.estimate import (
     CalibrationSensitivity,
     calibration_variance,
     calibration_variance_reference,
-    indicated_tdc_sensitivity,
 )
+from frictionwatch.core.monitor.identify.mean_balance import indicated_tdc_sensitivity
 from frictionwatch.service.cli import main
 from frictionwatch.service.pipeline import analyze_log
 from numpy.testing import assert_allclose

@@ -14,7 +14,8 @@ from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import kinematics
 from frictionwatch.core.monitor.checks.change import ChangeSettings, detect_change
 from frictionwatch.core.monitor.checks.condition import DEFAULT_SETTINGS, compression_rise, sibling_deviation
-from frictionwatch.core.monitor.identify.accumulate import Accumulator, Prior, solve_posterior
+from frictionwatch.core.monitor.identify.accumulate import Accumulator
+from frictionwatch.core.monitor.identify.posterior import Prior, solve_posterior
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.pipeline import run
 from numpy.testing import assert_allclose

@@ -26,7 +26,8 @@ from frictionwatch.core.monitor.checks.condition import (
 )
 from frictionwatch.core.monitor.checks.condition_kernels import levels_kernel, median_without, numpy_sum, window_kernel
 from frictionwatch.core.monitor.checks.ring_pressure import ring_indicators, ring_indicators_reference, ring_tables
-from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterior
+from frictionwatch.core.monitor.identify.accumulate import Accumulator
+from frictionwatch.core.monitor.identify.posterior import Posterior
 from numpy.testing import assert_allclose, assert_array_equal
 
 ENGINES = ("deutz-1cyl", "maruti-3cyl", "k9k-4cyl", "genset-v20")

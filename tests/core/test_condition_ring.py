@@ -96,7 +96,8 @@ def test_the_misfit_statistic_counts_only_the_parameters_the_data_determine():
     """10 rows, 8 parameters, 6 of them held by tight priors (a genset-v20 cycle: 49 rows, 47 parameters): the
     posterior's chi^2 / (rows - P) reads ~4 on a right model; over rows - tr(H) it reads ~1."""
     from frictionwatch.core.monitor.checks.condition import cycle_chi2_reduced
-    from frictionwatch.core.monitor.identify.accumulate import Accumulator, Prior, solve_posterior
+    from frictionwatch.core.monitor.identify.accumulate import Accumulator
+    from frictionwatch.core.monitor.identify.posterior import Prior, solve_posterior
 
     rng = np.random.default_rng(8)
     rows, p = 10, 8

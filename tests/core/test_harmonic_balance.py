@@ -23,7 +23,7 @@ from frictionwatch.core.model.terms import cylinder_samples_reference, rezeka_he
 from frictionwatch.core.model.torques import gas_torque, reciprocating_torque
 from frictionwatch.core.monitor.balance.excitation import CRANKCASE_PA, Excitation
 from frictionwatch.core.monitor.balance.harmonic_balance import harmonic_balance, operating_point
-from frictionwatch.core.monitor.identify.layout import friction_design, parameter_layout
+from frictionwatch.core.monitor.identify.parameters import friction_design, parameter_layout
 from frictionwatch.core.monitor.monitor import default_max_order
 from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion, harmonic_series, harmonics_of
 from numpy.testing import assert_allclose

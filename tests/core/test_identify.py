@@ -8,9 +8,17 @@ import scipy.optimize
 from frictionwatch.core.model.dynamics import receptance, shaft_model
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
-from frictionwatch.core.monitor.identify.accumulate import Accumulator, Prior, ResidualStats, solve_posterior
-from frictionwatch.core.monitor.identify.layout import bounded_solve, friction_design, p_omega_fit, parameter_layout
-from frictionwatch.core.monitor.identify.sharing import firing_mask, motored_friction_per_cylinder, share_mean_loss
+from frictionwatch.core.monitor.identify.accumulate import Accumulator
+from frictionwatch.core.monitor.identify.bounded_solve import bounded_solve, p_omega_fit
+from frictionwatch.core.monitor.identify.noise_model import ResidualStats
+from frictionwatch.core.monitor.identify.parameters import (
+    firing_mask,
+    friction_design,
+    motored_friction_per_cylinder,
+    parameter_layout,
+    share_mean_loss,
+)
+from frictionwatch.core.monitor.identify.posterior import Prior, solve_posterior
 from numpy.testing import assert_allclose
 
 

@@ -8,9 +8,13 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from frictionwatch.core.monitor.identify.accumulate import Accumulator, ResidualStats
-from frictionwatch.core.monitor.identify.accumulate_kernels import cycle_step_kernel
-from frictionwatch.core.monitor.identify.identification import accumulate_cycle, accumulate_cycle_reference
+from frictionwatch.core.monitor.identify.accumulate import (
+    Accumulator,
+    accumulate_cycle,
+    accumulate_cycle_reference,
+    cycle_step_kernel,
+)
+from frictionwatch.core.monitor.identify.noise_model import ResidualStats
 from numpy.testing import assert_allclose
 
 SIZES = {"k9k-4cyl": (47, 29), "genset-v20": (49, 47)}

@@ -8,12 +8,17 @@ and for nothing else. Masks and interpolation (no sums) are compared exactly."""
 import numpy as np
 import pytest
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.identify.accumulate import Posterior, ResidualStats
 from frictionwatch.core.monitor.identify.estimate import ReportLimits, friction_estimate
-from frictionwatch.core.monitor.identify.layout import CycleRows, parameter_layout
-from frictionwatch.core.monitor.identify.noise_model import NoiseSettings, whitened_rows
-from frictionwatch.core.monitor.identify.priors import PriorNormal
-from frictionwatch.core.monitor.identify.sharing import SharedLoss, firing_mask, share_mean_loss
+from frictionwatch.core.monitor.identify.noise_model import NoiseSettings, ResidualStats, whitened_rows
+from frictionwatch.core.monitor.identify.parameters import (
+    CycleRows,
+    PriorNormal,
+    SharedLoss,
+    firing_mask,
+    parameter_layout,
+    share_mean_loss,
+)
+from frictionwatch.core.monitor.identify.posterior import Posterior
 from frictionwatch.core.monitor.report.report_kernels import report_traces, rows_on_grid, speed_power, speed_residual
 from frictionwatch.core.monitor.report.results import FrictionEstimate
 from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion

@@ -43,9 +43,9 @@ def test_the_folder_under_numba_cache_dir_or_the_user_cache() -> None:
 
 def test_a_kernel_is_cached_in_this_source_versions_folder(tmp_path: Path) -> None:
     code = ("import json, numba\n"
-            "from frictionwatch.core.monitor.identify import spd_kernels\n"
+            "from frictionwatch.core.monitor.identify import spd\n"
             "from frictionwatch.drivers.assembly import frame_kernels\n"
-            "print(json.dumps([numba.config.CACHE_DIR, spd_kernels.cho_solve._cache._cache_path,\n"
+            "print(json.dumps([numba.config.CACHE_DIR, spd.cho_solve._cache._cache_path,\n"
             "                  frame_kernels.frame_rows._cache._cache_path]))\n")
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)

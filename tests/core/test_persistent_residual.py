@@ -7,8 +7,8 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
-from frictionwatch.core.monitor.identify.accumulate import Accumulator, ResidualStats
-from frictionwatch.core.monitor.identify.identification import raw_rows, speed_budget
+from frictionwatch.core.monitor.identify.accumulate import Accumulator, raw_rows, speed_budget
+from frictionwatch.core.monitor.identify.noise_model import ResidualStats
 from numpy.testing import assert_allclose
 
 

@@ -1,6 +1,6 @@
-"""The posterior kernels (core.monitor.identify.posterior_kernels) against the LAPACK/scipy reference they replace.
+"""The posterior kernels (core.monitor.identify.posterior) against the LAPACK/scipy reference they replace.
 
-References: ``core.monitor.identify.accumulate.posterior_from_normal_reference`` and ``core.monitor.identify.layout.bounded_solve_nnls`` (the code
+References: ``core.monitor.identify.posterior.posterior_from_normal_reference`` and ``core.monitor.identify.bounded_solve.bounded_solve_nnls`` (the code
 before the kernels, kept verbatim), numpy's cholesky / inv / solve for the helpers. Problems are built like the
 monitor's (core.monitor.monitor): whitened rows of a few cycles accumulated with forgetting, a weak prior per parameter plus
 a few share rows, the nuisances last and free (lower = -inf), the coefficients bounded below by 0, and badly scaled
@@ -23,20 +23,19 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from frictionwatch.core.monitor.identify import posterior_kernels as pk
-from frictionwatch.core.monitor.identify.accumulate import (
-    Accumulator,
-    posterior_from_normal,
-    posterior_from_normal_reference,
-    spd_inverse,
-    spd_inverse_decoupled,
-)
-from frictionwatch.core.monitor.identify.layout import bounded_solve, bounded_solve_nnls
-from frictionwatch.core.monitor.identify.spd_kernels import (
+from frictionwatch.core.monitor.identify import bounded_solve as bs
+from frictionwatch.core.monitor.identify import posterior as pk
+from frictionwatch.core.monitor.identify import spd
+from frictionwatch.core.monitor.identify.accumulate import Accumulator
+from frictionwatch.core.monitor.identify.bounded_solve import bounded_solve, bounded_solve_nnls
+from frictionwatch.core.monitor.identify.posterior import posterior_from_normal, posterior_from_normal_reference
+from frictionwatch.core.monitor.identify.spd import (
     inverse_from_factor,
     inverse_from_factor_reference,
     lapack_inverse_of_sum,
     lapack_spd_inverse_of_sum,
+    spd_inverse,
+    spd_inverse_decoupled,
 )
 from numpy.testing import assert_allclose, assert_array_equal
 
@@ -123,7 +122,7 @@ def test_posterior_matches_reference_without_active_bound(engine, seed):
     acc, n_pr, r_pr, sys_var, lower = _problem(seed, p, n_free, r)
     status = pk.posterior_kernel(acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, n_pr, r_pr,
                                  sys_var, lower, 1e12)[0]
-    assert status == pk.OK  # the fast branch is what is tested here
+    assert status == bs.OK  # the fast branch is what is tested here
     got = posterior_from_normal(acc, n_pr, r_pr, sys_var, lower)
     want = posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lower)
     _assert_same_posterior(got, want, skip=("chi2_reduced",))
@@ -143,7 +142,7 @@ def test_posterior_with_an_active_bound_uses_nnls(engine):
     acc, n_pr, r_pr, sys_var, lower = _problem(7, p, n_free, r, theta_true=theta_true, noise=0.01)
     status = pk.posterior_kernel(acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, n_pr, r_pr,
                                  sys_var, lower, 1e12)[0]
-    assert status == pk.NEEDS_BOUND
+    assert status == bs.NEEDS_BOUND
     got = posterior_from_normal(acc, n_pr, r_pr, sys_var, lower)
     want = posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lower)
     assert_array_equal(got.params, want.params)  # the same NNLS call
@@ -159,7 +158,7 @@ def test_posterior_fallbacks_are_the_reference_exactly():
     theta = bounded_solve_nnls(acc.info, acc.rhs, lower)
     status = pk.posterior_moments_kernel(acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, zero,
                                          sys_var, theta, 1e12)[0]
-    assert status == pk.FALLBACK
+    assert status == bs.FALLBACK
     got = posterior_from_normal(acc, zero, np.zeros(p), sys_var, lower)
     want = posterior_from_normal_reference(acc, zero, np.zeros(p), sys_var, lower)
     for f in FIELDS:
@@ -168,7 +167,7 @@ def test_posterior_fallbacks_are_the_reference_exactly():
     # (condition ~4e13 > REFERENCE_MAX_CONDITION): left to the reference
     weak = 1e-9 * n_pr
     ri = acc.info_reference + weak
-    assert pk.cholesky(ri, np.empty((p, p))) < pk.PIVOT_RATIO_MIN
+    assert spd.cholesky(ri, np.empty((p, p))) < bs.PIVOT_RATIO_MIN
     got = posterior_from_normal(acc, weak, r_pr, sys_var, lower)
     want = posterior_from_normal_reference(acc, weak, r_pr, sys_var, lower)
     for f in FIELDS:
@@ -178,7 +177,7 @@ def test_posterior_fallbacks_are_the_reference_exactly():
     bad[0, 0] = -2.0 * acc.info[0, 0] - 1.0
     status = pk.posterior_kernel(acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, bad, r_pr,
                                  sys_var, lower, 1e12)[0]
-    assert status == pk.FALLBACK
+    assert status == bs.FALLBACK
     for lo in (lower, -np.inf):  # the NNLS path fails on the indefinite bounded block like the reference does
         try:
             want = posterior_from_normal_reference(acc, bad, r_pr, sys_var, lo)
@@ -211,9 +210,9 @@ def test_reference_covariance_is_the_reference_bits_at_any_condition(cycles):
     p, n_free, r = SIZES["k9k-4cyl"]
     acc, n_pr, r_pr, sys_var, lower = _balance_against_priors(5, p, n_free, r, cycles)
     ri = acc.info_reference + n_pr
-    ratio = pk.cholesky(ri[: p - n_free, : p - n_free], np.empty((p - n_free, p - n_free)))
+    ratio = spd.cholesky(ri[: p - n_free, : p - n_free], np.empty((p - n_free, p - n_free)))
     if cycles >= 10_000:
-        assert 0.0 < ratio < pk.PIVOT_RATIO_MIN  # the case that fell back
+        assert 0.0 < ratio < bs.PIVOT_RATIO_MIN  # the case that fell back
     got = np.empty((p, p))
     assert lapack_inverse_of_sum(acc.info_reference, n_pr, got, 1.0) == 0
     want = spd_inverse_decoupled(ri)
@@ -225,7 +224,7 @@ def test_reference_covariance_is_the_reference_bits_at_any_condition(cycles):
     assert np.max(np.abs(want - inv) / np.sqrt(np.outer(np.diag(inv), np.diag(inv)))) < 1e-14 * cond
     status = pk.posterior_kernel(acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, n_pr, r_pr,
                                  sys_var, lower, 1e12)[0]
-    assert status == pk.OK
+    assert status == bs.OK
     got = posterior_from_normal(acc, n_pr, r_pr, sys_var, lower)
     want = posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lower)
     _assert_same_posterior(got, want, skip=("chi2_reduced",))
@@ -281,12 +280,12 @@ def test_information_inverse_is_the_reference_bits_at_low_pivot_ratios(engine, s
     inv = np.empty((p, p))
     ratio = lapack_spd_inverse_of_sum(acc.info, n_pr, inv, 1.0)
     assert_array_equal(inv, spd_inverse(info))
-    assert_allclose(ratio, pk.cholesky(info, np.empty((p, p))), rtol=1e-8)  # the unit-diagonal factor's ratio
+    assert_allclose(ratio, spd.cholesky(info, np.empty((p, p))), rtol=1e-8)  # the unit-diagonal factor's ratio
     if cycles >= 100_000:
-        assert 0.0 < ratio < pk.PIVOT_RATIO_MIN  # the case that fell back
+        assert 0.0 < ratio < bs.PIVOT_RATIO_MIN  # the case that fell back
     status = pk.posterior_kernel(acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, n_pr, r_pr,
                                  sys_var, lower, 1e12)[0]
-    assert status == pk.OK
+    assert status == bs.OK
     got = posterior_from_normal(acc, n_pr, r_pr, sys_var, lower)
     want = posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lower)
     # the same inverse: cov_statistical / max(1, chi2) equal to the last bit, when both chi2 are <= 1 equal outright
@@ -345,8 +344,8 @@ def test_bounded_solve_near_a_bound_leaves_it_to_nnls():
     info = np.array([[2.0, 0.5], [0.5, 1.0]])
     x = np.array([1e-13, 1.0])
     rhs = info @ x
-    status, _ = pk.bounded_solve_kernel(info, rhs, np.zeros(2))
-    assert status == pk.NEEDS_BOUND
+    status, _ = bs.bounded_solve_kernel(info, rhs, np.zeros(2))
+    assert status == bs.NEEDS_BOUND
     assert_array_equal(bounded_solve(info, rhs), bounded_solve_nnls(info, rhs))
 
 
@@ -356,17 +355,17 @@ def test_helpers_match_numpy(n):
     m = rng.normal(size=(n + 3, n)) * np.logspace(-2, 2, n)
     a = m.T @ m
     chol = np.empty((n, n))
-    ratio = pk.cholesky(a, chol)
+    ratio = spd.cholesky(a, chol)
     want = np.linalg.cholesky(a)
     assert 0 < ratio <= 1
     assert_allclose(chol, want, rtol=0, atol=1e-13 * np.abs(want).max(axis=1, keepdims=True).max())
     b = rng.normal(size=n)
-    x = pk.cho_solve(chol, b)
+    x = spd.cho_solve(chol, b)
     d = np.sqrt(np.diag(a))
     assert_allclose(x * d, np.linalg.solve(a, b) * d, rtol=0, atol=1e-11 * np.max(np.abs(np.linalg.solve(a, b) * d)))
     indefinite = a.copy()
     indefinite[-1, -1] = -1.0
-    assert pk.cholesky(indefinite, np.empty((n, n))) == -1.0
+    assert spd.cholesky(indefinite, np.empty((n, n))) == -1.0
 
 
 def _spd(rng, n, tail=0):
@@ -387,7 +386,7 @@ def test_spd_inverse_matches_numpy(n, tail):
     a = _spd(rng, n, tail)
     b = np.diag(rng.random(n) * np.diag(a))  # a second addend, like the prior's normal matrix
     total = a + b
-    assert pk.decoupled_tail(a, b) == (n - tail if n - tail > 1 else 0)  # a 1 x 1 head is a diagonal entry too
+    assert spd.decoupled_tail(a, b) == (n - tail if n - tail > 1 else 0)  # a 1 x 1 head is a diagonal entry too
     out = np.empty((n, n))
     ratio = lapack_spd_inverse_of_sum(a, b, out, 2.5)  # N's inverse: the whole raw matrix (spd_inverse's calls)
     assert_array_equal(out, 2.5 * spd_inverse(total))
@@ -443,7 +442,7 @@ def test_posterior_with_a_decoupled_reference_tail_matches_reference():
     ref_rows = np.zeros((1, p))
     ref_rows[0, :nb] = last
     acc = Accumulator(acc.info, acc.rhs, acc.yty, acc.weight, acc.rows, acc.sys_map, 3.0 * ref_rows.T @ ref_rows)
-    assert pk.decoupled_tail(acc.info_reference, n_pr) == nb
+    assert spd.decoupled_tail(acc.info_reference, n_pr) == nb
     got = posterior_from_normal(acc, n_pr, r_pr, sys_var, lower)
     want = posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lower)
     _assert_same_posterior(got, want)
@@ -465,7 +464,7 @@ def test_posterior_inputs_of_other_types_are_converted():
                            posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, -10.0))
     status = pk.posterior_kernel(acc.info, acc.rhs, acc.yty, acc.rows, acc.sys_map, acc.info_reference, n_pr,
                                  r_pr, sys_var[:-1], lower, 1e12)[0]
-    assert status == pk.BAD_SHAPE
+    assert status == bs.BAD_SHAPE
 
 
 def test_returned_arrays_are_new():

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from frictionwatch.core.model.engine import load_engine, spec_from_toml_text
-from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterior
+from frictionwatch.core.monitor.identify.accumulate import Accumulator
+from frictionwatch.core.monitor.identify.posterior import Posterior
 from frictionwatch.core.monitor.identify.pull_check import (
     DataPull,
     PullCheck,

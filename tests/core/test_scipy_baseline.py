@@ -11,7 +11,7 @@ import pytest
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import kinematics
 from frictionwatch.core.model.terms import cylinder_samples, rezeka_henein
-from frictionwatch.core.monitor.identify.layout import parameter_layout
+from frictionwatch.core.monitor.identify.parameters import parameter_layout
 from frictionwatch.core.monitor.pipeline import CyclePipeline
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.pipeline import assembled_cycles

@@ -92,7 +92,7 @@ def test_the_joint_fit_adds_the_free_ends_information(run):
         return (st.accumulator.info - st.accumulator.info_reference)[:p, :p]
 
     i1, i2 = speed_info(one), speed_info(two)
-    # the free end's rows count each cycle with 1 / (var + n v), v their repeatable error (free_end_rows): less
+    # the free end's rows count each cycle with 1 / (var + n v), v their repeatable error (noise_model.free_end_whitened): less
     # than by var alone (seed 8: trace 833 -> 2073, smallest eigenvalue 0.020 -> 0.090), still more than one wheel
     assert np.trace(i2) > 1.2 * np.trace(i1)  # seed 8: 833 -> 1648
     assert np.linalg.eigvalsh(i2)[0] > 1.5 * np.linalg.eigvalsh(i1)[0]  # seed 8: 0.020 -> 0.041

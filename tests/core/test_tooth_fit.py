@@ -9,7 +9,7 @@ import numba
 import numpy as np
 import pytest
 import scipy.linalg
-from frictionwatch.core.monitor.identify.layout import tooth_patterns
+from frictionwatch.core.monitor.identify.parameters import tooth_patterns
 from frictionwatch.core.monitor.teeth.flywheel import FitSetup, LearnerSettings, ToothLearner, fit_prepared, prepare_fit
 from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth
 

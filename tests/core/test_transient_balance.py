@@ -13,8 +13,8 @@ import pytest
 from frictionwatch.core.discrepancy.features import NULL_BALANCE
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import variable_inertia
-from frictionwatch.core.monitor.identify.identification import (
-    NO_BALANCE,
+from frictionwatch.core.monitor.identify.identification import NO_BALANCE
+from frictionwatch.core.monitor.identify.mean_balance import (
     cycle_energy,
     cycle_energy_reference,
     energy_weights,

@@ -25,7 +25,7 @@ from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.balance.balance_pass_kernel import ChainRecord, MixPlan, PassRows, mix_plan, pass_rows
 from frictionwatch.core.monitor.balance.excitation import Excitation, cylinder_record
 from frictionwatch.core.monitor.balance.harmonic_balance_kernels import CycleMotion, CylinderRecord, pass_samples
-from frictionwatch.core.monitor.identify.layout import CycleRows, ParameterLayout
+from frictionwatch.core.monitor.identify.parameters import CycleRows, ParameterLayout
 from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion
 
 

@@ -1,5 +1,5 @@
 """Inertia and friction against speed from a run whose speed changes (a coast-down, a load step, a fired -> motored
-transition), from the monitor's per-cycle results (core.monitor.identify.identification.transient_balance).
+transition), from the monitor's per-cycle results (core.monitor.identify.mean_balance.transient_balance).
 
 Each analysed cycle whose predecessor was analysed too gives one row of the mean balance over the two cycles under
 a triangular weight centred on cylinder 1's firing TDC between them (the change of the cycles' angle-averaged

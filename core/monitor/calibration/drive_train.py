@@ -34,7 +34,7 @@ import scipy.linalg
 import scipy.stats
 from frictionwatch.core.model.dynamics import dynamic_stiffness, shaft_model
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.identify.priors import tooth_coefficient_sigma
+from frictionwatch.core.monitor.identify.parameters import tooth_coefficient_sigma
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 
 _TUNED = read_tuned(MONITOR_RECORD)  # the floors and SETTLED, hand-set, with their provenance (core.tuned)

@@ -54,7 +54,7 @@ from frictionwatch.core.monitor.calibration.ripple import (
     order_inertia,
     ripple_rows,
 )
-from frictionwatch.core.monitor.identify.identification import MID_SPEED_HALF_WIDTH, mid_cycle_speed
+from frictionwatch.core.monitor.identify.mean_balance import MID_SPEED_HALF_WIDTH, mid_cycle_speed
 from frictionwatch.core.types import Cycle
 
 # J's relative 1-sigma assumed for a spec nobody has commissioned: what this commissioning step pins J to from plain

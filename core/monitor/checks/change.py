@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from frictionwatch.core.monitor.identify.accumulate import Posterior
+from frictionwatch.core.monitor.identify.posterior import Posterior
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 
 _TUNED = read_tuned(MONITOR_RECORD)  # the innovation's floor with its provenance (core.tuned)

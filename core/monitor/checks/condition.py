@@ -58,8 +58,9 @@ from frictionwatch.core.monitor.checks.ring_pressure import (
     ring_tables,
     ring_windows,
 )
-from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterior
+from frictionwatch.core.monitor.identify.accumulate import Accumulator
 from frictionwatch.core.monitor.identify.identification import Identification
+from frictionwatch.core.monitor.identify.posterior import Posterior
 from frictionwatch.core.monitor.report.results import FrictionEstimate
 from frictionwatch.core.monitor.state import ConditionState, ConditionTables
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
@@ -94,7 +95,7 @@ class ConditionSettings:
     no load: >= 0.61) and simulated 12-cycle logs of every preset (seed 2: misfired cylinders <= -0.009, fired at 5 %
     load >= 0.21, polito-4cyl lowest); tested on the other group14 files (tests/realdata/test_tue_regimes.py).
     partial_fraction: a burned cylinder whose indicated torque over the cycle is below this fraction of its
-    reference misfired partially (the firing mask's fraction, core.monitor.identify.sharing; TU/e E0NOLOAD4's partial burn:
+    reference misfired partially (the firing mask's fraction, core.monitor.identify.parameters; TU/e E0NOLOAD4's partial burn:
     0.14 N m against 2.0-3.0, its weakest full burn 1.45); burn_window: cycles of a single cylinder's reference EWMA.
     The cycle's indicated torque, not its centred IMEP: a cylinder firing late in the cycle has its centred window
     on the combustion of the cycle before, where the burn ratio and this work are of the same combustion

@@ -259,7 +259,7 @@ def check_cycle(cfg: SensorHealthConfig, spec: EngineSpec, state: SensorHealthSt
                 stats, prior_info: np.ndarray, model_rel_error: float) -> tuple[SensorHealthState, SensorHealth]:
     """``assess`` from the monitor's stages: the harmonic balance's result (core.monitor.balance.harmonic_balance:
     excitation, rows, static twist), the friction estimate ``params`` the residual is taken at, and the noise model
-    (core.monitor.identify.accumulate.ResidualStats plus the repeatable model error, as in core.monitor.identify.noise_model)."""
+    (core.monitor.identify.noise_model.ResidualStats plus the repeatable model error, as in core.monitor.identify.noise_model)."""
     exc, rows, static = balance.excitation, balance.rows, balance.static
     omega = exc.omega_fly if exc.omega_fly is not None else np.full(exc.tau.shape, float(np.mean(exc.omega_node)))
     alpha = exc.alpha_fly if exc.alpha_fly is not None else np.zeros(exc.tau.shape)

@@ -13,30 +13,28 @@ Uncertainty has two parts:
   not average out. With B = sum_c lambda^age A_c^T D_c (D_c the whitening), a repeated raw error e moves params by
   N^-1 B e, so its covariance N^-1 B C_sys B^T N^-1 is added. C_sys comes from the persistent (mean) residual per
   harmonic and a stated relative model-error floor.
+
+The numba kernels of one cycle's normal-equation terms and their exponentially weighted fold
+(core.monitor.identify.accumulate.Accumulator.cycle_terms / fold): one call each instead of six numpy calls and seven array
+expressions on (P, P) and (P, R) arrays.
+
+Arithmetic against the numpy code they replace (tests/core/test_accumulate_kernels.py):
+- A^T y and y^T y are the same BLAS calls (dgemv, ddot) numpy makes: bit-identical. They matter most: chi^2 =
+  y^T y - 2 theta^T A^T y + theta^T A^T A theta cancels ~5 digits (core.monitor.identify.posterior).
+- A^T A is a gemm where numpy calls syrk (another summation order: ~1e-18 of the largest entry), made exactly
+  symmetric like syrk's result.
+- A^T diag(1/sigma) and the reference rows' outer products are the same single products (bit-identical for one
+  reference row; summed in row order for more); the fold lambda * old + new is rounded like numpy (no fused
+  multiply-add: these kernels are compiled without fastmath).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import NamedTuple
 
+import numba
 import numpy as np
-import scipy.linalg.lapack
-from frictionwatch.core.monitor.identify.accumulate_kernels import cycle_terms_kernel, fold_kernel
-from frictionwatch.core.monitor.identify.layout import bounded_solve_nnls
-from frictionwatch.core.monitor.identify.posterior_kernels import (
-    BAD_SHAPE,
-    NEEDS_BOUND,
-    OK,
-    as_matrix,
-    as_vector,
-    lower_vector,
-    posterior_kernel,
-    posterior_moments_kernel,
-)
-
-_potrf = scipy.linalg.lapack.dpotrf
-_potri = scipy.linalg.lapack.dpotri
 
 
 @dataclass(frozen=True)
@@ -86,7 +84,7 @@ class Accumulator:
 
     def cycle_terms(self, a: np.ndarray, y: np.ndarray, inv_sigma: np.ndarray, reference_rows: int = 0) -> CycleTerms:
         """One cycle's contribution (``update`` = ``fold(cycle_terms(...))``; computed once, it can be folded into
-        several accumulators, e.g. the running one and this cycle's own). One kernel (core.monitor.identify.accumulate_kernels);
+        several accumulators, e.g. the running one and this cycle's own). One kernel (``cycle_terms_kernel`` below);
         all arrays new, sys_map C-contiguous."""
         if a.shape != self.sys_map.shape[::-1]:
             raise ValueError(f"rows must have shape {self.sys_map.shape[::-1]}, got {a.shape}")
@@ -151,219 +149,237 @@ class CycleTerms(NamedTuple):
     sys_map: np.ndarray
     info_reference: np.ndarray
 
-
-@dataclass(frozen=True)
-class Prior:
-    """Gaussian prior rows: sum over rows of ((row @ params - target) / sigma)^2."""
-
-    rows: np.ndarray  # (Q, P)
-    target: np.ndarray  # (Q,)
-    sigma: np.ndarray  # (Q,)
-
-    def normal(self) -> tuple[np.ndarray, np.ndarray]:
-        w = self.rows / self.sigma[:, None]
-        return w.T @ w, w.T @ (self.target / self.sigma)
-
-    @staticmethod
-    def stack(*priors: Prior) -> Prior:
-        return Prior(np.vstack([p.rows for p in priors]), np.concatenate([p.target for p in priors]),
-                     np.concatenate([p.sigma for p in priors]))
+_M = numba.types.Array(numba.float64, 2, "C")
+_V = numba.types.Array(numba.float64, 1, "C")
+# cycle_terms_kernel and fold_kernel compile when first called (Accumulator.cycle_terms / fold convert their inputs
+# to C-ordered float64 first: one specialisation); the monitor's every cycle runs cycle_step_kernel, whose explicit
+# signature makes another dtype or layout a TypeError at the call (its caller takes the reference then) instead of
+# another specialisation
 
 
-@dataclass(frozen=True)
-class Posterior:
-    """params (P,), covariance (P, P) = statistical + systematic, chi2 reduced, weight (effective cycles)."""
-
-    params: np.ndarray
-    covariance: np.ndarray
-    cov_statistical: np.ndarray
-    chi2_reduced: float
-    weight: float
-    cov_reference: np.ndarray  # priors + mean balance only (no speed signal)
-
-    def head(self, n: int) -> Posterior:
-        """The marginal posterior of the first ``n`` parameters (e.g. friction without the nuisances)."""
-        return Posterior(self.params[:n], self.covariance[:n, :n], self.cov_statistical[:n, :n], self.chi2_reduced,
-                         self.weight, self.cov_reference[:n, :n])
-
-    def data_gain(self, rows: np.ndarray) -> np.ndarray:
-        """1 - var_posterior / var_reference of linear functions rows (Q, P) @ params: the share of what is known
-        about them that the speed signal contributed (0: prior and mean balance only, 1: all from the speed)."""
-        r = np.atleast_2d(rows)
-        post = _quadratic_forms(r, self.cov_statistical)
-        ref = _quadratic_forms(r, self.cov_reference)
-        # a function the reference already pins down (e.g. a share of one cylinder) is not left to any prior
-        pinned = ref <= 1e-12 * max(float(np.max(ref, initial=0.0)), 1e-300) + 1e-300
-        return np.where(pinned, 1.0, np.clip(1.0 - post / np.maximum(ref, 1e-300), 0.0, 1.0))
-
-    def sigma_of(self, rows: np.ndarray) -> np.ndarray:
-        """1-sigma of linear functions rows (Q, P) @ params."""
-        r = np.atleast_2d(rows)
-        return np.sqrt(np.clip(_quadratic_forms(r, self.covariance), 0.0, None))
-
-    def diagonal_gain(self) -> np.ndarray:
-        """``data_gain(np.eye(P))`` from the diagonals alone."""
-        post = np.diag(self.cov_statistical)
-        ref = np.diag(self.cov_reference)
-        pinned = ref <= 1e-12 * max(float(np.max(ref, initial=0.0)), 1e-300) + 1e-300
-        return np.where(pinned, 1.0, np.clip(1.0 - post / np.maximum(ref, 1e-300), 0.0, 1.0))
+@numba.njit(cache=True)
+def _scaled_sum(lam, old, new):
+    """lam * old + new for C-contiguous (n, m) arrays, as one flat loop."""
+    n, m = old.shape
+    out = np.empty((n, m))
+    _scaled_sum_1d_into(lam, old.reshape(n * m), new.reshape(n * m), out.reshape(n * m))
+    return out
 
 
-def _quadratic_forms(rows: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """r_q^T C r_q for every row r_q of rows (Q, P)."""
-    return np.einsum("qp,qp->q", rows @ cov, rows)
+@numba.njit(cache=True)
+def _scaled_sum_1d_into(lam, old, new, out):
+    for i in range(old.shape[0]):
+        out[i] = lam * old[i] + new[i]
 
 
-def solve_posterior(acc: Accumulator, prior: Prior, sys_var: np.ndarray,
-                    lower: float | np.ndarray = 0.0) -> Posterior:
-    """Bounded MAP estimate (params >= lower; -inf marks a free nuisance) and its covariance.
-
-    sys_var (R,): variance of the error that repeats every cycle, per raw row, in raw units squared."""
-    n_pr, r_pr = prior.normal()
-    return posterior_from_normal(acc, n_pr, r_pr, sys_var, lower)
+@numba.njit(cache=True)
+def _scaled_sum_1d(lam, old, new):
+    out = np.empty(old.shape[0])
+    _scaled_sum_1d_into(lam, old, new, out)
+    return out
 
 
-def posterior_from_normal(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, sys_var: np.ndarray,
-                          lower: float | np.ndarray = 0.0) -> Posterior:
-    """``solve_posterior`` with the prior already in normal form (n_pr (P, P), r_pr (P,); ``Prior.normal``), so a
-    caller that keeps a fixed prior's normal equations does not rebuild them every cycle.
-
-    The numba kernel (core.monitor.identify.posterior_kernels) solves the unconstrained problem from one inverse; when a
-    bound is active NNLS decides the parameters and the kernel forms the moments at them; when a factor is nearly
-    singular or the reference covariance is at its pseudo-inverse switch, ``posterior_from_normal_reference``
-    (LAPACK) decides. Every returned array is new (none aliases an input)."""
-    p, r = acc.sys_map.shape
-    f64 = np.float64
-    n_pr, r_pr, sys_var = np.asarray(n_pr, dtype=f64), np.asarray(r_pr, dtype=f64), np.asarray(sys_var, dtype=f64)
-    lo = lower_vector(lower, p)
-    # the kernel checks every shape; the accumulator's own arrays are float64 and C-contiguous by construction (its
-    # kernels, ``empty``): no per-call copies (another layout would only be another compiled specialisation)
-    info, rhs, sys_map, info_ref = acc.info, acc.rhs, acc.sys_map, acc.info_reference
-    yty, rows = float(acc.yty), float(acc.rows)
-    status, params, chi2_red, cov_stat, cov, ref = posterior_kernel(
-        info, rhs, yty, rows, sys_map, info_ref, n_pr, r_pr, sys_var, lo, REFERENCE_MAX_CONDITION)
-    if status == BAD_SHAPE:  # name the input that does not fit
-        as_matrix(n_pr, p, name="n_pr")
-        as_vector(r_pr, p, "r_pr")
-        as_vector(sys_var, r, "sys_var")
-        raise ValueError(f"the accumulator's arrays do not fit its sys_map {acc.sys_map.shape}")
-    if status == NEEDS_BOUND:
-        params = bounded_solve_nnls(info + n_pr, rhs + r_pr, lo)
-        status, chi2_red, cov_stat, cov, ref = posterior_moments_kernel(
-            info, rhs, yty, rows, sys_map, info_ref, n_pr, sys_var, params, REFERENCE_MAX_CONDITION)
-    if status != OK:
-        return posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lo)
-    return Posterior(params=params, covariance=cov, cov_statistical=cov_stat, chi2_reduced=float(chi2_red),
-                     weight=acc.weight, cov_reference=ref)
+@numba.njit(cache=True)
+def _cycle_terms(a, y, inv_sigma, reference_rows):
+    r, p = a.shape
+    if y.shape[0] != r or inv_sigma.shape[0] != r or not 0 <= reference_rows <= r:
+        e2 = np.empty((0, 0))
+        return False, e2, np.empty(0), 0.0, e2, e2
+    info = np.dot(a.T, a)
+    for i in range(p):  # exactly symmetric (numpy's syrk is)
+        for j in range(i):
+            info[j, i] = info[i, j]
+    rhs = np.dot(a.T, y)
+    yty = np.dot(y, y)
+    sys_map = np.empty((p, r))
+    for i in range(p):
+        for k in range(r):
+            sys_map[i, k] = a[k, i] * inv_sigma[k]
+    ref = np.zeros((p, p))
+    for k in range(r - reference_rows, r):
+        for i in range(p):
+            f = a[k, i]
+            for j in range(p):
+                ref[i, j] += f * a[k, j]
+    return True, info, rhs, yty, sys_map, ref
 
 
-REFERENCE_MAX_CONDITION = 1e12  # above: the reference covariance is a pseudo-inverse
+@numba.njit(cache=True)
+def cycle_terms_kernel(a, y, inv_sigma, reference_rows):
+    """One cycle's terms from whitened rows a (R, P), targets y (R,), raw-row weights inv_sigma (R,); the last
+    ``reference_rows`` rows also go into info_reference.
+
+    Returns (ok, info (P, P), rhs (P,), yty, sys_map (P, R), info_reference (P, P)); ok False (arrays empty) when
+    y, inv_sigma or reference_rows do not fit a."""
+    return _cycle_terms(a, y, inv_sigma, reference_rows)
 
 
-def posterior_from_normal_reference(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, sys_var: np.ndarray,
-                                    lower: float | np.ndarray = 0.0) -> Posterior:
-    """``posterior_from_normal`` by LAPACK/scipy calls: the general path (non-positive-definite or nearly singular
-    matrices) and the reference of the kernel."""
-    info = acc.info + n_pr
-    rhs = acc.rhs + r_pr
-    params = bounded_solve_nnls(info, rhs, lower)
-    dof = acc.rows - params.shape[0]
-    chi2 = acc.yty - 2.0 * params @ acc.rhs + params @ acc.info @ params
-    chi2_red = float(chi2 / dof) if dof > 0 else 1.0
-    inv = spd_inverse(info)
-    if inv is None:
-        inv = np.linalg.inv(info)
-        inv = 0.5 * (inv + inv.T)
-    cov_stat = inv * max(1.0, chi2_red)
-    g = inv @ acc.sys_map
-    cov_sys = (g * sys_var[None, :]) @ g.T
-    ref_info = acc.info_reference + n_pr
-    ref = spd_inverse_decoupled(ref_info, max_condition=REFERENCE_MAX_CONDITION)
-    if ref is None:  # (near-)singular: the pseudo-inverse drops what nothing pins down
-        ref = np.linalg.pinv(ref_info, rcond=1e-13, hermitian=True)
-    ref = ref * max(1.0, chi2_red)
-    return Posterior(params=params, covariance=cov_stat + cov_sys, cov_statistical=cov_stat, chi2_reduced=chi2_red,
-                     weight=acc.weight, cov_reference=ref)
+@numba.njit(cache=True)
+def _fold(lam, info, rhs, sys_map, info_reference, t_info, t_rhs, t_map, t_ref):
+    if (info.shape != t_info.shape or rhs.shape != t_rhs.shape or sys_map.shape != t_map.shape
+            or info_reference.shape != t_ref.shape):
+        e2 = np.empty((0, 0))
+        return False, e2, np.empty(0), e2, e2
+    return (True, _scaled_sum(lam, info, t_info), _scaled_sum_1d(lam, rhs, t_rhs), _scaled_sum(lam, sys_map, t_map),
+            _scaled_sum(lam, info_reference, t_ref))
 
 
-def spd_inverse_lower(a: np.ndarray) -> np.ndarray | None:
-    """The inverse of a symmetric positive-definite matrix in the lower triangle of the result (LAPACK potrf then
-    potri; the upper triangle holds the factor's leftovers); None if ``a`` is not numerically positive definite. For
-    a caller that mirrors the triangle itself (the pull check's kernel): the symmetrisation is ~half the cost of a
-    47 x 47 inverse."""
-    c, info = _potrf(a, lower=True, clean=False, overwrite_a=False)
-    if info != 0:
-        return None
-    inv, info = _potri(c, lower=True, overwrite_c=True)
-    return inv if info == 0 else None
+@numba.njit(cache=True)
+def fold_kernel(lam, info, rhs, sys_map, info_reference, t_info, t_rhs, t_map, t_ref):
+    """lam * (info, rhs, sys_map, info_reference) + (t_info, t_rhs, t_map, t_ref), as new arrays.
+
+    Returns (ok, info, rhs, sys_map, info_reference); ok False (arrays empty) when the shapes differ."""
+    return _fold(lam, info, rhs, sys_map, info_reference, t_info, t_rhs, t_map, t_ref)
 
 
-def spd_inverse(a: np.ndarray, max_condition: float = np.inf) -> np.ndarray | None:
-    """Inverse of a symmetric positive-definite matrix by Cholesky (LAPACK potrf/potri), exactly symmetric; None if
-    ``a`` is not numerically positive definite or its condition number may exceed ``max_condition`` (bounded by
-    trace(a) trace(a^-1) >= lambda_max / lambda_min)."""
-    inv = spd_inverse_lower(a)
-    if inv is None:
-        return None
-    inv = np.tril(inv) + np.tril(inv, -1).T  # potri fills the lower triangle only
-    if np.isfinite(max_condition):
-        bound = float(np.trace(a)) * float(np.trace(inv))
-        if not bound < max_condition:
-            return None
-    return inv
+_ACC = numba.types.Tuple((_M, _V, _M, _M, _M, _V))  # info, rhs, sys_map, info_reference, raw rows, raw targets
+_BUDGET = numba.types.Tuple((_V, _V, _V, numba.types.Array(numba.complex128, 1, "C")))  # sys_var, var, freq, harm.
 
 
-def spd_inverse_decoupled(a: np.ndarray, max_condition: float = np.inf) -> np.ndarray | None:
-    """``spd_inverse`` of a matrix whose trailing rows may have no off-diagonal entry (the reference information:
-    nuisances that only their priors see): the coupled head by ``spd_inverse``'s calls (potrf, potri), the diagonal
-    tail by reciprocals; None as ``spd_inverse`` (not positive definite, or trace(a) trace(a^-1) not below
-    ``max_condition``). The reference of core.monitor.identify.spd_kernels.lapack_inverse_of_sum (equal bits)."""
-    n = a.shape[0]
-    coupled = np.flatnonzero(np.any(np.tril(a, -1) != 0.0, axis=1))
-    k = int(coupled[-1]) + 1 if coupled.size else 0
-    tail = np.diag(a)[k:]
-    if not np.all(tail > 0.0):
-        return None
-    inv = np.zeros((n, n))
-    if k:
-        head = spd_inverse_lower(np.ascontiguousarray(a[:k, :k]))
-        if head is None:
-            return None
-        inv[:k, :k] = np.tril(head) + np.tril(head, -1).T
-    inv[k:, k:] = np.diag(1.0 / tail)
-    if np.isfinite(max_condition) and not float(np.trace(a)) * float(np.trace(inv)) < max_condition:
-        return None
-    return inv
+@numba.njit(cache=True)
+def _raw_rows(a, y, inv_sigma):
+    """identification.raw_rows: the raw rows and targets (a zero weight: zeros), numpy's rounding (1 / w, then x)."""
+    r, p = a.shape
+    d = np.empty((r, p))
+    t = np.empty(r)
+    for k in range(r):
+        s = 1.0 / inv_sigma[k] if inv_sigma[k] > 0.0 else 0.0
+        for i in range(p):
+            d[k, i] = a[k, i] * s
+        t[k] = y[k] * s
+    return d, t
 
 
-@dataclass(frozen=True)
-class ResidualStats:
-    """Per-row residual statistics across cycles (EWMA): mean (persistent part) and variance about it (random part).
+@numba.njit(cache=True)
+def _speed_budget(raw_rows, raw_target, raw_weight, params, budget, model_rel_error):
+    """identification.speed_budget on the accumulator's raw sums, element by element in numpy's order and
+    roundings (loops, not array expressions: a fifth of the compile time)."""
+    sys_var, var, freq, harmonics = budget
+    out = sys_var.copy()
+    if raw_weight <= 0.0:
+        return out
+    r = np.dot(raw_rows, params)  # the BLAS call numpy's matmul makes
+    m = freq.shape[0]
+    w = max(raw_weight, 1.0)
+    for j in range(m):
+        re = (raw_target[j] - r[j]) / raw_weight
+        im = (raw_target[m + j] - r[m + j]) / raw_weight
+        mean2 = re * re + im * im - 2.0 * var[j] / w
+        e = model_rel_error * freq[j] * abs(harmonics[j])
+        e2 = e * e
+        v = (mean2 if mean2 >= e2 or np.isnan(mean2) else e2) / 2.0  # np.maximum: NaN propagates
+        out[j] = v
+        out[m + j] = v
+    return out
 
-    Used as the noise model (whitening) and the systematic-error budget. Rows are complex harmonics (M,) plus the
-    mean balance as a real scalar."""
 
-    mean: np.ndarray  # (M,) complex
-    var: np.ndarray  # (M,) per real component
-    balance_mean: float
-    balance_var: float
-    count: int
+@numba.njit([(_M, _V, _V, numba.float64, numba.boolean, _ACC, numba.float64, _V, _BUDGET, numba.float64)],
+            cache=True)
+def cycle_step_kernel(a, y, inv_sigma, lam, fold, acc, raw_weight, params, budget, model_rel_error):
+    """One cycle's accumulation step in one call (identification.accumulate_cycle; its reference
+    ``accumulate_cycle_reference`` is the chain it replaces: Accumulator.cycle_terms with the last row as reference,
+    raw_rows, Accumulator.fold with the raw sums when ``fold``, speed_budget): whitened rows a (R, P), y (R,),
+    inv_sigma (R,); the accumulator's arrays ``acc`` (info, rhs, sys_map, info_reference, raw rows (R, P), raw
+    targets (R,); raw rows (0, 0) and targets (0,): not kept, as a fresh accumulator's) and ``raw_weight`` (after the
+    fold); the estimate ``params`` (P,); ``budget`` (sys_var (R,), the statistics' var (M,), freq (M,), harmonics
+    (M,) complex).
 
-    @staticmethod
-    def empty(n_harmonics: int) -> ResidualStats:
-        return ResidualStats(np.zeros(n_harmonics, complex), np.zeros(n_harmonics), 0.0, 0.0, 0)
+    Returns (ok, the cycle's terms (info, rhs, yty, sys_map, info_reference), the accumulator's arrays after the
+    step (``acc`` itself without a fold; a fold without raw rows kept starts them from this cycle's), the speed
+    rows' budget (R,): sys_var where no raw rows are kept); ok False (all arrays empty) when a shape does not fit."""
+    info, rhs, sys_map, ref, raw_rows, raw_target = acc
+    sys_var, var, freq, harmonics = budget
+    r, p = a.shape
+    m = freq.shape[0]
+    e2, e1 = np.empty((0, 0)), np.empty(0)
+    kept = raw_rows.shape[0] != 0
+    fits = ((not kept or (raw_rows.shape[0] == r and raw_rows.shape[1] == p and raw_target.shape[0] == r))
+            and (kept or (raw_rows.shape[1] == 0 and raw_target.shape[0] == 0))
+            and params.shape[0] == p and sys_var.shape[0] == r and var.shape[0] == m and harmonics.shape[0] == m
+            and 2 * m <= r and sys_map.shape[0] == p and sys_map.shape[1] == r)
+    ok, t_info, t_rhs, yty, t_map, t_ref = _cycle_terms(a, y, inv_sigma, 1)
+    if not (fits and ok):
+        return False, (e2, e1, 0.0, e2, e2), (e2, e1, e2, e2, e2, e1), e1
+    if fold:
+        d, t = _raw_rows(a, y, inv_sigma)
+        ok, info, rhs, sys_map, ref = _fold(lam, info, rhs, sys_map, ref, t_info, t_rhs, t_map, t_ref)
+        if not ok:
+            return False, (e2, e1, 0.0, e2, e2), (e2, e1, e2, e2, e2, e1), e1
+        if kept:
+            raw_rows, raw_target = _scaled_sum(lam, raw_rows, d), _scaled_sum_1d(lam, raw_target, t)
+        else:
+            raw_rows, raw_target, kept = d, t, True
+    out = _speed_budget(raw_rows, raw_target, raw_weight if kept else 0.0, params, budget, model_rel_error)
+    return True, (t_info, t_rhs, yty, t_map, t_ref), (info, rhs, sys_map, ref, raw_rows, raw_target), out
 
-    def update(self, resid: np.ndarray, balance_resid: float, memory: float) -> ResidualStats:
-        """Fold in one cycle's residuals; ``memory`` is the EWMA factor (e.g. 1 - 1/50); the first cycles average."""
-        n = self.count + 1
-        g = max(1.0 - memory, 1.0 / n)
-        d = resid - self.mean
-        db = balance_resid - self.balance_mean
-        return replace(
-            self,
-            mean=self.mean + g * d,
-            var=(1.0 - g) * (self.var + g * 0.5 * np.abs(d) ** 2) if n > 1 else 0.5 * np.abs(resid) ** 2,
-            balance_mean=self.balance_mean + g * db,
-            balance_var=(1.0 - g) * (self.balance_var + g * db * db) if n > 1 else balance_resid**2,
-            count=n,
-        )
+
+def raw_rows(a: np.ndarray, y: np.ndarray, inv_sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The raw rows and targets of one cycle's whitened equations (a zero weight, a row not there: zeros)."""
+    scale = np.divide(1.0, inv_sigma, out=np.zeros(inv_sigma.shape, inv_sigma.dtype), where=inv_sigma > 0.0)
+    return a * scale[:, None], y * scale
+
+
+def speed_budget(acc: Accumulator, params: np.ndarray, white, model_rel_error: float,
+                 harmonics: np.ndarray) -> np.ndarray:
+    """The repeatable-error variance per raw row (R,) of the accumulated equations: for the flywheel's M harmonics,
+    the accumulated cycles' persistent residual at ``params`` (less its own sampling variance, var / W per
+    component) or ``model_rel_error`` of this cycle's harmonic, whichever is larger; the other rows (the free end's,
+    the mean balance) as the noise model states them.
+
+    Not this cycle's noise statistics alone (``white.sys_var``: their 100-cycle EWMA of the residual at the previous
+    estimate): after a load ramp that EWMA held the ramp's transient and the systematic sigma of every accumulated
+    cycle rose with it (genset-v20, +-20 % profile, seed 29: a cylinder's from ~6 % to 9-17 % 100 cycles after a
+    ramp, 17 measured cylinders to 3; design note 35)."""
+    r = acc.persistent_residual(params)
+    sys_var = np.array(white.sys_var, dtype=np.float64)
+    if r is None:
+        return sys_var
+    m = white.freq.shape[0]
+    mean2 = r[:m] ** 2 + r[m:2 * m] ** 2 - 2.0 * white.stats.var / max(acc.raw_weight, 1.0)
+    e = model_rel_error * white.freq * np.abs(harmonics)
+    v = np.maximum(mean2, e * e) / 2.0
+    sys_var[:m] = v
+    sys_var[m:2 * m] = v
+    return sys_var
+
+
+def accumulate_cycle(acc: Accumulator, white, forgetting: float, fold: bool, params: np.ndarray,
+                     model_rel_error: float, harmonics: np.ndarray) -> tuple[CycleTerms, Accumulator, np.ndarray]:
+    """One cycle's accumulation step: (the cycle's terms (the last row, the mean balance, as the reference), the
+    accumulator after folding them in with ``forgetting`` and the raw rows when ``fold`` (else ``acc`` itself), the
+    speed rows' repeatable-error budget at ``params`` on that accumulator). One kernel call
+    (``cycle_step_kernel`` above) where ``accumulate_cycle_reference`` makes four helper calls and builds
+    two records (design note 63); arrays of another dtype or layout, or shapes that do not fit, take the
+    reference (which converts, or names what does not fit)."""
+    lam = float(forgetting)
+    if not 0.0 <= lam <= 1.0:
+        return accumulate_cycle_reference(acc, white, lam, fold, params, model_rel_error, harmonics)
+    kept = acc.raw_rows is not None and acc.raw_target is not None
+    raw = (acc.raw_rows, acc.raw_target) if kept else (np.empty((0, 0)), np.empty(0))
+    raw_weight = (lam * acc.raw_weight + 1.0 if kept else 1.0) if fold else acc.raw_weight
+    try:
+        ok, terms, arrays, budget = cycle_step_kernel(
+            white.a, white.y, white.inv_sigma, lam, bool(fold),
+            (acc.info, acc.rhs, acc.sys_map, acc.info_reference, *raw), raw_weight,
+            np.asarray(params, dtype=np.float64), (white.sys_var, white.stats.var, white.freq, harmonics),
+            float(model_rel_error))
+    except TypeError:  # another dtype or layout: the reference converts
+        ok = False
+    if not ok:
+        return accumulate_cycle_reference(acc, white, lam, fold, params, model_rel_error, harmonics)
+    info, rhs, yty, sys_map, ref = terms
+    terms = CycleTerms(info, rhs, yty, float(white.a.shape[0]), sys_map, ref)
+    if fold:
+        acc = Accumulator(*arrays[:2], lam * acc.yty + yty, lam * acc.weight + 1.0, lam * acc.rows + terms.rows,
+                          *arrays[2:], raw_weight)
+    return terms, acc, budget
+
+
+def accumulate_cycle_reference(acc: Accumulator, white, forgetting: float, fold: bool, params: np.ndarray,
+                               model_rel_error: float, harmonics: np.ndarray) -> tuple[CycleTerms, Accumulator,
+                                                                                       np.ndarray]:
+    """``accumulate_cycle`` by its helpers, one after another (its reference, and the general path)."""
+    terms = acc.cycle_terms(white.a, white.y, white.inv_sigma, 1)  # the mean-balance row: reference
+    if fold:
+        acc = acc.fold(terms, forgetting, raw_rows(white.a, white.y, white.inv_sigma))
+    return terms, acc, speed_budget(acc, params, white, model_rel_error, harmonics)

@@ -35,8 +35,10 @@ from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
-from frictionwatch.core.model.engine import EngineSpec, mep_per_torque
-from frictionwatch.core.monitor.identify.accumulate import Accumulator, Posterior, spd_inverse, spd_inverse_lower
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.monitor.identify.accumulate import Accumulator
+from frictionwatch.core.monitor.identify.posterior import Posterior
+from frictionwatch.core.monitor.identify.spd import spd_inverse, spd_inverse_lower
 from frictionwatch.core.monitor.report.results import FrictionEstimate
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 
@@ -121,7 +123,7 @@ def pull_sigma_kernel(inv_lower, rhs, params, chi2_reduced, cov_statistical, row
     below), rhs (P,) their right-hand side, params (P,), chi2_reduced and cov_statistical (P, P) the posterior's,
     rows (z, p), share (z,). Returns (z,) [N m], zeros where a number is not finite (the reference's None).
 
-    The inverse stays LAPACK's potri: another route to N^-1 (potri of the unit-diagonal form, spd_kernels) is
+    The inverse stays LAPACK's potri: another route to N^-1 (potri of the unit-diagonal form, core.monitor.identify.spd) is
     as exact, but d = c (N^-1 r - theta) is sensitive to the last digits of N^-1 (genset-v20: the two inverses
     differ by 5e-11 of sqrt(C_ii C_jj), the pull sigmas by up to 3e-8 of their largest; design note 42). The rest
     is loops or numba's BLAS in the order of the reference's products, and numba's eigh (LAPACK syevd, as numpy's)."""
@@ -233,6 +235,6 @@ def with_pull(est: FrictionEstimate, sigma: np.ndarray, resolve_rel: float, spec
     t_cyl = np.where(np.isfinite(est.friction_torque_mean), est.friction_torque_mean, est.prior_friction_torque_mean)
     resolved = est.resolved & (before_cal <= resolve_rel * np.abs(t_cyl))
     t_mean = np.where(resolved, est.friction_torque_mean, np.nan)
-    to_cyl = mep_per_torque(spec.displacement_cyl)
+    to_cyl = spec.mep_per_torque_cyl
     return replace(est, friction_torque_mean=t_mean, friction_torque_mean_sigma=sig, fmep=t_mean * to_cyl,
                    fmep_sigma=sig * to_cyl, resolved=resolved, pulled=est.resolved & ~resolved)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 import rocket_fft  # noqa: F401  (numpy.fft inside numba: ``series_rows_kernel``)
-from frictionwatch.core.monitor.identify.spd_kernels import inverse_from_factor
+from frictionwatch.core.monitor.identify.spd import inverse_from_factor
 
 FOUR_PI = 4.0 * np.pi
 

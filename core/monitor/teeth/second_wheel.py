@@ -8,7 +8,7 @@ in-band tooth pattern as nuisance columns, the out-of-band tooth-spacing error l
 ``FreeEndSpeed`` keeps what the balance needs of it: the mean speed, the angle harmonics of the free-end node and
 the time of its window's first edge relative to the flywheel's (each fit's harmonics are referred to its own first
 edge; ``harmonics_at(t)`` refers them to another origin). The joint fit of both wheels (its half-order speed
-equations with the flywheel's): core.monitor.identify.free_end_rows.
+equations with the flywheel's): core.monitor.identify.noise_model.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.balance.harmonic_balance import OperatingPoint
-from frictionwatch.core.monitor.identify.accumulate import ResidualStats
+from frictionwatch.core.monitor.identify.noise_model import ResidualStats
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
 from frictionwatch.core.monitor.teeth.tooth_fit import ToothPatterns, fit_cycle_teeth
 from frictionwatch.core.types import Cycle
@@ -29,7 +29,7 @@ FOUR_PI = 4.0 * np.pi
 @dataclass(frozen=True)
 class SecondWheelState:
     """The second wheel's tooth learner (its positions) and in-band pattern cache, carried cycle to cycle, and the
-    residual statistics of its speed equations in the joint fit (core.monitor.identify.free_end_rows)."""
+    residual statistics of its speed equations in the joint fit (core.monitor.identify.noise_model)."""
 
     teeth: ToothLearner
     patterns: ToothPatterns | None = None

@@ -4,7 +4,7 @@ The fit is in time, over the cycle's 4 pi window of raw edge times (core.monitor
 no sinc to undo). The tooth-spacing error above the band is learned from the fit residuals (core.monitor.teeth.flywheel.
 ToothLearner); inside the band it is fixed in angle and repeats every revolution, so at one operating point it cannot
 be told from a steady engine response at integer orders: it is carried as nuisance parameters whose columns are the
-angle patterns passed through the same fit (core.monitor.identify.layout.tooth_patterns).
+angle patterns passed through the same fit (core.monitor.identify.parameters.tooth_patterns).
 
 Speed: the whole step (prepare, fit, learn, refit) is one kernel call (tooth_fit_cycle_kernel below), the
 same arithmetic as core.monitor.teeth.flywheel.prepare_fit / fit_prepared / ToothLearner.update (tests/core/test_tooth_fit.py).
@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from frictionwatch.core.monitor.identify.layout import tooth_patterns
+from frictionwatch.core.monitor.identify.parameters import tooth_patterns
 from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion, LearnerSettings, ToothLearner
 from frictionwatch.core.monitor.teeth.flywheel_kernels import (
     BAD_SPAN,
@@ -181,7 +181,7 @@ def tooth_fit_cycle_kernel(nominal_all, ticks_all, index_all, settings, cached_r
 
 @dataclass(frozen=True)
 class ToothPatterns:
-    """The in-band tooth-error patterns at a cycle's edges (core.monitor.identify.layout.tooth_patterns), kept from cycle to
+    """The in-band tooth-error patterns at a cycle's edges (core.monitor.identify.parameters.tooth_patterns), kept from cycle to
     cycle: they depend on the edge angles relative to the first one only, the same every cycle of a run.
     edge_angles (n,) [rad] relative to the first edge; patterns (n, 2 orders)."""
 

@@ -1,4 +1,4 @@
-"""Small symmetric positive-definite helpers of core.monitor.identify.posterior_kernels and the tooth fit (P <= ~50),
+"""Small symmetric positive-definite helpers of core.monitor.identify.posterior and the tooth fit (P <= ~50),
 on LAPACK: numba's np.linalg (potrf, gesv) and potri, which np.linalg does not wrap, bound from the same library
 numba's np.linalg calls (scipy.linalg.cython_lapack; ``inverse_from_factor``): the Cholesky factor with its smallest
 pivot ratio, a solve, the inverse from a factor, and the inverse of a sum of two matrices by the reference's own calls
@@ -18,6 +18,7 @@ from __future__ import annotations
 import llvmlite.binding as llvm
 import numba
 import numpy as np
+import scipy.linalg.lapack
 from numba import types
 from numba.extending import get_cython_function_address
 
@@ -147,7 +148,7 @@ def decoupled_tail(a, b):
 @numba.njit(cache=True)
 def lapack_inverse_of_sum(a, b, out, scale):
     """out = scale * (a + b)^-1 (n, n), exactly symmetric, by the calls of its reference
-    (core.monitor.identify.accumulate.spd_inverse_decoupled) on the same numbers: s = a + b element by element;
+    (core.monitor.identify.spd.spd_inverse_decoupled) on the same numbers: s = a + b element by element;
     its coupled head (``decoupled_tail``) by LAPACK potrf then potri (``_lapack_head_inverse``); the diagonal tail
     by reciprocals; then x scale. Same library, same calls, same input: the reference's bits however badly
     conditioned s is (equality checked in tests/core/test_posterior_kernels.py).
@@ -170,7 +171,7 @@ def lapack_inverse_of_sum(a, b, out, scale):
 @numba.njit(cache=True)
 def lapack_spd_inverse_of_sum(a, b, out, scale):
     """out = scale * (a + b)^-1 (n, n), exactly symmetric, by the calls of its reference
-    (core.monitor.identify.accumulate.spd_inverse: potrf then potri on the whole raw matrix, no tail split) on the
+    (core.monitor.identify.spd.spd_inverse: potrf then potri on the whole raw matrix, no tail split) on the
     same numbers: its bits at any condition. For the information matrix N = acc.info + priors, whose condition grows
     with the accumulated cycles on genset-v20 (design note 80).
 
@@ -227,3 +228,82 @@ def _decoupled_tail_inverse(a, b, out, k, scale):
         for j in range(n):
             out[i, j] = 0.0
         out[i, i] = 1.0 / (a[i, i] + b[i, i]) * scale
+
+
+_potrf = scipy.linalg.lapack.dpotrf
+_potri = scipy.linalg.lapack.dpotri
+
+
+def spd_inverse_lower(a: np.ndarray) -> np.ndarray | None:
+    """The inverse of a symmetric positive-definite matrix in the lower triangle of the result (LAPACK potrf then
+    potri; the upper triangle holds the factor's leftovers); None if ``a`` is not numerically positive definite. For
+    a caller that mirrors the triangle itself (the pull check's kernel): the symmetrisation is ~half the cost of a
+    47 x 47 inverse."""
+    c, info = _potrf(a, lower=True, clean=False, overwrite_a=False)
+    if info != 0:
+        return None
+    inv, info = _potri(c, lower=True, overwrite_c=True)
+    return inv if info == 0 else None
+
+
+def spd_inverse(a: np.ndarray, max_condition: float = np.inf) -> np.ndarray | None:
+    """Inverse of a symmetric positive-definite matrix by Cholesky (LAPACK potrf/potri), exactly symmetric; None if
+    ``a`` is not numerically positive definite or its condition number may exceed ``max_condition`` (bounded by
+    trace(a) trace(a^-1) >= lambda_max / lambda_min)."""
+    inv = spd_inverse_lower(a)
+    if inv is None:
+        return None
+    inv = np.tril(inv) + np.tril(inv, -1).T  # potri fills the lower triangle only
+    if np.isfinite(max_condition):
+        bound = float(np.trace(a)) * float(np.trace(inv))
+        if not bound < max_condition:
+            return None
+    return inv
+
+
+def spd_inverse_decoupled(a: np.ndarray, max_condition: float = np.inf) -> np.ndarray | None:
+    """``spd_inverse`` of a matrix whose trailing rows may have no off-diagonal entry (the reference information:
+    nuisances that only their priors see): the coupled head by ``spd_inverse``'s calls (potrf, potri), the diagonal
+    tail by reciprocals; None as ``spd_inverse`` (not positive definite, or trace(a) trace(a^-1) not below
+    ``max_condition``). The reference of core.monitor.identify.spd.lapack_inverse_of_sum (equal bits)."""
+    n = a.shape[0]
+    coupled = np.flatnonzero(np.any(np.tril(a, -1) != 0.0, axis=1))
+    k = int(coupled[-1]) + 1 if coupled.size else 0
+    tail = np.diag(a)[k:]
+    if not np.all(tail > 0.0):
+        return None
+    inv = np.zeros((n, n))
+    if k:
+        head = spd_inverse_lower(np.ascontiguousarray(a[:k, :k]))
+        if head is None:
+            return None
+        inv[:k, :k] = np.tril(head) + np.tril(head, -1).T
+    inv[k:, k:] = np.diag(1.0 / tail)
+    if np.isfinite(max_condition) and not float(np.trace(a)) * float(np.trace(inv)) < max_condition:
+        return None
+    return inv
+
+
+def lower_vector(lower: float | np.ndarray, n: int) -> np.ndarray:
+    """``lower`` broadcast to a contiguous float64 (n,) (raises ValueError if it does not broadcast)."""
+    lo = np.asarray(lower, dtype=np.float64)
+    if lo.shape == (n,):
+        return lo if lo.flags.c_contiguous else np.ascontiguousarray(lo)
+    return np.ascontiguousarray(np.broadcast_to(lo, (n,)))
+
+
+def as_matrix(a: np.ndarray, n: int, m: int | None = None, name: str = "matrix") -> np.ndarray:
+    """a as a C-contiguous float64 (n, m) array (m = n by default); ValueError on another shape."""
+    out = np.ascontiguousarray(a, dtype=np.float64)
+    shape = (n, n if m is None else m)
+    if out.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {out.shape}")
+    return out
+
+
+def as_vector(a: np.ndarray, n: int, name: str = "vector") -> np.ndarray:
+    """a as a C-contiguous float64 (n,) array; ValueError on another shape."""
+    out = np.ascontiguousarray(a, dtype=np.float64)
+    if out.shape != (n,):
+        raise ValueError(f"{name} must have shape {(n,)}, got {out.shape}")
+    return out

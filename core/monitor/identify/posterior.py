@@ -1,5 +1,5 @@
-"""Numba kernels of the bounded MAP estimate and its posterior (core.monitor.identify.layout.bounded_solve,
-core.monitor.identify.accumulate.posterior_from_normal) for the monitor's sizes (P <= ~50 parameters).
+"""The friction posterior: its records (Prior, Posterior), ``posterior_from_normal`` with its LAPACK reference, and the
+numba kernels of the MAP estimate and its moments for the monitor's sizes (P <= ~50 parameters; the bounded solve: bounded_solve.py).
 
 The bounded problem min params^T N params - 2 r^T params, params >= lower, is convex with N positive definite: when the
 unconstrained minimiser (free nuisances eliminated exactly) already satisfies the bounds, it is the bounded optimum,
@@ -12,7 +12,7 @@ and report a status instead of guessing near any decision the reference makes di
   ``INFORMATION_PIVOT_RATIO_MIN`` (``PIVOT_RATIO_MIN`` in bounded_solve_kernel), the reference information is not
   positive definite, or the trace bound of the reference covariance is near ``max_condition``
   (the reference switches to a pseudo-inverse there). The reference covariance has no pivot-ratio test: it is
-  inverted by the reference's own LAPACK calls (spd_kernels.lapack_inverse_of_sum, its bits), because its
+  inverted by the reference's own LAPACK calls (spd.lapack_inverse_of_sum, its bits), because its
   condition grows with the accumulated cycles (a balance row against fixed priors, design note 75).
 
 The callers then run the reference code (kept verbatim), so their behaviour in those cases is exactly the old one.
@@ -22,7 +22,7 @@ condition numbers are ~1e2..5e3; tests/core/test_posterior_kernels.py).
 ``posterior_kernel`` (genset-v20, P = 47) works from one inverse of N = acc.info + n_pr:
 - params = (N + 1e-12 D^2)^-1 r (the reference's ridge on the unit-diagonal problem) as N^-1 r and the ridge's
   Neumann series in N^-1, summed to 1e-16 relative, so the bounded solve needs no factor of its own;
-- both inverses are the reference's own LAPACK calls (core.monitor.identify.spd_kernels: potrf, potri on the raw
+- both inverses are the reference's own LAPACK calls (core.monitor.identify.spd: potrf, potri on the raw
   matrix, N's whole, the reference information's coupled head), its bits: N's condition grows with the accumulated
   cycles on genset-v20 (design note 80), the reference information's on every engine (note 75);
 - a decoupled diagonal tail (the monitor's reference information: nuisances that only their priors see) is
@@ -34,24 +34,31 @@ condition numbers are ~1e2..5e3; tests/core/test_posterior_kernels.py).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numba
 import numpy as np
-from frictionwatch.core.monitor.identify.spd_kernels import (  # noqa: F401  (decoupled_tail: the tests' handle)
+from frictionwatch.core.monitor.identify.accumulate import Accumulator
+from frictionwatch.core.monitor.identify.bounded_solve import (
+    BAD_SHAPE,
+    FALLBACK,
+    FEASIBLE_MARGIN,
+    NEEDS_BOUND,
+    OK,
+    REGULARISATION,
+    bounded_solve_nnls,
+)
+from frictionwatch.core.monitor.identify.spd import (
     FASTMATH,
-    cho_solve,
-    cholesky,
-    decoupled_tail,
+    as_matrix,
+    as_vector,
     lapack_inverse_of_sum,
     lapack_spd_inverse_of_sum,
-    solve_or_nan,
+    lower_vector,
+    spd_inverse,
+    spd_inverse_decoupled,
 )
 
-OK = 0
-NEEDS_BOUND = 1
-FALLBACK = 2
-BAD_SHAPE = 3  # the arrays' shapes do not fit together (the caller's validating path raises the ValueError)
-
-PIVOT_RATIO_MIN = 1e-4  # bounded_solve_kernel's factors: below, NNLS (its rounding ~1e-15 / ratio apart, note 75)
 # the information N's pivot ratio below which posterior_kernel leaves N to the reference. N is inverted by the
 # reference's own calls (its bits at any ratio, note 80); params and chi^2 differ from the reference by roundings
 # as large as its own (~1e-15 x N's unit-diagonal condition of max |params|, both against a long-double solve,
@@ -59,108 +66,113 @@ PIVOT_RATIO_MIN = 1e-4  # bounded_solve_kernel's factors: below, NNLS (its round
 # ~1e-6 with 1e4 x the accumulation, note 75); the ridge series (RIDGE_TERMS) is checked on its own
 INFORMATION_PIVOT_RATIO_MIN = 1e-9
 RIDGE_TERMS = 4  # terms of the ridge's Neumann series in params; not converged (1e-16 relative) after them: FALLBACK
-FEASIBLE_MARGIN = 1e-9  # scaled distance to a bound, relative to max |x|, below which NNLS decides
-REGULARISATION = 1e-12  # the reference's ridge on the unit-diagonal blocks (bounded_solve)
 
 
-@numba.njit(cache=True, fastmath=FASTMATH)
-def bounded_solve_kernel(info, rhs, lo):
-    """Unconstrained minimiser of params^T info params - 2 rhs^T params as ``bounded_solve`` forms it (unit-diagonal
-    scaling, non-finite ``lo`` = free nuisance eliminated by its Schur complement, ridge 1e-12 on both blocks).
+@dataclass(frozen=True)
+class Prior:
+    """Gaussian prior rows: sum over rows of ((row @ params - target) / sigma)^2."""
 
-    Returns (status, params (n,)); params is valid only with status OK (all bounds inactive)."""
-    n = info.shape[0]
-    params = np.empty(n)
-    d = np.empty(n)
-    for i in range(n):
-        v = info[i, i]
-        if v < 1e-300:
-            v = 1e-300
-        d[i] = np.sqrt(v)
-    nf = 0
-    for i in range(n):
-        if not np.isfinite(lo[i]):
-            nf += 1
-    nb = n - nf
-    bi = np.empty(nb, np.int64)
-    fi = np.empty(nf, np.int64)
-    jb = 0
-    jf = 0
-    for i in range(n):
-        if np.isfinite(lo[i]):
-            bi[jb] = i
-            jb += 1
-        else:
-            fi[jf] = i
-            jf += 1
-    # unit-diagonal blocks in the order (free, bounded); products with 1/d (a division per element is slow)
-    dinv = 1.0 / d
-    s_ff = np.empty((nf, nf))
-    s_fb = np.empty((nf, nb))
-    s_bb = np.empty((nb, nb))
-    for a in range(nf):
-        da = dinv[fi[a]]
-        for b in range(nf):
-            s_ff[a, b] = info[fi[a], fi[b]] * (da * dinv[fi[b]])
-        s_ff[a, a] += REGULARISATION
-        for b in range(nb):
-            s_fb[a, b] = info[fi[a], bi[b]] * (da * dinv[bi[b]])
-    for a in range(nb):
-        da = dinv[bi[a]]
-        for b in range(nb):
-            s_bb[a, b] = info[bi[a], bi[b]] * (da * dinv[bi[b]])
-        s_bb[a, a] += REGULARISATION
-    r = rhs / d
-    # free block s_ff + ridge = Lf Lf^T; W = Lf^-1 s_fb and zf = Lf^-1 r_f in one solve
-    chol_f = np.empty((nf, nf))
-    if cholesky(s_ff, chol_f) < PIVOT_RATIO_MIN:
-        return FALLBACK, params
-    rhs_f = np.empty((nf, nb + 1))
-    for a in range(nf):
-        for b in range(nb):
-            rhs_f[a, b] = s_fb[a, b]
-        rhs_f[a, nb] = r[fi[a]]
-    wz = solve_or_nan(chol_f, rhs_f)
-    w = wz[:, :nb]
-    zf = wz[:, nb]
-    # bounded block: Schur complement s_bb - W^T W (+ ridge, already in s_bb), its unconstrained solution
-    s_red = s_bb
-    r_red = np.empty(nb)
-    for a in range(nb):
-        r_red[a] = r[bi[a]]
-    for k in range(nf):
-        for a in range(nb):
-            f = w[k, a]
-            for b in range(a + 1):
-                s_red[a, b] -= f * w[k, b]
-            r_red[a] -= f * zf[k]
-    for a in range(nb):
-        for b in range(a):
-            s_red[b, a] = s_red[a, b]
-    chol_b = np.empty((nb, nb))
-    if cholesky(s_red, chol_b) < PIVOT_RATIO_MIN:
-        return FALLBACK, params
-    xb = cho_solve(chol_b, r_red)
-    scale = 0.0
-    for a in range(nb):
-        if abs(xb[a]) > scale:
-            scale = abs(xb[a])
-    for a in range(nb):
-        if not xb[a] - lo[bi[a]] * d[bi[a]] > FEASIBLE_MARGIN * scale:
-            return NEEDS_BOUND, params
-    # free parameters given the bounded ones: s_ff xf = r_f - s_fb xb
-    rf = np.empty(nf)
-    for a in range(nf):
-        t = r[fi[a]]
-        for b in range(nb):
-            t -= s_fb[a, b] * xb[b]
-        rf[a] = t
-    xf = cho_solve(chol_f, rf)
-    for a in range(nb):
-        params[bi[a]] = xb[a] / d[bi[a]]
-    for a in range(nf):
-        params[fi[a]] = xf[a] / d[fi[a]]
-    return OK, params
+    rows: np.ndarray  # (Q, P)
+    target: np.ndarray  # (Q,)
+    sigma: np.ndarray  # (Q,)
+
+    def normal(self) -> tuple[np.ndarray, np.ndarray]:
+        w = self.rows / self.sigma[:, None]
+        return w.T @ w, w.T @ (self.target / self.sigma)
+
+    @staticmethod
+    def stack(*priors: Prior) -> Prior:
+        return Prior(np.vstack([p.rows for p in priors]), np.concatenate([p.target for p in priors]),
+                     np.concatenate([p.sigma for p in priors]))
+
+
+@dataclass(frozen=True)
+class Posterior:
+    """params (P,), covariance (P, P) = statistical + systematic, chi2 reduced, weight (effective cycles)."""
+
+    params: np.ndarray
+    covariance: np.ndarray
+    cov_statistical: np.ndarray
+    chi2_reduced: float
+    weight: float
+    cov_reference: np.ndarray  # priors + mean balance only (no speed signal)
+
+    def head(self, n: int) -> Posterior:
+        """The marginal posterior of the first ``n`` parameters (e.g. friction without the nuisances)."""
+        return Posterior(self.params[:n], self.covariance[:n, :n], self.cov_statistical[:n, :n], self.chi2_reduced,
+                         self.weight, self.cov_reference[:n, :n])
+
+
+def solve_posterior(acc: Accumulator, prior: Prior, sys_var: np.ndarray,
+                    lower: float | np.ndarray = 0.0) -> Posterior:
+    """Bounded MAP estimate (params >= lower; -inf marks a free nuisance) and its covariance.
+
+    sys_var (R,): variance of the error that repeats every cycle, per raw row, in raw units squared."""
+    n_pr, r_pr = prior.normal()
+    return posterior_from_normal(acc, n_pr, r_pr, sys_var, lower)
+
+
+def posterior_from_normal(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, sys_var: np.ndarray,
+                          lower: float | np.ndarray = 0.0) -> Posterior:
+    """``solve_posterior`` with the prior already in normal form (n_pr (P, P), r_pr (P,); ``Prior.normal``), so a
+    caller that keeps a fixed prior's normal equations does not rebuild them every cycle.
+
+    The numba kernel (``posterior_kernel`` below) solves the unconstrained problem from one inverse; when a
+    bound is active NNLS decides the parameters and the kernel forms the moments at them; when a factor is nearly
+    singular or the reference covariance is at its pseudo-inverse switch, ``posterior_from_normal_reference``
+    (LAPACK) decides. Every returned array is new (none aliases an input)."""
+    p, r = acc.sys_map.shape
+    f64 = np.float64
+    n_pr, r_pr, sys_var = np.asarray(n_pr, dtype=f64), np.asarray(r_pr, dtype=f64), np.asarray(sys_var, dtype=f64)
+    lo = lower_vector(lower, p)
+    # the kernel checks every shape; the accumulator's own arrays are float64 and C-contiguous by construction (its
+    # kernels, ``empty``): no per-call copies (another layout would only be another compiled specialisation)
+    info, rhs, sys_map, info_ref = acc.info, acc.rhs, acc.sys_map, acc.info_reference
+    yty, rows = float(acc.yty), float(acc.rows)
+    status, params, chi2_red, cov_stat, cov, ref = posterior_kernel(
+        info, rhs, yty, rows, sys_map, info_ref, n_pr, r_pr, sys_var, lo, REFERENCE_MAX_CONDITION)
+    if status == BAD_SHAPE:  # name the input that does not fit
+        as_matrix(n_pr, p, name="n_pr")
+        as_vector(r_pr, p, "r_pr")
+        as_vector(sys_var, r, "sys_var")
+        raise ValueError(f"the accumulator's arrays do not fit its sys_map {acc.sys_map.shape}")
+    if status == NEEDS_BOUND:
+        params = bounded_solve_nnls(info + n_pr, rhs + r_pr, lo)
+        status, chi2_red, cov_stat, cov, ref = posterior_moments_kernel(
+            info, rhs, yty, rows, sys_map, info_ref, n_pr, sys_var, params, REFERENCE_MAX_CONDITION)
+    if status != OK:
+        return posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lo)
+    return Posterior(params=params, covariance=cov, cov_statistical=cov_stat, chi2_reduced=float(chi2_red),
+                     weight=acc.weight, cov_reference=ref)
+
+
+REFERENCE_MAX_CONDITION = 1e12  # above: the reference covariance is a pseudo-inverse
+
+
+def posterior_from_normal_reference(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, sys_var: np.ndarray,
+                                    lower: float | np.ndarray = 0.0) -> Posterior:
+    """``posterior_from_normal`` by LAPACK/scipy calls: the general path (non-positive-definite or nearly singular
+    matrices) and the reference of the kernel."""
+    info = acc.info + n_pr
+    rhs = acc.rhs + r_pr
+    params = bounded_solve_nnls(info, rhs, lower)
+    dof = acc.rows - params.shape[0]
+    chi2 = acc.yty - 2.0 * params @ acc.rhs + params @ acc.info @ params
+    chi2_red = float(chi2 / dof) if dof > 0 else 1.0
+    inv = spd_inverse(info)
+    if inv is None:
+        inv = np.linalg.inv(info)
+        inv = 0.5 * (inv + inv.T)
+    cov_stat = inv * max(1.0, chi2_red)
+    g = inv @ acc.sys_map
+    cov_sys = (g * sys_var[None, :]) @ g.T
+    ref_info = acc.info_reference + n_pr
+    ref = spd_inverse_decoupled(ref_info, max_condition=REFERENCE_MAX_CONDITION)
+    if ref is None:  # (near-)singular: the pseudo-inverse drops what nothing pins down
+        ref = np.linalg.pinv(ref_info, rcond=1e-13, hermitian=True)
+    ref = ref * max(1.0, chi2_red)
+    return Posterior(params=params, covariance=cov_stat + cov_sys, cov_statistical=cov_stat, chi2_reduced=chi2_red,
+                     weight=acc.weight, cov_reference=ref)
 
 
 @numba.njit(cache=True, fastmath=FASTMATH)
@@ -310,29 +322,3 @@ def posterior_kernel(acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr
     status, chi2_red, cov_stat, cov, ref = _moments_from_inverse(
         acc_info, acc_rhs, yty, rows, sys_map, info_reference, n_pr, sys_var, params, max_condition, inv)
     return status, params, chi2_red, cov_stat, cov, ref
-
-
-def lower_vector(lower: float | np.ndarray, n: int) -> np.ndarray:
-    """``lower`` broadcast to a contiguous float64 (n,) (raises ValueError if it does not broadcast)."""
-    lo = np.asarray(lower, dtype=np.float64)
-    if lo.shape == (n,):
-        return lo if lo.flags.c_contiguous else np.ascontiguousarray(lo)
-    return np.ascontiguousarray(np.broadcast_to(lo, (n,)))
-
-
-def as_matrix(a: np.ndarray, n: int, m: int | None = None, name: str = "matrix") -> np.ndarray:
-    """a as a C-contiguous float64 (n, m) array (m = n by default); ValueError on another shape."""
-    out = np.ascontiguousarray(a, dtype=np.float64)
-    shape = (n, n if m is None else m)
-    if out.shape != shape:
-        raise ValueError(f"{name} must have shape {shape}, got {out.shape}")
-    return out
-
-
-def as_vector(a: np.ndarray, n: int, name: str = "vector") -> np.ndarray:
-    """a as a C-contiguous float64 (n,) array; ValueError on another shape."""
-    out = np.ascontiguousarray(a, dtype=np.float64)
-    if out.shape != (n,):
-        raise ValueError(f"{name} must have shape {(n,)}, got {out.shape}")
-    return out
-
