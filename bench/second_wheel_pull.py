@@ -157,7 +157,7 @@ def main() -> None:
     log_path = Path(args.log)
     truth_all = np.load(log_path.with_name(log_path.name.removesuffix(".mcap") + ".truth.npz"))["friction"]
     tap = PullTap()
-    identification.reported_estimate, identification.shared_posteriors = tap, tap.posterior
+    identification.reported_estimate, identification.posterior_from_normal = tap, tap.posterior
     identification.accumulate_cycle = tap.budget
     sums = RowSums() if args.split else None
     if sums is not None:
