@@ -83,21 +83,31 @@ def detect_change(detector: ChangeDetector | None, cycle: Posterior, smoothed: P
     det = ChangeDetector.empty(z_cyl) if detector is None else detector
     mean, var, sums, alarm = np.empty(z_cyl), np.empty(z_cyl), np.empty((2, z_cyl)), np.zeros(z_cyl, dtype=np.bool_)
     status = _cusum_kernel(np.ascontiguousarray(u, dtype=np.float64), det.mean, det.var, det.sums, det.count,
-                           det.quiet, np.array((settings.k, settings.h, settings.memory, settings.warmup,
-                                                settings.clip)),
+                           det.quiet, cusum_limits(settings),
                            np.ascontiguousarray(settings.rel_floor * np.abs(smooth), dtype=np.float64),
                            mean, var, sums, alarm)
+    return detector_after(det, status, mean, var, sums, settings), alarm
+
+
+def detector_after(det: ChangeDetector, status: int, mean: np.ndarray, var: np.ndarray, sums: np.ndarray,
+                   settings: ChangeSettings) -> ChangeDetector:
+    """The detector after ``_cusum_kernel``'s step from ``det`` with its status and the arrays it filled."""
     if status == _NOT_FINITE:
-        return det, alarm
+        return det
     n = det.count + 1
     if status == _LEARNING:
-        return ChangeDetector(mean, var, det.sums, n, max(det.quiet - 1, 0)), alarm
+        return ChangeDetector(mean, var, det.sums, n, max(det.quiet - 1, 0))
     if status == _NO_ALARM:
-        return ChangeDetector(mean, var, sums, n), alarm
-    return ChangeDetector(mean, var, np.zeros((2, z_cyl)), n, settings.quiet), alarm
+        return ChangeDetector(mean, var, sums, n)
+    return ChangeDetector(mean, var, np.zeros((2, mean.shape[0])), n, settings.quiet)
 
 
 _NOT_FINITE, _LEARNING, _NO_ALARM, _ALARM = 0, 1, 2, 3  # _cusum_kernel's status
+
+
+def cusum_limits(settings: ChangeSettings) -> np.ndarray:
+    """(k, h, memory, warmup, clip): ``_cusum_kernel``'s limits."""
+    return np.array((settings.k, settings.h, settings.memory, settings.warmup, settings.clip))
 
 
 @numba.njit(cache=True)
