@@ -27,10 +27,15 @@ The window statistics are EWMAs carried in ``ConditionState`` (core.monitor.stat
 cycle from the window that ends there, so it stays on while the condition lasts. The sibling comparison uses the
 median of the cylinders (a single-cylinder engine has no siblings: no blow-by or ring-wear flag).
 
-The per-cycle numbers come from three small kernels (``levels_kernel``, ``window_kernel``, ``combustion_kernel``)
-on pressure samples whose grid columns are fixed once per grid (``condition_tables``, carried in the state); the plain
-numpy functions beside them (``compression_rise``, ``burn_ratio``, ``sibling_deviation``, ``_ewma``,
-``combustion_flags_reference``) are their references (tests/core/test_condition_kernels.py).
+The per-cycle numbers come from one kernel (``condition_kernel``, core.monitor.checks.condition_kernels: the levels,
+their windows, the combustion flags, the cycle's chi^2, the blow-by and worn-ring tests, the change detector's step
+and the ring indicators at the throws' angles) on pressure samples whose grid columns are fixed once per grid
+(``condition_tables``, carried in the state); ``assess_condition`` gathers its inputs and names its flags.
+``assess_condition_reference`` is the same step by the plain numpy functions beside the kernels
+(``compression_rise``, ``burn_ratio``, ``sibling_deviation``, ``_ewma``, ``combustion_flags_reference``,
+``cycle_chi2_reduced_reference``, change.detect_change_reference, ring_pressure.ring_indicators_reference):
+tests/core/test_condition_step.py compares the two over simulated logs, tests/core/test_condition_kernels.py each
+kernel with its piece.
 """
 
 from __future__ import annotations
@@ -259,21 +264,19 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
         ring_tab = RingTables(0.0, 0, np.zeros((z, 1), dtype=np.int64), np.zeros((z, 1)), np.zeros(1), 1, 1)
     with_terms = terms is not None
     out = condition_kernel(
-        p, tab.cols, tab.frac, np.ascontiguousarray(pmax, dtype=np.float64),
-        np.ascontiguousarray(indicated, dtype=np.float64), st.window, ref0, n0,
-        np.array([settings.burn_log_ratio, settings.partial_fraction, settings.burn_window]),
-        np.array([settings.compression_floor, settings.peak_floor, settings.indicated_floor]),
-        _c(estimate.friction_torque_mean), _c(estimate.friction_torque_mean_sigma),
-        np.ascontiguousarray(estimate.resolved, dtype=np.bool_), _c(cycle.params), _c(smoothed.params),
-        _c(cylinder_rows), _c(terms.rhs if with_terms else cycle.params), _c(terms.info if with_terms else
-                                                                           cycle.cov_statistical),
-        _c(cycle.cov_statistical), det.mean, det.var, det.sums, cusum_limits(settings.change),
-        np.ascontiguousarray(grid, dtype=np.float64), ring_tab.cols, ring_tab.frac,
-        ring_tab.local if moved else ring_tab.neg_log_volume, ring_tab.neg_log_volume,
-        np.array([ring_tab.n_comp, ring_tab.edge], dtype=np.int64),
-        np.ascontiguousarray(spec.firing_angles, dtype=np.float64),
-        np.ascontiguousarray(motion.static, dtype=np.float64) if moved else np.zeros(z),
-        np.ascontiguousarray(motion.relative, dtype=np.complex128) if moved else np.zeros((z, 1), np.complex128),
+        (p, tab.cols, tab.frac, _c(pmax), _c(indicated)),
+        (st.window, ref0, n0, det.mean, det.var, det.sums),
+        (_c(estimate.friction_torque_mean), _c(estimate.friction_torque_mean_sigma),
+         np.ascontiguousarray(estimate.resolved, dtype=np.bool_)),
+        (_c(cycle.params), _c(smoothed.params), _c(cylinder_rows), _c(terms.rhs if with_terms else cycle.params),
+         _c(terms.info if with_terms else cycle.cov_statistical), _c(cycle.cov_statistical)),
+        (_c(grid), ring_tab.cols, ring_tab.frac, ring_tab.local if moved else ring_tab.neg_log_volume,
+         ring_tab.neg_log_volume, np.array([ring_tab.n_comp, ring_tab.edge], dtype=np.int64), _c(spec.firing_angles),
+         _c(motion.static) if moved else np.zeros(z),
+         np.ascontiguousarray(motion.relative, dtype=np.complex128) if moved else np.zeros((z, 1), np.complex128)),
+        (np.array([settings.burn_log_ratio, settings.partial_fraction, settings.burn_window]),
+         np.array([settings.compression_floor, settings.peak_floor, settings.indicated_floor]),
+         cusum_limits(settings.change)),
         np.array([use, first, count >= settings.warmup, with_terms, det.count, det.quiet, ring_on, moved],
                  dtype=np.int64),
         np.array([g, settings.z_flag, settings.ring_sigmas, settings.misfit_cap,

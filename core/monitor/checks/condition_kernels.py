@@ -1,13 +1,14 @@
 """Numba kernels of the condition check (core.monitor.checks.condition), each beside the plain numpy it stands for
 there: the levels and their windows, the combustion flags with the siblings' medians from one sort, and the cycle's
-chi^2 over its effective degrees of freedom in numpy's own order of arithmetic."""
+chi^2 over its effective degrees of freedom in numpy's own order of arithmetic; ``condition_kernel`` runs them, the
+change detector's and the ring indicators' kernels and the blow-by and worn-ring tests as one dispatch a cycle."""
 
 from __future__ import annotations
 
 import numba
 import numpy as np
-from frictionwatch.core.monitor.checks.change import _cusum_kernel
-from frictionwatch.core.monitor.checks.ring_pressure import _moved_kernel, _ring_kernel, median_of_first
+from frictionwatch.core.monitor.checks.change import cusum_kernel
+from frictionwatch.core.monitor.checks.ring_pressure import median_of_first, moved_kernel, ring_kernel
 
 NOT_JUDGED, MOTORED, FIRED = 0, 1, 2  # combustion_kernel's status: no burn ratio, none burned, some burned
 
@@ -214,24 +215,31 @@ REAL_FIELDS = ("g", "z_flag", "ring_sigmas", "misfit_cap", "yty", "rows", "chi2_
 
 
 @numba.njit(cache=True)
-def condition_kernel(pressure, cols, frac, pmax, work, window, burn_reference, burn_cycles, burn_limits, floors,
-                     torque, sigma, resolved, cycle_params, smoothed_params, cylinder_rows, rhs, info, cov_stat, det_mean,
-                     det_var, det_sums, cusum_limits, ring_grid, ring_cols, ring_frac, ring_local, ring_x, ring_sizes, phases, static,
-                     relative, ints, reals):
+def condition_kernel(levels_in, state, estimate, fit, ring_in, limits, ints, reals):
     """One cycle of ``assess_condition_reference`` after its Python: (window (2, 3, z), combustion status,
     misfire (z,) bool, burn reference (z,), burn cycles (z,), capped chi^2, wear (z,) int64 (1 blow-by, 2 blow-by
     and a worn ring), change status, the detector's mean (z,), var (z,) and sums (2, z), alarm (z,) bool, ring
-    (7, z) as ``_ring_kernel``'s).
+    (7, z) as ``ring_kernel``'s).
 
-    pressure (z, n) and cols/frac (z, 4): the condition tables; window, burn_reference/burn_cycles, det_mean,
-    det_var, det_sums: the state's; burn_limits (3,) as ``combustion_kernel``'s; floors (3,) the window's;
-    torque, sigma (z,) and resolved (z,) bool: the smoothed estimate's; cycle_params and
-    smoothed_params (P,), cylinder_rows (z, p_f): the change detector's innovations; rhs, info, cov_stat: the
-    cycle's terms and posterior (``cycle_chi2_kernel``; unused without terms); cusum_limits (5,) as
-    ``_cusum_kernel``'s; ring_*: the ring tables (cols/frac (z, m), local (m,), -ln V (m,), sizes = (n_comp,
-    edge)), phases (z,) the firing angles, static (z,) and relative (z, M) the throw motion. ints and reals: the
-    flags and scalars named by INT_FIELDS and REAL_FIELDS, in that order. One signature for every engine: the
-    optional parts (terms, ring, motion) are switched by ints, never by the arguments' types."""
+    Tuples of arrays, by what they are:
+      levels_in = (pressure (z, n), cols (z, 4), frac (z, 4): the condition tables, pmax (z,), indicated (z,));
+      state = (window (2, 3, z), burn_reference (z,), burn_cycles (z,) int64, the change detector's mean (z,),
+               var (z,), sums (2, z));
+      estimate = (torque (z,), sigma (z,), resolved (z,) bool): the smoothed estimate's;
+      fit = (cycle_params (P,), smoothed_params (P,), cylinder_rows (z, p_f): the change detector's innovations;
+             rhs (P,), info (P, P) of the cycle's terms and its cov_statistical (P, P): ``cycle_chi2_kernel``'s,
+             unread without terms);
+      ring_in = (grid (n,), cols (z, m), frac (z, m), local (m,), -ln V (m,), sizes (n_comp, edge): the ring
+                 tables; phases (z,) the firing angles, static (z,) and relative (z, M) the throw motion);
+      limits = (burn (3,) as ``combustion_kernel``'s, the window's floors (3,), cusum (5,) as ``cusum_kernel``'s);
+    ints and reals: the flags and scalars named by INT_FIELDS and REAL_FIELDS, in that order. One signature for
+    every engine: the optional parts (terms, ring, motion) are switched by ints, never by the arguments' types."""
+    pressure, cols, frac, pmax, work = levels_in
+    window, burn_reference, burn_cycles, det_mean, det_var, det_sums = state
+    torque, sigma, resolved = estimate
+    cycle_params, smoothed_params, cylinder_rows, rhs, info, cov_stat = fit
+    ring_grid, ring_cols, ring_frac, ring_local, ring_x, ring_sizes, phases, static, relative = ring_in
+    burn_limits, floors, cusum_limits = limits
     use, first, flag_window, has_terms = ints[0] != 0, ints[1] != 0, ints[2] != 0, ints[3] != 0
     g, z_flag, ring_sigmas, misfit_cap = reals[0], reals[1], reals[2], reals[3]
     z = pressure.shape[0]
@@ -259,15 +267,15 @@ def condition_kernel(pressure, cols, frac, pmax, work, window, burn_reference, b
     u = np.dot(cylinder_rows, np.ascontiguousarray(cycle_params[:p_f])) - smooth
     floor = reals[7] * np.abs(smooth)
     mean, var, sums, alarm = np.empty(z), np.empty(z), np.empty((2, z)), np.zeros(z, dtype=np.bool_)
-    change = _cusum_kernel(u, det_mean, det_var, det_sums, ints[4], ints[5], cusum_limits, floor, mean, var, sums,
+    change = cusum_kernel(u, det_mean, det_var, det_sums, ints[4], ints[5], cusum_limits, floor, mean, var, sums,
                            alarm)
     ring = np.empty((7, z))
     if ints[6] != 0:
         r_cols, r_frac = ring_cols, ring_frac
         if ints[7] != 0:  # each window sample where the cylinder's throw, not the flywheel, is at its angle
             r_cols, r_frac = np.empty_like(ring_cols), np.empty_like(ring_frac)
-            _moved_kernel(ring_grid, ring_local, phases, static, relative, reals[8], r_cols, r_frac)
-        ring = _ring_kernel(pressure, r_cols, r_frac, ring_x, ring_sizes[0], ring_sizes[1])
+            moved_kernel(ring_grid, ring_local, phases, static, relative, reals[8], r_cols, r_frac)
+        ring = ring_kernel(pressure, r_cols, r_frac, ring_x, ring_sizes[0], ring_sizes[1])
     return new_window, status, misfire, new_reference, new_cycles, chi2, wear, change, mean, var, sums, alarm, ring
 
 
