@@ -2,7 +2,7 @@
 shared box can resolve of a cut of a few per cent (design note 37).
 
     python -m bench.bench_swap_against --base ../base \\
-        --swap frictionwatch.core.monitor.checks.ring_pressure:_moved_kernel \\
+        --swap frictionwatch.core.monitor.checks.ring_pressure:moved_kernel \\
         --swap frictionwatch.core.monitor.calibration.tdc_watch:TraceCut.fits [--pairs 40] [--cycles 120]
 
 Two checkouts' end-to-end runs are separate processes (bench_monitor_against): on this 2-core box shared with other

@@ -22,24 +22,24 @@ def test_swapped_functions_come_from_the_other_checkout_and_go_back(tmp_path):
         shutil.copy(ROOT / rel, tmp_path / rel)
     tw = tmp_path / "core/monitor/calibration/tdc_traces.py"
     tw.write_text(tw.read_text().replace("return self.n == n and", "return 'base' if self.n == n else"))
-    this_kernel, this_fits = ring_pressure._moved_kernel, tdc_traces.TraceCut.fits
-    table = swaps(tmp_path, ["frictionwatch.core.monitor.checks.ring_pressure:_moved_kernel",
+    this_kernel, this_fits = ring_pressure.moved_kernel, tdc_traces.TraceCut.fits
+    table = swaps(tmp_path, ["frictionwatch.core.monitor.checks.ring_pressure:moved_kernel",
                              "frictionwatch.core.monitor.calibration.tdc_traces:TraceCut.fits"])
     cut = tdc_traces.trace_cut(8, [0.0])
     try:
         _use(table, True)
-        assert ring_pressure._moved_kernel is not this_kernel
-        assert ring_pressure._moved_kernel.py_func.__module__ != this_kernel.py_func.__module__
+        assert ring_pressure.moved_kernel is not this_kernel
+        assert ring_pressure.moved_kernel.py_func.__module__ != this_kernel.py_func.__module__
         assert cut.fits(8, [0.0]) == "base"
     finally:
         _use(table, False)
-    assert ring_pressure._moved_kernel is this_kernel and tdc_traces.TraceCut.fits is this_fits
+    assert ring_pressure.moved_kernel is this_kernel and tdc_traces.TraceCut.fits is this_fits
     assert cut.fits(8, [0.0]) is True
 
 
 def test_a_module_the_other_checkout_lacks_is_refused(tmp_path):
     with pytest.raises(SystemExit, match="no core/monitor/checks/ring_pressure.py"):
-        swaps(tmp_path, ["frictionwatch.core.monitor.checks.ring_pressure:_moved_kernel"])
+        swaps(tmp_path, ["frictionwatch.core.monitor.checks.ring_pressure:moved_kernel"])
     with pytest.raises(SystemExit, match="module:attribute"):
         swaps(tmp_path, ["frictionwatch.core.monitor.checks.ring_pressure"])
 

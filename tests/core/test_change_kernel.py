@@ -1,4 +1,4 @@
-"""The change detector's kernel (core/monitor/checks/change.py: detect_change, _cusum_kernel) against its plain numpy
+"""The change detector's kernel (core/monitor/checks/change.py: detect_change, cusum_kernel) against its plain numpy
 reference (detect_change_reference), cycle by cycle over seeded innovation streams of 1, 2, 4 and 20 cylinders that
 go through the warm-up, a step in one cylinder (an alarm), the quiet cycles after it and a non-finite cycle, with
 the innovation's floor off and on.

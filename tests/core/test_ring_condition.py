@@ -1,11 +1,14 @@
 """The ring-condition figure (core.monitor.checks.ring_condition): the siblings' minority rule, the combination of the
 evidence, the window, the change's sigma; worked numbers by hand in each test."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from frictionwatch.core.monitor.checks.ring_condition import (
     SIBLINGS,
     SINCE,
+    RingCondition,
     RingConditionSettings,
     SiblingWindow,
     combine,
@@ -14,6 +17,7 @@ from frictionwatch.core.monitor.checks.ring_condition import (
     leak_change,
     leak_effect,
     ring_condition,
+    ring_condition_reference,
     sibling_excess,
     sibling_excess_reference,
     update_window,
@@ -230,3 +234,27 @@ def test_against_the_siblings_a_friction_excess_alone_is_not_a_worn_ring():
     sf = np.hypot(0.05, 0.1) / 0.1
     want = (3.0 + 4.6 / sf ** 2) / (1.0 + 1.0 / sf ** 2)
     assert_allclose([rc.siblings[0], rc.siblings_sigma[0]], [want, 1.0 / np.sqrt(1.0 + 1.0 / sf ** 2)], rtol=1e-9)
+
+
+@pytest.mark.parametrize("z", [1, 2, 3, 4, 20])
+@pytest.mark.parametrize("count", [0, 99, 100, 400])
+@pytest.mark.parametrize("siblings", [True, False])
+def test_the_ring_condition_kernel_is_its_numpy_reference(z, count, siblings):
+    """ring_condition (one kernel) against ring_condition_reference on seeded evidence with NaN pieces, zero and
+    negative sigmas and NaN window entries: every field within rtol 1e-14 (the same arithmetic in the same order),
+    NaN where NaN, the references equal."""
+    rng = np.random.default_rng(100 * z + count + siblings)
+    for _ in range(30):
+        ev = [rng.normal(0.0, 0.002, z), rng.uniform(0.0, 0.001, z), rng.normal(0.0, 0.2, z),
+              rng.uniform(0.0, 0.1, z), rng.normal(0.0, 0.2, z), rng.uniform(0.0, 0.1, z)]
+        for a in ev:
+            a[rng.uniform(size=z) < 0.15] = np.nan
+        ev[1][rng.uniform(size=z) < 0.1] = 0.0
+        ev[3][rng.uniform(size=z) < 0.1] = -0.01
+        window = SiblingWindow(rng.normal(0.0, 0.003, z), rng.uniform(-1e-7, 1e-5, z), count)
+        window.mean[rng.uniform(size=z) < 0.1] = np.nan
+        lc, lc_s, fc, fc_s, fn, fn_s = ev
+        got = ring_condition(lc, lc_s, window, fc, fc_s, fn, fn_s, siblings=siblings)
+        want = ring_condition_reference(lc, lc_s, window, fc, fc_s, fn, fn_s, siblings=siblings)
+        for f in dataclasses.fields(RingCondition):
+            assert_allclose(getattr(got, f.name), getattr(want, f.name), rtol=1e-14, atol=0, err_msg=f.name)

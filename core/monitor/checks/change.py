@@ -75,33 +75,43 @@ def cylinder_friction(post: Posterior, rows: np.ndarray) -> np.ndarray:
 def detect_change(detector: ChangeDetector | None, cycle: Posterior, smoothed: Posterior, rows: np.ndarray,
                   settings: ChangeSettings) -> tuple[ChangeDetector, np.ndarray]:
     """One cycle of the detector: the new detector and the alarm per cylinder (z,) bool. ``detect_change_reference``'s
-    numbers by one kernel (``_cusum_kernel``) after the two torques: its ~20 small numpy calls were ~1.5 % of a k9k
+    numbers by one kernel (``cusum_kernel``) after the two torques: its ~20 small numpy calls were ~1.5 % of a k9k
     cycle (tests/core/test_change_kernel.py: equal within rtol 1e-12 over warm-up, alarms and quiet cycles)."""
     smooth = cylinder_friction(smoothed, rows)
     u = cylinder_friction(cycle, rows) - smooth
     z_cyl = u.shape[0]
     det = ChangeDetector.empty(z_cyl) if detector is None else detector
     mean, var, sums, alarm = np.empty(z_cyl), np.empty(z_cyl), np.empty((2, z_cyl)), np.zeros(z_cyl, dtype=np.bool_)
-    status = _cusum_kernel(np.ascontiguousarray(u, dtype=np.float64), det.mean, det.var, det.sums, det.count,
-                           det.quiet, np.array((settings.k, settings.h, settings.memory, settings.warmup,
-                                                settings.clip)),
+    status = cusum_kernel(np.ascontiguousarray(u, dtype=np.float64), det.mean, det.var, det.sums, det.count,
+                           det.quiet, cusum_limits(settings),
                            np.ascontiguousarray(settings.rel_floor * np.abs(smooth), dtype=np.float64),
                            mean, var, sums, alarm)
+    return detector_after(det, status, mean, var, sums, settings), alarm
+
+
+def detector_after(det: ChangeDetector, status: int, mean: np.ndarray, var: np.ndarray, sums: np.ndarray,
+                   settings: ChangeSettings) -> ChangeDetector:
+    """The detector after ``cusum_kernel``'s step from ``det`` with its status and the arrays it filled."""
     if status == _NOT_FINITE:
-        return det, alarm
+        return det
     n = det.count + 1
     if status == _LEARNING:
-        return ChangeDetector(mean, var, det.sums, n, max(det.quiet - 1, 0)), alarm
+        return ChangeDetector(mean, var, det.sums, n, max(det.quiet - 1, 0))
     if status == _NO_ALARM:
-        return ChangeDetector(mean, var, sums, n), alarm
-    return ChangeDetector(mean, var, np.zeros((2, z_cyl)), n, settings.quiet), alarm
+        return ChangeDetector(mean, var, sums, n)
+    return ChangeDetector(mean, var, np.zeros((2, mean.shape[0])), n, settings.quiet)
 
 
-_NOT_FINITE, _LEARNING, _NO_ALARM, _ALARM = 0, 1, 2, 3  # _cusum_kernel's status
+_NOT_FINITE, _LEARNING, _NO_ALARM, _ALARM = 0, 1, 2, 3  # cusum_kernel's status
+
+
+def cusum_limits(settings: ChangeSettings) -> np.ndarray:
+    """(k, h, memory, warmup, clip): ``cusum_kernel``'s limits."""
+    return np.array((settings.k, settings.h, settings.memory, settings.warmup, settings.clip))
 
 
 @numba.njit(cache=True)
-def _cusum_kernel(u, mean, var, sums, count, quiet, limits, floor, new_mean, new_var, new_sums, alarm):
+def cusum_kernel(u, mean, var, sums, count, quiet, limits, floor, new_mean, new_var, new_sums, alarm):
     """``detect_change_reference``'s step after the innovation u (z,), element by element in its arithmetic:
     fills new_mean, new_var (and new_sums, alarm where decided) and returns the status: _NOT_FINITE (u not finite,
     nothing filled), _LEARNING (warm-up or quiet: the sums unchanged), _NO_ALARM, _ALARM (alarm marks the cylinder

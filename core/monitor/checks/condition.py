@@ -27,10 +27,15 @@ The window statistics are EWMAs carried in ``ConditionState`` (core.monitor.stat
 cycle from the window that ends there, so it stays on while the condition lasts. The sibling comparison uses the
 median of the cylinders (a single-cylinder engine has no siblings: no blow-by or ring-wear flag).
 
-The per-cycle numbers come from three small kernels (``levels_kernel``, ``window_kernel``, ``combustion_kernel``)
-on pressure samples whose grid columns are fixed once per grid (``condition_tables``, carried in the state); the plain
-numpy functions beside them (``compression_rise``, ``burn_ratio``, ``sibling_deviation``, ``_ewma``,
-``combustion_flags_reference``) are their references (tests/core/test_condition_kernels.py).
+The per-cycle numbers come from one kernel (``condition_kernel``, core.monitor.checks.condition_kernels: the levels,
+their windows, the combustion flags, the cycle's chi^2, the blow-by and worn-ring tests, the change detector's step
+and the ring indicators at the throws' angles) on pressure samples whose grid columns are fixed once per grid
+(``condition_tables``, carried in the state); ``assess_condition`` gathers its inputs and names its flags.
+``assess_condition_reference`` is the same step by the plain numpy functions beside the kernels
+(``compression_rise``, ``burn_ratio``, ``sibling_deviation``, ``_ewma``, ``combustion_flags_reference``,
+``cycle_chi2_reduced_reference``, change.detect_change_reference, ring_pressure.ring_indicators_reference):
+tests/core/test_condition_step.py compares the two over simulated logs, tests/core/test_condition_kernels.py each
+kernel with its piece.
 """
 
 from __future__ import annotations
@@ -40,21 +45,26 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
-from frictionwatch.core.monitor.checks.change import ChangeSettings, detect_change
+from frictionwatch.core.monitor.checks.change import (
+    ChangeDetector,
+    ChangeSettings,
+    cusum_limits,
+    detect_change_reference,
+    detector_after,
+)
 from frictionwatch.core.monitor.checks.check import CheckInput, CheckStep
 from frictionwatch.core.monitor.checks.condition_kernels import (
     FIRED,
     MOTORED,
     combustion_kernel,
+    condition_kernel,
     cycle_chi2_kernel,
-    levels_kernel,
-    window_kernel,
 )
 from frictionwatch.core.monitor.checks.ring_pressure import (
     RingIndicators,
+    RingTables,
     ThrowMotion,
-    moved_tables,
-    ring_indicators,
+    ring_indicators_reference,
     ring_tables,
     ring_windows,
 )
@@ -223,7 +233,102 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
     the accumulator just folded, returned discounted when a change is detected), the cylinder rows (z, p_f) that
     turn the friction parameters into per-cylinder torques, and whether the operating point changed this cycle;
     ``motion``: the throws' motion against the flywheel this cycle (the ring indicators read each cylinder at its
-    own throw's angle; None: at the flywheel's)."""
+    own throw's angle; None: at the flywheel's). ``assess_condition_reference``'s numbers by one kernel
+    (``condition_kernel``: the levels, window, combustion flags, the cycle's chi^2, blow-by and worn-ring tests,
+    the change detector's step and the ring indicators); here only its inputs gathered and its flags named
+    (tests/core/test_condition_kernels.py: flags equal, numbers within rtol 1e-9 over simulated logs)."""
+    fired, cycle, smoothed = ident.fire, ident.cycle, ident.smoothed
+    estimate, accumulator, terms = ident.smoothed_estimate, ident.accumulator, ident.cycle_terms
+    z = spec.n_cyl
+    st = ConditionState.empty(z) if state is None else state
+    tab = st.tables
+    if tab is None or not tab.fits(grid, _table_key(settings)):
+        tab = condition_tables(spec, grid, settings)
+    p = np.ascontiguousarray(pressure, dtype=np.float64)
+    if p.shape != (z, tab.size):
+        raise ValueError(f"pressure must have shape ({z}, {tab.size}) on the cycle's grid; got {p.shape}")
+    g = max(1.0 / settings.window, 1.0 / (st.count + 1))
+    first = st.count == 0
+    # a misfiring cycle is a known, flagged event: it would read as a step in every sibling statistic
+    use = bool(fired.all())
+    count = st.count + 1 if use else st.count
+    # an operating-point change (a load step) is a transient the noise model has not learnt yet: the innovations
+    # move for a while without anything wrong with the engine
+    since_op = 0 if op_changed else st.since_op_change + 1
+    det = ChangeDetector.empty(z) if st.detector is None else st.detector
+    ref0 = st.burn_reference if st.burn_reference is not None else np.full(z, np.nan)
+    n0 = st.burn_cycles if st.burn_cycles is not None else np.zeros(z, dtype=np.int64)
+    ring_tab = tab.ring
+    ring_on = ring_tab is not None
+    moved = ring_on and motion is not None and ring_tab.local is not None
+    if not ring_on:  # the kernel's one signature: the ring arguments stand in, unread
+        ring_tab = RingTables(0.0, 0, np.zeros((z, 1), dtype=np.int64), np.zeros((z, 1)), np.zeros(1), 1, 1)
+    with_terms = terms is not None
+    out = condition_kernel(
+        (p, tab.cols, tab.frac, _c(pmax), _c(indicated)),
+        (st.window, ref0, n0, det.mean, det.var, det.sums),
+        (_c(estimate.friction_torque_mean), _c(estimate.friction_torque_mean_sigma),
+         np.ascontiguousarray(estimate.resolved, dtype=np.bool_)),
+        (_c(cycle.params), _c(smoothed.params), _c(cylinder_rows), _c(terms.rhs if with_terms else cycle.params),
+         _c(terms.info if with_terms else cycle.cov_statistical), _c(cycle.cov_statistical)),
+        (_c(grid), ring_tab.cols, ring_tab.frac, ring_tab.local if moved else ring_tab.neg_log_volume,
+         ring_tab.neg_log_volume, np.array([ring_tab.n_comp, ring_tab.edge], dtype=np.int64), _c(spec.firing_angles),
+         _c(motion.static) if moved else np.zeros(z),
+         np.ascontiguousarray(motion.relative, dtype=np.complex128) if moved else np.zeros((z, 1), np.complex128)),
+        (np.array([settings.burn_log_ratio, settings.partial_fraction, settings.burn_window]),
+         np.array([settings.compression_floor, settings.peak_floor, settings.indicated_floor]),
+         cusum_limits(settings.change)),
+        np.array([use, first, count >= settings.warmup, with_terms, det.count, det.quiet, ring_on, moved],
+                 dtype=np.int64),
+        np.array([g, settings.z_flag, settings.ring_sigmas, settings.misfit_cap,
+                  float(terms.yty) if with_terms else 0.0, float(terms.rows) if with_terms else 0.0,
+                  float(cycle.chi2_reduced), settings.change.rel_floor,
+                  float(motion.theta_start) if moved else 0.0]))
+    window, status, misfire, burn_ref, burn_n, chi2, wear, change, mean, var, sums, alarm, ring_out = out
+    g_misfit = max(1.0 / settings.misfit_window, 1.0 / (st.count + 1))
+    misfit = chi2 if first else st.misfit + g_misfit * (chi2 - st.misfit)
+    # the flags named off Python lists (np.flatnonzero's dispatch was ~3 us a call)
+    if status == FIRED:
+        flags = [f"misfire_cyl{k + 1}" for k, m in enumerate(misfire.tolist()) if m]
+    else:
+        flags = ["motored"] if status == MOTORED else []
+    for k, w in enumerate(wear.tolist()):
+        if w:
+            flags.append(f"blow_by_cyl{k + 1}")
+            if w == 2:
+                flags.append(f"ring_wear_cyl{k + 1}")
+    if st.count >= settings.warmup and misfit > 1.0 + settings.misfit_excess:
+        flags.append("model_misfit")
+    detector = detector_after(det, change, mean, var, sums, settings.change)
+    acc = accumulator
+    if alarm.any():
+        # the estimate follows either way; a change right after an operating-point change is not named as the
+        # engine's (the per-cylinder scales of a model of another shape move with the load, too)
+        if since_op > settings.settle:
+            flags += [f"condition_change_cyl{k + 1}" for k in np.flatnonzero(alarm)]
+        flags.append("estimate_reset")
+        acc = accumulator.discounted(min(1.0, settings.change.reset_weight / max(accumulator.weight, 1e-9)))
+    new = ConditionState(count=count, window=window, misfit=misfit, detector=detector, since_op_change=since_op,
+                         burn_reference=burn_ref, burn_cycles=burn_n, tables=tab)
+    ring = None
+    if ring_on:
+        ring = RingIndicators(compression_pa=ring_out[0], compression_ratio=ring_out[1], n_compression=ring_out[2],
+                              n_expansion=ring_out[3], n_compression_dev=ring_out[4], n_expansion_dev=ring_out[5],
+                              expansion_deficit=ring_out[6])
+    return ConditionStep(new, tuple(flags), acc, ring)
+
+
+def assess_condition_reference(spec: EngineSpec, state: ConditionState | None, grid: np.ndarray, pressure: np.ndarray,
+                     indicated: np.ndarray, pmax: np.ndarray, ident: Identification, cylinder_rows: np.ndarray,
+                     op_changed: bool, settings: ConditionSettings = DEFAULT_SETTINGS,
+                     motion: ThrowMotion | None = None) -> ConditionStep:
+    """This cycle's condition flags from its pressure (z, n) on ``grid``, indicated torques (z,) [N m], peak
+    pressures (z,), the cycle's identification (firing mask, the cycle's and the smoothed posteriors and estimate,
+    the accumulator just folded, returned discounted when a change is detected), the cylinder rows (z, p_f) that
+    turn the friction parameters into per-cylinder torques, and whether the operating point changed this cycle;
+    ``motion``: the throws' motion against the flywheel this cycle (the ring indicators read each cylinder at its
+    own throw's angle; None: at the flywheel's). The plain reference of ``assess_condition``: each number by the
+    numpy function the module names, one step after another."""
     fired, cycle, smoothed = ident.fire, ident.cycle, ident.smoothed
     estimate, accumulator = ident.smoothed_estimate, ident.accumulator
     z = spec.n_cyl
@@ -235,22 +340,26 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
     first = st.count == 0
     work = np.ascontiguousarray(indicated, dtype=np.float64)
     # ln compression rise, ln pmax, ln indicated torque and the burn ratio of each cylinder: (4, z)
-    levels = levels_kernel(np.ascontiguousarray(pressure, dtype=np.float64), tab.cols, tab.frac,
-                            np.ascontiguousarray(pmax, dtype=np.float64), work)
+    levels = np.array([compression_rise(spec, grid, pressure, settings), np.log(np.maximum(pmax, 1.0)),
+                       np.log(np.maximum(work, 1e-9)), burn_ratio(spec, grid, pressure, settings.burn_half_deg)])
     # a misfiring cycle is a known, flagged event: it would read as a step in every sibling statistic
     use = fired.all()
-    window = window_kernel(levels, st.window, g, first) if use else st.window
+    if use:
+        rows = [_ewma(st.window[0, r], st.window[1, r], sibling_deviation(levels[r]), g, first) for r in range(3)]
+        window = np.stack([np.stack([m for m, _ in rows]), np.stack([v for _, v in rows])])
+    else:
+        window = st.window
     # an operating-point change (a load step) is a transient the noise model has not learnt yet: the innovations
     # move for a while without anything wrong with the engine
     since_op = 0 if op_changed else st.since_op_change + 1
     settled = since_op > settings.settle
-    chi2 = min(cycle_chi2_reduced(ident.cycle_terms, cycle), settings.misfit_cap)  # a few wild cycles cannot
+    chi2 = min(cycle_chi2_reduced_reference(ident.cycle_terms, cycle), settings.misfit_cap)  # a few wild cycles cannot
     # make a window's misfit
     g_misfit = max(1.0 / settings.misfit_window, 1.0 / (st.count + 1))
     misfit = chi2 if first else st.misfit + g_misfit * (chi2 - st.misfit)
     ref0 = st.burn_reference if st.burn_reference is not None else np.full(z, np.nan)
     n0 = st.burn_cycles if st.burn_cycles is not None else np.zeros(z, dtype=np.int64)
-    flags, burn_ref, burn_n = combustion_flags(levels[3], work, ref0, n0, settings)
+    flags, burn_ref, burn_n = combustion_flags_reference(levels[3], work, ref0, n0, settings)
     count = st.count + 1 if use else st.count
     if count >= settings.warmup and z > 1:
         se = np.sqrt(g / (2.0 - g))  # standard error of an EWMA mean per unit of scatter
@@ -263,7 +372,7 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
     if st.count >= settings.warmup and misfit > 1.0 + settings.misfit_excess:
         flags.append("model_misfit")
 
-    detector, alarm = detect_change(st.detector, cycle, smoothed, cylinder_rows, settings.change)
+    detector, alarm = detect_change_reference(st.detector, cycle, smoothed, cylinder_rows, settings.change)
     acc = accumulator
     if alarm.any():
         # the estimate follows either way; a change right after an operating-point change is not named as the
@@ -276,8 +385,7 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
                          burn_reference=burn_ref, burn_cycles=burn_n, tables=tab)
     ring = None
     if tab.ring is not None:
-        ring_tab = tab.ring if motion is None or tab.ring.local is None else moved_tables(spec, grid, tab.ring, motion)
-        ring = ring_indicators(spec, grid, pressure, tables=ring_tab)
+        ring = ring_indicators_reference(spec, grid, pressure, motion=motion)
     return ConditionStep(new, tuple(flags), acc, ring)
 
 
@@ -318,6 +426,11 @@ def condition_tables(spec: EngineSpec, grid: np.ndarray, settings: ConditionSett
     except ValueError:
         ring = None  # the engine's valve timing leaves no room for the ring indicators' windows
     return ConditionTables(float(grid[0]), int(n), _table_key(settings), i.astype(np.int64) % n, frac, ring)
+
+
+def _c(a: np.ndarray) -> np.ndarray:
+    """``a`` as a C-ordered float64 array (itself when it is one): the condition kernel's one signature."""
+    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 def _table_key(settings: ConditionSettings) -> tuple[float, ...]:

@@ -1,12 +1,14 @@
 """Numba kernels of the condition check (core.monitor.checks.condition), each beside the plain numpy it stands for
 there: the levels and their windows, the combustion flags with the siblings' medians from one sort, and the cycle's
-chi^2 over its effective degrees of freedom in numpy's own order of arithmetic."""
+chi^2 over its effective degrees of freedom in numpy's own order of arithmetic; ``condition_kernel`` runs them, the
+change detector's and the ring indicators' kernels and the blow-by and worn-ring tests as one dispatch a cycle."""
 
 from __future__ import annotations
 
 import numba
 import numpy as np
-from frictionwatch.core.monitor.checks.ring_pressure import median_of_first
+from frictionwatch.core.monitor.checks.change import cusum_kernel
+from frictionwatch.core.monitor.checks.ring_pressure import median_of_first, moved_kernel, ring_kernel
 
 NOT_JUDGED, MOTORED, FIRED = 0, 1, 2  # combustion_kernel's status: no burn ratio, none burned, some burned
 
@@ -200,3 +202,98 @@ def _block_sum(a, lo, n):
         res += a[lo + i]
         i += 1
     return res
+
+
+# ---- the whole check as one kernel ------------------------------------------------------------------------------
+# The kernels above are called one by one from ``assess_condition``'s reference (``assess_condition_reference``);
+# ``condition_kernel`` runs them, the change detector's step, the blow-by/worn-ring tests and the ring indicators in
+# one dispatch over the state's arrays (their Python between the kernels was ~20 small numpy calls a cycle).
+
+INT_FIELDS = ("use", "first", "flag_window", "has_terms", "det_count", "det_quiet", "ring", "moved")
+REAL_FIELDS = ("g", "z_flag", "ring_sigmas", "misfit_cap", "yty", "rows", "chi2_reduced", "rel_floor",
+               "theta_start")
+
+
+@numba.njit(cache=True)
+def condition_kernel(levels_in, state, estimate, fit, ring_in, limits, ints, reals):
+    """One cycle of ``assess_condition_reference`` after its Python: (window (2, 3, z), combustion status,
+    misfire (z,) bool, burn reference (z,), burn cycles (z,), capped chi^2, wear (z,) int64 (1 blow-by, 2 blow-by
+    and a worn ring), change status, the detector's mean (z,), var (z,) and sums (2, z), alarm (z,) bool, ring
+    (7, z) as ``ring_kernel``'s).
+
+    Tuples of arrays, by what they are:
+      levels_in = (pressure (z, n), cols (z, 4), frac (z, 4): the condition tables, pmax (z,), indicated (z,));
+      state = (window (2, 3, z), burn_reference (z,), burn_cycles (z,) int64, the change detector's mean (z,),
+               var (z,), sums (2, z));
+      estimate = (torque (z,), sigma (z,), resolved (z,) bool): the smoothed estimate's;
+      fit = (cycle_params (P,), smoothed_params (P,), cylinder_rows (z, p_f): the change detector's innovations;
+             rhs (P,), info (P, P) of the cycle's terms and its cov_statistical (P, P): ``cycle_chi2_kernel``'s,
+             unread without terms);
+      ring_in = (grid (n,), cols (z, m), frac (z, m), local (m,), -ln V (m,), sizes (n_comp, edge): the ring
+                 tables; phases (z,) the firing angles, static (z,) and relative (z, M) the throw motion);
+      limits = (burn (3,) as ``combustion_kernel``'s, the window's floors (3,), cusum (5,) as ``cusum_kernel``'s);
+    ints and reals: the flags and scalars named by INT_FIELDS and REAL_FIELDS, in that order. One signature for
+    every engine: the optional parts (terms, ring, motion) are switched by ints, never by the arguments' types."""
+    pressure, cols, frac, pmax, work = levels_in
+    window, burn_reference, burn_cycles, det_mean, det_var, det_sums = state
+    torque, sigma, resolved = estimate
+    cycle_params, smoothed_params, cylinder_rows, rhs, info, cov_stat = fit
+    ring_grid, ring_cols, ring_frac, ring_local, ring_x, ring_sizes, phases, static, relative = ring_in
+    burn_limits, floors, cusum_limits = limits
+    use, first, flag_window, has_terms = ints[0] != 0, ints[1] != 0, ints[2] != 0, ints[3] != 0
+    g, z_flag, ring_sigmas, misfit_cap = reals[0], reals[1], reals[2], reals[3]
+    z = pressure.shape[0]
+    levels = levels_kernel(pressure, cols, frac, pmax, work)
+    new_window = window_kernel(levels, window, g, first) if use else window.copy()
+    status, misfire, new_reference, new_cycles = combustion_kernel(levels[3], work, burn_reference, burn_cycles,
+                                                                   burn_limits)
+    if has_terms:
+        chi2 = cycle_chi2_kernel(reals[4], reals[5], cycle_params, rhs, info, cov_stat, reals[6])
+    else:
+        chi2 = reals[6]
+    chi2 = misfit_cap if misfit_cap < chi2 else chi2  # Python's min(chi2, cap): NaN stays NaN
+    wear = np.zeros(z, dtype=np.int64)
+    if flag_window and z > 1:
+        se = np.sqrt(g / (2.0 - g))  # standard error of an EWMA mean per unit of scatter
+        for k in range(z):
+            low = True
+            for r in range(3):
+                low = low and new_window[0, r, k] < -(floors[r] + z_flag * se * np.sqrt(new_window[1, r, k]))
+            if low:
+                wear[k] = 2 if friction_up_kernel(torque, sigma, resolved, k, ring_sigmas) else 1
+    # the change detector on the innovation of each cylinder's friction: this cycle's minus the smoothed
+    p_f = cylinder_rows.shape[1]
+    smooth = np.dot(cylinder_rows, np.ascontiguousarray(smoothed_params[:p_f]))
+    u = np.dot(cylinder_rows, np.ascontiguousarray(cycle_params[:p_f])) - smooth
+    floor = reals[7] * np.abs(smooth)
+    mean, var, sums, alarm = np.empty(z), np.empty(z), np.empty((2, z)), np.zeros(z, dtype=np.bool_)
+    change = cusum_kernel(u, det_mean, det_var, det_sums, ints[4], ints[5], cusum_limits, floor, mean, var, sums,
+                           alarm)
+    ring = np.empty((7, z))
+    if ints[6] != 0:
+        r_cols, r_frac = ring_cols, ring_frac
+        if ints[7] != 0:  # each window sample where the cylinder's throw, not the flywheel, is at its angle
+            r_cols, r_frac = np.empty_like(ring_cols), np.empty_like(ring_frac)
+            moved_kernel(ring_grid, ring_local, phases, static, relative, reals[8], r_cols, r_frac)
+        ring = ring_kernel(pressure, r_cols, r_frac, ring_x, ring_sizes[0], ring_sizes[1])
+    return new_window, status, misfire, new_reference, new_cycles, chi2, wear, change, mean, var, sums, alarm, ring
+
+
+@numba.njit(cache=True)
+def friction_up_kernel(torque, sigma, resolved, k, sigmas):
+    """``condition._friction_up``: cylinder k's torque resolved and above its resolved siblings' mean by ``sigmas``
+    combined sigmas, the means summed as np.mean sums (``numpy_sum``)."""
+    z = torque.shape[0]
+    if not resolved[k]:
+        return False
+    t_o, s2_o = np.empty(z), np.empty(z)
+    n = 0
+    for j in range(z):
+        if j != k and resolved[j]:
+            t_o[n] = torque[j]
+            s2_o[n] = sigma[j] * sigma[j]
+            n += 1
+    if n == 0:
+        return False
+    excess = torque[k] - numpy_sum(t_o, 0, n) / n
+    return excess > sigmas * np.sqrt(sigma[k] * sigma[k] + numpy_sum(s2_o, 0, n) / n / n)

@@ -42,8 +42,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import NamedTuple
 
-import numba
 import numpy as np
+from frictionwatch.core.monitor.checks.ring_condition_kernels import ring_condition_kernel, sibling_kernel
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 
 SINCE, SIBLINGS = 0, 1
@@ -193,41 +193,8 @@ def sibling_excess(x: np.ndarray, se: np.ndarray, allowance: float) -> tuple[np.
         # one kernel for the z medians (``sibling_excess_reference``'s numbers): as numpy, one matrix of every
         # cylinder's others and one sort, it cost ~80 us a genset-v20 cycle (load ~5), 9 % of serve's busy time
         # with 4 gensets (py-spy), the ring rule's largest part
-        _sibling_kernel(x, se, float(allowance), dev, sig)
+        sibling_kernel(x, se, float(allowance), dev, sig)
     return dev, sig
-
-
-@numba.njit(cache=True)
-def _sibling_kernel(x, se, allowance, dev, sig):  # pragma: no cover - compiled; tested against the reference
-    z = x.shape[0]
-    o, o_se = np.empty(z - 1), np.empty(z - 1)
-    for k in range(z):
-        n = 0
-        for j in range(z):
-            if j != k and np.isfinite(x[j]):
-                o[n], o_se[n] = x[j], se[j]
-                n += 1
-        if not np.isfinite(x[k]) or n < 2:
-            continue
-        if n == 2:  # three cylinders: the mean of the two others, their disagreement as spread
-            centre = 0.5 * (o[0] + o[1])
-            spread = abs(o[0] - o[1]) / np.sqrt(2.0)
-            centre_var = 0.25 * (o_se[0] ** 2 + o_se[1] ** 2) + 0.5 * spread ** 2
-        else:  # the median of the others, their median absolute deviation as spread
-            centre = _sorted_median(np.sort(o[:n]))
-            spread = 1.4826 * _sorted_median(np.sort(np.abs(o[:n] - centre)))
-            se2 = 0.0
-            for j in range(n):
-                se2 += o_se[j] ** 2
-            centre_var = (np.pi / 2.0) * (spread ** 2 + se2 / n) / n
-        dev[k] = x[k] - centre
-        sig[k] = np.sqrt(se[k] ** 2 + max(spread, allowance) ** 2 + centre_var)
-
-
-@numba.njit(cache=True)
-def _sorted_median(s):  # pragma: no cover - compiled
-    n = s.shape[0]
-    return s[(n - 1) // 2] if n % 2 == 1 else 0.5 * (s[n // 2 - 1] + s[n // 2])
 
 
 def sibling_excess_reference(x: np.ndarray, se: np.ndarray, allowance: float) -> tuple[np.ndarray, np.ndarray]:
@@ -352,11 +319,34 @@ def ring_condition(leak_change: np.ndarray, leak_change_sigma: np.ndarray, windo
                    friction_change: np.ndarray, friction_change_sigma: np.ndarray,
                    friction_now: np.ndarray, friction_now_sigma: np.ndarray,
                    settings: RingConditionSettings = DEFAULT, siblings: bool = True) -> RingCondition:
+    """``ring_condition_reference``'s figure by one kernel (core.monitor.checks.ring_condition_kernels; its ~15
+    numpy calls were ~110 us a genset-v20 cycle in serve, design note 86; tests/core/test_ring_condition.py: equal
+    within rtol 1e-14)."""
+    lc, lc_s = _f(leak_change), _f(leak_change_sigma)
+    fc = _f(friction_change)
+    out, ref = ring_condition_kernel(
+        (lc, lc_s, fc, _f(friction_change_sigma), _f(friction_now), _f(friction_now_sigma)), _f(window.mean),
+        _f(window.var), np.array([settings.leak_scale, settings.friction_scale, settings.window,
+                                  settings.leak_allowance, settings.friction_allowance]),
+        np.array([window.count, settings.warmup, siblings], dtype=np.int64))
+    return RingCondition(out[0], out[1], ref, out[2], out[3], out[4], out[5], lc, lc_s, out[6], out[7], fc, out[8])
+
+
+def _f(a: np.ndarray) -> np.ndarray:
+    """``a`` as a C-ordered float64 array (itself when it is one)."""
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def ring_condition_reference(leak_change: np.ndarray, leak_change_sigma: np.ndarray, window: SiblingWindow,
+                   friction_change: np.ndarray, friction_change_sigma: np.ndarray,
+                   friction_now: np.ndarray, friction_now_sigma: np.ndarray,
+                   settings: RingConditionSettings = DEFAULT, siblings: bool = True) -> RingCondition:
     """The ring condition of every cylinder (module doc) from: the leak effect's change since the baseline (z,) and
     its sigma (NaN: no baseline at this load); the sibling window of the leak effect; the friction excess's change
     since its baseline (z,) and its sigma, and the friction excess over the siblings now (z,) and its sigma (NaN
     where not measured: ``friction_excess``). ``siblings`` False leaves the sibling reference out (NaN): after an
-    operator declared the present state normal (a rebaseline), the siblings would name what was declared."""
+    operator declared the present state normal (a rebaseline), the siblings would name what was declared. The plain
+    numpy reference of ``ring_condition``."""
     z = window.mean.shape[0]
     scales = np.array([settings.leak_scale, settings.friction_scale])
     since, since_s = combine(np.vstack([leak_change, friction_change]),

@@ -37,8 +37,8 @@ the window's angle, not the flywheel (``moved_tables``): the twist's share of ea
 
 Arrays in, arrays out, no state: the windows are fixed by the engine spec, so each cycle stands alone. What the grid
 fixes (every window sample's grid columns, -ln V there) is made once per grid (``ring_tables``, carried by the caller;
-a cycle's throw motion moves the columns, ``moved_tables``, one kernel ``_moved_kernel``); the per-cycle numbers come
-from one kernel (``_ring_kernel``), checked against the plain numpy
+a cycle's throw motion moves the columns, ``moved_tables``, one kernel ``moved_kernel``); the per-cycle numbers come
+from one kernel (``ring_kernel``), checked against the plain numpy
 ``ring_indicators_reference`` (tests/core/test_condition_kernels.py).
 """
 
@@ -53,7 +53,7 @@ from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.kinematics import kinematics
 
 FOUR_PI = 4.0 * np.pi
-RESTART = 32  # _moved_kernel: its terms recomputed directly at least this often (rounding of the rotations)
+RESTART = 32  # moved_kernel: its terms recomputed directly at least this often (rounding of the rotations)
 STEP_DEG = 1.0  # the windows are sampled every degree (np.interp on the cycle's grid: any grid resolution)
 
 
@@ -251,11 +251,11 @@ def ring_tables(spec: EngineSpec, grid: np.ndarray, windows: RingWindows | None 
 def moved_tables(spec: EngineSpec, grid: np.ndarray, tables: RingTables, motion: ThrowMotion) -> RingTables:
     """``tables`` (made by ``ring_tables`` for ``grid``) with every window sample moved to where the cylinder's
     throw, not the flywheel, is at the sample's angle from its firing TDC this cycle (to first order in the lag, a
-    few tenths of a degree): ``_sample``'s columns with ``throw_lag_reference`` by one kernel (``_moved_kernel``;
+    few tenths of a degree): ``_sample``'s columns with ``throw_lag_reference`` by one kernel (``moved_kernel``;
     numpy's 94,000 complex exponentials and a searchsorted took 1.6 ms a genset-v20 cycle)."""
     z, m = tables.cols.shape
     cols, frac = np.empty((z, m), dtype=np.int64), np.empty((z, m))
-    _moved_kernel(np.ascontiguousarray(grid, dtype=np.float64), tables.local,
+    moved_kernel(np.ascontiguousarray(grid, dtype=np.float64), tables.local,
                   np.ascontiguousarray(spec.firing_angles, dtype=np.float64),
                   np.ascontiguousarray(motion.static, dtype=np.float64),
                   np.ascontiguousarray(motion.relative, dtype=np.complex128), float(motion.theta_start), cols, frac)
@@ -263,7 +263,7 @@ def moved_tables(spec: EngineSpec, grid: np.ndarray, tables: RingTables, motion:
 
 
 @numba.njit(cache=True)
-def _moved_kernel(grid, local, phases, static, rel, theta_start, cols, frac):
+def moved_kernel(grid, local, phases, static, rel, theta_start, cols, frac):
     """cols/frac (z, m) in place: each sample at flywheel angle a = local + phase minus the throw's lag there
     (static + Re sum_j rel_j exp(i (j + 1) (a - theta_start) / 2)), then its bracket on the grid extended by one
     point at each end, periodic over 4 pi (``_columns``; ``_bracket``, from the cylinder's last one). The samples
@@ -363,7 +363,7 @@ def ring_indicators(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, wi
     p = np.asarray(pressure, dtype=np.float64)
     if p.shape != (spec.n_cyl, tab.size):
         raise ValueError(f"pressure must have shape ({spec.n_cyl}, {tab.size}) on the cycle's grid; got {p.shape}")
-    out = _ring_kernel(p, tab.cols, tab.frac, tab.neg_log_volume, tab.n_comp, tab.edge)
+    out = ring_kernel(p, tab.cols, tab.frac, tab.neg_log_volume, tab.n_comp, tab.edge)
     return RingIndicators(compression_pa=out[0], compression_ratio=out[1], n_compression=out[2],
                           n_expansion=out[3], n_compression_dev=out[4], n_expansion_dev=out[5],
                           expansion_deficit=out[6])
@@ -421,7 +421,7 @@ def _sibling_median_kernel(x, out):
 
 
 @numba.njit(cache=True)
-def _ring_kernel(pressure, cols, frac, neg_log_volume, n_comp, edge):
+def ring_kernel(pressure, cols, frac, neg_log_volume, n_comp, edge):
     """(7, z): compression_pa, compression_ratio, n_compression, n_expansion, n_compression_dev, n_expansion_dev,
     expansion_deficit (``ring_indicators_reference``) from the pressure (z, n) sampled at cols/frac (z, m)."""
     z, n = pressure.shape
