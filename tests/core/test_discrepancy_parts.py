@@ -597,7 +597,7 @@ def test_a_named_step_that_raises_the_plain_held_out_gap_says_so():
     ring = make_effect("stribeck_ring", {"fraction": 0.906}, {"fraction": 0.104})
     step = SimpleNamespace(effects=(ring,), effect=ring, gap_before=4.63, gap_after=6.19, floored_fall=12.5)
     d = SimpleNamespace(steps=[step], remainder=None, ambiguous=None, within_null_fits=[], one_operating_point=False,
-                        one_speed=False, refused=[], step_limit_reached=False)
+                        one_speed=False, refused=[], step_limit_reached=False, pair_not_taken="")
     text = verdict(d)
     assert "the plain held-out gap rises 4.6 -> 6.2" in text and "falls by 12.5" in text
     d.steps = [SimpleNamespace(effects=(ring,), effect=ring, gap_before=6.19, gap_after=4.63, floored_fall=None)]
