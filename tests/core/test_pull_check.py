@@ -17,9 +17,12 @@ from frictionwatch.core.monitor.identify.pull_check import (
     PullCheck,
     data_only_pull,
     pull_sigma,
+    pull_sigma_kernel,
+    pull_sigma_of_info_kernel,
     pull_sigma_reference,
     with_pull,
 )
+from frictionwatch.core.monitor.identify.spd import spd_inverse_lower
 from frictionwatch.core.monitor.pipeline import CyclePipeline
 from frictionwatch.core.monitor.report.results import FrictionEstimate
 from frictionwatch.drivers.logs.mcap_log import LogReader
@@ -210,6 +213,19 @@ def test_kernel_is_the_reference_on_monitor_inputs(captured):
         assert len(live) >= 10, name
         fired = sum(_assert_kernel_is_reference(*c, kappa) for c in live for kappa in KAPPAS)
         assert fired >= len(live), (name, fired)
+
+
+def test_one_dispatch_is_the_two_step_path(captured):
+    """PullCheck.sigma's one kernel (the inverse by the numba-bound LAPACK calls, design note 88) against what it
+    replaced, scipy's potrf/potri (``spd_inverse_lower``) then ``pull_sigma_kernel``: the same library calls on the
+    same matrix, so equal to the last bit but for zeros' signs (a + 0.0); held at rtol 1e-14."""
+    for name, calls in captured.items():
+        for acc, post, rows, share in [c for c in calls if c[0].weight > 0.0]:
+            args = (np.ascontiguousarray(acc.rhs), post.params, float(post.chi2_reduced), post.cov_statistical,
+                    np.ascontiguousarray(rows), share, 2.5)
+            got = pull_sigma_of_info_kernel(acc.info, *args)
+            want = pull_sigma_kernel(spd_inverse_lower(acc.info), *args)
+            assert_allclose(got, want, rtol=1e-14, atol=1e-14 * float(np.max(want, initial=0.0)), err_msg=name)
 
 
 def _random_case(rng, n=12, p=7, z=5, prior=2.0, bias=0.0, twin=False):

@@ -38,7 +38,7 @@ import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.identify.accumulate import Accumulator
 from frictionwatch.core.monitor.identify.posterior import Posterior
-from frictionwatch.core.monitor.identify.spd import spd_inverse, spd_inverse_lower
+from frictionwatch.core.monitor.identify.spd import lapack_spd_inverse_of_sum, spd_inverse
 from frictionwatch.core.monitor.report.results import FrictionEstimate
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 
@@ -128,13 +128,33 @@ def pull_sigma_kernel(inv_lower, rhs, params, chi2_reduced, cov_statistical, row
     differ by 5e-11 of sqrt(C_ii C_jj), the pull sigmas by up to 3e-8 of their largest; design note 42). The rest
     is loops or numba's BLAS in the order of the reference's products, and numba's eigh (LAPACK syevd, as numpy's)."""
     n = inv_lower.shape[0]
-    z, p = rows.shape
-    sigma = np.zeros(z)
     inv = np.empty((n, n))
     for i in range(n):  # spd_inverse's tril(inv) + tril(inv, -1).T
         for j in range(i + 1):
             inv[i, j] = inv_lower[i, j]
             inv[j, i] = inv_lower[i, j]
+    return _pull_sigma_of_inverse(inv, rhs, params, chi2_reduced, cov_statistical, rows, share, kappa)
+
+
+@numba.njit(cache=True)
+def pull_sigma_of_info_kernel(info, rhs, params, chi2_reduced, cov_statistical, rows, share, kappa):
+    """``pull_sigma_reference`` from the accumulated information info (P, P) in one dispatch (design note 88): N^-1
+    by the calls ``spd_inverse`` makes (LAPACK potrf then potri on the raw matrix, core.monitor.identify.spd's
+    ``lapack_spd_inverse_of_sum`` with nothing added: its bits, note 80), mirrored, then ``pull_sigma_kernel``'s
+    arithmetic. Zeros (z,) where info is not positive definite (no data-only point) or a number is not finite."""
+    n = info.shape[0]
+    inv = np.empty((n, n))
+    if lapack_spd_inverse_of_sum(info, np.zeros((n, n)), inv, 1.0) < 0.0:
+        return np.zeros(rows.shape[0])
+    return _pull_sigma_of_inverse(inv, rhs, params, chi2_reduced, cov_statistical, rows, share, kappa)
+
+
+@numba.njit(cache=True)
+def _pull_sigma_of_inverse(inv, rhs, params, chi2_reduced, cov_statistical, rows, share, kappa):
+    """The pull sigmas (z,) from N^-1 (P, P), symmetric (the two kernels above)."""
+    n = inv.shape[0]
+    z, p = rows.shape
+    sigma = np.zeros(z)
     theta_d = inv @ rhs
     for i in range(n):
         if not np.isfinite(theta_d[i]):
@@ -211,15 +231,12 @@ class PullCheck:
                 post.params.shape[0] < p or post.cov_statistical.shape[0] < p:
             raise ValueError(f"pull check: info {acc.info.shape}, rhs {acc.rhs.shape}, rows {rows.shape}, share "
                              f"{share.shape}, params {post.params.shape}, cov {post.cov_statistical.shape} do not fit")
-        # spd_inverse without its symmetrisation (np.tril: 12 of its 26 us on genset-v20's 47 x 47,
-        # bench/bench_pull_check.py); the kernel mirrors the triangle itself
-        low = spd_inverse_lower(acc.info)
-        if low is None:  # not positive definite: no data-only point
-            return np.zeros(z)
-        return pull_sigma_kernel(low, np.ascontiguousarray(acc.rhs, dtype=f64),
-                                 np.ascontiguousarray(post.params, dtype=f64), float(post.chi2_reduced),
-                                 np.ascontiguousarray(post.cov_statistical, dtype=f64), rows, share,
-                                 float(self.kappa))
+        # the inverse (LAPACK's calls, as spd_inverse) and the arithmetic in one dispatch (design note 88)
+        return pull_sigma_of_info_kernel(np.ascontiguousarray(acc.info, dtype=f64),
+                                         np.ascontiguousarray(acc.rhs, dtype=f64),
+                                         np.ascontiguousarray(post.params, dtype=f64), float(post.chi2_reduced),
+                                         np.ascontiguousarray(post.cov_statistical, dtype=f64), rows, share,
+                                         float(self.kappa))
 
 
 def with_pull(est: FrictionEstimate, sigma: np.ndarray, resolve_rel: float, spec: EngineSpec) -> FrictionEstimate:
