@@ -240,7 +240,7 @@ class PreviousCycle(NamedTuple):
     """What the next cycle's balance needs of the last analysed one: the ticks of its first and last tooth edges (it
     is the cycle just before only if the next one's first edge lies after its first and at or before its last:
     consecutive cycles share their boundary edges, core.types.Cycle; a stream index may be renumbered after a lost
-    sync), pressure (z, n) [Pa], angle-averaged kinetic energy [J] (core.monitor.identify.mean_balance.cycle_energy),
+    sync), pressure (z, n) [Pa], angle-averaged kinetic energy [J] (core.monitor.balance.mean_balance.cycle_energy),
     measured load [N m], indicated torque [N m] (the cylinders' work means over its own window, summed:
     Excitation.indicated_mean), coupling loss [N m] and load_late [N m] its load under the rising half of the
     balance's triangle (core.types.Cycle.load_late with the load's ripple work; not given: ``load``)."""
@@ -256,13 +256,13 @@ class PreviousCycle(NamedTuple):
 
 
 class GridGeometry(NamedTuple):
-    """What the cycles' crank-angle grid fixes once (core.monitor.identify.mean_balance.grid_geometry): the grid's first
+    """What the cycles' crank-angle grid fixes once (core.monitor.balance.mean_balance.grid_geometry): the grid's first
     angle [rad] and size (a cycle on another grid makes it anew), every cylinder's piston displacement on it
     positions (z, n) [m], J(theta = 2 pi) [kg m^2] and each piston's x'' (z, n) [m/rad^2] (the indicated work's
-    sensitivity to a TDC error, core.monitor.identify.mean_balance.indicated_tdc_sensitivity); the transient balance's
+    sensitivity to a TDC error, core.monitor.balance.mean_balance.indicated_tdc_sensitivity); the transient balance's
     window starts (core.model.indicated.window_starts): window_starts (1, z) of each cylinder's own firing window in
     [previous | current], alone_starts (1, z) of the cycle's own closed loop, and its triangle's weights
-    triangle_previous, triangle_current (z, n) [m^2/rad] (core.monitor.identify.mean_balance.triangle_weights)
+    triangle_previous, triangle_current (z, n) [m^2/rad] (core.monitor.balance.mean_balance.triangle_weights)
     (None: made by the balance)."""
 
     first_angle: float
@@ -281,7 +281,7 @@ class GridGeometry(NamedTuple):
 
 class EnergyWeights(NamedTuple):
     """What a cycle's angle-averaged kinetic energy weighs its tooth intervals' 1 / dt^2 by, fixed by the edges'
-    nominal angles (core.monitor.identify.mean_balance.energy_weights): the cycle's edge angles (m,) [rad] they
+    nominal angles (core.monitor.balance.mean_balance.energy_weights): the cycle's edge angles (m,) [rad] they
     were made for and the weights (m - 1,) [kg m^2 rad^2]."""
 
     tooth_angle: np.ndarray

@@ -13,8 +13,8 @@ import numpy as np
 from frictionwatch.core.model.dynamics import rigid_friction_torque
 from frictionwatch.core.model.engine import EngineSpec, mep_per_torque
 from frictionwatch.core.monitor.balance.excitation import Excitation
+from frictionwatch.core.monitor.balance.mean_balance import MeanBalance
 from frictionwatch.core.monitor.identify.identification import Identification
-from frictionwatch.core.monitor.identify.mean_balance import MeanBalance
 from frictionwatch.core.monitor.identify.parameters import CycleRows, ParameterLayout
 from frictionwatch.core.monitor.report.report_kernels import TrigTables, report_traces, speed_series
 from frictionwatch.core.monitor.report.results import CycleResult

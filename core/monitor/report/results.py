@@ -171,7 +171,7 @@ class CycleResult:
     acceleration rad/s^2, indicated_window N m: of this cycle and the one before (a triangular weight centred on
     cylinder 1's firing TDC between them), the change of their angle-averaged kinetic energy / 4 pi over J at
     theta = 2 pi and the engine's indicated torque; friction_balance pairs them with J(2 pi) (NaN without the cycle
-    before; core.monitor.identify.mean_balance.transient_balance)
+    before; core.monitor.balance.mean_balance.transient_balance)
     ring: the pressure-based ring indicators of every cylinder (core.monitor.checks.ring_pressure; service.alerts)
 
     The traces (grid, friction_torque, friction_torque_cyl_time, time_angles, speed_measured, speed_model,
