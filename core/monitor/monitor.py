@@ -63,8 +63,7 @@ from frictionwatch.core.monitor.report.report_kernels import trig_tables
 from frictionwatch.core.monitor.report.results import ChainSample, CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState, PreviousCycle
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
-from frictionwatch.core.monitor.teeth.second_wheel import fit_second_wheel, free_end_input
-from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth
+from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth, fit_second_wheel, free_end_input
 from frictionwatch.core.types import Cycle
 
 __all__ = ["CHECKS", "CycleRejected", "MonitorConfig", "MonitorState", "default_max_order", "initial_state",

@@ -20,8 +20,7 @@ from frictionwatch.core.monitor.identify.parameters import ParameterLayout, Prio
 from frictionwatch.core.monitor.identify.pull_check import PullCheck
 from frictionwatch.core.monitor.report.report_kernels import TrigTables
 from frictionwatch.core.monitor.teeth.flywheel import LearnerSettings, ToothLearner
-from frictionwatch.core.monitor.teeth.second_wheel import SecondWheelState
-from frictionwatch.core.monitor.teeth.tooth_fit import ToothPatterns
+from frictionwatch.core.monitor.teeth.tooth_fit import SecondWheelState, ToothPatterns
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 from frictionwatch.core.types import Cycle
 
@@ -325,7 +324,7 @@ class MonitorState:
     previous: PreviousCycle | None = None  # the last analysed cycle: centred windows and the kinetic-energy term
     grid_geometry: GridGeometry | None = None  # the crank-angle grid's piston positions and J(2 pi)
     energy_weights: EnergyWeights | None = None  # the cycle energy's weights at the edges' angles
-    wheel2: SecondWheelState | None = None  # the second wheel's tooth learner (core.monitor.teeth.second_wheel)
+    wheel2: SecondWheelState | None = None  # the second wheel's tooth learner (core.monitor.teeth.tooth_fit)
 
     def previous_of(self, first_tick: int) -> PreviousCycle | None:
         """``previous`` if it is the cycle just before one whose first tooth edge is at ``first_tick``, else None."""

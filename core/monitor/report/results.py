@@ -19,7 +19,7 @@ import numpy as np
 from frictionwatch.core.model.engine import mep_per_torque
 from frictionwatch.core.monitor.checks.ring_pressure import RingIndicators
 from frictionwatch.core.monitor.report.figure_status import FigureStatus, FrictionStatus, friction_status
-from frictionwatch.core.monitor.teeth.second_wheel import FreeEndSpeed
+from frictionwatch.core.monitor.teeth.tooth_fit import FreeEndSpeed
 
 PA_PER_BAR = 1e5
 
@@ -209,7 +209,7 @@ class CycleResult:
     acceleration: float = float("nan")
     indicated_window: float = float("nan")
     ring: RingIndicators | None = None
-    free_end: FreeEndSpeed | None = None  # the second wheel's speed of this cycle (core.monitor.teeth.second_wheel)
+    free_end: FreeEndSpeed | None = None  # the second wheel's speed of this cycle (core.monitor.teeth.tooth_fit)
     chain: ChainSample | None = None  # with a second wheel: what the drive train's identification needs
 
     @cached_property
