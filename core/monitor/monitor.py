@@ -58,8 +58,7 @@ from frictionwatch.core.monitor.identify.noise_model import (
     no_free_end_rows,
 )
 from frictionwatch.core.monitor.identify.parameters import parameter_layout, prior_normal
-from frictionwatch.core.monitor.report.cycle_report import StageReport, build_result
-from frictionwatch.core.monitor.report.report_kernels import trig_tables
+from frictionwatch.core.monitor.report.cycle_report import StageReport, build_result, trig_tables
 from frictionwatch.core.monitor.report.results import ChainSample, CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState, PreviousCycle
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner

@@ -18,7 +18,6 @@ from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
 from frictionwatch.core.monitor.identify.noise_model import ResidualStats
 from frictionwatch.core.monitor.identify.parameters import ParameterLayout, PriorNormal
 from frictionwatch.core.monitor.identify.pull_check import PullCheck
-from frictionwatch.core.monitor.report.report_kernels import TrigTables
 from frictionwatch.core.monitor.teeth.flywheel import LearnerSettings, ToothLearner
 from frictionwatch.core.monitor.teeth.tooth_fit import SecondWheelState, ToothPatterns
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
@@ -254,6 +253,20 @@ class PreviousCycle(NamedTuple):
     load_late: float
 
 
+@dataclass(frozen=True)
+class TrigTables:
+    """The cos/sin tables of the result's speed series, made once per run (core.monitor.report.cycle_report.trig_tables):
+    table (2, m, n): cos and sin of 2 pi (h k mod n) / n for harmonics h = 1..m and samples k = 0..n-1
+    (harmonic_series' convention: x_k = sum_h Re(X_h exp(i 2 pi h k / n)))."""
+
+    table: np.ndarray
+
+    def __post_init__(self):
+        # shape (m harmonics, n samples): a plain attribute made once (not a field: equality and repr see the table
+        # only), read by process_cycle each cycle without a call (design note 87)
+        object.__setattr__(self, "shape", self.table.shape[1:])
+
+
 class GridGeometry(NamedTuple):
     """What the cycles' crank-angle grid fixes once (core.monitor.balance.mean_balance.grid_geometry): the grid's first
     angle [rad] and size (a cycle on another grid makes it anew), every cylinder's piston displacement on it
@@ -315,7 +328,7 @@ class MonitorState:
     cycles: int
     prior: PriorNormal  # normal equations of the fixed priors (core.monitor.identify.parameters)
     lower: np.ndarray  # lower bounds of the parameters: 0 for the friction scales, -inf (free) for the nuisances
-    report_tables: TrigTables  # cos/sin tables of the result's speed series (core.monitor.report.report_kernels)
+    report_tables: TrigTables  # cos/sin tables of the result's speed series (core.monitor.report.cycle_report.trig_tables)
     prev_omega: float = float("nan")
     drift_var: float = 0.0
     tooth_patterns: ToothPatterns | None = None  # the in-band tooth-error patterns at the edges (core.monitor.teeth.tooth_fit)

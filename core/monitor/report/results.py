@@ -218,7 +218,7 @@ class CycleResult:
         ``friction_torque`` is their sum up to rounding."""
         if self.friction_torque_cyl_time is None or self.grid is None or self.time_angles is None:
             return None
-        from frictionwatch.core.monitor.report.report_kernels import (
+        from frictionwatch.core.monitor.report.grid_rows import (
             rows_on_grid,  # numba kernels: loaded when a trace is first wanted
         )
 
