@@ -1,8 +1,5 @@
 """Assemble the ``CycleResult`` of one cycle: traces on the crank-angle grid, measured vs model speed, residuals.
 
-Periodic row interpolation: ``interp_rows_periodic`` (numba ``_interp_rows``) is np.interp for many rows at once
-on one closed period (its numpy reference, np.interp row by row: tests/core/test_interp_rows_periodic.py).
-
 The report's kernels, at the top of this file (from report_kernels.py, design note 87): the speed residual, the ripple
 power and both inverse series on the time grid in one call (speed_series), with the cosine/sine tables of the grid
 built once per (M, n_t) (trig_tables, kept in core.monitor.state.MonitorState.report_tables), and the per-cylinder
@@ -168,62 +165,6 @@ def report_traces(grid, theta, coef, basis_terms, extra, cyl_time, out):
     interp_bracketed_rows(vals, js, dxs, special, n_special, dxp, out)
 
 
-@numba.njit(cache=True)
-def _interp_rows(xq, xp, fp, out):
-    """np.interp of every row of fp (r, n) at xq (m,), with xp (n + 1,) increasing and fp's value at xp[n] equal to
-    its first column (one period closed). The bracket is searched once per query and used for all rows; the
-    arithmetic is np.interp's: slope (fp[j+1] - fp[j]) / (xp[j+1] - xp[j]) times (x - xp[j]) plus fp[j]."""
-    n = xp.shape[0] - 1
-    rows = fp.shape[0]
-    for i in range(xq.shape[0]):
-        x = xq[i]
-        if x >= xp[n]:
-            for k in range(rows):
-                out[k, i] = fp[k, 0]
-            continue
-        if x <= xp[0]:
-            for k in range(rows):
-                out[k, i] = fp[k, 0]
-            continue
-        lo = 0
-        hi = n
-        while hi - lo > 1:  # xp[lo] <= x < xp[hi]
-            mid = (lo + hi) >> 1
-            if xp[mid] <= x:
-                lo = mid
-            else:
-                hi = mid
-        j = lo
-        if x == xp[j]:
-            for k in range(rows):
-                out[k, i] = fp[k, j]
-            continue
-        dxp = xp[j + 1] - xp[j]
-        for k in range(rows):
-            y0 = fp[k, j]
-            y1 = fp[k, j + 1] if j + 1 < n else fp[k, 0]
-            out[k, i] = (y1 - y0) / dxp * (x - xp[j]) + y0
-
-
-def interp_rows_periodic(xq: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
-    """Rows fp (r, n), sampled at xp (n + 1,) increasing with fp[:, 0] repeated at xp[n], at queries xq (m,).
-
-    Same numbers as ``np.interp(xq, xp, np.append(row, row[0]))`` for each row."""
-    q = np.ascontiguousarray(xq, dtype=np.float64)
-    x = np.ascontiguousarray(xp, dtype=np.float64)
-    f = np.ascontiguousarray(np.atleast_2d(fp), dtype=np.float64)
-    if x.ndim != 1 or f.shape[1] + 1 != x.shape[0] or f.shape[1] < 1:
-        raise ValueError(f"xp must have one point more than the rows of fp, got {x.shape} and {f.shape}")
-    if np.any(np.diff(x) <= 0):
-        raise ValueError("xp must be strictly increasing")
-    out = np.empty((f.shape[0], q.shape[0]))
-    _interp_rows(q, x, f, out)
-    return out
-
-
-FOUR_PI = 4.0 * np.pi
-
-
 class StageReport(NamedTuple):
     """What the monitor's other stages put in a cycle's result: ``flags`` so far; ``speed_fit_poor`` after them where
     the fit's R^2 is below ``r_squared_floor`` (NaN, no ripple: not added), then ``later_flags``; ``fields``: their
@@ -304,11 +245,3 @@ def _c128(a: np.ndarray) -> np.ndarray:
     if type(a) is np.ndarray and a.dtype == np.complex128 and a.flags.c_contiguous:
         return a
     return np.ascontiguousarray(a, dtype=np.complex128)
-
-
-def to_grid(grid: np.ndarray, theta: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """Rows ``values`` (r, n_t) sampled at the increasing flywheel angles ``theta`` of the time grid, onto the
-    crank-angle ``grid`` (periodic in 4 pi: theta spans one cycle from the first tooth edge)."""
-    x = np.append(theta, theta[0] + FOUR_PI)
-    u = theta[0] + np.mod(grid - theta[0], FOUR_PI)
-    return interp_rows_periodic(u, x, values)
