@@ -502,7 +502,7 @@ def balance_terms(engine: str, seed: int, without: tuple[str, ...] = (), learn_t
     from frictionwatch.core.discrepancy.residuals import STAGES, CyclePipeline, TdcWatch, pinned_config
     from frictionwatch.core.model.kinematics import variable_inertia
     from frictionwatch.core.model.view import reference
-    from frictionwatch.core.monitor.identify.mean_balance import mid_cycle_inertia
+    from frictionwatch.core.monitor.balance.mean_balance import mid_cycle_inertia
 
     spec = load_engine(engine)
     p = 0 if spec.load.kind == "grid" else 1

@@ -14,9 +14,9 @@ from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
+from frictionwatch.core.monitor.balance.mean_balance import LOAD_STEP_FRACTION
 from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig
-from frictionwatch.core.monitor.identify.mean_balance import LOAD_STEP_FRACTION
 from frictionwatch.core.monitor.report.run_summary import end_of_run_status, flag_summary, mean_and_sem
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.service import coastdown_report

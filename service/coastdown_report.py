@@ -1,12 +1,11 @@
-"""`analyze` on a run whose speed changes: inertia J and friction against speed (core.monitor.balance.transient), and a word
+"""`analyze` on a run whose speed changes: inertia J and friction against speed (core.monitor.balance.mean_balance), and a word
 on friction figures the monitor withheld. Wiring and units only; the numbers come from core."""
 
 from __future__ import annotations
 
 import numpy as np
-from frictionwatch.core.monitor.balance.transient import transient_friction
+from frictionwatch.core.monitor.balance.mean_balance import LOAD_STEP_FRACTION, mid_cycle_inertia, transient_friction
 from frictionwatch.core.monitor.calibration.inertia import INERTIA_UNCALIBRATED_REL
-from frictionwatch.core.monitor.identify.mean_balance import LOAD_STEP_FRACTION, mid_cycle_inertia
 from frictionwatch.service.pipeline import LogAnalysis
 
 RPM_PER_RAD_S = 30.0 / np.pi

@@ -49,14 +49,14 @@ def test_a_name_imported_by_value_is_swapped_where_it_is_read(tmp_path):
     (core.monitor.monitor reads transient_balance, imported from mean_balance by value); the defining module
     itself is not touched."""
     from frictionwatch.core.monitor import monitor
-    from frictionwatch.core.monitor.identify import mean_balance
+    from frictionwatch.core.monitor.balance import mean_balance
 
-    rel = "core/monitor/identify/mean_balance.py"
+    rel = "core/monitor/balance/mean_balance.py"
     (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
     shutil.copy(ROOT / rel, tmp_path / rel)
     this = monitor.transient_balance
     table = swaps(tmp_path, ["frictionwatch.core.monitor.monitor:transient_balance="
-                             "frictionwatch.core.monitor.identify.mean_balance"])
+                             "frictionwatch.core.monitor.balance.mean_balance"])
     try:
         _use(table, True)
         assert monitor.transient_balance is not this

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.view import Reference
-from frictionwatch.core.monitor.identify.mean_balance import mid_cycle_inertia
+from frictionwatch.core.monitor.balance.mean_balance import mid_cycle_inertia
 from frictionwatch.core.monitor.pipeline import STAGES, CyclePipeline, TdcWatch
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import Cycle

@@ -19,7 +19,7 @@ Per cycle:
    motion (warm start), refreshed once on the first cycle (physics.md §12.3: one refresh is enough).
 4. Mean balance T_fM = T_iM - T_LM - modelled damper/coupling dissipation - d/dt(1/2 J w^2)/w (physics.md §6, §12.4)
    over the window centred on cylinder 1's firing TDC, from this cycle and the one before (two measured mid-cycle
-   speeds, no drift fitted: core.monitor.identify.mean_balance.transient_balance); IMEP over each cylinder's own window.
+   speeds, no drift fitted: core.monitor.balance.mean_balance.transient_balance); IMEP over each cylinder's own window.
 5. The cycle's own speed drift is a per-cycle random effect (never accumulated); the whitened equations are
    accumulated with forgetting and solved with the priors (core.monitor.identify.parameters) and params >= 0, per cycle and smoothed
    (core.monitor.identify.accumulate); reported with honest sigmas and resolved flags (core.monitor.identify.estimate, core.monitor.report.cycle_report).
@@ -37,13 +37,7 @@ from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel, as_model
 from frictionwatch.core.model.indicated import peak_pressure
 from frictionwatch.core.monitor.balance.harmonic_balance import harmonic_balance, operating_point
-from frictionwatch.core.monitor.checks.check import Check, CheckInput
-from frictionwatch.core.monitor.checks.condition import ConditionCheck
-from frictionwatch.core.monitor.checks.ring_pressure import ThrowMotion
-from frictionwatch.core.monitor.checks.sensor_health import SensorHealthCheck, SensorHealthState, corrected_inputs
-from frictionwatch.core.monitor.identify.accumulate import Accumulator
-from frictionwatch.core.monitor.identify.identification import identify_cycle
-from frictionwatch.core.monitor.identify.mean_balance import (
+from frictionwatch.core.monitor.balance.mean_balance import (
     MeanBalance,
     cycle_energy,
     energy_weights,
@@ -51,6 +45,12 @@ from frictionwatch.core.monitor.identify.mean_balance import (
     indicated_tdc_sensitivity,
     transient_balance,
 )
+from frictionwatch.core.monitor.checks.check import Check, CheckInput
+from frictionwatch.core.monitor.checks.condition import ConditionCheck
+from frictionwatch.core.monitor.checks.ring_pressure import ThrowMotion
+from frictionwatch.core.monitor.checks.sensor_health import SensorHealthCheck, SensorHealthState, corrected_inputs
+from frictionwatch.core.monitor.identify.accumulate import Accumulator
+from frictionwatch.core.monitor.identify.identification import identify_cycle
 from frictionwatch.core.monitor.identify.noise_model import (
     ResidualStats,
     free_end_whitened,
@@ -58,13 +58,11 @@ from frictionwatch.core.monitor.identify.noise_model import (
     no_free_end_rows,
 )
 from frictionwatch.core.monitor.identify.parameters import parameter_layout, prior_normal
-from frictionwatch.core.monitor.report.cycle_report import StageReport, build_result
-from frictionwatch.core.monitor.report.report_kernels import trig_tables
+from frictionwatch.core.monitor.report.cycle_report import StageReport, build_result, trig_tables
 from frictionwatch.core.monitor.report.results import ChainSample, CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState, PreviousCycle
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
-from frictionwatch.core.monitor.teeth.second_wheel import fit_second_wheel, free_end_input
-from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth
+from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth, fit_second_wheel, free_end_input
 from frictionwatch.core.types import Cycle
 
 __all__ = ["CHECKS", "CycleRejected", "MonitorConfig", "MonitorState", "default_max_order", "initial_state",

@@ -18,10 +18,8 @@ from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
 from frictionwatch.core.monitor.identify.noise_model import ResidualStats
 from frictionwatch.core.monitor.identify.parameters import ParameterLayout, PriorNormal
 from frictionwatch.core.monitor.identify.pull_check import PullCheck
-from frictionwatch.core.monitor.report.report_kernels import TrigTables
 from frictionwatch.core.monitor.teeth.flywheel import LearnerSettings, ToothLearner
-from frictionwatch.core.monitor.teeth.second_wheel import SecondWheelState
-from frictionwatch.core.monitor.teeth.tooth_fit import ToothPatterns
+from frictionwatch.core.monitor.teeth.tooth_fit import SecondWheelState, ToothPatterns
 from frictionwatch.core.tuned import MONITOR_RECORD, read_tuned
 from frictionwatch.core.types import Cycle
 
@@ -240,7 +238,7 @@ class PreviousCycle(NamedTuple):
     """What the next cycle's balance needs of the last analysed one: the ticks of its first and last tooth edges (it
     is the cycle just before only if the next one's first edge lies after its first and at or before its last:
     consecutive cycles share their boundary edges, core.types.Cycle; a stream index may be renumbered after a lost
-    sync), pressure (z, n) [Pa], angle-averaged kinetic energy [J] (core.monitor.identify.mean_balance.cycle_energy),
+    sync), pressure (z, n) [Pa], angle-averaged kinetic energy [J] (core.monitor.balance.mean_balance.cycle_energy),
     measured load [N m], indicated torque [N m] (the cylinders' work means over its own window, summed:
     Excitation.indicated_mean), coupling loss [N m] and load_late [N m] its load under the rising half of the
     balance's triangle (core.types.Cycle.load_late with the load's ripple work; not given: ``load``)."""
@@ -255,14 +253,28 @@ class PreviousCycle(NamedTuple):
     load_late: float
 
 
+@dataclass(frozen=True)
+class TrigTables:
+    """The cos/sin tables of the result's speed series, made once per run (core.monitor.report.cycle_report.trig_tables):
+    table (2, m, n): cos and sin of 2 pi (h k mod n) / n for harmonics h = 1..m and samples k = 0..n-1
+    (harmonic_series' convention: x_k = sum_h Re(X_h exp(i 2 pi h k / n)))."""
+
+    table: np.ndarray
+
+    def __post_init__(self):
+        # shape (m harmonics, n samples): a plain attribute made once (not a field: equality and repr see the table
+        # only), read by process_cycle each cycle without a call (design note 87)
+        object.__setattr__(self, "shape", self.table.shape[1:])
+
+
 class GridGeometry(NamedTuple):
-    """What the cycles' crank-angle grid fixes once (core.monitor.identify.mean_balance.grid_geometry): the grid's first
+    """What the cycles' crank-angle grid fixes once (core.monitor.balance.mean_balance.grid_geometry): the grid's first
     angle [rad] and size (a cycle on another grid makes it anew), every cylinder's piston displacement on it
     positions (z, n) [m], J(theta = 2 pi) [kg m^2] and each piston's x'' (z, n) [m/rad^2] (the indicated work's
-    sensitivity to a TDC error, core.monitor.identify.mean_balance.indicated_tdc_sensitivity); the transient balance's
+    sensitivity to a TDC error, core.monitor.balance.mean_balance.indicated_tdc_sensitivity); the transient balance's
     window starts (core.model.indicated.window_starts): window_starts (1, z) of each cylinder's own firing window in
     [previous | current], alone_starts (1, z) of the cycle's own closed loop, and its triangle's weights
-    triangle_previous, triangle_current (z, n) [m^2/rad] (core.monitor.identify.mean_balance.triangle_weights)
+    triangle_previous, triangle_current (z, n) [m^2/rad] (core.monitor.balance.mean_balance.triangle_weights)
     (None: made by the balance)."""
 
     first_angle: float
@@ -281,7 +293,7 @@ class GridGeometry(NamedTuple):
 
 class EnergyWeights(NamedTuple):
     """What a cycle's angle-averaged kinetic energy weighs its tooth intervals' 1 / dt^2 by, fixed by the edges'
-    nominal angles (core.monitor.identify.mean_balance.energy_weights): the cycle's edge angles (m,) [rad] they
+    nominal angles (core.monitor.balance.mean_balance.energy_weights): the cycle's edge angles (m,) [rad] they
     were made for and the weights (m - 1,) [kg m^2 rad^2]."""
 
     tooth_angle: np.ndarray
@@ -316,7 +328,7 @@ class MonitorState:
     cycles: int
     prior: PriorNormal  # normal equations of the fixed priors (core.monitor.identify.parameters)
     lower: np.ndarray  # lower bounds of the parameters: 0 for the friction scales, -inf (free) for the nuisances
-    report_tables: TrigTables  # cos/sin tables of the result's speed series (core.monitor.report.report_kernels)
+    report_tables: TrigTables  # cos/sin tables of the result's speed series (core.monitor.report.cycle_report.trig_tables)
     prev_omega: float = float("nan")
     drift_var: float = 0.0
     tooth_patterns: ToothPatterns | None = None  # the in-band tooth-error patterns at the edges (core.monitor.teeth.tooth_fit)
@@ -325,7 +337,7 @@ class MonitorState:
     previous: PreviousCycle | None = None  # the last analysed cycle: centred windows and the kinetic-energy term
     grid_geometry: GridGeometry | None = None  # the crank-angle grid's piston positions and J(2 pi)
     energy_weights: EnergyWeights | None = None  # the cycle energy's weights at the edges' angles
-    wheel2: SecondWheelState | None = None  # the second wheel's tooth learner (core.monitor.teeth.second_wheel)
+    wheel2: SecondWheelState | None = None  # the second wheel's tooth learner (core.monitor.teeth.tooth_fit)
 
     def previous_of(self, first_tick: int) -> PreviousCycle | None:
         """``previous`` if it is the cycle just before one whose first tooth edge is at ``first_tick``, else None."""

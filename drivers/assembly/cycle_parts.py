@@ -269,7 +269,7 @@ class LoadMeans(NamedTuple):
     """A cycle's load readings weighted over its time fraction u in [0, 1] (``load_mean``): torque [N m] and power
     [W] means; torque_early, torque_late [N m] the torque's means under the weights 2 (1 - u) and 2 u (each the
     mean for a constant load), the two halves of the transient balance's triangle over two cycles
-    (core.monitor.identify.mean_balance.transient_balance: the late one of the cycle before, the early one of
+    (core.monitor.balance.mean_balance.transient_balance: the late one of the cycle before, the early one of
     this). NaN: not measured."""
 
     torque: float

@@ -23,12 +23,12 @@ from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.engine_model import EngineModel, load_model
 from frictionwatch.core.model.indicated import net_imep
 from frictionwatch.core.model.kinematics import cylinder_kinematics_kernel
+from frictionwatch.core.monitor.balance.mean_balance import indicated_tdc_sensitivity
 from frictionwatch.core.monitor.identify.estimate import (
     CalibrationSensitivity,
     calibration_variance,
     calibration_variance_reference,
 )
-from frictionwatch.core.monitor.identify.mean_balance import indicated_tdc_sensitivity
 from frictionwatch.service.cli import main
 from frictionwatch.service.pipeline import analyze_log
 from numpy.testing import assert_allclose

@@ -19,7 +19,8 @@ from frictionwatch.core.monitor.identify.parameters import (
     share_mean_loss,
 )
 from frictionwatch.core.monitor.identify.posterior import Posterior
-from frictionwatch.core.monitor.report.report_kernels import report_traces, rows_on_grid, speed_power, speed_residual
+from frictionwatch.core.monitor.report.cycle_report import report_traces, speed_power, speed_residual
+from frictionwatch.core.monitor.report.grid_rows import rows_on_grid
 from frictionwatch.core.monitor.report.results import FrictionEstimate
 from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion
 from numpy.testing import assert_allclose, assert_array_equal

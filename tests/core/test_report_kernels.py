@@ -1,11 +1,11 @@
-"""frictionwatch.core.monitor.report.report_kernels.speed_series against its plain-numpy reference: the code it replaced in
+"""frictionwatch.core.monitor.report.cycle_report.speed_series against its plain-numpy reference: the code it replaced in
 core.monitor.report.cycle_report.build_result (speed_residual, speed_power and two inverse series by irfft), copied here. Seeded
 inputs of the real sizes (genset-v20: M = 24, P = 47 with 24 nuisances, 256 time samples) and small ones.
 Tolerance: the direct sums differ from the FFT by rounding, 1e-13 of the series' size; the rest bit for bit."""
 
 import numpy as np
 import pytest
-from frictionwatch.core.monitor.report.report_kernels import speed_power, speed_residual, speed_series, trig_tables
+from frictionwatch.core.monitor.report.cycle_report import speed_power, speed_residual, speed_series, trig_tables
 from frictionwatch.core.monitor.teeth.flywheel import harmonic_series
 from numpy.testing import assert_allclose
 

@@ -1,4 +1,4 @@
-"""The monitor's second wheel (core/monitor/teeth/second_wheel.py): per cycle the free end's own speed, and its own
+"""The monitor's second wheel (core/monitor/teeth/tooth_fit.py): per cycle the free end's own speed, and its own
 tooth-spacing pattern learnt as the flywheel's is.
 
 Simulated k9k with a 36-1 wheel at its pulley hub (tests/core/test_second_wheel_sim.py), seed 8 (the exploration that

@@ -12,8 +12,8 @@ import pytest
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.indicated import centred_work, net_imep, tdc_centres
 from frictionwatch.core.model.kinematics import cylinder_volume
+from frictionwatch.core.monitor.balance.mean_balance import energy_weights, mid_cycle_inertia
 from frictionwatch.core.monitor.identify.identification import NO_BALANCE
-from frictionwatch.core.monitor.identify.mean_balance import energy_weights, mid_cycle_inertia
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.core.types import LoadSample
 from frictionwatch.service.coastdown_report import transient_section

@@ -13,14 +13,14 @@ import pytest
 from frictionwatch.core.discrepancy.features import NULL_BALANCE
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import variable_inertia
-from frictionwatch.core.monitor.identify.identification import NO_BALANCE
-from frictionwatch.core.monitor.identify.mean_balance import (
+from frictionwatch.core.monitor.balance.mean_balance import (
     cycle_energy,
     cycle_energy_reference,
     energy_weights,
     grid_geometry,
     triangle_weights_reference,
 )
+from frictionwatch.core.monitor.identify.identification import NO_BALANCE
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.core.types import LoadSample
 from frictionwatch.service.pipeline import analyze_records, assembled_cycles

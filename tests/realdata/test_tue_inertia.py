@@ -122,7 +122,7 @@ def test_engineoff_one_is_left_out_and_why(cycles, pooled):
 
 def test_a_torque_step_record_adds_the_mean_balance(records, cycles, pooled):
     # E0FULLOAD4EngineOff as a commissioning record: its ignition-off step resolves J in the mean balance (its
-    # generator load its own d0 + d1 W; sigma with the 10 % friction-step allowance of core.monitor.balance.transient).
+    # generator load its own d0 + d1 W; sigma with the 10 % friction-step allowance of core.monitor.balance.mean_balance).
     # measured: mean balance 0.02047 +- 0.00161 (36 % of the information), J 0.02060 +- 0.00097
     stepped = coastdown_record("E0FULLOAD4EngineOff", cycles["group14_E0FULLOAD4EngineOff"], MODEL,
                                motored_only=False, load_group=0)

@@ -3,7 +3,9 @@ transient (kinetic-energy) term of the mean balance.
 
     excitation.py          gas and reciprocating torque from the measured pressure; the loss-term basis
     harmonic_balance.py    the chain's response, affine in the loss coefficients; the operating point
-      balance_pass_kernel.py, harmonic_balance_kernels.py   one pass: samples, FFT, chain, design rows
-    transient.py           d/dt(1/2 J w^2)/w from measured mid-cycle speeds; coast-down segments
+      harmonic_balance_kernels.py   one pass's first half: samples, pressure, gas and known torques (the second
+                                    half, pass_rows: FFT, chain, design rows, in harmonic_balance.py)
+    mean_balance.py        the cycle's mean balance: grid geometry, cycle energy, the transient (kinetic) term of two
+                           cycles, TDC sensitivity; across cycles, inertia and friction against speed
     coastdown.py           coast-down numerics: inertia and friction against speed
 """

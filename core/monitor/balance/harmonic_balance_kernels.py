@@ -14,7 +14,7 @@ The pressure sample of cylinder k was taken when the *flywheel* encoder read the
 while its kinematics follow its own throw angle (twist; physics.md §12.3 item 3).
 
 Constants come in named records (``CylinderRecord`` per engine, ``CycleMotion`` per cycle); the result is a
-``PassGrid``. The second half (friction rows, FFT, chain) is core.monitor.balance.balance_pass_kernel.
+``PassGrid``. The second half (friction rows, FFT, chain) is core.monitor.balance.harmonic_balance.pass_rows.
 """
 
 from __future__ import annotations

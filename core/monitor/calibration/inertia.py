@@ -45,7 +45,7 @@ from frictionwatch.core.monitor.balance.coastdown import (
     cycle_mean_speed,
     fit_inertia_friction,
 )
-from frictionwatch.core.monitor.balance.transient import FRICTION_STEP
+from frictionwatch.core.monitor.balance.mean_balance import FRICTION_STEP, MID_SPEED_HALF_WIDTH, mid_cycle_speed
 from frictionwatch.core.monitor.calibration.ripple import (
     CycleGeometry,
     RippleFit,
@@ -54,7 +54,6 @@ from frictionwatch.core.monitor.calibration.ripple import (
     order_inertia,
     ripple_rows,
 )
-from frictionwatch.core.monitor.identify.mean_balance import MID_SPEED_HALF_WIDTH, mid_cycle_speed
 from frictionwatch.core.types import Cycle
 
 # J's relative 1-sigma assumed for a spec nobody has commissioned: what this commissioning step pins J to from plain
@@ -302,7 +301,7 @@ def _mean_balance(a: np.ndarray, w: np.ndarray, y: np.ndarray, grp: np.ndarray,
     """The mean balance with J free (core.monitor.balance.coastdown) and J's sigma with an allowance for a friction step: a
     loaded record's torque step (ignition off) also steps its friction (the cylinder pressure loads rings and
     bearings), which its smooth d0 + d1 W cannot follow and J absorbs: FRICTION_STEP of its resisting torque over the
-    span of its dw/dt, as core.monitor.balance.transient allows. (None, inf) with too few rows."""
+    span of its dw/dt, as core.monitor.balance.mean_balance allows. (None, inf) with too few rows."""
     n_par = 1 + n_fr + 2 * np.unique(grp[grp >= 0]).shape[0]
     if a.shape[0] < n_par + 2:
         return None, float("inf")

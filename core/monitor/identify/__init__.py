@@ -1,7 +1,7 @@
 """Step 5 of a cycle: the whitened equations, their accumulation with forgetting, and the friction posterior. Files
-by what a cycle does with the state, in the order it does it (design note 82):
+by what a cycle does with the state, in the order it does it (design note 82; the cycle's mean balance, which comes
+first, is in balance/mean_balance.py, design note 87):
 
-    mean_balance.py    the cycle's mean balance: grid geometry, cycle energy, transient balance, TDC sensitivity
     identification.py  identify_cycle: the stage's orchestration
     noise_model.py     the residual statistics, the per-cycle noise model and whitening (the free end's rows too)
     accumulate.py      one cycle's normal equations folded into the accumulated information (+ their kernels)

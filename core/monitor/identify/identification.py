@@ -18,6 +18,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.balance.excitation import Excitation
+from frictionwatch.core.monitor.balance.mean_balance import MeanBalance
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, accumulate_cycle
 from frictionwatch.core.monitor.identify.estimate import (
     BalanceCheck,
@@ -25,7 +26,6 @@ from frictionwatch.core.monitor.identify.estimate import (
     ReportLimits,
     reported_estimate,
 )
-from frictionwatch.core.monitor.identify.mean_balance import MeanBalance
 from frictionwatch.core.monitor.identify.noise_model import NoiseSettings, ResidualStats, whitened_rows
 from frictionwatch.core.monitor.identify.parameters import (
     CycleRows,

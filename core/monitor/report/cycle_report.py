@@ -1,11 +1,16 @@
 """Assemble the ``CycleResult`` of one cycle: traces on the crank-angle grid, measured vs model speed, residuals.
 
-Periodic row interpolation: ``interp_rows_periodic`` (numba ``_interp_rows``) is np.interp for many rows at once
-on one closed period (its numpy reference, np.interp row by row: tests/core/test_interp_rows_periodic.py).
+The report's kernels, at the top of this file (from report_kernels.py, design note 87): the speed residual, the ripple
+power and both inverse series on the time grid in one call (speed_series), with the cosine/sine tables of the grid
+built once per (M, n_t) (trig_tables, kept in core.monitor.state.MonitorState.report_tables), and the per-cylinder
+friction traces (report_traces, onto the crank-angle grid by core.monitor.report.grid_rows). The plain-numpy
+reference of speed_series (speed_residual + speed_power + harmonic_series by irfft) is in
+tests/core/test_report_kernels.py: the direct sums differ from the inverse FFT by rounding only (~1e-16 of the speed).
 """
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numba
@@ -13,69 +18,151 @@ import numpy as np
 from frictionwatch.core.model.dynamics import rigid_friction_torque
 from frictionwatch.core.model.engine import EngineSpec, mep_per_torque
 from frictionwatch.core.monitor.balance.excitation import Excitation
+from frictionwatch.core.monitor.balance.mean_balance import MeanBalance
 from frictionwatch.core.monitor.identify.identification import Identification
-from frictionwatch.core.monitor.identify.mean_balance import MeanBalance
 from frictionwatch.core.monitor.identify.parameters import CycleRows, ParameterLayout
-from frictionwatch.core.monitor.report.report_kernels import TrigTables, report_traces, speed_series
+from frictionwatch.core.monitor.report.grid_rows import grid_brackets, interp_bracketed_rows
 from frictionwatch.core.monitor.report.results import CycleResult
+from frictionwatch.core.monitor.state import TrigTables
 from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion, harmonic_series, harmonics_of
 from frictionwatch.core.types import Cycle
 
 
+def trig_tables(m: int, n: int) -> TrigTables:
+    """The tables for m harmonics on n samples (read-only arrays)."""
+    h = np.arange(1, m + 1)[:, None]
+    k = np.arange(n)[None, :]
+    ang = (2.0 * np.pi / n) * ((h * k) % n)
+    table = np.stack([np.cos(ang), np.sin(ang)])
+    table.flags.writeable = False
+    return TrigTables(table)
+
+
 @numba.njit(cache=True)
-def _interp_rows(xq, xp, fp, out):
-    """np.interp of every row of fp (r, n) at xq (m,), with xp (n + 1,) increasing and fp's value at xp[n] equal to
-    its first column (one period closed). The bracket is searched once per query and used for all rows; the
-    arithmetic is np.interp's: slope (fp[j+1] - fp[j]) / (xp[j+1] - xp[j]) times (x - xp[j]) plus fp[j]."""
-    n = xp.shape[0] - 1
-    rows = fp.shape[0]
-    for i in range(xq.shape[0]):
-        x = xq[i]
-        if x >= xp[n]:
-            for k in range(rows):
-                out[k, i] = fp[k, 0]
-            continue
-        if x <= xp[0]:
-            for k in range(rows):
-                out[k, i] = fp[k, 0]
-            continue
-        lo = 0
-        hi = n
-        while hi - lo > 1:  # xp[lo] <= x < xp[hi]
-            mid = (lo + hi) >> 1
-            if xp[mid] <= x:
-                lo = mid
-            else:
-                hi = mid
-        j = lo
-        if x == xp[j]:
-            for k in range(rows):
-                out[k, i] = fp[k, j]
-            continue
-        dxp = xp[j + 1] - xp[j]
-        for k in range(rows):
-            y0 = fp[k, j]
-            y1 = fp[k, j + 1] if j + 1 < n else fp[k, 0]
-            out[k, i] = (y1 - y0) / dxp * (x - xp[j]) + y0
+def abs2(z):
+    """|z|^2 of a complex number (hypot, then the square)."""
+    v = math.hypot(z.real, z.imag)
+    return v * v
 
 
-def interp_rows_periodic(xq: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
-    """Rows fp (r, n), sampled at xp (n + 1,) increasing with fp[:, 0] repeated at xp[n], at queries xq (m,).
-
-    Same numbers as ``np.interp(xq, xp, np.append(row, row[0]))`` for each row."""
-    q = np.ascontiguousarray(xq, dtype=np.float64)
-    x = np.ascontiguousarray(xp, dtype=np.float64)
-    f = np.ascontiguousarray(np.atleast_2d(fp), dtype=np.float64)
-    if x.ndim != 1 or f.shape[1] + 1 != x.shape[0] or f.shape[1] < 1:
-        raise ValueError(f"xp must have one point more than the rows of fp, got {x.shape} and {f.shape}")
-    if np.any(np.diff(x) <= 0):
-        raise ValueError("xp must be strictly increasing")
-    out = np.empty((f.shape[0], q.shape[0]))
-    _interp_rows(q, x, f, out)
-    return out
+@numba.njit(cache=True)
+def residual_into(design, target, params, out):
+    """out (M,) = target - design @ params for complex design (M, P) and real params (P,), real and imaginary parts
+    summed over P in order."""
+    m, p = design.shape
+    for i in range(m):
+        sr = 0.0
+        si = 0.0
+        for j in range(p):
+            sr += design[i, j].real * params[j]
+            si += design[i, j].imag * params[j]
+        out[i] = complex(target[i].real - sr, target[i].imag - si)
 
 
-FOUR_PI = 4.0 * np.pi
+@numba.njit(cache=True)
+def speed_series(design, target, params, p_f, drift, use_drift, freq, harmonics, omega_fly, table, resid,
+                 extra):
+    """Residual harmonics resid (M,) complex (measured - model, this cycle's best-fitting drift taken out if
+    ``use_drift``), extra[0] = measured speed omega_fly (n_t,) minus the fitted tooth-pattern part
+    design[:, p_f:] @ params[p_f:] and extra[1] = that minus the residual (the model speed), both on the time
+    grid; table (2, M, n_t): ``TrigTables.table``. Returns (sum |resid|^2, sum |i freq harmonics|^2)."""
+    m = design.shape[0]
+    series = np.empty((2, m), dtype=np.complex128)
+    resid_sq = speed_residual(design, target, params, p_f, drift, use_drift, series)
+    power = speed_power(freq, harmonics)
+    n = omega_fly.shape[0]
+    pat = np.zeros(n)
+    res = np.zeros(n)
+    for h in range(m):
+        pr = series[0, h].real
+        pi = series[0, h].imag
+        rr = series[1, h].real
+        ri = series[1, h].imag
+        for k in range(n):
+            c = table[0, h, k]
+            s = table[1, h, k]
+            pat[k] += pr * c - pi * s
+            res[k] += rr * c - ri * s
+    for h in range(m):
+        resid[h] = series[1, h]
+    for k in range(n):
+        v = omega_fly[k] - pat[k]
+        extra[0, k] = v
+        extra[1, k] = v - res[k]
+    return resid_sq, power
+
+
+@numba.njit(cache=True)
+def speed_residual(design, target, params, p_f, drift, use_drift, out):
+    """out[0] = the tooth-pattern part design[:, p_f:] @ params[p_f:], out[1] = target - design @ params with the
+    best-fitting drift (if used) taken out; returns sum |resid|^2."""
+    m, p = design.shape
+    residual_into(design, target, params, out[1])
+    for i in range(m):
+        pr = 0.0
+        pi = 0.0
+        for j in range(p_f, p):
+            pr += design[i, j].real * params[j]
+            pi += design[i, j].imag * params[j]
+        out[0, i] = complex(pr, pi)
+    if use_drift:
+        dd = 0.0
+        dr = 0.0
+        for i in range(m):
+            dd += drift[i].real * drift[i].real + drift[i].imag * drift[i].imag
+            dr += drift[i].real * out[1, i].real + drift[i].imag * out[1, i].imag
+        if dd > 0:
+            f = dr / dd
+            for i in range(m):
+                out[1, i] = out[1, i] - drift[i] * f
+    sq = np.empty(m)
+    for i in range(m):
+        sq[i] = abs2(out[1, i])
+    return np.sum(sq)
+
+
+@numba.njit(cache=True)
+def speed_power(freq, harmonics):
+    """np.sum(np.abs(1j * freq * harmonics) ** 2)."""
+    m = freq.shape[0]
+    sq = np.empty(m)
+    for i in range(m):
+        h = harmonics[i]
+        sq[i] = abs2(complex(0.0 * h.real - freq[i] * h.imag, 0.0 * h.imag + freq[i] * h.real))
+    return np.sum(sq)
+
+
+@numba.njit(cache=True)
+def report_traces(grid, theta, coef, basis_terms, extra, cyl_time, out):
+    """The friction traces of one cycle: per cylinder sum_l coef[k, l] basis_terms[l, k, :] on the time grid into
+    cyl_time (z, n_t) (kept in the result; onto the crank-angle grid only when asked for, ``rows_on_grid``), and onto
+    the crank-angle ``grid`` (ng,): out[0] = their sum over cylinders, out[1:] = the rows ``extra`` (r, n_t); all
+    sampled at the flywheel angles ``theta`` (n_t,) (periodic in 4 pi: theta spans one cycle from the first edge),
+    interpolated as np.interp does. The engine total is summed on the time grid (interpolation is linear: the sum of
+    the per-cylinder grid traces up to rounding). basis_terms (L, z, n_t) is the term-major block the balance fills
+    (C order on every engine: Excitation.basis is its (z, L, n_t) view, C order on one cylinder only, and each
+    layout was another compiled specialisation, ~1.5 s of cold compile)."""
+    n_terms, z, n = basis_terms.shape
+    r = extra.shape[0]
+    vals = np.empty((1 + r, n))  # the rows to interpolate: engine total, then the extra rows
+    for k in range(z):
+        row = cyl_time[k]
+        for t in range(n):
+            row[t] = coef[k, 0] * basis_terms[0, k, t]
+        for term in range(1, n_terms):
+            c = coef[k, term]
+            for t in range(n):
+                row[t] += c * basis_terms[term, k, t]
+    for t in range(n):
+        vals[0, t] = cyl_time[0, t]
+    for k in range(1, z):
+        for t in range(n):
+            vals[0, t] += cyl_time[k, t]
+    for k in range(r):
+        for t in range(n):
+            vals[1 + k, t] = extra[k, t]
+    js, dxs, special, n_special, dxp = grid_brackets(grid, theta)
+    interp_bracketed_rows(vals, js, dxs, special, n_special, dxp, out)
 
 
 class StageReport(NamedTuple):
@@ -110,7 +197,7 @@ def build_result(spec: EngineSpec, cycle: Cycle, fly: FlywheelMotion, exc: Excit
         _, _, omega_meas, alpha_meas = fly.on_grid(n_t)
     # the tooth-pattern part of the model and the residual (without this cycle's best-fitting drift, as in the
     # noise statistics), the ripple power, and on the time grid the measured speed with the estimated tooth-spacing
-    # pattern taken out and the model speed (core.monitor.report.report_kernels: one kernel, direct sums for the inverse series)
+    # pattern taken out and the model speed (speed_series above: one kernel, direct sums for the inverse series)
     m = rows.target.shape[0]
     use_drift = drift is not None
     resid = np.empty(m, dtype=np.complex128)
@@ -158,11 +245,3 @@ def _c128(a: np.ndarray) -> np.ndarray:
     if type(a) is np.ndarray and a.dtype == np.complex128 and a.flags.c_contiguous:
         return a
     return np.ascontiguousarray(a, dtype=np.complex128)
-
-
-def to_grid(grid: np.ndarray, theta: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """Rows ``values`` (r, n_t) sampled at the increasing flywheel angles ``theta`` of the time grid, onto the
-    crank-angle ``grid`` (periodic in 4 pi: theta spans one cycle from the first tooth edge)."""
-    x = np.append(theta, theta[0] + FOUR_PI)
-    u = theta[0] + np.mod(grid - theta[0], FOUR_PI)
-    return interp_rows_periodic(u, x, values)

@@ -19,7 +19,7 @@ import numpy as np
 from frictionwatch.core.model.engine import mep_per_torque
 from frictionwatch.core.monitor.checks.ring_pressure import RingIndicators
 from frictionwatch.core.monitor.report.figure_status import FigureStatus, FrictionStatus, friction_status
-from frictionwatch.core.monitor.teeth.second_wheel import FreeEndSpeed
+from frictionwatch.core.monitor.teeth.tooth_fit import FreeEndSpeed
 
 PA_PER_BAR = 1e5
 
@@ -171,7 +171,7 @@ class CycleResult:
     acceleration rad/s^2, indicated_window N m: of this cycle and the one before (a triangular weight centred on
     cylinder 1's firing TDC between them), the change of their angle-averaged kinetic energy / 4 pi over J at
     theta = 2 pi and the engine's indicated torque; friction_balance pairs them with J(2 pi) (NaN without the cycle
-    before; core.monitor.identify.mean_balance.transient_balance)
+    before; core.monitor.balance.mean_balance.transient_balance)
     ring: the pressure-based ring indicators of every cylinder (core.monitor.checks.ring_pressure; service.alerts)
 
     The traces (grid, friction_torque, friction_torque_cyl_time, time_angles, speed_measured, speed_model,
@@ -209,7 +209,7 @@ class CycleResult:
     acceleration: float = float("nan")
     indicated_window: float = float("nan")
     ring: RingIndicators | None = None
-    free_end: FreeEndSpeed | None = None  # the second wheel's speed of this cycle (core.monitor.teeth.second_wheel)
+    free_end: FreeEndSpeed | None = None  # the second wheel's speed of this cycle (core.monitor.teeth.tooth_fit)
     chain: ChainSample | None = None  # with a second wheel: what the drive train's identification needs
 
     @cached_property
@@ -218,7 +218,7 @@ class CycleResult:
         ``friction_torque`` is their sum up to rounding."""
         if self.friction_torque_cyl_time is None or self.grid is None or self.time_angles is None:
             return None
-        from frictionwatch.core.monitor.report.report_kernels import (
+        from frictionwatch.core.monitor.report.grid_rows import (
             rows_on_grid,  # numba kernels: loaded when a trace is first wanted
         )
 
