@@ -318,17 +318,13 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
     return ConditionStep(new, tuple(flags), acc, ring)
 
 
-def assess_condition_reference(spec: EngineSpec, state: ConditionState | None, grid: np.ndarray, pressure: np.ndarray,
-                     indicated: np.ndarray, pmax: np.ndarray, ident: Identification, cylinder_rows: np.ndarray,
-                     op_changed: bool, settings: ConditionSettings = DEFAULT_SETTINGS,
-                     motion: ThrowMotion | None = None) -> ConditionStep:
-    """This cycle's condition flags from its pressure (z, n) on ``grid``, indicated torques (z,) [N m], peak
-    pressures (z,), the cycle's identification (firing mask, the cycle's and the smoothed posteriors and estimate,
-    the accumulator just folded, returned discounted when a change is detected), the cylinder rows (z, p_f) that
-    turn the friction parameters into per-cylinder torques, and whether the operating point changed this cycle;
-    ``motion``: the throws' motion against the flywheel this cycle (the ring indicators read each cylinder at its
-    own throw's angle; None: at the flywheel's). The plain reference of ``assess_condition``: each number by the
-    numpy function the module names, one step after another."""
+def assess_condition_reference(spec: EngineSpec, state: ConditionState | None, grid: np.ndarray,
+                               pressure: np.ndarray, indicated: np.ndarray, pmax: np.ndarray, ident: Identification,
+                               cylinder_rows: np.ndarray, op_changed: bool,
+                               settings: ConditionSettings = DEFAULT_SETTINGS,
+                               motion: ThrowMotion | None = None) -> ConditionStep:
+    """The plain reference of ``assess_condition`` (the same arguments and result): each number by the numpy function
+    the module names, one step after another."""
     fired, cycle, smoothed = ident.fire, ident.cycle, ident.smoothed
     estimate, accumulator = ident.smoothed_estimate, ident.accumulator
     z = spec.n_cyl
