@@ -224,6 +224,19 @@ def _ewma(mean: np.ndarray, var: np.ndarray, x: np.ndarray, g: float, first: boo
     return mean + g * d, (1.0 - g) * (var + g * d * d)
 
 
+def _after_alarm(alarm: np.ndarray, settled: bool, accumulator, settings: ConditionSettings, flags: list[str]):
+    """The accumulator after the change detector's ``alarm`` (z,) bool, discounted when any cylinder alarmed, and its
+    flags appended to ``flags``: the estimate follows either way; a change right after an operating-point change
+    (not ``settled``) is not named as the engine's (the per-cylinder scales of a model of another shape move with
+    the load, too)."""
+    if not alarm.any():
+        return accumulator
+    if settled:
+        flags += [f"condition_change_cyl{k + 1}" for k in np.flatnonzero(alarm)]
+    flags.append("estimate_reset")
+    return accumulator.discounted(min(1.0, settings.change.reset_weight / max(accumulator.weight, 1e-9)))
+
+
 def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.ndarray, pressure: np.ndarray,
                      indicated: np.ndarray, pmax: np.ndarray, ident: Identification, cylinder_rows: np.ndarray,
                      op_changed: bool, settings: ConditionSettings = DEFAULT_SETTINGS,
@@ -300,14 +313,7 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
     if st.count >= settings.warmup and misfit > 1.0 + settings.misfit_excess:
         flags.append("model_misfit")
     detector = detector_after(det, change, mean, var, sums, settings.change)
-    acc = accumulator
-    if alarm.any():
-        # the estimate follows either way; a change right after an operating-point change is not named as the
-        # engine's (the per-cylinder scales of a model of another shape move with the load, too)
-        if since_op > settings.settle:
-            flags += [f"condition_change_cyl{k + 1}" for k in np.flatnonzero(alarm)]
-        flags.append("estimate_reset")
-        acc = accumulator.discounted(min(1.0, settings.change.reset_weight / max(accumulator.weight, 1e-9)))
+    acc = _after_alarm(alarm, since_op > settings.settle, accumulator, settings, flags)
     new = ConditionState(count=count, window=window, misfit=misfit, detector=detector, since_op_change=since_op,
                          burn_reference=burn_ref, burn_cycles=burn_n, tables=tab)
     ring = None
@@ -369,14 +375,7 @@ def assess_condition_reference(spec: EngineSpec, state: ConditionState | None, g
         flags.append("model_misfit")
 
     detector, alarm = detect_change_reference(st.detector, cycle, smoothed, cylinder_rows, settings.change)
-    acc = accumulator
-    if alarm.any():
-        # the estimate follows either way; a change right after an operating-point change is not named as the
-        # engine's (the per-cylinder scales of a model of another shape move with the load, too)
-        if settled:
-            flags += [f"condition_change_cyl{k + 1}" for k in np.flatnonzero(alarm)]
-        flags.append("estimate_reset")
-        acc = accumulator.discounted(min(1.0, settings.change.reset_weight / max(accumulator.weight, 1e-9)))
+    acc = _after_alarm(alarm, settled, accumulator, settings, flags)
     new = ConditionState(count=count, window=window, misfit=misfit, detector=detector, since_op_change=since_op,
                          burn_reference=burn_ref, burn_cycles=burn_n, tables=tab)
     ring = None
