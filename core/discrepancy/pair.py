@@ -20,9 +20,10 @@ pressure_tdc.refined_by_speed) and each rival is refitted on top of it. The pair
 
 The same pair is tried where a step ends with one explanation, an effect in a cylinder whose own TDC offset is a
 significant second or whose pressure reads its TDC beyond SEED_SIGMAS (``beside_own_tdc``: the friction may be the
-TDC's stand-in), with that cylinder's TDC as the pressure reads it however small. Where that one explanation leaves
-nothing beyond the null but the pressure reads the TDC beyond SEED_SIGMAS, the TDC has evidence of its own and the
-pair is judged with the model's own error allowed for (its floored held-out chi^2 must fall by ``min_delta`` too);
+TDC's stand-in), with that cylinder's TDC as the pressure reads it however small. Where the explanations alone leave
+nothing beyond the null but the pressure reads the TDC beyond SEED_SIGMAS (a rival step's seed always is), the TDC has
+evidence of its own and the pair is judged with the model's own error allowed for (its floored held-out chi^2 must
+fall by ``min_delta`` too; before design note 85 such a pair was not tried);
 and in every pair the TDC is refined again with the friction in place (the speed's
 first refinement ran without it; design note 81). Otherwise nothing is added and the ambiguity stands. Not a joint Gauss-Newton fit of both: the TDC's value is the
 pressure's (its sigma enters the friction's by ``fit.polish``'s ``held``), the friction's the speed's on top of it.
@@ -125,10 +126,11 @@ def tdc_and_friction(current: EngineModel, cur_res: Residuals, rivals: list[tupl
     spec = current.spec
     singles = [parts(r)[1] for _, r in rivals]
     # each alone must leave something beyond the model's own error (a second effect is not fitted to that error),
-    # except where the pressure itself reads this TDC (beyond SEED_SIGMAS and SEED_MIN_DEG): there the TDC has its own
-    # evidence and the pair is judged with the model-error floor in each feature's variance (``quiet`` below)
+    # except where the pressure itself reads this TDC beyond SEED_SIGMAS and SEED_MIN_DEG (a rival step's seeds always,
+    # beside_own_tdc's cylinder where its reading is): there the TDC has its own evidence and the pair is judged with
+    # the model-error floor in each feature's variance (``quiet`` below)
     quiet = not all(beyond_null(localise(h, spec, scale)) for h in singles)
-    if quiet and not abs(deg) >= max(SEED_SIGMAS * sigma, SEED_MIN_DEG):
+    if quiet and k not in {c for c, _, _ in tdc_beyond(cur_res, SEED_SIGMAS, SEED_MIN_DEG)}:
         return None, 0, (f"tdc_offset[cyl {k}] as the pressure reads it ({deg:+.2f} +- {sigma:.2f} deg) with a friction "
                          "beside it: each alone leaves nothing beyond the model's own error")
     reading = PressureFinding("tdc_offset", k, "deg", deg, sigma,
