@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 
+from frictionwatch.core.discrepancy.features import GAP_NULL
+
 # what a log at one operating point cannot tell, said wherever nothing is named there (bench/bench_discrepancy.py
 # judges a one-point friction-law row by it: design note 58)
 ONE_POINT = ("the log holds one steady speed and load, where a friction law that agrees with the model's there "
@@ -124,8 +126,11 @@ def verdict(d) -> str:
                     "the noise alone")
         hg = (d.final or {}).get("healthy_gap")
         if hg:  # the normal scale beside it (features.healthy_gap)
-            text += (f" (the speed's coherent gap {hg['speed_gap']:.2g}, a healthy log's at these amplitudes "
-                     f"{hg['healthy_gap']:.2g})")
+            # the ratio and the line it is judged by, said: "gap 1.6, a healthy log's 0.48" alone read as three
+            # times too large next to "within their noise" (the demo log)
+            text += (f" (the speed's coherent gap {hg['speed_gap']:.2g}, {hg['ratio']:.2g}x the "
+                     f"{hg['healthy_gap']:.2g} a healthy log shows at these amplitudes; a discrepancy is called past "
+                     f"{GAP_NULL:g}x)")
     if d.within_null_fits:  # fitted within the model's own error: said, not named
         text += (f"; within that error {' and '.join(d.within_null_fits)} fit as well as each other, which "
                  "names neither")
