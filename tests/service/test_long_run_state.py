@@ -1,0 +1,71 @@
+"""A long run's state does not grow with the cycles served (issue 29 item 4 / issue 28, design note 89): a genset is
+served for months, so every container the pipeline (cycle assembler, monitor, calibration watches) and the alert
+engine keep must be bounded by the engine, not by the cycles. Not timed: the sizes are counted
+(bench.long_run_cost.container_sizes walks every list, tuple, deque, dict, set and array the state reaches); the
+per-cycle CPU of the same run is bench/long_run_cost.py's.
+
+One run of maruti-3cyl through the product's path (the simulator streamed, EnginePipeline, AlertEngine with every
+default rule) with a load step every STEP cycles; the sizes at N and at 2 N cycles served: none larger at 2 N,
+except the containers in BOUNDED, held to their stated bound. The walker is tried on made-up state too, so a walk
+that no longer sees a growing container shows."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+import pytest
+
+from bench.long_run_cost import by_pattern, container_sizes, stream
+
+ENGINE, SEED = "maruti-3cyl", 13
+N = 300  # past the warm-ups: the alerts' baseline (200 cycles), the watches' first windows, the first load steps
+STEP = 100  # a load step every STEP cycles between the point's load and 60 % of it (bench.ring_after_commission)
+# containers whose size moves from cycle to cycle without growing, and what bounds them
+BOUNDED = {
+    # the cam edges' phase votes: pruned above 64 to those not older than the oldest retained sample
+    # (drivers/assembly/cycles.py), so at most 64 plus the votes of the few cycles the assembler holds
+    "pipeline.assembler._epoch.cam_votes": 64 + 32,
+    # one band per load band the engine has run at (two loads here), however often it returns to them
+    "alerts.baseline.bands": 2,
+}
+
+
+@pytest.fixture(scope="module")
+def sizes() -> dict[int, dict[str, int]]:
+    _, by_bin = stream(ENGINE, 2 * N, N, SEED, STEP)
+    assert sorted(by_bin) == [N, 2 * N]
+    return {n: {p: v for p, v in by_pattern(s).items() if p.startswith(("pipeline.", "alerts."))}
+            for n, s in by_bin.items()}
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)  # 600 maruti-3cyl cycles simulated and monitored
+def test_the_state_does_not_grow_with_the_cycles_served(sizes):
+    first, second = sizes[N], sizes[2 * N]
+    assert len(second) > 150  # the walk reached the state (192 patterns when written), not only its top
+    assert any(p.startswith("pipeline.cycles.state") for p in second) and any(p.startswith("alerts.") for p in second)
+    grew = {p: (first.get(p, 0), v) for p, v in second.items() if v > first.get(p, 0) and p not in BOUNDED}
+    assert not grew, f"containers larger after {2 * N} cycles than after {N}: {grew}"
+    over = {p: second[p] for p, bound in BOUNDED.items() if second.get(p, 0) > bound}
+    assert not over, f"bounded containers over their bound: {over}"
+
+
+class _State:
+    def __init__(self, n: int):
+        self.history = [np.zeros(3) for _ in range(n)]  # a list that grows with n
+        self.ring = deque(maxlen=4)
+        self.ring.extend(range(n))
+        self.sums = {"a": np.zeros(n), "b": {"inner": list(range(n))}}
+        self.fixed = np.zeros((5, 5))
+
+
+def test_the_walk_sees_a_growing_container():
+    small, large = by_pattern(container_sizes({"s": _State(5)})), by_pattern(container_sizes({"s": _State(10)}))
+    assert small["s.history"] == 5 and large["s.history"] == 10
+    assert small["s.history[*]"] == large["s.history[*]"] == 3  # the elements, one pattern
+    assert small["s.sums['a']"] == 5 and large["s.sums['a']"] == 10
+    assert small["s.sums['b']['inner']"] == 5 and large["s.sums['b']['inner']"] == 10
+    assert small["s.ring"] == large["s.ring"] == 4 and small["s.fixed"] == large["s.fixed"] == 25
+    long = container_sizes({"s": _State(100)})  # a long list: its length and its arrays' total size
+    assert long["s.history"] == 100 and long["s.history[*].size"] == 300
