@@ -31,10 +31,12 @@ import json
 import os
 import re
 import sys
+import tempfile
 import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 from frictionwatch.core.model.engine import load_engine
@@ -45,6 +47,7 @@ from frictionwatch.service.pipeline import EnginePipeline
 
 from bench.ring_after_commission import LOW_LOAD, POINTS
 
+DEMO = Path(__file__).resolve().parents[1] / "replay_logs" / "demo.mcap"  # genset-v20, with faults
 COMPONENTS = ("simulator", "assembler", "monitor", "alerts", "loop")
 SHORT_MAX = 64  # a sequence this long or shorter is walked element by element; a longer one by its length and arrays
 INDEX = re.compile(r"\[\d+\]")
@@ -238,6 +241,35 @@ def _load1() -> float:
         return float(fh.read().split()[0])
 
 
+def serve_sizes(cycles: int, history_cycles: int) -> tuple[dict[str, int], dict]:
+    """serve's per-engine stack in this process, as ``serve --data-dir`` wires it: a DataDir store (SQLite in a
+    temporary folder, its StoreListener on the fan-out), an EngineService on the demo log looped as fast as it reads
+    (``?loop=1``), the AlertEngine; stopped once ``cycles`` results are in (a few more may come), then walked whole
+    (``container_sizes`` of the service and the data dir, ``by_pattern``). Also: the cycles served, RSS [MB]."""
+    from frictionwatch.drivers.source import open_source
+    from frictionwatch.drivers.timebase import Clocks
+    from frictionwatch.service.data_dir import DataDir
+    from frictionwatch.service.engine_service import EngineService
+    from frictionwatch.service.pipeline import resolve_model
+
+    url = f"mcap:{DEMO}?loop=1"
+    with tempfile.TemporaryDirectory(prefix="long-run-") as tmp:
+        data = DataDir(Path(tmp))
+        src = open_source(url, Clocks())
+        model = resolve_model(src.engine_toml, None, "demo", src.info)
+        svc = EngineService("demo", model, src.info, {"log": src}, urls=[url], history_cycles=history_cycles,
+                            alerts=data.with_baseline(lambda _id, spec, baseline=None: AlertEngine(spec, baseline=baseline)))
+        data.attach(svc)
+        svc.start()
+        came = svc.session.wait_results(cycles, timeout=3600.0)
+        svc.stop()
+        if not came:
+            raise RuntimeError(f"serve's stack gave {svc.cycles_ok} results of {cycles} in an hour")
+        data.close()
+        return by_pattern(container_sizes({"service": svc, "data_dir": data})), {"cycles": svc.cycles_ok,
+                                                                                  "rss_mb": round(rss_mb(), 1)}
+
+
 def run(engine: str = "genset-v20", cycles: int = 1500, bin_cycles: int = 250, seed: int = 13,
         step_every: int = 250, warm: int = 250) -> dict:
     """``make bench``'s entry (bench/run.py): a shorter run than the command's (~1 min of CPU), its summary."""
@@ -254,7 +286,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--step-every", type=int, default=500, help="a load step every N cycles (0: none)")
     ap.add_argument("--warm", type=int, default=500, help="bins ending at or before this cycle are not the reference")
     ap.add_argument("--out", default="", help="write the bins and the summary here (JSON)")
+    ap.add_argument("--serve", type=int, default=0, help="instead: serve's stack on the looped demo log (serve_sizes) "
+                    "to N and to 2 N cycles; the containers larger at 2 N")
+    ap.add_argument("--history", type=int, default=200, help="--serve: the results the service holds (history_cycles)")
     args = ap.parse_args(argv)
+    if args.serve:
+        (a, at_a), (b, at_b) = serve_sizes(args.serve, args.history), serve_sizes(2 * args.serve, args.history)
+        print(json.dumps({"serve": True, "first": at_a, "second": at_b, "patterns": len(b),
+                          "larger": {p: [a.get(p), v] for p, v in sorted(b.items()) if v > a.get(p, 0)}}), flush=True)
+        return 0
     bins, sizes = stream(args.engine, args.cycles, args.bin, args.seed, args.step_every,
                          lambda row: print(json.dumps(row), flush=True))
     out = {"argv": vars(args), **summary(bins, sizes, args.warm)}

@@ -16,7 +16,7 @@ from collections import deque
 import numpy as np
 import pytest
 
-from bench.long_run_cost import by_pattern, container_sizes, stream
+from bench.long_run_cost import by_pattern, container_sizes, serve_sizes, stream
 
 ENGINE, SEED = "maruti-3cyl", 13
 N = 300  # past the warm-ups: the alerts' baseline (200 cycles), the watches' first windows, the first load steps
@@ -29,6 +29,15 @@ BOUNDED = {
     # one band per load band the engine has run at (two loads here), however often it returns to them
     "alerts.baseline.bands": 2,
 }
+# serve's stack (bench.long_run_cost.serve_sizes: DataDir store, EngineService on the looped demo log, AlertEngine)
+SERVE_N, SERVE_HISTORY = 200, 100  # past its result history (history_cycles) and the alerts' baseline
+SERVE_UNBOUNDED_BY_CYCLES = (
+    # the store's window sums keep one column per distinct flag name seen (service/window_sums.py): the monitor's
+    # flag vocabulary for this engine, not the cycles (3 -> 4 columns from 520 to 940 cycles when written)
+    "listener.sums._flag_col", "listener.sums._flags",
+    # the replayed log's read-ahead at the stop (the next message's arrays, or none)
+    "sources['log'].inner._next",
+)
 
 
 @pytest.fixture(scope="module")
@@ -49,6 +58,21 @@ def test_the_state_does_not_grow_with_the_cycles_served(sizes):
     assert not grew, f"containers larger after {2 * N} cycles than after {N}: {grew}"
     over = {p: second[p] for p, bound in BOUNDED.items() if second.get(p, 0) > bound}
     assert not over, f"bounded containers over their bound: {over}"
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)  # two runs of serve's stack on the demo log, to ~300 and ~500 genset-v20 cycles
+def test_serves_state_does_not_grow_with_the_cycles_served():
+    (first, at_first), (second, at_second) = serve_sizes(SERVE_N, SERVE_HISTORY), serve_sizes(2 * SERVE_N,
+                                                                                            SERVE_HISTORY)
+    assert SERVE_N <= at_first["cycles"] < at_second["cycles"]
+    assert len(second) > 150 and any(".state." in p for p in second) and any("listener" in p for p in second)
+    grew = {p: (first.get(p, 0), v) for p, v in second.items() if v > first.get(p, 0)
+            and not any(part in p for part in SERVE_UNBOUNDED_BY_CYCLES)}
+    assert not grew, f"serve's containers larger after {at_second['cycles']} cycles than after {at_first['cycles']}: {grew}"
+    ring = [v for p, v in second.items() if p.endswith("listener._ring")]  # the API's recent results
+    session = [v for p, v in second.items() if p.endswith("session._history._items")]
+    assert ring == [SERVE_HISTORY] and session == [max(64, SERVE_HISTORY)]  # full, at their bounds
 
 
 class _State:
