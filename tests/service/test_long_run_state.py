@@ -37,6 +37,9 @@ SERVE_UNBOUNDED_BY_CYCLES = (
     "listener.sums._flag_col", "listener.sums._flags",
     # the replayed log's read-ahead at the stop (the next message's arrays, or none)
     "sources['log'].inner._next",
+    # the data dir's counts by kind (heartbeats, errors, ...; service/data_dir.py): a key appears when its wall-clock
+    # timer first fires (a lease heartbeat every few seconds), whatever the cycles
+    "data_dir.leases", "data_dir.retention", "data_dir.checkpoints",
 )
 
 
