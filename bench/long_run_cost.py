@@ -241,11 +241,12 @@ def _load1() -> float:
         return float(fh.read().split()[0])
 
 
-def serve_sizes(cycles: int, history_cycles: int) -> tuple[dict[str, int], dict]:
+def serve_sizes(cycles: int, history_cycles: int, **options) -> tuple[dict[str, int], dict]:
     """serve's per-engine stack in this process, as ``serve --data-dir`` wires it: a DataDir store (SQLite in a
     temporary folder, its StoreListener on the fan-out), an EngineService on the demo log looped as fast as it reads
     (``?loop=1``), the AlertEngine; stopped once ``cycles`` results are in (a few more may come), then walked whole
-    (``container_sizes`` of the service and the data dir, ``by_pattern``). Also: the cycles served, RSS [MB]."""
+    (``container_sizes`` of the service and the data dir, ``by_pattern``). Also: the cycles served, RSS [MB].
+    ``options``: the EngineService's (e.g. recent_s)."""
     from frictionwatch.drivers.source import open_source
     from frictionwatch.drivers.timebase import Clocks
     from frictionwatch.service.data_dir import DataDir
@@ -258,7 +259,7 @@ def serve_sizes(cycles: int, history_cycles: int) -> tuple[dict[str, int], dict]
         src = open_source(url, Clocks())
         model = resolve_model(src.engine_toml, None, "demo", src.info)
         svc = EngineService("demo", model, src.info, {"log": src}, urls=[url], history_cycles=history_cycles,
-                            alerts=data.with_baseline(lambda _id, spec, baseline=None: AlertEngine(spec, baseline=baseline)))
+                            **options, alerts=data.with_baseline(lambda _id, spec, baseline=None: AlertEngine(spec, baseline=baseline)))
         data.attach(svc)
         svc.start()
         came = svc.session.wait_results(cycles, timeout=3600.0)
