@@ -10,7 +10,8 @@ import sys
 import time
 from pathlib import Path
 
-BENCHES = ["bench_simulate", "bench_sim_long", "bench_monitor", "bench_cycles", "bench_drivers", "bench_log_format", "bench_discrepancy"]
+BENCHES = ["bench_simulate", "bench_sim_long", "bench_monitor", "bench_cycles", "bench_drivers", "bench_log_format", "bench_discrepancy",
+           "long_run_cost"]
 OUT = Path(__file__).with_name("results.json")
 
 
