@@ -58,21 +58,29 @@ def firing_ratio(row: np.ndarray, grid: np.ndarray, tdc: float, half_width: floa
 @numba.njit(cache=True)
 def _block_sum(x, lo, n):
     """x[lo : lo + n], n <= 128, summed as numpy sums such a block: sequentially below 8, else eight interleaved
-    partial sums combined pairwise, then the remainder."""
+    partial sums combined pairwise, then the remainder (scalars, not an array of eight: less to compile)."""
     if n < 8:
         res = 0.0
         for i in range(lo, lo + n):
             res += x[i]
         return res
-    r = x[lo : lo + 8].copy()
-    i = 8
-    while i < n - n % 8:
-        for j in range(8):
-            r[j] += x[lo + i + j]
+    r0, r1, r2, r3 = x[lo], x[lo + 1], x[lo + 2], x[lo + 3]
+    r4, r5, r6, r7 = x[lo + 4], x[lo + 5], x[lo + 6], x[lo + 7]
+    i = lo + 8
+    stop = lo + n - n % 8
+    while i < stop:
+        r0 += x[i]
+        r1 += x[i + 1]
+        r2 += x[i + 2]
+        r3 += x[i + 3]
+        r4 += x[i + 4]
+        r5 += x[i + 5]
+        r6 += x[i + 6]
+        r7 += x[i + 7]
         i += 8
-    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
-    while i < n:
-        res += x[lo + i]
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < lo + n:
+        res += x[i]
         i += 1
     return res
 
@@ -81,10 +89,9 @@ def _block_sum(x, lo, n):
 def _pairwise_sum(x, n):
     """x[:n] summed in numpy's order (np.add.reduce of a contiguous float64 vector: blocks of <= 128 by
     ``_block_sum``, a longer run split at its half rounded down to a multiple of 8 and the two sums added), so the
-    ratio is numpy's to the bit. The split's recursion is walked with an explicit stack: a recursive numba
-    function loaded from the on-disk cache crashed (segfault, numba 0.68)."""
-    if n <= 128:
-        return _block_sum(x, 0, n)
+    ratio is numpy's to the bit. The split's recursion is walked with an explicit stack (a recursive numba
+    function loaded from the on-disk cache crashed: segfault, numba 0.68); one call site of ``_block_sum``, so one
+    specialisation (a literal 0 would be a second)."""
     los = np.empty(64, np.int64)  # pending runs (start, length, 0: not split yet / 1: left summed / 2: both)
     ns = np.empty(64, np.int64)
     stage = np.zeros(64, np.int64)
