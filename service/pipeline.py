@@ -55,6 +55,7 @@ class EnginePipeline:
         self.assembler = cycle_assembler(self.spec, info)
         self._given: Counter[str] = Counter()  # the assembler's losses already given out as outcomes, by reason
         self._retired: Counter[str] = Counter()  # the losses of assemblers replaced at a restart
+        self._lost_at = 0  # the assembler's ``lost`` when its losses were last given out
         self.restarts: Counter[str] = Counter()  # StreamRestart marks met, by reason
 
     @property
@@ -101,7 +102,8 @@ class EnginePipeline:
             return self.restart(record.reason)
         cycles = self.assembler.feed(record) if record is not None else self.assembler.flush()
         out = self._losses()
-        out.extend(self.cycles.process(c) for c in cycles)
+        if cycles:  # most records complete none (~19 a genset cycle): no generator to make for them
+            out.extend(self.cycles.process(c) for c in cycles)
         return out
 
     def restart(self, reason: str) -> list[CycleOutcome]:
@@ -116,6 +118,7 @@ class EnginePipeline:
         out.extend(self.cycles.process(c) for c in cycles)
         self._retired += Counter(old.skipped)
         self.assembler = cycle_assembler(self.spec, self.info, first_index=old.next_index)
+        self._lost_at = 0
         self.restarts[reason] += 1
         log.info("stream restart (%s): the cycle assembler starts again at cycle %d", reason, old.next_index)
         return out
@@ -123,8 +126,9 @@ class EnginePipeline:
     def _losses(self) -> list[CycleOutcome]:
         """One outcome per cycle the assembler lost since the last call (its counters only grow)."""
         asm = self.assembler
-        if self._retired.total() + sum(asm.skipped.values()) + sum(asm.truncated.values()) == self._given.total():
+        if asm.lost == self._lost_at:  # nothing lost since (an int compare per record, not three counter sums)
             return []
+        self._lost_at = asm.lost
         lost = self._assembler_lost()
         out = [CycleOutcome(None, skipped=reason, stage="assembly")
                for reason, n in sorted(lost.items()) for _ in range(n - self._given[reason])]

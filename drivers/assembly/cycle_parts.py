@@ -19,7 +19,7 @@ from frictionwatch.drivers.assembly.frame_store import FrameChannel, FrameGroup
 from frictionwatch.drivers.assembly.pressure_kernels import ROW_NAN, ROW_OK, pressure_row
 from frictionwatch.drivers.assembly.pressure_ring import PressureGroup
 from frictionwatch.drivers.assembly.resample import pchip_eval
-from frictionwatch.drivers.assembly.ringbuffer import RingBuffer
+from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, search_sorted
 
 
 @dataclass(frozen=True)
@@ -293,23 +293,39 @@ def load_mean(ring: RingBuffer, ticks: np.ndarray, angles: np.ndarray, hold_tick
     A reading with no reading before it retained stands for the cycle's part up to it. No reading after the
     cycle's first edge: the last one before it no older than ``hold_ticks`` (zero-order hold of a slow CAN
     reading), early and late the same; else NaN."""
-    nan = math.nan
-    if len(ring) == 0:
-        return LoadMeans(nan, nan, nan, nan)
-    t_lo, t_hi = float(ticks[0]), float(ticks[-1])
-    a = ring.searchsorted("t", t_lo, side="right")  # the first reading whose span reaches past t_lo
-    b = min(ring.searchsorted("t", t_hi, side="left") + 1, ring.end)  # through the first at or after t_hi
+    cols = ring.cols
+    return LoadMeans(*load_means((cols["t"], cols["torque"], cols["power"]), ring.start, ring.end, ticks, angles,
+                                 float(hold_ticks)))
+
+
+@numba.njit(cache=True)
+def load_means(cols, start, end, ticks, angles, hold_ticks):
+    """``load_mean`` in one compiled call (its two searches, the spans' sums and the hold; ~2 us against ~7 for the
+    Python around the sums): ``cols`` the load ring's mirrored columns (t int64, torque, power; 2 cap each), its
+    retained rows [start, end). Returns (torque, power, torque early, torque late), NaN where not measured."""
+    nan = np.nan
+    if end == start:
+        return nan, nan, nan, nan
+    t_col, torque, power = cols
+    cap = t_col.shape[0] // 2
+    i0 = start % cap
+    n = end - start
+    t_lo = float(ticks[0])
+    t_hi = float(ticks[ticks.shape[0] - 1])
+    a = start + search_sorted(t_col, i0, n, t_lo, np.bool_(True))  # the first reading whose span reaches past t_lo
+    b = min(start + search_sorted(t_col, i0, n, t_hi, np.bool_(False)) + 1, end)  # through the first at or after t_hi
     if b > a:
-        first = max(a - 1, ring.start)
+        first = max(a - 1, start)
+        ia, ifirst = a % cap, first % cap
         w, w_torque, w_power, early, early_torque, late, late_torque = span_weighted_load(
-            ring.view("t", first, b), ring.view("torque", a, b), ring.view("power", a, b), first < a, t_lo,
-            angles, ticks, float(hold_ticks))
+            t_col[ifirst : ifirst + (b - first)], torque[ia : ia + (b - a)], power[ia : ia + (b - a)], first < a,
+            t_lo, angles, ticks, hold_ticks)
         if w > 0.0:
-            return LoadMeans(w_torque / w, w_power / w, early_torque / early, late_torque / late)
-    if a > ring.start and t_lo - ring.get("t", a - 1) <= hold_ticks:
-        q = float(ring.get("torque", a - 1))
-        return LoadMeans(q, float(ring.get("power", a - 1)), q, q)
-    return LoadMeans(nan, nan, nan, nan)
+            return w_torque / w, w_power / w, early_torque / early, late_torque / late
+    if a > start and t_lo - t_col[(a - 1) % cap] <= hold_ticks:
+        q = torque[(a - 1) % cap]
+        return q, power[(a - 1) % cap], q, q
+    return nan, nan, nan, nan
 
 
 @numba.njit(cache=True)

@@ -125,6 +125,7 @@ class CycleAssembler(EpochSync):
             if info.pressure_cylinders else None
         self.skipped: Counter[str] = Counter()
         self.truncated: Counter[str] = Counter()  # the cycle the stream ended in (module docstring)
+        self.lost = 0  # cycles counted in skipped or truncated so far (a reader checks it instead of their sums)
         self.stats: Counter[str] = Counter()
         self._epoch: Epoch | None = None
         self._pending: deque[_Pending] = deque()
@@ -335,6 +336,7 @@ class CycleAssembler(EpochSync):
         if held_deg >= TAIL_COUNTED_DEG:
             ep.next_c = c + 1
             self.truncated["log_ends_mid_cycle"] += 1
+            self.lost += 1
             log.warning("cycle %d skipped: the stream ends %.0f deg into it (a cycle is 720 deg)", ep.index_of(c),
                         held_deg)
 
@@ -342,6 +344,7 @@ class CycleAssembler(EpochSync):
         if self.skipped[reason] == 0:
             log.warning("cycle %d skipped: %s", index, reason)
         self.skipped[reason] += 1
+        self.lost += 1
 
     def _grid_plan(self) -> GridPlan:
         """The pressure plan of the current buffers (remade when a pressure group appears or buffers reset)."""

@@ -81,8 +81,9 @@ def _row_on_weights(y, nx, hole, jj, ww, o):
     if y[nx - 1] != y[nx - 1]:
         return ROW_NAN
     for i in range(o.shape[0]):
-        j = jj[i]
-        o[i] = y[j] + ww[i] * (y[j + 1] - y[j])
+        j = np.uint64(jj[i])  # unsigned: no wrap-around test per read (drivers/assembly/frame_kernels.py frame_rows)
+        y0 = y[j]
+        o[i] = y0 + ww[i] * (y[j + np.uint64(1)] - y0)
     return ROW_OK
 
 

@@ -10,8 +10,15 @@ from operator import itemgetter
 import numpy as np
 import pytest
 from frictionwatch.core.types import LoadSample
-from frictionwatch.drivers.assembly.cycle_parts import Segment, Wheel, load_mean
-from frictionwatch.drivers.assembly.cycle_phase import PHASE_RATIO, cycle_votes, firing_verdict, phase_windows
+from frictionwatch.drivers.assembly.cycle_parts import Segment, Wheel, load_mean, load_means
+from frictionwatch.drivers.assembly.cycle_phase import (
+    PHASE_RATIO,
+    cycle_votes,
+    firing_ratio,
+    firing_verdict,
+    phase_windows,
+    window_ratio,
+)
 from frictionwatch.drivers.assembly.engine_buffers import EngineBuffers
 from numpy.testing import assert_allclose, assert_array_equal
 
@@ -84,8 +91,43 @@ def test_load_mean_and_its_hold(seed):
         angles = np.sort(rng.uniform(0.0, 4.0 * np.pi, m))
         angles[0], angles[-1] = -rng.uniform(0.0, 0.2), 4.0 * np.pi + rng.uniform(0.0, 0.2)
         # sums of up to ~200 values in another order: agree to a few ulp of the magnitudes (1e3, 2e5)
-        assert_allclose(load_mean(ring, ticks, angles, 500.0), load_mean_reference(rows, ticks, angles, 500.0),
-                        rtol=1e-10)
+        got = load_mean(ring, ticks, angles, 500.0)
+        assert_allclose(got, load_mean_reference(rows, ticks, angles, 500.0), rtol=1e-10)
+        # the one compiled call (load_means) against the Python composition it replaced, to the bit
+        assert_array_equal(got, load_mean_composed(ring, ticks, angles, 500.0))
+
+
+def load_mean_composed(ring, ticks, angles, hold):
+    """What ``load_mean`` was before ``load_means`` (two searches, three views, the sums' kernel, the hold), step
+    by step in Python: the compiled call must give the same floats."""
+    from frictionwatch.drivers.assembly.cycle_parts import span_weighted_load
+
+    if len(ring) == 0:
+        return (math.nan,) * 4
+    t_lo, t_hi = float(ticks[0]), float(ticks[-1])
+    a = ring.searchsorted("t", t_lo, side="right")
+    b = min(ring.searchsorted("t", t_hi, side="left") + 1, ring.end)
+    if b > a:
+        first = max(a - 1, ring.start)
+        w, wq, wp, e, eq, late, lq = span_weighted_load(ring.view("t", first, b), ring.view("torque", a, b),
+                                                         ring.view("power", a, b), first < a, t_lo, angles, ticks,
+                                                         float(hold))
+        if w > 0.0:
+            return wq / w, wp / w, eq / e, lq / late
+    if a > ring.start and t_lo - ring.get("t", a - 1) <= hold:
+        q = float(ring.get("torque", a - 1))
+        return q, float(ring.get("power", a - 1)), q, q
+    return (math.nan,) * 4
+
+
+def test_load_means_of_an_empty_ring_and_beyond_the_hold_are_nan():
+    buf = EngineBuffers(load_capacity=8)
+    ticks, angles = np.array([1000, 2000]), np.array([0.0, 4.0 * np.pi])
+    cols = (buf.load.cols["t"], buf.load.cols["torque"], buf.load.cols["power"])
+    assert np.isnan(load_means(cols, 0, 0, ticks, angles, 500.0)).all()
+    buf.add_load(LoadSample(400, 10.0, 20.0))  # 600 ticks before the cycle: beyond a hold of 500, within 700
+    assert np.isnan(load_mean(buf.load, ticks, angles, 500.0)).all()
+    assert_array_equal(load_mean(buf.load, ticks, angles, 700.0), (10.0, 20.0, 10.0, 10.0))
 
 
 def test_a_load_step_late_in_a_cycle_is_in_its_mean_and_late_half():
@@ -135,3 +177,34 @@ def test_firing_verdict_thresholds(points):
         row[win[1]] = 0.0  # no denominator
         assert firing_verdict(row, grid, tdc, win) == 0
         assert firing_verdict(None, grid, tdc, win) == 0
+
+
+def firing_ratio_reference(row, fire, exch):
+    """The numpy reference of ``window_ratio``: mean of the firing window over the mean of the exchange window."""
+    if fire.size == 0 or exch.size == 0:
+        return math.nan
+    den = float(np.add.reduce(row[exch])) / exch.size
+    return float(np.add.reduce(row[fire])) / fire.size / den if den > 0 else math.nan
+
+
+@pytest.mark.parametrize("points", [16, 256, 720, 1440, 4096])
+def test_window_ratio_against_its_numpy_reference(points):
+    """The compiled ratio against the numpy reference: windows of 1 to ~650 points, one wrapping round the grid's
+    end, pressures over six decades (rtol 1e-13: index-order sums against numpy's pairwise ones), a NaN, a zero
+    denominator, an empty window."""
+    rng = np.random.default_rng(points)
+    grid = np.arange(points) * (4 * np.pi / points)
+    for tdc in (0.0, 0.7, 2.0, 4 * np.pi - 0.05):
+        for half in (0.02, 0.3, 0.52, 1.0):
+            fire, exch, _ = phase_windows(grid, tdc, half)
+            for _ in range(5):
+                row = rng.uniform(0.5, 1.5, points) * 10.0 ** rng.uniform(3, 9, points)
+                assert_allclose(window_ratio(row, fire, exch), firing_ratio_reference(row, fire, exch), rtol=1e-13)
+            if fire.size and exch.size:
+                row[exch] = 0.0
+                assert math.isnan(window_ratio(row, fire, exch))
+                row[exch[0]], row[fire[0]] = 1e5, math.nan
+                assert math.isnan(window_ratio(row, fire, exch))
+    empty = np.zeros(0, dtype=np.int64)
+    assert math.isnan(window_ratio(np.ones(points), empty, np.arange(3)))
+    assert math.isnan(firing_ratio(np.ones(points), grid, 1.0, half_width=1e-9))  # no grid point that close

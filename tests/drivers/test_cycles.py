@@ -414,6 +414,7 @@ def test_tooth_batches_beyond_the_ring_are_counted_not_raised(k4):
     out = [c for r in merged for c in asm.feed(r)] + asm.flush()
     assert asm.stats["tooth:buffer_overflow"] >= 2 and asm.stats["tracker_reset"] >= 2
     assert asm.skipped["buffer_overflow"] >= 2
+    assert asm.lost == asm.skipped.total() + asm.truncated.total()
     by_first_edge = {int(c.tooth_ticks[0]): c for c in clean}
     assert out and all(np.array_equal(c.pressure, by_first_edge[int(c.tooth_ticks[0])].pressure)
                        and np.array_equal(c.tooth_ticks, by_first_edge[int(c.tooth_ticks[0])].tooth_ticks)
@@ -459,3 +460,4 @@ def test_the_cycle_the_stream_ends_in_is_kept_or_counted(k4, into_deg, counted):
         assert out[-1].load_torque == pytest.approx(clean[k].load_torque, abs=1.0)
     assert not asm.skipped
     assert asm.truncated == ({"log_ends_mid_cycle": 1} if counted else {})
+    assert asm.lost == counted  # the one count the pipeline reads per record (service.pipeline._losses)
