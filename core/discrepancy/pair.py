@@ -25,19 +25,29 @@ nothing beyond the null but the pressure reads the TDC beyond SEED_SIGMAS (a riv
 evidence of its own and the pair is judged with the model's own error allowed for (its floored held-out chi^2 must
 fall by ``min_delta`` too; before design note 85 such a pair was not tried);
 and in every pair the TDC is refined again with the friction in place (the speed's
-first refinement ran without it; design note 81). Otherwise nothing is added and the ambiguity stands. Not a joint Gauss-Newton fit of both: the TDC's value is the
+first refinement ran without it; design note 81), the friction moved by its sigma held in that refinement so that
+the TDC's sigma carries it (design note 91). Otherwise nothing is added and the ambiguity stands.
+
+Where the step's one explanation is a friction whose cylinder's pressure reads its TDC off by more than SEED_MIN_DEG,
+however few of its sigmas, the pair is tried too (design note 91) and ends one of three ways: named (its tests pass);
+the friction named alone (the pair explains the held-out cycles worse, or says the same of the friction); or
+**ambiguous** -- the pair fails only by being no better than the friction alone, explains the held-out cycles as well
+(floored chi^2 and the pressure's within AMBIGUOUS_DCHI2) and contradicts what the friction alone claims (another
+cylinder, or a parameter beyond 2 of its sigma): both are said with the measurement that separates them, and nothing
+is added. Not a joint Gauss-Newton fit of both: the TDC's value is the
 pressure's (its sigma enters the friction's by ``fit.polish``'s ``held``), the friction's the speed's on top of it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from frictionwatch.core.discrepancy.candidates import candidate_library
 from frictionwatch.core.discrepancy.choice import (
     AMBIGUOUS_DCHI2,
+    RESOLUTION,
     channel_worse,
     chi2,
     chi2_floored,
@@ -91,48 +101,66 @@ def beside_own_tdc(t: Trial, confirmed_tdcs: list[str], res: Residuals) -> int |
     """The cylinder of the step's one explanation ``t`` (no rival within AMBIGUOUS_DCHI2) where it is an effect
     placed in a cylinder other than a TDC offset and that cylinder's TDC is in question too: its TDC offset is a
     significant explanation of the speed (``confirmed_tdcs``: the labels of the step's significant confirmed TDC
-    trials) or its pressure reads its TDC off beyond SEED_SIGMAS and SEED_MIN_DEG in the current model's run ``res``
-    (the threshold at which an ambiguous step tries the pair); else None. Both read one cylinder's work: a TDC offset
-    moves its indicated work, a friction there takes it, so a friction found there may be the TDC's stand-in with the
-    friction itself elsewhere (maruti 1500/0.5 s1: TDC 1.5 deg on 2, a worn ring on 3, named ring_wear[2] 3.58, the
+    trials) or its pressure reads its TDC off by more than SEED_MIN_DEG in the current model's run ``res``, however
+    few of its sigmas (``own_tdc_reading``); else None. Both read one cylinder's work: a TDC offset moves its
+    indicated work, a friction there takes it, so a friction found there may be the TDC's stand-in with the friction
+    itself elsewhere or smaller (maruti 1500/0.5 s1: TDC 1.5 deg on 2, a worn ring on 3, named ring_wear[2] 3.58, the
     TDC the speed's second; s3: the same, ring_wear[2] 3.39 +- 0.074 with no TDC among the speed's seconds while
-    the pressure read cylinder 2 at 1.49 +- 0.71 deg; design notes 81, 85). The pair is then tried
-    (``tdc_and_friction``) and its own tests decide."""
+    the pressure read cylinder 2 at 1.49 +- 0.71 deg; design notes 81, 85; TDC 0.8 deg on 2, read under SEED_SIGMAS,
+    and a ring on 3 named ring_wear[2] 2.95 +- 0.13 alone: note 91). The pair is then tried (``tdc_and_friction``)
+    and its own tests decide: named, refused, or -- where it explains as well as the friction alone and differs from
+    it -- an ambiguity."""
     c = t.candidate
     if c.effect == "tdc_offset" or not c.places_cylinder or c.cylinder is None:
         return None
-    read = {k for k, _, _ in tdc_beyond(res, SEED_SIGMAS, SEED_MIN_DEG)}
-    return c.cylinder if f"tdc_offset[cyl {c.cylinder}]" in confirmed_tdcs or c.cylinder in read else None
+    own = own_tdc_reading(res, c.cylinder)
+    read = own is not None and (c.cylinder in {k for k, _, _ in tdc_beyond(res, SEED_SIGMAS, SEED_MIN_DEG)}
+                                or (abs(own[1]) > SEED_MIN_DEG and not sensor_correction(t)))
+    return c.cylinder if f"tdc_offset[cyl {c.cylinder}]" in confirmed_tdcs or read else None
+
+
+def sensor_correction(t: Trial) -> bool:
+    """Whether the trial corrects a pressure sensor (choice.RESOLUTION's effects) rather than a friction. Design note
+    91's trigger, its quiet path and its ambiguity are for a friction beside a TDC, the gap it was built and measured
+    on; beside a sensor correction the pair is tried as before it (the speed's TDC second, a reading beyond
+    SEED_SIGMAS). Whether a gain beside such a TDC is an ambiguity too was not measured."""
+    return any(t.candidate.effect == effect for effect, _ in RESOLUTION)
 
 
 def tdc_and_friction(current: EngineModel, cur_res: Residuals, rivals: list[tuple[Trial, Residuals]],
                      full: Callable[[EngineModel], Residuals], parts, scale: np.ndarray, floor: np.ndarray,
                      pressure: Callable[[EngineModel], float], load_nm: float, min_delta: float,
                      significant: Callable[[Residuals], bool], cylinder: int | None = None
-                     ) -> tuple[Pair | None, int, str]:
-    """The pair to add (module doc) or None; the monitor runs spent; why not, in words ('' when nothing was tried).
+                     ) -> tuple[Pair | None, int, str, Pair | None]:
+    """The pair to add (module doc) or None; the monitor runs spent; why not, in words ('' when nothing was tried);
+    and, where the pair is not added only because it explains the held-out cycles no better than the friction alone
+    (``as_well``), that pair: an ambiguity the workflow says rather than naming the friction alone (None otherwise).
     ``rivals``: the ambiguous step's two trials with their whole-log runs; ``parts(res)`` -> (training, held out);
     ``pressure(model)`` the TDC channel's chi^2 against the current run's readings; ``significant(res)`` the step's
     own test against the current model. ``cylinder``: the pair is tried with that cylinder's TDC as the pressure
-    reads it however small (``own_tdc_reading``), not with a reading beyond SEED_SIGMAS."""
+    reads it however small (``own_tdc_reading``), not with a reading beyond SEED_SIGMAS; only there is an ambiguity
+    returned (a rival step is ambiguous already)."""
     have = {e.values.get("cylinder") for e in current.effects if e.name == "tdc_offset"}
     seeds = [s for s in tdc_beyond(cur_res, SEED_SIGMAS, SEED_MIN_DEG) if s[0] not in have]
     if cylinder is not None:
         own = own_tdc_reading(cur_res, cylinder)
         seeds = [own] if own is not None and cylinder not in have else []
     if not seeds or any(t.candidate.effect == "tdc_offset" for t, _ in rivals):
-        return None, 0, ""
+        return None, 0, "", None
     k, deg, sigma = max(seeds, key=lambda s: abs(s[1]) / s[2])  # the clearest reading: one pair per step
     spec = current.spec
     singles = [parts(r)[1] for _, r in rivals]
     # each alone must leave something beyond the model's own error (a second effect is not fitted to that error),
-    # except where the pressure itself reads this TDC beyond SEED_SIGMAS and SEED_MIN_DEG (a rival step's seeds always,
-    # beside_own_tdc's cylinder where its reading is): there the TDC has its own evidence and the pair is judged with
-    # the model-error floor in each feature's variance (``quiet`` below)
+    # except where the pressure reads this TDC beyond SEED_SIGMAS and SEED_MIN_DEG (a rival step's seeds always,
+    # beside_own_tdc's cylinder where its reading is: the TDC has its own evidence) or where the friction is the step's
+    # one explanation beside its own cylinder's TDC and a friction (``cylinder``: whether the pair explains the log as
+    # well is the question, design note 91): there the pair is judged with the model-error floor in each feature's
+    # variance (``quiet`` below)
     quiet = not all(beyond_null(localise(h, spec, scale)) for h in singles)
-    if quiet and k not in {c for c, _, _ in tdc_beyond(cur_res, SEED_SIGMAS, SEED_MIN_DEG)}:
+    friction = cylinder is not None and not sensor_correction(rivals[0][0])
+    if quiet and not friction and k not in {c for c, _, _ in tdc_beyond(cur_res, SEED_SIGMAS, SEED_MIN_DEG)}:
         return None, 0, (f"tdc_offset[cyl {k}] as the pressure reads it ({deg:+.2f} +- {sigma:.2f} deg) with a friction "
-                         "beside it: each alone leaves nothing beyond the model's own error")
+                         "beside it: each alone leaves nothing beyond the model's own error"), None
     reading = PressureFinding("tdc_offset", k, "deg", deg, sigma,
                               f"the pressure reads TDC {deg:+.2f} +- {sigma:.2f} deg off (below the naming threshold; "
                               "taken with the friction beside it)")
@@ -160,8 +188,9 @@ def tdc_and_friction(current: EngineModel, cur_res: Residuals, rivals: list[tupl
         # the speed refined the TDC with the friction missing, so its TDC took part of the friction's work (maruti
         # 1500/0.5 s1: 1.73 deg for 1.5, and a balance 0.13 N m off; design note 81): the TDC is refined again from
         # the pressure's reading with the friction in place, and the friction polished once more on top of it
+        # the friction moved by its sigma enters the speed's TDC sigma (the two take one cylinder's work)
         found2, _, spent = refined_by_speed(with_fit(current, t2), [reading], full, lambda r: parts(r)[0], scale,
-                                            floor)
+                                            floor, [with_fit(current, replace(t2, x=t2.candidate.clip(t2.x + t2.sigma)))])
         tdc2 = with_findings(current, found2)
         start2 = with_fit(tdc2, t2)
         res_start2 = full(start2)
@@ -171,32 +200,71 @@ def tdc_and_friction(current: EngineModel, cur_res: Residuals, rivals: list[tupl
         runs += spent + spent2 + 2
         pairs.append((chi2(parts(res2)[1], scale) + pressure(model2), t2, model2, res2, found2[0], tdc2, tdc_res2))
     if not pairs:
-        return None, runs, ""
+        return None, runs, "", None
     pairs.sort(key=lambda p: p[0])
     best, t2, model2, res2, tdc_found, tdc_model, tdc_res = pairs[0]
     best_single = min(chi2(h, scale) + pressure(with_fit(current, t)) for (t, _), h in zip(rivals, singles,
                                                                                              strict=True))
-    floored_fall = (min(chi2_floored(h, scale, floor) for h in singles) - chi2_floored(parts(res2)[1], scale, floor)
-                    if quiet else np.inf)
+    floored_single = min(chi2_floored(h, scale, floor) for h in singles)
+    floored_pair = chi2_floored(parts(res2)[1], scale, floor)
+    floored_fall = floored_single - floored_pair if quiet else np.inf
     test_pair, test_cur = parts(res2)[1], parts(cur_res)[1]
-    why = ("not significant against the current model" if not significant(res2) else
-           f"held-out chi^2 {best:.4g} is not {min_delta:g} below one effect alone's ({best_single:.4g})"
-           if best_single - best < min_delta else
-           f"with the model's own error allowed for, held-out chi^2 falls by {floored_fall:.3g} against one effect "
-           f"alone, not {min_delta:g}" if floored_fall < min_delta else
-           channel_worse(test_cur, test_pair, scale) or channel_worse(min(singles, key=lambda h: chi2(h, scale)),
-                                                                      test_pair, scale)
-           or pressure_worse(pressure(current), pressure(model2), spec.n_cyl)
-           or unphysical(t2, load_nm) or off_physics(t2)
-           or ("the speed cannot place it in a cylinder" if not t2.candidate.places_cylinder and spec.n_cyl > 1
-               else "")
-           or (f"{pairs[1][1].candidate.label} with the TDC explains it as well" if len(pairs) > 1
-               and pairs[1][0] - best < AMBIGUOUS_DCHI2 else ""))
+    no_better = (f"held-out chi^2 {best:.4g} is not {min_delta:g} below one effect alone's ({best_single:.4g})"
+                 if best_single - best < min_delta else
+                 f"with the model's own error allowed for, held-out chi^2 falls by {floored_fall:.3g} against one "
+                 f"effect alone, not {min_delta:g}" if floored_fall < min_delta else "")
+    not_pair = (channel_worse(test_cur, test_pair, scale) or channel_worse(min(singles, key=lambda h: chi2(h, scale)),
+                                                                           test_pair, scale)
+                or pressure_worse(pressure(current), pressure(model2), spec.n_cyl)
+                or unphysical(t2, load_nm) or off_physics(t2)
+                or ("the speed cannot place it in a cylinder" if not t2.candidate.places_cylinder and spec.n_cyl > 1
+                    else "")
+                or (f"{pairs[1][1].candidate.label} with the TDC explains it as well" if len(pairs) > 1
+                    and pairs[1][0] - best < AMBIGUOUS_DCHI2 else ""))
+    why = "not significant against the current model" if not significant(res2) else no_better or not_pair
     if why:
-        return None, runs, f"tdc_offset[cyl {k}] with {t2.candidate.label}: {why}"
+        # the friction alone named, or an ambiguity: where the pair fails only by explaining the held-out cycles no
+        # better than the friction alone, it explains them as well (its floored chi^2 and the pressure's within
+        # AMBIGUOUS_DCHI2 of the single's, choice.rival's test) and it reads the friction otherwise (another cylinder,
+        # or a parameter beyond 2 sigma of the single's), the data cannot tell the two (design note 91)
+        single_t = rivals[0][0]
+        as_well = (friction and significant(res2) and no_better and not not_pair
+                   and floored_pair + pressure(model2)
+                   < floored_single + pressure(with_fit(current, single_t)) + AMBIGUOUS_DCHI2
+                   and reads_otherwise(single_t, t2))
+        pair = Pair(tdc_found, t2, model2, res2, tdc_model, tdc_res, why) if as_well else None
+        return None, runs, f"tdc_offset[cyl {k}] with {t2.candidate.label}: {why}", pair
     return (Pair(tdc_found, t2, model2, res2, tdc_model, tdc_res,
                  f"held-out chi^2 {best:.4g} against {best_single:.4g} with one effect alone"
-                 + (f" ({floored_fall:.3g} lower with the model's own error allowed for)" if quiet else "")), runs, "")
+                 + (f" ({floored_fall:.3g} lower with the model's own error allowed for)" if quiet else "")), runs, "",
+            None)
 
 
-__all__ = ["POLISHED", "Pair", "beside_own_tdc", "own_tdc_reading", "tdc_and_friction"]
+def reads_otherwise(single: Trial, paired: Trial) -> bool:
+    """Whether the friction refitted beside the TDC (``paired``) contradicts what the friction alone (``single``)
+    claims: another candidate (effect or cylinder), or a parameter beyond 2 of the single's sigma from the single's
+    value (the matrix's coverage rule, not tuned). The single's sigma alone: it is the single that would be named,
+    and its sigma does not carry the TDC the pressure cannot pin (k9k 1800/0.6 s2, TDC 0.3 deg and a ring on 2:
+    ring_wear[2] 2.77 +- 0.053 alone, 2.48 +- 0.14 beside the TDC, the pair's floored held-out chi^2 28.6 lower;
+    design note 91). Where it does not, naming the single claims nothing the pair denies: no ambiguity."""
+    if paired.candidate.label != single.candidate.label:
+        return True
+    return bool(np.any(np.abs(paired.x - single.x) > 2.0 * single.sigma))
+
+
+def said_alone(t: Trial) -> str:
+    """The friction alone as an ambiguity lists it: its label and fitted values."""
+    vals = ", ".join(f"{n} {float(x):.3g} +- {float(s):.2g}" for n, x, s in zip(t.candidate.params, t.x, t.sigma))
+    return f"{t.candidate.label} alone ({vals})"
+
+
+def said_pair(pair: Pair) -> str:
+    """A pair as an ambiguity lists it: the TDC as the pressure read it (refined) and the friction beside it."""
+    vals = ", ".join(f"{n} {float(x):.3g} +- {float(s):.2g}"
+                     for n, x, s in zip(pair.trial.candidate.params, pair.trial.x, pair.trial.sigma))
+    return (f"tdc_offset[cyl {pair.tdc.cylinder}] ({pair.tdc.value:+.2f} +- {pair.tdc.sigma:.2f} deg, under the "
+            f"pressure's naming threshold) with {pair.trial.candidate.label} ({vals})")
+
+
+__all__ = ["POLISHED", "Pair", "beside_own_tdc", "own_tdc_reading", "reads_otherwise", "said_alone", "said_pair",
+           "sensor_correction", "tdc_and_friction"]

@@ -15,7 +15,7 @@ it is left to the speed's own steps.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -40,12 +40,16 @@ def with_findings(model: EngineModel, findings: list[PressureFinding]) -> Engine
 
 
 def refined_by_speed(base: EngineModel, tdcs: list[PressureFinding], full: Callable[[EngineModel], Residuals],
-                     train_of: Callable[[Residuals], Residuals], scale: np.ndarray, floor: np.ndarray
-                     ) -> tuple[list[PressureFinding], Residuals, int]:
+                     train_of: Callable[[Residuals], Residuals], scale: np.ndarray, floor: np.ndarray,
+                     held: Sequence[EngineModel] = ()) -> tuple[list[PressureFinding], Residuals, int]:
     """The TDC findings ``tdcs`` on top of ``base``, each refined by one speed step on the training cycles
     (``fit.polish`` from the pressure's reading, the others held) where that step lowers the training cost and stays
     within REFINE_SIGMAS of the reading: then the two readings' inverse-variance mean; returns the findings (refined or as read), the whole-log run of ``base`` with
-    all of them, and the monitor runs spent."""
+    all of them, and the monitor runs spent. ``held``: ``base`` with a parameter it holds moved by its sigma (a
+    friction fitted beside the TDC: pair.tdc_and_friction), whose shift of the speed's TDC enters the speed's sigma
+    (fit.polish's ``held``): a friction in the TDC's own cylinder takes its indicated work too, and the speed's TDC
+    with that friction fixed read 1.05 +- 0.11 deg for 0.8 (maruti 1500/0.5 s1, a ring on the same cylinder;
+    design note 91)."""
     out = list(tdcs)
     res = full(with_findings(base, out))
     runs = 1
@@ -55,7 +59,8 @@ def refined_by_speed(base: EngineModel, tdcs: list[PressureFinding], full: Calla
         if cand is None:
             continue
         start = Trial(cand, np.array([f.value]), np.array([f.sigma]), 0.0, 0.0, 0)
-        t, _, new_res, spent = polish(start, others, with_findings(others, [f]), res, full, train_of, scale, floor)
+        t, _, new_res, spent = polish(start, others, with_findings(others, [f]), res, full, train_of, scale, floor,
+                                      [with_findings(h, out[:i] + out[i + 1:]) for h in held])
         runs += spent
         moved = float(t.x[0]) - f.value
         if moved != 0.0 and abs(moved) <= REFINE_SIGMAS * f.sigma and np.isfinite(t.sigma[0]) and t.sigma[0] > 0:

@@ -67,7 +67,7 @@ from frictionwatch.core.discrepancy.features import (
     noise_scale,
 )
 from frictionwatch.core.discrepancy.fit import Evaluator, linearise, polish, refine, with_fit
-from frictionwatch.core.discrepancy.pair import beside_own_tdc, tdc_and_friction
+from frictionwatch.core.discrepancy.pair import beside_own_tdc, said_alone, said_pair, tdc_and_friction
 from frictionwatch.core.discrepancy.pressure_channel import (
     pressure_findings,
     pressure_seeds,
@@ -82,6 +82,7 @@ from frictionwatch.core.discrepancy.residuals import (
     run_model,
 )
 from frictionwatch.core.discrepancy.words import within_floor_separation
+from frictionwatch.core.model.effects import EFFECTS
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.view import reference
 from frictionwatch.core.types import Cycle
@@ -193,7 +194,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
                 _, t, new_model, res = confirmed[1]
             other = None
         if other is not None:  # two explanations: a TDC the pressure reads beside one of them (pair.py), or neither
-            pair, spent, found.pair_not_taken = tdc_and_friction(
+            pair, spent, found.pair_not_taken, _ = tdc_and_friction(
                 current, cur_res, [(c[1], c[3]) for c in confirmed[:2]], full, parts, scale, floor, pressure,
                 load_nm, opt.min_delta_chi2, significant)
             runs += spent
@@ -205,8 +206,9 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
                             [c.separated_by for c in (t.candidate, other.candidate)], inside)
             break
         own = beside_own_tdc(t, [c[1].candidate.label for c in confirmed[1:] if significant(c[3])], cur_res)
+        as_well = None  # a pair that explains the held-out cycles as well as the friction alone (pair.py)
         if other is None and own is not None:  # a friction where the TDC of its cylinder explains much too (pair.py)
-            pair, spent, found.pair_not_taken = tdc_and_friction(
+            pair, spent, found.pair_not_taken, as_well = tdc_and_friction(
                 current, cur_res, [(t, res)], full, parts, scale, floor, pressure, load_nm, opt.min_delta_chi2,
                 significant, cylinder=own)
             runs += spent
@@ -248,6 +250,11 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
                                   "gap_before": g_cur, "gap_after": gap(test_new, scale),
                                   "delta_chi2_heldout": chi_before - chi2(test_new, scale),
                                   "delta_chi2_heldout_floored": floored_fall, "quiet_before": quiet})
+            break
+        if as_well is not None:  # the friction alone would be named, but the TDC beside it explains as well: said
+            _said_ambiguous(found, True, [said_alone(t), said_pair(as_well)],
+                            [EFFECTS["tdc_offset"].candidate.separated_by, t.candidate.separated_by])
+            found.pair_not_taken = ""
             break
         g_new, chi_after = gap(test_new, scale), chi2(test_new, scale)
         runner = confirmed[1][1].candidate.label if len(confirmed) > 1 else None

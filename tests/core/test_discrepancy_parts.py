@@ -638,3 +638,25 @@ def test_a_parameter_the_balance_sizes_carries_the_balances_own_model_error(labe
     # the floor's part is the balance's own error through the sensitivity, whatever the cycle count
     np.testing.assert_allclose(stated, np.hypot(FLOOR_RMS[1] * NULL_BALANCE * friction / j_nm,
                                                 sd / np.sqrt(n) / j_nm), rtol=0.05)
+
+
+def test_a_friction_beside_a_tdc_reads_otherwise_than_alone_in_another_cylinder_or_beyond_two_of_its_sigma():
+    """pair.reads_otherwise: the friction refitted beside a TDC the pressure reads under its naming threshold
+    contradicts the friction alone when it sits in another cylinder or a parameter lies beyond 2 of the single's
+    sigma from the single's; only then can the pair and the single be an ambiguity (design note 91). A sensor
+    correction is not a friction (pair.sensor_correction). The figures: k9k 1800/0.6 s2, TDC 0.3 deg and a ring on
+    2, ring_wear[2] 2.77 +- 0.053 alone and 2.48 +- 0.14 beside the TDC."""
+    from frictionwatch.core.discrepancy.fit import Trial
+    from frictionwatch.core.discrepancy.pair import reads_otherwise, said_alone, sensor_correction
+
+    lib = {c.label: c for c in candidate_library(EngineModel.from_spec(load_engine("k9k-4cyl")))}
+
+    def fitted(label, x, sigma):
+        return Trial(lib[label], np.array([x]), np.array([sigma]), 0.0, 1.0, 0)
+
+    alone = fitted("ring_wear[cyl 2]", 2.77, 0.053)
+    assert reads_otherwise(alone, fitted("ring_wear[cyl 3]", 2.77, 0.053))  # another cylinder
+    assert reads_otherwise(alone, fitted("ring_wear[cyl 2]", 2.48, 0.14))  # 0.29 apart, 2 sigma alone 0.106
+    assert not reads_otherwise(alone, fitted("ring_wear[cyl 2]", 2.7, 0.14))  # 0.07: inside what the single claims
+    assert said_alone(alone) == "ring_wear[cyl 2] alone (gain 2.77 +- 0.053)"
+    assert sensor_correction(fitted("pressure_gain[cyl 3]", 1.06, 0.002)) and not sensor_correction(alone)
