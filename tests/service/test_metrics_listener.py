@@ -67,7 +67,7 @@ def test_each_cycle_sets_the_engines_series_and_no_series_before_the_first() -> 
     assert samples(metrics, "frictionwatch_cycle_to_api_seconds", "b")["frictionwatch_cycle_to_api_seconds_count"] == 1
 
 
-def test_the_api_state_calls_the_observer_once_a_result_is_visible() -> None:
+def test_the_api_state_does_not_call_the_observer_for_an_event_without_a_result() -> None:
     from frictionwatch.service.listeners import LatestState
 
     seen = []
