@@ -43,6 +43,7 @@ TIMED = (  # (module, class, method, component); the thread's prefix ("ingest", 
     ("frictionwatch.service.ingest_queue", "IngestQueue", "put", "reader: queue put"),
     ("frictionwatch.service.listeners", "LatestState", "on_message_received", "listener: api state"),
     ("frictionwatch.service.metrics", "MetricsListener", "on_message_received", "listener: metrics"),
+    ("frictionwatch.service.metrics", "CycleObserver", "__call__", "listener: metrics"),  # on the API state's thread
     ("frictionwatch.service.listeners", "SseBroadcaster", "on_message_received", "listener: sse"),
 )
 

@@ -1,5 +1,6 @@
 """The service's own work per cycle, outside the monitor (issue 28 item 7): what ``serve`` does with each result of
-one genset-v20 — the alert engine's update, the API state's window row, the metrics listener — timed on the demo
+one genset-v20 — the alert engine's update, the API state's window row, the metrics' histograms (on the API state's
+thread since design note 92: then in ``api_state_ms``, and ``metrics_ms`` is 0) — timed on the demo
 log's results looped (the replay's own loop: cycle numbers and times go on), so the alert engine learns its
 baseline and runs every rule as in a served plant. Thread CPU time (``time.thread_time``) per cycle, median of
 ``--repeat`` passes; the events are printed as a digest so that two checkouts can be compared on the same results.
@@ -59,14 +60,20 @@ def looped_results(n: int, faults: bool = True) -> list:
 
 def timed_pass(results: list) -> tuple[dict, str]:
     from frictionwatch.core.model.engine import load_engine
+    from frictionwatch.service import metrics as m
     from frictionwatch.service.alerts import AlertEngine
     from frictionwatch.service.listeners import LatestState, ServiceEvent
-    from frictionwatch.service.metrics import MetricsListener, ServiceMetrics
 
     spec = load_engine("genset-v20")
     alerts = AlertEngine(spec)
     state = LatestState()
-    metrics = MetricsListener(ServiceMetrics(lambda: [], lambda: 0), "g1")
+    service_metrics = m.ServiceMetrics(lambda: [], lambda: 0)
+    if hasattr(m, "CycleObserver"):  # the histograms observed on the API state's thread (design note 92)
+        state.on_visible = service_metrics.observer("g1")
+        metrics = None
+    else:  # a checkout before it: the metrics listener of its own (and the API state's to_api histogram)
+        metrics = m.MetricsListener(service_metrics, "g1")
+        state.on_visible = service_metrics.to_api.labels("g1").observe
     t_alert = t_state = t_metrics = 0.0
     digest = hashlib.sha256()
     for r in results:
@@ -77,7 +84,8 @@ def timed_pass(results: list) -> tuple[dict, str]:
         ev = ServiceEvent("g1", r, time.monotonic(), None, tuple(docs))
         state.on_message_received(ev)
         t2 = time.thread_time()
-        metrics.on_message_received(ev)
+        if metrics is not None:
+            metrics.on_message_received(ev)
         t3 = time.thread_time()
         t_alert, t_state, t_metrics = t_alert + t1 - t0, t_state + t2 - t1, t_metrics + t3 - t2
         for e, d in zip(events, docs, strict=True):

@@ -1,6 +1,6 @@
 """The HTTP API of the service (FastAPI): the contract's routes over a set of EngineService (docs in /openapi.json).
 
-    app = create_app(services, token=token)      # attaches the SSE and metrics listeners to every engine
+    app = create_app(services, token=token)      # attaches the SSE listener and the metrics' observer to every engine
     uvicorn.run(app, host="127.0.0.1", port=8080)  # the app's lifespan starts and stops the engines
 
 Reads come from each engine's LatestState (service/listeners.py); what a friction figure is comes from
@@ -99,8 +99,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
     metrics = ServiceMetrics(lambda: list(engines.values()), lambda: sse.dropped)
     for s in services:
         s.add_listener(sse)
-        s.add_listener(metrics.listener(s.engine_id))
-        s.state.on_visible = metrics.to_api.labels(s.engine_id).observe
+        s.state.on_visible = metrics.observer(s.engine_id)  # on the API state's thread: no listener of its own
     files = _dashboard_files(dashboard_dir)
     started = time.monotonic()
     cache: dict[str, tuple[int, dict]] = {}  # engine id -> (newest index, smoothed losses): one computation a cycle

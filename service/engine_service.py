@@ -169,6 +169,8 @@ class EngineService:
         self._until = None if self.session.realtime else (lambda: self.session.drain_until)
         self._stopped = False
         self.term_names = self._monitor_terms()  # the columns of the monitor's estimates, named
+        self._terms_of: Any = None  # the monitor's view the names were read from (_on_result: None, not read yet)
+        self._counts_mark: tuple | None = None  # what the counts below were copied at (_on_result)
         self.started_s: float | None = None
         self.last_result_s: float | None = None
         self.alert_errors = 0
@@ -271,10 +273,20 @@ class EngineService:
         self.last_result_s = now
         self.cycles_ok += 1
         pipe = self.session.pipeline
-        self.skipped = dict(pipe.skipped)  # the session's lock is held here (its on_result)
-        self.restarts = dict(pipe.restarts)
-        self.tdc_watch = TdcWatchView(pipe.tdc_watch, pipe.tdc_window_cycle)
-        self.term_names = self._monitor_terms()  # a model with a friction shape has its view from the first cycle
+        # the session's lock is held here (its on_result). The counts are copied where they changed: the assembler's
+        # losses, the monitor's skips and the restarts only grow, so their totals (and the assembler, replaced at a
+        # restart) say whether they did; summing the counters into a new one each cycle was most of this glue's time
+        asm = pipe.assembler
+        mark = (id(asm), asm.lost, sum(pipe.cycles.skipped.values()), sum(pipe.restarts.values()))
+        if mark != self._counts_mark:
+            self._counts_mark = mark
+            self.skipped = dict(pipe.skipped)
+            self.restarts = dict(pipe.restarts)
+        watch, window_cycle = pipe.tdc_watch, pipe.tdc_window_cycle
+        if watch is not self.tdc_watch.state or window_cycle != self.tdc_watch.window_cycle:
+            self.tdc_watch = TdcWatchView(watch, window_cycle)
+        if pipe.view is not self._terms_of:  # a model with a friction shape has its view from the first cycle
+            self._terms_of, self.term_names = pipe.view, self._monitor_terms()
         arrived = self._arrival(result)
         if self.alerts is None:
             self.outbox.put(ServiceEvent(self.engine_id, result, now, arrived, term_names=self.term_names))

@@ -328,7 +328,8 @@ class LatestState(Listener):
         self.newest_counted: CycleResult | None = None
         self.newest_s: float | None = None  # monotonic time the newest result became visible here
         self.updated = threading.Condition(self._lock)
-        self.on_visible: Callable[[float], None] | None = None  # gets result -> visible here [s] (metrics)
+        # gets each event with its result -> visible here [s], on this thread (the metrics' per-cycle histograms)
+        self.on_visible: Callable[[ServiceEvent, float], None] | None = None
 
     def on_message_received(self, event: ServiceEvent) -> None:
         if event.result is None:
@@ -344,7 +345,7 @@ class LatestState(Listener):
                 self.newest_counted = event.result
             self.updated.notify_all()
         if self.on_visible is not None:
-            self.on_visible(self.newest_s - event.result_s)
+            self.on_visible(event, self.newest_s - event.result_s)
 
     def snapshot(self, last: int | None = None) -> tuple[CycleResult | None, list[CycleResult]]:
         """The newest whole result and the last ``last`` results held (all when None), oldest first."""

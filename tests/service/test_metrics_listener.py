@@ -1,6 +1,6 @@
 """The metrics (service/metrics.py): each engine's measured FMEPs from its newest result at scrape time, and each
-cycle's latency (the listener) under the engine's labels; no series of an engine before its first result (a gauge
-would read 0)."""
+cycle's latency and time to the API (the observer the API state calls) under the engine's labels; no FMEP or latency
+series of an engine before its first result (a gauge would read 0)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import math
 from types import SimpleNamespace
 
 from frictionwatch.service.listeners import ServiceEvent
-from frictionwatch.service.metrics import MetricsListener, ServiceMetrics
+from frictionwatch.service.metrics import CycleObserver, ServiceMetrics
 from numpy.testing import assert_allclose
 from prometheus_client.parser import text_string_to_metric_families
 
@@ -42,15 +42,15 @@ def samples(metrics: ServiceMetrics, name: str, engine: str) -> dict:
 def test_each_cycle_sets_the_engines_series_and_no_series_before_the_first() -> None:
     engines = {"a": FakeEngine("a"), "b": FakeEngine("b")}
     metrics = ServiceMetrics(lambda: engines.values(), lambda: 0)
-    a, b = metrics.listener("a"), metrics.listener("b")
-    assert isinstance(a, MetricsListener)
+    a, b = metrics.observer("a"), metrics.observer("b")
+    assert isinstance(a, CycleObserver)
     assert samples(metrics, "frictionwatch_engine_fmep_bar", "a") == {}
     assert samples(metrics, "frictionwatch_fmep_bar", "a") == {}
     for engine_id, result, at in (("a", FakeResult(1.5, [1.0, math.nan, 2.0]), (10.0, 9.9)),
                                   ("b", FakeResult(math.nan, [0.5, 0.25]), (10.0, None)),
                                   ("a", FakeResult(1.75, [1.25, 3.0, math.nan]), (10.5, 10.2))):
         engines[engine_id].state.newest = result  # the API's state has it (the engine's LatestState)
-        (a if engine_id == "a" else b).on_message_received(ServiceEvent(engine_id, result, *at))
+        (a if engine_id == "a" else b)(ServiceEvent(engine_id, result, *at), 0.25 if engine_id == "a" else 0.5)
     assert_allclose(samples(metrics, "frictionwatch_engine_fmep_bar", "a")["frictionwatch_engine_fmep_bar"], 1.75)
     assert math.isnan(samples(metrics, "frictionwatch_engine_fmep_bar", "b")["frictionwatch_engine_fmep_bar"])
     cyl_a = samples(metrics, "frictionwatch_fmep_bar", "a")
@@ -61,3 +61,17 @@ def test_each_cycle_sets_the_engines_series_and_no_series_before_the_first() -> 
     assert lat["frictionwatch_cycle_latency_seconds_count"] == 2
     assert_allclose(lat["frictionwatch_cycle_latency_seconds_sum"], 0.1 + 0.3, rtol=1e-12)
     assert samples(metrics, "frictionwatch_cycle_latency_seconds", "b") == {}  # no arrival time: no latency
+    to_api = samples(metrics, "frictionwatch_cycle_to_api_seconds", "a")
+    assert to_api["frictionwatch_cycle_to_api_seconds_count"] == 2
+    assert_allclose(to_api["frictionwatch_cycle_to_api_seconds_sum"], 0.5, rtol=1e-12)
+    assert samples(metrics, "frictionwatch_cycle_to_api_seconds", "b")["frictionwatch_cycle_to_api_seconds_count"] == 1
+
+
+def test_the_api_state_does_not_call_the_observer_for_an_event_without_a_result() -> None:
+    from frictionwatch.service.listeners import LatestState
+
+    seen = []
+    state = LatestState()
+    state.on_visible = lambda event, s: seen.append((event.result_s, s))
+    state.on_message_received(ServiceEvent("a", None, 1.0))  # an API action's event: no result, nothing seen
+    assert seen == []
