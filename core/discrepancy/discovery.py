@@ -116,6 +116,7 @@ class Discovery:
         return {"engine_orders": f["significant_orders"] if floor is None else floor["orders"],
                 "half_order_share": f["half_order_share"],
                 "balance_nm": f["balance"]["mean_nm"] if f["balance"]["significant"] else None,
+                "balance_sigma_nm": f["balance"].get("sigma_nm"), "balance_floor_nm": f["balance"].get("floor_nm"),
                 "peak_deg": f["angle"]["peak_deg"], "cylinder_windows": [c["cylinder"] for c in top],
                 "channels": f["channels"], "friction": f.get("friction"), "load_nm": f.get("load_nm"),
                 "inside_floor": floor}
