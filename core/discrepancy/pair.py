@@ -252,18 +252,20 @@ def reads_otherwise(single: Trial, paired: Trial) -> bool:
     return bool(np.any(np.abs(paired.x - single.x) > 2.0 * single.sigma))
 
 
+def _fitted(t: Trial) -> str:
+    """A trial's fitted values with their sigmas, as an ambiguity lists them."""
+    return ", ".join(f"{n} {float(x):.3g} +- {float(s):.2g}" for n, x, s in zip(t.candidate.params, t.x, t.sigma))
+
+
 def said_alone(t: Trial) -> str:
     """The friction alone as an ambiguity lists it: its label and fitted values."""
-    vals = ", ".join(f"{n} {float(x):.3g} +- {float(s):.2g}" for n, x, s in zip(t.candidate.params, t.x, t.sigma))
-    return f"{t.candidate.label} alone ({vals})"
+    return f"{t.candidate.label} alone ({_fitted(t)})"
 
 
 def said_pair(pair: Pair) -> str:
     """A pair as an ambiguity lists it: the TDC as the pressure read it (refined) and the friction beside it."""
-    vals = ", ".join(f"{n} {float(x):.3g} +- {float(s):.2g}"
-                     for n, x, s in zip(pair.trial.candidate.params, pair.trial.x, pair.trial.sigma))
     return (f"tdc_offset[cyl {pair.tdc.cylinder}] ({pair.tdc.value:+.2f} +- {pair.tdc.sigma:.2f} deg, under the "
-            f"pressure's naming threshold) with {pair.trial.candidate.label} ({vals})")
+            f"pressure's naming threshold) with {pair.trial.candidate.label} ({_fitted(pair.trial)})")
 
 
 __all__ = ["POLISHED", "Pair", "beside_own_tdc", "own_tdc_reading", "reads_otherwise", "said_alone", "said_pair",
