@@ -16,6 +16,7 @@ import math
 import zlib
 from collections.abc import Callable
 from fractions import Fraction
+from functools import partial
 
 import numpy as np
 from frictionwatch.core.types import (
@@ -29,7 +30,7 @@ from frictionwatch.core.types import (
     ToothBatch,
     WheelInfo,
 )
-from frictionwatch.drivers.logs.mcap_frame_kernel import decode_frame
+from frictionwatch.drivers.logs.mcap_frame_kernel import decode_frame, decode_ticks
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.message import DecodeError
 
@@ -203,11 +204,17 @@ def encode(record: StreamRecord, counts: PressureCounts | None = None) -> tuple[
     raise TypeError(f"not a stream record: {type(record).__name__}")
 
 
+def teeth_ticks_reference(name: str, data: bytes) -> np.ndarray:
+    """The int64 ticks of a ToothBatch / CamBatch / FreeEndToothBatch message (``name``) by upb: the reference of
+    the compiled pass (drivers/logs/mcap_frame_kernel.py ``ticks_kernel``)."""
+    return np.array(_CLASSES[name].FromString(data).ticks, dtype=np.int64)
+
+
 def _decode_teeth(cls: type[ToothBatch | CamBatch | FreeEndToothBatch], name: str) -> Callable[[bytes], StreamRecord]:
-    parse = _CLASSES[name].FromString
+    reference = partial(teeth_ticks_reference, name)
 
     def decode(data: bytes) -> StreamRecord:
-        return cls(np.array(parse(data).ticks, dtype=np.int64))
+        return cls(decode_ticks(data, reference))
 
     return decode
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from frictionwatch.core.types import PressureFrame
 from frictionwatch.drivers.logs import mcap_schema as ms
-from frictionwatch.drivers.logs.mcap_frame_kernel import DECLINED, frame_counts
+from frictionwatch.drivers.logs.mcap_frame_kernel import DECLINED, frame_counts, ticks_kernel
 from frictionwatch.drivers.logs.mcap_log import LogReader
 from frictionwatch.drivers.logs.mcap_scan import chunk_records
 
@@ -165,3 +165,51 @@ def test_damaged_bytes_decode_or_fail_as_the_reference():
             else:
                 bad = data[:i] + data[i:i + 1] + data[i:]
             assert_same(bad)
+
+
+TEETH = {"teeth": "ToothBatch", "cam": "CamBatch", "free_end_teeth": "FreeEndToothBatch"}
+
+
+def tick_messages(path: Path) -> list[tuple[str, bytes]]:
+    with LogReader(path) as log:
+        topic = {cid: ch.topic for cid, ch in log._channels.items()}
+        return [(TEETH[topic[item[0]]], item[3]) for ref in log._scan.chunks
+                for item in chunk_records(log._buf, ref, log._note)
+                if isinstance(item, tuple) and topic.get(item[0]) in TEETH]
+
+
+def assert_same_ticks(name: str, data: bytes) -> None:
+    """The batch's ticks (integers: exactly) or the reference's error."""
+    ref = outcome(lambda d: ms.teeth_ticks_reference(name, d), data)
+    fast = outcome(lambda d: ms.DECODERS[f"{ms.PACKAGE}.{name}"](d), data)
+    if isinstance(ref, tuple):
+        assert fast == ref
+        return
+    assert type(fast).__name__ == name and fast.ticks.dtype == np.int64
+    np.testing.assert_array_equal(fast.ticks, ref)
+
+
+@pytest.mark.parametrize("path", LOGS, ids=lambda p: p.stem)
+def test_every_tooth_and_cam_batch_of_the_replay_logs(path):
+    messages = tick_messages(path)
+    assert "ToothBatch" in {n for n, _ in messages}  # (deutz-1cyl has no cam)
+    for name, data in messages:
+        assert_same_ticks(name, data)
+        assert ticks_kernel(np.frombuffer(data, np.uint8))[0] == 0  # as our writer makes them: all compiled
+
+
+def test_crafted_and_damaged_tick_batches():
+    ticks = [0, 1, 127, 128, 2**40 + 3, 2**62, -1, -(2**63)]
+    packed = b"".join(varint(t) for t in ticks)
+    cases = [raw([(1, 2, packed)]), raw([(1, 2, packed), (1, 2, varint(9))]),  # packed twice: concatenated
+             b"".join(raw([(1, 0, varint(t))]) for t in ticks),  # not packed
+             raw([(1, 2, packed), (2, 0, varint(1))]), b"", raw([(1, 2, packed[:-1])])]
+    for data in cases:
+        assert_same_ticks("ToothBatch", data)
+    np.testing.assert_array_equal(ms.DECODERS[f"{ms.PACKAGE}.CamBatch"](cases[0]).ticks, ticks)
+    rng = random.Random(9400)
+    data = tick_messages(LOGS[0])[3][1]
+    for _ in range(300):
+        i = rng.randrange(len(data))
+        bad = [data[:i], data[:i] + bytes([rng.randrange(256)]) + data[i + 1:], data[:i] + data[i + 1:]][i % 3]
+        assert_same_ticks("ToothBatch", bad)
