@@ -4,7 +4,6 @@ every cycle's statistics of a run (a worn ring, a leak, a load step learnt as a 
 3-cylinder engine, and the statistics alone on 1, 2 and 5 cylinders (1 and 2: no siblings' median, no long-run
 factor). The demo log looped with faults: bench_service_cycle's events digest, base against this (design note 94)."""
 
-
 import numpy as np
 import pytest
 from frictionwatch.service import alerts
