@@ -128,15 +128,17 @@ class LongRunVariance:
     raises where it did not) and above by (2 - g) / g (an EWMA never varies more than its figure), and 1 until
     ``warmup`` cycles have been added (phi's scatter is ~1 / sqrt(n) per cylinder)."""
 
-    __slots__ = ("centre_cycles", "horizon", "warmup", "n", "_centre", "_last", "_c0", "_c1")
+    __slots__ = ("centre_cycles", "horizon", "warmup", "n", "state", "_centre", "_last", "_c0", "_c1")
 
     def __init__(self, n_series: int, n_cyl: int, centre: float, horizon: float, warmup: int):
         self.centre_cycles, self.horizon, self.warmup = float(centre), float(horizon), int(warmup)
         self.n = 0  # cycles added
-        self._centre = np.zeros((n_series, n_cyl))  # each figure's short EWMA
-        self._last = np.zeros((n_series, n_cyl))  # the last cycle's deviation from it
-        self._c0 = np.zeros((n_series, n_cyl))  # running mean of d_t^2
-        self._c1 = np.zeros((n_series, n_cyl))  # running mean of d_t d_(t-1)
+        # the four running figures in one array (core/pressure_statistics.py updates it in place), each a view of it
+        self.state = np.zeros((4, n_series, n_cyl))
+        self._centre = self.state[0]  # each figure's short EWMA
+        self._last = self.state[1]  # the last cycle's deviation from it
+        self._c0 = self.state[2]  # running mean of d_t^2
+        self._c1 = self.state[3]  # running mean of d_t d_(t-1)
 
     def add(self, x: np.ndarray) -> None:
         """One cycle's figures (s, z), the next in the alerts' EWMA (a non-finite one is not added)."""
@@ -150,7 +152,7 @@ class LongRunVariance:
         self._c0 += a * (d * d - self._c0)
         if self.n > 1:
             self._c1 += max(1.0 / self.horizon, 1.0 / (self.n - 1)) * (d * self._last - self._c1)
-        self._last = d
+        self._last[...] = d
 
     def lag_one(self) -> np.ndarray:
         """(s, z) each figure's lag-1 correlation phi (0 where it has no spread yet)."""

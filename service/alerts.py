@@ -45,13 +45,15 @@ import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.report.figure_status import split_flag
 from frictionwatch.core.monitor.report.results import CycleResult
-from frictionwatch.service.alert_baseline import INDICATORS, Baseline, BaselineLearner
+from frictionwatch.core.pressure_statistics import pressure_statistics
+from frictionwatch.service.alert_baseline import INDICATORS, Band, Baseline, BaselineLearner
 from frictionwatch.service.alert_config import AlertConfig
 from frictionwatch.service.alert_interface import (
     Context,
     Decision,
     Hold,
     Latch,
+    LeakStatistics,
     LeakWeights,
     LongRunVariance,
     Pressure,
@@ -179,6 +181,7 @@ class AlertEngine:
         self._ewma_n = 0
         self._ewma_var = 0.0  # the EWMA's variance per unit of per-cycle variance (alert_interface.ewma_variance)
         self._leak_weights: LeakWeights | None = None  # the newest band's (leak_statistics' per-band part)
+        self._weights_rows = np.zeros((4, z))  # its w1, w2, s_sd, sd_ratio as the kernel takes them
         # how far the healthy cycles' figures are from independent (the leak signature's and the ratio's)
         w = self.config.window
         self.long_run_variance = LongRunVariance(2, z, LONG_RUN_CENTRE * w, LONG_RUN_HORIZON * w,
@@ -307,25 +310,44 @@ class AlertEngine:
             return Pressure(imep, held="not commissioned at this load: learning", learning_cycles=self._learner.n)
         self._ewma_n += 1
         g = max(1.0 / cfg.window, 1.0 / self._ewma_n)
-        u = x - band.mean
-        self._ewma += g * (u - self._ewma)
         self._ewma_var = ewma_variance(self._ewma_var, g)
-        # the EWMA's change and this cycle's own, against the siblings in one sort (design note 72)
-        change, u_rel = change_against_siblings(np.array((self._ewma, u)))
         var = self._ewma_var * sibling_reference_variance(self.spec.n_cyl)
         if self._leak_weights is None or self._leak_weights.band is not band:  # the band's, once per band
             self._leak_weights = LeakWeights.of(band)
+            lw = self._leak_weights
+            self._weights_rows = np.array((lw.w1, lw.w2, lw.s_sd, lw.sd_ratio))
+        # the z's standard error holds the band mean's own error too (its cycles as correlated as the run's: the
+        # same factor); var, for the ring rule's leak change, is the EWMA's alone (core leak_change adds the band's)
+        band_var = sibling_reference_variance(self.spec.n_cyl) / max(band.cycles, 1)
+        change, stats, (f_leak, f_ratio) = self.statistics(x, band, g, var, band_var)
+        return Pressure(imep, ewma=change, stats=stats, band=band, var=var * f_leak, var_ratio=var * f_ratio,
+                        long_run=(f_leak, f_ratio))
+
+    def statistics(self, x: np.ndarray, band: Band, g: float, var: float, band_var: float
+                   ) -> tuple[np.ndarray, LeakStatistics, tuple[float, float]]:
+        """One cycle into the EWMA and the long-run estimate: the EWMA's change against the siblings (4, z), its leak
+        statistics and the long-run factors, by core/pressure_statistics.py's kernel (``statistics_reference``: the
+        same in numpy, to the last bit)."""
+        lrv = self.long_run_variance
+        params = np.array((lrv.centre_cycles, lrv.horizon, lrv.warmup, var, band_var))
+        change, z_leak, effect, z_ratio, factors, lrv.n = pressure_statistics(
+            x, band.mean, self._ewma, g, self._weights_rows, lrv.state, lrv.n, params)
+        return change, LeakStatistics(z_leak, effect, z_ratio), (float(factors[0]), float(factors[1]))
+
+    def statistics_reference(self, x: np.ndarray, band: Band, g: float, var: float, band_var: float
+                             ) -> tuple[np.ndarray, LeakStatistics, tuple[float, float]]:
+        """``statistics`` by the numpy functions that define it (service.alert_interface; design notes 71, 72)."""
+        u = x - band.mean
+        self._ewma += g * (u - self._ewma)
+        # the EWMA's change and this cycle's own, against the siblings in one sort (design note 72)
+        change, u_rel = change_against_siblings(np.array((self._ewma, u)))
         lw = self._leak_weights
         # this cycle's own standardised figures against the siblings: the long-run estimate's input
         one = leak_statistics(u_rel, band, 1.0, weights=lw)
         self.long_run_variance.add(np.array((one.z_leak, one.z_ratio)))
         f_leak, f_ratio = self.long_run_variance.factor(g).tolist()
-        # the z's standard error holds the band mean's own error too (its cycles as correlated as the run's: the
-        # same factor); var, for the ring rule's leak change, is the EWMA's alone (core leak_change adds the band's)
-        band_var = sibling_reference_variance(self.spec.n_cyl) / max(band.cycles, 1)
         stats = leak_statistics(change, band, (var + band_var) * f_leak, (var + band_var) * f_ratio, weights=lw)
-        return Pressure(imep, ewma=change, stats=stats, band=band, var=var * f_leak, var_ratio=var * f_ratio,
-                        long_run=(f_leak, f_ratio))
+        return change, stats, (f_leak, f_ratio)
 
     def _learn(self, x: np.ndarray, cycle: int, imep: float) -> None:
         """One healthy cycle at a load no band holds: into the learner, which restarts where the IMEP has left the

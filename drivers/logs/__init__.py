@@ -4,6 +4,7 @@
     mcap_reader    ``LogReader``, the damage-tolerant reader, and the message ``Codec`` interface
     mcap_scan      one linear pass over an MCAP file that resyncs after damage, chunk decoding
     mcap_schema    the protobuf messages built at run time, metadata keys, the log-time rule
+    mcap_frame_kernel  a pressure frame's and a tooth / cam batch's bytes by one compiled pass (upb where it declines)
     mcap_batching  ``Batcher``: stream records -> log messages of about one span each
     mcap_replay    ``McapSource``: a log replayed as a live source (``mcap:`` URLs)
     recorder       ``Recorder``: the raw input of a live session into rotating, size-bounded logs
