@@ -5,9 +5,6 @@
     plant/     the time-domain simulator built from a model
     monitor/   per-cycle identification of the model's losses from tooth times and pressures
 
-    pressure_statistics.py  the alert engine's per-cycle pressure statistics as one kernel (its numpy reference:
-                    service/alert_interface.py, strung together by service/alerts.py ``statistics_reference``)
-
     numba_cache.py  where the compiled kernels are kept: one folder per version of the sources, set here, before any
                     kernel is decorated (numba alone would not see a changed callee in another file); and Python's
                     garbage collector paused while numba compiles (~3.4 s of a cold compile, design note 67)

@@ -133,7 +133,7 @@ class LongRunVariance:
     def __init__(self, n_series: int, n_cyl: int, centre: float, horizon: float, warmup: int):
         self.centre_cycles, self.horizon, self.warmup = float(centre), float(horizon), int(warmup)
         self.n = 0  # cycles added
-        # the four running figures in one array (core/pressure_statistics.py updates it in place), each a view of it
+        # the four running figures in one array (core/monitor/checks/pressure_statistics.py updates it in place), each a view of it
         self.state = np.zeros((4, n_series, n_cyl))
         self._centre = self.state[0]  # each figure's short EWMA
         self._last = self.state[1]  # the last cycle's deviation from it

@@ -43,9 +43,9 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.monitor.checks.pressure_statistics import pressure_statistics
 from frictionwatch.core.monitor.report.figure_status import split_flag
 from frictionwatch.core.monitor.report.results import CycleResult
-from frictionwatch.core.pressure_statistics import pressure_statistics
 from frictionwatch.service.alert_baseline import INDICATORS, Band, Baseline, BaselineLearner
 from frictionwatch.service.alert_config import AlertConfig
 from frictionwatch.service.alert_interface import (
@@ -326,7 +326,7 @@ class AlertEngine:
     def statistics(self, x: np.ndarray, band: Band, g: float, var: float, band_var: float
                    ) -> tuple[np.ndarray, LeakStatistics, tuple[float, float]]:
         """One cycle into the EWMA and the long-run estimate: the EWMA's change against the siblings (4, z), its leak
-        statistics and the long-run factors, by core/pressure_statistics.py's kernel (``statistics_reference``: the
+        statistics and the long-run factors, by core/monitor/checks/pressure_statistics.py's kernel (``statistics_reference``: the
         same in numpy, to the last bit)."""
         lrv = self.long_run_variance
         params = np.array((lrv.centre_cycles, lrv.horizon, lrv.warmup, var, band_var))

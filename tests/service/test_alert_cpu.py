@@ -120,7 +120,7 @@ def test_a_run_gives_the_same_alerts_and_statistics_as_the_references(monkeypatc
     kinds = {(e[0], e[3], e[4]) for e in events}
     assert {("raised", "ring_wear", "warning"), ("updated", "ring_wear", "alarm"), ("raised", "blow_by", "warning")
             } <= kinds
-    # the pressure statistics by their numpy functions (not core/pressure_statistics.py's kernel, design note 94),
+    # the pressure statistics by their numpy functions (not core/monitor/checks/pressure_statistics.py's kernel, design note 94),
     # those functions by the references they replaced
     monkeypatch.setattr(alerts.AlertEngine, "statistics", alerts.AlertEngine.statistics_reference)
     monkeypatch.setattr(alerts, "change_against_siblings", _change_against_siblings_reference)

@@ -1,4 +1,4 @@
-"""The alert engine's pressure statistics by core/pressure_statistics.py's kernel are the numpy reference's
+"""The alert engine's pressure statistics by core/monitor/checks/pressure_statistics.py's kernel are the numpy reference's
 (``AlertEngine.statistics_reference``, the functions of service.alert_interface) to the last bit: every event and
 every cycle's statistics of a run (a worn ring, a leak, a load step learnt as a new band) on a 20-, 4- and
 3-cylinder engine, and the statistics alone on 1, 2 and 5 cylinders (1 and 2: no siblings' median, no long-run

@@ -4,7 +4,7 @@ and the EWMA's) and the long-run-variance factor of the two figures.
 
 Statistics only, the alerts' decisions stay in service/alerts.py. The definitions, in numpy, are the service's
 (service/alert_interface.py ``change_against_siblings``, ``leak_statistics``, ``LongRunVariance.add`` / ``factor``;
-service/alerts.py ``AlertEngine._statistics_reference`` strings them together): those ~25 numpy calls on (2..4, z)
+service/alerts.py ``AlertEngine.statistics_reference`` strings them together): those ~25 numpy calls on (2..4, z)
 arrays were ~50 us a genset-v20 cycle, this kernel ~5 us. Each value is formed by the same IEEE operations in the
 same order, so the two agree to the last bit (tests/service/test_pressure_statistics.py holds the kernel to the
 reference over a looped replay with faults and load bands, with tolerance 0).
