@@ -147,7 +147,7 @@ def cycle_chi2_kernel(yty, rows, params, rhs, info, cov_stat, chi2_red):
     for i in range(p):
         for j in range(p):
             prod[i * p + j] = info[i, j] * (cov_stat[j, i] / c)
-    dof = rows - numpy_sum(prod, 0, p * p)
+    dof = rows - numpy_sum(prod, np.int64(0), np.int64(p * p))  # (plain ints: one specialisation, see numpy_sum)
     return chi2 / dof if dof > 0 else 1.0
 
 
@@ -155,7 +155,9 @@ def cycle_chi2_kernel(yty, rows, params, rhs, info, cov_stat, chi2_red):
 def numpy_sum(a, lo, n):
     """sum of a[lo:lo + n] as numpy's add.reduce forms it for a contiguous float64 array (pairwise: blocks of up to
     128 summed by ``_block_sum``, halves above added left + right), so the kernel's rounding is numpy's (tested bit
-    for bit). The halving walks an explicit stack: a recursive kernel loaded from numba's cache crashed."""
+    for bit). The halving walks an explicit stack: a recursive kernel loaded from numba's cache crashed. Callers pass
+    ``lo`` and ``n`` as np.int64: a constant 0 (or a count typed as its first value 0 while numba infers the
+    caller) compiled it once per literal, two specialisations of ~0.56 s each (design note 93)."""
     kind = np.empty(64, np.int64)  # 0: sum the range, 1: add the two values on top (depth <= log2(n / 128) + 1)
     t_lo = np.empty(64, np.int64)
     t_n = np.empty(64, np.int64)
@@ -295,5 +297,6 @@ def friction_up_kernel(torque, sigma, resolved, k, sigmas):
             n += 1
     if n == 0:
         return False
-    excess = torque[k] - numpy_sum(t_o, 0, n) / n
-    return excess > sigmas * np.sqrt(sigma[k] * sigma[k] + numpy_sum(s2_o, 0, n) / n / n)
+    lo, count = np.int64(0), np.int64(n)  # (plain ints: one specialisation, see numpy_sum)
+    excess = torque[k] - numpy_sum(t_o, lo, count) / n
+    return excess > sigmas * np.sqrt(sigma[k] * sigma[k] + numpy_sum(s2_o, lo, count) / n / n)
