@@ -167,7 +167,8 @@ def verdict(d) -> str:
         text += f"; {len(d.refused)} significant candidate(s) refused (see refused)"
     if d.step_limit_reached:
         text += f"; the step limit ({len(d.steps)}) was reached, more may be missing"
-    if d.model.spec.n_cyl == 1:
+    model = getattr(d, "model", None)  # a verdict from a step list alone (no model) says nothing of the engine
+    if model is not None and model.spec.n_cyl == 1:
         text += "; " + ONE_CYLINDER_LEAK
     return text + "."
 
