@@ -60,7 +60,7 @@ def deficits(engine: str, rpm: float, load: float, seed: int, leaks) -> tuple[np
     cycles, _ = assembled_cycles(spec, sim.info, sim.records)
     res = run_model(EngineModel.from_spec(spec), reference(cycles), pinned_config(), cycles)
     scored = res.index >= cycles[Options().warmup].index
-    return np.nanmean(res.ring[scored, 0, :], axis=0), res.leak_flagged[scored].sum(axis=0)
+    return np.nanmean(res.compression_ln[scored], axis=0), res.leak_flagged[scored].sum(axis=0)
 
 
 def case_text(engine: str, rpm: float, load: float, seed: int, leaks) -> str:

@@ -199,7 +199,7 @@ def leak_findings(res: Residuals, halves: tuple[np.ndarray, np.ndarray] | None =
                   spec: EngineSpec | None = None) -> list[PressureFinding]:
     """blow_by findings in the run ``res``: each cylinder the monitor flagged leaking in at least LEAK_MIN_CYCLES
     cycles of each of ``halves`` (default: the run's first and second half), sized by ``leak_size``."""
-    if res.leak_flagged is None or res.ring is None or res.leak_flagged.shape[1] < 2:
+    if res.leak_flagged is None or res.compression_ln is None or res.leak_flagged.shape[1] < 2:
         return []
     n = res.n_cycles
     if halves is None:
@@ -210,7 +210,7 @@ def leak_findings(res: Residuals, halves: tuple[np.ndarray, np.ndarray] | None =
         hits = res.leak_flagged[:, k]
         if not all(int(hits[h].sum()) >= LEAK_MIN_CYCLES for h in halves):
             continue
-        deficit = res.ring[:, 0, k]
+        deficit = res.compression_ln[:, k]
         deficit = deficit[np.isfinite(deficit)]
         if deficit.size < 2:
             continue

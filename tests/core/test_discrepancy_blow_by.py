@@ -33,11 +33,10 @@ def _leaky(n: int, z: int, flagged: np.ndarray, deficit: np.ndarray, tdc_sigma: 
     """Made-up residuals of n cycles, z cylinders: the monitor's leak flags (n, z) and each cylinder's ln compression
     deficit against its siblings (z,), with a per-cycle scatter of 0.001."""
     rng = np.random.default_rng(3)
-    ring = np.zeros((n, 4, z))
-    ring[:, 0, :] = deficit[None, :] + 0.001 * rng.standard_normal((n, z))
+    compression = deficit[None, :] + 0.001 * rng.standard_normal((n, z))
     sigmas = np.full(z, tdc_sigma)
     sigmas[1] = 4.0 * tdc_sigma  # the leaking cylinder's own TDC sigma, grown by the leak: not the size's
-    return dataclasses.replace(made_up(n, 4, np.zeros(4, complex), 0.0), leak_flagged=flagged, ring=ring,
+    return dataclasses.replace(made_up(n, 4, np.zeros(4, complex), 0.0), leak_flagged=flagged, compression_ln=compression,
                                tdc_deg=np.zeros(z), tdc_sigma_deg=sigmas)
 
 
@@ -57,8 +56,8 @@ def test_a_cylinder_flagged_leaking_in_both_halves_is_named_blow_by_sized_from_i
     assert [f.label for f in found] == ["blow_by[cyl 2]"]
     f = found[0]
     assert f.parameter == "mass_loss"
-    mean = float(np.mean(_leaky(n, z, flagged, deficit).ring[:, 0, 1]))
-    se = float(np.std(_leaky(n, z, flagged, deficit).ring[:, 0, 1], ddof=1)) / math.sqrt(n)
+    mean = float(np.mean(_leaky(n, z, flagged, deficit).compression_ln[:, 1]))
+    se = float(np.std(_leaky(n, z, flagged, deficit).compression_ln[:, 1], ddof=1)) / math.sqrt(n)
     value, sigma = leak_size(mean, se, compression_per_deg(spec) * 0.2)
     np.testing.assert_allclose([f.value, f.sigma], [value, sigma], rtol=1e-12)
     np.testing.assert_allclose(f.value, BLOW_BY_PER_LN * 0.024, rtol=0.02)
