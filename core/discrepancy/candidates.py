@@ -17,7 +17,9 @@ which cylinder; the workflow says that and adds nothing).
 
 Not in the library today, and why (the monitor cannot be told, or there is nothing to tell it):
 - misfire, blow_by: they change the cylinder pressure, which the monitor measures: the model already sees them
-  (a misfire, and a sensor's pegging offset, are named from the pressure itself: pressure_channel.pressure_findings);
+  (a misfire, a leak past the rings and a sensor's pegging offset are named from the pressure itself:
+  pressure_channel.pressure_findings; a worn ring's friction stays the speed's candidate, ring_wear, its leak the
+  pressure's: a ring that wears and leaks is two findings on one cylinder, design note 97);
 - tooth_spacing_error: the monitor learns the wheel's tooth pattern itself;
 - an element's inertia: no effect holds it (the spec's node inertia would be edited, not augmented).
 """

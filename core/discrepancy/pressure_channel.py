@@ -2,11 +2,17 @@
 
 - Its TDC (the pipeline's TDC watch, read in every monitor run: Residuals.tdc_deg) proposes TDC candidates' starting
   values (``pressure_seeds``) and scores each model beside the speed and balance channels (``tdc_chi2``).
-- Its pegging (the same watch's fit) and its burns (the monitor's misfire check) name two effects outright
-  (``pressure_findings``): a sensor offset and a misfiring cylinder. Neither is a question for the speed: a constant
-  offset does no work over a cycle and the monitor reads every misfire in the pressure it measures, so the speed
-  gap hardly moves (genset-v20: pegging 1.5 bar and misfire 30 % both read "nothing" through the speed alone) while
-  the pressure shows them cycle by cycle.
+- Its pegging (the same watch's fit), its burns (the monitor's misfire check) and its compression against the
+  siblings' (the monitor's blow-by check) name three effects outright (``pressure_findings``): a sensor offset, a
+  misfiring cylinder and a leak past the rings. None is a question for the speed: a constant offset does no work
+  over a cycle and the monitor reads every misfire and every leak in the pressure it measures, so the speed gap
+  hardly moves (genset-v20: pegging 1.5 bar and misfire 30 % both read "nothing" through the speed alone; k9k 1800
+  rpm, a 12 % leak: "nothing", design note 97) while the pressure shows them cycle by cycle.
+- A leak (effect blow_by) is named where the monitor's condition check called the cylinder's compression a leak
+  (blow_by_cyl<k> or ring_wear_cyl<k>: its compression rise, peak and work below the siblings' beyond their healthy
+  scatter) in both halves of the log; its size, mass_loss, from the compression pressure's deficit against the
+  siblings (``leak_size``: a calibrated factor, tuned.json BLOW_BY_PER_LN). A single cylinder has no siblings: the
+  monitor raises no such flag and nothing is named (words.ONE_CYLINDER_LEAK says why in the verdict).
 - A TDC offset far beyond its reading's sigma is named from the pressure too, held at the reading (design note 43):
   the speed's refinement of a TDC offset takes whatever else moves the indicated work along with it (deutz 3000 rpm,
   TDC 1.5 deg and a worn ring: the pressure read 1.444 deg, the speed's fit went to 3.37 deg and the ring's friction
@@ -23,7 +29,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.discrepancy.residuals import Residuals
+from frictionwatch.core.discrepancy.tuned import tuned_constants
+from frictionwatch.core.model.effects import EFFECTS
+from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel
+from frictionwatch.core.model.kinematics import kinematics
+from frictionwatch.core.monitor.checks.ring_pressure import ring_windows
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig
 
 # a TDC reading from the pressure proposes a candidate (it is not a decision: the held-out test decides) when it is
@@ -105,12 +116,28 @@ TDC_MIN_DEG = _HEALTH.tdc_deg
 # long stretch, a misfire a cycle or a few between burned ones. Runs of motored cycles up to this long, burned cycles
 # on both sides, count as misfires (a 30 % misfire makes a run of four 0.8 % of the time).
 MISFIRE_MAX_RUN = 3
+# a cylinder is named leaking (blow_by) when the monitor's condition check flagged its compression (blow_by_cyl<k> or
+# ring_wear_cyl<k>) in at least LEAK_MIN_CYCLES cycles of each half of the log: the flag is a window statistic that
+# stays on while the leak lasts, so a pattern in both halves, not a tuned threshold (on the logs of note 97 a healthy,
+# gain, pegging, TDC or misfire log had no flag at all; a 12 % leak was flagged in 87-91 of 100 cycles)
+LEAK_MIN_CYCLES = 3
+# the size: mass_loss = BLOW_BY_PER_LN x the compression pressure's ln deficit against the siblings' (the ring
+# indicators' compression_ratio, read ~30 deg before TDC, before any burn), 1 sigma in quadrature: the factor's
+# relative spread across engines and points (BLOW_BY_REL), a healthy cylinder's own persistent offset from its
+# siblings (BLOW_BY_FLOOR_LN: heat transfer, fuel spread), the deficit's standard error over the cycles, and what the
+# cylinder's TDC read off by its sigma moves the deficit by (``compression_per_deg``: physics, not tuned)
+_TUNED = tuned_constants()
+BLOW_BY_PER_LN = _TUNED["BLOW_BY_PER_LN"].value
+BLOW_BY_REL = _TUNED["BLOW_BY_REL"].value
+BLOW_BY_FLOOR_LN = _TUNED["BLOW_BY_FLOOR_LN"].value
+# the compression's polytropic exponent in ``compression_per_deg``: k9k and maruti read 1.28-1.33 over the window
+COMPRESSION_EXPONENT = 1.3
 
 
 @dataclass(frozen=True)
 class PressureFinding:
-    """An effect the pressure names: ``effect`` (pressure_offset, tdc_offset, misfire), its cylinder (1-based), its parameter and
-    value with 1-sigma, and what the pressure showed, in words."""
+    """An effect the pressure names: ``effect`` (pressure_offset, tdc_offset, misfire, blow_by), its cylinder
+    (1-based), its parameter and value with 1-sigma, and what the pressure showed, in words."""
 
     effect: str
     cylinder: int
@@ -124,12 +151,14 @@ class PressureFinding:
         return f"{self.effect}[cyl {self.cylinder}]"
 
 
-def pressure_findings(res: Residuals, halves: tuple[np.ndarray, np.ndarray] | None = None) -> list[PressureFinding]:
+def pressure_findings(res: Residuals, halves: tuple[np.ndarray, np.ndarray] | None = None,
+                      spec: EngineSpec | None = None) -> list[PressureFinding]:
     """The effects each cylinder's pressure names in the run ``res`` against that run's model: a pegging beyond
     PEG_SIGMAS of its sigma and PEG_MIN_PA (effect pressure_offset, pa = minus the pegging: the sensor reads p + pa),
     a TDC offset beyond TDC_SIGMAS of its sigma and TDC_MIN_DEG (effect tdc_offset, ``tdc_beyond``: cylinder 0 the
     whole wheel), a misfire rate (effect misfire, probability = the cycles called misfired over those judged) seen
-    in both ``halves`` (two boolean masks over the run's cycles; default: its first and second half)."""
+    in both ``halves`` (two boolean masks over the run's cycles; default: its first and second half), a leak (effect
+    blow_by, ``leak_findings``; sized with ``spec``'s windows, without one its TDC term left out)."""
     out: list[PressureFinding] = []
     for k, deg, sigma in tdc_beyond(res, TDC_SIGMAS, TDC_MIN_DEG):
         where = "every cylinder's pressure reads" if k == 0 else "the pressure reads"
@@ -161,7 +190,78 @@ def pressure_findings(res: Residuals, halves: tuple[np.ndarray, np.ndarray] | No
                     and rate > MISFIRE_SIGMAS * sigma):
                 out.append(PressureFinding("misfire", k + 1, "probability", rate, sigma,
                                            f"the pressure shows no full burn in {count} of {n} cycles"))
+    if res.leak_flagged is not None and res.n_cycles:
+        out += leak_findings(res, halves, spec)
     return out
+
+
+def leak_findings(res: Residuals, halves: tuple[np.ndarray, np.ndarray] | None = None,
+                  spec: EngineSpec | None = None) -> list[PressureFinding]:
+    """blow_by findings in the run ``res``: each cylinder the monitor flagged leaking in at least LEAK_MIN_CYCLES
+    cycles of each of ``halves`` (default: the run's first and second half), sized by ``leak_size``."""
+    if res.leak_flagged is None or res.compression_ln is None or res.leak_flagged.shape[1] < 2:
+        return []
+    n = res.n_cycles
+    if halves is None:
+        first = np.arange(n) < n // 2
+        halves = (first, ~first)
+    out = []
+    for k in range(res.leak_flagged.shape[1]):
+        hits = res.leak_flagged[:, k]
+        if not all(int(hits[h].sum()) >= LEAK_MIN_CYCLES for h in halves):
+            continue
+        deficit = res.compression_ln[:, k]
+        deficit = deficit[np.isfinite(deficit)]
+        if deficit.size < 2:
+            continue
+        per_deg = compression_per_deg(spec) if spec is not None else 0.0
+        value, sigma = leak_size(float(np.mean(deficit)), float(np.std(deficit, ddof=1)) / math.sqrt(deficit.size),
+                                 per_deg * sibling_tdc_sigma(res, k))
+        out.append(PressureFinding(
+            "blow_by", k + 1, "mass_loss", value, sigma,
+            f"the monitor read a leak in {int(hits.sum())} of {n} cycles: the compression pressure "
+            f"{100.0 * (math.exp(float(np.mean(deficit))) - 1.0):+.1f} % against the siblings'"))
+    return out
+
+
+def sibling_tdc_sigma(res: Residuals, k: int) -> float:
+    """The TDC sigma [deg] a leak's size carries on cylinder ``k`` (0-based): the median of its siblings' TDC
+    readings' sigmas. Not its own: the TDC watch puts what a loss the model lacks moves the offset by into the
+    leaking cylinder's sigma, and that loss is the leak being sized (k9k 1800 rpm, a 12 % leak on cylinder 2: 0.74
+    deg against the siblings' 0.15-0.18; maruti 1500 rpm 0.76 against 0.70). 0 without a reading."""
+    if res.tdc_sigma_deg is None:
+        return 0.0
+    others = np.delete(np.asarray(res.tdc_sigma_deg, dtype=np.float64), k)
+    others = others[np.isfinite(others)]
+    return float(np.median(others)) if others.size else 0.0
+
+
+def leak_size(deficit_ln: float, se_ln: float, tdc_ln: float) -> tuple[float, float]:
+    """(mass_loss, its 1 sigma) from a cylinder's mean ln compression pressure against its siblings' ``deficit_ln``,
+    that mean's standard error ``se_ln`` and what its TDC's sigma moves it by ``tdc_ln`` (module constants' comment).
+    The value is held inside the effect's range (blow_by mass_loss: 0-0.4).
+
+    >>> v, s = leak_size(-0.025, 0.0001, 0.0)
+    >>> round(v / (0.025 * BLOW_BY_PER_LN), 6)
+    1.0
+    """
+    lo, hi = EFFECTS["blow_by"].parameters["mass_loss"].lo, EFFECTS["blow_by"].parameters["mass_loss"].hi
+    value = min(max(-BLOW_BY_PER_LN * deficit_ln, lo), hi)
+    sigma = math.sqrt((BLOW_BY_REL * value) ** 2
+                      + (BLOW_BY_PER_LN * math.hypot(BLOW_BY_FLOOR_LN, se_ln, tdc_ln)) ** 2)
+    return value, sigma
+
+
+def compression_per_deg(spec: EngineSpec) -> float:
+    """|d ln p / d theta| [1/deg] at the ring indicators' compression reading (ring_pressure.ring_windows'
+    comp_end): a TDC off by one degree reads the compression pressure by this much off, COMPRESSION_EXPONENT x
+    d(-ln V)/d theta there, over the degree around it (k9k 0.046, maruti 0.034 per deg; a 1.5 deg offset read
+    -0.069 and -0.052: design note 97)."""
+    at = math.radians(ring_windows(spec).comp_end)
+    ends = np.array([at - math.radians(0.5), at + math.radians(0.5)])
+    x, _, _ = kinematics(ends, np.asarray(spec.kinematics_params(), dtype=np.float64))
+    vol = spec.clearance_volume + spec.piston_area * x
+    return COMPRESSION_EXPONENT * abs(math.log(float(vol[0] / vol[1])))
 
 
 def single_cylinder_misfires(motored: np.ndarray) -> np.ndarray:
@@ -187,6 +287,7 @@ def single_cylinder_misfires(motored: np.ndarray) -> np.ndarray:
     return out
 
 
-__all__ = ["MISFIRE_MIN_CYCLES", "PEG_MIN_PA", "PEG_SIGMAS", "PressureFinding", "SEED_MIN_DEG", "SEED_SIGMAS",
-           "TDC_MIN_DEG", "TDC_SIGMAS", "pressure_findings", "pressure_seeds", "single_cylinder_misfires", "tdc_beyond",
-           "tdc_chi2", "tdc_offsets_deg"]
+__all__ = ["BLOW_BY_FLOOR_LN", "BLOW_BY_PER_LN", "BLOW_BY_REL", "LEAK_MIN_CYCLES", "MISFIRE_MIN_CYCLES", "PEG_MIN_PA",
+           "PEG_SIGMAS", "PressureFinding", "SEED_MIN_DEG", "SEED_SIGMAS", "TDC_MIN_DEG", "TDC_SIGMAS",
+           "compression_per_deg", "leak_findings", "leak_size", "pressure_findings", "pressure_seeds", "sibling_tdc_sigma",
+           "single_cylinder_misfires", "tdc_beyond", "tdc_chi2", "tdc_offsets_deg"]

@@ -74,6 +74,11 @@ class Residuals:
     # unburned or partial while a sibling burned, core.monitor.checks.condition); False in a motored cycle
     misfired: np.ndarray | None = None
     motored: np.ndarray | None = None  # (N,) the monitor called the cycle motored (no cylinder burned)
+    # (N, z) whether the condition check called cylinder k's compression a leak in cycle i (blow_by_cyl<k> or
+    # ring_wear_cyl<k>: compression rise, peak and work below the siblings' over its window); (N, z) its ln
+    # compression pressure against the siblings' (the ring indicators' compression_ratio; NaN without them)
+    leak_flagged: np.ndarray | None = None
+    compression_ln: np.ndarray | None = None
     # (N,) the operating point each cycle ran at (operating_groups over the whole run: the same cycles fall in the
     # same group in every model's run, since speed and load are the measurement's); None: one group
     group: np.ndarray | None = None
@@ -94,6 +99,8 @@ class Residuals:
                                    friction=None if self.friction is None else self.friction[mask],
                                    misfired=None if self.misfired is None else self.misfired[mask],
                                    motored=None if self.motored is None else self.motored[mask],
+                                   leak_flagged=None if self.leak_flagged is None else self.leak_flagged[mask],
+                                   compression_ln=None if self.compression_ln is None else self.compression_ln[mask],
                                    group=None if self.group is None else self.group[mask],
                                    kinetic=None if self.kinetic is None else self.kinetic[mask])
 
@@ -150,6 +157,8 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
                    for s in STAGES)
     pipe = CyclePipeline(model, config, ref, stages=stages)
     misfire_flags = [f"misfire_cyl{k + 1}" for k in range(z)]  # the condition check's, made once per run
+    leak_flags = [(f"blow_by_cyl{k + 1}", f"ring_wear_cyl{k + 1}") for k in range(z)]
+    no_ring = np.full(z, np.nan)
     inertia = mid_cycle_inertia(model.spec)  # the transient balance's J (core.monitor.identify.identification)
     for cycle in cycles:
         r = pipe.process(cycle).result
@@ -161,8 +170,11 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
         m = r.residual_harmonics.shape[0]
         measured = 2.0 * np.abs(np.fft.rfft(r.speed_measured)[1:m + 1]) / r.speed_measured.shape[0]
         misfired = np.array([f in r.flags for f in misfire_flags])
+        leaking = np.array([a in r.flags or b in r.flags for a, b in leak_flags])
+        ring = r.ring.compression_ratio if r.ring is not None else no_ring
         rows.append((r.index, r.omega_mean, r.load_torque, r.residual_harmonics, r.friction_balance - friction, resid,
-                     measured, r.friction_balance, misfired, "motored" in r.flags, inertia * r.acceleration))
+                     measured, r.friction_balance, misfired, "motored" in r.flags, inertia * r.acceleration, leaking,
+                     ring))
     if not rows:
         raise ValueError(f"the monitor analysed none of the {len(cycles)} cycles")
     pipe.close_windows()  # the pressure's reading of the whole log
@@ -176,6 +188,8 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
                      rejected=rejected, measured=np.array([r[6] for r in rows]),
                      friction=friction, misfired=np.array([r[8] for r in rows]),
                      motored=np.array([r[9] for r in rows]), kinetic=np.array([r[10] for r in rows]),
+                     leak_flagged=np.array([r[11] for r in rows]),
+                     compression_ln=np.array([r[12] for r in rows]),
                      **_tdc_reading(pipe))
     # the cycles of a load step are no operating point's: left out of every figure, and counted
     return dataclasses.replace(res.take(group >= 0), between_points=int(np.sum(group < 0)))

@@ -16,6 +16,11 @@ ONE_POINT = ("the log holds one steady speed and load, where a friction law that
 # what a log of load steps at one speed cannot tell (a genset on the grid: its speed is the grid's)
 ONE_SPEED = ("the log's operating points share one speed, where a friction law of speed (speed^2 auxiliaries, a "
              "bearing law without the speed's) cannot show: a run at another speed would separate those laws")
+# what a single-cylinder log cannot tell of a leak past the rings (the monitor's blow-by flag compares a cylinder
+# with its siblings: pressure_channel.leak_findings), said on every single-cylinder verdict
+ONE_CYLINDER_LEAK = ("a leak past the rings (blow-by) is not judged: with one cylinder there are no siblings to "
+                     "compare its compression with, and without a healthy baseline of this engine a leak cannot be "
+                     "told from the engine's own compression")
 # what parts friction laws that two operating points fit alike (core.discrepancy.laws: one number per point)
 ACROSS_POINTS_SEPARATION = ("a further operating point (another speed at the same load, another load at the same "
                             "speed): the laws' dependences on speed and on load part there")
@@ -162,7 +167,10 @@ def verdict(d) -> str:
         text += f"; {len(d.refused)} significant candidate(s) refused (see refused)"
     if d.step_limit_reached:
         text += f"; the step limit ({len(d.steps)}) was reached, more may be missing"
+    model = getattr(d, "model", None)  # a verdict from a step list alone (no model) says nothing of the engine
+    if model is not None and model.spec.n_cyl == 1:
+        text += "; " + ONE_CYLINDER_LEAK
     return text + "."
 
 
-__all__ = ["ACROSS_POINTS_SEPARATION", "ONE_POINT", "ONE_SPEED", "balance_only", "inside_floor", "orders_text", "said", "signature", "verdict", "within_floor_separation"]
+__all__ = ["ACROSS_POINTS_SEPARATION", "ONE_CYLINDER_LEAK", "ONE_POINT", "ONE_SPEED", "balance_only", "inside_floor", "orders_text", "said", "signature", "verdict", "within_floor_separation"]

@@ -314,12 +314,12 @@ def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, t
     """Add what the pressure names (module doc) as one step: its sensor offsets and TDC offsets only if the run with
     them does not make the speed or the balance worse on the held-out cycles (``channel_worse``; refused and said
     otherwise), its
-    misfires as they are (the monitor reads them in the pressure: the run does not change). Returns the model, its
+    misfires and leaks as they are (the monitor reads them in the pressure: the run does not change). Returns the model, its
     run, its held-out part and the monitor runs spent. A misfire must show in the training and the held-out cycles
     (cycle index ``first`` on, held out from ``held``)."""
     scored = cur_res.take(cur_res.index >= first)
     have = {(e.name, e.values.get("cylinder")) for e in current.effects}  # a model that states one already: left
-    findings = [f for f in pressure_findings(scored, (scored.index < held, scored.index >= held))
+    findings = [f for f in pressure_findings(scored, (scored.index < held, scored.index >= held), current.spec)
                 if (f.effect, f.cylinder) not in have]
     if not findings:
         return current, cur_res, test, 0
@@ -343,7 +343,7 @@ def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, t
         else:
             res, kept = run, kept + group
     found.held = [f for f in kept if f.effect == "tdc_offset"]
-    findings = kept + [f for f in findings if f.effect == "misfire"]  # in the order they are added
+    findings = kept + [f for f in findings if f.effect in ("misfire", "blow_by")]  # in the order they are added
     if not findings:
         return current, cur_res, test, runs
     new_model = with_findings(current, findings)

@@ -23,7 +23,7 @@ from datetime import date
 from pathlib import Path
 
 import pytest
-from frictionwatch.core.discrepancy import features, fit
+from frictionwatch.core.discrepancy import features, fit, pressure_channel
 from frictionwatch.core.discrepancy.tuned import TUNED_PATH
 from frictionwatch.core.monitor.calibration import drive_train, tdc, tdc_smoothing, tdc_watch
 from frictionwatch.core.monitor.checks.condition import ConditionSettings
@@ -280,6 +280,8 @@ def test_the_code_uses_the_recorded_numbers():
     assert features.FLOOR_RMS == (disc["FLOOR_RMS_SPEED"].value, disc["FLOOR_RMS_BALANCE"].value)
     if "EFFECT_REL_ERROR" in disc:
         assert fit.EFFECT_REL_ERROR == disc["EFFECT_REL_ERROR"].value
+    assert (pressure_channel.BLOW_BY_PER_LN, pressure_channel.BLOW_BY_REL, pressure_channel.BLOW_BY_FLOOR_LN) == (
+        disc["BLOW_BY_PER_LN"].value, disc["BLOW_BY_REL"].value, disc["BLOW_BY_FLOOR_LN"].value)
     mon, alerts = read_tuned(MONITOR_RECORD), read_tuned(ALERT_RECORD)
     floor, cfg, cond, ring, alert = (ModelErrorFloor(), MonitorConfig(), ConditionSettings(),
                                      RingConditionSettings(), AlertConfig())
