@@ -75,12 +75,13 @@ def measure(settings: dict[str, dict], rounds: int, passes: int, cycles: int) ->
                 after = resource.getrusage(resource.RUSAGE_CHILDREN)
                 cold_cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
                 cpu = _one(checkout, records, passes, "cpu", env_extra=extra)
-                row = {"round": r, "load_before": load0, "load_after": uptime(), "compile_s": cold.get("compile_s_total"),
-                       "cold_cpu_s": round(cold_cpu, 2),
+                row = {"round": r, "load_before": load0, "load_after": uptime(),
+                       "compile_s": cold.get("compile_s_total"), "cold_cpu_s": round(cold_cpu, 2),
                        "compile_error": cold.get("error"), "import_s": cold.get("import_s"),
                        "cpu_ms": {name: statistics.median(v) for name, v in cpu.items()}}
                 rows[label].append(row)
-                print(f"round {r} {label:14s} compile {row['compile_s']} s (its process's CPU {row['cold_cpu_s']} s), cpu ms/cycle "
+                print(f"round {r} {label:14s} compile {row['compile_s']} s (its process's CPU "
+                      f"{row['cold_cpu_s']} s), cpu ms/cycle "
                       + ", ".join(f"{k} {v:.4f}" for k, v in row["cpu_ms"].items())
                       + f"  (load {load0} .. {row['load_after']})", flush=True)
                 if r == 0:
@@ -102,7 +103,8 @@ def measure(settings: dict[str, dict], rounds: int, passes: int, cycles: int) ->
         table[label] = {"compile_s": statistics.median(x["compile_s"] for x in rs),
                         "compile_ratio": statistics.median(ratio_c), "compile_ratios": ratio_c,
                         "cold_cpu_s": statistics.median(x["cold_cpu_s"] for x in rs),
-                        "cold_cpu_ratios": [x["cold_cpu_s"] / f["cold_cpu_s"] for x, f in zip(rs, rows[first], strict=True)],
+                        "cold_cpu_ratios": [x["cold_cpu_s"] / f["cold_cpu_s"]
+                                            for x, f in zip(rs, rows[first], strict=True)],
                         "cpu_ms": {n: statistics.median(x["cpu_ms"][n] for x in rs) for n in rs[0]["cpu_ms"]},
                         "cpu_ratio": {n: statistics.median(x["cpu_ms"][n] / f["cpu_ms"][n]
                                                            for x, f in zip(rs, rows[first], strict=True))
@@ -128,7 +130,9 @@ def main() -> None:
     r = measure(settings, a.rounds, a.passes, a.cycles)
     if a.out:
         a.out.write_text(json.dumps(r, indent=1))
-    print(f"\nsetting: cold compile s, /{r['reference']} median (per round); the cold process's CPU s (/{r['reference']} per round) | per-cycle CPU ms, /{r['reference']} (median of rounds)")
+    ref = r["reference"]
+    print(f"\nsetting: cold compile s, /{ref} median (per round); the cold process's CPU s (/{ref} per round) | "
+          f"per-cycle CPU ms, /{ref} (median of rounds)")
     for label, e in r["table"].items():
         print(f"  {label:14s} {e['compile_s']:6.1f} {e['compile_ratio']:.3f} "
               f"({', '.join(f'{x:.3f}' for x in e['compile_ratios'])}); process CPU {e['cold_cpu_s']:6.1f} "

@@ -50,11 +50,12 @@ log = logging.getLogger(__name__)
 PACKAGES = ("core", "drivers")  # the folders (installed as frictionwatch.core, frictionwatch.drivers) with kernels
 
 # LLVM's optimisation level (NUMBA_OPT) for our kernels. Measured (design note 98, bench/compile_opt.py, two rounds
-# alternated, fresh processes, empty caches, load 1.0-2.2): the cold compile at 1 / at 3 = 0.913, 0.912 (40.9 -> 37.3 s
-# at load 1.0), the cold process's CPU 0.928, 0.922; per-cycle CPU 1.016-1.018 (median of 2 rounds; the first round
-# +2-4 %, the second -1 %) and 0.98-0.99 in an earlier run of 2 rounds: within the noise. 2 is not shorter than 3 (1.15,
-# 0.96-1.35); 0 is 0.88 but 4-13x slower a cycle; loop vectorisation off or the target machine at 0 cost 14-40 % a
-# cycle and change the fastmath kernels' figures.
+# alternated, fresh processes, empty caches, load 1.0-2.2): the cold compile at 1 / at 3 = 0.913, 0.912 (40.9 -> 37.3
+# s at load 1.0), the cold process's CPU 0.928, 0.922; per-cycle CPU 1.016-1.018 (median of 2 rounds; the first round
+# +2-4 %, the second -1 %) and 0.98-0.99 in an earlier run of 2 rounds: within the noise. This code against a
+# caller's NUMBA_OPT=3 (2 rounds, load 1.0): 0.909, 0.879; per cycle 0.98-1.00; every outcome equal within rtol
+# 1e-12. 2 is not shorter than 3 (0.96, 1.35 at load 3-5); 0 is 0.76-1.00 but 4-13x slower a cycle; loop
+# vectorisation off or the target machine at 0 cost 2-40 % a cycle and change the fastmath kernels' figures.
 OPT_LEVEL = "1"
 
 
