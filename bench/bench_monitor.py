@@ -193,14 +193,15 @@ print(json.dumps(out))
 """
 
 
-def cold_compile(short_runs: list) -> dict:
+def cold_compile(short_runs: list, env_extra: dict | None = None, cache_dir: Path | None = None) -> dict:
     """First pass minus warm pass of the one pipeline (service.pipeline.run: assembly, monitor, watches) on a few
     cycles, in a fresh process with an empty numba cache: the JIT compile cost of the monitor's kernels (the plant's
-    kernels are not involved)."""
+    kernels are not involved). ``env_extra``: variables for that process (bench/compile_opt.py: NUMBA_OPT ...);
+    ``cache_dir``: an empty folder for its cache, kept after (default: a temporary one)."""
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "runs.pkl"
         path.write_bytes(pickle.dumps(short_runs))
-        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "cache"))
+        env = dict(os.environ, **(env_extra or {}), NUMBA_CACHE_DIR=str(cache_dir or Path(tmp) / "cache"))
         proc = subprocess.run([sys.executable, "-c", _COLD, str(path)], capture_output=True, text=True, env=env,
                               check=False, cwd=Path(__file__).resolve().parents[1])
     if proc.returncode != 0:

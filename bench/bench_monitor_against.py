@@ -184,11 +184,13 @@ def _records(cycles: int, path: Path) -> None:
     path.write_bytes(pickle.dumps(data))
 
 
-def _one(checkout: Path, records: Path, passes: int, clock: str) -> dict:
+def _one(checkout: Path, records: Path, passes: int, clock: str, env_extra: dict | None = None) -> dict:
     # this bench's warm-up (bench_monitor.warm_up) in both checkouts: the base's bench may warm up otherwise
     script = _PASS.replace("\nif sys.argv[3]", "\n" + inspect.getsource(warm_up) + "\nif sys.argv[3]", 1)
-    # one NUMBA_CACHE_DIR may serve both: numba keys its cache by each kernel's source path
-    env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    # one NUMBA_CACHE_DIR may serve both: numba keys its cache by each kernel's source path (env_extra: other
+    # variables, bench/compile_opt.py's NUMBA_OPT and its own cache folder for each setting)
+    env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1",
+               **(env_extra or {}))
     proc = subprocess.run([str(checkout / ".venv" / "bin" / "python"), "-c", script, str(records), str(passes), clock],
                           capture_output=True, text=True, env=env, cwd=checkout, check=False)
     if proc.returncode != 0:

@@ -14,6 +14,15 @@ else ``$XDG_CACHE_HOME`` or ``~/.cache``, ``frictionwatch/numba/<fingerprint>``.
 own default stays (beside the sources), said once in the log. Folders of earlier versions are left where they are
 (``make clean-numba`` removes them): a few tens of MB each.
 
+    use_optimisation_level()    # core/__init__.py, first: LLVM's -O1 for our kernels unless NUMBA_OPT says otherwise
+
+Why: the cold compile (~41 s on a quiet box, target <= 40 s) is ~9 % shorter at -O1 than at numba's default -O3
+with the same figures (every outcome equal within rtol 1e-12; 0 of ~2.05 M numbers differ) and no per-cycle cost
+beyond the noise (design note 98, bench/compile_opt.py). Set in the environment, not only in ``numba.config``:
+numba re-reads every NUMBA_* variable whenever one of them changes (``config.reload_config`` at each compile), which
+would put a value set in ``config`` alone back to -O3; the processes we start inherit it. A caller's NUMBA_OPT wins;
+the level is part of the cache folder's fingerprint, so kernels compiled at one level are never loaded at another.
+
     pause_gc_while_compiling()  # core/__init__.py too: Python's garbage collector off during each numba compile
 
 Why: a cold compile builds and drops a few hundred thousand small objects (numba's IR, types, LLVM wrappers);
@@ -40,6 +49,15 @@ log = logging.getLogger(__name__)
 
 PACKAGES = ("core", "drivers")  # the folders (installed as frictionwatch.core, frictionwatch.drivers) with kernels
 
+# LLVM's optimisation level (NUMBA_OPT) for our kernels. Measured (design note 98, bench/compile_opt.py, two rounds
+# alternated, fresh processes, empty caches, load 1.0-2.2): the cold compile at 1 / at 3 = 0.913, 0.912 (40.9 -> 37.3
+# s at load 1.0), the cold process's CPU 0.928, 0.922; per-cycle CPU 1.016-1.018 (median of 2 rounds; the first round
+# +2-4 %, the second -1 %) and 0.98-0.99 in an earlier run of 2 rounds: within the noise. This code against a
+# caller's NUMBA_OPT=3 (2 rounds, load 1.0): 0.909, 0.879; per cycle 0.98-1.00; every outcome equal within rtol
+# 1e-12. 2 is not shorter than 3 (0.96, 1.35 at load 3-5); 0 is 0.76-1.00 but 4-13x slower a cycle; loop
+# vectorisation off or the target machine at 0 cost 2-40 % a cycle and change the fastmath kernels' figures.
+OPT_LEVEL = "1"
+
 
 def source_digest(root: Path, packages: tuple[str, ...] = PACKAGES, salt: bytes = b"") -> str:
     """SHA-256 (hex) of ``salt`` and every ``*.py`` file under each of ``root``/``packages``, by relative path and
@@ -57,9 +75,27 @@ def source_digest(root: Path, packages: tuple[str, ...] = PACKAGES, salt: bytes 
     return h.hexdigest()
 
 
-def source_fingerprint(root: Path) -> str:
-    """16 hex digits of ``source_digest`` of core/ and drivers/ under ``root``: the cache folder's name."""
-    return source_digest(root)[:16]
+def source_fingerprint(root: Path, salt: bytes = b"") -> str:
+    """16 hex digits of ``source_digest`` of core/ and drivers/ under ``root`` (and ``salt``: the compile settings,
+    ``compile_settings``): the cache folder's name."""
+    return source_digest(root, salt=salt)[:16]
+
+
+def use_optimisation_level(level: str = OPT_LEVEL, environ: dict | None = None) -> str:
+    """NUMBA_OPT = ``level`` for every kernel compiled after this call, unless already set (the caller's wins; module
+    doc); returns the level in force."""
+    env = os.environ if environ is None else environ
+    if "NUMBA_OPT" not in env:
+        env["NUMBA_OPT"] = level
+        if environ is None:
+            config.reload_config()
+    return str(env["NUMBA_OPT"])
+
+
+def compile_settings() -> bytes:
+    """What numba compiles with beside the sources, as the cache folder's fingerprint salt: the optimisation level
+    and the vectorisers (a kernel compiled under other settings is not loaded)."""
+    return f"opt={config.OPT!r};loop={config.LOOP_VECTORIZE};slp={config.SLP_VECTORIZE}".encode()
 
 
 def fingerprinted_cache_dir(fingerprint: str, environ: dict | None = None) -> Path:
@@ -76,7 +112,7 @@ def use_fingerprinted_cache() -> None:
     if config.DISABLE_JIT:
         return
     root = Path(__file__).resolve().parents[1]  # the checkout (editable) or site-packages/frictionwatch
-    fingerprint = source_fingerprint(root)
+    fingerprint = source_fingerprint(root, compile_settings())
     if str(config.CACHE_DIR or "").rstrip("/").endswith(fingerprint):
         return
     target = fingerprinted_cache_dir(fingerprint)
@@ -116,5 +152,5 @@ def pause_gc_while_compiling() -> CompileGcPause:
     return listener
 
 
-__all__ = ["CompileGcPause", "fingerprinted_cache_dir", "pause_gc_while_compiling", "source_digest", "source_fingerprint",
-           "use_fingerprinted_cache"]
+__all__ = ["OPT_LEVEL", "CompileGcPause", "compile_settings", "fingerprinted_cache_dir", "pause_gc_while_compiling",
+           "source_digest", "source_fingerprint", "use_fingerprinted_cache", "use_optimisation_level"]

@@ -9,7 +9,13 @@ import subprocess
 import sys
 from pathlib import Path
 
-from frictionwatch.core.numba_cache import fingerprinted_cache_dir, source_fingerprint
+from frictionwatch.core.numba_cache import (
+    OPT_LEVEL,
+    compile_settings,
+    fingerprinted_cache_dir,
+    source_fingerprint,
+    use_optimisation_level,
+)
 
 
 def _tree(tmp_path: Path) -> Path:
@@ -35,6 +41,28 @@ def test_the_fingerprint_follows_every_kernel_source_file_and_nothing_else(tmp_p
     assert source_fingerprint(root) not in (first, second)
 
 
+def test_the_optimisation_level_is_ours_unless_the_caller_set_one() -> None:
+    env: dict = {}
+    assert use_optimisation_level(environ=env) == OPT_LEVEL and env == {"NUMBA_OPT": OPT_LEVEL}
+    env = {"NUMBA_OPT": "3"}
+    assert use_optimisation_level(environ=env) == "3" and env == {"NUMBA_OPT": "3"}
+
+
+def test_numba_compiles_at_that_level_in_a_folder_of_its_own(tmp_path: Path) -> None:
+    code = ("import json, os, numba\n"
+            "import frictionwatch.core\n"
+            "from numba.core.registry import cpu_target\n"
+            "cpu_target.target_context.codegen()  # the target machine, made now: after core set the level\n"
+            "print(json.dumps([int(numba.config.OPT), os.environ['NUMBA_OPT'], numba.config.CACHE_DIR]))\n")
+    seen = []
+    for extra in ({}, {"NUMBA_OPT": "3"}):
+        env = {k: v for k, v in os.environ.items() if k != "NUMBA_OPT"} | {"NUMBA_CACHE_DIR": str(tmp_path), **extra}
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+        seen.append(json.loads(out.stdout))
+    assert seen[0][:2] == [int(OPT_LEVEL), OPT_LEVEL] and seen[1][:2] == [3, "3"]
+    assert seen[0][2] != seen[1][2]  # kernels compiled at one level are not loaded at the other
+
+
 def test_the_folder_under_numba_cache_dir_or_the_user_cache() -> None:
     assert fingerprinted_cache_dir("abc", {"NUMBA_CACHE_DIR": "/x/nb"}) == Path("/x/nb/frictionwatch-abc")
     assert fingerprinted_cache_dir("abc", {"XDG_CACHE_HOME": "/y"}) == Path("/y/frictionwatch/numba/abc")
@@ -53,7 +81,7 @@ def test_a_kernel_is_cached_in_this_source_versions_folder(tmp_path: Path) -> No
     import frictionwatch.core
 
     installed = Path(frictionwatch.core.__file__).resolve().parents[1]
-    expected = tmp_path / f"frictionwatch-{source_fingerprint(installed)}"
+    expected = tmp_path / f"frictionwatch-{source_fingerprint(installed, compile_settings())}"
     assert Path(cache_dir) == expected
     assert Path(core_kernel).is_relative_to(expected) and Path(driver_kernel).is_relative_to(expected)
 
