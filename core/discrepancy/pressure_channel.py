@@ -205,6 +205,7 @@ def leak_findings(res: Residuals, halves: tuple[np.ndarray, np.ndarray] | None =
     if halves is None:
         first = np.arange(n) < n // 2
         halves = (first, ~first)
+    per_deg = compression_per_deg(spec) if spec is not None else 0.0  # the engine's, once for every cylinder
     out = []
     for k in range(res.leak_flagged.shape[1]):
         hits = res.leak_flagged[:, k]
@@ -214,7 +215,6 @@ def leak_findings(res: Residuals, halves: tuple[np.ndarray, np.ndarray] | None =
         deficit = deficit[np.isfinite(deficit)]
         if deficit.size < 2:
             continue
-        per_deg = compression_per_deg(spec) if spec is not None else 0.0
         value, sigma = leak_size(float(np.mean(deficit)), float(np.std(deficit, ddof=1)) / math.sqrt(deficit.size),
                                  per_deg * sibling_tdc_sigma(res, k))
         out.append(PressureFinding(
