@@ -165,14 +165,17 @@ def unresolved(t: Trial, quiet: bool = False) -> str:
     of its no-effect value; then why, in words: the step is refused (the model stays as it was). A quiet residual is
     what the model's own error leaves on a healthy log, and a fit not resolved from none there explains that error,
     not an effect (k9k 1800 rpm 0.6 seed 3: chain_mismatch 1.0011 +- 0.0017, 1.023 +- 0.013 named on the healthy log
-    and on three friction-law logs alike, speed gap 0.12-0.15 of a healthy log's; design note 50). Where the residual
-    is louder the held-out test decides (k9k 3000 rpm seed 2: a Stribeck ring named right at 1 +- 0.64, speed gap
-    1.35 of a healthy log's). Not dropped before the held-out test: dropped there, the next fit of the same model
+    and on three friction-law logs alike, speed gap 0.12-0.15 of a healthy log's; design note 50). (Where the residual
+    was louder the held-out test decided until design note 101: k9k 3000 rpm seed 2, a Stribeck ring named at 1 +- 0.64,
+    the matrix's truth on the law's bound; see the end.) Not dropped before the held-out test: dropped there, the next fit of the same model
     error took its place (deutz 3000 rpm seed 2, speed^2 auxiliaries and a bearing law: a load ripple of 0.3 +- 0.2
     N m and a Stribeck ring of 0.20 +- 0.07 named). A candidate whose sigma holds the model's own error in its
     parameters (fit.parameter_floor: the shaft line's) is refused within 2 sigma of none, quiet or not: near a
     resonance of the line its order is beyond the null on healthy logs (k9k 1800 rpm 0.6 seed 7, 84 cycles: order 2,
-    chain_mismatch 0.9927 +- 0.0009 without the floor; design note 53)."""
+    chain_mismatch 0.9927 +- 0.0009 without the floor; design note 53). And on a louder residual too, any effect with every
+    parameter within 2 sigma of none: a fit whose size its own sigma cannot tell from zero names nothing, whatever
+    the held-out chi^2 gains (design note 101: on seeds 1-6 such names were two wrong effects and two friction laws
+    counted right only because the matrix's truth sits on the bound of the law's share)."""
     c = t.candidate
     for name, x, x0, sigma in zip(c.params, t.x, c.x0, t.sigma):
         floor = RESOLUTION.get((c.effect, name))
@@ -180,15 +183,23 @@ def unresolved(t: Trial, quiet: bool = False) -> str:
             return (f"{name} {float(x):.4g} +- {float(sigma):.2g} is within 2 sigma of none, with the {floor:g} the "
                     "pressure methods cannot resolve (SensorHealthConfig): the model's own error, not a sensor's")
     near = [abs(float(x) - x0) <= 2.0 * float(sigma) for x, x0, sigma in zip(t.x, c.x0, t.sigma)]
-    if quiet and near and all(near):
-        said = ", ".join(f"{n} {float(x):.4g} +- {float(s):.2g}" for n, x, s in zip(c.params, t.x, t.sigma))
+    if not (near and all(near)):
+        return ""
+    said = ", ".join(f"{n} {float(x):.4g} +- {float(s):.2g}" for n, x, s in zip(c.params, t.x, t.sigma))
+    if quiet:
         return (f"{said}: within the noise of none (every parameter within 2 sigma of its no-effect value) on a "
                 "residual no larger than a healthy log's: the model's own error, not an effect")
-    if near and all(near) and np.any(parameter_floor(c) > 0.0):
-        said = ", ".join(f"{n} {float(x):.4g} +- {float(s):.2g}" for n, x, s in zip(c.params, t.x, t.sigma))
+    if np.any(parameter_floor(c) > 0.0):
         return (f"{said}: within 2 sigma of none with the model's own error in it (fit.CHAIN_FLOOR, tuned on "
                 "healthy logs): the model's own error, not an effect")
-    return ""
+    # a louder residual: the fit lowers the held-out chi^2, but its size is not told from none -- its sigma holds
+    # the coherent rest the fit leaves (fit.parameter_sigma), so the residual is something it does not describe
+    # (design note 101: maruti 4000/0.8 seed 1, the flywheel's inertia 5 % above the record's, named a side-thrust
+    # skirt at fraction 1 +- 1 with a gap 6.8x a healthy log's left; k9k 3000/0.9 seed 6, a two-point log of
+    # speed^2 auxiliaries, a bearing law 1 +- 1.4 beside them)
+    return (f"{said}: its size is not resolved from none (every parameter within 2 sigma of its no-effect value) "
+            "although the held-out cycles fit better with it: what remains is not this effect's shape, so it is not "
+            "named")
 
 
 def quiet_residual(loc: dict) -> bool:

@@ -398,8 +398,9 @@ def test_the_pressure_names_a_tdc_offset_far_beyond_its_sigma_and_proposes_a_nea
 def test_a_sensor_correction_within_what_the_pressure_methods_resolve_is_not_named():
     """unresolved: a pressure gain fitted 0.999 +- 0.0008 (deutz 3000 rpm seed 3, healthy) is within 2 x hypot(sigma,
     SensorHealthConfig.floor_gain 0.003) of none: refused, said why; 1.06 +- 0.001 is a sensor fault; a friction law
-    has no such floor; a TDC of 0.05 +- 0.01 deg is within the 0.03 deg floor's 2 sigma, 1.5 deg is not. On a quiet
-    residual (``quiet=True``) any effect with every parameter within 2 sigma of none is refused too."""
+    has no such floor; a TDC of 0.05 +- 0.01 deg is within the 0.03 deg floor's 2 sigma, 1.5 deg is not. Any effect
+    with every parameter within 2 sigma of none is refused too, on a quiet residual (``quiet=True``) said as the
+    model's own error, on a louder one as a size not resolved from none (design note 101)."""
     from frictionwatch.core.discrepancy.candidates import candidate_library
     from frictionwatch.core.discrepancy.choice import unresolved
     from frictionwatch.core.discrepancy.fit import Trial
@@ -412,7 +413,9 @@ def test_a_sensor_correction_within_what_the_pressure_methods_resolve_is_not_nam
     why = unresolved(trial("pressure_gain[cyl 1]", 0.999, 0.0008))
     assert why.startswith("gain 0.999 +- 0.0008 is within 2 sigma of none")
     assert unresolved(trial("pressure_gain[cyl 1]", 1.06, 0.001)) == ""
-    assert unresolved(trial("stribeck_ring", 0.01, 0.5)) == ""  # no sensor floor; a residual beyond a healthy log's
+    # no sensor floor, a residual beyond a healthy log's: within 2 sigma of none is still no name (design note 101)
+    assert "not resolved from none" in unresolved(trial("stribeck_ring", 0.01, 0.5))
+    assert unresolved(trial("stribeck_ring", 0.9, 0.3)) == ""
     assert unresolved(trial("tdc_offset[cyl 2]", 0.05, 0.01)) != ""
     assert unresolved(trial("tdc_offset[cyl 2]", 1.5, 0.02)) == ""
     # on a quiet residual (nothing beyond the null, the speed gap within a healthy log's) any effect whose every
