@@ -9,9 +9,11 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
-from frictionwatch.core.monitor.report.figure_status import FrictionStatus, friction_status
+from frictionwatch.core.monitor.report.figure_status import STATUSES, FrictionStatus, friction_status
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.service.alert_baseline import Band, Baseline
+
+MEASURED = STATUSES.index("measured")  # a measured figure in FrictionStatus.codes (the rules read the codes, not words)
 
 
 class Latch:

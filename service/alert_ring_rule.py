@@ -22,7 +22,7 @@ from frictionwatch.core.monitor.checks.ring_condition import (
 )
 from frictionwatch.core.monitor.report.results import CycleResult, change_sigma
 from frictionwatch.service.alert_config import AlertConfig
-from frictionwatch.service.alert_interface import Context, Decision, Hold
+from frictionwatch.service.alert_interface import MEASURED, Context, Decision, Hold
 from frictionwatch.service.alert_rules import FrictionRule, GainRule, LeakRule
 
 
@@ -170,7 +170,7 @@ class RingConditionRule:
         if est is None:
             return nan, nan.copy(), nan.copy(), nan.copy()
         status = ctx.smoothed_status(result)  # est is result.smoothed
-        measured = np.array([c.status == "measured" for c in status.cylinders]) & ~sensor
+        measured = (status.codes == MEASURED) & ~sensor
         t = np.asarray(est.friction_torque_mean, dtype=np.float64)
         now, now_s = friction_excess(t, np.asarray(est.friction_torque_mean_sigma, dtype=np.float64), measured)
         exc, exc_s = friction_excess(t, change_sigma(est), measured)

@@ -39,7 +39,7 @@ import numpy as np
 from frictionwatch.core.monitor.checks.ring_condition import friction_excess
 from frictionwatch.core.monitor.report.results import PA_PER_BAR, CycleResult, change_sigma
 from frictionwatch.service.alert_config import AlertConfig
-from frictionwatch.service.alert_interface import Context, Decision, Hold, Pressure
+from frictionwatch.service.alert_interface import MEASURED, Context, Decision, Hold, Pressure
 
 
 # ---- the rules --------------------------------------------------------------------------------------------------
@@ -325,7 +325,7 @@ class FrictionRule:
         if ctx.baseline is None:
             return []
         status = ctx.smoothed_status(result)  # est is result.smoothed
-        measured = np.array([c.status == "measured" for c in status.cylinders])
+        measured = (status.codes == MEASURED)
         idx = np.flatnonzero(measured)
         if idx.size < 3:  # each needs two measured siblings
             return []
