@@ -164,7 +164,8 @@ class EngineService:
         self.recent = RecentRecords(recent_s, info.tick_hz)  # what a discrepancy run on a recorded window reads
         self.session = LiveSession(model, info, self._stamped, on_result=self._on_result, start=False,
                                    after_results=self._send, max_results=max(64, history_cycles),
-                                   on_records=self.recent.extend, **session_options)
+                                   on_records=self.recent.extend, before_ingest=self._load_kernels,
+                                   **session_options)
         # a source that can wait (a log read as fast as possible) waits for the listeners, until a stop's deadline
         self._until = None if self.session.realtime else (lambda: self.session.drain_until)
         self._stopped = False
@@ -305,6 +306,13 @@ class EngineService:
                 self.alert_errors += 1
             self.outbox.put(ServiceEvent(self.engine_id, result, now, arrived, alerts, term_names=self.term_names,
                                          baseline=learnt))
+
+    def _load_kernels(self) -> None:
+        """The session's ``before_ingest``: the alert engine's kernel compiled or loaded before the first record (an
+        alert engine of its own may have none to load)."""
+        load = getattr(self.alerts, "load_kernels", None)
+        if load is not None:
+            load()
 
     def _send(self) -> None:
         """The session's ``after_results`` (its lock released): the queued events to the fan-out."""

@@ -99,6 +99,9 @@ class LiveSession:
     on_records : called on the ingest thread with each released batch of merged raw records (a list, in order; no
     restart marks), before the pipeline sees them (cheap: keep references; exceptions are logged and counted). Once
     a batch, not once a record: ~25 records a genset-v20 cycle (design notes 47).
+    before_ingest : called once on the ingest thread before its first record (exceptions logged and counted): what
+    the consumers need ready, done in the start's "compiling the kernels" phase rather than mid-run (serve: the
+    alert engine's statistics kernel, design note 100).
     max_results : how many recent results the session holds (``results``); older ones are dropped, still counted.
     max_queue_s : the most acquisition time the reader -> ingest queue holds (see Backpressure above).
     drain_s : how long ``stop`` lets the ingest thread work through the queue before dropping the rest.
@@ -123,7 +126,8 @@ class LiveSession:
                  after_results: Callable[[], None] | None = None, max_results: int = 20_000,
                  start: bool = True, on_records: Callable[[list[StreamRecord]], None] | None = None,
                  config: MonitorConfig | None = None, max_queue_s: float = 10.0, drain_s: float = 5.0,
-                 warmup_s: float = 120.0, replay_batch_s: float = 0.04) -> None:
+                 warmup_s: float = 120.0, replay_batch_s: float = 0.04,
+                 before_ingest: Callable[[], None] | None = None) -> None:
         if isinstance(sources, Mapping):
             self.sources = dict(sources)
         else:
@@ -136,6 +140,7 @@ class LiveSession:
         self.recorder = recorder
         self.quiet_s, self.read_timeout_s = quiet_s, read_timeout_s
         self.on_result, self.on_records, self.after_results = on_result, on_records, after_results
+        self.before_ingest = before_ingest
         self._unsent = False  # results given to on_result under the lock and not yet to after_results
         self._history = ResultHistory(max_len=max_results)
         self.records_fed = 0
@@ -319,6 +324,11 @@ class LiveSession:
                     self._stop.wait(batch_s)
 
     def _ingest_loop(self) -> None:
+        if self.before_ingest is not None:
+            try:
+                self.before_ingest()
+            except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the monitor
+                self._error("before_ingest", exc)
         while True:
             try:
                 name, item = self._queue.get(timeout=min(0.05, self.quiet_s / 2))
