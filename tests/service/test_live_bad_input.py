@@ -267,8 +267,10 @@ def _load(tick):
     return LoadSample(tick, 1.0, 2.0)
 
 
-def keys(records) -> list[float]:
-    return [record_key(r) for r in records]
+def keys(released) -> list[float]:
+    """The keys of the merge's (key, record) pairs, each the record's own key (carried, not worked out again)."""
+    assert all(k == record_key(r) for k, r in released)
+    return [k for k, _ in released]
 
 
 def test_merge_orders_by_tick_and_waits_for_every_source():
@@ -325,4 +327,4 @@ def test_merge_takes_pressure_frames_like_blocks():
     out = m.push("daq", [_load(130), frame])
     out += m.push("teeth", [_teeth(130)])
     out += m.flush()
-    assert [type(r).__name__ for r in out] == ["ToothBatch", "PressureFrame", "LoadSample"]  # the simulator's ties
+    assert [type(r).__name__ for _, r in out] == ["ToothBatch", "PressureFrame", "LoadSample"]  # the simulator's ties
