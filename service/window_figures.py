@@ -30,7 +30,7 @@ from frictionwatch.core.monitor.report.run_summary import mean_and_sem
 
 NO_PREVIOUS_CYCLE = "no_previous_cycle"  # core.monitor.monitor: the cycle has no cycle before it
 SHARE = STATUSES.index("share")  # statuses as FrictionStatus.codes hold them
-VALUED_CODES = np.array([STATUSES.index(s) for s in VALUED_STATUSES])
+VALUED_BY_CODE = np.array([s in VALUED_STATUSES for s in STATUSES])  # by code: does the figure show a value
 
 
 def left_out(flags) -> bool:
@@ -115,7 +115,7 @@ def result_row(result: CycleResult) -> tuple[RowLayout, np.ndarray, np.ndarray]:
     status = st.codes.copy()  # each cylinder's status as its index in STATUSES (the words never read here)
     if n_cyl:
         share = status == SHARE
-        valued = np.isin(status, VALUED_CODES)
+        valued = VALUED_BY_CODE[status]  # (a table, not np.isin: ~20 us a call)
         shown = np.where(share, est.prior_friction_torque_mean, est.friction_torque_mean).astype(np.float64)
         torque = np.where(valued, _finite(shown), np.nan)
         table = row[1:].reshape(n_cyl, layout.per_cyl)  # a view: torque, FMEP, weight, coefficients per cylinder
