@@ -33,7 +33,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_MS = 1.0  # the three per-cycle costs together (module doc)
 ANSWER_EVERY = 25  # cycles between two answers taken (--answers)
-ANSWER_RTOL = 1e-12  # numbers of two checkouts' answers (the same arithmetic: equal, this is headroom)
+# numbers: the same arithmetic, but a kernel compiled in the run and one loaded from the cache differ by up to
+# ~4e-12 relative (design notes 11, 94; a core source changed is a new cache folder, so a fresh compile)
+ANSWER_RTOL = 1e-9
 
 
 def looped_results(n: int, faults: bool = True) -> list:
