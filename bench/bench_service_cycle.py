@@ -9,6 +9,12 @@ baseline and runs every rule as in a served plant. Thread CPU time (``time.threa
     ../base/.venv/bin/python bench/bench_service_cycle.py --cycles 600     # another checkout's code, same script
 
 Two checkouts side by side: run each alternately (A B A B) and quote the ratio, with ``uptime`` (quiet-bench.md).
+
+``--answers FILE`` also writes what the API answers at fixed cycles (every ``ANSWER_EVERY``-th: /losses now and
+over windows of 50 and 400 cycles, the cycle summary, each cylinder's stored losses) and the friction status with
+its words (engine and cylinders, the smoothed and the cycle's estimate), made from the API state and the alert
+engine as serve holds them; ``--against FILE`` compares this run's with another checkout's: words, integers and
+None exactly, numbers to ``ANSWER_RTOL`` (design note 100).
 Target (issue 28 item 7: 25 genset-v20 per core needs <= 3.2 ms a cycle all in, the monitor ~1.4 ms of it): these
 three together well under 1 ms a cycle.
 """
@@ -26,6 +32,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_MS = 1.0  # the three per-cycle costs together (module doc)
+ANSWER_EVERY = 25  # cycles between two answers taken (--answers)
+# numbers: the same arithmetic, but a kernel compiled in the run and one loaded from the cache differ by up to
+# ~4e-12 relative (design notes 11, 94; a core source changed is a new cache folder, so a fresh compile)
+ANSWER_RTOL = 1e-9
 
 
 def looped_results(n: int, faults: bool = True) -> list:
@@ -98,13 +108,71 @@ def timed_pass(results: list) -> tuple[dict, str]:
             "events": len(alerts_final)}, digest.hexdigest()[:16]
 
 
+def answers(results: list) -> list:
+    """What the API answers and the status words at every ANSWER_EVERY-th cycle (module doc), one pass."""
+    from frictionwatch.core.model.engine import load_engine
+    from frictionwatch.core.monitor.report.figure_status import friction_status
+    from frictionwatch.service import api_views as v
+    from frictionwatch.service.alerts import AlertEngine
+    from frictionwatch.service.listeners import LatestState, ServiceEvent
+
+    alerts, state, names = AlertEngine(load_engine("genset-v20")), LatestState(), ("a", "b", "c")
+    out = []
+    for r in results:
+        docs = tuple(e.alert.to_dict() for e in alerts.update(r))
+        state.on_message_received(ServiceEvent("g1", r, time.monotonic(), None, docs))
+        if r.index % ANSWER_EVERY:
+            continue
+        newest, held = state.snapshot()
+        words = {which: [[f.status, f.reason, f.data_weight] for f in (st.engine, *st.cylinders)]
+                 for which, st in (("smoothed", friction_status(r.smoothed, r.flags)),
+                                   ("cycle", friction_status(r.cycle, r.flags)))}
+        windows = {}
+        for n in (50, 400):
+            last, win = state.window(n)
+            windows[n] = v.losses_window("g1", last, win, names) if win is not None else None
+        out.append({"cycle": int(r.index), "now": v.losses_now("g1", held, names),
+                    "summary": v.cycle_summary("g1", newest), "stored": v.cylinder_losses(newest, names),
+                    "windows": windows, "status": words,
+                    "alerts": [{k: a for k, a in d.items() if k != "raised_at_s"} for d in
+                               (x.to_dict() for x in alerts.active())]})
+    return json.loads(json.dumps(out, default=repr))  # as a client reads them (tuples as lists, keys as strings)
+
+
+def same_answers(a, b, where: str = "") -> list[str]:
+    """Where two answers differ: words, integers, booleans and None exactly, numbers to ANSWER_RTOL."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        if a.keys() != b.keys():
+            return [f"{where}: keys {sorted(a.keys() ^ b.keys())}"]
+        return [d for k in a for d in same_answers(a[k], b[k], f"{where}.{k}")]
+    if isinstance(a, list) and isinstance(b, list):
+        if len(a) != len(b):
+            return [f"{where}: {len(a)} against {len(b)} items"]
+        return [d for i, (x, y) in enumerate(zip(a, b)) for d in same_answers(x, y, f"{where}[{i}]")]
+    if isinstance(a, float) and isinstance(b, float):
+        import math
+
+        ok = (math.isnan(a) and math.isnan(b)) or math.isclose(a, b, rel_tol=ANSWER_RTOL, abs_tol=0.0)
+        return [] if ok else [f"{where}: {a!r} against {b!r}"]
+    return [] if type(a) is type(b) and a == b else [f"{where}: {a!r} against {b!r}"]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--cycles", type=int, default=600)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-faults", action="store_true", help="the demo's healthy results only")
+    ap.add_argument("--answers", help="write the API's answers and the status words at fixed cycles here")
+    ap.add_argument("--against", help="compare them with another checkout's --answers file")
     args = ap.parse_args()
     results = looped_results(args.cycles, not args.no_faults)
+    if args.answers or args.against:
+        mine = answers(results)
+        if args.answers:
+            Path(args.answers).write_text(json.dumps(mine))
+        if args.against:
+            diff = same_answers(json.loads(Path(args.against).read_text()), mine)
+            print(json.dumps({"answers_compared": len(mine), "differences": len(diff), "first": diff[:10]}))
     timed_pass(results[:50])  # warm: imports, first calls
     passes = [timed_pass(results) for _ in range(args.repeat)]
     digests = {d for _, d in passes}

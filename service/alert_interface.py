@@ -4,14 +4,16 @@ the two pieces of decision logic they share, the hysteresis latch and the leak s
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Container
 from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
-from frictionwatch.core.monitor.report.figure_status import FrictionStatus, friction_status
+from frictionwatch.core.monitor.report.figure_status import STATUSES, FrictionStatus, friction_status
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.service.alert_baseline import Band, Baseline
+
+MEASURED = STATUSES.index("measured")  # a measured figure in FrictionStatus.codes (the rules read the codes, not words)
 
 
 class Latch:
@@ -322,6 +324,24 @@ def _always(name: str, cylinder: int | None) -> bool:
     return True
 
 
+class _Every:
+    """Holds every cylinder (what a rule used on its own is told the engine watches: ``Context.watching``)."""
+
+    def __contains__(self, cylinder: object) -> bool:
+        return True
+
+
+_EVERY, _NONE = _Every(), frozenset()
+
+
+def _every(name: str) -> Container[int | None]:
+    return _EVERY
+
+
+def _none(name: str) -> Container[int | None]:
+    return _NONE
+
+
 @dataclass
 class Context:
     """What the engine shares with its rules in one cycle. cyl_flags: each cylinder's flag kinds (z sets, the
@@ -332,7 +352,9 @@ class Context:
     engine keeps a latch or an open alert for that statistic. Where it does not, a Decision that is not on and a Hold
     change nothing, and a rule may leave them out (the engine's default says True: a rule used on its own returns
     all): with 20 cylinders and six rules most of a cycle's ~140 decisions were such, and making and applying them was
-    a third of the alert engine's time (design note 45)."""
+    a third of the alert engine's time (design note 45). latching(name) / watching(name): the cylinders for which
+    ``latched`` / ``watched`` would say True, as one container a rule asks once a cycle rather than a call per
+    cylinder (the engine keeps them by name; ~110 calls a genset-v20 cycle before, design note 100)."""
 
     cyl_flags: list[set[str]]
     engine_flags: set[str] = field(default_factory=set)
@@ -341,6 +363,8 @@ class Context:
     pressure: Pressure | None = None
     latched: Callable[[str, int | None], bool] = _never
     watched: Callable[[str, int | None], bool] = _always
+    latching: Callable[[str], Container[int | None]] = _none
+    watching: Callable[[str], Container[int | None]] = _every
     _smoothed_status: tuple[CycleResult, FrictionStatus] | None = field(default=None, repr=False)
 
     @property

@@ -22,7 +22,7 @@ from frictionwatch.core.monitor.checks.ring_condition import (
 )
 from frictionwatch.core.monitor.report.results import CycleResult, change_sigma
 from frictionwatch.service.alert_config import AlertConfig
-from frictionwatch.service.alert_interface import Context, Decision, Hold
+from frictionwatch.service.alert_interface import MEASURED, Context, Decision, Hold
 from frictionwatch.service.alert_rules import FrictionRule, GainRule, LeakRule
 
 
@@ -78,8 +78,8 @@ class RingConditionRule:
             return []
         if self.window is None:
             self.window = SiblingWindow.empty(z)
-        latched, gain = ctx.latched, self.gain_check
-        sensor = np.array([(bool(fl) and any(f.startswith("sensor_") for f in fl)) or latched(gain, k + 1)
+        gain_latched = ctx.latching(self.gain_check)
+        sensor = np.array([(bool(fl) and any(f.startswith("sensor_") for f in fl)) or k + 1 in gain_latched
                            for k, fl in enumerate(ctx.cyl_flags)])
         # a cylinder with a flagged sensor keeps its window entry as it was (its siblings go on)
         effect = np.where(sensor, np.nan, leak_effect(ring.n_compression_dev, ring.n_expansion_dev))
@@ -106,15 +106,16 @@ class RingConditionRule:
         read = (np.isfinite(rc.since) | np.isfinite(rc.siblings)).tolist()
         on, off_, alarm_, flagged = (on_since | on_sib).tolist(), off.tolist(), alarm.tolist(), sensor.tolist()
         misfit = "model_misfit" in ctx.engine_flags
+        watched, others = ctx.watching(self.name), [ctx.latching(name) for name in self.ring_rules]
         for k in range(z):
-            if not (on[k] or ctx.watched(self.name, k + 1)):
+            if not (on[k] or k + 1 in watched):
                 continue  # not on and nothing kept for it (a Hold or an off Decision would change nothing)
             if not read[k]:
                 out.append(Hold(k + 1, {"ring_condition": None}))
                 continue
             # one ring alert per cylinder: where the leak or friction rule has raised one, this figure explains it
             # (the API's ring condition) and raises nothing more
-            other = any(ctx.latched(name, k + 1) for name in self.ring_rules)
+            other = any(k + 1 in latched for latched in others)
             out.append(Decision(k + 1, "sensor_fault" if flagged[k] else "ring_wear", on[k] and not other, off_[k],
                                 cfg.raise_cycles, cfg.clear_cycles, "alarm" if alarm_[k] else "warning",
                                 detail=partial(self.explain, k, rc, flagged[k], misfit)))
@@ -170,10 +171,13 @@ class RingConditionRule:
         if est is None:
             return nan, nan.copy(), nan.copy(), nan.copy()
         status = ctx.smoothed_status(result)  # est is result.smoothed
-        measured = np.array([c.status == "measured" for c in status.cylinders]) & ~sensor
-        t = np.asarray(est.friction_torque_mean, dtype=np.float64)
-        now, now_s = friction_excess(t, np.asarray(est.friction_torque_mean_sigma, dtype=np.float64), measured)
-        exc, exc_s = friction_excess(t, change_sigma(est), measured)
+        measured = (status.codes == MEASURED) & ~sensor
+        if np.count_nonzero(measured) < 3:  # friction_excess's own answer (each needs two measured siblings), at once
+            now, now_s, exc, exc_s = nan.copy(), nan.copy(), nan.copy(), nan.copy()
+        else:
+            t = np.asarray(est.friction_torque_mean, dtype=np.float64)
+            now, now_s = friction_excess(t, np.asarray(est.friction_torque_mean_sigma, dtype=np.float64), measured)
+            exc, exc_s = friction_excess(t, change_sigma(est), measured)
         change, change_s = nan.copy(), nan.copy()
         b = ctx.baseline
         if b is not None:

@@ -39,7 +39,7 @@ import numpy as np
 from frictionwatch.core.monitor.checks.ring_condition import friction_excess
 from frictionwatch.core.monitor.report.results import PA_PER_BAR, CycleResult, change_sigma
 from frictionwatch.service.alert_config import AlertConfig
-from frictionwatch.service.alert_interface import Context, Decision, Hold, Pressure
+from frictionwatch.service.alert_interface import MEASURED, Context, Decision, Hold, Pressure
 
 
 # ---- the rules --------------------------------------------------------------------------------------------------
@@ -64,8 +64,9 @@ class MisfireRule:
         hit = np.array([1.0 if "misfire" in f else 0.0 for f in ctx.cyl_flags])
         self.rate += (1.0 / cfg.misfire_window) * (hit - self.rate)
         out: list[Decision | Hold] = []
+        watched = ctx.watching(self.name)
         for k, rate in enumerate(self.rate.tolist()):
-            if rate < cfg.misfire_raise and not ctx.watched(self.name, k + 1):
+            if rate < cfg.misfire_raise and k + 1 not in watched:
                 continue  # not on and nothing kept for it: the engine would do nothing with it
             sev = "alarm" if rate >= cfg.misfire_alarm else "warning"
             out.append(Decision(k + 1, "misfire", rate >= cfg.misfire_raise, rate < cfg.misfire_clear, 1, 1, sev,
@@ -126,11 +127,12 @@ class SensorFlagRule:
         out: list[Decision | Hold] = [Decision(None, "sensor_fault", bool(wheel), not wheel, k_on, k_off, "warning",
                                                detail=partial(self.explain, None, wheel, None))]
         n_comp = ring.n_compression.tolist() if ring is not None else None
+        watched = ctx.watching(self.name)
         for k, fl in enumerate(ctx.cyl_flags):
             sensor = sorted(f for f in fl if f.startswith("sensor_") or f == "pressure_repaired") if fl else []
             if n_comp is not None and not (math.isfinite(n_comp[k]) and n_comp[k] > 0.5):
                 sensor.append("pressure_stuck_or_dropped")
-            if not sensor and not ctx.watched(self.name, k + 1):
+            if not sensor and k + 1 not in watched:
                 continue
             out.append(Decision(k + 1, "sensor_fault", bool(sensor), not sensor, k_on, k_off, "warning",
                                 detail=partial(self.explain, k + 1, sensor, n_comp)))
@@ -164,9 +166,10 @@ class CoreFlagRule:
         if ctx.baseline_at_start is not None:
             return []
         kind, k_on, k_off = self.kind, 4 * self.config.flag_raise_cycles, self.config.clear_cycles
+        watched = ctx.watching(self.name)
         return [Decision(k + 1, kind, kind in fl, kind not in fl, k_on, k_off, "warning",
                          detail=partial(self.explain, k)) for k, fl in enumerate(ctx.cyl_flags)
-                if kind in fl or ctx.watched(self.name, k + 1)]
+                if kind in fl or k + 1 in watched]
 
     def explain(self, k: int) -> tuple[str, dict]:
         return (f"cylinder {k + 1}: {self.kind.replace('_', ' ')} against its siblings (before a commissioning "
@@ -192,7 +195,8 @@ def _holds(p: Pressure, name: str, ctx: Context) -> list[Decision | Hold]:
     """While the pressure statistics hold still: every cylinder's open pressure alert says why."""
     ev = {"commissioned_at_this_load": False, "suspended": p.held, "imep_bar": _num(p.imep_pa / PA_PER_BAR),
           "learning_cycles": p.learning_cycles}
-    return [Hold(k + 1, ev) for k in range(ctx.n_cyl) if ctx.watched(name, k + 1)]
+    watched = ctx.watching(name)
+    return [Hold(k + 1, ev) for k in range(ctx.n_cyl) if k + 1 in watched]
 
 
 class _PressureRule:
@@ -243,8 +247,9 @@ class LeakRule(_PressureRule):
         off = (st.z_leak < cfg.clear_z).tolist()
         alarm = ((st.z_leak >= cfg.alarm_z) & (st.effect > 3 * cfg.leak_floor)).tolist()
         out: list[Decision | Hold] = []
+        watched = ctx.watching(self.name)
         for k, flags in enumerate(ctx.cyl_flags):
-            if not on[k] and not ctx.watched(self.name, k + 1):
+            if not on[k] and k + 1 not in watched:
                 continue
             sensor = any(s.startswith("sensor_") for s in flags)
             out.append(Decision(k + 1, "sensor_fault" if sensor else "blow_by", on[k], off[k], cfg.raise_cycles,
@@ -282,9 +287,10 @@ class GainRule(_PressureRule):
         ratio = np.abs(st.z_ratio)
         on = ((ratio > cfg.raise_z) & (np.abs(p.ewma[0]) > cfg.gain_floor) & (st.z_leak < cfg.clear_z)).tolist()
         off = ((ratio < cfg.clear_z) | (st.z_leak > cfg.raise_z)).tolist()
+        watched = ctx.watching(self.name)
         return [Decision(k + 1, "sensor_fault", on[k], off[k], cfg.raise_cycles, cfg.clear_cycles, "info",
                          detail=partial(self.explain, k, p)) for k in range(ctx.n_cyl)
-                if on[k] or ctx.watched(self.name, k + 1)]
+                if on[k] or k + 1 in watched]
 
     def explain(self, k: int, p: Pressure) -> tuple[str, dict]:
         return (f"cylinder {k + 1}: compression pressure {math.exp(p.ewma[0, k]):.3f}x "
@@ -325,7 +331,7 @@ class FrictionRule:
         if ctx.baseline is None:
             return []
         status = ctx.smoothed_status(result)  # est is result.smoothed
-        measured = np.array([c.status == "measured" for c in status.cylinders])
+        measured = (status.codes == MEASURED)
         idx = np.flatnonzero(measured)
         if idx.size < 3:  # each needs two measured siblings
             return []
@@ -339,14 +345,15 @@ class FrictionRule:
         b = ctx.baseline
         bases, base_sigmas = b.friction_excess[idx].tolist(), b.friction_excess_sigma[idx].tolist()
         rows = zip(idx.tolist(), excess_all.tolist(), sigma_all.tolist(), bases, base_sigmas, strict=True)
+        gain_latched, watched = ctx.latching(self.gain_check), ctx.watching(self.name)
         for k, excess, sigma, base, base_s in rows:
-            if ctx.latched(self.gain_check, k + 1):  # its pressure is suspect, and its friction rests on it
+            if k + 1 in gain_latched:  # its pressure is suspect, and its friction rests on it
                 continue
             if not math.isfinite(base):
                 ctx.baseline = ctx.baseline.with_friction(k, excess, sigma, int(result.index))
                 continue
             zf = (excess - base) / math.hypot(sigma, base_s)
-            if not zf > cfg.friction_raise_sigmas and not ctx.watched(self.name, k + 1):
+            if not zf > cfg.friction_raise_sigmas and k + 1 not in watched:
                 continue
             out.append(Decision(k + 1, "ring_wear", zf > cfg.friction_raise_sigmas,
                                 zf < cfg.friction_clear_sigmas, cfg.raise_cycles, cfg.clear_cycles,

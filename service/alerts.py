@@ -177,6 +177,11 @@ class AlertEngine:
         self._open: dict[tuple[str, int | None], Alert] = {}
         self._history: list[Alert] = []
         self._latches: dict[tuple[str, int | None], Latch] = {}
+        # by rule name, the cylinders whose latch is raised and those with a latch or an open alert (``_latched`` /
+        # ``_watched`` of each): remade where a latch or an open alert comes or goes or a latch turns (``_reindex``:
+        # a few times a run), read by the rules once a cycle each (Context.latching / watching)
+        self._latched_by: dict[str, frozenset[int | None]] = {}
+        self._watched_by: dict[str, frozenset[int | None]] = {}
         self._ewma = np.zeros((len(INDICATORS), z))
         self._ewma_n = 0
         self._ewma_var = 0.0  # the EWMA's variance per unit of per-cycle variance (alert_interface.ewma_variance)
@@ -238,6 +243,7 @@ class AlertEngine:
             self._open[key] = a
         self._history.sort(key=lambda a: a.alert_id)
         del self._history[:-self.config.max_history]
+        self._reindex()
         return skipped
 
     def ring_condition(self) -> list[dict]:
@@ -247,6 +253,18 @@ class AlertEngine:
         if rule is None or rule.last is None:
             return []
         return [{"cylinder": k + 1, **rule.last.evidence(k)} for k in range(self.spec.n_cyl)]
+
+    def load_kernels(self) -> None:
+        """Compile the statistics kernel, or load it from numba's cache, now: on throwaway arrays of this engine's
+        shapes and types (the signature ``statistics`` calls it with), nothing of the engine's state touched. serve
+        calls it on the ingest thread before the first record, in the start's "compiling the kernels" phase;
+        otherwise the first cycle with a band in use (~200 cycles in) waited for it, 4.4 s on a cold cache
+        (design notes 94, 100)."""
+        z = self.spec.n_cyl
+        lrv = self.long_run_variance
+        params = np.array((lrv.centre_cycles, lrv.horizon, lrv.warmup, 1.0, 1.0))
+        pressure_statistics(np.zeros((len(INDICATORS), z)), np.zeros((len(INDICATORS), z)), np.zeros_like(self._ewma),
+                            0.5, np.ones_like(self._weights_rows), np.zeros_like(lrv.state), 0, params)
 
     def rebaseline(self) -> list[AlertEvent]:
         """Learn a new commissioning baseline from the next cycle on (after an overhaul: the state now is the normal
@@ -261,6 +279,7 @@ class AlertEngine:
             events.append(self._clear(key, self._last_cycle))
         for key in [k for k in self._latches if k[0] in names]:
             del self._latches[key]
+        self._reindex()
         return events
 
     def update(self, result: CycleResult) -> list[AlertEvent]:
@@ -275,7 +294,8 @@ class AlertEngine:
             (cyl_flags[cyl - 1] if cyl is not None and 1 <= cyl <= z else engine_flags).add(kind)
         at_start = self.baseline
         pressure = self._pressure(result, cyl_flags)  # learns the baseline where the cycle is healthy
-        ctx = Context(cyl_flags, engine_flags, at_start, self.baseline, pressure, self._latched, self._watched)
+        ctx = Context(cyl_flags, engine_flags, at_start, self.baseline, pressure, self._latched, self._watched,
+                      latching=self._latching, watching=self._watching)
         events: list[AlertEvent] = []
         for stage in self.rules:
             decisions = [(rule.name, d) for rule in stage for d in rule.update(result, ctx)]
@@ -376,6 +396,25 @@ class AlertEngine:
         key = (name, cylinder)
         return key in self._latches or key in self._open
 
+    def _watching(self, name: str) -> frozenset[int | None]:
+        return self._watched_by.get(name, frozenset())
+
+    def _latching(self, name: str) -> frozenset[int | None]:
+        return self._latched_by.get(name, frozenset())
+
+    def _reindex(self) -> None:
+        """``_latched_by`` and ``_watched_by`` made again from the latches and the open alerts."""
+        latched: dict[str, set[int | None]] = {}
+        watched: dict[str, set[int | None]] = {}
+        for (name, cylinder), latch in self._latches.items():
+            watched.setdefault(name, set()).add(cylinder)
+            if latch.active:
+                latched.setdefault(name, set()).add(cylinder)
+        for name, cylinder in self._open:
+            watched.setdefault(name, set()).add(cylinder)
+        self._latched_by = {name: frozenset(c) for name, c in latched.items()}
+        self._watched_by = {name: frozenset(c) for name, c in watched.items()}
+
     def _latched(self, name: str, cylinder: int | None) -> bool:
         latch = self._latches.get((name, cylinder))
         return latch is not None and latch.active
@@ -393,12 +432,16 @@ class AlertEngine:
             if not d.on:  # a fresh latch stepped with nothing on stays fresh: none is kept until it counts
                 return []
             latch = self._latches[key] = Latch()
+            self._reindex()
         change = latch.step(bool(d.on), bool(d.off), d.k_on, d.k_off, int(result.index))
+        if change is not None:  # raised or cleared: the latch turned
+            self._reindex()
         if change == "raise":
             a = Alert(self._next_id, key[1], d.kind, d.severity, "active", int(result.index), float(result.t_start),
                       d.message, {**d.evidence, "first_evidence_cycle": latch.since}, rule=name)
             self._next_id += 1
             self._open[key] = a
+            self._reindex()
             return [AlertEvent("raised", _snapshot(a))]
         a = self._open.get(key)
         if a is None:
@@ -414,6 +457,7 @@ class AlertEngine:
 
     def _clear(self, key: tuple, cycle: int) -> AlertEvent:
         a = self._open.pop(key)
+        self._reindex()
         a.state, a.cleared_cycle = "cleared", cycle
         self._history.append(a)
         del self._history[:-self.config.max_history]

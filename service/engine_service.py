@@ -75,15 +75,17 @@ class RecentRecords:
     def append(self, record: StreamRecord) -> None:
         self.extend([record])
 
-    def extend(self, records: list[StreamRecord]) -> None:
-        """``append`` each of ``records`` (in order) under one taking of the lock (the ingest thread's batch)."""
+    def extend(self, records: list[StreamRecord], keys: list[float] | None = None) -> None:
+        """``append`` each of ``records`` (in order) under one taking of the lock (the ingest thread's batch);
+        ``keys``: their ``record_key``s as the session carries them (worked out here when None)."""
         if not records:
             return
-        keyed = [(record_key(r), r) for r in records]
+        if keys is None:
+            keys = [record_key(r) for r in records]
         with self._lock:
             items = self._items
-            items.extend(keyed)
-            newest = max(k for k, _ in keyed)  # what appending them one by one would have trimmed to
+            items.extend(zip(keys, records, strict=True))
+            newest = max(keys)  # what appending them one by one would have trimmed to
             while items[0][0] < newest - self.span:
                 items.popleft()
 
@@ -101,7 +103,8 @@ class RecentRecords:
 
 
 class StampedSource(Source):
-    """A source as it is, plus (newest tick, monotonic time) of each batch its reader got."""
+    """A source as it is, plus (newest tick, monotonic time) of each batch its reader got (``stamp``, called by the
+    session's reader with the batch's keys worked out once)."""
 
     def __init__(self, inner: Source) -> None:
         super().__init__()
@@ -111,10 +114,11 @@ class StampedSource(Source):
         self.stamps: deque[tuple[float, float]] = deque(maxlen=STAMPS_KEPT)
 
     def _read_internal(self, timeout: float | None) -> list[StreamRecord]:
-        records = self.inner.read(timeout)
-        if records:
-            self.stamps.append((max(record_key(r) for r in records), time.monotonic()))
-        return records
+        return self.inner.read(timeout)
+
+    def stamp(self, newest_key: float, read_s: float) -> None:
+        """The session's ``on_read`` for this source: a batch reaching ``newest_key`` was read at ``read_s``."""
+        self.stamps.append((newest_key, read_s))
 
     def _close_internal(self) -> None:
         self.inner.close()
@@ -164,7 +168,9 @@ class EngineService:
         self.recent = RecentRecords(recent_s, info.tick_hz)  # what a discrepancy run on a recorded window reads
         self.session = LiveSession(model, info, self._stamped, on_result=self._on_result, start=False,
                                    after_results=self._send, max_results=max(64, history_cycles),
-                                   on_records=self.recent.extend, **session_options)
+                                   on_records=self.recent.extend, before_ingest=self._load_kernels,
+                                   on_read=lambda name, key, t: self._stamped[name].stamp(key, t),
+                                   **session_options)
         # a source that can wait (a log read as fast as possible) waits for the listeners, until a stop's deadline
         self._until = None if self.session.realtime else (lambda: self.session.drain_until)
         self._stopped = False
@@ -305,6 +311,13 @@ class EngineService:
                 self.alert_errors += 1
             self.outbox.put(ServiceEvent(self.engine_id, result, now, arrived, alerts, term_names=self.term_names,
                                          baseline=learnt))
+
+    def _load_kernels(self) -> None:
+        """The session's ``before_ingest``: the alert engine's kernel compiled or loaded before the first record (an
+        alert engine of its own may have none to load)."""
+        load = getattr(self.alerts, "load_kernels", None)
+        if load is not None:
+            load()
 
     def _send(self) -> None:
         """The session's ``after_results`` (its lock released): the queued events to the fan-out."""

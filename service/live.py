@@ -49,11 +49,23 @@ from frictionwatch.drivers.logs.recorder import Recorder
 from frictionwatch.drivers.source import Source, StreamRestart
 from frictionwatch.service.ingest_queue import IngestLag, IngestQueue
 from frictionwatch.service.pipeline import EnginePipeline, LogAnalysis, ResultHistory
-from frictionwatch.service.record_merge import RecordMerge, record_key
+from frictionwatch.service.record_merge import Keyed, RecordMerge, record_key
 
 log = logging.getLogger(__name__)
 
 _END = object()
+
+
+class KeyedBatch:
+    """A reader's batch on its way through the queue: the records and each one's ``record_key``, worked out once."""
+
+    __slots__ = ("records", "keys")
+
+    def __init__(self, records: list, keys: list[float]) -> None:
+        self.records, self.keys = records, keys
+
+    def __len__(self) -> int:  # the queue counts records (IngestQueue.discard)
+        return len(self.records)
 LIVE_DRIVERS = ("frictionwatch.drivers.serial", "frictionwatch.drivers.can")  # sources that cannot wait for us
 # results after which the monitor is warm: past the TDC watch's first window (100 cycles) and its first fit, whose
 # kernels compile then (a cold `make run` dropped 2.6 s of the demo just after its first result with 1 here)
@@ -97,8 +109,13 @@ class LiveSession:
     log read as fast as possible: ``realtime`` False), until ``drain_until`` at the latest; holding the lock, a
     wait would hold every reader of the monitor's state with it.
     on_records : called on the ingest thread with each released batch of merged raw records (a list, in order; no
-    restart marks), before the pipeline sees them (cheap: keep references; exceptions are logged and counted). Once
+    restart marks) and their keys (``record_key`` of each, the list beside it), before the pipeline sees them (cheap: keep references; exceptions are logged and counted). Once
     a batch, not once a record: ~25 records a genset-v20 cycle (design notes 47).
+    on_read : called on a source's reader thread with (source name, the batch's newest key, monotonic time it was
+    read) for each batch read (serve: its latency stamps, service/engine_service.py).
+    before_ingest : called once on the ingest thread before its first record (exceptions logged and counted): what
+    the consumers need ready, done in the start's "compiling the kernels" phase rather than mid-run (serve: the
+    alert engine's statistics kernel, design note 100).
     max_results : how many recent results the session holds (``results``); older ones are dropped, still counted.
     max_queue_s : the most acquisition time the reader -> ingest queue holds (see Backpressure above).
     drain_s : how long ``stop`` lets the ingest thread work through the queue before dropping the rest.
@@ -121,9 +138,11 @@ class LiveSession:
                  quiet_s: float = 0.5, read_timeout_s: float = 0.05,
                  on_result: Callable[[CycleResult], None] | None = None,
                  after_results: Callable[[], None] | None = None, max_results: int = 20_000,
-                 start: bool = True, on_records: Callable[[list[StreamRecord]], None] | None = None,
+                 start: bool = True, on_records: Callable[[list[StreamRecord], list[float]], None] | None = None,
+                 on_read: Callable[[str, float, float], None] | None = None,
                  config: MonitorConfig | None = None, max_queue_s: float = 10.0, drain_s: float = 5.0,
-                 warmup_s: float = 120.0, replay_batch_s: float = 0.04) -> None:
+                 warmup_s: float = 120.0, replay_batch_s: float = 0.04,
+                 before_ingest: Callable[[], None] | None = None) -> None:
         if isinstance(sources, Mapping):
             self.sources = dict(sources)
         else:
@@ -136,6 +155,7 @@ class LiveSession:
         self.recorder = recorder
         self.quiet_s, self.read_timeout_s = quiet_s, read_timeout_s
         self.on_result, self.on_records, self.after_results = on_result, on_records, after_results
+        self.before_ingest, self.on_read = before_ingest, on_read
         self._unsent = False  # results given to on_result under the lock and not yet to after_results
         self._history = ResultHistory(max_len=max_results)
         self.records_fed = 0
@@ -310,8 +330,12 @@ class LiveSession:
                 self._stop.wait(0.1)
                 continue
             if records:
-                self._heard[name] = time.monotonic()  # stamped here: a busy ingest thread must not see silence
-                self._queue.put(name, records, max(record_key(r) for r in records),
+                now = self._heard[name] = time.monotonic()  # stamped here: a busy ingest thread must not see silence
+                keys = [record_key(r) for r in records]  # once: they travel with the records (record_merge.py)
+                newest = max(keys)
+                if self.on_read is not None:
+                    self.on_read(name, newest, now)
+                self._queue.put(name, KeyedBatch(records, keys), newest,
                                 self._realtime[name] and not self._replay_waits(name))
                 # what comes due meanwhile stays in the replay: the next read takes it in one (not after a loop's
                 # restart mark, which comes alone: the pass after it starts its clock at its first read)
@@ -319,6 +343,11 @@ class LiveSession:
                     self._stop.wait(batch_s)
 
     def _ingest_loop(self) -> None:
+        if self.before_ingest is not None:
+            try:
+                self.before_ingest()
+            except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the monitor
+                self._error("before_ingest", exc)
         while True:
             try:
                 name, item = self._queue.get(timeout=min(0.05, self.quiet_s / 2))
@@ -335,7 +364,8 @@ class LiveSession:
                 if quiet != self.merge.quiet:
                     released = self.merge.set_quiet(quiet)
                 if name:
-                    released += self.merge.end(name) if item is _END else self.merge.push(name, item)
+                    released += (self.merge.end(name) if item is _END else
+                                 self.merge.push(name, item.records, item.keys))
                 self._cond.notify_all()
             self._deliver(released)
         with self._cond:
@@ -354,9 +384,10 @@ class LiveSession:
             log.warning("live session: stop left %d queued records (%.1f s of acquisition) unanalysed: the drain's "
                         "%.1f s were up", records, span_s, self.drain_s)
 
-    def _deliver(self, records: list[StreamRecord]) -> None:
-        if not records:
+    def _deliver(self, keyed: Keyed) -> None:
+        if not keyed:
             return
+        records = [r for _, r in keyed]
         data = [r for r in records if not isinstance(r, StreamRestart)]  # a restart mark: not data (below)
         if self.recorder is not None:
             for r in data:
@@ -365,8 +396,10 @@ class LiveSession:
                 except OSError as exc:  # disk full, folder gone: the black box fails, the monitor goes on
                     self._error("recorder", exc)
         if self.on_records is not None and data:
+            keys = ([k for k, r in keyed if not isinstance(r, StreamRestart)] if len(data) < len(records) else
+                    [k for k, _ in keyed])
             try:
-                self.on_records(data)
+                self.on_records(data, keys)
             except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the monitor
                 self._error("on_records", exc)
         for r in records:

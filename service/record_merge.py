@@ -11,6 +11,10 @@ one source lags). A record older than one already released is still fed (the cyc
 run a little apart) and counted as ``late_record`` for its source. ``merge.stats`` counts records released without
 every vouch (by quiet sources, the window, or the final flush).
 
+Keys. Each record's key is worked out once, by its reader (``record_key``), and travels with it: ``push`` takes the
+batch's keys beside its records and every method returns (key, record) pairs, which the ingest thread hands on to
+``on_records`` (the recorded window) — the key was worked out four times on its way before (design note 100).
+
 Choosing the window: it bounds how long a source that lags (not a silent one) holds the others, in acquisition time.
 Within it the order is kept whatever the lag, at the cost of memory (1 s of genset-v20 pressure is 3.2 MB) and of
 latency only while a source lags. Beyond it, teeth released more than the assembler's pressure wait (0.5 s) ahead of
@@ -24,7 +28,7 @@ import itertools
 import logging
 import math
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 from frictionwatch.core.types import (
     CamBatch,
@@ -42,6 +46,13 @@ log = logging.getLogger(__name__)
 # ties: the simulator's order; a restart mark before the records it precedes
 _RANK = {StreamRestart: -1, ToothBatch: 0, CamBatch: 1, PressureBlock: 2, PressureFrame: 2, LoadSample: 3,
          FreeEndToothBatch: 4}
+
+
+Keyed = list[tuple[float, StreamRecord]]  # (record_key, record) pairs, as the merge releases them
+
+
+def _first(pair: tuple[float, StreamRecord]) -> float:
+    return pair[0]
 
 
 def record_key(record: StreamRecord | StreamRestart) -> float:
@@ -88,52 +99,56 @@ class RecordMerge:
     def held(self) -> int:
         return len(self._heap)
 
-    def push(self, source: str, records: Iterable[StreamRecord]) -> list[StreamRecord]:
-        """File the records of one source; returns those now released, in key order."""
+    def push(self, source: str, records: Sequence[StreamRecord], keys: Sequence[float] | None = None) -> Keyed:
+        """File the records of one source (``keys``: each one's ``record_key``, worked out here when None); returns
+        those now released, (key, record) in key order."""
         if source not in self.progress:
             raise ValueError(f"unknown source {source!r}; known: {sorted(self.progress)}")
         self.quiet.discard(source)
-        late: list[StreamRecord] = []
-        for r in records:
-            key = record_key(r)
-            self.progress[source] = max(self.progress[source], key)
+        late: Keyed = []
+        if keys is None:
+            keys = [record_key(r) for r in records]
+        newest = self.progress[source]
+        for key, r in zip(keys, records, strict=True):
+            newest = max(newest, key)
             if key < self.released_key:
                 if not self.counts[source]["late_record"]:
                     log.warning("%s: a record %.0f ticks older than what was released (%s)", source,
                                 self.released_key - key, dict(self.stats))
                 self.counts[source]["late_record"] += 1
-                late.append(r)
+                late.append((key, r))
             else:
                 heapq.heappush(self._heap, (key, _RANK[type(r)], next(self._order), r))
-        late.sort(key=record_key)  # a CAN batch comes ordered by first sample, the streams meet by last
+        self.progress[source] = newest
+        late.sort(key=_first)  # a CAN batch comes ordered by first sample, the streams meet by last
         return late + self._release()
 
-    def end(self, source: str) -> list[StreamRecord]:
+    def end(self, source: str) -> Keyed:
         """The source has ended: it no longer holds the others back."""
         self.ended.add(source)
         return self._release()
 
-    def set_quiet(self, sources: Iterable[str]) -> list[StreamRecord]:
+    def set_quiet(self, sources: Iterable[str]) -> Keyed:
         """These sources are silent (wall clock): they stop holding the others back until they deliver again."""
         self.quiet = set(sources) & set(self.progress)
         return self._release()
 
-    def flush(self) -> list[StreamRecord]:
+    def flush(self) -> Keyed:
         """Release everything held, in key order."""
         return self._release(flushing=True)
 
-    def _release(self, flushing: bool = False) -> list[StreamRecord]:
+    def _release(self, flushing: bool = False) -> Keyed:
         all_live = [p - self.slack for n, p in self.progress.items() if n not in self.ended]
         voiced = [p - self.slack for n, p in self.progress.items() if n not in self.ended and n not in self.quiet]
         strict, vouched = min(all_live, default=math.inf), min(voiced, default=math.inf)
         window = max(self.progress.values()) - self.window
         limit = math.inf if flushing else max(vouched, window)
-        out = []
+        out: Keyed = []
         while self._heap and self._heap[0][0] <= limit:
             key, _, _, r = heapq.heappop(self._heap)
             if key > strict:
                 why = "flush" if flushing else ("window" if key > vouched else "quiet")
                 self.stats[f"released_by_{why}"] += 1
             self.released_key = max(self.released_key, key)
-            out.append(r)
+            out.append((key, r))
         return out

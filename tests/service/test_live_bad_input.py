@@ -231,6 +231,34 @@ def test_reader_and_consumer_errors_are_counted_and_the_session_goes_on(referenc
     assert [r.index for r in live.results] == [r.index for r in reference]
 
 
+def test_the_hooks_see_each_key_once_worked_out_and_before_ingest_first(reference):
+    """``before_ingest`` runs once on the ingest thread before any record (serve: the alert kernel, design note 100;
+    its failure is counted, the session goes on); ``on_read`` gets each batch's newest key and ``on_records`` each
+    released record's key, the ones the reader worked out (``record_key``), in the merged order."""
+    s = session()
+    batches = [s.received[i:i + 50] for i in range(0, len(s.received), 50)]
+    seen: list = []
+    reads: list = []
+    kept: list = []
+
+    def before() -> None:
+        seen.append(("before", threading.current_thread().name))
+        raise RuntimeError("a consumer's bug")
+
+    def records(data, keys) -> None:
+        seen.append(("records", len(data)))
+        kept.extend(zip(keys, data, strict=True))
+
+    with LiveSession(s.spec, s.sim.info, {"log": ListSource(batches)}, before_ingest=before, on_records=records,
+                     on_read=lambda name, key, t: reads.append((name, key))) as live:
+        assert live.wait_ended(timeout=20)
+    assert seen[0] == ("before", "live-ingest") and seen.count(seen[0]) == 1 and len(seen) > 1
+    assert live.errors == {"before_ingest: RuntimeError": 1}
+    assert reads == [("log", max(record_key(r) for r in b)) for b in batches]
+    assert [r for _, r in kept] == list(s.received) and all(k == record_key(r) for k, r in kept)
+    assert [r.index for r in live.results] == [r.index for r in reference]
+
+
 def test_a_silent_source_holds_the_others_back_only_briefly():
     """Pressure and load flow, the tooth board says nothing (engine at rest): after ``quiet_s`` the bus's records go
     on to the pipeline; nothing is lost or counted as damage."""
@@ -267,8 +295,10 @@ def _load(tick):
     return LoadSample(tick, 1.0, 2.0)
 
 
-def keys(records) -> list[float]:
-    return [record_key(r) for r in records]
+def keys(released) -> list[float]:
+    """The keys of the merge's (key, record) pairs, each the record's own key (carried, not worked out again)."""
+    assert all(k == record_key(r) for k, r in released)
+    return [k for k, _ in released]
 
 
 def test_merge_orders_by_tick_and_waits_for_every_source():
@@ -325,4 +355,4 @@ def test_merge_takes_pressure_frames_like_blocks():
     out = m.push("daq", [_load(130), frame])
     out += m.push("teeth", [_teeth(130)])
     out += m.flush()
-    assert [type(r).__name__ for r in out] == ["ToothBatch", "PressureFrame", "LoadSample"]  # the simulator's ties
+    assert [type(r).__name__ for _, r in out] == ["ToothBatch", "PressureFrame", "LoadSample"]  # the simulator's ties

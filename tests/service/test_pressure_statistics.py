@@ -58,3 +58,31 @@ def test_the_statistics_alone_are_the_references(z):
             assert_allclose(u, v, rtol=0.0, atol=0.0)
         assert kernel.long_run_variance.n == reference.long_run_variance.n == n
     assert (z < 3) == (a[2] == (1.0, 1.0))  # no siblings' median: no long-run factor
+
+
+def test_load_kernels_is_the_signature_a_run_uses_and_changes_nothing(monkeypatch):
+    """``load_kernels`` (serve's start, design note 100) compiles the one signature the statistics call with: a
+    run with a band in use after it adds none; and it leaves the engine as it was (the run's events and
+    statistics equal a run without the call)."""
+    from frictionwatch.core.monitor.checks.pressure_statistics import pressure_statistics_kernel
+
+    run = synthetic_run("genset-v20", 400, 100)
+    alerts.AlertEngine(run["spec"]).load_kernels()
+    loaded = list(pressure_statistics_kernel.signatures)
+    assert len(loaded) == 1
+    _, events, stats = fold(alerts.AlertEngine, run, True)
+    assert sum(x is not None for x in stats) > 100  # the kernel was used
+    assert list(pressure_statistics_kernel.signatures) == loaded
+    original = alerts.AlertEngine.__init__
+
+    def loading(self, *a, **k):
+        original(self, *a, **k)
+        self.load_kernels()
+
+    monkeypatch.setattr(alerts.AlertEngine, "__init__", loading)
+    _, events_loaded, stats_loaded = fold(alerts.AlertEngine, run, True)
+    assert events_loaded == events
+    for x, r in zip(stats_loaded, stats, strict=True):
+        assert (x is None) == (r is None)
+        if x is not None:
+            assert_allclose(x, r, rtol=0.0, atol=0.0, equal_nan=True)
