@@ -95,6 +95,7 @@ class _PulledEst(_Est):
 
 FLAG_POOL = ("misfire_cyl2", "sensor_gain_cyl1", "sensor_gain_cyl3", "sensor_tdc_offset_cyl3", "sensor_tdc_offset",
              "no_load_measurement", "operating_point_changed", "sensor_pegging_offset_cyl12", "sensor_gain_cyl40",
+             "sensor_gain_cyl0",  # (no cylinder 0: split_flag reads it as an engine-wide flag, before and now)
              "model_misfit", "no_previous_cycle")
 
 
