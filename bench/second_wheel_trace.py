@@ -154,8 +154,10 @@ def cmd_trace(args) -> None:
     names = args.variants
     # the pull check at another kappa (inf: off), bench only
     pull = {} if args.pull_kappa is None else {"pull_check": PullCheck(kappa=args.pull_kappa)}
+    # the accumulated equations' window in cycles (bench only; default the product's, forgetting_factor)
+    window = {} if not args.forgetting_cycles else {"forgetting": 1.0 - 1.0 / args.forgetting_cycles}
     pipes = {n: EnginePipeline(spec, log.info if n != "one_wheel" else replace(log.info, second_wheel=None),
-                               replace(VARIANTS[n], **pull)) for n in names}
+                               replace(VARIANTS[n], **pull, **window)) for n in names}
     taps = {n: None for n in names}
     last = {n: None for n in names}
     counts = {n: 0 for n in names}
@@ -300,6 +302,8 @@ def main() -> None:
     t.add_argument("--variants", nargs="+", default=DEFAULT_VARIANTS, choices=list(VARIANTS))
     t.add_argument("--pull-kappa", type=float, default=None,
                    help="the pull check's kappa (inf: off; default the tuned one, core/monitor/tuned.json)")
+    t.add_argument("--forgetting-cycles", type=float, default=0.0,
+                   help="the accumulated equations' window N (forgetting 1 - 1/N; 0: the product's)")
     t.add_argument("--start-cycle", type=int, default=0,
                    help="start the monitor fresh at about this cycle of the log (a steady stretch alone; note 41)")
     u = sub.add_parser("summary")
