@@ -143,7 +143,7 @@ def gap_record(ratio: float) -> dict[str, Tuned]:
 def kinetic_record(doc: dict):
     """NULL_KINETIC (core.discrepancy.features.balance_point_floor_nm) with its provenance, from
     ``balance_across_points``' output."""
-    from bench.bench_discrepancy import BALANCE_MARGIN
+    from bench.discrepancy_balance_points import BALANCE_MARGIN
 
     worst = max((r for r in doc["rows"] if r["half"] == "all"), key=lambda r: r["of_kinetic"])
     text = (f"the largest healthy two-point log's point mean |balance residual| (the whole log) beyond NULL_BALANCE x "
@@ -163,13 +163,13 @@ def main() -> None:
     ap.add_argument("--tune-gap", action="store_true", help="the tuning logs only, GAP_NULL alone (with --write: "
                                                              "only it is written)")
     ap.add_argument("--tune-kinetic", action="store_true", help="NULL_KINETIC alone, from healthy two-point logs "
-                    "(bench_discrepancy.balance_across_points on its BALANCE_TUNE_SEEDS; with --write: only it is "
+                    "(bench.discrepancy_balance_points.balance_across_points on its BALANCE_TUNE_SEEDS; with --write: only it is "
                     "written)")
     ap.add_argument("--only", nargs="+", default=(), metavar="NAME",
                     help="with --tune --write: write only these of its records (e.g. FLOOR_RMS_BALANCE)")
     args = ap.parse_args()
     if args.tune_kinetic:
-        from bench.bench_discrepancy import BALANCE_TUNE_SEEDS, balance_across_points
+        from bench.discrepancy_balance_points import BALANCE_TUNE_SEEDS, balance_across_points
 
         doc = balance_across_points(BALANCE_TUNE_SEEDS)
         print(f"largest share of the kinetic term: {doc['largest_of_kinetic']:.4f} -> NULL_KINETIC {doc['figure']}")
