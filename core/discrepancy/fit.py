@@ -34,6 +34,13 @@ EFFECT_REL_ERROR = _TUNED["EFFECT_REL_ERROR"].value if "EFFECT_REL_ERROR" in _TU
 CHAIN_FLOOR = {("chain_mismatch", p): _TUNED[name].value if name in _TUNED else 0.0
                for p, name in (("stiffness_scale", "CHAIN_FLOOR_STIFFNESS"),
                                ("damping_scale", "CHAIN_FLOOR_DAMPING"))}
+# the shaft line's bias in a fitted stiffness, relative to the fitted excess |stiffness_scale - 1|: the monitor's line
+# reads a stiffer plant's low (k9k, the chain 50 % stiffer: 1.404-1.458 at sigma 0.013-0.021, the fit converged;
+# design note 101), an error that grows with the distance from the record's line, which CHAIN_FLOOR (a healthy log's,
+# near 1) does not carry. Tuned on chain logs none of the matrix's (bench/calibrate_chain_bias.py --write;
+# core/discrepancy/tuned.json: its provenance; design note 103); 0 until that has run
+CHAIN_STIFFNESS_REL = _TUNED["CHAIN_STIFFNESS_REL"].value if "CHAIN_STIFFNESS_REL" in _TUNED else 0.0
+CHAIN_REL = {("chain_mismatch", "stiffness_scale"): CHAIN_STIFFNESS_REL}
 
 
 @dataclass(frozen=True)
@@ -128,10 +135,15 @@ def _solve(jac: np.ndarray, r: np.ndarray) -> np.ndarray:
     return np.linalg.solve(jtj + DAMPING * np.max(np.diag(jtj), initial=1e-300) * np.eye(jtj.shape[0]), jac.T @ r)
 
 
-def parameter_floor(cand: Candidate) -> np.ndarray:
+def parameter_floor(cand: Candidate, x: np.ndarray | None = None) -> np.ndarray:
     """(p,) the model's own 1-sigma error in each of the candidate's parameters that no cycle count removes
-    (CHAIN_FLOOR; 0 where none is known)."""
-    return np.array([CHAIN_FLOOR.get((cand.effect, p), 0.0) for p in cand.params], dtype=np.float64)
+    (CHAIN_FLOOR; 0 where none is known), and at a fitted ``x`` (p,) the part that grows with its distance from the
+    no-effect value (CHAIN_REL x |x - x0|: the shaft line's bias in a stiffness far from the record's), in quadrature."""
+    floor = np.array([CHAIN_FLOOR.get((cand.effect, p), 0.0) for p in cand.params], dtype=np.float64)
+    if x is None:
+        return floor
+    rel = np.array([CHAIN_REL.get((cand.effect, p), 0.0) for p in cand.params], dtype=np.float64)
+    return np.hypot(floor, rel * np.abs(np.asarray(x, dtype=np.float64) - np.asarray(cand.x0, dtype=np.float64)))
 
 
 def parameter_sigma(jac: np.ndarray, n_cycles: int, cost: float, floor: np.ndarray,
@@ -204,7 +216,7 @@ def refine(lin: Linearised, model: EngineModel, ev: Evaluator) -> Trial:
         best = _along_main(lin, model, ev, best, (lin.x_gn, r_gn) if len(x0) == 1 else None)
     best_x, best_cost, best_r = best
     sigma = parameter_sigma(lin.jac, lin.idx.shape[0], best_cost, ev.floor, best_r, np.abs(best_x - x0),
-                            parameter_floor(cand))
+                            parameter_floor(cand, best_x))
     scale = best_cost / max(float(lin.r0 @ lin.r0), 1e-300)  # costs on the base's cycle count
     return Trial(cand, best_x, sigma, scale * lin.base_cost, lin.base_cost, ev.calls - calls)
 
@@ -283,7 +295,7 @@ def polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, f
     cost = float(min(r1 @ r1, r0 @ r0))
     kept = trial if better else t
     sigma = parameter_sigma(jac, train.n_cycles, cost, floor, r1 if better else r0, np.abs(kept.x - cand.x0),
-                            parameter_floor(cand), point_floors(train, scale))
+                            parameter_floor(cand, kept.x), point_floors(train, scale))
     for other in held:  # what the fit moves by when a held parameter is off by its sigma (first order)
         shifted = train_of(full(with_fit(other, kept)))
         runs += 1
@@ -315,6 +327,6 @@ def rank(trials: Sequence[Trial]) -> list[Trial]:
     return sorted(trials, key=lambda t: t.cost)
 
 
-__all__ = ["CHAIN_FLOOR", "Evaluator", "Linearised", "Trial", "linearise", "parameter_floor", "parameter_sigma",
+__all__ = ["CHAIN_FLOOR", "CHAIN_REL", "CHAIN_STIFFNESS_REL", "Evaluator", "Linearised", "Trial", "linearise", "parameter_floor", "parameter_sigma",
            "point_floors", "polish", "rank", "refine",
            "with_fit"]

@@ -280,6 +280,9 @@ def test_the_code_uses_the_recorded_numbers():
     assert features.FLOOR_RMS == (disc["FLOOR_RMS_SPEED"].value, disc["FLOOR_RMS_BALANCE"].value)
     if "EFFECT_REL_ERROR" in disc:
         assert fit.EFFECT_REL_ERROR == disc["EFFECT_REL_ERROR"].value
+    if "CHAIN_STIFFNESS_REL" in disc:  # bench/calibrate_chain_bias.py (design note 103)
+        assert fit.CHAIN_STIFFNESS_REL == disc["CHAIN_STIFFNESS_REL"].value
+        assert fit.CHAIN_REL[("chain_mismatch", "stiffness_scale")] == disc["CHAIN_STIFFNESS_REL"].value
     assert (pressure_channel.BLOW_BY_PER_LN, pressure_channel.BLOW_BY_REL, pressure_channel.BLOW_BY_FLOOR_LN) == (
         disc["BLOW_BY_PER_LN"].value, disc["BLOW_BY_REL"].value, disc["BLOW_BY_FLOOR_LN"].value)
     mon, alerts = read_tuned(MONITOR_RECORD), read_tuned(ALERT_RECORD)
