@@ -101,8 +101,8 @@ def balance_only(rest: dict) -> str:
             sigma = math.hypot(rest.get("balance_sigma_nm") or 0.0, rest.get("balance_floor_nm") or 0.0)
             cg = common_gain(bal, sigma, load, measured)
             if cg is not None:  # the commonest cause of that: one gain on every pressure sensor (design note 104)
-                said += (f" (as a gain common to every pressure sensor reads it: g = {cg['gain']:.4g} +- "
-                         f"{cg['sigma']:.2g}; {NOT_READ})")
+                said += (f" (as a gain common to every pressure sensor reads it: g = {cg['gain_low']:.4g} +- "
+                         f"{cg['sigma_low']:.2g} to {cg['gain_high']:.4g} +- {cg['sigma_high']:.2g}; {NOT_READ})")
                 return (said + "; a motored run (no load, no combustion) would tell friction from the readings, and "
                         f"{SEPARATION} a common pressure gain from friction")
     return said + "; a motored run (no load, no combustion) would tell friction from the readings"
