@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 
+from frictionwatch.core.discrepancy.common_gain import NOT_READ, SEPARATION, common_gain
+from frictionwatch.core.discrepancy.common_gain import said as said_common_gain
 from frictionwatch.core.discrepancy.features import GAP_NULL
 
 # what a log at one operating point cannot tell, said wherever nothing is named there (bench/bench_discrepancy.py
@@ -96,6 +98,13 @@ def balance_only(rest: dict) -> str:
         if math.isfinite(measured):
             said += (f", or the indicated work {100 * abs(bal) / (load + measured):.2g} % "
                      f"{'high' if bal > 0 else 'low'}")
+            sigma = math.hypot(rest.get("balance_sigma_nm") or 0.0, rest.get("balance_floor_nm") or 0.0)
+            cg = common_gain(bal, sigma, load, measured)
+            if cg is not None:  # the commonest cause of that: one gain on every pressure sensor (design note 104)
+                said += (f" (as a gain common to every pressure sensor reads it: g = {cg['gain_low']:.4g} +- "
+                         f"{cg['sigma_low']:.2g} to {cg['gain_high']:.4g} +- {cg['sigma_high']:.2g}; {NOT_READ})")
+                return (said + "; a motored run (no load, no combustion) would tell friction from the readings, and "
+                        f"{SEPARATION} a common pressure gain from friction")
     return said + "; a motored run (no load, no combustion) would tell friction from the readings"
 
 
@@ -161,6 +170,8 @@ def verdict(d) -> str:
     elif a:
         text += (f"; {' and '.join(a['candidates'])} explain the rest equally well and neither was added"
                  + (f": {'; or '.join(a['separated_by'])} would tell them apart" if a["separated_by"] else ""))
+    if a and a.get("common_gain"):  # an engine-wide friction excess: a common pressure gain reads as one (note 104)
+        text += "; or " + said_common_gain(a["common_gain"])
     if d.pair_not_taken:  # a TDC the pressure read beside the named effect or a rival, tried and not added (pair.py)
         text += f"; tried and not added: {d.pair_not_taken}"
     if d.refused:

@@ -57,6 +57,7 @@ from frictionwatch.core.discrepancy.choice import (
     unresolved,
     within_model_error,
 )
+from frictionwatch.core.discrepancy.common_gain import common_gain_of, engine_wide_friction
 from frictionwatch.core.discrepancy.discovery import Discovery, Options, Step
 from frictionwatch.core.discrepancy.features import (
     beyond_healthy_gap,
@@ -203,7 +204,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
                 found.step_limit_reached = step == opt.max_steps - 1
                 continue
             _said_ambiguous(found, beyond, [said_where(c.candidate, model.spec.n_cyl) for c in (t, other)],
-                            [c.separated_by for c in (t.candidate, other.candidate)], inside)
+                            [c.separated_by for c in (t.candidate, other.candidate)], inside,
+                            _gain_beside([t, other], loc))
             break
         own = beside_own_tdc(t, [c[1].candidate.label for c in confirmed[1:] if significant(c[3])], cur_res)
         as_well = None  # a pair that explains the held-out cycles as well as the friction alone (pair.py)
@@ -225,7 +227,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             break
         if not t.candidate.places_cylinder and model.spec.n_cyl > 1:  # explained, but the speed cannot say where
             _said_ambiguous(found, beyond, [said_where(t.candidate, model.spec.n_cyl)], [t.candidate.separated_by],
-                            inside)
+                            inside, _gain_beside([t], loc))
             break
         test_new = parts(res)[1]
         channel = ""  # the speed's step (Step.channel)
@@ -293,8 +295,15 @@ def _add_pair(found: Discovery, pair, test: Residuals, scale: np.ndarray, parts,
     return pair.model, pair_test, pair.res
 
 
+def _gain_beside(trials: list, loc: dict) -> dict | None:
+    """A gain common to every pressure sensor (common_gain), sized from the held-out residual ``loc`` the step
+    explains, where every one of ``trials`` is an engine-wide friction excess (common_gain.engine_wide_friction):
+    one more explanation of it, said beside them (design note 104); else None."""
+    return common_gain_of(loc) if all(engine_wide_friction(t.candidate) for t in trials) else None
+
+
 def _said_ambiguous(found: Discovery, beyond: bool, candidates: list[str], separated_by: list[str],
-                    inside: dict | None = None) -> None:
+                    inside: dict | None = None, gain: dict | None = None) -> None:
     """Two explanations (or one the speed cannot place) within the noise: an ambiguity where the residual they
     explain is beyond the null; where it is not, but the speed gap is far beyond a healthy log's (``inside``:
     features.healthy_gap), an ambiguity with the model's own error at those orders as one more explanation and the
@@ -305,6 +314,8 @@ def _said_ambiguous(found: Discovery, beyond: bool, candidates: list[str], separ
             separated_by = [within_floor_separation(inside), *separated_by]
         found.ambiguous = {"candidates": candidates, "separated_by": list(dict.fromkeys(x for x in separated_by if x)),
                            "inside_floor": inside}
+        if gain is not None:  # a common pressure gain explains an engine-wide friction excess too (common_gain)
+            found.ambiguous["common_gain"] = gain
     else:
         found.within_null_fits = candidates
 
