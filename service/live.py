@@ -66,6 +66,8 @@ class KeyedBatch:
 
     def __len__(self) -> int:  # the queue counts records (IngestQueue.discard)
         return len(self.records)
+
+
 LIVE_DRIVERS = ("frictionwatch.drivers.serial", "frictionwatch.drivers.can")  # sources that cannot wait for us
 # results after which the monitor is warm: past the TDC watch's first window (100 cycles) and its first fit, whose
 # kernels compile then (a cold `make run` dropped 2.6 s of the demo just after its first result with 1 here)
@@ -109,8 +111,8 @@ class LiveSession:
     log read as fast as possible: ``realtime`` False), until ``drain_until`` at the latest; holding the lock, a
     wait would hold every reader of the monitor's state with it.
     on_records : called on the ingest thread with each released batch of merged raw records (a list, in order; no
-    restart marks) and their keys (``record_key`` of each, the list beside it), before the pipeline sees them (cheap: keep references; exceptions are logged and counted). Once
-    a batch, not once a record: ~25 records a genset-v20 cycle (design notes 47).
+    restart marks) and their keys (``record_key`` of each, the list beside it), before the pipeline sees them
+    (cheap: keep references; exceptions are logged and counted). Once a batch, not once a record: ~25 records a genset-v20 cycle (design notes 47).
     on_read : called on a source's reader thread with (source name, the batch's newest key, monotonic time it was
     read) for each batch read (serve: its latency stamps, service/engine_service.py).
     before_ingest : called once on the ingest thread before its first record (exceptions logged and counted): what

@@ -34,7 +34,8 @@ SIGNIFICANT = 4.0  # a coherent figure is reported as significant above this man
 # monitor reads the shaft line's energy change from the flywheel's speed at one crank angle with a rigid J, and where
 # the speed still settles after a step that reading is off by a share of the term (maruti 1500 rpm after a step from
 # 4000: +0.34 N m against a mean kinetic term of -2.1, the truth's friction equal to the model's; design note 68).
-# Tuned on healthy two-point logs (bench.discrepancy_null --tune-kinetic --write; bench.discrepancy_balance_points.BALANCE_TUNE_SEEDS).
+# Tuned on healthy two-point logs (bench.discrepancy_null --tune-kinetic --write;
+# bench.discrepancy_balance_points.BALANCE_TUNE_SEEDS).
 # FLOOR_RMS (speed, balance): the rms healthy coherent residual as a fraction of those floors (a floor is a
 # threshold, the largest healthy residual x 1.5; a found parameter's sigma needs the typical model error). The
 # balance's was 0 until note 79: tuned when the balance's scatter hid its bias; after note 69 (3.3x less scatter) the

@@ -138,7 +138,8 @@ def _solve(jac: np.ndarray, r: np.ndarray) -> np.ndarray:
 def parameter_floor(cand: Candidate, x: np.ndarray | None = None) -> np.ndarray:
     """(p,) the model's own 1-sigma error in each of the candidate's parameters that no cycle count removes
     (CHAIN_FLOOR; 0 where none is known), and at a fitted ``x`` (p,) the part that grows with its distance from the
-    no-effect value (CHAIN_REL x |x - x0|: the shaft line's bias in a stiffness far from the record's), in quadrature."""
+    no-effect value (CHAIN_REL x |x - x0|: the shaft line's bias in a stiffness far from the record's), in
+    quadrature."""
     floor = np.array([CHAIN_FLOOR.get((cand.effect, p), 0.0) for p in cand.params], dtype=np.float64)
     if x is None:
         return floor
@@ -327,6 +328,7 @@ def rank(trials: Sequence[Trial]) -> list[Trial]:
     return sorted(trials, key=lambda t: t.cost)
 
 
-__all__ = ["CHAIN_FLOOR", "CHAIN_REL", "CHAIN_STIFFNESS_REL", "Evaluator", "Linearised", "Trial", "linearise", "parameter_floor", "parameter_sigma",
+__all__ = ["CHAIN_FLOOR", "CHAIN_REL", "CHAIN_STIFFNESS_REL", "Evaluator", "Linearised", "Trial", "linearise",
+           "parameter_floor", "parameter_sigma",
            "point_floors", "polish", "rank", "refine",
            "with_fit"]

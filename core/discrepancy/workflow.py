@@ -19,8 +19,8 @@ torque balance, beyond that channel's noise; TDC against the cylinders' pressure
 the bound of its range (the fit ran into the wall: not a physical value) or a sensor correction lies within what the
 pressure methods resolve, or any fit with every parameter within 2 sigma of none (its size not told from zero,
 on a residual no larger than a healthy log's or a louder one; a shaft-line fit's sigma with the line's own model
-error in it: choice.unresolved, choice.quiet_residual, fit.CHAIN_FLOOR), or -- on a residual no larger than a healthy log's --
-a fit whose held-out chi^2 with the model-error floor allowed for falls by less than ``min_delta_chi2``
+error in it: choice.unresolved, choice.quiet_residual, fit.CHAIN_FLOOR), or -- on a residual no larger than a
+healthy log's -- a fit whose held-out chi^2 with the model-error floor allowed for falls by less than ``min_delta_chi2``
 (choice.within_model_error: the model's own error, coherent, passes the plain test); the refusal and its reason
 are reported.
 Which trials are held out, when two are one explanation and why a step is refused: core.discrepancy.choice.
