@@ -112,7 +112,8 @@ class LiveSession:
     wait would hold every reader of the monitor's state with it.
     on_records : called on the ingest thread with each released batch of merged raw records (a list, in order; no
     restart marks) and their keys (``record_key`` of each, the list beside it), before the pipeline sees them
-    (cheap: keep references; exceptions are logged and counted). Once a batch, not once a record: ~25 records a genset-v20 cycle (design notes 47).
+    (cheap: keep references; exceptions are logged and counted). Once a batch, not once a record: ~25 records a
+    genset-v20 cycle (design notes 47).
     on_read : called on a source's reader thread with (source name, the batch's newest key, monotonic time it was
     read) for each batch read (serve: its latency stamps, service/engine_service.py).
     before_ingest : called once on the ingest thread before its first record (exceptions logged and counted): what

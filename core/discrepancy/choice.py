@@ -168,14 +168,14 @@ def unresolved(t: Trial, quiet: bool = False) -> str:
     and on three friction-law logs alike, speed gap 0.12-0.15 of a healthy log's; design note 50). (Where the
     residual was louder the held-out test decided until design note 101: k9k 3000 rpm seed 2, a Stribeck ring named
     at 1 +- 0.64, the matrix's truth on the law's bound; see the end.) Not dropped before the held-out test: dropped
-    there, the next fit of the same model error took its place (deutz 3000 rpm seed 2, speed^2 auxiliaries and a bearing law: a load ripple of 0.3 +- 0.2
-    N m and a Stribeck ring of 0.20 +- 0.07 named). A candidate whose sigma holds the model's own error in its
-    parameters (fit.parameter_floor: the shaft line's) is refused within 2 sigma of none, quiet or not: near a
-    resonance of the line its order is beyond the null on healthy logs (k9k 1800 rpm 0.6 seed 7, 84 cycles: order 2,
-    chain_mismatch 0.9927 +- 0.0009 without the floor; design note 53). And on a louder residual too, any effect
-    with every parameter within 2 sigma of none: a fit whose size its own sigma cannot tell from zero names nothing, whatever
-    the held-out chi^2 gains (design note 101: on seeds 1-6 such names were two wrong effects and two friction laws
-    counted right only because the matrix's truth sits on the bound of the law's share)."""
+    there, the next fit of the same model error took its place (deutz 3000 rpm seed 2, speed^2 auxiliaries and a bearing
+    law: a load ripple of 0.3 +- 0.2 N m and a Stribeck ring of 0.20 +- 0.07 named). A candidate whose sigma holds the
+    model's own error in its parameters (fit.parameter_floor: the shaft line's) is refused within 2 sigma of none, quiet
+    or not: near a resonance of the line its order is beyond the null on healthy logs (k9k 1800 rpm 0.6 seed 7, 84
+    cycles: order 2, chain_mismatch 0.9927 +- 0.0009 without the floor; design note 53). And on a louder residual too,
+    any effect with every parameter within 2 sigma of none: a fit whose size its own sigma cannot tell from zero names
+    nothing, whatever the held-out chi^2 gains (design note 101: on seeds 1-6 such names were two wrong effects and two
+    friction laws counted right only because the matrix's truth sits on the bound of the law's share)."""
     c = t.candidate
     for name, x, x0, sigma in zip(c.params, t.x, c.x0, t.sigma):
         floor = RESOLUTION.get((c.effect, name))
