@@ -316,14 +316,6 @@ class Pressure:
     long_run: tuple[float, float] = (1.0, 1.0)
 
 
-def _never(name: str, cylinder: int | None) -> bool:
-    return False
-
-
-def _always(name: str, cylinder: int | None) -> bool:
-    return True
-
-
 class _Every:
     """Holds every cylinder (what a rule used on its own is told the engine watches: ``Context.watching``)."""
 
@@ -347,22 +339,20 @@ class Context:
     """What the engine shares with its rules in one cycle. cyl_flags: each cylinder's flag kinds (z sets, the
     ``_cyl<k>`` stripped); engine_flags: the others; baseline_at_start: the baseline before this cycle's learning;
     baseline: after it (a rule may add to it, the friction references: the engine keeps it as the rules leave it);
-    pressure: the pressure statistics (None: no usable pressure this cycle); latched(name, cylinder): whether that
-    statistic's latch is raised (as the earlier stages of this cycle left it); watched(name, cylinder): whether the
-    engine keeps a latch or an open alert for that statistic. Where it does not, a Decision that is not on and a Hold
-    change nothing, and a rule may leave them out (the engine's default says True: a rule used on its own returns
-    all): with 20 cylinders and six rules most of a cycle's ~140 decisions were such, and making and applying them was
-    a third of the alert engine's time (design note 45). latching(name) / watching(name): the cylinders for which
-    ``latched`` / ``watched`` would say True, as one container a rule asks once a cycle rather than a call per
-    cylinder (the engine keeps them by name; ~110 calls a genset-v20 cycle before, design note 100)."""
+    pressure: the pressure statistics (None: no usable pressure this cycle); latching(name): the cylinders whose
+    latch for that statistic is raised (as the earlier stages of this cycle left it); watching(name): the cylinders
+    for which the engine keeps a latch or an open alert for that statistic. Where it keeps none, a Decision that is
+    not on and a Hold change nothing, and a rule may leave them out (the engine's default holds every cylinder: a
+    rule used on its own returns all): with 20 cylinders and six rules most of a cycle's ~140 decisions were such,
+    and making and applying them was a third of the alert engine's time (design note 45). Each is one container a
+    rule asks once a cycle, not a call per cylinder (the engine keeps them by name; ~110 calls a genset-v20 cycle
+    before, design note 100)."""
 
     cyl_flags: list[set[str]]
     engine_flags: set[str] = field(default_factory=set)
     baseline_at_start: Baseline | None = None
     baseline: Baseline | None = None
     pressure: Pressure | None = None
-    latched: Callable[[str, int | None], bool] = _never
-    watched: Callable[[str, int | None], bool] = _always
     latching: Callable[[str], Container[int | None]] = _none
     watching: Callable[[str], Container[int | None]] = _every
     _smoothed_status: tuple[CycleResult, FrictionStatus] | None = field(default=None, repr=False)

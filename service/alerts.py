@@ -177,9 +177,9 @@ class AlertEngine:
         self._open: dict[tuple[str, int | None], Alert] = {}
         self._history: list[Alert] = []
         self._latches: dict[tuple[str, int | None], Latch] = {}
-        # by rule name, the cylinders whose latch is raised and those with a latch or an open alert (``_latched`` /
-        # ``_watched`` of each): remade where a latch or an open alert comes or goes or a latch turns (``_reindex``:
-        # a few times a run), read by the rules once a cycle each (Context.latching / watching)
+        # by rule name, the cylinders whose latch is raised and those with a latch or an open alert: remade where a
+        # latch or an open alert comes or goes or a latch turns (``_reindex``: a few times a run), read by the rules
+        # once a cycle each (Context.latching / watching)
         self._latched_by: dict[str, frozenset[int | None]] = {}
         self._watched_by: dict[str, frozenset[int | None]] = {}
         self._ewma = np.zeros((len(INDICATORS), z))
@@ -294,8 +294,8 @@ class AlertEngine:
             (cyl_flags[cyl - 1] if cyl is not None and 1 <= cyl <= z else engine_flags).add(kind)
         at_start = self.baseline
         pressure = self._pressure(result, cyl_flags)  # learns the baseline where the cycle is healthy
-        ctx = Context(cyl_flags, engine_flags, at_start, self.baseline, pressure, self._latched, self._watched,
-                      latching=self._latching, watching=self._watching)
+        ctx = Context(cyl_flags, engine_flags, at_start, self.baseline, pressure, latching=self._latching,
+                      watching=self._watching)
         events: list[AlertEvent] = []
         for stage in self.rules:
             decisions = [(rule.name, d) for rule in stage for d in rule.update(result, ctx)]
@@ -392,10 +392,6 @@ class AlertEngine:
         return math.isfinite(ref)
 
     # ---- hysteresis and the alert records -----------------------------------------------------------------
-    def _watched(self, name: str, cylinder: int | None) -> bool:
-        key = (name, cylinder)
-        return key in self._latches or key in self._open
-
     def _watching(self, name: str) -> frozenset[int | None]:
         return self._watched_by.get(name, frozenset())
 
@@ -415,10 +411,6 @@ class AlertEngine:
         self._latched_by = {name: frozenset(c) for name, c in latched.items()}
         self._watched_by = {name: frozenset(c) for name, c in watched.items()}
 
-    def _latched(self, name: str, cylinder: int | None) -> bool:
-        latch = self._latches.get((name, cylinder))
-        return latch is not None and latch.active
-
     def _apply(self, name: str, d: Decision | Hold, result: CycleResult) -> list[AlertEvent]:
         """One statistic's hysteresis step (its key: the rule's name and the cylinder; one open alert per key, of
         the kind it was raised as)."""
@@ -432,22 +424,22 @@ class AlertEngine:
             if not d.on:  # a fresh latch stepped with nothing on stays fresh: none is kept until it counts
                 return []
             latch = self._latches[key] = Latch()
-            self._reindex()
+            self._reindex()  # a new latch: its cylinder is watched
         change = latch.step(bool(d.on), bool(d.off), d.k_on, d.k_off, int(result.index))
-        if change is not None:  # raised or cleared: the latch turned
-            self._reindex()
         if change == "raise":
             a = Alert(self._next_id, key[1], d.kind, d.severity, "active", int(result.index), float(result.t_start),
                       d.message, {**d.evidence, "first_evidence_cycle": latch.since}, rule=name)
             self._next_id += 1
             self._open[key] = a
-            self._reindex()
+            self._reindex()  # the latch turned and an alert opened: once for both
             return [AlertEvent("raised", _snapshot(a))]
         a = self._open.get(key)
+        if change == "clear":  # the latch turned (and its alert, where one is open, clears)
+            events = [] if a is None else [self._clear(key, int(result.index))]
+            self._reindex()
+            return events
         if a is None:
             return []
-        if change == "clear":
-            return [self._clear(key, int(result.index))]
         a.evidence.update(d.evidence)
         a.message = d.message
         if _rank(d.severity) > _rank(a.severity):  # escalate, never de-escalate while open (no flapping)
@@ -456,8 +448,7 @@ class AlertEngine:
         return []
 
     def _clear(self, key: tuple, cycle: int) -> AlertEvent:
-        a = self._open.pop(key)
-        self._reindex()
+        a = self._open.pop(key)  # (its callers remake the rules' index, _reindex, once for all they clear)
         a.state, a.cleared_cycle = "cleared", cycle
         self._history.append(a)
         del self._history[:-self.config.max_history]
