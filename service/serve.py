@@ -223,20 +223,22 @@ def run(args: argparse.Namespace) -> int:
 
 def batch_scheduling() -> bool:
     """Run the calling thread, and every thread it starts from now on, under Linux's SCHED_BATCH; False where the
-    platform has no such policy or refuses it (serve then runs as before).
+    platform has no such policy, refuses it, or the process was started under another policy than the default
+    (``chrt``: the operator's choice stays).
 
     Why (design note 107): serve is one process of many Python threads on few cores (per engine a reader and an
     ingest thread, the listeners, the API). Under the default policy a thread that wakes (a reader's 40 ms pacing,
-    a queue hand-over, the API state's next event) preempts the one running, mid-cycle; the monitor's numpy calls
-    drop the GIL ~14 times a genset-v20 cycle, so the thread that woke takes it there. A batch thread that wakes
-    waits for the running one's time slice instead. Measured (8 looped demo gensets on one core, load 8-11): per
-    monitor call 16 -> 8.5 voluntary and 6.5 -> 2.2 involuntary context switches, every part of serve cheaper in
-    CPU a cycle (monitor 4.2-4.3 -> 3.8-3.9 ms, readers 1.56-1.75 -> 1.17-1.31, all in 8.9-9.2 -> 7.8-8.1). The
-    price: a thread that wakes runs up to one time slice (a few ms) later; a request to the API likewise."""
+    a queue hand-over, the API state's next event) preempts the one running, mid-cycle; a batch thread that wakes
+    waits for the running one's time slice instead. Measured (8 looped demo gensets on one core, a shared box at
+    load 8-13): per monitor call 16 -> 8.5 voluntary and 6.5 -> 2.2 involuntary context switches, and every part of
+    serve cheaper a cycle (base/this: the monitor 1.06-1.17, the readers 1.14-1.33, all in 1.06-1.15). The price:
+    a thread that wakes runs up to one time slice (a few ms) later, a request to the API likewise."""
     setter, policy = getattr(os, "sched_setscheduler", None), getattr(os, "SCHED_BATCH", None)
     if setter is None or policy is None:
         return False
     try:
+        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+            return False
         setter(0, policy, os.sched_param(0))  # 0: this thread (Linux); threads started after it inherit the policy
     except OSError as exc:  # a container's seccomp profile may refuse it: serve runs as before
         log.info("serve: SCHED_BATCH refused (%s); threads keep the default policy", exc)
