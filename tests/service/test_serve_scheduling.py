@@ -1,7 +1,7 @@
 """serve's threads under Linux's SCHED_BATCH (service/serve.py ``batch_scheduling``, design note 107): the calling
-thread and the threads it starts after; a process started under another policy keeps it. Each case in a fresh
-interpreter, so the test process's own scheduling is left as it was. (The served process's threads:
-test_serve_process.)"""
+thread and the threads it starts within the block, the default policy back after it (an in-process caller keeps its
+own); a thread started under another policy keeps it. Each case in a fresh interpreter, so the test process's own
+scheduling is left as it was. (The served process's threads: test_serve_process.)"""
 
 from __future__ import annotations
 
@@ -19,14 +19,12 @@ import json, os, sys, threading
 from frictionwatch.service.serve import batch_scheduling
 if sys.argv[1] != "default":
     os.sched_setscheduler(0, getattr(os, sys.argv[1]), os.sched_param(0))
-before = []
-t = threading.Thread(target=lambda: before.append(os.sched_getscheduler(0)))  # made before: starts after
-done = batch_scheduling()
-t.start(); t.join()
-after = []
-u = threading.Thread(target=lambda: after.append(os.sched_getscheduler(0)))
-u.start(); u.join()
-print(json.dumps([done, os.sched_getscheduler(0), before[0], after[0]]))
+inside = []
+with batch_scheduling() as done:
+    t = threading.Thread(target=lambda: inside.append(os.sched_getscheduler(0)))
+    t.start(); t.join()
+    caller = os.sched_getscheduler(0)
+print(json.dumps([done, caller, inside[0], os.sched_getscheduler(0)]))
 """
 
 
@@ -35,8 +33,8 @@ def run_case(start: str) -> list:
     return json.loads(out.splitlines()[-1])
 
 
-def test_batch_for_the_caller_and_the_threads_it_starts() -> None:
-    assert run_case("default") == [True, os.SCHED_BATCH, os.SCHED_BATCH, os.SCHED_BATCH]
+def test_batch_for_the_caller_and_the_threads_it_starts_then_the_default_back() -> None:
+    assert run_case("default") == [True, os.SCHED_BATCH, os.SCHED_BATCH, os.SCHED_OTHER]
 
 
 def test_a_policy_chosen_at_the_start_is_kept() -> None:
