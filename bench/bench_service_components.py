@@ -4,7 +4,8 @@ core, with CPU timers (``time.thread_time``, each exclusive of the timed calls i
 (core's ``CyclePipeline.process``), the assembler, the alert engine, the fan-out, the listeners, the record merge,
 the queue and the replay reader; what a thread spends outside them is its ``rest``. After the first results and
 ``--settle`` s, the totals over ``--seconds`` s per cycle analysed, with each thread's CPU from /proc (named by
-``py-spy dump``; one a dump did not name is ``python``).
+``py-spy dump``; one a dump did not name is ``python``) and each thread's context switches (voluntary,
+involuntary) per cycle analysed (design note 107: serve's threads preempting one another).
 
     .venv/bin/python -m bench.bench_service_components --engines 8 --py-spy /tmp/spyenv/bin/py-spy
     .venv/bin/python -m bench.bench_service_components --checkout ../base --engines 8 ...  # another checkout's serve
@@ -101,7 +102,7 @@ def measure(args) -> dict:
     import httpx
 
     from bench.bench_service_plant import CYCLE_REVS, launched
-    from bench.bench_service_threads import processed, ready, thread_cpu, thread_names
+    from bench.bench_service_threads import processed, ready, thread_cpu, thread_names, thread_switches
 
     checkout = Path(args.checkout).resolve()
     live = tempfile.mktemp(prefix="fw-components-", suffix=".json")
@@ -117,8 +118,10 @@ def measure(args) -> dict:
                 time.sleep(1.0)
             time.sleep(args.settle)
             s0, cpu0, n0, w0 = json.loads(Path(live).read_text()), thread_cpu(proc.pid), processed(client), time.monotonic()
+            sw0 = thread_switches(proc.pid)
             time.sleep(args.seconds)
             s1, cpu1, n1, w1 = json.loads(Path(live).read_text()), thread_cpu(proc.pid), processed(client), time.monotonic()
+            sw1 = thread_switches(proc.pid)
             rpm = [client.get(f"/api/v1/engines/{e}/cycles/latest").json()["rpm_mean"] for e in engines]
         names = thread_names(proc.pid, args.py_spy)
     finally:
@@ -129,6 +132,11 @@ def measure(args) -> dict:
     for tid, s in cpu1.items():
         by_thread[names.get(tid, "python")] += s - cpu0.get(tid, 0.0)
     cycles = n1 - n0
+    switches: defaultdict[str, list[float]] = defaultdict(lambda: [0.0, 0.0])  # (voluntary, involuntary) a cycle
+    for tid, (v, i) in sw1.items():
+        v0, i0 = sw0.get(tid, (0, 0))
+        switches[names.get(tid, "python")][0] += (v - v0) / cycles
+        switches[names.get(tid, "python")][1] += (i - i0) / cycles
     ms = {k: 1e3 * (v - s0["total"].get(k, 0.0)) / cycles for k, v in s1["total"].items()}
     threads = {k: 1e3 * v / cycles for k, v in by_thread.items()}
     inline = sum(v for k, v in ms.items() if k.startswith("listener")) if "listener-api-state" not in threads else 0.0
@@ -143,6 +151,7 @@ def measure(args) -> dict:
             "listeners_inline": "listener-api-state" not in threads,
             "threads_ms_per_cycle": {k: round(v, 3) for k, v in sorted(threads.items(), key=lambda kv: -kv[1])},
             "components_ms_per_cycle": {k: round(v, 3) for k, v in sorted({**ms, **rest}.items())},
+            "switches_per_cycle": {k: [round(v, 2), round(i, 2)] for k, (v, i) in sorted(switches.items())},
             "timed_calls_per_cycle": {k: round((v - s0["calls"].get(k, 0)) / cycles, 2)
                                       for k, v in sorted(s1["calls"].items())},
             "loadavg": os.getloadavg()}

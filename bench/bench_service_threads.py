@@ -44,6 +44,22 @@ def thread_cpu(pid: int) -> dict[str, float]:
     return out
 
 
+def thread_switches(pid: int) -> dict[str, tuple[int, int]]:
+    """(voluntary, involuntary) context switches of each live thread of ``pid`` so far, by tid: a thread that
+    blocks (a lock, the GIL held by another) switches voluntarily; one preempted (another woke) involuntarily."""
+    out = {}
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        try:
+            text = Path(f"/proc/{pid}/task/{tid}/status").read_text()
+        except OSError:  # the thread ended meanwhile
+            continue
+        vol = re.search(r"^voluntary_ctxt_switches:\s+(\d+)", text, re.M)
+        inv = re.search(r"^nonvoluntary_ctxt_switches:\s+(\d+)", text, re.M)
+        if vol and inv:
+            out[tid] = (int(vol[1]), int(inv[1]))
+    return out
+
+
 def thread_names(pid: int, py_spy: str | None) -> dict[str, str]:
     """tid -> Python thread name (the engine folded to ``*``), from ``py-spy dump``; {} without py-spy."""
     if not py_spy:

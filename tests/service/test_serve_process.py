@@ -76,6 +76,14 @@ def test_serve_process_end_to_end(server) -> None:
         doc = losses.json()
         assert len(doc["cylinders"]) == 20 and doc["cycle_index"] >= 0
         assert {c["status"] for c in doc["cylinders"]} <= {"measured", "share", "prior", "unresolved", "withheld"}
+        if hasattr(os, "SCHED_BATCH"):  # every thread of serve, engines' included, under SCHED_BATCH (design note 107)
+            policies = {}
+            for tid in os.listdir(f"/proc/{server.pid}/task"):
+                try:
+                    policies[tid] = os.sched_getscheduler(int(tid))
+                except ProcessLookupError:  # a worker thread that ended meanwhile
+                    continue
+            assert len(policies) >= 4 and set(policies.values()) == {os.SCHED_BATCH}, policies
         assert client.post("/api/v1/engines/genset-v20/baseline").status_code == 401
         assert client.post("/api/v1/engines/genset-v20/baseline",  # no alert layer in this build: 404, with the token
                            headers={"Authorization": f"Bearer {token}"}).status_code in (200, 404)
