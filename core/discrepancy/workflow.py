@@ -46,6 +46,7 @@ from frictionwatch.core.discrepancy.choice import (
     chi2_floored,
     close_cylinders,
     nested,
+    not_fitted,
     off_physics,
     one_per_candidate,
     pressure_worse,
@@ -235,6 +236,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         floored_fall = chi2_floored(test, scale, floor) - chi2_floored(test_new, scale, floor)
         why = (channel_worse(test, test_new, scale) or pressure_worse(pressure(current), pressure(new_model),
                                                                         model.spec.n_cyl) or off_physics(t)
+               or not_fitted(t)
                or unresolved(t, quiet) or within_model_error(quiet and opt.floored_when_quiet, floored_fall,
                                                               opt.min_delta_chi2))
         if not why:  # a friction law on a log of several points: the balance across them must agree (note 62)
