@@ -69,7 +69,7 @@ from frictionwatch.core.discrepancy.features import (
     noise_scale,
 )
 from frictionwatch.core.discrepancy.fit import Evaluator, linearise, polish, refine, with_fit
-from frictionwatch.core.discrepancy.pair import beside_own_tdc, said_alone, said_pair, tdc_and_friction
+from frictionwatch.core.discrepancy.pair import beside_own_tdc, said_alone, said_pair, tdc_and_friction, wheel_or_pair
 from frictionwatch.core.discrepancy.pressure_channel import (
     pressure_findings,
     pressure_seeds,
@@ -215,6 +215,19 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
                 current, cur_res, [(t, res)], full, parts, scale, floor, pressure, load_nm, opt.min_delta_chi2,
                 significant, cylinder=own)
             runs += spent
+            if pair is not None:
+                current, test, cur_res = _add_pair(found, pair, test, scale, parts, model.spec)
+                found.step_limit_reached = step == opt.max_steps - 1
+                continue
+        if other is None:  # the whole wheel's TDC where the pressure reads one cylinder's (pair.wheel_or_pair)
+            pair, as_well_wheel, spent, why_not = wheel_or_pair(
+                (t, new_model, res), [(c[1], c[3]) for c in confirmed[1:]], current, cur_res, full, parts, scale,
+                floor, pressure, load_nm, opt.min_delta_chi2, significant)
+            runs, found.pair_not_taken = runs + spent, why_not or found.pair_not_taken
+            if pair is not None and as_well_wheel:
+                _said_ambiguous(found, True, [said_alone(t), said_pair(pair)],
+                                [t.candidate.separated_by, pair.trial.candidate.separated_by])
+                break
             if pair is not None:
                 current, test, cur_res = _add_pair(found, pair, test, scale, parts, model.spec)
                 found.step_limit_reached = step == opt.max_steps - 1
