@@ -16,14 +16,14 @@ its held-out gain is significant: the held-out coherent chi^2 falls by at least 
 sqrt(2 F) ~ 10 for F ~ 50 features) and the gap by at least ``min_reduction``. A significant step is still refused,
 and the model left as it was, when it makes a channel worse on the held-out cycles (the flywheel speed or the mean
 torque balance, beyond that channel's noise; TDC against the cylinders' pressure) or when a fitted parameter ends on
-the bound of its range (the fit ran into the wall: not a physical value) or a sensor correction lies within what the
-pressure methods resolve, or any fit with every parameter within 2 sigma of none (its size not told from zero,
+the bound of its range (the fit ran into the wall: not a physical value) or at one of its declared start points (it
+did not move: choice.not_fitted), or a sensor correction lies within what the pressure methods resolve, or any fit with every parameter within 2 sigma of none (its size not told from zero,
 on a residual no larger than a healthy log's or a louder one; a shaft-line fit's sigma with the line's own model
 error in it: choice.unresolved, choice.quiet_residual, fit.CHAIN_FLOOR), or -- on a residual no larger than a
 healthy log's -- a fit whose held-out chi^2 with the model-error floor allowed for falls by less than ``min_delta_chi2``
 (choice.within_model_error: the model's own error, coherent, passes the plain test); the refusal and its reason
-are reported.
-Which trials are held out, when two are one explanation and why a step is refused: core.discrepancy.choice.
+are reported. A whole wheel's TDC where the pressure reads one cylinder's is weighed against that TDC with a friction
+(pair.wheel_or_pair). Which trials are held out, when two are one explanation and why a step is refused: core.discrepancy.choice.
 
 The outcome says which of three it is: ``named`` (effects added), ``nothing`` (nothing significant before or after)
 or ``unexplained`` (a coherent residual remains that no candidate explains: significant engine orders or a
