@@ -241,20 +241,25 @@ def tdc_and_friction(current: EngineModel, cur_res: Residuals, rivals: list[tupl
 
 
 def wheel_not_read(t: Trial, res: Residuals) -> int | None:
-    """The cylinder whose own TDC offset the pressure reads beyond SEED_SIGMAS and SEED_MIN_DEG in the current
-    model's run ``res`` (the clearest, tdc_beyond) where the step's one explanation ``t`` is the whole wheel's TDC
-    (cylinder 0) and the pressure reads no offset common to the wheel (its median cylinder within its noise); else
-    None. A whole-wheel offset moves every cylinder's indicated work, so it can stand in for one cylinder's TDC with
-    a friction elsewhere (maruti 1500/0.5 s6: TDC 1.5 deg on 2 and a worn ring on 3 named the wheel at 1.30 +- 0.028,
-    the pressure reading -0.14, +1.55, +0.02 +- 0.70-0.82 deg; cylinder 2's TDC alone fitted 2.66 deg and explained
-    the held-out cycles much worse, the pair was never tried; design note 106)."""
+    """The cylinder whose own TDC offset the pressure reads clearest (|offset| / sigma) in the current model's run
+    ``res``, off by more than SEED_MIN_DEG however few of its sigmas (as ``beside_own_tdc`` asks), where the step's one
+    explanation ``t`` is the whole wheel's TDC (cylinder 0) and the pressure reads no offset common to the wheel (its
+    median cylinder within SEED_SIGMAS: tdc_beyond); else None. A whole-wheel offset moves every cylinder's indicated
+    work, so it can stand in for one cylinder's TDC with a friction elsewhere (maruti 1500/0.5 s6: TDC 1.5 deg on 2
+    and a worn ring on 3 named the wheel at 1.30 +- 0.028, the pressure reading -0.14, +1.55, +0.02 +- 0.70-0.82
+    deg; cylinder 2's TDC alone fitted 2.66 deg and explained the held-out cycles much worse, and the pair was never
+    tried; design note 106)."""
     c = t.candidate
-    if c.effect != "tdc_offset" or c.cylinder != 0:
+    if c.effect != "tdc_offset" or c.cylinder != 0 or res.tdc_deg is None or res.tdc_deg.size < 2:
         return None
-    beyond = tdc_beyond(res, SEED_SIGMAS, SEED_MIN_DEG)
-    if not beyond or any(k == 0 for k, _, _ in beyond):
+    if any(k == 0 for k, _, _ in tdc_beyond(res, SEED_SIGMAS, SEED_MIN_DEG)):
         return None
-    return max(beyond, key=lambda s: abs(s[1]) / s[2])[0]
+    ok = np.isfinite(res.tdc_deg) & np.isfinite(res.tdc_sigma_deg) & (res.tdc_sigma_deg > 0)
+    off = ok & (np.abs(np.where(ok, res.tdc_deg, 0.0)) > SEED_MIN_DEG)
+    if not np.any(off):
+        return None
+    clearest = np.where(off, np.abs(np.where(ok, res.tdc_deg, 0.0)) / np.where(ok, res.tdc_sigma_deg, 1.0), -1.0)
+    return int(np.argmax(clearest)) + 1
 
 
 def wheel_or_pair(wheel: tuple[Trial, EngineModel, Residuals], others: list[tuple[Trial, Residuals]],
@@ -269,10 +274,11 @@ def wheel_or_pair(wheel: tuple[Trial, EngineModel, Residuals], others: list[tupl
     ambiguity, nothing added), the monitor runs spent and why the pair was not taken ('' when it was or was as
     good)."""
     rivals = [(t, r) for t, r in others if t.candidate.effect != "tdc_offset" and significant(r)][:2]
-    if wheel_not_read(wheel[0], cur_res) is None or not rivals:
+    k = wheel_not_read(wheel[0], cur_res)
+    if k is None or not rivals:
         return None, False, 0, ""
     pair, runs, why, _ = tdc_and_friction(current, cur_res, rivals, full, parts, scale, floor, pressure, load_nm,
-                                          min_delta, significant)
+                                          min_delta, significant, cylinder=k)
     if pair is None:
         return None, False, runs, why
     t, model, res = wheel

@@ -1,8 +1,8 @@
 """The whole wheel's TDC against one cylinder's TDC with a friction beside it (issue 27; design note 106): where the
-step's one explanation is the wheel's TDC and the pressure reads no common offset but one cylinder's own beyond its
-seed threshold, the pair (that TDC as the pressure reads it, the step's other explanations refitted beside it) is
-tried and weighed against the wheel on the held-out cycles (maruti 1500/0.5 s6: TDC 1.5 deg on cylinder 2 and a worn
-ring on 3 named the wheel at 1.30 +- 0.028 deg)."""
+step's one explanation is the wheel's TDC and the pressure reads no common offset but one cylinder's own off by more
+than SEED_MIN_DEG (however few of its sigmas), the pair (that TDC as the pressure reads it, the step's other
+explanations refitted beside it) is tried and weighed against the wheel on the held-out cycles (maruti 1500/0.5 s6:
+TDC 1.5 deg on cylinder 2 and a worn ring on 3 named the wheel at 1.30 +- 0.028 deg)."""
 
 from __future__ import annotations
 
@@ -38,7 +38,9 @@ def test_the_wheel_is_questioned_only_where_the_pressure_reads_one_cylinder_and_
     assert wheel_not_read(wheel, S6) == 2
     assert wheel_not_read(two, S6) is None  # a cylinder's TDC: nothing to question here
     assert wheel_not_read(wheel, _read([1.4, 1.6, 1.5], [0.5, 0.5, 0.5])) is None  # every cylinder off: the wheel
-    assert wheel_not_read(wheel, _read([0.1, 1.2, 0.0], [0.8, 0.7, 0.7])) is None  # 1.7 sigma: under the seed's 2
+    assert wheel_not_read(wheel, _read([0.1, 1.2, 0.0], [0.8, 0.7, 0.7])) == 2  # 1.7 sigma: read however small
+    assert wheel_not_read(wheel, _read([0.6, -0.9, 0.0], [0.4, 0.7, 0.7])) == 1  # the clearest, not the largest
+    assert wheel_not_read(wheel, _read([0.1, 0.15, -0.1], [0.8, 0.7, 0.7])) is None  # none off by SEED_MIN_DEG
 
 
 def test_the_pair_against_the_wheel_named_said_or_left(monkeypatch):
