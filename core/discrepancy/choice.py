@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from frictionwatch.core.discrepancy.candidates import Candidate
 from frictionwatch.core.discrepancy.features import balance_residual, beyond_null, coherent_terms, order_table
-from frictionwatch.core.discrepancy.fit import Trial, parameter_floor
+from frictionwatch.core.discrepancy.fit import Trial, at_start, parameter_floor
 from frictionwatch.core.discrepancy.residuals import Residuals
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig
 
@@ -139,6 +139,17 @@ def off_physics(t: Trial) -> str:
     return ""
 
 
+def not_fitted(t: Trial) -> str:
+    """'' unless the trial ends exactly at one of its candidate's declared start points (``fit.at_start``): neither
+    the refinement from there (fit._from_start) nor the polish moved it, so its value is where the fit began, not
+    what the log says; then why, in words (the step is refused: design note 106; k9k 2000/0.5 seed 31, the chain 70 %
+    stiffer, was named at the start point 0.75 before the refinement fitted from its start points)."""
+    if t.candidate.toggle or not at_start(t.candidate, t.x):
+        return ""
+    said = ", ".join(f"{n} {float(x):.4g}" for n, x in zip(t.candidate.params, t.x))
+    return f"it stopped at its start point ({said}): the fit did not move from where it began, so nothing was fitted"
+
+
 def unphysical(t: Trial, load_torque: float) -> str:
     """'' when the trial's fitted values (with their sigma) can be its effect's physics at a mean load torque of
     ``load_torque`` [N m] (``Effect.unphysical``); else why not: such a fit is some other torque than the effect's,
@@ -250,5 +261,5 @@ def chi2_floored(res: Residuals, scale: np.ndarray, floor: np.ndarray) -> float:
 
 
 __all__ = ["AMBIGUOUS_DCHI2", "MAX_CLOSE_CYLINDERS", "RESOLUTION", "WORSE_SIGMAS", "best_of_shapes", "channel_worse", "chi2", "chi2_floored",
-           "close_cylinders", "nested", "off_physics", "one_per_candidate", "pressure_worse", "quiet_residual", "rival", "said_where", "to_confirm",
+           "close_cylinders", "nested", "not_fitted", "off_physics", "one_per_candidate", "pressure_worse", "quiet_residual", "rival", "said_where", "to_confirm",
            "unphysical", "unresolved", "within_model_error"]

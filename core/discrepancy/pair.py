@@ -240,6 +240,55 @@ def tdc_and_friction(current: EngineModel, cur_res: Residuals, rivals: list[tupl
             None)
 
 
+def wheel_not_read(t: Trial, res: Residuals) -> int | None:
+    """The cylinder whose own TDC offset the pressure reads clearest (|offset| / sigma) in the current model's run
+    ``res``, off by more than SEED_MIN_DEG however few of its sigmas (as ``beside_own_tdc`` asks), where the step's one
+    explanation ``t`` is the whole wheel's TDC (cylinder 0) and the pressure reads no offset common to the wheel (its
+    median cylinder within SEED_SIGMAS: tdc_beyond); else None. A whole-wheel offset moves every cylinder's indicated
+    work, so it can stand in for one cylinder's TDC with a friction elsewhere (maruti 1500/0.5 s6: TDC 1.5 deg on 2
+    and a worn ring on 3 named the wheel at 1.30 +- 0.028, the pressure reading -0.14, +1.55, +0.02 +- 0.70-0.82
+    deg; cylinder 2's TDC alone fitted 2.66 deg and explained the held-out cycles much worse, and the pair was never
+    tried; design note 106)."""
+    c = t.candidate
+    if c.effect != "tdc_offset" or c.cylinder != 0 or res.tdc_deg is None or res.tdc_deg.size < 2:
+        return None
+    if any(k == 0 for k, _, _ in tdc_beyond(res, SEED_SIGMAS, SEED_MIN_DEG)):
+        return None
+    ok = np.isfinite(res.tdc_deg) & np.isfinite(res.tdc_sigma_deg) & (res.tdc_sigma_deg > 0)
+    off = ok & (np.abs(np.where(ok, res.tdc_deg, 0.0)) > SEED_MIN_DEG)
+    if not np.any(off):
+        return None
+    clearest = np.where(off, np.abs(np.where(ok, res.tdc_deg, 0.0)) / np.where(ok, res.tdc_sigma_deg, 1.0), -1.0)
+    return int(np.argmax(clearest)) + 1
+
+
+def wheel_or_pair(wheel: tuple[Trial, EngineModel, Residuals], others: list[tuple[Trial, Residuals]],
+                     current: EngineModel, cur_res: Residuals, full, parts, scale: np.ndarray, floor: np.ndarray,
+                     pressure: Callable[[EngineModel], float], load_nm: float, min_delta: float,
+                     significant: Callable[[Residuals], bool]) -> tuple[Pair | None, bool, int, str]:
+    """Where ``wheel_not_read`` (else nothing is tried): the pair of the cylinder's TDC as the pressure reads it and the
+    best two significant non-TDC explanations of the step (``others``: trials with their whole-log runs) refitted beside
+    it (``tdc_and_friction``, its own tests), against the whole wheel (``wheel``: trial, model, run) on the held-out
+    cycles with the model's own error allowed for and the pressure's chi^2 (choice.rival's measure). Returns the pair
+    (None: the wheel stands), whether it only explains them as well as the wheel (within AMBIGUOUS_DCHI2: an ambiguity,
+    nothing added), the monitor runs spent and why the pair was not taken ('' when it was or was as good)."""
+    rivals = [(t, r) for t, r in others if t.candidate.effect != "tdc_offset" and significant(r)][:2]
+    k = wheel_not_read(wheel[0], cur_res)
+    if k is None or not rivals:
+        return None, False, 0, ""
+    pair, runs, why, _ = tdc_and_friction(current, cur_res, rivals, full, parts, scale, floor, pressure, load_nm,
+                                          min_delta, significant, cylinder=k)
+    if pair is None:
+        return None, False, runs, why
+    t, model, res = wheel
+    held_out = chi2_floored(parts(pair.res)[1], scale, floor) + pressure(pair.model)
+    against = chi2_floored(parts(res)[1], scale, floor) + pressure(model)
+    if held_out > against + AMBIGUOUS_DCHI2:
+        return None, False, runs, (f"tdc_offset[cyl {pair.tdc.cylinder}] with {pair.trial.candidate.label}: held-out "
+                                   f"chi^2 {held_out:.4g} against the whole wheel's {against:.4g}")
+    return pair, held_out > against - AMBIGUOUS_DCHI2, runs, ""
+
+
 def reads_otherwise(single: Trial, paired: Trial) -> bool:
     """Whether the friction refitted beside the TDC (``paired``) contradicts what the friction alone (``single``)
     claims: another candidate (effect or cylinder), or a parameter beyond 2 of the single's sigma from the single's
@@ -269,4 +318,4 @@ def said_pair(pair: Pair) -> str:
 
 
 __all__ = ["POLISHED", "Pair", "beside_own_tdc", "own_tdc_reading", "reads_otherwise", "said_alone", "said_pair",
-           "sensor_correction", "tdc_and_friction"]
+           "sensor_correction", "tdc_and_friction", "wheel_not_read", "wheel_or_pair"]

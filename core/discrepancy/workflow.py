@@ -12,18 +12,19 @@ beyond its reading's sigma, a misfiring cylinder: core.discrepancy.pressure_chan
 linearises every candidate of the library on top of the current model, refines the ``refine`` best by predicted cost
 and the best of each of the first ``confirm`` shapes, re-runs the best of each of those shapes over the whole log,
 takes one more Gauss-Newton step for the best of them on all training cycles (its sigma from there), and adds it if
-its held-out gain is significant: the held-out coherent chi^2 falls by at least ``min_delta_chi2`` (its noise under no effect is about
-sqrt(2 F) ~ 10 for F ~ 50 features) and the gap by at least ``min_reduction``. A significant step is still refused,
-and the model left as it was, when it makes a channel worse on the held-out cycles (the flywheel speed or the mean
-torque balance, beyond that channel's noise; TDC against the cylinders' pressure) or when a fitted parameter ends on
-the bound of its range (the fit ran into the wall: not a physical value) or a sensor correction lies within what the
-pressure methods resolve, or any fit with every parameter within 2 sigma of none (its size not told from zero,
-on a residual no larger than a healthy log's or a louder one; a shaft-line fit's sigma with the line's own model
-error in it: choice.unresolved, choice.quiet_residual, fit.CHAIN_FLOOR), or -- on a residual no larger than a
-healthy log's -- a fit whose held-out chi^2 with the model-error floor allowed for falls by less than ``min_delta_chi2``
-(choice.within_model_error: the model's own error, coherent, passes the plain test); the refusal and its reason
-are reported.
-Which trials are held out, when two are one explanation and why a step is refused: core.discrepancy.choice.
+its held-out gain is significant: the held-out coherent chi^2 falls by at least ``min_delta_chi2`` (its noise under no
+effect is about sqrt(2 F) ~ 10 for F ~ 50 features) and the gap by at least ``min_reduction``. A significant step is
+still refused, and the model left as it was, when it makes a channel worse on the held-out cycles (the flywheel speed or
+the mean torque balance, beyond that channel's noise; TDC against the cylinders' pressure) or when a fitted parameter
+ends on the bound of its range (the fit ran into the wall: not a physical value) or at one of its declared start points
+(it did not move: choice.not_fitted), or a sensor correction lies within what the pressure methods resolve, or any fit
+with every parameter within 2 sigma of none (its size not told from zero, on a residual no larger than a healthy log's
+or a louder one; a shaft-line fit's sigma with the line's own model error in it: choice.unresolved,
+choice.quiet_residual, fit.CHAIN_FLOOR), or -- on a residual no larger than a healthy log's -- a fit whose held-out
+chi^2 with the model-error floor allowed for falls by less than ``min_delta_chi2`` (choice.within_model_error: the
+model's own error, coherent, passes the plain test); the refusal and its reason are reported. A whole wheel's TDC where
+the pressure reads one cylinder's is weighed against that TDC with a friction (pair.wheel_or_pair). Which trials are
+held out, when two are one explanation and why a step is refused: core.discrepancy.choice.
 
 The outcome says which of three it is: ``named`` (effects added), ``nothing`` (nothing significant before or after)
 or ``unexplained`` (a coherent residual remains that no candidate explains: significant engine orders or a
@@ -46,6 +47,7 @@ from frictionwatch.core.discrepancy.choice import (
     chi2_floored,
     close_cylinders,
     nested,
+    not_fitted,
     off_physics,
     one_per_candidate,
     pressure_worse,
@@ -68,7 +70,7 @@ from frictionwatch.core.discrepancy.features import (
     noise_scale,
 )
 from frictionwatch.core.discrepancy.fit import Evaluator, linearise, polish, refine, with_fit
-from frictionwatch.core.discrepancy.pair import beside_own_tdc, said_alone, said_pair, tdc_and_friction
+from frictionwatch.core.discrepancy.pair import beside_own_tdc, said_alone, said_pair, tdc_and_friction, wheel_or_pair
 from frictionwatch.core.discrepancy.pressure_channel import (
     pressure_findings,
     pressure_seeds,
@@ -218,6 +220,19 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
                 current, test, cur_res = _add_pair(found, pair, test, scale, parts, model.spec)
                 found.step_limit_reached = step == opt.max_steps - 1
                 continue
+        if other is None:  # the whole wheel's TDC where the pressure reads one cylinder's (pair.wheel_or_pair)
+            pair, as_well_wheel, spent, why_not = wheel_or_pair(
+                (t, new_model, res), [(c[1], c[3]) for c in confirmed[1:]], current, cur_res, full, parts, scale,
+                floor, pressure, load_nm, opt.min_delta_chi2, significant)
+            runs, found.pair_not_taken = runs + spent, why_not or found.pair_not_taken
+            if pair is not None and as_well_wheel:
+                _said_ambiguous(found, True, [said_alone(t), said_pair(pair)],
+                                [t.candidate.separated_by, pair.trial.candidate.separated_by])
+                break
+            if pair is not None:
+                current, test, cur_res = _add_pair(found, pair, test, scale, parts, model.spec)
+                found.step_limit_reached = step == opt.max_steps - 1
+                continue
         if significant(res):  # polished only if significant as it stands, and kept only if still significant
             t, new_model, res, extra = polish(t, current, new_model, res, full, lambda r: parts(r)[0], scale, floor,
                                               [moved_by_sigma(current, f) for f in found.held])
@@ -235,6 +250,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         floored_fall = chi2_floored(test, scale, floor) - chi2_floored(test_new, scale, floor)
         why = (channel_worse(test, test_new, scale) or pressure_worse(pressure(current), pressure(new_model),
                                                                         model.spec.n_cyl) or off_physics(t)
+               or not_fitted(t)
                or unresolved(t, quiet) or within_model_error(quiet and opt.floored_when_quiet, floored_fall,
                                                               opt.min_delta_chi2))
         if not why:  # a friction law on a log of several points: the balance across them must agree (note 62)
