@@ -38,7 +38,14 @@ import numba
 import numpy as np
 import rocket_fft  # noqa: F401  (registers numpy.fft for numba; must be imported before a cached kernel loads)
 from frictionwatch.core.model.chain import static_twist_kernel
-from frictionwatch.core.model.dynamics import Receptance, ShaftModel, dissipation_kernel, receptance, shaft_model
+from frictionwatch.core.model.dynamics import (
+    Receptance,
+    ShaftModel,
+    dissipation_kernel,
+    free_modes,
+    receptance,
+    shaft_model,
+)
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.balance.excitation import Excitation, cylinder_record
 from frictionwatch.core.monitor.balance.harmonic_balance_kernels import (
@@ -286,6 +293,7 @@ class OperatingPoint:
     cylinders: CylinderRecord
     mix: MixPlan
     load_ripple: KnownLoadRipple | None = None  # the model's known load ripple at this load (None: none)
+    modes: np.ndarray | None = None  # the chain's free-vibration eigenvalues (core.model.dynamics.free_modes)
 
 
 def operating_point(spec: EngineSpec, op: OperatingPoint | None, omega: float, load: float, m: int,
@@ -312,7 +320,7 @@ def operating_point(spec: EngineSpec, op: OperatingPoint | None, omega: float, l
     return OperatingPoint(omega, load if load_ok else 0.0, shaft, rec, transfer, layout, bool(variable_inertia), chain,
                           cylinder_record(spec, shaft.recip_inertia_mean, variable_inertia),
                           mix_plan(layout.group, layout.prior, spec.cylinder_node, layout.n_params),
-                          known_load_ripple(load_ripple, load, spec.load_node))
+                          known_load_ripple(load_ripple, load, spec.load_node), free_modes(shaft))
 
 
 @dataclass(frozen=True)
