@@ -286,8 +286,11 @@ def main() -> None:
                     "instead of taking it as a random effect (MonitorConfig fit_drift, drift_nuisance off; note 42)")
     ap.add_argument("--drift-scale", type=float, default=1.0, help="the drift random effect's prior variance x this "
                     "(bench only: how much of the offset the drift's stated size decides; note 105)")
+    ap.add_argument("--free-response-carry", type=float, default=None, help="MonitorConfig free_response_carry (0: "
+                    "the chain's free response left in the rows, the default; 0.1: its slow modes projected out; note 105)")
     ap.add_argument("--free-modes", default="", help="the chain's modes (Hz, comma list: the nearest of its "
-                    "eigenvalues) whose free response each cycle's flywheel rows have projected out (note 105)")
+                    "eigenvalues) whose free response each cycle's flywheel rows have projected out, beside the "
+                    "monitor's own (with --free-response-carry 0: these alone; note 105)")
     args = ap.parse_args()
     drift = DriftSeen(args.drift_scale)
     drift.install()
@@ -303,6 +306,8 @@ def main() -> None:
     cfg = MonitorConfig(variable_inertia="variable_inertia" not in args.without.split(","))
     if args.fit_drift:
         cfg = replace(cfg, fit_drift=True, drift_nuisance=False)
+    if args.free_response_carry is not None:
+        cfg = replace(cfg, free_response_carry=args.free_response_carry)
     if args.free_modes:
         lams = drive_train_modes(plant_engine(args.grid_scale), [float(f) for f in args.free_modes.split(",")])
         print("modes", [(round(abs(x) / (2 * np.pi), 2), round(-x.real / abs(x), 3)) for x in lams])

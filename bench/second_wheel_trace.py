@@ -156,7 +156,7 @@ def cmd_trace(args) -> None:
     pull = {} if args.pull_kappa is None else {"pull_check": PullCheck(kappa=args.pull_kappa)}
     # the accumulated equations' window in cycles (bench only; default the product's, forgetting_factor)
     window = {} if not args.forgetting_cycles else {"forgetting": 1.0 - 1.0 / args.forgetting_cycles}
-    # the carried modes' free response (None: the product's cut; 0: kept in the rows, as before; design note 105)
+    # the carried modes' free response (None: the product's, off; 0.1: projected out; design note 105)
     response = {} if args.free_response_carry is None else {"free_response_carry": args.free_response_carry}
     pipes = {n: EnginePipeline(spec, log.info if n != "one_wheel" else replace(log.info, second_wheel=None),
                                replace(VARIANTS[n], **pull, **window, **response)) for n in names}
@@ -307,8 +307,8 @@ def main() -> None:
     t.add_argument("--forgetting-cycles", type=float, default=0.0,
                    help="the accumulated equations' window N (forgetting 1 - 1/N; 0: the product's)")
     t.add_argument("--free-response-carry", type=float, default=None,
-                   help="MonitorConfig free_response_carry (0: the chain's free response left in the rows, as before "
-                   "note 105; default the product's)")
+                   help="MonitorConfig free_response_carry (default the product's: 0, the chain's free response left "
+                   "in the rows; 0.1: its slow modes projected out; note 105)")
     t.add_argument("--start-cycle", type=int, default=0,
                    help="start the monitor fresh at about this cycle of the log (a steady stretch alone; note 41)")
     u = sub.add_parser("summary")

@@ -23,7 +23,7 @@ targets (a random effect of unbounded variance, as ``fit_drift`` does for the dr
 what those two columns could explain; they keep what is orthogonal to them.
 
 ``carried_modes`` chooses the modes: Im lambda at most the highest fitted harmonic's frequency and |e^(lambda T)| >=
-``carry`` (MonitorConfig.free_response_carry). One kernel (``free_response_kernel``), its numpy reference
+``carry`` (MonitorConfig.free_response_carry; 0, off, by default: note 105). One kernel (``free_response_kernel``), its numpy reference
 ``free_response_reference``.
 """
 
