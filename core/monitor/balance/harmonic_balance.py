@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import NamedTuple
 
 import numba
@@ -293,7 +294,11 @@ class OperatingPoint:
     cylinders: CylinderRecord
     mix: MixPlan
     load_ripple: KnownLoadRipple | None = None  # the model's known load ripple at this load (None: none)
-    modes: np.ndarray | None = None  # the chain's free-vibration eigenvalues (core.model.dynamics.free_modes)
+
+    @cached_property
+    def modes(self) -> np.ndarray:
+        """The chain's free-vibration eigenvalues (core.model.dynamics.free_modes), formed when first asked."""
+        return free_modes(self.shaft)
 
 
 def operating_point(spec: EngineSpec, op: OperatingPoint | None, omega: float, load: float, m: int,
@@ -320,7 +325,7 @@ def operating_point(spec: EngineSpec, op: OperatingPoint | None, omega: float, l
     return OperatingPoint(omega, load if load_ok else 0.0, shaft, rec, transfer, layout, bool(variable_inertia), chain,
                           cylinder_record(spec, shaft.recip_inertia_mean, variable_inertia),
                           mix_plan(layout.group, layout.prior, spec.cylinder_node, layout.n_params),
-                          known_load_ripple(load_ripple, load, spec.load_node), free_modes(shaft))
+                          known_load_ripple(load_ripple, load, spec.load_node))
 
 
 @dataclass(frozen=True)
