@@ -287,7 +287,8 @@ def main() -> None:
     ap.add_argument("--drift-scale", type=float, default=1.0, help="the drift random effect's prior variance x this "
                     "(bench only: how much of the offset the drift's stated size decides; note 105)")
     ap.add_argument("--free-response-carry", type=float, default=None, help="MonitorConfig free_response_carry (0: "
-                    "the chain's free response left in the rows, the default; 0.1: its slow modes projected out; note 105)")
+                    "the chain's free response left in the rows; 0.1, the default: its slow modes a random effect; "
+                    "notes 105, 108)")
     ap.add_argument("--free-modes", default="", help="the chain's modes (Hz, comma list: the nearest of its "
                     "eigenvalues) whose free response each cycle's flywheel rows have projected out, beside the "
                     "monitor's own (with --free-response-carry 0: these alone; note 105)")

@@ -307,8 +307,8 @@ def main() -> None:
     t.add_argument("--forgetting-cycles", type=float, default=0.0,
                    help="the accumulated equations' window N (forgetting 1 - 1/N; 0: the product's)")
     t.add_argument("--free-response-carry", type=float, default=None,
-                   help="MonitorConfig free_response_carry (default the product's: 0, the chain's free response left "
-                   "in the rows; 0.1: its slow modes projected out; note 105)")
+                   help="MonitorConfig free_response_carry (default the product's: 0.1, the chain's slow modes' free "
+                   "response a random effect of the data's variance; 0: left in the rows; notes 105, 108)")
     t.add_argument("--start-cycle", type=int, default=0,
                    help="start the monitor fresh at about this cycle of the log (a steady stretch alone; note 41)")
     u = sub.add_parser("summary")

@@ -11,8 +11,8 @@ from frictionwatch.core.model.dynamics import free_modes, shaft_model
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.monitor.identify.free_response import (
     carried_modes,
-    free_response_columns,
     coefficient_moments,
+    free_response_columns,
     free_response_kernel,
     free_response_reference,
     free_response_variance,
