@@ -269,6 +269,16 @@ def project_free_response(lams: np.ndarray) -> None:
     identification.whitened_rows = projected
 
 
+def free_response_seen(stats) -> dict:
+    """The carried modes' free-response statistics (note 108): per mode the EWMA coefficient^2, its noise part and
+    the prior variance they give (empty when no mode is carried)."""
+    if stats.free_coef_sq is None:
+        return {}
+    return {"free_coef_sq": [float(f"{v:.3g}") for v in stats.free_coef_sq],
+            "free_noise": [float(f"{v:.3g}") for v in stats.free_noise],
+            "free_var": [float(f"{v:.3g}") for v in np.maximum(stats.free_coef_sq - stats.free_noise, 0.0)]}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("log")
@@ -327,7 +337,8 @@ def main() -> None:
             if n % args.every == 0:
                 idx = o.index + offset
                 truth = truth_all[max(0, idx + 1 - TRUTH_WINDOW):idx + 1].mean(axis=0)
-                out.append({"cycles": idx + 1, **checkpoint(tap, truth, args.cylinder - 1, sums), **drift.summary()})
+                out.append({"cycles": idx + 1, **checkpoint(tap, truth, args.cylinder - 1, sums), **drift.summary(),
+                            **free_response_seen(pipe.state.stats)})
                 print(json.dumps({k: round(v, 2) if isinstance(v, float) else v for k, v in out[-1].items()}),
                       flush=True)
         if args.cycles and n >= args.cycles:
