@@ -279,6 +279,19 @@ def free_response_seen(stats) -> dict:
             "free_var": [float(f"{v:.3g}") for v in np.maximum(stats.free_coef_sq - stats.free_noise, 0.0)]}
 
 
+def free_response_raw_moment() -> None:
+    """Each carried mode's prior variance the EWMA of its coefficient^2 itself, the noise part not subtracted (an
+    upper bound: a mean free response counted as variance; bench only, note 108)."""
+    from frictionwatch.core.monitor.identify import free_response
+    inner = free_response.free_response_variance
+
+    def raw(prev, coef_sq, noise, memory):
+        stats, _ = inner(prev, coef_sq, noise, memory)
+        return stats, stats.free_coef_sq
+
+    free_response.free_response_variance = raw
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("log")
@@ -302,7 +315,11 @@ def main() -> None:
     ap.add_argument("--free-modes", default="", help="the chain's modes (Hz, comma list: the nearest of its "
                     "eigenvalues) whose free response each cycle's flywheel rows have projected out, beside the "
                     "monitor's own (with --free-response-carry 0: these alone; note 105)")
+    ap.add_argument("--free-raw-moment", action="store_true", help="the carried modes' prior variance their "
+                    "coefficient's mean square, the noise part not subtracted (note 108)")
     args = ap.parse_args()
+    if args.free_raw_moment:
+        free_response_raw_moment()
     drift = DriftSeen(args.drift_scale)
     drift.install()
     log_path = Path(args.log)
