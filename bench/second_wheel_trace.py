@@ -156,8 +156,10 @@ def cmd_trace(args) -> None:
     pull = {} if args.pull_kappa is None else {"pull_check": PullCheck(kappa=args.pull_kappa)}
     # the accumulated equations' window in cycles (bench only; default the product's, forgetting_factor)
     window = {} if not args.forgetting_cycles else {"forgetting": 1.0 - 1.0 / args.forgetting_cycles}
+    # the carried modes' free response (None: the product's, off; 0.1: projected out; design note 105)
+    response = {} if args.free_response_carry is None else {"free_response_carry": args.free_response_carry}
     pipes = {n: EnginePipeline(spec, log.info if n != "one_wheel" else replace(log.info, second_wheel=None),
-                               replace(VARIANTS[n], **pull, **window)) for n in names}
+                               replace(VARIANTS[n], **pull, **window, **response)) for n in names}
     taps = {n: None for n in names}
     last = {n: None for n in names}
     counts = {n: 0 for n in names}
@@ -304,6 +306,9 @@ def main() -> None:
                    help="the pull check's kappa (inf: off; default the tuned one, core/monitor/tuned.json)")
     t.add_argument("--forgetting-cycles", type=float, default=0.0,
                    help="the accumulated equations' window N (forgetting 1 - 1/N; 0: the product's)")
+    t.add_argument("--free-response-carry", type=float, default=None,
+                   help="MonitorConfig free_response_carry (default the product's: 0.1, the chain's slow modes' free "
+                   "response a random effect of the data's variance; 0: left in the rows; notes 105, 108)")
     t.add_argument("--start-cycle", type=int, default=0,
                    help="start the monitor fresh at about this cycle of the log (a steady stretch alone; note 41)")
     u = sub.add_parser("summary")

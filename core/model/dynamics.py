@@ -94,6 +94,18 @@ def natural_frequencies(shaft: ShaftModel) -> np.ndarray:
     return np.sqrt(np.clip(lam, 0.0, None)) / (2.0 * np.pi)
 
 
+def free_modes(shaft: ShaftModel) -> np.ndarray:
+    """The chain's damped free-vibration eigenvalues lambda [1/s] with Im lambda > 0 (one of each oscillating
+    pair), ascending in |lambda|: its free motion is a sum of Re(c e^(lambda t)). Overdamped (real) modes and the
+    rigid mode are left out."""
+    n = shaft.n_nodes
+    m = shaft.mass[:, None]
+    state = np.block([[np.zeros((n, n)), np.eye(n)], [-shaft.stiffness / m, -shaft.damping / m]])
+    lam = np.linalg.eigvals(state)
+    lam = lam[lam.imag > 1e-9 * np.maximum(np.abs(lam), 1.0)]
+    return np.ascontiguousarray(lam[np.argsort(np.abs(lam))], dtype=np.complex128)
+
+
 def first_flexible_mode_hz(shaft: ShaftModel, min_hz: float = 5.0) -> float:
     """The lowest natural frequency above ``min_hz`` (skips the rigid and grid electromechanical modes); inf if rigid."""
     f = natural_frequencies(shaft)

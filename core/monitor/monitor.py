@@ -216,7 +216,8 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
             wheel2 = replace(wheel2, stats=stats2)
         else:
             free_rows = no_free_end_rows(m, state.params.shape[0], cfg.second_wheel_max_order)
-    ident = identify_cycle(cfg, spec, state, fly, rows, exc, pmax, mean, drift_var, free_rows)
+    ident = identify_cycle(cfg, spec, state, fly, rows, exc, pmax, mean, drift_var, free_rows,
+                           op_used.modes if cfg.free_response_carry > 0.0 else None)
     # the checks in order, each seeing the identification the one before left (sigmas inflated by the sensors'
     # uncertainty, the accumulator discounted after a change) and filling its fields of the result
     node = op_used.cylinders.node

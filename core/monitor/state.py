@@ -97,6 +97,12 @@ class MonitorConfig:
     sibling_spread: float = 0.15
     parameter_sigma: float = 1.0
     model_rel_error: float = 0.003
+    # the chain's modes whose free response keeps at least this much of its amplitude over one cycle are a random
+    # effect of each cycle's speed rows, of the prior variance the data give (core.monitor.identify.free_response;
+    # 0: none). A physical cut, not tuned on the figures: genset-v20 at 1500 rpm carries 0.74 (2.4 Hz) and 0.32
+    # (19.6 Hz), its next in-band mode 0.002 (87 Hz; those above the band are left out), so any value in
+    # 0.003-0.3 takes the same two; maruti-3cyl's 39.5 Hz mode keeps 0.44 at 5400 rpm (design notes 105, 108)
+    free_response_carry: float = 0.1
     balance_rel_error: float = 0.001
     coupling_rel_error: float = 0.1
     load_rel_error: float = 5e-4

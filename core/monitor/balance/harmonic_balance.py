@@ -32,13 +32,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import NamedTuple
 
 import numba
 import numpy as np
 import rocket_fft  # noqa: F401  (registers numpy.fft for numba; must be imported before a cached kernel loads)
 from frictionwatch.core.model.chain import static_twist_kernel
-from frictionwatch.core.model.dynamics import Receptance, ShaftModel, dissipation_kernel, receptance, shaft_model
+from frictionwatch.core.model.dynamics import (
+    Receptance,
+    ShaftModel,
+    dissipation_kernel,
+    free_modes,
+    receptance,
+    shaft_model,
+)
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.balance.excitation import Excitation, cylinder_record
 from frictionwatch.core.monitor.balance.harmonic_balance_kernels import (
@@ -286,6 +294,11 @@ class OperatingPoint:
     cylinders: CylinderRecord
     mix: MixPlan
     load_ripple: KnownLoadRipple | None = None  # the model's known load ripple at this load (None: none)
+
+    @cached_property
+    def modes(self) -> np.ndarray:
+        """The chain's free-vibration eigenvalues (core.model.dynamics.free_modes), formed when first asked."""
+        return free_modes(self.shaft)
 
 
 def operating_point(spec: EngineSpec, op: OperatingPoint | None, omega: float, load: float, m: int,

@@ -26,6 +26,7 @@ from frictionwatch.core.monitor.identify.estimate import (
     ReportLimits,
     reported_estimate,
 )
+from frictionwatch.core.monitor.identify.free_response import without_free_response
 from frictionwatch.core.monitor.identify.noise_model import NoiseSettings, ResidualStats, whitened_rows
 from frictionwatch.core.monitor.identify.parameters import (
     CycleRows,
@@ -129,16 +130,20 @@ def forgetting_factor(cfg: MonitorConfig, n_cyl: int, period_s: float = float("n
 
 def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fly: FlywheelMotion, rows: CycleRows,
                    exc: Excitation, pmax: np.ndarray, mean: MeanBalance, drift_var: float,
-                   free_rows: tuple | None = None) -> Identification:
+                   free_rows: tuple | None = None, modes: np.ndarray | None = None) -> Identification:
     """One cycle's identification; ``state`` is the monitor's state before the cycle (not changed). ``free_rows``:
     a second wheel's whitened rows (a, y, inv_sigma, sys_var; core.monitor.identify.noise_model), accumulated with
-    the flywheel's (the joint fit of both wheels), before the mean-balance row."""
+    the flywheel's (the joint fit of both wheels), before the mean-balance row. ``modes``: the chain's free-vibration
+    eigenvalues (OperatingPoint.modes): those carried over a cycle have their free response a random effect of the
+    flywheel's rows (core.monitor.identify.free_response; None: none)."""
     lam = forgetting_factor(cfg, spec.n_cyl, fly.period)
     sys_balance = ((cfg.balance_rel_error * mean.indicated) ** 2 + (cfg.coupling_rel_error * mean.coupling_loss) ** 2
                    + (cfg.load_rel_error * spec.rated_torque_nm) ** 2)
     noise = NoiseSettings(memory=cfg.noise_memory, model_rel_error=cfg.model_rel_error,
                           use_drift=cfg.drift_nuisance, sys_balance=sys_balance)
     white = whitened_rows(noise, state.stats, fly, rows, state.params, mean.friction, mean.indicated, drift_var)
+    white = without_free_response(white, state.stats, state.params, modes, fly.period, cfg.free_response_carry,
+                                  drift_var if noise.use_drift else 0.0, cfg.noise_memory)
     if free_rows is not None:  # both wheels: the free end's rows between the flywheel's and the mean balance
         a2, y2, inv2, sys2 = free_rows
         white = replace(white, a=np.concatenate([white.a[:-1], a2, white.a[-1:]]),

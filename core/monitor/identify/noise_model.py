@@ -52,6 +52,11 @@ class ResidualStats:
     balance_mean: float
     balance_var: float
     count: int
+    # the carried modes' free response (core.monitor.identify.free_response; None: none carried): per mode the EWMA
+    # of each cycle's GLS coefficient squared and of its noise, their difference the mode's prior variance
+    free_coef_sq: np.ndarray | None = None
+    free_noise: np.ndarray | None = None
+    free_count: int = 0
 
     @staticmethod
     def empty(n_harmonics: int) -> ResidualStats:
