@@ -30,7 +30,8 @@ per mode: a small eigenproblem on their span). A mode that rings strongly (s lar
 ``free_response_design`` (the modes, their columns, whitened; ``free_response_design_reference``),
 ``free_response_moments`` (the coefficients' moments by one SVD; ``coefficient_moments``) and
 ``free_response_kernel`` (the rows whitened again; ``free_response_reference``); the EWMA between them is plain
-Python (two vector updates). As numpy calls the same work cost ~1.4 ms a genset-v20 cycle (design note 111).
+Python (two vector updates). As numpy calls the same work cost ~1-1.7 ms a cycle on a loaded box, now ~0.3
+ms (design note 111).
 """
 
 from __future__ import annotations
