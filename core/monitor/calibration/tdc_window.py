@@ -29,20 +29,20 @@ What is flagged (flags ``sensor_tdc_offset`` for the wheel, ``sensor_tdc_offset_
   0.5 deg drift from cycle 300 read +0.40 to +0.44; bench/sensor_drift.py).
 A flag holds until a window says otherwise. Three or more cylinders are needed for a cylinder's own flag.
 
-A large engine's cylinders take turns after the first window, which on a commissioned model fits all (below), so a cylinder's TDC was fitted up to z / CYLINDERS_PER_WINDOW windows
-ago (genset-v20: 500 cycles; a 0.5 deg drift from cycle 300 went unfitted to cycle 599, a wheel slip was judged on a
-median of mostly old estimates to cycle 599 and meanwhile named the freshly fitted cylinders). So every window also
-screens the cylinders out of turn: the shift of its mean compression stroke against the cylinder's trace at its
-last fit (``screen_shift``, the static twist's change added back), and a cylinder that moved by more than
-``SCREEN_DEG`` is fitted in this window too; one that moved less keeps its last fit moved by the screen's shift, so
-every estimate refers to the newest window (a wheel slipping mid-window, half of it in the window, screened some
-cylinders and not others: the stale ones beside the fresh read as own offsets, genset-v20 cylinder 15 flagged).
-The screen costs a small least-squares solve per cylinder; a screen that fires costs a fit, never a flag. Where
-the screens of most cylinders fire at once (the wheel moved), every cylinder is fitted: a screen is a trigger, and
-reads a shift short (its scale column and the shift are nearly collinear over the compression stroke). A second
-trigger (``own_drift``) sums each cylinder's shift against the last window's trace, without a scale column, less
-the median of all cylinders' (a load change's charge pressure reads as a shift alike on every cylinder), from its
-last fit on: one cylinder's step fires it in the window it shows in.
+A large engine's cylinders take turns after the first window, which on a commissioned model fits all (below), so a
+cylinder's TDC was fitted up to z / CYLINDERS_PER_WINDOW windows ago (genset-v20: 500 cycles; a 0.5 deg drift from cycle
+300 went unfitted to cycle 599, a wheel slip was judged on a median of mostly old estimates to cycle 599 and meanwhile
+named the freshly fitted cylinders). So every window also screens the cylinders out of turn: the shift of its mean
+compression stroke against the cylinder's trace at its last fit (``screen_shift``, the static twist's change added
+back), and a cylinder that moved by more than ``SCREEN_DEG`` is fitted in this window too; one that moved less keeps its
+last fit moved by the screen's shift, so every estimate refers to the newest window (a wheel slipping mid-window, half
+of it in the window, screened some cylinders and not others: the stale ones beside the fresh read as own offsets,
+genset-v20 cylinder 15 flagged). The screen costs a small least-squares solve per cylinder; a screen that fires costs a
+fit, never a flag. Where the screens of most cylinders fire at once (the wheel moved), every cylinder is fitted: a
+screen is a trigger, and reads a shift short (its scale column and the shift are nearly collinear over the compression
+stroke). A second trigger (``own_drift``) sums each cylinder's shift against the last window's trace, without a scale
+column, less the median of all cylinders' (a load change's charge pressure reads as a shift alike on every cylinder),
+from its last fit on: one cylinder's step fires it in the window it shows in.
 
 The static twist of the drive train (the monitor's model of it, MonitorState.static) puts a loaded throw ahead of the
 flywheel the pressure is sampled against: its thermodynamic TDC reads early by that twist (healthy k9k at full load:
@@ -80,8 +80,8 @@ SCREEN_BEFORE_SOC_DEG = 10.0
 
 def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle: np.ndarray | None = None,
                  per_window: int = CYLINDERS_PER_WINDOW) -> TdcWatchState:
-    """The window's fits and flags on what ``state`` has gathered (the pipeline's TdcWatch stage calls it when a window is full;
-    a run that ends mid-window may call it to read what it has): a new state, the sums started again. ``angle``
+    """The window's fits and flags on what ``state`` has gathered (the pipeline's TdcWatch stage calls it when a window
+    is full; a run that ends mid-window may call it to read what it has): a new state, the sums started again. ``angle``
     the traces' local angle (None: the state's cut's). Fewer than BLOCKS pairs gathered: ``state`` as it is."""
     if state.sums is None or state.cycles < BLOCKS:
         return state

@@ -236,10 +236,11 @@ def free_response_moments(dw, a, y, params):
 
 
 def coefficient_moments(dw: np.ndarray, resid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(``free_response_moments``' numpy reference.) One cycle's GLS free-response coefficients on its whitened residual ``resid`` (2M,) (the rows at the
-    previous estimate): per mode (q,) the mean square of its two coefficients and the part of it the noise gives,
-    (D^T D)^+ scaled by what the residual has left after them (its mean square per degree of freedom: the rows'
-    variance already holds the free response, so a whitened row's noise is below 1 where it is large)."""
+    """(``free_response_moments``' numpy reference.) One cycle's GLS free-response coefficients on its whitened residual
+    ``resid`` (2M,) (the rows at the previous estimate): per mode (q,) the mean square of its two coefficients and the
+    part of it the noise gives, (D^T D)^+ scaled by what the residual has left after them (its mean square per degree of
+    freedom: the rows' variance already holds the free response, so a whitened row's noise is below 1 where it is
+    large)."""
     b, _, rank, _ = np.linalg.lstsq(dw, resid, rcond=None)
     dof = max(dw.shape[0] - rank, 1)
     scale = float(np.sum((resid - dw @ b) ** 2)) / dof
