@@ -8,10 +8,11 @@ compiled with ``KERNEL_SIGNATURE``: ``kernel(samples (N_FIELDS, z, n), consts (N
                             extra_friction effect, one coefficient (its reference torque T_ref)
 
 The extra-friction shape carries the effect's own numbers (m, a, order, phase, cylinder), so its kernel is compiled per
-set of numbers by ``extra_friction_term``; numba compiles such a closure eagerly (with the common signature, ~0.3 s)
-and cannot cache it on disk. The compiled kernels are kept per set of numbers in this process (``_shape_kernel``, a
-bounded memo): the discrepancy workflow asks for the same shapes again and again (every candidate's sizing asks
-twice, and its linearisation's unit directions recur in every fit), which cost it ~28 % of a healthy k9k run.
+set of numbers by ``extra_friction_term``; numba compiles such a closure eagerly (with the common signature, ~0.2 s
+on a quiet box) and cannot cache it on disk. The compiled kernels are kept per set of numbers in this process
+(``_shape_kernel``, a bounded memo): the discrepancy workflow asks for the same shapes again and again (every
+candidate's sizing asks twice, and its linearisation's unit directions recur in every fit), which cost it ~28 % of a
+healthy k9k run (cProfile, load ~6).
 """
 
 from __future__ import annotations
