@@ -11,7 +11,7 @@ flexibility off is one rigid node with the whole inertia, every cylinder, the fl
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
@@ -96,6 +96,15 @@ def mean_reciprocating_inertia(spec: EngineSpec, samples: int = 2880) -> float:
     th = np.linspace(0.0, 4.0 * np.pi, samples, endpoint=False)
     _, dx, _ = kinematics(th, spec.kinematics_params())
     return float(spec.reciprocating_mass * np.mean(dx * dx))
+
+
+def scaled_flywheel(spec: EngineSpec, scale: float) -> EngineSpec:
+    """``spec`` with its flywheel node's rotating inertia x ``scale`` (a flywheel, pulley or coupling the record has
+    wrong; core.model.effects.mismatch.FlywheelInertia). On a one-node record the flywheel node is the whole crank:
+    its inertia is scaled."""
+    inertia = spec.node_inertia.astype(np.float64).copy()
+    inertia[spec.flywheel_node] *= scale
+    return replace(spec, node_inertia=inertia)
 
 
 def drive_train(spec: EngineSpec, flexible: bool = True) -> DriveTrain:

@@ -1,0 +1,68 @@
+"""The flywheel's inertia off the engine record as an effect a model can hold (design note 109): the plant runs the
+record with the flywheel node's inertia scaled, the monitor's view scales the same node, and the workflow's library
+offers it as one free parameter on a flexible and on a rigid shaft line."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from frictionwatch.core.discrepancy.candidates import candidate_library
+from frictionwatch.core.model.effects import make_effect
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.model.engine_model import EngineModel
+from frictionwatch.core.model.view import monitor_view
+from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.core.types import ToothBatch
+
+
+def _heavier(spec, scale):
+    inertia = spec.node_inertia.astype(float).copy()
+    inertia[spec.flywheel_node] *= scale
+    return dataclasses.replace(spec, node_inertia=inertia)
+
+
+def _ticks(sim) -> np.ndarray:
+    """The crank wheel's edges of a simulated log (the flywheel speed the monitor reads)."""
+    return np.concatenate([r.ticks for r in sim.records if isinstance(r, ToothBatch)])
+
+
+def test_the_plant_hook_runs_the_record_with_the_flywheel_scaled():
+    """The effect's plant (ChainSetup.flywheel_inertia_scale) is the record edited, tick for tick (note 101's
+    "flywheel +5 % (not in library)" plant), and differs from the record as written."""
+    spec = load_engine("maruti-3cyl")
+    edited = simulate(_heavier(spec, 1.05), 4000.0, 0.8, 4, 3)
+    hooked = simulate(spec, 4000.0, 0.8, 4, 3, effects=[make_effect("flywheel_inertia", {"inertia_scale": 1.05})])
+    plain = simulate(spec, 4000.0, 0.8, 4, 3)
+    a, b, c = _ticks(edited), _ticks(hooked), _ticks(plain)
+    assert a.size > 100
+    np.testing.assert_array_equal(a, b)
+    assert np.max(np.abs(a - c)) > 0
+
+
+def test_the_view_scales_the_flywheel_node_on_a_flexible_and_a_rigid_line():
+    k9k = load_engine("k9k-4cyl")
+    effect = make_effect("flywheel_inertia", {"inertia_scale": 0.92})
+    view = monitor_view(EngineModel.from_spec(k9k, effects=[effect]), None)
+    ratio = view.spec.node_inertia / k9k.node_inertia
+    expected = np.ones(k9k.node_inertia.size)
+    expected[k9k.flywheel_node] = 0.92
+    np.testing.assert_allclose(ratio, expected, rtol=1e-12)
+    np.testing.assert_allclose(view.spec.stiffness, k9k.stiffness, rtol=1e-12)  # the line's stiffness as written
+    # a rigid view sums the nodes after the flywheel's was scaled: the whole inertia less 8 % of the flywheel's
+    rigid = monitor_view(EngineModel.from_spec(k9k, effects=[effect], without={"torsional_flexibility"}), None)
+    np.testing.assert_allclose(rigid.spec.node_inertia,
+                               [k9k.node_inertia.sum() - 0.08 * k9k.node_inertia[k9k.flywheel_node]], rtol=1e-12)
+    deutz = load_engine("deutz-1cyl")  # one node: the flywheel node is the whole crank
+    one = monitor_view(EngineModel.from_spec(deutz, effects=[effect]), None)
+    np.testing.assert_allclose(one.spec.node_inertia, 0.92 * deutz.node_inertia, rtol=1e-12)
+
+
+def test_the_library_offers_the_inertia_ratio_on_flexible_and_rigid_engines():
+    for name in ("k9k-4cyl", "maruti-3cyl", "deutz-1cyl"):
+        (cand,) = [c for c in candidate_library(EngineModel.from_spec(load_engine(name)))
+                   if c.effect == "flywheel_inertia"]
+        assert cand.params == ("inertia_scale",) and cand.x0 == (1.0,) and cand.cylinder is None
+        assert (cand.lo, cand.hi) == ((0.7,), (1.5,))
+        assert "motored run-down" in cand.separated_by
+        np.testing.assert_allclose(cand.effect_at(np.array([1.3])).values["inertia_scale"], 1.3)
