@@ -84,6 +84,7 @@ from frictionwatch.core.discrepancy.residuals import (
     pinned_config,
     run_model,
 )
+from frictionwatch.core.discrepancy.resonance import one_resonance
 from frictionwatch.core.discrepancy.words import within_floor_separation
 from frictionwatch.core.model.effects import EFFECTS
 from frictionwatch.core.model.engine_model import EngineModel
@@ -196,6 +197,12 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             if len(other.candidate.names) < len(t.candidate.names):  # as good and simpler: the simpler one
                 _, t, new_model, res = confirmed[1]
             other = None
+        if other is None and significant(res):  # the line's stiffness and the flywheel's inertia: one resonance
+            other = one_resonance(current, t, [c[1] for c in confirmed[1:] if significant(c[3])])
+            if other is not None:
+                _said_ambiguous(found, beyond, [c.candidate.label for c in (t, other)],
+                                [c.candidate.separated_by for c in (t, other)], inside)
+                break
         if other is not None:  # two explanations: a TDC the pressure reads beside one of them (pair.py), or neither
             pair, spent, found.pair_not_taken, _ = tdc_and_friction(
                 current, cur_res, [(c[1], c[3]) for c in confirmed[:2]], full, parts, scale, floor, pressure,

@@ -1,0 +1,91 @@
+"""Two fits that read one resonance: the shaft line's stiffness and the flywheel's inertia (design note 109).
+
+With one wheel, near the line's lowest mode (the flywheel and the load swinging against each other: k9k at 1800 rpm
+puts order 2 at 60 Hz on a 62 Hz mode) the speed measures that mode's frequency, omega^2 ~ k / J, far more sharply
+than it measures which of k and J moved: a flywheel 5 % heavier than the record was named a chain 2 % softer at
+damping 1.1 (design note 106, k9k 1800/0.6 seed 8; seed 2, a tuning log: 0.979 +- 0.010, the inertia's own fit
+1.025 +- 0.0097, held-out chi^2 16.4 against 33.8, the chain's damping fitting the line's own error there). Where
+both fits are significant and put the lowest mode at the same frequency within their sigmas, the log has told the
+frequency and not its cause: the workflow says the two as an ambiguity, with what would separate them. Where the
+data do separate them, the loser's fit is pulled away from the winner's frequency by what else the log shows (the
+swing at every firing order goes as 1 / J above the mode, not with k), and nothing is said here.
+
+No number is tuned: 2 sigma is the coverage rule in force (choice.unresolved); the mode is the undamped line's
+(core.model.chain.DriveTrain.matrices, the load free), each fit's sigma propagated by one step of its sigma.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from frictionwatch.core.discrepancy.fit import Trial
+from frictionwatch.core.model.chain import drive_train
+from frictionwatch.core.model.effects.base import ViewSetup
+from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.engine_model import EngineModel
+from scipy.linalg import eigh
+
+SIGMAS = 2.0  # one frequency within this many of the pair's combined sigma (the coverage rule, not tuned)
+
+
+def lowest_mode_hz(spec: EngineSpec) -> float:
+    """The flexible line's lowest non-rigid natural frequency [Hz] (undamped, the load node free); NaN on a one-node
+    line (no mode to read)."""
+    if not spec.stiffness.size:
+        return float("nan")
+    m, k, _ = drive_train(spec, flexible=True).matrices()
+    w2 = eigh(k, m, eigvals_only=True)
+    w2 = w2[w2 > 1e-9 * max(float(w2.max()), 1e-300)]
+    return float(np.sqrt(w2.min()) / (2.0 * np.pi)) if w2.size else float("nan")
+
+
+def _spec_with(model: EngineModel, t: Trial, x: np.ndarray) -> EngineSpec:
+    """The model's record as its effects and the trial's effect at ``x`` make it (each effect's own monitor view,
+    ``apply_view``: a chain or a flywheel the model already holds is in it)."""
+    setup = ViewSetup.nominal(model.spec, model.terms, model.coefficients)
+    for e in (*model.effects, t.candidate.effect_at(x)):
+        setup = e.apply_view(setup)
+    return setup.spec
+
+
+def mode_of(model: EngineModel, t: Trial) -> tuple[float, float]:
+    """(f, sigma_f) [Hz]: the lowest mode with the trial's fit in the model, and its sigma (each parameter moved by
+    its sigma, the shifts added in quadrature); (NaN, NaN) for a toggle or a line without a mode; sigma 0 for an
+    effect that does not move it."""
+    if t.candidate.toggle:
+        return float("nan"), float("nan")
+    x = np.asarray(t.x, dtype=np.float64)
+    f = lowest_mode_hz(_spec_with(model, t, x))
+    shifts = []
+    for i, s in enumerate(np.asarray(t.sigma, dtype=np.float64)):
+        xi = x.copy()
+        xi[i] = float(t.candidate.clip(xi + np.eye(x.size)[i] * s)[i])
+        shifts.append(lowest_mode_hz(_spec_with(model, t, xi)) - f)
+    return f, float(np.sqrt(np.sum(np.square(shifts))))
+
+
+def moves_the_mode(model: EngineModel, t: Trial) -> bool:
+    """Whether the trial's effect moves the line's lowest mode at all (the chain's stiffness and the flywheel's
+    inertia do; a friction, a sensor error, a load ripple do not)."""
+    if t.candidate.toggle or not model.spec.stiffness.size:
+        return False
+    f0 = lowest_mode_hz(_spec_with(model, t, np.asarray(t.candidate.x0, dtype=np.float64)))
+    return bool(abs(lowest_mode_hz(_spec_with(model, t, np.asarray(t.x, dtype=np.float64))) - f0) > 1e-9 * f0)
+
+
+def one_resonance(model: EngineModel, best: Trial, others: list[Trial]) -> Trial | None:
+    """The first of ``others`` (significant runners-up, best first) that is another effect than ``best``, moves the
+    line's lowest mode as ``best`` does, and puts it at ``best``'s frequency within SIGMAS of the two sigmas
+    combined: the second reading of one resonance (module doc); None when there is none."""
+    if not moves_the_mode(model, best):
+        return None
+    fa, sa = mode_of(model, best)
+    for o in others:
+        if o.candidate.effect == best.candidate.effect or not moves_the_mode(model, o):
+            continue
+        fb, sb = mode_of(model, o)
+        if abs(fa - fb) <= SIGMAS * float(np.hypot(sa, sb)):
+            return o
+    return None
+
+
+__all__ = ["SIGMAS", "lowest_mode_hz", "mode_of", "moves_the_mode", "one_resonance"]
