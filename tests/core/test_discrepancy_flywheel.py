@@ -1,6 +1,7 @@
 """The flywheel's inertia off the engine record as an effect a model can hold (design note 109): the plant runs the
 record with the flywheel node's inertia scaled, the monitor's view scales the same node, and the workflow's library
-offers it as one free parameter on a flexible and on a rigid shaft line."""
+offers it as one free parameter on a flexible and on a rigid shaft line; where it and the chain's stiffness put the
+line's lowest mode at one frequency, they are one resonance (core.discrepancy.resonance)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ import dataclasses
 
 import numpy as np
 from frictionwatch.core.discrepancy.candidates import candidate_library
+from frictionwatch.core.discrepancy.fit import Trial
+from frictionwatch.core.discrepancy.resonance import lowest_mode_hz, mode_of, one_resonance
 from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.engine_model import EngineModel
@@ -66,3 +69,47 @@ def test_the_library_offers_the_inertia_ratio_on_flexible_and_rigid_engines():
         assert (cand.lo, cand.hi) == ((0.7,), (1.5,))
         assert "motored run-down" in cand.separated_by
         np.testing.assert_allclose(cand.effect_at(np.array([1.3])).values["inertia_scale"], 1.3)
+
+
+def test_the_lowest_mode_moves_with_the_stiffness_and_against_the_inertia():
+    """k9k's flywheel and dyno against the cardan shaft: the two-mass estimate sqrt(k (1/J1 + 1/J2)) / 2 pi with the
+    engine's side as J1 is ~62 Hz (order 2 at 1800 rpm); every section x s moves it by sqrt(s) exactly; a heavier
+    flywheel lowers it; a one-node line has none."""
+    spec = load_engine("k9k-4cyl")
+    f0 = lowest_mode_hz(spec)
+    j1 = spec.node_inertia[:-1].sum()
+    two_mass = np.sqrt(spec.stiffness[-1] * (1.0 / j1 + 1.0 / spec.node_inertia[-1])) / (2.0 * np.pi)
+    np.testing.assert_allclose(f0, two_mass, rtol=0.03)  # the recip. inertia and the crank's own stiffness apart
+    np.testing.assert_allclose(lowest_mode_hz(dataclasses.replace(spec, stiffness=0.81 * spec.stiffness)),
+                               0.9 * f0, rtol=1e-9)
+    assert lowest_mode_hz(_heavier(spec, 1.05)) < f0 - 0.3
+    assert np.isnan(lowest_mode_hz(load_engine("deutz-1cyl")))
+
+
+def _trials(spec):
+    model = EngineModel.from_spec(spec)
+    lib = {c.label: c for c in candidate_library(model)}
+
+    def trial(label, x, s):
+        return Trial(lib[label], np.asarray(x, float), np.asarray(s, float), 0.0, 1.0, 0)
+
+    return model, trial
+
+
+def test_a_chain_and_a_flywheel_that_read_one_mode_are_one_resonance():
+    """The chain 2 % softer and the flywheel 4.2 % heavier put k9k's mode at one frequency: with sigmas that cover
+    the difference the flywheel is the chain's second reading; with the flywheel at 1.15 +- 0.01 (another
+    frequency) it is not; a friction (no mode) never is; on a one-node engine nothing is."""
+    model, trial = _trials(load_engine("k9k-4cyl"))
+    chain = trial("chain_mismatch", [0.98, 1.1], [0.01, 0.03])
+    fa, sa = mode_of(model, chain)
+    heavier = trial("flywheel_inertia", [1.042], [0.01])
+    fb, sb = mode_of(model, heavier)
+    assert abs(fa - fb) < 0.5 * np.hypot(sa, sb) and sa > 0 and sb > 0
+    ring = trial("ring_wear[cyl 1]", [1.3], [0.05])
+    assert one_resonance(model, chain, [ring, heavier]) is heavier
+    assert one_resonance(model, heavier, [ring, chain]) is chain
+    assert one_resonance(model, chain, [ring, trial("flywheel_inertia", [1.15], [0.01])]) is None
+    assert one_resonance(model, ring, [chain, heavier]) is None
+    deutz, trial1 = _trials(load_engine("deutz-1cyl"))
+    assert one_resonance(deutz, trial1("flywheel_inertia", [1.05], [0.01]), []) is None
