@@ -21,7 +21,8 @@ Not in the library today, and why (the monitor cannot be told, or there is nothi
   pressure_channel.pressure_findings; a worn ring's friction stays the speed's candidate, ring_wear, its leak the
   pressure's: a ring that wears and leaks is two findings on one cylinder, design note 97);
 - tooth_spacing_error: the monitor learns the wheel's tooth pattern itself;
-- an element's inertia: no effect holds it (the spec's node inertia would be edited, not augmented).
+- an element's inertia other than the flywheel node's: no effect holds it (the flywheel's is flywheel_inertia, one
+  ratio; where it and the chain's stiffness read one resonance the workflow says both: core.discrepancy.resonance).
 """
 
 from __future__ import annotations
