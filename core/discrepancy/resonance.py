@@ -10,8 +10,10 @@ frequency and not its cause: the workflow says the two as an ambiguity, with wha
 data do separate them, the loser's fit is pulled away from the winner's frequency by what else the log shows (the
 swing at every firing order goes as 1 / J above the mode, not with k), and nothing is said here.
 
-No number is tuned: 2 sigma is the coverage rule in force (choice.unresolved); the mode is the undamped line's
-(core.model.chain.DriveTrain.matrices, the load free), each fit's sigma propagated by one step of its sigma.
+Both fits must also explain the held-out cycles as a right model would (``explains``): a fit far from the log has a
+sigma wide enough to put any frequency within it. No number is tuned: 2 sigma is the coverage rule in force
+(choice.unresolved), applied to the frequency and to the held-out chi^2's own distribution; the mode is the undamped
+line's (core.model.chain.DriveTrain.matrices, the load free), each fit's sigma propagated by one step of its sigma.
 """
 
 from __future__ import annotations
@@ -72,15 +74,29 @@ def moves_the_mode(model: EngineModel, t: Trial) -> bool:
     return bool(abs(lowest_mode_hz(_spec_with(model, t, np.asarray(t.x, dtype=np.float64))) - f0) > 1e-9 * f0)
 
 
-def one_resonance(model: EngineModel, best: Trial, others: list[Trial]) -> Trial | None:
-    """The first of ``others`` (significant runners-up, best first) that is another effect than ``best``, moves the
-    line's lowest mode as ``best`` does, and puts it at ``best``'s frequency within SIGMAS of the two sigmas
-    combined: the second reading of one resonance (module doc); None when there is none."""
-    if not moves_the_mode(model, best):
+def explains(chi2_floored: float, n_features: int) -> bool:
+    """Whether a fit's held-out coherent chi^2 with the model-error floor allowed for (choice.chi2_floored, ~ chi^2
+    of ``n_features`` degrees of freedom where the model explains the log within its noise and its own error) lies
+    within SIGMAS of that distribution's sigma, sqrt(2 F), above its mean F: what the data cannot tell from a right
+    model. A fit far beyond it leaves what the log shows unexplained (maruti 1500/0.5 seed 1, the chain 20 % softer:
+    the chain 67.6, the flywheel's best 28,334 at F = 49), and its sigma, wide with that rest, says nothing of a
+    frequency."""
+    return chi2_floored <= n_features + SIGMAS * np.sqrt(2.0 * n_features)
+
+
+def one_resonance(model: EngineModel, best: tuple[Trial, float], others: list[tuple[Trial, float]],
+                  n_features: int) -> Trial | None:
+    """The first of ``others`` (significant runners-up, best first, each (trial, held-out floored chi^2)) that is
+    another effect than ``best``'s, moves the line's lowest mode as it does, puts it at its frequency within SIGMAS
+    of the two sigmas combined, and where both explain the held-out cycles within the noise and the model's own error
+    (``explains``): the second reading of one resonance (module doc); None when there is none."""
+    best, chi_best = best
+    if not (moves_the_mode(model, best) and explains(chi_best, n_features)):
         return None
     fa, sa = mode_of(model, best)
-    for o in others:
-        if o.candidate.effect == best.candidate.effect or not moves_the_mode(model, o):
+    for o, chi_o in others:
+        if (o.candidate.effect == best.candidate.effect or not explains(chi_o, n_features)
+                or not moves_the_mode(model, o)):
             continue
         fb, sb = mode_of(model, o)
         if abs(fa - fb) <= SIGMAS * float(np.hypot(sa, sb)):
@@ -88,4 +104,4 @@ def one_resonance(model: EngineModel, best: Trial, others: list[Trial]) -> Trial
     return None
 
 
-__all__ = ["SIGMAS", "lowest_mode_hz", "mode_of", "moves_the_mode", "one_resonance"]
+__all__ = ["SIGMAS", "explains", "lowest_mode_hz", "mode_of", "moves_the_mode", "one_resonance"]

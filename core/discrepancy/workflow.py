@@ -198,7 +198,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
                 _, t, new_model, res = confirmed[1]
             other = None
         if other is None and significant(res):  # the line's stiffness and the flywheel's inertia: one resonance
-            other = one_resonance(current, t, [c[1] for c in confirmed[1:] if significant(c[3])])
+            held_chi2 = [(c[1], chi2_floored(parts(c[3])[1], scale, floor)) for c in confirmed if significant(c[3])]
+            other = one_resonance(current, held_chi2[0], held_chi2[1:], floor.size)
             if other is not None:
                 _said_ambiguous(found, beyond, [c.candidate.label for c in (t, other)],
                                 [c.candidate.separated_by for c in (t, other)], inside)
