@@ -10,6 +10,8 @@ core/monitor alone) and the re-entries: a step into a file that the walk had vis
 itself does not count; a call into another file and back does). Numba kernels count as the one call into them (their
 compiled body is not Python). This is what the issue measured as "visits 27 files and returns 17 times" at 89a3aad;
 its exact rule for a "return" was not written down, so compare figures of this script with each other only.
+Figures of this script, k9k-4cyl and genset-v20 alike: 124 calls, 27 files of core/ (24 of core/monitor), 21
+re-entries at 1a68ef3; 119 calls, 25 files (22), 13 re-entries after design note 110.
 """
 
 from __future__ import annotations

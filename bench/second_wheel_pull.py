@@ -286,8 +286,8 @@ def free_response_raw_moment() -> None:
     inner = free_response.free_response_variance
 
     def raw(prev, coef_sq, noise, memory):
-        stats, _ = inner(prev, coef_sq, noise, memory)
-        return stats, stats.free_coef_sq
+        sq, nz, n, _ = inner(prev, coef_sq, noise, memory)
+        return sq, nz, n, sq
 
     free_response.free_response_variance = raw
 

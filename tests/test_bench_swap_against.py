@@ -8,7 +8,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from frictionwatch.core.monitor.calibration import tdc_traces
+from frictionwatch.core.monitor.calibration import tdc_watch
 from frictionwatch.core.monitor.checks import ring_pressure
 
 from bench.bench_swap_against import _use, swaps
@@ -17,15 +17,15 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_swapped_functions_come_from_the_other_checkout_and_go_back(tmp_path):
-    for rel in ("core/monitor/checks/ring_pressure.py", "core/monitor/calibration/tdc_traces.py"):
+    for rel in ("core/monitor/checks/ring_pressure.py", "core/monitor/calibration/tdc_watch.py"):
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(ROOT / rel, tmp_path / rel)
-    tw = tmp_path / "core/monitor/calibration/tdc_traces.py"
+    tw = tmp_path / "core/monitor/calibration/tdc_watch.py"
     tw.write_text(tw.read_text().replace("return self.n == n and", "return 'base' if self.n == n else"))
-    this_kernel, this_fits = ring_pressure.moved_kernel, tdc_traces.TraceCut.fits
+    this_kernel, this_fits = ring_pressure.moved_kernel, tdc_watch.TraceCut.fits
     table = swaps(tmp_path, ["frictionwatch.core.monitor.checks.ring_pressure:moved_kernel",
-                             "frictionwatch.core.monitor.calibration.tdc_traces:TraceCut.fits"])
-    cut = tdc_traces.trace_cut(8, [0.0])
+                             "frictionwatch.core.monitor.calibration.tdc_watch:TraceCut.fits"])
+    cut = tdc_watch.trace_cut(8, [0.0])
     try:
         _use(table, True)
         assert ring_pressure.moved_kernel is not this_kernel
@@ -33,7 +33,7 @@ def test_swapped_functions_come_from_the_other_checkout_and_go_back(tmp_path):
         assert cut.fits(8, [0.0]) == "base"
     finally:
         _use(table, False)
-    assert ring_pressure.moved_kernel is this_kernel and tdc_traces.TraceCut.fits is this_fits
+    assert ring_pressure.moved_kernel is this_kernel and tdc_watch.TraceCut.fits is this_fits
     assert cut.fits(8, [0.0]) is True
 
 

@@ -135,7 +135,6 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     cfg = config or _DEFAULT_CONFIG
     spec = engine.spec if isinstance(engine, EngineModel) else engine
     pressure, flags = checked_pressure(spec, cycle)
-    pmax, pmax_angle = peak_pressure(cycle.grid, pressure, spec.firing_angles)
     m = state.n_harmonics
     # the fit's settings, the same for both wheels: nuisance drift, band, drift term, the tooth learner's
     fit_settings = (cfg.drift_nuisance, round(2 * cfg.fit_order) if cfg.fit_order else m, cfg.fit_drift,
@@ -186,6 +185,9 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     balance, kinetic, accel, t_window, imep_c = transient_balance(spec, cycle, pressure, exc.indicated_mean,
                                                                   energy, prev, load, coupling_loss, geometry,
                                                                   early)
+    # the peak pressure of the pressure as it came (before the sensor corrections), beside the balance's indicated
+    # works: both are core.model.indicated's, so a cycle enters that file once
+    pmax, pmax_angle = peak_pressure(cycle.grid, raw_pressure, spec.firing_angles)
     mean = MeanBalance(indicated=t_i, load=load, coupling_loss=coupling_loss, friction=balance, kinetic=kinetic,
                        imep_centred=imep_c, acceleration=accel, indicated_window=t_window,
                        tdc_sensitivity=indicated_tdc_sensitivity(cycle.grid, pressure, geometry.piston_acceleration,

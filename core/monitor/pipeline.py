@@ -38,9 +38,9 @@ from frictionwatch.core.monitor.calibration.tdc_watch import (
     CYLINDERS_PER_WINDOW,
     WINDOW_CYCLES,
     TdcWatchState,
-    close_window,
     watch_cycle,
 )
+from frictionwatch.core.monitor.calibration.tdc_window import close_window
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, nonpositive_flags, process_cycle
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
@@ -93,10 +93,10 @@ class RunningStage(Protocol):
 
 @dataclass(frozen=True)
 class TdcWatch:
-    """TDC from the pressure, window by window, against the calibration (core.monitor.calibration.tdc_watch):
-    windows of ``window`` cycles, ``per_window`` cylinders fitted per window in turn (an offline run that wants one
-    reading of every cylinder over the whole log: the engine's cylinders, a window longer than the log, and
-    ``CyclePipeline.close_windows`` at its end)."""
+    """TDC from the pressure, window by window, against the calibration (core.monitor.calibration: tdc_watch the
+    per-cycle sums, tdc_window the window's reading): windows of ``window`` cycles, ``per_window`` cylinders fitted
+    per window in turn (an offline run that wants one reading of every cylinder over the whole log: the engine's
+    cylinders, a window longer than the log, and ``CyclePipeline.close_windows`` at its end)."""
 
     per_window: int = CYLINDERS_PER_WINDOW
     window: int = WINDOW_CYCLES
@@ -106,7 +106,10 @@ class TdcWatch:
         return TdcWatchState.empty()
 
     def update(self, state: TdcWatchState, inp: StageInput) -> TdcWatchState:
-        return watch_cycle(inp.spec, inp.calibration, state, inp.cycle, inp.twist, self.window, self.per_window)
+        """The cycle added (tdc_watch); a full window read (tdc_window): a cycle enters the reading's file only then."""
+        state = watch_cycle(inp.spec, state, inp.cycle, inp.twist)
+        return state if state.cycles < self.window else close_window(inp.spec, inp.calibration, state,
+                                                                     per_window=self.per_window)
 
     def close(self, state: TdcWatchState, spec: EngineSpec, calibration: Calibration) -> TdcWatchState:
         """The open window read now (``CyclePipeline.close_windows``)."""

@@ -165,11 +165,11 @@ class MonitorConfig:
         lam = self.forgetting
         if lam is not None and not (isinstance(lam, int | float) and 0.0 <= lam <= 1.0):
             raise ValueError(f"forgetting = {lam!r} must be a per-cycle factor in [0, 1], or None")
-
-    @property
-    def tooth_learning(self) -> LearnerSettings:
-        """The tooth learner's settings as the tooth fit takes them (core.monitor.teeth.tooth_fit.fit_cycle_teeth)."""
-        return LearnerSettings(self.learn_teeth, self.tooth_memory, self.tooth_refit_cycles, self.tooth_speed_step)
+        # the tooth learner's settings as the tooth fit takes them (core.monitor.teeth.tooth_fit.fit_cycle_teeth):
+        # a constant of the config, made once here, not by a property every cycle (an attribute, not a field:
+        # equality and repr see the config only)
+        object.__setattr__(self, "tooth_learning", LearnerSettings(self.learn_teeth, self.tooth_memory,
+                                                                   self.tooth_refit_cycles, self.tooth_speed_step))
 
 
 class ConditionTables(NamedTuple):

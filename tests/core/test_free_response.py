@@ -5,6 +5,8 @@ and genset-v20 at 1500 rpm carries its 2.4 and 19.6 Hz modes."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from frictionwatch.core.model.dynamics import free_modes, shaft_model
@@ -13,7 +15,10 @@ from frictionwatch.core.monitor.identify.free_response import (
     carried_modes,
     coefficient_moments,
     free_response_columns,
+    free_response_design,
+    free_response_design_reference,
     free_response_kernel,
+    free_response_moments,
     free_response_reference,
     free_response_variance,
 )
@@ -73,6 +78,48 @@ def test_kernel_equals_reference(seed):
     assert_allclose(ky[2 * m:], y[2 * m:], rtol=0, atol=0)
 
 
+def _random_modes(rng, period, m):
+    """Six modes: two carried in band, one carried above the band, one that decays within the cycle, two random."""
+    band = m * 2.0 * np.pi / period
+    keep = -rng.uniform(0.5, 10.0, 2) + 1j * rng.uniform(5.0, 0.9 * band, 2)
+    above = np.array([-1.0 + 1j * 1.2 * band])
+    fast = np.array([-80.0 + 1j * rng.uniform(5.0, band)])
+    other = -rng.uniform(0.5, 60.0, 2) + 1j * rng.uniform(5.0, 1.2 * band, 2)
+    return np.concatenate([keep, above, fast, other])
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_design_kernel_equals_its_reference(seed):
+    """The carried modes' whitened columns by the kernel against carried_modes + free_response_columns +
+    whitened_columns (numpy), rtol 1e-12 of the largest entry: random modes about the carry and band limits, random
+    row weights, with a drift random effect (every other case none, or a zero drift variance); carry 0 gives no
+    column."""
+    rng = np.random.default_rng(200 + seed)
+    period, m = rng.uniform(0.03, 0.2), int(rng.integers(3, 30))
+    modes = _random_modes(rng, period, m)
+    inv_sigma = rng.uniform(0.2, 5.0, 2 * m)
+    drift = (rng.normal(size=m) + 1j * rng.normal(size=m)) if seed % 2 else np.empty(0, dtype=np.complex128)
+    drift_var = 0.0 if seed % 4 == 3 else 10.0 ** rng.uniform(-2, 3)
+    k = free_response_design(modes, period, 0.1, inv_sigma, drift, drift_var)
+    r = free_response_design_reference(modes, period, 0.1, inv_sigma, drift, drift_var)
+    assert k.shape == r.shape and k.shape[1] >= 4
+    assert_allclose(k, r, rtol=0, atol=1e-12 * np.abs(r).max())
+    assert free_response_design(modes, period, 0.0, inv_sigma, drift, drift_var).shape == (2 * m, 0)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_moments_kernel_equals_its_reference(seed):
+    """One cycle's coefficient moments by the kernel's one SVD against lstsq + pinv (numpy) on the random systems
+    above (every fourth one with a duplicated mode: rank-deficient columns, both cut the same null direction):
+    rtol 1e-9 (the coefficients' rounding grows with the columns' condition number, up to ~1e4 here)."""
+    rng, m, a, y, dw = _random_system(seed)
+    params = rng.normal(size=a.shape[1])
+    kc, kn = free_response_moments(dw, a, y, params)
+    rc, rn = coefficient_moments(dw, y[:2 * m] - a[:2 * m] @ params)
+    assert_allclose(kc, rc, rtol=1e-9)
+    assert_allclose(kn, rn, rtol=1e-9)
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_large_variance_is_the_projection_and_zero_leaves_the_rows(seed):
     """A prior variance 1e12 times the columns' inverse size whitens the rows to within 1e-5 (relative, the
@@ -107,7 +154,8 @@ def test_the_data_give_each_modes_variance(seed):
         for _ in range(3000):
             resid = dw @ (np.array(sd) * rng.normal(size=4)) + rng.normal(size=2 * m)
             coef_sq, noise = coefficient_moments(dw, resid)
-            stats, var = free_response_variance(stats, coef_sq, noise, 1.0 - 1.0 / 3000)
+            sq, nz, n, var = free_response_variance(stats, coef_sq, noise, 1.0 - 1.0 / 3000)
+            stats = replace(stats, free_coef_sq=sq, free_noise=nz, free_count=n)
         check(var)
 
 

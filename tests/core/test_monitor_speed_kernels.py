@@ -10,7 +10,7 @@ import types
 import numpy as np
 import pytest
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.calibration.tdc_traces import add_traces, add_traces_reference, trace_cut
+from frictionwatch.core.monitor.calibration.tdc_watch import add_traces, add_traces_reference, trace_cut
 
 
 @pytest.mark.parametrize("name", ["k9k-4cyl", "genset-v20"])

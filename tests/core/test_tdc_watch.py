@@ -12,7 +12,7 @@ import math
 import pytest
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.monitor.calibration.tdc import TdcEstimate
-from frictionwatch.core.monitor.calibration.tdc_watch import tdc_flags
+from frictionwatch.core.monitor.calibration.tdc_window import tdc_flags
 from frictionwatch.service.pipeline import analyze_log
 
 from tests.sim_logs import commissioned_model, sensor_flags, simulate_log, withheld_cylinders
@@ -91,7 +91,7 @@ def test_screen_reads_a_shift_of_the_compression_stroke():
     import numpy as np
     from frictionwatch.core.model.engine import load_engine
     from frictionwatch.core.monitor.calibration.tdc import volume_and_derivative
-    from frictionwatch.core.monitor.calibration.tdc_watch import screen_shift
+    from frictionwatch.core.monitor.calibration.tdc_window import screen_shift
 
     spec = load_engine("genset-v20")
     angle = np.radians(np.arange(-180.0, 180.0, 0.5))
@@ -124,7 +124,8 @@ def test_the_drift_trigger_reads_one_cylinders_step_and_not_a_charge_change():
     import numpy as np
     from frictionwatch.core.model.engine import load_engine
     from frictionwatch.core.monitor.calibration.tdc import volume_and_derivative
-    from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState, own_drift
+    from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState
+    from frictionwatch.core.monitor.calibration.tdc_window import own_drift
 
     spec = load_engine("genset-v20")
     z = spec.n_cyl
@@ -165,7 +166,7 @@ def test_the_screens_sigma_covers_its_scatter_where_nothing_moved():
     import numpy as np
     from frictionwatch.core.model.engine import load_engine
     from frictionwatch.core.monitor.calibration.tdc import TdcEstimate, volume_and_derivative
-    from frictionwatch.core.monitor.calibration.tdc_watch import moved_by, screen_shift
+    from frictionwatch.core.monitor.calibration.tdc_window import moved_by, screen_shift
 
     spec = load_engine("genset-v20")
     angle = np.radians(np.arange(-180.0, 180.0, 0.5))
@@ -190,10 +191,11 @@ def test_a_window_in_which_most_cylinders_moved_fits_every_cylinder(monkeypatch)
     moved), every cylinder is fitted, not only those whose screen passed SCREEN_DEG (the screen reads short: a 0.5
     deg wheel step read 0.13 deg on genset-v20's cylinder 20, whose moved estimate was then flagged as its own
     offset). The fit is replaced by a stand-in that records which cylinders it was asked for."""
-    import frictionwatch.core.monitor.calibration.tdc_watch as tw
+    import frictionwatch.core.monitor.calibration.tdc_window as tw
     import numpy as np
     from frictionwatch.core.model.engine import load_engine
     from frictionwatch.core.monitor.calibration.tdc import BLOCKS, volume_and_derivative
+    from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState
 
     spec = load_engine("genset-v20")
     z = spec.n_cyl
@@ -215,7 +217,7 @@ def test_a_window_in_which_most_cylinders_moved_fits_every_cylinder(monkeypatch)
 
     def window(shifts_deg):
         now = np.stack([trace(d) for d in shifts_deg])
-        state = tw.TdcWatchState(tuple(now * 10.0 for _ in range(BLOCKS)), np.full(BLOCKS, 10.0), 10 * BLOCKS, None,
+        state = TdcWatchState(tuple(now * 10.0 for _ in range(BLOCKS)), np.full(BLOCKS, 10.0), 10 * BLOCKS, None,
                                  fitted, (), 0.0, 0.0, 0, None, ref, np.zeros(z), (), fitted)
         asked.clear()
         out = tw.close_window(spec, Calibration(status="commissioned"), state, angle)
@@ -265,7 +267,7 @@ def test_local_traces_cut_as_the_reference(engine):
     import numpy as np
     from frictionwatch.core.model.engine import load_engine
     from frictionwatch.core.monitor.calibration.tdc import local_cycles
-    from frictionwatch.core.monitor.calibration.tdc_traces import local_traces
+    from frictionwatch.core.monitor.calibration.tdc_watch import local_traces
 
     spec = load_engine(engine)
     n = 720
@@ -288,7 +290,7 @@ def test_the_watch_cut_takes_what_local_traces_cuts(engine):
 
     import numpy as np
     from frictionwatch.core.model.engine import load_engine
-    from frictionwatch.core.monitor.calibration.tdc_traces import cut_traces, local_traces, trace_cut
+    from frictionwatch.core.monitor.calibration.tdc_watch import cut_traces, local_traces, trace_cut
 
     spec = load_engine(engine)
     for n in (720, 1440):
@@ -354,7 +356,7 @@ def test_a_cycle_keeps_every_field_it_does_not_gather():
                    reference=np.zeros((z, 3)), reference_twist=np.full(z, 0.1), screened=(1,), fitted=(None,) * z,
                    window_trace=np.zeros((z, 3)), window_twist=np.full(z, 0.1), drift=np.zeros(z))
     state = dataclasses.replace(TdcWatchState.empty(), previous=cycle(7), **carried)
-    new = watch_cycle(spec, None, state, cycle(8), np.full(z, 0.01))
+    new = watch_cycle(spec, state, cycle(8), np.full(z, 0.01))
     for name, value in carried.items():
         assert getattr(new, name) is value, name
     assert new.cycles == 1 and new.counts.sum() == 1 and new.previous.index == 8
@@ -370,7 +372,7 @@ def test_a_trace_cut_fits_the_phases_array_equal_accepts():
     import dataclasses
 
     import numpy as np
-    from frictionwatch.core.monitor.calibration.tdc_traces import trace_cut
+    from frictionwatch.core.monitor.calibration.tdc_watch import trace_cut
 
     phases = np.radians(np.array([0.0, 180.0, 540.0, 360.0]))
     cut = trace_cut(720, phases)

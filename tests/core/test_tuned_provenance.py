@@ -25,7 +25,7 @@ from pathlib import Path
 import pytest
 from frictionwatch.core.discrepancy import features, fit, pressure_channel
 from frictionwatch.core.discrepancy.tuned import TUNED_PATH
-from frictionwatch.core.monitor.calibration import drive_train, tdc, tdc_smoothing, tdc_watch
+from frictionwatch.core.monitor.calibration import drive_train, tdc, tdc_smoothing, tdc_window
 from frictionwatch.core.monitor.checks.condition import ConditionSettings
 from frictionwatch.core.monitor.checks.ring_condition import RingConditionSettings
 from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
@@ -297,7 +297,7 @@ def test_the_code_uses_the_recorded_numbers():
         "TDC_AFTER_IVC_DEG": tdc.AFTER_IVC_DEG, "TDC_BEFORE_SOC_DEG": tdc.BEFORE_SOC_DEG,
         "TDC_AFTER_EOC_DEG": tdc.AFTER_EOC_DEG, "TDC_BEFORE_EVO_DEG": tdc.BEFORE_EVO_DEG,
         "TDC_SMOOTH_DEG": tdc_smoothing.SMOOTH_DEG, "TDC_SYSTEMATIC_SIGMA_DEG": tdc.SYSTEMATIC_SIGMA_DEG,
-        "TDC_UNCALIBRATED_SIGMAS": tdc_watch.UNCALIBRATED_SIGMAS,
+        "TDC_UNCALIBRATED_SIGMAS": tdc_window.UNCALIBRATED_SIGMAS,
         "DRIVE_TRAIN_STIFFNESS_FLOOR": drive_train.STIFFNESS_FLOOR,
         "DRIVE_TRAIN_DAMPING_FLOOR": drive_train.DAMPING_FLOOR, "DRIVE_TRAIN_SETTLED": drive_train.SETTLED,
         "PULL_CHECK_KAPPA": PullCheck().kappa, "TOOTH_SPEED_STEP": cfg.tooth_speed_step,

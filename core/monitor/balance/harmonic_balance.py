@@ -392,7 +392,7 @@ def harmonic_balance(op: OperatingPoint, theta: np.ndarray, n_nuisance: int, rel
     grid = _contiguous(grid, np.float64)
     pressure = _contiguous(pressure, np.float64)
     z = cyl.node.shape[0]
-    basis = np.empty((len(library), z, int(time_samples)))  # term-major: each term's kernel fills one block
+    basis = np.empty((op.layout.n_terms, z, int(time_samples)))  # term-major: each term's kernel fills one block
     for _ in range(n_pass):
         on_grid = pass_samples(cyc, cyl, rel_in, static_in, grid, pressure)
         if op.load_ripple is not None:

@@ -46,7 +46,8 @@ from frictionwatch.core.monitor.calibration.pressure_gain import (
     sibling_stats,
 )
 from frictionwatch.core.monitor.calibration.tdc import BLOCKS
-from frictionwatch.core.monitor.calibration.tdc_watch import DRIFT_SIGMAS, WINDOW_CYCLES
+from frictionwatch.core.monitor.calibration.tdc_watch import WINDOW_CYCLES
+from frictionwatch.core.monitor.calibration.tdc_window import DRIFT_SIGMAS
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig
 from frictionwatch.core.types import Cycle
 

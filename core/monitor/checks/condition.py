@@ -131,6 +131,15 @@ class ConditionSettings:
     burn_window: float = 50.0
     change: ChangeSettings = ChangeSettings()
 
+    def __post_init__(self) -> None:
+        # the condition kernel's limits (burn (3,), the window's floors (3,), the CUSUM's (5,)): constants of the
+        # settings, made once here, not three arrays and a call into change.py every cycle. An attribute, not a
+        # field (equality and repr see the settings only); the kernels only read them, so one instance serves all
+        object.__setattr__(self, "kernel_limits", (
+            np.array([self.burn_log_ratio, self.partial_fraction, self.burn_window]),
+            np.array([self.compression_floor, self.peak_floor, self.indicated_floor]),
+            cusum_limits(self.change)))
+
 
 DEFAULT_SETTINGS = ConditionSettings()
 
@@ -288,9 +297,7 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
          ring_tab.neg_log_volume, np.array([ring_tab.n_comp, ring_tab.edge], dtype=np.int64), _c(spec.firing_angles),
          _c(motion.static) if moved else np.zeros(z),
          np.ascontiguousarray(motion.relative, dtype=np.complex128) if moved else np.zeros((z, 1), np.complex128)),
-        (np.array([settings.burn_log_ratio, settings.partial_fraction, settings.burn_window]),
-         np.array([settings.compression_floor, settings.peak_floor, settings.indicated_floor]),
-         cusum_limits(settings.change)),
+        settings.kernel_limits,
         np.array([use, first, count >= settings.warmup, with_terms, det.count, det.quiet, ring_on, moved],
                  dtype=np.int64),
         np.array([g, settings.z_flag, settings.ring_sigmas, settings.misfit_cap,

@@ -80,6 +80,9 @@ class ParameterLayout:
         # the parameter count P, a plain attribute (read ~7 times a cycle, from the balance, the report and here: as a
         # property each read was a call into this file; design note 82)
         object.__setattr__(self, "n_params", p)
+        # the library's term count L, likewise (the balance sizes its basis by it every cycle: a call into
+        # core/model/terms.py each time as len(library))
+        object.__setattr__(self, "n_terms", len(self.library))
 
     def coefficients(self, theta: np.ndarray) -> np.ndarray:
         return self.prior * np.asarray(theta)[self.group]

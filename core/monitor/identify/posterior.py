@@ -124,7 +124,10 @@ def posterior_from_normal(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, 
     p, r = acc.sys_map.shape
     f64 = np.float64
     n_pr, r_pr, sys_var = np.asarray(n_pr, dtype=f64), np.asarray(r_pr, dtype=f64), np.asarray(sys_var, dtype=f64)
-    lo = lower_vector(lower, p)
+    # the state's bound is a per-run constant, already a contiguous float64 (p,) (initial_state): used as it is,
+    # lower_vector's own answer for it, without a call into spd.py every posterior (two a cycle)
+    lo = (lower if type(lower) is np.ndarray and lower.dtype == f64 and lower.shape == (p,) and lower.flags.c_contiguous
+          else lower_vector(lower, p))
     # the kernel checks every shape; the accumulator's own arrays are float64 and C-contiguous by construction (its
     # kernels, ``empty``): no per-call copies (another layout would only be another compiled specialisation)
     info, rhs, sys_map, info_ref = acc.info, acc.rhs, acc.sys_map, acc.info_reference
