@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from frictionwatch.core.discrepancy.candidates import Candidate
 from frictionwatch.core.discrepancy.features import balance_residual, beyond_null, coherent_terms, order_table
-from frictionwatch.core.discrepancy.fit import Trial, at_start, parameter_floor
+from frictionwatch.core.discrepancy.fit import CHAIN_FLOOR, Trial, at_start, parameter_floor
 from frictionwatch.core.discrepancy.residuals import Residuals
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig
 
@@ -201,8 +201,9 @@ def unresolved(t: Trial, quiet: bool = False) -> str:
         return (f"{said}: within the noise of none (every parameter within 2 sigma of its no-effect value) on a "
                 "residual no larger than a healthy log's: the model's own error, not an effect")
     if np.any(parameter_floor(c) > 0.0):
+        via = "" if any((c.effect, p) in CHAIN_FLOOR for p in c.params) else ", carried through the line's lowest mode"
         return (f"{said}: within 2 sigma of none with the model's own error in it (fit.CHAIN_FLOOR, tuned on "
-                "healthy logs): the model's own error, not an effect")
+                f"healthy logs{via}): the model's own error, not an effect")
     # a louder residual: the fit lowers the held-out chi^2, but its size is not told from none -- its sigma holds
     # the coherent rest the fit leaves (fit.parameter_sigma), so the residual is something it does not describe
     # (design note 101: maruti 4000/0.8 seed 1, the flywheel's inertia 5 % above the record's, named a side-thrust

@@ -41,6 +41,14 @@ CHAIN_FLOOR = {("chain_mismatch", p): _TUNED[name].value if name in _TUNED else 
 # core/discrepancy/tuned.json: its provenance; design note 103); 0 until that has run
 CHAIN_STIFFNESS_REL = _TUNED["CHAIN_STIFFNESS_REL"].value if "CHAIN_STIFFNESS_REL" in _TUNED else 0.0
 CHAIN_REL = {("chain_mismatch", "stiffness_scale"): CHAIN_STIFFNESS_REL}
+# the same error carried to any other parameter that moves the line's lowest mode (Candidate.mode_share, |d ln
+# omega^2 / d x|): the chain's stiffness scale moves omega^2 one for one (every section scaled), so CHAIN_FLOOR's
+# stiffness is the line's own error in ln omega^2, and near that mode a fit of the flywheel's inertia reads it as
+# CHAIN_FLOOR_STIFFNESS / share (k9k 0.0078 / 0.441 = 0.0177, maruti / 0.519 = 0.0150). Nothing tuned here: tuned on
+# CHAIN_FLOOR's healthy logs (k9k 1700-2800 rpm, maruti 2000 and 3000 rpm, seeds 1, 4, 8, 21-24); tested on the
+# healthy k9k 1800/0.6 seed 7 log (tests/core/test_discrepancy_workflow.py) and the matrix's seeds 6, 7, 10
+# (design note 109)
+MODE_SHARE_ZERO = 1e-6  # a share below this is rounding (a friction, a damping: exactly 0), not a mode moved
 
 
 @dataclass(frozen=True)
@@ -137,10 +145,14 @@ def _solve(jac: np.ndarray, r: np.ndarray) -> np.ndarray:
 
 def parameter_floor(cand: Candidate, x: np.ndarray | None = None) -> np.ndarray:
     """(p,) the model's own 1-sigma error in each of the candidate's parameters that no cycle count removes
-    (CHAIN_FLOOR; 0 where none is known), and at a fitted ``x`` (p,) the part that grows with its distance from the
+    (CHAIN_FLOOR; for another parameter that moves the line's lowest mode, the chain stiffness's carried through
+    it, CHAIN_FLOOR_STIFFNESS / Candidate.mode_share; 0 where none is known), and at a fitted ``x`` (p,) the part that grows with its distance from the
     no-effect value (CHAIN_REL x |x - x0|: the shaft line's bias in a stiffness far from the record's), in
     quadrature."""
-    floor = np.array([CHAIN_FLOOR.get((cand.effect, p), 0.0) for p in cand.params], dtype=np.float64)
+    share = cand.mode_share or (0.0,) * len(cand.params)
+    line = CHAIN_FLOOR.get(("chain_mismatch", "stiffness_scale"), 0.0)
+    floor = np.array([CHAIN_FLOOR.get((cand.effect, p), line / s if s > MODE_SHARE_ZERO else 0.0)
+                      for p, s in zip(cand.params, share)], dtype=np.float64)
     if x is None:
         return floor
     rel = np.array([CHAIN_REL.get((cand.effect, p), 0.0) for p in cand.params], dtype=np.float64)
@@ -377,5 +389,5 @@ def rank(trials: Sequence[Trial]) -> list[Trial]:
     return sorted(trials, key=lambda t: t.cost)
 
 
-__all__ = ["CHAIN_FLOOR", "CHAIN_REL", "CHAIN_STIFFNESS_REL", "Evaluator", "Linearised", "Trial", "at_start",
+__all__ = ["CHAIN_FLOOR", "CHAIN_REL", "CHAIN_STIFFNESS_REL", "Evaluator", "Linearised", "MODE_SHARE_ZERO", "Trial", "at_start",
            "linearise", "parameter_floor", "parameter_sigma", "point_floors", "polish", "rank", "refine", "with_fit"]

@@ -13,31 +13,22 @@ swing at every firing order goes as 1 / J above the mode, not with k), and nothi
 Both fits must also explain the held-out cycles as a right model would (``explains``): a fit far from the log has a
 sigma wide enough to put any frequency within it. No number is tuned: 2 sigma is the coverage rule in force
 (choice.unresolved), applied to the frequency and to the held-out chi^2's own distribution; the mode is the undamped
-line's (core.model.chain.DriveTrain.matrices, the load free), each fit's sigma propagated by one step of its sigma.
+line's (core.model.chain.lowest_mode_hz, the load free), each fit's sigma propagated by one step of its sigma.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from frictionwatch.core.discrepancy.fit import Trial
-from frictionwatch.core.model.chain import drive_train
+from frictionwatch.core.discrepancy.residuals import Residuals
+from frictionwatch.core.model.chain import lowest_mode_hz
 from frictionwatch.core.model.effects.base import ViewSetup
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel
-from scipy.linalg import eigh
 
 SIGMAS = 2.0  # one frequency within this many of the pair's combined sigma (the coverage rule, not tuned)
-
-
-def lowest_mode_hz(spec: EngineSpec) -> float:
-    """The flexible line's lowest non-rigid natural frequency [Hz] (undamped, the load node free); NaN on a one-node
-    line (no mode to read)."""
-    if not spec.stiffness.size:
-        return float("nan")
-    m, k, _ = drive_train(spec, flexible=True).matrices()
-    w2 = eigh(k, m, eigvals_only=True)
-    w2 = w2[w2 > 1e-9 * max(float(w2.max()), 1e-300)]
-    return float(np.sqrt(w2.min()) / (2.0 * np.pi)) if w2.size else float("nan")
 
 
 def _spec_with(model: EngineModel, t: Trial, x: np.ndarray) -> EngineSpec:
@@ -104,4 +95,18 @@ def one_resonance(model: EngineModel, best: tuple[Trial, float], others: list[tu
     return None
 
 
-__all__ = ["SIGMAS", "explains", "lowest_mode_hz", "mode_of", "moves_the_mode", "one_resonance"]
+def one_resonance_in(model: EngineModel, confirmed: list[tuple], significant: Callable[[Residuals], bool],
+                     held_chi2: Callable[[Residuals], float], n_features: int) -> Trial | None:
+    """``one_resonance`` over the workflow's confirmed fits (each (gap, trial, model, run), best first): the
+    significant ones with their held-out floored chi^2 (``held_chi2`` of the run); None when fewer than one."""
+    fits = [(c[1], held_chi2(c[3])) for c in confirmed if significant(c[3])]
+    return one_resonance(model, fits[0], fits[1:], n_features) if fits else None
+
+
+def said_as_one(best: Trial, twin: Trial) -> tuple[list[str], list[str]]:
+    """The ambiguity's two names and what separates each (the workflow's ambiguous outcome)."""
+    return [t.candidate.label for t in (best, twin)], [t.candidate.separated_by for t in (best, twin)]
+
+
+__all__ = ["SIGMAS", "explains", "lowest_mode_hz", "mode_of", "moves_the_mode", "one_resonance", "one_resonance_in",
+           "said_as_one"]

@@ -84,7 +84,7 @@ from frictionwatch.core.discrepancy.residuals import (
     pinned_config,
     run_model,
 )
-from frictionwatch.core.discrepancy.resonance import one_resonance
+from frictionwatch.core.discrepancy.resonance import one_resonance_in, said_as_one
 from frictionwatch.core.discrepancy.words import within_floor_separation
 from frictionwatch.core.model.effects import EFFECTS
 from frictionwatch.core.model.engine_model import EngineModel
@@ -197,13 +197,11 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             if len(other.candidate.names) < len(t.candidate.names):  # as good and simpler: the simpler one
                 _, t, new_model, res = confirmed[1]
             other = None
-        if other is None and significant(res):  # the line's stiffness and the flywheel's inertia: one resonance
-            held_chi2 = [(c[1], chi2_floored(parts(c[3])[1], scale, floor)) for c in confirmed if significant(c[3])]
-            other = one_resonance(current, held_chi2[0], held_chi2[1:], floor.size)
-            if other is not None:
-                _said_ambiguous(found, beyond, [c.candidate.label for c in (t, other)],
-                                [c.candidate.separated_by for c in (t, other)], inside)
-                break
+        twin = None if other is not None or not significant(res) else one_resonance_in(
+            current, confirmed, significant, lambda r, f=floor: chi2_floored(parts(r)[1], scale, f), floor.size)
+        if twin is not None:  # the line's stiffness and the flywheel's inertia read one resonance (resonance.py)
+            _said_ambiguous(found, beyond, *said_as_one(t, twin), inside)
+            break
         if other is not None:  # two explanations: a TDC the pressure reads beside one of them (pair.py), or neither
             pair, spent, found.pair_not_taken, _ = tdc_and_friction(
                 current, cur_res, [(c[1], c[3]) for c in confirmed[:2]], full, parts, scale, floor, pressure,

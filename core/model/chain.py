@@ -17,6 +17,7 @@ import numba
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.kinematics import kinematics
+from scipy.linalg import eigh
 
 
 @dataclass(frozen=True)
@@ -124,6 +125,17 @@ def drive_train(spec: EngineSpec, flexible: bool = True) -> DriveTrain:
     recip = np.zeros(rotating.shape[0])
     np.add.at(recip, cyl_node, mean_reciprocating_inertia(spec))
     return DriveTrain(rotating, recip, stiffness, damping, cyl_node, int(fly), int(load))
+
+
+def lowest_mode_hz(spec: EngineSpec) -> float:
+    """The flexible line's lowest non-rigid natural frequency [Hz] (undamped, the load node free); NaN on a one-node
+    line (no mode to read). Near it the speed reads omega^2 ~ k / J of the line (design note 109)."""
+    if not spec.stiffness.size:
+        return float("nan")
+    m, k, _ = drive_train(spec, flexible=True).matrices()
+    w2 = eigh(k, m, eigvals_only=True)
+    w2 = w2[w2 > 1e-9 * max(float(w2.max()), 1e-300)]
+    return float(np.sqrt(w2.min()) / (2.0 * np.pi)) if w2.size else float("nan")
 
 
 def _section_matrix(k: np.ndarray, n: int) -> np.ndarray:
