@@ -49,6 +49,12 @@ CHAIN_REL = {("chain_mismatch", "stiffness_scale"): CHAIN_STIFFNESS_REL}
 # healthy k9k 1800/0.6 seed 7 log (tests/core/test_discrepancy_workflow.py) and the matrix's seeds 6, 7, 10
 # (design note 109)
 MODE_SHARE_ZERO = 1e-6  # a share below this is rounding (a friction, a damping: exactly 0), not a mode moved
+# a one-node line has no mode to carry it through: there the flywheel node is the whole crank, and its inertia reads
+# the model's own error in the total inertia (deutz 3000/0.9 seed 5, healthy: 0.9975 +- 0.0012). Tuned on healthy
+# deutz logs of seeds 1-5 at points none of the matrix's nor the tests' (bench/calibrate_inertia_floor.py --write;
+# tuned.json: its provenance); tested on that seed-5 log and the matrix's deutz seeds 6, 7, 10; 0 until it has run
+ONE_NODE_FLOOR = {("flywheel_inertia", "inertia_scale"): _TUNED["INERTIA_FLOOR_ONE_NODE"].value
+                  if "INERTIA_FLOOR_ONE_NODE" in _TUNED else 0.0}
 
 
 @dataclass(frozen=True)
@@ -146,12 +152,14 @@ def _solve(jac: np.ndarray, r: np.ndarray) -> np.ndarray:
 def parameter_floor(cand: Candidate, x: np.ndarray | None = None) -> np.ndarray:
     """(p,) the model's own 1-sigma error in each of the candidate's parameters that no cycle count removes
     (CHAIN_FLOOR; for another parameter that moves the line's lowest mode, the chain stiffness's carried through
-    it, CHAIN_FLOOR_STIFFNESS / Candidate.mode_share; 0 where none is known), and at a fitted ``x`` (p,) the part that grows with its distance from the
+    it, CHAIN_FLOOR_STIFFNESS / Candidate.mode_share; on a one-node line ONE_NODE_FLOOR; 0 where none is known), and at a fitted ``x`` (p,) the part that grows with its distance from the
     no-effect value (CHAIN_REL x |x - x0|: the shaft line's bias in a stiffness far from the record's), in
     quadrature."""
-    share = cand.mode_share or (0.0,) * len(cand.params)
     line = CHAIN_FLOOR.get(("chain_mismatch", "stiffness_scale"), 0.0)
-    floor = np.array([CHAIN_FLOOR.get((cand.effect, p), line / s if s > MODE_SHARE_ZERO else 0.0)
+    share = cand.mode_share or (0.0,) * len(cand.params)  # none: a one-node line (or a cylinder's effect)
+    floor = np.array([CHAIN_FLOOR[(cand.effect, p)] if (cand.effect, p) in CHAIN_FLOOR
+                      else line / s if s > MODE_SHARE_ZERO
+                      else 0.0 if cand.mode_share else ONE_NODE_FLOOR.get((cand.effect, p), 0.0)
                       for p, s in zip(cand.params, share)], dtype=np.float64)
     if x is None:
         return floor
@@ -389,5 +397,6 @@ def rank(trials: Sequence[Trial]) -> list[Trial]:
     return sorted(trials, key=lambda t: t.cost)
 
 
-__all__ = ["CHAIN_FLOOR", "CHAIN_REL", "CHAIN_STIFFNESS_REL", "Evaluator", "Linearised", "MODE_SHARE_ZERO", "Trial", "at_start",
-           "linearise", "parameter_floor", "parameter_sigma", "point_floors", "polish", "rank", "refine", "with_fit"]
+__all__ = ["CHAIN_FLOOR", "CHAIN_REL", "CHAIN_STIFFNESS_REL", "Evaluator", "Linearised", "MODE_SHARE_ZERO",
+           "ONE_NODE_FLOOR", "Trial", "at_start", "linearise", "parameter_floor", "parameter_sigma", "point_floors",
+           "polish", "rank", "refine", "with_fit"]

@@ -125,10 +125,11 @@ def test_the_inertias_floor_is_the_lines_own_error_carried_through_its_lowest_mo
     """The chain's scale moves the lowest mode's omega^2 one for one, so CHAIN_FLOOR_STIFFNESS (tuned on healthy
     logs) is the line's own error in ln omega^2; a fit of the flywheel's inertia reads it as that over |d ln omega^2 /
     d inertia_scale|, the share measured here from a 1 % heavier flywheel (k9k ~0.44: floor ~0.0177; maruti ~0.52:
-    ~0.0150). The chain's own floors are as tuned; a one-node line (deutz) has no mode and no floor. The healthy k9k
+    ~0.0150). The chain's own floors are as tuned; a one-node line (deutz) has no mode: its own, tuned on healthy
+    deutz logs (fit.ONE_NODE_FLOOR, bench/calibrate_inertia_floor.py). The healthy k9k
     1800/0.6 seed 7 log's inertia, 1.0188 +- 0.0020 without it (design note 109), is then the model's own error."""
     from frictionwatch.core.discrepancy.choice import unresolved
-    from frictionwatch.core.discrepancy.fit import CHAIN_FLOOR, parameter_floor
+    from frictionwatch.core.discrepancy.fit import CHAIN_FLOOR, ONE_NODE_FLOOR, parameter_floor
 
     line = CHAIN_FLOOR[("chain_mismatch", "stiffness_scale")]
     assert line > 0.0
@@ -143,7 +144,9 @@ def test_the_inertias_floor_is_the_lines_own_error_carried_through_its_lowest_mo
                                    [line, CHAIN_FLOOR[("chain_mismatch", "damping_scale")]], rtol=1e-12)
         np.testing.assert_allclose(lib["chain_mismatch"].mode_share, [1.0, 0.0], atol=1e-3)
     deutz = {c.label: c for c in candidate_library(EngineModel.from_spec(load_engine("deutz-1cyl")))}
-    np.testing.assert_allclose(parameter_floor(deutz["flywheel_inertia"]), [0.0], atol=0.0)
+    assert deutz["flywheel_inertia"].mode_share == ()
+    np.testing.assert_allclose(parameter_floor(deutz["flywheel_inertia"]),
+                               [ONE_NODE_FLOOR[("flywheel_inertia", "inertia_scale")]], rtol=1e-12)
     model, trial = _trials(load_engine("k9k-4cyl"))
     fly = trial("flywheel_inertia", [1.0188], [0.0020])
     floored = dataclasses.replace(fly, sigma=np.hypot(fly.sigma, parameter_floor(fly.candidate)))
