@@ -93,8 +93,9 @@ def to_confirm(trials: list[Trial], n_shapes: int) -> list[Trial]:
     cylinder 8 while cylinders 2 and 12 fitted the window within 5 of its chi^2 and 12 was never held out."""
     out: list[Trial] = best_of_shapes(trials, n_shapes)
     # and every further shape the window cannot tell from the last one taken (its cost within AMBIGUOUS_DCHI2, as
-    # close_cylinders): one more shape in the library must not crowd out one it ties with (maruti 4000 <-> 1500 s7, a
-    # skirt: window 2232.5 behind the flywheel's 2225.7, fifth, never held out, where it explains best; note 109)
+    # close_cylinders): one more shape in the library must not crowd out one it ties with. Written for maruti 4000
+    # <-> 1500 s7 (a skirt the flywheel's shape crowded out); it does not mend that log: there the skirt was not even
+    # refined (design note 109)
     shapes, edge = {t.candidate.shape for t in out}, out[-1].cost if out else 0.0
     for t in trials if len(shapes) == n_shapes else ():
         if t.candidate.shape not in shapes and t.cost - edge < AMBIGUOUS_DCHI2:

@@ -345,11 +345,21 @@ def test_a_constant_extra_friction_is_said_without_a_cylinder_and_never_named_a_
     assert "a motored run cylinder by cylinder" in doc["verdict"]
 
 
-def test_a_fit_within_the_noise_of_none_on_a_healthy_log_is_not_named():
+def test_a_fit_within_the_noise_of_none_on_a_healthy_log_is_not_named(monkeypatch):
     """k9k 1800 rpm 0.7 seed 4, 84 cycles, nothing hidden (a log no matrix uses): nothing is beyond the null and the
     speed gap is within a healthy log's, and the shaft line's chain_mismatch fits the model's own error with both
-    scales within 2 sigma of 1 -- named before design note 50, refused now, said why; the model stays as it was."""
+    scales within 2 sigma of 1 -- named before design note 50, refused now, said why; the model stays as it was.
+    Since the flywheel's inertia is a candidate (design note 109) nothing is named and the chain is no longer the
+    refused fit (nothing is refused): the refusal is shown with that candidate left out of the library."""
     model = EngineModel.from_spec(load_engine(ENGINE))
+    doc = discover(model, cycles_of(1800.0, 0.7, 4), OPTIONS).to_json()
+    assert doc["found"] == [] and doc["outcome"] == "nothing"
+    assert doc["gap_after"] == doc["gap_before"]
+    from frictionwatch.core.discrepancy import workflow
+    from frictionwatch.core.discrepancy.candidates import candidate_library
+
+    monkeypatch.setattr(workflow, "candidate_library",
+                        lambda m: [c for c in candidate_library(m) if c.effect != "flywheel_inertia"])
     doc = discover(model, cycles_of(1800.0, 0.7, 4), OPTIONS).to_json()
     assert doc["found"] == [] and doc["outcome"] == "nothing"
     assert [r["candidate"] for r in doc["refused"]] == ["chain_mismatch"]
