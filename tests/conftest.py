@@ -7,3 +7,11 @@ import os
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+
+
+def pytest_collection_modifyitems(config, items):
+    """The modules holding a test marked ``slow`` are collected first, each module's tests kept together and in
+    order: `make test`'s two workers are dealt whole files in collection order (xdist --dist loadfile), so the
+    suite's last files are short ones, not one worker finishing a 60-second file while the other waits."""
+    slow = {item.nodeid.split("::")[0] for item in items if item.get_closest_marker("slow") is not None}
+    items.sort(key=lambda item: item.nodeid.split("::")[0] not in slow)  # stable: the order within each group kept

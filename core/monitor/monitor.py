@@ -182,16 +182,15 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     geometry = (state.grid_geometry if state.grid_geometry is not None and state.grid_geometry.fits(cycle.grid)
                 else grid_geometry(spec, cycle.grid))
     energy = cycle_energy(cycle, weights)
-    balance, kinetic, accel, t_window, imep_c = transient_balance(spec, cycle, pressure, exc.indicated_mean,
-                                                                  energy, prev, load, coupling_loss, geometry,
-                                                                  early)
+    balance, kinetic, accel, t_window, imep_c, tdc_sens = transient_balance(
+        spec, cycle, pressure, exc.indicated_mean, energy, prev, load, coupling_loss, geometry, early)
     # the peak pressure of the pressure as it came (before the sensor corrections), beside the balance's indicated
     # works: both are core.model.indicated's, so a cycle enters that file once
     pmax, pmax_angle = peak_pressure(cycle.grid, raw_pressure, spec.firing_angles)
     mean = MeanBalance(indicated=t_i, load=load, coupling_loss=coupling_loss, friction=balance, kinetic=kinetic,
                        imep_centred=imep_c, acceleration=accel, indicated_window=t_window,
-                       tdc_sensitivity=indicated_tdc_sensitivity(cycle.grid, pressure, geometry.piston_acceleration,
-                                                                 spec.piston_area))
+                       tdc_sensitivity=tdc_sens if tdc_sens is not None else indicated_tdc_sensitivity(
+                           cycle.grid, pressure, geometry.piston_acceleration, spec.piston_area))
     if prev is None:
         flags.append("no_previous_cycle")  # IMEP over the assembled cycle's window, no mean balance
 

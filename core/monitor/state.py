@@ -279,9 +279,10 @@ class GridGeometry(NamedTuple):
     positions (z, n) [m], J(theta = 2 pi) [kg m^2] and each piston's x'' (z, n) [m/rad^2] (the indicated work's
     sensitivity to a TDC error, core.monitor.balance.mean_balance.indicated_tdc_sensitivity); the transient balance's
     window starts (core.model.indicated.window_starts): window_starts (1, z) of each cylinder's own firing window in
-    [previous | current], alone_starts (1, z) of the cycle's own closed loop, and its triangle's weights
-    triangle_previous, triangle_current (z, n) [m^2/rad] (core.monitor.balance.mean_balance.triangle_weights)
-    (None: made by the balance)."""
+    [previous | current], alone_starts (1, z) of the cycle's own closed loop, its triangle's weights
+    triangle_previous, triangle_current (z, n) [m^2/rad] (core.monitor.balance.mean_balance.triangle_weights) and
+    each sample's share of a closed trapezoid's dx, central_dx (z, n) [m] (half the positions' central difference:
+    core.monitor.balance.mean_balance.balance_sums) (None: made by the balance)."""
 
     first_angle: float
     size: int
@@ -292,6 +293,7 @@ class GridGeometry(NamedTuple):
     alone_starts: np.ndarray | None = None
     triangle_previous: np.ndarray | None = None
     triangle_current: np.ndarray | None = None
+    central_dx: np.ndarray | None = None
 
     def fits(self, grid: np.ndarray) -> bool:
         return grid.shape[0] == self.size and float(grid[0]) == self.first_angle

@@ -18,6 +18,8 @@ from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.pipeline import assembled_cycles
 
+pytestmark = pytest.mark.slow  # collected first (tests/conftest.py): one of the suite's longest files
+
 # k9k 2200 rpm 0.6 seed 4, 90 cycles: no matrix point, no tuning log (and nothing here is tuned)
 ENGINE, RPM, LOAD, SEED, CYCLES = "k9k-4cyl", 2200.0, 0.6, 4, 90
 TRUE_GAIN = 1.04

@@ -14,6 +14,8 @@ from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.pipeline import assembled_cycles
 
+pytestmark = pytest.mark.slow  # collected first (tests/conftest.py): one of the suite's longest files
+
 CYCLES = 84  # as test_discrepancy_workflow's
 OPTIONS = Options(max_steps=2)
 

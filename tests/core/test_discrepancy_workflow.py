@@ -15,6 +15,8 @@ from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.discrepancy_report import render
 from frictionwatch.service.pipeline import assembled_cycles
 
+pytestmark = pytest.mark.slow  # collected first (tests/conftest.py): one of the suite's longest files
+
 ENGINE = "k9k-4cyl"
 CYCLES = 84
 OPTIONS = Options(max_steps=2)

@@ -112,6 +112,21 @@ def test_effect_terms_match_their_references():
     assert not np.any(basis[[0, 2, 3], 1])  # the extra friction of cylinder 2 is nobody else's
 
 
+def test_an_extra_friction_shape_is_compiled_once_per_set_of_numbers():
+    """The same shape asked for twice (the workflow's sizing asks twice; its unit directions recur in every fit) is
+    the one compiled kernel; other numbers, another kernel, each its own shape (loss_terms._shape_kernel)."""
+    a, b = extra_friction_term(2, 0.2, 0.5, 1.5, 0.3), extra_friction_term(2, 0.2, 0.5, 1.5, 0.3)
+    c = extra_friction_term(2, 0.2, 0.5, 1.5, 0.4)
+    assert a.kernel is b.kernel and c.kernel is not a.kernel
+    consts = SPEC.friction_params()
+    angle = np.linspace(-np.pi, 3 * np.pi, 64)
+    one = cylinder_samples(angle, np.full(64, 180.0), np.zeros(64), consts)
+    samples = np.ascontiguousarray(np.stack([one] * SPEC.n_cyl, axis=1))
+    for term, phase in ((a, 0.3), (c, 0.4)):
+        got = TermLibrary((term,)).evaluate(samples, consts)[1, 0]
+        assert_allclose(got, 0.2 + 0.5 * np.cos(1.5 * one[0] + phase), rtol=1e-12)
+
+
 def test_simulate_takes_a_model_and_applies_its_effects():
     effects = [parse_effect("ring_wear:cylinder=3"), parse_effect("misfire:cylinder=2")]
     model = EngineModel.from_spec(SPEC, effects=effects)

@@ -18,6 +18,8 @@ from frictionwatch.service.pipeline import analyze_log
 
 from tests.sim_logs import commissioned_model, sensor_flags, simulate_log, withheld_cylinders
 
+pytestmark = pytest.mark.slow  # collected first (tests/conftest.py): one of the suite's longest files
+
 COMMISSIONED = Calibration(status="commissioned", tdc_wheel_sigma_deg=0.2, tdc_cylinder_sigma_deg=0.02,
                            gain_sigma=0.0093)  # what commissioning k9k 2200 rpm / 0.7 wrote (its per-channel gain)
 

@@ -28,6 +28,8 @@ from bench.scipy_baseline import (
 from bench.scipy_compare import monitor_noise
 from bench.scipy_measure import angle_harmonics, measure
 
+pytestmark = pytest.mark.slow  # collected first (tests/conftest.py): one of the suite's longest files
+
 
 def friction_basis(theta, omega, p_gauge, consts):
     """The six Rezeka-Henein terms (L, n) of one cylinder through the term library (core.model.terms)."""

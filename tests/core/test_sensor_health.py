@@ -19,6 +19,8 @@ from numpy.testing import assert_allclose
 
 from tests.sim_logs import pipeline_results
 
+pytestmark = pytest.mark.slow  # collected first (tests/conftest.py): one of the suite's longest files
+
 FOUR_PI = 4.0 * np.pi
 
 

@@ -17,6 +17,8 @@ from frictionwatch.service.pipeline import analyze_log
 
 from tests.sim_logs import commissioned_model, sensor_flags, simulate_log, withheld_cylinders
 
+pytestmark = pytest.mark.slow  # collected first (tests/conftest.py): one of the suite's longest files
+
 
 def _est(deg: float, sigma: float = 0.2, stat: float = 0.03) -> TdcEstimate:
     return TdcEstimate(math.radians(deg), math.radians(sigma), 0.0, 100, "test", {"statistical_deg": stat})

@@ -8,12 +8,15 @@ dyno step late in a cycle, in the load reading after its end: that cycle's balan
 
 from __future__ import annotations
 
+import frictionwatch.core.monitor.balance.mean_balance as mean_balance
 import numpy as np
 import pytest
 from frictionwatch.core.discrepancy.features import NULL_BALANCE
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import variable_inertia
 from frictionwatch.core.monitor.balance.mean_balance import (
+    balance_sums,
+    balance_sums_reference,
     cycle_energy,
     cycle_energy_reference,
     energy_weights,
@@ -23,7 +26,7 @@ from frictionwatch.core.monitor.balance.mean_balance import (
 from frictionwatch.core.monitor.identify.identification import NO_BALANCE
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.core.types import LoadSample
-from frictionwatch.service.pipeline import analyze_records, assembled_cycles
+from frictionwatch.service.pipeline import analyze_records, assembled_cycles, run
 from numpy.testing import assert_allclose
 
 MARUTI = load_engine("maruti-3cyl")
@@ -51,6 +54,63 @@ def test_triangle_weights_match_the_plain_trapezoid():
     assert_allclose(got, triangle_weights_reference(grid, geo.positions, spec.piston_area, prev, cur), rtol=1e-10)
     flat = np.full((spec.n_cyl, grid.size), 3e5)
     assert abs(np.vdot(flat, geo.triangle_previous) + np.vdot(flat, geo.triangle_current)) < 1e-9 * abs(got)
+
+
+def _assert_sums_equal(geo, prev, cur, area, grid):
+    """``balance_sums`` against ``balance_sums_reference`` on one pair of cycles. Each figure is a sum of ~n
+    products of both signs (compression against expansion, a zero-mean weight): its rounding is relative to the
+    sum of the terms' sizes, not to the figure (the triangle's term is ~1e-3 of them), so the tolerance is 1e-12 of
+    that size per cylinder (per pair for the triangle): the same products grouped otherwise, rounding only."""
+    got, ref = balance_sums(geo, prev, cur, area, grid), balance_sums_reference(geo, prev, cur, area, grid)
+    step = float(grid[1] - grid[0])
+    size_works = area * (np.abs(prev) + np.abs(cur)) @ np.abs(geo.central_dx).T  # (z, z): its diagonal per cylinder
+    size_tdc = area * step / (4 * np.pi) * np.einsum("kn,kn->k", np.abs(cur), np.abs(geo.piston_acceleration))
+    size_triangle = float(np.vdot(np.abs(prev), np.abs(geo.triangle_previous))
+                          + np.vdot(np.abs(cur), np.abs(geo.triangle_current)))
+    for g, r, size in zip(got, ref, (np.diag(size_works), np.diag(size_works), size_triangle, size_tdc), strict=True):
+        assert np.all(np.abs(np.asarray(g) - np.asarray(r)) <= 1e-12 * np.asarray(size))
+
+
+@pytest.mark.parametrize("name", ["deutz-1cyl", "maruti-3cyl", "k9k-4cyl", "genset-v20"])
+def test_balance_sums_kernel_equals_its_reference_on_random_cycles(name):
+    """Random pressure pairs (1-150 bar, and a few channels constant) on two grids (720 samples from 0, 360 from
+    a quarter step), each cylinder's window start drawn anew over [0, n] (both ends: all of one cycle, all of the
+    other) beside the grid's own starts: the kernel's four figures equal the reference's to rounding."""
+    spec = load_engine(name)
+    rng = np.random.default_rng(17)
+    for n, first in ((720, 0.0), (360, np.pi / 720)):
+        grid = first + np.arange(n) * 4.0 * np.pi / n
+        geo = grid_geometry(spec, grid)
+        for case in range(6):
+            prev, cur = 1e5 + rng.uniform(0.0, 150e5, (2, spec.n_cyl, n))
+            if case == 1:
+                prev[0], cur[-1] = 2e5, 3e5
+            starts = geo.window_starts if case == 0 else rng.integers(0, n + 1, (1, spec.n_cyl))
+            if case == 2:
+                starts[0, 0], starts[0, -1] = 0, n
+            _assert_sums_equal(geo._replace(window_starts=np.ascontiguousarray(starts, dtype=np.int64)), prev, cur,
+                               spec.piston_area, grid)
+
+
+def test_balance_sums_kernel_equals_its_reference_on_the_monitors_cycles(settling, monkeypatch):
+    """The pairs the monitor balances on the maruti speed step (its fixture: seed 13) and a genset-v20 stream
+    (1500 rpm 0.9, seed 4, 8 cycles): every call's figures equal the reference's to rounding."""
+    seen = []
+
+    def spy(geo, prev, cur, area, grid):
+        seen.append((geo, prev.copy(), cur.copy(), area, grid.copy()))
+        return balance_sums(geo, prev, cur, area, grid)
+
+    monkeypatch.setattr(mean_balance, "balance_sums", spy)
+    genset = load_engine("genset-v20")
+    sim = simulate(genset, 1500.0, 0.9, 8, 4)
+    for spec, info, records in ((MARUTI, settling.info, settling.records), (genset, sim.info, sim.records)):
+        before = len(seen)
+        for _ in run(spec, info, records):
+            pass
+        assert len(seen) - before >= 6
+    for args in seen:
+        _assert_sums_equal(*args)
 
 
 def test_the_cycle_energy_from_the_edges_follows_the_flywheel_speed(settling):

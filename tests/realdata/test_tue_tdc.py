@@ -17,6 +17,8 @@ from frictionwatch.drivers.daq.raw import read_daq_table
 from frictionwatch.service.cli import main
 from frictionwatch.service.daq_tdc import find_tdc
 
+pytestmark = pytest.mark.slow  # collected first (tests/conftest.py): one of the suite's longest files
+
 FOLDER = "tue-4gb10-si-encoder-pressure"
 MOTORED = ("ENGINEOFF", "ENGINEOFF2", "ENGINEOFF3", "ENGINEOFF4", "ENGINEOFF5", "ENGINEOFF6", "E5FULLOAD4EngineOff",
            "E0FULLOAD4EngineOff")

@@ -15,6 +15,8 @@ from frictionwatch.service.cli import main
 from frictionwatch.service.cmd_discrepancy import discrepancy_of, run_discrepancy, with_baseline
 from frictionwatch.service.pipeline import resolve_model
 
+pytestmark = pytest.mark.slow  # collected first (tests/conftest.py): one of the suite's longest files
+
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):

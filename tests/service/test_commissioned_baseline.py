@@ -24,6 +24,8 @@ from frictionwatch.service.serve import _alerts_factory, build_engine
 
 from tests.sim_logs import simulate_log
 
+pytestmark = pytest.mark.slow  # collected first (tests/conftest.py): one of the suite's longest files
+
 RING_KINDS = ("ring_wear", "blow_by")
 
 

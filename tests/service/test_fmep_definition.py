@@ -16,6 +16,8 @@ from frictionwatch.service.cli import main
 
 from tests.analyze_doc import assert_fmep_is_torque_over_displacement
 
+pytestmark = pytest.mark.slow  # collected first (tests/conftest.py): one of the suite's longest files
+
 LOGS = {  # name: (speed as a fraction of the preset's range, load, cycles, effects); 8 cycles: the estimate is
     # still the prior; 24: measured
     "short": (0.3, "0.4", "8", []),

@@ -24,6 +24,8 @@ from frictionwatch.service.cli import main
 from tests.analyze_doc import assert_fmep_is_torque_over_displacement
 from tests.json_close import assert_json_close
 
+pytestmark = pytest.mark.slow  # collected first (tests/conftest.py): one of the suite's longest files
+
 distributed = pytest.importorskip("distributed")
 
 OK = ["a/deep/y.mcap", "a/x.mcap", "b/x.mcap"]

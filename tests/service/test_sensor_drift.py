@@ -14,6 +14,8 @@ from frictionwatch.service.pipeline import analyze_log
 
 from tests.sim_logs import commissioned_model, simulate_log, withheld_cylinders
 
+pytestmark = pytest.mark.slow  # collected first (tests/conftest.py): one of the suite's longest files
+
 ONSET, CYCLES, WITHIN = 300, 900, 200
 
 

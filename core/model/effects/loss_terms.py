@@ -8,11 +8,16 @@ compiled with ``KERNEL_SIGNATURE``: ``kernel(samples (N_FIELDS, z, n), consts (N
                             extra_friction effect, one coefficient (its reference torque T_ref)
 
 The extra-friction shape carries the effect's own numbers (m, a, order, phase, cylinder), so its kernel is compiled per
-effect instance by ``extra_friction_term``; numba compiles such a closure once per instance (eagerly, with the common
-signature) and cannot cache it on disk.
+set of numbers by ``extra_friction_term``; numba compiles such a closure eagerly (with the common signature, ~0.2 s
+on a quiet box) and cannot cache it on disk. The compiled kernels are kept per set of numbers in this process
+(``_shape_kernel``, a bounded memo): the discrepancy workflow asks for the same shapes again and again (every
+candidate's sizing asks twice, and its linearisation's unit directions recur in every fit), which cost it ~28 % of a
+healthy k9k run (cProfile, load ~6).
 """
 
 from __future__ import annotations
+
+import functools
 
 import numba
 import numpy as np
@@ -42,18 +47,28 @@ def order_shape_reference(s: np.ndarray, mean: float, amp: float, order: float, 
     return mean + amp * np.cos(order * s[ANGLE] + phase)
 
 
-def extra_friction_term(cylinder: int, mean: float, amp: float, order: float, phase: float) -> LossTerm:
-    """The torque shape of an ``extra_friction`` effect in ``cylinder`` (1-based) as one term that is zero in every
-    other cylinder (group "engine": one coefficient, the reference torque T_ref [N m]; the simulator uses the
-    cylinder's mean friction), prior 0."""
-    k = int(cylinder) - 1
-    mean, amp, order, phase = float(mean), float(amp), float(order), float(phase)
+# a memo of compiled code keyed by the constants compiled in (the same numbers give the same kernel: no state), as
+# numba's own dispatchers keep theirs; bounded, so a long-lived process asking for ever new shapes stays bounded
+@functools.lru_cache(maxsize=256)
+def _shape_kernel(k: int, mean: float, amp: float, order: float, phase: float):
+    """The compiled kernel of ``extra_friction_term``'s shape for 0-based cylinder k (its numbers are constants)."""
 
     @numba.njit(KERNEL_SIGNATURE)
     def kernel(s, c, out):
         for j in range(out.shape[0]):
             for i in range(out.shape[1]):
                 out[j, i] = mean + amp * np.cos(order * s[ANGLE, j, i] + phase) if j == k else 0.0
+
+    return kernel
+
+
+def extra_friction_term(cylinder: int, mean: float, amp: float, order: float, phase: float) -> LossTerm:
+    """The torque shape of an ``extra_friction`` effect in ``cylinder`` (1-based) as one term that is zero in every
+    other cylinder (group "engine": one coefficient, the reference torque T_ref [N m]; the simulator uses the
+    cylinder's mean friction), prior 0."""
+    k = int(cylinder) - 1
+    mean, amp, order, phase = float(mean), float(amp), float(order), float(phase)
+    kernel = _shape_kernel(k, mean, amp, order, phase)
 
     def reference(s: np.ndarray, c: np.ndarray) -> np.ndarray:
         """(N_FIELDS, z, n) -> (z, n), cylinder k only; (N_FIELDS, n) is taken as cylinder k itself."""

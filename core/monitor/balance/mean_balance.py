@@ -99,9 +99,10 @@ def grid_geometry(spec: EngineSpec, grid: np.ndarray) -> GridGeometry:
                                np.ascontiguousarray(spec.firing_angles, dtype=np.float64),
                                np.ascontiguousarray(spec.kinematics_params(), dtype=np.float64), dx, ddx)
     centres = tdc_centres(spec.firing_angles)[None, :]
+    central = np.ascontiguousarray(0.5 * (np.roll(positions, -1, axis=1) - np.roll(positions, 1, axis=1)))
     return GridGeometry(float(grid[0]), int(n), positions, mid_cycle_inertia(spec), ddx,
                         window_starts(grid, centres), window_starts(grid, np.zeros((1, z))),
-                        *triangle_weights(grid, positions, spec.piston_area))
+                        *triangle_weights(grid, positions, spec.piston_area), central)
 
 
 def triangle_weights(grid: np.ndarray, positions: np.ndarray, area: float) -> tuple[np.ndarray, np.ndarray]:
@@ -191,9 +192,10 @@ def cycle_energy_reference(cycle: Cycle, weights: EnergyWeights) -> float:
 def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indicated_cycle: np.ndarray,
                       energy: float, previous: PreviousCycle | None, load: float, coupling_loss: float,
                       geometry: GridGeometry, load_early: float) -> tuple[float, float, float, float,
-                                                                          np.ndarray | None]:
-    """(friction, kinetic, acceleration, indicated, imep_centred) of one cycle and the cycle just before it
-    (``previous``; None when that cycle is not at hand: all NaN and None); indicated_cycle (z,) [N m] the
+                                                                          np.ndarray | None, np.ndarray | None]:
+    """(friction, kinetic, acceleration, indicated, imep_centred, tdc_sensitivity) of one cycle and the cycle just
+    before it (``previous``; None when that cycle is not at hand: all NaN and None; tdc_sensitivity is this cycle's
+    ``indicated_tdc_sensitivity``, taken in the same pass over the pressure); indicated_cycle (z,) [N m] the
     cylinders' work means over this cycle's own window (``Excitation.indicated_mean``); energy [J] this cycle's
     angle-averaged kinetic energy (``cycle_energy``).
 
@@ -222,27 +224,25 @@ def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indi
     its end, now shows in its mean and voids it (deutz two-point s9 cycle 145: +11.8 N m before, design note 76)."""
     nan = float("nan")
     if previous is None or not (math.isfinite(previous.energy) and math.isfinite(energy)):
-        return nan, nan, nan, nan, None
+        return nan, nan, nan, nan, None, None
     # the windows' first samples and the triangle's weights are fixed by the grid (GridGeometry); the pressures
     # are the monitor's checked ones
-    if geometry.window_starts is None or geometry.alone_starts is None or geometry.triangle_previous is None:
+    if geometry.window_starts is None or geometry.central_dx is None or geometry.triangle_previous is None:
         geometry = grid_geometry(spec, cycle.grid)
-    x, area = geometry.positions, spec.piston_area
     cur = np.ascontiguousarray(pressure, dtype=np.float64)
     prev = np.ascontiguousarray(previous.pressure, dtype=np.float64)
-    (own,), (alone,) = works_with_alone(x, prev, cur, geometry.window_starts, geometry.alone_starts, area)
+    own, alone, triangle, sensitivity = balance_sums(geometry, prev, cur, spec.piston_area, cycle.grid)
     kinetic = (energy - previous.energy) / FOUR_PI
     ind = np.asarray(indicated_cycle)
     # the grid's works enter only as the triangle's zero-mean weighting; the two cycles' accurate means carry the
     # level: the 720-point trapezoid reads ~0.5 % below the work the monitor's time grid takes (K9K 1100 rpm:
     # 0.28 N m of indicated torque, 2 % of the friction), a bias the weighting's zero mean cancels
-    indicated = 0.5 * (float(ind.sum()) + previous.indicated) + float(
-        np.vdot(prev, geometry.triangle_previous) + np.vdot(cur, geometry.triangle_current))
+    indicated = 0.5 * (float(ind.sum()) + previous.indicated) + triangle
     imep = (ind * FOUR_PI + own - alone) / spec.displacement_cyl
     load_stepped = abs(load - previous.load) > LOAD_STEP_FRACTION * spec.rated_torque_nm
     window_load = 0.5 * (previous.load_late + load_early)
     friction = nan if load_stepped else indicated - window_load - 0.5 * (coupling_loss + previous.coupling_loss) - kinetic
-    return friction, kinetic, kinetic / geometry.inertia_mid, indicated, imep
+    return friction, kinetic, kinetic / geometry.inertia_mid, indicated, imep, sensitivity
 
 
 LOAD_STEP_FRACTION = 0.02  # of the rated torque: a larger load change between two cycles voids that balance
@@ -259,6 +259,76 @@ def indicated_tdc_sensitivity(grid: np.ndarray, pressure: np.ndarray, piston_acc
     cylinder on the grid (core.monitor.state.GridGeometry)."""
     step = float(grid[1] - grid[0])
     return -area * step / (4.0 * np.pi) * np.einsum("kn,kn->k", pressure, piston_acceleration)
+
+
+def balance_sums(geometry: GridGeometry, previous: np.ndarray, current: np.ndarray, area: float,
+                 grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """The transient balance's pressure sums of two consecutive cycles' pressures (z, n) [Pa] (C-contiguous
+    float64, finite) on the grid (n,) [rad] ``geometry`` was made for, in one pass over them: (own (z,) [J]
+    each cylinder's work over its own firing window in [previous | current], alone (z,) [J] over this cycle's closed
+    loop, the triangle's indicated torque beyond the two cycles' mean [N m], tdc_sensitivity (z,) [N m/rad]) --
+    ``balance_sums_reference``'s (works_with_alone, two np.vdot, indicated_tdc_sensitivity's einsum: ~0.15-0.3 ms
+    a genset-v20 cycle, four passes over the (20, 720) pressures) by ``balance_sums_kernel``.
+
+    The works by parts: a closed trapezoid over n samples of an n-periodic x, (1/2) sum (p_a + p_a+1)(x_a+1 - x_a),
+    is sum p_a (x_a+1 - x_a-1) / 2, each sample's weight its central difference (``GridGeometry.central_dx``)
+    whatever the window's start; a window from s in [previous | current] is previous's samples from s on and
+    current's before s. The same sum, its terms grouped otherwise: rounding only."""
+    own, alone, sensitivity = np.empty((3, current.shape[0]))
+    triangle = balance_sums_kernel(previous, current, geometry.central_dx, geometry.window_starts[0],
+                                   geometry.triangle_previous, geometry.triangle_current,
+                                   geometry.piston_acceleration, own, alone, sensitivity)
+    return own * area, alone * area, float(triangle), -area * float(grid[1] - grid[0]) / FOUR_PI * sensitivity
+
+
+def balance_sums_reference(geometry: GridGeometry, previous: np.ndarray, current: np.ndarray, area: float,
+                           grid: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """``balance_sums`` as the balance took them before its kernel: core.model.indicated's window works, numpy's
+    dot products and ``indicated_tdc_sensitivity`` (tests/core/test_transient_balance.py compares the two)."""
+    (own,), (alone,) = works_with_alone(geometry.positions, previous, current, geometry.window_starts,
+                                        geometry.alone_starts, area)
+    triangle = float(np.vdot(previous, geometry.triangle_previous) + np.vdot(current, geometry.triangle_current))
+    return own, alone, triangle, indicated_tdc_sensitivity(grid, current, geometry.piston_acceleration, area)
+
+
+_ROW = numba.float64[:, ::1]
+
+
+@numba.njit(numba.float64(_ROW, _ROW, _ROW, numba.int64[::1], _ROW, _ROW, _ROW, numba.float64[::1],
+                          numba.float64[::1], numba.float64[::1]), cache=True, fastmath={"reassoc", "nsz"})
+def balance_sums_kernel(previous, current, central_dx, starts, tri_previous, tri_current, ddx, own, alone,
+                        sensitivity):
+    """Per cylinder k: own[k] = sum of previous[k, s:] and current[k, :s] times central_dx (s = starts[k] in
+    [0, n]), alone[k] = sum current[k] central_dx, sensitivity[k] = sum current[k] ddx[k]; returns sum previous
+    tri_previous + sum current tri_current. Two loops per cylinder (before and from s), each reading both cycles
+    once; the flags let the sums be reordered (vectorised), the pressures being finite (checked_pressure)."""
+    z, n = current.shape
+    tri_prev = 0.0
+    tri_cur = 0.0
+    for k in range(z):
+        s = min(max(starts[k], 0), n)
+        head = 0.0  # current before s: in both windows
+        tail = 0.0  # current from s: this cycle's loop only
+        before = 0.0  # previous from s: the own window only
+        sens = 0.0
+        for a in range(s):
+            p = current[k, a]
+            head += p * central_dx[k, a]
+            sens += p * ddx[k, a]
+            tri_cur += p * tri_current[k, a]
+            tri_prev += previous[k, a] * tri_previous[k, a]
+        for a in range(s, n):
+            p = current[k, a]
+            q = previous[k, a]
+            tail += p * central_dx[k, a]
+            before += q * central_dx[k, a]
+            sens += p * ddx[k, a]
+            tri_cur += p * tri_current[k, a]
+            tri_prev += q * tri_previous[k, a]
+        own[k] = before + head
+        alone[k] = head + tail
+        sensitivity[k] = sens
+    return tri_prev + tri_cur
 
 
 FRICTION_STEP = 0.1  # assumed 1-sigma change of the friction across a torque step, relative
