@@ -530,7 +530,7 @@ def test_a_shaft_line_fit_within_its_own_model_error_of_none_is_not_named_quiet_
     healthy logs: bench/calibrate_chain_floor.py), and a fit with both scales within 2 sigma of 1 is refused where the
     residual is not quiet too (k9k 1800 rpm 0.6 seed 7, healthy, order 2 beyond the null: 0.9927, 1.0119 named before
     design note 53); 20 % softer is an effect; with no floor (CHAIN_FLOOR 0) the rule does not reach the chain."""
-    from frictionwatch.core.discrepancy import fit
+    from frictionwatch.core.discrepancy import line_floor
     from frictionwatch.core.discrepancy.candidates import candidate_library
     from frictionwatch.core.discrepancy.choice import unresolved
     from frictionwatch.core.discrepancy.fit import Trial, parameter_floor
@@ -543,7 +543,7 @@ def test_a_shaft_line_fit_within_its_own_model_error_of_none_is_not_named_quiet_
     sigma = np.hypot([0.0009, 0.0052], floor)  # as fit.parameter_sigma adds it
     assert "the model's own error in it" in unresolved(Trial(chain, x, sigma, 0.0, 1.0, 0))
     assert unresolved(Trial(chain, np.array([0.8, 1.0119]), sigma, 0.0, 1.0, 0)) == ""
-    monkeypatch.setattr(fit, "CHAIN_FLOOR", {})
+    monkeypatch.setattr(line_floor, "CHAIN_FLOOR", {})  # where parameter_floor reads it (fit re-exports it)
     assert unresolved(Trial(chain, x, np.array([0.0009, 0.0052]), 0.0, 1.0, 0)) == ""
 
 
