@@ -325,7 +325,7 @@ def test_the_held_out_test_takes_the_best_of_each_shape_not_of_each_effect():
 def test_a_shape_the_window_cannot_tell_from_the_last_one_held_out_is_held_out_too():
     """A shape within AMBIGUOUS_DCHI2 of the last one taken is held out too; one further off is not. Made-up trials
     at window costs seen on maruti 4000 <-> 1500 rpm seed 7 (main's skirt 2232.5, the branch's flywheel 2225.7;
-    design note 109: on that log the branch did not refine the skirt at all, so this rule does not mend it)."""
+    design note 109: what kept that log's skirt out was the screen before the refinement, choice.up_to_the_edge)."""
     from frictionwatch.core.discrepancy.choice import to_confirm
     from frictionwatch.core.discrepancy.fit import Trial
 
