@@ -306,6 +306,7 @@ def significance(test: Residuals, scale: np.ndarray, opt, held_out_of):
     return significant
 
 
-__all__ = ["AMBIGUOUS_DCHI2", "MAX_CLOSE_CYLINDERS", "RESOLUTION", "WORSE_SIGMAS", "best_of_shapes", "channel_worse", "chi2", "chi2_floored",
-           "close_cylinders", "nested", "not_fitted", "off_physics", "one_per_candidate", "pressure_worse", "quiet_residual", "rival", "said_where", "significance",
-           "to_confirm", "unphysical", "up_to_the_edge", "unresolved", "within_model_error"]
+__all__ = ["AMBIGUOUS_DCHI2", "MAX_CLOSE_CYLINDERS", "RESOLUTION", "WORSE_SIGMAS", "best_of_shapes", "channel_worse",
+           "chi2", "chi2_floored", "close_cylinders", "nested", "not_fitted", "off_physics", "one_per_candidate",
+           "pressure_worse", "quiet_residual", "rival", "said_where", "significance", "to_confirm", "unphysical",
+           "unresolved", "up_to_the_edge", "within_model_error"]
