@@ -353,8 +353,8 @@ def test_a_fit_within_the_noise_of_none_on_a_healthy_log_is_not_named(monkeypatc
     scales within 2 sigma of 1 -- named before design note 50, refused now, said why; the model stays as it was.
     Since the flywheel's inertia is a candidate (design note 109) nothing is named and the chain is no longer the
     refused fit (nothing is refused): the refusal is shown with that candidate left out of the library."""
-    model = EngineModel.from_spec(load_engine(ENGINE))
-    doc = discover(model, cycles_of(1800.0, 0.7, 4), OPTIONS).to_json()
+    model, cycles = EngineModel.from_spec(load_engine(ENGINE)), cycles_of(1800.0, 0.7, 4)  # one log, run twice
+    doc = discover(model, cycles, OPTIONS).to_json()
     assert doc["found"] == [] and doc["outcome"] == "nothing"
     assert doc["gap_after"] == doc["gap_before"]
     from frictionwatch.core.discrepancy import workflow
@@ -362,7 +362,7 @@ def test_a_fit_within_the_noise_of_none_on_a_healthy_log_is_not_named(monkeypatc
 
     monkeypatch.setattr(workflow, "candidate_library",
                         lambda m: [c for c in candidate_library(m) if c.effect != "flywheel_inertia"])
-    doc = discover(model, cycles_of(1800.0, 0.7, 4), OPTIONS).to_json()
+    doc = discover(model, cycles, OPTIONS).to_json()
     assert doc["found"] == [] and doc["outcome"] == "nothing"
     assert [r["candidate"] for r in doc["refused"]] == ["chain_mismatch"]
     assert "within the noise of none" in doc["refused"][0]["reason"]
