@@ -82,9 +82,11 @@ def healthy_cycles(engine: str, rpm: float, load: float, seed: int, n: int = CYC
     return spec, assembled_cycles(spec, sim.info, sim.records)[0]
 
 
-def chain_fit(engine: str, rpm: float, load: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """(x, sigma without the floor) of the chain candidate fitted to a healthy log as the workflow's first speed step
-    fits it (core.discrepancy.workflow.discover: the same window, held-out split, floor and refinements)."""
+def chain_fit(engine: str, rpm: float, load: float, seed: int,
+              effect: str = "chain_mismatch") -> tuple[np.ndarray, np.ndarray]:
+    """(x, sigma without the floor) of the chain candidate (or another ``effect``'s: calibrate_inertia_floor.py)
+    fitted to a healthy log as the workflow's first speed step fits it (core.discrepancy.workflow.discover: the same
+    window, held-out split, floor and refinements)."""
     spec, cycles = healthy_cycles(engine, rpm, load, seed)
     model = EngineModel.from_spec(spec)
     ref, pinned = reference(cycles), pinned_config()
@@ -102,7 +104,7 @@ def chain_fit(engine: str, rpm: float, load: float, seed: int) -> tuple[np.ndarr
     scale = noise_scale(train_of(cur))
     floor = feature_floor(train_of(cur), scale)
     ev = Evaluator(lambda m: run_model(m, ref, pinned, window), scale, first, floor)
-    cand = next(c for c in candidate_library(model) if c.effect == "chain_mismatch")
+    cand = next(c for c in candidate_library(model) if c.effect == effect)
     lin = linearise(cand, model, ev, ev.vector(model))
     starts = [lin] + [replace(lin, x_gn=cand.clip(np.array(x))) for x in cand.seeds]
     t = min((refine(s, model, ev) for s in starts), key=lambda tr: tr.cost)

@@ -3,7 +3,8 @@ edited where no effect holds it, and how such a row is judged.
 
 A hidden truth named PLANT + "inertia" is no simulator effect: the plant simulates an engine record whose node
 inertia (``node``: "flywheel" or "load", the record's flywheel_node / load_node) is ``scale`` times the record's,
-while the monitor's model keeps the record as written (candidates.py: "an element's inertia: no effect holds it").
+while the monitor's model keeps the record as written (the flywheel node's is an effect since design note 109,
+flywheel_inertia; the matrix's flywheel cases use it, this edit stays for the load node's).
 ``plant_spec`` makes that record, ``effects_of`` keeps the truths that are simulator effects.
 
 Judged (bench_discrepancy.judge, a label holding OUTSIDE): right = nothing named, and the outcome says a discrepancy

@@ -21,17 +21,19 @@ Not in the library today, and why (the monitor cannot be told, or there is nothi
   pressure_channel.pressure_findings; a worn ring's friction stays the speed's candidate, ring_wear, its leak the
   pressure's: a ring that wears and leaks is two findings on one cylinder, design note 97);
 - tooth_spacing_error: the monitor learns the wheel's tooth pattern itself;
-- an element's inertia: no effect holds it (the spec's node inertia would be edited, not augmented).
+- an element's inertia other than the flywheel node's: no effect holds it (the flywheel's is flywheel_inertia, one
+  ratio; where it and the chain's stiffness read one resonance the workflow says both: core.discrepancy.resonance).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+from frictionwatch.core.model.chain import lowest_mode_hz
 from frictionwatch.core.model.effects import EFFECTS, Effect, make_effect
-from frictionwatch.core.model.effects.base import CandidateSpec
+from frictionwatch.core.model.effects.base import CandidateSpec, ViewSetup
 from frictionwatch.core.model.effects.mismatch import MISMATCHES
 from frictionwatch.core.model.engine_model import EngineModel
 
@@ -55,6 +57,10 @@ class Candidate:
     variant: str = ""  # an engine-wide candidate's fixed variant, e.g. "order 0.5" (its values are in ``fixed``)
     places_cylinder: bool = True  # False: fitted in a stand-in cylinder the speed cannot tell from the others
     seeds: tuple[tuple[float, ...], ...] = ()  # further starting points of its refinement (its effect's declaration)
+    # (p,) |d ln omega^2 / d x| of the shaft line's lowest mode per unit of each parameter at x0, the model's view
+    # (``line_mode_share``): where a parameter moves that mode, the line's own error in it reads as a parameter error
+    # (fit.parameter_floor); () on a one-node line or for a toggle
+    mode_share: tuple[float, ...] = ()
 
     @property
     def label(self) -> str:
@@ -112,7 +118,38 @@ def candidate_library(model: EngineModel) -> list[Candidate]:
     if len(toggles) > 1:  # every default effect the model left out, at once
         out.append(Candidate("+".join(c.effect for c in toggles), None, (), (), (), (), (),
                              separated_by="; ".join(c.separated_by for c in toggles if c.separated_by)))
-    return [c for c in out if _slot(c) not in have]
+    kept = [c for c in out if _slot(c) not in have]
+    if not model.spec.stiffness.size:
+        return kept
+    view = model_view(model)
+    return [replace(c, mode_share=line_mode_share(view, c)) if c.cylinder is None and not c.toggle else c
+            for c in kept]
+
+
+def model_view(model: EngineModel) -> ViewSetup:
+    """The model's record as its effects make it for the monitor (each effect's ``apply_view``, in order)."""
+    setup = ViewSetup.nominal(model.spec, model.terms, model.coefficients)
+    for e in model.effects:
+        setup = e.apply_view(setup)
+    return setup
+
+
+def line_mode_share(view: ViewSetup, cand: Candidate, h: float = 1e-3) -> tuple[float, ...]:
+    """(p,) |d ln omega^2 / d x_i| of the line's lowest undamped mode (core.model.chain.lowest_mode_hz) at the
+    candidate's no-effect point, one-sided steps of ``h`` into its bounds, on ``view`` (``model_view``): 1 for the
+    chain's stiffness scale (omega^2 ~ k, every section scaled), ~0.46-0.5 for the flywheel's inertia scale on k9k and
+    maruti (the flywheel's share of the mode's inertia), 0 for what does not move the line (a friction, a damping).
+    Only engine-wide candidates are asked: a cylinder's effect moves no node of the line."""
+    x0 = np.asarray(cand.x0, dtype=np.float64)
+    f0 = lowest_mode_hz(cand.effect_at(x0).apply_view(view).spec)
+    out = []
+    for i in range(x0.size):
+        d = h if x0[i] + h <= cand.hi[i] else -h
+        x = x0.copy()
+        x[i] += d
+        f = lowest_mode_hz(cand.effect_at(x).apply_view(view).spec)
+        out.append(float(abs(2.0 * np.log(f / f0) / d)))
+    return tuple(out)
 
 
 def _expanded(name: str, spec: CandidateSpec, model: EngineModel, names: set[str]) -> list[Candidate]:
@@ -138,4 +175,4 @@ def _slot(c: Candidate) -> tuple:
     return (c.effect, int(cyl)) if cyl is not None else (c.effect,)
 
 
-__all__ = ["FRICTION_LAWS", "Candidate", "candidate_library"]
+__all__ = ["FRICTION_LAWS", "Candidate", "candidate_library", "line_mode_share", "model_view"]

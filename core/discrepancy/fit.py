@@ -15,6 +15,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 from frictionwatch.core.discrepancy.candidates import Candidate
 from frictionwatch.core.discrepancy.features import coherent_power, feature_floor
+from frictionwatch.core.discrepancy.line_floor import (  # the shaft line's own error in a fit (re-exported)
+    CHAIN_FLOOR,
+    CHAIN_REL,
+    CHAIN_STIFFNESS_REL,
+    MODE_SHARE_ZERO,
+    ONE_NODE_FLOOR,
+    parameter_floor,
+)
 from frictionwatch.core.discrepancy.residuals import Residuals
 from frictionwatch.core.discrepancy.tuned import tuned_constants
 from frictionwatch.core.model.effects import make_effect
@@ -27,20 +35,6 @@ DAMPING = 1e-6  # Levenberg term relative to the largest diagonal of J'J: keeps 
 # (bench/discrepancy_sigma.py --write; core/discrepancy/tuned.json: its provenance); 0 until that has run
 _TUNED = tuned_constants()
 EFFECT_REL_ERROR = _TUNED["EFFECT_REL_ERROR"].value if "EFFECT_REL_ERROR" in _TUNED else 0.0
-# the 1-sigma error of the monitor's shaft line against the engine's, in the chain candidate's scales: near a
-# resonance of the line (k9k 1800 rpm, order 2) a healthy log read stiffness 0.993-1.006 at sigma ~0.001 and named it
-# (design note 50). Tuned on healthy logs none of the matrix's (bench/calibrate_chain_floor.py --write;
-# core/discrepancy/tuned.json: its provenance); 0 until that has run
-CHAIN_FLOOR = {("chain_mismatch", p): _TUNED[name].value if name in _TUNED else 0.0
-               for p, name in (("stiffness_scale", "CHAIN_FLOOR_STIFFNESS"),
-                               ("damping_scale", "CHAIN_FLOOR_DAMPING"))}
-# the shaft line's bias in a fitted stiffness, relative to the fitted excess |stiffness_scale - 1|: the monitor's line
-# reads a stiffer plant's low (k9k, the chain 50 % stiffer: 1.404-1.458 at sigma 0.013-0.021, the fit converged;
-# design note 101), an error that grows with the distance from the record's line, which CHAIN_FLOOR (a healthy log's,
-# near 1) does not carry. Tuned on chain logs none of the matrix's (bench/calibrate_chain_bias.py --write;
-# core/discrepancy/tuned.json: its provenance; design note 103); 0 until that has run
-CHAIN_STIFFNESS_REL = _TUNED["CHAIN_STIFFNESS_REL"].value if "CHAIN_STIFFNESS_REL" in _TUNED else 0.0
-CHAIN_REL = {("chain_mismatch", "stiffness_scale"): CHAIN_STIFFNESS_REL}
 
 
 @dataclass(frozen=True)
@@ -133,18 +127,6 @@ def linearise(cand: Candidate, model: EngineModel, ev: Evaluator, base: tuple[np
 def _solve(jac: np.ndarray, r: np.ndarray) -> np.ndarray:
     jtj = jac.T @ jac
     return np.linalg.solve(jtj + DAMPING * np.max(np.diag(jtj), initial=1e-300) * np.eye(jtj.shape[0]), jac.T @ r)
-
-
-def parameter_floor(cand: Candidate, x: np.ndarray | None = None) -> np.ndarray:
-    """(p,) the model's own 1-sigma error in each of the candidate's parameters that no cycle count removes
-    (CHAIN_FLOOR; 0 where none is known), and at a fitted ``x`` (p,) the part that grows with its distance from the
-    no-effect value (CHAIN_REL x |x - x0|: the shaft line's bias in a stiffness far from the record's), in
-    quadrature."""
-    floor = np.array([CHAIN_FLOOR.get((cand.effect, p), 0.0) for p in cand.params], dtype=np.float64)
-    if x is None:
-        return floor
-    rel = np.array([CHAIN_REL.get((cand.effect, p), 0.0) for p in cand.params], dtype=np.float64)
-    return np.hypot(floor, rel * np.abs(np.asarray(x, dtype=np.float64) - np.asarray(cand.x0, dtype=np.float64)))
 
 
 def parameter_sigma(jac: np.ndarray, n_cycles: int, cost: float, floor: np.ndarray,
@@ -377,5 +359,6 @@ def rank(trials: Sequence[Trial]) -> list[Trial]:
     return sorted(trials, key=lambda t: t.cost)
 
 
-__all__ = ["CHAIN_FLOOR", "CHAIN_REL", "CHAIN_STIFFNESS_REL", "Evaluator", "Linearised", "Trial", "at_start",
-           "linearise", "parameter_floor", "parameter_sigma", "point_floors", "polish", "rank", "refine", "with_fit"]
+__all__ = ["CHAIN_FLOOR", "CHAIN_REL", "CHAIN_STIFFNESS_REL", "Evaluator", "Linearised", "MODE_SHARE_ZERO",
+           "ONE_NODE_FLOOR", "Trial", "at_start", "linearise", "parameter_floor", "parameter_sigma", "point_floors",
+           "polish", "rank", "refine", "with_fit"]

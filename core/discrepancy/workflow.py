@@ -10,7 +10,8 @@ scored; of the rest the first half trains (the fits, on its first ``fit_cycles``
 beyond its reading's sigma, a misfiring cylinder: core.discrepancy.pressure_channel) is added as one step. Then, while the held-out residual holds something beyond the healthy model's own error
 (``features.beyond_null``: an engine order above its model-error floor, or a significant balance residual), each step
 linearises every candidate of the library on top of the current model, refines the ``refine`` best by predicted cost
-and the best of each of the first ``confirm`` shapes, re-runs the best of each of those shapes over the whole log,
+and the best of each of the first ``confirm`` shapes (and of any further shape whose prediction beats a refined one's
+cost that would be held out: choice.up_to_the_edge), re-runs the best of each of those shapes over the whole log,
 takes one more Gauss-Newton step for the best of them on all training cycles (its sigma from there), and adds it if
 its held-out gain is significant: the held-out coherent chi^2 falls by at least ``min_delta_chi2`` (its noise under no
 effect is about sqrt(2 F) ~ 10 for F ~ 50 features) and the gap by at least ``min_reduction``. A significant step is
@@ -54,9 +55,11 @@ from frictionwatch.core.discrepancy.choice import (
     quiet_residual,
     rival,
     said_where,
+    significance,
     to_confirm,
     unphysical,
     unresolved,
+    up_to_the_edge,
     within_model_error,
 )
 from frictionwatch.core.discrepancy.common_gain import common_gain_of, engine_wide_friction
@@ -84,6 +87,7 @@ from frictionwatch.core.discrepancy.residuals import (
     pinned_config,
     run_model,
 )
+from frictionwatch.core.discrepancy.resonance import one_resonance_in, said_as_one
 from frictionwatch.core.discrepancy.words import within_floor_separation
 from frictionwatch.core.model.effects import EFFECTS
 from frictionwatch.core.model.engine_model import EngineModel
@@ -171,6 +175,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             return tdc_chi2(reading, tdc_offsets_deg(m) - tdc_offsets_deg(base))
 
         refined = [refine(lin, current, ev) for lin in chosen]
+        # and each further shape whose linear promise would put it among those held out (choice.up_to_the_edge)
+        refined += up_to_the_edge(lins, refined, breadth, lambda lin, m=current, e=ev: refine(lin, m, e))
         trials = one_per_candidate(sorted(refined, key=lambda tr: tr.cost + pressure(with_fit(current, tr))))
         dropped = {t.candidate.label: unphysical(t, load_nm) for t in trials}
         found.dropped.update({label: why for label, why in dropped.items() if why})
@@ -186,7 +192,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             break
         confirmed.sort(key=lambda c: chi2(parts(c[3])[1], scale) + pressure(c[2]))
         g_cur, chi_before = gap(test, scale), chi2(test, scale)
-        significant = _significance(test, scale, opt, lambda r: parts(r)[1])
+        significant = significance(test, scale, opt, lambda r: parts(r)[1])
         _, t, new_model, res = confirmed[0]
         # whether the runner-up explains the held-out cycles as well: judged with the model-error floor in each
         # feature's variance (a difference inside the model's own error is no evidence for either)
@@ -196,6 +202,11 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             if len(other.candidate.names) < len(t.candidate.names):  # as good and simpler: the simpler one
                 _, t, new_model, res = confirmed[1]
             other = None
+        twin = None if other is not None or not significant(res) else one_resonance_in(
+            current, confirmed, significant, lambda r, f=floor: chi2_floored(parts(r)[1], scale, f), floor.size)
+        if twin is not None:  # the line's stiffness and the flywheel's inertia read one resonance (resonance.py)
+            _said_ambiguous(found, beyond, *said_as_one(t, twin), inside)
+            break
         if other is not None:  # two explanations: a TDC the pressure reads beside one of them (pair.py), or neither
             pair, spent, found.pair_not_taken, _ = tdc_and_friction(
                 current, cur_res, [(c[1], c[3]) for c in confirmed[:2]], full, parts, scale, floor, pressure,
@@ -381,19 +392,6 @@ def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, t
                             localise(test_new, current.spec, scale), added[1:], tuple(f.reading for f in findings)))
     found.curves.append((f"+ {found.steps[-1].label}", test_new.angles, test_new.speed.mean(axis=0)))
     return new_model, res, test_new, runs
-
-
-def _significance(test: Residuals, scale: np.ndarray, opt: Options, held_out_of):
-    """A test of a candidate's whole-log run against the current model's held-out residual ``test``: the held-out
-    coherent chi^2 falls by at least ``min_delta_chi2`` and the gap by at least ``min_reduction``."""
-    g_cur, chi_cur = gap(test, scale), chi2(test, scale)
-
-    def significant(res: Residuals) -> bool:
-        held_out = held_out_of(res)
-        return (chi_cur - chi2(held_out, scale) >= opt.min_delta_chi2
-                and gap(held_out, scale) <= (1.0 - opt.min_reduction) * g_cur)
-
-    return significant
 
 
 __all__ = ["discover"]

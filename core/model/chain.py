@@ -11,12 +11,13 @@ flexibility off is one rigid node with the whole inertia, every cylinder, the fl
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.kinematics import kinematics
+from scipy.linalg import eigh
 
 
 @dataclass(frozen=True)
@@ -98,6 +99,15 @@ def mean_reciprocating_inertia(spec: EngineSpec, samples: int = 2880) -> float:
     return float(spec.reciprocating_mass * np.mean(dx * dx))
 
 
+def scaled_flywheel(spec: EngineSpec, scale: float) -> EngineSpec:
+    """``spec`` with its flywheel node's rotating inertia x ``scale`` (a flywheel, pulley or coupling the record has
+    wrong; core.model.effects.mismatch.FlywheelInertia). On a one-node record the flywheel node is the whole crank:
+    its inertia is scaled."""
+    inertia = spec.node_inertia.astype(np.float64).copy()
+    inertia[spec.flywheel_node] *= scale
+    return replace(spec, node_inertia=inertia)
+
+
 def drive_train(spec: EngineSpec, flexible: bool = True) -> DriveTrain:
     """The chain of ``spec`` (``flexible``) or its rigid one-node equivalent."""
     z = spec.n_cyl
@@ -115,6 +125,17 @@ def drive_train(spec: EngineSpec, flexible: bool = True) -> DriveTrain:
     recip = np.zeros(rotating.shape[0])
     np.add.at(recip, cyl_node, mean_reciprocating_inertia(spec))
     return DriveTrain(rotating, recip, stiffness, damping, cyl_node, int(fly), int(load))
+
+
+def lowest_mode_hz(spec: EngineSpec) -> float:
+    """The flexible line's lowest non-rigid natural frequency [Hz] (undamped, the load node free); NaN on a one-node
+    line (no mode to read). Near it the speed reads omega^2 ~ k / J of the line (design note 109)."""
+    if not spec.stiffness.size:
+        return float("nan")
+    m, k, _ = drive_train(spec, flexible=True).matrices()
+    w2 = eigh(k, m, eigvals_only=True)
+    w2 = w2[w2 > 1e-9 * max(float(w2.max()), 1e-300)]
+    return float(np.sqrt(w2.min()) / (2.0 * np.pi)) if w2.size else float("nan")
 
 
 def _section_matrix(k: np.ndarray, n: int) -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from frictionwatch.core.model.chain import DriveTrain, drive_train
+from frictionwatch.core.model.chain import DriveTrain, drive_train, scaled_flywheel
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.terms import TermLibrary, rezeka_henein
 from frictionwatch.core.model.thermo import P_CRANKCASE, CylinderModel
@@ -98,14 +98,17 @@ class PlantModel:
 
 def build_plant(spec: EngineSpec, *, flexible: bool, variable: bool, coef: np.ndarray, phase: np.ndarray,
                 extra: np.ndarray, library: TermLibrary | None = None, stiffness_scale: float = 1.0,
-                damping_scale: float = 1.0) -> PlantModel:
+                damping_scale: float = 1.0, flywheel_inertia_scale: float = 1.0) -> PlantModel:
     """The plant of ``spec``: its drive train (core.model.chain.drive_train, one rigid node unless ``flexible``; the
-    sections' stiffness and damping x the scales, a chain the monitor is not told about); coef (z, L) the
-    coefficients of the terms of ``library`` (default: the six Rezeka-Henein terms, core.model.terms.rezeka_henein)."""
+    sections' stiffness and damping x the scales, the flywheel node's inertia x its scale before a rigid line sums
+    the nodes: a chain the monitor is not told about); coef (z, L) the coefficients of the terms of ``library``
+    (default: the six Rezeka-Henein terms, core.model.terms.rezeka_henein)."""
     z = spec.n_cyl
     lib = rezeka_henein(spec.friction.coefficients) if library is None else library
     if np.shape(coef) != (z, len(lib)):
         raise ValueError(f"coef must be (z, L) = ({z}, {len(lib)}) for the library's terms, got {np.shape(coef)}")
+    if flywheel_inertia_scale != 1.0:
+        spec = scaled_flywheel(spec, flywheel_inertia_scale)
     train = drive_train(spec, flexible)
     if stiffness_scale != 1.0 or damping_scale != 1.0:
         train = replace(train, stiffness=train.stiffness * stiffness_scale, damping=train.damping * damping_scale)

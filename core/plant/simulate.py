@@ -255,7 +255,8 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
 
     # ---- plant ----
     plant = build_plant(spec, flexible=chain.flexible, variable=chain.variable_inertia, coef=coef, phase=phase, extra=extra,
-                        library=lib, stiffness_scale=chain.stiffness_scale, damping_scale=chain.damping_scale)
+                        library=lib, stiffness_scale=chain.stiffness_scale, damping_scale=chain.damping_scale,
+                        flywheel_inertia_scale=chain.flywheel_inertia_scale)
     grid_k = spec.load.grid_stiffness_nm_per_rad if spec.load.kind == "grid" else 0.0
     mm, kk, _ = chain_matrices(plant, grid_k)
     w_max = np.sqrt(max(eigh(kk, mm, eigvals_only=True).max(), 0.0))

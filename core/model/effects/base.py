@@ -5,7 +5,8 @@ or not) and an instance per use (its parameter values, validated on construction
 parameter). The simulator builds four frozen set-up values from the engine spec and passes each through every active
 effect's hook, in the order the effects are listed:
 
-    apply_chain(ChainSetup)         -> ChainSetup       rigid or flexible shaft line, constant or variable inertia
+    apply_chain(ChainSetup)         -> ChainSetup       rigid or flexible shaft line, constant or variable inertia,
+                                                        the line's stiffness and the flywheel's inertia off the record
     apply_cylinders(CylinderSetup)  -> CylinderSetup    friction coefficients, true firing angles, misfire
                                                         probability, blow-by mass loss, extra friction
     apply_load(LoadSetup)           -> LoadSetup        load-torque ripple
@@ -65,6 +66,7 @@ class ChainSetup:
     variable_inertia: bool = False
     stiffness_scale: float = 1.0  # the plant's section stiffnesses and dampings x these (a chain the monitor is
     damping_scale: float = 1.0  # not told about: core.model.effects.mismatch)
+    flywheel_inertia_scale: float = 1.0  # the flywheel node's inertia x this (a flywheel the record has wrong)
 
 
 @dataclass(frozen=True)

@@ -5,6 +5,7 @@ differs from that model the way a real engine may, so that the monitor's sigmas 
 not make (bench/mismatch_coverage.py, tests/core/test_mismatch_coverage.py):
 
     chain_mismatch             the shaft line's section stiffnesses and dampings x scale (the spec's are +-20 % off)
+    flywheel_inertia           the flywheel node's inertia x scale (a flywheel or pulley changed, the record not)
     stribeck_ring              ring boundary friction on a Stribeck curve over the whole stroke (piston speed),
                                instead of the mixed-friction window of +-90 deg about firing TDC
     side_thrust_skirt          skirt friction as Coulomb friction on the gas side thrust (p A tan beta |x'|),
@@ -25,6 +26,7 @@ from dataclasses import replace
 from types import MappingProxyType
 
 import numpy as np
+from frictionwatch.core.model.chain import scaled_flywheel
 from frictionwatch.core.model.effects.base import (
     BasisMeans,
     CandidateSpec,
@@ -198,6 +200,30 @@ class ChainMismatch(Effect):
                                            damping=spec.damping * self.values["damping_scale"]))
 
 
+class FlywheelInertia(Effect):
+    name = "flywheel_inertia"
+    # a flywheel replaced, a pulley or coupling added, and the engine record not updated (design note 109). Above
+    # the line's lowest resonance the flywheel speed's swing at the firing orders goes as 1 / J, the same share at
+    # every order; near it the inertia also moves the resonance (omega^2 = k / J) as a softer line would, which is
+    # where one wheel cannot tell the two apart (design note 106: maruti 4000 rpm, k9k 1800 rpm). The range holds a
+    # plant's flywheel swapped for a lighter or heavier one; no start points: the response was scanned smooth over
+    # it (design note 109)
+    candidate = CandidateSpec(("inertia_scale",), (1.0,), (0.05,), (0.7,), (1.5,),
+                              separated_by="a motored run-down (its deceleration is the inertia alone), another "
+                                           "speed (the line's resonance moves with its stiffness, the swing at every "
+                                           "firing order with the inertia) or the second wheel at the free end")
+    description = "the flywheel node's inertia differs from the record's by a factor (a flywheel or pulley changed)"
+    parameters = MappingProxyType({
+        "inertia_scale": Param(1.05, "-", 0.5, 2.0, doc="plant flywheel-node inertia / the record's"),
+    })
+
+    def apply_chain(self, setup: ChainSetup) -> ChainSetup:
+        return replace(setup, flywheel_inertia_scale=setup.flywheel_inertia_scale * self.values["inertia_scale"])
+
+    def apply_view(self, setup: ViewSetup) -> ViewSetup:
+        return replace(setup, spec=scaled_flywheel(setup.spec, self.values["inertia_scale"]))
+
+
 class StribeckRing(_FrictionLaw):
     name = "stribeck_ring"
     description = "ring boundary friction on a Stribeck curve of piston speed (replaces the +-90 deg mixed window)"
@@ -243,8 +269,8 @@ class LoadBearings(_FrictionLaw):
                     load_bearings_reference)
 
 
-MISMATCHES = (ChainMismatch, StribeckRing, SideThrustSkirt, CamValveTrain, SpeedSquaredAuxiliaries, LoadBearings)
+MISMATCHES = (ChainMismatch, FlywheelInertia, StribeckRing, SideThrustSkirt, CamValveTrain, SpeedSquaredAuxiliaries, LoadBearings)
 
-__all__ = ["MISMATCHES", "CamValveTrain", "ChainMismatch", "LoadBearings", "SideThrustSkirt",
+__all__ = ["MISMATCHES", "CamValveTrain", "ChainMismatch", "FlywheelInertia", "LoadBearings", "SideThrustSkirt",
            "SpeedSquaredAuxiliaries", "StribeckRing", "cam_lobes_reference", "load_bearings_reference",
            "side_thrust_reference", "stribeck_ring_reference"]
