@@ -269,7 +269,8 @@ class LoadBearings(_FrictionLaw):
                     load_bearings_reference)
 
 
-MISMATCHES = (ChainMismatch, FlywheelInertia, StribeckRing, SideThrustSkirt, CamValveTrain, SpeedSquaredAuxiliaries, LoadBearings)
+MISMATCHES = (ChainMismatch, FlywheelInertia, StribeckRing, SideThrustSkirt, CamValveTrain, SpeedSquaredAuxiliaries,
+              LoadBearings)
 
 __all__ = ["MISMATCHES", "CamValveTrain", "ChainMismatch", "FlywheelInertia", "LoadBearings", "SideThrustSkirt",
            "SpeedSquaredAuxiliaries", "StribeckRing", "cam_lobes_reference", "load_bearings_reference",
