@@ -221,9 +221,28 @@ def _run(args: argparse.Namespace) -> int:
     finally:
         ticker.stop()
         sock.close()
+        for s in services:  # what /health said while it ran, once more where the operator started it
+            print(stop_summary(s), flush=True)
         if data:
             data.close()
     return 0
+
+
+def stop_summary(svc: EngineService) -> str:
+    """One terminal line per engine at the end of a serve run: the cycles analysed, the ones skipped and why, and
+    the acquisition a real-time source lost while the analysis was behind (serve --max-queue-s: a cold start's
+    compile, an overloaded box), which until now only /health and /metrics said."""
+    parts = [f"{svc.cycles_ok} cycles analysed"]
+    skipped = {str(k): int(n) for k, n in svc.skipped.items() if n}
+    if skipped:
+        parts.append("skipped: " + ", ".join(f"{k} {n}" for k, n in sorted(skipped.items())))
+    lag = svc.backlog()
+    if lag.get("dropped_records"):
+        cycles = lag.get("dropped_cycles")
+        about = f"~{cycles:.0f} cycles, " if cycles is not None else ""
+        parts.append(f"dropped while the analysis was behind: {about}{lag['dropped_s']:.1f} s of acquisition "
+                     f"({lag['dropped_records']} records)")
+    return f"frictionwatch serve: stopped {svc.engine_id}: " + "; ".join(parts)
 
 
 @contextmanager

@@ -104,3 +104,6 @@ def test_serve_process_end_to_end(server) -> None:
     server.send_signal(signal.SIGTERM)
     assert server.wait(15) == 0
     assert time.monotonic() - t0 < 10
+    # the run's one-line account on the terminal: the cycles /metrics counted, at least
+    said = read_line(server, lines, r"stopped genset-v20: (\d+) cycles analysed", timeout=5)
+    assert int(said[1]) >= 1
