@@ -42,7 +42,6 @@ from frictionwatch.core.monitor.balance.mean_balance import (
     cycle_energy,
     energy_weights,
     grid_geometry,
-    indicated_tdc_sensitivity,
     transient_balance,
 )
 from frictionwatch.core.monitor.checks.check import Check, CheckInput
@@ -189,8 +188,7 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     pmax, pmax_angle = peak_pressure(cycle.grid, raw_pressure, spec.firing_angles)
     mean = MeanBalance(indicated=t_i, load=load, coupling_loss=coupling_loss, friction=balance, kinetic=kinetic,
                        imep_centred=imep_c, acceleration=accel, indicated_window=t_window,
-                       tdc_sensitivity=tdc_sens if tdc_sens is not None else indicated_tdc_sensitivity(
-                           cycle.grid, pressure, geometry.piston_acceleration, spec.piston_area))
+                       tdc_sensitivity=tdc_sens)
     if prev is None:
         flags.append("no_previous_cycle")  # IMEP over the assembled cycle's window, no mean balance
 

@@ -192,10 +192,11 @@ def cycle_energy_reference(cycle: Cycle, weights: EnergyWeights) -> float:
 def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indicated_cycle: np.ndarray,
                       energy: float, previous: PreviousCycle | None, load: float, coupling_loss: float,
                       geometry: GridGeometry, load_early: float) -> tuple[float, float, float, float,
-                                                                          np.ndarray | None, np.ndarray | None]:
+                                                                          np.ndarray | None, np.ndarray]:
     """(friction, kinetic, acceleration, indicated, imep_centred, tdc_sensitivity) of one cycle and the cycle just
-    before it (``previous``; None when that cycle is not at hand: all NaN and None; tdc_sensitivity is this cycle's
-    ``indicated_tdc_sensitivity``, taken in the same pass over the pressure); indicated_cycle (z,) [N m] the
+    before it (``previous``; None when that cycle is not at hand: NaN and None, but tdc_sensitivity, this cycle's
+    ``indicated_tdc_sensitivity``, always: with a previous cycle taken in the balance's one pass over the pressure,
+    without it by ``indicated_tdc_sensitivity`` itself); indicated_cycle (z,) [N m] the
     cylinders' work means over this cycle's own window (``Excitation.indicated_mean``); energy [J] this cycle's
     angle-averaged kinetic energy (``cycle_energy``).
 
@@ -223,12 +224,14 @@ def transient_balance(spec: EngineSpec, cycle: Cycle, pressure: np.ndarray, indi
     fell; the coupling's wind-up) and friction is NaN (that cycle): a step late in this cycle, in the reading after
     its end, now shows in its mean and voids it (deutz two-point s9 cycle 145: +11.8 N m before, design note 76)."""
     nan = float("nan")
-    if previous is None or not (math.isfinite(previous.energy) and math.isfinite(energy)):
-        return nan, nan, nan, nan, None, None
     # the windows' first samples and the triangle's weights are fixed by the grid (GridGeometry); the pressures
     # are the monitor's checked ones
     if geometry.window_starts is None or geometry.central_dx is None or geometry.triangle_previous is None:
         geometry = grid_geometry(spec, cycle.grid)
+    if previous is None or not (math.isfinite(previous.energy) and math.isfinite(energy)):
+        # no balance without the cycle before; this cycle's TDC sensitivity all the same (a run's first cycle)
+        return nan, nan, nan, nan, None, indicated_tdc_sensitivity(cycle.grid, pressure, geometry.piston_acceleration,
+                                                                   spec.piston_area)
     cur = np.ascontiguousarray(pressure, dtype=np.float64)
     prev = np.ascontiguousarray(previous.pressure, dtype=np.float64)
     own, alone, triangle, sensitivity = balance_sums(geometry, prev, cur, spec.piston_area, cycle.grid)
