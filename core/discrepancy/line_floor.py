@@ -47,16 +47,26 @@ def parameter_floor(cand: Candidate, x: np.ndarray | None = None) -> np.ndarray:
     it, CHAIN_FLOOR_STIFFNESS / Candidate.mode_share; on a one-node line ONE_NODE_FLOOR; 0 where none is known), and
     at a fitted ``x`` (p,) the part that grows with its distance from the no-effect value (CHAIN_REL x |x - x0|: the
     shaft line's bias in a stiffness far from the record's), in quadrature."""
-    line = CHAIN_FLOOR.get(("chain_mismatch", "stiffness_scale"), 0.0)
-    share = cand.mode_share or (0.0,) * len(cand.params)  # none: a one-node line (or a cylinder's effect)
-    floor = np.array([CHAIN_FLOOR[(cand.effect, p)] if (cand.effect, p) in CHAIN_FLOOR
-                      else line / s if s > MODE_SHARE_ZERO
-                      else 0.0 if cand.mode_share else ONE_NODE_FLOOR.get((cand.effect, p), 0.0)
-                      for p, s in zip(cand.params, share)], dtype=np.float64)
+    share = cand.mode_share or (None,) * len(cand.params)  # none: a one-node line (or a cylinder's effect)
+    floor = np.array([_own_floor(cand.effect, p, s) for p, s in zip(cand.params, share)], dtype=np.float64)
     if x is None:
         return floor
     rel = np.array([CHAIN_REL.get((cand.effect, p), 0.0) for p in cand.params], dtype=np.float64)
     return np.hypot(floor, rel * np.abs(np.asarray(x, dtype=np.float64) - np.asarray(cand.x0, dtype=np.float64)))
+
+
+
+def _own_floor(effect: str, param: str, mode_share: float | None) -> float:
+    """One parameter's floor (``parameter_floor``): the chain's own where tuned; else, where the parameter moves the
+    line's lowest mode, the chain stiffness's carried through that share; on a line without modes (``mode_share``
+    None) the one-node floor; else 0."""
+    if (effect, param) in CHAIN_FLOOR:
+        return CHAIN_FLOOR[(effect, param)]
+    if mode_share is None:
+        return ONE_NODE_FLOOR.get((effect, param), 0.0)
+    if mode_share > MODE_SHARE_ZERO:
+        return CHAIN_FLOOR.get(("chain_mismatch", "stiffness_scale"), 0.0) / mode_share
+    return 0.0
 
 
 __all__ = ["CHAIN_FLOOR", "CHAIN_REL", "CHAIN_STIFFNESS_REL", "MODE_SHARE_ZERO", "ONE_NODE_FLOOR", "parameter_floor"]
