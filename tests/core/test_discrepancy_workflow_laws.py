@@ -45,6 +45,17 @@ def _two_point_steps(rpm, load, rpm2, load2, cycles, blocks):
         steps.append((t, load, rpm) if first else (t, load2, rpm2))
 
 
+def _assert_law_named_by_the_balance_across_points(doc, effect):
+    """The law alone named, sized by the torque balance across the points, its fraction within 20 % and 2 sigma of
+    the truth (1)."""
+    assert doc["outcome"] == "named" and [f["effect"] for f in doc["found"]] == [effect]
+    hit = doc["found"][0]
+    assert hit["evidence"]["channel"].startswith("torque balance across points (the speed's step read")
+    value, sigma = hit["parameters"]["fraction"], hit["sigma"]["fraction"]
+    np.testing.assert_allclose(value, 1.0, rtol=0.2)
+    assert abs(value - 1.0) <= 2.0 * sigma
+
+
 def test_a_friction_law_is_named_across_two_operating_points():
     """A log stepping between two speeds and loads (k9k 2800 rpm 0.85 <-> 1700 rpm 0.55, blocks of 20 and 14 cycles,
     seed 7: no matrix log) with speed^2 auxiliaries: at 1700 rpm the law's friction differs from the model's and the
@@ -64,12 +75,7 @@ def test_a_friction_law_is_named_across_two_operating_points():
                    load_steps=steps)
     found = discover(EngineModel.from_spec(spec), assembled_cycles(spec, sim.info, sim.records)[0], OPTIONS)
     doc = found.to_json()
-    assert doc["outcome"] == "named" and [f["effect"] for f in doc["found"]] == ["auxiliaries_speed_squared"]
-    hit = doc["found"][0]
-    assert hit["evidence"]["channel"].startswith("torque balance across points (the speed's step read")
-    value, sigma = hit["parameters"]["fraction"], hit["sigma"]["fraction"]
-    np.testing.assert_allclose(value, 1.0, rtol=0.2)
-    assert abs(value - 1.0) <= 2.0 * sigma
+    _assert_law_named_by_the_balance_across_points(doc, "auxiliaries_speed_squared")
     assert not doc["one_operating_point"] and ONE_POINT not in doc["verdict"]
 
 
@@ -114,9 +120,4 @@ def test_a_law_the_speed_sizes_short_is_named_at_the_balances_share():
     sim = simulate(spec, 4000.0, 0.8, 160, 7, effects=[make_effect("side_thrust_skirt", {"fraction": 1.0})],
                    load_steps=steps)
     doc = discover(EngineModel.from_spec(spec), assembled_cycles(spec, sim.info, sim.records)[0], Options()).to_json()
-    assert doc["outcome"] == "named" and [f["effect"] for f in doc["found"]] == ["side_thrust_skirt"]
-    hit = doc["found"][0]
-    assert hit["evidence"]["channel"].startswith("torque balance across points (the speed's step read")
-    value, sigma = hit["parameters"]["fraction"], hit["sigma"]["fraction"]
-    np.testing.assert_allclose(value, 1.0, rtol=0.2)
-    assert abs(value - 1.0) <= 2.0 * sigma
+    _assert_law_named_by_the_balance_across_points(doc, "side_thrust_skirt")
