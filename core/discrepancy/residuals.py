@@ -18,6 +18,7 @@ import numpy as np
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.view import Reference
 from frictionwatch.core.monitor.balance.mean_balance import mid_cycle_inertia
+from frictionwatch.core.monitor.calibration.tdc_memo import TdcFitMemo
 from frictionwatch.core.monitor.pipeline import STAGES, CyclePipeline, TdcWatch
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import Cycle
@@ -143,9 +144,11 @@ def operating_groups(omega: np.ndarray, load: np.ndarray, torque_scale: float) -
     return labels
 
 
-def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles: Sequence[Cycle]) -> Residuals:
+def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles: Sequence[Cycle],
+              tdc_memo: TdcFitMemo | None = None) -> Residuals:
     """The product's pipeline (core.monitor.pipeline) over ``cycles`` in order with ``model`` (its view sized at
-    ``ref``) and ``config``; refused cycles are counted, not raised."""
+    ``ref``) and ``config``; refused cycles are counted, not raised. ``tdc_memo``: the TDC watch's fits remembered
+    across the runs of one log (core.monitor.calibration.tdc_memo; None: each fitted afresh)."""
     angles = np.linspace(0.0, 4.0 * np.pi, ANGLE_POINTS, endpoint=False)
     rows: list[tuple] = []
     rejected = 0
@@ -153,8 +156,9 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
     # the TDC watch reads every cylinder once, over the whole log (close_windows below): serving, it fits four of a
     # large engine's cylinders per 100-cycle window in turn, so a 120-cycle log read four of genset-v20's twenty, and
     # a log shorter than 100 cycles none
-    stages = tuple(dataclasses.replace(s, per_window=z, window=len(cycles) + 1) if isinstance(s, TdcWatch) else s
-                   for s in STAGES)
+    fit = None if tdc_memo is None else tdc_memo.fit
+    stages = tuple(dataclasses.replace(s, per_window=z, window=len(cycles) + 1, fit=fit) if isinstance(s, TdcWatch)
+                   else s for s in STAGES)
     pipe = CyclePipeline(model, config, ref, stages=stages)
     misfire_flags = [f"misfire_cyl{k + 1}" for k in range(z)]  # the condition check's, made once per run
     leak_flags = [(f"blow_by_cyl{k + 1}", f"ring_wear_cyl{k + 1}") for k in range(z)]

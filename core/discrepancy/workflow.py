@@ -92,6 +92,7 @@ from frictionwatch.core.discrepancy.words import within_floor_separation
 from frictionwatch.core.model.effects import EFFECTS
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.view import reference
+from frictionwatch.core.monitor.calibration.tdc_memo import TdcFitMemo
 from frictionwatch.core.types import Cycle
 
 
@@ -109,12 +110,14 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     window = cycles[:min(split, opt.warmup + opt.fit_cycles)]
 
     pinned = pinned_config(opt.monitor_config)  # the question is whether each model reproduces the log as it stands
+    # most candidates leave the pressure and the geometry as they were: the TDC watch's fits of this log, made once
+    tdc_memo = TdcFitMemo()
 
     def full(m: EngineModel) -> Residuals:
-        return run_model(m, ref, pinned, cycles)
+        return run_model(m, ref, pinned, cycles, tdc_memo)
 
     def sub(m: EngineModel) -> Residuals:
-        return run_model(m, ref, pinned, window)
+        return run_model(m, ref, pinned, window, tdc_memo)
 
     def parts(res: Residuals) -> tuple[Residuals, Residuals]:
         return res.take((res.index >= first) & (res.index < held)), res.take(res.index >= held)

@@ -34,6 +34,7 @@ from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel, as_model
 from frictionwatch.core.model.view import MonitorView, Reference, monitor_view, needs_reference, reference, viewed_cycle
 from frictionwatch.core.monitor.calibration.gain_watch import GainWatchState, watch_gains
+from frictionwatch.core.monitor.calibration.tdc import TdcEstimate
 from frictionwatch.core.monitor.calibration.tdc_watch import (
     CYLINDERS_PER_WINDOW,
     WINDOW_CYCLES,
@@ -96,10 +97,12 @@ class TdcWatch:
     """TDC from the pressure, window by window, against the calibration (core.monitor.calibration: tdc_watch the
     per-cycle sums, tdc_window the window's reading): windows of ``window`` cycles, ``per_window`` cylinders fitted
     per window in turn (an offline run that wants one reading of every cylinder over the whole log: the engine's
-    cylinders, a window longer than the log, and ``CyclePipeline.close_windows`` at its end)."""
+    cylinders, a window longer than the log, and ``CyclePipeline.close_windows`` at its end). ``fit``: what gives the
+    window's fits (tdc_window.close_window's; an offline caller's memo, core.monitor.calibration.tdc_memo)."""
 
     per_window: int = CYLINDERS_PER_WINDOW
     window: int = WINDOW_CYCLES
+    fit: Callable[..., TdcEstimate] | None = None
     name: ClassVar[str] = "tdc_watch"
 
     def initial(self) -> TdcWatchState:
@@ -109,11 +112,11 @@ class TdcWatch:
         """The cycle added (tdc_watch); a full window read (tdc_window): a cycle enters the reading's file only then."""
         state = watch_cycle(inp.spec, state, inp.cycle, inp.twist)
         return state if state.cycles < self.window else close_window(inp.spec, inp.calibration, state,
-                                                                     per_window=self.per_window)
+                                                                     per_window=self.per_window, fit=self.fit)
 
     def close(self, state: TdcWatchState, spec: EngineSpec, calibration: Calibration) -> TdcWatchState:
         """The open window read now (``CyclePipeline.close_windows``)."""
-        return close_window(spec, calibration, state, per_window=self.per_window)
+        return close_window(spec, calibration, state, per_window=self.per_window, fit=self.fit)
 
 
 class GainWatch:

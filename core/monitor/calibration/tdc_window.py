@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
@@ -79,10 +80,13 @@ SCREEN_BEFORE_SOC_DEG = 10.0
 
 
 def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle: np.ndarray | None = None,
-                 per_window: int = CYLINDERS_PER_WINDOW) -> TdcWatchState:
+                 per_window: int = CYLINDERS_PER_WINDOW, fit: Callable[..., TdcEstimate] | None = None
+                 ) -> TdcWatchState:
     """The window's fits and flags on what ``state`` has gathered (the pipeline's TdcWatch stage calls it when a window
     is full; a run that ends mid-window may call it to read what it has): a new state, the sums started again. ``angle``
-    the traces' local angle (None: the state's cut's). Fewer than BLOCKS pairs gathered: ``state`` as it is."""
+    the traces' local angle (None: the state's cut's); ``fit`` gives tdc_from_pressure's answers (an offline caller's
+    memo, core.monitor.calibration.tdc_memo; None: tdc_from_pressure itself). Fewer than BLOCKS pairs gathered:
+    ``state`` as it is."""
     if state.sums is None or state.cycles < BLOCKS:
         return state
     if angle is None:
@@ -143,7 +147,7 @@ def close_window(spec: EngineSpec, cal: Calibration, state: TdcWatchState, angle
     for k in turn + screened:
         ref[k], ref_twist[k], drift[k] = mean_trace[k], float(twist_mean[k]), 0.0
         try:
-            e = tdc_from_pressure(means[:, k, :], angle, spec, omega / n, operator=operator)
+            e = (fit or tdc_from_pressure)(means[:, k, :], angle, spec, omega / n, operator=operator)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError):
             fitted[k] = None
             continue
