@@ -2,6 +2,8 @@
 kernels, the plant's linearisation against scipy's generalised eigenvalues and engines.md's CHK frequencies, and the
 integrator's step convergence."""
 
+import math
+
 import frictionwatch.core.plant.simulate as simulate_mod
 import numpy as np
 import pytest
@@ -16,12 +18,13 @@ from frictionwatch.core.plant.plant import (
     PressureTraces,
     _crossing,
     _herm,
+    _load_torque,
     plant_rhs,
     work_arrays,
 )
 from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, linearised_stiffness, scalars
 from frictionwatch.core.plant.simulate import simulate
-from numpy.testing import assert_allclose
+from numpy.testing import assert_allclose, assert_array_equal
 from scipy.linalg import eigh
 
 from tests.core.test_terms import AUX_QUADRATIC
@@ -97,6 +100,20 @@ def test_rhs_matches_numpy_reference(name, variable, new_term):
     assert_allclose(acc, (torque - hdj * om**2) / jv, rtol=1e-9, atol=1e-9 * np.abs(acc).max())
     g = z * q
     assert_allclose(pw[g:g + 3], [tl * om[ln], om @ c_mat @ om, tl], rtol=1e-9)
+
+
+def test_load_law_short_cuts_are_the_general_law():
+    """The dyno law with exponent 1 and no ripple skips pow and sin: the same numbers as the general formula (pow(x,
+    1) is x; adding 0 sin(..) changes nothing), bit for bit, and a law with neither still takes them."""
+    om = np.concatenate([[0.0, -5.0, 1e-300, 1e150], np.linspace(0.1, 900.0, 200)])
+    th = np.linspace(-50.0, 5000.0, om.size)
+    for c, k, s, ripple in ((0.0, 0.1036, 1.0, 0.0), (1.4e-14, 0.55, 1.0, 0.0), (3.0, 0.02, 1.7, 0.0),
+                            (3.0, 0.5, 1.0, 12.0), (2.0, 0.01, 2.0, 5.0)):
+        lp = np.array([0.0, c, k, s, 0, 0, 0, 0, 0, ripple, 1.5, 0.3])
+        got = np.array([_load_torque(0.1, a, b, lp) for a, b in zip(th, om)])
+        # the general formula with the C library's pow and sin (numba's too)
+        want = [c + k * math.pow(max(b, 0.0), s) + ripple * math.sin(1.5 * a + 0.3) for a, b in zip(th, om)]
+        assert_array_equal(got, want)
 
 
 def test_hermite_crossing_inverts_a_cubic():
