@@ -273,16 +273,27 @@ def reported_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
     if tdc.shape != t_i.shape or tdc.shape != (z,) or ind.shape != (z,):
         raise ValueError(f"the TDC sensitivities {tdc.shape}, indicated torques {t_i.shape} and the check's "
                          f"{ind.shape} need one per cylinder ({z})")
-    table, resolved, var_tot = _floor_calibration_kernel(cylinder_table, resolved, prior, ind, tdc, t_i, settings)
+    floored = _floor_calibration_kernel(cylinder_table, resolved, prior, ind, tdc, t_i, settings)
+    return estimate_from_tables((coef_table, coef_ok, cylinder_table, t_tot, s_tot, floored), prior, post, cal.status,
+                                to_eng)
+
+
+def estimate_from_tables(tables: tuple, prior: np.ndarray, post: Posterior, calibration: str,
+                         to_engine: float) -> FrictionEstimate:
+    """The FrictionEstimate of ``reported_estimate``'s kernels' answers: ``tables`` = (estimate_kernel's coefficient
+    table (4, z, L) and flags (z, L), its cylinder table (3, z), the total [N m] and its sigma after the floor, and
+    _floor_calibration_kernel's (table (5, z), resolved (z,), the calibration's total variance)); prior (z,) the Eq. 6
+    share, ``calibration`` its status, to_engine MEP per N m of the engine (also core.monitor.identify.step's)."""
+    coef_table, coef_ok, cylinder_table, t_tot, s_tot, (table, resolved, var_tot) = tables
     tot_sig = math.sqrt(s_tot ** 2 + var_tot)
     coef, coef_sig, norm, norm_sig = coef_table
     return FrictionEstimate(
         friction_torque_mean=table[0], friction_torque_mean_sigma=table[1], fmep=table[2], fmep_sigma=table[3],
         coefficients=coef, coefficients_sigma=coef_sig, coefficients_normalised=norm,
         coefficients_normalised_sigma=norm_sig, resolved=resolved, coefficient_resolved=coef_ok,
-        total_friction_torque=float(t_tot), total_friction_torque_sigma=tot_sig, total_fmep=float(t_tot * to_eng),
-        total_fmep_sigma=tot_sig * to_eng, prior_friction_torque_mean=prior, data_gain=cylinder_table[2],
-        weight=float(post.weight), chi2_reduced=float(post.chi2_reduced), calibration=cal.status,
+        total_friction_torque=float(t_tot), total_friction_torque_sigma=tot_sig, total_fmep=float(t_tot * to_engine),
+        total_fmep_sigma=tot_sig * to_engine, prior_friction_torque_mean=prior, data_gain=cylinder_table[2],
+        weight=float(post.weight), chi2_reduced=float(post.chi2_reduced), calibration=calibration,
         calibration_sigma=table[4], total_calibration_sigma=math.sqrt(var_tot))
 
 

@@ -1,0 +1,79 @@
+"""identify_step_kernel (one call a cycle: accumulation, shares, both posteriors, both estimates, the pull check)
+against its reference identify_step_reference (the files' wrappers one after another) on real cycles: k9k-4cyl
+with a worn ring and genset-v20 (design note 115)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from frictionwatch.core.model.engine import load_engine
+from frictionwatch.core.monitor.identify import identification, step
+from frictionwatch.core.monitor.pipeline import CyclePipeline
+from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.service.pipeline import assembled_cycles
+
+RTOL = 1e-9  # the same calls on the same arrays: seen equal to the last bits but ddot's (mean_row @ params)
+
+CASES = {"k9k-4cyl": (3000.0, 0.8, {"ring_wear": {"cylinder": 2, "gain": 1.3}}), "genset-v20": (1500.0, 0.7, None)}
+
+
+def _steps(name: str, n: int = 40) -> list[tuple]:
+    """Every identify_step call's arguments and answer over ``n`` cycles of the engine's case."""
+    rpm, load, effects = CASES[name]
+    spec = load_engine(name)
+    sim = simulate(spec, rpm, load, n, seed=3, effects=effects)
+    cycles, _ = assembled_cycles(spec, sim.info, sim.records)
+    seen, fallbacks = [], []
+    reference = step.identify_step_reference
+
+    def recording(*args):
+        out = step.identify_step(*args)
+        seen.append((args, out))
+        return out
+
+    def counted(*args):
+        fallbacks.append(len(seen))
+        return reference(*args)
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(identification, "identify_step", recording)
+    mp.setattr(step, "identify_step_reference", counted)
+    try:
+        pipe = CyclePipeline(spec)
+        for c in cycles:
+            pipe.process(c)
+    finally:
+        mp.undo()
+    assert not fallbacks, f"the kernel left cycles {fallbacks} to the reference"  # else nothing would be compared
+    return seen
+
+
+def _compare(got, want, where: str) -> int:
+    """Every number of two answers (named tuples, dataclasses, arrays, floats) within RTOL; the count compared."""
+    if dataclasses.is_dataclass(want) or hasattr(want, "_fields"):
+        names = [f.name for f in dataclasses.fields(want)] if dataclasses.is_dataclass(want) else want._fields
+        return sum(_compare(getattr(got, k), getattr(want, k), f"{where}.{k}") for k in names)
+    if want is None or isinstance(want, str):
+        assert got == want, where
+        return 0
+    w, g = np.asarray(want), np.asarray(got)
+    assert g.shape == w.shape and g.dtype.kind == w.dtype.kind, where
+    if w.dtype.kind == "b":
+        np.testing.assert_array_equal(g, w, err_msg=where)
+    else:
+        np.testing.assert_allclose(g, w, rtol=RTOL, atol=0.0, equal_nan=True, err_msg=where)
+    return w.size
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_kernel_against_reference_on_real_cycles(name):
+    seen = _steps(name)
+    assert len(seen) >= 35
+    numbers = 0
+    for i, (args, got) in enumerate(seen):
+        numbers += _compare(got, step.identify_step_reference(*args), f"{name} cycle {i}")
+    assert numbers > 35 * 100
+    # the warm-up's unfolded cycles were compared too
+    assert not seen[0][0][-1].fold and seen[-1][0][-1].fold
