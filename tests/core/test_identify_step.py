@@ -8,8 +8,10 @@ import dataclasses
 
 import numpy as np
 import pytest
+from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.monitor.identify import identification, step
+from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
 from frictionwatch.core.monitor.pipeline import CyclePipeline
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.pipeline import assembled_cycles
@@ -77,3 +79,23 @@ def test_kernel_against_reference_on_real_cycles(name):
     assert numbers > 35 * 100
     # the warm-up's unfolded cycles were compared too
     assert not seen[0][0][-1].fold and seen[-1][0][-1].fold
+
+
+def test_kernel_against_reference_floor_and_calibration_branches():
+    """The floor's branches the monitor's defaults do not take on a healthy log (an indicated_rel, a misfit beyond
+    misfit_free with a coupling loss; no floor) and a commissioned calibration with a kinetic term, on 8 genset-v20
+    cycles' steps: the kernel within RTOL of its reference, and the branches move the sigmas."""
+    seen = _steps("genset-v20", 14)[-8:]
+    done = Calibration(status="commissioned", tdc_wheel_sigma_deg=0.15, tdc_cylinder_sigma_deg=0.04)
+    for i, (args, _) in enumerate(seen):
+        *head, inp, cfg = args
+        sig = {}
+        for f, floor in enumerate((None, ModelErrorFloor(indicated_rel=0.05), cfg.floor)):
+            for cal in (cfg.calibration, done):
+                settings = cfg._replace(floor=floor, calibration=cal)
+                moved = inp._replace(misfit=inp.misfit + 3.0, coupling_loss=inp.coupling_loss + 4.0, kinetic=2.5)
+                got = step.identify_step(*head, moved, settings)
+                _compare(got, step.identify_step_reference(*head, moved, settings), f"cycle {i} floor {f} {cal.status}")
+                sig[f, cal.status] = got.cycle_estimate.total_friction_torque_sigma
+        assert sig[1, "uncalibrated"] > sig[0, "uncalibrated"] and sig[2, "uncalibrated"] > sig[0, "uncalibrated"]
+        assert sig[0, "commissioned"] > sig[0, "uncalibrated"]

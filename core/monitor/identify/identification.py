@@ -7,7 +7,9 @@ and this cycle's estimates.
    for the smoothed estimate, of this cycle's own for the cycle's estimate; added to the fixed priors' normal
    equations (core.monitor.identify.parameters.PriorNormal).
 3. Posteriors (core.monitor.identify.posterior.posterior_from_normal): the accumulated equations, and this cycle's alone.
-4. Reported estimates (core.monitor.identify.estimate.friction_estimate).
+4. Reported estimates (core.monitor.identify.estimate.reported_estimate), the smoothed one's pull check
+   (core.monitor.identify.pull_check).
+Steps 1's accumulation to 4 are one kernel call (core.monitor.identify.step.identify_step, design note 115).
 """
 
 from __future__ import annotations
@@ -31,24 +33,8 @@ from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion
 
 
-def same_cycles_balance(stats: ResidualStats, fit_total: float) -> float:
-    """The mean balance the model-error floor compares the smoothed estimate's total ``fit_total`` [N m] (at this
-    cycle's operating point) with: that total plus the fit's mean disagreement with the balance over the same
-    recent cycles (``stats.balance_mean``: the noise model's EWMA of each cycle's balance minus the fit's
-    total at that cycle's operating point). So both sides stand at the same operating points.
-
-    Not the running mean of the balance itself (``Identification.balance_mean``, the sharing prior's): under a load
-    profile that averages every point of the run while the fit's total is this cycle's, and the floor read the
-    load dependence of friction as model error (genset-v20, +-20 % profile, seed 29, 2,800 cycles at 0.55 of rated:
-    the fit 1,561 N m against the truth's 1,597, the run's mean balance 1,675, a 7.2 % floor on every cylinder, 10
-    measured cylinders to 0; bench/second_wheel_trace.py, design note 35). NaN before any statistics."""
-    if stats.count == 0 or not math.isfinite(fit_total):
-        return float("nan")
-    return float(fit_total) + float(stats.balance_mean)
-
-
 def same_cycles_sigma(stats: ResidualStats, memory: float) -> float:
-    """1-sigma [N m] of ``same_cycles_balance``'s disagreement: the EWMA's standard error from the balance
+    """1-sigma [N m] of the same-cycles balance's disagreement (identify_cycle's ``same``): the EWMA's standard error from the balance
     residual's own scatter (g / (2 - g) of the per-cycle variance, g = max(1 - memory, 1 / count))."""
     if stats.count == 0:
         return float("nan")
@@ -155,8 +141,12 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     pmax_motored = float(np.mean(pmax[~fire])) if not fire.all() else 0.0
     motored = motored_friction_per_cylinder(spec, fly.omega_mean * 60.0 / (2.0 * np.pi), pmax_motored)
     stats = white.stats
-    # the floor compares the smoothed estimate with the balance at the same operating points
-    # (same_cycles_balance: the fit's total plus stats.balance_mean; NaN before any statistics)
+    # the floor compares the smoothed estimate's total at this cycle's operating point with that total plus the
+    # fit's mean disagreement with the balance over the same recent cycles (stats.balance_mean: the noise model's
+    # EWMA of each cycle's balance minus the fit's total then), so both sides stand at the same operating points.
+    # Not the running mean of the balance (the sharing prior's): under a load profile that averages every point of
+    # the run, and the floor read friction's load dependence as model error (genset-v20, +-20 % profile, seed 29:
+    # a 7.2 % floor on every cylinder, 10 measured cylinders to 0; design note 35). NaN before any statistics
     same = (float(stats.balance_mean) if stats.count > 0 else float("nan"), same_cycles_sigma(stats, cfg.noise_memory),
             math.sqrt(stats.balance_var))
     misfit = state.condition.misfit if state.condition is not None else 1.0  # the window up to the last cycle

@@ -64,7 +64,7 @@ STEP_FIELDS = (
     "resolve_rel", "coefficient_snr", "min_data_gain",  # ReportLimits
     "floor_on", "balance_check", "indicated_rel", "coupling_per_misfit", "misfit_free",  # ModelErrorFloor (0: None)
     "coupling_loss", "misfit",  # BalanceCheck's of both estimates
-    "same_balance_offset",  # the noise statistics' balance_mean (same_cycles_balance; NaN: no statistics)
+    "same_balance_offset",  # the noise statistics' balance_mean (identify_cycle's ``same``; NaN: none)
     "same_sigma", "balance_sigma",  # the two checks' balance sigmas [N m]
     "tdc_wheel2", "tdc_cylinder2", "gain2", "gain_common2",  # the calibration's variances
     "kinetic2_smoothed", "kinetic2_cycle",  # (inertia sigma x the kinetic term)^2 of each estimate [N^2 m^2]
@@ -255,7 +255,7 @@ class StepInputs(NamedTuple):
     included), the fitted angle harmonics (M,) complex, the mean-balance row (P,), the cylinders' rows over the
     friction parameters (z, p_f), the basis means (z, L), the running and this cycle's indicated means (z,), the
     running and this cycle's balance [N m], one motored cylinder's friction [N m], the two checks' (balance
-    offset of same_cycles_balance, its sigma; the cycle's balance sigma), the coupling loss and misfit, the TDC
+    offset of identify_cycle's ``same``, its sigma; the cycle's balance sigma), the coupling loss and misfit, the TDC
     sensitivities (z,) and the kinetic term [N m]."""
 
     white: object
