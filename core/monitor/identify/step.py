@@ -22,7 +22,7 @@ import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.identify.accumulate import Accumulator, CycleTerms, accumulate_cycle, cycle_step_kernel
-from frictionwatch.core.monitor.identify.bounded_solve import OK
+from frictionwatch.core.monitor.identify.bounded_solve import BAD_SHAPE, OK
 from frictionwatch.core.monitor.identify.estimate import (
     BalanceCheck,
     CalibrationSensitivity,
@@ -156,16 +156,45 @@ def _estimate(post, share, model, check, sens, s):
 
 
 @numba.njit(cache=True)
+def report_kernel(post_s, post_c, shares, model, cylinders, s, acc):
+    """Both reported estimates and the smoothed one's pull check from the two posteriors (params, chi2_reduced,
+    cov_stat, covariance, cov_reference): shares = the Eq. 6 shares (z,) of the smoothed and of the cycle's
+    estimate; acc = (the accumulated info (P, P), rhs (P,), weight). Returns (the two estimates' tables: _estimate's,
+    the pull sigmas (z,)). The tail of ``identify_step_kernel``, and called alone where a posterior needed NNLS."""
+    params_s, chi2_s, stat_s, cov_s, ref_s = post_s
+    params_c, chi2_c, stat_c, cov_c, ref_c = post_c
+    share_s, share_c = shares
+    info, rhs, weight = acc
+    # the smoothed estimate's floor compares it with the balance at the same operating points (no balance: NaN)
+    same = np.nan
+    fit_total = np.dot(model.mean_row, params_s)
+    if math.isfinite(s[BALANCE_MEAN]) and math.isfinite(s[SAME_OFFSET]) and math.isfinite(fit_total):
+        same = fit_total + s[SAME_OFFSET]
+    est_s = _estimate((params_s, stat_s, cov_s, ref_s), share_s, model,
+                      (cylinders.indicated_mean, same, s[SAME_SIGMA]),
+                      (cylinders.tdc, cylinders.indicated_mean, s[KINETIC2_S]), s)
+    est_c = _estimate((params_c, stat_c, cov_c, ref_c), share_c, model,
+                      (cylinders.indicated, s[BALANCE], s[BALANCE_SIGMA]),
+                      (cylinders.tdc, cylinders.indicated, s[KINETIC2_C]), s)
+    pull = np.zeros(share_s.shape[0])
+    if weight > 0.0:  # PullCheck.sigma
+        pull = pull_sigma_of_info_kernel(info, rhs, params_s, chi2_s, stat_s, model.cylinder_rows, share_s,
+                                         s[KAPPA])
+    return est_s, est_c, pull
+
+
+@numba.njit(cache=True)
 def identify_step_kernel(rows, acc, model, cylinders, s):
     """``identify_step_reference``'s numbers in one call: rows a StepRows, acc the accumulator's arrays (info, rhs,
     sys_map, info_reference, raw rows, raw targets; accumulate.cycle_step_kernel's), model a StepModel, cylinders a
     StepCylinders, s the STEP_FIELDS vector.
 
-    Returns (ok, the cycle's terms, the accumulator's arrays after the step, the speed rows' budget, the shares
-    ((z,) means, sigmas) of the smoothed and the cycle's estimate, the two posteriors (params, chi2_reduced,
-    cov_stat, covariance, cov_reference), the two estimates' tables (estimate_kernel's coefficient table and flags,
-    its cylinder table, the total and its sigma after the floor, _floor_calibration_kernel's (table, resolved,
-    calibration variance)), the pull sigmas (z,)). ok False: the reference must decide (see the module)."""
+    Returns (ok: the shapes fit; the cycle's terms, the accumulator's arrays after the step, the speed rows' budget,
+    its scalars (yty, weight, rows); the shares (z,) of the smoothed and the cycle's estimate; the priors with them
+    in normal form (n_s, r_s, n_c, r_c); the two posteriors' status (bounded_solve's OK, NEEDS_BOUND, FALLBACK) and
+    kernels' answers (params, chi2_reduced, cov_stat, covariance, cov_reference); ``report_kernel``'s answer, empty
+    unless both posteriors are OK: else the caller decides them (NNLS, LAPACK's general path) and calls
+    ``report_kernel`` itself)."""
     ok, terms, arrays, budget = cycle_step_kernel(
         rows.a, rows.y, rows.inv_sigma, s[FORGETTING], s[FOLD] != 0.0, acc, s[RAW_WEIGHT], model.params,
         (rows.sys_var, rows.var, rows.freq, rows.harmonics), s[MODEL_REL_ERROR])
@@ -184,41 +213,29 @@ def identify_step_kernel(rows, acc, model, cylinders, s):
                                      s[FIRING_FRACTION])
     n_s, r_s = _prior_with_share(model.prior_info, model.prior_rhs, model.cylinder_rows, share_s, sig_s)
     n_c, r_c = _prior_with_share(model.prior_info, model.prior_rhs, model.cylinder_rows, share_c, sig_c)
-    status_s, params_s, chi2_s, stat_s, cov_s, ref_s = posterior_kernel(
-        info, rhs, yty, acc_rows, sys_map, ref, n_s, r_s, budget, model.lower, REFERENCE_MAX_CONDITION)
-    status_c, params_c, chi2_c, stat_c, cov_c, ref_c = posterior_kernel(
-        t_info, t_rhs, t_yty, n_rows, t_map, t_ref, n_c, r_c, rows.sys_var, model.lower, REFERENCE_MAX_CONDITION)
-    ok = ok and status_s == OK and status_c == OK
-    z = share_s.shape[0]
-    if not ok:
-        e2, e1 = np.empty((0, 0)), np.empty(0)
-        no_post = (e1, 1.0, e2, e2, e2)
-        no_est = _estimate_stub(z)
-        return (False, terms, arrays, budget, (yty, weight, acc_rows), (share_s, sig_s), (share_c, sig_c), no_post,
-                no_post, no_est, no_est, np.zeros(z))
-    # the smoothed estimate's floor compares it with the balance at the same operating points (no balance: NaN)
-    same = np.nan
-    fit_total = np.dot(model.mean_row, params_s)
-    if math.isfinite(s[BALANCE_MEAN]) and math.isfinite(s[SAME_OFFSET]) and math.isfinite(fit_total):
-        same = fit_total + s[SAME_OFFSET]
-    est_s = _estimate((params_s, stat_s, cov_s, ref_s), share_s, model, (cylinders.indicated_mean, same, s[SAME_SIGMA]),
-                      (cylinders.tdc, cylinders.indicated_mean, s[KINETIC2_S]), s)
-    est_c = _estimate((params_c, stat_c, cov_c, ref_c), share_c, model, (cylinders.indicated, s[BALANCE], s[BALANCE_SIGMA]),
-                      (cylinders.tdc, cylinders.indicated, s[KINETIC2_C]), s)
-    pull = np.zeros(z)
-    if weight > 0.0:  # PullCheck.sigma
-        pull = pull_sigma_of_info_kernel(info, rhs, params_s, chi2_s, stat_s, model.cylinder_rows, share_s,
-                                         s[KAPPA])
-    return (True, terms, arrays, budget, (yty, weight, acc_rows), (share_s, sig_s), (share_c, sig_c),
-            (params_s, chi2_s, stat_s, cov_s, ref_s), (params_c, chi2_c, stat_c, cov_c, ref_c), est_s, est_c, pull)
+    e1, e2 = np.empty(0), np.empty((0, 0))
+    post_s = post_c = (e1, 1.0, e2, e2, e2)
+    status_s = status_c = BAD_SHAPE
+    if ok:
+        status_s, params_s, chi2_s, stat_s, cov_s, ref_s = posterior_kernel(
+            info, rhs, yty, acc_rows, sys_map, ref, n_s, r_s, budget, model.lower, REFERENCE_MAX_CONDITION)
+        status_c, params_c, chi2_c, stat_c, cov_c, ref_c = posterior_kernel(
+            t_info, t_rhs, t_yty, n_rows, t_map, t_ref, n_c, r_c, rows.sys_var, model.lower, REFERENCE_MAX_CONDITION)
+        post_s = (params_s, chi2_s, stat_s, cov_s, ref_s)
+        post_c = (params_c, chi2_c, stat_c, cov_c, ref_c)
+    report = _report_stub(share_s.shape[0])
+    if status_s == OK and status_c == OK:
+        report = report_kernel(post_s, post_c, (share_s, share_c), model, cylinders, s, (info, rhs, weight))
+    return (ok, terms, arrays, budget, (yty, weight, acc_rows), (share_s, share_c), (n_s, r_s, n_c, r_c),
+            (status_s, status_c), post_s, post_c, report)
 
 
 @numba.njit(cache=True)
-def _estimate_stub(z):
-    """_estimate's answer's types, empty (the kernel's not-ok return)."""
+def _report_stub(z):
+    """report_kernel's answer's types, empty (a posterior not OK)."""
     e2 = np.empty((0, 0))
-    return (np.empty((0, 0, 0)), np.empty((0, 0), dtype=np.bool_), e2, 0.0, 0.0,
-            (e2, np.empty(0, dtype=np.bool_), 0.0))
+    est = (np.empty((0, 0, 0)), np.empty((0, 0), dtype=np.bool_), e2, 0.0, 0.0, (e2, np.empty(0, dtype=np.bool_), 0.0))
+    return est, est, np.zeros(z)
 
 
 class StepResult(NamedTuple):
@@ -341,22 +358,35 @@ def identify_step(spec: EngineSpec, layout: ParameterLayout, prior: PriorNormal,
     cylinders = StepCylinders(np.ascontiguousarray(inp.indicated_mean, dtype=f64),
                               np.ascontiguousarray(inp.indicated, dtype=f64), np.ascontiguousarray(inp.tdc, dtype=f64))
     try:
-        (ok, terms, arrays, budget, scalars, (share_s, _), (share_c, _), post_s, post_c, est_s, est_c,
-         pull) = identify_step_kernel(rows, (acc.info, acc.rhs, acc.sys_map, acc.info_reference, *raw), model,
-                                      cylinders, settings)
+        (ok, terms, arrays, budget, (yty, weight, acc_rows), shares, priors, status, post_s, post_c,
+         report) = identify_step_kernel(rows, (acc.info, acc.rhs, acc.sys_map, acc.info_reference, *raw), model,
+                                        cylinders, settings)
     except TypeError:  # another dtype or layout (cycle_step_kernel's explicit signature): the reference converts
         ok = False
     if not ok:
         return identify_step_reference(spec, layout, prior, lower, acc, params, inp, cfg)
     t_info, t_rhs, t_yty, t_map, t_ref = terms
     terms = CycleTerms(t_info, t_rhs, t_yty, float(white.a.shape[0]), t_map, t_ref)
-    yty, weight, acc_rows = scalars
     if cfg.fold:
         acc = Accumulator(arrays[0], arrays[1], yty, weight, acc_rows, arrays[2], arrays[3], arrays[4], arrays[5],
                           raw_weight)
     smoothed = Posterior(post_s[0], post_s[3], post_s[2], float(post_s[1]), weight, post_s[4])
     cycle = Posterior(post_c[0], post_c[3], post_c[2], float(post_c[1]), 1.0, post_c[4])
-    est_s = estimate_from_tables(est_s, share_s, smoothed, cal.status, spec.mep_per_torque_engine)
-    est_c = estimate_from_tables(est_c, share_c, cycle, cal.status, spec.mep_per_torque_engine)
+    if status != (OK, OK):  # a bound active (NNLS decides) or LAPACK's general path: posterior_from_normal's
+        n_s, r_s, n_c, r_c = priors
+        if status[0] != OK:
+            smoothed = posterior_from_normal(acc, n_s, r_s, budget, lower)
+        if status[1] != OK:
+            cycle = posterior_from_normal(Accumulator.of_terms(terms), n_c, r_c, white.sys_var, lower)
+        report = report_kernel(*(_posterior_tuple(p) for p in (smoothed, cycle)), shares, model, cylinders, settings,
+                               (acc.info, acc.rhs, float(acc.weight)))
+    est_s, est_c, pull = report
+    est_s = estimate_from_tables(est_s, shares[0], smoothed, cal.status, spec.mep_per_torque_engine)
+    est_c = estimate_from_tables(est_c, shares[1], cycle, cal.status, spec.mep_per_torque_engine)
     est_s = with_pull(est_s, pull, lim.resolve_rel, spec)
     return StepResult(terms, acc, budget, smoothed, cycle, est_s, est_c)
+
+
+def _posterior_tuple(post: Posterior) -> tuple:
+    """(params, chi2_reduced, cov_stat, covariance, cov_reference): a Posterior as report_kernel reads it."""
+    return (post.params, float(post.chi2_reduced), post.cov_statistical, post.covariance, post.cov_reference)
