@@ -28,7 +28,7 @@ from frictionwatch.core.monitor.identify.estimate import (
     CalibrationSensitivity,
     ModelErrorFloor,
     ReportLimits,
-    _floor_calibration_kernel,
+    floor_calibration_kernel,
     estimate_from_tables,
     estimate_kernel,
     reported_estimate,
@@ -128,7 +128,7 @@ def _prior_with_share(info, rhs, rows, share, sigma):
 @numba.njit(cache=True)
 def _estimate(post, share, model, check, sens, s):
     """reported_estimate's numbers from a posterior (params, cov_stat, cov, cov_ref) and its Eq. 6 share (z,):
-    estimate_kernel, then the floor's scalars in its order, then _floor_calibration_kernel. check = (indicated
+    estimate_kernel, then the floor's scalars in its order, then floor_calibration_kernel. check = (indicated
     (z,), balance, its sigma); sens = (tdc (z,), indicated (z,), the kinetic term's variance)."""
     params, cov_stat, cov, ref = post
     ind, balance, balance_sigma = check
@@ -151,7 +151,7 @@ def _estimate(post, share, model, check, sens, s):
             s_tot = math.sqrt(s_tot ** 2 + (ind_rel * np.sum(ind)) ** 2 + excess2)
     settings = np.array([1.0 if floor_on else 0.0, ind_rel, rel2, resolve_rel, s[TO_CYL], s[TDC_WHEEL2],
                          s[TDC_CYLINDER2], s[GAIN2], s[GAIN_COMMON2], kinetic2])
-    return coef_table, coef_ok, cylinder_table, t_tot, s_tot, _floor_calibration_kernel(
+    return coef_table, coef_ok, cylinder_table, t_tot, s_tot, floor_calibration_kernel(
         cylinder_table, resolved, share, ind, tdc, t_i, settings)
 
 
