@@ -28,9 +28,9 @@ from frictionwatch.core.monitor.identify.estimate import (
     CalibrationSensitivity,
     ModelErrorFloor,
     ReportLimits,
-    floor_calibration_kernel,
     estimate_from_tables,
     estimate_kernel,
+    floor_calibration_kernel,
     reported_estimate,
 )
 from frictionwatch.core.monitor.identify.parameters import (
