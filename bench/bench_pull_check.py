@@ -31,6 +31,7 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 from frictionwatch.core.model.engine import load_engine  # noqa: E402
+from frictionwatch.core.monitor.identify import identification, step  # noqa: E402
 from frictionwatch.core.monitor.identify import pull_check as pc  # noqa: E402
 from frictionwatch.core.monitor.identify.spd import spd_inverse  # noqa: E402
 from frictionwatch.core.monitor.pipeline import CyclePipeline  # noqa: E402
@@ -55,11 +56,14 @@ def capture(cycles: int) -> dict:
             return sig
 
         pc.PullCheck.sigma = recorded
+        # the step by its reference, which calls PullCheck.sigma (its kernel makes the same sigmas without it)
+        fused, identification.identify_step = identification.identify_step, step.identify_step_reference
         try:
             spec = load_engine(name)
             monitored_cycles(spec, simulate(spec, rpm, load, cycles, seed=SEED))
         finally:
             pc.PullCheck.sigma = original
+            identification.identify_step = fused
         out[name] = calls
     return out
 
@@ -117,6 +121,7 @@ def _run(spec, cycles, reference: bool) -> tuple[float, list]:
     """CPU seconds of CyclePipeline.process over ``cycles`` and each analysed cycle's two estimates."""
     kernel = pc.PullCheck.sigma
     pc.PullCheck.sigma = _reference_sigma if reference else kernel
+    fused, identification.identify_step = identification.identify_step, step.identify_step_reference
     try:
         pipe, out, spent = CyclePipeline(spec), [], 0.0
         for c in cycles:
@@ -127,6 +132,7 @@ def _run(spec, cycles, reference: bool) -> tuple[float, list]:
                 out.append(o.result)
     finally:
         pc.PullCheck.sigma = kernel
+        identification.identify_step = fused
     return spent, out
 
 

@@ -9,7 +9,7 @@ accumulated normal equations (no prior, no bound) and its statistical sigma sqrt
 the same equations lead the estimate; the sandwich's flywheel systematic sigma with the stated per-row budget C
 (independent rows: sqrt(sum h^2 C)) and the same C taken coherent over the rows (sum |h| sqrt(C): one physical error
 common to every harmonic); how many of the flywheel's harmonics have a budget above the 0.3 %-of-the-harmonic floor
-(``identification.accumulate_cycle``'s budget: the persistent residual at the estimate seen), and the five raw
+(the identification step's ``accumulate_cycle`` budget: the persistent residual at the estimate seen), and the five raw
 rows that carry most of the cylinder's systematic part (row j < M: the real part of half order (j + 1) / 2,
 j >= M: its imaginary); at the preset's coefficients (every friction scale 1, as the plant has them; the nuisances
 at their best given those) the cylinder's figure against the truth (a check that the truth is there) and the
@@ -25,7 +25,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from frictionwatch.core.monitor.identify import identification
+from frictionwatch.core.monitor.identify import identification, step
 from frictionwatch.core.monitor.identify.accumulate import Accumulator
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.drivers.logs.mcap_log import LogReader
@@ -40,12 +40,12 @@ class PullTap(Tap):
 
     def __init__(self):
         super().__init__()
-        self.inner_step = identification.accumulate_cycle
+        self.inner_step = step.accumulate_cycle
         self.budget_seen: dict = {}
         self.within = WithinMap()
 
     def budget(self, acc, white, forgetting, fold, params, model_rel_error, harmonics):
-        """Wraps identification.accumulate_cycle (the budget is its third output)."""
+        """Wraps the step's accumulate_cycle (the budget is its third output)."""
         terms, acc, out = self.inner_step(acc, white, forgetting, fold, params, model_rel_error, harmonics)
         m = white.freq.shape[0]
         e = model_rel_error * white.freq * np.abs(harmonics)
@@ -325,8 +325,9 @@ def main() -> None:
     log_path = Path(args.log)
     truth_all = np.load(log_path.with_name(log_path.name.removesuffix(".mcap") + ".truth.npz"))["friction"]
     tap = PullTap()
-    identification.reported_estimate, identification.posterior_from_normal = tap, tap.posterior
-    identification.accumulate_cycle = tap.budget
+    identification.identify_step = step.identify_step_reference  # the step by the wrappers the taps see
+    step.reported_estimate, step.posterior_from_normal = tap, tap.posterior
+    step.accumulate_cycle = tap.budget
     sums = RowSums() if args.split else None
     if sums is not None:
         sums.install()

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.identify import identification
+from frictionwatch.core.monitor.identify import identification, step
 from frictionwatch.core.monitor.identify.estimate import cylinder_kernel
 from frictionwatch.core.monitor.identify.pull_check import PullCheck, data_only_pull
 from frictionwatch.core.monitor.report.figure_status import friction_status
@@ -80,12 +80,12 @@ def cmd_simulate(args) -> None:
 
 
 class Tap:
-    """Wraps identification.reported_estimate: keeps the inputs and the pre-floor numbers of the first call of each
+    """Wraps the identification step's reported_estimate (core.monitor.identify.step's reference): keeps the inputs and the pre-floor numbers of the first call of each
     identify_cycle (the smoothed estimate)."""
 
     def __init__(self):
-        self.inner = identification.reported_estimate
-        self.inner_post = identification.posterior_from_normal
+        self.inner = step.reported_estimate
+        self.inner_post = step.posterior_from_normal
         self.calls = 0
         self.post_calls = 0
         self.last: dict | None = None
@@ -149,8 +149,10 @@ def cmd_trace(args) -> None:
     log = LogReader(log_path)
     spec = load_engine(TWO_WHEELS)
     tap = Tap()
-    identification.reported_estimate = tap
-    identification.posterior_from_normal = tap.posterior
+    # the step by its reference, whose wrapper calls the tap sees (the kernel makes the same numbers without them)
+    identification.identify_step = step.identify_step_reference
+    step.reported_estimate = tap
+    step.posterior_from_normal = tap.posterior
     names = args.variants
     # the pull check at another kappa (inf: off), bench only
     pull = {} if args.pull_kappa is None else {"pull_check": PullCheck(kappa=args.pull_kappa)}

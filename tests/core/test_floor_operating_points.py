@@ -1,5 +1,5 @@
 """The model-error floor compares the smoothed estimate with the mean balance at the same operating points (issue 29,
-design note 35; core.monitor.identify.identification.same_cycles_balance).
+design note 35; core.monitor.identify.identification.identify_cycle's ``same``).
 
 Simulated maruti-3cyl at 3000 rpm, seed 3, 300 cycles: a ramp from 0.3 to 0.9 of rated load in 1 %-of-rated steps
 (each below the balance-voiding 2 %) over 2-8 s, then 4 s at 0.9, against a steady run at 0.9. Its true friction

@@ -171,3 +171,41 @@ def test_genset_carries_its_two_slow_modes_and_nothing_else():
     assert_allclose(np.abs(kept) / (2.0 * np.pi), [2.43, 19.55], atol=0.1)
     assert_allclose(np.exp(kept.real * period), [0.739, 0.315], atol=0.005)
     assert carried_modes(modes, period, 24, 0.0).shape == (0,)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_step_kernel_equals_its_reference_over_cycles(seed):
+    """without_free_response (one free_response_step_kernel call) against without_free_response_reference (design,
+    moments, the EWMA, the kernel one after another) over 12 chained random cycles: the first restarts the EWMA
+    (none before), cycle 6 changes the carried modes' count (a restart), every other case without a drift column;
+    rows within rtol 1e-12 of their largest entry, the EWMA within rtol 1e-12, its count equal; carry 0: the rows
+    themselves."""
+    from frictionwatch.core.monitor.identify.free_response import (
+        without_free_response,
+        without_free_response_reference,
+    )
+    from frictionwatch.core.monitor.identify.noise_model import WhitenedCycle
+
+    rng = np.random.default_rng(500 + seed)
+    period, m, p = 0.08, int(rng.integers(6, 25)), int(rng.integers(4, 40))
+    stats = got_stats = ResidualStats.empty(m)
+    changed = 0
+    for cycle in range(12):
+        modes = GENSET_MODES if cycle < 6 else GENSET_MODES[:1]
+        drift = (rng.normal(size=m) + 1j * rng.normal(size=m)) if seed % 2 else None
+        a, y = rng.normal(size=(2 * m + 1, p)), rng.normal(size=2 * m + 1)
+        inv_sigma = rng.uniform(0.2, 5.0, 2 * m + 1)
+        params = rng.normal(size=p)
+        white = WhitenedCycle(stats, a, y, inv_sigma, np.ones(2 * m + 1), np.arange(1.0, m + 1), drift)
+        args = (modes, period, 0.1, 3.0, 0.75)  # memory: the EWMA factor 0.25 from the fifth cycle on
+        want = without_free_response_reference(white, stats, params, *args)
+        got = without_free_response(replace(white, stats=got_stats), got_stats, params, *args)
+        assert_allclose(got.a, want.a, rtol=0, atol=1e-12 * np.abs(want.a).max())
+        assert_allclose(got.y, want.y, rtol=0, atol=1e-12 * np.abs(want.y).max())
+        for field in ("free_coef_sq", "free_noise"):
+            assert_allclose(getattr(got.stats, field), getattr(want.stats, field), rtol=1e-12)
+        assert got.stats.free_count == want.stats.free_count == (cycle + 1 if cycle < 6 else cycle - 5)
+        changed += not np.allclose(got.a, a)
+        stats, got_stats = want.stats, got.stats
+    assert changed >= 1  # the rows were whitened again (not by a variance of zero)
+    assert without_free_response(white, stats, params, GENSET_MODES, period, 0.0, 3.0, 0.98) is white

@@ -70,6 +70,7 @@ def test_reported_estimate_matches_estimate_floor_and_calibration(monkeypatch):
     beyond misfit_free with a coupling loss: cylinders become unresolved), no floor, and a commissioned calibration:
     every field equal to the last bit."""
     import frictionwatch.core.monitor.identify.identification as ident
+    import frictionwatch.core.monitor.identify.step as step
     from frictionwatch.core.model.calibration import Calibration
     from frictionwatch.core.monitor.identify.estimate import (
         ModelErrorFloor,
@@ -90,7 +91,9 @@ def test_reported_estimate_matches_estimate_floor_and_calibration(monkeypatch):
         calls.append(args)
         return reported_estimate(*args)
 
-    monkeypatch.setattr(ident, "reported_estimate", recording)
+    # the monitor's step by its reference (its kernel makes reported_estimate's numbers without calling it)
+    monkeypatch.setattr(ident, "identify_step", step.identify_step_reference)
+    monkeypatch.setattr(step, "reported_estimate", recording)
     pipe = CyclePipeline(spec)
     assert sum(pipe.process(c).ok for c in cycles[:8]) >= 6
     assert len(calls) >= 12

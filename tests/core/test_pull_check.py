@@ -184,8 +184,12 @@ def _assert_kernel_is_reference(acc, post, rows, share, kappa) -> bool:
 @pytest.fixture(scope="module")
 def captured():
     """Every PullCheck.sigma call's inputs over the first 40 cycles of the genset-v20 demo log and the k9k-4cyl
-    replay log, through the one pipeline (CyclePipeline)."""
+    replay log, through the one pipeline (CyclePipeline) with the identification step by its reference (the step's
+    kernel makes the pull sigmas without calling PullCheck.sigma, core.monitor.identify.step)."""
+    from frictionwatch.core.monitor.identify import identification, step
+
     original, out = PullCheck.sigma, {}
+    fused, identification.identify_step = identification.identify_step, step.identify_step_reference
     try:
         for log_name in ("demo", "k9k-4cyl"):
             calls: list = []
@@ -204,6 +208,7 @@ def captured():
             out[spec.name] = calls
     finally:
         PullCheck.sigma = original
+        identification.identify_step = fused
     return out
 
 

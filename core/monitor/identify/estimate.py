@@ -1,5 +1,5 @@
 """From a posterior over the parameters to a reported ``FrictionEstimate`` (per-cylinder means, coefficients,
-sigmas, resolved masks; results.py). The numbers come from two kernels (``estimate_kernel`` and ``_floor_calibration_kernel``, below)."""
+sigmas, resolved masks; results.py). The numbers come from two kernels (``estimate_kernel`` and ``floor_calibration_kernel``, below)."""
 
 from __future__ import annotations
 
@@ -233,7 +233,7 @@ def reported_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
                       sens: CalibrationSensitivity) -> FrictionEstimate:
     """``with_calibration(friction_estimate(..., floor, check), cal, sens, spec)`` (its reference, tested equal) with
     one FrictionEstimate built instead of three: the floor's and the calibration's per-cylinder arithmetic in one
-    kernel (``_floor_calibration_kernel``) after the estimate's, the scalars in Python in the reference's order.
+    kernel (``floor_calibration_kernel``) after the estimate's, the scalars in Python in the reference's order.
     Per monitored cycle this runs twice (the smoothed and the cycle's estimate)."""
     z = spec.n_cyl
     p_f = layout.n_params
@@ -273,21 +273,32 @@ def reported_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
     if tdc.shape != t_i.shape or tdc.shape != (z,) or ind.shape != (z,):
         raise ValueError(f"the TDC sensitivities {tdc.shape}, indicated torques {t_i.shape} and the check's "
                          f"{ind.shape} need one per cylinder ({z})")
-    table, resolved, var_tot = _floor_calibration_kernel(cylinder_table, resolved, prior, ind, tdc, t_i, settings)
+    floored = floor_calibration_kernel(cylinder_table, resolved, prior, ind, tdc, t_i, settings)
+    return estimate_from_tables((coef_table, coef_ok, cylinder_table, t_tot, s_tot, floored), prior, post, cal.status,
+                                to_eng)
+
+
+def estimate_from_tables(tables: tuple, prior: np.ndarray, post: Posterior, calibration: str,
+                         to_engine: float) -> FrictionEstimate:
+    """The FrictionEstimate of ``reported_estimate``'s kernels' answers: ``tables`` = (estimate_kernel's coefficient
+    table (4, z, L) and flags (z, L), its cylinder table (3, z), the total [N m] and its sigma after the floor, and
+    floor_calibration_kernel's (table (5, z), resolved (z,), the calibration's total variance)); prior (z,) the Eq. 6
+    share, ``calibration`` its status, to_engine MEP per N m of the engine (also core.monitor.identify.step's)."""
+    coef_table, coef_ok, cylinder_table, t_tot, s_tot, (table, resolved, var_tot) = tables
     tot_sig = math.sqrt(s_tot ** 2 + var_tot)
     coef, coef_sig, norm, norm_sig = coef_table
     return FrictionEstimate(
         friction_torque_mean=table[0], friction_torque_mean_sigma=table[1], fmep=table[2], fmep_sigma=table[3],
         coefficients=coef, coefficients_sigma=coef_sig, coefficients_normalised=norm,
         coefficients_normalised_sigma=norm_sig, resolved=resolved, coefficient_resolved=coef_ok,
-        total_friction_torque=float(t_tot), total_friction_torque_sigma=tot_sig, total_fmep=float(t_tot * to_eng),
-        total_fmep_sigma=tot_sig * to_eng, prior_friction_torque_mean=prior, data_gain=cylinder_table[2],
-        weight=float(post.weight), chi2_reduced=float(post.chi2_reduced), calibration=cal.status,
+        total_friction_torque=float(t_tot), total_friction_torque_sigma=tot_sig, total_fmep=float(t_tot * to_engine),
+        total_fmep_sigma=tot_sig * to_engine, prior_friction_torque_mean=prior, data_gain=cylinder_table[2],
+        weight=float(post.weight), chi2_reduced=float(post.chi2_reduced), calibration=calibration,
         calibration_sigma=table[4], total_calibration_sigma=math.sqrt(var_tot))
 
 
 @numba.njit(cache=True)
-def _floor_calibration_kernel(cylinder_table, resolved, prior, ind, tdc, indicated, settings):
+def floor_calibration_kernel(cylinder_table, resolved, prior, ind, tdc, indicated, settings):
     """The per-cylinder part of ``ModelErrorFloor.apply`` then ``with_calibration`` on ``estimate_kernel``'s
     cylinder_table (3, z) (t_mean NaN where unresolved, t_sig, gain) and resolved (z,); prior (z,) the Eq. 6 share
     [N m], ind (z,) the floor check's indicated torques, tdc and indicated (z,) the calibration's sensitivities;

@@ -29,9 +29,10 @@ per mode: a small eigenproblem on their span). A mode that rings strongly (s lar
 ``carry`` (MonitorConfig.free_response_carry). A cycle's work is three kernels, each beside its numpy reference:
 ``free_response_design`` (the modes, their columns, whitened; ``free_response_design_reference``),
 ``free_response_moments`` (the coefficients' moments by one SVD; ``coefficient_moments``) and
-``free_response_kernel`` (the rows whitened again; ``free_response_reference``); the EWMA between them is plain
-Python (two vector updates). As numpy calls the same work cost ~1-1.7 ms a cycle on a loaded box, now ~0.3
-ms (design note 111).
+``free_response_kernel`` (the rows whitened again; ``free_response_reference``), with the EWMA between them
+(``free_response_variance``), called as one (``free_response_step_kernel``; ``without_free_response_reference`` its
+reference, the four one after another, design note 115). As numpy calls the same work cost ~1-1.7 ms a cycle on
+a loaded box, ~0.3 ms as four kernels (design note 111).
 """
 
 from __future__ import annotations
@@ -263,8 +264,61 @@ def free_response_variance(prev, coef_sq: np.ndarray, noise: np.ndarray, memory:
     return sq, nz, n, np.maximum(sq - nz, 0.0)
 
 
+@numba.njit(cache=True)
+def free_response_step_kernel(modes, drift, white, prev, settings):
+    """``without_free_response_reference``'s numbers in one call: modes (n,) complex; drift (the drift column (M,)
+    complex, empty: none); white = (a, y, inv_sigma) the whitened rows, inv_sigma's first 2M the flywheel's; prev =
+    (params (P,), the statistics' free_coef_sq and free_noise (q,), empty: none); settings = (period, carry,
+    drift_var, memory, the statistics' free_count, M the harmonics). Returns (q: the carried modes, 0: nothing done; a, y; the
+    EWMA of coefficient^2 and of noise, the cycles in them)."""
+    a, y, inv_sigma = white
+    params, prev_sq, prev_nz = prev
+    period, carry, drift_var, memory = settings[0], settings[1], settings[2], settings[3]
+    dw = free_response_design(modes, period, carry, inv_sigma[:2 * int(settings[5])], drift, drift_var)
+    q = dw.shape[1] // 2
+    if q == 0:
+        return 0, a, y, prev_sq, prev_nz, 0
+    coef_sq, noise = free_response_moments(dw, a, y, params)
+    if prev_sq.shape[0] != q:  # free_response_variance: restarted when the carried modes' count changes
+        n, sq, nz = 1, coef_sq, noise
+    else:
+        n = int(settings[4]) + 1
+        g = max(1.0 - memory, 1.0 / n)
+        sq, nz = np.empty(q), np.empty(q)
+        for j in range(q):
+            sq[j] = prev_sq[j] + g * (coef_sq[j] - prev_sq[j])
+            nz[j] = prev_nz[j] + g * (noise[j] - prev_nz[j])
+    var2 = np.empty(2 * q)  # np.repeat(max(sq - nz, 0), 2); NaN stays NaN as np.maximum keeps it
+    for j in range(q):
+        v = sq[j] - nz[j]
+        var2[2 * j] = var2[2 * j + 1] = 0.0 if v < 0.0 else v
+    a, y = free_response_kernel(a, y, dw, var2)
+    return q, a, y, sq, nz, n
+
+
 def without_free_response(white, prev, params: np.ndarray, modes: np.ndarray | None, period: float, carry: float,
                           drift_var: float, memory: float):
+    """``without_free_response_reference``'s answer from one ``free_response_step_kernel`` call."""
+    if modes is None or carry <= 0.0:
+        return white
+    m = white.freq.shape[0]
+    drift = white.drift_col if white.drift_col is not None else np.empty(0, dtype=np.complex128)
+    empty = np.empty(0)
+    sq0 = prev.free_coef_sq if prev.free_coef_sq is not None else empty
+    nz0 = prev.free_noise if prev.free_noise is not None else empty
+    if white.inv_sigma.shape[0] < 2 * m or drift.shape[0] not in (0, m):
+        return without_free_response_reference(white, prev, params, modes, period, carry, drift_var, memory)
+    q, a, y, sq, nz, n = free_response_step_kernel(
+        np.asarray(modes, dtype=np.complex128), drift, (white.a, white.y, white.inv_sigma),
+        (np.asarray(params, dtype=np.float64), sq0, nz0),
+        np.array((period, carry, drift_var, memory, prev.free_count, m), dtype=np.float64))
+    if q == 0:
+        return white
+    return replace(white, a=a, y=y, stats=replace(white.stats, free_coef_sq=sq, free_noise=nz, free_count=n))
+
+
+def without_free_response_reference(white, prev, params: np.ndarray, modes: np.ndarray | None, period: float,
+                                    carry: float, drift_var: float, memory: float):
     """``white`` (noise_model.WhitenedCycle) with the carried modes' free response a random effect of its flywheel
     rows: each mode's two coefficients of prior variance from the data (the EWMA in the statistics ``prev``, the
     ones before this cycle, with this cycle's folded in, as the drift's step variance is), the rows whitened again

@@ -7,7 +7,9 @@ and this cycle's estimates.
    for the smoothed estimate, of this cycle's own for the cycle's estimate; added to the fixed priors' normal
    equations (core.monitor.identify.parameters.PriorNormal).
 3. Posteriors (core.monitor.identify.posterior.posterior_from_normal): the accumulated equations, and this cycle's alone.
-4. Reported estimates (core.monitor.identify.estimate.friction_estimate).
+4. Reported estimates (core.monitor.identify.estimate.reported_estimate), the smoothed one's pull check
+   (core.monitor.identify.pull_check).
+Steps 1's accumulation to 4 are one kernel call (core.monitor.identify.step.identify_step, design note 115).
 """
 
 from __future__ import annotations
@@ -19,46 +21,20 @@ import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.balance.excitation import Excitation
 from frictionwatch.core.monitor.balance.mean_balance import MeanBalance
-from frictionwatch.core.monitor.identify.accumulate import Accumulator, accumulate_cycle
-from frictionwatch.core.monitor.identify.estimate import (
-    BalanceCheck,
-    CalibrationSensitivity,
-    ReportLimits,
-    reported_estimate,
-)
+from frictionwatch.core.monitor.identify.accumulate import Accumulator
+from frictionwatch.core.monitor.identify.estimate import ReportLimits
 from frictionwatch.core.monitor.identify.free_response import without_free_response
 from frictionwatch.core.monitor.identify.noise_model import NoiseSettings, ResidualStats, whitened_rows
-from frictionwatch.core.monitor.identify.parameters import (
-    CycleRows,
-    firing_mask,
-    motored_friction_per_cylinder,
-    share_mean_loss,
-)
-from frictionwatch.core.monitor.identify.posterior import Posterior, posterior_from_normal
-from frictionwatch.core.monitor.identify.pull_check import with_pull
+from frictionwatch.core.monitor.identify.parameters import CycleRows, firing_mask, motored_friction_per_cylinder
+from frictionwatch.core.monitor.identify.posterior import Posterior
+from frictionwatch.core.monitor.identify.step import StepInputs, StepSettings, identify_step
 from frictionwatch.core.monitor.report.results import FrictionEstimate
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion
 
 
-def same_cycles_balance(stats: ResidualStats, fit_total: float) -> float:
-    """The mean balance the model-error floor compares the smoothed estimate's total ``fit_total`` [N m] (at this
-    cycle's operating point) with: that total plus the fit's mean disagreement with the balance over the same
-    recent cycles (``stats.balance_mean``: the noise model's EWMA of each cycle's balance minus the fit's
-    total at that cycle's operating point). So both sides stand at the same operating points.
-
-    Not the running mean of the balance itself (``Identification.balance_mean``, the sharing prior's): under a load
-    profile that averages every point of the run while the fit's total is this cycle's, and the floor read the
-    load dependence of friction as model error (genset-v20, +-20 % profile, seed 29, 2,800 cycles at 0.55 of rated:
-    the fit 1,561 N m against the truth's 1,597, the run's mean balance 1,675, a 7.2 % floor on every cylinder, 10
-    measured cylinders to 0; bench/second_wheel_trace.py, design note 35). NaN before any statistics."""
-    if stats.count == 0 or not math.isfinite(fit_total):
-        return float("nan")
-    return float(fit_total) + float(stats.balance_mean)
-
-
 def same_cycles_sigma(stats: ResidualStats, memory: float) -> float:
-    """1-sigma [N m] of ``same_cycles_balance``'s disagreement: the EWMA's standard error from the balance
+    """1-sigma [N m] of the same-cycles balance's disagreement (identify_cycle's ``same``): the EWMA's standard error from the balance
     residual's own scatter (g / (2 - g) of the per-cycle variance, g = max(1 - memory, 1 / count))."""
     if stats.count == 0:
         return float("nan")
@@ -150,10 +126,6 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
                         y=np.concatenate([white.y[:-1], y2, white.y[-1:]]),
                         inv_sigma=np.concatenate([white.inv_sigma[:-1], inv2, white.inv_sigma[-1:]]),
                         sys_var=np.concatenate([white.sys_var[:-1], sys2, white.sys_var[-1:]]))
-    terms, acc, budget = accumulate_cycle(state.accumulator, white, lam, state.cycles >= cfg.warmup_cycles,
-                                          state.params, cfg.model_rel_error, fly.harmonics)
-    acc_c = Accumulator.of_terms(terms)  # this cycle's equations alone
-
     # running means of the sharing prior of the smoothed estimate
     g = max(1.0 - lam, 1.0 / (state.cycles + 1))
     t_i = exc.indicated_mean
@@ -168,38 +140,33 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     fire = firing_mask(t_i)
     pmax_motored = float(np.mean(pmax[~fire])) if not fire.all() else 0.0
     motored = motored_friction_per_cylinder(spec, fly.omega_mean * 60.0 / (2.0 * np.pi), pmax_motored)
-    share_s = share_mean_loss(bal_mean, ind_mean, motored, cfg.share_spread)
-    share_c = share_mean_loss(balance if math.isfinite(balance) else bal_mean, t_i, motored, cfg.share_spread)
-    layout = state.layout
-    cyl_rows = rows.cylinder_rows[:, :layout.n_params]  # the friction parameters' part
-    # both priors, then both posteriors (independent: in this order each stage's file is entered once)
-    prior_s, prior_c = state.prior.with_share(cyl_rows, share_s), state.prior.with_share(cyl_rows, share_c)
-    post_s = posterior_from_normal(acc, *prior_s, budget, state.lower)
-    post_c = posterior_from_normal(acc_c, *prior_c, white.sys_var, state.lower)
-    limits = ReportLimits(cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain)
-    floor, bal_sigma = cfg.model_error_floor, math.sqrt(white.stats.balance_var)
+    stats = white.stats
+    # the floor compares the smoothed estimate's total at this cycle's operating point with that total plus the
+    # fit's mean disagreement with the balance over the same recent cycles (stats.balance_mean: the noise model's
+    # EWMA of each cycle's balance minus the fit's total then), so both sides stand at the same operating points.
+    # Not the running mean of the balance (the sharing prior's): under a load profile that averages every point of
+    # the run, and the floor read friction's load dependence as model error (genset-v20, +-20 % profile, seed 29:
+    # a 7.2 % floor on every cylinder, 10 measured cylinders to 0; design note 35). NaN before any statistics
+    same = (float(stats.balance_mean) if stats.count > 0 else float("nan"), same_cycles_sigma(stats, cfg.noise_memory),
+            math.sqrt(stats.balance_var))
     misfit = state.condition.misfit if state.condition is not None else 1.0  # the window up to the last cycle
-    # the floor compares the smoothed estimate with the balance at the same operating points (no balance: NaN)
-    same = (same_cycles_balance(white.stats, float(rows.mean_row @ post_s.params)) if math.isfinite(bal_mean)
-            else float("nan"))
-    check_s = BalanceCheck(ind_mean, same, same_cycles_sigma(white.stats, cfg.noise_memory), mean.coupling_loss,
-                           misfit)
-    check_c = BalanceCheck(t_i, balance, bal_sigma, mean.coupling_loss, misfit)
     # the calibration's remaining uncertainty (TDC, gain, J) on top: the mean balance passes it into friction whole
     tdc = mean.tdc_sensitivity if mean.tdc_sensitivity is not None else np.zeros(spec.n_cyl)
-    cal = cfg.calibration
-    est_s = reported_estimate(spec, layout, post_s, exc.basis_mean, share_s.friction_mean, limits, cyl_rows, floor,
-                              check_s, cal, CalibrationSensitivity(tdc, ind_mean))
-    est_c = reported_estimate(spec, layout, post_c, exc.basis_mean, share_c.friction_mean, limits, cyl_rows, floor,
-                              check_c, cal, CalibrationSensitivity(tdc, t_i, mean.kinetic))
-    # the smoothed figures drawn by a repeated error the sandwich does not see (one cycle's equations alone fix no
-    # data-only point: the cycle's estimate is not checked)
-    est_s = with_pull(est_s, cfg.pull_check.sigma(acc, post_s, cyl_rows, share_s.friction_mean), cfg.resolve_rel, spec)
+    layout = state.layout
+    inp = StepInputs(white, fly.harmonics, rows.mean_row, rows.cylinder_rows[:, :layout.n_params], exc.basis_mean,
+                     ind_mean, t_i, bal_mean, balance, motored, same, mean.coupling_loss, misfit, tdc, mean.kinetic)
+    settings = StepSettings(lam, state.cycles >= cfg.warmup_cycles,
+                            ReportLimits(cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain),
+                            cfg.model_error_floor, cfg.calibration, cfg.pull_check, cfg.model_rel_error,
+                            cfg.share_spread)
+    step = identify_step(spec, layout, state.prior, state.lower, state.accumulator, state.params, inp, settings)
+    acc, post_s, post_c = step.accumulator, step.smoothed, step.cycle
     # the smoothed estimate stands on a balance when one was accumulated, or, during the warm-up (nothing
     # accumulated), when the Eq. 6 share it holds is of a measured running balance; the cycle's on its own
     balanced = float(acc.info_reference.trace()) > 0.0 or (acc.weight == 0.0 and math.isfinite(bal_mean))
-    est_s = measured_or_withheld(est_s, _source(balanced))
-    est_c = measured_or_withheld(est_c, _source(math.isfinite(balance)))
+    est_s = measured_or_withheld(step.smoothed_estimate, _source(balanced))
+    est_c = measured_or_withheld(step.cycle_estimate, _source(math.isfinite(balance)))
     return Identification(stats=white.stats, accumulator=acc, indicated_mean=ind_mean, balance_mean=bal_mean,
                           smoothed=post_s, cycle=post_c, smoothed_estimate=est_s, cycle_estimate=est_c, fire=fire,
-                          freq=white.freq, drift_col=white.drift_col, cycle_terms=acc_c)
+                          freq=white.freq, drift_col=white.drift_col,
+                          cycle_terms=Accumulator.of_terms(step.terms))
