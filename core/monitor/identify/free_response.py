@@ -269,8 +269,8 @@ def free_response_step_kernel(modes, drift, white, prev, settings):
     """``without_free_response_reference``'s numbers in one call: modes (n,) complex; drift (the drift column (M,)
     complex, empty: none); white = (a, y, inv_sigma) the whitened rows, inv_sigma's first 2M the flywheel's; prev =
     (params (P,), the statistics' free_coef_sq and free_noise (q,), empty: none); settings = (period, carry,
-    drift_var, memory, the statistics' free_count, M the harmonics). Returns (q: the carried modes, 0: nothing done; a, y; the
-    EWMA of coefficient^2 and of noise, the cycles in them)."""
+    drift_var, memory, the statistics' free_count, M the harmonics). Returns (q: the carried modes, 0: nothing done;
+    a, y; the EWMA of coefficient^2 and of noise, the cycles in them)."""
     a, y, inv_sigma = white
     params, prev_sq, prev_nz = prev
     period, carry, drift_var, memory = settings[0], settings[1], settings[2], settings[3]

@@ -34,8 +34,8 @@ from frictionwatch.core.monitor.teeth.flywheel import FlywheelMotion
 
 
 def same_cycles_sigma(stats: ResidualStats, memory: float) -> float:
-    """1-sigma [N m] of the same-cycles balance's disagreement (identify_cycle's ``same``): the EWMA's standard error from the balance
-    residual's own scatter (g / (2 - g) of the per-cycle variance, g = max(1 - memory, 1 / count))."""
+    """1-sigma [N m] of the same-cycles balance's disagreement (identify_cycle's ``same``): the EWMA's standard error
+    from the balance residual's own scatter (g / (2 - g) of the per-cycle variance, g = max(1 - memory, 1 / count))."""
     if stats.count == 0:
         return float("nan")
     g = max(1.0 - memory, 1.0 / stats.count)

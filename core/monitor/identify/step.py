@@ -353,7 +353,8 @@ def identify_step(spec: EngineSpec, layout: ParameterLayout, prior: PriorNormal,
     f64 = np.float64
     rows = StepRows(white.a, white.y, white.inv_sigma, white.sys_var, white.stats.var, white.freq, inp.harmonics)
     model = StepModel(prior.info, prior.rhs, lower, layout.group, layout.prior,
-                      np.ascontiguousarray(inp.basis_mean, dtype=f64), np.ascontiguousarray(inp.cylinder_rows, dtype=f64),
+                      np.ascontiguousarray(inp.basis_mean, dtype=f64),
+                      np.ascontiguousarray(inp.cylinder_rows, dtype=f64),
                       np.ascontiguousarray(inp.mean_row, dtype=f64), np.asarray(params, dtype=f64))
     cylinders = StepCylinders(np.ascontiguousarray(inp.indicated_mean, dtype=f64),
                               np.ascontiguousarray(inp.indicated, dtype=f64), np.ascontiguousarray(inp.tdc, dtype=f64))
