@@ -286,7 +286,13 @@ def motored_friction_per_cylinder(spec: EngineSpec, rpm: float, pmax_motored_pa:
     return fmep_bar * 1e5 / spec.mep_per_torque_cyl  # spec.mep_to_torque(..., cylinders=1), its arithmetic
 
 
-def firing_mask(indicated_mean: np.ndarray, fraction: float = 0.15) -> np.ndarray:
+# Eq. 6's defaults (share_mean_loss; identify.step passes the same to its kernel): a motored cylinder's T_fM,ml
+# known to 30 % (1 sigma), and a cylinder fires when its indicated work is above 15 % of the median of the positive ones
+MOTORED_SPREAD = 0.3
+FIRING_FRACTION = 0.15
+
+
+def firing_mask(indicated_mean: np.ndarray, fraction: float = FIRING_FRACTION) -> np.ndarray:
     """True for cylinders that fire: indicated work above ``fraction`` of the median of the positive ones."""
     t = np.ascontiguousarray(indicated_mean, dtype=np.float64)
     return firing_kernel(t.reshape(-1), float(fraction)).reshape(t.shape)
@@ -297,8 +303,8 @@ def share_mean_loss(
     indicated_mean: np.ndarray,
     motored_friction: float,
     spread: float = 0.15,
-    motored_spread: float = 0.3,
-    fraction: float = 0.15,
+    motored_spread: float = MOTORED_SPREAD,
+    fraction: float = FIRING_FRACTION,
 ) -> SharedLoss:
     """Eq. 6 shares of ``friction_total`` T_fM [N m] by the per-cylinder indicated torques T_iM^k (z,) [N m].
 

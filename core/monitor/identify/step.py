@@ -33,6 +33,8 @@ from frictionwatch.core.monitor.identify.estimate import (
     floor_calibration_kernel,
     reported_estimate,
 )
+from frictionwatch.core.monitor.identify.parameters import FIRING_FRACTION as FIRING_FRACTION_DEFAULT
+from frictionwatch.core.monitor.identify.parameters import MOTORED_SPREAD as MOTORED_SPREAD_DEFAULT
 from frictionwatch.core.monitor.identify.parameters import (
     ParameterLayout,
     PriorNormal,
@@ -343,8 +345,8 @@ def identify_step(spec: EngineSpec, layout: ParameterLayout, prior: PriorNormal,
     kinetic = inp.kinetic if math.isfinite(inp.kinetic) else 0.0
     settings = np.array((
         lam, 1.0 if cfg.fold else 0.0, raw_weight, cfg.model_rel_error, acc.yty, acc.weight, acc.rows,
-        inp.balance_mean, inp.balance, inp.motored, cfg.share_spread, 0.3, 0.15, lim.resolve_rel,
-        lim.coefficient_snr, lim.min_data_gain, 0.0 if floor is None else 1.0,
+        inp.balance_mean, inp.balance, inp.motored, cfg.share_spread, MOTORED_SPREAD_DEFAULT, FIRING_FRACTION_DEFAULT,
+        lim.resolve_rel, lim.coefficient_snr, lim.min_data_gain, 0.0 if floor is None else 1.0,
         1.0 if floor is not None and floor.balance_check else 0.0, floor.indicated_rel if floor else 0.0,
         floor.coupling_per_misfit if floor else 0.0, floor.misfit_free if floor else 0.0, inp.coupling_loss,
         inp.misfit, offset, same_sigma, bal_sigma, cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2,
