@@ -10,8 +10,8 @@ k9k discover's time, and 136 of its 212 fits read a pressure, grid, speed and sp
 discover had read (k9k 2500 rpm / 0.8, seed 5, 84 cycles; design note 113). The fit is a pure function of its
 arguments, so the same arguments give the same estimate.
 
-The key is everything the fit depends on, by content: the pressure's and the grid's bytes (with their shapes and
-dtypes), the speed, the smoothing operator's step (``smoothing(step)`` makes it, a pure function of the step), and the
+The key is everything the fit depends on, by content: the pressure's and the grid's values as float64 (with their
+shapes), the speed, the smoothing operator's step (``smoothing(step)`` makes it, a pure function of the step), and the
 whole EngineSpec pickled (~5 kB, ~0.5 ms: the fit reads the kinematics, the cylinder's sizes and the combustion's
 angles and temperature; a key of those fields alone would go stale the day the fit reads another one). Bounded, the
 least recently used answer dropped first; the serving path does not use it (its windows never repeat). Each answer
