@@ -250,6 +250,8 @@ def data_gaps(analysis: LogAnalysis) -> list[dict]:
 def run(args: argparse.Namespace) -> int:
     if not args.log.exists():
         raise FileNotFoundError(f"no such log: {args.log}")
+    if args.log.is_dir():  # `reanalyze` takes a folder of logs; analyze one log
+        raise IsADirectoryError(f"{args.log} is a folder, not a log (`frictionwatch reanalyze` takes a folder)")
     if args.csv:
         check_output_path(args.csv)  # an unwritable output is found before the run, not after it
     if args.plot:
