@@ -85,6 +85,9 @@ class IngestQueue:
         self.dropped_ticks = 0.0
         self._last_drop_log = -float("inf")
         self._last_drop_s: float | None = None
+        # sources whose hole marker has been handed out with none of their batches since: a batch of theirs dropped
+        # now widens that hole, which needs no marker of its own (the ingest thread restarted there already)
+        self._open: set[str] = set()
 
     # --- readers -------------------------------------------------------------------------------------------------
     def put(self, source: str, records: list, key: float, realtime: bool) -> None:
@@ -117,6 +120,9 @@ class IngestQueue:
             item = self._items.popleft()
             if item.key is not None:
                 self._data -= 1
+                self._open.discard(item.source)
+            elif isinstance(item.payload, Dropped):
+                self._open.add(item.source)
             self._cond.notify_all()  # a waiting replay reader may have room now
             return item.source, item.payload
 
@@ -152,7 +158,7 @@ class IngestQueue:
     def _drop_oldest(self) -> None:
         """Called with the lock held, after an append: drop the oldest batches until the span fits (the newest
         batch itself is always kept), each leaving a ``Dropped`` marker in its place, or widening its source's
-        marker still queued before it (one hole, one marker)."""
+        marker still queued before it, or the hole whose marker was handed out last (one hole, one marker)."""
         items = self._items
         newest = items[-1].key
         dropped, first_dropped = 0, None
@@ -166,6 +172,8 @@ class IngestQueue:
             if before is not None and isinstance(before.payload, Dropped):
                 hole = before.payload
                 before.payload = Dropped(hole.first_key, max(hole.last_key, first.key), hole.records + n)
+                del items[i]
+            elif before is None and first.source in self._open:
                 del items[i]
             else:  # a marker's key is None: never dropped, not counted in the span
                 items[i] = _Item(first.source, Dropped(first.key, first.key, n), None, first.read_s)

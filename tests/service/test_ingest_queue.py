@@ -103,3 +103,18 @@ def test_close_releases_a_waiting_replay_and_discard_says_what_it_dropped() -> N
     t.join(5.0)
     assert not t.is_alive()
     assert q.discard() == (5, pytest.approx(2.0)) and len(q) == 0
+
+
+def test_a_hole_whose_marker_was_taken_widens_without_another_until_a_batch_is_taken() -> None:
+    q = IngestQueue(max_span_ticks=1.0 * HZ, tick_hz=HZ)
+    for i in range(3):
+        q.put("log", [i], key=i * HZ, realtime=True)
+    assert q.get(timeout=0.0) == ("log", Dropped(0.0, 0.0, 1))  # the ingest thread restarts here
+    for i in range(3, 5):  # still behind: batches 1 and 2 go too, the same hole
+        q.put("log", [i], key=i * HZ, realtime=True)
+    items = drain(q)
+    assert items == [("log", [3]), ("log", [4])] and q.lag().dropped_records == 3
+    # a batch of it taken (above): the next drop is a new hole, with its own marker
+    for i in range(5, 8):
+        q.put("log", [i], key=i * HZ, realtime=True)
+    assert drain(q) == [("log", Dropped(5 * HZ, 5 * HZ, 1)), ("log", [6]), ("log", [7])]
