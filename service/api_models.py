@@ -80,8 +80,10 @@ class EngineInfo(_Open):
     sources: list[str]
     cycles_ok: int
     skipped: dict[str, int]
-    restarts: dict[str, int] = Field(default_factory=dict, description="stream restarts by reason (loop_restart: a "
-                                     "looped replay's seam, where the cycle assembler starts again): not lost cycles")
+    restarts: dict[str, int] = Field(default_factory=dict, description="stream restarts by reason, where the cycle "
+                                     "assembler starts again (loop_restart: a looped replay's seam; dropped_while_"
+                                     "behind: where the ingest queue dropped data, counted in /health's dropped_*): "
+                                     "not lost cycles")
     rpm_latest: float | None
     listener_drops: dict[str, int] = Field(description="events each fan-out listener lost to a full queue")
     listener_left: dict[str, int] = Field(default_factory=dict, description="events a stop left undelivered, per "

@@ -238,7 +238,7 @@ class EngineService:
             return
         self._stopped = True
         self.session.stop(timeout)
-        self.skipped = dict(self.session.skipped)
+        self.skipped, self.restarts = dict(self.session.skipped), dict(self.session.restarts)
         self.fanout.stop(LISTENER_STOP_S if timeout is None else timeout)
         said = []
         left = self.session.left_at_stop

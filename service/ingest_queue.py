@@ -11,7 +11,10 @@ key minus oldest queued key), whatever the ingest thread's speed:
 - a real-time source (a serial board, a CAN bus, a replay paced by the wall clock) cannot be asked to wait — its
   bytes would pile up in the OS or be lost unseen — so its batch is queued and the *oldest* queued batches are
   dropped until the span fits again: the newest data are kept, and what is dropped is counted (records and
-  acquisition seconds) and logged (the first time, then at most once a minute);
+  acquisition seconds) and logged (the first time, then at most once a minute). Where batches were dropped a
+  ``Dropped`` marker stands in their place (one per run of a source's dropped batches), so that the ingest thread
+  knows its source's stream has a hole there and restarts the cycle assembly at it: the cycle the hole cuts is one
+  of the dropped ones, not a data gap of the engine (design note 119);
 - a source that can wait (a log replayed as fast as it can be read) blocks in ``put`` until the span fits: a replay
   loses nothing and no longer loads the whole log into memory.
 
@@ -48,6 +51,17 @@ class IngestLag:
 
 
 @dataclass
+class Dropped:
+    """A marker where a source's queued batches were dropped: ``first_key`` .. ``last_key`` the newest ticks of the
+    first and last batch dropped there (every record of the source's next queued batch comes after ``last_key``),
+    ``records`` how many."""
+
+    first_key: float
+    last_key: float
+    records: int
+
+
+@dataclass
 class _Item:
     source: str
     payload: Any  # a list of records, or a marker object
@@ -71,6 +85,9 @@ class IngestQueue:
         self.dropped_ticks = 0.0
         self._last_drop_log = -float("inf")
         self._last_drop_s: float | None = None
+        # sources whose hole marker has been handed out with none of their batches since: a batch of theirs dropped
+        # now widens that hole, which needs no marker of its own (the ingest thread restarted there already)
+        self._open: set[str] = set()
 
     # --- readers -------------------------------------------------------------------------------------------------
     def put(self, source: str, records: list, key: float, realtime: bool) -> None:
@@ -103,6 +120,9 @@ class IngestQueue:
             item = self._items.popleft()
             if item.key is not None:
                 self._data -= 1
+                self._open.discard(item.source)
+            elif isinstance(item.payload, Dropped):
+                self._open.add(item.source)
             self._cond.notify_all()  # a waiting replay reader may have room now
             return item.source, item.payload
 
@@ -137,16 +157,28 @@ class IngestQueue:
 
     def _drop_oldest(self) -> None:
         """Called with the lock held, after an append: drop the oldest batches until the span fits (the newest
-        batch itself is always kept)."""
-        newest = self._items[-1].key
+        batch itself is always kept), each leaving a ``Dropped`` marker in its place, or widening its source's
+        marker still queued before it, or the hole whose marker was handed out last (one hole, one marker)."""
+        items = self._items
+        newest = items[-1].key
         dropped, first_dropped = 0, None
         while self._data > 1:
-            i, first = next((i, it) for i, it in enumerate(self._items) if it.key is not None)
+            i, first = next((i, it) for i, it in enumerate(items) if it.key is not None)
             if newest - first.key <= self.max_span:
                 break
-            del self._items[i]
+            n = len(first.payload)
+            # the source's item before it (the batches before the first data batch are all markers)
+            before = next((items[j] for j in range(i - 1, -1, -1) if items[j].source == first.source), None)
+            if before is not None and isinstance(before.payload, Dropped):
+                hole = before.payload
+                before.payload = Dropped(hole.first_key, max(hole.last_key, first.key), hole.records + n)
+                del items[i]
+            elif before is None and first.source in self._open:
+                del items[i]
+            else:  # a marker's key is None: never dropped, not counted in the span
+                items[i] = _Item(first.source, Dropped(first.key, first.key, n), None, first.read_s)
             self._data -= 1
-            dropped += len(first.payload)
+            dropped += n
             first_dropped = first.key if first_dropped is None else first_dropped
         if dropped:
             nxt = next(it.key for it in self._items if it.key is not None)

@@ -18,9 +18,10 @@ sources and the recorder (the session owns what it is given).
 
 Backpressure. The reader -> ingest queue is bounded by the acquisition time it holds (``max_queue_s``, default
 10 s; service/ingest_queue.py states the policy): a real-time source (serial, CAN, a replay paced by the wall clock)
-never waits — the oldest queued batches are dropped, the newest kept, counted in ``lag().dropped_*`` — while a log
-replayed as fast as it can be read waits for room (and, in serve, the ingest thread for its listeners: service/
-engine_service.py). Memory of the queue is bounded by the sources' data rate times
+never waits — the oldest queued batches are dropped, the newest kept, counted in ``lag().dropped_*``, and the
+pipeline restarts its cycle assembly where they were (``DROPPED_WHILE_BEHIND``: the cycle cut there is a dropped one,
+not a data gap) — while a log replayed as fast as it can be read waits for room (and, in serve, the ingest thread for
+its listeners: service/engine_service.py). Memory of the queue is bounded by the sources' data rate times
 ``max_queue_s`` (genset-v20: ~3.2 MB/s of pressure, ~32 MB). ``lag()`` says how far the ingest is behind. ``read`` never raising is
 the sources' contract; an exception that escapes anyway is counted (``reader_error: <type>``) and the reader goes on.
 A failing recorder, ``on_result`` callback or pipeline step is counted in ``errors`` and logged once; the session
@@ -47,13 +48,25 @@ from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 from frictionwatch.drivers.errors import EndOfStream
 from frictionwatch.drivers.logs.recorder import Recorder
 from frictionwatch.drivers.source import Source, StreamRestart
-from frictionwatch.service.ingest_queue import IngestLag, IngestQueue
+from frictionwatch.service.ingest_queue import Dropped, IngestLag, IngestQueue
 from frictionwatch.service.pipeline import EnginePipeline, LogAnalysis, ResultHistory
 from frictionwatch.service.record_merge import Keyed, RecordMerge, record_key
 
 log = logging.getLogger(__name__)
 
 _END = object()
+
+
+DROPPED_WHILE_BEHIND = "dropped_while_behind"  # the restart reason where the queue dropped a source's batches
+
+
+def _hole_mark(hole: Dropped) -> tuple[list[StreamRestart], list[float]]:
+    """The restart mark where the queue dropped a run of a source's batches (service/ingest_queue.py): just after
+    the newest tick dropped, so before every record the source still delivers. The pipeline restarts its cycle
+    assembly there, as at a replay's loop seam: the cycle the hole cuts is one of the dropped ones, counted in
+    ``lag().dropped_*``, not a ``data_gap`` of the engine (design note 119)."""
+    mark = StreamRestart(ticks=math.floor(hole.last_key) + 1, reason=DROPPED_WHILE_BEHIND)
+    return [mark], [float(mark.ticks)]
 
 
 class KeyedBatch:
@@ -368,6 +381,7 @@ class LiveSession:
                     released = self.merge.set_quiet(quiet)
                 if name:
                     released += (self.merge.end(name) if item is _END else
+                                 self.merge.push(name, *_hole_mark(item)) if isinstance(item, Dropped) else
                                  self.merge.push(name, item.records, item.keys))
                 self._cond.notify_all()
             self._deliver(released)
@@ -375,7 +389,10 @@ class LiveSession:
             released = self.merge.flush()
         self._deliver(released)
         with self._cond:
-            self._publish(self.pipeline.flush())
+            # sources that ended (a finite log) end the stream: its last partial cycle is counted; a stop cuts it
+            ended = len(self.merge.ended) == len(self.sources)
+            outcomes = self.pipeline.outcomes(None) if ended else self.pipeline.cut_off()
+            self._publish([o.result for o in outcomes if o.result is not None])
             self._cond.notify_all()
         self._hand_on()
 

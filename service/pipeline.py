@@ -110,17 +110,26 @@ class EnginePipeline:
         """The stream starts again (drivers/source.py StreamRestart): the cycles complete so far, then a fresh
         assembler numbering on from the old one. The partial cycle the old stream ends in is dropped uncounted: at a
         loop seam it is the log's end (``analyze`` counts it once, as ``log_ends_mid_cycle``), not a cycle of the
-        engine's run that went missing; counted per pass it would make every loop cost a lost cycle again."""
+        engine's run that went missing; counted per pass it would make every loop cost a lost cycle again. Where a
+        live session dropped data while behind (service.live.DROPPED_WHILE_BEHIND) it is one of the dropped cycles,
+        counted there."""
         old = self.assembler
-        cycles = old.flush()
-        old.truncated.clear()
-        out = self._losses()
-        out.extend(self.cycles.process(c) for c in cycles)
+        out = self.cut_off()
         self._retired += Counter(old.skipped)
         self.assembler = cycle_assembler(self.spec, self.info, first_index=old.next_index)
         self._lost_at = 0
         self.restarts[reason] += 1
         log.info("stream restart (%s): the cycle assembler starts again at cycle %d", reason, old.next_index)
+        return out
+
+    def cut_off(self) -> list[CycleOutcome]:
+        """The stream stops here without having ended (a restart mark; a live session's stop while its sources still
+        deliver): the outcomes of the cycles complete so far. The cycle it stops in is not counted as
+        ``log_ends_mid_cycle``: the stop cut it, the engine's stream lost nothing (a finite log that ends is flushed
+        with ``outcomes(None)``, which counts it)."""
+        cycles = self.assembler.flush(count_tail=False)
+        out = self._losses()
+        out.extend(self.cycles.process(c) for c in cycles)
         return out
 
     def _losses(self) -> list[CycleOutcome]:

@@ -229,19 +229,24 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def stop_summary(svc: EngineService) -> str:
-    """One terminal line per engine at the end of a serve run: the cycles analysed, the ones skipped and why, and
-    the acquisition a real-time source lost while the analysis was behind (serve --max-queue-s: a cold start's
-    compile, an overloaded box), which until now only /health and /metrics said."""
+    """One terminal line per engine at the end of a serve run: the cycles analysed, the acquisition a real-time source
+    lost while the analysis was behind (serve --max-queue-s: a cold start's compile, an overloaded box), which until
+    now only /health and /metrics said, the cycles skipped and why, and a looped replay's seams. A dropped stretch
+    is said once, as dropped: the cycle its hole cut is not a skip as well (design note 119), and a seam is a
+    restart, not a loss."""
     parts = [f"{svc.cycles_ok} cycles analysed"]
-    skipped = {str(k): int(n) for k, n in svc.skipped.items() if n}
-    if skipped:
-        parts.append("skipped: " + ", ".join(f"{k} {n}" for k, n in sorted(skipped.items())))
     lag = svc.backlog()
     if lag.get("dropped_records"):
         cycles = lag.get("dropped_cycles")
         about = f"~{cycles:.0f} cycles, " if cycles is not None else ""
         parts.append(f"dropped while the analysis was behind: {about}{lag['dropped_s']:.1f} s of acquisition "
                      f"({lag['dropped_records']} records)")
+    skipped = {str(k): int(n) for k, n in svc.skipped.items() if n}
+    if skipped:
+        parts.append("skipped: " + ", ".join(f"{k} {n}" for k, n in sorted(skipped.items())))
+    seams = int(svc.restarts.get("loop_restart", 0))
+    if seams:
+        parts.append(f"{seams} loop seam{'s' if seams > 1 else ''} of the replay (restarts, nothing lost)")
     return f"frictionwatch serve: stopped {svc.engine_id}: " + "; ".join(parts)
 
 

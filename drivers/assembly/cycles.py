@@ -11,9 +11,10 @@ drivers/assembly/cycle_sync.py.
 Skips (``skipped``, cycles by reason): spurious_tooth, missing_tooth, sync_lost, data_gap, buffer_overflow,
 speed_out_of_range, pressure_missing, pressure_nan, phase_mismatch, clock_reset. ``truncated``: the cycle the stream
 ends in, counted (``log_ends_mid_cycle``) when the stream holds at least ``TAIL_COUNTED_DEG`` of it (cylinder 1's
-compression and expansion: its burn is in the log but not analysed); a shorter tail is not a cycle. At the end of
-the stream (``flush``) a cycle whose every edge arrived is kept although the edge that would verify its last one
-never comes.
+compression and expansion: its burn is in the log but not analysed); a shorter tail is not a cycle, and a stream
+cut off rather than ended (``flush(count_tail=False)``: a loop seam, a live session's drop or stop) counts none. At
+the end of the stream (``flush``) a cycle whose every edge arrived is kept although the edge that would verify its
+last one never comes.
 ``stats`` counts events (segments, bridges, rejected candidates, cam votes, ring overflows, ...).
 """
 
@@ -255,9 +256,12 @@ class CycleAssembler(EpochSync):
         """The index the next cycle gets (every cycle met so far, assembled or skipped, has a lower one)."""
         return self._next_index
 
-    def flush(self) -> list[Cycle]:
-        """End of stream: emit every complete cycle now, without waiting for more pressure."""
-        return self._advance(flushing=True)
+    def flush(self, count_tail: bool = True) -> list[Cycle]:
+        """End of stream: emit every complete cycle now, without waiting for more pressure. ``count_tail`` False:
+        the stream was cut off rather than ended (a replay's loop seam, a hole where a live session dropped data, a
+        stop), so the cycle it is cut in is not counted (nor logged) as ``log_ends_mid_cycle``: its loss is the cut's,
+        said where the cut is said."""
+        return self._advance(flushing=True, count_tail=count_tail)
 
     @property
     def expected_cylinders(self) -> tuple[int, ...]:
@@ -266,14 +270,14 @@ class CycleAssembler(EpochSync):
         return tuple(sorted(c for c in self.buf.pressure if 1 <= c <= self.n_cyl))
 
     # ---- cycles -------------------------------------------------------------------------------------------------
-    def _advance(self, flushing: bool) -> list[Cycle]:
+    def _advance(self, flushing: bool, count_tail: bool = True) -> list[Cycle]:
         if self._epoch is not None:
-            self._advance_epoch(self._epoch, flushing)
+            self._advance_epoch(self._epoch, flushing, count_tail)
         out = self._emit(flushing) if self._pending else []
         self._discard(force=flushing)
         return out
 
-    def _advance_epoch(self, ep: Epoch, flushing: bool) -> None:
+    def _advance_epoch(self, ep: Epoch, flushing: bool, count_tail: bool = True) -> None:
         if ep.phase is None and self.info.cam_deg is not None:
             self._place_cams(ep)
         if ep.phase is None:
@@ -294,7 +298,7 @@ class CycleAssembler(EpochSync):
             if flushing and status == "wait" and self._arrived_whole(seg, ps, pe):
                 status = "complete"  # the stream ended right after it: no edge will come to verify its last
             if status in ("wait", "before"):
-                if flushing and status == "wait":
+                if flushing and status == "wait" and count_tail:
                     self._count_tail(ep, c, seg, ps, pe)
                 return
             index = ep.index_of(c)

@@ -43,8 +43,8 @@ class TwoWheelAssembler(CycleAssembler):
         self._held.extend(out)
         return self._release(final=False) if self._held else []
 
-    def flush(self) -> list[Cycle]:
-        self._held.extend(super().flush())
+    def flush(self, count_tail: bool = True) -> list[Cycle]:
+        self._held.extend(super().flush(count_tail))
         return self._release(final=True)
 
     def _release(self, final: bool) -> list[Cycle]:

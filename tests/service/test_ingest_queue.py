@@ -1,5 +1,6 @@
 """The bounded reader -> ingest queue (service/ingest_queue.py): a real-time source keeps the newest and counts what it
-drops; a replay waits for room and loses nothing; markers are never dropped."""
+drops, leaving one marker where its batches were (design note 119); a replay waits for room and loses nothing;
+markers are never dropped."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import queue
 import threading
 
 import pytest
-from frictionwatch.service.ingest_queue import IngestQueue
+from frictionwatch.service.ingest_queue import Dropped, IngestQueue
 
 HZ = 1000.0  # ticks per second of these tests
 
@@ -21,13 +22,21 @@ def drain(q: IngestQueue) -> list:
             return out
 
 
+def batches(items: list) -> list:
+    """The data batches among drained items (not the markers)."""
+    return [payload for _, payload in items if isinstance(payload, list)]
+
+
 def test_realtime_keeps_the_newest_and_counts_the_dropped() -> None:
     q = IngestQueue(max_span_ticks=2.0 * HZ, tick_hz=HZ)
     for i in range(10):  # one batch of 3 records a second of acquisition, for 10 s: never more than 2 s queued
         q.put("teeth", [i] * 3, key=i * HZ, realtime=True)
         assert q.lag().queued_s <= 2.0
-    kept = [payload[0] for _, payload in drain(q)]
+    items = drain(q)
+    kept = [payload[0] for payload in batches(items)]
     assert kept == [7, 8, 9]  # the newest 2 s (keys 7, 8, 9 s span exactly 2 s)
+    # where the seven went, one marker: the newest ticks of the first and last batch dropped, and their records
+    assert items[0] == ("teeth", Dropped(0.0, 6 * HZ, 7 * 3)) and len(items) == 4
     lag = q.lag()
     assert lag.dropped_records == 7 * 3
     assert lag.dropped_s == pytest.approx(7.0)  # batches at 0..6 s dropped: 7 s of acquisition (0 -> 7)
@@ -42,7 +51,25 @@ def test_markers_are_never_dropped() -> None:
     for i in range(1, 6):
         q.put("a", [i], key=i * HZ, realtime=True)
     items = drain(q)
-    assert ("b", end) in items and [p for _, p in items if p is not end] == [[4], [5]]
+    assert ("b", end) in items and batches(items) == [[4], [5]]
+    # the source's one hole, 0 .. 3 s, one marker, though another source's marker stands within it
+    assert [(n, p) for n, p in items if isinstance(p, Dropped)] == [("a", Dropped(0.0, 3 * HZ, 4))]
+
+
+def test_each_source_has_its_own_hole_marker() -> None:
+    q = IngestQueue(max_span_ticks=1.0 * HZ, tick_hz=HZ)
+    for i in range(4):  # two sources a batch each per second; the queue holds 1 s
+        q.put("teeth", [i, i], key=i * HZ, realtime=True)
+        q.put("bus", [i], key=i * HZ + 1, realtime=True)
+    q.put("teeth", [9], key=4 * HZ, realtime=True)
+    items = drain(q)
+    holes = {n: p for n, p in items if isinstance(p, Dropped)}
+    assert holes == {"teeth": Dropped(0.0, 2 * HZ, 6), "bus": Dropped(1.0, 2 * HZ + 1, 3)}
+    # each marker before its source's kept batches, and the dropped counts the queue reports are the markers' sum
+    for name, hole in holes.items():
+        at = items.index((name, hole))
+        assert all(n != name for n, _ in items[:at])
+    assert q.lag().dropped_records == 6 + 3
 
 
 def test_a_replay_waits_for_room_and_loses_nothing() -> None:
@@ -76,3 +103,18 @@ def test_close_releases_a_waiting_replay_and_discard_says_what_it_dropped() -> N
     t.join(5.0)
     assert not t.is_alive()
     assert q.discard() == (5, pytest.approx(2.0)) and len(q) == 0
+
+
+def test_a_hole_whose_marker_was_taken_widens_without_another_until_a_batch_is_taken() -> None:
+    q = IngestQueue(max_span_ticks=1.0 * HZ, tick_hz=HZ)
+    for i in range(3):
+        q.put("log", [i], key=i * HZ, realtime=True)
+    assert q.get(timeout=0.0) == ("log", Dropped(0.0, 0.0, 1))  # the ingest thread restarts here
+    for i in range(3, 5):  # still behind: batches 1 and 2 go too, the same hole
+        q.put("log", [i], key=i * HZ, realtime=True)
+    items = drain(q)
+    assert items == [("log", [3]), ("log", [4])] and q.lag().dropped_records == 3
+    # a batch of it taken (above): the next drop is a new hole, with its own marker
+    for i in range(5, 8):
+        q.put("log", [i], key=i * HZ, realtime=True)
+    assert drain(q) == [("log", Dropped(5 * HZ, 5 * HZ, 1)), ("log", [6]), ("log", [7])]
