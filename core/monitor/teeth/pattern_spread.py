@@ -28,7 +28,11 @@ def pattern_spread(design_nuisance: np.ndarray, cov_nuisance: np.ndarray) -> np.
     d = np.asarray(design_nuisance)
     if d.shape[1] == 0:
         return np.zeros(d.shape[0])
-    var = np.einsum("ij,jk,ik->i", d, np.asarray(cov_nuisance, dtype=np.float64), d.conj()).real
+    cov = np.asarray(cov_nuisance, dtype=np.float64)
+    # Re and Im apart, two real products: a third of a three-operand complex einsum's time at genset-v20's 24 x 24
+    # (32 against 86 us a call, alternated, load ~7), the same numbers to 6e-16 relative
+    dr, di = d.real, d.imag
+    var = ((dr @ cov) * dr).sum(axis=1) + ((di @ cov) * di).sum(axis=1)
     return np.sqrt(np.maximum(var, 0.0))
 
 
