@@ -91,3 +91,33 @@ def test_the_discrepancys_runs_carry_the_spread_and_it_shrinks_as_the_pattern_is
     served = run_model(model, reference(cycles), dataclasses.replace(pinned_config(), nuisance_spread=False),
                        cycles[:4])
     assert served.pattern_sigma is None
+
+
+def test_a_residual_within_the_tooth_patterns_uncertainty_is_said_not_named():
+    """The order table of the test above (order 11 beyond its noise's sigmas and above the floor, inside the pattern's
+    sigma) as a discover's final localisation: the outcome is 'nothing' and the verdict says the order lies within
+    what the wheel's tooth pattern, still being learnt, can put there; without the pattern's sigma the same order is
+    significant and unexplained."""
+    from frictionwatch.core.discrepancy.discovery import Discovery
+
+    model = EngineModel.from_spec(load_engine("genset-v20"))
+    n, m, k = 60, 24, 21
+    amplitude = 2.2e-3
+    res = dataclasses.replace(_coherent_order(n, m, k, amplitude, 2.6e-3, seed=3),
+                              measured=np.full((n, m), 0.01 * amplitude))  # a floor below the order's amplitude
+    spread = np.zeros((n, m))
+    spread[:, k] = 0.5 * amplitude
+
+    def found(pattern_sigma) -> Discovery:
+        orders = order_table(dataclasses.replace(res, pattern_sigma=pattern_sigma))
+        final = {"significant_orders": [o["order"] for o in orders if o["significant"]], "orders": orders,
+                 "balance": {"significant": False, "mean_nm": 0.0}, "angle": {"peak_deg": 0.0},
+                 "cylinders": [{"cylinder": 1, "relative": 1.0}], "half_order_share": 0.0, "channels": {}}
+        return Discovery(model, model, [], 0.7, 0.7, {"operating_points": 1}, final)
+
+    learning = found(spread)
+    assert learning.outcome == "nothing" and learning.within_pattern == [11.0]
+    assert "at engine orders 11 a coherent residual lies within what the wheel's tooth pattern" in learning.verdict()
+    bare = found(None)
+    assert bare.outcome == "unexplained" and bare.within_pattern == []
+    assert "engine orders 11" in bare.verdict() and "tooth pattern" not in bare.verdict()
