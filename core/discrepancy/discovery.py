@@ -132,6 +132,17 @@ class Discovery:
                 if o["amplitude_rpm"] > SIGNIFICANT * o["sigma_rpm"] and not o["significant"]]
 
     @property
+    def within_pattern(self) -> list[float]:
+        """Engine orders whose held-out coherent speed residual is beyond its noise's sigmas and above the model-error
+        floor but within what the wheel's in-band tooth pattern, still being learnt, can put there (the order
+        table's ``pattern_sigma_rpm``, design note 118): said, not named."""
+        f = self.final
+        if not f:
+            return []
+        return [o["order"] for o in f["orders"] if not o["significant"] and o["amplitude_rpm"] > o["floor_rpm"]
+                and o["amplitude_rpm"] > SIGNIFICANT * o.get("noise_sigma_rpm", o["sigma_rpm"])]
+
+    @property
     def one_operating_point(self) -> bool:
         """Whether the held-out cycles ran at one operating point (features.localise ``operating_points``, the
         groups of residuals.operating_groups). Before design note 58 this read features.trends, which a steady log's

@@ -189,24 +189,41 @@ def _point_means(x: np.ndarray, groups: np.ndarray | None) -> tuple[np.ndarray, 
     return means, weights / weights.sum(), var
 
 
+def pattern_sigma_rpm(res: Residuals) -> np.ndarray:
+    """(M,) [rpm] the spread of each order's coherent speed residual that the in-band tooth pattern's unconverged
+    estimate can explain: the mean over the cycles of each cycle's spread (Residuals.pattern_sigma, the nuisances'
+    posterior through their columns; core.monitor.teeth.pattern_spread); zeros where the residuals do not carry it.
+    The estimate's error moves slowly from cycle to cycle, so the errors of the cycles are nearly one error: the
+    mean of their sigmas is the sigma of their mean when they are fully correlated, and its upper bound otherwise
+    (averaging over the cycles does not shrink it; design note 118)."""
+    if res.pattern_sigma is None or not res.pattern_sigma.size:
+        return np.zeros(res.harmonics.shape[1])
+    return res.pattern_sigma.mean(axis=0) * RPM_PER_RAD_S
+
+
 def order_table(res: Residuals) -> list[dict]:
     """Each engine order m/2: the coherent amplitude of the speed residual [rpm] (over several operating points, the
     rms of each point's mean weighted by its cycles: a residual whose phase turns between points does not cancel),
-    its sigma (from the scatter within the points) and whether it is significant (> SIGNIFICANT sigmas and above
-    the model-error floor, ``speed_floor_rpm``); the phase is that of the mean over all cycles."""
+    its sigma and whether it is significant (> SIGNIFICANT sigmas and above the model-error floor,
+    ``speed_floor_rpm``); the phase is that of the mean over all cycles. The sigma is the noise's (``noise_sigma_rpm``:
+    the scatter within the points over sqrt(N)) and the tooth pattern's (``pattern_sigma_rpm``: what the in-band
+    nuisances' remaining uncertainty can put there, the same in every cycle) in quadrature: an order a still
+    uncertain tooth pattern can explain is not significant (design note 118)."""
     h = res.harmonics
     n = h.shape[0]
     m_all = h.shape[1]
     means, w, var = _point_means(np.concatenate([h.real, h.imag], axis=1), res.group)
     amp_all = np.sqrt(w @ (means[:, :m_all] ** 2 + means[:, m_all:] ** 2))
     sig = np.sqrt((var[:m_all] + var[m_all:]) / max(n, 2))
+    pattern = pattern_sigma_rpm(res)
     mean = h.mean(axis=0)
     floor = speed_floor_rpm(res)
     out = []
     for m in range(h.shape[1]):
-        amp, s = amp_all[m] * RPM_PER_RAD_S, sig[m] * RPM_PER_RAD_S
-        out.append({"order": (m + 1) / 2, "amplitude_rpm": amp, "sigma_rpm": s,
-                    "phase_deg": float(np.degrees(np.angle(mean[m]))),
+        amp, s_noise = amp_all[m] * RPM_PER_RAD_S, sig[m] * RPM_PER_RAD_S
+        s = float(np.hypot(s_noise, pattern[m]))
+        out.append({"order": (m + 1) / 2, "amplitude_rpm": amp, "sigma_rpm": s, "noise_sigma_rpm": s_noise,
+                    "pattern_sigma_rpm": float(pattern[m]), "phase_deg": float(np.degrees(np.angle(mean[m]))),
                     "floor_rpm": float(floor[m]), "significant": bool(amp > SIGNIFICANT * s and amp > floor[m]),
                     "half_order": (m + 1) % 2 == 1})
     return out
@@ -360,4 +377,5 @@ def beyond_healthy_gap(loc: dict) -> bool:
 
 
 __all__ = ["FLOOR_RMS", "GAP_NULL", "beyond_healthy_gap", "healthy_gap", "NULL_BALANCE", "NULL_FLOOR", "NULL_KINETIC", "NULL_OWN", "RPM_PER_RAD_S", "SIGNIFICANT", "balance_floor_nm", "balance_point_floor_nm", "balance_residual", "beyond_null", "coherent_terms", "cost",
-           "coherent_power", "cylinder_windows", "feature_floor", "gap", "localise", "noise_scale", "order_table", "speed_floor_rpm", "trends"]
+           "coherent_power", "cylinder_windows", "feature_floor", "gap", "localise", "noise_scale", "order_table", "pattern_sigma_rpm", "speed_floor_rpm",
+           "trends"]

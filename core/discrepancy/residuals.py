@@ -40,9 +40,10 @@ def pinned_config(config: MonitorConfig | None = None) -> MonitorConfig:
     """The friction scales pinned to the model; equations accumulated from the third cycle: with the friction pinned
     only the in-band tooth nuisance is learned from them, and until it is the residual carries the wheel's pattern
     (measured, k9k 2500 rpm: the held-out gap of the true model 59 over cycles 12-36 with the default 20-cycle
-    warm-up, 2.2 with 2, its floor)."""
+    warm-up, 2.2 with 2, its floor); each cycle's result carries what the nuisances' remaining uncertainty puts into
+    its residual (MonitorConfig.nuisance_spread: Residuals.pattern_sigma, design note 118)."""
     return dataclasses.replace(config or MonitorConfig(), parameter_sigma=PINNED_SIGMA, sibling_spread=0.0,
-                               warmup_cycles=2)
+                               warmup_cycles=2, nuisance_spread=True)
 
 
 @dataclass(frozen=True)
@@ -88,6 +89,10 @@ class Residuals:
     # from indicated - load - coupling loss; NaN without the cycle before): the balance's own error grows with it
     # (features.balance_point_floor_nm, design note 68)
     kinetic: np.ndarray | None = None
+    # (N, M) rad/s the spread of each residual harmonic that the in-band tooth nuisances' posterior still carried in
+    # that cycle (CycleResult.residual_pattern_sigma; None: not asked for): a coherent part of the residual the
+    # pattern's unconverged estimate can explain (core.discrepancy.features.order_table, design note 118)
+    pattern_sigma: np.ndarray | None = None
 
     @property
     def n_cycles(self) -> int:
@@ -103,7 +108,8 @@ class Residuals:
                                    leak_flagged=None if self.leak_flagged is None else self.leak_flagged[mask],
                                    compression_ln=None if self.compression_ln is None else self.compression_ln[mask],
                                    group=None if self.group is None else self.group[mask],
-                                   kinetic=None if self.kinetic is None else self.kinetic[mask])
+                                   kinetic=None if self.kinetic is None else self.kinetic[mask],
+                                   pattern_sigma=None if self.pattern_sigma is None else self.pattern_sigma[mask])
 
     def features(self) -> np.ndarray:
         """(N, 2M + 1) real features: Re and Im of each residual harmonic, then the balance residual (0 where NaN:
@@ -178,7 +184,7 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
         ring = r.ring.compression_ratio if r.ring is not None else no_ring
         rows.append((r.index, r.omega_mean, r.load_torque, r.residual_harmonics, r.friction_balance - friction, resid,
                      measured, r.friction_balance, misfired, "motored" in r.flags, inertia * r.acceleration, leaking,
-                     ring))
+                     ring, r.residual_pattern_sigma))
     if not rows:
         raise ValueError(f"the monitor analysed none of the {len(cycles)} cycles")
     pipe.close_windows()  # the pressure's reading of the whole log
@@ -194,6 +200,7 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
                      motored=np.array([r[9] for r in rows]), kinetic=np.array([r[10] for r in rows]),
                      leak_flagged=np.array([r[11] for r in rows]),
                      compression_ln=np.array([r[12] for r in rows]),
+                     pattern_sigma=None if any(r[13] is None for r in rows) else np.array([r[13] for r in rows]),
                      **_tdc_reading(pipe))
     # the cycles of a load step are no operating point's: left out of every figure, and counted
     return dataclasses.replace(res.take(group >= 0), between_points=int(np.sum(group < 0)))

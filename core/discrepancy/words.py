@@ -142,6 +142,10 @@ def verdict(d) -> str:
             text = ("No missing effect beyond the model's own error: a coherent residual at engine orders "
                     f"{orders_text(inside)} lies within the model-error floor (features.speed_floor_rpm), not within "
                     "the noise alone")
+        pattern = d.within_pattern
+        if pattern:  # beyond the noise and the floor, inside the tooth pattern's remaining uncertainty (note 118)
+            text += (f"; at engine orders {orders_text(pattern)} a coherent residual lies within what the wheel's tooth "
+                     "pattern, still being learnt, can put there")
         hg = (d.final or {}).get("healthy_gap")
         if hg:  # the normal scale beside it (features.healthy_gap)
             # the ratio and the line it is judged by, said: "gap 1.6, a healthy log's 0.48" alone read as three

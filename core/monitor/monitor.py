@@ -61,6 +61,7 @@ from frictionwatch.core.monitor.report.cycle_report import StageReport, build_re
 from frictionwatch.core.monitor.report.results import ChainSample, CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState, PreviousCycle
 from frictionwatch.core.monitor.teeth.flywheel import ToothLearner
+from frictionwatch.core.monitor.teeth.pattern_spread import pattern_spread
 from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth, fit_second_wheel, free_end_input
 from frictionwatch.core.types import Cycle
 
@@ -240,6 +241,12 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         node_torque_harmonics(op_used.shaft, op_used.receptance, bal.node_speed),
         0.5j * fly.omega_mean * np.arange(1, m + 1) * fly.harmonics,
         fly.pattern_harmonics[:, :state.n_nuisance].copy()))
+    if cfg.nuisance_spread:  # the tooth pattern's remaining uncertainty in the residual (the discrepancy's null)
+        # the statistical covariance (data and priors), not the systematic part: that is made from the accumulated
+        # persistent residual itself, so a missing effect at an integer order would widen its own sigma there
+        p_f, n_nuis = state.layout.n_params, state.n_nuisance
+        report["residual_pattern_sigma"] = pattern_spread(
+            rows.design[:, p_f:p_f + n_nuis], ident.smoothed.cov_statistical[p_f:p_f + n_nuis, p_f:p_f + n_nuis])
     result = build_result(spec, cycle, fly, exc, rows, state.layout, ident, mean, pmax, pmax_angle, tables,
                           StageReport(flags, cfg.r_squared_floor, () if wheel2_flag is None else (wheel2_flag,), report))
     new_state = MonitorState(

@@ -157,6 +157,10 @@ class MonitorConfig:
     # and patterns): what commissioning reads (core.monitor.calibration.drive_train); off when serving, where nothing
     # reads them (32 us a genset-v20 two-wheel cycle)
     drive_train_inputs: bool = False
+    # each cycle's spread of the residual speed harmonics that the tooth nuisances' posterior still carries
+    # (CycleResult.residual_pattern_sigma, core.monitor.teeth.pattern_spread): what the discrepancy workflow's null
+    # reads (design note 118); off when serving, where nothing reads it
+    nuisance_spread: bool = False
 
     def __post_init__(self) -> None:
         tau = self.forgetting_time_s

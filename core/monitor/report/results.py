@@ -211,6 +211,9 @@ class CycleResult:
     ring: RingIndicators | None = None
     free_end: FreeEndSpeed | None = None  # the second wheel's speed of this cycle (core.monitor.teeth.tooth_fit)
     chain: ChainSample | None = None  # with a second wheel: what the drive train's identification needs
+    # (M,) rad/s the spread of residual_harmonics (Re and Im variances summed) that the tooth nuisances' posterior
+    # still carries (core.monitor.teeth.pattern_spread); None unless MonitorConfig.nuisance_spread
+    residual_pattern_sigma: np.ndarray | None = None
 
     @cached_property
     def friction_torque_cyl(self) -> np.ndarray | None:
