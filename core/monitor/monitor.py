@@ -271,8 +271,7 @@ def checked_pressure(spec: EngineSpec, cycle: Cycle) -> tuple[np.ndarray, list[s
     flags = list(cycle.flags)
     finite, low = pressure_scan(p if p.flags.c_contiguous else np.ascontiguousarray(p))
     if finite:  # the common case: one pass over the pressure answers both questions (nonpositive_flags' below)
-        # (z,) bools asked as a list: ndarray.any's Python wrapper was ~2 us, the list ~0.3
-        return p, flags + [f for f in _nonpositive_names(low) if f not in flags] if True in low.tolist() else flags
+        return p, flags + [f for f in _nonpositive_names(low) if f not in flags] if low.any() else flags
     bad = ~np.isfinite(p)
     p = p.copy()
     for k in np.flatnonzero(bad.any(axis=1)):

@@ -314,7 +314,7 @@ def without_free_response(white, prev, params: np.ndarray, modes: np.ndarray | N
         np.array((period, carry, drift_var, memory, prev.free_count, m), dtype=np.float64))
     if q == 0:
         return white
-    return white.with_rows(a, y, white.stats.with_free_response(sq, nz, n))
+    return replace(white, a=a, y=y, stats=replace(white.stats, free_coef_sq=sq, free_noise=nz, free_count=n))
 
 
 def without_free_response_reference(white, prev, params: np.ndarray, modes: np.ndarray | None, period: float,

@@ -138,8 +138,7 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     else:
         bal_mean = state.balance_mean + g * (balance - state.balance_mean)
     fire = firing_mask(t_i)
-    all_fired = False not in fire.tolist()  # fire.all() without its Python wrapper (~2 us; the list ~0.3)
-    pmax_motored = float(np.mean(pmax[~fire])) if not all_fired else 0.0
+    pmax_motored = float(np.mean(pmax[~fire])) if not fire.all() else 0.0
     motored = motored_friction_per_cylinder(spec, fly.omega_mean * 60.0 / (2.0 * np.pi), pmax_motored)
     stats = white.stats
     # the floor compares the smoothed estimate's total at this cycle's operating point with that total plus the

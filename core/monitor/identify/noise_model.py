@@ -62,12 +62,6 @@ class ResidualStats:
     def empty(n_harmonics: int) -> ResidualStats:
         return ResidualStats(np.zeros(n_harmonics, complex), np.zeros(n_harmonics), 0.0, 0.0, 0)
 
-    def with_free_response(self, coef_sq: np.ndarray, noise: np.ndarray, count: int) -> ResidualStats:
-        """``replace(self, free_coef_sq=coef_sq, free_noise=noise, free_count=count)`` by position (every cycle with
-        a carried mode makes one: replace's keywords cost ~3x a positional construction)."""
-        return ResidualStats(self.mean, self.var, self.balance_mean, self.balance_var, self.count, coef_sq, noise,
-                             count)
-
     def update(self, resid: np.ndarray, balance_resid: float, memory: float) -> ResidualStats:
         """Fold in one cycle's residuals; ``memory`` is the EWMA factor (e.g. 1 - 1/50); the first cycles average."""
         n = self.count + 1
@@ -232,10 +226,6 @@ class WhitenedCycle:
     sys_var: np.ndarray
     freq: np.ndarray
     drift_col: np.ndarray | None
-
-    def with_rows(self, a: np.ndarray, y: np.ndarray, stats: ResidualStats) -> WhitenedCycle:
-        """``replace(self, a=a, y=y, stats=stats)`` by position (as ``ResidualStats.with_free_response``)."""
-        return WhitenedCycle(stats, a, y, self.inv_sigma, self.sys_var, self.freq, self.drift_col)
 
 
 def whitened_rows(settings: NoiseSettings, stats: ResidualStats, fly: FlywheelMotion, rows: CycleRows,

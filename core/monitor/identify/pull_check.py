@@ -244,7 +244,7 @@ def with_pull(est: FrictionEstimate, sigma: np.ndarray, resolve_rel: float, spec
     unchanged) and "measured" decided again on the sigma before the calibration's (as the estimate decides it): a
     cylinder no longer within ``resolve_rel`` is a share. The engine total is not touched (the balance holds it)."""
     sigma = np.asarray(sigma, dtype=np.float64)
-    if not any(s > 0.0 for s in sigma.tolist()):  # (z,): a list's test, not a comparison array and its any
+    if not (sigma > 0.0).any():  # (the method: np.any's wrapper was ~0.6 % of a k9k cycle)
         return est
     sig = np.sqrt(est.friction_torque_mean_sigma ** 2 + sigma ** 2)
     cal = est.calibration_sigma if est.calibration_sigma is not None else np.zeros_like(sig)
