@@ -376,6 +376,7 @@ def beyond_healthy_gap(loc: dict) -> bool:
     return bool(not beyond_null(loc) and loc.get("healthy_gap", {}).get("beyond"))
 
 
-__all__ = ["FLOOR_RMS", "GAP_NULL", "beyond_healthy_gap", "healthy_gap", "NULL_BALANCE", "NULL_FLOOR", "NULL_KINETIC", "NULL_OWN", "RPM_PER_RAD_S", "SIGNIFICANT", "balance_floor_nm", "balance_point_floor_nm", "balance_residual", "beyond_null", "coherent_terms", "cost",
-           "coherent_power", "cylinder_windows", "feature_floor", "gap", "localise", "noise_scale", "order_table", "pattern_sigma_rpm", "speed_floor_rpm",
-           "trends"]
+__all__ = ["FLOOR_RMS", "GAP_NULL", "beyond_healthy_gap", "healthy_gap", "NULL_BALANCE", "NULL_FLOOR", "NULL_KINETIC",
+           "NULL_OWN", "RPM_PER_RAD_S", "SIGNIFICANT", "balance_floor_nm", "balance_point_floor_nm", "balance_residual",
+           "beyond_null", "coherent_terms", "cost", "coherent_power", "cylinder_windows", "feature_floor", "gap",
+           "localise", "noise_scale", "order_table", "pattern_sigma_rpm", "speed_floor_rpm", "trends"]

@@ -84,7 +84,12 @@ class LogReader:
         self.damage: Counter[str] = Counter()
         self._noted: set[tuple[str, Hashable]] = set()
         self._codec = codec if codec is not None else ProtobufCodec()
-        self._file = open(self.path, "rb")  # noqa: SIM115 - closed in close()
+        try:
+            self._file = open(self.path, "rb")  # noqa: SIM115 - closed in close()
+        except FileNotFoundError as exc:  # one line for the user (serve's mcap: source), not "[Errno 2] ..."
+            raise FileNotFoundError(f"no such log: {self.path}") from exc
+        except IsADirectoryError as exc:
+            raise IsADirectoryError(f"{self.path} is a folder, not a log") from exc
         try:
             try:
                 self._buf: Any = mmap.mmap(self._file.fileno(), 0, access=mmap.ACCESS_READ)

@@ -100,6 +100,9 @@ def test_the_same_effect_in_two_cylinders_is_kept_twice(tmp_path):
 def test_analyze_missing_and_non_mcap_file(tmp_path, capsys):
     _fails_with_one_line(["analyze", str(tmp_path / "nope.mcap")], capsys, "no such log")
     _fails_with_one_line(["analyze", str(tmp_path)], capsys, "is a folder, not a log")
+    # serve's replay source opens the log itself (drivers.logs.mcap_reader): the same words, not "[Errno 2] ..."
+    _fails_with_one_line(["serve", "--port", "0", "--source", f"mcap:{tmp_path / 'nope.mcap'}"], capsys,
+                         "no such log")
     junk = tmp_path / "junk.mcap"
     junk.write_bytes(b"this is not an mcap file" * 100)
     _fails_with_one_line(["analyze", str(junk)], capsys)
