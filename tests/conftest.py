@@ -5,6 +5,10 @@ process tree too."""
 
 import os
 
+import pytest
+
+from tests import kernel_manifest
+
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
@@ -15,3 +19,50 @@ def pytest_collection_modifyitems(config, items):
     suite's last files are short ones, not one worker finishing a 60-second file while the other waits."""
     slow = {item.nodeid.split("::")[0] for item in items if item.get_closest_marker("slow") is not None}
     items.sort(key=lambda item: item.nodeid.split("::")[0] not in slow)  # stable: the order within each group kept
+
+
+_RECORDER = pytest.StashKey[kernel_manifest.Recorder]()
+_SHARES = pytest.StashKey[list]()
+
+
+def pytest_configure(config):
+    config.stash[_SHARES] = []
+    if kernel_manifest.RECORD:
+        config.stash[_RECORDER] = kernel_manifest.Recorder()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _kernels_compiled_once(request):
+    """Under `make test`'s workers: this worker's share of the suite's numba kernels, before its first test, so the
+    two workers do not each compile every kernel (tests/kernel_manifest.py). Nothing in a single process."""
+    worker = getattr(request.config, "workerinput", None)
+    if worker is None or kernel_manifest.RECORD:
+        return
+    index = int(worker["workerid"].removeprefix("gw"))
+    share = kernel_manifest.compile_share(kernel_manifest.load(), index, int(worker["workercount"]))
+    request.config.workeroutput["kernel_share"] = share
+
+
+def pytest_sessionfinish(session):
+    """Recording (FW_KERNEL_MANIFEST=record): each process writes its part; the controller merges them."""
+    config = session.config
+    worker = getattr(config, "workerinput", None)
+    if _RECORDER in config.stash:
+        name = worker["workerid"] if worker else "controller"
+        config.stash[_RECORDER].write(kernel_manifest.MANIFEST.with_suffix(f".{name}.part"))
+    if worker is None and kernel_manifest.RECORD:
+        kernel_manifest.merge(sorted(kernel_manifest.MANIFEST.parent.glob("kernel_manifest.*.part")),
+                              kernel_manifest.MANIFEST)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    share = getattr(node, "workeroutput", {}).get("kernel_share")
+    if share:
+        node.config.stash[_SHARES].append((node.gateway.id, share))
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    for worker, share in sorted(config.stash.get(_SHARES, [])):
+        terminalreporter.write_line(f"{worker}: {share['compiled']} kernels compiled (or loaded) before its first "
+                                    f"test in {share['seconds']} s; {share['stale']} in the manifest no longer fit")

@@ -1,0 +1,116 @@
+"""The suite's numba kernels compiled once between `make test`'s workers, not once in each.
+
+Why: on a fresh clone (CI, a new machine) the numba cache is empty, and each xdist worker compiled every kernel it
+met on its own: ~130 s each, ~75 % of the suite's first minutes, the same work twice (design note 121). Each worker
+now compiles its share of the kernels the suite is known to use (``kernel_manifest.pkl``: every kernel
+specialisation the suite compiled, in the order it compiled them, callees before their callers) before its first
+test; numba's on-disk cache is shared by the processes, so each worker then loads the other's share from it instead
+of compiling it again.
+
+The manifest only saves time: a kernel missing from it compiles when first called, as before, and an entry that no
+longer fits its kernel (the code changed since it was recorded) is counted and skipped. Its numbers are the same
+either way: the same specialisations are compiled, earlier. Recorded by a whole run of the suite on an empty cache:
+
+    NUMBA_CACHE_DIR=$(mktemp -d) FW_KERNEL_MANIFEST=record make test
+
+(each worker writes its own part; the controller merges them into ``kernel_manifest.pkl`` at the end).
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import pickle
+import sys
+import time
+from pathlib import Path
+
+MANIFEST = Path(__file__).with_name("kernel_manifest.pkl")
+RECORD = os.environ.get("FW_KERNEL_MANIFEST") == "record"
+PACKAGE = "frictionwatch."
+
+
+def _identity() -> dict:
+    """What a manifest's pickled numba types depend on: another numba or Python cannot be trusted to read them."""
+    import numba
+
+    return {"numba": numba.__version__, "python": list(sys.version_info[:2])}
+
+
+class Recorder:
+    """numba's compile events of our kernels, as (module, qualified name, argument types) in the order the compiles
+    ended (a callee's inside its caller's ends first); nested functions cannot be found by name and are left out."""
+
+    def __init__(self):
+        from numba.core import event
+
+        self.kernels: list[tuple[str, str, tuple]] = []
+        listener = event.Listener()
+        listener.on_start = lambda ev: None
+        listener.on_end = self._on_end
+        event.register("numba:compile", listener)
+
+    def _on_end(self, ev) -> None:
+        func = getattr(ev.data.get("dispatcher"), "py_func", None)
+        if func is None or not func.__module__.startswith(PACKAGE) or "<locals>" in func.__qualname__:
+            return
+        self.kernels.append((func.__module__, func.__qualname__, tuple(ev.data.get("args") or ())))
+
+    def write(self, path: Path) -> None:
+        kept = []
+        for kernel in self.kernels:
+            try:
+                pickle.dumps(kernel[2])
+            except Exception:  # a type numba cannot pickle is compiled when first called, as before
+                continue
+            kept.append(kernel)
+        _write(path, {**_identity(), "kernels": kept})
+
+
+def _write(path: Path, doc: dict) -> None:
+    tmp = path.with_suffix(".tmp")
+    tmp.write_bytes(pickle.dumps(doc, protocol=4))
+    tmp.replace(path)  # never a half-written manifest
+
+
+def merge(parts: list[Path], path: Path) -> int:
+    """The workers' parts as one manifest (each kernel once, in the first part's order, then the others' new ones);
+    the parts removed. The number of kernels written."""
+    seen, kernels = set(), []
+    for part in parts:
+        for kernel in pickle.loads(part.read_bytes())["kernels"]:
+            key = (kernel[0], kernel[1], pickle.dumps(kernel[2]))
+            if key not in seen:
+                seen.add(key)
+                kernels.append(kernel)
+        part.unlink()
+    _write(path, {**_identity(), "kernels": kernels})
+    return len(kernels)
+
+
+def load(path: Path = MANIFEST) -> list[tuple[str, str, tuple]]:
+    """The manifest's kernels; none where it is missing or was recorded under another numba or Python."""
+    try:
+        doc = pickle.loads(path.read_bytes())
+    except (OSError, pickle.UnpicklingError, AttributeError, ImportError, EOFError):
+        return []
+    if {k: doc.get(k) for k in ("numba", "python")} != _identity():
+        return []
+    return doc["kernels"]
+
+
+def compile_share(kernels: list[tuple[str, str, tuple]], index: int, count: int) -> dict:
+    """Compile (or load from the cache) every ``count``-th kernel from the ``index``-th: dealt in turn, so each
+    worker's share follows the recorded order and holds about half of each stage's kernels. Returns the counts and
+    seconds for the run's summary."""
+    t0, compiled, stale = time.perf_counter(), 0, 0
+    for module, qualname, args in kernels[index::count]:
+        try:
+            kernel = importlib.import_module(module)
+            for part in qualname.split("."):
+                kernel = getattr(kernel, part)
+            kernel.compile(args)
+            compiled += 1
+        except Exception:  # the code changed since the manifest was recorded: compiled when first called instead
+            stale += 1
+    return {"compiled": compiled, "stale": stale, "seconds": round(time.perf_counter() - t0, 1)}
