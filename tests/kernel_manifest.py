@@ -44,13 +44,19 @@ class Recorder:
     def __init__(self):
         from numba.core import event
 
-        self.kernels: list[tuple[str, str, tuple]] = []
-        listener = event.Listener()
-        listener.on_start = lambda ev: None
-        listener.on_end = self._on_end
-        event.register("numba:compile", listener)
+        recorder = self
 
-    def _on_end(self, ev) -> None:
+        class Listener(event.Listener):
+            def on_start(self, ev) -> None:
+                pass
+
+            def on_end(self, ev) -> None:
+                recorder.on_end(ev)
+
+        self.kernels: list[tuple[str, str, tuple]] = []
+        event.register("numba:compile", Listener())
+
+    def on_end(self, ev) -> None:
         func = getattr(ev.data.get("dispatcher"), "py_func", None)
         if func is None or not func.__module__.startswith(PACKAGE) or "<locals>" in func.__qualname__:
             return
