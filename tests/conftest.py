@@ -28,7 +28,9 @@ _SHARES = pytest.StashKey[list]()
 def pytest_configure(config):
     config.stash[_SHARES] = []
     if kernel_manifest.RECORD:
-        config.stash[_RECORDER] = kernel_manifest.Recorder()
+        worker = getattr(config, "workerinput", None)
+        name = worker["workerid"] if worker else "controller"
+        config.stash[_RECORDER] = kernel_manifest.Recorder(kernel_manifest.MANIFEST.with_suffix(f".{name}.part"))
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -44,15 +46,9 @@ def _kernels_compiled_once(request):
 
 
 def pytest_sessionfinish(session):
-    """Recording (FW_KERNEL_MANIFEST=record): each process writes its part; the controller merges them."""
-    config = session.config
-    worker = getattr(config, "workerinput", None)
-    if _RECORDER in config.stash:
-        name = worker["workerid"] if worker else "controller"
-        config.stash[_RECORDER].write(kernel_manifest.MANIFEST.with_suffix(f".{name}.part"))
-    if worker is None and kernel_manifest.RECORD:
-        kernel_manifest.merge(sorted(kernel_manifest.MANIFEST.parent.glob("kernel_manifest.*.part")),
-                              kernel_manifest.MANIFEST)
+    """Recording (FW_KERNEL_MANIFEST=record): the controller merges the processes' parts at the end."""
+    if kernel_manifest.RECORD and not hasattr(session.config, "workerinput"):
+        kernel_manifest.merge(kernel_manifest.parts())
 
 
 @pytest.hookimpl(optionalhook=True)

@@ -13,7 +13,8 @@ either way: the same specialisations are compiled, earlier. Recorded by a whole 
 
     NUMBA_CACHE_DIR=$(mktemp -d) FW_KERNEL_MANIFEST=record make test
 
-(each worker writes its own part; the controller merges them into ``kernel_manifest.pkl`` at the end).
+(each process appends to its own part as it compiles; the controller merges them into ``kernel_manifest.pkl`` at
+the end; ``python -m tests.kernel_manifest`` merges the parts a stopped run left).
 """
 
 from __future__ import annotations
@@ -38,10 +39,12 @@ def _identity() -> dict:
 
 
 class Recorder:
-    """numba's compile events of our kernels, as (module, qualified name, argument types) in the order the compiles
-    ended (a callee's inside its caller's ends first); nested functions cannot be found by name and are left out."""
+    """numba's compile events of our kernels, each appended to ``path`` as one pickle of (module, qualified name,
+    argument types) as its compile ends (a callee's inside its caller's ends first), so a run stopped early still
+    leaves what it compiled; nested functions cannot be found by name and are left out, and so are types numba cannot
+    pickle (those kernels compile when first called, as before)."""
 
-    def __init__(self):
+    def __init__(self, path: Path):
         from numba.core import event
 
         recorder = self
@@ -53,45 +56,51 @@ class Recorder:
             def on_end(self, ev) -> None:
                 recorder.on_end(ev)
 
-        self.kernels: list[tuple[str, str, tuple]] = []
+        self.part = path.open("wb")
         event.register("numba:compile", Listener())
 
     def on_end(self, ev) -> None:
         func = getattr(ev.data.get("dispatcher"), "py_func", None)
         if func is None or not func.__module__.startswith(PACKAGE) or "<locals>" in func.__qualname__:
             return
-        self.kernels.append((func.__module__, func.__qualname__, tuple(ev.data.get("args") or ())))
+        try:
+            row = pickle.dumps((func.__module__, func.__qualname__, tuple(ev.data.get("args") or ())), protocol=4)
+        except Exception:
+            return
+        self.part.write(row)
+        self.part.flush()
 
-    def write(self, path: Path) -> None:
-        kept = []
-        for kernel in self.kernels:
+
+def _rows(part: Path) -> list[tuple[str, str, tuple]]:
+    rows = []
+    with part.open("rb") as f:
+        while True:
             try:
-                pickle.dumps(kernel[2])
-            except Exception:  # a type numba cannot pickle is compiled when first called, as before
-                continue
-            kept.append(kernel)
-        _write(path, {**_identity(), "kernels": kept})
+                rows.append(pickle.load(f))
+            except (EOFError, pickle.UnpicklingError):  # the end, or a row cut by a run killed mid-write: what came before stands
+                return rows
 
 
-def _write(path: Path, doc: dict) -> None:
-    tmp = path.with_suffix(".tmp")
-    tmp.write_bytes(pickle.dumps(doc, protocol=4))
-    tmp.replace(path)  # never a half-written manifest
-
-
-def merge(parts: list[Path], path: Path) -> int:
-    """The workers' parts as one manifest (each kernel once, in the first part's order, then the others' new ones);
-    the parts removed. The number of kernels written."""
+def merge(parts: list[Path], path: Path = MANIFEST) -> int:
+    """The recording processes' parts as one manifest (each kernel once, in the first part's order, then the others'
+    new ones), written whole or not at all; the parts removed. The number of kernels written."""
     seen, kernels = set(), []
     for part in parts:
-        for kernel in pickle.loads(part.read_bytes())["kernels"]:
-            key = (kernel[0], kernel[1], pickle.dumps(kernel[2]))
+        for kernel in _rows(part):
+            key = (kernel[0], kernel[1], pickle.dumps(kernel[2], protocol=4))
             if key not in seen:
                 seen.add(key)
                 kernels.append(kernel)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_bytes(pickle.dumps({**_identity(), "kernels": kernels}, protocol=4))
+    tmp.replace(path)
+    for part in parts:
         part.unlink()
-    _write(path, {**_identity(), "kernels": kernels})
     return len(kernels)
+
+
+def parts() -> list[Path]:
+    return sorted(MANIFEST.parent.glob("kernel_manifest.*.part"))
 
 
 def load(path: Path = MANIFEST) -> list[tuple[str, str, tuple]]:
@@ -120,3 +129,7 @@ def compile_share(kernels: list[tuple[str, str, tuple]], index: int, count: int)
         except Exception:  # the code changed since the manifest was recorded: compiled when first called instead
             stale += 1
     return {"compiled": compiled, "stale": stale, "seconds": round(time.perf_counter() - t0, 1)}
+
+
+if __name__ == "__main__":
+    print(f"{merge(parts())} kernels in {MANIFEST}")
