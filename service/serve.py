@@ -243,15 +243,18 @@ def stop_summary(svc: EngineService) -> str:
     """One terminal line per engine at the end of a serve run: the cycles analysed, the acquisition a real-time source
     lost while the analysis was behind (serve --max-queue-s: a cold start's compile, an overloaded box), which until
     now only /health and /metrics said, the cycles skipped and why, and a looped replay's seams. A dropped stretch
-    is said once, as dropped: the cycle its hole cut is not a skip as well (design note 119), and a seam is a
-    restart, not a loss."""
+    is said once, as dropped: the cycle its hole cut is not a skip as well (design note 119), with the cycle indices
+    its holes left out (design note 124), and a seam is a restart, not a loss."""
     parts = [f"{svc.cycles_ok} cycles analysed"]
     lag = svc.backlog()
     if lag.get("dropped_records"):
         cycles = lag.get("dropped_cycles")
         about = f"~{cycles:.0f} cycles, " if cycles is not None else ""
+        spans = [f"{h['first_cycle']}-{h['last_cycle']}" for h in getattr(svc, "holes", ())
+                 if h["first_cycle"] is not None and h["last_cycle"] is not None]
         parts.append(f"dropped while the analysis was behind: {about}{lag['dropped_s']:.1f} s of acquisition "
-                     f"({lag['dropped_records']} records)")
+                     f"({lag['dropped_records']} records)"
+                     + (f", not numbered: cycle{'s' if len(spans) > 1 else ''} {', '.join(spans)}" if spans else ""))
     skipped = {str(k): int(n) for k, n in svc.skipped.items() if n}
     if skipped:
         parts.append("skipped: " + ", ".join(f"{k} {n}" for k, n in sorted(skipped.items())))
