@@ -323,17 +323,19 @@ class EngineService:
                                          baseline=learnt, hole=hole))
 
     def _hole_before(self, result: CycleResult) -> dict | None:
-        """The newest hole the pipeline met since the last one handed on, once a result at or after its next cycle
-        comes (the session's lock held): what a stored row and the API say of the cycles missing before it."""
+        """The holes the pipeline met since the last handed on, in order, each once a result at or after its next
+        cycle comes (the session's lock held): what a stored row and the API say of the cycles missing before it.
+        Two holes before one result (a cycle between them that the monitor refused): the newer is given."""
         pipe = self.session.pipeline
-        hole = pipe.holes[-1] if pipe.holes else None
-        if hole is None or hole.first_missing is None:
-            self._holes_given = pipe.holes_met  # a hole that did not cut the cycles (second wheel, pressure)
-            return None
-        if hole.next_cycle is None or result.index < hole.next_cycle:
-            return None
-        self._holes_given = pipe.holes_met
-        return hole.to_dict(self.info.tick_hz)
+        new = min(pipe.holes_met - self._holes_given, len(pipe.holes))
+        given = None
+        for hole in list(pipe.holes)[len(pipe.holes) - new:]:
+            if hole.first_missing is not None:  # else a hole that did not cut the cycles (second wheel, pressure)
+                if hole.next_cycle is None or result.index < hole.next_cycle:
+                    break
+                given = hole.to_dict(self.info.tick_hz)
+            self._holes_given += 1
+        return given
 
     def _load_kernels(self) -> None:
         """The session's ``before_ingest``: the alert engine's kernel compiled or loaded before the first record (an

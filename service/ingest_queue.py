@@ -61,6 +61,8 @@ class Dropped:
     last_key: float
     records: int
     contents: Counter = field(default_factory=Counter)  # what the dropped batches held (the queue's ``measure``)
+    # the newest tick of the source's last batch handed out before the hole (None: none): where the hole begins
+    after_key: float | None = field(default=None, compare=False)
 
 
 @dataclass
@@ -94,6 +96,7 @@ class IngestQueue:
         # sources whose hole marker has been handed out with none of their batches since: a batch of theirs dropped
         # now widens that hole, which needs no marker of its own (the ingest thread restarted there already)
         self._open: set[str] = set()
+        self._handed: dict[str, float] = {}  # each source's newest key handed out (where its next hole begins)
 
     # --- readers -------------------------------------------------------------------------------------------------
     def put(self, source: str, records: list, key: float, realtime: bool) -> None:
@@ -127,6 +130,7 @@ class IngestQueue:
             if item.key is not None:
                 self._data -= 1
                 self._open.discard(item.source)
+                self._handed[item.source] = item.key
             elif isinstance(item.payload, Dropped):
                 self._open.add(item.source)
             self._cond.notify_all()  # a waiting replay reader may have room now
@@ -180,12 +184,13 @@ class IngestQueue:
             if before is not None and isinstance(before.payload, Dropped):
                 hole = before.payload
                 before.payload = Dropped(hole.first_key, max(hole.last_key, first.key), hole.records + n,
-                                         hole.contents + held)
+                                         hole.contents + held, hole.after_key)
                 del items[i]
             elif before is None and first.source in self._open:
                 del items[i]
             else:  # a marker's key is None: never dropped, not counted in the span
-                items[i] = _Item(first.source, Dropped(first.key, first.key, n, held), None, first.read_s)
+                items[i] = _Item(first.source, Dropped(first.key, first.key, n, held,
+                                                       self._handed.get(first.source)), None, first.read_s)
             self._data -= 1
             dropped += n
             first_dropped = first.key if first_dropped is None else first_dropped

@@ -88,7 +88,9 @@ def _hole_mark(hole: Dropped, info: AcquisitionInfo) -> tuple[list[StreamRestart
     held = hole.contents
     assembly = "all" if held["teeth"] else "second_wheel" if held["wheel2"] else "none"
     mark = StreamRestart(ticks=math.floor(hole.last_key) + 1, reason=DROPPED_WHILE_BEHIND,
-                         dropped_from_ticks=math.floor(hole.first_key), dropped_records=max(1, hole.records),
+                         dropped_from_ticks=math.floor(hole.first_key if hole.after_key is None else
+                                                       min(hole.first_key, hole.after_key + 1)),
+                         dropped_records=max(1, hole.records),
                          dropped_cycles=held["teeth"] / (2.0 * (info.wheel_teeth - info.wheel_missing)),
                          assembly=assembly)
     return [mark], [float(mark.ticks)]

@@ -76,7 +76,8 @@ def test_a_mark_goes_into_a_log_and_comes_back_in_place(demo, tmp_path):
     seam = StreamRestart(int(0.9 * info.tick_hz) + 1)
     given = [r for r in records if not 0.3 * info.tick_hz <= record_key(r) < mark.ticks
              and record_key(r) < 1.2 * info.tick_hz]
-    for m in (mark, seam):
+    for m in (mark, seam):  # nothing straddles a mark (a seam's silence, a hole): those records go
+        given = [r for r in given if not first_tick(r) <= m.ticks <= record_key(r)]
         given.insert(next(i for i, r in enumerate(given) if record_key(r) > m.ticks), m)
     with LogWriter(tmp_path / "marked.mcap", toml, info) as out:
         for r in given:
@@ -89,9 +90,32 @@ def test_a_mark_goes_into_a_log_and_comes_back_in_place(demo, tmp_path):
     for m in marks:  # every record before a mark stays before it (the writer's batches are cut there)
         i = next(i for i, r in enumerate(back) if r is m)
         assert all(record_key(r) < m.ticks for r in back[:i])
-        assert all(record_key(r) > m.ticks for r in back[i + 1:] if not isinstance(r, StreamRestart))
+        assert all(first_tick(r) > m.ticks for r in back[i + 1:] if not isinstance(r, StreamRestart))
     teeth = lambda rs: np.concatenate([r.ticks for r in rs if isinstance(r, ToothBatch)])  # noqa: E731
     np.testing.assert_array_equal(teeth(back), teeth(given))
+
+
+def test_a_mark_cuts_the_writers_batches(demo, tmp_path):
+    """The writer joins a stream's records into ~10 ms messages: a mark between two records ~1 ms apart must not
+    end up inside one (its edges both sides of it, the message placed after the mark)."""
+    _, info, toml = demo
+    edges = np.arange(0, 200_000, 1_000, dtype=np.int64)  # one every 0.1 ms at 10 MHz, in 1 ms batches
+    mark = StreamRestart(109_500)  # after the batch of 100_000..109_000, before the next
+    with LogWriter(tmp_path / "cut.mcap", toml, info) as out:
+        for lo in range(0, 200_000, 10_000):
+            if lo == 110_000:
+                out.write(mark)
+            out.write(ToothBatch(edges[(edges >= lo) & (edges < lo + 10_000)]))
+    with LogReader(tmp_path / "cut.mcap") as reader:
+        back = list(reader.records())
+    i = back.index(mark)
+    assert all(r.ticks[-1] < mark.ticks for r in back[:i]) and all(r.ticks[0] > mark.ticks for r in back[i + 1:])
+    np.testing.assert_array_equal(np.concatenate([r.ticks for r in back if not isinstance(r, StreamRestart)]), edges)
+
+
+def first_tick(record) -> float:
+    return float(record.ticks[0] if hasattr(record.ticks, "__len__") else record.ticks) if hasattr(record, "ticks") \
+        else float(record.t0_ticks)
 
 
 def test_a_window_over_a_hole_says_which_cycles_are_missing_and_why():
