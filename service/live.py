@@ -77,7 +77,7 @@ def batch_contents(batch: KeyedBatch) -> Counter:
     return held
 
 
-def _hole_mark(hole: Dropped, info: AcquisitionInfo) -> tuple[list[StreamRestart], list[float]]:
+def hole_mark(hole: Dropped, info: AcquisitionInfo) -> tuple[list[StreamRestart], list[float]]:
     """The restart mark where the queue dropped a run of a source's batches (service/ingest_queue.py): just after
     the newest tick dropped, so before every record the source still delivers. The pipeline restarts its cycle
     assembly there, as at a replay's loop seam: the cycle the hole cuts is one of the dropped ones, counted in
@@ -417,7 +417,7 @@ class LiveSession:
                     released = self.merge.set_quiet(quiet)
                 if name:
                     released += (self.merge.end(name) if item is _END else
-                                 self.merge.push(name, *_hole_mark(item, self.info)) if isinstance(item, Dropped) else
+                                 self.merge.push(name, *hole_mark(item, self.info)) if isinstance(item, Dropped) else
                                  self.merge.push(name, item.records, item.keys))
                 self._cond.notify_all()
             self._deliver(released)

@@ -21,7 +21,7 @@ from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState
 from frictionwatch.core.monitor.pipeline import CycleOutcome, CyclePipeline
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
-from frictionwatch.core.types import AcquisitionInfo, Cycle, StreamRecord
+from frictionwatch.core.types import AcquisitionInfo, Cycle, StreamRecord, ToothBatch
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 from frictionwatch.drivers.assembly.two_wheels import TwoWheelAssembler
 from frictionwatch.drivers.source import StreamRestart
@@ -65,6 +65,7 @@ class EnginePipeline:
         self.holes_met = 0  # all of them
         self._open_hole: Hole | None = None  # the newest hole whose next cycle has not come yet
         self._last_cycle: Cycle | None = None  # the newest cycle assembled: the tooth clock a hole is numbered by
+        self._clock_at: tuple[float, float] | None = None  # (index, cycle ticks) at the first edge after a hole
 
     @property
     def state(self) -> MonitorState | None:
@@ -108,6 +109,10 @@ class EnginePipeline:
         the way first."""
         if isinstance(record, StreamRestart):
             return self._marked(record)
+        if self._clock_at is not None and type(record) is ToothBatch:  # the first edge after a hole: the clock
+            index_at, period = self._clock_at
+            self._clock_at = None
+            self.assembler.number_by_clock(index_at, int(record.ticks[0]), period)
         cycles = self.assembler.feed(record) if record is not None else self.assembler.flush()
         out = self._losses()
         if cycles:  # most records complete none (~19 a genset cycle): no generator to make for them
@@ -165,7 +170,8 @@ class EnginePipeline:
     def _number_over(self, old: CycleAssembler, mark: StreamRestart) -> None:
         """The fresh assembler numbers its first cycle by the tooth clock of the newest cycle met before the hole:
         that cycle's length, the edges the old assembler met after it and the cycles the hole's dropped flywheel
-        edges held (a mark without them: the clock runs across the hole, a replay's silences in it counted)."""
+        edges held, at the first edge after the hole (a silence between the hole and that edge -- a replay's seam
+        -- is not cycles; a mark without them: the clock runs across the hole, a replay's silences counted)."""
         last = self._last_cycle
         if last is None:  # no cycle yet: nothing to number from, the numbering goes on
             return
@@ -173,8 +179,9 @@ class EnginePipeline:
         period = float(t1 - t0)
         newest = old.buf.teeth.last("t")
         seen = 0.0 if newest is None or newest <= t1 else (int(newest) - t1) / period
+        self._clock_at = None
         if mark.dropped_cycles > 0:
-            self.assembler.number_by_clock(last.index + 1 + seen + mark.dropped_cycles, mark.ticks, period)
+            self._clock_at = (last.index + 1 + seen + mark.dropped_cycles, period)
         else:
             self.assembler.number_by_clock(last.index + 1 + seen, t1 if newest is None else int(newest), period)
 

@@ -18,7 +18,7 @@ from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
 from frictionwatch.drivers.source import StreamRestart
 from frictionwatch.service.api_views import missing_in_window
 from frictionwatch.service.ingest_queue import Dropped
-from frictionwatch.service.live import DROPPED_WHILE_BEHIND, KeyedBatch, _hole_mark, batch_contents
+from frictionwatch.service.live import DROPPED_WHILE_BEHIND, KeyedBatch, batch_contents, hole_mark
 from frictionwatch.service.pipeline import analyze_records, resolve_model
 from frictionwatch.service.record_merge import record_key
 from frictionwatch.service.store.listener import StoreListener
@@ -40,7 +40,7 @@ def test_a_mark_restarts_what_its_hole_dropped(demo):
     assert held == Counter(teeth=3 * per_cycle, other=1, marks=1)
     cases = [(held, "all", 3.0), (Counter(wheel2=40, other=3), "second_wheel", 0.0), (Counter(other=9), "none", 0.0)]
     for contents, assembly, cycles in cases:
-        ((mark,), (key,)) = _hole_mark(Dropped(100.4, 2000.7, 9, contents), info)
+        ((mark,), (key,)) = hole_mark(Dropped(100.4, 2000.7, 9, contents), info)
         assert (mark.assembly, mark.reason, mark.ticks, key) == (assembly, DROPPED_WHILE_BEHIND, 2001, 2001.0)
         assert (mark.dropped_from_ticks, mark.dropped_records, mark.dropped_cycles) == (100, 9, cycles)
     assert batch_contents(KeyedBatch([FreeEndToothBatch(np.arange(7))], [6.0])) == Counter(wheel2=7)
@@ -52,7 +52,7 @@ def test_a_hole_in_a_pressure_source_restarts_nothing(demo):
     t1, t2 = 1.0 * info.tick_hz, 1.4 * info.tick_hz  # ~5 cycles of genset-v20 at 1500 rpm
     teeth_source = (ToothBatch, CamBatch)
     gone = [r for r in records if not isinstance(r, teeth_source) and t1 <= record_key(r) <= t2]
-    mark = _hole_mark(Dropped(t1, max(record_key(r) for r in gone), len(gone), Counter(other=len(gone))), info)[0][0]
+    mark = hole_mark(Dropped(t1, max(record_key(r) for r in gone), len(gone), Counter(other=len(gone))), info)[0][0]
     cut = [r for r in records if not any(r is g for g in gone)]
     cut.insert(next(i for i, r in enumerate(cut) if record_key(r) > mark.ticks), mark)
     full = analyze_records(model, info, records)
