@@ -83,10 +83,11 @@ def hole_mark(hole: Dropped, info: AcquisitionInfo) -> tuple[list[StreamRestart]
     assembly there, as at a replay's loop seam: the cycle the hole cuts is one of the dropped ones, counted in
     ``lag().dropped_*``, not a ``data_gap`` of the engine (design note 119). The mark carries the hole: its span,
     records and the cycles its flywheel edges held (the pipeline numbers on over them, design note 124), and what
-    restarts: the cycle assembly where the flywheel's edges went, the second wheel's cut where only its edges did,
-    nothing where no wheel's did (a pressure or load source of its own)."""
+    restarts: the cycle assembly where the flywheel's edges (or a seam's mark) went, the second wheel's cut where only
+    its edges did, nothing where no wheel's did (a pressure or load source of its own)."""
     held = hole.contents
-    assembly = "all" if held["teeth"] else "second_wheel" if held["wheel2"] else "none"
+    # a restart mark it swallowed (a replay's seam, read alone in its batch) restarts the assembly as the seam would
+    assembly = "all" if held["teeth"] or held["marks"] else "second_wheel" if held["wheel2"] else "none"
     mark = StreamRestart(ticks=math.floor(hole.last_key) + 1, reason=DROPPED_WHILE_BEHIND,
                          dropped_from_ticks=math.floor(hole.first_key if hole.after_key is None else
                                                        min(hole.first_key, hole.after_key + 1)),

@@ -140,12 +140,17 @@ class EnginePipeline:
                 self._met(cycles)
                 out.extend(self.cycles.process(c) for c in cycles)
             log.info("stream restart (%s): %s only", mark.reason, mark.assembly.replace("_", " "))
-        if mark.is_hole:
+        open_hole = self._open_hole
+        if mark.is_hole and mark.assembly == "all" and open_hole is not None \
+                and open_hole.first_missing == first_missing:  # another before any cycle after the last: one hole
+            open_hole.to_ticks, open_hole.records = mark.ticks, open_hole.records + mark.dropped_records
+            open_hole.cycles += mark.dropped_cycles
+        elif mark.is_hole:
             hole = Hole(mark.reason, mark.dropped_from_ticks, mark.ticks, mark.dropped_records, mark.dropped_cycles,
                         mark.assembly, first_missing if mark.assembly == "all" else None)
             self.holes.append(hole)
             self.holes_met += 1
-            self._open_hole = hole if mark.assembly == "all" else None
+            self._open_hole = hole if mark.assembly == "all" else open_hole
         return out
 
     def restart(self, reason: str, mark: StreamRestart | None = None) -> list[CycleOutcome]:

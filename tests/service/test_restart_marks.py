@@ -38,7 +38,8 @@ def test_a_mark_restarts_what_its_hole_dropped(demo):
     teeth = KeyedBatch([ToothBatch(np.arange(3 * per_cycle)), CamBatch(np.arange(1))], [0.0, 0.0])
     held = batch_contents(teeth) + batch_contents(KeyedBatch([StreamRestart(5)], [5.0]))
     assert held == Counter(teeth=3 * per_cycle, other=1, marks=1)
-    cases = [(held, "all", 3.0), (Counter(wheel2=40, other=3), "second_wheel", 0.0), (Counter(other=9), "none", 0.0)]
+    cases = [(held, "all", 3.0), (Counter(wheel2=40, other=3), "second_wheel", 0.0), (Counter(other=9), "none", 0.0),
+             (Counter(marks=1), "all", 0.0)]  # a seam's mark alone in its batch (the serve run's data_gap 1)
     for contents, assembly, cycles in cases:
         ((mark,), (key,)) = hole_mark(Dropped(100.4, 2000.7, 9, contents), info)
         assert (mark.assembly, mark.reason, mark.ticks, key) == (assembly, DROPPED_WHILE_BEHIND, 2001, 2001.0)
@@ -66,6 +67,30 @@ def test_a_hole_in_a_pressure_source_restarts_nothing(demo):
     assert after == [r.index for r in full.results if r.index > max(lost)]  # numbered as without the hole
     (hole,) = got.holes
     assert (hole["restarted"], hole["first_cycle"], hole["cycles"]) == ("none", None, None)
+
+
+def test_two_holes_before_a_cycle_are_one(demo):
+    """The serve run's 592-598: a second hole came before any cycle after the first; one hole, given once."""
+    records, info, toml = demo
+    model = resolve_model(toml, None, DEMO.name, info)
+    spans = [(1.0, 1.2), (1.205, 1.4)]  # the second starts before the assembler can make a cycle after the first
+    cut, dropped = list(records), 0
+    for a, b in spans:
+        gone = [r for r in cut if a * info.tick_hz <= record_key(r) <= b * info.tick_hz]
+        mark = hole_mark(Dropped(a * info.tick_hz, b * info.tick_hz, len(gone), sum(map(held_in, gone), Counter())),
+                         info)[0][0]
+        cut, dropped = [r for r in cut if not any(r is g for g in gone)], dropped + len(gone)
+        cut.insert(next(i for i, r in enumerate(cut) if record_key(r) > mark.ticks), mark)
+    got = analyze_records(model, info, cut)
+    (hole,) = got.holes
+    after = min(r.index for r in got.results if r.t_start > 1.4)
+    before = max(r.index for r in got.results if r.t_start < 1.0)
+    assert (hole["first_cycle"], hole["last_cycle"]) == (before + 1, after - 1)
+    assert hole["dropped_records"] == dropped and got.restarts == {DROPPED_WHILE_BEHIND: 2}
+
+
+def held_in(record) -> Counter:
+    return batch_contents(KeyedBatch([record], [record_key(record)]))
 
 
 def test_a_mark_goes_into_a_log_and_comes_back_in_place(demo, tmp_path):
