@@ -42,6 +42,7 @@ MAX_QUEUE_S, DRAIN_S = 10.0, 5.0  # LiveSession's defaults (service/live.py, Bac
 # below ~1 s the queue would drop on an ordinary hiccup of the ingest thread (a batch spans 50-100 ms, the merge's
 # reorder window 1 s); above 600 s one genset-v20 queues ~2 GB
 QUEUE_LIMITS = (1.0, 600.0)
+SPANS_SAID = 8  # the stop line names this many of the index ranges holes left out (a run that fell behind often: 39)
 RECORD_FILE_BYTES, RECORD_FILES = 64 << 20, 16  # serve --record: the recorder's defaults (drivers/logs/recorder.py)
 DRAIN_LIMITS = (0.0, 600.0)  # 0: abandon what is queued at once (logged)
 
@@ -252,9 +253,11 @@ def stop_summary(svc: EngineService) -> str:
         about = f"~{cycles:.0f} cycles, " if cycles is not None else ""
         spans = [f"{h['first_cycle']}-{h['last_cycle']}" for h in getattr(svc, "holes", ())
                  if h["first_cycle"] is not None and h["last_cycle"] is not None]
+        shown = ", ".join(spans[:SPANS_SAID]) + (f" and {len(spans) - SPANS_SAID} more" if len(spans) > SPANS_SAID
+                                                 else "")
         parts.append(f"dropped while the analysis was behind: {about}{lag['dropped_s']:.1f} s of acquisition "
                      f"({lag['dropped_records']} records)"
-                     + (f", not numbered: cycle{'s' if len(spans) > 1 else ''} {', '.join(spans)}" if spans else ""))
+                     + (f", not numbered: cycle{'s' if len(spans) > 1 else ''} {shown}" if spans else ""))
     skipped = {str(k): int(n) for k, n in svc.skipped.items() if n}
     if skipped:
         parts.append("skipped: " + ", ".join(f"{k} {n}" for k, n in sorted(skipped.items())))
