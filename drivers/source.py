@@ -31,11 +31,26 @@ class StreamRestart:
     """Not data: a mark in a source's record stream that the stream starts again at ``ticks`` and nothing before it
     continues into what follows (a replayed log looping back to its start, ``mcap:...?loop=1``). The engine pipeline
     restarts its cycle assembler there and counts a ``reason`` (service.pipeline.EnginePipeline.restarts) instead of
-    reading the seam as a data gap; a recorder does not write it. ``ticks`` lies after every record before the mark
+    reading the seam as a data gap; a recorder writes it (docs/replay-format.md, ``restarts``), so that a recording
+    says it too. ``ticks`` lies after every record before the mark
     and before every record after it, so a time-ordered merge keeps it in place."""
 
     ticks: int
     reason: str = "loop_restart"
+    # a hole (a live session's queue dropped a source's batches while the analysis was behind, service/live.py): the
+    # first dropped tick, the records dropped and the crank cycles their flywheel tooth edges held (edges / edges a
+    # cycle: the wheel's own clock, whatever the speed or a replay's silences inside). None / 0: nothing was dropped
+    dropped_from_ticks: int | None = None
+    dropped_records: int = 0
+    dropped_cycles: float = 0.0
+    # what starts again: "all" (the cycle assembly: the flywheel's edges went), "second_wheel" (only the second
+    # wheel's cut: its edges alone went), "none" (no wheel's edges went: pressure, cam or load only; the cycles that
+    # lack them are skipped as the assembler finds them)
+    assembly: str = "all"
+
+    @property
+    def is_hole(self) -> bool:
+        return self.dropped_records > 0
 
 
 class Source(ABC):

@@ -34,9 +34,19 @@ def print_table(doc: dict) -> None:
         print("log damage: " + ", ".join(f"{k} {v}" for k, v in doc["log_damage"].items()))
     for c in doc.get("implausible") or []:
         print(f"NOT PHYSICAL / NOT SUPPORTED ({c['check']}): {c['reason']}")
+    holes = doc.get("dropped_while_behind") or []
+    if holes:  # a live session's recording: what it dropped while behind, as its stop line said it
+        print(f"dropped while the live analysis was behind (as recorded): {len(holes)} hole"
+              f"{'s' if len(holes) > 1 else ''}, ~{sum(h['dropped_cycles'] for h in holes):.0f} cycles, "
+              f"{sum(h['dropped_s'] or 0.0 for h in holes):.1f} s of acquisition "
+              f"({sum(h['dropped_records'] for h in holes)} records)")
     if doc["data_gaps"]:
-        print("not analysed: " + ", ".join(f"{g['from_s']:.3f}-{g['to_s']:.3f} s (~{g['cycles']:g} cycles)"
+        print("not analysed: " + ", ".join(f"{g['from_s']:.3f}-{g['to_s']:.3f} s (~{g['cycles']:g} cycles"
+                                           + (f", {g['cause'].replace('_', ' ')}" if g.get("cause") else "") + ")"
                                            for g in doc["data_gaps"]))
+    seams = (doc.get("restarts") or {}).get("loop_restart", 0)
+    if seams:
+        print(f"{seams} loop seam{'s' if seams > 1 else ''} of a replay (restarts, nothing lost)")
     load = ("load not measured" if doc.get("load_torque_mean_nm") is None else
             f"load {doc['load_torque_mean_nm']:.1f} N·m = {_fmt(doc.get('load_power_mean_kw'), '.2f')} kW")
     print(f"run means (measured): speed {_fmt(doc.get('rpm_mean'), '.1f')} rpm, {load}, "

@@ -201,7 +201,8 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
             last, figures = svc.state.window(window_cycles)
             if last is None or figures is None:
                 newest(svc, 1)  # the 503 with its Retry-After
-            return views.losses_window(svc.engine_id, last, figures, svc.term_names)
+            holes = svc.state.holes_in(figures.first_cycle, figures.last_cycle)
+            return views.losses_window(svc.engine_id, last, figures, svc.term_names, holes)
         whole, _ = newest(svc, 1)
         hit = cache.get(svc.engine_id)
         if hit is None or hit[0] != whole.index:

@@ -130,6 +130,10 @@ class CycleSummary(_Open):
     pmax_bar: list[float | None]
     friction_balance_nm: float | None
     flags: list[str]
+    missing_before: dict | None = Field(default=None, description=(
+        "a stored cycle only (the store's `extra`), the first after a hole the service dropped while its analysis "
+        "was behind: the hole (reason, first_cycle..last_cycle the indices not analysed, cycles, dropped_cycles the "
+        "crank cycles its flywheel edges held, dropped_s, dropped_records); absent otherwise"))
 
 
 MEASURED_ONLY = "a measurement only: null where the status is not 'measured' (a share's value is under share_*)"
@@ -169,6 +173,13 @@ class LossWindow(_Open):
     left_out: str | None = Field(default=None, description="a window mean only: what was left out, in words "
                                                            "('1 cycle without a previous cycle left out'); null "
                                                            "when nothing was")
+    cycles_missing: int | None = Field(default=None, description=(
+        "a window mean only: cycle indices within first_cycle..last_cycle with no result (skipped by the assembly "
+        "or the monitor, or dropped while the analysis was behind); the window spans them, its figures do not"))
+    cycles_dropped: int | None = Field(default=None, description=(
+        "a window mean only: of cycles_missing, those in holes the service dropped while its analysis was behind"))
+    missing: str | None = Field(default=None, description="a window mean only: the missing cycles in words; null "
+                                                          "when none are")
 
 
 class EngineLoss(_Open):

@@ -96,7 +96,8 @@ def losses_now(engine_id: str, results: Sequence[CycleResult], names: Sequence[s
             "cylinders": [values_by_status(_cylinder_loss(k, c, names, active)) for k, c in enumerate(doc["cylinders"])]}
 
 
-def losses_window(engine_id: str, last: CycleResult, win: WindowFigures, names: Sequence[str]) -> dict:
+def losses_window(engine_id: str, last: CycleResult, win: WindowFigures, names: Sequence[str],
+                  holes: Sequence[dict] = ()) -> dict:
     """Each cylinder's per-cycle friction (each cycle's own estimate) averaged over the window ``win`` (its figures:
     service/window_figures.py), with the 1-sigma of the mean from the cycle-to-cycle scatter. ``last``: the result
     the statuses are read from, the window's newest cycle with a previous cycle (LatestState.window).
@@ -105,7 +106,11 @@ def losses_window(engine_id: str, last: CycleResult, win: WindowFigures, names: 
     their own: left out of the means and said (``window.cycles_left_out``), not a reason to call the window
     unresolved. A mean is given only where every other cycle of the window shows the figure with the same status
     (all measured, or all shares); otherwise the status of the window is ``last``'s with the active flags, or
-    'unresolved' saying how many cycles measured it."""
+    'unresolved' saying how many cycles measured it.
+
+    A window spans ``first_cycle`` .. ``last_cycle``; indices in it with no result (skipped, or in ``holes``: dropped
+    while the analysis was behind, service/stream_holes.py) are counted and said (``cycles_missing``,
+    ``cycles_dropped``, ``missing``): the means stand for the cycles analysed, not for the whole span."""
     n_cycles, n_counted, lay = win.cycles, win.counted, win.layout
     # active_flags (run_summary) over the window, from the window's counts: the newest cycle's and the frequent ones;
     # no_previous_cycle is not one of them: those cycles are out of the figures, counted in cycles_left_out
@@ -149,7 +154,8 @@ def losses_window(engine_id: str, last: CycleResult, win: WindowFigures, names: 
     whole = n_counted > 0 and n == n_counted
     return {"engine_id": engine_id, "cycle_index": win.last_cycle, "estimate": "window",
             "window": {"first_cycle": win.first_cycle, "last_cycle": win.last_cycle, "cycles": n_counted,
-                       "cycles_left_out": win.left_out, "left_out": left if win.left_out else None},
+                       "cycles_left_out": win.left_out, "left_out": left if win.left_out else None,
+                       **missing_in_window(win, holes)},
             "engine": {"fmep_bar": num(eng_mean) if whole else None,
                        "fmep_sigma_bar": num(eng_sem) if whole else None,
                        "status": "measured" if whole else "unresolved",
@@ -158,6 +164,20 @@ def losses_window(engine_id: str, last: CycleResult, win: WindowFigures, names: 
                        "reason": None if whole else f"the engine's friction was measured in {n} of {n_counted} "
                                                     f"cycles of the window{'; ' + left if win.left_out else ''}"},
             "active_flags": sorted(active), "cylinders": cylinders}
+
+
+def missing_in_window(win: WindowFigures, holes: Sequence[dict]) -> dict:
+    """The window's cycle indices without a result, and those of them dropped while behind, counted and in words."""
+    missing = max(0, win.last_cycle - win.first_cycle + 1 - win.cycles)
+    spans = [(max(h["first_cycle"], win.first_cycle), min(h["last_cycle"], win.last_cycle)) for h in holes]
+    dropped = min(missing, sum(b - a + 1 for a, b in spans if b >= a))
+    words = None
+    if missing:
+        where = ", ".join(f"{a}-{b}" if b > a else f"{a}" for a, b in spans if b >= a)
+        words = (f"{missing} cycle{'' if missing == 1 else 's'} of cycles {win.first_cycle}-{win.last_cycle} not "
+                 "analysed" + (f": {dropped} dropped while the analysis was behind (cycles {where})" if dropped else "")
+                 + (f"{',' if dropped else ':'} {missing - dropped} skipped" if missing > dropped else ""))
+    return {"cycles_missing": missing, "cycles_dropped": dropped, "missing": words}
 
 
 def _left_out_words(n: int) -> str:

@@ -25,7 +25,7 @@ from frictionwatch.service.output_files import check_output_path
 from frictionwatch.service.pipeline import LogAnalysis, analyze_log
 from frictionwatch.service.progress import log_extent, progress_bar
 
-SCHEMA_VERSION = "2.1"  # major: a key renamed, removed or its meaning changed; minor: keys added
+SCHEMA_VERSION = "2.2"  # major: a key renamed, removed or its meaning changed; minor: keys added
 SCHEMA_FILE = Path(__file__).with_name("schema") / "analyze-result.schema.json"
 LAST_CYCLE_KEYS = ("cycle", "t_start_s", "rpm", "load_torque_nm", "load_power_kw", "friction_balance_nm",
                    "coupling_loss_nm", "residual_rms_rad_s", "r_squared", "chi2_reduced", "flags")
@@ -100,6 +100,8 @@ def summary(analysis: LogAnalysis) -> dict:
         "cycles_skipped": dict(sorted(analysis.skipped.items())),
         "log_damage": dict(sorted(analysis.damage.items())),
         "data_gaps": data_gaps(analysis),
+        "restarts": dict(sorted(analysis.restarts.items())),
+        "dropped_while_behind": analysis.holes,
     }
     results = analysis.results
     if not results:
@@ -237,13 +239,17 @@ def balance_figure(results: list, engine_status: str) -> dict:
 def data_gaps(analysis: LogAnalysis) -> list[dict]:
     """Spans between consecutive analysed cycles longer than 1.5 cycles at the speed before them: cycles skipped,
     lost with a damaged part of the log (a cycle inside a lost chunk is not 'skipped', it never arrived), or an engine
-    at rest. ``cycles``: how many cycle lengths fit in the span."""
+    at rest. ``cycles``: how many cycle lengths fit in the span. ``cause``: the restart reason of a hole the log
+    records inside it (a live session's recording: ``dropped_while_behind``, the data dropped while its analysis was
+    behind, not a gap in the engine's data), else None."""
     gaps = []
+    holes = [(h["first_cycle"], h["reason"]) for h in analysis.holes if h["first_cycle"] is not None]
     for a, b in zip(analysis.results, analysis.results[1:]):
         cycle_s = 120.0 / a.rpm_mean
         if b.t_start - a.t_start > 1.5 * cycle_s:
+            cause = next((why for first, why in holes if a.index < first <= b.index), None)
             gaps.append({"after_cycle": a.index, "from_s": a.t_start + cycle_s, "to_s": b.t_start,
-                         "cycles": round((b.t_start - a.t_start) / cycle_s - 1.0, 1)})
+                         "cycles": round((b.t_start - a.t_start) / cycle_s - 1.0, 1), "cause": cause})
     return gaps
 
 

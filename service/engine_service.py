@@ -185,6 +185,7 @@ class EngineService:
         self.cycles_ok = 0
         self.skipped: dict[str, int] = {}
         self.restarts: dict[str, int] = {}  # stream restarts met (a looped replay's seams): not lost cycles
+        self._holes_given = 0  # the pipeline's holes already handed on with the first result after them
         self.tdc_watch = TdcWatchView(TdcWatchState.empty(), None)  # replaced whole on the ingest thread
 
     @property
@@ -261,9 +262,16 @@ class EngineService:
         newest = self.state.newest
         rpm = float(newest.rpm_mean) if newest is not None else float("nan")
         per_s = rpm / 60.0 / CYCLE_REVS if rpm > 0 else None
+        # the dropped cycles from the flywheel edges dropped (a replay's silences are not cycles), else by the time
+        edges = self.session.dropped_cycles
         return {**lag, "queued_cycles": None if per_s is None else lag["queued_s"] * per_s,
-                "dropped_cycles": None if per_s is None else lag["dropped_s"] * per_s,
+                "dropped_cycles": edges if edges is not None else None if per_s is None else lag["dropped_s"] * per_s,
                 "realtime": self.session.realtime, "max_queue_s": self.session.max_queue_s}
+
+    @property
+    def holes(self) -> list[dict]:
+        """The stretches dropped while behind that the pipeline met (service/stream_holes.py), oldest first."""
+        return self.session.with_pipeline(lambda pipe: [h.to_dict(self.info.tick_hz) for h in pipe.holes])
 
     @property
     def running(self) -> bool:
@@ -294,8 +302,10 @@ class EngineService:
         if pipe.view is not self._terms_of:  # a model with a friction shape has its view from the first cycle
             self._terms_of, self.term_names = pipe.view, self._monitor_terms()
         arrived = self._arrival(result)
+        hole = self._hole_before(result) if pipe.holes_met != self._holes_given else None
         if self.alerts is None:
-            self.outbox.put(ServiceEvent(self.engine_id, result, now, arrived, term_names=self.term_names))
+            self.outbox.put(ServiceEvent(self.engine_id, result, now, arrived, term_names=self.term_names,
+                                         hole=hole))
             return
         alerts: tuple[dict, ...] = ()
         learnt: dict | None = None
@@ -310,7 +320,22 @@ class EngineService:
                     log.error("%s: alert update failed: %s", self.engine_id, exc, exc_info=exc)
                 self.alert_errors += 1
             self.outbox.put(ServiceEvent(self.engine_id, result, now, arrived, alerts, term_names=self.term_names,
-                                         baseline=learnt))
+                                         baseline=learnt, hole=hole))
+
+    def _hole_before(self, result: CycleResult) -> dict | None:
+        """The holes the pipeline met since the last handed on, in order, each once a result at or after its next
+        cycle comes (the session's lock held): what a stored row and the API say of the cycles missing before it.
+        Two holes before one result (a cycle between them that the monitor refused): the newer is given."""
+        pipe = self.session.pipeline
+        new = min(pipe.holes_met - self._holes_given, len(pipe.holes))
+        given = None
+        for hole in list(pipe.holes)[len(pipe.holes) - new:]:
+            if hole.first_missing is not None:  # else a hole that did not cut the cycles (second wheel, pressure)
+                if hole.next_cycle is None or result.index < hole.next_cycle:
+                    break
+                given = hole.to_dict(self.info.tick_hz)
+            self._holes_given += 1
+        return given
 
     def _load_kernels(self) -> None:
         """The session's ``before_ingest``: the alert engine's kernel compiled or loaded before the first record (an

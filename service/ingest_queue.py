@@ -28,8 +28,9 @@ import logging
 import queue
 import threading
 import time
-from collections import deque
-from dataclasses import dataclass
+from collections import Counter, deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 log = logging.getLogger(__name__)
@@ -54,11 +55,14 @@ class IngestLag:
 class Dropped:
     """A marker where a source's queued batches were dropped: ``first_key`` .. ``last_key`` the newest ticks of the
     first and last batch dropped there (every record of the source's next queued batch comes after ``last_key``),
-    ``records`` how many."""
+    ``records`` how many; ``contents`` what they held, as the queue's ``measure`` counts it."""
 
     first_key: float
     last_key: float
     records: int
+    contents: Counter = field(default_factory=Counter)  # what the dropped batches held (the queue's ``measure``)
+    # the newest tick of the source's last batch handed out before the hole (None: none): where the hole begins
+    after_key: float | None = field(default=None, compare=False)
 
 
 @dataclass
@@ -70,12 +74,16 @@ class _Item:
 
 
 class IngestQueue:
-    """See the module docstring. Thread-safe; one consumer."""
+    """See the module docstring. Thread-safe; one consumer. ``measure``: what a dropped batch holds (a Counter, summed
+    into its hole's ``Dropped.contents``), called only for the batches dropped."""
 
-    def __init__(self, max_span_ticks: float, tick_hz: float) -> None:
+    def __init__(self, max_span_ticks: float, tick_hz: float, measure: Callable[[Any], Counter] | None = None
+                 ) -> None:
         if not (max_span_ticks > 0 and tick_hz > 0):
             raise ValueError(f"need max_span_ticks > 0 and tick_hz > 0, got {max_span_ticks}, {tick_hz}")
         self.max_span, self.tick_hz = float(max_span_ticks), float(tick_hz)
+        self._measure = measure
+        self.dropped_contents: Counter = Counter()  # what every dropped batch held, summed (``measure``)
         self._items: deque[_Item] = deque()
         self._data = 0  # batches (not markers) queued
         self._newest_key = -float("inf")  # of the batches put (lag() need not scan the queue for it)
@@ -88,6 +96,7 @@ class IngestQueue:
         # sources whose hole marker has been handed out with none of their batches since: a batch of theirs dropped
         # now widens that hole, which needs no marker of its own (the ingest thread restarted there already)
         self._open: set[str] = set()
+        self._handed: dict[str, float] = {}  # each source's newest key handed out (where its next hole begins)
 
     # --- readers -------------------------------------------------------------------------------------------------
     def put(self, source: str, records: list, key: float, realtime: bool) -> None:
@@ -121,6 +130,7 @@ class IngestQueue:
             if item.key is not None:
                 self._data -= 1
                 self._open.discard(item.source)
+                self._handed[item.source] = item.key
             elif isinstance(item.payload, Dropped):
                 self._open.add(item.source)
             self._cond.notify_all()  # a waiting replay reader may have room now
@@ -167,16 +177,20 @@ class IngestQueue:
             if newest - first.key <= self.max_span:
                 break
             n = len(first.payload)
+            held = self._measure(first.payload) if self._measure is not None else Counter()
+            self.dropped_contents.update(held)
             # the source's item before it (the batches before the first data batch are all markers)
             before = next((items[j] for j in range(i - 1, -1, -1) if items[j].source == first.source), None)
             if before is not None and isinstance(before.payload, Dropped):
                 hole = before.payload
-                before.payload = Dropped(hole.first_key, max(hole.last_key, first.key), hole.records + n)
+                before.payload = Dropped(hole.first_key, max(hole.last_key, first.key), hole.records + n,
+                                         hole.contents + held, hole.after_key)
                 del items[i]
             elif before is None and first.source in self._open:
                 del items[i]
             else:  # a marker's key is None: never dropped, not counted in the span
-                items[i] = _Item(first.source, Dropped(first.key, first.key, n), None, first.read_s)
+                items[i] = _Item(first.source, Dropped(first.key, first.key, n, held,
+                                                       self._handed.get(first.source)), None, first.read_s)
             self._data -= 1
             dropped += n
             first_dropped = first.key if first_dropped is None else first_dropped

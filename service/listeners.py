@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from frictionwatch.core.monitor.report.results import CycleResult
+from frictionwatch.service.stream_holes import MAX_HOLES
 from frictionwatch.service.window_figures import WindowFigures, left_out
 from frictionwatch.service.window_sums import WindowSums
 
@@ -50,7 +51,8 @@ _WAKE = object()  # put by a stop into a listener's queue: wakes its thread, is 
 class ServiceEvent:
     """What the fan-out carries. ``arrived_s``: monotonic time the reader got the record that completed the cycle
     (None when not known); ``result_s``: when the result reached the fan-out. ``alerts``: Alert dicts (contract
-    shape, with engine_id) raised, updated, cleared or acknowledged; ``baseline``: a new alert baseline (to_dict)."""
+    shape, with engine_id) raised, updated, cleared or acknowledged; ``baseline``: a new alert baseline (to_dict);
+    ``hole``: the stretch dropped while behind just before this result (service/stream_holes.py), else None."""
 
     engine_id: str
     result: CycleResult | None
@@ -59,6 +61,7 @@ class ServiceEvent:
     alerts: tuple[dict, ...] = ()
     baseline: dict | None = None
     term_names: tuple[str, ...] = field(default=())
+    hole: dict | None = None  # the result is the first after a hole dropped while behind: the hole (Hole.to_dict)
 
 
 class Listener:
@@ -327,6 +330,7 @@ class LatestState(Listener):
         # leave out the cycles without one (service/window_figures.py)
         self.newest_counted: CycleResult | None = None
         self.newest_s: float | None = None  # monotonic time the newest result became visible here
+        self.holes: deque[dict] = deque(maxlen=MAX_HOLES)  # the holes before results held (index ranges)
         self.updated = threading.Condition(self._lock)
         # gets each event with its result -> visible here [s], on this thread (the metrics' per-cycle histograms)
         self.on_visible: Callable[[ServiceEvent, float], None] | None = None
@@ -341,6 +345,8 @@ class LatestState(Listener):
                 self._ring[-1] = self.newest.slim()  # only the newest keeps its traces
             self._ring.append(event.result)
             self.newest, self.newest_s = event.result, time.monotonic()
+            if event.hole is not None:
+                self.holes.append(event.hole)
             if not left_out(event.result.flags):
                 self.newest_counted = event.result
             self.updated.notify_all()
@@ -360,6 +366,12 @@ class LatestState(Listener):
         one) and the figures of the newest ``cycles`` cycles, read together."""
         with self._lock:
             return self.newest_counted or self.newest, self.sums.figures(cycles)
+
+    def holes_in(self, first: int, last: int) -> list[dict]:
+        """The holes dropped while behind whose missing cycles lie (partly) within ``first`` .. ``last``."""
+        with self._lock:
+            return [h for h in self.holes if h["first_cycle"] is not None and h["last_cycle"] is not None
+                    and h["first_cycle"] <= last and h["last_cycle"] >= first]
 
     def wait_index(self, index: int, timeout: float) -> bool:
         with self._lock:

@@ -44,7 +44,7 @@ from typing import Self
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig
-from frictionwatch.core.types import AcquisitionInfo, StreamRecord
+from frictionwatch.core.types import AcquisitionInfo, FreeEndToothBatch, StreamRecord, ToothBatch
 from frictionwatch.drivers.errors import EndOfStream
 from frictionwatch.drivers.logs.recorder import Recorder
 from frictionwatch.drivers.source import Source, StreamRestart
@@ -60,12 +60,40 @@ _END = object()
 DROPPED_WHILE_BEHIND = "dropped_while_behind"  # the restart reason where the queue dropped a source's batches
 
 
-def _hole_mark(hole: Dropped) -> tuple[list[StreamRestart], list[float]]:
+def batch_contents(batch: KeyedBatch) -> Counter:
+    """What a batch the queue drops holds (IngestQueue's ``measure``): the flywheel's tooth edges (``teeth``), the
+    second wheel's (``wheel2``), other records (``other``) and restart marks (``marks``)."""
+    held: Counter = Counter()
+    for r in batch.records:
+        kind = type(r)
+        if kind is ToothBatch:
+            held["teeth"] += len(r.ticks)
+        elif kind is FreeEndToothBatch:
+            held["wheel2"] += len(r.ticks)
+        elif kind is StreamRestart:
+            held["marks"] += 1
+        else:
+            held["other"] += 1
+    return held
+
+
+def hole_mark(hole: Dropped, info: AcquisitionInfo) -> tuple[list[StreamRestart], list[float]]:
     """The restart mark where the queue dropped a run of a source's batches (service/ingest_queue.py): just after
     the newest tick dropped, so before every record the source still delivers. The pipeline restarts its cycle
     assembly there, as at a replay's loop seam: the cycle the hole cuts is one of the dropped ones, counted in
-    ``lag().dropped_*``, not a ``data_gap`` of the engine (design note 119)."""
-    mark = StreamRestart(ticks=math.floor(hole.last_key) + 1, reason=DROPPED_WHILE_BEHIND)
+    ``lag().dropped_*``, not a ``data_gap`` of the engine (design note 119). The mark carries the hole: its span,
+    records and the cycles its flywheel edges held (the pipeline numbers on over them, design note 124), and what
+    restarts: the cycle assembly where the flywheel's edges (or a seam's mark) went, the second wheel's cut where only
+    its edges did, nothing where no wheel's did (a pressure or load source of its own)."""
+    held = hole.contents
+    # a restart mark it swallowed (a replay's seam, read alone in its batch) restarts the assembly as the seam would
+    assembly = "all" if held["teeth"] or held["marks"] else "second_wheel" if held["wheel2"] else "none"
+    mark = StreamRestart(ticks=math.floor(hole.last_key) + 1, reason=DROPPED_WHILE_BEHIND,
+                         dropped_from_ticks=math.floor(hole.first_key if hole.after_key is None else
+                                                       min(hole.first_key, hole.after_key + 1)),
+                         dropped_records=max(1, hole.records),
+                         dropped_cycles=held["teeth"] / (2.0 * (info.wheel_teeth - info.wheel_missing)),
+                         assembly=assembly)
     return [mark], [float(mark.ticks)]
 
 
@@ -179,7 +207,7 @@ class LiveSession:
         self._reader_counts: dict[str, Counter[str]] = {n: Counter() for n in self.sources}
         self._heard = dict.fromkeys(self.sources, time.monotonic())  # wall time a reader last got records
         self.max_queue_s = max_queue_s
-        self._queue = IngestQueue(max_queue_s * info.tick_hz, info.tick_hz)
+        self._queue = IngestQueue(max_queue_s * info.tick_hz, info.tick_hz, measure=batch_contents)
         self._realtime = {n: is_realtime(s) for n, s in self.sources.items()}
         self._paced_replays = [n for n, s in self.sources.items() if is_replay_paced(s)]
         self.replay_batch_s = replay_batch_s
@@ -246,6 +274,13 @@ class LiveSession:
     def lag(self) -> IngestLag:
         """How far the ingest thread is behind the readers (never waits for the ingest thread)."""
         return self._queue.lag()
+
+    @property
+    def dropped_cycles(self) -> float | None:
+        """The crank cycles the flywheel edges dropped while behind held (edges / edges a cycle: a replay's
+        silences not counted, unlike ``lag().dropped_s``); None where no flywheel edge was dropped."""
+        edges = self._queue.dropped_contents["teeth"]
+        return edges / (2.0 * (self.info.wheel_teeth - self.info.wheel_missing)) if edges else None
 
     @property
     def realtime(self) -> bool:
@@ -325,7 +360,9 @@ class LiveSession:
         with self._cond:
             return LogAnalysis(self.spec, self._history.to_list(), Counter(self.pipeline.skipped), damage,
                                dropped=self._history.dropped, tdc_watch=self.pipeline.tdc_watch,
-                               cylinder_twist=self.pipeline.cylinder_twist())
+                               cylinder_twist=self.pipeline.cylinder_twist(),
+                               restarts=Counter(self.pipeline.restarts),
+                               holes=[h.to_dict(self.info.tick_hz) for h in self.pipeline.holes])
 
     # --- threads -------------------------------------------------------------------------------------------------
     def _read_loop(self, name: str, src: Source) -> None:
@@ -381,7 +418,7 @@ class LiveSession:
                     released = self.merge.set_quiet(quiet)
                 if name:
                     released += (self.merge.end(name) if item is _END else
-                                 self.merge.push(name, *_hole_mark(item)) if isinstance(item, Dropped) else
+                                 self.merge.push(name, *hole_mark(item, self.info)) if isinstance(item, Dropped) else
                                  self.merge.push(name, item.records, item.keys))
                 self._cond.notify_all()
             self._deliver(released)
@@ -410,7 +447,7 @@ class LiveSession:
         records = [r for _, r in keyed]
         data = [r for r in records if not isinstance(r, StreamRestart)]  # a restart mark: not data (below)
         if self.recorder is not None:
-            for r in data:
+            for r in records:  # the marks too: a recording says where the stream restarted and what a hole dropped
                 try:
                     self.recorder.write(r)
                 except OSError as exc:  # disk full, folder gone: the black box fails, the monitor goes on
@@ -423,7 +460,7 @@ class LiveSession:
             except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the monitor
                 self._error("on_records", exc)
         for r in records:
-            if isinstance(r, StreamRestart):  # neither recorded nor handed on: the pipeline restarts
+            if isinstance(r, StreamRestart):  # recorded (above), not handed on: the pipeline restarts
                 with self._cond:
                     self._publish(self.pipeline.feed(r))
                 self._hand_on()

@@ -21,10 +21,11 @@ from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState
 from frictionwatch.core.monitor.pipeline import CycleOutcome, CyclePipeline
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
-from frictionwatch.core.types import AcquisitionInfo, Cycle, StreamRecord
+from frictionwatch.core.types import AcquisitionInfo, Cycle, StreamRecord, ToothBatch
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
 from frictionwatch.drivers.assembly.two_wheels import TwoWheelAssembler
 from frictionwatch.drivers.source import StreamRestart
+from frictionwatch.service.stream_holes import MAX_HOLES, Hole
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +42,10 @@ class EnginePipeline:
     A ``StreamRestart`` mark (a looped replay's seam, drivers/source.py) flushes the assembler and starts a fresh one
     that continues the cycle numbering; ``restarts`` counts them by reason. The monitor's state goes on (the same
     engine); the first cycle after the mark has no cycle before it (flagged ``no_previous_cycle``, as after a real
-    stop)."""
+    stop). A mark of a hole (a live session dropped data while behind, or a recording of one) numbers on over the
+    cycles the engine turned in the hole, from the tooth clock, so the indices show it; ``holes`` keeps the newest
+    ``MAX_HOLES`` as ``Hole``s. A hole in the second wheel's edges alone restarts only their cut, one in no wheel's
+    edges nothing (design note 124)."""
 
     def __init__(self, engine: EngineModel | EngineSpec, info: AcquisitionInfo, config: MonitorConfig | None = None,
                  on_cycle: Callable[[Cycle], None] | None = None):
@@ -57,6 +61,11 @@ class EnginePipeline:
         self._retired: Counter[str] = Counter()  # the losses of assemblers replaced at a restart
         self._lost_at = 0  # the assembler's ``lost`` when its losses were last given out
         self.restarts: Counter[str] = Counter()  # StreamRestart marks met, by reason
+        self.holes: deque[Hole] = deque(maxlen=MAX_HOLES)  # the newest holes met (marks of dropped records)
+        self.holes_met = 0  # all of them
+        self._open_hole: Hole | None = None  # the newest hole whose next cycle has not come yet
+        self._last_cycle: Cycle | None = None  # the newest cycle assembled: the tooth clock a hole is numbered by
+        self._clock_at: tuple[float, float] | None = None  # (index, cycle ticks) at the first edge after a hole
 
     @property
     def state(self) -> MonitorState | None:
@@ -99,14 +108,52 @@ class EnginePipeline:
         a ``StreamRestart``: the cycles complete before it, then a fresh assembler), each cycle the assembler lost on
         the way first."""
         if isinstance(record, StreamRestart):
-            return self.restart(record.reason)
+            return self._marked(record)
+        if self._clock_at is not None and type(record) is ToothBatch:  # the first edge after a hole: the clock
+            index_at, period = self._clock_at
+            self._clock_at = None
+            self.assembler.number_by_clock(index_at, int(record.ticks[0]), period)
         cycles = self.assembler.feed(record) if record is not None else self.assembler.flush()
         out = self._losses()
         if cycles:  # most records complete none (~19 a genset cycle): no generator to make for them
+            self._met(cycles)
             out.extend(self.cycles.process(c) for c in cycles)
         return out
 
-    def restart(self, reason: str) -> list[CycleOutcome]:
+    def _met(self, cycles: list[Cycle]) -> None:
+        self._last_cycle = cycles[-1]
+        if self._open_hole is not None:
+            self._open_hole.next_cycle = int(cycles[0].index)
+            self._open_hole = None
+
+    def _marked(self, mark: StreamRestart) -> list[CycleOutcome]:
+        """A restart mark: the assembly it names starts again (a hole's also numbered over it); a hole is kept."""
+        first_missing = self.assembler.next_index
+        if mark.assembly == "all" or not mark.is_hole:
+            out = self.restart(mark.reason, mark)
+        else:
+            self.restarts[mark.reason] += 1
+            again = getattr(self.assembler, "restart_second_wheel", None) if mark.assembly == "second_wheel" else None
+            cycles = again() if again is not None else []
+            out = self._losses()
+            if cycles:
+                self._met(cycles)
+                out.extend(self.cycles.process(c) for c in cycles)
+            log.info("stream restart (%s): %s only", mark.reason, mark.assembly.replace("_", " "))
+        open_hole = self._open_hole
+        if mark.is_hole and mark.assembly == "all" and open_hole is not None \
+                and open_hole.first_missing == first_missing:  # another before any cycle after the last: one hole
+            open_hole.to_ticks, open_hole.records = mark.ticks, open_hole.records + mark.dropped_records
+            open_hole.cycles += mark.dropped_cycles
+        elif mark.is_hole:
+            hole = Hole(mark.reason, mark.dropped_from_ticks, mark.ticks, mark.dropped_records, mark.dropped_cycles,
+                        mark.assembly, first_missing if mark.assembly == "all" else None)
+            self.holes.append(hole)
+            self.holes_met += 1
+            self._open_hole = hole if mark.assembly == "all" else open_hole
+        return out
+
+    def restart(self, reason: str, mark: StreamRestart | None = None) -> list[CycleOutcome]:
         """The stream starts again (drivers/source.py StreamRestart): the cycles complete so far, then a fresh
         assembler numbering on from the old one. The partial cycle the old stream ends in is dropped uncounted: at a
         loop seam it is the log's end (``analyze`` counts it once, as ``log_ends_mid_cycle``), not a cycle of the
@@ -117,10 +164,31 @@ class EnginePipeline:
         out = self.cut_off()
         self._retired += Counter(old.skipped)
         self.assembler = cycle_assembler(self.spec, self.info, first_index=old.next_index)
+        if mark is not None and mark.is_hole:
+            self._number_over(old, mark)
         self._lost_at = 0
         self.restarts[reason] += 1
-        log.info("stream restart (%s): the cycle assembler starts again at cycle %d", reason, old.next_index)
+        log.info("stream restart (%s): the cycle assembler starts again at cycle %d%s", reason, old.next_index,
+                 f" + the ~{mark.dropped_cycles:.0f} cycles dropped" if mark is not None and mark.is_hole else "")
         return out
+
+    def _number_over(self, old: CycleAssembler, mark: StreamRestart) -> None:
+        """The fresh assembler numbers its first cycle by the tooth clock of the newest cycle met before the hole:
+        that cycle's length, the edges the old assembler met after it and the cycles the hole's dropped flywheel
+        edges held, at the first edge after the hole (a silence between the hole and that edge -- a replay's seam
+        -- is not cycles; a mark without them: the clock runs across the hole, a replay's silences counted)."""
+        last = self._last_cycle
+        if last is None:  # no cycle yet: nothing to number from, the numbering goes on
+            return
+        t0, t1 = int(last.tooth_ticks[0]), int(last.tooth_ticks[-1])
+        period = float(t1 - t0)
+        newest = old.buf.teeth.last("t")
+        seen = 0.0 if newest is None or newest <= t1 else (int(newest) - t1) / period
+        self._clock_at = None
+        if mark.dropped_cycles > 0:
+            self._clock_at = (last.index + 1 + seen + mark.dropped_cycles, period)
+        else:
+            self.assembler.number_by_clock(last.index + 1 + seen, t1 if newest is None else int(newest), period)
 
     def cut_off(self) -> list[CycleOutcome]:
         """The stream stops here without having ended (a restart mark; a live session's stop while its sources still
@@ -129,7 +197,9 @@ class EnginePipeline:
         with ``outcomes(None)``, which counts it)."""
         cycles = self.assembler.flush(count_tail=False)
         out = self._losses()
-        out.extend(self.cycles.process(c) for c in cycles)
+        if cycles:
+            self._met(cycles)
+            out.extend(self.cycles.process(c) for c in cycles)
         return out
 
     def _losses(self) -> list[CycleOutcome]:
@@ -174,9 +244,21 @@ def assembled_cycles(engine: EngineModel | EngineSpec, info: AcquisitionInfo,
                      records: Iterable[StreamRecord]) -> tuple[list[Cycle], Counter[str]]:
     """Every cycle the pipeline's assembler completes from ``records``, without the monitor, and what it skipped, by
     reason (the coast-down inertia's input: core.monitor.calibration.inertia.coastdown_record)."""
-    asm = cycle_assembler(as_model(engine).spec, info)
-    cycles = [c for record in records for c in asm.feed(record)] + asm.flush()
-    return cycles, Counter(asm.skipped) + asm.truncated  # counted as EnginePipeline.skipped counts them
+    spec = as_model(engine).spec
+    asm = cycle_assembler(spec, info)
+    cycles: list[Cycle] = []
+    retired: Counter[str] = Counter()
+    for record in records:
+        if type(record) is not StreamRestart:
+            cycles += asm.feed(record)
+        elif record.assembly == "all" or not record.is_hole:  # a recorded restart (EnginePipeline.outcomes)
+            cycles += asm.flush(count_tail=False)
+            retired += Counter(asm.skipped)
+            asm = cycle_assembler(spec, info, first_index=asm.next_index)
+        elif record.assembly == "second_wheel" and isinstance(asm, TwoWheelAssembler):
+            cycles += asm.restart_second_wheel()
+    cycles += asm.flush()
+    return cycles, retired + Counter(asm.skipped) + asm.truncated  # counted as EnginePipeline.skipped counts them
 
 
 KEEP_TRACES = 64  # the newest results keep their traces (plots, a dashboard's recent cycles)
@@ -236,6 +318,8 @@ class LogAnalysis:
     tdc_watch: TdcWatchState | None = None
     cylinder_twist: np.ndarray | None = None
     gain_watch: GainWatchState | None = None
+    restarts: Counter[str] = field(default_factory=Counter)  # the stream's restart marks met, by reason
+    holes: list[dict] = field(default_factory=list)  # the stretches dropped while behind (stream_holes.Hole.to_dict)
 
     @property
     def last(self) -> CycleResult | None:
@@ -318,7 +402,8 @@ def analyze_records(
             if on_result:
                 on_result(r)
     return LogAnalysis(pipe.spec, history.to_list(), pipe.skipped, tdc_watch=pipe.tdc_watch,
-                       cylinder_twist=pipe.cylinder_twist(), gain_watch=pipe.gain_watch)
+                       cylinder_twist=pipe.cylinder_twist(), gain_watch=pipe.gain_watch,
+                       restarts=Counter(pipe.restarts), holes=[h.to_dict(info.tick_hz) for h in pipe.holes])
 
 
 BENCH_EXPORTS = {".mf4": "an MDF4 bus log", ".mdf": "an MDF4 bus log", ".csv": "a table",

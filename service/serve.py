@@ -25,6 +25,7 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
+from frictionwatch.drivers.logs.recorder import Recorder
 from frictionwatch.drivers.source import Source, open_source
 from frictionwatch.drivers.timebase import Clocks
 from frictionwatch.service.alerts import AlertConfig, AlertEngine
@@ -41,6 +42,8 @@ MAX_QUEUE_S, DRAIN_S = 10.0, 5.0  # LiveSession's defaults (service/live.py, Bac
 # below ~1 s the queue would drop on an ordinary hiccup of the ingest thread (a batch spans 50-100 ms, the merge's
 # reorder window 1 s); above 600 s one genset-v20 queues ~2 GB
 QUEUE_LIMITS = (1.0, 600.0)
+SPANS_SAID = 8  # the stop line names this many of the index ranges holes left out (a run that fell behind often: 39)
+RECORD_FILE_BYTES, RECORD_FILES = 64 << 20, 16  # serve --record: the recorder's defaults (drivers/logs/recorder.py)
 DRAIN_LIMITS = (0.0, 600.0)  # 0: abandon what is queued at once (logged)
 
 
@@ -75,6 +78,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         f"left then is logged, not analysed (default {DRAIN_S:g}; {DRAIN_LIMITS[0]:g}-"
                         f"{DRAIN_LIMITS[1]:g}; keep it under the stop grace time, docker's is 10 s)")
     p.add_argument("--sensor-health", action="store_true", help=SENSOR_HEALTH_HELP)
+    p.add_argument("--record", type=Path, metavar="DIR",
+                   help="the black box: each engine's raw input as it was analysed, with its restarts, in rotating "
+                        f"replay logs DIR/ENGINE-ID/rec-*.mcap (at most {RECORD_FILES} files of "
+                        f"{RECORD_FILE_BYTES >> 20} MiB each; `frictionwatch analyze` reads one)")
     p.set_defaults(func=run)
 
 
@@ -101,8 +108,10 @@ def slug(name: str) -> str:
     return s or "engine"
 
 
-def build_engine(ident: str | None, urls: list[str], engine: str | None, taken: set[str], **options) -> EngineService:
-    """Open the sources of one engine (closed again if anything fails) and wire its EngineService."""
+def build_engine(ident: str | None, urls: list[str], engine: str | None, taken: set[str], record: Path | None = None,
+                 **options) -> EngineService:
+    """Open the sources of one engine (closed again if anything fails) and wire its EngineService; ``record``: the
+    folder whose ENGINE-ID subfolder gets its black-box recording (the session closes the recorder)."""
     clocks = Clocks()
     sources: dict[str, Source] = {}
     try:
@@ -118,6 +127,9 @@ def build_engine(ident: str | None, urls: list[str], engine: str | None, taken: 
         if engine_id in taken:
             raise ValueError(f"engine id {engine_id} given twice")
         taken.add(engine_id)
+        if record is not None:  # files are opened at the first record written
+            options["recorder"] = Recorder(record / engine_id, toml, info, max_file_bytes=RECORD_FILE_BYTES,
+                                           max_files=RECORD_FILES)
         return EngineService(engine_id, model, info, sources, urls=urls, **options)
     except BaseException:
         for s in sources.values():
@@ -137,7 +149,7 @@ def build_engines(args: argparse.Namespace, data: DataDir | None) -> list[Engine
             svc = build_engine(ident, urls, args.engine, taken, history_cycles=args.history_cycles,
                                alerts=data.with_baseline(alerts) if data else alerts,
                                config=monitor_config(args.sensor_health), max_queue_s=args.max_queue_s,
-                               drain_s=args.drain_s)
+                               drain_s=args.drain_s, record=args.record)
             services.append(svc)
             if data:
                 print(f"frictionwatch serve: {data.attach(svc)}", flush=True)
@@ -232,15 +244,20 @@ def stop_summary(svc: EngineService) -> str:
     """One terminal line per engine at the end of a serve run: the cycles analysed, the acquisition a real-time source
     lost while the analysis was behind (serve --max-queue-s: a cold start's compile, an overloaded box), which until
     now only /health and /metrics said, the cycles skipped and why, and a looped replay's seams. A dropped stretch
-    is said once, as dropped: the cycle its hole cut is not a skip as well (design note 119), and a seam is a
-    restart, not a loss."""
+    is said once, as dropped: the cycle its hole cut is not a skip as well (design note 119), with the cycle indices
+    its holes left out (design note 124), and a seam is a restart, not a loss."""
     parts = [f"{svc.cycles_ok} cycles analysed"]
     lag = svc.backlog()
     if lag.get("dropped_records"):
         cycles = lag.get("dropped_cycles")
         about = f"~{cycles:.0f} cycles, " if cycles is not None else ""
+        spans = [f"{h['first_cycle']}-{h['last_cycle']}" for h in getattr(svc, "holes", ())
+                 if h["first_cycle"] is not None and h["last_cycle"] is not None]
+        shown = ", ".join(spans[:SPANS_SAID]) + (f" and {len(spans) - SPANS_SAID} more" if len(spans) > SPANS_SAID
+                                                 else "")
         parts.append(f"dropped while the analysis was behind: {about}{lag['dropped_s']:.1f} s of acquisition "
-                     f"({lag['dropped_records']} records)")
+                     f"({lag['dropped_records']} records)"
+                     + (f", not numbered: cycle{'s' if len(spans) > 1 else ''} {shown}" if spans else ""))
     skipped = {str(k): int(n) for k, n in svc.skipped.items() if n}
     if skipped:
         parts.append("skipped: " + ", ".join(f"{k} {n}" for k, n in sorted(skipped.items())))

@@ -106,6 +106,17 @@ class EpochSync:
         while self._window(ep, c)[0] < lo:
             c += 1
         ep.next_c, ep.c0, ep.index_base = c, c, self._next_index
+        if self._index_clock is not None:  # the first epoch after a hole: numbered by the clock (number_by_clock)
+            ep.index_base = self._clocked_index(ep, c)
+
+    def _clocked_index(self, ep: Epoch, c: int) -> int:
+        """Cycle c's index from ``number_by_clock``'s reference: its window's start, placed on the tooth clock from
+        the epoch's first edge at the reference's cycle length (2 N positions a cycle), rounded."""
+        index_at, tick, period = self._index_clock
+        self._index_clock = None
+        seg = ep.segments[0]
+        t_c = seg.t_first + (self._window(ep, c)[0] - seg.first_pos) * period / (2 * self.wheel.n)
+        return max(self._next_index, round(index_at + (t_c - tick) / period))
 
     def _window(self, ep: Epoch, c: int) -> tuple[int, int]:
         h2 = 2 * c - int(ep.phase or 0)

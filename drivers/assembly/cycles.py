@@ -131,6 +131,7 @@ class CycleAssembler(EpochSync):
         self._epoch: Epoch | None = None
         self._pending: deque[_Pending] = deque()
         self._next_index = int(first_index)
+        self._index_clock: tuple[float, int, float] | None = None  # number_by_clock's (index, tick, cycle ticks)
         self._now = 0  # latest stream time seen [ticks]
         self._cam_next = 0  # next cam row to place
         self._discarded_at = 0  # tooth ring end at the last discard
@@ -159,6 +160,17 @@ class CycleAssembler(EpochSync):
         if first_index < 0:
             raise ValueError(f"first_index must be >= 0, got {first_index}")
         self._next_index = int(first_index)
+
+    def number_by_clock(self, index_at: float, tick: int, period_ticks: float) -> None:
+        """Number the first cycle from the tooth clock (before the first record): the engine was at (fractional)
+        cycle ``index_at`` at ``tick``, a cycle lasts ``period_ticks``. A restart after a hole where a live session
+        dropped data numbers on over the cycles the engine turned meanwhile, not from the last cycle it met, so a
+        stored run shows the hole in its indices (design note 124). Never below ``next_index``."""
+        if self._epoch is not None or self._pending:
+            raise RuntimeError("the cycle numbering is set before the first record")
+        if not period_ticks > 0:
+            raise ValueError(f"period_ticks must be > 0, got {period_ticks}")
+        self._index_clock = (float(index_at), int(tick), float(period_ticks))
 
     def feed(self, record: StreamRecord) -> list[Cycle]:
         """File one record and return the cycles it completed (possibly none)."""

@@ -47,6 +47,14 @@ class TwoWheelAssembler(CycleAssembler):
         self._held.extend(super().flush(count_tail))
         return self._release(final=True)
 
+    def restart_second_wheel(self) -> list[Cycle]:
+        """The second wheel's edges start again (a hole in their source alone; the flywheel's went on): the cycles
+        held for its edges leave with what the cut holds (their edges in the hole will not come), then a fresh cut
+        syncs on what follows. The flywheel's assembly goes on untouched."""
+        out = self._release(final=True)
+        self.cut = SecondWheelCut(self.info.second_wheel)
+        return out
+
     def _release(self, final: bool) -> list[Cycle]:
         out: list[Cycle] = []
         now = max(self._now, self._newest2)

@@ -2,7 +2,7 @@
 
     with LogWriter("run.mcap", engine_toml, info) as log:     # info: core.types.AcquisitionInfo
         for record in stream:                    # ToothBatch | CamBatch | PressureBlock | PressureFrame | LoadSample
-                                                 # | FreeEndToothBatch
+                                                 # | FreeEndToothBatch | StreamRestart (a mark, drivers/source.py)
             log.write(record)
     log = LogReader("run.mcap")                              # CorruptLog if nothing at all is readable
     log.info, log.engine_toml, log.metadata
@@ -36,6 +36,7 @@ from frictionwatch.core.types import (
 )
 from frictionwatch.drivers.logs.mcap_batching import Batcher
 from frictionwatch.drivers.logs.mcap_reader import Codec, LogReader, ProtobufCodec
+from frictionwatch.drivers.source import StreamRestart
 from mcap.writer import CompressionType, Writer
 
 DEFAULT_CHUNK_BYTES = 128 * 1024  # uncompressed; ~0.12 s of genset-v20 data: the most one damaged chunk loses
@@ -77,6 +78,19 @@ def _checked(record: Any) -> StreamRecord | None:
             raise ValueError(f"LoadSample.ticks must be an integer >= 0, got {record.ticks!r}")
         return LoadSample(int(record.ticks), float(record.torque), float(record.power))
     raise TypeError(f"not a stream record: {type(record).__name__}")
+
+
+def _checked_mark(mark: StreamRestart) -> StreamRestart:
+    """A restart mark as the format holds it (docs/replay-format.md, ``restarts``); ValueError if it cannot be."""
+    if int(mark.ticks) != mark.ticks or mark.ticks < 0:
+        raise ValueError(f"StreamRestart.ticks must be an integer >= 0, got {mark.ticks!r}")
+    if mark.dropped_records < 0 or (mark.dropped_records and (
+            mark.dropped_from_ticks is None or not 0 <= mark.dropped_from_ticks <= mark.ticks)):
+        raise ValueError(f"StreamRestart: {mark.dropped_records} records dropped from {mark.dropped_from_ticks}, "
+                         f"the mark at {mark.ticks}")
+    if mark.assembly not in ms.RESTART_ASSEMBLIES:
+        raise ValueError(f"StreamRestart.assembly must be one of {ms.RESTART_ASSEMBLIES}, got {mark.assembly!r}")
+    return mark
 
 
 def _checked_frame(record: PressureFrame) -> PressureFrame | None:
@@ -170,6 +184,11 @@ class LogWriter:
         """Log one record (empty ones are skipped). ValueError / TypeError if it cannot be represented."""
         if self._closed:
             raise ValueError("write to a closed LogWriter")
+        if isinstance(record, StreamRestart):  # what is held for batching goes first: it all came before the mark
+            for message in self._batcher.drain() if self._batcher is not None else ():
+                self._emit(message)
+            self._emit(_checked_mark(record))
+            return
         checked = _checked(record)
         if checked is None:
             return

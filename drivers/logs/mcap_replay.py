@@ -12,6 +12,7 @@ clock, scaled by ``speed``, has reached its log time.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Iterator
@@ -216,4 +217,8 @@ def shifted(record: StreamRecord, ticks: int) -> StreamRecord:
         return LoadSample(record.ticks + ticks, record.torque, record.power)
     if kind is PressureBlock:
         return PressureBlock(record.cylinder, record.t0_ticks + ticks, record.period_ticks, record.values)
+    if kind is StreamRestart:  # a recording's mark (docs/replay-format.md, restarts)
+        start = record.dropped_from_ticks
+        return dataclasses.replace(record, ticks=record.ticks + ticks,
+                                   dropped_from_ticks=None if start is None else start + ticks)
     raise TypeError(f"not a stream record: {type(record).__name__}")

@@ -31,6 +31,7 @@ from frictionwatch.core.types import (
     WheelInfo,
 )
 from frictionwatch.drivers.logs.mcap_frame_kernel import decode_frame, decode_ticks
+from frictionwatch.drivers.source import StreamRestart
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from google.protobuf.message import DecodeError
 
@@ -80,6 +81,17 @@ MESSAGES: dict[str, tuple[str, list[tuple[str, int, int, bool]]]] = {
         ],
     ),
     "FreeEndToothBatch": ("free_end_teeth", [("ticks", 1, _F.TYPE_INT64, True)]),  # the second wheel's edges (last: older indices kept)
+    "StreamRestart": (  # not data: where the stream starts again (drivers/source.py), a hole it dropped said
+        "restarts",
+        [
+            ("ticks", 1, _F.TYPE_INT64, False),
+            ("reason", 2, _F.TYPE_STRING, False),
+            ("dropped_from_ticks", 3, _F.TYPE_INT64, False),  # read only where dropped_records > 0
+            ("dropped_records", 4, _F.TYPE_INT64, False),
+            ("dropped_cycles", 5, _F.TYPE_DOUBLE, False),
+            ("assembly", 6, _F.TYPE_STRING, False),  # "" = "all"
+        ],
+    ),
 }
 TOPICS = {name: topic for name, (topic, _) in MESSAGES.items()}
 
@@ -201,6 +213,14 @@ def encode(record: StreamRecord, counts: PressureCounts | None = None) -> tuple[
     if isinstance(record, LoadSample):
         msg = _CLASSES["LoadSample"](ticks=record.ticks, torque_nm=record.torque, power_w=record.power)
         return "LoadSample", msg.SerializeToString()
+    if isinstance(record, StreamRestart):
+        hole = record.dropped_records > 0
+        msg = _CLASSES["StreamRestart"](
+            ticks=record.ticks, reason=record.reason, dropped_from_ticks=record.dropped_from_ticks if hole else 0,
+            dropped_records=record.dropped_records, dropped_cycles=record.dropped_cycles,
+            assembly="" if record.assembly == "all" else record.assembly,
+        )
+        return "StreamRestart", msg.SerializeToString()
     raise TypeError(f"not a stream record: {type(record).__name__}")
 
 
@@ -277,6 +297,19 @@ def _decode_frame_fast(data: bytes) -> PressureFrame:
     return decode_frame(data, _decode_frame)
 
 
+def _decode_restart(data: bytes) -> StreamRestart:
+    msg = _CLASSES["StreamRestart"].FromString(data)
+    hole = msg.dropped_records > 0
+    if msg.ticks < 0 or msg.dropped_records < 0 or (hole and msg.dropped_from_ticks > msg.ticks):
+        raise ValueError(f"a restart mark at {msg.ticks} with {msg.dropped_records} records dropped from "
+                         f"{msg.dropped_from_ticks}")
+    assembly = msg.assembly or "all"
+    if assembly not in RESTART_ASSEMBLIES:
+        raise ValueError(f"a restart mark's assembly {assembly!r}: not one of {RESTART_ASSEMBLIES}")
+    return StreamRestart(msg.ticks, msg.reason or "loop_restart", msg.dropped_from_ticks if hole else None,
+                         int(msg.dropped_records), float(msg.dropped_cycles), assembly)
+
+
 def _decode_load(data: bytes) -> LoadSample:
     msg = _CLASSES["LoadSample"].FromString(data)
     return LoadSample(msg.ticks, msg.torque_nm, msg.power_w)
@@ -289,7 +322,9 @@ DECODERS: dict[str, Callable[[bytes], StreamRecord]] = {
     f"{PACKAGE}.PressureBlock": _decode_pressure,
     f"{PACKAGE}.PressureFrame": _decode_frame_fast,
     f"{PACKAGE}.LoadSample": _decode_load,
+    f"{PACKAGE}.StreamRestart": _decode_restart,
 }
+RESTART_ASSEMBLIES = ("all", "second_wheel", "none")
 DECODE_ERRORS = (DecodeError, ValueError, TypeError)  # what a decoder raises on a bad message
 
 

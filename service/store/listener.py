@@ -116,8 +116,10 @@ class StoreListener:
                 self._losses_of = self._losses_of or cylinder_losses
                 self._figure_of = self._figure_of or engine_figure
             result, names, losses_of, figure_of = event.result, tuple(event.term_names), self._losses_of, self._figure_of
-            self.on_cycle(self._summary_of(self.engine_id, result), lambda: losses_of(result, names),
-                          engine_figure=lambda: figure_of(result))
+            summary = self._summary_of(self.engine_id, result)
+            if getattr(event, "hole", None) is not None:  # the first cycle after a hole dropped while behind says it (``extra``)
+                summary["missing_before"] = event.hole
+            self.on_cycle(summary, lambda: losses_of(result, names), engine_figure=lambda: figure_of(result))
         for alert in event.alerts:
             self.on_alert(alert)
         if event.baseline is not None:

@@ -217,9 +217,9 @@ def test_file_is_standard_mcap_with_self_contained_protobuf_schemas(tmp_path: Pa
         decoded = list(reader.iter_decoded_messages())
         names = {m.name for m in reader.iter_metadata()}
     assert names == {ms.META_ENGINE, ms.META_ACQUISITION}
-    # every message but the second wheel's (a log of one wheel has none)
+    # every message but the second wheel's (a log of one wheel has none) and the restart marks (a recording's)
     assert {d.schema.name for d in decoded} == {f"frictionwatch.{n}" for n in ms.MESSAGES} - {
-        "frictionwatch.FreeEndToothBatch"}
+        "frictionwatch.FreeEndToothBatch", "frictionwatch.StreamRestart"}
     assert {d.channel.topic for d in decoded} == {"teeth", "cam", "pressure", "pressure_frames", "load"}
     teeth = np.concatenate([np.array(d.decoded_message.ticks) for d in decoded if d.channel.topic == "teeth"])
     np.testing.assert_array_equal(teeth, np.concatenate([r.ticks for r in records if isinstance(r, ToothBatch)]))

@@ -17,7 +17,8 @@ from google.protobuf import descriptor_pb2
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "replay-format.md"
 F = descriptor_pb2.FieldDescriptorProto
-PROTO_TYPES = {"int64": F.TYPE_INT64, "uint32": F.TYPE_UINT32, "double": F.TYPE_DOUBLE, "sint32": F.TYPE_SINT32}
+PROTO_TYPES = {"int64": F.TYPE_INT64, "uint32": F.TYPE_UINT32, "double": F.TYPE_DOUBLE, "sint32": F.TYPE_SINT32,
+               "string": F.TYPE_STRING}
 
 
 def blocks(language: str) -> list[str]:

@@ -15,7 +15,9 @@ from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.core.types import FreeEndToothBatch, WheelInfo
 from frictionwatch.drivers.assembly import CycleAssembler, TwoWheelAssembler
+from frictionwatch.drivers.source import StreamRestart
 from frictionwatch.service.pipeline import assembled_cycles, cycle_assembler
+from frictionwatch.service.record_merge import record_key
 from numpy.testing import assert_allclose, assert_array_equal
 
 from tests.core.test_second_wheel_sim import k9k_with_wheel
@@ -107,3 +109,28 @@ def test_without_a_stated_second_wheel_its_records_are_ignored(run):
     assert asm.stats["second_wheel_ignored"] > 0
     with pytest.raises(ValueError, match="without a missing-tooth gap"):
         TwoWheelAssembler(replace(sim.info, second_wheel=WheelInfo(36, 0, 0.0)), spec.n_cyl, spec.firing_angles)
+
+
+def test_a_hole_in_the_second_wheels_source_restarts_its_cut_only(run):
+    """A live session that dropped a stretch of a source giving the second wheel's edges alone (its own channel)
+    marks it ``assembly="second_wheel"`` (service/live.py): the flywheel's cycles go on, numbered as without the
+    hole; those whose free-end edges went are flagged, and the fresh cut syncs again after it (design note 124)."""
+    spec, sim = run
+    hz = spec.sensors.tick_hz
+    t1, t2 = 0.2 * hz, 0.33 * hz  # ~2 cycles at 2000 rpm
+    gone = [r for r in sim.records if isinstance(r, FreeEndToothBatch) and t1 <= r.ticks[-1] <= t2]
+    mark = StreamRestart(int(max(r.ticks[-1] for r in gone)) + 1, "dropped_while_behind",
+                         dropped_from_ticks=int(t1), dropped_records=len(gone), assembly="second_wheel")
+    records = [r for r in sim.records if not any(r is g for g in gone)]
+    at = next(i for i, r in enumerate(records) if record_key(r) > mark.ticks)
+    records.insert(at, mark)
+    cycles, skipped = assembled_cycles(spec, sim.info, records)
+    full, _ = assembled_cycles(spec, sim.info, sim.records)
+    assert [c.index for c in cycles] == [c.index for c in full] and not skipped
+    lost = [c for c in cycles if c.wheel2 is None]
+    assert lost and all("no_second_wheel" in c.flags for c in lost)
+    assert all(c.tooth_ticks[-1] > t1 and c.tooth_ticks[0] < t2 + 0.07 * hz for c in lost)  # the hole's, at most
+    assert cycles[-1].wheel2 is not None  # synced again after it
+    # the same stretch marked as the flywheel's (a restart of the whole assembly) costs flywheel cycles too
+    whole = [replace(r, assembly="all") if r is mark else r for r in records]
+    assert len(assembled_cycles(spec, sim.info, whole)[0]) < len(cycles)

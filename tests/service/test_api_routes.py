@@ -113,7 +113,8 @@ def test_losses_over_a_window(served) -> None:
     doc = client.get("/api/v1/engines/demo-a/losses", params={"window_cycles": 10}).json()
     results = a.session.results[-10:]
     assert doc["window"] == {"first_cycle": results[0].index, "last_cycle": results[-1].index, "cycles": 10,
-                             "cycles_left_out": 0, "left_out": None}
+                             "cycles_left_out": 0, "left_out": None, "cycles_missing": 0, "cycles_dropped": 0,
+                             "missing": None}
     shown = 0
     for c in doc["cylinders"]:
         cyls = [r.to_json(smoothed=False)["cylinders"][c["cylinder"] - 1] for r in results]

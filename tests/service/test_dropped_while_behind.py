@@ -22,9 +22,11 @@ import numpy as np
 import pytest
 from frictionwatch.drivers.errors import EndOfStream
 from frictionwatch.drivers.logs.mcap_replay import McapSource
+from frictionwatch.drivers.logs.recorder import Recorder
 from frictionwatch.drivers.source import Source, StreamRestart
+from frictionwatch.service.cmd_analyze import summary
 from frictionwatch.service.live import DROPPED_WHILE_BEHIND, LiveSession
-from frictionwatch.service.pipeline import assembled_cycles, resolve_model
+from frictionwatch.service.pipeline import analyze_log, assembled_cycles, resolve_model
 from frictionwatch.service.record_merge import record_key
 
 from tests.service.serve_helpers import DEMO
@@ -80,7 +82,7 @@ def demo_passes():
     return records, src.info, src.engine_toml
 
 
-def test_a_stretch_dropped_while_behind_is_counted_as_dropped_not_as_a_data_gap(demo_passes):
+def test_a_stretch_dropped_while_behind_is_counted_as_dropped_not_as_a_data_gap(demo_passes, tmp_path):
     records, info, toml = demo_passes
     # the first half second of the log (~6 cycles), nothing more until the first result, then the rest as fast as
     # the session takes it
@@ -94,7 +96,9 @@ def test_a_stretch_dropped_while_behind_is_counted_as_dropped_not_as_a_data_gap(
             src.go.set()
             assert src.given.wait(30.0)
 
-    live = LiveSession(model, info, {"log": src}, max_queue_s=MAX_QUEUE_S, warmup_s=0.0, on_result=on_result)
+    recorder = Recorder(tmp_path / "rec", toml, info)
+    live = LiveSession(model, info, {"log": src}, max_queue_s=MAX_QUEUE_S, warmup_s=0.0, on_result=on_result,
+                       recorder=recorder)
     try:
         assert live.wait_ended(60.0)
     finally:
@@ -115,6 +119,30 @@ def test_a_stretch_dropped_while_behind_is_counted_as_dropped_not_as_a_data_gap(
     after = [r for r in results if r.index > held[0]]
     assert after and "no_previous_cycle" in after[0].flags
     assert after[0].t_start * info.tick_hz - record_key(records[0]) > 0.9 * lag.dropped_s * info.tick_hz
+    # its index jumps over the cycles the engine turned in the hole (design note 124): the index the same cycle has
+    # when nothing is dropped, seams included (each seam's two part cycles counted as the hole's edges count them)
+    whole, _ = assembled_cycles(model, info, records)
+    same = min(whole, key=lambda c: abs(c.tooth_ticks[0] - after[0].t_start * info.tick_hz))
+    assert abs(same.tooth_ticks[0] - after[0].t_start * info.tick_hz) < 0.01 * info.tick_hz
+    assert abs(after[0].index - same.index) <= PASSES, (after[0].index, same.index)
+    (hole,) = live.analysis().holes
+    assert hole["first_cycle"] == last_before(results, after[0]).index + 1 and hole["last_cycle"] == after[0].index - 1
+    assert hole["cycles"] > 0.9 * hole["dropped_cycles"] > 0.9 * 2 * 40  # two whole passes and more went
+    assert hole["dropped_records"] == lag.dropped_records and hole["restarted"] == "all"
+
+    # the session's black-box recording says the hole as the live run did: no data gap, one hole, the same cycles
+    (rec,) = recorder.files
+    again = analyze_log(rec)
+    assert dict(again.skipped) == {}, again.skipped
+    assert again.restarts == {DROPPED_WHILE_BEHIND: 1}
+    assert again.holes == live.analysis().holes
+    assert [r.index for r in again.results] == [r.index for r in results]
+    (gap,) = summary(again)["data_gaps"]
+    assert gap["cause"] == DROPPED_WHILE_BEHIND and gap["after_cycle"] == hole["first_cycle"] - 1
+
+
+def last_before(results, result):
+    return max((r for r in results if r.index < result.index), key=lambda r: r.index)
 
 
 def _cut_mid_cycle(demo_passes) -> tuple[list, object, str | None]:
@@ -156,3 +184,19 @@ def test_the_stop_line_says_dropped_once_and_seams_apart():
         "(restarts, nothing lost)")
     quiet = SimpleNamespace(engine_id="e", cycles_ok=7, skipped={}, restarts={}, backlog=lambda: {"dropped_records": 0})
     assert stop_summary(quiet) == "frictionwatch serve: stopped e: 7 cycles analysed"
+
+
+def test_the_stop_line_names_the_cycles_its_holes_left_out():
+    from types import SimpleNamespace
+
+    from frictionwatch.service.serve import SPANS_SAID, stop_summary
+
+    lag = {"dropped_records": 3432, "dropped_s": 14.7, "dropped_cycles": 137.4}
+    hole = lambda a, b: {"first_cycle": a, "last_cycle": b}  # noqa: E731
+    svc = SimpleNamespace(engine_id="e", cycles_ok=1688, skipped={}, backlog=lambda: lag, restarts={},
+                          holes=[hole(26, 33), hole(36, 45), {"first_cycle": None, "last_cycle": None}])
+    assert stop_summary(svc) == ("frictionwatch serve: stopped e: 1688 cycles analysed; dropped while the analysis "
+                                 "was behind: ~137 cycles, 14.7 s of acquisition (3432 records), not numbered: "
+                                 "cycles 26-33, 36-45")
+    svc.holes = [hole(10 * i, 10 * i + 1) for i in range(SPANS_SAID + 3)]
+    assert stop_summary(svc).endswith("cycles 0-1, 10-11, 20-21, 30-31, 40-41, 50-51, 60-61, 70-71 and 3 more")

@@ -43,7 +43,7 @@ export function renderLosses(losses, summary) {
   const span = w && isNum(w.first_cycle) ? `cycles ${w.first_cycle}–${w.last_cycle}` : `up to cycle ${losses.cycle_index}`;
   $("losses-window").textContent = !w || !isNum(w.cycles) ? `as of cycle ${losses.cycle_index}`
     : isNum(w.forgetting) ? `smoothed over ${span}: about ${fmt(w.cycles, 0)} effective cycles (forgetting factor ${Number(w.forgetting.toPrecision(6))})`
-      : `${span} (${fmt(w.cycles, 0)} cycles${w.left_out ? `; ${w.left_out}` : ""})`;
+      : `${span} (${fmt(w.cycles, 0)} cycles${w.left_out ? `; ${w.left_out}` : ""}${w.missing ? `; ${w.missing}` : ""})`;
   const body = $("losses-table").tBodies[0];
   body.replaceChildren();
   const notes = new Map();  // reason (its data weight left out: the table has a column for it) -> cylinders
