@@ -220,6 +220,10 @@ class LiveSession:
         self.left_at_stop: tuple[int, float] | None = None  # (records, acquisition s) dropped when the drain ran out
         self._stop = threading.Event()
         self._cond = threading.Condition()  # guards results, pipeline counters and the merge's counters
+        # the recorder's writes (ingest thread) against its close (stop): an ingest thread still running past the
+        # drain must not write into, or race, the file being closed; what it delivers then is counted, not recorded
+        self._recording = threading.Lock()
+        self._recorder_closed = False
         self._readers = [threading.Thread(target=self._read_loop, args=(n, s), name=f"live-read-{n}", daemon=True)
                          for n, s in self.sources.items()]
         self._ingest = threading.Thread(target=self._ingest_loop, name="live-ingest", daemon=True)
@@ -261,7 +265,9 @@ class LiveSession:
             except Exception as exc:  # noqa: BLE001 - a close that fails must not keep the others open
                 log.warning("closing %s: %s", name, exc)
         if self.recorder is not None:
-            self.recorder.close()
+            with self._recording:
+                self.recorder.close()
+                self._recorder_closed = True
         alive = [t.name for t in (*self._readers, self._ingest) if t.is_alive()]
         if alive:
             log.error("live session: threads still running after stop: %s", alive)
@@ -447,11 +453,15 @@ class LiveSession:
         records = [r for _, r in keyed]
         data = [r for r in records if not isinstance(r, StreamRestart)]  # a restart mark: not data (below)
         if self.recorder is not None:
-            for r in records:  # the marks too: a recording says where the stream restarted and what a hole dropped
-                try:
-                    self.recorder.write(r)
-                except OSError as exc:  # disk full, folder gone: the black box fails, the monitor goes on
-                    self._error("recorder", exc)
+            with self._recording:
+                if self._recorder_closed:  # delivered after stop closed the recorder (its drain ran out)
+                    self.errors["not_recorded_after_stop"] += len(records)
+                else:
+                    for r in records:  # the marks too: a recording says where the stream restarted, what a hole lost
+                        try:
+                            self.recorder.write(r)
+                        except OSError as exc:  # disk full, folder gone: the black box fails, the monitor goes on
+                            self._error("recorder", exc)
         if self.on_records is not None and data:
             keys = ([k for k, r in keyed if not isinstance(r, StreamRestart)] if len(data) < len(records) else
                     [k for k, _ in keyed])

@@ -200,3 +200,29 @@ def test_the_stop_line_names_the_cycles_its_holes_left_out():
                                  "cycles 26-33, 36-45")
     svc.holes = [hole(10 * i, 10 * i + 1) for i in range(SPANS_SAID + 3)]
     assert stop_summary(svc).endswith("cycles 0-1, 10-11, 20-21, 30-31, 40-41, 50-51, 60-61, 70-71 and 3 more")
+
+
+def test_an_ingest_thread_past_the_drain_counts_what_it_could_not_record(demo_passes, tmp_path, monkeypatch):
+    """A stop whose drain runs out while the ingest thread is still busy (here: held in the first result's callback)
+    closes the recorder; what that thread delivers afterwards is counted as not recorded, never written into the
+    closed recording (before: "write to a closed Recorder" killed the thread)."""
+    records, info, toml = demo_passes
+    crashed = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: crashed.append(args.exc_value))
+    src = ListSource(records, info, toml, ends=True, speed=None)
+    reached, release = threading.Event(), threading.Event()
+
+    def on_result(result) -> None:
+        if not reached.is_set():
+            reached.set()
+            release.wait(30.0)
+
+    live = LiveSession(resolve_model(toml, None, DEMO.name, info), info, {"log": src}, warmup_s=0.0,
+                       on_result=on_result, recorder=Recorder(tmp_path / "rec", toml, info))
+    assert reached.wait(600.0)  # a cold numba cache compiles the monitor first
+    live.stop(timeout=0.0)  # the drain runs out at once: the ingest thread is still held
+    release.set()
+    for thread in live.threads:
+        thread.join(30.0)
+    assert crashed == []
+    assert live.errors["not_recorded_after_stop"] > 0, live.errors
