@@ -119,17 +119,10 @@ def healthy_gap(res: Residuals, scale: np.ndarray) -> dict:
     order 0.5, the single cylinder's firing order: gap 20.7 against 4.2 here, the healthy log's 2.7). ``orders``:
     the engine orders that carry it, each whose own coherent amplitude (whitened) exceeds the whole healthy gap (else
     the largest). ``localise`` adds ``firing``: which of them are firing orders (multiples of n_cyl / 2), where the
-    floor is widest.
-    Each order's coherent power is net of what the in-band tooth pattern's unconverged estimate puts there
-    (``pattern_sigma_rpm``, whitened), as it is net of the noise's: the pattern's error is in every cycle's mean, so
-    a healthy log's expected mean power at the order is the model's error, the noise's variance over N and the
-    pattern's variance (design note 122; note 118 put the same sigma into the order table). Subtracted from the
-    order's own power, not added to the healthy gap: added, genset-v20's orders 9-10 (pattern sigma 3.5-4.5x the
-    whole healthy gap there) would widen the scale every other order is judged against."""
+    floor is widest."""
     m = res.harmonics.shape[1]
     terms = coherent_terms(res, scale)[:2 * m]
-    pattern = (pattern_sigma_rpm(res) / RPM_PER_RAD_S) ** 2 / scale[:m] ** 2  # Re and Im share the order's scale
-    per_order = np.maximum(terms[:m] + terms[m:] - pattern, 0.0)
+    per_order = np.maximum(terms[:m] + terms[m:], 0.0)
     speed = float(np.sqrt(per_order.sum()))
     normal = float(np.sqrt(np.sum(feature_floor(res, scale)[:2 * m] ** 2)))
     idx = np.flatnonzero(np.sqrt(per_order) > normal)

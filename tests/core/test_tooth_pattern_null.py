@@ -121,34 +121,3 @@ def test_a_residual_within_the_tooth_patterns_uncertainty_is_said_not_named():
     bare = found(None)
     assert bare.outcome == "unexplained" and bare.within_pattern == []
     assert "engine orders 11" in bare.verdict() and "tooth pattern" not in bare.verdict()
-
-
-def test_the_healthy_gap_counts_an_orders_power_net_of_the_tooth_patterns_spread():
-    """features.healthy_gap (design note 122): each order's coherent power less the pattern's variance there (whitened
-    as the order is), as the noise's variance over N is taken off. A residual at engine order 11 (harmonic 22) beside
-    one at order 10.5: with no spread the gap carries both; with a spread of 0.6 of order 11's amplitude, 0.64 of
-    its power; with a spread as large as it, none of it, the gap then order 10.5's alone; a spread at an order with
-    no residual takes nothing from the others (each order's net power is floored at 0)."""
-    from frictionwatch.core.discrepancy.features import feature_floor, healthy_gap, noise_scale
-
-    n, m, k, h = 400, 24, 21, 20  # harmonics 22 and 21: engine orders 11 and 10.5
-    a_k, a_h, noise = 4e-3, 2e-3, 2.6e-3  # rad/s
-    res = _coherent_order(n, m, k, a_k, noise, seed=5)
-    res = dataclasses.replace(res, harmonics=res.harmonics + np.eye(m)[h] * a_h * np.exp(-0.4j),
-                              measured=np.full((n, m), 0.05))
-    scale = noise_scale(res)
-    normal = float(np.sqrt(np.sum(feature_floor(res, scale)[:2 * m] ** 2)))
-    s = scale[k]  # Re and Im of one order share their scale
-
-    def ratio(share: float, at: int = k) -> dict:
-        spread = np.zeros((n, m))
-        spread[:, at] = share * a_k * np.linspace(1.5, 0.5, n)  # its mean over the cycles: share x a_k
-        return healthy_gap(dataclasses.replace(res, pattern_sigma=spread), scale)
-
-    bare = healthy_gap(res, scale)
-    assert_allclose(bare["ratio"], np.hypot(a_k, a_h) / s / normal, rtol=0.05)
-    assert_allclose(ratio(0.6)["ratio"], np.hypot(0.8 * a_k, a_h) / s / normal, rtol=0.05)
-    covered = ratio(1.2)
-    assert_allclose(covered["ratio"], a_h / s / normal, rtol=0.08)
-    assert covered["orders"] == [10.5]
-    assert_allclose(ratio(3.0, at=5)["ratio"], bare["ratio"], rtol=1e-12)
