@@ -76,12 +76,14 @@ def held_out(engine: str, rpm: float, load: float, seed: int, effects=()):
     return spec, res.take(np.arange(n) < n // 2), res.take(np.arange(n) >= n // 2)
 
 
-def one(label: str, engine: str, rpm: float, load: float, seed: int, effects=()) -> tuple[float, ...]:
+def one(label: str, engine: str, rpm: float, load: float, seed: int, effects=()) -> tuple:
     """Prints the log's line; returns the largest (share of the largest harmonic among small orders, share of its own
-    amplitude among the others) of the coherent residual beyond 4 sigma, the held-out mean balance residual's
-    size relative to the friction the balance measured, and the mean over the speed features and the balance
-    feature of the noise-corrected coherent power relative to the floor's (core.discrepancy.features.feature_floor
-    at FLOOR_RMS 1): what the rms model error is of the floor."""
+    amplitude among the others) of the coherent residual beyond 4 sigma (the order table's sigma: the noise's and
+    the tooth pattern's, design note 118), the held-out mean balance residual's size relative to the friction the
+    balance measured, the mean over the speed features and the balance feature of the noise-corrected coherent power
+    relative to the floor's (core.discrepancy.features.feature_floor at FLOOR_RMS 1): what the rms model error is of
+    the floor, the speed gap's ratio (``healthy_gap``) and the held-out residual with its whitening (``speed_power``
+    takes the speed's figure again against other floors)."""
     spec, train, test = held_out(engine, rpm, load, seed, effects)
     scale = noise_scale(train)
     loc = localise(test, spec, scale)
@@ -103,7 +105,16 @@ def one(label: str, engine: str, rpm: float, load: float, seed: int, effects=())
           flush=True)
     return (max((f for _, f, _, small in beyond if small), default=0.0),
             max((g for _, _, g, small in beyond if not small), default=0.0), abs(bal["mean_nm"]) / friction,
-            float(np.mean(power[:-1])), float(power[-1]), hg["ratio"])
+            float(np.mean(power[:-1])), float(power[-1]), hg["ratio"], (test, scale))
+
+
+def speed_power(held: tuple, null: tuple[float, float]) -> float:
+    """The mean over the speed features of a held-out residual's noise-corrected coherent power over its floor's at
+    FLOOR_RMS 1, the floor taken at ``null`` (NULL_OWN, NULL_FLOOR): FLOOR_RMS_SPEED's figure against the floors
+    the same run writes (against the floors in force it would be a fraction of numbers it replaces)."""
+    test, scale = held
+    floor = feature_floor(test, scale, rms=(1.0, 1.0), null=null)
+    return float(np.mean(coherent_terms(test, scale)[:-1] / (floor[:-1] ** 2 + 1e-300)))
 
 
 def tuned_records(small: float, big: float, bal: float, speed_rms: float, bal_rms: float,
@@ -113,7 +124,7 @@ def tuned_records(small: float, big: float, bal: float, speed_rms: float, bal_rm
     on = tuple(f"{e} {r:g} rpm {ld:g} seed {s}" for e, r, ld, s in TUNE)
     by = "python -m bench.discrepancy_null --tune --write" + "".join(f" --only {n}" for n in only)
     day = date.today().isoformat()
-    largest = "the largest healthy held-out coherent residual beyond 4 sigma"
+    largest = "the largest healthy held-out coherent residual beyond 4 sigma (noise and tooth pattern)"
     figures = {
         "NULL_OWN": (MARGIN * big, f"{largest} among the orders at least a tenth of the largest harmonic: {big:.4f} "
                                    f"of its own amplitude, x {MARGIN:g}, rounded up"),
@@ -122,7 +133,8 @@ def tuned_records(small: float, big: float, bal: float, speed_rms: float, bal_rm
         "NULL_BALANCE": (MARGIN * bal, f"the largest healthy held-out |mean balance residual| over the measured "
                                        f"friction: {bal:.4f} (noise included), x {MARGIN:g}, rounded up"),
         "FLOOR_RMS_SPEED": (speed_rms, f"the rms over the tuning logs and speed features of the noise-corrected "
-                                       f"coherent residual over its floor: {speed_rms:.4f}, rounded up"),
+                                       f"coherent residual over its floor (NULL_OWN, NULL_FLOOR of the same run): "
+                                       f"{speed_rms:.4f}, rounded up"),
         "FLOOR_RMS_BALANCE": (bal_rms, f"the same for the balance feature (its floor NULL_BALANCE x the measured "
                                        f"friction): {bal_rms:.4f}, rounded up (0: below the noise)"),
     }
@@ -165,7 +177,7 @@ def main() -> None:
     ap.add_argument("--tune-kinetic", action="store_true", help="NULL_KINETIC alone, from healthy two-point logs "
                     "(bench.discrepancy_balance_points.balance_across_points on its BALANCE_TUNE_SEEDS; with --write: only it is "
                     "written)")
-    ap.add_argument("--only", nargs="+", default=(), metavar="NAME",
+    ap.add_argument("--only", nargs="+", action="extend", default=[], metavar="NAME",
                     help="with --tune --write: write only these of its records (e.g. FLOOR_RMS_BALANCE)")
     args = ap.parse_args()
     if args.tune_kinetic:
@@ -188,9 +200,13 @@ def main() -> None:
     if args.tune:
         worst = [one(f"tune {e} {r:g} rpm {ld:g} seed {s}", e, r, ld, s) for e, r, ld, s in TUNE]
         small, big, bal = (max(w[i] for w in worst) for i in range(3))
-        speed_rms, bal_rms = (float(np.sqrt(max(np.mean([w[i] for w in worst]), 0.0))) for i in (3, 4))
-        print(f"rms healthy coherent residual over the tuning logs, of its floor: speed {speed_rms:.3f}, balance "
-              f"{bal_rms:.3f} -> FLOOR_RMS")
+        null = (round_up(MARGIN * big), round_up(MARGIN * small))
+        in_force = float(np.sqrt(max(np.mean([w[3] for w in worst]), 0.0)))
+        speed_rms = float(np.sqrt(max(np.mean([speed_power(w[6], null) for w in worst]), 0.0)))
+        bal_rms = float(np.sqrt(max(np.mean([w[4] for w in worst]), 0.0)))
+        print(f"rms healthy coherent residual over the tuning logs, of its floor: speed {speed_rms:.4f} (of the "
+              f"floors NULL_OWN {null[0]:g}, NULL_FLOOR {null[1]:g} this run finds; {in_force:.4f} of those in force), "
+              f"balance {bal_rms:.4f} -> FLOOR_RMS")
         print(f"largest healthy residual beyond 4 sigma: small orders {small:.4f} of the largest harmonic -> "
               f"NULL_FLOOR {MARGIN * small:.4f}; large orders {big:.4f} of their own -> NULL_OWN {MARGIN * big:.4f}"
               f"; balance {bal:.4f} of the friction -> NULL_BALANCE {MARGIN * bal:.4f} (margin {MARGIN:g})")

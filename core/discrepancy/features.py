@@ -154,27 +154,31 @@ def _point_rms(res: Residuals, floor_of) -> np.ndarray:
     return np.sqrt(sum((i.size / n) * floor_of(i) ** 2 for i in parts))
 
 
-def speed_floor_rpm(res: Residuals) -> np.ndarray:
+def speed_floor_rpm(res: Residuals, null: tuple[float, float] | None = None) -> np.ndarray:
     """(M,) the model-error floor of a coherent speed residual at each engine order [rpm]: NULL_OWN x the mean measured
     amplitude there + NULL_FLOOR x the largest (zeros where the residuals do not carry the measured speed); over
-    several operating points each point's own, combined by ``_point_rms``."""
+    several operating points each point's own, combined by ``_point_rms``. ``null``: (own, floor) in their place (the
+    tuning bench's, which states the floors it is about to write)."""
     m = res.harmonics.shape[1]
     if res.measured is None or not res.measured.size:
         return np.zeros(m)
+    own, largest = (NULL_OWN, NULL_FLOOR) if null is None else null
 
     def floor_of(i: np.ndarray) -> np.ndarray:
         mean = res.measured[i].mean(axis=0) * RPM_PER_RAD_S
-        return NULL_OWN * mean + NULL_FLOOR * float(mean.max(initial=0.0))
+        return own * mean + largest * float(mean.max(initial=0.0))
 
     return _point_rms(res, floor_of)
 
 
-def feature_floor(res: Residuals, scale: np.ndarray, rms: tuple[float, float] = FLOOR_RMS) -> np.ndarray:
+def feature_floor(res: Residuals, scale: np.ndarray, rms: tuple[float, float] = FLOOR_RMS,
+                  null: tuple[float, float] | None = None) -> np.ndarray:
     """(F,) the rms model error of each whitened feature (Residuals.features / scale), ``rms`` (speed, balance) of
     the floor: a coherent error of the floor's size at an unknown phase puts floor/sqrt(2) into each of Re and Im
     of a speed harmonic (speed_floor_rpm); the balance feature's floor is NULL_BALANCE x the measured friction. What
-    a fitted parameter's sigma cannot average away with more cycles (core.discrepancy.fit.parameter_sigma)."""
-    per_component = rms[0] * speed_floor_rpm(res) / RPM_PER_RAD_S / np.sqrt(2.0)
+    a fitted parameter's sigma cannot average away with more cycles (core.discrepancy.fit.parameter_sigma). ``null``:
+    the speed floor's (NULL_OWN, NULL_FLOOR) in their place (``speed_floor_rpm``)."""
+    per_component = rms[0] * speed_floor_rpm(res, null) / RPM_PER_RAD_S / np.sqrt(2.0)
     return np.concatenate([per_component, per_component, [rms[1] * balance_floor_nm(res)]]) / scale
 
 

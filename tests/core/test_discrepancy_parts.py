@@ -69,7 +69,14 @@ def test_a_coherent_residual_within_the_model_error_floor_is_not_significant():
     A residual of many sigmas but inside it is the monitor's model, not a missing effect; above it, significant."""
     import dataclasses
 
-    from frictionwatch.core.discrepancy.features import NULL_FLOOR, NULL_OWN, RPM_PER_RAD_S, order_table
+    from frictionwatch.core.discrepancy.features import (
+        NULL_FLOOR,
+        NULL_OWN,
+        RPM_PER_RAD_S,
+        feature_floor,
+        order_table,
+        speed_floor_rpm,
+    )
 
     m, n = 8, 400
     measured = np.full((n, m), 0.05)
@@ -85,6 +92,12 @@ def test_a_coherent_residual_within_the_model_error_floor_is_not_significant():
     assert [o["order"] for o in table if o["significant"]] == [3.0]
     without = dataclasses.replace(res, measured=None)  # no measured scale: the sigma test alone
     assert {o["order"] for o in order_table(without) if o["significant"]} == {2.0, 3.0}
+    # the floors a tuning run states in their place (bench.discrepancy_null's FLOOR_RMS_SPEED, design note 122)
+    np.testing.assert_allclose(speed_floor_rpm(res, null=(0.02, 0.003)),
+                               (0.02 * measured[0] + 0.003 * 10.0) * RPM_PER_RAD_S, rtol=1e-12)
+    np.testing.assert_allclose(feature_floor(res, noise_scale(res), rms=(0.5, 0.0), null=(0.02, 0.003))[:m],
+                               0.5 * (0.02 * measured[0] + 0.003 * 10.0) / np.sqrt(2.0) / noise_scale(res)[:m],
+                               rtol=1e-12)
 
 
 def test_the_pressures_tdc_reading_proposes_tdc_candidates():
