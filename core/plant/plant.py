@@ -49,6 +49,7 @@ from numba.core.errors import NumbaExperimentalFeatureWarning
 warnings.filterwarnings("ignore", message="First-class function type", category=NumbaExperimentalFeatureWarning)
 
 NQ_GLOBAL = 4
+N_FQ = 3  # the cylinders' node quantities (cylinder_forcing): torque, inertia, half its derivative
 # scalar layout ``sc``
 (S_R, S_L, S_E, S_AREA, S_PCC, S_MREC, S_VARJ, S_FLY, S_LOAD, S_WHEEL_OFF, S_CAM, S_PPERIOD, S_T0OUT, S_LPERIOD,
  S_GRID, S_CMIN, S_H, S_QPERKG, S_NODE2, S_NSC) = range(20)
@@ -217,8 +218,9 @@ def _load_torque(t, th_l, om_l, lp):
 
 @numba.njit(**BORROWING)
 def cylinder_forcing(th, om, model, w, fq, pw):
-    """What the cylinders put on the shaft line at (th, om): per node ``fq`` (3, n) = (gas minus friction torque
-    [N m], inertia [kg m^2] = rotating + sum m_rec x'^2, half its angle derivative sum m_rec x' x'' [kg m^2]), and
+    """What the cylinders put on the shaft line at (th, om): per node ``fq`` (N_FQ, n) = (gas minus friction
+    torque [N m], inertia [kg m^2] = rotating + sum m_rec x'^2, half its angle derivative sum m_rec x' x'' [kg m^2]),
+    and
     the per-cylinder powers pw[:z nq] (gas, each loss term, extra friction, each x its throw's speed) [W]; w =
     ``work_arrays(z, L)``. This is the simulator's costly part (per cylinder: a pressure lookup, a sincos, the
     library's kernels); the shaft line's own arithmetic is ``chain_accel``."""
@@ -255,7 +257,7 @@ def cylinder_forcing(th, om, model, w, fq, pw):
 @numba.njit(**BORROWING)
 def chain_accel(t, th, om, model, fq, acc, gp):
     """Node accelerations ``acc`` [rad/s^2] at (t, th, om) of the shaft line (its sections' springs and dampers, the
-    load) under the cylinders' node quantities ``fq`` (3, n) (``cylinder_forcing``'s, or their interpolation in
+    load) under the cylinders' node quantities ``fq`` (N_FQ, n) (``cylinder_forcing``'s, or their interpolation in
     time), each throw by its Lagrange equation J alpha + 1/2 J' omega^2 = torque; the global powers into gp (4,):
     load power T_L omega_L, relative-damper power, T_L, theta_L - Omega_g t."""
     inertia, stiff, damp, tq, _jv, _hdj = model.nodes
@@ -287,7 +289,7 @@ def plant_rhs(t, th, om, model, w, acc, pw):
     """Angular accelerations ``acc`` [rad/s^2] and integrand powers ``pw`` (per cylinder, then the NQ_GLOBAL
     globals) at (t, th, om) of the plant ``model`` (PlantArrays): ``cylinder_forcing`` then ``chain_accel``, as the
     integrator composes them; w = ``work_arrays(z, L)``."""
-    fq = np.zeros((3, th.shape[0]))
+    fq = np.zeros((N_FQ, th.shape[0]))
     gp = np.zeros(NQ_GLOBAL)
     cylinder_forcing(th, om, model, w, fq, pw)
     chain_accel(t, th, om, model, fq, acc, gp)

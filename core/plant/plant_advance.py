@@ -45,6 +45,7 @@ from frictionwatch.core.plant.plant import (
     I_NEXT_LOAD,
     I_NEXT_SAMPLE,
     I_STATUS,
+    N_FQ,
     NQ_GLOBAL,
     OP_OMEGA,
     S_CAM,
@@ -115,19 +116,18 @@ def full_buffer(ist, outs, two_wheels):
 
 
 @numba.njit(**BORROWING)
-def step_events(model, op, edges, outs, ist, state, end, quad, w, scratch):
+def step_events(model, op, edges, outs, ist, state, end, quad):
     """Record the events inside the step from ``state`` (th, om, acc, cum, pw, pmax, [t, ..]) to ``end`` = (th1,
-    om1, a1, pressures at t + h) into ``outs`` at the counters ``ist``; quad (3, nq): the step's integrals up to
-    fraction s are cum + s quad[0] + s^2 quad[1] + s^3 quad[2] (their sum at s = 1 goes into quad[0] for the
-    caller); w: ``work_arrays`` (overwritten by the grid's cylinders), scratch (2, n)."""
-    cyl_node, phase, coef, extra, kernels = model.cylinders
+    om1, a1, pressures at t + h) into ``outs`` at the counters ``ist``, all but the 1-deg grid (``grid_*``); quad
+    (3, nq): the step's integrals up to fraction s are cum + s quad[0] + s^2 quad[1] + s^3 quad[2] (their sum at
+    s = 1 goes into quad[0] for the caller)."""
+    cyl_node, phase, coef = model.cylinders[0], model.cylinders[1], model.cylinders[2]
     sc = model.scalars
     traces, slot_cycle, tstep = model.traces
     edge_angle, edge_index, edge_angle2, edge_index2 = edges
-    th, om, acc, cum, pmax, tarr = state[0], state[1], state[2], state[3], state[5], state[6]
-    th1, om1, a1, pres = end
-    o_cyc, o_grid, o_edge, o_cam, o_samp, o_load, o_edge2 = outs
-    ths, oms = scratch[0], scratch[1]
+    th, om, cum, pmax, tarr = state[0], state[1], state[3], state[5], state[6]
+    th1, om1, pres = end[0], end[1], end[3]
+    o_cyc, o_edge, o_cam, o_samp, o_load, o_edge2 = outs[0], outs[2], outs[3], outs[4], outs[5], outs[6]
     z = phase.shape[0]
     nq = cum.shape[0]
     h = sc[S_H]
@@ -155,21 +155,6 @@ def step_events(model, op, edges, outs, ist, state, end, quad, w, scratch):
     cum_new = quad[0]
     for k in range(z):
         pmax[k] = max(pmax[k], pres[k])
-    # 1-deg grid of the flywheel angle: total friction torque and flywheel speed (output phase only)
-    while ist[I_NEXT_GRID] * sc[S_GRID] <= th1[fly]:
-        target = ist[I_NEXT_GRID] * sc[S_GRID]
-        s = crossing(target, h, th[fly], om[fly], th1[fly], om1[fly])
-        _state_at(s, h, th, om, acc, th1, om1, a1, ths, oms)
-        cylinder_terms(ths, oms, sc, cyl_node, phase, model.friction, traces, slot_cycle, tstep, w, kernels)
-        tf = 0.0
-        for k in range(z):
-            tf += friction_torque(k, coef, extra, w[7], extra_ripple(k, extra, w[0]))
-        g = o_grid[ist[I_N_GRID]]
-        g[0] = t + s * h
-        g[1] = tf
-        g[2] = oms[fly]
-        ist[I_N_GRID] += 1
-        ist[I_NEXT_GRID] += 1
     # tooth edges and cam edges on the wheel frame theta_W = theta_F + wheel offset
     off = sc[S_WHEEL_OFF]
     while True:
@@ -228,9 +213,41 @@ def step_events(model, op, edges, outs, ist, state, end, quad, w, scratch):
 
 
 @numba.njit(**BORROWING)
+def grid_points(model, ist, state, end, o_grid, w, scratch):
+    """The 1-deg grid points of the flywheel angle inside the step (output phase only): time, the cylinders' total
+    friction torque evaluated at the point's state on the Hermite, flywheel speed (a parabola in time through the
+    step's ends was tried: up to 0.6 % of the peak off, design note 123); w: ``work_arrays`` (overwritten), scratch
+    (2, n)."""
+    cyl_node, phase, coef, extra, kernels = model.cylinders
+    sc = model.scalars
+    traces, slot_cycle, tstep = model.traces
+    th, om, acc, tarr = state[0], state[1], state[2], state[6]
+    th1, om1, a1 = end[0], end[1], end[2]
+    ths, oms = scratch[0], scratch[1]
+    z = phase.shape[0]
+    h = sc[S_H]
+    t = tarr[0]
+    fly = int(sc[S_FLY])
+    while ist[I_NEXT_GRID] * sc[S_GRID] <= th1[fly]:
+        target = ist[I_NEXT_GRID] * sc[S_GRID]
+        s = crossing(target, h, th[fly], om[fly], th1[fly], om1[fly])
+        _state_at(s, h, th, om, acc, th1, om1, a1, ths, oms)
+        cylinder_terms(ths, oms, sc, cyl_node, phase, model.friction, traces, slot_cycle, tstep, w, kernels)
+        tf = 0.0
+        for k in range(z):
+            tf += friction_torque(k, coef, extra, w[7], extra_ripple(k, extra, w[0]))
+        g = o_grid[ist[I_N_GRID]]
+        g[0] = t + s * h
+        g[1] = tf
+        g[2] = oms[fly]
+        ist[I_N_GRID] += 1
+        ist[I_NEXT_GRID] += 1
+
+
+@numba.njit(**BORROWING)
 def _chain_rk4(t, h, th, om, acc, model, fq, th1, om1, wk, gp):
     """One RK4 step of the shaft line from (th, om) at t, whose acceleration there is ``acc``, under the cylinders'
-    node quantities fq (3, 3, n) at t, t + h/2 and t + h: (th1, om1) at t + h. wk (5, n) work, gp (4,) scratch."""
+    node quantities fq (3, N_FQ, n) at t, t + h/2 and t + h: (th1, om1) at t + h. wk (5, n) work, gp (4,) scratch."""
     n = th.shape[0]
     ths, oms, a2, a3, a4 = wk[0], wk[1], wk[2], wk[3], wk[4]
     for i in range(n):
@@ -261,7 +278,7 @@ def advance(model, firing, edges, state, ist, outs, theta_stop, t_stop):
 
     edges = (wheel edge angles [rad], their tooth index, the second wheel's edge angles [rad] and tooth index, both
     empty without one); state = (th, om, acc, cumulative integrals, powers, pmax, [t, last cycle time], the
-    cylinders' node quantities (2, 3, n) at the last two steps, the powers (nq,) at the step before), updated in
+    cylinders' node quantities (2, N_FQ, n) at the last two steps, the powers (nq,) at the step before), updated in
     place. Writes events into ``outs`` = (cycles, grid, edge, cam, samples, load, second-wheel edge) at the counters
     in ``ist``. The second wheel turns with node ``sc[S_NODE2]``. Returns the status: 0 angle reached, 1 time
     reached, 2 a buffer is full, 3 a pressure lookup failed (bug), 4 state not finite.
@@ -280,10 +297,10 @@ def advance(model, firing, edges, state, ist, outs, theta_stop, t_stop):
     q = np.zeros(8)
     w = (np.zeros(z), np.zeros(z), np.zeros(z), np.zeros((N_FIELDS, z, 1)), np.zeros(z), np.zeros(z), np.zeros(z),
          np.zeros((model.cylinders[2].shape[1], z, 1)))
-    fq = np.zeros((3, 3, n))  # the cylinders' node quantities at t, t + h/2, t + h of the step being made
+    fq = np.zeros((3, N_FQ, n))  # the cylinders' node quantities at t, t + h/2, t + h of the step being made
     fq_prev, fq_now = fq_hist[0], fq_hist[1]
-    th1, om1, a1, wk, scratch = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((5, n)), np.zeros((2, n))
-    pw1, gp, quad = np.zeros(nq), np.zeros(NQ_GLOBAL), np.zeros((3, nq))
+    th1, om1, a1, wk = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((5, n))
+    pw1, gp, quad, scratch = np.zeros(nq), np.zeros(NQ_GLOBAL), np.zeros((3, nq)), np.zeros((2, n))
     ensure_traces(th, model, firing, q)
     if ist[I_STATUS] == 0:  # first call: the cylinders and the derivative at the initial state, no history yet
         cylinder_forcing(th, om, model, w, fq_now, pw)
@@ -302,7 +319,7 @@ def advance(model, firing, edges, state, ist, outs, theta_stop, t_stop):
         if full_buffer(ist, outs, two_wheels):
             return 2
         # ---- predictor: the cylinders' quantities on the line through t - h and t ----
-        for r in range(3):
+        for r in range(N_FQ):
             for i in range(n):
                 fq[0, r, i] = fq_now[r, i]
                 fq[1, r, i] = 1.5 * fq_now[r, i] - 0.5 * fq_prev[r, i]
@@ -312,7 +329,7 @@ def advance(model, firing, edges, state, ist, outs, theta_stop, t_stop):
         ensure_traces(th1, model, firing, q)
         cylinder_forcing(th1, om1, model, w, fq[2], pw1)
         # ---- corrector: their quantities on the parabola through t - h, t, t + h ----
-        for r in range(3):
+        for r in range(N_FQ):
             for i in range(n):
                 fq[1, r, i] = 0.375 * fq[2, r, i] + 0.75 * fq_now[r, i] - 0.125 * fq_prev[r, i]
         _chain_rk4(t, h, th, om, acc, model, fq, th1, om1, wk, gp)
@@ -330,13 +347,15 @@ def advance(model, firing, edges, state, ist, outs, theta_stop, t_stop):
             quad[0, m] = h * pw[m]
             quad[1, m] = 0.25 * h * (pw1[m] - pw_prev[m])
             quad[2, m] = h / 6.0 * (pw1[m] - 2.0 * pw[m] + pw_prev[m])
-        step_events(model, firing.op, edges, outs, ist, state, (th1, om1, a1, pres), quad, w, scratch)
+        end = (th1, om1, a1, pres)
+        step_events(model, firing.op, edges, outs, ist, state, end, quad)
+        grid_points(model, ist, state, end, outs[1], w, scratch)
         # ---- accept the step ----
         for m in range(nq):
             cum[m] = quad[0, m]
             pw_prev[m] = pw[m]
             pw[m] = pw1[m]
-        for r in range(3):
+        for r in range(N_FQ):
             for i in range(n):
                 fq_prev[r, i] = fq_now[r, i]
                 fq_now[r, i] = fq[2, r, i]

@@ -15,6 +15,7 @@ from frictionwatch.core.model.jit import BORROWING
 from frictionwatch.core.model.terms import N_FIELDS
 from frictionwatch.core.plant.plant import (
     I_STATUS,
+    N_FQ,
     NQ_GLOBAL,
     S_FLY,
     S_H,
@@ -22,7 +23,7 @@ from frictionwatch.core.plant.plant import (
     cylinder_forcing,
     ensure_traces,
 )
-from frictionwatch.core.plant.plant_advance import full_buffer, step_events
+from frictionwatch.core.plant.plant_advance import full_buffer, grid_points, step_events
 
 
 @numba.njit(**BORROWING)
@@ -49,7 +50,7 @@ def advance_rk4(model, firing, edges, state, ist, outs, theta_stop, t_stop):
     q = np.zeros(8)
     w = (np.zeros(z), np.zeros(z), np.zeros(z), np.zeros((N_FIELDS, z, 1)), np.zeros(z), np.zeros(z), np.zeros(z),
          np.zeros((model.cylinders[2].shape[1], z, 1)))
-    fq, gp = np.zeros((3, n)), np.zeros(NQ_GLOBAL)
+    fq, gp = np.zeros((N_FQ, n)), np.zeros(NQ_GLOBAL)
     th2, om2, th1, om1, a1, a2, a3, a4 = (np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n),
                                           np.zeros(n), np.zeros(n), np.zeros(n))
     pw2, pw3, pw4, pw1n = np.zeros(nq), np.zeros(nq), np.zeros(nq), np.zeros(nq)
@@ -95,7 +96,9 @@ def advance_rk4(model, firing, edges, state, ist, outs, theta_stop, t_stop):
             quad[0, m] = h / 6.0 * (pw[m] + 2.0 * pw2[m] + 2.0 * pw3[m] + pw4[m])
             quad[1, m] = 0.0
             quad[2, m] = 0.0
-        step_events(model, firing.op, edges, outs, ist, state, (th1, om1, a1, pres), quad, w, scratch)
+        end = (th1, om1, a1, pres)
+        step_events(model, firing.op, edges, outs, ist, state, end, quad)
+        grid_points(model, ist, state, end, outs[1], w, scratch)
         for m in range(nq):
             cum[m] = quad[0, m]
             pw[m] = pw1n[m]

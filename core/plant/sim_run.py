@@ -27,6 +27,7 @@ from frictionwatch.core.plant.plant import (
     I_NEXT_EDGE,
     I_NEXT_EDGE2,
     I_NIST,
+    N_FQ,
     NQ_GLOBAL,
     OP_BETA,
     OP_FUEL,
@@ -108,7 +109,7 @@ class PlantRun:
         # (th, om, acc, cumulative integrals, powers, pmax, [t, last cycle time], the cylinders' node quantities at
         # the last two steps, the powers at the step before: core.plant.plant_advance)
         self.state = (np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(nq), np.zeros(nq), np.zeros(z),
-                      np.array([0.0, -1.0]), np.zeros((2, 3, n)), np.zeros(nq))
+                      np.array([0.0, -1.0]), np.zeros((2, N_FQ, n)), np.zeros(nq))
         self.ist = np.zeros(I_NIST, dtype=np.int64)
         for i in (I_NEXT_EDGE, I_NEXT_CAM, I_NEXT_EDGE2):
             self.ist[i] = FAR

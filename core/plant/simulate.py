@@ -54,7 +54,7 @@ from frictionwatch.core.plant.sim_stream import SETTLE_A_CYCLES, SETTLE_B_CYCLES
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 from scipy.linalg import eigh
 
-STEP_DEG = 0.25  # integrator step at the mean speed (capped by the fastest mode)
+STEP_DEG = 0.5  # integrator step at the mean speed (capped by the fastest mode: 0.5 / w_max); design note 123
 MIN_SLOPE_FRACTION = 0.25  # dyno law slope never below 25 % of the full-load brake torque / omega^s
 
 
