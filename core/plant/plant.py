@@ -1,4 +1,6 @@
-"""Time-domain plant: the torsional chain of physics.md §11 integrated by fixed-step RK4 (numba).
+"""Time-domain plant: the torsional chain of physics.md §11, its right-hand side in two parts (numba): what the
+cylinders put on each node (``cylinder_forcing``, the costly part) and the shaft line's own (``chain_accel``);
+core.plant.plant_advance integrates them (the cylinders once a step, the shaft line by RK4; design note 123).
 
 Conventions (SI, radians inside):
 - Node angles theta_i [rad] are crank angles in cylinder 1's convention (0 = its firing TDC), unwrapped; omega_i [rad/s].
@@ -25,8 +27,9 @@ what makes each cycle's pressure trace, rebuilt per ``advance`` call (its pertur
 between calls). The per-cylinder helpers take the record fields as plain arguments: unpacking a record per cylinder
 and RK4 stage made the integrator ~40 % slower (measured), unpacking once per stage costs nothing measurable.
 
-Integrated alongside the state by the same RK4 weights (so energy closes to the integrator's accuracy), per cylinder
-k (``nq_cyl(L)`` values from k*nq_cyl(L)): gas power T_g omega, the L F_l omega, extra-friction power; then four globals:
+Integrated alongside the state (core.plant.plant_advance: on the parabola in time through three steps' values), per
+cylinder k (``nq_cyl(L)`` values from k*nq_cyl(L)): gas power T_g omega, the L F_l omega, extra-friction power; then
+four globals:
 load power T_L omega_L, relative-damper power sum c_i (omega_i - omega_(i+1))^2, int T_L dt, int (theta_L - Omega_g t) dt.
 """
 
