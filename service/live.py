@@ -44,57 +44,18 @@ from typing import Self
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig
-from frictionwatch.core.types import AcquisitionInfo, FreeEndToothBatch, StreamRecord, ToothBatch
+from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 from frictionwatch.drivers.errors import EndOfStream
 from frictionwatch.drivers.logs.recorder import Recorder
 from frictionwatch.drivers.source import Source, StreamRestart
 from frictionwatch.service.ingest_queue import Dropped, IngestLag, IngestQueue
 from frictionwatch.service.pipeline import EnginePipeline, LogAnalysis, ResultHistory
 from frictionwatch.service.record_merge import Keyed, RecordMerge, record_key
+from frictionwatch.service.stream_holes import batch_contents, edges_to_cycles, hole_mark
 
 log = logging.getLogger(__name__)
 
 _END = object()
-
-
-DROPPED_WHILE_BEHIND = "dropped_while_behind"  # the restart reason where the queue dropped a source's batches
-
-
-def batch_contents(batch: KeyedBatch) -> Counter:
-    """What a batch the queue drops holds (IngestQueue's ``measure``): the flywheel's tooth edges (``teeth``), the
-    second wheel's (``wheel2``), other records (``other``) and restart marks (``marks``)."""
-    held: Counter = Counter()
-    for r in batch.records:
-        kind = type(r)
-        if kind is ToothBatch:
-            held["teeth"] += len(r.ticks)
-        elif kind is FreeEndToothBatch:
-            held["wheel2"] += len(r.ticks)
-        elif kind is StreamRestart:
-            held["marks"] += 1
-        else:
-            held["other"] += 1
-    return held
-
-
-def hole_mark(hole: Dropped, info: AcquisitionInfo) -> tuple[list[StreamRestart], list[float]]:
-    """The restart mark where the queue dropped a run of a source's batches (service/ingest_queue.py): just after
-    the newest tick dropped, so before every record the source still delivers. The pipeline restarts its cycle
-    assembly there, as at a replay's loop seam: the cycle the hole cuts is one of the dropped ones, counted in
-    ``lag().dropped_*``, not a ``data_gap`` of the engine (design note 119). The mark carries the hole: its span,
-    records and the cycles its flywheel edges held (the pipeline numbers on over them, design note 124), and what
-    restarts: the cycle assembly where the flywheel's edges (or a seam's mark) went, the second wheel's cut where only
-    its edges did, nothing where no wheel's did (a pressure or load source of its own)."""
-    held = hole.contents
-    # a restart mark it swallowed (a replay's seam, read alone in its batch) restarts the assembly as the seam would
-    assembly = "all" if held["teeth"] or held["marks"] else "second_wheel" if held["wheel2"] else "none"
-    mark = StreamRestart(ticks=math.floor(hole.last_key) + 1, reason=DROPPED_WHILE_BEHIND,
-                         dropped_from_ticks=math.floor(hole.first_key if hole.after_key is None else
-                                                       min(hole.first_key, hole.after_key + 1)),
-                         dropped_records=max(1, hole.records),
-                         dropped_cycles=held["teeth"] / (2.0 * (info.wheel_teeth - info.wheel_missing)),
-                         assembly=assembly)
-    return [mark], [float(mark.ticks)]
 
 
 class KeyedBatch:
@@ -286,7 +247,7 @@ class LiveSession:
         """The crank cycles the flywheel edges dropped while behind held (edges / edges a cycle: a replay's
         silences not counted, unlike ``lag().dropped_s``); None where no flywheel edge was dropped."""
         edges = self._queue.dropped_contents["teeth"]
-        return edges / (2.0 * (self.info.wheel_teeth - self.info.wheel_missing)) if edges else None
+        return edges_to_cycles(edges, self.info) if edges else None
 
     @property
     def realtime(self) -> bool:

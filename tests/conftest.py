@@ -40,9 +40,11 @@ def _kernels_compiled_once(request):
     worker = getattr(request.config, "workerinput", None)
     if worker is None or kernel_manifest.RECORD:
         return
-    index = int(worker["workerid"].removeprefix("gw"))
-    share = kernel_manifest.compile_share(kernel_manifest.load(), index, int(worker["workercount"]))
-    request.config.workeroutput["kernel_share"] = share
+    kernels = kernel_manifest.load()
+    if kernels:  # none (no manifest, another numba): nothing to do or to say
+        index = int(worker["workerid"].removeprefix("gw"))
+        request.config.workeroutput["kernel_share"] = kernel_manifest.compile_share(kernels, index,
+                                                                                    int(worker["workercount"]))
 
 
 def pytest_sessionfinish(session):

@@ -25,9 +25,10 @@ from frictionwatch.drivers.logs.mcap_replay import McapSource
 from frictionwatch.drivers.logs.recorder import Recorder
 from frictionwatch.drivers.source import Source, StreamRestart
 from frictionwatch.service.cmd_analyze import summary
-from frictionwatch.service.live import DROPPED_WHILE_BEHIND, LiveSession
+from frictionwatch.service.live import LiveSession
 from frictionwatch.service.pipeline import analyze_log, assembled_cycles, resolve_model
 from frictionwatch.service.record_merge import record_key
+from frictionwatch.service.stream_holes import DROPPED_WHILE_BEHIND
 
 from tests.service.serve_helpers import DEMO
 

@@ -18,10 +18,11 @@ from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
 from frictionwatch.drivers.source import StreamRestart
 from frictionwatch.service.api_views import missing_in_window
 from frictionwatch.service.ingest_queue import Dropped
-from frictionwatch.service.live import DROPPED_WHILE_BEHIND, KeyedBatch, batch_contents, hole_mark
+from frictionwatch.service.live import KeyedBatch
 from frictionwatch.service.pipeline import analyze_records, resolve_model
 from frictionwatch.service.record_merge import record_key
 from frictionwatch.service.store.listener import StoreListener
+from frictionwatch.service.stream_holes import DROPPED_WHILE_BEHIND, batch_contents, hole_mark
 
 from tests.service.serve_helpers import DEMO
 
