@@ -158,8 +158,8 @@ class EnginePipeline:
         assembler numbering on from the old one. The partial cycle the old stream ends in is dropped uncounted: at a
         loop seam it is the log's end (``analyze`` counts it once, as ``log_ends_mid_cycle``), not a cycle of the
         engine's run that went missing; counted per pass it would make every loop cost a lost cycle again. Where a
-        live session dropped data while behind (service.stream_holes.DROPPED_WHILE_BEHIND) it is one of the dropped cycles,
-        counted there."""
+        live session dropped data while behind (service.stream_holes.DROPPED_WHILE_BEHIND) it is one of the dropped
+        cycles, counted there."""
         old = self.assembler
         out = self.cut_off()
         self._retired += Counter(old.skipped)

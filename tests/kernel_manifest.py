@@ -77,8 +77,8 @@ def _rows(part: Path) -> list[tuple[str, str, tuple]]:
         while True:
             try:
                 rows.append(pickle.load(f))
-            except (EOFError, pickle.UnpicklingError):  # the end, or a row cut by a run killed mid-write: what came before stands
-                return rows
+            except (EOFError, pickle.UnpicklingError):  # the end, or a row cut by a run killed mid-write
+                return rows  # what came before it stands
 
 
 def merge(parts: list[Path], path: Path = MANIFEST) -> int:
