@@ -45,12 +45,12 @@ from frictionwatch.core.model.engine import load_engine  # noqa: E402
 from frictionwatch.core.model.engine_model import EngineModel  # noqa: E402
 from frictionwatch.core.tuned import Case  # noqa: E402
 
-from bench.bench_discrepancy import ENGINES, cycles_of  # noqa: E402
+from bench.discrepancy_cases import ENGINES, cycles_of  # noqa: E402
 
 CYCLES = 120
 SCALES = (0.8, 1.3, 1.5, 1.7)
 SEEDS = (31, 32, 33)
-# operating points no matrix row runs (bench_discrepancy ENGINES: k9k 1800/0.6, 3000/0.9; maruti 1500/0.5, 4000/0.8)
+# operating points no matrix row runs (discrepancy_cases ENGINES: k9k 1800/0.6, 3000/0.9; maruti 1500/0.5, 4000/0.8)
 # k9k also beside its matrix points (1700, 1900 beside 1800; 2900, 3200 beside 3000), where the bias was seen
 POINTS = {"k9k-4cyl": ((2000.0, 0.5), (2300.0, 0.7), (2700.0, 0.8), (1700.0, 0.6), (1900.0, 0.7), (2900.0, 0.9),
                        (3200.0, 0.8)),

@@ -12,7 +12,7 @@ from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.cmd_discrepancy import assemble
 
-from bench.bench_discrepancy import ENGINES, TWO_POINT_CYCLES, cycles_of, two_point_steps
+from bench.discrepancy_cases import ENGINES, TWO_POINT_CYCLES, cycles_of, two_point_steps
 
 
 def balance_across_points(seeds: tuple[int, ...]) -> dict:

@@ -25,7 +25,7 @@ OUTSIDE = "(not in library)"  # the label mark of a case the workflow has no can
 
 
 def plant_truth(node: str, scale: float) -> tuple:
-    """A hidden truth (as bench_discrepancy._t) that scales one node's inertia in the plant only; not judged on a
+    """A hidden truth (as discrepancy_cases._t) that scales one node's inertia in the plant only; not judged on a
     parameter (nothing in the library can name it)."""
     return (PLANT + "inertia", {"node": node, "scale": scale}, None, None)
 

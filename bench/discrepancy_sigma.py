@@ -4,8 +4,8 @@
     python -m bench.discrepancy_sigma [--engine E ...] [--out FILE] [--write]
     python -m bench.discrepancy_sigma --rows FILE... [--write]     # again from saved --out files
 
-Runs the hidden-effect matrix's judged cases (bench.bench_discrepancy CASES, with a main parameter) on each engine
-at a TUNE operating point and seed that the matrix does not use (its points are bench_discrepancy ENGINES', its
+Runs the hidden-effect matrix's judged cases (bench.discrepancy_cases CASES, with a main parameter) on each engine
+at a TUNE operating point and seed that the matrix does not use (its points are discrepancy_cases ENGINES', its
 seeds 1 and 2), and prints, over the cases named right (a parameter stopped at its bound left out): each
 z = (found - truth) / sigma and the share within 2 sigma. What the fit's sigma (statistics and the model-error floor,
 core.discrepancy.fit.parameter_sigma) leaves out is the effect's own model error, relative to its size: the smallest
@@ -30,7 +30,8 @@ from frictionwatch.core.discrepancy.fit import EFFECT_REL_ERROR  # noqa: E402
 from frictionwatch.core.discrepancy.tuned import TUNED_PATH, Tuned, round_up, write_tuned  # noqa: E402
 from frictionwatch.core.model.effects import EFFECTS  # noqa: E402
 
-from bench.bench_discrepancy import ENGINES, cases_for, matrix  # noqa: E402
+from bench.bench_discrepancy import matrix  # noqa: E402
+from bench.discrepancy_cases import ENGINES, cases_for  # noqa: E402
 
 # one operating point and seed per engine, inside its speed range, none a log of the matrix (ENGINES points x seeds
 # 1-2) nor of bench/discrepancy_null.py (tests/core/test_tuned_provenance.py)

@@ -29,9 +29,9 @@ from frictionwatch.core.discrepancy.residuals import pinned_config, run_model  #
 from frictionwatch.core.model.effects import make_effect  # noqa: E402
 from frictionwatch.core.model.view import reference  # noqa: E402
 
-from bench.bench_discrepancy import ENGINES, cycles_of  # noqa: E402
+from bench.discrepancy_cases import ENGINES, cycles_of  # noqa: E402
 
-# (engine, rpm, load, seed): none of them a matrix log (bench_discrepancy.ENGINES points, seeds 1-2)
+# (engine, rpm, load, seed): none of them a matrix log (discrepancy_cases.ENGINES points, seeds 1-2)
 TUNE = tuple((e, rpm, load, s) for e, pts in (("k9k-4cyl", ((2500.0, 0.8), (1500.0, 0.3))),
                                                 ("maruti-3cyl", ((3000.0, 0.8), (2000.0, 0.3))))
              for rpm, load in pts for s in (3, 4))

@@ -2,7 +2,7 @@
 
     python -m bench.tooth_learner_steps --engine deutz-1cyl --point 1 --seed 2 [--one-point] [--speed-step F]
 
-The log: bench.bench_discrepancy's two-point log at the engine's matrix point ``point`` (its blocks and speed
+The log: bench.discrepancy_cases' two-point log at the engine's matrix point ``point`` (its blocks and speed
 steps), or with --one-point that point alone (160 cycles either way). Only the monitor's tooth step runs
 (core.monitor.teeth.tooth_fit.fit_cycle_teeth with MonitorConfig's learner settings; --speed-step overrides
 tooth_speed_step, ``inf`` turns the gate off). Printed per cycle: the window's mean rpm, its change from the cycle
@@ -25,7 +25,7 @@ from frictionwatch.core.monitor.teeth.tooth_fit import fit_cycle_teeth
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.pipeline import assembled_cycles
 
-from bench.bench_discrepancy import ENGINES, TWO_POINT_CYCLES, two_point_steps
+from bench.discrepancy_cases import ENGINES, TWO_POINT_CYCLES, two_point_steps
 
 
 def out_of_band(spec, x: np.ndarray, orders: int) -> np.ndarray:

@@ -44,7 +44,7 @@ from frictionwatch.core.tuned import (
 )
 from frictionwatch.service.alert_config import ALERT_RECORD, AlertConfig
 
-from bench import bench_discrepancy, discrepancy_null, mismatch_coverage
+from bench import discrepancy_cases, discrepancy_null, mismatch_coverage
 from tests.core import test_mismatch_coverage
 from tests.sim_logs import simulate_log
 
@@ -193,8 +193,8 @@ def validating_points() -> dict[tuple, list[tuple[frozenset[str] | None, str]]]:
     def add(key, names, where):
         out.setdefault(key, []).append((names, where))
 
-    for e, spec in bench_discrepancy.ENGINES.items():
-        for (rpm, load), s in itertools.product(spec["points"], bench_discrepancy.SEEDS):
+    for e, spec in discrepancy_cases.ENGINES.items():
+        for (rpm, load), s in itertools.product(spec["points"], discrepancy_cases.SEEDS):
             add((e, float(rpm), float(load), int(s)), None, "bench.bench_discrepancy matrix")
     for v in discrepancy_null.VALIDATE + discrepancy_null.FAULTS:
         add((v[0], float(v[1]), float(v[2]), int(v[3])), None, "bench.discrepancy_null VALIDATE/FAULTS")
