@@ -342,11 +342,13 @@ def main() -> int:
     ap.add_argument("--table", type=Path, nargs="+", help="print saved --matrix outputs as one markdown table")
     ap.add_argument("--balance-across-points", type=int, nargs="+", metavar="SEED",
                     help="the balance's model error at the points of healthy two-point logs of these seeds "
-                         "(features.NULL_KINETIC's figure; bench.discrepancy_null --tune-kinetic tunes it on BALANCE_TUNE_SEEDS)")
+                         "(features.NULL_KINETIC's figure; bench.discrepancy_null --tune-kinetic tunes it on "
+                         "BALANCE_TUNE_SEEDS)")
     ap.add_argument("--balance-terms", nargs=2, metavar=("ENGINE", "SEED"), help="per cycle of a healthy two-point "
                     "log: the balance residual's terms against the simulator's truth (design note 68)")
     ap.add_argument("--without", action="append", default=[], help="with --balance-terms: a default plant effect off")
-    ap.add_argument("--no-tooth-learner", action="store_true", help="with --balance-terms: MonitorConfig(learn_teeth=False)")
+    ap.add_argument("--no-tooth-learner", action="store_true",
+                    help="with --balance-terms: MonitorConfig(learn_teeth=False)")
     args = ap.parse_args()
     if args.balance_terms or args.balance_across_points:  # (a module of its own: it imports this one's cases)
         from bench.discrepancy_balance_points import balance_across_points, balance_terms, balance_terms_points
