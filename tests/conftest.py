@@ -7,26 +7,18 @@ import os
 
 import pytest
 
-from tests import file_costs, kernel_manifest
+from tests import kernel_manifest
 
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 
 def pytest_collection_modifyitems(config, items):
-    """The test files longest first by their measured cost (tests/file_costs.py), each file's tests kept together
-    and in order: `make test`'s two workers are dealt whole files in collection order (xdist --dist loadfile), so
-    the suite's last files are short ones, not one worker finishing a long file while the other waits. A file the
-    table does not know is dealt with the longest when it holds a test marked ``slow``, else with the shortest."""
-    costs = file_costs.load()
-    longest = max(costs.values(), default=0.0)
+    """The modules holding a test marked ``slow`` are collected first, each module's tests kept together and in
+    order: `make test`'s two workers are dealt whole files in collection order (xdist --dist loadfile), so the
+    suite's last files are short ones, not one worker finishing a 60-second file while the other waits."""
     slow = {item.nodeid.split("::")[0] for item in items if item.get_closest_marker("slow") is not None}
-
-    def cost(item) -> float:
-        path = item.nodeid.split("::")[0]
-        return costs.get(path, longest if path in slow else 0.0)
-
-    items.sort(key=lambda item: -cost(item))  # stable: the order within each file (and among equals) kept
+    items.sort(key=lambda item: item.nodeid.split("::")[0] not in slow)  # stable: the order within each group kept
 
 
 _RECORDER = pytest.StashKey[kernel_manifest.Recorder]()
