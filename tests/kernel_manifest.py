@@ -187,7 +187,7 @@ def compile_share(kernels: list[tuple[str, str, tuple]], index: int, count: int,
         if done is not None:
             (done / str(ready)).touch()
     counts["stale"] += sum(1 for i in range(index, len(kernels), count) if i not in entries)
-    return {**counts, "seconds": round(time.perf_counter() - t0, 1)}
+    return {**counts, "seconds": round(time.perf_counter() - t0, 1), "waited": round(idle, 1)}
 
 
 if __name__ == "__main__":
