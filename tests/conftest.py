@@ -34,17 +34,20 @@ def pytest_configure(config):
 
 
 @pytest.fixture(scope="session", autouse=True)
-def _kernels_compiled_once(request):
+def _kernels_compiled_once(request, tmp_path_factory):
     """Under `make test`'s workers: this worker's share of the suite's numba kernels, before its first test, so the
-    two workers do not each compile every kernel (tests/kernel_manifest.py). Nothing in a single process."""
+    two workers do not each compile every kernel (tests/kernel_manifest.py); each marks what it compiled in the
+    run's temporary folder (the workers' own folders' parent), where the other looks before compiling a kernel that
+    calls it. Nothing in a single process."""
     worker = getattr(request.config, "workerinput", None)
     if worker is None or kernel_manifest.RECORD:
         return
     kernels = kernel_manifest.load()
     if kernels:  # none (no manifest, another numba): nothing to do or to say
         index = int(worker["workerid"].removeprefix("gw"))
-        request.config.workeroutput["kernel_share"] = kernel_manifest.compile_share(kernels, index,
-                                                                                    int(worker["workercount"]))
+        done = tmp_path_factory.getbasetemp().parent / "kernels-compiled"
+        request.config.workeroutput["kernel_share"] = kernel_manifest.compile_share(
+            kernels, index, int(worker["workercount"]), done)
 
 
 def pytest_sessionfinish(session):
@@ -63,4 +66,6 @@ def pytest_testnodedown(node, error):
 def pytest_terminal_summary(terminalreporter, config):
     for worker, share in sorted(config.stash.get(_SHARES, [])):
         terminalreporter.write_line(f"{worker}: {share['compiled']} kernels compiled (or loaded) before its first "
-                                    f"test in {share['seconds']} s; {share['stale']} in the manifest no longer fit")
+                                    f"test in {share['seconds']} s ({share['waited']} s of it waiting for the other's "
+                                    f"callees); {share['at_import']} compiled when imported (explicit signatures), "
+                                    f"{share['stale']} in the manifest no longer fit")

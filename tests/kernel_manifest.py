@@ -114,21 +114,80 @@ def load(path: Path = MANIFEST) -> list[tuple[str, str, tuple]]:
     return doc["kernels"]
 
 
-def compile_share(kernels: list[tuple[str, str, tuple]], index: int, count: int) -> dict:
+def _kernel(module: str, qualname: str):
+    kernel = importlib.import_module(module)
+    for part in qualname.split("."):
+        kernel = getattr(kernel, part)
+    return kernel
+
+
+def _callees(kernel) -> set:
+    """The numba dispatchers ``kernel`` calls, directly or through others: the global names its Python code reads
+    that are dispatchers (a kernel calls another by its module-level name), followed transitively."""
+    from numba.core.dispatcher import Dispatcher
+
+    found, todo = set(), [kernel]
+    while todo:
+        func = getattr(todo.pop(), "py_func", None)
+        for name in getattr(getattr(func, "__code__", None), "co_names", ()):
+            callee = func.__globals__.get(name)
+            if isinstance(callee, Dispatcher) and callee not in found:
+                found.add(callee)
+                todo.append(callee)
+    return found
+
+
+def compile_share(kernels: list[tuple[str, str, tuple]], index: int, count: int, done: Path | None = None,
+                  patience_s: float = 120.0) -> dict:
     """Compile (or load from the cache) every ``count``-th kernel from the ``index``-th: dealt in turn, so each
     worker's share follows the recorded order and holds about half of each stage's kernels. Returns the counts and
-    seconds for the run's summary."""
-    t0, compiled, stale = time.perf_counter(), 0, 0
-    for module, qualname, args in kernels[index::count]:
+    seconds for the run's summary.
+
+    ``done``: a folder the workers share, where each marks the entries it has compiled. A kernel whose callees
+    (earlier entries of the kernels it calls) are another worker's waits for their marks, this worker compiling its
+    next ready kernel meanwhile: compiled before they are in the cache, numba compiles the callees again inside the
+    caller, the same work in both workers (design note 127). Once this worker has idled ``patience_s`` in all
+    waiting (the other died or went slow), the rest compile at once, as without ``done``. Kernels with an explicit
+    signature compile when their module is imported (numba refuses ``compile`` on them) and are counted apart."""
+    t0, counts = time.perf_counter(), {"compiled": 0, "at_import": 0, "stale": 0}
+    entries, waits = {}, {}
+    for i, (module, qualname, args) in enumerate(kernels):
         try:
-            kernel = importlib.import_module(module)
-            for part in qualname.split("."):
-                kernel = getattr(kernel, part)
-            kernel.compile(args)
-            compiled += 1
+            entries[i] = (_kernel(module, qualname), args)
+        except Exception:  # the kernel is gone or renamed since the manifest was recorded
+            continue
+    owner = {i: i % count for i in entries}
+    mine = [i for i in entries if owner[i] == index]
+    if done is not None:
+        done.mkdir(parents=True, exist_ok=True)
+        by_kernel: dict = {}
+        for i, (kernel, _) in entries.items():
+            by_kernel.setdefault(kernel, []).append(i)
+        for i in mine:
+            waits[i] = {j for callee in _callees(entries[i][0]) for j in by_kernel.get(callee, ())
+                        if j < i and owner[j] != index}
+    idle = 0.0
+    while mine:
+        ready = next((i for i in mine if not waits.get(i) or idle >= patience_s
+                      or all((done / str(j)).exists() for j in waits[i])), None)
+        if ready is None:
+            time.sleep(0.05)
+            idle += 0.05
+            continue
+        mine.remove(ready)
+        kernel, args = entries[ready]
+        try:
+            if getattr(kernel, "_can_compile", True):
+                kernel.compile(args)
+                counts["compiled"] += 1
+            else:
+                counts["at_import"] += 1
         except Exception:  # the code changed since the manifest was recorded: compiled when first called instead
-            stale += 1
-    return {"compiled": compiled, "stale": stale, "seconds": round(time.perf_counter() - t0, 1)}
+            counts["stale"] += 1
+        if done is not None:
+            (done / str(ready)).touch()
+    counts["stale"] += sum(1 for i in range(index, len(kernels), count) if i not in entries)
+    return {**counts, "seconds": round(time.perf_counter() - t0, 1), "waited": round(idle, 1)}
 
 
 if __name__ == "__main__":
