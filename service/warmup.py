@@ -1,7 +1,8 @@
 """Before an engine's first record: every kernel its live pipeline will call compiled, or loaded from numba's cache.
 
     progress = WarmUpProgress()
-    warm_up(model, info, config, alerts, progress)     # seconds; progress.words() while it runs
+    warm_up(model, info, config, alerts, progress)     # seconds; progress.step of progress.steps meanwhile
+    WarmStart(engine_id, model, info, session, alerts).start()   # serve's: the warm-up, then the session
 
 Why (design note 126): numba compiles a kernel when it is first called with new argument types. On a fresh install
 serve compiled ~300 of them at its first cycle and six more mid-run (the TDC watch's fit near cycle 100, the ring
@@ -33,7 +34,7 @@ from typing import Any
 
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.monitor.state import MonitorConfig
-from frictionwatch.core.monitor.warmup import WARM_CYCLES, warm_branches, warm_config, warm_stages
+from frictionwatch.core.monitor.warmup import WARM_CYCLES, bound_state, warm_config, warm_stages
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.core.types import AcquisitionInfo
 from frictionwatch.drivers.logs.mcap_replay import shifted
@@ -161,17 +162,21 @@ def warm_up(model: EngineModel, info: AcquisitionInfo, config: MonitorConfig | N
         progress.step = 1
         pipe = EnginePipeline(model, sim.info, warm_config(config), stages=warm_stages())
         warm_alerts = alerts.warm_up() if hasattr(alerts, "warm_up") else None
-        for record in [*sim.records, *second_pass(sim.records, sim.info)]:
-            if progress.stop.is_set():
-                break
-            for result in pipe.feed(record):
-                progress.step = min(progress.step + 1, progress.steps - 1)
-                if warm_alerts is not None:
-                    warm_alerts.update(result)
+        # the first pass as a healthy run takes it; the second with the identification's bounds active (a data
+        # branch a short stream need not reach: core.monitor.warmup.bound_state), a loop seam and a hole
+        for n, records in enumerate((sim.records, second_pass(sim.records, sim.info))):
+            if n and pipe.cycles.state is not None:
+                pipe.cycles.state = bound_state(pipe.cycles.state)
+            for record in records:
+                if progress.stop.is_set():
+                    break
+                for result in pipe.feed(record):
+                    progress.step = min(progress.step + 1, progress.steps - 1)
+                    if warm_alerts is not None:
+                        warm_alerts.update(result)
         for result in pipe.flush():
             if warm_alerts is not None:
                 warm_alerts.update(result)
-        warm_branches()
         progress.step = progress.steps
     except Exception as exc:  # noqa: BLE001 - a warm-up that fails leaves the kernels to compile when first called
         progress.error = f"{type(exc).__name__}: {exc}"

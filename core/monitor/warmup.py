@@ -23,9 +23,8 @@ import dataclasses
 
 import numpy as np
 from frictionwatch.core.monitor.calibration.tdc import BLOCKS
-from frictionwatch.core.monitor.identify.posterior import REFERENCE_MAX_CONDITION, posterior_moments_kernel
 from frictionwatch.core.monitor.pipeline import STAGES, RunningStage
-from frictionwatch.core.monitor.state import MonitorConfig
+from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 
 # A warm window closes after BLOCKS cycles (the fewest ``close_window`` reads); the TDC watch's first window fits every
 # cylinder of a commissioned model, its second and third those in turn and screen the rest (a path of their own):
@@ -35,6 +34,9 @@ WARM_WINDOWS = 3
 WARM_CYCLES = 1 + WARM_WINDOWS * WARM_WINDOW + 2  # + 2: a cycle refused on the way (a seam's) leaves the count met
 # cycles before the accumulated equations and the tooth refit's end in the warm-up (a live run: 20 and 50)
 WARM_SETTLE_CYCLES = 3
+# bound_state's lift of the lower bounds: the parameters are scale factors ~1 (core.monitor.monitor.initial_state), so
+# a bound of 10 is met by every cycle's unconstrained solution
+BOUND_LIFT = 10.0
 
 
 def warm_config(config: MonitorConfig | None) -> MonitorConfig:
@@ -49,18 +51,15 @@ def warm_stages(stages: tuple[RunningStage, ...] = STAGES) -> tuple[RunningStage
     return tuple(stage.warm_up() if hasattr(stage, "warm_up") else stage for stage in stages)
 
 
-def warm_branches() -> None:
-    """The kernels a live run calls only where its data take a branch a short healthy stream need not take, each
-    called once on throwaway arrays of the types the live path passes (nothing of any state touched):
-
-    - ``posterior_moments_kernel``: the identification's moments where a bound is active (posterior_from_normal's
-      NEEDS_BOUND; the demo log met it at cycle 7-23 of a live run, the warm-up's simulated stream did not).
-
-    A kernel that a test finds added mid-run and that no warm-up stream can be made to reach belongs here."""
-    n, m = 2, 2
-    eye, ones = np.eye(n), np.ones(n)
-    posterior_moments_kernel(eye, ones, 1.0, 4.0, np.ones((n, m)), eye, eye, np.ones(m), ones,
-                             REFERENCE_MAX_CONDITION)
+def bound_state(state: MonitorState) -> MonitorState:
+    """``state`` with every bounded parameter's lower bound raised BOUND_LIFT above it, read-only as
+    ``initial_state`` makes it: the identification's next cycles meet an active bound (the fused step's NEEDS_BOUND:
+    NNLS, ``posterior_kernel``, ``posterior_moments_kernel``, ``report_kernel``), the branch a live run takes where
+    an estimate reaches its bound (met at cycles 7-23 of the demo log, design note 124), which a short healthy
+    stream need not take. For a warm-up's throwaway pipeline only."""
+    lower = np.where(np.isfinite(state.lower), state.lower + BOUND_LIFT, state.lower)
+    lower.flags.writeable = False
+    return dataclasses.replace(state, lower=lower)
 
 
-__all__ = ["WARM_CYCLES", "WARM_WINDOW", "WARM_WINDOWS", "warm_branches", "warm_config", "warm_stages"]
+__all__ = ["BOUND_LIFT", "WARM_CYCLES", "WARM_WINDOW", "WARM_WINDOWS", "bound_state", "warm_config", "warm_stages"]

@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 from frictionwatch.core.monitor.pipeline import STAGES
 from frictionwatch.core.monitor.warmup import WARM_CYCLES, warm_stages
+from frictionwatch.drivers.source import Source
 
 ROOT = Path(__file__).resolve().parents[2]
 RUN_CYCLES = 320  # past the watches' third window (300) and the alert baseline (skip 5 + 200)
@@ -101,7 +102,7 @@ def test_a_replay_starts_after_the_warm_up_and_health_says_starting(monkeypatch)
     """While the warm-up runs the replay's session has not started (its clock has not either: nothing to drop),
     /startup and /health say 'compiling kernels: k of N'; then the replay runs."""
     from fastapi.testclient import TestClient
-    from frictionwatch.service import engine_service
+    from frictionwatch.service import warmup
     from frictionwatch.service.api import create_app
     from frictionwatch.service.serve import build_engine
 
@@ -115,7 +116,7 @@ def test_a_replay_starts_after_the_warm_up_and_health_says_starting(monkeypatch)
         progress.step, progress.ended_s = progress.steps, time.monotonic()
         return 0.0
 
-    monkeypatch.setattr(engine_service, "warm_up", held_warm_up)
+    monkeypatch.setattr(warmup, "warm_up", held_warm_up)
     svc = build_engine(None, [f"mcap:{ROOT / 'replay_logs' / 'deutz-1cyl.mcap'}?speed=max"], None, set())
     try:
         with TestClient(create_app([svc], token="t" * 32)) as client:
@@ -132,6 +133,57 @@ def test_a_replay_starts_after_the_warm_up_and_health_says_starting(monkeypatch)
             release.set()
             assert svc.session.wait_results(3, timeout=120)
             assert not svc.warming_up and svc.backlog()["dropped_records"] == 0
+    finally:
+        release.set()
+        svc.stop()
+
+
+class Board(Source):
+    """A source that runs at the engine's pace and cannot wait (``speed`` set, no ``reanchor``: what
+    service.live.is_realtime and is_replay_paced read), fed by a replay at real time: a serial or CAN board's
+    stand-in."""
+
+    speed = 1.0
+
+    def __init__(self, inner: Source) -> None:
+        super().__init__()
+        self.feed, self.info, self.engine_toml = inner, inner.info, inner.engine_toml
+
+    def _read_internal(self, timeout: float | None) -> list:
+        return self.feed.read(timeout)
+
+    def _close_internal(self) -> None:
+        self.feed.close()
+
+
+def test_a_board_is_read_during_the_warm_up_and_what_its_queue_cannot_hold_is_counted(monkeypatch):
+    """A board's session starts at once: its input is queued while the ingest thread warms up, and what the queue
+    (1 s here) cannot hold is dropped and counted as a hole, not lost unsaid (design note 126)."""
+    from frictionwatch.drivers.logs.mcap_replay import McapSource
+    from frictionwatch.service import warmup
+    from frictionwatch.service.engine_service import EngineService
+    from frictionwatch.service.pipeline import resolve_model
+
+    release = threading.Event()
+
+    def held_warm_up(model, info, config, alerts, progress):
+        progress.started_s = time.monotonic()
+        release.wait(30)
+        progress.step, progress.ended_s = progress.steps, time.monotonic()
+        return 0.0
+
+    monkeypatch.setattr(warmup, "warm_up", held_warm_up)
+    board = Board(McapSource(ROOT / "replay_logs" / "deutz-1cyl.mcap", speed=1.0, loop=True))
+    model = resolve_model(board.engine_toml, None, "deutz", board.info)
+    svc = EngineService("board", model, board.info, {"board": board}, warm=True, max_queue_s=1.0).start()
+    try:
+        assert svc.session._started and svc.warming_up  # read from the start, analysed after the warm-up
+        time.sleep(3.0)
+        assert svc.cycles_ok == 0 and svc.backlog()["dropped_records"] > 0  # the queue's 1 s held, the rest counted
+        release.set()
+        assert svc.session.wait_results(3, timeout=120)
+        holes = svc.holes
+        assert holes and holes[0]["reason"] == "dropped_while_behind" and holes[0]["dropped_records"] > 0
     finally:
         release.set()
         svc.stop()
