@@ -131,7 +131,7 @@ def test_a_replay_starts_after_the_warm_up_and_health_says_starting(monkeypatch)
             assert startup["engines"][0]["warm_up"] == health["engines"][0]["startup"]
             assert startup["message"].endswith(f": 3 of {svc.warmup.steps} warm-up steps")
             release.set()
-            assert svc.session.wait_results(3, timeout=120)
+            assert svc.session.wait_results(3, timeout=600)  # a cold cache compiles the pipeline here
             assert not svc.warming_up and svc.backlog()["dropped_records"] == 0
     finally:
         release.set()
@@ -181,7 +181,7 @@ def test_a_board_is_read_during_the_warm_up_and_what_its_queue_cannot_hold_is_co
         time.sleep(3.0)
         assert svc.cycles_ok == 0 and svc.backlog()["dropped_records"] > 0  # the queue's 1 s held, the rest counted
         release.set()
-        assert svc.session.wait_results(3, timeout=120)
+        assert svc.session.wait_results(3, timeout=600)
         holes = svc.holes
         assert holes and holes[0]["reason"] == "dropped_while_behind" and holes[0]["dropped_records"] > 0
     finally:
