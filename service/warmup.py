@@ -11,12 +11,13 @@ its queue overran and input was dropped (design note 124). Here the engine's own
 the monitor with its running stages (core.monitor.warmup: their counts shortened) and the alert engine
 (``AlertEngine.warm_up``: its learning counts shortened) -- runs ``WARM_CYCLES`` cycles of the engine simulated
 (core.plant.simulate: the engine's model, its wheels and cylinders; the records a replay of it carries) with a loop
-seam and a dropped stretch in them, so that every kernel a live run reaches is compiled before the live run starts.
+seam, a dropped stretch and the identification's bounds active in the second pass, so that every kernel a live run
+reaches is compiled before the live run starts.
 The warm-up's pipeline and alert engine are thrown away: nothing of it reaches the engine's results.
 
-What it costs: on an empty cache the compile it moves before the first cycle (plus the simulator's own, ~15 % more,
-design note 126); on a warm cache the kernels load as they would have at the first cycle, plus the simulation and
-~20 monitor cycles (figures: design note 126).
+What it costs: on an empty cache the compile it moves before the first cycle, plus the simulator's own kernels; on a
+warm cache the kernels load as they would have at the first cycle, plus the simulation and ~30 monitor cycles: a
+few seconds (figures: design note 126).
 
 What it cannot see: a kernel reached only by input the simulated stream does not have (a source's own record kinds,
 a sensor fault's path). ``STARTUP.compiles`` counts what still compiles after it, and serve's stop line says so.
@@ -199,7 +200,7 @@ def second_pass(records: list, info: AcquisitionInfo) -> list:
     last = math.floor(max(keys))
     shift = last - math.floor(min(keys)) + round(SEAM_S * info.tick_hz)
     moved = [shifted(r, shift) for r in records]
-    cut = len(moved) // 3  # the middle third of the pass's first third dropped
+    cut = len(moved) // 3  # the pass's second sixth dropped
     gone = moved[cut // 2:cut]
     dropped = Dropped(record_key(gone[0]), record_key(gone[-1]), len(gone), batch_contents(SimpleNamespace(records=gone)),
                       after_key=record_key(moved[cut // 2 - 1]))
