@@ -84,6 +84,11 @@ KINDS = ("ring_wear", "blow_by", "misfire", "sensor_fault", "model_misfit")
 # from the EWMA's window and the estimate's scatter, not tuned on runs
 LONG_RUN_CENTRE, LONG_RUN_HORIZON, LONG_RUN_WARMUP = 2, 40, 4
 RING_KINDS = ("ring_wear", "blow_by")
+# AlertEngine.warm_up's counts: the baseline learnt from the third cycle on, in 3 cycles, no settling hold, EWMA
+# windows of 1 cycle (the long-run variance's warm-up, 4 windows, over in 4 cycles): every path of ``update`` within
+# a warm-up's ~20 cycles. Not tuned: the smallest counts that reach the paths (tests/service/test_warmup.py)
+WARM_COUNTS = {"baseline_cycles": 3, "skip_cycles": 1, "settle_cycles": 1, "window": 1.0, "ring_window": 1.0,
+               "misfire_window": 1.0, "raise_cycles": 1, "clear_cycles": 1, "flag_raise_cycles": 1}
 
 
 def default_rules(config: AlertConfig, n_cyl: int) -> tuple[tuple[Rule, ...], ...]:
@@ -265,6 +270,13 @@ class AlertEngine:
         params = np.array((lrv.centre_cycles, lrv.horizon, lrv.warmup, 1.0, 1.0))
         pressure_statistics(np.zeros((len(INDICATORS), z)), np.zeros((len(INDICATORS), z)), np.zeros_like(self._ewma),
                             0.5, np.ones_like(self._weights_rows), np.zeros_like(lrv.state), 0, params)
+
+    def warm_up(self) -> AlertEngine:
+        """A fresh alert engine of this one's spec and rules' kinds whose learning counts are short (WARM_COUNTS:
+        the baseline learnt after a few cycles, the EWMAs' windows a few cycles long), for serve's warm-up
+        (service/warmup.py): fed a warm-up's cycles, it calls every kernel this one will, with the same types, before
+        the live run (design note 126). This engine is not touched."""
+        return AlertEngine(self.spec, replace(self.config, **WARM_COUNTS))
 
     def rebaseline(self) -> list[AlertEvent]:
         """Learn a new commissioning baseline from the next cycle on (after an overhaul: the state now is the normal

@@ -59,6 +59,7 @@ from frictionwatch.service.rate_limit import TokenBucket
 from frictionwatch.service.request_guard import MAX_BODY_BYTES, UNAUTHORISED, RequestGuard, validation_error
 from frictionwatch.service.routes_startup import startup_router
 from frictionwatch.service.security import ENGINE_ID, bearer_ok
+from frictionwatch.service.startup import warm_up_words
 from sse_starlette import EventSourceResponse
 
 DASHBOARD_DIR = FilePath(__file__).with_name("dashboard")
@@ -154,10 +155,13 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
                  **store_waiting(s),
                  # the listener a replay faster than real time waits for now: not 'degraded' (nothing is lost, the
                  # replay runs at that listener's pace)
-                 "paced_by_listener": s.fanout.waiting_for} for s in engines.values()]
-        ok = all(r["running"] and r["last_cycle_age_s"] is not None and r["last_cycle_age_s"] < STALE_S
-                 and not r["behind"] and not r["store_waiting_cycles"] for r in rows)
-        return {"status": "ok" if ok else "degraded", "uptime_s": now - started, "engines": rows,
+                 "paced_by_listener": s.fanout.waiting_for, "warming_up": bool(getattr(s, "warming_up", False)),
+                 "startup": warm_up_words(s)} for s in engines.values()]
+        fine = [r["running"] and r["last_cycle_age_s"] is not None and r["last_cycle_age_s"] < STALE_S
+                and not r["behind"] and not r["store_waiting_cycles"] for r in rows]
+        # an engine whose warm-up runs is starting, not degraded (nothing is analysed or lost yet)
+        starting = any(r["warming_up"] for r in rows) and all(f or r["warming_up"] for f, r in zip(fine, rows))
+        return {"status": "ok" if all(fine) else "starting" if starting else "degraded", "uptime_s": now - started, "engines": rows,
                 "lag_degraded_s": LAG_DEGRADED_S, "fleet": fleet is not None}
 
     @app.get("/api/v1/engines", response_model=list[EngineInfo])

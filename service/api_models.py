@@ -41,13 +41,17 @@ class HealthEngine(_Open):
                                                      "back ('degraded' while any wait)")
     store_lost_cycles: int = Field(0, description="cycles the store never got (its backlog full, or a write that "
                                                   "failed twice)")
+    warming_up: bool = Field(False, description="the warm-up compiles the engine's kernels before its first record "
+                                                "(a replay starts after it; a serial or CAN board's input is queued)")
+    startup: str | None = Field(None, description="while warming up: 'compiling kernels: k of N'")
     paced_by_listener: str | None = Field(None, description="a replay faster than real time waiting now for this "
                                                         "listener's full queue (e.g. 'store'): it runs at that "
                                                         "listener's pace and loses nothing; null: not waiting")
 
 
 class Health(_Open):
-    status: Literal["ok", "degraded"]
+    status: Literal["ok", "degraded", "starting"] = Field(description="starting: an engine's warm-up compiles its "
+                                                                      "kernels (nothing is analysed or lost yet)")
     uptime_s: float
     lag_degraded_s: float = Field(2.0, description="an engine is 'degraded' when its data wait longer than this")
     fleet: bool = Field(False, description="GET /api/v1/fleet answers: this service keeps a store")
@@ -60,6 +64,8 @@ class StartupEngine(_Open):
         description="running: it has analysed a cycle; compiling: not yet, and this process is compiling numba "
                     "kernels (a fresh install: 1-2 min, first run only); starting: not yet, kernels from the cache")
     cycles_ok: int
+    warm_up: str | None = Field(None, description="while serve's warm-up compiles the engine's kernels before its "
+                                                  "first record: 'compiling kernels: k of N' (its steps); else null")
 
 
 class Startup(_Open):

@@ -48,6 +48,7 @@ from frictionwatch.service.listeners import Fanout, LatestState, ServiceEvent
 from frictionwatch.service.live import LiveSession, record_key
 from frictionwatch.service.monitor_snapshot import pickled
 from frictionwatch.service.security import valid_engine_id
+from frictionwatch.service.warmup import WarmStart, WarmUpProgress
 
 log = logging.getLogger(__name__)
 
@@ -150,7 +151,7 @@ class EngineService:
     def __init__(self, engine_id: str, model: EngineModel, info: AcquisitionInfo, sources: Mapping[str, Source], *,
                  urls: Iterable[str] = (), alerts: AlertsFactory | None = None, listeners: Iterable[Any] = (),
                  history_cycles: int = 5000, queue_size: int = 256, recent_s: float = RECENT_S,
-                 **session_options: Any) -> None:
+                 warm: bool = False, **session_options: Any) -> None:
         if not valid_engine_id(engine_id):
             raise ValueError(f"engine id {engine_id!r} must be 1-40 of a-z, 0-9 and '-'")
         self.engine_id, self.model, self.spec, self.info = engine_id, model, model.spec, info
@@ -187,6 +188,8 @@ class EngineService:
         self.restarts: dict[str, int] = {}  # stream restarts met (a looped replay's seams): not lost cycles
         self._holes_given = 0  # the pipeline's holes already handed on with the first result after them
         self.tdc_watch = TdcWatchView(TdcWatchState.empty(), None)  # replaced whole on the ingest thread
+        # ``warm``: before the first record, the pipeline's kernels compiled (service/warmup.py)
+        self.warm_start = WarmStart(self.engine_id, model, info, self.session, self.alerts) if warm else None
 
     @property
     def config(self) -> MonitorConfig:
@@ -224,8 +227,26 @@ class EngineService:
     def start(self) -> EngineService:
         self.started_s = time.monotonic()
         self.fanout.start()
-        self.session.start()
+        if self.warm_start is None:
+            self.session.start()
+        else:
+            self.warm_start.start()
         return self
+
+    @property
+    def warmup(self) -> WarmUpProgress | None:
+        """The warm-up's progress (None: this engine has none)."""
+        return None if self.warm_start is None else self.warm_start.progress
+
+    @property
+    def warming_up(self) -> bool:
+        """Whether the warm-up runs now (the engine analyses nothing yet)."""
+        return self.warm_start is not None and self.started_s is not None and self.warm_start.warming_up
+
+    @property
+    def compiled_after_warm_up(self) -> int | None:
+        """Kernels this process compiled from the end of the warm-up to the stop (None: no warm-up, or not over)."""
+        return None if self.warm_start is None else self.warm_start.compiled_after
 
     def stop(self, timeout: float | None = None) -> None:
         """Stop the session (its ingest thread gets ``timeout`` to drain, default the session's ``drain_s``, serve
@@ -238,6 +259,8 @@ class EngineService:
         if self._stopped:
             return
         self._stopped = True
+        if self.warm_start is not None:  # a session the warm-up has not started yet never starts
+            self.warm_start.cancel()
         self.session.stop(timeout)
         self.skipped, self.restarts = dict(self.session.skipped), dict(self.session.restarts)
         self.fanout.stop(LISTENER_STOP_S if timeout is None else timeout)
@@ -275,7 +298,8 @@ class EngineService:
 
     @property
     def running(self) -> bool:
-        return self.started_s is not None and any(t.is_alive() for t in self.session.threads)
+        warming = self.warm_start is not None and self.warm_start.thread_alive
+        return self.started_s is not None and (warming or any(t.is_alive() for t in self.session.threads))
 
     @property
     def sources_ended(self) -> bool:

@@ -1,6 +1,7 @@
 """The container's health check (Dockerfile HEALTHCHECK): ``python -m frictionwatch.service.healthcheck [URL]``.
 
-Exit 0 (healthy) while the service answers GET /api/v1/health, whether 'ok' or 'degraded'; exit 1 when it does not
+Exit 0 (healthy) while the service answers GET /api/v1/health, whether 'ok', 'starting' (its warm-up compiles the
+kernels) or 'degraded'; exit 1 when it does not
 answer, answers something else, or an engine's every thread has ended while its sources still run. One line on
 stdout says why (``docker inspect`` keeps it).
 
@@ -24,7 +25,7 @@ TIMEOUT_S = 4.0  # under the HEALTHCHECK's --timeout (5 s)
 
 def verdict(doc: object) -> tuple[bool, str]:
     """(healthy, why) from /health's reply (service/api_models.Health)."""
-    if not isinstance(doc, dict) or doc.get("status") not in ("ok", "degraded"):
+    if not isinstance(doc, dict) or doc.get("status") not in ("ok", "degraded", "starting"):
         return False, "unhealthy: /health did not answer with a status"
     engines = doc.get("engines") if isinstance(doc.get("engines"), list) else []
     dead = [str(e.get("engine_id")) for e in engines
@@ -32,8 +33,8 @@ def verdict(doc: object) -> tuple[bool, str]:
     if dead:
         return False, f"unhealthy: engine {', '.join(dead)} stopped while its sources run"
     lagging = [str(e.get("engine_id")) for e in engines if isinstance(e, dict) and e.get("behind")]
-    if doc["status"] == "ok":
-        return True, "healthy: ok"
+    if doc["status"] in ("ok", "starting"):  # starting: the warm-up compiles the kernels (service/warmup.py)
+        return True, f"healthy: {doc['status']}"
     return True, "healthy: degraded (see /api/v1/health)" + (f"; behind: {', '.join(lagging)}" if lagging else "")
 
 

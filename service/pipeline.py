@@ -18,7 +18,7 @@ from frictionwatch.core.model.engine_model import EngineModel, as_model, load_mo
 from frictionwatch.core.model.view import MonitorView
 from frictionwatch.core.monitor.calibration.gain_watch import GainWatchState
 from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState
-from frictionwatch.core.monitor.pipeline import CycleOutcome, CyclePipeline
+from frictionwatch.core.monitor.pipeline import STAGES, CycleOutcome, CyclePipeline, RunningStage
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 from frictionwatch.core.types import AcquisitionInfo, Cycle, StreamRecord, ToothBatch
@@ -45,15 +45,15 @@ class EnginePipeline:
     stop). A mark of a hole (a live session dropped data while behind, or a recording of one) numbers on over the
     cycles the engine turned in the hole, from the tooth clock, so the indices show it; ``holes`` keeps the newest
     ``MAX_HOLES`` as ``Hole``s. A hole in the second wheel's edges alone restarts only their cut, one in no wheel's
-    edges nothing (design note 124)."""
+    edges nothing (design note 124). ``stages``: the monitor's running stages (a warm-up's, service/warmup.py)."""
 
     def __init__(self, engine: EngineModel | EngineSpec, info: AcquisitionInfo, config: MonitorConfig | None = None,
-                 on_cycle: Callable[[Cycle], None] | None = None):
+                 on_cycle: Callable[[Cycle], None] | None = None, stages: tuple[RunningStage, ...] = STAGES):
         if config is not None and config.second_wheel and (info.second_wheel is None or
                                                            as_model(engine).spec.sensors.second_wheel is None):
             # the joint fit asked for without a second wheel in the log or its node in the engine file: one wheel
             config = dataclasses.replace(config, second_wheel=False)
-        self.cycles = CyclePipeline(engine, config, on_cycle=on_cycle)
+        self.cycles = CyclePipeline(engine, config, on_cycle=on_cycle, stages=stages)
         self.model, self.spec, self.config = self.cycles.model, self.cycles.spec, self.cycles.config
         self.info = info
         self.assembler = cycle_assembler(self.spec, info)

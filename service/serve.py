@@ -130,7 +130,7 @@ def build_engine(ident: str | None, urls: list[str], engine: str | None, taken: 
         if record is not None:  # files are opened at the first record written
             options["recorder"] = Recorder(record / engine_id, toml, info, max_file_bytes=RECORD_FILE_BYTES,
                                            max_files=RECORD_FILES)
-        return EngineService(engine_id, model, info, sources, urls=urls, **options)
+        return EngineService(engine_id, model, info, sources, urls=urls, warm=True, **options)
     except BaseException:
         for s in sources.values():
             s.close()
@@ -247,6 +247,12 @@ def stop_summary(svc: EngineService) -> str:
     is said once, as dropped: the cycle its hole cut is not a skip as well (design note 119), with the cycle indices
     its holes left out (design note 124), and a seam is a restart, not a loss."""
     parts = [f"{svc.cycles_ok} cycles analysed"]
+    warm = getattr(svc, "warmup", None)
+    if warm is not None and warm.seconds is not None:
+        after = getattr(svc, "compiled_after_warm_up", None)
+        parts.append(f"kernels warmed up in {warm.seconds:.1f} s before the first record"
+                     + (f" (failed: {warm.error})" if warm.error else "")
+                     + ("" if after is None else f", {after} compiled after it"))
     lag = svc.backlog()
     if lag.get("dropped_records"):
         cycles = lag.get("dropped_cycles")

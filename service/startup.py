@@ -1,9 +1,10 @@
 """What the service is doing before an engine's first cycle, for the terminal and the dashboard (issue 28 item 5).
 
-A fresh install compiles its numba kernels when each engine analyses its first cycle (1-2 minutes on a small
-machine; cached on disk, so later starts load them in seconds). Until then the API has no result to show (its routes
-answer 503); ``GET /api/v1/startup`` says why instead, the dashboard shows that in place of the panels, and ``serve``
-prints a line every few seconds (``StartupTicker``).
+A fresh install compiles its numba kernels before each engine's first record, in serve's warm-up (service/warmup.py;
+1-2 minutes on a small machine; cached on disk, so later starts load them in seconds). Until the first cycle the API
+has no result to show (its routes answer 503); ``GET /api/v1/startup`` says why instead ("compiling kernels: k of
+N", the warm-up's steps), the dashboard shows that in place of the panels, and ``serve`` prints a line every few
+seconds (``StartupTicker``).
 
 numba announces each compilation as a "numba:compile" event (numba.core.event) and none for a kernel loaded from
 its cache, so counting them tells a cold start ("compiling") from a warm one ("starting"). numba's event registry
@@ -22,6 +23,7 @@ from numba.core import event
 
 COMPILING_WORDS = "compiling the numerical kernels (first run only)"
 STARTING_WORDS = "waiting for the first cycle"
+LOADING_WORDS = "loading the numerical kernels from the cache"
 TICK_S = 5.0  # the terminal's progress line while an engine waits for its first cycle
 OURS = "frictionwatch."  # the modules whose kernels are counted and named (numba's own overloads are not)
 POLL_S = 0.25  # how soon the end of the start is noticed (and its time printed)
@@ -76,17 +78,33 @@ class StartupState:
         return "compiling" if self.compiles.total or self.compiles.active else "starting"
 
     def document(self, engines: Iterable[Any]) -> dict:
-        """The Startup contract (service/api_models.py) for engines with ``engine_id`` and ``cycles_ok``."""
-        rows = [{"engine_id": e.engine_id, "state": self.engine_state(int(e.cycles_ok)), "cycles_ok": int(e.cycles_ok)}
-                for e in engines]
+        """The Startup contract (service/api_models.py) for engines with ``engine_id`` and ``cycles_ok`` (and, where
+        serve warms it up, ``warming_up`` and ``warmup``: service/warmup.py's progress)."""
+        engines = list(engines)
+        rows = [{"engine_id": e.engine_id, "state": self.engine_state(int(e.cycles_ok)), "cycles_ok": int(e.cycles_ok),
+                 "warm_up": warm_up_words(e, self)} for e in engines]
         states = {r["state"] for r in rows}
         state = "compiling" if "compiling" in states else "starting" if "starting" in states else "running"
         message = {"compiling": COMPILING_WORDS, "starting": STARTING_WORDS}.get(state)
+        warming = [e.warmup for e in engines if warm_up_words(e, self)]
+        if warming and state != "running":  # serve's warm-up (service/warmup.py): how far it is
+            words = COMPILING_WORDS if state == "compiling" else LOADING_WORDS
+            message = f"{words}: {warming[0].step} of {warming[0].steps} warm-up steps"
         return {"state": state, "message": message, "kernels_compiled": self.compiles.done,
                 "elapsed_s": round(self.clock() - self.started_s, 1), "engines": rows}
 
 
 STARTUP = StartupState()
+
+
+def warm_up_words(engine: Any, state: StartupState = STARTUP) -> str | None:
+    """"compiling kernels: k of N" (or "loading", nothing compiled in this process: a warm cache) while the engine's
+    warm-up runs (service/warmup.py: its steps), else None."""
+    warm = getattr(engine, "warmup", None)
+    if warm is None or not getattr(engine, "warming_up", False):
+        return None
+    verb = "compiling" if state.compiles.total or state.compiles.active else "loading"
+    return f"{verb} kernels: {warm.step} of {warm.steps}"
 
 
 class StartupTicker:
@@ -118,8 +136,9 @@ class StartupTicker:
             return f"{self.prefix}: first cycle analysed after {t:.0f} s ({compiled})", True
         if doc["state"] == "compiling":
             last = self.state.compiles.last
-            return f"{self.prefix}: {COMPILING_WORDS}: {n} compiled in {t:.0f} s" + (f", last {last}" if last else ""), False
-        return f"{self.prefix}: {STARTING_WORDS} ({t:.0f} s)", False
+            return f"{self.prefix}: {doc['message']}: {n} compiled in {t:.0f} s" + (f", last {last}" if last else ""), \
+                False
+        return f"{self.prefix}: {doc['message']} ({t:.0f} s)", False
 
     def _run(self) -> None:
         printed = time.monotonic()

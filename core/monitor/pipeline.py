@@ -12,7 +12,8 @@ What a cycle goes through, in order:
 3. the running stages of ``STAGES``, each ``update(state, StageInput) -> state`` with ``flags`` on its state: the
    calibration watches (TDC from the pressure, each channel's gain and pegging), judged against the model's
    calibration; their flags are added to the cycle's result (and withhold the figures they touch).
-Adding a running stage is one class with ``initial()`` and ``update()`` and one line in ``STAGES``.
+Adding a running stage is one class with ``initial()`` and ``update()`` and one line in ``STAGES`` (and, for a stage
+whose kernels come only after many cycles, a ``warm_up()`` that reaches them in a few: core.monitor.warmup).
 
 service.pipeline puts the cycle assembler (drivers/) in front: analyze, serve, reanalyze and commission run that,
 and the discrepancy workflow runs its models through ``run_cycles``. A cycle the monitor refuses is an outcome with
@@ -34,7 +35,7 @@ from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel, as_model
 from frictionwatch.core.model.view import MonitorView, Reference, monitor_view, needs_reference, reference, viewed_cycle
 from frictionwatch.core.monitor.calibration.gain_watch import GainWatchState, watch_gains
-from frictionwatch.core.monitor.calibration.tdc import TdcEstimate
+from frictionwatch.core.monitor.calibration.tdc import BLOCKS, TdcEstimate
 from frictionwatch.core.monitor.calibration.tdc_watch import (
     CYLINDERS_PER_WINDOW,
     WINDOW_CYCLES,
@@ -118,17 +119,29 @@ class TdcWatch:
         """The open window read now (``CyclePipeline.close_windows``)."""
         return close_window(spec, calibration, state, per_window=self.per_window, fit=self.fit)
 
+    def warm_up(self) -> TdcWatch:
+        """This watch with windows of BLOCKS cycles, the fewest a window reads (core.monitor.warmup): its fits
+        within a warm-up's few cycles."""
+        return dataclasses.replace(self, window=BLOCKS)
 
+
+@dataclass(frozen=True)
 class GainWatch:
-    """Each channel's gain and pegging against its siblings (core.monitor.calibration.gain_watch)."""
+    """Each channel's gain and pegging against its siblings (core.monitor.calibration.gain_watch), judged every
+    ``window`` cycles."""
 
-    name = "gain_watch"
+    window: int = WINDOW_CYCLES
+    name: ClassVar[str] = "gain_watch"
 
     def initial(self) -> GainWatchState:
         return GainWatchState.empty()
 
     def update(self, state: GainWatchState, inp: StageInput) -> GainWatchState:
-        return watch_gains(inp.spec, inp.calibration, state, inp.cycle, inp.twist)
+        return watch_gains(inp.spec, inp.calibration, state, inp.cycle, inp.twist, self.window)
+
+    def warm_up(self) -> GainWatch:
+        """This watch judging every BLOCKS cycles (core.monitor.warmup)."""
+        return dataclasses.replace(self, window=BLOCKS)
 
 
 STAGES: tuple[RunningStage, ...] = (TdcWatch(), GainWatch())

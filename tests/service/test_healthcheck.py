@@ -25,7 +25,9 @@ ENGINE = {"engine_id": "g1", "running": True, "sources_ended": False, "last_cycl
     # a replay that ended: its threads end with it, that is not a failure
     ({"status": "degraded", "engines": [{**ENGINE, "running": False, "sources_ended": True}]}, True, "degraded"),
     ({"status": "degraded", "engines": [{**ENGINE, "running": False}]}, False, "engine g1 stopped"),
-    ({"status": "starting"}, False, "did not answer with a status"),
+    # the warm-up compiling the kernels (service/warmup.py): alive, healthy
+    ({"status": "starting", "engines": [{**ENGINE, "last_cycle_age_s": None}]}, True, "healthy: starting"),
+    ({"status": "booting"}, False, "did not answer with a status"),
     ({"detail": "Internal Server Error"}, False, "did not answer with a status"),
     ([1, 2], False, "did not answer with a status"),
 ])

@@ -1,0 +1,189 @@
+"""serve's warm-up (service/warmup.py, design note 126): after it, a live run of the engine meets no kernel it has not
+compiled or loaded, and a replay starts only once it is over.
+
+The check runs each engine in a fresh process: a kernel specialisation, once compiled or loaded from numba's cache,
+stays in the process, so a pipeline run before it (another test) would hide a kernel the warm-up missed. It counts
+every specialisation numba adds to a dispatcher of ours after the warm-up (compiled or loaded from the on-disk cache:
+either is the mid-run stall on a cold cache), while the engine's bundled replay log is analysed as serve analyses
+it (the pipeline and the alert engine, the log looped) past every count the stages wait for: the TDC and gain watches'
+third 100-cycle window, the alert baseline's 200 cycles.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from frictionwatch.core.monitor.pipeline import STAGES
+from frictionwatch.core.monitor.warmup import WARM_CYCLES, warm_stages
+from frictionwatch.drivers.source import Source
+
+ROOT = Path(__file__).resolve().parents[2]
+RUN_CYCLES = 320  # past the watches' third window (300) and the alert baseline (skip 5 + 200)
+
+# in a fresh process: warm up the engine of LOG, then analyse LOG looped for RUN_CYCLES cycles; print the kernel
+# specialisations added after the warm-up as JSON. BREAK: "stages" runs the warm-up with the stages as they are
+_CHILD = r"""
+import gc, json, sys
+from numba.core.dispatcher import Dispatcher
+log, cycles, brk = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+
+def ours():
+    return {id(d): (f"{d.py_func.__module__}.{d.py_func.__qualname__}", set(d.overloads)) for d in gc.get_objects()
+            if isinstance(d, Dispatcher) and d.py_func.__module__.startswith("frictionwatch.")}
+
+from frictionwatch.drivers.logs.mcap_replay import McapSource
+from frictionwatch.service import warmup
+from frictionwatch.service.alerts import AlertEngine
+from frictionwatch.service.pipeline import EnginePipeline, resolve_model
+if brk == "stages":
+    from frictionwatch.core.monitor.pipeline import STAGES
+    warmup.warm_stages = lambda: STAGES
+src = McapSource(log, speed=None, loop=True)
+model = resolve_model(src.engine_toml, None, log, src.info)
+alerts = AlertEngine(model.spec)
+alerts.load_kernels()
+progress = warmup.WarmUpProgress()
+warmup.warm_up(model, src.info, None, alerts, progress)
+before = ours()
+pipe = EnginePipeline(model, src.info)
+n = 0
+while n < cycles:
+    for record in src.read(0.1):
+        for result in pipe.feed(record):
+            alerts.update(result)
+            n += 1
+added = [f"{name} {sorted(map(str, sigs - before.get(key, (name, set()))[1]))}"
+         for key, (name, sigs) in ours().items() if sigs - before.get(key, (name, set()))[1]]
+print(json.dumps({"added": added, "cycles": n, "tdc_windows": pipe.tdc_window_cycle, "error": progress.error,
+                  "steps": [progress.step, progress.steps]}))
+"""
+
+
+def added_after_warm_up(log: str, cycles: int = RUN_CYCLES, brk: str = "") -> dict:
+    proc = subprocess.run([sys.executable, "-c", _CHILD, str(ROOT / "replay_logs" / log), str(cycles), brk],
+                          capture_output=True, text=True, timeout=1500, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("log", ["demo.mcap", "k9k-4cyl.mcap", "deutz-1cyl.mcap"])
+def test_no_kernel_is_added_after_the_warm_up(log):
+    """genset-v20 (20 cylinders: the TDC watch fits four a window and screens the rest), k9k-4cyl (a second wheel,
+    the joint fit) and deutz-1cyl (one cylinder: no sibling comparisons): nothing compiled or loaded mid-run."""
+    out = added_after_warm_up(log)
+    assert out["error"] is None
+    assert out["steps"][0] == out["steps"][1]
+    assert out["cycles"] >= RUN_CYCLES and out["tdc_windows"] is not None and out["tdc_windows"] >= 300
+    assert out["added"] == [], "kernels compiled or loaded after the warm-up:\n" + "\n".join(out["added"])
+
+
+def test_the_check_sees_a_stage_the_warm_up_leaves_out():
+    """The same check with the running stages as a live run has them (100-cycle windows, no ``warm_up()``): the TDC
+    watch's fit is first reached mid-run, and the check says so (the check can fail)."""
+    out = added_after_warm_up("deutz-1cyl.mcap", cycles=110, brk="stages")
+    assert any("tdc_kernels.gauss_newton_kernel" in a for a in out["added"]), out["added"]
+
+
+def test_warm_stages_shorten_every_windowed_stage():
+    """Each running stage with a window has a warm-up form whose window fits the warm-up's cycles."""
+    for live, warm in zip(STAGES, warm_stages(), strict=True):
+        window = getattr(live, "window", None)
+        if window is not None:
+            assert warm.window * 3 < WARM_CYCLES < window, (live, warm)
+
+
+def test_a_replay_starts_after_the_warm_up_and_health_says_starting(monkeypatch):
+    """While the warm-up runs the replay's session has not started (its clock has not either: nothing to drop),
+    /startup and /health say 'compiling kernels: k of N'; then the replay runs."""
+    from fastapi.testclient import TestClient
+    from frictionwatch.service import warmup
+    from frictionwatch.service.api import create_app
+    from frictionwatch.service.serve import build_engine
+
+    release, entered = threading.Event(), threading.Event()
+
+    def held_warm_up(model, info, config, alerts, progress):
+        progress.started_s = time.monotonic()
+        progress.step = 3
+        entered.set()
+        release.wait(30)
+        progress.step, progress.ended_s = progress.steps, time.monotonic()
+        return 0.0
+
+    monkeypatch.setattr(warmup, "warm_up", held_warm_up)
+    svc = build_engine(None, [f"mcap:{ROOT / 'replay_logs' / 'deutz-1cyl.mcap'}?speed=max"], None, set())
+    try:
+        with TestClient(create_app([svc], token="t" * 32)) as client:
+            assert entered.wait(10)
+            assert not svc.session._started and svc.running
+            health = client.get("/api/v1/health").json()
+            assert health["status"] == "starting"
+            # "compiling" where this process has compiled a kernel (a cold cache), else "loading"
+            assert health["engines"][0]["warming_up"]
+            assert health["engines"][0]["startup"].endswith(f"ing kernels: 3 of {svc.warmup.steps}")
+            startup = client.get("/api/v1/startup").json()
+            assert startup["engines"][0]["warm_up"] == health["engines"][0]["startup"]
+            assert startup["message"].endswith(f": 3 of {svc.warmup.steps} warm-up steps")
+            release.set()
+            assert svc.session.wait_results(3, timeout=600)  # a cold cache compiles the pipeline here
+            assert not svc.warming_up and svc.backlog()["dropped_records"] == 0
+    finally:
+        release.set()
+        svc.stop()
+
+
+class Board(Source):
+    """A source that runs at the engine's pace and cannot wait (``speed`` set, no ``reanchor``: what
+    service.live.is_realtime and is_replay_paced read), fed by a replay at real time: a serial or CAN board's
+    stand-in."""
+
+    speed = 1.0
+
+    def __init__(self, inner: Source) -> None:
+        super().__init__()
+        self.feed, self.info, self.engine_toml = inner, inner.info, inner.engine_toml
+
+    def _read_internal(self, timeout: float | None) -> list:
+        return self.feed.read(timeout)
+
+    def _close_internal(self) -> None:
+        self.feed.close()
+
+
+def test_a_board_is_read_during_the_warm_up_and_what_its_queue_cannot_hold_is_counted(monkeypatch):
+    """A board's session starts at once: its input is queued while the ingest thread warms up, and what the queue
+    (1 s here) cannot hold is dropped and counted as a hole, not lost unsaid (design note 126)."""
+    from frictionwatch.drivers.logs.mcap_replay import McapSource
+    from frictionwatch.service import warmup
+    from frictionwatch.service.engine_service import EngineService
+    from frictionwatch.service.pipeline import resolve_model
+
+    release = threading.Event()
+
+    def held_warm_up(model, info, config, alerts, progress):
+        progress.started_s = time.monotonic()
+        release.wait(30)
+        progress.step, progress.ended_s = progress.steps, time.monotonic()
+        return 0.0
+
+    monkeypatch.setattr(warmup, "warm_up", held_warm_up)
+    board = Board(McapSource(ROOT / "replay_logs" / "deutz-1cyl.mcap", speed=1.0, loop=True))
+    model = resolve_model(board.engine_toml, None, "deutz", board.info)
+    svc = EngineService("board", model, board.info, {"board": board}, warm=True, max_queue_s=1.0).start()
+    try:
+        assert svc.session._started and svc.warming_up  # read from the start, analysed after the warm-up
+        time.sleep(3.0)
+        assert svc.cycles_ok == 0 and svc.backlog()["dropped_records"] > 0  # the queue's 1 s held, the rest counted
+        release.set()
+        assert svc.session.wait_results(3, timeout=600)
+        holes = svc.holes
+        assert holes and holes[0]["reason"] == "dropped_while_behind" and holes[0]["dropped_records"] > 0
+    finally:
+        release.set()
+        svc.stop()
