@@ -27,6 +27,7 @@ from frictionwatch.core.plant.plant import (
     I_NEXT_EDGE,
     I_NEXT_EDGE2,
     I_NIST,
+    N_FQ,
     NQ_GLOBAL,
     OP_BETA,
     OP_FUEL,
@@ -49,8 +50,8 @@ from frictionwatch.core.plant.plant import (
     Firing,
     PlantArrays,
     PressureTraces,
-    advance,
 )
+from frictionwatch.core.plant.plant_advance import advance
 from frictionwatch.core.plant.plant_setup import PlantModel, scalars
 from frictionwatch.core.plant.sensors import (
     CAM_DEG,
@@ -105,8 +106,10 @@ class PlantRun:
         self.edges = (edge_angles(spec.sensors, self.tooth_err),
                       np.arange(spec.sensors.wheel_teeth - spec.sensors.wheel_missing, dtype=np.float64), *edges2)
         nq = z * plant.nq_cyl + NQ_GLOBAL
+        # (th, om, acc, cumulative integrals, powers, pmax, [t, last cycle time], the cylinders' node quantities at
+        # the last two steps, the powers at the step before: core.plant.plant_advance)
         self.state = (np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(nq), np.zeros(nq), np.zeros(z),
-                      np.array([0.0, -1.0]))
+                      np.array([0.0, -1.0]), np.zeros((2, N_FQ, n)), np.zeros(nq))
         self.ist = np.zeros(I_NIST, dtype=np.int64)
         for i in (I_NEXT_EDGE, I_NEXT_CAM, I_NEXT_EDGE2):
             self.ist[i] = FAR
