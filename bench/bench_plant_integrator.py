@@ -3,8 +3,8 @@ the records' and the truth's differences on the three accuracy cases, 24 cycles,
 
     python -m bench.bench_plant_integrator [--cycles 24] [--engines genset-v20 k9k-4cyl deutz-1cyl]
 
-Both runs put tick 0 at the exact time of theta_F = -2 pi (the product puts it at the first step at or past it, so
-two steps differ there by up to a step: a common time offset of every record, not an integration error). Figures:
+Both runs put tick 0 at the exact time of theta_F = -2 pi (the kernel's crossing inside its step, design note 123's
+"landed"; before, it was the first step at or past it, a common offset of every record of up to a step). Figures:
 tooth times (max shift, also over the tooth period), tooth intervals (max change), the flywheel speed at each degree
 (relative), pressure samples (max change, also over the peak), each cycle's per-cylinder friction, the run's
 per-cylinder friction, FMEP, IMEP and the friction on the 1-deg grid (relative). A dyno engine's free speed wanders
@@ -16,34 +16,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 
 import numpy as np
 
 CASES = {"genset-v20": (1500.0, 0.75, {}), "k9k-4cyl": (2000.0, 0.7, {"ring_wear": {}}),
          "deutz-1cyl": (2600.0, 0.8, {})}
 REFERENCE_STEP_DEG = 0.125
-
-
-def _exact_tick0(run_cls) -> None:
-    """Tick 0 at the exact crossing of theta_F = -2 pi (Taylor backwards from the step's end) for both runs."""
-    from frictionwatch.core.plant.plant import I_NEXT_LOAD, I_NEXT_SAMPLE, S_LPERIOD, S_PPERIOD, S_T0OUT
-
-    orig = run_cls.start_output
-
-    def start_output(self) -> None:
-        th, om, acc, t = self.state[0], self.state[1], self.state[2], float(self.state[6][0])
-        f = self.plant.fly
-        x, d = th[f] + 2 * math.pi, (th[f] + 2 * math.pi) / om[f]
-        for _ in range(5):
-            d -= (om[f] * d - 0.5 * acc[f] * d * d - x) / (om[f] - acc[f] * d)
-        orig(self)
-        self.t_out0 = t - d
-        self.sc[S_T0OUT] = self.t_out0
-        self.ist[I_NEXT_SAMPLE] = math.ceil((t - self.t_out0) / self.sc[S_PPERIOD])
-        self.ist[I_NEXT_LOAD] = math.ceil((t - self.t_out0) / self.sc[S_LPERIOD])
-
-    run_cls.start_output = start_output
 
 
 def _run(engine: str, cycles: int, reference: bool) -> dict:
@@ -95,9 +73,6 @@ def main() -> None:
     ap.add_argument("--cycles", type=int, default=24)
     ap.add_argument("--engines", nargs="+", default=list(CASES))
     args = ap.parse_args()
-    from frictionwatch.core.plant.sim_run import PlantRun
-
-    _exact_tick0(PlantRun)
     out = {e: compare(_run(e, args.cycles, True), _run(e, args.cycles, False)) for e in args.engines}
     print(json.dumps({e: {k: float(f"{v:.3g}") for k, v in r.items()} for e, r in out.items()}, indent=1))
 

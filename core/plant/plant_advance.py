@@ -19,7 +19,8 @@ pressure trace's 0.25-deg linear pieces (kinks) the same way. The errors against
 note 123 (they are below today's RK4's own).
 
 Events inside a step (cycle boundaries, the 1-deg grid, tooth and cam edges, pressure and load samples) are placed
-on the cubic Hermite through the step's ends (``step_events``), as before.
+on the cubic Hermite through the step's ends (``step_events``), as before; so is tick 0, the output's time origin
+(the flywheel's crossing of ``sc[S_OUT_AT]``), so that no record's time depends on where the step grid falls.
 """
 
 from __future__ import annotations
@@ -54,6 +55,7 @@ from frictionwatch.core.plant.plant import (
     S_H,
     S_LPERIOD,
     S_NODE2,
+    S_OUT_AT,
     S_PPERIOD,
     S_T0OUT,
     S_WHEEL_OFF,
@@ -135,6 +137,13 @@ def step_events(model, op, edges, outs, ist, state, end, quad):
     t1 = t + h
     fly = int(sc[S_FLY])
     npres, npres2 = edge_angle.shape[0], edge_angle2.shape[0]
+    # tick 0 at the exact crossing of the armed angle inside this step, once (a step-grid tick 0 moved every record's
+    # time by up to a step between two step sizes: design note 123, "landed"); edges are recorded from it on
+    if sc[S_OUT_AT] <= th1[fly]:
+        s = crossing(sc[S_OUT_AT], h, th[fly], om[fly], th1[fly], om1[fly])
+        sc[S_T0OUT] = t + s * h
+        sc[S_OUT_AT] = np.inf
+    t0out = sc[S_T0OUT]
     # cycle boundaries theta_F = 4 pi n: cumulative integrals (the step's polynomial), pmax, speed estimate
     while FOUR_PI * ist[I_NEXT_CYCLE] <= th1[fly]:
         s = crossing(FOUR_PI * ist[I_NEXT_CYCLE], h, th[fly], om[fly], th1[fly], om1[fly])
@@ -165,9 +174,10 @@ def step_events(model, op, edges, outs, ist, state, end, quad):
         if target > th1[fly]:
             break
         s = crossing(target, h, th[fly], om[fly], th1[fly], om1[fly])
-        o_edge[ist[I_N_EDGE], 0] = t + s * h
-        o_edge[ist[I_N_EDGE], 1] = edge_index[j]
-        ist[I_N_EDGE] += 1
+        if t + s * h >= t0out:
+            o_edge[ist[I_N_EDGE], 0] = t + s * h
+            o_edge[ist[I_N_EDGE], 1] = edge_index[j]
+            ist[I_N_EDGE] += 1
         ist[I_NEXT_EDGE] += 1
     node2 = int(sc[S_NODE2])
     while npres2 > 0:  # the second wheel's edges, at its own node
@@ -178,18 +188,19 @@ def step_events(model, op, edges, outs, ist, state, end, quad):
         if target > th1[node2]:
             break
         s = crossing(target, h, th[node2], om[node2], th1[node2], om1[node2])
-        o_edge2[ist[I_N_EDGE2], 0] = t + s * h
-        o_edge2[ist[I_N_EDGE2], 1] = edge_index2[j]
-        ist[I_N_EDGE2] += 1
+        if t + s * h >= t0out:
+            o_edge2[ist[I_N_EDGE2], 0] = t + s * h
+            o_edge2[ist[I_N_EDGE2], 1] = edge_index2[j]
+            ist[I_N_EDGE2] += 1
         ist[I_NEXT_EDGE2] += 1
     while sc[S_CAM] + FOUR_PI * ist[I_NEXT_CAM] - off <= th1[fly]:
         target = sc[S_CAM] + FOUR_PI * ist[I_NEXT_CAM] - off
         s = crossing(target, h, th[fly], om[fly], th1[fly], om1[fly])
-        o_cam[ist[I_N_CAM]] = t + s * h
-        ist[I_N_CAM] += 1
+        if t + s * h >= t0out:
+            o_cam[ist[I_N_CAM]] = t + s * h
+            ist[I_N_CAM] += 1
         ist[I_NEXT_CAM] += 1
     # pressure samples at t0out + i * period (true pressure at each cylinder's own throw angle)
-    t0out = sc[S_T0OUT]
     while t0out + ist[I_NEXT_SAMPLE] * sc[S_PPERIOD] <= t1:
         ts = t0out + ist[I_NEXT_SAMPLE] * sc[S_PPERIOD]
         s = min(max((ts - t) / h, 0.0), 1.0)
