@@ -59,7 +59,11 @@ SERVE_IN_TRANSIT = {".session.": None, "sources['log']": None, "queue.queue": 25
 
 @pytest.fixture(scope="module")
 def sizes() -> dict[int, dict[str, int]]:
-    _, by_bin = stream(ENGINE, 2 * N, N, SEED, STEP)
+    # two cycles past the second bin: the stream is not flushed at its end (bench.long_run_cost.stream), so the last
+    # simulated cycle is served only when a load sample happens to fall in the quarter turn simulated past it (100 Hz
+    # against ~5 ms: maruti 20-cycle runs, seeds 1-6 and 13, lost it on seeds 1 and 4 with either integrator; seed
+    # 13's 600 cycles on the predictor-corrector served 599: design note 123)
+    _, by_bin = stream(ENGINE, 2 * N + 2, N, SEED, STEP)
     assert sorted(by_bin) == [N, 2 * N]
     return {n: {p: v for p, v in by_pattern(s).items() if p.startswith(("pipeline.", "alerts."))}
             for n, s in by_bin.items()}
