@@ -31,6 +31,10 @@ BOUNDED = {
     "pipeline.assembler._epoch.cam_votes": 64 + 32,
     # one band per load band the engine has run at (two loads here), however often it returns to them
     "alerts.baseline.bands": 2,
+    # the frame store's scratch for a cycle window's sample times (drivers/assembly/frame_store.py), grown to the
+    # largest window of retained rows seen, so at most the group's capacity (EngineBuffers' pressure_capacity); a
+    # high-water mark moves with the draw (21,618 -> 21,624 rows from 300 to 600 cycles with the predictor-corrector)
+    "pipeline.assembler._plan_buf.groups[(1, 2, 3)]._x": 1 << 15,
 }
 # serve's stack (bench.long_run_cost.serve_sizes: DataDir store, EngineService on the looped demo log, AlertEngine)
 SERVE_N, SERVE_HISTORY = 200, 100  # past its result history (history_cycles) and the alerts' baseline
