@@ -78,7 +78,8 @@ def cp_air(temp_k: np.ndarray) -> np.ndarray:
 def _wiebe_rate(u, a, expo, dur):
     """d x_b / d theta of one Wiebe function at u = theta - theta_s >= 0 [1/rad]."""
     r = u / dur
-    return a * expo / dur * r ** (expo - 1.0) * math.exp(-a * r**expo)
+    rm = r ** (expo - 1.0)  # r^expo as rm r: one pow, not two (design note 123)
+    return a * expo / dur * rm * math.exp(-a * rm * r)
 
 
 @numba.njit(**BORROWING)
@@ -132,11 +133,12 @@ def _closed_rhs(theta, vol, dvol, p, m, c, q, angle, wo):
     cp = cp_air_kernel(temp)
     g = cp / (cp - R_AIR)
     # Woschni: h = 3.26 B^-0.2 p[kPa]^0.8 T^-0.55 w^0.8 with w = C1 cbar + C2 Vd T_r/(p_r V_r) (p - p_mot)
+    # as h_pre exp(0.8 ln(p[kPa] w) - 0.55 ln T): two logs and an exp, not three pows (design note 123)
     omega = q[_OMEGA]
-    w08 = w0_08
     if theta - q[_SOC] > 0.0:
-        w08 = (w0 + wc2 * max(p - p_mot, 0.0)) ** 0.8
-    h = h_pre * (p * 1e-3) ** 0.8 * temp**-0.55 * w08
+        h = h_pre * math.exp(0.8 * math.log(p * 1e-3 * (w0 + wc2 * max(p - p_mot, 0.0))) - 0.55 * math.log(temp))
+    else:
+        h = h_pre * w0_08 * math.exp(0.8 * math.log(p * 1e-3) - 0.55 * math.log(temp))
     area_w = c[_AW0] + np.pi * c[_BORE] * vol / c[_AREA]
     dqw = h * area_w * (temp - c[_TW]) / omega
     dm = 0.0
@@ -178,10 +180,11 @@ def cycle_pressure_kernel(vol_half, dvol_half, c, q, out):
     m = p_ivc * c[_VIVC] / (R_AIR * c[_TIVC])
     m0 = m
     wo = _woschni_constants(c, q)
+    a4 = _angle_terms(i_ivc * h - 2.0 * np.pi, vol_half[2 * i_ivc], c, q)
     for i in range(i_ivc, i_evo):
         th = i * h - 2.0 * np.pi
         j = 2 * i
-        a1 = _angle_terms(th, vol_half[j], c, q)
+        a1 = a4  # the angle terms at the step's end are the next step's start (design note 123)
         a2 = _angle_terms(th + 0.5 * h, vol_half[j + 1], c, q)
         a4 = _angle_terms(th + h, vol_half[j + 2], c, q)
         k1p, k1m = _closed_rhs(th, vol_half[j], dvol_half[j], p, m, c, q, a1, wo)

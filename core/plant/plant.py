@@ -1,4 +1,6 @@
-"""Time-domain plant: the torsional chain of physics.md §11 integrated by fixed-step RK4 (numba).
+"""Time-domain plant: the torsional chain of physics.md §11, its right-hand side in two parts (numba): what the
+cylinders put on each node (``cylinder_forcing``, the costly part) and the shaft line's own (``chain_accel``);
+core.plant.plant_advance integrates them (the cylinders once a step, the shaft line by RK4; design note 123).
 
 Conventions (SI, radians inside):
 - Node angles theta_i [rad] are crank angles in cylinder 1's convention (0 = its firing TDC), unwrapped; omega_i [rad/s].
@@ -25,8 +27,9 @@ what makes each cycle's pressure trace, rebuilt per ``advance`` call (its pertur
 between calls). The per-cylinder helpers take the record fields as plain arguments: unpacking a record per cylinder
 and RK4 stage made the integrator ~40 % slower (measured), unpacking once per stage costs nothing measurable.
 
-Integrated alongside the state by the same RK4 weights (so energy closes to the integrator's accuracy), per cylinder
-k (``nq_cyl(L)`` values from k*nq_cyl(L)): gas power T_g omega, the L F_l omega, extra-friction power; then four globals:
+Integrated alongside the state (core.plant.plant_advance: on the parabola in time through three steps' values), per
+cylinder k (``nq_cyl(L)`` values from k*nq_cyl(L)): gas power T_g omega, the L F_l omega, extra-friction power; then
+four globals:
 load power T_L omega_L, relative-damper power sum c_i (omega_i - omega_(i+1))^2, int T_L dt, int (theta_L - Omega_g t) dt.
 """
 
@@ -49,9 +52,10 @@ from numba.core.errors import NumbaExperimentalFeatureWarning
 warnings.filterwarnings("ignore", message="First-class function type", category=NumbaExperimentalFeatureWarning)
 
 NQ_GLOBAL = 4
+N_FQ = 3  # the cylinders' node quantities (cylinder_forcing): torque, inertia, half its derivative
 # scalar layout ``sc``
 (S_R, S_L, S_E, S_AREA, S_PCC, S_MREC, S_VARJ, S_FLY, S_LOAD, S_WHEEL_OFF, S_CAM, S_PPERIOD, S_T0OUT, S_LPERIOD,
- S_GRID, S_CMIN, S_H, S_QPERKG, S_NODE2, S_NSC) = range(20)
+ S_GRID, S_CMIN, S_H, S_QPERKG, S_NODE2, S_OUT_AT, S_NSC) = range(21)
 # operating point ``op`` (updated between calls): fuel [kg], SOC [rad], beta_p, p_IVC, p_int, p_exh [Pa], omega est
 OP_FUEL, OP_SOC, OP_BETA, OP_PIVC, OP_PINT, OP_PEXH, OP_OMEGA, OP_N = range(8)
 # integer state ``ist``
@@ -112,7 +116,7 @@ def work_arrays(z: int, n_terms: int) -> tuple:
 
 
 @numba.njit(**BORROWING)
-def _trace_lookup(traces, slot_cycle, k, theta, tstep):
+def trace_lookup(traces, slot_cycle, k, theta, tstep):
     """Pressure [Pa] of cylinder k at unwrapped local angle theta from the trace of its cycle (linear interpolation);
     traces, slot_cycle, tstep: the fields of PressureTraces (plain arguments: this runs per cylinder and RK4 stage)."""
     c = math.floor((theta + TWO_PI) / FOUR_PI)
@@ -129,7 +133,7 @@ def _trace_lookup(traces, slot_cycle, k, theta, tstep):
 
 
 @numba.njit(**BORROWING)
-def _ensure_traces(th, model, firing, q):
+def ensure_traces(th, model, firing, q):
     """Make sure every cylinder holds the trace of its current combustion cycle, and of the next one once it is
     within ``TRACE_LEAD`` of the gas-exchange TDC that starts it (so a load step reaches the next intake).
     q (8,) is work space for the cycle parameters (core.model.thermo.cycle_params layout)."""
@@ -163,7 +167,7 @@ def _ensure_traces(th, model, firing, q):
 
 
 @numba.njit(**BORROWING)
-def _cylinder_terms(th, om, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep, w, kernels):
+def cylinder_terms(th, om, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep, w, kernels):
     """Per-cylinder local angle, speed, pressure, sample rows, x', x'' and the library's friction basis into ``w``
     (the record fields as plain arguments: this runs once per RK4 stage)."""
     loc, omc, pg, samples, dx, ddx, pres, fb = w
@@ -174,7 +178,7 @@ def _cylinder_terms(th, om, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep
         j = cyl_node[k]
         loc[k] = th[j] - phase[k]
         omc[k] = om[j]
-        pres[k] = _trace_lookup(traces, slot_cycle, k, loc[k], tstep)
+        pres[k] = trace_lookup(traces, slot_cycle, k, loc[k], tstep)
         pg[k] = pres[k] - sc[S_PCC]
         sin_a, cos_a = sincos(loc[k])
         dx[k], ddx[k] = fill_sample(sample_rows(samples, k), 0, loc[k], sin_a, cos_a, omc[k], pg[k], r, inv_rod, e)
@@ -183,7 +187,7 @@ def _cylinder_terms(th, om, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep
 
 
 @numba.njit(**BORROWING)
-def _extra_ripple(k, extra, loc):
+def extra_ripple(k, extra, loc):
     """extra_amp cos(order theta_k + phase) [N m]; no cosine where the amplitude is 0 (every cylinder but an
     extra-friction one: two cosines per cylinder and RK4 stage saved), which adds the same exact 0 to the sums."""
     if extra[k, 1] == 0.0:
@@ -192,8 +196,8 @@ def _extra_ripple(k, extra, loc):
 
 
 @numba.njit(**BORROWING)
-def _friction_torque(k, coef, extra, fb, ripple):
-    """T_f,k = sum_l a_kl F_kl + extra_mean + ripple [N m] (ripple = ``_extra_ripple``)."""
+def friction_torque(k, coef, extra, fb, ripple):
+    """T_f,k = sum_l a_kl F_kl + extra_mean + ripple [N m] (ripple = ``extra_ripple``)."""
     s = 0.0
     for m in range(coef.shape[1]):
         s += coef[k, m] * fb[m, k, 0]
@@ -216,23 +220,55 @@ def _load_torque(t, th_l, om_l, lp):
 
 
 @numba.njit(**BORROWING)
-def plant_rhs(t, th, om, model, w, acc, pw):
-    """Angular accelerations ``acc`` [rad/s^2] and integrand powers ``pw`` at (t, th, om) of the plant ``model``
-    (PlantArrays); w = ``work_arrays(z, L)``."""
-    inertia, stiff, damp, tq, jv, hdj = model.nodes
+def cylinder_forcing(th, om, model, w, fq, pw):
+    """What the cylinders put on the shaft line at (th, om): per node ``fq`` (N_FQ, n) = (gas minus friction
+    torque [N m], inertia [kg m^2] = rotating + sum m_rec x'^2, half its angle derivative sum m_rec x' x'' [kg m^2]),
+    and
+    the per-cylinder powers pw[:z nq] (gas, each loss term, extra friction, each x its throw's speed) [W]; w =
+    ``work_arrays(z, L)``. This is the simulator's costly part (per cylinder: a pressure lookup, a sincos, the
+    library's kernels); the shaft line's own arithmetic is ``chain_accel``."""
+    inertia = model.nodes[0]
     cyl_node, phase, coef, extra, kernels = model.cylinders
     sc = model.scalars
-    lp = model.load
     traces, slot_cycle, tstep = model.traces
-    n = inertia.shape[0]
     n_terms = coef.shape[1]
     nq = nq_cyl(n_terms)
-    _cylinder_terms(th, om, sc, cyl_node, phase, model.friction, traces, slot_cycle, tstep, w, kernels)
+    cylinder_terms(th, om, sc, cyl_node, phase, model.friction, traces, slot_cycle, tstep, w, kernels)
     loc, omc, pg, _samples, dx, ddx, _pres, fb = w
+    for i in range(inertia.shape[0]):
+        fq[0, i] = 0.0
+        fq[1, i] = inertia[i]
+        fq[2, i] = 0.0
+    varj = sc[S_VARJ] > 0.5
+    m_rec = sc[S_MREC]
+    for k in range(phase.shape[0]):
+        j = cyl_node[k]
+        tg = gas_torque_sample(pg[k], sc[S_AREA], dx[k])
+        ripple = extra_ripple(k, extra, loc)
+        tf = friction_torque(k, coef, extra, fb, ripple)
+        fq[0, j] += tg - tf
+        if varj:
+            fq[1, j] += m_rec * dx[k] * dx[k]
+            fq[2, j] += m_rec * dx[k] * ddx[k]
+        b = k * nq
+        pw[b] = tg * omc[k]
+        for m in range(n_terms):
+            pw[b + 1 + m] = fb[m, k, 0] * omc[k]
+        pw[b + n_terms + 1] = (extra[k, 0] + ripple) * omc[k]
+
+
+@numba.njit(**BORROWING)
+def chain_accel(t, th, om, model, fq, acc, gp):
+    """Node accelerations ``acc`` [rad/s^2] at (t, th, om) of the shaft line (its sections' springs and dampers, the
+    load) under the cylinders' node quantities ``fq`` (N_FQ, n) (``cylinder_forcing``'s, or their interpolation in
+    time), each throw by its Lagrange equation J alpha + 1/2 J' omega^2 = torque; the global powers into gp (4,):
+    load power T_L omega_L, relative-damper power, T_L, theta_L - Omega_g t."""
+    inertia, stiff, damp, tq, _jv, _hdj = model.nodes
+    sc = model.scalars
+    lp = model.load
+    n = inertia.shape[0]
     for i in range(n):
-        tq[i] = 0.0
-        jv[i] = inertia[i]
-        hdj[i] = 0.0
+        tq[i] = fq[0, i]
     pdamp = 0.0
     for i in range(n - 1):
         dw = om[i] - om[i + 1]
@@ -240,246 +276,26 @@ def plant_rhs(t, th, om, model, w, acc, pw):
         tq[i] -= s
         tq[i + 1] += s
         pdamp += damp[i] * dw * dw
-    varj = sc[S_VARJ] > 0.5
-    m_rec = sc[S_MREC]
-    for k in range(phase.shape[0]):
-        j = cyl_node[k]
-        tg = gas_torque_sample(pg[k], sc[S_AREA], dx[k])
-        ripple = _extra_ripple(k, extra, loc)
-        tf = _friction_torque(k, coef, extra, fb, ripple)
-        tq[j] += tg - tf
-        if varj:
-            jv[j] += m_rec * dx[k] * dx[k]
-            hdj[j] += m_rec * dx[k] * ddx[k]
-        b = k * nq
-        pw[b] = tg * omc[k]
-        for m in range(n_terms):
-            pw[b + 1 + m] = fb[m, k, 0] * omc[k]
-        pw[b + n_terms + 1] = (extra[k, 0] + ripple) * omc[k]
     ln = int(sc[S_LOAD])
     tl = _load_torque(t, th[ln], om[ln], lp)
     tq[ln] -= tl
     for i in range(n):
-        acc[i] = (tq[i] - hdj[i] * om[i] * om[i]) / jv[i]
-    g = phase.shape[0] * nq
-    pw[g] = tl * om[ln]
-    pw[g + 1] = pdamp
-    pw[g + 2] = tl
-    pw[g + 3] = th[ln] - lp[8] * t
-
-
-@numba.njit(**BORROWING)
-def _herm(s, h, y0, d0, y1, d1):
-    """Cubic Hermite value at fraction s of a step of length h (y, dy/dt at both ends)."""
-    s2 = s * s
-    s3 = s2 * s
-    return (2 * s3 - 3 * s2 + 1) * y0 + (s3 - 2 * s2 + s) * h * d0 + (3 * s2 - 2 * s3) * y1 + (s3 - s2) * h * d1
-
-
-@numba.njit(**BORROWING)
-def _herm_rate(s, h, y0, d0, y1, d1):
-    """d/dt of ``_herm`` at fraction s."""
-    s2 = s * s
-    return ((6 * s2 - 6 * s) * y0 + (3 * s2 - 4 * s + 1) * h * d0 + (6 * s - 6 * s2) * y1 + (3 * s2 - 2 * s) * h * d1) / h
-
-
-@numba.njit(**BORROWING)
-def _crossing(target, h, y0, d0, y1, d1):
-    """Fraction s in [0, 1] where the (monotone) Hermite angle reaches ``target`` (Newton from the chord)."""
-    s = (target - y0) / (y1 - y0)
-    for _ in range(4):
-        r = _herm(s, h, y0, d0, y1, d1) - target
-        d = _herm_rate(s, h, y0, d0, y1, d1) * h
-        if d <= 0.0:
-            break
-        s -= r / d
-        s = min(max(s, 0.0), 1.0)
-    return s
-
-
-@numba.njit(**BORROWING)
-def _state_at(s, h, th0, om0, a0, th1, om1, a1, ths, oms):
-    for i in range(th0.shape[0]):
-        ths[i] = _herm(s, h, th0[i], om0[i], th1[i], om1[i])
-        oms[i] = _herm(s, h, om0[i], a0[i], om1[i], a1[i])
+        acc[i] = (tq[i] - fq[2, i] * om[i] * om[i]) / fq[1, i]
+    gp[0] = tl * om[ln]
+    gp[1] = pdamp
+    gp[2] = tl
+    gp[3] = th[ln] - lp[8] * t
 
 
 @numba.njit(cache=True)
-def advance(model, firing, edges, state, ist, outs, theta_stop, t_stop):
-    """Integrate the plant ``model`` (PlantArrays) with the cycles' pressure made from ``firing`` (Firing) until the
-    flywheel angle reaches ``theta_stop`` [rad], t reaches ``t_stop`` [s] or a buffer fills.
-
-    edges = (wheel edge angles [rad], their tooth index, the second wheel's edge angles [rad] and tooth index, both
-    empty without one); state = (th, om, acc, cumulative integrals, powers, pmax, [t, last cycle time]), updated in
-    place. Writes events into ``outs`` = (cycles, grid, edge, cam, samples, load, second-wheel edge) at the counters
-    in ``ist``. The second wheel turns with node ``sc[S_NODE2]`` (its own frame: no wheel offset) and returns the status: 0 angle reached, 1 time reached, 2 a buffer is full,
-    3 a pressure lookup failed (bug), 4 state not finite.
-    """
-    inertia = model.nodes[0]
-    cyl_node, phase, coef, extra, kernels = model.cylinders
-    sc = model.scalars
-    fprm = model.friction
-    traces, slot_cycle, tstep = model.traces
-    op = firing.op
-    edge_angle, edge_index, edge_angle2, edge_index2 = edges
-    th, om, acc, cum, pw, pmax, tarr = state
-    o_cyc, o_grid, o_edge, o_cam, o_samp, o_load, o_edge2 = outs
-    n = inertia.shape[0]
-    z = phase.shape[0]
-    nq = cum.shape[0]
-    h = sc[S_H]
-    fly = int(sc[S_FLY])
-    q = np.zeros(8)
-    w = (np.zeros(z), np.zeros(z), np.zeros(z), np.zeros((N_FIELDS, z, 1)), np.zeros(z), np.zeros(z), np.zeros(z),
-         np.zeros((coef.shape[1], z, 1)))
-    th2, om2, th1, om1, a1, a2, a3, a4 = (np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n),
-                                          np.zeros(n), np.zeros(n), np.zeros(n))
-    ths, oms = np.zeros(n), np.zeros(n)
-    pw2, pw3, pw4, pw1n = np.zeros(nq), np.zeros(nq), np.zeros(nq), np.zeros(nq)
-    npres = edge_angle.shape[0]
-    npres2 = edge_angle2.shape[0]
-    node2 = int(sc[S_NODE2])
-    t0out = sc[S_T0OUT]
-    _ensure_traces(th, model, firing, q)
-    t = tarr[0]
-    if ist[I_STATUS] == 0:  # first call: derivative at the initial state
-        plant_rhs(t, th, om, model, w, acc, pw)
-        ist[I_STATUS] = 1
-    while True:
-        if th[fly] >= theta_stop:
-            return 0
-        if t >= t_stop:
-            return 1
-        if (ist[I_N_CYC] + 2 > o_cyc.shape[0] or ist[I_N_GRID] + 8 > o_grid.shape[0] or
-                ist[I_N_EDGE] + 8 > o_edge.shape[0] or ist[I_N_CAM] + 2 > o_cam.shape[0] or
-                ist[I_N_SAMPLE] + 16 > o_samp.shape[0] or ist[I_N_LOAD] + 2 > o_load.shape[0] or
-                (npres2 > 0 and ist[I_N_EDGE2] + 8 > o_edge2.shape[0])):
-            return 2
-        # ---- RK4 step (k1 = (om, acc) and pw at the current state are known) ----
-        for i in range(n):
-            th2[i] = th[i] + 0.5 * h * om[i]
-            om2[i] = om[i] + 0.5 * h * acc[i]
-        plant_rhs(t + 0.5 * h, th2, om2, model, w, a2, pw2)
-        for i in range(n):
-            th1[i] = om2[i]  # k2 for theta
-            th2[i] = th[i] + 0.5 * h * om2[i]
-            om2[i] = om[i] + 0.5 * h * a2[i]
-        plant_rhs(t + 0.5 * h, th2, om2, model, w, a3, pw3)
-        for i in range(n):
-            om1[i] = om2[i]  # k3 for theta
-            th2[i] = th[i] + h * om2[i]
-            om2[i] = om[i] + h * a3[i]
-        plant_rhs(t + h, th2, om2, model, w, a4, pw4)
-        for i in range(n):
-            dth = om[i] + 2.0 * th1[i] + 2.0 * om1[i] + om2[i]
-            dom = acc[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i]
-            th1[i] = th[i] + h / 6.0 * dth
-            om1[i] = om[i] + h / 6.0 * dom
-        t1 = t + h
-        _ensure_traces(th1, model, firing, q)
-        plant_rhs(t1, th1, om1, model, w, a1, pw1n)
-        pres = w[6]
-        if not np.isfinite(om1[fly]):
-            return 4
-        for k in range(z):
-            if not np.isfinite(pres[k]):
-                return 3
-        # ---- events inside [t, t1] ----
-        # cycle boundaries theta_F = 4 pi n: cumulative integrals (linear within the step), pmax, speed estimate
-        while FOUR_PI * ist[I_NEXT_CYCLE] <= th1[fly]:
-            s = _crossing(FOUR_PI * ist[I_NEXT_CYCLE], h, th[fly], om[fly], th1[fly], om1[fly])
-            row = o_cyc[ist[I_N_CYC]]
-            row[0] = t + s * h
-            for m in range(nq):
-                row[1 + m] = cum[m] + s * h / 6.0 * (pw[m] + 2.0 * pw2[m] + 2.0 * pw3[m] + pw4[m])
-            for k in range(z):
-                row[1 + nq + k] = pmax[k]
-                pmax[k] = 0.0
-            if tarr[1] >= 0.0:
-                op[OP_OMEGA] = FOUR_PI / (row[0] - tarr[1])
-            tarr[1] = row[0]
-            ist[I_N_CYC] += 1
-            ist[I_NEXT_CYCLE] += 1
-        for m in range(nq):
-            cum_new = cum[m] + h / 6.0 * (pw[m] + 2.0 * pw2[m] + 2.0 * pw3[m] + pw4[m])
-            pw2[m] = cum_new  # keep the step-end cumulative values for the load samples below
-        for k in range(z):
-            pmax[k] = max(pmax[k], pres[k])
-        # 1-deg grid of the flywheel angle: total friction torque and flywheel speed (output phase only)
-        while ist[I_NEXT_GRID] * sc[S_GRID] <= th1[fly]:
-            target = ist[I_NEXT_GRID] * sc[S_GRID]
-            s = _crossing(target, h, th[fly], om[fly], th1[fly], om1[fly])
-            _state_at(s, h, th, om, acc, th1, om1, a1, ths, oms)
-            _cylinder_terms(ths, oms, sc, cyl_node, phase, fprm, traces, slot_cycle, tstep, w, kernels)
-            tf = 0.0
-            for k in range(z):
-                tf += _friction_torque(k, coef, extra, w[7], _extra_ripple(k, extra, w[0]))
-            g = o_grid[ist[I_N_GRID]]
-            g[0] = t + s * h
-            g[1] = tf
-            g[2] = oms[fly]
-            ist[I_N_GRID] += 1
-            ist[I_NEXT_GRID] += 1
-        # tooth edges and cam edges on the wheel frame theta_W = theta_F + wheel offset
-        off = sc[S_WHEEL_OFF]
-        while True:
-            e = ist[I_NEXT_EDGE]
-            r = e // npres
-            j = e - r * npres
-            target = edge_angle[j] + TWO_PI * r - off
-            if target > th1[fly]:
-                break
-            s = _crossing(target, h, th[fly], om[fly], th1[fly], om1[fly])
-            o_edge[ist[I_N_EDGE], 0] = t + s * h
-            o_edge[ist[I_N_EDGE], 1] = edge_index[j]
-            ist[I_N_EDGE] += 1
-            ist[I_NEXT_EDGE] += 1
-        while npres2 > 0:  # the second wheel's edges, at its own node
-            e = ist[I_NEXT_EDGE2]
-            r = e // npres2
-            j = e - r * npres2
-            target = edge_angle2[j] + TWO_PI * r
-            if target > th1[node2]:
-                break
-            s = _crossing(target, h, th[node2], om[node2], th1[node2], om1[node2])
-            o_edge2[ist[I_N_EDGE2], 0] = t + s * h
-            o_edge2[ist[I_N_EDGE2], 1] = edge_index2[j]
-            ist[I_N_EDGE2] += 1
-            ist[I_NEXT_EDGE2] += 1
-        while sc[S_CAM] + FOUR_PI * ist[I_NEXT_CAM] - off <= th1[fly]:
-            target = sc[S_CAM] + FOUR_PI * ist[I_NEXT_CAM] - off
-            s = _crossing(target, h, th[fly], om[fly], th1[fly], om1[fly])
-            o_cam[ist[I_N_CAM]] = t + s * h
-            ist[I_N_CAM] += 1
-            ist[I_NEXT_CAM] += 1
-        # pressure samples at t0out + i * period (true pressure at each cylinder's own throw angle)
-        while t0out + ist[I_NEXT_SAMPLE] * sc[S_PPERIOD] <= t1:
-            ts = t0out + ist[I_NEXT_SAMPLE] * sc[S_PPERIOD]
-            s = min(max((ts - t) / h, 0.0), 1.0)
-            row = o_samp[ist[I_N_SAMPLE]]
-            for k in range(z):
-                j = cyl_node[k]
-                thk = _herm(s, h, th[j], om[j], th1[j], om1[j]) - phase[k]
-                row[k] = _trace_lookup(traces, slot_cycle, k, thk, tstep)
-            ist[I_N_SAMPLE] += 1
-            ist[I_NEXT_SAMPLE] += 1
-        # load samples: cumulative int T_L dt and int T_L omega_L dt at t0out + i * period
-        g0 = z * nq_cyl(coef.shape[1])
-        while t0out + ist[I_NEXT_LOAD] * sc[S_LPERIOD] <= t1:
-            tl = t0out + ist[I_NEXT_LOAD] * sc[S_LPERIOD]
-            s = min(max((tl - t) / h, 0.0), 1.0)
-            o_load[ist[I_N_LOAD], 0] = tl
-            o_load[ist[I_N_LOAD], 1] = cum[g0 + 2] + s * (pw2[g0 + 2] - cum[g0 + 2])
-            o_load[ist[I_N_LOAD], 2] = cum[g0] + s * (pw2[g0] - cum[g0])
-            ist[I_N_LOAD] += 1
-            ist[I_NEXT_LOAD] += 1
-        # ---- accept the step ----
-        for m in range(nq):
-            cum[m] = pw2[m]
-            pw[m] = pw1n[m]
-        for i in range(n):
-            th[i] = th1[i]
-            om[i] = om1[i]
-            acc[i] = a1[i]
-        t = t1
-        tarr[0] = t
+def plant_rhs(t, th, om, model, w, acc, pw):
+    """Angular accelerations ``acc`` [rad/s^2] and integrand powers ``pw`` (per cylinder, then the NQ_GLOBAL
+    globals) at (t, th, om) of the plant ``model`` (PlantArrays): ``cylinder_forcing`` then ``chain_accel``, as the
+    integrator composes them; w = ``work_arrays(z, L)``."""
+    fq = np.zeros((N_FQ, th.shape[0]))
+    gp = np.zeros(NQ_GLOBAL)
+    cylinder_forcing(th, om, model, w, fq, pw)
+    chain_accel(t, th, om, model, fq, acc, gp)
+    g = pw.shape[0] - NQ_GLOBAL
+    for m in range(NQ_GLOBAL):
+        pw[g + m] = gp[m]

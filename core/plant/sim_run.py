@@ -27,6 +27,7 @@ from frictionwatch.core.plant.plant import (
     I_NEXT_EDGE,
     I_NEXT_EDGE2,
     I_NIST,
+    N_FQ,
     NQ_GLOBAL,
     OP_BETA,
     OP_FUEL,
@@ -41,6 +42,7 @@ from frictionwatch.core.plant.plant import (
     S_H,
     S_LPERIOD,
     S_NODE2,
+    S_OUT_AT,
     S_PPERIOD,
     S_QPERKG,
     S_T0OUT,
@@ -49,8 +51,8 @@ from frictionwatch.core.plant.plant import (
     Firing,
     PlantArrays,
     PressureTraces,
-    advance,
 )
+from frictionwatch.core.plant.plant_advance import advance
 from frictionwatch.core.plant.plant_setup import PlantModel, scalars
 from frictionwatch.core.plant.sensors import (
     CAM_DEG,
@@ -77,6 +79,7 @@ class PlantRun:
         sc[S_CAM] = np.radians(CAM_DEG)
         sc[S_PPERIOD] = 1.0 / spec.sensors.pressure_rate_hz
         sc[S_T0OUT] = np.inf
+        sc[S_OUT_AT] = np.inf  # no output start armed (``start_output``)
         sc[S_LPERIOD] = 1.0 / LOAD_RATE_HZ
         sc[S_QPERKG] = spec.combustion.combustion_efficiency * spec.combustion.lhv_j_per_kg
         self.sc = sc
@@ -105,8 +108,10 @@ class PlantRun:
         self.edges = (edge_angles(spec.sensors, self.tooth_err),
                       np.arange(spec.sensors.wheel_teeth - spec.sensors.wheel_missing, dtype=np.float64), *edges2)
         nq = z * plant.nq_cyl + NQ_GLOBAL
+        # (th, om, acc, cumulative integrals, powers, pmax, [t, last cycle time], the cylinders' node quantities at
+        # the last two steps, the powers at the step before: core.plant.plant_advance)
         self.state = (np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(nq), np.zeros(nq), np.zeros(z),
-                      np.array([0.0, -1.0]))
+                      np.array([0.0, -1.0]), np.zeros((2, N_FQ, n)), np.zeros(nq))
         self.ist = np.zeros(I_NIST, dtype=np.int64)
         for i in (I_NEXT_EDGE, I_NEXT_CAM, I_NEXT_EDGE2):
             self.ist[i] = FAR
@@ -352,10 +357,15 @@ class PlantRun:
                 store.append(buf[:m].copy())
             self.ist[ci] = 0
 
-    def start_output(self) -> None:
-        """Tick 0 is now (theta_F just past -2 pi): start pressure/load sampling, tooth and cam edges."""
-        self.t_out0 = float(self.state[6][0])
-        self.sc[S_T0OUT] = self.t_out0
+    def start_output(self, theta_out: float, report) -> None:
+        """Integrate on to flywheel angle ``theta_out``, ahead, with tick 0 at its exact crossing: the kernel places
+        it inside its step on the step's Hermite, as it places the tooth edges (``step_events``), and starts the
+        pressure and load samples there; tooth and cam edges are recorded from that time on. (Tick 0 at the first
+        step past it moved every record's time by up to a step when the step changed: design note 123.)"""
+        if self.theta_fly >= theta_out:
+            raise RuntimeError("the output's start is armed before the flywheel reaches it")
+        self.sc[S_OUT_AT] = theta_out
+        # edges from the angles now: the kernel passes over those before tick 0 without recording them
         theta_w = self.theta_fly + self.sc[S_WHEEL_OFF]
         self.ist[I_NEXT_EDGE] = first_index_at_or_after(theta_w, self.edges[0], TWO_PI)
         if self.spec.sensors.has_cam:
@@ -363,6 +373,10 @@ class PlantRun:
         if self.wheel2 is not None:
             theta2 = float(self.state[0][int(self.sc[S_NODE2])])
             self.ist[I_NEXT_EDGE2] = first_index_at_or_after(theta2, self.edges[2], TWO_PI)
+        self.advance_to(theta_out, report)
+        self.t_out0 = float(self.sc[S_T0OUT])
+        if not np.isfinite(self.t_out0):
+            raise RuntimeError("plant: the output's start was not reached (internal error)")
 
     def drain(self) -> dict:
         """The events recorded since the last drain, handed over and forgotten here (so a long run holds one stretch

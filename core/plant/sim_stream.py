@@ -191,8 +191,7 @@ class Simulation:
             run.advance_to(theta_start + 2.0 * np.pi + 4.0 * np.pi * (i + 1), report)
             run.govern()
         law_info = run.final_law()
-        run.advance_to(-2.0 * np.pi, report)
-        run.start_output()
+        run.start_output(-2.0 * np.pi, report)
         sensors, truth = self._streams()
         pending = [] if self.stages is None else list(range(1, len(self.stages.onsets)))  # stage switches to come
         correction = law_info["load_torque_settled_nm"] - self.operating["brake_torque_estimate_nm"]

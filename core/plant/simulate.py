@@ -14,8 +14,9 @@
 worth whatever the number of cycles when its chunks are consumed as they come. The records and truth do not depend
 on the chunk size (tests/core/test_simulate_chunks.py).
 
-This is deliberately a different route from the monitor's harmonic balance (design.md §4): fixed-step RK4 in time on
-the full nonlinear chain (core.plant.plant), with J(theta) per throw, pressure and friction at each throw's own angle.
+This is deliberately a different route from the monitor's harmonic balance (design.md §4): fixed steps in time on
+the full nonlinear chain (core.plant.plant; the cylinders evaluated once a step and the shaft line by RK4,
+core.plant.plant_advance), with J(theta) per throw, pressure and friction at each throw's own angle.
 
 Conventions (truth and records):
 - Crank angle: cylinder 1's convention, 0 = its firing TDC. The truth uses the TRUE flywheel-node angle theta_F;
@@ -54,7 +55,7 @@ from frictionwatch.core.plant.sim_stream import SETTLE_A_CYCLES, SETTLE_B_CYCLES
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 from scipy.linalg import eigh
 
-STEP_DEG = 0.25  # integrator step at the mean speed (capped by the fastest mode)
+STEP_DEG = 0.5  # integrator step at the mean speed (capped by the fastest mode: 0.5 / w_max); design note 123
 MIN_SLOPE_FRACTION = 0.25  # dyno law slope never below 25 % of the full-load brake torque / omega^s
 
 

@@ -12,6 +12,7 @@ from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.monitor.identify import identification, step
 from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
+from frictionwatch.core.monitor.identify.posterior import posterior_from_normal
 from frictionwatch.core.monitor.pipeline import CyclePipeline
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.pipeline import assembled_cycles
@@ -78,15 +79,29 @@ def _compare(got, want, where: str) -> int:
 def test_kernel_against_reference_on_real_cycles(name):
     seen, bounded = _steps(name)
     assert len(seen) >= 35
-    # the worn-ring log's later cycles have a bound active in the cycle's own posterior (seen: 8 of 40): the
-    # kernel's partial answer, NNLS, then report_kernel; the genset's none
-    assert (len(bounded) > 0) == (name == "k9k-4cyl"), bounded
+    # the kernel's whole answer on most cycles; whether a posterior's free friction scale goes below zero (a bound
+    # active) is the noise's draw: k9k seed 3 on the former integrator 8 of 40 cycles, on today's none (nor seeds 1,
+    # 2, 4, 5 on either), genset-v20 none on the former, cycle 26 on today's (design note 123); so the bounded path
+    # is run below on purpose
+    assert len(bounded) < len(seen) // 2, bounded
     numbers = 0
     for i, (args, got) in enumerate(seen):
         numbers += _compare(got, step.identify_step_reference(*args), f"{name} cycle {i}")
     assert numbers > 35 * 100
     # the warm-up's unfolded cycles were compared too
     assert not seen[0][0][-1].fold and seen[-1][0][-1].fold
+    # a bound active in both posteriors of every cycle, whatever the draw: the last 8 steps again with every friction
+    # scale held at or above 1.3 (the truth's are 1, the worn ring's 1.3 in k9k's cylinder 2; the tooth nuisances stay
+    # free): the kernel's partial answer, NNLS, then report_kernel, against the reference
+    decided = []
+    for i, (args, _) in enumerate(seen[-8:]):
+        lower = np.where(np.isfinite(args[3]), 1.3, args[3])
+        held = (*args[:3], lower, *args[4:])
+        with pytest.MonkeyPatch.context() as mp:  # the kernel's calls counted, not the reference's own
+            mp.setattr(step, "posterior_from_normal", lambda *a: decided.append(1) or posterior_from_normal(*a))
+            got = step.identify_step(*held)
+        _compare(got, step.identify_step_reference(*held), f"{name} held cycle {i}")
+    assert len(decided) == 2 * 8, len(decided)
 
 
 def test_kernel_against_reference_floor_and_calibration_branches():

@@ -16,12 +16,11 @@ from frictionwatch.core.plant.plant import (
     NQ_GLOBAL,
     PlantArrays,
     PressureTraces,
-    _crossing,
-    _herm,
     _load_torque,
     plant_rhs,
     work_arrays,
 )
+from frictionwatch.core.plant.plant_advance import crossing, herm
 from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, linearised_stiffness, scalars
 from frictionwatch.core.plant.simulate import simulate
 from numpy.testing import assert_allclose, assert_array_equal
@@ -119,8 +118,8 @@ def test_load_law_short_cuts_are_the_general_law():
 def test_hermite_crossing_inverts_a_cubic():
     h, y0, d0, y1, d1 = 1e-4, 1.0, 150.0, 1.0162, 170.0
     for target in np.linspace(y0, y1, 7):
-        s = _crossing(target, h, y0, d0, y1, d1)
-        assert abs(_herm(s, h, y0, d0, y1, d1) - target) < 1e-12
+        s = crossing(target, h, y0, d0, y1, d1)
+        assert abs(herm(s, h, y0, d0, y1, d1) - target) < 1e-12
 
 
 # engines.md §2 natural frequencies [Hz] (CHK, openTorsion); maruti's CHK set (39, 632, 1739) used another layout

@@ -31,6 +31,10 @@ BOUNDED = {
     "pipeline.assembler._epoch.cam_votes": 64 + 32,
     # one band per load band the engine has run at (two loads here), however often it returns to them
     "alerts.baseline.bands": 2,
+    # the frame store's scratch for a cycle window's sample times (drivers/assembly/frame_store.py), grown to the
+    # largest window of retained rows seen, so at most the group's capacity (EngineBuffers' pressure_capacity); a
+    # high-water mark moves with the draw (21,618 -> 21,624 rows from 300 to 600 cycles with the predictor-corrector)
+    "pipeline.assembler._plan_buf.groups[(1, 2, 3)]._x": 1 << 15,
 }
 # serve's stack (bench.long_run_cost.serve_sizes: DataDir store, EngineService on the looped demo log, AlertEngine)
 SERVE_N, SERVE_HISTORY = 200, 100  # past its result history (history_cycles) and the alerts' baseline
@@ -59,7 +63,11 @@ SERVE_IN_TRANSIT = {".session.": None, "sources['log']": None, "queue.queue": 25
 
 @pytest.fixture(scope="module")
 def sizes() -> dict[int, dict[str, int]]:
-    _, by_bin = stream(ENGINE, 2 * N, N, SEED, STEP)
+    # two cycles past the second bin: the stream is not flushed at its end (bench.long_run_cost.stream), so the last
+    # simulated cycle is served only when a load sample happens to fall in the quarter turn simulated past it (100 Hz
+    # against ~5 ms: maruti 20-cycle runs, seeds 1-6 and 13, lost it on seeds 1 and 4 with either integrator; seed
+    # 13's 600 cycles on the predictor-corrector served 599: design note 123)
+    _, by_bin = stream(ENGINE, 2 * N + 2, N, SEED, STEP)
     assert sorted(by_bin) == [N, 2 * N]
     return {n: {p: v for p, v in by_pattern(s).items() if p.startswith(("pipeline.", "alerts."))}
             for n, s in by_bin.items()}
