@@ -29,14 +29,16 @@ COPY replay_logs/demo.mcap replay_logs/demo.mcap
 # NUMBA_CPU_NAME=generic: numba keys its cache on the CPU name and features (numba.core.codegen.magic_tuple); with the
 # generic CPU and no features the key is the same on every x86-64 host, so the code compiled on the build machine is
 # used wherever the image runs (at the cost of the host's wider vector instructions). The warm-up runs as the user
-# the service runs as, so a kernel it did not reach can still be compiled and cached at run time.
+# the service runs as, so a kernel it did not reach can still be compiled and cached at run time; serve's own warm-up
+# (service/warmup.py, design note 126) last, so the container's start loads what it compiles instead.
 USER fw
 ENV NUMBA_CACHE_DIR=/opt/numba-cache \
     NUMBA_CPU_NAME=generic
 RUN frictionwatch analyze replay_logs/demo.mcap >/dev/null \
     && frictionwatch simulate --engine genset-v20 --rpm 1500 --load 0.75 --cycles 6 --seed 1 -o /tmp/warm/v20.mcap \
     && frictionwatch analyze /tmp/warm/v20.mcap >/dev/null \
-    && rm -rf /tmp/warm
+    && rm -rf /tmp/warm \
+    && python -m frictionwatch.service.warmup replay_logs/demo.mcap
 
 VOLUME /data
 EXPOSE 8080

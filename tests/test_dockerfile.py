@@ -79,3 +79,5 @@ def test_the_numba_cache_is_compiled_at_build_time_for_a_generic_cpu():
     assert warm and warm[0] > env_at  # the warm-up compiles under the settings the service runs with
     user_at = max(i for i, (op, _) in enumerate(ops) if op == "USER")
     assert user_at < warm[0]  # and as the service's user, so the cache stays writable for what it did not reach
+    # serve's warm-up of the bundled log's engine (service/warmup.py): what the container's start would compile
+    assert "python -m frictionwatch.service.warmup replay_logs/demo.mcap" in ops[warm[0]][1]

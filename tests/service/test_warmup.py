@@ -187,3 +187,27 @@ def test_a_board_is_read_during_the_warm_up_and_what_its_queue_cannot_hold_is_co
     finally:
         release.set()
         svc.stop()
+
+
+def test_the_warm_up_alone_from_the_command_line(capsys):
+    """``python -m frictionwatch.service.warmup LOG`` (the image's build, Dockerfile): the log's engine warmed up, or
+    one line and exit status 2 for a log it cannot read."""
+    from frictionwatch.service import warmup
+
+    assert warmup.main([str(ROOT / "replay_logs" / "demo.mcap")]) == 0
+    assert capsys.readouterr().out.startswith("warm-up of genset-v20: ")
+    assert warmup.main([str(ROOT / "README.md")]) == 2
+    out = capsys.readouterr().out
+    assert out.startswith("warm-up: ") and "not an MCAP file" in out and out.count("\n") == 1
+
+
+def test_the_warm_point_is_inside_the_engines_speed_range_away_from_its_edge():
+    """Half the rated speed, or a fifth into the speed range where that is higher (genset-v20's half, 750 rpm, is
+    below its 1,100-1,650 range; at the edge itself cycles skipped speed_out_of_range)."""
+    from frictionwatch.core.model.engine import load_engine
+    from frictionwatch.core.model.engine_model import EngineModel
+    from frictionwatch.service.warmup import warm_point
+
+    for name, rpm in (("genset-v20", 1210.0), ("k9k-4cyl", 2000.0), ("deutz-1cyl", 1500.0), ("maruti-3cyl", 3000.0)):
+        got, _ = warm_point(EngineModel.from_spec(load_engine(name)))
+        assert abs(got - rpm) < 1e-9, (name, got)
