@@ -161,6 +161,7 @@ class EngineBuffers:
             v = v[first:]
         i, skip = group.reserve(v.size)
         write_block(group.t, group.p[0], i, t0 + skip * period, float(period), v[skip:])
+        group.period = float(period)  # a hole the whole window falls in (pressure_kernels.window_weights)
         return int(v.size)
 
     def _frame_group(self, frame: PressureFrame, k: int, n: int
@@ -225,6 +226,7 @@ class EngineBuffers:
         else:  # a one-cylinder frame shares the ring of its cylinder's blocks
             i, skip = group.reserve(n - first)
             write_frame(group.t, group.p, i, t0 + skip * period, float(period), v, first + skip)
+            group.period = float(period)
         return int(n - first) * k
 
     def release_before(self, t_keep: float, load_hold_ticks: float, cam_next: int) -> None:

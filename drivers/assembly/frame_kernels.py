@@ -112,7 +112,9 @@ def frame_rows(frames, ci, cf, n_chunks, start, end, t_grid, rows, out, codes, x
     chunk_times(ci, cf, n_chunks, start + a, start + b, x)
     jj = np.empty(m, np.int64)
     ww = np.empty(m)
-    hole = window_weights(x, t_grid, jj, ww)
+    # the frames' own sample period (the window's first chunk's; a group's frames share it): a hole the whole window
+    # falls in is seen (window_weights)
+    hole = window_weights(x, t_grid, jj, ww, cf[_chunk_of(ci, n_chunks, start + a), 1])
     interp = hole == nx - 1
     need = nx if interp else hole  # window samples whose NaN check counts (a row with a hole: up to it)
     nan = np.zeros(k, np.bool_)

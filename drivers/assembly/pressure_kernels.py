@@ -42,14 +42,21 @@ def pressure_row(col_t, col_p, start, end, t_grid, out):
 
 
 @numba.njit(cache=True)
-def window_weights(x, t_grid, jj, ww):
+def window_weights(x, t_grid, jj, ww, period):
     """The part of a group's resampling that depends on the shared sample times x (the retained window that
-    brackets the sorted times t_grid) only: the first hole (a spacing over 1.5 times the window's mean; x.size - 1:
-    none, as ``interp_checked_kernel``) and, when there is none, the interval j and weight w of every grid time
-    (``resample.interp_sorted``'s walk) into jj, ww. Returns the hole index."""
+    brackets the sorted times t_grid) only: the first hole (a spacing over 1.5 times the window's mean, or over 1.5
+    sample periods where ``period`` > 0 is the source's own; x.size - 1: none, as ``interp_checked_kernel``) and,
+    when there is none, the interval j and weight w of every grid time (``resample.interp_sorted``'s walk) into jj,
+    ww. Returns the hole index.
+
+    Why the period: the window's mean cannot see a hole that swallows the whole window -- a cycle inside a stretch of
+    pressure dropped has a window of two samples, the last before the hole and the first after it, whose mean
+    spacing is the hole itself; the cycle was interpolated across it, ~170 bar off (session 35)."""
     nx = x.shape[0]
     m = t_grid.shape[0]
     lim = 1.5 * (x[nx - 1] - x[0]) / (nx - 1)
+    if period > 0.0 and 1.5 * period < lim:
+        lim = 1.5 * period
     hole = nx - 1
     for i in range(nx - 1):
         if x[i + 1] - x[i] > lim:
@@ -88,10 +95,11 @@ def _row_on_weights(y, nx, hole, jj, ww, o):
 
 
 @numba.njit(cache=True)
-def pressure_rows(col_t, block_p, start, end, t_grid, rows, out, codes):
+def pressure_rows(col_t, block_p, start, end, t_grid, rows, out, codes, period=0.0):
     """Every row of a pressure group (time column col_t, value block block_p (k, 2 cap), retained rows
     [start, end)) at the sorted times t_grid: row r into out[rows[r]] (rows[r] < 0: not wanted), its code
-    (ROW_*) into codes[r]. Returns the number of wanted rows that are not ROW_OK.
+    (ROW_*) into codes[r]. Returns the number of wanted rows that are not ROW_OK. ``period``: the samples' own
+    period [ticks] where known (> 0), for the hole test (``window_weights``).
 
     What ``pressure_row`` gives for each row on its own (the same arithmetic): the window search, the hole search and the
     interpolation intervals and weights depend on the shared times only and are done once (``window_weights``);
@@ -117,7 +125,7 @@ def pressure_rows(col_t, block_p, start, end, t_grid, rows, out, codes):
     nx = b - a
     jj = np.empty(m, np.int64)
     ww = np.empty(m)
-    hole = window_weights(col_t[i0 + a : i0 + b], t_grid, jj, ww)
+    hole = window_weights(col_t[i0 + a : i0 + b], t_grid, jj, ww, period)
     for r in range(k):
         if rows[r] < 0:
             codes[r] = ROW_OK

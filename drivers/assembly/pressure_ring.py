@@ -44,6 +44,8 @@ class PressureGroup:
         self.start = 0
         self.end = 0
         self.dropped = 0  # unreleased samples per channel lost to overflow
+        # the newest filed record's sample period [ticks] (0: none known): the resampling's hole test (window_weights)
+        self.period = 0.0
 
     def __len__(self) -> int:
         return self.end - self.start
@@ -78,7 +80,7 @@ class PressureGroup:
 
     def rows_on_grid(self, t_grid: np.ndarray, rows: np.ndarray, out: np.ndarray, codes: np.ndarray) -> int:
         """Every wanted row at the sorted times ``t_grid`` (``drivers.assembly.pressure_kernels.pressure_rows``)."""
-        return pressure_rows(self.t, self.p, self.start, self.end, t_grid, rows, out, codes)
+        return pressure_rows(self.t, self.p, self.start, self.end, t_grid, rows, out, codes, self.period)
 
     def channel(self, row: int) -> PressureChannel:
         return PressureChannel(self, row)

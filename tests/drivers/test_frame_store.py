@@ -18,6 +18,7 @@ def file_both(ring: PressureGroup, group: FrameGroup, t0: float, period: float, 
     """File samples first.. of a frame into the ring (copied) and the frame group (kept)."""
     i, skip = ring.reserve(values.shape[1] - first)
     write_frame(ring.t, ring.p, i, t0 + skip * period, float(period), values, first + skip)
+    ring.period = float(period)  # as EngineBuffers files a frame
     group.add(t0, float(period), values, first)
 
 
@@ -89,7 +90,7 @@ def test_rows_on_grid_match_the_ring_kernel(seed):
             grid = np.maximum.accumulate(grid)
         out_ring, out_group = np.full((5, m), -1.0), np.full((5, m), -1.0)
         codes_ring, codes_group = np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64)
-        bad_ring = pressure_rows(ring.t, ring.p, ring.start, ring.end, grid, rows, out_ring, codes_ring)
+        bad_ring = pressure_rows(ring.t, ring.p, ring.start, ring.end, grid, rows, out_ring, codes_ring, ring.period)
         bad_group = group.rows_on_grid(grid, rows, out_group, codes_group)
         assert bad_ring == bad_group and codes_ring.tolist() == codes_group.tolist()
         for r in range(k):
@@ -142,3 +143,24 @@ def test_the_typed_list_holds_every_filed_frame_once_in_order(runs):
         assert len(frames) == len(filed)
         assert all(f is g or np.shares_memory(f, g) for f, g in zip(frames, filed, strict=True))
         assert_array_equal([f[0, 0] for f in frames], np.arange(len(filed), dtype=float))
+
+
+def test_a_grid_inside_a_stretch_of_missing_samples_is_a_hole_not_an_interpolation():
+    """A cycle whose grid falls wholly inside a stretch of dropped pressure has a window of two samples, the last
+    before the stretch and the first after it: their spacing is the window's mean, so the mean alone saw no hole and
+    the cycle was interpolated across the stretch (~170 bar off on the demo log, session 35). The samples' own period
+    (filed with each frame) sees it, on the frame group and on the ring alike; a grid over whole frames is still
+    read."""
+    rng = np.random.default_rng(3)
+    k, period = 3, 50.0
+    ring, group = PressureGroup(tuple(range(1, k + 1)), 4096), FrameGroup(tuple(range(1, k + 1)), 4096)
+    for t0 in (0.0, 200 * period, 1400 * period, 1600 * period):  # two frames, 1,000 samples dropped, two frames
+        file_both(ring, group, t0, period, rng.normal(5e5, 1e5, (k, 200)), 0)
+    rows = np.arange(k, dtype=np.int64)
+    for lo, hi, code in ((500 * period, 1300 * period, ROW_HOLE), (10 * period, 390 * period, ROW_OK),
+                         (1410 * period, 1790 * period, ROW_OK)):
+        grid = np.linspace(lo, hi, 720)
+        codes_ring, codes_group, out = np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64), np.empty((k, 720))
+        pressure_rows(ring.t, ring.p, ring.start, ring.end, grid, rows, out, codes_ring, ring.period)
+        group.rows_on_grid(grid, rows, out, codes_group)
+        assert codes_ring.tolist() == codes_group.tolist() == [code] * k, (lo, hi, codes_ring, codes_group)
