@@ -112,14 +112,14 @@ def frame_rows(frames, ci, cf, n_chunks, start, end, t_grid, rows, out, codes, x
     chunk_times(ci, cf, n_chunks, start + a, start + b, x)
     jj = np.empty(m, np.int64)
     ww = np.empty(m)
+    lo = start + a
+    c = _chunk_of(ci, n_chunks, lo)
     # the frames' own sample period (the window's first chunk's; a group's frames share it): a hole the whole window
     # falls in is seen (window_weights)
-    hole = window_weights(x, t_grid, jj, ww, cf[_chunk_of(ci, n_chunks, start + a), 1])
+    hole = window_weights(x, t_grid, jj, ww, cf[c, 1])
     interp = hole == nx - 1
     need = nx if interp else hole  # window samples whose NaN check counts (a row with a hole: up to it)
     nan = np.zeros(k, np.bool_)
-    lo = start + a
-    c = _chunk_of(ci, n_chunks, lo)
     w0 = 0  # window index of the frame part's first sample
     i0 = 0  # first grid time not interpolated yet
     while w0 < need:
