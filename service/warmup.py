@@ -30,7 +30,6 @@ import math
 import threading
 import time
 from dataclasses import dataclass, field
-from types import SimpleNamespace
 from typing import Any
 
 from frictionwatch.core.model.engine_model import EngineModel
@@ -41,7 +40,7 @@ from frictionwatch.core.types import AcquisitionInfo
 from frictionwatch.drivers.logs.mcap_replay import shifted
 from frictionwatch.drivers.source import StreamRestart
 from frictionwatch.service.ingest_queue import Dropped
-from frictionwatch.service.live import is_realtime, is_replay_paced
+from frictionwatch.service.live import KeyedBatch, is_realtime, is_replay_paced
 from frictionwatch.service.pipeline import EnginePipeline
 from frictionwatch.service.record_merge import record_key
 from frictionwatch.service.startup import STARTUP
@@ -205,7 +204,8 @@ def second_pass(records: list, info: AcquisitionInfo) -> list:
     moved = [shifted(r, shift) for r in records]
     cut = len(moved) // 3  # the pass's second sixth dropped
     gone = moved[cut // 2:cut]
-    dropped = Dropped(record_key(gone[0]), record_key(gone[-1]), len(gone), batch_contents(SimpleNamespace(records=gone)),
+    gone_keys = [record_key(r) for r in gone]
+    dropped = Dropped(gone_keys[0], gone_keys[-1], len(gone), batch_contents(KeyedBatch(gone, gone_keys)),
                       after_key=record_key(moved[cut // 2 - 1]))
     marks, _ = hole_mark(dropped, info)
     return [StreamRestart(ticks=last + 1), *moved[:cut // 2], *marks, *moved[cut:]]
