@@ -51,7 +51,8 @@ def window_weights(x, t_grid, jj, ww, period):
 
     Why the period: the window's mean cannot see a hole that swallows the whole window -- a cycle inside a stretch of
     pressure dropped has a window of two samples, the last before the hole and the first after it, whose mean
-    spacing is the hole itself; the cycle was interpolated across it, ~170 bar off (session 35)."""
+    spacing is the hole itself; the cycle was interpolated across it, ~170 bar off on the demo log before this
+    check."""
     nx = x.shape[0]
     m = t_grid.shape[0]
     lim = 1.5 * (x[nx - 1] - x[0]) / (nx - 1)

@@ -148,9 +148,9 @@ def test_the_typed_list_holds_every_filed_frame_once_in_order(runs):
 def test_a_grid_inside_a_stretch_of_missing_samples_is_a_hole_not_an_interpolation():
     """A cycle whose grid falls wholly inside a stretch of dropped pressure has a window of two samples, the last
     before the stretch and the first after it: their spacing is the window's mean, so the mean alone saw no hole and
-    the cycle was interpolated across the stretch (~170 bar off on the demo log, session 35). The samples' own period
-    (filed with each frame) sees it, on the frame group and on the ring alike; a grid over whole frames is still
-    read."""
+    the cycle was interpolated across the stretch (~170 bar off on the demo log before the period was filed). The
+    samples' own period (filed with each frame) sees it, on the frame group and on the ring alike; a grid over whole
+    frames is still read."""
     rng = np.random.default_rng(3)
     k, period = 3, 50.0
     ring, group = PressureGroup(tuple(range(1, k + 1)), 4096), FrameGroup(tuple(range(1, k + 1)), 4096)

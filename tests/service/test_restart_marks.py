@@ -65,7 +65,7 @@ def test_a_hole_in_a_pressure_source_restarts_nothing(demo):
     cycle_s = 120.0 / full.results[0].rpm_mean
     assert all(t1 - cycle_s * info.tick_hz <= r.t_start * info.tick_hz <= t2 for r in full.results if r.index in lost)
     # every cycle wholly inside the stretch is lost, never interpolated across it (its window, two samples either
-    # side of the stretch, is a hole: pressure_kernels.window_weights; 5 cycles here, 0 before session 35's fix)
+    # side of the stretch, is a hole: pressure_kernels.window_weights; 5 cycles here, 0 before the period was filed)
     inside = {r.index for r in full.results if t1 <= r.t_start * info.tick_hz and (r.t_start + cycle_s) * info.tick_hz
               <= t2}
     assert len(inside) >= 3 and inside <= lost, (inside, lost)
