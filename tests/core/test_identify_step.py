@@ -102,6 +102,10 @@ def test_kernel_against_reference_on_real_cycles(name):
             got = step.identify_step(*held)
         _compare(got, step.identify_step_reference(*held), f"{name} held cycle {i}")
     assert len(decided) == 2 * 8, len(decided)
+    # the held bound is writable (np.where's), the state's read-only: the kernels get it read-only either way, so one
+    # specialisation, not a second for the same numbers (design note 130)
+    bounds = [sig[2].types[2] for sig in step.identify_step_kernel.signatures]
+    assert bounds and not any(b.mutable for b in bounds), bounds
 
 
 def test_kernel_against_reference_floor_and_calibration_branches():

@@ -113,3 +113,26 @@ def test_a_smoothing_operator_made_once_smooths_as_one_made_per_call():
     other = smoothing(math.radians(0.5))
     for got, want in zip(smoothed_pressure(p, step, other), smoothed_pressure_reference(p, step), strict=True):
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.max(np.abs(want)))
+
+
+@pytest.mark.parametrize("m, n, seed", [(115, 2, 0), (115, 3, 1), (40, 3, 2), (3, 3, 3)])
+def test_least_squares_kernel_is_lapack_gelsd(m, n, seed):
+    """``least_squares_kernel`` (the Gauss-Newton step's dgelsd, called directly) against scipy's lstsq with the
+    gelsd driver, the same LAPACK routine and library (scipy.linalg.cython_lapack), at the step's rcond: equal bit for
+    bit (rtol 0) on a Jacobian's scales (columns ~1e6 and ~1e-2 apart), a rank-deficient one (a column repeated:
+    dgelsd's minimum-norm answer) and a square one; a non-finite entry raises LinAlgError (tdc_window catches it)."""
+    import scipy.linalg
+    from frictionwatch.core.monitor.calibration.tdc_kernels import EPS, least_squares_kernel
+
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(m, n)) * np.array([1e4, 1e-2, 1.0])[:n]
+    b = rng.normal(size=m) * 1e3
+    deficient = a.copy()
+    deficient[:, -1] = deficient[:, 0]
+    for jac in (a, deficient):
+        rcond = EPS * max(m, n)
+        want = scipy.linalg.lstsq(jac, b, cond=rcond, lapack_driver="gelsd")[0]
+        np.testing.assert_allclose(least_squares_kernel(jac, b, rcond), want, rtol=0, atol=0)
+    b[m // 2] = np.nan
+    with pytest.raises(np.linalg.LinAlgError):
+        least_squares_kernel(a, b, EPS * m)

@@ -6,12 +6,18 @@ numpy they were 1.7 of its 2.6 ms per cylinder (180 us a fit: ~40 small array op
 and an SVD ``lstsq`` per step, numpy's per-call overhead), in one kernel 82 us a fit. The per-sample arithmetic is
 the same (``kinematics_kernel``, ``cp_air_kernel``, the order of operations of ``_model_terms``), the step is
 LAPACK's least squares as numpy's (same rcond), so the fits agree to ~1e-14 rad.
+
+The step's least squares is LAPACK's dgelsd called directly (``least_squares_kernel``), the routine and the library
+numba's ``np.linalg.lstsq`` calls, with its arguments: the same bits, without lstsq's general wrapper (its 1-D/2-D
+right-hand sides, residuals, singular values, and its errors' formatted messages), which was ~2/3 of this kernel's
+cold compile (design note 130).
 """
 
 from __future__ import annotations
 
 import math
 
+import llvmlite.binding as llvm
 import numba
 import numpy as np
 from frictionwatch.core.model.kinematics import kinematics_kernel
@@ -24,11 +30,66 @@ from frictionwatch.core.model.thermo import (
     WOSCHNI_SCALE,
     cp_air_kernel,
 )
+from numba import types
+from numba.extending import get_cython_function_address
 
 # layout of the constants array (``tdc._constants``)
 (C_R, C_L, C_E, C_AREA, C_CLEAR, C_DISP, C_BORE, C_IVC, C_TIVC, C_TWALL, C_OMEGA, C_PIVC, C_SOC, C_HEAT,
  N_CONST) = range(15)
 EPS = 2.220446049250313e-16  # float64 machine epsilon
+
+# LAPACK dgelsd(m, n, nrhs, a, lda, b, ldb, s, rcond, rank, work, lwork, iwork, info), all by pointer, bound by
+# symbol name from scipy.linalg.cython_lapack, where numba's np.linalg.lstsq finds it (as spd.py binds dpotri: a
+# cached kernel resolves the name when it is loaded)
+llvm.add_symbol("frictionwatch_dgelsd", get_cython_function_address("scipy.linalg.cython_lapack", "dgelsd"))
+_dgelsd = types.ExternalFunction("frictionwatch_dgelsd", types.void(*([types.voidptr] * 14)))
+# the int32 arguments' places in one array
+(D_M, D_N, D_NRHS, D_LDA, D_LDB, D_RANK, D_LWORK, D_INFO, D_LIWORK, N_DIMS) = range(10)
+
+
+@numba.njit(cache=True)
+def least_squares_kernel(a, b, rcond):
+    """x (n,) = ``np.linalg.lstsq(a, b, rcond)[0]`` of numba for a (m, n) and b (m,), its bits: LAPACK dgelsd on
+    the same copies (a in Fortran order, b in a column of max(m, n)), the workspace of dgelsd's own query, as numba's
+    helper sizes it. Raises np.linalg.LinAlgError where numba's would (a non-finite entry, an SVD that did not
+    converge), with a plain message."""
+    m, n = a.shape
+    for i in range(m):
+        for j in range(n):
+            if not np.isfinite(a[i, j]):
+                raise np.linalg.LinAlgError("Array must not contain infs or NaNs.")
+    for i in range(m):
+        if not np.isfinite(b[i]):
+            raise np.linalg.LinAlgError("Array must not contain infs or NaNs.")
+    if m == 0 or n == 0 or b.shape[0] != m:
+        raise np.linalg.LinAlgError("an empty or mismatched system")
+    big = max(m, n)
+    acpy = np.empty((n, m))  # C-order (n, m) is Fortran-order (m, n)
+    for i in range(m):
+        for j in range(n):
+            acpy[j, i] = a[i, j]
+    x = np.empty(big)
+    for i in range(m):  # a loop: a slice's assignment compiles numba's shape-mismatch message (its string formatting)
+        x[i] = b[i]
+    s = np.empty(min(m, n))
+    cond = np.array([rcond])
+    dims = np.zeros(N_DIMS, dtype=np.int32)
+    dims[D_M], dims[D_N], dims[D_NRHS], dims[D_LDA], dims[D_LDB], dims[D_LWORK] = m, n, 1, m, big, -1
+    query = np.empty(1)
+    _dgelsd(dims[D_M:].ctypes, dims[D_N:].ctypes, dims[D_NRHS:].ctypes, acpy.ctypes, dims[D_LDA:].ctypes, x.ctypes,
+            dims[D_LDB:].ctypes, s.ctypes, cond.ctypes, dims[D_RANK:].ctypes, query.ctypes, dims[D_LWORK:].ctypes,
+            dims[D_LIWORK:].ctypes, dims[D_INFO:].ctypes)
+    if dims[D_INFO] != 0:
+        raise np.linalg.LinAlgError("dgelsd's workspace query failed")
+    work = np.empty(int(query[0]))  # numba's helper truncates the query's double likewise
+    iwork = np.empty(max(dims[D_LIWORK], 1), dtype=np.int32)
+    dims[D_LWORK] = work.shape[0]
+    _dgelsd(dims[D_M:].ctypes, dims[D_N:].ctypes, dims[D_NRHS:].ctypes, acpy.ctypes, dims[D_LDA:].ctypes, x.ctypes,
+            dims[D_LDB:].ctypes, s.ctypes, cond.ctypes, dims[D_RANK:].ctypes, work.ctypes, dims[D_LWORK:].ctypes,
+            iwork.ctypes, dims[D_INFO:].ctypes)
+    if dims[D_INFO] != 0:
+        raise np.linalg.LinAlgError("SVD did not converge in Linear Least Squares")
+    return x[:n].copy()
 
 
 @numba.njit(cache=True)
@@ -111,7 +172,7 @@ def gauss_newton_kernel(p, dp, ang, c, start, steps):
         for i in range(m):
             jac[i, 0] = (rd[i] - r[i]) / steps[1]
             jac[i, 1] = (rp[i] - r[i]) / steps[2]
-        sol = np.linalg.lstsq(jac, -r, rcond=EPS * max(m, n_col))[0]  # numpy's rcond=None
+        sol = least_squares_kernel(jac, -r, EPS * max(m, n_col))  # numpy's rcond=None
         delta += min(max(sol[0], -steps[3]), steps[3])
         peg += sol[1]
         if abs(sol[0]) < steps[4]:

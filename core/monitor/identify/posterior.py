@@ -112,6 +112,18 @@ def solve_posterior(acc: Accumulator, prior: Prior, sys_var: np.ndarray,
     return posterior_from_normal(acc, n_pr, r_pr, sys_var, lower)
 
 
+def read_only(bound: np.ndarray) -> np.ndarray:
+    """``bound`` as the kernels are compiled for it: read-only, as ``initial_state`` makes the state's (a view where
+    it is writable: a bound built by a caller or restored from a pickle). A writable one compiled identify_step_kernel,
+    its _estimate and report_kernel and posterior_kernel a second time for the same numbers (design note 130); the
+    product's bound is already read-only and passes as it is."""
+    if not bound.flags.writeable:
+        return bound
+    view = bound.view()
+    view.flags.writeable = False
+    return view
+
+
 def posterior_from_normal(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, sys_var: np.ndarray,
                           lower: float | np.ndarray = 0.0) -> Posterior:
     """``solve_posterior`` with the prior already in normal form (n_pr (P, P), r_pr (P,); ``Prior.normal``), so a
@@ -126,8 +138,8 @@ def posterior_from_normal(acc: Accumulator, n_pr: np.ndarray, r_pr: np.ndarray, 
     n_pr, r_pr, sys_var = np.asarray(n_pr, dtype=f64), np.asarray(r_pr, dtype=f64), np.asarray(sys_var, dtype=f64)
     # the state's bound is a per-run constant, already a contiguous float64 (p,) (initial_state): used as it is,
     # lower_vector's own answer for it, without a call into spd.py every posterior (two a cycle)
-    lo = (lower if type(lower) is np.ndarray and lower.dtype == f64 and lower.shape == (p,) and lower.flags.c_contiguous
-          else lower_vector(lower, p))
+    lo = read_only(lower if type(lower) is np.ndarray and lower.dtype == f64 and lower.shape == (p,)
+                   and lower.flags.c_contiguous else lower_vector(lower, p))
     # the kernel checks every shape; the accumulator's own arrays are float64 and C-contiguous by construction (its
     # kernels, ``empty``): no per-call copies (another layout would only be another compiled specialisation)
     info, rhs, sys_map, info_ref = acc.info, acc.rhs, acc.sys_map, acc.info_reference

@@ -47,6 +47,7 @@ from frictionwatch.core.monitor.identify.posterior import (
     Posterior,
     posterior_from_normal,
     posterior_kernel,
+    read_only,
 )
 from frictionwatch.core.monitor.identify.pull_check import PullCheck, pull_sigma_of_info_kernel, with_pull
 from frictionwatch.core.monitor.report.results import FrictionEstimate
@@ -354,7 +355,7 @@ def identify_step(spec: EngineSpec, layout: ParameterLayout, prior: PriorNormal,
         spec.mep_per_torque_cyl, spec.mep_per_torque_engine, cfg.pull_check.kappa), dtype=np.float64)  # STEP_FIELDS
     f64 = np.float64
     rows = StepRows(white.a, white.y, white.inv_sigma, white.sys_var, white.stats.var, white.freq, inp.harmonics)
-    model = StepModel(prior.info, prior.rhs, lower, layout.group, layout.prior,
+    model = StepModel(prior.info, prior.rhs, read_only(lower), layout.group, layout.prior,
                       np.ascontiguousarray(inp.basis_mean, dtype=f64),
                       np.ascontiguousarray(inp.cylinder_rows, dtype=f64),
                       np.ascontiguousarray(inp.mean_row, dtype=f64), np.asarray(params, dtype=f64))
