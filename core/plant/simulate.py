@@ -52,6 +52,7 @@ from frictionwatch.core.plant.operating_point import (
 from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, static_twist
 from frictionwatch.core.plant.sim_run import PlantRun
 from frictionwatch.core.plant.sim_stream import SETTLE_A_CYCLES, SETTLE_B_CYCLES, Simulation, StageSwitches
+from frictionwatch.core.plant.sim_truth import GRID_MAX_CYL
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 from scipy.linalg import eigh
 
@@ -147,7 +148,7 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
              progress: Callable[[float], None] | None = None, **options) -> SimResult:
     """Simulate ``cycles`` steady engine cycles (after an unlogged settling period) and return records and truth:
     ``start_simulation`` (the same parameters; ``options`` its keyword ones: effects, without, cov_imep,
-    load_steps, coefficients, fuel_spread, second_wheel) with its chunks collected."""
+    load_steps, coefficients, fuel_spread, second_wheel, friction_grid) with its chunks collected."""
     sim = start_simulation(engine, rpm, load, cycles, seed, **options)
     chunks = list(sim.chunks(progress=progress))
     records = [r for c in chunks for r in c.records]
@@ -162,7 +163,7 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
                      effects: Mapping[str, dict] | Sequence[Effect] | None = None, without: set[str] | tuple = (),
                      cov_imep: float = 0.02, load_steps: list[tuple[float, float]] | None = None,
                      coefficients: np.ndarray | None = None, fuel_spread: float = 0.01,
-                     second_wheel: bool = False) -> Simulation:
+                     second_wheel: bool = False, friction_grid: bool | None = None) -> Simulation:
     """Set up a run of ``cycles`` steady engine cycles (after an unlogged settling period); ``chunks()`` runs it.
 
     Parameters
@@ -179,7 +180,10 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
     fuel_spread : rms of the fixed cylinder-to-cylinder fuel spread (fraction). second_wheel : log the engine
     file's second wheel too (``[sensors.second_wheel]``, at its node of the shaft; its own tooth errors of the
     ``tooth_spacing_error`` effect's size and edge jitter from a ninth generator, so every other stream is unchanged). The ``coast_down`` effect turns the
-    ignition off and disconnects the load at its ``time_s`` (after any load steps).
+    ignition off and disconnects the load at its ``time_s`` (after any load steps). friction_grid : evaluate the
+    total friction on the 1-deg grid (the diagnostics' "friction_grid_nm"); by default only where the truth keeps it
+    (engines of at most sim_truth.GRID_MAX_CYL cylinders): elsewhere it was a third of the cylinders' evaluations for
+    a diagnostic only tests read (design note 129), and it is NaN; records and truth are the same either way.
     """
     model = _as_model(engine, effects, without, coefficients)
     spec = model.spec
@@ -267,7 +271,8 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
         node_torque[plant.cyl_node[k]] += means[k].indicated_nm - means[k].friction_nm - extra[k, 0]
     node_torque[plant.load] -= node_torque.sum()
 
-    run = PlantRun(spec, plant, tmodel, h=h, omega=omega, sensors=sensors, rngs=rngs, second_wheel=second_wheel)
+    run = PlantRun(spec, plant, tmodel, h=h, omega=omega, sensors=sensors, rngs=rngs, second_wheel=second_wheel,
+                   friction_grid=z <= GRID_MAX_CYL if friction_grid is None else bool(friction_grid))
     theta_start = -4.0 * np.pi * (SETTLE_A_CYCLES + SETTLE_B_CYCLES) - 2.0 * np.pi
     theta_switch = -4.0 * np.pi * SETTLE_B_CYCLES
     run.set_state(theta_start + static_twist(plant, node_torque), omega)
