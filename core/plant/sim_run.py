@@ -66,10 +66,11 @@ from frictionwatch.core.plant.sensors import (
 
 FAR = 1 << 50  # event index that never fires
 # flywheel cycles one call of the kernel may integrate (its output buffers hold that and half a cycle more): each call
-# pays numba's dispatch, which types the model's tuple of first-class kernels (~4 ms on genset-v20 at load ~5, a
-# sixth of a cycle's CPU); a call per cycle paid it every cycle (design note 129). The events do not depend on where
-# the calls end: a call that fills a buffer returns and the next goes on (status 2)
-CALL_CYCLES = 8
+# pays numba's dispatch, which types the model's tuple of first-class kernels (1-2.5 ms a call on genset-v20 at load
+# ~8); a call per cycle paid it every cycle (design note 129). Not a whole chunk (8): the progress is reported after
+# each call, and a run's last 10 % should show (a Ctrl-C there: tests/service/test_cli_files.py). The events do not
+# depend on where the calls end: a call that fills a buffer returns and the next goes on (status 2)
+CALL_CYCLES = 4
 
 
 class PlantRun:

@@ -92,9 +92,9 @@ def test_to_ticks_in_pieces_equals_one_piece_even_with_ties():
 
 
 def test_the_kernels_call_length_and_the_friction_grid_leave_records_and_truth_as_they_are(monkeypatch):
-    """A kernel call of 8 cycles (sim_run.CALL_CYCLES: numba's dispatch paid once a chunk, not once a cycle) makes
-    the run a call per cycle makes, and a 20-cylinder run without the 1-deg friction grid (its default: the truth
-    keeps it only for <= 4 cylinders) the run with it, to the bit, but for that grid (design note 129)."""
+    """Kernel calls of up to 4 cycles (sim_run.CALL_CYCLES: numba's dispatch paid once in 4 cycles, not once a
+    cycle) make the run a call per cycle makes, and a 20-cylinder run without the 1-deg friction grid (its default:
+    the truth keeps it only for <= 4 cylinders) the run with it, to the bit, but for that grid (design note 129)."""
     args = ("genset-v20", 1500, 0.75, 10)
     default, truth = streamed(*args, chunk_cycles=10)
     monkeypatch.setattr(sim_run_mod, "CALL_CYCLES", 1)
