@@ -193,6 +193,10 @@ class PlantRun:
         pert[..., 2] = np.where(mean, 1.0, pert[..., 2])
         self.pert = np.ascontiguousarray(pert)
 
+    def record_friction_grid(self, on: bool) -> None:
+        """Evaluate the total friction on the 1-deg grid (else NaN there; nothing else changes)."""
+        self.sc[S_GRID_FRICTION] = 1.0 if on else 0.0
+
     def set_leak(self, leak: np.ndarray) -> None:
         self.leak = np.ascontiguousarray(leak, dtype=np.float64)
 

@@ -148,8 +148,12 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
              progress: Callable[[float], None] | None = None, **options) -> SimResult:
     """Simulate ``cycles`` steady engine cycles (after an unlogged settling period) and return records and truth:
     ``start_simulation`` (the same parameters; ``options`` its keyword ones: effects, without, cov_imep,
-    load_steps, coefficients, fuel_spread, second_wheel, friction_grid) with its chunks collected."""
+    load_steps, coefficients, fuel_spread, second_wheel) with its chunks collected; ``friction_grid=True`` also
+    evaluates the 1-deg friction grid of an engine of more than 4 cylinders (``PlantRun.record_friction_grid``)."""
+    friction_grid = options.pop("friction_grid", None)
     sim = start_simulation(engine, rpm, load, cycles, seed, **options)
+    if friction_grid is not None:
+        sim.run.record_friction_grid(friction_grid)
     chunks = list(sim.chunks(progress=progress))
     records = [r for c in chunks for r in c.records]
     truth = {**sim.truth, "cycles": [e for c in chunks for e in c.cycles]}
@@ -163,7 +167,7 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
                      effects: Mapping[str, dict] | Sequence[Effect] | None = None, without: set[str] | tuple = (),
                      cov_imep: float = 0.02, load_steps: list[tuple[float, float]] | None = None,
                      coefficients: np.ndarray | None = None, fuel_spread: float = 0.01,
-                     second_wheel: bool = False, friction_grid: bool | None = None) -> Simulation:
+                     second_wheel: bool = False) -> Simulation:
     """Set up a run of ``cycles`` steady engine cycles (after an unlogged settling period); ``chunks()`` runs it.
 
     Parameters
@@ -180,10 +184,10 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
     fuel_spread : rms of the fixed cylinder-to-cylinder fuel spread (fraction). second_wheel : log the engine
     file's second wheel too (``[sensors.second_wheel]``, at its node of the shaft; its own tooth errors of the
     ``tooth_spacing_error`` effect's size and edge jitter from a ninth generator, so every other stream is unchanged). The ``coast_down`` effect turns the
-    ignition off and disconnects the load at its ``time_s`` (after any load steps). friction_grid : evaluate the
-    total friction on the 1-deg grid (the diagnostics' "friction_grid_nm"); by default only where the truth keeps it
-    (engines of at most sim_truth.GRID_MAX_CYL cylinders): elsewhere it was a third of the cylinders' evaluations for
-    a diagnostic only tests read (design note 129), and it is NaN; records and truth are the same either way.
+    ignition off and disconnects the load at its ``time_s`` (after any load steps). The total friction on the 1-deg
+    grid (the diagnostics' "friction_grid_nm") is evaluated only where the truth keeps it (engines of at most
+    sim_truth.GRID_MAX_CYL cylinders; elsewhere NaN: it was a third of the cylinders' evaluations for a diagnostic
+    only tests read, design note 129); ``run.record_friction_grid(True)`` before ``chunks()`` asks for it.
     """
     model = _as_model(engine, effects, without, coefficients)
     spec = model.spec
@@ -272,7 +276,7 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
     node_torque[plant.load] -= node_torque.sum()
 
     run = PlantRun(spec, plant, tmodel, h=h, omega=omega, sensors=sensors, rngs=rngs, second_wheel=second_wheel,
-                   friction_grid=z <= GRID_MAX_CYL if friction_grid is None else bool(friction_grid))
+                   friction_grid=z <= GRID_MAX_CYL)
     theta_start = -4.0 * np.pi * (SETTLE_A_CYCLES + SETTLE_B_CYCLES) - 2.0 * np.pi
     theta_switch = -4.0 * np.pi * SETTLE_B_CYCLES
     run.set_state(theta_start + static_twist(plant, node_torque), omega)

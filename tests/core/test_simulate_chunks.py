@@ -23,7 +23,10 @@ RTOL = 1e-12
 
 
 def streamed(engine: str, rpm: float, load: float, cycles: int, chunk_cycles: int, **kw):
+    grid = kw.pop("friction_grid", None)
     sim = start_simulation(load_engine(engine), rpm, load, cycles, 7, **kw)
+    if grid is not None:
+        sim.run.record_friction_grid(grid)
     chunks = list(sim.chunks(chunk_cycles=chunk_cycles))
     return chunks, {**sim.truth, "cycles": [e for c in chunks for e in c.cycles]}
 
