@@ -35,7 +35,7 @@ def _run(engine: str, cycles: int, reference: bool) -> dict:
     sim_run.advance, sm.STEP_DEG = (advance_rk4, REFERENCE_STEP_DEG) if reference else (advance, step)
     try:
         rpm, load, fx = CASES[engine]
-        r = sm.simulate(load_engine(engine), rpm, load, cycles, 3, effects=fx)
+        r = sm.simulate(load_engine(engine), rpm, load, cycles, 3, effects=fx, friction_grid=True)
     finally:
         sim_run.advance, sm.STEP_DEG = advance, step
     d, t = r.diagnostics, r.truth

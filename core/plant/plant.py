@@ -55,7 +55,7 @@ NQ_GLOBAL = 4
 N_FQ = 3  # the cylinders' node quantities (cylinder_forcing): torque, inertia, half its derivative
 # scalar layout ``sc``
 (S_R, S_L, S_E, S_AREA, S_PCC, S_MREC, S_VARJ, S_FLY, S_LOAD, S_WHEEL_OFF, S_CAM, S_PPERIOD, S_T0OUT, S_LPERIOD,
- S_GRID, S_CMIN, S_H, S_QPERKG, S_NODE2, S_OUT_AT, S_NSC) = range(21)
+ S_GRID, S_CMIN, S_H, S_QPERKG, S_NODE2, S_OUT_AT, S_GRID_FRICTION, S_NSC) = range(22)
 # operating point ``op`` (updated between calls): fuel [kg], SOC [rad], beta_p, p_IVC, p_int, p_exh [Pa], omega est
 OP_FUEL, OP_SOC, OP_BETA, OP_PIVC, OP_PINT, OP_PEXH, OP_OMEGA, OP_N = range(8)
 # integer state ``ist``

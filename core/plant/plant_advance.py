@@ -52,6 +52,7 @@ from frictionwatch.core.plant.plant import (
     S_CAM,
     S_FLY,
     S_GRID,
+    S_GRID_FRICTION,
     S_H,
     S_LPERIOD,
     S_NODE2,
@@ -226,9 +227,10 @@ def step_events(model, op, edges, outs, ist, state, end, quad):
 @numba.njit(**BORROWING)
 def grid_points(model, ist, state, end, o_grid, w, scratch):
     """The 1-deg grid points of the flywheel angle inside the step (output phase only): time, the cylinders' total
-    friction torque evaluated at the point's state on the Hermite, flywheel speed (a parabola in time through the
-    step's ends was tried: up to 0.6 % of the peak off, design note 123); w: ``work_arrays`` (overwritten), scratch
-    (2, n)."""
+    friction torque evaluated at the point's state on the Hermite (NaN with ``sc[S_GRID_FRICTION]`` 0: a third of
+    the cylinders' evaluations, kept only where something reads it, design note 129), flywheel speed (a parabola in
+    time through the step's ends was tried: up to 0.6 % of the peak off, design note 123); w: ``work_arrays``
+    (overwritten), scratch (2, n)."""
     cyl_node, phase, coef, extra, kernels = model.cylinders
     sc = model.scalars
     traces, slot_cycle, tstep = model.traces
@@ -239,14 +241,17 @@ def grid_points(model, ist, state, end, o_grid, w, scratch):
     h = sc[S_H]
     t = tarr[0]
     fly = int(sc[S_FLY])
+    with_friction = sc[S_GRID_FRICTION] > 0.5
     while ist[I_NEXT_GRID] * sc[S_GRID] <= th1[fly]:
         target = ist[I_NEXT_GRID] * sc[S_GRID]
         s = crossing(target, h, th[fly], om[fly], th1[fly], om1[fly])
         _state_at(s, h, th, om, acc, th1, om1, a1, ths, oms)
-        cylinder_terms(ths, oms, sc, cyl_node, phase, model.friction, traces, slot_cycle, tstep, w, kernels)
-        tf = 0.0
-        for k in range(z):
-            tf += friction_torque(k, coef, extra, w[7], extra_ripple(k, extra, w[0]))
+        tf = np.nan
+        if with_friction:
+            cylinder_terms(ths, oms, sc, cyl_node, phase, model.friction, traces, slot_cycle, tstep, w, kernels)
+            tf = 0.0
+            for k in range(z):
+                tf += friction_torque(k, coef, extra, w[7], extra_ripple(k, extra, w[0]))
         g = o_grid[ist[I_N_GRID]]
         g[0] = t + s * h
         g[1] = tf

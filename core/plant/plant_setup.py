@@ -19,6 +19,7 @@ from frictionwatch.core.plant.plant import (
     S_E,
     S_FLY,
     S_GRID,
+    S_GRID_FRICTION,
     S_LOAD,
     S_MREC,
     S_NSC,
@@ -128,6 +129,7 @@ def scalars(spec: EngineSpec, plant: PlantModel) -> np.ndarray:
     sc[S_FLY] = plant.fly
     sc[S_LOAD] = plant.load
     sc[S_GRID] = np.pi / 180.0
+    sc[S_GRID_FRICTION] = 1.0  # the friction on the 1-deg grid evaluated (PlantRun may turn it off)
     return sc
 
 

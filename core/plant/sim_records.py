@@ -149,11 +149,9 @@ class SensorRecords:
         n_edges = all_edges.size if final else all_edges.size - all_edges.size % self.per_rev
         self.edges = all_edges[n_edges:]
 
-        readings = samples.copy()
         gain, offset = self._channel_errors(len(samples))
-        for k in range(self.spec.n_cyl):
-            readings[:, k] = pressure_adc(samples[:, k], se, se.pressure_noise_pa * fx.pressure_noise_scale,
-                                          self.rng_pressure[k], offset[:, k], gain[:, k])
+        readings = pressure_adc(samples, se, se.pressure_noise_pa * fx.pressure_noise_scale, self.rng_pressure,
+                                offset, gain)
         all_samples = np.concatenate([self.samples, readings])
         n_samples = len(all_samples) if final else len(all_samples) - len(all_samples) % self.block
         first_sample = self.first_sample

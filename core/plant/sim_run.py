@@ -39,6 +39,7 @@ from frictionwatch.core.plant.plant import (
     OP_SOC,
     S_CAM,
     S_CMIN,
+    S_GRID_FRICTION,
     S_H,
     S_LPERIOD,
     S_NODE2,
@@ -64,17 +65,26 @@ from frictionwatch.core.plant.sensors import (
 )
 
 FAR = 1 << 50  # event index that never fires
+# flywheel cycles one call of the kernel may integrate (its output buffers hold that and half a cycle more): each call
+# pays numba's dispatch, which types the model's tuple of first-class kernels (1-2.5 ms a call on genset-v20 at load
+# ~8); a call per cycle paid it every cycle (design note 129). Not a whole chunk (8): the progress is reported after
+# each call, and a run's last 10 % should show (a Ctrl-C there: tests/service/test_cli_files.py). The events do not
+# depend on where the calls end: a call that fills a buffer returns and the next goes on (status 2)
+CALL_CYCLES = 4
 
 
 class PlantRun:
     def __init__(self, spec: EngineSpec, plant: PlantModel, tmodel: CylinderModel, *, h: float, omega: float,
-                 sensors: SensorSetup, rngs: list[np.random.Generator], second_wheel: bool = False):
+                 sensors: SensorSetup, rngs: list[np.random.Generator], second_wheel: bool = False,
+                 friction_grid: bool = True):
         """second_wheel: also the edges of the engine file's second wheel (``spec.sensors.second_wheel``), its tooth
-        errors drawn from ``rngs[8]`` (the run's ninth generator, made only then: every other stream unchanged)."""
+        errors drawn from ``rngs[8]`` (the run's ninth generator, made only then: every other stream unchanged);
+        friction_grid: the total friction evaluated on the 1-deg grid (else NaN there: nothing else changes)."""
         self.spec, self.plant, self.sensors, self.rngs, self.omega = spec, plant, sensors, rngs, omega
         z, n = spec.n_cyl, plant.n
         sc = scalars(spec, plant)
         sc[S_H] = h
+        sc[S_GRID_FRICTION] = 1.0 if friction_grid else 0.0
         sc[S_WHEEL_OFF] = sensors.wheel_offset_rad
         sc[S_CAM] = np.radians(CAM_DEG)
         sc[S_PPERIOD] = 1.0 / spec.sensors.pressure_rate_hz
@@ -128,16 +138,18 @@ class PlantRun:
         self.leak = np.zeros(z)
 
     def _size_outputs(self, omega: float) -> None:
-        """The kernel's output buffers, one call's worth (a cycle and a half at ``omega``): made again for a lower
-        speed (a speed step), where a cycle holds more samples."""
+        """The kernel's output buffers, one call's worth (``CALL_CYCLES`` cycles and a half at ``omega``): made again
+        for a lower speed (a speed step), where a cycle holds more samples."""
         spec, z = self.spec, self.spec.n_cyl
-        t_cyc = FOUR_PI / omega
-        n_edge = 2 * spec.sensors.wheel_teeth + 16
-        n_edge2 = 2 * self.wheel2.wheel_teeth + 16 if self.wheel2 is not None else 1
-        n_samp = int(1.5 * t_cyc * spec.sensors.pressure_rate_hz) + 32
+        revs = 2 * CALL_CYCLES + 1  # revolutions a call may span (a call that fills a buffer returns early anyway)
+        t_call = revs * TWO_PI / omega
+        n_edge = revs * spec.sensors.wheel_teeth + 16
+        n_edge2 = revs * self.wheel2.wheel_teeth + 16 if self.wheel2 is not None else 1
+        n_samp = int(t_call * spec.sensors.pressure_rate_hz) + 32
         width = 1 + z * self.plant.nq_cyl + NQ_GLOBAL + z
-        self.outs = (np.zeros((4, width)), np.zeros((760, 3)), np.zeros((n_edge, 2)), np.zeros(4),
-                     np.zeros((n_samp, z)), np.zeros((int(1.5 * t_cyc * LOAD_RATE_HZ) + 4, 3)), np.zeros((n_edge2, 2)))
+        self.outs = (np.zeros((CALL_CYCLES + 3, width)), np.zeros((360 * revs + 40, 3)), np.zeros((n_edge, 2)),
+                     np.zeros(CALL_CYCLES + 3), np.zeros((n_samp, z)), np.zeros((int(t_call * LOAD_RATE_HZ) + 4, 3)),
+                     np.zeros((n_edge2, 2)))
         self.outs_omega = float(omega)
 
     # ---- setup ----------------------------------------------------------------------------------------------
@@ -180,6 +192,10 @@ class PlantRun:
         pert[..., 1] = np.where(mean, 0.0, pert[..., 1])
         pert[..., 2] = np.where(mean, 1.0, pert[..., 2])
         self.pert = np.ascontiguousarray(pert)
+
+    def record_friction_grid(self, on: bool) -> None:
+        """Evaluate the total friction on the 1-deg grid (else NaN there; nothing else changes)."""
+        self.sc[S_GRID_FRICTION] = 1.0 if on else 0.0
 
     def set_leak(self, leak: np.ndarray) -> None:
         self.leak = np.ascontiguousarray(leak, dtype=np.float64)
@@ -331,7 +347,7 @@ class PlantRun:
         """Integrate to flywheel angle ``theta_stop``; stop early at output time ``t_stop`` [s] (returns True then)."""
         t_abs = np.inf if t_stop is None else self.t_out0 + t_stop
         while True:
-            chunk = min(theta_stop, self.theta_fly + FOUR_PI)
+            chunk = min(theta_stop, self.theta_fly + CALL_CYCLES * FOUR_PI)
             status = advance(self.model, self._firing(), self.edges, self.state, self.ist, self.outs, chunk, t_abs)
             self._flush()
             if status == 3:

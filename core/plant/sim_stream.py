@@ -95,7 +95,9 @@ class Simulation:
             raise ValueError(f"chunk_cycles = {chunk_cycles!r} must be an integer >= 1")
         self._started = True
         run, spec, cycles, theta_start = self.run, self.model.spec, self.cycles, self.theta_start
-        total_angle = 4.0 * np.pi * (cycles + SETTLE_A_CYCLES + SETTLE_B_CYCLES) + 0.5 * np.pi
+        # from theta_start (the settling's start, 2 pi before its first cycle) to the run's end, 0.5 pi past its last
+        # boundary: the fraction reaches 1 at the end, not ~1.5 cycles before it as with the 2.5 pi left out
+        total_angle = 4.0 * np.pi * (cycles + SETTLE_A_CYCLES + SETTLE_B_CYCLES) + 2.5 * np.pi
 
         def report() -> None:
             if progress is not None:

@@ -52,6 +52,7 @@ from frictionwatch.core.plant.operating_point import (
 from frictionwatch.core.plant.plant_setup import build_plant, chain_matrices, static_twist
 from frictionwatch.core.plant.sim_run import PlantRun
 from frictionwatch.core.plant.sim_stream import SETTLE_A_CYCLES, SETTLE_B_CYCLES, Simulation, StageSwitches
+from frictionwatch.core.plant.sim_truth import GRID_MAX_CYL
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
 from scipy.linalg import eigh
 
@@ -147,8 +148,12 @@ def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: 
              progress: Callable[[float], None] | None = None, **options) -> SimResult:
     """Simulate ``cycles`` steady engine cycles (after an unlogged settling period) and return records and truth:
     ``start_simulation`` (the same parameters; ``options`` its keyword ones: effects, without, cov_imep,
-    load_steps, coefficients, fuel_spread, second_wheel) with its chunks collected."""
+    load_steps, coefficients, fuel_spread, second_wheel) with its chunks collected; ``friction_grid=True`` also
+    evaluates the 1-deg friction grid of an engine of more than 4 cylinders (``PlantRun.record_friction_grid``)."""
+    friction_grid = options.pop("friction_grid", None)
     sim = start_simulation(engine, rpm, load, cycles, seed, **options)
+    if friction_grid is not None:
+        sim.run.record_friction_grid(friction_grid)
     chunks = list(sim.chunks(progress=progress))
     records = [r for c in chunks for r in c.records]
     truth = {**sim.truth, "cycles": [e for c in chunks for e in c.cycles]}
@@ -179,7 +184,10 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
     fuel_spread : rms of the fixed cylinder-to-cylinder fuel spread (fraction). second_wheel : log the engine
     file's second wheel too (``[sensors.second_wheel]``, at its node of the shaft; its own tooth errors of the
     ``tooth_spacing_error`` effect's size and edge jitter from a ninth generator, so every other stream is unchanged). The ``coast_down`` effect turns the
-    ignition off and disconnects the load at its ``time_s`` (after any load steps).
+    ignition off and disconnects the load at its ``time_s`` (after any load steps). The total friction on the 1-deg
+    grid (the diagnostics' "friction_grid_nm") is evaluated only where the truth keeps it (engines of at most
+    sim_truth.GRID_MAX_CYL cylinders; elsewhere NaN: it was a third of the cylinders' evaluations for a diagnostic
+    only tests read, design note 129); ``run.record_friction_grid(True)`` before ``chunks()`` asks for it.
     """
     model = _as_model(engine, effects, without, coefficients)
     spec = model.spec
@@ -267,7 +275,8 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
         node_torque[plant.cyl_node[k]] += means[k].indicated_nm - means[k].friction_nm - extra[k, 0]
     node_torque[plant.load] -= node_torque.sum()
 
-    run = PlantRun(spec, plant, tmodel, h=h, omega=omega, sensors=sensors, rngs=rngs, second_wheel=second_wheel)
+    run = PlantRun(spec, plant, tmodel, h=h, omega=omega, sensors=sensors, rngs=rngs, second_wheel=second_wheel,
+                   friction_grid=z <= GRID_MAX_CYL)
     theta_start = -4.0 * np.pi * (SETTLE_A_CYCLES + SETTLE_B_CYCLES) - 2.0 * np.pi
     theta_switch = -4.0 * np.pi * SETTLE_B_CYCLES
     run.set_state(theta_start + static_twist(plant, node_torque), omega)

@@ -7,6 +7,7 @@ cycles must give the same records in the same order (tooth, cam and load ticks e
 
 from pathlib import Path
 
+import frictionwatch.core.plant.sim_run as sim_run_mod
 import numpy as np
 import pytest
 from frictionwatch.core.model.engine import load_engine
@@ -22,7 +23,10 @@ RTOL = 1e-12
 
 
 def streamed(engine: str, rpm: float, load: float, cycles: int, chunk_cycles: int, **kw):
+    grid = kw.pop("friction_grid", None)
     sim = start_simulation(load_engine(engine), rpm, load, cycles, 7, **kw)
+    if grid is not None:
+        sim.run.record_friction_grid(grid)
     chunks = list(sim.chunks(chunk_cycles=chunk_cycles))
     return chunks, {**sim.truth, "cycles": [e for c in chunks for e in c.cycles]}
 
@@ -30,7 +34,7 @@ def streamed(engine: str, rpm: float, load: float, cycles: int, chunk_cycles: in
 @pytest.mark.parametrize(("engine", "rpm", "load", "cycles", "kw"), [
     ("k9k-4cyl", 1700, 1.0, 7, {}),  # cam, 1-deg grid in the truth
     ("deutz-1cyl", 2600, 0.8, 6, {"load_steps": [(0.08, 0.5)]}),  # a load step inside a chunk
-    ("genset-v20", 1500, 0.75, 4, {}),  # flexible chain, 20 pressure channels
+    ("genset-v20", 1500, 0.75, 4, {"friction_grid": True}),  # flexible chain, 20 pressure channels
     # the benches' two-wheel genset (the preset plus a free-end wheel): batches of that wheel's own revolution
     (str(Path(__file__).resolve().parents[2] / "bench" / "genset-v20-two-wheels.toml"), 1500, 0.75, 3,
      {"second_wheel": True}),
@@ -88,3 +92,22 @@ def test_to_ticks_in_pieces_equals_one_piece_even_with_ties():
         assert_array_equal(np.concatenate(pieces), whole)
         assert np.all(np.diff(whole) > 0) and whole[0] >= 0
     assert_array_equal(to_ticks(np.array([0.0, 0.0, 5e-7, 1e-6]), 1e7, 0.0, None), [0, 1, 5, 10])
+
+
+def test_the_kernels_call_length_and_the_friction_grid_leave_records_and_truth_as_they_are(monkeypatch):
+    """Kernel calls of up to 4 cycles (sim_run.CALL_CYCLES: numba's dispatch paid once in 4 cycles, not once a
+    cycle) make the run a call per cycle makes, and a 20-cylinder run without the 1-deg friction grid (its default:
+    the truth keeps it only for <= 4 cylinders) the run with it, to the bit, but for that grid (design note 129)."""
+    args = ("genset-v20", 1500, 0.75, 10)
+    default, truth = streamed(*args, chunk_cycles=10)
+    monkeypatch.setattr(sim_run_mod, "CALL_CYCLES", 1)
+    per_cycle, truth_per_cycle = streamed(*args, chunk_cycles=10, friction_grid=True)
+    assert_same_records(default[0].records, per_cycle[0].records, rtol=0.0)
+    assert truth == truth_per_cycle
+    d, p = default[0].diagnostics, per_cycle[0].diagnostics
+    for key in ("pressure_true_pa", "edge_times_s", "flywheel_speed_grid_rad_s", "grid_time_s", "cycle_increments"):
+        assert_array_equal(d[key], p[key], err_msg=key)
+    assert np.all(np.isnan(d["friction_grid_nm"])) and np.all(np.isfinite(p["friction_grid_nm"]))
+    assert d["friction_grid_nm"].shape == p["friction_grid_nm"].shape == (10, 720)
+    k9k, _ = streamed("k9k-4cyl", 1700, 1.0, 1, chunk_cycles=1)
+    assert np.all(np.isfinite(k9k[0].diagnostics["friction_grid_nm"]))  # <= 4 cylinders: in the truth, evaluated
