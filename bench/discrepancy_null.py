@@ -6,6 +6,8 @@
                                                    # the same run; only the named records are written
     python -m bench.discrepancy_null --tune-gap    # the tuning logs: the largest healthy speed gap over the
                                                    # healthy gap at its amplitudes (GAP_NULL alone)
+    python -m bench.discrepancy_null --tune --tune-gap --write --only NULL_OWN ...
+                                                   # both in one pass: GAP_NULL against the floors written
     python -m bench.discrepancy_null               # validation: healthy logs the floor was not tuned on, and
                                                    # logs with a hidden effect (the floor must not hide them)
 
@@ -35,6 +37,7 @@ from datetime import date  # noqa: E402
 
 import numpy as np  # noqa: E402
 from frictionwatch.core.discrepancy.features import (  # noqa: E402
+    FLOOR_RMS,
     NULL_FLOOR,
     NULL_OWN,
     RPM_PER_RAD_S,
@@ -131,11 +134,12 @@ def speed_power(held: tuple, null: tuple[float, float]) -> tuple[float, float]:
 
 
 def tuned_records(small: float, big: float, bal: float, speed_rms: tuple[float, float], bal_rms: float,
-                  only: tuple[str, ...] = ()) -> dict[str, Tuned]:
+                  only: tuple[str, ...] = (), gap: bool = False) -> dict[str, Tuned]:
     """The numbers --tune found, each with its provenance (core.discrepancy.tuned); floors rounded up to two figures.
-    ``only``: these records alone (the others keep their own run's provenance)."""
+    ``only``: these records alone (the others keep their own run's provenance); ``gap``: the run tunes GAP_NULL too
+    (--tune-gap, said in the command)."""
     on = tuple(f"{e} {r:g} rpm {ld:g} seed {s}" for e, r, ld, s in TUNE)
-    by = "python -m bench.discrepancy_null --tune --write" + "".join(f" --only {n}" for n in only)
+    by = tune_command(only, gap)
     day = date.today().isoformat()
     largest = "the largest healthy held-out coherent residual beyond 4 sigma (noise and tooth pattern)"
     figures = {
@@ -158,14 +162,19 @@ def tuned_records(small: float, big: float, bal: float, speed_rms: tuple[float, 
             if not only or name in only}
 
 
-def gap_record(ratio: float) -> dict[str, Tuned]:
+def tune_command(only: tuple[str, ...], gap: bool) -> str:
+    """The command that writes a --tune run's records (their ``tuned_by``)."""
+    return (f"python -m bench.discrepancy_null --tune{' --tune-gap' if gap else ''} --write"
+            + "".join(f" --only {n}" for n in only))
+
+
+def gap_record(ratio: float, by: str = "python -m bench.discrepancy_null --tune-gap --write") -> dict[str, Tuned]:
     """GAP_NULL (core.discrepancy.features.healthy_gap) with its provenance: the largest healthy ratio on TUNE x
     MARGIN, rounded up."""
     on = tuple(f"{e} {r:g} rpm {ld:g} seed {s}" for e, r, ld, s in TUNE)
-    text = (f"the largest healthy held-out speed gap over the healthy gap at its amplitudes (features.healthy_gap): "
-            f"{ratio:.3f}, x {MARGIN:g}, rounded up")
-    return {"GAP_NULL": Tuned(round_up(MARGIN * ratio), "python -m bench.discrepancy_null --tune-gap --write", on,
-                              text, date.today().isoformat())}
+    text = (f"the largest healthy held-out speed gap over the healthy gap at its amplitudes (features.healthy_gap; "
+            f"against the floors in the record beside it): {ratio:.3f}, x {MARGIN:g}, rounded up")
+    return {"GAP_NULL": Tuned(round_up(MARGIN * ratio), by, on, text, date.today().isoformat())}
 
 
 def kinetic_record(doc: dict):
@@ -189,7 +198,8 @@ def main() -> None:
     ap.add_argument("--write", action="store_true", help="with --tune: write the tuned numbers and their provenance "
                                                          "into core/discrepancy/tuned.json")
     ap.add_argument("--tune-gap", action="store_true", help="the tuning logs only, GAP_NULL alone (with --write: "
-                                                             "only it is written)")
+                                                             "only it is written); with --tune: GAP_NULL too, against "
+                                                             "the floors that run finds")
     ap.add_argument("--tune-kinetic", action="store_true", help="NULL_KINETIC alone, from healthy two-point logs "
                     "(bench.discrepancy_balance_points.balance_across_points on its BALANCE_TUNE_SEEDS; with --write: only it is "
                     "written)")
@@ -205,7 +215,7 @@ def main() -> None:
             write_tuned(kinetic_record(doc))
             print(f"wrote {TUNED_PATH}")
         return
-    if args.tune_gap:
+    if args.tune_gap and not args.tune:
         ratio = max(one(f"tune {e} {r:g} rpm {ld:g} seed {s}", e, r, ld, s)[5] for e, r, ld, s in TUNE)
         print(f"largest healthy speed gap over the healthy gap at its amplitudes: {ratio:.3f} -> GAP_NULL "
               f"{MARGIN * ratio:.3f} (margin {MARGIN:g})")
@@ -231,8 +241,16 @@ def main() -> None:
         print(f"largest healthy residual beyond 4 sigma: small orders {small:.4f} of the largest harmonic -> "
               f"NULL_FLOOR {MARGIN * small:.4f}; large orders {big:.4f} of their own -> NULL_OWN {MARGIN * big:.4f}"
               f"; balance {bal:.4f} of the friction -> NULL_BALANCE {MARGIN * bal:.4f} (margin {MARGIN:g})")
+        records = tuned_records(small, big, bal, speed_rms, bal_rms, tuple(args.only), args.tune_gap)
+        if args.tune_gap:  # against the floors this run finds, as written (rounded up)
+            rms = FloorRms(round_up(speed_rms[0]), round_up(speed_rms[1]), FLOOR_RMS.balance)
+            ratio = max(healthy_gap(*w[6], rms, null)["ratio"] for w in worst)
+            print(f"largest healthy speed gap over the healthy gap at its amplitudes, against these floors: {ratio:.3f} "
+                  f"-> GAP_NULL {MARGIN * ratio:.3f} (margin {MARGIN:g}; {max(w[5] for w in worst):.3f} against those "
+                  f"in force)")
+            records |= gap_record(ratio, tune_command(tuple(args.only), True))
         if args.write:
-            write_tuned(tuned_records(small, big, bal, speed_rms, bal_rms, tuple(args.only)))
+            write_tuned(records)
             print(f"wrote {TUNED_PATH}")
         return
     for e, r, ld, s in VALIDATE:

@@ -132,7 +132,8 @@ def cost(res: Residuals, scale: np.ndarray) -> float:
     return float(np.sum((res.features() / scale) ** 2))
 
 
-def healthy_gap(res: Residuals, scale: np.ndarray) -> dict:
+def healthy_gap(res: Residuals, scale: np.ndarray, rms: FloorRms = FLOOR_RMS,
+                null: tuple[float, float] | None = None) -> dict:
     """The speed channel's coherent gap (``gap`` over the flywheel-speed features alone) against the gap a healthy
     log shows at this log's amplitudes: the rms model error of each whitened speed feature (``feature_floor``: each
     order's floor x the rms of its kind, FLOOR_RMS), summed as the gap sums them. A floor is a threshold (the largest healthy
@@ -141,12 +142,13 @@ def healthy_gap(res: Residuals, scale: np.ndarray) -> dict:
     order 0.5, the single cylinder's firing order: gap 20.7 against 4.2 here, the healthy log's 2.7). ``orders``:
     the engine orders that carry it, each whose own coherent amplitude (whitened) exceeds the whole healthy gap (else
     the largest). ``localise`` adds ``firing``: which of them are firing orders (multiples of n_cyl / 2), where the
-    floor is widest."""
+    floor is widest. ``rms``, ``null``: the floors' in place of those in force (``feature_floor``; the tuning bench's,
+    which states GAP_NULL against the floors it writes)."""
     m = res.harmonics.shape[1]
     terms = coherent_terms(res, scale)[:2 * m]
     per_order = np.maximum(terms[:m] + terms[m:], 0.0)
     speed = float(np.sqrt(per_order.sum()))
-    normal = float(np.sqrt(np.sum(feature_floor(res, scale)[:2 * m] ** 2)))
+    normal = float(np.sqrt(np.sum(feature_floor(res, scale, rms, null)[:2 * m] ** 2)))
     idx = np.flatnonzero(np.sqrt(per_order) > normal)
     if idx.size == 0:
         idx = np.array([int(np.argmax(per_order))])
