@@ -120,16 +120,22 @@ def one(label: str, engine: str, rpm: float, load: float, seed: int, effects=())
             float(np.mean(power[:-1])), float(power[-1]), hg["ratio"], (test, scale))
 
 
-def speed_power(held: tuple, null: tuple[float, float]) -> tuple[float, float]:
-    """(share, own): the mean over the speed features of each kind of floor (features.small_orders: the largest
-    harmonic's share, the order's own) of a held-out residual's noise-corrected coherent power over its floor's at
-    FLOOR_RMS 1, the floor taken at ``null`` (NULL_OWN, NULL_FLOOR): FLOOR_RMS_SPEED_SHARE's and _OWN's figures
-    against the floors the same run writes (against the floors in force they would be fractions of numbers they
-    replace; design note 122)."""
+def speed_power(held: tuple, null: tuple[float, float], pooled: bool = True) -> tuple[float, float]:
+    """(share, own): over the speed features of each kind of floor (features.small_orders: the largest harmonic's
+    share, the order's own), a held-out residual's noise-corrected coherent power over its floor's at FLOOR_RMS 1,
+    the floor taken at ``null`` (NULL_OWN, NULL_FLOOR): FLOOR_RMS_SPEED_SHARE's and _OWN's figures against the floors
+    the same run writes (against the floors in force they would be fractions of numbers they replace; note 122).
+    ``pooled``: the kind's summed power over its summed floor power (whitened), each feature's ratio weighted by its
+    floor's power over its noise's; else the plain mean of the ratios, where a feature whose floor lies within its
+    noise adds its noise correction (-var / N) over a small floor: on TUNE (2026-12-01) that mean read the own kind
+    below zero, the firing orders' model error nil (design note 128)."""
     test, scale = held
     floor = feature_floor(test, scale, rms=FloorRms(1.0, 1.0, 1.0), null=null)[:-1]
-    power = coherent_terms(test, scale)[:-1] / (floor**2 + 1e-300)
+    coherent = coherent_terms(test, scale)[:-1]
     small = np.tile(small_orders(test.measured.mean(axis=0)), 2)  # Re and Im of each order (one operating point)
+    if pooled:
+        return tuple(float(coherent[k].sum() / (np.sum(floor[k] ** 2) + 1e-300)) for k in (small, ~small))
+    power = coherent / (floor**2 + 1e-300)
     return float(np.mean(power[small])), float(np.mean(power[~small]))
 
 
@@ -149,10 +155,11 @@ def tuned_records(small: float, big: float, bal: float, speed_rms: tuple[float, 
                                        f"{small:.4f} of the largest, x {MARGIN:g}, rounded up"),
         "NULL_BALANCE": (MARGIN * bal, f"the largest healthy held-out |mean balance residual| over the measured "
                                        f"friction: {bal:.4f} (noise included), x {MARGIN:g}, rounded up"),
-        "FLOOR_RMS_SPEED_SHARE": (speed_rms[0], f"the rms over the tuning logs and the speed features whose floor is "
-                                                f"the largest harmonic's share (features.small_orders) of the "
+        "FLOOR_RMS_SPEED_SHARE": (speed_rms[0], f"the rms over the tuning logs, of the speed features whose floor is "
+                                                f"the largest harmonic's share (features.small_orders), of the "
                                                 f"noise-corrected coherent residual over its floor (NULL_OWN, "
-                                                f"NULL_FLOOR of the same run): {speed_rms[0]:.4f}, rounded up"),
+                                                f"NULL_FLOOR of the same run; per log the summed whitened powers' "
+                                                f"ratio): {speed_rms[0]:.4f}, rounded up"),
         "FLOOR_RMS_SPEED_OWN": (speed_rms[1], f"the same over the speed features whose floor is the order's own "
                                               f"amplitude's share: {speed_rms[1]:.4f}, rounded up"),
         "FLOOR_RMS_BALANCE": (bal_rms, f"the same for the balance feature (its floor NULL_BALANCE x the measured "
@@ -227,17 +234,20 @@ def main() -> None:
         worst = [one(f"tune {e} {r:g} rpm {ld:g} seed {s}", e, r, ld, s) for e, r, ld, s in TUNE]
         small, big, bal = (max(w[i] for w in worst) for i in range(3))
         null = (round_up(MARGIN * big), round_up(MARGIN * small))
-        def rms(floors: tuple[float, float]) -> tuple[float, float]:  # (share, own) over the logs, each log's mean
-            powers = np.array([speed_power(w[6], floors) for w in worst])
+        def rms(floors: tuple[float, float], pooled: bool = True) -> tuple[float, float]:  # (share, own), log mean
+            powers = np.array([speed_power(w[6], floors, pooled) for w in worst])
+            for (e, r, ld, s), p in zip(TUNE, powers, strict=True):
+                print(f"  {e} {r:g} rpm {ld:g} seed {s} ({'pooled' if pooled else 'mean of ratios'}, "
+                      f"{floors[0]:g}, {floors[1]:g}): share {p[0]:+.4f}, own {p[1]:+.4f}")
             return tuple(float(np.sqrt(max(p, 0.0))) for p in powers.mean(axis=0))
 
-        speed_rms, in_force = rms(null), rms((NULL_OWN, NULL_FLOOR))
+        speed_rms, in_force, plain = rms(null), rms((NULL_OWN, NULL_FLOOR)), rms(null, pooled=False)
         one_rms = float(np.sqrt(max(np.mean([w[3] for w in worst]), 0.0)))
         bal_rms = float(np.sqrt(max(np.mean([w[4] for w in worst]), 0.0)))
         print(f"rms healthy coherent residual over the tuning logs, of its floor: speed share {speed_rms[0]:.4f}, own "
               f"{speed_rms[1]:.4f} (of the floors NULL_OWN {null[0]:g}, NULL_FLOOR {null[1]:g} this run finds; "
-              f"{in_force[0]:.4f}, {in_force[1]:.4f} of those in force, one rms over all {one_rms:.4f}), balance "
-              f"{bal_rms:.4f} -> FLOOR_RMS")
+              f"{in_force[0]:.4f}, {in_force[1]:.4f} of those in force; the mean of the ratios {plain[0]:.4f}, "
+              f"{plain[1]:.4f}; one rms over all, in force {one_rms:.4f}), balance {bal_rms:.4f} -> FLOOR_RMS")
         print(f"largest healthy residual beyond 4 sigma: small orders {small:.4f} of the largest harmonic -> "
               f"NULL_FLOOR {MARGIN * small:.4f}; large orders {big:.4f} of their own -> NULL_OWN {MARGIN * big:.4f}"
               f"; balance {bal:.4f} of the friction -> NULL_BALANCE {MARGIN * bal:.4f} (margin {MARGIN:g})")
