@@ -14,6 +14,8 @@ their coherent powers summed with the point's share of the cycles as its weight 
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from frictionwatch.core.discrepancy.residuals import Residuals
 from frictionwatch.core.discrepancy.tuned import tuned_constants
@@ -36,7 +38,7 @@ SIGNIFICANT = 4.0  # a coherent figure is reported as significant above this man
 # 4000: +0.34 N m against a mean kinetic term of -2.1, the truth's friction equal to the model's; design note 68).
 # Tuned on healthy two-point logs (bench.discrepancy_null --tune-kinetic --write;
 # bench.discrepancy_balance_points.BALANCE_TUNE_SEEDS).
-# FLOOR_RMS (speed, balance): the rms healthy coherent residual as a fraction of those floors (a floor is a
+# FLOOR_RMS (speed by its floor's kind, balance; FloorRms): the rms healthy coherent residual as a fraction of those floors (a floor is a
 # threshold, the largest healthy residual x 1.5; a found parameter's sigma needs the typical model error). The
 # balance's was 0 until note 79: tuned when the balance's scatter hid its bias; after note 69 (3.3x less scatter) the
 # same logs read 0.31 of NULL_BALANCE x the friction, and without it a ring sized by the balance read 2.8 sigma off.
@@ -46,7 +48,27 @@ NULL_FLOOR = _TUNED["NULL_FLOOR"].value
 NULL_BALANCE = _TUNED["NULL_BALANCE"].value
 # 0 without its record (not tuned): the floor is NULL_BALANCE's alone, as before note 68
 NULL_KINETIC = _TUNED["NULL_KINETIC"].value if "NULL_KINETIC" in _TUNED else 0.0
-FLOOR_RMS = (_TUNED["FLOOR_RMS_SPEED"].value, _TUNED["FLOOR_RMS_BALANCE"].value)
+# The speed's rms is one per kind of floor (design note 128): an order whose own measured amplitude is below
+# SMALL_ORDER x the largest has a floor that is mostly NULL_FLOOR's share of the largest harmonic ("share"), the others
+# mostly NULL_OWN's of their own ("own"; the firing orders); one rms for both was set by the many small orders, so a
+# move of NULL_FLOOR moved the model error at the firing orders the other way (note 122). Without the two records
+# (FLOOR_RMS_SPEED_SHARE, FLOOR_RMS_SPEED_OWN) both kinds take FLOOR_RMS_SPEED's.
+SMALL_ORDER = 0.1
+
+
+class FloorRms(NamedTuple):
+    """The rms healthy coherent residual as a fraction of its floor: a speed order's by its floor's kind, the
+    balance's."""
+
+    share: float
+    own: float
+    balance: float
+
+
+_SPEED_RMS = _TUNED["FLOOR_RMS_SPEED"].value
+FLOOR_RMS = FloorRms(_TUNED["FLOOR_RMS_SPEED_SHARE"].value if "FLOOR_RMS_SPEED_SHARE" in _TUNED else _SPEED_RMS,
+                     _TUNED["FLOOR_RMS_SPEED_OWN"].value if "FLOOR_RMS_SPEED_OWN" in _TUNED else _SPEED_RMS,
+                     _TUNED["FLOOR_RMS_BALANCE"].value)
 # GAP_NULL: the speed channel's held-out gap beyond this many times the healthy gap at the log's amplitudes
 # (``healthy_gap``) is a discrepancy even inside every order's floor; the largest healthy ratio on
 # bench/discrepancy_null.py TUNE x MARGIN (--tune-gap --write), validated on its VALIDATE logs and the matrices'
@@ -110,21 +132,23 @@ def cost(res: Residuals, scale: np.ndarray) -> float:
     return float(np.sum((res.features() / scale) ** 2))
 
 
-def healthy_gap(res: Residuals, scale: np.ndarray) -> dict:
+def healthy_gap(res: Residuals, scale: np.ndarray, rms: FloorRms = FLOOR_RMS,
+                null: tuple[float, float] | None = None) -> dict:
     """The speed channel's coherent gap (``gap`` over the flywheel-speed features alone) against the gap a healthy
-    log shows at this log's amplitudes: the rms model error of each whitened speed feature (``feature_floor``,
-    FLOOR_RMS of the per-order floors), summed as the gap sums them. A floor is a threshold (the largest healthy
+    log shows at this log's amplitudes: the rms model error of each whitened speed feature (``feature_floor``: each
+    order's floor x the rms of its kind, FLOOR_RMS), summed as the gap sums them. A floor is a threshold (the largest healthy
     residual x 1.5, NULL_OWN of the order's own amplitude); this is the typical healthy error, so a gap many times
     it is a discrepancy even where every order lies inside its floor (deutz 3000 rpm seed 2, a 5 % load ripple at
     order 0.5, the single cylinder's firing order: gap 20.7 against 4.2 here, the healthy log's 2.7). ``orders``:
     the engine orders that carry it, each whose own coherent amplitude (whitened) exceeds the whole healthy gap (else
     the largest). ``localise`` adds ``firing``: which of them are firing orders (multiples of n_cyl / 2), where the
-    floor is widest."""
+    floor is widest. ``rms``, ``null``: the floors' in place of those in force (``feature_floor``; the tuning bench's,
+    which states GAP_NULL against the floors it writes)."""
     m = res.harmonics.shape[1]
     terms = coherent_terms(res, scale)[:2 * m]
     per_order = np.maximum(terms[:m] + terms[m:], 0.0)
     speed = float(np.sqrt(per_order.sum()))
-    normal = float(np.sqrt(np.sum(feature_floor(res, scale)[:2 * m] ** 2)))
+    normal = float(np.sqrt(np.sum(feature_floor(res, scale, rms, null)[:2 * m] ** 2)))
     idx = np.flatnonzero(np.sqrt(per_order) > normal)
     if idx.size == 0:
         idx = np.array([int(np.argmax(per_order))])
@@ -154,6 +178,18 @@ def _point_rms(res: Residuals, floor_of) -> np.ndarray:
     return np.sqrt(sum((i.size / n) * floor_of(i) ** 2 for i in parts))
 
 
+def _point_floor_rpm(mean: np.ndarray, null: tuple[float, float]) -> np.ndarray:
+    """One operating point's floor [rpm] from its mean measured amplitudes ``mean`` (M,) [rpm]."""
+    own, largest = null
+    return own * mean + largest * float(mean.max(initial=0.0))
+
+
+def small_orders(mean: np.ndarray) -> np.ndarray:
+    """(M,) whether each order's floor is of the "share" kind (FloorRms): its own mean measured amplitude ``mean``
+    below SMALL_ORDER x the largest (the orders bench.discrepancy_null tunes NULL_FLOOR on; the others NULL_OWN)."""
+    return mean < SMALL_ORDER * float(mean.max(initial=0.0))
+
+
 def speed_floor_rpm(res: Residuals, null: tuple[float, float] | None = None) -> np.ndarray:
     """(M,) the model-error floor of a coherent speed residual at each engine order [rpm]: NULL_OWN x the mean measured
     amplitude there + NULL_FLOOR x the largest (zeros where the residuals do not carry the measured speed); over
@@ -162,24 +198,37 @@ def speed_floor_rpm(res: Residuals, null: tuple[float, float] | None = None) -> 
     m = res.harmonics.shape[1]
     if res.measured is None or not res.measured.size:
         return np.zeros(m)
-    own, largest = (NULL_OWN, NULL_FLOOR) if null is None else null
+    null = (NULL_OWN, NULL_FLOOR) if null is None else null
+    return _point_rms(res, lambda i: _point_floor_rpm(res.measured[i].mean(axis=0) * RPM_PER_RAD_S, null))
 
-    def floor_of(i: np.ndarray) -> np.ndarray:
+
+def speed_model_error_rpm(res: Residuals, rms: FloorRms = FLOOR_RMS,
+                          null: tuple[float, float] | None = None) -> np.ndarray:
+    """(M,) the rms model error of a coherent speed residual at each engine order [rpm]: its floor
+    (``speed_floor_rpm``) x the rms of the floor's kind (``small_orders``: ``rms.share`` where the floor is the
+    largest harmonic's share, ``rms.own`` where it is the order's own), each operating point's with its own kinds,
+    combined by ``_point_rms``."""
+    m = res.harmonics.shape[1]
+    if res.measured is None or not res.measured.size:
+        return np.zeros(m)
+    null = (NULL_OWN, NULL_FLOOR) if null is None else null
+
+    def error_of(i: np.ndarray) -> np.ndarray:
         mean = res.measured[i].mean(axis=0) * RPM_PER_RAD_S
-        return own * mean + largest * float(mean.max(initial=0.0))
+        return np.where(small_orders(mean), rms.share, rms.own) * _point_floor_rpm(mean, null)
 
-    return _point_rms(res, floor_of)
+    return _point_rms(res, error_of)
 
 
-def feature_floor(res: Residuals, scale: np.ndarray, rms: tuple[float, float] = FLOOR_RMS,
+def feature_floor(res: Residuals, scale: np.ndarray, rms: FloorRms = FLOOR_RMS,
                   null: tuple[float, float] | None = None) -> np.ndarray:
-    """(F,) the rms model error of each whitened feature (Residuals.features / scale), ``rms`` (speed, balance) of
-    the floor: a coherent error of the floor's size at an unknown phase puts floor/sqrt(2) into each of Re and Im
-    of a speed harmonic (speed_floor_rpm); the balance feature's floor is NULL_BALANCE x the measured friction. What
-    a fitted parameter's sigma cannot average away with more cycles (core.discrepancy.fit.parameter_sigma). ``null``:
-    the speed floor's (NULL_OWN, NULL_FLOOR) in their place (``speed_floor_rpm``)."""
-    per_component = rms[0] * speed_floor_rpm(res, null) / RPM_PER_RAD_S / np.sqrt(2.0)
-    return np.concatenate([per_component, per_component, [rms[1] * balance_floor_nm(res)]]) / scale
+    """(F,) the rms model error of each whitened feature (Residuals.features / scale): a coherent error of a speed
+    order's model error (``speed_model_error_rpm``: its floor x the rms of the floor's kind) at an unknown phase puts
+    it/sqrt(2) into each of Re and Im of the harmonic; the balance feature's is ``rms.balance`` x its floor
+    (NULL_BALANCE x the measured friction). What a fitted parameter's sigma cannot average away with more cycles
+    (core.discrepancy.fit.parameter_sigma). ``null``: the speed floor's (NULL_OWN, NULL_FLOOR) in their place."""
+    per_component = speed_model_error_rpm(res, rms, null) / RPM_PER_RAD_S / np.sqrt(2.0)
+    return np.concatenate([per_component, per_component, [rms.balance * balance_floor_nm(res)]]) / scale
 
 
 def _point_means(x: np.ndarray, groups: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -380,7 +429,8 @@ def beyond_healthy_gap(loc: dict) -> bool:
     return bool(not beyond_null(loc) and loc.get("healthy_gap", {}).get("beyond"))
 
 
-__all__ = ["FLOOR_RMS", "GAP_NULL", "beyond_healthy_gap", "healthy_gap", "NULL_BALANCE", "NULL_FLOOR", "NULL_KINETIC",
-           "NULL_OWN", "RPM_PER_RAD_S", "SIGNIFICANT", "balance_floor_nm", "balance_point_floor_nm", "balance_residual",
-           "beyond_null", "coherent_terms", "cost", "coherent_power", "cylinder_windows", "feature_floor", "gap",
-           "localise", "noise_scale", "order_table", "pattern_sigma_rpm", "speed_floor_rpm", "trends"]
+__all__ = ["FLOOR_RMS", "GAP_NULL", "NULL_BALANCE", "NULL_FLOOR", "NULL_KINETIC", "NULL_OWN", "RPM_PER_RAD_S",
+           "SIGNIFICANT", "SMALL_ORDER", "FloorRms", "balance_floor_nm", "balance_point_floor_nm", "balance_residual",
+           "beyond_healthy_gap", "beyond_null", "coherent_power", "coherent_terms", "cost", "cylinder_windows",
+           "feature_floor", "gap", "healthy_gap", "localise", "noise_scale", "order_table", "pattern_sigma_rpm",
+           "small_orders", "speed_floor_rpm", "speed_model_error_rpm", "trends"]

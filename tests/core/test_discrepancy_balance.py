@@ -107,5 +107,5 @@ def test_a_parameter_the_balance_sizes_carries_the_balances_own_model_error(labe
     stated = parameter_sigma(jac.reshape(-1, 1), n, float(n * (2 * m + 1)), feature_floor(res, scale))[0]
     assert abs(off) <= 2.0 * stated, (label, off, stated)
     # the floor's part is the balance's own error through the sensitivity, whatever the cycle count
-    np.testing.assert_allclose(stated, np.hypot(FLOOR_RMS[1] * NULL_BALANCE * friction / j_nm,
+    np.testing.assert_allclose(stated, np.hypot(FLOOR_RMS.balance * NULL_BALANCE * friction / j_nm,
                                                 sd / np.sqrt(n) / j_nm), rtol=0.05)

@@ -423,7 +423,7 @@ def test_a_fit_of_the_models_own_error_on_a_quiet_healthy_log_is_not_named(monke
     monkeypatch.setattr(workflow, "candidate_library",
                         lambda m: [c for c in candidate_library(m) if c.effect != "flywheel_inertia"])
     monkeypatch.setattr(workflow, "feature_floor",
-                        lambda res, scale: features.feature_floor(res, scale, rms=(features.FLOOR_RMS[0], 0.0)))
+                        lambda res, scale: features.feature_floor(res, scale, rms=features.FLOOR_RMS._replace(balance=0.0)))
     doc = discover(model, cycles, OPTIONS).to_json()
     assert doc["found"] == [] and doc["outcome"] == "nothing"
     assert [r["candidate"] for r in doc["refused"]] == ["stribeck_ring"]

@@ -277,7 +277,8 @@ def test_the_code_uses_the_recorded_numbers():
     disc = read_tuned(TUNED_PATH)
     assert features.NULL_OWN == disc["NULL_OWN"].value and features.NULL_FLOOR == disc["NULL_FLOOR"].value
     assert features.NULL_BALANCE == disc["NULL_BALANCE"].value
-    assert features.FLOOR_RMS == (disc["FLOOR_RMS_SPEED"].value, disc["FLOOR_RMS_BALANCE"].value)
+    speed = [disc.get(f"FLOOR_RMS_SPEED_{kind}", disc["FLOOR_RMS_SPEED"]).value for kind in ("SHARE", "OWN")]
+    assert features.FLOOR_RMS == (*speed, disc["FLOOR_RMS_BALANCE"].value)
     if "EFFECT_REL_ERROR" in disc:
         assert fit.EFFECT_REL_ERROR == disc["EFFECT_REL_ERROR"].value
     if "CHAIN_STIFFNESS_REL" in disc:  # bench/calibrate_chain_bias.py (design note 103)
