@@ -38,8 +38,9 @@ SIGNIFICANT = 4.0  # a coherent figure is reported as significant above this man
 # 4000: +0.34 N m against a mean kinetic term of -2.1, the truth's friction equal to the model's; design note 68).
 # Tuned on healthy two-point logs (bench.discrepancy_null --tune-kinetic --write;
 # bench.discrepancy_balance_points.BALANCE_TUNE_SEEDS).
-# FLOOR_RMS (speed by its floor's kind, balance; FloorRms): the rms healthy coherent residual as a fraction of those floors (a floor is a
-# threshold, the largest healthy residual x 1.5; a found parameter's sigma needs the typical model error). The
+# FLOOR_RMS (speed by its floor's kind, balance; FloorRms): the rms healthy coherent residual as a fraction of those
+# floors (a floor is a threshold, the largest healthy residual x 1.5; a found parameter's sigma needs the typical
+# model error). The
 # balance's was 0 until note 79: tuned when the balance's scatter hid its bias; after note 69 (3.3x less scatter) the
 # same logs read 0.31 of NULL_BALANCE x the friction, and without it a ring sized by the balance read 2.8 sigma off.
 _TUNED = tuned_constants()
@@ -136,9 +137,9 @@ def healthy_gap(res: Residuals, scale: np.ndarray, rms: FloorRms = FLOOR_RMS,
                 null: tuple[float, float] | None = None) -> dict:
     """The speed channel's coherent gap (``gap`` over the flywheel-speed features alone) against the gap a healthy
     log shows at this log's amplitudes: the rms model error of each whitened speed feature (``feature_floor``: each
-    order's floor x the rms of its kind, FLOOR_RMS), summed as the gap sums them. A floor is a threshold (the largest healthy
-    residual x 1.5, NULL_OWN of the order's own amplitude); this is the typical healthy error, so a gap many times
-    it is a discrepancy even where every order lies inside its floor (deutz 3000 rpm seed 2, a 5 % load ripple at
+    order's floor x the rms of its kind, FLOOR_RMS), summed as the gap sums them. A floor is a threshold (the largest
+    healthy residual x 1.5, NULL_OWN of the order's own amplitude); this is the typical healthy error, so a gap many
+    times it is a discrepancy even where every order lies inside its floor (deutz 3000 rpm seed 2, a 5 % load ripple at
     order 0.5, the single cylinder's firing order: gap 20.7 against 4.2 here, the healthy log's 2.7). ``orders``:
     the engine orders that carry it, each whose own coherent amplitude (whitened) exceeds the whole healthy gap (else
     the largest). ``localise`` adds ``firing``: which of them are firing orders (multiples of n_cyl / 2), where the
