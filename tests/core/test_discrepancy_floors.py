@@ -1,0 +1,80 @@
+"""The speed channel's model-error floors on made-up residuals (no monitor run): the floor itself (NULL_OWN of the
+order's amplitude + NULL_FLOOR of the largest) and the model error each order gets by its floor's kind (FloorRms,
+design note 128). Moved from test_discrepancy_parts.py, unchanged."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from frictionwatch.core.discrepancy.features import (
+    NULL_FLOOR,
+    NULL_OWN,
+    RPM_PER_RAD_S,
+    SMALL_ORDER,
+    FloorRms,
+    feature_floor,
+    noise_scale,
+    order_table,
+    speed_floor_rpm,
+    speed_model_error_rpm,
+)
+
+from tests.core.test_discrepancy_parts import made_up
+
+
+def test_a_coherent_residual_within_the_model_error_floor_is_not_significant():
+    """The floor (features.speed_floor_rpm): NULL_OWN x the order's measured amplitude + NULL_FLOOR x the largest.
+    A residual of many sigmas but inside it is the monitor's model, not a missing effect; above it, significant."""
+    m, n = 8, 400
+    measured = np.full((n, m), 0.05)
+    measured[:, 3] = 10.0  # the firing order dominates: 10 rad/s, the others 0.05
+    floor = NULL_OWN * measured[0] + NULL_FLOOR * 10.0  # rad/s
+    coherent = np.zeros(m, complex)
+    coherent[3] = 0.8 * floor[3]  # tens of sigmas (noise 1/sqrt(n) per part), but inside the floor
+    coherent[5] = 1.5 * floor[5]
+    res = dataclasses.replace(made_up(n, m, coherent, 0.0), measured=measured)
+    res = dataclasses.replace(res, harmonics=res.harmonics * 0.01 + (coherent - 0.01 * coherent)[None, :])
+    table = order_table(res)
+    np.testing.assert_allclose([o["floor_rpm"] for o in table], floor * RPM_PER_RAD_S, rtol=1e-12)
+    assert [o["order"] for o in table if o["significant"]] == [3.0]
+    without = dataclasses.replace(res, measured=None)  # no measured scale: the sigma test alone
+    assert {o["order"] for o in order_table(without) if o["significant"]} == {2.0, 3.0}
+    # the floors a tuning run states in their place (bench.discrepancy_null's FLOOR_RMS_SPEED, design note 122)
+    np.testing.assert_allclose(speed_floor_rpm(res, null=(0.02, 0.003)),
+                               (0.02 * measured[0] + 0.003 * 10.0) * RPM_PER_RAD_S, rtol=1e-12)
+    np.testing.assert_allclose(feature_floor(res, noise_scale(res), rms=FloorRms(0.5, 0.5, 0.0), null=(0.02, 0.003))[:m],
+                               0.5 * (0.02 * measured[0] + 0.003 * 10.0) / np.sqrt(2.0) / noise_scale(res)[:m],
+                               rtol=1e-12)
+
+
+def test_each_speed_orders_model_error_follows_its_own_kind_of_floor():
+    """features.speed_model_error_rpm (design note 128): an order whose own measured amplitude is below SMALL_ORDER of
+    the largest (its floor mostly NULL_FLOOR's share of the largest) gets FloorRms.share x its floor, the others
+    FloorRms.own x theirs, whatever the other kind's rms; feature_floor carries it into Re and Im. Over two operating
+    points each point's kinds: an order small at one point and large at the other gets each point's own rms, combined
+    as the floors are (the cycles' shares)."""
+    m, n = 8, 40
+    measured = np.full((n, m), 0.05)
+    measured[:, 3] = 10.0  # order 2, the firing order: the largest
+    measured[:, 1] = 2.0  # order 1: a fifth of the largest, its own kind
+    measured[:, 5] = 0.99 * SMALL_ORDER * 10.0  # order 3: just under a tenth, the share kind
+    res = dataclasses.replace(made_up(n, m, np.zeros(m, complex), 0.0), measured=measured)
+    share, own = 0.2, 1.5
+    kind = np.full(m, share)
+    kind[[1, 3]] = own
+    floor = speed_floor_rpm(res)
+    np.testing.assert_allclose(speed_model_error_rpm(res, FloorRms(share, own, 0.3)), kind * floor, rtol=1e-12)
+    scale = noise_scale(res)
+    per_feature = feature_floor(res, scale, FloorRms(share, own, 0.3))
+    np.testing.assert_allclose(per_feature[:m] * scale[:m], kind * floor / RPM_PER_RAD_S / np.sqrt(2.0), rtol=1e-12)
+    np.testing.assert_allclose(per_feature[m:2 * m] * scale[m:2 * m], per_feature[:m] * scale[:m], rtol=1e-12)
+    # two points (30 and 10 cycles): order 3 rises to twice a tenth of the largest at the second
+    second = measured.copy()
+    second[:, 5] = 2.0
+    group = np.repeat([0, 1], [30, 10])
+    two = dataclasses.replace(res, measured=np.where(group[:, None] == 0, measured, second), group=group)
+    floors = [speed_floor_rpm(dataclasses.replace(res, measured=x)) for x in (measured, second)]
+    kinds = [kind, np.where(np.arange(m) == 5, own, kind)]
+    expect = np.sqrt(0.75 * (kinds[0] * floors[0]) ** 2 + 0.25 * (kinds[1] * floors[1]) ** 2)
+    np.testing.assert_allclose(speed_model_error_rpm(two, FloorRms(share, own, 0.3)), expect, rtol=1e-12)
