@@ -75,16 +75,14 @@ CALL_CYCLES = 4
 
 class PlantRun:
     def __init__(self, spec: EngineSpec, plant: PlantModel, tmodel: CylinderModel, *, h: float, omega: float,
-                 sensors: SensorSetup, rngs: list[np.random.Generator], second_wheel: bool = False,
-                 friction_grid: bool = True):
+                 sensors: SensorSetup, rngs: list[np.random.Generator], second_wheel: bool = False):
         """second_wheel: also the edges of the engine file's second wheel (``spec.sensors.second_wheel``), its tooth
-        errors drawn from ``rngs[8]`` (the run's ninth generator, made only then: every other stream unchanged);
-        friction_grid: the total friction evaluated on the 1-deg grid (else NaN there: nothing else changes)."""
+        errors drawn from ``rngs[8]`` (the run's ninth generator, made only then: every other stream unchanged). The
+        total friction on the 1-deg grid is evaluated (``scalars``' default) until ``record_friction_grid(False)``."""
         self.spec, self.plant, self.sensors, self.rngs, self.omega = spec, plant, sensors, rngs, omega
         z, n = spec.n_cyl, plant.n
         sc = scalars(spec, plant)
         sc[S_H] = h
-        sc[S_GRID_FRICTION] = 1.0 if friction_grid else 0.0
         sc[S_WHEEL_OFF] = sensors.wheel_offset_rad
         sc[S_CAM] = np.radians(CAM_DEG)
         sc[S_PPERIOD] = 1.0 / spec.sensors.pressure_rate_hz

@@ -275,8 +275,8 @@ def start_simulation(engine: EngineSpec | EngineModel, rpm: float, load: float, 
         node_torque[plant.cyl_node[k]] += means[k].indicated_nm - means[k].friction_nm - extra[k, 0]
     node_torque[plant.load] -= node_torque.sum()
 
-    run = PlantRun(spec, plant, tmodel, h=h, omega=omega, sensors=sensors, rngs=rngs, second_wheel=second_wheel,
-                   friction_grid=z <= GRID_MAX_CYL)
+    run = PlantRun(spec, plant, tmodel, h=h, omega=omega, sensors=sensors, rngs=rngs, second_wheel=second_wheel)
+    run.record_friction_grid(z <= GRID_MAX_CYL)
     theta_start = -4.0 * np.pi * (SETTLE_A_CYCLES + SETTLE_B_CYCLES) - 2.0 * np.pi
     theta_switch = -4.0 * np.pi * SETTLE_B_CYCLES
     run.set_state(theta_start + static_twist(plant, node_torque), omega)
