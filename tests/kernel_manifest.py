@@ -40,38 +40,56 @@ def _identity() -> dict:
 
 class Recorder:
     """numba's compile events of our kernels, each appended to ``path`` as one pickle of (module, qualified name,
-    argument types) as its compile ends (a callee's inside its caller's ends first), so a run stopped early still
-    leaves what it compiled; nested functions cannot be found by name and are left out, and so are types numba cannot
-    pickle (those kernels compile when first called, as before)."""
+    argument types, seconds) as its compile ends (a callee's inside its caller's ends first), so a run stopped early
+    still leaves what it compiled; nested functions cannot be found by name and are left out, and so are types numba
+    cannot pickle (those kernels compile when first called, as before).
+
+    The seconds are the entry's own: its compile event's wall time less the compile events of our kernels nested
+    in it (those are entries of their own); numba's own overloads compiled inside it stay in it, as they would when
+    a worker compiles the entry. ``compile_share`` deals the entries by them."""
 
     def __init__(self, path: Path):
         from numba.core import event
 
         recorder = self
+        self.open: list[list[float]] = []  # per event in progress: its start, and the seconds of our kernels in it
 
         class Listener(event.Listener):
             def on_start(self, ev) -> None:
-                pass
+                recorder.open.append([time.perf_counter(), 0.0])
 
             def on_end(self, ev) -> None:
                 recorder.on_end(ev)
 
         self.part = path.open("wb")
-        event.register("numba:compile", Listener())
+        self.listener = Listener()
+        event.register("numba:compile", self.listener)
+
+    def close(self) -> None:
+        from numba.core import event
+
+        event.unregister("numba:compile", self.listener)
+        self.part.close()
 
     def on_end(self, ev) -> None:
+        start, nested = self.open.pop() if self.open else (time.perf_counter(), 0.0)
+        seconds = time.perf_counter() - start
         func = getattr(ev.data.get("dispatcher"), "py_func", None)
-        if func is None or not func.__module__.startswith(PACKAGE) or "<locals>" in func.__qualname__:
+        ours = func is not None and func.__module__.startswith(PACKAGE) and "<locals>" not in func.__qualname__
+        if self.open:  # our kernel's whole time counts as nested in its caller; numba's passes its own nested on
+            self.open[-1][1] += seconds if ours else nested
+        if not ours:
             return
         try:
-            row = pickle.dumps((func.__module__, func.__qualname__, tuple(ev.data.get("args") or ())), protocol=4)
+            row = pickle.dumps((func.__module__, func.__qualname__, tuple(ev.data.get("args") or ()),
+                                round(max(seconds - nested, 0.0), 3)), protocol=4)
         except Exception:
             return
         self.part.write(row)
         self.part.flush()
 
 
-def _rows(part: Path) -> list[tuple[str, str, tuple]]:
+def _rows(part: Path) -> list[tuple]:
     rows = []
     with part.open("rb") as f:
         while True:
@@ -103,7 +121,7 @@ def parts() -> list[Path]:
     return sorted(MANIFEST.parent.glob("kernel_manifest.*.part"))
 
 
-def load(path: Path = MANIFEST) -> list[tuple[str, str, tuple]]:
+def load(path: Path = MANIFEST) -> list[tuple]:
     """The manifest's kernels; none where it is missing or was recorded under another numba or Python."""
     try:
         doc = pickle.loads(path.read_bytes())
@@ -137,11 +155,22 @@ def _callees(kernel) -> set:
     return found
 
 
-def compile_share(kernels: list[tuple[str, str, tuple]], index: int, count: int, done: Path | None = None,
+def deal(costs: dict[int, float], count: int) -> dict[int, int]:
+    """Each entry's worker: in the recorded order (callees first), to the worker with the least compile seconds dealt
+    so far, so the shares take about the same time whatever the order put the few large kernels (the plant's, ~30 s
+    each) next to each other. Every worker computes the same dealing from the same manifest."""
+    dealt, owner = [0.0] * count, {}
+    for i in sorted(costs):
+        owner[i] = min(range(count), key=lambda w: (dealt[w], (w - i) % count))
+        dealt[owner[i]] += costs[i]
+    return owner
+
+
+def compile_share(kernels: list[tuple], index: int, count: int, done: Path | None = None,
                   patience_s: float = 120.0) -> dict:
-    """Compile (or load from the cache) every ``count``-th kernel from the ``index``-th: dealt in turn, so each
-    worker's share follows the recorded order and holds about half of each stage's kernels. Returns the counts and
-    seconds for the run's summary.
+    """Compile (or load from the cache) this worker's share of the manifest's kernels: the ``index``-th of ``count``
+    shares dealt by recorded compile seconds (``deal``; a manifest recorded without them deals in turn, each entry
+    one second). Returns the counts and seconds for the run's summary.
 
     ``done``: a folder the workers share, where each marks the entries it has compiled. A kernel whose callees
     (earlier entries of the kernels it calls) are another worker's waits for their marks, this worker compiling its
@@ -150,14 +179,17 @@ def compile_share(kernels: list[tuple[str, str, tuple]], index: int, count: int,
     waiting (the other died or went slow), the rest compile at once, as without ``done``. Kernels with an explicit
     signature compile when their module is imported (numba refuses ``compile`` on them) and are counted apart."""
     t0, counts = time.perf_counter(), {"compiled": 0, "at_import": 0, "stale": 0}
-    entries, waits = {}, {}
-    for i, (module, qualname, args) in enumerate(kernels):
+    entries, waits, costs = {}, {}, {}
+    for i, (module, qualname, args, *seconds) in enumerate(kernels):
         try:
             entries[i] = (_kernel(module, qualname), args)
         except Exception:  # the kernel is gone or renamed since the manifest was recorded
+            counts["stale"] += i % count == index
             continue
-    owner = {i: i % count for i in entries}
+        costs[i] = seconds[0] if seconds else 1.0
+    owner = deal(costs, count)
     mine = [i for i in entries if owner[i] == index]
+    counts["dealt_s"] = round(sum(costs[i] for i in mine), 1)
     if done is not None:
         done.mkdir(parents=True, exist_ok=True)
         by_kernel: dict = {}
@@ -186,7 +218,6 @@ def compile_share(kernels: list[tuple[str, str, tuple]], index: int, count: int,
             counts["stale"] += 1
         if done is not None:
             (done / str(ready)).touch()
-    counts["stale"] += sum(1 for i in range(index, len(kernels), count) if i not in entries)
     return {**counts, "seconds": round(time.perf_counter() - t0, 1), "waited": round(idle, 1)}
 
 

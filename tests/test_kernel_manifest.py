@@ -1,16 +1,42 @@
-"""The kernel manifest's shares (tests/kernel_manifest.py): a kernel's callees found through the kernels it calls,
-a kernel that calls another worker's waits for that worker's mark (up to its patience), kernels with an explicit
-signature and entries that no longer fit are counted apart."""
+"""The kernel manifest's shares (tests/kernel_manifest.py): each entry's own compile seconds as recorded, the shares
+dealt by them, a kernel's callees found through the kernels it calls, a kernel that calls another worker's waits for
+that worker's mark (up to its patience), kernels with an explicit signature and entries that no longer fit are
+counted apart."""
 
 from __future__ import annotations
 
+import time
+
 import numba
+import numpy as np
 from numba import types
 
 from tests import kernel_manifest, manifest_kernels
 
 MODULE = manifest_kernels.__name__
 INT = (types.int64,)
+
+
+def test_each_entry_records_its_own_seconds_not_its_callees(tmp_path, monkeypatch):
+    monkeypatch.setattr(kernel_manifest, "PACKAGE", "tests.")
+    recorder = kernel_manifest.Recorder(tmp_path / "m.part")
+    try:
+        t0 = time.perf_counter()
+        manifest_kernels.top(np.uint16(3))  # a type no other test compiles: leaf, middle and top compile here
+        wall = time.perf_counter() - t0
+    finally:
+        recorder.close()
+    rows = kernel_manifest._rows(tmp_path / "m.part")
+    assert [(r[1], r[2]) for r in rows] == [(name, (types.uint16,)) for name in ("leaf", "middle", "top")]
+    seconds = [r[3] for r in rows]
+    assert min(seconds) >= 0.0  # each its own: together no more than the one outer compile (rounding: 3 ms)
+    assert sum(seconds) <= wall + 0.003 and sum(seconds) >= 0.5 * wall
+
+
+def test_shares_are_dealt_by_recorded_seconds_and_in_turn_without_them():
+    assert kernel_manifest.deal({0: 30.0, 1: 1.0, 2: 30.0, 3: 1.0}, 2) == {0: 0, 1: 1, 2: 1, 3: 0}  # 31 s each
+    assert kernel_manifest.deal({i: 1.0 for i in range(5)}, 2) == {i: i % 2 for i in range(5)}
+    assert kernel_manifest.deal({0: 1.0, 2: 1.0, 3: 1.0}, 3) == {0: 0, 2: 2, 3: 1}  # ties: the in-turn worker first
 
 
 def test_a_kernels_callees_are_the_kernels_it_calls_directly_or_through_others():
