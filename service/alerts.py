@@ -7,7 +7,8 @@ the statistic is above ``raise`` for ``raise_cycles`` consecutive cycles and cle
 interface (service.alert_rules, service.alert_interface: its thresholds, its state, ``update(result, ctx)`` ->
 decisions); the engine keeps what the rules share (the flags per cylinder, the commissioning baseline and its
 learning, the pressure statistics, the latches, the alert records and ids, the events) and runs the rules of
-``default_rules`` in one loop: a new alert kind is one class and one line there. What each kind reads:
+``default_rules`` in one loop: a new alert kind is one class and one line there (the records, Alert and AlertEvent,
+in service.alert_records). What each kind reads:
 
     blow_by      the leak signature of the pressure (core.monitor.checks.ring_pressure): the compression exponent down and
                  the expansion exponent up against the siblings, as a change from the cylinder's commissioning
@@ -39,7 +40,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import replace
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
@@ -63,6 +64,7 @@ from frictionwatch.service.alert_interface import (
     leak_statistics,
     sibling_reference_variance,
 )
+from frictionwatch.service.alert_records import RULE_OF_KIND, Alert, AlertEvent, snapshot
 from frictionwatch.service.alert_ring_rule import RingConditionRule
 from frictionwatch.service.alert_rules import (
     CoreFlagRule,
@@ -103,67 +105,6 @@ def default_rules(config: AlertConfig, n_cyl: int) -> tuple[tuple[Rule, ...], ..
             (RingConditionRule(config, n_cyl),))
 
 
-@dataclass
-class Alert:
-    """One alert (the contract's shape; ``to_dict`` without engine_id: the service adds it). 1-based cylinder.
-
-    ``acknowledged_by`` is the first person who acknowledged it (kept); ``acknowledgements`` every acknowledgement
-    in order, {by, at_s (wall-clock Unix s), cycle}. ``rule`` names the rule that raised it (the key an alert
-    restored from the store is found under again)."""
-
-    alert_id: int
-    cylinder: int | None
-    kind: str
-    severity: str
-    state: str
-    raised_cycle: int
-    raised_at_s: float
-    message: str
-    evidence: dict = field(default_factory=dict)
-    cleared_cycle: int | None = None
-    acknowledged_by: str | None = None
-    acknowledgements: list = field(default_factory=list)
-    rule: str | None = None
-
-    def to_dict(self) -> dict:
-        d = asdict(self)
-        d["evidence"] = dict(self.evidence)
-        return d
-
-    @classmethod
-    def from_dict(cls, d: dict) -> Alert:
-        """An alert from ``to_dict`` output (extra keys such as engine_id ignored); ValueError (one line) otherwise."""
-        names = {f.name for f in fields(cls)}
-        try:
-            a = cls(**{k: v for k, v in d.items() if k in names})
-            a.alert_id, a.raised_cycle = int(a.alert_id), int(a.raised_cycle)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"not an alert: {exc}") from None
-        if a.state not in ("active", "acknowledged", "cleared") or a.severity not in ("info", "warning", "alarm"):
-            raise ValueError(f"alert {a.alert_id}: state {a.state!r} / severity {a.severity!r} not known")
-        a.evidence, a.acknowledgements = dict(a.evidence or {}), list(a.acknowledgements or [])
-        return a
-
-
-@dataclass(frozen=True)
-class AlertEvent:
-    """kind: raised | updated | cleared; alert: a snapshot at the event (later changes do not reach it)."""
-
-    kind: str
-    alert: Alert
-
-
-def _snapshot(a: Alert) -> Alert:
-    return replace(a, evidence=dict(a.evidence), acknowledgements=[dict(x) for x in a.acknowledgements])
-
-
-# the rule that raises each kind, for an alert stored before alerts named their rule (a guess: ring_wear and
-# blow_by may also come from the core's flags before a baseline; the guessed rule then clears it when its own
-# evidence is absent)
-RULE_OF_KIND = {"ring_wear": "friction", "blow_by": "leak", "misfire": "misfire", "sensor_fault": "sensor_fault",
-                "model_misfit": "model_misfit"}
-
-
 class AlertEngine:
     """The alerts of one engine (module doc). Not thread-safe: one ingest thread calls ``update``; a reader takes
     ``active()`` / ``history()`` snapshots under the caller's lock. ``rules``: the rules in their stages
@@ -202,10 +143,10 @@ class AlertEngine:
 
     # ---- public ---------------------------------------------------------------------------------------------
     def active(self) -> list[Alert]:
-        return [_snapshot(a) for a in sorted(self._open.values(), key=lambda a: a.alert_id)]
+        return [snapshot(a) for a in sorted(self._open.values(), key=lambda a: a.alert_id)]
 
     def history(self) -> list[Alert]:
-        return [_snapshot(a) for a in sorted([*self._history, *self._open.values()], key=lambda a: a.alert_id)]
+        return [snapshot(a) for a in sorted([*self._history, *self._open.values()], key=lambda a: a.alert_id)]
 
     def acknowledge(self, alert_id: int, by: str, at_s: float | None = None) -> Alert:
         """Mark an open alert acknowledged (it stays open until its evidence clears); KeyError for an unknown or
@@ -219,7 +160,7 @@ class AlertEngine:
                 if len(a.acknowledgements) < MAX_ACKNOWLEDGEMENTS:  # bounded: a script acknowledging in a loop
                     a.acknowledgements.append({"by": who, "at_s": time.time() if at_s is None else float(at_s),
                                                "cycle": self._last_cycle})
-                return _snapshot(a)
+                return snapshot(a)
         raise KeyError(f"no open alert {alert_id}")
 
     def restore(self, alerts: list[dict]) -> list[str]:
@@ -444,7 +385,7 @@ class AlertEngine:
             self._next_id += 1
             self._open[key] = a
             self._reindex()  # the latch turned and an alert opened: once for both
-            return [AlertEvent("raised", _snapshot(a))]
+            return [AlertEvent("raised", snapshot(a))]
         a = self._open.get(key)
         if change == "clear":  # the latch turned (and its alert, where one is open, clears)
             events = [] if a is None else [self._clear(key, int(result.index))]
@@ -456,7 +397,7 @@ class AlertEngine:
         a.message = d.message
         if _rank(d.severity) > _rank(a.severity):  # escalate, never de-escalate while open (no flapping)
             a.severity = d.severity
-            return [AlertEvent("updated", _snapshot(a))]
+            return [AlertEvent("updated", snapshot(a))]
         return []
 
     def _clear(self, key: tuple, cycle: int) -> AlertEvent:
@@ -464,7 +405,7 @@ class AlertEngine:
         a.state, a.cleared_cycle = "cleared", cycle
         self._history.append(a)
         del self._history[:-self.config.max_history]
-        return AlertEvent("cleared", _snapshot(a))
+        return AlertEvent("cleared", snapshot(a))
 
 
 def _rank(severity: str) -> int:
