@@ -303,12 +303,13 @@ def test_information_inverse_is_the_reference_bits_at_low_pivot_ratios(engine, s
     scale = np.max(np.abs(truth))
     err_kernel = np.max(np.abs(got.params - truth)) / scale
     err_reference = np.max(np.abs(want.params - truth)) / scale
-    assert err_kernel < max(4.0 * err_reference, 1e-13)  # as exact as the reference
     d = np.sqrt(np.diag(info))
     cond = np.linalg.cond(info / np.outer(d, d))
-    # the bound of note 80: ~eps x the unit-diagonal condition (kernel 0.73-0.86, reference 0.59-1.18 x 1e-15 cond
-    # on these cases), not the pivot ratio (3.9e-13 at ratio 0.16)
-    assert err_kernel < 4e-15 * cond
+    # as exact as the reference: both within the bound of note 80, ~eps x the unit-diagonal condition, not the pivot
+    # ratio (3.9e-13 at ratio 0.16): kernel 0.62-2.22, reference 0.54-1.18 x 1e-15 cond on these cases. Their
+    # ratio is no bound: k9k's 10^7 cycles read 4.1 on an AMD EPYC's OpenBLAS with one thread, 1.35 with two
+    bound = 4e-15 * cond
+    assert err_kernel < bound and err_reference < bound
     # chi^2 is stationary at the minimiser: the params' roundings move it to second order only
     assert_allclose(got.chi2_reduced, want.chi2_reduced, rtol=1e-8)
     sd = np.sqrt(np.diag(want.cov_statistical))
@@ -338,6 +339,13 @@ def test_posterior_with_a_decoupled_reference_tail_matches_reference():
     assert spd.decoupled_tail(acc.info_reference, n_pr) == nb
     got = posterior_from_normal(acc, n_pr, r_pr, sys_var, lower)
     want = posterior_from_normal_reference(acc, n_pr, r_pr, sys_var, lower)
+    # chi^2 > 1 here scales cov_statistical and cov_reference: they carry chi^2's rounding (1.2e-10 on an AMD EPYC's
+    # OpenBLAS with one thread), which has its own bound; the rest is compared with it taken out
+    assert_allclose(got.chi2_reduced, want.chi2_reduced, rtol=2.0 * _chi2_rounding(acc, want.chi2_reduced))
+    k = max(1.0, want.chi2_reduced) / max(1.0, got.chi2_reduced)
+    cov_stat = got.cov_statistical * k
+    got = replace(got, chi2_reduced=want.chi2_reduced, cov_statistical=cov_stat, cov_reference=got.cov_reference * k,
+                  covariance=got.covariance - got.cov_statistical + cov_stat)
     _assert_same_posterior(got, want)
 
 

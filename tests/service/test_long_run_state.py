@@ -49,6 +49,10 @@ SERVE_UNBOUNDED_BY_CYCLES = (
     # the data dir's counts by kind (heartbeats, errors, ...; service/data_dir.py): a key appears when its wall-clock
     # timer first fires (a lease heartbeat every few seconds), whatever the cycles
     "data_dir.leases", "data_dir.retention", "data_dir.checkpoints",
+    # the newest smoothed estimate's per-cylinder mask of figures the pull check took back
+    # (core/monitor/identify/pull_check.py): None until an estimate carries one, then one entry per cylinder (0 -> 20
+    # between a stop at 300 and one at 540 cycles in a fresh-clone run; absent at both in others)
+    "listener.newest_counted.smoothed.pulled",
 )
 # the newest recent_s of acquisition time (RecentRecords): its record count moves with where the window's edges fall
 # among the records (1,250 / 1,252 when written), so it is held within 2 % of the first run's, not to it
