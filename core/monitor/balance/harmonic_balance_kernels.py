@@ -24,6 +24,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 import rocket_fft  # noqa: F401  (registers numpy.fft for numba; must be imported before a cached kernel loads)
+from frictionwatch.core.model.jit import sincos
 from frictionwatch.core.model.terms import N_FIELDS, fill_sample, sample_rows
 from frictionwatch.core.model.torques import gas_torque_sample, reciprocating_torque_sample
 
@@ -215,6 +216,8 @@ def _cylinder_rows(cyl, motion, theta_f, grid, pressure, samples, gas, known):
     frac = np.empty(n)
     _pressure_brackets(theta_f, grid, jlo, jhi, frac)
     recip = np.empty(n)
+    s_q = np.empty(n)
+    c_q = np.empty(n)
     r, inv_rod, e = cyl.crank_radius, cyl.inv_rod, cyl.pin_offset
     for q in range(n_nodes):
         row = known[q]
@@ -231,9 +234,10 @@ def _cylinder_rows(cyl, motion, theta_f, grid, pressure, samples, gas, known):
         w_node = motion[1, q]
         a_node = motion[2, q]
         # libm per node: the former Taylor series of the twist by the addition theorem gave < 20 % end to end
-        # (issue 26 item 6)
-        s_q = np.sin(ang)
-        c_q = np.cos(ang)
+        # (issue 26 item 6); one sincos call a sample (one argument reduction for both: the C library's very sin
+        # and cos, tests/core/test_jit.py) costs ~0.6x np.sin and np.cos
+        for i in range(n):
+            s_q[i], c_q[i] = sincos(ang[i])
         for k in range(z):
             if cyl.node[k] != q:
                 continue
