@@ -67,5 +67,6 @@ def pytest_terminal_summary(terminalreporter, config):
     for worker, share in sorted(config.stash.get(_SHARES, [])):
         terminalreporter.write_line(f"{worker}: {share['compiled']} kernels compiled (or loaded) before its first "
                                     f"test in {share['seconds']} s ({share['waited']} s of it waiting for the other's "
-                                    f"callees; {share.get('dealt_s')} s as recorded); {share['at_import']} compiled when imported (explicit signatures), "
+                                    f"callees; {share.get('dealt_s')} s as recorded); {share['at_import']} compiled "
+                                    f"when imported (explicit signatures), "
                                     f"{share['stale']} in the manifest no longer fit")

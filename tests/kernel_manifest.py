@@ -157,8 +157,9 @@ def _callees(kernel) -> set:
 
 def deal(costs: dict[int, float], count: int) -> dict[int, int]:
     """Each entry's worker: in the recorded order (callees first), to the worker with the least compile seconds dealt
-    so far, so the shares take about the same time whatever the order put the few large kernels (the plant's, ~30 s
-    each) next to each other. Every worker computes the same dealing from the same manifest."""
+    so far, so the shares take about the same time wherever the order put the few large kernels (the plant's
+    `advance`, the first LAPACK solve: 10-20 s each at load). Every worker computes the same dealing from the same
+    manifest."""
     dealt, owner = [0.0] * count, {}
     for i in sorted(costs):
         owner[i] = min(range(count), key=lambda w: (dealt[w], (w - i) % count))
