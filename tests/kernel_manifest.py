@@ -48,10 +48,11 @@ class Recorder:
     in it (those are entries of their own); numba's own overloads compiled inside it stay in it, as they would when
     a worker compiles the entry. ``compile_share`` deals the entries by them."""
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, package: str = PACKAGE):
         from numba.core import event
 
         recorder = self
+        self.package = package  # whose kernels are recorded (a test records its own, not the suite's)
         self.open: list[list[float]] = []  # per event in progress: its start, and the seconds of our kernels in it
 
         class Listener(event.Listener):
@@ -75,7 +76,7 @@ class Recorder:
         start, nested = self.open.pop() if self.open else (time.perf_counter(), 0.0)
         seconds = time.perf_counter() - start
         func = getattr(ev.data.get("dispatcher"), "py_func", None)
-        ours = func is not None and func.__module__.startswith(PACKAGE) and "<locals>" not in func.__qualname__
+        ours = func is not None and func.__module__.startswith(self.package) and "<locals>" not in func.__qualname__
         if self.open:  # our kernel's whole time counts as nested in its caller; numba's passes its own nested on
             self.open[-1][1] += seconds if ours else nested
         if not ours:
@@ -129,7 +130,7 @@ def load(path: Path = MANIFEST) -> list[tuple]:
         return []
     if {k: doc.get(k) for k in ("numba", "python")} != _identity():
         return []
-    return doc["kernels"]
+    return [k for k in doc["kernels"] if k[0].startswith(PACKAGE)]  # the product's: a test's own compile afresh
 
 
 def _kernel(module: str, qualname: str):
