@@ -51,7 +51,7 @@ SERVE_UNBOUNDED_BY_CYCLES = (
     "data_dir.leases", "data_dir.retention", "data_dir.checkpoints",
     # the newest smoothed estimate's per-cylinder mask of figures the pull check took back
     # (core/monitor/identify/pull_check.py): None until an estimate carries one, then one entry per cylinder (0 -> 20
-    # between a stop at 300 and one at 540 cycles in a fresh-clone run; absent at both in others)
+    # between a stop at 300 and one at 540 cycles in one fresh-clone run)
     "listener.newest_counted.smoothed.pulled",
 )
 # the newest recent_s of acquisition time (RecentRecords): its record count moves with where the window's edges fall
