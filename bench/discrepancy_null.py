@@ -141,7 +141,7 @@ def speed_power(held: tuple, null: tuple[float, float], pooled: bool = True) -> 
     floor = feature_floor(test, scale, rms=FloorRms(1.0, 1.0, 1.0), null=null)[:-1]
     coherent = coherent_terms(test, scale)[:-1]
     small = np.tile(small_orders(test.measured.mean(axis=0)), 2)  # Re and Im of each order (one operating point)
-    kinds = [k for k in (small, ~small)]
+    kinds = (small, ~small)
     if pooled:
         return tuple(float(coherent[k].sum() / (np.sum(floor[k] ** 2) + 1e-300)) if k.any() else float("nan")
                      for k in kinds)

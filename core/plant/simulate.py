@@ -145,12 +145,12 @@ def _as_model(engine: EngineSpec | EngineModel, effects, without, coefficients) 
 
 
 def simulate(engine: EngineSpec | EngineModel, rpm: float, load: float, cycles: int, seed: int,
-             progress: Callable[[float], None] | None = None, **options) -> SimResult:
+             progress: Callable[[float], None] | None = None, friction_grid: bool | None = None,
+             **options) -> SimResult:
     """Simulate ``cycles`` steady engine cycles (after an unlogged settling period) and return records and truth:
     ``start_simulation`` (the same parameters; ``options`` its keyword ones: effects, without, cov_imep,
-    load_steps, coefficients, fuel_spread, second_wheel) with its chunks collected; ``friction_grid=True`` also
+    load_steps, coefficients, fuel_spread, second_wheel) with its chunks collected; ``friction_grid`` True also
     evaluates the 1-deg friction grid of an engine of more than 4 cylinders (``PlantRun.record_friction_grid``)."""
-    friction_grid = options.pop("friction_grid", None)
     sim = start_simulation(engine, rpm, load, cycles, seed, **options)
     if friction_grid is not None:
         sim.run.record_friction_grid(friction_grid)
