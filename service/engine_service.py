@@ -211,11 +211,14 @@ class EngineService:
 
     def monitor_checkpoint(self) -> tuple[bytes, int] | None:
         """The monitor's carried state (core CyclePipeline.carried), pickled between two records
-        (service.monitor_snapshot.pickled), and the newest cycle it has seen; None before the first cycle. Running or
-        stopped: it holds the monitor for the pickling (~ms)."""
+        (service.monitor_snapshot.pickled), and the newest cycle it holds; None before the first cycle (of this run:
+        a state taken back and not moved since is in the store already). Running or stopped: it holds the monitor
+        for the pickling (~ms). The newest cycle is the monitor's own, not the assembler's newest index: a cycle the
+        assembler has cut may still wait for its pressure or load (then it is not in the state, and a checkpoint
+        labelled with it claimed one cycle too many)."""
         def take(pipeline) -> tuple[bytes, int] | None:
-            carried = pipeline.cycles.carried()
-            return None if carried is None else (pickled(carried), pipeline.assembler.next_index - 1)
+            carried, newest = pipeline.cycles.carried(), pipeline.cycles.newest_cycle
+            return None if carried is None or newest is None else (pickled(carried), newest)
         return self.session.with_pipeline(take)
 
     def resume_monitor(self, carried: dict) -> None:

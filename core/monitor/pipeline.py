@@ -180,6 +180,7 @@ class CyclePipeline:
         self.stage_cycle: dict[str, int] = {}  # the cycle that closed each stage's newest window (its ``last``)
         self.skipped: Counter[str] = Counter()
         self.cycles_ok = 0
+        self.newest_cycle: int | None = None  # the index of the newest cycle the state holds (None: none since made)
         if reference is not None or not needs_reference(self.model):
             self._make_view(reference)
 
@@ -220,6 +221,7 @@ class CyclePipeline:
             log.warning("cycle %d: %s", cycle.index, exc)
             return self._skip(cycle, f"monitor_error: {type(exc).__name__}")
         self.cycles_ok += 1
+        self.newest_cycle = int(cycle.index)
         inp = StageInput(view.spec, self.model.calibration, cycle, result, self.cylinder_twist())
         flags: list[str] = []
         for stage in self.running:
