@@ -53,9 +53,7 @@ NULL_KINETIC = _TUNED["NULL_KINETIC"].value if "NULL_KINETIC" in _TUNED else 0.0
 # SMALL_ORDER x the largest has a floor that is mostly NULL_FLOOR's share of the largest harmonic ("share"), the others
 # mostly NULL_OWN's of their own ("own"; the firing orders); one rms for both was set by the many small orders, so a
 # move of NULL_FLOOR moved the model error at the firing orders the other way (note 122). Without the two records
-# (FLOOR_RMS_SPEED_SHARE, FLOOR_RMS_SPEED_OWN) both kinds take FLOOR_RMS_SPEED's. Each record is its kind's figure
-# over the tuning logs by bench.discrepancy_null.kind_rms's rule: their mean, the median log's where one log carries
-# more than half of the kind's sum (on TUNE the own kind's; design note 137).
+# (FLOOR_RMS_SPEED_SHARE, FLOOR_RMS_SPEED_OWN) both kinds take FLOOR_RMS_SPEED's.
 SMALL_ORDER = 0.1
 
 
