@@ -28,6 +28,9 @@ than DOMINANT (half) of the kind's summed positive power, then the median log's.
 firing orders (k9k 1800 rpm order 2 near the shaft line's resonance carries 0.83 of theirs: the mean read that log's
 0.19, the median 0.046) and the mean for the small orders (spread over several logs; their median, 0.063, named a
 healthy deutz log in note 122's tests: design note 133). The mean and the median of each kind are printed beside it.
+The records this run writes with the rule (NULL_OWN 0.039, NULL_FLOOR 0.0041, share 0.13, own 0.046, GAP_NULL 3.3)
+met note 137's criteria on VALIDATE, FAULTS and the seed-17 matrix, but lost a named case in its extra run (maruti
+4000 rpm, TDC + ring wear: NULL_FLOOR 0.0041's, not the rule's), so tuned.json keeps main's (design note 137).
 """
 
 from __future__ import annotations
