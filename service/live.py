@@ -22,8 +22,9 @@ never waits — the oldest queued batches are dropped, the newest kept, counted 
 pipeline restarts its cycle assembly where they were (``DROPPED_WHILE_BEHIND``: the cycle cut there is a dropped one,
 not a data gap) — while a log replayed as fast as it can be read waits for room (and, in serve, the ingest thread for
 its listeners: service/engine_service.py). Memory of the queue is bounded by the sources' data rate times
-``max_queue_s`` (genset-v20: ~3.2 MB/s of pressure, ~32 MB). ``lag()`` says how far the ingest is behind. ``read`` never raising is
-the sources' contract; an exception that escapes anyway is counted (``reader_error: <type>``) and the reader goes on.
+``max_queue_s`` (genset-v20: ~3.2 MB/s of pressure, ~32 MB), except during a ``hold`` (a warm-up's: the span bound
+lifted, a bound in bytes instead, until the ingest has caught up; service/ingest_queue.py). ``lag()`` says how far
+the ingest is behind. ``read`` never raising is the sources' contract; an exception that escapes anyway is counted (``reader_error: <type>``) and the reader goes on.
 A failing recorder, ``on_result`` callback or pipeline step is counted in ``errors`` and logged once; the session
 goes on.
 
@@ -51,7 +52,7 @@ from frictionwatch.drivers.source import Source, StreamRestart
 from frictionwatch.service.ingest_queue import Dropped, IngestLag, IngestQueue
 from frictionwatch.service.pipeline import EnginePipeline, LogAnalysis, ResultHistory
 from frictionwatch.service.record_merge import Keyed, RecordMerge, record_key
-from frictionwatch.service.stream_holes import batch_contents, edges_to_cycles, hole_mark
+from frictionwatch.service.stream_holes import batch_bytes, batch_contents, edges_to_cycles, hole_mark
 
 log = logging.getLogger(__name__)
 
@@ -168,7 +169,7 @@ class LiveSession:
         self._reader_counts: dict[str, Counter[str]] = {n: Counter() for n in self.sources}
         self._heard = dict.fromkeys(self.sources, time.monotonic())  # wall time a reader last got records
         self.max_queue_s = max_queue_s
-        self._queue = IngestQueue(max_queue_s * info.tick_hz, info.tick_hz, measure=batch_contents)
+        self._queue = IngestQueue(max_queue_s * info.tick_hz, info.tick_hz, measure=batch_contents, size=batch_bytes)
         self._realtime = {n: is_realtime(s) for n, s in self.sources.items()}
         self._paced_replays = [n for n, s in self.sources.items() if is_replay_paced(s)]
         self.replay_batch_s = replay_batch_s
@@ -241,6 +242,15 @@ class LiveSession:
     def lag(self) -> IngestLag:
         """How far the ingest thread is behind the readers (never waits for the ingest thread)."""
         return self._queue.lag()
+
+    def hold(self, max_bytes: int) -> None:
+        """Keep what the real-time sources deliver beyond ``max_queue_s``, up to ``max_bytes`` of it, until
+        ``release_hold`` and the ingest thread's catching up (service/ingest_queue.py: the hold): a warm-up's wait
+        before the first record (service/warmup.py WarmStart)."""
+        self._queue.hold(max_bytes)
+
+    def release_hold(self) -> None:
+        self._queue.release()
 
     @property
     def dropped_cycles(self) -> float | None:

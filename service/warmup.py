@@ -52,6 +52,9 @@ WARM_LOAD = 0.75  # fraction of full load of the simulated stream (a firing poin
 WARM_SEED = 1
 SEAM_S = 0.5  # the silence between the two passes (a replay's seam; its own LOOP_GAP_S is alike)
 STEPS = 1 + 2 * WARM_CYCLES  # the simulation, then each cycle of the two passes
+# what a board's queue holds while the warm-up runs (WarmStart; serve --hold-mb): genset-v20's stream is ~3.2 MB/s
+# of pressure (service/live.py), so ~160 s of it: a cold start's compile here (~55 s) or on a slower box (~146 s)
+HOLD_BYTES = 512 * 2**20
 
 
 @dataclass
@@ -81,13 +84,18 @@ class WarmStart:
     """An engine's warm-up, then its live session's start (service/engine_service.py). A session whose every source
     can wait (a replay) starts after the warm-up, on a thread of its own, so its clock starts then and it drops
     nothing; one with a serial or CAN board starts at once, its ingest thread warming up before its first record
-    (``before_ingest``): the board's input is read and queued meanwhile (serve --max-queue-s), and what the queue
-    cannot hold is dropped and counted as any stretch dropped while behind (design note 124), never lost unsaid.
-    ``cancel`` (a stop): a session not started yet never starts; a compile in progress runs to its end on its daemon
-    thread."""
+    (``before_ingest``): the board's input is read meanwhile and the session's queue holds it beyond its
+    ``max_queue_s`` (``LiveSession.hold``, service/ingest_queue.py: in memory, up to ``hold_bytes`` -- serve
+    --hold-mb, HOLD_BYTES by default --, past which the oldest is dropped and counted as any stretch dropped while
+    behind, design note 124); the hold is released after the warm-up and ends once the monitor has caught up (it runs
+    ~30-60x real time), so a cold start of a board loses nothing it could keep (design note 136). ``hold_bytes`` 0:
+    no hold (what the queue's span cannot hold is dropped, counted). ``cancel`` (a stop): a session not started yet
+    never starts; a compile in progress runs to its end on its daemon thread."""
 
-    def __init__(self, engine_id: str, model: EngineModel, info: AcquisitionInfo, session: Any, alerts: Any) -> None:
+    def __init__(self, engine_id: str, model: EngineModel, info: AcquisitionInfo, session: Any, alerts: Any,
+                 hold_bytes: int = 0) -> None:
         self.engine_id, self.model, self.info, self.session, self.alerts = engine_id, model, info, session, alerts
+        self.hold_bytes = int(hold_bytes)
         self.progress = WarmUpProgress()
         self.compiled_after: int | None = None  # kernels compiled in this process from the warm-up's end to cancel
         self._compiled_at_end = 0
@@ -105,11 +113,17 @@ class WarmStart:
             load = self.session.before_ingest
 
             def warm_then_load() -> None:
-                self._warm()
-                if load is not None:
-                    load()
+                try:
+                    self._warm()
+                    if load is not None:
+                        load()
+                finally:
+                    if self.hold_bytes > 0:
+                        self.session.release_hold()
 
             self.session.before_ingest = warm_then_load
+            if self.hold_bytes > 0:
+                self.session.hold(self.hold_bytes)
             self.session.start()
             return
         self._thread = threading.Thread(target=self._warm_then_start, name="warm-up", daemon=True)

@@ -22,6 +22,8 @@ import pytest
 from frictionwatch.core.monitor.pipeline import STAGES
 from frictionwatch.core.monitor.warmup import WARM_CYCLES, warm_stages
 from frictionwatch.drivers.source import Source
+from frictionwatch.service.serve import stop_summary
+from numpy.testing import assert_allclose
 
 ROOT = Path(__file__).resolve().parents[2]
 RUN_CYCLES = 320  # past the watches' third window (300) and the alert baseline (skip 5 + 200)
@@ -156,9 +158,10 @@ class Board(Source):
         self.feed.close()
 
 
-def test_a_board_is_read_during_the_warm_up_and_what_its_queue_cannot_hold_is_counted(monkeypatch):
-    """A board's session starts at once: its input is queued while the ingest thread warms up, and what the queue
-    (1 s here) cannot hold is dropped and counted as a hole, not lost unsaid (design note 126)."""
+def test_a_board_without_a_hold_counts_what_its_queue_cannot_hold(monkeypatch):
+    """A board's session starts at once: its input is queued while the ingest thread warms up; with no hold
+    (serve --hold-mb 0) what the queue (1 s here) cannot hold is dropped and counted as a hole, not lost unsaid
+    (design note 126)."""
     from frictionwatch.drivers.logs.mcap_replay import McapSource
     from frictionwatch.service import warmup
     from frictionwatch.service.engine_service import EngineService
@@ -175,7 +178,8 @@ def test_a_board_is_read_during_the_warm_up_and_what_its_queue_cannot_hold_is_co
     monkeypatch.setattr(warmup, "warm_up", held_warm_up)
     board = Board(McapSource(ROOT / "replay_logs" / "deutz-1cyl.mcap", speed=1.0, loop=True))
     model = resolve_model(board.engine_toml, None, "deutz", board.info)
-    svc = EngineService("board", model, board.info, {"board": board}, warm=True, max_queue_s=1.0).start()
+    svc = EngineService("board", model, board.info, {"board": board}, warm=True, max_queue_s=1.0,
+                        hold_bytes=0).start()
     try:
         assert svc.session._started and svc.warming_up  # read from the start, analysed after the warm-up
         time.sleep(3.0)
@@ -187,6 +191,93 @@ def test_a_board_is_read_during_the_warm_up_and_what_its_queue_cannot_hold_is_co
     finally:
         release.set()
         svc.stop()
+
+
+class FastBoard(Source):
+    """A board's stand-in that has given its whole stream by the time a slow warm-up ends: ``records`` in reads of
+    BOARD_BATCH as fast as they are asked for, then nothing, for ever (a board does not end); ``speed`` set and no
+    ``reanchor``: real time that cannot wait, to the session (service.live.is_realtime, is_replay_paced)."""
+
+    speed = 1.0
+
+    def __init__(self, records: list, info, engine_toml: str | None) -> None:
+        super().__init__()
+        self.records, self.info, self.engine_toml = records, info, engine_toml
+        self.given = threading.Event()  # every record handed out
+        self._i = 0
+
+    def _read_internal(self, timeout: float | None) -> list:
+        if self._i >= len(self.records):
+            self.given.set()
+            time.sleep(timeout or 0.0)
+            return []
+        out = self.records[self._i:self._i + BOARD_BATCH]
+        self._i += BOARD_BATCH
+        return out
+
+
+BOARD_BATCH = 12  # records a read (~40 ms of a genset's stream, as a paced replay reads them)
+
+
+def one_pass(log: str) -> tuple[list, object, str | None]:
+    """The records of one pass of a bundled replay log (no seam), its acquisition and its engine."""
+    from frictionwatch.drivers.errors import EndOfStream
+    from frictionwatch.drivers.logs.mcap_replay import McapSource
+
+    src = McapSource(ROOT / "replay_logs" / log, speed=None)
+    records: list = []
+    try:
+        while True:
+            records += src.read(0.1)
+    except EndOfStream:
+        pass
+    finally:
+        src.close()
+    return records, src.info, src.engine_toml
+
+
+def test_a_board_loses_nothing_while_the_warm_up_runs_past_its_queue(monkeypatch):
+    """A cold start's warm-up outlasting the queue's span (1 s of acquisition here, the board's stream ~2.8 s, all
+    given before the warm-up ends): the queue holds it (LiveSession.hold, design note 136), nothing is dropped, and
+    every cycle is analysed after the warm-up, in order, numbered without a gap -- the same cycles, with the same
+    figures, as the stream read offline."""
+    from frictionwatch.service import warmup
+    from frictionwatch.service.engine_service import EngineService
+    from frictionwatch.service.pipeline import EnginePipeline, resolve_model
+
+    records, info, toml = one_pass("deutz-1cyl.mcap")
+    board = FastBoard(records, info, toml)
+    model = resolve_model(toml, None, "deutz", info)
+
+    def slow_warm_up(model, info, config, alerts, progress):  # the compile's stand-in: over once all was read
+        progress.started_s = time.monotonic()
+        assert board.given.wait(30)
+        time.sleep(0.5)
+        progress.step, progress.ended_s = progress.steps, time.monotonic()
+        return progress.seconds
+
+    monkeypatch.setattr(warmup, "warm_up", slow_warm_up)
+    offline = EnginePipeline(model, info)
+    want = [r for rec in records for r in offline.feed(rec)]
+    assert len(want) > 25
+    svc = EngineService("board", model, info, {"board": board}, warm=True, max_queue_s=1.0).start()
+    try:
+        assert board.given.wait(30) and svc.warming_up
+        assert svc.backlog()["holding"] and svc.backlog()["dropped_records"] == 0
+        assert svc.session.wait_results(len(want), timeout=600), svc.cycles_ok
+        lag = svc.backlog()
+        assert lag["dropped_records"] == 0 and not lag["holding"]  # caught up: the hold is over
+        assert lag["held_s"] > 2.0 and lag["held_records"] == len(records) and lag["held_bytes"] > 0
+        got = svc.session.results
+        assert [r.index for r in got] == [r.index for r in want] == list(range(want[0].index, want[-1].index + 1))
+        assert_allclose([r.rpm_mean for r in got], [r.rpm_mean for r in want], rtol=1e-12)
+        assert_allclose([r.imep[0] for r in got], [r.imep[0] for r in want], rtol=1e-9)
+        assert svc.holes == [] and "dropped_while_behind" not in svc.restarts and svc.skipped == {}
+    finally:
+        svc.stop()
+    line = stop_summary(svc)
+    assert "held while the kernels warmed up: up to" in line and "nothing dropped" in line
+    assert "dropped while" not in line
 
 
 def test_the_warm_up_alone_from_the_command_line(capsys):
