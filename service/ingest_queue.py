@@ -232,8 +232,9 @@ class IngestQueue:
 
     def _drop_oldest(self) -> None:
         """Called with the lock held, after an append: drop the oldest batches until the span fits (the newest
-        batch itself is always kept) -- during a hold, until the queued bytes fit the hold's bound --, each leaving a ``Dropped`` marker in its place, or widening its source's
-        marker still queued before it, or the hole whose marker was handed out last (one hole, one marker)."""
+        batch itself is always kept) -- during a hold, until the queued bytes fit the hold's bound --, each leaving
+        a ``Dropped`` marker in its place, or widening its source's marker still queued before it, or the hole whose
+        marker was handed out last (one hole, one marker)."""
         items = self._items
         newest = items[-1].key
         dropped, first_dropped = 0, None

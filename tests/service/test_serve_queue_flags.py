@@ -1,5 +1,6 @@
-"""serve --max-queue-s, --drain-s and --hold-mb (issue 28 follow-up): the ingest queue's cap and the stop's drain reach each
-engine's LiveSession; a value out of range is refused in one line, exit 2, before any engine starts."""
+"""serve --max-queue-s, --drain-s and --hold-mb (issue 28 follow-up): the ingest queue's cap, the stop's drain and
+the warm-up's hold reach each engine; a value out of range is refused in one line, exit 2, before any engine
+starts."""
 
 from __future__ import annotations
 
