@@ -76,7 +76,7 @@ ERRORS = {404: {"model": ErrorBody}, 422: {"model": ErrorBody}}
 EngineId = Annotated[str, Path(pattern=ENGINE_ID.pattern, description="engine slug [a-z0-9-]{1,40}")]
 JOB_ID = r"^[0-9a-f]{16}$"
 LAG_KEYS = ("queued_cycles", "queued_s", "behind_s", "dropped_records", "dropped_s", "dropped_cycles", "realtime",
-            "last_drop_age_s")
+            "last_drop_age_s", "holding", "held_s", "held_bytes", "held_records")
 
 
 def encode_event(event: ServiceEvent) -> list[tuple[str, str]]:

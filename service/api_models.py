@@ -37,6 +37,11 @@ class HealthEngine(_Open):
     realtime: bool = Field(False, description="a source runs at the engine's pace (a fast replay only reads ahead)")
     last_drop_age_s: float | None = Field(None, description="seconds since the queue last dropped records (degraded "
                                                             "for 30 s after a drop); null: never")
+    holding: bool = Field(False, description="a board's input is held beyond max_queue_s while the warm-up runs, "
+                                             "until the monitor has caught up (serve --hold-mb)")
+    held_s: float = Field(0.0, description="the most acquisition seconds the hold kept queued at once (0: none)")
+    held_bytes: int = Field(0, description="... and the bytes they held (an estimate: arrays' data and records)")
+    held_records: int = Field(0, description="... and the records")
     store_waiting_cycles: int = Field(0, description="cycles kept for the store while it is down, written when it is "
                                                      "back ('degraded' while any wait)")
     store_lost_cycles: int = Field(0, description="cycles the store never got (its backlog full, or a write that "

@@ -48,7 +48,7 @@ from frictionwatch.service.listeners import Fanout, LatestState, ServiceEvent
 from frictionwatch.service.live import LiveSession, record_key
 from frictionwatch.service.monitor_snapshot import pickled
 from frictionwatch.service.security import valid_engine_id
-from frictionwatch.service.warmup import WarmStart, WarmUpProgress
+from frictionwatch.service.warmup import HOLD_BYTES, WarmStart, WarmUpProgress
 
 log = logging.getLogger(__name__)
 
@@ -151,7 +151,7 @@ class EngineService:
     def __init__(self, engine_id: str, model: EngineModel, info: AcquisitionInfo, sources: Mapping[str, Source], *,
                  urls: Iterable[str] = (), alerts: AlertsFactory | None = None, listeners: Iterable[Any] = (),
                  history_cycles: int = 5000, queue_size: int = 256, recent_s: float = RECENT_S,
-                 warm: bool = False, **session_options: Any) -> None:
+                 warm: bool = False, hold_bytes: int = HOLD_BYTES, **session_options: Any) -> None:
         if not valid_engine_id(engine_id):
             raise ValueError(f"engine id {engine_id!r} must be 1-40 of a-z, 0-9 and '-'")
         self.engine_id, self.model, self.spec, self.info = engine_id, model, model.spec, info
@@ -188,8 +188,10 @@ class EngineService:
         self.restarts: dict[str, int] = {}  # stream restarts met (a looped replay's seams): not lost cycles
         self._holes_given = 0  # the pipeline's holes already handed on with the first result after them
         self.tdc_watch = TdcWatchView(TdcWatchState.empty(), None)  # replaced whole on the ingest thread
-        # ``warm``: before the first record, the pipeline's kernels compiled (service/warmup.py)
-        self.warm_start = WarmStart(self.engine_id, model, info, self.session, self.alerts) if warm else None
+        # ``warm``: before the first record, the pipeline's kernels compiled (service/warmup.py); a board's input
+        # meanwhile held up to ``hold_bytes`` (0: not held; what the queue's max_queue_s cannot hold is dropped)
+        self.warm_start = (WarmStart(self.engine_id, model, info, self.session, self.alerts, hold_bytes) if warm
+                           else None)
 
     @property
     def config(self) -> MonitorConfig:

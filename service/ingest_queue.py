@@ -18,6 +18,14 @@ key minus oldest queued key), whatever the ingest thread's speed:
 - a source that can wait (a log replayed as fast as it can be read) blocks in ``put`` until the span fits: a replay
   loses nothing and no longer loads the whole log into memory.
 
+The hold (issue 28, design note 136): while an engine's warm-up compiles its kernels (service/warmup.py) a board's
+input is read and nothing is analysed; ``hold(max_bytes)`` lifts the span bound meanwhile, so what the board delivers
+is kept, in memory, bounded instead by the bytes the queued batches hold (``size``, service/stream_holes.py
+``batch_bytes``): past ``max_bytes`` the oldest are dropped and counted as above (never unbounded growth).
+``release()`` (the warm-up over) ends the hold once the ingest thread has caught up to within ``max_span_ticks``
+again (the monitor runs ~30-60x real time), never before: ending it at once would drop at the next put what the hold
+kept. ``lag()`` says the hold (``holding``) and the most it held (``held_s``, ``held_bytes``, ``held_records``).
+
 Markers (a source's end, the session's stop) are never dropped and never wait. ``discard`` empties the queue on a
 stop whose drain time is up and says how much it threw away.
 """
@@ -49,6 +57,11 @@ class IngestLag:
     dropped_records: int
     dropped_s: float
     last_drop_age_s: float | None  # wall seconds since records were last dropped (None: never)
+    # the hold (module docstring): on now; the most acquisition seconds, bytes and records it queued at once
+    holding: bool = False
+    held_s: float = 0.0
+    held_bytes: int = 0
+    held_records: int = 0
 
 
 @dataclass
@@ -71,14 +84,16 @@ class _Item:
     payload: Any  # a list of records, or a marker object
     key: float | None  # newest tick of the batch; None for a marker
     read_s: float  # monotonic time the reader got it
+    nbytes: int = 0  # what the batch holds (the queue's ``size``; 0 for a marker)
 
 
 class IngestQueue:
     """See the module docstring. Thread-safe; one consumer. ``measure``: what a dropped batch holds (a Counter, summed
-    into its hole's ``Dropped.contents``), called only for the batches dropped."""
+    into its hole's ``Dropped.contents``), called only for the batches dropped. ``size``: the bytes a batch holds
+    (the hold's bound; None: its record count)."""
 
-    def __init__(self, max_span_ticks: float, tick_hz: float, measure: Callable[[Any], Counter] | None = None
-                 ) -> None:
+    def __init__(self, max_span_ticks: float, tick_hz: float, measure: Callable[[Any], Counter] | None = None,
+                 size: Callable[[Any], int] | None = None) -> None:
         if not (max_span_ticks > 0 and tick_hz > 0):
             raise ValueError(f"need max_span_ticks > 0 and tick_hz > 0, got {max_span_ticks}, {tick_hz}")
         self.max_span, self.tick_hz = float(max_span_ticks), float(tick_hz)
@@ -97,17 +112,57 @@ class IngestQueue:
         # now widens that hole, which needs no marker of its own (the ingest thread restarted there already)
         self._open: set[str] = set()
         self._handed: dict[str, float] = {}  # each source's newest key handed out (where its next hole begins)
+        self._size = size if size is not None else len
+        self._bytes = 0  # what the queued batches hold (``size``)
+        self._records = 0  # records queued
+        self._hold_bytes: int | None = None  # the hold's bound while it is on (None: off)
+        self._releasing = False  # release() called: the hold ends once the span fits again
+        self.held_s = 0.0  # the most the hold queued at once: acquisition seconds, bytes, records
+        self.held_bytes = 0
+        self.held_records = 0
+
+    # --- the hold ------------------------------------------------------------------------------------------------
+    def hold(self, max_bytes: int) -> None:
+        """Keep a real-time source's batches beyond ``max_span_ticks`` until ``release``, up to ``max_bytes`` of
+        them (past it the oldest go, counted): a warm-up's wait (module docstring)."""
+        if not max_bytes > 0:
+            raise ValueError(f"the hold's bound must be > 0 bytes, got {max_bytes}")
+        with self._cond:
+            self._hold_bytes, self._releasing = int(max_bytes), False
+
+    def release(self) -> None:
+        """The reason to hold is over: the hold ends as soon as the queued span fits ``max_span_ticks`` (now, or when
+        the ingest thread has caught up that far)."""
+        with self._cond:
+            self._releasing = True
+            self._end_hold()
+
+    @property
+    def holding(self) -> bool:
+        return self._hold_bytes is not None
+
+    def _end_hold(self) -> None:
+        """Called with the lock held: the hold released and the span within bounds again -> the span bound alone."""
+        if self._hold_bytes is not None and self._releasing and self._span() <= self.max_span:
+            self._hold_bytes, self._releasing = None, False
 
     # --- readers -------------------------------------------------------------------------------------------------
     def put(self, source: str, records: list, key: float, realtime: bool) -> None:
         with self._cond:
             if not realtime:  # a replay waits for room; a closed queue (stop) takes it without waiting
                 self._cond.wait_for(lambda: self._closed or self._span_with(key) <= self.max_span)
-            self._items.append(_Item(source, records, float(key), time.monotonic()))
+            nbytes = int(self._size(records))
+            self._items.append(_Item(source, records, float(key), time.monotonic(), nbytes))
             self._data += 1
+            self._bytes += nbytes
+            self._records += len(records)
             self._newest_key = max(self._newest_key, float(key))
             if realtime:
                 self._drop_oldest()
+            if self._hold_bytes is not None:
+                self.held_s = max(self.held_s, self._span() / self.tick_hz)
+                self.held_bytes, self.held_records = max(self.held_bytes, self._bytes), max(self.held_records,
+                                                                                            self._records)
             self._cond.notify_all()
 
     def put_marker(self, source: str | None, marker: object) -> None:
@@ -129,8 +184,12 @@ class IngestQueue:
             item = self._items.popleft()
             if item.key is not None:
                 self._data -= 1
+                self._bytes -= item.nbytes
+                self._records -= len(item.payload)
                 self._open.discard(item.source)
                 self._handed[item.source] = item.key
+                if self._releasing:
+                    self._end_hold()
             elif isinstance(item.payload, Dropped):
                 self._open.add(item.source)
             self._cond.notify_all()  # a waiting replay reader may have room now
@@ -142,7 +201,7 @@ class IngestQueue:
             keys = [it.key for it in self._items if it.key is not None]
             records = sum(len(it.payload) for it in self._items if it.key is not None)
             self._items = deque(it for it in self._items if it.key is None)
-            self._data = 0
+            self._data = self._bytes = self._records = 0
             span = (max(keys) - min(keys)) / self.tick_hz if keys else 0.0
             self._cond.notify_all()
             return records, span
@@ -155,28 +214,38 @@ class IngestQueue:
             behind = 0.0 if first is None else time.monotonic() - first.read_s
             dropped_age = None if self._last_drop_s is None else time.monotonic() - self._last_drop_s
             return IngestLag(queued, behind, self._data, self.dropped_records, self.dropped_ticks / self.tick_hz,
-                             dropped_age)
+                             dropped_age, self._hold_bytes is not None, self.held_s, self.held_bytes,
+                             self.held_records)
 
     def __len__(self) -> int:
         return len(self._items)
 
     # --- policy --------------------------------------------------------------------------------------------------
+    def _span(self) -> float:
+        """The queued data's span in ticks (newest queued key minus oldest; 0 when none is queued)."""
+        first = next((it for it in self._items if it.key is not None), None)
+        return 0.0 if first is None else max(0.0, self._newest_key - first.key)  # type: ignore[operator]
+
     def _span_with(self, key: float) -> float:
         first = next((it for it in self._items if it.key is not None), None)
         return 0.0 if first is None else key - first.key  # type: ignore[operator]
 
     def _drop_oldest(self) -> None:
         """Called with the lock held, after an append: drop the oldest batches until the span fits (the newest
-        batch itself is always kept), each leaving a ``Dropped`` marker in its place, or widening its source's
-        marker still queued before it, or the hole whose marker was handed out last (one hole, one marker)."""
+        batch itself is always kept) -- during a hold, until the queued bytes fit the hold's bound --, each leaving
+        a ``Dropped`` marker in its place, or widening its source's marker still queued before it, or the hole whose
+        marker was handed out last (one hole, one marker)."""
         items = self._items
         newest = items[-1].key
         dropped, first_dropped = 0, None
         while self._data > 1:
             i, first = next((i, it) for i, it in enumerate(items) if it.key is not None)
-            if newest - first.key <= self.max_span:
+            if newest - first.key <= self.max_span or (self._hold_bytes is not None
+                                                       and self._bytes <= self._hold_bytes):
                 break
             n = len(first.payload)
+            self._bytes -= first.nbytes
+            self._records -= n
             held = self._measure(first.payload) if self._measure is not None else Counter()
             self.dropped_contents.update(held)
             # the source's item before it (the batches before the first data batch are all markers)
@@ -201,6 +270,8 @@ class IngestQueue:
             now = self._last_drop_s = time.monotonic()
             if now - self._last_drop_log >= DROP_LOG_EVERY_S:
                 self._last_drop_log = now
-                log.warning("ingest is behind by more than %.1f s of acquisition: the oldest queued records are "
-                            "dropped, the newest kept (%d records, %.1f s of acquisition dropped so far)",
-                            self.max_span / self.tick_hz, self.dropped_records, self.dropped_ticks / self.tick_hz)
+                why = (f"by more than {self.max_span / self.tick_hz:.1f} s of acquisition" if self._hold_bytes is None
+                       else f"and its hold's {self._hold_bytes / 2**20:.1f} MB are full")
+                log.warning("ingest is behind %s: the oldest queued records are dropped, the newest kept (%d records, "
+                            "%.1f s of acquisition dropped so far)", why, self.dropped_records,
+                            self.dropped_ticks / self.tick_hz)

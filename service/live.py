@@ -22,19 +22,22 @@ never waits — the oldest queued batches are dropped, the newest kept, counted 
 pipeline restarts its cycle assembly where they were (``DROPPED_WHILE_BEHIND``: the cycle cut there is a dropped one,
 not a data gap) — while a log replayed as fast as it can be read waits for room (and, in serve, the ingest thread for
 its listeners: service/engine_service.py). Memory of the queue is bounded by the sources' data rate times
-``max_queue_s`` (genset-v20: ~3.2 MB/s of pressure, ~32 MB). ``lag()`` says how far the ingest is behind. ``read`` never raising is
-the sources' contract; an exception that escapes anyway is counted (``reader_error: <type>``) and the reader goes on.
+``max_queue_s`` (genset-v20: ~3.2 MB/s of pressure, ~32 MB), except during a ``hold`` (a warm-up's: the span bound
+lifted, a bound in bytes instead, until the ingest has caught up; service/ingest_queue.py). ``lag()`` says how far
+the ingest is behind. ``read`` never raising is the sources' contract; an exception that escapes anyway is counted
+(``reader_error: <type>``) and the reader goes on.
 A failing recorder, ``on_result`` callback or pipeline step is counted in ``errors`` and logged once; the session
 goes on.
 
 Merge: service/record_merge.py (``RecordMerge``: the streams into time order with a bounded reorder window).
+Files: the life cycle, the settings and what the session has found here; the reader threads in
+service/live_readers.py, the ingest thread in service/live_ingest.py (mixins of ``LiveSession``).
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import queue
 import threading
 import time
 from collections import Counter
@@ -45,56 +48,30 @@ from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord
-from frictionwatch.drivers.errors import EndOfStream
 from frictionwatch.drivers.logs.recorder import Recorder
-from frictionwatch.drivers.source import Source, StreamRestart
-from frictionwatch.service.ingest_queue import Dropped, IngestLag, IngestQueue
+from frictionwatch.drivers.source import Source
+from frictionwatch.service.ingest_queue import IngestLag, IngestQueue
+from frictionwatch.service.live_ingest import WARM_RESULTS, IngestThread
+from frictionwatch.service.live_readers import (
+    END,
+    LIVE_DRIVERS,
+    KeyedBatch,
+    ReaderThreads,
+    is_realtime,
+    is_replay_paced,
+)
 from frictionwatch.service.pipeline import EnginePipeline, LogAnalysis, ResultHistory
-from frictionwatch.service.record_merge import Keyed, RecordMerge, record_key
-from frictionwatch.service.stream_holes import batch_contents, edges_to_cycles, hole_mark
+from frictionwatch.service.record_merge import RecordMerge, record_key
+from frictionwatch.service.stream_holes import batch_bytes, batch_contents, edges_to_cycles
 
 log = logging.getLogger(__name__)
 
-_END = object()
+# the readers' and the ingest thread's names, where callers have always taken them from
+__all__ = ["LIVE_DRIVERS", "WARM_RESULTS", "KeyedBatch", "LiveSession", "RecordMerge", "is_realtime", "is_replay_paced",
+           "record_key"]
 
 
-class KeyedBatch:
-    """A reader's batch on its way through the queue: the records and each one's ``record_key``, worked out once."""
-
-    __slots__ = ("records", "keys")
-
-    def __init__(self, records: list, keys: list[float]) -> None:
-        self.records, self.keys = records, keys
-
-    def __len__(self) -> int:  # the queue counts records (IngestQueue.discard)
-        return len(self.records)
-
-
-LIVE_DRIVERS = ("frictionwatch.drivers.serial", "frictionwatch.drivers.can")  # sources that cannot wait for us
-# results after which the monitor is warm: past the TDC watch's first window (100 cycles) and its first fit, whose
-# kernels compile then (a cold `make run` dropped 2.6 s of the demo just after its first result with 1 here)
-WARM_RESULTS = 150
-
-
-def is_replay_paced(source: Source) -> bool:
-    """A log replayed at the wall clock's pace (not a serial or CAN board): real time, but it *can* wait, and start
-    its clock again (``reanchor``)."""
-    inner = getattr(source, "inner", source)
-    return is_realtime(source) and not type(inner).__module__.startswith(LIVE_DRIVERS) and hasattr(inner, "reanchor")
-
-
-def is_realtime(source: Source) -> bool:
-    """Whether a source produces at the wall clock's pace and cannot be made to wait: a serial or CAN board, or a
-    replay with a speed. A log read as fast as possible (mcap ``speed=max``: None; mdf4 speed 0) and test doubles
-    can wait. Read from the drivers' attributes, since Source has no such flag."""
-    inner = getattr(source, "inner", source)  # engine_service.StampedSource wraps the driver
-    if type(inner).__module__.startswith(LIVE_DRIVERS):
-        return True
-    speed = getattr(inner, "speed", None)
-    return speed is not None and speed > 0
-
-
-class LiveSession:
+class LiveSession(ReaderThreads, IngestThread):
     """Sources -> merge -> (recorder) -> EnginePipeline, on threads; see the module docstring.
 
     Parameters
@@ -168,7 +145,7 @@ class LiveSession:
         self._reader_counts: dict[str, Counter[str]] = {n: Counter() for n in self.sources}
         self._heard = dict.fromkeys(self.sources, time.monotonic())  # wall time a reader last got records
         self.max_queue_s = max_queue_s
-        self._queue = IngestQueue(max_queue_s * info.tick_hz, info.tick_hz, measure=batch_contents)
+        self._queue = IngestQueue(max_queue_s * info.tick_hz, info.tick_hz, measure=batch_contents, size=batch_bytes)
         self._realtime = {n: is_realtime(s) for n, s in self.sources.items()}
         self._paced_replays = [n for n, s in self.sources.items() if is_replay_paced(s)]
         self.replay_batch_s = replay_batch_s
@@ -217,7 +194,7 @@ class LiveSession:
         if self._started:
             for t in self._readers:  # all of them within the one drain, not a drain each
                 t.join(max(0.0, self._drain_until - time.monotonic()))
-            self._queue.put_marker(None, _END)
+            self._queue.put_marker(None, END)
             # the drain's deadline, plus the cycle in progress and the pipeline's flush
             self._ingest.join(max(0.0, self._drain_until - time.monotonic()) + 2.0)
         for name, src in self.sources.items():
@@ -241,6 +218,15 @@ class LiveSession:
     def lag(self) -> IngestLag:
         """How far the ingest thread is behind the readers (never waits for the ingest thread)."""
         return self._queue.lag()
+
+    def hold(self, max_bytes: int) -> None:
+        """Keep what the real-time sources deliver beyond ``max_queue_s``, up to ``max_bytes`` of it, until
+        ``release_hold`` and the ingest thread's catching up (service/ingest_queue.py: the hold): a warm-up's wait
+        before the first record (service/warmup.py WarmStart)."""
+        self._queue.hold(max_bytes)
+
+    def release_hold(self) -> None:
+        self._queue.release()
 
     @property
     def dropped_cycles(self) -> float | None:
@@ -330,161 +316,3 @@ class LiveSession:
                                cylinder_twist=self.pipeline.cylinder_twist(),
                                restarts=Counter(self.pipeline.restarts),
                                holes=[h.to_dict(self.info.tick_hz) for h in self.pipeline.holes])
-
-    # --- threads -------------------------------------------------------------------------------------------------
-    def _read_loop(self, name: str, src: Source) -> None:
-        batch_s = self.replay_batch_s if name in self._paced_replays else 0.0
-        while not self._stop.is_set():
-            try:
-                records = src.read(timeout=self.read_timeout_s)
-            except EndOfStream:
-                self._queue.put_marker(name, _END)
-                return
-            except Exception as exc:  # noqa: BLE001 - counted; a reader thread must not die of one bad read
-                reason = f"reader_error: {type(exc).__name__}"
-                with self._cond:
-                    first = self._reader_counts[name][reason] == 0
-                    self._reader_counts[name][reason] += 1
-                if first:
-                    log.warning("%s: %s", name, exc)
-                self._stop.wait(0.1)
-                continue
-            if records:
-                now = self._heard[name] = time.monotonic()  # stamped here: a busy ingest thread must not see silence
-                keys = [record_key(r) for r in records]  # once: they travel with the records (record_merge.py)
-                newest = max(keys)
-                if self.on_read is not None:
-                    self.on_read(name, newest, now)
-                self._queue.put(name, KeyedBatch(records, keys), newest,
-                                self._realtime[name] and not self._replay_waits(name))
-                # what comes due meanwhile stays in the replay: the next read takes it in one (not after a loop's
-                # restart mark, which comes alone: the pass after it starts its clock at its first read)
-                if batch_s > 0.0 and not isinstance(records[-1], StreamRestart):
-                    self._stop.wait(batch_s)
-
-    def _ingest_loop(self) -> None:
-        if self.before_ingest is not None:
-            try:
-                self.before_ingest()
-            except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the monitor
-                self._error("before_ingest", exc)
-        while True:
-            try:
-                name, item = self._queue.get(timeout=min(0.05, self.quiet_s / 2))
-            except queue.Empty:
-                name, item = "", None
-            if name is None:  # stop(): the readers have ended; what is still queued came before this
-                break
-            if time.monotonic() > self._drain_until and self.left_at_stop is None:
-                self._left_at_stop()
-            now = time.monotonic()
-            quiet = {n for n, t in self._heard.items() if now - t >= self.quiet_s}
-            with self._cond:  # the merge's progress and counts are read by other threads
-                released = []
-                if quiet != self.merge.quiet:
-                    released = self.merge.set_quiet(quiet)
-                if name:
-                    released += (self.merge.end(name) if item is _END else
-                                 self.merge.push(name, *hole_mark(item, self.info)) if isinstance(item, Dropped) else
-                                 self.merge.push(name, item.records, item.keys))
-                self._cond.notify_all()
-            self._deliver(released)
-        with self._cond:
-            released = self.merge.flush()
-        self._deliver(released)
-        with self._cond:
-            # sources that ended (a finite log) end the stream: its last partial cycle is counted; a stop cuts it
-            ended = len(self.merge.ended) == len(self.sources)
-            outcomes = self.pipeline.outcomes(None) if ended else self.pipeline.cut_off()
-            self._publish([o.result for o in outcomes if o.result is not None])
-            self._cond.notify_all()
-        self._hand_on()
-
-    def _left_at_stop(self) -> None:
-        """The drain's time is up: drop what is queued, say how much."""
-        records, span_s = self._queue.discard()
-        self.left_at_stop = (records, span_s)
-        if records:
-            log.warning("live session: stop left %d queued records (%.1f s of acquisition) unanalysed: the drain's "
-                        "%.1f s were up", records, span_s, self.drain_s)
-
-    def _deliver(self, keyed: Keyed) -> None:
-        if not keyed:
-            return
-        records = [r for _, r in keyed]
-        data = [r for r in records if not isinstance(r, StreamRestart)]  # a restart mark: not data (below)
-        if self.recorder is not None:
-            with self._recording:
-                if self._recorder_closed:  # delivered after stop closed the recorder (its drain ran out)
-                    self.errors["not_recorded_after_stop"] += len(records)
-                else:
-                    for r in records:  # the marks too: a recording says where the stream restarted, what a hole lost
-                        try:
-                            self.recorder.write(r)
-                        except OSError as exc:  # disk full, folder gone: the black box fails, the monitor goes on
-                            self._error("recorder", exc)
-        if self.on_records is not None and data:
-            keys = ([k for k, r in keyed if not isinstance(r, StreamRestart)] if len(data) < len(records) else
-                    [k for k, _ in keyed])
-            try:
-                self.on_records(data, keys)
-            except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the monitor
-                self._error("on_records", exc)
-        for r in records:
-            if isinstance(r, StreamRestart):  # recorded (above), not handed on: the pipeline restarts
-                with self._cond:
-                    self._publish(self.pipeline.feed(r))
-                self._hand_on()
-                continue
-            with self._cond:
-                self.records_fed += 1
-                try:
-                    results = self.pipeline.feed(r)
-                except Exception as exc:  # noqa: BLE001 - a bug met by odd input: counted, logged, stream goes on
-                    self._error("pipeline", exc)
-                    continue
-                if results:
-                    self._publish(results)
-            self._hand_on()  # out of the lock: it may wait for a listener (backpressure), the monitor free meanwhile
-        with self._cond:
-            self._cond.notify_all()
-
-    def _replay_waits(self, name: str) -> bool:
-        """Whether this source's batch waits for room rather than pushing the oldest out: a paced replay while the
-        monitor warms up (WARM_RESULTS results), within ``warmup_s`` of the start."""
-        return (name in self._paced_replays and not self._warm.is_set()
-                and time.monotonic() - self._start_s < self.warmup_s)
-
-    def _publish(self, results: list[CycleResult]) -> None:
-        """Called with ``_cond`` held."""
-        self._results_seen += len(results)
-        if self._results_seen >= WARM_RESULTS and not self._warm.is_set():
-            self._warm.set()
-            for name in self._paced_replays:  # their clocks start again from where they waited
-                getattr(self.sources[name], "inner", self.sources[name]).reanchor()
-        for res in results:
-            self._history.append(res)
-            if self.on_result is not None:
-                try:
-                    self.on_result(res)
-                except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the monitor
-                    self._error("on_result", exc)
-        if results:
-            self._unsent = True
-            self._cond.notify_all()
-
-    def _hand_on(self) -> None:
-        """``after_results`` for what ``_publish`` gave ``on_result`` (called with the lock released)."""
-        if self._unsent:
-            self._unsent = False
-            if self.after_results is not None:
-                try:
-                    self.after_results()
-                except Exception as exc:  # noqa: BLE001 - a consumer's bug must not stop the monitor
-                    self._error("after_results", exc)
-
-    def _error(self, where: str, exc: BaseException) -> None:
-        reason = f"{where}: {type(exc).__name__}"
-        if self.errors[reason] == 0:
-            log.error("live session: %s failed: %s", where, exc, exc_info=exc)
-        self.errors[reason] += 1

@@ -35,6 +35,7 @@ from frictionwatch.service.engine_service import EngineService
 from frictionwatch.service.pipeline import resolve_model
 from frictionwatch.service.security import ENGINE_ID, check_bind, new_token, read_token
 from frictionwatch.service.startup import StartupTicker
+from frictionwatch.service.warmup import HOLD_BYTES
 
 log = logging.getLogger(__name__)
 DEFAULT_SOURCE = "mcap:replay_logs/demo.mcap?loop=1&speed=1"
@@ -42,6 +43,7 @@ MAX_QUEUE_S, DRAIN_S = 10.0, 5.0  # LiveSession's defaults (service/live.py, Bac
 # below ~1 s the queue would drop on an ordinary hiccup of the ingest thread (a batch spans 50-100 ms, the merge's
 # reorder window 1 s); above 600 s one genset-v20 queues ~2 GB
 QUEUE_LIMITS = (1.0, 600.0)
+HOLD_MB_LIMITS = (0, 16384)  # --hold-mb: 0 (no hold) to 16 GB
 SPANS_SAID = 8  # the stop line names this many of the index ranges holes left out (a run that fell behind often: 39)
 RECORD_FILE_BYTES, RECORD_FILES = 64 << 20, 16  # serve --record: the recorder's defaults (drivers/logs/recorder.py)
 DRAIN_LIMITS = (0.0, 600.0)  # 0: abandon what is queued at once (logged)
@@ -73,6 +75,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help=f"the most acquisition time each engine's ingest queue holds; a real-time source that gets "
                         f"further ahead of the analysis loses its oldest queued data, counted (default {MAX_QUEUE_S:g}; "
                         f"{QUEUE_LIMITS[0]:g}-{QUEUE_LIMITS[1]:g}; genset-v20: ~3.2 MB a second)")
+    p.add_argument("--hold-mb", type=int, default=HOLD_BYTES // 2**20, metavar="MB",
+                   help=f"while an engine's warm-up compiles its kernels (a cold start), how much of a serial or CAN "
+                        f"board's input its queue holds beyond --max-queue-s, to analyse after it; past it the oldest "
+                        f"is dropped, counted (default {HOLD_BYTES // 2**20}, in memory, per engine; 0: no hold; "
+                        f"genset-v20: ~3.2 MB a second)")
     p.add_argument("--drain-s", type=float, default=DRAIN_S, metavar="S",
                    help=f"at stop (SIGTERM, Ctrl-C), how long each engine may go on analysing what is queued; what is "
                         f"left then is logged, not analysed (default {DRAIN_S:g}; {DRAIN_LIMITS[0]:g}-"
@@ -149,7 +156,7 @@ def build_engines(args: argparse.Namespace, data: DataDir | None) -> list[Engine
             svc = build_engine(ident, urls, args.engine, taken, history_cycles=args.history_cycles,
                                alerts=data.with_baseline(alerts) if data else alerts,
                                config=monitor_config(args.sensor_health), max_queue_s=args.max_queue_s,
-                               drain_s=args.drain_s, record=args.record)
+                               drain_s=args.drain_s, record=args.record, hold_bytes=args.hold_mb * 2**20)
             services.append(svc)
             if data:
                 print(f"frictionwatch serve: {data.attach(svc)}", flush=True)
@@ -192,6 +199,8 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError("--keep-days needs --data-dir or --store")
     check_seconds("--max-queue-s", args.max_queue_s, QUEUE_LIMITS)
     check_seconds("--drain-s", args.drain_s, DRAIN_LIMITS)
+    if not HOLD_MB_LIMITS[0] <= args.hold_mb <= HOLD_MB_LIMITS[1]:
+        raise ValueError(f"--hold-mb must be {HOLD_MB_LIMITS[0]} to {HOLD_MB_LIMITS[1]}, got {args.hold_mb}")
     where = args.data_dir or args.store
     data = DataDir(where, keep_days=args.keep_days, checkpoint_s=args.checkpoint_s) if where else None
     if data:
@@ -254,6 +263,10 @@ def stop_summary(svc: EngineService) -> str:
                      + (f" (failed: {warm.error})" if warm.error else "")
                      + ("" if after is None else f", {after} compiled after it"))
     lag = svc.backlog()
+    if lag.get("held_records"):
+        parts.append(f"held while the kernels warmed up: up to {lag['held_s']:.1f} s of acquisition "
+                     f"({lag['held_records']} records, {lag['held_bytes'] / 2**20:.1f} MB), analysed after it"
+                     + ("" if lag.get("dropped_records") else ", nothing dropped"))
     if lag.get("dropped_records"):
         cycles = lag.get("dropped_cycles")
         about = f"~{cycles:.0f} cycles, " if cycles is not None else ""

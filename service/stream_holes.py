@@ -35,6 +35,22 @@ def batch_contents(batch) -> Counter:
     return held
 
 
+RECORD_BYTES = 200  # a record's own Python objects beside its arrays' data (the dataclass, its dict, the array headers)
+
+
+def batch_bytes(batch) -> int:
+    """The bytes a queued batch (a service.live.KeyedBatch) holds, IngestQueue's ``size`` (the hold's bound): each
+    record's arrays' data (``ticks``, ``values``) plus RECORD_BYTES, and its key (8 bytes). An estimate of the
+    memory it keeps alive, not an exact one."""
+    total = 0
+    for r in batch.records:
+        arr = getattr(r, "values", None)
+        if arr is None:
+            arr = getattr(r, "ticks", None)
+        total += RECORD_BYTES + 8 + (arr.nbytes if hasattr(arr, "nbytes") else 0)
+    return total
+
+
 def hole_mark(hole: Dropped, info: AcquisitionInfo) -> tuple[list[StreamRestart], list[float]]:
     """The restart mark where the queue dropped a run of a source's batches (service/ingest_queue.py): just after
     the newest tick dropped, so before every record the source still delivers. The pipeline restarts its cycle

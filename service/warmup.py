@@ -34,9 +34,16 @@ from typing import Any
 
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.monitor.state import MonitorConfig
-from frictionwatch.core.monitor.warmup import WARM_CYCLES, bound_state, warm_config, warm_stages
+from frictionwatch.core.monitor.warmup import (
+    WARM_CYCLES,
+    bound_state,
+    sensor_fault_state,
+    warm_config,
+    warm_stages,
+)
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.core.types import AcquisitionInfo
+from frictionwatch.core.types import AcquisitionInfo, PressureFrame
+from frictionwatch.drivers.assembly.pressure_ring import frame_blocks
 from frictionwatch.drivers.logs.mcap_replay import shifted
 from frictionwatch.drivers.source import StreamRestart
 from frictionwatch.service.ingest_queue import Dropped
@@ -51,7 +58,13 @@ log = logging.getLogger(__name__)
 WARM_LOAD = 0.75  # fraction of full load of the simulated stream (a firing point; the types do not depend on it)
 WARM_SEED = 1
 SEAM_S = 0.5  # the silence between the two passes (a replay's seam; its own LOOP_GAP_S is alike)
-STEPS = 1 + 2 * WARM_CYCLES  # the simulation, then each cycle of the two passes
+# the third pass's cycles of the stream (its pressure as PressureBlock records): enough for the assembler to cut
+# cycles from them (the first two are its sync); design note 136
+BLOCK_CYCLES = 5
+STEPS = 1 + 2 * WARM_CYCLES + BLOCK_CYCLES - 2  # the simulation, then each cycle of the three passes
+# what a board's queue holds while the warm-up runs (WarmStart; serve --hold-mb): genset-v20's stream is ~3.2 MB/s
+# of pressure (service/live.py), so ~160 s of it: a cold start's compile here (~55 s) or on a slower box (~146 s)
+HOLD_BYTES = 512 * 2**20
 
 
 @dataclass
@@ -81,13 +94,18 @@ class WarmStart:
     """An engine's warm-up, then its live session's start (service/engine_service.py). A session whose every source
     can wait (a replay) starts after the warm-up, on a thread of its own, so its clock starts then and it drops
     nothing; one with a serial or CAN board starts at once, its ingest thread warming up before its first record
-    (``before_ingest``): the board's input is read and queued meanwhile (serve --max-queue-s), and what the queue
-    cannot hold is dropped and counted as any stretch dropped while behind (design note 124), never lost unsaid.
-    ``cancel`` (a stop): a session not started yet never starts; a compile in progress runs to its end on its daemon
-    thread."""
+    (``before_ingest``): the board's input is read meanwhile and the session's queue holds it beyond its
+    ``max_queue_s`` (``LiveSession.hold``, service/ingest_queue.py: in memory, up to ``hold_bytes`` -- serve
+    --hold-mb, HOLD_BYTES by default --, past which the oldest is dropped and counted as any stretch dropped while
+    behind, design note 124); the hold is released after the warm-up and ends once the monitor has caught up (it runs
+    ~30-60x real time), so a cold start of a board loses nothing it could keep (design note 136). ``hold_bytes`` 0:
+    no hold (what the queue's span cannot hold is dropped, counted). ``cancel`` (a stop): a session not started yet
+    never starts; a compile in progress runs to its end on its daemon thread."""
 
-    def __init__(self, engine_id: str, model: EngineModel, info: AcquisitionInfo, session: Any, alerts: Any) -> None:
+    def __init__(self, engine_id: str, model: EngineModel, info: AcquisitionInfo, session: Any, alerts: Any,
+                 hold_bytes: int = 0) -> None:
         self.engine_id, self.model, self.info, self.session, self.alerts = engine_id, model, info, session, alerts
+        self.hold_bytes = int(hold_bytes)
         self.progress = WarmUpProgress()
         self.compiled_after: int | None = None  # kernels compiled in this process from the warm-up's end to cancel
         self._compiled_at_end = 0
@@ -105,11 +123,17 @@ class WarmStart:
             load = self.session.before_ingest
 
             def warm_then_load() -> None:
-                self._warm()
-                if load is not None:
-                    load()
+                try:
+                    self._warm()
+                    if load is not None:
+                        load()
+                finally:
+                    if self.hold_bytes > 0:
+                        self.session.release_hold()
 
             self.session.before_ingest = warm_then_load
+            if self.hold_bytes > 0:
+                self.session.hold(self.hold_bytes)
             self.session.start()
             return
         self._thread = threading.Thread(target=self._warm_then_start, name="warm-up", daemon=True)
@@ -170,10 +194,11 @@ def warm_up(model: EngineModel, info: AcquisitionInfo, config: MonitorConfig | N
         pipe = EnginePipeline(model, sim.info, warm_config(config), stages=warm_stages())
         warm_alerts = alerts.warm_up() if hasattr(alerts, "warm_up") else None
         # the first pass as a healthy run takes it; the second with the identification's bounds active (a data
-        # branch a short stream need not reach: core.monitor.warmup.bound_state), a loop seam and a hole
+        # branch a short stream need not reach: core.monitor.warmup.bound_state), a sensor fault flagged and
+        # corrected (where the sensor-health stage is on: sensor_fault_state), a loop seam and a hole
         for n, records in enumerate((sim.records, second_pass(sim.records, sim.info))):
             if n and pipe.cycles.state is not None:
-                pipe.cycles.state = bound_state(pipe.cycles.state)
+                pipe.cycles.state = sensor_fault_state(bound_state(pipe.cycles.state))
             for record in records:
                 if progress.stop.is_set():
                     break
@@ -184,6 +209,14 @@ def warm_up(model: EngineModel, info: AcquisitionInfo, config: MonitorConfig | N
         for result in pipe.flush():
             if warm_alerts is not None:
                 warm_alerts.update(result)
+        # the third: a fresh pipeline over the stream's first cycles with its pressure as one PressureBlock per
+        # cylinder, as a CAN, DAQ or serial source delivers it (the assembler's block paths, design note 136)
+        blocks = EnginePipeline(model, sim.info, warm_config(config), stages=warm_stages())
+        for record in block_pass(sim.records, rpm, sim.info):
+            if progress.stop.is_set():
+                break
+            for _ in blocks.feed(record):
+                progress.step = min(progress.step + 1, progress.steps - 1)
         progress.step = progress.steps
     except Exception as exc:  # noqa: BLE001 - a warm-up that fails leaves the kernels to compile when first called
         progress.error = f"{type(exc).__name__}: {exc}"
@@ -209,6 +242,21 @@ def second_pass(records: list, info: AcquisitionInfo) -> list:
                       after_key=record_key(moved[cut // 2 - 1]))
     marks, _ = hole_mark(dropped, info)
     return [StreamRestart(ticks=last + 1), *moved[:cut // 2], *marks, *moved[cut:]]
+
+
+def block_pass(records: list, rpm: float, info: AcquisitionInfo) -> list:
+    """The stream's first BLOCK_CYCLES cycles (at ``rpm``) with each PressureFrame as one PressureBlock per cylinder
+    (drivers/assembly/pressure_ring.py ``frame_blocks``: the same samples), as a source that carries one cylinder per
+    record makes them (drivers/can, the DAQ import, the logs' PressureBlock records); the assembler keeps those in
+    rings of their own, with kernels of their own (``write_block``, ``pressure_rows`` and ``search_sorted`` on 1-D
+    arrays), which a frame stream never reaches."""
+    keys = [record_key(r) for r in records]
+    end = min(keys) + BLOCK_CYCLES * 120.0 / rpm * info.tick_hz
+    out: list = []
+    for r, k in zip(records, keys, strict=True):
+        if k <= end:
+            out.extend(frame_blocks(r) if isinstance(r, PressureFrame) else (r,))
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:

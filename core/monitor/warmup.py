@@ -20,6 +20,7 @@ and that has no ``warm_up()`` is caught by tests/service/test_warmup.py (kernels
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 from frictionwatch.core.monitor.calibration.tdc import BLOCKS
@@ -62,4 +63,32 @@ def bound_state(state: MonitorState) -> MonitorState:
     return dataclasses.replace(state, lower=lower)
 
 
-__all__ = ["BOUND_LIFT", "WARM_CYCLES", "WARM_WINDOW", "WARM_WINDOWS", "bound_state", "warm_config", "warm_stages"]
+# sensor_fault_state's faults: a pressure channel's gain error and a wheel offset, each well past its flag's
+# threshold (core.monitor.checks.sensor_health.SensorHealthConfig: gain 0.02, wheel_deg 0.8) and its floor's 4 sigma
+FAULT_GAIN = 0.10
+FAULT_WHEEL_RAD = math.radians(2.0)
+FAULT_COUNT = 100  # cycles the faulty state claims (past min_cycles; its EWMA keeps the flags for the pass)
+
+
+def sensor_fault_state(state: MonitorState) -> MonitorState:
+    """``state`` with its sensor-health estimates saying that cylinder 1's pressure reads FAULT_GAIN high (where it
+    has siblings to be compared with: three or more cylinders) and the wheel is FAULT_WHEEL_RAD off, flagged and
+    corrected from the next cycle (core.monitor.checks.sensor_health: ``corrected_inputs``, the flags, the figures
+    withheld): a sensor fault's branch, which a healthy stream never takes, run by a warm-up where the monitor's
+    sensor-health stage is on (design note 136). As it is where the state has no sensor-health estimates yet. For a
+    warm-up's throwaway pipeline only."""
+    sensor = state.sensor
+    if sensor is None:
+        return state
+    z = sensor.tdc_rhs.shape[0]
+    mean = np.zeros_like(sensor.mean)
+    if z >= 3:
+        mean[z] = FAULT_GAIN
+    mean[-1] = FAULT_WHEEL_RAD
+    faulty = dataclasses.replace(sensor, count=max(sensor.count, FAULT_COUNT), mean=mean, var=np.zeros_like(mean),
+                                 applied=mean.copy())
+    return dataclasses.replace(state, sensor=faulty)
+
+
+__all__ = ["BOUND_LIFT", "FAULT_GAIN", "FAULT_WHEEL_RAD", "WARM_CYCLES", "WARM_WINDOW", "WARM_WINDOWS", "bound_state",
+           "sensor_fault_state", "warm_config", "warm_stages"]

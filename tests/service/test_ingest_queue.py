@@ -118,3 +118,38 @@ def test_a_hole_whose_marker_was_taken_widens_without_another_until_a_batch_is_t
     for i in range(5, 8):
         q.put("log", [i], key=i * HZ, realtime=True)
     assert drain(q) == [("log", Dropped(5 * HZ, 5 * HZ, 1)), ("log", [6]), ("log", [7])]
+
+
+def test_a_hold_keeps_what_the_span_would_drop_until_the_ingest_has_caught_up() -> None:
+    """While held (a warm-up's wait, design note 136) a real-time source's batches beyond the span are kept; the
+    release ends the hold only once the queue is back within its span, then the span bound drops again."""
+    q = IngestQueue(max_span_ticks=2.0 * HZ, tick_hz=HZ)
+    q.hold(max_bytes=10**6)
+    for i in range(10):  # 10 s of one 3-record batch a second: the span's 2 s would have kept the newest 3 batches
+        q.put("teeth", [i] * 3, key=i * HZ, realtime=True)
+    lag = q.lag()
+    assert lag.dropped_records == 0 and lag.holding and lag.queued_batches == 10
+    assert lag.held_s == pytest.approx(9.0) and lag.held_records == 30 and lag.held_bytes == 30  # ``size``: len
+    q.release()
+    assert q.holding  # 9 s queued: released, but held until the ingest has caught up to within 2 s
+    q.put("teeth", [10] * 3, key=10 * HZ, realtime=True)
+    assert q.lag().dropped_records == 0
+    got = [payload[0] for _, payload in [q.get(timeout=0.0) for _ in range(8)]]
+    assert got == list(range(8)) and not q.holding  # 8 .. 10 s left: within the span, the hold is over
+    q.put("teeth", [11] * 3, key=11 * HZ, realtime=True)  # the span bound again: 8 s goes
+    assert q.lag().dropped_records == 3 and not q.lag().holding
+
+
+def test_a_hold_past_its_bytes_drops_the_oldest_and_counts_them() -> None:
+    """The hold's bound is the bytes queued (``size``): past it the oldest go, with a hole's marker, as the span's."""
+    q = IngestQueue(max_span_ticks=1.0 * HZ, tick_hz=HZ, size=lambda records: 100 * len(records))
+    q.hold(max_bytes=1000)
+    for i in range(6):  # 300 bytes a batch: at most 3 batches (900) fit
+        q.put("teeth", [i] * 3, key=i * HZ, realtime=True)
+    items = drain(q)
+    assert batches(items) == [[3] * 3, [4] * 3, [5] * 3]
+    assert items[0] == ("teeth", Dropped(0.0, 2 * HZ, 9))
+    lag = q.lag()
+    assert lag.dropped_records == 9 and lag.held_bytes == 1000 - 100 and lag.held_s == pytest.approx(2.0)
+    with pytest.raises(ValueError, match="bytes"):
+        q.hold(0)

@@ -1,5 +1,6 @@
-"""serve --max-queue-s and --drain-s (issue 28 follow-up): the ingest queue's cap and the stop's drain reach each
-engine's LiveSession; a value out of range is refused in one line, exit 2, before any engine starts."""
+"""serve --max-queue-s, --drain-s and --hold-mb (issue 28 follow-up): the ingest queue's cap, the stop's drain and
+the warm-up's hold reach each engine; a value out of range is refused in one line, exit 2, before any engine
+starts."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import argparse
 import pytest
 from frictionwatch.service.cli import build_parser
 from frictionwatch.service.serve import DRAIN_S, MAX_QUEUE_S, build_engines
+from frictionwatch.service.warmup import HOLD_BYTES
 
 from tests.service.serve_helpers import DEMO
 from tests.service.test_serve_security import one_line_error
@@ -20,6 +22,8 @@ from tests.service.test_serve_security import one_line_error
     (["--max-queue-s", "inf"], "--max-queue-s must be 1 to 600 seconds, got inf"),
     (["--drain-s", "-1"], "--drain-s must be 0 to 600 seconds, got -1"),
     (["--drain-s", "1e9"], "--drain-s must be 0 to 600 seconds, got 1e+09"),
+    (["--hold-mb", "-1"], "--hold-mb must be 0 to 16384, got -1"),
+    (["--hold-mb", "16385"], "--hold-mb must be 0 to 16384, got 16385"),
 ])
 def test_out_of_range_is_one_line(capsys, argv: list[str], words: str) -> None:
     line = one_line_error(capsys, ["serve", "--port", "0", *argv])
@@ -43,3 +47,14 @@ def test_the_values_reach_the_session(argv, queue_s: float, drain_s: float) -> N
     finally:
         svc.stop()
     assert svc.session.drain_s == drain_s  # the stop (as the app's lifespan calls it) drained for --drain-s
+
+
+@pytest.mark.parametrize(("argv", "hold_bytes"), [((), HOLD_BYTES), (("--hold-mb", "3"), 3 * 2**20),
+                                                  (("--hold-mb", "0"), 0)])
+def test_the_hold_reaches_the_warm_start(argv, hold_bytes: int) -> None:
+    """--hold-mb: what a board's queue holds while the warm-up runs (service/warmup.py WarmStart; 0: no hold)."""
+    (svc,) = build_engines(_args(*argv), None)
+    try:
+        assert svc.warm_start is not None and svc.warm_start.hold_bytes == hold_bytes
+    finally:
+        svc.stop()

@@ -22,16 +22,24 @@ import pytest
 from frictionwatch.core.monitor.pipeline import STAGES
 from frictionwatch.core.monitor.warmup import WARM_CYCLES, warm_stages
 from frictionwatch.drivers.source import Source
+from frictionwatch.service.serve import stop_summary
+from numpy.testing import assert_allclose
 
 ROOT = Path(__file__).resolve().parents[2]
 RUN_CYCLES = 320  # past the watches' third window (300) and the alert baseline (skip 5 + 200)
 
 # in a fresh process: warm up the engine of LOG, then analyse LOG looped for RUN_CYCLES cycles; print the kernel
-# specialisations added after the warm-up as JSON. BREAK: "stages" runs the warm-up with the stages as they are
+# specialisations added after the warm-up as JSON. BREAK: "stages" runs the warm-up with the stages as they are;
+# "noblocks" without its third pass (service.warmup.block_pass); "nohealth" with the monitor's default settings;
+# "nosensor" without the second pass's sensor fault (core.monitor.warmup.sensor_fault_state).
+# KIND: "blocks" the log's pressure frames as one PressureBlock per cylinder (a CAN, DAQ or serial source's
+# records); "faults" the monitor with its sensor-health stage (serve --sensor-health) over the engine simulated with
+# a pressure channel's gain and the wheel's TDC off (the simulator's effects: flagged within ~20 cycles, then
+# corrected), simulated before the snapshot
 _CHILD = r"""
 import gc, json, sys
 from numba.core.dispatcher import Dispatcher
-log, cycles, brk = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+log, cycles, brk, kind = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4]
 
 def ours():
     return {id(d): (f"{d.py_func.__module__}.{d.py_func.__qualname__}", set(d.overloads)) for d in gc.get_objects()
@@ -41,32 +49,61 @@ from frictionwatch.drivers.logs.mcap_replay import McapSource
 from frictionwatch.service import warmup
 from frictionwatch.service.alerts import AlertEngine
 from frictionwatch.service.pipeline import EnginePipeline, resolve_model
+from frictionwatch.core.types import PressureFrame
+from frictionwatch.drivers.assembly.pressure_ring import frame_blocks
 if brk == "stages":
     from frictionwatch.core.monitor.pipeline import STAGES
     warmup.warm_stages = lambda: STAGES
+if brk == "noblocks":
+    warmup.block_pass = lambda records, rpm, info: []
+if brk == "nosensor":
+    warmup.sensor_fault_state = lambda state: state
 src = McapSource(log, speed=None, loop=True)
 model = resolve_model(src.engine_toml, None, log, src.info)
+config = None
+info, flags = src.info, set()
+if kind == "faults":
+    from frictionwatch.core.model.engine_model import EngineModel
+    from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig
+    from frictionwatch.core.monitor.state import MonitorConfig
+    from frictionwatch.core.plant.simulate import simulate
+    config = MonitorConfig(sensor_health=SensorHealthConfig())
 alerts = AlertEngine(model.spec)
 alerts.load_kernels()
 progress = warmup.WarmUpProgress()
-warmup.warm_up(model, src.info, None, alerts, progress)
+warmup.warm_up(model, src.info, None if brk == "nohealth" else config, alerts, progress)
+if kind == "faults":
+    faulty = EngineModel.from_spec(model.spec, effects={"pressure_gain": {"cylinder": min(2, model.spec.n_cyl),
+                                                                          "gain": 1.15},
+                                                        "tdc_offset": {"cylinder": 0, "deg": 3.0}})
+    second = src.info.second_wheel is not None and model.spec.sensors.second_wheel is not None
+    sim = simulate(faulty, *warmup.warm_point(model), cycles + 4, 3, second_wheel=second)
+    info, stream = sim.info, iter([sim.records])
+else:
+    stream = iter(lambda: src.read(0.1), None)
 before = ours()
-pipe = EnginePipeline(model, src.info)
+pipe = EnginePipeline(model, info, config)
 n = 0
-while n < cycles:
-    for record in src.read(0.1):
+for records in stream:
+    if kind == "blocks":
+        records = [b for r in records for b in (frame_blocks(r) if isinstance(r, PressureFrame) else (r,))]
+    for record in records:
         for result in pipe.feed(record):
             alerts.update(result)
+            flags.update(result.flags)
             n += 1
+    if n >= cycles:
+        break
 added = [f"{name} {sorted(map(str, sigs - before.get(key, (name, set()))[1]))}"
          for key, (name, sigs) in ours().items() if sigs - before.get(key, (name, set()))[1]]
 print(json.dumps({"added": added, "cycles": n, "tdc_windows": pipe.tdc_window_cycle, "error": progress.error,
-                  "steps": [progress.step, progress.steps]}))
+                  "steps": [progress.step, progress.steps], "flags": sorted(flags),
+                  "pressure_blocks": sum(len(c) == 1 for c in pipe.assembler.buf.groups)}))
 """
 
 
-def added_after_warm_up(log: str, cycles: int = RUN_CYCLES, brk: str = "") -> dict:
-    proc = subprocess.run([sys.executable, "-c", _CHILD, str(ROOT / "replay_logs" / log), str(cycles), brk],
+def added_after_warm_up(log: str, cycles: int = RUN_CYCLES, brk: str = "", kind: str = "log") -> dict:
+    proc = subprocess.run([sys.executable, "-c", _CHILD, str(ROOT / "replay_logs" / log), str(cycles), brk, kind],
                           capture_output=True, text=True, timeout=1500, check=False)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -88,6 +125,41 @@ def test_the_check_sees_a_stage_the_warm_up_leaves_out():
     watch's fit is first reached mid-run, and the check says so (the check can fail)."""
     out = added_after_warm_up("deutz-1cyl.mcap", cycles=110, brk="stages")
     assert any("tdc_kernels.gauss_newton_kernel" in a for a in out["added"]), out["added"]
+
+
+BLOCK_RUN_CYCLES = 120  # the pressure rings wrap within a few cycles; the monitor's own paths are the log check's
+
+
+def test_no_kernel_is_added_by_pressure_blocks():
+    """A source that delivers pressure as one PressureBlock per cylinder (CAN, the DAQ import, a log of either):
+    the assembler's block rings are warmed by the warm-up's third pass (service.warmup.block_pass): nothing compiled
+    or loaded mid-run (before it, design note 136: ``write_block``, ``pressure_rows`` and ``search_sorted`` on 1-D
+    arrays were)."""
+    out = added_after_warm_up("k9k-4cyl.mcap", cycles=BLOCK_RUN_CYCLES, kind="blocks")
+    assert out["error"] is None and out["steps"][0] == out["steps"][1]
+    assert out["cycles"] >= BLOCK_RUN_CYCLES and out["pressure_blocks"] == 4  # every cylinder a ring of its own
+    assert out["added"] == [], "kernels compiled or loaded after the warm-up:\n" + "\n".join(out["added"])
+
+
+def test_the_check_sees_pressure_blocks_the_warm_up_leaves_out():
+    """The same check with the warm-up's third pass left out: the block kernels are first reached mid-run."""
+    out = added_after_warm_up("k9k-4cyl.mcap", cycles=20, brk="noblocks", kind="blocks")
+    assert any("ringbuffer.write_block" in a for a in out["added"]), out["added"]
+
+
+FAULT_CYCLES = 80  # the faults below are flagged by cycle ~20 (min_cycles 8, then the evidence's 4 sigma)
+
+
+@pytest.mark.parametrize("log", ["demo.mcap", "k9k-4cyl.mcap"])
+def test_no_kernel_is_added_by_a_sensor_fault(log):
+    """serve --sensor-health over an engine whose pressure channel 2 reads 15 % high and whose wheel is 3 deg off
+    (simulated): the stage flags both and corrects the pressure and the pistons' phases from then on (a branch of
+    its own, core.monitor.checks.sensor_health.corrected_inputs), with nothing compiled or loaded mid-run.
+    genset-v20 estimates the wheel alone (20 cylinders), k9k-4cyl jointly with each cylinder's own offset."""
+    out = added_after_warm_up(log, cycles=FAULT_CYCLES, kind="faults")
+    assert out["error"] is None and out["cycles"] >= FAULT_CYCLES
+    assert {"sensor_pressure_gain_cyl2", "sensor_tdc_offset"} <= set(out["flags"]), out["flags"]
+    assert out["added"] == [], "kernels compiled or loaded after the warm-up:\n" + "\n".join(out["added"])
 
 
 def test_warm_stages_shorten_every_windowed_stage():
@@ -156,9 +228,10 @@ class Board(Source):
         self.feed.close()
 
 
-def test_a_board_is_read_during_the_warm_up_and_what_its_queue_cannot_hold_is_counted(monkeypatch):
-    """A board's session starts at once: its input is queued while the ingest thread warms up, and what the queue
-    (1 s here) cannot hold is dropped and counted as a hole, not lost unsaid (design note 126)."""
+def test_a_board_without_a_hold_counts_what_its_queue_cannot_hold(monkeypatch):
+    """A board's session starts at once: its input is queued while the ingest thread warms up; with no hold
+    (serve --hold-mb 0) what the queue (1 s here) cannot hold is dropped and counted as a hole, not lost unsaid
+    (design note 126)."""
     from frictionwatch.drivers.logs.mcap_replay import McapSource
     from frictionwatch.service import warmup
     from frictionwatch.service.engine_service import EngineService
@@ -175,7 +248,8 @@ def test_a_board_is_read_during_the_warm_up_and_what_its_queue_cannot_hold_is_co
     monkeypatch.setattr(warmup, "warm_up", held_warm_up)
     board = Board(McapSource(ROOT / "replay_logs" / "deutz-1cyl.mcap", speed=1.0, loop=True))
     model = resolve_model(board.engine_toml, None, "deutz", board.info)
-    svc = EngineService("board", model, board.info, {"board": board}, warm=True, max_queue_s=1.0).start()
+    svc = EngineService("board", model, board.info, {"board": board}, warm=True, max_queue_s=1.0,
+                        hold_bytes=0).start()
     try:
         assert svc.session._started and svc.warming_up  # read from the start, analysed after the warm-up
         time.sleep(3.0)
@@ -187,6 +261,93 @@ def test_a_board_is_read_during_the_warm_up_and_what_its_queue_cannot_hold_is_co
     finally:
         release.set()
         svc.stop()
+
+
+class FastBoard(Source):
+    """A board's stand-in that has given its whole stream by the time a slow warm-up ends: ``records`` in reads of
+    BOARD_BATCH as fast as they are asked for, then nothing, for ever (a board does not end); ``speed`` set and no
+    ``reanchor``: real time that cannot wait, to the session (service.live.is_realtime, is_replay_paced)."""
+
+    speed = 1.0
+
+    def __init__(self, records: list, info, engine_toml: str | None) -> None:
+        super().__init__()
+        self.records, self.info, self.engine_toml = records, info, engine_toml
+        self.given = threading.Event()  # every record handed out
+        self._i = 0
+
+    def _read_internal(self, timeout: float | None) -> list:
+        if self._i >= len(self.records):
+            self.given.set()
+            time.sleep(timeout or 0.0)
+            return []
+        out = self.records[self._i:self._i + BOARD_BATCH]
+        self._i += BOARD_BATCH
+        return out
+
+
+BOARD_BATCH = 12  # records a read (~40 ms of a genset's stream, as a paced replay reads them)
+
+
+def one_pass(log: str) -> tuple[list, object, str | None]:
+    """The records of one pass of a bundled replay log (no seam), its acquisition and its engine."""
+    from frictionwatch.drivers.errors import EndOfStream
+    from frictionwatch.drivers.logs.mcap_replay import McapSource
+
+    src = McapSource(ROOT / "replay_logs" / log, speed=None)
+    records: list = []
+    try:
+        while True:
+            records += src.read(0.1)
+    except EndOfStream:
+        pass
+    finally:
+        src.close()
+    return records, src.info, src.engine_toml
+
+
+def test_a_board_loses_nothing_while_the_warm_up_runs_past_its_queue(monkeypatch):
+    """A cold start's warm-up outlasting the queue's span (1 s of acquisition here, the board's stream ~2.8 s, all
+    given before the warm-up ends): the queue holds it (LiveSession.hold, design note 136), nothing is dropped, and
+    every cycle is analysed after the warm-up, in order, numbered without a gap -- the same cycles, with the same
+    figures, as the stream read offline."""
+    from frictionwatch.service import warmup
+    from frictionwatch.service.engine_service import EngineService
+    from frictionwatch.service.pipeline import EnginePipeline, resolve_model
+
+    records, info, toml = one_pass("deutz-1cyl.mcap")
+    board = FastBoard(records, info, toml)
+    model = resolve_model(toml, None, "deutz", info)
+
+    def slow_warm_up(model, info, config, alerts, progress):  # the compile's stand-in: over once all was read
+        progress.started_s = time.monotonic()
+        assert board.given.wait(30)
+        time.sleep(0.5)
+        progress.step, progress.ended_s = progress.steps, time.monotonic()
+        return progress.seconds
+
+    monkeypatch.setattr(warmup, "warm_up", slow_warm_up)
+    offline = EnginePipeline(model, info)
+    want = [r for rec in records for r in offline.feed(rec)]
+    assert len(want) > 25
+    svc = EngineService("board", model, info, {"board": board}, warm=True, max_queue_s=1.0).start()
+    try:
+        assert board.given.wait(30) and svc.warming_up
+        assert svc.backlog()["holding"] and svc.backlog()["dropped_records"] == 0
+        assert svc.session.wait_results(len(want), timeout=600), svc.cycles_ok
+        lag = svc.backlog()
+        assert lag["dropped_records"] == 0 and not lag["holding"]  # caught up: the hold is over
+        assert lag["held_s"] > 2.0 and lag["held_records"] == len(records) and lag["held_bytes"] > 0
+        got = svc.session.results
+        assert [r.index for r in got] == [r.index for r in want] == list(range(want[0].index, want[-1].index + 1))
+        assert_allclose([r.rpm_mean for r in got], [r.rpm_mean for r in want], rtol=1e-12)
+        assert_allclose([r.imep[0] for r in got], [r.imep[0] for r in want], rtol=1e-9)
+        assert svc.holes == [] and "dropped_while_behind" not in svc.restarts and svc.skipped == {}
+    finally:
+        svc.stop()
+    line = stop_summary(svc)
+    assert "held while the kernels warmed up: up to" in line and "nothing dropped" in line
+    assert "dropped while" not in line
 
 
 def test_the_warm_up_alone_from_the_command_line(capsys):
@@ -211,3 +372,33 @@ def test_the_warm_point_is_inside_the_engines_speed_range_away_from_its_edge():
     for name, rpm in (("genset-v20", 1210.0), ("k9k-4cyl", 2000.0), ("deutz-1cyl", 1500.0), ("maruti-3cyl", 3000.0)):
         got, _ = warm_point(EngineModel.from_spec(load_engine(name)))
         assert abs(got - rpm) < 1e-9, (name, got)
+
+
+def test_the_warm_up_s_sensor_fault_is_flagged_and_corrected():
+    """core.monitor.warmup.sensor_fault_state, as the warm-up's second pass sets it where the sensor-health stage is
+    on: the next cycle runs with cylinder 1's pressure and the wheel corrected (the fault's branch) and flags the
+    gain. (The wheel's flag on four cylinders comes from the accumulated normal equations, which the faulty state
+    leaves as they were: it is corrected, not flagged, there.)"""
+    from frictionwatch.core.model.engine import load_engine
+    from frictionwatch.core.model.engine_model import EngineModel
+    from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig
+    from frictionwatch.core.monitor.state import MonitorConfig
+    from frictionwatch.core.monitor.warmup import FAULT_GAIN, FAULT_WHEEL_RAD, sensor_fault_state
+    from frictionwatch.core.plant.simulate import simulate
+    from frictionwatch.service.pipeline import EnginePipeline
+    from frictionwatch.service.warmup import warm_point
+
+    model = EngineModel.from_spec(load_engine("k9k-4cyl"))
+    sim = simulate(model, *warm_point(model), 8, 1)
+    pipe = EnginePipeline(model, sim.info, MonitorConfig(sensor_health=SensorHealthConfig()))
+    results = []
+    for record in sim.records:
+        if len(results) == 2 and pipe.cycles.state is not None and not pipe.cycles.state.sensor.count > 50:
+            pipe.cycles.state = sensor_fault_state(pipe.cycles.state)
+        results += pipe.feed(record)
+    assert len(results) >= 4
+    assert not any(f.startswith("sensor_") for r in results[:2] for f in r.flags)
+    after = results[2]  # the first cycle after the faulty state: run with its corrections
+    assert "sensor_pressure_gain_cyl1" in after.flags, after.flags
+    assert_allclose(after.sensor_health.applied_gain, [1.0 + FAULT_GAIN, 1.0, 1.0, 1.0], rtol=1e-12)
+    assert_allclose(after.sensor_health.applied_tdc, FAULT_WHEEL_RAD, rtol=1e-12)
