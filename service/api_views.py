@@ -249,4 +249,10 @@ def sensor_health(r: CycleResult, watch: TdcWatchView, cal: Calibration) -> dict
 
 
 def _finite_list(a: np.ndarray) -> list[float | None]:
-    return [num(v) for v in np.asarray(a, dtype=float)]
+    """The values as Python floats, None where not finite. One ``tolist`` (C) and a pass only where a value is not
+    finite: a float per element through ``num`` made the friction-torque reply's view ~1.6 ms (21 traces)."""
+    arr = np.asarray(a, dtype=float)
+    out = arr.tolist()
+    if not np.isfinite(arr).all():
+        out = [v if math.isfinite(v) else None for v in out]
+    return out

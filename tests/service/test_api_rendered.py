@@ -1,0 +1,101 @@
+"""The read routes render their reply on their own worker thread (service/api.py ``rendered``, note 139): the reply
+must be what FastAPI makes of the same view dict with the same response_model (validation, then its dump). Checked
+route by route against a reference app whose route returns the view's dict and lets FastAPI render it, on one engine
+stopped after the demo log (nothing changes between the two replies). The numbers compared with a stated tolerance."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
+from frictionwatch.service import api_views as views
+from frictionwatch.service.api import create_app
+from frictionwatch.service.api_models import CycleSummary, FrictionTorque, Losses, Speed
+from numpy.testing import assert_allclose
+
+from tests.service.serve_helpers import demo_service, wait_until
+
+BASE = "/api/v1/engines/demo"
+
+
+@pytest.fixture(scope="module")
+def served():
+    svc = demo_service("demo").start()
+    try:
+        assert wait_until(lambda: svc.sources_ended and svc.session.cycles_ok > 0 and
+                          svc.state.snapshot(1)[0] is svc.session.results[-1], timeout=900, every=0.5)
+    finally:
+        svc.stop()
+    with TestClient(create_app([svc], manage=False)) as client:
+        yield client, svc
+
+
+def same(a, b, where: str = "") -> None:
+    """Equal JSON documents: the same keys, lists and strings; numbers equal to 1e-12 relative."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys(), where
+        for k in a:
+            same(a[k], b[k], f"{where}.{k}")
+    elif isinstance(a, list):
+        assert isinstance(b, list) and len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            same(x, y, f"{where}[{i}]")
+    elif isinstance(a, (int, float)) and not isinstance(a, bool):
+        assert isinstance(b, (int, float)) and not isinstance(b, bool), where
+        assert_allclose(b, a, rtol=1e-12, atol=0, err_msg=where)
+    else:
+        assert a == b, where
+
+
+def reference(model, doc: dict) -> dict:
+    """FastAPI's own rendering of ``doc`` under ``model``: a route that returns the dict."""
+    ref = FastAPI()
+
+    @ref.get("/x", response_model=model)
+    def x() -> dict:
+        return doc
+
+    r = TestClient(ref).get("/x")
+    assert r.status_code == 200
+    return r.json()
+
+
+def test_each_read_route_replies_what_fastapi_renders(served) -> None:
+    client, svc = served
+    whole, ring = svc.state.snapshot()
+    last, figures = svc.state.window(50)
+    holes = svc.state.holes_in(figures.first_cycle, figures.last_cycle)
+    cases = {
+        "/cycles/latest": (CycleSummary, views.cycle_summary("demo", whole)),
+        "/friction-torque": (FrictionTorque, views.friction_torque(whole)),
+        "/speed?cycles=30": (Speed, views.speed(whole, ring[-30:])),
+        "/losses": (Losses, views.losses_now("demo", ring, svc.term_names)),
+        "/losses?window_cycles=50": (Losses, views.losses_window("demo", last, figures, svc.term_names, holes)),
+    }
+    for path, (model, doc) in cases.items():
+        r = client.get(BASE + path)
+        assert r.status_code == 200 and r.headers["content-type"] == "application/json", path
+        assert int(r.headers["content-length"]) == len(r.content), path
+        same(reference(model, doc), r.json(), path)
+    assert client.get(BASE + "/losses?window_cycles=0").status_code == 422  # the query still checked
+    assert client.get("/api/v1/engines/nope/losses").status_code == 404  # the engine dependency (now a coroutine)
+
+
+def test_health_and_engine_list_keep_their_shape(served) -> None:
+    client, svc = served
+    health = client.get("/api/v1/health").json()
+    assert health["engines"][0]["engine_id"] == "demo" and health["fleet"] is False
+    rows = client.get("/api/v1/engines").json()
+    assert rows[0]["cycles_ok"] == svc.cycles_ok and rows[0]["n_cylinders"] == 20
+
+
+def test_finite_list_is_none_where_not_finite() -> None:
+    a = np.array([1.5, np.nan, -np.inf, 2.0, np.inf, -0.0])
+    got = views._finite_list(a)
+    assert got[1] is None and got[2] is None and got[4] is None
+    assert_allclose([got[i] for i in (0, 3, 5)], [1.5, 2.0, -0.0], rtol=0, atol=0)
+    assert all(type(v) is float for v in views._finite_list(np.arange(4.0)))
+    assert not any(isinstance(v, float) and not math.isfinite(v) for v in got)
