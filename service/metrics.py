@@ -20,6 +20,10 @@ in one process, or a test, never share series).
     frictionwatch_ingest_behind_seconds{engine}     gauge: wall seconds the oldest waiting data have waited
     frictionwatch_ingest_dropped_records_total{engine}  records the bounded queue dropped (the oldest go)
     frictionwatch_ingest_dropped_seconds_total{engine}  acquisition seconds they covered
+    frictionwatch_ingest_holding{engine}            gauge: 1 while a warm-up's hold keeps a board's input past
+                                                    the queue's span (serve --hold-mb, design note 136), else 0
+    frictionwatch_ingest_held_seconds{engine}       gauge: the most acquisition seconds the hold kept at once
+    frictionwatch_ingest_held_bytes{engine}         gauge: the most bytes it kept at once (an estimate)
     frictionwatch_store_cycles_total{engine,outcome}  the store listener's cycles: written, written_late (kept while
                                                     the store was down, then written), lost
     frictionwatch_store_backlog_cycles{engine}      gauge: cycles kept for a store that is down (bounded)
@@ -200,7 +204,10 @@ class _Backlog(Collector):
         gauges = {key: GaugeMetricFamily(f"frictionwatch_ingest_{name}", text, labels=["engine"]) for key, name, text in (
             ("queued_cycles", "queued_cycles", "Cycles of data waiting for the monitor"),
             ("queued_s", "queued_seconds", "Acquisition seconds waiting for the monitor"),
-            ("behind_s", "behind_seconds", "Wall seconds the oldest waiting data have waited"))}
+            ("behind_s", "behind_seconds", "Wall seconds the oldest waiting data have waited"),
+            ("holding", "holding", "1 while a warm-up's hold keeps a board's input past the queue's span"),
+            ("held_s", "held_seconds", "The most acquisition seconds the warm-up's hold kept at once"),
+            ("held_bytes", "held_bytes", "The most bytes the warm-up's hold kept at once (an estimate)"))}
         counters = {key: CounterMetricFamily(f"frictionwatch_ingest_{name}", text, labels=["engine"]) for key, name, text
                     in (("dropped_records", "dropped_records", "Records the bounded ingest queue dropped"),
                         ("dropped_s", "dropped_seconds", "Acquisition seconds the dropped records covered"))}

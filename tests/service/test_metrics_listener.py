@@ -30,7 +30,9 @@ class FakeEngine:
         self.fanout = SimpleNamespace(drops={}, left={}, errors={}, queued={}, waited_s={}, listener=lambda name: None)
 
     def backlog(self) -> dict:
-        return dict.fromkeys(("queued_cycles", "queued_s", "behind_s", "dropped_records", "dropped_s"), 0.0)
+        lag = dict.fromkeys(("queued_cycles", "queued_s", "behind_s", "dropped_records", "dropped_s", "held_s",
+                             "held_bytes"), 0.0)
+        return {**lag, "holding": False}
 
 
 def samples(metrics: ServiceMetrics, name: str, engine: str) -> dict:
@@ -75,3 +77,14 @@ def test_the_api_state_does_not_call_the_observer_for_an_event_without_a_result(
     state.on_visible = lambda event, s: seen.append((event.result_s, s))
     state.on_message_received(ServiceEvent("a", None, 1.0))  # an API action's event: no result, nothing seen
     assert seen == []
+
+
+def test_a_warm_ups_hold_is_on_the_metrics_as_on_health() -> None:
+    """The hold's figures (EngineService.backlog's ``holding``, ``held_s``, ``held_bytes``; design note 136) are
+    gauges under the engine's label: an operator's Prometheus sees what /health says of a cold start."""
+    engine = FakeEngine("a")
+    engine.backlog = lambda: {**FakeEngine.backlog(engine), "holding": True, "held_s": 12.5, "held_bytes": 4.0e7}
+    metrics = ServiceMetrics(lambda: [engine], lambda: 0)
+    for name, value in (("frictionwatch_ingest_holding", 1.0), ("frictionwatch_ingest_held_seconds", 12.5),
+                        ("frictionwatch_ingest_held_bytes", 4.0e7)):
+        assert_allclose(samples(metrics, name, "a")[name], value, rtol=0, atol=0)
