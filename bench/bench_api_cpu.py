@@ -22,7 +22,7 @@ import time
 from frictionwatch.service.api import create_app
 
 from bench.bench_service_plant import mix_routes
-from bench.bench_window_request import engine
+from bench.bench_window_request import filled_engine
 
 
 async def call(app, path: str) -> tuple[int, bytes]:
@@ -64,12 +64,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=400)
     ap.add_argument("--profile", action="append", default=[], help="a route to profile (cProfile, top 30 by own time)")
     args = ap.parse_args()
-    svc = engine(args.cycles).start()
-    try:
-        while svc.state.sums.count < args.cycles:
-            time.sleep(0.5)
-    finally:
-        svc.stop()
+    svc = filled_engine(args.cycles)
     app = create_app([svc], manage=False)
     routes = list(dict.fromkeys(mix_routes(["demo"])))
     for path in args.profile:

@@ -36,6 +36,17 @@ def engine(history: int) -> EngineService:
     return EngineService("demo", model, src.info, {"log": src}, urls=[url], history_cycles=history)
 
 
+def filled_engine(cycles: int) -> EngineService:
+    """``engine(cycles)`` run until its window sums hold ``cycles`` cycles, then stopped (nothing changes after)."""
+    svc = engine(cycles).start()
+    try:
+        while svc.state.sums.count < cycles:
+            time.sleep(0.5)
+    finally:
+        svc.stop()
+    return svc
+
+
 def cpu_median(fn, repeat: int) -> float:
     times = []
     for _ in range(repeat):
@@ -50,12 +61,7 @@ def main() -> None:
     ap.add_argument("--cycles", type=int, default=2000)
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
-    svc = engine(args.cycles).start()
-    try:
-        while svc.state.sums.count < args.cycles:
-            time.sleep(0.5)
-    finally:
-        svc.stop()
+    svc = filled_engine(args.cycles)
     rows = []
     for w in sorted({10, 100, 1000, args.cycles}):
         def before(w=w):
