@@ -104,7 +104,8 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
         s.state.on_visible = metrics.observer(s.engine_id)  # on the API state's thread: no listener of its own
     files = _dashboard_files(dashboard_dir)
     started = time.monotonic()
-    cache: dict[str, tuple[int, dict]] = {}  # engine id -> (newest index, smoothed losses): one computation a cycle
+    # engine id -> (newest index, the smoothed losses' reply rendered): one computation and one rendering a cycle
+    cache: dict[str, tuple[int, bytes]] = {}
     # one request computes a new cycle's smoothed losses (~2-4 ms over 5000 results); the others wait for it instead
     # of computing the same thing at once on every worker thread
     computing = {s.engine_id: threading.Lock() for s in services}
@@ -139,10 +140,12 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
     # thread for the validation and its dump on the event loop; the decorator's response_model still makes the schema
     typed = {m: TypeAdapter(m) for m in (Health, list[EngineInfo], CycleSummary, Losses, FrictionTorque, Speed)}
 
-    def rendered(model: object, doc: object) -> Response:
+    def body(model: object, doc: object) -> bytes:
         adapter = typed[model]
-        body = adapter.dump_json(adapter.validate_python(doc, from_attributes=True), by_alias=True)
-        return Response(body, media_type="application/json")
+        return adapter.dump_json(adapter.validate_python(doc, from_attributes=True), by_alias=True)
+
+    def rendered(model: object, doc: object) -> Response:
+        return Response(body(model, doc), media_type="application/json")
 
     def newest(svc: EngineService, last: int | None = None) -> tuple:
         whole, ring = svc.state.snapshot(last)
@@ -226,9 +229,9 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
                 hit = cache.get(svc.engine_id)
                 if hit is None or hit[0] < whole.index:  # not done by the request this one waited for
                     whole, ring = newest(svc)
-                    hit = cache[svc.engine_id] = (whole.index, views.losses_now(svc.engine_id, ring,
-                                                                                 svc.term_names))
-        return rendered(Losses, hit[1])
+                    hit = cache[svc.engine_id] = (whole.index, body(Losses, views.losses_now(svc.engine_id, ring,
+                                                                                              svc.term_names)))
+        return Response(hit[1], media_type="application/json")
 
     @app.get("/api/v1/engines/{engine_id}/friction-torque", response_model=FrictionTorque, responses=ERRORS)
     def friction_torque(svc: Svc) -> Response:
