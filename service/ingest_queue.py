@@ -223,8 +223,7 @@ class IngestQueue:
     # --- policy --------------------------------------------------------------------------------------------------
     def _span(self) -> float:
         """The queued data's span in ticks (newest queued key minus oldest; 0 when none is queued)."""
-        first = next((it for it in self._items if it.key is not None), None)
-        return 0.0 if first is None else max(0.0, self._newest_key - first.key)  # type: ignore[operator]
+        return max(0.0, self._span_with(self._newest_key))
 
     def _span_with(self, key: float) -> float:
         first = next((it for it in self._items if it.key is not None), None)
