@@ -170,11 +170,9 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
                  # replay runs at that listener's pace)
                  "paced_by_listener": s.fanout.waiting_for, "warming_up": bool(getattr(s, "warming_up", False)),
                  "startup": warm_up_words(s)} for s in engines.values()]
-        fine = [r["running"] and r["last_cycle_age_s"] is not None and r["last_cycle_age_s"] < STALE_S
-                and not r["behind"] and not r["store_waiting_cycles"] for r in rows]
-        # an engine whose warm-up runs is starting, not degraded (nothing is analysed or lost yet)
-        starting = any(r["warming_up"] for r in rows) and all(f or r["warming_up"] for f, r in zip(fine, rows))
-        return rendered(Health, {"status": "ok" if all(fine) else "starting" if starting else "degraded",
+        for r in rows:
+            r["startup"] = r["startup"] or catching_up_words(r)
+        return rendered(Health, {"status": health_status(rows),
                                  "uptime_s": now - started, "engines": rows, "lag_degraded_s": LAG_DEGRADED_S,
                                  "fleet": fleet is not None})
 
@@ -362,6 +360,31 @@ def backlog(svc: EngineService) -> dict:
     dropping = lag["last_drop_age_s"] is not None and lag["last_drop_age_s"] < DROPPED_RECENTLY_S
     behind = lag["realtime"] and (max(lag["behind_s"], lag["queued_s"]) > LAG_DEGRADED_S or dropping)
     return {"behind": bool(behind), **{k: lag[k] for k in LAG_KEYS}}
+
+
+def starting(row: dict) -> bool:
+    """An engine row (/health's) that is starting: its warm-up compiles, or its queue still holds what a board gave
+    while it did and nothing was dropped (the monitor is catching up on it: behind, as every cold start of a board
+    is, but losing nothing). One that dropped records is degraded, held or not."""
+    return bool(row["warming_up"] or (row["holding"] and not row["dropped_records"]))
+
+
+def health_status(rows: list[dict]) -> str:
+    """/health's status: 'ok' when every engine runs with a recent result, is not behind and has no cycle waiting
+    for the store; else 'starting' when each engine that is not is starting (``starting``); else 'degraded'."""
+    fine = [r["running"] and r["last_cycle_age_s"] is not None and r["last_cycle_age_s"] < STALE_S
+            and not r["behind"] and not r["store_waiting_cycles"] for r in rows]
+    if all(fine):
+        return "ok"
+    return "starting" if all(f or starting(r) for f, r in zip(fine, rows)) else "degraded"
+
+
+def catching_up_words(row: dict) -> str | None:
+    """While an engine's hold outlives its warm-up: what it is doing, in words (/health's ``startup``)."""
+    if row["warming_up"] or not row["holding"] or row["dropped_records"]:
+        return None
+    return (f"catching up on the input held while the kernels warmed up: {row['queued_s']:.1f} s queued, "
+            f"{row['behind_s']:.1f} s behind (the most held: {row['held_s']:.1f} s), nothing dropped")
 
 
 def store_stats(svc: EngineService) -> dict | None:

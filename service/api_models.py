@@ -48,7 +48,8 @@ class HealthEngine(_Open):
                                                   "failed twice)")
     warming_up: bool = Field(False, description="the warm-up compiles the engine's kernels before its first record "
                                                 "(a replay starts after it; a serial or CAN board's input is queued)")
-    startup: str | None = Field(None, description="while warming up: 'compiling kernels: k of N'")
+    startup: str | None = Field(None, description="while warming up: 'compiling kernels: k of N'; then, while the "
+                                                  "monitor catches up on a board's held input: 'catching up on ...'")
     paced_by_listener: str | None = Field(None, description="a replay faster than real time waiting now for this "
                                                         "listener's full queue (e.g. 'store'): it runs at that "
                                                         "listener's pace and loses nothing; null: not waiting")
@@ -56,7 +57,9 @@ class HealthEngine(_Open):
 
 class Health(_Open):
     status: Literal["ok", "degraded", "starting"] = Field(description="starting: an engine's warm-up compiles its "
-                                                                      "kernels (nothing is analysed or lost yet)")
+                                                                      "kernels (nothing is analysed or lost yet), or "
+                                                                      "the monitor catches up on what a board gave "
+                                                                      "meanwhile (held, nothing dropped)")
     uptime_s: float
     lag_degraded_s: float = Field(2.0, description="an engine is 'degraded' when its data wait longer than this")
     fleet: bool = Field(False, description="GET /api/v1/fleet answers: this service keeps a store")

@@ -112,3 +112,32 @@ def test_a_shutdown_drains_every_engine_at_once() -> None:
         assert client.get("/api/v1/health").status_code == 200
     assert passed == [True] * n
     assert not any(t.is_alive() for svc in services for t in svc.session.threads)
+
+
+def health_row(**given) -> dict:
+    row = {"running": True, "last_cycle_age_s": 0.1, "behind": False, "store_waiting_cycles": 0, "warming_up": False,
+           "holding": False, "dropped_records": 0, "queued_s": 0.0, "behind_s": 0.0, "held_s": 0.0}
+    return {**row, **given}
+
+
+def test_an_engine_catching_up_on_its_warm_ups_hold_is_starting_not_degraded() -> None:
+    """After a board's warm-up the monitor is behind by what the hold kept (design note 136): /health says
+    'starting' and the row's words say it catches up, while nothing was dropped; a hold that dropped records, an
+    engine behind without a hold, or a stale one is 'degraded'; an engine still warming up is 'starting'."""
+    from frictionwatch.service.api import catching_up_words, health_status
+
+    fine = health_row()
+    catching_up = health_row(behind=True, holding=True, queued_s=41.5, behind_s=43.0, held_s=62.0,
+                             last_cycle_age_s=0.2)
+    assert health_status([fine]) == "ok"
+    assert health_status([fine, catching_up]) == "starting"
+    assert health_status([health_row(warming_up=True, holding=True, last_cycle_age_s=None), catching_up]) == "starting"
+    assert catching_up_words(catching_up) == ("catching up on the input held while the kernels warmed up: 41.5 s "
+                                              "queued, 43.0 s behind (the most held: 62.0 s), nothing dropped")
+    for bad in (health_row(behind=True, holding=True, dropped_records=5),  # the hold's bound was reached: lost data
+                health_row(behind=True),  # behind with no hold: a plant that does not keep up
+                health_row(holding=True, last_cycle_age_s=30.0, dropped_records=1)):
+        assert health_status([catching_up, bad]) == "degraded", bad
+        assert catching_up_words(bad) is None
+    assert catching_up_words(health_row(warming_up=True, holding=True)) is None  # the warm-up's own words say it
+    assert catching_up_words(fine) is None

@@ -251,6 +251,25 @@ def test_a_share_or_a_prior_is_never_drawn_like_a_measurement(page):
         assert by_status[status]["whiskers"] == 0
 
 
+def test_the_backlog_says_a_warm_ups_hold_and_is_not_red_while_it_catches_up(page):
+    """format.js backlogWords on what the looped demo does not show: a board's input held while the kernels warmed
+    up (design note 136) and caught up on, then after; one that dropped records is marked as /health would."""
+    said = page.evaluate("""(async () => {
+        const { backlogWords } = await import(new URL('static/format.js', location.href).href);
+        const lag = { queued_cycles: 512.4, queued_s: 41.0, behind_s: 43.2, dropped_records: 0, behind: true,
+                      holding: true, held_s: 62.25, held_bytes: 212.6e6 };
+        return [backlogWords(lag), backlogWords({ ...lag, holding: false, behind: false, queued_cycles: 1 }),
+                backlogWords({ ...lag, dropped_records: 40, dropped_cycles: 3 }), backlogWords(null)];
+    })()""")
+    catching, after, dropped, none = said
+    assert catching == {"text": "512 cycles queued, 43.2 s behind; holding the board's input while the kernels warmed "
+                                "up (up to 62.3 s, 213 MB): catching up", "degraded": False}
+    assert after["text"].endswith("; held the board's input while the kernels warmed up (up to 62.3 s, 213 MB)")
+    assert not after["degraded"]
+    assert "dropped ~3 cycles to keep up" in dropped["text"] and dropped["degraded"] is True
+    assert none == {"text": "—", "degraded": False}
+
+
 def test_a_flagged_sensor_a_commissioned_model_and_the_speed_stage_in_words(page):
     """The sensor panel's own code on what the demo does not show: a cylinder's TDC flagged, a commissioned model,
     the speed-based stage on (rendered and read in one script: the page's next refresh puts the live state back)."""

@@ -3,7 +3,7 @@
 // and tables from the API (throttled). Without events (stream down) everything is polled every few seconds.
 
 import { ENGINE_ID, enginePath, getJSON, postWithToken, throttle } from "./api.js";
-import { fmt, isNum } from "./format.js";
+import { backlogWords, fmt, isNum } from "./format.js";
 import { emptyPlot } from "./plot.js";
 import { renderAlerts, renderFleet, renderHealth, renderLosses, renderSpeed, renderTorque, showError } from "./render.js";
 
@@ -90,17 +90,13 @@ function showEngine(e) {
   showBacklog(e.backlog);
 }
 
-/** The monitor's backlog (GET /engines' `backlog`): cycles waiting, seconds behind, what the bounded queue dropped.
- * Marked when /health would call the engine degraded for it. */
+/** The monitor's backlog in words (format.js backlogWords), marked when /health would call the engine degraded. */
 function showBacklog(b) {
   const box = $("backlog");
-  if (!b) { box.textContent = "—"; return; }
-  const cycles = isNum(b.queued_cycles) ? `${fmt(b.queued_cycles, 0)} cycles` : `${fmt(b.queued_s, 1)} s of data`;
-  const dropped = b.dropped_records ? `; dropped ${isNum(b.dropped_cycles) ? `~${fmt(b.dropped_cycles, 0)} cycles`
-    : `${b.dropped_records} records`} to keep up` : "";
-  box.textContent = `${cycles} queued, ${fmt(b.behind_s, 1)} s behind${dropped}`;
-  box.className = b.behind ? "backlog-behind" : "";
-  box.dataset.behind = b.behind ? "1" : "0";
+  const said = backlogWords(b);
+  box.textContent = said.text;
+  box.className = said.degraded ? "backlog-behind" : "";
+  box.dataset.behind = b && b.behind ? "1" : "0";
 }
 
 function selectedEngine() {

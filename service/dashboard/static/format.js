@@ -51,3 +51,18 @@ export function describeValue(key, value) {
   }
   return String(value);
 }
+
+/** The monitor's backlog (GET /engines' `backlog`) in words: cycles waiting, seconds behind, what the bounded queue
+ * dropped, and a warm-up's hold (a board's input kept while the kernels compiled, analysed after). ``degraded``: as
+ * /health would say it; an engine catching up on a hold that dropped nothing is starting, not degraded. */
+export function backlogWords(b) {
+  if (!b) return { text: "—", degraded: false };
+  const cycles = isNum(b.queued_cycles) ? `${fmt(b.queued_cycles, 0)} cycles` : `${fmt(b.queued_s, 1)} s of data`;
+  const dropped = b.dropped_records ? `; dropped ${isNum(b.dropped_cycles) ? `~${fmt(b.dropped_cycles, 0)} cycles`
+    : `${b.dropped_records} records`} to keep up` : "";
+  const held = b.held_s > 0 ? `; ${b.holding ? "holding" : "held"} the board's input while the kernels warmed up `
+    + `(up to ${fmt(b.held_s, 1)} s, ${fmt(b.held_bytes / 1e6, 0)} MB)${b.holding ? ": catching up" : ""}` : "";
+  const starting = Boolean(b.holding) && !b.dropped_records;
+  return { text: `${cycles} queued, ${fmt(b.behind_s, 1)} s behind${dropped}${held}`,
+           degraded: Boolean(b.behind) && !starting };
+}
