@@ -33,7 +33,8 @@ def verdict(doc: object) -> tuple[bool, str]:
     if dead:
         return False, f"unhealthy: engine {', '.join(dead)} stopped while its sources run"
     lagging = [str(e.get("engine_id")) for e in engines if isinstance(e, dict) and e.get("behind")]
-    if doc["status"] in ("ok", "starting"):  # starting: the warm-up compiles the kernels (service/warmup.py)
+    if doc["status"] in ("ok", "starting"):  # starting: the warm-up compiles the kernels, or the monitor catches up
+        # on what a board gave meanwhile (service/warmup.py, api.health_status)
         return True, f"healthy: {doc['status']}"
     return True, "healthy: degraded (see /api/v1/health)" + (f"; behind: {', '.join(lagging)}" if lagging else "")
 
