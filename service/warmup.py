@@ -12,7 +12,8 @@ the monitor with its running stages (core.monitor.warmup: their counts shortened
 (``AlertEngine.warm_up``: its learning counts shortened) -- runs ``WARM_CYCLES`` cycles of the engine simulated
 (core.plant.simulate: the engine's model, its wheels and cylinders; the records a replay of it carries) with a loop
 seam, a dropped stretch and the identification's bounds active in the second pass, so that every kernel a live run
-reaches is compiled before the live run starts.
+reaches is compiled before the live run starts; and a result's trace that is computed only when asked for (the
+API's friction-torque view: ``warm_traces``), so that a dashboard's first request compiles nothing either.
 The warm-up's pipeline and alert engine are thrown away: nothing of it reaches the engine's results.
 
 What it costs: on an empty cache the compile it moves before the first cycle, plus the simulator's own kernels; on a
@@ -193,6 +194,7 @@ def warm_up(model: EngineModel, info: AcquisitionInfo, config: MonitorConfig | N
         progress.step = 1
         pipe = EnginePipeline(model, sim.info, warm_config(config), stages=warm_stages())
         warm_alerts = alerts.warm_up() if hasattr(alerts, "warm_up") else None
+        last = None
         # the first pass as a healthy run takes it; the second with the identification's bounds active (a data
         # branch a short stream need not reach: core.monitor.warmup.bound_state), a sensor fault flagged and
         # corrected (where the sensor-health stage is on: sensor_fault_state), a loop seam and a hole
@@ -206,9 +208,12 @@ def warm_up(model: EngineModel, info: AcquisitionInfo, config: MonitorConfig | N
                     progress.step = min(progress.step + 1, progress.steps - 1)
                     if warm_alerts is not None:
                         warm_alerts.update(result)
+                    last = result
         for result in pipe.flush():
             if warm_alerts is not None:
                 warm_alerts.update(result)
+        if last is not None:
+            warm_traces(last)
         # the third: a fresh pipeline over the stream's first cycles with its pressure as one PressureBlock per
         # cylinder, as a CAN, DAQ or serial source delivers it (the assembler's block paths, design note 136)
         blocks = EnginePipeline(model, sim.info, warm_config(config), stages=warm_stages())
@@ -224,6 +229,14 @@ def warm_up(model: EngineModel, info: AcquisitionInfo, config: MonitorConfig | N
     finally:
         progress.ended_s = time.monotonic()
     return progress.seconds or 0.0
+
+
+def warm_traces(result: Any) -> None:
+    """A result's traces that are computed only when asked for (CycleResult's cached properties): the API's
+    friction-torque view asks for ``friction_torque_cyl``, which puts each cylinder's torque onto the crank-angle
+    grid with core's ``rows_on_grid`` kernel that nothing else in serve calls. Found compiling at a fresh install's
+    first dashboard view (session 39): a compile holds the GIL, so the ingest thread waited meanwhile."""
+    _ = result.friction_torque_cyl
 
 
 def second_pass(records: list, info: AcquisitionInfo) -> list:

@@ -31,7 +31,9 @@ RUN_CYCLES = 320  # past the watches' third window (300) and the alert baseline 
 # in a fresh process: warm up the engine of LOG, then analyse LOG looped for RUN_CYCLES cycles; print the kernel
 # specialisations added after the warm-up as JSON. BREAK: "stages" runs the warm-up with the stages as they are;
 # "noblocks" without its third pass (service.warmup.block_pass); "nohealth" with the monitor's default settings;
-# "nosensor" without the second pass's sensor fault (core.monitor.warmup.sensor_fault_state).
+# "nosensor" without the second pass's sensor fault (core.monitor.warmup.sensor_fault_state); "notraces" without
+# the result's traces asked for (service.warmup.warm_traces). Every result goes through the API's views of one
+# result as a dashboard's requests would (service/api_views.py: friction torque, speed).
 # KIND: "blocks" the log's pressure frames as one PressureBlock per cylinder (a CAN, DAQ or serial source's
 # records); "faults" the monitor with its sensor-health stage (serve --sensor-health) over the engine simulated with
 # a pressure channel's gain and the wheel's TDC off (the simulator's effects: flagged within ~20 cycles, then
@@ -58,6 +60,9 @@ if brk == "noblocks":
     warmup.block_pass = lambda records, rpm, info: []
 if brk == "nosensor":
     warmup.sensor_fault_state = lambda state: state
+if brk == "notraces":
+    warmup.warm_traces = lambda result: None
+from frictionwatch.service import api_views
 src = McapSource(log, speed=None, loop=True)
 model = resolve_model(src.engine_toml, None, log, src.info)
 config = None
@@ -91,6 +96,8 @@ for records in stream:
         for result in pipe.feed(record):
             alerts.update(result)
             flags.update(result.flags)
+            api_views.friction_torque(result)
+            api_views.speed(result, [result])
             n += 1
     if n >= cycles:
         break
@@ -125,6 +132,13 @@ def test_the_check_sees_a_stage_the_warm_up_leaves_out():
     watch's fit is first reached mid-run, and the check says so (the check can fail)."""
     out = added_after_warm_up("deutz-1cyl.mcap", cycles=110, brk="stages")
     assert any("tdc_kernels.gauss_newton_kernel" in a for a in out["added"]), out["added"]
+
+
+def test_the_check_sees_a_trace_the_warm_up_leaves_out():
+    """The same check with the warm-up's ``warm_traces`` left out: the API's friction-torque view first compiles
+    core's ``rows_on_grid`` at a dashboard's first request, mid-run (as a fresh install's `make run` did)."""
+    out = added_after_warm_up("deutz-1cyl.mcap", cycles=5, brk="notraces")
+    assert any("grid_rows.rows_on_grid" in a for a in out["added"]), out["added"]
 
 
 BLOCK_RUN_CYCLES = 120  # the pressure rings wrap within a few cycles; the monitor's own paths are the log check's
