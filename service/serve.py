@@ -270,8 +270,10 @@ def stop_summary(svc: EngineService) -> str:
     if lag.get("dropped_records"):
         cycles = lag.get("dropped_cycles")
         about = f"~{cycles:.0f} cycles, " if cycles is not None else ""
-        spans = [f"{h['first_cycle']}-{h['last_cycle']}" for h in getattr(svc, "holes", ())
-                 if h["first_cycle"] is not None and h["last_cycle"] is not None]
+        # a hole whose cut left every index numbered (its last before its first: 0 cycles) is not a span
+        cut = [(h["first_cycle"], h["last_cycle"]) for h in getattr(svc, "holes", ())
+               if h["first_cycle"] is not None and h["last_cycle"] is not None and h["last_cycle"] >= h["first_cycle"]]
+        spans = [f"{a}" if a == b else f"{a}-{b}" for a, b in cut]
         shown = ", ".join(spans[:SPANS_SAID]) + (f" and {len(spans) - SPANS_SAID} more" if len(spans) > SPANS_SAID
                                                  else "")
         parts.append(f"dropped while the analysis was behind: {about}{lag['dropped_s']:.1f} s of acquisition "

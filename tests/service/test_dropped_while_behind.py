@@ -195,10 +195,11 @@ def test_the_stop_line_names_the_cycles_its_holes_left_out():
     lag = {"dropped_records": 3432, "dropped_s": 14.7, "dropped_cycles": 137.4}
     hole = lambda a, b: {"first_cycle": a, "last_cycle": b}  # noqa: E731
     svc = SimpleNamespace(engine_id="e", cycles_ok=1688, skipped={}, backlog=lambda: lag, restarts={},
-                          holes=[hole(26, 33), hole(36, 45), {"first_cycle": None, "last_cycle": None}])
+                          holes=[hole(26, 33), hole(36, 45), {"first_cycle": None, "last_cycle": None},
+                                 hole(416, 415), hole(500, 500)])  # a hole that left no index out; one of one cycle
     assert stop_summary(svc) == ("frictionwatch serve: stopped e: 1688 cycles analysed; dropped while the analysis "
                                  "was behind: ~137 cycles, 14.7 s of acquisition (3432 records), not numbered: "
-                                 "cycles 26-33, 36-45")
+                                 "cycles 26-33, 36-45, 500")
     svc.holes = [hole(10 * i, 10 * i + 1) for i in range(SPANS_SAID + 3)]
     assert stop_summary(svc).endswith("cycles 0-1, 10-11, 20-21, 30-31, 40-41, 50-51, 60-61, 70-71 and 3 more")
 
