@@ -4,8 +4,12 @@
     job = jobs.start(svc, cycles=120, baseline="default", max_steps=1)   # BusyError while another job runs
     jobs.get(job.job_id).to_dict()   # {"state": "running" | "done" | "failed", "reason", "report", ...}
 
-One job at a time over all engines, on one worker thread: the workflow runs the monitor over the window dozens of
-times (its bench: 200 k9k cycles in under 30 s on one core), on the cores the live engines use too. The window is
+One job at a time over all engines. The workflow runs the monitor over the window dozens of times (its bench: 200
+k9k cycles in under 30 s on one core; a genset-v20's 120 cycles take minutes), so it runs in a child process of its
+own (``run_job``: spawned, ``JOB_NICE`` nicer than serve), not on a thread of serve: a thread would take its share of
+serve's GIL from the live engines' ingest threads for as long as it runs (8 looped genset-v20 on one core analysed
+67 cycles/s before a job on a thread and 46 during it, session 39 at load ~20), and compile its loss-term kernels
+there. A worker thread of serve waits for the child's report. The window is
 the engine's newest raw records (``EngineService.recent``) spanning ``cycles`` cycles at the newest mean speed plus
 one to get in sync; it is assembled and analysed by ``service.cmd_discrepancy.run_discrepancy``, exactly as
 `frictionwatch discrepancy` does a log. A job that cannot run (too few cycles recorded, a monitor that analyses too
@@ -16,19 +20,24 @@ from __future__ import annotations
 
 import logging
 import math
+import multiprocessing
+import os
 import secrets
 import threading
 import time
+import traceback
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Any
 
 from frictionwatch.core.discrepancy import Options
+from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.service.cmd_discrepancy import run_discrepancy, with_baseline
 
 log = logging.getLogger(__name__)
 
 KEPT = 32  # finished jobs remembered (their reports are a few tens of kB each)
+JOB_NICE = 10  # the job's process runs this much nicer than serve: on a busy box the live engines come first
 
 
 class BusyError(RuntimeError):
@@ -89,12 +98,12 @@ class DiscrepancyJobs:
 
     def _run(self, job: Job, info: Any, records: list, model: Any) -> None:
         try:
-            # the baseline is applied above; run_discrepancy gets the reduced model and 'default'
-            report = run_discrepancy((info, records), model, Options(max_steps=job.max_steps), "default")
-            report = plain(report)
+            report = run_job(info, records, model, job.max_steps)
             report["baseline"] = job.baseline
         except ValueError as exc:  # the workflow's own refusal: too few cycles, none analysed
             self._finish(job, "failed", reason=str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+        except JobProcessError as exc:  # the child's own error (its traceback logged), or its end without a report
+            self._finish(job, "failed", reason=f"internal error: {exc}")
         except Exception as exc:  # noqa: BLE001 - a bug met on odd data: the job fails, the service goes on
             log.error("discrepancy job %s on %s failed: %s", job.job_id, job.engine_id, exc, exc_info=exc)
             self._finish(job, "failed", reason=f"internal error: {type(exc).__name__}: {str(exc).splitlines()[0]}"
@@ -116,6 +125,54 @@ class DiscrepancyJobs:
         return self._running
 
 
+class JobProcessError(RuntimeError):
+    """The job's process failed: an error it reported (with its traceback), or it ended without a report."""
+
+
+def run_job(info: Any, records: list, model: Any, max_steps: int, target: Any = None) -> dict:
+    """The workflow on ``records`` with ``model`` (the baseline already applied: run_discrepancy gets 'default') in
+    a spawned child process, ``JOB_NICE`` nicer than this one, as plain JSON values. Raises ValueError with the
+    workflow's own refusal (too few cycles, none analysed), JobProcessError for anything else. The child is a
+    daemon: it ends with serve. ``target``: the child's function (default ``_job_process``; a test's stand-in)."""
+    ctx = multiprocessing.get_context("spawn")  # not fork: serve's threads and locks are not the child's
+    receive, send = ctx.Pipe(duplex=False)
+    # the model goes as its TOML (EngineModel.to_toml: read back equal; the object itself does not pickle)
+    text = model.to_toml() if model is not None else None
+    proc = ctx.Process(target=target or _job_process, args=(send, info, records, text, max_steps), daemon=True,
+                       name="frictionwatch-discrepancy")
+    proc.start()
+    send.close()  # the child holds the only sending end: its end (or death) is this end's EOF
+    try:
+        kind, value = receive.recv()
+    except EOFError:
+        proc.join(5.0)
+        raise JobProcessError(f"the job's process ended without a report (exit code {proc.exitcode})") from None
+    finally:
+        receive.close()
+    proc.join(5.0)
+    if kind == "refused":
+        raise ValueError(value)
+    if kind == "error":
+        log.error("discrepancy job's process: %s", value)
+        raise JobProcessError(value.strip().splitlines()[-1])
+    return value
+
+
+def _job_process(send: Any, info: Any, records: list, model_toml: str, max_steps: int) -> None:
+    """The child's side of run_job: one message, ("done", report) | ("refused", reason) | ("error", traceback)."""
+    os.nice(JOB_NICE)
+    try:
+        model = EngineModel.from_toml(model_toml, "the engine's model")
+        report = run_discrepancy((info, records), model, Options(max_steps=max_steps), "default")
+        message = ("done", plain(report))
+    except ValueError as exc:  # the workflow's own refusal
+        message = ("refused", str(exc))
+    except Exception:  # noqa: BLE001 - said to the parent, which fails the job with it
+        message = ("error", traceback.format_exc())
+    send.send(message)
+    send.close()
+
+
 def plain(value: Any) -> Any:
     """The report as plain JSON values: numpy scalars and arrays as numbers and lists, a non-finite number as None
     (JSON has no NaN), anything else unknown as its text."""
@@ -132,4 +189,4 @@ def plain(value: Any) -> Any:
     return str(value)
 
 
-__all__ = ["KEPT", "BusyError", "DiscrepancyJobs", "Job", "plain"]
+__all__ = ["JOB_NICE", "KEPT", "BusyError", "DiscrepancyJobs", "Job", "JobProcessError", "plain", "run_job"]

@@ -99,13 +99,13 @@ def test_auth_and_validation(served):
 def test_one_job_at_a_time(served, monkeypatch):
     client, *_ = served
     gate = threading.Event()
-    real = discrepancy_jobs.run_discrepancy
+    real = discrepancy_jobs.run_job
 
     def held(*args, **kwargs):
         gate.wait(60)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(discrepancy_jobs, "run_discrepancy", held)
+    monkeypatch.setattr(discrepancy_jobs, "run_job", held)
     url = "/api/v1/engines/k9k/discrepancy"
     first = client.post(url, json={"max_steps": 0, "cycles": 2000}, headers=AUTH)
     assert first.status_code == 202
@@ -137,3 +137,38 @@ def test_recent_records_keep_the_newest_window():
     assert [int(r.ticks[-1]) for r in batched.window()] == kept
     with pytest.raises(ValueError, match="window"):
         RecentRecords(0.0, 1000.0)
+
+
+def test_the_workflow_runs_in_a_process_of_its_own(served, monkeypatch):
+    """A job's minutes of CPU take no share of serve's GIL: the workflow runs in a spawned child process. Here the
+    workflow is broken in this process only; the job still finishes with the right report (on a thread of serve it
+    would fail with this process's error)."""
+    client, *_ = served
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("the workflow ran in serve's own process")
+
+    monkeypatch.setattr(discrepancy_jobs, "run_discrepancy", broken)
+    r = client.post("/api/v1/engines/k9k/discrepancy", json={"cycles": 2000, "max_steps": 0}, headers=AUTH)
+    doc = _finished(client, "k9k", r.json()["job_id"])
+    assert doc["state"] == "done", doc["reason"]
+    assert doc["report"]["found"] == [] and doc["report"]["cycles"] >= 28
+
+
+def ends_without_a_word(send, *args) -> None:  # a child that dies (killed, out of memory) before it reports
+    import os
+
+    os._exit(3)
+
+
+def reports_a_bug(send, *args) -> None:
+    send.send(("error", "Traceback (most recent call last):\n  ...\nKeyError: 'odd'\n"))
+
+
+def test_a_job_whose_process_dies_or_fails_says_so_in_one_line():
+    from frictionwatch.service.discrepancy_jobs import JobProcessError, run_job
+
+    with pytest.raises(JobProcessError, match=r"^the job's process ended without a report \(exit code 3\)$"):
+        run_job(None, [], None, 0, target=ends_without_a_word)
+    with pytest.raises(JobProcessError, match=r"^KeyError: 'odd'$"):
+        run_job(None, [], None, 0, target=reports_a_bug)
