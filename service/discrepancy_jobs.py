@@ -6,10 +6,10 @@
 
 One job at a time over all engines. The workflow runs the monitor over the window dozens of times (its bench: 200
 k9k cycles in under 30 s on one core; a genset-v20's 120 cycles take minutes), so it runs in a child process of its
-own (``run_job``: spawned, ``JOB_NICE`` nicer than serve), not on a thread of serve: a thread would take its share of
-serve's GIL from the live engines' ingest threads for as long as it runs (8 looped genset-v20 on one core analysed
-67 cycles/s before a job on a thread and 46 during it, session 39 at load ~20), and compile its loss-term kernels
-there. A worker thread of serve waits for the child's report. The window is
+own (``run_job``: spawned, ``JOB_NICE`` nicer than serve), not on a thread of serve: a thread takes its share of
+serve's GIL from the live engines' ingest threads for as long as it runs, whatever the cores, and compiled its
+loss-term kernels there (seven, counted as "compiled after the warm-up" on every engine's stop line). A worker thread
+of serve waits for the child's report. The window is
 the engine's newest raw records (``EngineService.recent``) spanning ``cycles`` cycles at the newest mean speed plus
 one to get in sync; it is assembled and analysed by ``service.cmd_discrepancy.run_discrepancy``, exactly as
 `frictionwatch discrepancy` does a log. A job that cannot run (too few cycles recorded, a monitor that analyses too
