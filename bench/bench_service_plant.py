@@ -96,8 +96,13 @@ def rss_mb(pid: int) -> float:
     return float("nan")
 
 
-def start_server(n: int, cpu: int | None, history: int, probe: str | None = None) -> tuple[subprocess.Popen, str]:
+def start_server(n: int, cpu: int | None, history: int, probe: str | None = None,
+                 switch_s: float | None = None, api_other: bool = False) -> tuple[subprocess.Popen, str]:
     head = ["bench.serve_probe", probe] if probe else ["frictionwatch.service.cli"]  # bench/serve_probe.py's timeline
+    if probe and switch_s is not None:
+        head += ["--switch-interval", str(switch_s)]
+    if probe and api_other:
+        head += ["--api-default-policy"]
     cmd = [sys.executable, "-m", *head, "serve", "--port", "0", "--history-cycles", str(history)]
     for i in range(n):
         cmd += ["--source", f"mcap:replay_logs/demo.mcap?loop=1&speed=1#g{i + 1}"]
@@ -111,6 +116,7 @@ def launched(cmd: list[str], cwd: Path, timeout_s: float) -> tuple[subprocess.Po
     proc = subprocess.Popen(cmd, cwd=cwd, text=True, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
     lines: queue.Queue = queue.Queue()
     threading.Thread(target=lambda: [lines.put(x) for x in proc.stdout], daemon=True).start()
+    proc.lines = lines  # type: ignore[attr-defined]  # what serve prints later (its stop lines)
     while True:
         m = re.search(r"dashboard at (\S+)", lines.get(timeout=timeout_s))
         if m:
@@ -425,6 +431,9 @@ def main() -> None:
     ap.add_argument("--settle", type=float, default=10.0, help="seconds after the first results before the load")
     ap.add_argument("--cpu", type=int, help="pin the server to this core (taskset)")
     ap.add_argument("--probe", help="mix: serve under bench/serve_probe.py, its timeline to this JSON file")
+    ap.add_argument("--switch-interval", type=float, help="with --probe: serve's sys.setswitchinterval (s), a trial")
+    ap.add_argument("--api-default-policy", action="store_true",
+                    help="with --probe: serve's event loop and request threads back to SCHED_OTHER, a trial")
     ap.add_argument("--history-cycles", type=int, default=5000,
                     help="serve's history per engine: a short one shows the memory plateau in a short run")
     args = ap.parse_args()
@@ -433,7 +442,8 @@ def main() -> None:
                           "loadavg": os.getloadavg()}, indent=1, default=str))
         return
     engines = [f"g{i + 1}" for i in range(args.engines)]
-    proc, url = start_server(args.engines, args.cpu, args.history_cycles, args.probe)
+    proc, url = start_server(args.engines, args.cpu, args.history_cycles, args.probe, args.switch_interval,
+                             args.api_default_policy)
     try:
         with httpx.Client(base_url=url, timeout=10) as client:
             first = wait_first_results(client, engines)
@@ -445,6 +455,9 @@ def main() -> None:
         t = time.monotonic()
         proc.wait(60)
         out.update(first_results_s=first, sigterm_exit_s=time.monotonic() - t, exit_code=proc.returncode)
+        time.sleep(0.5)  # the reader thread's last lines
+        said = [proc.lines.get_nowait().strip() for _ in range(proc.lines.qsize())]
+        out["stop_lines"] = [x for x in said if "stopped" in x]  # per engine: kernels compiled after the warm-up...
         lat = out.pop("_lat", None)
         if lat is not None:
             out["timeline"] = timeline(lat, Path(args.probe))

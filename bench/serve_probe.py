@@ -3,6 +3,9 @@ product): where a slow request's time goes, as a timeline on the machine's one m
 the same in the client's process, so a request's client and server times line up).
 
     python -m bench.serve_probe FILE serve --port 0 --source ...   # the serve arguments after FILE
+    python -m bench.serve_probe FILE --switch-interval 0.001 serve ...  # CPython's GIL switch interval set first
+    python -m bench.serve_probe FILE --api-default-policy serve ...  # the event loop and the request threads under
+                                  # SCHED_OTHER once the engines started (theirs stay SCHED_BATCH, design note 107)
 
 At exit FILE gets JSON lists of:
 - ``req``: each HTTP request (id from the client's ``x-bench-id`` header, route, ASGI entry, exit): the server's
@@ -84,7 +87,24 @@ def install(out_path: str) -> None:
 
 
 if __name__ == "__main__":
+    rest = sys.argv[2:]
+    if rest[:1] == ["--switch-interval"]:  # an experiment: what a shorter hand-over of the GIL does to the tail
+        sys.setswitchinterval(float(rest[1]))
+        rest = rest[2:]
+    if rest[:1] == ["--api-default-policy"]:  # an experiment: requests' threads woken at once, not after a slice
+        import os
+
+        import uvicorn
+
+        started = uvicorn.Server.startup
+
+        async def startup(self, sockets=None):  # noqa: ANN001 - uvicorn's; after the lifespan started the engines
+            await started(self, sockets=sockets)
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))  # the loop's thread; workers inherit it
+
+        uvicorn.Server.startup = startup
+        rest = rest[1:]
     install(sys.argv[1])
     from frictionwatch.service.cli import main
 
-    sys.exit(main(sys.argv[2:]))
+    sys.exit(main(rest))
