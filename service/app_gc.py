@@ -13,7 +13,9 @@ The policy (``step``, run by a thread every ``every_s``): collect what is not fr
 survived since the last step: a pass of a few ms), then freeze the survivors. What that leaves uncollected: a
 reference cycle made of objects frozen earlier that becomes garbage later (serve's steady state makes few: the full
 passes of a run without this found 10 objects each); every ``full_every_s`` the whole heap is unfrozen, collected and
-frozen again, one full pass (the ~0.6 s above) that frees such cycles, so memory stays bounded.
+frozen again, one full pass (the ~0.6 s above) that frees such cycles, so memory stays bounded. One more full pass
+comes when ``settled`` first says so (serve: every engine has its first result): the warm-up's numba compiles make
+reference cycles that live a few seconds, longer than a step.
 """
 
 from __future__ import annotations
@@ -30,14 +32,16 @@ FULL_EVERY_S = 3600.0  # between full passes over the whole heap (cycles of froz
 
 
 class FrozenHeap:
-    """Freeze the survivors every ``every_s``, a full pass every ``full_every_s`` (the first ``step`` is one).
-    ``clock`` is injectable for tests; ``start``/``stop`` run ``step`` on a daemon thread."""
+    """Freeze the survivors every ``every_s``, a full pass every ``full_every_s`` (the first ``step`` is one) and
+    at the first step that finds ``settled()`` true. ``clock`` is injectable for tests; ``start``/``stop`` run
+    ``step`` on a daemon thread."""
 
     def __init__(self, every_s: float = EVERY_S, full_every_s: float = FULL_EVERY_S,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, settled: Callable[[], bool] | None = None) -> None:
         if not 0 < every_s <= full_every_s:
             raise ValueError(f"need 0 < every_s <= full_every_s, got {every_s:g} and {full_every_s:g}")
         self.every_s, self.full_every_s, self.clock = every_s, full_every_s, clock
+        self.settled = settled  # None once it has said so (or never given)
         self.last_full: float | None = None
         self.full_passes = self.steps = 0
         self.last_pass_s = 0.0  # how long the last step's collection held the GIL
@@ -48,6 +52,8 @@ class FrozenHeap:
         """Collect and freeze now; a full pass (the whole heap unfrozen first) when one is due. True if it was."""
         now = self.clock()
         full = self.last_full is None or now - self.last_full >= self.full_every_s
+        if self.settled is not None and self.settled():
+            full, self.settled = True, None
         t = time.perf_counter()
         if full:
             gc.unfreeze()  # back into the oldest generation: the collection below walks everything

@@ -233,7 +233,8 @@ def _run(args: argparse.Namespace) -> int:
         print(f"frictionwatch serve: token for acknowledge and baseline (this run only): {token}", flush=True)
     # until each engine's first cycle the terminal says what it waits for (a fresh install compiles for 1-2 min)
     ticker = StartupTicker(lambda: services).start()
-    heap = FrozenHeap().start()  # the collector's full passes out of the request path (service/app_gc.py)
+    # the collector's full passes out of the request path (service/app_gc.py); one more once every engine started
+    heap = FrozenHeap(settled=lambda: all(s.last_result_s is not None for s in services)).start()
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on"))
     # uvicorn shuts down on SIGINT / SIGTERM (the lifespan stops every engine), then raises the signal again with
     # the handlers it found: these make that a normal end (exit 0) instead of death by the signal

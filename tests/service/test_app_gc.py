@@ -73,3 +73,17 @@ def test_bad_periods_are_refused() -> None:
     for every, full in ((0.0, 10.0), (20.0, 10.0), (float("nan"), 10.0)):
         with pytest.raises(ValueError, match="every_s"):
             FrozenHeap(every_s=every, full_every_s=full)
+
+
+def test_one_more_full_step_when_settled(heap) -> None:
+    _, now = heap
+    settled = [False]
+    policy = FrozenHeap(every_s=10.0, full_every_s=100.0, clock=lambda: now[0], settled=lambda: settled[0])
+    assert policy.step() is True
+    now[0] = 10.0
+    assert policy.step() is False
+    settled[0] = True
+    now[0] = 20.0
+    assert policy.step() is True  # the warm-up's leftovers collected once the engines run
+    now[0] = 30.0
+    assert policy.step() is False and policy.full_passes == 2
