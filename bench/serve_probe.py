@@ -12,7 +12,8 @@ At exit FILE gets JSON lists of:
   own time, the same span the /metrics histogram times;
 - ``gc``: each garbage collection (start, seconds, generation, objects collected): a gen-2 pass over a large heap
   holds the GIL for all of its length;
-- ``heap``: every 5 s the objects frozen (service/app_gc.py) and the collector's generation counts;
+- ``heap``: every 5 s the objects frozen (service/app_gc.py), the collector's generation counts and all the
+  objects it tracks (without a leak they stop growing once the histories are full);
 - ``wake``: a thread that sleeps 2 ms in a loop records each wake-up later than 3 ms past due (due, seconds late,
   and the innermost frames of the other threads then): how long a thread that waits on nothing but the GIL (and
   the scheduler) waits, and what the others ran meanwhile.
@@ -70,11 +71,13 @@ def install(out_path: str) -> None:
                 rec["wake"].append((due, late, frames))
 
     threading.Thread(target=waker, name="probe-wake", daemon=True).start()
-    rec["heap"] = []  # every 5 s: (time, objects frozen, gc.get_count()): frozen objects stop growing without a leak
+    # every 5 s: (time, objects frozen, gc.get_count(), objects tracked in all: frozen or not, a walk of the heap)
+    rec["heap"] = []
 
     def heap() -> None:
         while True:
-            rec["heap"].append((time.monotonic(), gc.get_freeze_count(), gc.get_count()))
+            rec["heap"].append((time.monotonic(), gc.get_freeze_count(), gc.get_count(),
+                                gc.get_freeze_count() + len(gc.get_objects())))
             time.sleep(5.0)
 
     threading.Thread(target=heap, name="probe-heap", daemon=True).start()
