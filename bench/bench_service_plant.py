@@ -2,8 +2,11 @@
 speed=1, one engine per --source), then one of two loads:
 
 - ``mix``: ``--rate`` requests/s for ``--seconds`` s of a dashboard mix that includes window means (100, 1000 and 5000
-  cycles) and the large speed history; reports cycles analysed (and skipped: the loop's seam) against offered (each
-  engine's speed / 120 times the wall seconds: the looped log plays continuously at real time), records the bounded queues dropped, the client's p50 / p99 and the replies by status.
+  cycles) and the large speed history; reports cycles analysed against the real-time need (each engine's speed / 120
+  times the wall seconds) and what the server missed (dropped, skipped, left queued: ``accounting``; a looped
+  replay delivers a little less than the need, its seams restart the pacing), the client's p50 / p99, the server's
+  histogram's, and the replies by status. ``--probe FILE``: serve under bench/serve_probe.py, and a timeline of
+  where the slow requests' time went (``timeline``).
 - ``idle``: no requests; the server's CPU over ``--seconds`` s (from /proc: all its threads) per wall second, per
   engine and per cycle analysed, its threads' context switches per cycle, and the cycles it analysed against those
   offered; from the CPU per cycle, how many genset-v20 one core would hold at real time at this cost
@@ -75,6 +78,17 @@ def counters(client: httpx.Client) -> dict:
     return out
 
 
+def replay_state(client: httpx.Client) -> dict:
+    """Summed over the engines: the cycles queued for analysis (/health's backlog, at the newest result's speed),
+    the seconds the newest analysed data is behind, and the looped replays' seams so far (/api/v1/engines)."""
+    health = client.get("/api/v1/health").json()["engines"]
+    engines = client.get("/api/v1/engines").json()
+    return {"queued_cycles": sum(r["queued_cycles"] or 0.0 for r in health),
+            "behind_s_max": max((r["behind_s"] or 0.0) for r in health),
+            "dropped_cycles": sum(r["dropped_cycles"] or 0.0 for r in health),
+            "loop_seams": sum(int(e["restarts"].get("loop_restart", 0)) for e in engines)}
+
+
 def rss_mb(pid: int) -> float:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
@@ -82,8 +96,14 @@ def rss_mb(pid: int) -> float:
     return float("nan")
 
 
-def start_server(n: int, cpu: int | None, history: int) -> tuple[subprocess.Popen, str]:
-    cmd = [sys.executable, "-m", "frictionwatch.service.cli", "serve", "--port", "0", "--history-cycles", str(history)]
+def start_server(n: int, cpu: int | None, history: int, probe: str | None = None,
+                 switch_s: float | None = None, api_other: bool = False) -> tuple[subprocess.Popen, str]:
+    head = ["bench.serve_probe", probe] if probe else ["frictionwatch.service.cli"]  # bench/serve_probe.py's timeline
+    if probe and switch_s is not None:
+        head += ["--switch-interval", str(switch_s)]
+    if probe and api_other:
+        head += ["--api-default-policy"]
+    cmd = [sys.executable, "-m", *head, "serve", "--port", "0", "--history-cycles", str(history)]
     for i in range(n):
         cmd += ["--source", f"mcap:replay_logs/demo.mcap?loop=1&speed=1#g{i + 1}"]
     if cpu is not None:
@@ -96,6 +116,7 @@ def launched(cmd: list[str], cwd: Path, timeout_s: float) -> tuple[subprocess.Po
     proc = subprocess.Popen(cmd, cwd=cwd, text=True, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
     lines: queue.Queue = queue.Queue()
     threading.Thread(target=lambda: [lines.put(x) for x in proc.stdout], daemon=True).start()
+    proc.lines = lines  # type: ignore[attr-defined]  # what serve prints later (its stop lines)
     while True:
         m = re.search(r"dashboard at (\S+)", lines.get(timeout=timeout_s))
         if m:
@@ -111,13 +132,13 @@ def wait_first_results(client: httpx.Client, engines: list[str]) -> float:
 
 def run_mix(args, client: httpx.Client, url: str, pid: int, engines: list[str]) -> dict:
     time.sleep(args.settle)
-    c0, cpu0, w0 = counters(client), cpu_s(pid), time.monotonic()
+    c0, cpu0, w0, r0 = counters(client), cpu_s(pid), time.monotonic(), replay_state(client)
     import bench.bench_service_load as single
 
     single.ROUTES = mix_routes(engines)  # load() sends ROUTES[i % len(ROUTES)]
-    lat = load(url, args.rate, args.seconds)
+    lat = tagged_load(url, args.rate, args.seconds, single.ROUTES) if args.probe else load(url, args.rate, args.seconds)
     time.sleep(2.0)  # the cycles whose data came during the load
-    c1, cpu1, w1 = counters(client), cpu_s(pid), time.monotonic()
+    c1, cpu1, w1, r1 = counters(client), cpu_s(pid), time.monotonic(), replay_state(client)
     ms = lat["latency_s"] * 1e3
     rpm = [client.get(f"/api/v1/engines/{e}/cycles/latest").json()["rpm_mean"] for e in engines]
     offered = sum(r / 60.0 / CYCLE_REVS for r in rpm) * (w1 - w0)
@@ -130,7 +151,8 @@ def run_mix(args, client: httpx.Client, url: str, pid: int, engines: list[str]) 
     by_route = {r: {"p50": float(np.nanpercentile(ms[routes == r], 50)), "p99": float(np.nanpercentile(ms[routes == r], 99)),
                     "share_of_slowest_1pct": float(np.mean(routes[slow] == r)) if slow.any() else 0.0}
                 for r in sorted(set(routes.tolist()))}
-    return {"requests": lat["n"], "by_status": {str(k): int(v) for k, v in zip(codes, counts)},
+    return {"_lat": lat if args.probe else None, "requests": lat["n"],
+            "by_status": {str(k): int(v) for k, v in zip(codes, counts)},
             "latency_ms_by_route": by_route,
             "latency_ms": {"p50": float(np.nanpercentile(ms, 50)), "p99": float(np.nanpercentile(ms, 99)),
                            "max": float(np.nanmax(ms))},
@@ -140,7 +162,110 @@ def run_mix(args, client: httpx.Client, url: str, pid: int, engines: list[str]) 
             "cycles_analysed": c1["processed"] - c0["processed"], "cycles_offered": offered,
             "cycles_skipped": c1["skipped"] - c0["skipped"],
             "records_dropped_by_the_bounded_queue": c1["dropped_records"] - c0["dropped_records"],
+            **accounting(c1["processed"] - c0["processed"], offered, c1["skipped"] - c0["skipped"], r0, r1),
             "server_cpu_s_per_wall_s": (cpu1 - cpu0) / (w1 - w0)}
+
+
+def accounting(analysed: float, offered: float, skipped: float, r0: dict, r1: dict) -> dict:
+    """Where the offered cycles went. ``offered`` is the real-time need (each engine's speed / 120 x the wall
+    seconds), but a looped replay delivers less than that: each pass restarts its pacing at the seam, so a pass of
+    demo.mcap (40 cycles, 3.200 s of data) takes 3.24 s of wall time read alone, longer when the reader thread wakes
+    late on a busy box. So what the server missed is counted from what it said: cycles dropped by the bounded queue,
+    skipped, or queued at the window's end beyond its start (``missed_by_the_server``); the rest of the shortfall is
+    the replay's (``short_of_real_time_by_the_replay``). ``analysed_per_seam``: the demo's 40 when every pass was
+    analysed whole (give or take a pass per engine at the window's ends)."""
+    more_queued = r1["queued_cycles"] - r0["queued_cycles"]
+    missed = (r1["dropped_cycles"] - r0["dropped_cycles"]) + skipped + max(more_queued, 0.0)
+    seams = r1["loop_seams"] - r0["loop_seams"]
+    return {"queued_cycles_start_end": [r0["queued_cycles"], r1["queued_cycles"]],
+            "behind_s_max_end": r1["behind_s_max"], "loop_seams": seams,
+            "analysed_per_seam": analysed / seams if seams else None, "missed_by_the_server": missed,
+            "short_of_real_time_by_the_replay": offered - analysed - missed}
+
+
+def tagged_load(url: str, rate: float, seconds: float, routes: list[str]) -> dict:
+    """bench_service_load.load's open loop (request i due at start + i / rate, 32 client threads), each request
+    tagged (header x-bench-id: i) and timed on the monotonic clock the server's probe uses (bench/serve_probe.py)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    n = int(rate * seconds)
+    out, sent, done = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    status, late = np.zeros(n, int), np.zeros(n)
+    local = threading.local()
+    start = time.monotonic() + 0.5
+
+    def one(i: int) -> None:
+        client = getattr(local, "client", None) or httpx.Client(base_url=url, timeout=10)
+        local.client = client
+        due = start + i / rate
+        time.sleep(max(0.0, due - time.monotonic()))
+        late[i] = time.monotonic() - due
+        sent[i] = time.monotonic()
+        try:
+            r = client.get(routes[i % len(routes)], headers={"x-bench-id": str(i)})
+            r.read()
+            status[i] = r.status_code
+        except httpx.HTTPError:
+            status[i] = -1
+        done[i] = time.monotonic()
+        out[i] = done[i] - sent[i]
+
+    with ThreadPoolExecutor(max_workers=32) as pool:
+        list(pool.map(one, range(n)))
+    return {"latency_s": out, "status": status, "send_late_s": late, "n": n, "sent": sent, "done": done}
+
+
+def timeline(lat: dict, probe: Path) -> dict:
+    """Where the slow requests' time went: the client's send -> the server's ASGI entry (the client's threads, the
+    kernel, the event loop reaching the socket, uvicorn's parsing), the server's own span (the /metrics histogram's),
+    the server's exit -> the client's read done; and what overlapped the slowest 1 % (a gc pass, a late wake-up of a
+    thread that waits on nothing but the GIL)."""
+    rec = json.loads(probe.read_text())
+    srv = {rid: (route, t0, t1) for rid, route, t0, t1 in rec["req"] if 0 <= rid < lat["n"]}
+    ids = np.array(sorted(srv))
+    cs, cd = lat["sent"][ids], lat["done"][ids]
+    s0 = np.array([srv[i][1] for i in ids])
+    s1 = np.array([srv[i][2] for i in ids])
+    total, inside = (cd - cs) * 1e3, (s1 - s0) * 1e3
+    before, after = (s0 - cs) * 1e3, (cd - s1) * 1e3
+    slow = total >= np.percentile(total, 99)
+    gcs = np.array([(t, d) for t, d, gen, _ in rec["gc"] if gen == 2] or np.zeros((0, 2)))
+    wakes = np.array([(t, x) for t, x, _ in rec["wake"]] or np.zeros((0, 2)))
+    window = (cs.min(), cd.max())
+    in_win = (wakes[:, 0] >= window[0]) & (wakes[:, 0] <= window[1]) if len(wakes) else np.zeros(0, bool)
+
+    def overlaps(spans: np.ndarray, lo: np.ndarray, hi: np.ndarray, min_s: float) -> float:
+        big = spans[spans[:, 1] >= min_s] if len(spans) else spans
+        if not len(big):
+            return 0.0
+        return float(np.mean([np.any((big[:, 0] < h) & (big[:, 0] + big[:, 1] > lo_)) for lo_, h in zip(lo, hi)]))
+
+    def q(x: np.ndarray) -> dict:
+        return {"p50": float(np.percentile(x, 50)), "p99": float(np.percentile(x, 99)), "max": float(np.max(x))}
+
+    culprits: dict[str, int] = {}
+    for t, x, frames in rec["wake"]:
+        if window[0] <= t <= window[1] and x > 0.02:
+            for name, stack in frames.items():
+                if name.startswith("live-ingest") or name.startswith("listener"):
+                    key = f"{name.split('-')[0]}:{stack[-1] if stack else '?'}"
+                    culprits[key] = culprits.get(key, 0) + 1
+    return {"matched": int(len(ids)), "client_ms": q(total), "server_ms": q(inside),
+            "client_send_to_server_entry_ms": q(before), "server_exit_to_client_read_ms": q(after),
+            "slowest_1pct_median_ms": {"client": float(np.median(total[slow])),
+                                       "server": float(np.median(inside[slow])),
+                                       "before_server": float(np.median(before[slow])),
+                                       "after_server": float(np.median(after[slow]))},
+            "slowest_1pct_overlapping_gen2_gc_ge_10ms": overlaps(gcs, cs[slow], cd[slow], 0.010),
+            "slowest_1pct_overlapping_a_wake_late_ge_20ms": overlaps(wakes, cs[slow], cd[slow], 0.020),
+            "gen2_gc_during_load": {"n": int(np.sum((gcs[:, 0] >= window[0]) & (gcs[:, 0] <= window[1]))) if len(gcs)
+                                    else 0, "ms_max": float(gcs[:, 1].max() * 1e3) if len(gcs) else 0.0},
+            "wake_late_ms_during_load": {"n_over_3ms": int(in_win.sum()),
+                                         "over_20ms": int(np.sum(wakes[in_win, 1] > 0.02)) if len(wakes) else 0,
+                                         "max": float(wakes[in_win, 1].max() * 1e3) if in_win.any() else 0.0,
+                                         "per_s": float(in_win.sum() / (window[1] - window[0]))},
+            "threads_running_at_a_wake_late_ge_20ms": dict(sorted(culprits.items(), key=lambda kv: -kv[1])[:12]),
+            "switch_interval_s": rec["switch_interval_s"]}
 
 
 def context_switches(pid: int) -> tuple[int, int]:
@@ -305,6 +430,10 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=200.0)
     ap.add_argument("--settle", type=float, default=10.0, help="seconds after the first results before the load")
     ap.add_argument("--cpu", type=int, help="pin the server to this core (taskset)")
+    ap.add_argument("--probe", help="mix: serve under bench/serve_probe.py, its timeline to this JSON file")
+    ap.add_argument("--switch-interval", type=float, help="with --probe: serve's sys.setswitchinterval (s), a trial")
+    ap.add_argument("--api-default-policy", action="store_true",
+                    help="with --probe: serve's event loop and request threads back to SCHED_OTHER, a trial")
     ap.add_argument("--history-cycles", type=int, default=5000,
                     help="serve's history per engine: a short one shows the memory plateau in a short run")
     args = ap.parse_args()
@@ -313,7 +442,8 @@ def main() -> None:
                           "loadavg": os.getloadavg()}, indent=1, default=str))
         return
     engines = [f"g{i + 1}" for i in range(args.engines)]
-    proc, url = start_server(args.engines, args.cpu, args.history_cycles)
+    proc, url = start_server(args.engines, args.cpu, args.history_cycles, args.probe, args.switch_interval,
+                             args.api_default_policy)
     try:
         with httpx.Client(base_url=url, timeout=10) as client:
             first = wait_first_results(client, engines)
@@ -325,6 +455,12 @@ def main() -> None:
         t = time.monotonic()
         proc.wait(60)
         out.update(first_results_s=first, sigterm_exit_s=time.monotonic() - t, exit_code=proc.returncode)
+        time.sleep(0.5)  # the reader thread's last lines
+        said = [proc.lines.get_nowait().strip() for _ in range(proc.lines.qsize())]
+        out["stop_lines"] = [x for x in said if "stopped" in x]  # per engine: kernels compiled after the warm-up...
+        lat = out.pop("_lat", None)
+        if lat is not None:
+            out["timeline"] = timeline(lat, Path(args.probe))
         print(json.dumps({"mode": args.mode, "engines": args.engines, "seconds": args.seconds, "rate": args.rate,
                           "cpu": args.cpu, "history_cycles": args.history_cycles, "loadavg": os.getloadavg(), **out}, indent=1, default=float))
     finally:

@@ -29,6 +29,7 @@ from frictionwatch.drivers.logs.recorder import Recorder
 from frictionwatch.drivers.source import Source, open_source
 from frictionwatch.drivers.timebase import Clocks
 from frictionwatch.service.alerts import AlertConfig, AlertEngine
+from frictionwatch.service.app_gc import FrozenHeap
 from frictionwatch.service.cmd_analyze import SENSOR_HEALTH_HELP, monitor_config
 from frictionwatch.service.data_dir import CHECKPOINT_S, DataDir
 from frictionwatch.service.engine_service import EngineService
@@ -232,6 +233,8 @@ def _run(args: argparse.Namespace) -> int:
         print(f"frictionwatch serve: token for acknowledge and baseline (this run only): {token}", flush=True)
     # until each engine's first cycle the terminal says what it waits for (a fresh install compiles for 1-2 min)
     ticker = StartupTicker(lambda: services).start()
+    # the collector's full passes out of the request path (service/app_gc.py); one more once every engine started
+    heap = FrozenHeap(settled=lambda: all(s.last_result_s is not None for s in services)).start()
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on"))
     # uvicorn shuts down on SIGINT / SIGTERM (the lifespan stops every engine), then raises the signal again with
     # the handlers it found: these make that a normal end (exit 0) instead of death by the signal
@@ -241,6 +244,7 @@ def _run(args: argparse.Namespace) -> int:
         server.run(sockets=[sock])
     finally:
         ticker.stop()
+        heap.stop()
         sock.close()
         for s in services:  # what /health said while it ran, once more where the operator started it
             print(stop_summary(s), flush=True)
