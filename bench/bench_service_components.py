@@ -11,6 +11,7 @@ involuntary) per cycle analysed (design note 107: serve's threads preempting one
     .venv/bin/python -m bench.bench_service_components --engines 8 --py-spy /tmp/spyenv/bin/py-spy
     .venv/bin/python -m bench.bench_service_components --checkout ../base --engines 8 ...  # another checkout's serve
     taskset -c 1 .venv/bin/python -m bench.bench_service_components --engines 8 --one-thread 300  # no serve (below)
+    .venv/bin/python -m bench.bench_service_components --engines 8 --gc-freeze-after 60   # serve's heap frozen at 60 s
 
 The timers cost ~1 us a timed call (~35 calls a genset-v20 cycle, most of them per record: the assembler's and
 the pipeline's): compare checkouts with this bench, not its figures with bench_service_plant's. A checkout that
@@ -53,8 +54,10 @@ TIMED = (  # (module, class, method, component); the thread's prefix ("ingest", 
 )
 
 
-def serve_timed(argv: list[str], out: str) -> None:
-    """Run serve (``argv``) with the TIMED functions wrapped; cumulative totals written to ``out`` every second."""
+def serve_timed(argv: list[str], out: str, freeze_after_s: float | None = None) -> None:
+    """Run serve (``argv``) with the TIMED functions wrapped; cumulative totals written to ``out`` every second.
+    ``freeze_after_s``: that long after the start (past the warm-up), one full collection and ``gc.freeze()``, so
+    that later collections leave what serve made until then (its modules, numba's objects) out of their pass."""
     import importlib
 
     total: defaultdict[str, float] = defaultdict(float)
@@ -108,6 +111,14 @@ def serve_timed(argv: list[str], out: str) -> None:
 
     gc.callbacks.append(on_gc)
     threading.Thread(target=dump, name="bench-dump", daemon=True).start()
+    if freeze_after_s is not None:
+        def freeze() -> None:
+            time.sleep(freeze_after_s)
+            gc.collect()
+            gc.freeze()
+            print(f"bench_service_components: {gc.get_freeze_count()} objects frozen", file=sys.stderr)
+
+        threading.Thread(target=freeze, name="bench-freeze", daemon=True).start()
     from frictionwatch.service.cli import main
     sys.exit(main(argv))
 
@@ -123,7 +134,8 @@ def measure(args) -> dict:
     checkout = Path(args.checkout).resolve()
     live = tempfile.mktemp(prefix="fw-components-", suffix=".json")
     cmd = ["taskset", "-c", str(args.cpu), str(checkout / ".venv" / "bin" / "python"), str(Path(__file__).resolve()),
-           "--serve-timed", live, "serve", "--port", "0", "--history-cycles", "5000"]
+           "--serve-timed", live, *(["--gc-freeze-after", str(args.gc_freeze_after)] if args.gc_freeze_after else []),
+           "serve", "--port", "0", "--history-cycles", "5000"]
     for i in range(args.engines):
         cmd += ["--source", f"mcap:replay_logs/demo.mcap?loop=1&speed=1#g{i + 1}"]
     proc, url = launched(cmd, checkout, timeout_s=900)
@@ -232,7 +244,10 @@ def one_thread(engines: int, cycles: int, warm: int = 100) -> dict:
 
 def main() -> None:
     if len(sys.argv) > 2 and sys.argv[1] == "--serve-timed":  # the server process itself
-        serve_timed(sys.argv[3:], sys.argv[2])
+        if sys.argv[3] == "--gc-freeze-after":
+            serve_timed(sys.argv[5:], sys.argv[2], float(sys.argv[4]))
+        else:
+            serve_timed(sys.argv[3:], sys.argv[2])
         return
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench.* when run as a script
     ap = argparse.ArgumentParser()
@@ -245,6 +260,8 @@ def main() -> None:
     ap.add_argument("--one-thread", type=int, metavar="CYCLES",
                     help="no serve: the monitor of --engines looped demo logs on this thread, CYCLES each after a warm "
                          "stretch (pin it with taskset)")
+    ap.add_argument("--gc-freeze-after", type=float, metavar="S",
+                    help="S s after serve's start (past its warm-up): a full collection, then gc.freeze()")
     args = ap.parse_args()
     print(json.dumps(one_thread(args.engines, args.one_thread) if args.one_thread else measure(args), indent=1))
 
