@@ -4,6 +4,7 @@ one-job-at-a-time 409; a window too short fails with the workflow's own reason."
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 
@@ -172,3 +173,16 @@ def test_a_job_whose_process_dies_or_fails_says_so_in_one_line():
         run_job(None, [], None, 0, target=ends_without_a_word)
     with pytest.raises(JobProcessError, match=r"^KeyError: 'odd'$"):
         run_job(None, [], None, 0, target=reports_a_bug)
+
+
+def reports_its_policy(send, *args) -> None:
+    import os
+
+    send.send(("done", {"policy": os.sched_getscheduler(0)}))
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="Linux's SCHED_IDLE only")
+def test_the_jobs_process_runs_only_where_nothing_else_wants_the_cpu():
+    from frictionwatch.service.discrepancy_jobs import run_job
+
+    assert run_job(None, [], None, 0, target=reports_its_policy) == {"policy": os.SCHED_IDLE}
