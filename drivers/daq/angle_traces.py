@@ -26,7 +26,6 @@ fit's residual stays within the rounding; otherwise it is refused as not uniform
 from __future__ import annotations
 
 import re
-import warnings
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,6 +33,7 @@ from pathlib import Path
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.drivers.daq.pressure import polytropic_zero
+from frictionwatch.drivers.daq.table_text import numeric_rows
 from frictionwatch.drivers.daq.xlsx import read_sheet
 from frictionwatch.drivers.errors import CorruptLog
 
@@ -75,7 +75,7 @@ def read_angle_csv(path: str | Path) -> PressureCycles:
             body = fh.read()
     except UnicodeDecodeError as exc:
         raise CorruptLog(f"{p.name}: not a numeric crank-angle CSV ({' '.join(str(exc).split())})") from None
-    data, notes = _csv_rows(body, p.name)
+    data, notes = numeric_rows(body, p.name, "numeric crank-angle CSV", delimiter=",")
     cyl_cols = [i for i, h in enumerate(header) if re.fullmatch(r"p_cyl\d+_bar", h) and int(h[5:-4]) >= 1]
     if "crank_angle_deg" not in header or len(cyl_cols) != 1:
         raise CorruptLog(f"{p.name}: expected a header with crank_angle_deg and one p_cyl<k>_bar column (k the "
@@ -129,23 +129,6 @@ def implausible(bar: np.ndarray) -> str:
 
 def _skips(skipped: Counter) -> str:
     return f"{sum(skipped.values())} cycle(s) skipped: " + ", ".join(f"{n} {why}" for why, n in skipped.items())
-
-
-def _csv_rows(body: str, name: str) -> tuple[np.ndarray, list[str]]:
-    """The numeric rows of a CSV body, and a note when a last line cut short was dropped (docstring above)."""
-    lines = body.splitlines()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)  # "input contained no data": the row count check says it
-        try:
-            return np.loadtxt(lines, delimiter=",", ndmin=2), []
-        except ValueError as exc:
-            if body.endswith(("\n", "\r")) or len(lines) < 2:
-                raise CorruptLog(f"{name}: not a numeric crank-angle CSV ({' '.join(str(exc).split())})") from None
-        try:
-            rows = np.loadtxt(lines[:-1], delimiter=",", ndmin=2)
-        except ValueError as exc:
-            raise CorruptLog(f"{name}: not a numeric crank-angle CSV ({' '.join(str(exc).split())})") from None
-    return rows, [f"the last line, cut short ({lines[-1][:40]!r}, no line end), was dropped"]
 
 
 def uniform_time(stamps: np.ndarray, name: str) -> np.ndarray:

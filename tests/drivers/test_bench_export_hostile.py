@@ -8,6 +8,7 @@ import zipfile
 import numpy as np
 import pytest
 from frictionwatch.drivers.daq.angle_traces import read_angle_csv
+from frictionwatch.drivers.daq.raw import read_daq_table
 from frictionwatch.drivers.daq.xlsx import read_sheet
 from frictionwatch.drivers.errors import CorruptLog
 from numpy.testing import assert_allclose
@@ -126,3 +127,25 @@ def test_xlsx_an_empty_cell_without_a_reference_still_takes_its_place(tmp_path):
             z.writestr(name, data)
     _, data = read_sheet(path)
     assert_allclose(data, [[0.0, np.nan, 7.0], [1.0, 2.5, 8.0]])
+
+
+def daq_text(rows: int = 400) -> str:
+    t = np.arange(rows) * 1e-5
+    return "".join(f"{a:.6e}\t{np.sin(a * 2e4):.6e}\t{np.cos(a * 1e3):.6e}\n" for a in t)
+
+
+def test_a_daq_table_cut_mid_line_keeps_every_whole_row_and_says_so(tmp_path):
+    text = daq_text()
+    whole = read_daq_table(write(tmp_path, text, "whole.txt"))
+    cut = read_daq_table(write(tmp_path, text + "4.000000e-03\t1.2", "cut.txt"))  # the next row, cut short
+    assert cut.n == whole.n == 400 and not whole.notes
+    assert_allclose(cut.wheel_v, whole.wheel_v, rtol=1e-12)
+    assert_allclose(cut.pressure_v, whole.pressure_v, rtol=1e-12)
+    assert any("last line" in n and "dropped" in n for n in cut.notes)
+
+
+def test_a_daq_table_with_a_short_line_inside_is_still_refused(tmp_path):
+    lines = daq_text().splitlines()
+    lines[200] = lines[200].rsplit("\t", 1)[0]
+    with pytest.raises(CorruptLog, match="bad.txt: not a numeric DAQ table"):
+        read_daq_table(write(tmp_path, "\n".join(lines), "bad.txt"))
