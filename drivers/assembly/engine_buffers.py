@@ -31,6 +31,10 @@ log = logging.getLogger(__name__)
 _F64 = np.dtype(np.float64)
 _I64 = np.dtype(np.int64)
 _isfinite = math.isfinite
+# A load reading beyond what any brake or generator gives (the largest engines: ~8 MN m, ~80 MW) is not a reading:
+# filed as NaN, i.e. not measured, as a missing one is, rather than a mean load of 1e300 N m (design note 142).
+LOAD_LIMIT_NM = 1e8
+LOAD_LIMIT_W = 1e10
 
 
 class EngineBuffers:
@@ -77,7 +81,13 @@ class EngineBuffers:
         if last is not None and record.ticks <= last:
             self.rejected["load"] += 1
             return 0
-        ring.append(record.ticks, record.torque, record.power)
+        torque, power = record.torque, record.power
+        if not (abs(torque) <= LOAD_LIMIT_NM and abs(power) <= LOAD_LIMIT_W):  # NaN: not measured, kept as it is
+            if abs(torque) > LOAD_LIMIT_NM:
+                torque, self.rejected["load_out_of_range"] = math.nan, self.rejected["load_out_of_range"] + 1
+            if abs(power) > LOAD_LIMIT_W:
+                power, self.rejected["load_out_of_range"] = math.nan, self.rejected["load_out_of_range"] + 1
+        ring.append(record.ticks, torque, power)
         return 1
 
     def _add_ticks(self, ring: RingBuffer, ticks: np.ndarray, stream: str) -> int:

@@ -5,9 +5,9 @@ IMEP 7e37 bar, and overflowed the monitor's state for the next eight cycles."""
 
 import numpy as np
 import pytest
-from frictionwatch.core.types import PressureBlock, PressureFrame
+from frictionwatch.core.types import LoadSample, PressureBlock, PressureFrame
 from frictionwatch.drivers.assembly.cycles import CycleAssembler
-from frictionwatch.drivers.assembly.engine_buffers import PRESSURE_LIMIT_PA, EngineBuffers
+from frictionwatch.drivers.assembly.engine_buffers import LOAD_LIMIT_NM, LOAD_LIMIT_W, PRESSURE_LIMIT_PA, EngineBuffers
 
 from tests.drivers.synth_stream import Motion, Stream
 
@@ -72,3 +72,18 @@ def test_a_one_cylinder_frame_shares_the_ring_and_the_check():
     assert buf.add_frame(PressureFrame((3,), 0, 100.0, values)) == 3
     np.testing.assert_array_equal(buf.pressure[3].view("p"), [1e5, np.nan, 2e5])
     assert buf.rejected["pressure_out_of_range"] == 1 and values[0, 1] == np.inf
+
+
+def test_a_load_reading_no_brake_can_give_is_not_measured(clean):
+    """A torque of 1e300 N m (a foreign log's glitch) came out as the run's mean load torque; filed as NaN it is
+    'not measured' like any missing reading. Readings within LOAD_LIMIT_NM / LOAD_LIMIT_W are kept exactly."""
+    s, recs, good = clean
+    assert any(isinstance(r, LoadSample) for r in recs)
+    bad = [LoadSample(r.ticks, 1e300, -np.inf) if isinstance(r, LoadSample) else r for r in recs]
+    out, asm = run(bad, s)
+    assert [c.index for c in out] == [c.index for c in good]
+    assert all(np.isnan(c.load_torque) and np.isnan(c.load_power) for c in out)
+    assert asm.buf.rejected["load_out_of_range"] == 2 * sum(isinstance(r, LoadSample) for r in recs)
+    buf = EngineBuffers()
+    buf.add_load(LoadSample(1, -LOAD_LIMIT_NM, LOAD_LIMIT_W))
+    assert buf.load.last("torque") == -LOAD_LIMIT_NM and buf.load.last("power") == LOAD_LIMIT_W
