@@ -108,9 +108,10 @@ def read_angle_csv(path: str | Path) -> PressureCycles:
 
 
 # An absolute cylinder pressure lies above 0 bar, below any engine's peak (the largest diesels fire at ~300 bar;
-# 500 is the bound: the assembly's 1000 bar, drivers/assembly/ringbuffer.py, is a sensor's), and swings by the compression at least (a motored engine at cranking speed: > 5 bar; 1 bar is kept as a
-# floor well under that). Outside these a trace is a gauge trace stored negated, a dead sensor, or volts or Pa
-# written as bar: an IMEP from it would be a number that should not come out.
+# 500 is the bound here, the assembly's 1000 bar in drivers/assembly/ringbuffer.py is a sensor's), and swings by the
+# compression at least (a motored engine at cranking speed: > 5 bar; 1 bar is kept as a floor well under that).
+# Outside these a trace is a gauge trace stored negated, a dead sensor, or volts or Pa written as bar: an IMEP from
+# it would be a number that should not come out.
 PLAUSIBLE_BAR = (0.0, 500.0)
 MIN_SWING_BAR = 1.0
 
