@@ -79,6 +79,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--peg-bar {args.peg_bar:g} must be > 0 and --n-poly {args.n_poly:g} in (1, 1.7)")
     check_output_path(args.output)  # before reading and converting the table, not after
     trace = read_daq_table(args.file)
+    for note in trace.notes:
+        print(f"{args.file.name}: {note}")
     wheel, seen = trace_wheel(trace, args.wheel)
     if args.wheel is None:
         print(f"wheel {wheel}, read from the file: {seen}")

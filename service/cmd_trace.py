@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -61,9 +62,9 @@ def trace_document(path: Path, engine: str | None, gain_bar_per_v: float | None,
         raise ValueError(f"{path.name} is a pressure trace: name the engine with --engine (its geometry gives IMEP)")
     spec = load_engine(engine)
     if kind == "encoder-xlsx":
-        if gain_bar_per_v is None or not gain_bar_per_v > 0:
+        if gain_bar_per_v is None or not 0 < gain_bar_per_v < math.inf:
             raise ValueError(f"{path.name}: the pressure column is in volts; give the sensor gain with "
-                             "--gain-bar-per-v (> 0)")
+                             "--gain-bar-per-v (a finite number > 0)")
         cycles = read_encoder_table(path, spec, gain_bar_per_v * 1e5)
     else:
         cycles = read_angle_csv(path)
@@ -95,8 +96,8 @@ def pressure_document(pc: PressureCycles, spec: EngineSpec, kind: str, brake_tor
     if brake_torque_nm is None:
         not_measured.append("FMEP as IMEP - BMEP: give the bench's brake torque with --brake-torque-nm")
     else:
-        if not brake_torque_nm >= 0:
-            raise ValueError(f"--brake-torque-nm {brake_torque_nm:g} must be >= 0")
+        if not 0 <= brake_torque_nm < math.inf:  # inf would print an FMEP of -inf, NaN one of NaN
+            raise ValueError(f"--brake-torque-nm {brake_torque_nm:g} must be a finite number >= 0")
         bmep = spec.torque_to_mep(brake_torque_nm)
         doc["brake"] = {"torque_nm": brake_torque_nm, "bmep_bar": bmep / 1e5,
                         "imep_minus_bmep_bar": doc["imep_bar"] - bmep / 1e5,

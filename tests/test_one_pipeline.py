@@ -26,6 +26,7 @@ ALLOWED = {
     "tests/core/test_checks_interface.py": "the unit tests of process_cycle's checks (a spy check passed in)",
     "tests/drivers/test_cycles.py": "the unit tests of the cycle assembler",
     "tests/drivers/test_pressure_frames.py": "the assembler's tests on pressure frames and blocks",
+    "tests/drivers/test_pressure_out_of_range.py": "the assembler's ingest limits (test_cycles' faults)",
     "tests/drivers/test_two_wheels.py": "the unit tests of the two-wheel assembler (its wheel2_missing counters)",
     "bench/common.py": "timed_assembly times the assembler alone (bench/bench_cycles.py)",
     # the tooth learner's step alone (fit_cycle_teeth from the initial state's learner), against the simulator's

@@ -86,6 +86,25 @@ def _second_wheel(se: _Reader, names: list[str], origin: str) -> SecondWheelPara
                              node=names.index(node))
 
 
+SAME_ANGLE_DEG = 1e-3  # two firing angles closer than this (mod 720 deg) are one angle
+
+
+def _one_angle_each(deg: np.ndarray, origin: str) -> np.ndarray:
+    """``cylinders.firing_angles_deg`` as the crank-angle convention needs it: cylinder 1 at 0 (the angle's origin)
+    and every cylinder at its own angle, 720 being 0 again. Else a pressure trace is placed at another cylinder's
+    TDC and every figure is wrong, not refused."""
+    if deg[0] != 0.0:
+        raise SpecError(f"{origin}: cylinders.firing_angles_deg[0] = {deg[0]:g}; cylinder 1 fires at 0 deg (the "
+                        "crank angle's origin)")
+    for i in range(1, deg.shape[0]):
+        gap = np.abs((deg[:i] - deg[i] + 360.0) % 720.0 - 360.0)
+        if gap.min() < SAME_ANGLE_DEG:
+            j = int(np.argmin(gap))
+            raise SpecError(f"{origin}: cylinders.firing_angles_deg[{i}] = {deg[i]:g} is cylinder {j + 1}'s angle "
+                            "too; each cylinder fires at its own angle in 0..720 deg")
+    return deg
+
+
 class _Reader:
     """Reads fields from one TOML table and names the path of a missing or bad one."""
 
@@ -196,13 +215,16 @@ def spec_from_dict(data: dict, source_text: str = "", origin: str = "<dict>") ->
 
     c = r.table("cylinders")
     z = c.int_("count", 1, 24)
-    firing = np.radians(c.arr("firing_angles_deg", 0.0, 720.0, "deg", length=z))
+    firing = np.radians(_one_angle_each(c.arr("firing_angles_deg", 0.0, 720.0, "deg", length=z), origin))
     m_rec = c.num("reciprocating_mass_kg", 0.01, 500.0, "kg")
 
     s = r.table("shaft")
     names = s.get("nodes")
     if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
         raise SpecError(f"{origin}: shaft.nodes must be a list of node names")
+    twice = [x for i, x in enumerate(names) if x in names[:i]]
+    if twice:  # a cylinder or the flywheel named by it would silently go to the first
+        raise SpecError(f"{origin}: shaft.nodes names {twice[0]!r} twice; each node needs its own name")
     n = len(names)
     inertia = s.arr("inertia_kgm2", 1e-6, 1e5, "kg m^2", length=n)
     if n > 1:

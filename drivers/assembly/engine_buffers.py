@@ -25,12 +25,16 @@ import numpy as np
 from frictionwatch.core.types import CamBatch, LoadSample, PressureBlock, PressureFrame, StreamRecord, ToothBatch
 from frictionwatch.drivers.assembly.frame_store import FrameGroup
 from frictionwatch.drivers.assembly.pressure_ring import PressureChannel, PressureGroup, write_frame
-from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, write_block
+from frictionwatch.drivers.assembly.ringbuffer import PRESSURE_LIMIT_PA, RingBuffer, write_block
 
 log = logging.getLogger(__name__)
 _F64 = np.dtype(np.float64)
 _I64 = np.dtype(np.int64)
 _isfinite = math.isfinite
+# A load reading beyond what any brake or generator gives (the largest engines: ~8 MN m, ~80 MW) is not a reading:
+# filed as NaN, i.e. not measured, as a missing one is, rather than a mean load of 1e300 N m (design note 142).
+LOAD_LIMIT_NM = 1e8
+LOAD_LIMIT_W = 1e10
 
 
 class EngineBuffers:
@@ -77,7 +81,13 @@ class EngineBuffers:
         if last is not None and record.ticks <= last:
             self.rejected["load"] += 1
             return 0
-        ring.append(record.ticks, record.torque, record.power)
+        torque, power = record.torque, record.power
+        if not (abs(torque) <= LOAD_LIMIT_NM and abs(power) <= LOAD_LIMIT_W):  # NaN: not measured, kept as it is
+            if abs(torque) > LOAD_LIMIT_NM:
+                torque, self.rejected["load_out_of_range"] = math.nan, self.rejected["load_out_of_range"] + 1
+            if abs(power) > LOAD_LIMIT_W:
+                power, self.rejected["load_out_of_range"] = math.nan, self.rejected["load_out_of_range"] + 1
+        ring.append(record.ticks, torque, power)
         return 1
 
     def _add_ticks(self, ring: RingBuffer, ticks: np.ndarray, stream: str) -> int:
@@ -160,7 +170,7 @@ class EngineBuffers:
         if first:
             v = v[first:]
         i, skip = group.reserve(v.size)
-        write_block(group.t, group.p[0], i, t0 + skip * period, float(period), v[skip:])
+        self._out_of_range(write_block(group.t, group.p[0], i, t0 + skip * period, float(period), v[skip:]))
         group.period = float(period)  # a hole the whole window falls in (pressure_kernels.window_weights)
         return int(v.size)
 
@@ -222,12 +232,32 @@ class EngineBuffers:
         if first >= n:
             return 0
         if k > 1:
-            group.add(t0, float(period), v, first)
+            group.add(t0, float(period), self._valid(v), first)  # kept by reference: a copy if it must change
         else:  # a one-cylinder frame shares the ring of its cylinder's blocks
             i, skip = group.reserve(n - first)
-            write_frame(group.t, group.p, i, t0 + skip * period, float(period), v, first + skip)
+            self._out_of_range(write_frame(group.t, group.p, i, t0 + skip * period, float(period), v, first + skip))
             group.period = float(period)
         return int(n - first) * k
+
+    def _valid(self, v: np.ndarray) -> np.ndarray:
+        """``v`` with every value beyond +-PRESSURE_LIMIT_PA (ringbuffer.py: an invalid sample) as NaN: a new array,
+        ``v`` itself when none is (the kernels that copy blocks into rings do the same as they copy)."""
+        lo, hi = v.min(), v.max()  # NaN if v holds one: then look closer (a NaN alone is kept as it is)
+        if -PRESSURE_LIMIT_PA <= lo and hi <= PRESSURE_LIMIT_PA:
+            return v
+        bad = np.abs(v) > PRESSURE_LIMIT_PA  # NaN compares False: kept
+        if not self._out_of_range(int(np.count_nonzero(bad))):
+            return v
+        return np.where(bad, np.nan, v)
+
+    def _out_of_range(self, n: int) -> int:
+        """Count ``n`` pressure samples filed as NaN for being out of range (logged once)."""
+        if n:
+            if not self.rejected["pressure_out_of_range"]:
+                log.warning("pressure samples beyond +-%g Pa filed as invalid (NaN); counted in "
+                            "rejected['pressure_out_of_range']", PRESSURE_LIMIT_PA)
+            self.rejected["pressure_out_of_range"] += n
+        return n
 
     def release_before(self, t_keep: float, load_hold_ticks: float, cam_next: int) -> None:
         """Release what a consumer at tick ``t_keep`` no longer needs: pressure rows before it (two are kept before

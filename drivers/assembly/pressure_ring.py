@@ -20,7 +20,7 @@ import numba
 import numpy as np
 from frictionwatch.core.types import PressureBlock, PressureFrame
 from frictionwatch.drivers.assembly.pressure_kernels import pressure_rows
-from frictionwatch.drivers.assembly.ringbuffer import RingBuffer, search_sorted
+from frictionwatch.drivers.assembly.ringbuffer import PRESSURE_LIMIT_PA, RingBuffer, search_sorted
 
 
 class PressureGroup:
@@ -110,7 +110,8 @@ class PressureChannel(RingBuffer):
 @numba.njit(cache=True)
 def write_frame(col_t, block_p, i, t0, period, values, s0):
     """Write samples s0.. of a (k, n) frame, sample s at t0 + (s - s0) period, from slot i of the mirrored time
-    column and value block (wrapping at their half; the same times as ``drivers.assembly.ringbuffer.write_block``)."""
+    column and value block (wrapping at their half; the same times as ``drivers.assembly.ringbuffer.write_block``);
+    a value beyond +-PRESSURE_LIMIT_PA is written as NaN. Returns the number of such values."""
     cap = col_t.shape[0] // 2
     k, n = values.shape
     m = n - s0
@@ -120,15 +121,17 @@ def write_frame(col_t, block_p, i, t0, period, values, s0):
         j = i + q if q < first else q - first
         col_t[j] = t
         col_t[j + cap] = t
+    bad = 0
     for r in range(k):
-        for q in range(first):
+        for q in range(m):
             x = values[r, s0 + q]
-            block_p[r, i + q] = x
-            block_p[r, i + q + cap] = x
-        for q in range(first, m):
-            x = values[r, s0 + q]
-            block_p[r, q - first] = x
-            block_p[r, q - first + cap] = x
+            if abs(x) > PRESSURE_LIMIT_PA:  # an invalid sample (ringbuffer.PRESSURE_LIMIT_PA); NaN compares False
+                x = np.nan
+                bad += 1
+            j = i + q if q < first else q - first
+            block_p[r, j] = x
+            block_p[r, j + cap] = x
+    return bad
 
 
 def frame_blocks(frame: PressureFrame) -> list[PressureBlock]:

@@ -205,15 +205,30 @@ def _write_increasing(col, start, end, i, t, skip):
     return True
 
 
+# No cylinder pressure sensor reads beyond +-1000 bar (transducers end at 250-1000 bar; a bad pegging or charge-amp
+# drift is a few bar): a value beyond it, or infinite, is an invalid sample and is filed as NaN (PressureBlock's own
+# convention), so its cycle is skipped as 'pressure_nan' and counted rather than given an IMEP of 1e22 bar that
+# also overflows the monitor's state (design note 142). Checked as the samples are copied into the ring: no pass
+# of its own.
+PRESSURE_LIMIT_PA = 1e8
+
+
 @numba.njit(cache=True)
 def write_block(col_t, col_p, i, t0, period, values):
-    """Write samples t0 + k period, values[k] from slot i of two mirrored columns (wrapping at their half)."""
+    """Write samples t0 + k period, values[k] from slot i of two mirrored columns (wrapping at their half); a value
+    beyond +-PRESSURE_LIMIT_PA is written as NaN. Returns the number of such values."""
     cap = col_t.shape[0] // 2
+    bad = 0
     for k in range(values.shape[0]):
         j = (i + k) % cap
         t = t0 + k * period
         col_t[j] = t
         col_t[j + cap] = t
-        col_p[j] = values[k]
-        col_p[j + cap] = values[k]
+        x = values[k]
+        if abs(x) > PRESSURE_LIMIT_PA:  # NaN compares False: kept as it is
+            x = np.nan
+            bad += 1
+        col_p[j] = x
+        col_p[j + cap] = x
+    return bad
 

@@ -25,12 +25,15 @@ fit's residual stays within the rounding; otherwise it is refused as not uniform
 
 from __future__ import annotations
 
+import re
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.drivers.daq.pressure import polytropic_zero
+from frictionwatch.drivers.daq.table_text import numeric_rows
 from frictionwatch.drivers.daq.xlsx import read_sheet
 from frictionwatch.drivers.errors import CorruptLog
 
@@ -60,18 +63,23 @@ def cycle_grid(points: int = GRID_POINTS) -> np.ndarray:
 
 def read_angle_csv(path: str | Path) -> PressureCycles:
     """A crank-angle pressure table (module docstring). Needs a header naming ``crank_angle_deg`` and one
-    ``p_cyl<k>_bar`` column, one 720 deg cycle (several are cut at the -360 deg wrap)."""
+    ``p_cyl<k>_bar`` column, one 720 deg cycle (several are cut at the -360 deg wrap).
+
+    As Excel and copies leave them: a UTF-8 byte-order mark and quoted header names are read; a last line cut short
+    (no line end, too few values: the file was copied while written) is dropped and said, not the whole file. A
+    cycle that cannot be an absolute cylinder pressure (``implausible``) is skipped and counted in the notes."""
     p = Path(path)
     try:
-        with p.open(encoding="utf-8") as fh:
-            header = [h.strip() for h in fh.readline().split(",")]
-            data = np.loadtxt(fh, delimiter=",", ndmin=2)
-    except (UnicodeDecodeError, ValueError) as exc:
+        with p.open(encoding="utf-8-sig") as fh:  # -sig: Excel's "CSV UTF-8" starts with a byte-order mark
+            header = [h.strip().strip('"').strip() for h in fh.readline().split(",")]
+            body = fh.read()
+    except UnicodeDecodeError as exc:
         raise CorruptLog(f"{p.name}: not a numeric crank-angle CSV ({' '.join(str(exc).split())})") from None
-    cyl_cols = [i for i, h in enumerate(header) if h.startswith("p_cyl") and h.endswith("_bar")]
+    data, notes = numeric_rows(body, p.name, "numeric crank-angle CSV", delimiter=",")
+    cyl_cols = [i for i, h in enumerate(header) if re.fullmatch(r"p_cyl\d+_bar", h) and int(h[5:-4]) >= 1]
     if "crank_angle_deg" not in header or len(cyl_cols) != 1:
-        raise CorruptLog(f"{p.name}: expected a header with crank_angle_deg and one p_cyl<k>_bar column, got "
-                         f"{', '.join(header)}")
+        raise CorruptLog(f"{p.name}: expected a header with crank_angle_deg and one p_cyl<k>_bar column (k the "
+                         f"cylinder, from 1), got {', '.join(header)}")
     if data.shape[0] < 360 or data.shape[1] < len(header):
         raise CorruptLog(f"{p.name}: {data.shape[0]} rows; a cycle needs at least 360")
     angle, bar = data[:, header.index("crank_angle_deg")], data[:, cyl_cols[0]]
@@ -80,18 +88,48 @@ def read_angle_csv(path: str | Path) -> PressureCycles:
     cylinder = int(header[cyl_cols[0]][5:-4])
     starts = np.flatnonzero(np.isclose(np.mod(angle + 360.0, 720.0), 0.0))  # each -360 deg (mod 720) opens a cycle
     grid = cycle_grid()
-    cycles = []
+    cycles, skipped = [], Counter()
     for a in starts:
         sel = slice(a, a + np.searchsorted(angle[a:], angle[a] + 720.0))
         th = angle[sel] - angle[a] - 360.0
         step = np.max(np.diff(th)) if th.size > 1 else np.inf
         if th[-1] + step >= 360.0 - 1e-9 and step <= 1.0:  # complete, and no step wider than 1 deg
-            cycles.append(np.interp(grid, th, bar[sel] * 1e5, period=720.0))
+            why = implausible(bar[sel])
+            if why:
+                skipped[why] += 1
+            else:
+                cycles.append(np.interp(grid, th, bar[sel] * 1e5, period=720.0))
     if not cycles:
-        raise CorruptLog(f"{p.name}: no complete 720 deg cycle from -360 deg (angles {angle[0]:g}..{angle[-1]:g})")
-    return PressureCycles(p.name, cylinder, grid, np.array(cycles), np.full(len(cycles), np.nan),
-                          (f"{len(cycles)} cycle(s) of absolute pressure [bar] in the crank-angle domain, "
-                           "angle 0 = firing TDC as the file states",))
+        what = f"; {_skips(skipped)}" if skipped else f" (angles {angle[0]:g}..{angle[-1]:g})"
+        raise CorruptLog(f"{p.name}: no complete 720 deg cycle of absolute pressure from -360 deg{what}")
+    notes = [f"{len(cycles)} cycle(s) of absolute pressure [bar] in the crank-angle domain, angle 0 = firing TDC as "
+             "the file states", *notes] + ([_skips(skipped)] if skipped else [])
+    return PressureCycles(p.name, cylinder, grid, np.array(cycles), np.full(len(cycles), np.nan), tuple(notes))
+
+
+# An absolute cylinder pressure lies above 0 bar, below any engine's peak (the largest diesels fire at ~300 bar;
+# 500 is the bound here, the assembly's 1000 bar in drivers/assembly/ringbuffer.py is a sensor's), and swings by the
+# compression at least (a motored engine at cranking speed: > 5 bar; 1 bar is kept as a floor well under that).
+# Outside these a trace is a gauge trace stored negated, a dead sensor, or volts or Pa written as bar: an IMEP from
+# it would be a number that should not come out.
+PLAUSIBLE_BAR = (0.0, 500.0)
+MIN_SWING_BAR = 1.0
+
+
+def implausible(bar: np.ndarray) -> str:
+    """Why one cycle's absolute pressure [bar] cannot be a cylinder's ('' if it can)."""
+    lo, hi = float(bar.min()), float(bar.max())
+    if lo < PLAUSIBLE_BAR[0]:
+        return f"below {PLAUSIBLE_BAR[0]:g} bar absolute"
+    if hi > PLAUSIBLE_BAR[1]:
+        return f"above {PLAUSIBLE_BAR[1]:g} bar"
+    if hi - lo < MIN_SWING_BAR:
+        return f"flat (swings less than {MIN_SWING_BAR:g} bar: no compression)"
+    return ""
+
+
+def _skips(skipped: Counter) -> str:
+    return f"{sum(skipped.values())} cycle(s) skipped: " + ", ".join(f"{n} {why}" for why, n in skipped.items())
 
 
 def uniform_time(stamps: np.ndarray, name: str) -> np.ndarray:

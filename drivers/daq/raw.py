@@ -27,7 +27,6 @@ from __future__ import annotations
 import gzip
 import logging
 import math
-import warnings
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,6 +42,7 @@ from frictionwatch.drivers.daq.pressure import (
     sortable_angle,
     wheel_angle_of_samples,
 )
+from frictionwatch.drivers.daq.table_text import numeric_rows
 from frictionwatch.drivers.daq.teeth import ToothEdges, WheelPattern, edge_ticks, wheel_pattern
 from frictionwatch.drivers.daq.teeth import detect_teeth as _detect_teeth_signal
 from frictionwatch.drivers.errors import CorruptLog
@@ -63,6 +63,7 @@ class DaqTrace:
     wheel_v: np.ndarray
     pressure_v: np.ndarray
     columns: tuple[int, int]  # 1-based (wheel, pressure) columns used
+    notes: tuple[str, ...] = ()  # how the file was read, in words (a dropped cut last line)
 
     @property
     def n(self) -> int:
@@ -85,13 +86,13 @@ def read_daq_table(path: str | Path, columns: tuple[int, int] | None = None) -> 
     p = Path(path)
     opener = gzip.open if p.suffix == ".gz" else open
     try:
-        with opener(p, "rb") as fh, warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # "input contained no data": the size check below says it
-            a = np.loadtxt(fh, dtype=np.float64, ndmin=2)
+        with opener(p, "rb") as fh:
+            text = fh.read().decode("latin-1")  # numbers are ASCII; any other byte is refused by the parse
     except FileNotFoundError:
         raise
-    except (OSError, ValueError, EOFError) as exc:
+    except (OSError, EOFError) as exc:
         raise CorruptLog(f"{p.name}: not a numeric DAQ table: {' '.join(str(exc).split())}") from exc
+    a, notes = numeric_rows(text, p.name, "numeric DAQ table")
     if a.size == 0:
         raise CorruptLog(f"{p.name}: empty file (no data rows)")
     if a.shape[0] < 100 or a.shape[1] < 3:
@@ -117,6 +118,7 @@ def read_daq_table(path: str | Path, columns: tuple[int, int] | None = None) -> 
         wheel_v=np.ascontiguousarray(a[:, wc - 1]),
         pressure_v=np.ascontiguousarray(a[:, pc - 1]),
         columns=(wc, pc),
+        notes=tuple(notes),
     )
 
 

@@ -62,10 +62,17 @@ def read_sheet(path: str | Path, sheet: str | None = None) -> tuple[list[str], n
             name, part = _sheet_part(z, sheet)
             strings = _shared_strings(z)
             rows: dict[int, dict[int, object]] = {}
+            row, col = 0, -1  # where a cell without a reference goes: after the one before it (ECMA-376 18.3.1.4)
             with z.open(part) as fh:
-                for _, c in ElementTree.iterparse(fh):
+                for event, c in ElementTree.iterparse(fh, ("start", "end")):
+                    if event == "start":
+                        if c.tag == f"{MAIN}row":
+                            row, col = int(c.get("r", row + 1)), -1
+                        continue
                     if c.tag != f"{MAIN}c":
                         continue
+                    ref = c.get("r")
+                    row, col = (int(_CELL.match(ref).group(2)), _column(ref)) if ref else (row, col + 1)
                     v, kind = c.find(f"{MAIN}v"), c.get("t", "n")
                     if kind == "inlineStr":
                         value: object = "".join(t.text or "" for t in c.iter(f"{MAIN}t"))
@@ -78,8 +85,7 @@ def read_sheet(path: str | Path, sheet: str | None = None) -> tuple[list[str], n
                         value = v.text
                     else:
                         value = float(v.text)
-                    ref = _CELL.match(c.get("r"))
-                    rows.setdefault(int(ref.group(2)), {})[_column(c.get("r"))] = value
+                    rows.setdefault(row, {})[col] = value
                     c.clear()
     except (zipfile.BadZipFile, KeyError, ElementTree.ParseError, StopIteration, ValueError, IndexError,
             AttributeError) as exc:

@@ -1,6 +1,7 @@
 """EngineSpec presets load, derived values match engines.md, and bad files name the bad field."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -60,3 +61,27 @@ def test_unknown_preset_lists_the_known_ones():
 def test_not_toml():
     with pytest.raises(SpecError, match="not valid TOML"):
         spec_from_toml_text("name = ", origin="x.toml")
+
+
+@pytest.mark.parametrize(
+    "old,new,message",
+    [  # design note 142: a firing order that is not one angle per cylinder would place a pressure trace wrongly
+        ("[0.0, 540.0, 180.0, 360.0]", "[0.0, 0.0, 180.0, 360.0]",
+         "cylinders.firing_angles_deg[1] = 0 is cylinder 1's angle too"),
+        ("[0.0, 540.0, 180.0, 360.0]", "[0.0, 540.0, 180.0, 720.0]",
+         "cylinders.firing_angles_deg[3] = 720 is cylinder 1's angle too"),
+        ("[0.0, 540.0, 180.0, 360.0]", "[90.0, 630.0, 270.0, 450.0]",
+         "cylinders.firing_angles_deg[0] = 90; cylinder 1 fires at 0 deg"),
+        ('"throw3", "throw4", "flywheel"', '"throw3", "throw3", "flywheel"', "shaft.nodes names 'throw3' twice"),
+    ],
+)
+def test_a_firing_order_or_shaft_that_is_not_one_of_each_is_named(old, new, message):
+    text = _k9k_text()
+    assert old in text
+    with pytest.raises(SpecError, match=re.escape(f"bad.toml: {message}")):
+        spec_from_toml_text(text.replace(old, new, 1), origin="bad.toml")
+
+
+def test_the_genset_firing_order_with_a_small_rounding_still_loads():
+    text = load_engine("genset-v20").source_text.replace("36.0,", "36.0000001,", 1)
+    assert_allclose(np.degrees(spec_from_toml_text(text).firing_angles[1]), 36.0000001, rtol=1e-12)
