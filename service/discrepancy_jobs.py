@@ -138,8 +138,8 @@ class JobProcessError(RuntimeError):
 
 def run_job(info: Any, records: list, model: Any, max_steps: int, target: Any = None) -> dict:
     """The workflow on ``records`` with ``model`` (the baseline already applied: run_discrepancy gets 'default') in
-    a spawned child process of the lowest priority (``lowest_priority``), as plain JSON values. Raises ValueError with the
-    workflow's own refusal (too few cycles, none analysed), JobProcessError for anything else. The child is a
+    a spawned child process of the lowest priority (``lowest_priority``), as plain JSON values. Raises ValueError
+    with the workflow's own refusal (too few cycles, none analysed), JobProcessError for anything else. The child is a
     daemon: it ends with serve. ``target``: the child's function (default ``_job_process``; a test's stand-in)."""
     ctx = multiprocessing.get_context("spawn")  # not fork: serve's threads and locks are not the child's
     receive, send = ctx.Pipe(duplex=False)
