@@ -18,6 +18,7 @@ from frictionwatch.service.cli import main
 from frictionwatch.service.cmd_discrepancy import run_discrepancy
 from frictionwatch.service.engine_service import RecentRecords
 
+from tests.service.job_standins import ends_without_a_word, reports_a_bug, reports_its_policy
 from tests.service.serve_helpers import demo_service, wait_until
 
 TOKEN = "t0ken-for-the-tests-0123456789"
@@ -156,16 +157,6 @@ def test_the_workflow_runs_in_a_process_of_its_own(served, monkeypatch):
     assert doc["report"]["found"] == [] and doc["report"]["cycles"] >= 28
 
 
-def ends_without_a_word(send, *args) -> None:  # a child that dies (killed, out of memory) before it reports
-    import os
-
-    os._exit(3)
-
-
-def reports_a_bug(send, *args) -> None:
-    send.send(("error", "Traceback (most recent call last):\n  ...\nKeyError: 'odd'\n"))
-
-
 def test_a_job_whose_process_dies_or_fails_says_so_in_one_line():
     from frictionwatch.service.discrepancy_jobs import JobProcessError, run_job
 
@@ -173,12 +164,6 @@ def test_a_job_whose_process_dies_or_fails_says_so_in_one_line():
         run_job(None, [], None, 0, target=ends_without_a_word)
     with pytest.raises(JobProcessError, match=r"^KeyError: 'odd'$"):
         run_job(None, [], None, 0, target=reports_a_bug)
-
-
-def reports_its_policy(send, *args) -> None:
-    import os
-
-    send.send(("done", {"policy": os.sched_getscheduler(0)}))
 
 
 @pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="Linux's SCHED_IDLE only")
