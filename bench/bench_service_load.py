@@ -100,12 +100,13 @@ def main() -> None:
         proc.wait(30)
 
 
-def load(url: str, rate: float, seconds: float) -> dict:
-    """Open loop: request i is due at start + i / rate, whatever the answers before it."""
+def load(url: str, rate: float, seconds: float, routes: list[str] = ROUTES, tag: bool = False) -> dict:
+    """Open loop: request i (``routes[i % len(routes)]``) is due at start + i / rate, whatever the answers before
+    it; its send and its read's end on the monotonic clock (the one bench/serve_probe.py logs in the server).
+    ``tag``: each request carries the header x-bench-id: i (the probe's key for it)."""
     n = int(rate * seconds)
-    out = np.full(n, np.nan)
-    status = np.zeros(n, int)
-    late = np.zeros(n)
+    out, sent, done = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
+    status, late = np.zeros(n, int), np.zeros(n)
     local = threading.local()
     start = time.monotonic() + 0.5
 
@@ -115,18 +116,19 @@ def load(url: str, rate: float, seconds: float) -> dict:
         due = start + i / rate
         time.sleep(max(0.0, due - time.monotonic()))
         late[i] = time.monotonic() - due
-        t = time.perf_counter()
+        sent[i] = time.monotonic()
         try:
-            r = client.get(ROUTES[i % len(ROUTES)])
+            r = client.get(routes[i % len(routes)], headers={"x-bench-id": str(i)} if tag else None)
             r.read()
             status[i] = r.status_code
         except httpx.HTTPError:
             status[i] = -1
-        out[i] = time.perf_counter() - t
+        done[i] = time.monotonic()
+        out[i] = done[i] - sent[i]
 
     with ThreadPoolExecutor(max_workers=32) as pool:
         list(pool.map(one, range(n)))
-    return {"latency_s": out, "status": status, "send_late_s": late, "n": n}
+    return {"latency_s": out, "status": status, "send_late_s": late, "n": n, "sent": sent, "done": done}
 
 
 def report(args, lat, scrapes, cpus, walls, need_rate) -> None:

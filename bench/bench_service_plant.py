@@ -133,10 +133,8 @@ def wait_first_results(client: httpx.Client, engines: list[str]) -> float:
 def run_mix(args, client: httpx.Client, url: str, pid: int, engines: list[str]) -> dict:
     time.sleep(args.settle)
     c0, cpu0, w0, r0 = counters(client), cpu_s(pid), time.monotonic(), replay_state(client)
-    import bench.bench_service_load as single
-
-    single.ROUTES = mix_routes(engines)  # load() sends ROUTES[i % len(ROUTES)]
-    lat = tagged_load(url, args.rate, args.seconds, single.ROUTES) if args.probe else load(url, args.rate, args.seconds)
+    sent = mix_routes(engines)
+    lat = load(url, args.rate, args.seconds, sent, tag=bool(args.probe))
     time.sleep(2.0)  # the cycles whose data came during the load
     c1, cpu1, w1, r1 = counters(client), cpu_s(pid), time.monotonic(), replay_state(client)
     ms = lat["latency_s"] * 1e3
@@ -145,7 +143,7 @@ def run_mix(args, client: httpx.Client, url: str, pid: int, engines: list[str]) 
     codes, counts = np.unique(lat["status"], return_counts=True)
     # which routes make the tail: each route (the engine's id taken out) with its share of the requests beyond the
     # overall p99, and its own p50 / p99 (the client's clock: its sends and its parsing are in it)
-    routes = np.array([re.sub(r"/engines/[^/]+", "/engines/{id}", single.ROUTES[i % len(single.ROUTES)])
+    routes = np.array([re.sub(r"/engines/[^/]+", "/engines/{id}", sent[i % len(sent)])
                        for i in range(lat["n"])])
     slow = ms > np.nanpercentile(ms, 99)
     by_route = {r: {"p50": float(np.nanpercentile(ms[routes == r], 50)), "p99": float(np.nanpercentile(ms[routes == r], 99)),
@@ -181,38 +179,6 @@ def accounting(analysed: float, offered: float, skipped: float, r0: dict, r1: di
             "behind_s_max_end": r1["behind_s_max"], "loop_seams": seams,
             "analysed_per_seam": analysed / seams if seams else None, "missed_by_the_server": missed,
             "short_of_real_time_by_the_replay": offered - analysed - missed}
-
-
-def tagged_load(url: str, rate: float, seconds: float, routes: list[str]) -> dict:
-    """bench_service_load.load's open loop (request i due at start + i / rate, 32 client threads), each request
-    tagged (header x-bench-id: i) and timed on the monotonic clock the server's probe uses (bench/serve_probe.py)."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    n = int(rate * seconds)
-    out, sent, done = np.full(n, np.nan), np.full(n, np.nan), np.full(n, np.nan)
-    status, late = np.zeros(n, int), np.zeros(n)
-    local = threading.local()
-    start = time.monotonic() + 0.5
-
-    def one(i: int) -> None:
-        client = getattr(local, "client", None) or httpx.Client(base_url=url, timeout=10)
-        local.client = client
-        due = start + i / rate
-        time.sleep(max(0.0, due - time.monotonic()))
-        late[i] = time.monotonic() - due
-        sent[i] = time.monotonic()
-        try:
-            r = client.get(routes[i % len(routes)], headers={"x-bench-id": str(i)})
-            r.read()
-            status[i] = r.status_code
-        except httpx.HTTPError:
-            status[i] = -1
-        done[i] = time.monotonic()
-        out[i] = done[i] - sent[i]
-
-    with ThreadPoolExecutor(max_workers=32) as pool:
-        list(pool.map(one, range(n)))
-    return {"latency_s": out, "status": status, "send_late_s": late, "n": n, "sent": sent, "done": done}
 
 
 def timeline(lat: dict, probe: Path) -> dict:
