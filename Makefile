@@ -29,10 +29,11 @@ run: $(STAMP)
 # two workers (the CI machine has 2 cores); a test file stays on one worker, so its module fixtures run once; the
 # files in tests/conftest.py's order, slow ones first (xdist's default re-sorts them by their number of tests, which
 # put 6-test files of 60-140 s late: --no-loadscope-reorder keeps ours); one BLAS thread each, as serve runs (two
-# workers' OpenBLAS threads spinning on two cores doubled the suite's time)
+# workers' OpenBLAS threads spinning on two cores doubled the suite's time); the 25 slowest tests listed at its end,
+# so each CI log says where the suite's time goes (it must stay under 15 minutes)
 test: $(STAMP)
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -n 2 --dist loadfile \
-		--no-loadscope-reorder
+		--no-loadscope-reorder --durations=25
 
 bench: $(STAMP)
 	$(BIN)/python -m bench.run
