@@ -44,6 +44,18 @@ def test_all_cylinders_at_once_equal_one_at_a_time(seed):
             assert_allclose(got, want, rtol=1e-12, atol=0.0, equal_nan=True)
 
 
+def test_sibling_medians_where_a_cylinder_shares_its_value_and_some_are_not_finite():
+    """The kernel takes a cylinder's others as the sorted finite values without one place of its value (design note
+    145): cylinders that share it, an infinite one and odd and even counts of others read as the reference does."""
+    cases = [np.array([0.001, 0.001, 0.001, 0.002]), np.array([0.001, 0.001, 0.002, 0.002, 0.003]),
+             np.array([np.inf, 0.001, -0.002, 0.001, 0.0005, np.nan]), np.array([-np.inf, 0.0, 0.0, 0.001]),
+             np.round(np.random.default_rng(3).normal(0.0, 0.002, 20), 3)]
+    for x in cases:
+        se = np.linspace(1e-5, 3e-4, x.shape[0])
+        for got, want in zip(sibling_excess(x, se, 0.001), sibling_excess_reference(x, se, 0.001), strict=True):
+            assert_allclose(got, want, rtol=1e-12, atol=0.0, equal_nan=True)
+
+
 @pytest.mark.parametrize("z", [4, 6, 20])
 def test_one_outlier_among_many_is_named_and_moves_no_other(z):
     rng = np.random.default_rng(z)

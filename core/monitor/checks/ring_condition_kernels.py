@@ -74,30 +74,67 @@ def combine_pair(a, a_s, b, b_s, a_scale, b_scale, fig, sig):
 
 @numba.njit(cache=True)
 def sibling_kernel(x, se, allowance, dev, sig):  # pragma: no cover - compiled; tested against the reference
-    """``sibling_excess_reference`` into dev and sig (z,) (NaN-filled by the caller), z >= 3."""
+    """``sibling_excess_reference`` into dev and sig (z,) (NaN-filled by the caller), z >= 3.
+
+    The finite x are sorted once; a cylinder's others, sorted, are that order without one of its value's places,
+    and the median of their distances to the centre is read off the two runs that order gives (``_median_distance``):
+    the same values the reference sorts, so the same medians to the last bit (but a zero's sign where +0 and -0
+    tie), without the two sorts a cylinder (40 sorts of 19 values a genset-v20 cycle: ~90 % of the kernel's ~30 us,
+    design note 145)."""
     z = x.shape[0]
-    o, o_se = np.empty(z - 1), np.empty(z - 1)
+    finite = np.empty(z)
+    m = 0
+    for j in range(z):
+        if np.isfinite(x[j]):
+            finite[m] = x[j]
+            m += 1
+    ranked = np.sort(finite[:m])
+    o = np.empty(z)
+    n = m - 1  # a finite cylinder's finite others
     for k in range(z):
-        n = 0
-        for j in range(z):
-            if j != k and np.isfinite(x[j]):
-                o[n], o_se[n] = x[j], se[j]
-                n += 1
         if not np.isfinite(x[k]) or n < 2:
             continue
+        se2 = 0.0  # the others' squared errors summed in cylinder order, as the reference does
+        i = 0
+        for j in range(z):
+            if j != k and np.isfinite(x[j]):
+                se2 += se[j] ** 2
+                o[i] = x[j]  # in cylinder order (the two others' mean below: a zero's sign as the reference's)
+                i += 1
         if n == 2:  # three cylinders: the mean of the two others, their disagreement as spread
             centre = 0.5 * (o[0] + o[1])
             spread = abs(o[0] - o[1]) / np.sqrt(2.0)
-            centre_var = 0.25 * (o_se[0] ** 2 + o_se[1] ** 2) + 0.5 * spread ** 2
+            centre_var = 0.25 * se2 + 0.5 * spread ** 2
         else:  # the median of the others, their median absolute deviation as spread
-            centre = _sorted_median(np.sort(o[:n]))
-            spread = 1.4826 * _sorted_median(np.sort(np.abs(o[:n] - centre)))
-            se2 = 0.0
-            for j in range(n):
-                se2 += o_se[j] ** 2
+            p = np.searchsorted(ranked, x[k])  # a place of x[k]'s value: without it, the others in order
+            for i in range(n):
+                o[i] = ranked[i] if i < p else ranked[i + 1]
+            centre = _sorted_median(o[:n])
+            spread = 1.4826 * _median_distance(o, n, centre)
             centre_var = (np.pi / 2.0) * (spread ** 2 + se2 / n) / n
         dev[k] = x[k] - centre
         sig[k] = np.sqrt(se[k] ** 2 + max(spread, allowance) ** 2 + centre_var)
+
+
+@numba.njit(cache=True)
+def _median_distance(o, n, c):  # pragma: no cover - compiled
+    """``_sorted_median`` of abs(o[:n] - c) sorted, for o[:n] sorted: the distances left of c grow leftwards and those
+    right of it rightwards (rounding is monotone), so their merge, walked from c up to the middle rank, is their
+    sorted order."""
+    left = np.searchsorted(o[:n], c) - 1
+    right = left + 1
+    lower = 0.0
+    d = 0.0
+    for rank in range(n // 2 + 1):
+        if right < n and (left < 0 or abs(o[right] - c) <= abs(o[left] - c)):
+            d = abs(o[right] - c)
+            right += 1
+        else:
+            d = abs(o[left] - c)
+            left -= 1
+        if rank == (n - 1) // 2:
+            lower = d
+    return lower if n % 2 == 1 else 0.5 * (lower + d)
 
 
 @numba.njit(cache=True)
