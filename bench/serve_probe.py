@@ -14,6 +14,7 @@ At exit FILE gets JSON lists of:
   holds the GIL for all of its length;
 - ``heap``: every 5 s the objects frozen (service/app_gc.py), the collector's generation counts and all the
   objects it tracks (without a leak they stop growing once the histories are full);
+- ``window_documents``: window requests and the documents made for them (the rest were shared: design note 146);
 - ``wake``: a thread that sleeps 2 ms in a loop records each wake-up later than 3 ms past due (due, seconds late,
   and the innermost frames of the other threads then): how long a thread that waits on nothing but the GIL (and
   the scheduler) waits, and what the others ran meanwhile.
@@ -86,6 +87,22 @@ def install(out_path: str) -> None:
         with open(out_path, "w") as fh:
             json.dump(rec, fh)
 
+    try:  # the window routes' shared documents (design note 146): how many requests found theirs made
+        from frictionwatch.service.api_views import OwnEstimateDocuments
+    except ImportError:  # a checkout before them
+        OwnEstimateDocuments = None  # noqa: N806
+    if OwnEstimateDocuments is not None:
+        rec["window_documents"] = {"asked": 0, "made": 0}
+        got = OwnEstimateDocuments.get
+
+        def counted(self, last, active):  # noqa: ANN001 - OwnEstimateDocuments.get's
+            before = self.made
+            doc = got(self, last, active)
+            rec["window_documents"]["asked"] += 1
+            rec["window_documents"]["made"] += self.made - before
+            return doc
+
+        OwnEstimateDocuments.get = counted
     atexit.register(dump)
 
 
