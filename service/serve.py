@@ -237,9 +237,8 @@ def _run(args: argparse.Namespace) -> int:
     heap = FrozenHeap(settled=lambda: all(s.last_result_s is not None for s in services)).start()
     http, loop, missing = http_stack()
     if missing:
-        print(f"frictionwatch serve: {missing} not installed: HTTP on {http} and {loop} (pure Python where not "
-              f"installed: more of the server's CPU a request; pip install {missing.replace(' and ', ' ')})",
-              flush=True)
+        print(f"frictionwatch serve: {missing} not installed: HTTP on {http} and {loop} (the pure-Python stand-in "
+              f"costs more of the server's CPU a request; pip install {missing.replace(' and ', ' ')})", flush=True)
     # access_log off: uvicorn's access logger is below log_level 'warning' anyway, its record never printed
     server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on", http=http, loop=loop,
                                            access_log=False))
