@@ -231,7 +231,8 @@ def timeline(lat: dict, probe: Path) -> dict:
                                          "max": float(wakes[in_win, 1].max() * 1e3) if in_win.any() else 0.0,
                                          "per_s": float(in_win.sum() / (window[1] - window[0]))},
             "threads_running_at_a_wake_late_ge_20ms": dict(sorted(culprits.items(), key=lambda kv: -kv[1])[:12]),
-            "switch_interval_s": rec["switch_interval_s"]}
+            "switch_interval_s": rec["switch_interval_s"],
+            "window_documents_asked_made": rec.get("window_documents"), "losses_now": rec.get("losses_now")}  # all of serve's run, not the load's only
 
 
 def context_switches(pid: int) -> tuple[int, int]:

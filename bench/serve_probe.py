@@ -14,6 +14,8 @@ At exit FILE gets JSON lists of:
   holds the GIL for all of its length;
 - ``heap``: every 5 s the objects frozen (service/app_gc.py), the collector's generation counts and all the
   objects it tracks (without a leak they stop growing once the histories are full);
+- ``window_documents``: window requests and the documents made for them (the rest were shared: design note 146);
+- ``losses_now``: the plain /losses route's computations (its cache's misses) and their thread CPU;
 - ``wake``: a thread that sleeps 2 ms in a loop records each wake-up later than 3 ms past due (due, seconds late,
   and the innermost frames of the other threads then): how long a thread that waits on nothing but the GIL (and
   the scheduler) waits, and what the others ran meanwhile.
@@ -86,6 +88,37 @@ def install(out_path: str) -> None:
         with open(out_path, "w") as fh:
             json.dump(rec, fh)
 
+    try:  # the window routes' shared documents (design note 146): how many requests found theirs made
+        from frictionwatch.service.api_views import OwnEstimateDocuments
+    except ImportError:  # a checkout before them
+        OwnEstimateDocuments = None  # noqa: N806
+    if OwnEstimateDocuments is not None:
+        rec["window_documents"] = {"asked": 0, "made": 0}
+        got = OwnEstimateDocuments.get
+
+        def counted(self, last, active):  # noqa: ANN001 - OwnEstimateDocuments.get's
+            before = self.made
+            doc = got(self, last, active)
+            rec["window_documents"]["asked"] += 1
+            rec["window_documents"]["made"] += self.made - before
+            return doc
+
+        OwnEstimateDocuments.get = counted
+    # the plain /losses route's misses: each call of losses_now is one (a new cycle's smoothing), with its thread CPU
+    from frictionwatch.service import api_views
+
+    rec["losses_now"] = {"calls": 0, "thread_cpu_s": 0.0}
+    smoothed = api_views.losses_now
+
+    def timed_losses(*args, **kwargs):  # noqa: ANN002, ANN003 - losses_now's
+        t = time.thread_time()
+        try:
+            return smoothed(*args, **kwargs)
+        finally:
+            rec["losses_now"]["calls"] += 1
+            rec["losses_now"]["thread_cpu_s"] += time.thread_time() - t
+
+    api_views.losses_now = timed_losses
     atexit.register(dump)
 
 

@@ -109,6 +109,8 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
     # one request computes a new cycle's smoothed losses (~2-4 ms over 5000 results); the others wait for it instead
     # of computing the same thing at once on every worker thread
     computing = {s.engine_id: threading.Lock() for s in services}
+    # engine id -> its newest result's own-estimate document by active flags: made once a cycle for every window
+    own_documents = {s.engine_id: views.OwnEstimateDocuments() for s in services}
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -219,7 +221,8 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
             if last is None or figures is None:
                 newest(svc, 1)  # the 503 with its Retry-After
             holes = svc.state.holes_in(figures.first_cycle, figures.last_cycle)
-            return rendered(Losses, views.losses_window(svc.engine_id, last, figures, svc.term_names, holes))
+            return rendered(Losses, views.losses_window(svc.engine_id, last, figures, svc.term_names, holes,
+                                                                own_documents[svc.engine_id]))
         whole, _ = newest(svc, 1)
         hit = cache.get(svc.engine_id)
         if hit is None or hit[0] != whole.index:

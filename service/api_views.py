@@ -96,8 +96,36 @@ def losses_now(engine_id: str, results: Sequence[CycleResult], names: Sequence[s
             "cylinders": [values_by_status(_cylinder_loss(k, c, names, active)) for k, c in enumerate(doc["cylinders"])]}
 
 
+class OwnEstimateDocuments:
+    """The newest result's own-estimate document (``to_json(smoothed=False)``) under a window's active flags, made
+    once per (result, flags) and shared by an engine's window requests until its API state shows a new result.
+
+    A window reply reads its statuses from this document (``losses_window``); it was ~40 % of the route's work
+    (design note 139) and the same for every window length of one cycle with the same active flags (the mix asks
+    100, 1000 and 5000 cycles one after the other, ~1.2 window requests an engine a cycle at 200 req/s). Keyed by
+    the result itself (held, so its identity is not reused) and the flags: a new cycle, or other flags, is a miss
+    and never a stale document. The documents are shared between threads and never changed by their readers
+    (``_cylinder_loss`` and ``losses_window`` build new dicts). One lock-free swap: two threads that miss at once
+    both make the same document."""
+
+    def __init__(self) -> None:
+        self._held: tuple[CycleResult | None, dict[frozenset[str], dict]] = (None, {})
+        self.made = 0  # documents made (misses), for a test and a bench
+
+    def get(self, last: CycleResult, active: frozenset[str]) -> dict:
+        result, docs = self._held
+        if result is not last:
+            result, docs = last, {}
+            self._held = (result, docs)
+        doc = docs.get(active)
+        if doc is None:
+            doc = docs[active] = last.to_json(smoothed=False, status=friction_status(last.cycle, active))
+            self.made += 1
+        return doc
+
+
 def losses_window(engine_id: str, last: CycleResult, win: WindowFigures, names: Sequence[str],
-                  holes: Sequence[dict] = ()) -> dict:
+                  holes: Sequence[dict] = (), documents: OwnEstimateDocuments | None = None) -> dict:
     """Each cylinder's per-cycle friction (each cycle's own estimate) averaged over the window ``win`` (its figures:
     service/window_figures.py), with the 1-sigma of the mean from the cycle-to-cycle scatter. ``last``: the result
     the statuses are read from, the window's newest cycle with a previous cycle (LatestState.window).
@@ -110,13 +138,14 @@ def losses_window(engine_id: str, last: CycleResult, win: WindowFigures, names: 
 
     A window spans ``first_cycle`` .. ``last_cycle``; indices in it with no result (skipped, or in ``holes``: dropped
     while the analysis was behind, service/stream_holes.py) are counted and said (``cycles_missing``,
-    ``cycles_dropped``, ``missing``): the means stand for the cycles analysed, not for the whole span."""
+    ``cycles_dropped``, ``missing``): the means stand for the cycles analysed, not for the whole span.
+    ``documents``: the engine's shared ``last`` documents (``OwnEstimateDocuments``); None makes one here."""
     n_cycles, n_counted, lay = win.cycles, win.counted, win.layout
     # active_flags (run_summary) over the window, from the window's counts: the newest cycle's and the frequent ones;
     # no_previous_cycle is not one of them: those cycles are out of the figures, counted in cycles_left_out
     active = (frozenset(last.flags) | {f for f, c in win.flag_counts.items() if c >= ACTIVE_SHARE * n_cycles}) - {
         NO_PREVIOUS_CYCLE}
-    status = last.to_json(smoothed=False, status=friction_status(last.cycle, active))
+    status = (documents or OwnEstimateDocuments()).get(last, frozenset(active))
     mep_per_nm = last.mep_per_nm() / PA_PER_BAR  # bar per N m of one cylinder
     left = _left_out_words(win.left_out)
     cylinders = []

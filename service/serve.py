@@ -235,7 +235,13 @@ def _run(args: argparse.Namespace) -> int:
     ticker = StartupTicker(lambda: services).start()
     # the collector's full passes out of the request path (service/app_gc.py); one more once every engine started
     heap = FrozenHeap(settled=lambda: all(s.last_result_s is not None for s in services)).start()
-    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on"))
+    http, loop, missing = http_stack()
+    if missing:
+        print(f"frictionwatch serve: {missing} not installed: HTTP on {http} and {loop} (the pure-Python stand-in "
+              f"costs more of the server's CPU a request; pip install {missing.replace(' and ', ' ')})", flush=True)
+    # access_log off: uvicorn's access logger is below log_level 'warning' anyway, its record never printed
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="on", http=http, loop=loop,
+                                           access_log=False))
     # uvicorn shuts down on SIGINT / SIGTERM (the lifespan stops every engine), then raises the signal again with
     # the handlers it found: these make that a normal end (exit 0) instead of death by the signal
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -251,6 +257,17 @@ def _run(args: argparse.Namespace) -> int:
         if data:
             data.close()
     return 0
+
+
+def http_stack() -> tuple[str, str, str]:
+    """uvicorn's HTTP parser and event loop: (http, loop, what is missing of the fast pair: '' when nothing).
+    httptools (a C parser) and uvloop where installed (pyproject's dependencies; design note 146), each else its
+    pure-Python stand-in, h11 and asyncio, which serve then says at start."""
+    import importlib.util
+
+    has = {m: importlib.util.find_spec(m) is not None for m in ("httptools", "uvloop")}
+    missing = " and ".join(m for m, ok in has.items() if not ok)
+    return "httptools" if has["httptools"] else "h11", "uvloop" if has["uvloop"] else "asyncio", missing
 
 
 def stop_summary(svc: EngineService) -> str:

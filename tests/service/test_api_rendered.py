@@ -5,15 +5,19 @@ stopped after the demo log (nothing changes between the two replies). The number
 
 from __future__ import annotations
 
+import json
 import math
+import time
 
 import numpy as np
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
+from frictionwatch.core.monitor.report.figure_status import friction_status
 from frictionwatch.service import api_views as views
 from frictionwatch.service.api import create_app
 from frictionwatch.service.api_models import CycleSummary, FrictionTorque, Losses, Speed
+from frictionwatch.service.listeners import ServiceEvent
 from numpy.testing import assert_allclose
 
 from tests.service.serve_helpers import demo_service, wait_until
@@ -99,3 +103,40 @@ def test_finite_list_is_none_where_not_finite() -> None:
     assert_allclose([got[i] for i in (0, 3, 5)], [1.5, 2.0, -0.0], rtol=0, atol=0)
     assert all(type(v) is float for v in views._finite_list(np.arange(4.0)))
     assert not any(isinstance(v, float) and not math.isfinite(v) for v in got)
+
+
+def test_window_documents_are_made_once_a_cycle_and_anew_for_a_new_one(served) -> None:
+    """OwnEstimateDocuments: the newest result's document under a set of flags, made once and then shared; another
+    result or other flags make another (never the one held)."""
+    _, svc = served
+    older, newer = svc.session.results[-2], svc.session.results[-1]
+    docs = views.OwnEstimateDocuments()
+    active = frozenset(older.flags)
+    first = docs.get(older, active)
+    assert docs.get(older, active) is first and docs.made == 1
+    same(older.to_json(smoothed=False, status=friction_status(older.cycle, active)), first)
+    other = docs.get(newer, active)
+    assert docs.made == 2 and other["cycle"] == newer.index != first["cycle"]
+    same(newer.to_json(smoothed=False, status=friction_status(newer.cycle, active)), other)
+    flagged = active | {"misfire_cyl3"}
+    assert docs.get(newer, flagged) is not other and docs.made == 3
+
+
+def test_a_new_cycle_changes_the_window_reply(served) -> None:
+    """An engine's API state fed the demo's results by hand: a window reply after each new cycle is that cycle's
+    (the reference made without the shared documents), not the one held from the cycle before."""
+    _, done = served
+    svc = demo_service("fed")  # not started: nothing but this test feeds its API state
+    results = done.session.results[-4:]
+    with TestClient(create_app([svc], manage=False)) as client:
+        replies: dict[int, list[dict]] = {1: [], 3: []}
+        for r in results:
+            svc.state.on_message_received(ServiceEvent("fed", r, time.monotonic()))
+            for window in (1, 3):  # one cycle: its sigma is the newest cycle's own (from the document)
+                got = client.get("/api/v1/engines/fed/losses", params={"window_cycles": window}).json()
+                last, figures = svc.state.window(window)
+                assert last is r
+                same(reference(Losses, views.losses_window("fed", last, figures, svc.term_names)), got, str(window))
+                replies[window].append(got)
+    for window, got in replies.items():  # each cycle's its own
+        assert len({json.dumps(x, sort_keys=True) for x in got}) == len(results), window

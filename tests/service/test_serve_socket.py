@@ -29,10 +29,13 @@ async def _nodelay_of_an_accepted_connection(listener: socket.socket) -> int:
             writer.close()
 
 
+@pytest.mark.parametrize("loop", ["asyncio", "uvloop"])  # serve's event loop where installed (serve.http_stack)
 @pytest.mark.parametrize("host", ["127.0.0.1", "::1"])
-def test_accepted_connections_get_tcp_nodelay(host: str) -> None:
+def test_accepted_connections_get_tcp_nodelay(host: str, loop: str) -> None:
+    factory = pytest.importorskip("uvloop").new_event_loop if loop == "uvloop" else None
     try:
         listener = _bind(host, 0)
     except OSError as exc:  # a machine without IPv6 on loopback
         pytest.skip(str(exc))
-    assert asyncio.run(_nodelay_of_an_accepted_connection(listener)) != 0
+    with asyncio.Runner(loop_factory=factory) as runner:
+        assert runner.run(_nodelay_of_an_accepted_connection(listener)) != 0
