@@ -229,9 +229,9 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
             with computing[svc.engine_id]:
                 hit = cache.get(svc.engine_id)
                 if hit is None or hit[0] < whole.index:  # not done by the request this one waited for
-                    whole, ring = newest(svc)
-                    hit = cache[svc.engine_id] = (whole.index, body(Losses, views.losses_now(svc.engine_id, ring,
-                                                                                              svc.term_names)))
+                    whole, index, weight, flags = svc.state.smoothed()
+                    hit = cache[svc.engine_id] = (whole.index, body(Losses, views.losses_smoothed(
+                        svc.engine_id, whole, index, weight, flags, svc.term_names)))
         return Response(hit[1], media_type="application/json")
 
     @app.get("/api/v1/engines/{engine_id}/friction-torque", response_model=FrictionTorque, responses=ERRORS)

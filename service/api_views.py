@@ -81,9 +81,17 @@ def engine_figure(r: CycleResult) -> dict:
 
 def losses_now(engine_id: str, results: Sequence[CycleResult], names: Sequence[str]) -> dict:
     """The monitor's smoothed estimate at the newest result, over the window it stands for (cmd_analyze.summary)."""
-    last = results[-1]
-    window = estimate_window([r.index for r in results], [r.smoothed.weight for r in results])
-    active = active_flags([r.flags for r in results], window.effective_cycles)
+    return losses_smoothed(engine_id, results[-1], [r.index for r in results], [r.smoothed.weight for r in results],
+                           [r.flags for r in results], names)
+
+
+def losses_smoothed(engine_id: str, last: CycleResult, indices: Sequence[int], weights: Sequence[float],
+                    flags: Sequence[Sequence[str]], names: Sequence[str]) -> dict:
+    """``losses_now`` from the held results' cycle indices and smoothed weights (oldest first) and the flags of at
+    least the newest round(weights[-1]) of them: what the API state keeps beside its ring (listeners.LatestState.
+    smoothed), so a request does not walk the ring's 5000 results."""
+    window = estimate_window(indices, weights)
+    active = active_flags(flags, window.effective_cycles)
     doc = last.to_json(status=friction_status(last.smoothed, active), window=asdict(window))
     eng = doc["friction"]
     return {"engine_id": engine_id, "cycle_index": int(last.index), "estimate": "smoothed",

@@ -34,6 +34,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.service.stream_holes import MAX_HOLES
 from frictionwatch.service.window_figures import WindowFigures, left_out
@@ -325,6 +326,11 @@ class LatestState(Listener):
         self._lock = threading.Lock()
         self._ring: deque[CycleResult] = deque(maxlen=max_results)
         self.sums = WindowSums(max_results)  # windows up to the ring's length
+        # each held result's cycle index and smoothed weight, in arrays beside the ring (position: count mod its
+        # length): the smoothed estimate's window reads them without walking 5000 results a request (``smoothed``)
+        self._index = np.zeros(max_results, dtype=np.int64)
+        self._weight = np.zeros(max_results, dtype=np.float64)
+        self._count = 0
         self.newest: CycleResult | None = None
         # the newest result with a cycle before it: a window's figures take their statuses from it, as its means
         # leave out the cycles without one (service/window_figures.py)
@@ -344,6 +350,9 @@ class LatestState(Listener):
             if self._ring and self.newest is not None:
                 self._ring[-1] = self.newest.slim()  # only the newest keeps its traces
             self._ring.append(event.result)
+            pos = self._count % self._index.shape[0]
+            self._index[pos], self._weight[pos] = int(event.result.index), event.result.smoothed.weight
+            self._count += 1
             self.newest, self.newest_s = event.result, time.monotonic()
             if event.hole is not None:
                 self.holes.append(event.hole)
@@ -360,6 +369,19 @@ class LatestState(Listener):
                 return self.newest, list(self._ring)
             newest_first = list(itertools.islice(reversed(self._ring), max(0, last)))
             return self.newest, newest_first[::-1]
+
+    def smoothed(self) -> tuple[CycleResult | None, np.ndarray, np.ndarray, list[tuple[str, ...]]]:
+        """What the smoothed estimate's window is read from (api_views.losses_smoothed): the newest whole result,
+        every held result's cycle index and smoothed weight (oldest first, copies) and the flags of the newest ones
+        its window stands for (round(newest weight) of them: run_summary.active_flags's reach), read together."""
+        with self._lock:
+            held = min(self._count, self._index.shape[0])
+            pos = self._count % self._index.shape[0]
+            order = np.r_[pos:held, 0:pos] if held == self._index.shape[0] else np.arange(held)
+            index, weight = self._index[order], self._weight[order]
+            reach = max(1, min(held, round(weight[-1]))) if held else 0
+            flags = [r.flags for r in itertools.islice(reversed(self._ring), reach)][::-1]
+            return self.newest, index, weight, flags
 
     def window(self, cycles: int) -> tuple[CycleResult | None, WindowFigures | None]:
         """The result a window's statuses are read from (the newest with a previous cycle; the newest when none has

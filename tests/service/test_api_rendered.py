@@ -140,3 +140,22 @@ def test_a_new_cycle_changes_the_window_reply(served) -> None:
                 replies[window].append(got)
     for window, got in replies.items():  # each cycle's its own
         assert len({json.dumps(x, sort_keys=True) for x in got}) == len(results), window
+
+
+def test_the_smoothed_losses_read_from_the_held_arrays_are_the_rings_after_it_wraps(served) -> None:
+    """LatestState.smoothed keeps each held result's index and smoothed weight in arrays beside its ring (the plain
+    /losses route reads them instead of walking the ring): fed more results than it holds, every reply is
+    views.losses_now over the ring's results (rtol 1e-12), and the arrays are the ring's, oldest first."""
+    _, done = served
+    svc = demo_service("held", history_cycles=3)  # not started: this test feeds its API state
+    results = done.session.results[-7:]
+    with TestClient(create_app([svc], manage=False)) as client:
+        for i, r in enumerate(results):
+            svc.state.on_message_received(ServiceEvent("held", r, time.monotonic()))
+            ring = results[max(0, i - 2): i + 1]
+            whole, index, weight, flags = svc.state.smoothed()
+            assert whole is r and index.tolist() == [x.index for x in ring]
+            assert_allclose(weight, [x.smoothed.weight for x in ring], rtol=0, atol=0)
+            assert flags == [x.flags for x in ring][-len(flags):] and len(flags) >= 1
+            got = client.get("/api/v1/engines/held/losses").json()
+            same(reference(Losses, views.losses_now("held", ring, svc.term_names)), got, f"cycle {r.index}")
