@@ -12,14 +12,16 @@ from frictionwatch.core.monitor.checks.pressure_trace import (
     PressureTraceConfig,
     PressureTraceState,
     check_traces,
+    failures,
     trace_features,
+    verdict_limits,
 )
-from frictionwatch.core.monitor.checks.pressure_trace_kernels import trace_features_reference
+from frictionwatch.core.monitor.checks.pressure_trace_kernels import trace_features_reference, trace_verdict_kernel
 from frictionwatch.core.monitor.pipeline import CyclePipeline
 from frictionwatch.core.monitor.report.run_summary import end_of_run_status
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.pipeline import assembled_cycles
-from numpy.testing import assert_allclose
+from numpy.testing import assert_allclose, assert_array_equal
 
 from bench.pressure_lies import POINTS, lie
 
@@ -57,9 +59,11 @@ def test_kernel_equals_the_numpy_reference(maruti):
         gappy[1, 100:103] = np.nan  # a repairable gap is passed over
         gappy[2, :] = np.nan  # a cylinder without a sensor reads NaN
         for q in [*cases, gappy]:
-            assert_allclose(trace_features(q, c.grid, spec.firing_angles, CFG.flat_tol),
-                            trace_features_reference(q, c.grid, spec.firing_angles, CFG.flat_tol),
+            feat = trace_features(q, c.grid, spec.firing_angles, CFG.flat_tol)
+            assert_allclose(feat, trace_features_reference(q, c.grid, spec.firing_angles, CFG.flat_tol),
                             rtol=1e-12, atol=1e-6)
+            assert_array_equal(trace_verdict_kernel(feat, verdict_limits(CFG), np.empty(3, np.int64)),
+                               failures(CFG, feat))
 
 
 @pytest.mark.parametrize("name,point,seed", [("maruti-3cyl", 1, 7), ("deutz-1cyl", 0, 5), ("deutz-1cyl", 1, 7),

@@ -29,8 +29,9 @@ DEG = 180.0 / np.pi
 
 def relative_angles(grid: np.ndarray, firing: np.ndarray) -> np.ndarray:
     """(z, n) [deg] each sample's angle after each cylinder's firing TDC, wrapped to [-360, 360)."""
-    rel = (grid[None, :] - firing[:, None]) * DEG
-    return (rel + 360.0) % 720.0 - 360.0
+    rel = (grid[None, :] - firing[:, None]) * DEG  # in (-720, 720): grid and firing angles are in [0, 720) deg
+    rel = np.where(rel >= 360.0, rel - 720.0, rel)
+    return np.where(rel < -360.0, rel + 720.0, rel)
 
 
 def trace_features_reference(pressure: np.ndarray, grid: np.ndarray, firing: np.ndarray,
@@ -83,7 +84,11 @@ def trace_features_kernel(pressure, grid, firing, flat_tol, out):
             v = row[i]
             if v != v:
                 continue
-            r = ((grid[i] - f) * DEG + 360.0) % 720.0 - 360.0
+            r = (grid[i] - f) * DEG  # relative_angles' wrap (a float modulo per sample was ~0.2 ms a V20 cycle)
+            if r >= 360.0:
+                r -= 720.0
+            elif r < -360.0:
+                r += 720.0
             if v >= thr:
                 flat += 1
             if BDC_DEG[0] <= r < BDC_DEG[1]:
@@ -95,7 +100,8 @@ def trace_features_kernel(pressure, grid, firing, flat_tol, out):
             if (r >= 180.0 or r <= -180.0) and v > gasx:
                 gasx = v
         out[k, MIN], out[k, MAX] = lo, hi
-        out[k, PEAK_DEG] = ((grid[at] - f) * DEG + 360.0) % 720.0 - 360.0
+        rp = (grid[at] - f) * DEG
+        out[k, PEAK_DEG] = rp - 720.0 if rp >= 360.0 else (rp + 720.0 if rp < -360.0 else rp)
         out[k, FLAT] = flat
         out[k, BDC] = s_bdc / n_bdc if n_bdc else np.nan
         out[k, LATE] = s_late / n_late if n_late else np.nan
@@ -104,3 +110,43 @@ def trace_features_kernel(pressure, grid, firing, flat_tol, out):
         beside = max(before if before == before else hi, after if after == after else hi)
         out[k, SPIKE] = hi - beside
     return out
+
+
+# the verdict's thresholds as the kernel takes them (pressure_trace.PressureTraceConfig's, in this order)
+DEAD_SWING, FLAT_SAMPLES, PEAK_LO, PEAK_HI, SIBLING_DEG, SPIKE_FRACTION, RISE_FRACTION, GASX_FRACTION = range(8)
+
+
+@numba.njit(cache=True)
+def trace_verdict_kernel(feat, limits, fail):
+    """pressure_trace.failures (its numpy reference) into ``fail`` (z,) int64 from ``feat`` (z, N_FEATURES) and
+    ``limits`` (the thresholds, in the order above): the test order and the NaN manners the same (a comparison with
+    NaN is false, so a row without a sensor passes)."""
+    z = feat.shape[0]
+    peaks = np.empty(z)
+    m = 0
+    for k in range(z):
+        if feat[k, PEAK_DEG] == feat[k, PEAK_DEG]:
+            peaks[m] = feat[k, PEAK_DEG]
+            m += 1
+    median = np.median(peaks[:m]) if m >= 3 else np.nan
+    for k in range(z):
+        lo, hi, peak = feat[k, MIN], feat[k, MAX], feat[k, PEAK_DEG]
+        swing = hi - lo
+        floored = lo <= 0.0
+        phase = (peak < limits[PEAK_LO]) or (peak > limits[PEAK_HI]) or (
+            not floored and feat[k, LATE] - feat[k, BDC] < limits[RISE_FRACTION] * swing) or (
+            not floored and feat[k, GASX_MAX] - feat[k, BDC] > limits[GASX_FRACTION] * (hi - feat[k, BDC])) or (
+            m >= 3 and abs(peak - median) > limits[SIBLING_DEG])
+        if swing < limits[DEAD_SWING]:
+            fail[k] = 0
+        elif feat[k, FLAT] > limits[FLAT_SAMPLES]:
+            fail[k] = 1
+        elif hi + lo < 0.0:
+            fail[k] = 2
+        elif feat[k, SPIKE] > limits[SPIKE_FRACTION] * swing:
+            fail[k] = 3
+        elif phase:
+            fail[k] = 4
+        else:
+            fail[k] = -1
+    return fail
