@@ -6,6 +6,10 @@
     # or: for outcome in run_cycles(model, cycles, config): ...
 
 What a cycle goes through, in order:
+0. the stages of ``BEFORE``, each ``update(state, spec, cycle) -> (state, cycle, refusal)``: the pressure-trace
+   plausibility check (core.monitor.checks.pressure_trace), which flags a channel that is no cylinder's pressure
+   (dead, clipped, negated, out of phase), puts its healthy siblings' trace in its place, or refuses the cycle
+   (``pressure_implausible``) where no sibling can stand in; it reads the pressure as it came, before any view;
 1. the model's view (core.model.view): the pressure corrected for the model's sensor effects, the phases its TDC
    offsets state, its loss terms; made at the first cycle when a friction shape is sized at an operating point;
 2. the monitor (core.monitor.monitor.process_cycle): teeth, balance, identify, checks, report;
@@ -43,6 +47,7 @@ from frictionwatch.core.monitor.calibration.tdc_watch import (
     watch_cycle,
 )
 from frictionwatch.core.monitor.calibration.tdc_window import close_window
+from frictionwatch.core.monitor.checks.pressure_trace import PressureTraceConfig, PressureTraceState, check_traces
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, nonpositive_flags, process_cycle
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
@@ -147,6 +152,34 @@ class GainWatch:
 STAGES: tuple[RunningStage, ...] = (TdcWatch(), GainWatch())
 
 
+@dataclass(frozen=True)
+class PressureTrace:
+    """Each channel's trace checked for being a cylinder's pressure at all (core.monitor.checks.pressure_trace)
+    before the view and the monitor: its flags join the cycle's, a flagged trace is replaced by its siblings',
+    and a cycle with no sibling to stand in is refused with the reason ``pressure_implausible``."""
+
+    config: PressureTraceConfig = PressureTraceConfig()
+    name: ClassVar[str] = "pressure_trace"
+
+    def initial(self, n_cyl: int) -> PressureTraceState:
+        return PressureTraceState.empty(n_cyl)
+
+    def update(self, state: PressureTraceState, spec: EngineSpec, cycle: Cycle
+               ) -> tuple[PressureTraceState, Cycle, str | None]:
+        state, pressure, flags, refuse = check_traces(self.config, state, cycle.pressure, cycle.grid,
+                                                      spec.firing_angles)
+        if refuse:  # the reason names the channels and what is wrong with them: "pressure_implausible: dead_cyl1"
+            return state, cycle, "pressure_implausible: " + ", ".join(f.removeprefix("sensor_pressure_")
+                                                                        for f in flags)
+        if not flags:
+            return state, cycle, None
+        new = tuple(f for f in flags if f not in cycle.flags)
+        return state, replace(cycle, pressure=pressure, flags=cycle.flags + new), None
+
+
+BEFORE: tuple[PressureTrace, ...] = (PressureTrace(),)
+
+
 def monitor_config(view: MonitorView, config: MonitorConfig | None) -> MonitorConfig:
     """The caller's config with what the view decides: the model's calibration, its known load ripple, and constant
     inertia where the model has no ``variable_inertia``."""
@@ -164,7 +197,7 @@ class CyclePipeline:
 
     def __init__(self, engine: EngineModel | EngineSpec, config: MonitorConfig | None = None,
                  reference: Reference | None = None, on_cycle: Callable[[Cycle], None] | None = None,
-                 stages: tuple[RunningStage, ...] = STAGES):
+                 stages: tuple[RunningStage, ...] = STAGES, before: tuple[PressureTrace, ...] = BEFORE):
         self.model = as_model(engine)
         self.spec = self.model.spec
         self.config = config or MonitorConfig()
@@ -177,6 +210,8 @@ class CyclePipeline:
         self.monitor_cfg: MonitorConfig | None = None
         self.state: MonitorState | None = None
         self.stages = {s.name: s.initial() for s in stages}
+        self.before = before
+        self.before_states = {s.name: s.initial(self.spec.n_cyl) for s in before}
         self.stage_cycle: dict[str, int] = {}  # the cycle that closed each stage's newest window (its ``last``)
         self.skipped: Counter[str] = Counter()
         self.cycles_ok = 0
@@ -203,6 +238,11 @@ class CyclePipeline:
         return np.asarray(st.static[st.op.cylinders.node], dtype=np.float64)
 
     def process(self, cycle: Cycle) -> CycleOutcome:
+        for stage in self.before:
+            self.before_states[stage.name], cycle, refusal = stage.update(self.before_states[stage.name],
+                                                                          self.spec, cycle)
+            if refusal is not None:
+                return self._skip(cycle, refusal)
         if self.view is None:
             self._make_view(reference([cycle]))
         view = self.view
@@ -243,7 +283,8 @@ class CyclePipeline:
         if self.view is None or self.state is None:
             return None
         return {"reference": self.reference, "state": replace(self.state, layout=None, op=None),
-                "stages": dict(self.stages), "stage_cycle": dict(self.stage_cycle), "config": self.config}
+                "stages": dict(self.stages), "stage_cycle": dict(self.stage_cycle), "config": self.config,
+                "before": dict(self.before_states)}
 
     def resume(self, carried: dict) -> None:
         """Go on from ``carried()`` of an earlier pipeline of the same model and config (ValueError otherwise): the
@@ -258,6 +299,7 @@ class CyclePipeline:
         self.state = replace(state, layout=self.state.layout, op=None)
         self.stages = {**self.stages, **carried["stages"]}
         self.stage_cycle = dict(carried["stage_cycle"])
+        self.before_states = {**self.before_states, **carried.get("before", {})}
 
     def close_windows(self) -> None:
         """Every running stage that reads in windows and can (a ``close`` method) reads its open window now: a run
@@ -285,5 +327,5 @@ def run_cycles(engine: EngineModel | EngineSpec, cycles: Iterable[Cycle], config
         yield pipe.process(cycle)
 
 
-__all__ = ["STAGES", "CycleOutcome", "CyclePipeline", "GainWatch", "RunningStage", "StageInput", "TdcWatch",
+__all__ = ["BEFORE", "STAGES", "PressureTrace", "CycleOutcome", "CyclePipeline", "GainWatch", "RunningStage", "StageInput", "TdcWatch",
            "monitor_config", "run_cycles"]
