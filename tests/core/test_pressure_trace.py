@@ -148,3 +148,22 @@ def test_one_cylinder_is_refused_with_its_reason():
     assert not results
     assert pipe.skipped == {"pressure_implausible: clipped_cyl1": len(cyc)}
     assert KINDS.index("clipped") == pipe.before_states["pressure_trace"].kind[0]
+
+
+def test_a_coarse_converter_on_a_fine_grid_is_not_called_clipped_and_a_rail_still_is(maruti):
+    """The rail test is an angle (PressureTraceConfig.flat_deg), not a sample count: a healthy trace on a 0.1-deg
+    grid read by a 12-bit converter over 250 bar (0.061 bar a code) holds its rounded peak over more than four
+    samples but about a degree; the same trace railed at 60 % of its peak is clipped."""
+    spec, cyc = maruti
+    c = cyc[2]
+    fine = np.linspace(c.grid[0], c.grid[-1], 10 * (c.grid.size - 1) + 1)
+    code = 250e5 / 4096
+    p = np.stack([np.round(np.interp(fine, c.grid, row) / code) * code for row in c.pressure])
+    feat = trace_features(p, fine, spec.firing_angles, CFG.flat_tol)
+    samples_at_peak = feat[:, 3] / np.degrees(fine[1] - fine[0])
+    assert samples_at_peak.max() > 4  # what a count of 4 samples called clipped
+    assert failures(CFG, feat).tolist() == [-1] * spec.n_cyl
+    railed = p.copy()
+    railed[1] = np.minimum(railed[1], 0.6 * railed[1].max())
+    assert failures(CFG, trace_features(railed, fine, spec.firing_angles, CFG.flat_tol)).tolist()[1] == \
+        KINDS.index("clipped")

@@ -7,7 +7,7 @@ channel one crank revolution off or wired to another cylinder, a sample clock th
 cylinder's trace is read at angles from its own firing TDC (``pressure_trace_kernels``) and must be
 
     alive       swinging at least ``dead_swing_pa`` over the cycle                              else  dead
-    not railed  at most ``flat_samples`` samples at its maximum (a real peak is rounded)       else  clipped
+    not railed  its maximum held over at most ``flat_deg`` (a real peak is rounded)             else  clipped
     upright     its maximum further from zero than its minimum (absolute pressure; a pegging
                 offset within +-10 bar leaves a firing trace upright)                          else  negated
     smooth      its maximum at most ``spike_fraction`` of its swing above both neighbours     else  spikes
@@ -56,7 +56,10 @@ class PressureTraceConfig:
     the measured traces of ../shared/realdata (tests/core/test_pressure_trace.py)."""
 
     dead_swing_pa: float = 3e5  # healthy >= 23.6 bar; a dead channel's noise, a stuck one's 0
-    flat_samples: int = 4  # healthy <= 2 (a 1-deg grid); a rail at 60 % of the peak holds >= 33
+    # healthy <= 2 deg (two samples of a 1-deg grid); a rail at 60 % of the peak holds >= 33 deg. In degrees, not
+    # samples: a 12-bit converter over 250 bar (0.06 bar a code) holds a rounded peak (~0.5 bar/deg^2) over ~1 deg,
+    # i.e. ~10 samples of a 0.1-deg grid, which a count of 4 samples called clipped (a unit test; not tuned on it)
+    flat_deg: float = 4.0
     flat_tol: float = 1e-6  # relative: a rail is one converter code
     peak_window_deg: tuple[float, float] = (-10.0, 40.0)  # healthy 4..16 deg after firing TDC (motored: ~ -1)
     sibling_deg: float = 20.0  # healthy within 2 deg of the siblings' median; a V20 swap of neighbours is 36
@@ -112,13 +115,13 @@ def failures(cfg: PressureTraceConfig, feat: np.ndarray) -> np.ndarray:
     out = np.where(phase, 4, -1)  # (a row without a valid sample: no sensor, not judged; NaN passes every test)
     out = np.where(feat[:, SPIKE] > cfg.spike_fraction * swing, 3, out)
     out = np.where(hi + lo < 0.0, 2, out)
-    out = np.where(feat[:, FLAT] > cfg.flat_samples, 1, out)
+    out = np.where(feat[:, FLAT] > cfg.flat_deg, 1, out)
     return np.where(swing < cfg.dead_swing_pa, 0, out)
 
 
 def verdict_limits(cfg: PressureTraceConfig) -> np.ndarray:
     """The thresholds as ``trace_verdict_kernel`` takes them (pressure_trace_kernels' order)."""
-    return np.array([cfg.dead_swing_pa, cfg.flat_samples, *cfg.peak_window_deg, cfg.sibling_deg, cfg.spike_fraction,
+    return np.array([cfg.dead_swing_pa, cfg.flat_deg, *cfg.peak_window_deg, cfg.sibling_deg, cfg.spike_fraction,
                      cfg.rise_fraction, cfg.gas_exchange_fraction])
 
 

@@ -6,7 +6,9 @@ Features, per cylinder k (row of ``out``), with ``rel`` the sample's angle after
 [-360, 360) deg:
     MIN, MAX         the trace's extremes [Pa]
     PEAK_DEG         ``rel`` of the first sample at MAX [deg]
-    FLAT             how many samples lie within ``flat_tol`` (relative) of MAX: a rail (saturation) or a frozen
+    FLAT             the crank angle [deg] the samples within ``flat_tol`` (relative) of MAX span, as their count times
+                     the grid's step (an angle, not a count: a converter's coarse codes hold a rounded peak on a
+                     fine grid over more samples, not over more degrees): a rail (saturation) or a frozen
                      channel holds many, a real peak one or two
     BDC, LATE        the mean pressure over [-190, -170) deg (intake BDC) and [-20, -5) deg (late compression) [Pa]
     GASX_MAX         the maximum over the gas-exchange revolution, |rel| >= 180 deg [Pa]
@@ -40,6 +42,7 @@ def trace_features_reference(pressure: np.ndarray, grid: np.ndarray, firing: np.
     720 deg], cylinder k firing at ``firing[k]`` [rad]; the readable definition the kernel is tested against."""
     z = pressure.shape[0]
     rel = relative_angles(grid, firing)
+    step_deg = (grid[-1] - grid[0]) / (grid.shape[0] - 1) * DEG
     out = np.full((z, N_FEATURES), np.nan)
     for k in range(z):
         ok = np.isfinite(pressure[k])
@@ -52,7 +55,7 @@ def trace_features_reference(pressure: np.ndarray, grid: np.ndarray, firing: np.
         at = np.flatnonzero(ok)[np.argmax(p)]
         beside = pressure[k][[(at - 1) % ok.size, (at + 1) % ok.size]]
         out[k, SPIKE] = top - np.max(np.where(np.isfinite(beside), beside, top))
-        out[k, FLAT] = np.count_nonzero(p >= top - flat_tol * abs(top))
+        out[k, FLAT] = np.count_nonzero(p >= top - flat_tol * abs(top)) * step_deg
         out[k, BDC] = p[(r >= BDC_DEG[0]) & (r < BDC_DEG[1])].mean()
         out[k, LATE] = p[(r >= LATE_DEG[0]) & (r < LATE_DEG[1])].mean()
         out[k, GASX_MAX] = p[np.abs(r) >= 180.0].max()
@@ -65,6 +68,7 @@ def trace_features_kernel(pressure, grid, firing, flat_tol, out):
     worked out as ``relative_angles`` does (so a sample on a window's edge falls on the same side). Two passes over a row (the extremes, then what needs MAX); never raises (a row without samples in a window
     gives NaN there)."""
     z, n = pressure.shape
+    step_deg = (grid[n - 1] - grid[0]) / (n - 1) * DEG
     for k in range(z):
         row = pressure[k]
         lo, hi, at = np.inf, -np.inf, -1
@@ -102,7 +106,7 @@ def trace_features_kernel(pressure, grid, firing, flat_tol, out):
         out[k, MIN], out[k, MAX] = lo, hi
         rp = (grid[at] - f) * DEG
         out[k, PEAK_DEG] = rp - 720.0 if rp >= 360.0 else (rp + 720.0 if rp < -360.0 else rp)
-        out[k, FLAT] = flat
+        out[k, FLAT] = flat * step_deg
         out[k, BDC] = s_bdc / n_bdc if n_bdc else np.nan
         out[k, LATE] = s_late / n_late if n_late else np.nan
         out[k, GASX_MAX] = gasx
@@ -113,7 +117,7 @@ def trace_features_kernel(pressure, grid, firing, flat_tol, out):
 
 
 # the verdict's thresholds as the kernel takes them (pressure_trace.PressureTraceConfig's, in this order)
-DEAD_SWING, FLAT_SAMPLES, PEAK_LO, PEAK_HI, SIBLING_DEG, SPIKE_FRACTION, RISE_FRACTION, GASX_FRACTION = range(8)
+DEAD_SWING, FLAT_DEG, PEAK_LO, PEAK_HI, SIBLING_DEG, SPIKE_FRACTION, RISE_FRACTION, GASX_FRACTION = range(8)
 
 
 @numba.njit(cache=True)
@@ -139,7 +143,7 @@ def trace_verdict_kernel(feat, limits, fail):
             m >= 3 and abs(peak - median) > limits[SIBLING_DEG])
         if swing < limits[DEAD_SWING]:
             fail[k] = 0
-        elif feat[k, FLAT] > limits[FLAT_SAMPLES]:
+        elif feat[k, FLAT] > limits[FLAT_DEG]:
             fail[k] = 1
         elif hi + lo < 0.0:
             fail[k] = 2
