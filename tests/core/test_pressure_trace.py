@@ -167,3 +167,18 @@ def test_a_coarse_converter_on_a_fine_grid_is_not_called_clipped_and_a_rail_stil
     railed[1] = np.minimum(railed[1], 0.6 * railed[1].max())
     assert failures(CFG, trace_features(railed, fine, spec.firing_angles, CFG.flat_tol)).tolist()[1] == \
         KINDS.index("clipped")
+
+
+@pytest.mark.parametrize("fault", ["healthy", "dead_zero", "negated"])
+def test_a_camless_engine_whose_one_channel_shows_no_firing_tdc_counts_its_cycles_skipped(fault):
+    """deutz-1cyl has no cam: its 4-stroke phase comes from its one pressure channel (drivers/assembly/cycle_sync.py).
+    A dead or negated channel decides nothing: no cycle comes out, and each is counted ``phase_undecided`` (it left
+    no cycle and no reason before); a healthy channel decides at once and counts none."""
+    spec = load_engine("deutz-1cyl")
+    rpm, load = POINTS["deutz-1cyl"][0]
+    sim = simulate(spec, rpm, load, 10, seed=5)
+    cyc, skipped = assembled_cycles(spec, sim.info, lie(sim.records, fault, 1, sim.info.tick_hz, rpm, 5))
+    if fault == "healthy":
+        assert len(cyc) >= 8 and skipped["phase_undecided"] == 0
+    else:
+        assert cyc == [] and 4 <= skipped["phase_undecided"] <= 10, skipped
