@@ -18,3 +18,8 @@ def reports_a_bug(send, *args) -> None:
 
 def reports_its_policy(send, *args) -> None:
     send.send(("done", {"policy": os.sched_getscheduler(0)}))
+
+
+def reports_a_report(send, *args) -> None:
+    """A child that finishes at once with a report of its own (a test of the jobs' bookkeeping, not the workflow)."""
+    send.send(("done", {"verdict": "a stand-in's report"}))

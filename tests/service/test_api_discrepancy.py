@@ -18,7 +18,7 @@ from frictionwatch.service.cli import main
 from frictionwatch.service.cmd_discrepancy import run_discrepancy
 from frictionwatch.service.engine_service import RecentRecords
 
-from tests.service.job_standins import ends_without_a_word, reports_a_bug, reports_its_policy
+from tests.service.job_standins import ends_without_a_word, reports_a_bug, reports_a_report, reports_its_policy
 from tests.service.serve_helpers import demo_service, wait_until
 
 TOKEN = "t0ken-for-the-tests-0123456789"
@@ -103,9 +103,9 @@ def test_one_job_at_a_time(served, monkeypatch):
     gate = threading.Event()
     real = discrepancy_jobs.run_job
 
-    def held(*args, **kwargs):
+    def held(*args, **kwargs):  # the jobs' bookkeeping under test, so a stand-in child (the workflow's: above)
         gate.wait(60)
-        return real(*args, **kwargs)
+        return real(*args, target=reports_a_report, **kwargs)
 
     monkeypatch.setattr(discrepancy_jobs, "run_job", held)
     url = "/api/v1/engines/k9k/discrepancy"
@@ -116,7 +116,8 @@ def test_one_job_at_a_time(served, monkeypatch):
     # the job of one engine is not another engine's
     assert client.get(f"/api/v1/engines/k9k-short/discrepancy/{first.json()['job_id']}").status_code == 404
     gate.set()
-    assert _finished(client, "k9k", first.json()["job_id"])["state"] == "done"
+    done = _finished(client, "k9k", first.json()["job_id"])
+    assert done["state"] == "done" and done["report"]["verdict"] == "a stand-in's report"
     again = client.post(url, json={"max_steps": 0, "cycles": 2000}, headers=AUTH)
     assert again.status_code == 202
     _finished(client, "k9k", again.json()["job_id"])
