@@ -255,6 +255,20 @@ def test_estimate_window_recovers_the_forgetting_and_centre():
     assert_allclose(win.centre_cycle, np.sum(lam ** age * idx[warm:]) / np.sum(lam ** age), rtol=1e-12)
     assert win.centre_cycle > 100 + n / 2  # an end-of-run estimate is not the run's mean
     assert estimate_window([3, 4], [0.0, 0.0]).first_cycle is None
+    # a restart of the accumulation (the weight back to one cycle's) starts the window again: first cycle, centre
+    # and forgetting those of the cycles after it (the ring's first cycle and middle before)
+    restart = 200
+    w2 = list(w[:restart])
+    acc = 0.0
+    for _ in range(restart, n):
+        acc = lam * acc + 1.0
+        w2.append(acc)
+    win = estimate_window(idx, w2)
+    assert (win.first_cycle, win.last_cycle) == (100 + restart, 399)
+    assert_allclose(win.effective_cycles, w2[-1], rtol=0)
+    assert_allclose(win.forgetting, lam, rtol=1e-12)
+    age = np.arange(n - restart - 1, -1, -1)
+    assert_allclose(win.centre_cycle, np.sum(lam ** age * idx[restart:]) / np.sum(lam ** age), rtol=1e-12)
     # a long run: the weight reaches its floating-point fixed point and stops changing; the window still ends at
     # the last cycle, centred ~1/(1 - lambda) - 1 cycles before it
     lam, w, acc = 1.0 - 1.0 / 400.0, [], 0.0

@@ -37,7 +37,8 @@ class EstimateWindow:
 
 def estimate_window(indices: Sequence[int], weights: Sequence[float]) -> EstimateWindow:
     """From each held result's cycle index and the accumulated weight of its smoothed estimate (in order). The
-    monitor accumulates every cycle after its warm-up, so every result from the first with a weight on counts. (Not
+    monitor accumulates every cycle after its warm-up, so every result from the first with a weight on counts, back
+    to the newest restart of the accumulation (a weight back to one cycle's), if any. (Not
     "where the weight changed": the weight reaches its fixed point 1 / (1 - lambda) exactly in floating point after
     some 12,000 cycles of a 400-cycle window and stops changing.)"""
     idx = np.asarray(indices, dtype=np.int64)
@@ -49,10 +50,17 @@ def estimate_window(indices: Sequence[int], weights: Sequence[float]) -> Estimat
     if started.size == 0:
         return EstimateWindow(None, last, float(w[-1]), None, None)
     pos = np.arange(started[0], idx.size)
-    ratios = (w[pos[1:]] - 1.0) / w[pos[1:] - 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratios = (w[pos[1:]] - 1.0) / w[pos[1:] - 1]  # each cycle's factor on what came before it (lambda: forgot)
+    # a restart of the accumulation (its weight back to one cycle's: factor 0) begins the window again: the cycles
+    # before it carry nothing of the estimate (a served demo read "cycles 20-1320" of an estimate restarted at ~1085)
+    restarts = np.flatnonzero(~(ratios > 0.0))
+    if restarts.size:
+        pos, ratios = pos[restarts[-1] + 1:], ratios[restarts[-1] + 1:]
     lam = float(np.median(ratios)) if ratios.size else None
-    age = np.arange(pos.size - 1, -1, -1, dtype=np.float64)
-    cw = np.ones(pos.size) if lam is None else lam ** age
+    # each cycle's share of the estimate: the product of the factors after it (lambda ** age where the weight only
+    # forgot; less where it was cut back part way)
+    cw = np.r_[np.cumprod(ratios[::-1])[::-1], 1.0]
     centre = float(np.sum(cw * idx[pos]) / np.sum(cw))
     return EstimateWindow(int(idx[pos[0]]), last, float(w[-1]), centre, lam)
 
