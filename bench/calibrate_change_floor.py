@@ -5,11 +5,12 @@ on them for a list of floors and take the smallest that raises no alarm.
     python -m bench.calibrate_change_floor record genset-v20 1500 1.0 3 --cycles 1000 --out inn_s3.json
     python -m bench.calibrate_change_floor replay inn_s3.json [--floors 0 0.01 0.02 0.03 0.04] [--write]
 
-``record`` runs the one pipeline (service.pipeline.run) on a simulated healthy log with ``rel_floor`` 0 and keeps,
-each cycle, the innovation (the cycle's per-cylinder friction less the smoothed one) and the smoothed figures, and
-the alarms the run raised. ``replay`` steps ``cusum_step_reference`` over them (no feedback: an alarm in the run
-discounted the accumulator, which the replay cannot undo; the floor that leaves none is checked by running the
-validating cases, tests/core/test_monitor_accuracy.py and tests/core/test_condition.py). ``--write`` stores the
+``record`` runs the one pipeline (service.pipeline.run) on a simulated healthy log with the detector unable to
+alarm and keeps, each cycle, the innovation (the cycle's per-cylinder friction less the smoothed one), the smoothed
+figures and the smoothed estimate's motion at the cycle's rows. ``replay`` steps ``cusum_step_reference`` over them,
+its mean following the motion as the monitor's does (``--no-follow``: the detector before design note 151); no
+alarm in the run means no feedback to miss, and the floor is then checked by running the validating cases,
+tests/core/test_monitor_accuracy.py and tests/core/test_condition.py. ``--write`` stores the
 smallest floor with no alarm in core/monitor/tuned.json as CHANGE_INNOVATION_REL_FLOOR, with this run as its
 provenance. The floor is tuned on a seed no test runs (3) and validated on the tests' seeds.
 """
@@ -23,7 +24,7 @@ from datetime import date
 
 import numpy as np
 from frictionwatch.core.monitor.checks import condition
-from frictionwatch.core.monitor.checks.change import ChangeDetector, cusum_step_reference, cylinder_friction
+from frictionwatch.core.monitor.checks.change import ChangeDetector, cusum_step_reference
 from frictionwatch.core.tuned import MONITOR_RECORD, Tuned, round_up, write_tuned
 
 NAME = "CHANGE_INNOVATION_REL_FLOOR"
@@ -33,38 +34,50 @@ MARGIN = 1.25
 
 
 def record(engine: str, rpm: float, load: float, seed: int, cycles: int) -> dict:
-    """The healthy run's innovations (cycles, z), smoothed figures (cycles, z) and alarm flags, the floor off."""
+    """The healthy run's innovations (cycles, z), smoothed figures (cycles, z) and the smoothed estimate's motion at
+    each cycle's rows (cycles, z: what ``follow_smoothed`` takes off the detector's mean), with the detector unable
+    to alarm (h infinite): no alarm discounts the accumulator, so the replay sees the run it replays."""
     from frictionwatch.core.model.engine import load_engine
     from frictionwatch.core.plant.simulate import simulate
     from frictionwatch.service.pipeline import run
 
-    inner, innov, smooth = condition.detect_change, [], []
+    inner, innov, smooth, motion, before = condition.condition_kernel, [], [], [], [None]
 
-    def spy(det, cycle, smoothed, rows, settings):
-        s = cylinder_friction(smoothed, rows)
-        innov.append((cylinder_friction(cycle, rows) - s).tolist())
+    def spy(levels, stats, estimate, fit, ring, limits, *rest):
+        cycle_params, smoothed_params, rows = fit[0], fit[1], fit[2]
+        pf = rows.shape[1]
+        s = rows @ smoothed_params[:pf]
+        innov.append((rows @ cycle_params[:pf] - s).tolist())
         smooth.append(s.tolist())
-        return inner(det, cycle, smoothed, rows, replace(settings, rel_floor=0.0))
+        now = np.array(smoothed_params[:pf])
+        motion.append((rows @ (now - before[0])).tolist() if before[0] is not None else [0.0] * len(s))
+        before[0] = now
+        cusum = limits[2].copy()
+        cusum[1] = np.inf  # h: never an alarm
+        return inner(levels, stats, estimate, fit, ring, (limits[0], limits[1], cusum), *rest)
 
-    condition.detect_change = spy  # a bench's probe: the module's name is what condition_step calls
+    condition.condition_kernel = spy  # a bench's probe: the module's name is what assess_condition calls
     try:
         spec = load_engine(engine)
         sim = simulate(spec, rpm, load, cycles, seed=seed)
-        alarms = [(o.result.index, [f for f in o.result.flags if f.startswith("condition_change")])
-                  for o in run(spec, sim.info, sim.records) if o.ok]
+        for _ in run(spec, sim.info, sim.records):
+            pass
     finally:
-        condition.detect_change = inner
+        condition.condition_kernel = inner
     return {"case": f"{engine} {rpm:g} rpm {load:g} seed {seed}", "cycles": cycles,
             "command": f"record {engine} {rpm:g} {load:g} {seed} --cycles {cycles}", "innovation": innov,
-            "smoothed": smooth, "alarms": [a for a in alarms if a[1]]}
+            "smoothed": smooth, "motion": motion}
 
 
-def replay(doc: dict, floor: float) -> list[tuple[int, int]]:
-    """(cycle, cylinder) of every alarm the detector's reference raises on the recorded innovations at ``floor``."""
+def replay(doc: dict, floor: float, follow: bool = True) -> list[tuple[int, int]]:
+    """(cycle, cylinder) of every alarm the detector's reference raises on the recorded innovations at ``floor``;
+    ``follow``: its mean moved by the recorded motion first, as ``follow_smoothed`` does in the monitor."""
     settings = replace(condition.ConditionSettings().change, rel_floor=floor)
     det: ChangeDetector | None = None
     out = []
-    for i, (u, s) in enumerate(zip(doc["innovation"], doc["smoothed"])):
+    for i, (u, s, m) in enumerate(zip(doc["innovation"], doc["smoothed"], doc["motion"])):
+        if follow and det is not None:
+            det = replace(det, mean=det.mean - np.asarray(m))
         det, alarm = cusum_step_reference(det, np.asarray(u), np.asarray(s), settings)
         out += [(i, int(k)) for k in np.flatnonzero(alarm)]
     return out
@@ -84,16 +97,18 @@ def main() -> None:
     p.add_argument("path")
     p.add_argument("--floors", type=float, nargs="+", default=[0.0, 0.01, 0.02, 0.025, 0.03, 0.035, 0.04, 0.05])
     p.add_argument("--write", action="store_true")
+    p.add_argument("--no-follow", action="store_true", help="the detector before design note 151 (its mean not moved "
+                   "by the smoothed estimate's motion)")
     args = ap.parse_args()
     if args.cmd == "record":
         doc = record(args.engine, args.rpm, args.load, args.seed, args.cycles)
         with open(args.out, "w") as fh:
             json.dump(doc, fh)
-        print(f"{doc['case']}: {len(doc['alarms'])} alarms in the run with the floor off -> {args.out}")
+        print(f"{doc['case']}: {len(doc['innovation'])} cycles recorded -> {args.out}")
         return
     with open(args.path) as fh:
         doc = json.load(fh)
-    counts = {f: len(replay(doc, f)) for f in sorted(args.floors)}
+    counts = {f: len(replay(doc, f, not args.no_follow)) for f in sorted(args.floors)}
     for f, n in counts.items():
         print(f"rel_floor {f:.3f}: {n} alarms in {len(doc['innovation'])} healthy cycles")
     quiet = [f for f, n in counts.items() if n == 0]

@@ -46,11 +46,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.monitor.checks.change import (
-    ChangeDetector,
     ChangeSettings,
     cusum_limits,
     detect_change_reference,
     detector_after,
+    follow_smoothed,
 )
 from frictionwatch.core.monitor.checks.check import CheckInput, CheckStep
 from frictionwatch.core.monitor.checks.condition_kernels import (
@@ -277,7 +277,7 @@ def assess_condition(spec: EngineSpec, state: ConditionState | None, grid: np.nd
     # an operating-point change (a load step) is a transient the noise model has not learnt yet: the innovations
     # move for a while without anything wrong with the engine
     since_op = 0 if op_changed else st.since_op_change + 1
-    det = ChangeDetector.empty(z) if st.detector is None else st.detector
+    det = follow_smoothed(st.detector, smoothed.params, cylinder_rows)
     ref0 = st.burn_reference if st.burn_reference is not None else np.full(z, np.nan)
     n0 = st.burn_cycles if st.burn_cycles is not None else np.zeros(z, dtype=np.int64)
     ring_tab = tab.ring
