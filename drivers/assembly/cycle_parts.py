@@ -102,6 +102,7 @@ class Epoch:
     c0: int = 0
     index_base: int = 0
     probe: int | None = None  # next rev-aligned window tried for the pressure phase test
+    undecided: int = 0  # windows in a row the pressure phase test could not decide (one revolution apart)
     cam_votes: list[tuple[int, int]] = field(default_factory=list)  # (tick, phase bit)
     mismatch_run: int = 0
 

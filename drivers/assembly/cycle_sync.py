@@ -14,6 +14,7 @@ the new segment joins the same epoch, so position count, phase and cycle index c
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -28,6 +29,15 @@ from frictionwatch.drivers.assembly.cycle_parts import (
 )
 from frictionwatch.drivers.assembly.cycle_phase import firing_verdict, place_cams
 from frictionwatch.drivers.assembly.wheel_sync import EV_END, EV_SEGMENT, REASONS
+
+log = logging.getLogger(__name__)
+
+# undecided probe windows in a row before they count as cycles lost (``phase_undecided``): a healthy channel, fired
+# or motored, decides at its first window; an engine coasting to a stop leaves up to two undecided windows in its
+# last epoch (the measured TU/e coast-downs, tests/realdata/test_tue_pipeline.py: counting from the second window
+# added one cycle beyond the reader's exact count there); a dead or negated channel never decides. Four windows (two
+# cycles of wheel signal, both phases tried twice) are past both; counted from then on, the backlog included.
+UNDECIDED_WINDOWS = 4
 
 
 class EpochSync:
@@ -125,6 +135,23 @@ class EpochSync:
             self._win_h2 = h2
         return self._win
 
+    def _count_undecided(self, ep: Epoch) -> None:
+        """A probe window without a verdict. From the ``UNDECIDED_WINDOWS``-th in a row on, every second one (the
+        windows step one revolution, a cycle is two) is a cycle skipped as ``phase_undecided``, logged at the first:
+        a channel that shows no firing TDC (dead, negated, on another clock) with no cam to decide the phase would
+        otherwise leave no cycle and no reason (design note 144's gap)."""
+        ep.undecided += 1
+        if ep.undecided < UNDECIDED_WINDOWS:
+            return
+        cycles = ep.undecided // 2 if ep.undecided == UNDECIDED_WINDOWS else int(ep.undecided % 2 == 0)
+        if cycles == 0:
+            return
+        if self.skipped["phase_undecided"] == 0:
+            log.warning("no 4-stroke phase: cylinder %d's pressure shows no firing TDC and no cam edge decides it; its "
+                        "cycles are skipped (phase_undecided) until it does", self.phase_cyl)
+        self.skipped["phase_undecided"] += cycles
+        self.lost += cycles
+
     def _probe_pressure(self, ep: Epoch, flushing: bool) -> None:
         """Decide the phase from the phase cylinder's pressure on rev-aligned 720 deg windows."""
         if self.phase_cyl is None:
@@ -160,5 +187,6 @@ class EpochSync:
             verdict = firing_verdict(row, self.grid, tdc)
             if verdict == 0:
                 ep.probe += 1
+                self._count_undecided(ep)
             else:  # +1: this window starts at firing TDC, i.e. it is a cycle: 2 c - P = probe
                 self._set_phase(ep, (ep.probe + (0 if verdict > 0 else 1)) % 2, "pressure", from_pos=ps)
