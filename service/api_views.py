@@ -32,9 +32,10 @@ def num(x: float) -> float | None:
 
 def cycle_summary(engine_id: str, r: CycleResult) -> dict:
     """CycleSummary (contract): one cycle's measured quantities and its flags."""
+    imep, pmax, _ = r.pressure_figures()  # None where the siblings' mean stands in for a flagged channel
     return {"engine_id": engine_id, "cycle_index": int(r.index), "t_start_s": num(r.t_start),
             "rpm_mean": num(r.rpm_mean), "load_torque_nm": num(r.load_torque), "load_power_kw": num(r.load_power / 1e3),
-            "imep_bar": [num(v / PA_PER_BAR) for v in r.imep], "pmax_bar": [num(v / PA_PER_BAR) for v in r.pmax],
+            "imep_bar": [num(v / PA_PER_BAR) for v in imep], "pmax_bar": [num(v / PA_PER_BAR) for v in pmax],
             "friction_balance_nm": num(r.friction_balance), "flags": list(r.flags)}
 
 

@@ -130,7 +130,7 @@ def summary(analysis: LogAnalysis) -> dict:
         "tdc_from_pressure": tdc_from_pressure(analysis),
         "last": {k: cyc[k] for k in LAST_CYCLE_KEYS},
         "flags": flag_summary([r.index for r in results], flags),
-        "cylinders": [_cylinder_run(c, k, analysis) for k, c in enumerate(cyc["cylinders"])],
+        "cylinders": _cylinders_run(cyc["cylinders"], analysis),
     })
     return doc
 
@@ -155,18 +155,26 @@ def tdc_watch_document(watch: TdcWatchState) -> dict | None:
             "flags": list(watch.flags), "cylinders": cyl}
 
 
-def _cylinder_run(c: dict, k: int, analysis: LogAnalysis) -> dict:
-    """A cylinder of the last cycle's document with its indicated quantities as run means (the truth file's
-    imep_bar and pmax_bar_mean), their 1-sigma (of the mean, from the cycle-to-cycle scatter) and scatter."""
-    imep = mean_and_sem([r.imep[k] / 1e5 for r in analysis.results])
-    pmax = mean_and_sem([r.pmax[k] / 1e5 for r in analysis.results])
-    out = {key: v for key, v in c.items() if key not in ("imep_bar", "pmax_bar", "pmax_angle_deg")}
-    out.update({
-        "imep_bar": _num(imep[0]), "imep_sigma_bar": _num(imep[1]), "imep_std_bar": _num(imep[1] * np.sqrt(imep[2])),
-        "pmax_bar_mean": _num(pmax[0]), "pmax_sigma_bar": _num(pmax[1]),
-        "pmax_std_bar": _num(pmax[1] * np.sqrt(pmax[2])),
-        "pmax_angle_deg_mean": _num(np.degrees(np.mean([r.pmax_angle[k] for r in analysis.results]))),
-    })
+def _cylinders_run(cylinders: list[dict], analysis: LogAnalysis) -> list[dict]:
+    """The last cycle's cylinder documents with their indicated quantities as run means (the truth file's imep_bar
+    and pmax_bar_mean), their 1-sigma (of the mean, from the cycle-to-cycle scatter) and scatter, over the cycles
+    where the cylinder's own pressure was analysed (``pressure_cycles``): a flagged channel's stand-in (its
+    siblings' mean, core.monitor.checks.pressure_trace) is NaN in ``pressure_figures`` and left out."""
+    own = np.array([r.pressure_figures() for r in analysis.results])  # (cycles, 3, z)
+    out = []
+    for k, c in enumerate(cylinders):
+        imep = mean_and_sem(own[:, 0, k] / 1e5)
+        pmax = mean_and_sem(own[:, 1, k] / 1e5)
+        doc = {key: v for key, v in c.items() if key not in ("imep_bar", "pmax_bar", "pmax_angle_deg")}
+        doc.update({
+            "imep_bar": _num(imep[0]), "imep_sigma_bar": _num(imep[1]),
+            "imep_std_bar": _num(imep[1] * np.sqrt(imep[2])),
+            "pmax_bar_mean": _num(pmax[0]), "pmax_sigma_bar": _num(pmax[1]),
+            "pmax_std_bar": _num(pmax[1] * np.sqrt(pmax[2])),
+            "pmax_angle_deg_mean": _num(np.degrees(mean_and_sem(own[:, 2, k])[0])),
+            "pressure_cycles": imep[2],
+        })
+        out.append(doc)
     return out
 
 

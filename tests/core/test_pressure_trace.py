@@ -3,6 +3,8 @@ cylinder's pressure is flagged on its cylinder with its kind and kept out of the
 only in calibration (pegging within +-10 bar, gain, TDC), is not flagged. Thresholds were tuned on seed 3
 (bench/pressure_lies.py); these runs use seeds 5 and 7."""
 
+from collections import Counter
+
 import numpy as np
 import pytest
 from frictionwatch.core.model.effects.catalog import PressureGain, PressureOffset, TdcOffset
@@ -183,3 +185,27 @@ def test_a_camless_engine_whose_one_channel_shows_no_firing_tdc_counts_its_cycle
         assert len(cyc) >= 8 and skipped["phase_undecided"] == 0
     else:
         assert cyc == [] and 4 <= skipped["phase_undecided"] <= 10, skipped
+
+
+def test_a_stood_in_cylinder_shows_no_pressure_figure_of_its_own():
+    """The siblings' mean that stands in for a flagged channel feeds the balance (``imep`` keeps it) but is no
+    measurement of that cylinder: ``pressure_figures``, the cycle document, the API's cycle summary and analyze's
+    run means show none for it (design note 153; before, its IMEP read the siblings' ~within 5 % as if measured)."""
+    from frictionwatch.service.api_views import cycle_summary
+    from frictionwatch.service.cmd_analyze import _cylinders_run
+    from frictionwatch.service.pipeline import LogAnalysis
+
+    spec, bad = cycles_of("maruti-3cyl", 0, 5, 10, "dead_const", cyl=3)
+    _, got = run_pipeline(spec, bad)
+    last = got[-1]
+    assert "sensor_pressure_dead_cyl3" in last.flags and np.isfinite(last.imep).all()
+    imep, pmax, angle = last.pressure_figures()
+    assert np.isnan([imep[2], pmax[2], angle[2]]).all() and np.isfinite(imep[:2]).all()
+    assert_allclose(imep[:2], last.imep[:2], rtol=0)
+    doc = last.to_json()
+    assert [c["imep_bar"] is None for c in doc["cylinders"]] == [False, False, True]
+    assert cycle_summary("e", last)["imep_bar"][2] is None
+    flagged = sum(any(f.endswith("_cyl3") and f.startswith("sensor_pressure_") for f in r.flags) for r in got)
+    run = _cylinders_run(doc["cylinders"], LogAnalysis(spec, got, Counter()))
+    assert [c["pressure_cycles"] for c in run] == [len(got), len(got), len(got) - flagged]
+    assert run[0]["imep_bar"] is not None

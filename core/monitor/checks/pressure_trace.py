@@ -28,6 +28,7 @@ place, so the engine's indicated work and friction stay measured and the cylinde
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,6 +144,19 @@ def substitute(pressure: np.ndarray, grid: np.ndarray, firing: np.ndarray, bad: 
             else:
                 acc += np.interp(np.arange(n) - shift, np.arange(n), pressure[j], period=n)
         out[k] = acc / good.size
+    return out
+
+
+def stood_in(flags: Iterable[str], n_cyl: int) -> np.ndarray:
+    """(n_cyl,) bool: the cylinders whose trace ``check_traces`` replaced by its siblings' mean (a
+    ``sensor_pressure_<kind>_cyl<k>`` flag of a kind in KINDS). Their IMEP, peak pressure and its angle are then
+    the siblings' stand-in, not a measurement: the reports show them as such (core.monitor.report.results)."""
+    out = np.zeros(n_cyl, dtype=bool)
+    for f in flags:
+        if f.startswith("sensor_pressure_"):
+            kind, _, cyl = f.removeprefix("sensor_pressure_").rpartition("_cyl")
+            if kind in KINDS and cyl.isdigit() and 1 <= int(cyl) <= n_cyl:
+                out[int(cyl) - 1] = True
     return out
 
 

@@ -17,6 +17,7 @@ from functools import cached_property
 
 import numpy as np
 from frictionwatch.core.model.engine import mep_per_torque
+from frictionwatch.core.monitor.checks.pressure_trace import stood_in
 from frictionwatch.core.monitor.checks.ring_pressure import RingIndicators
 from frictionwatch.core.monitor.report.figure_status import FigureStatus, FrictionStatus, friction_status
 from frictionwatch.core.monitor.teeth.tooth_fit import FreeEndSpeed
@@ -250,6 +251,17 @@ class CycleResult:
     def friction_torque_mean(self) -> np.ndarray:
         return self.cycle.friction_torque_mean
 
+    def pressure_figures(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(imep [Pa], pmax [Pa], pmax_angle [rad]) of each cylinder as measured: NaN where the pressure-trace check
+        put the siblings' mean in place of a channel that is no cylinder's pressure (``stood_in``). ``imep`` and
+        ``pmax`` keep the stand-in, which the balance needs; a report shows a cylinder's own figure only from this
+        (design note 153)."""
+        fake = stood_in(self.flags, self.n_cyl)
+        if not fake.any():
+            return self.imep, self.pmax, self.pmax_angle
+        return (np.where(fake, np.nan, self.imep), np.where(fake, np.nan, self.pmax),
+                np.where(fake, np.nan, self.pmax_angle))
+
     @property
     def friction_torque_mean_sigma(self) -> np.ndarray:
         return self.cycle.friction_torque_mean_sigma
@@ -285,6 +297,7 @@ class CycleResult:
                        "centre_cycle": float(self.index), "forgetting": None})
         mep_per_nm = self.mep_per_nm()  # Pa per N m of one cylinder: 4 pi / V_d
         z = self.n_cyl
+        pressure = self.pressure_figures()
         total = _figure(st.engine, window, est.total_friction_torque, est.total_friction_torque_sigma,
                         self.mep_per_nm(engine=True), est.calibration, est.total_calibration_sigma)
         doc = {
@@ -303,7 +316,8 @@ class CycleResult:
             "r_squared": _num(self.r_squared),
             "chi2_reduced": _num(est.chi2_reduced),
             "flags": list(self.flags),
-            "cylinders": [self._cylinder_json(k, est, st.cylinders[k], window, mep_per_nm) for k in range(z)],
+            "cylinders": [self._cylinder_json(k, est, st.cylinders[k], window, mep_per_nm, pressure)
+                          for k in range(z)],
             "sensor_health": self.sensor_health.to_json() if self.sensor_health is not None else None,
         }
         return doc
@@ -327,7 +341,7 @@ class CycleResult:
                         for k, c in enumerate(st.cylinders)]
 
     def _cylinder_json(self, k: int, est: FrictionEstimate, status: FigureStatus, window: dict,
-                       mep_per_nm: float) -> dict:
+                       mep_per_nm: float, pressure: tuple[np.ndarray, np.ndarray, np.ndarray]) -> dict:
         if status.status == "share":
             shown, sigma = est.prior_friction_torque_mean[k], est.friction_torque_mean_sigma[k]
         else:
@@ -339,9 +353,9 @@ class CycleResult:
             **_measured_only(fig),
             "friction": fig,
             "share_friction_torque_mean_nm": _num(est.prior_friction_torque_mean[k]),
-            "imep_bar": _num(self.imep[k] / PA_PER_BAR),
-            "pmax_bar": _num(self.pmax[k] / PA_PER_BAR),
-            "pmax_angle_deg": _num(math.degrees(self.pmax_angle[k])),
+            "imep_bar": _num(pressure[0][k] / PA_PER_BAR),  # None where the siblings' mean stands in (flagged)
+            "pmax_bar": _num(pressure[1][k] / PA_PER_BAR),
+            "pmax_angle_deg": _num(math.degrees(pressure[2][k])),
             "coefficients": [_num(v) for v in est.coefficients[k]],
             "coefficients_sigma": [_num(v) for v in est.coefficients_sigma[k]],
             "coefficients_normalised": [_num(v) for v in est.coefficients_normalised[k]],
