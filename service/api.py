@@ -22,7 +22,6 @@ from __future__ import annotations
 import asyncio
 import json
 import math
-import threading
 import time
 from collections.abc import AsyncIterator, Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -104,13 +103,9 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
         s.state.on_visible = metrics.observer(s.engine_id)  # on the API state's thread: no listener of its own
     files = _dashboard_files(dashboard_dir)
     started = time.monotonic()
-    # engine id -> (newest index, the smoothed losses' reply rendered): one computation and one rendering a cycle
-    cache: dict[str, tuple[int, bytes]] = {}
-    # one request computes a new cycle's smoothed losses (~2-4 ms over 5000 results); the others wait for it instead
-    # of computing the same thing at once on every worker thread
-    computing = {s.engine_id: threading.Lock() for s in services}
-    # engine id -> its newest result's own-estimate document by active flags: made once a cycle for every window
-    own_documents = {s.engine_id: views.OwnEstimateDocuments() for s in services}
+    # engine id -> the replies made once a cycle from its newest result (the smoothed /losses reply, the window
+    # replies' own-estimate documents), shared by every request
+    replies = {s.engine_id: views.NewestReplies() for s in services}
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -222,17 +217,15 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
                 newest(svc, 1)  # the 503 with its Retry-After
             holes = svc.state.holes_in(figures.first_cycle, figures.last_cycle)
             return rendered(Losses, views.losses_window(svc.engine_id, last, figures, svc.term_names, holes,
-                                                                own_documents[svc.engine_id]))
+                                                        replies[svc.engine_id].own))
         whole, _ = newest(svc, 1)
-        hit = cache.get(svc.engine_id)
-        if hit is None or hit[0] != whole.index:
-            with computing[svc.engine_id]:
-                hit = cache.get(svc.engine_id)
-                if hit is None or hit[0] < whole.index:  # not done by the request this one waited for
-                    whole, index, weight, flags = svc.state.smoothed()
-                    hit = cache[svc.engine_id] = (whole.index, body(Losses, views.losses_smoothed(
-                        svc.engine_id, whole, index, weight, flags, svc.term_names)))
-        return Response(hit[1], media_type="application/json")
+
+        def make() -> tuple[int, bytes]:
+            newer, index, weight, flags = svc.state.smoothed()
+            return newer.index, body(Losses, views.losses_smoothed(svc.engine_id, newer, index, weight, flags,
+                                                                   svc.term_names))
+
+        return Response(replies[svc.engine_id].smoothed(whole.index, make), media_type="application/json")
 
     @app.get("/api/v1/engines/{engine_id}/friction-torque", response_model=FrictionTorque, responses=ERRORS)
     def friction_torque(svc: Svc) -> Response:
