@@ -17,7 +17,6 @@ each log needs ran 3.86-5.53 over the matrix points at seed 13 and this share ex
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Sequence
 
 import numpy as np
@@ -37,10 +36,15 @@ def mean_pressure(cycles: Sequence[Cycle]) -> tuple[np.ndarray, np.ndarray]:
     a cylinder has no finite sample at an angle)."""
     if not cycles:
         raise ValueError("no cycles to read a mean pressure from")
-    stack = np.array([c.pressure for c in cycles], dtype=np.float64)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # a row without a sensor is NaN: leak_share leaves it out
-        return np.asarray(cycles[0].grid, dtype=np.float64), np.nanmean(stack, axis=0)
+    total = np.zeros(np.shape(cycles[0].pressure))
+    count = np.zeros(total.shape)
+    for c in cycles:  # summed in place: a 300-cycle genset-v20 log stacked would be ~70 MB
+        p = np.asarray(c.pressure, dtype=np.float64)
+        ok = np.isfinite(p)
+        total += np.where(ok, p, 0.0)
+        count += ok
+    with np.errstate(invalid="ignore", divide="ignore"):  # a row without a sensor is NaN: leak_share leaves it out
+        return np.asarray(cycles[0].grid, dtype=np.float64), np.where(count > 0, total / count, np.nan)
 
 
 def flow_weight(p: np.ndarray, vol: np.ndarray) -> np.ndarray:
