@@ -11,7 +11,8 @@
 - A leak (effect blow_by) is named where the monitor's condition check called the cylinder's compression a leak
   (blow_by_cyl<k> or ring_wear_cyl<k>: its compression rise, peak and work below the siblings' beyond their healthy
   scatter) in both halves of the log; its size, mass_loss, from the compression pressure's deficit against the
-  siblings (``leak_size``: a calibrated factor, tuned.json BLOW_BY_PER_LN). A single cylinder has no siblings: the
+  siblings (``leak_size``: per unit deficit 1 / (gamma x the leak's share gone by the reading, read from the log's
+  own pressure: leak_share.py) x a tuned scale, tuned.json BLOW_BY_SHARE_SCALE, design note 149). A single cylinder has no siblings: the
   monitor raises no such flag and nothing is named (words.ONE_CYLINDER_LEAK says why in the verdict).
 - A TDC offset far beyond its reading's sigma is named from the pressure too, held at the reading (design note 43):
   the speed's refinement of a TDC offset takes whatever else moves the indicated work along with it (deutz 3000 rpm,
@@ -28,6 +29,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from frictionwatch.core.discrepancy.leak_share import LEAK_GAMMA
 from frictionwatch.core.discrepancy.residuals import Residuals
 from frictionwatch.core.discrepancy.tuned import tuned_constants
 from frictionwatch.core.model.effects import EFFECTS
@@ -121,13 +123,14 @@ MISFIRE_MAX_RUN = 3
 # stays on while the leak lasts, so a pattern in both halves, not a tuned threshold (on the logs of note 97 a healthy,
 # gain, pegging, TDC or misfire log had no flag at all; a 12 % leak was flagged in 87-91 of 100 cycles)
 LEAK_MIN_CYCLES = 3
-# the size: mass_loss = BLOW_BY_PER_LN x the compression pressure's ln deficit against the siblings' (the ring
-# indicators' compression_ratio, read ~30 deg before TDC, before any burn), 1 sigma in quadrature: the factor's
-# relative spread across engines and points (BLOW_BY_REL), a healthy cylinder's own persistent offset from its
-# siblings (BLOW_BY_FLOOR_LN: heat transfer, fuel spread), the deficit's standard error over the cycles, and what the
-# cylinder's TDC read off by its sigma moves the deficit by (``compression_per_deg``: physics, not tuned)
+# the size: mass_loss = ``leak_per_ln`` x the compression pressure's ln deficit against the siblings' (the ring
+# indicators' compression_ratio, read ~30 deg before TDC, before any burn): BLOW_BY_SHARE_SCALE / (LEAK_GAMMA x the
+# share of the leak gone by the reading, read from the log's own pressure: leak_share.py), 1 sigma in quadrature:
+# the factor's relative spread over the tuning logs (BLOW_BY_REL), a healthy cylinder's own persistent offset from
+# its siblings (BLOW_BY_FLOOR_LN: heat transfer, fuel spread), the deficit's standard error over the cycles, and what
+# the cylinder's TDC read off by its sigma moves the deficit by (``compression_per_deg``: physics, not tuned)
 _TUNED = tuned_constants()
-BLOW_BY_PER_LN = _TUNED["BLOW_BY_PER_LN"].value
+BLOW_BY_SHARE_SCALE = _TUNED["BLOW_BY_SHARE_SCALE"].value
 BLOW_BY_REL = _TUNED["BLOW_BY_REL"].value
 BLOW_BY_FLOOR_LN = _TUNED["BLOW_BY_FLOOR_LN"].value
 # the compression's polytropic exponent in ``compression_per_deg``: k9k and maruti read 1.28-1.33 over the window
@@ -152,13 +155,15 @@ class PressureFinding:
 
 
 def pressure_findings(res: Residuals, halves: tuple[np.ndarray, np.ndarray] | None = None,
-                      spec: EngineSpec | None = None) -> list[PressureFinding]:
+                      spec: EngineSpec | None = None, share: float = math.nan) -> list[PressureFinding]:
     """The effects each cylinder's pressure names in the run ``res`` against that run's model: a pegging beyond
     PEG_SIGMAS of its sigma and PEG_MIN_PA (effect pressure_offset, pa = minus the pegging: the sensor reads p + pa),
     a TDC offset beyond TDC_SIGMAS of its sigma and TDC_MIN_DEG (effect tdc_offset, ``tdc_beyond``: cylinder 0 the
     whole wheel), a misfire rate (effect misfire, probability = the cycles called misfired over those judged) seen
     in both ``halves`` (two boolean masks over the run's cycles; default: its first and second half), a leak (effect
-    blow_by, ``leak_findings``; sized with ``spec``'s windows, without one its TDC term left out)."""
+    blow_by, ``leak_findings``: sized by the leak's ``share`` gone by the compression reading (leak_share.leak_share of
+    the log's mean pressure; NaN: a leak is not sized, so not named) and ``spec``'s windows (without one its TDC
+    term left out))."""
     out: list[PressureFinding] = []
     for k, deg, sigma in tdc_beyond(res, TDC_SIGMAS, TDC_MIN_DEG):
         where = "every cylinder's pressure reads" if k == 0 else "the pressure reads"
@@ -191,15 +196,17 @@ def pressure_findings(res: Residuals, halves: tuple[np.ndarray, np.ndarray] | No
                 out.append(PressureFinding("misfire", k + 1, "probability", rate, sigma,
                                            f"the pressure shows no full burn in {count} of {n} cycles"))
     if res.leak_flagged is not None and res.n_cycles:
-        out += leak_findings(res, halves, spec)
+        out += leak_findings(res, halves, spec, share)
     return out
 
 
 def leak_findings(res: Residuals, halves: tuple[np.ndarray, np.ndarray] | None = None,
-                  spec: EngineSpec | None = None) -> list[PressureFinding]:
+                  spec: EngineSpec | None = None, share: float = math.nan) -> list[PressureFinding]:
     """blow_by findings in the run ``res``: each cylinder the monitor flagged leaking in at least LEAK_MIN_CYCLES
-    cycles of each of ``halves`` (default: the run's first and second half), sized by ``leak_size``."""
-    if res.leak_flagged is None or res.compression_ln is None or res.leak_flagged.shape[1] < 2:
+    cycles of each of ``halves`` (default: the run's first and second half), sized by ``leak_size`` with the
+    leak's ``share`` gone by the reading (none without a finite share)."""
+    if (res.leak_flagged is None or res.compression_ln is None or res.leak_flagged.shape[1] < 2
+            or not 0.0 < share < 1.0):
         return []
     n = res.n_cycles
     if halves is None:
@@ -216,7 +223,7 @@ def leak_findings(res: Residuals, halves: tuple[np.ndarray, np.ndarray] | None =
         if deficit.size < 2:
             continue
         value, sigma = leak_size(float(np.mean(deficit)), float(np.std(deficit, ddof=1)) / math.sqrt(deficit.size),
-                                 per_deg * sibling_tdc_sigma(res, k))
+                                 per_deg * sibling_tdc_sigma(res, k), leak_per_ln(share))
         out.append(PressureFinding(
             "blow_by", k + 1, "mass_loss", value, sigma,
             f"the monitor read a leak in {int(hits.sum())} of {n} cycles: the compression pressure "
@@ -236,19 +243,29 @@ def sibling_tdc_sigma(res: Residuals, k: int) -> float:
     return float(np.median(others)) if others.size else 0.0
 
 
-def leak_size(deficit_ln: float, se_ln: float, tdc_ln: float) -> tuple[float, float]:
-    """(mass_loss, its 1 sigma) from a cylinder's mean ln compression pressure against its siblings' ``deficit_ln``,
-    that mean's standard error ``se_ln`` and what its TDC's sigma moves it by ``tdc_ln`` (module constants' comment).
-    The value is held inside the effect's range (blow_by mass_loss: 0-0.4).
+def leak_per_ln(share: float) -> float:
+    """The mass_loss a unit ln compression deficit reads when ``share`` of the leak is gone by the reading:
+    BLOW_BY_SHARE_SCALE / (LEAK_GAMMA x share) (leak_share.py: the deficit ~ LEAK_GAMMA x share x mass_loss).
 
-    >>> v, s = leak_size(-0.025, 0.0001, 0.0)
-    >>> round(v / (0.025 * BLOW_BY_PER_LN), 6)
+    >>> round(leak_per_ln(0.155) * 0.155 * LEAK_GAMMA / BLOW_BY_SHARE_SCALE, 12)
     1.0
     """
+    return BLOW_BY_SHARE_SCALE / (LEAK_GAMMA * share)
+
+
+def leak_size(deficit_ln: float, se_ln: float, tdc_ln: float, per_ln: float) -> tuple[float, float]:
+    """(mass_loss, its 1 sigma) from a cylinder's mean ln compression pressure against its siblings' ``deficit_ln``,
+    that mean's standard error ``se_ln`` and what its TDC's sigma moves it by ``tdc_ln``, ``per_ln`` the log's
+    mass_loss per unit deficit (``leak_per_ln``; module constants' comment). The value is held inside the effect's
+    range (blow_by mass_loss: 0-0.4).
+
+    >>> v, s = leak_size(-0.025, 0.0001, 0.0, 5.0)
+    >>> round(v, 6)
+    0.125
+    """
     lo, hi = EFFECTS["blow_by"].parameters["mass_loss"].lo, EFFECTS["blow_by"].parameters["mass_loss"].hi
-    value = min(max(-BLOW_BY_PER_LN * deficit_ln, lo), hi)
-    sigma = math.sqrt((BLOW_BY_REL * value) ** 2
-                      + (BLOW_BY_PER_LN * math.hypot(BLOW_BY_FLOOR_LN, se_ln, tdc_ln)) ** 2)
+    value = min(max(-per_ln * deficit_ln, lo), hi)
+    sigma = math.sqrt((BLOW_BY_REL * value) ** 2 + (per_ln * math.hypot(BLOW_BY_FLOOR_LN, se_ln, tdc_ln)) ** 2)
     return value, sigma
 
 
@@ -287,7 +304,7 @@ def single_cylinder_misfires(motored: np.ndarray) -> np.ndarray:
     return out
 
 
-__all__ = ["BLOW_BY_FLOOR_LN", "BLOW_BY_PER_LN", "BLOW_BY_REL", "LEAK_MIN_CYCLES", "MISFIRE_MIN_CYCLES", "PEG_MIN_PA",
-           "PEG_SIGMAS", "PressureFinding", "SEED_MIN_DEG", "SEED_SIGMAS", "TDC_MIN_DEG", "TDC_SIGMAS",
-           "compression_per_deg", "leak_findings", "leak_size", "pressure_findings", "pressure_seeds", "sibling_tdc_sigma",
-           "single_cylinder_misfires", "tdc_beyond", "tdc_chi2", "tdc_offsets_deg"]
+__all__ = ["BLOW_BY_FLOOR_LN", "BLOW_BY_REL", "BLOW_BY_SHARE_SCALE", "LEAK_MIN_CYCLES", "MISFIRE_MIN_CYCLES",
+           "PEG_MIN_PA", "PEG_SIGMAS", "PressureFinding", "SEED_MIN_DEG", "SEED_SIGMAS", "TDC_MIN_DEG", "TDC_SIGMAS",
+           "compression_per_deg", "leak_findings", "leak_per_ln", "leak_size", "pressure_findings", "pressure_seeds",
+           "sibling_tdc_sigma", "single_cylinder_misfires", "tdc_beyond", "tdc_chi2", "tdc_offsets_deg"]

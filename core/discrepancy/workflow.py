@@ -35,6 +35,7 @@ When ``max_steps`` is used up, that is said too.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -73,6 +74,7 @@ from frictionwatch.core.discrepancy.features import (
     noise_scale,
 )
 from frictionwatch.core.discrepancy.fit import Evaluator, linearise, polish, refine, with_fit
+from frictionwatch.core.discrepancy.leak_share import leak_share, mean_pressure
 from frictionwatch.core.discrepancy.pair import beside_own_tdc, said_alone, said_pair, tdc_and_friction, wheel_or_pair
 from frictionwatch.core.discrepancy.pressure_channel import (
     pressure_findings,
@@ -135,7 +137,10 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     speed_law = None  # (label, balance fit) of a friction law the speed steps sized and the balance read otherwise
     # what the pressure names outright (pegging, TDC, misfire: pressure_channel.pressure_findings), first and apart from
     # the step limit; the speed steps then start from the corrected pressure
-    current, cur_res, test, extra = _pressure_step(found, current, cur_res, test, full, parts, scale, first, held)
+    # the share of a leak gone by the compression reading, from the scored cycles' own pressure (sizes a blow_by)
+    share = leak_share(model.spec, *mean_pressure(cycles[opt.warmup:])) if model.spec.n_cyl > 1 else math.nan
+    current, cur_res, test, extra = _pressure_step(found, current, cur_res, test, full, parts, scale, first, held,
+                                                   share)
     runs += extra
     for step in range(opt.max_steps):
         loc = localise(test, model.spec, scale)
@@ -351,16 +356,18 @@ def _said_ambiguous(found: Discovery, beyond: bool, candidates: list[str], separ
 
 
 def _pressure_step(found: Discovery, current: EngineModel, cur_res: Residuals, test: Residuals, full, parts,
-                   scale: np.ndarray, first: int, held: int) -> tuple[EngineModel, Residuals, Residuals, int]:
+                   scale: np.ndarray, first: int, held: int, share: float
+                   ) -> tuple[EngineModel, Residuals, Residuals, int]:
     """Add what the pressure names (module doc) as one step: its sensor offsets and TDC offsets only if the run with
     them does not make the speed or the balance worse on the held-out cycles (``channel_worse``; refused and said
     otherwise), its
     misfires and leaks as they are (the monitor reads them in the pressure: the run does not change). Returns the model, its
     run, its held-out part and the monitor runs spent. A misfire must show in the training and the held-out cycles
-    (cycle index ``first`` on, held out from ``held``)."""
+    (cycle index ``first`` on, held out from ``held``); a leak is sized with ``share`` (pressure_findings)."""
     scored = cur_res.take(cur_res.index >= first)
     have = {(e.name, e.values.get("cylinder")) for e in current.effects}  # a model that states one already: left
-    findings = [f for f in pressure_findings(scored, (scored.index < held, scored.index >= held), current.spec)
+    findings = [f for f in pressure_findings(scored, (scored.index < held, scored.index >= held), current.spec,
+                                                 share)
                 if (f.effect, f.cylinder) not in have]
     if not findings:
         return current, cur_res, test, 0

@@ -11,10 +11,10 @@ import pytest
 from frictionwatch.core.discrepancy import Options, discover
 from frictionwatch.core.discrepancy.pressure_channel import (
     BLOW_BY_FLOOR_LN,
-    BLOW_BY_PER_LN,
     BLOW_BY_REL,
     LEAK_MIN_CYCLES,
     compression_per_deg,
+    leak_per_ln,
     leak_size,
     pressure_findings,
 )
@@ -42,7 +42,7 @@ def _leaky(n: int, z: int, flagged: np.ndarray, deficit: np.ndarray, tdc_sigma: 
 
 def test_a_cylinder_flagged_leaking_in_both_halves_is_named_blow_by_sized_from_its_compression():
     """Cylinder 2 flagged in 80 of 100 cycles, its compression 2.4 % under the siblings': blow_by mass_loss =
-    BLOW_BY_PER_LN x 0.024 with leak_size's sigma; cylinder 3 flagged only in the first half and cylinder 4 in two
+    leak_per_ln(share) x 0.024 with leak_size's sigma; cylinder 3 flagged only in the first half and cylinder 4 in two
     cycles of each half (under LEAK_MIN_CYCLES) are not a pattern; nothing flagged, nothing named."""
     n, z = 100, 4
     flagged = np.zeros((n, z), dtype=bool)
@@ -52,29 +52,31 @@ def test_a_cylinder_flagged_leaking_in_both_halves_is_named_blow_by_sized_from_i
     assert LEAK_MIN_CYCLES > 2
     deficit = np.array([0.0, -0.024, -0.01, -0.003])
     spec = load_engine("k9k-4cyl")
-    found = pressure_findings(_leaky(n, z, flagged, deficit), spec=spec)
+    share = 0.155  # k9k 1800 rpm's (leak_share)
+    found = pressure_findings(_leaky(n, z, flagged, deficit), spec=spec, share=share)
     assert [f.label for f in found] == ["blow_by[cyl 2]"]
     f = found[0]
     assert f.parameter == "mass_loss"
     mean = float(np.mean(_leaky(n, z, flagged, deficit).compression_ln[:, 1]))
     se = float(np.std(_leaky(n, z, flagged, deficit).compression_ln[:, 1], ddof=1)) / math.sqrt(n)
-    value, sigma = leak_size(mean, se, compression_per_deg(spec) * 0.2)
+    value, sigma = leak_size(mean, se, compression_per_deg(spec) * 0.2, leak_per_ln(share))
     np.testing.assert_allclose([f.value, f.sigma], [value, sigma], rtol=1e-12)
-    np.testing.assert_allclose(f.value, BLOW_BY_PER_LN * 0.024, rtol=0.02)
+    np.testing.assert_allclose(f.value, leak_per_ln(share) * 0.024, rtol=0.02)
     assert "80 of 100" in f.reading and "-2.4 %" in f.reading
-    assert pressure_findings(_leaky(n, z, np.zeros((n, z), bool), deficit), spec=spec) == []
+    assert pressure_findings(_leaky(n, z, np.zeros((n, z), bool), deficit), spec=spec, share=share) == []
 
 
 def test_a_leaks_sigma_holds_the_factors_spread_the_healthy_offset_and_the_tdc():
-    """leak_size in quadrature: BLOW_BY_REL of the value, BLOW_BY_PER_LN x (BLOW_BY_FLOOR_LN, the mean's standard
+    """leak_size in quadrature: BLOW_BY_REL of the value, the log's factor x (BLOW_BY_FLOOR_LN, the mean's standard
     error, the TDC's share); a deficit beyond the effect's range is held at 0.4; a compression above the siblings'
     is no leak: 0."""
-    v, s = leak_size(-0.02, 0.0003, 0.004)
-    np.testing.assert_allclose(v, 0.02 * BLOW_BY_PER_LN, rtol=1e-12)
-    np.testing.assert_allclose(s, math.hypot(BLOW_BY_REL * v, BLOW_BY_PER_LN * math.hypot(BLOW_BY_FLOOR_LN, 0.0003,
-                                                                                         0.004)), rtol=1e-12)
-    assert leak_size(-1.0, 0.0, 0.0)[0] == 0.4
-    assert leak_size(+0.01, 0.0, 0.0)[0] == 0.0
+    per_ln = 5.0
+    v, s = leak_size(-0.02, 0.0003, 0.004, per_ln)
+    np.testing.assert_allclose(v, 0.02 * per_ln, rtol=1e-12)
+    np.testing.assert_allclose(s, math.hypot(BLOW_BY_REL * v, per_ln * math.hypot(BLOW_BY_FLOOR_LN, 0.0003, 0.004)),
+                               rtol=1e-12)
+    assert leak_size(-1.0, 0.0, 0.0, per_ln)[0] == 0.4
+    assert leak_size(+0.01, 0.0, 0.0, per_ln)[0] == 0.0
 
 
 def test_the_compression_readings_tdc_sensitivity_is_the_polytropes_slope_there():

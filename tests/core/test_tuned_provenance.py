@@ -286,8 +286,8 @@ def test_the_code_uses_the_recorded_numbers():
         assert fit.CHAIN_REL[("chain_mismatch", "stiffness_scale")] == disc["CHAIN_STIFFNESS_REL"].value
     if "INERTIA_FLOOR_ONE_NODE" in disc:  # bench/calibrate_inertia_floor.py (design note 109)
         assert fit.ONE_NODE_FLOOR[("flywheel_inertia", "inertia_scale")] == disc["INERTIA_FLOOR_ONE_NODE"].value
-    assert (pressure_channel.BLOW_BY_PER_LN, pressure_channel.BLOW_BY_REL, pressure_channel.BLOW_BY_FLOOR_LN) == (
-        disc["BLOW_BY_PER_LN"].value, disc["BLOW_BY_REL"].value, disc["BLOW_BY_FLOOR_LN"].value)
+    assert (pressure_channel.BLOW_BY_SHARE_SCALE, pressure_channel.BLOW_BY_REL, pressure_channel.BLOW_BY_FLOOR_LN) == (
+        disc["BLOW_BY_SHARE_SCALE"].value, disc["BLOW_BY_REL"].value, disc["BLOW_BY_FLOOR_LN"].value)
     mon, alerts = read_tuned(MONITOR_RECORD), read_tuned(ALERT_RECORD)
     floor, cfg, cond, ring, alert = (ModelErrorFloor(), MonitorConfig(), ConditionSettings(),
                                      RingConditionSettings(), AlertConfig())
