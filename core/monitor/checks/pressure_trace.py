@@ -29,6 +29,7 @@ place, so the engine's indicated work and friction stay measured and the cylinde
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from frictionwatch.core.monitor.checks.pressure_trace_kernels import (
@@ -67,6 +68,13 @@ class PressureTraceConfig:
     rise_fraction: float = 0.1  # healthy >= 0.30; a trace 360 deg off reads ~0, a negated or swapped one < 0
     gas_exchange_fraction: float = 0.5  # healthy <= 0.03; a halved sample clock puts a second peak there (>= 0.94)
     hold_cycles: int = 2
+
+    @cached_property
+    def limits(self) -> np.ndarray:
+        """The thresholds as ``trace_verdict_kernel`` takes them (pressure_trace_kernels' order), made once per
+        config, not once a cycle (writeable: a read-only array would be another type to numba, another compile)."""
+        return np.array([self.dead_swing_pa, self.flat_deg, *self.peak_window_deg, self.sibling_deg,
+                         self.spike_fraction, self.rise_fraction, self.gas_exchange_fraction])
 
 
 @dataclass(frozen=True)
@@ -119,12 +127,6 @@ def failures(cfg: PressureTraceConfig, feat: np.ndarray) -> np.ndarray:
     return np.where(swing < cfg.dead_swing_pa, 0, out)
 
 
-def verdict_limits(cfg: PressureTraceConfig) -> np.ndarray:
-    """The thresholds as ``trace_verdict_kernel`` takes them (pressure_trace_kernels' order)."""
-    return np.array([cfg.dead_swing_pa, cfg.flat_deg, *cfg.peak_window_deg, cfg.sibling_deg, cfg.spike_fraction,
-                     cfg.rise_fraction, cfg.gas_exchange_fraction])
-
-
 def substitute(pressure: np.ndarray, grid: np.ndarray, firing: np.ndarray, bad: np.ndarray) -> np.ndarray:
     """``pressure`` (z, n) with each ``bad`` cylinder's row the mean of the good rows, each moved from its own firing
     angle to the bad cylinder's (periodic over the 720 deg grid; ``np.interp`` where the shift is not whole
@@ -150,7 +152,7 @@ def check_traces(cfg: PressureTraceConfig, state: PressureTraceState, pressure: 
                  firing: np.ndarray) -> tuple[PressureTraceState, np.ndarray, tuple[str, ...], bool]:
     """One cycle: (the new state, the pressure to analyse (the input itself where nothing is flagged), the flags,
     whether the cycle must be refused: a flagged cylinder and no healthy sibling to stand in for it)."""
-    fail = trace_verdict_kernel(trace_features(pressure, grid, firing, cfg.flat_tol), verdict_limits(cfg),
+    fail = trace_verdict_kernel(trace_features(pressure, grid, firing, cfg.flat_tol), cfg.limits,
                                 np.empty(len(firing), np.int64))
     failed = fail >= 0
     since = np.where(failed, 0, state.since + 1)
