@@ -228,7 +228,8 @@ class CyclePipeline:
         self.on_cycle = on_cycle
         for stage in stages:
             if stage.place not in (BEFORE_VIEW, AFTER_MONITOR):
-                raise ValueError(f"stage {stage.name}: its place {stage.place!r} is not {BEFORE_VIEW} or {AFTER_MONITOR}")
+                raise ValueError(f"stage {stage.name}: its place {stage.place!r} is neither {BEFORE_VIEW} nor "
+                                 f"{AFTER_MONITOR}")
         self.stage_order = stages
         self.view: MonitorView | None = None
         self.view_corrects = False

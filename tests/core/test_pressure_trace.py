@@ -14,8 +14,9 @@ from frictionwatch.core.monitor.checks.pressure_trace import (
     check_traces,
     failures,
     trace_features,
+    trace_features_reference,
+    trace_verdict_kernel,
 )
-from frictionwatch.core.monitor.checks.pressure_trace_kernels import trace_features_reference, trace_verdict_kernel
 from frictionwatch.core.monitor.pipeline import STAGES, CyclePipeline, PressureTrace
 from frictionwatch.core.monitor.report.run_summary import end_of_run_status
 from frictionwatch.core.plant.simulate import simulate
