@@ -98,7 +98,8 @@ class StageOutput:
     """What a stage made of one cycle: its new ``state`` (carried to the next cycle), the ``flags`` it raises on this
     cycle (added to the cycle's before the view, to the result's after the monitor), and -- a stage before the view
     only -- the ``cycle`` the rest of the pipeline sees in the input's place (None: the input's) or the ``refusal``,
-    why the cycle goes no further (a skipped outcome's reason)."""
+    why the cycle goes no further (a skipped outcome's reason); a stage after the monitor that gives either is a
+    programming error (TypeError), not a cycle's outcome."""
 
     state: Any
     flags: tuple[str, ...] = ()
@@ -309,6 +310,9 @@ class CyclePipeline:
                 self.stage_cycle[stage.name] = int(cycle.index)
             flags.update(dict.fromkeys(out.flags))
             if place != BEFORE_VIEW:  # after the monitor a stage's flags are all it says of the cycle
+                if out.cycle is not None or out.refusal is not None:
+                    raise TypeError(f"stage {stage.name} after the monitor gave a cycle or a refusal: only a stage "
+                                    "before the view may")
                 continue
             if out.refusal is not None:
                 return cycle, tuple(flags), out.refusal

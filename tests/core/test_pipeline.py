@@ -129,6 +129,21 @@ def test_a_stage_before_the_view_flags_or_refuses_its_cycles_and_its_state_is_ca
     plain = {o.index: o.result for o in run_cycles(model, [c for c in cycles if c.index % 5]) if o.ok}
     assert_allclose([o.result.imep for o in ok], [plain[o.index].imep for o in ok], rtol=1e-12)
 
+    class LateRefusal:  # a refusal is a before-view stage's word only: after the monitor it is a programming error
+        name = "late"
+        place = AFTER_MONITOR
+
+        def initial(self, spec):
+            return None
+
+        def update(self, state, inp):
+            return StageOutput(state, refusal="too_late")
+
+    late = CyclePipeline(model, stages=(*STAGES, LateRefusal()))
+    with pytest.raises(TypeError, match="after the monitor"):
+        for c in cycles:
+            late.process(c)
+
 
 def test_a_clipped_channel_is_flagged_also_where_the_model_corrects_its_pegging(k9k):
     """Cylinder 3 reads 0 Pa (its converter's floor) over part of every cycle. A model that corrects a pegging of
