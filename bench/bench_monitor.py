@@ -12,7 +12,7 @@ makes ``CYCLES`` cycles once (not timed); then, on one core (BLAS/numba threads 
   assemble: the rest of the ``outcomes`` calls per cycle (records -> Cycle), and the emitting call's assembly alone
   (latency = that + monitor);
 - monitor stages, an extra measurement: ``CyclePipeline.process`` split into its stages by timing the functions it
-  calls (process_cycle's, the running stages' ``update`` and the pipeline module's own; wrapped for one extra pass,
+  calls (process_cycle's, the stages' ``update`` and the pipeline module's own; wrapped for one extra pass,
   nothing in core/ edited; ``identify_cycle`` is noise model, accumulation, sharing, posteriors and estimates);
   ``other`` is the inline bookkeeping of process_cycle and CyclePipeline.process.
 Real-time factor = engine cycle duration / mean end-to-end time per cycle (genset-v20 at 1500 rpm: 80 ms per cycle;
@@ -68,7 +68,7 @@ TARGET_SPEEDUP = 30.0
 SEED = 1
 
 # The pipeline's stages are the functions and methods process_cycle calls from core/ (found in core.monitor.monitor's
-# namespace, so the split follows the monitor as it changes), the running stages' ``update`` (core.monitor.pipeline
+# namespace, so the split follows the monitor as it changes), the stages' ``update`` (core.monitor.pipeline
 # STAGES) and the functions of core.monitor.pipeline's namespace (the view, the watches). Each is wrapped for one extra
 # pass: a call made directly from process_cycle or CyclePipeline.process is a stage; a wrapped call inside a stage is
 # listed under it ("of which"). 'other' is the inline code of process_cycle (mean balance, drift variance, state
@@ -89,7 +89,7 @@ def _monitor_pass(spec, cycles):
 
 def _stage_targets() -> list[tuple[object, str, str]]:
     """(owner, attribute, label) of every core/ function in core.monitor.monitor's namespace and every plain method of the
-    core/ classes it imports; each running stage's ``update``; every core/ function in core.monitor.pipeline's
+    core/ classes it imports; each stage's ``update``; every core/ function in core.monitor.pipeline's
     namespace but the monitor's entry points (labelled ``pipeline.<name>``)."""
     out = []
     for name, obj in vars(monitor_module).items():
@@ -103,7 +103,7 @@ def _stage_targets() -> list[tuple[object, str, str]]:
                 if isinstance(raw, types.FunctionType) and not attr.startswith("__"):
                     out.append((obj, attr, f"{obj.__name__}.{attr}"))
     for stage in STAGES:
-        out.append((type(stage), "update", f"{type(stage).__name__}.update (running stage)"))
+        out.append((type(stage), "update", f"{type(stage).__name__}.update ({stage.place} stage)"))
     for name, obj in vars(pipeline_module).items():
         mod = getattr(obj, "__module__", "") or ""
         if isinstance(obj, types.FunctionType) and mod.startswith("frictionwatch.core.") and name not in ENTRY_POINTS \

@@ -1,10 +1,10 @@
-"""The running calibration watches alone (core.monitor.pipeline.STAGES: the TDC watch, the gain watch), per cycle,
+"""The running calibration watches alone (core.monitor.pipeline.STAGES after the monitor: the TDC watch, the gain watch), per cycle,
 against another checkout, and the same states from both (issue 26 item 7; design note 51).
 
     python -m bench.bench_watches [--base ../base] [--repeat 6] [--replays 5] [--cycles 220] [--profile]
 
 For k9k-4cyl (4000 rpm) and genset-v20 (1500 rpm) at full load (bench.bench_monitor's points, seed 1) the records
-are simulated and run through this checkout's one pipeline (CyclePipeline) once, each running stage's input kept
+are simulated and run through this checkout's one pipeline (CyclePipeline) once, each such stage's input kept
 (StageInput: the spec, the calibration, the cycle as the monitor got it, the static twist). Each measurement is a
 fresh process of one checkout (its own .venv and numba cache, its own frictionwatch; this file's code for the loop)
 that replays every stage's ``update`` over those same inputs from its initial state ``replays`` times, each call
@@ -26,6 +26,7 @@ for _v in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_
     os.environ.setdefault(_v, "1")  # one core, as bench_monitor
 
 import argparse  # noqa: E402
+import inspect  # noqa: E402
 import pickle  # noqa: E402
 import statistics  # noqa: E402
 import subprocess  # noqa: E402
@@ -46,44 +47,46 @@ def captured_inputs(name: str, info, records) -> tuple[list, object]:
     """(each analysed cycle's StageInput, the pipeline) of the one pipeline over ``records`` (this process's
     frictionwatch)."""
     from frictionwatch.core.model.engine import load_engine
-    from frictionwatch.core.monitor.pipeline import CyclePipeline
+    from frictionwatch.core.monitor.pipeline import AFTER_MONITOR, CyclePipeline
     from frictionwatch.service.pipeline import assembled_cycles
 
     spec = load_engine(name)
     cycles, _ = assembled_cycles(spec, info, records)
     pipe = CyclePipeline(spec)
     inputs = []
-    stages = pipe.running
+    stages = pipe.stage_order
 
-    class Tap:  # the pipeline's stages, each input kept
+    class Tap:  # the pipeline's stages after the monitor, each input kept
         def __init__(self, stage):
-            self.stage, self.name = stage, stage.name
+            self.stage, self.name, self.place = stage, stage.name, stage.place
 
-        def initial(self):
-            return self.stage.initial()
+        def initial(self, spec):
+            return self.stage.initial(spec)
 
         def update(self, state, inp):
             if not inputs or inputs[-1] is not inp:
                 inputs.append(inp)
             return self.stage.update(state, inp)
 
-    pipe.running = tuple(Tap(s) for s in stages)
+    pipe.stage_order = tuple(Tap(s) if s.place == AFTER_MONITOR else s for s in stages)
     for c in cycles:
         pipe.process(c)
-    pipe.running = stages
+    pipe.stage_order = stages
     return inputs, pipe
 
 
 def replay(stage, inputs: list, clock=time.thread_time) -> tuple[list, np.ndarray, list]:
     """(states after each window close and the last, seconds per call, the closing calls' positions) of ``stage``
     over ``inputs`` from its initial state."""
-    state = stage.initial()
+    # a checkout before design note 148: ``initial()`` without the spec, ``update`` giving the state itself
+    old = len(inspect.signature(stage.initial).parameters) == 0
+    state = stage.initial() if old else stage.initial(inputs[0].spec)
     kept, closes = [], []
     dt = np.empty(len(inputs))
     for i, inp in enumerate(inputs):
         before = state
         t0 = clock()
-        state = stage.update(state, inp)
+        state = stage.update(state, inp) if old else stage.update(state, inp).state
         dt[i] = clock() - t0
         if getattr(state, "last", None) is not getattr(before, "last", None):
             kept.append(state)
@@ -95,12 +98,15 @@ def worker(inputs_path: Path, replays: int, out: Path, check: bool, profile: boo
     """One checkout's measurement (module doc) on the stage inputs in ``inputs_path``, written to ``out``."""
     from frictionwatch.core.monitor.pipeline import STAGES, StageInput
 
+    # the stages after the monitor (a checkout before design note 148 has no ``place``: its STAGES are only those)
+    watches = tuple(s for s in STAGES if getattr(s, "place", "after_monitor") == "after_monitor")
+
     data = pickle.loads(inputs_path.read_bytes())
     result: dict = {}
     for name, rows in data.items():
         inputs = [StageInput(spec, cal, cycle, None, twist) for spec, cal, cycle, twist in rows]
         row: dict = {"cycles": len(inputs)}
-        for stage in STAGES:
+        for stage in watches:
             best, closes = None, []
             for _ in range(replays):
                 states, dt, closes = replay(stage, inputs)
@@ -119,7 +125,7 @@ def worker(inputs_path: Path, replays: int, out: Path, check: bool, profile: boo
             import pstats
 
             prof = cProfile.Profile()
-            for stage in STAGES:
+            for stage in watches:
                 prof.enable()
                 replay(stage, inputs)
                 prof.disable()

@@ -22,7 +22,7 @@ from dataclasses import replace
 
 import numpy as np
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.monitor.pipeline import BEFORE, CyclePipeline
+from frictionwatch.core.monitor.pipeline import STAGES, CyclePipeline, PressureTrace
 from frictionwatch.core.monitor.report.run_summary import end_of_run_status
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.core.types import PressureBlock, PressureFrame
@@ -125,14 +125,14 @@ def _clock(records: list, where: list, factor: float) -> list:
 
 
 def run(name: str, point: tuple[float, float], fault: str, cycles: int, seed: int, cyl: int,
-        before=BEFORE) -> dict:
+        stages=STAGES) -> dict:
     """One case: the flags at the end, the faulty cylinder's figure status, the engine FMEP and its sigma."""
     spec = load_engine(name)
     rpm, load = point
     sim = simulate(spec, rpm, load, cycles, seed=seed)
     records = lie(sim.records, fault, cyl, sim.info.tick_hz, rpm, seed)
     cyc, retired = assembled_cycles(spec, sim.info, records)
-    pipe = CyclePipeline(spec, before=before)
+    pipe = CyclePipeline(spec, stages=stages)
     results = []
     for c in cyc:
         try:
@@ -161,7 +161,7 @@ def main() -> None:
     ap.add_argument("--points", default="0,1")
     ap.add_argument("--no-check", action="store_true", help="the pipeline without the trace plausibility stage")
     args = ap.parse_args()
-    before = () if args.no_check else BEFORE
+    stages = tuple(s for s in STAGES if not (args.no_check and isinstance(s, PressureTrace)))
     print(f"{'engine':12} {'pt':>2} {'fault':11} {'ok':>3} {'FMEP bar':>9} {'sigma':>6} {'dev/sig':>7} "
           f"{'IMEPk':>7} {'cyl':>10} {'engine':>10}  sensor flags active at the end; skipped")
     for name in args.engines.split(","):
@@ -171,7 +171,7 @@ def main() -> None:
                 if name == "deutz-1cyl" and fault in SIBLING_ONLY:
                     continue
                 cyl = 1 if fault == "swapped" else load_engine(name).n_cyl  # the last cylinder: not cylinder 1
-                r = run(name, POINTS[name][p], fault, args.cycles, args.seed, cyl, before)
+                r = run(name, POINTS[name][p], fault, args.cycles, args.seed, cyl, stages)
                 if r.get("crash"):
                     print(f"{name:12} {p:2d} {fault:11} CRASH {r['crash']}", flush=True)
                     continue

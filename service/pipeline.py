@@ -18,7 +18,7 @@ from frictionwatch.core.model.engine_model import EngineModel, as_model, load_mo
 from frictionwatch.core.model.view import MonitorView
 from frictionwatch.core.monitor.calibration.gain_watch import GainWatchState
 from frictionwatch.core.monitor.calibration.tdc_watch import TdcWatchState
-from frictionwatch.core.monitor.pipeline import STAGES, CycleOutcome, CyclePipeline, RunningStage
+from frictionwatch.core.monitor.pipeline import STAGES, CycleOutcome, CyclePipeline, Stage
 from frictionwatch.core.monitor.report.results import CycleResult
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 from frictionwatch.core.types import AcquisitionInfo, Cycle, StreamRecord, ToothBatch
@@ -45,10 +45,10 @@ class EnginePipeline:
     stop). A mark of a hole (a live session dropped data while behind, or a recording of one) numbers on over the
     cycles the engine turned in the hole, from the tooth clock, so the indices show it; ``holes`` keeps the newest
     ``MAX_HOLES`` as ``Hole``s. A hole in the second wheel's edges alone restarts only their cut, one in no wheel's
-    edges nothing (design note 124). ``stages``: the monitor's running stages (a warm-up's, service/warmup.py)."""
+    edges nothing (design note 124). ``stages``: the one pipeline's stages (a warm-up's, service/warmup.py)."""
 
     def __init__(self, engine: EngineModel | EngineSpec, info: AcquisitionInfo, config: MonitorConfig | None = None,
-                 on_cycle: Callable[[Cycle], None] | None = None, stages: tuple[RunningStage, ...] = STAGES):
+                 on_cycle: Callable[[Cycle], None] | None = None, stages: tuple[Stage, ...] = STAGES):
         if config is not None and config.second_wheel and (info.second_wheel is None or
                                                            as_model(engine).spec.sensors.second_wheel is None):
             # the joint fit asked for without a second wheel in the log or its node in the engine file: one wheel

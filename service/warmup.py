@@ -8,7 +8,7 @@ Why (design note 126): numba compiles a kernel when it is first called with new 
 serve compiled ~300 of them at its first cycle and six more mid-run (the TDC watch's fit near cycle 100, the ring
 condition at the first alert update, ...: 15-30 s in all), on the ingest thread, while a real-time source went on:
 its queue overran and input was dropped (design note 124). Here the engine's own pipeline -- the cycle assembler,
-the monitor with its running stages (core.monitor.warmup: their counts shortened) and the alert engine
+the monitor with its stages (core.monitor.warmup: their counts shortened) and the alert engine
 (``AlertEngine.warm_up``: its learning counts shortened) -- runs ``WARM_CYCLES`` cycles of the engine simulated
 (core.plant.simulate: the engine's model, its wheels and cylinders; the records a replay of it carries) with a loop
 seam, a dropped stretch and the identification's bounds active in the second pass, so that every kernel a live run

@@ -6,18 +6,21 @@
     # or: for outcome in run_cycles(model, cycles, config): ...
 
 What a cycle goes through, in order:
-0. the stages of ``BEFORE``, each ``update(state, spec, cycle) -> (state, cycle, refusal)``: the pressure-trace
-   plausibility check (core.monitor.checks.pressure_trace), which flags a channel that is no cylinder's pressure
-   (dead, clipped, negated, out of phase), puts its healthy siblings' trace in its place, or refuses the cycle
+1. the stages of ``STAGES`` placed ``BEFORE_VIEW``: the pressure-trace plausibility check
+   (core.monitor.checks.pressure_trace), which flags a channel that is no cylinder's pressure (dead, clipped,
+   negated, out of phase), puts its healthy siblings' trace in its place, or refuses the cycle
    (``pressure_implausible``) where no sibling can stand in; it reads the pressure as it came, before any view;
-1. the model's view (core.model.view): the pressure corrected for the model's sensor effects, the phases its TDC
+2. the model's view (core.model.view): the pressure corrected for the model's sensor effects, the phases its TDC
    offsets state, its loss terms; made at the first cycle when a friction shape is sized at an operating point;
-2. the monitor (core.monitor.monitor.process_cycle): teeth, balance, identify, checks, report;
-3. the running stages of ``STAGES``, each ``update(state, StageInput) -> state`` with ``flags`` on its state: the
-   calibration watches (TDC from the pressure, each channel's gain and pegging), judged against the model's
-   calibration; their flags are added to the cycle's result (and withhold the figures they touch).
-Adding a running stage is one class with ``initial()`` and ``update()`` and one line in ``STAGES`` (and, for a stage
-whose kernels come only after many cycles, a ``warm_up()`` that reaches them in a few: core.monitor.warmup).
+3. the monitor (core.monitor.monitor.process_cycle): teeth, balance, identify, checks, report;
+4. the stages of ``STAGES`` placed ``AFTER_MONITOR``: the calibration watches (TDC from the pressure, each channel's
+   gain and pegging), judged against the model's calibration; their flags are added to the cycle's result (and
+   withhold the figures they touch).
+Every stage is a ``Stage``: ``initial(spec) -> state`` and ``update(state, StageInput) -> StageOutput`` (its new
+state, its flags for the cycle, and -- before the view only -- the cycle to go on with or why it goes no further),
+and its ``place``. Adding one is one class and one line in ``STAGES``, which is also their order within a place
+(and, for a stage whose kernels come only after many cycles, a ``warm_up()`` that reaches them in a few:
+core.monitor.warmup). Each stage's state is kept by its name and carried across a restart (``carried``/``resume``).
 
 service.pipeline puts the cycle assembler (drivers/) in front: analyze, serve, reanalyze and commission run that,
 and the discrepancy workflow runs its models through ``run_cycles``. A cycle the monitor refuses is an outcome with
@@ -72,30 +75,50 @@ class CycleOutcome:
         return self.result is not None
 
 
+BEFORE_VIEW = "before_view"  # a stage's place: on the cycle as it came, before the model's view and the monitor
+AFTER_MONITOR = "after_monitor"  # on the analysed cycle and its result
+
+
 @dataclass(frozen=True)
 class StageInput:
-    """What a running stage sees of an analysed cycle: the monitor's spec (the view's phases), the model's
-    calibration, the cycle as the monitor got it, its result, and each throw's static twist ahead of the flywheel
-    (z,) rad in the monitor's model of this cycle."""
+    """What a stage sees of a cycle: the spec its phases are in (the model's before the view, the view's after it),
+    the model's calibration, the cycle (as it came before the view; as the monitor got it after), and after the
+    monitor only: its result and each throw's static twist ahead of the flywheel (z,) rad in the monitor's model of
+    this cycle (None before the view)."""
 
     spec: EngineSpec
     calibration: Calibration
     cycle: Cycle
-    result: CycleResult
-    twist: np.ndarray
+    result: CycleResult | None = None
+    twist: np.ndarray | None = None
 
 
-class RunningStage(Protocol):
-    """A stage run on every analysed cycle after the monitor; its state carries ``flags`` (a tuple of str) and, for
-    a stage that reads in windows, ``last`` (the newest window's reading, a new object when a window closes); such a
-    stage may also have ``close(state, spec, calibration) -> state`` to read its open window now
+@dataclass(frozen=True)
+class StageOutput:
+    """What a stage made of one cycle: its new ``state`` (carried to the next cycle), the ``flags`` it raises on this
+    cycle (added to the cycle's before the view, to the result's after the monitor), and -- a stage before the view
+    only -- the ``cycle`` the rest of the pipeline sees in the input's place (None: the input's) or the ``refusal``,
+    why the cycle goes no further (a skipped outcome's reason); a stage after the monitor that gives either is a
+    programming error (TypeError), not a cycle's outcome."""
+
+    state: Any
+    flags: tuple[str, ...] = ()
+    cycle: Cycle | None = None
+    refusal: str | None = None
+
+
+class Stage(Protocol):
+    """One stage of the pipeline (module doc), at its ``place`` (BEFORE_VIEW or AFTER_MONITOR); its state is kept by
+    ``name``. A stage that reads in windows has ``last`` on its state (the newest window's reading, a new object when
+    a window closes) and may have ``close(state, spec, calibration) -> state`` to read its open window now
     (``CyclePipeline.close_windows``)."""
 
     name: str
+    place: str
 
-    def initial(self) -> Any: ...
+    def initial(self, spec: EngineSpec) -> Any: ...
 
-    def update(self, state: Any, inp: StageInput) -> Any: ...
+    def update(self, state: Any, inp: StageInput) -> StageOutput: ...
 
 
 @dataclass(frozen=True)
@@ -110,15 +133,17 @@ class TdcWatch:
     window: int = WINDOW_CYCLES
     fit: Callable[..., TdcEstimate] | None = None
     name: ClassVar[str] = "tdc_watch"
+    place: ClassVar[str] = AFTER_MONITOR
 
-    def initial(self) -> TdcWatchState:
+    def initial(self, spec: EngineSpec) -> TdcWatchState:
         return TdcWatchState.empty()
 
-    def update(self, state: TdcWatchState, inp: StageInput) -> TdcWatchState:
+    def update(self, state: TdcWatchState, inp: StageInput) -> StageOutput:
         """The cycle added (tdc_watch); a full window read (tdc_window): a cycle enters the reading's file only then."""
         state = watch_cycle(inp.spec, state, inp.cycle, inp.twist)
-        return state if state.cycles < self.window else close_window(inp.spec, inp.calibration, state,
-                                                                     per_window=self.per_window, fit=self.fit)
+        if state.cycles >= self.window:
+            state = close_window(inp.spec, inp.calibration, state, per_window=self.per_window, fit=self.fit)
+        return StageOutput(state, state.flags)
 
     def close(self, state: TdcWatchState, spec: EngineSpec, calibration: Calibration) -> TdcWatchState:
         """The open window read now (``CyclePipeline.close_windows``)."""
@@ -137,19 +162,18 @@ class GainWatch:
 
     window: int = WINDOW_CYCLES
     name: ClassVar[str] = "gain_watch"
+    place: ClassVar[str] = AFTER_MONITOR
 
-    def initial(self) -> GainWatchState:
+    def initial(self, spec: EngineSpec) -> GainWatchState:
         return GainWatchState.empty()
 
-    def update(self, state: GainWatchState, inp: StageInput) -> GainWatchState:
-        return watch_gains(inp.spec, inp.calibration, state, inp.cycle, inp.twist, self.window)
+    def update(self, state: GainWatchState, inp: StageInput) -> StageOutput:
+        state = watch_gains(inp.spec, inp.calibration, state, inp.cycle, inp.twist, self.window)
+        return StageOutput(state, state.flags)
 
     def warm_up(self) -> GainWatch:
         """This watch judging every BLOCKS cycles (core.monitor.warmup)."""
         return dataclasses.replace(self, window=BLOCKS)
-
-
-STAGES: tuple[RunningStage, ...] = (TdcWatch(), GainWatch())
 
 
 @dataclass(frozen=True)
@@ -160,24 +184,24 @@ class PressureTrace:
 
     config: PressureTraceConfig = PressureTraceConfig()
     name: ClassVar[str] = "pressure_trace"
+    place: ClassVar[str] = BEFORE_VIEW
 
-    def initial(self, n_cyl: int) -> PressureTraceState:
-        return PressureTraceState.empty(n_cyl)
+    def initial(self, spec: EngineSpec) -> PressureTraceState:
+        return PressureTraceState.empty(spec.n_cyl)
 
-    def update(self, state: PressureTraceState, spec: EngineSpec, cycle: Cycle
-               ) -> tuple[PressureTraceState, Cycle, str | None]:
+    def update(self, state: PressureTraceState, inp: StageInput) -> StageOutput:
+        cycle = inp.cycle
         state, pressure, flags, refuse = check_traces(self.config, state, cycle.pressure, cycle.grid,
-                                                      spec.firing_angles)
+                                                      inp.spec.firing_angles)
         if refuse:  # the reason names the channels and what is wrong with them: "pressure_implausible: dead_cyl1"
-            return state, cycle, "pressure_implausible: " + ", ".join(f.removeprefix("sensor_pressure_")
-                                                                        for f in flags)
-        if not flags:
-            return state, cycle, None
-        new = tuple(f for f in flags if f not in cycle.flags)
-        return state, replace(cycle, pressure=pressure, flags=cycle.flags + new), None
+            return StageOutput(state, refusal="pressure_implausible: " + ", ".join(
+                f.removeprefix("sensor_pressure_") for f in flags))
+        if not flags:  # the cycle itself goes on (nothing copied)
+            return StageOutput(state)
+        return StageOutput(state, flags, replace(cycle, pressure=pressure))
 
 
-BEFORE: tuple[PressureTrace, ...] = (PressureTrace(),)
+STAGES: tuple[Stage, ...] = (PressureTrace(), TdcWatch(), GainWatch())
 
 
 def monitor_config(view: MonitorView, config: MonitorConfig | None) -> MonitorConfig:
@@ -188,30 +212,33 @@ def monitor_config(view: MonitorView, config: MonitorConfig | None) -> MonitorCo
 
 
 class CyclePipeline:
-    """One engine's cycles through the view, the monitor and the running stages (module doc); state explicit in its
-    attributes: ``state`` the monitor's, ``stages`` each running stage's by name, ``skipped`` the monitor's refusals
-    by reason, ``cycles_ok`` the analysed count.
+    """One engine's cycles through the stages, the view and the monitor (module doc); state explicit in its
+    attributes: ``state`` the monitor's, ``stages`` each stage's by name, ``skipped`` the refusals by reason,
+    ``cycles_ok`` the analysed count.
 
     ``reference``: the operating point a friction shape is sized at (None: the first cycle's); ``on_cycle`` sees
-    each cycle as the monitor gets it (commissioning reads its pressure)."""
+    each cycle as the monitor gets it (commissioning reads its pressure); ``stages``: the stages in order (STAGES;
+    a warm-up's, core.monitor.warmup; a bench's without one)."""
 
     def __init__(self, engine: EngineModel | EngineSpec, config: MonitorConfig | None = None,
                  reference: Reference | None = None, on_cycle: Callable[[Cycle], None] | None = None,
-                 stages: tuple[RunningStage, ...] = STAGES, before: tuple[PressureTrace, ...] = BEFORE):
+                 stages: tuple[Stage, ...] = STAGES):
         self.model = as_model(engine)
         self.spec = self.model.spec
         self.config = config or MonitorConfig()
         self.on_cycle = on_cycle
-        self.running = stages
+        for stage in stages:
+            if stage.place not in (BEFORE_VIEW, AFTER_MONITOR):
+                raise ValueError(f"stage {stage.name}: its place {stage.place!r} is neither {BEFORE_VIEW} nor "
+                                 f"{AFTER_MONITOR}")
+        self.stage_order = stages
         self.view: MonitorView | None = None
         self.view_corrects = False
         self.reference: Reference | None = None
         self.monitor_model: EngineModel | None = None
         self.monitor_cfg: MonitorConfig | None = None
         self.state: MonitorState | None = None
-        self.stages = {s.name: s.initial() for s in stages}
-        self.before = before
-        self.before_states = {s.name: s.initial(self.spec.n_cyl) for s in before}
+        self.stages = {s.name: s.initial(self.spec) for s in stages}
         self.stage_cycle: dict[str, int] = {}  # the cycle that closed each stage's newest window (its ``last``)
         self.skipped: Counter[str] = Counter()
         self.cycles_ok = 0
@@ -238,11 +265,9 @@ class CyclePipeline:
         return np.asarray(st.static[st.op.cylinders.node], dtype=np.float64)
 
     def process(self, cycle: Cycle) -> CycleOutcome:
-        for stage in self.before:
-            self.before_states[stage.name], cycle, refusal = stage.update(self.before_states[stage.name],
-                                                                          self.spec, cycle)
-            if refusal is not None:
-                return self._skip(cycle, refusal)
+        cycle, _, refusal = self._run_stages(BEFORE_VIEW, StageInput(self.spec, self.model.calibration, cycle))
+        if refusal is not None:
+            return self._skip(cycle, refusal)
         if self.view is None:
             self._make_view(reference([cycle]))
         view = self.view
@@ -263,28 +288,50 @@ class CyclePipeline:
         self.cycles_ok += 1
         self.newest_cycle = int(cycle.index)
         inp = StageInput(view.spec, self.model.calibration, cycle, result, self.cylinder_twist())
-        flags: list[str] = []
-        for stage in self.running:
-            before = self.stages[stage.name]
-            after = self.stages[stage.name] = stage.update(before, inp)
-            if getattr(after, "last", None) is not getattr(before, "last", None):  # a window closed: its reading
-                self.stage_cycle[stage.name] = int(cycle.index)
-            flags.extend(after.flags)
-        new = tuple(f for f in dict.fromkeys(flags) if f not in result.flags)  # each flag once
+        _, flags, _ = self._run_stages(AFTER_MONITOR, inp)
+        new = tuple(f for f in flags if f not in result.flags)
         if new:
             result = replace(result, flags=result.flags + new)
         return CycleOutcome(int(cycle.index), result)
 
+    def _run_stages(self, place: str, inp: StageInput) -> tuple[Cycle, tuple[str, ...], str | None]:
+        """The stages at ``place`` in their order over ``inp``, each state kept: (the cycle as the last of them left
+        it, their flags each once in order, the first refusal or None). Before the view a stage's flags join the
+        cycle it passes on (the next stage and the monitor see them), and a refusal stops the cycle there."""
+        cycle = inp.cycle
+        flags: dict[str, None] = {}
+        for stage in self.stage_order:
+            if stage.place != place:
+                continue
+            before = self.stages[stage.name]
+            out = stage.update(before, inp)
+            self.stages[stage.name] = out.state
+            if getattr(out.state, "last", None) is not getattr(before, "last", None):  # a window closed: its reading
+                self.stage_cycle[stage.name] = int(cycle.index)
+            flags.update(dict.fromkeys(out.flags))
+            if place != BEFORE_VIEW:  # after the monitor a stage's flags are all it says of the cycle
+                if out.cycle is not None or out.refusal is not None:
+                    raise TypeError(f"stage {stage.name} after the monitor gave a cycle or a refusal: only a stage "
+                                    "before the view may")
+                continue
+            if out.refusal is not None:
+                return cycle, tuple(flags), out.refusal
+            if out.cycle is not None or out.flags:
+                cycle = out.cycle if out.cycle is not None else cycle
+                new = tuple(f for f in out.flags if f not in cycle.flags)
+                cycle = replace(cycle, flags=cycle.flags + new) if new else cycle
+                inp = replace(inp, cycle=cycle)
+        return cycle, tuple(flags), None
+
     def carried(self) -> dict | None:
         """What this pipeline carries from one cycle to the next, as plain values (None before the first cycle): the
         reference the view was sized at, the monitor's state without what the model rebuilds (``layout``: the
-        model's terms; ``op``: the operating point, rebuilt at the next cycle as at a first one), each running
-        stage's state and the cycle that closed its newest window, and the config they were made with."""
+        model's terms; ``op``: the operating point, rebuilt at the next cycle as at a first one), each stage's
+        state and the cycle that closed its newest window, and the config they were made with."""
         if self.view is None or self.state is None:
             return None
         return {"reference": self.reference, "state": replace(self.state, layout=None, op=None),
-                "stages": dict(self.stages), "stage_cycle": dict(self.stage_cycle), "config": self.config,
-                "before": dict(self.before_states)}
+                "stages": dict(self.stages), "stage_cycle": dict(self.stage_cycle), "config": self.config}
 
     def resume(self, carried: dict) -> None:
         """Go on from ``carried()`` of an earlier pipeline of the same model and config (ValueError otherwise): the
@@ -299,15 +346,14 @@ class CyclePipeline:
         self.state = replace(state, layout=self.state.layout, op=None)
         self.stages = {**self.stages, **carried["stages"]}
         self.stage_cycle = dict(carried["stage_cycle"])
-        self.before_states = {**self.before_states, **carried.get("before", {})}
 
     def close_windows(self) -> None:
-        """Every running stage that reads in windows and can (a ``close`` method) reads its open window now: a run
+        """Every stage that reads in windows and can (a ``close`` method) reads its open window now: a run
         that ends mid-window (an offline log shorter than the TDC watch's 100 cycles) still gets its reading. Not
         called while serving: there a window closes when it is full."""
         if self.view is None:
             return
-        for stage in self.running:
+        for stage in self.stage_order:
             close = getattr(stage, "close", None)
             if close is not None:
                 self.stages[stage.name] = close(self.stages[stage.name], self.view.spec, self.model.calibration)
@@ -327,5 +373,5 @@ def run_cycles(engine: EngineModel | EngineSpec, cycles: Iterable[Cycle], config
         yield pipe.process(cycle)
 
 
-__all__ = ["BEFORE", "STAGES", "PressureTrace", "CycleOutcome", "CyclePipeline", "GainWatch", "RunningStage", "StageInput", "TdcWatch",
-           "monitor_config", "run_cycles"]
+__all__ = ["AFTER_MONITOR", "BEFORE_VIEW", "STAGES", "CycleOutcome", "CyclePipeline", "GainWatch", "PressureTrace",
+           "Stage", "StageInput", "StageOutput", "TdcWatch", "monitor_config", "run_cycles"]

@@ -1,7 +1,7 @@
 """The monitor as a warm-up runs it: every path a live run takes, within a few cycles instead of hundreds.
 
     config = warm_config(config)                  # the caller's settings, its cycle counts shortened
-    stages = warm_stages()                        # each running stage as it reaches all its paths in a few cycles
+    stages = warm_stages()                        # each stage as it reaches all its paths in a few cycles
     pipe = CyclePipeline(model, config, stages=stages)   # then WARM_CYCLES cycles of the engine through it
 
 Why: numba compiles a kernel (or loads it from its on-disk cache) when it is first called with new argument types.
@@ -12,7 +12,7 @@ dropped input (design notes 124, 126). A warm-up that shortens those counts reac
 argument types in ``WARM_CYCLES`` cycles. Nothing here changes what a run computes: the warm-up's pipeline is thrown
 away.
 
-A running stage (core.monitor.pipeline.RunningStage) that reads in windows gives its warm-up form by a
+A stage (core.monitor.pipeline.Stage) that reads in windows gives its warm-up form by a
 ``warm_up()`` method; a stage without one runs as it is. A new stage whose kernels come later than ``WARM_CYCLES``
 and that has no ``warm_up()`` is caught by tests/service/test_warmup.py (kernels added after the warm-up).
 """
@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 from frictionwatch.core.monitor.calibration.tdc import BLOCKS
-from frictionwatch.core.monitor.pipeline import STAGES, RunningStage
+from frictionwatch.core.monitor.pipeline import STAGES, Stage
 from frictionwatch.core.monitor.state import MonitorConfig, MonitorState
 
 # A warm window closes after BLOCKS cycles (the fewest ``close_window`` reads); the TDC watch's first window fits every
@@ -47,8 +47,8 @@ def warm_config(config: MonitorConfig | None) -> MonitorConfig:
                                tooth_refit_cycles=WARM_SETTLE_CYCLES)
 
 
-def warm_stages(stages: tuple[RunningStage, ...] = STAGES) -> tuple[RunningStage, ...]:
-    """Each running stage in its warm-up form (its ``warm_up()``; as it is where it has none)."""
+def warm_stages(stages: tuple[Stage, ...] = STAGES) -> tuple[Stage, ...]:
+    """Each stage in its warm-up form (its ``warm_up()``; as it is where it has none)."""
     return tuple(stage.warm_up() if hasattr(stage, "warm_up") else stage for stage in stages)
 
 

@@ -11,7 +11,14 @@ from frictionwatch.core.discrepancy.residuals import run_model
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.view import reference
-from frictionwatch.core.monitor.pipeline import STAGES, CyclePipeline, run_cycles
+from frictionwatch.core.monitor.pipeline import (
+    AFTER_MONITOR,
+    BEFORE_VIEW,
+    STAGES,
+    CyclePipeline,
+    StageOutput,
+    run_cycles,
+)
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.core.types import ToothBatch
@@ -62,24 +69,25 @@ def test_the_discrepancy_path_gives_analyzes_numbers(k9k):
         assert_allclose(res.omega[i], r.omega_mean, rtol=1e-12)
 
 
-def test_running_stages_run_in_order_and_add_their_flags(k9k):
-    """A running stage is one class and one entry: a stage that flags every tenth cycle shows on those results only,
-    after the calibration watches (STAGES), whose states the pipeline keeps by name."""
+def test_stages_after_the_monitor_run_in_order_and_add_their_flags(k9k):
+    """A stage is one class and one entry: a stage after the monitor that flags every tenth cycle shows on those
+    results only, after the calibration watches (STAGES), whose states the pipeline keeps by name."""
     model, sim = k9k
     cycles, _ = assembled_cycles(model, sim.info, sim.records)
 
     class Every10:
         name = "every10"
+        place = AFTER_MONITOR
 
-        def initial(self):
-            return _Flags(())
+        def initial(self, spec):
+            return None
 
         def update(self, state, inp):
-            return _Flags(("test_flag",) if inp.cycle.index % 10 == 0 else ())
+            return StageOutput(state, ("test_flag",) if inp.cycle.index % 10 == 0 else ())
 
     pipe = CyclePipeline(model, stages=(*STAGES, Every10()))
     out = [pipe.process(c) for c in cycles]
-    assert set(pipe.stages) == {"tdc_watch", "gain_watch", "every10"}
+    assert set(pipe.stages) == {"pressure_trace", "tdc_watch", "gain_watch", "every10"}
     flagged = [o.index for o in out if o.ok and "test_flag" in o.result.flags]
     assert flagged and all(i % 10 == 0 for i in flagged)
     plain = [o.result for o in run_cycles(model, cycles)]
@@ -88,9 +96,53 @@ def test_running_stages_run_in_order_and_add_their_flags(k9k):
     assert np.all([("test_flag" not in r.flags) for r in plain if r is not None])
 
 
-class _Flags:
-    def __init__(self, flags):
-        self.flags = flags
+def test_a_stage_before_the_view_flags_or_refuses_its_cycles_and_its_state_is_carried(k9k):
+    """The same one class and one entry, placed before the view: a stage that refuses every fifth cycle (its reason
+    the skip's) and flags every third (the flag on the result, through the monitor), counting the cycles it saw in its
+    state, which ``carried`` keeps and ``resume`` gives back; the other cycles' numbers are as without it."""
+    model, sim = k9k
+    cycles = assembled_cycles(model, sim.info, sim.records)[0][:16]
+
+    class Every5:
+        name = "every5"
+        place = BEFORE_VIEW
+
+        def initial(self, spec):
+            return 0
+
+        def update(self, state, inp):
+            i = inp.cycle.index
+            if i % 5 == 0:
+                return StageOutput(state + 1, refusal="test_refused")
+            return StageOutput(state + 1, ("test_before",) if i % 3 == 0 else ())
+
+    pipe = CyclePipeline(model, stages=(Every5(), *STAGES))
+    out = [pipe.process(c) for c in cycles]
+    assert pipe.skipped["test_refused"] == sum(c.index % 5 == 0 for c in cycles) > 0
+    assert all(o.skipped == "test_refused" for o in out if o.index % 5 == 0)
+    ok = [o for o in out if o.ok]
+    assert ok and all(("test_before" in o.result.flags) == (o.index % 3 == 0) for o in ok)
+    assert pipe.carried()["stages"]["every5"] == len(cycles)
+    resumed = CyclePipeline(model, stages=(Every5(), *STAGES))
+    resumed.resume(pipe.carried())
+    assert resumed.stages["every5"] == len(cycles)
+    plain = {o.index: o.result for o in run_cycles(model, [c for c in cycles if c.index % 5]) if o.ok}
+    assert_allclose([o.result.imep for o in ok], [plain[o.index].imep for o in ok], rtol=1e-12)
+
+    class LateRefusal:  # a refusal is a before-view stage's word only: after the monitor it is a programming error
+        name = "late"
+        place = AFTER_MONITOR
+
+        def initial(self, spec):
+            return None
+
+        def update(self, state, inp):
+            return StageOutput(state, refusal="too_late")
+
+    late = CyclePipeline(model, stages=(*STAGES, LateRefusal()))
+    with pytest.raises(TypeError, match="after the monitor"):
+        for c in cycles:
+            late.process(c)
 
 
 def test_a_clipped_channel_is_flagged_also_where_the_model_corrects_its_pegging(k9k):

@@ -16,10 +16,10 @@ from frictionwatch.core.monitor.checks.pressure_trace import (
     check_traces,
     failures,
     trace_features,
-    verdict_limits,
+    trace_features_reference,
+    trace_verdict_kernel,
 )
-from frictionwatch.core.monitor.checks.pressure_trace_kernels import trace_features_reference, trace_verdict_kernel
-from frictionwatch.core.monitor.pipeline import CyclePipeline
+from frictionwatch.core.monitor.pipeline import STAGES, CyclePipeline, PressureTrace
 from frictionwatch.core.monitor.report.run_summary import end_of_run_status
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.pipeline import assembled_cycles
@@ -64,7 +64,7 @@ def test_kernel_equals_the_numpy_reference(maruti):
             feat = trace_features(q, c.grid, spec.firing_angles, CFG.flat_tol)
             assert_allclose(feat, trace_features_reference(q, c.grid, spec.firing_angles, CFG.flat_tol),
                             rtol=1e-12, atol=1e-6)
-            assert_array_equal(trace_verdict_kernel(feat, verdict_limits(CFG), np.empty(3, np.int64)),
+            assert_array_equal(trace_verdict_kernel(feat, CFG.limits, np.empty(3, np.int64)),
                                failures(CFG, feat))
 
 
@@ -128,7 +128,7 @@ def test_the_faulty_trace_is_kept_out_of_the_figures(fault, healthy_run):
     spec, ok = healthy_run
     _, bad = cycles_of("maruti-3cyl", 0, 5, 10, fault, cyl=3)
     pipe, got = run_pipeline(spec, bad)
-    _, blind = run_pipeline(spec, bad, before=())
+    _, blind = run_pipeline(spec, bad, stages=tuple(s for s in STAGES if not isinstance(s, PressureTrace)))
     ref = ok[-1].smoothed
     assert len(got) == len(ok)
     assert abs(got[-1].smoothed.total_fmep - ref.total_fmep) < ref.total_fmep_sigma
@@ -149,7 +149,7 @@ def test_one_cylinder_is_refused_with_its_reason():
     pipe, results = run_pipeline(spec, cyc)
     assert not results
     assert pipe.skipped == {"pressure_implausible: clipped_cyl1": len(cyc)}
-    assert KINDS.index("clipped") == pipe.before_states["pressure_trace"].kind[0]
+    assert KINDS.index("clipped") == pipe.stages["pressure_trace"].kind[0]
 
 
 def test_a_coarse_converter_on_a_fine_grid_is_not_called_clipped_and_a_rail_still_is(maruti):

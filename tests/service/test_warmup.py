@@ -128,7 +128,7 @@ def test_no_kernel_is_added_after_the_warm_up(log):
 
 
 def test_the_check_sees_a_stage_the_warm_up_leaves_out():
-    """The same check with the running stages as a live run has them (100-cycle windows, no ``warm_up()``): the TDC
+    """The same check with the stages as a live run has them (100-cycle windows, no ``warm_up()``): the TDC
     watch's fit is first reached mid-run, and the check says so (the check can fail)."""
     out = added_after_warm_up("deutz-1cyl.mcap", cycles=110, brk="stages")
     assert any("tdc_kernels.gauss_newton_kernel" in a for a in out["added"]), out["added"]
@@ -177,7 +177,7 @@ def test_no_kernel_is_added_by_a_sensor_fault(log):
 
 
 def test_warm_stages_shorten_every_windowed_stage():
-    """Each running stage with a window has a warm-up form whose window fits the warm-up's cycles."""
+    """Each stage with a window has a warm-up form whose window fits the warm-up's cycles."""
     for live, warm in zip(STAGES, warm_stages(), strict=True):
         window = getattr(live, "window", None)
         if window is not None:

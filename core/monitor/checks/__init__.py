@@ -1,7 +1,7 @@
 """Per-cycle checks on the result: are the sensors and the engine what the model assumes?
 
     pressure_trace.py    is each channel a cylinder's pressure at all (dead, clipped, negated, spikes, out of phase)?
-                         run before the monitor (core.monitor.pipeline.BEFORE)       (kernels: pressure_trace_kernels.py)
+                         a stage before the view (core.monitor.pipeline.PressureTrace), kernels beside their references
     sensor_health.py     the speed-based sensor checks (TDC, gain) and their corrections   (evidence: sensor_evidence.py)
     condition.py         engine-condition flags from sibling windows (blow-by, ring wear, model misfit)
     change.py            the CUSUM change detector that discounts the accumulated equations once
