@@ -51,7 +51,6 @@ import gc
 import hashlib
 import logging
 import os
-import pickle
 import tempfile
 from pathlib import Path
 
@@ -174,9 +173,10 @@ def name_cache_entries_by_key() -> bool:
 
     cache_file = getattr(caching, "IndexDataCacheFile", None)
     numbas = getattr(cache_file, "save", None)
-    if numbas is None or getattr(numbas, "keyed", False):
-        return numbas is not None
-    if not all(hasattr(cache_file, n) for n in ("_load_index", "_save_index", "_save_data")):
+    if getattr(numbas, "keyed", False):
+        return True
+    if numbas is None or not all(hasattr(cache_file, n) for n in ("_load_index", "_save_index", "_save_data",
+                                                                  "_dump")):
         log.warning("numba cache: this numba's cache files differ from 0.68's; two processes compiling one kernel "
                     "into one cache at once may pair an index entry with another signature's code")
         return False
@@ -185,7 +185,8 @@ def name_cache_entries_by_key() -> bool:
         pattern = getattr(self, "_data_name_pattern", "")
         if "{number:d}" not in pattern:
             return numbas(self, key, data)
-        name = pattern.replace("{number:d}", hashlib.sha256(pickle.dumps(key, protocol=4)).hexdigest()[:16])
+        # the key as numba pickles it into the index (its signature, the target machine, the bytecode's hash)
+        name = pattern.replace("{number:d}", hashlib.sha256(self._dump(key)).hexdigest()[:16])
         self._save_data(name, data)
         overloads = self._load_index()
         if overloads.get(key) != name:
@@ -196,6 +197,7 @@ def name_cache_entries_by_key() -> bool:
     save.keyed = True
     cache_file.save = save
     return True
+
 
 __all__ = ["OPT_LEVEL", "CompileGcPause", "compile_settings", "fingerprinted_cache_dir", "name_cache_entries_by_key",
            "pause_gc_while_compiling", "source_digest", "source_fingerprint", "use_fingerprinted_cache",
