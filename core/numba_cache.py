@@ -31,6 +31,18 @@ Python's generational collector ran ~25 full collections over a ~440k-object hea
 its end (an exception included: numba ends the event in a ``finally``), so nothing is left uncollected for long: the
 next collection after the compile takes what it dropped. numba emits the event under its global compiler lock, so
 compiles never overlap and one depth count serves every thread. A collector that was off before stays off.
+
+    name_cache_entries_by_key()  # core/__init__.py too: each cached kernel's file named by its key, index last
+
+Why: numba's cache (0.68, caching.IndexDataCacheFile.save) names a new entry's file by the first number its index
+does not use yet, writes the index, then the file. Two processes compiling two specialisations of one kernel into one
+cache folder at once (``make test``'s two workers on a cold cache, a child compiling beside serve) can both read the
+index before either writes it and both take number 1: the index then says one signature while the file holds the
+other's code, and every later process loads that code for the wrong argument types, a silently wrong number (seen:
+a toy ``f(x) = 2x + 1`` cached for int64 and float64 at once returned 7 for f(3.5), design note 150). Named by a
+digest of its key, an entry's file holds only that key's code; written before the index, no index points at a file
+not written yet. What is left of the race is an index entry lost when two processes rewrite one index at once: a
+miss, compiled again when next called.
 """
 
 from __future__ import annotations
@@ -152,5 +164,41 @@ def pause_gc_while_compiling() -> CompileGcPause:
     return listener
 
 
-__all__ = ["OPT_LEVEL", "CompileGcPause", "compile_settings", "fingerprinted_cache_dir", "pause_gc_while_compiling",
-           "source_digest", "source_fingerprint", "use_fingerprinted_cache", "use_optimisation_level"]
+def name_cache_entries_by_key() -> bool:
+    """numba's cache entries each in a file named by a digest of its key, written before the index entry that
+    points at it (module doc); everything else as numba's own ``IndexDataCacheFile.save`` (its index and data
+    writers, each an atomic rename). False, numba's own way kept and said once in the log, where this numba's cache
+    file lacks what this relies on."""
+    from numba.core import caching
+
+    cache_file = getattr(caching, "IndexDataCacheFile", None)
+    numbas = getattr(cache_file, "save", None)
+    if getattr(numbas, "keyed", False):
+        return True
+    if numbas is None or not all(hasattr(cache_file, n) for n in ("_load_index", "_save_index", "_save_data",
+                                                                  "_dump")):
+        log.warning("numba cache: this numba's cache files differ from 0.68's; two processes compiling one kernel "
+                    "into one cache at once may pair an index entry with another signature's code")
+        return False
+
+    def save(self, key, data) -> None:
+        pattern = getattr(self, "_data_name_pattern", "")
+        if "{number:d}" not in pattern:
+            return numbas(self, key, data)
+        # the key as numba pickles it into the index (its signature, the target machine, the bytecode's hash)
+        name = pattern.replace("{number:d}", hashlib.sha256(self._dump(key)).hexdigest()[:16])
+        self._save_data(name, data)
+        overloads = self._load_index()
+        if overloads.get(key) != name:
+            overloads[key] = name
+            self._save_index(overloads)
+        return None
+
+    save.keyed = True
+    cache_file.save = save
+    return True
+
+
+__all__ = ["OPT_LEVEL", "CompileGcPause", "compile_settings", "fingerprinted_cache_dir", "name_cache_entries_by_key",
+           "pause_gc_while_compiling", "source_digest", "source_fingerprint", "use_fingerprinted_cache",
+           "use_optimisation_level"]

@@ -123,3 +123,49 @@ def test_the_garbage_collector_is_paused_while_numba_compiles_and_back_after():
             gc.enable()
     finally:
         event.unregister("numba:compile", probe)
+
+
+def test_two_processes_caching_two_signatures_of_one_kernel_at_once_keep_each_with_its_own_code(tmp_path: Path):
+    """numba's cache index and files as two processes leave them when each caches another specialisation of one
+    kernel at the same moment (design note 150), played by two threads over two cache-file objects of one folder:
+    both read the index before either writes it, b writes it last and a's file lands last. Numba 0.68's own naming
+    gave both entries file 1, the index pointing the second key at the first key's code (the toy kernel's
+    f(3.5) = 7); named by key (core/numba_cache.py ``name_cache_entries_by_key``, applied at core's import), an entry
+    loads its own code or nothing (a miss: compiled again), never another key's."""
+    import threading
+    import time
+
+    from numba.core.caching import IndexDataCacheFile  # its save replaced at core's import (this file imports core)
+
+    both_read = threading.Barrier(2, timeout=10)
+
+    class Racing(IndexDataCacheFile):
+        def __init__(self, late_index_s: float, late_data_s: float) -> None:
+            super().__init__(str(tmp_path), "kernels.f-1.py311", source_stamp=(1.0, 10))
+            self.late_index_s, self.late_data_s = late_index_s, late_data_s
+
+        def _load_index(self):
+            overloads = super()._load_index()
+            if not getattr(self, "read_once", False):
+                self.read_once = True
+                both_read.wait()  # each has read the index; neither has written it
+            return overloads
+
+        def _save_index(self, overloads):
+            time.sleep(self.late_index_s)
+            super()._save_index(overloads)
+
+        def _save_data(self, name, data):
+            time.sleep(self.late_data_s)
+            super()._save_data(name, data)
+
+    keys = {"a": (("int64",), "cpu"), "b": (("float64",), "cpu")}
+    files = {"a": Racing(late_index_s=0.0, late_data_s=0.3), "b": Racing(late_index_s=0.1, late_data_s=0.0)}
+    threads = [threading.Thread(target=files[k].save, args=(keys[k], f"code for {k}")) for k in keys]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    loaded = {k: IndexDataCacheFile(str(tmp_path), "kernels.f-1.py311", (1.0, 10)).load(keys[k]) for k in keys}
+    assert all(loaded[k] in (f"code for {k}", None) for k in keys), loaded
+    assert any(loaded[k] is not None for k in keys)  # what the last index writer saved is there
