@@ -21,8 +21,8 @@ A cylinder that fails is flagged ``sensor_pressure_<kind>_cyl<k>`` (the ``sensor
 figure: core.monitor.report.figure_status) and stays flagged ``hold_cycles`` cycles after its last failure (its own
 recent history: a trace that fails now and then is not trusted in between). Its trace is then kept out of what it
 would falsify: ``substitute`` puts the mean of its healthy siblings' traces, each moved to its firing angle, in its
-place, so the engine's indicated work and friction stay measured and the cylinder's own IMEP is its siblings'
-(said by the flag). Without a healthy sibling (one cylinder, or all failing) the cycle is refused
+place, so the engine's indicated work and friction stay measured; the cylinder's own IMEP and peak pressure are
+then its siblings', which no report shows as its own (``stood_in``; design note 153). Without a healthy sibling (one cylinder, or all failing) the cycle is refused
 (``pressure_implausible``): there is nothing to put in the trace's place.
 
 The features, per cylinder k (a row of ``trace_features``), with ``rel`` the sample's angle after cylinder k's firing
