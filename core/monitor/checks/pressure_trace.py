@@ -51,6 +51,7 @@ from functools import cached_property
 
 import numba
 import numpy as np
+from frictionwatch.core.monitor.report.figure_status import split_flag
 
 MIN, MAX, PEAK_DEG, FLAT, BDC, LATE, GASX_MAX, SPIKE = range(8)
 N_FEATURES = 8
@@ -285,16 +286,18 @@ def substitute(pressure: np.ndarray, grid: np.ndarray, firing: np.ndarray, bad: 
     return out
 
 
+_TRACE_FLAG_KINDS = frozenset(f"sensor_pressure_{k}" for k in KINDS)  # the flags' kinds (split_flag's) of this check
+
+
 def stood_in(flags: Iterable[str], n_cyl: int) -> np.ndarray:
     """(n_cyl,) bool: the cylinders whose trace ``check_traces`` replaced by its siblings' mean (a
     ``sensor_pressure_<kind>_cyl<k>`` flag of a kind in KINDS). Their IMEP, peak pressure and its angle are then
     the siblings' stand-in, not a measurement: the reports show them as such (core.monitor.report.results)."""
     out = np.zeros(n_cyl, dtype=bool)
     for f in flags:
-        if f.startswith("sensor_pressure_"):
-            kind, _, cyl = f.removeprefix("sensor_pressure_").rpartition("_cyl")
-            if kind in KINDS and cyl.isdigit() and 1 <= int(cyl) <= n_cyl:
-                out[int(cyl) - 1] = True
+        kind, cyl = split_flag(f)
+        if kind in _TRACE_FLAG_KINDS and cyl is not None and cyl <= n_cyl:
+            out[cyl - 1] = True
     return out
 
 
