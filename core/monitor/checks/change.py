@@ -119,10 +119,10 @@ def detector_after(det: ChangeDetector, status: int, mean: np.ndarray, var: np.n
         return det
     n = det.count + 1
     if status == _LEARNING:
-        return ChangeDetector(mean, var, det.sums, n, max(det.quiet - 1, 0), det.followed)
+        return replace(det, mean=mean, var=var, count=n, quiet=max(det.quiet - 1, 0))
     if status == _NO_ALARM:
-        return ChangeDetector(mean, var, sums, n, 0, det.followed)
-    return ChangeDetector(mean, var, np.zeros((2, mean.shape[0])), n, settings.quiet, det.followed)
+        return replace(det, mean=mean, var=var, sums=sums, count=n, quiet=0)
+    return replace(det, mean=mean, var=var, sums=np.zeros((2, mean.shape[0])), count=n, quiet=settings.quiet)
 
 
 _NOT_FINITE, _LEARNING, _NO_ALARM, _ALARM = 0, 1, 2, 3  # cusum_kernel's status
@@ -201,10 +201,10 @@ def cusum_step_reference(detector: ChangeDetector | None, u: np.ndarray, smooth:
     mean = det.mean + g * d
     var = (1.0 - g) * (det.var + g * d * d) if n > 1 else np.zeros(z_cyl)
     if zs is None or det.quiet > 0:
-        return ChangeDetector(mean, var, det.sums, n, max(det.quiet - 1, 0), det.followed), none
+        return replace(det, mean=mean, var=var, count=n, quiet=max(det.quiet - 1, 0)), none
     sums = np.stack([np.maximum(0.0, det.sums[0] + zs - settings.k), np.maximum(0.0, det.sums[1] - zs - settings.k)])
     over = sums.max(axis=0)
     if not np.any(over > settings.h):
-        return ChangeDetector(mean, var, sums, n, 0, det.followed), none
+        return replace(det, mean=mean, var=var, sums=sums, count=n, quiet=0), none
     alarm = over == over.max()  # the cylinder that changed most; the others' sums move with the shared estimate
-    return ChangeDetector(mean, var, np.zeros((2, z_cyl)), n, settings.quiet, det.followed), alarm
+    return replace(det, mean=mean, var=var, sums=np.zeros((2, z_cyl)), count=n, quiet=settings.quiet), alarm
