@@ -24,7 +24,7 @@ from datetime import date
 
 import numpy as np
 from frictionwatch.core.monitor.checks import condition
-from frictionwatch.core.monitor.checks.change import ChangeDetector, cusum_step_reference
+from frictionwatch.core.monitor.checks.change import ChangeDetector, cusum_step_reference, follow_smoothed
 from frictionwatch.core.tuned import MONITOR_RECORD, Tuned, round_up, write_tuned
 
 NAME = "CHANGE_INNOVATION_REL_FLOOR"
@@ -34,14 +34,14 @@ MARGIN = 1.25
 
 
 def record(engine: str, rpm: float, load: float, seed: int, cycles: int) -> dict:
-    """The healthy run's innovations (cycles, z), smoothed figures (cycles, z) and the smoothed estimate's motion at
-    each cycle's rows (cycles, z: what ``follow_smoothed`` takes off the detector's mean), with the detector unable
-    to alarm (h infinite): no alarm discounts the accumulator, so the replay sees the run it replays."""
+    """The healthy run's innovations (cycles, z), smoothed figures (cycles, z), and each cycle's smoothed friction
+    parameters (cycles, p_f) and cylinder rows (cycles, z, p_f) (what ``follow_smoothed`` reads), with the detector
+    unable to alarm (h infinite): no alarm discounts the accumulator, so the replay sees the run it replays."""
     from frictionwatch.core.model.engine import load_engine
     from frictionwatch.core.plant.simulate import simulate
     from frictionwatch.service.pipeline import run
 
-    inner, innov, smooth, motion, before = condition.condition_kernel, [], [], [], [None]
+    inner, innov, smooth, params, rows_seen = condition.condition_kernel, [], [], [], []
 
     def spy(levels, stats, estimate, fit, ring, limits, *rest):
         cycle_params, smoothed_params, rows = fit[0], fit[1], fit[2]
@@ -49,9 +49,8 @@ def record(engine: str, rpm: float, load: float, seed: int, cycles: int) -> dict
         s = rows @ smoothed_params[:pf]
         innov.append((rows @ cycle_params[:pf] - s).tolist())
         smooth.append(s.tolist())
-        now = np.array(smoothed_params[:pf])
-        motion.append((rows @ (now - before[0])).tolist() if before[0] is not None else [0.0] * len(s))
-        before[0] = now
+        params.append(smoothed_params[:pf].tolist())
+        rows_seen.append(rows.tolist())
         cusum = limits[2].copy()
         cusum[1] = np.inf  # h: never an alarm
         return inner(levels, stats, estimate, fit, ring, (limits[0], limits[1], cusum), *rest)
@@ -66,18 +65,18 @@ def record(engine: str, rpm: float, load: float, seed: int, cycles: int) -> dict
         condition.condition_kernel = inner
     return {"case": f"{engine} {rpm:g} rpm {load:g} seed {seed}", "cycles": cycles,
             "command": f"record {engine} {rpm:g} {load:g} {seed} --cycles {cycles}", "innovation": innov,
-            "smoothed": smooth, "motion": motion}
+            "smoothed": smooth, "params": params, "rows": rows_seen}
 
 
 def replay(doc: dict, floor: float, follow: bool = True) -> list[tuple[int, int]]:
     """(cycle, cylinder) of every alarm the detector's reference raises on the recorded innovations at ``floor``;
-    ``follow``: its mean moved by the recorded motion first, as ``follow_smoothed`` does in the monitor."""
+    ``follow``: its mean following the recorded smoothed parameters (``follow_smoothed``, as in the monitor)."""
     settings = replace(condition.ConditionSettings().change, rel_floor=floor)
     det: ChangeDetector | None = None
     out = []
-    for i, (u, s, m) in enumerate(zip(doc["innovation"], doc["smoothed"], doc["motion"])):
-        if follow and det is not None:
-            det = replace(det, mean=det.mean - np.asarray(m))
+    for i, (u, s, p, rows) in enumerate(zip(doc["innovation"], doc["smoothed"], doc["params"], doc["rows"])):
+        if follow:
+            det = follow_smoothed(det, np.asarray(p), np.asarray(rows))
         det, alarm = cusum_step_reference(det, np.asarray(u), np.asarray(s), settings)
         out += [(i, int(k)) for k in np.flatnonzero(alarm)]
     return out
