@@ -269,6 +269,11 @@ class CalibrationState(_Open):
     gain_sigma_pct: float = Field(description="1 sigma of each pressure channel's gain [%]")
     gain_common_sigma_pct: float = Field(description="1 sigma of the gain common to every channel [%]")
     inertia_sigma_pct: float = Field(description="1 sigma of the inertia J [%]")
+    load_torque_sigma_pct: float = Field(description="1 sigma of the load read as a shaft torque [%]")
+    load_power_sigma_pct: float = Field(description="1 sigma of the load read as electrical power over the generator's "
+                                                    "efficiency and the speed [%] (a genset without a torque reading)")
+    generator_efficiency: float = Field(description="the generator efficiency the electrical power is divided by "
+                                                    "(1.0: not stated, its losses then inside the load sigma)")
 
 
 class SensorHealth(_Open):

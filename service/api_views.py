@@ -307,6 +307,9 @@ def sensor_health(r: CycleResult, watch: TdcWatchView, cal: Calibration) -> dict
             "tdc_wheel_sigma_deg": cal.tdc_wheel_sigma_deg, "tdc_cylinder_sigma_deg": cal.tdc_cylinder_sigma_deg,
             "gain_sigma_pct": 100.0 * cal.gain_sigma, "gain_common_sigma_pct": 100.0 * cal.gain_common_sigma,
             "inertia_sigma_pct": 100.0 * cal.inertia_sigma,
+            "load_torque_sigma_pct": 100.0 * cal.load_torque_sigma,
+            "load_power_sigma_pct": 100.0 * cal.load_power_sigma,
+            "generator_efficiency": cal.generator_efficiency,
         },
     }
 

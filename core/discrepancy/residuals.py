@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.view import Reference
-from frictionwatch.core.monitor.balance.mean_balance import mid_cycle_inertia
+from frictionwatch.core.monitor.balance.mean_balance import mid_cycle_inertia, shaft_load
 from frictionwatch.core.monitor.calibration.tdc_memo import TdcFitMemo
 from frictionwatch.core.monitor.pipeline import STAGES, CyclePipeline, TdcWatch
 from frictionwatch.core.monitor.state import MonitorConfig
@@ -223,10 +223,10 @@ def _tdc_reading(pipe: CyclePipeline) -> dict:
                                                              ("statistical", "heat_loss", "constant_loss"))))}
 
 
-def mean_load(cycles: Sequence[Cycle], omega: float) -> float:
-    """The log's median load torque [N m] as the monitor reads it (the torque, else the power over the speed); NaN
-    where neither is measured."""
-    loads = np.array([c.load_torque if np.isfinite(c.load_torque) else c.load_power / omega for c in cycles])
+def mean_load(cycles: Sequence[Cycle], omega: float, efficiency: float = 1.0) -> float:
+    """The log's median load torque [N m] as the monitor reads it (the torque, else the power over the generator's
+    ``efficiency`` and the speed: ``shaft_load``); NaN where neither is measured."""
+    loads = np.array([shaft_load(c.load_torque, c.load_power, omega, efficiency)[0] for c in cycles])
     loads = loads[np.isfinite(loads)]
     return float(np.median(loads)) if loads.size else float("nan")
 

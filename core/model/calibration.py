@@ -1,9 +1,11 @@
 """How well the installation's sensors are known: the model's calibration section (issue 25 item 2).
 
-Every friction figure rests on the pressure's crank-angle reference (TDC), the pressure sensors' gain and the
-inertia the kinetic-energy term uses. A TDC error moves a cylinder's indicated work by dW/dDelta = -A ∮ p x'' dtheta
-and a gain error by W itself; the mean balance passes both into friction whole (0.1 deg of TDC is 6-7 % of the
-genset-v20's friction, 1 % of gain 8-12 %: docs/information.md). The monitor adds what the calibration leaves
+Every friction figure rests on the pressure's crank-angle reference (TDC), the pressure sensors' gain, the
+inertia the kinetic-energy term uses and the load reading. A TDC error moves a cylinder's indicated work by
+dW/dDelta = -A ∮ p x'' dtheta and a gain error by W itself; the mean balance passes both into friction whole (0.1 deg
+of TDC is 6-7 % of the genset-v20's friction, 1 % of gain 8-12 %: docs/information.md), and the load's error too
+(friction = indicated - load - ...: on genset-v20 at 75 % load the load is ~9x the friction, so 1 % of load is ~9 %
+of friction). The monitor adds what the calibration leaves
 uncertain to every friction sigma through those sensitivities (core.monitor.identify.estimate.calibration_variance), so a
 figure never claims to know more than its sensors allow.
 
@@ -21,6 +23,9 @@ In the model's TOML (core.model.engine_model), every key optional (the defaults 
     gain_sigma = 0.005               # each pressure channel's relative gain, independent between cylinders
     gain_common_sigma = 0.01         # the gain common to every channel (their mean; a shared amplifier or DAQ scale)
     inertia_sigma = 0.02             # the relative error of J (kinetic-energy term of the mean balance)
+    load_torque_sigma = 0.005        # the relative error of a shaft-torque reading (torque flange, dyno load cell)
+    load_power_sigma = 0.03          # the relative error of the shaft torque read as electrical power / (eff omega)
+    generator_efficiency = 1.0       # shaft power = electrical power / this (1.0: not stated, losses not added)
     stiffness_sigma = 0.003          # the relative error of the shaft line's section stiffnesses (drive train)
     damping_sigma = 0.02             # the relative error of its section dampings
     tdc_cylinder_reading_deg = [0.0, -0.26, ...]    # each cylinder's own TDC as commissioning read and left it
@@ -53,9 +58,21 @@ STATUSES = ("uncalibrated", "commissioned")
 #   chain_mismatch effect's stated +-20 %; dampings (a viscous damper's, the shaft's hysteresis) are known worse.
 #   Commissioning with a second wheel measures them (core.monitor.calibration.drive_train) and writes the
 #   correction as a chain_mismatch effect of the model.
+# - load as shaft torque 0.5 %: a torque flange is good to 0.05-0.1 % of its range, a dyno's load cell and lever
+#   to ~0.25 % of its range, so ~0.5 % of the reading at part load.
+# - load as electrical power 3 %: a genset seldom measures shaft torque; the monitor reads the generator's electrical
+#   power / omega. The meter (class 0.2-0.5, with its current and voltage transformers ~0.5 % together) is the
+#   small part: the generator's own losses (copper, iron, windage, excitation) are 2-4 % of the power of a MW
+#   synchronous machine at 50-100 % load (efficiency 96-98 %), and where the engine file states no efficiency the
+#   electrical power undercounts the shaft's by that, which the balance books as friction (+20-35 % of genset-v20's
+#   friction). 3 % covers that at about 1 sigma; commissioning cannot measure it (no shaft-torque reference), the
+#   installation states it: generator_efficiency from the generator's data sheet at the operating load, and
+#   load_power_sigma then the meter's and the data sheet's uncertainty (~0.5-1 %).
+# None of the three is measured by `frictionwatch commission`; a commissioned model keeps what its file states.
 UNCALIBRATED_SOURCE = ("uncalibrated: a typical installation is assumed (TDC +-0.5 deg wheel and +-0.2 deg per "
-                       "cylinder, pressure gain +-3 % per channel and +-1 % common, J +-5 %); `frictionwatch "
-                       "commission` measures them")
+                       "cylinder, pressure gain +-3 % per channel and +-1 % common, J +-5 %, load +-0.5 % as "
+                       "shaft torque or +-3 % as electrical power); `frictionwatch commission` measures TDC, gain "
+                       "and J")
 
 
 @dataclass(frozen=True)
@@ -65,6 +82,8 @@ class Calibration:
     tdc_cylinder_sigma_deg (each cylinder's own), gain_sigma (relative, each channel on its own), gain_common_sigma
     (relative, common to all channels), inertia_sigma (relative J), stiffness_sigma and damping_sigma (relative, the
     shaft line's sections: what is left after a chain_mismatch correction, or the engine file's own uncertainty);
+    load_torque_sigma and load_power_sigma (relative, the load as the monitor reads it: a shaft torque, or an
+    electrical power over generator_efficiency times the speed: ``load_variance``);
     source: where the numbers come from, in words; baseline: the commissioning recording's healthy state per load
     band, friction and pressure indicators, as the alert engine learns it (service.alert_baseline.Baseline.to_dict
     as JSON text; empty: none). Core does not read it: it travels with the model so that the alerts compare with
@@ -78,6 +97,9 @@ class Calibration:
     inertia_sigma: float = 0.05
     stiffness_sigma: float = 0.2
     damping_sigma: float = 0.5
+    load_torque_sigma: float = 0.005
+    load_power_sigma: float = 0.03
+    generator_efficiency: float = 1.0
     source: str = UNCALIBRATED_SOURCE
     baseline: str = ""
     # what commissioning read of each cylinder's own TDC (its TDC less the median of all) after its corrections: 0
@@ -95,7 +117,8 @@ class Calibration:
         if self.status not in STATUSES:
             raise ValueError(f"calibration status {self.status!r} is not one of {', '.join(STATUSES)}")
         for name in ("tdc_wheel_sigma_deg", "tdc_cylinder_sigma_deg", "gain_sigma", "gain_common_sigma",
-                     "inertia_sigma", "stiffness_sigma", "damping_sigma"):
+                     "inertia_sigma", "stiffness_sigma", "damping_sigma", "load_torque_sigma", "load_power_sigma",
+                     "generator_efficiency"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0.0):
                 raise ValueError(f"calibration {name} = {v!r} must be a number >= 0")
@@ -110,8 +133,12 @@ class Calibration:
                                  "sigma >= 0)")
         if not isinstance(self.baseline, str) or not isinstance(self.source, str):
             raise ValueError("calibration source and baseline must be text")
-        if max(self.gain_sigma, self.gain_common_sigma, self.inertia_sigma) >= 0.5 or self.tdc_wheel_sigma_deg > 10.0:
-            raise ValueError("calibration sigmas beyond 50 % of gain or J, or 10 deg of TDC, are not a calibration")
+        if (max(self.gain_sigma, self.gain_common_sigma, self.inertia_sigma, self.load_torque_sigma,
+                self.load_power_sigma) >= 0.5 or self.tdc_wheel_sigma_deg > 10.0):
+            raise ValueError("calibration sigmas beyond 50 % of gain, J or load, or 10 deg of TDC, are not a calibration")
+        if not 0.5 <= self.generator_efficiency <= 1.0:
+            raise ValueError(f"calibration generator_efficiency = {self.generator_efficiency!r} is not an efficiency "
+                             "(0.5 .. 1.0; 1.0: not stated)")
         # tdc_wheel_sigma_rad, tdc_cylinder_sigma_rad: the two TDC sigmas in radians, made once here (plain attributes,
         # not fields: to_dict and KEYS are the record's fields as before); as properties the monitor's estimate
         # called back into this file four times a cycle (design note 82)
@@ -122,6 +149,11 @@ class Calibration:
     def commissioned(self) -> bool:
         return self.status == "commissioned"
 
+    def load_variance(self, load_nm: float, from_power: bool) -> float:
+        """[N^2 m^2] the variance the load reading's remaining error gives the balance's load ``load_nm`` (a
+        relative error: the reading's gain; 0 where the load is not finite). ``from_power``: read as electrical power."""
+        rel = self.load_power_sigma if from_power else self.load_torque_sigma
+        return (rel * load_nm) ** 2 if math.isfinite(load_nm) else 0.0
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -42,6 +42,7 @@ from frictionwatch.core.monitor.balance.mean_balance import (
     cycle_energy,
     energy_weights,
     grid_geometry,
+    shaft_load,
     transient_balance,
 )
 from frictionwatch.core.monitor.checks.check import Check, CheckInput
@@ -147,7 +148,7 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     free_end, wheel2, wheel2_flag = fit_second_wheel(  # the free end's own speed and tooth spacing (none: nothing)
         cycle, state.wheel2, m, state.n_nuisance, fit_settings)
     omega = fly.omega_mean
-    load = cycle.load_torque if math.isfinite(cycle.load_torque) else cycle.load_power / omega
+    load, load_from_power = shaft_load(cycle.load_torque, cycle.load_power, omega, cfg.calibration.generator_efficiency)
     if not math.isfinite(load):
         flags.append("no_load_measurement")
     op = operating_point(spec, state.op, omega, load, m, cfg.rebuild_tolerance, cfg.variable_inertia, state.layout,
@@ -189,7 +190,7 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
     pmax, pmax_angle = peak_pressure(cycle.grid, raw_pressure, spec.firing_angles)
     mean = MeanBalance(indicated=t_i, load=load, coupling_loss=coupling_loss, friction=balance, kinetic=kinetic,
                        imep_centred=imep_c, acceleration=accel, indicated_window=t_window,
-                       tdc_sensitivity=tdc_sens)
+                       tdc_sensitivity=tdc_sens, load_from_power=load_from_power)
     if prev is None:
         flags.append("no_previous_cycle")  # IMEP over the assembled cycle's window, no mean balance
 

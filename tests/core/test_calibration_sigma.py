@@ -92,6 +92,28 @@ def test_calibration_variance_kernel_matches_its_numpy_reference(z):
         per_r, total_r = calibration_variance_reference(cal, sens)
         assert_allclose(per, per_r, rtol=1e-14)
         assert_allclose(total, total_r, rtol=1e-14)
+    # the load's term, read both ways, split by a share (or equally where the share is not one)
+    for load, power in ((150.0, False), (2.0e4, True), (float("nan"), True)):
+        for share in (rng.uniform(1.0, 5.0, z), np.full(z, np.nan), None):
+            sens = CalibrationSensitivity(rng.normal(0.0, 20.0, z), rng.normal(40.0, 30.0, z), 1.0, load, power)
+            per, total = calibration_variance(cal, sens, share)
+            per_r, total_r = calibration_variance_reference(cal, sens, share)
+            assert_allclose(per, per_r, rtol=1e-14)
+            assert_allclose(total, total_r, rtol=1e-14)
+
+
+def test_the_load_s_error_moves_the_total_whole_and_each_cylinder_by_its_part():
+    """A load reading's relative error moves the balance's friction by that fraction of the load, all of it into the
+    total and into each cylinder by its part of the friction."""
+    none = Calibration(status="commissioned", tdc_wheel_sigma_deg=0.0, tdc_cylinder_sigma_deg=0.0, gain_sigma=0.0,
+                       gain_common_sigma=0.0, inertia_sigma=0.0, load_torque_sigma=0.004, load_power_sigma=0.02)
+    s, t_i, share = np.zeros(3), np.array([50.0, 55.0, 52.0]), np.array([2.0, 1.0, 1.0])
+    per, total = calibration_variance(none, CalibrationSensitivity(s, t_i, load=300.0), share)
+    assert_allclose(total, (0.004 * 300.0) ** 2, rtol=1e-12)
+    assert_allclose(per, (0.004 * 300.0 * np.array([0.5, 0.25, 0.25])) ** 2, rtol=1e-12)
+    per, total = calibration_variance(none, CalibrationSensitivity(s, t_i, load=300.0, load_from_power=True))
+    assert_allclose(total, (0.02 * 300.0) ** 2, rtol=1e-12)
+    assert_allclose(per, np.full(3, (0.02 * 300.0 / 3.0) ** 2), rtol=1e-12)
 
 
 def test_model_file_keeps_its_calibration_and_refuses_unknown_keys():

@@ -117,8 +117,8 @@ def test_kernel_against_reference_on_real_cycles(name):
 
 def test_kernel_against_reference_floor_and_calibration_branches():
     """The floor's branches the monitor's defaults do not take on a healthy log (an indicated_rel, a misfit beyond
-    misfit_free with a coupling loss; no floor) and a commissioned calibration with a kinetic term, on 8 genset-v20
-    cycles' steps: the kernel within RTOL of its reference, and the branches move the sigmas."""
+    misfit_free with a coupling loss; no floor) and a commissioned calibration with a kinetic term and the load read
+    as a torque or as electrical power, on 8 genset-v20 cycles' steps: the kernel within RTOL of its reference, and the branches move the sigmas."""
     seen = _steps("genset-v20", 14)[0][-8:]
     done = Calibration(status="commissioned", tdc_wheel_sigma_deg=0.15, tdc_cylinder_sigma_deg=0.04)
     for i, (args, _) in enumerate(seen):
@@ -127,7 +127,8 @@ def test_kernel_against_reference_floor_and_calibration_branches():
         for f, floor in enumerate((None, ModelErrorFloor(indicated_rel=0.05), cfg.floor)):
             for cal in (cfg.calibration, done):
                 settings = cfg._replace(floor=floor, calibration=cal)
-                moved = inp._replace(misfit=inp.misfit + 3.0, coupling_loss=inp.coupling_loss + 4.0, kinetic=2.5)
+                moved = inp._replace(misfit=inp.misfit + 3.0, coupling_loss=inp.coupling_loss + 4.0, kinetic=2.5,
+                                     load_from_power=bool(i % 2))  # the load read as power on every other cycle
                 got = step.identify_step(*head, moved, settings)
                 _compare(got, step.identify_step_reference(*head, moved, settings), f"cycle {i} floor {f} {cal.status}")
                 sig[f, cal.status] = got.cycle_estimate.total_friction_torque_sigma

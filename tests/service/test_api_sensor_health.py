@@ -90,7 +90,9 @@ def test_the_calibration_is_the_models(watched) -> None:
                                   "tdc_wheel_sigma_deg": 0.5, "tdc_cylinder_sigma_deg": 0.2,
                                   "gain_sigma_pct": pytest.approx(3.0, rel=1e-12),
                                   "gain_common_sigma_pct": pytest.approx(1.0, rel=1e-12),
-                                  "inertia_sigma_pct": pytest.approx(5.0, rel=1e-12)}
+                                  "inertia_sigma_pct": pytest.approx(5.0, rel=1e-12),
+                                  "load_torque_sigma_pct": pytest.approx(0.5, rel=1e-12),
+                                  "load_power_sigma_pct": pytest.approx(3.0, rel=1e-12), "generator_efficiency": 1.0}
 
 
 def test_the_speed_based_stage_when_switched_on(watched) -> None:

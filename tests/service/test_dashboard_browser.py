@@ -171,6 +171,8 @@ def test_sensor_panel_says_the_calibration_and_the_tdc_watch(page, server):
     said = page.evaluate("document.querySelector('[data-testid=health-calibration]').textContent")
     assert said.startswith("Uncalibrated: nobody has measured this installation's TDC")
     assert "TDC ±0.50° for the whole wheel and ±0.20° per cylinder, pressure gain ±3.0 % per channel" in said
+    assert "the load ±0.5 % read as shaft torque or ±3.0 % read as electrical power (generator efficiency not " \
+        "stated" in said
     assert "frictionwatch commission" in text(page, "health")
     assert "Off. It estimates each cylinder's TDC" in text(page, "health")
     assert "serve --sensor-health" in text(page, "health")
@@ -284,7 +286,8 @@ def test_a_flagged_sensor_a_commissioned_model_and_the_speed_stage_in_words(page
                          cylinders: [cyl(1, 0.02), cyl(2, -0.01), cyl(3, 0.9), cyl(4, 0.03)] },
             calibration: { status: 'commissioned', source: 'commission, 2 files', tdc_wheel_sigma_deg: 0.07,
                            tdc_cylinder_sigma_deg: 0.05, gain_sigma_pct: 0.4, gain_common_sigma_pct: 1.2,
-                           inertia_sigma_pct: 6 } });
+                           inertia_sigma_pct: 6, load_torque_sigma_pct: 0.5, load_power_sigma_pct: 0.8,
+                           generator_efficiency: 0.968 } });
         const q = (sel) => document.querySelector(sel);
         const t = q('[data-testid=tdc-watch-table]');
         return { summary: q('[data-testid=health-summary]').textContent,
@@ -301,6 +304,7 @@ def test_a_flagged_sensor_a_commissioned_model_and_the_speed_stage_in_words(page
                                           "(commission, 2 files)")
     assert "TDC ±0.07° for the whole wheel and ±0.05° per cylinder, pressure gain ±0.4 % per channel" in \
         said["calibration"]
+    assert "±0.8 % read as electrical power (generator efficiency 96.8 %)" in said["calibration"]
     assert "Newest check at cycle 300" in said["status"] and "Flagged:" in said["status"]
     assert "Next check in 88 cycles" in said["status"]
     assert said["flags"] == ["cylinder 3: this cylinder's TDC differs from the other cylinders' by more than the "

@@ -48,7 +48,9 @@ class MeanBalance:
     firing window, None without the previous cycle; acceleration [rad/s^2] kinetic / J(2 pi) and indicated_window
     [N m] the two cycles' indicated torque under the balance's triangular weight;
     tdc_sensitivity (z,) [N m/rad] each cylinder's dT_iM/dDelta (core.monitor.balance.mean_balance.indicated_tdc_sensitivity),
-    None where not computed (then the calibration adds no TDC term)."""
+    None where not computed (then the calibration adds no TDC term); load_from_power: the load was read as electrical
+    power over the generator's efficiency and the speed, not as a shaft torque (the calibration's load sigma is that
+    reading's: core.model.calibration.Calibration.load_variance)."""
 
     indicated: float
     load: float
@@ -59,6 +61,17 @@ class MeanBalance:
     acceleration: float = float("nan")
     indicated_window: float = float("nan")
     tdc_sensitivity: np.ndarray | None = None
+    load_from_power: bool = False
+
+
+def shaft_load(load_torque: float, load_power: float, omega: float, efficiency: float) -> tuple[float, bool]:
+    """(the load torque on the shaft [N m], whether it was read as electrical power): the measured torque where
+    finite, else the electrical power over the generator's efficiency and the speed (NaN: neither measured). A genset
+    seldom has a torque flange; without the efficiency its generator's losses would be booked as friction
+    (core.model.calibration: generator_efficiency, load_power_sigma)."""
+    if math.isfinite(load_torque):
+        return load_torque, False
+    return load_power / (omega * efficiency), True
 
 
 def mid_cycle_speed(spec: EngineSpec, cycle: Cycle) -> float:

@@ -136,6 +136,10 @@ def commissioned_model(model: EngineModel, tdc_fired: Sequence[TdcEstimate | Non
                       gain_sigma=round(gain_sigma, 5), gain_common_sigma=round(gain_common_sigma, 5),
                       inertia_sigma=round(min(inertia_sigma, 0.49), 5), stiffness_sigma=model.calibration.stiffness_sigma,
                       damping_sigma=model.calibration.damping_sigma, source=source,
+                      # the load reading: not measured here (no shaft-torque reference), kept as the file states it
+                      load_torque_sigma=model.calibration.load_torque_sigma,
+                      load_power_sigma=model.calibration.load_power_sigma,
+                      generator_efficiency=model.calibration.generator_efficiency,
                       tdc_cylinder_reading_deg=tuple(round(math.degrees(float(v)), 4) for v in reading),
                       tdc_cylinder_reading_sigma_deg=tuple(round(math.degrees(float(v)), 4) for v in reading_sigma))
     out = dataclasses.replace(model, effects=model.effects + tuple(effects), calibration=cal)

@@ -104,67 +104,100 @@ class CalibrationSensitivity(NamedTuple):
     """How one cycle's mean balance moves with the calibration: tdc (z,) [N m/rad] dT_iM,k/dDelta_k, each cylinder's
     work-mean indicated torque per radian of its TDC (``indicated_tdc_sensitivity``); indicated (z,) [N m] T_iM,k,
     which a relative gain error scales; kinetic [N m] the kinetic-energy term J a, which a relative J error scales
-    (NaN: no term, e.g. no cycle before)."""
+    (NaN: no term, e.g. no cycle before); load [N m] the load the balance subtracts, which a relative error of the
+    load reading scales (NaN: none), read as electrical power where ``load_from_power``."""
 
     tdc: np.ndarray
     indicated: np.ndarray
     kinetic: float = float("nan")
+    load: float = float("nan")
+    load_from_power: bool = False
 
 
-def calibration_variance(cal: Calibration, sens: CalibrationSensitivity) -> tuple[np.ndarray, float]:
+def calibration_variances(cal: Calibration, sens: CalibrationSensitivity) -> np.ndarray:
+    """The six variances ``_calibration_variance_kernel`` reads (its ``var``): the wheel's and each cylinder's TDC
+    [rad^2], each channel's and the common gain, the kinetic term's and the load's [N^2 m^2]."""
+    kinetic = sens.kinetic if math.isfinite(sens.kinetic) else 0.0
+    return np.array([cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2, cal.gain_sigma ** 2,
+                     cal.gain_common_sigma ** 2, (cal.inertia_sigma * kinetic) ** 2,
+                     cal.load_variance(sens.load, sens.load_from_power)])
+
+
+def calibration_variance(cal: Calibration, sens: CalibrationSensitivity,
+                         share: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """(per cylinder (z,), engine total) [N^2 m^2]: the variance the calibration's remaining uncertainty adds to the
     friction figures. The mean balance passes an error of the indicated work into friction whole: the wheel's TDC
     moves every cylinder alike (the total by sum_k dT_k, fully correlated), a cylinder's own TDC and gain its own;
-    J's error moves the kinetic-energy term (the engine total only: it is not a cylinder's). A gain common to all
-    channels moves the total by its sum, like the wheel's TDC. One kernel (``_calibration_variance_kernel``; its
-    numpy reference ``calibration_variance_reference``)."""
-    kinetic = sens.kinetic if math.isfinite(sens.kinetic) else 0.0
-    var = np.array([cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2, cal.gain_sigma ** 2,
-                    cal.gain_common_sigma ** 2, (cal.inertia_sigma * kinetic) ** 2])
+    J's error moves the kinetic-energy term (the engine total only: it is not a cylinder's; it changes sign from
+    cycle to cycle). A gain common to all channels moves the total by its sum, like the wheel's TDC. The load
+    reading's error moves the total whole, and each cylinder's figure by its part of the engine's friction: ``share``
+    (z,) [N m] (the Eq. 6 share the estimate's prior holds; None or not positive: equal parts). One kernel
+    (``_calibration_variance_kernel``; its numpy reference ``calibration_variance_reference``)."""
     tdc, t_i = np.asarray(sens.tdc, dtype=np.float64), np.asarray(sens.indicated, dtype=np.float64)
     if tdc.shape != t_i.shape or tdc.ndim != 1:
         raise ValueError(f"the TDC sensitivities {tdc.shape} and indicated torques {t_i.shape} need one per cylinder")
-    return _calibration_variance_kernel(tdc, t_i, var)
+    share = np.ones(tdc.shape[0]) if share is None else np.asarray(share, dtype=np.float64)
+    return _calibration_variance_kernel(tdc, t_i, share, calibration_variances(cal, sens))
 
 
-def calibration_variance_reference(cal: Calibration, sens: CalibrationSensitivity) -> tuple[np.ndarray, float]:
+def load_split(share: np.ndarray) -> np.ndarray:
+    """Each cylinder's part of the engine's friction (z,), summing to 1: ``share`` normalised where every value is
+    finite and their sum positive, else equal parts (the numpy reference of the kernel's split)."""
+    share = np.asarray(share, dtype=np.float64)
+    total = float(np.sum(share))
+    if not (np.isfinite(share).all() and total > 0.0):
+        return np.full(share.shape[0], 1.0 / share.shape[0])
+    return share / total
+
+
+def calibration_variance_reference(cal: Calibration, sens: CalibrationSensitivity,
+                                   share: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """``calibration_variance`` in plain numpy (its reference)."""
     s, t_i = np.abs(sens.tdc), np.abs(sens.indicated)
     w2, c2 = cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2
     g2, gc2 = cal.gain_sigma ** 2, cal.gain_common_sigma ** 2
-    per = s * s * (w2 + c2) + t_i * t_i * (g2 + gc2)
+    load2 = cal.load_variance(sens.load, sens.load_from_power)
+    split = load_split(np.ones(s.shape[0]) if share is None else share)
+    per = s * s * (w2 + c2) + t_i * t_i * (g2 + gc2) + load2 * split ** 2
     kinetic = sens.kinetic if math.isfinite(sens.kinetic) else 0.0
     total = (float(np.sum(sens.tdc)) ** 2 * w2 + float(np.sum(s * s)) * c2 + float(np.sum(t_i * t_i)) * g2
-             + float(np.sum(sens.indicated)) ** 2 * gc2 + (cal.inertia_sigma * kinetic) ** 2)
+             + float(np.sum(sens.indicated)) ** 2 * gc2 + (cal.inertia_sigma * kinetic) ** 2 + load2)
     return per, total
 
 
 @numba.njit(cache=True)
-def _calibration_variance_kernel(tdc, indicated, var):
-    """(per (z,), total) of ``calibration_variance_reference``; var: the variances of the wheel's and each
-    cylinder's TDC [rad^2], each channel's and the common gain, and the kinetic term's [N^2 m^2]."""
-    w2, c2, g2, gc2, kinetic2 = var[0], var[1], var[2], var[3], var[4]
+def _calibration_variance_kernel(tdc, indicated, share, var):
+    """(per (z,), total) of ``calibration_variance_reference``; share (z,) the cylinders' parts of the friction
+    [N m] (``load_split``); var: ``calibration_variances``."""
+    w2, c2, g2, gc2, kinetic2, load2 = var[0], var[1], var[2], var[3], var[4], var[5]
     z = tdc.shape[0]
     per = np.empty(z)
     s_sum = 0.0
     s2_sum = 0.0
     t_sum = 0.0
     t2_sum = 0.0
+    share_sum = 0.0
+    share_ok = True
+    for k in range(z):
+        share_sum += share[k]
+        share_ok = share_ok and np.isfinite(share[k])
+    share_ok = share_ok and share_sum > 0.0
     for k in range(z):
         s, t = abs(tdc[k]), abs(indicated[k])
-        per[k] = s * s * (w2 + c2) + t * t * (g2 + gc2)
+        part = share[k] / share_sum if share_ok else 1.0 / z
+        per[k] = s * s * (w2 + c2) + t * t * (g2 + gc2) + load2 * part * part
         s_sum += tdc[k]
         s2_sum += s * s
         t_sum += indicated[k]
         t2_sum += t * t
-    return per, s_sum ** 2 * w2 + s2_sum * c2 + t2_sum * g2 + t_sum ** 2 * gc2 + kinetic2
+    return per, s_sum ** 2 * w2 + s2_sum * c2 + t2_sum * g2 + t_sum ** 2 * gc2 + kinetic2 + load2
 
 
 def with_calibration(est: FrictionEstimate, cal: Calibration, sens: CalibrationSensitivity,
                      spec: EngineSpec) -> FrictionEstimate:
     """``est`` with the calibration's variance added to every friction and FMEP sigma (the figures themselves
     unchanged; ``resolved`` stays what the data resolve), the part it added and the calibration's status kept."""
-    var_cyl, var_tot = calibration_variance(cal, sens)
+    var_cyl, var_tot = calibration_variance(cal, sens, est.prior_friction_torque_mean)
     sig = np.sqrt(est.friction_torque_mean_sigma ** 2 + var_cyl)
     tot_sig = math.sqrt(est.total_friction_torque_sigma ** 2 + var_tot)
     return replace(est, friction_torque_mean_sigma=sig, fmep_sigma=sig * spec.mep_per_torque_cyl,
@@ -264,11 +297,9 @@ def reported_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
             ind_rel = floor.indicated_rel
             rel2 = excess2 / t_tot ** 2 if t_tot > 0 else 0.0
             s_tot = math.sqrt(s_tot ** 2 + (ind_rel * float(ind.sum())) ** 2 + excess2)
-    kinetic = sens.kinetic if math.isfinite(sens.kinetic) else 0.0
     to_cyl, to_eng = spec.mep_per_torque_cyl, spec.mep_per_torque_engine
-    settings = np.array([1.0 if floor_on else 0.0, ind_rel, rel2, resolve_rel, to_cyl,
-                         cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2, cal.gain_sigma ** 2,
-                         cal.gain_common_sigma ** 2, (cal.inertia_sigma * kinetic) ** 2])
+    settings = np.concatenate((np.array([1.0 if floor_on else 0.0, ind_rel, rel2, resolve_rel, to_cyl]),
+                               calibration_variances(cal, sens)))
     tdc, t_i = np.asarray(sens.tdc, dtype=np.float64), np.asarray(sens.indicated, dtype=np.float64)
     if tdc.shape != t_i.shape or tdc.shape != (z,) or ind.shape != (z,):
         raise ValueError(f"the TDC sensitivities {tdc.shape}, indicated torques {t_i.shape} and the check's "
@@ -303,13 +334,14 @@ def floor_calibration_kernel(cylinder_table, resolved, prior, ind, tdc, indicate
     cylinder_table (3, z) (t_mean NaN where unresolved, t_sig, gain) and resolved (z,); prior (z,) the Eq. 6 share
     [N m], ind (z,) the floor check's indicated torques, tdc and indicated (z,) the calibration's sensitivities;
     settings: floor on (0/1), its indicated_rel, rel2 (excess^2 / T_tot^2), resolve_rel, MEP per N m of a cylinder,
-    then the calibration's five variances (``_calibration_variance_kernel``'s var).
+    then the calibration's six variances (``calibration_variances``); the load's reaches each cylinder by its part of
+    ``prior``.
 
     Returns (table (5, z): t_mean, sigma, fmep, fmep_sigma, calibration sigma; resolved (z,); the calibration's
     total variance)."""
     z = prior.shape[0]
     floor_on, ind_rel, rel2, resolve_rel, to_cyl = settings[0] != 0.0, settings[1], settings[2], settings[3], settings[4]
-    var_cyl, var_tot = _calibration_variance_kernel(tdc, indicated, settings[5:10])
+    var_cyl, var_tot = _calibration_variance_kernel(tdc, indicated, prior, settings[5:11])
     out = np.empty((5, z))
     ok = resolved.copy()
     for k in range(z):

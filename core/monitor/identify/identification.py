@@ -150,11 +150,12 @@ def identify_cycle(cfg: MonitorConfig, spec: EngineSpec, state: MonitorState, fl
     same = (float(stats.balance_mean) if stats.count > 0 else float("nan"), same_cycles_sigma(stats, cfg.noise_memory),
             math.sqrt(stats.balance_var))
     misfit = state.condition.misfit if state.condition is not None else 1.0  # the window up to the last cycle
-    # the calibration's remaining uncertainty (TDC, gain, J) on top: the mean balance passes it into friction whole
+    # the calibration's remaining uncertainty (TDC, gain, J, load) on top: the mean balance passes it into friction whole
     tdc = mean.tdc_sensitivity if mean.tdc_sensitivity is not None else np.zeros(spec.n_cyl)
     layout = state.layout
     inp = StepInputs(white, fly.harmonics, rows.mean_row, rows.cylinder_rows[:, :layout.n_params], exc.basis_mean,
-                     ind_mean, t_i, bal_mean, balance, motored, same, mean.coupling_loss, misfit, tdc, mean.kinetic)
+                     ind_mean, t_i, bal_mean, balance, motored, same, mean.coupling_loss, misfit, tdc, mean.kinetic,
+                     mean.load, mean.load_from_power)
     settings = StepSettings(lam, state.cycles >= cfg.warmup_cycles,
                             ReportLimits(cfg.resolve_rel, cfg.coefficient_snr, cfg.min_data_gain),
                             cfg.model_error_floor, cfg.calibration, cfg.pull_check, cfg.model_rel_error,

@@ -71,13 +71,14 @@ STEP_FIELDS = (
     "same_sigma", "balance_sigma",  # the two checks' balance sigmas [N m]
     "tdc_wheel2", "tdc_cylinder2", "gain2", "gain_common2",  # the calibration's variances
     "kinetic2_smoothed", "kinetic2_cycle",  # (inertia sigma x the kinetic term)^2 of each estimate [N^2 m^2]
+    "load2",  # (the load reading's sigma x this cycle's load)^2 [N^2 m^2], both estimates (Calibration.load_variance)
     "to_cyl", "to_engine",  # MEP per N m of a cylinder, of the engine
     "kappa",  # the pull check's
 )
 (FORGETTING, FOLD, RAW_WEIGHT, MODEL_REL_ERROR, ACC_YTY, ACC_WEIGHT, ACC_ROWS, BALANCE_MEAN, BALANCE, MOTORED,
  SHARE_SPREAD, MOTORED_SPREAD, FIRING_FRACTION, RESOLVE_REL, COEFFICIENT_SNR, MIN_DATA_GAIN, FLOOR_ON, BALANCE_CHECK,
  INDICATED_REL, COUPLING_PER_MISFIT, MISFIT_FREE, COUPLING_LOSS, MISFIT, SAME_OFFSET, SAME_SIGMA, BALANCE_SIGMA,
- TDC_WHEEL2, TDC_CYLINDER2, GAIN2, GAIN_COMMON2, KINETIC2_S, KINETIC2_C, TO_CYL, TO_ENGINE,
+ TDC_WHEEL2, TDC_CYLINDER2, GAIN2, GAIN_COMMON2, KINETIC2_S, KINETIC2_C, LOAD2, TO_CYL, TO_ENGINE,
  KAPPA) = range(len(STEP_FIELDS))
 
 
@@ -132,10 +133,10 @@ def _prior_with_share(info, rhs, rows, share, sigma):
 def _estimate(post, share, model, check, sens, s):
     """reported_estimate's numbers from a posterior (params, cov_stat, cov, cov_ref) and its Eq. 6 share (z,):
     estimate_kernel, then the floor's scalars in its order, then floor_calibration_kernel. check = (indicated
-    (z,), balance, its sigma); sens = (tdc (z,), indicated (z,), the kinetic term's variance)."""
+    (z,), balance, its sigma); sens = (tdc (z,), indicated (z,), the kinetic term's variance, the load's)."""
     params, cov_stat, cov, ref = post
     ind, balance, balance_sigma = check
-    tdc, t_i, kinetic2 = sens
+    tdc, t_i, kinetic2, load2 = sens
     p_f = model.cylinder_rows.shape[1]
     resolve_rel = s[RESOLVE_REL]
     coef_table, coef_ok, cylinder_table, resolved, t_tot, s_tot = estimate_kernel(
@@ -153,7 +154,7 @@ def _estimate(post, share, model, check, sens, s):
             rel2 = excess2 / t_tot ** 2 if t_tot > 0 else 0.0
             s_tot = math.sqrt(s_tot ** 2 + (ind_rel * np.sum(ind)) ** 2 + excess2)
     settings = np.array([1.0 if floor_on else 0.0, ind_rel, rel2, resolve_rel, s[TO_CYL], s[TDC_WHEEL2],
-                         s[TDC_CYLINDER2], s[GAIN2], s[GAIN_COMMON2], kinetic2])
+                         s[TDC_CYLINDER2], s[GAIN2], s[GAIN_COMMON2], kinetic2, load2])
     return coef_table, coef_ok, cylinder_table, t_tot, s_tot, floor_calibration_kernel(
         cylinder_table, resolved, share, ind, tdc, t_i, settings)
 
@@ -175,10 +176,10 @@ def report_kernel(post_s, post_c, shares, model, cylinders, s, acc):
         same = fit_total + s[SAME_OFFSET]
     est_s = _estimate((params_s, stat_s, cov_s, ref_s), share_s, model,
                       (cylinders.indicated_mean, same, s[SAME_SIGMA]),
-                      (cylinders.tdc, cylinders.indicated_mean, s[KINETIC2_S]), s)
+                      (cylinders.tdc, cylinders.indicated_mean, s[KINETIC2_S], s[LOAD2]), s)
     est_c = _estimate((params_c, stat_c, cov_c, ref_c), share_c, model,
                       (cylinders.indicated, s[BALANCE], s[BALANCE_SIGMA]),
-                      (cylinders.tdc, cylinders.indicated, s[KINETIC2_C]), s)
+                      (cylinders.tdc, cylinders.indicated, s[KINETIC2_C], s[LOAD2]), s)
     pull = np.zeros(share_s.shape[0])
     if weight > 0.0:  # PullCheck.sigma
         pull = pull_sigma_of_info_kernel(info, rhs, params_s, chi2_s, stat_s, model.cylinder_rows, share_s,
@@ -276,7 +277,8 @@ class StepInputs(NamedTuple):
     friction parameters (z, p_f), the basis means (z, L), the running and this cycle's indicated means (z,), the
     running and this cycle's balance [N m], one motored cylinder's friction [N m], the two checks' (balance
     offset of identify_cycle's ``same``, its sigma; the cycle's balance sigma), the coupling loss and misfit, the TDC
-    sensitivities (z,) and the kinetic term [N m]."""
+    sensitivities (z,), the kinetic term [N m], and the load the balance subtracts [N m] and whether it was read as
+    electrical power (the calibration's load term)."""
 
     white: object
     harmonics: np.ndarray
@@ -293,6 +295,8 @@ class StepInputs(NamedTuple):
     misfit: float
     tdc: np.ndarray
     kinetic: float
+    load: float = float("nan")
+    load_from_power: bool = False
 
 
 def identify_step_reference(spec: EngineSpec, layout: ParameterLayout, prior: PriorNormal, lower: np.ndarray,
@@ -319,10 +323,12 @@ def identify_step_reference(spec: EngineSpec, layout: ParameterLayout, prior: Pr
     check_s = BalanceCheck(inp.indicated_mean, same, same_sigma, inp.coupling_loss, inp.misfit)
     check_c = BalanceCheck(inp.indicated, balance, bal_sigma, inp.coupling_loss, inp.misfit)
     est_s = reported_estimate(spec, layout, post_s, inp.basis_mean, share_s.friction_mean, cfg.limits, rows,
-                              cfg.floor, check_s, cfg.calibration, CalibrationSensitivity(inp.tdc, inp.indicated_mean))
+                              cfg.floor, check_s, cfg.calibration,
+                              CalibrationSensitivity(inp.tdc, inp.indicated_mean, load=inp.load,
+                                                     load_from_power=inp.load_from_power))
     est_c = reported_estimate(spec, layout, post_c, inp.basis_mean, share_c.friction_mean, cfg.limits, rows,
                               cfg.floor, check_c, cfg.calibration,
-                              CalibrationSensitivity(inp.tdc, inp.indicated, inp.kinetic))
+                              CalibrationSensitivity(inp.tdc, inp.indicated, inp.kinetic, inp.load, inp.load_from_power))
     # the smoothed figures drawn by a repeated error the sandwich does not see (one cycle's equations alone fix no
     # data-only point: the cycle's estimate is not checked)
     est_s = with_pull(est_s, cfg.pull_check.sigma(acc, post_s, rows, share_s.friction_mean),
@@ -352,6 +358,7 @@ def identify_step(spec: EngineSpec, layout: ParameterLayout, prior: PriorNormal,
         floor.coupling_per_misfit if floor else 0.0, floor.misfit_free if floor else 0.0, inp.coupling_loss,
         inp.misfit, offset, same_sigma, bal_sigma, cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2,
         cal.gain_sigma ** 2, cal.gain_common_sigma ** 2, 0.0, (cal.inertia_sigma * kinetic) ** 2,
+        cal.load_variance(inp.load, inp.load_from_power),
         spec.mep_per_torque_cyl, spec.mep_per_torque_engine, cfg.pull_check.kappa), dtype=np.float64)  # STEP_FIELDS
     f64 = np.float64
     rows = StepRows(white.a, white.y, white.inv_sigma, white.sys_var, white.stats.var, white.freq, inp.harmonics)

@@ -197,7 +197,11 @@ const METHOD_WORDS = { "rohr-compression-expansion": "fired cycles (heat release
 function calibrationText(cal) {
   const sig = `TDC ±${fmt(cal.tdc_wheel_sigma_deg, 2)}° for the whole wheel and ±${fmt(cal.tdc_cylinder_sigma_deg, 2)}° `
     + `per cylinder, pressure gain ±${fmt(cal.gain_sigma_pct, 1)} % per channel and ±${fmt(cal.gain_common_sigma_pct, 1)} % `
-    + `common to all, flywheel inertia J ±${fmt(cal.inertia_sigma_pct, 1)} %`;
+    + `common to all, flywheel inertia J ±${fmt(cal.inertia_sigma_pct, 1)} %`
+    + (isNum(cal.load_torque_sigma_pct) ? `, the load ±${fmt(cal.load_torque_sigma_pct, 1)} % read as shaft torque or `
+      + `±${fmt(cal.load_power_sigma_pct, 1)} % read as electrical power (${cal.generator_efficiency < 1
+        ? `generator efficiency ${fmt(100 * cal.generator_efficiency, 1)} %`
+        : "generator efficiency not stated: its losses are inside that ±"})` : "");
   if (cal.status === "commissioned") {
     return [`Commissioned: TDC, pressure gains and J were measured on this engine (${cal.source}). What is still `
       + `unknown, and is in every ±1σ: ${sig}.`];
