@@ -84,9 +84,10 @@ class SensorRecords:
         # (core.plant.sim_stream), the grid's rows at 0, 1, 2, ... deg from theta_F = 0
         self.angle_known = np.array([[0.0, -2.0 * np.pi]])
         self.grid_rows = 0
+        self.held = np.zeros((0, spec.n_cyl))  # true-pressure samples past the grid's last row (``_placed``)
 
     _FIELDS = ("edges", "samples", "first_sample", "load_row", "last", "pending", "first_edge_index", "switches",
-               "edges2", "shock_scale", "angle_known", "grid_rows")
+               "edges2", "shock_scale", "angle_known", "grid_rows", "held")
 
     def _generators(self) -> list[np.random.Generator]:
         extra = [] if self.rng_edge2 is None else [self.rng_edge2]
@@ -151,9 +152,22 @@ class SensorRecords:
         rows = np.column_stack([grid[:, 0] - self.t0, theta])
         self.angle_known = np.concatenate([self.angle_known[-1:], rows])
 
+    def _placed(self, samples: np.ndarray, final: bool) -> np.ndarray:
+        """The true-pressure samples (those held back first) whose angle the grid has placed; the later ones (the
+        last degree of a stretch) are held back for the next stretch's grid, so that every sample's angle is
+        interpolated as in a run converted in one piece (``final``: all, the last ones on at the last row's rate)."""
+        held = np.concatenate([self.held, samples]) if len(self.held) else samples
+        if final:
+            self.held = held[:0]
+            return held
+        t = (self.first_sample + len(self.samples) + np.arange(len(held))) / self.spec.sensors.pressure_rate_hz
+        n = int(np.searchsorted(t, self.angle_known[-1, 0], side="right"))
+        self.held = held[n:]
+        return held[:n]
+
     def _shock(self, m: int) -> np.ndarray:
         """(m, z) the thermal-shock error [Pa] of the next m samples: each sample's flywheel angle interpolated on the
-        grid (linear; beyond its last row, on at the last row's rate: less than a degree), minus each cylinder's
+        grid (linear; beyond its last row only at the run's end, on at the last row's rate), minus each cylinder's
         firing angle. In the log's first revolution, before the grid's first row at theta_F = 0, the angle is
         interpolated from tick 0 over the whole revolution (up to ~1 deg off: k9k 2000 rpm)."""
         known = self.angle_known
@@ -199,6 +213,8 @@ class SensorRecords:
         n_edges = all_edges.size if final else all_edges.size - all_edges.size % self.per_rev
         self.edges = all_edges[n_edges:]
 
+        if self.shock_shapes is not None:
+            samples = self._placed(samples, final)
         gain, offset = self._channel_errors(len(samples))
         if self.shock_shapes is not None and len(samples):
             samples = samples + self._shock(len(samples))

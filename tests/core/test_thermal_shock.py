@@ -16,7 +16,7 @@ import pytest
 from frictionwatch.core.model.effects import SensorSetup, ThermalShock, parse_effect
 from frictionwatch.core.model.effects.base import ViewSetup
 from frictionwatch.core.model.engine import load_engine
-from frictionwatch.core.plant.simulate import simulate
+from frictionwatch.core.plant.simulate import simulate, start_simulation
 from frictionwatch.core.plant.thermal_shock import shock_shape
 from frictionwatch.core.types import PressureFrame
 
@@ -113,3 +113,16 @@ def test_every_cylinder_and_the_view_untold():
     np.testing.assert_allclose(setup.thermal_shock_pa, [2e4, 2e4, 3e4])
     view = ViewSetup(SPEC, None, np.zeros((4, 1)), np.zeros(4), np.ones(4), np.zeros(4))
     assert ThermalShock(cylinder=0).apply_view(view) is view
+
+
+def test_the_same_readings_whatever_the_chunking():
+    """A sample past the grid's last row waits for the next stretch's grid (core.plant.sim_records): cut into
+    one-cycle chunks, the run's readings are those of the run in one piece (the same interpolation: equal)."""
+    effects = [parse_effect("thermal_shock:cylinder=0,pa=50000")]
+
+    def readings(chunk_cycles: int) -> np.ndarray:
+        sim = start_simulation(SPEC, RPM, LOAD, CYCLES, 3, effects=effects, without=QUIET)
+        records = [r for c in sim.chunks(chunk_cycles=chunk_cycles) for r in c.records]
+        return np.concatenate([r.values for r in records if isinstance(r, PressureFrame)], axis=1)
+
+    np.testing.assert_array_equal(readings(1), readings(CYCLES))
