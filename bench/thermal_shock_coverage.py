@@ -46,9 +46,11 @@ WINDOW = 50
 STAGES_HERE = tuple(dataclasses.replace(s, window=WINDOW) if hasattr(s, "window") else s for s in STAGES)
 
 
-def _analyse(model, sim) -> list:
+def _analyse(model, sim) -> tuple[list, object]:
+    """(the results, the thermal-shock watch's newest window reading or None)."""
     pipe = EnginePipeline(model, sim.info, None, stages=STAGES_HERE)
-    return [o.result for r in [*sim.records, None] for o in pipe.outcomes(r) if o.ok]
+    results = [o.result for r in [*sim.records, None] for o in pipe.outcomes(r) if o.ok]
+    return results, pipe.cycles.stages["thermal_shock_watch"].last
 
 
 def run_case(engine: str, rpm: float, load: float, effect: str | None, cycles: int, seed: int) -> list[dict]:
@@ -58,8 +60,10 @@ def run_case(engine: str, rpm: float, load: float, effect: str | None, cycles: i
     rows = []
     for name, cal in (("bare", None), ("commissioned", COMMISSIONED)):
         model = spec if cal is None else dataclasses.replace(as_model(spec), calibration=cal)
-        results = _analyse(model, sim)
-        rows.append({"calibration": name, **_row(sim.truth, results, engine, rpm, load, effect)})
+        results, bend = _analyse(model, sim)
+        rows.append({"calibration": name, **_row(sim.truth, results, engine, rpm, load, effect),
+                     "bend_dev": None if bend is None else bend.dev.tolist(),
+                     "bend_limit": None if bend is None else bend.limit.tolist()})
     return rows
 
 
