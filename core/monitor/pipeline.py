@@ -50,6 +50,7 @@ from frictionwatch.core.monitor.calibration.tdc_watch import (
     watch_cycle,
 )
 from frictionwatch.core.monitor.calibration.tdc_window import close_window
+from frictionwatch.core.monitor.calibration.thermal_shock_watch import ThermalShockWatchState, watch_expansion
 from frictionwatch.core.monitor.checks.pressure_trace import PressureTraceConfig, PressureTraceState, check_traces
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, nonpositive_flags, process_cycle
 from frictionwatch.core.monitor.report.results import CycleResult
@@ -177,6 +178,27 @@ class GainWatch:
 
 
 @dataclass(frozen=True)
+class ThermalShockWatch:
+    """Each channel's expansion bend against its siblings' (core.monitor.calibration.thermal_shock_watch): a
+    thermal-shocked sensor, judged every ``window`` cycles."""
+
+    window: int = WINDOW_CYCLES
+    name: ClassVar[str] = "thermal_shock_watch"
+    place: ClassVar[str] = AFTER_MONITOR
+
+    def initial(self, spec: EngineSpec) -> ThermalShockWatchState:
+        return ThermalShockWatchState.empty()
+
+    def update(self, state: ThermalShockWatchState, inp: StageInput) -> StageOutput:
+        state = watch_expansion(inp.spec, state, inp.cycle, inp.twist, self.window)
+        return StageOutput(state, state.flags)
+
+    def warm_up(self) -> ThermalShockWatch:
+        """This watch judging every BLOCKS cycles (core.monitor.warmup)."""
+        return dataclasses.replace(self, window=BLOCKS)
+
+
+@dataclass(frozen=True)
 class PressureTrace:
     """Each channel's trace checked for being a cylinder's pressure at all (core.monitor.checks.pressure_trace)
     before the view and the monitor: its flags join the cycle's, a flagged trace is replaced by its siblings',
@@ -201,7 +223,7 @@ class PressureTrace:
         return StageOutput(state, flags, replace(cycle, pressure=pressure))
 
 
-STAGES: tuple[Stage, ...] = (PressureTrace(), TdcWatch(), GainWatch())
+STAGES: tuple[Stage, ...] = (PressureTrace(), TdcWatch(), GainWatch(), ThermalShockWatch())
 
 
 def monitor_config(view: MonitorView, config: MonitorConfig | None) -> MonitorConfig:
@@ -374,4 +396,4 @@ def run_cycles(engine: EngineModel | EngineSpec, cycles: Iterable[Cycle], config
 
 
 __all__ = ["AFTER_MONITOR", "BEFORE_VIEW", "STAGES", "CycleOutcome", "CyclePipeline", "GainWatch", "PressureTrace",
-           "Stage", "StageInput", "StageOutput", "TdcWatch", "monitor_config", "run_cycles"]
+           "Stage", "StageInput", "StageOutput", "TdcWatch", "ThermalShockWatch", "monitor_config", "run_cycles"]

@@ -23,6 +23,7 @@ from frictionwatch.core.plant.sensors import (
     pressure_adc,
     to_ticks,
 )
+from frictionwatch.core.plant.thermal_shock import load_scale, shock_error, shock_shape
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord, WheelInfo
 
 
@@ -43,10 +44,13 @@ class SensorRecords:
     rngs: the run's eight generators; 3 edge jitter, 7 cam jitter, 4 pressure noise (one child stream per cylinder),
     5 load noise (a ninth, rngs[8], only with a second wheel: its edge jitter from a child of it). t_out0: the plant
     time [s] of tick 0; omega: the requested speed [rad/s] (load power noise); second_wheel: its edges come in
-    ``add``'s ``edges2`` and leave as ``FreeEndToothBatch`` es of one revolution."""
+    ``add``'s ``edges2`` and leave as ``FreeEndToothBatch`` es of one revolution. A thermal-shock error (the
+    set-up's ``thermal_shock_pa``) needs each sample's crank angle: from the 1-deg grid ``add`` is given, each
+    cylinder's angle from its firing TDC through ``phases`` (z,) rad (the plant's own array, read as it is when a
+    chunk comes: a TDC that moves mid-run moves it), its size at the run's ``load`` (``set_load`` at a step)."""
 
     def __init__(self, spec: EngineSpec, sensors: SensorSetup, rngs: list[np.random.Generator], t_out0: float,
-                 omega: float, second_wheel: bool = False):
+                 omega: float, second_wheel: bool = False, phases: np.ndarray | None = None, load: float = 1.0):
         se = spec.sensors
         w = se.second_wheel if second_wheel else None
         self.per_rev2 = 0 if w is None else w.teeth - w.missing
@@ -66,9 +70,24 @@ class SensorRecords:
         self.pending: list[tuple[int, int, StreamRecord]] = []
         self.first_edge_index: int | None = None
         self.switches: list[tuple[float, SensorSetup]] = []  # (time since tick 0 [s], the set-up from then on)
+        self.shock_shapes = None
+        if sensors.thermal_shock_pa is not None and np.any(sensors.thermal_shock_pa > 0):
+            if phases is None:
+                raise ValueError("a thermal-shock error needs the cylinders' firing angles (phases)")
+            # its time constant in crank angle at the requested speed (a speed step does not rescale it)
+            self.shock_shapes = [shock_shape(spec.combustion.start_deg, float(np.degrees(tau * omega)))
+                                 for tau in sensors.thermal_shock_tau_s]
+        self.phases = phases
+        self.shock_scale = (np.zeros(spec.n_cyl) if self.shock_shapes is None
+                            else load_scale(load, np.asarray(sensors.thermal_shock_idle)))
+        # the last known (time since tick 0 [s], flywheel angle [rad]): tick 0 is at theta_F = -2 pi
+        # (core.plant.sim_stream), the grid's rows at 0, 1, 2, ... deg from theta_F = 0
+        self.angle_known = np.array([[0.0, -2.0 * np.pi]])
+        self.grid_rows = 0
+        self.held = np.zeros((0, spec.n_cyl))  # true-pressure samples past the grid's last row (``_placed``)
 
     _FIELDS = ("edges", "samples", "first_sample", "load_row", "last", "pending", "first_edge_index", "switches",
-               "edges2")
+               "edges2", "shock_scale", "angle_known", "grid_rows", "held")
 
     def _generators(self) -> list[np.random.Generator]:
         extra = [] if self.rng_edge2 is None else [self.rng_edge2]
@@ -94,11 +113,18 @@ class SensorRecords:
         of that time are added."""
         self.switches.append((float(time_s), sensors))
 
+    def set_load(self, load: float) -> None:
+        """From the samples added next on, the thermal-shock error is sized at ``load`` (0..1; NaN: motored)."""
+        if self.shock_shapes is not None:
+            self.shock_scale = load_scale(load, np.asarray(self.fx.thermal_shock_idle))
+
     def add(self, edges: np.ndarray, cam: np.ndarray, samples: np.ndarray, load: np.ndarray,
-            edges2: np.ndarray | None = None) -> list[StreamRecord]:
+            edges2: np.ndarray | None = None, grid: np.ndarray | None = None) -> list[StreamRecord]:
         """Records releasable after these events: edges (n, 2) = (time s, tooth index), cam (c,) times [s],
         samples (m, z) true pressure [Pa] at the next m sample instants, load (l, 3) cumulative load rows, edges2
-        (n2, 2) the second wheel's edges (with one)."""
+        (n2, 2) the second wheel's edges (with one), grid (g, k) the 1-deg grid's rows continuing from theta_F = 0
+        (column 0 their plant time [s]; needed with a thermal-shock error)."""
+        self._track_angle(grid)
         self._convert(edges, cam, samples, load, final=False, edges2=edges2)
         # the least key any record still to come can have: tooth and cam ticks strictly increase, a frame not yet
         # cut ends at or after the next sample, a load sample may round to the tick of the last one
@@ -115,6 +141,44 @@ class SensorRecords:
         self._convert(np.zeros((0, 2)), np.zeros(0), np.zeros((0, self.spec.n_cyl)), np.zeros((0, 3)), final=True)
         out, self.pending = [r[2] for r in self.pending], []
         return out
+
+    def _track_angle(self, grid: np.ndarray | None) -> None:
+        """Keep the grid's rows of this stretch (with the last one before it) as (time since tick 0, theta_F)."""
+        if self.shock_shapes is None or grid is None or not len(grid):
+            return
+        g = len(grid)
+        theta = (self.grid_rows + np.arange(g)) * (np.pi / 180.0)
+        self.grid_rows += g
+        rows = np.column_stack([grid[:, 0] - self.t0, theta])
+        self.angle_known = np.concatenate([self.angle_known[-1:], rows])
+
+    def _placed(self, samples: np.ndarray, final: bool) -> np.ndarray:
+        """The true-pressure samples (those held back first) whose angle the grid has placed; the later ones (the
+        last degree of a stretch) are held back for the next stretch's grid, so that every sample's angle is
+        interpolated as in a run converted in one piece (``final``: all, the last ones on at the last row's rate)."""
+        held = np.concatenate([self.held, samples]) if len(self.held) else samples
+        if final:
+            self.held = held[:0]
+            return held
+        t = (self.first_sample + len(self.samples) + np.arange(len(held))) / self.spec.sensors.pressure_rate_hz
+        n = int(np.searchsorted(t, self.angle_known[-1, 0], side="right"))
+        self.held = held[n:]
+        return held[:n]
+
+    def _shock(self, m: int) -> np.ndarray:
+        """(m, z) the thermal-shock error [Pa] of the next m samples: each sample's flywheel angle interpolated on the
+        grid (linear; beyond its last row only at the run's end, on at the last row's rate), minus each cylinder's
+        firing angle. In the log's first revolution, before the grid's first row at theta_F = 0, the angle is
+        interpolated from tick 0 over the whole revolution (up to ~1 deg off: k9k 2000 rpm)."""
+        known = self.angle_known
+        t = (self.first_sample + len(self.samples) + np.arange(m)) / self.spec.sensors.pressure_rate_hz
+        theta = np.interp(t, known[:, 0], known[:, 1])
+        if len(known) >= 2:
+            rate = (known[-1, 1] - known[-2, 1]) / (known[-1, 0] - known[-2, 0])
+            after = t > known[-1, 0]
+            theta[after] = known[-1, 1] + rate * (t[after] - known[-1, 0])
+        local = theta[:, None] - np.asarray(self.phases)[None, :]
+        return shock_error(local, self.shock_shapes, self.shock_scale * np.asarray(self.fx.thermal_shock_pa))
 
     def _cam_bound(self) -> float:
         return self.last["cam"] + 1 if self.spec.sensors.has_cam else np.inf
@@ -149,7 +213,11 @@ class SensorRecords:
         n_edges = all_edges.size if final else all_edges.size - all_edges.size % self.per_rev
         self.edges = all_edges[n_edges:]
 
+        if self.shock_shapes is not None:
+            samples = self._placed(samples, final)
         gain, offset = self._channel_errors(len(samples))
+        if self.shock_shapes is not None and len(samples):
+            samples = samples + self._shock(len(samples))
         readings = pressure_adc(samples, se, se.pressure_noise_pa * fx.pressure_noise_scale, self.rng_pressure,
                                 offset, gain)
         all_samples = np.concatenate([self.samples, readings])

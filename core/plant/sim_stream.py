@@ -142,6 +142,7 @@ class Simulation:
                     st.governed.pop(0)
                     continue
                 t_step, frac, rpm = (*st.steps.pop(0), None)[:3]  # a step time reached: the new point and law
+                st.sensors.set_load(np.nan if frac is None else frac)  # a thermal-shock error follows the load
                 if frac is None:  # the coast-down: motored cycles against zero load from here on
                     run.coast(*charge_pressures(spec, 0.0))
                     st.step_log.append({"time_s": t_step, "coast_down": True})
@@ -160,7 +161,7 @@ class Simulation:
             ev = run.drain()
             entries, diag = st.truth.add(ev["cycle_rows"], ev["cycle_index"], ev["grid"])
             records = st.sensors.add(ev["edges"], ev["cam"], ev["samples"], ev["load"],
-                                     ev["edges2"] if self.second_wheel else None)
+                                     ev["edges2"] if self.second_wheel else None, ev["grid"])
             if st.done == cycles:
                 records += st.sensors.finish()
             diag.update(edge_times_s=ev["edges"][:, 0] - run.t_out0, edge_index=ev["edges"][:, 1].astype(int),
@@ -203,7 +204,7 @@ class Simulation:
         spec, stages = self.model.spec, self.stages
         # the requested speed scales the load power's noise, the run's first (a speed step does not rescale it)
         sensors = SensorRecords(spec, self.sensors, self.rngs, self.run.t_out0, self.operating["omega_requested_rad_s"],
-                                self.second_wheel)
+                                self.second_wheel, self.run.plant.phase, self.request["load"])
         switching = stages is not None and len(stages.onsets) > 1
         truth = TruthAccumulator(spec, self.run.plant, self.cycles, self.run.t_out0,
                                  stages.coefficients_of if switching else None)

@@ -87,7 +87,7 @@ def test_stages_after_the_monitor_run_in_order_and_add_their_flags(k9k):
 
     pipe = CyclePipeline(model, stages=(*STAGES, Every10()))
     out = [pipe.process(c) for c in cycles]
-    assert set(pipe.stages) == {"pressure_trace", "tdc_watch", "gain_watch", "every10"}
+    assert set(pipe.stages) == {"pressure_trace", "tdc_watch", "gain_watch", "thermal_shock_watch", "every10"}
     flagged = [o.index for o in out if o.ok and "test_flag" in o.result.flags]
     assert flagged and all(i % 10 == 0 for i in flagged)
     plain = [o.result for o in run_cycles(model, cycles)]

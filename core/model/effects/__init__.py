@@ -36,6 +36,7 @@ from frictionwatch.core.model.effects.catalog import (
     RingWear,
     SensorNoise,
     TdcOffset,
+    ThermalShock,
     ToothSpacingError,
     TorsionalFlexibility,
     VariableInertia,
@@ -119,6 +120,6 @@ def resolve_effects(effects: Mapping[str, Mapping] | Iterable[Effect] | None, wi
 
 __all__ = ["EFFECTS", "MISMATCHES", "ONCE", "PER_CYLINDER", "BlowBy", "ChainSetup", "CylinderSetup", "Effect", "ExtraFriction",
            "LoadRipple", "LoadSetup", "Misfire", "Param", "PressureGain", "PressureOffset", "RingWear",
-           "SensorNoise", "SensorSetup", "TdcOffset", "ToothSpacingError", "TorsionalFlexibility", "VariableInertia",
+           "SensorNoise", "SensorSetup", "TdcOffset", "ThermalShock", "ToothSpacingError", "TorsionalFlexibility", "VariableInertia",
            "auxiliaries_quadratic", "check_instances", "effect_class", "extra_friction_term", "make_effect",
            "parse_effect", "resolve_effects"]

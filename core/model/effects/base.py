@@ -115,7 +115,10 @@ class LoadSetup:
 class SensorSetup:
     """Acquisition errors. ``wheel_offset_rad``: the wheel frame is theta_W = theta_F + offset; tooth errors (rms
     and order-1 runout, deg); edge jitter [ns], pressure noise (x ``sensors.pressure_noise_pa``), load noise
-    (fraction of rated torque); per cylinder a pressure reading ``pressure_gain`` (z,) x p + ``pressure_offset_pa``."""
+    (fraction of rated torque); per cylinder a pressure reading ``pressure_gain`` (z,) x p + ``pressure_offset_pa``,
+    less a thermal-shock error of peak ``thermal_shock_pa`` (z,) at full load (None: none; its time constant
+    ``thermal_shock_tau_s`` (z,) and its size at no load as a fraction of full load's ``thermal_shock_idle`` (z,):
+    core.plant.thermal_shock)."""
 
     pressure_gain: np.ndarray
     pressure_offset_pa: np.ndarray
@@ -126,6 +129,9 @@ class SensorSetup:
     edge_jitter_ns: float = 0.0
     pressure_noise_scale: float = 0.0
     load_noise_frac: float = 0.0
+    thermal_shock_pa: np.ndarray | None = None
+    thermal_shock_tau_s: np.ndarray | None = None
+    thermal_shock_idle: np.ndarray | None = None
 
     @classmethod
     def ideal(cls, n_cyl: int) -> SensorSetup:

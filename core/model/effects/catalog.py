@@ -207,6 +207,42 @@ class PressureGain(Effect):
         return replace(setup, gain=with_row(setup.gain, k, setup.gain[k] * self.values["gain"]))
 
 
+class ThermalShock(Effect):
+    """Sensor error; the plant is unchanged, and the monitor is not told (its view stays as it is). The flame heats
+    a piezoelectric sensor's diaphragm: it reads low through combustion and expansion, the error rising over some
+    20-60 deg after TDC to its peak and dying away over the exhaust stroke, larger with more fuel burnt; worst on a
+    flush-mounted, uncooled sensor (Rosseel & Sierens, SAE 960236; Lee et al. 2013; AVL/Kistler application notes:
+    0.1-0.5 bar on a 5-15 bar expansion, the IMEP 1-5 % low). core.plant.thermal_shock gives the shape: the
+    diaphragm's first-order response, time constant ``tau_ms``, to the heat-flux pulse after the start of
+    combustion. Defaults: 0.3 bar at full load, 4 ms (36 deg at 1500 rpm), 30 % of it at no load. Several instances
+    (distinct cylinders) each carry their own size and time constant; cylinder 0 is every cylinder."""
+
+    name = "thermal_shock"
+    description = ("pressure sensor of one cylinder (0: all) reads low by a thermal-shock error after combustion: "
+                   "peak pa at full load (idle_frac of it at no load), first-order lag tau_ms")
+    repeat = PER_CYLINDER
+    parameters = _table(
+        cylinder=cylinder_param("cylinder, 0 = every cylinder", allow_all=True),
+        pa=Param(3e4, "Pa", 0.0, 5e5, doc="peak error at full load (the reading low by this much at its worst)"),
+        tau_ms=Param(4.0, "ms", 0.1, 50.0, doc="the diaphragm's thermal time constant"),
+        idle_frac=Param(0.3, "-", 0.0, 1.0, doc="the error's size at no load as a fraction of full load's"),
+    )
+
+    def apply_sensors(self, setup: SensorSetup) -> SensorSetup:
+        z = len(setup.pressure_gain)
+        v = self.values
+        rows = slice(None) if v["cylinder"] == 0 else v["cylinder"] - 1
+
+        def put(arr: np.ndarray | None, value: float, empty: float) -> np.ndarray:
+            out = np.full(z, empty) if arr is None else np.array(arr, dtype=np.float64)
+            out[rows] = value
+            return out
+
+        return replace(setup, thermal_shock_pa=put(setup.thermal_shock_pa, v["pa"], 0.0),
+                       thermal_shock_tau_s=put(setup.thermal_shock_tau_s, v["tau_ms"] * 1e-3, 1e-3),
+                       thermal_shock_idle=put(setup.thermal_shock_idle, v["idle_frac"], 0.0))
+
+
 class LoadRipple(Effect):
     """A load-torque ripple at an engine order (a driven machine's own pulsation: a compressor, a generator's rotor
     eccentricity or unbalanced phases). Given as an amplitude and phase, or (where either is non-zero) as its
@@ -413,7 +449,7 @@ class Misfire(Effect):
 
 
 ALL = (TorsionalFlexibility, VariableInertia, ToothSpacingError, SensorNoise, TdcOffset, PressureOffset,
-       PressureGain, LoadRipple, RingWear, BlowBy, ExtraFriction, Misfire, CoastDown)
+       PressureGain, ThermalShock, LoadRipple, RingWear, BlowBy, ExtraFriction, Misfire, CoastDown)
 
 __all__ = ["ALL", "BlowBy", "CoastDown", "ExtraFriction", "LoadRipple", "Misfire", "PressureGain", "PressureOffset", "RingWear",
-           "SensorNoise", "TdcOffset", "ToothSpacingError", "TorsionalFlexibility", "VariableInertia"]
+           "SensorNoise", "TdcOffset", "ThermalShock", "ToothSpacingError", "TorsionalFlexibility", "VariableInertia"]

@@ -144,6 +144,8 @@ const SENSOR_FLAG_WORDS = {
     + "withheld",
   sensor_pressure_offset_cyl: "this cylinder's pressure is offset (pegging) against its siblings: its figures are "
     + "withheld",
+  sensor_thermal_shock_cyl: "this cylinder's pressure sensor reads low after combustion (thermal shock of a "
+    + "flame-heated sensor) against its siblings: its figures are withheld",
 };
 
 /** One sensor flag in words: "sensor_tdc_offset_cyl3" -> "cylinder 3: this cylinder's TDC differs ...". */
