@@ -136,8 +136,9 @@ export function renderSpeed(sp) {
 }
 
 const SENSOR_FLAG_WORDS = {
-  sensor_tdc_offset: "the whole wheel's TDC is off by more than the calibration allows: every friction figure is "
-    + "withheld until it is corrected",
+  sensor_tdc_offset: "the whole wheel's TDC is off by more than the calibration allows (or every pressure sensor "
+    + "reads the expansion low, as a flame-heated sensor's thermal shock does: the TDC is found from the pressure): "
+    + "every friction figure is withheld until it is corrected",
   sensor_tdc_offset_cyl: "this cylinder's TDC differs from the other cylinders' by more than the calibration allows: "
     + "its friction figures are withheld",
   sensor_pressure_gain_cyl: "this cylinder's pressure sensor reads high or low against its siblings: its figures are "
