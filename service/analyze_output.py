@@ -71,8 +71,9 @@ def print_table(doc: dict) -> None:
     if fr.get("calibration_sigma_nm") is not None:
         print(f"  of that 1σ, {fr['calibration_sigma_nm']:.2f} N·m is the calibration's: "
               + ("uncalibrated, a typical installation's TDC ±0.5° (±0.2° per cylinder), pressure gain ±3 % per "
-                 "channel and ±1 % common, J ±5 % assumed; `frictionwatch commission` measures them"
-                 if fr["calibration"] == "uncalibrated" else "as commissioned"))
+                 "channel and ±1 % common, J ±5 %, the load ±0.5 % (±3 % read as electrical power) assumed; "
+                 "`frictionwatch commission` measures TDC, gain and J"
+                 if fr["calibration"] == "uncalibrated" else "as commissioned (with the load's σ as the model states)"))
     tdc = doc.get("tdc_from_pressure")
     if tdc and tdc["wheel_offset_deg"] is not None:
         print(f"  TDC from the pressure (newest window): the wheel {tdc['wheel_offset_deg']:+.2f} ± "
