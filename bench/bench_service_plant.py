@@ -232,7 +232,8 @@ def timeline(lat: dict, probe: Path) -> dict:
                                          "per_s": float(in_win.sum() / (window[1] - window[0]))},
             "threads_running_at_a_wake_late_ge_20ms": dict(sorted(culprits.items(), key=lambda kv: -kv[1])[:12]),
             "switch_interval_s": rec["switch_interval_s"],
-            "window_documents_asked_made": rec.get("window_documents"), "losses_now": rec.get("losses_now")}  # all of serve's run, not the load's only
+            "window_documents_asked_made": rec.get("window_documents"), "losses_now": rec.get("losses_now"),
+            "window_replies_asked_made": rec.get("window_replies")}  # all of serve's run, not the load's only
 
 
 def context_switches(pid: int) -> tuple[int, int]:

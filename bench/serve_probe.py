@@ -16,6 +16,8 @@ At exit FILE gets JSON lists of:
   objects it tracks (without a leak they stop growing once the histories are full);
 - ``window_documents``: window requests and the documents made for them (the rest were shared: design note 146);
 - ``losses_now``: the plain /losses route's computations (its cache's misses) and their thread CPU;
+- ``window_replies``: window requests and the replies made for them (the rest were a reply made this cycle for a
+  window of the same length: design note 154);
 - ``wake``: a thread that sleeps 2 ms in a loop records each wake-up later than 3 ms past due (due, seconds late,
   and the innermost frames of the other threads then): how long a thread that waits on nothing but the GIL (and
   the scheduler) waits, and what the others ran meanwhile.
@@ -104,13 +106,15 @@ def install(out_path: str) -> None:
             return doc
 
         OwnEstimateDocuments.get = counted
-    # the plain /losses route's misses: each call of losses_now is one (a new cycle's smoothing), with its thread CPU
+    # the plain /losses route's misses: each call of losses_smoothed (losses_now before it) is one (a new cycle's
+    # smoothing), with its thread CPU
     from frictionwatch.service import api_views
 
     rec["losses_now"] = {"calls": 0, "thread_cpu_s": 0.0}
-    smoothed = api_views.losses_now
+    name = "losses_smoothed" if hasattr(api_views, "losses_smoothed") else "losses_now"
+    smoothed = getattr(api_views, name)
 
-    def timed_losses(*args, **kwargs):  # noqa: ANN002, ANN003 - losses_now's
+    def timed_losses(*args, **kwargs):  # noqa: ANN002, ANN003 - losses_smoothed's
         t = time.thread_time()
         try:
             return smoothed(*args, **kwargs)
@@ -118,7 +122,20 @@ def install(out_path: str) -> None:
             rec["losses_now"]["calls"] += 1
             rec["losses_now"]["thread_cpu_s"] += time.thread_time() - t
 
-    api_views.losses_now = timed_losses
+    setattr(api_views, name, timed_losses)
+    # the window replies made once a cycle and window length (design note 154): how many requests found theirs made
+    if hasattr(api_views.NewestReplies, "window"):
+        rec["window_replies"] = {"asked": 0, "made": 0}
+        window = api_views.NewestReplies.window
+
+        def counted_window(self, version, cycles, make):  # noqa: ANN001 - NewestReplies.window's
+            before = self.windows_made
+            got = window(self, version, cycles, make)
+            rec["window_replies"]["asked"] += 1
+            rec["window_replies"]["made"] += self.windows_made - before
+            return got
+
+        api_views.NewestReplies.window = counted_window
     atexit.register(dump)
 
 

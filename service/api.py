@@ -125,6 +125,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
     app = FastAPI(title="frictionwatch", version="1", lifespan=lifespan,
                   description="Live per-cylinder friction losses and alerts. Units in field names.")
     app.state.services, app.state.sse, app.state.metrics, app.state.token = engines, sse, metrics, token
+    app.state.newest_replies = replies  # read by tests and benches (what each engine's cache made)
     app.add_middleware(RequestGuard, token=lambda: app.state.token, max_body_bytes=MAX_BODY_BYTES)
     app.add_middleware(RequestTimer, metrics=metrics)  # added last: outermost, so a refused request is timed too
     app.add_exception_handler(RequestValidationError, validation_error)
@@ -132,9 +133,13 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
     metrics.rate_limited = lambda: large.refused
     app.include_router(startup_router(lambda: list(engines.values())))  # the dashboard's words before a first cycle
     jobs = app.state.discrepancy_jobs = DiscrepancyJobs()
-    # the mix's read routes return their reply rendered on the route's own worker thread: what FastAPI does with a
-    # returned dict (validate against the response_model, then dump_json), without its second hop onto a worker
-    # thread for the validation and its dump on the event loop; the decorator's response_model still makes the schema
+    # the mix's read routes return their reply rendered by the route itself: what FastAPI does with a returned dict
+    # (validate against the response_model, then dump_json) without its hop onto a worker thread for the validation;
+    # the decorator's response_model still makes the schema. They are coroutines (run on the event loop), none waits
+    # for anything but a lock held for a copy or a sum (LatestState's, the ingest queue's): under the GIL a worker
+    # thread bought no parallel work, only two hand-overs a request (~130 us of CPU, and two waits for the GIL behind
+    # the monitors; design note 154). The other routes stay on worker threads (some wait for the running monitor's
+    # lock between records, EngineService.session.with_pipeline, or for a store).
     typed = {m: TypeAdapter(m) for m in (Health, list[EngineInfo], CycleSummary, Losses, FrictionTorque, Speed)}
 
     def body(model: object, doc: object) -> bytes:
@@ -158,7 +163,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
                                 headers={"Retry-After": str(math.ceil(wait_s))})
 
     @app.get("/api/v1/health", response_model=Health)
-    def health() -> Response:
+    async def health() -> Response:
         now = time.monotonic()
         rows = [{"engine_id": s.engine_id, "running": s.running, "sources_ended": s.sources_ended,
                  "last_cycle_age_s": None if s.last_result_s is None else now - s.last_result_s, **backlog(s),
@@ -174,7 +179,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
                                  "fleet": fleet is not None})
 
     @app.get("/api/v1/engines", response_model=list[EngineInfo])
-    def engine_list() -> Response:
+    async def engine_list() -> Response:
         out = []
         for s in engines.values():
             whole, _ = s.state.snapshot(1)
@@ -208,16 +213,22 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
         return rendered(CycleSummary, views.cycle_summary(svc.engine_id, whole))
 
     @app.get("/api/v1/engines/{engine_id}/losses", response_model=Losses, responses=ERRORS)
-    def losses(svc: Svc, window_cycles: Annotated[int | None, Query(ge=1, le=MAX_WINDOW_CYCLES)] = None) -> Response:
+    async def losses(svc: Svc, window_cycles: Annotated[int | None, Query(ge=1, le=MAX_WINDOW_CYCLES)] = None
+                     ) -> Response:
         """The smoothed estimate at the newest cycle, or (``window_cycles``) each cycle's own estimate averaged over
         the newest N cycles (fewer when fewer are held): read from running sums, the same cost for any N."""
         if window_cycles is not None:
-            last, figures = svc.state.window(window_cycles)
+            last, figures, version = svc.state.versioned_window(window_cycles)
             if last is None or figures is None:
                 newest(svc, 1)  # the 503 with its Retry-After
-            holes = svc.state.holes_in(figures.first_cycle, figures.last_cycle)
-            return rendered(Losses, views.losses_window(svc.engine_id, last, figures, svc.term_names, holes,
-                                                        replies[svc.engine_id].own))
+
+            def made() -> bytes:
+                holes = svc.state.holes_in(figures.first_cycle, figures.last_cycle)
+                return body(Losses, views.losses_window(svc.engine_id, last, figures, svc.term_names, holes,
+                                                            replies[svc.engine_id].own))
+
+            return Response(replies[svc.engine_id].window(version, figures.cycles, made),
+                            media_type="application/json")
         whole, _ = newest(svc, 1)
 
         def make() -> tuple[int, bytes]:
@@ -228,12 +239,12 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
         return Response(replies[svc.engine_id].smoothed(whole.index, make), media_type="application/json")
 
     @app.get("/api/v1/engines/{engine_id}/friction-torque", response_model=FrictionTorque, responses=ERRORS)
-    def friction_torque(svc: Svc) -> Response:
+    async def friction_torque(svc: Svc) -> Response:
         whole, _ = newest(svc, 1)
         return rendered(FrictionTorque, views.friction_torque(whole))
 
     @app.get("/api/v1/engines/{engine_id}/speed", response_model=Speed, responses=ERRORS)
-    def speed(svc: Svc, cycles: Annotated[int, Query(ge=1, le=MAX_WINDOW_CYCLES)] = 200) -> Response:
+    async def speed(svc: Svc, cycles: Annotated[int, Query(ge=1, le=MAX_WINDOW_CYCLES)] = 200) -> Response:
         if cycles > LARGE_CYCLES:
             limit_large(f"a speed history of more than {LARGE_CYCLES} cycles")
         whole, ring = newest(svc, cycles)
@@ -329,7 +340,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
         return EventSourceResponse(events(), ping=ping_s)
 
     @app.get("/metrics", include_in_schema=False)
-    def prometheus() -> Response:
+    async def prometheus() -> Response:
         return Response(metrics.text(), media_type="text/plain; version=0.0.4; charset=utf-8")
 
     @app.get("/", include_in_schema=False)

@@ -17,10 +17,10 @@ import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.monitor.report.figure_status import STATUSES, friction_status, split_flag
 from frictionwatch.core.monitor.report.results import PA_PER_BAR, CycleResult
-from frictionwatch.core.monitor.report.run_summary import ACTIVE_SHARE, active_flags, estimate_window
+from frictionwatch.core.monitor.report.run_summary import EstimateWindow, end_of_run_status, estimate_window
 from frictionwatch.service.cmd_analyze import tdc_watch_document
 from frictionwatch.service.engine_service import TdcWatchView
-from frictionwatch.service.window_figures import NO_PREVIOUS_CYCLE, WindowFigures
+from frictionwatch.service.window_figures import NO_PREVIOUS_CYCLE, WindowFigures, active_from_counts
 
 RPM_PER_RAD_S = 30.0 / math.pi
 FIGURE_VALUES = ("fmep_bar", "fmep_sigma_bar", "friction_torque_mean_nm", "friction_torque_sigma_nm")
@@ -40,8 +40,11 @@ def cycle_summary(engine_id: str, r: CycleResult) -> dict:
             "friction_balance_nm": num(r.friction_balance), "flags": list(r.flags)}
 
 
-def _cylinder_loss(k: int, cyl: dict, names: Sequence[str], flags: frozenset[str] | Sequence[str]) -> dict:
-    """CylinderLoss from one cylinder of ``CycleResult.to_json``: the figure as shown, with its status."""
+def _cylinder_loss(k: int, cyl: dict, names: Sequence[str], flags: frozenset[str] | Sequence[str],
+                   by_cylinder: dict[int, list[str]] | None = None) -> dict:
+    """CylinderLoss from one cylinder of ``CycleResult.to_json``: the figure as shown, with its status.
+    ``by_cylinder``: ``flags`` already sorted by cylinder (``flags_by_cylinder``), for a caller that builds all the
+    cylinders."""
     fig = cyl["friction"]
     coefs, sigmas = cyl["coefficients"], cyl["coefficients_sigma"]
     labels = list(names) if len(names) == len(coefs) else [f"term{i + 1}" for i in range(len(coefs))]
@@ -49,7 +52,19 @@ def _cylinder_loss(k: int, cyl: dict, names: Sequence[str], flags: frozenset[str
             "coefficients": dict(zip(labels, coefs)), "coefficient_sigmas": dict(zip(labels, sigmas)),
             "data_weight": fig["data_weight"], "status": fig["status"], "reason": fig["reason"],
             "calibration": fig["calibration"], "calibration_sigma_nm": fig["calibration_sigma_nm"],
-            "flags": sorted(f for f in flags if split_flag(f)[1] == k + 1)}
+            "flags": (by_cylinder.get(k + 1, []) if by_cylinder is not None
+                      else sorted(f for f in flags if split_flag(f)[1] == k + 1))}
+
+
+def flags_by_cylinder(flags: frozenset[str] | Sequence[str]) -> dict[int, list[str]]:
+    """The flags of each cylinder (``<kind>_cyl<k>``, figure_status.split_flag), sorted: what ``_cylinder_loss``
+    picks for cylinder k, for every cylinder in one pass over the flags."""
+    out: dict[int, list[str]] = {}
+    for f in sorted(flags):
+        k = split_flag(f)[1]
+        if k is not None:
+            out.setdefault(k, []).append(f)
+    return out
 
 
 def values_by_status(loss: dict) -> dict:
@@ -82,19 +97,25 @@ def engine_figure(r: CycleResult) -> dict:
 
 
 def losses_now(engine_id: str, results: Sequence[CycleResult], names: Sequence[str]) -> dict:
-    """The monitor's smoothed estimate at the newest result, over the window it stands for (cmd_analyze.summary)."""
-    return losses_smoothed(engine_id, results[-1], [r.index for r in results], [r.smoothed.weight for r in results],
-                           [r.flags for r in results], names)
+    """The monitor's smoothed estimate at the newest result, over the window it stands for (cmd_analyze.summary):
+    its window and active flags as ``analyze`` reads them from every result (run_summary.end_of_run_status). The
+    reference the served reply (``losses_smoothed``) is held to."""
+    window, active, _ = end_of_run_status(results)
+    return _losses_doc(engine_id, results[-1], window, active, names)
 
 
 def losses_smoothed(engine_id: str, last: CycleResult, indices: Sequence[int], weights: Sequence[float],
-                    flags: Sequence[Sequence[str]], names: Sequence[str]) -> dict:
-    """``losses_now`` from the held results' cycle indices and smoothed weights (oldest first) and the flags of at
-    least the newest round(weights[-1]) of them: what the API state keeps beside its ring (listeners.LatestState.
-    smoothed), so a request does not walk the ring's 5000 results."""
-    window = estimate_window(indices, weights)
-    active = active_flags(flags, window.effective_cycles)
+                    active: frozenset[str], names: Sequence[str]) -> dict:
+    """``losses_now`` from the held results' cycle indices and smoothed weights (oldest first) and the flags that
+    apply over the estimate's window (``active``: run_summary.active_flags's): what the API state keeps beside its
+    ring (listeners.LatestState.smoothed), so a request does not walk the ring's 5000 results."""
+    return _losses_doc(engine_id, last, estimate_window(indices, weights), active, names)
+
+
+def _losses_doc(engine_id: str, last: CycleResult, window: EstimateWindow, active: frozenset[str],
+                names: Sequence[str]) -> dict:
     doc = last.to_json(status=friction_status(last.smoothed, active), window=asdict(window))
+    by_cylinder = flags_by_cylinder(active)
     eng = doc["friction"]
     return {"engine_id": engine_id, "cycle_index": int(last.index), "estimate": "smoothed",
             "window": {"first_cycle": window.first_cycle, "last_cycle": window.last_cycle,
@@ -103,7 +124,8 @@ def losses_smoothed(engine_id: str, last: CycleResult, indices: Sequence[int], w
             "engine": {**{key: eng[key] for key in FIGURE_VALUES}, "status": eng["status"], "reason": eng["reason"],
                        "calibration": eng["calibration"], "calibration_sigma_nm": eng["calibration_sigma_nm"]},
             "active_flags": sorted(active),
-            "cylinders": [values_by_status(_cylinder_loss(k, c, names, active)) for k, c in enumerate(doc["cylinders"])]}
+            "cylinders": [values_by_status(_cylinder_loss(k, c, names, active, by_cylinder))
+                          for k, c in enumerate(doc["cylinders"])]}
 
 
 class OwnEstimateDocuments:
@@ -136,15 +158,34 @@ class OwnEstimateDocuments:
 
 class NewestReplies:
     """One engine's replies made from its newest result, each made once a cycle and shared by the requests that
-    ask for it (the API's one per-engine cache): the smoothed ``/losses`` reply, rendered, by cycle index (a new
-    cycle's is made by one request while the others on other worker threads wait for it: ~2-4 ms over 5000 results
-    before ``LatestState.smoothed``, still one rendering), and the own-estimate documents the window replies read
+    ask for it (the API's one per-engine cache): the smoothed ``/losses`` reply, rendered, by cycle index (made by
+    one request while any other caller waits for it: the routes run on the event loop since design note 154, a
+    caller on another thread still may), the window replies, rendered, by the API state's count of
+    results and the window's length in cycles (``window``), and the own-estimate documents the window replies read
     their statuses from (``own``: by result and active flags)."""
 
     def __init__(self) -> None:
         self._smoothed: tuple[int, bytes] | None = None
         self._making = threading.Lock()
+        self._windows: tuple[int | None, dict[int, bytes]] = (None, {})
+        self.windows_made = 0  # window replies made (misses), for a test and a bench
         self.own = OwnEstimateDocuments()
+
+    def window(self, version: int, cycles: int, make: Callable[[], bytes]) -> bytes:
+        """The window reply of ``cycles`` cycles as of the API state's ``version`` (LatestState.versioned_window:
+        its count of results taken in), made by ``make()`` when not held. A window asked for more cycles than are
+        held is the window of all of them: the cycles it was made for, not those asked, are the key, so a dashboard's
+        (or the mix's) 1000- and 5000-cycle windows share one reply until 1000 cycles are held. Another version
+        starts afresh. One lock-free swap: two threads that miss at once both make the same reply."""
+        held, replies = self._windows
+        if held != version:
+            replies = {}
+            self._windows = (version, replies)
+        got = replies.get(cycles)
+        if got is None:
+            got = replies[cycles] = make()
+            self.windows_made += 1
+        return got
 
     def smoothed(self, index: int, make: Callable[[], tuple[int, bytes]]) -> bytes:
         """The smoothed reply of cycle ``index`` or a newer one; ``make()`` -> (its cycle index, its bytes) when
@@ -177,15 +218,18 @@ def losses_window(engine_id: str, last: CycleResult, win: WindowFigures, names: 
     n_cycles, n_counted, lay = win.cycles, win.counted, win.layout
     # active_flags (run_summary) over the window, from the window's counts: the newest cycle's and the frequent ones;
     # no_previous_cycle is not one of them: those cycles are out of the figures, counted in cycles_left_out
-    active = (frozenset(last.flags) | {f for f, c in win.flag_counts.items() if c >= ACTIVE_SHARE * n_cycles}) - {
-        NO_PREVIOUS_CYCLE}
+    active = active_from_counts(last.flags, win.flag_counts, n_cycles) - {NO_PREVIOUS_CYCLE}
     status = (documents or OwnEstimateDocuments()).get(last, frozenset(active))
     mep_per_nm = last.mep_per_nm() / PA_PER_BAR  # bar per N m of one cylinder
     left = _left_out_words(win.left_out)
+    # the figures as Python numbers, once (win.stat and num per value were ~2/3 of the view's work, design note 154)
+    means, sems, counts = win.mean.tolist(), win.sem.tolist(), win.count.tolist()
+    mean_nums, sem_nums = [num(v) for v in means], [num(v) for v in sems]
+    status_counts, by_cylinder = win.status_counts.tolist(), flags_by_cylinder(active)
     cylinders = []
     for k, cyl in enumerate(status["cylinders"]):
-        loss = _cylinder_loss(k, cyl, names, active)
-        kinds = win.status_counts[k]
+        loss = _cylinder_loss(k, cyl, names, active, by_cylinder)
+        kinds = status_counts[k]
         if n_counted == 0:
             loss.update(dict.fromkeys(FIGURE_VALUES), status="unresolved", data_weight=None,
                         reason=f"no cycle of the window has its own estimate ({left})")
@@ -196,16 +240,17 @@ def losses_window(engine_id: str, last: CycleResult, win: WindowFigures, names: 
             cal = loss["calibration_sigma_nm"] or 0.0
             for key, sigma_key, per_nm, col in (("friction_torque_mean_nm", "friction_torque_sigma_nm", 1.0, lay.torque(k)),
                                                 ("fmep_bar", "fmep_sigma_bar", mep_per_nm, lay.fmep(k))):
-                mean, sem, n = win.stat(col)
+                mean, sem, n = means[col], sems[col], counts[col]
                 loss[key], loss[sigma_key] = num(mean), (num(math.hypot(sem, cal * per_nm)) if n > 1
                                                          else loss[sigma_key])
-            weight, _, n_weights = win.stat(lay.weight(k))
-            loss["data_weight"] = weight if n_weights else None
+            col = lay.weight(k)
+            loss["data_weight"] = means[col] if counts[col] else None
             labels = list(loss["coefficients"])
-            loss["coefficients"] = {name: num(win.mean[lay.coef(k, j)]) for j, name in enumerate(labels)}
-            loss["coefficient_sigmas"] = {name: num(win.sem[lay.coef(k, j)]) for j, name in enumerate(labels)}
+            first = lay.coef(k, 0)
+            loss["coefficients"] = dict(zip(labels, mean_nums[first:first + len(labels)]))
+            loss["coefficient_sigmas"] = dict(zip(labels, sem_nums[first:first + len(labels)]))
         else:
-            n_measured = int(kinds[STATUSES.index("measured")])
+            n_measured = kinds[STATUSES.index("measured")]
             loss.update(dict.fromkeys(FIGURE_VALUES), status="unresolved",
                         reason=f"the figure's status changed within the window (measured in {n_measured} of "
                                f"{n_counted} cycles{'; ' + left if win.left_out else ''}): no mean over the "

@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.monitor.report.figure_status import STATUSES, friction_status
 from frictionwatch.core.monitor.report.results import PA_PER_BAR, VALUED_STATUSES, CycleResult
-from frictionwatch.core.monitor.report.run_summary import mean_and_sem
+from frictionwatch.core.monitor.report.run_summary import ACTIVE_SHARE, mean_and_sem
 
 NO_PREVIOUS_CYCLE = "no_previous_cycle"  # core.monitor.monitor: the cycle has no cycle before it
 SHARE = STATUSES.index("share")  # statuses as FrictionStatus.codes hold them
@@ -36,6 +36,14 @@ VALUED_BY_CODE = np.array([s in VALUED_STATUSES for s in STATUSES])  # by code: 
 def left_out(flags) -> bool:
     """Whether a cycle with these flags stays out of a window's means (module doc)."""
     return NO_PREVIOUS_CYCLE in flags
+
+
+def active_from_counts(newest: Iterable[str], counts: Mapping[str, int], cycles: int) -> frozenset[str]:
+    """``run_summary.active_flags`` over a window of ``cycles`` results from its flag counts (cycles of the window
+    that raised each flag, as ``WindowSums`` keeps them) instead of every result's flags: the newest result's flags
+    and those raised in at least ACTIVE_SHARE of the window (tests/service/test_api_rendered.py holds the two
+    equal)."""
+    return frozenset(newest) | {f for f, c in counts.items() if c >= ACTIVE_SHARE * cycles}
 
 
 @dataclass(frozen=True)

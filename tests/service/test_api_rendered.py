@@ -5,6 +5,7 @@ stopped after the demo log (nothing changes between the two replies). The number
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -14,6 +15,7 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from frictionwatch.core.monitor.report.figure_status import friction_status
+from frictionwatch.core.monitor.report.run_summary import active_flags
 from frictionwatch.service import api_views as views
 from frictionwatch.service.api import create_app
 from frictionwatch.service.api_models import CycleSummary, FrictionTorque, Losses, Speed
@@ -153,9 +155,77 @@ def test_the_smoothed_losses_read_from_the_held_arrays_are_the_rings_after_it_wr
         for i, r in enumerate(results):
             svc.state.on_message_received(ServiceEvent("held", r, time.monotonic()))
             ring = results[max(0, i - 2): i + 1]
-            whole, index, weight, flags = svc.state.smoothed()
+            whole, index, weight, active = svc.state.smoothed()
             assert whole is r and index.tolist() == [x.index for x in ring]
             assert_allclose(weight, [x.smoothed.weight for x in ring], rtol=0, atol=0)
-            assert flags == [x.flags for x in ring][-len(flags):] and len(flags) >= 1
+            assert active == active_flags([x.flags for x in ring], weight[-1])
             got = client.get("/api/v1/engines/held/losses").json()
             same(reference(Losses, views.losses_now("held", ring, svc.term_names)), got, f"cycle {r.index}")
+
+
+def flagged_results(results, n: int) -> list:
+    """``n`` results made from the demo's (cycled, numbered on): every third raises 'often', every 13th 'rare' (under
+    run_summary.ACTIVE_SHARE of a window of HELD unless it is the newest), besides their own flags."""
+    out = []
+    for i in range(n):
+        r = results[i % len(results)]
+        extra = ("often",) * (i % 3 == 0) + ("rare",) * (i % 13 == 0)
+        out.append(dataclasses.replace(r, index=1000 + i, flags=tuple(r.flags) + extra))
+    return out
+
+
+HELD = 12  # results the fed API state holds: the demo's smoothed weights reach past it and fall back (its seam)
+
+
+def test_the_smoothed_reply_takes_its_active_flags_from_the_running_counts(served, monkeypatch) -> None:
+    """LatestState.smoothed's active flags come from the window sums' flag counts (O(flags)), not from the held
+    results: each cycle, with the ring wrapping and the reach (round(newest weight)) below and at the ring's length,
+    they are run_summary.active_flags over the held results, and the plain /losses reply is views.losses_now's (the
+    reference: every result read) - also where the sums do not cover the reach (started again: read from the ring)."""
+    _, done = served
+    svc = demo_service("flags", history_cycles=HELD)  # not started: this test feeds its API state
+    results = flagged_results(done.session.results, 70)
+    reaches, seen_often = set(), set()
+    with TestClient(create_app([svc], manage=False)) as client:
+        for i, r in enumerate(results):
+            svc.state.on_message_received(ServiceEvent("flags", r, time.monotonic()))
+            if i in (40, 41):  # the sums not covering the reach: the ring's flags are read instead
+                monkeypatch.setattr(svc.state.sums, "flag_counts", lambda cycles: None)
+            else:
+                monkeypatch.undo()
+            ring = results[max(0, i - HELD + 1): i + 1]
+            _, _, weight, active = svc.state.smoothed()
+            reaches.add(max(1, min(len(ring), round(weight[-1]))))
+            assert active == active_flags([x.flags for x in ring], weight[-1]), f"cycle {r.index}"
+            seen_often.add("often" in active)
+            got = client.get("/api/v1/engines/flags/losses").json()
+            same(reference(Losses, views.losses_now("flags", ring, svc.term_names)), got, f"cycle {r.index}")
+    assert seen_often == {True, False} and min(reaches) < HELD and HELD in reaches, reaches  # the cases were met
+
+
+def test_window_replies_are_made_once_a_cycle_and_window_length(served) -> None:
+    """NewestReplies.window: within one cycle a window reply is made once per length of the window it covers (1000
+    and 5000 cycles asked while fewer are held are one reply) and each is the reply made without the cache; a new
+    cycle makes them anew."""
+    _, done = served
+    svc = demo_service("win")
+    app = create_app([svc], manage=False)
+    results = done.session.results[-6:]
+    with TestClient(app) as client:
+        for r in results:
+            svc.state.on_message_received(ServiceEvent("win", r, time.monotonic()))
+        got = {w: client.get("/api/v1/engines/win/losses", params={"window_cycles": w}) for w in (1000, 5000, 3, 1000)}
+        assert got[1000].content == got[5000].content != got[3].content
+        for w in (3, 5000):
+            last, figures = svc.state.window(w)
+            same(reference(Losses, views.losses_window("win", last, figures, svc.term_names)), got[w].json(), str(w))
+        made = [c.windows_made for c in app.state.newest_replies.values()]
+        assert made == [2]
+        svc.state.on_message_received(ServiceEvent("win", dataclasses.replace(results[0], index=9999),
+                                                   time.monotonic()))
+        for w in (3, 5000):  # a window of the same length as before (3) is made again too
+            again = client.get("/api/v1/engines/win/losses", params={"window_cycles": w})
+            assert again.content != got[w].content
+            last, figures = svc.state.window(w)
+            same(reference(Losses, views.losses_window("win", last, figures, svc.term_names)), again.json(), str(w))
+        assert [c.windows_made for c in app.state.newest_replies.values()] == [4]
