@@ -59,24 +59,55 @@ MIN_CYLINDERS = 3
 
 
 @dataclass(frozen=True)
-class GainWatchState:
-    """sums: the current window's block sums of the cycles' pressure, BLOCKS arrays (z, n) (None before its first
-    cycle; a cycle replaces its block's array by a new one, never writes into one: 9 against 19 us per genset-v20
-    cycle for copying all five), counts (BLOCKS,) the cycles in each; cycles seen in the window (a cycle with a NaN sample counts here, not in
-    the sums), used: those in the sums, lead_sum (z,) their leads summed [rad]; last: the newest window's statistics
-    (over its blocks) or None; flags in force."""
+class PressureBlocks:
+    """A window's cycles' pressure in ``BLOCKS`` running block sums (the gain and thermal-shock watches' evidence: each
+    block's mean cycle is compared at the window's end). sums: BLOCKS arrays (z, n) (None before the first cycle; a
+    cycle replaces its block's array by a new one, never writes into one: 9 against 19 us per genset-v20 cycle for
+    copying all five), counts (BLOCKS,) the cycles in each; cycles seen in the window (a cycle with a NaN sample
+    counts here, not in the sums), used: those in the sums, lead_sum (z,) their leads summed [rad]."""
 
-    sums: tuple[np.ndarray, ...] | None
-    cycles: int
+    sums: tuple[np.ndarray, ...] | None = None
+    counts: np.ndarray | None = None
+    cycles: int = 0
+    used: int = 0
+    lead_sum: np.ndarray | float = 0.0
+
+    def add(self, pressure: np.ndarray, lead: np.ndarray) -> PressureBlocks:
+        """These blocks with one more cycle's ``pressure`` (z, n) and ``lead`` (z,) rad (module doc)."""
+        p = np.asarray(pressure, dtype=np.float64)
+        fresh = self.sums is None or len(self.sums) != BLOCKS or self.sums[0].shape != p.shape
+        sums = (np.zeros(p.shape),) * BLOCKS if fresh else self.sums  # read only: a block is replaced, not written
+        counts = np.zeros(BLOCKS) if fresh or self.counts is None else self.counts.copy()
+        used, lead_sum = (0, 0.0) if fresh else (self.used, self.lead_sum)
+        if math.isfinite(p.sum()):  # a NaN sample: the cycle counts in the window, not in the sums (NaN, inf propagate)
+            b = self.cycles % BLOCKS
+            sums = sums[:b] + (sums[b] + p,) + sums[b + 1:]
+            counts[b] += 1
+            used += 1
+            lead_sum = lead_sum + np.asarray(lead, dtype=np.float64)
+        return PressureBlocks(sums, counts, self.cycles + 1, used, lead_sum)
+
+    def mean_cycles(self, cycle: Cycle) -> list[Cycle]:
+        """Each filled block's mean cycle: ``cycle`` (the window's newest: its grid) with the block's mean pressure."""
+        return [dataclasses.replace(cycle, pressure=self.sums[b] / self.counts[b]) for b in np.flatnonzero(self.counts)]
+
+    def lead_mean(self, z: int) -> np.ndarray:
+        """(z,) the used cycles' mean lead [rad]."""
+        return np.broadcast_to(self.lead_sum / self.used, (z,))
+
+
+@dataclass(frozen=True)
+class GainWatchState:
+    """blocks: the current window's pressure (``PressureBlocks``); last: the newest window's statistics (over its
+    blocks) or None; flags in force."""
+
+    blocks: PressureBlocks
     last: SiblingStats | None
     flags: tuple[str, ...]
-    counts: np.ndarray | None = None
-    lead_sum: np.ndarray | float = 0.0
-    used: int = 0
 
     @staticmethod
     def empty() -> GainWatchState:
-        return GainWatchState(None, 0, None, ())
+        return GainWatchState(PressureBlocks(), None, ())
 
 
 def watch_gains(spec: EngineSpec, cal: Calibration, state: GainWatchState, cycle: Cycle, lead: np.ndarray,
@@ -87,31 +118,19 @@ def watch_gains(spec: EngineSpec, cal: Calibration, state: GainWatchState, cycle
     z = spec.n_cyl
     if z < MIN_CYLINDERS:
         return state
-    p = np.asarray(cycle.pressure, dtype=np.float64)
-    fresh = state.sums is None or len(state.sums) != BLOCKS or state.sums[0].shape != p.shape
-    sums = (np.zeros(p.shape),) * BLOCKS if fresh else state.sums  # read only: a block is replaced, not written
-    counts = np.zeros(BLOCKS) if fresh or state.counts is None else state.counts.copy()
-    used, lead_sum = (0, 0.0) if fresh else (state.used, state.lead_sum)
-    if math.isfinite(p.sum()):  # a NaN sample: the cycle counts in the window, not in the sums (NaN, inf propagate)
-        b = state.cycles % BLOCKS
-        sums = sums[:b] + (sums[b] + p,) + sums[b + 1:]
-        counts[b] += 1
-        used += 1
-        lead_sum = lead_sum + np.asarray(lead, dtype=np.float64)
-    n = state.cycles + 1
-    if n < window:
-        return GainWatchState(sums, n, state.last, state.flags, counts, lead_sum, used)
-    if used < window // 2:  # most of the window unusable: no verdict, the old one stands
-        return GainWatchState(None, 0, state.last, state.flags)
-    lead_mean = np.broadcast_to(lead_sum / used, (z,))
+    blocks = state.blocks.add(cycle.pressure, lead)
+    if blocks.cycles < window:
+        return GainWatchState(blocks, state.last, state.flags)
+    if blocks.used < window // 2:  # most of the window unusable: no verdict, the old one stands
+        return GainWatchState(PressureBlocks(), state.last, state.flags)
+    lead_mean = blocks.lead_mean(z)
     rows = SiblingSums.empty(z)
-    for b in np.flatnonzero(counts):
-        mean_cycle = dataclasses.replace(cycle, pressure=sums[b] / counts[b])
+    for mean_cycle in blocks.mean_cycles(cycle):
         rows = rows.add(cycle_comparison(spec, mean_cycle, lead_mean))
     stats = sibling_stats(rows)
     if stats is None or stats.n < 2:
-        return GainWatchState(None, 0, state.last, state.flags)
-    return GainWatchState(None, 0, stats, gain_flags(cal, stats))
+        return GainWatchState(PressureBlocks(), state.last, state.flags)
+    return GainWatchState(PressureBlocks(), stats, gain_flags(cal, stats))
 
 
 def gain_limits(cal: Calibration, stats: SiblingStats) -> tuple[np.ndarray, np.ndarray]:
@@ -153,6 +172,6 @@ def gain_flags(cal: Calibration, stats: SiblingStats) -> tuple[str, ...]:
                  + [f"sensor_pressure_offset_cyl{k + 1}" for k in range(z) if abs(offset[k]) > lim_o[k]])
 
 
-__all__ = ["GainWatchState", "MIN_GAIN", "MIN_OFFSET_PA", "SPREAD_SIGMAS", "gain_flags", "gain_limits", "sibling_spread",
-           "watch_gains"]
+__all__ = ["GainWatchState", "MIN_GAIN", "MIN_OFFSET_PA", "SPREAD_SIGMAS", "PressureBlocks", "gain_flags", "gain_limits",
+           "sibling_spread", "watch_gains"]
 

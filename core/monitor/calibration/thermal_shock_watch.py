@@ -28,16 +28,14 @@ spread of its siblings' devs); only with three or more cylinders. A flag holds u
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.kinematics import kinematics
-from frictionwatch.core.monitor.calibration.gain_watch import SPREAD_SIGMAS
+from frictionwatch.core.monitor.calibration.gain_watch import SPREAD_SIGMAS, PressureBlocks
 from frictionwatch.core.monitor.calibration.pressure_gain import cycle_comparison
-from frictionwatch.core.monitor.calibration.tdc import BLOCKS
 from frictionwatch.core.monitor.calibration.tdc_watch import WINDOW_CYCLES
 from frictionwatch.core.monitor.calibration.tdc_window import DRIFT_SIGMAS
 from frictionwatch.core.types import Cycle
@@ -102,21 +100,16 @@ class BendStats:
 
 @dataclass(frozen=True)
 class ThermalShockWatchState:
-    """As core.monitor.calibration.gain_watch.GainWatchState: the window's block sums of the cycles' pressure (None
-    before its first cycle; a block's array replaced, never written into), counts (BLOCKS,), cycles seen and used,
-    lead_sum (z,) their leads summed [rad]; last: the newest window's reading or None; flags in force."""
+    """As core.monitor.calibration.gain_watch.GainWatchState: blocks, the window's pressure
+    (gain_watch.PressureBlocks); last: the newest window's reading or None; flags in force."""
 
-    sums: tuple[np.ndarray, ...] | None
-    cycles: int
+    blocks: PressureBlocks
     last: BendStats | None
     flags: tuple[str, ...]
-    counts: np.ndarray | None = None
-    lead_sum: np.ndarray | float = 0.0
-    used: int = 0
 
     @staticmethod
     def empty() -> ThermalShockWatchState:
-        return ThermalShockWatchState(None, 0, None, ())
+        return ThermalShockWatchState(PressureBlocks(), None, ())
 
 
 def watch_expansion(spec: EngineSpec, state: ThermalShockWatchState, cycle: Cycle, lead: np.ndarray,
@@ -126,33 +119,21 @@ def watch_expansion(spec: EngineSpec, state: ThermalShockWatchState, cycle: Cycl
     z = spec.n_cyl
     if z < MIN_CYLINDERS:
         return state
-    p = np.asarray(cycle.pressure, dtype=np.float64)
-    fresh = state.sums is None or len(state.sums) != BLOCKS or state.sums[0].shape != p.shape
-    sums = (np.zeros(p.shape),) * BLOCKS if fresh else state.sums
-    counts = np.zeros(BLOCKS) if fresh or state.counts is None else state.counts.copy()
-    used, lead_sum = (0, 0.0) if fresh else (state.used, state.lead_sum)
-    if math.isfinite(p.sum()):  # a NaN sample: the cycle counts in the window, not in the sums
-        b = state.cycles % BLOCKS
-        sums = sums[:b] + (sums[b] + p,) + sums[b + 1:]
-        counts[b] += 1
-        used += 1
-        lead_sum = lead_sum + np.asarray(lead, dtype=np.float64)
-    n = state.cycles + 1
-    if n < window:
-        return ThermalShockWatchState(sums, n, state.last, state.flags, counts, lead_sum, used)
-    if used < window // 2:  # most of the window unusable: no verdict, the old one stands
-        return ThermalShockWatchState(None, 0, state.last, state.flags)
-    lead_mean = np.broadcast_to(lead_sum / used, (z,))
+    blocks = state.blocks.add(cycle.pressure, lead)
+    if blocks.cycles < window:
+        return ThermalShockWatchState(blocks, state.last, state.flags)
+    if blocks.used < window // 2:  # most of the window unusable: no verdict, the old one stands
+        return ThermalShockWatchState(PressureBlocks(), state.last, state.flags)
+    lead_mean = blocks.lead_mean(z)
     devs = []
-    for b in np.flatnonzero(counts):
-        mean_cycle = dataclasses.replace(cycle, pressure=sums[b] / counts[b])
+    for mean_cycle in blocks.mean_cycles(cycle):
         offset = cycle_comparison(spec, mean_cycle, lead_mean)[1]
         bend = expansion_bend(spec, mean_cycle.grid, mean_cycle.pressure, offset, lead_mean)
         devs.append(bend - np.median(bend))
     stats = bend_stats(np.array(devs))
     if stats is None:
-        return ThermalShockWatchState(None, 0, state.last, state.flags)
-    return ThermalShockWatchState(None, 0, stats, shock_flags(stats))
+        return ThermalShockWatchState(PressureBlocks(), state.last, state.flags)
+    return ThermalShockWatchState(PressureBlocks(), stats, shock_flags(stats))
 
 
 def bend_stats(devs: np.ndarray) -> BendStats | None:
