@@ -2,7 +2,7 @@
 
     python -m bench.bench_discrepancy [--engine E] [--cycles N]     # speed: one discover run, CPU timed
     python -m bench.bench_discrepancy --matrix [--engine E] [--point i] [--seed s] [--case LABEL | --new]
-                                      [--cycles N] [--out FILE]     # the hidden-effect matrix
+                                      [--cycles N] [--option NAME=VALUE] [--out FILE]     # the hidden-effect matrix
     python -m bench.bench_discrepancy --summarise FILE...            # recompute a saved matrix's totals
     python -m bench.bench_discrepancy --table FILE...                # saved matrices as one markdown table
 
@@ -26,7 +26,11 @@ named right and the held-out gap shrinks by >= 80 %; "none" passes when nothing 
 (load ripple) are recorded, not judged; a misfire, named from the pressure, is judged on its probability (20 %), a
 leak (blow_by) on its mass_loss (20 %). Each row also says whether the truth lies within 2 sigma of the found
 parameter and the CPU time of the case (simulation + assembly + discover, and discover alone). Prints and writes the
-rows, the confusion matrix (truth x named) and the totals (summarise).
+rows, the confusion matrix (truth x named) and the totals (summarise). Each row also keeps what the workflow weighed
+(``baseline_null``, ``evidence``: each named or refused speed step's plain and floored held-out falls, whether its
+residual was quiet or inside the null), so a gate's effect can be read off a run made without it; ``--option`` runs
+the workflow with a field of its Options changed (design note 155: ``floored_within_null=false``,
+``fit_all_points=false``), recorded in each row.
 """
 
 from __future__ import annotations

@@ -23,9 +23,11 @@ with every parameter within 2 sigma of none (its size not told from zero, on a r
 or a louder one; a shaft-line fit's sigma with the line's own model error in it: choice.unresolved,
 choice.quiet_residual, fit.CHAIN_FLOOR), or -- on a residual inside the null (nothing beyond a floor, the speed gap
 within GAP_NULL: choice.within_null) -- a fit whose held-out chi^2 with the model-error floor allowed for falls by less
-than ``min_delta_chi2`` (choice.within_model_error: the model's own error, coherent, passes the plain test); the refusal and its reason are reported. A whole wheel's TDC where
-the pressure reads one cylinder's is weighed against that TDC with a friction (pair.wheel_or_pair). Which trials are
-held out, when two are one explanation and why a step is refused: core.discrepancy.choice.
+than ``min_delta_chi2`` (choice.within_model_error: the model's own error, coherent, passes the plain test); the
+refusal and its reason are reported. A whole wheel's TDC where the pressure reads one cylinder's is weighed against
+that TDC with a friction (pair.wheel_or_pair). Which trials are held out, when two are one explanation and why a step
+is refused: core.discrepancy.choice. On a log of several operating points the fits run on the whole training half
+(Options.fit_all_points), not its first ``fit_cycles``.
 
 The outcome says which of three it is: ``named`` (effects added), ``nothing`` (nothing significant before or after)
 or ``unexplained`` (a coherent residual remains that no candidate explains: significant engine orders or a
@@ -111,7 +113,6 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     split = opt.warmup + (len(cycles) - opt.warmup) // 2
     first, held = cycles[opt.warmup].index, cycles[split].index
 
-    window: list[Cycle] = []  # the fits' cycles, set once the baseline's run says how many points the log holds
     pinned = pinned_config(opt.monitor_config)  # the question is whether each model reproduces the log as it stands
     # most candidates leave the pressure and the geometry as they were: the TDC watch's fits of this log, made once
     tdc_memo = TdcFitMemo()
@@ -119,7 +120,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     def full(m: EngineModel) -> Residuals:
         return run_model(m, ref, pinned, cycles, tdc_memo)
 
-    def sub(m: EngineModel) -> Residuals:
+    def sub(m: EngineModel) -> Residuals:  # the fits' window, set below once the baseline's run says its points
         return run_model(m, ref, pinned, window, tdc_memo)
 
     def parts(res: Residuals) -> tuple[Residuals, Residuals]:
@@ -134,7 +135,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     # the fits' window (``sub``): the first ``fit_cycles`` after the warm-up; on a log of several operating points
     # the whole training half, whose cycles hold each point as the held-out half does (Options.fit_all_points)
     several = train.group is not None and np.unique(train.group[train.group >= 0]).size > 1
-    window[:] = cycles[:split if several and opt.fit_all_points else min(split, opt.warmup + opt.fit_cycles)]
+    window = cycles[:split if several and opt.fit_all_points else min(split, opt.warmup + opt.fit_cycles)]
     scale = noise_scale(train)
     found = Discovery(model, model, [], gap(test, scale), gap(test, scale), localise(test, model.spec, scale),
                       {}, [("baseline", test.angles, test.speed.mean(axis=0))])
