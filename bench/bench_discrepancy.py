@@ -2,7 +2,7 @@
 
     python -m bench.bench_discrepancy [--engine E] [--cycles N]     # speed: one discover run, CPU timed
     python -m bench.bench_discrepancy --matrix [--engine E] [--point i] [--seed s] [--case LABEL | --new]
-                                      [--cycles N] [--out FILE]     # the hidden-effect matrix
+                                      [--cycles N] [--option NAME=VALUE] [--out FILE]     # the hidden-effect matrix
     python -m bench.bench_discrepancy --summarise FILE...            # recompute a saved matrix's totals
     python -m bench.bench_discrepancy --table FILE...                # saved matrices as one markdown table
 
@@ -26,7 +26,11 @@ named right and the held-out gap shrinks by >= 80 %; "none" passes when nothing 
 (load ripple) are recorded, not judged; a misfire, named from the pressure, is judged on its probability (20 %), a
 leak (blow_by) on its mass_loss (20 %). Each row also says whether the truth lies within 2 sigma of the found
 parameter and the CPU time of the case (simulation + assembly + discover, and discover alone). Prints and writes the
-rows, the confusion matrix (truth x named) and the totals (summarise).
+rows, the confusion matrix (truth x named) and the totals (summarise). Each row also keeps what the workflow weighed
+(``baseline_null``, ``evidence``: each named or refused speed step's plain and floored held-out falls, whether its
+residual was quiet or inside the null), so a gate's effect can be read off a run made without it; ``--option`` runs
+the workflow with a field of its Options changed (design note 155: ``floored_within_null=false``,
+``fit_all_points=false``), recorded in each row.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ for _v in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_
     os.environ.setdefault(_v, "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -137,6 +142,25 @@ def _same_place(name: str, cyl_found, cyl_true, n_cyl: int) -> bool:
     return cyl_found == cyl_true
 
 
+def _evidence(doc: dict) -> dict:
+    """What the workflow weighed, kept in a row (design note 155): the baseline's held-out residual against the null
+    (an order or the balance beyond its floor; the speed gap's ratio to a healthy log's), and per named or refused
+    speed step its plain and floored held-out chi^2 falls and whether the residual it explained was quiet or inside
+    the null (choice.quiet_residual, within_null)."""
+    loc = doc.get("localisation") or {}
+    hg = loc.get("healthy_gap") or {}
+    steps = [{"effect": f["effect"], "cylinder": f["cylinder"], "channel": f["evidence"]["channel"],
+              **{k: f["evidence"].get(k) for k in ("delta_chi2_heldout", "delta_chi2_heldout_floored", "quiet_before",
+                                                    "within_null_before")}} for f in doc.get("found", [])]
+    steps += [{"refused": r["candidate"], **{k: r.get(k) for k in ("delta_chi2_heldout", "delta_chi2_heldout_floored",
+                                                                    "quiet_before", "within_null_before")}}
+              for r in doc.get("refused", [])]
+    return {"baseline_null": {"orders": loc.get("significant_orders"),
+                              "balance": (loc.get("balance") or {}).get("significant"),
+                              "gap_ratio": hg.get("ratio"), "gap_beyond": hg.get("beyond")},
+            "evidence": steps}
+
+
 def judge(label: str, truths: tuple, doc: dict, n_cyl: int = 4) -> dict:
     """A case's row. Named right: every judged hidden effect is among the found ones (effect and cylinder), its main
     parameter within 20 % (TDC: 0.2 deg), and the held-out gap shrinks by >= 80 %; "none" passes when nothing is
@@ -151,7 +175,7 @@ def judge(label: str, truths: tuple, doc: dict, n_cyl: int = 4) -> dict:
            "refused": [r["candidate"] for r in doc.get("refused", [])],
            "refused_why": [f"{r['candidate']}: {r['reason']}" for r in doc.get("refused", [])],
            "step_limit_reached": doc.get("step_limit_reached"), "verdict": doc.get("verdict"),
-           "truth": [{"effect": n, **p} for n, p, _, _ in truths]}
+           "truth": [{"effect": n, **p} for n, p, _, _ in truths], **_evidence(doc)}
     expected = EXPECT.get(label)
     judged = [t for t in truths if t[2] is not None]
     if expected is None and not truths:  # healthy: nothing must be found
@@ -192,7 +216,8 @@ def judge(label: str, truths: tuple, doc: dict, n_cyl: int = 4) -> dict:
     return out
 
 
-def matrix(n_cycles: int, points=None, seeds=SEEDS, cases=None, engine: str = ENGINE) -> dict:
+def matrix(n_cycles: int, points=None, seeds=SEEDS, cases=None, engine: str = ENGINE,
+           options: Options | None = None) -> dict:
     points = ENGINES[engine]["points"] if points is None else points
     n_cyl = load_engine(engine).n_cyl
     rows = []
@@ -210,12 +235,14 @@ def matrix(n_cycles: int, points=None, seeds=SEEDS, cases=None, engine: str = EN
                 model, cycles = cycles_of(rpm, load, TWO_POINT_CYCLES if two else n_cycles, seed, effects, baseline,
                                           engine, truth, steps, truths)
                 c1 = time.process_time()
-                doc = discover(model, cycles).to_json()
+                doc = discover(model, cycles, options).to_json()
                 c2 = time.process_time()
                 row = judge(label, _sized(truths, truth), doc, n_cyl)
                 row.update({"engine": engine, "rpm": rpm, "load": load, "seed": seed,
                             "cycles": TWO_POINT_CYCLES if two else n_cycles,
                             **({"second_point": list(second_point(engine, p))} if two else {}),
+                            **({"options": {k: v for k, v in dataclasses.asdict(options).items()
+                                            if v != getattr(Options(), k)}} if options is not None else {}),
                             "wall_s": round(time.perf_counter() - t0, 1), "cpu_s": round(c2 - c0, 1),
                             "discover_cpu_s": round(c2 - c1, 1)})
                 rows.append(row)
@@ -326,6 +353,18 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _options(pairs: list[str]) -> Options | None:
+    """Options with the given NAME=VALUE fields (bool, int, float, as the default's type); None for none."""
+    if not pairs:
+        return None
+    base, values = Options(), {}
+    for pair in pairs:
+        name, _, text = pair.partition("=")
+        kind = type(getattr(base, name))
+        values[name] = text.lower() in ("1", "true", "yes") if kind is bool else kind(text)
+    return dataclasses.replace(base, **values)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--matrix", action="store_true")
@@ -337,6 +376,9 @@ def main() -> int:
     ap.add_argument("--case", action="append", help="only these cases (labels of CASES)")
     ap.add_argument("--new", action="store_true", help="only issue 27's further cases (NEW_CASES)")
     ap.add_argument("--two-points", action="store_true", help="only the two-point cases (TWO_POINT_CASES)")
+    ap.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
+                    help="a field of the workflow's Options for the matrix (e.g. floored_within_null=false: note 61's "
+                         "gate, the comparison of design note 155)")
     ap.add_argument("--summarise", type=Path, nargs="+", help="recompute the totals of saved --matrix outputs "
                     "(their rows, judged again by today's rule: rows need 'checks' to be re-judged as they are)")
     ap.add_argument("--table", type=Path, nargs="+", help="print saved --matrix outputs as one markdown table")
@@ -383,7 +425,7 @@ def main() -> int:
     cases = ((args.case or []) + (list(NEW_CASES) if args.new else [])
              + ([c[0] for c in TWO_POINT_CASES] if args.two_points else []))
     if args.matrix:
-        result = matrix(args.cycles or 120, points, seeds, cases or None, args.engine)
+        result = matrix(args.cycles or 120, points, seeds, cases or None, args.engine, _options(args.option))
     else:
         result = run(args.engine, args.cycles)
     text = json.dumps(result, indent=1, default=float)

@@ -9,7 +9,8 @@ pegging -, two effects at once: NEW_CASES), with the default realistic effects o
 cases and the rigid baseline, a single cylinder the whole-wheel TDC (cases_for). How a case is judged:
 bench.bench_discrepancy.
 
-Two points (TWO_POINT_CASES, design note 58): the friction laws and a healthy log on a log that steps between two
+Two points (TWO_POINT_CASES, design note 58): the friction laws, the pairs one point cannot tell (TWO_POINT_PAIRS,
+design note 155) and a healthy log on a log that steps between two
 operating points (the engine's matrix point, where the simulator sizes a law, and second_point of it: its other
 matrix point, a speed and a load step on a dyno; on the grid genset, whose speed is the grid's, another load),
 TWO_POINT_CYCLES cycles in blocks of TWO_POINT_BLOCKS; judged as the one-point cases are.
@@ -129,8 +130,12 @@ EXPECT = {"baseline rigid": "torsional_flexibility", "baseline without:variable_
 FRICTION_LAWS = ("cam_valve_train", "stribeck_ring", "side_thrust_skirt", "auxiliaries_speed_squared",
                  "bearings_load")
 TWO_POINTS = "two points: "  # the label prefix of a two-point case
+# the pairs one point cannot tell apart (design notes 149 and 155): a worn ring against a cam-order friction in one
+# cylinder (a ring's friction follows the gas pressure and the speed, the cam-order stand-in is one torque in N m at
+# every point), a half-order load ripple against a half-order friction; each of the pair hidden in turn
+TWO_POINT_PAIRS = ("ring_wear", "extra_friction cam 0.5", "extra_friction cam 1.5", "load_ripple 0.5")
 TWO_POINT_CASES = tuple((TWO_POINTS + label, truths, baseline, needs) for label, truths, baseline, needs in CASES
-                        if label == "none" or label in FRICTION_LAWS)
+                        if label == "none" or label in FRICTION_LAWS or label in TWO_POINT_PAIRS)
 # a two-point log: its blocks alternate, the matrix point's first (TWO_POINT_BLOCKS[0] cycles, the larger share, so
 # that the workflow's reference -- the median speed and pressure, where it sizes a law -- is the point the
 # simulator sized it at) and the second point's; 160 cycles hold 4 blocks of each, both points in the training and

@@ -21,11 +21,13 @@ ends on the bound of its range (the fit ran into the wall: not a physical value)
 (it did not move: choice.not_fitted), or a sensor correction lies within what the pressure methods resolve, or any fit
 with every parameter within 2 sigma of none (its size not told from zero, on a residual no larger than a healthy log's
 or a louder one; a shaft-line fit's sigma with the line's own model error in it: choice.unresolved,
-choice.quiet_residual, fit.CHAIN_FLOOR), or -- on a residual no larger than a healthy log's -- a fit whose held-out
-chi^2 with the model-error floor allowed for falls by less than ``min_delta_chi2`` (choice.within_model_error: the
-model's own error, coherent, passes the plain test); the refusal and its reason are reported. A whole wheel's TDC where
-the pressure reads one cylinder's is weighed against that TDC with a friction (pair.wheel_or_pair). Which trials are
-held out, when two are one explanation and why a step is refused: core.discrepancy.choice.
+choice.quiet_residual, fit.CHAIN_FLOOR), or -- on a residual inside the null (nothing beyond a floor, the speed gap
+within GAP_NULL: choice.within_null) -- a fit whose held-out chi^2 with the model-error floor allowed for falls by less
+than ``min_delta_chi2`` (choice.within_model_error: the model's own error, coherent, passes the plain test); the
+refusal and its reason are reported. A whole wheel's TDC where the pressure reads one cylinder's is weighed against
+that TDC with a friction (pair.wheel_or_pair). Which trials are held out, when two are one explanation and why a step
+is refused: core.discrepancy.choice. On a log of several operating points the fits run on the whole training half
+(Options.fit_all_points), not its first ``fit_cycles``.
 
 The outcome says which of three it is: ``named`` (effects added), ``nothing`` (nothing significant before or after)
 or ``unexplained`` (a coherent residual remains that no candidate explains: significant engine orders or a
@@ -62,6 +64,7 @@ from frictionwatch.core.discrepancy.choice import (
     unresolved,
     up_to_the_edge,
     within_model_error,
+    within_null,
 )
 from frictionwatch.core.discrepancy.common_gain import common_gain_of, engine_wide_friction
 from frictionwatch.core.discrepancy.discovery import Discovery, Options, Step
@@ -106,10 +109,10 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         raise ValueError(f"{len(cycles)} cycles: the workflow needs at least {opt.warmup + 16} "
                          f"({opt.warmup} to settle, 8 to train, 8 held out)")
     ref = reference(cycles)
-    load_nm = mean_load(cycles, ref.omega)  # what a load ripple's swing is measured against (Effect.unphysical)
+    # what a load ripple's swing is measured against (Effect.unphysical): the shaft's, as the monitor reads it
+    load_nm = mean_load(cycles, ref.omega, model.calibration.generator_efficiency)
     split = opt.warmup + (len(cycles) - opt.warmup) // 2
     first, held = cycles[opt.warmup].index, cycles[split].index
-    window = cycles[:min(split, opt.warmup + opt.fit_cycles)]
 
     pinned = pinned_config(opt.monitor_config)  # the question is whether each model reproduces the log as it stands
     # most candidates leave the pressure and the geometry as they were: the TDC watch's fits of this log, made once
@@ -118,7 +121,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     def full(m: EngineModel) -> Residuals:
         return run_model(m, ref, pinned, cycles, tdc_memo)
 
-    def sub(m: EngineModel) -> Residuals:
+    def sub(m: EngineModel) -> Residuals:  # the fits' window, set below once the baseline's run says its points
         return run_model(m, ref, pinned, window, tdc_memo)
 
     def parts(res: Residuals) -> tuple[Residuals, Residuals]:
@@ -130,6 +133,10 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     if train.n_cycles < 4 or test.n_cycles < 4:
         raise ValueError(f"the monitor analysed {cur_res.n_cycles} of {len(cycles)} cycles: too few to train and "
                          "hold out")
+    # the fits' window (``sub``): the first ``fit_cycles`` after the warm-up; on a log of several operating points
+    # the whole training half, whose cycles hold each point as the held-out half does (Options.fit_all_points)
+    several = train.group is not None and np.unique(train.group[train.group >= 0]).size > 1
+    window = cycles[:split if several and opt.fit_all_points else min(split, opt.warmup + opt.fit_cycles)]
     scale = noise_scale(train)
     found = Discovery(model, model, [], gap(test, scale), gap(test, scale), localise(test, model.spec, scale),
                       {}, [("baseline", test.angles, test.speed.mean(axis=0))])
@@ -266,11 +273,13 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         test_new = parts(res)[1]
         channel = ""  # the speed's step (Step.channel)
         quiet = quiet_residual(loc)
+        in_null = within_null(loc)  # the floored test's gate (note 155; note 61's was ``quiet``)
         floored_fall = chi2_floored(test, scale, floor) - chi2_floored(test_new, scale, floor)
         why = (channel_worse(test, test_new, scale) or pressure_worse(pressure(current), pressure(new_model),
                                                                         model.spec.n_cyl) or off_physics(t)
                or not_fitted(t)
-               or unresolved(t, quiet) or within_model_error(quiet and opt.floored_when_quiet, floored_fall,
+               or unresolved(t, quiet) or within_model_error((in_null if opt.floored_within_null else quiet)
+                                                              and opt.floored_when_quiet, floored_fall,
                                                               opt.min_delta_chi2))
         if not why:  # a friction law on a log of several points: the balance across them must agree (note 62)
             why, spent, law_fit = law_against_balance(t, current, cur_res, full, parts)
@@ -286,7 +295,8 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
             found.refused.append({"candidate": t.candidate.label, "reason": why,
                                   "gap_before": g_cur, "gap_after": gap(test_new, scale),
                                   "delta_chi2_heldout": chi_before - chi2(test_new, scale),
-                                  "delta_chi2_heldout_floored": floored_fall, "quiet_before": quiet})
+                                  "delta_chi2_heldout_floored": floored_fall, "quiet_before": quiet,
+                                  "within_null_before": in_null})
             break
         if as_well is not None:  # the friction alone would be named, but the TDC beside it explains as well: said
             _said_ambiguous(found, True, [said_alone(t), said_pair(as_well)],
@@ -298,7 +308,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         added = new_model.effects[-len(t.candidate.names):]
         found.steps.append(Step(t, added[0], g_cur, g_new, chi_before, chi_after, runner,
                                 localise(test, model.spec, scale), localise(test_new, model.spec, scale), added[1:],
-                                channel=channel, floored_fall=floored_fall, quiet=quiet))
+                                channel=channel, floored_fall=floored_fall, quiet=quiet, within_null=in_null))
         found.curves.append((f"+ {t.candidate.label}", test_new.angles, test_new.speed.mean(axis=0)))
         current, test, cur_res = new_model, test_new, res
         found.step_limit_reached = step == opt.max_steps - 1

@@ -59,6 +59,22 @@ def test_a_quiet_residual_is_nothing_beyond_the_null_and_a_speed_gap_within_a_he
     assert not quiet_residual({k: v for k, v in calm.items() if k != "healthy_gap"})
 
 
+def test_a_residual_inside_the_null_is_nothing_beyond_a_floor_and_a_speed_gap_within_gap_null():
+    """choice.within_null (design note 155): no order and no balance beyond the null and the speed gap not beyond
+    GAP_NULL x a healthy log's (``healthy_gap["beyond"]``); wider than quiet_residual (ratio <= 1): maruti 1500/0.5
+    <-> 4000/0.8 seed 17, healthy, ratio 1.91 -- not quiet, inside the null."""
+    from frictionwatch.core.discrepancy.choice import quiet_residual, within_null
+
+    calm = {"significant_orders": [], "balance": {"significant": False},
+            "healthy_gap": {"ratio": 1.91, "beyond": False}}
+    assert within_null(calm) and not quiet_residual(calm)
+    assert within_null({**calm, "healthy_gap": {"ratio": 0.15, "beyond": False}})
+    assert not within_null({**calm, "healthy_gap": {"ratio": 4.2, "beyond": True}})
+    assert not within_null({**calm, "significant_orders": [0.5]})
+    assert not within_null({**calm, "balance": {"significant": True}})
+    assert not within_null({k: v for k, v in calm.items() if k != "healthy_gap"})
+
+
 def test_a_step_on_a_quiet_residual_must_pass_the_held_out_test_with_the_model_error_floor_allowed_for():
     """choice.within_model_error: refused (a reason said) only on a quiet residual whose floored chi^2 falls by less
     than the workflow's min_delta_chi2; a loud residual or a floored fall at or above it: not refused (design note
@@ -66,7 +82,7 @@ def test_a_step_on_a_quiet_residual_must_pass_the_held_out_test_with_the_model_e
     from frictionwatch.core.discrepancy.choice import within_model_error
 
     why = within_model_error(True, 16.5, 40.0)
-    assert "16.5" in why and "model-error floor" in why
+    assert "16.5" in why and "model-error floor" in why and "inside the null" in why
     assert within_model_error(False, 16.5, 40.0) == ""
     assert within_model_error(True, 40.0, 40.0) == ""
     assert within_model_error(True, 116.4, 40.0) == ""
