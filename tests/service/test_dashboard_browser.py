@@ -167,6 +167,7 @@ def test_sensor_panel_says_the_calibration_and_the_tdc_watch(page, server):
     url = f"{server['base']}/api/v1/engines/{engine_id}/sensor-health"
     calibration = text(page, "losses-calibration")
     assert calibration.startswith("Calibration: uncalibrated.") and "frictionwatch commission" in calibration
+    assert "load reading (±0.5 % as shaft torque, ±3 % as electrical power)" in calibration
     page.wait_for("document.querySelector('[data-testid=health-calibration]') !== null", timeout=30)
     said = page.evaluate("document.querySelector('[data-testid=health-calibration]').textContent")
     assert said.startswith("Uncalibrated: nobody has measured this installation's TDC")

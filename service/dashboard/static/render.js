@@ -79,8 +79,9 @@ function calibrationWords(e) {
   return e.calibration === "commissioned"
     ? `Calibration: commissioned (TDC, pressure gain and J measured on this engine).${part}`
     : "Calibration: uncalibrated. Every ±1σ includes a typical installation's TDC (±0.5°), pressure gain "
-      + "(±3 % per channel, ±1 % common) and "
-      + `inertia (±5 %), not measured on this engine: run frictionwatch commission to measure them.${part}`;
+      + "(±3 % per channel, ±1 % common), inertia (±5 %) and load reading (±0.5 % as shaft torque, ±3 % as "
+      + "electrical power), not measured on this engine: run frictionwatch commission to measure TDC, gain and J "
+      + `(the load's is the installation's to state: see Sensors and calibration).${part}`;
 }
 
 /** The note number of a cylinder's reason: cylinders whose reasons differ only in the data weight share one. */
