@@ -63,3 +63,18 @@ def assert_same_records(got: list, want: list, rtol: float = 0.0) -> None:
         else:
             assert isinstance(b, LoadSample) and a.ticks == b.ticks
             assert_allclose([a.torque, a.power], [b.torque, b.power], rtol=rtol, atol=0.0)
+
+
+def two_point_steps(rpm: float, load: float, rpm2: float, load2: float, cycles: int,
+                    blocks: tuple[int, int]) -> list[tuple[float, float, float]]:
+    """The simulator's steps [(time_s, load, rpm)] of a log in blocks of (rpm, load) and (rpm2, load2) in turn, the
+    first point's first (where the simulator sizes a law), ``blocks`` cycles each, ``cycles`` in all (the times from
+    the requested speeds: the first cycle starts one revolution after tick 0)."""
+    steps, t, c, first = [], 60.0 / rpm, 0, True
+    while True:
+        t += blocks[0 if first else 1] * 120.0 / (rpm if first else rpm2)
+        c += blocks[0 if first else 1]
+        first = not first
+        if c >= cycles:
+            return steps
+        steps.append((t, load, rpm) if first else (t, load2, rpm2))

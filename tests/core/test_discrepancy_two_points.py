@@ -14,6 +14,8 @@ from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.pipeline import assembled_cycles
 
+from tests.sim_logs import two_point_steps
+
 pytestmark = pytest.mark.slow  # collected first (tests/conftest.py): long, as test_discrepancy_workflow.py
 
 
@@ -22,14 +24,7 @@ def _two_point_log(engine: str, point: tuple, second: tuple, seed: int, cycles: 
     """The matrix's two-point log (bench.discrepancy_cases.two_point_steps): blocks of ``point`` and ``second`` in
     turn, the first point's first, a speed and a load step each."""
     (rpm, load), (rpm2, load2) = point, second
-    steps, t, c, first = [], 60.0 / rpm, 0, True
-    while True:
-        t += blocks[0 if first else 1] * 120.0 / (rpm if first else rpm2)
-        c += blocks[0 if first else 1]
-        first = not first
-        if c >= cycles:
-            break
-        steps.append((t, load, rpm) if first else (t, load2, rpm2))
+    steps = two_point_steps(rpm, load, rpm2, load2, cycles, blocks)
     spec = load_engine(engine)
     sim = simulate(spec, rpm, load, cycles, seed, effects=list(effects), load_steps=steps)
     return EngineModel.from_spec(spec), assembled_cycles(spec, sim.info, sim.records)[0]

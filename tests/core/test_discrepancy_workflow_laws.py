@@ -14,6 +14,8 @@ from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.pipeline import assembled_cycles
 
+from tests.sim_logs import two_point_steps
+
 pytestmark = pytest.mark.slow  # collected first (tests/conftest.py): long, as test_discrepancy_workflow.py
 
 ENGINE = "k9k-4cyl"
@@ -31,18 +33,6 @@ def _healthy_or_with(engine, rpm, load, seed, n, effects=()):
     spec = load_engine(engine)
     sim = simulate(spec, rpm, load, n, seed, effects=list(effects))
     return EngineModel.from_spec(spec), assembled_cycles(spec, sim.info, sim.records)[0]
-
-
-def _two_point_steps(rpm, load, rpm2, load2, cycles, blocks):
-    """Blocks of (rpm, load) and (rpm2, load2) in turn, the first point's first (where the simulator sizes a law)."""
-    steps, t, c, first = [], 60.0 / rpm, 0, True
-    while True:
-        t += blocks[0 if first else 1] * 120.0 / (rpm if first else rpm2)
-        c += blocks[0 if first else 1]
-        first = not first
-        if c >= cycles:
-            return steps
-        steps.append((t, load, rpm) if first else (t, load2, rpm2))
 
 
 def _assert_law_named_by_the_balance_across_points(doc, effect):
@@ -70,7 +60,7 @@ def test_a_friction_law_is_named_across_two_operating_points():
     from frictionwatch.core.discrepancy.words import ONE_POINT
 
     spec = load_engine(ENGINE)
-    steps = _two_point_steps(2800.0, 0.85, 1700.0, 0.55, 120, (20, 14))
+    steps = two_point_steps(2800.0, 0.85, 1700.0, 0.55, 120, (20, 14))
     sim = simulate(spec, 2800.0, 0.85, 120, 7, effects=[make_effect("auxiliaries_speed_squared", {"fraction": 1.0})],
                    load_steps=steps)
     found = discover(EngineModel.from_spec(spec), assembled_cycles(spec, sim.info, sim.records)[0], OPTIONS)
@@ -116,7 +106,7 @@ def test_a_law_the_speed_sizes_short_is_named_at_the_balances_share():
     balance's share, the speed's reading said beside it. Before note 69: the balance read 1.79 +- 0.19 and the two
     channels disagreed (ambiguous, nothing named); before note 65: named 0.657 +- 0.073 by the speed (4.7 sigma)."""
     spec = load_engine("maruti-3cyl")
-    steps = _two_point_steps(4000.0, 0.8, 1500.0, 0.5, 160, (24, 16))
+    steps = two_point_steps(4000.0, 0.8, 1500.0, 0.5, 160, (24, 16))
     sim = simulate(spec, 4000.0, 0.8, 160, 7, effects=[make_effect("side_thrust_skirt", {"fraction": 1.0})],
                    load_steps=steps)
     doc = discover(EngineModel.from_spec(spec), assembled_cycles(spec, sim.info, sim.records)[0], Options()).to_json()
