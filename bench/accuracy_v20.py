@@ -5,7 +5,7 @@
 Too slow for the test suite (about 80 s of simulation per load); tests/core/test_monitor_accuracy.py runs one load
 for 1000 cycles. Prints, per load, the total FMEP error and sigma and, per cylinder, the error, sigma, data weight and
 whether the data resolve it (design.md §5 target: within 10 % after at most 2000 cycles); writes
-bench/accuracy_v20.json. The cycles are assembled by the pipeline's assembler (service.pipeline.assembled_cycles) and
+bench/results/accuracy_v20.json. The cycles are assembled by the pipeline's assembler (service.pipeline.assembled_cycles) and
 run through core.monitor.pipeline.CyclePipeline, the path analyze and serve run: ``pipeline_ms_per_cycle`` is the
 monitor with the running calibration watches (before the one pipeline: ``monitor_ms_per_cycle``, the monitor alone).
 """
@@ -23,7 +23,7 @@ from frictionwatch.core.monitor.pipeline import CyclePipeline
 from frictionwatch.core.plant.simulate import simulate
 from frictionwatch.service.pipeline import assembled_cycles
 
-OUT = Path(__file__).with_name("accuracy_v20.json")
+OUT = Path(__file__).parent / "results" / "accuracy_v20.json"
 
 
 def run_load(load: float, cycles: int, seed: int) -> dict:

@@ -6,7 +6,7 @@
 ``simulate`` streams the plant (core.plant.simulate.start_simulation, load profile ``load_profile``) into a replay
 log OUT/seedS.mcap and the per-cycle truth OUT/seedS.truth.npz (each cycle's per-cylinder friction and load; the log
 is what the monitor reads, the truth never is), and feeds the same cycles live to the monitor variants; every
-``--every`` cycles it rewrites bench/accuracy_v20_long.json whole (a run cut short still leaves its last checkpoint).
+``--every`` cycles it rewrites bench/results/accuracy_v20_long.json whole (a run cut short still leaves its last checkpoint).
 ``analyze`` re-reads a log with the monitor variants (the monitor is ~1 ms a cycle; the simulation ~40 ms). Each
 variant is the one pipeline (service.pipeline.EnginePipeline: its own assembler, the monitor with the variant's
 config, the running calibration watches), fed the same records; ``pipeline_ms_per_cycle`` is all of that per cycle.
@@ -33,7 +33,7 @@ from frictionwatch.core.plant.simulate import start_simulation
 from frictionwatch.drivers.logs.mcap_log import LogReader, LogWriter
 from frictionwatch.service.pipeline import EnginePipeline
 
-OUT_JSON = Path(__file__).with_name("accuracy_v20_long.json")
+OUT_JSON = Path(__file__).parent / "results" / "accuracy_v20_long.json"
 ENGINE, RPM, BASE_LOAD = "genset-v20", 1500.0, 0.75
 TRUTH_WINDOW = 200
 

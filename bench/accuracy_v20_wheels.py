@@ -9,7 +9,7 @@ short run (``--dwell-s`` at each set-point, ``--ramp`` % of rated per minute). T
 (service.pipeline.EnginePipeline): "one_wheel" told of no second wheel (its records ignored), "two_wheels" the
 default path with both (the second wheel's own speed and tooth learning; the estimates are one_wheel's), "joint"
 with the joint fit asked for (MonitorConfig(second_wheel=True): core.monitor.identify.noise_model). Checkpoints as bench.accuracy_v20_long's (truth = the mean of each
-cylinder's true friction over the last 200 cycles) to bench/accuracy_v20_wheels.json; ``pipeline_ms_per_cycle`` is
+cylinder's true friction over the last 200 cycles) to bench/results/accuracy_v20_wheels.json; ``pipeline_ms_per_cycle`` is
 the whole pipeline (assembler, monitor, watches) per cycle on this machine, real time being 80 ms a cycle.
 """
 
@@ -27,7 +27,7 @@ from frictionwatch.core.plant.simulate import start_simulation
 
 from bench.accuracy_v20_long import BASE_LOAD, ENGINE, RPM, TRUTH_WINDOW, Runs, load_profile, summary_line, write_json
 
-OUT_JSON = Path(__file__).with_name("accuracy_v20_wheels.json")
+OUT_JSON = Path(__file__).parent / "results" / "accuracy_v20_wheels.json"
 TWO_WHEELS = Path(__file__).with_name("genset-v20-two-wheels.toml")  # the preset's text plus its free-end wheel
 
 

@@ -137,7 +137,7 @@ def main() -> None:
     ap.add_argument("--cycles", type=int, default=60)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--split-cycles", type=int, default=24, help="the unsplit run's cycles (cut at half)")
-    ap.add_argument("--out", type=Path, help="also write the figures here (bench/sim_long.json is the quoted run)")
+    ap.add_argument("--out", type=Path, help="also write the figures here (bench/results/sim_long.json is the quoted run)")
     a = ap.parse_args()
     this = Path(__file__).resolve().parents[1]
     uptime = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()

@@ -14,7 +14,7 @@ errors on both wheels). Cases (the monitor always runs the engine file's chain):
 Per case and seed: the identified scales with sigma, their distance from the truth in sigmas (representable cases),
 chi2/dof and the poor-fit verdict, the modes, and the free end's and flywheel's residual per half order in % of the
 harmonic before (the engine file's chain) and after (the identified one). Written to
-bench/drive_train_identification.json. Nothing in the identification was tuned on these runs: its poor-fit line is
+bench/results/drive_train_identification.json. Nothing in the identification was tuned on these runs: its poor-fit line is
 the chi2 distribution's 0.1 % tail and its noise model the monitor's own (tooth_error_deg, model_rel_error).
 """
 
@@ -35,7 +35,7 @@ from frictionwatch.service.pipeline import EnginePipeline
 
 from bench.accuracy_v20_wheels import TWO_WHEELS
 
-OUT_JSON = Path(__file__).with_name("drive_train_identification.json")
+OUT_JSON = Path(__file__).parent / "results" / "drive_train_identification.json"
 CASES = {  # name: (chain_mismatch values or None, plant spec change or None, true scales or None)
     "none": (None, None, (1.0, 1.0)),
     "stiffness_0.85": ({"stiffness_scale": 0.85, "damping_scale": 1.0}, None, (0.85, 1.0)),

@@ -1,7 +1,7 @@
 """Fisher information of genset-v20's friction parameters from the tooth times, as the monitor's own equations hold it.
 
     nice .venv/bin/python -m bench.information_v20 collect [--cycles 140] [--loads 0.55 0.75 0.95] [--seed 21]
-    .venv/bin/python -m bench.information_v20 report                  # -> bench/information_v20.json, docs/information/
+    .venv/bin/python -m bench.information_v20 report                  # -> bench/results/information_v20.json, docs/information/
 
 ``collect`` simulates each load (plant noise, tooth-spacing error and combustion variability at their defaults) and
 runs the one pipeline (core.monitor.pipeline.CyclePipeline over the pipeline's assembled cycles) with no forgetting.
@@ -44,7 +44,7 @@ from bench.information_figures import figures, print_table
 ENGINE, RPM = "genset-v20", 1500.0
 FREE_END_NODE = "front_hub"
 DATA = Path("out/information")
-OUT_JSON = Path(__file__).with_name("information_v20.json")
+OUT_JSON = Path(__file__).parent / "results" / "information_v20.json"
 TARGET_REL = 0.025  # 1-sigma for "within 5 % at 2 sigma"
 TDC_STEP_DEG = 0.1
 

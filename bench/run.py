@@ -1,5 +1,5 @@
 """`make bench`: run every benchmark in its own process (so peak RSS is its own), print a table, write
-bench/results.json. Speed targets live here, never in timed tests."""
+bench/results/make_bench.json. Speed targets live here, never in timed tests."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from pathlib import Path
 
 BENCHES = ["bench_simulate", "bench_sim_long", "bench_monitor", "bench_cycles", "bench_drivers", "bench_log_format", "bench_discrepancy",
            "long_run_cost"]
-OUT = Path(__file__).with_name("results.json")
+OUT = Path(__file__).parent / "results" / "make_bench.json"
 
 
 def run_one(name: str) -> dict:
