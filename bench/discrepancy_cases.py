@@ -114,6 +114,12 @@ CASES = (  # in the order they run (the most telling first)
     ("load_ripple 3.5 (not in library)", (_t("load_ripple", {"fraction": 0.05, "order": 3.5}),), "default", ""),
     ("pressure_gain every cylinder (not in library)", (_t("pressure_gain", {"cylinder": EVERY, "gain": 1.04}),),
      "default", "siblings"),
+    # a pressure sensor's thermal shock (design note 156: it reads low after combustion; the monitor's watch flags
+    # one channel against its siblings), in one cylinder and in every one: a lying sensor no candidate describes,
+    # where a TDC offset, a gain or an offset could each fit part of it
+    ("thermal_shock (not in library)", (_t("thermal_shock", {"cylinder": 2, "pa": 5e4}),), "default", ""),
+    ("thermal_shock every cylinder (not in library)", (_t("thermal_shock", {"cylinder": 0, "pa": 3e4}),), "default",
+     ""),
     # a flywheel heavier or lighter than the record says (a flywheel swapped, a pulley added: design note 109; the
     # same plant as note 101's "flywheel inertia +5% (not in library)", the record edited, now an effect), and the
     # chain stiffer by less than chain_mismatch's 1.5, where it and the inertia may fit alike

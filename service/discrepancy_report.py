@@ -18,6 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from frictionwatch.core.discrepancy import Discovery  # noqa: E402
+from frictionwatch.core.discrepancy.sensor_faults import said_fault, separation  # noqa: E402
 from frictionwatch.core.discrepancy.words import inside_floor  # noqa: E402
 from frictionwatch.service.output_files import atomic_path  # noqa: E402
 
@@ -105,7 +106,15 @@ def render(doc: dict, found: Discovery) -> str:
         if part and part.get("inside_floor"):
             parts.append(f"<p>Inside the model-error floor: {html.escape(inside_floor(part['inside_floor']))}.</p>")
     amb = doc.get("ambiguous")
-    if amb and amb.get("inside_floor"):
+    faults = doc.get("sensor_faults") or []
+    if faults:  # a pressure sensor the monitor flags with a fault no candidate describes (sensor_faults.py)
+        parts.append("<p>Sensor: the monitor doubts " + html.escape(" and ".join(said_fault(f) for f in faults))
+                     + "; every figure here rests on its reading. " + html.escape(separation(faults))
+                     + " would tell the sensor from the engine.</p>")
+    if amb and amb.get("sensor_faults"):
+        parts.append(f"<p>Ambiguous: the fits found {html.escape(' and '.join(amb['fits']))}, but on the reading of "
+                     "the sensor above; nothing was added.</p>")
+    elif amb and amb.get("inside_floor"):
         parts.append(f"<p>Ambiguous: {html.escape(', '.join(amb['candidates']))} or the model's own error there "
                      "explain the held-out cycles equally well; none was added. " + html.escape(
                          "; or ".join(amb["separated_by"]) + " would tell them apart." if amb["separated_by"] else "")

@@ -114,6 +114,9 @@ class Discovery:
     across_points: list = field(default_factory=list)
     held: list = field(default_factory=list)  # the TDC offsets the pressure named: their sigma enters later fits'
     pair_not_taken: str = ""  # why a TDC the pressure read beside a rival was not added (pair.tdc_and_friction)
+    # the pressure sensors the monitor flags with a fault no candidate describes (sensor_faults.undescribed_faults):
+    # where there are any, nothing is named (an ambiguity with them); said in the verdict either way
+    sensor_faults: list = field(default_factory=list)
 
     @property
     def remainder(self) -> dict | None:
@@ -210,5 +213,5 @@ class Discovery:
                 "one_operating_point": self.one_operating_point,
                 "localisation": self.localisation, "final": self.final, "not_significant": self.rejected,
                 "not_physical": self.dropped, "pair_not_taken": self.pair_not_taken,
-                "laws_across_points": self.across_points,
+                "laws_across_points": self.across_points, "sensor_faults": self.sensor_faults,
                 "monitor_runs": self.evaluations}

@@ -93,6 +93,10 @@ class Residuals:
     # that cycle (CycleResult.residual_pattern_sigma; None: not asked for): a coherent part of the residual the
     # pattern's unconverged estimate can explain (core.discrepancy.features.order_table, design note 118)
     pattern_sigma: np.ndarray | None = None
+    # the monitor's per-run reading of its pressure sensors: each ``sensor_*`` flag -> the analysed cycles it stood
+    # in over the whole run (not cut by ``take``: what the monitor says of the sensors having read the log;
+    # core.discrepancy.sensor_faults)
+    sensor_flag_cycles: dict | None = None
 
     @property
     def n_cycles(self) -> int:
@@ -170,11 +174,15 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
     leak_flags = [(f"blow_by_cyl{k + 1}", f"ring_wear_cyl{k + 1}") for k in range(z)]
     no_ring = np.full(z, np.nan)
     inertia = mid_cycle_inertia(model.spec)  # the transient balance's J (core.monitor.identify.identification)
+    sensor_flags: dict[str, int] = {}
     for cycle in cycles:
         r = pipe.process(cycle).result
         if r is None:
             rejected += 1
             continue
+        for f in r.flags:
+            if f.startswith("sensor_"):
+                sensor_flags[f] = sensor_flags.get(f, 0) + 1
         friction = float(np.mean(r.friction_torque)) if r.friction_torque is not None else math.nan
         resid = np.interp(angles, r.grid, r.speed_measured - r.speed_model, period=4.0 * np.pi)
         m = r.residual_harmonics.shape[0]
@@ -201,7 +209,7 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
                      leak_flagged=np.array([r[11] for r in rows]),
                      compression_ln=np.array([r[12] for r in rows]),
                      pattern_sigma=None if any(r[13] is None for r in rows) else np.array([r[13] for r in rows]),
-                     **_tdc_reading(pipe))
+                     sensor_flag_cycles=sensor_flags, **_tdc_reading(pipe))
     # the cycles of a load step are no operating point's: left out of every figure, and counted
     return dataclasses.replace(res.take(group >= 0), between_points=int(np.sum(group < 0)))
 

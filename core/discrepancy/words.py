@@ -8,6 +8,7 @@ import math
 from frictionwatch.core.discrepancy.common_gain import NOT_READ, SEPARATION, common_gain
 from frictionwatch.core.discrepancy.common_gain import said as said_common_gain
 from frictionwatch.core.discrepancy.features import GAP_NULL
+from frictionwatch.core.discrepancy.sensor_faults import said_fault, separation
 
 # what a log at one operating point cannot tell, said wherever nothing is named there (bench/bench_discrepancy.py
 # judges a one-point friction-law row by it: design note 58)
@@ -129,6 +130,8 @@ def verdict(d) -> str:
                                                  f"{s.floored_fall:.3g}: inside the model's own error") + ")")
         if rest is not None:
             text += "; a discrepancy remains that no candidate explains (" + signature(rest) + ")"
+    elif d.ambiguous and d.ambiguous.get("sensor_faults"):
+        text = "A discrepancy is found, and a pressure sensor the monitor flags may be its cause"
     elif d.ambiguous:
         text = "A discrepancy is found that more than one effect explains"
         if d.ambiguous.get("inside_floor"):
@@ -161,7 +164,15 @@ def verdict(d) -> str:
     elif not d.steps and d.one_speed:
         text += "; " + ONE_SPEED
     a = d.ambiguous
-    if a and a.get("inside_floor"):  # the model's own error at those orders is one more explanation
+    faults = getattr(d, "sensor_faults", None) or []
+    if a and a.get("sensor_faults"):  # fitted on a reading the monitor flags: none of it named (sensor_faults.py)
+        text += (f"; the fits found {' and '.join(a['fits'])}, but the monitor doubts "
+                 f"{' and '.join(said_fault(f) for f in a['sensor_faults'])} and every fit rests on that reading: "
+                 f"nothing was added; {'; or '.join(a['separated_by'])} would tell them apart")
+    elif faults:  # nothing fitted, the flagged sensor said beside whatever remains
+        text += (f"; the monitor doubts {' and '.join(said_fault(f) for f in faults)}, and the indicated work every "
+                 f"figure here rests on with it: {separation(faults)} would tell")
+    elif a and a.get("inside_floor"):  # the model's own error at those orders is one more explanation
         text += (f"; {', '.join(a['candidates'])} or the model's own error there explain it equally well and none "
                  "was added" + (f": {'; or '.join(a['separated_by'])} would tell them apart"
                                 if a["separated_by"] else ""))

@@ -93,6 +93,7 @@ from frictionwatch.core.discrepancy.residuals import (
     run_model,
 )
 from frictionwatch.core.discrepancy.resonance import one_resonance_in, said_as_one
+from frictionwatch.core.discrepancy.sensor_faults import said_fault, separation, undescribed_faults
 from frictionwatch.core.discrepancy.words import within_floor_separation
 from frictionwatch.core.model.effects import EFFECTS
 from frictionwatch.core.model.engine_model import EngineModel
@@ -140,6 +141,9 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     scale = noise_scale(train)
     found = Discovery(model, model, [], gap(test, scale), gap(test, scale), localise(test, model.spec, scale),
                       {}, [("baseline", test.angles, test.speed.mean(axis=0))])
+    # a pressure sensor the monitor flags with a fault no candidate describes: whatever is fitted rests on it
+    found.sensor_faults = undescribed_faults(cur_res.sensor_flag_cycles or {}, cur_res.n_cycles)
+    base_test = test
     current = model
     speed_law = None  # (label, balance fit) of a friction law the speed steps sized and the balance read otherwise
     # what the pressure names outright (pegging, TDC, misfire: pressure_channel.pressure_findings), first and apart from
@@ -316,6 +320,9 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
         current, test, cur_res, extra = laws_across_points(found, current, cur_res, test, full, parts, scale,
                                                             model.spec, speed_law)
         runs += extra
+    if found.sensor_faults and (found.steps or found.ambiguous):  # none of it named: the model stays as it was
+        _beside_sensor_faults(found)
+        current, test = model, base_test
     found.model = current
     found.gap_after = gap(test, scale)
     found.final = localise(test, model.spec, scale)
@@ -345,6 +352,20 @@ def _gain_beside(trials: list, loc: dict) -> dict | None:
     explains, where every one of ``trials`` is an engine-wide friction excess (common_gain.engine_wide_friction):
     one more explanation of it, said beside them (design note 104); else None."""
     return common_gain_of(loc) if all(engine_wide_friction(t.candidate) for t in trials) else None
+
+
+def _beside_sensor_faults(found: Discovery) -> None:
+    """What the fits named (or found ambiguous) becomes one side of an ambiguity whose other side is the pressure
+    sensors the monitor flags with a fault no candidate describes (core.discrepancy.sensor_faults): the steps are
+    taken back, and the measurement that tells the sensor from the engine is said first."""
+    before = dict(found.ambiguous or {})
+    fits = list(dict.fromkeys([s.label for s in found.steps] + before.get("candidates", [])))
+    found.ambiguous = {**before, "candidates": fits + [said_fault(f) for f in found.sensor_faults],
+                       "separated_by": list(dict.fromkeys([separation(found.sensor_faults),
+                                                           *before.get("separated_by", [])])),
+                       "inside_floor": before.get("inside_floor"), "sensor_faults": found.sensor_faults,
+                       "fits": fits}
+    found.steps, found.held, found.curves = [], [], found.curves[:1]
 
 
 def _said_ambiguous(found: Discovery, beyond: bool, candidates: list[str], separated_by: list[str],
