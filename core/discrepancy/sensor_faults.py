@@ -54,9 +54,9 @@ def undescribed_faults(flag_cycles: Mapping[str, int], n_cycles: int) -> list[di
 
 
 def said_fault(f: dict) -> str:
-    """'cylinder 2's pressure sensor (the monitor flags a thermal shock, ..., in 21 of 120 cycles)'."""
+    """'cylinder 2's pressure sensor (flagged: a thermal shock, ..., in 21 of 120 cycles)'."""
     words = KIND_WORDS.get("sensor_" + f["kind"], f["kind"].replace("_", " ") + ",")
-    return f"cylinder {f['cylinder']}'s pressure sensor (the monitor flags {words} in {f['cycles']} of {f['of']} cycles)"
+    return f"cylinder {f['cylinder']}'s pressure sensor (flagged: {words} in {f['cycles']} of {f['of']} cycles)"
 
 
 def separation(faults: list[dict]) -> str:

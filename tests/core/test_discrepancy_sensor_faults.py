@@ -46,7 +46,7 @@ def test_a_flagged_thermal_shock_leaves_the_model_as_it_was_and_says_why(shocked
     assert doc["found"] == [] and doc["outcome"] == "ambiguous"
     assert found.model.effects == model.effects
     assert doc["ambiguous"]["fits"], "the fits found nothing: this log no longer tests the rule"
-    assert f"cylinder {CYLINDER}'s pressure sensor (the monitor flags a thermal shock" in doc["verdict"]
+    assert f"cylinder {CYLINDER}'s pressure sensor (flagged: a thermal shock" in doc["verdict"]
     assert f"a reference pressure transducer on cylinder {CYLINDER}" in doc["verdict"]
     assert doc["gap_after"] == pytest.approx(doc["gap_before"], rel=1e-12)
     page = render(doc, found)  # the operator's report says the sensor, and the fits as not added
