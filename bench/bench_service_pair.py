@@ -9,10 +9,13 @@ whole span (``whole_B_over_A``: a window's count of cycles moves with where its 
 is the figure, each window's beside it.
 
     .venv/bin/python -m bench.bench_service_pair --against /tmp/base --against-numba-cache /tmp/nb-base --engines 4
+    .venv/bin/python -m bench.bench_service_pair --against . --replay-batch-s 0.04 0.16   # one checkout, two settings
 
 ``--against``: the other checkout (its own .venv); ``NUMBA_CACHE_DIR`` of this process goes to this checkout's serve,
 ``--against-numba-cache`` to the other's. Both keep up at 4 engines each on one core (~2 x 0.3 of it); check
-``cycles_analysed`` against ``cycles_offered`` in the output. Minutes; not in the tests.
+each window's ``cycles`` against ``cycles_offered_per_window_each``. The server started second read 2-3 % cheaper
+in each of three A/A runs (design note 158): compare a ratio with an A/A run, or run both orders (``--b-first``) and
+take the geometric mean. Minutes; not in the tests.
 """
 
 from __future__ import annotations
@@ -28,18 +31,6 @@ from pathlib import Path
 import httpx
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def start(checkout: Path, engines: int, cpu: int, numba_cache: str | None):
-    from bench.bench_service_plant import launched
-
-    cmd = ["taskset", "-c", str(cpu), str(checkout / ".venv" / "bin" / "python"), "-m", "frictionwatch.service.cli",
-           "serve", "--port", "0", "--history-cycles", "5000"]
-    for i in range(engines):
-        cmd += ["--source", f"mcap:replay_logs/demo.mcap?loop=1&speed=1#g{i + 1}"]
-    if numba_cache:  # each checkout its own compiled kernels
-        cmd = ["env", f"NUMBA_CACHE_DIR={numba_cache}", *cmd]
-    return launched(cmd, checkout, timeout_s=900)
 
 
 def sample(client: httpx.Client, pid: int) -> tuple[float, float]:
@@ -60,16 +51,24 @@ def main() -> None:
     ap.add_argument("--settle", type=float, default=15.0)
     ap.add_argument("--seconds", type=float, default=20.0, help="one window")
     ap.add_argument("--windows", type=int, default=6)
+    ap.add_argument("--b-first", action="store_true",
+                    help="start B's server before A's (the second started read 2-3 %% cheaper in A/A runs: run both "
+                         "orders and take the geometric mean of the two ratios)")
+    ap.add_argument("--replay-batch-s", type=float, nargs=2, metavar=("A", "B"),
+                    help="each server's paced-replay read batch instead of serve's default (LiveSession replay_batch_s)")
     args = ap.parse_args()
     from bench.bench_service_plant import wait_first_results
+    from bench.bench_service_threads import start_server
 
     sides = {"A": (Path(args.against).resolve(), args.against_numba_cache),
              "B": (ROOT, os.environ.get("NUMBA_CACHE_DIR"))}
     procs, clients = {}, {}
     engines = [f"g{i + 1}" for i in range(args.engines)]
     try:
-        for name, (checkout, cache) in sides.items():
-            procs[name], url = start(checkout, args.engines, args.cpu, cache)
+        for name in ("B", "A") if args.b_first else ("A", "B"):
+            checkout, cache = sides[name]
+            batch_s = args.replay_batch_s["AB".index(name)] if args.replay_batch_s else None
+            procs[name], url = start_server(checkout, args.engines, args.cpu, batch_s, cache)
             clients[name] = httpx.Client(base_url=url, timeout=30)
         for name in sides:
             wait_first_results(clients[name], engines)
@@ -94,7 +93,8 @@ def main() -> None:
             p.terminate()
         for p in procs.values():
             p.wait(60)
-    print(json.dumps({"A": str(sides["A"][0]), "B": str(ROOT), "engines_each": args.engines, "cpu": args.cpu,
+    print(json.dumps({"A": str(sides["A"][0]), "B": str(ROOT), "replay_batch_s": args.replay_batch_s,
+                      "started_first": "B" if args.b_first else "A", "engines_each": args.engines, "cpu": args.cpu,
                       "whole_A_ms": round(whole["A"], 3), "whole_B_ms": round(whole["B"], 3),
                       "whole_B_over_A": round(whole["B"] / whole["A"], 4),
                       "median_B_over_A": statistics.median(w["B_over_A"] for w in windows),
