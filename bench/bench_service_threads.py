@@ -68,7 +68,9 @@ def thread_names(pid: int, py_spy: str | None) -> dict[str, str]:
     return {m[1]: re.sub(r"mcap\d+|g\d+", "*", m[2]) for m in re.finditer(r'Thread (\d+) \(\w+\): "([^"]+)"', text)}
 
 
-def start_server(checkout: Path, n: int, cpu: int, batch_s: float | None) -> tuple[subprocess.Popen, str]:
+def start_server(checkout: Path, n: int, cpu: int, batch_s: float | None, numba_cache: str | None = None
+                 ) -> tuple[subprocess.Popen, str]:
+    """``checkout``'s serve of ``n`` looped demo gensets on core ``cpu`` (``numba_cache``: its NUMBA_CACHE_DIR)."""
     python = checkout / ".venv" / "bin" / "python"
     launch = ["-m", "frictionwatch.service.cli"]
     if batch_s is not None:  # LiveSession's default read batch replaced before serve builds its sessions
@@ -78,6 +80,8 @@ def start_server(checkout: Path, n: int, cpu: int, batch_s: float | None) -> tup
     cmd = ["taskset", "-c", str(cpu), str(python), *launch, "serve", "--port", "0", "--history-cycles", "5000"]
     for i in range(n):
         cmd += ["--source", f"mcap:replay_logs/demo.mcap?loop=1&speed=1#g{i + 1}"]
+    if numba_cache:  # each checkout its own compiled kernels
+        cmd = ["env", f"NUMBA_CACHE_DIR={numba_cache}", *cmd]
     return launched(cmd, checkout, timeout_s=900)
 
 
