@@ -18,7 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from frictionwatch.core.discrepancy import Discovery  # noqa: E402
-from frictionwatch.core.discrepancy.sensor_faults import said_fault, separation  # noqa: E402
+from frictionwatch.core.discrepancy.sensor_faults import said_fault, said_stood_in, separation  # noqa: E402
 from frictionwatch.core.discrepancy.words import inside_floor  # noqa: E402
 from frictionwatch.service.output_files import atomic_path  # noqa: E402
 
@@ -111,6 +111,8 @@ def render(doc: dict, found: Discovery) -> str:
         parts.append("<p>Sensor: the monitor doubts " + html.escape(" and ".join(said_fault(f) for f in faults))
                      + "; every figure here rests on its reading. " + html.escape(separation(faults))
                      + " would tell the sensor from the engine.</p>")
+    if doc.get("stood_in_channels"):  # channels the monitor replaced by the siblings' pressure
+        parts.append("<p>Sensor: " + html.escape(said_stood_in(doc["stood_in_channels"])) + ".</p>")
     if amb and amb.get("sensor_faults"):
         parts.append(f"<p>Ambiguous: the fits found {html.escape(' and '.join(amb['fits']))}, but on the reading of "
                      "the sensor above; nothing was added.</p>")

@@ -117,6 +117,8 @@ class Discovery:
     # the pressure sensors the monitor flags with a fault no candidate describes (sensor_faults.undescribed_faults):
     # where there are any, nothing is named (an ambiguity with them); said in the verdict either way
     sensor_faults: list = field(default_factory=list)
+    # the pressure channels the monitor stood the siblings' pressure in for (sensor_faults.stood_in_channels): said
+    stood_in: list = field(default_factory=list)
 
     @property
     def remainder(self) -> dict | None:
@@ -214,4 +216,5 @@ class Discovery:
                 "localisation": self.localisation, "final": self.final, "not_significant": self.rejected,
                 "not_physical": self.dropped, "pair_not_taken": self.pair_not_taken,
                 "laws_across_points": self.across_points, "sensor_faults": self.sensor_faults,
+                "stood_in_channels": self.stood_in,
                 "monitor_runs": self.evaluations}

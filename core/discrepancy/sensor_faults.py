@@ -34,19 +34,33 @@ STOOD_IN = frozenset(f"sensor_pressure_{k}" for k in TRACE_KINDS)  # the trace c
 # 21), a one-cycle trace flag is not a sensor's state. A design choice, not tuned on a case
 MIN_CYCLES = 5
 # the words of each fault kind (split_flag's kind)
-KIND_WORDS = {"sensor_thermal_shock": "a thermal shock, a reading low after combustion,"}
+KIND_WORDS = {"sensor_thermal_shock": "a thermal shock, a reading low after combustion,",
+              "sensor_pressure_dead": "no pressure (a dead channel)", "sensor_pressure_clipped": "a clipped trace",
+              "sensor_pressure_negated": "a negated trace", "sensor_pressure_spikes": "spikes in the trace",
+              "sensor_pressure_phase": "a trace off its cylinder's phase"}
 SEPARATION = "a reference pressure transducer on {where}, or its sensor replaced and the log taken again"
 
 
 def undescribed_faults(flag_cycles: Mapping[str, int], n_cycles: int) -> list[dict]:
     """The sensor faults of a run no candidate describes: [{"cylinder", "kind", "flag", "cycles", "of"}] for each
-    per-cylinder ``sensor_*`` flag outside DESCRIBED and STOOD_IN that stood in at least MIN_CYCLES of the run's ``n_cycles``
-    analysed cycles (``flag_cycles``: flag -> cycles it stood in), by cylinder."""
+    per-cylinder ``sensor_*`` flag outside DESCRIBED and STOOD_IN that stood in at least MIN_CYCLES of the run's
+    ``n_cycles`` analysed cycles (``flag_cycles``: flag -> cycles it stood in), by cylinder."""
+    return _faults(flag_cycles, n_cycles, lambda kind: kind not in DESCRIBED and kind not in STOOD_IN)
+
+
+def stood_in_channels(flag_cycles: Mapping[str, int], n_cycles: int) -> list[dict]:
+    """The channels the pressure-trace check replaced by their siblings' (STOOD_IN flags, as undescribed_faults):
+    nothing in the run reads that cylinder's own pressure, which the verdict says (k9k 1800 rpm seed 23, cylinder
+    2's channel dead, negated, clipped or a revolution late: "no significant missing effect", true of the speed,
+    silent on the cylinder nothing judged)."""
+    return _faults(flag_cycles, n_cycles, lambda kind: kind in STOOD_IN)
+
+
+def _faults(flag_cycles: Mapping[str, int], n_cycles: int, counted) -> list[dict]:
     out = []
     for flag, count in flag_cycles.items():
         kind, cyl = split_flag(flag)
-        if (cyl is None or not kind.startswith("sensor_") or kind in DESCRIBED or kind in STOOD_IN
-                or count < MIN_CYCLES):
+        if cyl is None or not kind.startswith("sensor_") or not counted(kind) or count < MIN_CYCLES:
             continue
         out.append({"cylinder": cyl, "kind": kind.removeprefix("sensor_"), "flag": flag, "cycles": int(count),
                     "of": int(n_cycles)})
@@ -59,6 +73,17 @@ def said_fault(f: dict) -> str:
     return f"cylinder {f['cylinder']}'s pressure sensor (flagged: {words} in {f['cycles']} of {f['of']} cycles)"
 
 
+def said_stood_in(channels: list[dict]) -> str:
+    """'cylinder 2's pressure channel (flagged: no pressure (a dead channel) in 120 of 120 cycles) was stood in by
+    its siblings' pressure: nothing here judges that cylinder's own combustion, compression or sensor'."""
+    cyls = sorted({f["cylinder"] for f in channels})
+    which = " and ".join(said_fault(f).replace("pressure sensor", "pressure channel") for f in channels)
+    verb = "was" if len(channels) == 1 else "were"
+    whose = "that cylinder's" if len(cyls) == 1 else "those cylinders'"
+    return (f"{which} {verb} stood in by the siblings' pressure: nothing here judges {whose} own combustion, "
+            "compression or sensor")
+
+
 def separation(faults: list[dict]) -> str:
     """The measurement that tells the flagged sensors from what the fits name."""
     cyls = sorted({f["cylinder"] for f in faults})
@@ -66,4 +91,5 @@ def separation(faults: list[dict]) -> str:
     return SEPARATION.format(where=where)
 
 
-__all__ = ["DESCRIBED", "KIND_WORDS", "STOOD_IN", "MIN_CYCLES", "said_fault", "separation", "undescribed_faults"]
+__all__ = ["DESCRIBED", "KIND_WORDS", "MIN_CYCLES", "STOOD_IN", "said_fault", "said_stood_in", "separation",
+           "stood_in_channels", "undescribed_faults"]

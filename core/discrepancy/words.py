@@ -8,7 +8,7 @@ import math
 from frictionwatch.core.discrepancy.common_gain import NOT_READ, SEPARATION, common_gain
 from frictionwatch.core.discrepancy.common_gain import said as said_common_gain
 from frictionwatch.core.discrepancy.features import GAP_NULL
-from frictionwatch.core.discrepancy.sensor_faults import said_fault, separation
+from frictionwatch.core.discrepancy.sensor_faults import said_fault, said_stood_in, separation
 
 # what a log at one operating point cannot tell, said wherever nothing is named there (bench/bench_discrepancy.py
 # judges a one-point friction-law row by it: design note 58)
@@ -187,6 +187,8 @@ def verdict(d) -> str:
                  + (f": {'; or '.join(a['separated_by'])} would tell them apart" if a["separated_by"] else ""))
     if a and a.get("common_gain"):  # an engine-wide friction excess: a common pressure gain reads as one (note 104)
         text += "; or " + said_common_gain(a["common_gain"])
+    if getattr(d, "stood_in", None):  # nothing in the log reads that cylinder's own pressure
+        text += "; " + said_stood_in(d.stood_in)
     if d.pair_not_taken:  # a TDC the pressure read beside the named effect or a rival, tried and not added (pair.py)
         text += f"; tried and not added: {d.pair_not_taken}"
     if d.refused:

@@ -93,7 +93,12 @@ from frictionwatch.core.discrepancy.residuals import (
     run_model,
 )
 from frictionwatch.core.discrepancy.resonance import one_resonance_in, said_as_one
-from frictionwatch.core.discrepancy.sensor_faults import said_fault, separation, undescribed_faults
+from frictionwatch.core.discrepancy.sensor_faults import (
+    said_fault,
+    separation,
+    stood_in_channels,
+    undescribed_faults,
+)
 from frictionwatch.core.discrepancy.words import within_floor_separation
 from frictionwatch.core.model.effects import EFFECTS
 from frictionwatch.core.model.engine_model import EngineModel
@@ -143,6 +148,7 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
                       {}, [("baseline", test.angles, test.speed.mean(axis=0))])
     # a pressure sensor the monitor flags with a fault no candidate describes: whatever is fitted rests on it
     found.sensor_faults = undescribed_faults(cur_res.sensor_flag_cycles or {}, cur_res.n_cycles)
+    found.stood_in = stood_in_channels(cur_res.sensor_flag_cycles or {}, cur_res.n_cycles)  # said, nothing else
     base_test = test
     current = model
     speed_law = None  # (label, balance fit) of a friction law the speed steps sized and the balance read otherwise

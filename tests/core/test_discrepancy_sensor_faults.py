@@ -5,7 +5,12 @@ from __future__ import annotations
 
 import pytest
 from frictionwatch.core.discrepancy import discover
-from frictionwatch.core.discrepancy.sensor_faults import MIN_CYCLES, undescribed_faults
+from frictionwatch.core.discrepancy.sensor_faults import (
+    MIN_CYCLES,
+    said_stood_in,
+    stood_in_channels,
+    undescribed_faults,
+)
 from frictionwatch.core.model.effects import make_effect
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.engine_model import EngineModel
@@ -28,6 +33,10 @@ def test_only_faults_no_candidate_describes_and_that_stood_count():
     got = undescribed_faults(counts, 120)
     assert [(f["cylinder"], f["kind"], f["cycles"], f["of"]) for f in got] == [
         (2, "thermal_shock", 21, 120), (3, "pressure_drift", MIN_CYCLES, 120)]
+    stood = stood_in_channels(counts, 120)  # replaced by the siblings' pressure: said, not a rival
+    assert [(f["cylinder"], f["kind"]) for f in stood] == [(1, "pressure_dead")]
+    assert said_stood_in(stood).startswith("cylinder 1's pressure channel (flagged: no pressure (a dead channel) in 50")
+    assert "nothing here judges that cylinder's own combustion" in said_stood_in(stood)
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +52,7 @@ def test_a_flagged_thermal_shock_leaves_the_model_as_it_was_and_says_why(shocked
     found = discover(model, cycles)
     doc = found.to_json()
     assert [(f["cylinder"], f["kind"]) for f in doc["sensor_faults"]] == [(CYLINDER, "thermal_shock")]
-    assert doc["found"] == [] and doc["outcome"] == "ambiguous"
+    assert doc["found"] == [] and doc["outcome"] == "ambiguous" and doc["stood_in_channels"] == []
     assert found.model.effects == model.effects
     assert doc["ambiguous"]["fits"], "the fits found nothing: this log no longer tests the rule"
     assert f"cylinder {CYLINDER}'s pressure sensor (flagged: a thermal shock" in doc["verdict"]
