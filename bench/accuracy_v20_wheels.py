@@ -75,12 +75,14 @@ def main() -> None:
     models = [("", monitor_model)] + ([("_bare", spec)] if args.model and args.also_bare else [])
     runs = {}  # one Runs per (model, wheels seen): a Runs feeds one model's pipelines the same records
     for sfx, model in models:
-        runs["one_wheel" + sfx] = Runs(model, replace(sim.info, second_wheel=None),
-                                       {"one_wheel" + sfx: configs["one_wheel"]})
+        if "one_wheel" in args.variants:
+            runs["one_wheel" + sfx] = Runs(model, replace(sim.info, second_wheel=None),
+                                           {"one_wheel" + sfx: configs["one_wheel"]})
         two = {n + sfx: configs[n] for n in args.variants if n != "one_wheel"}
         if two:
             runs["two_wheels" + sfx] = Runs(model, sim.info, two)
     names = [n for r in runs.values() for n in r.configs]
+    first = next(iter(runs.values()))  # its cycles count the checkpoints (every variant assembles the same cycles)
     truth = np.full((args.cycles, spec.n_cyl), np.nan)
     doc = {"engine": ENGINE, "rpm": RPM, "seed": args.seed, "cycles_requested": args.cycles, "load_steps": steps,
            "dwell_s": args.dwell_s, "ramp_pct_per_min": args.ramp, "truth_window": TRUTH_WINDOW,
@@ -117,7 +119,7 @@ def main() -> None:
         for record in chunk.records:
             for r in runs.values():
                 r.feed(record)
-        if runs["one_wheel"].n >= next_cp:
+        if first.n >= next_cp:
             next_cp += args.every
             checkpoint()
     for r in runs.values():
