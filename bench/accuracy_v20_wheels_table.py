@@ -51,7 +51,8 @@ def table(doc: dict, variant: str, cycles: int | None) -> str:
     lines.append(f"measured {len(last['measured_cylinders'])}; of them within 5 % {n5}, within 2 sigma without the "
                  f"calibration {n2}, both {n_both} (with the whole sigma: {n_both_cal})")
     lines.append("every checkpoint, measured (within 5 % and 2 sigma without the calibration): " + ", ".join(
-        f"{cp['cycles'] // 1000}k {m} ({ok})" for cp in cps for m, ok in [counts(cp[variant])]))
+        f"{cp['cycles'] // 1000}k{'*' if on_ramp(doc, cp) else ''} {m} ({ok})" for cp in cps
+        for m, ok in [counts(cp[variant])]) + " (* the load moved within the truth's window: a ramp)")
     outside = [(cp["cycles"], k + 1, cp[variant]["err_pct"][k], cp[variant]["sigma_without_calibration_pct"][k])
                for cp in cps for k in [c - 1 for c in cp[variant]["measured_cylinders"]]
                if abs(cp[variant]["err_pct"][k]) > 2.0 * cp[variant]["sigma_without_calibration_pct"][k]]
@@ -59,6 +60,13 @@ def table(doc: dict, variant: str, cycles: int | None) -> str:
     lines.append(f"measured figures outside 2 sigma without the calibration, every checkpoint: {len(outside)} of "
                  f"{n_meas}" + "".join(f"; cyl {k} at {c:,}: {e:+.1f} on {s:.1f}" for c, k, e, s in outside))
     return "\n".join(lines)
+
+
+def on_ramp(doc: dict, cp: dict) -> bool:
+    """Whether a load step fell within the checkpoint's truth window (its last ``truth_window`` cycles at 80 ms)."""
+    t1 = (cp["cycle_index"] + 1) * 120.0 / doc["rpm"]
+    t0 = t1 - doc["truth_window"] * 120.0 / doc["rpm"]
+    return any(t0 < ts <= t1 for ts, _ in doc["load_steps"])
 
 
 def counts(r: dict) -> tuple[int, int]:
