@@ -50,6 +50,8 @@ def main() -> None:
     ap.add_argument("--json", default=str(OUT_JSON))
     ap.add_argument("--tooth-errors", choices=("both", "flywheel", "free_end"), default="both",
                     help="diagnostic plant: the wheel(s) with tooth-spacing errors (bench.drive_train_model_error)")
+    ap.add_argument("--cov-imep", type=float, default=0.02,
+                    help="diagnostic plant: the cycle-to-cycle COV of IMEP (0: every cycle alike at a load)")
     ap.add_argument("--max-order", type=float, default=MonitorConfig().second_wheel_max_order,
                     help="the joint fit's highest free-end half order (MonitorConfig.second_wheel_max_order)")
     ap.add_argument("--repeat-profile", action="store_true",
@@ -69,7 +71,8 @@ def main() -> None:
     from bench.drive_train_model_error import tooth_errors_on  # (it imports this module's TWO_WHEELS)
 
     with tooth_errors_on(args.tooth_errors):  # drawn when the run is set up
-        sim = start_simulation(spec, RPM, BASE_LOAD, args.cycles, args.seed, load_steps=steps, second_wheel=True)
+        sim = start_simulation(spec, RPM, BASE_LOAD, args.cycles, args.seed, load_steps=steps, second_wheel=True,
+                               cov_imep=args.cov_imep)
     configs = {"one_wheel": MonitorConfig(), "two_wheels": MonitorConfig(),
                "joint": MonitorConfig(second_wheel=True, second_wheel_max_order=args.max_order)}
     models = [("", monitor_model)] + ([("_bare", spec)] if args.model and args.also_bare else [])
@@ -89,7 +92,7 @@ def main() -> None:
            "model": args.model or str(TWO_WHEELS.name), "calibration": as_model(monitor_model).calibration.to_dict(),
            "command": f"python -m bench.accuracy_v20_wheels --cycles {args.cycles} --seed {args.seed} --every "
                       f"{args.every} --dwell-s {args.dwell_s} --ramp {args.ramp} --tooth-errors {args.tooth_errors} "
-                      f"--max-order {args.max_order}" + (" --repeat-profile" if args.repeat_profile else "")
+                      f"--max-order {args.max_order} --cov-imep {args.cov_imep}" + (" --repeat-profile" if args.repeat_profile else "")
                       + (f" --model {args.model}" if args.model else "") + (" --also-bare" if len(models) > 1 else "")
                       + " --variants " + " ".join(args.variants),
            "checkpoints": []}

@@ -28,10 +28,12 @@ def measured_since(checkpoints: list[dict], variant: str, cyl: int) -> int | Non
 
 
 def table(doc: dict, variant: str, cycles: int | None) -> str:
-    cps = [cp for cp in doc["checkpoints"] if variant in cp and (cycles is None or cp["cycles"] <= cycles)]
+    cps = [cp for i, cp in enumerate(doc["checkpoints"]) if variant in cp and (cycles is None or cp["cycles"] <= cycles)
+           and (i == 0 or cp["cycles"] != doc["checkpoints"][i - 1]["cycles"])]  # the end repeats a last checkpoint
     last = cps[-1][variant]
     info = json.loads(INFORMATION.read_text())["configurations"][PREDICTION[variant.removesuffix("_bare")]]
-    lines = [f"{variant} at {cps[-1]['cycles']} cycles (seed {doc['seed']}, model {doc['model']})",
+    model = "the bare engine file" if variant.endswith("_bare") else doc.get("model", "the bare engine file")
+    lines = [f"{variant} at {cps[-1]['cycles']} cycles (seed {doc['seed']}, model {model})",
              "| cyl | predicted N (siblings) | stayed measured from | status | error % | sigma % | sigma w/o cal % "
              "| within 5 % | within 2 sigma w/o cal |", "|" + "---|" * 9]
     n5 = n2 = n_both = n_both_cal = 0
