@@ -18,6 +18,11 @@ one pass, then the base load: design note 102), and ``--model`` gives the monito
 ``frictionwatch commission`` wrote for this engine, e.g. from a short two-wheel log of another seed) in place of
 the bare engine file, whose uncalibrated sigmas (~48 % a cylinder) make every figure "within 2 sigma". The plant is
 bench/genset-v20-two-wheels.toml either way. Each checkpoint also keeps the sigma without the calibration's part.
+The check as run for design note 159 (seed 83 held out; bench.accuracy_v20_wheels_table prints it per cylinder):
+
+    nice -n 19 .venv/bin/python -m bench.accuracy_v20_wheels --cycles 20000 --every 1000 --seed 83 --repeat-profile \
+        --model bench/genset-v20-two-wheels-commissioned.toml --also-bare --variants one_wheel joint \
+        --json bench/accuracy_v20_wheels_check.json
 """
 
 from __future__ import annotations
