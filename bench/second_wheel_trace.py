@@ -59,7 +59,7 @@ def plant_engine(grid_scale: float = 1.0):
 def cmd_simulate(args) -> None:
     spec = plant_engine(args.grid_scale)
     hours = args.cycles / (RPM / 120.0) / 3600.0
-    steps = load_profile(hours, dwell_s=args.dwell_s, ramp_pct_per_min=args.ramp)
+    steps = load_profile(hours, dwell_s=args.dwell_s, ramp_pct_per_min=args.ramp, repeat=args.repeat_profile)
     from bench.drive_train_model_error import tooth_errors_on  # (it imports bench.accuracy_v20_wheels)
     with tooth_errors_on(args.tooth_errors):  # drawn when the run is set up
         sim = start_simulation(spec, RPM, BASE_LOAD, args.cycles, args.seed, load_steps=steps, second_wheel=True,
@@ -295,6 +295,8 @@ def main() -> None:
                         "in-band nuisances would remove at most; design note 38)")
     s.add_argument("--without", default="", help="default-on plant effects off, comma list (variable_inertia: "
                    "also tell the monitor, ``second_wheel_pull --without``; note 42)")
+    s.add_argument("--repeat-profile", action="store_true",
+                   help="the profile's set-points to the end (bench.accuracy_v20_wheels --repeat-profile's plant)")
     s.add_argument("--cov-imep", type=float, default=0.02, help="cycle-to-cycle COV of IMEP (0: every cycle alike)")
     s.add_argument("--grid-scale", type=float, default=1.0, help="the generator's grid stiffness and damping x this "
                    "(plant; ``second_wheel_pull --grid-scale`` tells the monitor)")
