@@ -147,8 +147,10 @@ def discover(model: EngineModel, cycles: Sequence[Cycle], options: Options | Non
     found = Discovery(model, model, [], gap(test, scale), gap(test, scale), localise(test, model.spec, scale),
                       {}, [("baseline", test.angles, test.speed.mean(axis=0))])
     # a pressure sensor the monitor flags with a fault no candidate describes: whatever is fitted rests on it
-    found.sensor_faults = undescribed_faults(cur_res.sensor_flag_cycles or {}, cur_res.n_cycles)
-    found.stood_in = stood_in_channels(cur_res.sensor_flag_cycles or {}, cur_res.n_cycles)  # said, nothing else
+    # (counted over every analysed cycle: a load step's are left out of the residuals, not of the sensors' reading)
+    analysed = cur_res.n_cycles + cur_res.between_points
+    found.sensor_faults = undescribed_faults(cur_res.sensor_flag_cycles or {}, analysed)
+    found.stood_in = stood_in_channels(cur_res.sensor_flag_cycles or {}, analysed)  # said, nothing else
     base_test = test
     current = model
     speed_law = None  # (label, balance fit) of a friction law the speed steps sized and the balance read otherwise
