@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from frictionwatch.core.monitor.checks.pressure_trace import KINDS as TRACE_KINDS
+from frictionwatch.core.monitor.checks.pressure_trace import TRACE_FLAG_KINDS
 from frictionwatch.core.monitor.report.figure_status import split_flag
 
 # the monitor's per-cylinder sensor flags whose fault a candidate of the library describes (tdc_offset,
@@ -28,7 +28,7 @@ from frictionwatch.core.monitor.report.figure_status import split_flag
 # the pegging named right from the pressure): the workflow may name those itself
 DESCRIBED = frozenset({"sensor_tdc_offset", "sensor_pressure_gain", "sensor_pressure_offset",
                        "sensor_pressure_nonpositive"})
-STOOD_IN = frozenset(f"sensor_pressure_{k}" for k in TRACE_KINDS)  # the trace check's: replaced by the siblings'
+STOOD_IN = TRACE_FLAG_KINDS  # the trace check's flags: its channel replaced by the siblings' pressure
 # a fault counts where its flag stood in at least this many of the log's analysed cycles: the watches' flags are
 # window statistics that stay raised once a window shows them (a thermal shock flagged at cycle 99 of 120 stood in
 # 21), a one-cycle trace flag is not a sensor's state. A design choice, not tuned on a case

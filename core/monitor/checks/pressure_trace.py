@@ -286,7 +286,7 @@ def substitute(pressure: np.ndarray, grid: np.ndarray, firing: np.ndarray, bad: 
     return out
 
 
-_TRACE_FLAG_KINDS = frozenset(f"sensor_pressure_{k}" for k in KINDS)  # the flags' kinds (split_flag's) of this check
+TRACE_FLAG_KINDS = frozenset(f"sensor_pressure_{k}" for k in KINDS)  # the flags' kinds (split_flag's) of this check
 
 
 def stood_in(flags: Iterable[str], n_cyl: int) -> np.ndarray:
@@ -296,7 +296,7 @@ def stood_in(flags: Iterable[str], n_cyl: int) -> np.ndarray:
     out = np.zeros(n_cyl, dtype=bool)
     for f in flags:
         kind, cyl = split_flag(f)
-        if kind in _TRACE_FLAG_KINDS and cyl is not None and cyl <= n_cyl:
+        if kind in TRACE_FLAG_KINDS and cyl is not None and cyl <= n_cyl:
             out[cyl - 1] = True
     return out
 
