@@ -164,7 +164,8 @@ def verdict(d) -> str:
     elif not d.steps and d.one_speed:
         text += "; " + ONE_SPEED
     a = d.ambiguous
-    faults = d.sensor_faults
+    # (getattr: the verdict is also read from a record holding only the fields above, as for ``model`` below)
+    faults = getattr(d, "sensor_faults", None) or []
     if a and a.get("sensor_faults"):  # fitted on a reading the monitor flags: none of it named (sensor_faults.py)
         text += (f"; the fits found {' and '.join(a['fits'])}, but the monitor doubts "
                  f"{' and '.join(said_fault(f) for f in a['sensor_faults'])} and every fit rests on that reading: "
@@ -187,7 +188,7 @@ def verdict(d) -> str:
                  + (f": {'; or '.join(a['separated_by'])} would tell them apart" if a["separated_by"] else ""))
     if a and a.get("common_gain"):  # an engine-wide friction excess: a common pressure gain reads as one (note 104)
         text += "; or " + said_common_gain(a["common_gain"])
-    if d.stood_in:  # nothing in the log reads that cylinder's own pressure
+    if getattr(d, "stood_in", None):  # nothing in the log reads that cylinder's own pressure
         text += "; " + said_stood_in(d.stood_in)
     if d.pair_not_taken:  # a TDC the pressure read beside the named effect or a rival, tried and not added (pair.py)
         text += f"; tried and not added: {d.pair_not_taken}"
