@@ -48,10 +48,12 @@ import time  # noqa: E402
 from collections import Counter, defaultdict  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+import numpy as np  # noqa: E402
 from frictionwatch.core.discrepancy import Options, discover  # noqa: E402
 from frictionwatch.core.model.effects import EFFECTS, make_effect  # noqa: E402
 from frictionwatch.core.model.engine import load_engine  # noqa: E402
 from frictionwatch.core.model.engine_model import EngineModel  # noqa: E402
+from frictionwatch.core.model.thermal_shock import load_scale  # noqa: E402
 from frictionwatch.core.plant.simulate import simulate  # noqa: E402
 from frictionwatch.service.cmd_discrepancy import assemble  # noqa: E402
 
@@ -107,11 +109,15 @@ def run(engine: str = ENGINE, n_cycles: int | None = None) -> dict:
 
 
 def _sized(truths: tuple, truth: dict) -> tuple:
-    """The hidden effects with what the simulator sized at the operating point: a load ripple's amplitude [N m]."""
+    """The hidden effects with what the simulator sized at the operating point: a load ripple's amplitude [N m], a
+    thermal shock's peak [Pa] at the run's load (the candidate's size is the log's own)."""
     out = []
     for name, params, main, tol in truths:
         if name == "load_ripple" and main == "amplitude_nm":
             params = {**params, "amplitude_nm": float(truth["operating"]["load_ripple_nm"])}
+        if name == "thermal_shock" and main == "pa":
+            idle = np.array([params.get("idle_frac", EFFECTS["thermal_shock"].parameters["idle_frac"].default)])
+            params = {**params, "pa": params["pa"] * float(load_scale(float(truth["load"]), idle)[0])}
         out.append((name, params, main, tol))
     return tuple(out)
 

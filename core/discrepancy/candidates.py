@@ -15,6 +15,9 @@ An effect may declare further shapes (``CandidateSpec.also``): an extra friction
 cylinder, and a cam-order torque fitted in a stand-in cylinder (``places_cylinder`` False: the speed cannot tell
 which cylinder; the workflow says that and adds nothing).
 
+A pressure sensor's thermal shock is one candidate for every cylinder's sensor at once (its size the log's own): one
+sensor's shock is the monitor's thermal-shock watch's to flag against its siblings (core.discrepancy.sensor_faults).
+
 Not in the library today, and why (the monitor cannot be told, or there is nothing to tell it):
 - misfire, blow_by: they change the cylinder pressure, which the monitor measures: the model already sees them
   (a misfire, a leak past the rings and a sensor's pegging offset are named from the pressure itself:
@@ -57,6 +60,7 @@ class Candidate:
     variant: str = ""  # an engine-wide candidate's fixed variant, e.g. "order 0.5" (its values are in ``fixed``)
     places_cylinder: bool = True  # False: fitted in a stand-in cylinder the speed cannot tell from the others
     seeds: tuple[tuple[float, ...], ...] = ()  # further starting points of its refinement (its effect's declaration)
+    fixed_sigma: Mapping[str, float] = field(default_factory=dict)  # a fixed parameter's sigma (its declaration)
     # (p,) |d ln omega^2 / d x| of the shaft line's lowest mode per unit of each parameter at x0, the model's view
     # (``line_mode_share``): where a parameter moves that mode, the line's own error in it reads as a parameter error
     # (fit.parameter_floor); () on a one-node line or for a toggle
@@ -165,7 +169,7 @@ def _expanded(name: str, spec: CandidateSpec, model: EngineModel, names: set[str
     cylinders = {"each": range(1, z + 1), "each_and_wheel": each_and_wheel}.get(spec.where, (None,))
     return [Candidate(name, k, spec.params, spec.x0, spec.step, spec.lo, spec.hi, {**spec.fixed, **v},
                       spec.separated_by, ", ".join(f"{a} {b:g}" for a, b in v.items()), spec.places_cylinder,
-                      spec.seeds)
+                      spec.seeds, fixed_sigma=spec.fixed_sigma)
             for k in cylinders for v in (spec.variants or ({},))]
 
 

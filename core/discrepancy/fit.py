@@ -297,7 +297,8 @@ def polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, f
     them): sensitivities from whole-log runs at x + step, kept if the training cost falls; sigma from them and the
     model-error floor (core.discrepancy.fit.parameter_sigma), and from each parameter the model holds at another
     channel's reading: ``held``, ``current`` with one such parameter moved by its sigma (a TDC held at the
-    pressure's reading, pressure_tdc), one run each, its shift of the fit added in quadrature. Returns
+    pressure's reading, pressure_tdc), one run each, its shift of the fit added in quadrature; likewise each fixed
+    parameter of the candidate that declares its own sigma (``Candidate.fixed_sigma``). Returns
     the (possibly) new trial, model, its run and the monitor runs spent."""
     cand = t.candidate
     if cand.toggle:
@@ -330,6 +331,13 @@ def polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, f
                             parameter_floor(cand, kept.x), point_floors(train, scale))
     for other in held:  # what the fit moves by when a held parameter is off by its sigma (first order)
         shifted = train_of(full(with_fit(other, kept)))
+        runs += 1
+        if np.array_equal(shifted.index, train.index):
+            dx = np.linalg.lstsq(jac, (shifted.features() / scale).ravel() - (r1 if better else r0), rcond=None)[0]
+            sigma = np.hypot(sigma, dx)
+    for name, s in cand.fixed_sigma.items():  # a fixed parameter off by its own sigma: the fit's shift (first order)
+        off = replace(cand, fixed={**cand.fixed, name: cand.fixed[name] + s})
+        shifted = train_of(full(off.model_at(current, kept.x)))
         runs += 1
         if np.array_equal(shifted.index, train.index):
             dx = np.linalg.lstsq(jac, (shifted.features() / scale).ravel() - (r1 if better else r0), rcond=None)[0]

@@ -32,7 +32,7 @@ ACROSS_POINTS_SEPARATION = ("a further operating point (another speed at the sam
 def said(e) -> str:
     """An effect in an operator's words: 'tdc_offset (the whole wheel, deg=-0.81 +- 0.05)'."""
     cyl = e.values.get("cylinder")
-    where = "" if cyl is None else ("the whole wheel" if cyl == 0 else f"cylinder {cyl}")
+    where = "" if cyl is None else (type(e).every_cylinder_said if cyl == 0 else f"cylinder {cyl}")
     spec = type(e).candidate
     shapes = () if spec is None else (spec, *spec.also)
     variant = {k for sh in shapes for v in sh.variants for k in v}  # e.g. a load ripple's order

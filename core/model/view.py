@@ -12,6 +12,8 @@ predicts the flywheel speed with it. What the catalogue's effects do here:
     tdc_offset                     the cylinder's kinematic phase: its firing angle + deg (cylinder 0, a wheel
                                    mounted off: every cylinder's), as the plant has it; the pressure stays as read
     pressure_gain, pressure_offset a correction of the measured pressure before the monitor (gain, pegging)
+    thermal_shock                  its error added back to the measured pressure, at the cycle's own speed and
+                                   load (torque over rated; the simulator's is its fuel's)
     ring_wear                      the scaled coefficients of its terms in its cylinder (``Effect.scales_terms``)
     extra_friction                 its shape as one more loss term (``Effect.monitor_terms``), T_ref = the
                                    cylinder's mean friction at the reference operating point
@@ -35,10 +37,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from frictionwatch.core.model.calibration import Calibration
-from frictionwatch.core.model.effects.base import ViewSetup
+from frictionwatch.core.model.effects.base import ShockView, ViewSetup
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.terms import TermLibrary, cylinder_samples
+from frictionwatch.core.model.thermal_shock import cycle_error, load_scale
 from frictionwatch.core.model.thermo import P_CRANKCASE
 from frictionwatch.core.types import Cycle
 
@@ -72,8 +75,9 @@ def needs_reference(model: EngineModel) -> bool:
 class MonitorView:
     """spec (firing angles with any TDC offset), terms and coefficients the monitor identifies with; whether the
     inertia varies with crank angle (the model has ``variable_inertia``); the pressure corrections per cylinder:
-    gain (z,), offset (z,) Pa; the model's calibration (what its sensor effects leave unknown); a known load-torque
-    ripple (amplitude [N m], fraction of the mean load torque, order, phase [rad]; zeros: none)."""
+    gain (z,), offset (z,) Pa, a thermal-shock error added back (``shock``, None: none); the model's calibration
+    (what its sensor effects leave unknown); a known load-torque ripple (amplitude [N m], fraction of the mean load
+    torque, order, phase [rad]; zeros: none)."""
 
     spec: EngineSpec
     terms: TermLibrary
@@ -83,6 +87,7 @@ class MonitorView:
     offset: np.ndarray
     calibration: Calibration
     load_ripple: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    shock: ShockView | None = None
 
     @property
     def model(self) -> EngineModel:
@@ -90,7 +95,8 @@ class MonitorView:
 
     @property
     def corrects_pressure(self) -> bool:
-        return bool(np.any(self.gain != 1) or np.any(self.offset != 0))
+        return bool(np.any(self.gain != 1) or np.any(self.offset != 0)
+                    or (self.shock is not None and np.any(self.shock.size_pa != 0)))
 
 
 def rigid_spec(spec: EngineSpec) -> EngineSpec:
@@ -124,22 +130,37 @@ def monitor_view(model: EngineModel, ref: Reference | None) -> MonitorView:
     if np.any(setup.tdc):
         spec = dataclasses.replace(spec, firing_angles=spec.firing_angles + setup.tdc)
     return MonitorView(spec, setup.terms, setup.coefficients, setup.variable_inertia, setup.gain, setup.offset,
-                       model.calibration, setup.load_ripple)
+                       model.calibration, setup.load_ripple, setup.shock)
 
 
-def corrected_pressure(view: MonitorView, pressure: np.ndarray) -> np.ndarray:
-    """The measured pressure (z, n) as the model says it truly is: p = (p_read - offset) / gain."""
+def corrected_pressure(view: MonitorView, pressure: np.ndarray, shock_error: np.ndarray | None = None) -> np.ndarray:
+    """The measured pressure (z, n) as the model says it truly is: p = (p_read - offset) / gain - shock_error (the
+    reading's thermal-shock error (z, n), <= 0, on the same samples: ``cycle_shock_error``; None: none)."""
     if not view.corrects_pressure:
         return pressure
-    return (np.asarray(pressure, dtype=np.float64) - view.offset[:, None]) / view.gain[:, None]
+    p = (np.asarray(pressure, dtype=np.float64) - view.offset[:, None]) / view.gain[:, None]
+    return p if shock_error is None else p - shock_error
+
+
+def cycle_shock_error(view: MonitorView, cycle: Cycle) -> np.ndarray | None:
+    """(z, n) the thermal-shock error [Pa] of ``cycle``'s readings under ``view`` (None: the view has none): at the
+    cycle's mean speed, sized at its load as the measured torque over the rated one (1 where it is not measured)."""
+    s = view.shock
+    if s is None or not np.any(s.size_pa != 0):
+        return None
+    omega = (cycle.tooth_angle[-1] - cycle.tooth_angle[0]) * cycle.tick_hz / float(cycle.tooth_ticks[-1]
+                                                                                    - cycle.tooth_ticks[0])
+    load = cycle.load_torque / view.spec.rated_torque_nm if np.isfinite(cycle.load_torque) else 1.0
+    return cycle_error(cycle.grid, view.spec.firing_angles, omega, view.spec.combustion.start_deg,
+                       s.size_pa * load_scale(load, s.idle), s.tau_s)
 
 
 def viewed_cycle(view: MonitorView, cycle: Cycle) -> Cycle:
     """``cycle`` as the monitor gets it under ``view``: its pressure corrected (the cycle itself when nothing is)."""
     if not view.corrects_pressure:
         return cycle
-    return dataclasses.replace(cycle, pressure=corrected_pressure(view, cycle.pressure))
+    return dataclasses.replace(cycle, pressure=corrected_pressure(view, cycle.pressure, cycle_shock_error(view, cycle)))
 
 
-__all__ = ["MonitorView", "Reference", "basis_means", "corrected_pressure", "monitor_view", "needs_reference",
+__all__ = ["MonitorView", "Reference", "basis_means", "corrected_pressure", "cycle_shock_error", "monitor_view", "needs_reference",
            "reference", "rigid_spec", "viewed_cycle"]

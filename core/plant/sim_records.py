@@ -16,6 +16,7 @@ import copy
 import numpy as np
 from frictionwatch.core.model.effects import SensorSetup
 from frictionwatch.core.model.engine import EngineSpec
+from frictionwatch.core.model.thermal_shock import load_scale, shock_error, shock_shape
 from frictionwatch.core.plant.sensors import (
     CAM_DEG,
     PRESSURE_BLOCK_S,
@@ -23,7 +24,6 @@ from frictionwatch.core.plant.sensors import (
     pressure_adc,
     to_ticks,
 )
-from frictionwatch.core.plant.thermal_shock import load_scale, shock_error, shock_shape
 from frictionwatch.core.types import AcquisitionInfo, StreamRecord, WheelInfo
 
 

@@ -15,6 +15,7 @@ import pytest
 from frictionwatch.core.model.effects import parse_effect
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.kinematics import kinematics
+from frictionwatch.core.model.thermal_shock import shock_shape
 from frictionwatch.core.monitor.calibration.thermal_shock_watch import (
     EARLY_DEG,
     LATE_DEG,
@@ -25,7 +26,6 @@ from frictionwatch.core.monitor.calibration.thermal_shock_watch import (
 )
 from frictionwatch.core.monitor.pipeline import STAGES, ThermalShockWatch
 from frictionwatch.core.plant.simulate import simulate
-from frictionwatch.core.plant.thermal_shock import shock_shape
 from frictionwatch.service.pipeline import EnginePipeline
 
 SPEC = load_engine("k9k-4cyl")

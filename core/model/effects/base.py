@@ -118,7 +118,7 @@ class SensorSetup:
     (fraction of rated torque); per cylinder a pressure reading ``pressure_gain`` (z,) x p + ``pressure_offset_pa``,
     less a thermal-shock error of peak ``thermal_shock_pa`` (z,) at full load (None: none; its time constant
     ``thermal_shock_tau_s`` (z,) and its size at no load as a fraction of full load's ``thermal_shock_idle`` (z,):
-    core.plant.thermal_shock)."""
+    core.model.thermal_shock)."""
 
     pressure_gain: np.ndarray
     pressure_offset_pa: np.ndarray
@@ -139,13 +139,25 @@ class SensorSetup:
 
 
 @dataclass(frozen=True)
+class ShockView:
+    """The pressure sensors' thermal-shock error as the monitor undoes it (core.model.thermal_shock): per cylinder
+    its peak at full load ``size_pa`` (z,) Pa (0: none), time constant ``tau_s`` (z,) and size at no load as a
+    fraction of full load's ``idle`` (z,)."""
+
+    size_pa: np.ndarray
+    tau_s: np.ndarray
+    idle: np.ndarray
+
+
+@dataclass(frozen=True)
 class ViewSetup:
     """The model as the monitor runs it, while the effects build it (core.model.view.monitor_view): the spec, the
     loss terms and their coefficients (z, L); the shaft line flexible or one rigid node and the inertia variable or
     constant (as the plant's ChainSetup: off unless an effect says so); per cylinder the kinematic phase offset
     ``tdc`` (z,) rad and the pressure reading's ``gain`` (z,) and ``offset`` (z,) Pa that the monitor undoes; a known
     load-torque ripple at the load node ``load_ripple`` = (amplitude [N m], fraction of the measured mean load torque
-    (used where the amplitude is 0), engine order, phase [rad]) as the plant's LoadSetup, all 0: none."""
+    (used where the amplitude is 0), engine order, phase [rad]) as the plant's LoadSetup, all 0: none; the pressure
+    sensors' thermal-shock error the monitor adds back to what it reads (``shock``, None: none)."""
 
     spec: EngineSpec
     terms: TermLibrary
@@ -156,6 +168,7 @@ class ViewSetup:
     flexible: bool = False
     variable_inertia: bool = False
     load_ripple: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    shock: ShockView | None = None
 
     @classmethod
     def nominal(cls, spec: EngineSpec, terms: TermLibrary, coefficients: np.ndarray) -> ViewSetup:
@@ -173,8 +186,9 @@ class CandidateSpec:
     shape the speed reads alike from every cylinder, fitted in the one its ``fixed`` names and never added, only
     said (the workflow's outcome is then ambiguous over the cylinders); ``requires``: an
     effect the model must hold (and a shaft line with sections, for ``torsional_flexibility``); ``separated_by``: the
-    measurement that tells this effect from another that explains a log as well (said when the workflow finds two).
-    No parameters: a toggle (a default effect the model left out)."""
+    measurement that tells this effect from another that explains a log as well (said when the workflow finds two);
+    ``fixed_sigma``: the uncertainty of a ``fixed`` parameter the fit does not move, carried into the fitted
+    parameters' sigma. No parameters: a toggle (a default effect the model left out)."""
 
     params: tuple[str, ...] = ()
     x0: tuple[float, ...] = ()
@@ -189,6 +203,9 @@ class CandidateSpec:
     also: tuple[CandidateSpec, ...] = ()  # further shapes of the same effect, each a candidate of its own
     places_cylinder: bool = True  # False: the speed cannot tell in which cylinder it is (fitted in a stand-in one)
     seeds: tuple[tuple[float, ...], ...] = ()  # further starting points of its refinement (a strongly nonlinear fit)
+    # a fixed parameter's own uncertainty (name -> its sigma, in its unit): the fit's shift with that parameter off by
+    # it joins the sigma of the fitted ones (core.discrepancy.fit.polish); e.g. a sensor's time constant not read
+    fixed_sigma: Mapping[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -256,6 +273,7 @@ class Effect:
     candidate: ClassVar[CandidateSpec | None] = None  # how the discrepancy workflow may add it (None: it may not)
     # a harmonic given either as amplitude and phase or as its two parts: checked at construction (HarmonicForm)
     form: ClassVar[HarmonicForm | None] = None
+    every_cylinder_said: ClassVar[str] = "every cylinder"  # cylinder 0 in an operator's words (a TDC: the whole wheel)
 
     __slots__ = ("values", "sigma")
 
@@ -400,4 +418,4 @@ def _number(effect: str, key: str, raw: object) -> float:
 
 __all__ = ["ONCE", "PER_CYLINDER", "BasisMeans", "CandidateSpec", "ChainSetup", "CylinderSetup", "Effect",
            "HarmonicForm", "LoadSetup", "Param",
-           "SensorSetup", "ViewSetup", "cylinder_param", "with_row"]
+           "SensorSetup", "ShockView", "ViewSetup", "cylinder_param", "with_row"]

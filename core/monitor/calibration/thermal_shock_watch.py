@@ -2,7 +2,7 @@
 (design note 156).
 
 A piezoelectric sensor whose diaphragm the flame heats reads low after combustion, most some 30-70 deg after TDC,
-and recovers over the rest of the expansion and the exhaust (core.plant.thermal_shock gives the physics). Its
+and recovers over the rest of the expansion and the exhaust (core.model.thermal_shock gives the physics). Its
 compression stroke is right, so neither the gain watch (core.monitor.calibration.gain_watch) nor commissioning sees
 it, and over the expansion its error is a nearly constant fraction of the pressure (the error and the pressure fall
 together): to first order the channel reads like a cylinder that burns a little less fuel. What it changes is the

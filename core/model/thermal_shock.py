@@ -54,6 +54,22 @@ def shock_error(local_angle: np.ndarray, shapes: list[tuple[np.ndarray, np.ndarr
     return out
 
 
+def cycle_error(grid: np.ndarray, firing_angles: np.ndarray, omega: float, soc_deg: float, size_pa: np.ndarray,
+                tau_s: np.ndarray) -> np.ndarray:
+    """(z, n) the error [Pa] (<= 0) of each cylinder's reading on a cycle's ``grid`` (n,) rad (cylinder 1's angle,
+    [0, 4 pi)) at mean speed ``omega`` [rad/s]: cylinder k's sensor, of time constant ``tau_s[k]``, sized
+    ``size_pa[k]`` (0: none), its flame starting ``soc_deg`` from its firing TDC ``firing_angles[k]``. The
+    monitor's side of the plant's error (``shock_shape`` once per time constant at this cycle's speed, as the plant
+    takes it at its run's speed): what a model with a thermal_shock effect adds back to the pressure it reads."""
+    shapes: dict[float, tuple[np.ndarray, np.ndarray]] = {}  # cylinders of one sensor type share a shape
+    for tau in tau_s:
+        tau_deg = float(np.degrees(tau * omega))
+        if tau_deg not in shapes:
+            shapes[tau_deg] = shock_shape(soc_deg, tau_deg)
+    local = grid[:, None] - np.asarray(firing_angles)[None, :]
+    return shock_error(local, [shapes[float(np.degrees(tau * omega))] for tau in tau_s], size_pa).T
+
+
 def load_scale(load: float, idle: np.ndarray) -> np.ndarray:
     """(z,) the error's size at ``load`` (0..1; None-like NaN: motored, no flame) as a fraction of full load's."""
     if not np.isfinite(load):
@@ -61,4 +77,4 @@ def load_scale(load: float, idle: np.ndarray) -> np.ndarray:
     return idle + (1.0 - idle) * float(np.clip(load, 0.0, 1.0))
 
 
-__all__ = ["HEAT_FLUX_PEAK_DEG", "load_scale", "shock_error", "shock_shape"]
+__all__ = ["HEAT_FLUX_PEAK_DEG", "cycle_error", "load_scale", "shock_error", "shock_shape"]
