@@ -28,6 +28,7 @@ from frictionwatch.core.monitor.calibration.commission import (
     InertiaFinding,
     commissioned_drive_train,
     commissioned_model,
+    tdc_used,
     without_sensor_effects,
 )
 from frictionwatch.core.monitor.calibration.drive_train import DriveTrainFit, identify_iteratively
@@ -73,6 +74,7 @@ class _Collector:
         self.max_cycles = max_cycles
         self.cycles: dict[int, Cycle] = {}
         self.imep: dict[int, np.ndarray] = {}
+        self.twist: dict[int, np.ndarray] = {}  # each analysed cycle's static twist of the throws [rad]
         self.offset = 0
         self.taken = 0
 
@@ -86,6 +88,16 @@ class _Collector:
 
     def on_result(self, result: CycleResult) -> None:
         self.imep[self.offset + result.index] = np.asarray(result.imep, dtype=np.float64)
+
+    def on_twist(self, result: CycleResult, twist: np.ndarray) -> None:
+        self.twist[self.offset + result.index] = np.asarray(twist, dtype=np.float64)
+
+    def mean_twist(self, cycles: list[Cycle], n_cyl: int) -> np.ndarray:
+        """(z,) [rad] the throws' mean static twist over ``cycles`` (zeros without any): a loaded throw runs ahead
+        of the flywheel by it, a motored one hardly (genset-v20 at 0.75 load +0.02..+0.16 deg, coasting -0.002..
+        -0.012), so the fired and the motored TDCs each take their own cycles' twist."""
+        found = [self.twist[c.index] for c in cycles if c.index in self.twist]
+        return np.mean(found, axis=0) if found else np.zeros(n_cyl)
 
     def split(self) -> tuple[list[Cycle], list[Cycle]]:
         """(fired, motored) cycles the monitor analysed, in order; misfiring and partly fired cycles in neither."""
@@ -128,15 +140,12 @@ def commission(logs: list[Path], engine: str | None, gain_sigma: float | None, m
             model = drive_found.model
     collector = _Collector(max_cycles)
     skipped: dict[str, dict] = {}
-    twists: list[tuple[np.ndarray, int]] = []  # each log's static twist of the throws and its cycles
     for n, path in enumerate(logs):
         with LogReader(path) as reader:
             collector.next_log(n)
             analysis = analyze_records(model, reader.info, reader.records(), collector.on_result,
-                                       on_cycle=collector.on_cycle)
+                                       on_cycle=collector.on_cycle, on_twist=collector.on_twist)
             skipped[path.name] = dict(sorted(analysis.skipped.items()))
-            if analysis.cylinder_twist is not None:
-                twists.append((analysis.cylinder_twist, collector.taken))
         if progress:
             progress(f"{path.name}: {analysis.cycles_ok} cycles analysed")
     fired, motored = collector.split()
@@ -146,18 +155,17 @@ def commission(logs: list[Path], engine: str | None, gain_sigma: float | None, m
     spec = model.spec
     # a loaded throw runs ahead of the flywheel by the static twist the monitor models; its thermodynamic TDC reads
     # early by that much, which is not a sensor error (core.monitor.calibration.tdc_watch says the same)
-    weight = sum(n for _, n in twists)
-    twist = (sum(t * n for t, n in twists) / weight) if weight else np.zeros(spec.n_cyl)
-    tdc_fired = _twist_added(tdc_of_cycles(fired, spec), twist) if len(fired) >= MIN_FIRED else None
-    tdc_motored = _twist_added(tdc_of_cycles(motored, spec, motored=True), twist) if len(motored) >= MIN_MOTORED \
-        else None
-    used = tdc_fired if tdc_fired is not None and any(t is not None for t in tdc_fired) else tdc_motored
+    twist_fired = collector.mean_twist(fired, spec.n_cyl)
+    tdc_fired = _twist_added(tdc_of_cycles(fired, spec), twist_fired) if len(fired) >= MIN_FIRED else None
+    tdc_motored = (_twist_added(tdc_of_cycles(motored, spec, motored=True), collector.mean_twist(motored, spec.n_cyl))
+                   if len(motored) >= MIN_MOTORED else None)
+    used = tdc_used(tdc_fired, tdc_motored)
     correction = np.array([t.offset_rad if t is not None else np.nan for t in used])
     correction = np.where(np.isfinite(correction), correction, np.nanmedian(correction))
     # the channels compared at the same piston position: the throw is ahead of the flywheel by its twist (the
     # running gain watch, core.monitor.calibration.gain_watch, compares them so; a healthy genset-v20 read a
     # front-to-rear trend of 0.4 % in gain without it)
-    gains = sibling_gains(spec, fired, correction - twist) if fired else None
+    gains = sibling_gains(spec, fired, correction - twist_fired) if fired else None
     inertia, inertia_note = _inertia(model, logs, motored)
     stated = gain_sigma is not None
     if gain_sigma is None:

@@ -393,7 +393,11 @@ def analyze_records(
     engine: EngineModel | EngineSpec, info: AcquisitionInfo, records: Iterable[StreamRecord],
     on_result: Callable[[CycleResult], None] | None = None, config: MonitorConfig | None = None,
     on_cycle: Callable[[Cycle], None] | None = None,
+    on_twist: Callable[[CycleResult, np.ndarray], None] | None = None,
 ) -> LogAnalysis:
+    """Every record through one ``EnginePipeline``; ``on_result`` sees each result, ``on_twist`` each result with
+    the throws' static twist ahead of the flywheel (z,) [rad] in the monitor's model once it is made (commissioning:
+    a fired and a motored cycle differ by it, service.cmd_commission)."""
     pipe = EnginePipeline(engine, info, config, on_cycle)
     history = ResultHistory()
     for record in [*records, None]:
@@ -401,6 +405,8 @@ def analyze_records(
             history.append(r)
             if on_result:
                 on_result(r)
+            if on_twist:
+                on_twist(r, pipe.cylinder_twist())
     return LogAnalysis(pipe.spec, history.to_list(), pipe.skipped, tdc_watch=pipe.tdc_watch,
                        cylinder_twist=pipe.cylinder_twist(), gain_watch=pipe.gain_watch,
                        restarts=Counter(pipe.restarts), holes=[h.to_dict(info.tick_hz) for h in pipe.holes])
