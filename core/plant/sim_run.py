@@ -71,6 +71,10 @@ FAR = 1 << 50  # event index that never fires
 # each call, and a run's last 10 % should show (a Ctrl-C there: tests/service/test_cli_files.py). The events do not
 # depend on where the calls end: a call that fills a buffer returns and the next goes on (status 2)
 CALL_CYCLES = 4
+# the flywheel below this speed has stopped for every measurement here (a starter cranks at ~100-200 rpm): a run
+# asked for more cycles than a coast-down leaves before the engine stops ends with a one-line error, not a plant
+# integrating a standstill for ever (simulate k9k 2000 rpm, 60 cycles, coast_down at 1.2 s: design note 166)
+STOPPED_RAD_S = 30.0 * np.pi / 30.0
 
 
 class PlantRun:
@@ -357,6 +361,10 @@ class PlantRun:
                 return True
             if status == 0 and self.theta_fly >= theta_stop:
                 return False
+            if float(self.state[1][self.plant.fly]) < STOPPED_RAD_S:
+                raise ValueError(f"the engine stopped (below {STOPPED_RAD_S * 30.0 / np.pi:.0f} rpm) "
+                                 f"{float(self.state[6][0]) - self.t_out0:.2f} s into the output, before the cycles "
+                                 "asked for: ask fewer cycles, or a later coast_down time_s")
 
     def _firing(self) -> Firing:
         """The kernel's Firing record of the current operating point, perturbations and leak areas."""
