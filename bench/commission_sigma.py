@@ -175,24 +175,16 @@ def summary(rows: list[dict]) -> dict:
     out = {}
     for engine in sorted({r["engine"] for r in rows}):
         rs = [r for r in rows if r["engine"] == engine]
-        hid_t = [(r, r["hidden"]["tdc_cylinder"] - 1) for r in rs]
-        hid_g = [(r, r["hidden"]["gain_cylinder"] - 1) for r in rs]
-        cols = {
-            "wheel": [r["z_wheel"] for r in rs],
-            "own TDC, hidden cylinder (calibration sigma)": [r["z_own_calibration"][k] for r, k in hid_t],
-            "own TDC, hidden cylinder (own stated sigma)": [r["z_own_stated"][k] for r, k in hid_t],
-            "own TDC, other cylinders (calibration sigma)": [z for r, k in hid_t for i, z in
-                                                             enumerate(r["z_own_calibration"]) if i != k],
-            "own TDC, other cylinders (own stated sigma)": [z for r, k in hid_t for i, z in
-                                                            enumerate(r["z_own_stated"]) if i != k],
-            "TDC total per cylinder": [z for r in rs for z in r["z_tdc_total"]],
-            "gain, hidden channel (calibration sigma)": [r["z_gain_calibration"][k] for r, k in hid_g],
-            "gain, hidden channel (own stated sigma)": [r["z_gain_stated"][k] for r, k in hid_g],
-            "gain, other channels (calibration sigma)": [z for r, k in hid_g for i, z in
-                                                         enumerate(r["z_gain_calibration"]) if i != k],
-            "gain, other channels (own stated sigma)": [z for r, k in hid_g for i, z in
-                                                        enumerate(r["z_gain_stated"]) if i != k],
-        }
+        cols = {"wheel": [r["z_wheel"] for r in rs]}
+        for label, key, hidden in (("own TDC", "z_own", "tdc_cylinder"), ("gain", "z_gain", "gain_cylinder")):
+            hid = [(r, r["hidden"][hidden] - 1) for r in rs]
+            item = "cylinder" if label == "own TDC" else "channel"
+            for which, suffix in (("calibration sigma", "_calibration"), ("own stated sigma", "_stated")):
+                cols[f"{label}, hidden {item} ({which})"] = [r[key + suffix][k] for r, k in hid]
+                cols[f"{label}, other {item}s ({which})"] = [z for r, k in hid for i, z in enumerate(r[key + suffix])
+                                                            if i != k]
+            if label == "own TDC":
+                cols["TDC total per cylinder"] = [z for r in rs for z in r["z_tdc_total"]]
         cols = {name: np.asarray(v, dtype=np.float64)[np.isfinite(np.asarray(v, dtype=np.float64))]
                 for name, v in cols.items()}
         out[engine] = {name: {"within_2": share_within(v),
