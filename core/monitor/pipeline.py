@@ -85,15 +85,13 @@ class StageInput:
     """What a stage sees of a cycle: the spec its phases are in (the model's before the view, the view's after it),
     the model's calibration, the cycle (as it came before the view; as the monitor got it after), and after the
     monitor only: its result and each throw's static twist ahead of the flywheel (z,) rad in the monitor's model of
-    this cycle (None before the view), and each throw's angle against the flywheel over the cycle (static twist and
-    its harmonics, core.monitor.checks.ring_pressure.ThrowMotion; None before the view and on a rigid shaft line)."""
+    this cycle (None before the view)."""
 
     spec: EngineSpec
     calibration: Calibration
     cycle: Cycle
     result: CycleResult | None = None
     twist: np.ndarray | None = None
-    motion: Any = None  # core.monitor.checks.ring_pressure.ThrowMotion | None
 
 
 @dataclass(frozen=True)
@@ -192,7 +190,7 @@ class ThermalShockWatch:
         return ThermalShockWatchState.empty()
 
     def update(self, state: ThermalShockWatchState, inp: StageInput) -> StageOutput:
-        state = watch_expansion(inp.spec, state, inp.cycle, inp.twist, self.window, inp.motion)
+        state = watch_expansion(inp.spec, state, inp.cycle, inp.twist, self.window)
         return StageOutput(state, state.flags)
 
     def warm_up(self) -> ThermalShockWatch:
@@ -311,7 +309,7 @@ class CyclePipeline:
             return self._skip(cycle, f"monitor_error: {type(exc).__name__}")
         self.cycles_ok += 1
         self.newest_cycle = int(cycle.index)
-        inp = StageInput(view.spec, self.model.calibration, cycle, result, self.cylinder_twist(), self.state.motion)
+        inp = StageInput(view.spec, self.model.calibration, cycle, result, self.cylinder_twist())
         _, flags, _ = self._run_stages(AFTER_MONITOR, inp)
         new = tuple(f for f in flags if f not in result.flags)
         if new:
