@@ -169,3 +169,9 @@ class Cycle:
     @property
     def duration(self) -> float:
         return float(self.tooth_ticks[-1] - self.tooth_ticks[0]) / self.tick_hz
+
+    @property
+    def mean_omega(self) -> float:
+        """The crank's mean speed over the cycle's tooth span [rad/s] (NaN on a span of no time)."""
+        span = self.duration
+        return float(self.tooth_angle[-1] - self.tooth_angle[0]) / span if span > 0 else float("nan")

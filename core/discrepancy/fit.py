@@ -329,15 +329,12 @@ def polish(t: Trial, current: EngineModel, model: EngineModel, res: Residuals, f
     kept = trial if better else t
     sigma = parameter_sigma(jac, train.n_cycles, cost, floor, r1 if better else r0, np.abs(kept.x - cand.x0),
                             parameter_floor(cand, kept.x), point_floors(train, scale))
-    for other in held:  # what the fit moves by when a held parameter is off by its sigma (first order)
-        shifted = train_of(full(with_fit(other, kept)))
-        runs += 1
-        if np.array_equal(shifted.index, train.index):
-            dx = np.linalg.lstsq(jac, (shifted.features() / scale).ravel() - (r1 if better else r0), rcond=None)[0]
-            sigma = np.hypot(sigma, dx)
-    for name, s in cand.fixed_sigma.items():  # a fixed parameter off by its own sigma: the fit's shift (first order)
-        off = replace(cand, fixed={**cand.fixed, name: cand.fixed[name] + s})
-        shifted = train_of(full(off.model_at(current, kept.x)))
+    # what the fit moves by when a held parameter, or a fixed one of the candidate, is off by its sigma (first order)
+    shifted_models = [with_fit(other, kept) for other in held] + [
+        replace(cand, fixed={**cand.fixed, name: cand.fixed[name] + s}).model_at(current, kept.x)
+        for name, s in cand.fixed_sigma.items()]
+    for shifted_model in shifted_models:
+        shifted = train_of(full(shifted_model))
         runs += 1
         if np.array_equal(shifted.index, train.index):
             dx = np.linalg.lstsq(jac, (shifted.features() / scale).ravel() - (r1 if better else r0), rcond=None)[0]

@@ -61,13 +61,10 @@ def cycle_error(grid: np.ndarray, firing_angles: np.ndarray, omega: float, soc_d
     ``size_pa[k]`` (0: none), its flame starting ``soc_deg`` from its firing TDC ``firing_angles[k]``. The
     monitor's side of the plant's error (``shock_shape`` once per time constant at this cycle's speed, as the plant
     takes it at its run's speed): what a model with a thermal_shock effect adds back to the pressure it reads."""
-    shapes: dict[float, tuple[np.ndarray, np.ndarray]] = {}  # cylinders of one sensor type share a shape
-    for tau in tau_s:
-        tau_deg = float(np.degrees(tau * omega))
-        if tau_deg not in shapes:
-            shapes[tau_deg] = shock_shape(soc_deg, tau_deg)
+    tau_deg = np.degrees(np.asarray(tau_s, dtype=np.float64) * omega).tolist()
+    shapes = {t: shock_shape(soc_deg, t) for t in set(tau_deg)}  # cylinders of one sensor type share a shape
     local = grid[:, None] - np.asarray(firing_angles)[None, :]
-    return shock_error(local, [shapes[float(np.degrees(tau * omega))] for tau in tau_s], size_pa).T
+    return shock_error(local, [shapes[t] for t in tau_deg], size_pa).T
 
 
 def load_scale(load: float, idle: np.ndarray) -> np.ndarray:

@@ -58,8 +58,7 @@ class Reference:
 
 def reference(cycles: Sequence[Cycle]) -> Reference:
     """A typical cycle: the mean speed of all cycles and the median pressure (robust to a misfire) on the grid."""
-    omegas = [(c.tooth_angle[-1] - c.tooth_angle[0]) * c.tick_hz / float(c.tooth_ticks[-1] - c.tooth_ticks[0])
-              for c in cycles]
+    omegas = [c.mean_omega for c in cycles]
     grid = cycles[0].grid
     same = [c.pressure for c in cycles if c.grid.shape == grid.shape]
     return Reference(float(np.median(omegas)), grid, np.median(np.stack(same), axis=0))
@@ -148,10 +147,8 @@ def cycle_shock_error(view: MonitorView, cycle: Cycle) -> np.ndarray | None:
     s = view.shock
     if s is None or not np.any(s.size_pa != 0):
         return None
-    omega = (cycle.tooth_angle[-1] - cycle.tooth_angle[0]) * cycle.tick_hz / float(cycle.tooth_ticks[-1]
-                                                                                    - cycle.tooth_ticks[0])
     load = cycle.load_torque / view.spec.rated_torque_nm if np.isfinite(cycle.load_torque) else 1.0
-    return cycle_error(cycle.grid, view.spec.firing_angles, omega, view.spec.combustion.start_deg,
+    return cycle_error(cycle.grid, view.spec.firing_angles, cycle.mean_omega, view.spec.combustion.start_deg,
                        s.size_pa * load_scale(load, s.idle), s.tau_s)
 
 

@@ -352,7 +352,8 @@ def test_a_cycle_keeps_every_field_it_does_not_gather():
 
     def cycle(index):
         return types.SimpleNamespace(index=index, grid=grid, pressure=rng.uniform(1e5, 1e7, (z, n)),
-                                     tooth_ticks=np.array([0, 1000]), tick_hz=1e5, tooth_angle=np.array([0.0, 4 * np.pi]))
+                                     tooth_ticks=np.array([0, 1000]), tick_hz=1e5, tooth_angle=np.array([0.0, 4 * np.pi]),
+                                     mean_omega=4 * np.pi / 0.01)  # Cycle.mean_omega of the span above
 
     carried = dict(last=(None,) * z, flags=("sensor_tdc_offset",), next_cylinder=2, first_own=np.ones((2, z)),
                    reference=np.zeros((z, 3)), reference_twist=np.full(z, 0.1), screened=(1,), fitted=(None,) * z,

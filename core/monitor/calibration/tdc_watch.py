@@ -161,11 +161,6 @@ class TdcWatchState:
 
 
 
-def _omega(cycle: Cycle) -> float:
-    span = float(cycle.tooth_ticks[-1] - cycle.tooth_ticks[0]) / cycle.tick_hz
-    return float(cycle.tooth_angle[-1] - cycle.tooth_angle[0]) / span if span > 0 else math.nan
-
-
 def watch_cycle(spec: EngineSpec, state: TdcWatchState, cycle: Cycle, twist: np.ndarray) -> TdcWatchState:
     """``state`` with ``cycle`` (the pressure as the monitor gets it) added; twist (z,) [rad] each throw's static
     twist ahead of the flywheel in the monitor's model of this cycle. A cycle that does not follow the previous one
@@ -196,7 +191,7 @@ def watch_cycle(spec: EngineSpec, state: TdcWatchState, cycle: Cycle, twist: np.
     counts = state.counts.copy()
     sums = sums[:b] + (block,) + sums[b + 1:]
     counts[b] += 1
-    return _added(state, sums, counts, state.cycles + 1, cycle, state.omega_sum + _omega(cycle),
+    return _added(state, sums, counts, state.cycles + 1, cycle, state.omega_sum + cycle.mean_omega,
                   state.twist_sum + np.asarray(twist, dtype=np.float64), cut)
 
 
