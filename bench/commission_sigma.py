@@ -38,7 +38,6 @@ for _v in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import math  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -114,6 +113,10 @@ def judged(report: dict, model_path: Path, hidden: dict | None) -> dict:
     gain_res = gain_true / gain_applied - 1.0
     rows = report["cylinders"]
     gain_own_sigma = np.array([r.get("gain_sigma", cal.gain_sigma) for r in rows])
+    # what every friction sigma carries: each cylinder's own calibration sigma (design note 170), and the one rms
+    # over the cylinders it carried before (the calibration's summary scalars)
+    own_cal_deg, gain_cal = np.sqrt(cal.own_variances(z))
+    own_cal_deg = np.degrees(own_cal_deg)
     fired = [r["tdc_fired"] for r in rows]
     parts = {k: [f["sigma_parts_deg"][k] for f in fired if f] for k in ("statistical_deg", "systematic_deg",
                                                                         "heat_loss_deg", "constant_loss_deg")}
@@ -121,16 +124,18 @@ def judged(report: dict, model_path: Path, hidden: dict | None) -> dict:
         "hidden": hidden, "cycles_fired": report["cycles_fired"], "cycles_motored": report["cycles_motored"],
         "wheel_found_deg": wheel, "wheel_sigma_deg": wheel_sigma, "wheel_err_deg": round(wheel_err, 4),
         "z_wheel": round(wheel_err / wheel_sigma, 3),
-        "tdc_cylinder_sigma_deg": cal.tdc_cylinder_sigma_deg,
+        "tdc_cylinder_sigma_deg": cal.tdc_cylinder_sigma_deg, "tdc_cylinder_sigmas_deg": own_cal_deg.round(4).tolist(),
         "own_applied_deg": own_applied.round(4).tolist(), "own_err_deg": own_err.round(4).tolist(),
         "own_sigma_deg": own_sigma.round(4).tolist(),
-        "z_own_calibration": (own_err / cal.tdc_cylinder_sigma_deg).round(3).tolist(),
+        "z_own_calibration": (own_err / own_cal_deg).round(3).tolist(),
+        "z_own_rms": (own_err / cal.tdc_cylinder_sigma_deg).round(3).tolist(),
         "z_own_stated": (own_err / own_sigma).round(3).tolist(),
-        "z_tdc_total": ((own_err + wheel_err) / math.hypot(wheel_sigma, cal.tdc_cylinder_sigma_deg)).round(3).tolist(),
+        "z_tdc_total": ((own_err + wheel_err) / np.hypot(wheel_sigma, own_cal_deg)).round(3).tolist(),
         "gain_sigma": cal.gain_sigma, "gain_common_sigma": cal.gain_common_sigma,
         "gain_applied": gain_applied.round(5).tolist(), "gain_residual": gain_res.round(5).tolist(),
         "gain_own_sigma": gain_own_sigma.round(5).tolist(),
-        "z_gain_calibration": (gain_res / cal.gain_sigma).round(3).tolist(),
+        "z_gain_calibration": (gain_res / gain_cal).round(3).tolist(),
+        "z_gain_rms": (gain_res / cal.gain_sigma).round(3).tolist(),
         "z_gain_stated": (gain_res / gain_own_sigma).round(3).tolist(),
         "sibling_gain_spread": report.get("sibling_gain_spread"),
         "tdc_sigma_parts_median_deg": {k: round(float(np.median(v)), 4) for k, v in parts.items() if v},
@@ -179,7 +184,10 @@ def summary(rows: list[dict]) -> dict:
         for label, key, hidden in (("own TDC", "z_own", "tdc_cylinder"), ("gain", "z_gain", "gain_cylinder")):
             hid = [(r, r["hidden"][hidden] - 1) for r in rs]
             item = "cylinder" if label == "own TDC" else "channel"
-            for which, suffix in (("calibration sigma", "_calibration"), ("own stated sigma", "_stated")):
+            for which, suffix in (("calibration sigma", "_calibration"), ("own stated sigma", "_stated"),
+                                  ("calibration's rms sigma", "_rms")):
+                if not all(key + suffix in r for r in rs):  # rows written before note 170 have no rms column
+                    continue
                 cols[f"{label}, hidden {item} ({which})"] = [r[key + suffix][k] for r, k in hid]
                 cols[f"{label}, other {item}s ({which})"] = [z for r, k in hid for i, z in enumerate(r[key + suffix])
                                                             if i != k]

@@ -258,7 +258,7 @@ def create_app(services: Sequence[EngineService], token: str | None = None, *, p
         `frictionwatch commission`), and the speed-based stage's figures where it is switched on (`enabled`;
         `serve --sensor-health`, off by default: unreliable where the model is not the engine)."""
         whole, _ = newest(svc, 1)
-        return views.sensor_health(whole, svc.tdc_watch, svc.model.calibration)
+        return views.sensor_health(whole, svc.tdc_watch, svc.model.calibration, svc.model.spec.n_cyl)
 
     @app.get("/api/v1/engines/{engine_id}/alerts", response_model=list[Alert], responses=ERRORS)
     def alerts(svc: Svc, response: Response, state: Literal["active", "all"] = "active",

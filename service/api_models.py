@@ -265,8 +265,16 @@ class CalibrationState(_Open):
     status: Calibrated = Field(description=CALIBRATION_WORDS)
     source: str = Field(description="where the numbers come from, in words")
     tdc_wheel_sigma_deg: float = Field(description="1 sigma of the wheel's TDC, common to every cylinder [deg]")
-    tdc_cylinder_sigma_deg: float = Field(description="1 sigma of each cylinder's own TDC beyond the wheel's [deg]")
-    gain_sigma_pct: float = Field(description="1 sigma of each pressure channel's gain [%]")
+    tdc_cylinder_sigma_deg: float = Field(description="1 sigma of each cylinder's own TDC beyond the wheel's [deg] "
+                                                      "(the cylinders' rms)")
+    gain_sigma_pct: float = Field(description="1 sigma of each pressure channel's gain [%] (the channels' rms)")
+    tdc_cylinder_sigmas_deg: list[float] = Field(description="each cylinder's own TDC 1 sigma [deg], what its "
+                                                             "friction sigma carries (commissioning writes one per "
+                                                             "cylinder; else tdc_cylinder_sigma_deg for each)")
+    gain_sigmas_pct: list[float] = Field(description="each channel's gain 1 sigma [%], what its cylinder's friction "
+                                                     "sigma carries: a channel commissioning corrected holds its whole "
+                                                     "correction (a cylinder's own charge reads alike); else "
+                                                     "gain_sigma_pct for each")
     gain_common_sigma_pct: float = Field(description="1 sigma of the gain common to every channel [%]")
     inertia_sigma_pct: float = Field(description="1 sigma of the inertia J [%]")
     load_torque_sigma_pct: float = Field(description="1 sigma of the load read as a shaft torque [%]")

@@ -313,18 +313,20 @@ def speed(r: CycleResult, history: Sequence[CycleResult]) -> dict:
             "history": {"cycle_index": [int(h.index) for h in history], "rpm_mean": [num(h.rpm_mean) for h in history]}}
 
 
-def sensor_health(r: CycleResult, watch: TdcWatchView, cal: Calibration) -> dict:
+def sensor_health(r: CycleResult, watch: TdcWatchView, cal: Calibration, n_cyl: int) -> dict:
     """SensorHealth (contract): what checks the sensors on this engine, as of the newest result ``r``.
 
     ``tdc_watch``: the TDC found from each cylinder's pressure every ``window_cycles`` cycles (on by default,
     core.monitor.calibration.tdc_watch; the same block as ``analyze --json``'s ``tdc_from_pressure``, with the
     cylinders numbered, the cycle that closed the window and the cycles gathered towards the next one).
-    ``calibration``: the model's calibration section (core.model.calibration) every friction sigma carries.
+    ``calibration``: the model's calibration section (core.model.calibration) every friction sigma carries, with
+    each of the ``n_cyl`` cylinders' own TDC and gain sigmas.
     ``enabled`` and the keys beside it: the speed-based sensor-health stage (core.monitor.checks.sensor_health), opt-in
     (``serve --sensor-health``); ``cylinders`` empty and its figures null when it is off. ``flags``: every
     ``sensor_*`` flag of the newest cycle, whichever check raised it (each withholds the figures it touches)."""
     flags = sorted(f for f in r.flags if split_flag(f)[0].startswith("sensor_"))
     stage = r.sensor_health.to_json() if r.sensor_health is not None else None
+    own = cal.own_variances(n_cyl)
     doc = tdc_watch_document(watch.state)
     cylinders = [] if doc is None else [
         {"cylinder": k + 1, "offset_deg": None, "sigma_deg": None, "method": None} if c is None
@@ -351,6 +353,8 @@ def sensor_health(r: CycleResult, watch: TdcWatchView, cal: Calibration) -> dict
             "status": cal.status, "source": cal.source,
             "tdc_wheel_sigma_deg": cal.tdc_wheel_sigma_deg, "tdc_cylinder_sigma_deg": cal.tdc_cylinder_sigma_deg,
             "gain_sigma_pct": 100.0 * cal.gain_sigma, "gain_common_sigma_pct": 100.0 * cal.gain_common_sigma,
+            "tdc_cylinder_sigmas_deg": np.degrees(np.sqrt(own[0])).tolist(),
+            "gain_sigmas_pct": (100.0 * np.sqrt(own[1])).tolist(),
             "inertia_sigma_pct": 100.0 * cal.inertia_sigma,
             "load_torque_sigma_pct": 100.0 * cal.load_torque_sigma,
             "load_power_sigma_pct": 100.0 * cal.load_power_sigma,

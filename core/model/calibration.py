@@ -30,6 +30,8 @@ In the model's TOML (core.model.engine_model), every key optional (the defaults 
     damping_sigma = 0.02             # the relative error of its section dampings
     tdc_cylinder_reading_deg = [0.0, -0.26, ...]    # each cylinder's own TDC as commissioning read and left it
     tdc_cylinder_reading_sigma_deg = [0.01, ...]    # and that reading's statistical 1-sigma (both: one per cylinder)
+    tdc_cylinder_sigmas_deg = [0.03, ...]  # each cylinder's own TDC sigma, where they differ (else the one above)
+    gain_sigmas = [0.004, 0.021, ...]      # each channel's own gain sigma, where they differ (else gain_sigma)
     source = "frictionwatch commission, 3 files, 2026-11-28"
     baseline = "{...}"               # the healthy state per load band the alerts compare with (JSON, see below)
 """
@@ -41,6 +43,8 @@ import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+
+import numpy as np
 
 STATUSES = ("uncalibrated", "commissioned")
 
@@ -112,6 +116,15 @@ class Calibration:
     # kept as 0 +- 0.5 deg (as its calibration sigma is)
     tdc_cylinder_reading_deg: tuple[float, ...] = ()
     tdc_cylinder_reading_sigma_deg: tuple[float, ...] = ()
+    # each cylinder's own TDC sigma and each channel's gain sigma where commissioning measured them one by one, what
+    # that cylinder's friction carries (design note 170; the scalars above are a summary: the TDC's their rms, the
+    # gain's the rms of the channels' sibling-comparison sigmas, which the gain watch's drift limit reads). One rms
+    # for every cylinder hid the cylinder that needed it: k9k-4cyl's hidden own TDC offset was within 2 rms sigma in
+    # 8 of 10 held-out logs, within 2 of its own in 10 of 10; a channel's gain correction that a cylinder's own
+    # charge could have made (its whole size) is in its own only. () where none was kept (the uncalibrated
+    # defaults, a model commissioned before these were): the scalar for every cylinder
+    tdc_cylinder_sigmas_deg: tuple[float, ...] = ()
+    gain_sigmas: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if self.status not in STATUSES:
@@ -131,6 +144,17 @@ class Calibration:
             if not (ok and math.isfinite(v) and math.isfinite(s) and abs(v) <= 10.0 and s >= 0.0):
                 raise ValueError(f"calibration TDC reading {v!r} +- {s!r} deg is not a reading (finite, |deg| <= 10, "
                                  "sigma >= 0)")
+        for name in ("tdc_cylinder_sigmas_deg", "gain_sigmas"):
+            v = getattr(self, name)
+            bound = 10.0 if name.startswith("tdc") else 0.5
+            if not (isinstance(v, tuple) and all(isinstance(x, float | int) and not isinstance(x, bool)
+                                                 and math.isfinite(x) and 0.0 <= x < bound for x in v)):
+                raise ValueError(f"calibration {name} must be a list of one sigma per cylinder (finite, >= 0, "
+                                 f"< {bound:g})")
+        if self.tdc_cylinder_sigmas_deg and self.gain_sigmas and (len(self.tdc_cylinder_sigmas_deg)
+                                                                   != len(self.gain_sigmas)):
+            raise ValueError("calibration tdc_cylinder_sigmas_deg and gain_sigmas must have one number per cylinder "
+                             "each")
         if not isinstance(self.baseline, str) or not isinstance(self.source, str):
             raise ValueError("calibration source and baseline must be text")
         if (max(self.gain_sigma, self.gain_common_sigma, self.inertia_sigma, self.load_torque_sigma,
@@ -148,6 +172,18 @@ class Calibration:
     @property
     def commissioned(self) -> bool:
         return self.status == "commissioned"
+
+    def own_variances(self, n_cyl: int) -> np.ndarray:
+        """(2, n_cyl): each cylinder's own TDC variance [rad^2] and its channel's gain variance (relative^2), from
+        the per-cylinder lists where kept, else the scalar for every cylinder (ValueError: a list of another
+        length; engine_model refuses such a model when it loads)."""
+        out = np.empty((2, n_cyl))
+        for row, (many, one, scale) in enumerate(((self.tdc_cylinder_sigmas_deg, self.tdc_cylinder_sigma_deg,
+                                                   math.pi / 180.0), (self.gain_sigmas, self.gain_sigma, 1.0))):
+            if many and len(many) != n_cyl:
+                raise ValueError(f"the calibration has {len(many)} per-cylinder sigmas for {n_cyl} cylinders")
+            out[row] = (np.asarray(many, dtype=np.float64) if many else one) * scale
+        return out * out
 
     def load_variance(self, load_nm: float, from_power: bool) -> float:
         """[N^2 m^2] the variance the load reading's remaining error gives the balance's load ``load_nm`` (a
@@ -169,7 +205,8 @@ def calibration_from_dict(table: Mapping) -> Calibration:
     if unknown:
         raise ValueError(f"[model.calibration] has unknown key(s) {', '.join(unknown)}; known: {', '.join(KEYS)}")
     values = dict(table)
-    for key in ("tdc_cylinder_reading_deg", "tdc_cylinder_reading_sigma_deg"):
+    for key in ("tdc_cylinder_reading_deg", "tdc_cylinder_reading_sigma_deg", "tdc_cylinder_sigmas_deg",
+                "gain_sigmas"):
         if isinstance(values.get(key), list):
             values[key] = tuple(values[key])
     if values.get("status") == "commissioned" and "source" not in values:

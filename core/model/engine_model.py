@@ -177,9 +177,11 @@ class EngineModel:
             calibration = calibration_from_dict(model.get("calibration", {}))
         except (ValueError, TypeError) as exc:
             raise ValueError(f"{origin}: {exc}") from None
-        if calibration.tdc_cylinder_reading_deg and len(calibration.tdc_cylinder_reading_deg) != spec.n_cyl:
-            raise ValueError(f"{origin}: model.calibration.tdc_cylinder_reading_deg has "
-                             f"{len(calibration.tdc_cylinder_reading_deg)} numbers for {spec.n_cyl} cylinders")
+        for key in ("tdc_cylinder_reading_deg", "tdc_cylinder_sigmas_deg", "gain_sigmas"):
+            per_cylinder = getattr(calibration, key)
+            if per_cylinder and len(per_cylinder) != spec.n_cyl:
+                raise ValueError(f"{origin}: model.calibration.{key} has {len(per_cylinder)} numbers for "
+                                 f"{spec.n_cyl} cylinders")
         if "effects" in model:  # exactly the listed instances; none listed: the default-on effects
             effects = tuple(_effect(entry, i, origin) for i, entry in enumerate(_list(model, "effects", origin)))
         else:

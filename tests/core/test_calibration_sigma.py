@@ -15,10 +15,11 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import tomllib
 
 import numpy as np
 import pytest
-from frictionwatch.core.model.calibration import Calibration
+from frictionwatch.core.model.calibration import Calibration, calibration_from_dict, calibration_toml
 from frictionwatch.core.model.engine import load_engine
 from frictionwatch.core.model.engine_model import EngineModel, load_model
 from frictionwatch.core.model.indicated import net_imep
@@ -78,6 +79,42 @@ def test_calibration_variance_by_hand():
                        gain_common_sigma=0.0, inertia_sigma=0.0)
     per0, total0 = calibration_variance(none, CalibrationSensitivity(s, t_i))
     assert_allclose(per0, 0.0) and math.isclose(total0, 0.0)
+
+
+def test_each_channel_s_own_sigma_reaches_its_own_cylinder_only():
+    """A channel whose gain commissioning knows worse (an uncorrected 2.5 % reading beside siblings at 0.4 %, design
+    note 170) widens its own cylinder's friction sigma, by that channel's sigma, not the rms every channel shared."""
+    s = np.array([10.0, -12.0, 11.0, 9.0])  # N m / rad
+    t_i = np.array([50.0, 55.0, 52.0, 51.0])
+    gains, tdcs = (0.004, 0.025, 0.004, 0.004), (0.02, 0.02, 0.12, 0.02)
+    cal = Calibration(status="commissioned", tdc_wheel_sigma_deg=0.06, tdc_cylinder_sigma_deg=0.06, gain_sigma=0.013,
+                      gain_common_sigma=0.01, inertia_sigma=0.05, gain_sigmas=gains, tdc_cylinder_sigmas_deg=tdcs)
+    per, total = calibration_variance(cal, CalibrationSensitivity(s, t_i, kinetic=4.0))
+    w, c = math.radians(0.06), np.radians(tdcs)
+    g = np.array(gains)
+    assert_allclose(per, s**2 * (w**2 + c**2) + t_i**2 * (g**2 + 0.01**2), rtol=1e-12)
+    assert_allclose(total, (s.sum() * w) ** 2 + np.sum((s * c) ** 2) + np.sum((g * t_i) ** 2)
+                    + (0.01 * t_i.sum()) ** 2 + (0.05 * 4.0) ** 2, rtol=1e-12)
+    # against the one rms for every channel (0.013): cylinder 2's calibration sigma 1.6x wider, its siblings' narrower
+    rms = calibration_variance(dataclasses.replace(cal, gain_sigmas=(), tdc_cylinder_sigmas_deg=()),
+                               CalibrationSensitivity(s, t_i, kinetic=4.0))[0]
+    assert_allclose(np.sqrt(per[1] / rms[1]), 1.64, atol=0.01)
+    assert np.all(per[[0, 3]] < rms[[0, 3]])
+    per_r, total_r = calibration_variance_reference(cal, CalibrationSensitivity(s, t_i, kinetic=4.0))
+    assert_allclose(per, per_r, rtol=1e-14) and math.isclose(total, total_r, rel_tol=1e-14)
+
+
+def test_per_cylinder_sigmas_are_checked_and_travel_in_the_model_file():
+    cal = Calibration(status="commissioned", gain_sigmas=(0.004, 0.025, 0.004), tdc_cylinder_sigmas_deg=(0.02, 0.1,
+                                                                                                          0.03))
+    back = calibration_from_dict(tomllib.loads(calibration_toml(cal))["model"]["calibration"])
+    assert back == cal
+    with pytest.raises(ValueError, match="one number per cylinder"):
+        Calibration(gain_sigmas=(0.01, 0.02), tdc_cylinder_sigmas_deg=(0.1, 0.1, 0.1))
+    with pytest.raises(ValueError, match="gain_sigmas"):
+        Calibration(gain_sigmas=(0.01, float("nan")))
+    with pytest.raises(ValueError, match="3 per-cylinder sigmas for 4 cylinders"):
+        cal.own_variances(4)
 
 
 @pytest.mark.parametrize("z", [1, 3, 4, 20])

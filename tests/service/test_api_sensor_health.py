@@ -89,6 +89,8 @@ def test_the_calibration_is_the_models(watched) -> None:
     assert doc["calibration"] == {"status": "uncalibrated", "source": UNCALIBRATED_SOURCE,
                                   "tdc_wheel_sigma_deg": 0.5, "tdc_cylinder_sigma_deg": 0.2,
                                   "gain_sigma_pct": pytest.approx(3.0, rel=1e-12),
+                                  "tdc_cylinder_sigmas_deg": pytest.approx([0.2] * 4, rel=1e-12),
+                                  "gain_sigmas_pct": pytest.approx([3.0] * 4, rel=1e-12),
                                   "gain_common_sigma_pct": pytest.approx(1.0, rel=1e-12),
                                   "inertia_sigma_pct": pytest.approx(5.0, rel=1e-12),
                                   "load_torque_sigma_pct": pytest.approx(0.5, rel=1e-12),
@@ -117,8 +119,9 @@ def test_before_the_first_window_and_a_commissioned_model(watched) -> None:
     off = replace(result, sensor_health=None)
     empty = TdcWatchView(TdcWatchState(None, np.zeros(5), 37, None, None, (), 0.0), None)
     cal = Calibration(status="commissioned", tdc_wheel_sigma_deg=0.07, tdc_cylinder_sigma_deg=0.05,
-                      gain_sigma=0.004, gain_common_sigma=0.012, inertia_sigma=0.06, source="commission, 2 files")
-    doc = api_views.sensor_health(off, empty, cal)
+                      gain_sigma=0.004, gain_common_sigma=0.012, inertia_sigma=0.06, source="commission, 2 files",
+                      gain_sigmas=(0.004, 0.004, 0.031, 0.004))
+    doc = api_views.sensor_health(off, empty, cal, 4)
     assert doc["tdc_watch"] == {"window_cycles": 100, "cycles_gathered": 37, "window_last_cycle": None,
                                 "wheel_offset_deg": None, "wheel_sigma_deg": None, "flags": [], "cylinders": []}
     assert doc["enabled"] is False and doc["cylinders"] == [] and doc["speed_based_flags"] == []
@@ -126,6 +129,9 @@ def test_before_the_first_window_and_a_commissioned_model(watched) -> None:
     assert doc["calibration"]["status"] == "commissioned" and doc["calibration"]["source"] == "commission, 2 files"
     assert doc["calibration"]["gain_sigma_pct"] == pytest.approx(0.4, rel=1e-12)
     assert doc["calibration"]["inertia_sigma_pct"] == pytest.approx(6.0, rel=1e-12)
+    # each cylinder's own: the channel commissioning corrected apart, the TDC's the one scalar for each
+    assert doc["calibration"]["gain_sigmas_pct"] == pytest.approx([0.4, 0.4, 3.1, 0.4], rel=1e-12)
+    assert doc["calibration"]["tdc_cylinder_sigmas_deg"] == pytest.approx([0.05] * 4, rel=1e-12)
 
 
 def test_openapi_types_the_sensor_health(watched) -> None:

@@ -42,6 +42,12 @@ def test_commission_finds_the_wheel_and_the_channel(commissioned):
     gains = {e.values["cylinder"]: e.values["gain"] for e in model.effects if e.name == "pressure_gain"}
     assert list(gains) == [3], gains  # the faulty channel, and only it
     np.testing.assert_allclose(gains[3], GAIN, atol=0.015)
+    # each cylinder's own sigmas are written (design note 170): the TDC's rms is the summary scalar; the corrected
+    # channel's gain sigma holds its whole correction (a cylinder's own charge reads alike), its siblings' do not
+    cal = model.calibration
+    np.testing.assert_allclose(np.sqrt(np.mean(np.square(cal.tdc_cylinder_sigmas_deg))), cal.tdc_cylinder_sigma_deg,
+                               rtol=2e-3)
+    assert cal.gain_sigmas[2] >= abs(gains[3] - 1.0) and max(np.delete(cal.gain_sigmas, 2)) < 0.5 * abs(gains[3] - 1.0)
 
 
 def test_analyze_with_the_commissioned_model_is_right_and_honest(commissioned):

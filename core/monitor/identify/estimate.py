@@ -115,11 +115,11 @@ class CalibrationSensitivity(NamedTuple):
 
 
 def calibration_variances(cal: Calibration, sens: CalibrationSensitivity) -> np.ndarray:
-    """The six variances ``_calibration_variance_kernel`` reads (its ``var``): the wheel's and each cylinder's TDC
-    [rad^2], each channel's and the common gain, the kinetic term's and the load's [N^2 m^2]."""
+    """The four variances common to the cylinders that ``_calibration_variance_kernel`` reads (its ``var``): the
+    wheel's TDC [rad^2], the gain common to every channel, the kinetic term's and the load's [N^2 m^2]. Each
+    cylinder's own TDC and gain variances are ``Calibration.own_variances`` (its ``own``)."""
     kinetic = sens.kinetic if math.isfinite(sens.kinetic) else 0.0
-    return np.array([cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2, cal.gain_sigma ** 2,
-                     cal.gain_common_sigma ** 2, (cal.inertia_sigma * kinetic) ** 2,
+    return np.array([cal.tdc_wheel_sigma_rad ** 2, cal.gain_common_sigma ** 2, (cal.inertia_sigma * kinetic) ** 2,
                      cal.load_variance(sens.load, sens.load_from_power)])
 
 
@@ -137,7 +137,8 @@ def calibration_variance(cal: Calibration, sens: CalibrationSensitivity,
     if tdc.shape != t_i.shape or tdc.ndim != 1:
         raise ValueError(f"the TDC sensitivities {tdc.shape} and indicated torques {t_i.shape} need one per cylinder")
     share = np.ones(tdc.shape[0]) if share is None else np.asarray(share, dtype=np.float64)
-    return _calibration_variance_kernel(tdc, t_i, share, calibration_variances(cal, sens))
+    return _calibration_variance_kernel(tdc, t_i, share, calibration_variances(cal, sens),
+                                        cal.own_variances(tdc.shape[0]))
 
 
 def load_split(share: np.ndarray) -> np.ndarray:
@@ -154,28 +155,27 @@ def calibration_variance_reference(cal: Calibration, sens: CalibrationSensitivit
                                    share: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """``calibration_variance`` in plain numpy (its reference)."""
     s, t_i = np.abs(sens.tdc), np.abs(sens.indicated)
-    w2, c2 = cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2
-    g2, gc2 = cal.gain_sigma ** 2, cal.gain_common_sigma ** 2
+    w2, gc2 = cal.tdc_wheel_sigma_rad ** 2, cal.gain_common_sigma ** 2
+    c2, g2 = cal.own_variances(s.shape[0])  # each cylinder's own TDC and gain (z,)
     load2 = cal.load_variance(sens.load, sens.load_from_power)
     split = load_split(np.ones(s.shape[0]) if share is None else share)
-    per = s * s * (w2 + c2) + t_i * t_i * (g2 + gc2) + load2 * split ** 2
+    per = s * s * w2 + t_i * t_i * gc2 + (s * s * c2 + t_i * t_i * g2) + load2 * split ** 2
     kinetic = sens.kinetic if math.isfinite(sens.kinetic) else 0.0
-    total = (float(np.sum(sens.tdc)) ** 2 * w2 + float(np.sum(s * s)) * c2 + float(np.sum(t_i * t_i)) * g2
+    total = (float(np.sum(sens.tdc)) ** 2 * w2 + float(np.sum(s * s * c2)) + float(np.sum(t_i * t_i * g2))
              + float(np.sum(sens.indicated)) ** 2 * gc2 + (cal.inertia_sigma * kinetic) ** 2 + load2)
     return per, total
 
 
 @numba.njit(cache=True)
-def _calibration_variance_kernel(tdc, indicated, share, var):
+def _calibration_variance_kernel(tdc, indicated, share, var, own):
     """(per (z,), total) of ``calibration_variance_reference``; share (z,) the cylinders' parts of the friction
-    [N m] (``load_split``); var: ``calibration_variances``."""
-    w2, c2, g2, gc2, kinetic2, load2 = var[0], var[1], var[2], var[3], var[4], var[5]
+    [N m] (``load_split``); var: ``calibration_variances``; own (2, z): ``Calibration.own_variances``."""
+    w2, gc2, kinetic2, load2 = var[0], var[1], var[2], var[3]
     z = tdc.shape[0]
     per = np.empty(z)
     s_sum = 0.0
-    s2_sum = 0.0
+    own_sum = 0.0  # sum over cylinders of their own TDC's and gain's parts
     t_sum = 0.0
-    t2_sum = 0.0
     share_sum = 0.0
     share_ok = True
     for k in range(z):
@@ -185,12 +185,12 @@ def _calibration_variance_kernel(tdc, indicated, share, var):
     for k in range(z):
         s, t = abs(tdc[k]), abs(indicated[k])
         part = share[k] / share_sum if share_ok else 1.0 / z
-        per[k] = s * s * (w2 + c2) + t * t * (g2 + gc2) + load2 * part * part
+        own_k = s * s * own[0, k] + t * t * own[1, k]
+        per[k] = s * s * w2 + t * t * gc2 + own_k + load2 * part * part
         s_sum += tdc[k]
-        s2_sum += s * s
+        own_sum += own_k
         t_sum += indicated[k]
-        t2_sum += t * t
-    return per, s_sum ** 2 * w2 + s2_sum * c2 + t2_sum * g2 + t_sum ** 2 * gc2 + kinetic2 + load2
+    return per, s_sum ** 2 * w2 + own_sum + t_sum ** 2 * gc2 + kinetic2 + load2
 
 
 def with_calibration(est: FrictionEstimate, cal: Calibration, sens: CalibrationSensitivity,
@@ -304,7 +304,7 @@ def reported_estimate(spec: EngineSpec, layout: ParameterLayout, post: Posterior
     if tdc.shape != t_i.shape or tdc.shape != (z,) or ind.shape != (z,):
         raise ValueError(f"the TDC sensitivities {tdc.shape}, indicated torques {t_i.shape} and the check's "
                          f"{ind.shape} need one per cylinder ({z})")
-    floored = floor_calibration_kernel(cylinder_table, resolved, prior, ind, tdc, t_i, settings)
+    floored = floor_calibration_kernel(cylinder_table, resolved, prior, ind, tdc, t_i, settings, cal.own_variances(z))
     return estimate_from_tables((coef_table, coef_ok, cylinder_table, t_tot, s_tot, floored), prior, post, cal.status,
                                 to_eng)
 
@@ -329,19 +329,19 @@ def estimate_from_tables(tables: tuple, prior: np.ndarray, post: Posterior, cali
 
 
 @numba.njit(cache=True)
-def floor_calibration_kernel(cylinder_table, resolved, prior, ind, tdc, indicated, settings):
+def floor_calibration_kernel(cylinder_table, resolved, prior, ind, tdc, indicated, settings, own):
     """The per-cylinder part of ``ModelErrorFloor.apply`` then ``with_calibration`` on ``estimate_kernel``'s
     cylinder_table (3, z) (t_mean NaN where unresolved, t_sig, gain) and resolved (z,); prior (z,) the Eq. 6 share
     [N m], ind (z,) the floor check's indicated torques, tdc and indicated (z,) the calibration's sensitivities;
     settings: floor on (0/1), its indicated_rel, rel2 (excess^2 / T_tot^2), resolve_rel, MEP per N m of a cylinder,
-    then the calibration's six variances (``calibration_variances``); the load's reaches each cylinder by its part of
-    ``prior``.
+    then the calibration's four common variances (``calibration_variances``); own (2, z) each cylinder's own TDC
+    and gain variances (``Calibration.own_variances``); the load's reaches each cylinder by its part of ``prior``.
 
     Returns (table (5, z): t_mean, sigma, fmep, fmep_sigma, calibration sigma; resolved (z,); the calibration's
     total variance)."""
     z = prior.shape[0]
     floor_on, ind_rel, rel2, resolve_rel, to_cyl = settings[0] != 0.0, settings[1], settings[2], settings[3], settings[4]
-    var_cyl, var_tot = _calibration_variance_kernel(tdc, indicated, prior, settings[5:11])
+    var_cyl, var_tot = _calibration_variance_kernel(tdc, indicated, prior, settings[5:9], own)
     out = np.empty((5, z))
     ok = resolved.copy()
     for k in range(z):

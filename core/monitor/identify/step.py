@@ -69,7 +69,7 @@ STEP_FIELDS = (
     "coupling_loss", "misfit",  # BalanceCheck's of both estimates
     "same_balance_offset",  # the noise statistics' balance_mean (identify_cycle's ``same``; NaN: none)
     "same_sigma", "balance_sigma",  # the two checks' balance sigmas [N m]
-    "tdc_wheel2", "tdc_cylinder2", "gain2", "gain_common2",  # the calibration's variances
+    "tdc_wheel2", "gain_common2",  # the calibration's variances common to the cylinders (each one's own: StepCylinders)
     "kinetic2_smoothed", "kinetic2_cycle",  # (inertia sigma x the kinetic term)^2 of each estimate [N^2 m^2]
     "load2",  # (the load reading's sigma x this cycle's load)^2 [N^2 m^2], both estimates (Calibration.load_variance)
     "to_cyl", "to_engine",  # MEP per N m of a cylinder, of the engine
@@ -78,7 +78,7 @@ STEP_FIELDS = (
 (FORGETTING, FOLD, RAW_WEIGHT, MODEL_REL_ERROR, ACC_YTY, ACC_WEIGHT, ACC_ROWS, BALANCE_MEAN, BALANCE, MOTORED,
  SHARE_SPREAD, MOTORED_SPREAD, FIRING_FRACTION, RESOLVE_REL, COEFFICIENT_SNR, MIN_DATA_GAIN, FLOOR_ON, BALANCE_CHECK,
  INDICATED_REL, COUPLING_PER_MISFIT, MISFIT_FREE, COUPLING_LOSS, MISFIT, SAME_OFFSET, SAME_SIGMA, BALANCE_SIGMA,
- TDC_WHEEL2, TDC_CYLINDER2, GAIN2, GAIN_COMMON2, KINETIC2_S, KINETIC2_C, LOAD2, TO_CYL, TO_ENGINE,
+ TDC_WHEEL2, GAIN_COMMON2, KINETIC2_S, KINETIC2_C, LOAD2, TO_CYL, TO_ENGINE,
  KAPPA) = range(len(STEP_FIELDS))
 
 
@@ -112,12 +112,14 @@ class StepModel(NamedTuple):
 
 
 class StepCylinders(NamedTuple):
-    """Per cylinder (z,): the running indicated means (the smoothed estimate's), this cycle's indicated means and
-    the TDC sensitivities of the mean balance."""
+    """Per cylinder (z,): the running indicated means (the smoothed estimate's), this cycle's indicated means, the
+    TDC sensitivities of the mean balance, and (2, z) each cylinder's own TDC and gain variances of the calibration
+    (``Calibration.own_variances``)."""
 
     indicated_mean: np.ndarray
     indicated: np.ndarray
     tdc: np.ndarray
+    calibration_own: np.ndarray
 
 
 @numba.njit(cache=True)
@@ -133,10 +135,11 @@ def _prior_with_share(info, rhs, rows, share, sigma):
 def _estimate(post, share, model, check, sens, s):
     """reported_estimate's numbers from a posterior (params, cov_stat, cov, cov_ref) and its Eq. 6 share (z,):
     estimate_kernel, then the floor's scalars in its order, then floor_calibration_kernel. check = (indicated
-    (z,), balance, its sigma); sens = (tdc (z,), indicated (z,), the kinetic term's variance, the load's)."""
+    (z,), balance, its sigma); sens = (tdc (z,), indicated (z,), the kinetic term's variance, the load's, each
+    cylinder's own calibration variances (2, z))."""
     params, cov_stat, cov, ref = post
     ind, balance, balance_sigma = check
-    tdc, t_i, kinetic2, load2 = sens
+    tdc, t_i, kinetic2, load2, own = sens
     p_f = model.cylinder_rows.shape[1]
     resolve_rel = s[RESOLVE_REL]
     coef_table, coef_ok, cylinder_table, resolved, t_tot, s_tot = estimate_kernel(
@@ -154,9 +157,9 @@ def _estimate(post, share, model, check, sens, s):
             rel2 = excess2 / t_tot ** 2 if t_tot > 0 else 0.0
             s_tot = math.sqrt(s_tot ** 2 + (ind_rel * np.sum(ind)) ** 2 + excess2)
     settings = np.array([1.0 if floor_on else 0.0, ind_rel, rel2, resolve_rel, s[TO_CYL], s[TDC_WHEEL2],
-                         s[TDC_CYLINDER2], s[GAIN2], s[GAIN_COMMON2], kinetic2, load2])
+                         s[GAIN_COMMON2], kinetic2, load2])
     return coef_table, coef_ok, cylinder_table, t_tot, s_tot, floor_calibration_kernel(
-        cylinder_table, resolved, share, ind, tdc, t_i, settings)
+        cylinder_table, resolved, share, ind, tdc, t_i, settings, own)
 
 
 @numba.njit(cache=True)
@@ -176,10 +179,10 @@ def report_kernel(post_s, post_c, shares, model, cylinders, s, acc):
         same = fit_total + s[SAME_OFFSET]
     est_s = _estimate((params_s, stat_s, cov_s, ref_s), share_s, model,
                       (cylinders.indicated_mean, same, s[SAME_SIGMA]),
-                      (cylinders.tdc, cylinders.indicated_mean, s[KINETIC2_S], s[LOAD2]), s)
+                      (cylinders.tdc, cylinders.indicated_mean, s[KINETIC2_S], s[LOAD2], cylinders.calibration_own), s)
     est_c = _estimate((params_c, stat_c, cov_c, ref_c), share_c, model,
                       (cylinders.indicated, s[BALANCE], s[BALANCE_SIGMA]),
-                      (cylinders.tdc, cylinders.indicated, s[KINETIC2_C], s[LOAD2]), s)
+                      (cylinders.tdc, cylinders.indicated, s[KINETIC2_C], s[LOAD2], cylinders.calibration_own), s)
     pull = np.zeros(share_s.shape[0])
     if weight > 0.0:  # PullCheck.sigma
         pull = pull_sigma_of_info_kernel(info, rhs, params_s, chi2_s, stat_s, model.cylinder_rows, share_s,
@@ -356,8 +359,8 @@ def identify_step(spec: EngineSpec, layout: ParameterLayout, prior: PriorNormal,
         lim.resolve_rel, lim.coefficient_snr, lim.min_data_gain, 0.0 if floor is None else 1.0,
         1.0 if floor is not None and floor.balance_check else 0.0, floor.indicated_rel if floor else 0.0,
         floor.coupling_per_misfit if floor else 0.0, floor.misfit_free if floor else 0.0, inp.coupling_loss,
-        inp.misfit, offset, same_sigma, bal_sigma, cal.tdc_wheel_sigma_rad ** 2, cal.tdc_cylinder_sigma_rad ** 2,
-        cal.gain_sigma ** 2, cal.gain_common_sigma ** 2, 0.0, (cal.inertia_sigma * kinetic) ** 2,
+        inp.misfit, offset, same_sigma, bal_sigma, cal.tdc_wheel_sigma_rad ** 2,
+        cal.gain_common_sigma ** 2, 0.0, (cal.inertia_sigma * kinetic) ** 2,
         cal.load_variance(inp.load, inp.load_from_power),
         spec.mep_per_torque_cyl, spec.mep_per_torque_engine, cfg.pull_check.kappa), dtype=np.float64)  # STEP_FIELDS
     f64 = np.float64
@@ -367,7 +370,8 @@ def identify_step(spec: EngineSpec, layout: ParameterLayout, prior: PriorNormal,
                       np.ascontiguousarray(inp.cylinder_rows, dtype=f64),
                       np.ascontiguousarray(inp.mean_row, dtype=f64), np.asarray(params, dtype=f64))
     cylinders = StepCylinders(np.ascontiguousarray(inp.indicated_mean, dtype=f64),
-                              np.ascontiguousarray(inp.indicated, dtype=f64), np.ascontiguousarray(inp.tdc, dtype=f64))
+                              np.ascontiguousarray(inp.indicated, dtype=f64), np.ascontiguousarray(inp.tdc, dtype=f64),
+                              cal.own_variances(spec.n_cyl))
     try:
         (ok, terms, arrays, budget, (yty, weight, acc_rows), shares, priors, status, post_s, post_c,
          report) = identify_step_kernel(rows, (acc.info, acc.rhs, acc.sys_map, acc.info_reference, *raw), model,
