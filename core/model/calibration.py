@@ -83,7 +83,8 @@ UNCALIBRATED_SOURCE = ("uncalibrated: a typical installation is assumed (TDC +-0
 class Calibration:
     """status: "uncalibrated" (assumed, the defaults) or "commissioned" (measured); the 1-sigma of what is still
     unknown after the corrections in the model's effects are applied: tdc_wheel_sigma_deg (common to all cylinders),
-    tdc_cylinder_sigma_deg (each cylinder's own), gain_sigma (relative, each channel on its own), gain_common_sigma
+    tdc_cylinder_sigma_deg (each cylinder's own; one per cylinder in tdc_cylinder_sigmas_deg where commissioning
+    wrote them), gain_sigma (relative, each channel on its own; one per channel in gain_sigmas likewise), gain_common_sigma
     (relative, common to all channels), inertia_sigma (relative J), stiffness_sigma and damping_sigma (relative, the
     shaft line's sections: what is left after a chain_mismatch correction, or the engine file's own uncertainty);
     load_torque_sigma and load_power_sigma (relative, the load as the monitor reads it: a shaft torque, or an
