@@ -197,10 +197,22 @@ const signed = (v, digits = 2) => (isNum(v) ? `${v >= 0 ? "+" : "−"}${Math.abs
 const METHOD_WORDS = { "rohr-compression-expansion": "fired cycles (heat release before and after combustion)",
   "rohr-motored-heat-loss-shaping": "motored cycles (heat loss over the closed cycle)" };
 
+/** Where one cylinder's own calibration sigma stands out of the typical one (commissioning writes one per cylinder:
+ *  a channel whose gain it corrected holds that correction), that cylinder's, in words; else nothing. */
+function widest(perCylinder, typical, unit, digits) {
+  if (!Array.isArray(perCylinder) || !perCylinder.length || !isNum(typical)) return "";
+  let k = 0;
+  perCylinder.forEach((v, i) => { if (v > perCylinder[k]) k = i; });
+  return perCylinder[k] > 1.2 * typical
+    ? ` (rms; cylinder ${k + 1} ±${fmt(perCylinder[k], digits)}${unit}, the widest, carried in its own figures)` : "";
+}
+
 /** The installation's calibration (the model's [model.calibration]) in words. */
 function calibrationText(cal) {
   const sig = `TDC ±${fmt(cal.tdc_wheel_sigma_deg, 2)}° for the whole wheel and ±${fmt(cal.tdc_cylinder_sigma_deg, 2)}° `
-    + `per cylinder, pressure gain ±${fmt(cal.gain_sigma_pct, 1)} % per channel and ±${fmt(cal.gain_common_sigma_pct, 1)} % `
+    + `per cylinder${widest(cal.tdc_cylinder_sigmas_deg, cal.tdc_cylinder_sigma_deg, "°", 2)}, pressure gain `
+    + `±${fmt(cal.gain_sigma_pct, 1)} % per channel${widest(cal.gain_sigmas_pct, cal.gain_sigma_pct, " %", 1)} and `
+    + `±${fmt(cal.gain_common_sigma_pct, 1)} % `
     + `common to all, flywheel inertia J ±${fmt(cal.inertia_sigma_pct, 1)} %`
     + (isNum(cal.load_torque_sigma_pct) ? `, the load ±${fmt(cal.load_torque_sigma_pct, 1)} % read as shaft torque or `
       + `±${fmt(cal.load_power_sigma_pct, 1)} % read as electrical power (${cal.generator_efficiency < 1
