@@ -52,7 +52,8 @@ from frictionwatch.core.monitor.calibration.tdc_watch import (
 from frictionwatch.core.monitor.calibration.tdc_window import close_window
 from frictionwatch.core.monitor.calibration.thermal_shock_watch import (
     ThermalShockWatchState,
-    tdc_in_force,
+    judged_cylinders,
+    judged_flags,
     watch_expansion,
 )
 from frictionwatch.core.monitor.checks.pressure_trace import PressureTraceConfig, PressureTraceState, check_traces
@@ -198,11 +199,11 @@ class ThermalShockWatch:
         return ThermalShockWatchState.empty()
 
     def update(self, state: ThermalShockWatchState, inp: StageInput) -> StageOutput:
-        """Not judged while a TDC offset is flagged on the cycle (thermal_shock_watch.tdc_in_force): its flags then
-        say nothing of the shock."""
-        tdc = tdc_in_force(inp.flags)
-        state = watch_expansion(inp.spec, state, inp.cycle, inp.twist, self.window, inp.motion, tdc)
-        return StageOutput(state, () if tdc else state.flags)
+        """Not judged where a TDC offset flagged on the cycle moves the throws' motion it reads
+        (thermal_shock_watch.judged_cylinders): no flag of those cylinders then."""
+        judged = judged_cylinders(inp.flags, inp.spec.n_cyl)
+        state = watch_expansion(inp.spec, state, inp.cycle, inp.twist, self.window, inp.motion, judged)
+        return StageOutput(state, judged_flags(state.flags, judged))
 
     def warm_up(self) -> ThermalShockWatch:
         """This watch judging every BLOCKS cycles (core.monitor.warmup)."""

@@ -77,6 +77,29 @@ def tdc_in_force(flags: tuple[str, ...]) -> bool:
     return any(f.startswith(TDC_FLAG) for f in flags)
 
 
+def judged_cylinders(flags: tuple[str, ...], n_cyl: int) -> np.ndarray:
+    """(n_cyl,) bool: the cylinders whose shock the watch may judge under ``flags`` (a cycle's, so far). None under
+    the wheel's TDC flag (every throw's motion is off); under cylinder k's own, k only: its siblings' throws are read
+    where a model with k's TDC wrong puts them (design note 167: k9k 2400 rpm, cylinder 2 1.5 deg off, flagged
+    cylinder 3), while a shocked sensor on k is itself one cause of k's TDC flag (the TDC watch read 6 of note 156's
+    24 one-cylinder shocks so) and k's own reading is not moved by its own TDC more than a TDC fault's own evidence."""
+    if TDC_FLAG in flags:
+        return np.zeros(n_cyl, dtype=bool)
+    own = [f[len(TDC_FLAG) + 4:] for f in flags if f.startswith(TDC_FLAG + "_cyl")]
+    if not own:
+        return np.ones(n_cyl, dtype=bool)
+    mask = np.zeros(n_cyl, dtype=bool)
+    for k in own:
+        if k.isdigit() and 1 <= int(k) <= n_cyl:
+            mask[int(k) - 1] = True
+    return mask
+
+
+def judged_flags(shock: tuple[str, ...], mask: np.ndarray) -> tuple[str, ...]:
+    """The ``sensor_thermal_shock_cyl<k>`` flags of ``shock`` on the cylinders ``mask`` lets the watch judge."""
+    return tuple(f for f in shock if mask[int(f.rsplit("cyl", 1)[1]) - 1])
+
+
 def bend_tables(spec: EngineSpec) -> tuple[np.ndarray, np.ndarray]:
     """(angles (L,) rad from firing TDC, weights (L,)): bend = weights . ln p at those angles (the difference of the
     two windows' least-squares slopes of ln p on -ln V, each a fixed linear combination of its samples)."""
@@ -171,17 +194,19 @@ def window_leads(spec: EngineSpec, blocks: PressureBlocks, motion: ThrowMotion |
 
 def watch_expansion(spec: EngineSpec, state: ThermalShockWatchState, cycle: Cycle, lead: np.ndarray,
                     window: int = WINDOW_CYCLES, motion: ThrowMotion | None = None,
-                    tdc_flagged: bool = False) -> ThermalShockWatchState:
+                    judged: np.ndarray | None = None) -> ThermalShockWatchState:
     """``state`` with ``cycle`` (the pressure as the monitor gets it) added, ``lead`` (z,) rad its throws' static
     twist and ``motion`` their motion in it (None: the static twist only); at the end of a window its pressure is
     read, and its verdict given on the next cycle (the TDC watch reads cycles in pairs: its window of the same cycles
-    closes one cycle later) unless ``tdc_flagged`` (a TDC offset flag in force on that cycle): then no flag, and
-    ``not_judged`` says why (module doc). Below three cylinders nothing is compared and nothing flagged."""
+    closes one cycle later) on the cylinders ``judged`` (z,) bool lets it judge (``judged_cylinders`` of the TDC
+    flags in force on that cycle; None: all); a cylinder withheld gets no flag, and ``not_judged`` says why (module
+    doc). Below three cylinders nothing is compared and nothing flagged."""
     z = spec.n_cyl
     if z < MIN_CYLINDERS:
         return state
     if state.due:  # the newest window's verdict, given on the cycle after it: the TDC watch has read its cycles
-        flags, why = ((), NOT_JUDGED_TDC) if tdc_flagged else (shock_flags(state.last), "")
+        mask = np.ones(z, dtype=bool) if judged is None else judged
+        flags, why = judged_flags(shock_flags(state.last), mask), "" if mask.all() else NOT_JUDGED_TDC
         state = ThermalShockWatchState(state.blocks, state.last, flags, state.motion, state.motion_cycles, why)
     blocks = state.blocks.add(cycle.pressure, lead)
     restarted = blocks.used < state.blocks.used  # the blocks began again (a cycle on another grid)
@@ -226,4 +251,5 @@ def shock_flags(stats: BendStats) -> tuple[str, ...]:
 
 
 __all__ = ["EARLY_DEG", "LATE_DEG", "MIN_BEND", "NOT_JUDGED_TDC", "TDC_FLAG", "BendStats", "ThermalShockWatchState", "add_motion", "bend_stats",
-           "bend_tables", "expansion_bend", "shock_flags", "tdc_in_force", "watch_expansion", "window_leads"]
+           "bend_tables", "expansion_bend", "judged_cylinders", "judged_flags", "shock_flags", "tdc_in_force",
+           "watch_expansion", "window_leads"]
