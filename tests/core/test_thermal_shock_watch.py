@@ -163,3 +163,15 @@ def test_no_verdict_while_a_tdc_offset_is_flagged(rpm, load, seed, effects):
     assert tdc == (f"sensor_tdc_offset_cyl{cylinder}",)
     assert seen == ()
     assert watch.last is not None and watch.not_judged == NOT_JUDGED_TDC
+
+
+def test_a_tdc_flag_withholds_the_cylinders_whose_throws_it_moves():
+    """The wheel's TDC flag: no cylinder judged; cylinder k's own: k only (a shock on k is one cause of k's flag,
+    its siblings are read where a model with k's TDC wrong puts them; design note 167)."""
+    from frictionwatch.core.monitor.calibration.thermal_shock_watch import judged_cylinders, judged_flags
+
+    assert judged_cylinders(("misfire_cyl2",), 4).all()
+    assert not judged_cylinders(("sensor_tdc_offset", "sensor_tdc_offset_cyl2"), 4).any()
+    mask = judged_cylinders(("sensor_tdc_offset_cyl2", "sensor_pressure_gain_cyl2"), 4)
+    assert mask.tolist() == [False, True, False, False]
+    assert judged_flags(("sensor_thermal_shock_cyl2", "sensor_thermal_shock_cyl3"), mask) == ("sensor_thermal_shock_cyl2",)
