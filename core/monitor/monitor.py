@@ -258,7 +258,7 @@ def process_cycle(engine: EngineModel | EngineSpec, state: MonitorState, cycle: 
         tooth_patterns=patterns, **checked,
         previous=PreviousCycle(int(cycle.tooth_ticks[0]), int(cycle.tooth_ticks[-1]), pressure.copy(), energy,
                                load, t_i, coupling_loss, late),  # a copy: a live source may reuse the cycle's buffer
-        grid_geometry=geometry, energy_weights=weights, wheel2=wheel2,
+        grid_geometry=geometry, energy_weights=weights, wheel2=wheel2, motion=motion,
     )  # every field (dataclasses.replace costs twice as much per cycle)
     return new_state, result
 

@@ -50,7 +50,12 @@ from frictionwatch.core.monitor.calibration.tdc_watch import (
     watch_cycle,
 )
 from frictionwatch.core.monitor.calibration.tdc_window import close_window
-from frictionwatch.core.monitor.calibration.thermal_shock_watch import ThermalShockWatchState, watch_expansion
+from frictionwatch.core.monitor.calibration.thermal_shock_watch import (
+    ThermalShockWatchState,
+    judged_cylinders,
+    judged_flags,
+    watch_expansion,
+)
 from frictionwatch.core.monitor.checks.pressure_trace import PressureTraceConfig, PressureTraceState, check_traces
 from frictionwatch.core.monitor.monitor import CycleRejected, initial_state, nonpositive_flags, process_cycle
 from frictionwatch.core.monitor.report.results import CycleResult
@@ -85,13 +90,17 @@ class StageInput:
     """What a stage sees of a cycle: the spec its phases are in (the model's before the view, the view's after it),
     the model's calibration, the cycle (as it came before the view; as the monitor got it after), and after the
     monitor only: its result and each throw's static twist ahead of the flywheel (z,) rad in the monitor's model of
-    this cycle (None before the view)."""
+    this cycle (None before the view), and each throw's angle against the flywheel over the cycle (static twist and
+    its harmonics, core.monitor.checks.ring_pressure.ThrowMotion; None before the view and on a rigid shaft line),
+    and the flags raised on this cycle before the stage (the result's and the earlier stages')."""
 
     spec: EngineSpec
     calibration: Calibration
     cycle: Cycle
     result: CycleResult | None = None
     twist: np.ndarray | None = None
+    motion: Any = None  # core.monitor.checks.ring_pressure.ThrowMotion | None
+    flags: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -190,8 +199,11 @@ class ThermalShockWatch:
         return ThermalShockWatchState.empty()
 
     def update(self, state: ThermalShockWatchState, inp: StageInput) -> StageOutput:
-        state = watch_expansion(inp.spec, state, inp.cycle, inp.twist, self.window)
-        return StageOutput(state, state.flags)
+        """Not judged where a TDC offset flagged on the cycle moves the throws' motion it reads
+        (thermal_shock_watch.judged_cylinders): no flag of those cylinders then."""
+        judged = judged_cylinders(inp.flags, inp.spec.n_cyl)
+        state = watch_expansion(inp.spec, state, inp.cycle, inp.twist, self.window, inp.motion, judged)
+        return StageOutput(state, judged_flags(state.flags, judged))
 
     def warm_up(self) -> ThermalShockWatch:
         """This watch judging every BLOCKS cycles (core.monitor.warmup)."""
@@ -309,7 +321,8 @@ class CyclePipeline:
             return self._skip(cycle, f"monitor_error: {type(exc).__name__}")
         self.cycles_ok += 1
         self.newest_cycle = int(cycle.index)
-        inp = StageInput(view.spec, self.model.calibration, cycle, result, self.cylinder_twist())
+        inp = StageInput(view.spec, self.model.calibration, cycle, result, self.cylinder_twist(), self.state.motion,
+                         result.flags)
         _, flags, _ = self._run_stages(AFTER_MONITOR, inp)
         new = tuple(f for f in flags if f not in result.flags)
         if new:
@@ -335,6 +348,8 @@ class CyclePipeline:
                 if out.cycle is not None or out.refusal is not None:
                     raise TypeError(f"stage {stage.name} after the monitor gave a cycle or a refusal: only a stage "
                                     "before the view may")
+                new = tuple(f for f in out.flags if f not in inp.flags)
+                inp = replace(inp, flags=inp.flags + new) if new else inp  # the next stage sees them
                 continue
             if out.refusal is not None:
                 return cycle, tuple(flags), out.refusal

@@ -11,7 +11,7 @@ import numpy as np
 from frictionwatch.core.model.calibration import Calibration
 from frictionwatch.core.monitor.balance.harmonic_balance import OperatingPoint
 from frictionwatch.core.monitor.checks.change import ChangeDetector
-from frictionwatch.core.monitor.checks.ring_pressure import RingTables
+from frictionwatch.core.monitor.checks.ring_pressure import RingTables, ThrowMotion
 from frictionwatch.core.monitor.checks.sensor_health import SensorHealthConfig, SensorHealthState
 from frictionwatch.core.monitor.identify.accumulate import Accumulator
 from frictionwatch.core.monitor.identify.estimate import ModelErrorFloor
@@ -350,6 +350,7 @@ class MonitorState:
     grid_geometry: GridGeometry | None = None  # the crank-angle grid's piston positions and J(2 pi)
     energy_weights: EnergyWeights | None = None  # the cycle energy's weights at the edges' angles
     wheel2: SecondWheelState | None = None  # the second wheel's tooth learner (core.monitor.teeth.tooth_fit)
+    motion: ThrowMotion | None = None  # each throw's angle against the wheel in the newest cycle (the stages read it)
 
     def previous_of(self, first_tick: int) -> PreviousCycle | None:
         """``previous`` if it is the cycle just before one whose first tooth edge is at ``first_tick``, else None."""

@@ -13,7 +13,13 @@ error grows relative to the falling pressure, and falls over the late part, wher
 
 which a channel's gain leaves exactly as it is (a constant in ln p), and a pegging offset moves (an offset weighs more
 where p is lower): each channel's pegging against its siblings, read on the same mean cycle over the compression
-(core.monitor.calibration.pressure_gain.cycle_comparison, the gain watch's comparison), is taken off first. A common
+(core.monitor.calibration.pressure_gain.cycle_comparison, the gain watch's comparison), is taken off first.
+Both windows are read where each cylinder's own throw is at the window's angle: the monitor's throw motion (static
+twist and its harmonics, core.monitor.checks.ring_pressure.ThrowMotion) averaged over the window's cycles; the
+static twist alone where there is none (a rigid shaft line). With the static twist alone, healthy k9k-4cyl at 4000
+rpm full load (seed 1) read cylinder 1 (the free end) at -0.014 and flagged it: the twist's harmonics move its
+throw -0.09..+0.17 deg against the wheel over the compression window, which the pegging fit took for 0.09 bar
+(design note 165). A common
 change (load, speed, the engine's heat transfer) moves every cylinder's bend alike; what is compared is a cylinder's
 bend minus its siblings' median. Simulated, seed 5, k9k-4cyl 1700 rpm full load, 24 cycles: healthy cylinders'
 bends +0.017..+0.024 (dev within 0.004); one cylinder shocked 0.2 bar -> dev -0.010, 0.5 bar -> -0.031. A shock in
@@ -24,6 +30,13 @@ block's mean cycle gives each cylinder's dev, the blocks give its mean and stand
 ``sensor_thermal_shock_cyl<k>`` (the ``sensor_`` prefix withholds its figures, core.monitor.report.figure_status)
 when its dev is below -max(``MIN_BEND``, ``DRIFT_SIGMAS`` x its standard error, ``SPREAD_SIGMAS`` x the robust
 spread of its siblings' devs); only with three or more cylinders. A flag holds until a window says otherwise.
+
+No verdict while a TDC offset is flagged (``sensor_tdc_offset``, the wheel's or a cylinder's; the window's reading is
+kept, ``not_judged`` says why, and no shock flag is raised on a cycle that carries one): the watch reads every
+channel at the model's phases and each throw where the model's throw motion puts it, and a TDC flag says the model's
+phases are wrong, its motion too (made from the gas torque at those phases). Beside a real 1.5-deg TDC offset on
+cylinder 2 (k9k-4cyl 2400 rpm, load steps) the motion read cylinder 3 as shocked (design notes 165, 167). The
+verdict is given on the cycle after its window, when the TDC watch (which reads cycles in pairs) has read the same.
 """
 
 from __future__ import annotations
@@ -35,9 +48,11 @@ import numpy as np
 from frictionwatch.core.model.engine import EngineSpec
 from frictionwatch.core.model.kinematics import kinematics
 from frictionwatch.core.monitor.calibration.gain_watch import SPREAD_SIGMAS, PressureBlocks
-from frictionwatch.core.monitor.calibration.pressure_gain import cycle_comparison
+from frictionwatch.core.monitor.calibration.pressure_gain import COMPRESSION_WINDOW_DEG, cycle_comparison
 from frictionwatch.core.monitor.calibration.tdc_watch import WINDOW_CYCLES
 from frictionwatch.core.monitor.calibration.tdc_window import DRIFT_SIGMAS
+from frictionwatch.core.monitor.checks.ring_pressure import ThrowMotion, throw_lag_reference
+from frictionwatch.core.monitor.checks.sensor_evidence import compression_angles
 from frictionwatch.core.types import Cycle
 
 FOUR_PI = 4.0 * np.pi
@@ -47,9 +62,42 @@ EARLY_DEG = (80.0, 45.0)
 LATE_DEG = (45.0, 10.0)
 STEP_DEG = 1.0
 # the least dev flagged: tuned on k9k-4cyl 1700 rpm full load, seed 5 (healthy devs within 0.004, a 0.2 bar shock
-# -0.010); tested on maruti-3cyl and genset-v20 and other seeds and loads (bench/thermal_shock_coverage.py)
+# -0.010); tested on maruti-3cyl and genset-v20 and other seeds and loads (bench/thermal_shock_coverage.py), and
+# unchanged by note 165: tested on its 56 healthy logs, seeds 1-2, and its shocks (bench/thermal_shock_false_flags.py)
 MIN_BEND = 0.007
 MIN_CYLINDERS = 3
+# the TDC flags (the TDC watch's, core.monitor.calibration.tdc_window, and the sensor-health check's): while one is in
+# force the watch gives no verdict (module doc), and its reading says why
+TDC_FLAG = "sensor_tdc_offset"
+NOT_JUDGED_TDC = "not judged: a TDC offset is flagged"
+
+
+def tdc_in_force(flags: tuple[str, ...]) -> bool:
+    """Whether ``flags`` (a cycle's, so far) hold a TDC offset flag, the wheel's or a cylinder's."""
+    return any(f.startswith(TDC_FLAG) for f in flags)
+
+
+def judged_cylinders(flags: tuple[str, ...], n_cyl: int) -> np.ndarray:
+    """(n_cyl,) bool: the cylinders whose shock the watch may judge under ``flags`` (a cycle's, so far). None under
+    the wheel's TDC flag (every throw's motion is off); under cylinder k's own, k only: its siblings' throws are read
+    where a model with k's TDC wrong puts them (design note 167: k9k 2400 rpm, cylinder 2 1.5 deg off, flagged
+    cylinder 3), while a shocked sensor on k is itself one cause of k's TDC flag (the TDC watch read 6 of note 156's
+    24 one-cylinder shocks so) and k's own reading is not moved by its own TDC more than a TDC fault's own evidence."""
+    if TDC_FLAG in flags:
+        return np.zeros(n_cyl, dtype=bool)
+    own = [f[len(TDC_FLAG) + 4:] for f in flags if f.startswith(TDC_FLAG + "_cyl")]
+    if not own:
+        return np.ones(n_cyl, dtype=bool)
+    mask = np.zeros(n_cyl, dtype=bool)
+    for k in own:
+        if k.isdigit() and 1 <= int(k) <= n_cyl:
+            mask[int(k) - 1] = True
+    return mask
+
+
+def judged_flags(shock: tuple[str, ...], mask: np.ndarray) -> tuple[str, ...]:
+    """The ``sensor_thermal_shock_cyl<k>`` flags of ``shock`` on the cylinders ``mask`` lets the watch judge."""
+    return tuple(f for f in shock if mask[int(f.rsplit("cyl", 1)[1]) - 1])
 
 
 def bend_tables(spec: EngineSpec) -> tuple[np.ndarray, np.ndarray]:
@@ -70,12 +118,12 @@ def bend_tables(spec: EngineSpec) -> tuple[np.ndarray, np.ndarray]:
 def expansion_bend(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, offset: np.ndarray,
                    lead: np.ndarray) -> np.ndarray:
     """(z,) each cylinder's bend (module doc) of ``pressure`` (z, n) on ``grid`` less its ``offset`` (z,) Pa, read
-    where its piston is (``lead`` (z,) rad ahead of the flywheel angle the pressure is sampled at); NaN where the
-    pressure is not positive in a window."""
+    where its piston is (``lead`` (z,) rad ahead of the flywheel angle the pressure is sampled at, or (z, L) at each
+    of ``bend_tables``' angles); NaN where the pressure is not positive in a window."""
     angles, weights = bend_tables(spec)
     z, n = pressure.shape
     h = FOUR_PI / n
-    u = np.mod(angles[None, :] + spec.firing_angles[:, None] - lead[:, None] - grid[0], FOUR_PI) / h
+    u = np.mod(angles[None, :] + spec.firing_angles[:, None] - np.reshape(lead, (z, -1)) - grid[0], FOUR_PI) / h
     i0 = np.floor(u).astype(np.int64)
     f = u - i0
     rows = np.arange(z)[:, None]
@@ -101,39 +149,84 @@ class BendStats:
 @dataclass(frozen=True)
 class ThermalShockWatchState:
     """As core.monitor.calibration.gain_watch.GainWatchState: blocks, the window's pressure
-    (gain_watch.PressureBlocks); last: the newest window's reading or None; flags in force."""
+    (gain_watch.PressureBlocks); last: the newest window's reading or None; flags in force; motion: the throw
+    motions of the window's summed cycles that had one, summed (``add_motion``), or None; motion_cycles: how many;
+    not_judged: why the newest window's reading gave no verdict (``NOT_JUDGED_TDC``), or ''; due: the newest
+    window is read and its verdict is given on the next cycle (``watch_expansion``)."""
 
     blocks: PressureBlocks
     last: BendStats | None
     flags: tuple[str, ...]
+    motion: ThrowMotion | None = None
+    motion_cycles: int = 0
+    not_judged: str = ""
+    due: bool = False
 
     @staticmethod
     def empty() -> ThermalShockWatchState:
         return ThermalShockWatchState(PressureBlocks(), None, ())
 
 
+def add_motion(total: ThrowMotion | None, count: int, motion: ThrowMotion) -> tuple[ThrowMotion, int]:
+    """(the sum, count) with ``motion`` added, its harmonics turned to the flywheel angle 0 (theta_start 0: cycles
+    that start at different edges add alike); a sum of another harmonic count is restarted from this one."""
+    orders = np.arange(1, motion.relative.shape[1] + 1)
+    here = ThrowMotion(np.asarray(motion.static, dtype=np.float64),
+                       motion.relative * np.exp(-0.5j * orders * motion.theta_start)[None, :], 0.0)
+    if total is None or total.relative.shape != here.relative.shape:
+        return here, 1
+    return ThrowMotion(total.static + here.static, total.relative + here.relative, 0.0), count + 1
+
+
+def window_leads(spec: EngineSpec, blocks: PressureBlocks, motion: ThrowMotion | None,
+                 count: int) -> tuple[np.ndarray, np.ndarray]:
+    """((z, Lc), (z, Le)) rad each throw ahead of the flywheel at the compression window's samples and at
+    ``bend_tables``' angles: the window's mean throw motion, or its mean static twist where it had none."""
+    z = spec.n_cyl
+    comp = compression_angles(spec, COMPRESSION_WINDOW_DEG)[None, :] + spec.firing_angles[:, None]
+    expa = bend_tables(spec)[0][None, :] + spec.firing_angles[:, None]
+    if motion is None or count == 0:
+        lead = np.asarray(blocks.lead_mean(z), dtype=np.float64)[:, None]
+        return np.broadcast_to(lead, comp.shape), np.broadcast_to(lead, expa.shape)
+    mean = ThrowMotion(motion.static / count, motion.relative / count, 0.0)
+    return throw_lag_reference(mean, comp), throw_lag_reference(mean, expa)
+
+
 def watch_expansion(spec: EngineSpec, state: ThermalShockWatchState, cycle: Cycle, lead: np.ndarray,
-                    window: int = WINDOW_CYCLES) -> ThermalShockWatchState:
-    """``state`` with ``cycle`` (the pressure as the monitor gets it) added; at the end of a window the flags are
-    decided (module doc). Below three cylinders nothing is compared and nothing flagged."""
+                    window: int = WINDOW_CYCLES, motion: ThrowMotion | None = None,
+                    judged: np.ndarray | None = None) -> ThermalShockWatchState:
+    """``state`` with ``cycle`` (the pressure as the monitor gets it) added, ``lead`` (z,) rad its throws' static
+    twist and ``motion`` their motion in it (None: the static twist only); at the end of a window its pressure is
+    read, and its verdict given on the next cycle (the TDC watch reads cycles in pairs: its window of the same cycles
+    closes one cycle later) on the cylinders ``judged`` (z,) bool lets it judge (``judged_cylinders`` of the TDC
+    flags in force on that cycle; None: all); a cylinder withheld gets no flag, and ``not_judged`` says why (module
+    doc). Below three cylinders nothing is compared and nothing flagged."""
     z = spec.n_cyl
     if z < MIN_CYLINDERS:
         return state
+    if state.due:  # the newest window's verdict, given on the cycle after it: the TDC watch has read its cycles
+        mask = np.ones(z, dtype=bool) if judged is None else judged
+        flags, why = judged_flags(shock_flags(state.last), mask), "" if mask.all() else NOT_JUDGED_TDC
+        state = ThermalShockWatchState(state.blocks, state.last, flags, state.motion, state.motion_cycles, why)
     blocks = state.blocks.add(cycle.pressure, lead)
+    restarted = blocks.used < state.blocks.used  # the blocks began again (a cycle on another grid)
+    total, count = (None, 0) if restarted else (state.motion, state.motion_cycles)
+    if motion is not None and blocks.used > (0 if restarted else state.blocks.used):  # summed: its motion too
+        total, count = add_motion(total, count, motion)
     if blocks.cycles < window:
-        return ThermalShockWatchState(blocks, state.last, state.flags)
+        return ThermalShockWatchState(blocks, state.last, state.flags, total, count, state.not_judged)
     if blocks.used < window // 2:  # most of the window unusable: no verdict, the old one stands
-        return ThermalShockWatchState(PressureBlocks(), state.last, state.flags)
-    lead_mean = blocks.lead_mean(z)
+        return ThermalShockWatchState(PressureBlocks(), state.last, state.flags, not_judged=state.not_judged)
+    comp_lead, bend_lead = window_leads(spec, blocks, total, count)
     devs = []
     for mean_cycle in blocks.mean_cycles(cycle):
-        offset = cycle_comparison(spec, mean_cycle, lead_mean)[1]
-        bend = expansion_bend(spec, mean_cycle.grid, mean_cycle.pressure, offset, lead_mean)
+        offset = cycle_comparison(spec, mean_cycle, comp_lead)[1]
+        bend = expansion_bend(spec, mean_cycle.grid, mean_cycle.pressure, offset, bend_lead)
         devs.append(bend - np.median(bend))
     stats = bend_stats(np.array(devs))
     if stats is None:
-        return ThermalShockWatchState(PressureBlocks(), state.last, state.flags)
-    return ThermalShockWatchState(PressureBlocks(), stats, shock_flags(stats))
+        return ThermalShockWatchState(PressureBlocks(), state.last, state.flags, not_judged=state.not_judged)
+    return ThermalShockWatchState(PressureBlocks(), stats, state.flags, not_judged=state.not_judged, due=True)
 
 
 def bend_stats(devs: np.ndarray) -> BendStats | None:
@@ -157,5 +250,6 @@ def shock_flags(stats: BendStats) -> tuple[str, ...]:
                  if stats.dev[k] < -stats.limit[k])
 
 
-__all__ = ["EARLY_DEG", "LATE_DEG", "MIN_BEND", "BendStats", "ThermalShockWatchState", "bend_stats", "bend_tables",
-           "expansion_bend", "shock_flags", "watch_expansion"]
+__all__ = ["EARLY_DEG", "LATE_DEG", "MIN_BEND", "NOT_JUDGED_TDC", "TDC_FLAG", "BendStats", "ThermalShockWatchState", "add_motion", "bend_stats",
+           "bend_tables", "expansion_bend", "judged_cylinders", "judged_flags", "shock_flags", "tdc_in_force",
+           "watch_expansion", "window_leads"]

@@ -17,17 +17,24 @@ STEP_DEG = 1.0  # compression-window sampling
 SHIFT_STEP = math.radians(0.1)  # central difference of the torques in Delta
 
 
+def compression_angles(spec: EngineSpec, window_deg: tuple[float, float]) -> np.ndarray:
+    """(L,) rad from firing TDC: the samples of the sibling comparison's compression window (its end kept 8 deg
+    before the start of combustion)."""
+    end = min(window_deg[1], spec.combustion.start_deg - 8.0)
+    return np.radians(np.arange(window_deg[0], end + 1e-9, STEP_DEG))
+
+
 def sibling_compare(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, window_deg: tuple[float, float],
                     lead: np.ndarray) -> np.ndarray:
     """This cycle's (2, z) [gain - 1, offset Pa] of each cylinder against the median of its siblings over the
     compression window (NaN below three cylinders: two cannot say which one is off); lead (z,) rad: how far each
     piston is ahead of the flywheel angle the pressure is sampled at (the model's static twist minus the TDC
-    correction in use), so that the traces are compared at the same piston position."""
+    correction in use), so that the traces are compared at the same piston position; or (z, L), at each of the
+    window's samples (``compression_angles``: the twist's harmonics too)."""
     z, n = pressure.shape
     if z < 3:
         return np.full((2, z), np.nan)
-    end = min(window_deg[1], spec.combustion.start_deg - 8.0)
-    w = np.radians(np.arange(window_deg[0], end + 1e-9, STEP_DEG))
+    w = compression_angles(spec, window_deg)
     x, _, _ = kinematics(w, spec.kinematics_params())
     log_v = np.log((spec.clearance_volume + spec.piston_area * x) / spec.clearance_volume)
     log_v -= log_v.mean()
@@ -44,10 +51,12 @@ def sibling_compare(spec: EngineSpec, grid: np.ndarray, pressure: np.ndarray, wi
 
 def _window(grid: np.ndarray, pressure: np.ndarray, phases: np.ndarray, w: np.ndarray,
             shift: np.ndarray) -> np.ndarray:
-    """(z, L) pressure of each cylinder at its local angles w (+ its own ``shift``), linear on the uniform grid."""
+    """(z, L) pressure of each cylinder at its local angles w (+ its own ``shift``, (z,) or (z, L)), linear on the
+    uniform grid."""
     z, n = pressure.shape
     h = FOUR_PI / n
-    u = np.mod(w[None, :] + phases[:, None] + shift[:, None] - grid[0], FOUR_PI) / h
+    shift = np.reshape(shift, (z, -1))
+    u = np.mod(w[None, :] + phases[:, None] + shift - grid[0], FOUR_PI) / h
     i0 = np.floor(u).astype(np.int64)
     f = u - i0
     rows = np.arange(z)[:, None]
