@@ -19,7 +19,7 @@ from frictionwatch.core.model.engine_model import EngineModel
 from frictionwatch.core.model.view import Reference
 from frictionwatch.core.monitor.balance.mean_balance import mid_cycle_inertia, shaft_load
 from frictionwatch.core.monitor.calibration.tdc_memo import TdcFitMemo
-from frictionwatch.core.monitor.calibration.thermal_shock_watch import judged_cylinders
+from frictionwatch.core.monitor.calibration.thermal_shock_watch import judged_cylinders, judged_flags
 from frictionwatch.core.monitor.pipeline import STAGES, CyclePipeline, TdcWatch
 from frictionwatch.core.monitor.state import MonitorConfig
 from frictionwatch.core.types import Cycle
@@ -35,7 +35,6 @@ GROUP_LOAD_STEP = 0.05
 GROUP_SPEED_STEP = 0.02
 GROUP_NOISE = 8.0  # and by more than 8 sigma of the cycle-to-cycle scatter: noise alone never splits a steady log
 PINNED_SIGMA = 1e-4  # prior sigma of every friction scale: the model's coefficients are used as they are
-SHOCK_FLAG = "sensor_thermal_shock_cyl"  # the thermal-shock watch's flag of cylinder <k> (thermal_shock_watch)
 
 
 def pinned_config(config: MonitorConfig | None = None) -> MonitorConfig:
@@ -200,9 +199,8 @@ def run_model(model: EngineModel, ref: Reference, config: MonitorConfig, cycles:
     pipe.close_windows()  # the pressure's reading of the whole log
     # the thermal-shock watch judges no cylinder whose throws a flagged TDC offset moves (judged_cylinders); here the
     # TDC watch reads once, at the log's end, so the watch's verdicts saw no TDC flag: the same rule, on the log
-    judged = judged_cylinders(tuple(pipe.stages["tdc_watch"].flags), z)
-    sensor_flags = {f: n for f, n in sensor_flags.items()
-                    if not (f.startswith(SHOCK_FLAG) and not judged[int(f[len(SHOCK_FLAG):]) - 1])}
+    kept = judged_flags(tuple(sensor_flags), judged_cylinders(tuple(pipe.stages["tdc_watch"].flags), z))
+    sensor_flags = {f: sensor_flags[f] for f in kept}
     omega, load, friction = (np.array([r[i] for r in rows]) for i in (1, 2, 7))
     indicated = load + friction
     scale = float(np.median(np.abs(indicated[np.isfinite(indicated)]))) if np.isfinite(indicated).any() else 0.0

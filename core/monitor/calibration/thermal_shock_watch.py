@@ -31,10 +31,11 @@ block's mean cycle gives each cylinder's dev, the blocks give its mean and stand
 when its dev is below -max(``MIN_BEND``, ``DRIFT_SIGMAS`` x its standard error, ``SPREAD_SIGMAS`` x the robust
 spread of its siblings' devs); only with three or more cylinders. A flag holds until a window says otherwise.
 
-No verdict while a TDC offset is flagged (``sensor_tdc_offset``, the wheel's or a cylinder's; the window's reading is
-kept, ``not_judged`` says why, and no shock flag is raised on a cycle that carries one): the watch reads every
-channel at the model's phases and each throw where the model's throw motion puts it, and a TDC flag says the model's
-phases are wrong, its motion too (made from the gas torque at those phases). Beside a real 1.5-deg TDC offset on
+No verdict on a cylinder whose throws a flagged TDC offset moves (``judged_cylinders``: none under the wheel's
+``sensor_tdc_offset``, only cylinder k under its own ``sensor_tdc_offset_cyl<k>``; the window's reading is kept and
+``not_judged`` says why): the watch reads every channel at the model's phases and each throw where the model's throw
+motion puts it, and a TDC flag says the model's phases are wrong, its motion too (made from the gas torque at those
+phases). Beside a real 1.5-deg TDC offset on
 cylinder 2 (k9k-4cyl 2400 rpm, load steps) the motion read cylinder 3 as shocked (design notes 165, 167). The
 verdict is given on the cycle after its window, when the TDC watch (which reads cycles in pairs) has read the same.
 """
@@ -67,14 +68,10 @@ STEP_DEG = 1.0
 MIN_BEND = 0.007
 MIN_CYLINDERS = 3
 # the TDC flags (the TDC watch's, core.monitor.calibration.tdc_window, and the sensor-health check's): while one is in
-# force the watch gives no verdict (module doc), and its reading says why
+# force the cylinders whose throws it moves get no verdict (module doc), and the reading says why
 TDC_FLAG = "sensor_tdc_offset"
+SHOCK_FLAG = "sensor_thermal_shock_cyl"  # this watch's flag of cylinder <k>
 NOT_JUDGED_TDC = "not judged: a TDC offset is flagged"
-
-
-def tdc_in_force(flags: tuple[str, ...]) -> bool:
-    """Whether ``flags`` (a cycle's, so far) hold a TDC offset flag, the wheel's or a cylinder's."""
-    return any(f.startswith(TDC_FLAG) for f in flags)
 
 
 def judged_cylinders(flags: tuple[str, ...], n_cyl: int) -> np.ndarray:
@@ -95,9 +92,9 @@ def judged_cylinders(flags: tuple[str, ...], n_cyl: int) -> np.ndarray:
     return mask
 
 
-def judged_flags(shock: tuple[str, ...], mask: np.ndarray) -> tuple[str, ...]:
-    """The ``sensor_thermal_shock_cyl<k>`` flags of ``shock`` on the cylinders ``mask`` lets the watch judge."""
-    return tuple(f for f in shock if mask[int(f.rsplit("cyl", 1)[1]) - 1])
+def judged_flags(flags: tuple[str, ...], mask: np.ndarray) -> tuple[str, ...]:
+    """``flags`` less this watch's ``sensor_thermal_shock_cyl<k>`` on the cylinders ``mask`` does not let it judge."""
+    return tuple(f for f in flags if not f.startswith(SHOCK_FLAG) or mask[int(f[len(SHOCK_FLAG):]) - 1])
 
 
 def bend_tables(spec: EngineSpec) -> tuple[np.ndarray, np.ndarray]:
@@ -246,10 +243,10 @@ def bend_stats(devs: np.ndarray) -> BendStats | None:
 
 def shock_flags(stats: BendStats) -> tuple[str, ...]:
     """``sensor_thermal_shock_cyl<k>`` for each cylinder whose dev reads below -limit, in cylinder order."""
-    return tuple(f"sensor_thermal_shock_cyl{k + 1}" for k in range(stats.dev.shape[0])
+    return tuple(f"{SHOCK_FLAG}{k + 1}" for k in range(stats.dev.shape[0])
                  if stats.dev[k] < -stats.limit[k])
 
 
-__all__ = ["EARLY_DEG", "LATE_DEG", "MIN_BEND", "NOT_JUDGED_TDC", "TDC_FLAG", "BendStats", "ThermalShockWatchState", "add_motion", "bend_stats",
-           "bend_tables", "expansion_bend", "judged_cylinders", "judged_flags", "shock_flags", "tdc_in_force",
+__all__ = ["EARLY_DEG", "LATE_DEG", "MIN_BEND", "NOT_JUDGED_TDC", "SHOCK_FLAG", "TDC_FLAG", "BendStats", "ThermalShockWatchState", "add_motion", "bend_stats",
+           "bend_tables", "expansion_bend", "judged_cylinders", "judged_flags", "shock_flags",
            "watch_expansion", "window_leads"]
